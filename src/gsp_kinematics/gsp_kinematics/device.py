@@ -1,0 +1,192 @@
+"""Measurement device model (paper section 3.3).
+
+The passive link runs from the base origin (lower U joint) to the platform origin (upper U joint),
+so its vector is the platform position ``t`` and its length ``D = |t| = D0 + Dm``. The biaxial
+inclinometer reads ``alpha`` and ``beta`` with axes ``gamma`` apart; the encoder reads ``phi``.
+"""
+
+import numpy as np
+
+#: Reading columns, in this order everywhere.
+READING_NAMES = ("alpha", "beta", "phi", "d_m")
+
+
+class DeviceModelError(RuntimeError):
+    """The inclination angles could not be solved for a link direction."""
+
+
+def link_direction(alpha, beta, gamma):
+    """Unit link direction for inclinations ``alpha``, ``beta`` (rad), eq (9) with D = 1."""
+    alpha, beta, gamma = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha, beta, gamma)))
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+    cg, sg = np.cos(gamma), np.sin(gamma)
+    return np.stack(
+        [
+            sg * ((cb - 1.0) * cg * sa + ca * sb),
+            cg * ca * sb + sa * (cg**2 * cb + sg**2),
+            ca * cb - cg * sa * sb,
+        ],
+        axis=-1,
+    )
+
+
+def link_direction_derivatives(alpha, beta, gamma):
+    """Derivatives of :func:`link_direction` w.r.t. alpha, beta, gamma: each ``[..., 3]``."""
+    alpha, beta, gamma = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha, beta, gamma)))
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+    cg, sg = np.cos(gamma), np.sin(gamma)
+    d_alpha = np.stack(
+        [
+            sg * ((cb - 1.0) * cg * ca - sa * sb),
+            -cg * sa * sb + ca * (cg**2 * cb + sg**2),
+            -sa * cb - cg * ca * sb,
+        ],
+        axis=-1,
+    )
+    d_beta = np.stack(
+        [
+            sg * (-sb * cg * sa + ca * cb),
+            cg * ca * cb - sa * cg**2 * sb,
+            -ca * sb - cg * sa * cb,
+        ],
+        axis=-1,
+    )
+    d_gamma = np.stack(
+        [
+            cg * ((cb - 1.0) * cg * sa + ca * sb) - sg**2 * (cb - 1.0) * sa,
+            -sg * ca * sb + sa * (2.0 * sg * cg * (1.0 - cb)),
+            sg * sa * sb,
+        ],
+        axis=-1,
+    )
+    return d_alpha, d_beta, d_gamma
+
+
+def device_position(alpha, beta, link_length, gamma):
+    """Platform position ``t`` (..., 3) from inclinations and link length D (m), eq (9)."""
+    return np.asarray(link_length, dtype=float)[..., None] * link_direction(alpha, beta, gamma)
+
+
+def position_to_inclinations(position, gamma, tolerance=1e-14, max_iterations=30):
+    """Solve eq (9) for ``(alpha, beta)`` given platform positions (..., 3); inverse of the model.
+
+    Starts from eq (8) (exact at gamma = pi/2) and refines with Gauss-Newton on the unit direction.
+    """
+    position = np.asarray(position, dtype=float)
+    length = np.linalg.norm(position, axis=-1)
+    if np.any(~(length > 0.0)):
+        raise DeviceModelError("link length must be positive and finite")
+    direction = position / length[..., None]
+    alpha = np.arcsin(np.clip(direction[..., 1], -1.0, 1.0))
+    beta = np.arctan2(direction[..., 0], direction[..., 2])
+    gamma = np.broadcast_to(np.asarray(gamma, dtype=float), alpha.shape)
+    for _ in range(max_iterations):
+        residual = link_direction(alpha, beta, gamma) - direction
+        d_alpha, d_beta, _ = link_direction_derivatives(alpha, beta, gamma)
+        jacobian = np.stack([d_alpha, d_beta], axis=-1)  # (..., 3, 2)
+        normal = np.swapaxes(jacobian, -1, -2) @ jacobian
+        step = np.linalg.solve(normal, (np.swapaxes(jacobian, -1, -2) @ residual[..., None]))[..., 0]
+        alpha = alpha - step[..., 0]
+        beta = beta - step[..., 1]
+        if np.max(np.abs(step), initial=0.0) < tolerance:
+            break
+    remaining = np.linalg.norm(link_direction(alpha, beta, gamma) - direction, axis=-1)
+    if np.any(~(remaining < 1e-9)):
+        raise DeviceModelError(
+            f"inclinations did not converge (direction residual {np.nanmax(remaining):.2e})"
+        )
+    return alpha, beta
+
+
+def device_readings(geometry, poses):
+    """Noise-free readings ``[alpha, beta, phi, d_m]`` (M, 4) for poses (M, 6)."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    alpha, beta = position_to_inclinations(poses[:, :3], geometry.inclinometer_axes_angle)
+    d_m = np.linalg.norm(poses[:, :3], axis=1) - geometry.device_length
+    return np.stack([alpha, beta, poses[:, 5], d_m], axis=1)
+
+
+def device_readings_jacobians(geometry, poses):
+    """Readings (M, 4), their derivatives w.r.t. the pose (M, 4, 6) and w.r.t. (D0, gamma) (M, 4, 2)."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    position = poses[:, :3]
+    gamma = geometry.inclinometer_axes_angle
+    alpha, beta = position_to_inclinations(position, gamma)
+    length = np.linalg.norm(position, axis=1)
+    direction = position / length[:, None]
+    d_alpha, d_beta, d_gamma = link_direction_derivatives(alpha, beta, gamma)
+    tangent = np.stack([d_alpha, d_beta], axis=-1)  # (M, 3, 2)
+    # The direction moves on the unit sphere; the tangent's pseudo-inverse maps it to the angles.
+    pseudo_inverse = np.linalg.solve(
+        np.swapaxes(tangent, -1, -2) @ tangent, np.swapaxes(tangent, -1, -2)
+    )  # (M, 2, 3)
+    projector = (np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]) / length[:, None, None]
+    d_angles_d_position = pseudo_inverse @ projector  # (M, 2, 3)
+    d_angles_d_gamma = -(pseudo_inverse @ d_gamma[..., None])[..., 0]  # (M, 2)
+    count = poses.shape[0]
+    d_readings_d_pose = np.zeros((count, 4, 6))
+    d_readings_d_pose[:, 0:2, 0:3] = d_angles_d_position
+    d_readings_d_pose[:, 2, 5] = 1.0
+    d_readings_d_pose[:, 3, 0:3] = direction
+    d_readings_d_device = np.zeros((count, 4, 2))
+    d_readings_d_device[:, 0:2, 1] = d_angles_d_gamma
+    d_readings_d_device[:, 3, 0] = -1.0
+    readings = np.stack([alpha, beta, poses[:, 5], length - geometry.device_length], axis=1)
+    return readings, d_readings_d_pose, d_readings_d_device
+
+
+def paper_inclinations_jacobians(geometry, poses, d_m):
+    """The paper's predicted inclinations (eq 8, generalised to any gamma) with D = D0 + Dm input.
+
+    Solves ``y/D = G_y(alpha, beta)`` and ``x/z = G_x/G_z(alpha, beta)`` where ``G`` is the unit
+    link direction of eq (9); at gamma = pi/2 this is exactly ``alpha = asin(y/D)``,
+    ``beta = atan(x/z)``. Returns ``angles`` (M, 2), ``d/dpose`` (M, 2, 6) and
+    ``d/d(D0, gamma)`` (M, 2, 2).
+    """
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    x, y, z = poses[:, 0], poses[:, 1], poses[:, 2]
+    gamma = geometry.inclinometer_axes_angle
+    link_length = geometry.device_length + np.asarray(d_m, dtype=float)
+    target = np.stack([np.clip(y / link_length, -1.0, 1.0), x / z], axis=1)
+    alpha = np.arcsin(target[:, 0])
+    beta = np.arctan(target[:, 1])
+
+    def model(alpha, beta):
+        direction = link_direction(alpha, beta, gamma)
+        d_alpha, d_beta, d_gamma = link_direction_derivatives(alpha, beta, gamma)
+        values = np.stack([direction[:, 1], direction[:, 0] / direction[:, 2]], axis=1)
+
+        def ratio_derivative(derivative):
+            return (derivative[:, 0] * direction[:, 2] - direction[:, 0] * derivative[:, 2]) / direction[:, 2] ** 2
+
+        jac_angles = np.stack(
+            [
+                np.stack([d_alpha[:, 1], d_beta[:, 1]], axis=1),
+                np.stack([ratio_derivative(d_alpha), ratio_derivative(d_beta)], axis=1),
+            ],
+            axis=1,
+        )  # (M, 2, 2)
+        jac_gamma = np.stack([d_gamma[:, 1], ratio_derivative(d_gamma)], axis=1)
+        return values, jac_angles, jac_gamma
+
+    for _ in range(30):
+        values, jac_angles, _ = model(alpha, beta)
+        step = np.linalg.solve(jac_angles, (values - target)[..., None])[..., 0]
+        alpha, beta = alpha - step[:, 0], beta - step[:, 1]
+        if np.max(np.abs(step), initial=0.0) < 1e-15:
+            break
+    values, jac_angles, jac_gamma = model(alpha, beta)
+    if np.any(~(np.abs(values - target) < 1e-9)):
+        raise DeviceModelError("paper inclinations did not converge")
+    count = poses.shape[0]
+    d_target_d_pose = np.zeros((count, 2, 6))
+    d_target_d_pose[:, 0, 1] = 1.0 / link_length
+    d_target_d_pose[:, 1, 0] = 1.0 / z
+    d_target_d_pose[:, 1, 2] = -x / z**2
+    d_target_d_device = np.zeros((count, 2, 2))
+    d_target_d_device[:, 0, 0] = -y / link_length**2
+    inverse = np.linalg.inv(jac_angles)
+    d_angles_d_pose = inverse @ d_target_d_pose
+    d_angles_d_device = inverse @ d_target_d_device
+    d_angles_d_device[:, :, 1] -= (inverse @ jac_gamma[..., None])[..., 0]
+    return np.stack([alpha, beta], axis=1), d_angles_d_pose, d_angles_d_device

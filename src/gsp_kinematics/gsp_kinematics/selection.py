@@ -1,0 +1,109 @@
+"""Posture selection by the condition number of the identification Jacobian (paper section 4.2)."""
+
+import numpy as np
+
+from .device import device_readings_jacobians
+from .geometry import NUM_PARAMETERS
+from .identification import SENSOR_NAMES, Sigmas, resolve_free
+from .kinematics import expand_leg_parameters, inverse_kinematics_jacobians
+
+
+def posture_information(geometry, poses, sigmas=Sigmas(), free=None, formulation="implicit", sensors=SENSOR_NAMES):
+    """Per-posture information matrices (N, n, n) of the free parameters.
+
+    For ``'implicit'`` each posture's pose is eliminated (Schur complement), which is additive over
+    postures; for ``'fk'`` it is ``J_k^T J_k`` of the FK-based residuals. Both are weighted.
+    """
+    free = resolve_free(free)
+    columns = [c for c, name in enumerate(("alpha", "beta", "phi", "d_m")) if name in sensors]
+    _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
+    _, d_h_d_pose, d_h_d_device = device_readings_jacobians(geometry, poses)
+    count = poses.shape[0]
+    d_q_d_u = np.zeros((count, 6, NUM_PARAMETERS))
+    d_q_d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg)
+    d_h_d_u = np.zeros((count, 4, NUM_PARAMETERS))
+    d_h_d_u[:, :, 42:] = d_h_d_device
+    reading_weights = 1.0 / sigmas.readings()[columns]
+    d_h_d_pose = d_h_d_pose[:, columns] * reading_weights[None, :, None]
+    d_h_d_u = d_h_d_u[:, columns][:, :, free] * reading_weights[None, :, None]
+    d_q_d_u = d_q_d_u[:, :, free]
+    if formulation == "implicit":
+        jac_pose = np.concatenate([d_q_d_pose / sigmas.leg_lengths, d_h_d_pose], axis=1)
+        jac_u = np.concatenate([d_q_d_u / sigmas.leg_lengths, d_h_d_u], axis=1)
+        h_xx = np.einsum("mki,mkj->mij", jac_pose, jac_pose)
+        h_xu = np.einsum("mki,mkj->mij", jac_pose, jac_u)
+        h_uu = np.einsum("mki,mkj->mij", jac_u, jac_u)
+        return h_uu - np.einsum("mki,mkj->mij", h_xu, np.linalg.solve(h_xx, h_xu))
+    jacobian = d_h_d_u - d_h_d_pose @ np.linalg.solve(d_q_d_pose, d_q_d_u)
+    return np.einsum("mki,mkj->mij", jacobian, jacobian)
+
+
+def scaled_condition_number(information):
+    """Condition number of the column-scaled Jacobian, from its information matrix (inf if singular)."""
+    scale = 1.0 / np.sqrt(np.maximum(np.diagonal(information, axis1=-2, axis2=-1), 1e-300))
+    scaled = information * scale[..., :, None] * scale[..., None, :]
+    eigenvalues = np.linalg.eigvalsh(scaled)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        condition = np.sqrt(eigenvalues[..., -1] / eigenvalues[..., 0])
+    return np.where(eigenvalues[..., 0] > 1e-14 * eigenvalues[..., -1], condition, np.inf)
+
+
+def select_postures(
+    geometry, pool, count=60, sigmas=Sigmas(), free=None, formulation="implicit", exchange_passes=1, rng=None
+):
+    """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number.
+
+    Greedy: while the accumulated information is rank-deficient, add the posture that most
+    increases log det (regularised); afterwards, the one that gives the smallest condition
+    number. Then ``exchange_passes`` sweeps of a swap (exchange) algorithm keep any swap that
+    lowers it. Returns ``(indices, condition_number)``.
+    """
+    pool = np.asarray(pool, dtype=float)
+    if pool.shape[0] < count:
+        raise ValueError(f"the pool has {pool.shape[0]} postures, fewer than the {count} requested")
+    information = posture_information(geometry, pool, sigmas, free, formulation)
+    # One scale for every candidate set, so conditions compare like with like.
+    scale = 1.0 / np.sqrt(np.maximum(np.diagonal(information.sum(axis=0)), 1e-300)) * np.sqrt(count)
+    information = information * scale[None, :, None] * scale[None, None, :]
+    size = information.shape[1]
+    total = np.zeros((size, size))
+    chosen = []
+    available = np.ones(pool.shape[0], dtype=bool)
+    ridge = 1e-6 * np.eye(size)
+    for _ in range(count):
+        candidates = np.flatnonzero(available)
+        trial = total[None] + information[candidates]
+        eigenvalues = np.linalg.eigvalsh(trial)
+        if eigenvalues[0, 0] > 1e-9 * eigenvalues[0, -1] or len(chosen) * 4 >= size * 2:
+            score = eigenvalues[:, -1] / np.maximum(eigenvalues[:, 0], 1e-300)
+        else:
+            score = -np.sum(np.log(eigenvalues + ridge[0, 0]), axis=1)
+        best = candidates[int(np.argmin(score))]
+        chosen.append(best)
+        available[best] = False
+        total += information[best]
+
+    def condition(matrix):
+        eigenvalues = np.linalg.eigvalsh(matrix)
+        return np.sqrt(eigenvalues[-1] / eigenvalues[0]) if eigenvalues[0] > 0 else np.inf
+
+    current = condition(total)
+    for _ in range(exchange_passes):
+        improved = False
+        for position in range(count):
+            outgoing = chosen[position]
+            base = total - information[outgoing]
+            candidates = np.flatnonzero(available)
+            eigenvalues = np.linalg.eigvalsh(base[None] + information[candidates])
+            conditions = np.sqrt(eigenvalues[:, -1] / np.maximum(eigenvalues[:, 0], 1e-300))
+            best = int(np.argmin(conditions))
+            if conditions[best] < current * (1.0 - 1e-9):
+                incoming = candidates[best]
+                available[incoming], available[outgoing] = False, True
+                chosen[position] = incoming
+                total = base + information[incoming]
+                current = conditions[best]
+                improved = True
+        if not improved:
+            break
+    return np.array(chosen), float(scaled_condition_number(total))

@@ -1,0 +1,38 @@
+"""Accuracy of a controller geometry against the real (true) platform."""
+
+import numpy as np
+
+from .kinematics import forward_kinematics, inverse_kinematics
+from .rotation import euler_to_matrix, rotation_angle_between
+
+
+def pose_errors(commanded, reached):
+    """Position error (mm) and orientation error (deg, angle of R_cmd^T R_real) per posture."""
+    commanded = np.atleast_2d(commanded)
+    reached = np.atleast_2d(reached)
+    position_mm = 1000.0 * np.linalg.norm(reached[:, :3] - commanded[:, :3], axis=1)
+    orientation_deg = np.degrees(
+        rotation_angle_between(euler_to_matrix(commanded[:, 3:]), euler_to_matrix(reached[:, 3:]))
+    )
+    return position_mm, orientation_deg
+
+
+def reached_poses(true, controller, commanded):
+    """Where the real platform goes when the controller drives ``commanded`` with its geometry."""
+    leg_lengths = inverse_kinematics(controller, commanded)
+    return forward_kinematics(true, leg_lengths, commanded)
+
+
+def summarise(position_mm, orientation_deg):
+    return {
+        "position_mm_mean": float(np.mean(position_mm)),
+        "position_mm_max": float(np.max(position_mm)),
+        "orientation_deg_mean": float(np.mean(orientation_deg)),
+        "orientation_deg_max": float(np.max(orientation_deg)),
+    }
+
+
+def validate(true, controller, commanded):
+    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6)."""
+    position_mm, orientation_deg = pose_errors(commanded, reached_poses(true, controller, commanded))
+    return summarise(position_mm, orientation_deg)
