@@ -271,13 +271,15 @@ class _ImplicitModel:
 
 def schur_information(jac_pose, jac_u, pose_damping=None):
     """Per-posture Schur blocks: ``H_uu``, ``H_Xu``, ``H_XX`` and the reduced matrix over u."""
-    h_xx = np.einsum("mki,mkj->mij", jac_pose, jac_pose)
+    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
+    h_xx = jac_pose_t @ jac_pose
     if pose_damping is not None:
         h_xx = h_xx + pose_damping
-    h_xu = np.einsum("mki,mkj->mij", jac_pose, jac_u)
-    h_uu = np.einsum("mki,mkj->ij", jac_u, jac_u)
+    h_xu = jac_pose_t @ jac_u
+    flat_u = jac_u.reshape(-1, jac_u.shape[2])
+    h_uu = flat_u.T @ flat_u
     h_xx_inv_h_xu = np.linalg.solve(h_xx, h_xu)
-    reduced = h_uu - np.einsum("mki,mkj->ij", h_xu, h_xx_inv_h_xu)
+    reduced = h_uu - h_xu.reshape(-1, h_xu.shape[2]).T @ h_xx_inv_h_xu.reshape(-1, h_xu.shape[2])
     return reduced, h_xx, h_xu, h_xx_inv_h_xu
 
 
@@ -496,11 +498,13 @@ def _identify_implicit(nominal, leg_lengths, readings, sigmas, free, pose_guesse
     status, message, iteration = 0, "maximum number of iterations reached", 0
     count = poses.shape[0]
     for iteration in range(1, options.max_iterations + 1):
-        gradient_pose = np.einsum("mki,mk->mi", jac_pose, residuals)
-        gradient_u = np.einsum("mki,mk->i", jac_u, residuals)
-        h_xx = np.einsum("mki,mkj->mij", jac_pose, jac_pose)
-        h_xu = np.einsum("mki,mkj->mij", jac_pose, jac_u)
-        h_uu = np.einsum("mki,mkj->ij", jac_u, jac_u)
+        jac_pose_t = np.swapaxes(jac_pose, 1, 2)
+        flat_u = jac_u.reshape(-1, jac_u.shape[2])
+        gradient_pose = (jac_pose_t @ residuals[..., None])[..., 0]
+        gradient_u = flat_u.T @ residuals.ravel()
+        h_xx = jac_pose_t @ jac_pose
+        h_xu = jac_pose_t @ jac_u
+        h_uu = flat_u.T @ flat_u
         diag_pose = np.maximum(np.diagonal(h_xx, axis1=1, axis2=2), 1e-30)
         diag_u = np.maximum(np.diag(h_uu), 1e-30)
         scaled_gradient = max(
@@ -513,12 +517,13 @@ def _identify_implicit(nominal, leg_lengths, readings, sigmas, free, pose_guesse
         damped_uu = h_uu + damping * np.diag(diag_u)
         solved_xu = np.linalg.solve(damped_xx, h_xu)  # (M, 6, n)
         solved_gx = np.linalg.solve(damped_xx, gradient_pose[..., None])[..., 0]  # (M, 6)
-        reduced = damped_uu - np.einsum("mki,mkj->ij", h_xu, solved_xu)
-        reduced_rhs = -gradient_u + np.einsum("mki,mk->i", h_xu, solved_gx)
+        flat_h_xu = h_xu.reshape(-1, h_xu.shape[2])
+        reduced = damped_uu - flat_h_xu.T @ solved_xu.reshape(-1, solved_xu.shape[2])
+        reduced_rhs = -gradient_u + flat_h_xu.T @ solved_gx.ravel()
         step_u = np.linalg.solve(reduced, reduced_rhs)
-        step_pose = -(solved_gx + np.einsum("mij,j->mi", solved_xu, step_u))
+        step_pose = -(solved_gx + solved_xu @ step_u)
         # Predicted reduction of the Gauss-Newton model for the combined step.
-        jac_step = np.einsum("mki,mi->mk", jac_pose, step_pose) + np.einsum("mki,i->mk", jac_u, step_u)
+        jac_step = (jac_pose @ step_pose[..., None])[..., 0] + jac_u @ step_u
         predicted_reduction = -float(np.sum(residuals * jac_step)) - 0.5 * float(np.sum(jac_step**2))
         trial_values = values + step_u
         trial_poses = poses + step_pose

@@ -90,7 +90,7 @@ def forward_kinematics_masked(
     leg_lengths,
     guess,
     tolerance=1e-12,
-    max_iterations=40,
+    max_iterations=25,
     max_position_jump=0.15,
     max_angle_jump=math.radians(30.0),
 ):
@@ -113,7 +113,7 @@ def forward_kinematics_masked(
     poses = guess.copy()
     active = np.all(np.isfinite(leg_lengths), axis=1) & np.all(np.isfinite(poses), axis=1)
     residual_norm = np.full(poses.shape[0], np.inf)
-    for _ in range(max_iterations):
+    for iteration in range(max_iterations):
         index = np.flatnonzero(active)
         if index.size == 0:
             break
@@ -137,7 +137,10 @@ def forward_kinematics_masked(
         )
         poses[index] -= step / scale[:, None]
         done = (residual_norm[index] < tolerance) & (np.max(np.abs(step), axis=1) < 1e-10)
-        active[index[done | ~solvable]] = False
+        # Newton converges quadratically from a near guess; a residual that stalls means there
+        # is no solution nearby, so stop spending iterations on it.
+        stalled = (iteration >= 8) & (residual_norm[index] > 1e-6)
+        active[index[done | ~solvable | stalled]] = False
     final_q = inverse_kinematics(geometry, poses)
     final_residual = np.max(np.abs(final_q - leg_lengths), axis=1)
     jump_position = np.linalg.norm(poses[:, :3] - guess[:, :3], axis=1)

@@ -32,26 +32,33 @@ def euler_to_matrix_derivatives(euler):
     """``dR/dpsi, dR/dtheta, dR/dphi`` stacked on axis -3: shape ``[..., 3, 3, 3]``."""
     euler = np.asarray(euler, dtype=float)
     psi, theta, phi = euler[..., 0], euler[..., 1], euler[..., 2]
-    zero, one = np.zeros_like(psi), np.ones_like(psi)
-
-    def stack(rows):
-        return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
-
-    c, s = np.cos, np.sin
-    rot_x = stack([[one, zero, zero], [zero, c(psi), -s(psi)], [zero, s(psi), c(psi)]])
-    rot_y = stack([[c(theta), zero, s(theta)], [zero, one, zero], [-s(theta), zero, c(theta)]])
-    rot_z = stack([[c(phi), -s(phi), zero], [s(phi), c(phi), zero], [zero, zero, one]])
-    d_rot_x = stack([[zero, zero, zero], [zero, -s(psi), -c(psi)], [zero, c(psi), -s(psi)]])
-    d_rot_y = stack([[-s(theta), zero, c(theta)], [zero, zero, zero], [-c(theta), zero, -s(theta)]])
-    d_rot_z = stack([[-s(phi), -c(phi), zero], [c(phi), -s(phi), zero], [zero, zero, zero]])
-    return np.stack(
-        [
-            rot_y @ d_rot_x @ rot_z,
-            d_rot_y @ rot_x @ rot_z,
-            rot_y @ rot_x @ d_rot_z,
-        ],
-        axis=-3,
-    )
+    cps, sps = np.cos(psi), np.sin(psi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cph, sph = np.cos(phi), np.sin(phi)
+    out = np.zeros(euler.shape[:-1] + (3, 3, 3))
+    # Element-wise derivatives of eq (2).
+    out[..., 0, 0, 0] = sth * sph * cps
+    out[..., 0, 0, 1] = sth * cps * cph
+    out[..., 0, 0, 2] = -sth * sps
+    out[..., 0, 1, 0] = -sps * sph
+    out[..., 0, 1, 1] = -sps * cph
+    out[..., 0, 1, 2] = -cps
+    out[..., 0, 2, 0] = cth * cps * sph
+    out[..., 0, 2, 1] = cth * cps * cph
+    out[..., 0, 2, 2] = -cth * sps
+    out[..., 1, 0, 0] = -sth * cph + cth * sph * sps
+    out[..., 1, 0, 1] = sth * sph + cth * sps * cph
+    out[..., 1, 0, 2] = cth * cps
+    out[..., 1, 2, 0] = -cth * cph - sth * sps * sph
+    out[..., 1, 2, 1] = cth * sph - sth * sps * cph
+    out[..., 1, 2, 2] = -sth * cps
+    out[..., 2, 0, 0] = -cth * sph + sth * cph * sps
+    out[..., 2, 0, 1] = -cth * cph - sth * sps * sph
+    out[..., 2, 1, 0] = cps * cph
+    out[..., 2, 1, 1] = -cps * sph
+    out[..., 2, 2, 0] = sth * sph + cth * sps * cph
+    out[..., 2, 2, 1] = sth * cph - cth * sps * sph
+    return out
 
 
 def matrix_to_euler(rotation):

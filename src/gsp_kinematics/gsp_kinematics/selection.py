@@ -30,12 +30,12 @@ def posture_information(geometry, poses, sigmas=Sigmas(), free=None, formulation
     if formulation == "implicit":
         jac_pose = np.concatenate([d_q_d_pose / sigmas.leg_lengths, d_h_d_pose], axis=1)
         jac_u = np.concatenate([d_q_d_u / sigmas.leg_lengths, d_h_d_u], axis=1)
-        h_xx = np.einsum("mki,mkj->mij", jac_pose, jac_pose)
-        h_xu = np.einsum("mki,mkj->mij", jac_pose, jac_u)
-        h_uu = np.einsum("mki,mkj->mij", jac_u, jac_u)
-        return h_uu - np.einsum("mki,mkj->mij", h_xu, np.linalg.solve(h_xx, h_xu))
+        jac_pose_t = np.swapaxes(jac_pose, 1, 2)
+        h_xu = jac_pose_t @ jac_u
+        h_uu = np.swapaxes(jac_u, 1, 2) @ jac_u
+        return h_uu - np.swapaxes(h_xu, 1, 2) @ np.linalg.solve(jac_pose_t @ jac_pose, h_xu)
     jacobian = d_h_d_u - d_h_d_pose @ np.linalg.solve(d_q_d_pose, d_q_d_u)
-    return np.einsum("mki,mkj->mij", jacobian, jacobian)
+    return np.swapaxes(jacobian, 1, 2) @ jacobian
 
 
 def scaled_condition_number(information):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .kinematics import forward_kinematics, inverse_kinematics
+from .kinematics import forward_kinematics, forward_kinematics_masked, inverse_kinematics
 from .rotation import euler_to_matrix, rotation_angle_between
 
 
@@ -33,6 +33,18 @@ def summarise(position_mm, orientation_deg):
 
 
 def validate(true, controller, commanded):
-    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6)."""
-    position_mm, orientation_deg = pose_errors(commanded, reached_poses(true, controller, commanded))
-    return summarise(position_mm, orientation_deg)
+    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6).
+
+    A posture whose commanded legs the real platform cannot assemble near the command (FK fails)
+    is left out of the statistics and counted in ``unreachable``.
+    """
+    commanded = np.atleast_2d(commanded)
+    leg_lengths = inverse_kinematics(controller, commanded)
+    reached, converged = forward_kinematics_masked(true, leg_lengths, commanded)
+    if not converged.any():
+        raise ValueError("no validation posture is reachable by the real platform")
+    position_mm, orientation_deg = pose_errors(commanded[converged], reached[converged])
+    summary = summarise(position_mm, orientation_deg)
+    summary["postures"] = int(converged.sum())
+    summary["unreachable"] = int((~converged).sum())
+    return summary

@@ -1,0 +1,74 @@
+"""Identifiability: rank, condition number and the parameter combinations that cannot be identified.
+
+Works on the information matrix ``J^T J`` of the free parameters (for the implicit formulation,
+the Schur complement after eliminating the poses). Columns are scaled to unit norm first, so the
+condition number is that of the column-scaled identification Jacobian.
+"""
+
+import numpy as np
+
+from .geometry import PARAMETER_NAMES
+from .identification import SENSOR_NAMES, Sigmas, resolve_free
+
+#: A scaled singular value below this fraction of the largest counts as zero.
+DEFAULT_RELATIVE_TOLERANCE = 1e-6
+
+
+def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE):
+    """``{rank, parameters, condition_number, singular_values, unidentifiable}``.
+
+    ``unidentifiable`` lists one entry per null direction: ``{"combination": "0.71*B1x - 0.71*B2y",
+    "parameters": [...], "coefficients": [...]}`` (coefficients in scaled units, largest first).
+    A parameter that no residual depends on shows up alone.
+    """
+    free = resolve_free(free)
+    names = [name for name, is_free in zip(PARAMETER_NAMES, free) if is_free]
+    information = np.asarray(information, dtype=float)
+    if information.shape != (len(names), len(names)):
+        raise ValueError(f"information must be {len(names)}x{len(names)}, got {information.shape}")
+    diagonal = np.diag(information).copy()
+    largest = max(float(diagonal.max(initial=0.0)), 1e-300)
+    # A column with (almost) no information at all cannot be scaled; it is unidentifiable by itself.
+    dead = diagonal <= (relative_tolerance**2) * largest * 1e-6
+    scale = 1.0 / np.sqrt(np.where(dead, largest, diagonal))
+    scaled = information * scale[:, None] * scale[None, :]
+    eigenvalues, eigenvectors = np.linalg.eigh(scaled)
+    singular_values = np.sqrt(np.clip(eigenvalues, 0.0, None))[::-1]
+    eigenvectors = eigenvectors[:, ::-1]
+    threshold = relative_tolerance * singular_values[0]
+    null = singular_values <= threshold
+    rank = int(np.count_nonzero(~null))
+    condition = float(singular_values[0] / singular_values[-1]) if singular_values[-1] > 0 else float("inf")
+    unidentifiable = []
+    for column in np.flatnonzero(null):
+        vector = eigenvectors[:, column]
+        order = np.argsort(-np.abs(vector))
+        keep = [index for index in order if abs(vector[index]) >= 0.1 * abs(vector[order[0]])]
+        sign = np.sign(vector[order[0]])
+        coefficients = [float(sign * vector[index]) for index in keep]
+        members = [names[index] for index in keep]
+        text = " ".join(
+            f"{'-' if value < 0 else '+'} {abs(value):.2f}*{name}" for value, name in zip(coefficients, members)
+        ).lstrip("+ ")
+        unidentifiable.append({"combination": text, "parameters": members, "coefficients": coefficients})
+    return {
+        "rank": rank,
+        "parameters": len(names),
+        "condition_number": condition,
+        "singular_values": singular_values.tolist(),
+        "unidentifiable": unidentifiable,
+    }
+
+
+def unidentifiable_parameters(analysis):
+    """Sorted names of every parameter involved in a null direction."""
+    return sorted({name for entry in analysis["unidentifiable"] for name in entry["parameters"]})
+
+
+def analyse_design(geometry, poses, sigmas=Sigmas(), free=None, formulation="implicit", sensors=SENSOR_NAMES,
+                   relative_tolerance=DEFAULT_RELATIVE_TOLERANCE):
+    """Identifiability of a measurement design (postures, sensors) before any data is taken."""
+    from .selection import posture_information
+
+    information = posture_information(geometry, poses, sigmas, free, formulation, sensors).sum(axis=0)
+    return analyse_identifiability(information, free, relative_tolerance)
