@@ -3,7 +3,7 @@
 Never imports rclpy, so it is usable and testable without ROS.
 """
 
-from .device import device_readings, device_position, position_to_inclinations  # noqa: F401
+from .device import device_position, device_readings, position_to_inclinations  # noqa: F401
 from .geometry import (  # noqa: F401
     PARAMETER_NAMES,
     Geometry,

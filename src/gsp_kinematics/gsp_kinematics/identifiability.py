@@ -22,7 +22,7 @@ def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_R
     A parameter that no residual depends on shows up alone.
     """
     free = resolve_free(free)
-    names = [name for name, is_free in zip(PARAMETER_NAMES, free) if is_free]
+    names = [name for name, is_free in zip(PARAMETER_NAMES, free, strict=True) if is_free]
     information = np.asarray(information, dtype=float)
     if information.shape != (len(names), len(names)):
         raise ValueError(f"information must be {len(names)}x{len(names)}, got {information.shape}")
@@ -48,7 +48,7 @@ def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_R
         coefficients = [float(sign * vector[index]) for index in keep]
         members = [names[index] for index in keep]
         text = " ".join(
-            f"{'-' if value < 0 else '+'} {abs(value):.2f}*{name}" for value, name in zip(coefficients, members)
+            f"{'-' if value < 0 else '+'} {abs(value):.2f}*{name}" for value, name in zip(coefficients, members, strict=True)
         ).lstrip("+ ")
         unidentifiable.append({"combination": text, "parameters": members, "coefficients": coefficients})
     return {

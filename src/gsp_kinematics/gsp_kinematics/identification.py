@@ -24,7 +24,11 @@ import numpy as np
 
 from .device import READING_NAMES, device_readings_jacobians, paper_inclinations_jacobians
 from .geometry import NUM_PARAMETERS, PARAMETER_INDEX, PARAMETER_NAMES, Geometry
-from .kinematics import expand_leg_parameters, forward_kinematics_masked, inverse_kinematics_jacobians
+from .kinematics import (
+    expand_leg_parameters,
+    forward_kinematics_masked,
+    inverse_kinematics_jacobians,
+)
 
 FORMULATIONS = ("implicit", "fk", "paper")
 DEFAULT_FORMULATION = "implicit"
@@ -105,7 +109,7 @@ class IdentificationResult:
 
     @property
     def free_names(self):
-        return [name for name, is_free in zip(PARAMETER_NAMES, self.free) if is_free]
+        return [name for name, is_free in zip(PARAMETER_NAMES, self.free, strict=True) if is_free]
 
     def correlations(self, threshold=0.9):
         """Pairs of free parameters whose |correlation| exceeds ``threshold``."""
@@ -404,7 +408,7 @@ def _identify_fk(nominal, leg_lengths, readings, sigmas, free, pose_guesses, pap
     damping, nu = None, 2.0
     readmitted = set()
     status, message, iteration, rejections = 0, "maximum number of iterations reached", 0, 0
-    for iteration in range(1, options.max_iterations + 1):
+    for iteration in range(1, options.max_iterations + 1):  # noqa: B007 (reported after)
         flat_jacobian = jacobian.reshape(-1, jacobian.shape[2])
         flat_residual = residuals.ravel()
         normal = flat_jacobian.T @ flat_jacobian
@@ -496,8 +500,7 @@ def _identify_implicit(nominal, leg_lengths, readings, sigmas, free, pose_guesse
     cost = 0.5 * float(np.sum(residuals**2))
     damping, nu = options.initial_damping, 2.0
     status, message, iteration = 0, "maximum number of iterations reached", 0
-    count = poses.shape[0]
-    for iteration in range(1, options.max_iterations + 1):
+    for iteration in range(1, options.max_iterations + 1):  # noqa: B007 (reported after)
         jac_pose_t = np.swapaxes(jac_pose, 1, 2)
         flat_u = jac_u.reshape(-1, jac_u.shape[2])
         gradient_pose = (jac_pose_t @ residuals[..., None])[..., 0]
