@@ -1,0 +1,67 @@
+# shellcheck shell=sh
+# Environment of the workspace: `source scripts/env.sh` (bash, zsh or sh) from anywhere.
+# Gives: the .venv python (ROS 2 Jazzy wheels), the colcon install/ packages (PYTHONPATH,
+# AMENT_PREFIX_PATH), every console script on PATH (platform_sim, calibrator, gsp_demo, ...),
+# and DDS kept on loopback in a random domain unless ROS_DOMAIN_ID is already set.
+# Run `make build` first (`make venv` alone gives the core and ROS wheels, not the nodes).
+
+if [ -n "${BASH_SOURCE:-}" ]; then
+  _gsp_env_file=${BASH_SOURCE[0]}
+elif [ -n "${ZSH_VERSION:-}" ]; then
+  # shellcheck disable=SC2296
+  _gsp_env_file=${(%):-%x}
+else
+  _gsp_env_file=${GSP_ENV_FILE:-scripts/env.sh}
+fi
+GSP_WS=$(cd "$(dirname "$_gsp_env_file")/.." && pwd)
+export GSP_WS
+unset _gsp_env_file
+
+if [ ! -x "$GSP_WS/.venv/bin/python" ]; then
+  echo "scripts/env.sh: $GSP_WS/.venv is missing; run 'make venv' (or 'make build')" >&2
+  return 1 2>/dev/null || exit 1
+fi
+
+# colcon's setup scripts read unset variables: relax `set -u` while sourcing them.
+case $- in *u*) _gsp_nounset=1; set +u ;; *) _gsp_nounset= ;; esac
+
+VIRTUAL_ENV_DISABLE_PROMPT=${VIRTUAL_ENV_DISABLE_PROMPT:-1}
+export VIRTUAL_ENV_DISABLE_PROMPT
+# shellcheck disable=SC1091
+. "$GSP_WS/.venv/bin/activate"
+
+# The wheels install ament resources under .venv/share; ament_index needs the prefix.
+case ":${AMENT_PREFIX_PATH:-}:" in
+  *":$GSP_WS/.venv:"*) ;;
+  *) AMENT_PREFIX_PATH=$GSP_WS/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH} ;;
+esac
+export AMENT_PREFIX_PATH
+
+if [ -f "$GSP_WS/install/local_setup.sh" ]; then
+  # shellcheck disable=SC1091
+  COLCON_CURRENT_PREFIX=$GSP_WS/install . "$GSP_WS/install/local_setup.sh"
+  # There is no `ros2 run`: put every package's lib/<pkg> (its console scripts) on PATH.
+  for _gsp_dir in "$GSP_WS"/install/*/lib/*; do
+    [ -d "$_gsp_dir" ] || continue
+    case $_gsp_dir in */lib/python*) continue ;; esac
+    case ":$PATH:" in *":$_gsp_dir:"*) ;; *) PATH=$_gsp_dir:$PATH ;; esac
+  done
+  unset _gsp_dir
+  export PATH
+else
+  echo "scripts/env.sh: no colcon install/ yet; run 'make build' for the nodes" >&2
+fi
+
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export ROS_AUTOMATIC_DISCOVERY_RANGE
+# Small matrices: BLAS threads only contend with the nodes on a 2-core machine.
+OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
+export OPENBLAS_NUM_THREADS
+if [ -z "${ROS_DOMAIN_ID:-}" ]; then
+  ROS_DOMAIN_ID=$(( $(od -An -N2 -tu2 /dev/urandom | tr -d ' ') % 101 + 1 ))
+fi
+export ROS_DOMAIN_ID
+
+[ -n "$_gsp_nounset" ] && set -u
+unset _gsp_nounset
+:

@@ -1,0 +1,1 @@
+"""gsp_calibrator (see docs/design.md)."""

@@ -1,0 +1,1 @@
+"""gsp_device_driver (see docs/design.md)."""

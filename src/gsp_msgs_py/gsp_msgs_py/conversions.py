@@ -1,0 +1,423 @@
+"""Conversions between standard ROS 2 messages and the numpy arrays of ``gsp_kinematics``.
+
+Modelled on ``sensor_msgs_py``: plain functions, no node, no rclpy context needed. All values are
+SI (m, rad). JointState payloads are looked up by joint *name*, never by position; a missing,
+duplicated or non-finite value raises :class:`ValueError` naming the topic payload and joints.
+
+Stamps may be given as ``builtin_interfaces.msg.Time``, ``rclpy.time.Time``, float seconds, or
+``None`` (zero stamp).
+"""
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Pose, PoseStamped
+from sensor_msgs.msg import JointState
+
+from . import names
+
+_NS_PER_S = 1_000_000_000
+
+# --------------------------------------------------------------------------------------- stamps
+
+
+def seconds_to_stamp(seconds):
+    """``builtin_interfaces/Time`` for a time in seconds (rounded to the nanosecond)."""
+    seconds = float(seconds)
+    if not math.isfinite(seconds):
+        raise ValueError(f'cannot make a stamp from non-finite seconds {seconds!r}')
+    total_ns = int(round(seconds * _NS_PER_S))
+    sec, nanosec = divmod(total_ns, _NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def stamp_to_nanoseconds(stamp):
+    """Integer nanoseconds of a stamp (``Time`` message, ``rclpy.time.Time`` or seconds)."""
+    if isinstance(stamp, Time):
+        return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+    if hasattr(stamp, 'nanoseconds'):  # rclpy.time.Time
+        return int(stamp.nanoseconds)
+    if hasattr(stamp, 'sec') and hasattr(stamp, 'nanosec'):  # duck-typed Time (e.g. from mcap)
+        return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+    if isinstance(stamp, (int, float, np.floating, np.integer)):
+        time_msg = seconds_to_stamp(stamp)
+        return int(time_msg.sec) * _NS_PER_S + int(time_msg.nanosec)
+    raise TypeError(f'unsupported stamp type {type(stamp).__name__}')
+
+
+def stamp_to_seconds(stamp):
+    """Float seconds of a stamp (``Time`` message, ``rclpy.time.Time`` or seconds)."""
+    if isinstance(stamp, (int, float, np.floating, np.integer)):
+        return float(stamp)
+    return stamp_to_nanoseconds(stamp) / _NS_PER_S
+
+
+def _to_stamp(stamp):
+    if stamp is None:
+        return Time()
+    if isinstance(stamp, Time):
+        return Time(sec=stamp.sec, nanosec=stamp.nanosec)
+    if hasattr(stamp, 'to_msg'):  # rclpy.time.Time
+        return stamp.to_msg()
+    return seconds_to_stamp(stamp)
+
+
+def command_id_from_stamp(stamp):
+    """Command id of a pose command: its ``header.stamp`` in integer nanoseconds, as a string."""
+    return str(stamp_to_nanoseconds(stamp))
+
+
+# --------------------------------------------------------------------------------- joint states
+
+
+def _make_joint_state(joint_names, values, stamp, frame_id, what):
+    values = np.asarray(values, dtype=float)
+    if values.shape != (len(joint_names),):
+        raise ValueError(
+            f'{what}: expected {len(joint_names)} values for {list(joint_names)}, '
+            f'got shape {values.shape}'
+        )
+    bad = [n for n, v in zip(joint_names, values, strict=True) if not math.isfinite(v)]
+    if bad:
+        raise ValueError(f'{what}: non-finite value(s) for {bad}: {values.tolist()}')
+    msg = JointState()
+    msg.header.stamp = _to_stamp(stamp)
+    msg.header.frame_id = frame_id
+    msg.name = list(joint_names)
+    msg.position = values.tolist()
+    return msg
+
+
+def _read_joint_state(msg, joint_names, what):
+    msg_names = list(msg.name)
+    positions = list(msg.position)
+    if len(positions) != len(msg_names):
+        raise ValueError(
+            f'{what}: JointState has {len(msg_names)} names but {len(positions)} positions'
+        )
+    index = {}
+    duplicated = []
+    for i, name in enumerate(msg_names):
+        if name in index:
+            duplicated.append(name)
+        index[name] = i
+    duplicated = [n for n in joint_names if n in duplicated]
+    if duplicated:
+        raise ValueError(f'{what}: duplicated joint name(s) {duplicated}')
+    missing = [n for n in joint_names if n not in index]
+    if missing:
+        raise ValueError(f'{what}: missing joint(s) {missing}; message has names {msg_names}')
+    values = np.array([positions[index[n]] for n in joint_names], dtype=float)
+    bad = [n for n, v in zip(joint_names, values, strict=True) if not math.isfinite(v)]
+    if bad:
+        raise ValueError(f'{what}: non-finite value(s) for joint(s) {bad}')
+    return values
+
+
+def leg_lengths_to_msg(q, stamp=None, frame_id=names.FRAME_BASE):
+    """JointState ``leg_1..leg_6`` (positions ``q_i`` in m) for ``/gsp/platform/leg_lengths``."""
+    return _make_joint_state(names.LEG_JOINT_NAMES, q, stamp, frame_id, 'leg lengths')
+
+
+def msg_to_leg_lengths(msg):
+    """``q`` as ``np.ndarray(6)`` (m) from a leg-lengths JointState, looked up by name."""
+    return _read_joint_state(msg, names.LEG_JOINT_NAMES, 'leg lengths')
+
+
+def inclinometer_to_msg(alpha, beta, stamp=None, frame_id=names.FRAME_BASE):
+    """JointState ``alpha``, ``beta`` (rad) for ``/gsp/device/inclinometer``."""
+    return _make_joint_state(
+        names.INCLINOMETER_JOINT_NAMES, [alpha, beta], stamp, frame_id, 'inclinometer'
+    )
+
+
+def msg_to_inclinometer(msg):
+    """``(alpha, beta)`` floats (rad) from an inclinometer JointState."""
+    alpha, beta = _read_joint_state(msg, names.INCLINOMETER_JOINT_NAMES, 'inclinometer')
+    return float(alpha), float(beta)
+
+
+def encoder_to_msg(phi, stamp=None, frame_id=names.FRAME_BASE):
+    """JointState ``phi`` (rad) for ``/gsp/device/encoder``."""
+    return _make_joint_state(names.ENCODER_JOINT_NAMES, [phi], stamp, frame_id, 'encoder')
+
+
+def msg_to_encoder(msg):
+    """``phi`` float (rad) from an encoder JointState."""
+    return float(_read_joint_state(msg, names.ENCODER_JOINT_NAMES, 'encoder')[0])
+
+
+def lvdt_to_msg(d_m, stamp=None, frame_id=names.FRAME_BASE):
+    """JointState ``d_m`` (m) for ``/gsp/device/lvdt``."""
+    return _make_joint_state(names.LVDT_JOINT_NAMES, [d_m], stamp, frame_id, 'lvdt')
+
+
+def msg_to_lvdt(msg):
+    """``d_m`` float (m) from an LVDT JointState."""
+    return float(_read_joint_state(msg, names.LVDT_JOINT_NAMES, 'lvdt')[0])
+
+
+# -------------------------------------------------------------------------------------- poses
+
+
+def _quaternion_multiply(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
+
+
+def euler_to_quaternion(psi, theta, phi):
+    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)``."""
+    q_y = np.array([0.0, math.sin(theta / 2), 0.0, math.cos(theta / 2)])
+    q_x = np.array([math.sin(psi / 2), 0.0, 0.0, math.cos(psi / 2)])
+    q_z = np.array([0.0, 0.0, math.sin(phi / 2), math.cos(phi / 2)])
+    quat = _quaternion_multiply(_quaternion_multiply(q_y, q_x), q_z)
+    return -quat if quat[3] < 0 else quat
+
+
+def quaternion_to_euler(quat):
+    """``(psi, theta, phi)`` of a quaternion ``[x, y, z, w]`` (normalised here), |psi| <= pi/2."""
+    quat = np.asarray(quat, dtype=float)
+    norm = float(np.linalg.norm(quat)) if quat.shape == (4,) else float('nan')
+    if not math.isfinite(norm) or norm < 1e-9:
+        raise ValueError(f'invalid orientation quaternion [x, y, z, w] = {quat.tolist()}')
+    x, y, z, w = quat / norm
+    # Entries of R = R_Y(theta) R_X(psi) R_z(phi); row 1 is [c_psi s_phi, c_psi c_phi, -s_psi].
+    r12 = 2.0 * (y * z - w * x)
+    r10 = 2.0 * (x * y + w * z)
+    r11 = 1.0 - 2.0 * (x * x + z * z)
+    r02 = 2.0 * (x * z + w * y)
+    r22 = 1.0 - 2.0 * (x * x + y * y)
+    psi = math.asin(min(1.0, max(-1.0, -r12)))
+    phi = math.atan2(r10, r11)
+    theta = math.atan2(r02, r22)
+    return psi, theta, phi
+
+
+def pose_to_pose_stamped(X, stamp=None, frame_id=names.FRAME_BASE):  # noqa: N803 (paper notation)
+    """PoseStamped for ``X = [x, y, z, psi, theta, phi]`` (m, rad) of the platform frame."""
+    X = np.asarray(X, dtype=float)  # noqa: N806
+    if X.shape != (6,):
+        raise ValueError(f'pose: expected X = [x, y, z, psi, theta, phi], got shape {X.shape}')
+    if not np.all(np.isfinite(X)):
+        raise ValueError(f'pose: non-finite component(s) in X = {X.tolist()}')
+    msg = PoseStamped()
+    msg.header.stamp = _to_stamp(stamp)
+    msg.header.frame_id = frame_id
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in X[:3])
+    qx, qy, qz, qw = euler_to_quaternion(*X[3:])
+    msg.pose.orientation.x = float(qx)
+    msg.pose.orientation.y = float(qy)
+    msg.pose.orientation.z = float(qz)
+    msg.pose.orientation.w = float(qw)
+    return msg
+
+
+def pose_stamped_to_pose(msg):
+    """``X = [x, y, z, psi, theta, phi]`` (``np.ndarray(6)``) of a PoseStamped (or Pose)."""
+    pose = msg.pose if isinstance(msg, PoseStamped) else msg
+    if not isinstance(pose, Pose):
+        raise TypeError(f'expected PoseStamped or Pose, got {type(msg).__name__}')
+    p, o = pose.position, pose.orientation
+    position = np.array([p.x, p.y, p.z], dtype=float)
+    if not np.all(np.isfinite(position)):
+        raise ValueError(f'pose: non-finite position {position.tolist()}')
+    euler = quaternion_to_euler([o.x, o.y, o.z, o.w])
+    return np.concatenate([position, euler])
+
+
+# ------------------------------------------------------------------------- diagnostic helpers
+
+_LEVEL_OF_STATE = {
+    names.STATE_SETTLED: DiagnosticStatus.OK,
+    names.STATE_MOVING: DiagnosticStatus.WARN,
+    names.STATE_REJECTED: DiagnosticStatus.ERROR,
+}
+
+
+def _level_to_int(level):
+    if isinstance(level, (bytes, bytearray)):
+        return level[0] if level else 0
+    return int(level)
+
+
+def _int_to_level(value):
+    return bytes([int(value)])
+
+
+def _key_values(msg, what, required):
+    values = {}
+    for kv in msg.values:
+        values[kv.key] = kv.value
+    missing = [k for k in required if k not in values]
+    if missing:
+        raise ValueError(f'{what}: missing key(s) {missing}; message has keys {list(values)}')
+    return values
+
+
+@dataclass(frozen=True)
+class PlatformStatus:
+    """Parsed ``/gsp/platform/status``; ``level`` is the int diagnostic level (0 OK .. 2 ERROR)."""
+
+    command_id: str
+    state: str
+    reason: str
+    level: int
+
+    @property
+    def settled(self):
+        return self.state == names.STATE_SETTLED
+
+    @property
+    def moving(self):
+        return self.state == names.STATE_MOVING
+
+    @property
+    def rejected(self):
+        return self.state == names.STATE_REJECTED
+
+
+def make_status(command_id, state, reason='', *, name=names.STATUS_NAME,
+                hardware_id=names.STATUS_HARDWARE_ID):
+    """DiagnosticStatus for ``/gsp/platform/status``.
+
+    ``state`` in ``moving`` (WARN), ``settled`` (OK), ``rejected`` (ERROR); ``message`` is the
+    reason (or the state when no reason is given); key/values ``command_id``, ``state``,
+    ``reason``.
+    """
+    if state not in _LEVEL_OF_STATE:
+        raise ValueError(f'status: unknown state {state!r}; expected one of {list(names.STATES)}')
+    msg = DiagnosticStatus()
+    msg.level = _LEVEL_OF_STATE[state]
+    msg.name = name
+    msg.hardware_id = hardware_id
+    msg.message = str(reason) if reason else state
+    msg.values = [
+        KeyValue(key=names.KEY_COMMAND_ID, value=str(command_id)),
+        KeyValue(key=names.KEY_STATE, value=state),
+        KeyValue(key=names.KEY_REASON, value=str(reason)),
+    ]
+    return msg
+
+
+def parse_status(msg):
+    """:class:`PlatformStatus` of a ``/gsp/platform/status`` message; ValueError if malformed."""
+    values = _key_values(
+        msg, 'status', (names.KEY_COMMAND_ID, names.KEY_STATE, names.KEY_REASON)
+    )
+    state = values[names.KEY_STATE]
+    if state not in _LEVEL_OF_STATE:
+        raise ValueError(f'status: unknown state {state!r}; expected one of {list(names.STATES)}')
+    level = _level_to_int(msg.level)
+    expected = _level_to_int(_LEVEL_OF_STATE[state])
+    if level != expected:
+        raise ValueError(
+            f'status: level {level} does not match state {state!r} (expects {expected})'
+        )
+    return PlatformStatus(
+        command_id=values[names.KEY_COMMAND_ID],
+        state=state,
+        reason=values[names.KEY_REASON],
+        level=level,
+    )
+
+
+@dataclass(frozen=True)
+class CalibrationProgress:
+    """Parsed ``/gsp/calibrator/progress``.
+
+    ``residuals`` is what was sent (mapping name -> float, list of floats, or None);
+    ``extra`` holds any other key/values as strings.
+    """
+
+    posture_index: int
+    posture_count: int
+    phase: str
+    residuals: object = None
+    message: str = ''
+    level: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+def _jsonable_residuals(residuals):
+    if residuals is None:
+        return None
+    if isinstance(residuals, Mapping):
+        return {str(k): float(v) for k, v in residuals.items()}
+    return [float(v) for v in np.asarray(residuals, dtype=float).reshape(-1)]
+
+
+def make_progress(posture_index, posture_count, phase, residuals=None, message='', *,
+                  level=None, extra=None, name=names.PROGRESS_NAME):
+    """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals.
+
+    ``residuals`` (latest residuals, SI units) may be a mapping name -> float or a sequence of
+    floats; it travels as JSON under the ``residuals`` key. ``level`` defaults to ERROR for the
+    ``failed`` phase and OK otherwise. ``extra`` adds string key/values.
+    """
+    posture_index, posture_count = int(posture_index), int(posture_count)
+    if posture_count < 0 or not 0 <= posture_index <= max(posture_count, 0):
+        raise ValueError(
+            f'progress: posture index {posture_index} of {posture_count} is out of range'
+        )
+    if not phase:
+        raise ValueError('progress: phase must be a non-empty string')
+    if level is None:
+        level = DiagnosticStatus.ERROR if phase == names.PHASE_FAILED else DiagnosticStatus.OK
+    msg = DiagnosticStatus()
+    msg.level = level if isinstance(level, bytes) else _int_to_level(level)
+    msg.name = name
+    msg.hardware_id = names.STATUS_HARDWARE_ID
+    msg.message = str(message) if message else f'{phase} {posture_index}/{posture_count}'
+    values = [
+        KeyValue(key=names.KEY_POSTURE_INDEX, value=str(posture_index)),
+        KeyValue(key=names.KEY_POSTURE_COUNT, value=str(posture_count)),
+        KeyValue(key=names.KEY_PHASE, value=str(phase)),
+        KeyValue(key=names.KEY_RESIDUALS, value=json.dumps(_jsonable_residuals(residuals))),
+    ]
+    reserved = {kv.key for kv in values}
+    for key, value in (extra or {}).items():
+        if key in reserved:
+            raise ValueError(f'progress: extra key {key!r} is reserved')
+        values.append(KeyValue(key=str(key), value=str(value)))
+    msg.values = values
+    return msg
+
+
+def parse_progress(msg):
+    """:class:`CalibrationProgress` of a ``/gsp/calibrator/progress`` message."""
+    required = (names.KEY_POSTURE_INDEX, names.KEY_POSTURE_COUNT, names.KEY_PHASE)
+    values = _key_values(msg, 'progress', required)
+    try:
+        index = int(values[names.KEY_POSTURE_INDEX])
+        count = int(values[names.KEY_POSTURE_COUNT])
+    except ValueError as exc:
+        raise ValueError(f'progress: posture index/count are not integers: {exc}') from None
+    residuals = None
+    if names.KEY_RESIDUALS in values:
+        try:
+            residuals = json.loads(values[names.KEY_RESIDUALS])
+        except json.JSONDecodeError as exc:
+            raise ValueError(f'progress: residuals are not valid JSON: {exc}') from None
+    extra = {k: v for k, v in values.items() if k not in required + (names.KEY_RESIDUALS,)}
+    return CalibrationProgress(
+        posture_index=index,
+        posture_count=count,
+        phase=values[names.KEY_PHASE],
+        residuals=residuals,
+        message=msg.message,
+        level=_level_to_int(msg.level),
+        extra=extra,
+    )

@@ -1,0 +1,119 @@
+"""Names of every gsp-calibration interface (topics, services, frames, joints, status keys).
+
+Only standard common_interfaces messages are used (no custom .msg). ``TOPIC_TYPES`` maps each
+name to its interface type (``pkg/msg/Type``); :mod:`gsp_msgs_py.qos` gives the QoS of each topic.
+
+Topic payloads (SI units, see docs/design.md):
+
+=============================== ================================= ==================================
+name                            type                              content
+=============================== ================================= ==================================
+``/gsp/platform/pose_command``  geometry_msgs/PoseStamped         commanded pose in ``gsp_base``
+``/gsp/platform/leg_lengths``   sensor_msgs/JointState            ``leg_1``..``leg_6`` q_i (m)
+``/gsp/platform/true_pose``     geometry_msgs/PoseStamped         simulator ground truth
+``/gsp/platform/status``        diagnostic_msgs/DiagnosticStatus  ``conversions.make_status``
+``/gsp/platform/markers``       visualization_msgs/MarkerArray    RViz view of the platform
+``/gsp/device/inclinometer``    sensor_msgs/JointState            ``alpha``, ``beta`` (rad)
+``/gsp/device/encoder``         sensor_msgs/JointState            ``phi`` (rad)
+``/gsp/device/lvdt``            sensor_msgs/JointState            ``d_m`` (m)
+``/gsp/calibrator/calibrate``   std_srvs/Trigger (service)        runs one calibration
+``/gsp/calibrator/result``      std_msgs/String                   calibrated geometry YAML
+``/gsp/calibrator/progress``    diagnostic_msgs/DiagnosticStatus  ``conversions.make_progress``
+=============================== ================================= ==================================
+
+Status (``/gsp/platform/status``): level OK = settled, WARN = moving, ERROR = rejected;
+``message`` is the human-readable reason; key/values ``command_id``, ``state``, ``reason``.
+The ``command_id`` of a pose command is, by convention, :func:`conversions.command_id_from_stamp`
+of its ``header.stamp`` (the integer nanoseconds as a decimal string).
+"""
+
+# Frames.
+FRAME_BASE = 'gsp_base'
+FRAME_PLATFORM = 'gsp_platform'
+
+# Node names (default; may be remapped).
+NODE_PLATFORM_SIM = 'platform_sim'
+NODE_DEVICE_DRIVER = 'device_driver'
+NODE_CALIBRATOR = 'calibrator'
+
+# Platform topics.
+TOPIC_POSE_COMMAND = '/gsp/platform/pose_command'
+TOPIC_LEG_LENGTHS = '/gsp/platform/leg_lengths'
+TOPIC_TRUE_POSE = '/gsp/platform/true_pose'
+TOPIC_PLATFORM_STATUS = '/gsp/platform/status'
+TOPIC_MARKERS = '/gsp/platform/markers'
+
+# Device topics.
+TOPIC_INCLINOMETER = '/gsp/device/inclinometer'
+TOPIC_ENCODER = '/gsp/device/encoder'
+TOPIC_LVDT = '/gsp/device/lvdt'
+
+# Calibrator interfaces.
+SERVICE_CALIBRATE = '/gsp/calibrator/calibrate'
+TOPIC_CALIBRATION_RESULT = '/gsp/calibrator/result'
+TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
+
+# Joint names carried by the JointState topics (values in JointState.position).
+LEG_JOINT_NAMES = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
+INCLINOMETER_JOINT_NAMES = ('alpha', 'beta')
+ENCODER_JOINT_NAMES = ('phi',)
+LVDT_JOINT_NAMES = ('d_m',)
+
+# Platform status.
+STATE_MOVING = 'moving'
+STATE_SETTLED = 'settled'
+STATE_REJECTED = 'rejected'
+STATES = (STATE_MOVING, STATE_SETTLED, STATE_REJECTED)
+STATUS_NAME = 'gsp_platform'  # DiagnosticStatus.name of platform status messages
+STATUS_HARDWARE_ID = 'gsp_platform'
+KEY_COMMAND_ID = 'command_id'
+KEY_STATE = 'state'
+KEY_REASON = 'reason'
+
+# Calibration progress.
+PROGRESS_NAME = 'gsp_calibrator'
+KEY_POSTURE_INDEX = 'posture_index'  # k, 1-based; 0 before the first posture
+KEY_POSTURE_COUNT = 'posture_count'  # M
+KEY_PHASE = 'phase'
+KEY_RESIDUALS = 'residuals'  # JSON: mapping name -> float, or list of floats
+PHASE_IDLE = 'idle'
+PHASE_MOVING = 'moving'
+PHASE_SAMPLING = 'sampling'
+PHASE_IDENTIFYING = 'identifying'
+PHASE_VALIDATING = 'validating'
+PHASE_DONE = 'done'
+PHASE_FAILED = 'failed'
+PHASES = (
+    PHASE_IDLE,
+    PHASE_MOVING,
+    PHASE_SAMPLING,
+    PHASE_IDENTIFYING,
+    PHASE_VALIDATING,
+    PHASE_DONE,
+    PHASE_FAILED,
+)
+
+# Interface types, as ``pkg/msg/Type`` / ``pkg/srv/Type``.
+TOPIC_TYPES = {
+    TOPIC_POSE_COMMAND: 'geometry_msgs/msg/PoseStamped',
+    TOPIC_LEG_LENGTHS: 'sensor_msgs/msg/JointState',
+    TOPIC_TRUE_POSE: 'geometry_msgs/msg/PoseStamped',
+    TOPIC_PLATFORM_STATUS: 'diagnostic_msgs/msg/DiagnosticStatus',
+    TOPIC_MARKERS: 'visualization_msgs/msg/MarkerArray',
+    TOPIC_INCLINOMETER: 'sensor_msgs/msg/JointState',
+    TOPIC_ENCODER: 'sensor_msgs/msg/JointState',
+    TOPIC_LVDT: 'sensor_msgs/msg/JointState',
+    TOPIC_CALIBRATION_RESULT: 'std_msgs/msg/String',
+    TOPIC_CALIBRATION_PROGRESS: 'diagnostic_msgs/msg/DiagnosticStatus',
+}
+SERVICE_TYPES = {
+    SERVICE_CALIBRATE: 'std_srvs/srv/Trigger',
+}
+
+
+def interface_type(type_name):
+    """Import and return the Python class of ``'pkg/msg/Type'`` or ``'pkg/srv/Type'``."""
+    import importlib
+
+    package, kind, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{package}.{kind}'), name)

@@ -1,0 +1,80 @@
+"""QoS profiles of the gsp-calibration interfaces.
+
+Publishers and subscribers of a topic both use the profile in :data:`TOPIC_QOS` (a reliable
+subscriber would not match a best-effort publisher).
+"""
+
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+
+from . import names
+
+# Like rclpy.qos.qos_profile_sensor_data (best effort, volatile, keep last) but deeper.
+# The driver publishes three device topics (plus the simulator's leg lengths / true pose) at up to
+# a few hundred Hz, and the calibrator pairs samples by stamp. Depth 50 buffers ~0.25 s at 200 Hz
+# per topic, enough to ride out an executor stall (a YAML write, a least-squares step in another
+# callback) without a sample of a synchronised set being overwritten before it is taken; the
+# memory cost is a few kB per topic. Best effort so a slow subscriber never throttles the sources.
+SENSOR_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=50,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+# Pose commands must not be lost; a short queue is enough (one command per posture).
+COMMAND_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+# Status transitions (moving -> settled/rejected) are events: reliable, deep enough for bursts.
+STATUS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=50,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+# The latest calibrated geometry, latched for late joiners.
+RESULT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+# Progress reports: reliable, but only recent ones matter.
+PROGRESS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+# RViz markers: latest state, latched so a late RViz still draws the platform.
+MARKER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+TOPIC_QOS = {
+    names.TOPIC_POSE_COMMAND: COMMAND_QOS,
+    names.TOPIC_LEG_LENGTHS: SENSOR_QOS,
+    names.TOPIC_TRUE_POSE: SENSOR_QOS,
+    names.TOPIC_PLATFORM_STATUS: STATUS_QOS,
+    names.TOPIC_MARKERS: MARKER_QOS,
+    names.TOPIC_INCLINOMETER: SENSOR_QOS,
+    names.TOPIC_ENCODER: SENSOR_QOS,
+    names.TOPIC_LVDT: SENSOR_QOS,
+    names.TOPIC_CALIBRATION_RESULT: RESULT_QOS,
+    names.TOPIC_CALIBRATION_PROGRESS: PROGRESS_QOS,
+}

@@ -1,0 +1,1 @@
+"""gsp_platform_sim (see docs/design.md)."""
