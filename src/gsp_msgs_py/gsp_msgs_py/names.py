@@ -77,16 +77,20 @@ KEY_POSTURE_COUNT = 'posture_count'  # M
 KEY_PHASE = 'phase'
 KEY_RESIDUALS = 'residuals'  # JSON: mapping name -> float, or list of floats
 PHASE_IDLE = 'idle'
+PHASE_SELECTING = 'selecting'  # choosing the postures (calibrator)
 PHASE_MOVING = 'moving'
 PHASE_SAMPLING = 'sampling'
+PHASE_COLLECTING = 'collecting'  # collecting synchronised samples at a posture (calibrator)
 PHASE_IDENTIFYING = 'identifying'
 PHASE_VALIDATING = 'validating'
 PHASE_DONE = 'done'
 PHASE_FAILED = 'failed'
 PHASES = (
     PHASE_IDLE,
+    PHASE_SELECTING,
     PHASE_MOVING,
     PHASE_SAMPLING,
+    PHASE_COLLECTING,
     PHASE_IDENTIFYING,
     PHASE_VALIDATING,
     PHASE_DONE,

@@ -1,0 +1,215 @@
+"""Sources of measuring device readings (pure, no rclpy) behind one interface, :class:`DeviceBackend`.
+
+The ``device_driver`` node only talks to a backend made by :func:`make_backend`. Built in:
+
+* ``sim``: readings of the simulated platform's true pose (core ``device_readings``) + noise.
+
+Adding a backend (``hardware``, ``replay``): subclass :class:`DeviceBackend`, give it a
+``from_config(**config)`` classmethod (it receives every key of the node's common config, see
+:func:`make_backend`, plus its own extra parameters listed in ``PARAMETERS``, and should ignore
+keys it does not use), and register it with :func:`register_backend` (e.g. add it to
+:data:`_BUILTIN_BACKENDS` below). The node declares each ``PARAMETERS`` entry as
+``<backend>.<name>`` and passes it as ``<name>``; no change to the node is needed.
+"""
+
+import abc
+import dataclasses
+import math
+
+import numpy as np
+
+from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
+from gsp_kinematics.geometry import Geometry, load_geometry
+
+
+class BackendError(ValueError):
+    """A backend cannot be made or configured; the message says why."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceSample:
+    """One reading of the device: ``stamp_s`` (s, the instant it refers to), ``alpha``, ``beta``
+    (inclinometer, rad), ``phi`` (encoder, rad), ``d_m`` (LVDT, m)."""
+
+    stamp_s: float
+    alpha: float
+    beta: float
+    phi: float
+    d_m: float
+
+    def readings(self):
+        """``[alpha, beta, phi, d_m]`` (4,) in :data:`READING_NAMES` order."""
+        return np.array([self.alpha, self.beta, self.phi, self.d_m])
+
+
+@dataclasses.dataclass(frozen=True)
+class BackendParameter:
+    """An extra parameter of a backend, declared by the node as ``<backend>.<name>``."""
+
+    name: str
+    default: object  #: also fixes the ROS parameter type
+    description: str
+
+
+def _check_std(value, name):
+    value = float(value)
+    if not (math.isfinite(value) and value >= 0.0):
+        raise BackendError(f'{name} must be finite and >= 0, got {value}')
+    return value
+
+
+class DeviceBackend(abc.ABC):
+    """Interface of a source of device readings."""
+
+    #: Registry name (``sim``, ``replay``, ``hardware``...).
+    name = ''
+    #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
+    needs_true_pose = False
+    #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
+    simulates_noise = False
+    #: Extra parameters of the backend (tuple of :class:`BackendParameter`).
+    PARAMETERS = ()
+
+    @classmethod
+    @abc.abstractmethod
+    def from_config(cls, **config):
+        """Make the backend from the node's configuration (ignore unused keys)."""
+
+    @abc.abstractmethod
+    def read(self, now_s):
+        """The sample for the current time ``now_s`` (s), or None if none is available yet."""
+
+    def observe_true_pose(self, pose):
+        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
+
+        ValueError if the pose is unusable (the previous one is kept). Default: ignored.
+        """
+        return None
+
+    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
+        """Change the simulated noise std (rad, rad, m); None keeps a value.
+
+        Raises BackendError for backends whose noise is not simulated.
+        """
+        raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
+
+    def close(self):
+        """Release the device (files, ports). Idempotent. Default: nothing to release."""
+        return None
+
+
+class SimDeviceBackend(DeviceBackend):
+    """Simulated device: exact readings of the latest true pose + Gaussian noise.
+
+    ``device_length`` D0 (m) and ``inclinometer_axes_angle`` gamma (rad) are the real device's;
+    noise stds in rad (inclinometer: alpha and beta, encoder: phi) and m (LVDT: d_m).
+    """
+
+    name = 'sim'
+    needs_true_pose = True
+    simulates_noise = True
+
+    def __init__(self, device_length, inclinometer_axes_angle, inclinometer_std=0.0,
+                 encoder_std=0.0, lvdt_std=0.0, rng=None):
+        device_length = float(device_length)
+        gamma = float(inclinometer_axes_angle)
+        if not (math.isfinite(device_length) and device_length > 0.0):
+            raise BackendError(f'device_length must be > 0 m, got {device_length}')
+        if not 0.0 < gamma < math.pi:
+            raise BackendError(f'inclinometer_axes_angle must be in (0, pi) rad, got {gamma}')
+        # device_readings needs only D0 and gamma of a Geometry; the joints are unused here.
+        self._device = Geometry(base_joints=np.zeros((6, 3)), platform_joints=np.zeros((6, 3)),
+                                leg_offsets=np.zeros(6), device_length=device_length,
+                                inclinometer_axes_angle=gamma)
+        self._stds = np.zeros(4)
+        self.update_noise(inclinometer_std, encoder_std, lvdt_std)
+        self._rng = rng if rng is not None else np.random.default_rng()
+        self._pose = None
+        self._exact = None  # cached noise-free readings of self._pose
+
+    @classmethod
+    def from_config(cls, true_geometry_file, inclinometer_noise_std=0.0, encoder_noise_std=0.0,
+                    lvdt_noise_std=0.0, rng=None, **_unused):
+        """From the true geometry file (D0, gamma) and the node's noise parameters."""
+        geometry = load_geometry(true_geometry_file)
+        return cls(geometry.device_length, geometry.inclinometer_axes_angle,
+                   inclinometer_noise_std, encoder_noise_std, lvdt_noise_std, rng)
+
+    @property
+    def device_length(self):
+        return self._device.device_length
+
+    @property
+    def inclinometer_axes_angle(self):
+        return self._device.inclinometer_axes_angle
+
+    @property
+    def noise_stds(self):
+        """Stds of ``[alpha, beta, phi, d_m]`` (rad, rad, rad, m)."""
+        return self._stds.copy()
+
+    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
+        stds = self._stds.copy()
+        if inclinometer_std is not None:
+            stds[0:2] = _check_std(inclinometer_std, 'inclinometer noise std')
+        if encoder_std is not None:
+            stds[2] = _check_std(encoder_std, 'encoder noise std')
+        if lvdt_std is not None:
+            stds[3] = _check_std(lvdt_std, 'lvdt noise std')
+        self._stds = stds
+
+    def observe_true_pose(self, pose):
+        pose = np.asarray(pose, dtype=float)
+        if pose.shape != (6,) or not np.all(np.isfinite(pose)):
+            raise ValueError(f'true pose must be 6 finite values, got {pose.tolist()}')
+        if self._pose is None or not np.array_equal(pose, self._pose):
+            try:
+                exact = device_readings(self._device, pose[None])[0]
+            except DeviceModelError as error:
+                raise ValueError(f'no device reading for true pose {pose.tolist()}: {error}') from None
+            self._exact, self._pose = exact, pose
+
+    def read(self, now_s):
+        if self._exact is None:
+            return None
+        values = self._exact + self._rng.normal(0.0, 1.0, size=4) * self._stds
+        return DeviceSample(float(now_s), *(float(v) for v in values))
+
+
+_BUILTIN_BACKENDS = {SimDeviceBackend.name: SimDeviceBackend}
+_BACKENDS = dict(_BUILTIN_BACKENDS)
+
+
+def register_backend(backend_class, name=None):
+    """Make ``backend_class`` (a :class:`DeviceBackend`) available as ``name`` (default its own)."""
+    name = name or backend_class.name
+    if not name:
+        raise ValueError('a device backend needs a name')
+    _BACKENDS[name] = backend_class
+
+
+def backend_names():
+    """Names accepted by :func:`make_backend`, sorted."""
+    return tuple(sorted(_BACKENDS))
+
+
+def backend_class(name):
+    """The class registered as ``name``; BackendError naming the valid backends otherwise."""
+    try:
+        return _BACKENDS[name]
+    except KeyError:
+        raise BackendError(f"unknown device backend '{name}'; valid backends: "
+                           f"{', '.join(backend_names())}") from None
+
+
+def make_backend(name, **config):
+    """A backend by registry name, configured from ``config``.
+
+    The device_driver node passes ``true_geometry_file``, ``inclinometer_noise_std``,
+    ``encoder_noise_std``, ``lvdt_noise_std``, ``rng`` and the backend's own ``PARAMETERS``.
+    """
+    return backend_class(name).from_config(**config)
+
+
+__all__ = ['READING_NAMES', 'BackendError', 'BackendParameter', 'DeviceBackend', 'DeviceSample',
+           'SimDeviceBackend', 'backend_class', 'backend_names', 'make_backend', 'register_backend']

@@ -1,0 +1,115 @@
+"""Pure tests of the device backends (no ROS)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_device_driver import backends
+from gsp_device_driver.backends import (
+    BackendError,
+    DeviceBackend,
+    DeviceSample,
+    SimDeviceBackend,
+    make_backend,
+)
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import default_geometry, default_geometry_path
+
+TRUE = default_geometry('true')
+POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
+STDS = np.array([1e-4, 1e-4, 2e-4, 3e-6])  # alpha, beta, phi (rad), d_m (m)
+
+
+def make_sim(stds=(0.0, 0.0, 0.0), seed=0):
+    return SimDeviceBackend(TRUE.device_length, TRUE.inclinometer_axes_angle, *stds,
+                            rng=np.random.default_rng(seed))
+
+
+def test_no_sample_before_the_first_true_pose():
+    assert make_sim().read(1.0) is None
+
+
+def test_noise_free_readings_are_the_core_device_model():
+    sim = make_sim()
+    sim.observe_true_pose(POSE)
+    sample = sim.read(12.5)
+    assert isinstance(sample, DeviceSample) and sample.stamp_s == 12.5
+    np.testing.assert_allclose(sample.readings(), device_readings(TRUE, POSE[None])[0], atol=1e-12)
+    assert sample.phi == POSE[5]
+    assert sample.d_m == pytest.approx(np.linalg.norm(POSE[:3]) - TRUE.device_length, abs=1e-12)
+
+
+def test_noise_stds_are_honoured():
+    sim = make_sim((STDS[0], STDS[2], STDS[3]), seed=3)
+    sim.observe_true_pose(POSE)
+    exact = device_readings(TRUE, POSE[None])[0]
+    errors = np.stack([sim.read(0.0).readings() for _ in range(20000)]) - exact
+    np.testing.assert_allclose(errors.std(axis=0), STDS, rtol=0.03)
+    assert np.all(np.abs(errors.mean(axis=0)) < 4 * STDS / np.sqrt(len(errors)))
+    # Independent channels: alpha and beta noise uncorrelated.
+    assert abs(np.corrcoef(errors[:, 0], errors[:, 1])[0, 1]) < 0.05
+
+
+def test_update_noise_changes_only_given_values_and_refuses_bad_ones():
+    sim = make_sim((1e-5, 2e-5, 3e-6))
+    sim.update_noise(encoder_std=5e-5)
+    np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 5e-5, 3e-6])
+    for bad in (-1e-6, math.nan, math.inf):
+        with pytest.raises(BackendError, match='lvdt'):
+            sim.update_noise(lvdt_std=bad)
+    np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 5e-5, 3e-6])
+    with pytest.raises(BackendError):
+        make_sim((-1.0, 0.0, 0.0))
+
+
+def test_bad_true_pose_is_refused_and_the_last_good_one_kept():
+    sim = make_sim()
+    sim.observe_true_pose(POSE)
+    for bad in ([0.0, math.nan, 1.0, 0.0, 0.0, 0.0], [0.0] * 6, [1.0, 2.0]):
+        with pytest.raises(ValueError):
+            sim.observe_true_pose(bad)
+    np.testing.assert_allclose(sim.read(0.0).readings(), device_readings(TRUE, POSE[None])[0])
+
+
+def test_make_backend_sim_reads_the_device_from_the_true_geometry_file():
+    sim = make_backend('sim', true_geometry_file=default_geometry_path('true'),
+                       inclinometer_noise_std=1e-5, encoder_noise_std=2e-5, lvdt_noise_std=3e-6,
+                       rng=np.random.default_rng(0), unrelated_key='ignored')
+    assert sim.device_length == TRUE.device_length
+    assert sim.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
+    np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 2e-5, 3e-6])
+
+
+def test_unknown_backend_names_the_valid_ones():
+    with pytest.raises(BackendError, match="unknown device backend 'replay'.*sim"):
+        make_backend('replay')
+
+
+def test_a_new_backend_plugs_into_the_registry(monkeypatch):
+    class ConstantBackend(DeviceBackend):
+        name = 'constant'
+
+        def __init__(self, value):
+            self.value = value
+            self.closed = False
+
+        @classmethod
+        def from_config(cls, value=0.5, **_unused):
+            return cls(value)
+
+        def read(self, now_s):
+            return DeviceSample(now_s, self.value, self.value, self.value, self.value)
+
+        def close(self):
+            self.closed = True
+
+    monkeypatch.setattr(backends, '_BACKENDS', dict(backends._BACKENDS))
+    backends.register_backend(ConstantBackend)
+    assert backends.backend_names() == ('constant', 'sim')
+    backend = make_backend('constant', value=0.25, true_geometry_file='unused')
+    assert backend.read(3.0) == DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)
+    with pytest.raises(BackendError, match='no simulated noise'):
+        backend.update_noise(lvdt_std=1e-6)
+    backend.close()
+    assert backend.closed

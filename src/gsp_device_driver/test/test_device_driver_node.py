@@ -1,0 +1,169 @@
+"""In-process tests of the device_driver node: a test node plays the platform's true pose."""
+
+import math
+import time
+from collections import defaultdict
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+
+from gsp_device_driver.device_driver_node import ConfigurationError, DeviceDriverNode
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import default_geometry
+from gsp_msgs_py import conversions, names, qos
+
+TRUE = default_geometry('true')
+POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
+TIMEOUT_S = 10.0
+TOPICS = (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
+
+
+class Harness:
+    """device_driver plus a test node publishing true poses and recording readings."""
+
+    def __init__(self, context, overrides=()):
+        self.driver = DeviceDriverNode(context=context, parameter_overrides=list(overrides))
+        self.node = rclpy.create_node('device_driver_test', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.driver)
+        self.executor.add_node(self.node)
+        self.received = defaultdict(list)  # topic -> [JointState]
+        for topic in TOPICS:
+            self.node.create_subscription(
+                JointState, topic, lambda m, t=topic: self.received[t].append(m),
+                qos.TOPIC_QOS[topic])
+        self.pose_pub = self.node.create_publisher(
+            PoseStamped, names.TOPIC_TRUE_POSE, qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
+        self.true_pose_msg = None  # republished at 100 Hz while set, like platform_sim
+        self.node.create_timer(0.01, self._publish_true_pose)
+        assert self.spin_until(lambda: self.pose_pub.get_subscription_count() > 0 and all(
+            self.node.count_publishers(t) > 0 for t in TOPICS)), 'no discovery'
+
+    def _publish_true_pose(self):
+        if self.true_pose_msg is not None:
+            self.true_pose_msg.header.stamp = self.node.get_clock().now().to_msg()
+            self.pose_pub.publish(self.true_pose_msg)
+
+    def spin_until(self, predicate, timeout=TIMEOUT_S):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.01)
+        return True
+
+    def spin_for(self, duration):
+        deadline = time.monotonic() + duration
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def readings_after(self, count):
+        """``count`` complete readings (N, 4) [alpha, beta, phi, d_m] taken from now on, and
+        their stamps; a reading is complete when all three topics arrived with one stamp."""
+        for topic in TOPICS:
+            self.received[topic].clear()
+
+        def complete():
+            by_topic = [{conversions.stamp_to_nanoseconds(m.header.stamp): m
+                         for m in self.received[t]} for t in TOPICS]
+            return sorted(set(by_topic[0]) & set(by_topic[1]) & set(by_topic[2])), by_topic
+
+        assert self.spin_until(lambda: len(complete()[0]) >= count)
+        stamps, (inclinometer, encoder, lvdt) = complete()
+        readings = np.array([[*conversions.msg_to_inclinometer(inclinometer[s]),
+                              conversions.msg_to_encoder(encoder[s]),
+                              conversions.msg_to_lvdt(lvdt[s])] for s in stamps])
+        return readings, stamps
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.driver.destroy_node()
+
+
+@pytest.fixture
+def harness(ros_context, request):
+    h = Harness(ros_context, getattr(request, 'param', ()))
+    try:
+        yield h
+    finally:
+        h.close()
+
+
+NOISE_FREE = [Parameter('inclinometer_noise_std', value=0.0),
+              Parameter('encoder_noise_std', value=0.0), Parameter('lvdt_noise_std', value=0.0)]
+
+
+@pytest.mark.parametrize('harness', [NOISE_FREE], indirect=True)
+def test_noise_free_readings_are_the_device_model_of_the_true_pose(harness):
+    harness.spin_for(0.1)
+    assert not any(harness.received.values()), 'readings before the first true pose'
+    harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
+    readings, stamps = harness.readings_after(5)
+    np.testing.assert_allclose(
+        readings, np.broadcast_to(device_readings(TRUE, POSE[None])[0], readings.shape),
+        rtol=0, atol=1e-12)
+    msg = harness.received[names.TOPIC_INCLINOMETER][-1]
+    assert list(msg.name) == ['alpha', 'beta'] and msg.header.frame_id == names.FRAME_BASE
+    assert list(harness.received[names.TOPIC_ENCODER][-1].name) == ['phi']
+    assert list(harness.received[names.TOPIC_LVDT][-1].name) == ['d_m']
+
+
+def test_readings_match_within_the_noise_and_share_one_stamp(harness):
+    harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
+    readings, stamps = harness.readings_after(20)
+    stds = np.array([math.radians(0.001)] * 3 + [1e-6])
+    errors = readings - device_readings(TRUE, POSE[None])[0]
+    assert np.all(np.abs(errors) < 6 * stds), errors / stds
+    assert np.all(np.std(errors, axis=0) > 0.1 * stds)  # noise is there
+    # Nearly every stamp carries all three readings (best effort on loopback loses ~none).
+    counts = [len(harness.received[t]) for t in TOPICS]
+    assert len(stamps) >= 0.8 * min(counts)
+
+
+def test_bad_true_poses_are_ignored_and_the_driver_keeps_going(harness):
+    harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
+    harness.readings_after(2)
+    exact = device_readings(TRUE, POSE[None])[0]
+    nan_pose = conversions.pose_to_pose_stamped(POSE + 0.01, None, names.FRAME_BASE)
+    nan_pose.pose.position.x = math.nan
+    wrong_frame = conversions.pose_to_pose_stamped(POSE + 0.01, None, 'world')
+    not_unit = conversions.pose_to_pose_stamped(POSE + 0.01, None, names.FRAME_BASE)
+    not_unit.pose.orientation.w = 2.0
+    at_origin = conversions.pose_to_pose_stamped(np.zeros(6), None, names.FRAME_BASE)
+    for bad in (nan_pose, wrong_frame, not_unit, at_origin):
+        harness.true_pose_msg = bad
+        harness.spin_for(0.05)
+    harness.true_pose_msg = None
+    readings, _ = harness.readings_after(3)
+    assert np.all(np.abs(readings - exact) < 6 * np.array([1.75e-5] * 3 + [1e-6]))
+
+
+def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness):
+    driver = harness.driver
+    for name in ('inclinometer_noise_std', 'encoder_noise_std', 'lvdt_noise_std'):
+        result = driver.set_parameters([Parameter(name, value=-1e-6)])[0]
+        assert not result.successful and name in result.reason
+    result = driver.set_parameters([Parameter('inclinometer_noise_std', value=8.7e-5)])[0]
+    assert result.successful
+    assert driver.get_parameter('inclinometer_noise_std').value == 8.7e-5
+    np.testing.assert_allclose(driver._backend.noise_stds,
+                               [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6])
+    assert 'read-only' in driver.set_parameters(
+        [Parameter('backend', value='replay')])[0].reason
+
+
+@pytest.mark.parametrize('overrides, words', [
+    ([Parameter('backend', value='replay')], "unknown device backend 'replay'; valid backends: sim"),
+    ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
+    ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),
+    ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'nonexistent'),
+])
+def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
+    with pytest.raises(ConfigurationError, match=words):
+        DeviceDriverNode(context=ros_context, parameter_overrides=overrides)

@@ -1,0 +1,159 @@
+"""Simulated Gough-Stewart platform (pure numpy, no rclpy).
+
+The controller knows only its (nominal or calibrated) *controller geometry*: for a commanded pose it
+computes the articular variables ``q = IK(controller, pose)`` and drives the legs there. The real
+platform, built to the *true geometry*, then sits at ``FK(true, q)``. The difference between the
+commanded and the real pose is what calibration removes.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from gsp_kinematics.kinematics import (
+    check_reachable,
+    forward_kinematics_masked,
+    home_pose,
+    inverse_kinematics,
+)
+
+#: Largest condition number of dq/dX a command may have (singularity guard). Above the
+#: ``Workspace().max_condition`` (60) used to sample postures, so sampled postures stay accepted
+#: after the controller geometry changes slightly.
+DEFAULT_MAX_CONDITION = 100.0
+
+
+@dataclasses.dataclass(frozen=True)
+class CommandOutcome:
+    """Result of :meth:`PlatformSimulator.command`.
+
+    ``commanded_leg_lengths`` is q (6,) in m, or None when rejected; ``true_pose`` (6,) is where the
+    real platform is after the command (unchanged when rejected).
+    """
+
+    accepted: bool
+    reason: str
+    commanded_leg_lengths: np.ndarray | None
+    true_pose: np.ndarray
+
+
+def _check_noise_std(value, name):
+    value = float(value)
+    if not (np.isfinite(value) and value >= 0.0):
+        raise ValueError(f'{name} must be finite and >= 0, got {value}')
+    return value
+
+
+class PlatformSimulator:
+    """A platform whose controller uses ``controller_geometry`` and whose hardware is ``true_geometry``.
+
+    ``leg_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
+    sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
+    through :meth:`command`; ValueError if the home pose is not reachable.
+    """
+
+    def __init__(self, true_geometry, controller_geometry, leg_noise_std=0.0, rng=None,
+                 max_condition=DEFAULT_MAX_CONDITION, initial_pose=None):
+        self._true_geometry = true_geometry
+        self._controller_geometry = controller_geometry
+        self.leg_noise_std = leg_noise_std
+        self.max_condition = max_condition
+        self._rng = rng if rng is not None else np.random.default_rng()
+        self._leg_lengths = None
+        self._true_pose = None
+        self._commanded_pose = None
+        start = home_pose() if initial_pose is None else initial_pose
+        outcome = self.command(start)
+        if not outcome.accepted:
+            raise ValueError(f'cannot reach the initial pose {np.asarray(start).tolist()}: '
+                             f'{outcome.reason}')
+
+    # ------------------------------------------------------------------------ configuration
+
+    @property
+    def true_geometry(self):
+        return self._true_geometry
+
+    @property
+    def controller_geometry(self):
+        return self._controller_geometry
+
+    def set_controller_geometry(self, geometry):
+        """Use ``geometry`` for the next commands; the legs hold their current lengths."""
+        self._controller_geometry = geometry
+
+    @property
+    def leg_noise_std(self):
+        """Standard deviation of the leg length noise (m)."""
+        return self._leg_noise_std
+
+    @leg_noise_std.setter
+    def leg_noise_std(self, value):
+        self._leg_noise_std = _check_noise_std(value, 'leg_noise_std')
+
+    @property
+    def max_condition(self):
+        """Largest condition number of dq/dX a commanded pose may have."""
+        return self._max_condition
+
+    @max_condition.setter
+    def max_condition(self, value):
+        value = float(value)
+        if not (np.isfinite(value) and value >= 1.0):
+            raise ValueError(f'max_condition must be finite and >= 1, got {value}')
+        self._max_condition = value
+
+    # ------------------------------------------------------------------------------ state
+
+    @property
+    def leg_lengths(self):
+        """Noise-free articular variables q (6,) the legs are driven to (m)."""
+        return self._leg_lengths.copy()
+
+    @property
+    def true_pose(self):
+        """Real pose (6,) ``[x, y, z, psi, theta, phi]`` of the platform (m, rad)."""
+        return self._true_pose.copy()
+
+    @property
+    def commanded_pose(self):
+        """Last accepted commanded pose (6,)."""
+        return self._commanded_pose.copy()
+
+    def measured_leg_lengths(self):
+        """q (6,) plus Gaussian sensor noise of std ``leg_noise_std`` (m)."""
+        return self._leg_lengths + self._rng.normal(0.0, self._leg_noise_std, size=6)
+
+    # ----------------------------------------------------------------------------- command
+
+    def _reject(self, reason):
+        return CommandOutcome(False, reason, None, None if self._true_pose is None
+                              else self._true_pose.copy())
+
+    def command(self, pose):
+        """Drive the platform to ``pose`` (6,) as the controller understands it.
+
+        Rejected (platform unchanged, ``reason`` says why) if the pose is not six finite numbers,
+        is unreachable for the controller geometry (leg stroke, joint angles, singularity), or the
+        real platform has no forward kinematics solution near the pose for those leg lengths.
+        """
+        pose = np.asarray(pose, dtype=float)
+        if pose.shape != (6,):
+            return self._reject(f'pose must be [x, y, z, psi, theta, phi], got shape {pose.shape}')
+        if not np.all(np.isfinite(pose)):
+            return self._reject(f'pose is not finite: {pose.tolist()}')
+        ok, reasons = check_reachable(self._controller_geometry, pose[None],
+                                      max_condition=self._max_condition)
+        if not ok[0]:
+            return self._reject(f'unreachable: {reasons[0]}')
+        leg_lengths = inverse_kinematics(self._controller_geometry, pose[None])[0]
+        true_pose, converged = forward_kinematics_masked(self._true_geometry, leg_lengths[None],
+                                                         pose[None])
+        if not (converged[0] and np.all(np.isfinite(true_pose[0]))):
+            return self._reject(
+                'forward kinematics of the real platform found no pose near the command for '
+                f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)')
+        self._leg_lengths = leg_lengths
+        self._true_pose = true_pose[0]
+        self._commanded_pose = pose.copy()
+        return CommandOutcome(True, '', leg_lengths.copy(), true_pose[0].copy())

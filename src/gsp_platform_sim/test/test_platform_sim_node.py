@@ -1,0 +1,266 @@
+"""In-process tests of the platform_sim node: a test node commands poses and listens."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.srv import SetParameters, SetParametersAtomically
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from visualization_msgs.msg import MarkerArray
+
+from gsp_kinematics.geometry import default_geometry, geometry_to_parameters
+from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
+from gsp_msgs_py import conversions, names, qos
+from gsp_platform_sim.platform_sim_node import ConfigurationError, PlatformSimNode
+
+TRUE = default_geometry('true')
+NOMINAL = default_geometry('nominal')
+POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
+TIMEOUT_S = 10.0  # generous: the machine may be loaded; tests finish as soon as they can
+
+
+class Harness:
+    """platform_sim plus a test node that commands poses and records what comes back."""
+
+    def __init__(self, context, overrides=()):
+        self.sim = PlatformSimNode(context=context, parameter_overrides=list(overrides))
+        self.node = rclpy.create_node('platform_sim_test', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.sim)
+        self.executor.add_node(self.node)
+        self.statuses, self.leg_lengths, self.true_poses, self.markers = [], [], [], []
+        self.node.create_subscription(
+            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
+            lambda m: self.statuses.append(conversions.parse_status(m)),
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
+        self.node.create_subscription(
+            JointState, names.TOPIC_LEG_LENGTHS, self.leg_lengths.append,
+            qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS])
+        self.node.create_subscription(
+            PoseStamped, names.TOPIC_TRUE_POSE, self.true_poses.append,
+            qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
+        self.node.create_subscription(
+            MarkerArray, names.TOPIC_MARKERS, self.markers.append,
+            qos.TOPIC_QOS[names.TOPIC_MARKERS])
+        self.command_pub = self.node.create_publisher(
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
+        assert self.spin_until(lambda: self.command_pub.get_subscription_count() > 0
+                               and self.leg_lengths and self.true_poses), 'no discovery'
+
+    def spin_until(self, predicate, timeout=TIMEOUT_S):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.01)
+        return True
+
+    def command(self, pose=None, msg=None):
+        """Publish a command (a pose, or a prepared message); returns its command id."""
+        stamp = self.node.get_clock().now().to_msg()
+        if msg is None:
+            msg = conversions.pose_to_pose_stamped(pose, stamp, names.FRAME_BASE)
+        msg.header.stamp = stamp
+        self.command_pub.publish(msg)
+        return conversions.command_id_from_stamp(stamp)
+
+    def states(self, command_id):
+        return [s for s in self.statuses if s.command_id == command_id]
+
+    def wait_final(self, command_id):
+        """The states of a command once it is settled or rejected."""
+        assert self.spin_until(lambda: any(s.settled or s.rejected
+                                           for s in self.states(command_id))), self.statuses
+        return self.states(command_id)
+
+    def leg_lengths_after(self, count=5):
+        """Leg lengths (m) of ``count`` messages stamped from now on (so published after
+        everything observed so far, whatever is still in flight)."""
+        now_ns = self.node.get_clock().now().nanoseconds
+
+        def fresh():
+            return [m for m in self.leg_lengths
+                    if conversions.stamp_to_nanoseconds(m.header.stamp) > now_ns]
+
+        assert self.spin_until(lambda: len(fresh()) >= count)
+        return np.array([conversions.msg_to_leg_lengths(m) for m in fresh()[:count]])
+
+    def call(self, client, request):
+        assert self.spin_until(client.service_is_ready), 'parameter service not available'
+        future = client.call_async(request)
+        assert self.spin_until(future.done)
+        return future.result()
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.sim.destroy_node()
+
+
+@pytest.fixture
+def harness(ros_context, request):
+    overrides = getattr(request, 'param', ())
+    h = Harness(ros_context, overrides)
+    try:
+        yield h
+    finally:
+        h.close()
+
+
+def test_command_moves_then_settles_and_streams_the_new_posture(harness):
+    command_id = harness.command(POSE)
+    assert [s.state for s in harness.wait_final(command_id)] == ['moving', 'settled']
+    moving, settled = harness.states(command_id)
+    assert moving.level == 1 and settled.level == 0
+
+    q = inverse_kinematics(NOMINAL, POSE[None])[0]
+    measured = harness.leg_lengths_after(5)
+    assert list(harness.leg_lengths[-1].name) == [f'leg_{i}' for i in range(1, 7)]
+    assert harness.leg_lengths[-1].header.frame_id == names.FRAME_BASE
+    np.testing.assert_allclose(measured, np.broadcast_to(q, measured.shape), atol=1e-5)
+    assert np.std(measured - q) > 0  # noisy (default 1e-6 m)
+
+    true_pose = conversions.pose_stamped_to_pose(harness.true_poses[-1])
+    np.testing.assert_allclose(
+        true_pose, forward_kinematics(TRUE, q[None], POSE[None])[0], atol=1e-9)
+    # leg_lengths and true_pose come from one timer with one stamp.
+    leg_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths}
+    pose_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.true_poses}
+    assert len(leg_stamps & pose_stamps) >= 0.8 * min(len(leg_stamps), len(pose_stamps))
+
+
+@pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.0)]], indirect=True)
+def test_zero_settle_time_settles_at_once(harness):
+    command_id = harness.command(POSE)
+    assert [s.state for s in harness.wait_final(command_id)] == ['moving', 'settled']
+
+
+def _bad_messages():
+    nan_pose = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
+    nan_pose.pose.position.y = math.nan
+    wrong_frame = conversions.pose_to_pose_stamped(POSE, None, 'world')
+    not_unit = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
+    not_unit.pose.orientation.w = 3.0
+    nan_quaternion = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
+    nan_quaternion.pose.orientation.x = math.nan
+    return [(nan_pose, 'non-finite'), (wrong_frame, 'frame_id'), (not_unit, 'unit length'),
+            (nan_quaternion, 'not finite')]
+
+
+def test_bad_commands_are_rejected_with_a_reason_and_the_node_survives(harness):
+    first = harness.command(POSE)
+    harness.wait_final(first)
+    legs_before = harness.leg_lengths_after(1)[0]
+
+    unreachable = harness.command([0.0, 0.0, 2.5, 0.0, 0.0, 0.0])
+    states = harness.wait_final(unreachable)
+    assert [s.state for s in states] == ['rejected']
+    assert 'stroke' in states[0].reason and states[0].level == 2
+    for msg, words in _bad_messages():
+        command_id = harness.command(msg=msg)
+        states = harness.wait_final(command_id)
+        assert [s.state for s in states] == ['rejected'], words
+        assert words in states[0].reason
+
+    # Nothing moved, and the node still obeys.
+    np.testing.assert_allclose(harness.leg_lengths_after(1)[0], legs_before, atol=1e-5)
+    pose = POSE + [0.02, 0.0, 0.0, 0.0, 0.0, 0.0]
+    command_id = harness.command(pose)
+    assert harness.wait_final(command_id)[-1].settled
+
+
+@pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.3)]], indirect=True)
+def test_a_new_command_supersedes_one_still_moving(harness):
+    first = harness.command(POSE)
+    assert harness.spin_until(lambda: harness.states(first))
+    second = harness.command(POSE + [0.01, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert [s.state for s in harness.wait_final(second)] == ['moving', 'settled']
+    first_states = harness.states(first)
+    assert [s.state for s in first_states] == ['moving', 'rejected']
+    assert 'superseded' in first_states[1].reason
+
+
+def test_bad_parameter_values_are_rejected_with_a_reason(harness):
+    sim = harness.sim
+    for name, value in [('leg_noise_std', -1e-6), ('settle_time', -0.1),
+                        ('geometry.leg_offsets', [0.6] * 5),
+                        ('geometry.device_length', -0.85),
+                        ('geometry.limits.leg_stroke_min', 5.0),
+                        ('publish_rate', 100.0)]:
+        result = sim.set_parameters([Parameter(name, value=value)])[0]
+        assert not result.successful, name
+        assert result.reason, name
+    assert 'geometry.leg_offsets' in sim.set_parameters(
+        [Parameter('geometry.leg_offsets', value=[0.6] * 5)])[0].reason
+    assert 'read-only' in sim.set_parameters([Parameter('publish_rate', value=100.0)])[0].reason
+    assert sim.get_parameter('leg_noise_std').value == 1e-6
+    assert sim.set_parameters([Parameter('leg_noise_std', value=0.0)])[0].successful
+    measured = harness.leg_lengths_after(3)
+    np.testing.assert_array_equal(measured, np.broadcast_to(measured[0], measured.shape))
+
+
+def _calibrated_geometry():
+    return NOMINAL.replace(leg_offsets=NOMINAL.leg_offsets + [0.002, -0.001, 0.0, 0.001, 0.0, 0.003],
+                           base_joints=NOMINAL.base_joints + 0.001)
+
+
+@pytest.mark.parametrize('service', ['set_parameters', 'set_parameters_atomically'])
+def test_controller_geometry_applied_through_the_parameter_service(harness, service):
+    command_id = harness.command(POSE)
+    harness.wait_final(command_id)
+    calibrated = _calibrated_geometry()
+    parameters = [Parameter(name, value=value).to_parameter_msg()
+                  for name, value in geometry_to_parameters(calibrated).items()]
+    service_type = SetParameters if service == 'set_parameters' else SetParametersAtomically
+    client = harness.node.create_client(service_type, f'/{names.NODE_PLATFORM_SIM}/{service}')
+    response = harness.call(client, service_type.Request(parameters=parameters))
+    results = response.results if service == 'set_parameters' else [response.result]
+    assert all(r.successful for r in results), [r.reason for r in results]
+    np.testing.assert_array_equal(
+        harness.sim.get_parameter('geometry.leg_offsets').value, calibrated.leg_offsets)
+
+    # The legs hold until the next command, which uses the new geometry.
+    q_old = inverse_kinematics(NOMINAL, POSE[None])[0]
+    np.testing.assert_allclose(harness.leg_lengths_after(1)[0], q_old, atol=1e-5)
+    command_id = harness.command(POSE)
+    assert harness.wait_final(command_id)[-1].settled
+    q_new = inverse_kinematics(calibrated, POSE[None])[0]
+    assert np.max(np.abs(q_new - q_old)) > 1e-3
+    np.testing.assert_allclose(harness.leg_lengths_after(3)[-1], q_new, atol=1e-5)
+
+
+def test_invalid_geometry_through_the_service_is_rejected(harness):
+    parameters = geometry_to_parameters(NOMINAL)
+    parameters['geometry.inclinometer_axes_angle'] = 4.0
+    client = harness.node.create_client(
+        SetParametersAtomically, f'/{names.NODE_PLATFORM_SIM}/set_parameters_atomically')
+    response = harness.call(client, SetParametersAtomically.Request(
+        parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in parameters.items()]))
+    assert not response.result.successful
+    assert 'inclinometer_axes_angle' in response.result.reason
+    np.testing.assert_array_equal(
+        harness.sim.get_parameter('geometry.leg_offsets').value, NOMINAL.leg_offsets)
+
+
+def test_markers_show_the_platform(harness):
+    assert harness.spin_until(lambda: harness.markers)
+    markers = harness.markers[-1].markers
+    assert [len(m.points) for m in markers] == [7, 7, 12, 2]
+    assert {m.header.frame_id for m in markers} == {names.FRAME_BASE}
+
+
+@pytest.mark.parametrize('overrides, words', [
+    ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
+    ([Parameter('leg_noise_std', value=-1.0)], 'leg_noise_std'),
+    ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'true_geometry_file'),
+    ([Parameter('geometry.leg_offsets', value=[0.6, 0.6])], 'geometry.leg_offsets'),
+])
+def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
+    with pytest.raises(ConfigurationError, match=words):
+        PlatformSimNode(context=ros_context, parameter_overrides=overrides)
