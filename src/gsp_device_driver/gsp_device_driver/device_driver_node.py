@@ -121,7 +121,7 @@ class DeviceDriverNode(Node):
         }
         if self._backend.needs_true_pose:
             self.create_subscription(PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose,
-                                     qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
+                                     qos.LATEST_STATE_QOS)
         self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
         self.get_logger().info(
             f"device_driver ready: backend '{values['backend']}', publishing at "

@@ -143,11 +143,6 @@ def resolve_free(free):
     return mask
 
 
-def parameter_scales(free):
-    """Typical magnitudes used to scale steps for the ``du`` test: 1 mm and 1 mrad."""
-    return np.where(np.arange(NUM_PARAMETERS) == PARAMETER_INDEX["gamma"], 1e-3, 1e-3)[free]
-
-
 def wrap_angle(angle):
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
@@ -314,7 +309,13 @@ def _check_inputs(nominal, leg_lengths, readings, pose_guesses):
 
         link_length = nominal.device_length + readings[:, 3]
         position = device_position(readings[:, 0], readings[:, 1], link_length, nominal.inclinometer_axes_angle)
-        pose_guesses = np.concatenate([position, np.zeros((len(readings), 2)), readings[:, 2:3]], axis=1)
+        level = np.concatenate([position, np.zeros((len(readings), 2)), readings[:, 2:3]], axis=1)
+        # The device does not see the tilt (psi, theta): let this first FK travel far in angle,
+        # then use its solution as the guess, so later FK calls keep the tight jump check.
+        solved, converged = forward_kinematics_masked(
+            nominal, leg_lengths, level, max_position_jump=0.5, max_angle_jump=math.pi / 2
+        )
+        pose_guesses = np.where(converged[:, None], solved, level)
     pose_guesses = np.asarray(pose_guesses, dtype=float)
     if pose_guesses.shape != leg_lengths.shape:
         raise IdentificationError(f"pose_guesses must be (M, 6), got {pose_guesses.shape}")

@@ -26,6 +26,16 @@ SENSOR_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
+# A sensor that samples the platform's current state needs only the newest pose: with depth 1 a
+# busy subscriber (the simulated device) never works through a backlog of stale poses, which
+# would make its readings lag the platform after a move.
+LATEST_STATE_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
 # Pose commands must not be lost; a short queue is enough (one command per posture).
 COMMAND_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,

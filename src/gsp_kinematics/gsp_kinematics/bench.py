@@ -1,0 +1,299 @@
+"""Benchmark of the core (``gsp_bench``, ``make bench``): JSON on stdout and in ``results/bench.json``.
+
+* ``identification``: median wall time of one identification (44 parameters, 60 selected postures,
+  nominal set 2, the default formulation, Table 3's first noise level), and in the same run the
+  same problem solved by ``scipy.optimize.least_squares(method='lm')`` with its finite-difference
+  Jacobian on the noise-weighted FK-based residuals (FK of the measured legs under the parameters,
+  predicted device readings) from the same start; ``speedup`` = scipy median / ours.
+* ``fk``: batched forward-kinematics throughput (postures per second).
+
+Other packages add sections: :data:`EXTRA_SECTIONS` maps a key of ``bench.json`` to a module that,
+when importable, provides ``run(quick=False) -> dict`` (e.g. ``end_to_end`` from
+``gsp_calibrator.bench_end_to_end``); or they call :func:`merge_sections` themselves. With
+``--merge`` (the default) keys already in ``bench.json`` that this run does not produce are kept.
+"""
+
+import argparse
+import importlib
+import json
+import math
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .device import device_readings
+from .geometry import Geometry, parameter_errors
+from .identification import DEFAULT_FORMULATION, Sigmas, identify, wrap_angle
+from .kinematics import forward_kinematics_masked, inverse_kinematics, sample_valid_postures
+from .nominal_sets import drawing_geometry, nominal_set
+from .paper import add_noise, json_safe, reexec_with_single_threaded_blas, write_json
+from .selection import select_postures
+
+#: ``bench.json`` key -> module providing ``run(quick=False) -> dict`` (skipped if not importable).
+EXTRA_SECTIONS = {"end_to_end": "gsp_calibrator.bench_end_to_end"}
+
+
+def build_problem(
+    set_number=2, postures=60, pool_size=300, angle_noise_deg=0.001, length_noise_mm=0.001, seed=0
+):
+    """The benchmark problem: exact and nominal geometry, selected postures and noisy measurements."""
+    exact = drawing_geometry()
+    nominal = nominal_set(exact, set_number)
+    rng = np.random.default_rng([seed, set_number])
+    pool = sample_valid_postures(nominal, pool_size, rng)
+    indices, _ = select_postures(nominal, pool, postures, Sigmas())
+    poses = pool[indices]
+    leg_lengths = inverse_kinematics(exact, poses)
+    readings = device_readings(exact, poses)
+    if angle_noise_deg or length_noise_mm:
+        leg_lengths, readings = add_noise(
+            leg_lengths,
+            readings,
+            angle_noise_deg,
+            length_noise_mm,
+            np.random.default_rng([seed, 99]),
+        )
+    sigmas = Sigmas.from_levels(angle_noise_deg or 0.001, length_noise_mm or 0.001)
+    return {
+        "exact": exact,
+        "nominal": nominal,
+        "poses": poses,
+        "leg_lengths": leg_lengths,
+        "readings": readings,
+        "sigmas": sigmas,
+        "noise": {"angle_deg": angle_noise_deg, "length_mm": length_noise_mm},
+        "pool_size": pool_size,
+        "nominal_set": set_number,
+    }
+
+
+def fk_residual_function(nominal, leg_lengths, readings, sigmas, pose_guesses, counters=None):
+    """Weighted FK-based residuals ``(measured - predicted readings) / sigma`` of the 44-vector u.
+
+    Every call runs FK from ``pose_guesses`` (a pure function of u, as finite differences need).
+    A posture whose FK fails under u contributes zero residuals (its readings cannot be predicted),
+    which is how the core's FK formulation leaves such postures out too. ``counters`` (a dict)
+    counts ``calls`` and ``calls_with_fk_failures``.
+    """
+    weights = 1.0 / sigmas.readings()
+    limits = nominal.limits
+    counters = {} if counters is None else counters
+    counters.setdefault("calls", 0)
+    counters.setdefault("calls_with_fk_failures", 0)
+
+    def residuals(u):
+        geometry = Geometry.from_vector(u, limits)
+        poses, converged = forward_kinematics_masked(geometry, leg_lengths, pose_guesses)
+        difference = readings - device_readings(geometry, poses)
+        difference[:, 2] = wrap_angle(difference[:, 2])
+        difference[~converged] = 0.0
+        counters["calls"] += 1
+        counters["calls_with_fk_failures"] += int(not converged.all())
+        return (difference * weights).ravel()
+
+    return residuals
+
+
+def scipy_fd_identification(nominal, leg_lengths, readings, sigmas, pose_guesses):
+    """The baseline: ``least_squares(method='lm')`` with its finite-difference Jacobian on
+    :func:`fk_residual_function`, from the nominal parameters. Returns ``(solution, counters)``."""
+    counters = {}
+    function = fk_residual_function(nominal, leg_lengths, readings, sigmas, pose_guesses, counters)
+    return least_squares(function, nominal.to_vector(), method="lm"), counters
+
+
+def _median_ms(function, repeats, cpu=None):
+    """Median wall time (ms) of ``repeats`` calls, all wall times, and the last value.
+
+    ``cpu``, a list, receives the median process CPU time (ms): steadier on a loaded machine.
+    """
+    times, cpu_times, value = [], [], None
+    for _ in range(repeats):
+        started, started_cpu = time.perf_counter(), time.process_time()
+        value = function()
+        times.append(1000.0 * (time.perf_counter() - started))
+        cpu_times.append(1000.0 * (time.process_time() - started_cpu))
+    if cpu is not None:
+        cpu.append(statistics.median(cpu_times))
+    return statistics.median(times), times, value
+
+
+def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAULT_FORMULATION):
+    nominal, exact = problem["nominal"], problem["exact"]
+    arguments = (nominal, problem["leg_lengths"], problem["readings"], problem["sigmas"])
+
+    def ours():
+        return identify(*arguments, formulation=formulation, pose_guesses=problem["poses"])
+
+    ours()  # warm-up (imports, caches)
+    cpu = []
+    median_ms, times, result = _median_ms(ours, repeats, cpu)
+    fk_median_ms, _, fk_result = _median_ms(
+        lambda: identify(*arguments, formulation="fk", pose_guesses=problem["poses"]),
+        max(3, repeats // 2),
+    )
+    scipy_ms, scipy_times, (solution, counters) = _median_ms(
+        lambda: scipy_fd_identification(*arguments, problem["poses"]), scipy_repeats, cpu
+    )
+    scipy_geometry = Geometry.from_vector(solution.x, nominal.limits)
+
+    def max_error(geometry):
+        return float(np.max(np.abs(parameter_errors(geometry, exact)[:43])))
+
+    return {
+        "postures": int(problem["poses"].shape[0]),
+        "parameters": int(result.free.sum()),
+        "formulation": result.formulation,
+        "median_ms": median_ms,
+        "scipy_fd_median_ms": scipy_ms,
+        "speedup": scipy_ms / median_ms,
+        "median_cpu_ms": cpu[0],
+        "scipy_fd_median_cpu_ms": cpu[1],
+        "speedup_cpu": cpu[1] / cpu[0],
+        "repeats": repeats,
+        "scipy_repeats": scipy_repeats,
+        "times_ms": times,
+        "scipy_times_ms": scipy_times,
+        "iterations": int(result.iterations),
+        "converged": bool(result.converged),
+        "max_param_error_mm": max_error(result.geometry),
+        "fk_formulation_median_ms": fk_median_ms,
+        "fk_formulation_max_param_error_mm": max_error(fk_result.geometry),
+        "fk_formulation_cost": float(fk_result.cost),
+        "scipy_fd_cost": float(solution.cost),
+        "scipy_fd_function_calls": counters["calls"],
+        "scipy_fd_calls_with_fk_failures": counters["calls_with_fk_failures"],
+        "scipy_fd_status": int(solution.status),
+        "scipy_fd_max_param_error_mm": max_error(scipy_geometry),
+        "noise": problem["noise"],
+        "nominal_set": problem["nominal_set"],
+        "pool_size": problem["pool_size"],
+    }
+
+
+def bench_fk(count=10000, repeats=5, seed=1):
+    """FK of ``count`` postures from guesses perturbed by ~2 mm and ~0.2 deg (several Newton steps)."""
+    exact = drawing_geometry()
+    rng = np.random.default_rng(seed)
+    poses = sample_valid_postures(exact, count, rng)
+    leg_lengths = inverse_kinematics(exact, poses)
+    perturbation = np.concatenate(
+        [rng.normal(0.0, 0.002, (count, 3)), rng.normal(0.0, math.radians(0.2), (count, 3))], axis=1
+    )
+    guesses = poses + perturbation
+    median_ms, _, (solved, converged) = _median_ms(
+        lambda: forward_kinematics_masked(exact, leg_lengths, guesses), repeats
+    )
+    return {
+        "postures": count,
+        "postures_per_s": count / (median_ms / 1000.0),
+        "median_ms": median_ms,
+        "repeats": repeats,
+        "converged_fraction": float(np.mean(converged)),
+        "max_position_error_m": float(np.max(np.abs(solved[converged, :3] - poses[converged, :3]))),
+        "guess_perturbation": {"position_mm": 2.0, "angle_deg": 0.2},
+    }
+
+
+def extra_sections(skip=(), quick=False, log=print):
+    """Run the importable modules of :data:`EXTRA_SECTIONS`; ``{key: dict}`` (errors recorded)."""
+    sections = {}
+    for key, module_name in EXTRA_SECTIONS.items():
+        if key in skip:
+            continue
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as error:
+            log(f"gsp_bench: section {key!r} skipped ({module_name} not importable: {error})")
+            continue
+        try:
+            sections[key] = module.run(quick=quick)
+        except Exception as error:  # another package's benchmark must not lose ours
+            log(f"gsp_bench: section {key!r} failed: {error!r}")
+            sections[key] = {"error": repr(error)}
+    return sections
+
+
+def merge_sections(path, sections, merge=True):
+    """Write ``sections`` into the JSON file at ``path``, keeping its other keys when ``merge``."""
+    path = Path(path)
+    document = {}
+    if merge and path.is_file():
+        try:
+            with open(path, encoding="utf-8") as stream:
+                existing = json.load(stream)
+            if isinstance(existing, dict):
+                document = existing
+        except (OSError, ValueError):
+            document = {}
+    document.update(sections)
+    write_json(document, path)
+    return document
+
+
+def main(argv=None):
+    if argv is None:
+        reexec_with_single_threaded_blas("gsp_kinematics.bench")
+    parser = argparse.ArgumentParser(prog="gsp_bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--output", default="results/bench.json", help="JSON output (default results/bench.json)"
+    )
+    parser.add_argument(
+        "--merge",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="keep keys of an existing output file that this run does not produce (default on)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=7, help="timed identifications (>= 5; default 7)"
+    )
+    parser.add_argument(
+        "--scipy-repeats", type=int, default=3, help="timed scipy solves (>= 3; default 3)"
+    )
+    parser.add_argument(
+        "--fk-postures", type=int, default=10000, help="postures of the FK throughput test"
+    )
+    parser.add_argument(
+        "--noise-free", action="store_true", help="noise-free data instead of Table 3 level 1"
+    )
+    parser.add_argument(
+        "--skip-end-to-end", action="store_true", help="skip the node-suite end_to_end section"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="fewer repeats and postures (a smoke run)"
+    )
+    args = parser.parse_args(argv)
+    repeats, scipy_repeats, fk_count = (
+        max(5, args.repeats),
+        max(3, args.scipy_repeats),
+        args.fk_postures,
+    )
+    if args.quick:
+        repeats, scipy_repeats, fk_count = 5, 3, min(fk_count, 2000)
+
+    def log(text):
+        print(text, file=sys.stderr, flush=True)
+
+    log("gsp_bench: building the problem (nominal set 2, 60 selected postures) ...")
+    noise = (0.0, 0.0) if args.noise_free else (0.001, 0.001)
+    problem = build_problem(angle_noise_deg=noise[0], length_noise_mm=noise[1])
+    log("gsp_bench: timing identification and the scipy finite-difference baseline ...")
+    sections = {"identification": bench_identification(problem, repeats, scipy_repeats)}
+    log("gsp_bench: timing batched FK ...")
+    sections["fk"] = bench_fk(fk_count, repeats=5)
+    skip = {"end_to_end"} if args.skip_end_to_end else set()
+    sections.update(extra_sections(skip=skip, quick=args.quick, log=log))
+    sections["identification"]["blas_threads"] = os.environ.get("OPENBLAS_NUM_THREADS", "default")
+    document = merge_sections(args.output, sections, merge=args.merge)
+    json.dump(json_safe(document), sys.stdout, indent=2)
+    sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

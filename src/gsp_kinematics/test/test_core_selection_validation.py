@@ -1,0 +1,98 @@
+"""Posture selection (paper section 4.2) and validation errors."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.rotation import euler_to_matrix, matrix_to_euler
+from gsp_kinematics.selection import posture_information, scaled_condition_number, select_postures
+from gsp_kinematics.validation import pose_errors, reached_poses, validate
+
+
+@pytest.fixture(scope="module")
+def selection(nominal_sets):
+    nominal = nominal_sets[1]
+    pool = sample_valid_postures(nominal, 150, np.random.default_rng(3))
+    indices, condition = select_postures(nominal, pool, 45)
+    return nominal, pool, indices, condition
+
+
+def test_selection_returns_distinct_indices_into_the_pool(selection):
+    _, pool, indices, condition = selection
+    assert indices.shape == (45,)
+    assert len(set(indices.tolist())) == 45
+    assert np.all((indices >= 0) & (indices < len(pool)))
+    assert math.isfinite(condition) and condition >= 1.0
+
+
+def test_selection_beats_random_picks(selection):
+    nominal, pool, indices, condition = selection
+    information = posture_information(nominal, pool)
+    assert scaled_condition_number(information[indices].sum(axis=0)) == pytest.approx(
+        condition, rel=1e-6
+    )
+    rng = np.random.default_rng(4)
+    random_conditions = [
+        scaled_condition_number(information[rng.choice(len(pool), 45, replace=False)].sum(axis=0))
+        for _ in range(20)
+    ]
+    assert condition < min(random_conditions)
+
+
+def test_selection_needs_a_large_enough_pool(nominal_sets):
+    pool = sample_valid_postures(nominal_sets[1], 10, np.random.default_rng(5))
+    with pytest.raises(ValueError, match="fewer"):
+        select_postures(nominal_sets[1], pool, 20)
+
+
+def axis_angle(axis, angle):
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * k @ k
+
+
+def test_orientation_error_is_the_relative_rotation_angle(rng):
+    commanded = np.array([[0.1, -0.2, 1.0, 0.3, -0.5, 0.7], [0.0, 0.0, 0.9, 1.45, 0.0, 0.0]])
+    angles = [math.radians(0.25), math.radians(3.0)]
+    reached = commanded.copy()
+    for m, angle in enumerate(angles):
+        rotation = euler_to_matrix(commanded[m, 3:]) @ axis_angle(
+            [0.2, 1.0, 0.3] if m else rng.normal(size=3), angle
+        )
+        reached[m, 3:] = matrix_to_euler(rotation)
+    reached[:, :3] += [[0.003, 0.004, 0.0], [0.0, 0.0, -0.002]]
+    position_mm, orientation_deg = pose_errors(commanded, reached)
+    np.testing.assert_allclose(position_mm, [5.0, 2.0], atol=1e-9)
+    np.testing.assert_allclose(orientation_deg, np.degrees(angles), atol=1e-9)
+    # Near psi = 83 deg (close to gimbal lock) the Euler angles of a 3 deg rotation change by far more than 3 deg.
+    assert np.max(np.abs(np.degrees(reached[1, 3:] - commanded[1, 3:]))) > 3.5
+
+
+def test_validation_of_the_exact_controller_is_zero(exact, postures):
+    errors = validate(exact, exact, postures[:50])
+    keys = ("position_mm_mean", "position_mm_max", "orientation_deg_mean", "orientation_deg_max")
+    assert set(keys) <= set(errors)
+    assert max(errors[key] for key in keys) < 1e-8
+
+
+def test_validation_commands_with_the_controller_and_moves_the_true_platform(
+    exact, nominal_sets, postures
+):
+    commanded = postures[:50]
+    nominal = nominal_sets[1]
+    reached = reached_poses(exact, nominal, commanded)
+    np.testing.assert_allclose(
+        inverse_kinematics(exact, reached), inverse_kinematics(nominal, commanded), atol=1e-11
+    )
+    np.testing.assert_allclose(
+        reached,
+        forward_kinematics(exact, inverse_kinematics(nominal, commanded), commanded),
+        atol=1e-12,
+    )
+    errors = validate(exact, nominal, commanded)
+    position_mm, orientation_deg = pose_errors(commanded, reached)
+    assert errors["position_mm_mean"] == pytest.approx(position_mm.mean())
+    assert errors["orientation_deg_max"] == pytest.approx(orientation_deg.max())
+    assert 0.5 < errors["position_mm_mean"] < 50.0 and 0.01 < errors["orientation_deg_mean"] < 5.0
