@@ -32,6 +32,7 @@ setup(
             'gsp_demo = gsp_calibrator.demo:main',
             'gsp_calibrate_client = gsp_calibrator.client:main',
             'gsp_reidentify = gsp_calibrator.offline:main',
+            'replay = gsp_calibrator.replay_node:main',
         ],
     },
 )

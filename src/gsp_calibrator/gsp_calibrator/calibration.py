@@ -1,0 +1,312 @@
+"""The calibration pipeline around the core, without ROS (pure).
+
+1. :func:`choose_postures`: a seeded pool of valid postures under the nominal geometry, then the
+   core's condition-number selection (``gsp_kinematics.selection.select_postures``).
+2. :func:`identify_from_samples`: the core's ``identify`` on the averaged posture rows
+   (``run_directory.Samples``), then checks: converged, and every free parameter identifiable
+   (full rank of the column-scaled information matrix). A failed check gives
+   ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
+3. :func:`format_response` / :func:`parse_response`: the text of the Trigger response (a human
+   summary, then the calibrated geometry params-file YAML).
+"""
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from gsp_kinematics import identifiability
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import geometry_to_yaml, parameter_errors
+from gsp_kinematics.identification import (
+    FORMULATIONS,
+    IdentificationError,
+    Sigmas,
+    identify,
+    resolve_free,
+)
+from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.selection import select_postures
+
+RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
+RUN_DIRECTORY_LABEL = 'run directory: '
+IDENTIFICATION_TIME_LABEL = 'identification time: '
+
+
+class CalibrationError(RuntimeError):
+    """The calibration cannot go on; the message says why."""
+
+
+# --- posture selection ---------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class PostureSelection:
+    """Postures chosen for a calibration."""
+
+    poses: np.ndarray  #: (count, 6) commanded postures [x, y, z, psi, theta, phi], m and rad
+    pool_indices: np.ndarray  #: (count,) their indices in the pool
+    condition_number: float  #: scaled condition number of the selected set's information
+    pool_size: int
+    seed: int
+    duration_s: float  #: wall time of the selection, s
+
+
+def posture_pool(nominal, pool_size, seed, workspace=Workspace()):
+    """``pool_size`` random postures (N, 6), reachable under ``nominal``, from ``seed``."""
+    rng = np.random.default_rng(int(seed))
+    return sample_valid_postures(nominal, int(pool_size), rng, workspace)
+
+
+def selection_formulation(formulation):
+    """The information model of the selection for an identification ``formulation``."""
+    return 'implicit' if formulation == 'implicit' else 'fk'
+
+
+def choose_postures(nominal, count, pool_size, seed, sigmas=Sigmas(), free=None,
+                    formulation='implicit', workspace=Workspace()):
+    """Select ``count`` postures from a seeded pool of ``pool_size`` (:class:`PostureSelection`)."""
+    count, pool_size = int(count), int(pool_size)
+    if count < 1:
+        raise CalibrationError(f'posture count must be >= 1, got {count}')
+    if pool_size < count:
+        raise CalibrationError(f'pool_size ({pool_size}) must be >= posture_count ({count})')
+    started = time.perf_counter()
+    pool = posture_pool(nominal, pool_size, seed, workspace)
+    indices, condition = select_postures(
+        nominal, pool, count, sigmas, free=resolve_free(free),
+        formulation=selection_formulation(formulation),
+    )
+    return PostureSelection(
+        poses=pool[indices], pool_indices=np.asarray(indices), condition_number=float(condition),
+        pool_size=pool_size, seed=int(seed), duration_s=time.perf_counter() - started,
+    )
+
+
+def selection_key(nominal, count, pool_size, seed, sigmas, free, formulation):
+    """A hashable key of everything :func:`choose_postures` depends on (for caching)."""
+    return (
+        tuple(np.round(nominal.to_vector(), 15)), nominal.limits, int(count), int(pool_size),
+        int(seed), sigmas, tuple(resolve_free(free)), selection_formulation(formulation),
+    )
+
+
+# --- identifiability -----------------------------------------------------------------------------
+
+
+def analyse_identifiability(result):
+    """The core's identifiability analysis of an ``IdentificationResult``.
+
+    ``{'rank', 'parameters' (free count), 'condition_number' (scaled Jacobian),
+    'unidentifiable' (null directions), 'names' (every parameter in one, sorted)}``.
+    """
+    information = np.asarray(result.information, dtype=float)
+    if not np.all(np.isfinite(information)):
+        names = list(result.free_names)
+        return {'rank': 0, 'parameters': len(names), 'condition_number': math.inf,
+                'unidentifiable': [], 'names': names}
+    analysis = identifiability.analyse_identifiability(information, result.free)
+    analysis['names'] = identifiability.unidentifiable_parameters(analysis)
+    return analysis
+
+
+# --- identification ------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class CalibrationOutcome:
+    """What :func:`identify_from_samples` found."""
+
+    success: bool
+    message: str  #: why it failed ('' on success)
+    result: object = None  #: the core's IdentificationResult (None if identify raised)
+    geometry: object = None  #: the calibrated Geometry, only on success
+    identifiability: dict = dataclasses.field(default_factory=dict)
+    postures: int = 0  #: posture rows given
+    sigmas: object = None  #: the weights of the averaged rows
+    duration_s: float = 0.0  #: identification wall time, s
+
+    @property
+    def unidentifiable(self):
+        """Names of the parameters in a null direction (sorted; empty if identifiable)."""
+        return list(self.identifiability.get('names', []))
+
+
+def averaged_sigmas(sigmas, n_samples):
+    """Weights of rows that average ``n_samples`` pairs: ``sigma / sqrt(n)`` (median n)."""
+    n_samples = np.asarray(n_samples, dtype=float)
+    if n_samples.size == 0 or not np.all(n_samples >= 1):
+        return sigmas
+    factor = 1.0 / math.sqrt(float(np.median(n_samples)))
+    return Sigmas(
+        leg_lengths=sigmas.leg_lengths * factor, inclinometer=sigmas.inclinometer * factor,
+        encoder=sigmas.encoder * factor, lvdt=sigmas.lvdt * factor,
+    )
+
+
+def identify_from_samples(nominal, samples, sigmas=Sigmas(), free=None, formulation='implicit',
+                          **identify_options):
+    """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
+
+    ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
+    scaled by :func:`averaged_sigmas`. The commanded postures start the pose estimates. Fails
+    (``success=False``, message naming the parameters) when the identification raises, does not
+    converge, or leaves free parameters unidentifiable.
+    """
+    if formulation not in FORMULATIONS:
+        raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
+    free_mask = resolve_free(free)
+    count = len(samples)
+    row_sigmas = averaged_sigmas(sigmas, samples.n_samples)
+    outcome = CalibrationOutcome(success=False, message='', postures=count, sigmas=row_sigmas)
+    if count == 0:
+        outcome.message = 'no posture was collected: nothing to identify'
+        return outcome
+    started = time.perf_counter()
+    try:
+        result = identify(
+            nominal, samples.leg_lengths, samples.readings, row_sigmas,
+            formulation=formulation, free=free_mask, pose_guesses=samples.commanded_poses,
+            **identify_options,
+        )
+    except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
+        outcome.duration_s = time.perf_counter() - started
+        outcome.message = f'identification failed: {error}'
+        return outcome
+    outcome.duration_s = time.perf_counter() - started
+    outcome.result = result
+    if not result.converged:
+        outcome.message = (
+            f'identification did not converge after {result.iterations} iteration(s) '
+            f'(status {result.status}: {result.message}); nothing applied'
+        )
+        return outcome
+    analysis = analyse_identifiability(result)
+    outcome.identifiability = analysis
+    if analysis['names'] or analysis['rank'] < analysis['parameters']:
+        names = analysis['names']
+        combinations = [entry['combination'] for entry in analysis['unidentifiable']]
+        shown = '; '.join(combinations[:5]) + (' ...' if len(combinations) > 5 else '')
+        outcome.message = (
+            f'non-identifiable parameters: the scaled information matrix has rank '
+            f'{analysis["rank"]} of {analysis["parameters"]} with {count} posture(s); '
+            f'not identifiable: {", ".join(names) if names else "(unnamed)"} '
+            f'(null directions: {shown}). Add postures or fix these parameters '
+            '(free_parameters); nothing applied'
+        )
+        return outcome
+    outcome.success = True
+    outcome.geometry = result.geometry
+    return outcome
+
+
+def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
+    """Measured minus the nominal model at the commanded pose: ``{sensor: value}`` (m, rad).
+
+    ``leg_lengths`` is the largest |q - IK(nominal, pose)| over the six legs; the device
+    readings are ``alpha, beta, phi, d_m`` minus ``device_readings(nominal, pose)``.
+    """
+    pose = np.reshape(np.asarray(commanded_pose, dtype=float), (1, 6))
+    legs = np.asarray(leg_lengths, dtype=float) - inverse_kinematics(nominal, pose)[0]
+    device = np.asarray(readings, dtype=float) - device_readings(nominal, pose)[0]
+    device[2] = (device[2] + np.pi) % (2.0 * np.pi) - np.pi
+    residuals = {'leg_lengths': float(np.max(np.abs(legs)))}
+    residuals.update({name: float(v) for name, v in zip(('alpha', 'beta', 'phi', 'd_m'), device,
+                                                         strict=True)})
+    return residuals
+
+
+# --- reports -------------------------------------------------------------------------------------
+
+
+def residual_summary(residual_rms):
+    """``'legs 0.06 um, alpha 0.0003 deg, ...'`` of per-sensor residual RMS (m, rad)."""
+    parts = []
+    for name, value in residual_rms.items():
+        if name in ('alpha', 'beta', 'phi'):
+            parts.append(f'{name} {math.degrees(value):.2g} deg')
+        else:
+            parts.append(f'{"legs" if name == "leg_lengths" else name} {value * 1e6:.3g} um')
+    return ', '.join(parts)
+
+
+def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, reference=None):
+    """Human summary lines of a calibration (str, no trailing newline).
+
+    ``selected``: postures commanded; ``skipped``: ``[(k, reason), ...]``; ``reference``: a
+    geometry to print parameter errors against (e.g. the truth, in tests and the demo).
+    """
+    lines = []
+    head = 'calibration succeeded' if outcome.success else 'calibration FAILED'
+    used = f'{outcome.postures} posture(s)' + (f' of {selected} commanded' if selected else '')
+    lines.append(f'{head}: {used}')
+    if not outcome.success:
+        lines.append(f'reason: {outcome.message}')
+    for k, reason in skipped:
+        lines.append(f'skipped posture {k}: {reason}')
+    result = outcome.result
+    if result is not None:
+        lines.append(
+            f'{result.formulation} formulation, {int(np.sum(result.free))} free parameter(s), '
+            f'{result.iterations} iteration(s): {result.message}'
+        )
+        lines.append(f'{IDENTIFICATION_TIME_LABEL}{outcome.duration_s * 1000.0:.1f} ms')
+        if result.residual_rms:
+            lines.append(f'residual rms: {residual_summary(result.residual_rms)}')
+    if outcome.identifiability:
+        condition = outcome.identifiability.get('condition_number', math.inf)
+        lines.append(
+            f'identifiability: rank {outcome.identifiability.get("rank")} of '
+            f'{outcome.identifiability.get("parameters")}, scaled condition number '
+            f'{condition:.4g}'
+        )
+    if outcome.success and result is not None:
+        deviations = result.standard_deviations
+        free = np.asarray(result.free, dtype=bool)
+        lengths = deviations[:43][free[:43]]
+        if lengths.size:
+            lines.append(f'largest standard deviation: {np.nanmax(lengths) * 1000.0:.4g} mm'
+                         + (f', gamma {math.degrees(deviations[43]):.3g} deg' if free[43] else ''))
+    if outcome.success and reference is not None:
+        errors = parameter_errors(outcome.geometry, reference)
+        lines.append(f'parameter errors vs reference: max {np.max(np.abs(errors[:43])):.4g} mm, '
+                     f'gamma {abs(errors[43]):.3g} deg')
+    if run_directory is not None:
+        lines.append(f'{RUN_DIRECTORY_LABEL}{run_directory}')
+    return '\n'.join(lines)
+
+
+def format_response(summary, geometry=None, node_name='/**'):
+    """Trigger response message: the summary, then (on success) the geometry params file."""
+    if geometry is None:
+        return summary
+    yaml_text = geometry_to_yaml(geometry, node_name=node_name, comment='calibrated by gsp_calibrator')
+    return f'{summary}\n{RESPONSE_SEPARATOR}\n{yaml_text}'
+
+
+@dataclasses.dataclass(frozen=True)
+class ParsedResponse:
+    """A Trigger response message split into its parts."""
+
+    summary: str
+    geometry_yaml: str  #: '' when the response carries no geometry
+    run_directory: str  #: '' when not named
+    identification_ms: float  #: NaN when not given
+
+
+def parse_response(message):
+    """Split a calibrate response (see :func:`format_response`) into a :class:`ParsedResponse`."""
+    summary, separator, geometry_yaml = message.partition('\n' + RESPONSE_SEPARATOR + '\n')
+    if not separator:
+        summary, geometry_yaml = message, ''
+    run_directory, identification_ms = '', math.nan
+    for line in summary.splitlines():
+        if line.startswith(RUN_DIRECTORY_LABEL):
+            run_directory = line[len(RUN_DIRECTORY_LABEL):].strip()
+        elif line.startswith(IDENTIFICATION_TIME_LABEL):
+            try:
+                identification_ms = float(line[len(IDENTIFICATION_TIME_LABEL):].split()[0])
+            except (ValueError, IndexError):
+                pass
+    return ParsedResponse(summary, geometry_yaml, run_directory, identification_ms)

@@ -1,0 +1,349 @@
+"""Stamp-matching synchroniser of leg-length and device samples (pure, no rclpy).
+
+The platform publishes leg lengths ``q`` (6, m) on its own timer; the device driver publishes its
+three topics (inclinometer ``alpha, beta`` (rad), encoder ``phi`` (rad), LVDT ``d_m`` (m)) on
+another timer, the three messages of one instant sharing a stamp. :class:`SampleCollector`
+buffers both streams, drops (and counts) non-finite readings, pairs each leg-length sample with
+the complete device sample of nearest stamp within ``sync_tolerance`` (s), keeps only pairs
+stamped at or after the current start time (the platform has settled), and averages
+``samples_per_posture`` pairs into one posture row.
+
+Consistency (optional, ``noise_std``): the averaged pairs must agree with each other. A window of
+``samples_per_posture`` consecutive pairs is used only if every value lies within
+``consistency_threshold`` robust standard deviations (``max(1.4826 * MAD, noise_std)`` per
+channel) of the window's median; the earliest consistent window is taken, and the pairs before it
+are dropped and counted. This discards glitches and readings that still describe the previous
+posture (a sensor stream lagging behind the settled status). Likewise, when :meth:`start` is given
+the previous posture's device readings, a window whose device readings have not changed from
+them (within the same threshold) is not used: the platform moved, so a device that reports the
+same values is reporting the previous posture. (Postures that differ only by a tilt of the
+platform about its centre, with the same device position and phi, would look alike; posture
+pools sampled at random never hold such pairs.)
+
+Stamps are integer nanoseconds. Messages may arrive out of order or go missing: pairing is
+recomputed from the buffers, and an incomplete device instant (one of its three topics missing)
+is never used.
+"""
+
+import bisect
+import dataclasses
+import math
+
+import numpy as np
+
+NS_PER_S = 1_000_000_000
+
+#: Stream names, as counted in :attr:`SampleCollector.non_finite` and ``received``.
+LEG_LENGTHS = 'leg_lengths'
+INCLINOMETER = 'inclinometer'
+ENCODER = 'encoder'
+LVDT = 'lvdt'
+STREAMS = (LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT)
+
+#: Device reading columns, in the order of the core's ``readings`` rows.
+_READING_COLUMNS = {'alpha': 0, 'beta': 1, 'phi': 2, 'd_m': 3}
+_STREAM_COLUMNS = {INCLINOMETER: (0, 1), ENCODER: (2,), LVDT: (3,)}
+#: Robust standard deviations a value may lie from its window's median (see the module docstring).
+DEFAULT_CONSISTENCY_THRESHOLD = 10.0
+#: Index of phi among the 10 channels [q_1..q_6, alpha, beta, phi, d_m] (compared on the circle).
+_PHI_CHANNEL = 8
+_UNKNOWN = object()
+
+
+def seconds_to_ns(seconds):
+    """Integer nanoseconds of a time in seconds."""
+    return int(round(float(seconds) * NS_PER_S))
+
+
+@dataclasses.dataclass(frozen=True)
+class PostureSample:
+    """One averaged posture row: ``n_samples`` synchronised pairs, SI units."""
+
+    leg_lengths: np.ndarray  #: (6,) mean q_i, m
+    readings: np.ndarray  #: (4,) mean [alpha, beta, phi, d_m], rad and m
+    n_samples: int  #: number of pairs averaged
+    stamp_ns: int  #: mean stamp of the averaged leg-length samples, ns
+    leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
+    readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
+
+    @property
+    def stamp(self):
+        """Mean stamp in seconds."""
+        return self.stamp_ns / NS_PER_S
+
+
+def _wrap(angle):
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+class SampleCollector:
+    """Buffers both streams and pairs them by nearest stamp (see the module docstring).
+
+    ``sync_tolerance`` (s): largest stamp difference of a pair. ``samples_per_posture``: pairs
+    averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first).
+    ``noise_std``: None (no consistency check) or the noise std of the 10 channels
+    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread.
+    """
+
+    def __init__(self, sync_tolerance, samples_per_posture, max_buffer=2000, noise_std=None,
+                 consistency_threshold=DEFAULT_CONSISTENCY_THRESHOLD):
+        sync_tolerance = float(sync_tolerance)
+        if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
+            raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
+        if int(samples_per_posture) < 1:
+            raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
+        if int(max_buffer) < int(samples_per_posture):
+            raise ValueError('max_buffer must hold at least samples_per_posture samples')
+        if noise_std is not None:
+            noise_std = np.asarray(noise_std, dtype=float).reshape(10)
+            if not np.all(np.isfinite(noise_std) & (noise_std > 0.0)):
+                raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
+        if not float(consistency_threshold) > 0.0:
+            raise ValueError(f'consistency_threshold must be > 0, got {consistency_threshold}')
+        self.noise_std = noise_std
+        self.consistency_threshold = float(consistency_threshold)
+        self.tolerance_ns = seconds_to_ns(sync_tolerance)
+        self.samples_per_posture = int(samples_per_posture)
+        self.max_buffer = int(max_buffer)
+        self.start_ns = None  # None: not collecting, every sample is ignored
+        self.previous_readings = None  # device readings (4,) of the previous posture
+        self._legs = {}  # stamp_ns -> q (6,)
+        self._device = {}  # stamp_ns -> readings (4,), NaN where not received yet
+        self._pairs = None  # cached result of pairs(), None when a buffer changed
+        self._window = _UNKNOWN  # cached result of window()
+        self._window_checks = {}  # tuple(window pairs) -> usable (consistent and changed)
+        #: Non-finite readings dropped, per stream (over the collector's lifetime).
+        self.non_finite = dict.fromkeys(STREAMS, 0)
+        #: Finite samples received, per stream (over the collector's lifetime).
+        self.received = dict.fromkeys(STREAMS, 0)
+        #: Samples ignored because stamped before the start time, per stream.
+        self.too_early = dict.fromkeys(STREAMS, 0)
+        #: Pairs dropped because inconsistent with the window averaged after them.
+        self.inconsistent = 0
+
+    # --- input -------------------------------------------------------------------------------
+
+    def start(self, start_ns, previous_readings=None):
+        """Begin a new posture: forget buffered samples, keep only stamps >= ``start_ns``.
+
+        ``previous_readings``: the previous posture's ``[alpha, beta, phi, d_m]``, if any (see
+        the module docstring).
+        """
+        self.start_ns = int(start_ns)
+        self.previous_readings = (None if previous_readings is None
+                                  else np.asarray(previous_readings, dtype=float).reshape(4))
+        self._legs.clear()
+        self._device.clear()
+        self._window_checks.clear()
+        self._invalidate()
+
+    def stop(self):
+        """Stop collecting: ignore samples until the next :meth:`start`."""
+        self.start_ns = None
+        self.previous_readings = None
+        self._legs.clear()
+        self._device.clear()
+        self._window_checks.clear()
+        self._invalidate()
+
+    def record_non_finite(self, stream):
+        """Count a non-finite reading the caller has already dropped (e.g. at message parsing)."""
+        self.non_finite[stream] += 1
+
+    def _accept(self, stream, stamp_ns, values):
+        if not np.all(np.isfinite(values)):
+            self.non_finite[stream] += 1
+            return False
+        self.received[stream] += 1
+        if self.start_ns is None or stamp_ns < self.start_ns:
+            self.too_early[stream] += 1
+            return False
+        return True
+
+    def add_leg_lengths(self, stamp_ns, leg_lengths):
+        """Add a leg-length sample ``q`` (6, m). Returns False if dropped."""
+        leg_lengths = np.asarray(leg_lengths, dtype=float).reshape(6)
+        stamp_ns = int(stamp_ns)
+        if not self._accept(LEG_LENGTHS, stamp_ns, leg_lengths):
+            return False
+        self._legs[stamp_ns] = leg_lengths.copy()
+        self._trim(self._legs)
+        self._invalidate()
+        return True
+
+    def _add_device(self, stream, stamp_ns, values):
+        values = np.asarray(values, dtype=float).reshape(-1)
+        stamp_ns = int(stamp_ns)
+        if not self._accept(stream, stamp_ns, values):
+            return False
+        row = self._device.get(stamp_ns)
+        if row is None:
+            row = np.full(4, np.nan)
+            self._device[stamp_ns] = row
+            self._trim(self._device)
+        row[list(_STREAM_COLUMNS[stream])] = values
+        self._invalidate()
+        return True
+
+    def add_inclinometer(self, stamp_ns, alpha, beta):
+        """Add an inclinometer sample ``alpha, beta`` (rad). Returns False if dropped."""
+        return self._add_device(INCLINOMETER, stamp_ns, [alpha, beta])
+
+    def add_encoder(self, stamp_ns, phi):
+        """Add an encoder sample ``phi`` (rad). Returns False if dropped."""
+        return self._add_device(ENCODER, stamp_ns, [phi])
+
+    def add_lvdt(self, stamp_ns, d_m):
+        """Add an LVDT sample ``d_m`` (m). Returns False if dropped."""
+        return self._add_device(LVDT, stamp_ns, [d_m])
+
+    def _invalidate(self):
+        self._pairs = None
+        self._window = _UNKNOWN
+
+    def _trim(self, buffer):
+        while len(buffer) > self.max_buffer:
+            del buffer[min(buffer)]
+
+    # --- pairing -----------------------------------------------------------------------------
+
+    def complete_device_stamps(self):
+        """Sorted stamps (ns) of device instants with all three topics received."""
+        return sorted(s for s, row in self._device.items() if np.all(np.isfinite(row)))
+
+    def pairs(self):
+        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order.
+
+        Each leg-length sample takes the nearest unused complete device sample within the
+        tolerance (one-to-one); a leg sample with none is left unpaired.
+        """
+        if self._pairs is None:
+            self._pairs = self._match()
+        return list(self._pairs)
+
+    def _match(self):
+        device = self.complete_device_stamps()
+        used = [False] * len(device)
+        result = []
+        for leg_stamp in sorted(self._legs):
+            # Nearest unused device stamp: walk outwards from the insertion point.
+            right = bisect.bisect_left(device, leg_stamp)
+            left = right - 1
+            while left >= 0 and used[left]:
+                left -= 1
+            while right < len(device) and used[right]:
+                right += 1
+            candidates = [i for i in (left, right) if 0 <= i < len(device)]
+            if not candidates:
+                continue
+            best = min(candidates, key=lambda i: (abs(device[i] - leg_stamp), device[i]))
+            if abs(device[best] - leg_stamp) <= self.tolerance_ns:
+                used[best] = True
+                result.append((leg_stamp, device[best]))
+        return result
+
+    def pair_count(self):
+        """Number of synchronised pairs available now."""
+        return len(self.pairs())
+
+    def _values(self, pairs):
+        """(n, 10) ``[q_1..q_6, alpha, beta, phi, d_m]`` of ``pairs``."""
+        return np.array([np.concatenate([self._legs[leg], self._device[dev]])
+                         for leg, dev in pairs])
+
+    def _median_and_spread(self, pairs):
+        values = self._values(pairs)
+        values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + _wrap(
+            values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL])
+        median = np.median(values, axis=0)
+        deviation = np.abs(values - median)
+        spread = np.maximum(1.4826 * np.median(deviation, axis=0), self.noise_std)
+        return values, median, deviation, spread
+
+    def consistent(self, pairs):
+        """Whether every value of ``pairs`` lies within the threshold of their median."""
+        if self.noise_std is None or len(pairs) < 3:
+            return True
+        _, _, deviation, spread = self._median_and_spread(pairs)
+        return bool(np.all(deviation <= self.consistency_threshold * spread))
+
+    def unchanged(self, pairs):
+        """Whether the device readings of ``pairs`` still equal the previous posture's."""
+        if self.noise_std is None or self.previous_readings is None or not pairs:
+            return False
+        _, median, _, spread = self._median_and_spread(pairs)
+        difference = median[6:] - self.previous_readings
+        difference[2] = _wrap(difference[2])
+        return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))
+
+    def window(self):
+        """The pairs to average: the earliest consistent run of ``samples_per_posture``
+        consecutive pairs, or None if there is none yet."""
+        if self._window is _UNKNOWN:
+            self._window = None
+            pairs = self.pairs()
+            count = self.samples_per_posture
+            for start in range(0, len(pairs) - count + 1):
+                candidate = pairs[start:start + count]
+                key = tuple(candidate)
+                usable = self._window_checks.get(key)
+                if usable is None:
+                    usable = self.consistent(candidate) and not self.unchanged(candidate)
+                    self._window_checks[key] = usable
+                if usable:
+                    self._window = candidate
+                    break
+        return None if self._window is None else list(self._window)
+
+    def ready(self):
+        """True once ``samples_per_posture`` consistent pairs are available."""
+        return self.pair_count() >= self.samples_per_posture and self.window() is not None
+
+    def counts(self):
+        """Buffered samples per stream since the start time (device: complete instants)."""
+        return {
+            LEG_LENGTHS: len(self._legs),
+            'device': len(self.complete_device_stamps()),
+            'pairs': self.pair_count(),
+            'consistent': self.window() is not None if self.pair_count() else False,
+        }
+
+    def average(self, pairs=None):
+        """Average :meth:`window` (or ``pairs``) into a posture row.
+
+        Raises ``ValueError`` if there are no pairs. ``phi`` is averaged on the circle.
+        """
+        if pairs is None:
+            pairs = self.window() or self.pairs()[: self.samples_per_posture]
+        if not pairs:
+            raise ValueError('no synchronised samples to average')
+        legs = np.array([self._legs[leg] for leg, _ in pairs])
+        readings = np.array([self._device[dev] for _, dev in pairs])
+        phi0 = readings[0, 2]
+        readings[:, 2] = phi0 + _wrap(readings[:, 2] - phi0)
+        mean_readings = readings.mean(axis=0)
+        mean_readings[2] = float(_wrap(mean_readings[2]))
+        ddof = 1 if len(pairs) > 1 else 0
+        stamps = np.array([leg for leg, _ in pairs], dtype=np.int64)
+        mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
+        return PostureSample(
+            leg_lengths=legs.mean(axis=0),
+            readings=mean_readings,
+            n_samples=len(pairs),
+            stamp_ns=mean_stamp,
+            leg_lengths_std=legs.std(axis=0, ddof=ddof),
+            readings_std=readings.std(axis=0, ddof=ddof),
+        )
+
+    def take_posture(self):
+        """Average the consistent window and stop collecting; ValueError if not ready."""
+        window = self.window() if self.pair_count() >= self.samples_per_posture else None
+        if window is None:
+            raise ValueError(
+                f'only {self.pair_count()} synchronised samples, no {self.samples_per_posture} '
+                'consistent ones'
+            )
+        self.inconsistent += self.pairs().index(window[0])
+        sample = self.average(window)
+        self.stop()
+        return sample

@@ -1,0 +1,390 @@
+"""``gsp_reidentify``: re-identify a calibration offline, into a new run directory (no ROS graph).
+
+Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``, or a
+``recording.mcap`` (the posture rows are rebuilt with the calibrator's own synchroniser, see
+:func:`gsp_calibrator.recording.samples_from_recording`). The identification is the calibrator
+node's own: :func:`gsp_calibrator.calibration.identify_from_samples` with the commanded postures
+as pose guesses, so the same samples and options give the same result as the online run.
+
+Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success),
+``result.json``, ``report.md`` with its PNGs, a copy of the recording (when the input has one) and
+``true_geometry.yaml`` (when a truth is given). Prints the summary and the run directory.
+
+Exit code: 0 success, 1 identification failed (or non-identifiable), 2 bad input.
+"""
+
+import argparse
+import json
+import math
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gsp_kinematics.geometry import (
+    PARAMETER_NAMES,
+    GeometryError,
+    default_geometry_path,
+    load_geometry,
+)
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Sigmas
+
+from . import calibration
+from .run_directory import (
+    RESULT_FILE,
+    SAMPLES_FILE,
+    TRUE_GEOMETRY_FILE,
+    RunDirectory,
+    RunDirectoryError,
+    read_samples,
+)
+from .settings import DEFAULTS
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+VALIDATION_POSTURES = 50
+
+
+class InputError(ValueError):
+    """Unusable input; the message names the file (and row/column) at fault."""
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog='gsp_reidentify',
+        description='Re-identify a Gough-Stewart platform calibration offline from a run '
+                    'directory, a samples.csv or a recording.mcap, into a new run directory.',
+    )
+    parser.add_argument('input', help='run directory, samples.csv or recording.mcap')
+    stored = 'default: as stored with the input run, else'
+    parser.add_argument('--nominal', default=None,
+                        help='nominal geometry params file (default: as stored with the input run '
+                             'if that file exists, else the shipped nominal, '
+                             f'{default_geometry_path("nominal")})')
+    parser.add_argument('--formulation', choices=FORMULATIONS, default=None,
+                        help=f'identification formulation ({stored} {DEFAULTS["formulation"]})')
+    parser.add_argument('--free', nargs='+', metavar='NAME', default=None,
+                        help='parameters identified (names or comma-separated lists, e.g. '
+                             f'A1x B1x,B1y Loff1 D0 gamma; {stored} all 44)')
+    parser.add_argument('--sigma-leg-lengths', type=float, default=None, metavar='M',
+                        help='noise std of one leg-length sample, m '
+                             f'({stored} {DEFAULTS["sigma_leg_lengths"]:g})')
+    parser.add_argument('--sigma-inclinometer', type=float, default=None, metavar='RAD',
+                        help='noise std of one inclinometer sample, rad '
+                             f'({stored} {DEFAULTS["sigma_inclinometer"]:g})')
+    parser.add_argument('--sigma-encoder', type=float, default=None, metavar='RAD',
+                        help='noise std of one encoder sample, rad '
+                             f'({stored} {DEFAULTS["sigma_encoder"]:g})')
+    parser.add_argument('--sigma-lvdt', type=float, default=None, metavar='M',
+                        help=f'noise std of one LVDT sample, m ({stored} {DEFAULTS["sigma_lvdt"]:g})')
+    parser.add_argument('--samples-per-posture', type=int, default=None, metavar='N',
+                        help='recording input: synchronised samples averaged per posture '
+                             f'({stored} {DEFAULTS["samples_per_posture"]})')
+    parser.add_argument('--sync-tolerance', type=float, default=None, metavar='S',
+                        help='recording input: largest stamp difference of a pair, s '
+                             f'({stored} {DEFAULTS["sync_tolerance"]:g})')
+    parser.add_argument('--output-root', default=DEFAULTS['output_root'],
+                        help='directory of the new run directory (default %(default)s)')
+    parser.add_argument('--truth', default=None,
+                        help='true geometry params file, for errors against the truth and a '
+                             'validation in the report (default: the input run directory\'s '
+                             f'{TRUE_GEOMETRY_FILE}, if any)')
+    parser.add_argument('--validation-postures', type=int, default=VALIDATION_POSTURES,
+                        metavar='N', help='random postures of the validation against the truth '
+                                          '(default %(default)s; 0: none)')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the validation postures (default %(default)s)')
+    parser.add_argument('--no-report', action='store_true',
+                        help='write samples.csv, result.yaml and result.json only')
+    return parser
+
+
+# --- inputs ------------------------------------------------------------------------------------
+
+
+def free_parameters(values):
+    """Names from ``--free`` (space or comma separated); InputError naming unknown ones."""
+    if values is None:
+        return None
+    names = [n.strip() for value in values for n in value.split(',') if n.strip()]
+    unknown = [n for n in names if n not in PARAMETER_NAMES]
+    if unknown:
+        raise InputError(f'--free: unknown parameter name(s) {unknown}; expected names among '
+                         'A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma')
+    if not names:
+        raise InputError('--free: no parameter named')
+    duplicated = sorted({n for n in names if names.count(n) > 1})
+    if duplicated:
+        raise InputError(f'--free: duplicated name(s) {duplicated}')
+    return names
+
+
+_SIGMA_OPTIONS = (('sigma_leg_lengths', '--sigma-leg-lengths'),
+                  ('sigma_inclinometer', '--sigma-inclinometer'),
+                  ('sigma_encoder', '--sigma-encoder'), ('sigma_lvdt', '--sigma-lvdt'))
+
+
+def stored_options(kind, path, source_dir):
+    """Run options stored with the input: the run directory's ``result.json`` ``options``, then
+    (overriding) those of the recording."""
+    options = {}
+    if source_dir is not None and (source_dir / 'result.json').is_file():
+        try:
+            with open(source_dir / 'result.json', encoding='utf-8') as stream:
+                options.update(json.load(stream).get('options') or {})
+        except (OSError, ValueError, AttributeError):
+            pass
+    recording_path = path if kind == 'mcap' else (
+        source_dir / 'recording.mcap' if source_dir is not None else None)
+    if recording_path is not None and Path(recording_path).is_file():
+        from .recording import RecordingError, recording_options
+
+        try:
+            options.update(recording_options(recording_path))
+        except RecordingError as error:
+            if kind == 'mcap':
+                raise InputError(str(error)) from error
+    return options
+
+
+def resolve_options(args, stored):
+    """``{name: value}`` of every run option: the command line, else ``stored``, else defaults."""
+    def pick(value, name):
+        if value is not None:
+            return value
+        return stored.get(name, DEFAULTS[name])
+
+    options = {name: pick(getattr(args, name), name) for name, _ in _SIGMA_OPTIONS}
+    for name, option in _SIGMA_OPTIONS:
+        value = options[name]
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            value = math.nan
+        if not (math.isfinite(value) and value > 0.0):
+            raise InputError(f'{option}: {options[name]!r} rejected, must be a finite number > 0')
+        options[name] = value
+    options['formulation'] = pick(args.formulation, 'formulation')
+    if options['formulation'] not in FORMULATIONS:
+        raise InputError(f"formulation {options['formulation']!r} (stored) is not one of "
+                         f'{list(FORMULATIONS)}')
+    if args.free is not None:
+        options['free_parameters'] = free_parameters(args.free)
+    elif stored.get('free_parameters'):
+        options['free_parameters'] = free_parameters(list(stored['free_parameters']))
+    else:
+        options['free_parameters'] = list(PARAMETER_NAMES)
+    options['samples_per_posture'] = int(pick(args.samples_per_posture, 'samples_per_posture'))
+    options['sync_tolerance'] = float(pick(args.sync_tolerance, 'sync_tolerance'))
+    if options['samples_per_posture'] < 1:
+        raise InputError('--samples-per-posture must be >= 1')
+    if not (math.isfinite(options['sync_tolerance']) and options['sync_tolerance'] >= 0.0):
+        raise InputError('--sync-tolerance must be finite and >= 0 s')
+    nominal = args.nominal
+    if nominal is None:
+        nominal = stored.get('nominal_geometry_file')
+        if not nominal or not Path(nominal).is_file():
+            if nominal:
+                print(f'gsp_reidentify: warning: the run\'s nominal geometry {nominal} is not '
+                      'available: using the shipped nominal', file=sys.stderr)
+            nominal = default_geometry_path('nominal')
+    options['nominal_geometry_file'] = str(nominal)
+    return options
+
+
+def sigmas_of(options):
+    return Sigmas(leg_lengths=options['sigma_leg_lengths'],
+                  inclinometer=options['sigma_inclinometer'],
+                  encoder=options['sigma_encoder'], lvdt=options['sigma_lvdt'])
+
+
+def _geometry(path, option):
+    try:
+        return load_geometry(path)
+    except (GeometryError, OSError) as error:
+        raise InputError(f'{option} {path}: {error}') from error
+
+
+def resolve_input(path):
+    """``(kind, path, run_directory or None)``: kind ``'csv'`` or ``'mcap'``."""
+    path = Path(path)
+    if path.is_dir():
+        if (path / SAMPLES_FILE).is_file():
+            return 'csv', path / SAMPLES_FILE, path
+        from .recording import RECORDING_FILE
+
+        if (path / RECORDING_FILE).is_file():
+            return 'mcap', path / RECORDING_FILE, path
+        raise InputError(f'{path}: run directory without {SAMPLES_FILE} or recording.mcap')
+    if not path.exists():
+        raise InputError(f'{path}: no such file or directory')
+    if path.suffix.lower() == '.mcap':
+        return 'mcap', path, None
+    if path.suffix.lower() == '.csv':
+        return 'csv', path, None
+    raise InputError(f'{path}: expected a run directory, a samples.csv or a recording.mcap')
+
+
+def load_input(kind, path, options):
+    """The posture rows (``Samples``) of a samples.csv, or rebuilt from a recording.mcap."""
+    if kind == 'csv':
+        try:
+            samples = read_samples(path)
+        except RunDirectoryError as error:
+            raise InputError(str(error)) from error
+    else:
+        from .recording import RecordingError, samples_from_recording
+
+        noise_std = ([options['sigma_leg_lengths']] * 6 + [options['sigma_inclinometer']] * 2
+                     + [options['sigma_encoder'], options['sigma_lvdt']])
+        try:
+            samples = samples_from_recording(path, options['sync_tolerance'],
+                                             options['samples_per_posture'], noise_std)
+        except RecordingError as error:
+            raise InputError(str(error)) from error
+    if len(samples) == 0:
+        raise InputError(f'{path}: no posture rows' + (
+            ' (no posture completed in the recording)' if kind == 'mcap' else ''))
+    return samples
+
+
+def _copy_atomic(source, target):
+    temporary = Path(str(target) + '.tmp')
+    shutil.copyfile(source, temporary)
+    os.replace(temporary, target)
+    return target
+
+
+def validation_postures(truth, count, seed):
+    from gsp_kinematics.kinematics import sample_valid_postures
+
+    return sample_valid_postures(truth, int(count), np.random.default_rng(int(seed)))
+
+
+# --- main --------------------------------------------------------------------------------------
+
+
+def reidentify(args, out=None):
+    """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
+    out = sys.stdout if out is None else out
+    if args.free is not None:
+        free_parameters(args.free)  # a bad name is reported before anything is read
+    kind, path, source_dir = resolve_input(args.input)
+    options = resolve_options(args, stored_options(kind, path, source_dir))
+    sigmas = sigmas_of(options)
+    free = options['free_parameters']
+    nominal_path = options['nominal_geometry_file']
+    nominal = _geometry(nominal_path, '--nominal')
+    truth_path = args.truth
+    if truth_path is None and source_dir is not None and (source_dir / TRUE_GEOMETRY_FILE).is_file():
+        truth_path = source_dir / TRUE_GEOMETRY_FILE
+    truth = _geometry(truth_path, '--truth') if truth_path is not None else None
+    if args.validation_postures < 0:
+        raise InputError('--validation-postures must be >= 0')
+    samples = load_input(kind, path, options)
+
+    try:
+        outcome = calibration.identify_from_samples(nominal, samples, sigmas, free,
+                                                    options['formulation'])
+    except (IdentificationError, calibration.CalibrationError) as error:
+        raise InputError(str(error)) from error
+
+    run = RunDirectory.create(args.output_root)
+    run.write_samples(samples)
+    if kind == 'mcap' or (source_dir is not None and (source_dir / 'recording.mcap').is_file()):
+        recording_path = path if kind == 'mcap' else source_dir / 'recording.mcap'
+        _copy_atomic(recording_path, run.file('recording.mcap'))
+    if truth is not None:
+        run.write_geometry(truth, name=TRUE_GEOMETRY_FILE, comment='true geometry (given)')
+    if outcome.success:
+        run.write_geometry(outcome.geometry, name=RESULT_FILE,
+                           comment=f'calibrated offline by gsp_reidentify from {path}')
+
+    validation_before = validation_after = None
+    if outcome.result is not None:
+        if truth is not None and args.validation_postures > 0:
+            from .report import validation_errors
+
+            poses = validation_postures(truth, args.validation_postures, args.seed)
+            try:
+                validation_before = validation_errors(truth, nominal, poses)
+                if outcome.success:
+                    validation_after = validation_errors(truth, outcome.geometry, poses)
+            except ValueError as error:
+                print(f'warning: validation skipped: {error}', file=sys.stderr)
+        from .report import write_report, write_result_json
+
+        run_options = dict(options, source=str(path), source_kind=kind,
+                           truth_geometry_file=str(truth_path) if truth_path else None)
+        extra = {'success': outcome.success, 'failure': outcome.message or None,
+                 'options': run_options, 'tool': 'gsp_reidentify'}
+        kwargs = dict(analysis=outcome.identifiability or None,
+                      validation_before=validation_before, validation_after=validation_after,
+                      truth=truth, nominal=nominal, sigmas=outcome.sigmas, extra=extra)
+        write_result_json(run, outcome.result, **kwargs)
+        if not args.no_report:
+            write_report(run, outcome.result, title='Offline re-identification', **kwargs)
+
+    print(calibration.outcome_summary(outcome, reference=truth), file=out)
+    for when, validation in (('before', validation_before), ('after', validation_after)):
+        if validation is not None:
+            print(f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
+                  f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
+                  f'{validation["orientation_deg_mean"]:.4g} deg, max '
+                  f'{validation["orientation_deg_max"]:.4g} deg', file=out)
+    print(f'{calibration.RUN_DIRECTORY_LABEL}{run.path}', file=out)
+    return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
+
+
+def refresh_report(run_dir, truth=None, validation_before=None, validation_after=None,
+                   write_pngs=True, title='Calibration report'):
+    """Rewrite ``result.json`` (and ``report.md`` with its PNGs) of an existing run directory.
+
+    For a caller that has the run directory but not the identification result, e.g. the main job
+    once it knows the truth and has validated the calibrated geometry through the system. The
+    samples are identified again with the run's stored options (``result.json`` ``options`` or
+    the recording's), which gives the run's result exactly. ``validation_*``: validation
+    summaries or :func:`gsp_calibrator.report.validation_errors` dicts (per-posture arrays are
+    plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
+    """
+    from .report import write_report, write_result_json
+
+    source_dir = Path(run_dir)
+    kind, path, _ = resolve_input(source_dir)
+    args = build_parser().parse_args([str(source_dir)])
+    options = resolve_options(args, stored_options(kind, path, source_dir))
+    nominal = _geometry(options['nominal_geometry_file'], 'nominal_geometry_file')
+    samples = load_input(kind, path, options)
+    outcome = calibration.identify_from_samples(nominal, samples, sigmas_of(options),
+                                                options['free_parameters'], options['formulation'])
+    if outcome.result is None:
+        raise InputError(f'{source_dir}: {outcome.message}')
+    extra = {'success': outcome.success, 'failure': outcome.message or None,
+             'options': dict(options, source=str(path), source_kind=kind)}
+    kwargs = dict(analysis=outcome.identifiability or None, validation_before=validation_before,
+                  validation_after=validation_after, truth=truth, nominal=nominal,
+                  sigmas=outcome.sigmas, extra=extra)
+    write_result_json(source_dir, outcome.result, **kwargs)
+    if write_pngs:
+        write_report(source_dir, outcome.result, title=title, **kwargs)
+    return outcome
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        code, _ = reidentify(args)
+    except InputError as error:
+        print(f'gsp_reidentify: error: {error}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

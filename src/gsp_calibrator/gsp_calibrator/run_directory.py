@@ -1,0 +1,293 @@
+"""The run directory of a calibration: ``<root>/<UTC timestamp>/`` (pure, no rclpy).
+
+Every file is written atomically: a temporary file in the same directory, flushed, then
+``os.replace`` over the target, so a reader never sees a half-written file.
+
+Files (see docs/design.md): ``samples.csv`` (:data:`SAMPLES_COLUMNS`, SI, one row per posture),
+``result.yaml`` (canonical geometry params file), ``summary.json`` and any other file added
+through :meth:`RunDirectory.write_text`, :meth:`~RunDirectory.write_bytes` or
+:meth:`~RunDirectory.write_json`.
+"""
+
+import csv
+import dataclasses
+import datetime
+import io
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from gsp_kinematics.geometry import load_geometry, save_geometry
+
+SAMPLES_FILE = 'samples.csv'
+RESULT_FILE = 'result.yaml'
+SUMMARY_FILE = 'summary.json'
+TRUE_GEOMETRY_FILE = 'true_geometry.yaml'
+
+POSE_COLUMNS = ('x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd')
+LEG_COLUMNS = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
+READING_COLUMNS = ('alpha', 'beta', 'phi', 'd_m')
+#: Columns of ``samples.csv``, exactly (m, rad, s).
+SAMPLES_COLUMNS = (
+    ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_samples', 'stamp')
+)
+
+TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
+
+
+class RunDirectoryError(ValueError):
+    """A run-directory file is missing or malformed; the message names the file and row."""
+
+
+# --- atomic writes -------------------------------------------------------------------------------
+
+
+def atomic_write_bytes(path, data):
+    """Write ``data`` to ``path`` atomically (temporary file in the same directory + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+    try:
+        with os.fdopen(handle, 'wb') as stream:
+            stream.write(data)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        try:
+            os.unlink(temporary)
+        except FileNotFoundError:
+            pass
+        raise
+    return path
+
+
+def atomic_write_text(path, text):
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    return atomic_write_bytes(path, text.encode('utf-8'))
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f'{type(value).__name__} is not JSON serialisable')
+
+
+def to_json(data):
+    """JSON text (indented, numpy-aware) of ``data``."""
+    return json.dumps(data, indent=2, sort_keys=False, default=_json_default) + '\n'
+
+
+# --- samples.csv ---------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Samples:
+    """The rows of ``samples.csv``: M averaged postures, SI units."""
+
+    posture: np.ndarray  #: (M,) int, posture number k (1-based, in commanded order)
+    commanded_poses: np.ndarray  #: (M, 6) [x, y, z, psi, theta, phi] commanded, m and rad
+    leg_lengths: np.ndarray  #: (M, 6) mean q_i, m
+    readings: np.ndarray  #: (M, 4) mean [alpha, beta, phi, d_m], rad and m
+    n_samples: np.ndarray  #: (M,) int, synchronised pairs averaged
+    stamps: np.ndarray  #: (M,) float, mean stamp, s
+
+    def __post_init__(self):
+        self.posture = np.asarray(self.posture, dtype=int).reshape(-1)
+        count = self.posture.shape[0]
+        self.commanded_poses = np.asarray(self.commanded_poses, dtype=float).reshape(count, 6)
+        self.leg_lengths = np.asarray(self.leg_lengths, dtype=float).reshape(count, 6)
+        self.readings = np.asarray(self.readings, dtype=float).reshape(count, 4)
+        self.n_samples = np.asarray(self.n_samples, dtype=int).reshape(count)
+        self.stamps = np.asarray(self.stamps, dtype=float).reshape(count)
+
+    def __len__(self):
+        return int(self.posture.shape[0])
+
+    @classmethod
+    def empty(cls):
+        return cls(np.zeros(0, int), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 4)),
+                   np.zeros(0, int), np.zeros(0))
+
+    def append(self, posture, commanded_pose, leg_lengths, readings, n_samples, stamp):
+        """Add one row (in place)."""
+        self.posture = np.append(self.posture, int(posture))
+        self.commanded_poses = np.vstack([self.commanded_poses, np.reshape(commanded_pose, (1, 6))])
+        self.leg_lengths = np.vstack([self.leg_lengths, np.reshape(leg_lengths, (1, 6))])
+        self.readings = np.vstack([self.readings, np.reshape(readings, (1, 4))])
+        self.n_samples = np.append(self.n_samples, int(n_samples))
+        self.stamps = np.append(self.stamps, float(stamp))
+
+    def as_tuple(self):
+        """``(commanded_poses, leg_lengths, readings, n_samples, stamps)``."""
+        return self.commanded_poses, self.leg_lengths, self.readings, self.n_samples, self.stamps
+
+
+def samples_to_csv(samples):
+    """CSV text of ``samples`` (full float precision, ``repr``)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator='\n')
+    writer.writerow(SAMPLES_COLUMNS)
+    for m in range(len(samples)):
+        writer.writerow(
+            [str(int(samples.posture[m]))]
+            + [repr(float(v)) for v in samples.commanded_poses[m]]
+            + [repr(float(v)) for v in samples.leg_lengths[m]]
+            + [repr(float(v)) for v in samples.readings[m]]
+            + [str(int(samples.n_samples[m])), repr(float(samples.stamps[m]))]
+        )
+    return buffer.getvalue()
+
+
+def samples_from_csv(text, source='<string>'):
+    """Parse ``samples.csv`` text; :class:`RunDirectoryError` names the row and column."""
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise RunDirectoryError(f'{source}: empty file (expected a header)') from None
+    if tuple(header) != SAMPLES_COLUMNS:
+        raise RunDirectoryError(
+            f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
+        )
+    rows = []
+    for line, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        if len(row) != len(SAMPLES_COLUMNS):
+            raise RunDirectoryError(
+                f'{source}:{line}: {len(row)} values, expected {len(SAMPLES_COLUMNS)}'
+            )
+        values = []
+        for name, text_value in zip(SAMPLES_COLUMNS, row, strict=True):
+            try:
+                value = int(text_value) if name in ('posture', 'n_samples') else float(text_value)
+            except ValueError:
+                raise RunDirectoryError(
+                    f'{source}:{line}: column {name}: {text_value!r} is not a number'
+                ) from None
+            if isinstance(value, float) and not math.isfinite(value):
+                raise RunDirectoryError(f'{source}:{line}: column {name} is not finite')
+            values.append(value)
+        rows.append(values)
+    if not rows:
+        return Samples.empty()
+    table = np.array(rows, dtype=float)
+    return Samples(
+        posture=table[:, 0].astype(int),
+        commanded_poses=table[:, 1:7],
+        leg_lengths=table[:, 7:13],
+        readings=table[:, 13:17],
+        n_samples=table[:, 17].astype(int),
+        stamps=table[:, 18],
+    )
+
+
+def write_samples(path, samples):
+    """Write ``samples.csv`` atomically."""
+    return atomic_write_text(path, samples_to_csv(samples))
+
+
+def read_samples(path):
+    """:class:`Samples` of a ``samples.csv`` file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as error:
+        raise RunDirectoryError(f'{path}: cannot read ({error.strerror})') from error
+    return samples_from_csv(text, source=str(path))
+
+
+def load_samples(path):
+    """``(commanded_poses (M, 6), leg_lengths (M, 6), readings (M, 4), n_samples, stamps)``."""
+    return read_samples(path).as_tuple()
+
+
+# --- the directory -------------------------------------------------------------------------------
+
+
+def utc_timestamp(now=None):
+    """``YYYYmmddTHHMMSSZ`` of ``now`` (an aware datetime; default: the current UTC time)."""
+    now = now or datetime.datetime.now(datetime.UTC)
+    return now.astimezone(datetime.UTC).strftime(TIMESTAMP_FORMAT)
+
+
+def create_run_directory(root='runs', now=None):
+    """Create and return ``root/<UTC timestamp>`` (``..._2``, ``_3`` ... if it already exists)."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    stem = utc_timestamp(now)
+    for attempt in range(1, 10_000):
+        path = root / (stem if attempt == 1 else f'{stem}_{attempt}')
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return path.resolve()
+    raise RunDirectoryError(f'{root}: cannot create a unique run directory for {stem}')
+
+
+class RunDirectory:
+    """One run directory; every ``write_*`` is atomic and returns the file's path."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+
+    @classmethod
+    def create(cls, root='runs', now=None):
+        """A new, unique ``root/<UTC timestamp>`` directory."""
+        return cls(create_run_directory(root, now))
+
+    def __fspath__(self):
+        return os.fspath(self.path)
+
+    def __str__(self):
+        return str(self.path)
+
+    def file(self, name):
+        """Path of ``name`` inside the directory (no sub-paths)."""
+        if os.path.basename(name) != name or name in ('', '.', '..'):
+            raise RunDirectoryError(f'{name!r} is not a plain file name')
+        return self.path / name
+
+    def write_bytes(self, name, data):
+        return atomic_write_bytes(self.file(name), data)
+
+    def write_text(self, name, text):
+        return atomic_write_text(self.file(name), text)
+
+    def write_json(self, name, data):
+        return self.write_text(name, to_json(data))
+
+    def read_json(self, name):
+        return json.loads(self.file(name).read_text(encoding='utf-8'))
+
+    def write_samples(self, samples, name=SAMPLES_FILE):
+        return write_samples(self.file(name), samples)
+
+    def read_samples(self, name=SAMPLES_FILE):
+        return read_samples(self.file(name))
+
+    def load_samples(self, name=SAMPLES_FILE):
+        return load_samples(self.file(name))
+
+    def write_geometry(self, geometry, name=RESULT_FILE, comment=None):
+        """The canonical params file of ``geometry`` (the core's atomic ``save_geometry``)."""
+        path = self.file(name)
+        save_geometry(geometry, path, comment=comment)
+        return path
+
+    def read_geometry(self, name=RESULT_FILE):
+        return load_geometry(self.file(name))
+
+    def write_summary(self, summary, name=SUMMARY_FILE):
+        return self.write_json(name, summary)

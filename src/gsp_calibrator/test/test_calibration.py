@@ -1,0 +1,153 @@
+"""The pure calibration pipeline on synthetic data from the core (no ROS)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_calibrator import calibration
+from gsp_calibrator.run_directory import Samples
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import default_geometry, geometry_from_yaml, parameter_errors
+from gsp_kinematics.identification import Options, Sigmas
+from gsp_kinematics.kinematics import check_reachable, forward_kinematics_masked, inverse_kinematics
+
+NOMINAL = default_geometry('nominal')
+TRUE = default_geometry('true')
+SIGMAS = Sigmas()  # Table 3, first level
+
+
+def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, sigmas=SIGMAS):
+    """Rows as the calibrator would collect them: nominal controller, true platform, noise
+    averaged over ``n_samples`` samples; postures FK cannot reach are left out."""
+    rng = np.random.default_rng(seed)
+    q = inverse_kinematics(nominal, poses)
+    real, ok = forward_kinematics_masked(true, q, poses)
+    readings = device_readings(true, real[ok])
+    scale = 1.0 / math.sqrt(n_samples)
+    samples = Samples.empty()
+    for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
+        samples.append(k, pose, legs + rng.normal(0, sigmas.leg_lengths * scale, 6),
+                       reading + rng.normal(0, 1, 4) * sigmas.readings() * scale,
+                       n_samples, 1.7e9 + k)
+    return samples
+
+
+@pytest.fixture(scope='module')
+def selection():
+    return calibration.choose_postures(NOMINAL, 40, 300, seed=3)
+
+
+def test_choose_postures_is_seeded_and_reachable(selection):
+    assert selection.poses.shape == (40, 6) and len(set(selection.pool_indices)) == 40
+    assert np.all(check_reachable(NOMINAL, selection.poses)[0])
+    assert math.isfinite(selection.condition_number) and selection.condition_number > 1
+    again = calibration.choose_postures(NOMINAL, 40, 300, seed=3)
+    np.testing.assert_array_equal(again.poses, selection.poses)
+    other = calibration.choose_postures(NOMINAL, 40, 300, seed=4)
+    assert not np.array_equal(other.poses, selection.poses)
+
+
+def test_choose_postures_rejects_bad_counts():
+    with pytest.raises(calibration.CalibrationError, match='pool_size'):
+        calibration.choose_postures(NOMINAL, 10, 5, seed=0)
+    with pytest.raises(calibration.CalibrationError, match='>= 1'):
+        calibration.choose_postures(NOMINAL, 0, 5, seed=0)
+
+
+def test_selection_key_changes_with_its_inputs():
+    key = calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'implicit')
+    assert key == calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'implicit')
+    assert key != calibration.selection_key(NOMINAL, 60, 600, 1, SIGMAS, None, 'implicit')
+    assert key != calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, ['D0'], 'implicit')
+    assert key != calibration.selection_key(TRUE, 60, 600, 0, SIGMAS, None, 'implicit')
+    # fk and paper select with the same (FK) information model.
+    assert (calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'fk')
+            == calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'paper'))
+
+
+@pytest.mark.parametrize('formulation', ['implicit', 'fk'])
+def test_identification_recovers_the_true_geometry(selection, formulation):
+    samples = synthetic_samples(selection.poses)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS,
+                                                formulation=formulation)
+    assert outcome.success, outcome.message
+    assert outcome.postures == len(samples) and outcome.duration_s > 0
+    errors = parameter_errors(outcome.geometry, TRUE)
+    assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
+    assert abs(errors[43]) < 0.01  # deg
+    assert outcome.identifiability['rank'] == 44 and outcome.unidentifiable == []
+    # Averaged rows weigh as sigma / sqrt(n).
+    assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
+
+
+def test_a_subset_of_free_parameters_keeps_the_others_nominal(selection):
+    samples = synthetic_samples(selection.poses)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS,
+                                                free=['Loff1', 'Loff2', 'D0', 'gamma'])
+    assert outcome.success, outcome.message
+    vector, nominal = outcome.geometry.to_vector(), NOMINAL.to_vector()
+    assert outcome.result.free.sum() == 4
+    np.testing.assert_array_equal(vector[:36], nominal[:36])
+
+
+def test_too_few_postures_name_the_unidentifiable_parameters(selection):
+    samples = synthetic_samples(selection.poses[:6])
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    assert not outcome.success and outcome.geometry is None
+    assert 'non-identifiable parameters' in outcome.message
+    assert outcome.unidentifiable and all(name in outcome.message
+                                          for name in outcome.unidentifiable)
+    assert outcome.identifiability['rank'] < 44
+    assert 'nothing applied' in outcome.message
+
+
+def test_no_convergence_is_a_failure(selection):
+    samples = synthetic_samples(selection.poses)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS,
+                                                options=Options(max_iterations=1))
+    assert not outcome.success and outcome.geometry is None
+    assert 'did not converge' in outcome.message
+
+
+def test_no_samples_is_a_failure():
+    outcome = calibration.identify_from_samples(NOMINAL, Samples.empty(), SIGMAS)
+    assert not outcome.success and 'no posture' in outcome.message
+
+
+def test_bad_inputs_are_a_failure_not_an_exception(selection):
+    samples = synthetic_samples(selection.poses[:12])
+    samples.readings[3, 1] = np.nan
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    assert not outcome.success and 'identification failed' in outcome.message
+    with pytest.raises(calibration.CalibrationError, match='formulation'):
+        calibration.identify_from_samples(NOMINAL, samples, SIGMAS, formulation='magic')
+
+
+def test_response_round_trip(selection, tmp_path):
+    samples = synthetic_samples(selection.poses)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    summary = calibration.outcome_summary(outcome, selected=40, skipped=[(7, 'rejected: far')],
+                                          run_directory=tmp_path, reference=TRUE)
+    assert summary.splitlines()[0].startswith('calibration succeeded')
+    assert 'skipped posture 7: rejected: far' in summary
+    message = calibration.format_response(summary, outcome.geometry)
+    parsed = calibration.parse_response(message)
+    assert parsed.summary == summary and parsed.run_directory == str(tmp_path)
+    assert parsed.identification_ms == pytest.approx(outcome.duration_s * 1000.0, abs=0.1)
+    np.testing.assert_array_equal(geometry_from_yaml(parsed.geometry_yaml).to_vector(),
+                                  outcome.geometry.to_vector())
+    failed = calibration.parse_response('calibration FAILED: no posture')
+    assert failed.geometry_yaml == '' and failed.run_directory == ''
+    assert math.isnan(failed.identification_ms)
+
+
+def test_posture_residuals_against_the_nominal_model(selection):
+    pose = selection.poses[0]
+    q = inverse_kinematics(NOMINAL, pose[None])[0]
+    readings = device_readings(NOMINAL, pose[None])[0]
+    residuals = calibration.posture_residuals(NOMINAL, pose, q, readings)
+    assert set(residuals) == {'leg_lengths', 'alpha', 'beta', 'phi', 'd_m'}
+    assert max(abs(v) for v in residuals.values()) < 1e-12
+    residuals = calibration.posture_residuals(NOMINAL, pose, q + 1e-3, readings + [0, 0, 0, 2e-3])
+    assert residuals['leg_lengths'] == pytest.approx(1e-3) and residuals['d_m'] == pytest.approx(2e-3)

@@ -1,0 +1,136 @@
+"""gsp_calibrate_client against a fake calibrator (Trigger service + progress) in one context."""
+
+import io
+import threading
+import time
+
+import pytest
+
+from gsp_calibrator import calibration, client
+from gsp_kinematics.geometry import default_geometry
+from gsp_msgs_py import conversions, names
+from gsp_msgs_py.qos import PROGRESS_QOS
+
+RUN_DIRECTORY = '/tmp/runs/20260101T000000Z'
+
+
+class FakeCalibrator:
+    """A node serving /gsp/calibrator/calibrate that reports progress while it 'runs'."""
+
+    def __init__(self, context, success=True, service=names.SERVICE_CALIBRATE, postures=3):
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from std_srvs.srv import Trigger
+
+        self.node = Node('fake_calibrator', context=context)
+        self.success = success
+        self.postures = postures
+        self.calls = 0
+        self.publisher = self.node.create_publisher(
+            DiagnosticStatus, names.TOPIC_CALIBRATION_PROGRESS, PROGRESS_QOS)
+        self.node.create_service(Trigger, service, self._calibrate)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+
+    def _calibrate(self, request, response):
+        self.calls += 1
+        deadline = time.monotonic() + 5.0
+        while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        count = self.postures
+        for k in range(1, count + 1):
+            self.publisher.publish(conversions.make_progress(
+                k, count, names.PHASE_COLLECTING, {'alpha': 1.7e-5, 'leg_lengths': 2e-6}))
+            time.sleep(0.03)
+        if self.success:
+            self.publisher.publish(conversions.make_progress(count, count, names.PHASE_DONE))
+            summary = (f'calibration succeeded: {count} posture(s)\n'
+                       f'{calibration.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}')
+            response.message = calibration.format_response(summary, default_geometry('true'))
+        else:
+            self.publisher.publish(conversions.make_progress(count, count, names.PHASE_FAILED,
+                                                             message='identification failed'))
+            response.message = (f'calibration FAILED: {count} posture(s)\nreason: no luck\n'
+                                f'{calibration.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}')
+        time.sleep(0.05)
+        response.success = self.success
+        return response
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc_info):
+        self.executor.shutdown()
+        self.thread.join(timeout=5.0)
+        self.node.destroy_node()
+
+
+def _run(context, *arguments):
+    out, err = io.StringIO(), io.StringIO()
+    args = client.build_parser().parse_args(list(arguments))
+    code = client.run(args, context=context, out=out, err=err)
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_client_success_prints_summary_progress_and_run_directory(ros_context):
+    with FakeCalibrator(ros_context) as fake:
+        code, out, err = _run(ros_context, '--wait-timeout', '10', '--geometry')
+    assert code == 0, err
+    assert fake.calls == 1
+    assert 'calibration succeeded: 3 posture(s)' in out
+    assert f'run directory: {RUN_DIRECTORY}' in out
+    assert 'ros__parameters' in out  # --geometry: the calibrated params file
+    assert calibration.RESPONSE_SEPARATOR not in out
+    assert '] 1/3 collecting' in err and '] 3/3 collecting' in err
+    assert '[' + '#' * client.BAR_WIDTH + '] 3/3 done' in err
+    assert 'alpha' in err and 'deg' in err  # latest residuals
+
+
+def test_client_failure_exits_1(ros_context):
+    with FakeCalibrator(ros_context, success=False):
+        code, out, err = _run(ros_context, '--wait-timeout', '10', '--no-progress')
+    assert code == 1
+    assert 'calibration FAILED' in out and 'reason: no luck' in out
+    assert f'run directory: {RUN_DIRECTORY}' in out
+    assert 'calibration failed' in err
+    assert 'collecting' not in err  # --no-progress
+
+
+def test_client_without_service_times_out(ros_context):
+    start = time.monotonic()
+    code, out, err = _run(ros_context, '--service', '/gsp/test/no_such_service',
+                          '--wait-timeout', '0.3')
+    assert code == 1
+    assert 'not available after 0.3 s' in err and out == ''
+    assert time.monotonic() - start < 5.0
+
+
+def test_progress_bar_rendering():
+    stream = io.StringIO()
+    bar = client.ProgressBar(stream, width=10, interactive=True)
+    bar.update(conversions.parse_progress(conversions.make_progress(
+        5, 10, names.PHASE_COLLECTING, {'d_m': 1e-6})))
+    bar.finish()
+    text = stream.getvalue()
+    assert text.startswith('\r\x1b[2K[#####-----] 5/10 collecting')
+    assert 'd_m 1 um' in text and text.endswith('\n')
+    quiet = io.StringIO()
+    bar = client.ProgressBar(quiet, interactive=False)
+    for k in range(0, 61):
+        bar.update(conversions.parse_progress(conversions.make_progress(
+            k, 60, names.PHASE_COLLECTING)))
+    assert bar.updates == 61
+    lines = quiet.getvalue().splitlines()
+    assert 5 <= len(lines) <= 12  # about every tenth posture, not one line per update
+    assert lines[-1].endswith('60/60 collecting')
+
+
+@pytest.mark.parametrize('argv', [['--help']])
+def test_main_help_exits_cleanly(argv, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        client.main(argv)
+    assert exit_info.value.code == 0
+    assert 'gsp_calibrate_client' in capsys.readouterr().out

@@ -1,0 +1,117 @@
+"""The main job's plain parts: environment, node commands, summaries, child processes."""
+
+import math
+import random
+import signal
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from gsp_calibrator import demo
+from gsp_kinematics.geometry import default_geometry
+
+
+def test_ros_environment_is_loopback_with_a_domain():
+    env = demo.ros_environment({'PATH': '/bin'}, rng=random.Random(1))
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert 1 <= int(env['ROS_DOMAIN_ID']) <= 101 and env['PATH'] == '/bin'
+    kept = demo.ros_environment({'ROS_DOMAIN_ID': '42',
+                                 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
+    assert kept['ROS_DOMAIN_ID'] == '42' and kept['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+
+
+def test_node_commands(tmp_path):
+    args = demo.parse_arguments(['--postures', '30', '--seed', '3', '--sensor-rate', '100'])
+    found = demo.node_commands(args, str(tmp_path), which=lambda name: f'/opt/bin/{name}')
+    assert set(found) == {'platform_sim', 'device_driver', 'calibrator'}
+    platform = found['platform_sim']
+    assert platform[:2] == ['/opt/bin/platform_sim', '--ros-args']
+    assert f'true_geometry_file:={args.true_geometry}' in platform
+    assert platform[platform.index('--params-file') + 1] == args.nominal_geometry
+    assert 'publish_rate:=100.0' in platform and 'seed:=3' in platform
+    assert f'true_geometry_file:={args.true_geometry}' in found['device_driver']
+    calibrator = found['calibrator']
+    for value in (f'output_root:={tmp_path}', 'posture_count:=30', 'apply_result:=true',
+                  f'nominal_geometry_file:={args.nominal_geometry}', 'sync_tolerance:=0.005'):
+        assert value in calibrator
+    missing = demo.node_commands(args, str(tmp_path), which=lambda name: None)
+    assert missing['calibrator'][:3] == [sys.executable, '-m', 'gsp_calibrator.calibrator_node']
+
+
+@pytest.mark.parametrize('argv', [['--postures', '0'], ['--sensor-rate', '0'],
+                                  ['--settle-time', '-1']])
+def test_bad_arguments_are_rejected(argv):
+    with pytest.raises(SystemExit):
+        demo.parse_arguments(argv)
+
+
+def test_validation_summary_ignores_rejected_postures():
+    commanded = np.array([[0, 0, 1, 0, 0, 0], [0.1, 0, 1, 0, 0, 0], [0, 0, 1, 0, 0, 0.1]], float)
+    reached = commanded + np.array([[0.001, 0, 0, 0, 0, 0], [np.nan] * 6,
+                                    [0, 0.002, 0, 0, 0, math.radians(0.5)]])
+    summary = demo.validation_summary(commanded, reached)
+    assert summary['position_mm_mean'] == pytest.approx(1.5)
+    assert summary['position_mm_max'] == pytest.approx(2.0)
+    assert summary['orientation_deg_max'] == pytest.approx(0.5)
+    assert math.isnan(demo.validation_summary(commanded, np.full((3, 6), np.nan))[
+        'position_mm_mean'])
+
+
+def test_summary_has_the_keys_of_the_issue():
+    true, nominal = default_geometry('true'), default_geometry('nominal')
+    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    summary = demo.make_summary(before, before, nominal, true, 600.0, 12.0, 40.0)
+    assert set(summary) == {'validation', 'max_param_error_mm', 'max_param_error_deg',
+                            'identification_ms', 'calibration_s', 'total_s'}
+    assert set(summary['validation']) == {'before', 'after'}
+    assert set(summary['validation']['after']) == set(demo.VALIDATION_KEYS)
+    assert summary['max_param_error_mm'] > 0.1 and summary['max_param_error_deg'] > 0.0
+    text = demo.summary_text(summary, 49, 1)
+    assert 'before (nominal)' in text and '1 rejected' in text
+
+
+def _child(code):
+    return [sys.executable, '-c', code]
+
+
+IGNORES_SIGINT = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
+                  'print("up", flush=True); time.sleep(60)')
+IGNORES_ALL = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
+               'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("up", flush=True); '
+               'time.sleep(60)')
+POLITE = 'import time\ntry:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass'
+
+
+def _wait_for_output(processes, names, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if all((processes.log_directory / f'{n}.log').read_text().strip() for n in names):
+            return
+        time.sleep(0.05)
+
+
+def test_children_are_stopped_sigint_then_sigterm_then_sigkill(tmp_path):
+    processes = demo.NodeProcesses(
+        {'polite': _child(POLITE), 'stubborn': _child(IGNORES_SIGINT),
+         'deaf': _child(IGNORES_ALL)}, env=None, log_directory=tmp_path)
+    processes.start()
+    _wait_for_output(processes, ['stubborn', 'deaf'])  # signal handlers are installed
+    time.sleep(0.3)  # the polite child has reached its sleep
+    started = time.monotonic()
+    codes = processes.stop(grace=1.0)
+    assert codes == {'polite': 0, 'stubborn': -signal.SIGTERM, 'deaf': -signal.SIGKILL}
+    assert time.monotonic() - started < 10.0
+    assert processes.stop() == codes  # idempotent
+
+
+def test_a_child_that_exits_is_reported_with_its_log(tmp_path):
+    processes = demo.NodeProcesses(
+        {'broken': _child('import sys; print("cannot start: bad parameter"); sys.exit(3)')},
+        env=None, log_directory=tmp_path)
+    processes.start()
+    processes.processes['broken'].wait(timeout=20.0)
+    with pytest.raises(demo.DemoError, match=r'broken exited with code 3(.|\n)*bad parameter'):
+        processes.check_alive()
+    processes.stop()

@@ -1,0 +1,319 @@
+"""recording.mcap: message definitions, MCAP format, atomic writes, round trips, RunRecorder."""
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from gsp_calibrator import recording
+from gsp_calibrator.collector import SampleCollector
+from gsp_calibrator.run_directory import read_samples, write_samples
+from gsp_msgs_py import conversions, names
+from gsp_msgs_py.qos import TOPIC_QOS
+
+MS = 1_000_000
+T0 = 1_700_000_000 * 1_000_000_000
+SEPARATOR = '=' * 80 + '\n'
+
+
+def _msg_text(package, name):
+    with open(recording.msg_file(f'{package}/msg/{name}'), encoding='utf-8') as stream:
+        return stream.read()
+
+
+# --- message definitions -------------------------------------------------------------------------
+
+
+def test_definition_is_rosbag2_concatenation():
+    text = recording.message_definition('sensor_msgs/msg/JointState')
+    assert text.startswith(_msg_text('sensor_msgs', 'JointState'))
+    header = '\n' + SEPARATOR + 'MSG: std_msgs/Header\n' + _msg_text('std_msgs', 'Header')
+    time_part = '\n' + SEPARATOR + 'MSG: builtin_interfaces/Time\n' + _msg_text(
+        'builtin_interfaces', 'Time')
+    assert text == _msg_text('sensor_msgs', 'JointState') + header + time_part
+    # pkg/Type and pkg/msg/Type name the same type
+    assert recording.message_definition('sensor_msgs/JointState') == text
+
+
+def test_definition_nested_types_once():
+    text = recording.message_definition('visualization_msgs/msg/MarkerArray')
+    headers = [line for line in text.splitlines() if line.startswith('MSG: ')]
+    assert len(headers) == len(set(headers))
+    for nested in ('visualization_msgs/Marker', 'std_msgs/Header', 'builtin_interfaces/Time',
+                   'builtin_interfaces/Duration', 'geometry_msgs/Pose', 'geometry_msgs/Point',
+                   'geometry_msgs/Quaternion', 'geometry_msgs/Vector3', 'std_msgs/ColorRGBA'):
+        assert f'MSG: {nested}' in headers
+    assert text.count(SEPARATOR) == len(headers)
+
+
+def test_definition_errors_name_the_type():
+    with pytest.raises(recording.MessageDefinitionError, match='no_such_pkg/msg/Thing'):
+        recording.message_definition('no_such_pkg/msg/Thing')
+    with pytest.raises(recording.MessageDefinitionError, match='std_msgs/msg/NoSuchType'):
+        recording.message_definition('std_msgs/msg/NoSuchType')
+    with pytest.raises(recording.MessageDefinitionError, match='not of the form'):
+        recording.message_definition('JointState')
+
+
+# --- writing and reading -------------------------------------------------------------------------
+
+
+def test_mcap_format_atomic_and_round_trip(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rclpy.serialization import serialize_message
+
+    path = tmp_path / 'recording.mcap'
+    legs = conversions.leg_lengths_to_msg(np.arange(6) * 0.1, T0 / 1e9)
+    status = conversions.make_status('42', names.STATE_SETTLED)
+    recorder = recording.McapRecorder(path)
+    for topic, type_name in names.TOPIC_TYPES.items():
+        recorder.add_topic(topic, type_name)
+    recorder.write(names.TOPIC_LEG_LENGTHS, legs, T0 + 1, T0)
+    recorder.write(names.TOPIC_PLATFORM_STATUS, serialize_message(status), T0 + 2)  # raw CDR
+    recorder.write('/extra', conversions.encoder_to_msg(0.5), T0 + 3)  # added from its type
+    assert not path.exists() and os.path.exists(str(path) + '.tmp')
+    assert recorder.close() == str(path)
+    assert path.exists() and not os.path.exists(str(path) + '.tmp')
+
+    read = list(recording.read_recording(path))
+    assert [m.topic for m in read] == [names.TOPIC_LEG_LENGTHS, names.TOPIC_PLATFORM_STATUS,
+                                       '/extra']
+    assert read[0].type_name == 'sensor_msgs/msg/JointState'
+    assert read[0].log_time_ns == T0 + 1 and read[0].publish_time_ns == T0
+    assert read[0].message == legs and read[1].message == status
+    assert read[2].type_name == 'sensor_msgs/msg/JointState'
+
+    with open(path, 'rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == 'ros2'
+        summary = reader.get_summary()
+        assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
+        assert {c.message_encoding for c in summary.channels.values()} == {'cdr'}
+        channels = {c.topic: c for c in summary.channels.values()}
+        profiles = yaml.safe_load(channels[names.TOPIC_LEG_LENGTHS].metadata[
+            'offered_qos_profiles'])
+        assert profiles[0]['reliability'] == 'best_effort'
+        assert profiles[0]['depth'] == TOPIC_QOS[names.TOPIC_LEG_LENGTHS].depth
+        latched = yaml.safe_load(channels[names.TOPIC_CALIBRATION_RESULT].metadata[
+            'offered_qos_profiles'])
+        assert latched[0]['durability'] == 'transient_local'
+        # A reader that only knows the schemas (as Foxglove) decodes every message.
+        decoded = [m for _, _, _, m in reader.iter_decoded_messages()]
+    assert list(decoded[0].position) == pytest.approx(list(legs.position))
+    assert decoded[1].values[0].value == '42'
+
+    info = recording.recording_info(path)
+    assert info['message_count'] == 3 and info['profile'] == 'ros2'
+    assert info['topics'][names.TOPIC_LEG_LENGTHS] == {'type': 'sensor_msgs/msg/JointState',
+                                                       'count': 1}
+    raw = list(recording.read_recording(path, topics=names.TOPIC_PLATFORM_STATUS, raw=True))
+    # (CDR padding bytes are not initialised by the serialiser: compare decoded messages)
+    from rclpy.serialization import deserialize_message
+
+    assert isinstance(raw[0].message, bytes)
+    assert deserialize_message(raw[0].message, type(status)) == status
+
+
+def test_abort_and_errors(tmp_path):
+    path = tmp_path / 'recording.mcap'
+    recorder = recording.McapRecorder(path)
+    with pytest.raises(recording.RecordingError, match='add_topic'):
+        recorder.write('/unknown', b'\x00\x01\x00\x00', 1)
+    recorder.add_topic('/a', 'std_msgs/msg/String')
+    with pytest.raises(recording.RecordingError, match='already recorded'):
+        recorder.add_topic('/a', 'sensor_msgs/msg/JointState')
+    recorder.abort()
+    assert not path.exists() and not os.path.exists(str(path) + '.tmp')
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(b'not an mcap file at all')
+    with pytest.raises(recording.RecordingError, match='bad.mcap'):
+        list(recording.read_recording(bad))
+    with pytest.raises(recording.RecordingError, match='missing.mcap'):
+        list(recording.read_recording(tmp_path / 'missing.mcap'))
+
+
+# --- samples from a recording --------------------------------------------------------------------
+
+
+def _write_sensors(recorder, stamp, q, r, nan_encoder=False):
+    seconds = stamp / 1e9
+    recorder.write(names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, seconds),
+                   stamp + MS // 5)
+    device = stamp + MS // 2
+    recorder.write(names.TOPIC_INCLINOMETER,
+                   conversions.inclinometer_to_msg(r[0], r[1], device / 1e9), device + MS // 5)
+    encoder = conversions.encoder_to_msg(r[2], device / 1e9)
+    if nan_encoder:
+        encoder.position = [math.nan]
+    recorder.write(names.TOPIC_ENCODER, encoder, device + MS // 4)
+    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9),
+                   device + MS // 3)
+
+
+def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=None,
+                  options=None):
+    """A recorded calibration: commands, statuses and sensor streams (see the test below).
+
+    Returns ``[(k, pose, leg samples, reading samples), ...]`` of the values sent after settling.
+    """
+    sent = []
+    with recording.McapRecorder(path) as recorder:
+        if options:
+            recorder.add_metadata(recording.RUN_METADATA_NAME,
+                                  {k: str(v) for k, v in options.items()})
+        t = T0
+        for k, (pose, q, r) in enumerate(postures, start=1):
+            command = conversions.pose_to_pose_stamped(pose, t / 1e9)
+            command_id = conversions.command_id_from_stamp(command.header.stamp)
+            recorder.write(names.TOPIC_POSE_COMMAND, command, t)
+            recorder.write(names.TOPIC_PLATFORM_STATUS,
+                           conversions.make_status(command_id, names.STATE_MOVING), t + MS)
+            if k in rejected:
+                recorder.write(names.TOPIC_PLATFORM_STATUS, conversions.make_status(
+                    command_id, names.STATE_REJECTED, 'out of reach'), t + 2 * MS)
+                t += 100 * MS
+                continue
+            # Before settling: wrong values (the platform is moving), never averaged.
+            _write_sensors(recorder, t + 2 * MS, np.asarray(q) + 1.0, np.asarray(r) + 1.0)
+            settled = t + 10 * MS
+            if notes is not None:
+                recorder.add_metadata(recording.POSTURE_METADATA_NAME, {
+                    'command_id': command_id, 'start_ns': str(notes(t)), 'posture': str(k)})
+            recorder.write(names.TOPIC_PLATFORM_STATUS,
+                           conversions.make_status(command_id, names.STATE_SETTLED), settled)
+            legs, readings = [], []
+            for j in range(per_posture + 3):
+                stamp = settled + MS + 5 * MS * j
+                qj = np.asarray(q) + j * 1e-7
+                rj = np.asarray(r) + j * 1e-8
+                nan = nan_at == (k, j)
+                _write_sensors(recorder, stamp, qj, rj, nan_encoder=nan)
+                if not nan:
+                    legs.append(qj)
+                    readings.append(rj)
+            sent.append((k, pose, legs, readings))
+            t += 100 * MS
+    return sent
+
+
+def _postures(count, rng):
+    return [(np.array([0.01 * i, -0.01 * i, 1.0, 0.01, -0.02, 0.03 * i]),
+             0.4 + rng.random(6) * 0.1, np.array([0.01, -0.02, 0.03 * i, 0.002]))
+            for i in range(count)]
+
+
+def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path):
+    rng = np.random.default_rng(3)
+    postures = _postures(4, rng)
+    per_posture = 3
+    path = tmp_path / 'recording.mcap'
+    sent = write_session(path, postures, per_posture, rejected={2}, nan_at=(1, 1),
+                         options={'sync_tolerance': 0.0025, 'samples_per_posture': per_posture})
+    samples = recording.samples_from_recording(path)  # options as stored
+    assert list(samples.posture) == [1, 3, 4]  # posture 2 rejected, numbers kept
+    for row, (k, pose, legs, readings) in enumerate(sent):
+        assert samples.posture[row] == k
+        np.testing.assert_allclose(samples.commanded_poses[row], pose, atol=1e-12)
+        # The first per_posture complete pairs after settling (posture 1: instant j=1 has a NaN
+        # encoder reading, so its leg sample stays unpaired and j=0,2,3 are averaged).
+        np.testing.assert_allclose(samples.leg_lengths[row], np.mean(legs[:per_posture], axis=0),
+                                   rtol=0, atol=1e-15)
+        np.testing.assert_allclose(samples.readings[row],
+                                   np.mean(readings[:per_posture], axis=0), rtol=0, atol=1e-15)
+        assert samples.n_samples[row] == per_posture
+    # Same result as driving the collector by hand with the same pairs.
+    collector = SampleCollector(0.0025, per_posture)
+    collector.start(0)
+    for j, (q, r) in enumerate(zip(sent[0][2], sent[0][3], strict=True)):
+        collector.add_leg_lengths(j * 5 * MS, q)
+        collector.add_inclinometer(j * 5 * MS + MS // 2, r[0], r[1])
+        collector.add_encoder(j * 5 * MS + MS // 2, r[2])
+        collector.add_lvdt(j * 5 * MS + MS // 2, r[3])
+    expected = collector.take_posture()
+    np.testing.assert_array_equal(samples.leg_lengths[0], expected.leg_lengths)
+    np.testing.assert_array_equal(samples.readings[0], expected.readings)
+
+    # CSV round trip: the samples read back from samples.csv are the same, bit for bit.
+    write_samples(tmp_path / 'samples.csv', samples)
+    again = read_samples(tmp_path / 'samples.csv')
+    for field in ('posture', 'commanded_poses', 'leg_lengths', 'readings', 'n_samples', 'stamps'):
+        np.testing.assert_array_equal(getattr(again, field), getattr(samples, field))
+
+
+def test_noted_collection_start_is_used(tmp_path):
+    postures = _postures(2, np.random.default_rng(4))
+    plain = tmp_path / 'plain.mcap'
+    noted = tmp_path / 'noted.mcap'
+    write_session(plain, postures, 2)
+    # The calibrator noted a start before the moving samples (stamped t + 2 ms): they count.
+    write_session(noted, postures, 2, notes=lambda t: t + MS)
+    with pytest.raises(recording.RecordingError, match='sync_tolerance'):
+        recording.samples_from_recording(plain)
+    a = recording.samples_from_recording(plain, 0.0025, 2)
+    b = recording.samples_from_recording(noted, 0.0025, 2)
+    assert len(a) == len(b) == 2
+    # First posture: its window starts with a moving sample (+1 m) stamped after the noted start.
+    assert b.leg_lengths[0, 0] > a.leg_lengths[0, 0] + 0.4
+
+
+# --- RunRecorder ---------------------------------------------------------------------------------
+
+
+def test_run_recorder_records_suite_topics(ros_context, tmp_path):
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    source = Node('recording_source', context=ros_context)
+    sink = Node('recording_sink', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(source)
+    executor.add_node(sink)
+    legs_pub = source.create_publisher(type(conversions.leg_lengths_to_msg(np.zeros(6))),
+                                       names.TOPIC_LEG_LENGTHS,
+                                       TOPIC_QOS[names.TOPIC_LEG_LENGTHS])
+    result_pub = source.create_publisher(String, names.TOPIC_CALIBRATION_RESULT,
+                                         TOPIC_QOS[names.TOPIC_CALIBRATION_RESULT])
+    result_pub.publish(String(data='latched geometry'))  # before recording: latched
+    recorder = recording.RunRecorder(sink)
+    path = tmp_path / 'recording.mcap'
+    try:
+        recorder.start(path, options={'sync_tolerance': 0.0025, 'samples_per_posture': 10})
+        assert recorder.recording
+        deadline = time.monotonic() + 10.0
+        sent = 0
+        while time.monotonic() < deadline:
+            legs_pub.publish(conversions.leg_lengths_to_msg(np.full(6, 0.1 * sent),
+                                                            time.time()))
+            sent += 1
+            executor.spin_once(timeout_sec=0.02)
+            counts = recorder.counts
+            if (counts.get(names.TOPIC_LEG_LENGTHS, 0) >= 3
+                    and counts.get(names.TOPIC_CALIBRATION_RESULT, 0) >= 1):
+                break
+        recorder.note_collection_start('123', T0, posture=1)
+        assert recorder.stop() == str(path)
+        assert recorder.stop() is None
+    finally:
+        recorder.stop()
+        executor.shutdown()
+        source.destroy_node()
+        sink.destroy_node()
+    info = recording.recording_info(path)
+    assert set(info['topics']) == set(recording.SUITE_TOPICS)
+    assert info['topics'][names.TOPIC_LEG_LENGTHS]['count'] >= 3
+    assert info['topics'][names.TOPIC_CALIBRATION_RESULT]['count'] == 1
+    assert recording.recording_options(path) == {'sync_tolerance': 0.0025,
+                                                 'samples_per_posture': 10}
+    assert info['metadata'][recording.POSTURE_METADATA_NAME] == [
+        {'posture': '1', 'command_id': '123', 'start_ns': str(T0)}]
+    messages = list(recording.read_recording(path))
+    result = [m.message.data for m in messages if m.topic == names.TOPIC_CALIBRATION_RESULT]
+    assert result == ['latched geometry']
+    legs = [m for m in messages if m.topic == names.TOPIC_LEG_LENGTHS]
+    assert all(m.log_time_ns > T0 for m in legs)
+    assert list(legs[0].message.name) == list(names.LEG_JOINT_NAMES)

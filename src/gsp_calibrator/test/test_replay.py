@@ -1,0 +1,432 @@
+"""Replay of a recorded run: RecordedRun (pure), the replay node, and replay == original."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from gsp_calibrator import recording
+from gsp_calibrator.calibration import parse_response
+from gsp_calibrator.replay import (
+    SOURCE_RECORDING,
+    SOURCE_SAMPLES,
+    RecordedRun,
+    ReplayError,
+)
+from gsp_calibrator.replay_node import REASON_NOT_RECORDED, ConfigurationError, ReplayNode
+from gsp_calibrator.run_directory import RunDirectory, Samples, write_samples
+from gsp_msgs_py import conversions, names, qos
+
+MS = 1_000_000
+T0 = 1_700_000_000 * 1_000_000_000
+TIMEOUT_S = 20.0  # generous: the machine may be loaded; waits end as soon as they can
+
+
+# --- recorded runs for the tests -------------------------------------------------------------------
+
+
+def _samples(count=3):
+    rows = Samples.empty()
+    for k in range(1, count + 1):
+        rows.append(k, [0.01 * k, -0.02 * k, 1.0, 0.01 * k, -0.02, 0.3 * k],
+                    0.5 + 0.01 * np.arange(6) + 1e-3 * k, [0.01 * k, -0.02, 0.3 * k, 1e-3 * k],
+                    10, 100.0 + k)
+    return rows
+
+
+def _poses(count):
+    return [np.array([0.01 * k, -0.01 * k, 1.0 + 0.001 * k, 0.02, -0.01 * k, 0.1 * k])
+            for k in range(1, count + 1)]
+
+
+def _write_instant(recorder, stamp, q, r, true_pose=None):
+    """One platform instant (legs + true pose) and one device instant 0.5 ms later."""
+    recorder.write(names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, stamp / 1e9),
+                   stamp + MS // 5)
+    if true_pose is not None:
+        recorder.write(names.TOPIC_TRUE_POSE,
+                       conversions.pose_to_pose_stamped(true_pose, stamp / 1e9), stamp + MS // 5)
+    device = stamp + MS // 2
+    recorder.write(names.TOPIC_INCLINOMETER,
+                   conversions.inclinometer_to_msg(r[0], r[1], device / 1e9), device + MS // 5)
+    recorder.write(names.TOPIC_ENCODER, conversions.encoder_to_msg(r[2], device / 1e9),
+                   device + MS // 5)
+    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9),
+                   device + MS // 5)
+
+
+def write_recording(path, poses, per_posture=4, rejected=(), true_pose=True, notes=False):
+    """A recorded session: idle samples, then per pose a command, statuses and sensor samples
+    (wrong values while moving). Returns ``{k: (legs, readings, true poses)}`` after settling."""
+    sent = {}
+    with recording.McapRecorder(path) as recorder:
+        recorder.add_metadata(recording.RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
+        for j in range(3):  # idle at home before the first command
+            _write_instant(recorder, T0 + 5 * MS * j, np.full(6, 0.7 + j * 1e-6),
+                           np.full(4, 0.07), np.array([0, 0, 1.0, 0, 0, 0]) if true_pose else None)
+        t = T0 + 100 * MS
+        for k, pose in enumerate(poses, start=1):
+            command = conversions.pose_to_pose_stamped(pose, t / 1e9)
+            command_id = conversions.command_id_from_stamp(command.header.stamp)
+            recorder.write(names.TOPIC_POSE_COMMAND, command, t)
+            recorder.write(names.TOPIC_PLATFORM_STATUS,
+                           conversions.make_status(command_id, names.STATE_MOVING), t + MS)
+            if k in rejected:
+                recorder.write(names.TOPIC_PLATFORM_STATUS, conversions.make_status(
+                    command_id, names.STATE_REJECTED, 'out of reach'), t + 2 * MS)
+                t += 100 * MS
+                continue
+            _write_instant(recorder, t + 2 * MS, np.full(6, 9.0), np.full(4, 9.0),
+                           pose if true_pose else None)  # moving: never replayed
+            settled = t + 10 * MS
+            if notes:
+                recorder.add_metadata(recording.POSTURE_METADATA_NAME, {
+                    'command_id': command_id, 'start_ns': str(t + 2 * MS), 'posture': str(k)})
+            recorder.write(names.TOPIC_PLATFORM_STATUS,
+                           conversions.make_status(command_id, names.STATE_SETTLED), settled)
+            legs, readings, truths = [], [], []
+            for j in range(per_posture):
+                q = 0.5 + 0.01 * np.arange(6) + k * 1e-3 + j * 1e-7
+                r = np.array([0.01 * k, -0.02, 0.1 * k, 1e-3]) + j * 1e-8
+                truth = pose + j * 1e-9
+                _write_instant(recorder, settled + MS + 5 * MS * j, q, r,
+                               truth if true_pose else None)
+                legs.append(q)
+                readings.append(r)
+                truths.append(truth)
+            sent[k] = (np.array(legs), np.array(readings), np.array(truths))
+            t += 100 * MS
+    return sent
+
+
+# --- RecordedRun -----------------------------------------------------------------------------------
+
+
+def test_from_samples_one_row_per_posture_and_match(tmp_path):
+    rows = _samples(3)
+    write_samples(tmp_path / 'samples.csv', rows)
+    run = RecordedRun.load(tmp_path)  # a run directory: its samples.csv
+    assert run.kind == SOURCE_SAMPLES and len(run) == 3 and not run.has_true_pose
+    assert run.source == tmp_path / 'samples.csv'
+    for m, posture in enumerate(run.postures):
+        assert posture.posture == m + 1 and len(posture.stream) == 1
+        np.testing.assert_array_equal(posture.commanded_pose, rows.commanded_poses[m])
+        q, r, truth = posture.stream.sample(7)  # cyclic: always the averaged row
+        np.testing.assert_array_equal(q, rows.leg_lengths[m])
+        np.testing.assert_array_equal(r, rows.readings[m])
+        assert truth is None
+    # Before the first command: where the recorded run left the platform.
+    np.testing.assert_array_equal(run.initial_stream.leg_lengths, rows.leg_lengths[-1:])
+
+    pose = rows.commanded_poses[1]
+    assert run.match(pose) is run.postures[1]
+    # Through a PoseStamped (quaternion) and back: still the same posture.
+    again = conversions.pose_stamped_to_pose(conversions.pose_to_pose_stamped(pose))
+    assert run.match(again) is run.postures[1]
+    # phi and phi - 2 pi are one orientation.
+    assert run.match(pose - [0, 0, 0, 0, 0, 2 * math.pi]) is run.postures[1]
+    assert run.match(pose + [5e-7, 0, 0, 0, 0, 0]) is run.postures[1]
+    assert run.match(pose + [2e-6, 0, 0, 0, 0, 0]) is None  # position off by 2 um
+    assert run.match(pose + [0, 0, 0, 0, 2e-6, 0]) is None  # orientation off by 2 urad
+    assert run.match(pose + [0, 0, 0, 0, 2e-6, 0], tolerance=1e-5) is run.postures[1]
+    with pytest.raises(ValueError, match='non-finite'):
+        run.match(pose + [math.nan, 0, 0, 0, 0, 0])
+    with pytest.raises(ValueError, match='shape'):
+        run.match(pose[:3])
+
+
+def test_load_errors_name_the_file(tmp_path):
+    with pytest.raises(ReplayError, match='no run given'):
+        RecordedRun.load('')
+    with pytest.raises(ReplayError, match='missing'):
+        RecordedRun.load(tmp_path / 'missing')
+    with pytest.raises(ReplayError, match='without samples.csv or recording.mcap'):
+        RecordedRun.load(tmp_path)
+    write_samples(tmp_path / 'samples.csv', Samples.empty())
+    with pytest.raises(ReplayError, match='no posture rows'):
+        RecordedRun.load(tmp_path / 'samples.csv')
+    (tmp_path / 'bad.csv').write_text('a,b\n1,2\n')
+    with pytest.raises(ReplayError, match='bad.csv'):
+        RecordedRun.load(tmp_path / 'bad.csv')
+    (tmp_path / 'bad.mcap').write_bytes(b'not an mcap file')
+    with pytest.raises(ReplayError, match='bad.mcap'):
+        RecordedRun.load(tmp_path / 'bad.mcap')
+
+
+def test_from_recording_streams_the_samples_after_each_settle(tmp_path):
+    poses = _poses(3)
+    path = tmp_path / 'recording.mcap'
+    sent = write_recording(path, poses, per_posture=4, rejected={2})
+    run = RecordedRun.load(tmp_path)  # a run directory without samples.csv: its recording
+    assert run.kind == SOURCE_RECORDING and run.source == path
+    assert [p.posture for p in run.postures] == [1, 3] and run.has_true_pose
+    assert run.skipped == ((2, 'rejected: out of reach'),)
+    assert run.options['sync_tolerance'] == 0.0025
+    for posture in run.postures:
+        legs, readings, truths = sent[posture.posture]
+        np.testing.assert_allclose(posture.commanded_pose, poses[posture.posture - 1],
+                                   atol=1e-12)
+        # In order, paired like the calibrator pairs them; the moving samples are left out.
+        np.testing.assert_array_equal(posture.stream.leg_lengths, legs)
+        np.testing.assert_array_equal(posture.stream.readings, readings)
+        np.testing.assert_allclose(posture.stream.true_poses, truths, atol=1e-12)
+        q, _, _ = posture.stream.sample(len(legs))  # cyclic
+        np.testing.assert_array_equal(q, legs[0])
+        assert run.match(poses[posture.posture - 1]) is posture
+    assert run.match(poses[1]) is None  # rejected when recorded
+    assert len(run.initial_stream) == 3  # the idle samples before the first command
+    np.testing.assert_allclose(run.initial_stream.leg_lengths[:, 0], 0.7 + np.arange(3) * 1e-6)
+
+    # A noted collection start (before the moving samples) makes them count, as for the
+    # calibrator; without a true_pose topic there is no true pose to replay.
+    noted = tmp_path / 'noted.mcap'
+    write_recording(noted, poses[:1], per_posture=2, true_pose=False, notes=True)
+    run = RecordedRun.load(noted)
+    assert not run.has_true_pose and len(run.postures[0].stream) == 3
+    assert run.postures[0].stream.leg_lengths[0, 0] == 9.0
+
+
+# --- the replay node -------------------------------------------------------------------------------
+
+
+class NodeHarness:
+    """The replay node plus a test node that commands poses and records what comes back."""
+
+    def __init__(self, context, overrides):
+        self.replay = ReplayNode(context=context, parameter_overrides=list(overrides))
+        self.node = rclpy.create_node('replay_test', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.replay)
+        self.executor.add_node(self.node)
+        self.statuses = []
+        self.received = {topic: [] for topic in (
+            names.TOPIC_LEG_LENGTHS, names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER,
+            names.TOPIC_LVDT)}
+        self.true_poses = []
+        self.node.create_subscription(
+            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
+            lambda m: self.statuses.append(conversions.parse_status(m)),
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
+        for topic, messages in self.received.items():
+            self.node.create_subscription(JointState, topic, messages.append,
+                                          qos.TOPIC_QOS[topic])
+        self.node.create_subscription(PoseStamped, names.TOPIC_TRUE_POSE, self.true_poses.append,
+                                      qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
+        self.command_pub = self.node.create_publisher(
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
+        assert self.spin_until(lambda: self.command_pub.get_subscription_count() > 0
+                               and self.received[names.TOPIC_LVDT]), 'no discovery'
+
+    def spin_until(self, predicate, timeout=TIMEOUT_S):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.01)
+        return True
+
+    def command(self, pose, frame_id=names.FRAME_BASE):
+        stamp = self.node.get_clock().now().to_msg()
+        self.command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp, frame_id))
+        return conversions.command_id_from_stamp(stamp)
+
+    def final_states(self, command_id):
+        def states():
+            return [s for s in self.statuses if s.command_id == command_id]
+
+        assert self.spin_until(lambda: any(s.settled or s.rejected for s in states()))
+        return states()
+
+    def instants_after(self, stamp_ns, count):
+        """``count`` replayed instants stamped after ``stamp_ns``: ``[(stamp, {topic: msg})]``."""
+        def instants():
+            by_stamp = {}
+            for topic, messages in self.received.items():
+                for msg in messages:
+                    stamp = conversions.stamp_to_nanoseconds(msg.header.stamp)
+                    if stamp > stamp_ns:
+                        by_stamp.setdefault(stamp, {})[topic] = msg
+            return sorted((s, m) for s, m in by_stamp.items() if len(m) == 4)
+
+        assert self.spin_until(lambda: len(instants()) >= count)
+        return instants()[:count]
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.replay.destroy_node()
+
+
+def test_node_replays_a_recorded_posture_like_the_live_suite(ros_context, tmp_path):
+    poses = _poses(2)
+    path = tmp_path / 'recording.mcap'
+    sent = write_recording(path, poses, per_posture=3)
+    # 20 Hz: the stream pauses 2 periods (100 ms) after 'settled', far longer than this test
+    # may take to see the status, so the samples stamped after it sees it start at the first.
+    harness = NodeHarness(ros_context, [Parameter('run', value=str(path)),
+                                        Parameter('settle_time', value=0.02),
+                                        Parameter('publish_rate', value=20.0)])
+    try:
+        # Before any command: the idle samples recorded before the first command.
+        first = harness.instants_after(0, 1)[0][1]
+        assert conversions.msg_to_leg_lengths(first[names.TOPIC_LEG_LENGTHS])[0] == pytest.approx(
+            0.7, abs=1e-5)
+
+        command_id = harness.command(poses[1])
+        assert [s.state for s in harness.final_states(command_id)] == ['moving', 'settled']
+        settled_ns = harness.node.get_clock().now().nanoseconds
+        legs, readings, truths = sent[2]
+        # From the first recorded sample, in order, cyclically; one stamp per instant.
+        instants = harness.instants_after(settled_ns, 4)
+        for j, (_, messages) in enumerate(instants):
+            np.testing.assert_array_equal(
+                conversions.msg_to_leg_lengths(messages[names.TOPIC_LEG_LENGTHS]), legs[j % 3])
+            alpha, beta = conversions.msg_to_inclinometer(messages[names.TOPIC_INCLINOMETER])
+            assert [alpha, beta, conversions.msg_to_encoder(messages[names.TOPIC_ENCODER]),
+                    conversions.msg_to_lvdt(messages[names.TOPIC_LVDT])] == list(readings[j % 3])
+            assert all(m.header.frame_id == names.FRAME_BASE for m in messages.values())
+        stamps = [s for s, _ in instants]
+        assert harness.spin_until(lambda: any(
+            conversions.stamp_to_nanoseconds(m.header.stamp) == stamps[1]
+            for m in harness.true_poses))
+        truth = next(m for m in harness.true_poses
+                     if conversions.stamp_to_nanoseconds(m.header.stamp) == stamps[1])
+        np.testing.assert_allclose(conversions.pose_stamped_to_pose(truth), truths[1], atol=1e-9)
+
+        # Not recorded, or wrong: rejected with the reason; the node keeps going.
+        unknown = harness.command(poses[1] + [0.01, 0, 0, 0, 0, 0])
+        assert [(s.state, s.reason) for s in harness.final_states(unknown)] == [
+            ('rejected', REASON_NOT_RECORDED)]
+        wrong_frame = harness.command(poses[0], frame_id='elsewhere')
+        (status,) = harness.final_states(wrong_frame)
+        assert status.rejected and 'elsewhere' in status.reason
+        again = harness.command(poses[0])
+        assert [s.state for s in harness.final_states(again)] == ['moving', 'settled']
+
+        # Run-time parameters are validated.
+        assert not harness.replay.set_parameters(
+            [Parameter('settle_time', value=-1.0)])[0].successful
+        assert not harness.replay.set_parameters(
+            [Parameter('pose_tolerance', value=0.0)])[0].successful
+        assert harness.replay.set_parameters(
+            [Parameter('pose_tolerance', value=0.05)])[0].successful
+        near = harness.command(poses[1] + [0.01, 0, 0, 0, 0, 0])
+        assert harness.final_states(near)[-1].settled
+    finally:
+        harness.close()
+
+
+def test_node_configuration_errors(ros_context, tmp_path):
+    with pytest.raises(ConfigurationError, match='run: .*required'):
+        ReplayNode(context=ros_context)
+    with pytest.raises(ConfigurationError, match='run: .*missing'):
+        ReplayNode(context=ros_context,
+                   parameter_overrides=[Parameter('run', value=str(tmp_path / 'missing'))])
+    write_samples(tmp_path / 'samples.csv', _samples(2))
+    with pytest.raises(ConfigurationError, match='pose_tolerance'):
+        ReplayNode(context=ros_context, parameter_overrides=[
+            Parameter('run', value=str(tmp_path)), Parameter('pose_tolerance', value=0.0)])
+    with pytest.raises(ConfigurationError, match='publish_rate'):
+        ReplayNode(context=ros_context, parameter_overrides=[
+            Parameter('run', value=str(tmp_path)), Parameter('publish_rate', value=-5.0)])
+    node = ReplayNode(context=ros_context,
+                      parameter_overrides=[Parameter('run', value=str(tmp_path))])
+    try:
+        # samples.csv has no true pose: nothing is published on true_pose.
+        assert node.count_publishers(names.TOPIC_TRUE_POSE) == 0
+        assert node.run.kind == SOURCE_SAMPLES
+    finally:
+        node.destroy_node()
+
+
+# --- replay == original ----------------------------------------------------------------------------
+
+
+CALIBRATION = {'posture_count': 14, 'pool_size': 42, 'samples_per_posture': 3, 'seed': 5}
+
+
+class Suite:
+    """Nodes in one multi-threaded executor, plus a client of the calibrate service."""
+
+    def __init__(self, context, nodes):
+        self.nodes = list(nodes)
+        self.client_node = rclpy.create_node('replay_test_client', context=context)
+        self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
+        self.executor = MultiThreadedExecutor(num_threads=3, context=context)
+        for node in self.nodes + [self.client_node]:
+            self.executor.add_node(node)
+
+    def calibrate(self, timeout=120.0):
+        deadline = time.monotonic() + TIMEOUT_S
+        while not self.client.service_is_ready():
+            assert time.monotonic() < deadline, 'calibrate service not available'
+            self.executor.spin_once(timeout_sec=0.05)
+        future = self.client.call_async(Trigger.Request())
+        self.executor.spin_until_future_complete(future, timeout_sec=timeout)
+        assert future.done(), 'no calibrate response'
+        response = future.result()
+        assert response.success, response.message
+        return RunDirectory(parse_response(response.message).run_directory)
+
+    def close(self):
+        for node in self.nodes + [self.client_node]:
+            self.executor.remove_node(node)
+        # rclpy 7.1's Executor.shutdown does not wait for the callbacks still running in the
+        # thread pool: let them finish first, so none meets a destroyed node or guard condition.
+        pool = getattr(self.executor, '_executor', None)
+        if pool is not None:
+            pool.shutdown(wait=True)
+        self.executor.shutdown(timeout_sec=1.0)
+        for node in self.nodes + [self.client_node]:
+            node.destroy_node()
+
+
+def _calibrator(context, output_root):
+    from gsp_calibrator.calibrator_node import CalibratorNode
+
+    overrides = [Parameter(name, value=value) for name, value in CALIBRATION.items()]
+    overrides.append(Parameter('output_root', value=str(output_root)))
+    return CalibratorNode(context=context, parameter_overrides=overrides)
+
+
+def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path):
+    from gsp_device_driver.device_driver_node import DeviceDriverNode
+    from gsp_platform_sim.platform_sim_node import PlatformSimNode
+
+    fast = [Parameter('settle_time', value=0.02)]
+    live = Suite(ros_context, [
+        PlatformSimNode(context=ros_context,
+                        parameter_overrides=fast + [Parameter('publish_markers', value=False)]),
+        DeviceDriverNode(context=ros_context),
+        _calibrator(ros_context, tmp_path / 'live')])
+    try:
+        original = live.calibrate()
+    finally:
+        live.close()
+
+    replay = Suite(ros_context, [
+        ReplayNode(context=ros_context, parameter_overrides=fast + [
+            Parameter('run', value=str(original.path))]),
+        _calibrator(ros_context, tmp_path / 'replay')])
+    try:
+        replayed = replay.calibrate()
+    finally:
+        replay.close()
+
+    assert replayed.path != original.path
+    before, after = original.read_samples(), replayed.read_samples()
+    assert len(before) >= CALIBRATION['posture_count'] - 2
+    np.testing.assert_array_equal(after.posture, before.posture)
+    np.testing.assert_allclose(after.commanded_poses, before.commanded_poses, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(after.leg_lengths, before.leg_lengths, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(after.readings, before.readings, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(original.read_geometry().to_vector(),
+                               replayed.read_geometry().to_vector(), rtol=0, atol=1e-9)

@@ -1,0 +1,148 @@
+"""result.json and report.md with PNGs: headless (Agg), readable, non-trivial images."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from gsp_calibrator import calibration, report
+from gsp_calibrator.run_directory import Samples
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
+from gsp_kinematics.identifiability import analyse_identifiability
+from gsp_kinematics.identification import Options, Sigmas
+from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+
+SIGMAS = Sigmas()
+
+
+def synthetic_samples(count=30, seed=1, sigmas=SIGMAS):
+    """Noisy measurements of the true platform at ``count`` postures valid for the nominal."""
+    nominal, truth = default_geometry('nominal'), default_geometry('true')
+    rng = np.random.default_rng(seed)
+    poses = sample_valid_postures(nominal, count, rng)
+    legs = inverse_kinematics(truth, poses) + rng.normal(0.0, sigmas.leg_lengths, (count, 6))
+    readings = device_readings(truth, poses) + rng.normal(0.0, 1.0, (count, 4)) * sigmas.readings()
+    return Samples(np.arange(1, count + 1), poses, legs, readings, np.ones(count, int),
+                   np.arange(count, dtype=float))
+
+
+@pytest.fixture(scope='module')
+def calibrated():
+    nominal, truth = default_geometry('nominal'), default_geometry('true')
+    outcome = calibration.identify_from_samples(nominal, synthetic_samples(), SIGMAS)
+    assert outcome.success, outcome.message
+    poses = sample_valid_postures(truth, 20, np.random.default_rng(7))
+    before = report.validation_errors(truth, nominal, poses)
+    after = report.validation_errors(truth, outcome.geometry, poses)
+    return outcome, nominal, truth, before, after
+
+
+def _strict_json(path):
+    def reject(constant):
+        raise ValueError(f'non-standard JSON constant {constant}')
+
+    with open(path, encoding='utf-8') as stream:
+        return json.load(stream, parse_constant=reject)
+
+
+def _check_png(path, min_width=500, min_height=250):
+    from matplotlib.image import imread
+
+    image = imread(path)
+    height, width = image.shape[:2]
+    assert width >= min_width and height >= min_height, (path, image.shape)
+    rgb = image[..., :3].reshape(-1, 3)
+    assert float(rgb.std()) > 0.02, f'{path} is (almost) a single flat colour'
+    colours = np.unique((rgb * 255).astype(np.uint8), axis=0)
+    assert len(colours) > 20, f'{path} has only {len(colours)} colours'
+    assert np.mean(np.all(rgb > 0.98, axis=1)) < 0.97, f'{path} is almost blank'
+
+
+def test_result_json(tmp_path, calibrated):
+    outcome, nominal, truth, before, after = calibrated
+    result = outcome.result
+    path = report.write_result_json(tmp_path, result, outcome.identifiability, before, after,
+                                    truth=truth, nominal=nominal, sigmas=outcome.sigmas,
+                                    extra={'run': 'test'})
+    data = _strict_json(path)
+    for key in ('estimates', 'standard_deviations', 'correlations', 'identifiability',
+                'residual_rms', 'iterations', 'status', 'message', 'validation', 'converged',
+                'formulation', 'parameter_errors', 'free_parameters', 'units', 'sigmas', 'run'):
+        assert key in data, key
+    assert data['estimates']['si']['A1x'] == result.parameters[0]
+    assert data['estimates']['report']['A1x'] == pytest.approx(result.parameters[0] * 1000.0)
+    assert data['estimates']['report']['gamma'] == pytest.approx(
+        math.degrees(result.parameters[43]))
+    assert data['units']['report']['gamma'] == 'deg' and data['units']['si']['D0'] == 'm'
+    assert data['standard_deviations']['si']['B2y'] == pytest.approx(
+        result.standard_deviations[PARAMETER_NAMES.index('B2y')])
+    assert set(data['estimates']['si']) == set(PARAMETER_NAMES)
+    identifiability = data['identifiability']
+    assert identifiability['rank'] == 44 and identifiability['unidentifiable'] == []
+    assert identifiability['condition_number'] > 1.0
+    assert set(data['residual_rms']) == {'leg_lengths', 'alpha', 'beta', 'phi', 'd_m'}
+    assert data['residual_rms']['alpha']['si_unit'] == 'rad'
+    assert data['iterations'] == result.iterations and data['status'] == result.status
+    for when in ('before', 'after'):
+        for key in report.VALIDATION_KEYS:
+            assert data['validation'][when][key] >= 0.0
+    assert data['validation']['after']['position_mm_mean'] < \
+        data['validation']['before']['position_mm_mean']
+    assert data['parameter_errors']['reference'] == 'truth'
+    assert data['max_param_error_mm'] < 0.5
+    assert isinstance(data['correlations'], list)
+    for pair in data['correlations']:
+        assert abs(pair['correlation']) > 0.9
+
+
+def test_report_with_truth(tmp_path, calibrated):
+    outcome, nominal, truth, before, after = calibrated
+    written = report.write_all(tmp_path, outcome.result, analysis=outcome.identifiability,
+                               validation_before=before, validation_after=after, truth=truth,
+                               nominal=nominal)
+    for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation'):
+        _check_png(written[kind])
+    assert not list(tmp_path.glob('*.tmp')) and not list(tmp_path.glob('.*.tmp'))
+    text = (tmp_path / 'report.md').read_text(encoding='utf-8')
+    for name in ('parameter_errors.png', 'chain_errors.png', 'residuals.png', 'validation.png'):
+        assert f']({name})' in text
+    assert '| A1x | mm |' in text and '| gamma | deg |' in text
+    assert 'error before' in text and '## Validation' in text
+    assert (tmp_path / 'result.json').exists()
+
+
+def test_report_without_truth_and_failed_identification(tmp_path):
+    nominal = default_geometry('nominal')
+    samples = synthetic_samples(count=12, seed=2)
+    outcome = calibration.identify_from_samples(
+        nominal, samples, SIGMAS, free=['A1x', 'B1y', 'Loff1', 'D0', 'gamma'],
+        options=Options(max_iterations=1))
+    result = outcome.result
+    assert result is not None and not result.converged
+    singular = np.diag([1.0, 1.0, 1.0, 1.0, 0.0])
+    analysis = analyse_identifiability(singular, result.free)
+    written = report.write_all(tmp_path, result, analysis=analysis, nominal=nominal)
+    assert 'validation' not in written
+    for kind in ('parameter_errors', 'chain_errors', 'residuals'):
+        _check_png(written[kind])
+    data = _strict_json(written['result_json'])
+    assert data['converged'] is False
+    assert data['parameter_errors']['reference'] == 'nominal'
+    assert data['standard_deviations']['si']['A2x'] is None  # fixed parameter
+    assert data['validation'] == {'before': None, 'after': None}
+    assert data['identifiability']['rank'] == 4
+    assert data['identifiability']['unidentifiable'][0]['parameters'] == ['gamma']
+    text = (tmp_path / 'report.md').read_text(encoding='utf-8')
+    assert 'NOT converged' in text and 'not identifiable: `1.00*gamma`' in text
+    assert 'correction |' in text
+
+
+def test_residuals_by_sensor_recovers_si_units(calibrated):
+    result = calibrated[0].result
+    by_sensor = report.residuals_by_sensor(result)
+    assert set(by_sensor) == set(result.residual_rms)
+    for sensor, values in by_sensor.items():
+        assert math.sqrt(np.mean(values**2)) == pytest.approx(result.residual_rms[sensor])
+    assert by_sensor['leg_lengths'].size == 6 * len(result.poses)

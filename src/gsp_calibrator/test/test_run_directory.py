@@ -1,0 +1,127 @@
+"""Run directory: unique creation, atomic writes, samples.csv and result.yaml round trips."""
+
+import datetime
+import json
+import os
+
+import numpy as np
+import pytest
+
+from gsp_calibrator.run_directory import (
+    SAMPLES_COLUMNS,
+    RunDirectory,
+    RunDirectoryError,
+    Samples,
+    atomic_write_text,
+    create_run_directory,
+    load_samples,
+    read_samples,
+    samples_from_csv,
+    samples_to_csv,
+    write_samples,
+)
+from gsp_kinematics.geometry import default_geometry
+
+NOW = datetime.datetime(2025, 11, 22, 3, 54, 1, tzinfo=datetime.UTC)
+
+
+def make_samples(count=4, seed=0):
+    rng = np.random.default_rng(seed)
+    samples = Samples.empty()
+    for k in range(count):
+        samples.append(k + 1 if k < 2 else k + 2,  # a skipped posture leaves a gap
+                       rng.normal(size=6), rng.uniform(0.1, 0.9, 6) + 1e-17 * k,
+                       rng.normal(size=4) / 3.0, 10 - k, 1.7e9 + rng.uniform())
+    return samples
+
+
+def test_columns_are_exactly_the_contract():
+    assert SAMPLES_COLUMNS == (
+        'posture', 'x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd',
+        'leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6',
+        'alpha', 'beta', 'phi', 'd_m', 'n_samples', 'stamp')
+
+
+def test_samples_round_trip_at_full_precision(tmp_path):
+    samples = make_samples()
+    path = write_samples(tmp_path / 'samples.csv', samples)
+    assert path.read_text().splitlines()[0] == ','.join(SAMPLES_COLUMNS)
+    back = read_samples(path)
+    np.testing.assert_array_equal(back.posture, samples.posture)
+    np.testing.assert_array_equal(back.commanded_poses, samples.commanded_poses)  # bit for bit
+    np.testing.assert_array_equal(back.leg_lengths, samples.leg_lengths)
+    np.testing.assert_array_equal(back.readings, samples.readings)
+    np.testing.assert_array_equal(back.n_samples, samples.n_samples)
+    np.testing.assert_array_equal(back.stamps, samples.stamps)
+    commanded, legs, readings, n_samples, stamps = load_samples(path)
+    assert commanded.shape == (4, 6) and legs.shape == (4, 6) and readings.shape == (4, 4)
+    assert n_samples.tolist() == [10, 9, 8, 7] and stamps.shape == (4,)
+
+
+def test_empty_samples_round_trip(tmp_path):
+    path = write_samples(tmp_path / 'samples.csv', Samples.empty())
+    commanded, legs, readings, n_samples, stamps = load_samples(path)
+    assert commanded.shape == (0, 6) and readings.shape == (0, 4) and n_samples.size == 0
+
+
+@pytest.mark.parametrize('text, match', [
+    ('', 'empty'),
+    ('a,b\n', 'columns'),
+    (','.join(SAMPLES_COLUMNS) + '\n1,2\n', ':2: 2 values'),
+    (','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x']) + '\n', 'column stamp'),
+    (','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8) + '\n',
+     'column leg_4 is not finite'),
+])
+def test_malformed_samples_are_reported(text, match):
+    with pytest.raises(RunDirectoryError, match=match):
+        samples_from_csv(text)
+
+
+def test_missing_samples_file_is_reported(tmp_path):
+    with pytest.raises(RunDirectoryError, match='cannot read'):
+        read_samples(tmp_path / 'nope.csv')
+
+
+def test_run_directories_are_unique_within_a_second(tmp_path):
+    first = create_run_directory(tmp_path / 'runs', NOW)
+    second = create_run_directory(tmp_path / 'runs', NOW)
+    third = RunDirectory.create(tmp_path / 'runs', NOW)
+    assert first.name == '20251122T035401Z'
+    assert second.name == '20251122T035401Z_2' and third.path.name == '20251122T035401Z_3'
+    assert first.is_dir() and second.is_dir() and third.path.is_dir()
+
+
+def test_run_directory_files(tmp_path):
+    run = RunDirectory.create(tmp_path, NOW)
+    samples = make_samples(2)
+    run.write_samples(samples)
+    np.testing.assert_array_equal(run.read_samples().readings, samples.readings)
+    geometry = default_geometry('true')
+    path = run.write_geometry(geometry, comment='calibrated')
+    assert path.name == 'result.yaml' and path.read_text().startswith('# calibrated')
+    np.testing.assert_array_equal(run.read_geometry().to_vector(), geometry.to_vector())
+    run.write_json('summary.json', {'a': np.float64(1.5), 'b': np.arange(3), 'c': run.path})
+    assert run.read_json('summary.json') == {'a': 1.5, 'b': [0, 1, 2], 'c': str(run.path)}
+    run.write_text('report.md', '# report\n')
+    run.write_bytes('recording.mcap', b'\x89MCAP')
+    assert sorted(p.name for p in run.path.iterdir()) == [
+        'recording.mcap', 'report.md', 'result.yaml', 'samples.csv', 'summary.json']
+    assert os.fspath(run) == str(run.path)
+    with pytest.raises(RunDirectoryError, match='plain file name'):
+        run.file('../escape.txt')
+
+
+def test_atomic_write_leaves_no_temporary_file_and_keeps_the_old_file_on_error(tmp_path):
+    path = tmp_path / 'out.json'
+    atomic_write_text(path, json.dumps({'v': 1}))
+    with pytest.raises(TypeError):
+        RunDirectory(tmp_path).write_json('out.json', {'v': object()})
+    assert json.loads(path.read_text()) == {'v': 1}
+    assert [p.name for p in tmp_path.iterdir()] == ['out.json']
+
+
+def test_csv_text_uses_repr_floats():
+    samples = Samples.empty()
+    samples.append(1, [0.1] * 6, [1 / 3] * 6, [2 / 3] * 4, 10, 1.7e9 + 0.123456789)
+    row = samples_to_csv(samples).splitlines()[1].split(',')
+    assert row[7] == repr(1 / 3) and row[-1] == repr(1.7e9 + 0.123456789) and row[-2] == '10'

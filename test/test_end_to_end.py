@@ -1,0 +1,91 @@
+"""The main job end to end: ``gsp_demo`` starts the three nodes as processes, calibrates,
+applies, validates, and leaves nothing running."""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gsp_kinematics.geometry import load_geometry, parameter_errors
+
+DEMO_TIMEOUT_S = 300.0  # generous: the machine may be loaded (the target is < 60 s)
+SUMMARY_KEYS = {'validation', 'max_param_error_mm', 'max_param_error_deg', 'identification_ms',
+                'calibration_s', 'total_s'}
+VALIDATION_KEYS = {'position_mm_mean', 'position_mm_max', 'orientation_deg_mean',
+                   'orientation_deg_max'}
+
+
+def demo_command():
+    """``gsp_demo`` from PATH (``make test``), else the module with this interpreter."""
+    executable = shutil.which('gsp_demo')
+    return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.demo']
+
+
+def processes_with_marker(marker):
+    """PIDs of live processes whose environment holds ``GSP_E2E_MARKER=<marker>``."""
+    found = []
+    needle = f'GSP_E2E_MARKER={marker}'.encode()
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if needle in (entry / 'environ').read_bytes().split(b'\0'):
+                found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def test_main_job_calibrates_and_improves_accuracy(tmp_path):
+    marker = uuid.uuid4().hex
+    env = dict(os.environ, GSP_E2E_MARKER=marker)
+    env.pop('ROS_DOMAIN_ID', None)  # the demo chooses a private one
+    started = time.monotonic()
+    completed = subprocess.run(
+        demo_command() + ['--output-root', str(tmp_path / 'runs'), '--validation-postures', '30'],
+        env=env, capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
+    elapsed = time.monotonic() - started
+    output = completed.stdout + completed.stderr
+    assert completed.returncode == 0, output
+
+    # No node is left behind.
+    deadline = time.monotonic() + 5.0
+    while processes_with_marker(marker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert processes_with_marker(marker) == [], output
+
+    assert re.search(r'ROS_DOMAIN_ID=\d+ \(loopback only\)', output)
+    assert '[done] 60/60' in output  # progress shown
+    run = Path(re.findall(r'^run directory: (.+)$', completed.stdout, re.MULTILINE)[-1])
+    assert run.parent == tmp_path / 'runs' and run.is_dir()
+    for name in ('samples.csv', 'result.yaml', 'true_geometry.yaml', 'summary.json',
+                 'calibrator.log', 'platform_sim.log', 'device_driver.log'):
+        assert (run / name).is_file(), name
+
+    summary = json.loads((run / 'summary.json').read_text())
+    assert set(summary) == SUMMARY_KEYS
+    before, after = summary['validation']['before'], summary['validation']['after']
+    assert set(before) == set(after) == VALIDATION_KEYS
+    # Accuracy improves by orders of magnitude (nominal: mm; calibrated: micrometres).
+    assert after['position_mm_mean'] < 0.1 * before['position_mm_mean']
+    assert after['position_mm_max'] < 0.05
+    assert after['orientation_deg_max'] < 0.01 < before['orientation_deg_max']
+    assert summary['identification_ms'] > 0 and summary['calibration_s'] > 0
+    assert summary['total_s'] <= elapsed
+
+    # The calibrated geometry is close to the truth the simulator was given.
+    calibrated = load_geometry(run / 'result.yaml')
+    truth = load_geometry(run / 'true_geometry.yaml')
+    errors = parameter_errors(calibrated, truth)
+    assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.005  # mm, deg
+    assert summary['max_param_error_mm'] == pytest.approx(np.max(np.abs(errors[:43])))
+    rows = (run / 'samples.csv').read_text().strip().splitlines()
+    assert 55 <= len(rows) - 1 <= 60
