@@ -22,10 +22,17 @@ callback.
 
 The four sensor streams (800 messages/s at 200 Hz) are taken by :class:`SensorListener`: a small
 node of its own (``<name>_sensors``, no parameters) spun by a ``SingleThreadedExecutor`` in a
-dedicated thread, subscribed only during a run. Measured on the 2-core machine under load, a
+dedicated thread. Its subscriptions live as long as the node (destroying a subscription while
+that thread builds its wait set can raise ``InvalidHandle``, ros2/rclpy#1206); outside a run the
+callbacks drop every message at once. Measured on the 2-core machine under load, a
 ``MultiThreadedExecutor`` took these streams at ~560 messages/s with ~300 ms of lag (GIL
 hand-offs to its pool), so samples piled up behind the settled status; the single-threaded
 listener kept up (~2 ms median lag) at a third less CPU.
+
+Every run directory also holds ``recording.mcap`` (every message on the suite's topics during the
+run, :class:`.recording.RunRecorder` on a third internal node ``<name>_recorder`` with its own
+thread and lifetime subscriptions) and, once identification gives a result, ``result.json``,
+``report.md`` and its PNGs (:mod:`.report`, written in a worker thread).
 """
 
 import concurrent.futures
@@ -61,7 +68,7 @@ from std_srvs.srv import Trigger
 from gsp_kinematics.geometry import geometry_to_parameters, geometry_to_yaml
 from gsp_msgs_py import conversions, names, qos
 
-from . import calibration
+from . import calibration, recording, report
 from .collector import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT, SampleCollector
 from .run_directory import RESULT_FILE, SAMPLES_FILE, RunDirectory, Samples
 from .settings import PARAMETERS, CalibratorSettings, check_parameters
@@ -92,6 +99,7 @@ SENSOR_SUBSCRIPTION_QOS = QoSProfile(
 
 WAIT_OK = 'ok'
 WAIT_TIMEOUT = 'timeout'
+WAIT_DEADLINE = 'deadline'
 
 
 class ConfigurationError(ValueError):
@@ -113,6 +121,7 @@ class _Waiter:
     progress: object = None  # () -> value; a change restarts the timeout
     last_value: object = None
     last_change: float = 0.0
+    deadline: float = math.inf  # s since the start before WAIT_DEADLINE, progress or not
 
 
 def _run_in_thread(function, *args, **kwargs):
@@ -138,11 +147,13 @@ def _has_non_finite(msg):
 class SensorListener:
     """Takes the sensor topics in a thread of its own (see the module docstring).
 
-    ``callbacks`` maps each resolved topic name to its callback. :meth:`subscribe` and
-    :meth:`unsubscribe` may be called from any thread; :meth:`close` stops the thread.
+    ``callbacks`` maps each resolved topic name to its callback; the subscriptions are created
+    before the thread starts and kept until :meth:`close` (see the module docstring). ``setup``:
+    None or a function of the node called before the thread starts (its result is :attr:`extra`),
+    to create further entities on the node. :meth:`close` stops the thread.
     """
 
-    def __init__(self, name, namespace, context, callbacks):
+    def __init__(self, name, namespace, context, callbacks, setup=None):
         self.callbacks = dict(callbacks)
         self.node = Node(name, namespace=namespace, context=context, use_global_arguments=False,
                          start_parameter_services=False)
@@ -150,6 +161,8 @@ class SensorListener:
         self.executor.add_node(self.node)
         self._subscriptions = []
         self._lock = threading.Lock()
+        self.subscribe()
+        self.extra = setup(self.node) if setup is not None else None
         self._thread = threading.Thread(target=self._spin, name=f'{name}-executor', daemon=True)
         self._thread.start()
 
@@ -169,18 +182,11 @@ class SensorListener:
                 for topic, callback in self.callbacks.items()
             ]
 
-    def unsubscribe(self):
-        with self._lock:
-            subscriptions, self._subscriptions = self._subscriptions, []
-        for subscription in subscriptions:
-            self.node.destroy_subscription(subscription)
-
     @property
     def subscribed(self):
         return bool(self._subscriptions)
 
     def close(self):
-        self.unsubscribe()
         self.executor.shutdown(timeout_sec=2.0)
         self._thread.join(timeout=2.0)
         self.node.destroy_node()
@@ -207,6 +213,8 @@ class CalibratorNode(Node):
 
         self._lock = threading.RLock()
         self._running = False
+        self._sensors_active = False  # sensor callbacks drop every message while False
+        self._awaited_posture = None
         self._waiters = []
         self._collector = SampleCollector(self._settings.sync_tolerance,
                                           self._settings.samples_per_posture)
@@ -231,6 +239,10 @@ class CalibratorNode(Node):
             f'{self.get_name()}_sensors', self.get_namespace(), self.context,
             {self.resolve_topic_name(topic): self._make_sensor_callback(topic, stream)
              for topic, stream in SENSOR_TOPICS.items()})
+        self._recorder_listener = SensorListener(
+            f'{self.get_name()}_recorder', self.get_namespace(), self.context, {},
+            setup=lambda node: recording.RunRecorder(node, persistent=True))
+        self._recorder = self._recorder_listener.extra
         self.create_subscription(
             DiagnosticStatus, names.TOPIC_PLATFORM_STATUS, self._on_status,
             qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS], callback_group=self._data_group)
@@ -284,6 +296,8 @@ class CalibratorNode(Node):
         }[stream]
 
         def callback(msg):
+            if not self._sensors_active:  # no run: drop at once
+                return
             self._last_heard[topic] = time.monotonic()
             try:
                 stamp_ns = conversions.stamp_to_nanoseconds(msg.header.stamp)
@@ -321,8 +335,10 @@ class CalibratorNode(Node):
             self._statuses[status.command_id] = status
             if status.settled:
                 # Samples count from the moment the settled status is received.
-                self._collector.start(self.get_clock().now().nanoseconds,
-                                      self._previous_readings)
+                start_ns = self.get_clock().now().nanoseconds
+                self._collector.start(start_ns, self._previous_readings)
+                self._recorder.note_collection_start(status.command_id, start_ns,
+                                                     posture=self._awaited_posture)
         self._poll_waiters()
 
     # ------------------------------------------------------------------------------ waits
@@ -334,13 +350,14 @@ class CalibratorNode(Node):
         return future
 
     def _wait_for(self, predicate, timeout_s=math.inf, watch=(), topic_timeout=math.inf,
-                  progress=None):
+                  progress=None, deadline_s=math.inf):
         """Future of :data:`WAIT_OK` once ``predicate()`` holds, :data:`WAIT_TIMEOUT` after
-        ``timeout_s`` (without a change of ``progress()``, if given), or the name of a ``watch``
-        topic silent for ``topic_timeout`` s."""
+        ``timeout_s`` (without a change of ``progress()``, if given), :data:`WAIT_DEADLINE`
+        ``deadline_s`` after the start (progress or not), or the name of a ``watch`` topic silent
+        for ``topic_timeout`` s."""
         now = time.monotonic()
         waiter = _Waiter(predicate, timeout_s, tuple(watch), topic_timeout, now,
-                         self._new_future(), progress, None, now)
+                         self._new_future(), progress, None, now, deadline_s)
         with self._lock:
             self._waiters.append(waiter)
         self._poll_waiters()
@@ -370,6 +387,8 @@ class CalibratorNode(Node):
                         waiter.last_value, waiter.last_change = value, now
                 if outcome is None and now - waiter.last_change >= waiter.timeout:
                     outcome = WAIT_TIMEOUT
+                if outcome is None and now - waiter.started >= waiter.deadline:
+                    outcome = WAIT_DEADLINE
                 if outcome is not None:
                     self._waiters.remove(waiter)
                     finished.append((waiter.future, outcome))
@@ -410,20 +429,30 @@ class CalibratorNode(Node):
         return np.concatenate([np.asarray(item[1], dtype=float) for item in latest])
 
     def _subscribe_sensors(self):
-        """Subscribe to the sensor topics (for a run); forget when they were last heard."""
+        """Take the sensor topics (for a run); forget when they were last heard."""
         with self._lock:
             for topic in SENSOR_TOPICS:
                 self._last_heard.pop(topic, None)
             self._latest_device.clear()
-        self._sensors.subscribe()
+            self._sensors_active = True
 
     def _unsubscribe_sensors(self):
-        self._sensors.unsubscribe()
+        """Drop the sensor messages again (the subscriptions stay, see the module docstring)."""
+        with self._lock:
+            self._sensors_active = False
 
     def destroy_node(self):
-        sensors = getattr(self, '_sensors', None)
-        if sensors is not None:
-            sensors.close()
+        self._sensors_active = False
+        recorder = getattr(self, '_recorder', None)
+        if recorder is not None:
+            try:
+                recorder.stop()
+            except Exception as error:  # never keep the node from going down
+                self.get_logger().error(f'recording not closed: {error}')
+        for name in ('_recorder_listener', '_sensors'):
+            listener = getattr(self, name, None)
+            if listener is not None:
+                listener.close()
         return super().destroy_node()
 
     def _selection_future(self, settings):
@@ -471,14 +500,22 @@ class CalibratorNode(Node):
             response.success, response.message = False, f'calibration failed: {error}'
         finally:
             with self._lock:
-                self._running = False
                 self._awaited_command = None
+                self._awaited_posture = None
                 self._collector.stop()
                 for waiter in self._waiters:
                     if not waiter.future.done():
                         waiter.future.cancel()
                 self._waiters.clear()
             self._unsubscribe_sensors()
+            try:
+                # Drain (the last progress, the result) and close the file off the executor.
+                await self._await_thread(_run_in_thread(self._recorder.stop, drain_s=0.2))
+            except Exception as error:
+                self.get_logger().error(f'recording not closed: {error}')
+            finally:
+                with self._lock:
+                    self._running = False
         return response
 
     async def _calibrate(self, settings):
@@ -487,6 +524,11 @@ class CalibratorNode(Node):
         started = time.monotonic()
         run = RunDirectory.create(settings.output_root)
         log.info(f'calibration started: run directory {run.path}')
+        try:
+            self._recorder.start(run.file(recording.RECORDING_FILE),
+                                 options=recording.settings_options(settings))
+        except (OSError, ValueError, ImportError) as error:  # the run goes on without it
+            log.error(f'not recording the run: {error}')
         samples = Samples.empty()
         skipped = []
         run.write_samples(samples)
@@ -534,6 +576,8 @@ class CalibratorNode(Node):
             list(settings.free_parameters), settings.formulation))
         summary = calibration.outcome_summary(outcome, selected=count, skipped=skipped,
                                               run_directory=run.path)
+        if outcome.result is not None:
+            await self._write_report(run, settings, outcome)
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)
@@ -554,6 +598,18 @@ class CalibratorNode(Node):
         self._progress(count, count, names.PHASE_DONE if success else names.PHASE_FAILED,
                        summary.splitlines()[0], residuals, run_directory=run.path)
         return success, calibration.format_response(summary, geometry)
+
+    async def _write_report(self, run, settings, outcome):
+        """``result.json``, ``report.md`` and its PNGs, in a worker thread; errors are logged."""
+        try:
+            await self._await_thread(_run_in_thread(
+                report.write_all, run.path, outcome.result,
+                analysis=outcome.identifiability or None, nominal=settings.nominal,
+                sigmas=outcome.sigmas,
+                extra={'success': outcome.success, 'failure': outcome.message or None,
+                       'options': recording.settings_options(settings)}))
+        except Exception as error:  # the report must not fail the run
+            self.get_logger().error(f'report not written: {error}\n{traceback.format_exc()}')
 
     async def _wait_for_system(self, settings):
         """Wait until platform_sim listens to commands and every sensor topic has spoken."""
@@ -583,6 +639,7 @@ class CalibratorNode(Node):
             self._previous_readings = self._current_device_readings()
         with self._lock:
             self._awaited_command = command_id
+            self._awaited_posture = k
             self._statuses.clear()
             self._collector.stop()
         self._command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
@@ -614,9 +671,12 @@ class CalibratorNode(Node):
         def done():
             return collector.ready() or collector.pair_count() >= limit
 
+        # The collection is bounded as a whole: pairs that keep coming without a consistent
+        # window would otherwise restart the progress timeout for ever.
+        collect_limit = settings.settle_timeout + settings.topic_timeout
         outcome = await self._wait_for(
             done, settings.topic_timeout, tuple(SENSOR_TOPICS), settings.topic_timeout,
-            progress=collector.pair_count)
+            progress=collector.pair_count, deadline_s=collect_limit)
         with self._lock:
             if collector.ready():
                 dropped_before = collector.inconsistent
@@ -631,6 +691,13 @@ class CalibratorNode(Node):
                 k, count, f'no {settings.samples_per_posture} consistent samples among '
                 f'{counts["pairs"]} synchronised ones (too noisy, or the device readings did not '
                 'change from the previous posture)', skipped)
+        if row is None and outcome == WAIT_DEADLINE:
+            return self._skip(
+                k, count, f'no {settings.samples_per_posture} consistent synchronised samples '
+                f'within {collect_limit:g} s (settle_timeout + topic_timeout) of settling: '
+                f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '
+                f'samples, {counts["pairs"]} within sync_tolerance {settings.sync_tolerance:g} s',
+                skipped)
         if row is None:
             if outcome in SENSOR_TOPICS:
                 raise RunFailed(f'topic {outcome} is silent: no message for '

@@ -119,6 +119,20 @@ def validation_summary(commanded, reached):
     return summarise(position_mm, orientation_deg)
 
 
+def validation_details(commanded, reached):
+    """:func:`validation_summary` plus the per-posture errors ``position_mm`` and
+    ``orientation_deg`` (lists, rows of ``reached`` without NaN), for the run's report."""
+    commanded, reached = np.asarray(commanded), np.asarray(reached)
+    details = dict(validation_summary(commanded, reached))
+    keep = np.all(np.isfinite(reached), axis=1)
+    if keep.any():
+        position_mm, orientation_deg = pose_errors(commanded[keep], reached[keep])
+        details['position_mm'] = np.asarray(position_mm, dtype=float).tolist()
+        details['orientation_deg'] = np.asarray(orientation_deg, dtype=float).tolist()
+    details['postures'] = int(keep.sum())
+    return details
+
+
 def parameter_error_maxima(calibrated, true):
     """``(max |error| of the 43 lengths in mm, |gamma error| in deg)``."""
     errors = parameter_errors(calibrated, true)
@@ -505,6 +519,8 @@ def run(args):
             raise DemoError('every validation posture was rejected by the platform')
         before = validation_summary(validation_poses[both], reached_before[both])
         after = validation_summary(validation_poses[both], reached_after[both])
+        details_before = validation_details(validation_poses[both], reached_before[both])
+        details_after = validation_details(validation_poses[both], reached_after[both])
         exit_code = 0
     except DemoError as error:
         print(f'gsp_demo: FAILED: {error}', file=sys.stderr, flush=True)
@@ -546,6 +562,13 @@ def run(args):
                            calibration_s, time.monotonic() - started)
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
+    try:  # the calibrator's report, now against the truth and with the validation distributions
+        from . import offline
+
+        offline.refresh_report(run_directory.path, truth=true_geometry,
+                               validation_before=details_before, validation_after=details_after)
+    except Exception as error:  # noqa: BLE001 (the demo itself succeeded)
+        print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
     print(summary_text(summary, int(both.sum()), int((~both).sum())), flush=True)
     print(f'run directory: {run_directory.path}', flush=True)
     return 0

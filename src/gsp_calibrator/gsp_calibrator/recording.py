@@ -712,17 +712,32 @@ class RunRecorder:
     publishers' QoS for the others) and destroyed by :meth:`stop`. Each message is written with
     its receive time on the node's clock, the time base of the calibrator's collector. Callbacks
     run in the recorder's own callback group, so they never wait for the node's other callbacks.
+
+    ``persistent=True``: the subscriptions are created once, here, and kept for the node's
+    lifetime (messages outside a recording are dropped at once). Destroying a subscription while
+    another thread's executor builds its wait set can raise ``InvalidHandle`` (ros2/rclpy#1206).
     """
 
-    def __init__(self, node, topics=None, callback_group=None):
+    def __init__(self, node, topics=None, callback_group=None, persistent=False):
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
         self.node = node
         self.topics = dict(SUITE_TOPICS if topics is None else topics)
         self.callback_group = callback_group or MutuallyExclusiveCallbackGroup()
+        self.persistent = bool(persistent)
         self._recorder = None
         self._subscriptions = []
         self._lock = threading.Lock()
+        if self.persistent:
+            self._subscribe()
+
+    def _subscribe(self):
+        from gsp_msgs_py.qos import SENSOR_QOS, TOPIC_QOS
+
+        for topic, type_name in self.topics.items():
+            self._subscriptions.append(self.node.create_subscription(
+                message_class(type_name), topic, self._callback(topic),
+                TOPIC_QOS.get(topic, SENSOR_QOS), callback_group=self.callback_group, raw=True))
 
     @property
     def recording(self):
@@ -759,10 +774,8 @@ class RunRecorder:
             raise
         with self._lock:
             self._recorder = recorder
-        for topic, type_name in self.topics.items():
-            self._subscriptions.append(self.node.create_subscription(
-                message_class(type_name), topic, self._callback(topic),
-                TOPIC_QOS.get(topic, SENSOR_QOS), callback_group=self.callback_group, raw=True))
+        if not self.persistent:
+            self._subscribe()
         return recorder.path
 
     def note_collection_start(self, command_id, start_ns, posture=None):
@@ -787,19 +800,26 @@ class RunRecorder:
         """
         if drain_s > 0.0 and self._recorder is not None:
             time.sleep(drain_s)
-        for subscription in self._subscriptions:
-            self.node.destroy_subscription(subscription)
-        self._subscriptions = []
+        if not self.persistent:
+            self.close_subscriptions()
         with self._lock:
             recorder, self._recorder = self._recorder, None
         if recorder is None:
             return None
         return recorder.close()
 
+    def close_subscriptions(self):
+        """Destroy the subscriptions (with ``persistent``: when the node is destroyed)."""
+        subscriptions, self._subscriptions = self._subscriptions, []
+        for subscription in subscriptions:
+            self.node.destroy_subscription(subscription)
+
     def _callback(self, topic):
         clock = self.node.get_clock()
 
         def on_message(data):
+            if self._recorder is None:  # not recording: drop at once
+                return
             now = clock.now().nanoseconds
             with self._lock:
                 recorder = self._recorder

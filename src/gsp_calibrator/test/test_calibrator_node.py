@@ -4,8 +4,12 @@ The sensors run at 100 Hz here (three nodes share one Python process); waits are
 because the machine may be loaded, and end as soon as their condition holds.
 """
 
+import itertools
+import json
+import math
 import threading
 import time
+import types
 
 import numpy as np
 import pytest
@@ -17,6 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from gsp_calibrator import recording
 from gsp_calibrator.calibration import parse_response
 from gsp_calibrator.calibrator_node import CalibratorNode, ConfigurationError
 from gsp_calibrator.run_directory import RunDirectory
@@ -155,6 +160,22 @@ def test_calibration_in_process(ros_context, tmp_path):
         errors = parameter_errors(calibrated, truth)
         assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.01  # mm, deg
         assert calibrator._collector.non_finite['leg_lengths'] >= 1
+
+        # The sensor subscriptions outlive the run (ros2/rclpy#1206); messages are dropped now.
+        assert calibrator._sensors.subscribed and not calibrator._sensors_active
+
+        # Issue 4: the run directory holds the recording and the report.
+        for name in ('recording.mcap', 'result.json', 'report.md'):
+            assert (run.path / name).is_file(), name
+        assert list(run.path.glob('*.png'))
+        assert not list(run.path.glob('*.tmp'))
+        info = recording.recording_info(run.path / 'recording.mcap')
+        for topic in (names.TOPIC_LEG_LENGTHS, names.TOPIC_ENCODER, names.TOPIC_PLATFORM_STATUS,
+                      names.TOPIC_POSE_COMMAND, names.TOPIC_CALIBRATION_PROGRESS):
+            assert info['topics'][topic]['count'] > 0, topic
+        assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
+        assert info['metadata'][recording.RUN_METADATA_NAME]
+        assert json.loads((run.path / 'result.json').read_text())
 
         # Applied to the platform controller through its parameter service.
         applied = platform.get_parameter('geometry.leg_offsets').value
@@ -335,3 +356,17 @@ def test_bad_parameters_are_rejected_at_run_time(ros_context, tmp_path):
             assert node.describe_parameter(spec_name).description
     finally:
         node.destroy_node()
+
+
+def test_a_wait_ends_at_its_deadline_even_while_it_progresses():
+    from rclpy.task import Future
+
+    from gsp_calibrator.calibrator_node import WAIT_DEADLINE, _Waiter
+
+    counter = itertools.count()
+    started = time.monotonic() - 1.0
+    waiter = _Waiter(lambda: False, 10.0, (), math.inf, started, Future(),
+                     progress=lambda: next(counter), last_change=started, deadline=0.5)
+    fake = types.SimpleNamespace(_lock=threading.RLock(), _last_heard={}, _waiters=[waiter])
+    CalibratorNode._poll_waiters(fake)
+    assert waiter.future.result() == WAIT_DEADLINE and not fake._waiters

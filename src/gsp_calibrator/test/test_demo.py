@@ -57,6 +57,10 @@ def test_validation_summary_ignores_rejected_postures():
     assert summary['orientation_deg_max'] == pytest.approx(0.5)
     assert math.isnan(demo.validation_summary(commanded, np.full((3, 6), np.nan))[
         'position_mm_mean'])
+    details = demo.validation_details(commanded, reached)
+    assert details['position_mm'] == pytest.approx([1.0, 2.0])
+    assert details['orientation_deg'] == pytest.approx([0.0, 0.5])
+    assert details['postures'] == 2 and details['position_mm_max'] == pytest.approx(2.0)
 
 
 def test_summary_has_the_keys_of_the_issue():

@@ -1,0 +1,230 @@
+"""End-to-end section of ``gsp_bench`` (``bench.json`` key ``end_to_end``).
+
+:func:`run` drives ``gsp_demo`` (the three nodes as separate processes, loopback discovery, a
+private random ``ROS_DOMAIN_ID`` per run) in child processes, each with a temporary
+``--output-root``, and reads the run directory it leaves:
+
+* ``calibration_s``: wall time of the ``/gsp/calibrator/calibrate`` call of a whole calibration
+  (60 postures; fewer with ``quick``), from ``summary.json``; ``total_s`` is the whole demo.
+* ``max_sync_rate_hz``: the highest ``publish_rate`` of ``platform_sim`` and ``device_driver``
+  (``--sensor-rate``) at which a short calibration still gets every synchronised sample: the
+  demo succeeds, every posture not rejected by the platform has a ``samples.csv`` row with
+  ``n_samples == samples_per_posture``, and ``calibrator.log`` reports no dropped (inconsistent
+  or non-finite) samples and no posture skipped for another reason than a platform rejection.
+  The rates are tried in increasing order; the sweep stops at the first one that fails.
+"""
+
+import contextlib
+import csv
+import os
+import random
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+DEMO_MODULE = 'gsp_calibrator.demo'
+CALIBRATION_POSTURES = 60
+QUICK_CALIBRATION_POSTURES = 30
+SYNC_RATES_HZ = (100.0, 200.0, 400.0, 800.0, 1600.0)
+QUICK_SYNC_RATES_HZ = (200.0, 800.0)
+SYNC_POSTURES = 15
+QUICK_SYNC_POSTURES = 12  #: 44 parameters need >= 11 postures (4 readings each)
+SAMPLES_PER_POSTURE = 10
+DEMO_TIMEOUT_S = 90.0  #: longest wall time of one demo run before it is stopped
+
+_RUN_DIRECTORY = re.compile(r'^run directory: (.+)$', re.MULTILINE)
+_SKIPPED = re.compile(r'posture (\d+)/\d+ skipped: (.*)')
+#: calibrator log lines that mean a sample was lost or could not be synchronised.
+_DROP_PATTERNS = (
+    re.compile(r'dropped (\d+) synchronised sample'),
+    re.compile(r'dropped a non-finite reading'),
+    re.compile(r'no synchronised sample'),
+)
+
+
+def demo_environment(environ=None, rng=random, used=()):
+    """A copy of ``environ`` with loopback discovery and a fresh random domain id (1..101)."""
+    env = dict(os.environ if environ is None else environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    choices = [d for d in range(1, 102) if d not in set(used)] or list(range(1, 102))
+    env['ROS_DOMAIN_ID'] = str(rng.choice(choices))
+    env['PYTHONUNBUFFERED'] = '1'
+    env.setdefault('OPENBLAS_NUM_THREADS', '1')
+    return env
+
+
+def demo_command(output_root, postures, sensor_rate, samples_per_posture=SAMPLES_PER_POSTURE,
+                 validation_postures=1, seed=0, timeout=DEMO_TIMEOUT_S):
+    """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.demo``)."""
+    executable = shutil.which('gsp_demo')
+    prefix = [executable] if executable else [sys.executable, '-m', DEMO_MODULE]
+    return prefix + [
+        '--output-root', str(output_root),
+        '--postures', str(int(postures)),
+        '--samples-per-posture', str(int(samples_per_posture)),
+        '--validation-postures', str(int(validation_postures)),
+        '--sensor-rate', repr(float(sensor_rate)),
+        '--seed', str(int(seed)),
+        '--timeout', repr(float(timeout)),
+    ]
+
+
+def _stop(process):
+    """SIGTERM the demo (it stops its nodes), then SIGKILL its process group."""
+    if process.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        process.send_signal(signal.SIGTERM)
+    try:
+        process.wait(timeout=20.0)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=5.0)
+
+
+def run_demo(postures, sensor_rate, samples_per_posture=SAMPLES_PER_POSTURE,
+             validation_postures=1, seed=0, timeout=DEMO_TIMEOUT_S, used_domains=()):
+    """One demo run in a child process; ``{'exit_code', 'wall_s', 'domain_id', 'run_directory',
+    'summary', 'samples', 'calibrator_log', 'output'}`` (the files read before the temporary
+    output root is removed; missing ones None)."""
+    env = demo_environment(used=used_domains)
+    output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_e2e_'))
+    argv = demo_command(output_root, postures, sensor_rate, samples_per_posture,
+                        validation_postures, seed, timeout)
+    started = time.monotonic()
+    process = subprocess.Popen(argv, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        try:
+            output, _ = process.communicate(timeout=timeout + 60.0)
+        except subprocess.TimeoutExpired:
+            _stop(process)
+            output, _ = process.communicate()
+        except BaseException:
+            _stop(process)
+            raise
+        result = {
+            'exit_code': process.returncode,
+            'wall_s': time.monotonic() - started,
+            'domain_id': int(env['ROS_DOMAIN_ID']),
+            'output': output.decode(errors='replace'),
+            'run_directory': None, 'summary': None, 'samples': None, 'calibrator_log': None,
+        }
+        found = _RUN_DIRECTORY.findall(result['output'])
+        if found:
+            directory = Path(found[-1].strip())
+            result['run_directory'] = str(directory)
+            result.update(read_run_directory(directory))
+        return result
+    finally:
+        shutil.rmtree(output_root, ignore_errors=True)
+
+
+def read_run_directory(directory):
+    """``{'summary', 'samples', 'calibrator_log'}`` of a demo run directory (None if missing)."""
+    import json
+
+    directory = Path(directory)
+    read = {'summary': None, 'samples': None, 'calibrator_log': None}
+    with contextlib.suppress(OSError, ValueError):
+        read['summary'] = json.loads((directory / 'summary.json').read_text())
+    with contextlib.suppress(OSError, ValueError, KeyError):
+        with open(directory / 'samples.csv', newline='') as stream:
+            read['samples'] = [(int(row['posture']), int(row['n_samples']))
+                               for row in csv.DictReader(stream)]
+    with contextlib.suppress(OSError):
+        read['calibrator_log'] = (directory / 'calibrator.log').read_text(errors='replace')
+    return read
+
+
+def sync_check(run, postures, samples_per_posture=SAMPLES_PER_POSTURE):
+    """Whether ``run`` (of :func:`run_demo`) got every synchronised sample, and its counts."""
+    samples = run.get('samples') or []
+    log = run.get('calibrator_log') or ''
+    rejected, other_skips = [], []
+    for posture, reason in _SKIPPED.findall(log):
+        (rejected if reason.startswith('rejected by the platform') else other_skips).append(
+            int(posture))
+    drops = sum(len(pattern.findall(log)) for pattern in _DROP_PATTERNS)
+    dropped_samples = sum(int(n) for n in _DROP_PATTERNS[0].findall(log))
+    short = [p for p, n in samples if n != samples_per_posture]
+    collected = {p for p, _ in samples}
+    missing = sorted(set(range(1, postures + 1)) - collected - set(rejected))
+    passed = (run.get('exit_code') == 0 and bool(samples) and not short and not missing
+              and not other_skips and drops == 0)
+    return {
+        'passed': bool(passed),
+        'exit_code': run.get('exit_code'),
+        'postures_collected': len(samples),
+        'postures_rejected_by_platform': len(rejected),
+        'postures_short': len(short),
+        'postures_missing': len(missing),
+        'postures_skipped_other': len(other_skips),
+        'drop_reports': drops,
+        'dropped_samples': dropped_samples,
+        'min_n_samples': min((n for _, n in samples), default=0),
+    }
+
+
+def run(quick=False, log=None):
+    """The section: ``{'calibration_s', 'postures', 'max_sync_rate_hz', ...}``."""
+    if log is None:
+        def log(message):
+            print(message, file=sys.stderr, flush=True)
+
+    used = []
+    postures = QUICK_CALIBRATION_POSTURES if quick else CALIBRATION_POSTURES
+    log(f'gsp_bench: end_to_end: {postures}-posture calibration through the nodes ...')
+    calibration = run_demo(postures, 200.0, validation_postures=1 if quick else 10,
+                           used_domains=used)
+    used.append(calibration['domain_id'])
+    summary = calibration['summary'] or {}
+    section = {
+        'calibration_s': summary.get('calibration_s'),
+        'postures': postures,
+        'postures_collected': len(calibration['samples'] or []),
+        'samples_per_posture': SAMPLES_PER_POSTURE,
+        'sensor_rate_hz': 200.0,
+        'identification_ms': summary.get('identification_ms'),
+        'demo_total_s': summary.get('total_s'),
+        'max_param_error_mm': summary.get('max_param_error_mm'),
+    }
+    if calibration['exit_code'] != 0:
+        section['calibration_error'] = (f'gsp_demo exited with {calibration["exit_code"]}: '
+                                        + calibration['output'][-800:])
+
+    rates = QUICK_SYNC_RATES_HZ if quick else SYNC_RATES_HZ
+    sync_postures = QUICK_SYNC_POSTURES if quick else SYNC_POSTURES
+    best, details = None, {}
+    for rate in rates:
+        log(f'gsp_bench: end_to_end: {sync_postures} postures at {rate:g} Hz ...')
+        attempt = run_demo(sync_postures, rate, used_domains=used)
+        used.append(attempt['domain_id'])
+        check = sync_check(attempt, sync_postures)
+        check['calibration_s'] = (attempt['summary'] or {}).get('calibration_s')
+        check['wall_s'] = round(attempt['wall_s'], 3)
+        if attempt['exit_code'] != 0:
+            check['output_tail'] = attempt['output'][-600:]
+        details[f'{rate:g}'] = check
+        if not check['passed']:
+            break
+        best = rate
+    section.update({
+        'max_sync_rate_hz': best,
+        'sync_rates_tried_hz': [float(r) for r in rates if f'{r:g}' in details],
+        'sync_postures': sync_postures,
+        'sync_by_rate': details,
+    })
+    return section
+
+
+if __name__ == '__main__':
+    import json
+
+    print(json.dumps(run(quick='--quick' in sys.argv[1:]), indent=2))
