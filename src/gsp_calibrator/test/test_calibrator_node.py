@@ -41,7 +41,7 @@ DEVICE_FREE = ['Loff1', 'Loff2', 'Loff3', 'Loff4', 'Loff5', 'Loff6', 'D0', 'gamm
 def calibrator_parameters(output_root, **overrides):
     values = {
         'posture_count': 12, 'pool_size': 120, 'samples_per_posture': 5,
-        'sync_tolerance': 0.5 / RATE_HZ, 'topic_timeout': 3.0, 'settle_timeout': 5.0,
+        'sync_tolerance': 0.5 / RATE_HZ, 'topic_timeout': 10.0, 'settle_timeout': 10.0,
         'output_root': str(output_root), 'free_parameters': DEVICE_FREE,
     }
     values.update(overrides)

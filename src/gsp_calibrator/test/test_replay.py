@@ -350,7 +350,9 @@ def test_node_configuration_errors(ros_context, tmp_path):
 # --- replay == original ----------------------------------------------------------------------------
 
 
-CALIBRATION = {'posture_count': 14, 'pool_size': 42, 'samples_per_posture': 3, 'seed': 5}
+# Generous timeouts: they only bound a failure, and CI machines are loaded.
+CALIBRATION = {'posture_count': 14, 'pool_size': 42, 'samples_per_posture': 3, 'seed': 5,
+               'topic_timeout': 10.0, 'settle_timeout': 10.0}
 
 
 class Suite:
