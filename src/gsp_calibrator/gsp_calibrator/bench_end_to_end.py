@@ -172,6 +172,49 @@ def sync_check(run, postures, samples_per_posture=SAMPLES_PER_POSTURE):
     }
 
 
+#: Validation postures of the timed calibration run (the validation is not part of calibration_s).
+VALIDATION_POSTURES = {False: 50, True: 10}
+
+
+def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
+    """What the core alone reaches on the node suite's noise: same geometry files, same posture
+    selection, Table 3's first level averaged over ``SAMPLES_PER_POSTURE`` samples per posture
+    (as the calibrator does), then validated like the demo. Means over ``seeds`` noise draws."""
+    import numpy as np
+
+    from gsp_kinematics.device import device_readings
+    from gsp_kinematics.geometry import default_geometry
+    from gsp_kinematics.identification import Sigmas, identify
+    from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+    from gsp_kinematics.validation import validate
+
+    from .calibration import choose_postures
+
+    true, nominal = default_geometry('true'), default_geometry('nominal')
+    per_sample = Sigmas()
+    averaged = Sigmas(*(value / np.sqrt(SAMPLES_PER_POSTURE) for value in (
+        per_sample.leg_lengths, per_sample.inclinometer, per_sample.encoder, per_sample.lvdt)))
+    poses = choose_postures(nominal, postures, 600, seed, averaged).poses
+    legs = inverse_kinematics(nominal, poses)           # what the controller commands
+    reached_legs = legs                                  # the real platform holds these lengths
+    from gsp_kinematics.kinematics import forward_kinematics_masked
+    reached, ok = forward_kinematics_masked(true, reached_legs, poses)
+    poses, legs, reached = poses[ok], legs[ok], reached[ok]
+    validation = sample_valid_postures(nominal, validation_postures, np.random.default_rng(seed + 1_000_003))
+    position, orientation = [], []
+    for draw in range(seeds):
+        rng = np.random.default_rng(10_000 + draw)
+        measured_legs = legs + rng.normal(0.0, averaged.leg_lengths, legs.shape)
+        readings = device_readings(true, reached) + rng.normal(0.0, 1.0, (len(legs), 4)) * averaged.readings()
+        result = identify(nominal, measured_legs, readings, averaged, pose_guesses=poses)
+        errors = validate(true, result.geometry, validation)
+        position.append(errors['position_mm_mean'])
+        orientation.append(errors['orientation_deg_mean'])
+    return {'position_mm_mean': float(np.mean(position)),
+            'orientation_deg_mean': float(np.mean(orientation)),
+            'postures': int(len(legs)), 'seeds': seeds}
+
+
 def run(quick=False, log=None):
     """The section: ``{'calibration_s', 'postures', 'max_sync_rate_hz', ...}``."""
     if log is None:
@@ -181,7 +224,7 @@ def run(quick=False, log=None):
     used = []
     postures = QUICK_CALIBRATION_POSTURES if quick else CALIBRATION_POSTURES
     log(f'gsp_bench: end_to_end: {postures}-posture calibration through the nodes ...')
-    calibration = run_demo(postures, 200.0, validation_postures=1 if quick else 10,
+    calibration = run_demo(postures, 200.0, validation_postures=VALIDATION_POSTURES[quick],
                            used_domains=used)
     used.append(calibration['domain_id'])
     summary = calibration['summary'] or {}
@@ -195,6 +238,14 @@ def run(quick=False, log=None):
         'demo_total_s': summary.get('total_s'),
         'max_param_error_mm': summary.get('max_param_error_mm'),
     }
+    after = (summary.get('validation') or {}).get('after') or {}
+    if after.get('position_mm_mean') is not None:
+        log('gsp_bench: end_to_end: the core alone on the same noise ...')
+        core = core_alone_validation(postures, VALIDATION_POSTURES[quick], seeds=2 if quick else 5)
+        section['validation_after'] = {key: after.get(key) for key in (
+            'position_mm_mean', 'orientation_deg_mean')}
+        section['core_alone'] = core
+        section['position_ratio_to_core'] = after['position_mm_mean'] / core['position_mm_mean']
     if calibration['exit_code'] != 0:
         section['calibration_error'] = (f'gsp_demo exited with {calibration["exit_code"]}: '
                                         + calibration['output'][-800:])
