@@ -185,7 +185,11 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     from gsp_kinematics.device import device_readings
     from gsp_kinematics.geometry import default_geometry
     from gsp_kinematics.identification import Sigmas, identify
-    from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+    from gsp_kinematics.kinematics import (
+        forward_kinematics_masked,
+        inverse_kinematics,
+        sample_valid_postures,
+    )
     from gsp_kinematics.validation import validate
 
     from .calibration import choose_postures
@@ -195,10 +199,10 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     averaged = Sigmas(*(value / np.sqrt(SAMPLES_PER_POSTURE) for value in (
         per_sample.leg_lengths, per_sample.inclinometer, per_sample.encoder, per_sample.lvdt)))
     poses = choose_postures(nominal, postures, 600, seed, averaged).poses
-    legs = inverse_kinematics(nominal, poses)           # what the controller commands
-    reached_legs = legs                                  # the real platform holds these lengths
-    from gsp_kinematics.kinematics import forward_kinematics_masked
-    reached, ok = forward_kinematics_masked(true, reached_legs, poses)
+    # As in the node suite: the controller commands with the nominal geometry, the real platform
+    # settles at FK of those legs under the truth (postures it cannot reach are skipped).
+    legs = inverse_kinematics(nominal, poses)
+    reached, ok = forward_kinematics_masked(true, legs, poses)
     poses, legs, reached = poses[ok], legs[ok], reached[ok]
     validation = sample_valid_postures(nominal, validation_postures, np.random.default_rng(seed + 1_000_003))
     position, orientation = [], []
