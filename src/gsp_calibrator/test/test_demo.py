@@ -85,7 +85,7 @@ IGNORES_SIGINT = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_
 IGNORES_ALL = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
                'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("up", flush=True); '
                'time.sleep(60)')
-POLITE = 'import time\ntry:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass'
+POLITE = 'import time\ntry:\n    print("ready", flush=True)\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass'
 
 
 def _wait_for_output(processes, names, timeout=20.0):
@@ -101,8 +101,8 @@ def test_children_are_stopped_sigint_then_sigterm_then_sigkill(tmp_path):
         {'polite': _child(POLITE), 'stubborn': _child(IGNORES_SIGINT),
          'deaf': _child(IGNORES_ALL)}, env=None, log_directory=tmp_path)
     processes.start()
-    _wait_for_output(processes, ['stubborn', 'deaf'])  # signal handlers are installed
-    time.sleep(0.3)  # the polite child has reached its sleep
+    # Each child prints once its handlers (or the polite child's try block) are in place.
+    _wait_for_output(processes, ['polite', 'stubborn', 'deaf'])
     started = time.monotonic()
     codes = processes.stop(grace=1.0)
     assert codes == {'polite': 0, 'stubborn': -signal.SIGTERM, 'deaf': -signal.SIGKILL}
