@@ -44,7 +44,6 @@ import time
 import traceback
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -66,7 +65,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from gsp_kinematics.geometry import geometry_to_parameters, geometry_to_yaml
-from gsp_msgs_py import conversions, names, qos
+from gsp_msgs_py import conversions, names, node_tools, qos
 
 from . import calibration, recording, report
 from .collector import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT, SampleCollector
@@ -102,7 +101,7 @@ WAIT_TIMEOUT = 'timeout'
 WAIT_DEADLINE = 'deadline'
 
 
-class ConfigurationError(ValueError):
+class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
 
 
@@ -751,27 +750,10 @@ class CalibratorNode(Node):
 
 def main(args=None):
     """Console script ``calibrator``; returns 1 if the parameters prevent start-up."""
-    rclpy.init(args=args)
-    node = None
-    executor = None
-    exit_code = 0
-    try:
-        node = CalibratorNode()
-        executor = MultiThreadedExecutor(num_threads=max(2, os.cpu_count() or 2))
-        executor.add_node(node)
-        executor.spin()
-    except ConfigurationError as error:
-        rclpy.logging.get_logger(names.NODE_CALIBRATOR).fatal(f'cannot start: {error}')
-        exit_code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return node_tools.run_node(
+        CalibratorNode, args,
+        executor=lambda: MultiThreadedExecutor(num_threads=max(2, os.cpu_count() or 2)),
+        logger_name=names.NODE_CALIBRATOR)
 
 
 if __name__ == '__main__':

@@ -21,16 +21,15 @@ sample a calibrator counts is the first one recorded after the settle.
 
 import math
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from gsp_msgs_py import checks, conversions, names, qos
+from gsp_msgs_py import checks, conversions, names, node_tools, qos
+from gsp_msgs_py.node_tools import parameter_descriptor
 
 from .replay import RecordedRun, ReplayError
 
@@ -41,17 +40,8 @@ RESTART_PERIODS = 2
 WARN_THROTTLE_S = 1.0
 
 
-class ConfigurationError(ValueError):
+class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
-
-
-def _descriptor(description, *, read_only=False, float_range=None, constraints=''):
-    descriptor = ParameterDescriptor(description=description, read_only=read_only,
-                                     additional_constraints=constraints)
-    if float_range is not None:
-        descriptor.floating_point_range = [
-            FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
-    return descriptor
 
 
 def _finite(value):
@@ -141,19 +131,19 @@ class ReplayNode(Node):
     # ------------------------------------------------------------------------- parameters
 
     def _declare_parameters(self):
-        self.declare_parameter('run', '', _descriptor(
+        self.declare_parameter('run', '', parameter_descriptor(
             'Recorded run to replay: a run directory (its samples.csv, else its '
             'recording.mcap), a samples.csv or a recording.mcap', read_only=True,
             constraints='required, readable'))
-        self.declare_parameter('publish_rate', 200.0, _descriptor(
+        self.declare_parameter('publish_rate', 200.0, parameter_descriptor(
             'Rate of the replayed samples (Hz)', read_only=True, constraints='> 0'))
-        self.declare_parameter('settle_time', 0.05, _descriptor(
+        self.declare_parameter('settle_time', 0.05, parameter_descriptor(
             "Time from the 'moving' to the 'settled' status of a recorded posture (s)",
             float_range=(0.0, 60.0)))
-        self.declare_parameter('pose_tolerance', 1e-6, _descriptor(
+        self.declare_parameter('pose_tolerance', 1e-6, parameter_descriptor(
             'Largest distance of a command to a recorded commanded pose: position (m) and '
             'rotation angle (rad)', float_range=(0.0, 1.0), constraints='> 0'))
-        self.declare_parameter('frame_id', names.FRAME_BASE, _descriptor(
+        self.declare_parameter('frame_id', names.FRAME_BASE, parameter_descriptor(
             'Base frame: of the published messages, and required of pose commands',
             read_only=True))
 
@@ -264,27 +254,7 @@ class ReplayNode(Node):
 
 def main(args=None):
     """Console script ``replay``; returns 1 if the parameters prevent start-up."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = ReplayNode()
-        rclpy.spin(node)
-    except ConfigurationError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {error}')
-        exit_code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # rclpy's signal handler shuts the context down from another thread; spin can then fail
-        # to build its wait set (RCLError) instead of raising ExternalShutdownException.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return node_tools.run_node(ReplayNode, args, logger_name=NODE_NAME)
 
 
 if __name__ == '__main__':

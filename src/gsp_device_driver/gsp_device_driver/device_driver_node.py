@@ -9,21 +9,15 @@ On one timer it reads a :class:`~gsp_device_driver.backends.DeviceBackend` and p
 import math
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_msgs_py import checks, conversions, names, qos
+from gsp_msgs_py import checks, conversions, names, node_tools, qos
+from gsp_msgs_py.node_tools import parameter_descriptor
 
 from .backends import BackendError, backend_class, backend_names
 
@@ -41,21 +35,8 @@ NOISE_PARAMETERS = {
 }
 
 
-class ConfigurationError(ValueError):
+class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
-
-
-def _descriptor(description, *, read_only=False, float_range=None, integer_range=None,
-                constraints=''):
-    descriptor = ParameterDescriptor(description=description, read_only=read_only,
-                                     additional_constraints=constraints)
-    if float_range is not None:
-        descriptor.floating_point_range = [
-            FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
-    if integer_range is not None:
-        descriptor.integer_range = [
-            IntegerRange(from_value=integer_range[0], to_value=integer_range[1], step=1)]
-    return descriptor
 
 
 def _finite(value):
@@ -132,23 +113,25 @@ class DeviceDriverNode(Node):
     # ------------------------------------------------------------------------- parameters
 
     def _declare_parameters(self):
-        self.declare_parameter('backend', 'sim', _descriptor(
+        self.declare_parameter('backend', 'sim', parameter_descriptor(
             f'Source of the readings: one of {", ".join(backend_names())}', read_only=True))
-        self.declare_parameter('true_geometry_file', default_geometry_path('true'), _descriptor(
-            'sim backend: geometry params file of the real platform; its device_length D0 and '
-            'inclinometer_axes_angle gamma are used', read_only=True))
-        self.declare_parameter('publish_rate', 200.0, _descriptor(
+        self.declare_parameter(
+            'true_geometry_file', default_geometry_path('true'), parameter_descriptor(
+                'sim backend: geometry params file of the real platform; its device_length D0 and '
+                'inclinometer_axes_angle gamma are used', read_only=True))
+        self.declare_parameter('publish_rate', 200.0, parameter_descriptor(
             'Rate of the readings (Hz)', read_only=True, constraints='> 0'))
-        self.declare_parameter('seed', 0, _descriptor(
+        self.declare_parameter('seed', 0, parameter_descriptor(
             'Seed of the noise generator; -1 = random', read_only=True,
             integer_range=(-1, 2**31 - 1)))
-        self.declare_parameter('inclinometer_noise_std', DEFAULT_ANGLE_NOISE_STD, _descriptor(
-            'Std of the Gaussian noise on alpha and beta (rad)', float_range=(0.0, 1.0)))
-        self.declare_parameter('encoder_noise_std', DEFAULT_ANGLE_NOISE_STD, _descriptor(
+        self.declare_parameter(
+            'inclinometer_noise_std', DEFAULT_ANGLE_NOISE_STD, parameter_descriptor(
+                'Std of the Gaussian noise on alpha and beta (rad)', float_range=(0.0, 1.0)))
+        self.declare_parameter('encoder_noise_std', DEFAULT_ANGLE_NOISE_STD, parameter_descriptor(
             'Std of the Gaussian noise on phi (rad)', float_range=(0.0, 1.0)))
-        self.declare_parameter('lvdt_noise_std', DEFAULT_LENGTH_NOISE_STD, _descriptor(
+        self.declare_parameter('lvdt_noise_std', DEFAULT_LENGTH_NOISE_STD, parameter_descriptor(
             'Std of the Gaussian noise on d_m (m)', float_range=(0.0, 1.0)))
-        self.declare_parameter('frame_id', names.FRAME_BASE, _descriptor(
+        self.declare_parameter('frame_id', names.FRAME_BASE, parameter_descriptor(
             'Frame of the published readings, and required of true_pose', read_only=True))
 
     def _declare_backend_parameters(self, backend_type):
@@ -157,7 +140,7 @@ class DeviceDriverNode(Node):
         for spec in backend_type.PARAMETERS:
             full_name = f'{backend_type.name}.{spec.name}'
             self.declare_parameter(full_name, spec.default,
-                                   _descriptor(spec.description, read_only=True))
+                                   parameter_descriptor(spec.description, read_only=True))
             extras[spec.name] = self.get_parameter(full_name).value
         return extras
 
@@ -226,27 +209,7 @@ class DeviceDriverNode(Node):
 
 def main(args=None):
     """Console script ``device_driver``; returns 1 if the parameters prevent start-up."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = DeviceDriverNode()
-        rclpy.spin(node)
-    except ConfigurationError as error:
-        rclpy.logging.get_logger(names.NODE_DEVICE_DRIVER).fatal(f'cannot start: {error}')
-        exit_code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # rclpy's signal handler shuts the context down from another thread; spin can then fail
-        # to build its wait set (RCLError) instead of raising ExternalShutdownException.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return node_tools.run_node(DeviceDriverNode, args, logger_name=names.NODE_DEVICE_DRIVER)
 
 
 if __name__ == '__main__':

@@ -10,17 +10,10 @@ or rejected with the reason) and ``/gsp/platform/markers``. The controller geome
 import math
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
@@ -33,7 +26,8 @@ from gsp_kinematics.geometry import (
     geometry_to_parameters,
     load_geometry,
 )
-from gsp_msgs_py import checks, conversions, names, qos
+from gsp_msgs_py import checks, conversions, names, node_tools, qos
+from gsp_msgs_py.node_tools import parameter_descriptor
 
 from .markers import make_marker_array
 from .simulator import DEFAULT_MAX_CONDITION, PlatformSimulator
@@ -58,21 +52,8 @@ _GEOMETRY_DESCRIPTIONS = {
 }
 
 
-class ConfigurationError(ValueError):
+class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
-
-
-def _descriptor(description, *, read_only=False, float_range=None, integer_range=None,
-                constraints=''):
-    descriptor = ParameterDescriptor(description=description, read_only=read_only,
-                                     additional_constraints=constraints)
-    if float_range is not None:
-        descriptor.floating_point_range = [
-            FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
-    if integer_range is not None:
-        descriptor.integer_range = [
-            IntegerRange(from_value=integer_range[0], to_value=integer_range[1], step=1)]
-    return descriptor
 
 
 def _finite(value):
@@ -165,32 +146,33 @@ class PlatformSimNode(Node):
     # ------------------------------------------------------------------------- parameters
 
     def _declare_parameters(self):
-        self.declare_parameter('true_geometry_file', default_geometry_path('true'), _descriptor(
-            'Geometry params file of the real (true) platform, read once at start-up; never '
-            'published', read_only=True))
+        self.declare_parameter(
+            'true_geometry_file', default_geometry_path('true'), parameter_descriptor(
+                'Geometry params file of the real (true) platform, read once at start-up; never '
+                'published', read_only=True))
         for name in GEOMETRY_PARAMETER_NAMES:
-            self.declare_parameter(name, _NOMINAL_PARAMETERS[name], _descriptor(
+            self.declare_parameter(name, _NOMINAL_PARAMETERS[name], parameter_descriptor(
                 _GEOMETRY_DESCRIPTIONS[name],
                 constraints='the whole geometry.* set must be valid (geometry_from_parameters); '
                             'applies from the next pose command'))
-        self.declare_parameter('publish_rate', 200.0, _descriptor(
+        self.declare_parameter('publish_rate', 200.0, parameter_descriptor(
             'Rate of leg_lengths and true_pose (Hz)', read_only=True, constraints='> 0'))
-        self.declare_parameter('leg_noise_std', 1e-6, _descriptor(
+        self.declare_parameter('leg_noise_std', 1e-6, parameter_descriptor(
             'Standard deviation of the Gaussian leg length sensor noise (m)',
             float_range=(0.0, 1.0)))
-        self.declare_parameter('seed', 0, _descriptor(
+        self.declare_parameter('seed', 0, parameter_descriptor(
             'Seed of the noise generator; -1 = random', read_only=True,
             integer_range=(-1, 2**31 - 1)))
-        self.declare_parameter('settle_time', 0.05, _descriptor(
+        self.declare_parameter('settle_time', 0.05, parameter_descriptor(
             "Time from the 'moving' to the 'settled' status of an accepted command (s)",
             float_range=(0.0, 60.0)))
-        self.declare_parameter('max_condition', DEFAULT_MAX_CONDITION, _descriptor(
+        self.declare_parameter('max_condition', DEFAULT_MAX_CONDITION, parameter_descriptor(
             'Commands whose dq/dX condition number is not below this are rejected '
             '(singularity guard)', float_range=(1.0, 1e12)))
-        self.declare_parameter('publish_markers', True, _descriptor(
+        self.declare_parameter('publish_markers', True, parameter_descriptor(
             f'Publish RViz markers on {names.TOPIC_MARKERS} at {MARKER_RATE_HZ:g} Hz',
             read_only=True))
-        self.declare_parameter('frame_id', names.FRAME_BASE, _descriptor(
+        self.declare_parameter('frame_id', names.FRAME_BASE, parameter_descriptor(
             'Base frame: of the published messages, and required of pose commands',
             read_only=True))
 
@@ -284,27 +266,7 @@ class PlatformSimNode(Node):
 
 def main(args=None):
     """Console script ``platform_sim``; returns 1 if the parameters prevent start-up."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = PlatformSimNode()
-        rclpy.spin(node)
-    except ConfigurationError as error:
-        rclpy.logging.get_logger(names.NODE_PLATFORM_SIM).fatal(f'cannot start: {error}')
-        exit_code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # rclpy's signal handler shuts the context down from another thread; spin can then fail
-        # to build its wait set (RCLError) instead of raising ExternalShutdownException.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return node_tools.run_node(PlatformSimNode, args, logger_name=names.NODE_PLATFORM_SIM)
 
 
 if __name__ == '__main__':

@@ -1,0 +1,31 @@
+"""Pytest helpers shared by the ROS packages' test suites.
+
+Call :func:`use_loopback_domain` from a ``conftest.py`` before anything creates an rclpy
+context, and re-export the :func:`ros_context` fixture. rclpy is imported lazily, so importing
+this module does not load ROS.
+"""
+
+import os
+import random
+
+import pytest
+
+
+def use_loopback_domain():
+    """Keep DDS on loopback, in a random ROS domain (1..101) unless one is already set."""
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    if not os.environ.get('ROS_DOMAIN_ID'):
+        os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
+
+
+@pytest.fixture
+def ros_context():
+    """A fresh, initialised ``rclpy.Context``, shut down after the test."""
+    import rclpy
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
