@@ -140,12 +140,16 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert not response.success and response.message == 'calibration already running'
         # A non-finite reading is dropped and counted, a malformed message or status is
         # ignored; the run carries on.
+        # Best effort: publish until one is counted (discovery of a new publisher takes time).
         bad = JointState(name=list(names.LEG_JOINT_NAMES), position=[float('nan')] * 6)
-        bad.header.stamp = calibrator.get_clock().now().to_msg()
-        for _ in range(3):
+        deadline = time.monotonic() + 30.0
+        while (calibrator._collector.non_finite['leg_lengths'] < 1 and not first.done()
+               and time.monotonic() < deadline):
+            bad.header.stamp = calibrator.get_clock().now().to_msg()
             nan_publisher.publish(bad)
-        nan_publisher.publish(JointState(name=['leg_1'], position=[0.5]))
-        status_publisher.publish(DiagnosticStatus(name='junk'))
+            nan_publisher.publish(JointState(name=['leg_1'], position=[0.5]))
+            status_publisher.publish(DiagnosticStatus(name='junk'))
+            time.sleep(0.05)
         response = suite.wait(first)
         assert response.success, response.message
 
