@@ -67,34 +67,28 @@ def device_position(alpha, beta, link_length, gamma):
     return np.asarray(link_length, dtype=float)[..., None] * link_direction(alpha, beta, gamma)
 
 
-def position_to_inclinations(position, gamma, tolerance=1e-14, max_iterations=30):
+def position_to_inclinations(position, gamma):
     """Solve eq (9) for ``(alpha, beta)`` given platform positions (..., 3); inverse of the model.
 
-    Starts from eq (8) (exact at gamma = pi/2) and refines with Gauss-Newton on the unit direction.
+    Closed form, with ``u = t / |t|``: eq (9) gives ``u_y - u_x cot(gamma) = sin(alpha)``, and
+    with ``a = cos(gamma) sin(alpha)``, ``b = cos(alpha)`` it is linear in ``(cos beta, sin beta)``:
+    ``a cos(beta) + b sin(beta) = u_x / sin(gamma) + a`` and ``b cos(beta) - a sin(beta) = u_z``.
+    At gamma = pi/2 this is eq (8).
     """
     position = np.asarray(position, dtype=float)
     length = np.linalg.norm(position, axis=-1)
     if np.any(~(length > 0.0)):
         raise DeviceModelError("link length must be positive and finite")
     direction = position / length[..., None]
-    alpha = np.arcsin(np.clip(direction[..., 1], -1.0, 1.0))
-    beta = np.arctan2(direction[..., 0], direction[..., 2])
-    gamma = np.broadcast_to(np.asarray(gamma, dtype=float), alpha.shape)
-    for _ in range(max_iterations):
-        residual = link_direction(alpha, beta, gamma) - direction
-        d_alpha, d_beta, _ = link_direction_derivatives(alpha, beta, gamma)
-        jacobian = np.stack([d_alpha, d_beta], axis=-1)  # (..., 3, 2)
-        normal = np.swapaxes(jacobian, -1, -2) @ jacobian
-        step = np.linalg.solve(normal, (np.swapaxes(jacobian, -1, -2) @ residual[..., None]))[..., 0]
-        alpha = alpha - step[..., 0]
-        beta = beta - step[..., 1]
-        if np.max(np.abs(step), initial=0.0) < tolerance:
-            break
-    remaining = np.linalg.norm(link_direction(alpha, beta, gamma) - direction, axis=-1)
-    if np.any(~(remaining < 1e-9)):
-        raise DeviceModelError(
-            f"inclinations did not converge (direction residual {np.nanmax(remaining):.2e})"
-        )
+    gamma = np.asarray(gamma, dtype=float)
+    sin_gamma, cos_gamma = np.sin(gamma), np.cos(gamma)
+    sin_alpha = direction[..., 1] - direction[..., 0] * cos_gamma / sin_gamma
+    if np.any(np.abs(sin_alpha) > 1.0 + 1e-12):
+        raise DeviceModelError("link direction is outside the inclinometer's model (|sin alpha| > 1)")
+    alpha = np.arcsin(np.clip(sin_alpha, -1.0, 1.0))
+    a, b = cos_gamma * np.sin(alpha), np.cos(alpha)
+    rhs_x = direction[..., 0] / sin_gamma + a
+    beta = np.arctan2(b * rhs_x - a * direction[..., 2], a * rhs_x + b * direction[..., 2])
     return alpha, beta
 
 
