@@ -19,7 +19,6 @@ recording), else the last recorded posture (where the recorded run left the plat
 sample a calibrator counts is the first one recorded after the settle.
 """
 
-import math
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -29,7 +28,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from gsp_msgs_py import checks, conversions, names, node_tools, qos
-from gsp_msgs_py.node_tools import parameter_descriptor
+from gsp_msgs_py.node_tools import first_failed_check, is_finite_number, parameter_descriptor
 
 from .replay import RecordedRun, ReplayError
 
@@ -44,29 +43,21 @@ class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
 
 
-def _finite(value):
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
 
 #: name -> (test, requirement): each parameter's check, at start-up and at run time.
 _CHECKS = {
     'run': (lambda v: bool(str(v).strip()),
             'required: a run directory, samples.csv or recording.mcap'),
-    'publish_rate': (lambda v: _finite(v) and v > 0.0, 'must be > 0 Hz'),
-    'settle_time': (lambda v: _finite(v) and v >= 0.0, 'must be >= 0 s'),
-    'pose_tolerance': (lambda v: _finite(v) and v > 0.0, 'must be > 0 (m and rad)'),
+    'publish_rate': (lambda v: is_finite_number(v) and v > 0.0, 'must be > 0 Hz'),
+    'settle_time': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 s'),
+    'pose_tolerance': (lambda v: is_finite_number(v) and v > 0.0, 'must be > 0 (m and rad)'),
     'frame_id': (lambda v: bool(str(v).strip()), 'must not be empty'),
 }
 
 
 def check_parameters(values):
     """Reason ('' if none) why a ``{name: value}`` of this node's parameters is invalid."""
-    for name, value in values.items():
-        if name in _CHECKS:
-            test, requirement = _CHECKS[name]
-            if not test(value):
-                return f'{name}: {value!r} rejected, {requirement}'
-    return ''
+    return first_failed_check(_CHECKS, values)
 
 
 class ReplayNode(Node):

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_msgs_py import checks, conversions, names, node_tools, qos
-from gsp_msgs_py.node_tools import parameter_descriptor
+from gsp_msgs_py.node_tools import first_failed_check, is_finite_number, parameter_descriptor
 
 from .backends import BackendError, backend_class, backend_names
 
@@ -39,31 +39,23 @@ class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
 
 
-def _finite(value):
-    return isinstance(value, (int, float)) and math.isfinite(value)
-
 
 #: name -> (test, requirement), at start-up and at run time.
 _CHECKS = {
     'backend': (lambda v: bool(v.strip()), 'must name a backend'),
     'true_geometry_file': (lambda v: bool(v.strip()), 'must name a geometry file'),
-    'publish_rate': (lambda v: _finite(v) and v > 0.0, 'must be > 0 Hz'),
+    'publish_rate': (lambda v: is_finite_number(v) and v > 0.0, 'must be > 0 Hz'),
     'seed': (lambda v: v >= -1, 'must be >= 0, or -1 for a random seed'),
-    'inclinometer_noise_std': (lambda v: _finite(v) and v >= 0.0, 'must be >= 0 rad'),
-    'encoder_noise_std': (lambda v: _finite(v) and v >= 0.0, 'must be >= 0 rad'),
-    'lvdt_noise_std': (lambda v: _finite(v) and v >= 0.0, 'must be >= 0 m'),
+    'inclinometer_noise_std': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 rad'),
+    'encoder_noise_std': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 rad'),
+    'lvdt_noise_std': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 m'),
     'frame_id': (lambda v: bool(v.strip()), 'must not be empty'),
 }
 
 
 def check_parameters(values):
     """Reason ('' if none) why a ``{name: value}`` of this node's parameters is invalid."""
-    for name, value in values.items():
-        if name in _CHECKS:
-            test, requirement = _CHECKS[name]
-            if not test(value):
-                return f'{name}: {value!r} rejected, {requirement}'
-    return ''
+    return first_failed_check(_CHECKS, values)
 
 
 class DeviceDriverNode(Node):

@@ -1,5 +1,7 @@
 """Helpers shared by the gsp-calibration nodes: parameter descriptors and a ``main()`` runner."""
 
+import math
+
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
@@ -7,6 +9,21 @@ from rclpy.executors import ExternalShutdownException
 
 class ConfigurationError(ValueError):
     """A parameter value prevents a node from starting; the message names the parameter."""
+
+
+def is_finite_number(value):
+    """True for an int or float that is finite (bools and strings are not numbers here)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def first_failed_check(checks, values):
+    """Reason ('' if none) why ``{name: value}`` fails ``checks`` ``{name: (test, requirement)}``."""
+    for name, value in values.items():
+        if name in checks:
+            test, requirement = checks[name]
+            if not test(value):
+                return f'{name}: {value!r} rejected, {requirement}'
+    return ''
 
 
 def parameter_descriptor(description, *, read_only=False, float_range=None, integer_range=None,

@@ -7,7 +7,6 @@ or rejected with the reason) and ``/gsp/platform/markers``. The controller geome
 ``true_geometry_file`` and never published. The logic is in :mod:`gsp_platform_sim.simulator`.
 """
 
-import math
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -27,7 +26,7 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_msgs_py import checks, conversions, names, node_tools, qos
-from gsp_msgs_py.node_tools import parameter_descriptor
+from gsp_msgs_py.node_tools import first_failed_check, is_finite_number, parameter_descriptor
 
 from .markers import make_marker_array
 from .simulator import DEFAULT_MAX_CONDITION, PlatformSimulator
@@ -56,30 +55,22 @@ class ConfigurationError(node_tools.ConfigurationError):
     """A parameter value prevents the node from starting; the message names the parameter."""
 
 
-def _finite(value):
-    return isinstance(value, (int, float)) and math.isfinite(value)
-
 
 #: name -> (test, requirement): every non-geometry parameter's check, at start-up and at run time.
 _SCALAR_CHECKS = {
     'true_geometry_file': (lambda v: bool(v.strip()), 'must name a geometry file'),
-    'publish_rate': (lambda v: _finite(v) and v > 0.0, 'must be > 0 Hz'),
-    'leg_noise_std': (lambda v: _finite(v) and v >= 0.0, 'must be >= 0 m'),
+    'publish_rate': (lambda v: is_finite_number(v) and v > 0.0, 'must be > 0 Hz'),
+    'leg_noise_std': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 m'),
     'seed': (lambda v: v >= -1, 'must be >= 0, or -1 for a random seed'),
-    'settle_time': (lambda v: _finite(v) and v >= 0.0, 'must be >= 0 s'),
-    'max_condition': (lambda v: _finite(v) and v >= 1.0, 'must be >= 1'),
+    'settle_time': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 s'),
+    'max_condition': (lambda v: is_finite_number(v) and v >= 1.0, 'must be >= 1'),
     'frame_id': (lambda v: bool(v.strip()), 'must not be empty'),
 }
 
 
 def check_scalar_parameters(values):
     """Reason ('' if none) why a ``{name: value}`` of non-geometry parameters is invalid."""
-    for name, value in values.items():
-        if name in _SCALAR_CHECKS:
-            test, requirement = _SCALAR_CHECKS[name]
-            if not test(value):
-                return f'{name}: {value!r} rejected, {requirement}'
-    return ''
+    return first_failed_check(_SCALAR_CHECKS, values)
 
 
 class PlatformSimNode(Node):
