@@ -85,7 +85,10 @@ IGNORES_SIGINT = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_
 IGNORES_ALL = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
                'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("up", flush=True); '
                'time.sleep(60)')
-POLITE = 'import time\ntry:\n    print("ready", flush=True)\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass'
+# A shell starts background jobs with SIGINT ignored and Python then keeps it ignored: install
+# the KeyboardInterrupt handler explicitly, as rclpy does for the real nodes.
+POLITE = ('import signal, time\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n'
+          'try:\n    print("ready", flush=True)\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass')
 
 
 def _wait_for_output(processes, names, timeout=20.0):
