@@ -209,7 +209,7 @@ class RecordedRun:
                               ) from None
         if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
             raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} must be >= 0 s')
-        notes = _collection_notes(info, path)
+        notes = recording.collection_notes(info, path)
 
         initial = _Segment(None, None, 0)
         segments = []
@@ -368,18 +368,3 @@ class _Segment:
                 return None
             poses.append(self.true_poses[int(known[j])])
         return np.array(poses)
-
-
-def _collection_notes(info, path):
-    """``{command_id: (posture or None, start_ns)}`` noted by the calibrator's recorder."""
-    notes = {}
-    for entry in info['metadata'].get(recording.POSTURE_METADATA_NAME, []):
-        try:
-            posture = entry.get('posture')
-            notes[str(entry['command_id'])] = (
-                int(posture) if posture not in (None, '', 'None') else None,
-                int(entry['start_ns']))
-        except (KeyError, ValueError) as error:
-            raise ReplayError(f'{path}: malformed {recording.POSTURE_METADATA_NAME} metadata '
-                              f'{entry}') from error
-    return notes

@@ -23,7 +23,7 @@ from gsp_calibrator.replay import (
 )
 from gsp_calibrator.replay_node import REASON_NOT_RECORDED, ConfigurationError, ReplayNode
 from gsp_calibrator.run_directory import RunDirectory, Samples, write_samples
-from gsp_msgs_py import conversions, names, qos
+from gsp_msgs_py import conversions, names, qos, testing
 
 MS = 1_000_000
 T0 = 1_700_000_000 * 1_000_000_000
@@ -226,12 +226,7 @@ class NodeHarness:
                                and self.received[names.TOPIC_LVDT]), 'no discovery'
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > deadline:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
+        return testing.spin_until(self.executor, predicate, timeout)
 
     def command(self, pose, frame_id=names.FRAME_BASE):
         stamp = self.node.get_clock().now().to_msg()

@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 from gsp_device_driver.device_driver_node import ConfigurationError, DeviceDriverNode
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
-from gsp_msgs_py import conversions, names, qos
+from gsp_msgs_py import conversions, names, qos, testing
 
 TRUE = default_geometry('true')
 POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
@@ -50,12 +50,7 @@ class Harness:
             self.pose_pub.publish(self.true_pose_msg)
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > deadline:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
+        return testing.spin_until(self.executor, predicate, timeout)
 
     def spin_for(self, duration):
         deadline = time.monotonic() + duration

@@ -29,3 +29,15 @@ def ros_context():
         yield context
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def spin_until(executor, predicate, timeout):
+    """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        executor.spin_once(timeout_sec=0.01)
+    return True

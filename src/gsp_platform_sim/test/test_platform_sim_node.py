@@ -1,7 +1,6 @@
 """In-process tests of the platform_sim node: a test node commands poses and listens."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ from visualization_msgs.msg import MarkerArray
 
 from gsp_kinematics.geometry import default_geometry, geometry_to_parameters
 from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
-from gsp_msgs_py import conversions, names, qos
+from gsp_msgs_py import conversions, names, qos, testing
 from gsp_platform_sim.platform_sim_node import ConfigurationError, PlatformSimNode
 
 TRUE = default_geometry('true')
@@ -54,12 +53,7 @@ class Harness:
                                and self.leg_lengths and self.true_poses), 'no discovery'
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > deadline:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
+        return testing.spin_until(self.executor, predicate, timeout)
 
     def command(self, pose=None, msg=None):
         """Publish a command (a pose, or a prepared message); returns its command id."""
