@@ -8,6 +8,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 
+def wrap_angle(angle):
+    """``angle`` (rad, scalar or array) wrapped into [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
 def euler_to_matrix(euler):
     """Rotation matrices from ``[..., (psi, theta, phi)]`` (rad), eq (2)."""
     euler = np.asarray(euler, dtype=float)

@@ -6,16 +6,17 @@ this module does not load ROS.
 """
 
 import os
-import random
 
 import pytest
 
+from .ros_environment import loopback_environment
+
 
 def use_loopback_domain():
-    """Keep DDS on loopback, in a random ROS domain (1..101) unless one is already set."""
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    if not os.environ.get('ROS_DOMAIN_ID'):
-        os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
+    """Keep DDS on loopback, in a random ROS domain unless one is already set."""
+    env = loopback_environment()
+    for key in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID'):
+        os.environ[key] = env[key]
 
 
 @pytest.fixture
