@@ -2,7 +2,9 @@
 #
 #   make venv    create/refresh .venv from requirements.txt (+ editable gsp_kinematics)
 #   make build   colcon build into install/
-#   make test    ruff, colcon test (every package), colcon test-result, pytest test/
+#   make test    ruff check and format check, colcon test (every package), colcon test-result,
+#                pytest test/
+#   make format  ruff format (the formatter owns line breaks and quotes) and ruff check --fix
 #   make demo    end-to-end calibration demo (gsp_demo; DEMO_ARGS=... passes arguments)
 #   make paper   paper reproduction (gsp_paper; ARGS=...)
 #   make bench   benchmark (gsp_bench; ARGS=...)
@@ -33,11 +35,11 @@ export ROS_DOMAIN_ID
 # The wheels keep their ament resources in .venv/share.
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)$(if $(AMENT_PREFIX_PATH),:$(AMENT_PREFIX_PATH))
 
-.PHONY: venv build test demo paper bench clean distclean
+.PHONY: venv build test format demo paper bench clean distclean
 
 venv: $(VENV_STAMP)
 
-$(VENV_STAMP): requirements.txt src/gsp_kinematics/setup.py
+$(VENV_STAMP): requirements.txt src/gsp_kinematics/setup.py src/gsp_kinematics/setup.cfg
 	@if [ ! -x $(VPY) ]; then \
 	  echo "creating $(VENV) with $(PYTHON)"; \
 	  $(PYTHON) -m venv $(VENV); \
@@ -58,10 +60,16 @@ build: venv
 # colcon test-result fails on any failed or errored test; pytest test/ gives the closing line.
 test: build
 	$(VENV)/bin/ruff check --output-format concise $(RUFF_ARGS) .
+	$(VENV)/bin/ruff format --check . || \
+	  { echo "not formatted: run 'make format'" >&2; exit 1; }
 	$(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
 	  --event-handlers console_direct+
 	$(COLCON) test-result --test-result-base build --verbose
 	$(ENV_SH) && python -m pytest test
+
+format: venv
+	$(VENV)/bin/ruff format .
+	$(VENV)/bin/ruff check --fix --output-format concise .
 
 demo: build
 	$(ENV_SH) && gsp_demo $(DEMO_ARGS)

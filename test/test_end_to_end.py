@@ -17,10 +17,20 @@ import pytest
 from gsp_kinematics.geometry import load_geometry, parameter_errors
 
 DEMO_TIMEOUT_S = 300.0  # generous: the machine may be loaded (the target is < 60 s)
-SUMMARY_KEYS = {'validation', 'max_param_error_mm', 'max_param_error_deg', 'identification_ms',
-                'calibration_s', 'total_s'}
-VALIDATION_KEYS = {'position_mm_mean', 'position_mm_max', 'orientation_deg_mean',
-                   'orientation_deg_max'}
+SUMMARY_KEYS = {
+    'validation',
+    'max_param_error_mm',
+    'max_param_error_deg',
+    'identification_ms',
+    'calibration_s',
+    'total_s',
+}
+VALIDATION_KEYS = {
+    'position_mm_mean',
+    'position_mm_max',
+    'orientation_deg_mean',
+    'orientation_deg_max',
+}
 
 
 def demo_command():
@@ -51,7 +61,11 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     started = time.monotonic()
     completed = subprocess.run(
         demo_command() + ['--output-root', str(tmp_path / 'runs'), '--validation-postures', '30'],
-        env=env, capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=DEMO_TIMEOUT_S,
+    )
     elapsed = time.monotonic() - started
     output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output
@@ -66,12 +80,28 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert '[done] 60/60' in output  # progress shown
     run = Path(re.findall(r'^run directory: (.+)$', completed.stdout, re.MULTILINE)[-1])
     assert run.parent == tmp_path / 'runs' and run.is_dir()
-    for name in ('samples.csv', 'result.yaml', 'true_geometry.yaml', 'summary.json',
-                 'calibrator.log', 'platform_sim.log', 'device_driver.log'):
+    for name in (
+        'samples.csv',
+        'result.yaml',
+        'true_geometry.yaml',
+        'summary.json',
+        'calibrator.log',
+        'platform_sim.log',
+        'device_driver.log',
+    ):
         assert (run / name).is_file(), name
 
     summary = json.loads((run / 'summary.json').read_text())
-    assert set(summary) == SUMMARY_KEYS
+    assert SUMMARY_KEYS <= set(summary)
+    # The calibrator's collection record (result.json 'collection', copied by the demo).
+    collection = summary['collection']
+    assert set(collection) == {'skipped', 'inconsistent_dropped', 'non_finite_dropped'}
+    assert set(collection['non_finite_dropped']) == {
+        'leg_lengths',
+        'inclinometer',
+        'encoder',
+        'lvdt',
+    }
     before, after = summary['validation']['before'], summary['validation']['after']
     assert set(before) == set(after) == VALIDATION_KEYS
     # Accuracy improves by orders of magnitude (nominal: mm; calibrated: micrometres).

@@ -2,21 +2,35 @@
 
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+#: Bounds a wait that only ends early on failure (the test waits on the event itself).
+TIMEOUT_S = 30.0
 WS = Path(__file__).resolve().parents[1]
 INSTALL = WS / 'install'
-PACKAGES = ('gsp_kinematics', 'gsp_msgs_py', 'gsp_platform_sim', 'gsp_device_driver',
-            'gsp_calibrator')
+PACKAGES = (
+    'gsp_kinematics',
+    'gsp_experiments',
+    'gsp_msgs_py',
+    'gsp_platform_sim',
+    'gsp_device_driver',
+    'gsp_calibrator',
+)
 EXECUTABLES = {
-    'gsp_kinematics': ('gsp_paper', 'gsp_bench'),
+    'gsp_experiments': ('gsp_paper',),
     'gsp_platform_sim': ('platform_sim',),
     'gsp_device_driver': ('device_driver',),
-    'gsp_calibrator': ('calibrator', 'gsp_demo', 'gsp_calibrate_client', 'gsp_reidentify'),
+    'gsp_calibrator': (
+        'calibrator',
+        'gsp_demo',
+        'gsp_calibrate_client',
+        'gsp_reidentify',
+        'gsp_bench',
+        'replay',
+    ),
 }
 
 needs_install = pytest.mark.skipif(
@@ -54,7 +68,9 @@ def test_console_scripts_use_the_venv_python(package):
 @needs_install
 def test_default_geometries_are_installed_as_config():
     source = {p.name for p in (WS / 'src/gsp_kinematics/gsp_kinematics/data').glob('*.yaml')}
-    config = {p.name for p in (INSTALL / 'gsp_kinematics/share/gsp_kinematics/config').glob('*.yaml')}
+    config = {
+        p.name for p in (INSTALL / 'gsp_kinematics/share/gsp_kinematics/config').glob('*.yaml')
+    }
     assert source == config
 
 
@@ -66,6 +82,7 @@ def test_pose_command_and_status_round_trip(ros_context):
 
     from gsp_msgs_py import conversions as conv
     from gsp_msgs_py import names, qos
+    from gsp_msgs_py.testing import spin_until
 
     node = rclpy.create_node('gsp_workspace_test', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
@@ -73,33 +90,42 @@ def test_pose_command_and_status_round_trip(ros_context):
     poses, statuses = [], []
     try:
         node.create_subscription(
-            PoseStamped, names.TOPIC_POSE_COMMAND,
-            lambda m: poses.append((conv.command_id_from_stamp(m.header.stamp),
-                                    conv.pose_stamped_to_pose(m))),
-            qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
+            PoseStamped,
+            names.TOPIC_POSE_COMMAND,
+            lambda m: poses.append(
+                (conv.command_id_from_stamp(m.header.stamp), conv.pose_stamped_to_pose(m))
+            ),
+            qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND],
+        )
         node.create_subscription(
-            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
             lambda m: statuses.append(conv.parse_status(m)),
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
         command_pub = node.create_publisher(
-            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+        )
         status_pub = node.create_publisher(
-            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
 
-        deadline = time.monotonic() + 5.0
-        while (command_pub.get_subscription_count() == 0
-               or status_pub.get_subscription_count() == 0) and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
+        assert spin_until(
+            executor,
+            lambda: (
+                command_pub.get_subscription_count() > 0 and status_pub.get_subscription_count() > 0
+            ),
+            TIMEOUT_S,
+        )
 
         x = np.array([0.01, -0.02, 0.95, 0.05, -0.03, 0.2])
         stamp = node.get_clock().now().to_msg()
         command_pub.publish(conv.pose_to_pose_stamped(x, stamp))
         command_id = conv.command_id_from_stamp(stamp)
         status_pub.publish(conv.make_status(command_id, 'settled'))
-        deadline = time.monotonic() + 5.0
-        while (not poses or not statuses) and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
+        assert spin_until(executor, lambda: poses and statuses, TIMEOUT_S)
 
         assert poses and poses[0][0] == command_id
         np.testing.assert_allclose(poses[0][1], x, atol=1e-12)

@@ -1,24 +1,26 @@
-"""End-to-end section of ``gsp_bench`` (``bench.json`` key ``end_to_end``).
+"""End-to-end section of ``gsp_bench`` (``bench.json`` key ``end_to_end``; see :mod:`.bench`).
 
 :func:`run` drives ``gsp_demo`` (the three nodes as separate processes, loopback discovery, a
 private random ``ROS_DOMAIN_ID`` per run) in child processes, each with a temporary
-``--output-root``, and reads the run directory it leaves:
+``--output-root``, and reads the files of the one run directory it leaves there (never the log
+text):
 
 * ``calibration_s``: wall time of the ``/gsp/calibrator/calibrate`` call of a whole calibration
   (60 postures; fewer with ``quick``), from ``summary.json``; ``total_s`` is the whole demo.
 * ``max_sync_rate_hz``: the highest ``publish_rate`` of ``platform_sim`` and ``device_driver``
   (``--sensor-rate``) at which a short calibration still gets every synchronised sample: the
   demo succeeds, every posture not rejected by the platform has a ``samples.csv`` row with
-  ``n_samples == samples_per_posture``, and ``calibrator.log`` reports no dropped (inconsistent
-  or non-finite) samples and no posture skipped for another reason than a platform rejection.
-  The rates are tried in increasing order; the sweep stops at the first one that fails.
+  ``n_samples == samples_per_posture``, and the calibrator's ``collection`` record (in
+  ``result.json``, or copied by the demo into ``summary.json``) shows no dropped (inconsistent or
+  non-finite) sample and no posture skipped for another reason than a platform rejection. Without
+  that record (an older calibrator) the counts are unknown (None) and so is ``passed``.
+  The rates are tried in increasing order; the sweep stops at the first one that does not pass.
 """
 
 import contextlib
 import csv
+import json
 import os
-import random
-import re
 import shutil
 import signal
 import subprocess
@@ -26,6 +28,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from gsp_msgs_py.ros_environment import loopback_environment
+
+from .report import RESULT_JSON
+from .run_directory import SAMPLES_FILE, SUMMARY_FILE
 
 DEMO_MODULE = 'gsp_calibrator.demo'
 CALIBRATION_POSTURES = 60
@@ -37,40 +44,48 @@ QUICK_SYNC_POSTURES = 12  #: 44 parameters need >= 11 postures (4 readings each)
 SAMPLES_PER_POSTURE = 10
 DEMO_TIMEOUT_S = 90.0  #: longest wall time of one demo run before it is stopped
 
-_RUN_DIRECTORY = re.compile(r'^run directory: (.+)$', re.MULTILINE)
-_SKIPPED = re.compile(r'posture (\d+)/\d+ skipped: (.*)')
-#: calibrator log lines that mean a sample was lost or could not be synchronised.
-_DROP_PATTERNS = (
-    re.compile(r'dropped (\d+) synchronised sample'),
-    re.compile(r'dropped a non-finite reading'),
-    re.compile(r'no synchronised sample'),
-)
 
+def demo_environment(environ=None, rng=None, used=()):
+    """A copy of ``environ`` with loopback discovery and a fresh random domain id, not in ``used``.
 
-def demo_environment(environ=None, rng=random, used=()):
-    """A copy of ``environ`` with loopback discovery and a fresh random domain id (1..101)."""
+    The domain of ``environ`` is not kept: each demo gets its own, so that a run cannot hear a
+    previous one's nodes still shutting down.
+    """
     env = dict(os.environ if environ is None else environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    choices = [d for d in range(1, 102) if d not in set(used)] or list(range(1, 102))
-    env['ROS_DOMAIN_ID'] = str(rng.choice(choices))
+    env.pop('ROS_DOMAIN_ID', None)
+    env = loopback_environment(env, rng=rng, exclude=used)
     env['PYTHONUNBUFFERED'] = '1'
     env.setdefault('OPENBLAS_NUM_THREADS', '1')
     return env
 
 
-def demo_command(output_root, postures, sensor_rate, samples_per_posture=SAMPLES_PER_POSTURE,
-                 validation_postures=1, seed=0, timeout=DEMO_TIMEOUT_S):
+def demo_command(
+    output_root,
+    postures,
+    sensor_rate,
+    samples_per_posture=SAMPLES_PER_POSTURE,
+    validation_postures=1,
+    seed=0,
+    timeout=DEMO_TIMEOUT_S,
+):
     """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.demo``)."""
     executable = shutil.which('gsp_demo')
     prefix = [executable] if executable else [sys.executable, '-m', DEMO_MODULE]
     return prefix + [
-        '--output-root', str(output_root),
-        '--postures', str(int(postures)),
-        '--samples-per-posture', str(int(samples_per_posture)),
-        '--validation-postures', str(int(validation_postures)),
-        '--sensor-rate', repr(float(sensor_rate)),
-        '--seed', str(int(seed)),
-        '--timeout', repr(float(timeout)),
+        '--output-root',
+        str(output_root),
+        '--postures',
+        str(int(postures)),
+        '--samples-per-posture',
+        str(int(samples_per_posture)),
+        '--validation-postures',
+        str(int(validation_postures)),
+        '--sensor-rate',
+        repr(float(sensor_rate)),
+        '--seed',
+        str(int(seed)),
+        '--timeout',
+        repr(float(timeout)),
     ]
 
 
@@ -88,18 +103,23 @@ def _stop(process):
         process.wait(timeout=5.0)
 
 
-def run_demo(postures, sensor_rate, samples_per_posture=SAMPLES_PER_POSTURE,
-             validation_postures=1, seed=0, timeout=DEMO_TIMEOUT_S, used_domains=()):
+def run_demo(postures, sensor_rate, used_domains=(), **options):
     """One demo run in a child process; ``{'exit_code', 'wall_s', 'domain_id', 'run_directory',
-    'summary', 'samples', 'calibrator_log', 'output'}`` (the files read before the temporary
-    output root is removed; missing ones None)."""
+    'summary', 'samples', 'result', 'output'}`` (the files read before the temporary output root
+    is removed; missing ones None). ``options``: the other keywords of :func:`demo_command`."""
+    timeout = options.get('timeout', DEMO_TIMEOUT_S)
     env = demo_environment(used=used_domains)
     output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_e2e_'))
-    argv = demo_command(output_root, postures, sensor_rate, samples_per_posture,
-                        validation_postures, seed, timeout)
+    argv = demo_command(output_root, postures, sensor_rate, **options)
     started = time.monotonic()
-    process = subprocess.Popen(argv, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT, start_new_session=True)
+    process = subprocess.Popen(
+        argv,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         try:
             output, _ = process.communicate(timeout=timeout + 60.0)
@@ -114,11 +134,13 @@ def run_demo(postures, sensor_rate, samples_per_posture=SAMPLES_PER_POSTURE,
             'wall_s': time.monotonic() - started,
             'domain_id': int(env['ROS_DOMAIN_ID']),
             'output': output.decode(errors='replace'),
-            'run_directory': None, 'summary': None, 'samples': None, 'calibrator_log': None,
+            'run_directory': None,
+            'summary': None,
+            'samples': None,
+            'result': None,
         }
-        found = _RUN_DIRECTORY.findall(result['output'])
-        if found:
-            directory = Path(found[-1].strip())
+        directory = find_run_directory(output_root)
+        if directory is not None:
             result['run_directory'] = str(directory)
             result.update(read_run_directory(directory))
         return result
@@ -126,50 +148,89 @@ def run_demo(postures, sensor_rate, samples_per_posture=SAMPLES_PER_POSTURE,
         shutil.rmtree(output_root, ignore_errors=True)
 
 
-def read_run_directory(directory):
-    """``{'summary', 'samples', 'calibrator_log'}`` of a demo run directory (None if missing)."""
-    import json
+def find_run_directory(output_root):
+    """The run directory the demo left under its own ``output_root`` (None if there is none).
 
-    directory = Path(directory)
-    read = {'summary': None, 'samples': None, 'calibrator_log': None}
-    with contextlib.suppress(OSError, ValueError):
-        read['summary'] = json.loads((directory / 'summary.json').read_text())
-    with contextlib.suppress(OSError, ValueError, KeyError):
-        with open(directory / 'samples.csv', newline='') as stream:
-            read['samples'] = [(int(row['posture']), int(row['n_samples']))
-                               for row in csv.DictReader(stream)]
+    The calibrator names it by UTC timestamp; one demo makes one, so the latest is the one.
+    """
     with contextlib.suppress(OSError):
-        read['calibrator_log'] = (directory / 'calibrator.log').read_text(errors='replace')
+        directories = sorted(path for path in Path(output_root).iterdir() if path.is_dir())
+        if directories:
+            return directories[-1]
+    return None
+
+
+def read_run_directory(directory):
+    """``{'summary', 'samples', 'result'}`` of a demo run directory (None where missing):
+    ``summary.json`` and ``result.json`` as dicts, ``samples.csv`` as ``[(posture, n_samples)]``."""
+    directory = Path(directory)
+    read = {'summary': None, 'samples': None, 'result': None}
+    for key, name in (('summary', SUMMARY_FILE), ('result', RESULT_JSON)):
+        with contextlib.suppress(OSError, ValueError):
+            read[key] = json.loads((directory / name).read_text())
+    with contextlib.suppress(OSError, ValueError, KeyError):
+        with open(directory / SAMPLES_FILE, newline='') as stream:
+            read['samples'] = [
+                (int(row['posture']), int(row['n_samples'])) for row in csv.DictReader(stream)
+            ]
     return read
 
 
+def collection_record(run):
+    """The calibrator's ``collection`` record of ``run``: from ``result.json``, else the copy the
+    demo keeps in ``summary.json``; None when neither has one (an older calibrator)."""
+    for document in (run.get('result'), run.get('summary')):
+        record = (document or {}).get('collection')
+        if isinstance(record, dict):
+            return record
+    return None
+
+
 def sync_check(run, postures, samples_per_posture=SAMPLES_PER_POSTURE):
-    """Whether ``run`` (of :func:`run_demo`) got every synchronised sample, and its counts."""
+    """Whether ``run`` (of :func:`run_demo`) got every synchronised sample, and its counts.
+
+    ``passed`` is None (and so are the counts from the ``collection`` record) when the run
+    succeeded but says nothing about skipped postures and dropped samples.
+    """
     samples = run.get('samples') or []
-    log = run.get('calibrator_log') or ''
-    rejected, other_skips = [], []
-    for posture, reason in _SKIPPED.findall(log):
-        (rejected if reason.startswith('rejected by the platform') else other_skips).append(
-            int(posture))
-    drops = sum(len(pattern.findall(log)) for pattern in _DROP_PATTERNS)
-    dropped_samples = sum(int(n) for n in _DROP_PATTERNS[0].findall(log))
     short = [p for p, n in samples if n != samples_per_posture]
     collected = {p for p, _ in samples}
-    missing = sorted(set(range(1, postures + 1)) - collected - set(rejected))
-    passed = (run.get('exit_code') == 0 and bool(samples) and not short and not missing
-              and not other_skips and drops == 0)
-    return {
-        'passed': bool(passed),
+    check = {
+        'passed': False,
         'exit_code': run.get('exit_code'),
         'postures_collected': len(samples),
-        'postures_rejected_by_platform': len(rejected),
         'postures_short': len(short),
-        'postures_missing': len(missing),
-        'postures_skipped_other': len(other_skips),
-        'drop_reports': drops,
-        'dropped_samples': dropped_samples,
         'min_n_samples': min((n for _, n in samples), default=0),
+        'postures_rejected_by_platform': None,
+        'postures_missing': None,
+        'postures_skipped_other': None,
+        'dropped_samples': None,
+        'non_finite_dropped': None,
     }
+    failed = run.get('exit_code') != 0 or not samples or bool(short)
+    record = collection_record(run)
+    if record is None:
+        check['passed'] = False if failed else None
+        return check
+    skipped = record.get('skipped') or []
+    rejected = {int(entry['posture']) for entry in skipped if entry.get('rejected_by_platform')}
+    other_skips = [
+        int(entry['posture']) for entry in skipped if not entry.get('rejected_by_platform')
+    ]
+    missing = sorted(set(range(1, postures + 1)) - collected - rejected)
+    dropped = int(record.get('inconsistent_dropped') or 0)
+    non_finite = sum(int(n) for n in (record.get('non_finite_dropped') or {}).values())
+    check.update(
+        {
+            'passed': not (failed or missing or other_skips or dropped or non_finite),
+            'postures_rejected_by_platform': len(rejected),
+            'postures_missing': len(missing),
+            'postures_skipped_other': len(other_skips),
+            'dropped_samples': dropped,
+            'non_finite_dropped': non_finite,
+        }
+    )
+    return check
 
 
 #: Validation postures of the timed calibration run (the validation is not part of calibration_s).
@@ -196,40 +257,59 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
     per_sample = Sigmas()
-    averaged = Sigmas(*(value / np.sqrt(SAMPLES_PER_POSTURE) for value in (
-        per_sample.leg_lengths, per_sample.inclinometer, per_sample.encoder, per_sample.lvdt)))
+    averaged = Sigmas(
+        *(
+            value / np.sqrt(SAMPLES_PER_POSTURE)
+            for value in (
+                per_sample.leg_lengths,
+                per_sample.inclinometer,
+                per_sample.encoder,
+                per_sample.lvdt,
+            )
+        )
+    )
     poses = choose_postures(nominal, postures, 600, seed, averaged).poses
     # As in the node suite: the controller commands with the nominal geometry, the real platform
     # settles at FK of those legs under the truth (postures it cannot reach are skipped).
     legs = inverse_kinematics(nominal, poses)
     reached, ok = forward_kinematics_masked(true, legs, poses)
     poses, legs, reached = poses[ok], legs[ok], reached[ok]
-    validation = sample_valid_postures(nominal, validation_postures, np.random.default_rng(seed + 1_000_003))
+    validation = sample_valid_postures(
+        nominal, validation_postures, np.random.default_rng(seed + 1_000_003)
+    )
     position, orientation = [], []
     for draw in range(seeds):
         rng = np.random.default_rng(10_000 + draw)
         measured_legs = legs + rng.normal(0.0, averaged.leg_lengths, legs.shape)
-        readings = device_readings(true, reached) + rng.normal(0.0, 1.0, (len(legs), 4)) * averaged.readings()
+        readings = (
+            device_readings(true, reached)
+            + rng.normal(0.0, 1.0, (len(legs), 4)) * averaged.readings()
+        )
         result = identify(nominal, measured_legs, readings, averaged, pose_guesses=poses)
         errors = validate(true, result.geometry, validation)
         position.append(errors['position_mm_mean'])
         orientation.append(errors['orientation_deg_mean'])
-    return {'position_mm_mean': float(np.mean(position)),
-            'orientation_deg_mean': float(np.mean(orientation)),
-            'postures': int(len(legs)), 'seeds': seeds}
+    return {
+        'position_mm_mean': float(np.mean(position)),
+        'orientation_deg_mean': float(np.mean(orientation)),
+        'postures': int(len(legs)),
+        'seeds': seeds,
+    }
 
 
 def run(quick=False, log=None):
     """The section: ``{'calibration_s', 'postures', 'max_sync_rate_hz', ...}``."""
     if log is None:
+
         def log(message):
             print(message, file=sys.stderr, flush=True)
 
     used = []
     postures = QUICK_CALIBRATION_POSTURES if quick else CALIBRATION_POSTURES
     log(f'gsp_bench: end_to_end: {postures}-posture calibration through the nodes ...')
-    calibration = run_demo(postures, 200.0, validation_postures=VALIDATION_POSTURES[quick],
-                           used_domains=used)
+    calibration = run_demo(
+        postures, 200.0, validation_postures=VALIDATION_POSTURES[quick], used_domains=used
+    )
     used.append(calibration['domain_id'])
     summary = calibration['summary'] or {}
     section = {
@@ -246,13 +326,15 @@ def run(quick=False, log=None):
     if after.get('position_mm_mean') is not None:
         log('gsp_bench: end_to_end: the core alone on the same noise ...')
         core = core_alone_validation(postures, VALIDATION_POSTURES[quick], seeds=2 if quick else 5)
-        section['validation_after'] = {key: after.get(key) for key in (
-            'position_mm_mean', 'orientation_deg_mean')}
+        section['validation_after'] = {
+            key: after.get(key) for key in ('position_mm_mean', 'orientation_deg_mean')
+        }
         section['core_alone'] = core
         section['position_ratio_to_core'] = after['position_mm_mean'] / core['position_mm_mean']
     if calibration['exit_code'] != 0:
-        section['calibration_error'] = (f'gsp_demo exited with {calibration["exit_code"]}: '
-                                        + calibration['output'][-800:])
+        section['calibration_error'] = (
+            f'gsp_demo exited with {calibration["exit_code"]}: ' + calibration['output'][-800:]
+        )
 
     rates = QUICK_SYNC_RATES_HZ if quick else SYNC_RATES_HZ
     sync_postures = QUICK_SYNC_POSTURES if quick else SYNC_POSTURES
@@ -267,19 +349,19 @@ def run(quick=False, log=None):
         if attempt['exit_code'] != 0:
             check['output_tail'] = attempt['output'][-600:]
         details[f'{rate:g}'] = check
-        if not check['passed']:
+        if check['passed'] is not True:  # failed, or unknown: the rate is not established
             break
         best = rate
-    section.update({
-        'max_sync_rate_hz': best,
-        'sync_rates_tried_hz': [float(r) for r in rates if f'{r:g}' in details],
-        'sync_postures': sync_postures,
-        'sync_by_rate': details,
-    })
+    section.update(
+        {
+            'max_sync_rate_hz': best,
+            'sync_rates_tried_hz': [float(r) for r in rates if f'{r:g}' in details],
+            'sync_postures': sync_postures,
+            'sync_by_rate': details,
+        }
+    )
     return section
 
 
 if __name__ == '__main__':
-    import json
-
     print(json.dumps(run(quick='--quick' in sys.argv[1:]), indent=2))

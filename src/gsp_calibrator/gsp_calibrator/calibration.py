@@ -6,7 +6,8 @@
    (``run_directory.Samples``), then checks: converged, and every free parameter identifiable
    (full rank of the column-scaled information matrix). A failed check gives
    ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
-3. :func:`format_response` / :func:`parse_response`: the text of the Trigger response (a human
+3. :func:`finish_run`: identification of a collected run, and its result files.
+4. :func:`format_response` / :func:`parse_response`: the text of the Trigger response (a human
    summary, then the calibrated geometry params-file YAML).
 """
 
@@ -27,11 +28,14 @@ from gsp_kinematics.identification import (
     resolve_free,
 )
 from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.selection import select_postures
 
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
 IDENTIFICATION_TIME_LABEL = 'identification time: '
+#: Comment of the calibrated geometry file and the latched result.
+RESULT_COMMENT = 'calibrated by gsp_calibrator'
 
 
 class CalibrationError(RuntimeError):
@@ -64,8 +68,16 @@ def selection_formulation(formulation):
     return 'implicit' if formulation == 'implicit' else 'fk'
 
 
-def choose_postures(nominal, count, pool_size, seed, sigmas=Sigmas(), free=None,
-                    formulation='implicit', workspace=Workspace()):
+def choose_postures(
+    nominal,
+    count,
+    pool_size,
+    seed,
+    sigmas=Sigmas(),
+    free=None,
+    formulation='implicit',
+    workspace=Workspace(),
+):
     """Select ``count`` postures from a seeded pool of ``pool_size`` (:class:`PostureSelection`)."""
     count, pool_size = int(count), int(pool_size)
     if count < 1:
@@ -75,20 +87,48 @@ def choose_postures(nominal, count, pool_size, seed, sigmas=Sigmas(), free=None,
     started = time.perf_counter()
     pool = posture_pool(nominal, pool_size, seed, workspace)
     indices, condition = select_postures(
-        nominal, pool, count, sigmas, free=resolve_free(free),
+        nominal,
+        pool,
+        count,
+        sigmas,
+        free=resolve_free(free),
         formulation=selection_formulation(formulation),
     )
     return PostureSelection(
-        poses=pool[indices], pool_indices=np.asarray(indices), condition_number=float(condition),
-        pool_size=pool_size, seed=int(seed), duration_s=time.perf_counter() - started,
+        poses=pool[indices],
+        pool_indices=np.asarray(indices),
+        condition_number=float(condition),
+        pool_size=pool_size,
+        seed=int(seed),
+        duration_s=time.perf_counter() - started,
+    )
+
+
+def selection_arguments(settings):
+    """The positional arguments of :func:`choose_postures` and :func:`selection_key` for a run's
+    ``CalibratorSettings``."""
+    return (
+        settings.nominal,
+        settings.posture_count,
+        settings.pool_size,
+        settings.seed,
+        settings.sigmas,
+        list(settings.free_parameters),
+        settings.formulation,
     )
 
 
 def selection_key(nominal, count, pool_size, seed, sigmas, free, formulation):
     """A hashable key of everything :func:`choose_postures` depends on (for caching)."""
     return (
-        tuple(np.round(nominal.to_vector(), 15)), nominal.limits, int(count), int(pool_size),
-        int(seed), sigmas, tuple(resolve_free(free)), selection_formulation(formulation),
+        tuple(np.round(nominal.to_vector(), 15)),
+        nominal.limits,
+        int(count),
+        int(pool_size),
+        int(seed),
+        sigmas,
+        tuple(resolve_free(free)),
+        selection_formulation(formulation),
     )
 
 
@@ -104,8 +144,13 @@ def analyse_identifiability(result):
     information = np.asarray(result.information, dtype=float)
     if not np.all(np.isfinite(information)):
         names = list(result.free_names)
-        return {'rank': 0, 'parameters': len(names), 'condition_number': math.inf,
-                'unidentifiable': [], 'names': names}
+        return {
+            'rank': 0,
+            'parameters': len(names),
+            'condition_number': math.inf,
+            'unidentifiable': [],
+            'names': names,
+        }
     analysis = identifiability.analyse_identifiability(information, result.free)
     analysis['names'] = identifiability.unidentifiable_parameters(analysis)
     return analysis
@@ -140,13 +185,16 @@ def averaged_sigmas(sigmas, n_samples):
         return sigmas
     factor = 1.0 / math.sqrt(float(np.median(n_samples)))
     return Sigmas(
-        leg_lengths=sigmas.leg_lengths * factor, inclinometer=sigmas.inclinometer * factor,
-        encoder=sigmas.encoder * factor, lvdt=sigmas.lvdt * factor,
+        leg_lengths=sigmas.leg_lengths * factor,
+        inclinometer=sigmas.inclinometer * factor,
+        encoder=sigmas.encoder * factor,
+        lvdt=sigmas.lvdt * factor,
     )
 
 
-def identify_from_samples(nominal, samples, sigmas=Sigmas(), free=None, formulation='implicit',
-                          **identify_options):
+def identify_from_samples(
+    nominal, samples, sigmas=Sigmas(), free=None, formulation='implicit', **identify_options
+):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
     ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
@@ -166,8 +214,13 @@ def identify_from_samples(nominal, samples, sigmas=Sigmas(), free=None, formulat
     started = time.perf_counter()
     try:
         result = identify(
-            nominal, samples.leg_lengths, samples.readings, row_sigmas,
-            formulation=formulation, free=free_mask, pose_guesses=samples.commanded_poses,
+            nominal,
+            samples.leg_lengths,
+            samples.readings,
+            row_sigmas,
+            formulation=formulation,
+            free=free_mask,
+            pose_guesses=samples.commanded_poses,
             **identify_options,
         )
     except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
@@ -210,10 +263,11 @@ def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
     pose = np.reshape(np.asarray(commanded_pose, dtype=float), (1, 6))
     legs = np.asarray(leg_lengths, dtype=float) - inverse_kinematics(nominal, pose)[0]
     device = np.asarray(readings, dtype=float) - device_readings(nominal, pose)[0]
-    device[2] = (device[2] + np.pi) % (2.0 * np.pi) - np.pi
+    device[2] = wrap_angle(device[2])
     residuals = {'leg_lengths': float(np.max(np.abs(legs)))}
-    residuals.update({name: float(v) for name, v in zip(('alpha', 'beta', 'phi', 'd_m'), device,
-                                                         strict=True)})
+    residuals.update(
+        {name: float(v) for name, v in zip(('alpha', 'beta', 'phi', 'd_m'), device, strict=True)}
+    )
     return residuals
 
 
@@ -266,22 +320,40 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
         free = np.asarray(result.free, dtype=bool)
         lengths = deviations[:43][free[:43]]
         if lengths.size:
-            lines.append(f'largest standard deviation: {np.nanmax(lengths) * 1000.0:.4g} mm'
-                         + (f', gamma {math.degrees(deviations[43]):.3g} deg' if free[43] else ''))
+            lines.append(
+                f'largest standard deviation: {np.nanmax(lengths) * 1000.0:.4g} mm'
+                + (f', gamma {math.degrees(deviations[43]):.3g} deg' if free[43] else '')
+            )
     if outcome.success and reference is not None:
         errors = parameter_errors(outcome.geometry, reference)
-        lines.append(f'parameter errors vs reference: max {np.max(np.abs(errors[:43])):.4g} mm, '
-                     f'gamma {abs(errors[43]):.3g} deg')
+        lines.append(
+            f'parameter errors vs reference: max {np.max(np.abs(errors[:43])):.4g} mm, '
+            f'gamma {abs(errors[43]):.3g} deg'
+        )
     if run_directory is not None:
         lines.append(f'{RUN_DIRECTORY_LABEL}{run_directory}')
     return '\n'.join(lines)
+
+
+def failure_message(error, collected, run):
+    """The response text of a run that ended early with ``error`` after ``collected`` postures;
+    ``run``: its ``RunDirectory`` (the rows are in its ``samples.csv``)."""
+    from .run_directory import SAMPLES_FILE
+
+    return (
+        f'calibration FAILED after {collected} collected posture(s): {error}\n'
+        f'{collected} posture(s) saved to {run.file(SAMPLES_FILE)}\n'
+        f'{RUN_DIRECTORY_LABEL}{run.path}'
+    )
 
 
 def format_response(summary, geometry=None, node_name='/**'):
     """Trigger response message: the summary, then (on success) the geometry params file."""
     if geometry is None:
         return summary
-    yaml_text = geometry_to_yaml(geometry, node_name=node_name, comment='calibrated by gsp_calibrator')
+    yaml_text = geometry_to_yaml(
+        geometry, node_name=node_name, comment='calibrated by gsp_calibrator'
+    )
     return f'{summary}\n{RESPONSE_SEPARATOR}\n{yaml_text}'
 
 
@@ -303,10 +375,61 @@ def parse_response(message):
     run_directory, identification_ms = '', math.nan
     for line in summary.splitlines():
         if line.startswith(RUN_DIRECTORY_LABEL):
-            run_directory = line[len(RUN_DIRECTORY_LABEL):].strip()
+            run_directory = line[len(RUN_DIRECTORY_LABEL) :].strip()
         elif line.startswith(IDENTIFICATION_TIME_LABEL):
             try:
-                identification_ms = float(line[len(IDENTIFICATION_TIME_LABEL):].split()[0])
+                identification_ms = float(line[len(IDENTIFICATION_TIME_LABEL) :].split()[0])
             except (ValueError, IndexError):
                 pass
     return ParsedResponse(summary, geometry_yaml, run_directory, identification_ms)
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishedRun:
+    """What :func:`finish_run` did: the outcome, its human summary, and a report failure."""
+
+    outcome: CalibrationOutcome
+    summary: str
+    report_error: str = ''  #: '' when result.json and report.md were written (or not due)
+
+
+def finish_run(run, settings, samples, collection, options):
+    """Identify a collected run and write its files (pure; the node runs it in a worker thread).
+
+    ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``samples``:
+    the collected rows; ``collection``: the protocol's ``summary()`` (skipped postures, drops);
+    ``options``: the run options stored with the results. Writes ``result.json``, ``report.md``
+    and its PNGs when identification gives a result (a failure there is returned, never raised:
+    the report must not fail the run) and ``result.yaml`` when the calibration succeeded.
+    """
+    import traceback
+
+    from . import report
+    from .run_directory import RESULT_FILE
+
+    outcome = identify_from_samples(
+        settings.nominal,
+        samples,
+        settings.sigmas,
+        list(settings.free_parameters),
+        settings.formulation,
+    )
+    skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
+    summary = outcome_summary(
+        outcome, selected=settings.posture_count, skipped=skipped, run_directory=run.path
+    )
+    report_error = ''
+    if outcome.result is not None:
+        try:
+            report.write_all(
+                run.path,
+                outcome.result,
+                **report.outcome_arguments(
+                    outcome, settings.nominal, options, collection=collection
+                ),
+            )
+        except Exception as error:
+            report_error = f'{error}\n{traceback.format_exc()}'
+    if outcome.success:
+        run.write_geometry(outcome.geometry, RESULT_FILE, comment=RESULT_COMMENT)
+    return FinishedRun(outcome, summary, report_error)

@@ -43,8 +43,11 @@ class ProgressBar:
         stream = sys.stderr if stream is None else stream
         self.stream = stream
         self.width = int(width)
-        self.interactive = (stream.isatty() if hasattr(stream, 'isatty') else False) \
-            if interactive is None else bool(interactive)
+        self.interactive = (
+            (stream.isatty() if hasattr(stream, 'isatty') else False)
+            if interactive is None
+            else bool(interactive)
+        )
         self.updates = 0
         self._last = None
         self._drawn = False
@@ -65,7 +68,7 @@ class ProgressBar:
         message = ' '.join(str(progress.message).split())  # one line
         if message and message != f'{progress.phase} {index}/{count}':
             if len(message) > MESSAGE_WIDTH:
-                message = message[:MESSAGE_WIDTH - 3] + '...'
+                message = message[: MESSAGE_WIDTH - 3] + '...'
             text += f'  ({message})'
         return text
 
@@ -79,9 +82,11 @@ class ProgressBar:
             key = (progress.phase, progress.posture_index)
             step = max(1, progress.posture_count // 10)
             last_phase = self._last[0] if self._last else None
-            if key != self._last and (progress.phase != last_phase
-                                      or progress.posture_index % step == 0
-                                      or progress.posture_index == progress.posture_count):
+            if key != self._last and (
+                progress.phase != last_phase
+                or progress.posture_index % step == 0
+                or progress.posture_index == progress.posture_count
+            ):
                 self.stream.write(text + '\n')
             self._last = key
         self.stream.flush()
@@ -96,8 +101,13 @@ class ProgressBar:
 class CalibrateClient(Node):
     """Calls the calibrate service and follows the progress topic (keyword arguments go to Node)."""
 
-    def __init__(self, service=names.SERVICE_CALIBRATE,
-                 progress_topic=names.TOPIC_CALIBRATION_PROGRESS, progress=None, **kwargs):
+    def __init__(
+        self,
+        service=names.SERVICE_CALIBRATE,
+        progress_topic=names.TOPIC_CALIBRATION_PROGRESS,
+        progress=None,
+        **kwargs,
+    ):
         kwargs.setdefault('node_name', NODE_NAME)
         super().__init__(**kwargs)
         self.service_name = service
@@ -144,17 +154,33 @@ def build_parser():
     parser = argparse.ArgumentParser(
         prog='gsp_calibrate_client',
         description='Call the calibrator service, show its progress, print the summary and the '
-                    'run directory (for installs without the ros2 CLI).')
-    parser.add_argument('--service', default=names.SERVICE_CALIBRATE,
-                        help='Trigger service to call (default %(default)s)')
-    parser.add_argument('--wait-timeout', type=float, default=10.0, metavar='S',
-                        help='longest wait for the service to appear, s (default %(default)g; '
-                             '0: forever)')
-    parser.add_argument('--timeout', type=float, default=0.0, metavar='S',
-                        help='longest wait for the response, s (default: 0, forever)')
+        'run directory (for installs without the ros2 CLI).',
+    )
+    parser.add_argument(
+        '--service',
+        default=names.SERVICE_CALIBRATE,
+        help='Trigger service to call (default %(default)s)',
+    )
+    parser.add_argument(
+        '--wait-timeout',
+        type=float,
+        default=10.0,
+        metavar='S',
+        help='longest wait for the service to appear, s (default %(default)g; 0: forever)',
+    )
+    parser.add_argument(
+        '--timeout',
+        type=float,
+        default=0.0,
+        metavar='S',
+        help='longest wait for the response, s (default: 0, forever)',
+    )
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
-    parser.add_argument('--geometry', action='store_true',
-                        help='also print the calibrated geometry (ROS 2 parameters YAML)')
+    parser.add_argument(
+        '--geometry',
+        action='store_true',
+        help='also print the calibrated geometry (ROS 2 parameters YAML)',
+    )
     return parser
 
 
@@ -169,23 +195,30 @@ def run(args, context=None, out=None, err=None):
     try:
         wait = args.wait_timeout if args.wait_timeout > 0 else None
         if not node.wait_for_service(executor, wait):
-            print(f'gsp_calibrate_client: service {args.service} not available after '
-                  f'{args.wait_timeout:g} s (is the calibrator running, in this ROS_DOMAIN_ID?)',
-                  file=err)
+            print(
+                f'gsp_calibrate_client: service {args.service} not available after '
+                f'{args.wait_timeout:g} s (is the calibrator running, in this ROS_DOMAIN_ID?)',
+                file=err,
+            )
             return EXIT_FAILED
         print(f'calling {args.service} ...', file=err)
         response = node.call(executor, args.timeout if args.timeout > 0 else None)
         if progress is not None:
             progress.finish()
         if response is None:
-            print(f'gsp_calibrate_client: no response from {args.service} within '
-                  f'{args.timeout:g} s', file=err)
+            print(
+                f'gsp_calibrate_client: no response from {args.service} within {args.timeout:g} s',
+                file=err,
+            )
             return EXIT_FAILED
         parsed = parse_response(response.message)
         print(parsed.summary, file=out)
         if args.geometry and parsed.geometry_yaml:
-            print(parsed.geometry_yaml, file=out, end='' if parsed.geometry_yaml.endswith('\n')
-                  else '\n')
+            print(
+                parsed.geometry_yaml,
+                file=out,
+                end='' if parsed.geometry_yaml.endswith('\n') else '\n',
+            )
         if not response.success:
             print('gsp_calibrate_client: calibration failed', file=err)
         return EXIT_OK if response.success else EXIT_FAILED

@@ -31,6 +31,8 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.rotation import wrap_angle
+
 NS_PER_S = 1_000_000_000
 
 #: Stream names, as counted in :attr:`SampleCollector.non_finite` and ``received``.
@@ -72,27 +74,30 @@ class PostureSample:
         return self.stamp_ns / NS_PER_S
 
 
-def _wrap(angle):
-    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 class SampleCollector:
     """Buffers both streams and pairs them by nearest stamp (see the module docstring).
 
     ``sync_tolerance`` (s): largest stamp difference of a pair. ``samples_per_posture``: pairs
-    averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first).
+    averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
+    all, for a caller that wants every pair, see :meth:`stream`).
     ``noise_std``: None (no consistency check) or the noise std of the 10 channels
     ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread.
     """
 
-    def __init__(self, sync_tolerance, samples_per_posture, max_buffer=2000, noise_std=None,
-                 consistency_threshold=DEFAULT_CONSISTENCY_THRESHOLD):
+    def __init__(
+        self,
+        sync_tolerance,
+        samples_per_posture,
+        max_buffer=2000,
+        noise_std=None,
+        consistency_threshold=DEFAULT_CONSISTENCY_THRESHOLD,
+    ):
         sync_tolerance = float(sync_tolerance)
         if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
             raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
         if int(samples_per_posture) < 1:
             raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
-        if int(max_buffer) < int(samples_per_posture):
+        if max_buffer is not None and int(max_buffer) < int(samples_per_posture):
             raise ValueError('max_buffer must hold at least samples_per_posture samples')
         if noise_std is not None:
             noise_std = np.asarray(noise_std, dtype=float).reshape(10)
@@ -104,7 +109,7 @@ class SampleCollector:
         self.consistency_threshold = float(consistency_threshold)
         self.tolerance_ns = seconds_to_ns(sync_tolerance)
         self.samples_per_posture = int(samples_per_posture)
-        self.max_buffer = int(max_buffer)
+        self.max_buffer = None if max_buffer is None else int(max_buffer)
         self.start_ns = None  # None: not collecting, every sample is ignored
         self.previous_readings = None  # device readings (4,) of the previous posture
         self._legs = {}  # stamp_ns -> q (6,)
@@ -130,8 +135,11 @@ class SampleCollector:
         the module docstring).
         """
         self.start_ns = int(start_ns)
-        self.previous_readings = (None if previous_readings is None
-                                  else np.asarray(previous_readings, dtype=float).reshape(4))
+        self.previous_readings = (
+            None
+            if previous_readings is None
+            else np.asarray(previous_readings, dtype=float).reshape(4)
+        )
         self._legs.clear()
         self._device.clear()
         self._window_checks.clear()
@@ -202,7 +210,7 @@ class SampleCollector:
         self._window = _UNKNOWN
 
     def _trim(self, buffer):
-        while len(buffer) > self.max_buffer:
+        while self.max_buffer is not None and len(buffer) > self.max_buffer:
             del buffer[min(buffer)]
 
     # --- pairing -----------------------------------------------------------------------------
@@ -248,13 +256,15 @@ class SampleCollector:
 
     def _values(self, pairs):
         """(n, 10) ``[q_1..q_6, alpha, beta, phi, d_m]`` of ``pairs``."""
-        return np.array([np.concatenate([self._legs[leg], self._device[dev]])
-                         for leg, dev in pairs])
+        return np.array(
+            [np.concatenate([self._legs[leg], self._device[dev]]) for leg, dev in pairs]
+        )
 
     def _median_and_spread(self, pairs):
         values = self._values(pairs)
-        values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + _wrap(
-            values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL])
+        values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + wrap_angle(
+            values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL]
+        )
         median = np.median(values, axis=0)
         deviation = np.abs(values - median)
         spread = np.maximum(1.4826 * np.median(deviation, axis=0), self.noise_std)
@@ -273,7 +283,7 @@ class SampleCollector:
             return False
         _, median, _, spread = self._median_and_spread(pairs)
         difference = median[6:] - self.previous_readings
-        difference[2] = _wrap(difference[2])
+        difference[2] = wrap_angle(difference[2])
         return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))
 
     def window(self):
@@ -284,7 +294,7 @@ class SampleCollector:
             pairs = self.pairs()
             count = self.samples_per_posture
             for start in range(0, len(pairs) - count + 1):
-                candidate = pairs[start:start + count]
+                candidate = pairs[start : start + count]
                 key = tuple(candidate)
                 usable = self._window_checks.get(key)
                 if usable is None:
@@ -320,9 +330,9 @@ class SampleCollector:
         legs = np.array([self._legs[leg] for leg, _ in pairs])
         readings = np.array([self._device[dev] for _, dev in pairs])
         phi0 = readings[0, 2]
-        readings[:, 2] = phi0 + _wrap(readings[:, 2] - phi0)
+        readings[:, 2] = phi0 + wrap_angle(readings[:, 2] - phi0)
         mean_readings = readings.mean(axis=0)
-        mean_readings[2] = float(_wrap(mean_readings[2]))
+        mean_readings[2] = float(wrap_angle(mean_readings[2]))
         ddof = 1 if len(pairs) > 1 else 0
         stamps = np.array([leg for leg, _ in pairs], dtype=np.int64)
         mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
@@ -333,6 +343,35 @@ class SampleCollector:
             stamp_ns=mean_stamp,
             leg_lengths_std=legs.std(axis=0, ddof=ddof),
             readings_std=readings.std(axis=0, ddof=ddof),
+        )
+
+    def stream(self, limit=None, last=False):
+        """Every pair of the first (``last``: the last) ``limit`` leg-length samples, as the
+        collector pairs them: ``(leg stamps (N,) ns, q (N, 6) m, readings (N, 4))`` in stamp order.
+
+        Only the device instants within the tolerance of those samples take part, so a long
+        buffer pairs its first (or last) samples exactly as a collector holding only them.
+        """
+        legs = sorted(self._legs)
+        if limit is not None:
+            legs = legs[-int(limit) :] if last else legs[: int(limit)]
+        if not legs:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros((0, 4))
+        margin = self.tolerance_ns
+        subset = SampleCollector(0.0, 1, max_buffer=None)
+        subset.tolerance_ns = margin
+        subset.start(legs[0] - margin)
+        subset._legs = {stamp: self._legs[stamp] for stamp in legs}
+        subset._device = {
+            stamp: row
+            for stamp, row in self._device.items()
+            if legs[0] - margin <= stamp <= legs[-1] + margin
+        }
+        pairs = subset.pairs()
+        return (
+            np.array([leg for leg, _ in pairs], dtype=np.int64),
+            np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, 6),
+            np.array([self._device[dev] for _, dev in pairs]).reshape(-1, 4),
         )
 
     def take_posture(self):

@@ -16,13 +16,12 @@ Exit code: 0 success, 1 identification failed (or non-identifiable), 2 bad input
 import argparse
 import json
 import math
-import os
-import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
     GeometryError,
@@ -53,53 +52,95 @@ class InputError(ValueError):
     """Unusable input; the message names the file (and row/column) at fault."""
 
 
+#: Sigma options: (name, command-line option, metavar, what one sample is and its unit).
+_SIGMA_OPTIONS = (
+    ('sigma_leg_lengths', '--sigma-leg-lengths', 'M', 'leg-length sample, m'),
+    ('sigma_inclinometer', '--sigma-inclinometer', 'RAD', 'inclinometer sample, rad'),
+    ('sigma_encoder', '--sigma-encoder', 'RAD', 'encoder sample, rad'),
+    ('sigma_lvdt', '--sigma-lvdt', 'M', 'LVDT sample, m'),
+)
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog='gsp_reidentify',
         description='Re-identify a Gough-Stewart platform calibration offline from a run '
-                    'directory, a samples.csv or a recording.mcap, into a new run directory.',
+        'directory, a samples.csv or a recording.mcap, into a new run directory.',
     )
     parser.add_argument('input', help='run directory, samples.csv or recording.mcap')
     stored = 'default: as stored with the input run, else'
-    parser.add_argument('--nominal', default=None,
-                        help='nominal geometry params file (default: as stored with the input run '
-                             'if that file exists, else the shipped nominal, '
-                             f'{default_geometry_path("nominal")})')
-    parser.add_argument('--formulation', choices=FORMULATIONS, default=None,
-                        help=f'identification formulation ({stored} {DEFAULTS["formulation"]})')
-    parser.add_argument('--free', nargs='+', metavar='NAME', default=None,
-                        help='parameters identified (names or comma-separated lists, e.g. '
-                             f'A1x B1x,B1y Loff1 D0 gamma; {stored} all 44)')
-    parser.add_argument('--sigma-leg-lengths', type=float, default=None, metavar='M',
-                        help='noise std of one leg-length sample, m '
-                             f'({stored} {DEFAULTS["sigma_leg_lengths"]:g})')
-    parser.add_argument('--sigma-inclinometer', type=float, default=None, metavar='RAD',
-                        help='noise std of one inclinometer sample, rad '
-                             f'({stored} {DEFAULTS["sigma_inclinometer"]:g})')
-    parser.add_argument('--sigma-encoder', type=float, default=None, metavar='RAD',
-                        help='noise std of one encoder sample, rad '
-                             f'({stored} {DEFAULTS["sigma_encoder"]:g})')
-    parser.add_argument('--sigma-lvdt', type=float, default=None, metavar='M',
-                        help=f'noise std of one LVDT sample, m ({stored} {DEFAULTS["sigma_lvdt"]:g})')
-    parser.add_argument('--samples-per-posture', type=int, default=None, metavar='N',
-                        help='recording input: synchronised samples averaged per posture '
-                             f'({stored} {DEFAULTS["samples_per_posture"]})')
-    parser.add_argument('--sync-tolerance', type=float, default=None, metavar='S',
-                        help='recording input: largest stamp difference of a pair, s '
-                             f'({stored} {DEFAULTS["sync_tolerance"]:g})')
-    parser.add_argument('--output-root', default=DEFAULTS['output_root'],
-                        help='directory of the new run directory (default %(default)s)')
-    parser.add_argument('--truth', default=None,
-                        help='true geometry params file, for errors against the truth and a '
-                             'validation in the report (default: the input run directory\'s '
-                             f'{TRUE_GEOMETRY_FILE}, if any)')
-    parser.add_argument('--validation-postures', type=int, default=VALIDATION_POSTURES,
-                        metavar='N', help='random postures of the validation against the truth '
-                                          '(default %(default)s; 0: none)')
-    parser.add_argument('--seed', type=int, default=0,
-                        help='seed of the validation postures (default %(default)s)')
-    parser.add_argument('--no-report', action='store_true',
-                        help='write samples.csv, result.yaml and result.json only')
+    parser.add_argument(
+        '--nominal',
+        default=None,
+        help='nominal geometry params file (default: as stored with the input run '
+        'if that file exists, else the shipped nominal, '
+        f'{default_geometry_path("nominal")})',
+    )
+    parser.add_argument(
+        '--formulation',
+        choices=FORMULATIONS,
+        default=None,
+        help=f'identification formulation ({stored} {DEFAULTS["formulation"]})',
+    )
+    parser.add_argument(
+        '--free',
+        nargs='+',
+        metavar='NAME',
+        default=None,
+        help='parameters identified (names or comma-separated lists, e.g. '
+        f'A1x B1x,B1y Loff1 D0 gamma; {stored} all 44)',
+    )
+    for name, option, metavar, what in _SIGMA_OPTIONS:
+        parser.add_argument(
+            option,
+            type=float,
+            default=None,
+            metavar=metavar,
+            help=f'noise std of one {what} ({stored} {DEFAULTS[name]:g})',
+        )
+    parser.add_argument(
+        '--samples-per-posture',
+        type=int,
+        default=None,
+        metavar='N',
+        help='recording input: synchronised samples averaged per posture '
+        f'({stored} {DEFAULTS["samples_per_posture"]})',
+    )
+    parser.add_argument(
+        '--sync-tolerance',
+        type=float,
+        default=None,
+        metavar='S',
+        help='recording input: largest stamp difference of a pair, s '
+        f'({stored} {DEFAULTS["sync_tolerance"]:g})',
+    )
+    parser.add_argument(
+        '--output-root',
+        default=DEFAULTS['output_root'],
+        help='directory of the new run directory (default %(default)s)',
+    )
+    parser.add_argument(
+        '--truth',
+        default=None,
+        help='true geometry params file, for errors against the truth and a '
+        "validation in the report (default: the input run directory's "
+        f'{TRUE_GEOMETRY_FILE}, if any)',
+    )
+    parser.add_argument(
+        '--validation-postures',
+        type=int,
+        default=VALIDATION_POSTURES,
+        metavar='N',
+        help='random postures of the validation against the truth (default %(default)s; 0: none)',
+    )
+    parser.add_argument(
+        '--seed', type=int, default=0, help='seed of the validation postures (default %(default)s)'
+    )
+    parser.add_argument(
+        '--no-report',
+        action='store_true',
+        help='write samples.csv, result.yaml and result.json only',
+    )
     return parser
 
 
@@ -113,8 +154,10 @@ def free_parameters(values):
     names = [n.strip() for value in values for n in value.split(',') if n.strip()]
     unknown = [n for n in names if n not in PARAMETER_NAMES]
     if unknown:
-        raise InputError(f'--free: unknown parameter name(s) {unknown}; expected names among '
-                         'A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma')
+        raise InputError(
+            f'--free: unknown parameter name(s) {unknown}; expected names among '
+            'A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma'
+        )
     if not names:
         raise InputError('--free: no parameter named')
     duplicated = sorted({n for n in names if names.count(n) > 1})
@@ -123,23 +166,27 @@ def free_parameters(values):
     return names
 
 
-_SIGMA_OPTIONS = (('sigma_leg_lengths', '--sigma-leg-lengths'),
-                  ('sigma_inclinometer', '--sigma-inclinometer'),
-                  ('sigma_encoder', '--sigma-encoder'), ('sigma_lvdt', '--sigma-lvdt'))
+def _result_json(source_dir):
+    """The run directory's ``result.json`` as a dict ({} if none or unreadable)."""
+    if source_dir is None or not (source_dir / 'result.json').is_file():
+        return {}
+    try:
+        with open(source_dir / 'result.json', encoding='utf-8') as stream:
+            data = json.load(stream)
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
 def stored_options(kind, path, source_dir):
     """Run options stored with the input: the run directory's ``result.json`` ``options``, then
     (overriding) those of the recording."""
-    options = {}
-    if source_dir is not None and (source_dir / 'result.json').is_file():
-        try:
-            with open(source_dir / 'result.json', encoding='utf-8') as stream:
-                options.update(json.load(stream).get('options') or {})
-        except (OSError, ValueError, AttributeError):
-            pass
-    recording_path = path if kind == 'mcap' else (
-        source_dir / 'recording.mcap' if source_dir is not None else None)
+    options = dict(_result_json(source_dir).get('options') or {})
+    recording_path = (
+        path
+        if kind == 'mcap'
+        else (source_dir / 'recording.mcap' if source_dir is not None else None)
+    )
     if recording_path is not None and Path(recording_path).is_file():
         from .recording import RecordingError, recording_options
 
@@ -153,13 +200,14 @@ def stored_options(kind, path, source_dir):
 
 def resolve_options(args, stored):
     """``{name: value}`` of every run option: the command line, else ``stored``, else defaults."""
+
     def pick(value, name):
         if value is not None:
             return value
         return stored.get(name, DEFAULTS[name])
 
-    options = {name: pick(getattr(args, name), name) for name, _ in _SIGMA_OPTIONS}
-    for name, option in _SIGMA_OPTIONS:
+    options = {name: pick(getattr(args, name), name) for name, *_ in _SIGMA_OPTIONS}
+    for name, option, *_ in _SIGMA_OPTIONS:
         value = options[name]
         try:
             value = float(value)
@@ -170,8 +218,9 @@ def resolve_options(args, stored):
         options[name] = value
     options['formulation'] = pick(args.formulation, 'formulation')
     if options['formulation'] not in FORMULATIONS:
-        raise InputError(f"formulation {options['formulation']!r} (stored) is not one of "
-                         f'{list(FORMULATIONS)}')
+        raise InputError(
+            f'formulation {options["formulation"]!r} (stored) is not one of {list(FORMULATIONS)}'
+        )
     if args.free is not None:
         options['free_parameters'] = free_parameters(args.free)
     elif stored.get('free_parameters'):
@@ -189,17 +238,23 @@ def resolve_options(args, stored):
         nominal = stored.get('nominal_geometry_file')
         if not nominal or not Path(nominal).is_file():
             if nominal:
-                print(f'gsp_reidentify: warning: the run\'s nominal geometry {nominal} is not '
-                      'available: using the shipped nominal', file=sys.stderr)
+                print(
+                    f"gsp_reidentify: warning: the run's nominal geometry {nominal} is not "
+                    'available: using the shipped nominal',
+                    file=sys.stderr,
+                )
             nominal = default_geometry_path('nominal')
     options['nominal_geometry_file'] = str(nominal)
     return options
 
 
 def sigmas_of(options):
-    return Sigmas(leg_lengths=options['sigma_leg_lengths'],
-                  inclinometer=options['sigma_inclinometer'],
-                  encoder=options['sigma_encoder'], lvdt=options['sigma_lvdt'])
+    return Sigmas(
+        leg_lengths=options['sigma_leg_lengths'],
+        inclinometer=options['sigma_inclinometer'],
+        encoder=options['sigma_encoder'],
+        lvdt=options['sigma_lvdt'],
+    )
 
 
 def _geometry(path, option):
@@ -239,24 +294,23 @@ def load_input(kind, path, options):
     else:
         from .recording import RecordingError, samples_from_recording
 
-        noise_std = ([options['sigma_leg_lengths']] * 6 + [options['sigma_inclinometer']] * 2
-                     + [options['sigma_encoder'], options['sigma_lvdt']])
+        noise_std = (
+            [options['sigma_leg_lengths']] * 6
+            + [options['sigma_inclinometer']] * 2
+            + [options['sigma_encoder'], options['sigma_lvdt']]
+        )
         try:
-            samples = samples_from_recording(path, options['sync_tolerance'],
-                                             options['samples_per_posture'], noise_std)
+            samples = samples_from_recording(
+                path, options['sync_tolerance'], options['samples_per_posture'], noise_std
+            )
         except RecordingError as error:
             raise InputError(str(error)) from error
     if len(samples) == 0:
-        raise InputError(f'{path}: no posture rows' + (
-            ' (no posture completed in the recording)' if kind == 'mcap' else ''))
+        raise InputError(
+            f'{path}: no posture rows'
+            + (' (no posture completed in the recording)' if kind == 'mcap' else '')
+        )
     return samples
-
-
-def _copy_atomic(source, target):
-    temporary = Path(str(target) + '.tmp')
-    shutil.copyfile(source, temporary)
-    os.replace(temporary, target)
-    return target
 
 
 def validation_postures(truth, count, seed):
@@ -280,7 +334,11 @@ def reidentify(args, out=None):
     nominal_path = options['nominal_geometry_file']
     nominal = _geometry(nominal_path, '--nominal')
     truth_path = args.truth
-    if truth_path is None and source_dir is not None and (source_dir / TRUE_GEOMETRY_FILE).is_file():
+    if (
+        truth_path is None
+        and source_dir is not None
+        and (source_dir / TRUE_GEOMETRY_FILE).is_file()
+    ):
         truth_path = source_dir / TRUE_GEOMETRY_FILE
     truth = _geometry(truth_path, '--truth') if truth_path is not None else None
     if args.validation_postures < 0:
@@ -288,8 +346,9 @@ def reidentify(args, out=None):
     samples = load_input(kind, path, options)
 
     try:
-        outcome = calibration.identify_from_samples(nominal, samples, sigmas, free,
-                                                    options['formulation'])
+        outcome = calibration.identify_from_samples(
+            nominal, samples, sigmas, free, options['formulation']
+        )
     except (IdentificationError, calibration.CalibrationError) as error:
         raise InputError(str(error)) from error
 
@@ -297,12 +356,15 @@ def reidentify(args, out=None):
     run.write_samples(samples)
     if kind == 'mcap' or (source_dir is not None and (source_dir / 'recording.mcap').is_file()):
         recording_path = path if kind == 'mcap' else source_dir / 'recording.mcap'
-        _copy_atomic(recording_path, run.file('recording.mcap'))
+        atomic_copy(recording_path, run.file('recording.mcap'))
     if truth is not None:
         run.write_geometry(truth, name=TRUE_GEOMETRY_FILE, comment='true geometry (given)')
     if outcome.success:
-        run.write_geometry(outcome.geometry, name=RESULT_FILE,
-                           comment=f'calibrated offline by gsp_reidentify from {path}')
+        run.write_geometry(
+            outcome.geometry,
+            name=RESULT_FILE,
+            comment=f'calibrated offline by gsp_reidentify from {path}',
+        )
 
     validation_before = validation_after = None
     if outcome.result is not None:
@@ -316,15 +378,20 @@ def reidentify(args, out=None):
                     validation_after = validation_errors(truth, outcome.geometry, poses)
             except ValueError as error:
                 print(f'warning: validation skipped: {error}', file=sys.stderr)
-        from .report import write_report, write_result_json
+        from .report import outcome_arguments, write_report, write_result_json
 
-        run_options = dict(options, source=str(path), source_kind=kind,
-                           truth_geometry_file=str(truth_path) if truth_path else None)
-        extra = {'success': outcome.success, 'failure': outcome.message or None,
-                 'options': run_options, 'tool': 'gsp_reidentify'}
-        kwargs = dict(analysis=outcome.identifiability or None,
-                      validation_before=validation_before, validation_after=validation_after,
-                      truth=truth, nominal=nominal, sigmas=outcome.sigmas, extra=extra)
+        run_options = dict(
+            options,
+            source=str(path),
+            source_kind=kind,
+            truth_geometry_file=str(truth_path) if truth_path else None,
+        )
+        kwargs = dict(
+            outcome_arguments(outcome, nominal, run_options, tool='gsp_reidentify'),
+            validation_before=validation_before,
+            validation_after=validation_after,
+            truth=truth,
+        )
         write_result_json(run, outcome.result, **kwargs)
         if not args.no_report:
             write_report(run, outcome.result, title='Offline re-identification', **kwargs)
@@ -332,16 +399,25 @@ def reidentify(args, out=None):
     print(calibration.outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
         if validation is not None:
-            print(f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
-                  f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
-                  f'{validation["orientation_deg_mean"]:.4g} deg, max '
-                  f'{validation["orientation_deg_max"]:.4g} deg', file=out)
+            print(
+                f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
+                f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
+                f'{validation["orientation_deg_mean"]:.4g} deg, max '
+                f'{validation["orientation_deg_max"]:.4g} deg',
+                file=out,
+            )
     print(f'{calibration.RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
 
-def refresh_report(run_dir, truth=None, validation_before=None, validation_after=None,
-                   write_pngs=True, title='Calibration report'):
+def refresh_report(
+    run_dir,
+    truth=None,
+    validation_before=None,
+    validation_after=None,
+    write_pngs=True,
+    title='Calibration report',
+):
     """Rewrite ``result.json`` (and ``report.md`` with its PNGs) of an existing run directory.
 
     For a caller that has the run directory but not the identification result, e.g. the main job
@@ -351,7 +427,7 @@ def refresh_report(run_dir, truth=None, validation_before=None, validation_after
     summaries or :func:`gsp_calibrator.report.validation_errors` dicts (per-posture arrays are
     plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
     """
-    from .report import write_report, write_result_json
+    from .report import outcome_arguments, write_report, write_result_json
 
     source_dir = Path(run_dir)
     kind, path, _ = resolve_input(source_dir)
@@ -359,15 +435,21 @@ def refresh_report(run_dir, truth=None, validation_before=None, validation_after
     options = resolve_options(args, stored_options(kind, path, source_dir))
     nominal = _geometry(options['nominal_geometry_file'], 'nominal_geometry_file')
     samples = load_input(kind, path, options)
-    outcome = calibration.identify_from_samples(nominal, samples, sigmas_of(options),
-                                                options['free_parameters'], options['formulation'])
+    outcome = calibration.identify_from_samples(
+        nominal, samples, sigmas_of(options), options['free_parameters'], options['formulation']
+    )
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
-    extra = {'success': outcome.success, 'failure': outcome.message or None,
-             'options': dict(options, source=str(path), source_kind=kind)}
-    kwargs = dict(analysis=outcome.identifiability or None, validation_before=validation_before,
-                  validation_after=validation_after, truth=truth, nominal=nominal,
-                  sigmas=outcome.sigmas, extra=extra)
+    # The calibrator's own record of the collection (skips, drops) is kept as it was.
+    kept = {key: value for key, value in _result_json(source_dir).items() if key == 'collection'}
+    kwargs = dict(
+        outcome_arguments(
+            outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept
+        ),
+        validation_before=validation_before,
+        validation_after=validation_after,
+        truth=truth,
+    )
     write_result_json(source_dir, outcome.result, **kwargs)
     if write_pngs:
         write_report(source_dir, outcome.result, title=title, **kwargs)

@@ -6,9 +6,9 @@ per recorded posture (:class:`RecordedPosture`), its commanded pose and the samp
 
 * from ``samples.csv``: one averaged row per posture (republished as it is, again and again);
 * from ``recording.mcap``: the raw synchronised samples recorded after the posture's settle, in
-  order, paired exactly as the calibrator pairs them
-  (:class:`gsp_calibrator.collector.SampleCollector`, the recording's ``sync_tolerance``); with
-  the simulator's ``true_pose`` of each sample when it was recorded.
+  order, collected by the calibrator's own protocol
+  (:class:`gsp_calibrator.protocol.CollectionProtocol` with ``keep_pairs``, the recording's
+  ``sync_tolerance``); with the simulator's ``true_pose`` of each sample when it was recorded.
 
 A run directory is replayed from its ``samples.csv`` when it has one (the rows the calibration
 was computed from, so a replay reproduces it exactly whatever the timing), else from its
@@ -29,19 +29,12 @@ from gsp_kinematics.rotation import euler_to_matrix, matrix_to_quaternion
 from gsp_msgs_py import names
 
 from . import recording
-from .collector import SampleCollector
+from .protocol import CollectionProtocol, PairsCollected, PostureSkipped
 from .run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from .settings import DEFAULTS
 
 SOURCE_SAMPLES = 'samples.csv'
 SOURCE_RECORDING = 'recording.mcap'
-
-#: Largest stream kept per posture (the first pairs after the settle), and before the first
-#: command (the last pairs before it), so a long idle recording stays cheap to load and pair.
-MAX_STREAM_SAMPLES = 2000
-
-_SENSOR_TOPICS = (names.TOPIC_LEG_LENGTHS, names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER,
-                  names.TOPIC_LVDT)
 
 
 class ReplayError(ValueError):
@@ -60,11 +53,13 @@ class SampleStream:
         legs = np.asarray(self.leg_lengths, dtype=float).reshape(-1, 6)
         count = legs.shape[0]
         object.__setattr__(self, 'leg_lengths', legs)
-        object.__setattr__(self, 'readings',
-                           np.asarray(self.readings, dtype=float).reshape(count, 4))
+        object.__setattr__(
+            self, 'readings', np.asarray(self.readings, dtype=float).reshape(count, 4)
+        )
         if self.true_poses is not None:
-            object.__setattr__(self, 'true_poses',
-                               np.asarray(self.true_poses, dtype=float).reshape(count, 6))
+            object.__setattr__(
+                self, 'true_poses', np.asarray(self.true_poses, dtype=float).reshape(count, 6)
+            )
 
     def __len__(self):
         return int(self.leg_lengths.shape[0])
@@ -92,8 +87,9 @@ class RecordedPosture:
     command_id: str = ''  #: the recorded command's id ('' from samples.csv)
 
     def __post_init__(self):
-        object.__setattr__(self, 'commanded_pose',
-                           np.asarray(self.commanded_pose, dtype=float).reshape(6))
+        object.__setattr__(
+            self, 'commanded_pose', np.asarray(self.commanded_pose, dtype=float).reshape(6)
+        )
 
 
 def _quaternions(poses):
@@ -130,7 +126,8 @@ class RecordedRun:
     def has_true_pose(self):
         """True if the recording holds the true pose of every replayed sample of some posture."""
         return self.initial_stream.has_true_pose or any(
-            p.stream.has_true_pose for p in self.postures)
+            p.stream.has_true_pose for p in self.postures
+        )
 
     @property
     def commanded_poses(self):
@@ -152,8 +149,9 @@ class RecordedRun:
                 return cls.from_samples(samples)
             if mcap.is_file():
                 return cls.from_recording(mcap, sync_tolerance)
-            raise ReplayError(f'{path}: run directory without {SAMPLES_FILE} or '
-                              f'{recording.RECORDING_FILE}')
+            raise ReplayError(
+                f'{path}: run directory without {SAMPLES_FILE} or {recording.RECORDING_FILE}'
+            )
         if not path.exists():
             raise ReplayError(f'{path}: no such file or directory')
         if path.suffix.lower() == '.mcap':
@@ -170,13 +168,17 @@ class RecordedRun:
             raise ReplayError(str(error)) from None
         postures = tuple(
             RecordedPosture(
-                posture=int(samples.posture[m]), commanded_pose=samples.commanded_poses[m],
-                stream=SampleStream(samples.leg_lengths[m:m + 1], samples.readings[m:m + 1]))
-            for m in range(len(samples)))
+                posture=int(samples.posture[m]),
+                commanded_pose=samples.commanded_poses[m],
+                stream=SampleStream(samples.leg_lengths[m : m + 1], samples.readings[m : m + 1]),
+            )
+            for m in range(len(samples))
+        )
         if not postures:
             raise ReplayError(f'{path}: no posture rows to replay')
-        return cls(source=path, kind=SOURCE_SAMPLES, postures=postures,
-                   initial_stream=postures[-1].stream)
+        return cls(
+            source=path, kind=SOURCE_SAMPLES, postures=postures, initial_stream=postures[-1].stream
+        )
 
     @classmethod
     def from_recording(cls, path, sync_tolerance=None):
@@ -198,73 +200,78 @@ class RecordedRun:
     def _from_recording(cls, path, sync_tolerance):
         from gsp_msgs_py import conversions
 
-        info = recording.recording_info(path)
         options = recording.recording_options(path)
         if sync_tolerance is None:
             sync_tolerance = options.get('sync_tolerance', DEFAULTS['sync_tolerance'])
         try:
             sync_tolerance = float(sync_tolerance)
         except (TypeError, ValueError):
-            raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} is not a number'
-                              ) from None
+            raise ReplayError(
+                f'{path}: sync_tolerance {sync_tolerance!r} is not a number'
+            ) from None
         if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
             raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} must be >= 0 s')
-        notes = recording.collection_notes(info, path)
 
-        initial = _Segment(None, None, 0)
-        segments = []
-        by_id = {}
-        wanted = (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS,
-                  names.TOPIC_TRUE_POSE) + _SENSOR_TOPICS
-        for topic, _, log_time, msg, _ in recording.read_recording(path, topics=wanted):
+        # Every pair after each settle, paired by the calibrator's own protocol; the true poses
+        # of each segment (command to command) are kept beside it, by command id.
+        collection = CollectionProtocol(sync_tolerance, 1, keep_pairs=True)
+        true_poses = {'': {}}  # command id ('' before the first command) -> {stamp_ns: pose}
+        current = ['']
+        commands = []
+
+        def on_message(topic, _, msg):
             try:
                 if topic == names.TOPIC_POSE_COMMAND:
-                    command_id = conversions.command_id_from_stamp(msg.header.stamp)
-                    number = notes.get(command_id, (None, None))[0] or len(segments) + 1
-                    segment = _Segment(command_id, conversions.pose_stamped_to_pose(msg),
-                                       number)
-                    segments.append(segment)
-                    by_id[command_id] = segment
-                elif topic == names.TOPIC_PLATFORM_STATUS:
-                    status = conversions.parse_status(msg)
-                    segment = by_id.get(status.command_id)
-                    if segment is None:
-                        continue
-                    if status.settled and segment.settled_ns is None:
-                        segment.settled_ns = int(log_time)
-                    elif status.rejected and segment.settled_ns is None:
-                        segment.rejected = status.reason or 'rejected'
-                else:
-                    segment = segments[-1] if segments else initial
-                    segment.add(topic, msg, conversions)
+                    commands.append(msg)
+                    current[0] = conversions.command_id_from_stamp(msg.header.stamp)
+                    true_poses[current[0]] = {}
+                elif topic == names.TOPIC_TRUE_POSE:
+                    stamp = conversions.stamp_to_nanoseconds(msg.header.stamp)
+                    true_poses[current[0]][stamp] = conversions.pose_stamped_to_pose(msg)
             except (ValueError, TypeError):
-                continue  # malformed or non-finite: the calibrator drops it too
+                pass  # malformed: dropped, as the calibrator drops it
 
-        postures, skipped = [], []
-        for segment in segments:
-            if segment.rejected:
-                skipped.append((segment.number, f'rejected: {segment.rejected}'))
-                continue
-            if segment.settled_ns is None:
-                skipped.append((segment.number, 'never settled'))
-                continue
-            start = notes.get(segment.command_id, (None, None))[1]
-            stream = segment.stream(segment.settled_ns if start is None else start,
-                                    sync_tolerance, first=True)
-            if len(stream) == 0:
-                skipped.append((segment.number, 'no synchronised sample after settling'))
-                continue
-            postures.append(RecordedPosture(segment.number, segment.pose, stream,
-                                            segment.command_id))
+        postures, skipped, initial_stream = [], [], None
+        margin = collection.collector.tolerance_ns
+        for event in recording.feed_recording(
+            path, collection, extra_topics=(names.TOPIC_TRUE_POSE,), on_message=on_message
+        ):
+            if isinstance(event, PairsCollected):
+                stream = SampleStream(
+                    event.leg_lengths,
+                    event.readings,
+                    _true_poses(true_poses.get(event.command_id, {}), event.stamps, margin),
+                )
+                if event.posture is None:
+                    initial_stream = stream
+                else:
+                    postures.append(
+                        RecordedPosture(event.posture, event.pose, stream, event.command_id)
+                    )
+            elif isinstance(event, PostureSkipped):
+                skipped.append(
+                    (
+                        event.posture,
+                        f'rejected: {event.platform_reason}'
+                        if event.rejected_by_platform
+                        else event.reason,
+                    )
+                )
         if not postures:
-            raise ReplayError(f'{path}: no settled posture with synchronised samples '
-                              f'({len(segments)} pose command(s) recorded)')
-        initial_stream = initial.stream(None, sync_tolerance, first=False)
-        if len(initial_stream) == 0:
+            raise ReplayError(
+                f'{path}: no settled posture with synchronised samples '
+                f'({len(commands)} pose command(s) recorded)'
+            )
+        if initial_stream is None or len(initial_stream) == 0:
             initial_stream = postures[-1].stream
-        return cls(source=path, kind=SOURCE_RECORDING, postures=tuple(postures),
-                   initial_stream=initial_stream, skipped=tuple(skipped),
-                   options=dict(options, sync_tolerance=sync_tolerance))
+        return cls(
+            source=path,
+            kind=SOURCE_RECORDING,
+            postures=tuple(postures),
+            initial_stream=initial_stream,
+            skipped=tuple(skipped),
+            options=dict(options, sync_tolerance=sync_tolerance),
+        )
 
     # --- lookup ----------------------------------------------------------------------------
 
@@ -277,8 +284,10 @@ class RecordedRun:
             raise ValueError(f'pose: non-finite component(s) in {pose.tolist()}')
         position = np.linalg.norm(self._positions - pose[:3], axis=1)
         quaternion = _quaternions(pose)[0]
-        chord = np.minimum(np.linalg.norm(self._quaternions - quaternion, axis=1),
-                           np.linalg.norm(self._quaternions + quaternion, axis=1))
+        chord = np.minimum(
+            np.linalg.norm(self._quaternions - quaternion, axis=1),
+            np.linalg.norm(self._quaternions + quaternion, axis=1),
+        )
         # Unit quaternions a rotation angle t apart are 2 sin(t / 4) apart (accurate near 0).
         angle = 4.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0))
         return position, angle
@@ -298,73 +307,19 @@ class RecordedRun:
         return None
 
 
-class _Segment:
-    """Sensor samples received between one pose command and the next (recording loader)."""
-
-    def __init__(self, command_id, pose, number):
-        self.command_id = command_id
-        self.pose = pose
-        self.number = number
-        self.settled_ns = None
-        self.rejected = ''
-        self.legs = {}  # stamp_ns -> q (6,)
-        self.device = {}  # stamp_ns -> [alpha, beta, phi, d_m], NaN until received
-        self.true_poses = {}  # stamp_ns -> X (6,)
-
-    def add(self, topic, msg, conversions):
-        stamp = conversions.stamp_to_nanoseconds(msg.header.stamp)
-        if topic == names.TOPIC_TRUE_POSE:
-            self.true_poses[stamp] = conversions.pose_stamped_to_pose(msg)
-            return
-        if topic == names.TOPIC_LEG_LENGTHS:
-            self.legs[stamp] = conversions.msg_to_leg_lengths(msg)
-            return
-        if topic == names.TOPIC_INCLINOMETER:
-            columns, values = (0, 1), conversions.msg_to_inclinometer(msg)
-        elif topic == names.TOPIC_ENCODER:
-            columns, values = (2,), (conversions.msg_to_encoder(msg),)
-        else:
-            columns, values = (3,), (conversions.msg_to_lvdt(msg),)
-        row = self.device.setdefault(stamp, np.full(4, np.nan))
-        row[list(columns)] = values
-
-    def stream(self, start_ns, tolerance, first):
-        """The calibrator's pairs of samples stamped from ``start_ns`` (None: all), in stamp
-        order: the first (or last) :data:`MAX_STREAM_SAMPLES` leg-length samples."""
-        legs = sorted(s for s in self.legs if start_ns is None or s >= start_ns)
-        legs = legs[:MAX_STREAM_SAMPLES] if first else legs[-MAX_STREAM_SAMPLES:]
-        if not legs:
-            return SampleStream(np.zeros((0, 6)), np.zeros((0, 4)))
-        margin = int(round(tolerance * 1e9))
-        device = [s for s, row in self.device.items()
-                  if legs[0] - margin <= s <= legs[-1] + margin
-                  and (start_ns is None or s >= start_ns) and np.all(np.isfinite(row))]
-        collector = SampleCollector(tolerance, 1, max_buffer=len(legs) + len(device) + 1)
-        collector.start(legs[0] - margin if start_ns is None else start_ns)
-        for stamp in legs:
-            collector.add_leg_lengths(stamp, self.legs[stamp])
-        for stamp in device:
-            row = self.device[stamp]
-            collector.add_inclinometer(stamp, row[0], row[1])
-            collector.add_encoder(stamp, row[2])
-            collector.add_lvdt(stamp, row[3])
-        pairs = collector.pairs()
-        q = np.array([self.legs[leg] for leg, _ in pairs]).reshape(-1, 6)
-        readings = np.array([self.device[dev] for _, dev in pairs]).reshape(-1, 4)
-        return SampleStream(q, readings, self._true_poses([leg for leg, _ in pairs], margin))
-
-    def _true_poses(self, stamps, margin):
-        """True pose of each leg-length stamp (same stamp, else nearest within the tolerance);
-        None unless every stamp has one."""
-        if not self.true_poses or not stamps:
+def _true_poses(known, stamps, margin):
+    """True pose (``known``: {stamp_ns: pose}) of each leg-length stamp: the same stamp, else
+    the nearest within ``margin`` ns; None unless every stamp has one."""
+    if not known or len(stamps) == 0:
+        return None
+    sorted_stamps = np.array(sorted(known), dtype=np.int64)
+    poses = []
+    for stamp in stamps:
+        stamp = int(stamp)
+        i = int(np.searchsorted(sorted_stamps, stamp))
+        near = [j for j in (i - 1, i) if 0 <= j < sorted_stamps.size]
+        j = min(near, key=lambda j: abs(int(sorted_stamps[j]) - stamp))
+        if abs(int(sorted_stamps[j]) - stamp) > margin:
             return None
-        known = np.array(sorted(self.true_poses), dtype=np.int64)
-        poses = []
-        for stamp in stamps:
-            i = int(np.searchsorted(known, stamp))
-            near = [j for j in (i - 1, i) if 0 <= j < known.size]
-            j = min(near, key=lambda j: abs(int(known[j]) - stamp))
-            if abs(int(known[j]) - stamp) > margin:
-                return None
-            poses.append(self.true_poses[int(known[j])])
-        return np.array(poses)
+        poses.append(known[int(sorted_stamps[j])])
+    return np.array(poses)

@@ -1,6 +1,6 @@
 """``replay`` node: publishes a recorded calibration run back onto the suite's topics.
 
-It stands in for both ``platform_sim`` and ``device_driver`` (see docs/README_replay.md). The
+It stands in for both ``platform_sim`` and ``device_driver`` (see docs/nodes.md). The
 recorded run (:class:`gsp_calibrator.replay.RecordedRun`: a run directory, ``samples.csv`` or
 ``recording.mcap``) gives, per recorded posture, its commanded pose and its samples. For each
 ``PoseStamped`` on ``/gsp/platform/pose_command`` (``command_id`` = its header stamp in ns):
@@ -14,21 +14,17 @@ recorded run (:class:`gsp_calibrator.replay.RecordedRun`: a run directory, ``sam
 Each instant of the stream, at ``publish_rate``, publishes ``/gsp/platform/leg_lengths`` and the
 three ``/gsp/device/*`` readings (and ``/gsp/platform/true_pose`` when the recording has it) with
 one shared, fresh stamp. Before the first command it streams the recorded idle samples (from a
-recording), else the last recorded posture (where the recorded run left the platform). After a ``settled`` status the stream pauses for
-:data:`RESTART_PERIODS` periods and restarts at the posture's first sample, so that the first
-sample a calibrator counts is the first one recorded after the settle.
+recording), else the last recorded posture (where the recorded run left the platform). After a
+``settled`` status the stream pauses for :data:`RESTART_PERIODS` periods and restarts at the
+posture's first sample, so that the first sample a calibrator counts is the first one recorded
+after the settle. The command protocol is :class:`gsp_msgs_py.pose_commands.PoseCommandServer`.
 """
 
-
-from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 
-from gsp_msgs_py import checks, conversions, names, node_tools, qos
-from gsp_msgs_py.node_tools import first_failed_check, is_finite_number, parameter_descriptor
+from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py.node_tools import ParameterSpec, greater_than, not_blank
+from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .replay import RecordedRun, ReplayError
 
@@ -38,26 +34,31 @@ REASON_NOT_RECORDED = 'not in the recording'
 RESTART_PERIODS = 2
 WARN_THROTTLE_S = 1.0
 
-
-class ConfigurationError(node_tools.ConfigurationError):
-    """A parameter value prevents the node from starting; the message names the parameter."""
-
-
-
-#: name -> (test, requirement): each parameter's check, at start-up and at run time.
-_CHECKS = {
-    'run': (lambda v: bool(str(v).strip()),
-            'required: a run directory, samples.csv or recording.mcap'),
-    'publish_rate': (lambda v: is_finite_number(v) and v > 0.0, 'must be > 0 Hz'),
-    'settle_time': (lambda v: is_finite_number(v) and v >= 0.0, 'must be >= 0 s'),
-    'pose_tolerance': (lambda v: is_finite_number(v) and v > 0.0, 'must be > 0 (m and rad)'),
-    'frame_id': (lambda v: bool(str(v).strip()), 'must not be empty'),
-}
-
-
-def check_parameters(values):
-    """Reason ('' if none) why a ``{name: value}`` of this node's parameters is invalid."""
-    return first_failed_check(_CHECKS, values)
+PARAMETERS = (
+    ParameterSpec(
+        'run',
+        '',
+        'Recorded run to replay: a run directory (its samples.csv, else its '
+        'recording.mcap), a samples.csv or a recording.mcap',
+        read_only=True,
+        constraints='required, readable',
+        check=not_blank(reason='required: a run directory, samples.csv or recording.mcap'),
+    ),
+    node_tools.publish_rate_spec('the replayed samples'),
+    node_tools.settle_time_spec('a recorded posture'),
+    ParameterSpec(
+        'pose_tolerance',
+        1e-6,
+        'Largest distance of a command to a recorded commanded pose: position (m) and '
+        'rotation angle (rad)',
+        float_range=(0.0, 1.0),
+        constraints='> 0',
+        check=greater_than(0.0, reason='must be > 0 (m and rad)'),
+    ),
+    node_tools.frame_id_spec(
+        'Base frame: of the published messages, and required of pose commands'
+    ),
+)
 
 
 class ReplayNode(Node):
@@ -65,140 +66,58 @@ class ReplayNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        try:
-            self._declare_parameters()
-        except (InvalidParameterValueException, InvalidParameterTypeException) as error:
-            raise ConfigurationError(str(error)) from None
-        values = {name: self.get_parameter(name).value for name in _CHECKS}
-        reason = check_parameters(values)
-        if reason:
-            raise ConfigurationError(reason)
+        values = node_tools.declare_parameters(self, PARAMETERS)
         try:
             self._run = RecordedRun.load(values['run'])
         except (ReplayError, OSError) as error:
-            raise ConfigurationError(f'run: {error}') from None
+            raise node_tools.ConfigurationError(f'run: {error}') from None
         self._frame_id = values['frame_id']
-        self._settle_time = values['settle_time']
         self._tolerance = values['pose_tolerance']
         self._period_ns = int(round(1e9 / values['publish_rate']))
         self._stream = self._run.initial_stream
         self._cursor = 0
         self._resume_ns = None  # the stream is silent until then (after a 'settled' status)
-        self._pending = None  # (command_id, posture) accepted and waiting for 'settled'
-
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        node_tools.watch_parameters(self, PARAMETERS, apply=self._apply_parameters)
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.
-        self._leg_lengths_pub = self.create_publisher(
-            JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS])
-        self._reading_pubs = {
-            topic: self.create_publisher(JointState, topic, qos.TOPIC_QOS[topic])
-            for topic in (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
-        }
-        self._true_pose_pub = None
+        topics = (names.TOPIC_LEG_LENGTHS, *node_tools.DEVICE_TOPICS)
         if self._run.has_true_pose:
-            self._true_pose_pub = self.create_publisher(
-                PoseStamped, names.TOPIC_TRUE_POSE, qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
-        self._status_pub = self.create_publisher(
-            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
-        self.create_subscription(
-            PoseStamped, names.TOPIC_POSE_COMMAND, self._on_pose_command,
-            qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
+            topics += (names.TOPIC_TRUE_POSE,)
+        self._pubs = node_tools.create_publishers(self, topics)
+        self._commands = PoseCommandServer(
+            self, self._frame_id, values['settle_time'], self._move, on_settled=self._restart_stream
+        )
         self.create_timer(1.0 / values['publish_rate'], self._publish_sample)
-        self._settle_timer = self.create_timer(1.0, self._on_settle_timer, autostart=False)
 
         run = self._run
         samples = sum(len(p.stream) for p in run.postures)
         self.get_logger().info(
             f'replay ready: {len(run)} posture(s), {samples} sample(s) from {run.source} '
             f'({run.kind}), publishing at {values["publish_rate"]:g} Hz, settle time '
-            f'{self._settle_time:g} s, pose tolerance {self._tolerance:g}, true pose '
-            f'{"replayed" if run.has_true_pose else "not recorded"}')
+            f'{values["settle_time"]:g} s, pose tolerance {self._tolerance:g}, true pose '
+            f'{"replayed" if run.has_true_pose else "not recorded"}'
+        )
         for k, why in run.skipped:
             self.get_logger().info(f'recorded command {k} gives no posture: {why}')
 
-    # ------------------------------------------------------------------------- parameters
+    def _apply_parameters(self, changes):
+        """Apply accepted run-time changes (checked by node_tools.watch_parameters)."""
+        if 'settle_time' in changes:
+            self._commands.settle_time = changes['settle_time']
+        if 'pose_tolerance' in changes:
+            self._tolerance = changes['pose_tolerance']
 
-    def _declare_parameters(self):
-        self.declare_parameter('run', '', parameter_descriptor(
-            'Recorded run to replay: a run directory (its samples.csv, else its '
-            'recording.mcap), a samples.csv or a recording.mcap', read_only=True,
-            constraints='required, readable'))
-        self.declare_parameter('publish_rate', 200.0, parameter_descriptor(
-            'Rate of the replayed samples (Hz)', read_only=True, constraints='> 0'))
-        self.declare_parameter('settle_time', 0.05, parameter_descriptor(
-            "Time from the 'moving' to the 'settled' status of a recorded posture (s)",
-            float_range=(0.0, 60.0)))
-        self.declare_parameter('pose_tolerance', 1e-6, parameter_descriptor(
-            'Largest distance of a command to a recorded commanded pose: position (m) and '
-            'rotation angle (rad)', float_range=(0.0, 1.0), constraints='> 0'))
-        self.declare_parameter('frame_id', names.FRAME_BASE, parameter_descriptor(
-            'Base frame: of the published messages, and required of pose commands',
-            read_only=True))
-
-    def _validate_parameters(self, parameters):
-        """on-set callback: reject a bad value with the reason (nothing is applied here)."""
-        reason = check_parameters({p.name: p.value for p in parameters})
-        return SetParametersResult(successful=not reason, reason=reason)
-
-    def _apply_parameters(self, parameters):
-        """post-set callback: apply the accepted values."""
-        for parameter in parameters:
-            if parameter.name == 'settle_time':
-                self._settle_time = parameter.value
-            elif parameter.name == 'pose_tolerance':
-                self._tolerance = parameter.value
-
-    # --------------------------------------------------------------------------- commands
-
-    def _publish_status(self, command_id, state, reason=''):
-        self._status_pub.publish(conversions.make_status(command_id, state, reason))
-
-    def _reject(self, command_id, reason):
-        self._publish_status(command_id, names.STATE_REJECTED, reason)
-        self.get_logger().warning(f'pose command {command_id} rejected: {reason}',
-                                  throttle_duration_sec=WARN_THROTTLE_S)
-
-    def _on_pose_command(self, msg):
-        try:
-            command_id = conversions.command_id_from_stamp(msg.header.stamp)
-        except (TypeError, ValueError) as error:  # pragma: no cover - a typed message
-            self.get_logger().warning(f'ignoring a pose command: {error}',
-                                      throttle_duration_sec=WARN_THROTTLE_S)
-            return
-        try:
-            pose = checks.pose_in_frame(msg, self._frame_id)
-            posture = self._run.match(pose, self._tolerance)
-        except (TypeError, ValueError) as error:
-            self._reject(command_id, str(error))
-            return
+    def _move(self, command_id, pose):
+        """PoseCommandServer callback: stream the recorded posture of ``pose``, or refuse it."""
+        posture = self._run.match(pose, self._tolerance)
         if posture is None:
-            self._reject(command_id, REASON_NOT_RECORDED)
-            return
-        if self._pending is not None:
-            self._reject(self._pending[0], f'superseded by command {command_id} before settling')
+            return REASON_NOT_RECORDED
         self._stream, self._cursor, self._resume_ns = posture.stream, 0, None
-        self._publish_status(command_id, names.STATE_MOVING)
         self.get_logger().debug(f'pose command {command_id}: recorded posture {posture.posture}')
-        if self._settle_time <= 0.0:
-            self._pending = None
-            self._settle(command_id)
-            return
-        self._pending = (command_id, posture)
-        self._settle_timer.timer_period_ns = int(round(self._settle_time * 1e9))
-        self._settle_timer.reset()
+        return ''
 
-    def _on_settle_timer(self):
-        self._settle_timer.cancel()
-        if self._pending is not None:
-            command_id, _ = self._pending
-            self._pending = None
-            self._settle(command_id)
-
-    def _settle(self, command_id):
-        self._publish_status(command_id, names.STATE_SETTLED)
+    def _restart_stream(self, command_id):
+        """After a 'settled' status: pause, then restart at the posture's first sample."""
         self._cursor = 0
         self._resume_ns = self.get_clock().now().nanoseconds + RESTART_PERIODS * self._period_ns
 
@@ -217,25 +136,21 @@ class ReplayNode(Node):
         self._cursor = (self._cursor + 1) % len(stream)
         stamp = now.to_msg()
         try:
-            messages = [
-                (self._leg_lengths_pub,
-                 conversions.leg_lengths_to_msg(q, stamp, self._frame_id)),
-                (self._reading_pubs[names.TOPIC_INCLINOMETER], conversions.inclinometer_to_msg(
-                    readings[0], readings[1], stamp, self._frame_id)),
-                (self._reading_pubs[names.TOPIC_ENCODER],
-                 conversions.encoder_to_msg(readings[2], stamp, self._frame_id)),
-                (self._reading_pubs[names.TOPIC_LVDT],
-                 conversions.lvdt_to_msg(readings[3], stamp, self._frame_id)),
-            ]
-            if self._true_pose_pub is not None and true_pose is not None:
-                messages.append((self._true_pose_pub, conversions.pose_to_pose_stamped(
-                    true_pose, stamp, self._frame_id)))
+            messages = {
+                names.TOPIC_LEG_LENGTHS: conversions.leg_lengths_to_msg(q, stamp, self._frame_id),
+                **node_tools.device_messages(readings, stamp, self._frame_id),
+            }
+            if names.TOPIC_TRUE_POSE in self._pubs and true_pose is not None:
+                messages[names.TOPIC_TRUE_POSE] = conversions.pose_to_pose_stamped(
+                    true_pose, stamp, self._frame_id
+                )
         except ValueError as error:
-            self.get_logger().warning(f'dropping a recorded sample: {error}',
-                                      throttle_duration_sec=WARN_THROTTLE_S)
+            self.get_logger().warning(
+                f'dropping a recorded sample: {error}', throttle_duration_sec=WARN_THROTTLE_S
+            )
             return
-        for publisher, msg in messages:
-            publisher.publish(msg)
+        for topic, msg in messages.items():
+            self._pubs[topic].publish(msg)
 
     @property
     def run(self):

@@ -1,9 +1,8 @@
 """The run directory of a calibration: ``<root>/<UTC timestamp>/`` (pure, no rclpy).
 
-Every file is written atomically: a temporary file in the same directory, flushed, then
-``os.replace`` over the target, so a reader never sees a half-written file.
+Every file is written atomically (:mod:`gsp_kinematics.fileio`), JSON strictly (NaN as null).
 
-Files (see docs/design.md): ``samples.csv`` (:data:`SAMPLES_COLUMNS`, SI, one row per posture),
+Files (see docs/data.md): ``samples.csv`` (:data:`SAMPLES_COLUMNS`, SI, one row per posture),
 ``result.yaml`` (canonical geometry params file), ``summary.json`` and any other file added
 through :meth:`RunDirectory.write_text`, :meth:`~RunDirectory.write_bytes` or
 :meth:`~RunDirectory.write_json`.
@@ -16,11 +15,11 @@ import io
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from gsp_kinematics.fileio import atomic_write_bytes, atomic_write_text, to_json
 from gsp_kinematics.geometry import load_geometry, save_geometry
 
 SAMPLES_FILE = 'samples.csv'
@@ -41,50 +40,6 @@ TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
 
 class RunDirectoryError(ValueError):
     """A run-directory file is missing or malformed; the message names the file and row."""
-
-
-# --- atomic writes -------------------------------------------------------------------------------
-
-
-def atomic_write_bytes(path, data):
-    """Write ``data`` to ``path`` atomically (temporary file in the same directory + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-    try:
-        with os.fdopen(handle, 'wb') as stream:
-            stream.write(data)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        try:
-            os.unlink(temporary)
-        except FileNotFoundError:
-            pass
-        raise
-    return path
-
-
-def atomic_write_text(path, text):
-    """Write UTF-8 ``text`` to ``path`` atomically."""
-    return atomic_write_bytes(path, text.encode('utf-8'))
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.floating, np.integer, np.bool_)):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f'{type(value).__name__} is not JSON serialisable')
-
-
-def to_json(data):
-    """JSON text (indented, numpy-aware) of ``data``."""
-    return json.dumps(data, indent=2, sort_keys=False, default=_json_default) + '\n'
 
 
 # --- samples.csv ---------------------------------------------------------------------------------
@@ -115,8 +70,14 @@ class Samples:
 
     @classmethod
     def empty(cls):
-        return cls(np.zeros(0, int), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 4)),
-                   np.zeros(0, int), np.zeros(0))
+        return cls(
+            np.zeros(0, int),
+            np.zeros((0, 6)),
+            np.zeros((0, 6)),
+            np.zeros((0, 4)),
+            np.zeros(0, int),
+            np.zeros(0),
+        )
 
     def append(self, posture, commanded_pose, leg_lengths, readings, n_samples, stamp):
         """Add one row (in place)."""
@@ -288,6 +249,3 @@ class RunDirectory:
 
     def read_geometry(self, name=RESULT_FILE):
         return load_geometry(self.file(name))
-
-    def write_summary(self, summary, name=SUMMARY_FILE):
-        return self.write_json(name, summary)

@@ -1,13 +1,14 @@
 """Parameters of the ``calibrator`` node: names, defaults, units, checks (pure, no rclpy).
 
-:data:`PARAMETERS` is the single source of the declarations (the node builds its
-``ParameterDescriptor`` objects from it, the README table follows it); :func:`check_parameters`
-gives the reason a set of values is rejected, at start-up and in the set-parameters callback;
-:meth:`CalibratorSettings.from_values` turns accepted values into the settings of one run.
+:data:`PARAMETERS` is the single source of the declarations (the node declares them with
+:func:`gsp_msgs_py.node_tools.declare_parameters`; docs/parameters.md is generated from it);
+:func:`check_parameters` gives the reason a set of values is rejected, at start-up and in the
+set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
+settings of one run.
 """
 
 import dataclasses
-import math
+import os
 import re
 
 from gsp_kinematics.geometry import (
@@ -17,75 +18,11 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.identification import FORMULATIONS, Sigmas
+from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
 
 DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
 
-
-@dataclasses.dataclass(frozen=True)
-class ParameterSpec:
-    """One parameter: its default (which fixes its ROS type), unit and description."""
-
-    name: str
-    default: object
-    unit: str
-    description: str
-    constraints: str
-
-
-PARAMETERS = (
-    ParameterSpec('nominal_geometry_file', default_geometry_path('nominal'), '',
-                  'Geometry params file of the nominal (design) geometry the identification '
-                  'starts from; also used to choose reachable postures',
-                  'a readable geometry params file'),
-    ParameterSpec('posture_count', 60, '', 'Postures selected and commanded per calibration',
-                  '>= 1 and <= pool_size'),
-    ParameterSpec('pool_size', 600, '',
-                  'Random reachable postures the selection (condition-number criterion) chooses '
-                  'from', '>= posture_count'),
-    ParameterSpec('samples_per_posture', 10, '',
-                  'Synchronised (leg lengths, device) samples averaged per posture', '>= 1'),
-    ParameterSpec('sync_tolerance', 0.0025, 's',
-                  'Largest stamp difference of a leg-length sample and the device sample it is '
-                  'paired with (about half the sensor period)', '>= 0'),
-    ParameterSpec('settle_timeout', 5.0, 's',
-                  "Longest wait for a commanded posture's 'settled' status after its first "
-                  'status; a posture that does not settle is skipped', '> 0'),
-    ParameterSpec('topic_timeout', 2.0, 's',
-                  'Longest silence of a topic (or service) the run waits on before it ends with '
-                  'an error naming it', '> 0'),
-    ParameterSpec('seed', 0, '', 'Seed of the random posture pool', '>= 0'),
-    ParameterSpec('free_parameters', list(PARAMETER_NAMES), '',
-                  'Parameters identified (A1x..B6z, Loff1..Loff6, D0, gamma); the others keep '
-                  'their nominal values', 'non-empty, known names, no duplicates'),
-    ParameterSpec('formulation', 'implicit', '',
-                  'Identification formulation: implicit (all sensors, poses as unknowns), fk '
-                  "(device residuals through FK) or paper (the paper's eq 11)",
-                  'one of ' + ', '.join(FORMULATIONS)),
-    ParameterSpec('sigma_leg_lengths', DEFAULT_SIGMAS.leg_lengths, 'm',
-                  'Noise std of one leg-length sample (weight of the leg residuals)', '> 0'),
-    ParameterSpec('sigma_inclinometer', DEFAULT_SIGMAS.inclinometer, 'rad',
-                  'Noise std of one inclinometer sample (alpha, beta)', '> 0'),
-    ParameterSpec('sigma_encoder', DEFAULT_SIGMAS.encoder, 'rad',
-                  'Noise std of one encoder sample (phi)', '> 0'),
-    ParameterSpec('sigma_lvdt', DEFAULT_SIGMAS.lvdt, 'm',
-                  'Noise std of one LVDT sample (d_m)', '> 0'),
-    ParameterSpec('output_root', 'runs', '',
-                  'Directory under which each run writes <UTC timestamp>/ (samples.csv, '
-                  'result.yaml)', 'non-empty path'),
-    ParameterSpec('apply_result', False, '',
-                  'After a successful calibration, set the geometry.* parameters of '
-                  'platform_node_name (its controller) through its parameter service', ''),
-    ParameterSpec('platform_node_name', 'platform_sim', '',
-                  'Node whose geometry.* parameters apply_result sets', 'a valid node name'),
-)
-PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
-DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
-
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
-
-
-def _finite_number(value):
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _check_free(value):
@@ -94,8 +31,10 @@ def _check_free(value):
         return 'must name at least one parameter'
     unknown = [n for n in names if n not in PARAMETER_NAMES]
     if unknown:
-        return (f'unknown parameter name(s) {unknown}; expected names among A1x..A6z, B1x..B6z, '
-                'Loff1..Loff6, D0, gamma')
+        return (
+            f'unknown parameter name(s) {unknown}; expected names among A1x..A6z, B1x..B6z, '
+            'Loff1..Loff6, D0, gamma'
+        )
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
         return f'duplicated name(s) {duplicated}'
@@ -112,49 +51,162 @@ def _check_geometry_file(value):
     return ''
 
 
-def _positive(value):
-    return '' if _finite_number(value) and value > 0.0 else 'must be a finite number > 0'
+_POSITIVE = greater_than(0.0, reason='must be a finite number > 0')
+
+PARAMETERS = (
+    ParameterSpec(
+        'nominal_geometry_file',
+        default_geometry_path('nominal'),
+        'Geometry params file of the nominal (design) geometry the identification '
+        'starts from; also used to choose reachable postures',
+        constraints='a readable geometry params file',
+        check=_check_geometry_file,
+        default_text='gsp_kinematics/data/nominal_geometry.yaml (shipped)',
+    ),
+    ParameterSpec(
+        'posture_count',
+        60,
+        'Postures selected and commanded per calibration',
+        constraints='>= 1 and <= pool_size',
+        check=at_least(1),
+    ),
+    ParameterSpec(
+        'pool_size',
+        600,
+        'Random reachable postures the selection (condition-number criterion) chooses from',
+        constraints='>= posture_count',
+        check=at_least(1),
+    ),
+    ParameterSpec(
+        'samples_per_posture',
+        10,
+        'Synchronised (leg lengths, device) samples averaged per posture',
+        constraints='>= 1',
+        check=at_least(1),
+    ),
+    ParameterSpec(
+        'sync_tolerance',
+        0.0025,
+        'Largest stamp difference of a leg-length sample and the device sample it is '
+        'paired with (about half the sensor period)',
+        unit='s',
+        constraints='>= 0',
+        check=at_least(0.0, reason='must be finite and >= 0 s'),
+    ),
+    ParameterSpec(
+        'settle_timeout',
+        5.0,
+        "Longest wait for a commanded posture's 'settled' status after its first "
+        'status; a posture that does not settle is skipped',
+        unit='s',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'topic_timeout',
+        2.0,
+        'Longest silence of a topic (or service) the run waits on before it ends with '
+        'an error naming it',
+        unit='s',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'seed', 0, 'Seed of the random posture pool', constraints='>= 0', check=at_least(0)
+    ),
+    ParameterSpec(
+        'free_parameters',
+        list(PARAMETER_NAMES),
+        'Parameters identified (A1x..B6z, Loff1..Loff6, D0, gamma); the others keep '
+        'their nominal values',
+        constraints='non-empty, known names, no duplicates',
+        check=_check_free,
+    ),
+    ParameterSpec(
+        'formulation',
+        'implicit',
+        'Identification formulation: implicit (all sensors, poses as unknowns), fk '
+        "(device residuals through FK) or paper (the paper's eq 11)",
+        constraints='one of ' + ', '.join(FORMULATIONS),
+        check=one_of(FORMULATIONS),
+    ),
+    ParameterSpec(
+        'sigma_leg_lengths',
+        DEFAULT_SIGMAS.leg_lengths,
+        'Noise std of one leg-length sample (weight of the leg residuals)',
+        unit='m',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'sigma_inclinometer',
+        DEFAULT_SIGMAS.inclinometer,
+        'Noise std of one inclinometer sample (alpha, beta)',
+        unit='rad',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'sigma_encoder',
+        DEFAULT_SIGMAS.encoder,
+        'Noise std of one encoder sample (phi)',
+        unit='rad',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'sigma_lvdt',
+        DEFAULT_SIGMAS.lvdt,
+        'Noise std of one LVDT sample (d_m)',
+        unit='m',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'output_root',
+        'runs',
+        'Directory under which each run writes <UTC timestamp>/ (samples.csv, result.yaml)',
+        constraints='non-empty path',
+        check=lambda v: '' if str(v).strip() else 'must not be empty',
+    ),
+    ParameterSpec(
+        'apply_result',
+        False,
+        'After a successful calibration, set the geometry.* parameters of '
+        'platform_node_name (its controller) through its parameter service',
+    ),
+    ParameterSpec(
+        'platform_node_name',
+        'platform_sim',
+        'Node whose geometry.* parameters apply_result sets',
+        constraints='a valid node name',
+        check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
+    ),
+)
+PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
+DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
 
 
-_CHECKS = {
-    'nominal_geometry_file': _check_geometry_file,
-    'posture_count': lambda v: '' if v >= 1 else 'must be >= 1',
-    'pool_size': lambda v: '' if v >= 1 else 'must be >= 1',
-    'samples_per_posture': lambda v: '' if v >= 1 else 'must be >= 1',
-    'sync_tolerance': lambda v: '' if _finite_number(v) and v >= 0.0 else 'must be finite and >= 0 s',
-    'settle_timeout': _positive,
-    'topic_timeout': _positive,
-    'seed': lambda v: '' if v >= 0 else 'must be >= 0',
-    'free_parameters': _check_free,
-    'formulation': lambda v: '' if v in FORMULATIONS else f'must be one of {list(FORMULATIONS)}',
-    'sigma_leg_lengths': _positive,
-    'sigma_inclinometer': _positive,
-    'sigma_encoder': _positive,
-    'sigma_lvdt': _positive,
-    'output_root': lambda v: '' if str(v).strip() else 'must not be empty',
-    'apply_result': lambda v: '',
-    'platform_node_name': lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
-}
+def check_combination(values):
+    """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
+    (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
+    if values['posture_count'] > values['pool_size']:
+        return (
+            f'posture_count ({values["posture_count"]}) must not exceed pool_size '
+            f'({values["pool_size"]})'
+        )
+    return ''
 
 
 def check_parameters(changes, current=None):
     """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid.
 
-    Each changed value is checked alone, then the combination (``posture_count <= pool_size``).
+    Each changed value is checked alone, then the combination (``posture_count <= pool_size``);
+    the ``validate`` of ``watch_parameters``.
     """
-    for name, value in changes.items():
-        if name not in _CHECKS:
-            continue
-        reason = _CHECKS[name](value)
-        if reason:
-            shown = value if not isinstance(value, (list, tuple)) or len(value) < 8 else '[...]'
-            return f'{name}: {shown!r} rejected, {reason}'
-    merged = dict(DEFAULTS if current is None else current)
-    merged.update(changes)
-    if merged['posture_count'] > merged['pool_size']:
-        return (f"posture_count ({merged['posture_count']}) must not exceed pool_size "
-                f"({merged['pool_size']})")
-    return ''
+    return check_values(PARAMETER_SPECS, changes) or check_combination(
+        {**(DEFAULTS if current is None else current), **changes}
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,6 +228,15 @@ class CalibratorSettings:
     output_root: str
     apply_result: bool
     platform_node_name: str
+
+    def describe(self):
+        """One line for the log: the nominal file, counts, formulation and output root."""
+        return (
+            f'nominal {self.nominal_geometry_file}, {self.posture_count} postures from a pool of '
+            f'{self.pool_size}, {self.samples_per_posture} samples each, {self.formulation} '
+            f'formulation, {len(self.free_parameters)} free parameters, output under '
+            f'{os.path.abspath(self.output_root)}'
+        )
 
     @classmethod
     def from_values(cls, values):

@@ -1,20 +1,39 @@
-"""Pure parts of gsp_calibrator.bench_end_to_end (no processes started)."""
+"""Pure parts of gsp_calibrator.bench_end_to_end (no processes started) and gsp_bench's wiring."""
 
+import json
 import random
 
 from gsp_calibrator import bench_end_to_end as bench
 
-LOG_OK = '[WARN] [1.0] [calibrator]: posture 2/3 skipped: rejected by the platform: singular\n'
+PLATFORM_REJECTION = {
+    'posture': 2,
+    'reason': 'rejected by the platform: singular',
+    'rejected_by_platform': True,
+}
+NO_DROPS = {'leg_lengths': 0, 'inclinometer': 0, 'encoder': 0, 'lvdt': 0}
 
 
-def _run(samples, log=LOG_OK, exit_code=0):
-    return {'exit_code': exit_code, 'samples': samples, 'calibrator_log': log}
+def _collection(skipped=(PLATFORM_REJECTION,), inconsistent=0, non_finite=None):
+    return {
+        'skipped': list(skipped),
+        'inconsistent_dropped': inconsistent,
+        'non_finite_dropped': dict(NO_DROPS, **(non_finite or {})),
+    }
+
+
+def _run(samples, collection=None, exit_code=0, where='result'):
+    run = {'exit_code': exit_code, 'samples': samples, 'result': None, 'summary': None}
+    if collection is not None:
+        run[where] = {'collection': collection}
+    return run
 
 
 def test_environment_is_loopback_with_a_fresh_domain():
     env = bench.demo_environment({'ROS_DOMAIN_ID': '7'}, rng=random.Random(0), used=range(1, 101))
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert env['ROS_DOMAIN_ID'] == '101'
+    assert env['PYTHONUNBUFFERED'] == '1' and env['OPENBLAS_NUM_THREADS'] == '1'
+    assert bench.demo_environment({'OPENBLAS_NUM_THREADS': '2'})['OPENBLAS_NUM_THREADS'] == '2'
 
 
 def test_command_passes_rate_and_postures():
@@ -24,15 +43,64 @@ def test_command_passes_rate_and_postures():
     assert argv[argv.index('--output-root') + 1] == '/tmp/x'
 
 
+def test_the_run_directory_is_found_under_the_output_root_and_read(tmp_path):
+    assert bench.find_run_directory(tmp_path / 'absent') is None
+    assert bench.find_run_directory(tmp_path) is None
+    run_directory = tmp_path / '20250101T120000Z'
+    run_directory.mkdir()
+    (tmp_path / 'stray.txt').write_text('not a run')
+    assert bench.find_run_directory(tmp_path) == run_directory
+    assert bench.read_run_directory(run_directory) == {
+        'summary': None,
+        'samples': None,
+        'result': None,
+    }
+    (run_directory / 'samples.csv').write_text('posture,n_samples,stamp\n1,10,0.5\n3,9,0.7\n')
+    (run_directory / 'summary.json').write_text(json.dumps({'calibration_s': 12.5}))
+    (run_directory / 'result.json').write_text(json.dumps({'collection': _collection()}))
+    read = bench.read_run_directory(run_directory)
+    assert read['samples'] == [(1, 10), (3, 9)] and read['summary'] == {'calibration_s': 12.5}
+    assert read['result']['collection'] == _collection()
+
+
 def test_sync_check_passes_with_full_samples_and_platform_rejections():
+    for where in ('result', 'summary'):  # the demo keeps a copy of the record in summary.json
+        check = bench.sync_check(_run([(1, 10), (3, 10)], _collection(), where=where), 3)
+        assert check['passed'] is True and check['postures_rejected_by_platform'] == 1
+        assert check['dropped_samples'] == 0 and check['non_finite_dropped'] == 0
+
+
+def test_sync_check_fails_on_drops_skips_short_rows_missing_postures_or_failure():
+    full = [(1, 10), (3, 10)]
+    dropped = bench.sync_check(_run(full, _collection(inconsistent=2)), 3)
+    assert dropped['dropped_samples'] == 2 and dropped['passed'] is False
+    non_finite = bench.sync_check(_run(full, _collection(non_finite={'encoder': 1})), 3)
+    assert non_finite['non_finite_dropped'] == 1 and non_finite['passed'] is False
+    other = dict(PLATFORM_REJECTION, reason='no synchronised sample', rejected_by_platform=False)
+    skipped = bench.sync_check(_run(full, _collection(skipped=[other])), 3)
+    assert skipped['postures_skipped_other'] == 1 and skipped['passed'] is False
+    assert bench.sync_check(_run([(1, 9), (3, 10)], _collection()), 3)['passed'] is False
+    missing = bench.sync_check(_run([(1, 10)], _collection()), 3)
+    assert missing['postures_missing'] == 1 and missing['passed'] is False
+    assert bench.sync_check(_run(full, _collection(), exit_code=1), 3)['passed'] is False
+
+
+def test_sync_check_without_a_collection_record_is_unknown_not_a_crash():
     check = bench.sync_check(_run([(1, 10), (3, 10)]), 3)
-    assert check['passed'] and check['postures_rejected_by_platform'] == 1
+    assert check['passed'] is None and check['dropped_samples'] is None
+    assert check['postures_collected'] == 2 and check['postures_short'] == 0
+    assert bench.sync_check(_run([(1, 10), (3, 10)], exit_code=1), 3)['passed'] is False
 
 
-def test_sync_check_fails_on_drops_short_rows_missing_postures_or_failure():
-    dropped = LOG_OK + 'posture 1/3: dropped 2 synchronised sample(s) inconsistent\n'
-    assert bench.sync_check(_run([(1, 10), (3, 10)], dropped), 3)['dropped_samples'] == 2
-    assert not bench.sync_check(_run([(1, 10), (3, 10)], dropped), 3)['passed']
-    assert not bench.sync_check(_run([(1, 9), (3, 10)]), 3)['passed']
-    assert not bench.sync_check(_run([(1, 10)]), 3)['passed']
-    assert not bench.sync_check(_run([(1, 10), (3, 10)], exit_code=1), 3)['passed']
+def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
+    # Imported here: gsp_calibrator.bench needs gsp_experiments, the pure checks above do not.
+    from gsp_calibrator import bench as calibrator_bench
+
+    calls = []
+    monkeypatch.setattr(
+        calibrator_bench.bench,
+        'main',
+        lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
+    )
+    assert calibrator_bench.main(['--skip-end-to-end']) == 0
+    assert calls == [(['--skip-end-to-end'], {'end_to_end': bench.run})]

@@ -27,9 +27,14 @@ def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, s
     scale = 1.0 / math.sqrt(n_samples)
     samples = Samples.empty()
     for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
-        samples.append(k, pose, legs + rng.normal(0, sigmas.leg_lengths * scale, 6),
-                       reading + rng.normal(0, 1, 4) * sigmas.readings() * scale,
-                       n_samples, 1.7e9 + k)
+        samples.append(
+            k,
+            pose,
+            legs + rng.normal(0, sigmas.leg_lengths * scale, 6),
+            reading + rng.normal(0, 1, 4) * sigmas.readings() * scale,
+            n_samples,
+            1.7e9 + k,
+        )
     return samples
 
 
@@ -62,15 +67,15 @@ def test_selection_key_changes_with_its_inputs():
     assert key != calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, ['D0'], 'implicit')
     assert key != calibration.selection_key(TRUE, 60, 600, 0, SIGMAS, None, 'implicit')
     # fk and paper select with the same (FK) information model.
-    assert (calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'fk')
-            == calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'paper'))
+    assert calibration.selection_key(
+        NOMINAL, 60, 600, 0, SIGMAS, None, 'fk'
+    ) == calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'paper')
 
 
 @pytest.mark.parametrize('formulation', ['implicit', 'fk'])
 def test_identification_recovers_the_true_geometry(selection, formulation):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS,
-                                                formulation=formulation)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, formulation=formulation)
     assert outcome.success, outcome.message
     assert outcome.postures == len(samples) and outcome.duration_s > 0
     errors = parameter_errors(outcome.geometry, TRUE)
@@ -83,8 +88,9 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
 
 def test_a_subset_of_free_parameters_keeps_the_others_nominal(selection):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS,
-                                                free=['Loff1', 'Loff2', 'D0', 'gamma'])
+    outcome = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, free=['Loff1', 'Loff2', 'D0', 'gamma']
+    )
     assert outcome.success, outcome.message
     vector, nominal = outcome.geometry.to_vector(), NOMINAL.to_vector()
     assert outcome.result.free.sum() == 4
@@ -96,16 +102,18 @@ def test_too_few_postures_name_the_unidentifiable_parameters(selection):
     outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
     assert not outcome.success and outcome.geometry is None
     assert 'non-identifiable parameters' in outcome.message
-    assert outcome.unidentifiable and all(name in outcome.message
-                                          for name in outcome.unidentifiable)
+    assert outcome.unidentifiable and all(
+        name in outcome.message for name in outcome.unidentifiable
+    )
     assert outcome.identifiability['rank'] < 44
     assert 'nothing applied' in outcome.message
 
 
 def test_no_convergence_is_a_failure(selection):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS,
-                                                options=Options(max_iterations=1))
+    outcome = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, options=Options(max_iterations=1)
+    )
     assert not outcome.success and outcome.geometry is None
     assert 'did not converge' in outcome.message
 
@@ -127,16 +135,18 @@ def test_bad_inputs_are_a_failure_not_an_exception(selection):
 def test_response_round_trip(selection, tmp_path):
     samples = synthetic_samples(selection.poses)
     outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
-    summary = calibration.outcome_summary(outcome, selected=40, skipped=[(7, 'rejected: far')],
-                                          run_directory=tmp_path, reference=TRUE)
+    summary = calibration.outcome_summary(
+        outcome, selected=40, skipped=[(7, 'rejected: far')], run_directory=tmp_path, reference=TRUE
+    )
     assert summary.splitlines()[0].startswith('calibration succeeded')
     assert 'skipped posture 7: rejected: far' in summary
     message = calibration.format_response(summary, outcome.geometry)
     parsed = calibration.parse_response(message)
     assert parsed.summary == summary and parsed.run_directory == str(tmp_path)
     assert parsed.identification_ms == pytest.approx(outcome.duration_s * 1000.0, abs=0.1)
-    np.testing.assert_array_equal(geometry_from_yaml(parsed.geometry_yaml).to_vector(),
-                                  outcome.geometry.to_vector())
+    np.testing.assert_array_equal(
+        geometry_from_yaml(parsed.geometry_yaml).to_vector(), outcome.geometry.to_vector()
+    )
     failed = calibration.parse_response('calibration FAILED: no posture')
     assert failed.geometry_yaml == '' and failed.run_directory == ''
     assert math.isnan(failed.identification_ms)
@@ -150,4 +160,6 @@ def test_posture_residuals_against_the_nominal_model(selection):
     assert set(residuals) == {'leg_lengths', 'alpha', 'beta', 'phi', 'd_m'}
     assert max(abs(v) for v in residuals.values()) < 1e-12
     residuals = calibration.posture_residuals(NOMINAL, pose, q + 1e-3, readings + [0, 0, 0, 2e-3])
-    assert residuals['leg_lengths'] == pytest.approx(1e-3) and residuals['d_m'] == pytest.approx(2e-3)
+    assert residuals['leg_lengths'] == pytest.approx(1e-3) and residuals['d_m'] == pytest.approx(
+        2e-3
+    )

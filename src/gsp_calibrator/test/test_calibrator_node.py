@@ -4,12 +4,9 @@ The sensors run at 100 Hz here (three nodes share one Python process); waits are
 because the machine may be loaded, and end as soon as their condition holds.
 """
 
-import itertools
 import json
-import math
 import threading
 import time
-import types
 
 import numpy as np
 import pytest
@@ -23,7 +20,7 @@ from std_srvs.srv import Trigger
 
 from gsp_calibrator import recording
 from gsp_calibrator.calibration import parse_response
-from gsp_calibrator.calibrator_node import CalibratorNode, ConfigurationError
+from gsp_calibrator.calibrator_node import CalibratorNode
 from gsp_calibrator.run_directory import RunDirectory
 from gsp_kinematics.geometry import (
     default_geometry,
@@ -32,6 +29,7 @@ from gsp_kinematics.geometry import (
     save_geometry,
 )
 from gsp_msgs_py import conversions, names, qos
+from gsp_msgs_py.node_tools import ConfigurationError
 
 RATE_HZ = 100.0
 CALL_TIMEOUT_S = 120.0
@@ -40,9 +38,14 @@ DEVICE_FREE = ['Loff1', 'Loff2', 'Loff3', 'Loff4', 'Loff5', 'Loff6', 'D0', 'gamm
 
 def calibrator_parameters(output_root, **overrides):
     values = {
-        'posture_count': 12, 'pool_size': 120, 'samples_per_posture': 5,
-        'sync_tolerance': 0.5 / RATE_HZ, 'topic_timeout': 10.0, 'settle_timeout': 10.0,
-        'output_root': str(output_root), 'free_parameters': DEVICE_FREE,
+        'posture_count': 12,
+        'pool_size': 120,
+        'samples_per_posture': 5,
+        'sync_tolerance': 0.5 / RATE_HZ,
+        'topic_timeout': 10.0,
+        'settle_timeout': 10.0,
+        'output_root': str(output_root),
+        'free_parameters': DEVICE_FREE,
     }
     values.update(overrides)
     return [Parameter(name, value=value) for name, value in values.items()]
@@ -54,7 +57,8 @@ def perturbed_truth(path):
     truth = nominal.replace(
         leg_offsets=nominal.leg_offsets + np.array([1.0, -2.0, 0.5, 1.5, -1.0, 2.0]) * 1e-3,
         device_length=nominal.device_length + 0.8e-3,
-        inclinometer_axes_angle=nominal.inclinometer_axes_angle + 0.004)
+        inclinometer_axes_angle=nominal.inclinometer_axes_angle + 0.004,
+    )
     save_geometry(truth, path)
     return truth
 
@@ -71,9 +75,11 @@ class Suite:
         self.progress = []
         self.results = []
         self.client_node.create_subscription(
-            DiagnosticStatus, names.TOPIC_CALIBRATION_PROGRESS,
+            DiagnosticStatus,
+            names.TOPIC_CALIBRATION_PROGRESS,
             lambda m: self.progress.append(conversions.parse_progress(m)),
-            qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS])
+            qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS],
+        )
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
         self.executor = MultiThreadedExecutor(num_threads=4, context=context)
         for node in self.nodes + [self.client_node]:
@@ -86,12 +92,22 @@ class Suite:
         return self.client.call_async(Trigger.Request())
 
     @staticmethod
-    def wait(future, timeout=CALL_TIMEOUT_S):
+    def wait_until(predicate, timeout=CALL_TIMEOUT_S):
+        """Wait for an event (``predicate()``); False if it has not come within ``timeout``."""
+        done = threading.Event()
         deadline = time.monotonic() + timeout
-        while not future.done() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert future.done(), 'no calibrate response'
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            done.wait(0.02)
+        return True
+
+    def wait(self, future, timeout=CALL_TIMEOUT_S):
+        assert self.wait_until(future.done, timeout), 'no calibrate response'
         return future.result()
+
+    def phase_seen(self, phase):
+        return any(p.phase == phase for p in list(self.progress))
 
     def stop_spinning(self, node):
         """The node's callbacks stop (its timers no longer publish); destroyed in close()."""
@@ -101,8 +117,7 @@ class Suite:
         # Remove the nodes first: the executor then has no new work when it shuts down.
         for node in self.executor.get_nodes():
             self.executor.remove_node(node)
-        time.sleep(0.1)
-        self.executor.shutdown(timeout_sec=5.0)
+        self.executor.shutdown(timeout_sec=5.0)  # waits for the callbacks in progress
         self.thread.join(timeout=5.0)
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
@@ -112,44 +127,62 @@ def make_suite(context, tmp_path, truth_file, calibrator_overrides=(), platform_
     from gsp_device_driver.device_driver_node import DeviceDriverNode
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
-    rate = [Parameter('publish_rate', value=RATE_HZ),
-            Parameter('true_geometry_file', value=str(truth_file))]
-    platform = PlatformSimNode(context=context, parameter_overrides=rate + [
-        Parameter('publish_markers', value=False)] + list(platform_overrides))
+    rate = [
+        Parameter('publish_rate', value=RATE_HZ),
+        Parameter('true_geometry_file', value=str(truth_file)),
+    ]
+    platform = PlatformSimNode(
+        context=context,
+        parameter_overrides=rate
+        + [Parameter('publish_markers', value=False)]
+        + list(platform_overrides),
+    )
     device = DeviceDriverNode(context=context, parameter_overrides=rate)
-    calibrator = CalibratorNode(context=context, parameter_overrides=calibrator_parameters(
-        tmp_path / 'runs', **dict(calibrator_overrides)))
+    calibrator = CalibratorNode(
+        context=context,
+        parameter_overrides=calibrator_parameters(tmp_path / 'runs', **dict(calibrator_overrides)),
+    )
     return Suite(context, [calibrator, platform, device]), calibrator, platform, device
 
 
 def test_calibration_in_process(ros_context, tmp_path):
     truth = perturbed_truth(tmp_path / 'true.yaml')
     suite, calibrator, platform, _ = make_suite(
-        ros_context, tmp_path, tmp_path / 'true.yaml', {'apply_result': True})
+        ros_context, tmp_path, tmp_path / 'true.yaml', {'apply_result': True}
+    )
     nan_publisher = suite.client_node.create_publisher(
-        JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS])
+        JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS]
+    )
     status_publisher = suite.client_node.create_publisher(
-        DiagnosticStatus, names.TOPIC_PLATFORM_STATUS, qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
+        DiagnosticStatus, names.TOPIC_PLATFORM_STATUS, qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS]
+    )
     try:
         first = suite.call()
-        time.sleep(0.5)
-        second = suite.call()
-        # The second call is answered at once, while the first still runs.
-        response = suite.wait(second, timeout=10.0)
+        # Once the run has started (its first progress), a second call is answered at once.
+        assert suite.wait_until(lambda: suite.phase_seen(names.PHASE_SELECTING))
+        response = suite.wait(suite.call(), timeout=10.0)
         assert not first.done()
         assert not response.success and response.message == 'calibration already running'
         # A non-finite reading is dropped and counted, a malformed message or status is
-        # ignored; the run carries on.
-        # Best effort: publish until one is counted (discovery of a new publisher takes time).
+        # ignored; the run carries on. A timer publishes them until one is counted (discovery
+        # of a new publisher takes time).
         bad = JointState(name=list(names.LEG_JOINT_NAMES), position=[float('nan')] * 6)
-        deadline = time.monotonic() + 30.0
-        while (calibrator._collector.non_finite['leg_lengths'] < 1 and not first.done()
-               and time.monotonic() < deadline):
+
+        counted = threading.Event()
+
+        def publish_bad():  # (a timer cancelled from another thread can break the executor)
+            if counted.is_set():
+                return
             bad.header.stamp = calibrator.get_clock().now().to_msg()
             nan_publisher.publish(bad)
             nan_publisher.publish(JointState(name=['leg_1'], position=[0.5]))
             status_publisher.publish(DiagnosticStatus(name='junk'))
-            time.sleep(0.05)
+
+        suite.client_node.create_timer(0.05, publish_bad)
+        assert suite.wait_until(
+            lambda: first.done() or calibrator._protocol.collector.non_finite['leg_lengths']
+        )
+        counted.set()
         response = suite.wait(first)
         assert response.success, response.message
 
@@ -159,11 +192,29 @@ def test_calibration_in_process(ros_context, tmp_path):
         samples = run.read_samples()
         assert 10 <= len(samples) <= 12 and set(samples.n_samples) == {5}
         calibrated = run.read_geometry()
-        assert geometry_from_yaml(parsed.geometry_yaml).to_vector().tolist() == \
-            calibrated.to_vector().tolist()
+        assert (
+            geometry_from_yaml(parsed.geometry_yaml).to_vector().tolist()
+            == calibrated.to_vector().tolist()
+        )
         errors = parameter_errors(calibrated, truth)
         assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.01  # mm, deg
-        assert calibrator._collector.non_finite['leg_lengths'] >= 1
+        # The collection's figures are data in result.json (not log text).
+        collection = json.loads((run.path / 'result.json').read_text())['collection']
+        assert collection['non_finite_dropped']['leg_lengths'] >= 1
+        assert set(collection['non_finite_dropped']) == {
+            'leg_lengths',
+            'inclinometer',
+            'encoder',
+            'lvdt',
+        }
+        assert isinstance(collection['inconsistent_dropped'], int)
+        skipped = [
+            line for line in response.message.splitlines() if line.startswith('skipped posture')
+        ]
+        assert len(collection['skipped']) == len(skipped) == 12 - len(samples)
+        assert all(
+            set(s) == {'posture', 'reason', 'rejected_by_platform'} for s in collection['skipped']
+        )
 
         # The sensor subscriptions outlive the run (ros2/rclpy#1206); messages are dropped now.
         assert calibrator._sensors.subscribed and not calibrator._sensors_active
@@ -174,8 +225,13 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert list(run.path.glob('*.png'))
         assert not list(run.path.glob('*.tmp'))
         info = recording.recording_info(run.path / 'recording.mcap')
-        for topic in (names.TOPIC_LEG_LENGTHS, names.TOPIC_ENCODER, names.TOPIC_PLATFORM_STATUS,
-                      names.TOPIC_POSE_COMMAND, names.TOPIC_CALIBRATION_PROGRESS):
+        for topic in (
+            names.TOPIC_LEG_LENGTHS,
+            names.TOPIC_ENCODER,
+            names.TOPIC_PLATFORM_STATUS,
+            names.TOPIC_POSE_COMMAND,
+            names.TOPIC_CALIBRATION_PROGRESS,
+        ):
             assert info['topics'][topic]['count'] > 0, topic
         assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
         assert info['metadata'][recording.RUN_METADATA_NAME]
@@ -188,8 +244,13 @@ def test_calibration_in_process(ros_context, tmp_path):
 
         # Progress: posture k of M through the phases.
         phases = [p.phase for p in suite.progress]
-        for phase in (names.PHASE_SELECTING, names.PHASE_MOVING, names.PHASE_COLLECTING,
-                      names.PHASE_IDENTIFYING, names.PHASE_DONE):
+        for phase in (
+            names.PHASE_SELECTING,
+            names.PHASE_MOVING,
+            names.PHASE_COLLECTING,
+            names.PHASE_IDENTIFYING,
+            names.PHASE_DONE,
+        ):
             assert phase in phases
         assert all(p.posture_count == 12 for p in suite.progress)
         assert suite.progress[-1].residuals and 'alpha' in suite.progress[-1].residuals
@@ -197,14 +258,19 @@ def test_calibration_in_process(ros_context, tmp_path):
         # The result is latched: a subscriber that comes later still gets it.
         received = []
         suite.client_node.create_subscription(
-            String, names.TOPIC_CALIBRATION_RESULT, lambda m: received.append(m.data),
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        deadline = time.monotonic() + 10.0
-        while not received and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert received and geometry_from_yaml(received[0]).to_vector().tolist() == \
-            calibrated.to_vector().tolist()
+            String,
+            names.TOPIC_CALIBRATION_RESULT,
+            lambda m: received.append(m.data),
+            QoSProfile(
+                depth=1,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            ),
+        )
+        assert suite.wait_until(lambda: received, timeout=10.0)
+        assert (
+            geometry_from_yaml(received[0]).to_vector().tolist() == calibrated.to_vector().tolist()
+        )
     finally:
         suite.close()
 
@@ -213,15 +279,18 @@ def test_unreachable_postures_are_skipped(ros_context, tmp_path):
     perturbed_truth(tmp_path / 'true.yaml')
     # The platform's controller allows less leg stroke than the nominal the postures come from.
     tight = [Parameter('geometry.limits.leg_stroke_max', value=1.0)]
-    suite, *_ = make_suite(ros_context, tmp_path, tmp_path / 'true.yaml',
-                           {'free_parameters': ['D0', 'gamma']}, tight)
+    suite, *_ = make_suite(
+        ros_context, tmp_path, tmp_path / 'true.yaml', {'free_parameters': ['D0', 'gamma']}, tight
+    )
     try:
         response = suite.wait(suite.call())
         assert response.success, response.message
-        skipped = [line for line in response.message.splitlines()
-                   if line.startswith('skipped posture')]
-        assert skipped and all('rejected by the platform' in line and 'stroke' in line
-                               for line in skipped)
+        skipped = [
+            line for line in response.message.splitlines() if line.startswith('skipped posture')
+        ]
+        assert skipped and all(
+            'rejected by the platform' in line and 'stroke' in line for line in skipped
+        )
         samples = RunDirectory(parse_response(response.message).run_directory).read_samples()
         assert len(samples) == 12 - len(skipped) >= 4
         assert any('skipped' in p.extra for p in suite.progress)
@@ -231,15 +300,17 @@ def test_unreachable_postures_are_skipped(ros_context, tmp_path):
 
 def test_a_silent_topic_ends_the_run_and_keeps_the_samples(ros_context, tmp_path):
     perturbed_truth(tmp_path / 'true.yaml')
-    suite, _, _, device = make_suite(ros_context, tmp_path, tmp_path / 'true.yaml',
-                                     {'topic_timeout': 1.0, 'posture_count': 40,
-                                      'pool_size': 200})
+    suite, _, _, device = make_suite(
+        ros_context,
+        tmp_path,
+        tmp_path / 'true.yaml',
+        {'topic_timeout': 1.0, 'posture_count': 40, 'pool_size': 200},
+    )
     try:
         future = suite.call()
-        deadline = time.monotonic() + CALL_TIMEOUT_S
-        while (sum('averaged' in p.message for p in suite.progress) < 3
-               and time.monotonic() < deadline and not future.done()):
-            time.sleep(0.01)
+        suite.wait_until(
+            lambda: future.done() or sum('averaged' in p.message for p in list(suite.progress)) >= 3
+        )
         suite.stop_spinning(device)  # the device driver stops: its topics fall silent
         response = suite.wait(future)
         assert not response.success
@@ -258,11 +329,34 @@ def test_non_identifiable_parameters_fail_and_nothing_is_applied(ros_context, tm
     perturbed_truth(tmp_path / 'true.yaml')
     # 4 postures give 16 independent equations (10 readings, 6 pose unknowns each): not
     # enough for 20 free parameters.
-    free = ['A1x', 'A1y', 'A1z', 'B1x', 'B1y', 'B1z', 'Loff1', 'A2x', 'A2y', 'A2z', 'B2x', 'B2y',
-            'B2z', 'Loff2', 'A3x', 'A3y', 'A3z', 'B3x', 'D0', 'gamma']
+    free = [
+        'A1x',
+        'A1y',
+        'A1z',
+        'B1x',
+        'B1y',
+        'B1z',
+        'Loff1',
+        'A2x',
+        'A2y',
+        'A2z',
+        'B2x',
+        'B2y',
+        'B2z',
+        'Loff2',
+        'A3x',
+        'A3y',
+        'A3z',
+        'B3x',
+        'D0',
+        'gamma',
+    ]
     suite, _, platform, _ = make_suite(
-        ros_context, tmp_path, tmp_path / 'true.yaml',
-        {'posture_count': 4, 'pool_size': 40, 'apply_result': True, 'free_parameters': free})
+        ros_context,
+        tmp_path,
+        tmp_path / 'true.yaml',
+        {'posture_count': 4, 'pool_size': 40, 'apply_result': True, 'free_parameters': free},
+    )
     before = platform.get_parameter('geometry.leg_offsets').value
     try:
         response = suite.wait(suite.call())
@@ -284,29 +378,40 @@ def test_a_device_that_does_not_follow_the_platform_is_detected(ros_context, tmp
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
     frozen = rclpy.create_node('frozen_device', context=ros_context)
-    publishers = {topic: frozen.create_publisher(JointState, topic, qos.TOPIC_QOS[topic])
-                  for topic in (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)}
+    publishers = {
+        topic: frozen.create_publisher(JointState, topic, qos.TOPIC_QOS[topic])
+        for topic in (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
+    }
     rng = np.random.default_rng(0)
 
     def publish():
         stamp = frozen.get_clock().now().to_msg()
         noise = rng.normal(0.0, 1e-6, 4)
         publishers[names.TOPIC_INCLINOMETER].publish(
-            conversions.inclinometer_to_msg(0.01 + noise[0], -0.02 + noise[1], stamp))
+            conversions.inclinometer_to_msg(0.01 + noise[0], -0.02 + noise[1], stamp)
+        )
         publishers[names.TOPIC_ENCODER].publish(conversions.encoder_to_msg(0.1 + noise[2], stamp))
         publishers[names.TOPIC_LVDT].publish(conversions.lvdt_to_msg(0.15 + noise[3], stamp))
 
     frozen.create_timer(1.0 / RATE_HZ, publish)
-    platform = PlatformSimNode(context=ros_context, parameter_overrides=[
-        Parameter('publish_rate', value=RATE_HZ), Parameter('publish_markers', value=False)])
-    calibrator = CalibratorNode(context=ros_context, parameter_overrides=calibrator_parameters(
-        tmp_path / 'runs', posture_count=2, pool_size=20))
+    platform = PlatformSimNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter('publish_rate', value=RATE_HZ),
+            Parameter('publish_markers', value=False),
+        ],
+    )
+    calibrator = CalibratorNode(
+        context=ros_context,
+        parameter_overrides=calibrator_parameters(tmp_path / 'runs', posture_count=2, pool_size=20),
+    )
     suite = Suite(ros_context, [calibrator, platform, frozen])
     try:
         response = suite.wait(suite.call())
         assert not response.success and 'no posture was collected' in response.message
-        skipped = [line for line in response.message.splitlines()
-                   if line.startswith('skipped posture')]
+        skipped = [
+            line for line in response.message.splitlines() if line.startswith('skipped posture')
+        ]
         assert len(skipped) == 2
         assert all('did not change from the previous posture' in line for line in skipped)
     finally:
@@ -315,14 +420,26 @@ def test_a_device_that_does_not_follow_the_platform_is_detected(ros_context, tmp
 
 def test_a_failed_apply_is_reported(ros_context, tmp_path):
     perturbed_truth(tmp_path / 'true.yaml')
-    suite, *_ = make_suite(ros_context, tmp_path, tmp_path / 'true.yaml', {
-        'posture_count': 4, 'pool_size': 40, 'free_parameters': ['D0', 'gamma'],
-        'apply_result': True, 'platform_node_name': 'nobody', 'topic_timeout': 1.0})
+    suite, *_ = make_suite(
+        ros_context,
+        tmp_path,
+        tmp_path / 'true.yaml',
+        {
+            'posture_count': 4,
+            'pool_size': 40,
+            'free_parameters': ['D0', 'gamma'],
+            'apply_result': True,
+            'platform_node_name': 'nobody',
+            'topic_timeout': 1.0,
+        },
+    )
     try:
         response = suite.wait(suite.call())
         assert not response.success
-        assert ('NOT applied: parameter service /nobody/set_parameters_atomically unavailable'
-                in response.message)
+        assert (
+            'NOT applied: parameter service /nobody/set_parameters_atomically unavailable'
+            in response.message
+        )
         parsed = parse_response(response.message)
         assert parsed.geometry_yaml  # the calibration itself succeeded and is kept
         assert (RunDirectory(parsed.run_directory).path / 'result.yaml').is_file()
@@ -330,27 +447,36 @@ def test_a_failed_apply_is_reported(ros_context, tmp_path):
         suite.close()
 
 
-@pytest.mark.parametrize('name, value, match', [
-    ('posture_count', 0, 'posture_count'),
-    ('free_parameters', ['A1x', 'bogus'], 'unknown parameter name'),
-    ('nominal_geometry_file', '/nonexistent.yaml', 'cannot read geometry file'),
-    ('sigma_lvdt', -1.0, 'sigma_lvdt'),
-])
+@pytest.mark.parametrize(
+    'name, value, match',
+    [
+        ('posture_count', 0, 'posture_count'),
+        ('free_parameters', ['A1x', 'bogus'], 'unknown parameter name'),
+        ('nominal_geometry_file', '/nonexistent.yaml', 'cannot read geometry file'),
+        ('sigma_lvdt', -1.0, 'sigma_lvdt'),
+    ],
+)
 def test_bad_parameters_stop_the_node_at_start_up(ros_context, name, value, match):
     with pytest.raises(ConfigurationError, match=match):
         CalibratorNode(context=ros_context, parameter_overrides=[Parameter(name, value=value)])
 
 
 def test_bad_parameters_are_rejected_at_run_time(ros_context, tmp_path):
-    node = CalibratorNode(context=ros_context, parameter_overrides=[
-        Parameter('posture_count', value=5), Parameter('pool_size', value=10),
-        Parameter('output_root', value=str(tmp_path))])
+    node = CalibratorNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter('posture_count', value=5),
+            Parameter('pool_size', value=10),
+            Parameter('output_root', value=str(tmp_path)),
+        ],
+    )
     try:
         for name, value, match in [
-                ('pool_size', 4, 'must not exceed pool_size'),
-                ('formulation', 'magic', 'must be one of'),
-                ('sync_tolerance', -0.5, 'sync_tolerance'),
-                ('platform_node_name', 'bad name', 'not a valid node name')]:
+            ('pool_size', 4, 'must not exceed pool_size'),
+            ('formulation', 'magic', 'must be one of'),
+            ('sync_tolerance', -0.5, 'sync_tolerance'),
+            ('platform_node_name', 'bad name', 'not a valid node name'),
+        ]:
             result = node.set_parameters([Parameter(name, value=value)])[0]
             assert not result.successful and match in result.reason, (name, result.reason)
         result = node.set_parameters([Parameter('formulation', value='fk')])[0]
@@ -362,15 +488,21 @@ def test_bad_parameters_are_rejected_at_run_time(ros_context, tmp_path):
         node.destroy_node()
 
 
-def test_a_wait_ends_at_its_deadline_even_while_it_progresses():
+def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     from rclpy.task import Future
 
-    from gsp_calibrator.calibrator_node import WAIT_DEADLINE, _Waiter
+    from gsp_calibrator.node_waiting import WAIT_OK, WAIT_TIMEOUT, Waits
 
-    counter = itertools.count()
-    started = time.monotonic() - 1.0
-    waiter = _Waiter(lambda: False, 10.0, (), math.inf, started, Future(),
-                     progress=lambda: next(counter), last_change=started, deadline=0.5)
-    fake = types.SimpleNamespace(_lock=threading.RLock(), _last_heard={}, _waiters=[waiter])
-    CalibratorNode._poll_waiters(fake)
-    assert waiter.future.result() == WAIT_DEADLINE and not fake._waiters
+    now = [100.0]
+    flag = []
+    waits = Waits(lambda: now[0])
+    condition = waits.add(lambda: bool(flag), 5.0, Future())
+    timeout = waits.add(lambda: False, 2.0, Future())
+    broken = waits.add(lambda: 1 / 0, 2.0, Future())
+    assert broken.result().startswith('error') and not condition.done() and len(waits) == 2
+    now[0] += 2.0
+    waits.poll()
+    assert timeout.result() == WAIT_TIMEOUT and not condition.done()
+    flag.append(True)
+    waits.poll()
+    assert condition.result() == WAIT_OK and len(waits) == 0

@@ -28,7 +28,8 @@ class FakeCalibrator:
         self.postures = postures
         self.calls = 0
         self.publisher = self.node.create_publisher(
-            DiagnosticStatus, names.TOPIC_CALIBRATION_PROGRESS, PROGRESS_QOS)
+            DiagnosticStatus, names.TOPIC_CALIBRATION_PROGRESS, PROGRESS_QOS
+        )
         self.node.create_service(Trigger, service, self._calibrate)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -41,19 +42,29 @@ class FakeCalibrator:
             time.sleep(0.01)
         count = self.postures
         for k in range(1, count + 1):
-            self.publisher.publish(conversions.make_progress(
-                k, count, names.PHASE_COLLECTING, {'alpha': 1.7e-5, 'leg_lengths': 2e-6}))
+            self.publisher.publish(
+                conversions.make_progress(
+                    k, count, names.PHASE_COLLECTING, {'alpha': 1.7e-5, 'leg_lengths': 2e-6}
+                )
+            )
             time.sleep(0.03)
         if self.success:
             self.publisher.publish(conversions.make_progress(count, count, names.PHASE_DONE))
-            summary = (f'calibration succeeded: {count} posture(s)\n'
-                       f'{calibration.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}')
+            summary = (
+                f'calibration succeeded: {count} posture(s)\n'
+                f'{calibration.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}'
+            )
             response.message = calibration.format_response(summary, default_geometry('true'))
         else:
-            self.publisher.publish(conversions.make_progress(count, count, names.PHASE_FAILED,
-                                                             message='identification failed'))
-            response.message = (f'calibration FAILED: {count} posture(s)\nreason: no luck\n'
-                                f'{calibration.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}')
+            self.publisher.publish(
+                conversions.make_progress(
+                    count, count, names.PHASE_FAILED, message='identification failed'
+                )
+            )
+            response.message = (
+                f'calibration FAILED: {count} posture(s)\nreason: no luck\n'
+                f'{calibration.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}'
+            )
         time.sleep(0.05)
         response.success = self.success
         return response
@@ -101,8 +112,9 @@ def test_client_failure_exits_1(ros_context):
 
 def test_client_without_service_times_out(ros_context):
     start = time.monotonic()
-    code, out, err = _run(ros_context, '--service', '/gsp/test/no_such_service',
-                          '--wait-timeout', '0.3')
+    code, out, err = _run(
+        ros_context, '--service', '/gsp/test/no_such_service', '--wait-timeout', '0.3'
+    )
     assert code == 1
     assert 'not available after 0.3 s' in err and out == ''
     assert time.monotonic() - start < 5.0
@@ -111,8 +123,11 @@ def test_client_without_service_times_out(ros_context):
 def test_progress_bar_rendering():
     stream = io.StringIO()
     bar = client.ProgressBar(stream, width=10, interactive=True)
-    bar.update(conversions.parse_progress(conversions.make_progress(
-        5, 10, names.PHASE_COLLECTING, {'d_m': 1e-6})))
+    bar.update(
+        conversions.parse_progress(
+            conversions.make_progress(5, 10, names.PHASE_COLLECTING, {'d_m': 1e-6})
+        )
+    )
     bar.finish()
     text = stream.getvalue()
     assert text.startswith('\r\x1b[2K[#####-----] 5/10 collecting')
@@ -120,8 +135,9 @@ def test_progress_bar_rendering():
     quiet = io.StringIO()
     bar = client.ProgressBar(quiet, interactive=False)
     for k in range(0, 61):
-        bar.update(conversions.parse_progress(conversions.make_progress(
-            k, 60, names.PHASE_COLLECTING)))
+        bar.update(
+            conversions.parse_progress(conversions.make_progress(k, 60, names.PHASE_COLLECTING))
+        )
     assert bar.updates == 61
     lines = quiet.getvalue().splitlines()
     assert 5 <= len(lines) <= 12  # about every tenth posture, not one line per update

@@ -202,13 +202,16 @@ def test_buffers_are_bounded():
     assert collector.counts()[LEG_LENGTHS] == 5 and collector.counts()['device'] == 5
 
 
-@pytest.mark.parametrize('kwargs, match', [
-    ({'sync_tolerance': -1.0, 'samples_per_posture': 1}, 'sync_tolerance'),
-    ({'sync_tolerance': math.nan, 'samples_per_posture': 1}, 'sync_tolerance'),
-    ({'sync_tolerance': 0.001, 'samples_per_posture': 0}, 'samples_per_posture'),
-    ({'sync_tolerance': 0.001, 'samples_per_posture': 5, 'max_buffer': 2}, 'max_buffer'),
-    ({'sync_tolerance': 0.001, 'samples_per_posture': 5, 'noise_std': [0.0] * 10}, 'noise_std'),
-])
+@pytest.mark.parametrize(
+    'kwargs, match',
+    [
+        ({'sync_tolerance': -1.0, 'samples_per_posture': 1}, 'sync_tolerance'),
+        ({'sync_tolerance': math.nan, 'samples_per_posture': 1}, 'sync_tolerance'),
+        ({'sync_tolerance': 0.001, 'samples_per_posture': 0}, 'samples_per_posture'),
+        ({'sync_tolerance': 0.001, 'samples_per_posture': 5, 'max_buffer': 2}, 'max_buffer'),
+        ({'sync_tolerance': 0.001, 'samples_per_posture': 5, 'noise_std': [0.0] * 10}, 'noise_std'),
+    ],
+)
 def test_invalid_settings_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
         SampleCollector(**kwargs)

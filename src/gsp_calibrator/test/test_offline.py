@@ -4,10 +4,10 @@ import json
 
 import numpy as np
 import pytest
+from synthetic import synthetic_samples as make_samples
 
 from gsp_calibrator import calibration, offline, recording
-from gsp_calibrator.run_directory import Samples, read_samples, write_samples
-from gsp_kinematics.device import device_readings
+from gsp_calibrator.run_directory import read_samples, write_samples
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
     default_geometry,
@@ -15,28 +15,23 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.identification import Sigmas
-from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000
 
 
 def synthetic_samples(count=30, seed=11, n_samples=4):
-    nominal, truth = default_geometry('nominal'), default_geometry('true')
-    rng = np.random.default_rng(seed)
-    sigmas = Sigmas()
-    poses = sample_valid_postures(nominal, count, rng)
-    legs = inverse_kinematics(truth, poses) + rng.normal(0.0, sigmas.leg_lengths, (count, 6))
-    readings = device_readings(truth, poses) + rng.normal(0.0, 1.0, (count, 4)) * sigmas.readings()
-    return Samples(np.arange(1, count + 1), poses, legs, readings, np.full(count, n_samples),
-                   1.7e9 + np.arange(count, dtype=float))
+    """Rows with 4 samples each and epoch-like stamps."""
+    return make_samples(count, seed, n_samples=n_samples, first_stamp=1.7e9)
 
 
 def _run_directory(output):
-    lines = [line for line in output.splitlines()
-             if line.startswith(calibration.RUN_DIRECTORY_LABEL)]
+    lines = [
+        line for line in output.splitlines() if line.startswith(calibration.RUN_DIRECTORY_LABEL)
+    ]
     assert lines, output
-    return lines[-1][len(calibration.RUN_DIRECTORY_LABEL):].strip()
+    return lines[-1][len(calibration.RUN_DIRECTORY_LABEL) :].strip()
 
 
 def _json_parameters(run_dir):
@@ -52,20 +47,33 @@ def test_offline_equals_the_pipeline(tmp_path, capsys):
     free = ['A1x', 'A1y', 'B2z', 'Loff3', 'D0', 'gamma']
     # What the calibrator node runs on its collected samples (nominal, sigmas, free, formulation).
     direct = calibration.identify_from_samples(
-        load_geometry(default_geometry_path('nominal')), samples, Sigmas(), free, 'implicit')
+        load_geometry(default_geometry_path('nominal')), samples, Sigmas(), free, 'implicit'
+    )
     assert direct.success, direct.message
 
-    code = offline.main([str(csv_path), '--output-root', str(tmp_path / 'runs'), '--free',
-                         'A1x,A1y', 'B2z', 'Loff3', 'D0', 'gamma', '--no-report'])
+    code = offline.main(
+        [
+            str(csv_path),
+            '--output-root',
+            str(tmp_path / 'runs'),
+            '--free',
+            'A1x,A1y',
+            'B2z',
+            'Loff3',
+            'D0',
+            'gamma',
+            '--no-report',
+        ]
+    )
     out = capsys.readouterr().out
     assert code == 0, out
     run_dir = _run_directory(out)
     assert 'calibration succeeded' in out
     calibrated = load_geometry(f'{run_dir}/result.yaml')
-    np.testing.assert_allclose(calibrated.to_vector(), direct.result.parameters, rtol=0,
-                               atol=1e-12)
-    np.testing.assert_allclose(_json_parameters(run_dir), direct.result.parameters, rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(calibrated.to_vector(), direct.result.parameters, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        _json_parameters(run_dir), direct.result.parameters, rtol=0, atol=1e-12
+    )
     again = read_samples(f'{run_dir}/samples.csv')
     np.testing.assert_array_equal(again.leg_lengths, samples.leg_lengths)
     with open(f'{run_dir}/result.json', encoding='utf-8') as stream:
@@ -80,43 +88,68 @@ def test_offline_from_run_directory_with_truth_and_report(tmp_path, capsys):
     source.mkdir()
     write_samples(source / 'samples.csv', samples)
     (source / 'true_geometry.yaml').write_text(
-        open(default_geometry_path('true'), encoding='utf-8').read(), encoding='utf-8')
-    code = offline.main([str(source), '--output-root', str(tmp_path / 'runs'),
-                         '--validation-postures', '10'])
+        open(default_geometry_path('true'), encoding='utf-8').read(), encoding='utf-8'
+    )
+    code = offline.main(
+        [str(source), '--output-root', str(tmp_path / 'runs'), '--validation-postures', '10']
+    )
     out = capsys.readouterr().out
     assert code == 0, out
     run_dir = _run_directory(out)
-    for name in ('samples.csv', 'result.yaml', 'result.json', 'report.md', 'true_geometry.yaml',
-                 'parameter_errors.png', 'chain_errors.png', 'residuals.png', 'validation.png'):
+    for name in (
+        'samples.csv',
+        'result.yaml',
+        'result.json',
+        'report.md',
+        'true_geometry.yaml',
+        'parameter_errors.png',
+        'chain_errors.png',
+        'residuals.png',
+        'validation.png',
+    ):
         assert (tmp_path / 'runs').joinpath(run_dir, name).exists(), name
     assert 'validation after' in out and 'parameter errors vs reference' in out
     direct = calibration.identify_from_samples(default_geometry('nominal'), samples, Sigmas())
-    np.testing.assert_allclose(_json_parameters(run_dir), direct.result.parameters, rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        _json_parameters(run_dir), direct.result.parameters, rtol=0, atol=1e-12
+    )
 
 
 def _write_recording(path, samples, per_posture):
     """A recorded run that gives ``samples`` (each row repeated ``per_posture`` times)."""
     with recording.McapRecorder(path) as recorder:
-        recorder.add_metadata(recording.RUN_METADATA_NAME, {
-            'sync_tolerance': '0.0025', 'samples_per_posture': str(per_posture),
-            'sigma_lvdt': '2e-06', 'formulation': '"implicit"'})
+        recorder.add_metadata(
+            recording.RUN_METADATA_NAME,
+            {
+                'sync_tolerance': '0.0025',
+                'samples_per_posture': str(per_posture),
+                'sigma_lvdt': '2e-06',
+                'formulation': '"implicit"',
+            },
+        )
         t = 1_700_000_000 * 1_000_000_000
         for m in range(len(samples)):
             command = conversions.pose_to_pose_stamped(samples.commanded_poses[m], t / 1e9)
             command_id = conversions.command_id_from_stamp(command.header.stamp)
             recorder.write(names.TOPIC_POSE_COMMAND, command, t)
-            recorder.write(names.TOPIC_PLATFORM_STATUS,
-                           conversions.make_status(command_id, names.STATE_SETTLED), t + MS)
+            recorder.write(
+                names.TOPIC_PLATFORM_STATUS,
+                conversions.make_status(command_id, names.STATE_SETTLED),
+                t + MS,
+            )
             r = samples.readings[m]
             for j in range(per_posture + 1):
                 stamp = t + 2 * MS + 5 * MS * j
-                recorder.write(names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(
-                    samples.leg_lengths[m], stamp / 1e9), stamp + 100)
+                recorder.write(
+                    names.TOPIC_LEG_LENGTHS,
+                    conversions.leg_lengths_to_msg(samples.leg_lengths[m], stamp / 1e9),
+                    stamp + 100,
+                )
                 for topic, msg in (
-                        (names.TOPIC_INCLINOMETER, conversions.inclinometer_to_msg(r[0], r[1])),
-                        (names.TOPIC_ENCODER, conversions.encoder_to_msg(r[2])),
-                        (names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3]))):
+                    (names.TOPIC_INCLINOMETER, conversions.inclinometer_to_msg(r[0], r[1])),
+                    (names.TOPIC_ENCODER, conversions.encoder_to_msg(r[2])),
+                    (names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3])),
+                ):
                     msg.header.stamp = conversions.seconds_to_stamp(stamp / 1e9)
                     recorder.write(topic, msg, stamp + 200)
             t += 100 * MS
@@ -136,10 +169,12 @@ def test_offline_from_recording(tmp_path, capsys):
     run_dir = _run_directory(out)
     assert (tmp_path / 'runs').joinpath(run_dir, 'recording.mcap').exists()
     # The options stored in the recording (here sigma_lvdt) are the run's: used when not given.
-    direct = calibration.identify_from_samples(default_geometry('nominal'), rebuilt,
-                                               Sigmas(lvdt=2e-6))
-    np.testing.assert_allclose(_json_parameters(run_dir), direct.result.parameters, rtol=0,
-                               atol=1e-12)
+    direct = calibration.identify_from_samples(
+        default_geometry('nominal'), rebuilt, Sigmas(lvdt=2e-6)
+    )
+    np.testing.assert_allclose(
+        _json_parameters(run_dir), direct.result.parameters, rtol=0, atol=1e-12
+    )
     with open(f'{run_dir}/result.json', encoding='utf-8') as stream:
         options = json.load(stream)['options']
     assert options['samples_per_posture'] == 2 and options['sync_tolerance'] == 0.0025
@@ -148,17 +183,29 @@ def test_offline_from_recording(tmp_path, capsys):
     code = offline.main([run_dir, '--output-root', str(tmp_path / 'runs'), '--no-report'])
     out = capsys.readouterr().out
     assert code == 0, out
-    np.testing.assert_allclose(_json_parameters(_run_directory(out)), direct.result.parameters,
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        _json_parameters(_run_directory(out)), direct.result.parameters, rtol=0, atol=1e-12
+    )
 
 
-@pytest.mark.parametrize('mutate, expected', [
-    (lambda text: text.replace('leg_3', 'leg_three', 1), 'columns'),
-    (lambda text: text.splitlines()[0] + '\n', 'no posture rows'),
-    (lambda text: '\n'.join(text.splitlines()[:2] + [text.splitlines()[2].replace(
-        text.splitlines()[2].split(',')[9], 'abc')]) + '\n', ':3: column leg_3'),
-    (lambda text: '', 'empty file'),
-])
+@pytest.mark.parametrize(
+    'mutate, expected',
+    [
+        (lambda text: text.replace('leg_3', 'leg_three', 1), 'columns'),
+        (lambda text: text.splitlines()[0] + '\n', 'no posture rows'),
+        (
+            lambda text: (
+                '\n'.join(
+                    text.splitlines()[:2]
+                    + [text.splitlines()[2].replace(text.splitlines()[2].split(',')[9], 'abc')]
+                )
+                + '\n'
+            ),
+            ':3: column leg_3',
+        ),
+        (lambda text: '', 'empty file'),
+    ],
+)
 def test_bad_csv_exits_2_naming_the_fault(tmp_path, capsys, mutate, expected):
     csv_path = tmp_path / 'samples.csv'
     write_samples(csv_path, synthetic_samples(count=3))
@@ -170,11 +217,14 @@ def test_bad_csv_exits_2_naming_the_fault(tmp_path, capsys, mutate, expected):
     assert not (tmp_path / 'runs').exists()
 
 
-@pytest.mark.parametrize('arguments, expected', [
-    (['--free', 'A1x', 'Z9'], "unknown parameter name(s) ['Z9']"),
-    (['--sigma-lvdt', '-1'], '--sigma-lvdt'),
-    (['--nominal', 'missing.yaml'], 'missing.yaml'),
-])
+@pytest.mark.parametrize(
+    'arguments, expected',
+    [
+        (['--free', 'A1x', 'Z9'], "unknown parameter name(s) ['Z9']"),
+        (['--sigma-lvdt', '-1'], '--sigma-lvdt'),
+        (['--nominal', 'missing.yaml'], 'missing.yaml'),
+    ],
+)
 def test_bad_options_exit_2(tmp_path, capsys, arguments, expected):
     csv_path = tmp_path / 'samples.csv'
     write_samples(csv_path, synthetic_samples(count=3))
@@ -211,13 +261,23 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
     from gsp_calibrator.report import validation_errors
 
     before = validation_errors(truth, nominal, poses)
-    outcome = offline.refresh_report(run_dir, truth=truth, validation_before=before,
-                                     write_pngs=False)
+    # The calibrator's collection record survives the rewrite.
+    collection = {
+        'skipped': [{'posture': 3, 'reason': 'x', 'rejected_by_platform': True}],
+        'inconsistent_dropped': 2,
+        'non_finite_dropped': {'leg_lengths': 1},
+    }
+    (run_dir / 'result.json').write_text(json.dumps({'collection': collection}))
+    outcome = offline.refresh_report(
+        run_dir, truth=truth, validation_before=before, write_pngs=False
+    )
     assert outcome.success
     with open(run_dir / 'result.json', encoding='utf-8') as stream:
         data = json.load(stream)
+    assert data['collection'] == collection
     assert data['parameter_errors']['reference'] == 'truth'
     assert data['validation']['before']['postures'] == 10
     direct = calibration.identify_from_samples(nominal, samples, Sigmas())
-    np.testing.assert_allclose(_json_parameters(run_dir), direct.result.parameters, rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        _json_parameters(run_dir), direct.result.parameters, rtol=0, atol=1e-12
+    )

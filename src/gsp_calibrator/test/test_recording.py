@@ -7,6 +7,7 @@ import time
 import numpy as np
 import pytest
 import yaml
+from recorded_runs import write_command
 
 from gsp_calibrator import recording
 from gsp_calibrator.collector import SampleCollector
@@ -31,8 +32,12 @@ def test_definition_is_rosbag2_concatenation():
     text = recording.message_definition('sensor_msgs/msg/JointState')
     assert text.startswith(_msg_text('sensor_msgs', 'JointState'))
     header = '\n' + SEPARATOR + 'MSG: std_msgs/Header\n' + _msg_text('std_msgs', 'Header')
-    time_part = '\n' + SEPARATOR + 'MSG: builtin_interfaces/Time\n' + _msg_text(
-        'builtin_interfaces', 'Time')
+    time_part = (
+        '\n'
+        + SEPARATOR
+        + 'MSG: builtin_interfaces/Time\n'
+        + _msg_text('builtin_interfaces', 'Time')
+    )
     assert text == _msg_text('sensor_msgs', 'JointState') + header + time_part
     # pkg/Type and pkg/msg/Type name the same type
     assert recording.message_definition('sensor_msgs/JointState') == text
@@ -42,9 +47,17 @@ def test_definition_nested_types_once():
     text = recording.message_definition('visualization_msgs/msg/MarkerArray')
     headers = [line for line in text.splitlines() if line.startswith('MSG: ')]
     assert len(headers) == len(set(headers))
-    for nested in ('visualization_msgs/Marker', 'std_msgs/Header', 'builtin_interfaces/Time',
-                   'builtin_interfaces/Duration', 'geometry_msgs/Pose', 'geometry_msgs/Point',
-                   'geometry_msgs/Quaternion', 'geometry_msgs/Vector3', 'std_msgs/ColorRGBA'):
+    for nested in (
+        'visualization_msgs/Marker',
+        'std_msgs/Header',
+        'builtin_interfaces/Time',
+        'builtin_interfaces/Duration',
+        'geometry_msgs/Pose',
+        'geometry_msgs/Point',
+        'geometry_msgs/Quaternion',
+        'geometry_msgs/Vector3',
+        'std_msgs/ColorRGBA',
+    ):
         assert f'MSG: {nested}' in headers
     assert text.count(SEPARATOR) == len(headers)
 
@@ -80,8 +93,11 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
     assert path.exists() and not os.path.exists(str(path) + '.tmp')
 
     read = list(recording.read_recording(path))
-    assert [m.topic for m in read] == [names.TOPIC_LEG_LENGTHS, names.TOPIC_PLATFORM_STATUS,
-                                       '/extra']
+    assert [m.topic for m in read] == [
+        names.TOPIC_LEG_LENGTHS,
+        names.TOPIC_PLATFORM_STATUS,
+        '/extra',
+    ]
     assert read[0].type_name == 'sensor_msgs/msg/JointState'
     assert read[0].log_time_ns == T0 + 1 and read[0].publish_time_ns == T0
     assert read[0].message == legs and read[1].message == status
@@ -94,12 +110,14 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
         assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
         assert {c.message_encoding for c in summary.channels.values()} == {'cdr'}
         channels = {c.topic: c for c in summary.channels.values()}
-        profiles = yaml.safe_load(channels[names.TOPIC_LEG_LENGTHS].metadata[
-            'offered_qos_profiles'])
+        profiles = yaml.safe_load(
+            channels[names.TOPIC_LEG_LENGTHS].metadata['offered_qos_profiles']
+        )
         assert profiles[0]['reliability'] == 'best_effort'
         assert profiles[0]['depth'] == TOPIC_QOS[names.TOPIC_LEG_LENGTHS].depth
-        latched = yaml.safe_load(channels[names.TOPIC_CALIBRATION_RESULT].metadata[
-            'offered_qos_profiles'])
+        latched = yaml.safe_load(
+            channels[names.TOPIC_CALIBRATION_RESULT].metadata['offered_qos_profiles']
+        )
         assert latched[0]['durability'] == 'transient_local'
         # A reader that only knows the schemas (as Foxglove) decodes every message.
         decoded = [m for _, _, _, m in reader.iter_decoded_messages()]
@@ -108,8 +126,10 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
 
     info = recording.recording_info(path)
     assert info['message_count'] == 3 and info['profile'] == 'ros2'
-    assert info['topics'][names.TOPIC_LEG_LENGTHS] == {'type': 'sensor_msgs/msg/JointState',
-                                                       'count': 1}
+    assert info['topics'][names.TOPIC_LEG_LENGTHS] == {
+        'type': 'sensor_msgs/msg/JointState',
+        'count': 1,
+    }
     raw = list(recording.read_recording(path, topics=names.TOPIC_PLATFORM_STATUS, raw=True))
     # (CDR padding bytes are not initialised by the serialiser: compare decoded messages)
     from rclpy.serialization import deserialize_message
@@ -141,21 +161,23 @@ def test_abort_and_errors(tmp_path):
 
 def _write_sensors(recorder, stamp, q, r, nan_encoder=False):
     seconds = stamp / 1e9
-    recorder.write(names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, seconds),
-                   stamp + MS // 5)
+    recorder.write(
+        names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, seconds), stamp + MS // 5
+    )
     device = stamp + MS // 2
-    recorder.write(names.TOPIC_INCLINOMETER,
-                   conversions.inclinometer_to_msg(r[0], r[1], device / 1e9), device + MS // 5)
+    recorder.write(
+        names.TOPIC_INCLINOMETER,
+        conversions.inclinometer_to_msg(r[0], r[1], device / 1e9),
+        device + MS // 5,
+    )
     encoder = conversions.encoder_to_msg(r[2], device / 1e9)
     if nan_encoder:
         encoder.position = [math.nan]
     recorder.write(names.TOPIC_ENCODER, encoder, device + MS // 4)
-    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9),
-                   device + MS // 3)
+    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9), device + MS // 3)
 
 
-def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=None,
-                  options=None):
+def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=None, options=None):
     """A recorded calibration: commands, statuses and sensor streams (see the test below).
 
     Returns ``[(k, pose, leg samples, reading samples), ...]`` of the values sent after settling.
@@ -163,28 +185,30 @@ def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=N
     sent = []
     with recording.McapRecorder(path) as recorder:
         if options:
-            recorder.add_metadata(recording.RUN_METADATA_NAME,
-                                  {k: str(v) for k, v in options.items()})
+            recorder.add_metadata(
+                recording.RUN_METADATA_NAME, {k: str(v) for k, v in options.items()}
+            )
         t = T0
         for k, (pose, q, r) in enumerate(postures, start=1):
-            command = conversions.pose_to_pose_stamped(pose, t / 1e9)
-            command_id = conversions.command_id_from_stamp(command.header.stamp)
-            recorder.write(names.TOPIC_POSE_COMMAND, command, t)
-            recorder.write(names.TOPIC_PLATFORM_STATUS,
-                           conversions.make_status(command_id, names.STATE_MOVING), t + MS)
+            command_id = write_command(
+                recorder,
+                t,
+                pose,
+                k in rejected,
+                posture=k,
+                note=None if notes is None else notes(t),
+            )
             if k in rejected:
-                recorder.write(names.TOPIC_PLATFORM_STATUS, conversions.make_status(
-                    command_id, names.STATE_REJECTED, 'out of reach'), t + 2 * MS)
                 t += 100 * MS
                 continue
             # Before settling: wrong values (the platform is moving), never averaged.
             _write_sensors(recorder, t + 2 * MS, np.asarray(q) + 1.0, np.asarray(r) + 1.0)
             settled = t + 10 * MS
-            if notes is not None:
-                recorder.add_metadata(recording.POSTURE_METADATA_NAME, {
-                    'command_id': command_id, 'start_ns': str(notes(t)), 'posture': str(k)})
-            recorder.write(names.TOPIC_PLATFORM_STATUS,
-                           conversions.make_status(command_id, names.STATE_SETTLED), settled)
+            recorder.write(
+                names.TOPIC_PLATFORM_STATUS,
+                conversions.make_status(command_id, names.STATE_SETTLED),
+                settled,
+            )
             legs, readings = [], []
             for j in range(per_posture + 3):
                 stamp = settled + MS + 5 * MS * j
@@ -201,9 +225,14 @@ def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=N
 
 
 def _postures(count, rng):
-    return [(np.array([0.01 * i, -0.01 * i, 1.0, 0.01, -0.02, 0.03 * i]),
-             0.4 + rng.random(6) * 0.1, np.array([0.01, -0.02, 0.03 * i, 0.002]))
-            for i in range(count)]
+    return [
+        (
+            np.array([0.01 * i, -0.01 * i, 1.0, 0.01, -0.02, 0.03 * i]),
+            0.4 + rng.random(6) * 0.1,
+            np.array([0.01, -0.02, 0.03 * i, 0.002]),
+        )
+        for i in range(count)
+    ]
 
 
 def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path):
@@ -211,8 +240,14 @@ def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path)
     postures = _postures(4, rng)
     per_posture = 3
     path = tmp_path / 'recording.mcap'
-    sent = write_session(path, postures, per_posture, rejected={2}, nan_at=(1, 1),
-                         options={'sync_tolerance': 0.0025, 'samples_per_posture': per_posture})
+    sent = write_session(
+        path,
+        postures,
+        per_posture,
+        rejected={2},
+        nan_at=(1, 1),
+        options={'sync_tolerance': 0.0025, 'samples_per_posture': per_posture},
+    )
     samples = recording.samples_from_recording(path)  # options as stored
     assert list(samples.posture) == [1, 3, 4]  # posture 2 rejected, numbers kept
     for row, (k, pose, legs, readings) in enumerate(sent):
@@ -220,10 +255,12 @@ def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path)
         np.testing.assert_allclose(samples.commanded_poses[row], pose, atol=1e-12)
         # The first per_posture complete pairs after settling (posture 1: instant j=1 has a NaN
         # encoder reading, so its leg sample stays unpaired and j=0,2,3 are averaged).
-        np.testing.assert_allclose(samples.leg_lengths[row], np.mean(legs[:per_posture], axis=0),
-                                   rtol=0, atol=1e-15)
-        np.testing.assert_allclose(samples.readings[row],
-                                   np.mean(readings[:per_posture], axis=0), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(
+            samples.leg_lengths[row], np.mean(legs[:per_posture], axis=0), rtol=0, atol=1e-15
+        )
+        np.testing.assert_allclose(
+            samples.readings[row], np.mean(readings[:per_posture], axis=0), rtol=0, atol=1e-15
+        )
         assert samples.n_samples[row] == per_posture
     # Same result as driving the collector by hand with the same pairs.
     collector = SampleCollector(0.0025, per_posture)
@@ -273,11 +310,14 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(source)
     executor.add_node(sink)
-    legs_pub = source.create_publisher(type(conversions.leg_lengths_to_msg(np.zeros(6))),
-                                       names.TOPIC_LEG_LENGTHS,
-                                       TOPIC_QOS[names.TOPIC_LEG_LENGTHS])
-    result_pub = source.create_publisher(String, names.TOPIC_CALIBRATION_RESULT,
-                                         TOPIC_QOS[names.TOPIC_CALIBRATION_RESULT])
+    legs_pub = source.create_publisher(
+        type(conversions.leg_lengths_to_msg(np.zeros(6))),
+        names.TOPIC_LEG_LENGTHS,
+        TOPIC_QOS[names.TOPIC_LEG_LENGTHS],
+    )
+    result_pub = source.create_publisher(
+        String, names.TOPIC_CALIBRATION_RESULT, TOPIC_QOS[names.TOPIC_CALIBRATION_RESULT]
+    )
     result_pub.publish(String(data='latched geometry'))  # before recording: latched
     recorder = recording.RunRecorder(sink)
     path = tmp_path / 'recording.mcap'
@@ -287,13 +327,14 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
         deadline = time.monotonic() + 10.0
         sent = 0
         while time.monotonic() < deadline:
-            legs_pub.publish(conversions.leg_lengths_to_msg(np.full(6, 0.1 * sent),
-                                                            time.time()))
+            legs_pub.publish(conversions.leg_lengths_to_msg(np.full(6, 0.1 * sent), time.time()))
             sent += 1
             executor.spin_once(timeout_sec=0.02)
             counts = recorder.counts
-            if (counts.get(names.TOPIC_LEG_LENGTHS, 0) >= 3
-                    and counts.get(names.TOPIC_CALIBRATION_RESULT, 0) >= 1):
+            if (
+                counts.get(names.TOPIC_LEG_LENGTHS, 0) >= 3
+                and counts.get(names.TOPIC_CALIBRATION_RESULT, 0) >= 1
+            ):
                 break
         recorder.note_collection_start('123', T0, posture=1)
         assert recorder.stop() == str(path)
@@ -307,10 +348,13 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
     assert set(info['topics']) == set(recording.SUITE_TOPICS)
     assert info['topics'][names.TOPIC_LEG_LENGTHS]['count'] >= 3
     assert info['topics'][names.TOPIC_CALIBRATION_RESULT]['count'] == 1
-    assert recording.recording_options(path) == {'sync_tolerance': 0.0025,
-                                                 'samples_per_posture': 10}
+    assert recording.recording_options(path) == {
+        'sync_tolerance': 0.0025,
+        'samples_per_posture': 10,
+    }
     assert info['metadata'][recording.POSTURE_METADATA_NAME] == [
-        {'posture': '1', 'command_id': '123', 'start_ns': str(T0)}]
+        {'posture': '1', 'command_id': '123', 'start_ns': str(T0)}
+    ]
     messages = list(recording.read_recording(path))
     result = [m.message.data for m in messages if m.topic == names.TOPIC_CALIBRATION_RESULT]
     assert result == ['latched geometry']

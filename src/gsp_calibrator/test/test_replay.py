@@ -10,6 +10,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from recorded_runs import write_command
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -21,9 +22,10 @@ from gsp_calibrator.replay import (
     RecordedRun,
     ReplayError,
 )
-from gsp_calibrator.replay_node import REASON_NOT_RECORDED, ConfigurationError, ReplayNode
+from gsp_calibrator.replay_node import REASON_NOT_RECORDED, ReplayNode
 from gsp_calibrator.run_directory import RunDirectory, Samples, write_samples
 from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py.node_tools import ConfigurationError
 
 MS = 1_000_000
 T0 = 1_700_000_000 * 1_000_000_000
@@ -36,31 +38,45 @@ TIMEOUT_S = 20.0  # generous: the machine may be loaded; waits end as soon as th
 def _samples(count=3):
     rows = Samples.empty()
     for k in range(1, count + 1):
-        rows.append(k, [0.01 * k, -0.02 * k, 1.0, 0.01 * k, -0.02, 0.3 * k],
-                    0.5 + 0.01 * np.arange(6) + 1e-3 * k, [0.01 * k, -0.02, 0.3 * k, 1e-3 * k],
-                    10, 100.0 + k)
+        rows.append(
+            k,
+            [0.01 * k, -0.02 * k, 1.0, 0.01 * k, -0.02, 0.3 * k],
+            0.5 + 0.01 * np.arange(6) + 1e-3 * k,
+            [0.01 * k, -0.02, 0.3 * k, 1e-3 * k],
+            10,
+            100.0 + k,
+        )
     return rows
 
 
 def _poses(count):
-    return [np.array([0.01 * k, -0.01 * k, 1.0 + 0.001 * k, 0.02, -0.01 * k, 0.1 * k])
-            for k in range(1, count + 1)]
+    return [
+        np.array([0.01 * k, -0.01 * k, 1.0 + 0.001 * k, 0.02, -0.01 * k, 0.1 * k])
+        for k in range(1, count + 1)
+    ]
 
 
 def _write_instant(recorder, stamp, q, r, true_pose=None):
     """One platform instant (legs + true pose) and one device instant 0.5 ms later."""
-    recorder.write(names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, stamp / 1e9),
-                   stamp + MS // 5)
+    recorder.write(
+        names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, stamp / 1e9), stamp + MS // 5
+    )
     if true_pose is not None:
-        recorder.write(names.TOPIC_TRUE_POSE,
-                       conversions.pose_to_pose_stamped(true_pose, stamp / 1e9), stamp + MS // 5)
+        recorder.write(
+            names.TOPIC_TRUE_POSE,
+            conversions.pose_to_pose_stamped(true_pose, stamp / 1e9),
+            stamp + MS // 5,
+        )
     device = stamp + MS // 2
-    recorder.write(names.TOPIC_INCLINOMETER,
-                   conversions.inclinometer_to_msg(r[0], r[1], device / 1e9), device + MS // 5)
-    recorder.write(names.TOPIC_ENCODER, conversions.encoder_to_msg(r[2], device / 1e9),
-                   device + MS // 5)
-    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9),
-                   device + MS // 5)
+    recorder.write(
+        names.TOPIC_INCLINOMETER,
+        conversions.inclinometer_to_msg(r[0], r[1], device / 1e9),
+        device + MS // 5,
+    )
+    recorder.write(
+        names.TOPIC_ENCODER, conversions.encoder_to_msg(r[2], device / 1e9), device + MS // 5
+    )
+    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9), device + MS // 5)
 
 
 def write_recording(path, poses, per_posture=4, rejected=(), true_pose=True, notes=False):
@@ -70,35 +86,38 @@ def write_recording(path, poses, per_posture=4, rejected=(), true_pose=True, not
     with recording.McapRecorder(path) as recorder:
         recorder.add_metadata(recording.RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
         for j in range(3):  # idle at home before the first command
-            _write_instant(recorder, T0 + 5 * MS * j, np.full(6, 0.7 + j * 1e-6),
-                           np.full(4, 0.07), np.array([0, 0, 1.0, 0, 0, 0]) if true_pose else None)
+            _write_instant(
+                recorder,
+                T0 + 5 * MS * j,
+                np.full(6, 0.7 + j * 1e-6),
+                np.full(4, 0.07),
+                np.array([0, 0, 1.0, 0, 0, 0]) if true_pose else None,
+            )
         t = T0 + 100 * MS
         for k, pose in enumerate(poses, start=1):
-            command = conversions.pose_to_pose_stamped(pose, t / 1e9)
-            command_id = conversions.command_id_from_stamp(command.header.stamp)
-            recorder.write(names.TOPIC_POSE_COMMAND, command, t)
-            recorder.write(names.TOPIC_PLATFORM_STATUS,
-                           conversions.make_status(command_id, names.STATE_MOVING), t + MS)
+            command_id = write_command(
+                recorder, t, pose, k in rejected, posture=k, note=t + 2 * MS if notes else None
+            )
             if k in rejected:
-                recorder.write(names.TOPIC_PLATFORM_STATUS, conversions.make_status(
-                    command_id, names.STATE_REJECTED, 'out of reach'), t + 2 * MS)
                 t += 100 * MS
                 continue
-            _write_instant(recorder, t + 2 * MS, np.full(6, 9.0), np.full(4, 9.0),
-                           pose if true_pose else None)  # moving: never replayed
+            _write_instant(
+                recorder, t + 2 * MS, np.full(6, 9.0), np.full(4, 9.0), pose if true_pose else None
+            )  # moving: never replayed
             settled = t + 10 * MS
-            if notes:
-                recorder.add_metadata(recording.POSTURE_METADATA_NAME, {
-                    'command_id': command_id, 'start_ns': str(t + 2 * MS), 'posture': str(k)})
-            recorder.write(names.TOPIC_PLATFORM_STATUS,
-                           conversions.make_status(command_id, names.STATE_SETTLED), settled)
+            recorder.write(
+                names.TOPIC_PLATFORM_STATUS,
+                conversions.make_status(command_id, names.STATE_SETTLED),
+                settled,
+            )
             legs, readings, truths = [], [], []
             for j in range(per_posture):
                 q = 0.5 + 0.01 * np.arange(6) + k * 1e-3 + j * 1e-7
                 r = np.array([0.01 * k, -0.02, 0.1 * k, 1e-3]) + j * 1e-8
                 truth = pose + j * 1e-9
-                _write_instant(recorder, settled + MS + 5 * MS * j, q, r,
-                               truth if true_pose else None)
+                _write_instant(
+                    recorder, settled + MS + 5 * MS * j, q, r, truth if true_pose else None
+                )
                 legs.append(q)
                 readings.append(r)
                 truths.append(truth)
@@ -172,8 +191,7 @@ def test_from_recording_streams_the_samples_after_each_settle(tmp_path):
     assert run.options['sync_tolerance'] == 0.0025
     for posture in run.postures:
         legs, readings, truths = sent[posture.posture]
-        np.testing.assert_allclose(posture.commanded_pose, poses[posture.posture - 1],
-                                   atol=1e-12)
+        np.testing.assert_allclose(posture.commanded_pose, poses[posture.posture - 1], atol=1e-12)
         # In order, paired like the calibrator pairs them; the moving samples are left out.
         np.testing.assert_array_equal(posture.stream.leg_lengths, legs)
         np.testing.assert_array_equal(posture.stream.readings, readings)
@@ -207,23 +225,38 @@ class NodeHarness:
         self.executor.add_node(self.replay)
         self.executor.add_node(self.node)
         self.statuses = []
-        self.received = {topic: [] for topic in (
-            names.TOPIC_LEG_LENGTHS, names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER,
-            names.TOPIC_LVDT)}
+        self.received = {
+            topic: []
+            for topic in (
+                names.TOPIC_LEG_LENGTHS,
+                names.TOPIC_INCLINOMETER,
+                names.TOPIC_ENCODER,
+                names.TOPIC_LVDT,
+            )
+        }
         self.true_poses = []
         self.node.create_subscription(
-            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
             lambda m: self.statuses.append(conversions.parse_status(m)),
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
         for topic, messages in self.received.items():
-            self.node.create_subscription(JointState, topic, messages.append,
-                                          qos.TOPIC_QOS[topic])
-        self.node.create_subscription(PoseStamped, names.TOPIC_TRUE_POSE, self.true_poses.append,
-                                      qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
+            self.node.create_subscription(JointState, topic, messages.append, qos.TOPIC_QOS[topic])
+        self.node.create_subscription(
+            PoseStamped,
+            names.TOPIC_TRUE_POSE,
+            self.true_poses.append,
+            qos.TOPIC_QOS[names.TOPIC_TRUE_POSE],
+        )
         self.command_pub = self.node.create_publisher(
-            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
-        assert self.spin_until(lambda: self.command_pub.get_subscription_count() > 0
-                               and self.received[names.TOPIC_LVDT]), 'no discovery'
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+        )
+        assert self.spin_until(
+            lambda: (
+                self.command_pub.get_subscription_count() > 0 and self.received[names.TOPIC_LVDT]
+            )
+        ), 'no discovery'
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
         return testing.spin_until(self.executor, predicate, timeout)
@@ -242,6 +275,7 @@ class NodeHarness:
 
     def instants_after(self, stamp_ns, count):
         """``count`` replayed instants stamped after ``stamp_ns``: ``[(stamp, {topic: msg})]``."""
+
         def instants():
             by_stamp = {}
             for topic, messages in self.received.items():
@@ -266,14 +300,20 @@ def test_node_replays_a_recorded_posture_like_the_live_suite(ros_context, tmp_pa
     sent = write_recording(path, poses, per_posture=3)
     # 20 Hz: the stream pauses 2 periods (100 ms) after 'settled', far longer than this test
     # may take to see the status, so the samples stamped after it sees it start at the first.
-    harness = NodeHarness(ros_context, [Parameter('run', value=str(path)),
-                                        Parameter('settle_time', value=0.02),
-                                        Parameter('publish_rate', value=20.0)])
+    harness = NodeHarness(
+        ros_context,
+        [
+            Parameter('run', value=str(path)),
+            Parameter('settle_time', value=0.02),
+            Parameter('publish_rate', value=20.0),
+        ],
+    )
     try:
         # Before any command: the idle samples recorded before the first command.
         first = harness.instants_after(0, 1)[0][1]
         assert conversions.msg_to_leg_lengths(first[names.TOPIC_LEG_LENGTHS])[0] == pytest.approx(
-            0.7, abs=1e-5)
+            0.7, abs=1e-5
+        )
 
         command_id = harness.command(poses[1])
         assert [s.state for s in harness.final_states(command_id)] == ['moving', 'settled']
@@ -283,23 +323,35 @@ def test_node_replays_a_recorded_posture_like_the_live_suite(ros_context, tmp_pa
         instants = harness.instants_after(settled_ns, 4)
         for j, (_, messages) in enumerate(instants):
             np.testing.assert_array_equal(
-                conversions.msg_to_leg_lengths(messages[names.TOPIC_LEG_LENGTHS]), legs[j % 3])
+                conversions.msg_to_leg_lengths(messages[names.TOPIC_LEG_LENGTHS]), legs[j % 3]
+            )
             alpha, beta = conversions.msg_to_inclinometer(messages[names.TOPIC_INCLINOMETER])
-            assert [alpha, beta, conversions.msg_to_encoder(messages[names.TOPIC_ENCODER]),
-                    conversions.msg_to_lvdt(messages[names.TOPIC_LVDT])] == list(readings[j % 3])
+            assert [
+                alpha,
+                beta,
+                conversions.msg_to_encoder(messages[names.TOPIC_ENCODER]),
+                conversions.msg_to_lvdt(messages[names.TOPIC_LVDT]),
+            ] == list(readings[j % 3])
             assert all(m.header.frame_id == names.FRAME_BASE for m in messages.values())
         stamps = [s for s, _ in instants]
-        assert harness.spin_until(lambda: any(
-            conversions.stamp_to_nanoseconds(m.header.stamp) == stamps[1]
-            for m in harness.true_poses))
-        truth = next(m for m in harness.true_poses
-                     if conversions.stamp_to_nanoseconds(m.header.stamp) == stamps[1])
+        assert harness.spin_until(
+            lambda: any(
+                conversions.stamp_to_nanoseconds(m.header.stamp) == stamps[1]
+                for m in harness.true_poses
+            )
+        )
+        truth = next(
+            m
+            for m in harness.true_poses
+            if conversions.stamp_to_nanoseconds(m.header.stamp) == stamps[1]
+        )
         np.testing.assert_allclose(conversions.pose_stamped_to_pose(truth), truths[1], atol=1e-9)
 
         # Not recorded, or wrong: rejected with the reason; the node keeps going.
         unknown = harness.command(poses[1] + [0.01, 0, 0, 0, 0, 0])
         assert [(s.state, s.reason) for s in harness.final_states(unknown)] == [
-            ('rejected', REASON_NOT_RECORDED)]
+            ('rejected', REASON_NOT_RECORDED)
+        ]
         wrong_frame = harness.command(poses[0], frame_id='elsewhere')
         (status,) = harness.final_states(wrong_frame)
         assert status.rejected and 'elsewhere' in status.reason
@@ -307,12 +359,15 @@ def test_node_replays_a_recorded_posture_like_the_live_suite(ros_context, tmp_pa
         assert [s.state for s in harness.final_states(again)] == ['moving', 'settled']
 
         # Run-time parameters are validated.
-        assert not harness.replay.set_parameters(
-            [Parameter('settle_time', value=-1.0)])[0].successful
-        assert not harness.replay.set_parameters(
-            [Parameter('pose_tolerance', value=0.0)])[0].successful
-        assert harness.replay.set_parameters(
-            [Parameter('pose_tolerance', value=0.05)])[0].successful
+        assert not harness.replay.set_parameters([Parameter('settle_time', value=-1.0)])[
+            0
+        ].successful
+        assert not harness.replay.set_parameters([Parameter('pose_tolerance', value=0.0)])[
+            0
+        ].successful
+        assert harness.replay.set_parameters([Parameter('pose_tolerance', value=0.05)])[
+            0
+        ].successful
         near = harness.command(poses[1] + [0.01, 0, 0, 0, 0, 0])
         assert harness.final_states(near)[-1].settled
     finally:
@@ -323,17 +378,30 @@ def test_node_configuration_errors(ros_context, tmp_path):
     with pytest.raises(ConfigurationError, match='run: .*required'):
         ReplayNode(context=ros_context)
     with pytest.raises(ConfigurationError, match='run: .*missing'):
-        ReplayNode(context=ros_context,
-                   parameter_overrides=[Parameter('run', value=str(tmp_path / 'missing'))])
+        ReplayNode(
+            context=ros_context,
+            parameter_overrides=[Parameter('run', value=str(tmp_path / 'missing'))],
+        )
     write_samples(tmp_path / 'samples.csv', _samples(2))
     with pytest.raises(ConfigurationError, match='pose_tolerance'):
-        ReplayNode(context=ros_context, parameter_overrides=[
-            Parameter('run', value=str(tmp_path)), Parameter('pose_tolerance', value=0.0)])
+        ReplayNode(
+            context=ros_context,
+            parameter_overrides=[
+                Parameter('run', value=str(tmp_path)),
+                Parameter('pose_tolerance', value=0.0),
+            ],
+        )
     with pytest.raises(ConfigurationError, match='publish_rate'):
-        ReplayNode(context=ros_context, parameter_overrides=[
-            Parameter('run', value=str(tmp_path)), Parameter('publish_rate', value=-5.0)])
-    node = ReplayNode(context=ros_context,
-                      parameter_overrides=[Parameter('run', value=str(tmp_path))])
+        ReplayNode(
+            context=ros_context,
+            parameter_overrides=[
+                Parameter('run', value=str(tmp_path)),
+                Parameter('publish_rate', value=-5.0),
+            ],
+        )
+    node = ReplayNode(
+        context=ros_context, parameter_overrides=[Parameter('run', value=str(tmp_path))]
+    )
     try:
         # samples.csv has no true pose: nothing is published on true_pose.
         assert node.count_publishers(names.TOPIC_TRUE_POSE) == 0
@@ -346,8 +414,14 @@ def test_node_configuration_errors(ros_context, tmp_path):
 
 
 # Generous timeouts: they only bound a failure, and CI machines are loaded.
-CALIBRATION = {'posture_count': 14, 'pool_size': 42, 'samples_per_posture': 3, 'seed': 5,
-               'topic_timeout': 10.0, 'settle_timeout': 10.0}
+CALIBRATION = {
+    'posture_count': 14,
+    'pool_size': 42,
+    'samples_per_posture': 3,
+    'seed': 5,
+    'topic_timeout': 10.0,
+    'settle_timeout': 10.0,
+}
 
 
 class Suite:
@@ -399,20 +473,32 @@ def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path)
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
     fast = [Parameter('settle_time', value=0.02)]
-    live = Suite(ros_context, [
-        PlatformSimNode(context=ros_context,
-                        parameter_overrides=fast + [Parameter('publish_markers', value=False)]),
-        DeviceDriverNode(context=ros_context),
-        _calibrator(ros_context, tmp_path / 'live')])
+    live = Suite(
+        ros_context,
+        [
+            PlatformSimNode(
+                context=ros_context,
+                parameter_overrides=fast + [Parameter('publish_markers', value=False)],
+            ),
+            DeviceDriverNode(context=ros_context),
+            _calibrator(ros_context, tmp_path / 'live'),
+        ],
+    )
     try:
         original = live.calibrate()
     finally:
         live.close()
 
-    replay = Suite(ros_context, [
-        ReplayNode(context=ros_context, parameter_overrides=fast + [
-            Parameter('run', value=str(original.path))]),
-        _calibrator(ros_context, tmp_path / 'replay')])
+    replay = Suite(
+        ros_context,
+        [
+            ReplayNode(
+                context=ros_context,
+                parameter_overrides=fast + [Parameter('run', value=str(original.path))],
+            ),
+            _calibrator(ros_context, tmp_path / 'replay'),
+        ],
+    )
     try:
         replayed = replay.calibrate()
     finally:
@@ -425,5 +511,9 @@ def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path)
     np.testing.assert_allclose(after.commanded_poses, before.commanded_poses, rtol=0, atol=1e-12)
     np.testing.assert_allclose(after.leg_lengths, before.leg_lengths, rtol=0, atol=1e-12)
     np.testing.assert_allclose(after.readings, before.readings, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(original.read_geometry().to_vector(),
-                               replayed.read_geometry().to_vector(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        original.read_geometry().to_vector(),
+        replayed.read_geometry().to_vector(),
+        rtol=0,
+        atol=1e-9,
+    )

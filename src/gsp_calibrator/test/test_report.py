@@ -5,27 +5,15 @@ import math
 
 import numpy as np
 import pytest
+from synthetic import synthetic_samples
 
 from gsp_calibrator import calibration, report
-from gsp_calibrator.run_directory import Samples
-from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
 from gsp_kinematics.identifiability import analyse_identifiability
 from gsp_kinematics.identification import Options, Sigmas
-from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.kinematics import sample_valid_postures
 
 SIGMAS = Sigmas()
-
-
-def synthetic_samples(count=30, seed=1, sigmas=SIGMAS):
-    """Noisy measurements of the true platform at ``count`` postures valid for the nominal."""
-    nominal, truth = default_geometry('nominal'), default_geometry('true')
-    rng = np.random.default_rng(seed)
-    poses = sample_valid_postures(nominal, count, rng)
-    legs = inverse_kinematics(truth, poses) + rng.normal(0.0, sigmas.leg_lengths, (count, 6))
-    readings = device_readings(truth, poses) + rng.normal(0.0, 1.0, (count, 4)) * sigmas.readings()
-    return Samples(np.arange(1, count + 1), poses, legs, readings, np.ones(count, int),
-                   np.arange(count, dtype=float))
 
 
 @pytest.fixture(scope='module')
@@ -63,21 +51,46 @@ def _check_png(path, min_width=500, min_height=250):
 def test_result_json(tmp_path, calibrated):
     outcome, nominal, truth, before, after = calibrated
     result = outcome.result
-    path = report.write_result_json(tmp_path, result, outcome.identifiability, before, after,
-                                    truth=truth, nominal=nominal, sigmas=outcome.sigmas,
-                                    extra={'run': 'test'})
+    path = report.write_result_json(
+        tmp_path,
+        result,
+        analysis=outcome.identifiability,
+        validation_before=before,
+        validation_after=after,
+        truth=truth,
+        nominal=nominal,
+        sigmas=outcome.sigmas,
+        extra={'run': 'test'},
+    )
     data = _strict_json(path)
-    for key in ('estimates', 'standard_deviations', 'correlations', 'identifiability',
-                'residual_rms', 'iterations', 'status', 'message', 'validation', 'converged',
-                'formulation', 'parameter_errors', 'free_parameters', 'units', 'sigmas', 'run'):
+    for key in (
+        'estimates',
+        'standard_deviations',
+        'correlations',
+        'identifiability',
+        'residual_rms',
+        'iterations',
+        'status',
+        'message',
+        'validation',
+        'converged',
+        'formulation',
+        'parameter_errors',
+        'free_parameters',
+        'units',
+        'sigmas',
+        'run',
+    ):
         assert key in data, key
     assert data['estimates']['si']['A1x'] == result.parameters[0]
     assert data['estimates']['report']['A1x'] == pytest.approx(result.parameters[0] * 1000.0)
     assert data['estimates']['report']['gamma'] == pytest.approx(
-        math.degrees(result.parameters[43]))
+        math.degrees(result.parameters[43])
+    )
     assert data['units']['report']['gamma'] == 'deg' and data['units']['si']['D0'] == 'm'
     assert data['standard_deviations']['si']['B2y'] == pytest.approx(
-        result.standard_deviations[PARAMETER_NAMES.index('B2y')])
+        result.standard_deviations[PARAMETER_NAMES.index('B2y')]
+    )
     assert set(data['estimates']['si']) == set(PARAMETER_NAMES)
     identifiability = data['identifiability']
     assert identifiability['rank'] == 44 and identifiability['unidentifiable'] == []
@@ -88,8 +101,10 @@ def test_result_json(tmp_path, calibrated):
     for when in ('before', 'after'):
         for key in report.VALIDATION_KEYS:
             assert data['validation'][when][key] >= 0.0
-    assert data['validation']['after']['position_mm_mean'] < \
-        data['validation']['before']['position_mm_mean']
+    assert (
+        data['validation']['after']['position_mm_mean']
+        < data['validation']['before']['position_mm_mean']
+    )
     assert data['parameter_errors']['reference'] == 'truth'
     assert data['max_param_error_mm'] < 0.5
     assert isinstance(data['correlations'], list)
@@ -99,9 +114,15 @@ def test_result_json(tmp_path, calibrated):
 
 def test_report_with_truth(tmp_path, calibrated):
     outcome, nominal, truth, before, after = calibrated
-    written = report.write_all(tmp_path, outcome.result, analysis=outcome.identifiability,
-                               validation_before=before, validation_after=after, truth=truth,
-                               nominal=nominal)
+    written = report.write_all(
+        tmp_path,
+        outcome.result,
+        analysis=outcome.identifiability,
+        validation_before=before,
+        validation_after=after,
+        truth=truth,
+        nominal=nominal,
+    )
     for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation'):
         _check_png(written[kind])
     assert not list(tmp_path.glob('*.tmp')) and not list(tmp_path.glob('.*.tmp'))
@@ -117,8 +138,12 @@ def test_report_without_truth_and_failed_identification(tmp_path):
     nominal = default_geometry('nominal')
     samples = synthetic_samples(count=12, seed=2)
     outcome = calibration.identify_from_samples(
-        nominal, samples, SIGMAS, free=['A1x', 'B1y', 'Loff1', 'D0', 'gamma'],
-        options=Options(max_iterations=1))
+        nominal,
+        samples,
+        SIGMAS,
+        free=['A1x', 'B1y', 'Loff1', 'D0', 'gamma'],
+        options=Options(max_iterations=1),
+    )
     result = outcome.result
     assert result is not None and not result.converged
     singular = np.diag([1.0, 1.0, 1.0, 1.0, 0.0])

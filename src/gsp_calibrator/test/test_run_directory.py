@@ -12,7 +12,6 @@ from gsp_calibrator.run_directory import (
     RunDirectory,
     RunDirectoryError,
     Samples,
-    atomic_write_text,
     create_run_directory,
     load_samples,
     read_samples,
@@ -20,6 +19,7 @@ from gsp_calibrator.run_directory import (
     samples_to_csv,
     write_samples,
 )
+from gsp_kinematics.fileio import atomic_write_text
 from gsp_kinematics.geometry import default_geometry
 
 NOW = datetime.datetime(2025, 11, 22, 3, 54, 1, tzinfo=datetime.UTC)
@@ -29,17 +29,39 @@ def make_samples(count=4, seed=0):
     rng = np.random.default_rng(seed)
     samples = Samples.empty()
     for k in range(count):
-        samples.append(k + 1 if k < 2 else k + 2,  # a skipped posture leaves a gap
-                       rng.normal(size=6), rng.uniform(0.1, 0.9, 6) + 1e-17 * k,
-                       rng.normal(size=4) / 3.0, 10 - k, 1.7e9 + rng.uniform())
+        samples.append(
+            k + 1 if k < 2 else k + 2,  # a skipped posture leaves a gap
+            rng.normal(size=6),
+            rng.uniform(0.1, 0.9, 6) + 1e-17 * k,
+            rng.normal(size=4) / 3.0,
+            10 - k,
+            1.7e9 + rng.uniform(),
+        )
     return samples
 
 
 def test_columns_are_exactly_the_contract():
     assert SAMPLES_COLUMNS == (
-        'posture', 'x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd',
-        'leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6',
-        'alpha', 'beta', 'phi', 'd_m', 'n_samples', 'stamp')
+        'posture',
+        'x_cmd',
+        'y_cmd',
+        'z_cmd',
+        'psi_cmd',
+        'theta_cmd',
+        'phi_cmd',
+        'leg_1',
+        'leg_2',
+        'leg_3',
+        'leg_4',
+        'leg_5',
+        'leg_6',
+        'alpha',
+        'beta',
+        'phi',
+        'd_m',
+        'n_samples',
+        'stamp',
+    )
 
 
 def test_samples_round_trip_at_full_precision(tmp_path):
@@ -64,14 +86,19 @@ def test_empty_samples_round_trip(tmp_path):
     assert commanded.shape == (0, 6) and readings.shape == (0, 4) and n_samples.size == 0
 
 
-@pytest.mark.parametrize('text, match', [
-    ('', 'empty'),
-    ('a,b\n', 'columns'),
-    (','.join(SAMPLES_COLUMNS) + '\n1,2\n', ':2: 2 values'),
-    (','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x']) + '\n', 'column stamp'),
-    (','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8) + '\n',
-     'column leg_4 is not finite'),
-])
+@pytest.mark.parametrize(
+    'text, match',
+    [
+        ('', 'empty'),
+        ('a,b\n', 'columns'),
+        (','.join(SAMPLES_COLUMNS) + '\n1,2\n', ':2: 2 values'),
+        (','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x']) + '\n', 'column stamp'),
+        (
+            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8) + '\n',
+            'column leg_4 is not finite',
+        ),
+    ],
+)
 def test_malformed_samples_are_reported(text, match):
     with pytest.raises(RunDirectoryError, match=match):
         samples_from_csv(text)
@@ -105,7 +132,12 @@ def test_run_directory_files(tmp_path):
     run.write_text('report.md', '# report\n')
     run.write_bytes('recording.mcap', b'\x89MCAP')
     assert sorted(p.name for p in run.path.iterdir()) == [
-        'recording.mcap', 'report.md', 'result.yaml', 'samples.csv', 'summary.json']
+        'recording.mcap',
+        'report.md',
+        'result.yaml',
+        'samples.csv',
+        'summary.json',
+    ]
     assert os.fspath(run) == str(run.path)
     with pytest.raises(RunDirectoryError, match='plain file name'):
         run.file('../escape.txt')

@@ -1,6 +1,8 @@
 """Calibrator parameters: defaults, checks and settings (pure, no ROS)."""
 
 import math
+import subprocess
+import sys
 
 import pytest
 
@@ -28,30 +30,33 @@ def test_defaults():
     assert check_parameters(DEFAULTS) == ''
 
 
-@pytest.mark.parametrize('name, value, match', [
-    ('posture_count', 0, 'must be >= 1'),
-    ('pool_size', 0, 'must be >= 1'),
-    ('pool_size', 59, 'must not exceed pool_size'),
-    ('samples_per_posture', 0, 'must be >= 1'),
-    ('sync_tolerance', -0.001, '>= 0'),
-    ('sync_tolerance', math.inf, '>= 0'),
-    ('settle_timeout', 0.0, '> 0'),
-    ('topic_timeout', -1.0, '> 0'),
-    ('topic_timeout', math.nan, '> 0'),
-    ('seed', -1, '>= 0'),
-    ('free_parameters', [], 'at least one'),
-    ('free_parameters', ['A1x', 'Q9'], "unknown parameter name"),
-    ('free_parameters', ['D0', 'D0'], 'duplicated'),
-    ('formulation', 'magic', 'must be one of'),
-    ('sigma_leg_lengths', 0.0, '> 0'),
-    ('sigma_inclinometer', -1e-5, '> 0'),
-    ('sigma_encoder', math.nan, '> 0'),
-    ('sigma_lvdt', math.inf, '> 0'),
-    ('output_root', '  ', 'must not be empty'),
-    ('platform_node_name', 'not a node', 'not a valid node name'),
-    ('nominal_geometry_file', '/nonexistent/geometry.yaml', 'cannot read geometry file'),
-    ('nominal_geometry_file', '', 'must name a geometry file'),
-])
+@pytest.mark.parametrize(
+    'name, value, match',
+    [
+        ('posture_count', 0, 'must be >= 1'),
+        ('pool_size', 0, 'must be >= 1'),
+        ('pool_size', 59, 'must not exceed pool_size'),
+        ('samples_per_posture', 0, 'must be >= 1'),
+        ('sync_tolerance', -0.001, '>= 0'),
+        ('sync_tolerance', math.inf, '>= 0'),
+        ('settle_timeout', 0.0, '> 0'),
+        ('topic_timeout', -1.0, '> 0'),
+        ('topic_timeout', math.nan, '> 0'),
+        ('seed', -1, '>= 0'),
+        ('free_parameters', [], 'at least one'),
+        ('free_parameters', ['A1x', 'Q9'], 'unknown parameter name'),
+        ('free_parameters', ['D0', 'D0'], 'duplicated'),
+        ('formulation', 'magic', 'must be one of'),
+        ('sigma_leg_lengths', 0.0, '> 0'),
+        ('sigma_inclinometer', -1e-5, '> 0'),
+        ('sigma_encoder', math.nan, '> 0'),
+        ('sigma_lvdt', math.inf, '> 0'),
+        ('output_root', '  ', 'must not be empty'),
+        ('platform_node_name', 'not a node', 'not a valid node name'),
+        ('nominal_geometry_file', '/nonexistent/geometry.yaml', 'cannot read geometry file'),
+        ('nominal_geometry_file', '', 'must name a geometry file'),
+    ],
+)
 def test_bad_values_are_rejected_with_the_reason(name, value, match):
     reason = check_parameters({name: value}, DEFAULTS)
     assert match in reason
@@ -65,10 +70,15 @@ def test_changes_are_checked_against_the_current_values():
 
 
 def test_settings_from_values(tmp_path):
-    settings = CalibratorSettings.from_values({'posture_count': 12, 'pool_size': 50,
-                                               'free_parameters': ['D0', 'gamma'],
-                                               'platform_node_name': '/sim/platform_sim',
-                                               'sigma_encoder': 2e-5})
+    settings = CalibratorSettings.from_values(
+        {
+            'posture_count': 12,
+            'pool_size': 50,
+            'free_parameters': ['D0', 'gamma'],
+            'platform_node_name': '/sim/platform_sim',
+            'sigma_encoder': 2e-5,
+        }
+    )
     assert settings.posture_count == 12 and settings.free_parameters == ('D0', 'gamma')
     assert settings.platform_node_name == 'sim/platform_sim'
     assert settings.sigmas.encoder == 2e-5 and settings.sigmas.lvdt == 1e-6
@@ -76,3 +86,8 @@ def test_settings_from_values(tmp_path):
     with pytest.raises(ValueError, match='formulation'):
         CalibratorSettings.from_values({'formulation': 'x'})
     assert set(PARAMETER_SPECS) == set(DEFAULTS)
+
+
+def test_settings_import_without_loading_rclpy():
+    code = 'import sys, gsp_calibrator.settings; assert "rclpy" not in sys.modules'
+    subprocess.run([sys.executable, '-c', code], check=True)

@@ -1,1 +1,1 @@
-"""gsp_device_driver (see docs/design.md)."""
+"""gsp_device_driver: the device driver node and its backends (see docs/nodes.md)."""

@@ -1,15 +1,16 @@
 """Sources of measuring device readings (pure, no rclpy) behind one interface, :class:`DeviceBackend`.
 
-The ``device_driver`` node only talks to a backend made by :func:`make_backend`. Built in:
+The ``device_driver`` node only talks to the backend :func:`backend_class` names. Built in:
 
 * ``sim``: readings of the simulated platform's true pose (core ``device_readings``) + noise.
 
-Adding a backend (``hardware``, ``replay``): subclass :class:`DeviceBackend`, give it a
-``from_config(**config)`` classmethod (it receives every key of the node's common config, see
-:func:`make_backend`, plus its own extra parameters listed in ``PARAMETERS``, and should ignore
-keys it does not use), and register it with :func:`register_backend` (e.g. add it to
-:data:`_BUILTIN_BACKENDS` below). The node declares each ``PARAMETERS`` entry as
-``<backend>.<name>`` and passes it as ``<name>``; no change to the node is needed.
+Adding a backend (e.g. ``hardware``): subclass :class:`DeviceBackend` and give it a
+``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
+``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng`` and its own extra
+parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
+ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
+``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
+to the node is needed.
 """
 
 import abc
@@ -42,15 +43,6 @@ class DeviceSample:
         return np.array([self.alpha, self.beta, self.phi, self.d_m])
 
 
-@dataclasses.dataclass(frozen=True)
-class BackendParameter:
-    """An extra parameter of a backend, declared by the node as ``<backend>.<name>``."""
-
-    name: str
-    default: object  #: also fixes the ROS parameter type
-    description: str
-
-
 def _check_std(value, name):
     value = float(value)
     if not (math.isfinite(value) and value >= 0.0):
@@ -61,13 +53,13 @@ def _check_std(value, name):
 class DeviceBackend(abc.ABC):
     """Interface of a source of device readings."""
 
-    #: Registry name (``sim``, ``replay``, ``hardware``...).
+    #: Registry name (``sim``, ``hardware``...).
     name = ''
     #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
     needs_true_pose = False
     #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
     simulates_noise = False
-    #: Extra parameters of the backend (tuple of :class:`BackendParameter`).
+    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.node_tools.ParameterSpec`).
     PARAMETERS = ()
 
     @classmethod
@@ -109,8 +101,15 @@ class SimDeviceBackend(DeviceBackend):
     needs_true_pose = True
     simulates_noise = True
 
-    def __init__(self, device_length, inclinometer_axes_angle, inclinometer_std=0.0,
-                 encoder_std=0.0, lvdt_std=0.0, rng=None):
+    def __init__(
+        self,
+        device_length,
+        inclinometer_axes_angle,
+        inclinometer_std=0.0,
+        encoder_std=0.0,
+        lvdt_std=0.0,
+        rng=None,
+    ):
         device_length = float(device_length)
         gamma = float(inclinometer_axes_angle)
         if not (math.isfinite(device_length) and device_length > 0.0):
@@ -118,9 +117,13 @@ class SimDeviceBackend(DeviceBackend):
         if not 0.0 < gamma < math.pi:
             raise BackendError(f'inclinometer_axes_angle must be in (0, pi) rad, got {gamma}')
         # device_readings needs only D0 and gamma of a Geometry; the joints are unused here.
-        self._device = Geometry(base_joints=np.zeros((6, 3)), platform_joints=np.zeros((6, 3)),
-                                leg_offsets=np.zeros(6), device_length=device_length,
-                                inclinometer_axes_angle=gamma)
+        self._device = Geometry(
+            base_joints=np.zeros((6, 3)),
+            platform_joints=np.zeros((6, 3)),
+            leg_offsets=np.zeros(6),
+            device_length=device_length,
+            inclinometer_axes_angle=gamma,
+        )
         self._stds = np.zeros(4)
         self.update_noise(inclinometer_std, encoder_std, lvdt_std)
         self._rng = rng if rng is not None else np.random.default_rng()
@@ -128,12 +131,18 @@ class SimDeviceBackend(DeviceBackend):
         self._exact = None  # cached noise-free readings of self._pose
 
     @classmethod
-    def from_config(cls, true_geometry_file, inclinometer_noise_std=0.0, encoder_noise_std=0.0,
-                    lvdt_noise_std=0.0, rng=None, **_unused):
-        """From the true geometry file (D0, gamma) and the node's noise parameters."""
+    def from_config(cls, true_geometry_file, rng=None, **config):
+        """From the true geometry file (D0, gamma) and the node's ``*_noise_std`` parameters."""
         geometry = load_geometry(true_geometry_file)
-        return cls(geometry.device_length, geometry.inclinometer_axes_angle,
-                   inclinometer_noise_std, encoder_noise_std, lvdt_noise_std, rng)
+        return cls(
+            geometry.device_length,
+            geometry.inclinometer_axes_angle,
+            *(
+                config.get(f'{sensor}_noise_std', 0.0)
+                for sensor in ('inclinometer', 'encoder', 'lvdt')
+            ),
+            rng=rng,
+        )
 
     @property
     def device_length(self):
@@ -166,7 +175,9 @@ class SimDeviceBackend(DeviceBackend):
             try:
                 exact = device_readings(self._device, pose[None])[0]
             except DeviceModelError as error:
-                raise ValueError(f'no device reading for true pose {pose.tolist()}: {error}') from None
+                raise ValueError(
+                    f'no device reading for true pose {pose.tolist()}: {error}'
+                ) from None
             self._exact, self._pose = exact, pose
 
     def read(self, now_s):
@@ -176,40 +187,30 @@ class SimDeviceBackend(DeviceBackend):
         return DeviceSample(float(now_s), *(float(v) for v in values))
 
 
-_BUILTIN_BACKENDS = {SimDeviceBackend.name: SimDeviceBackend}
-_BACKENDS = dict(_BUILTIN_BACKENDS)
-
-
-def register_backend(backend_class, name=None):
-    """Make ``backend_class`` (a :class:`DeviceBackend`) available as ``name`` (default its own)."""
-    name = name or backend_class.name
-    if not name:
-        raise ValueError('a device backend needs a name')
-    _BACKENDS[name] = backend_class
+_BACKENDS = {SimDeviceBackend.name: SimDeviceBackend}
 
 
 def backend_names():
-    """Names accepted by :func:`make_backend`, sorted."""
+    """Names of the available backends, sorted."""
     return tuple(sorted(_BACKENDS))
 
 
 def backend_class(name):
-    """The class registered as ``name``; BackendError naming the valid backends otherwise."""
+    """The backend class called ``name``; BackendError naming the valid backends otherwise."""
     try:
         return _BACKENDS[name]
     except KeyError:
-        raise BackendError(f"unknown device backend '{name}'; valid backends: "
-                           f"{', '.join(backend_names())}") from None
+        raise BackendError(
+            f"unknown device backend '{name}'; valid backends: {', '.join(backend_names())}"
+        ) from None
 
 
-def make_backend(name, **config):
-    """A backend by registry name, configured from ``config``.
-
-    The device_driver node passes ``true_geometry_file``, ``inclinometer_noise_std``,
-    ``encoder_noise_std``, ``lvdt_noise_std``, ``rng`` and the backend's own ``PARAMETERS``.
-    """
-    return backend_class(name).from_config(**config)
-
-
-__all__ = ['READING_NAMES', 'BackendError', 'BackendParameter', 'DeviceBackend', 'DeviceSample',
-           'SimDeviceBackend', 'backend_class', 'backend_names', 'make_backend', 'register_backend']
+__all__ = [
+    'READING_NAMES',
+    'BackendError',
+    'DeviceBackend',
+    'DeviceSample',
+    'SimDeviceBackend',
+    'backend_class',
+    'backend_names',
+]

@@ -5,13 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from gsp_device_driver import backends
 from gsp_device_driver.backends import (
     BackendError,
     DeviceBackend,
     DeviceSample,
     SimDeviceBackend,
-    make_backend,
+    backend_class,
 )
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry, default_geometry_path
@@ -22,8 +21,9 @@ STDS = np.array([1e-4, 1e-4, 2e-4, 3e-6])  # alpha, beta, phi (rad), d_m (m)
 
 
 def make_sim(stds=(0.0, 0.0, 0.0), seed=0):
-    return SimDeviceBackend(TRUE.device_length, TRUE.inclinometer_axes_angle, *stds,
-                            rng=np.random.default_rng(seed))
+    return SimDeviceBackend(
+        TRUE.device_length, TRUE.inclinometer_axes_angle, *stds, rng=np.random.default_rng(seed)
+    )
 
 
 def test_no_sample_before_the_first_true_pose():
@@ -72,10 +72,15 @@ def test_bad_true_pose_is_refused_and_the_last_good_one_kept():
     np.testing.assert_allclose(sim.read(0.0).readings(), device_readings(TRUE, POSE[None])[0])
 
 
-def test_make_backend_sim_reads_the_device_from_the_true_geometry_file():
-    sim = make_backend('sim', true_geometry_file=default_geometry_path('true'),
-                       inclinometer_noise_std=1e-5, encoder_noise_std=2e-5, lvdt_noise_std=3e-6,
-                       rng=np.random.default_rng(0), unrelated_key='ignored')
+def test_sim_from_config_reads_the_device_from_the_true_geometry_file():
+    sim = backend_class('sim').from_config(
+        true_geometry_file=default_geometry_path('true'),
+        inclinometer_noise_std=1e-5,
+        encoder_noise_std=2e-5,
+        lvdt_noise_std=3e-6,
+        rng=np.random.default_rng(0),
+        unrelated_key='ignored',
+    )
     assert sim.device_length == TRUE.device_length
     assert sim.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
     np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 2e-5, 3e-6])
@@ -83,33 +88,22 @@ def test_make_backend_sim_reads_the_device_from_the_true_geometry_file():
 
 def test_unknown_backend_names_the_valid_ones():
     with pytest.raises(BackendError, match="unknown device backend 'replay'.*sim"):
-        make_backend('replay')
+        backend_class('replay')
 
 
-def test_a_new_backend_plugs_into_the_registry(monkeypatch):
+def test_a_backend_without_simulated_noise_refuses_noise_changes():
     class ConstantBackend(DeviceBackend):
         name = 'constant'
 
-        def __init__(self, value):
-            self.value = value
-            self.closed = False
-
         @classmethod
-        def from_config(cls, value=0.5, **_unused):
-            return cls(value)
+        def from_config(cls, **_unused):
+            return cls()
 
         def read(self, now_s):
-            return DeviceSample(now_s, self.value, self.value, self.value, self.value)
+            return DeviceSample(now_s, 0.25, 0.25, 0.25, 0.25)
 
-        def close(self):
-            self.closed = True
-
-    monkeypatch.setattr(backends, '_BACKENDS', dict(backends._BACKENDS))
-    backends.register_backend(ConstantBackend)
-    assert backends.backend_names() == ('constant', 'sim')
-    backend = make_backend('constant', value=0.25, true_geometry_file='unused')
+    backend = ConstantBackend.from_config(true_geometry_file='unused')
     assert backend.read(3.0) == DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)
     with pytest.raises(BackendError, match='no simulated noise'):
         backend.update_noise(lvdt_std=1e-6)
-    backend.close()
-    assert backend.closed
+    backend.close()  # nothing to release

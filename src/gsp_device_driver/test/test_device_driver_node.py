@@ -1,21 +1,17 @@
 """In-process tests of the device_driver node: a test node plays the platform's true pose."""
 
 import math
-import time
 from collections import defaultdict
 
 import numpy as np
 import pytest
-import rclpy
-from geometry_msgs.msg import PoseStamped
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState
 
-from gsp_device_driver.device_driver_node import ConfigurationError, DeviceDriverNode
+from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
-from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py.node_tools import ConfigurationError
 
 TRUE = default_geometry('true')
 POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
@@ -23,39 +19,29 @@ TIMEOUT_S = 10.0
 TOPICS = (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
 
 
-class Harness:
+class Harness(testing.NodeHarness):
     """device_driver plus a test node publishing true poses and recording readings."""
 
     def __init__(self, context, overrides=()):
         self.driver = DeviceDriverNode(context=context, parameter_overrides=list(overrides))
-        self.node = rclpy.create_node('device_driver_test', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.driver)
-        self.executor.add_node(self.node)
+        super().__init__(context, self.driver, 'device_driver_test', TIMEOUT_S)
         self.received = defaultdict(list)  # topic -> [JointState]
         for topic in TOPICS:
-            self.node.create_subscription(
-                JointState, topic, lambda m, t=topic: self.received[t].append(m),
-                qos.TOPIC_QOS[topic])
-        self.pose_pub = self.node.create_publisher(
-            PoseStamped, names.TOPIC_TRUE_POSE, qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
+            self.subscribe(topic, lambda m, t=topic: self.received[t].append(m))
+        self.pose_pub = self.publisher(names.TOPIC_TRUE_POSE)
         self.true_pose_msg = None  # republished at 100 Hz while set, like platform_sim
         self.node.create_timer(0.01, self._publish_true_pose)
-        assert self.spin_until(lambda: self.pose_pub.get_subscription_count() > 0 and all(
-            self.node.count_publishers(t) > 0 for t in TOPICS)), 'no discovery'
+        assert self.spin_until(
+            lambda: (
+                self.pose_pub.get_subscription_count() > 0
+                and all(self.node.count_publishers(t) > 0 for t in TOPICS)
+            )
+        ), 'no discovery'
 
     def _publish_true_pose(self):
         if self.true_pose_msg is not None:
             self.true_pose_msg.header.stamp = self.node.get_clock().now().to_msg()
             self.pose_pub.publish(self.true_pose_msg)
-
-    def spin_until(self, predicate, timeout=TIMEOUT_S):
-        return testing.spin_until(self.executor, predicate, timeout)
-
-    def spin_for(self, duration):
-        deadline = time.monotonic() + duration
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.01)
 
     def readings_after(self, count):
         """``count`` complete readings (N, 4) [alpha, beta, phi, d_m] taken from now on, and
@@ -64,34 +50,35 @@ class Harness:
             self.received[topic].clear()
 
         def complete():
-            by_topic = [{conversions.stamp_to_nanoseconds(m.header.stamp): m
-                         for m in self.received[t]} for t in TOPICS]
+            by_topic = [
+                {conversions.stamp_to_nanoseconds(m.header.stamp): m for m in self.received[t]}
+                for t in TOPICS
+            ]
             return sorted(set(by_topic[0]) & set(by_topic[1]) & set(by_topic[2])), by_topic
 
         assert self.spin_until(lambda: len(complete()[0]) >= count)
         stamps, (inclinometer, encoder, lvdt) = complete()
-        readings = np.array([[*conversions.msg_to_inclinometer(inclinometer[s]),
-                              conversions.msg_to_encoder(encoder[s]),
-                              conversions.msg_to_lvdt(lvdt[s])] for s in stamps])
+        readings = np.array(
+            [
+                [
+                    *conversions.msg_to_inclinometer(inclinometer[s]),
+                    conversions.msg_to_encoder(encoder[s]),
+                    conversions.msg_to_lvdt(lvdt[s]),
+                ]
+                for s in stamps
+            ]
+        )
         return readings, stamps
 
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.driver.destroy_node()
+
+harness = testing.harness_fixture(Harness)
 
 
-@pytest.fixture
-def harness(ros_context, request):
-    h = Harness(ros_context, getattr(request, 'param', ()))
-    try:
-        yield h
-    finally:
-        h.close()
-
-
-NOISE_FREE = [Parameter('inclinometer_noise_std', value=0.0),
-              Parameter('encoder_noise_std', value=0.0), Parameter('lvdt_noise_std', value=0.0)]
+NOISE_FREE = [
+    Parameter('inclinometer_noise_std', value=0.0),
+    Parameter('encoder_noise_std', value=0.0),
+    Parameter('lvdt_noise_std', value=0.0),
+]
 
 
 @pytest.mark.parametrize('harness', [NOISE_FREE], indirect=True)
@@ -101,8 +88,11 @@ def test_noise_free_readings_are_the_device_model_of_the_true_pose(harness):
     harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
     readings, stamps = harness.readings_after(5)
     np.testing.assert_allclose(
-        readings, np.broadcast_to(device_readings(TRUE, POSE[None])[0], readings.shape),
-        rtol=0, atol=1e-12)
+        readings,
+        np.broadcast_to(device_readings(TRUE, POSE[None])[0], readings.shape),
+        rtol=0,
+        atol=1e-12,
+    )
     msg = harness.received[names.TOPIC_INCLINOMETER][-1]
     assert list(msg.name) == ['alpha', 'beta'] and msg.header.frame_id == names.FRAME_BASE
     assert list(harness.received[names.TOPIC_ENCODER][-1].name) == ['phi']
@@ -147,18 +137,24 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
     result = driver.set_parameters([Parameter('inclinometer_noise_std', value=8.7e-5)])[0]
     assert result.successful
     assert driver.get_parameter('inclinometer_noise_std').value == 8.7e-5
-    np.testing.assert_allclose(driver._backend.noise_stds,
-                               [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6])
-    assert 'read-only' in driver.set_parameters(
-        [Parameter('backend', value='replay')])[0].reason
+    np.testing.assert_allclose(
+        driver._backend.noise_stds, [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6]
+    )
+    assert 'read-only' in driver.set_parameters([Parameter('backend', value='replay')])[0].reason
 
 
-@pytest.mark.parametrize('overrides, words', [
-    ([Parameter('backend', value='replay')], "unknown device backend 'replay'; valid backends: sim"),
-    ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
-    ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),
-    ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'nonexistent'),
-])
+@pytest.mark.parametrize(
+    'overrides, words',
+    [
+        (
+            [Parameter('backend', value='replay')],
+            "unknown device backend 'replay'; valid backends: sim",
+        ),
+        ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
+        ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),
+        ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'nonexistent'),
+    ],
+)
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
     with pytest.raises(ConfigurationError, match=words):
         DeviceDriverNode(context=ros_context, parameter_overrides=overrides)

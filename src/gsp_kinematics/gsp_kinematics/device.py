@@ -8,7 +8,7 @@ inclinometer reads ``alpha`` and ``beta`` with axes ``gamma`` apart; the encoder
 import numpy as np
 
 #: Reading columns, in this order everywhere.
-READING_NAMES = ("alpha", "beta", "phi", "d_m")
+READING_NAMES = ('alpha', 'beta', 'phi', 'd_m')
 
 
 class DeviceModelError(RuntimeError):
@@ -17,7 +17,9 @@ class DeviceModelError(RuntimeError):
 
 def link_direction(alpha, beta, gamma):
     """Unit link direction for inclinations ``alpha``, ``beta`` (rad), eq (9) with D = 1."""
-    alpha, beta, gamma = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha, beta, gamma)))
+    alpha, beta, gamma = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (alpha, beta, gamma))
+    )
     ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
     cg, sg = np.cos(gamma), np.sin(gamma)
     return np.stack(
@@ -32,7 +34,9 @@ def link_direction(alpha, beta, gamma):
 
 def link_direction_derivatives(alpha, beta, gamma):
     """Derivatives of :func:`link_direction` w.r.t. alpha, beta, gamma: each ``[..., 3]``."""
-    alpha, beta, gamma = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha, beta, gamma)))
+    alpha, beta, gamma = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (alpha, beta, gamma))
+    )
     ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
     cg, sg = np.cos(gamma), np.sin(gamma)
     d_alpha = np.stack(
@@ -78,13 +82,15 @@ def position_to_inclinations(position, gamma):
     position = np.asarray(position, dtype=float)
     length = np.linalg.norm(position, axis=-1)
     if np.any(~(length > 0.0)):
-        raise DeviceModelError("link length must be positive and finite")
+        raise DeviceModelError('link length must be positive and finite')
     direction = position / length[..., None]
     gamma = np.asarray(gamma, dtype=float)
     sin_gamma, cos_gamma = np.sin(gamma), np.cos(gamma)
     sin_alpha = direction[..., 1] - direction[..., 0] * cos_gamma / sin_gamma
     if np.any(np.abs(sin_alpha) > 1.0 + 1e-12):
-        raise DeviceModelError("link direction is outside the inclinometer's model (|sin alpha| > 1)")
+        raise DeviceModelError(
+            "link direction is outside the inclinometer's model (|sin alpha| > 1)"
+        )
     alpha = np.arcsin(np.clip(sin_alpha, -1.0, 1.0))
     a, b = cos_gamma * np.sin(alpha), np.cos(alpha)
     rhs_x = direction[..., 0] / sin_gamma + a
@@ -114,7 +120,9 @@ def device_readings_jacobians(geometry, poses):
     pseudo_inverse = np.linalg.solve(
         np.swapaxes(tangent, -1, -2) @ tangent, np.swapaxes(tangent, -1, -2)
     )  # (M, 2, 3)
-    projector = (np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]) / length[:, None, None]
+    projector = (np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]) / length[
+        :, None, None
+    ]
     d_angles_d_position = pseudo_inverse @ projector  # (M, 2, 3)
     d_angles_d_gamma = -(pseudo_inverse @ d_gamma[..., None])[..., 0]  # (M, 2)
     count = poses.shape[0]
@@ -151,7 +159,9 @@ def paper_inclinations_jacobians(geometry, poses, d_m):
         values = np.stack([direction[:, 1], direction[:, 0] / direction[:, 2]], axis=1)
 
         def ratio_derivative(derivative):
-            return (derivative[:, 0] * direction[:, 2] - direction[:, 0] * derivative[:, 2]) / direction[:, 2] ** 2
+            return (
+                derivative[:, 0] * direction[:, 2] - direction[:, 0] * derivative[:, 2]
+            ) / direction[:, 2] ** 2
 
         jac_angles = np.stack(
             [
@@ -171,7 +181,7 @@ def paper_inclinations_jacobians(geometry, poses, d_m):
             break
     values, jac_angles, jac_gamma = model(alpha, beta)
     if np.any(~(np.abs(values - target) < 1e-9)):
-        raise DeviceModelError("paper inclinations did not converge")
+        raise DeviceModelError('paper inclinations did not converge')
     count = poses.shape[0]
     d_target_d_pose = np.zeros((count, 2, 6))
     d_target_d_pose[:, 0, 1] = 1.0 / link_length

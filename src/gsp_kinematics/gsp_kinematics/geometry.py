@@ -12,27 +12,29 @@ from importlib import resources
 import numpy as np
 import yaml
 
+from .fileio import atomic_write_text
+
 NUM_LEGS = 6
 NUM_PARAMETERS = 44
 
 PARAMETER_NAMES = tuple(
-    [f"A{leg}{axis}" for leg in range(1, 7) for axis in "xyz"]
-    + [f"B{leg}{axis}" for leg in range(1, 7) for axis in "xyz"]
-    + [f"Loff{leg}" for leg in range(1, 7)]
-    + ["D0", "gamma"]
+    [f'A{leg}{axis}' for leg in range(1, 7) for axis in 'xyz']
+    + [f'B{leg}{axis}' for leg in range(1, 7) for axis in 'xyz']
+    + [f'Loff{leg}' for leg in range(1, 7)]
+    + ['D0', 'gamma']
 )
 PARAMETER_INDEX = {name: index for index, name in enumerate(PARAMETER_NAMES)}
 #: Index of the only angular parameter (gamma); every other parameter is a length in m.
-ANGULAR_PARAMETERS = (PARAMETER_INDEX["gamma"],)
+ANGULAR_PARAMETERS = (PARAMETER_INDEX['gamma'],)
 #: The leg that each platform parameter belongs to (None for the device parameters).
 PARAMETER_CHAIN = tuple(
-    [leg for leg in range(1, 7) for _ in "xyz"]
-    + [leg for leg in range(1, 7) for _ in "xyz"]
+    [leg for leg in range(1, 7) for _ in 'xyz']
+    + [leg for leg in range(1, 7) for _ in 'xyz']
     + list(range(1, 7))
     + [None, None]
 )
 
-GEOMETRY_NAMESPACE = "geometry"
+GEOMETRY_NAMESPACE = 'geometry'
 
 
 class GeometryError(ValueError):
@@ -51,13 +53,13 @@ class Limits:
     def validate(self):
         if not self.leg_stroke_min < self.leg_stroke_max:
             raise GeometryError(
-                f"geometry.limits: leg_stroke_min ({self.leg_stroke_min}) must be below "
-                f"leg_stroke_max ({self.leg_stroke_max})"
+                f'geometry.limits: leg_stroke_min ({self.leg_stroke_min}) must be below '
+                f'leg_stroke_max ({self.leg_stroke_max})'
             )
-        for name in ("base_joint_max_angle", "platform_joint_max_angle"):
+        for name in ('base_joint_max_angle', 'platform_joint_max_angle'):
             value = getattr(self, name)
             if not 0.0 < value <= math.pi:
-                raise GeometryError(f"geometry.limits.{name}: {value} is not in (0, pi] rad")
+                raise GeometryError(f'geometry.limits.{name}: {value} is not in (0, pi] rad')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,15 +75,15 @@ class Geometry:
 
     def __post_init__(self):
         for name, shape in (
-            ("base_joints", (NUM_LEGS, 3)),
-            ("platform_joints", (NUM_LEGS, 3)),
-            ("leg_offsets", (NUM_LEGS,)),
+            ('base_joints', (NUM_LEGS, 3)),
+            ('platform_joints', (NUM_LEGS, 3)),
+            ('leg_offsets', (NUM_LEGS,)),
         ):
             value = np.array(getattr(self, name), dtype=float).reshape(shape)
             value.setflags(write=False)
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "device_length", float(self.device_length))
-        object.__setattr__(self, "inclinometer_axes_angle", float(self.inclinometer_axes_angle))
+        object.__setattr__(self, 'device_length', float(self.device_length))
+        object.__setattr__(self, 'inclinometer_axes_angle', float(self.inclinometer_axes_angle))
 
     def to_vector(self):
         """The 44-vector in :data:`PARAMETER_NAMES` order."""
@@ -98,7 +100,7 @@ class Geometry:
     def from_vector(cls, parameters, limits=None):
         parameters = np.asarray(parameters, dtype=float)
         if parameters.shape != (NUM_PARAMETERS,):
-            raise GeometryError(f"parameter vector must have {NUM_PARAMETERS} values")
+            raise GeometryError(f'parameter vector must have {NUM_PARAMETERS} values')
         return cls(
             base_joints=parameters[0:18].reshape(6, 3),
             platform_joints=parameters[18:36].reshape(6, 3),
@@ -129,84 +131,86 @@ def to_report_units(parameter_values):
 
 # --- parameter dictionaries (ROS parameter names) ---------------------------------------------
 
-_ARRAY_KEYS = {"base_joints": 18, "platform_joints": 18, "leg_offsets": 6}
-_SCALAR_KEYS = ("device_length", "inclinometer_axes_angle")
+_ARRAY_KEYS = {'base_joints': 18, 'platform_joints': 18, 'leg_offsets': 6}
+_SCALAR_KEYS = ('device_length', 'inclinometer_axes_angle')
 _LIMIT_KEYS = tuple(field.name for field in dataclasses.fields(Limits))
 
 
 def geometry_to_parameters(geometry):
     """Flat ``{'geometry.base_joints': [...], ...}`` as ROS parameters."""
     parameters = {
-        f"{GEOMETRY_NAMESPACE}.base_joints": geometry.base_joints.ravel().tolist(),
-        f"{GEOMETRY_NAMESPACE}.platform_joints": geometry.platform_joints.ravel().tolist(),
-        f"{GEOMETRY_NAMESPACE}.leg_offsets": geometry.leg_offsets.tolist(),
-        f"{GEOMETRY_NAMESPACE}.device_length": geometry.device_length,
-        f"{GEOMETRY_NAMESPACE}.inclinometer_axes_angle": geometry.inclinometer_axes_angle,
+        f'{GEOMETRY_NAMESPACE}.base_joints': geometry.base_joints.ravel().tolist(),
+        f'{GEOMETRY_NAMESPACE}.platform_joints': geometry.platform_joints.ravel().tolist(),
+        f'{GEOMETRY_NAMESPACE}.leg_offsets': geometry.leg_offsets.tolist(),
+        f'{GEOMETRY_NAMESPACE}.device_length': geometry.device_length,
+        f'{GEOMETRY_NAMESPACE}.inclinometer_axes_angle': geometry.inclinometer_axes_angle,
     }
     for key in _LIMIT_KEYS:
-        parameters[f"{GEOMETRY_NAMESPACE}.limits.{key}"] = float(getattr(geometry.limits, key))
+        parameters[f'{GEOMETRY_NAMESPACE}.limits.{key}'] = float(getattr(geometry.limits, key))
     return parameters
 
 
 def _finite_float(value, key):
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise GeometryError(f"{key}: expected a number, got {value!r}")
+        raise GeometryError(f'{key}: expected a number, got {value!r}')
     value = float(value)
     if not math.isfinite(value):
-        raise GeometryError(f"{key}: value is not finite ({value})")
+        raise GeometryError(f'{key}: value is not finite ({value})')
     return value
 
 
 def geometry_from_parameters(parameters, default_limits=None):
     """Build a :class:`Geometry` from a flat ``geometry.*`` dictionary, checking every key."""
-    prefix = GEOMETRY_NAMESPACE + "."
+    prefix = GEOMETRY_NAMESPACE + '.'
     values = {}
     for key, length in _ARRAY_KEYS.items():
         full = prefix + key
         if full not in parameters or parameters[full] is None:
-            raise GeometryError(f"{full}: missing")
+            raise GeometryError(f'{full}: missing')
         raw = parameters[full]
-        if isinstance(raw, (str, bytes)) or not hasattr(raw, "__len__"):
-            raise GeometryError(f"{full}: expected a list of {length} numbers, got {raw!r}")
+        if isinstance(raw, (str, bytes)) or not hasattr(raw, '__len__'):
+            raise GeometryError(f'{full}: expected a list of {length} numbers, got {raw!r}')
         if len(raw) != length:
-            raise GeometryError(f"{full}: expected {length} values, got {len(raw)}")
-        values[key] = [_finite_float(item, f"{full}[{index}]") for index, item in enumerate(raw)]
+            raise GeometryError(f'{full}: expected {length} values, got {len(raw)}')
+        values[key] = [_finite_float(item, f'{full}[{index}]') for index, item in enumerate(raw)]
     for key in _SCALAR_KEYS:
         full = prefix + key
         if full not in parameters or parameters[full] is None:
-            raise GeometryError(f"{full}: missing")
+            raise GeometryError(f'{full}: missing')
         values[key] = _finite_float(parameters[full], full)
-    if values["device_length"] <= 0.0:
-        raise GeometryError(f"{prefix}device_length: must be positive, got {values['device_length']}")
-    if not 0.0 < values["inclinometer_axes_angle"] < math.pi:
+    if values['device_length'] <= 0.0:
         raise GeometryError(
-            f"{prefix}inclinometer_axes_angle: must be in (0, pi) rad, "
-            f"got {values['inclinometer_axes_angle']}"
+            f'{prefix}device_length: must be positive, got {values["device_length"]}'
+        )
+    if not 0.0 < values['inclinometer_axes_angle'] < math.pi:
+        raise GeometryError(
+            f'{prefix}inclinometer_axes_angle: must be in (0, pi) rad, '
+            f'got {values["inclinometer_axes_angle"]}'
         )
     limits = default_limits if default_limits is not None else Limits()
     limit_values = {}
     for key in _LIMIT_KEYS:
-        full = f"{prefix}limits.{key}"
+        full = f'{prefix}limits.{key}'
         if full in parameters and parameters[full] is not None:
             limit_values[key] = _finite_float(parameters[full], full)
     limits = dataclasses.replace(limits, **limit_values)
     limits.validate()
     return Geometry(
-        base_joints=np.reshape(values["base_joints"], (6, 3)),
-        platform_joints=np.reshape(values["platform_joints"], (6, 3)),
-        leg_offsets=values["leg_offsets"],
-        device_length=values["device_length"],
-        inclinometer_axes_angle=values["inclinometer_axes_angle"],
+        base_joints=np.reshape(values['base_joints'], (6, 3)),
+        platform_joints=np.reshape(values['platform_joints'], (6, 3)),
+        leg_offsets=values['leg_offsets'],
+        device_length=values['device_length'],
+        inclinometer_axes_angle=values['inclinometer_axes_angle'],
         limits=limits,
     )
 
 
-def _flatten(tree, prefix=""):
+def _flatten(tree, prefix=''):
     flat = {}
     for key, value in tree.items():
-        name = f"{prefix}{key}"
+        name = f'{prefix}{key}'
         if isinstance(value, dict):
-            flat.update(_flatten(value, name + "."))
+            flat.update(_flatten(value, name + '.'))
         else:
             flat[name] = value
     return flat
@@ -214,91 +218,86 @@ def _flatten(tree, prefix=""):
 
 def _ros_parameters_section(document, source):
     if not isinstance(document, dict) or not document:
-        raise GeometryError(f"{source}: expected a ROS 2 parameters YAML mapping")
+        raise GeometryError(f'{source}: expected a ROS 2 parameters YAML mapping')
     # Accept '/**', a node name, or a namespaced node name: take the first with ros__parameters.
     for node_name, section in document.items():
-        if isinstance(section, dict) and "ros__parameters" in section:
-            parameters = section["ros__parameters"]
+        if isinstance(section, dict) and 'ros__parameters' in section:
+            parameters = section['ros__parameters']
             if not isinstance(parameters, dict):
-                raise GeometryError(f"{source}: {node_name}.ros__parameters is not a mapping")
+                raise GeometryError(f'{source}: {node_name}.ros__parameters is not a mapping')
             return parameters
     raise GeometryError(f"{source}: no '<node>: ros__parameters:' section (expected '/**:')")
 
 
-def geometry_from_yaml(text, source="<string>"):
+def geometry_from_yaml(text, source='<string>'):
     """Parse the canonical params-file text into a :class:`Geometry`."""
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        raise GeometryError(f"{source}: not valid YAML: {error}") from error
+        raise GeometryError(f'{source}: not valid YAML: {error}') from error
     parameters = _ros_parameters_section(document, source)
     if GEOMETRY_NAMESPACE not in parameters or not isinstance(parameters[GEOMETRY_NAMESPACE], dict):
-        raise GeometryError(f"{source}: geometry: missing (expected ros__parameters.geometry)")
+        raise GeometryError(f'{source}: geometry: missing (expected ros__parameters.geometry)')
     try:
-        return geometry_from_parameters(_flatten({GEOMETRY_NAMESPACE: parameters["geometry"]}))
+        return geometry_from_parameters(_flatten({GEOMETRY_NAMESPACE: parameters['geometry']}))
     except GeometryError as error:
-        raise GeometryError(f"{source}: {error}") from None
+        raise GeometryError(f'{source}: {error}') from None
 
 
 def load_geometry(path):
     """Load a geometry params file; raises :class:`GeometryError` naming the key at fault."""
     path = os.fspath(path)
     try:
-        with open(path, encoding="utf-8") as stream:
+        with open(path, encoding='utf-8') as stream:
             text = stream.read()
     except OSError as error:
-        raise GeometryError(f"{path}: cannot read geometry file ({error.strerror})") from error
+        raise GeometryError(f'{path}: cannot read geometry file ({error.strerror})') from error
     return geometry_from_yaml(text, source=path)
 
 
-def geometry_to_yaml(geometry, node_name="/**", comment=None, extra_parameters=None):
+def geometry_to_yaml(geometry, node_name='/**', comment=None, extra_parameters=None):
     """Serialise to the canonical params-file text (full float precision)."""
 
     def floats(values):
-        return "[" + ", ".join(repr(float(value)) for value in values) + "]"
+        return '[' + ', '.join(repr(float(value)) for value in values) + ']'
 
     lines = []
     if comment:
-        lines += [f"# {line}" for line in comment.splitlines()]
+        lines += [f'# {line}' for line in comment.splitlines()]
     limits = geometry.limits
     lines += [
-        f"{node_name}:",
-        "  ros__parameters:",
-        "    geometry:",
-        f"      base_joints: {floats(geometry.base_joints.ravel())}  # A_1..A_6 xyz, base frame, m",
-        f"      platform_joints: {floats(geometry.platform_joints.ravel())}"
-        "  # B_1..B_6 xyz, platform frame, m",
-        f"      leg_offsets: {floats(geometry.leg_offsets)}  # L_off_i, m",
-        f"      device_length: {geometry.device_length!r}  # D0, m",
-        f"      inclinometer_axes_angle: {geometry.inclinometer_axes_angle!r}  # gamma, rad",
-        "      limits:",
-        f"        leg_stroke_min: {limits.leg_stroke_min!r}  # q_min, m",
-        f"        leg_stroke_max: {limits.leg_stroke_max!r}  # q_max, m",
-        f"        base_joint_max_angle: {limits.base_joint_max_angle!r}  # rad",
-        f"        platform_joint_max_angle: {limits.platform_joint_max_angle!r}  # rad",
+        f'{node_name}:',
+        '  ros__parameters:',
+        '    geometry:',
+        f'      base_joints: {floats(geometry.base_joints.ravel())}  # A_1..A_6 xyz, base frame, m',
+        f'      platform_joints: {floats(geometry.platform_joints.ravel())}'
+        '  # B_1..B_6 xyz, platform frame, m',
+        f'      leg_offsets: {floats(geometry.leg_offsets)}  # L_off_i, m',
+        f'      device_length: {geometry.device_length!r}  # D0, m',
+        f'      inclinometer_axes_angle: {geometry.inclinometer_axes_angle!r}  # gamma, rad',
+        '      limits:',
+        f'        leg_stroke_min: {limits.leg_stroke_min!r}  # q_min, m',
+        f'        leg_stroke_max: {limits.leg_stroke_max!r}  # q_max, m',
+        f'        base_joint_max_angle: {limits.base_joint_max_angle!r}  # rad',
+        f'        platform_joint_max_angle: {limits.platform_joint_max_angle!r}  # rad',
     ]
     for key, value in (extra_parameters or {}).items():
-        lines.append(f"    {key}: {yaml.safe_dump(value, default_flow_style=True).strip()}")
-    return "\n".join(lines) + "\n"
+        lines.append(f'    {key}: {yaml.safe_dump(value, default_flow_style=True).strip()}')
+    return '\n'.join(lines) + '\n'
 
 
 def save_geometry(geometry, path, **kwargs):
-    """Write atomically (temporary file then rename)."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    temporary = f"{path}.tmp{os.getpid()}"
-    with open(temporary, "w", encoding="utf-8") as stream:
-        stream.write(geometry_to_yaml(geometry, **kwargs))
-    os.replace(temporary, path)
+    """Write the params file atomically (:func:`gsp_kinematics.fileio.atomic_write_text`);
+    ``kwargs`` go to :func:`geometry_to_yaml`."""
+    atomic_write_text(path, geometry_to_yaml(geometry, **kwargs))
 
 
-def default_geometry_path(kind="true"):
+def default_geometry_path(kind='true'):
     """Path of the shipped default geometry file, ``kind`` in {'true', 'nominal'}."""
-    if kind not in ("true", "nominal"):
+    if kind not in ('true', 'nominal'):
         raise ValueError(f"kind must be 'true' or 'nominal', got {kind!r}")
-    return str(resources.files("gsp_kinematics") / "data" / f"{kind}_geometry.yaml")
+    return str(resources.files('gsp_kinematics') / 'data' / f'{kind}_geometry.yaml')
 
 
-def default_geometry(kind="true"):
+def default_geometry(kind='true'):
     return load_geometry(default_geometry_path(kind))

@@ -25,7 +25,7 @@ def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_R
     names = [name for name, is_free in zip(PARAMETER_NAMES, free, strict=True) if is_free]
     information = np.asarray(information, dtype=float)
     if information.shape != (len(names), len(names)):
-        raise ValueError(f"information must be {len(names)}x{len(names)}, got {information.shape}")
+        raise ValueError(f'information must be {len(names)}x{len(names)}, got {information.shape}')
     diagonal = np.diag(information).copy()
     largest = max(float(diagonal.max(initial=0.0)), 1e-300)
     # A column with (almost) no information at all cannot be scaled; it is unidentifiable by itself.
@@ -38,7 +38,9 @@ def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_R
     threshold = relative_tolerance * singular_values[0]
     null = singular_values <= threshold
     rank = int(np.count_nonzero(~null))
-    condition = float(singular_values[0] / singular_values[-1]) if singular_values[-1] > 0 else float("inf")
+    condition = (
+        float(singular_values[0] / singular_values[-1]) if singular_values[-1] > 0 else float('inf')
+    )
     unidentifiable = []
     for column in np.flatnonzero(null):
         vector = eigenvectors[:, column]
@@ -47,28 +49,40 @@ def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_R
         sign = np.sign(vector[order[0]])
         coefficients = [float(sign * vector[index]) for index in keep]
         members = [names[index] for index in keep]
-        text = " ".join(
-            f"{'-' if value < 0 else '+'} {abs(value):.2f}*{name}" for value, name in zip(coefficients, members, strict=True)
-        ).lstrip("+ ")
-        unidentifiable.append({"combination": text, "parameters": members, "coefficients": coefficients})
+        text = ' '.join(
+            f'{"-" if value < 0 else "+"} {abs(value):.2f}*{name}'
+            for value, name in zip(coefficients, members, strict=True)
+        ).lstrip('+ ')
+        unidentifiable.append(
+            {'combination': text, 'parameters': members, 'coefficients': coefficients}
+        )
     return {
-        "rank": rank,
-        "parameters": len(names),
-        "condition_number": condition,
-        "singular_values": singular_values.tolist(),
-        "unidentifiable": unidentifiable,
+        'rank': rank,
+        'parameters': len(names),
+        'condition_number': condition,
+        'singular_values': singular_values.tolist(),
+        'unidentifiable': unidentifiable,
     }
 
 
 def unidentifiable_parameters(analysis):
     """Sorted names of every parameter involved in a null direction."""
-    return sorted({name for entry in analysis["unidentifiable"] for name in entry["parameters"]})
+    return sorted({name for entry in analysis['unidentifiable'] for name in entry['parameters']})
 
 
-def analyse_design(geometry, poses, sigmas=Sigmas(), free=None, formulation="implicit", sensors=SENSOR_NAMES,
-                   relative_tolerance=DEFAULT_RELATIVE_TOLERANCE):
+def analyse_design(
+    geometry,
+    poses,
+    sigmas=Sigmas(),
+    free=None,
+    formulation='implicit',
+    sensors=SENSOR_NAMES,
+    relative_tolerance=DEFAULT_RELATIVE_TOLERANCE,
+):
     """Identifiability of a measurement design (postures, sensors) before any data is taken."""
     from .selection import posture_information
 
-    information = posture_information(geometry, poses, sigmas, free, formulation, sensors).sum(axis=0)
+    information = posture_information(geometry, poses, sigmas, free, formulation, sensors).sum(
+        axis=0
+    )
     return analyse_identifiability(information, free, relative_tolerance)

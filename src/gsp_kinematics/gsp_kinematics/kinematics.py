@@ -25,7 +25,7 @@ def _as_poses(poses):
     if poses.ndim == 1:
         poses = poses[None, :]
     if poses.ndim != 2 or poses.shape[1] != 6:
-        raise ValueError(f"poses must have shape (M, 6), got {poses.shape}")
+        raise ValueError(f'poses must have shape (M, 6), got {poses.shape}')
     return poses
 
 
@@ -34,7 +34,7 @@ def leg_vectors(geometry, poses):
     poses = _as_poses(poses)
     rotation = euler_to_matrix(poses[:, 3:])
     vectors = (
-        np.einsum("mjk,ik->mij", rotation, geometry.platform_joints)
+        np.einsum('mjk,ik->mij', rotation, geometry.platform_joints)
         + poses[:, None, :3]
         - geometry.base_joints[None]
     )
@@ -58,14 +58,14 @@ def inverse_kinematics_jacobians(geometry, poses):
     lengths = np.linalg.norm(vectors, axis=2)
     directions = vectors / lengths[..., None]
     d_rotation = euler_to_matrix_derivatives(poses[:, 3:])  # (M, 3, 3, 3)
-    d_rotated_joints = np.einsum("makl,il->maik", d_rotation, geometry.platform_joints)
+    d_rotated_joints = np.einsum('makl,il->maik', d_rotation, geometry.platform_joints)
     d_q_d_pose = np.concatenate(
-        [directions, np.einsum("mik,maik->mia", directions, d_rotated_joints)], axis=2
+        [directions, np.einsum('mik,maik->mia', directions, d_rotated_joints)], axis=2
     )
     d_q_d_leg = np.concatenate(
         [
             -directions,
-            np.einsum("mik,mkl->mil", directions, rotation),  # n^T R
+            np.einsum('mik,mkl->mil', directions, rotation),  # n^T R
             -np.ones(lengths.shape + (1,)),
         ],
         axis=2,
@@ -108,7 +108,7 @@ def forward_kinematics_masked(
         guess = np.repeat(guess, leg_lengths.shape[0], axis=0)
     if leg_lengths.shape != guess.shape:
         raise ValueError(
-            f"leg_lengths {leg_lengths.shape} and guess {guess.shape} must both be (M, 6)"
+            f'leg_lengths {leg_lengths.shape} and guess {guess.shape} must both be (M, 6)'
         )
     poses = guess.copy()
     active = np.all(np.isfinite(leg_lengths), axis=1) & np.all(np.isfinite(poses), axis=1)
@@ -124,9 +124,9 @@ def forward_kinematics_masked(
         solvable = np.abs(determinant) > 1e-12
         step = np.zeros_like(residual)
         if np.any(solvable):
-            step[solvable] = np.linalg.solve(
-                d_q_d_pose[solvable], residual[solvable][..., None]
-            )[..., 0]
+            step[solvable] = np.linalg.solve(d_q_d_pose[solvable], residual[solvable][..., None])[
+                ..., 0
+            ]
         # Cap the step so a poor guess cannot throw Newton into another assembly mode.
         scale = np.maximum(
             1.0,
@@ -163,9 +163,9 @@ def forward_kinematics(geometry, leg_lengths, guess, **options):
     if not np.all(converged):
         failed = np.flatnonzero(~converged)
         raise ForwardKinematicsError(
-            f"forward kinematics failed for posture(s) {failed.tolist()[:20]}: no solution "
-            "within tolerance near the guess (unreachable leg lengths, singularity or another "
-            "assembly mode)",
+            f'forward kinematics failed for posture(s) {failed.tolist()[:20]}: no solution '
+            'within tolerance near the guess (unreachable leg lengths, singularity or another '
+            'assembly mode)',
             failed,
         )
     return poses
@@ -182,7 +182,9 @@ class Workspace:
     z_min: float = 0.85  #: m
     z_max: float = 1.15  #: m
     rotation_range: float = math.radians(40.0)  #: rad, +- for psi, theta and phi
-    max_condition: float = 60.0  #: largest condition number of dq/dX allowed (away from singularity)
+    max_condition: float = (
+        60.0  #: largest condition number of dq/dX allowed (away from singularity)
+    )
 
 
 def joint_angles(geometry, poses):
@@ -192,7 +194,7 @@ def joint_angles(geometry, poses):
     base_angle = np.arccos(np.clip(vectors[..., 2] / lengths, -1.0, 1.0))
     platform_normal = rotation[:, :, 2]
     platform_angle = np.arccos(
-        np.clip(np.einsum("mik,mk->mi", vectors, platform_normal) / lengths, -1.0, 1.0)
+        np.clip(np.einsum('mik,mk->mi', vectors, platform_normal) / lengths, -1.0, 1.0)
     )
     return base_angle, platform_angle
 
@@ -211,32 +213,32 @@ def check_reachable(geometry, poses, max_condition=None):
     for m in range(poses.shape[0]):
         problems = []
         if not finite[m]:
-            problems.append("pose is not finite")
+            problems.append('pose is not finite')
         else:
             for leg in range(6):
                 if q[m, leg] < limits.leg_stroke_min:
                     problems.append(
-                        f"leg_{leg + 1} stroke {q[m, leg]:.4f} m below {limits.leg_stroke_min:.4f} m"
+                        f'leg_{leg + 1} stroke {q[m, leg]:.4f} m below {limits.leg_stroke_min:.4f} m'
                     )
                 elif q[m, leg] > limits.leg_stroke_max:
                     problems.append(
-                        f"leg_{leg + 1} stroke {q[m, leg]:.4f} m above {limits.leg_stroke_max:.4f} m"
+                        f'leg_{leg + 1} stroke {q[m, leg]:.4f} m above {limits.leg_stroke_max:.4f} m'
                     )
                 if base_angle[m, leg] > limits.base_joint_max_angle:
                     problems.append(
-                        f"base joint {leg + 1} angle {math.degrees(base_angle[m, leg]):.1f} deg "
-                        f"above {math.degrees(limits.base_joint_max_angle):.1f} deg"
+                        f'base joint {leg + 1} angle {math.degrees(base_angle[m, leg]):.1f} deg '
+                        f'above {math.degrees(limits.base_joint_max_angle):.1f} deg'
                     )
                 if platform_angle[m, leg] > limits.platform_joint_max_angle:
                     problems.append(
-                        f"platform joint {leg + 1} angle "
-                        f"{math.degrees(platform_angle[m, leg]):.1f} deg above "
-                        f"{math.degrees(limits.platform_joint_max_angle):.1f} deg"
+                        f'platform joint {leg + 1} angle '
+                        f'{math.degrees(platform_angle[m, leg]):.1f} deg above '
+                        f'{math.degrees(limits.platform_joint_max_angle):.1f} deg'
                     )
             if condition is not None and not condition[m] < max_condition:
-                problems.append(f"near a singularity (condition number {condition[m]:.0f})")
+                problems.append(f'near a singularity (condition number {condition[m]:.0f})')
         ok[m] = not problems
-        reasons.append("; ".join(problems))
+        reasons.append('; '.join(problems))
     return ok, reasons
 
 
@@ -259,8 +261,13 @@ def reachable_mask(geometry, poses, max_condition=None):
 
 def sample_postures(rng, count, workspace=Workspace()):
     """Uniform random postures in the workspace box (not checked for reachability)."""
-    low = np.array([-workspace.xy_range, -workspace.xy_range, workspace.z_min] + [-workspace.rotation_range] * 3)
-    high = np.array([workspace.xy_range, workspace.xy_range, workspace.z_max] + [workspace.rotation_range] * 3)
+    low = np.array(
+        [-workspace.xy_range, -workspace.xy_range, workspace.z_min]
+        + [-workspace.rotation_range] * 3
+    )
+    high = np.array(
+        [workspace.xy_range, workspace.xy_range, workspace.z_max] + [workspace.rotation_range] * 3
+    )
     return rng.uniform(low, high, size=(count, 6))
 
 
@@ -272,7 +279,7 @@ def sample_valid_postures(geometry, count, rng, workspace=Workspace(), max_draws
     while total < count:
         if drawn >= max_draws:
             raise RuntimeError(
-                f"only {total} of {count} reachable postures in {drawn} draws: the workspace "
+                f'only {total} of {count} reachable postures in {drawn} draws: the workspace '
                 "does not fit the geometry's limits"
             )
         batch = sample_postures(rng, 4096, workspace)

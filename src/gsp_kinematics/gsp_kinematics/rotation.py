@@ -13,13 +13,16 @@ def wrap_angle(angle):
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def euler_to_matrix(euler):
-    """Rotation matrices from ``[..., (psi, theta, phi)]`` (rad), eq (2)."""
+def _cosines_and_sines(euler):
+    """``(euler as an array, cos psi, sin psi, cos theta, sin theta, cos phi, sin phi)``."""
     euler = np.asarray(euler, dtype=float)
     psi, theta, phi = euler[..., 0], euler[..., 1], euler[..., 2]
-    cps, sps = np.cos(psi), np.sin(psi)
-    cth, sth = np.cos(theta), np.sin(theta)
-    cph, sph = np.cos(phi), np.sin(phi)
+    return euler, np.cos(psi), np.sin(psi), np.cos(theta), np.sin(theta), np.cos(phi), np.sin(phi)
+
+
+def euler_to_matrix(euler):
+    """Rotation matrices from ``[..., (psi, theta, phi)]`` (rad), eq (2)."""
+    euler, cps, sps, cth, sth, cph, sph = _cosines_and_sines(euler)
     rotation = np.empty(euler.shape[:-1] + (3, 3))
     rotation[..., 0, 0] = cth * cph + sth * sph * sps
     rotation[..., 0, 1] = -cth * sph + sth * sps * cph
@@ -35,11 +38,7 @@ def euler_to_matrix(euler):
 
 def euler_to_matrix_derivatives(euler):
     """``dR/dpsi, dR/dtheta, dR/dphi`` stacked on axis -3: shape ``[..., 3, 3, 3]``."""
-    euler = np.asarray(euler, dtype=float)
-    psi, theta, phi = euler[..., 0], euler[..., 1], euler[..., 2]
-    cps, sps = np.cos(psi), np.sin(psi)
-    cth, sth = np.cos(theta), np.sin(theta)
-    cph, sph = np.cos(phi), np.sin(phi)
+    euler, cps, sps, cth, sth, cph, sph = _cosines_and_sines(euler)
     out = np.zeros(euler.shape[:-1] + (3, 3, 3))
     # Element-wise derivatives of eq (2).
     out[..., 0, 0, 0] = sth * sph * cps
@@ -89,7 +88,7 @@ def quaternion_to_matrix(quaternion):
     flat = quaternion.reshape(-1, 4)
     norms = np.linalg.norm(flat, axis=1)
     if np.any(~np.isfinite(norms)) or np.any(norms < 1e-9):
-        raise ValueError("quaternion must be finite and non-zero")
+        raise ValueError('quaternion must be finite and non-zero')
     matrices = Rotation.from_quat(flat).as_matrix()
     return matrices.reshape(quaternion.shape[:-1] + (3, 3))
 

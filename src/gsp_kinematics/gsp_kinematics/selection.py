@@ -2,20 +2,23 @@
 
 import numpy as np
 
+from ._lm import schur_information
 from .device import device_readings_jacobians
 from .geometry import NUM_PARAMETERS
 from .identification import SENSOR_NAMES, Sigmas, resolve_free
 from .kinematics import expand_leg_parameters, inverse_kinematics_jacobians
 
 
-def posture_information(geometry, poses, sigmas=Sigmas(), free=None, formulation="implicit", sensors=SENSOR_NAMES):
+def posture_information(
+    geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
+):
     """Per-posture information matrices (N, n, n) of the free parameters.
 
     For ``'implicit'`` each posture's pose is eliminated (Schur complement), which is additive over
     postures; for ``'fk'`` it is ``J_k^T J_k`` of the FK-based residuals. Both are weighted.
     """
     free = resolve_free(free)
-    columns = [c for c, name in enumerate(("alpha", "beta", "phi", "d_m")) if name in sensors]
+    columns = [c for c, name in enumerate(('alpha', 'beta', 'phi', 'd_m')) if name in sensors]
     _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
     _, d_h_d_pose, d_h_d_device = device_readings_jacobians(geometry, poses)
     count = poses.shape[0]
@@ -27,13 +30,10 @@ def posture_information(geometry, poses, sigmas=Sigmas(), free=None, formulation
     d_h_d_pose = d_h_d_pose[:, columns] * reading_weights[None, :, None]
     d_h_d_u = d_h_d_u[:, columns][:, :, free] * reading_weights[None, :, None]
     d_q_d_u = d_q_d_u[:, :, free]
-    if formulation == "implicit":
+    if formulation == 'implicit':
         jac_pose = np.concatenate([d_q_d_pose / sigmas.leg_lengths, d_h_d_pose], axis=1)
         jac_u = np.concatenate([d_q_d_u / sigmas.leg_lengths, d_h_d_u], axis=1)
-        jac_pose_t = np.swapaxes(jac_pose, 1, 2)
-        h_xu = jac_pose_t @ jac_u
-        h_uu = np.swapaxes(jac_u, 1, 2) @ jac_u
-        return h_uu - np.swapaxes(h_xu, 1, 2) @ np.linalg.solve(jac_pose_t @ jac_pose, h_xu)
+        return schur_information(jac_pose, jac_u, per_posture=True)
     jacobian = d_h_d_u - d_h_d_pose @ np.linalg.solve(d_q_d_pose, d_q_d_u)
     return np.swapaxes(jacobian, 1, 2) @ jacobian
 
@@ -43,13 +43,19 @@ def scaled_condition_number(information):
     scale = 1.0 / np.sqrt(np.maximum(np.diagonal(information, axis1=-2, axis2=-1), 1e-300))
     scaled = information * scale[..., :, None] * scale[..., None, :]
     eigenvalues = np.linalg.eigvalsh(scaled)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide='ignore', invalid='ignore'):
         condition = np.sqrt(eigenvalues[..., -1] / eigenvalues[..., 0])
     return np.where(eigenvalues[..., 0] > 1e-14 * eigenvalues[..., -1], condition, np.inf)
 
 
 def select_postures(
-    geometry, pool, count=60, sigmas=Sigmas(), free=None, formulation="implicit", exchange_passes=1,
+    geometry,
+    pool,
+    count=60,
+    sigmas=Sigmas(),
+    free=None,
+    formulation='implicit',
+    exchange_passes=1,
     shortlist=96,
 ):
     """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number.
@@ -63,7 +69,7 @@ def select_postures(
     """
     pool = np.asarray(pool, dtype=float)
     if pool.shape[0] < count:
-        raise ValueError(f"the pool has {pool.shape[0]} postures, fewer than the {count} requested")
+        raise ValueError(f'the pool has {pool.shape[0]} postures, fewer than the {count} requested')
     information = posture_information(geometry, pool, sigmas, free, formulation)
     # One scale for every candidate set, so conditions compare like with like.
     scale = 1.0 / np.sqrt(np.maximum(np.diagonal(information.sum(axis=0)), 1e-300)) * np.sqrt(count)

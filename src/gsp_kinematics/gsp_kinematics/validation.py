@@ -25,10 +25,10 @@ def reached_poses(true, controller, commanded):
 
 def summarise(position_mm, orientation_deg):
     return {
-        "position_mm_mean": float(np.mean(position_mm)),
-        "position_mm_max": float(np.max(position_mm)),
-        "orientation_deg_mean": float(np.mean(orientation_deg)),
-        "orientation_deg_max": float(np.max(orientation_deg)),
+        'position_mm_mean': float(np.mean(position_mm)),
+        'position_mm_max': float(np.max(position_mm)),
+        'orientation_deg_mean': float(np.mean(orientation_deg)),
+        'orientation_deg_max': float(np.max(orientation_deg)),
     }
 
 
@@ -42,9 +42,9 @@ def validate(true, controller, commanded):
     leg_lengths = inverse_kinematics(controller, commanded)
     reached, converged = forward_kinematics_masked(true, leg_lengths, commanded)
     if not converged.any():
-        raise ValueError("no validation posture is reachable by the real platform")
+        raise ValueError('no validation posture is reachable by the real platform')
     position_mm, orientation_deg = pose_errors(commanded[converged], reached[converged])
     summary = summarise(position_mm, orientation_deg)
-    summary["postures"] = int(converged.sum())
-    summary["unreachable"] = int((~converged).sum())
+    summary['postures'] = int(converged.sum())
+    summary['unreachable'] = int((~converged).sum())
     return summary

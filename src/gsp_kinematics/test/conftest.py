@@ -1,12 +1,19 @@
-"""Shared fixtures of the core's tests: the paper's exact geometry, nominal sets, random postures."""
+"""Shared fixtures of the core's tests: the paper's exact geometry, nominal sets, random postures.
+
+The geometries are files in ``test/data`` (written by ``gsp_experiments.nominal_sets``; the params
+file keeps every float exactly), so the core's tests do not depend on the experiments package.
+"""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from gsp_kinematics.geometry import load_geometry
 from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.nominal_sets import drawing_geometry, nominal_set
+
+DATA = Path(__file__).resolve().parent / 'data'
 
 
 @pytest.fixture
@@ -14,23 +21,25 @@ def rng():
     return np.random.default_rng(20240601)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope='session')
 def exact():
-    return drawing_geometry()
+    """The paper's exact geometry (D0 = 850 mm, gamma = 90 deg)."""
+    return load_geometry(DATA / 'paper_exact.yaml')
 
 
-@pytest.fixture(scope="session")
-def nominal_sets(exact):
-    return {k: nominal_set(exact, k) for k in (1, 2, 3)}
+@pytest.fixture(scope='session')
+def nominal_sets():
+    """The paper's nominal sets 1-3 (Tables 1 and 2) of :func:`exact`."""
+    return {k: load_geometry(DATA / f'paper_nominal_set_{k}.yaml') for k in (1, 2, 3)}
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope='session')
 def postures(exact):
     """400 random valid postures of the exact geometry over the paper's full range (+-40 deg)."""
     return sample_valid_postures(exact, 400, np.random.default_rng(7))
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope='session')
 def moderate_postures(exact):
     """60 valid postures within +-25 deg: FK converges under every nominal set from them."""
     workspace = Workspace(rotation_range=math.radians(25.0))
@@ -49,7 +58,7 @@ def finite_difference(function, x, step):
     return np.moveaxis(np.array(columns), 0, -1).reshape(np.shape(function(x)) + x.shape)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope='session')
 def fd():
     """:func:`finite_difference` (a fixture, so test modules need not import conftest)."""
     return finite_difference

@@ -74,7 +74,7 @@ def test_device_readings(exact, postures):
     np.testing.assert_allclose(position, postures[:, :3], atol=1e-13)
 
 
-@pytest.mark.parametrize("gamma_deg", [90.0, 88.3, 91.7])
+@pytest.mark.parametrize('gamma_deg', [90.0, 88.3, 91.7])
 def test_device_readings_jacobians_match_finite_differences(exact, postures, gamma_deg, fd):
     geometry = exact.replace(inclinometer_axes_angle=math.radians(gamma_deg), device_length=0.8502)
     poses = postures[:15]
@@ -92,7 +92,7 @@ def test_device_readings_jacobians_match_finite_differences(exact, postures, gam
     np.testing.assert_allclose(d_device, numeric, atol=1e-7)
 
 
-@pytest.mark.parametrize("gamma_deg", [90.0, 89.5, 91.0])
+@pytest.mark.parametrize('gamma_deg', [90.0, 89.5, 91.0])
 def test_paper_inclinations_jacobians_match_finite_differences(exact, postures, gamma_deg, fd):
     geometry = exact.replace(inclinometer_axes_angle=math.radians(gamma_deg), device_length=0.8487)
     poses = postures[:15]

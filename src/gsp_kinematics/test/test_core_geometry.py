@@ -1,4 +1,4 @@
-"""Geometry parameters, the params-file format and its error messages; the nominal sets."""
+"""Geometry parameters, the params-file format and its error messages."""
 
 import math
 
@@ -21,7 +21,6 @@ from gsp_kinematics.geometry import (
     parameter_errors,
     save_geometry,
 )
-from gsp_kinematics.nominal_sets import TABLE1_ERRORS_MM, TABLE2_DEVICE
 
 VALID = """\
 /**:
@@ -37,9 +36,9 @@ VALID = """\
 
 def test_parameter_names():
     assert len(PARAMETER_NAMES) == 44 == len(set(PARAMETER_NAMES)) == len(PARAMETER_CHAIN)
-    assert PARAMETER_NAMES[:4] == ("A1x", "A1y", "A1z", "A2x")
-    assert PARAMETER_NAMES[18] == "B1x" and PARAMETER_NAMES[36] == "Loff1"
-    assert PARAMETER_NAMES[-2:] == ("D0", "gamma")
+    assert PARAMETER_NAMES[:4] == ('A1x', 'A1y', 'A1z', 'A2x')
+    assert PARAMETER_NAMES[18] == 'B1x' and PARAMETER_NAMES[36] == 'Loff1'
+    assert PARAMETER_NAMES[-2:] == ('D0', 'gamma')
 
 
 def test_vector_round_trip(exact):
@@ -48,7 +47,7 @@ def test_vector_round_trip(exact):
     again = Geometry.from_vector(vector, exact.limits)
     np.testing.assert_array_equal(again.to_vector(), vector)
     assert again.limits == exact.limits
-    with pytest.raises(GeometryError, match="44"):
+    with pytest.raises(GeometryError, match='44'):
         Geometry.from_vector(vector[:43])
 
 
@@ -63,22 +62,22 @@ def test_parameter_errors_are_in_mm_and_deg(exact):
 
 def test_yaml_round_trip_is_exact(nominal_sets, tmp_path):
     geometry = nominal_sets[3].replace(limits=Limits(0.01, 1.1, 1.2, 1.3))
-    again = geometry_from_yaml(geometry_to_yaml(geometry, comment="set 3\nround trip"))
+    again = geometry_from_yaml(geometry_to_yaml(geometry, comment='set 3\nround trip'))
     np.testing.assert_array_equal(again.to_vector(), geometry.to_vector())
     assert again.limits == geometry.limits
-    path = tmp_path / "sub" / "geometry.yaml"
-    save_geometry(geometry, path, comment="saved")
-    assert path.read_text().startswith("# saved\n/**:\n  ros__parameters:\n    geometry:\n")
+    path = tmp_path / 'sub' / 'geometry.yaml'
+    save_geometry(geometry, path, comment='saved')
+    assert path.read_text().startswith('# saved\n/**:\n  ros__parameters:\n    geometry:\n')
     loaded = load_geometry(path)
     np.testing.assert_array_equal(loaded.to_vector(), geometry.to_vector())
     assert loaded.limits == geometry.limits
-    assert list(tmp_path.glob("sub/*tmp*")) == []  # atomic write leaves nothing behind
+    assert list(tmp_path.glob('sub/*tmp*')) == []  # atomic write leaves nothing behind
 
 
 def test_parameters_dict_round_trip(nominal_sets):
     geometry = nominal_sets[1]
     parameters = geometry_to_parameters(geometry)
-    assert len(parameters["geometry.base_joints"]) == 18
+    assert len(parameters['geometry.base_joints']) == 18
     again = geometry_from_parameters(parameters)
     np.testing.assert_array_equal(again.to_vector(), geometry.to_vector())
     assert again.limits == geometry.limits
@@ -91,102 +90,85 @@ def test_minimal_file_loads_with_default_limits():
     np.testing.assert_array_equal(geometry.base_joints[1], [0.5, 0.8, 0.0])
 
 
-@pytest.mark.parametrize("kind", ["true", "nominal"])
+@pytest.mark.parametrize('kind', ['true', 'nominal'])
 def test_shipped_geometries_load(kind):
     geometry = default_geometry(kind)
-    assert default_geometry_path(kind).endswith(f"{kind}_geometry.yaml")
+    assert default_geometry_path(kind).endswith(f'{kind}_geometry.yaml')
     assert np.all(np.isfinite(geometry.to_vector()))
 
 
 def replace_line(key, new_line):
     lines = VALID.splitlines()
-    out = [new_line if line.strip().startswith(key + ":") else line for line in lines]
-    return "\n".join(line for line in out if line is not None) + "\n"
+    out = [new_line if line.strip().startswith(key + ':') else line for line in lines]
+    return '\n'.join(line for line in out if line is not None) + '\n'
 
 
 BAD_FILES = {
-    "missing key": (
-        replace_line("platform_joints", "      # platform_joints removed"),
-        ["geometry.platform_joints", "missing"],
+    'missing key': (
+        replace_line('platform_joints', '      # platform_joints removed'),
+        ['geometry.platform_joints', 'missing'],
     ),
-    "missing scalar": (
-        replace_line("device_length", "      # no device length"),
-        ["geometry.device_length", "missing"],
+    'missing scalar': (
+        replace_line('device_length', '      # no device length'),
+        ['geometry.device_length', 'missing'],
     ),
-    "wrong length": (
-        replace_line("base_joints", "      base_joints: [1.0, 2.0, 3.0]"),
-        ["geometry.base_joints", "18", "3"],
+    'wrong length': (
+        replace_line('base_joints', '      base_joints: [1.0, 2.0, 3.0]'),
+        ['geometry.base_joints', '18', '3'],
     ),
-    "not a list": (
-        replace_line("leg_offsets", "      leg_offsets: 0.6"),
-        ["geometry.leg_offsets", "list"],
+    'not a list': (
+        replace_line('leg_offsets', '      leg_offsets: 0.6'),
+        ['geometry.leg_offsets', 'list'],
     ),
-    "nan": (
-        replace_line("leg_offsets", "      leg_offsets: [0.6, 0.6, .nan, 0.6, 0.6, 0.6]"),
-        ["geometry.leg_offsets[2]", "not finite"],
+    'nan': (
+        replace_line('leg_offsets', '      leg_offsets: [0.6, 0.6, .nan, 0.6, 0.6, 0.6]'),
+        ['geometry.leg_offsets[2]', 'not finite'],
     ),
-    "inf": (
-        replace_line("device_length", "      device_length: .inf"),
-        ["geometry.device_length", "not finite"],
+    'inf': (
+        replace_line('device_length', '      device_length: .inf'),
+        ['geometry.device_length', 'not finite'],
     ),
-    "not a number": (
-        replace_line("leg_offsets", "      leg_offsets: [0.6, 0.6, 0.6, abc, 0.6, 0.6]"),
-        ["geometry.leg_offsets[3]", "number"],
+    'not a number': (
+        replace_line('leg_offsets', '      leg_offsets: [0.6, 0.6, 0.6, abc, 0.6, 0.6]'),
+        ['geometry.leg_offsets[3]', 'number'],
     ),
-    "negative length": (
-        replace_line("device_length", "      device_length: -0.85"),
-        ["geometry.device_length"],
+    'negative length': (
+        replace_line('device_length', '      device_length: -0.85'),
+        ['geometry.device_length'],
     ),
-    "gamma out of range": (
-        replace_line("inclinometer_axes_angle", "      inclinometer_axes_angle: 4.0"),
-        ["geometry.inclinometer_axes_angle"],
+    'gamma out of range': (
+        replace_line('inclinometer_axes_angle', '      inclinometer_axes_angle: 4.0'),
+        ['geometry.inclinometer_axes_angle'],
     ),
-    "not a mapping": ("- 1\n- 2\n", ["mapping"]),
-    "empty": ("", ["mapping"]),
-    "no ros__parameters": (VALID.replace("ros__parameters", "parameters"), ["ros__parameters"]),
-    "ros__parameters not a mapping": (
-        "/**:\n  ros__parameters: [1, 2]\n",
-        ["ros__parameters", "not a mapping"],
+    'not a mapping': ('- 1\n- 2\n', ['mapping']),
+    'empty': ('', ['mapping']),
+    'no ros__parameters': (VALID.replace('ros__parameters', 'parameters'), ['ros__parameters']),
+    'ros__parameters not a mapping': (
+        '/**:\n  ros__parameters: [1, 2]\n',
+        ['ros__parameters', 'not a mapping'],
     ),
-    "no geometry": ("/**:\n  ros__parameters:\n    other: 1\n", ["geometry", "missing"]),
-    "invalid yaml": ("/**:\n  ros__parameters: {geometry: [\n", ["not valid YAML"]),
-    "bad limits": (
-        VALID + "      limits:\n        leg_stroke_min: 2.0\n        leg_stroke_max: 1.0\n",
-        ["leg_stroke_min"],
+    'no geometry': ('/**:\n  ros__parameters:\n    other: 1\n', ['geometry', 'missing']),
+    'invalid yaml': ('/**:\n  ros__parameters: {geometry: [\n', ['not valid YAML']),
+    'bad limits': (
+        VALID + '      limits:\n        leg_stroke_min: 2.0\n        leg_stroke_max: 1.0\n',
+        ['leg_stroke_min'],
     ),
 }
 
 
-@pytest.mark.parametrize("case", sorted(BAD_FILES))
+@pytest.mark.parametrize('case', sorted(BAD_FILES))
 def test_bad_geometry_files_name_the_key(case, tmp_path):
     text, fragments = BAD_FILES[case]
-    path = tmp_path / "bad.yaml"
+    path = tmp_path / 'bad.yaml'
     path.write_text(text)
     with pytest.raises(GeometryError) as caught:
         load_geometry(path)
     message = str(caught.value)
     assert str(path) in message
     for fragment in fragments:
-        assert fragment in message, f"{fragment!r} not in {message!r}"
+        assert fragment in message, f'{fragment!r} not in {message!r}'
 
 
 def test_unreadable_file_is_a_geometry_error(tmp_path):
-    with pytest.raises(GeometryError, match="cannot read"):
-        load_geometry(tmp_path / "absent.yaml")
-
-
-@pytest.mark.parametrize("set_number", [1, 2, 3])
-def test_nominal_sets_match_tables_1_and_2(exact, nominal_sets, set_number):
-    errors_mm = (nominal_sets[set_number].to_vector() - exact.to_vector())[:42] * 1000.0
-    maximum, mean, sigma = TABLE1_ERRORS_MM[set_number]
-    assert np.max(np.abs(errors_mm)) == pytest.approx(maximum, abs=1e-6)
-    assert np.mean(np.abs(errors_mm)) == pytest.approx(mean, abs=1e-3)
-    assert np.std(errors_mm) == pytest.approx(sigma, abs=1e-3)
-    device_length_mm, gamma_deg = TABLE2_DEVICE[set_number]
-    assert nominal_sets[set_number].device_length == pytest.approx(device_length_mm / 1000.0)
-    assert math.degrees(nominal_sets[set_number].inclinometer_axes_angle) == pytest.approx(
-        gamma_deg
-    )
-    assert exact.device_length == 0.85 and exact.inclinometer_axes_angle == pytest.approx(
-        math.pi / 2
-    )
+    with pytest.raises(GeometryError, match='cannot read'):
+        load_geometry(tmp_path / 'absent.yaml')

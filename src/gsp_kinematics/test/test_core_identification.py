@@ -5,14 +5,13 @@ import math
 import numpy as np
 import pytest
 
+from gsp_kinematics._formulations import _FkModel, _ImplicitModel
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import PARAMETER_INDEX, PARAMETER_NAMES, Geometry, parameter_errors
 from gsp_kinematics.identification import (
     SENSOR_NAMES,
     IdentificationError,
     Sigmas,
-    _FkModel,
-    _ImplicitModel,
     identify,
     resolve_free,
 )
@@ -22,18 +21,18 @@ from gsp_kinematics.kinematics import (
     sample_valid_postures,
 )
 
-FORMULATIONS = ("implicit", "fk", "paper")
+FORMULATIONS = ('implicit', 'fk', 'paper')
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def data(exact, nominal_sets, moderate_postures):
     """Noise-free measurements of the exact platform at 60 random valid postures."""
     poses = moderate_postures
     return {
-        "nominal": nominal_sets[2],
-        "poses": poses,
-        "leg_lengths": inverse_kinematics(exact, poses),
-        "readings": device_readings(exact, poses),
+        'nominal': nominal_sets[2],
+        'poses': poses,
+        'leg_lengths': inverse_kinematics(exact, poses),
+        'readings': device_readings(exact, poses),
     }
 
 
@@ -41,27 +40,27 @@ def assert_recovers(result, exact, tolerance=1e-6):
     errors = np.abs(parameter_errors(result.geometry, exact))  # mm, deg for gamma
     worst = PARAMETER_NAMES[int(np.argmax(errors))]
     assert errors.max() < tolerance, (
-        f"{result.formulation}: {worst} off by {errors.max():.2e} ({result.message})"
+        f'{result.formulation}: {worst} off by {errors.max():.2e} ({result.message})'
     )
 
 
 # --- Jacobians ------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("paper", [False, True], ids=["fk", "paper"])
-@pytest.mark.parametrize("free_names", [None, "subset"])
+@pytest.mark.parametrize('paper', [False, True], ids=['fk', 'paper'])
+@pytest.mark.parametrize('free_names', [None, 'subset'])
 def test_fk_model_jacobian_matches_finite_differences(data, paper, free_names, fd):
     free = resolve_free(
-        None if free_names is None else ["A1x", "A4z", "B2y", "B6x", "Loff3", "D0", "gamma"]
+        None if free_names is None else ['A1x', 'A4z', 'B2y', 'B6x', 'Loff3', 'D0', 'gamma']
     )
-    nominal = data["nominal"]
+    nominal = data['nominal']
     model = _FkModel(
         nominal,
-        data["leg_lengths"],
-        data["readings"],
+        data['leg_lengths'],
+        data['readings'],
         Sigmas(),
         free,
-        data["poses"],
+        data['poses'],
         paper,
         SENSOR_NAMES,
     )
@@ -82,11 +81,11 @@ def test_fk_model_jacobian_matches_finite_differences(data, paper, free_names, f
 
 
 def test_implicit_model_jacobians_match_finite_differences(data, rng, fd):
-    nominal = data["nominal"]
+    nominal = data['nominal']
     free = resolve_free(None)
-    poses = data["poses"] + rng.normal(0.0, 1e-3, data["poses"].shape)
+    poses = data['poses'] + rng.normal(0.0, 1e-3, data['poses'].shape)
     model = _ImplicitModel(
-        nominal, data["leg_lengths"], data["readings"], Sigmas(), free, poses, SENSOR_NAMES
+        nominal, data['leg_lengths'], data['readings'], Sigmas(), free, poses, SENSOR_NAMES
     )
     values = nominal.to_vector()
     residuals, jac_pose, jac_u = model.evaluate(values, poses, linearize=True)
@@ -112,15 +111,15 @@ def test_implicit_model_jacobians_match_finite_differences(data, rng, fd):
 # --- recovery ---------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("formulation", FORMULATIONS)
+@pytest.mark.parametrize('formulation', FORMULATIONS)
 def test_noise_free_identification_recovers_all_44_parameters(exact, data, formulation):
     result = identify(
-        data["nominal"],
-        data["leg_lengths"],
-        data["readings"],
+        data['nominal'],
+        data['leg_lengths'],
+        data['readings'],
         Sigmas(),
         formulation=formulation,
-        pose_guesses=data["poses"],
+        pose_guesses=data['poses'],
     )
     assert result.converged, result.message
     assert result.formulation == formulation
@@ -131,43 +130,43 @@ def test_noise_free_identification_recovers_all_44_parameters(exact, data, formu
     assert result.covariance.shape == (44, 44) and result.information.shape == (44, 44)
     expected_sensors = (
         set(SENSOR_NAMES)
-        if formulation == "implicit"
+        if formulation == 'implicit'
         else (
-            {"alpha", "beta", "phi"} if formulation == "paper" else {"alpha", "beta", "phi", "d_m"}
+            {'alpha', 'beta', 'phi'} if formulation == 'paper' else {'alpha', 'beta', 'phi', 'd_m'}
         )
     )
     assert set(result.residual_rms) == expected_sensors
     assert max(result.residual_rms.values()) < 1e-9
-    if formulation == "implicit":
-        np.testing.assert_allclose(result.poses, data["poses"], atol=1e-10)
+    if formulation == 'implicit':
+        np.testing.assert_allclose(result.poses, data['poses'], atol=1e-10)
 
 
 def test_noise_free_identification_from_nominal_set_3(exact, nominal_sets, data):
     result = identify(
-        nominal_sets[3], data["leg_lengths"], data["readings"], pose_guesses=data["poses"]
+        nominal_sets[3], data['leg_lengths'], data['readings'], pose_guesses=data['poses']
     )
     assert result.converged, result.message
     assert_recovers(result, exact)
 
 
-@pytest.mark.parametrize("formulation", ["implicit", "fk"])
+@pytest.mark.parametrize('formulation', ['implicit', 'fk'])
 def test_fixed_parameters_stay_fixed(exact, data, formulation):
-    fixed = ["A1x", "A3z", "B2y", "B6z", "Loff4", "gamma"]
-    vector = data["nominal"].to_vector()
+    fixed = ['A1x', 'A3z', 'B2y', 'B6z', 'Loff4', 'gamma']
+    vector = data['nominal'].to_vector()
     exact_vector = exact.to_vector()
     for name in fixed:  # the fixed ones are right, so the free ones can be recovered exactly
         vector[PARAMETER_INDEX[name]] = exact_vector[PARAMETER_INDEX[name]] + (
-            1e-3 if name == "A1x" else 0.0
+            1e-3 if name == 'A1x' else 0.0
         )
     nominal = Geometry.from_vector(vector, exact.limits)
     free = [name for name in PARAMETER_NAMES if name not in fixed]
     result = identify(
         nominal,
-        data["leg_lengths"],
-        data["readings"],
+        data['leg_lengths'],
+        data['readings'],
         formulation=formulation,
         free=free,
-        pose_guesses=data["poses"],
+        pose_guesses=data['poses'],
     )
     assert result.converged, result.message
     assert result.free_names == free
@@ -185,7 +184,7 @@ def test_identification_survives_fk_failures_at_the_nominal(exact, nominal_sets)
     pool = sample_valid_postures(exact, 3000, np.random.default_rng(11))
     edge = pool[np.max(np.abs(pool[:, 3:5]), axis=1) > math.radians(34.0)]
     _, converged = forward_kinematics_masked(nominal, inverse_kinematics(exact, edge), edge)
-    assert (~converged).sum() >= 5, "the test needs postures where FK fails under the nominal"
+    assert (~converged).sum() >= 5, 'the test needs postures where FK fails under the nominal'
     poses = np.concatenate([edge[~converged][:5], edge[converged][:55]])
     leg_lengths, readings = inverse_kinematics(exact, poses), device_readings(exact, poses)
     for formulation in FORMULATIONS:
@@ -194,20 +193,20 @@ def test_identification_survives_fk_failures_at_the_nominal(exact, nominal_sets)
         )
         assert result.converged, result.message
         assert_recovers(result, exact)
-        if formulation != "implicit":  # no inner FK loop in the implicit formulation
-            assert "readmitted" in result.message and "0, 1, 2, 3, 4" in result.message
+        if formulation != 'implicit':  # no inner FK loop in the implicit formulation
+            assert 'readmitted' in result.message and '0, 1, 2, 3, 4' in result.message
             assert result.excluded_postures == []
 
 
 def test_a_posture_that_never_solves_is_excluded_and_reported(exact, data):
-    leg_lengths = data["leg_lengths"].copy()
+    leg_lengths = data['leg_lengths'].copy()
     leg_lengths[7] += 0.6  # corrupted: no assembly near that posture under any estimate
     result = identify(
-        data["nominal"], leg_lengths, data["readings"], formulation="fk", pose_guesses=data["poses"]
+        data['nominal'], leg_lengths, data['readings'], formulation='fk', pose_guesses=data['poses']
     )
     assert result.converged, result.message
     assert result.excluded_postures == [7]
-    assert "excluded" in result.message and "7" in result.message
+    assert 'excluded' in result.message and '7' in result.message
     assert np.all(np.isnan(result.residuals[7])) and np.all(
         np.isfinite(np.delete(result.residuals, 7, axis=0))
     )
@@ -216,9 +215,9 @@ def test_a_posture_that_never_solves_is_excluded_and_reported(exact, data):
 
 def test_identification_with_noise_is_close_and_reports_statistics(exact, data, rng):
     sigmas = Sigmas.from_levels(0.001, 0.001)
-    leg_lengths = data["leg_lengths"] + rng.normal(0.0, sigmas.leg_lengths, (60, 6))
-    readings = data["readings"] + rng.normal(0.0, 1.0, (60, 4)) * sigmas.readings()
-    result = identify(data["nominal"], leg_lengths, readings, sigmas, pose_guesses=data["poses"])
+    leg_lengths = data['leg_lengths'] + rng.normal(0.0, sigmas.leg_lengths, (60, 6))
+    readings = data['readings'] + rng.normal(0.0, 1.0, (60, 4)) * sigmas.readings()
+    result = identify(data['nominal'], leg_lengths, readings, sigmas, pose_guesses=data['poses'])
     assert result.converged, result.message
     errors = parameter_errors(result.geometry, exact)
     assert np.max(np.abs(errors[:43])) < 0.5  # mm: 60 random postures at the finest noise level
@@ -234,20 +233,20 @@ def test_identification_with_noise_is_close_and_reports_statistics(exact, data, 
 
 
 def test_bad_inputs_raise_identification_errors(data):
-    nominal, q, r = data["nominal"], data["leg_lengths"], data["readings"]
-    with pytest.raises(IdentificationError, match="formulation"):
-        identify(nominal, q, r, formulation="magic")
-    with pytest.raises(IdentificationError, match="readings"):
+    nominal, q, r = data['nominal'], data['leg_lengths'], data['readings']
+    with pytest.raises(IdentificationError, match='formulation'):
+        identify(nominal, q, r, formulation='magic')
+    with pytest.raises(IdentificationError, match='readings'):
         identify(nominal, q, r[:, :3])
-    with pytest.raises(IdentificationError, match=r"\(M, 6\)"):
+    with pytest.raises(IdentificationError, match=r'\(M, 6\)'):
         identify(nominal, q[:, :5], r)
     bad = r.copy()
     bad[5, 1] = np.nan
-    with pytest.raises(IdentificationError, match=r"posture\(s\) \[5\]"):
+    with pytest.raises(IdentificationError, match=r'posture\(s\) \[5\]'):
         identify(nominal, q, bad)
-    with pytest.raises(IdentificationError, match="Azz"):
-        identify(nominal, q, r, free=["A1x", "Azz"])
-    with pytest.raises(IdentificationError, match="sigma"):
+    with pytest.raises(IdentificationError, match='Azz'):
+        identify(nominal, q, r, free=['A1x', 'Azz'])
+    with pytest.raises(IdentificationError, match='sigma'):
         identify(nominal, q, r, Sigmas(leg_lengths=0.0))
-    with pytest.raises(IdentificationError, match="sensors"):
-        identify(nominal, q, r, sensors=("alpha", "laser"))
+    with pytest.raises(IdentificationError, match='sensors'):
+        identify(nominal, q, r, sensors=('alpha', 'laser'))

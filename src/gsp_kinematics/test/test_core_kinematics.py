@@ -48,7 +48,7 @@ def test_ik_then_fk_is_the_identity(exact, postures, rng):
     np.testing.assert_allclose(solved, postures, atol=1e-10)
 
 
-@pytest.mark.parametrize("kind", ["true", "nominal"])
+@pytest.mark.parametrize('kind', ['true', 'nominal'])
 def test_ik_then_fk_on_the_shipped_geometries(kind, rng):
     geometry = default_geometry(kind)
     poses = sample_valid_postures(geometry, 200, rng)
@@ -112,7 +112,7 @@ def test_fk_failure_names_the_posture(exact, postures):
     with pytest.raises(ForwardKinematicsError) as caught:
         forward_kinematics(exact, leg_lengths, poses)
     assert caught.value.indices == (5,)
-    assert "5" in str(caught.value)
+    assert '5' in str(caught.value)
 
 
 def test_fk_failure_for_non_finite_input_and_far_solutions(exact, postures):
@@ -130,9 +130,9 @@ def test_check_reachable_gives_reasons(exact):
     poses = np.array([home_pose(), [0.0, 0.0, 3.0, 0.0, 0.0, 0.0], [np.nan] * 6])
     ok, reasons = check_reachable(exact, poses)
     assert ok.tolist() == [True, False, False]
-    assert reasons[0] == ""
-    assert "stroke" in reasons[1] and "above" in reasons[1]
-    assert "not finite" in reasons[2]
+    assert reasons[0] == ''
+    assert 'stroke' in reasons[1] and 'above' in reasons[1]
+    assert 'not finite' in reasons[2]
 
 
 def test_sampled_postures_are_valid_and_in_the_paper_ranges(exact, postures):

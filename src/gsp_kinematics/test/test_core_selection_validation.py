@@ -11,7 +11,7 @@ from gsp_kinematics.selection import posture_information, scaled_condition_numbe
 from gsp_kinematics.validation import pose_errors, reached_poses, validate
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def selection(nominal_sets):
     nominal = nominal_sets[1]
     pool = sample_valid_postures(nominal, 150, np.random.default_rng(3))
@@ -43,7 +43,7 @@ def test_selection_beats_random_picks(selection):
 
 def test_selection_needs_a_large_enough_pool(nominal_sets):
     pool = sample_valid_postures(nominal_sets[1], 10, np.random.default_rng(5))
-    with pytest.raises(ValueError, match="fewer"):
+    with pytest.raises(ValueError, match='fewer'):
         select_postures(nominal_sets[1], pool, 20)
 
 
@@ -72,7 +72,7 @@ def test_orientation_error_is_the_relative_rotation_angle(rng):
 
 def test_validation_of_the_exact_controller_is_zero(exact, postures):
     errors = validate(exact, exact, postures[:50])
-    keys = ("position_mm_mean", "position_mm_max", "orientation_deg_mean", "orientation_deg_max")
+    keys = ('position_mm_mean', 'position_mm_max', 'orientation_deg_mean', 'orientation_deg_max')
     assert set(keys) <= set(errors)
     assert max(errors[key] for key in keys) < 1e-8
 
@@ -93,6 +93,6 @@ def test_validation_commands_with_the_controller_and_moves_the_true_platform(
     )
     errors = validate(exact, nominal, commanded)
     position_mm, orientation_deg = pose_errors(commanded, reached)
-    assert errors["position_mm_mean"] == pytest.approx(position_mm.mean())
-    assert errors["orientation_deg_max"] == pytest.approx(orientation_deg.max())
-    assert 0.5 < errors["position_mm_mean"] < 50.0 and 0.01 < errors["orientation_deg_mean"] < 5.0
+    assert errors['position_mm_mean'] == pytest.approx(position_mm.mean())
+    assert errors['orientation_deg_max'] == pytest.approx(orientation_deg.max())
+    assert 0.5 < errors['position_mm_mean'] < 50.0 and 0.01 < errors['orientation_deg_mean'] < 5.0

@@ -1,8 +1,10 @@
-"""gsp_msgs_py: names, QoS profiles, units and conversions for gsp-calibration interfaces.
+"""gsp_msgs_py: names, QoS profiles, conversions and the node skeleton of gsp-calibration.
 
 A pure-Python layer over standard common_interfaces messages (like ``sensor_msgs_py``):
-``names`` (topics, frames, joints), ``qos`` (profiles), ``units``, ``conversions``
-(messages <-> numpy arrays). Submodules are imported on demand; importing this package is cheap.
+``names`` (topics, frames, joints), ``qos`` (profiles), ``conversions`` (messages <-> numpy
+arrays), ``checks`` (incoming poses), ``node_tools`` (parameter specs, declare/watch, main),
+``settle`` and ``pose_commands`` (the platform side of the command/status protocol) and
+``testing`` (pytest helpers). Submodules are imported on demand; importing this package is cheap.
 """
 
 __version__ = '0.1.0'

@@ -23,7 +23,9 @@ def pose_in_frame(msg, frame_id, quaternion_tolerance=QUATERNION_NORM_TOLERANCE)
     o = msg.pose.orientation
     norm = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
     if not math.isfinite(norm):
-        raise ValueError(f'pose: orientation quaternion is not finite: [{o.x}, {o.y}, {o.z}, {o.w}]')
+        raise ValueError(
+            f'pose: orientation quaternion is not finite: [{o.x}, {o.y}, {o.z}, {o.w}]'
+        )
     if abs(norm - 1.0) > quaternion_tolerance:
         raise ValueError(f'pose: orientation quaternion is not of unit length (norm {norm:.6g})')
     return conversions.pose_stamped_to_pose(msg)

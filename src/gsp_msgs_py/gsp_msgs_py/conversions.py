@@ -19,6 +19,8 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped
 from sensor_msgs.msg import JointState
 
+from gsp_kinematics import rotation
+
 from . import names
 
 _NS_PER_S = 1_000_000_000
@@ -165,45 +167,29 @@ def msg_to_lvdt(msg):
 # -------------------------------------------------------------------------------------- poses
 
 
-def _quaternion_multiply(a, b):
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-
-
 def euler_to_quaternion(psi, theta, phi):
-    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)``."""
-    q_y = np.array([0.0, math.sin(theta / 2), 0.0, math.cos(theta / 2)])
-    q_x = np.array([math.sin(psi / 2), 0.0, 0.0, math.cos(psi / 2)])
-    q_z = np.array([0.0, 0.0, math.sin(phi / 2), math.cos(phi / 2)])
-    quat = _quaternion_multiply(_quaternion_multiply(q_y, q_x), q_z)
-    return -quat if quat[3] < 0 else quat
+    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad).
+
+    Eq (2) lives in :mod:`gsp_kinematics.rotation`; this is its message-side spelling.
+    """
+    return rotation.matrix_to_quaternion(rotation.euler_to_matrix([psi, theta, phi]))
 
 
 def quaternion_to_euler(quat):
-    """``(psi, theta, phi)`` of a quaternion ``[x, y, z, w]`` (normalised here), |psi| <= pi/2."""
+    """``(psi, theta, phi)`` (rad) of a quaternion ``[x, y, z, w]`` (normalised here), |psi| <= pi/2.
+
+    Raises ``ValueError`` naming the quaternion when it is not four finite numbers of non-zero norm.
+    """
     quat = np.asarray(quat, dtype=float)
-    norm = float(np.linalg.norm(quat)) if quat.shape == (4,) else float('nan')
-    if not math.isfinite(norm) or norm < 1e-9:
-        raise ValueError(f'invalid orientation quaternion [x, y, z, w] = {quat.tolist()}')
-    x, y, z, w = quat / norm
-    # Entries of R = R_Y(theta) R_X(psi) R_z(phi); row 1 is [c_psi s_phi, c_psi c_phi, -s_psi].
-    r12 = 2.0 * (y * z - w * x)
-    r10 = 2.0 * (x * y + w * z)
-    r11 = 1.0 - 2.0 * (x * x + z * z)
-    r02 = 2.0 * (x * z + w * y)
-    r22 = 1.0 - 2.0 * (x * x + y * y)
-    psi = math.asin(min(1.0, max(-1.0, -r12)))
-    phi = math.atan2(r10, r11)
-    theta = math.atan2(r02, r22)
-    return psi, theta, phi
+    invalid = ValueError(f'invalid orientation quaternion [x, y, z, w] = {quat.tolist()}')
+    if quat.shape != (4,):
+        raise invalid
+    try:
+        matrix = rotation.quaternion_to_matrix(quat)  # non-finite or zero norm: ValueError
+    except ValueError:
+        raise invalid from None
+    psi, theta, phi = rotation.matrix_to_euler(matrix)
+    return float(psi), float(theta), float(phi)
 
 
 def pose_to_pose_stamped(X, stamp=None, frame_id=names.FRAME_BASE):  # noqa: N803 (paper notation)
@@ -289,8 +275,9 @@ class PlatformStatus:
         return self.state == names.STATE_REJECTED
 
 
-def make_status(command_id, state, reason='', *, name=names.STATUS_NAME,
-                hardware_id=names.STATUS_HARDWARE_ID):
+def make_status(
+    command_id, state, reason='', *, name=names.STATUS_NAME, hardware_id=names.STATUS_HARDWARE_ID
+):
     """DiagnosticStatus for ``/gsp/platform/status``.
 
     ``state`` in ``moving`` (WARN), ``settled`` (OK), ``rejected`` (ERROR); ``message`` is the
@@ -314,9 +301,7 @@ def make_status(command_id, state, reason='', *, name=names.STATUS_NAME,
 
 def parse_status(msg):
     """:class:`PlatformStatus` of a ``/gsp/platform/status`` message; ValueError if malformed."""
-    values = _key_values(
-        msg, 'status', (names.KEY_COMMAND_ID, names.KEY_STATE, names.KEY_REASON)
-    )
+    values = _key_values(msg, 'status', (names.KEY_COMMAND_ID, names.KEY_STATE, names.KEY_REASON))
     state = values[names.KEY_STATE]
     if state not in _LEVEL_OF_STATE:
         raise ValueError(f'status: unknown state {state!r}; expected one of {list(names.STATES)}')
@@ -359,8 +344,17 @@ def _jsonable_residuals(residuals):
     return [float(v) for v in np.asarray(residuals, dtype=float).reshape(-1)]
 
 
-def make_progress(posture_index, posture_count, phase, residuals=None, message='', *,
-                  level=None, extra=None, name=names.PROGRESS_NAME):
+def make_progress(
+    posture_index,
+    posture_count,
+    phase,
+    residuals=None,
+    message='',
+    *,
+    level=None,
+    extra=None,
+    name=names.PROGRESS_NAME,
+):
     """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals.
 
     ``residuals`` (latest residuals, SI units) may be a mapping name -> float or a sequence of

@@ -3,7 +3,7 @@
 Only standard common_interfaces messages are used (no custom .msg). ``TOPIC_TYPES`` maps each
 name to its interface type (``pkg/msg/Type``); :mod:`gsp_msgs_py.qos` gives the QoS of each topic.
 
-Topic payloads (SI units, see docs/design.md):
+Topic payloads (SI units, see docs/nodes.md):
 
 =============================== ================================= ==================================
 name                            type                              content

@@ -24,15 +24,10 @@ A check is a function ``value -> reason`` ('' when the value is accepted); the r
 import dataclasses
 import math
 
-import rclpy
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
+from . import names
+
+# rclpy is imported inside the functions that need a node, so that pure modules (the
+# calibrator's settings table, the docs generator) can import specs and checks without loading it.
 
 
 class ConfigurationError(ValueError):
@@ -45,34 +40,42 @@ def is_finite_number(value):
 
 
 # --- checks ------------------------------------------------------------------------------------
+# Each factory takes an optional ``reason`` that replaces its default reason.
 
 
 def _unit(unit):
     return f' {unit}' if unit else ''
 
 
-def greater_than(bound, unit=''):
+def greater_than(bound, unit='', reason=None):
     """Check: a finite number > ``bound``."""
-    return lambda v: '' if is_finite_number(v) and v > bound else f'must be > {bound:g}{_unit(unit)}'
+    why = reason or f'must be > {bound:g}{_unit(unit)}'
+    return lambda v: '' if is_finite_number(v) and v > bound else why
 
 
-def at_least(bound, unit=''):
+def at_least(bound, unit='', reason=None):
     """Check: a finite number >= ``bound``."""
-    return lambda v: '' if is_finite_number(v) and v >= bound else f'must be >= {bound:g}{_unit(unit)}'
+    why = reason or f'must be >= {bound:g}{_unit(unit)}'
+    return lambda v: '' if is_finite_number(v) and v >= bound else why
 
 
-def not_blank(what='a value'):
+def not_blank(what='a value', reason=None):
     """Check: a string that is not empty or blank."""
-    return lambda v: '' if str(v).strip() else f'must name {what}'
+    why = reason or f'must name {what}'
+    return lambda v: '' if str(v).strip() else why
 
 
-def one_of(options):
+def one_of(options, reason=None):
     """Check: one of ``options``."""
     options = tuple(options)
-    return lambda v: '' if v in options else f'must be one of {list(options)}'
+    why = reason or f'must be one of {list(options)}'
+    return lambda v: '' if v in options else why
 
 
 # --- parameter specs ---------------------------------------------------------------------------
+
+#: ROS parameter type names by Python type of the default (``ros2 param describe`` wording).
+_TYPE_NAMES = {bool: 'bool', int: 'integer', float: 'double', str: 'string'}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +85,7 @@ class ParameterSpec:
     ``float_range`` / ``integer_range`` are ``(from, to)`` pairs that ROS itself enforces;
     ``check`` is a function ``value -> reason`` ('' if accepted) applied at start-up and to every
     run-time change; ``constraints`` is the descriptor's human-readable summary of both.
+    ``default_text`` is how the docs show a default that depends on the installation (a path).
     """
 
     name: str
@@ -93,21 +97,42 @@ class ParameterSpec:
     integer_range: tuple = None
     constraints: str = ''
     check: object = None
+    default_text: str = ''
+
+    @property
+    def type_name(self):
+        """The ROS parameter type of :attr:`default`: ``double``, ``string_array``..."""
+        if isinstance(self.default, (list, tuple)):
+            item = type(self.default[0]) if self.default else str
+            return _TYPE_NAMES[item] + '_array'
+        return _TYPE_NAMES[type(self.default)]
 
     def descriptor(self):
         """The ``ParameterDescriptor`` ROS shows for this parameter."""
+        from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
         description = self.description + (f' ({self.unit})' if self.unit else '')
         descriptor = ParameterDescriptor(
-            description=description, read_only=self.read_only,
-            additional_constraints=self.constraints)
+            description=description,
+            read_only=self.read_only,
+            additional_constraints=self.constraints,
+        )
         if self.float_range is not None:
-            descriptor.floating_point_range = [FloatingPointRange(
-                from_value=float(self.float_range[0]), to_value=float(self.float_range[1]),
-                step=0.0)]
+            descriptor.floating_point_range = [
+                FloatingPointRange(
+                    from_value=float(self.float_range[0]),
+                    to_value=float(self.float_range[1]),
+                    step=0.0,
+                )
+            ]
         if self.integer_range is not None:
-            descriptor.integer_range = [IntegerRange(
-                from_value=int(self.integer_range[0]), to_value=int(self.integer_range[1]),
-                step=1)]
+            descriptor.integer_range = [
+                IntegerRange(
+                    from_value=int(self.integer_range[0]),
+                    to_value=int(self.integer_range[1]),
+                    step=1,
+                )
+            ]
         return descriptor
 
     def reason(self, value):
@@ -117,6 +142,76 @@ class ParameterSpec:
             return ''
         shown = value if not isinstance(value, (list, tuple)) or len(value) < 8 else '[...]'
         return f'{self.name}: {shown!r} rejected, {why}'
+
+
+# --- parameters several nodes share (same name, type and checks everywhere) -----------------
+
+
+def publish_rate_spec(what, default=200.0):
+    """``publish_rate`` (Hz, read-only): the rate of ``what``."""
+    return ParameterSpec(
+        'publish_rate',
+        default,
+        f'Rate of {what}',
+        unit='Hz',
+        read_only=True,
+        constraints='> 0',
+        check=greater_than(0.0, 'Hz'),
+    )
+
+
+def seed_spec():
+    """``seed`` (read-only): of the node's noise generator; -1 draws one."""
+    return ParameterSpec(
+        'seed',
+        0,
+        'Seed of the noise generator; -1 = random',
+        read_only=True,
+        integer_range=(-1, 2**31 - 1),
+        check=at_least(-1, reason='must be >= 0, or -1 for a random seed'),
+    )
+
+
+def frame_id_spec(description):
+    """``frame_id`` (read-only): the base frame of the node's messages."""
+    return ParameterSpec(
+        'frame_id',
+        names.FRAME_BASE,
+        description,
+        read_only=True,
+        check=not_blank(reason='must not be empty'),
+    )
+
+
+def settle_time_spec(what):
+    """``settle_time`` (s): from the 'moving' to the 'settled' status of ``what``."""
+    return ParameterSpec(
+        'settle_time',
+        0.05,
+        f"Time from the 'moving' to the 'settled' status of {what}",
+        unit='s',
+        float_range=(0.0, 60.0),
+        check=at_least(0.0, 's'),
+    )
+
+
+def noise_std_spec(name, default, description, unit):
+    """A simulated noise standard deviation (``unit``), changeable at run time."""
+    return ParameterSpec(
+        name, default, description, unit=unit, float_range=(0.0, 1.0), check=at_least(0.0, unit)
+    )
+
+
+def geometry_file_spec(name, default, description, default_text=''):
+    """A read-only geometry params file parameter."""
+    return ParameterSpec(
+        name,
+        default,
+        description,
+        read_only=True,
+        check=not_blank('a geometry file'),
+        default_text=default_text,
+    )
 
 
 def _spec_table(specs):
@@ -145,6 +240,8 @@ def declare_parameters(node, specs, validate=None):
     must not exceed another). Returns ``{name: value}``; raises :class:`ConfigurationError`
     naming the parameter when a value has the wrong type, is out of range or fails a check.
     """
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
     specs = tuple(_spec_table(specs).values())
     try:
         for spec in specs:
@@ -172,6 +269,8 @@ def watch_parameters(node, specs, apply=None, validate=None):
     ``apply({name: value})`` with the accepted changes of ``specs`` (names of other parameters
     are left out; nothing is called when none changed).
     """
+    from rcl_interfaces.msg import SetParametersResult
+
     table = _spec_table(specs)
 
     def on_set(parameters):
@@ -190,7 +289,51 @@ def watch_parameters(node, specs, apply=None, validate=None):
     node.add_post_set_parameters_callback(post_set)
 
 
-# --- main --------------------------------------------------------------------------------------
+# --- wiring and main ---------------------------------------------------------------------------
+
+
+#: The measuring device's topics, in the order of its readings ``[alpha, beta, phi, d_m]``.
+DEVICE_TOPICS = (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
+
+
+def create_publishers(node, topics):
+    """``{topic: publisher}`` of ``topics``, each with its interface type and QoS profile."""
+    from . import qos
+
+    return {
+        topic: node.create_publisher(
+            names.interface_type(names.TOPIC_TYPES[topic]), topic, qos.TOPIC_QOS[topic]
+        )
+        for topic in topics
+    }
+
+
+def device_messages(readings, stamp, frame_id):
+    """``{topic: JointState}`` of one device instant ``[alpha, beta, phi, d_m]`` (rad, rad, rad,
+    m) stamped ``stamp``; ValueError naming a value that is not finite."""
+    from . import conversions
+
+    alpha, beta, phi, d_m = readings
+    return {
+        names.TOPIC_INCLINOMETER: conversions.inclinometer_to_msg(alpha, beta, stamp, frame_id),
+        names.TOPIC_ENCODER: conversions.encoder_to_msg(phi, stamp, frame_id),
+        names.TOPIC_LVDT: conversions.lvdt_to_msg(d_m, stamp, frame_id),
+    }
+
+
+def spin_until(executor, predicate, timeout):
+    """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first.
+
+    The timeout only bounds a failure: the wait ends on the event itself.
+    """
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        executor.spin_once(timeout_sec=0.01)
+    return True
 
 
 def run_node(make_node, args=None, executor=None, *, logger_name):
@@ -201,6 +344,9 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
     1 if the node raised :class:`ConfigurationError` (logged as fatal under ``logger_name``),
     otherwise 0 (including Ctrl-C and external shutdown).
     """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
     rclpy.init(args=args)
     node = None
     active_executor = None
@@ -232,21 +378,65 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
     return exit_code
 
 
-# --- TEMPORARY (removed once every node uses ParameterSpec) -------------------------------------
+# --- documentation -----------------------------------------------------------------------------
 
 
-def first_failed_check(checks, values):
-    """Reason ('' if none) why ``{name: value}`` fails ``checks`` ``{name: (test, requirement)}``."""
-    for name, value in values.items():
-        if name in checks:
-            test, requirement = checks[name]
-            if not test(value):
-                return f'{name}: {value!r} rejected, {requirement}'
-    return ''
+def _format_value(value):
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return f'{value:.6g}'
+    if isinstance(value, str):
+        return repr(value)
+    return str(value)
 
 
-def parameter_descriptor(description, *, read_only=False, float_range=None, integer_range=None,
-                         constraints=''):
-    """A ``ParameterDescriptor``; ``float_range``/``integer_range`` are ``(from, to)`` pairs."""
-    return ParameterSpec('', None, description, read_only=read_only, float_range=float_range,
-                         integer_range=integer_range, constraints=constraints).descriptor()
+def _format_default(spec):
+    if spec.default_text:
+        return spec.default_text
+    value = spec.default
+    if isinstance(value, (list, tuple)):
+        shown = ', '.join(_format_value(v) for v in value[:6])
+        more = f', ... ({len(value)} values)' if len(value) > 6 else ''
+        return f'[{shown}{more}]'
+    return _format_value(value)
+
+
+def _format_constraints(spec):
+    parts = [spec.constraints] if spec.constraints else []
+    for bounds in (spec.float_range, spec.integer_range):
+        if bounds is not None:
+            parts.append(f'in [{_format_value(bounds[0])}, {_format_value(bounds[1])}]')
+    return '; '.join(parts)
+
+
+def parameter_table_markdown(specs):
+    """A Markdown table of ``specs``: name, type, default, unit, read-only, constraints and
+    description, one row per parameter in declaration order."""
+
+    def cell(text):
+        # '|' would end the cell; '<' would open an HTML tag (e.g. '<UTC timestamp>/').
+        return str(text).replace('|', '\\|').replace('<', '&lt;').replace('\n', ' ')
+
+    rows = [
+        '| name | type | default | unit | read-only | constraints | description |',
+        '| --- | --- | --- | --- | --- | --- | --- |',
+    ]
+    for spec in _spec_table(specs).values():
+        rows.append(
+            '| '
+            + ' | '.join(
+                cell(text)
+                for text in (
+                    f'`{spec.name}`',
+                    spec.type_name,
+                    f'`{_format_default(spec)}`',
+                    spec.unit,
+                    'yes' if spec.read_only else 'no',
+                    _format_constraints(spec),
+                    spec.description,
+                )
+            )
+            + ' |'
+        )
+    return '\n'.join(rows) + '\n'

@@ -13,68 +13,44 @@ from rclpy.qos import (
 
 from . import names
 
+
+def _keep_last(depth, reliable, latched=False):
+    """A keep-last profile: reliable or best effort; latched (transient local) or volatile."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
 # Like rclpy.qos.qos_profile_sensor_data (best effort, volatile, keep last) but deeper.
 # The driver publishes three device topics (plus the simulator's leg lengths / true pose) at up to
 # a few hundred Hz, and the calibrator pairs samples by stamp. Depth 50 buffers ~0.25 s at 200 Hz
 # per topic, enough to ride out an executor stall (a YAML write, a least-squares step in another
 # callback) without a sample of a synchronised set being overwritten before it is taken; the
 # memory cost is a few kB per topic. Best effort so a slow subscriber never throttles the sources.
-SENSOR_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=50,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
+SENSOR_QOS = _keep_last(50, reliable=False)
 
 # A sensor that samples the platform's current state needs only the newest pose: with depth 1 a
 # busy subscriber (the simulated device) never works through a backlog of stale poses, which
 # would make its readings lag the platform after a move.
-LATEST_STATE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
+LATEST_STATE_QOS = _keep_last(1, reliable=False)
 
 # Pose commands must not be lost; a short queue is enough (one command per posture).
-COMMAND_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+COMMAND_QOS = _keep_last(10, reliable=True)
 
 # Status transitions (moving -> settled/rejected) are events: reliable, deep enough for bursts.
-STATUS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=50,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+STATUS_QOS = _keep_last(50, reliable=True)
 
 # The latest calibrated geometry, latched for late joiners.
-RESULT_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+RESULT_QOS = _keep_last(1, reliable=True, latched=True)
 
 # Progress reports: reliable, but only recent ones matter.
-PROGRESS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+PROGRESS_QOS = _keep_last(10, reliable=True)
 
 # RViz markers: latest state, latched so a late RViz still draws the platform.
-MARKER_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+MARKER_QOS = _keep_last(1, reliable=True, latched=True)
 
 TOPIC_QOS = {
     names.TOPIC_POSE_COMMAND: COMMAND_QOS,

@@ -1,14 +1,17 @@
 """Pytest helpers shared by the ROS packages' test suites.
 
 Call :func:`use_loopback_domain` from a ``conftest.py`` before anything creates an rclpy
-context, and re-export the :func:`ros_context` fixture. rclpy is imported lazily, so importing
-this module does not load ROS.
+context, and re-export the :func:`ros_context` fixture. In-process node tests subclass
+:class:`NodeHarness` and make their fixture with :func:`harness_fixture`. rclpy is imported
+lazily, so importing this module does not load ROS.
 """
 
 import os
+import time
 
 import pytest
 
+from .node_tools import spin_until  # noqa: F401 (re-exported for the tests)
 from .ros_environment import loopback_environment
 
 
@@ -32,13 +35,69 @@ def ros_context():
         rclpy.try_shutdown(context=context)
 
 
-def spin_until(executor, predicate, timeout):
-    """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first."""
-    import time
+class NodeHarness:
+    """A node under test and a test node (:attr:`node`), spun together by one executor.
 
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        executor.spin_once(timeout_sec=0.01)
-    return True
+    ``timeout`` (s) bounds every :meth:`spin_until`; generous, since the machine may be loaded,
+    and waits end as soon as their predicate holds.
+    """
+
+    def __init__(self, context, node_under_test, test_node_name, timeout=10.0):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.timeout = timeout
+        self.node = rclpy.create_node(test_node_name, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self._under_test = node_under_test
+        self.executor.add_node(node_under_test)
+        self.executor.add_node(self.node)
+
+    def subscribe(self, topic, callback):
+        """Subscribe the test node to ``topic`` with its interface type and QoS."""
+        from . import names, qos
+
+        return self.node.create_subscription(
+            names.interface_type(names.TOPIC_TYPES[topic]), topic, callback, qos.TOPIC_QOS[topic]
+        )
+
+    def publisher(self, topic):
+        """A publisher of the test node on ``topic`` with its interface type and QoS."""
+        from . import names, qos
+
+        return self.node.create_publisher(
+            names.interface_type(names.TOPIC_TYPES[topic]), topic, qos.TOPIC_QOS[topic]
+        )
+
+    def spin_until(self, predicate, timeout=None):
+        """Spin until ``predicate()`` holds; False if the timeout passes first."""
+        return spin_until(self.executor, predicate, self.timeout if timeout is None else timeout)
+
+    def spin_for(self, duration):
+        """Spin for ``duration`` seconds (to let messages that must be ignored arrive)."""
+        deadline = time.monotonic() + duration
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._under_test.destroy_node()
+
+
+def harness_fixture(make_harness):
+    """A pytest fixture yielding ``make_harness(ros_context, overrides)``, closed afterwards.
+
+    ``overrides`` is the test's indirect parameter (``@pytest.mark.parametrize('harness',
+    [[Parameter(...)]], indirect=True)``), else ``()``. Assign it to the fixture's name.
+    """
+
+    @pytest.fixture
+    def fixture(ros_context, request):
+        harness = make_harness(ros_context, getattr(request, 'param', ()))
+        try:
+            yield harness
+        finally:
+            harness.close()
+
+    return fixture

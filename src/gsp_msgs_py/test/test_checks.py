@@ -22,14 +22,17 @@ def test_slightly_non_unit_quaternion_is_normalised():
     np.testing.assert_allclose(checks.pose_in_frame(msg, names.FRAME_BASE), X, atol=1e-3)
 
 
-@pytest.mark.parametrize('field, value, words', [
-    ('frame', 'world', "frame_id 'world' is not 'gsp_base'"),
-    ('frame', '', "frame_id '' is not"),
-    ('w', 2.0, 'unit length'),
-    ('w', math.nan, 'not finite'),
-    ('x', math.inf, 'not finite'),
-    ('px', math.nan, 'non-finite'),
-])
+@pytest.mark.parametrize(
+    'field, value, words',
+    [
+        ('frame', 'world', "frame_id 'world' is not 'gsp_base'"),
+        ('frame', '', "frame_id '' is not"),
+        ('w', 2.0, 'unit length'),
+        ('w', math.nan, 'not finite'),
+        ('x', math.inf, 'not finite'),
+        ('px', math.nan, 'non-finite'),
+    ],
+)
 def test_bad_poses_raise_value_error_with_the_reason(field, value, words):
     msg = conversions.pose_to_pose_stamped(X, None, names.FRAME_BASE)
     if field == 'frame':

@@ -14,21 +14,6 @@ from gsp_msgs_py import conversions as conv
 from gsp_msgs_py import names
 
 
-def rot_x(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def rot_y(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def rot_z(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-
-
 def random_poses(count, seed=0):
     rng = np.random.default_rng(seed)
     poses = np.empty((count, 6))
@@ -144,15 +129,18 @@ def test_device_errors_name_the_payload():
 # ------------------------------------------------------------------------------------- poses
 
 
-def test_quaternion_matches_paper_rotation_and_scipy():
+def test_quaternion_is_eq2_with_w_non_negative():
+    # Eq (2) itself is tested in gsp_kinematics (test_core_rotation); here: the spelling of it.
     for x in random_poses(200, seed=1):
         psi, theta, phi = x[3:]
-        expected = rot_y(theta) @ rot_x(psi) @ rot_z(phi)
-        scipy_rot = Rotation.from_euler('YXZ', [theta, psi, phi])
-        np.testing.assert_allclose(scipy_rot.as_matrix(), expected, atol=1e-12)
         quat = conv.euler_to_quaternion(psi, theta, phi)
-        assert quat[3] >= 0
+        assert quat.shape == (4,) and quat[3] >= 0
+        assert math.isclose(np.linalg.norm(quat), 1.0, rel_tol=1e-12)
+        expected = Rotation.from_euler('YXZ', [theta, psi, phi]).as_matrix()
         np.testing.assert_allclose(Rotation.from_quat(quat).as_matrix(), expected, atol=1e-12)
+        euler = conv.quaternion_to_euler(-2.0 * quat)  # any scale and sign
+        assert all(isinstance(angle, float) for angle in euler)
+        np.testing.assert_allclose(euler, [psi, theta, phi], atol=1e-9)
 
 
 def test_pose_round_trip():
@@ -186,6 +174,9 @@ def test_pose_errors():
     zero_quaternion.pose.orientation.w = 0.0
     with pytest.raises(ValueError, match='invalid orientation quaternion'):
         conv.pose_stamped_to_pose(zero_quaternion)
+    for bad in ([0.0, 0.0, math.nan, 1.0], [0.0, 0.0, 1.0], [1e-12, 0.0, 0.0, 0.0]):
+        with pytest.raises(ValueError, match=r'invalid orientation quaternion \[x, y, z, w\] = \['):
+            conv.quaternion_to_euler(bad)
     with pytest.raises(TypeError):
         conv.pose_stamped_to_pose(JointState())
 
@@ -195,8 +186,11 @@ def test_pose_errors():
 
 @pytest.mark.parametrize(
     'state, level',
-    [('settled', DiagnosticStatus.OK), ('moving', DiagnosticStatus.WARN),
-     ('rejected', DiagnosticStatus.ERROR)],
+    [
+        ('settled', DiagnosticStatus.OK),
+        ('moving', DiagnosticStatus.WARN),
+        ('rejected', DiagnosticStatus.ERROR),
+    ],
 )
 def test_status_round_trip(state, level):
     reason = 'unreachable: leg_2 too long' if state == 'rejected' else ''

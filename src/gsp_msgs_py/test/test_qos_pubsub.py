@@ -1,7 +1,5 @@
 """The profiles work end to end over loopback DDS: sensor data flows, results are latched."""
 
-import time
-
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
@@ -9,13 +7,9 @@ from std_msgs.msg import String
 
 from gsp_msgs_py import conversions as conv
 from gsp_msgs_py import names, qos
+from gsp_msgs_py.testing import spin_until
 
-
-def spin_until(executor, predicate, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-    return predicate()
+TIMEOUT_S = 10.0
 
 
 def test_leg_lengths_and_latched_result(ros_context):
@@ -31,19 +25,27 @@ def test_leg_lengths_and_latched_result(ros_context):
 
         received = []
         node.create_subscription(
-            JointState, names.TOPIC_LEG_LENGTHS,
-            lambda msg: received.append(conv.msg_to_leg_lengths(msg)), qos.SENSOR_QOS)
+            JointState,
+            names.TOPIC_LEG_LENGTHS,
+            lambda msg: received.append(conv.msg_to_leg_lengths(msg)),
+            qos.SENSOR_QOS,
+        )
         pub = node.create_publisher(JointState, names.TOPIC_LEG_LENGTHS, qos.SENSOR_QOS)
         q = np.linspace(0.0, 0.05, 6)
-        assert spin_until(executor, lambda: pub.get_subscription_count() > 0)
-        assert spin_until(executor, lambda: (pub.publish(conv.leg_lengths_to_msg(q)), received)[1])
+        assert spin_until(executor, lambda: pub.get_subscription_count() > 0, TIMEOUT_S)
+        assert spin_until(
+            executor, lambda: (pub.publish(conv.leg_lengths_to_msg(q)), received)[1], TIMEOUT_S
+        )
         np.testing.assert_array_equal(received[0], q)
 
         results = []
         node.create_subscription(
-            String, names.TOPIC_CALIBRATION_RESULT, lambda msg: results.append(msg.data),
-            qos.RESULT_QOS)
-        assert spin_until(executor, lambda: results)
+            String,
+            names.TOPIC_CALIBRATION_RESULT,
+            lambda msg: results.append(msg.data),
+            qos.RESULT_QOS,
+        )
+        assert spin_until(executor, lambda: results, TIMEOUT_S)
         assert results == ['geometry: {}\n']
     finally:
         executor.shutdown()

@@ -1,1 +1,1 @@
-"""gsp_platform_sim (see docs/design.md)."""
+"""gsp_platform_sim: the simulated platform node (see docs/nodes.md)."""

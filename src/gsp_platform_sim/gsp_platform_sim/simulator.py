@@ -52,8 +52,15 @@ class PlatformSimulator:
     through :meth:`command`; ValueError if the home pose is not reachable.
     """
 
-    def __init__(self, true_geometry, controller_geometry, leg_noise_std=0.0, rng=None,
-                 max_condition=DEFAULT_MAX_CONDITION, initial_pose=None):
+    def __init__(
+        self,
+        true_geometry,
+        controller_geometry,
+        leg_noise_std=0.0,
+        rng=None,
+        max_condition=DEFAULT_MAX_CONDITION,
+        initial_pose=None,
+    ):
         self._true_geometry = true_geometry
         self._controller_geometry = controller_geometry
         self.leg_noise_std = leg_noise_std
@@ -65,8 +72,9 @@ class PlatformSimulator:
         start = home_pose() if initial_pose is None else initial_pose
         outcome = self.command(start)
         if not outcome.accepted:
-            raise ValueError(f'cannot reach the initial pose {np.asarray(start).tolist()}: '
-                             f'{outcome.reason}')
+            raise ValueError(
+                f'cannot reach the initial pose {np.asarray(start).tolist()}: {outcome.reason}'
+            )
 
     # ------------------------------------------------------------------------ configuration
 
@@ -127,8 +135,9 @@ class PlatformSimulator:
     # ----------------------------------------------------------------------------- command
 
     def _reject(self, reason):
-        return CommandOutcome(False, reason, None, None if self._true_pose is None
-                              else self._true_pose.copy())
+        return CommandOutcome(
+            False, reason, None, None if self._true_pose is None else self._true_pose.copy()
+        )
 
     def command(self, pose):
         """Drive the platform to ``pose`` (6,) as the controller understands it.
@@ -142,17 +151,20 @@ class PlatformSimulator:
             return self._reject(f'pose must be [x, y, z, psi, theta, phi], got shape {pose.shape}')
         if not np.all(np.isfinite(pose)):
             return self._reject(f'pose is not finite: {pose.tolist()}')
-        ok, reasons = check_reachable(self._controller_geometry, pose[None],
-                                      max_condition=self._max_condition)
+        ok, reasons = check_reachable(
+            self._controller_geometry, pose[None], max_condition=self._max_condition
+        )
         if not ok[0]:
             return self._reject(f'unreachable: {reasons[0]}')
         leg_lengths = inverse_kinematics(self._controller_geometry, pose[None])[0]
-        true_pose, converged = forward_kinematics_masked(self._true_geometry, leg_lengths[None],
-                                                         pose[None])
+        true_pose, converged = forward_kinematics_masked(
+            self._true_geometry, leg_lengths[None], pose[None]
+        )
         if not (converged[0] and np.all(np.isfinite(true_pose[0]))):
             return self._reject(
                 'forward kinematics of the real platform found no pose near the command for '
-                f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)')
+                f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)'
+            )
         self._leg_lengths = leg_lengths
         self._true_pose = true_pose[0]
         self._commanded_pose = pose.copy()

@@ -4,19 +4,14 @@ import math
 
 import numpy as np
 import pytest
-import rclpy
-from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState
-from visualization_msgs.msg import MarkerArray
 
 from gsp_kinematics.geometry import default_geometry, geometry_to_parameters
 from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
-from gsp_msgs_py import conversions, names, qos, testing
-from gsp_platform_sim.platform_sim_node import ConfigurationError, PlatformSimNode
+from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py.node_tools import ConfigurationError
+from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')
@@ -24,36 +19,27 @@ POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
 TIMEOUT_S = 10.0  # generous: the machine may be loaded; tests finish as soon as they can
 
 
-class Harness:
+class Harness(testing.NodeHarness):
     """platform_sim plus a test node that commands poses and records what comes back."""
 
     def __init__(self, context, overrides=()):
         self.sim = PlatformSimNode(context=context, parameter_overrides=list(overrides))
-        self.node = rclpy.create_node('platform_sim_test', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.sim)
-        self.executor.add_node(self.node)
+        super().__init__(context, self.sim, 'platform_sim_test', TIMEOUT_S)
         self.statuses, self.leg_lengths, self.true_poses, self.markers = [], [], [], []
-        self.node.create_subscription(
-            DiagnosticStatus, names.TOPIC_PLATFORM_STATUS,
-            lambda m: self.statuses.append(conversions.parse_status(m)),
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS])
-        self.node.create_subscription(
-            JointState, names.TOPIC_LEG_LENGTHS, self.leg_lengths.append,
-            qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS])
-        self.node.create_subscription(
-            PoseStamped, names.TOPIC_TRUE_POSE, self.true_poses.append,
-            qos.TOPIC_QOS[names.TOPIC_TRUE_POSE])
-        self.node.create_subscription(
-            MarkerArray, names.TOPIC_MARKERS, self.markers.append,
-            qos.TOPIC_QOS[names.TOPIC_MARKERS])
-        self.command_pub = self.node.create_publisher(
-            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND])
-        assert self.spin_until(lambda: self.command_pub.get_subscription_count() > 0
-                               and self.leg_lengths and self.true_poses), 'no discovery'
-
-    def spin_until(self, predicate, timeout=TIMEOUT_S):
-        return testing.spin_until(self.executor, predicate, timeout)
+        self.subscribe(
+            names.TOPIC_PLATFORM_STATUS, lambda m: self.statuses.append(conversions.parse_status(m))
+        )
+        self.subscribe(names.TOPIC_LEG_LENGTHS, self.leg_lengths.append)
+        self.subscribe(names.TOPIC_TRUE_POSE, self.true_poses.append)
+        self.subscribe(names.TOPIC_MARKERS, self.markers.append)
+        self.command_pub = self.publisher(names.TOPIC_POSE_COMMAND)
+        assert self.spin_until(
+            lambda: (
+                self.command_pub.get_subscription_count() > 0
+                and self.leg_lengths
+                and self.true_poses
+            )
+        ), 'no discovery'
 
     def command(self, pose=None, msg=None):
         """Publish a command (a pose, or a prepared message); returns its command id."""
@@ -69,8 +55,9 @@ class Harness:
 
     def wait_final(self, command_id):
         """The states of a command once it is settled or rejected."""
-        assert self.spin_until(lambda: any(s.settled or s.rejected
-                                           for s in self.states(command_id))), self.statuses
+        assert self.spin_until(
+            lambda: any(s.settled or s.rejected for s in self.states(command_id))
+        ), self.statuses
         return self.states(command_id)
 
     def leg_lengths_after(self, count=5):
@@ -79,8 +66,11 @@ class Harness:
         now_ns = self.node.get_clock().now().nanoseconds
 
         def fresh():
-            return [m for m in self.leg_lengths
-                    if conversions.stamp_to_nanoseconds(m.header.stamp) > now_ns]
+            return [
+                m
+                for m in self.leg_lengths
+                if conversions.stamp_to_nanoseconds(m.header.stamp) > now_ns
+            ]
 
         assert self.spin_until(lambda: len(fresh()) >= count)
         return np.array([conversions.msg_to_leg_lengths(m) for m in fresh()[:count]])
@@ -91,20 +81,8 @@ class Harness:
         assert self.spin_until(future.done)
         return future.result()
 
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.sim.destroy_node()
 
-
-@pytest.fixture
-def harness(ros_context, request):
-    overrides = getattr(request, 'param', ())
-    h = Harness(ros_context, overrides)
-    try:
-        yield h
-    finally:
-        h.close()
+harness = testing.harness_fixture(Harness)
 
 
 def test_command_moves_then_settles_and_streams_the_new_posture(harness):
@@ -122,7 +100,8 @@ def test_command_moves_then_settles_and_streams_the_new_posture(harness):
 
     true_pose = conversions.pose_stamped_to_pose(harness.true_poses[-1])
     np.testing.assert_allclose(
-        true_pose, forward_kinematics(TRUE, q[None], POSE[None])[0], atol=1e-9)
+        true_pose, forward_kinematics(TRUE, q[None], POSE[None])[0], atol=1e-9
+    )
     # leg_lengths and true_pose come from one timer with one stamp.
     leg_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths}
     pose_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.true_poses}
@@ -143,8 +122,12 @@ def _bad_messages():
     not_unit.pose.orientation.w = 3.0
     nan_quaternion = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
     nan_quaternion.pose.orientation.x = math.nan
-    return [(nan_pose, 'non-finite'), (wrong_frame, 'frame_id'), (not_unit, 'unit length'),
-            (nan_quaternion, 'not finite')]
+    return [
+        (nan_pose, 'non-finite'),
+        (wrong_frame, 'frame_id'),
+        (not_unit, 'unit length'),
+        (nan_quaternion, 'not finite'),
+    ]
 
 
 def test_bad_commands_are_rejected_with_a_reason_and_the_node_survives(harness):
@@ -182,16 +165,21 @@ def test_a_new_command_supersedes_one_still_moving(harness):
 
 def test_bad_parameter_values_are_rejected_with_a_reason(harness):
     sim = harness.sim
-    for name, value in [('leg_noise_std', -1e-6), ('settle_time', -0.1),
-                        ('geometry.leg_offsets', [0.6] * 5),
-                        ('geometry.device_length', -0.85),
-                        ('geometry.limits.leg_stroke_min', 5.0),
-                        ('publish_rate', 100.0)]:
+    for name, value in [
+        ('leg_noise_std', -1e-6),
+        ('settle_time', -0.1),
+        ('geometry.leg_offsets', [0.6] * 5),
+        ('geometry.device_length', -0.85),
+        ('geometry.limits.leg_stroke_min', 5.0),
+        ('publish_rate', 100.0),
+    ]:
         result = sim.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful, name
         assert result.reason, name
-    assert 'geometry.leg_offsets' in sim.set_parameters(
-        [Parameter('geometry.leg_offsets', value=[0.6] * 5)])[0].reason
+    assert (
+        'geometry.leg_offsets'
+        in sim.set_parameters([Parameter('geometry.leg_offsets', value=[0.6] * 5)])[0].reason
+    )
     assert 'read-only' in sim.set_parameters([Parameter('publish_rate', value=100.0)])[0].reason
     assert sim.get_parameter('leg_noise_std').value == 1e-6
     assert sim.set_parameters([Parameter('leg_noise_std', value=0.0)])[0].successful
@@ -200,8 +188,10 @@ def test_bad_parameter_values_are_rejected_with_a_reason(harness):
 
 
 def _calibrated_geometry():
-    return NOMINAL.replace(leg_offsets=NOMINAL.leg_offsets + [0.002, -0.001, 0.0, 0.001, 0.0, 0.003],
-                           base_joints=NOMINAL.base_joints + 0.001)
+    return NOMINAL.replace(
+        leg_offsets=NOMINAL.leg_offsets + [0.002, -0.001, 0.0, 0.001, 0.0, 0.003],
+        base_joints=NOMINAL.base_joints + 0.001,
+    )
 
 
 @pytest.mark.parametrize('service', ['set_parameters', 'set_parameters_atomically'])
@@ -209,15 +199,18 @@ def test_controller_geometry_applied_through_the_parameter_service(harness, serv
     command_id = harness.command(POSE)
     harness.wait_final(command_id)
     calibrated = _calibrated_geometry()
-    parameters = [Parameter(name, value=value).to_parameter_msg()
-                  for name, value in geometry_to_parameters(calibrated).items()]
+    parameters = [
+        Parameter(name, value=value).to_parameter_msg()
+        for name, value in geometry_to_parameters(calibrated).items()
+    ]
     service_type = SetParameters if service == 'set_parameters' else SetParametersAtomically
     client = harness.node.create_client(service_type, f'/{names.NODE_PLATFORM_SIM}/{service}')
     response = harness.call(client, service_type.Request(parameters=parameters))
     results = response.results if service == 'set_parameters' else [response.result]
     assert all(r.successful for r in results), [r.reason for r in results]
     np.testing.assert_array_equal(
-        harness.sim.get_parameter('geometry.leg_offsets').value, calibrated.leg_offsets)
+        harness.sim.get_parameter('geometry.leg_offsets').value, calibrated.leg_offsets
+    )
 
     # The legs hold until the next command, which uses the new geometry.
     q_old = inverse_kinematics(NOMINAL, POSE[None])[0]
@@ -233,13 +226,19 @@ def test_invalid_geometry_through_the_service_is_rejected(harness):
     parameters = geometry_to_parameters(NOMINAL)
     parameters['geometry.inclinometer_axes_angle'] = 4.0
     client = harness.node.create_client(
-        SetParametersAtomically, f'/{names.NODE_PLATFORM_SIM}/set_parameters_atomically')
-    response = harness.call(client, SetParametersAtomically.Request(
-        parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in parameters.items()]))
+        SetParametersAtomically, f'/{names.NODE_PLATFORM_SIM}/set_parameters_atomically'
+    )
+    response = harness.call(
+        client,
+        SetParametersAtomically.Request(
+            parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in parameters.items()]
+        ),
+    )
     assert not response.result.successful
     assert 'inclinometer_axes_angle' in response.result.reason
     np.testing.assert_array_equal(
-        harness.sim.get_parameter('geometry.leg_offsets').value, NOMINAL.leg_offsets)
+        harness.sim.get_parameter('geometry.leg_offsets').value, NOMINAL.leg_offsets
+    )
 
 
 def test_markers_show_the_platform(harness):
@@ -249,12 +248,18 @@ def test_markers_show_the_platform(harness):
     assert {m.header.frame_id for m in markers} == {names.FRAME_BASE}
 
 
-@pytest.mark.parametrize('overrides, words', [
-    ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
-    ([Parameter('leg_noise_std', value=-1.0)], 'leg_noise_std'),
-    ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'true_geometry_file'),
-    ([Parameter('geometry.leg_offsets', value=[0.6, 0.6])], 'geometry.leg_offsets'),
-])
+@pytest.mark.parametrize(
+    'overrides, words',
+    [
+        ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
+        ([Parameter('leg_noise_std', value=-1.0)], 'leg_noise_std'),
+        (
+            [Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')],
+            'true_geometry_file',
+        ),
+        ([Parameter('geometry.leg_offsets', value=[0.6, 0.6])], 'geometry.leg_offsets'),
+    ],
+)
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
     with pytest.raises(ConfigurationError, match=words):
         PlatformSimNode(context=ros_context, parameter_overrides=overrides)

@@ -23,7 +23,8 @@ def test_starts_at_home_through_the_controller():
     q = inverse_kinematics(NOMINAL, home_pose()[None])[0]
     np.testing.assert_allclose(sim.leg_lengths, q, atol=1e-12)
     np.testing.assert_allclose(
-        sim.true_pose, forward_kinematics(TRUE, q[None], home_pose()[None])[0], atol=1e-10)
+        sim.true_pose, forward_kinematics(TRUE, q[None], home_pose()[None])[0], atol=1e-10
+    )
     np.testing.assert_array_equal(sim.commanded_pose, home_pose())
 
 
@@ -42,13 +43,16 @@ def test_accepted_command_reaches_fk_of_true_at_ik_of_controller():
     assert 1e-5 < error < 0.02
 
 
-@pytest.mark.parametrize('pose, words', [
-    ([0.0, 0.0, 2.5, 0.0, 0.0, 0.0], 'stroke'),
-    ([0.0, 0.0, 1.0, 0.0, 1.4, 0.0], 'joint'),
-    ([0.0, np.nan, 1.0, 0.0, 0.0, 0.0], 'not finite'),
-    ([0.0, 0.0, np.inf, 0.0, 0.0, 0.0], 'not finite'),
-    ([0.0, 0.0, 1.0], 'shape'),
-])
+@pytest.mark.parametrize(
+    'pose, words',
+    [
+        ([0.0, 0.0, 2.5, 0.0, 0.0, 0.0], 'stroke'),
+        ([0.0, 0.0, 1.0, 0.0, 1.4, 0.0], 'joint'),
+        ([0.0, np.nan, 1.0, 0.0, 0.0, 0.0], 'not finite'),
+        ([0.0, 0.0, np.inf, 0.0, 0.0, 0.0], 'not finite'),
+        ([0.0, 0.0, 1.0], 'shape'),
+    ],
+)
 def test_rejected_command_gives_reason_and_keeps_the_platform(pose, words):
     sim = make_simulator()
     before_pose, before_q = sim.true_pose, sim.leg_lengths
@@ -109,7 +113,8 @@ def test_new_controller_geometry_applies_from_the_next_command():
     np.testing.assert_array_equal(sim.leg_lengths, held)
     assert sim.command(POSE).accepted
     np.testing.assert_allclose(
-        sim.leg_lengths, inverse_kinematics(calibrated, POSE[None])[0], atol=1e-12)
+        sim.leg_lengths, inverse_kinematics(calibrated, POSE[None])[0], atol=1e-12
+    )
     np.testing.assert_allclose(sim.leg_lengths, held - 0.002, atol=1e-12)
 
 
@@ -126,7 +131,8 @@ def test_marker_lines():
     np.testing.assert_array_equal(lines['platform'][0], lines['platform'][-1])
     leg_lengths = np.linalg.norm(lines['legs'][1::2] - lines['legs'][0::2], axis=1)
     np.testing.assert_allclose(
-        leg_lengths - NOMINAL.leg_offsets, inverse_kinematics(NOMINAL, POSE[None])[0], atol=1e-12)
+        leg_lengths - NOMINAL.leg_offsets, inverse_kinematics(NOMINAL, POSE[None])[0], atol=1e-12
+    )
     np.testing.assert_allclose(lines['device_link'], [np.zeros(3), POSE[:3]])
     markers = make_marker_array(NOMINAL, POSE, Time(sec=1), 'gsp_base').markers
     assert [len(m.points) for m in markers] == [7, 7, 12, 2]

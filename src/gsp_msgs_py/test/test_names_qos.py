@@ -1,11 +1,8 @@
-"""Interface names, their types and QoS profiles, unit helpers."""
+"""Interface names, their types and QoS profiles."""
 
-import math
-
-import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
 
-from gsp_msgs_py import names, qos, units
+from gsp_msgs_py import names, qos
 
 
 def test_every_topic_has_an_importable_type_and_a_qos():
@@ -39,14 +36,3 @@ def test_qos_profiles():
     assert qos.RESULT_QOS.depth == 1
     assert qos.RESULT_QOS.durability == DurabilityPolicy.TRANSIENT_LOCAL
     assert qos.TOPIC_QOS[names.TOPIC_CALIBRATION_RESULT] is qos.RESULT_QOS
-
-
-def test_units():
-    assert units.M_TO_MM == 1000.0
-    assert units.m_to_mm(0.0015) == 1.5
-    assert units.mm_to_m(1.5) == 0.0015
-    assert math.isclose(units.rad_to_deg(math.pi), 180.0)
-    assert math.isclose(units.deg_to_rad(90.0), math.pi / 2)
-    np.testing.assert_allclose(units.rad_to_deg([0.0, math.pi / 2]), [0.0, 90.0])
-    assert isinstance(units.m_to_mm(1), float)
-    assert units.RAD_TO_DEG * units.DEG_TO_RAD == 1.0

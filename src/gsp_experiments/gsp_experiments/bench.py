@@ -7,14 +7,14 @@
   predicted device readings) from the same start; ``speedup`` = scipy median / ours.
 * ``fk``: batched forward-kinematics throughput (postures per second).
 
-Other packages add sections: :data:`EXTRA_SECTIONS` maps a key of ``bench.json`` to a module that,
-when importable, provides ``run(quick=False) -> dict`` (e.g. ``end_to_end`` from
-``gsp_calibrator.bench_end_to_end``); or they call :func:`merge_sections` themselves. With
-``--merge`` (the default) keys already in ``bench.json`` that this run does not produce are kept.
+Other packages add sections by calling the benchmark: ``main(extra_sections={key: run})``, each
+``run(quick=bool) -> dict`` giving the ``bench.json`` section ``key`` (``gsp_bench`` itself is
+``gsp_calibrator.bench``, which adds ``end_to_end``); each gets a ``--skip-<key>`` option. The core's
+sections alone: ``python -m gsp_experiments.bench``. With ``--merge`` (the default) keys already in
+``bench.json`` that this run does not produce are kept.
 """
 
 import argparse
-import importlib
 import json
 import math
 import os
@@ -26,16 +26,21 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from .device import device_readings
-from .geometry import Geometry, parameter_errors
-from .identification import DEFAULT_FORMULATION, Sigmas, identify, wrap_angle
-from .kinematics import forward_kinematics_masked, inverse_kinematics, sample_valid_postures
-from .nominal_sets import drawing_geometry, nominal_set
-from .paper import add_noise, json_safe, reexec_with_single_threaded_blas, write_json
-from .selection import select_postures
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.fileio import to_json, write_json
+from gsp_kinematics.geometry import Geometry, parameter_errors
+from gsp_kinematics.identification import DEFAULT_FORMULATION, Sigmas, identify
+from gsp_kinematics.kinematics import (
+    forward_kinematics_masked,
+    inverse_kinematics,
+    sample_valid_postures,
+)
+from gsp_kinematics.rotation import wrap_angle
+from gsp_kinematics.selection import select_postures
 
-#: ``bench.json`` key -> module providing ``run(quick=False) -> dict`` (skipped if not importable).
-EXTRA_SECTIONS = {"end_to_end": "gsp_calibrator.bench_end_to_end"}
+from .cli import experiment_parser, reexec_with_single_threaded_blas
+from .nominal_sets import drawing_geometry, nominal_set
+from .paper import add_noise
 
 
 def build_problem(
@@ -60,15 +65,15 @@ def build_problem(
         )
     sigmas = Sigmas.from_levels(angle_noise_deg or 0.001, length_noise_mm or 0.001)
     return {
-        "exact": exact,
-        "nominal": nominal,
-        "poses": poses,
-        "leg_lengths": leg_lengths,
-        "readings": readings,
-        "sigmas": sigmas,
-        "noise": {"angle_deg": angle_noise_deg, "length_mm": length_noise_mm},
-        "pool_size": pool_size,
-        "nominal_set": set_number,
+        'exact': exact,
+        'nominal': nominal,
+        'poses': poses,
+        'leg_lengths': leg_lengths,
+        'readings': readings,
+        'sigmas': sigmas,
+        'noise': {'angle_deg': angle_noise_deg, 'length_mm': length_noise_mm},
+        'pool_size': pool_size,
+        'nominal_set': set_number,
     }
 
 
@@ -83,8 +88,8 @@ def fk_residual_function(nominal, leg_lengths, readings, sigmas, pose_guesses, c
     weights = 1.0 / sigmas.readings()
     limits = nominal.limits
     counters = {} if counters is None else counters
-    counters.setdefault("calls", 0)
-    counters.setdefault("calls_with_fk_failures", 0)
+    counters.setdefault('calls', 0)
+    counters.setdefault('calls_with_fk_failures', 0)
 
     def residuals(u):
         geometry = Geometry.from_vector(u, limits)
@@ -92,8 +97,8 @@ def fk_residual_function(nominal, leg_lengths, readings, sigmas, pose_guesses, c
         difference = readings - device_readings(geometry, poses)
         difference[:, 2] = wrap_angle(difference[:, 2])
         difference[~converged] = 0.0
-        counters["calls"] += 1
-        counters["calls_with_fk_failures"] += int(not converged.all())
+        counters['calls'] += 1
+        counters['calls_with_fk_failures'] += int(not converged.all())
         return (difference * weights).ravel()
 
     return residuals
@@ -104,7 +109,7 @@ def scipy_fd_identification(nominal, leg_lengths, readings, sigmas, pose_guesses
     :func:`fk_residual_function`, from the nominal parameters. Returns ``(solution, counters)``."""
     counters = {}
     function = fk_residual_function(nominal, leg_lengths, readings, sigmas, pose_guesses, counters)
-    return least_squares(function, nominal.to_vector(), method="lm"), counters
+    return least_squares(function, nominal.to_vector(), method='lm'), counters
 
 
 def _median_ms(function, repeats, cpu=None):
@@ -124,21 +129,21 @@ def _median_ms(function, repeats, cpu=None):
 
 
 def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAULT_FORMULATION):
-    nominal, exact = problem["nominal"], problem["exact"]
-    arguments = (nominal, problem["leg_lengths"], problem["readings"], problem["sigmas"])
+    nominal, exact = problem['nominal'], problem['exact']
+    arguments = (nominal, problem['leg_lengths'], problem['readings'], problem['sigmas'])
 
     def ours():
-        return identify(*arguments, formulation=formulation, pose_guesses=problem["poses"])
+        return identify(*arguments, formulation=formulation, pose_guesses=problem['poses'])
 
     ours()  # warm-up (imports, caches)
     cpu = []
     median_ms, times, result = _median_ms(ours, repeats, cpu)
     fk_median_ms, _, fk_result = _median_ms(
-        lambda: identify(*arguments, formulation="fk", pose_guesses=problem["poses"]),
+        lambda: identify(*arguments, formulation='fk', pose_guesses=problem['poses']),
         max(3, repeats // 2),
     )
     scipy_ms, scipy_times, (solution, counters) = _median_ms(
-        lambda: scipy_fd_identification(*arguments, problem["poses"]), scipy_repeats, cpu
+        lambda: scipy_fd_identification(*arguments, problem['poses']), scipy_repeats, cpu
     )
     scipy_geometry = Geometry.from_vector(solution.x, nominal.limits)
 
@@ -146,33 +151,33 @@ def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAUL
         return float(np.max(np.abs(parameter_errors(geometry, exact)[:43])))
 
     return {
-        "postures": int(problem["poses"].shape[0]),
-        "parameters": int(result.free.sum()),
-        "formulation": result.formulation,
-        "median_ms": median_ms,
-        "scipy_fd_median_ms": scipy_ms,
-        "speedup": scipy_ms / median_ms,
-        "median_cpu_ms": cpu[0],
-        "scipy_fd_median_cpu_ms": cpu[1],
-        "speedup_cpu": cpu[1] / cpu[0],
-        "repeats": repeats,
-        "scipy_repeats": scipy_repeats,
-        "times_ms": times,
-        "scipy_times_ms": scipy_times,
-        "iterations": int(result.iterations),
-        "converged": bool(result.converged),
-        "max_param_error_mm": max_error(result.geometry),
-        "fk_formulation_median_ms": fk_median_ms,
-        "fk_formulation_max_param_error_mm": max_error(fk_result.geometry),
-        "fk_formulation_cost": float(fk_result.cost),
-        "scipy_fd_cost": float(solution.cost),
-        "scipy_fd_function_calls": counters["calls"],
-        "scipy_fd_calls_with_fk_failures": counters["calls_with_fk_failures"],
-        "scipy_fd_status": int(solution.status),
-        "scipy_fd_max_param_error_mm": max_error(scipy_geometry),
-        "noise": problem["noise"],
-        "nominal_set": problem["nominal_set"],
-        "pool_size": problem["pool_size"],
+        'postures': int(problem['poses'].shape[0]),
+        'parameters': int(result.free.sum()),
+        'formulation': result.formulation,
+        'median_ms': median_ms,
+        'scipy_fd_median_ms': scipy_ms,
+        'speedup': scipy_ms / median_ms,
+        'median_cpu_ms': cpu[0],
+        'scipy_fd_median_cpu_ms': cpu[1],
+        'speedup_cpu': cpu[1] / cpu[0],
+        'repeats': repeats,
+        'scipy_repeats': scipy_repeats,
+        'times_ms': times,
+        'scipy_times_ms': scipy_times,
+        'iterations': int(result.iterations),
+        'converged': bool(result.converged),
+        'max_param_error_mm': max_error(result.geometry),
+        'fk_formulation_median_ms': fk_median_ms,
+        'fk_formulation_max_param_error_mm': max_error(fk_result.geometry),
+        'fk_formulation_cost': float(fk_result.cost),
+        'scipy_fd_cost': float(solution.cost),
+        'scipy_fd_function_calls': counters['calls'],
+        'scipy_fd_calls_with_fk_failures': counters['calls_with_fk_failures'],
+        'scipy_fd_status': int(solution.status),
+        'scipy_fd_max_param_error_mm': max_error(scipy_geometry),
+        'noise': problem['noise'],
+        'nominal_set': problem['nominal_set'],
+        'pool_size': problem['pool_size'],
     }
 
 
@@ -190,33 +195,34 @@ def bench_fk(count=10000, repeats=5, seed=1):
         lambda: forward_kinematics_masked(exact, leg_lengths, guesses), repeats
     )
     return {
-        "postures": count,
-        "postures_per_s": count / (median_ms / 1000.0),
-        "median_ms": median_ms,
-        "repeats": repeats,
-        "converged_fraction": float(np.mean(converged)),
-        "max_position_error_m": float(np.max(np.abs(solved[converged, :3] - poses[converged, :3]))),
-        "guess_perturbation": {"position_mm": 2.0, "angle_deg": 0.2},
+        'postures': count,
+        'postures_per_s': count / (median_ms / 1000.0),
+        'median_ms': median_ms,
+        'repeats': repeats,
+        'converged_fraction': float(np.mean(converged)),
+        'max_position_error_m': float(np.max(np.abs(solved[converged, :3] - poses[converged, :3]))),
+        'guess_perturbation': {'position_mm': 2.0, 'angle_deg': 0.2},
     }
 
 
-def extra_sections(skip=(), quick=False, log=print):
-    """Run the importable modules of :data:`EXTRA_SECTIONS`; ``{key: dict}`` (errors recorded)."""
+def run_extra_sections(extra_sections, skip=(), quick=False, log=print):
+    """``{key: run(quick=quick)}`` of ``extra_sections`` not in ``skip``; a failure is recorded
+    as ``{'error': ...}`` (another package's benchmark must not lose the core's sections)."""
     sections = {}
-    for key, module_name in EXTRA_SECTIONS.items():
+    for key, run in extra_sections.items():
         if key in skip:
             continue
         try:
-            module = importlib.import_module(module_name)
-        except ImportError as error:
-            log(f"gsp_bench: section {key!r} skipped ({module_name} not importable: {error})")
-            continue
-        try:
-            sections[key] = module.run(quick=quick)
-        except Exception as error:  # another package's benchmark must not lose ours
-            log(f"gsp_bench: section {key!r} failed: {error!r}")
-            sections[key] = {"error": repr(error)}
+            sections[key] = run(quick=quick)
+        except Exception as error:  # noqa: BLE001 (recorded in the section)
+            log(f'gsp_bench: section {key!r} failed: {error!r}')
+            sections[key] = {'error': repr(error)}
     return sections
+
+
+def skip_option(key):
+    """The command-line option that skips section ``key`` (``end_to_end``: ``--skip-end-to-end``)."""
+    return '--skip-' + key.replace('_', '-')
 
 
 def merge_sections(path, sections, merge=True):
@@ -225,48 +231,50 @@ def merge_sections(path, sections, merge=True):
     document = {}
     if merge and path.is_file():
         try:
-            with open(path, encoding="utf-8") as stream:
+            with open(path, encoding='utf-8') as stream:
                 existing = json.load(stream)
             if isinstance(existing, dict):
                 document = existing
         except (OSError, ValueError):
             document = {}
     document.update(sections)
-    write_json(document, path)
+    write_json(path, document)
     return document
 
 
-def main(argv=None):
+def main(argv=None, extra_sections=None):
+    """``gsp_bench``: the core's sections, then ``extra_sections`` (``{key: run(quick=bool)}``)."""
     if argv is None:
-        reexec_with_single_threaded_blas("gsp_kinematics.bench")
-    parser = argparse.ArgumentParser(prog="gsp_bench", description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--output", default="results/bench.json", help="JSON output (default results/bench.json)"
+        reexec_with_single_threaded_blas()
+    extra_sections = dict(extra_sections or {})
+    parser = experiment_parser(
+        'gsp_bench', __doc__, 'results/bench.json', 'fewer repeats and postures (a smoke run)'
     )
     parser.add_argument(
-        "--merge",
+        '--merge',
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="keep keys of an existing output file that this run does not produce (default on)",
+        help='keep keys of an existing output file that this run does not produce (default on)',
     )
     parser.add_argument(
-        "--repeats", type=int, default=7, help="timed identifications (>= 5; default 7)"
+        '--repeats', type=int, default=7, help='timed identifications (>= 5; default 7)'
     )
     parser.add_argument(
-        "--scipy-repeats", type=int, default=3, help="timed scipy solves (>= 3; default 3)"
+        '--scipy-repeats', type=int, default=3, help='timed scipy solves (>= 3; default 3)'
     )
     parser.add_argument(
-        "--fk-postures", type=int, default=10000, help="postures of the FK throughput test"
+        '--fk-postures', type=int, default=10000, help='postures of the FK throughput test'
     )
     parser.add_argument(
-        "--noise-free", action="store_true", help="noise-free data instead of Table 3 level 1"
+        '--noise-free', action='store_true', help='noise-free data instead of Table 3 level 1'
     )
-    parser.add_argument(
-        "--skip-end-to-end", action="store_true", help="skip the node-suite end_to_end section"
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="fewer repeats and postures (a smoke run)"
-    )
+    for key in extra_sections:
+        parser.add_argument(
+            skip_option(key),
+            dest=f'skip_{key}',
+            action='store_true',
+            help=f'skip the {key} section',
+        )
     args = parser.parse_args(argv)
     repeats, scipy_repeats, fk_count = (
         max(5, args.repeats),
@@ -279,21 +287,20 @@ def main(argv=None):
     def log(text):
         print(text, file=sys.stderr, flush=True)
 
-    log("gsp_bench: building the problem (nominal set 2, 60 selected postures) ...")
+    log('gsp_bench: building the problem (nominal set 2, 60 selected postures) ...')
     noise = (0.0, 0.0) if args.noise_free else (0.001, 0.001)
     problem = build_problem(angle_noise_deg=noise[0], length_noise_mm=noise[1])
-    log("gsp_bench: timing identification and the scipy finite-difference baseline ...")
-    sections = {"identification": bench_identification(problem, repeats, scipy_repeats)}
-    log("gsp_bench: timing batched FK ...")
-    sections["fk"] = bench_fk(fk_count, repeats=5)
-    skip = {"end_to_end"} if args.skip_end_to_end else set()
-    sections.update(extra_sections(skip=skip, quick=args.quick, log=log))
-    sections["identification"]["blas_threads"] = os.environ.get("OPENBLAS_NUM_THREADS", "default")
+    log('gsp_bench: timing identification and the scipy finite-difference baseline ...')
+    sections = {'identification': bench_identification(problem, repeats, scipy_repeats)}
+    log('gsp_bench: timing batched FK ...')
+    sections['fk'] = bench_fk(fk_count, repeats=5)
+    skip = {key for key in extra_sections if getattr(args, f'skip_{key}')}
+    sections.update(run_extra_sections(extra_sections, skip=skip, quick=args.quick, log=log))
+    sections['identification']['blas_threads'] = os.environ.get('OPENBLAS_NUM_THREADS', 'default')
     document = merge_sections(args.output, sections, merge=args.merge)
-    json.dump(json_safe(document), sys.stdout, indent=2)
-    sys.stdout.write("\n")
+    sys.stdout.write(to_json(document))
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -1,18 +1,24 @@
-"""Default geometry and the paper's nominal parameter sets (Tables 1 and 2)."""
+"""The paper's exact geometry ("the drawing") and its nominal parameter sets (Tables 1 and 2).
+
+The table numbers come from the shipped tables (:mod:`gsp_experiments.tables`).
+"""
 
 import math
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from .geometry import Geometry, Limits
+from gsp_kinematics.geometry import Geometry, Limits
 
+from .tables import load_tables, table1, table2
+
+_TABLES, _ = load_tables()
 #: Table 1: (max, mean, sigma) of the 42 platform-parameter errors, mm.
-TABLE1_ERRORS_MM = {1: (4.65, 1.31, 1.65), 2: (12.35, 5.18, 5.89), 3: (18.44, 6.96, 7.76)}
+TABLE1_ERRORS_MM = table1(_TABLES)
 #: Table 2: nominal (D0 mm, gamma deg). The exact values are 850 mm and 90 deg.
-TABLE2_DEVICE = {1: (850.2, 89.5), 2: (849.3, 90.7), 3: (848.7, 91.0)}
-EXACT_DEVICE_LENGTH = 0.85  # m
-EXACT_INCLINOMETER_AXES_ANGLE = math.pi / 2
+TABLE2_DEVICE = table2(_TABLES)
+EXACT_DEVICE_LENGTH = _TABLES['exact_device']['device_length_mm'] / 1000.0  # m
+EXACT_INCLINOMETER_AXES_ANGLE = math.radians(_TABLES['exact_device']['inclinometer_axes_angle_deg'])
 
 
 def drawing_geometry(
@@ -37,7 +43,9 @@ def drawing_geometry(
             angle = math.radians(120.0 * corner + side * base_half_angle_deg)
             base.append([base_radius * math.cos(angle), base_radius * math.sin(angle), 0.0])
             angle = math.radians(120.0 * corner + side * (60.0 - platform_half_angle_deg))
-            platform.append([platform_radius * math.cos(angle), platform_radius * math.sin(angle), 0.0])
+            platform.append(
+                [platform_radius * math.cos(angle), platform_radius * math.sin(angle), 0.0]
+            )
     return Geometry(
         base_joints=np.array(base),
         platform_joints=np.array(platform),
@@ -86,7 +94,7 @@ def errors_with_statistics(rng, count, maximum, mean, sigma):
 def nominal_set(exact, set_number, seed=0):
     """Nominal set 1-3: ``exact`` plus platform errors with Table 1's statistics and Table 2's device."""
     if set_number not in TABLE1_ERRORS_MM:
-        raise ValueError(f"nominal set must be 1, 2 or 3, got {set_number}")
+        raise ValueError(f'nominal set must be 1, 2 or 3, got {set_number}')
     rng = np.random.default_rng(1000 * set_number + seed)
     maximum, mean, sigma = TABLE1_ERRORS_MM[set_number]
     errors = errors_with_statistics(rng, 42, maximum, mean, sigma) / 1000.0

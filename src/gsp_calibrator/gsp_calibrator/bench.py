@@ -1,0 +1,23 @@
+"""``gsp_bench`` (``make bench``): the core's benchmark plus this package's ``end_to_end`` section.
+
+The benchmark itself is :func:`gsp_experiments.bench.main`; this package contributes its section
+by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/bench.json``.
+"""
+
+import sys
+
+from gsp_experiments import bench
+
+from . import bench_end_to_end
+
+#: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
+EXTRA_SECTIONS = {'end_to_end': bench_end_to_end.run}
+
+
+def main(argv=None):
+    """Console script ``gsp_bench``; ``argv`` as :func:`gsp_experiments.bench.main` takes it."""
+    return bench.main(argv, extra_sections=EXTRA_SECTIONS)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

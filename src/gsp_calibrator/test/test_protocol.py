@@ -1,0 +1,272 @@
+"""CollectionProtocol: the posture-collection protocol, offline with synthetic times (no ROS)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_calibrator import protocol
+from gsp_calibrator.collector import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
+from gsp_calibrator.protocol import (
+    CollectionProtocol,
+    CollectionStarted,
+    NoSynchronisedSample,
+    PairsCollected,
+    PostureSkipped,
+    RowReady,
+    SampleDropped,
+    TopicSilent,
+)
+from gsp_msgs_py import conversions, names
+
+MS = 1_000_000
+S = 1000 * MS
+T0 = 1_700_000_000 * S
+Q = np.array([0.5, 0.51, 0.52, 0.53, 0.54, 0.55])
+R = np.array([0.01, -0.02, 0.3, 0.004])
+POSE = np.array([0.01, -0.01, 1.0, 0.01, -0.02, 0.03])
+NOISE = [1e-6] * 6 + [1.7e-5, 1.7e-5, 1.7e-5, 1e-6]
+
+
+def status(command_id, state, reason):
+    return conversions.parse_status(conversions.make_status(command_id, state, reason))
+
+
+def make(samples=3, **kwargs):
+    kwargs.setdefault('topic_timeout', 1.0)
+    kwargs.setdefault('settle_timeout', 2.0)
+    return CollectionProtocol(0.0025, samples, NOISE, **kwargs)
+
+
+def instant(collection, stamp, q=Q, readings=R, now=None, skip=()):
+    """One leg-length sample and the device instant 1 ms later; the events."""
+    now = stamp + 2 * MS if now is None else now
+    events = collection.sample(LEG_LENGTHS, stamp, (q,), now)
+    device = {
+        INCLINOMETER: (readings[0], readings[1]),
+        ENCODER: (readings[2],),
+        LVDT: (readings[3],),
+    }
+    for stream, values in device.items():
+        if stream not in skip:
+            events += collection.sample(stream, stamp + MS, values, now)
+    return events
+
+
+def settle(collection, posture=1, at=T0, command_id='c1'):
+    """Command posture ``posture`` at ``at``, moving at +1 ms, settled at +10 ms."""
+    events = collection.command(posture, POSE, command_id, at)
+    events += collection.status(status(command_id, names.STATE_MOVING, ''), at + MS)
+    events += collection.status(status(command_id, names.STATE_SETTLED, ''), at + 10 * MS)
+    return events
+
+
+def test_a_row_from_the_samples_after_the_settle():
+    collection = make()
+    instant(collection, T0 - 100 * MS, readings=R - 0.05)  # the previous posture's readings
+    events = collection.command(1, POSE, 'c1', T0)
+    # While moving: received before the settle, stamped before it: never averaged.
+    events += instant(collection, T0 + 2 * MS, q=Q + 1.0, readings=R + 1.0)
+    events += collection.status(status('c1', names.STATE_SETTLED, ''), T0 + 10 * MS)
+    assert events == [CollectionStarted(1, 'c1', T0 + 10 * MS)]
+    for j in range(3):
+        events = instant(collection, T0 + 11 * MS + 5 * MS * j, q=Q + j * 1e-7)
+    (row,) = events
+    assert isinstance(row, RowReady) and row.posture == 1 and row.dropped == 0
+    np.testing.assert_allclose(row.pose, POSE)
+    np.testing.assert_allclose(row.sample.leg_lengths, Q + 1e-7, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(row.sample.readings, R, rtol=0, atol=1e-15)
+    assert collection.posture is None and collection.poll(T0 + 100 * S) == []
+
+
+def test_samples_received_before_the_settle_count_when_stamped_after_the_start():
+    collection = make(samples=2)
+    collection.command(1, POSE, 'c1', T0)
+    instant(collection, T0 + 5 * MS)
+    events = collection.status(
+        status('c1', names.STATE_SETTLED, ''), T0 + 10 * MS, start_ns=T0 + 4 * MS
+    )  # a noted start
+    assert events[0] == CollectionStarted(1, 'c1', T0 + 4 * MS)
+    events = instant(collection, T0 + 10 * MS)
+    assert isinstance(events[0], RowReady) and events[0].sample.n_samples == 2
+
+
+def test_a_rejected_posture_is_skipped_and_reported():
+    collection = make()
+    events = collection.command(1, POSE, 'c1', T0)
+    events += collection.status(
+        status('other', names.STATE_REJECTED, 'x'), T0 + MS
+    )  # another command's status: ignored
+    events += collection.status(status('c1', names.STATE_REJECTED, 'out of reach'), T0 + 2 * MS)
+    assert events == [
+        PostureSkipped(1, 'rejected by the platform: out of reach', True, 'out of reach')
+    ]
+    assert collection.summary()['skipped'] == [
+        {
+            'posture': 1,
+            'reason': 'rejected by the platform: out of reach',
+            'rejected_by_platform': True,
+        }
+    ]
+
+
+def test_timeouts_of_the_status_and_the_settle():
+    collection = make()
+    collection.command(1, POSE, 'c1', T0)
+    assert collection.poll(T0 + 999 * MS) == []
+    (silent,) = collection.poll(T0 + S)
+    assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_PLATFORM_STATUS
+    assert 'no status for posture 1 (command c1) within 1 s' in silent.message
+
+    collection.command(2, POSE, 'c2', T0 + 2 * S)
+    collection.status(status('c2', names.STATE_MOVING, ''), T0 + 3 * S)
+    assert collection.poll(T0 + 4 * S) == []  # 1 s after the first status: settle_timeout 2 s
+    assert collection.poll(T0 + 5 * S) == [PostureSkipped(2, 'not settled within 2 s')]
+
+
+def test_a_silent_sensor_topic_ends_the_collection():
+    collection = make()
+    settle(collection)
+    start = T0 + 10 * MS
+    # The leg lengths and two device topics keep coming, the encoder says nothing.
+    events = []
+    for j in range(300):
+        stamp = start + 7 * MS * j
+        events += instant(collection, stamp, skip=(ENCODER,))
+        if events:
+            break
+    (silent,) = events
+    assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_ENCODER
+    assert silent.doing == 'collecting posture 1'
+    assert silent.message == (
+        'topic /gsp/device/encoder is silent: no message for 1 s while collecting posture 1'
+    )
+
+
+def test_no_synchronised_sample_ends_the_run_with_the_counts():
+    collection = make()
+    settle(collection)
+    start = T0 + 10 * MS
+    events = []
+    for j in range(300):  # device instants 5 ms off: never within sync_tolerance
+        stamp = start + 10 * MS * j
+        events += collection.sample(LEG_LENGTHS, stamp, (Q,), stamp)
+        for stream, values in ((INCLINOMETER, R[:2]), (ENCODER, R[2:3]), (LVDT, R[3:])):
+            events += collection.sample(stream, stamp + 5 * MS, tuple(values), stamp)
+        if events:
+            break
+    (failed,) = events
+    assert isinstance(failed, NoSynchronisedSample) and failed.posture == 1
+    assert 'no synchronised sample for 1 s at posture 1' in failed.message
+    assert '0 within sync_tolerance' in failed.message
+
+
+def test_the_collection_ends_at_its_deadline_even_while_pairs_keep_coming():
+    """Pairs that never form a consistent window: skipped after settle + topic timeouts."""
+    collection = make()
+    instant(collection, T0 - 100 * MS)  # previous readings == the posture's: never usable
+    settle(collection)
+    events = []
+    for j in range(50):  # one pair every 100 ms: progress, but no window
+        stamp = T0 + 11 * MS + 100 * MS * j
+        events += instant(collection, stamp)
+        if events:
+            break
+    (skipped,) = events
+    assert isinstance(skipped, PostureSkipped) and not skipped.rejected_by_platform
+    assert skipped.reason.startswith(
+        'no 3 consistent synchronised samples within 3 s '
+        '(settle_timeout + topic_timeout) of settling'
+    )
+
+
+def test_too_many_pairs_without_a_consistent_window_skip_the_posture():
+    collection = make(max_pairs_per_sample=2)
+    instant(collection, T0 - 100 * MS)
+    settle(collection)
+    events = []
+    for j in range(10):
+        events += instant(collection, T0 + 11 * MS + 5 * MS * j)
+    assert events == [
+        PostureSkipped(
+            1,
+            'no 3 consistent samples among 6 synchronised ones (too noisy, or the device '
+            'readings did not change from the previous posture)',
+        )
+    ]
+
+
+def test_the_previous_row_is_the_reference_of_the_next_posture():
+    collection = make()
+    settle(collection)
+    for j in range(3):
+        events = instant(collection, T0 + 11 * MS + 5 * MS * j)
+    assert isinstance(events[0], RowReady)
+    settle(collection, 2, T0 + S, 'c2')
+    for j in range(10):  # the device still reports posture 1: not usable
+        events = instant(collection, T0 + S + 11 * MS + 5 * MS * j)
+        assert not events
+    for j in range(3):
+        events = instant(collection, T0 + S + 80 * MS + 5 * MS * j, readings=R + 0.01)
+    assert isinstance(events[0], RowReady) and events[0].posture == 2
+    np.testing.assert_allclose(events[0].sample.readings, R + 0.01)
+
+
+def test_malformed_and_non_finite_messages_are_dropped_and_counted():
+    collection = make()
+    settle(collection)
+    legs = conversions.leg_lengths_to_msg(Q, (T0 + 20 * MS) / 1e9)
+    legs.position = [math.nan] * 6
+    (dropped,) = collection.sensor(names.TOPIC_LEG_LENGTHS, legs, T0 + 21 * MS)
+    assert isinstance(dropped, SampleDropped) and dropped.non_finite and dropped.count == 1
+    bad = conversions.leg_lengths_to_msg(Q)
+    bad.name = ['leg_1']
+    bad.position = [0.5]
+    (dropped,) = collection.sensor(names.TOPIC_LEG_LENGTHS, bad, T0 + 22 * MS)
+    assert not dropped.non_finite
+    assert collection.heard(names.TOPIC_LEG_LENGTHS)
+    assert collection.summary() == {
+        'skipped': [],
+        'inconsistent_dropped': 0,
+        'non_finite_dropped': {'leg_lengths': 1, 'inclinometer': 0, 'encoder': 0, 'lvdt': 0},
+    }
+
+
+def test_keep_pairs_hands_over_every_pair_of_each_segment():
+    collection = CollectionProtocol(0.0025, 1, keep_pairs=True)
+    for j in range(3):
+        instant(collection, T0 - 100 * MS + 5 * MS * j, q=Q + j)
+    events = settle(collection)
+    idle = events[0]
+    assert isinstance(idle, PairsCollected) and idle.posture is None
+    np.testing.assert_array_equal(idle.leg_lengths[:, 0], Q[0] + np.arange(3))
+    for j in range(50):  # never ends a posture by itself
+        assert not instant(collection, T0 + 11 * MS + 5 * MS * j, q=Q + j)
+    events = collection.command(2, POSE, 'c2', T0 + S)
+    events += collection.status(status('c2', names.STATE_REJECTED, 'no'), T0 + S + MS)
+    (pairs, skipped) = events
+    assert pairs.posture == 1 and pairs.command_id == 'c1' and len(pairs.stamps) == 50
+    np.testing.assert_array_equal(pairs.leg_lengths[:, 0], Q[0] + np.arange(50))
+    np.testing.assert_array_equal(pairs.readings, np.tile(R, (50, 1)))
+    assert skipped.rejected_by_platform and skipped.platform_reason == 'no'
+    collection.command(3, POSE, 'c3', T0 + 2 * S)
+    assert collection.finish() == [PostureSkipped(3, 'never settled')]
+
+
+def test_the_topic_table_and_the_noise_vector():
+    assert protocol.SENSOR_TOPICS == (
+        names.TOPIC_LEG_LENGTHS,
+        names.TOPIC_INCLINOMETER,
+        names.TOPIC_ENCODER,
+        names.TOPIC_LVDT,
+    )
+    stream, stamp, values = protocol.read_sensor(
+        names.TOPIC_INCLINOMETER, conversions.inclinometer_to_msg(0.1, 0.2, 1.5)
+    )
+    assert (stream, stamp, values) == (INCLINOMETER, 1_500_000_000, (0.1, 0.2))
+    from gsp_kinematics.identification import Sigmas
+
+    sigmas = Sigmas(leg_lengths=1.0, inclinometer=2.0, encoder=3.0, lvdt=4.0)
+    assert protocol.noise_std(sigmas).tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
+    with pytest.raises(KeyError):
+        protocol.read_sensor('/not/a/sensor', None)

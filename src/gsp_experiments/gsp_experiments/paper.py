@@ -1,0 +1,514 @@
+"""Reproduction of Rauf & Ryu's simulations (section 4.2-4.3): Figs. 6-8 and Table 3.
+
+``gsp_paper`` (``make paper``):
+
+* the paper's tables: the copy shipped in this package (:mod:`gsp_experiments.tables`), or ``--tables``;
+* exact geometry: :func:`~gsp_experiments.nominal_sets.drawing_geometry` (D0 = 850 mm, gamma = 90 deg);
+  nominal sets 1-3 from :func:`~gsp_experiments.nominal_sets.nominal_set` (Tables 1 and 2);
+* per nominal set, 60 postures selected (:func:`~gsp_kinematics.selection.select_postures`) from a
+  pool of random valid postures sampled under the nominal geometry, with the sigmas of the
+  identification that uses them (the noise study selects once per noise level unless
+  ``--select-once``: the best design depends on how angle and length noise compare). As in the
+  paper, the selected postures are where the platform really is: the exact geometry gives the measured leg lengths
+  (eq 4-5) and device readings (eq 9), and each posture is also FK's starting guess;
+* noise-free: all 44 parameters identified with the default formulation; the initial and final
+  error of every parameter is printed and plotted (the data of Figs. 6-8);
+* noise study (nominal set 1): Gaussian noise at Table 3's four levels (angle noise on the
+  inclinometer and the encoder, length noise on the legs and the LVDT), ``--seeds`` draws each,
+  identified with every formulation from the same noisy data; accuracy is the mean position and
+  orientation error over 50 random valid validation postures (:func:`~gsp_kinematics.validation.validate`
+  with the calibrated geometry as the controller's), beside Table 3.
+
+Writes ``results/paper.json`` (its keys: docs/results.md) and one PNG per nominal set.
+"""
+
+import concurrent.futures
+import dataclasses
+import itertools
+import math
+import multiprocessing
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.fileio import write_json
+from gsp_kinematics.geometry import PARAMETER_NAMES, parameter_errors
+from gsp_kinematics.identification import DEFAULT_FORMULATION, FORMULATIONS, Sigmas, identify
+from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.selection import select_postures
+from gsp_kinematics.validation import validate
+
+from .cli import experiment_parser, reexec_with_single_threaded_blas
+from .nominal_sets import drawing_geometry, nominal_set
+from .tables import load_tables, table3
+
+#: Formulations of the noise study, in print order ('fk' is the noise-weighted FK-based residual).
+NOISE_FORMULATIONS = ('paper', 'implicit', 'fk')
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperConfig:
+    seeds: int = 20  #: noise draws per Table 3 level
+    pool_size: int = 600  #: random valid postures to select from
+    postures: int = 60  #: selected postures (the paper's M)
+    validation_postures: int = 50
+    sets: tuple = (1, 2, 3)
+    noise_set: int = 1
+    formulations: tuple = NOISE_FORMULATIONS
+    noise_free_formulation: str = DEFAULT_FORMULATION
+    select_per_level: bool = True  #: select the noise study's postures with each level's sigmas
+    seed: int = 0  #: base seed of pools, validation postures and noise draws
+    jobs: int = 2
+
+
+# --- simulation ---------------------------------------------------------------------------------
+
+
+def measurements(exact, poses):
+    """Noise-free leg lengths (M, 6) and device readings (M, 4) of the exact platform at ``poses``."""
+    return inverse_kinematics(exact, poses), device_readings(exact, poses)
+
+
+def add_noise(leg_lengths, readings, angle_noise_deg, length_noise_mm, rng):
+    """Gaussian noise: length level on legs and LVDT (mm), angle level on inclinometer and encoder (deg)."""
+    length_sigma = length_noise_mm / 1000.0
+    angle_sigma = math.radians(angle_noise_deg)
+    noisy_legs = leg_lengths + rng.normal(0.0, length_sigma, leg_lengths.shape)
+    reading_sigmas = np.array([angle_sigma, angle_sigma, angle_sigma, length_sigma])
+    noisy_readings = readings + rng.normal(0.0, 1.0, readings.shape) * reading_sigmas
+    return noisy_legs, noisy_readings
+
+
+def select_for_set(exact, set_number, config, sigmas=Sigmas()):
+    """Nominal set, the selected postures (M, 6) and the selection's condition number.
+
+    The pool depends on the set only, so selections for other sigmas pick from the same postures.
+    """
+    nominal = nominal_set(exact, set_number)
+    rng = np.random.default_rng([config.seed, set_number])
+    pool = sample_valid_postures(nominal, config.pool_size, rng)
+    indices, condition = select_postures(nominal, pool, config.postures, sigmas)
+    return nominal, pool[indices], condition
+
+
+def _selection_task(args):
+    exact, set_number, sigmas, config = args
+    started = time.perf_counter()
+    _, poses, condition = select_for_set(exact, set_number, config, sigmas)
+    return {
+        'poses': poses,
+        'condition_number': float(condition),
+        'selection_s': time.perf_counter() - started,
+    }
+
+
+def _noise_free_task(args):
+    exact, set_number, selection, config, validation_poses = args
+    nominal = nominal_set(exact, set_number)
+    poses = selection['poses']
+    leg_lengths, readings = measurements(exact, poses)
+    result = identify(
+        nominal,
+        leg_lengths,
+        readings,
+        Sigmas(),
+        formulation=config.noise_free_formulation,
+        pose_guesses=poses,
+    )
+    initial = parameter_errors(nominal, exact)
+    final = parameter_errors(result.geometry, exact)
+    accuracy = validate(exact, result.geometry, validation_poses)
+    return [
+        {
+            'set': set_number,
+            'formulation': result.formulation,
+            'max_param_error_mm': float(np.max(np.abs(final[:43]))),
+            'max_param_error_deg': float(abs(final[43])),
+            'converged': bool(result.converged),
+            'status': int(result.status),
+            'message': result.message,
+            'iterations': int(result.iterations),
+            'identification_ms': 1000.0 * result.duration_s,
+            'selection_s': selection['selection_s'],
+            'condition_number': selection['condition_number'],
+            'excluded_postures': list(result.excluded_postures),
+            'max_initial_error_mm': float(np.max(np.abs(initial[:43]))),
+            'initial_error_deg': float(abs(initial[43])),
+            'validation': accuracy,
+            'parameters': [
+                {'name': name, 'initial_error': float(a), 'final_error': float(b)}
+                for name, a, b in zip(PARAMETER_NAMES, initial, final, strict=True)
+            ],
+        }
+    ]
+
+
+def _task(args):
+    kind, payload = args
+    return _noise_free_task(payload) if kind == 'noise_free' else _noise_task(payload)
+
+
+def _noise_task(args):
+    exact, nominal, poses, level, level_index, seed, config, validation_poses = args
+    rng = np.random.default_rng([config.seed, 7919, level_index, seed])
+    leg_lengths, readings = measurements(exact, poses)
+    leg_lengths, readings = add_noise(
+        leg_lengths, readings, level['angle_noise_deg'], level['length_noise_mm'], rng
+    )
+    sigmas = Sigmas.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+    rows = []
+    for formulation in config.formulations:
+        result = identify(
+            nominal, leg_lengths, readings, sigmas, formulation=formulation, pose_guesses=poses
+        )
+        accuracy = validate(exact, result.geometry, validation_poses)
+        rows.append(
+            {
+                'level': level_index,
+                'seed': seed,
+                'formulation': formulation,
+                'position_mm': accuracy['position_mm_mean'],
+                'orientation_deg': accuracy['orientation_deg_mean'],
+                'position_mm_max': accuracy['position_mm_max'],
+                'orientation_deg_max': accuracy['orientation_deg_max'],
+                'max_param_error_mm': float(
+                    np.max(np.abs(parameter_errors(result.geometry, exact)[:43]))
+                ),
+                'converged': bool(result.converged),
+                'iterations': int(result.iterations),
+                'excluded': len(result.excluded_postures),
+                'unreachable': int(accuracy.get('unreachable', 0)),
+                'identification_ms': 1000.0 * result.duration_s,
+            }
+        )
+    return rows
+
+
+def _map(function, tasks, jobs):
+    if jobs <= 1 or len(tasks) <= 1:
+        return [function(task) for task in tasks]
+    context = multiprocessing.get_context(
+        'fork' if 'fork' in multiprocessing.get_all_start_methods() else None
+    )
+    with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=context) as executor:
+        return list(executor.map(function, tasks, chunksize=max(1, len(tasks) // (4 * jobs))))
+
+
+def run(config=PaperConfig(), tables=None, log=print):
+    """Run the reproduction; returns the JSON-ready document (see the module docstring)."""
+    if tables is None:
+        tables, tables_source = load_tables()
+    else:
+        tables_source = 'given'
+    paper_initial, paper_levels = table3(tables)
+    started = time.perf_counter()
+    exact = drawing_geometry()
+    validation_poses = sample_valid_postures(
+        exact, config.validation_postures, np.random.default_rng([config.seed, 50])
+    )
+    initial = validate(exact, nominal_set(exact, config.noise_set), validation_poses)
+
+    # Postures are selected with the sigmas they are identified with: the noise-free studies with
+    # the default (Table 3's first level), each noise level with its own.
+    level_sigmas = [
+        Sigmas.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+        if config.select_per_level
+        else Sigmas()
+        for level in paper_levels
+    ]
+    keys = [(k, Sigmas()) for k in config.sets] + [
+        (config.noise_set, sigmas) for sigmas in level_sigmas
+    ]
+    keys = list(dict.fromkeys(keys))
+    log(
+        f'selecting {config.postures} of {config.pool_size} postures ({len(keys)} selections: nominal sets '
+        f'{list(config.sets)}, noise levels{" each" if config.select_per_level else ""}) ...'
+    )
+    selected = _map(
+        _selection_task, [(exact, k, sigmas, config) for k, sigmas in keys], config.jobs
+    )
+    selections = dict(zip(keys, selected, strict=True))
+
+    log(
+        f'identifying: nominal sets {list(config.sets)} noise-free ({config.noise_free_formulation}); '
+        f'noise study on nominal set {config.noise_set}: {len(paper_levels)} levels x {config.seeds} seeds '
+        f'x {len(config.formulations)} formulations ...'
+    )
+    nominal = nominal_set(exact, config.noise_set)
+    tasks = [
+        ('noise_free', (exact, k, selections[(k, Sigmas())], config, validation_poses))
+        for k in config.sets
+    ]
+    tasks += [
+        (
+            'noise',
+            (
+                exact,
+                nominal,
+                selections[(config.noise_set, level_sigmas[index])]['poses'],
+                level,
+                index,
+                seed,
+                config,
+                validation_poses,
+            ),
+        )
+        for index, level in enumerate(paper_levels)
+        for seed in range(config.seeds)
+    ]
+    outputs = _map(_task, tasks, config.jobs)
+    noise_free = [
+        row
+        for output, task in zip(outputs, tasks, strict=True)
+        if task[0] == 'noise_free'
+        for row in output
+    ]
+    rows = [
+        row
+        for output, task in zip(outputs, tasks, strict=True)
+        if task[0] == 'noise'
+        for row in output
+    ]
+    noise = []
+    for index, level in enumerate(paper_levels):
+        for formulation in config.formulations:
+            mine = [
+                row for row in rows if row['level'] == index and row['formulation'] == formulation
+            ]
+            position = np.array([row['position_mm'] for row in mine])
+            orientation = np.array([row['orientation_deg'] for row in mine])
+            noise.append(
+                {
+                    'angle_noise_deg': level['angle_noise_deg'],
+                    'length_noise_mm': level['length_noise_mm'],
+                    'formulation': formulation,
+                    'seeds': len(mine),
+                    'position_mm': float(position.mean()),
+                    'orientation_deg': float(orientation.mean()),
+                    'paper_position_mm': level['position_mm'],
+                    'paper_orientation_deg': level['orientation_deg'],
+                    'selection_condition_number': selections[
+                        (config.noise_set, level_sigmas[index])
+                    ]['condition_number'],
+                    'position_ratio_to_paper': float(position.mean() / level['position_mm']),
+                    'orientation_ratio_to_paper': float(
+                        orientation.mean() / level['orientation_deg']
+                    ),
+                    'position_mm_std_over_seeds': float(position.std()),
+                    'orientation_deg_std_over_seeds': float(orientation.std()),
+                    'position_mm_max': float(max(row['position_mm_max'] for row in mine)),
+                    'orientation_deg_max': float(max(row['orientation_deg_max'] for row in mine)),
+                    'max_param_error_mm_mean': float(
+                        np.mean([row['max_param_error_mm'] for row in mine])
+                    ),
+                    'converged': int(sum(row['converged'] for row in mine)),
+                    'excluded_postures_total': int(sum(row['excluded'] for row in mine)),
+                    'unreachable_validation_postures_total': int(
+                        sum(row['unreachable'] for row in mine)
+                    ),
+                    'iterations_mean': float(np.mean([row['iterations'] for row in mine])),
+                    'identification_ms_median': float(
+                        np.median([row['identification_ms'] for row in mine])
+                    ),
+                }
+            )
+    return {
+        'initial': {
+            'position_mm': initial['position_mm_mean'],
+            'orientation_deg': initial['orientation_deg_mean'],
+            'position_mm_max': initial['position_mm_max'],
+            'orientation_deg_max': initial['orientation_deg_max'],
+            'paper_position_mm': paper_initial['position_mm'],
+            'paper_orientation_deg': paper_initial['orientation_deg'],
+            'nominal_set': config.noise_set,
+            'validation_postures': config.validation_postures,
+            'unreachable_validation_postures': int(initial.get('unreachable', 0)),
+        },
+        'noise_free': noise_free,
+        'noise': noise,
+        'config': {
+            **{
+                key: (list(value) if isinstance(value, tuple) else value)
+                for key, value in dataclasses.asdict(config).items()
+            },
+            'exact_geometry': 'nominal_sets.drawing_geometry()',
+            'validation': 'validate(true=exact, controller=calibrated) over random valid postures',
+            'noise_model': 'N(0, angle level) on alpha, beta, phi; N(0, length level) on the six legs and d_m',
+        },
+        'tables_source': tables_source,
+        'duration_s': time.perf_counter() - started,
+    }
+
+
+# --- output -------------------------------------------------------------------------------------
+
+
+def plot_parameter_errors(row, path):
+    """Figs. 6-8 style: initial errors as dots, final as crosses, one column per parameter."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    names = [entry['name'] for entry in row['parameters']]
+    initial = np.array([entry['initial_error'] for entry in row['parameters']])
+    final = np.array([entry['final_error'] for entry in row['parameters']])
+    positions = np.arange(len(names))
+    figure, axes = plt.subplots(figsize=(13, 4.5), constrained_layout=True)
+    axes.axhline(0.0, color='0.4', linewidth=0.8)
+    axes.plot(
+        positions, initial, 'o', markersize=4, color='tab:blue', label='initial error (nominal set)'
+    )
+    axes.plot(
+        positions, final, 'x', markersize=7, color='tab:red', label='final error (identified)'
+    )
+    axes.set_xticks(positions, names, rotation=90, fontsize=8)
+    axes.set_xlim(-0.7, len(names) - 0.3)
+    axes.set_xlabel('identification parameter')
+    axes.set_ylabel('error (mm; deg for gamma)')
+    axes.set_title(
+        f'Errors in individual parameters (nominal set {row["set"]}): '
+        f'max final error {row["max_param_error_mm"]:.1e} mm, {row["max_param_error_deg"]:.1e} deg'
+    )
+    axes.grid(axis='y', alpha=0.3)
+    axes.legend(loc='upper right')
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def format_report(document):
+    lines = []
+    for row in document['noise_free']:
+        lines.append(
+            f'\nNominal set {row["set"]} (noise-free, {row["formulation"]}, condition {row["condition_number"]:.1f}, '
+            f'{row["iterations"]} iterations, {row["message"]})'
+        )
+        lines.append(
+            f'  {"param":>6} {"initial":>10} {"final":>10}    {"param":>6} {"initial":>10} {"final":>10}'
+        )
+        entries = row['parameters']
+        half = (len(entries) + 1) // 2
+        for left, right in itertools.zip_longest(entries[:half], entries[half:]):
+            text = (
+                f'  {left["name"]:>6} {left["initial_error"]:>10.4f} {left["final_error"]:>10.1e}'
+            )
+            if right:
+                text += f'    {right["name"]:>6} {right["initial_error"]:>10.4f} {right["final_error"]:>10.1e}'
+            lines.append(text)
+        lines.append(
+            f'  max |final error|: {row["max_param_error_mm"]:.2e} mm, gamma {row["max_param_error_deg"]:.2e} deg '
+            f'(converged: {row["converged"]})'
+        )
+    initial = document['initial']
+    lines.append(
+        '\nTable 3: mean errors over the validation postures (position mm / orientation deg)'
+    )
+    lines.append(
+        f'  initial (nominal set {initial["nominal_set"]}): {initial["position_mm"]:.4f} / {initial["orientation_deg"]:.4f}'
+        f'   paper: {initial["paper_position_mm"]:.4f} / {initial["paper_orientation_deg"]:.4f}'
+    )
+    header = f'  {"noise deg":>9} {"noise mm":>8} {"formulation":>11} {"seeds":>5} {"position":>9} {"paper":>8} {"ratio":>6}   {"orient.":>8} {"paper":>8} {"ratio":>6}'
+    if initial.get('unreachable_validation_postures'):
+        lines.append(
+            f'  ({initial["unreachable_validation_postures"]} of {initial["validation_postures"]} validation postures '
+            'cannot be assembled by the real platform under the nominal controller: left out)'
+        )
+    lines.append(header)
+    for row in document['noise']:
+        lines.append(
+            f'  {row["angle_noise_deg"]:>9.3f} {row["length_noise_mm"]:>8.3f} {row["formulation"]:>11} {row["seeds"]:>5} '
+            f'{row["position_mm"]:>9.5f} {row["paper_position_mm"]:>8.4f} {row["position_ratio_to_paper"]:>6.2f}   '
+            f'{row["orientation_deg"]:>8.5f} {row["paper_orientation_deg"]:>8.4f} {row["orientation_ratio_to_paper"]:>6.2f}'
+        )
+    return '\n'.join(lines)
+
+
+def main(argv=None):
+    if argv is None:
+        reexec_with_single_threaded_blas()
+    parser = experiment_parser(
+        'gsp_paper', __doc__, 'results/paper.json', 'smaller pool and 3 seeds (a smoke run)'
+    )
+    parser.add_argument(
+        '--seeds', type=int, default=20, help='noise draws per Table 3 level (default 20)'
+    )
+    parser.add_argument(
+        '--plot-dir', default='results', help='where the Figs. 6-8 PNGs go (default results)'
+    )
+    parser.add_argument('--no-plots', action='store_true', help='skip the PNGs')
+    parser.add_argument(
+        '--select-once',
+        action='store_true',
+        help='one posture selection (default sigmas) for every noise level instead of one per level',
+    )
+    parser.add_argument(
+        '--jobs', type=int, default=min(2, os.cpu_count() or 1), help='worker processes (default 2)'
+    )
+    parser.add_argument(
+        '--pool', type=int, default=None, help='random valid postures to select from (default 600)'
+    )
+    parser.add_argument('--seed', type=int, default=0, help='base random seed')
+    parser.add_argument(
+        '--sets', default='1,2,3', help='nominal sets of the noise-free study (default 1,2,3)'
+    )
+    parser.add_argument(
+        '--tables',
+        default=None,
+        help="the paper's tables.yaml (default: the copy shipped in gsp_experiments)",
+    )
+    parser.add_argument(
+        '--formulations',
+        default=','.join(NOISE_FORMULATIONS),
+        help=f'comma-separated formulations for the noise study (of {", ".join(FORMULATIONS)})',
+    )
+    args = parser.parse_args(argv)
+    formulations = tuple(name.strip() for name in args.formulations.split(',') if name.strip())
+    unknown = [name for name in formulations if name not in FORMULATIONS]
+    if unknown or not formulations:
+        parser.error(f'unknown formulation(s) {unknown}; expected some of {FORMULATIONS}')
+    if args.seeds < 1:
+        parser.error('--seeds must be at least 1')
+    try:
+        sets = tuple(sorted({int(item) for item in args.sets.split(',') if item.strip()}))
+    except ValueError:
+        sets = ()
+    if not sets or not set(sets) <= {1, 2, 3}:
+        parser.error(f'--sets must list nominal sets among 1, 2, 3 (got {args.sets!r})')
+    seeds = min(args.seeds, 3) if args.quick and args.seeds == 20 else args.seeds
+    pool = args.pool or (250 if args.quick else 600)
+    config = PaperConfig(
+        seeds=seeds,
+        pool_size=pool,
+        sets=sets,
+        formulations=formulations,
+        select_per_level=not args.select_once,
+        seed=args.seed,
+        jobs=max(1, args.jobs),
+    )
+    tables, source = load_tables(args.tables)
+    print(f'gsp_paper: tables from {source}', flush=True)
+    document = run(config, tables=tables, log=lambda text: print(text, flush=True))
+    document['tables_source'] = source
+    if not args.no_plots:
+        plot_dir = Path(args.plot_dir)
+        plot_dir.mkdir(parents=True, exist_ok=True)
+        document['plots'] = []
+        for row in document['noise_free']:
+            path = plot_dir / f'paper_fig{5 + row["set"]}_set{row["set"]}_parameter_errors.png'
+            plot_parameter_errors(row, path)
+            document['plots'].append(str(path))
+    write_json(args.output, document)
+    print(format_report(document))
+    print(
+        f'\nwrote {args.output} in {document["duration_s"]:.1f} s'
+        + (f'; plots: {", ".join(document["plots"])}' if document.get('plots') else '')
+    )
+    return 0 if all(row['converged'] for row in document['noise_free']) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,335 @@
+"""The identification's formulations as models of :func:`gsp_kinematics._lm.levenberg_marquardt`.
+
+* :class:`_FkModel` (``'fk'``, and ``'paper'``: eq (11)): per posture, FK of the measured leg
+  lengths under the parameters predicts the device readings; the Jacobian comes from the implicit
+  function theorem through FK. A posture whose FK fails is left out, and readmitted once a better
+  estimate brings it back within FK's reach.
+* :class:`_ImplicitModel` (``'implicit'``): the M poses are unknowns beside the parameters and
+  every sensor is a residual; the damped normal equations are solved through the Schur complement
+  on the 6x6 pose blocks.
+
+Each supplies its residuals and Jacobians (``evaluate``), the normal equations and their damped
+solve, and what the result reports (information, residuals per sensor, poses, notes).
+"""
+
+import numpy as np
+
+from ._lm import Point, Step, cost_of, normal_blocks, schur_complement, schur_information
+from .device import READING_NAMES, device_readings_jacobians, paper_inclinations_jacobians
+from .geometry import NUM_PARAMETERS, Geometry
+from .kinematics import (
+    expand_leg_parameters,
+    forward_kinematics_masked,
+    inverse_kinematics_jacobians,
+)
+from .rotation import wrap_angle
+
+#: Column of the yaw reading ``phi`` in ``READING_NAMES`` (an angle: its residual is wrapped).
+_PHI = READING_NAMES.index('phi')
+
+
+class _Model:
+    """What both formulations share: the free parameters inside the nominal 44-vector."""
+
+    def __init__(self, nominal, free):
+        self.nominal = nominal
+        self.nominal_vector = nominal.to_vector()
+        self.limits = nominal.limits
+        self.free = free
+
+    def geometry(self, free_values):
+        """The geometry with the free parameters set to ``free_values`` (the rest nominal)."""
+        vector = self.nominal_vector.copy()
+        vector[self.free] = free_values
+        return Geometry.from_vector(vector, self.limits)
+
+
+def _wrap_phi(difference, columns):
+    """Wrap the ``phi`` column (if among ``columns``) of a reading difference, in place."""
+    if _PHI in columns:
+        column = columns.index(_PHI)
+        difference[:, column] = wrap_angle(difference[:, column])
+    return difference
+
+
+def _damped(matrix, diagonal, damping):
+    """``matrix + damping * diag(diagonal)`` (Marquardt's scaling)."""
+    return matrix + damping * np.diag(diagonal)
+
+
+class _FkModel(_Model):
+    """Residuals of device readings predicted through FK of the measured legs."""
+
+    def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, paper, sensors):
+        super().__init__(nominal, free)
+        self.leg_lengths = leg_lengths
+        self.readings = readings
+        self.paper = paper
+        columns = [0, 1, 2] if paper else [0, 1, 2, 3]
+        self.columns = [c for c in columns if READING_NAMES[c] in sensors]
+        self.weights = 1.0 / sigmas.readings()[self.columns]
+        self.poses = pose_guesses.copy()  #: FK's guesses: the last solution of each posture
+        self.active = np.ones(leg_lengths.shape[0], dtype=bool)
+        self.readmitted = set()
+
+    def evaluate(self, free_values, linearize):
+        """``(residuals (M, k), jacobian (M, k, n) or None, poses, converged (M,))``."""
+        geometry = self.geometry(free_values)
+        poses, converged = forward_kinematics_masked(geometry, self.leg_lengths, self.poses)
+        use = converged & self.active
+        count, k, n = poses.shape[0], len(self.columns), int(self.free.sum())
+        residuals = np.zeros((count, k))
+        jacobian = np.zeros((count, k, n)) if linearize else None
+        if not use.any():
+            return residuals, jacobian, poses, converged
+        good = poses[use]
+        if self.paper:
+            predicted, d_pred_d_pose, d_pred_d_device = self._paper_prediction(geometry, good, use)
+        else:
+            predicted, d_pred_d_pose, d_pred_d_device = device_readings_jacobians(geometry, good)
+            predicted, d_pred_d_pose, d_pred_d_device = (
+                predicted[:, self.columns],
+                d_pred_d_pose[:, self.columns],
+                d_pred_d_device[:, self.columns],
+            )
+        difference = _wrap_phi(self.readings[use][:, self.columns] - predicted, self.columns)
+        residuals[use] = difference * self.weights
+        if linearize:
+            _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, good)
+            d_q_d_u = np.zeros(d_q_d_leg.shape[:2] + (NUM_PARAMETERS,))
+            d_q_d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg)
+            # q(X(u), u) = q_measured  =>  dX/du = -(dq/dX)^-1 dq/du
+            d_pose_d_u = -np.linalg.solve(d_q_d_pose, d_q_d_u[:, :, self.free])
+            d_pred_d_u = d_pred_d_pose @ d_pose_d_u
+            device_free = self.free[42:]
+            d_pred_d_u[:, :, np.cumsum(self.free)[42:][device_free] - 1] += d_pred_d_device[
+                :, :, device_free
+            ]
+            jacobian[use] = -d_pred_d_u * self.weights[None, :, None]
+        return residuals, jacobian, poses, converged
+
+    def _paper_prediction(self, geometry, poses, use):
+        d_m = self.readings[use][:, 3]
+        angles, d_angles_d_pose, d_angles_d_device = paper_inclinations_jacobians(
+            geometry, poses, d_m
+        )
+        predicted = np.concatenate([angles, poses[:, 5:6]], axis=1)
+        d_pose = np.concatenate([d_angles_d_pose, np.zeros((poses.shape[0], 1, 6))], axis=1)
+        d_pose[:, 2, 5] = 1.0
+        d_device = np.concatenate([d_angles_d_device, np.zeros((poses.shape[0], 1, 2))], axis=1)
+        keep = [c for c in (0, 1, 2) if c in self.columns]
+        return predicted[:, keep], d_pose[:, keep], d_device[:, keep]
+
+    def _point(self, values):
+        residuals, jacobian, poses, converged = self.evaluate(values, linearize=True)
+        return Point(values, residuals, cost_of(residuals), jacobian, (poses, converged))
+
+    # --- the driver's interface ---
+
+    def start(self):
+        """The point at the nominal; postures whose FK fails there are left out from the start."""
+        point = self._point(self.nominal_vector[self.free])
+        poses, converged = point.state
+        self.active &= converged
+        self.poses = np.where(converged[:, None], poses, self.poses)
+        return point
+
+    def too_few_residuals(self):
+        return self.active.sum() * len(self.columns) < self.free.sum()
+
+    def normal_equations(self, point):
+        flat_jacobian = point.linearization.reshape(-1, point.linearization.shape[2])
+        normal = flat_jacobian.T @ flat_jacobian
+        gradient = flat_jacobian.T @ point.residuals.ravel()
+        diagonal = np.maximum(np.diag(normal), 1e-30)
+        return np.max(np.abs(gradient) / np.sqrt(diagonal)), (normal, gradient, diagonal)
+
+    def solve(self, point, system, damping):
+        normal, gradient, diagonal = system
+        step = np.linalg.solve(_damped(normal, diagonal, damping), -gradient)
+        predicted_reduction = -(gradient @ step) - 0.5 * step @ normal @ step
+        return Step(step, None, predicted_reduction)
+
+    def trial(self, point, step):
+        trial = self._point(point.values + step.parameters)
+        _, converged = trial.state
+        trial.feasible = not (self.active & ~converged).any()
+        return trial
+
+    def give_up(self, point, trial):
+        """The estimate keeps leaving FK's reach for these postures: drop them (reported)."""
+        _, converged = trial.state
+        self.active &= converged
+        return self._point(point.values)
+
+    def accept(self, trial):
+        poses, converged = trial.state
+        self.poses = np.where(converged[:, None], poses, self.poses)
+        recovered = ~self.active & converged
+        if not recovered.any():
+            return trial, False
+        # A better estimate brings a posture back within FK's reach: use it again.
+        self.active |= recovered
+        self.readmitted.update(np.flatnonzero(recovered).tolist())
+        return self._point(trial.values), True
+
+    # --- what the result reports ---
+
+    def information(self, point):
+        flat_jacobian = point.linearization.reshape(-1, point.linearization.shape[2])
+        return flat_jacobian.T @ flat_jacobian
+
+    def reported_residuals(self, point):
+        """Residuals with NaN rows for the postures left out."""
+        residuals = point.residuals.copy()
+        residuals[~self.active] = np.nan
+        return residuals
+
+    def sensor_columns(self):
+        """``{sensor: (column of the residuals, weight)}``."""
+        return {READING_NAMES[c]: (i, self.weights[i]) for i, c in enumerate(self.columns)}
+
+    def excluded_postures(self):
+        return sorted(np.flatnonzero(~self.active).tolist())
+
+    def estimated_poses(self, point):
+        return self.poses.copy()
+
+    def notes(self):
+        """What the message adds to the termination reason: postures readmitted or left out."""
+        notes = ''
+        if self.readmitted:
+            notes += (
+                f'; posture(s) {sorted(self.readmitted)[:20]} readmitted after FK failed at an '
+                'earlier estimate'
+            )
+        excluded = self.excluded_postures()
+        if excluded:
+            notes += f'; excluded posture(s) {excluded[:20]} where FK failed'
+        return notes
+
+
+class _ImplicitModel(_Model):
+    """All sensors as residuals; the parameters and every pose are unknowns."""
+
+    def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors):
+        super().__init__(nominal, free)
+        self.pose_guesses = pose_guesses
+        self.leg_lengths = leg_lengths
+        self.readings = readings
+        self.columns = [c for c in range(4) if READING_NAMES[c] in sensors]
+        self.leg_weight = 1.0 / sigmas.leg_lengths
+        self.reading_weights = 1.0 / sigmas.readings()[self.columns]
+        self.use_legs = 'leg_lengths' in sensors
+
+    def evaluate(self, free_values, poses, linearize):
+        """``(residuals (M, k), jac_pose (M, k, 6), jac_u (M, k, n))``; Jacobians None unless
+        ``linearize``."""
+        geometry = self.geometry(free_values)
+        q, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
+        predicted, d_pred_d_pose, d_pred_d_device = device_readings_jacobians(geometry, poses)
+        leg_residuals = (q - self.leg_lengths) * self.leg_weight
+        if not self.use_legs:
+            leg_residuals = leg_residuals[:, :0]
+        difference = _wrap_phi(
+            predicted[:, self.columns] - self.readings[:, self.columns], self.columns
+        )
+        residuals = np.concatenate([leg_residuals, difference * self.reading_weights], axis=1)
+        if not linearize:
+            return residuals, None, None
+        count = poses.shape[0]
+        d_q_d_u = np.zeros((count, 6, NUM_PARAMETERS))
+        d_q_d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg)
+        d_pred_d_u = np.zeros((count, 4, NUM_PARAMETERS))
+        d_pred_d_u[:, :, 42:] = d_pred_d_device
+        weights = self.reading_weights[None, :, None]
+        blocks_pose = [d_q_d_pose * self.leg_weight] if self.use_legs else []
+        blocks_pose.append(d_pred_d_pose[:, self.columns] * weights)
+        blocks_u = [d_q_d_u[:, :, self.free] * self.leg_weight] if self.use_legs else []
+        blocks_u.append(d_pred_d_u[:, self.columns][:, :, self.free] * weights)
+        return residuals, np.concatenate(blocks_pose, axis=1), np.concatenate(blocks_u, axis=1)
+
+    def _point(self, values, poses):
+        residuals, jac_pose, jac_u = self.evaluate(values, poses, linearize=True)
+        return Point(values, residuals, cost_of(residuals), (jac_pose, jac_u), poses)
+
+    # --- the driver's interface ---
+
+    def start(self):
+        """The point at the nominal, with the poses FK finds there under the nominal."""
+        poses, converged = forward_kinematics_masked(
+            self.nominal, self.leg_lengths, self.pose_guesses
+        )
+        # Where FK under the nominal fails, the pose still has a start: the guess itself.
+        poses = np.where(converged[:, None], poses, self.pose_guesses)
+        return self._point(self.nominal_vector[self.free], poses)
+
+    def too_few_residuals(self):
+        return False  # the poses are unknowns too: the design, not FK, decides identifiability
+
+    def normal_equations(self, point):
+        jac_pose, jac_u = point.linearization
+        residuals = point.residuals
+        h_xx, h_xu, h_uu = normal_blocks(jac_pose, jac_u)
+        gradient_pose = (np.swapaxes(jac_pose, 1, 2) @ residuals[..., None])[..., 0]
+        gradient_u = jac_u.reshape(-1, jac_u.shape[2]).T @ residuals.ravel()
+        diag_pose = np.maximum(np.diagonal(h_xx, axis1=1, axis2=2), 1e-30)
+        diag_u = np.maximum(np.diag(h_uu), 1e-30)
+        scaled_gradient = max(
+            np.max(np.abs(gradient_u) / np.sqrt(diag_u)),
+            np.max(np.abs(gradient_pose) / np.sqrt(diag_pose)),
+        )
+        return scaled_gradient, (h_xx, h_xu, h_uu, gradient_pose, gradient_u, diag_pose, diag_u)
+
+    def solve(self, point, system, damping):
+        h_xx, h_xu, h_uu, gradient_pose, gradient_u, diag_pose, diag_u = system
+        damped_xx = h_xx + damping * diag_pose[:, :, None] * np.eye(6)[None]
+        reduced, solved_xu = schur_complement(damped_xx, h_xu, _damped(h_uu, diag_u, damping))
+        solved_gx = np.linalg.solve(damped_xx, gradient_pose[..., None])[..., 0]  # (M, 6)
+        reduced_rhs = -gradient_u + h_xu.reshape(-1, h_xu.shape[2]).T @ solved_gx.ravel()
+        step_u = np.linalg.solve(reduced, reduced_rhs)
+        step_pose = -(solved_gx + solved_xu @ step_u)
+        # Predicted reduction of the Gauss-Newton model for the combined step.
+        jac_pose, jac_u = point.linearization
+        jac_step = (jac_pose @ step_pose[..., None])[..., 0] + jac_u @ step_u
+        predicted_reduction = -float(np.sum(point.residuals * jac_step)) - 0.5 * float(
+            np.sum(jac_step**2)
+        )
+        return Step(step_u, step_pose, predicted_reduction)
+
+    def trial(self, point, step):
+        return self._point(point.values + step.parameters, point.state + step.others)
+
+    def give_up(self, point, trial):
+        raise AssertionError('the implicit model has no infeasible trials')
+
+    def accept(self, trial):
+        return trial, False
+
+    # --- what the result reports ---
+
+    def information(self, point):
+        return schur_information(*point.linearization)
+
+    def reported_residuals(self, point):
+        return point.residuals
+
+    def sensor_columns(self):
+        """``{sensor: (column(s) of the residuals, weight)}``."""
+        columns = {}
+        first = 0
+        if self.use_legs:
+            columns['leg_lengths'] = (slice(0, 6), self.leg_weight)
+            first = 6
+        for i, c in enumerate(self.columns):
+            columns[READING_NAMES[c]] = (first + i, self.reading_weights[i])
+        return columns
+
+    def excluded_postures(self):
+        return []
+
+    def estimated_poses(self, point):
+        return point.state
+
+    def notes(self):
+        return ''

@@ -1,0 +1,156 @@
+"""The identification's Levenberg-Marquardt driver and the Schur complement (private).
+
+One loop serves every formulation (cf. ``scipy.optimize.least_squares``: one table of termination
+messages, the formulation chosen before the solve). A formulation is a *model* that supplies
+only its maths:
+
+* ``normal_equations(point) -> (scaled_gradient, system)``: the Gauss-Newton normal equations at
+  ``point`` and the largest gradient entry scaled by the square root of its diagonal;
+* ``solve(point, system, damping) -> Step``: the damped step (Marquardt's diagonal scaling);
+* ``trial(point, step) -> Point``: the model evaluated after the step (``feasible`` False where it
+  cannot be, e.g. FK fails for a posture in use);
+* ``give_up(point, trial) -> Point``: after ``max_fk_rejections`` infeasible trials in a row;
+* ``accept(trial) -> (point, changed)``: take the step; ``changed`` when the model changed its
+  problem on the way (e.g. a posture readmitted), so that this step says nothing of convergence.
+
+The driver stops on the step ``du`` or on the change of the residual ``dX``, as in the paper's
+Fig. 5, or on a vanishing gradient; :data:`TERMINATION_MESSAGES` names every status.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+#: Status of an identification -> its message (``status > 0``: converged).
+TERMINATION_MESSAGES = {
+    -1: 'too few residuals for the free parameters',
+    0: 'maximum number of iterations reached',
+    1: 'du: parameter step below tolerance',
+    2: 'dX: residual change below tolerance',
+    3: 'gradient below tolerance',
+}
+
+
+@dataclasses.dataclass
+class Point:
+    """An estimate of the free parameters and what the model computed there."""
+
+    values: np.ndarray  #: the free parameters u (m, rad)
+    residuals: np.ndarray  #: (M, k) weighted residuals
+    cost: float  #: 0.5 * sum of squared residuals
+    linearization: object = None  #: the model's Jacobian(s) at the point
+    state: object = None  #: the model's other unknowns or bookkeeping (e.g. the poses)
+    feasible: bool = True  #: False: the model could not be evaluated here
+
+
+@dataclasses.dataclass
+class Step:
+    """A damped step: ``du``, the model's other unknowns' step, and the model's predicted gain."""
+
+    parameters: np.ndarray  #: du
+    others: np.ndarray | None  #: e.g. the poses' step (m, rad); None if there are none
+    predicted_reduction: float  #: the decrease of the cost the linear model promises
+
+
+def cost_of(residuals):
+    """0.5 * sum of squared residuals."""
+    return 0.5 * float(np.sum(residuals**2))
+
+
+def levenberg_marquardt(model, start, options):
+    """Minimise the model's cost from ``start``; returns ``(point, status, iterations)``.
+
+    ``options``: ``max_iterations``, ``step_tolerance``, ``cost_tolerance``,
+    ``gradient_tolerance``, ``initial_damping``, ``max_fk_rejections``
+    (:class:`gsp_kinematics.identification.Options`).
+    """
+    point = start
+    damping, nu = options.initial_damping, 2.0
+    status, iteration, rejections = 0, 0, 0
+    for iteration in range(1, options.max_iterations + 1):  # noqa: B007 (reported after)
+        scaled_gradient, system = model.normal_equations(point)
+        if scaled_gradient <= options.gradient_tolerance * max(1.0, math.sqrt(2 * point.cost)):
+            status = 3
+            break
+        step = model.solve(point, system, damping)
+        trial = model.trial(point, step)
+        if not trial.feasible:
+            rejections += 1
+            damping, nu = damping * nu, nu * 2.0
+            if rejections >= options.max_fk_rejections:
+                point = model.give_up(point, trial)
+                rejections = 0
+            continue
+        rejections = 0
+        if step.predicted_reduction > 0 and math.isfinite(trial.cost):
+            ratio = (point.cost - trial.cost) / step.predicted_reduction
+        else:
+            ratio = -1.0
+        damping, nu = _update_damping(damping, ratio, nu)
+        if ratio > 0.0:
+            decrease = point.cost - trial.cost
+            point, changed = model.accept(trial)
+            if changed:
+                continue
+            if _step_is_small(step, point.values, options):
+                status = 1
+                break
+            if decrease <= options.cost_tolerance * point.cost:
+                status = 2
+                break
+        elif _step_is_small(step, point.values, options):
+            status = 1
+            break
+    return point, status, iteration
+
+
+def _update_damping(damping, ratio, nu):
+    """Nielsen's update: shrink the damping after a good step, grow it geometrically after a bad one."""
+    if ratio > 0.0:
+        return damping * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 2.0
+    return damping * nu, nu * 2.0
+
+
+def _step_is_small(step, values, options):
+    """``|du| <= tol * (tol + |u|)``, and the other unknowns moved by at most ``10 tol``."""
+    tolerance = options.step_tolerance
+    if np.linalg.norm(step.parameters) > tolerance * (tolerance + np.linalg.norm(values)):
+        return False
+    return step.others is None or np.max(np.abs(step.others)) <= tolerance * 10.0
+
+
+# --- the poses eliminated: Schur complement --------------------------------------------------------
+
+
+def normal_blocks(jac_pose, jac_u, per_posture=False):
+    """``(H_XX (M, 6, 6), H_Xu (M, 6, n), H_uu)`` of the Jacobians ``(M, k, 6)`` and ``(M, k, n)``.
+
+    ``H_uu`` is ``(n, n)`` summed over the postures, or ``(M, n, n)`` with ``per_posture``.
+    """
+    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
+    h_xx = jac_pose_t @ jac_pose
+    h_xu = jac_pose_t @ jac_u
+    if per_posture:
+        h_uu = np.swapaxes(jac_u, 1, 2) @ jac_u
+    else:
+        flat_u = jac_u.reshape(-1, jac_u.shape[2])
+        h_uu = flat_u.T @ flat_u
+    return h_xx, h_xu, h_uu
+
+
+def schur_complement(h_xx, h_xu, h_uu, per_posture=False):
+    """``(H_uu - sum_m H_Xu_m^T H_XX_m^-1 H_Xu_m, H_XX^-1 H_Xu)``: each posture's pose eliminated.
+
+    ``per_posture``: ``h_uu`` is ``(M, n, n)`` and so is the result (one complement a posture).
+    """
+    solved = np.linalg.solve(h_xx, h_xu)
+    if per_posture:
+        return h_uu - np.swapaxes(h_xu, 1, 2) @ solved, solved
+    size = h_xu.shape[2]
+    return h_uu - h_xu.reshape(-1, size).T @ solved.reshape(-1, size), solved
+
+
+def schur_information(jac_pose, jac_u, per_posture=False):
+    """Information ``J^T J`` of the parameters with the poses eliminated (see :func:`schur_complement`)."""
+    return schur_complement(*normal_blocks(jac_pose, jac_u, per_posture), per_posture)[0]

@@ -1,0 +1,101 @@
+"""The platform side of the pose command protocol, for any node that plays the platform.
+
+:class:`PoseCommandServer` subscribes ``/gsp/platform/pose_command`` and publishes
+``/gsp/platform/status``. The ``command_id`` of a command is its header stamp in ns. A command
+whose pose is not in ``frame_id`` or that the node refuses is ``rejected`` (ERROR, with the
+reason). An accepted one is ``moving`` (WARN), then ``settled`` (OK) ``settle_time`` later, unless
+a newer command supersedes it first: then it is ``rejected`` with the reason
+``superseded by command X before settling`` (see :mod:`gsp_msgs_py.settle`).
+"""
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+
+from . import checks, conversions, names, qos
+from .settle import SettleTracker, superseded_reason
+
+WARN_THROTTLE_S = 1.0
+
+
+class PoseCommandServer:
+    """Pose commands and their statuses on ``node``.
+
+    ``move(command_id, pose)`` acts on a command whose pose (6,) ``[x, y, z, psi, theta, phi]``
+    (m, rad) is in ``frame_id`` and returns '' when it is accepted, else the reason it is
+    rejected (a ValueError or TypeError it raises counts as a rejection with its message).
+    ``on_settled(command_id)`` (optional) runs right after a ``settled`` status. Every callback
+    runs in the node's default callback group. ``settle_time`` (s) may be changed at any time;
+    it applies from the next accepted command.
+    """
+
+    def __init__(self, node, frame_id, settle_time, move, on_settled=None):
+        self.settle_time = settle_time
+        self._node = node
+        self._frame_id = frame_id
+        self._move = move
+        self._on_settled = on_settled
+        self._tracker = SettleTracker()
+        self._status_pub = node.create_publisher(
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
+        node.create_subscription(
+            PoseStamped,
+            names.TOPIC_POSE_COMMAND,
+            self._on_pose_command,
+            qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND],
+        )
+        self._settle_timer = node.create_timer(1.0, self._on_settle_timer, autostart=False)
+
+    def _now_ns(self):
+        return self._node.get_clock().now().nanoseconds
+
+    def _publish_status(self, command_id, state, reason=''):
+        self._status_pub.publish(conversions.make_status(command_id, state, reason))
+
+    def _reject(self, command_id, reason):
+        self._publish_status(command_id, names.STATE_REJECTED, reason)
+        self._node.get_logger().warning(
+            f'pose command {command_id} rejected: {reason}', throttle_duration_sec=WARN_THROTTLE_S
+        )
+
+    def _on_pose_command(self, msg):
+        try:
+            command_id = conversions.command_id_from_stamp(msg.header.stamp)
+        except (TypeError, ValueError) as error:  # pragma: no cover - a typed message
+            self._node.get_logger().warning(
+                f'ignoring a pose command: {error}', throttle_duration_sec=WARN_THROTTLE_S
+            )
+            return
+        try:
+            reason = self._move(command_id, checks.pose_in_frame(msg, self._frame_id))
+        except (TypeError, ValueError) as error:
+            reason = str(error)
+        if reason:
+            self._reject(command_id, reason)
+            return
+        now_ns = self._now_ns()
+        superseded = self._tracker.accept(command_id, now_ns, self.settle_time)
+        if superseded is not None:
+            self._reject(superseded, superseded_reason(command_id))
+        self._publish_status(command_id, names.STATE_MOVING)
+        self._settle_or_wait(now_ns)
+
+    def _settle_or_wait(self, now_ns):
+        """Announce the moving command if it has settled, else (re)arm the timer for it."""
+        settled = self._tracker.due(now_ns)
+        if settled is not None:
+            self._settle_timer.cancel()
+            self._publish_status(settled, names.STATE_SETTLED)
+            if self._on_settled is not None:
+                self._on_settled(settled)
+            return
+        wait_ns = self._tracker.wait_ns(now_ns)
+        if wait_ns is not None:
+            self._settle_timer.timer_period_ns = wait_ns
+            self._settle_timer.reset()
+
+    def _on_settle_timer(self):
+        self._settle_timer.cancel()
+        self._settle_or_wait(self._now_ns())

@@ -1,0 +1,138 @@
+"""node_tools: parameter specs, checks, declare/watch on a node, and the docs table."""
+
+import math
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from gsp_msgs_py.node_tools import (
+    ConfigurationError,
+    ParameterSpec,
+    at_least,
+    check_values,
+    declare_parameters,
+    greater_than,
+    is_finite_number,
+    not_blank,
+    one_of,
+    parameter_table_markdown,
+    watch_parameters,
+)
+
+SPECS = (
+    ParameterSpec(
+        'rate',
+        200.0,
+        'Rate of the readings',
+        unit='Hz',
+        read_only=True,
+        constraints='> 0',
+        check=greater_than(0.0, 'Hz'),
+    ),
+    ParameterSpec(
+        'noise', 1e-6, 'Noise std', unit='m', float_range=(0.0, 1.0), check=at_least(0.0, 'm')
+    ),
+    ParameterSpec(
+        'seed',
+        0,
+        'Seed; -1 = random',
+        integer_range=(-1, 10),
+        check=at_least(-1, reason='must be >= 0, or -1 for a random seed'),
+    ),
+    ParameterSpec('mode', 'a', 'Mode', check=one_of('ab')),
+    ParameterSpec('names', ['x', 'y'], 'Names | with a pipe'),
+    ParameterSpec('frame', 'base', 'Frame', check=not_blank(reason='must not be empty')),
+)
+
+
+def test_is_finite_number():
+    assert is_finite_number(1) and is_finite_number(-2.5)
+    assert not any(is_finite_number(v) for v in (True, math.nan, math.inf, '1', None))
+
+
+def test_checks_give_the_reason_with_name_and_value():
+    assert check_values(SPECS, {'rate': 10.0, 'seed': -1, 'unknown': 'ignored'}) == ''
+    assert check_values(SPECS, {'rate': 0.0}) == 'rate: 0.0 rejected, must be > 0 Hz'
+    assert check_values(SPECS, {'noise': math.nan}) == 'noise: nan rejected, must be >= 0 m'
+    assert 'or -1 for a random seed' in check_values(SPECS, {'seed': -2})
+    assert check_values(SPECS, {'mode': 'c'}) == "mode: 'c' rejected, must be one of ['a', 'b']"
+    assert check_values(SPECS, {'frame': ' '}) == "frame: ' ' rejected, must not be empty"
+    assert not_blank('a file')('') == 'must name a file'
+
+
+def test_descriptor_and_type():
+    descriptor = SPECS[0].descriptor()
+    assert descriptor.description == 'Rate of the readings (Hz)' and descriptor.read_only
+    assert descriptor.additional_constraints == '> 0'
+    assert SPECS[1].descriptor().floating_point_range[0].to_value == 1.0
+    assert SPECS[2].descriptor().integer_range[0].from_value == -1
+    assert [s.type_name for s in SPECS] == [
+        'double',
+        'double',
+        'integer',
+        'string',
+        'string_array',
+        'string',
+    ]
+
+
+def test_parameter_table_markdown():
+    lines = parameter_table_markdown(SPECS).splitlines()
+    assert lines[0] == '| name | type | default | unit | read-only | constraints | description |'
+    assert lines[2] == '| `rate` | double | `200` | Hz | yes | > 0 | Rate of the readings |'
+    assert lines[3] == '| `noise` | double | `1e-06` | m | no | in [0, 1] | Noise std |'
+    assert lines[6] == (
+        "| `names` | string_array | `['x', 'y']` |  | no |  | Names \\| with a pipe |"
+    )
+
+
+def test_declare_and_watch_parameters(ros_context):
+    node = rclpy.create_node(
+        'node_tools_test', context=ros_context, parameter_overrides=[Parameter('noise', value=0.5)]
+    )
+    try:
+        values = declare_parameters(node, SPECS, validate=lambda v: '')
+        assert values['noise'] == 0.5 and values['rate'] == 200.0
+        applied = []
+        watch_parameters(
+            node,
+            SPECS,
+            apply=applied.append,
+            validate=lambda changes, current: (
+                'too noisy' if changes.get('noise', current['noise']) > 0.9 else ''
+            ),
+        )
+        result = node.set_parameters([Parameter('mode', value='c')])[0]
+        assert not result.successful and result.reason.startswith("mode: 'c' rejected")
+        assert node.set_parameters([Parameter('noise', value=0.95)])[0].reason == 'too noisy'
+        assert node.set_parameters([Parameter('noise', value=0.25)])[0].successful
+        assert applied == [{'noise': 0.25}]
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize(
+    'overrides, words',
+    [
+        ([Parameter('rate', value=0.0)], 'rate: 0.0 rejected'),
+        ([Parameter('rate', value='fast')], 'rate'),  # wrong type
+        ([Parameter('noise', value=2.0)], 'noise'),  # out of range
+    ],
+)
+def test_declare_parameters_raises_one_configuration_error(ros_context, overrides, words):
+    node = rclpy.create_node('node_tools_test', context=ros_context, parameter_overrides=overrides)
+    try:
+        with pytest.raises(ConfigurationError, match=words):
+            declare_parameters(node, SPECS)
+    finally:
+        node.destroy_node()
+
+
+def test_declare_parameters_runs_the_whole_set_check(ros_context):
+    node = rclpy.create_node('node_tools_test', context=ros_context)
+    try:
+        with pytest.raises(ConfigurationError, match='inconsistent'):
+            declare_parameters(node, SPECS, validate=lambda values: 'inconsistent')
+    finally:
+        node.destroy_node()
