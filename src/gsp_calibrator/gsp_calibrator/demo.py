@@ -147,7 +147,8 @@ def validation_summary(commanded, reached):
 
 def validation_details(commanded, reached):
     """:func:`validation_summary` plus the per-posture errors ``position_mm`` and
-    ``orientation_deg`` (lists, rows of ``reached`` without NaN), for the run's report."""
+    ``orientation_deg`` and their commanded ``poses`` (lists, rows of ``reached`` without NaN), for
+    the run's report (the accuracy map overlays them)."""
     commanded, reached = np.asarray(commanded), np.asarray(reached)
     details = dict(validation_summary(commanded, reached))
     keep = np.all(np.isfinite(reached), axis=1)
@@ -155,6 +156,7 @@ def validation_details(commanded, reached):
         position_mm, orientation_deg = pose_errors(commanded[keep], reached[keep])
         details['position_mm'] = np.asarray(position_mm, dtype=float).tolist()
         details['orientation_deg'] = np.asarray(orientation_deg, dtype=float).tolist()
+        details['poses'] = commanded[keep].tolist()
     details['postures'] = int(keep.sum())
     return details
 

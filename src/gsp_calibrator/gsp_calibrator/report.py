@@ -2,10 +2,12 @@
 
 * :func:`write_result_json`: estimates (SI and report units), standard deviations, correlations
   above 0.9, identifiability (rank, condition number, unidentifiable combinations), residual RMS
-  per sensor, iterations, status, validation errors before and after.
+  per sensor, iterations, status, validation errors before and after, and the predicted accuracy
+  (:mod:`.report_accuracy`).
 * :func:`write_report`: ``report.md`` and its plots: ``parameter_errors.png`` (the paper's
   Figs. 6-8), ``chain_errors.png`` (Figs. 9-12), ``residuals.png`` (histograms per sensor) and
-  ``validation.png`` (error distributions before and after, when a validation is given).
+  ``validation.png`` (error distributions before and after, when a validation is given) and
+  ``accuracy_map.png`` (predicted error maps, measured validation overlaid).
 
 Parameter errors are taken against the true geometry when one is given (simulation), otherwise
 the plots show the correction (estimate - nominal). Report units: mm, and deg for gamma.
@@ -168,6 +170,7 @@ def validation_errors(true, controller, poses):
     out.update(
         position_mm=position.tolist(),
         orientation_deg=orientation.tolist(),
+        poses=poses[converged].tolist(),
         postures=int(converged.sum()),
         unreachable=int((~converged).sum()),
     )
@@ -242,6 +245,7 @@ def result_data(
     nominal=None,
     sigmas=None,
     extra=None,
+    prediction=None,
 ):
     """The ``result.json`` content (a JSON-safe dict).
 
@@ -251,7 +255,10 @@ def result_data(
     :func:`validation_errors` dicts (per-posture arrays). ``truth``: the true geometry, if known
     (errors are then against it; else corrections against ``nominal``). ``nominal`` defaults to
     the shipped nominal geometry. ``sigmas``: the weights used. ``extra``: more top-level keys.
+    ``prediction``: :func:`.report_accuracy.prediction_for` of ``result`` (computed when None).
     """
+    from . import report_accuracy
+
     nominal = default_geometry('nominal') if nominal is None else nominal
     if analysis is None:
         analysis = analyse(result)
@@ -314,6 +321,11 @@ def result_data(
             'before': _validation_summary(validation_before),
             'after': _validation_summary(validation_after),
         },
+        'predicted_accuracy': report_accuracy.result_json_entry(
+            report_accuracy.prediction_for(result, validation_after)
+            if prediction is None
+            else prediction
+        ),
     }
     lengths = np.array([i not in _ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
@@ -372,6 +384,8 @@ def _fmt(value, digits=4):
 
 def report_markdown(data, images, title='Calibration report'):
     """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots."""
+    from . import report_accuracy
+
     lines = [f'# {title}', '']
     lines.append(
         f'- status: {"converged" if data["converged"] else "NOT converged"} '
@@ -459,6 +473,9 @@ def report_markdown(data, images, title='Calibration report'):
     else:
         lines.append('None.')
     lines.append('')
+    lines += report_accuracy.markdown_lines(
+        data.get('predicted_accuracy'), images.get('accuracy_map')
+    )
     lines += ['## Residuals', '', '| sensor | RMS | unit |', '|---|---|---|']
     for sensor, rms in data['residual_rms'].items():
         lines.append(
@@ -478,10 +495,14 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
     validation is given (distributions from per-posture arrays, else the mean and max of the
     summaries).
     """
-    data = result_data(result, **inputs)
-    truth, nominal = inputs.get('truth'), inputs.get('nominal')
+    from . import report_accuracy
+
     validation_before = inputs.get('validation_before')
     validation_after = inputs.get('validation_after')
+    if inputs.get('prediction') is None:
+        inputs['prediction'] = report_accuracy.prediction_for(result, validation_after)
+    data = result_data(result, **inputs)
+    truth, nominal = inputs.get('truth'), inputs.get('nominal')
     written = {}
     from .report_plots import (
         plot_chain_errors,
@@ -501,6 +522,10 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
         written['validation'] = plot_validation(
             _path(run_dir, VALIDATION_PNG), validation_before, validation_after
         )
+    if inputs['prediction'] is not None:
+        written['accuracy_map'] = report_accuracy.plot_accuracy_map(
+            _path(run_dir, report_accuracy.ACCURACY_MAP_PNG), inputs['prediction']
+        )
     images = {kind: os.path.basename(path) for kind, path in written.items()}
     text = report_markdown(data, images, title)
     written['report'] = _path(run_dir, REPORT_MD)
@@ -510,6 +535,12 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
 
 def write_all(run_dir, result, **kwargs):
     """:func:`write_result_json` and :func:`write_report`; returns ``{kind: path}``."""
+    from . import report_accuracy
+
+    if kwargs.get('prediction') is None:  # computed once for both files
+        kwargs['prediction'] = report_accuracy.prediction_for(
+            result, kwargs.get('validation_after')
+        )
     paths = {
         'result_json': write_result_json(
             run_dir, result, **{k: v for k, v in kwargs.items() if k != 'title'}

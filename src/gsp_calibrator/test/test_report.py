@@ -110,6 +110,17 @@ def test_result_json(tmp_path, calibrated):
     assert isinstance(data['correlations'], list)
     for pair in data['correlations']:
         assert abs(pair['correlation']) > 0.9
+    predicted = data['predicted_accuracy']
+    assert 0 < predicted['position_mm_mean'] <= predicted['position_mm_p95']
+    assert 0 < predicted['orientation_deg_mean'] <= predicted['orientation_deg_p95']
+    assert predicted['worst_cell']['position_mm'] == predicted['worst_cell_position_mm'] > 0
+    # The measured validation sits beside the prediction at the same postures.
+    check = predicted['validation']
+    assert check['postures'] == data['validation']['after']['postures']
+    assert check['measured_position_mm_mean'] == pytest.approx(
+        data['validation']['after']['position_mm_mean']
+    )
+    assert 0.2 < check['position_ratio'] < 5.0
 
 
 def test_report_with_truth(tmp_path, calibrated):
@@ -123,7 +134,7 @@ def test_report_with_truth(tmp_path, calibrated):
         truth=truth,
         nominal=nominal,
     )
-    for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation'):
+    for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation', 'accuracy_map'):
         _check_png(written[kind])
     assert not list(tmp_path.glob('*.tmp')) and not list(tmp_path.glob('.*.tmp'))
     text = (tmp_path / 'report.md').read_text(encoding='utf-8')
@@ -131,6 +142,8 @@ def test_report_with_truth(tmp_path, calibrated):
         assert f']({name})' in text
     assert '| A1x | mm |' in text and '| gamma | deg |' in text
     assert 'error before' in text and '## Validation' in text
+    assert '## Predicted accuracy' in text and '](accuracy_map.png)' in text
+    assert 'Measured over predicted mean at the 20 validation postures' in text
     assert (tmp_path / 'result.json').exists()
 
 
@@ -157,6 +170,7 @@ def test_report_without_truth_and_failed_identification(tmp_path):
     assert data['parameter_errors']['reference'] == 'nominal'
     assert data['standard_deviations']['si']['A2x'] is None  # fixed parameter
     assert data['validation'] == {'before': None, 'after': None}
+    assert data['predicted_accuracy'] is None and 'accuracy_map' not in written
     assert data['identifiability']['rank'] == 4
     assert data['identifiability']['unidentifiable'][0]['parameters'] == ['gamma']
     text = (tmp_path / 'report.md').read_text(encoding='utf-8')

@@ -1,0 +1,207 @@
+"""Predicted accuracy of a calibrated platform from the parameter covariance (Cramér-Rao).
+
+The controller commands ``q = IK(u_hat, X_c)``; the real platform (parameters ``u``) settles at the
+pose ``X`` with ``IK(u, X) = q``. To first order the pose error is ``dX = S (u_hat - u)`` with the
+pose sensitivity ``S = (dq/dX)^-1 dq/du`` (only the 42 leg parameters move the platform; the
+device's do not). With ``Cov(u_hat)`` from the identification, ``Cov(dX) = S C S^T``; orientation
+errors are taken as the rotation vector of ``R_cmd^T R_real`` (body angular Jacobian of eq (2)),
+so they compare with :func:`gsp_kinematics.validation.pose_errors`.
+
+Per pose the prediction is the expected error magnitude ``E|dp|`` (mm) and ``E|dw|`` (deg) of a
+zero-mean Gaussian with that covariance: what a validation's mean error estimates.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .geometry import NUM_PARAMETERS
+from .kinematics import (
+    Workspace,
+    expand_leg_parameters,
+    inverse_kinematics_jacobians,
+    reachable_mask,
+    sample_valid_postures,
+)
+from .rotation import euler_to_matrix, euler_to_matrix_derivatives
+
+#: Leg parameters (A, B, L_off) that move the platform; the rest are the device's.
+LEG_PARAMETERS = 42
+#: Standard normal draws that integrate E|v| over a 3-D Gaussian (fixed: the result is repeatable).
+_NORMAL_DRAWS = np.random.default_rng(20240611).standard_normal((2048, 3))
+
+
+def body_angular_jacobian(euler):
+    """``E`` (M, 3, 3) with ``w = E d(psi, theta, phi)``: the rotation vector of ``R^T R(e + de)``."""
+    rotation = euler_to_matrix(euler)
+    derivatives = euler_to_matrix_derivatives(euler)  # (M, 3 euler, 3, 3)
+    skew = np.einsum('mji,majk->maik', rotation, derivatives)  # R^T dR/de_a
+    # vee of each skew matrix, one column per Euler angle.
+    return np.stack([skew[:, :, 2, 1], skew[:, :, 0, 2], skew[:, :, 1, 0]], axis=1)
+
+
+def pose_sensitivities(geometry, poses, free=None):
+    """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error.
+
+    ``free``: a bool mask over the parameter vector (None: all). Columns of parameters that do not
+    move the platform (the device's, or any beyond the 42 leg parameters) are zero.
+    """
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
+    d_q_d_u = expand_leg_parameters(d_q_d_leg)
+    # IK(u, X) = IK(u_hat, X_c)  =>  dq/dX dX = dq/du (u_hat - u).
+    d_pose = np.linalg.solve(d_q_d_pose, d_q_d_u)  # (M, 6, 42): dX/du_leg (Euler rates)
+    angular = body_angular_jacobian(poses[:, 3:])
+    sensitivity = np.concatenate([d_pose[:, :3], angular @ d_pose[:, 3:]], axis=1)
+    size = NUM_PARAMETERS if free is None else len(free)
+    full = np.zeros((poses.shape[0], 6, max(size, LEG_PARAMETERS)))
+    full[:, :, :LEG_PARAMETERS] = sensitivity
+    full = full[:, :, :size]
+    return full if free is None else full[:, :, np.asarray(free, dtype=bool)]
+
+
+def expected_norm(covariances):
+    """``E|v|`` for ``v ~ N(0, C)`` of each 3x3 covariance in ``covariances`` (..., 3, 3)."""
+    eigenvalues = np.clip(np.linalg.eigvalsh(covariances), 0.0, None)
+    flat = eigenvalues.reshape(-1, 3)
+    norms = np.sqrt(flat @ (_NORMAL_DRAWS**2).T)  # (K, draws)
+    return norms.mean(axis=1).reshape(eigenvalues.shape[:-1])
+
+
+def predicted_errors(geometry, covariance, poses, free=None):
+    """Predicted error magnitudes at ``poses`` (M, 6): ``(position_mm, orientation_deg)``, each (M,).
+
+    ``covariance``: (n_free, n_free) of the free parameters (m, rad), e.g. an
+    ``IdentificationResult.covariance``; ``free`` its mask (None: all parameters free).
+    """
+    sensitivity = pose_sensitivities(geometry, poses, free)
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape != (sensitivity.shape[2],) * 2:
+        raise ValueError(
+            f'covariance must be {sensitivity.shape[2]}x{sensitivity.shape[2]} (the free '
+            f'parameters), got {covariance.shape}'
+        )
+    pose_covariance = sensitivity @ covariance @ np.swapaxes(sensitivity, 1, 2)
+    position_mm = 1000.0 * expected_norm(pose_covariance[:, :3, :3])
+    orientation_deg = np.degrees(expected_norm(pose_covariance[:, 3:, 3:]))
+    return position_mm, orientation_deg
+
+
+@dataclasses.dataclass(frozen=True)
+class MapLayout:
+    """The grid of an accuracy map: x-y at several heights level, and at mid height tilted."""
+
+    cells: int = 21  #: per side in x and y
+    heights: int = 3  #: level panels from z_min to z_max
+    tilts_deg: tuple = (('psi', 20.0), ('theta', 20.0))  #: tilted panels at mid height
+
+
+def map_panels(workspace=Workspace(), layout=MapLayout()):
+    """``[(title, poses (cells*cells, 6))]``: the panels of an accuracy map (not yet checked)."""
+    axis = np.linspace(-workspace.xy_range, workspace.xy_range, layout.cells)
+    x, y = np.meshgrid(axis, axis)
+    panels = []
+
+    def panel(z, psi=0.0, theta=0.0):
+        poses = np.zeros((x.size, 6))
+        poses[:, 0], poses[:, 1], poses[:, 2] = x.ravel(), y.ravel(), z
+        poses[:, 3], poses[:, 4] = psi, theta
+        return poses
+
+    for z in np.linspace(workspace.z_min, workspace.z_max, layout.heights):
+        panels.append((f'z = {1000 * z:.0f} mm, level', panel(z)))
+    middle = 0.5 * (workspace.z_min + workspace.z_max)
+    for name, degrees in layout.tilts_deg:
+        tilt = math.radians(degrees)
+        angles = {'psi': (tilt, 0.0), 'theta': (0.0, tilt)}[name]
+        panels.append(
+            (f'z = {1000 * middle:.0f} mm, {name} = {degrees:g} deg', panel(middle, *angles))
+        )
+    return panels
+
+
+def _statistics(values):
+    values = np.asarray(values, dtype=float)
+    return {
+        'mean': float(np.mean(values)),
+        'p95': float(np.percentile(values, 95)),
+        'max': float(np.max(values)),
+    }
+
+
+def predict_accuracy(
+    geometry,
+    covariance,
+    free=None,
+    workspace=Workspace(),
+    postures=500,
+    seed=0,
+    layout=MapLayout(),
+):
+    """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
+
+    ``random``: ``{position_mm: {mean, p95, max}, orientation_deg: {...}, postures}`` over
+    ``postures`` seeded random reachable postures; ``worst_cell``: the grid cell with the largest
+    predicted position error (its pose, m and rad, and both errors); ``maps``: per panel the x, y
+    axes (m) and the predicted errors (NaN where the platform cannot reach), for plotting.
+    """
+    random_poses = sample_valid_postures(
+        geometry, int(postures), np.random.default_rng(int(seed)), workspace
+    )
+    position, orientation = predicted_errors(geometry, covariance, random_poses, free)
+    maps = []
+    worst = None
+    for title, poses in map_panels(workspace, layout):
+        reachable = reachable_mask(geometry, poses, workspace.max_condition)
+        cell_position = np.full(poses.shape[0], np.nan)
+        cell_orientation = np.full(poses.shape[0], np.nan)
+        if reachable.any():
+            found = predicted_errors(geometry, covariance, poses[reachable], free)
+            cell_position[reachable], cell_orientation[reachable] = found
+            index = int(np.nanargmax(cell_position))
+            if worst is None or cell_position[index] > worst['position_mm']:
+                worst = {
+                    'panel': title,
+                    'pose': poses[index].tolist(),
+                    'position_mm': float(cell_position[index]),
+                    'orientation_deg': float(cell_orientation[index]),
+                }
+        shape = (layout.cells, layout.cells)
+        maps.append(
+            {
+                'title': title,
+                'z_m': float(poses[0, 2]),
+                'tilt_rad': poses[0, 3:5].tolist(),
+                'x_m': poses[: layout.cells, 0].tolist(),
+                'y_m': poses[:: layout.cells, 1].tolist(),
+                'position_mm': cell_position.reshape(shape).tolist(),
+                'orientation_deg': cell_orientation.reshape(shape).tolist(),
+            }
+        )
+    return {
+        'statistic': 'expected error magnitude E|dX| from the parameter covariance (1 sigma)',
+        'units': {'position': 'mm', 'orientation': 'deg', 'pose': 'm, rad'},
+        'random': {
+            'position_mm': _statistics(position),
+            'orientation_deg': _statistics(orientation),
+            'postures': int(random_poses.shape[0]),
+            'seed': int(seed),
+        },
+        'worst_cell': worst,
+        'maps': maps,
+    }
+
+
+def accuracy_summary(prediction):
+    """The headline of :func:`predict_accuracy`: mean and p95 over random postures, worst cell."""
+    random = prediction['random']
+    worst = prediction['worst_cell'] or {}
+    return {
+        'position_mm_mean': random['position_mm']['mean'],
+        'position_mm_p95': random['position_mm']['p95'],
+        'orientation_deg_mean': random['orientation_deg']['mean'],
+        'orientation_deg_p95': random['orientation_deg']['p95'],
+        'worst_cell_position_mm': worst.get('position_mm'),
+        'worst_cell_orientation_deg': worst.get('orientation_deg'),
+    }

@@ -1,0 +1,109 @@
+"""Predicted accuracy: pose sensitivities against finite differences, and the prediction against
+Monte-Carlo identifications."""
+
+import numpy as np
+import pytest
+
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import NUM_PARAMETERS, Geometry
+from gsp_kinematics.identification import Sigmas, identify
+from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
+from gsp_kinematics.prediction import (
+    accuracy_summary,
+    expected_norm,
+    pose_sensitivities,
+    predict_accuracy,
+    predicted_errors,
+)
+from gsp_kinematics.rotation import euler_to_matrix
+from gsp_kinematics.selection import select_postures
+from gsp_kinematics.validation import reached_poses, validate
+
+
+def _rotation_vector(commanded, reached):
+    relative = np.einsum('mji,mjk->mik', euler_to_matrix(commanded), euler_to_matrix(reached))
+    skew = 0.5 * (relative - np.swapaxes(relative, 1, 2))
+    return np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], axis=1)
+
+
+def test_pose_sensitivities_match_finite_differences(exact, postures):
+    poses = postures[:5]
+    sensitivity = pose_sensitivities(exact, poses)
+    assert sensitivity.shape == (5, 6, NUM_PARAMETERS)
+    assert np.all(sensitivity[:, :, 42:] == 0.0)  # the device does not move the platform
+    vector, step = exact.to_vector(), 1e-7
+    for column in range(42):
+        columns = []
+        for sign in (1.0, -1.0):
+            moved = vector.copy()
+            moved[column] += sign * step
+            reached = reached_poses(exact, Geometry.from_vector(moved, exact.limits), poses)
+            columns.append(
+                np.concatenate(
+                    [reached[:, :3] - poses[:, :3], _rotation_vector(poses[:, 3:], reached[:, 3:])],
+                    axis=1,
+                )
+            )
+        numeric = (columns[0] - columns[1]) / (2 * step)
+        scale = max(np.abs(numeric).max(), 1e-3)
+        assert np.abs(numeric - sensitivity[:, :, column]).max() < 1e-5 * scale, column
+
+
+def test_free_mask_selects_columns(exact, postures):
+    free = np.zeros(NUM_PARAMETERS, dtype=bool)
+    free[[0, 7, 43]] = True
+    full = pose_sensitivities(exact, postures[:3])
+    assert np.array_equal(pose_sensitivities(exact, postures[:3], free), full[:, :, free])
+
+
+def test_expected_norm_of_isotropic_gaussian():
+    sigma = 2.0
+    covariance = np.eye(3) * sigma**2
+    # E|v| = sqrt(8/pi) sigma for a 3-D isotropic Gaussian.
+    assert expected_norm(covariance[None])[0] == pytest.approx(np.sqrt(8 / np.pi) * sigma, rel=0.02)
+    # One axis only: E|v| = sqrt(2/pi) sigma.
+    single = np.diag([sigma**2, 0.0, 0.0])
+    assert expected_norm(single[None])[0] == pytest.approx(np.sqrt(2 / np.pi) * sigma, rel=0.03)
+
+
+def test_prediction_agrees_with_monte_carlo(exact, nominal_sets, postures):
+    nominal, sigmas = nominal_sets[1], Sigmas()
+    chosen, _ = select_postures(nominal, postures[:200], 40, sigmas)
+    poses = postures[chosen]
+    legs = inverse_kinematics(nominal, poses)
+    reached, ok = forward_kinematics_masked(exact, legs, poses)
+    poses, legs, reached = poses[ok], legs[ok], reached[ok]
+    validation = postures[200:300]
+    measured, predicted = [], []
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        result = identify(
+            nominal,
+            legs + rng.normal(0.0, sigmas.leg_lengths, legs.shape),
+            device_readings(exact, reached)
+            + rng.normal(0.0, 1.0, (len(legs), 4)) * sigmas.readings(),
+            sigmas,
+            pose_guesses=poses,
+        )
+        assert result.converged
+        errors = validate(exact, result.geometry, validation)
+        position, orientation = predicted_errors(
+            result.geometry, result.covariance, validation, result.free
+        )
+        measured.append((errors['position_mm_mean'], errors['orientation_deg_mean']))
+        predicted.append((position.mean(), orientation.mean()))
+    ratio = np.mean(measured, axis=0) / np.mean(predicted, axis=0)
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+
+
+def test_predict_accuracy_maps_and_summary(exact):
+    covariance = np.eye(NUM_PARAMETERS) * 1e-10
+    prediction = predict_accuracy(exact, covariance, postures=50)
+    summary = accuracy_summary(prediction)
+    assert 0 < summary['position_mm_mean'] <= summary['position_mm_p95']
+    assert summary['worst_cell_position_mm'] >= np.nanmax(prediction['maps'][0]['position_mm'])
+    assert len(prediction['maps']) == 5
+    panel = prediction['maps'][1]
+    assert np.asarray(panel['position_mm']).shape == (len(panel['y_m']), len(panel['x_m']))
+    with pytest.raises(ValueError, match='covariance must be'):
+        predicted_errors(exact, np.eye(3), prediction['worst_cell']['pose'])
