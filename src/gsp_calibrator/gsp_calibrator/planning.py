@@ -1,0 +1,392 @@
+"""``gsp_plan``: plan a calibration before moving the platform (pure, no ROS).
+
+From a nominal geometry, the sensors' noise, a posture count, samples per posture, the workspace
+limits, a settle time and a sensor rate, predict what the calibrator would reach:
+
+* the accuracy of the calibrated platform (:func:`gsp_kinematics.prediction.predict_accuracy` on
+  the Cramér-Rao covariance of the selected design);
+* the rank of the design and its unidentifiable parameter combinations;
+* the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum).
+
+The postures are those the calibrator would command: :func:`.calibration.choose_postures` with the
+same pool, seed, sigmas (averaged over the samples, :func:`.calibration.averaged_sigmas`), free
+parameters and formulation. ``--sweep`` repeats the plan over posture counts and samples per
+posture (one selection per count: averaging scales every sigma alike, which leaves the selection
+unchanged) and writes a table, a plot and the sweep in JSON.
+"""
+
+import argparse
+import math
+import sys
+
+import numpy as np
+
+from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
+from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
+from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Sigmas, resolve_free
+from gsp_kinematics.kinematics import Workspace
+from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
+from gsp_kinematics.selection import posture_information
+
+from .calibration import CalibrationError, averaged_sigmas, choose_postures, selection_formulation
+
+DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
+DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
+
+
+def calibration_seconds(postures, samples_per_posture, settle_s, sensor_rate_hz):
+    """The physical minimum of the collection: ``postures x (settle + samples / rate)`` (s)."""
+    return postures * (settle_s + samples_per_posture / sensor_rate_hz)
+
+
+def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formulation, workspace):
+    """Rank, unidentifiable combinations and predicted accuracy of commanding ``poses``."""
+    row_sigmas = averaged_sigmas(sigmas, [samples_per_posture])
+    free_mask = resolve_free(free)
+    information = posture_information(
+        nominal, poses, row_sigmas, free_mask, selection_formulation(formulation)
+    ).sum(axis=0)
+    analysis = analyse_identifiability(information, free_mask)
+    plan = {
+        'rank': analysis['rank'],
+        'parameters': analysis['parameters'],
+        'condition_number': analysis['condition_number'],
+        'unidentifiable': analysis['unidentifiable'],
+        'unidentifiable_parameters': unidentifiable_parameters(analysis),
+        'predicted': None,
+    }
+    if analysis['rank'] == analysis['parameters']:
+        covariance = np.linalg.inv(information)
+        prediction = predict_accuracy(nominal, covariance, free_mask, workspace)
+        plan['predicted'] = {
+            **accuracy_summary(prediction),
+            'worst_cell': prediction['worst_cell'],
+            'statistic': prediction['statistic'],
+        }
+    return plan
+
+
+def select(
+    nominal,
+    postures,
+    samples_per_posture,
+    sigmas=Sigmas(),
+    free=None,
+    formulation='implicit',
+    workspace=Workspace(),
+    pool_size=600,
+    seed=0,
+    **_timing,
+):
+    """The calibrator's posture selection for these settings (``choose_postures``)."""
+    return choose_postures(
+        nominal,
+        postures,
+        pool_size,
+        seed,
+        averaged_sigmas(sigmas, [samples_per_posture]),
+        free,
+        formulation,
+        workspace,
+    )
+
+
+def plan(
+    nominal,
+    postures=60,
+    samples_per_posture=10,
+    sigmas=Sigmas(),
+    free=None,
+    formulation='implicit',
+    workspace=Workspace(),
+    pool_size=600,
+    seed=0,
+    settle_s=0.02,
+    sensor_rate_hz=200.0,
+    selection=None,
+):
+    """One plan (a JSON-ready dict); ``selection``: a :class:`.calibration.PostureSelection` of
+    these settings to reuse (the sweep shares one per posture count)."""
+    if samples_per_posture < 1:
+        raise CalibrationError(f'samples per posture must be >= 1, got {samples_per_posture}')
+    if not (sensor_rate_hz > 0 and settle_s >= 0):
+        raise CalibrationError('the sensor rate must be > 0 Hz and the settle time >= 0 s')
+    if selection is None:
+        selection = select(
+            nominal,
+            postures,
+            samples_per_posture,
+            sigmas=sigmas,
+            free=free,
+            formulation=formulation,
+            workspace=workspace,
+            pool_size=pool_size,
+            seed=seed,
+        )
+    design = design_prediction(
+        nominal, selection.poses, sigmas, samples_per_posture, free, formulation, workspace
+    )
+    return {
+        'postures': int(postures),
+        'samples_per_posture': int(samples_per_posture),
+        **design,
+        'calibration_s': calibration_seconds(
+            postures, samples_per_posture, settle_s, sensor_rate_hz
+        ),
+        'selection': {
+            'pool_size': selection.pool_size,
+            'seed': selection.seed,
+            'condition_number': selection.condition_number,
+            'duration_s': selection.duration_s,
+            'poses': selection.poses.tolist(),
+        },
+    }
+
+
+def sweep(nominal, posture_counts, samples, **options):
+    """Plans over ``posture_counts`` x ``samples`` (without the poses): ``{'rows': [...]}``."""
+    rows = []
+    for count in posture_counts:
+        # Averaging scales every sigma alike: the selection does not depend on the samples.
+        selection = select(nominal, count, samples[0], **options)
+        for samples_per_posture in samples:
+            entry = plan(nominal, count, samples_per_posture, selection=selection, **options)
+            entry.pop('selection')
+            rows.append(entry)
+    return {
+        'posture_counts': list(posture_counts),
+        'samples_per_posture': list(samples),
+        'rows': rows,
+    }
+
+
+def cheapest_meeting(result, position_um=None, orientation_deg=None):
+    """The sweep row with the shortest calibration whose predicted means meet the targets
+    (position in µm, orientation in deg); None if no row does."""
+    meeting = [
+        row
+        for row in result['rows']
+        if row['predicted']
+        and (position_um is None or 1000.0 * row['predicted']['position_mm_mean'] <= position_um)
+        and (orientation_deg is None or row['predicted']['orientation_deg_mean'] <= orientation_deg)
+    ]
+    return min(meeting, key=lambda row: (row['calibration_s'], row['postures']), default=None)
+
+
+def sweep_table(result):
+    """The sweep as a text table (mm, deg, s)."""
+    lines = [
+        f'{"postures":>8} {"samples":>7} {"rank":>9} {"position mm":>12} '
+        f'{"p95 mm":>10} {"orient. deg":>12} {"time s":>8}'
+    ]
+    for row in result['rows']:
+        predicted = row['predicted'] or {}
+
+        def number(key, predicted=predicted):
+            value = predicted.get(key)
+            return '-' if value is None else f'{value:.3g}'
+
+        lines.append(
+            f'{row["postures"]:>8} {row["samples_per_posture"]:>7} '
+            f'{row["rank"]:>4}/{row["parameters"]:<4} {number("position_mm_mean"):>12} '
+            f'{number("position_mm_p95"):>10} {number("orientation_deg_mean"):>12} '
+            f'{row["calibration_s"]:>8.1f}'
+        )
+    return '\n'.join(lines)
+
+
+def plot_sweep(path, result):
+    """Predicted mean position and orientation error against posture count, one curve per
+    samples-per-posture (log scale)."""
+    from .report_plots import _figure, _save
+
+    figure = _figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
+    for column, (key, label) in enumerate(
+        (
+            ('position_mm_mean', 'position error (mm)'),
+            ('orientation_deg_mean', 'orientation error (deg)'),
+        )
+    ):
+        axes = figure.add_subplot(1, 2, column + 1)
+        for samples in result['samples_per_posture']:
+            rows = [r for r in result['rows'] if r['samples_per_posture'] == samples]
+            points = [(r['postures'], r['predicted'][key]) for r in rows if r['predicted']]
+            if points:
+                x, y = zip(*points, strict=True)
+                axes.plot(x, y, 'o-', label=f'{samples} samples/posture')
+        axes.set_yscale('log')
+        axes.set_xlabel('postures')
+        axes.set_ylabel(f'predicted mean {label}')
+        axes.grid(True, which='both', alpha=0.3)
+        axes.legend(fontsize=8)
+    figure.suptitle('Predicted accuracy after calibration (Cramér-Rao, selected postures)')
+    return _save(figure, path)
+
+
+def _positive_list(text, kind):
+    try:
+        values = [kind(part) for part in text.split(',') if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a comma-separated list, got {text!r}') from None
+    if not values or any(value < 1 for value in values):
+        raise argparse.ArgumentTypeError(f'expected values >= 1, got {text!r}')
+    return values
+
+
+def parse_arguments(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='gsp_plan',
+        description='Predict the accuracy, identifiability and duration of a calibration before '
+        'moving the platform (no ROS needed).',
+    )
+    add = parser.add_argument
+    add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
+    add('--postures', type=int, default=60, help='postures commanded (60)')
+    add('--samples-per-posture', type=int, default=10, help='samples averaged per posture (10)')
+    add('--pool-size', type=int, default=600, help='random postures the selection picks from (600)')
+    add('--seed', type=int, default=0, help="the calibrator's seed of the posture pool (0)")
+    add('--free', nargs='+', default=None, metavar='NAME', help='free parameters (default: all)')
+    add('--formulation', choices=FORMULATIONS, default='implicit')
+    defaults = Sigmas()
+    add('--sigma-leg-um', type=float, default=defaults.leg_lengths * 1e6, help='leg sensor, µm')
+    add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
+    add('--sigma-encoder-deg', type=float, default=math.degrees(defaults.encoder))
+    add('--sigma-lvdt-um', type=float, default=defaults.lvdt * 1e6, help='LVDT, µm')
+    workspace = Workspace()
+    add('--xy-range-mm', type=float, default=workspace.xy_range * 1e3, help='+- x and y (400)')
+    add('--z-min-mm', type=float, default=workspace.z_min * 1e3)
+    add('--z-max-mm', type=float, default=workspace.z_max * 1e3)
+    add('--rotation-range-deg', type=float, default=math.degrees(workspace.rotation_range))
+    add('--settle-s', type=float, default=0.02, help='settle time per posture, s (0.02)')
+    add('--sensor-rate-hz', type=float, default=200.0, help='synchronised sample rate, Hz (200)')
+    add('--output', default=None, help='write the plan (or the sweep) as JSON here')
+    add('--sweep', action='store_true', help='sweep posture counts and samples per posture')
+    add('--sweep-postures', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_POSTURES)
+    add('--sweep-samples', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_SAMPLES)
+    add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
+    add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
+    add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
+    args = parser.parse_args(argv)
+    for name in ('sigma_leg_um', 'sigma_inclinometer_deg', 'sigma_encoder_deg', 'sigma_lvdt_um'):
+        if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
+            parser.error(f'--{name.replace("_", "-")} must be a finite number > 0')
+    if not args.z_min_mm < args.z_max_mm or args.xy_range_mm <= 0 or args.rotation_range_deg < 0:
+        parser.error(
+            'workspace: need --z-min-mm < --z-max-mm, --xy-range-mm > 0 and '
+            '--rotation-range-deg >= 0'
+        )
+    return args
+
+
+def options_from(args):
+    sigmas = Sigmas(
+        leg_lengths=args.sigma_leg_um * 1e-6,
+        inclinometer=math.radians(args.sigma_inclinometer_deg),
+        encoder=math.radians(args.sigma_encoder_deg),
+        lvdt=args.sigma_lvdt_um * 1e-6,
+    )
+    workspace = Workspace(
+        xy_range=args.xy_range_mm / 1e3,
+        z_min=args.z_min_mm / 1e3,
+        z_max=args.z_max_mm / 1e3,
+        rotation_range=math.radians(args.rotation_range_deg),
+    )
+    return dict(
+        sigmas=sigmas,
+        free=args.free,
+        formulation=args.formulation,
+        workspace=workspace,
+        pool_size=args.pool_size,
+        seed=args.seed,
+        settle_s=args.settle_s,
+        sensor_rate_hz=args.sensor_rate_hz,
+    )
+
+
+def _summary_text(entry):
+    predicted = entry['predicted']
+    lines = [
+        f'{entry["postures"]} postures x {entry["samples_per_posture"]} samples: rank '
+        f'{entry["rank"]} of {entry["parameters"]}, calibration {entry["calibration_s"]:.1f} s'
+    ]
+    if predicted:
+        lines.append(
+            f'predicted after calibration: position {predicted["position_mm_mean"]:.3g} mm mean '
+            f'({predicted["position_mm_p95"]:.3g} p95), orientation '
+            f'{predicted["orientation_deg_mean"]:.3g} deg mean'
+        )
+    for entry_ in entry['unidentifiable']:
+        lines.append(f'not identifiable: {entry_["combination"]}')
+    return '\n'.join(lines)
+
+
+def main(argv=None):
+    """Console script ``gsp_plan``."""
+    args = parse_arguments(argv)
+    try:
+        nominal = load_geometry(args.geometry)
+        options = options_from(args)
+        inputs = {
+            'geometry': str(args.geometry),
+            'sigmas': {
+                'leg_lengths_m': options['sigmas'].leg_lengths,
+                'inclinometer_rad': options['sigmas'].inclinometer,
+                'encoder_rad': options['sigmas'].encoder,
+                'lvdt_m': options['sigmas'].lvdt,
+            },
+            'workspace': {
+                'xy_range_m': options['workspace'].xy_range,
+                'z_min_m': options['workspace'].z_min,
+                'z_max_m': options['workspace'].z_max,
+                'rotation_range_rad': options['workspace'].rotation_range,
+            },
+            'settle_s': args.settle_s,
+            'sensor_rate_hz': args.sensor_rate_hz,
+            'pool_size': args.pool_size,
+            'seed': args.seed,
+            'formulation': args.formulation,
+            'free': args.free,
+        }
+        if args.sweep:
+            result = sweep(nominal, args.sweep_postures, args.sweep_samples, **options)
+            document = {'inputs': inputs, 'sweep': result}
+            print(sweep_table(result))
+            if args.target_position_um is not None or args.target_orientation_deg is not None:
+                best = cheapest_meeting(
+                    result, args.target_position_um, args.target_orientation_deg
+                )
+                document['target'] = {
+                    'position_um': args.target_position_um,
+                    'orientation_deg': args.target_orientation_deg,
+                    'cheapest': best,
+                }
+                print(
+                    'no swept design meets the target'
+                    if best is None
+                    else f'cheapest design meeting the target: {best["postures"]} postures x '
+                    f'{best["samples_per_posture"]} samples ({best["calibration_s"]:.1f} s)'
+                )
+            plot_path = args.plot or (
+                f'{args.output.rsplit(".", 1)[0]}.png' if args.output else 'gsp_plan.png'
+            )
+            plot_sweep(plot_path, result)
+            document['plot'] = plot_path
+            print(f'plot: {plot_path}')
+        else:
+            document = {
+                'inputs': inputs,
+                **plan(nominal, args.postures, args.samples_per_posture, **options),
+            }
+            print(_summary_text(document))
+    except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:
+        print(f'gsp_plan: error: {error}', file=sys.stderr)
+        return 2
+    if args.output:
+        atomic_write_text(args.output, to_json(json_safe(document)))
+        print(f'plan: {args.output}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

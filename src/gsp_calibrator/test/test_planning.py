@@ -1,0 +1,98 @@
+"""gsp_plan: the plan uses the calibrator's selection; the sweep's JSON, table and plot."""
+
+import json
+
+import numpy as np
+import pytest
+
+from gsp_calibrator import calibration, planning
+from gsp_kinematics.geometry import default_geometry
+
+QUICK = ['--pool-size', '120']
+
+
+def _read(path):
+    def reject(constant):
+        raise ValueError(f'non-standard JSON constant {constant}')
+
+    return json.loads(path.read_text(encoding='utf-8'), parse_constant=reject)
+
+
+def test_plan_json(tmp_path, capsys):
+    output = tmp_path / 'plan.json'
+    argv = ['--postures', '30', '--samples-per-posture', '4', '--output', str(output), *QUICK]
+    assert planning.main(argv) == 0
+    plan = _read(output)
+    assert plan['rank'] == plan['parameters'] == 44 and plan['unidentifiable'] == []
+    predicted = plan['predicted']
+    assert 0 < predicted['position_mm_mean'] <= predicted['position_mm_p95']
+    assert 0 < predicted['orientation_deg_mean'] <= predicted['orientation_deg_p95']
+    # The physical minimum: 30 x (0.02 s settle + 4 samples / 200 Hz).
+    assert plan['calibration_s'] == pytest.approx(30 * (0.02 + 4 / 200))
+    # The same postures as the calibrator would command with these settings.
+    nominal = default_geometry('nominal')
+    sigmas = calibration.averaged_sigmas(calibration.Sigmas(), [4])
+    chosen = calibration.choose_postures(nominal, 30, 120, 0, sigmas)
+    assert np.allclose(plan['selection']['poses'], chosen.poses)
+    assert 'rank 44 of 44' in capsys.readouterr().out
+
+
+def test_more_samples_predict_better_accuracy():
+    nominal = default_geometry('nominal')
+    few = planning.plan(nominal, 30, 1, pool_size=120)
+    many = planning.plan(nominal, 30, 16, pool_size=120)
+    # Averaging 16 samples divides every sigma by 4: the error scales alike.
+    ratio = few['predicted']['position_mm_mean'] / many['predicted']['position_mm_mean']
+    assert ratio == pytest.approx(4.0, rel=1e-6)
+
+
+def test_too_few_postures_are_reported_unidentifiable(tmp_path):
+    output = tmp_path / 'plan.json'
+    assert planning.main(['--postures', '8', '--output', str(output), *QUICK]) == 0
+    plan = _read(output)
+    assert plan['rank'] < 44 and plan['unidentifiable'] and plan['predicted'] is None
+
+
+def test_sweep_writes_table_plot_and_json(tmp_path, capsys):
+    output = tmp_path / 'sweep.json'
+    argv = [
+        '--sweep',
+        '--sweep-postures',
+        '20,40',
+        '--sweep-samples',
+        '1,10',
+        '--target-position-um',
+        '50',
+        '--output',
+        str(output),
+        *QUICK,
+    ]
+    assert planning.main(argv) == 0
+    document = _read(output)
+    rows = document['sweep']['rows']
+    assert [(r['postures'], r['samples_per_posture']) for r in rows] == [
+        (20, 1),
+        (20, 10),
+        (40, 1),
+        (40, 10),
+    ]
+    errors = {
+        (r['postures'], r['samples_per_posture']): r['predicted']['position_mm_mean'] for r in rows
+    }
+    assert errors[(40, 10)] < errors[(20, 10)] < errors[(20, 1)]
+    assert errors[(40, 10)] < errors[(40, 1)]
+    cheapest = document['target']['cheapest']
+    assert cheapest is not None and 1000 * cheapest['predicted']['position_mm_mean'] <= 50
+    assert (tmp_path / 'sweep.png').stat().st_size > 10_000
+    assert document['plot'] == str(tmp_path / 'sweep.png')
+    out = capsys.readouterr().out
+    assert 'postures' in out and 'cheapest design meeting the target' in out
+
+
+def test_bad_input_is_named(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        planning.main(['--sigma-leg-um', '0'])
+    assert '--sigma-leg-um' in capsys.readouterr().err
+    assert planning.main(['--geometry', str(tmp_path / 'missing.yaml')]) == 2
+    assert 'gsp_plan: error' in capsys.readouterr().err
+    assert planning.main(['--postures', '700', '--pool-size', '600']) == 2
