@@ -2,20 +2,27 @@
 
 import numpy as np
 
-from ._lm import schur_information
 from .device import device_readings_jacobians
 from .geometry import NUM_PARAMETERS
 from .identification import SENSOR_NAMES, Sigmas, resolve_free
 from .kinematics import expand_leg_parameters, inverse_kinematics_jacobians
 
+#: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
+SHORTLIST = 12
+#: Power of 1/lambda_k weighting the gains that rank the shortlist (see select_postures).
+FOCUS = 6.0
 
-def posture_information(
+
+def posture_factors(
     geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
 ):
-    """Per-posture information matrices (N, n, n) of the free parameters.
+    """Per-posture information factors ``G`` (N, r, n): posture k's information is ``G_k^T G_k``.
 
-    For ``'implicit'`` each posture's pose is eliminated (Schur complement), which is additive over
-    postures; for ``'fk'`` it is ``J_k^T J_k`` of the FK-based residuals. Both are weighted.
+    For ``'implicit'`` each posture's pose is eliminated: the weighted residual Jacobian
+    ``[J_X | J_u]`` (k x (6 + n)) is projected on the orthogonal complement of ``J_X``'s columns
+    (``r = k - 6`` rows of a complete QR), which gives the Schur complement
+    ``J_u^T J_u - J_u^T J_X (J_X^T J_X)^-1 J_X^T J_u`` as a product of small factors; for ``'fk'``
+    it is the FK-based residual Jacobian itself (r = the device readings used).
     """
     free = resolve_free(free)
     columns = [c for c, name in enumerate(('alpha', 'beta', 'phi', 'd_m')) if name in sensors]
@@ -33,9 +40,21 @@ def posture_information(
     if formulation == 'implicit':
         jac_pose = np.concatenate([d_q_d_pose / sigmas.leg_lengths, d_h_d_pose], axis=1)
         jac_u = np.concatenate([d_q_d_u / sigmas.leg_lengths, d_h_d_u], axis=1)
-        return schur_information(jac_pose, jac_u, per_posture=True)
-    jacobian = d_h_d_u - d_h_d_pose @ np.linalg.solve(d_q_d_pose, d_q_d_u)
-    return np.swapaxes(jacobian, 1, 2) @ jacobian
+        complement = np.linalg.qr(jac_pose, mode='complete')[0][:, :, 6:]
+        return np.swapaxes(complement, 1, 2) @ jac_u
+    return d_h_d_u - d_h_d_pose @ np.linalg.solve(d_q_d_pose, d_q_d_u)
+
+
+def posture_information(
+    geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
+):
+    """Per-posture information matrices (N, n, n) of the free parameters.
+
+    For ``'implicit'`` each posture's pose is eliminated (Schur complement), which is additive over
+    postures; for ``'fk'`` it is ``J_k^T J_k`` of the FK-based residuals. Both are weighted.
+    """
+    factors = posture_factors(geometry, poses, sigmas, free, formulation, sensors)
+    return np.einsum('mri,mrj->mij', factors, factors)
 
 
 def scaled_condition_number(information):
@@ -56,51 +75,71 @@ def select_postures(
     free=None,
     formulation='implicit',
     exchange_passes=1,
-    shortlist=96,
+    shortlist=SHORTLIST,
 ):
     """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number.
 
-    Greedy: while the accumulated information is rank-deficient, add the posture that most
-    increases log det (regularised); afterwards, the one that gives the smallest condition
-    number. Then ``exchange_passes`` sweeps of a swap (exchange) algorithm keep any swap that
-    lowers it. To keep this fast, each step scores the exact criterion only on a ``shortlist`` of
-    candidates ranked by their first-order information gain ``tr(T^-1 I_c)`` (``None``: all).
-    Returns ``(indices, condition_number)``.
+    Greedy: while the accumulated information ``T`` is rank-deficient, add the posture that most
+    increases log det (regularised; exact for every candidate through the determinant lemma on
+    its low-rank factor, :func:`posture_factors`); afterwards, the one that gives the smallest
+    condition number. Then ``exchange_passes`` sweeps of a swap (exchange) algorithm keep any swap
+    that lowers it. The condition number is scored exactly (eigenvalues) only on a ``shortlist``
+    of candidates (``None``: all), ranked by their gain in the weak directions of ``T``:
+    ``sum_k |G_c v_k|^2 / lambda_k^FOCUS`` over its eigenpairs. Returns
+    ``(indices, condition_number)``.
     """
     pool = np.asarray(pool, dtype=float)
     if pool.shape[0] < count:
         raise ValueError(f'the pool has {pool.shape[0]} postures, fewer than the {count} requested')
-    information = posture_information(geometry, pool, sigmas, free, formulation)
+    factors = posture_factors(geometry, pool, sigmas, free, formulation)
     # One scale for every candidate set, so conditions compare like with like.
-    scale = 1.0 / np.sqrt(np.maximum(np.diagonal(information.sum(axis=0)), 1e-300)) * np.sqrt(count)
-    information = information * scale[None, :, None] * scale[None, None, :]
-    size = information.shape[1]
+    column_information = np.einsum('mri,mri->i', factors, factors)
+    scale = np.sqrt(count) / np.sqrt(np.maximum(column_information, 1e-300))
+    factors = factors * scale[None, None, :]
+    pool_size, rows, size = factors.shape
+    flat_factors = factors.reshape(-1, size)
     total = np.zeros((size, size))
     chosen = []
-    available = np.ones(pool.shape[0], dtype=bool)
-    ridge = 1e-6 * np.eye(size)
-    flat_information = information.reshape(information.shape[0], -1)
+    available = np.ones(pool_size, dtype=bool)
+    ridge = 1e-6
+
+    def information(indices):
+        selected = factors[indices]
+        return np.einsum('cri,crj->cij', selected, selected)
 
     def shortlisted(candidates, base):
         if shortlist is None or candidates.size <= shortlist:
             return candidates
-        # First-order gain of each candidate (regularised while base is rank-deficient).
-        inverse = np.linalg.inv(base + ridge * max(np.trace(base) / size, 1.0))
-        gain = flat_information[candidates] @ inverse.ravel()
+        # Gain of each candidate in the weak directions of base: sum_k |G v_k|^2 / lambda_k^p,
+        # p = FOCUS (p = 1 is the first-order gain tr(base^-1 I_c); a larger p aims at lambda_min).
+        eigenvalues, vectors = np.linalg.eigh(base)
+        weights = np.maximum(eigenvalues, 1e-12 * max(eigenvalues[-1], 1e-300)) ** (-FOCUS / 2)
+        projected = (flat_factors @ (vectors * weights[None, :])).reshape(pool_size, rows, size)
+        gain = np.einsum('mri,mri->m', projected, projected)[candidates]
         return candidates[np.argpartition(-gain, shortlist - 1)[:shortlist]]
 
+    def log_det_gain(candidates, base):
+        # log det(base + G^T G) - log det(base), exact for every candidate (determinant lemma).
+        inverse = np.linalg.inv(base)
+        selected = factors[candidates]
+        inner = np.eye(rows)[None] + selected @ inverse @ np.swapaxes(selected, 1, 2)
+        return np.linalg.slogdet(inner)[1]
+
     for _ in range(count):
-        candidates = shortlisted(np.flatnonzero(available), total)
-        trial = total[None] + information[candidates]
-        eigenvalues = np.linalg.eigvalsh(trial)
-        if eigenvalues[0, 0] > 1e-9 * eigenvalues[0, -1] or len(chosen) * 4 >= size * 2:
-            score = eigenvalues[:, -1] / np.maximum(eigenvalues[:, 0], 1e-300)
+        available_indices = np.flatnonzero(available)
+        full_rank = np.linalg.eigvalsh(total)
+        if full_rank[0] > 1e-9 * full_rank[-1] or len(chosen) * rows >= size * 2:
+            candidates = shortlisted(available_indices, total)
+            eigenvalues = np.linalg.eigvalsh(total[None] + information(candidates))
+            best = candidates[
+                int(np.argmin(eigenvalues[:, -1] / np.maximum(eigenvalues[:, 0], 1e-300)))
+            ]
         else:
-            score = -np.sum(np.log(eigenvalues + ridge[0, 0]), axis=1)
-        best = candidates[int(np.argmin(score))]
+            gain = log_det_gain(available_indices, total + ridge * np.eye(size))
+            best = available_indices[int(np.argmax(gain))]
         chosen.append(best)
         available[best] = False
-        total += information[best]
+        total += information([best])[0]
 
     def condition(matrix):
         eigenvalues = np.linalg.eigvalsh(matrix)
@@ -111,16 +150,16 @@ def select_postures(
         improved = False
         for position in range(count):
             outgoing = chosen[position]
-            base = total - information[outgoing]
+            base = total - information([outgoing])[0]
             candidates = shortlisted(np.flatnonzero(available), base)
-            eigenvalues = np.linalg.eigvalsh(base[None] + information[candidates])
+            eigenvalues = np.linalg.eigvalsh(base[None] + information(candidates))
             conditions = np.sqrt(eigenvalues[:, -1] / np.maximum(eigenvalues[:, 0], 1e-300))
             best = int(np.argmin(conditions))
             if conditions[best] < current * (1.0 - 1e-9):
                 incoming = candidates[best]
                 available[incoming], available[outgoing] = False, True
                 chosen[position] = incoming
-                total = base + information[incoming]
+                total = base + information([incoming])[0]
                 current = conditions[best]
                 improved = True
         if not improved:

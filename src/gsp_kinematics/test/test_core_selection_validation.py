@@ -96,3 +96,35 @@ def test_validation_commands_with_the_controller_and_moves_the_true_platform(
     assert errors['position_mm_mean'] == pytest.approx(position_mm.mean())
     assert errors['orientation_deg_max'] == pytest.approx(orientation_deg.max())
     assert 0.5 < errors['position_mm_mean'] < 50.0 and 0.01 < errors['orientation_deg_mean'] < 5.0
+
+
+def test_posture_factors_give_the_schur_complement(nominal_sets, postures):
+    from gsp_kinematics._lm import schur_information
+    from gsp_kinematics.device import device_readings_jacobians
+    from gsp_kinematics.identification import Sigmas
+    from gsp_kinematics.kinematics import expand_leg_parameters, inverse_kinematics_jacobians
+    from gsp_kinematics.selection import posture_factors
+
+    nominal, sigmas, poses = nominal_sets[2], Sigmas(), postures[:30]
+    factors = posture_factors(nominal, poses, sigmas)
+    assert factors.shape == (30, 4, 44)
+    # The pose eliminated by the normal equations' Schur complement, built independently.
+    _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(nominal, poses)
+    _, d_h_d_pose, d_h_d_device = device_readings_jacobians(nominal, poses)
+    jac_u = np.zeros((30, 10, 44))
+    jac_u[:, :6, :42] = expand_leg_parameters(d_q_d_leg) / sigmas.leg_lengths
+    jac_u[:, 6:, 42:] = d_h_d_device / sigmas.readings()[None, :, None]
+    jac_pose = np.concatenate(
+        [d_q_d_pose / sigmas.leg_lengths, d_h_d_pose / sigmas.readings()[None, :, None]], axis=1
+    )
+    expected = schur_information(jac_pose, jac_u, per_posture=True)
+    information = posture_information(nominal, poses, sigmas)
+    assert np.allclose(information, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+
+
+def test_selection_is_not_worse_than_scoring_every_candidate(nominal_sets):
+    nominal = nominal_sets[1]
+    pool = sample_valid_postures(nominal, 120, np.random.default_rng(11))
+    _, shortlisted = select_postures(nominal, pool, 30)
+    _, exhaustive = select_postures(nominal, pool, 30, shortlist=None)
+    assert shortlisted <= 1.1 * exhaustive
