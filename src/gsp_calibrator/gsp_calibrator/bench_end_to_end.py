@@ -43,6 +43,7 @@ SYNC_POSTURES = 15
 QUICK_SYNC_POSTURES = 12  #: 44 parameters need >= 11 postures (4 readings each)
 SAMPLES_PER_POSTURE = 10
 DEMO_TIMEOUT_S = 90.0  #: longest wall time of one demo run before it is stopped
+SETTLE_TIME_S = 0.02  #: platform_sim's settle time in every demo run (the demo's default)
 
 
 def demo_environment(environ=None, rng=None, used=()):
@@ -67,6 +68,7 @@ def demo_command(
     validation_postures=1,
     seed=0,
     timeout=DEMO_TIMEOUT_S,
+    settle_time=SETTLE_TIME_S,
 ):
     """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.demo``)."""
     executable = shutil.which('gsp_demo')
@@ -86,6 +88,8 @@ def demo_command(
         str(int(seed)),
         '--timeout',
         repr(float(timeout)),
+        '--settle-time',
+        repr(float(settle_time)),
     ]
 
 
@@ -162,17 +166,18 @@ def find_run_directory(output_root):
 
 def read_run_directory(directory):
     """``{'summary', 'samples', 'result'}`` of a demo run directory (None where missing):
-    ``summary.json`` and ``result.json`` as dicts, ``samples.csv`` as ``[(posture, n_samples)]``."""
+    ``summary.json`` and ``result.json`` as dicts, ``samples.csv`` as ``[(posture, n_samples)]``
+    and ``sample_stamps`` ``[(posture, mean stamp in s)]``."""
     directory = Path(directory)
-    read = {'summary': None, 'samples': None, 'result': None}
+    read = {'summary': None, 'samples': None, 'result': None, 'sample_stamps': None}
     for key, name in (('summary', SUMMARY_FILE), ('result', RESULT_JSON)):
         with contextlib.suppress(OSError, ValueError):
             read[key] = json.loads((directory / name).read_text())
     with contextlib.suppress(OSError, ValueError, KeyError):
         with open(directory / SAMPLES_FILE, newline='') as stream:
-            read['samples'] = [
-                (int(row['posture']), int(row['n_samples'])) for row in csv.DictReader(stream)
-            ]
+            rows = list(csv.DictReader(stream))
+        read['samples'] = [(int(row['posture']), int(row['n_samples'])) for row in rows]
+        read['sample_stamps'] = [(int(row['posture']), float(row['stamp'])) for row in rows]
     return read
 
 
@@ -184,6 +189,35 @@ def collection_record(run):
         if isinstance(record, dict):
             return record
     return None
+
+
+def collection_overhead(
+    sample_stamps, settle_s, samples_per_posture=SAMPLES_PER_POSTURE, sensor_rate_hz=200.0
+):
+    """The collection's time per posture against its physical minimum, from ``samples.csv``.
+
+    Each row's stamp is the mean stamp of its samples, so consecutive rows are one posture cycle
+    apart (command, motion, settle, sampling, bookkeeping); the cycle is the slope of the stamps
+    over the posture numbers (postures the platform rejected leave gaps, not errors). The minimum
+    is ``settle + samples / rate``. ``overhead_ratio`` = cycle / minimum: the collection phase
+    over ``postures x (settle + samples / rate)``. None with fewer than two rows.
+    """
+    if not sample_stamps or len(sample_stamps) < 2:
+        return None
+    postures, stamps = (list(column) for column in zip(*sorted(sample_stamps), strict=True))
+    span = postures[-1] - postures[0]
+    if span <= 0:
+        return None
+    cycle_s = (stamps[-1] - stamps[0]) / span
+    minimum_s = settle_s + samples_per_posture / sensor_rate_hz
+    return {
+        'posture_cycle_s': cycle_s,
+        'physical_minimum_per_posture_s': minimum_s,
+        'collection_s': cycle_s * len(postures),
+        'physical_minimum_s': minimum_s * len(postures),
+        'overhead_ratio': cycle_s / minimum_s,
+        'settle_s': settle_s,
+    }
 
 
 def sync_check(run, postures, samples_per_posture=SAMPLES_PER_POSTURE):
@@ -322,6 +356,12 @@ def run(quick=False, log=None):
         'demo_total_s': summary.get('total_s'),
         'max_param_error_mm': summary.get('max_param_error_mm'),
     }
+    overhead = collection_overhead(
+        calibration.get('sample_stamps'), SETTLE_TIME_S, SAMPLES_PER_POSTURE, 200.0
+    )
+    if overhead is not None:
+        section['overhead_ratio'] = overhead['overhead_ratio']
+        section['collection'] = overhead
     after = (summary.get('validation') or {}).get('after') or {}
     if after.get('position_mm_mean') is not None:
         log('gsp_bench: end_to_end: the core alone on the same noise ...')

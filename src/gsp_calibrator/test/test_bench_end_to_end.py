@@ -3,6 +3,8 @@
 import json
 import random
 
+import pytest
+
 from gsp_calibrator import bench_end_to_end as bench
 
 PLATFORM_REJECTION = {
@@ -54,13 +56,28 @@ def test_the_run_directory_is_found_under_the_output_root_and_read(tmp_path):
         'summary': None,
         'samples': None,
         'result': None,
+        'sample_stamps': None,
     }
     (run_directory / 'samples.csv').write_text('posture,n_samples,stamp\n1,10,0.5\n3,9,0.7\n')
     (run_directory / 'summary.json').write_text(json.dumps({'calibration_s': 12.5}))
     (run_directory / 'result.json').write_text(json.dumps({'collection': _collection()}))
     read = bench.read_run_directory(run_directory)
     assert read['samples'] == [(1, 10), (3, 9)] and read['summary'] == {'calibration_s': 12.5}
+    assert read['sample_stamps'] == [(1, 0.5), (3, 0.7)]
     assert read['result']['collection'] == _collection()
+
+
+def test_collection_overhead_from_the_sample_stamps():
+    # Postures 1..5 (4 rejected by the platform) one 0.0875 s cycle apart; minimum 0.02 + 10/200.
+    stamps = [(p, 100.0 + 0.0875 * (p - 1)) for p in (1, 2, 3, 5)]
+    overhead = bench.collection_overhead(stamps, 0.02, 10, 200.0)
+    assert overhead['posture_cycle_s'] == pytest.approx(0.0875)
+    assert overhead['overhead_ratio'] == pytest.approx(1.25)
+    assert overhead['physical_minimum_s'] == pytest.approx(4 * 0.07)
+    assert bench.collection_overhead([(1, 3.0)], 0.02) is None
+    assert bench.collection_overhead(None, 0.02) is None
+    argv = bench.demo_command('/tmp/x', 12, 400.0)
+    assert argv[argv.index('--settle-time') + 1] == repr(bench.SETTLE_TIME_S)
 
 
 def test_sync_check_passes_with_full_samples_and_platform_rejections():
