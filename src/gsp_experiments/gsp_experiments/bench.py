@@ -6,6 +6,8 @@
   Jacobian on the noise-weighted FK-based residuals (FK of the measured legs under the parameters,
   predicted device readings) from the same start; ``speedup`` = scipy median / ours.
 * ``fk``: batched forward-kinematics throughput (postures per second).
+* ``identification.scaling``, ``selection`` and ``prediction``: see :mod:`.bench_scale`
+  (``--skip-scale`` leaves them out).
 
 Other packages add sections by calling the benchmark: ``main(extra_sections={key: run})``, each
 ``run(quick=bool) -> dict`` giving the ``bench.json`` section ``key`` (``gsp_bench`` itself is
@@ -205,6 +207,21 @@ def bench_fk(count=10000, repeats=5, seed=1):
     }
 
 
+def scale_sections(identification, quick=False, log=print):
+    """Adds ``scaling`` to the ``identification`` section; returns ``selection`` and
+    ``prediction`` (:mod:`.bench_scale`)."""
+    from . import bench_scale
+
+    sizes = bench_scale.SCALING_POSTURES[:2] if quick else bench_scale.SCALING_POSTURES
+    log(f'gsp_bench: identification scaling over {sizes} postures ...')
+    identification['scaling'] = bench_scale.identification_scaling(sizes)
+    log('gsp_bench: posture selection from pools of 600 and 6000 ...')
+    selection = bench_scale.bench_selection(repeats=1 if quick else 3)
+    log('gsp_bench: predicted against measured accuracy ...')
+    prediction = bench_scale.bench_prediction(seeds=4 if quick else 20)
+    return {'selection': selection, 'prediction': prediction}
+
+
 def run_extra_sections(extra_sections, skip=(), quick=False, log=print):
     """``{key: run(quick=quick)}`` of ``extra_sections`` not in ``skip``; a failure is recorded
     as ``{'error': ...}`` (another package's benchmark must not lose the core's sections)."""
@@ -268,6 +285,11 @@ def main(argv=None, extra_sections=None):
     parser.add_argument(
         '--noise-free', action='store_true', help='noise-free data instead of Table 3 level 1'
     )
+    parser.add_argument(
+        '--skip-scale',
+        action='store_true',
+        help='skip identification.scaling, selection and prediction',
+    )
     for key in extra_sections:
         parser.add_argument(
             skip_option(key),
@@ -294,6 +316,8 @@ def main(argv=None, extra_sections=None):
     sections = {'identification': bench_identification(problem, repeats, scipy_repeats)}
     log('gsp_bench: timing batched FK ...')
     sections['fk'] = bench_fk(fk_count, repeats=5)
+    if not args.skip_scale:
+        sections.update(scale_sections(sections['identification'], args.quick, log))
     skip = {key for key in extra_sections if getattr(args, f'skip_{key}')}
     sections.update(run_extra_sections(extra_sections, skip=skip, quick=args.quick, log=log))
     sections['identification']['blas_threads'] = os.environ.get('OPENBLAS_NUM_THREADS', 'default')

@@ -135,6 +135,9 @@ def test_bench_main_runs_extra_sections_unless_skipped(tmp_path, monkeypatch, ca
     monkeypatch.setattr(bench, 'build_problem', lambda **noise: noise)
     monkeypatch.setattr(bench, 'bench_identification', lambda problem, *repeats: {'ms': 1.0})
     monkeypatch.setattr(bench, 'bench_fk', lambda count, repeats: {'postures': count})
+    monkeypatch.setattr(
+        bench, 'scale_sections', lambda identification, quick, log: {'selection': {'quick': quick}}
+    )
     calls = []
 
     def section(quick):
@@ -146,9 +149,31 @@ def test_bench_main_runs_extra_sections_unless_skipped(tmp_path, monkeypatch, ca
     assert bench.main(argv, extra_sections={'end_to_end': section}) == 0
     document = json.loads(output.read_text())
     assert document['end_to_end'] == {'value': 2.5} and calls == [True]
-    assert document['fk'] == {'postures': 2000}
+    assert document['fk'] == {'postures': 2000} and document['selection'] == {'quick': True}
     assert json.loads(capsys.readouterr().out) == document
     bench.main([*argv, '--skip-end-to-end'], extra_sections={'end_to_end': section})
     assert 'end_to_end' not in json.loads(output.read_text()) and calls == [True]
     with pytest.raises(SystemExit):  # no section, no option
         bench.main([*argv, '--skip-end-to-end'])
+
+
+def test_scaling_fits_the_exponent_and_skips_what_exceeds_the_budget():
+    from gsp_experiments import bench_scale
+
+    section = bench_scale.identification_scaling((16, 32, 64000), repeats=1, budget_s=1e-3)
+    assert section['postures'] == [16, 32] and len(section['ms']) == 2
+    assert section['exponent'] == pytest.approx(
+        np.log(section['ms'][1] / section['ms'][0]) / np.log(2.0)
+    )
+    assert section['skipped'][0]['postures'] == 64000 and section['skipped'][0]['predicted_s'] > 0
+
+
+def test_selection_and_prediction_sections():
+    from gsp_experiments import bench_scale
+
+    selection = bench_scale.bench_selection(pools=(90,), count=30, repeats=1)
+    assert selection['pool_90_s'] > 0 and 1.0 < selection['condition_90'] < np.inf
+    prediction = bench_scale.bench_prediction(seeds=2, postures=30, validation_postures=30)
+    assert prediction['seeds'] == 2
+    assert 0.5 < prediction['position_ratio'] < 2.0
+    assert 0.5 < prediction['orientation_ratio'] < 2.0
