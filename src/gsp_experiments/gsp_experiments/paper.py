@@ -19,6 +19,11 @@
   orientation error over 50 random valid validation postures (:func:`~gsp_kinematics.validation.validate`
   with the calibrated geometry as the controller's), beside Table 3.
 
+Each noise row carries the Cramér-Rao prediction beside the Monte-Carlo figure (the mean error
+the identification's covariance predicts at the validation postures). ``paper_matched``
+(:mod:`.paper_matched`, ``--skip-matched``): the search for a platform that reproduces the paper's
+initial error, and Table 3 rerun on it.
+
 Writes ``results/paper.json`` (its keys: docs/results.md) and one PNG per nominal set.
 """
 
@@ -39,6 +44,7 @@ from gsp_kinematics.fileio import write_json
 from gsp_kinematics.geometry import PARAMETER_NAMES, parameter_errors
 from gsp_kinematics.identification import DEFAULT_FORMULATION, FORMULATIONS, Sigmas, identify
 from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
 from gsp_kinematics.validation import validate
 
@@ -166,8 +172,11 @@ def _noise_task(args):
             nominal, leg_lengths, readings, sigmas, formulation=formulation, pose_guesses=poses
         )
         accuracy = validate(exact, result.geometry, validation_poses)
+        predicted = cramer_rao_errors(result, validation_poses)
         rows.append(
             {
+                'cramer_rao_position_mm': predicted[0],
+                'cramer_rao_orientation_deg': predicted[1],
                 'level': level_index,
                 'seed': seed,
                 'formulation': formulation,
@@ -188,6 +197,16 @@ def _noise_task(args):
     return rows
 
 
+def cramer_rao_errors(result, poses):
+    """Mean predicted (mm, deg) error at ``poses`` from the identification's covariance (NaN
+    when it did not converge): the Cramér-Rao prediction beside a Monte-Carlo figure."""
+    covariance = np.asarray(result.covariance, dtype=float)
+    if not result.converged or not np.all(np.isfinite(covariance)):
+        return float('nan'), float('nan')
+    position, orientation = predicted_errors(result.geometry, covariance, poses, result.free)
+    return float(np.mean(position)), float(np.mean(orientation))
+
+
 def _map(function, tasks, jobs):
     if jobs <= 1 or len(tasks) <= 1:
         return [function(task) for task in tasks]
@@ -198,15 +217,19 @@ def _map(function, tasks, jobs):
         return list(executor.map(function, tasks, chunksize=max(1, len(tasks) // (4 * jobs))))
 
 
-def run(config=PaperConfig(), tables=None, log=print):
-    """Run the reproduction; returns the JSON-ready document (see the module docstring)."""
+def run(config=PaperConfig(), tables=None, log=print, exact=None):
+    """Run the reproduction; returns the JSON-ready document (see the module docstring).
+
+    ``exact``: the real platform (default :func:`drawing_geometry`); its nominal sets are drawn
+    from it with Table 1's statistics (see :mod:`.paper_matched`)."""
     if tables is None:
         tables, tables_source = load_tables()
     else:
         tables_source = 'given'
     paper_initial, paper_levels = table3(tables)
     started = time.perf_counter()
-    exact = drawing_geometry()
+    exact_description = 'nominal_sets.drawing_geometry()' if exact is None else 'given'
+    exact = drawing_geometry() if exact is None else exact
     validation_poses = sample_valid_postures(
         exact, config.validation_postures, np.random.default_rng([config.seed, 50])
     )
@@ -298,6 +321,12 @@ def run(config=PaperConfig(), tables=None, log=print):
                     'orientation_ratio_to_paper': float(
                         orientation.mean() / level['orientation_deg']
                     ),
+                    'cramer_rao_position_mm': float(
+                        np.mean([row['cramer_rao_position_mm'] for row in mine])
+                    ),
+                    'cramer_rao_orientation_deg': float(
+                        np.mean([row['cramer_rao_orientation_deg'] for row in mine])
+                    ),
                     'position_mm_std_over_seeds': float(position.std()),
                     'orientation_deg_std_over_seeds': float(orientation.std()),
                     'position_mm_max': float(max(row['position_mm_max'] for row in mine)),
@@ -335,7 +364,7 @@ def run(config=PaperConfig(), tables=None, log=print):
                 key: (list(value) if isinstance(value, tuple) else value)
                 for key, value in dataclasses.asdict(config).items()
             },
-            'exact_geometry': 'nominal_sets.drawing_geometry()',
+            'exact_geometry': exact_description,
             'validation': 'validate(true=exact, controller=calibrated) over random valid postures',
             'noise_model': 'N(0, angle level) on alpha, beta, phi; N(0, length level) on the six legs and d_m',
         },
@@ -411,7 +440,7 @@ def format_report(document):
         f'  initial (nominal set {initial["nominal_set"]}): {initial["position_mm"]:.4f} / {initial["orientation_deg"]:.4f}'
         f'   paper: {initial["paper_position_mm"]:.4f} / {initial["paper_orientation_deg"]:.4f}'
     )
-    header = f'  {"noise deg":>9} {"noise mm":>8} {"formulation":>11} {"seeds":>5} {"position":>9} {"paper":>8} {"ratio":>6}   {"orient.":>8} {"paper":>8} {"ratio":>6}'
+    header = f'  {"noise deg":>9} {"noise mm":>8} {"formulation":>11} {"seeds":>5} {"position":>9} {"CR":>9} {"paper":>8} {"ratio":>6}   {"orient.":>8} {"CR":>8} {"paper":>8} {"ratio":>6}'
     if initial.get('unreachable_validation_postures'):
         lines.append(
             f'  ({initial["unreachable_validation_postures"]} of {initial["validation_postures"]} validation postures '
@@ -421,8 +450,8 @@ def format_report(document):
     for row in document['noise']:
         lines.append(
             f'  {row["angle_noise_deg"]:>9.3f} {row["length_noise_mm"]:>8.3f} {row["formulation"]:>11} {row["seeds"]:>5} '
-            f'{row["position_mm"]:>9.5f} {row["paper_position_mm"]:>8.4f} {row["position_ratio_to_paper"]:>6.2f}   '
-            f'{row["orientation_deg"]:>8.5f} {row["paper_orientation_deg"]:>8.4f} {row["orientation_ratio_to_paper"]:>6.2f}'
+            f'{row["position_mm"]:>9.5f} {row["cramer_rao_position_mm"]:>9.5f} {row["paper_position_mm"]:>8.4f} {row["position_ratio_to_paper"]:>6.2f}   '
+            f'{row["orientation_deg"]:>8.5f} {row["cramer_rao_orientation_deg"]:>8.5f} {row["paper_orientation_deg"]:>8.4f} {row["orientation_ratio_to_paper"]:>6.2f}'
         )
     return '\n'.join(lines)
 
@@ -452,6 +481,17 @@ def main(argv=None):
         '--pool', type=int, default=None, help='random valid postures to select from (default 600)'
     )
     parser.add_argument('--seed', type=int, default=0, help='base random seed')
+    parser.add_argument(
+        '--skip-matched',
+        action='store_true',
+        help='skip the search for a platform matching the paper (paper_matched)',
+    )
+    parser.add_argument(
+        '--matched-evaluations',
+        type=int,
+        default=120,
+        help='paper_matched: evaluations per search start (default 120)',
+    )
     parser.add_argument(
         '--sets', default='1,2,3', help='nominal sets of the noise-free study (default 1,2,3)'
     )
@@ -493,6 +533,16 @@ def main(argv=None):
     print(f'gsp_paper: tables from {source}', flush=True)
     document = run(config, tables=tables, log=lambda text: print(text, flush=True))
     document['tables_source'] = source
+    if not args.skip_matched:
+        from . import paper_matched
+
+        document['paper_matched'] = paper_matched.run(
+            config,
+            tables,
+            table3(tables)[0],
+            log=lambda text: print(text, flush=True),
+            max_evaluations=max(1, args.matched_evaluations),
+        )
     if not args.no_plots:
         plot_dir = Path(args.plot_dir)
         plot_dir.mkdir(parents=True, exist_ok=True)

@@ -62,6 +62,8 @@ def test_paper_main_writes_the_contract(tmp_path, capsys):
             str(output),
             '--plot-dir',
             str(tmp_path),
+            '--matched-evaluations',
+            '2',
         ]
     )
     assert code == 0
@@ -86,6 +88,19 @@ def test_paper_main_writes_the_contract(tmp_path, capsys):
         } <= set(entry)
         assert entry['formulation'] in ('paper', 'implicit') and entry['seeds'] == 1
         assert 0.0 < entry['position_mm'] < document['initial']['position_mm']
+        # The Cramér-Rao prediction beside the Monte-Carlo figure.
+        assert 0.0 < entry['cramer_rao_position_mm'] < document['initial']['position_mm']
+        assert entry['cramer_rao_orientation_deg'] > 0.0
+    matched = document['paper_matched']
+    assert matched['target'] == {'position_mm': 1.344, 'orientation_deg': 0.345, 'tolerance': 0.1}
+    assert matched['search']['evaluations'] >= 4 and isinstance(matched['matched'], bool)
+    assert (matched['why_not'] is None) == matched['matched']
+    candidate = matched['candidate']
+    assert set(candidate['initial_error']) == {'set_1', 'set_2', 'set_3'}
+    assert candidate['device_length_m'] == pytest.approx(0.85)
+    assert matched['default_platform']['initial_error']['set_1']['position_mm'] > 1.0
+    assert len(matched['candidate_table3']['noise']) == 8
+    assert all('cramer_rao_position_mm' in row for row in matched['candidate_table3']['noise'])
     assert (tmp_path / 'paper_fig6_set1_parameter_errors.png').stat().st_size > 10000
     assert 'Table 3' in capsys.readouterr().out
 
