@@ -30,6 +30,7 @@ from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.selection import posture_information
 
 from .calibration import CalibrationError, averaged_sigmas, choose_postures, selection_formulation
+from .report import sigmas_record
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
@@ -329,12 +330,7 @@ def main(argv=None):
         options = options_from(args)
         inputs = {
             'geometry': str(args.geometry),
-            'sigmas': {
-                'leg_lengths_m': options['sigmas'].leg_lengths,
-                'inclinometer_rad': options['sigmas'].inclinometer,
-                'encoder_rad': options['sigmas'].encoder,
-                'lvdt_m': options['sigmas'].lvdt,
-            },
+            'sigmas': sigmas_record(options['sigmas']),
             'workspace': {
                 'xy_range_m': options['workspace'].xy_range,
                 'z_min_m': options['workspace'].z_min,

@@ -331,15 +331,20 @@ def result_data(
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     if sigmas is not None:
-        data['sigmas'] = {
-            'leg_lengths_m': sigmas.leg_lengths,
-            'inclinometer_rad': sigmas.inclinometer,
-            'encoder_rad': sigmas.encoder,
-            'lvdt_m': sigmas.lvdt,
-        }
+        data['sigmas'] = sigmas_record(sigmas)
     if extra:
         data.update(extra)
     return json_safe(data)
+
+
+def sigmas_record(sigmas):
+    """The JSON record of a ``Sigmas`` (m, rad), as ``result.json`` and ``gsp_plan`` write it."""
+    return {
+        'leg_lengths_m': sigmas.leg_lengths,
+        'inclinometer_rad': sigmas.inclinometer,
+        'encoder_rad': sigmas.encoder,
+        'lvdt_m': sigmas.lvdt,
+    }
 
 
 def outcome_arguments(outcome, nominal, options, **extra):
