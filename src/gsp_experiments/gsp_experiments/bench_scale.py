@@ -55,10 +55,10 @@ def _fit_exponent(postures, milliseconds):
 
 
 def identification_scaling(sizes=SCALING_POSTURES, repeats=3, budget_s=SCALING_BUDGET_S):
-    """``{postures, ms, exponent, iterations, skipped, budget_s}`` (median of ``repeats``, one
-    run for sizes above 600)."""
+    """``{postures, ms, exponent, cpu_ms, cpu_exponent, iterations, skipped, budget_s}`` (median
+    of ``repeats``, one run for sizes above 600; the prediction that skips a size uses wall time)."""
     sigmas = Sigmas.from_levels(0.001, 0.001)
-    done, milliseconds, iterations, skipped = [], [], [], []
+    done, milliseconds, cpu_milliseconds, iterations, skipped = [], [], [], [], []
     for size in sizes:
         if len(done) >= 2:
             exponent = _fit_exponent(done, milliseconds)
@@ -67,18 +67,22 @@ def identification_scaling(sizes=SCALING_POSTURES, repeats=3, budget_s=SCALING_B
                 skipped.append({'postures': size, 'predicted_s': predicted_s})
                 continue
         nominal, leg_lengths, readings, poses = _scaling_problem(size)
-        times = []
+        times, cpu_times = [], []
         for _ in range(repeats if size <= 600 else 1):
-            started = time.perf_counter()
+            started, started_cpu = time.perf_counter(), time.process_time()
             result = identify(nominal, leg_lengths, readings, sigmas, pose_guesses=poses)
             times.append(1000.0 * (time.perf_counter() - started))
+            cpu_times.append(1000.0 * (time.process_time() - started_cpu))
         done.append(size)
         milliseconds.append(statistics.median(times))
+        cpu_milliseconds.append(statistics.median(cpu_times))
         iterations.append(int(result.iterations))
     return {
         'postures': done,
         'ms': milliseconds,
         'exponent': _fit_exponent(done, milliseconds),
+        'cpu_ms': cpu_milliseconds,
+        'cpu_exponent': _fit_exponent(done, cpu_milliseconds),
         'iterations': iterations,
         'skipped': skipped,
         'budget_s': budget_s,
@@ -86,18 +90,22 @@ def identification_scaling(sizes=SCALING_POSTURES, repeats=3, budget_s=SCALING_B
 
 
 def bench_selection(pools=(600, 6000), count=60, repeats=3, seed=0):
-    """``{pool_600_s, pool_6000_s, condition_600, condition_6000, ...}``: median wall time of
+    """``{pool_600_s, pool_6000_s, pool_600_cpu_s, ..., condition_600, ...}``: median wall (and
+    process CPU) time of
     :func:`select_postures` (the information factors included; the pool's sampling not)."""
     nominal = default_geometry('nominal')
     section = {'postures': count, 'repeats': repeats}
     for size in pools:
         pool = sample_valid_postures(nominal, size, np.random.default_rng([seed, size]))
-        times = []
+        times, cpu_times = [], []
         for _ in range(repeats):
-            started = time.perf_counter()
+            started, started_cpu = time.perf_counter(), time.process_time()
             _, condition = select_postures(nominal, pool, count)
             times.append(time.perf_counter() - started)
+            cpu_times.append(time.process_time() - started_cpu)
         section[f'pool_{size}_s'] = statistics.median(times)
+        # CPU time: steadier than wall time on a machine shared with other jobs.
+        section[f'pool_{size}_cpu_s'] = statistics.median(cpu_times)
         section[f'condition_{size}'] = condition
     return section
 
