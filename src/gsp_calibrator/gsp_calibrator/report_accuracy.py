@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.identifiability import analyse_identifiability
 from gsp_kinematics.kinematics import Workspace
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy, predicted_errors
 
@@ -25,9 +26,13 @@ def _validation_poses(validation):
 
 def prediction_for(result, validation_after=None, workspace=Workspace()):
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
-    covariance (not converged, or non-finite)."""
+    covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
+    the unidentifiable directions)."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
+        return None
+    analysis = analyse_identifiability(result.information, result.free)
+    if analysis['rank'] < analysis['parameters']:
         return None
     prediction = predict_accuracy(result.geometry, covariance, result.free, workspace)
     poses = _validation_poses(validation_after)

@@ -185,3 +185,17 @@ def test_residuals_by_sensor_recovers_si_units(calibrated):
     for sensor, values in by_sensor.items():
         assert math.sqrt(np.mean(values**2)) == pytest.approx(result.residual_rms[sensor])
     assert by_sensor['leg_lengths'].size == 6 * len(result.poses)
+
+
+def test_no_prediction_without_a_full_rank_covariance(calibrated):
+    import dataclasses
+
+    from gsp_calibrator import report_accuracy
+
+    result = calibrated[0].result
+    assert report_accuracy.prediction_for(result) is not None
+    singular = result.information.copy()
+    singular[:, 0] = singular[0, :] = 0.0  # A1x carries no information
+    assert report_accuracy.prediction_for(dataclasses.replace(result, information=singular)) is None
+    unconverged = dataclasses.replace(result, status=0)
+    assert report_accuracy.result_json_entry(report_accuracy.prediction_for(unconverged)) is None
