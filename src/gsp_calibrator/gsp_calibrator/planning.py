@@ -16,6 +16,7 @@ unchanged) and writes a table, a plot and the sweep in JSON.
 """
 
 import argparse
+import dataclasses
 import math
 import sys
 
@@ -68,28 +69,29 @@ def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formula
     return plan
 
 
-def select(
-    nominal,
-    postures,
-    samples_per_posture,
-    sigmas=Sigmas(),
-    free=None,
-    formulation='implicit',
-    workspace=Workspace(),
-    pool_size=600,
-    seed=0,
-    **_timing,
-):
+@dataclasses.dataclass(frozen=True)
+class Design:
+    """What the calibrator's selection and model depend on, besides the counts."""
+
+    sigmas: Sigmas = Sigmas()  #: per-sample sensor noise (m, rad)
+    free: tuple = None  #: free parameter names (None: all)
+    formulation: str = 'implicit'
+    workspace: Workspace = Workspace()
+    pool_size: int = 600
+    seed: int = 0
+
+
+def select(nominal, postures, samples_per_posture, design=Design()):
     """The calibrator's posture selection for these settings (``choose_postures``)."""
     return choose_postures(
         nominal,
         postures,
-        pool_size,
-        seed,
-        averaged_sigmas(sigmas, [samples_per_posture]),
-        free,
-        formulation,
-        workspace,
+        design.pool_size,
+        design.seed,
+        averaged_sigmas(design.sigmas, [samples_per_posture]),
+        design.free,
+        design.formulation,
+        design.workspace,
     )
 
 
@@ -97,12 +99,7 @@ def plan(
     nominal,
     postures=60,
     samples_per_posture=10,
-    sigmas=Sigmas(),
-    free=None,
-    formulation='implicit',
-    workspace=Workspace(),
-    pool_size=600,
-    seed=0,
+    design=Design(),
     settle_s=0.02,
     sensor_rate_hz=200.0,
     selection=None,
@@ -114,24 +111,20 @@ def plan(
     if not (sensor_rate_hz > 0 and settle_s >= 0):
         raise CalibrationError('the sensor rate must be > 0 Hz and the settle time >= 0 s')
     if selection is None:
-        selection = select(
-            nominal,
-            postures,
-            samples_per_posture,
-            sigmas=sigmas,
-            free=free,
-            formulation=formulation,
-            workspace=workspace,
-            pool_size=pool_size,
-            seed=seed,
-        )
-    design = design_prediction(
-        nominal, selection.poses, sigmas, samples_per_posture, free, formulation, workspace
+        selection = select(nominal, postures, samples_per_posture, design)
+    prediction = design_prediction(
+        nominal,
+        selection.poses,
+        design.sigmas,
+        samples_per_posture,
+        design.free,
+        design.formulation,
+        design.workspace,
     )
     return {
         'postures': int(postures),
         'samples_per_posture': int(samples_per_posture),
-        **design,
+        **prediction,
         'calibration_s': calibration_seconds(
             postures, samples_per_posture, settle_s, sensor_rate_hz
         ),
@@ -145,14 +138,15 @@ def plan(
     }
 
 
-def sweep(nominal, posture_counts, samples, **options):
-    """Plans over ``posture_counts`` x ``samples`` (without the poses): ``{'rows': [...]}``."""
+def sweep(nominal, posture_counts, samples, design=Design(), **timing):
+    """Plans over ``posture_counts`` x ``samples`` (without the poses): ``{'rows': [...]}``;
+    ``timing``: ``settle_s`` and ``sensor_rate_hz`` of :func:`plan`."""
     rows = []
     for count in posture_counts:
         # Averaging scales every sigma alike: the selection does not depend on the samples.
-        selection = select(nominal, count, samples[0], **options)
+        selection = select(nominal, count, samples[0], design)
         for samples_per_posture in samples:
-            entry = plan(nominal, count, samples_per_posture, selection=selection, **options)
+            entry = plan(nominal, count, samples_per_posture, design, selection=selection, **timing)
             entry.pop('selection')
             rows.append(entry)
     return {
@@ -280,7 +274,8 @@ def parse_arguments(argv=None):
     return args
 
 
-def options_from(args):
+def design_from(args):
+    """The :class:`Design` of the command line."""
     sigmas = Sigmas(
         leg_lengths=args.sigma_leg_um * 1e-6,
         inclinometer=math.radians(args.sigma_inclinometer_deg),
@@ -293,15 +288,13 @@ def options_from(args):
         z_max=args.z_max_mm / 1e3,
         rotation_range=math.radians(args.rotation_range_deg),
     )
-    return dict(
+    return Design(
         sigmas=sigmas,
-        free=args.free,
+        free=None if args.free is None else tuple(args.free),
         formulation=args.formulation,
         workspace=workspace,
         pool_size=args.pool_size,
         seed=args.seed,
-        settle_s=args.settle_s,
-        sensor_rate_hz=args.sensor_rate_hz,
     )
 
 
@@ -327,15 +320,16 @@ def main(argv=None):
     args = parse_arguments(argv)
     try:
         nominal = load_geometry(args.geometry)
-        options = options_from(args)
+        design = design_from(args)
+        timing = {'settle_s': args.settle_s, 'sensor_rate_hz': args.sensor_rate_hz}
         inputs = {
             'geometry': str(args.geometry),
-            'sigmas': sigmas_record(options['sigmas']),
+            'sigmas': sigmas_record(design.sigmas),
             'workspace': {
-                'xy_range_m': options['workspace'].xy_range,
-                'z_min_m': options['workspace'].z_min,
-                'z_max_m': options['workspace'].z_max,
-                'rotation_range_rad': options['workspace'].rotation_range,
+                'xy_range_m': design.workspace.xy_range,
+                'z_min_m': design.workspace.z_min,
+                'z_max_m': design.workspace.z_max,
+                'rotation_range_rad': design.workspace.rotation_range,
             },
             'settle_s': args.settle_s,
             'sensor_rate_hz': args.sensor_rate_hz,
@@ -345,7 +339,7 @@ def main(argv=None):
             'free': args.free,
         }
         if args.sweep:
-            result = sweep(nominal, args.sweep_postures, args.sweep_samples, **options)
+            result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
             document = {'inputs': inputs, 'sweep': result}
             print(sweep_table(result))
             if args.target_position_um is not None or args.target_orientation_deg is not None:
@@ -372,7 +366,7 @@ def main(argv=None):
         else:
             document = {
                 'inputs': inputs,
-                **plan(nominal, args.postures, args.samples_per_posture, **options),
+                **plan(nominal, args.postures, args.samples_per_posture, design, **timing),
             }
             print(_summary_text(document))
     except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:

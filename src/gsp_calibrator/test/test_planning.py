@@ -39,8 +39,9 @@ def test_plan_json(tmp_path, capsys):
 
 def test_more_samples_predict_better_accuracy():
     nominal = default_geometry('nominal')
-    few = planning.plan(nominal, 30, 1, pool_size=120)
-    many = planning.plan(nominal, 30, 16, pool_size=120)
+    design = planning.Design(pool_size=120)
+    few = planning.plan(nominal, 30, 1, design)
+    many = planning.plan(nominal, 30, 16, design)
     # Averaging 16 samples divides every sigma by 4: the error scales alike.
     ratio = few['predicted']['position_mm_mean'] / many['predicted']['position_mm_mean']
     assert ratio == pytest.approx(4.0, rel=1e-6)
