@@ -21,7 +21,9 @@ import numpy as np
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
     ANGULAR_PARAMETERS,
+    ANGULAR_SENSOR_PARAMETERS,
     PARAMETER_NAMES,
+    SENSOR_PARAMETER_NAMES,
     default_geometry,
     to_report_units,
 )
@@ -154,12 +156,12 @@ def validation_errors(true, controller, poses):
     ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
     'unreachable'}``: the arrays that :func:`write_report` plots as distributions.
     """
-    from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
-    from gsp_kinematics.validation import pose_errors, summarise
+    from gsp_kinematics.kinematics import forward_kinematics_masked
+    from gsp_kinematics.validation import commanded_articular, pose_errors, summarise
 
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     reached, converged = forward_kinematics_masked(
-        true, inverse_kinematics(controller, poses), poses
+        true, commanded_articular(true, controller, poses), poses
     )
     if not converged.any():
         raise ValueError('no validation posture is reachable by the real platform')
@@ -176,9 +178,10 @@ def validation_errors(true, controller, poses):
 
 def _errors(result, truth, nominal):
     """``(reference kind, before, after, sigma)`` per parameter in report units."""
-    estimate = np.asarray(result.parameters, dtype=float)
-    sigma = to_report_units(np.nan_to_num(result.standard_deviations, nan=0.0))
-    sigma = np.where(np.asarray(result.free, dtype=bool), sigma, np.nan)
+    count = len(PARAMETER_NAMES)  # the 44; the sensor errors have their own section
+    estimate = np.asarray(result.parameters, dtype=float)[:count]
+    sigma = to_report_units(np.nan_to_num(result.standard_deviations[:count], nan=0.0))
+    sigma = np.where(np.asarray(result.free, dtype=bool)[:count], sigma, np.nan)
     if truth is not None:
         reference = truth.to_vector()
         return (
@@ -255,9 +258,10 @@ def result_data(
     nominal = default_geometry('nominal') if nominal is None else nominal
     if analysis is None:
         analysis = analyse(result)
-    free = np.asarray(result.free, dtype=bool)
-    estimate = np.asarray(result.parameters, dtype=float)
-    deviations = np.asarray(result.standard_deviations, dtype=float)
+    count = len(PARAMETER_NAMES)
+    free = np.asarray(result.free, dtype=bool)[:count]
+    estimate = np.asarray(result.parameters, dtype=float)[:count]
+    deviations = np.asarray(result.standard_deviations, dtype=float)[:count]
     reference, before, after, _ = _errors(result, truth, nominal)
     correlations = []
     try:
@@ -286,7 +290,7 @@ def result_data(
         'duration_s': result.duration_s,
         'postures': int(np.asarray(result.poses).shape[0]) if result.poses is not None else None,
         'excluded_postures': list(result.excluded_postures or []),
-        'free_parameters': [n for n, f in zip(PARAMETER_NAMES, free, strict=True) if f],
+        'free_parameters': list(result.free_names),
         'units': {
             'si': {n: _si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
             'report': {n: _report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
@@ -318,6 +322,7 @@ def result_data(
     lengths = np.array([i not in _ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
+    data.update(fit_data(result, truth, nominal))
     if sigmas is not None:
         data['sigmas'] = {
             'leg_lengths_m': sigmas.leg_lengths,
@@ -328,6 +333,35 @@ def result_data(
     if extra:
         data.update(extra)
     return json_safe(data)
+
+
+def fit_data(result, truth=None, nominal=None):
+    """``sensor_errors``, ``goodness_of_fit``, ``loss``, ``outliers`` and ``down_weighted`` keys
+    of ``result.json`` (docs/sensor_errors.md)."""
+    sensor_errors = {}
+    for index, name in enumerate(SENSOR_PARAMETER_NAMES, start=len(PARAMETER_NAMES)):
+        free = bool(result.free[index])
+        entry = {
+            'unit': 'rad' if name in ANGULAR_SENSOR_PARAMETERS else '1',
+            'free': free,
+            'estimate': float(result.parameters[index]),
+            'standard_deviation': float(result.standard_deviations[index]) if free else None,
+        }
+        if nominal is not None:
+            entry['nominal'] = float(nominal.to_full_vector()[index])
+        if truth is not None:
+            entry['truth'] = float(truth.to_full_vector()[index])
+        sensor_errors[name] = entry
+    fit = result.goodness_of_fit
+    return {
+        'sensor_errors': sensor_errors,
+        'goodness_of_fit': None
+        if fit is None
+        else {**fit.as_dict(), 'excluded_outlier_postures': list(fit.excluded_postures)},
+        'loss': result.loss,
+        'outliers': list(result.outliers),
+        'down_weighted': list(result.down_weighted),
+    }
 
 
 def outcome_arguments(outcome, nominal, options, **extra):
@@ -342,6 +376,12 @@ def outcome_arguments(outcome, nominal, options, **extra):
             'success': outcome.success,
             'failure': outcome.message or None,
             'options': options,
+            'noise_estimates': {
+                channel: {'configured': entry['configured'], 'estimated': entry['estimated']}
+                for channel, entry in outcome.noise_estimates.items()
+            },
+            'fit_accepted': outcome.fit_accepted,
+            'verdict': outcome.verdict or None,
             **extra,
         },
     )
@@ -450,6 +490,7 @@ def report_markdown(data, images, title='Calibration report'):
             row.append(_fmt(errors['after'][name], 3))
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
+    lines += _fit_markdown(data)
     lines += [f'## Correlations above {data["correlation_threshold"]}', '']
     if data['correlations']:
         lines += ['| a | b | correlation |', '|---|---|---|']
@@ -469,6 +510,56 @@ def report_markdown(data, images, title='Calibration report'):
     if 'residuals' in images:
         lines += [f'![residual histograms]({images["residuals"]})', '']
     return '\n'.join(lines) + '\n'
+
+
+def _fit_markdown(data):
+    """The sensor errors, goodness of fit, outliers and noise estimates of ``report.md``."""
+    lines = ['## Sensor errors', '', '| parameter | unit | free | nominal | estimate | 1σ |']
+    lines.append('|---|---|---|---|---|---|')
+    for name, entry in (data.get('sensor_errors') or {}).items():
+        degrees = entry['unit'] == 'rad'
+        factor, unit = (math.degrees(1.0), 'deg') if degrees else (1.0, '1')
+        nominal = entry.get('nominal')
+        deviation = entry.get('standard_deviation')
+        lines.append(
+            f'| {name} | {unit} | {"yes" if entry["free"] else "no (datum)"} | '
+            f'{_fmt(None if nominal is None else nominal * factor)} | '
+            f'{_fmt(entry["estimate"] * factor)} | '
+            f'{_fmt(None if deviation is None else deviation * factor, 3)} |'
+        )
+    lines += ['', '## Goodness of fit', '']
+    fit = data.get('goodness_of_fit')
+    if fit:
+        lines.append(
+            f'chi2 {_fmt(fit["chi2"])} for {fit["dof"]} degrees of freedom, p = '
+            f'{_fmt(fit["p_value"], 3)} (loss: {data.get("loss", "linear")}).'
+        )
+    if data.get('verdict'):
+        lines += ['', f'**{data["verdict"]}**']
+    if data.get('fit_accepted') is False:
+        lines += ['', 'The result is written but marked REJECTED and not applied.']
+    if data.get('outliers'):
+        lines += ['', '| outlier posture | largest normalised residual | sensor |', '|---|---|---|']
+        for entry in data['outliers']:
+            lines.append(
+                f'| {entry["posture"]} | {_fmt(entry["max_normalised_residual"], 3)} | '
+                f'{entry["sensor"]} |'
+            )
+    if data.get('down_weighted'):
+        lines += ['', '| down-weighted posture | weight |', '|---|---|']
+        lines += [f'| {e["posture"]} | {_fmt(e["weight"], 3)} |' for e in data['down_weighted']]
+    noise = data.get('noise_estimates') or {}
+    if noise:
+        lines += ['', '| sensor noise (per sample) | configured | estimated | unit |']
+        lines.append('|---|---|---|---|')
+        for channel, entry in noise.items():
+            angular = channel in ('inclinometer', 'encoder')
+            factor, unit = (math.degrees(1.0), 'deg') if angular else (1e6, 'um')
+            lines.append(
+                f'| {channel} | {_fmt(entry["configured"] * factor, 3)} | '
+                f'{_fmt(entry["estimated"] * factor, 3)} | {unit} |'
+            )
+    return lines + ['']
 
 
 def write_report(run_dir, result, title='Calibration report', **inputs):

@@ -21,9 +21,9 @@ def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, s
     """Rows as the calibrator would collect them: nominal controller, true platform, noise
     averaged over ``n_samples`` samples; postures FK cannot reach are left out."""
     rng = np.random.default_rng(seed)
-    q = inverse_kinematics(nominal, poses)
-    real, ok = forward_kinematics_masked(true, q, poses)
-    readings = device_readings(true, real[ok])
+    q = nominal.sensors.leg_readings(inverse_kinematics(nominal, poses))
+    real, ok = forward_kinematics_masked(true, true.sensors.true_leg_lengths(q), poses)
+    readings = true.sensors.device_readings(device_readings(true, real[ok]))
     scale = 1.0 / math.sqrt(n_samples)
     samples = Samples.empty()
     for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
@@ -81,7 +81,8 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
     errors = parameter_errors(outcome.geometry, TRUE)
     assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
     assert abs(errors[43]) < 0.01  # deg
-    assert outcome.identifiability['rank'] == 44 and outcome.unidentifiable == []
+    assert outcome.identifiability['rank'] == 51 and outcome.unidentifiable == []  # extended
+    assert outcome.fit_accepted, outcome.verdict
     # Averaged rows weigh as sigma / sqrt(n).
     assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
 
