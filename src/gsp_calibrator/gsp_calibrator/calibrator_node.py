@@ -343,7 +343,7 @@ class CalibratorNode(Node):
         self._progress(
             count,
             names.PHASE_IDENTIFYING,
-            f'identifying {len(settings.free_parameters)} parameters from {len(samples)} postures',
+            f'identifying {settings.free_count} parameters from {len(samples)} postures',
         )
         finished = await self._await_thread(
             run_in_thread(

@@ -454,7 +454,12 @@ def refresh_report(
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.
-    kept = {key: value for key, value in _result_json(source_dir).items() if key == 'collection'}
+    # ... and so are its noise estimates (samples.csv keeps the averages, not the scatter).
+    kept = {
+        key: value
+        for key, value in _result_json(source_dir).items()
+        if key in ('collection', 'noise_estimates')
+    }
     kwargs = dict(
         outcome_arguments(
             outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept

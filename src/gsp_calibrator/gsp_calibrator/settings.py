@@ -18,7 +18,13 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.goodness import DEFAULT_OUTLIER_THRESHOLD, LOSSES
-from gsp_kinematics.identification import FORMULATIONS, PARAMETER_GROUPS, Options, Sigmas
+from gsp_kinematics.identification import (
+    FORMULATIONS,
+    PARAMETER_GROUPS,
+    Options,
+    Sigmas,
+    resolve_free,
+)
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
 
 DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
@@ -269,6 +275,11 @@ class CalibratorSettings:
     outlier_threshold: float = DEFAULT_OUTLIER_THRESHOLD  #: sigmas
     apply_rejected_fit: bool = False
 
+    @property
+    def free_count(self):
+        """Number of free parameters (the groups expanded)."""
+        return int(resolve_free(self.free_parameters).sum())
+
     def identify_options(self):
         """The core's ``Options`` for this run's loss and outlier threshold."""
         return Options(
@@ -280,7 +291,7 @@ class CalibratorSettings:
         return (
             f'nominal {self.nominal_geometry_file}, {self.posture_count} postures from a pool of '
             f'{self.pool_size}, {self.samples_per_posture} samples each, {self.formulation} '
-            f'formulation, {len(self.free_parameters)} free parameters, output under '
+            f'formulation, {self.free_count} free parameters, output under '
             f'{os.path.abspath(self.output_root)}'
         )
 

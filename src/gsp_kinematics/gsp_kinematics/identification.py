@@ -107,7 +107,8 @@ class Options:
     initial_damping: float = 1e-3  #: lambda, relative to Marquardt's diag(J^T J)
     max_fk_rejections: int = 8  #: rejected steps (FK failures) before a posture is dropped
     loss: str = 'linear'  #: robust loss: 'linear', 'huber' or 'cauchy' (goodness.LOSSES)
-    loss_scale: float = 3.0  #: where the robust loss departs from least squares, in sigmas
+    #: Where the robust loss departs from least squares, in sigmas (Huber's 95%-efficiency 1.345).
+    loss_scale: float = 1.345
     outlier_threshold: float = goodness.DEFAULT_OUTLIER_THRESHOLD  #: |z| naming an outlier
 
 
