@@ -22,7 +22,11 @@ STDS = np.array([1e-4, 1e-4, 2e-4, 3e-6])  # alpha, beta, phi (rad), d_m (m)
 
 def make_sim(stds=(0.0, 0.0, 0.0), seed=0):
     return SimDeviceBackend(
-        TRUE.device_length, TRUE.inclinometer_axes_angle, *stds, rng=np.random.default_rng(seed)
+        TRUE.device_length,
+        TRUE.inclinometer_axes_angle,
+        *stds,
+        rng=np.random.default_rng(seed),
+        sensors=TRUE.sensors,
     )
 
 
@@ -40,8 +44,12 @@ def test_noise_free_readings_are_the_core_device_model():
         TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0]),
         atol=1e-12,
     )
-    assert sample.phi == POSE[5]
-    assert sample.d_m == pytest.approx(np.linalg.norm(POSE[:3]) - TRUE.device_length, abs=1e-12)
+    # The true sensor errors: encoder zero phi0, LVDT gain error kDm (docs/sensor_errors.md).
+    assert sample.phi == POSE[5] + TRUE.sensors.encoder_offset
+    assert sample.d_m == pytest.approx(
+        (np.linalg.norm(POSE[:3]) - TRUE.device_length) / (1.0 + TRUE.sensors.lvdt_gain_error),
+        abs=1e-12,
+    )
 
 
 def test_noise_stds_are_honoured():

@@ -23,7 +23,9 @@ def test_starts_at_home_through_the_controller():
     q = inverse_kinematics(NOMINAL, home_pose()[None])[0]
     np.testing.assert_allclose(sim.leg_lengths, q, atol=1e-12)
     np.testing.assert_allclose(
-        sim.true_pose, forward_kinematics(TRUE, q[None], home_pose()[None])[0], atol=1e-10
+        sim.true_pose,
+        forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], home_pose()[None])[0],
+        atol=1e-10,
     )
     np.testing.assert_array_equal(sim.commanded_pose, home_pose())
 
