@@ -223,6 +223,7 @@ def test_bad_csv_exits_2_naming_the_fault(tmp_path, capsys, mutate, expected):
     'arguments, expected',
     [
         (['--free', 'A1x', 'Z9'], "unknown parameter name(s) ['Z9']"),
+        (['--free', 'extended,kq9'], "unknown parameter name(s) ['kq9']"),
         (['--sigma-lvdt', '-1'], '--sigma-lvdt'),
         (['--nominal', 'missing.yaml'], 'missing.yaml'),
     ],
@@ -233,6 +234,11 @@ def test_bad_options_exit_2(tmp_path, capsys, arguments, expected):
     code = offline.main([str(csv_path), *arguments, '--output-root', str(tmp_path / 'runs')])
     assert code == 2
     assert expected in capsys.readouterr().err
+
+
+def test_free_accepts_groups_and_sensor_error_names():
+    assert offline.free_parameters(['paper,kq1', 'alpha0']) == ['paper', 'kq1', 'alpha0']
+    assert offline.free_parameters(['extended']) == ['extended']
 
 
 def test_missing_input_and_failed_identification(tmp_path, capsys):
