@@ -131,7 +131,7 @@ def selection_arguments(settings):
 def selection_key(nominal, count, pool_size, seed, sigmas, free, formulation):
     """A hashable key of everything :func:`choose_postures` depends on (for caching)."""
     return (
-        tuple(np.round(nominal.to_vector(), 15)),
+        tuple(np.round(nominal.to_full_vector(), 15)),
         nominal.limits,
         int(count),
         int(pool_size),

@@ -422,23 +422,25 @@ def test_a_device_that_does_not_follow_the_platform_is_detected(ros_context, tmp
         suite.close()
 
 
-def test_a_failed_apply_is_reported(ros_context, tmp_path):
+def applying_to_nobody(ros_context, tmp_path, **overrides):
+    """A 4-posture run fitting only D0 and gamma (the leg offsets' errors stay unmodelled, so the
+    goodness of fit rejects it) that applies its result to a node that does not exist."""
     perturbed_truth(tmp_path / 'true.yaml')
-    suite, *_ = make_suite(
-        ros_context,
-        tmp_path,
-        tmp_path / 'true.yaml',
-        {
-            'posture_count': 4,
-            'pool_size': 40,
-            'free_parameters': ['D0', 'gamma'],
-            'apply_result': True,
-            # Four postures and the leg offsets fixed: the fit is rejected, so apply it anyway.
-            'apply_rejected_fit': True,
-            'platform_node_name': 'nobody',
-            'topic_timeout': 1.0,
-        },
-    )
+    parameters = {
+        'posture_count': 4,
+        'pool_size': 40,
+        'free_parameters': ['D0', 'gamma'],
+        'apply_result': True,
+        'platform_node_name': 'nobody',
+        'topic_timeout': 1.0,
+        **overrides,
+    }
+    return make_suite(ros_context, tmp_path, tmp_path / 'true.yaml', parameters)[0]
+
+
+def test_a_failed_apply_is_reported(ros_context, tmp_path):
+    # The fit is rejected: apply it anyway, explicitly.
+    suite = applying_to_nobody(ros_context, tmp_path, apply_rejected_fit=True)
     try:
         response = suite.wait(suite.call())
         assert not response.success
@@ -454,20 +456,7 @@ def test_a_failed_apply_is_reported(ros_context, tmp_path):
 
 
 def test_a_rejected_fit_is_written_but_not_applied(ros_context, tmp_path):
-    perturbed_truth(tmp_path / 'true.yaml')
-    suite, *_ = make_suite(
-        ros_context,
-        tmp_path,
-        tmp_path / 'true.yaml',
-        {
-            'posture_count': 4,
-            'pool_size': 40,
-            'free_parameters': ['D0', 'gamma'],  # the leg offsets' errors stay unmodelled
-            'apply_result': True,
-            'platform_node_name': 'nobody',
-            'topic_timeout': 1.0,
-        },
-    )
+    suite = applying_to_nobody(ros_context, tmp_path)
     try:
         response = suite.wait(suite.call())
         assert not response.success
