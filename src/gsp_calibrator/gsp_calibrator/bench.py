@@ -6,12 +6,15 @@ by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/
 
 import sys
 
-from gsp_experiments import bench
+from gsp_experiments import bench, bench_sensor_errors
 
 from . import bench_end_to_end
 
 #: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
-EXTRA_SECTIONS = {'end_to_end': bench_end_to_end.run}
+EXTRA_SECTIONS = {
+    'end_to_end': bench_end_to_end.run,
+    'sensor_errors': bench_sensor_errors.run,  # docs/sensor_errors.md
+}
 
 
 def main(argv=None):

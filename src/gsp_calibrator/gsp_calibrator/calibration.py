@@ -17,9 +17,15 @@ import time
 
 import numpy as np
 
-from gsp_kinematics import identifiability
+from gsp_kinematics import goodness, identifiability
 from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import geometry_to_yaml, parameter_errors
+from gsp_kinematics.geometry import (
+    ALL_PARAMETER_NAMES,
+    ANGULAR_SENSOR_PARAMETERS,
+    NUM_PARAMETERS,
+    geometry_to_yaml,
+    parameter_errors,
+)
 from gsp_kinematics.identification import (
     FORMULATIONS,
     IdentificationError,
@@ -31,11 +37,15 @@ from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_vali
 from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.selection import select_postures
 
+#: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
+DEFAULT_FREE = ('extended',)
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
 IDENTIFICATION_TIME_LABEL = 'identification time: '
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'
+#: Added to the result's comment when the goodness of fit rejects the model.
+REJECTED_COMMENT = 'REJECTED by the goodness-of-fit check (p < 0.01): see result.json'
 
 
 class CalibrationError(RuntimeError):
@@ -74,7 +84,7 @@ def choose_postures(
     pool_size,
     seed,
     sigmas=Sigmas(),
-    free=None,
+    free=DEFAULT_FREE,
     formulation='implicit',
     workspace=Workspace(),
 ):
@@ -121,7 +131,7 @@ def selection_arguments(settings):
 def selection_key(nominal, count, pool_size, seed, sigmas, free, formulation):
     """A hashable key of everything :func:`choose_postures` depends on (for caching)."""
     return (
-        tuple(np.round(nominal.to_vector(), 15)),
+        tuple(np.round(nominal.to_full_vector(), 15)),
         nominal.limits,
         int(count),
         int(pool_size),
@@ -171,6 +181,16 @@ class CalibrationOutcome:
     postures: int = 0  #: posture rows given
     sigmas: object = None  #: the weights of the averaged rows
     duration_s: float = 0.0  #: identification wall time, s
+    noise_estimates: dict = dataclasses.field(default_factory=dict)  #: goodness.estimate_noise
+    verdict: str = ''  #: the goodness-of-fit verdict (plain text)
+
+    @property
+    def fit_accepted(self):
+        """The goodness of fit accepts the model (p >= 0.01); False without a fit."""
+        result = self.result
+        return bool(
+            result is not None and result.goodness_of_fit and result.goodness_of_fit.accepted
+        )
 
     @property
     def unidentifiable(self):
@@ -192,15 +212,34 @@ def averaged_sigmas(sigmas, n_samples):
     )
 
 
+def noise_channels(sigmas):
+    """``{channel: configured per-sample sigma}`` of :func:`gsp_kinematics.goodness.estimate_noise`."""
+    return {
+        'leg_lengths': sigmas.leg_lengths,
+        'inclinometer': sigmas.inclinometer,
+        'encoder': sigmas.encoder,
+        'lvdt': sigmas.lvdt,
+    }
+
+
 def identify_from_samples(
-    nominal, samples, sigmas=Sigmas(), free=None, formulation='implicit', **identify_options
+    nominal,
+    samples,
+    sigmas=Sigmas(),
+    free=DEFAULT_FREE,
+    formulation='implicit',
+    within_posture_std=None,
+    **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
     ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
     scaled by :func:`averaged_sigmas`. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
-    converge, or leaves free parameters unidentifiable.
+    converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
+    sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
+    estimates (None: not estimated). A successful outcome carries the goodness-of-fit
+    ``verdict``; :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
@@ -251,7 +290,66 @@ def identify_from_samples(
         return outcome
     outcome.success = True
     outcome.geometry = result.geometry
+    if within_posture_std is not None and len(within_posture_std) == count:
+        outcome.noise_estimates = goodness.estimate_noise(
+            within_posture_std, samples.n_samples, noise_channels(sigmas)
+        )
+    outcome.verdict = goodness.verdict(
+        result.goodness_of_fit,
+        result.outliers,
+        outcome.noise_estimates,
+        free_sensor_errors=result.sensor_errors_free,
+    )
     return outcome
+
+
+def sensor_error_text(result):
+    """``'kq1 +3.1e-04 (sd 2e-05), alpha0 +0.0101 deg (sd 0.0004)'`` of the free sensor errors."""
+    parts = []
+    for index, name in enumerate(ALL_PARAMETER_NAMES[NUM_PARAMETERS:], start=NUM_PARAMETERS):
+        if not result.free[index]:
+            continue
+        value, deviation = result.parameters[index], result.standard_deviations[index]
+        if name in ANGULAR_SENSOR_PARAMETERS:
+            parts.append(
+                f'{name} {math.degrees(value):+.4f} deg (sd {math.degrees(deviation):.2g})'
+            )
+        else:
+            parts.append(f'{name} {value:+.2e} (sd {deviation:.1g})')
+    return ', '.join(parts)
+
+
+def _angle_or_length(channel, value):
+    if channel in ('inclinometer', 'encoder'):
+        return f'{math.degrees(value):.3g} deg'
+    return f'{value * 1e6:.3g} um'
+
+
+def fit_lines(outcome):
+    """Summary lines of the goodness of fit, outliers, down-weighted postures and noise."""
+    result = outcome.result
+    lines = [outcome.verdict] if outcome.verdict else []
+    if result is None:
+        return lines
+    if result.outliers:
+        shown = ', '.join(
+            f'{entry["posture"]} ({entry["sensor"]} {entry["max_normalised_residual"]:.1f} sigma)'
+            for entry in result.outliers[:10]
+        )
+        lines.append(f'outlier postures (normalised residual > threshold): {shown}')
+    if result.down_weighted:
+        shown = ', '.join(
+            f'{entry["posture"]} (weight {entry["weight"]:.3g})'
+            for entry in result.down_weighted[:10]
+        )
+        lines.append(f'{result.loss} loss down-weighted postures: {shown}')
+    for channel, entry in outcome.noise_estimates.items():
+        lines.append(
+            f'noise {channel}: estimated {_angle_or_length(channel, entry["estimated"])}, '
+            f'configured {_angle_or_length(channel, entry["configured"])}'
+            + (' -- WARNING: differs by more than 2x' if entry['warning'] else '')
+        )
+    return lines
 
 
 def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
@@ -324,6 +422,16 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
                 f'largest standard deviation: {np.nanmax(lengths) * 1000.0:.4g} mm'
                 + (f', gamma {math.degrees(deviations[43]):.3g} deg' if free[43] else '')
             )
+        sensor_text = sensor_error_text(result)
+        if sensor_text:
+            lines.append(f'sensor errors: {sensor_text}')
+    if outcome.success:
+        lines.extend(fit_lines(outcome))
+        if not outcome.fit_accepted:
+            lines.append(
+                'result REJECTED by the goodness-of-fit check: written but not applied '
+                '(apply_rejected_fit applies it anyway)'
+            )
     if outcome.success and reference is not None:
         errors = parameter_errors(outcome.geometry, reference)
         lines.append(
@@ -393,12 +501,13 @@ class FinishedRun:
     report_error: str = ''  #: '' when result.json and report.md were written (or not due)
 
 
-def finish_run(run, settings, samples, collection, options):
+def finish_run(run, settings, samples, collection, options, within_posture_std=None):
     """Identify a collected run and write its files (pure; the node runs it in a worker thread).
 
     ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``samples``:
     the collected rows; ``collection``: the protocol's ``summary()`` (skipped postures, drops);
-    ``options``: the run options stored with the results. Writes ``result.json``, ``report.md``
+    ``options``: the run options stored with the results; ``within_posture_std``: see
+    :func:`identify_from_samples`. Writes ``result.json``, ``report.md``
     and its PNGs when identification gives a result (a failure there is returned, never raised:
     the report must not fail the run) and ``result.yaml`` when the calibration succeeded.
     """
@@ -413,6 +522,8 @@ def finish_run(run, settings, samples, collection, options):
         settings.sigmas,
         list(settings.free_parameters),
         settings.formulation,
+        within_posture_std,
+        options=settings.identify_options(),
     )
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
     summary = outcome_summary(
@@ -431,5 +542,6 @@ def finish_run(run, settings, samples, collection, options):
         except Exception as error:
             report_error = f'{error}\n{traceback.format_exc()}'
     if outcome.success:
-        run.write_geometry(outcome.geometry, RESULT_FILE, comment=RESULT_COMMENT)
+        comment = RESULT_COMMENT + ('' if outcome.fit_accepted else f'\n{REJECTED_COMMENT}')
+        run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     return FinishedRun(outcome, summary, report_error)

@@ -30,6 +30,7 @@ import threading
 import time
 import traceback
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -303,6 +304,7 @@ class CalibratorNode(Node):
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
             log.error(f'not recording the run: {error}')
         samples = Samples.empty()
+        spreads = []  # per posture: the sample std of the 6 legs and 4 readings (noise estimates)
         run.write_samples(samples)
         count = settings.posture_count
         collection = protocol.CollectionProtocol.for_settings(settings)
@@ -327,6 +329,7 @@ class CalibratorNode(Node):
                 row = await self._collect_posture(settings, k, count, pose)
                 if row is not None:
                     samples.append(k, pose, row.leg_lengths, row.readings, row.n_samples, row.stamp)
+                    spreads.append(np.concatenate([row.leg_lengths_std, row.readings_std]))
                     run.write_samples(samples)
         except RunFailed as error:
             run.write_samples(samples)
@@ -340,7 +343,7 @@ class CalibratorNode(Node):
         self._progress(
             count,
             names.PHASE_IDENTIFYING,
-            f'identifying {len(settings.free_parameters)} parameters from {len(samples)} postures',
+            f'identifying {settings.free_count} parameters from {len(samples)} postures',
         )
         finished = await self._await_thread(
             run_in_thread(
@@ -350,6 +353,7 @@ class CalibratorNode(Node):
                 samples,
                 collection.summary(),
                 recording.settings_options(settings),
+                np.array(spreads).reshape(-1, 10),
             )
         )
         if finished.report_error:
@@ -363,8 +367,9 @@ class CalibratorNode(Node):
         geometry = outcome.geometry
         result_yaml = geometry_to_yaml(geometry, comment=calibration.RESULT_COMMENT)
         self._result_pub.publish(String(data=result_yaml))
-        success = True
-        if settings.apply_result:
+        # A result the goodness of fit rejects is written and latched, but applied only on demand.
+        success = outcome.fit_accepted or settings.apply_rejected_fit
+        if settings.apply_result and success:
             success, reason = await self._apply_to_platform(settings, geometry)
             summary += '\n' + reason
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'

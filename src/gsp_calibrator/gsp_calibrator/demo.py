@@ -37,9 +37,11 @@ from gsp_kinematics.validation import pose_errors, summarise
 from gsp_msgs_py.ros_environment import loopback_environment
 
 from . import calibration
+from .calibration import DEFAULT_FREE
 from .processes import NodeProcesses
 from .report import RESULT_JSON
 from .run_directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
+from .settings import check_free_parameters
 
 #: The three nodes: executable (console script) and module (fallback: ``python -m``).
 NODES = {
@@ -130,6 +132,8 @@ def node_commands(args, output_root, which=shutil.which):
             '-p',
             f'formulation:={args.formulation}',
             '-p',
+            f'free_parameters:=[{",".join(args.free)}]',
+            '-p',
             'apply_result:=true',
         ],
     }
@@ -177,9 +181,11 @@ def make_summary(
     total_s,
     run_directory=None,
     collection=None,
+    fit=None,
 ):
-    """The ``summary.json`` document (keys as in issue 3, plus ``run_directory``, its path, and
-    ``collection``, the calibrator's record of skipped postures and dropped samples, or None)."""
+    """The ``summary.json`` document (keys as in issue 3, plus ``run_directory``, its path,
+    ``collection``, the calibrator's record of skipped postures and dropped samples, or None, and
+    the :func:`fit_record` keys ``goodness_of_fit``, ``noise_estimates``, ``verdict``)."""
     max_mm, max_deg = parameter_error_maxima(calibrated, true)
     return {
         'validation': {'before': dict(before), 'after': dict(after)},
@@ -190,7 +196,20 @@ def make_summary(
         'total_s': float(total_s),
         'run_directory': None if run_directory is None else str(run_directory),
         'collection': collection,
+        **{key: (fit or {}).get(key) for key in FIT_KEYS},
     }
+
+
+#: Keys of the calibrator's ``result.json`` that ``summary.json`` repeats.
+FIT_KEYS = ('goodness_of_fit', 'noise_estimates', 'verdict', 'fit_accepted')
+
+
+def fit_record(run_directory):
+    """``{key: value}`` of :data:`FIT_KEYS` in the calibrator's ``result.json`` ({} if absent)."""
+    with contextlib.suppress(OSError, ValueError):
+        data = json.loads((Path(run_directory) / RESULT_JSON).read_text())
+        return {key: data.get(key) for key in FIT_KEYS}
+    return {}
 
 
 def collection_record(run_directory):
@@ -220,6 +239,8 @@ def summary_text(summary, validated, rejected):
         f'identification time: {summary["identification_ms"]:.0f} ms; calibration '
         f'{summary["calibration_s"]:.1f} s; total {summary["total_s"]:.1f} s',
     ]
+    if summary.get('verdict'):
+        lines.append(summary['verdict'])
     return '\n'.join(lines)
 
 
@@ -248,6 +269,13 @@ def parse_arguments(argv=None):
     parser.add_argument('--samples-per-posture', type=int, default=10, help='(10)')
     parser.add_argument('--validation-postures', type=int, default=50, help='(50)')
     parser.add_argument('--formulation', default='implicit', choices=('implicit', 'fk', 'paper'))
+    parser.add_argument(
+        '--free',
+        nargs='+',
+        default=list(DEFAULT_FREE),
+        metavar='NAME',
+        help='free parameters: groups paper or extended, and/or names (default: extended)',
+    )
     parser.add_argument('--seed', type=int, default=0, help='seed of postures and noise (0)')
     add = parser.add_argument
     add('--sensor-rate', type=float, default=200.0, help='leg-length and device rate, Hz (200)')
@@ -258,6 +286,10 @@ def parse_arguments(argv=None):
     for name in ('postures', 'pool_size', 'samples_per_posture', 'validation_postures'):
         if getattr(args, name) < 1:
             parser.error(f'--{name.replace("_", "-")} must be >= 1')
+    args.free = [n.strip() for value in args.free for n in value.split(',') if n.strip()]
+    reason = check_free_parameters(args.free)
+    if reason:
+        parser.error(f'--free: {reason}')
     if not args.sensor_rate > 0 or not args.settle_time >= 0:
         parser.error('--sensor-rate must be > 0 and --settle-time >= 0')
     args.true_geometry = os.path.abspath(args.true_geometry)
@@ -388,6 +420,7 @@ def run(args):
         time.monotonic() - started,
         run_directory.path,
         collection_record(run_directory.path),
+        fit_record(run_directory.path),
     )
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)

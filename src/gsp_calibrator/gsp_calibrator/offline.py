@@ -23,14 +23,15 @@ import numpy as np
 
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
-    PARAMETER_NAMES,
     GeometryError,
     default_geometry_path,
     load_geometry,
 )
-from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Sigmas
+from gsp_kinematics.goodness import LOSSES
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options, Sigmas
 
 from . import calibration
+from .calibration import DEFAULT_FREE
 from .run_directory import (
     RESULT_FILE,
     SAMPLES_FILE,
@@ -39,7 +40,7 @@ from .run_directory import (
     RunDirectoryError,
     read_samples,
 )
-from .settings import DEFAULTS
+from .settings import DEFAULTS, check_free_parameters
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -83,12 +84,19 @@ def build_parser():
         help=f'identification formulation ({stored} {DEFAULTS["formulation"]})',
     )
     parser.add_argument(
+        '--loss',
+        choices=LOSSES,
+        default=None,
+        help=f'loss of the fit: linear, or robust huber/cauchy ({stored} {DEFAULTS["loss"]})',
+    )
+    parser.add_argument(
         '--free',
         nargs='+',
         metavar='NAME',
         default=None,
-        help='parameters identified (names or comma-separated lists, e.g. '
-        f'A1x B1x,B1y Loff1 D0 gamma; {stored} all 44)',
+        help='parameters identified: groups paper (the 44) or extended (the 44 and the '
+        'identifiable sensor errors), and/or names (comma-separated lists allowed, e.g. '
+        f'paper kq1 or A1x B1x,B1y Loff1 D0 gamma; {stored} extended)',
     )
     for name, option, metavar, what in _SIGMA_OPTIONS:
         parser.add_argument(
@@ -152,18 +160,15 @@ def free_parameters(values):
     if values is None:
         return None
     names = [n.strip() for value in values for n in value.split(',') if n.strip()]
-    unknown = [n for n in names if n not in PARAMETER_NAMES]
-    if unknown:
-        raise InputError(
-            f'--free: unknown parameter name(s) {unknown}; expected names among '
-            'A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma'
-        )
-    if not names:
-        raise InputError('--free: no parameter named')
-    duplicated = sorted({n for n in names if names.count(n) > 1})
-    if duplicated:
-        raise InputError(f'--free: duplicated name(s) {duplicated}')
+    reason = check_free_parameters(names)
+    if reason:
+        raise InputError(f'--free: {reason}')
     return names
+
+
+def _options(options):
+    """The core's identification ``Options`` of the resolved ``options`` (the loss)."""
+    return Options(loss=options.get('loss', DEFAULTS['loss']))
 
 
 def _result_json(source_dir):
@@ -221,12 +226,15 @@ def resolve_options(args, stored):
         raise InputError(
             f'formulation {options["formulation"]!r} (stored) is not one of {list(FORMULATIONS)}'
         )
+    options['loss'] = pick(args.loss, 'loss')
+    if options['loss'] not in LOSSES:
+        raise InputError(f'loss {options["loss"]!r} (stored) is not one of {list(LOSSES)}')
     if args.free is not None:
         options['free_parameters'] = free_parameters(args.free)
     elif stored.get('free_parameters'):
         options['free_parameters'] = free_parameters(list(stored['free_parameters']))
     else:
-        options['free_parameters'] = list(PARAMETER_NAMES)
+        options['free_parameters'] = list(DEFAULT_FREE)
     options['samples_per_posture'] = int(pick(args.samples_per_posture, 'samples_per_posture'))
     options['sync_tolerance'] = float(pick(args.sync_tolerance, 'sync_tolerance'))
     if options['samples_per_posture'] < 1:
@@ -347,7 +355,7 @@ def reidentify(args, out=None):
 
     try:
         outcome = calibration.identify_from_samples(
-            nominal, samples, sigmas, free, options['formulation']
+            nominal, samples, sigmas, free, options['formulation'], options=_options(options)
         )
     except (IdentificationError, calibration.CalibrationError) as error:
         raise InputError(str(error)) from error
@@ -436,12 +444,22 @@ def refresh_report(
     nominal = _geometry(options['nominal_geometry_file'], 'nominal_geometry_file')
     samples = load_input(kind, path, options)
     outcome = calibration.identify_from_samples(
-        nominal, samples, sigmas_of(options), options['free_parameters'], options['formulation']
+        nominal,
+        samples,
+        sigmas_of(options),
+        options['free_parameters'],
+        options['formulation'],
+        options=_options(options),
     )
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.
-    kept = {key: value for key, value in _result_json(source_dir).items() if key == 'collection'}
+    # ... and so are its noise estimates (samples.csv keeps the averages, not the scatter).
+    kept = {
+        key: value
+        for key, value in _result_json(source_dir).items()
+        if key in ('collection', 'noise_estimates')
+    }
     kwargs = dict(
         outcome_arguments(
             outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept

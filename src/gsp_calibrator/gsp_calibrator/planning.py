@@ -30,7 +30,13 @@ from gsp_kinematics.kinematics import Workspace
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.selection import posture_information
 
-from .calibration import CalibrationError, averaged_sigmas, choose_postures, selection_formulation
+from .calibration import (
+    DEFAULT_FREE,
+    CalibrationError,
+    averaged_sigmas,
+    choose_postures,
+    selection_formulation,
+)
 from .report import sigmas_record
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
@@ -74,7 +80,7 @@ class Design:
     """What the calibrator's selection and model depend on, besides the counts."""
 
     sigmas: Sigmas = Sigmas()  #: per-sample sensor noise (m, rad)
-    free: tuple = None  #: free parameter names (None: all)
+    free: tuple = DEFAULT_FREE  #: free parameter and group names (the calibrator's default)
     formulation: str = 'implicit'
     workspace: Workspace = Workspace()
     pool_size: int = 600
@@ -241,7 +247,13 @@ def parse_arguments(argv=None):
     add('--samples-per-posture', type=int, default=10, help='samples averaged per posture (10)')
     add('--pool-size', type=int, default=600, help='random postures the selection picks from (600)')
     add('--seed', type=int, default=0, help="the calibrator's seed of the posture pool (0)")
-    add('--free', nargs='+', default=None, metavar='NAME', help='free parameters (default: all)')
+    add(
+        '--free',
+        nargs='+',
+        default=list(DEFAULT_FREE),
+        metavar='NAME',
+        help='free parameter or group names: paper, extended (default, as the calibrator), A1x, ...',
+    )
     add('--formulation', choices=FORMULATIONS, default='implicit')
     defaults = Sigmas()
     add('--sigma-leg-um', type=float, default=defaults.leg_lengths * 1e6, help='leg sensor, µm')
@@ -290,7 +302,7 @@ def design_from(args):
     )
     return Design(
         sigmas=sigmas,
-        free=None if args.free is None else tuple(args.free),
+        free=tuple(args.free),
         formulation=args.formulation,
         workspace=workspace,
         pool_size=args.pool_size,

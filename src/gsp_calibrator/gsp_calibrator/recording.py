@@ -354,6 +354,7 @@ def settings_options(settings):
         'sync_tolerance',
         'samples_per_posture',
         'formulation',
+        'loss',
         'posture_count',
         'pool_size',
         'seed',

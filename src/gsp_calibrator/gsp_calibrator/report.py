@@ -28,6 +28,9 @@ from gsp_kinematics.geometry import (
     to_report_units,
 )
 
+from .report_fit import fit_data, fit_markdown
+from .report_fit import format_number as _fmt
+
 RESULT_JSON = 'result.json'
 REPORT_MD = 'report.md'
 PARAMETER_ERRORS_PNG = 'parameter_errors.png'
@@ -156,12 +159,12 @@ def validation_errors(true, controller, poses):
     ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
     'unreachable'}``: the arrays that :func:`write_report` plots as distributions.
     """
-    from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
-    from gsp_kinematics.validation import pose_errors, summarise
+    from gsp_kinematics.kinematics import forward_kinematics_masked
+    from gsp_kinematics.validation import commanded_articular, pose_errors, summarise
 
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     reached, converged = forward_kinematics_masked(
-        true, inverse_kinematics(controller, poses), poses
+        true, commanded_articular(true, controller, poses), poses
     )
     if not converged.any():
         raise ValueError('no validation posture is reachable by the real platform')
@@ -179,9 +182,10 @@ def validation_errors(true, controller, poses):
 
 def _errors(result, truth, nominal):
     """``(reference kind, before, after, sigma)`` per parameter in report units."""
-    estimate = np.asarray(result.parameters, dtype=float)
-    sigma = to_report_units(np.nan_to_num(result.standard_deviations, nan=0.0))
-    sigma = np.where(np.asarray(result.free, dtype=bool), sigma, np.nan)
+    count = len(PARAMETER_NAMES)  # the 44; the sensor errors have their own section
+    estimate = np.asarray(result.parameters, dtype=float)[:count]
+    sigma = to_report_units(np.nan_to_num(result.standard_deviations[:count], nan=0.0))
+    sigma = np.where(np.asarray(result.free, dtype=bool)[:count], sigma, np.nan)
     if truth is not None:
         reference = truth.to_vector()
         return (
@@ -262,9 +266,10 @@ def result_data(
     nominal = default_geometry('nominal') if nominal is None else nominal
     if analysis is None:
         analysis = analyse(result)
-    free = np.asarray(result.free, dtype=bool)
-    estimate = np.asarray(result.parameters, dtype=float)
-    deviations = np.asarray(result.standard_deviations, dtype=float)
+    count = len(PARAMETER_NAMES)
+    free = np.asarray(result.free, dtype=bool)[:count]
+    estimate = np.asarray(result.parameters, dtype=float)[:count]
+    deviations = np.asarray(result.standard_deviations, dtype=float)[:count]
     reference, before, after, _ = _errors(result, truth, nominal)
     correlations = []
     try:
@@ -293,7 +298,7 @@ def result_data(
         'duration_s': result.duration_s,
         'postures': int(np.asarray(result.poses).shape[0]) if result.poses is not None else None,
         'excluded_postures': list(result.excluded_postures or []),
-        'free_parameters': [n for n, f in zip(PARAMETER_NAMES, free, strict=True) if f],
+        'free_parameters': list(result.free_names),
         'units': {
             'si': {n: _si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
             'report': {n: _report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
@@ -330,6 +335,7 @@ def result_data(
     lengths = np.array([i not in _ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
+    data.update(fit_data(result, truth, nominal))
     if sigmas is not None:
         data['sigmas'] = sigmas_record(sigmas)
     if extra:
@@ -359,6 +365,12 @@ def outcome_arguments(outcome, nominal, options, **extra):
             'success': outcome.success,
             'failure': outcome.message or None,
             'options': options,
+            'noise_estimates': {
+                channel: {'configured': entry['configured'], 'estimated': entry['estimated']}
+                for channel, entry in outcome.noise_estimates.items()
+            },
+            'fit_accepted': outcome.fit_accepted,
+            'verdict': outcome.verdict or None,
             **extra,
         },
     )
@@ -373,18 +385,6 @@ def write_result_json(run_dir, result, **inputs):
 
 
 # --- report.md ---------------------------------------------------------------------------------
-
-
-def _fmt(value, digits=4):
-    if value is None:
-        return '–'
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    if not math.isfinite(value):
-        return '∞' if value > 0 else ('–' if math.isnan(value) else '−∞')
-    return f'{value:.{digits}g}'
 
 
 def report_markdown(data, images, title='Calibration report'):
@@ -469,6 +469,7 @@ def report_markdown(data, images, title='Calibration report'):
             row.append(_fmt(errors['after'][name], 3))
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
+    lines += fit_markdown(data)
     lines += [f'## Correlations above {data["correlation_threshold"]}', '']
     if data['correlations']:
         lines += ['| a | b | correlation |', '|---|---|---|']

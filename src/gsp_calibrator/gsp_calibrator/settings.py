@@ -12,12 +12,19 @@ import os
 import re
 
 from gsp_kinematics.geometry import (
-    PARAMETER_NAMES,
+    ALL_PARAMETER_NAMES,
     GeometryError,
     default_geometry_path,
     load_geometry,
 )
-from gsp_kinematics.identification import FORMULATIONS, Sigmas
+from gsp_kinematics.goodness import DEFAULT_OUTLIER_THRESHOLD, LOSSES
+from gsp_kinematics.identification import (
+    FORMULATIONS,
+    PARAMETER_GROUPS,
+    Options,
+    Sigmas,
+    resolve_free,
+)
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
 
 DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
@@ -25,15 +32,21 @@ DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
 
+def check_free_parameters(value):
+    """Reason ('' if none) why ``value`` (names and groups) is not a set of free parameters."""
+    return _check_free(value)
+
+
 def _check_free(value):
     names = list(value)
     if not names:
         return 'must name at least one parameter'
-    unknown = [n for n in names if n not in PARAMETER_NAMES]
+    unknown = [n for n in names if n not in ALL_PARAMETER_NAMES and n not in PARAMETER_GROUPS]
     if unknown:
         return (
-            f'unknown parameter name(s) {unknown}; expected names among A1x..A6z, B1x..B6z, '
-            'Loff1..Loff6, D0, gamma'
+            f'unknown parameter name(s) {unknown}; expected groups ({", ".join(PARAMETER_GROUPS)}) '
+            'or names among A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma, kq1..kq6, alpha0, '
+            'beta0, phi0, kDm'
         )
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
@@ -116,11 +129,40 @@ PARAMETERS = (
     ),
     ParameterSpec(
         'free_parameters',
-        list(PARAMETER_NAMES),
-        'Parameters identified (A1x..B6z, Loff1..Loff6, D0, gamma); the others keep '
-        'their nominal values',
-        constraints='non-empty, known names, no duplicates',
+        ['extended'],
+        'Parameters identified: groups paper (the 44: A1x..B6z, Loff1..Loff6, D0, gamma) and '
+        'extended (the 44 and the identifiable sensor errors kq1..kq6, alpha0), and/or names '
+        '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md)',
+        constraints='non-empty, known names or groups, no duplicates',
         check=_check_free,
+    ),
+    ParameterSpec(
+        'loss',
+        'linear',
+        'Loss of the fit: linear (least squares), huber or cauchy (robust to outlier postures; '
+        'down-weighted postures are reported)',
+        constraints='one of ' + ', '.join(LOSSES),
+        check=one_of(LOSSES),
+    ),
+    ParameterSpec(
+        'loss_scale',
+        Options().loss_scale,
+        'Normalised residual (in sigmas) where the robust loss departs from least squares',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'outlier_threshold',
+        DEFAULT_OUTLIER_THRESHOLD,
+        'A posture whose largest normalised residual (in sigmas) exceeds this is reported',
+        constraints='> 0',
+        check=_POSITIVE,
+    ),
+    ParameterSpec(
+        'apply_rejected_fit',
+        False,
+        'With apply_result: apply a result that converged but failed the goodness-of-fit '
+        'check (p < 0.01) anyway; the result is written and marked in either case',
     ),
     ParameterSpec(
         'formulation',
@@ -228,13 +270,28 @@ class CalibratorSettings:
     output_root: str
     apply_result: bool
     platform_node_name: str
+    loss: str = 'linear'
+    loss_scale: float = Options().loss_scale  #: sigmas
+    outlier_threshold: float = DEFAULT_OUTLIER_THRESHOLD  #: sigmas
+    apply_rejected_fit: bool = False
+
+    @property
+    def free_count(self):
+        """Number of free parameters (the groups expanded)."""
+        return int(resolve_free(self.free_parameters).sum())
+
+    def identify_options(self):
+        """The core's ``Options`` for this run's loss and outlier threshold."""
+        return Options(
+            loss=self.loss, loss_scale=self.loss_scale, outlier_threshold=self.outlier_threshold
+        )
 
     def describe(self):
         """One line for the log: the nominal file, counts, formulation and output root."""
         return (
             f'nominal {self.nominal_geometry_file}, {self.posture_count} postures from a pool of '
             f'{self.pool_size}, {self.samples_per_posture} samples each, {self.formulation} '
-            f'formulation, {len(self.free_parameters)} free parameters, output under '
+            f'formulation, {self.free_count} free parameters, output under '
             f'{os.path.abspath(self.output_root)}'
         )
 
@@ -267,4 +324,8 @@ class CalibratorSettings:
             output_root=str(merged['output_root']),
             apply_result=bool(merged['apply_result']),
             platform_node_name=str(merged['platform_node_name']).lstrip('/'),
+            loss=str(merged['loss']),
+            loss_scale=float(merged['loss_scale']),
+            outlier_threshold=float(merged['outlier_threshold']),
+            apply_rejected_fit=bool(merged['apply_rejected_fit']),
         )

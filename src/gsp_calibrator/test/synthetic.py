@@ -3,10 +3,10 @@
 import numpy as np
 
 from gsp_calibrator.run_directory import Samples
-from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.identification import Sigmas
-from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.validation import sensor_measurements
 
 
 def synthetic_samples(count=30, seed=1, sigmas=Sigmas(), n_samples=1, first_stamp=0.0):
@@ -15,8 +15,9 @@ def synthetic_samples(count=30, seed=1, sigmas=Sigmas(), n_samples=1, first_stam
     nominal, truth = default_geometry('nominal'), default_geometry('true')
     rng = np.random.default_rng(seed)
     poses = sample_valid_postures(nominal, count, rng)
-    legs = inverse_kinematics(truth, poses) + rng.normal(0.0, sigmas.leg_lengths, (count, 6))
-    readings = device_readings(truth, poses) + rng.normal(0.0, 1.0, (count, 4)) * sigmas.readings()
+    legs, readings = sensor_measurements(truth, poses)
+    legs = legs + rng.normal(0.0, sigmas.leg_lengths, (count, 6))
+    readings = readings + rng.normal(0.0, 1.0, (count, 4)) * sigmas.readings()
     return Samples(
         np.arange(1, count + 1),
         poses,

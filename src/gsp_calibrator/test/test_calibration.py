@@ -21,9 +21,9 @@ def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, s
     """Rows as the calibrator would collect them: nominal controller, true platform, noise
     averaged over ``n_samples`` samples; postures FK cannot reach are left out."""
     rng = np.random.default_rng(seed)
-    q = inverse_kinematics(nominal, poses)
-    real, ok = forward_kinematics_masked(true, q, poses)
-    readings = device_readings(true, real[ok])
+    q = nominal.sensors.leg_readings(inverse_kinematics(nominal, poses))
+    real, ok = forward_kinematics_masked(true, true.sensors.true_leg_lengths(q), poses)
+    readings = true.sensors.device_readings(device_readings(true, real[ok]))
     scale = 1.0 / math.sqrt(n_samples)
     samples = Samples.empty()
     for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
@@ -81,7 +81,8 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
     errors = parameter_errors(outcome.geometry, TRUE)
     assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
     assert abs(errors[43]) < 0.01  # deg
-    assert outcome.identifiability['rank'] == 44 and outcome.unidentifiable == []
+    assert outcome.identifiability['rank'] == 51 and outcome.unidentifiable == []  # extended
+    assert outcome.fit_accepted, outcome.verdict
     # Averaged rows weigh as sigma / sqrt(n).
     assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
 
@@ -163,3 +164,30 @@ def test_posture_residuals_against_the_nominal_model(selection):
     assert residuals['leg_lengths'] == pytest.approx(1e-3) and residuals['d_m'] == pytest.approx(
         2e-3
     )
+
+
+def test_paper_model_on_sensor_errors_is_rejected_with_a_verdict(selection):
+    samples = synthetic_samples(selection.poses)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, free=['paper'])
+    assert outcome.success and not outcome.fit_accepted
+    assert 'does NOT explain the data' in outcome.verdict
+    assert 'try free_parameters: extended' in outcome.verdict
+    summary = calibration.outcome_summary(outcome)
+    assert 'result REJECTED by the goodness-of-fit check' in summary
+    extended = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    assert extended.fit_accepted and 'explains the data' in extended.verdict
+    assert 'sensor errors: kq1 ' in calibration.outcome_summary(extended)
+
+
+def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
+    samples = synthetic_samples(selection.poses)
+    rng = np.random.default_rng(4)
+    per_sample = np.concatenate([np.full(6, SIGMAS.leg_lengths), SIGMAS.readings()])
+    spread = per_sample * np.sqrt(rng.chisquare(9, (len(samples), 10)) / 9)
+    spread[:, 9] *= 3.0  # the LVDT is three times noisier than configured
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, within_posture_std=spread)
+    estimates = outcome.noise_estimates
+    assert estimates['leg_lengths']['estimated'] == pytest.approx(SIGMAS.leg_lengths, rel=0.1)
+    assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
+    assert 'noise lvdt: estimated' in calibration.outcome_summary(outcome)
+    assert 'WARNING: differs by more than 2x' in calibration.outcome_summary(outcome)

@@ -51,6 +51,10 @@ def calibrator_parameters(output_root, **overrides):
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
+#: The parameters in which :func:`perturbed_truth` differs from the nominal.
+PERTURBED = [f'Loff{leg}' for leg in range(1, 7)] + ['D0', 'gamma']
+
+
 def perturbed_truth(path):
     """A true platform that differs from the nominal only in the leg offsets and the device."""
     nominal = default_geometry('nominal')
@@ -280,7 +284,7 @@ def test_unreachable_postures_are_skipped(ros_context, tmp_path):
     # The platform's controller allows less leg stroke than the nominal the postures come from.
     tight = [Parameter('geometry.limits.leg_stroke_max', value=1.0)]
     suite, *_ = make_suite(
-        ros_context, tmp_path, tmp_path / 'true.yaml', {'free_parameters': ['D0', 'gamma']}, tight
+        ros_context, tmp_path, tmp_path / 'true.yaml', {'free_parameters': PERTURBED}, tight
     )
     try:
         response = suite.wait(suite.call())
@@ -418,21 +422,25 @@ def test_a_device_that_does_not_follow_the_platform_is_detected(ros_context, tmp
         suite.close()
 
 
-def test_a_failed_apply_is_reported(ros_context, tmp_path):
+def applying_to_nobody(ros_context, tmp_path, **overrides):
+    """A 4-posture run fitting only D0 and gamma (the leg offsets' errors stay unmodelled, so the
+    goodness of fit rejects it) that applies its result to a node that does not exist."""
     perturbed_truth(tmp_path / 'true.yaml')
-    suite, *_ = make_suite(
-        ros_context,
-        tmp_path,
-        tmp_path / 'true.yaml',
-        {
-            'posture_count': 4,
-            'pool_size': 40,
-            'free_parameters': ['D0', 'gamma'],
-            'apply_result': True,
-            'platform_node_name': 'nobody',
-            'topic_timeout': 1.0,
-        },
-    )
+    parameters = {
+        'posture_count': 4,
+        'pool_size': 40,
+        'free_parameters': ['D0', 'gamma'],
+        'apply_result': True,
+        'platform_node_name': 'nobody',
+        'topic_timeout': 1.0,
+        **overrides,
+    }
+    return make_suite(ros_context, tmp_path, tmp_path / 'true.yaml', parameters)[0]
+
+
+def test_a_failed_apply_is_reported(ros_context, tmp_path):
+    # The fit is rejected: apply it anyway, explicitly.
+    suite = applying_to_nobody(ros_context, tmp_path, apply_rejected_fit=True)
     try:
         response = suite.wait(suite.call())
         assert not response.success
@@ -443,6 +451,24 @@ def test_a_failed_apply_is_reported(ros_context, tmp_path):
         parsed = parse_response(response.message)
         assert parsed.geometry_yaml  # the calibration itself succeeded and is kept
         assert (RunDirectory(parsed.run_directory).path / 'result.yaml').is_file()
+    finally:
+        suite.close()
+
+
+def test_a_rejected_fit_is_written_but_not_applied(ros_context, tmp_path):
+    suite = applying_to_nobody(ros_context, tmp_path)
+    try:
+        response = suite.wait(suite.call())
+        assert not response.success
+        assert 'does NOT explain the data' in response.message
+        assert 'result REJECTED by the goodness-of-fit check' in response.message
+        assert 'parameter service' not in response.message  # no apply was attempted
+        parsed = parse_response(response.message)
+        result_yaml = RunDirectory(parsed.run_directory).path / 'result.yaml'
+        assert 'REJECTED' in result_yaml.read_text()
+        data = json.loads((result_yaml.parent / 'result.json').read_text())
+        assert data['fit_accepted'] is False and data['goodness_of_fit']['p_value'] < 0.01
+        assert set(data['noise_estimates']) == {'leg_lengths', 'inclinometer', 'encoder', 'lvdt'}
     finally:
         suite.close()
 

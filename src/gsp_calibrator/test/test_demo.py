@@ -86,6 +86,10 @@ def test_summary_has_the_keys_of_the_issue():
         'total_s',
         'run_directory',
         'collection',
+        'goodness_of_fit',
+        'noise_estimates',
+        'verdict',
+        'fit_accepted',
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}
@@ -93,6 +97,28 @@ def test_summary_has_the_keys_of_the_issue():
     assert summary['max_param_error_mm'] > 0.1 and summary['max_param_error_deg'] > 0.0
     text = demo.summary_text(summary, 49, 1)
     assert 'before (nominal)' in text and '1 rejected' in text
+
+
+def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
+    fit = {'chi2': 190.5, 'dof': 185, 'p_value': 0.38}
+    noise = {'lvdt': {'configured': 1e-6, 'estimated': 0.96e-6}}
+    (tmp_path / 'result.json').write_text(
+        json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'verdict': 'ok'})
+    )
+    record = demo.fit_record(tmp_path)
+    true, nominal = default_geometry('true'), default_geometry('nominal')
+    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    summary = demo.make_summary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record)
+    assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
+    assert demo.summary_text(summary, 1, 0).endswith('ok')
+
+
+def test_demo_free_accepts_groups_and_names_and_rejects_unknown(capsys):
+    assert demo.parse_arguments([]).free == ['extended']
+    assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free == ['paper', 'kq1', 'kq2']
+    with pytest.raises(SystemExit):
+        demo.parse_arguments(['--free', 'kq9'])
+    assert 'unknown parameter name' in capsys.readouterr().err
 
 
 def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_path):

@@ -23,7 +23,8 @@ def test_plan_json(tmp_path, capsys):
     argv = ['--postures', '30', '--samples-per-posture', '4', '--output', str(output), *QUICK]
     assert planning.main(argv) == 0
     plan = _read(output)
-    assert plan['rank'] == plan['parameters'] == 44 and plan['unidentifiable'] == []
+    # The calibrator's default: the 44 and the identifiable sensor errors (group 'extended').
+    assert plan['rank'] == plan['parameters'] == 51 and plan['unidentifiable'] == []
     predicted = plan['predicted']
     assert 0 < predicted['position_mm_mean'] <= predicted['position_mm_p95']
     assert 0 < predicted['orientation_deg_mean'] <= predicted['orientation_deg_p95']
@@ -34,7 +35,7 @@ def test_plan_json(tmp_path, capsys):
     sigmas = calibration.averaged_sigmas(calibration.Sigmas(), [4])
     chosen = calibration.choose_postures(nominal, 30, 120, 0, sigmas)
     assert np.allclose(plan['selection']['poses'], chosen.poses)
-    assert 'rank 44 of 44' in capsys.readouterr().out
+    assert 'rank 51 of 51' in capsys.readouterr().out
 
 
 def test_more_samples_predict_better_accuracy():
@@ -51,7 +52,8 @@ def test_too_few_postures_are_reported_unidentifiable(tmp_path):
     output = tmp_path / 'plan.json'
     assert planning.main(['--postures', '8', '--output', str(output), *QUICK]) == 0
     plan = _read(output)
-    assert plan['rank'] < 44 and plan['unidentifiable'] and plan['predicted'] is None
+    assert plan['rank'] < plan['parameters'] and plan['unidentifiable']
+    assert plan['predicted'] is None
 
 
 def test_sweep_writes_table_plot_and_json(tmp_path, capsys):

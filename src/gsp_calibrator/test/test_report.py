@@ -93,7 +93,11 @@ def test_result_json(tmp_path, calibrated):
     )
     assert set(data['estimates']['si']) == set(PARAMETER_NAMES)
     identifiability = data['identifiability']
-    assert identifiability['rank'] == 44 and identifiability['unidentifiable'] == []
+    assert identifiability['rank'] == len(result.free_names) == 51  # extended
+    assert identifiability['unidentifiable'] == []
+    assert data['goodness_of_fit']['dof'] > 0 and 0.0 <= data['goodness_of_fit']['p_value'] <= 1
+    assert data['sensor_errors']['kq1']['free'] and not data['sensor_errors']['kDm']['free']
+    assert data['sensor_errors']['kq1']['standard_deviation'] > 0
     assert identifiability['condition_number'] > 1.0
     assert set(data['residual_rms']) == {'leg_lengths', 'alpha', 'beta', 'phi', 'd_m'}
     assert data['residual_rms']['alpha']['si_unit'] == 'rad'

@@ -13,14 +13,15 @@ from gsp_calibrator.settings import (
     CalibratorSettings,
     check_parameters,
 )
-from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry_path
+from gsp_kinematics.geometry import default_geometry_path
 
 
 def test_defaults():
     assert DEFAULTS['posture_count'] == 60 and DEFAULTS['pool_size'] == 600
     assert DEFAULTS['samples_per_posture'] == 10
     assert DEFAULTS['sync_tolerance'] == pytest.approx(0.0025)
-    assert DEFAULTS['free_parameters'] == list(PARAMETER_NAMES)
+    assert DEFAULTS['free_parameters'] == ['extended']
+    assert DEFAULTS['loss'] == 'linear' and DEFAULTS['apply_rejected_fit'] is False
     assert DEFAULTS['formulation'] == 'implicit' and DEFAULTS['output_root'] == 'runs'
     assert DEFAULTS['apply_result'] is False and DEFAULTS['platform_node_name'] == 'platform_sim'
     assert DEFAULTS['nominal_geometry_file'] == default_geometry_path('nominal')

@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
-from gsp_kinematics.geometry import Geometry, load_geometry
+from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
 
 
 class BackendError(ValueError):
@@ -95,6 +95,8 @@ class SimDeviceBackend(DeviceBackend):
 
     ``device_length`` D0 (m) and ``inclinometer_axes_angle`` gamma (rad) are the real device's;
     noise stds in rad (inclinometer: alpha and beta, encoder: phi) and m (LVDT: d_m).
+    ``sensors``: the real device's ``SensorErrors`` (inclinometer and encoder offsets, LVDT gain
+    error; docs/sensor_errors.md); None: ideal sensors.
     """
 
     name = 'sim'
@@ -109,6 +111,7 @@ class SimDeviceBackend(DeviceBackend):
         encoder_std=0.0,
         lvdt_std=0.0,
         rng=None,
+        sensors=None,
     ):
         device_length = float(device_length)
         gamma = float(inclinometer_axes_angle)
@@ -123,6 +126,7 @@ class SimDeviceBackend(DeviceBackend):
             leg_offsets=np.zeros(6),
             device_length=device_length,
             inclinometer_axes_angle=gamma,
+            sensors=sensors if sensors is not None else SensorErrors(),
         )
         self._stds = np.zeros(4)
         self.update_noise(inclinometer_std, encoder_std, lvdt_std)
@@ -132,7 +136,8 @@ class SimDeviceBackend(DeviceBackend):
 
     @classmethod
     def from_config(cls, true_geometry_file, rng=None, **config):
-        """From the true geometry file (D0, gamma) and the node's ``*_noise_std`` parameters."""
+        """From the true geometry file (D0, gamma, sensor errors) and the node's
+        ``*_noise_std`` parameters."""
         geometry = load_geometry(true_geometry_file)
         return cls(
             geometry.device_length,
@@ -142,6 +147,7 @@ class SimDeviceBackend(DeviceBackend):
                 for sensor in ('inclinometer', 'encoder', 'lvdt')
             ),
             rng=rng,
+            sensors=geometry.sensors,
         )
 
     @property
@@ -173,7 +179,8 @@ class SimDeviceBackend(DeviceBackend):
             raise ValueError(f'true pose must be 6 finite values, got {pose.tolist()}')
         if self._pose is None or not np.array_equal(pose, self._pose):
             try:
-                exact = device_readings(self._device, pose[None])[0]
+                ideal = device_readings(self._device, pose[None])[0]
+                exact = self._device.sensors.device_readings(ideal)
             except DeviceModelError as error:
                 raise ValueError(
                     f'no device reading for true pose {pose.tolist()}: {error}'

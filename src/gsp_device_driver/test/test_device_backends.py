@@ -22,7 +22,11 @@ STDS = np.array([1e-4, 1e-4, 2e-4, 3e-6])  # alpha, beta, phi (rad), d_m (m)
 
 def make_sim(stds=(0.0, 0.0, 0.0), seed=0):
     return SimDeviceBackend(
-        TRUE.device_length, TRUE.inclinometer_axes_angle, *stds, rng=np.random.default_rng(seed)
+        TRUE.device_length,
+        TRUE.inclinometer_axes_angle,
+        *stds,
+        rng=np.random.default_rng(seed),
+        sensors=TRUE.sensors,
     )
 
 
@@ -35,15 +39,23 @@ def test_noise_free_readings_are_the_core_device_model():
     sim.observe_true_pose(POSE)
     sample = sim.read(12.5)
     assert isinstance(sample, DeviceSample) and sample.stamp_s == 12.5
-    np.testing.assert_allclose(sample.readings(), device_readings(TRUE, POSE[None])[0], atol=1e-12)
-    assert sample.phi == POSE[5]
-    assert sample.d_m == pytest.approx(np.linalg.norm(POSE[:3]) - TRUE.device_length, abs=1e-12)
+    np.testing.assert_allclose(
+        sample.readings(),
+        TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0]),
+        atol=1e-12,
+    )
+    # The true sensor errors: encoder zero phi0, LVDT gain error kDm (docs/sensor_errors.md).
+    assert sample.phi == POSE[5] + TRUE.sensors.encoder_offset
+    assert sample.d_m == pytest.approx(
+        (np.linalg.norm(POSE[:3]) - TRUE.device_length) / (1.0 + TRUE.sensors.lvdt_gain_error),
+        abs=1e-12,
+    )
 
 
 def test_noise_stds_are_honoured():
     sim = make_sim((STDS[0], STDS[2], STDS[3]), seed=3)
     sim.observe_true_pose(POSE)
-    exact = device_readings(TRUE, POSE[None])[0]
+    exact = TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0])
     errors = np.stack([sim.read(0.0).readings() for _ in range(20000)]) - exact
     np.testing.assert_allclose(errors.std(axis=0), STDS, rtol=0.03)
     assert np.all(np.abs(errors.mean(axis=0)) < 4 * STDS / np.sqrt(len(errors)))
@@ -69,7 +81,9 @@ def test_bad_true_pose_is_refused_and_the_last_good_one_kept():
     for bad in ([0.0, math.nan, 1.0, 0.0, 0.0, 0.0], [0.0] * 6, [1.0, 2.0]):
         with pytest.raises(ValueError):
             sim.observe_true_pose(bad)
-    np.testing.assert_allclose(sim.read(0.0).readings(), device_readings(TRUE, POSE[None])[0])
+    np.testing.assert_allclose(
+        sim.read(0.0).readings(), TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0])
+    )
 
 
 def test_sim_from_config_reads_the_device_from_the_true_geometry_file():

@@ -89,7 +89,9 @@ def test_noise_free_readings_are_the_device_model_of_the_true_pose(harness):
     readings, stamps = harness.readings_after(5)
     np.testing.assert_allclose(
         readings,
-        np.broadcast_to(device_readings(TRUE, POSE[None])[0], readings.shape),
+        np.broadcast_to(
+            TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0]), readings.shape
+        ),
         rtol=0,
         atol=1e-12,
     )
@@ -103,7 +105,7 @@ def test_readings_match_within_the_noise_and_share_one_stamp(harness):
     harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
     readings, stamps = harness.readings_after(20)
     stds = np.array([math.radians(0.001)] * 3 + [1e-6])
-    errors = readings - device_readings(TRUE, POSE[None])[0]
+    errors = readings - TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0])
     assert np.all(np.abs(errors) < 6 * stds), errors / stds
     assert np.all(np.std(errors, axis=0) > 0.1 * stds)  # noise is there
     # Nearly every stamp carries all three readings (best effort on loopback loses ~none).
@@ -114,7 +116,7 @@ def test_readings_match_within_the_noise_and_share_one_stamp(harness):
 def test_bad_true_poses_are_ignored_and_the_driver_keeps_going(harness):
     harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
     harness.readings_after(2)
-    exact = device_readings(TRUE, POSE[None])[0]
+    exact = TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0])
     nan_pose = conversions.pose_to_pose_stamped(POSE + 0.01, None, names.FRAME_BASE)
     nan_pose.pose.position.x = math.nan
     wrong_frame = conversions.pose_to_pose_stamped(POSE + 0.01, None, 'world')

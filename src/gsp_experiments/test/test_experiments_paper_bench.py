@@ -188,7 +188,9 @@ def test_selection_and_prediction_sections():
 
     selection = bench_scale.bench_selection(pools=(90,), count=30, repeats=1)
     assert selection['pool_90_s'] > 0 and 1.0 < selection['condition_90'] < np.inf
-    prediction = bench_scale.bench_prediction(seeds=2, postures=30, validation_postures=30)
-    assert prediction['seeds'] == 2
+    # A smoke run of the section (the 25 % target over 20 seeds is the benchmark's): with the
+    # calibrator's 51 free parameters, 4 seeds of 40 postures give ratios of the right order.
+    prediction = bench_scale.bench_prediction(seeds=4, postures=40, validation_postures=40)
+    assert prediction['seeds'] == 4
     assert 0.5 < prediction['position_ratio'] < 2.0
     assert 0.5 < prediction['orientation_ratio'] < 2.0

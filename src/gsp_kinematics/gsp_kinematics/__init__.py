@@ -11,8 +11,8 @@ import importlib
 _EXPORTS = {
     'device': ('device_position', 'device_readings', 'position_to_inclinations'),
     'geometry': (
-        'PARAMETER_NAMES Geometry GeometryError Limits default_geometry default_geometry_path '
-        'load_geometry save_geometry'
+        'ALL_PARAMETER_NAMES PARAMETER_NAMES Geometry GeometryError Limits default_geometry default_geometry_path '
+        'SensorErrors load_geometry save_geometry'
     ).split(),
     'identification': ('IdentificationResult', 'Sigmas', 'identify'),
     'kinematics': (

@@ -16,7 +16,7 @@ import numpy as np
 
 from ._lm import Point, Step, cost_of, normal_blocks, schur_complement, schur_information
 from .device import READING_NAMES, device_readings_jacobians, paper_inclinations_jacobians
-from .geometry import NUM_PARAMETERS, Geometry
+from .geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX, Geometry
 from .kinematics import (
     expand_leg_parameters,
     forward_kinematics_masked,
@@ -26,14 +26,19 @@ from .rotation import wrap_angle
 
 #: Column of the yaw reading ``phi`` in ``READING_NAMES`` (an angle: its residual is wrapped).
 _PHI = READING_NAMES.index('phi')
+_KQ = slice(PARAMETER_INDEX['kq1'], PARAMETER_INDEX['kq6'] + 1)
+_D0, _GAMMA, _KDM = PARAMETER_INDEX['D0'], PARAMETER_INDEX['gamma'], PARAMETER_INDEX['kDm']
+#: Columns of the offsets alpha0, beta0, phi0: each adds to the reading of its row (0, 1, 2).
+_OFFSETS = [PARAMETER_INDEX[name] for name in ('alpha0', 'beta0', 'phi0')]
 
 
 class _Model:
-    """What both formulations share: the free parameters inside the nominal 44-vector."""
+    """What both formulations share: the free parameters inside the nominal extended vector
+    (the 44 and the sensor errors, :data:`gsp_kinematics.geometry.ALL_PARAMETER_NAMES`)."""
 
     def __init__(self, nominal, free):
         self.nominal = nominal
-        self.nominal_vector = nominal.to_vector()
+        self.nominal_vector = nominal.to_full_vector()
         self.limits = nominal.limits
         self.free = free
 
@@ -41,7 +46,36 @@ class _Model:
         """The geometry with the free parameters set to ``free_values`` (the rest nominal)."""
         vector = self.nominal_vector.copy()
         vector[self.free] = free_values
-        return Geometry.from_vector(vector, self.limits)
+        return Geometry.from_full_vector(vector, self.limits)
+
+
+def leg_readings_jacobians(geometry, poses):
+    """What the leg sensors read at ``poses``, ``q_r = IK / (1 + kq)`` (M, 6), its derivatives
+    w.r.t. the pose (M, 6, 6) and w.r.t. the extended parameter vector (M, 6, 54)."""
+    q, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
+    scale = 1.0 / (1.0 + geometry.sensors.leg_gain_errors)
+    d_u = np.zeros(q.shape + (NUM_ALL_PARAMETERS,))
+    d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg) * scale[None, :, None]
+    legs = np.arange(6)
+    d_u[:, legs, _KQ.start + legs] = -q * scale**2
+    return q * scale, d_q_d_pose * scale[None, :, None], d_u
+
+
+def sensor_readings_jacobians(geometry, poses):
+    """Readings ``[alpha, beta, phi, d_m]`` with the sensor errors (M, 4), their derivatives
+    w.r.t. the pose (M, 4, 6) and w.r.t. the extended parameter vector (M, 4, 54)."""
+    ideal, d_pose, d_device = device_readings_jacobians(geometry, poses)
+    sensors = geometry.sensors
+    gain = 1.0 / (1.0 + sensors.lvdt_gain_error)
+    d_u = np.zeros(ideal.shape + (NUM_ALL_PARAMETERS,))
+    d_u[:, :, [_D0, _GAMMA]] = d_device
+    d_u[:, 3] *= gain
+    d_u[:, 3, _KDM] = -ideal[:, 3] * gain**2
+    for row, column in enumerate(_OFFSETS):
+        d_u[:, row, column] = 1.0
+    d_pose = d_pose.copy()
+    d_pose[:, 3] *= gain
+    return sensors.device_readings(ideal), d_pose, d_u
 
 
 def _wrap_phi(difference, columns):
@@ -71,11 +105,14 @@ class _FkModel(_Model):
         self.poses = pose_guesses.copy()  #: FK's guesses: the last solution of each posture
         self.active = np.ones(leg_lengths.shape[0], dtype=bool)
         self.readmitted = set()
+        self.root_weights = None  #: (M, k) square roots of the robust weights (None: all 1)
 
     def evaluate(self, free_values, linearize):
         """``(residuals (M, k), jacobian (M, k, n) or None, poses, converged (M,))``."""
         geometry = self.geometry(free_values)
-        poses, converged = forward_kinematics_masked(geometry, self.leg_lengths, self.poses)
+        # FK of the true articular variables (1 + kq) q the leg readings q stand for.
+        true_legs = geometry.sensors.true_leg_lengths(self.leg_lengths)
+        poses, converged = forward_kinematics_masked(geometry, true_legs, self.poses)
         use = converged & self.active
         count, k, n = poses.shape[0], len(self.columns), int(self.free.sum())
         residuals = np.zeros((count, k))
@@ -84,47 +121,63 @@ class _FkModel(_Model):
             return residuals, jacobian, poses, converged
         good = poses[use]
         if self.paper:
-            predicted, d_pred_d_pose, d_pred_d_device = self._paper_prediction(geometry, good, use)
+            predicted, d_pred_d_pose, d_pred_d_u = self._paper_prediction(geometry, good, use)
         else:
-            predicted, d_pred_d_pose, d_pred_d_device = device_readings_jacobians(geometry, good)
-            predicted, d_pred_d_pose, d_pred_d_device = (
+            predicted, d_pred_d_pose, d_pred_d_u = sensor_readings_jacobians(geometry, good)
+            predicted, d_pred_d_pose, d_pred_d_u = (
                 predicted[:, self.columns],
                 d_pred_d_pose[:, self.columns],
-                d_pred_d_device[:, self.columns],
+                d_pred_d_u[:, self.columns],
             )
         difference = _wrap_phi(self.readings[use][:, self.columns] - predicted, self.columns)
         residuals[use] = difference * self.weights
         if linearize:
             _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, good)
-            d_q_d_u = np.zeros(d_q_d_leg.shape[:2] + (NUM_PARAMETERS,))
+            # IK(X, u) = (1 + kq) q_measured  =>  dX/du = -(dq/dX)^-1 d(IK - (1 + kq) q)/du
+            d_q_d_u = np.zeros(d_q_d_leg.shape[:2] + (NUM_ALL_PARAMETERS,))
             d_q_d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg)
-            # q(X(u), u) = q_measured  =>  dX/du = -(dq/dX)^-1 dq/du
+            legs = np.arange(6)
+            d_q_d_u[:, legs, _KQ.start + legs] = -self.leg_lengths[use]
             d_pose_d_u = -np.linalg.solve(d_q_d_pose, d_q_d_u[:, :, self.free])
-            d_pred_d_u = d_pred_d_pose @ d_pose_d_u
-            device_free = self.free[42:]
-            d_pred_d_u[:, :, np.cumsum(self.free)[42:][device_free] - 1] += d_pred_d_device[
-                :, :, device_free
-            ]
+            d_pred_d_u = d_pred_d_pose @ d_pose_d_u + d_pred_d_u[:, :, self.free]
             jacobian[use] = -d_pred_d_u * self.weights[None, :, None]
+        if self.root_weights is not None:
+            residuals *= self.root_weights
+            if linearize:
+                jacobian *= self.root_weights[..., None]
         return residuals, jacobian, poses, converged
 
     def _paper_prediction(self, geometry, poses, use):
+        """Eq (11)'s predictions with ``D = D0 + (1 + kDm) Dm`` and the reading offsets."""
         d_m = self.readings[use][:, 3]
         angles, d_angles_d_pose, d_angles_d_device = paper_inclinations_jacobians(
-            geometry, poses, d_m
+            geometry, poses, (1.0 + geometry.sensors.lvdt_gain_error) * d_m
         )
-        predicted = np.concatenate([angles, poses[:, 5:6]], axis=1)
+        offsets = np.append(geometry.sensors.inclinometer_offsets, geometry.sensors.encoder_offset)
+        predicted = np.concatenate([angles, poses[:, 5:6]], axis=1) + offsets
         d_pose = np.concatenate([d_angles_d_pose, np.zeros((poses.shape[0], 1, 6))], axis=1)
         d_pose[:, 2, 5] = 1.0
-        d_device = np.concatenate([d_angles_d_device, np.zeros((poses.shape[0], 1, 2))], axis=1)
+        d_u = np.zeros((poses.shape[0], 3, NUM_ALL_PARAMETERS))
+        d_u[:, 0:2, [_D0, _GAMMA]] = d_angles_d_device
+        d_u[:, 0:2, _KDM] = d_angles_d_device[:, :, 0] * d_m[:, None]
+        for row, column in enumerate(_OFFSETS):
+            d_u[:, row, column] = 1.0
         keep = [c for c in (0, 1, 2) if c in self.columns]
-        return predicted[:, keep], d_pose[:, keep], d_device[:, keep]
+        return predicted[:, keep], d_pose[:, keep], d_u[:, keep]
 
     def _point(self, values):
         residuals, jacobian, poses, converged = self.evaluate(values, linearize=True)
         return Point(values, residuals, cost_of(residuals), jacobian, (poses, converged))
 
     # --- the driver's interface ---
+
+    def restart(self, point):
+        """``point`` evaluated again (after the robust weights changed)."""
+        return self._point(point.values)
+
+    def unknowns(self):
+        """Unknowns the residuals estimate: the free parameters."""
+        return int(self.free.sum())
 
     def start(self):
         """The point at the nominal; postures whose FK fails there are left out from the start."""
@@ -180,10 +233,16 @@ class _FkModel(_Model):
         return flat_jacobian.T @ flat_jacobian
 
     def reported_residuals(self, point):
-        """Residuals with NaN rows for the postures left out."""
+        """Normalised residuals (no robust weights) with NaN rows for the postures left out."""
         residuals = point.residuals.copy()
+        if self.root_weights is not None:
+            residuals /= self.root_weights
         residuals[~self.active] = np.nan
         return residuals
+
+    def column_names(self):
+        """Name of each residual column."""
+        return [READING_NAMES[c] for c in self.columns]
 
     def sensor_columns(self):
         """``{sensor: (column of the residuals, weight)}``."""
@@ -221,13 +280,14 @@ class _ImplicitModel(_Model):
         self.leg_weight = 1.0 / sigmas.leg_lengths
         self.reading_weights = 1.0 / sigmas.readings()[self.columns]
         self.use_legs = 'leg_lengths' in sensors
+        self.root_weights = None  #: (M, k) square roots of the robust weights (None: all 1)
 
     def evaluate(self, free_values, poses, linearize):
         """``(residuals (M, k), jac_pose (M, k, 6), jac_u (M, k, n))``; Jacobians None unless
         ``linearize``."""
         geometry = self.geometry(free_values)
-        q, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
-        predicted, d_pred_d_pose, d_pred_d_device = device_readings_jacobians(geometry, poses)
+        q, d_q_d_pose, d_q_d_u = leg_readings_jacobians(geometry, poses)
+        predicted, d_pred_d_pose, d_pred_d_u = sensor_readings_jacobians(geometry, poses)
         leg_residuals = (q - self.leg_lengths) * self.leg_weight
         if not self.use_legs:
             leg_residuals = leg_residuals[:, :0]
@@ -235,19 +295,19 @@ class _ImplicitModel(_Model):
             predicted[:, self.columns] - self.readings[:, self.columns], self.columns
         )
         residuals = np.concatenate([leg_residuals, difference * self.reading_weights], axis=1)
+        root = 1.0 if self.root_weights is None else self.root_weights
+        residuals = residuals * root
         if not linearize:
             return residuals, None, None
-        count = poses.shape[0]
-        d_q_d_u = np.zeros((count, 6, NUM_PARAMETERS))
-        d_q_d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg)
-        d_pred_d_u = np.zeros((count, 4, NUM_PARAMETERS))
-        d_pred_d_u[:, :, 42:] = d_pred_d_device
         weights = self.reading_weights[None, :, None]
         blocks_pose = [d_q_d_pose * self.leg_weight] if self.use_legs else []
         blocks_pose.append(d_pred_d_pose[:, self.columns] * weights)
         blocks_u = [d_q_d_u[:, :, self.free] * self.leg_weight] if self.use_legs else []
         blocks_u.append(d_pred_d_u[:, self.columns][:, :, self.free] * weights)
-        return residuals, np.concatenate(blocks_pose, axis=1), np.concatenate(blocks_u, axis=1)
+        jac_pose, jac_u = np.concatenate(blocks_pose, axis=1), np.concatenate(blocks_u, axis=1)
+        if self.root_weights is not None:
+            jac_pose, jac_u = jac_pose * root[..., None], jac_u * root[..., None]
+        return residuals, jac_pose, jac_u
 
     def _point(self, values, poses):
         residuals, jac_pose, jac_u = self.evaluate(values, poses, linearize=True)
@@ -255,10 +315,18 @@ class _ImplicitModel(_Model):
 
     # --- the driver's interface ---
 
+    def restart(self, point):
+        """``point`` evaluated again (after the robust weights changed)."""
+        return self._point(point.values, point.state)
+
+    def unknowns(self):
+        """Unknowns the residuals estimate: the free parameters and six a pose."""
+        return int(self.free.sum()) + 6 * self.leg_lengths.shape[0]
+
     def start(self):
         """The point at the nominal, with the poses FK finds there under the nominal."""
         poses, converged = forward_kinematics_masked(
-            self.nominal, self.leg_lengths, self.pose_guesses
+            self.nominal, self.nominal.sensors.true_leg_lengths(self.leg_lengths), self.pose_guesses
         )
         # Where FK under the nominal fails, the pose still has a start: the guess itself.
         poses = np.where(converged[:, None], poses, self.pose_guesses)
@@ -312,7 +380,15 @@ class _ImplicitModel(_Model):
         return schur_information(*point.linearization)
 
     def reported_residuals(self, point):
-        return point.residuals
+        """Normalised residuals (no robust weights)."""
+        if self.root_weights is None:
+            return point.residuals
+        return point.residuals / self.root_weights
+
+    def column_names(self):
+        """Name of each residual column."""
+        legs = [f'leg{leg}' for leg in range(1, 7)] if self.use_legs else []
+        return legs + [READING_NAMES[c] for c in self.columns]
 
     def sensor_columns(self):
         """``{sensor: (column(s) of the residuals, weight)}``."""

@@ -1,4 +1,5 @@
-"""Platform and device geometry: the 44 identification parameters and the geometry file format.
+"""Platform and device geometry: the 44 identification parameters, the sensor errors and the
+geometry file format.
 
 The canonical file is a ROS 2 parameters YAML (``/**: ros__parameters: geometry: ...``), so the
 same file configures a node with ``--params-file`` and holds true, nominal or calibrated values.
@@ -23,7 +24,17 @@ PARAMETER_NAMES = tuple(
     + [f'Loff{leg}' for leg in range(1, 7)]
     + ['D0', 'gamma']
 )
-PARAMETER_INDEX = {name: index for index, name in enumerate(PARAMETER_NAMES)}
+#: The sensor-error parameters (docs/sensor_errors.md), after the 44 in the extended vector:
+#: leg gain errors, inclinometer zero offsets (rad), encoder zero (rad), LVDT gain error.
+SENSOR_PARAMETER_NAMES = tuple(
+    [f'kq{leg}' for leg in range(1, 7)] + ['alpha0', 'beta0', 'phi0', 'kDm']
+)
+#: The 44 and the sensor errors: the vector the identification works on.
+ALL_PARAMETER_NAMES = PARAMETER_NAMES + SENSOR_PARAMETER_NAMES
+NUM_ALL_PARAMETERS = len(ALL_PARAMETER_NAMES)
+PARAMETER_INDEX = {name: index for index, name in enumerate(ALL_PARAMETER_NAMES)}
+#: Sensor parameters that are angles (rad); the others are dimensionless gain errors.
+ANGULAR_SENSOR_PARAMETERS = ('alpha0', 'beta0', 'phi0')
 #: Index of the only angular parameter (gamma); every other parameter is a length in m.
 ANGULAR_PARAMETERS = (PARAMETER_INDEX['gamma'],)
 #: The leg that each platform parameter belongs to (None for the device parameters).
@@ -63,8 +74,74 @@ class Limits:
 
 
 @dataclasses.dataclass(frozen=True)
+class SensorErrors:
+    """Systematic sensor errors (all 0: ideal sensors). Sign conventions (docs/sensor_errors.md):
+
+    real leg length ``L_i = L_off_i + (1 + kq_i) q_i`` (q_i the reading); inclinometer reading =
+    model inclination + offset; encoder reading = model yaw + ``phi0``; link length
+    ``D = D0 + (1 + kDm) Dm`` (Dm the LVDT reading).
+    """
+
+    leg_gain_errors: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS))
+    inclinometer_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    encoder_offset: float = 0.0  #: phi0, rad
+    lvdt_gain_error: float = 0.0  #: kDm
+
+    def __post_init__(self):
+        for name, size in (('leg_gain_errors', NUM_LEGS), ('inclinometer_offsets', 2)):
+            value = np.array(getattr(self, name), dtype=float).reshape(size)
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, 'encoder_offset', float(self.encoder_offset))
+        object.__setattr__(self, 'lvdt_gain_error', float(self.lvdt_gain_error))
+
+    def to_vector(self):
+        """``[kq1..kq6, alpha0, beta0, phi0, kDm]``."""
+        return np.concatenate(
+            [
+                self.leg_gain_errors,
+                self.inclinometer_offsets,
+                [self.encoder_offset, self.lvdt_gain_error],
+            ]
+        )
+
+    @classmethod
+    def from_vector(cls, values):
+        values = np.asarray(values, dtype=float)
+        return cls(values[0:6], values[6:8], values[8], values[9])
+
+    @property
+    def ideal(self):
+        return not np.any(self.to_vector())
+
+    def true_leg_lengths(self, leg_readings):
+        """Articular variables ``(1 + kq) q`` (M, 6) the legs really have for readings q."""
+        return np.asarray(leg_readings, dtype=float) * (1.0 + self.leg_gain_errors)
+
+    def leg_readings(self, true_leg_lengths):
+        """What the leg sensors read, ``q / (1 + kq)``, for true articular variables."""
+        return np.asarray(true_leg_lengths, dtype=float) / (1.0 + self.leg_gain_errors)
+
+    def device_readings(self, ideal_readings):
+        """Readings ``[alpha, beta, phi, d_m]`` (M, 4) the sensors give for the ideal ones."""
+        readings = np.array(ideal_readings, dtype=float)
+        readings[..., 0:2] += self.inclinometer_offsets
+        readings[..., 2] += self.encoder_offset
+        readings[..., 3] /= 1.0 + self.lvdt_gain_error
+        return readings
+
+    def ideal_device_readings(self, readings):
+        """Inverse of :meth:`device_readings`: the readings ideal sensors would give."""
+        ideal = np.array(readings, dtype=float)
+        ideal[..., 0:2] -= self.inclinometer_offsets
+        ideal[..., 2] -= self.encoder_offset
+        ideal[..., 3] *= 1.0 + self.lvdt_gain_error
+        return ideal
+
+
+@dataclasses.dataclass(frozen=True)
 class Geometry:
-    """The 44 parameters (m, rad) and the platform's limits."""
+    """The 44 parameters (m, rad), the sensor errors and the platform's limits."""
 
     base_joints: np.ndarray  #: A_i, (6, 3), base frame, m
     platform_joints: np.ndarray  #: B_i, (6, 3), platform frame, m
@@ -72,6 +149,7 @@ class Geometry:
     device_length: float  #: D0, m
     inclinometer_axes_angle: float  #: gamma, rad
     limits: Limits = dataclasses.field(default_factory=Limits)
+    sensors: SensorErrors = dataclasses.field(default_factory=SensorErrors)
 
     def __post_init__(self):
         for name, shape in (
@@ -110,6 +188,18 @@ class Geometry:
             limits=limits if limits is not None else Limits(),
         )
 
+    def to_full_vector(self):
+        """The 44 and the sensor errors, in :data:`ALL_PARAMETER_NAMES` order."""
+        return np.concatenate([self.to_vector(), self.sensors.to_vector()])
+
+    @classmethod
+    def from_full_vector(cls, parameters, limits=None):
+        parameters = np.asarray(parameters, dtype=float)
+        if parameters.shape != (NUM_ALL_PARAMETERS,):
+            raise GeometryError(f'parameter vector must have {NUM_ALL_PARAMETERS} values')
+        geometry = cls.from_vector(parameters[:NUM_PARAMETERS], limits)
+        return geometry.replace(sensors=SensorErrors.from_vector(parameters[NUM_PARAMETERS:]))
+
     def replace(self, **changes):
         return dataclasses.replace(self, **changes)
 
@@ -134,6 +224,14 @@ def to_report_units(parameter_values):
 _ARRAY_KEYS = {'base_joints': 18, 'platform_joints': 18, 'leg_offsets': 6}
 _SCALAR_KEYS = ('device_length', 'inclinometer_axes_angle')
 _LIMIT_KEYS = tuple(field.name for field in dataclasses.fields(Limits))
+_SENSORS = f'{GEOMETRY_NAMESPACE}.sensors'
+#: ``geometry.sensors.*`` keys (optional section) -> number of values (None: a scalar).
+SENSOR_KEYS = {
+    'leg_gain_errors': NUM_LEGS,
+    'inclinometer_offsets': 2,
+    'encoder_offset': None,
+    'lvdt_gain_error': None,
+}
 
 
 def geometry_to_parameters(geometry):
@@ -147,6 +245,11 @@ def geometry_to_parameters(geometry):
     }
     for key in _LIMIT_KEYS:
         parameters[f'{GEOMETRY_NAMESPACE}.limits.{key}'] = float(getattr(geometry.limits, key))
+    sensors = geometry.sensors
+    parameters[f'{_SENSORS}.leg_gain_errors'] = sensors.leg_gain_errors.tolist()
+    parameters[f'{_SENSORS}.inclinometer_offsets'] = sensors.inclinometer_offsets.tolist()
+    parameters[f'{_SENSORS}.encoder_offset'] = sensors.encoder_offset
+    parameters[f'{_SENSORS}.lvdt_gain_error'] = sensors.lvdt_gain_error
     return parameters
 
 
@@ -159,6 +262,35 @@ def _finite_float(value, key):
     return value
 
 
+def _finite_list(raw, length, key):
+    if isinstance(raw, (str, bytes)) or not hasattr(raw, '__len__'):
+        raise GeometryError(f'{key}: expected a list of {length} numbers, got {raw!r}')
+    if len(raw) != length:
+        raise GeometryError(f'{key}: expected {length} values, got {len(raw)}')
+    return [_finite_float(item, f'{key}[{index}]') for index, item in enumerate(raw)]
+
+
+def _sensor_errors_from_parameters(parameters):
+    """The optional ``geometry.sensors`` section (absent keys: ideal sensors)."""
+    values = {}
+    for key, length in SENSOR_KEYS.items():
+        full = f'{_SENSORS}.{key}'
+        if full not in parameters or parameters[full] is None:
+            continue
+        raw = parameters[full]
+        values[key] = (
+            _finite_float(raw, full) if length is None else _finite_list(raw, length, full)
+        )
+    for key in ('leg_gain_errors', 'lvdt_gain_error'):
+        gains = np.atleast_1d(values.get(key, 0.0))
+        if np.any(np.abs(gains) >= 0.5):
+            raise GeometryError(
+                f'{_SENSORS}.{key}: a gain error is a small fraction (|k| < 0.5), got '
+                f'{gains.tolist()}'
+            )
+    return SensorErrors(**values)
+
+
 def geometry_from_parameters(parameters, default_limits=None):
     """Build a :class:`Geometry` from a flat ``geometry.*`` dictionary, checking every key."""
     prefix = GEOMETRY_NAMESPACE + '.'
@@ -167,12 +299,7 @@ def geometry_from_parameters(parameters, default_limits=None):
         full = prefix + key
         if full not in parameters or parameters[full] is None:
             raise GeometryError(f'{full}: missing')
-        raw = parameters[full]
-        if isinstance(raw, (str, bytes)) or not hasattr(raw, '__len__'):
-            raise GeometryError(f'{full}: expected a list of {length} numbers, got {raw!r}')
-        if len(raw) != length:
-            raise GeometryError(f'{full}: expected {length} values, got {len(raw)}')
-        values[key] = [_finite_float(item, f'{full}[{index}]') for index, item in enumerate(raw)]
+        values[key] = _finite_list(parameters[full], length, full)
     for key in _SCALAR_KEYS:
         full = prefix + key
         if full not in parameters or parameters[full] is None:
@@ -202,6 +329,7 @@ def geometry_from_parameters(parameters, default_limits=None):
         device_length=values['device_length'],
         inclinometer_axes_angle=values['inclinometer_axes_angle'],
         limits=limits,
+        sensors=_sensor_errors_from_parameters(parameters),
     )
 
 
@@ -281,6 +409,16 @@ def geometry_to_yaml(geometry, node_name='/**', comment=None, extra_parameters=N
         f'        base_joint_max_angle: {limits.base_joint_max_angle!r}  # rad',
         f'        platform_joint_max_angle: {limits.platform_joint_max_angle!r}  # rad',
     ]
+    sensors = geometry.sensors
+    if not sensors.ideal:  # ideal sensors: no section, as in files written before it existed
+        lines += [
+            '      sensors:  # docs/sensor_errors.md',
+            f'        leg_gain_errors: {floats(sensors.leg_gain_errors)}  # kq1..kq6',
+            f'        inclinometer_offsets: {floats(sensors.inclinometer_offsets)}'
+            '  # alpha0, beta0, rad',
+            f'        encoder_offset: {sensors.encoder_offset!r}  # phi0, rad',
+            f'        lvdt_gain_error: {sensors.lvdt_gain_error!r}  # kDm',
+        ]
     for key, value in (extra_parameters or {}).items():
         lines.append(f'    {key}: {yaml.safe_dump(value, default_flow_style=True).strip()}')
     return '\n'.join(lines) + '\n'

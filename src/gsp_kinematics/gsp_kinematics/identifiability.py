@@ -7,7 +7,7 @@ condition number is that of the column-scaled identification Jacobian.
 
 import numpy as np
 
-from .geometry import PARAMETER_NAMES
+from .geometry import ALL_PARAMETER_NAMES
 from .identification import SENSOR_NAMES, Sigmas, resolve_free
 
 #: A scaled singular value below this fraction of the largest counts as zero.
@@ -22,7 +22,7 @@ def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_R
     A parameter that no residual depends on shows up alone.
     """
     free = resolve_free(free)
-    names = [name for name, is_free in zip(PARAMETER_NAMES, free, strict=True) if is_free]
+    names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, free, strict=True) if is_free]
     information = np.asarray(information, dtype=float)
     if information.shape != (len(names), len(names)):
         raise ValueError(f'information must be {len(names)}x{len(names)}, got {information.shape}')

@@ -24,16 +24,40 @@ import time
 
 import numpy as np
 
+from . import goodness
 from ._formulations import _FkModel, _ImplicitModel
 from ._lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
-from .geometry import NUM_PARAMETERS, PARAMETER_INDEX, PARAMETER_NAMES, Geometry
+from .geometry import (
+    ALL_PARAMETER_NAMES,
+    NUM_ALL_PARAMETERS,
+    NUM_PARAMETERS,
+    PARAMETER_INDEX,
+    PARAMETER_NAMES,
+    SENSOR_PARAMETER_NAMES,
+    Geometry,
+)
 from .kinematics import forward_kinematics_masked
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 DEFAULT_FORMULATION = 'implicit'
 
 SENSOR_NAMES = ('leg_lengths',) + READING_NAMES
+
+#: Sensor-error parameters left out of ``extended``: each is confounded with the 44 and the other
+#: sensor errors, so its nominal value is a datum (docs/sensor_errors.md): ``phi0`` with a yaw of
+#: the platform frame (the B_i), ``beta0`` with a tilt of the base (the A_iz), ``kDm`` with the
+#: scale of every length (D0, the L_off_i and the leg gains kq_i).
+DATUM_SENSOR_PARAMETERS = ('beta0', 'phi0', 'kDm')
+#: Named groups of free parameters: ``paper`` (the 44 of the paper) and ``extended`` (the 44 and
+#: every sensor error identifiable together with them).
+PARAMETER_GROUPS = {
+    'paper': PARAMETER_NAMES,
+    'extended': PARAMETER_NAMES
+    + tuple(name for name in SENSOR_PARAMETER_NAMES if name not in DATUM_SENSOR_PARAMETERS),
+}
+#: Most IRLS rounds of a robust fit.
+MAX_ROBUST_ROUNDS = 20
 
 
 class IdentificationError(ValueError):
@@ -82,6 +106,10 @@ class Options:
     gradient_tolerance: float = 1e-12  #: stop when the scaled gradient is below this
     initial_damping: float = 1e-3  #: lambda, relative to Marquardt's diag(J^T J)
     max_fk_rejections: int = 8  #: rejected steps (FK failures) before a posture is dropped
+    loss: str = 'linear'  #: robust loss: 'linear', 'huber' or 'cauchy' (goodness.LOSSES)
+    #: Where the robust loss departs from least squares, in sigmas (Huber's 95%-efficiency 1.345).
+    loss_scale: float = 1.345
+    outlier_threshold: float = goodness.DEFAULT_OUTLIER_THRESHOLD  #: |z| naming an outlier
 
 
 @dataclasses.dataclass
@@ -89,10 +117,10 @@ class IdentificationResult:
     """What an identification returns (cf. scipy.optimize.OptimizeResult)."""
 
     geometry: Geometry  #: the calibrated geometry (fixed parameters keep their nominal value)
-    parameters: np.ndarray  #: the 44 estimates (m, rad)
-    standard_deviations: np.ndarray  #: 44, from the covariance; NaN for fixed parameters
+    parameters: np.ndarray  #: the 54 estimates: the 44 (m, rad) then the sensor errors
+    standard_deviations: np.ndarray  #: 54, from the covariance; NaN for fixed parameters
     covariance: np.ndarray  #: (n_free, n_free) over the free parameters
-    free: np.ndarray  #: 44 bools
+    free: np.ndarray  #: 54 bools (ALL_PARAMETER_NAMES)
     formulation: str
     residual_rms: dict  #: per sensor, in its unit (m or rad); only sensors in the residual
     cost: float  #: 0.5 * sum of squared weighted residuals
@@ -104,6 +132,11 @@ class IdentificationResult:
     residuals: np.ndarray  #: (M, k) weighted residuals, NaN rows for excluded postures
     duration_s: float
     information: np.ndarray  #: (n_free, n_free) J^T J of the free parameters (Schur-reduced)
+    goodness_of_fit: object = None  #: goodness.GoodnessOfFit (None if no solution)
+    loss: str = 'linear'
+    residual_columns: tuple = ()  #: name of each residual column
+    outliers: list = dataclasses.field(default_factory=list)  #: goodness.outlier_postures
+    down_weighted: list = dataclasses.field(default_factory=list)  #: [{'posture', 'weight'}]
 
     @property
     def converged(self):
@@ -111,7 +144,14 @@ class IdentificationResult:
 
     @property
     def free_names(self):
-        return [name for name, is_free in zip(PARAMETER_NAMES, self.free, strict=True) if is_free]
+        return [
+            name for name, is_free in zip(ALL_PARAMETER_NAMES, self.free, strict=True) if is_free
+        ]
+
+    @property
+    def sensor_errors_free(self):
+        """Whether any sensor-error parameter was estimated."""
+        return bool(np.any(self.free[NUM_PARAMETERS:]))
 
     def correlations(self, threshold=0.9):
         """Pairs of free parameters whose |correlation| exceeds ``threshold``."""
@@ -128,18 +168,29 @@ class IdentificationResult:
 
 
 def resolve_free(free):
-    """A 44-bool mask from None (all), a mask, or an iterable of parameter names."""
+    """A 54-bool mask (:data:`ALL_PARAMETER_NAMES`) from None (the paper's 44), a mask (44 or
+    54 entries), or an iterable of parameter names and group names (:data:`PARAMETER_GROUPS`)."""
     if free is None:
-        return np.ones(NUM_PARAMETERS, dtype=bool)
+        free = PARAMETER_GROUPS['paper']
+    if isinstance(free, str):
+        free = [free]
     if isinstance(free, np.ndarray) and free.dtype == bool:
-        if free.shape != (NUM_PARAMETERS,):
-            raise IdentificationError(f'free mask must have {NUM_PARAMETERS} entries')
+        if free.shape == (NUM_PARAMETERS,):
+            return np.concatenate([free, np.zeros(NUM_ALL_PARAMETERS - NUM_PARAMETERS, bool)])
+        if free.shape != (NUM_ALL_PARAMETERS,):
+            raise IdentificationError(
+                f'free mask must have {NUM_PARAMETERS} or {NUM_ALL_PARAMETERS} entries'
+            )
         return free.copy()
-    mask = np.zeros(NUM_PARAMETERS, dtype=bool)
+    mask = np.zeros(NUM_ALL_PARAMETERS, dtype=bool)
     for name in free:
+        if name in PARAMETER_GROUPS:
+            mask[[PARAMETER_INDEX[member] for member in PARAMETER_GROUPS[name]]] = True
+            continue
         if name not in PARAMETER_INDEX:
             raise IdentificationError(
-                f"unknown parameter name {name!r} (expected e.g. 'A1x', 'Loff3', 'D0', 'gamma')"
+                f'unknown parameter name {name!r} (expected a group {sorted(PARAMETER_GROUPS)} '
+                "or names such as 'A1x', 'Loff3', 'D0', 'gamma', 'kq2', 'alpha0', 'kDm')"
             )
         mask[PARAMETER_INDEX[name]] = True
     if not mask.any():
@@ -165,15 +216,20 @@ def _check_inputs(nominal, leg_lengths, readings, pose_guesses):
         )
     if pose_guesses is None:
         # The device alone gives the position; a level platform at that position is a fair start.
-        link_length = nominal.device_length + readings[:, 3]
+        ideal = nominal.sensors.ideal_device_readings(readings)
+        link_length = nominal.device_length + ideal[:, 3]
         position = device_position(
-            readings[:, 0], readings[:, 1], link_length, nominal.inclinometer_axes_angle
+            ideal[:, 0], ideal[:, 1], link_length, nominal.inclinometer_axes_angle
         )
-        level = np.concatenate([position, np.zeros((len(readings), 2)), readings[:, 2:3]], axis=1)
+        level = np.concatenate([position, np.zeros((len(readings), 2)), ideal[:, 2:3]], axis=1)
         # The device does not see the tilt (psi, theta): let this first FK travel far in angle,
         # then use its solution as the guess, so later FK calls keep the tight jump check.
         solved, converged = forward_kinematics_masked(
-            nominal, leg_lengths, level, max_position_jump=0.5, max_angle_jump=math.pi / 2
+            nominal,
+            nominal.sensors.true_leg_lengths(leg_lengths),
+            level,
+            max_position_jump=0.5,
+            max_angle_jump=math.pi / 2,
         )
         pose_guesses = np.where(converged[:, None], solved, level)
     pose_guesses = np.asarray(pose_guesses, dtype=float)
@@ -198,7 +254,9 @@ def identify(
     ``leg_lengths`` (M, 6): measured articular variables q (m). ``readings`` (M, 4): measured
     ``[alpha, beta, phi, d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (e.g. the
     commanded postures); by default built from the device readings. ``sensors`` drops
-    measurements (e.g. without ``'d_m'``) for identifiability studies.
+    measurements (e.g. without ``'d_m'``) for identifiability studies. ``free``: see
+    :func:`resolve_free` (default the paper's 44). ``options.loss`` other than ``'linear'``
+    reweights each residual by the loss (IRLS, scale ``options.loss_scale`` sigmas).
     """
     if formulation not in FORMULATIONS:
         raise IdentificationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
@@ -208,6 +266,10 @@ def identify(
             f'unknown sensors {sorted(unknown)}; expected some of {SENSOR_NAMES}'
         )
     sigmas.validate()
+    try:
+        goodness.check_loss(options.loss, options.loss_scale)
+    except ValueError as error:
+        raise IdentificationError(str(error)) from None
     free = resolve_free(free)
     leg_lengths, readings, pose_guesses = _check_inputs(
         nominal, leg_lengths, readings, pose_guesses
@@ -229,17 +291,48 @@ def identify(
     point, status, iterations = model.start(), -1, 0
     if not model.too_few_residuals():
         point, status, iterations = levenberg_marquardt(model, point, options)
-    result = _result(model, point, formulation, status, iterations)
+        if options.loss != 'linear' and status > 0:
+            point, status, iterations = _robust_rounds(model, point, status, iterations, options)
+    result = _result(model, point, formulation, status, iterations, options)
     result.duration_s = time.perf_counter() - started
     return result
 
 
-def _result(model, point, formulation, status, iterations):
+def _robust_rounds(model, point, status, iterations, options):
+    """Iteratively reweighted least squares: weights from the normalised residuals, then the
+    LM driver again from the current point, until the weights settle."""
+    for _ in range(MAX_ROBUST_ROUNDS):
+        normalised = model.reported_residuals(point)
+        weights = goodness.robust_weights(normalised, options.loss, options.loss_scale)
+        previous = np.ones_like(weights) if model.root_weights is None else model.root_weights**2
+        model.root_weights = np.sqrt(weights)
+        if np.max(np.abs(weights - previous)) < 1e-3:
+            break
+        point, status, more = levenberg_marquardt(model, model.restart(point), options)
+        iterations += more
+        if status <= 0:
+            break
+    return point, status, iterations
+
+
+def _result(model, point, formulation, status, iterations, options):
     """The result at the driver's final ``point`` (status < 0: the nominal, NaN statistics)."""
     free = model.free
     vector = model.nominal_vector.copy()
     residuals = model.reported_residuals(point)
     rms = {}
+    fit, outliers, down_weighted = None, [], []
+    if status >= 0:
+        outliers = goodness.outlier_postures(
+            residuals, options.outlier_threshold, model.column_names()
+        )
+        excluded = []
+        if model.root_weights is not None:
+            down_weighted = goodness.down_weighted_postures(model.root_weights**2)
+            # A robust fit judges the model on the data it kept: named outliers are left out.
+            excluded = [entry['posture'] for entry in outliers]
+        unknowns = model.unknowns() - (6 * len(excluded) if formulation == 'implicit' else 0)
+        fit = goodness.goodness_of_fit(residuals, unknowns, excluded)
     if status < 0:
         cost = float('nan')
         information = covariance = np.eye(int(free.sum())) * np.nan
@@ -252,10 +345,10 @@ def _result(model, point, formulation, status, iterations):
             values = residuals[:, column] / weight
             values = values[np.isfinite(values)]
             rms[name] = float(np.sqrt(np.mean(values**2))) if values.size else float('nan')
-    deviations = np.full(NUM_PARAMETERS, np.nan)
+    deviations = np.full(NUM_ALL_PARAMETERS, np.nan)
     deviations[free] = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     return IdentificationResult(
-        geometry=Geometry.from_vector(vector, model.limits),
+        geometry=Geometry.from_full_vector(vector, model.limits),
         parameters=vector,
         standard_deviations=deviations,
         covariance=covariance,
@@ -271,6 +364,11 @@ def _result(model, point, formulation, status, iterations):
         residuals=residuals,
         duration_s=0.0,
         information=information,
+        goodness_of_fit=fit,
+        loss=options.loss,
+        residual_columns=tuple(model.column_names()),
+        outliers=outliers,
+        down_weighted=down_weighted,
     )
 
 

@@ -2,8 +2,8 @@
 
 The controller commands ``q = IK(u_hat, X_c)``; the real platform (parameters ``u``) settles at the
 pose ``X`` with ``IK(u, X) = q``. To first order the pose error is ``dX = S (u_hat - u)`` with the
-pose sensitivity ``S = (dq/dX)^-1 dq/du`` (only the 42 leg parameters move the platform; the
-device's do not). With ``Cov(u_hat)`` from the identification, ``Cov(dX) = S C S^T``; orientation
+pose sensitivity ``S = (dq/dX)^-1 dq/du`` (only the 42 leg parameters and the leg gain errors
+move the platform; the device's parameters and its sensors' errors do not). With ``Cov(u_hat)`` from the identification, ``Cov(dX) = S C S^T``; orientation
 errors are taken as the rotation vector of ``R_cmd^T R_real`` (body angular Jacobian of eq (2)),
 so they compare with :func:`gsp_kinematics.validation.pose_errors`.
 
@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .geometry import NUM_PARAMETERS
+from .geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX
 from .kinematics import (
     Workspace,
     expand_leg_parameters,
@@ -44,19 +44,25 @@ def body_angular_jacobian(euler):
 def pose_sensitivities(geometry, poses, free=None):
     """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error.
 
-    ``free``: a bool mask over the parameter vector (None: all). Columns of parameters that do not
-    move the platform (the device's, or any beyond the 42 leg parameters) are zero.
+    ``free``: a bool mask over the parameter vector (None: the 44). Columns of parameters that do
+    not move the platform (the device's and the device sensors' errors) are zero; the 42 leg
+    parameters and the leg gain errors ``kq1..kq6`` move it.
     """
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
+    articular, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
     d_q_d_u = expand_leg_parameters(d_q_d_leg)
-    # IK(u, X) = IK(u_hat, X_c)  =>  dq/dX dX = dq/du (u_hat - u).
-    d_pose = np.linalg.solve(d_q_d_pose, d_q_d_u)  # (M, 6, 42): dX/du_leg (Euler rates)
+    # IK(u, X) = IK(u_hat, X_c)  =>  dq/dX dX = dq/du (u_hat - u). A leg gain error moves the leg
+    # too: the real articular variable is (1 + kq) times the reading the controller commands, so
+    # dq/dX dX = ... - q_i (kq_hat_i - kq_i) on leg i.
+    d_q_d_gain = -articular[:, :, None] * np.eye(6)[None]
+    d_pose = np.linalg.solve(d_q_d_pose, np.concatenate([d_q_d_u, d_q_d_gain], axis=2))
     angular = body_angular_jacobian(poses[:, 3:])
     sensitivity = np.concatenate([d_pose[:, :3], angular @ d_pose[:, 3:]], axis=1)
     size = NUM_PARAMETERS if free is None else len(free)
-    full = np.zeros((poses.shape[0], 6, max(size, LEG_PARAMETERS)))
-    full[:, :, :LEG_PARAMETERS] = sensitivity
+    full = np.zeros((poses.shape[0], 6, max(size, NUM_ALL_PARAMETERS)))
+    full[:, :, :LEG_PARAMETERS] = sensitivity[:, :, :LEG_PARAMETERS]
+    first_gain = PARAMETER_INDEX['kq1']
+    full[:, :, first_gain : first_gain + 6] = sensitivity[:, :, LEG_PARAMETERS:]
     full = full[:, :, :size]
     return full if free is None else full[:, :, np.asarray(free, dtype=bool)]
 

@@ -2,10 +2,8 @@
 
 import numpy as np
 
-from .device import device_readings_jacobians
-from .geometry import NUM_PARAMETERS
+from ._formulations import leg_readings_jacobians, sensor_readings_jacobians
 from .identification import SENSOR_NAMES, Sigmas, resolve_free
-from .kinematics import expand_leg_parameters, inverse_kinematics_jacobians
 
 #: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
 SHORTLIST = 12
@@ -26,13 +24,9 @@ def posture_factors(
     """
     free = resolve_free(free)
     columns = [c for c, name in enumerate(('alpha', 'beta', 'phi', 'd_m')) if name in sensors]
-    _, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
-    _, d_h_d_pose, d_h_d_device = device_readings_jacobians(geometry, poses)
-    count = poses.shape[0]
-    d_q_d_u = np.zeros((count, 6, NUM_PARAMETERS))
-    d_q_d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg)
-    d_h_d_u = np.zeros((count, 4, NUM_PARAMETERS))
-    d_h_d_u[:, :, 42:] = d_h_d_device
+    # Derivatives of the sensor readings (the sensor errors included) over the extended vector.
+    _, d_q_d_pose, d_q_d_u = leg_readings_jacobians(geometry, poses)
+    _, d_h_d_pose, d_h_d_u = sensor_readings_jacobians(geometry, poses)
     reading_weights = 1.0 / sigmas.readings()[columns]
     d_h_d_pose = d_h_d_pose[:, columns] * reading_weights[None, :, None]
     d_h_d_u = d_h_d_u[:, columns][:, :, free] * reading_weights[None, :, None]

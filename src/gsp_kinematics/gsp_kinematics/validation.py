@@ -1,9 +1,30 @@
-"""Accuracy of a controller geometry against the real (true) platform."""
+"""Accuracy of a controller geometry against the real (true) platform.
+
+The controller drives each leg until its sensor reads ``IK(controller, pose) / (1 + kq)`` under
+its own sensor model; the real leg is then ``(1 + kq_true)`` times that reading. Poses are
+compared in the frames the sensors define (docs/sensor_errors.md: the datum).
+"""
 
 import numpy as np
 
+from .device import device_readings
 from .kinematics import forward_kinematics, forward_kinematics_masked, inverse_kinematics
 from .rotation import euler_to_matrix, rotation_angle_between
+
+
+def commanded_articular(true, controller, commanded):
+    """True articular variables (M, 6) the real legs take when ``controller`` drives
+    ``commanded``: its leg readings ``IK / (1 + kq_controller)``, scaled by ``1 + kq_true``."""
+    readings = controller.sensors.leg_readings(inverse_kinematics(controller, commanded))
+    return true.sensors.true_leg_lengths(readings)
+
+
+def sensor_measurements(true, poses):
+    """What the real sensors read at ``poses`` (M, 6): leg readings (M, 6) and device readings
+    ``[alpha, beta, phi, d_m]`` (M, 4), noise-free, with the true sensor errors."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    legs = true.sensors.leg_readings(inverse_kinematics(true, poses))
+    return legs, true.sensors.device_readings(device_readings(true, poses))
 
 
 def pose_errors(commanded, reached):
@@ -19,8 +40,7 @@ def pose_errors(commanded, reached):
 
 def reached_poses(true, controller, commanded):
     """Where the real platform goes when the controller drives ``commanded`` with its geometry."""
-    leg_lengths = inverse_kinematics(controller, commanded)
-    return forward_kinematics(true, leg_lengths, commanded)
+    return forward_kinematics(true, commanded_articular(true, controller, commanded), commanded)
 
 
 def summarise(position_mm, orientation_deg):
@@ -39,8 +59,8 @@ def validate(true, controller, commanded):
     is left out of the statistics and counted in ``unreachable``.
     """
     commanded = np.atleast_2d(commanded)
-    leg_lengths = inverse_kinematics(controller, commanded)
-    reached, converged = forward_kinematics_masked(true, leg_lengths, commanded)
+    articular = commanded_articular(true, controller, commanded)
+    reached, converged = forward_kinematics_masked(true, articular, commanded)
     if not converged.any():
         raise ValueError('no validation posture is reachable by the real platform')
     position_mm, orientation_deg = pose_errors(commanded[converged], reached[converged])

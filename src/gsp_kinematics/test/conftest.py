@@ -62,3 +62,24 @@ def finite_difference(function, x, step):
 def fd():
     """:func:`finite_difference` (a fixture, so test modules need not import conftest)."""
     return finite_difference
+
+
+def pose_finite_difference(residual_of_poses, poses, step=1e-7):
+    """Central differences (M, k, 6) of residuals whose row m depends on pose m only: coordinate
+    j of every pose is perturbed at once."""
+    columns = []
+    for j in range(6):
+
+        def of_coordinate(x, j=j):
+            shifted = np.array(poses, dtype=float)
+            shifted[:, j] += x[0]
+            return residual_of_poses(shifted)
+
+        columns.append(finite_difference(of_coordinate, [0.0], step)[..., 0])
+    return np.stack(columns, axis=-1)
+
+
+@pytest.fixture(scope='session')
+def pose_fd():
+    """:func:`pose_finite_difference` (a fixture)."""
+    return pose_finite_difference

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import NUM_PARAMETERS, Geometry
+from gsp_kinematics.geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX, Geometry
 from gsp_kinematics.identification import Sigmas, identify
 from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
 from gsp_kinematics.prediction import (
@@ -38,6 +38,32 @@ def test_pose_sensitivities_match_finite_differences(exact, postures):
             moved = vector.copy()
             moved[column] += sign * step
             reached = reached_poses(exact, Geometry.from_vector(moved, exact.limits), poses)
+            columns.append(
+                np.concatenate(
+                    [reached[:, :3] - poses[:, :3], _rotation_vector(poses[:, 3:], reached[:, 3:])],
+                    axis=1,
+                )
+            )
+        numeric = (columns[0] - columns[1]) / (2 * step)
+        scale = max(np.abs(numeric).max(), 1e-3)
+        assert np.abs(numeric - sensitivity[:, :, column]).max() < 1e-5 * scale, column
+
+
+def test_leg_gain_columns_match_finite_differences(exact, postures):
+    """A controller's leg gain error moves the platform (the device sensors' errors do not)."""
+    poses = postures[:5]
+    sensitivity = pose_sensitivities(exact, poses, np.ones(NUM_ALL_PARAMETERS, dtype=bool))
+    first_gain = PARAMETER_INDEX['kq1']
+    others = [PARAMETER_INDEX[name] for name in ('alpha0', 'beta0', 'phi0', 'kDm')]
+    assert np.all(sensitivity[:, :, others] == 0.0)
+    vector, step = exact.to_full_vector(), 1e-7
+    for column in range(first_gain, first_gain + 6):
+        columns = []
+        for sign in (1.0, -1.0):
+            moved = vector.copy()
+            moved[column] += sign * step
+            controller = Geometry.from_full_vector(moved, exact.limits)
+            reached = reached_poses(exact, controller, poses)
             columns.append(
                 np.concatenate(
                     [reached[:, :3] - poses[:, :3], _rotation_vector(poses[:, 3:], reached[:, 3:])],

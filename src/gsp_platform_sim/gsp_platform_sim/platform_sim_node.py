@@ -58,6 +58,23 @@ _GEOMETRY_DESCRIPTIONS = {
     'geometry.limits.leg_stroke_max': ('Largest commandable articular variable q', 'm'),
     'geometry.limits.base_joint_max_angle': ('Largest leg angle to the base normal', 'rad'),
     'geometry.limits.platform_joint_max_angle': ('Largest leg angle to the platform normal', 'rad'),
+    'geometry.sensors.leg_gain_errors': (
+        'Controller model: leg sensor gain errors kq_1..kq_6; the controller drives leg i '
+        'until its sensor reads IK / (1 + kq_i) (docs/sensor_errors.md)',
+        '1',
+    ),
+    'geometry.sensors.inclinometer_offsets': (
+        'Controller model: inclinometer zero offsets alpha0, beta0 (unused by the simulator)',
+        'rad',
+    ),
+    'geometry.sensors.encoder_offset': (
+        'Controller model: encoder zero phi0 (unused by the simulator)',
+        'rad',
+    ),
+    'geometry.sensors.lvdt_gain_error': (
+        'Controller model: LVDT gain error kDm (unused by the simulator)',
+        '1',
+    ),
 }
 
 PARAMETERS = (

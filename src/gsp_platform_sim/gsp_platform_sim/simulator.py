@@ -4,6 +4,10 @@ The controller knows only its (nominal or calibrated) *controller geometry*: for
 computes the articular variables ``q = IK(controller, pose)`` and drives the legs there. The real
 platform, built to the *true geometry*, then sits at ``FK(true, q)``. The difference between the
 commanded and the real pose is what calibration removes.
+
+Leg sensors with gain errors (``geometry.sensors.leg_gain_errors``, docs/sensor_errors.md): the
+controller drives each leg until its sensor reads ``q = IK(controller, pose) / (1 + kq_controller)``;
+the real articular variable is then ``(1 + kq_true) q``, and the published reading is ``q``.
 """
 
 import dataclasses
@@ -115,7 +119,8 @@ class PlatformSimulator:
 
     @property
     def leg_lengths(self):
-        """Noise-free articular variables q (6,) the legs are driven to (m)."""
+        """Noise-free leg sensor readings q (6,) the legs are driven to (m); the real articular
+        variables are ``(1 + kq_true) q``."""
         return self._leg_lengths.copy()
 
     @property
@@ -129,7 +134,7 @@ class PlatformSimulator:
         return self._commanded_pose.copy()
 
     def measured_leg_lengths(self):
-        """q (6,) plus Gaussian sensor noise of std ``leg_noise_std`` (m)."""
+        """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_noise_std`` (m)."""
         return self._leg_lengths + self._rng.normal(0.0, self._leg_noise_std, size=6)
 
     # ----------------------------------------------------------------------------- command
@@ -156,9 +161,12 @@ class PlatformSimulator:
         )
         if not ok[0]:
             return self._reject(f'unreachable: {reasons[0]}')
-        leg_lengths = inverse_kinematics(self._controller_geometry, pose[None])[0]
+        controller = self._controller_geometry
+        leg_lengths = controller.sensors.leg_readings(inverse_kinematics(controller, pose[None]))[0]
         true_pose, converged = forward_kinematics_masked(
-            self._true_geometry, leg_lengths[None], pose[None]
+            self._true_geometry,
+            self._true_geometry.sensors.true_leg_lengths(leg_lengths)[None],
+            pose[None],
         )
         if not (converged[0] and np.all(np.isfinite(true_pose[0]))):
             return self._reject(

@@ -100,7 +100,9 @@ def test_command_moves_then_settles_and_streams_the_new_posture(harness):
 
     true_pose = conversions.pose_stamped_to_pose(harness.true_poses[-1])
     np.testing.assert_allclose(
-        true_pose, forward_kinematics(TRUE, q[None], POSE[None])[0], atol=1e-9
+        true_pose,
+        forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], POSE[None])[0],
+        atol=1e-9,
     )
     # leg_lengths and true_pose come from one timer with one stamp.
     leg_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths}

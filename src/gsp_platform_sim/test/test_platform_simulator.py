@@ -23,7 +23,9 @@ def test_starts_at_home_through_the_controller():
     q = inverse_kinematics(NOMINAL, home_pose()[None])[0]
     np.testing.assert_allclose(sim.leg_lengths, q, atol=1e-12)
     np.testing.assert_allclose(
-        sim.true_pose, forward_kinematics(TRUE, q[None], home_pose()[None])[0], atol=1e-10
+        sim.true_pose,
+        forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], home_pose()[None])[0],
+        atol=1e-10,
     )
     np.testing.assert_array_equal(sim.commanded_pose, home_pose())
 
@@ -33,11 +35,16 @@ def test_accepted_command_reaches_fk_of_true_at_ik_of_controller():
     outcome = sim.command(POSE)
     assert outcome.accepted and outcome.reason == ''
     q = inverse_kinematics(NOMINAL, POSE[None])[0]
-    expected = forward_kinematics(TRUE, q[None], POSE[None])[0]
+    expected = forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], POSE[None])[0]
     np.testing.assert_allclose(outcome.commanded_leg_lengths, q, atol=1e-12)
     np.testing.assert_allclose(outcome.true_pose, expected, atol=1e-10)
     np.testing.assert_allclose(sim.true_pose, expected, atol=1e-10)
-    np.testing.assert_allclose(inverse_kinematics(TRUE, sim.true_pose[None])[0], q, atol=1e-9)
+    # The real legs are (1 + kq_true) times the readings the controller drove them to.
+    np.testing.assert_allclose(
+        inverse_kinematics(TRUE, sim.true_pose[None])[0],
+        TRUE.sensors.true_leg_lengths(q),
+        atol=1e-9,
+    )
     # The geometric errors of the default true platform move it by millimetres, not metres.
     error = np.linalg.norm(sim.true_pose[:3] - POSE[:3])
     assert 1e-5 < error < 0.02

@@ -1,0 +1,112 @@
+"""The sensor errors, goodness of fit, outliers and noise estimates of ``result.json`` and
+``report.md`` (docs/sensor_errors.md)."""
+
+import math
+
+from gsp_kinematics.geometry import (
+    ANGULAR_SENSOR_PARAMETERS,
+    PARAMETER_NAMES,
+    SENSOR_PARAMETER_NAMES,
+)
+from gsp_kinematics.identification import DATUM_SENSOR_PARAMETERS
+
+
+def format_number(value, digits=4):
+    """``value`` with ``digits`` significant digits; a dash for None or NaN."""
+    if value is None:
+        return '–'
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if not math.isfinite(value):
+        return '∞' if value > 0 else ('–' if math.isnan(value) else '−∞')
+    return f'{value:.{digits}g}'
+
+
+_fmt = format_number
+
+
+def _free_text(name, free):
+    if free:
+        return 'yes'
+    return 'no (datum)' if name in DATUM_SENSOR_PARAMETERS else 'no'
+
+
+def fit_data(result, truth=None, nominal=None):
+    """``sensor_errors``, ``goodness_of_fit``, ``loss``, ``outliers`` and ``down_weighted`` keys
+    of ``result.json`` (docs/sensor_errors.md)."""
+    sensor_errors = {}
+    for index, name in enumerate(SENSOR_PARAMETER_NAMES, start=len(PARAMETER_NAMES)):
+        free = bool(result.free[index])
+        entry = {
+            'unit': 'rad' if name in ANGULAR_SENSOR_PARAMETERS else '1',
+            'free': free,
+            'estimate': float(result.parameters[index]),
+            'standard_deviation': float(result.standard_deviations[index]) if free else None,
+        }
+        if nominal is not None:
+            entry['nominal'] = float(nominal.to_full_vector()[index])
+        if truth is not None:
+            entry['truth'] = float(truth.to_full_vector()[index])
+        sensor_errors[name] = entry
+    fit = result.goodness_of_fit
+    return {
+        'sensor_errors': sensor_errors,
+        'goodness_of_fit': None
+        if fit is None
+        else {**fit.as_dict(), 'excluded_outlier_postures': list(fit.excluded_postures)},
+        'loss': result.loss,
+        'outliers': list(result.outliers),
+        'down_weighted': list(result.down_weighted),
+    }
+
+
+def fit_markdown(data):
+    """The sensor errors, goodness of fit, outliers and noise estimates of ``report.md``."""
+    lines = ['## Sensor errors', '', '| parameter | unit | free | nominal | estimate | 1σ |']
+    lines.append('|---|---|---|---|---|---|')
+    for name, entry in (data.get('sensor_errors') or {}).items():
+        degrees = entry['unit'] == 'rad'
+        factor, unit = (math.degrees(1.0), 'deg') if degrees else (1.0, '1')
+        nominal = entry.get('nominal')
+        deviation = entry.get('standard_deviation')
+        lines.append(
+            f'| {name} | {unit} | {_free_text(name, entry["free"])} | '
+            f'{_fmt(None if nominal is None else nominal * factor)} | '
+            f'{_fmt(entry["estimate"] * factor)} | '
+            f'{_fmt(None if deviation is None else deviation * factor, 3)} |'
+        )
+    lines += ['', '## Goodness of fit', '']
+    fit = data.get('goodness_of_fit')
+    if fit:
+        lines.append(
+            f'chi2 {_fmt(fit["chi2"])} for {fit["dof"]} degrees of freedom, p = '
+            f'{_fmt(fit["p_value"], 3)} (loss: {data.get("loss", "linear")}).'
+        )
+    if data.get('verdict'):
+        lines += ['', f'**{data["verdict"]}**']
+    if data.get('fit_accepted') is False:
+        lines += ['', 'The result is written but marked REJECTED and not applied.']
+    if data.get('outliers'):
+        lines += ['', '| outlier posture | largest normalised residual | sensor |', '|---|---|---|']
+        for entry in data['outliers']:
+            lines.append(
+                f'| {entry["posture"]} | {_fmt(entry["max_normalised_residual"], 3)} | '
+                f'{entry["sensor"]} |'
+            )
+    if data.get('down_weighted'):
+        lines += ['', '| down-weighted posture | weight |', '|---|---|']
+        lines += [f'| {e["posture"]} | {_fmt(e["weight"], 3)} |' for e in data['down_weighted']]
+    noise = data.get('noise_estimates') or {}
+    if noise:
+        lines += ['', '| sensor noise (per sample) | configured | estimated | unit |']
+        lines.append('|---|---|---|---|')
+        for channel, entry in noise.items():
+            angular = channel in ('inclinometer', 'encoder')
+            factor, unit = (math.degrees(1.0), 'deg') if angular else (1e6, 'um')
+            lines.append(
+                f'| {channel} | {_fmt(entry["configured"] * factor, 3)} | '
+                f'{_fmt(entry["estimated"] * factor, 3)} | {unit} |'
+            )
+    return lines + ['']
