@@ -162,7 +162,11 @@ class DeviceDriverNode(Node):
             )
             return
         for level, text in self._backend.messages():
-            getattr(self.get_logger(), level)(text)
+            # One call site per severity: rclpy refuses a severity change at one call site.
+            if level == 'warning':
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
         if not samples:
             if self._backend.needs_true_pose:
                 self.get_logger().info(
