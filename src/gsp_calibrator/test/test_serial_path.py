@@ -14,7 +14,7 @@ from gsp_calibrator.calibration import parse_response
 from gsp_calibrator.calibrator_node import CalibratorNode
 from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_device_driver.fake_device_node import FakeDeviceNode, parse_arguments
-from gsp_msgs_py import names, qos
+from gsp_msgs_py import names, qos, testing
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
 RATE_HZ = 100.0
@@ -22,13 +22,7 @@ TIMEOUT_S = 120.0
 
 
 def wait_until(predicate, timeout=TIMEOUT_S):
-    """Wait for an event (``predicate()``); the timeout only bounds a failure."""
-    event = threading.Event()
-    for _ in range(int(timeout / 0.02)):
-        if predicate():
-            return True
-        event.wait(0.02)
-    return predicate()
+    return testing.wait_until(predicate, timeout)
 
 
 def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):

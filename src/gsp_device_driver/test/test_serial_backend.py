@@ -1,6 +1,5 @@
 """The serial backend against the reference emulator on a pty: good lines, faults, unplugging."""
 
-import threading
 
 import numpy as np
 import pytest
@@ -8,19 +7,14 @@ import pytest
 from gsp_device_driver.backends import backend_class
 from gsp_device_driver.fake_device import FakeDevice
 from gsp_device_driver.serial_backend import SerialDeviceBackend
+from gsp_msgs_py import testing
 
 TIMEOUT_S = 20.0
 VALUES = np.array([0.01, -0.02, 0.3, 0.25])
 
 
 def wait_until(predicate, timeout=TIMEOUT_S):
-    """Poll ``predicate`` until it holds (the timeout only bounds a failure)."""
-    event = threading.Event()
-    for _ in range(int(timeout / 0.01)):
-        if predicate():
-            return True
-        event.wait(0.01)
-    return predicate()
+    return testing.wait_until(predicate, timeout)
 
 
 @pytest.fixture

@@ -29,26 +29,15 @@ from gsp_msgs_py.pose_commands import PoseCommandServer
 from .goal_monitor import REJECTED, SETTLED, GoalMonitor, motion_duration
 
 NODE_NAME = 'platform_bridge'
-DEFAULT_CONTROLLER = 'joint_trajectory_controller'
 CHECK_RATE_HZ = 50.0  #: deadline and staleness checks between joint states
 DEFAULT_MAX_CONDITION = 100.0  #: as platform_sim
 
 PARAMETERS = (
     *CONTROLLER_GEOMETRY_SPECS,
-    ParameterSpec(
-        'controller_name',
-        DEFAULT_CONTROLLER,
-        'joint_trajectory_controller whose /<controller_name>/joint_trajectory takes the goals',
-        read_only=True,
-        check=not_blank('a controller'),
+    node_tools.controller_name_spec(
+        'joint_trajectory_controller whose /<controller_name>/joint_trajectory takes the goals'
     ),
-    ParameterSpec(
-        'joint_names',
-        list(names.LEG_JOINT_NAMES),
-        'The controller joints of legs 1..6, in leg order',
-        read_only=True,
-        check=lambda v: '' if len(v) == 6 and len(set(v)) == 6 else 'must be 6 distinct names',
-    ),
+    node_tools.joint_names_spec('The controller joints of legs 1..6, in leg order'),
     ParameterSpec(
         'joint_states_topic',
         '/joint_states',

@@ -20,7 +20,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
 from gsp_msgs_py import conversions, names, node_tools, qos
-from gsp_msgs_py.node_tools import ParameterSpec, greater_than, not_blank
+from gsp_msgs_py.node_tools import ParameterSpec, greater_than
 
 from .trajectory_follower import TrajectoryFollower
 
@@ -35,20 +35,10 @@ PARAMETERS = (
         'Geometry params file of the emulated hexapod (its true pose is FK of this geometry)',
         default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     ),
-    ParameterSpec(
-        'controller_name',
-        'joint_trajectory_controller',
-        'Emulated controller: goals on /<controller_name>/joint_trajectory',
-        read_only=True,
-        check=not_blank('a controller'),
+    node_tools.controller_name_spec(
+        'Emulated controller: goals on /<controller_name>/joint_trajectory'
     ),
-    ParameterSpec(
-        'joint_names',
-        list(names.LEG_JOINT_NAMES),
-        'Joint names of legs 1..6 on /joint_states',
-        read_only=True,
-        check=lambda v: '' if len(v) == 6 and len(set(v)) == 6 else 'must be 6 distinct names',
-    ),
+    node_tools.joint_names_spec('Joint names of legs 1..6 on /joint_states'),
     ParameterSpec(
         'max_leg_speed',
         0.1,
