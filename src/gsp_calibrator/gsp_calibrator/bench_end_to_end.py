@@ -316,6 +316,7 @@ def hardware_path_run(postures, validation_postures, extra_args, direct_after, u
         validation_postures=validation_postures,
         used_domains=used,
         extra_args=extra_args,
+        timeout=2 * DEMO_TIMEOUT_S,  # the emulated legs take time to move
     )
     used.append(run['domain_id'])
     summary = run['summary'] or {}

@@ -54,8 +54,8 @@ NODES = {
 }
 #: Leg speeds of the emulated controller and of the bridge's trajectories (m/s): fast, so that
 #: the ros2_control mode spends its time like the direct one, in settling and sampling.
-EMULATED_LEG_SPEED = 1.0
-BRIDGE_LEG_SPEED = 0.5
+EMULATED_LEG_SPEED = 5.0
+BRIDGE_LEG_SPEED = 2.5
 VALIDATION_KEYS = (
     'position_mm_mean',
     'position_mm_max',

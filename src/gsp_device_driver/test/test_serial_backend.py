@@ -1,6 +1,5 @@
 """The serial backend against the reference emulator on a pty: good lines, faults, unplugging."""
 
-
 import numpy as np
 import pytest
 
