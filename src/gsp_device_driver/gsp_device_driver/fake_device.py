@@ -10,6 +10,7 @@ given probabilities, counted in :attr:`counters`), :meth:`silence` and :meth:`di
 """
 
 import os
+import select
 import threading
 import time
 import tty
@@ -19,6 +20,7 @@ import numpy as np
 from .serial_protocol import U32, Reading, format_hello, format_reading
 
 HELLO_PERIOD_S = 1.0
+PARTIAL_WAIT_S = 0.5  #: longest wait to complete a line the buffer took in part
 
 
 class FakeDevice:
@@ -119,16 +121,30 @@ class FakeDevice:
             self._fds = None
 
     def _send(self, data):
-        """Write one line; a line the buffer cannot take whole is lost (counted)."""
+        """Write one line. A line the full buffer cannot take at all is lost (counted), as on a
+        UART nobody reads; one it took in part is completed (waiting up to PARTIAL_WAIT_S), so
+        that a reader never sees a torn line the emulator did not mean to send."""
+        master = self._fds[0]
         try:
-            written = os.write(self._fds[0], data)
-        except BlockingIOError:
+            written = os.write(master, data)
+        except OSError:  # BlockingIOError: buffer full; EIO: the reader side vanished
             written = 0
-        except OSError:  # the reader side vanished
-            written = 0
-        if written != len(data):
+        if written == 0:
             self.counters['lost'] += 1
             return False
+        deadline = time.monotonic() + PARTIAL_WAIT_S
+        while written < len(data):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not select.select([], [master], [], remaining)[1]:
+                self.counters['lost'] += 1
+                return False
+            try:
+                written += os.write(master, data[written:])
+            except BlockingIOError:
+                continue
+            except OSError:
+                self.counters['lost'] += 1
+                return False
         return True
 
     # ------------------------------------------------------------------------- thread
