@@ -105,8 +105,32 @@ class GoalMonitor:
         return None
 
 
-def motion_duration(current, target, max_speed, min_duration):
-    """Time (s) of a move from ``current`` to ``target`` leg strokes (m) at ``max_speed`` (m/s)
-    for the longest leg, and never less than ``min_duration``."""
-    longest = float(np.max(np.abs(np.asarray(target) - np.asarray(current))))
-    return max(float(min_duration), longest / float(max_speed))
+def pose_path(start, goal, position_step, angle_step):
+    """Poses (N, 6) from ``start`` (excluded) to ``goal`` (included) on the straight line in
+    ``[x, y, z, psi, theta, phi]``, no step longer than ``position_step`` (m) or ``angle_step``
+    (rad): the legs then follow the Cartesian path, not a straight line in joint space (which
+    a hexapod may not be able to follow)."""
+    start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+    delta = goal - start
+    steps = max(
+        1,
+        int(np.ceil(np.linalg.norm(delta[:3]) / position_step)),
+        int(np.ceil(np.max(np.abs(delta[3:])) / angle_step)),
+    )
+    fractions = np.arange(1, steps + 1)[:, None] / steps
+    return start[None] + fractions * delta[None]
+
+
+def waypoint_times(current, waypoints, max_speed, min_duration):
+    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): each segment
+    at ``max_speed`` (m/s) for its longest leg move, the whole at least ``min_duration``."""
+    legs = np.vstack([np.asarray(current, dtype=float)[None], np.asarray(waypoints, dtype=float)])
+    times = np.cumsum(np.max(np.abs(np.diff(legs, axis=0)), axis=1) / float(max_speed))
+    if times[-1] < min_duration:
+        times = (
+            times * (min_duration / times[-1])
+            if times[-1] > 0
+            else np.linspace(min_duration / len(times), min_duration, len(times))
+        )
+    # Strictly increasing (a waypoint with no leg move still takes a little time).
+    return np.maximum.accumulate(times + np.arange(len(times)) * 1e-6)

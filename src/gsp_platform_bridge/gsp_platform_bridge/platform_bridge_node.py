@@ -9,12 +9,18 @@ geometry, the ``geometry.*`` parameters shared with ``platform_sim``, so the cal
 ``apply_result`` (``platform_node_name: platform_bridge``) works unchanged.
 """
 
+import numpy as np
 from builtin_interfaces.msg import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from gsp_kinematics.kinematics import check_reachable, inverse_kinematics
+from gsp_kinematics.kinematics import (
+    check_reachable,
+    forward_kinematics_masked,
+    home_pose,
+    inverse_kinematics,
+)
 from gsp_msgs_py import conversions, names, node_tools, qos
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
@@ -26,7 +32,7 @@ from gsp_msgs_py.geometry_parameters import (
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
-from .goal_monitor import REJECTED, SETTLED, GoalMonitor, motion_duration
+from .goal_monitor import REJECTED, SETTLED, GoalMonitor, pose_path, waypoint_times
 
 NODE_NAME = 'platform_bridge'
 CHECK_RATE_HZ = 50.0  #: deadline and staleness checks between joint states
@@ -58,6 +64,21 @@ PARAMETERS = (
         'Shortest trajectory duration (time_from_start of its point)',
         unit='s',
         check=at_least(0.0, 's'),
+    ),
+    ParameterSpec(
+        'path_position_step',
+        0.01,
+        'Longest position step between the waypoints of a move (the legs follow the straight '
+        'Cartesian path, checked for reachability before anything moves)',
+        unit='m',
+        check=greater_than(0.0, 'm'),
+    ),
+    ParameterSpec(
+        'path_angle_step',
+        0.02,
+        'Longest orientation step between the waypoints of a move',
+        unit='rad',
+        check=greater_than(0.0, 'rad'),
     ),
     ParameterSpec(
         'position_tolerance',
@@ -92,6 +113,11 @@ PARAMETERS = (
 )
 
 
+def _duration(seconds):
+    whole = int(seconds)
+    return Duration(sec=whole, nanosec=int((seconds - whole) * 1e9))
+
+
 def _check_start_up(values):
     reason = controller_geometry_error(values)
     return f'controller geometry: {reason}' if reason else ''
@@ -104,6 +130,7 @@ class PlatformBridgeNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         values = node_tools.declare_parameters(self, PARAMETERS, validate=_check_start_up)
         self._values = values
+        self._last_pose = None  # last commanded pose: the guess of FK at the joint states
         self._geometry = controller_geometry(values)
         self._frame_id = values['frame_id']
         self._monitor = GoalMonitor(
@@ -134,7 +161,14 @@ class PlatformBridgeNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _apply_parameters(self, changes):
-        for name in ('max_leg_speed', 'min_motion_duration', 'goal_timeout', 'max_condition'):
+        for name in (
+            'max_leg_speed',
+            'min_motion_duration',
+            'goal_timeout',
+            'max_condition',
+            'path_position_step',
+            'path_angle_step',
+        ):
             if name in changes:
                 self._values[name] = changes[name]
         for name, attribute in (
@@ -155,35 +189,65 @@ class PlatformBridgeNode(Node):
         problem = self._monitor.state_problem(self._now_s())
         if problem:
             return problem
-        ok, reasons = check_reachable(
-            self._geometry, pose[None], max_condition=self._values['max_condition']
-        )
+        max_condition = self._values['max_condition']
+        ok, reasons = check_reachable(self._geometry, pose[None], max_condition=max_condition)
         if not ok[0]:
             return f'unreachable: {reasons[0]}'
-        target = inverse_kinematics(self._geometry, pose[None])[0]
-        duration = motion_duration(
+        path, reason = self._path_to(pose)
+        if reason:
+            return reason
+        waypoints = inverse_kinematics(self._geometry, path)
+        times = waypoint_times(
             self._monitor.positions,
-            target,
+            waypoints,
             self._values['max_leg_speed'],
             self._values['min_motion_duration'],
         )
         if self._monitor.active:  # the server rejects the superseded command
             self._monitor.clear()
-        seconds = int(duration)
-        point = JointTrajectoryPoint(
-            positions=target.tolist(),
-            velocities=[0.0] * 6,
-            time_from_start=Duration(sec=seconds, nanosec=int((duration - seconds) * 1e9)),
-        )
+        points = [
+            JointTrajectoryPoint(positions=q.tolist(), time_from_start=_duration(t))
+            for q, t in zip(waypoints, times, strict=True)
+        ]
+        points[-1].velocities = [0.0] * 6
         # A zero header stamp: the controller starts the trajectory on receipt.
         self._trajectory_pub.publish(
-            JointTrajectory(joint_names=list(self._monitor.joint_names), points=[point])
+            JointTrajectory(joint_names=list(self._monitor.joint_names), points=points)
         )
-        self._monitor.start(target, self._now_s() + duration + self._values['goal_timeout'])
+        self._last_pose = pose.copy()
+        self._monitor.start(waypoints[-1], self._now_s() + times[-1] + self._values['goal_timeout'])
         self.get_logger().debug(
-            f'goal {command_id}: q = {target.round(6).tolist()} in {duration:.3f} s'
+            f'goal {command_id}: {len(points)} waypoints, q = {waypoints[-1].round(6).tolist()} '
+            f'in {times[-1]:.3f} s'
         )
         return ''
+
+    def _path_to(self, pose):
+        """``(poses (N, 6), '')``: the waypoints from the current pose (FK of the controller
+        geometry at the joint states) to ``pose`` on a straight line, or through the home pose
+        when the line leaves the workspace; ``(None, reason)`` when neither path is reachable.
+        Just ``pose`` when the current pose is unknown."""
+        guess = self._last_pose if self._last_pose is not None else pose
+        current, converged = forward_kinematics_masked(
+            self._geometry, self._monitor.positions[None], guess[None]
+        )
+        if not converged[0]:
+            return pose[None], ''
+        steps = (self._values['path_position_step'], self._values['path_angle_step'])
+        max_condition = self._values['max_condition']
+        straight = pose_path(current[0], pose, *steps)
+        ok, reasons = check_reachable(self._geometry, straight, max_condition=max_condition)
+        if ok.all():
+            return straight, ''
+        k = int(np.argmin(ok))
+        home = home_pose()
+        detour = np.vstack([pose_path(current[0], home, *steps), pose_path(home, pose, *steps)])
+        if check_reachable(self._geometry, detour, max_condition=max_condition)[0].all():
+            return detour, ''
+        return None, (
+            f'unreachable on the way (straight, and through the home pose): at step {k + 1} of '
+            f'{len(straight)}, {reasons[k]}'
+        )
 
     def _on_joint_state(self, msg):
         legs = self._monitor.observe(msg.name, msg.position, self._now_s())

@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from gsp_platform_bridge.goal_monitor import REJECTED, SETTLED, GoalMonitor, motion_duration
+from gsp_platform_bridge.goal_monitor import (
+    REJECTED,
+    SETTLED,
+    GoalMonitor,
+    pose_path,
+    waypoint_times,
+)
 from gsp_platform_sim.trajectory_follower import TrajectoryFollower
 
 LEGS = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
@@ -52,9 +58,23 @@ def test_state_problem_before_any_joint_state():
     assert 'no /joint_states' in monitor().state_problem(0.0)
 
 
-def test_motion_duration_is_set_by_the_fastest_leg():
-    assert motion_duration(np.zeros(6), [0, 0.02, 0, 0, 0, -0.05], 0.1, 0.1) == pytest.approx(0.5)
-    assert motion_duration(np.zeros(6), np.zeros(6), 0.1, 0.1) == 0.1
+def test_the_path_is_cut_into_steps_along_the_cartesian_line():
+    start, goal = np.zeros(6), np.array([0.05, 0, 0, 0, 0, 0.1])
+    path = pose_path(start, goal, position_step=0.01, angle_step=0.02)
+    assert len(path) == 5
+    np.testing.assert_allclose(path[-1], goal)
+    np.testing.assert_allclose(np.diff(np.vstack([start, path]), axis=0)[:, 0], 0.01)
+    assert len(pose_path(start, start, 0.01, 0.02)) == 1
+
+
+def test_waypoint_times_follow_the_fastest_leg_and_the_minimum_duration():
+    waypoints = np.array([[0.01] * 6, [0.01] * 5 + [0.05]])
+    np.testing.assert_allclose(
+        waypoint_times(np.zeros(6), waypoints, 0.1, 0.0), [0.1, 0.5], atol=1e-5
+    )
+    np.testing.assert_allclose(
+        waypoint_times(np.zeros(6), waypoints, 0.1, 1.0), [0.2, 1.0], atol=1e-5
+    )
 
 
 def test_the_follower_interpolates_at_the_point_time_and_respects_the_speed_limit():

@@ -27,6 +27,8 @@ from .trajectory_follower import TrajectoryFollower
 NODE_NAME = 'controller_sim'
 #: Random stream of this node's leg noise (platform_sim uses 1, the device 2).
 RNG_STREAM = 3
+#: Steps a leg change is split into when FK from the last pose does not converge at once.
+FK_CONTINUATION_STEPS = (1, 8, 64)
 
 PARAMETERS = (
     node_tools.geometry_file_spec(
@@ -74,8 +76,12 @@ class ControllerSimNode(Node):
         # Powered up where a nominal controller put the home pose.
         start = inverse_kinematics(default_geometry('nominal'), home_pose()[None])[0]
         self._follower = TrajectoryFollower(start, values['max_leg_speed'])
-        self._pose = home_pose()
-        self._pose_legs = None
+        pose, converged = forward_kinematics_masked(self._true, start[None], home_pose()[None])
+        if not converged[0]:
+            raise node_tools.ConfigurationError(
+                'true_geometry_file: no forward kinematics at the power-up leg strokes'
+            )
+        self._pose, self._pose_legs = pose[0], start
         node_tools.watch_parameters(self, PARAMETERS, apply=self._apply)
         topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self.create_subscription(JointTrajectory, topic, self._on_trajectory, 10)
@@ -115,16 +121,41 @@ class ControllerSimNode(Node):
 
     def _tick(self):
         legs = self._follower.step(self._now_s())
+        if not np.array_equal(legs, self._pose_legs):
+            pose = self._track_pose(legs)
+            if pose is None:
+                # The real hexapod cannot be assembled there (it would jam): the axes stop at
+                # the last reachable strokes and the trajectory is aborted, so the bridge's goal
+                # times out, as platform_sim rejects such a command.
+                self.get_logger().error(
+                    f'the hexapod cannot reach leg strokes {legs.round(6).tolist()}: '
+                    'trajectory aborted'
+                )
+                self._follower.abort(self._pose_legs)
+                legs = self._pose_legs.copy()
+            else:
+                self._pose, self._pose_legs = pose, legs
         stamp = self.get_clock().now().to_msg()
         measured = legs + self._rng.normal(0.0, self._noise_std, size=6)
         joints = JointState(name=self._joint_names, position=measured.tolist())
         joints.header.stamp = stamp  # no frame, like joint_state_broadcaster
         self._joint_pub.publish(joints)
-        if self._pose_legs is None or not np.array_equal(legs, self._pose_legs):
-            pose, converged = forward_kinematics_masked(self._true, legs[None], self._pose[None])
-            if converged[0]:
-                self._pose, self._pose_legs = pose[0], legs
         self._pose_pub.publish(conversions.pose_to_pose_stamped(self._pose, stamp, self._frame_id))
+
+    def _track_pose(self, legs):
+        """FK of the true hexapod at ``legs``, continued from the last pose: the leg change is
+        split into more and more steps until each converges (None if none does)."""
+        for steps in FK_CONTINUATION_STEPS:
+            pose = self._pose
+            for k in range(1, steps + 1):
+                q = self._pose_legs + (legs - self._pose_legs) * (k / steps)
+                reached, converged = forward_kinematics_masked(self._true, q[None], pose[None])
+                if not converged[0]:
+                    break
+                pose = reached[0]
+            else:
+                return pose
+        return None
 
 
 def main(args=None):

@@ -55,9 +55,20 @@ class TrajectoryFollower:
         else:
             fraction = (now_s - start_s) / (end_s - start_s)
             reference = start + fraction * (target - start)
-        step = np.clip(reference - self.positions, -self.max_speed * dt, self.max_speed * dt)
-        self.positions = self.positions + step
+        difference = reference - self.positions
+        reach = self.max_speed * dt
+        # Land exactly on the reference when it is within reach (a + (b - a) may miss b).
+        self.positions = np.where(
+            np.abs(difference) <= reach,
+            reference,
+            self.positions + np.clip(difference, -reach, reach),
+        )
         if np.array_equal(self.positions, target):
             self._segments.pop(0)
             self._segment_start = (now_s, self.positions.copy())
         return self.positions.copy()
+
+    def abort(self, positions):
+        """Stop at ``positions`` (6,) m and drop the rest of the trajectory (a fault)."""
+        self.positions = np.asarray(positions, dtype=float).copy()
+        self._segments = []
