@@ -88,3 +88,12 @@ def test_the_follower_interpolates_at_the_point_time_and_respects_the_speed_limi
     np.testing.assert_allclose(follower.step(3.0), 0.15)
     with pytest.raises(ValueError, match='6 finite'):
         follower.set_trajectory([(1.0, [0.0] * 5)], 3.0)
+
+
+def test_the_follower_stops_where_it_is_told_on_a_fault():
+    follower = TrajectoryFollower(np.zeros(6), max_speed=0.1)
+    follower.set_trajectory([(1.0, np.full(6, 0.05)), (2.0, np.full(6, 0.1))], 0.0)
+    follower.step(0.5)
+    follower.abort(np.full(6, 0.01))
+    assert not follower.moving
+    np.testing.assert_allclose(follower.step(3.0), 0.01)
