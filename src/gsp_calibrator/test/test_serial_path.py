@@ -47,11 +47,11 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
     calibrator = CalibratorNode(
         context=ros_context,
         parameter_overrides=[
-            Parameter('posture_count', value=40),
-            Parameter('pool_size', value=200),
+            Parameter('posture_count', value=20),
+            Parameter('pool_size', value=80),
             Parameter('samples_per_posture', value=5),
             Parameter('sync_tolerance', value=0.5 / RATE_HZ),
-            Parameter('topic_timeout', value=1.0),
+            Parameter('topic_timeout', value=1.5),  # < the 2 s silence
             Parameter('output_root', value=str(tmp_path / 'runs')),
         ],
     )

@@ -24,6 +24,7 @@ from .serial_protocol import (
 )
 
 QUEUE_LENGTH = 2000  #: readings kept for the node (10 s at 200 Hz)
+MAX_PENDING_BYTES = 1024  #: a longer run without a line end is dropped as garbage
 
 
 def _specs():
@@ -204,12 +205,16 @@ class SerialDeviceBackend(DeviceBackend):
             self._stop.wait(self.reconnect_interval)
 
     def _read_lines(self, port):
+        # Read what has arrived in one call and split it here: pyserial's readline() reads one
+        # byte per call, which falls behind at a few hundred lines/s when other threads hold
+        # the GIL (the calibrator's numerics in the same process).
         last_line = self._clock()
         silent = False
+        pending = b''
         while not self._stop.is_set():
-            line = port.readline()
+            data = port.read(max(1, port.in_waiting))
             now = self._clock()
-            if not line:
+            if not data:
                 if not silent and now - last_line > self.silence_warning:
                     silent = True
                     self._say(
@@ -217,13 +222,23 @@ class SerialDeviceBackend(DeviceBackend):
                         f'no line from the device on {self.port} for {self.silence_warning:g} s',
                     )
                 continue
+            pending += data
+            *lines, pending = pending.split(b'\n')
+            if len(pending) > MAX_PENDING_BYTES:  # no line end in sight: garbage
+                self._count('lines')
+                self._count('garbage')
+                pending = b''
+            if not lines:
+                continue
             if silent:
                 self._say(
                     'info', f'device on {self.port} talks again after {now - last_line:.2f} s'
                 )
                 silent = False
             last_line = now
-            self._handle(line, now)
+            for line in lines:
+                if line.strip():
+                    self._handle(line + b'\n', now)
 
     def _handle(self, line, now):
         self._count('lines')
