@@ -17,12 +17,15 @@ PACKAGES = (
     'gsp_msgs_py',
     'gsp_platform_sim',
     'gsp_device_driver',
+    'gsp_platform_bridge',
     'gsp_calibrator',
 )
 EXECUTABLES = {
     'gsp_experiments': ('gsp_paper',),
-    'gsp_platform_sim': ('platform_sim',),
-    'gsp_device_driver': ('device_driver',),
+    'gsp_msgs_py': ('gsp_check_interfaces',),
+    'gsp_platform_sim': ('platform_sim', 'controller_sim'),
+    'gsp_device_driver': ('device_driver', 'gsp_fake_device'),
+    'gsp_platform_bridge': ('platform_bridge',),
     'gsp_calibrator': (
         'calibrator',
         'gsp_demo',

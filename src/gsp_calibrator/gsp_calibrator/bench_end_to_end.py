@@ -69,8 +69,10 @@ def demo_command(
     seed=0,
     timeout=DEMO_TIMEOUT_S,
     settle_time=SETTLE_TIME_S,
+    extra_args=(),
 ):
-    """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.demo``)."""
+    """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.demo``);
+    ``extra_args`` are appended (e.g. ``['--platform', 'ros2_control']``)."""
     executable = shutil.which('gsp_demo')
     prefix = [executable] if executable else [sys.executable, '-m', DEMO_MODULE]
     return prefix + [
@@ -90,6 +92,7 @@ def demo_command(
         repr(float(timeout)),
         '--settle-time',
         repr(float(settle_time)),
+        *extra_args,
     ]
 
 
@@ -331,6 +334,46 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     }
 
 
+#: The hardware paths run like the direct calibration (``gsp_demo`` options).
+HARDWARE_PATHS = {
+    'serial': ('--device', 'serial'),
+    'ros2_control': ('--platform', 'ros2_control'),
+}
+
+
+def hardware_path_run(postures, validation_postures, extra_args, direct_after, used):
+    """One calibration through a hardware path (emulated device on a pty, or the ros2_control
+    bridge), laid out like the direct run, with its ratio to the direct run's validation."""
+    run = run_demo(
+        postures,
+        200.0,
+        validation_postures=validation_postures,
+        used_domains=used,
+        extra_args=extra_args,
+        timeout=2 * DEMO_TIMEOUT_S,  # the emulated legs take time to move
+    )
+    used.append(run['domain_id'])
+    summary = run['summary'] or {}
+    after = (summary.get('validation') or {}).get('after') or {}
+    result = {
+        'calibration_s': summary.get('calibration_s'),
+        'postures': postures,
+        'postures_collected': len(run['samples'] or []),
+        'max_param_error_mm': summary.get('max_param_error_mm'),
+        'validation_after': {
+            key: after.get(key) for key in ('position_mm_mean', 'orientation_deg_mean')
+        },
+    }
+    direct = (direct_after or {}).get('position_mm_mean')
+    if after.get('position_mm_mean') is not None and direct:
+        result['position_ratio_to_direct'] = after['position_mm_mean'] / direct
+    if run['exit_code'] != 0:
+        result['calibration_error'] = (
+            f'gsp_demo exited with {run["exit_code"]}: ' + run['output'][-800:]
+        )
+    return result
+
+
 def run(quick=False, log=None):
     """The section: ``{'calibration_s', 'postures', 'max_sync_rate_hz', ...}``."""
     if log is None:
@@ -374,6 +417,12 @@ def run(quick=False, log=None):
     if calibration['exit_code'] != 0:
         section['calibration_error'] = (
             f'gsp_demo exited with {calibration["exit_code"]}: ' + calibration['output'][-800:]
+        )
+
+    for mode, extra_args in HARDWARE_PATHS.items():
+        log(f'gsp_bench: end_to_end: {postures}-posture calibration through the {mode} path ...')
+        section[mode] = hardware_path_run(
+            postures, VALIDATION_POSTURES[quick], extra_args, after, used
         )
 
     rates = QUICK_SYNC_RATES_HZ if quick else SYNC_RATES_HZ

@@ -48,7 +48,16 @@ NODES = {
     'platform_sim': 'gsp_platform_sim.platform_sim_node',
     'device_driver': 'gsp_device_driver.device_driver_node',
     'calibrator': 'gsp_calibrator.calibrator_node',
+    # --platform ros2_control: the bridge and the emulated controller replace platform_sim.
+    'controller_sim': 'gsp_platform_sim.controller_sim_node',
+    'platform_bridge': 'gsp_platform_bridge.platform_bridge_node',
+    # --device serial: the emulated device on a pty feeds device_driver's serial backend.
+    'gsp_fake_device': 'gsp_device_driver.fake_device_node',
 }
+#: Leg speeds of the emulated controller and of the bridge's trajectories (m/s): fast, so that
+#: the ros2_control mode spends its time like the direct one, in settling and sampling.
+EMULATED_LEG_SPEED = 5.0
+BRIDGE_LEG_SPEED = 2.5
 VALIDATION_KEYS = (
     'position_mm_mean',
     'position_mm_max',
@@ -93,10 +102,13 @@ def executable_command(name, which=shutil.which):
 
 
 def node_commands(args, output_root, which=shutil.which):
-    """``{node name: argv}`` of the three nodes for the parsed ``args``."""
+    """``{node name: argv}`` of the nodes for the parsed ``args``: platform_sim (or, with
+    ``--platform ros2_control``, controller_sim and platform_bridge), device_driver (with
+    ``--device serial``, its serial backend on ``args.device_port`` fed by gsp_fake_device) and
+    the calibrator."""
     rate = float(args.sensor_rate)
     common = ['-p', f'publish_rate:={rate!r}', '-p', f'seed:={int(args.seed)}']
-    return {
+    commands = {
         'platform_sim': executable_command('platform_sim', which)
         + [
             '--ros-args',
@@ -137,6 +149,53 @@ def node_commands(args, output_root, which=shutil.which):
             'apply_result:=true',
         ],
     }
+    platform = getattr(args, 'platform', 'sim')
+    device = getattr(args, 'device', 'sim')
+    if platform == 'ros2_control':
+        del commands['platform_sim']
+        commands['controller_sim'] = executable_command('controller_sim', which) + [
+            '--ros-args',
+            '-p',
+            f'true_geometry_file:={args.true_geometry}',
+            '-p',
+            f'max_leg_speed:={EMULATED_LEG_SPEED!r}',
+            *common,
+        ]
+        commands['platform_bridge'] = executable_command('platform_bridge', which) + [
+            '--ros-args',
+            '--params-file',
+            str(args.nominal_geometry),
+            '-p',
+            f'settle_time:={float(args.settle_time)!r}',
+            '-p',
+            f'max_leg_speed:={BRIDGE_LEG_SPEED!r}',
+            '-p',
+            'min_motion_duration:=0.02',
+        ]
+        commands['calibrator'] += ['-p', 'platform_node_name:=platform_bridge']
+    if device == 'serial':
+        commands['gsp_fake_device'] = executable_command('gsp_fake_device', which) + [
+            '--port',
+            str(args.device_port),
+            '--rate',
+            repr(rate),
+            '--seed',
+            str(int(args.seed)),
+            '--true-geometry',
+            str(args.true_geometry),
+        ]
+        commands['device_driver'] = executable_command('device_driver', which) + [
+            '--ros-args',
+            '-p',
+            'backend:=serial',
+            '-p',
+            f'serial.port:={args.device_port}',
+            '-p',
+            'serial.reconnect_interval:=0.1',
+            '-p',
+            f'publish_rate:={rate!r}',
+        ]
+    return commands
 
 
 def validation_summary(commanded, reached):
@@ -282,6 +341,18 @@ def parse_arguments(argv=None):
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
     add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
     add('--startup-timeout', type=float, default=30.0, help='longest node start-up, s (30)')
+    add(
+        '--platform',
+        default='sim',
+        choices=('sim', 'ros2_control'),
+        help='sim: platform_sim; ros2_control: platform_bridge + emulated controller (sim)',
+    )
+    add(
+        '--device',
+        default='sim',
+        choices=('sim', 'serial'),
+        help="sim: device_driver's sim backend; serial: gsp_fake_device on a pty (sim)",
+    )
     args = parser.parse_args(argv)
     for name in ('postures', 'pool_size', 'samples_per_posture', 'validation_postures'):
         if getattr(args, name) < 1:
@@ -315,6 +386,7 @@ def run(args):
     )
 
     log_directory = Path(tempfile.mkdtemp(prefix='gsp_demo_logs_'))
+    args.device_port = str(log_directory / 'gsp_device')  # the pty link of --device serial
     processes = NodeProcesses(node_commands(args, output_root), env, log_directory)
     # The children first, before rclpy starts its middleware threads (preexec_fn runs between
     # fork and exec).
@@ -337,7 +409,7 @@ def run(args):
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         demo = demo_node.Demo(node, executor, processes)
-        print('starting platform_sim, device_driver and calibrator ...', flush=True)
+        print(f'starting {", ".join(processes.commands)} ...', flush=True)
         demo.wait_for_system(args.startup_timeout)
         settle_timeout = 5.0 + 10.0 * args.settle_time
 

@@ -2,7 +2,9 @@
 
 The ``device_driver`` node only talks to the backend :func:`backend_class` names. Built in:
 
-* ``sim``: readings of the simulated platform's true pose (core ``device_readings``) + noise.
+* ``sim``: readings of the simulated platform's true pose (core ``device_readings``) + noise;
+* ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
+  :mod:`.serial_protocol` and docs/hardware.md).
 
 Adding a backend (e.g. ``hardware``): subclass :class:`DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
@@ -70,6 +72,17 @@ class DeviceBackend(abc.ABC):
     @abc.abstractmethod
     def read(self, now_s):
         """The sample for the current time ``now_s`` (s), or None if none is available yet."""
+
+    def read_available(self, now_s):
+        """Every sample available at ``now_s`` (a list, maybe empty). A backend that receives
+        samples at its own pace (``serial``) returns each one once; default: ``[read(now_s)]``."""
+        sample = self.read(now_s)
+        return [] if sample is None else [sample]
+
+    def messages(self):
+        """``[(level, text)]`` the node should log (``info`` or ``warning``) since the last call.
+        Default: none."""
+        return []
 
     def observe_true_pose(self, pose):
         """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
@@ -195,6 +208,16 @@ class SimDeviceBackend(DeviceBackend):
 
 
 _BACKENDS = {SimDeviceBackend.name: SimDeviceBackend}
+
+
+def _register_serial():
+    # Imported here: serial_backend subclasses DeviceBackend from this module.
+    from .serial_backend import SerialDeviceBackend
+
+    _BACKENDS[SerialDeviceBackend.name] = SerialDeviceBackend
+
+
+_register_serial()
 
 
 def backend_names():

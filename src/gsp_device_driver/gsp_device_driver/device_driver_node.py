@@ -2,7 +2,9 @@
 
 On one timer it reads a :class:`~gsp_device_driver.backends.DeviceBackend` and publishes
 ``/gsp/device/inclinometer`` (alpha, beta), ``/gsp/device/encoder`` (phi) and ``/gsp/device/lvdt``
-(d_m) with one shared stamp. The ``sim`` backend is fed ``/gsp/platform/true_pose``.
+(d_m) with one shared stamp. The ``sim`` backend is fed ``/gsp/platform/true_pose``; the
+``serial`` backend reads a device on a serial line (docs/hardware.md) and every reading it received
+since the last tick is published.
 """
 
 import dataclasses
@@ -153,31 +155,39 @@ class DeviceDriverNode(Node):
         now = self.get_clock().now()
         now_s = now.nanoseconds * 1e-9
         try:
-            sample = self._backend.read(now_s)
+            samples = self._backend.read_available(now_s)
         except (BackendError, OSError, ValueError, RuntimeError) as error:
             self.get_logger().warning(
                 f'device read failed: {error}', throttle_duration_sec=WARN_THROTTLE_S
             )
             return
-        if sample is None:
-            self.get_logger().info(
-                'waiting for the first device reading (true pose)', throttle_duration_sec=5.0
-            )
+        for level, text in self._backend.messages():
+            # One call site per severity: rclpy refuses a severity change at one call site.
+            if level == 'warning':
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
+        if not samples:
+            if self._backend.needs_true_pose:
+                self.get_logger().info(
+                    'waiting for the first device reading (true pose)', throttle_duration_sec=5.0
+                )
             return
-        stamp = (
-            now.to_msg()
-            if sample.stamp_s == now_s
-            else conversions.seconds_to_stamp(sample.stamp_s)
-        )
-        try:
-            messages = node_tools.device_messages(sample.readings(), stamp, self._frame_id)
-        except ValueError as error:
-            self.get_logger().warning(
-                f'dropping device sample: {error}', throttle_duration_sec=WARN_THROTTLE_S
+        for sample in samples:
+            stamp = (
+                now.to_msg()
+                if sample.stamp_s == now_s
+                else conversions.seconds_to_stamp(sample.stamp_s)
             )
-            return
-        for topic, msg in messages.items():
-            self._pubs[topic].publish(msg)
+            try:
+                messages = node_tools.device_messages(sample.readings(), stamp, self._frame_id)
+            except ValueError as error:
+                self.get_logger().warning(
+                    f'dropping device sample: {error}', throttle_duration_sec=WARN_THROTTLE_S
+                )
+                continue
+            for topic, msg in messages.items():
+                self._pubs[topic].publish(msg)
 
     def destroy_node(self):
         backend = getattr(self, '_backend', None)

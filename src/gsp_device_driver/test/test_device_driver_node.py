@@ -33,7 +33,10 @@ class Harness(testing.NodeHarness):
         self.node.create_timer(0.01, self._publish_true_pose)
         assert self.spin_until(
             lambda: (
-                self.pose_pub.get_subscription_count() > 0
+                (
+                    self.pose_pub.get_subscription_count() > 0
+                    or not self.driver._backend.needs_true_pose
+                )
                 and all(self.node.count_publishers(t) > 0 for t in TOPICS)
             )
         ), 'no discovery'
@@ -150,7 +153,7 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
     [
         (
             [Parameter('backend', value='replay')],
-            "unknown device backend 'replay'; valid backends: sim",
+            "unknown device backend 'replay'; valid backends: serial, sim",
         ),
         ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
         ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),
@@ -160,3 +163,31 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
     with pytest.raises(ConfigurationError, match=words):
         DeviceDriverNode(context=ros_context, parameter_overrides=overrides)
+
+
+def test_the_serial_backend_publishes_every_reading_of_the_emulated_device(ros_context, tmp_path):
+    from gsp_device_driver.fake_device import FakeDevice
+
+    link = tmp_path / 'gsp_device'
+    exact = device_readings(TRUE, POSE[None])[0]
+    fake = FakeDevice(link, lambda: exact, garbage_fraction=0.05, rng=np.random.default_rng(3))
+    overrides = [
+        Parameter('backend', value='serial'),
+        Parameter('serial.port', value=str(link)),
+        Parameter('serial.reconnect_interval', value=0.05),
+    ]
+    harness = Harness(ros_context, overrides)
+    try:
+        fake.start()
+        readings, stamps = harness.readings_after(20)
+        np.testing.assert_allclose(readings, np.broadcast_to(exact, readings.shape), atol=1e-9)
+        # Every garbage line sent is counted once the backend has read what is on the line:
+        # stop sending (the port stays open), then wait for the backend to catch up.
+        fake.silence(3600.0)
+        backend = harness.driver._backend
+        assert harness.spin_until(lambda: backend.counters['garbage'] == fake.count('garbage'))
+        result = harness.driver.set_parameters([Parameter('lvdt_noise_std', value=1e-5)])[0]
+        assert not result.successful and 'no simulated noise' in result.reason
+    finally:
+        fake.close()
+        harness.close()

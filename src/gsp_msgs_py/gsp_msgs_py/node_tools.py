@@ -214,6 +214,28 @@ def geometry_file_spec(name, default, description, default_text=''):
     )
 
 
+def controller_name_spec(description):
+    """``controller_name`` (read-only): a ros2_control joint_trajectory_controller."""
+    return ParameterSpec(
+        'controller_name',
+        'joint_trajectory_controller',
+        description,
+        read_only=True,
+        check=not_blank('a controller'),
+    )
+
+
+def joint_names_spec(description):
+    """``joint_names`` (read-only): the ros2_control joints of legs 1..6, in leg order."""
+    return ParameterSpec(
+        'joint_names',
+        list(names.LEG_JOINT_NAMES),
+        description,
+        read_only=True,
+        check=lambda v: '' if len(v) == 6 and len(set(v)) == 6 else 'must be 6 distinct names',
+    )
+
+
 def _spec_table(specs):
     return specs if isinstance(specs, dict) else {spec.name: spec for spec in specs}
 

@@ -26,10 +26,15 @@ class PoseCommandServer:
     ``on_settled(command_id)`` (optional) runs right after a ``settled`` status. Every callback
     runs in the node's default callback group. ``settle_time`` (s) may be changed at any time;
     it applies from the next accepted command.
+
+    A node that learns itself when the platform has arrived (``platform_bridge``, from the
+    controller's joint states) passes ``settle_time=None``: an accepted command then stays
+    ``moving`` until it calls :meth:`settled` or :meth:`reject_moving`.
     """
 
     def __init__(self, node, frame_id, settle_time, move, on_settled=None):
         self.settle_time = settle_time
+        self._reports = settle_time is None
         self._node = node
         self._frame_id = frame_id
         self._move = move
@@ -76,11 +81,31 @@ class PoseCommandServer:
             self._reject(command_id, reason)
             return
         now_ns = self._now_ns()
-        superseded = self._tracker.accept(command_id, now_ns, self.settle_time)
+        superseded = self._tracker.accept(command_id, now_ns, self.settle_time or 0.0)
         if superseded is not None:
             self._reject(superseded, superseded_reason(command_id))
         self._publish_status(command_id, names.STATE_MOVING)
-        self._settle_or_wait(now_ns)
+        if not self._reports:
+            self._settle_or_wait(now_ns)
+
+    @property
+    def moving(self):
+        """The command id that is moving, or None."""
+        return self._tracker.moving
+
+    def settled(self, command_id):
+        """Report-mode: ``command_id`` (if still the moving one) has arrived: ``settled``."""
+        if self._tracker.moving == command_id and self._tracker.due(self._now_ns()) is not None:
+            self._publish_status(command_id, names.STATE_SETTLED)
+            if self._on_settled is not None:
+                self._on_settled(command_id)
+
+    def reject_moving(self, reason):
+        """Report-mode: the moving command failed (``rejected`` with ``reason``)."""
+        command_id = self._tracker.moving
+        if command_id is not None:
+            self._tracker.forget()
+            self._reject(command_id, reason)
 
     def _settle_or_wait(self, now_ns):
         """Announce the moving command if it has settled, else (re)arm the timer for it."""

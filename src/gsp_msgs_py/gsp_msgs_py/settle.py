@@ -45,3 +45,7 @@ class SettleTracker:
             return None
         settled, self._moving = self._moving, None
         return settled
+
+    def forget(self):
+        """The moving command ends without settling (it was rejected)."""
+        self._moving = None

@@ -15,6 +15,20 @@ from .node_tools import spin_until  # noqa: F401 (re-exported for the tests)
 from .ros_environment import loopback_environment
 
 
+def wait_until(predicate, timeout):
+    """Wait for an event another thread brings (``predicate()``), polling; False if ``timeout``
+    (s) passes first. The timeout only bounds a failure."""
+    import threading
+
+    pause = threading.Event()
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        pause.wait(0.01)
+    return True
+
+
 def use_loopback_domain():
     """Keep DDS on loopback, in a random ROS domain unless one is already set."""
     env = loopback_environment()

@@ -13,13 +13,17 @@ from rclpy.node import Node
 
 from gsp_kinematics.geometry import (
     GeometryError,
-    default_geometry,
     default_geometry_path,
     geometry_from_parameters,
-    geometry_to_parameters,
     load_geometry,
 )
 from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py.geometry_parameters import (
+    CONTROLLER_GEOMETRY_SPECS,
+    GEOMETRY_PARAMETER_NAMES,
+    check_geometry_change,
+    controller_geometry_error,
+)
 from gsp_msgs_py.node_tools import ParameterSpec, at_least
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
@@ -30,53 +34,6 @@ MARKER_RATE_HZ = 10.0
 #: Random stream of this node: the device driver with the same ``seed`` draws independent noise.
 RNG_STREAM = 1
 
-_NOMINAL_PARAMETERS = geometry_to_parameters(default_geometry('nominal'))
-GEOMETRY_PARAMETER_NAMES = tuple(_NOMINAL_PARAMETERS)
-#: name -> (description, unit) of the controller geometry parameters.
-_GEOMETRY_DESCRIPTIONS = {
-    'geometry.base_joints': (
-        'Controller model: base joints A_1..A_6 as 18 values x1 y1 z1 ...',
-        'm, base frame',
-    ),
-    'geometry.platform_joints': (
-        'Controller model: platform joints B_1..B_6 as 18 values',
-        'm, platform frame',
-    ),
-    'geometry.leg_offsets': (
-        'Controller model: leg offsets L_off_1..L_off_6, L_i = q_i + L_off_i',
-        'm',
-    ),
-    'geometry.device_length': (
-        'Controller model: measuring device length D0 (m; unused by the simulator)',
-        '',
-    ),
-    'geometry.inclinometer_axes_angle': (
-        'Controller model: inclinometer axes angle gamma (rad; unused by the simulator)',
-        '',
-    ),
-    'geometry.limits.leg_stroke_min': ('Smallest commandable articular variable q', 'm'),
-    'geometry.limits.leg_stroke_max': ('Largest commandable articular variable q', 'm'),
-    'geometry.limits.base_joint_max_angle': ('Largest leg angle to the base normal', 'rad'),
-    'geometry.limits.platform_joint_max_angle': ('Largest leg angle to the platform normal', 'rad'),
-    'geometry.sensors.leg_gain_errors': (
-        'Controller model: leg sensor gain errors kq_1..kq_6; the controller drives leg i '
-        'until its sensor reads IK / (1 + kq_i) (docs/sensor_errors.md)',
-        '1',
-    ),
-    'geometry.sensors.inclinometer_offsets': (
-        'Controller model: inclinometer zero offsets alpha0, beta0 (unused by the simulator)',
-        'rad',
-    ),
-    'geometry.sensors.encoder_offset': (
-        'Controller model: encoder zero phi0 (unused by the simulator)',
-        'rad',
-    ),
-    'geometry.sensors.lvdt_gain_error': (
-        'Controller model: LVDT gain error kDm (unused by the simulator)',
-        '1',
-    ),
-}
-
 PARAMETERS = (
     node_tools.geometry_file_spec(
         'true_geometry_file',
@@ -84,16 +41,7 @@ PARAMETERS = (
         'Geometry params file of the real (true) platform, read once at start-up; never published',
         default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     ),
-    *(
-        ParameterSpec(
-            name,
-            _NOMINAL_PARAMETERS[name],
-            *_GEOMETRY_DESCRIPTIONS[name],
-            constraints='the whole geometry.* set must be valid '
-            '(geometry_from_parameters); applies from the next pose command',
-        )
-        for name in GEOMETRY_PARAMETER_NAMES
-    ),
+    *CONTROLLER_GEOMETRY_SPECS,
     node_tools.publish_rate_spec('leg_lengths and true_pose'),
     node_tools.noise_std_spec(
         'leg_noise_std', 1e-6, 'Standard deviation of the Gaussian leg length sensor noise', 'm'
@@ -119,25 +67,8 @@ PARAMETERS = (
 )
 
 
-def _geometry_error(values):
-    """Why the ``geometry.*`` entries of ``{name: value}`` are not a valid geometry ('' if they
-    are)."""
-    try:
-        geometry_from_parameters({name: values[name] for name in GEOMETRY_PARAMETER_NAMES})
-    except GeometryError as error:
-        return str(error)
-    return ''
-
-
-def _check_geometry_change(changes, current):
-    """Run-time check: the geometry after ``changes`` must be valid as a whole."""
-    if not any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
-        return ''
-    return _geometry_error({**current, **changes})
-
-
 def _check_start_up(values):
-    reason = _geometry_error(values)
+    reason = controller_geometry_error(values)
     return f'controller geometry: {reason}' if reason else ''
 
 
@@ -167,7 +98,7 @@ class PlatformSimNode(Node):
             raise node_tools.ConfigurationError(str(error)) from None
         self._frame_id = values['frame_id']
         node_tools.watch_parameters(
-            self, PARAMETERS, apply=self._apply_parameters, validate=_check_geometry_change
+            self, PARAMETERS, apply=self._apply_parameters, validate=check_geometry_change
         )
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.

@@ -1,0 +1,106 @@
+"""The calibrator through the serial path: platform_sim -> gsp_fake_device (pty) -> device_driver
+(serial backend) -> calibrator, in one process. A 2 s silence of the device is reported as a
+silent topic; an unplug and replug mid-stream resumes publishing without a restart."""
+
+import threading
+
+import numpy as np
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from gsp_calibrator.calibration import parse_response
+from gsp_calibrator.calibrator_node import CalibratorNode
+from gsp_device_driver.device_driver_node import DeviceDriverNode
+from gsp_device_driver.fake_device_node import FakeDeviceNode, parse_arguments
+from gsp_msgs_py import names, qos, testing
+from gsp_platform_sim.platform_sim_node import PlatformSimNode
+
+RATE_HZ = 100.0
+TIMEOUT_S = 120.0
+
+
+def wait_until(predicate, timeout=TIMEOUT_S):
+    return testing.wait_until(predicate, timeout)
+
+
+def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
+    import rclpy
+
+    link = tmp_path / 'gsp_device'
+    rate = Parameter('publish_rate', value=RATE_HZ)
+    platform = PlatformSimNode(
+        context=ros_context, parameter_overrides=[rate, Parameter('publish_markers', value=False)]
+    )
+    args, _ = parse_arguments(['--port', str(link), '--rate', str(RATE_HZ)])
+    fake = FakeDeviceNode(args, context=ros_context)
+    driver = DeviceDriverNode(
+        context=ros_context,
+        parameter_overrides=[
+            rate,
+            Parameter('backend', value='serial'),
+            Parameter('serial.port', value=str(link)),
+            Parameter('serial.reconnect_interval', value=0.05),
+        ],
+    )
+    calibrator = CalibratorNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter('posture_count', value=20),
+            Parameter('pool_size', value=80),
+            Parameter('samples_per_posture', value=5),
+            Parameter('sync_tolerance', value=0.5 / RATE_HZ),
+            Parameter('topic_timeout', value=1.5),  # < the 2 s silence
+            Parameter('output_root', value=str(tmp_path / 'runs')),
+        ],
+    )
+    client_node = rclpy.create_node('serial_path_test', context=ros_context)
+    lvdt = []
+    client_node.create_subscription(
+        JointState, names.TOPIC_LVDT, lvdt.append, qos.TOPIC_QOS[names.TOPIC_LVDT]
+    )
+    progress = []
+    calibrator_progress = names.TOPIC_CALIBRATION_PROGRESS
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    client_node.create_subscription(
+        DiagnosticStatus, calibrator_progress, progress.append, qos.TOPIC_QOS[calibrator_progress]
+    )
+    client = client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
+    nodes = [platform, fake, driver, calibrator, client_node]
+    executor = MultiThreadedExecutor(num_threads=4, context=ros_context)
+    for node in nodes:
+        executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        assert client.wait_for_service(timeout_sec=30.0)
+        future = client.call_async(Trigger.Request())
+        assert wait_until(
+            lambda: future.done() or sum('averaged' in p.message for p in list(progress)) >= 3
+        )
+        fake.device.silence(2.0)
+        assert wait_until(future.done)
+        response = future.result()
+        assert not response.success
+        assert 'is silent' in response.message and '/gsp/device/' in response.message, (
+            response.message
+        )
+        assert parse_response(response.message).run_directory  # the samples are kept
+
+        # Unplug and replug: the driver reconnects and publishes again, without a restart.
+        backend = driver._backend
+        assert wait_until(lambda: backend.counters['readings'] > 0 and len(lvdt) > 0)
+        fake.device.disconnect(0.5)
+        assert wait_until(lambda: backend.counters['disconnects'] == 1)
+        heard = len(lvdt)
+        assert wait_until(lambda: backend.counters['connects'] >= 2 and len(lvdt) > heard + 20)
+        assert np.isfinite(lvdt[-1].position[0])
+    finally:
+        for node in executor.get_nodes():
+            executor.remove_node(node)
+        executor.shutdown(timeout_sec=5.0)
+        thread.join(timeout=5.0)
+        for node in nodes:
+            node.destroy_node()

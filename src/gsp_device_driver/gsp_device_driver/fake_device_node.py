@@ -1,0 +1,129 @@
+"""``gsp_fake_device``: the measuring device's microcontroller, emulated on a pty (docs/hardware.md).
+
+Subscribes ``/gsp/platform/true_pose`` (like the ``sim`` backend), computes the device readings
+of the true geometry's device with Gaussian noise and streams them in the serial protocol through
+:class:`~gsp_device_driver.fake_device.FakeDevice` at ``--port`` (a symlink to the pty). Faults:
+``--garbage-fraction``, ``--checksum-error-fraction``, and periodic silences and disconnects.
+
+    gsp_fake_device --port /tmp/gsp_device [--rate 200] [--seed 0] [--ros-args ...]
+    ros2 run gsp_device_driver device_driver --ros-args -p backend:=serial \\
+        -p serial.port:=/tmp/gsp_device
+"""
+
+import argparse
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+
+from gsp_kinematics.geometry import default_geometry_path
+from gsp_msgs_py import checks, names, node_tools, qos
+
+from .backends import SimDeviceBackend
+from .device_driver_node import DEFAULT_ANGLE_NOISE_STD, DEFAULT_LENGTH_NOISE_STD, RNG_STREAM
+from .fake_device import FakeDevice
+from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS
+
+NODE_NAME = 'fake_device'
+
+
+def parse_arguments(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='gsp_fake_device',
+        description='Emulate the measuring device on a pty, from /gsp/platform/true_pose.',
+    )
+    add = parser.add_argument
+    add('--port', required=True, help='path of the symlink to the pty the driver opens')
+    add('--rate', type=float, default=200.0, help='reading lines per second (200)')
+    add('--true-geometry', default=default_geometry_path('true'), help='device D0 and gamma')
+    add('--seed', type=int, default=0, help='noise seed (0; -1 random)')
+    add('--inclinometer-noise-std', type=float, default=DEFAULT_ANGLE_NOISE_STD, help='rad')
+    add('--encoder-noise-std', type=float, default=DEFAULT_ANGLE_NOISE_STD, help='rad')
+    add('--lvdt-noise-std', type=float, default=DEFAULT_LENGTH_NOISE_STD, help='m')
+    add('--angle-unit', default='rad', choices=tuple(ANGLE_UNITS))
+    add('--length-unit', default='m', choices=tuple(LENGTH_UNITS))
+    add('--garbage-fraction', type=float, default=0.0, help='share of garbage lines (0..1)')
+    add('--checksum-error-fraction', type=float, default=0.0, help='share of bad checksums')
+    add('--silence-every', type=float, default=0.0, help='a silence every S seconds (0: never)')
+    add('--silence-duration', type=float, default=2.0, help='length of a silence, s (2)')
+    add('--disconnect-every', type=float, default=0.0, help='unplug every S seconds (0: never)')
+    add('--disconnect-duration', type=float, default=1.0, help='time unplugged, s (1)')
+    args, ros_args = parser.parse_known_args(argv)
+    if not args.rate > 0:
+        parser.error('--rate must be > 0')
+    for name in ('garbage_fraction', 'checksum_error_fraction'):
+        if not 0.0 <= getattr(args, name) <= 1.0:
+            parser.error(f'--{name.replace("_", "-")} must be in [0, 1]')
+    return args, ros_args
+
+
+class FakeDeviceNode(Node):
+    """Feeds the true pose to the emulator; ``**kwargs`` go to ``Node``."""
+
+    def __init__(self, args, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        seed = args.seed if args.seed >= 0 else np.random.SeedSequence().entropy
+        try:
+            self._model = SimDeviceBackend.from_config(
+                args.true_geometry,
+                inclinometer_noise_std=args.inclinometer_noise_std,
+                encoder_noise_std=args.encoder_noise_std,
+                lvdt_noise_std=args.lvdt_noise_std,
+                rng=np.random.default_rng([seed, RNG_STREAM]),
+            )
+        except ValueError as error:
+            raise node_tools.ConfigurationError(str(error)) from None
+        self.device = FakeDevice(
+            args.port,
+            self._readings,
+            rate_hz=args.rate,
+            angle_unit=args.angle_unit,
+            length_unit=args.length_unit,
+            garbage_fraction=args.garbage_fraction,
+            checksum_error_fraction=args.checksum_error_fraction,
+            rng=np.random.default_rng([seed, RNG_STREAM + 100]),
+        ).start()
+        self.create_subscription(
+            PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
+        )
+        if args.silence_every > 0:
+            self.create_timer(args.silence_every, lambda: self._fault('silence', args))
+        if args.disconnect_every > 0:
+            self.create_timer(args.disconnect_every, lambda: self._fault('disconnect', args))
+        self.get_logger().info(f'fake device on {args.port} at {args.rate:g} Hz, seed {seed}')
+
+    def _readings(self):
+        """Called from the emulator's thread: the reading of the latest true pose, or None."""
+        sample = self._model.read(0.0)
+        return None if sample is None else sample.readings()
+
+    def _on_true_pose(self, msg):
+        try:
+            self._model.observe_true_pose(checks.pose_in_frame(msg, names.FRAME_BASE))
+        except ValueError as error:
+            self.get_logger().warning(f'ignoring true pose: {error}', throttle_duration_sec=1.0)
+
+    def _fault(self, kind, args):
+        duration = getattr(args, f'{kind}_duration')
+        self.get_logger().warning(f'fault injection: {kind} for {duration:g} s')
+        getattr(self.device, kind)(duration)
+
+    def destroy_node(self):
+        device = getattr(self, 'device', None)
+        if device is not None:
+            device.close()
+        return super().destroy_node()
+
+
+def main(argv=None):
+    """Console script ``gsp_fake_device``."""
+    import sys
+
+    args, ros_args = parse_arguments(sys.argv[1:] if argv is None else argv)
+    return node_tools.run_node(
+        lambda: FakeDeviceNode(args), ['gsp_fake_device', *ros_args], logger_name=NODE_NAME
+    )
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

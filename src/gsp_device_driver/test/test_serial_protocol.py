@@ -1,0 +1,89 @@
+"""The serial line protocol: framing, checksum, units, range checks and the stamping rule."""
+
+import math
+
+import pytest
+
+from gsp_device_driver import serial_protocol as sp
+
+READING = sp.Reading(7, 123456, 0.01, -0.02, 0.3, 0.25)
+
+
+@pytest.mark.parametrize('angle_unit', list(sp.ANGLE_UNITS))
+@pytest.mark.parametrize('length_unit', list(sp.LENGTH_UNITS))
+def test_a_formatted_reading_parses_back_in_every_unit(angle_unit, length_unit):
+    line = sp.format_reading(READING, angle_unit, length_unit)
+    assert line.endswith(b'\r\n') and line.startswith(b'$GSP,7,123456,')
+    parsed = sp.parse_line(line, angle_unit, length_unit)
+    assert (parsed.seq, parsed.device_time_us) == (7, 123456)
+    for name in ('alpha', 'beta', 'phi', 'd_m'):
+        assert getattr(parsed, name) == pytest.approx(getattr(READING, name), rel=1e-8)
+
+
+def test_the_checksum_is_the_xor_of_the_body_like_nmea():
+    # Worked example of docs/hardware.md.
+    line = b'$GSP,0,0,0,0,0,0.25,0*' + f'{sp.checksum("GSP,0,0,0,0,0,0.25,0"):02X}'.encode()
+    assert sp.parse_line(line).d_m == 0.25
+    assert sp.checksum('GSP') == ord('G') ^ ord('S') ^ ord('P')
+
+
+def test_hello_line_round_trip():
+    hello = sp.parse_line(sp.format_hello('board-3', 'urad', 'um', 500.0))
+    assert hello == sp.Hello(sp.PROTOCOL_VERSION, 'board-3', 'urad', 'um', 500.0)
+
+
+def _body_line(body):
+    return sp.frame(body)
+
+
+@pytest.mark.parametrize(
+    'line, reason',
+    [
+        (b'garbage\r\n', 'garbage'),
+        (b'\xff\xfe$GSP*00\r\n', 'garbage'),
+        (b'$GSP,1,2,0,0,0,0.2,0*00\r\n', 'checksum'),
+        (_body_line('GSP,1,2,0,0,0,0.2'), 'garbage'),  # a field missing
+        (_body_line('GSP,x,2,0,0,0,0.2,0'), 'garbage'),
+        (_body_line('GSP,1,2,zero,0,0,0.2,0'), 'garbage'),
+        (_body_line('GSP,1,2,nan,0,0,0.2,0'), 'range'),
+        (_body_line('GSP,1,2,0,0,0,0.2,4'), 'status'),
+        (_body_line('GSP,1,2,0,2.0,0,0.2,0'), 'range'),  # beta 2 rad: degrees?
+        (_body_line('GSP,1,2,0,0,7,0.2,0'), 'range'),
+        (_body_line('GSP,1,2,0,0,0,250,0'), 'range'),  # 250 m: millimetres?
+        (_body_line('NMEA,1,2'), 'garbage'),
+        (_body_line('GSPHELLO,1,dev,furlong,m,200'), 'units'),
+        (b'$' + b'1' * 200 + b'*00\r\n', 'garbage'),
+    ],
+)
+def test_bad_lines_raise_with_their_reason(line, reason):
+    with pytest.raises(sp.LineError) as caught:
+        sp.parse_line(line)
+    assert caught.value.reason == reason
+
+
+def test_status_names_the_faulty_sensor():
+    with pytest.raises(sp.LineError, match='LVDT fault'):
+        sp.parse_line(_body_line('GSP,1,2,0,0,0,0.2,4'))
+
+
+def test_degrees_are_converted_to_radians():
+    parsed = sp.parse_line(_body_line('GSP,1,2,1,-1,90,200,0'), 'deg', 'mm')
+    assert parsed.alpha == pytest.approx(math.radians(1)) and parsed.d_m == pytest.approx(0.2)
+
+
+def test_device_clock_keeps_the_least_delayed_offset():
+    clock = sp.DeviceClock(latency=0.001)
+    # The device ticks every 5 ms; the host receives each line 2 ms + jitter later, from 100 s.
+    delays = [0.004, 0.002, 0.009, 0.003, 0.002]
+    stamps = [clock.stamp(k * 5000, 100.0 + k * 0.005 + d) for k, d in enumerate(delays)]
+    # After the least-delayed line, each stamp is device time + 100 + 2 ms - 1 ms latency.
+    for k in range(1, 5):
+        assert stamps[k] == pytest.approx(100.0 + k * 0.005 + 0.001, abs=1e-9)
+    assert stamps[0] == pytest.approx(100.004 - 0.001)
+
+
+def test_device_clock_restarts_after_a_reboot_or_a_gap():
+    clock = sp.DeviceClock()
+    clock.stamp(1_000_000, 50.0)
+    assert clock.stamp(10, 60.0) == pytest.approx(60.0)  # device time went back: reboot
+    assert clock.stamp(5_000_010, 70.0) == pytest.approx(70.0)  # 5 s gap > max_gap_s

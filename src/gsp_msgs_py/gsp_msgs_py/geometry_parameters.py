@@ -1,0 +1,95 @@
+"""The ``geometry.*`` parameters of a node that plays the platform's controller.
+
+``platform_sim`` and ``platform_bridge`` declare the same table, so the calibrator's
+``apply_result`` sets a calibrated geometry on either one unchanged.
+"""
+
+from gsp_kinematics.geometry import (
+    GeometryError,
+    default_geometry,
+    geometry_from_parameters,
+    geometry_to_parameters,
+)
+
+from .node_tools import ParameterSpec
+
+_NOMINAL_PARAMETERS = geometry_to_parameters(default_geometry('nominal'))
+GEOMETRY_PARAMETER_NAMES = tuple(_NOMINAL_PARAMETERS)
+#: name -> (description, unit) of the controller geometry parameters.
+_GEOMETRY_DESCRIPTIONS = {
+    'geometry.base_joints': (
+        'Controller model: base joints A_1..A_6 as 18 values x1 y1 z1 ...',
+        'm, base frame',
+    ),
+    'geometry.platform_joints': (
+        'Controller model: platform joints B_1..B_6 as 18 values',
+        'm, platform frame',
+    ),
+    'geometry.leg_offsets': (
+        'Controller model: leg offsets L_off_1..L_off_6, L_i = q_i + L_off_i',
+        'm',
+    ),
+    'geometry.device_length': (
+        'Controller model: measuring device length D0 (m; unused by the platform)',
+        '',
+    ),
+    'geometry.inclinometer_axes_angle': (
+        'Controller model: inclinometer axes angle gamma (rad; unused by the platform)',
+        '',
+    ),
+    'geometry.limits.leg_stroke_min': ('Smallest commandable articular variable q', 'm'),
+    'geometry.limits.leg_stroke_max': ('Largest commandable articular variable q', 'm'),
+    'geometry.limits.base_joint_max_angle': ('Largest leg angle to the base normal', 'rad'),
+    'geometry.limits.platform_joint_max_angle': ('Largest leg angle to the platform normal', 'rad'),
+    'geometry.sensors.leg_gain_errors': (
+        'Controller model: leg sensor gain errors kq_1..kq_6; the controller drives leg i '
+        'until its sensor reads IK / (1 + kq_i) (docs/sensor_errors.md)',
+        '1',
+    ),
+    'geometry.sensors.inclinometer_offsets': (
+        'Controller model: inclinometer zero offsets alpha0, beta0 (unused by the platform)',
+        'rad',
+    ),
+    'geometry.sensors.encoder_offset': (
+        'Controller model: encoder zero phi0 (unused by the platform)',
+        'rad',
+    ),
+    'geometry.sensors.lvdt_gain_error': (
+        'Controller model: LVDT gain error kDm (unused by the platform)',
+        '1',
+    ),
+}
+
+#: The specs, nominal defaults; the whole set must stay a valid geometry.
+CONTROLLER_GEOMETRY_SPECS = tuple(
+    ParameterSpec(
+        name,
+        _NOMINAL_PARAMETERS[name],
+        *_GEOMETRY_DESCRIPTIONS[name],
+        constraints='the whole geometry.* set must be valid '
+        '(geometry_from_parameters); applies from the next pose command',
+    )
+    for name in GEOMETRY_PARAMETER_NAMES
+)
+
+
+def controller_geometry_error(values):
+    """Why the ``geometry.*`` entries of ``{name: value}`` are not a valid geometry ('' if they
+    are)."""
+    try:
+        geometry_from_parameters({name: values[name] for name in GEOMETRY_PARAMETER_NAMES})
+    except GeometryError as error:
+        return str(error)
+    return ''
+
+
+def check_geometry_change(changes, current):
+    """Run-time check: the geometry after ``changes`` must be valid as a whole."""
+    if not any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
+        return ''
+    return controller_geometry_error({**current, **changes})
+
+
+def controller_geometry(values):
+    """The Geometry of the ``geometry.*`` entries of ``{name: value}`` (GeometryError if bad)."""
+    return geometry_from_parameters({name: values[name] for name in GEOMETRY_PARAMETER_NAMES})
