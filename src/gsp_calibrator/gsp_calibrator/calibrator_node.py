@@ -53,6 +53,7 @@ from .node_waiting import (
 )
 from .run_directory import RunDirectory, RunDirectoryError, Samples
 from .settings import PARAMETERS, CalibratorSettings, check_parameters
+from .sources import SecondSource, SingleSourceGuard
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
@@ -124,6 +125,8 @@ class CalibratorNode(Node):
         self._protocol = None  # CollectionProtocol of the current (or last) run
         self._posture_future = None  # completed by the event that ends the awaited posture
         self._posture_count = 0
+        self._sources = SingleSourceGuard()
+        self._source_failure = None  # SecondSource seen during the current run
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
@@ -182,8 +185,10 @@ class CalibratorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _sensor_callback(self, topic):
-        def callback(msg):
+        def callback(msg, info):
             if not self._sensors_active:  # no run: drop at once
+                return
+            if self._second_source(topic, msg, info):
                 return
             with self._lock:
                 events = self._protocol.sensor(topic, msg, self._now_ns())
@@ -191,6 +196,26 @@ class CalibratorNode(Node):
                 self._handle(events)
 
         return callback
+
+    def _second_source(self, topic, msg, info):
+        """Whether ``msg`` (a valid reading) shows a second publisher; ends the posture if so."""
+        try:
+            protocol.read_sensor(topic, msg)
+        except (ValueError, TypeError):
+            return False  # dropped by the protocol anyway
+        with self._lock:
+            failure = self._sources.check(
+                topic,
+                info.get('publication_sequence_number'),
+                lambda: self._sensors.node.count_publishers(topic),
+            )
+            if failure is None:
+                return False
+            self._source_failure = self._source_failure or failure
+            future = self._posture_future
+        if future is not None and not future.done():
+            future.set_result(failure)
+        return True
 
     def _on_status(self, msg):
         try:
@@ -314,23 +339,32 @@ class CalibratorNode(Node):
             self._running = True
         try:
             response.success, response.message = await self._calibrate(self._settings, resume)
+        except GeneratorExit:
+            # The executor dropped the task: the node is going down. Nothing may be awaited
+            # now (an await here would hang the garbage collector that closes the coroutine);
+            # destroy_node() closes the recording and marks the run interrupted.
+            self._sensors_active = False
+            raise
         except Exception as error:  # the node must survive any failure of a run
+            if not self.context.ok():  # shut down meanwhile (Ctrl-C, SIGTERM): not a crash
+                self._sensors_active = False
+                response.success, response.message = False, 'the calibrator shut down'
+                return response  # destroy_node() closes the recording, marks the run
             self.get_logger().error(f'calibration crashed: {error}\n{traceback.format_exc()}')
             response.success, response.message = False, f'calibration failed: {error}'
+        with self._lock:
+            self._sensors_active = False
+            self._posture_future = None
+        self._waits.cancel()
+        try:
+            # Drain (the last progress, the result) and close the file off the executor.
+            await self._await_thread(run_in_thread(self._recorder.stop, drain_s=0.2))
+        except Exception as error:
+            self.get_logger().error(f'recording not closed: {error}')
         finally:
             with self._lock:
-                self._sensors_active = False
-                self._posture_future = None
-            self._waits.cancel()
-            try:
-                # Drain (the last progress, the result) and close the file off the executor.
-                await self._await_thread(run_in_thread(self._recorder.stop, drain_s=0.2))
-            except Exception as error:
-                self.get_logger().error(f'recording not closed: {error}')
-            finally:
-                with self._lock:
-                    self._running = False
-                    self._run = None
+                self._running = False
+                self._run = None
         return response
 
     def _open_run(self, settings, resume):
@@ -392,6 +426,8 @@ class CalibratorNode(Node):
         with self._lock:
             self._protocol = collection
             self._posture_count = count
+            self._sources.reset()
+            self._source_failure = None
             self._sensors_active = True
         try:
             self._progress(
@@ -492,6 +528,8 @@ class CalibratorNode(Node):
         failure = await first_timeout(self._wait_for, settings.topic_timeout, checks)
         if failure:
             raise RunFailed(failure)
+        if self._source_failure is not None:
+            raise RunFailed(self._source_failure.message)
 
     async def _collect_posture(self, settings, k, count, pose):
         """Command posture k and await the protocol's verdict: its row, or None if skipped."""
@@ -499,6 +537,8 @@ class CalibratorNode(Node):
         command_id = conversions.command_id_from_stamp(stamp)
         future = self._new_future()
         with self._lock:
+            if self._source_failure is not None:
+                raise RunFailed(self._source_failure.message)
             self._posture_future = future
             events = self._protocol.command(k, pose, command_id, stamp.nanoseconds)
         self._command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
@@ -506,7 +546,7 @@ class CalibratorNode(Node):
         self._handle(events)
         event = await future
         log = self.get_logger()
-        if isinstance(event, (protocol.TopicSilent, protocol.NoSynchronisedSample)):
+        if isinstance(event, (protocol.TopicSilent, protocol.NoSynchronisedSample, SecondSource)):
             raise RunFailed(event.message)
         if isinstance(event, protocol.PostureSkipped):
             log.warning(f'posture {k}/{count} skipped: {event.reason}')

@@ -432,7 +432,9 @@ class CollectionProtocol:
         posture, collector = self._posture, self.collector
         for topic in SENSOR_TOPICS:
             heard = max(self._last_heard.get(topic, posture.started_ns), posture.started_ns)
-            if _elapsed(heard, now_ns) > self.topic_timeout:
+            # >= as for the progress timeout below: a topic that died at the collection start
+            # expires together with the progress, and the silent topic is the cause to name.
+            if _elapsed(heard, now_ns) >= self.topic_timeout:
                 doing = f'collecting posture {posture.number}'
                 return self._fail(
                     TopicSilent(

@@ -200,19 +200,26 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
         )
     if noise_std is None:
         noise_std = noise_std_from_options(stored)
-    collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+    # Each part is one session of the run, fed to a protocol of its own; a posture collected
+    # again by a later session (its earlier collection was cut short) keeps its later row.
+    rows = {}
+    for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
+        collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+        for event in feed_recording(part, collection):
+            if isinstance(event, protocol.RowReady):
+                rows.pop(event.posture, None)
+                rows[event.posture] = event
     samples = Samples.empty()
-    for event in feed_recording(path, collection):
-        if isinstance(event, protocol.RowReady):
-            sample = event.sample
-            samples.append(
-                event.posture,
-                event.pose,
-                sample.leg_lengths,
-                sample.readings,
-                sample.n_samples,
-                sample.stamp,
-            )
+    for event in rows.values():
+        sample = event.sample
+        samples.append(
+            event.posture,
+            event.pose,
+            sample.leg_lengths,
+            sample.readings,
+            sample.n_samples,
+            sample.stamp,
+        )
     return samples
 
 
