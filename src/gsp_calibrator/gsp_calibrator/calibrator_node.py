@@ -41,7 +41,7 @@ from std_srvs.srv import Trigger
 from gsp_kinematics.geometry import geometry_to_parameters, geometry_to_yaml
 from gsp_msgs_py import conversions, names, node_tools, qos
 
-from . import calibration, protocol, recording
+from . import calibration, protocol, recording, run_state
 from .node_waiting import (
     ParameterSetter,
     SensorListener,
@@ -52,8 +52,9 @@ from .node_waiting import (
     new_future,
     run_in_thread,
 )
-from .run_directory import RunDirectory, Samples
+from .run_directory import RunDirectory, RunDirectoryError, Samples
 from .settings import PARAMETERS, CalibratorSettings, check_parameters
+from .sources import SecondSource, SingleSourceGuard
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
@@ -68,6 +69,19 @@ OUTPUTS = (
 
 class RunFailed(Exception):
     """Ends a run early; the message says why (e.g. names the silent topic)."""
+
+
+def _other_calibrators(node):
+    """Nodes named like this one, elsewhere, that publish pose commands (a second calibrator)."""
+    own = (node.get_name(), node.get_namespace())
+    return sorted(
+        {
+            f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+            for info in node.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND)
+            if info.node_name == names.NODE_CALIBRATOR
+            and (info.node_name, info.node_namespace) != own
+        }
+    )
 
 
 def _system_checks(node, collection, timeout):
@@ -112,6 +126,8 @@ class CalibratorNode(Node):
         self._protocol = None  # CollectionProtocol of the current (or last) run
         self._posture_future = None  # completed by the event that ends the awaited posture
         self._posture_count = 0
+        self._sources = SingleSourceGuard()
+        self._source_failure = None  # SecondSource seen during the current run
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
@@ -141,11 +157,16 @@ class CalibratorNode(Node):
         self.create_service(
             Trigger, names.SERVICE_CALIBRATE, self._on_calibrate, callback_group=self._service_group
         )
+        self.create_service(
+            Trigger, names.SERVICE_RESUME, self._on_resume, callback_group=self._service_group
+        )
+        self._run = None  # (RunDirectory, RunState) of the current run
 
         # Posture selection takes seconds: start it now for the current parameters.
         self._selection_future(self._settings)
         self.get_logger().info(
-            f'calibrator ready: {names.SERVICE_CALIBRATE} ({self._settings.describe()})'
+            f'calibrator ready: {names.SERVICE_CALIBRATE}, {names.SERVICE_RESUME} '
+            f'({self._settings.describe()})'
         )
 
     def _apply_parameters(self, _changes):
@@ -165,8 +186,10 @@ class CalibratorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _sensor_callback(self, topic):
-        def callback(msg):
+        def callback(msg, info):
             if not self._sensors_active:  # no run: drop at once
+                return
+            if self._second_source(topic, msg, info):
                 return
             with self._lock:
                 events = self._protocol.sensor(topic, msg, self._now_ns())
@@ -174,6 +197,26 @@ class CalibratorNode(Node):
                 self._handle(events)
 
         return callback
+
+    def _second_source(self, topic, msg, info):
+        """Whether ``msg`` (a valid reading) shows a second publisher; ends the posture if so."""
+        try:
+            protocol.read_sensor(topic, msg)
+        except (ValueError, TypeError):
+            return False  # dropped by the protocol anyway
+        with self._lock:
+            failure = self._sources.check(
+                topic,
+                info.get('publication_sequence_number'),
+                lambda: self._sensors.node.count_publishers(topic),
+            )
+            if failure is None:
+                return False
+            self._source_failure = self._source_failure or failure
+            future = self._posture_future
+        if future is not None and not future.done():
+            future.set_result(failure)
+        return True
 
     def _on_status(self, msg):
         try:
@@ -246,8 +289,25 @@ class CalibratorNode(Node):
             calibration.selection_key(*args), calibration.choose_postures, *args
         )
 
+    def _save_state(self, phase=None, stop_reason=None):
+        """Rewrite the current run's state.json (atomic); a write error is logged, never raised:
+        samples.csv and the recording go on."""
+        if self._run is None:
+            return
+        run, state = self._run
+        if phase is not None:
+            state.phase = phase
+        if stop_reason is not None:
+            state.stop_reason = stop_reason
+        try:
+            run_state.write_state(run.path, state)
+        except OSError as error:
+            self.get_logger().error(f'{run_state.STATE_FILE} not written: {error}')
+
     def destroy_node(self):
         self._sensors_active = False
+        if self._running and self._run is not None and self._run[1].phase != run_state.PHASE_DONE:
+            self._save_state(run_state.PHASE_INTERRUPTED, 'the calibrator shut down during the run')
         recorder = getattr(self, '_recorder', None)
         if recorder is not None:
             try:
@@ -264,6 +324,13 @@ class CalibratorNode(Node):
 
     async def _on_calibrate(self, request, response):
         """Trigger callback: one whole calibration (a second call meanwhile fails at once)."""
+        return await self._serve(response, resume=False)
+
+    async def _on_resume(self, request, response):
+        """Trigger callback: continue ``resume_run_directory`` or the latest unfinished run."""
+        return await self._serve(response, resume=True)
+
+    async def _serve(self, response, resume):
         with self._lock:
             if self._running:
                 response.success = False
@@ -272,73 +339,155 @@ class CalibratorNode(Node):
                 return response
             self._running = True
         try:
-            response.success, response.message = await self._calibrate(self._settings)
+            response.success, response.message = await self._calibrate(self._settings, resume)
+        except GeneratorExit:
+            # The executor dropped the task: the node is going down. Nothing may be awaited
+            # now (an await here would hang the garbage collector that closes the coroutine);
+            # destroy_node() closes the recording and marks the run interrupted.
+            self._sensors_active = False
+            raise
         except Exception as error:  # the node must survive any failure of a run
+            if not self.context.ok():  # shut down meanwhile (Ctrl-C, SIGTERM): not a crash
+                self._sensors_active = False
+                response.success, response.message = False, 'the calibrator shut down'
+                return response  # destroy_node() closes the recording, marks the run
             self.get_logger().error(f'calibration crashed: {error}\n{traceback.format_exc()}')
             response.success, response.message = False, f'calibration failed: {error}'
+        with self._lock:
+            self._sensors_active = False
+            self._posture_future = None
+        self._waits.cancel()
+        try:
+            # Drain (the last progress, the result) and close the file off the executor.
+            await self._await_thread(run_in_thread(self._recorder.stop, drain_s=0.2))
+        except Exception as error:
+            self.get_logger().error(f'recording not closed: {error}')
         finally:
             with self._lock:
-                self._sensors_active = False
-                self._posture_future = None
-            self._waits.cancel()
-            try:
-                # Drain (the last progress, the result) and close the file off the executor.
-                await self._await_thread(run_in_thread(self._recorder.stop, drain_s=0.2))
-            except Exception as error:
-                self.get_logger().error(f'recording not closed: {error}')
-            finally:
-                with self._lock:
-                    self._running = False
+                self._running = False
+                self._run = None
         return response
 
-    async def _calibrate(self, settings):
-        """One run; ``(success, message)``."""
+    def _open_run(self, settings, resume):
+        """``(run, state or None, samples, postures to collect or None)``; RunFailed if refused."""
+        if not resume:
+            run = RunDirectory.create(settings.output_root)
+            samples = Samples.empty()
+            run.write_samples(samples)  # fails at once on an unwritable output_root
+            return run, None, samples, None
+        try:
+            if settings.resume_run_directory:
+                path = settings.resume_run_directory
+            else:
+                path = run_state.latest_unfinished_run(settings.output_root, os.getpid())
+            run = RunDirectory(path)
+            state = run_state.read_state(run.path)
+            samples = run.read_samples()
+            run_state.check_resume(state, settings, samples)
+        except (run_state.ResumeRefused, RunDirectoryError) as error:
+            raise RunFailed(f'resume refused: {error}') from None
+        for recovered in recording.recover_recordings(run.path):
+            self.get_logger().warning(
+                f'recovered {recovered["message_count"]} messages of a recording left '
+                f'unfinished into {recovered["path"]}'
+            )
+        state.sessions += 1
+        return run, state, samples, run_state.postures_to_collect(state, samples)
+
+    async def _calibrate(self, settings, resume=False):
+        """One run, or the rest of an unfinished one; ``(success, message)``."""
         log = self.get_logger()
         started = time.monotonic()
-        run = RunDirectory.create(settings.output_root)
-        log.info(f'calibration started: run directory {run.path}')
-        try:
-            self._recorder.start(
-                run.file(recording.RECORDING_FILE), options=recording.settings_options(settings)
+        others = _other_calibrators(self)
+        if others:
+            message = (
+                f'another calibrator publishes on {names.TOPIC_POSE_COMMAND} ({", ".join(others)})'
+                ': two calibrators must not drive one platform; run refused'
             )
+            log.error(message)
+            return False, message
+        try:
+            run, state, samples, remaining = self._open_run(settings, resume)
+        except RunFailed as error:
+            log.error(str(error))
+            return False, str(error)
+        except OSError as error:  # unwritable or full output_root: nothing has moved
+            message = f'cannot write the run directory under {settings.output_root}: {error}'
+            log.error(message)
+            return False, message
+        log.info(f'calibration {"resumed" if resume else "started"}: run directory {run.path}')
+        try:
+            part = recording.next_recording_file(run.path)
+            self._recorder.start(part, options=recording.settings_options(settings))
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
+            part = None
             log.error(f'not recording the run: {error}')
-        samples = Samples.empty()
-        spreads = []  # per posture: the sample std of the 6 legs and 4 readings (noise estimates)
-        run.write_samples(samples)
+        # Per posture collected in this session: the sample std of the 6 legs and 4 readings
+        # (the noise estimates; a resumed run has none for its earlier rows, so none are made).
+        spreads = []
         count = settings.posture_count
         collection = protocol.CollectionProtocol.for_settings(settings)
         with self._lock:
             self._protocol = collection
             self._posture_count = count
+            self._sources.reset()
+            self._source_failure = None
             self._sensors_active = True
         try:
             self._progress(
                 0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
             )
-            try:
-                selection = await self._await_thread(self._selection_future(settings))
-            except (calibration.CalibrationError, RuntimeError, ValueError) as error:
-                raise RunFailed(f'posture selection failed: {error}') from None
-            log.info(
-                f'{len(selection.poses)} postures selected (scaled condition number '
-                f'{selection.condition_number:.4g})'
-            )
+            if state is None:
+                try:
+                    selection = await self._await_thread(self._selection_future(settings))
+                except (calibration.CalibrationError, RuntimeError, ValueError) as error:
+                    raise RunFailed(f'posture selection failed: {error}') from None
+                log.info(
+                    f'{len(selection.poses)} postures selected (scaled condition number '
+                    f'{selection.condition_number:.4g})'
+                )
+                state = run_state.RunState(
+                    run_state.selection_options(settings), selection.poses.tolist()
+                )
+                remaining = list(range(1, len(selection.poses) + 1))
+            else:
+                log.info(f'resuming: {len(samples)} rows kept, {len(remaining)} postures to go')
+            state.pid = os.getpid()
+            state.phase, state.stop_reason = run_state.PHASE_COLLECTING, ''
+            if part is not None:
+                state.recordings.append(os.path.basename(part))
+            self._run = (run, state)
+            self._save_state()
             await self._wait_for_system(settings, collection)
-            for k, pose in enumerate(selection.poses, start=1):
-                row = await self._collect_posture(settings, k, count, pose)
-                if row is not None:
-                    samples.append(k, pose, row.leg_lengths, row.readings, row.n_samples, row.stamp)
+            poses = state.poses
+            for k in remaining:
+                row = await self._collect_posture(settings, k, count, poses[k - 1])
+                if row is None:
+                    state.record_skip(k, collection.summary()['skipped'][-1]['reason'])
+                else:
+                    samples.append(
+                        k, poses[k - 1], row.leg_lengths, row.readings, row.n_samples, row.stamp
+                    )
                     spreads.append(np.concatenate([row.leg_lengths_std, row.readings_std]))
                     run.write_samples(samples)
+                    state.record_done(k)
+                self._save_state()
         except RunFailed as error:
             run.write_samples(samples)
+            self._save_state(run_state.PHASE_FAILED, str(error))
             message = calibration.failure_message(error, len(samples), run)
             log.error(message)
             self._progress(len(samples), names.PHASE_FAILED, str(error))
             return False, message
+        except OSError as error:  # disk full mid-run: the files written so far are intact
+            message = f'run stopped: cannot write {run.path} ({error}); rows so far are kept'
+            self._save_state(run_state.PHASE_FAILED, message)
+            log.error(message)
+            self._progress(len(samples), names.PHASE_FAILED, message)
+            return False, message
         with self._lock:
             self._sensors_active = False
+        self._save_state(run_state.PHASE_IDENTIFYING)
 
         self._progress(
             count,
@@ -362,8 +511,10 @@ class CalibratorNode(Node):
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)
+            self._save_state(run_state.PHASE_FAILED, outcome.message)
             self._progress(count, names.PHASE_FAILED, outcome.message, residuals)
             return False, summary
+        self._save_state(run_state.PHASE_DONE)
         geometry = outcome.geometry
         result_yaml = geometry_to_yaml(geometry, comment=calibration.RESULT_COMMENT)
         self._result_pub.publish(String(data=result_yaml))
@@ -384,6 +535,8 @@ class CalibratorNode(Node):
         failure = await first_timeout(self._wait_for, settings.topic_timeout, checks)
         if failure:
             raise RunFailed(failure)
+        if self._source_failure is not None:
+            raise RunFailed(self._source_failure.message)
 
     async def _collect_posture(self, settings, k, count, pose):
         """Command posture k and await the protocol's verdict: its row, or None if skipped."""
@@ -391,6 +544,8 @@ class CalibratorNode(Node):
         command_id = conversions.command_id_from_stamp(stamp)
         future = self._new_future()
         with self._lock:
+            if self._source_failure is not None:
+                raise RunFailed(self._source_failure.message)
             self._posture_future = future
             events = self._protocol.command(k, pose, command_id, stamp.nanoseconds)
         self._command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
@@ -398,7 +553,7 @@ class CalibratorNode(Node):
         self._handle(events)
         event = await future
         log = self.get_logger()
-        if isinstance(event, (protocol.TopicSilent, protocol.NoSynchronisedSample)):
+        if isinstance(event, (protocol.TopicSilent, protocol.NoSynchronisedSample, SecondSource)):
             raise RunFailed(event.message)
         if isinstance(event, protocol.PostureSkipped):
             log.warning(f'posture {k}/{count} skipped: {event.reason}')

@@ -1,6 +1,8 @@
 """Writing and reading ``recording.mcap`` files (MCAP, profile ``ros2``; no ROS context needed).
 
 :class:`McapRecorder` writes one file atomically (``<path>.tmp``, then ``os.replace`` on close);
+with ``crash_safe=True`` every message reaches the file at once, and :func:`recover_recording`
+finalises the ``.tmp`` a killed process left behind (every complete record up to the kill);
 :func:`read_recording` iterates over its messages; :func:`recording_info` and
 :func:`recording_options` read its summary and the run options stored in it. The file format is
 described in :mod:`gsp_calibrator.recording` and docs/data.md.
@@ -11,6 +13,7 @@ import json
 import os
 import threading
 import time
+from struct import error as struct_error
 
 from .mcap_format import (
     RecordingError,
@@ -38,9 +41,15 @@ class McapRecorder:
     Messages go to ``<path>.tmp``; :meth:`close` finishes the file (summary, indexes) and renames
     it over ``path``. :meth:`abort` removes the temporary file. Thread-safe. As a context manager
     the file is closed (kept) even when the block raises: recorded data is never thrown away.
+
+    ``crash_safe=True``: no chunks (each message is one record, uncompressed) and every record is
+    flushed to the operating system at once, so a SIGKILL loses nothing that was written:
+    :func:`recover_recording` turns the ``.tmp`` into a finalised file.
     """
 
-    def __init__(self, path, compression='zstd', chunk_size=1024 * 1024, library=None):
+    def __init__(
+        self, path, compression='zstd', chunk_size=1024 * 1024, library=None, crash_safe=False
+    ):
         from mcap.writer import CompressionType, Writer
 
         self.path = os.fspath(path)
@@ -56,16 +65,21 @@ class McapRecorder:
         directory = os.path.dirname(os.path.abspath(self.path))
         os.makedirs(directory, exist_ok=True)
         self._stream = open(self.temporary_path, 'wb')  # noqa: SIM115 (closed in close/abort)
+        self.crash_safe = bool(crash_safe)
         try:
             try:
                 self._writer = Writer(
-                    self._stream, chunk_size=chunk_size, compression=types[compression]
+                    self._stream,
+                    chunk_size=chunk_size,
+                    compression=types[compression],
+                    use_chunking=not self.crash_safe,
                 )
             except Exception:  # compression library missing: write uncompressed chunks
                 self._writer = Writer(
                     self._stream, chunk_size=chunk_size, compression=CompressionType.NONE
                 )
             self._writer.start(profile=PROFILE, library=library or _library_identifier())
+            self._flush_if_crash_safe()
         except BaseException:
             self._stream.close()
             os.unlink(self.temporary_path)
@@ -116,6 +130,7 @@ class McapRecorder:
                 metadata=metadata,
             )
             self._channels[topic] = (channel_id, type_name)
+            self._flush_if_crash_safe()
             return channel_id
 
     def write(self, topic, message, log_time_ns=None, publish_time_ns=None):
@@ -149,12 +164,18 @@ class McapRecorder:
             )
             self.message_count += 1
             self.counts[topic] += 1
+            self._flush_if_crash_safe()
 
     def add_metadata(self, name, data):
         """An MCAP metadata record ``name`` of string key/values (ignored by rosbag2 play)."""
         with self._lock:
             self._check_open()
             self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
+            self._flush_if_crash_safe()
+
+    def _flush_if_crash_safe(self):
+        if self.crash_safe:
+            self._stream.flush()  # to the OS: survives the process, not a power cut
 
     @property
     def topics(self):
@@ -192,6 +213,77 @@ class McapRecorder:
     def _check_open(self):
         if self.closed:
             raise RecordingError(f'{self.path}: the recording is closed')
+
+
+def recover_recording(temporary_path, path=None):
+    """Finalise the ``<path>.tmp`` of a recorder that never closed (its process was killed).
+
+    Reads the file sequentially (the mcap library's non-seeking reader) up to its first
+    incomplete record, writes every complete schema, channel, message and metadata record to a
+    finalised MCAP file ``path`` (default: ``temporary_path`` without ``.tmp``; atomic) and
+    removes ``temporary_path``. An existing ``path`` is never overwritten (:class:`RecordingError`).
+    Returns ``{'path', 'message_count', 'truncated'}`` (``truncated``: bytes were cut off).
+    """
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import CompressionType, Writer
+
+    temporary_path = os.fspath(temporary_path)
+    if path is None:
+        if not temporary_path.endswith('.tmp'):
+            raise RecordingError(f'{temporary_path}: expected a <recording>.tmp file')
+        path = temporary_path[: -len('.tmp')]
+    path = os.fspath(path)
+    if os.path.exists(path):
+        raise RecordingError(f'{path} exists already: not overwritten by a recovery')
+    output_tmp = path + '.recovering'
+    count, truncated = 0, False
+    with open(temporary_path, 'rb') as source, open(output_tmp, 'wb') as output:
+        writer = Writer(output, compression=CompressionType.NONE)
+        writer.start(profile=PROFILE, library=_library_identifier() + ' (recovered)')
+        schemas, channels = {}, {}  # ids in the source -> ids in the output
+        try:
+            for record in StreamReader(source).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = writer.register_schema(
+                        record.name, record.encoding, record.data
+                    )
+                elif isinstance(record, Channel):
+                    channels[record.id] = writer.register_channel(
+                        record.topic,
+                        record.message_encoding,
+                        schemas.get(record.schema_id, 0),
+                        dict(record.metadata),
+                    )
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    writer.add_message(
+                        channels[record.channel_id],
+                        log_time=record.log_time,
+                        data=record.data,
+                        publish_time=record.publish_time,
+                        sequence=record.sequence,
+                    )
+                    count += 1
+                elif isinstance(record, Metadata):
+                    writer.add_metadata(record.name, dict(record.metadata))
+        except (McapError, EOFError, ValueError, struct_error):
+            truncated = True  # the record being written at the kill: incomplete, dropped
+        writer.finish()
+        output.flush()
+        os.fsync(output.fileno())
+    os.replace(output_tmp, path)
+    os.unlink(temporary_path)
+    return {'path': path, 'message_count': count, 'truncated': truncated}
+
+
+def recover_recordings(directory):
+    """:func:`recover_recording` for every ``*.mcap.tmp`` in ``directory``; the results."""
+    recovered = []
+    for name in sorted(os.listdir(directory)):
+        if name.endswith('.mcap.tmp'):
+            recovered.append(recover_recording(os.path.join(directory, name)))
+    return recovered
 
 
 def _library_identifier():

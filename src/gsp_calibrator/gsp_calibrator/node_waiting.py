@@ -76,10 +76,14 @@ def await_thread(concurrent_future, future):
         if future.done():
             return
         error = source.exception()
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(source.result())
+        try:
+            if error is not None:
+                future.set_exception(error)
+            else:
+                future.set_result(source.result())
+        except AttributeError:
+            # The executor was shut down meanwhile (the node is going down): nobody awaits.
+            pass
 
     concurrent_future.add_done_callback(done)
     return future

@@ -272,10 +272,36 @@ def _geometry(path, option):
         raise InputError(f'{option} {path}: {error}') from error
 
 
+def _recover_unfinished_recordings(run_path):
+    """Finalise the ``recording*.mcap.tmp`` a killed calibrator left in ``run_path`` (never one a
+    live calibrator is still writing: see its ``state.json``)."""
+    from . import run_state
+    from .recording import RecordingError, recover_recordings
+
+    if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
+        return
+    try:
+        state = run_state.read_state(run_path)
+    except run_state.ResumeRefused:
+        state = None
+    if state is not None and not run_state.resumable(state) and state.phase != 'done':
+        return  # still being written
+    try:
+        for recovered in recover_recordings(run_path):
+            print(
+                f'gsp_reidentify: recovered {recovered["message_count"]} messages into '
+                f'{recovered["path"]}',
+                file=sys.stderr,
+            )
+    except (RecordingError, OSError) as error:
+        raise InputError(f'{run_path}: cannot recover the recording ({error})') from error
+
+
 def resolve_input(path):
     """``(kind, path, run_directory or None)``: kind ``'csv'`` or ``'mcap'``."""
     path = Path(path)
     if path.is_dir():
+        _recover_unfinished_recordings(path)
         if (path / SAMPLES_FILE).is_file():
             return 'csv', path / SAMPLES_FILE, path
         from .recording import RECORDING_FILE
@@ -300,7 +326,15 @@ def load_input(kind, path, options):
         except RunDirectoryError as error:
             raise InputError(str(error)) from error
     else:
-        from .recording import RecordingError, samples_from_recording
+        from .recording import (
+            RECORDING_FILE,
+            RecordingError,
+            recording_parts,
+            samples_from_recording,
+        )
+
+        # A resumed run recorded into recording.mcap, recording-2.mcap ...: read every part.
+        parts = recording_parts(Path(path).parent) if Path(path).name == RECORDING_FILE else []
 
         noise_std = (
             [options['sigma_leg_lengths']] * 6
@@ -309,7 +343,7 @@ def load_input(kind, path, options):
         )
         try:
             samples = samples_from_recording(
-                path, options['sync_tolerance'], options['samples_per_posture'], noise_std
+                parts or path, options['sync_tolerance'], options['samples_per_posture'], noise_std
             )
         except RecordingError as error:
             raise InputError(str(error)) from error

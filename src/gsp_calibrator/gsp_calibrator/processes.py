@@ -44,9 +44,13 @@ class NodeProcesses:
         self.processes = {}
         self._logs = {}
 
-    def start(self):
-        for name, argv in self.commands.items():
-            log = open(self.log_directory / f'{name}.log', 'wb')  # closed in stop()
+    def start(self, names=None):
+        """Start ``names`` (default: every command); a restarted node appends to its log."""
+        for name in self.commands if names is None else names:
+            argv = self.commands[name]
+            if name in self._logs:
+                self._logs[name].close()
+            log = open(self.log_directory / f'{name}.log', 'ab')  # closed in stop()
             self._logs[name] = log
             self.processes[name] = subprocess.Popen(
                 argv,
@@ -57,6 +61,15 @@ class NodeProcesses:
                 start_new_session=True,
                 preexec_fn=_die_with_parent if _LIBC is not None else None,
             )
+
+    def kill(self, name, sig=signal.SIGKILL, timeout=SHUTDOWN_GRACE_S * 4):
+        """Send ``sig`` to node ``name`` and wait for its exit; its exit code (None if alive)."""
+        process = self.processes[name]
+        with contextlib.suppress(ProcessLookupError):
+            process.send_signal(sig)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            process.wait(timeout=timeout)
+        return process.poll()
 
     def exited(self):
         """``(name, exit code)`` of a process that has exited, or None while all run."""

@@ -432,7 +432,9 @@ class CollectionProtocol:
         posture, collector = self._posture, self.collector
         for topic in SENSOR_TOPICS:
             heard = max(self._last_heard.get(topic, posture.started_ns), posture.started_ns)
-            if _elapsed(heard, now_ns) > self.topic_timeout:
+            # >= as for the progress timeout below: a topic that died at the collection start
+            # expires together with the progress, and the silent topic is the cause to name.
+            if _elapsed(heard, now_ns) >= self.topic_timeout:
                 doing = f'collecting posture {posture.number}'
                 return self._fail(
                     TopicSilent(
@@ -446,6 +448,24 @@ class CollectionProtocol:
         if count != posture.progress:
             posture.progress, posture.progress_ns = count, now_ns
         if _elapsed(posture.progress_ns, now_ns) >= self.topic_timeout:
+            # The pairs stopped: if a topic stopped too (a dead node whose last messages still
+            # paired a little later), it is the cause to name.
+            silences = {
+                topic: _elapsed(max(self._last_heard.get(topic, 0), posture.started_ns), now_ns)
+                for topic in SENSOR_TOPICS
+            }
+            topic = max(silences, key=silences.get)
+            if silences[topic] >= 0.5 * self.topic_timeout:
+                doing = f'collecting posture {posture.number}'
+                return self._fail(
+                    TopicSilent(
+                        topic,
+                        doing,
+                        f'topic {topic} is silent: no message for {silences[topic]:.3g} s '
+                        f'while {doing} (and no synchronised sample for '
+                        f'{self.topic_timeout:g} s)',
+                    )
+                )
             counts = collector.counts()
             return self._fail(
                 NoSynchronisedSample(

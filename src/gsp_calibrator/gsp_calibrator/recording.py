@@ -19,6 +19,8 @@ Nothing here needs a ROS context except :class:`RunRecorder`. The MCAP writer an
 """
 
 import json
+import os
+import re
 import threading
 import time
 
@@ -49,10 +51,36 @@ from .mcap_io import (  # noqa: F401 (the recording API, re-exported)
     read_recording,
     recording_info,
     recording_options,
+    recover_recording,
+    recover_recordings,
 )
 from .run_directory import Samples
 
 RECORDING_FILE = 'recording.mcap'
+#: A resumed run records into ``recording-2.mcap``, ``recording-3.mcap`` ... (a finished MCAP
+#: file cannot be appended to); offline tools read the parts in this order.
+RECORDING_PART_PATTERN = re.compile(r'^recording(?:-(\d+))?\.mcap$')
+
+
+def recording_parts(directory):
+    """The recordings of a run directory in order: ``recording.mcap``, ``recording-2.mcap`` ..."""
+    parts = []
+    for name in os.listdir(directory):
+        match = RECORDING_PART_PATTERN.match(name)
+        if match:
+            parts.append((int(match.group(1) or 1), os.path.join(directory, name)))
+    return [path for _, path in sorted(parts)]
+
+
+def next_recording_file(directory):
+    """The file the next (resumed) session of a run records into (no part, no ``.tmp`` of it)."""
+    for number in range(1, 10_000):
+        name = RECORDING_FILE if number == 1 else f'recording-{number}.mcap'
+        path = os.path.join(directory, name)
+        if not os.path.exists(path) and not os.path.exists(path + '.tmp'):
+            return path
+    raise RecordingError(f'{directory}: too many recording parts')
+
 
 #: MCAP metadata record of one posture's collection start (see :meth:`RunRecorder.note_collection_start`).
 POSTURE_METADATA_NAME = 'gsp_posture'
@@ -94,7 +122,8 @@ def noise_std_from_options(options):
 def feed_recording(path, collection, notes=None, extra_topics=(), on_message=None):
     """Feed every recorded command, status and sensor message to ``collection`` (a
     :class:`~gsp_calibrator.protocol.CollectionProtocol`), receive time = log time; yields its
-    events.
+    events. ``path``: one recording, or the parts of a resumed run in order
+    (:func:`recording_parts`).
 
     Each ``pose_command`` starts the next posture: its number is the one noted with it
     (:meth:`RunRecorder.note_collection_start`), else its rank among the commands; the noted
@@ -105,15 +134,19 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     """
     from gsp_msgs_py import conversions
 
+    paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
     if notes is None:
-        notes = collection_notes(recording_info(path), path)
+        notes = {}
+        for part in paths:
+            notes.update(collection_notes(recording_info(part), part))
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
         + protocol.SENSOR_TOPICS
         + tuple(extra_topics)
     )
     count = 0
-    for topic, _, log_time, msg, _ in read_recording(path, topics=wanted):
+    messages = (m for part in paths for m in read_recording(part, topics=wanted))
+    for topic, _, log_time, msg, _ in messages:
         if on_message is not None:
             on_message(topic, log_time, msg)
         if topic in protocol.TOPIC_STREAMS:
@@ -142,7 +175,8 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
 
 
 def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
-    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run_directory.Samples`).
+    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run_directory.Samples`) of one
+    recording or of the parts of a resumed run (a list, see :func:`recording_parts`).
 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
@@ -153,7 +187,8 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     :func:`noise_std_from_options`) default to the options stored by :meth:`RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
-    stored = recording_options(path)
+    first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
+    stored = recording_options(first)
     if sync_tolerance is None:
         sync_tolerance = stored.get('sync_tolerance')
     if samples_per_posture is None:
@@ -165,19 +200,26 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
         )
     if noise_std is None:
         noise_std = noise_std_from_options(stored)
-    collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+    # Each part is one session of the run, fed to a protocol of its own; a posture collected
+    # again by a later session (its earlier collection was cut short) keeps its later row.
+    rows = {}
+    for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
+        collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+        for event in feed_recording(part, collection):
+            if isinstance(event, protocol.RowReady):
+                rows.pop(event.posture, None)
+                rows[event.posture] = event
     samples = Samples.empty()
-    for event in feed_recording(path, collection):
-        if isinstance(event, protocol.RowReady):
-            sample = event.sample
-            samples.append(
-                event.posture,
-                event.pose,
-                sample.leg_lengths,
-                sample.readings,
-                sample.n_samples,
-                sample.stamp,
-            )
+    for event in rows.values():
+        sample = event.sample
+        samples.append(
+            event.posture,
+            event.pose,
+            sample.leg_lengths,
+            sample.readings,
+            sample.n_samples,
+            sample.stamp,
+        )
     return samples
 
 
@@ -266,7 +308,7 @@ class RunRecorder:
         from gsp_msgs_py.qos import SENSOR_QOS, TOPIC_QOS
 
         self.stop()
-        recorder = McapRecorder(path)
+        recorder = McapRecorder(path, crash_safe=True)
         try:
             for topic, type_name in self.topics.items():
                 recorder.add_topic(topic, type_name, TOPIC_QOS.get(topic, SENSOR_QOS))

@@ -212,6 +212,12 @@ PARAMETERS = (
         check=lambda v: '' if str(v).strip() else 'must not be empty',
     ),
     ParameterSpec(
+        'resume_run_directory',
+        '',
+        'Run directory /gsp/calibrator/resume continues; empty: the latest unfinished run under '
+        'output_root (see docs/faults.md)',
+    ),
+    ParameterSpec(
         'apply_result',
         False,
         'After a successful calibration, set the geometry.* parameters of '
@@ -268,6 +274,7 @@ class CalibratorSettings:
     formulation: str
     sigmas: Sigmas  #: per-sample noise std (m, rad)
     output_root: str
+    resume_run_directory: str
     apply_result: bool
     platform_node_name: str
     loss: str = 'linear'
@@ -322,6 +329,7 @@ class CalibratorSettings:
                 lvdt=float(merged['sigma_lvdt']),
             ),
             output_root=str(merged['output_root']),
+            resume_run_directory=str(merged['resume_run_directory']),
             apply_result=bool(merged['apply_result']),
             platform_node_name=str(merged['platform_node_name']).lstrip('/'),
             loss=str(merged['loss']),

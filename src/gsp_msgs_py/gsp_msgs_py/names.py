@@ -50,6 +50,7 @@ TOPIC_LVDT = '/gsp/device/lvdt'
 
 # Calibrator interfaces.
 SERVICE_CALIBRATE = '/gsp/calibrator/calibrate'
+SERVICE_RESUME = '/gsp/calibrator/resume'
 TOPIC_CALIBRATION_RESULT = '/gsp/calibrator/result'
 TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
 
@@ -112,6 +113,7 @@ TOPIC_TYPES = {
 }
 SERVICE_TYPES = {
     SERVICE_CALIBRATE: 'std_srvs/srv/Trigger',
+    SERVICE_RESUME: 'std_srvs/srv/Trigger',
 }
 
 

@@ -21,8 +21,11 @@ A check is a function ``value -> reason`` ('' when the value is accepted); the r
 ``'<name>: <value> rejected, <reason>'``. The ``check`` factories below cover the usual cases.
 """
 
+import contextlib
 import dataclasses
 import math
+import signal
+import threading
 
 from . import names
 
@@ -392,12 +395,44 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
         if rclpy.ok():
             raise
     finally:
-        if active_executor is not None:
-            active_executor.shutdown(timeout_sec=1.0)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # A second Ctrl-C (``ros2 launch`` forwards SIGINT on top of the terminal's) or a SIGTERM
+        # during the cleanup must not raise KeyboardInterrupt inside destroy_node(): the node
+        # closes its files (e.g. the recording) first, whatever arrives meanwhile.
+        with signals_deferred():
+            if active_executor is not None:
+                active_executor.shutdown(timeout_sec=1.0)
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
     return exit_code
+
+
+@contextlib.contextmanager
+def signals_deferred(signals=(signal.SIGINT, signal.SIGTERM)):
+    """Ignore ``signals`` inside the block (main thread only; elsewhere a no-op).
+
+    Used for shutdown: the process is already going down, so a repeated signal has nothing left
+    to ask for.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {}
+    for number in signals:
+        try:
+            previous[number] = signal.signal(number, signal.SIG_IGN)
+        except (OSError, ValueError):  # pragma: no cover (not settable here)
+            continue
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            with contextlib.suppress(OSError, ValueError, TypeError):
+                if handler is None:  # installed outside Python (rclpy's): Python's default
+                    handler = (
+                        signal.default_int_handler if number == signal.SIGINT else signal.SIG_DFL
+                    )
+                signal.signal(number, handler)
 
 
 # --- documentation -----------------------------------------------------------------------------

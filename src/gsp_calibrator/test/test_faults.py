@@ -1,0 +1,279 @@
+"""Faults without the full suite of processes: crash-safe recordings, state.json refusals, one
+source per topic, a second calibrator, an unwritable output root, signals during shutdown
+(docs/faults.md). The runs with killed node processes are in test_fault_processes.py."""
+
+import os
+import re
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from test_calibrator_node import make_suite, perturbed_truth
+
+from gsp_calibrator import recording, run_state
+from gsp_calibrator.run_directory import Samples
+from gsp_calibrator.settings import CalibratorSettings
+from gsp_calibrator.sources import SingleSourceGuard
+from gsp_msgs_py import conversions, names, qos
+
+WRITER = r"""
+import sys
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from gsp_calibrator.recording import McapRecorder
+recorder = McapRecorder(sys.argv[1], crash_safe=True)
+for n in range(1, 100000):
+    recorder.write('/gsp/device/encoder', JointState(name=['phi'], position=[n * 1e-3]), n)
+    print(n, flush=True)
+"""
+
+
+def test_a_recording_killed_by_sigkill_yields_every_message_up_to_the_kill(tmp_path):
+    path = tmp_path / 'recording.mcap'
+    child = subprocess.Popen(
+        [sys.executable, '-c', WRITER, str(path)], stdout=subprocess.PIPE, text=True
+    )
+    written = 0
+    for line in child.stdout:  # the child reports each message once it is written
+        written = int(line)
+        if written >= 500:
+            break
+    child.kill()
+    child.wait()
+    assert not path.exists() and (tmp_path / 'recording.mcap.tmp').stat().st_size > 0
+    recovered = recording.recover_recording(tmp_path / 'recording.mcap.tmp')
+    assert recovered['path'] == str(path) and not (tmp_path / 'recording.mcap.tmp').exists()
+    messages = list(recording.read_recording(path))
+    assert recovered['message_count'] == len(messages) >= written
+    # In order and complete: message n carries n.
+    assert [m.log_time_ns for m in messages] == list(range(1, len(messages) + 1))
+    assert recording.recording_info(path)['message_count'] == len(messages)
+
+
+def test_recovery_keeps_every_complete_record_of_a_truncated_file(tmp_path):
+    path = tmp_path / 'r.mcap'
+    recorder = recording.McapRecorder(path, crash_safe=True)
+    for n in range(1, 21):
+        recorder.write('/gsp/device/lvdt', JointState(name=['d_m'], position=[0.1]), n)
+    data = (tmp_path / 'r.mcap.tmp').read_bytes()
+    recorder.abort()
+    counts = []
+    for cut in (len(data), len(data) - 3, len(data) - 400, 9):
+        target = tmp_path / f'cut{cut}'
+        target.mkdir()
+        (target / 'recording.mcap.tmp').write_bytes(data[:cut])
+        counts.append(recording.recover_recordings(target)[0]['message_count'])
+        assert len(list(recording.read_recording(target / 'recording.mcap'))) == counts[-1]
+    assert counts[0] == 20 and counts[1] == 19 and 10 < counts[2] < 19 and counts[3] == 0
+    with pytest.raises(recording.RecordingError, match='exists already'):
+        (target / 'recording.mcap.tmp').write_bytes(data)
+        recording.recover_recording(target / 'recording.mcap.tmp')
+
+
+def test_recording_parts_are_read_in_order(tmp_path):
+    for name in ('recording-10.mcap', 'recording.mcap', 'recording-2.mcap', 'other.mcap'):
+        (tmp_path / name).write_bytes(b'')
+    assert [os.path.basename(p) for p in recording.recording_parts(tmp_path)] == [
+        'recording.mcap',
+        'recording-2.mcap',
+        'recording-10.mcap',
+    ]
+    (tmp_path / 'recording-3.mcap.tmp').write_bytes(b'')
+    assert os.path.basename(recording.next_recording_file(tmp_path)) == 'recording-4.mcap'
+
+
+# --- state.json ------------------------------------------------------------------------------
+
+
+def _settings(**values):
+    return CalibratorSettings.from_values({'posture_count': 4, 'pool_size': 40, **values})
+
+
+def _state(settings):
+    poses = np.arange(24, dtype=float).reshape(4, 6) * 1e-3
+    state = run_state.RunState(run_state.selection_options(settings), poses.tolist())
+    state.phase = run_state.PHASE_FAILED
+    return state, poses
+
+
+def test_state_round_trips_and_lists_what_is_left(tmp_path):
+    settings = _settings()
+    state, poses = _state(settings)
+    state.record_skip(3, 'not settled')
+    state.record_done(1)
+    run = tmp_path / 'runs' / 'a_run'
+    run.mkdir(parents=True)
+    run_state.write_state(run, state)
+    again = run_state.read_state(run)
+    assert again == state
+    samples = Samples.empty()
+    samples.append(1, poses[0], np.ones(6), np.ones(4), 5, 0.0)
+    run_state.check_resume(again, settings, samples)
+    assert run_state.postures_to_collect(again, samples) == [2, 3, 4]
+    assert run_state.latest_unfinished_run(tmp_path / 'runs') == run
+
+
+@pytest.mark.parametrize(
+    'change, named',
+    [
+        ({'seed': 5}, 'option seed changed'),
+        ({'pool_size': 41}, 'option pool_size changed'),
+        ({'posture_count': 3}, 'option posture_count changed'),
+        ({'formulation': 'fk'}, 'option formulation changed'),
+    ],
+)
+def test_a_resume_that_would_change_the_selection_is_refused_naming_the_option(change, named):
+    state, _ = _state(_settings())
+    with pytest.raises(run_state.ResumeRefused, match=named):
+        run_state.check_resume(state, _settings(**change), Samples.empty())
+
+
+def test_a_resume_with_another_nominal_device_or_rows_is_refused(tmp_path):
+    settings = _settings()
+    state, poses = _state(settings)
+    other = settings.nominal.replace(device_length=settings.nominal.device_length + 1e-3)
+    with pytest.raises(run_state.ResumeRefused, match='different device'):
+        run_state.check_resume(state, _with_nominal(settings, other), Samples.empty())
+    other = settings.nominal.replace(leg_offsets=settings.nominal.leg_offsets + 1e-3)
+    with pytest.raises(run_state.ResumeRefused, match='nominal geometry changed'):
+        run_state.check_resume(state, _with_nominal(settings, other), Samples.empty())
+    samples = Samples.empty()
+    samples.append(2, poses[0], np.ones(6), np.ones(4), 5, 0.0)  # posture 2 at pose 1
+    with pytest.raises(run_state.ResumeRefused, match='different selection or nominal'):
+        run_state.check_resume(state, settings, samples)
+    state.phase = run_state.PHASE_DONE
+    with pytest.raises(run_state.ResumeRefused, match='finished'):
+        run_state.check_resume(state, settings, Samples.empty())
+    with pytest.raises(run_state.ResumeRefused, match='no unfinished run'):
+        run_state.latest_unfinished_run(tmp_path)
+
+
+def _with_nominal(settings, nominal):
+    import dataclasses
+
+    return dataclasses.replace(settings, nominal=nominal)
+
+
+def test_a_live_run_is_not_resumed_but_a_killed_one_is():
+    state, _ = _state(_settings())
+    state.phase = run_state.PHASE_COLLECTING
+    state.pid = os.getpid()  # alive, and not ours
+    assert not run_state.resumable(state)
+    assert run_state.resumable(state, own_pid=os.getpid())
+    child = subprocess.Popen([sys.executable, '-c', 'pass'])
+    child.wait()
+    state.pid = child.pid  # gone
+    assert run_state.resumable(state)
+
+
+# --- sources -----------------------------------------------------------------------------------
+
+
+def test_interleaved_sequences_of_two_publishers_are_a_second_source():
+    guard = SingleSourceGuard()
+    topic = names.TOPIC_ENCODER
+    for n in range(100, 110):
+        assert guard.check(topic, n, lambda: 1) is None
+    assert guard.check(topic, 1, lambda: 1) is None  # one publisher, restarted
+    assert guard.check(topic, 2, lambda: 1) is None
+    failure = guard.check(topic, 1, lambda: 2)
+    assert failure is not None and topic in failure.message and '2 publishers' in failure.message
+    assert guard.check(topic, None, lambda: 2) is None  # no sequence numbers: nothing known
+
+
+# --- the node ----------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def truth_file(tmp_path):
+    perturbed_truth(tmp_path / 'true.yaml')
+    return tmp_path / 'true.yaml'
+
+
+def test_a_second_calibrator_on_the_pose_command_is_refused(ros_context, tmp_path, truth_file):
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+
+    suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
+    other = rclpy.create_node(names.NODE_CALIBRATOR, namespace='/second', context=ros_context)
+    try:
+        other.create_publisher(
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+        )
+        assert suite.wait_until(
+            lambda: any(
+                i.node_namespace == '/second'
+                for i in calibrator.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND)
+            )
+        )
+        response = suite.wait(suite.call())
+        assert not response.success
+        assert 'another calibrator' in response.message and '/second/calibrator' in response.message
+        assert not (tmp_path / 'runs').exists()  # refused before anything was written or moved
+    finally:
+        other.destroy_node()
+        suite.close()
+
+
+def test_an_unwritable_output_root_fails_before_anything_moves(ros_context, tmp_path, truth_file):
+    blocked = tmp_path / 'blocked'
+    blocked.mkdir()
+    (blocked / 'runs').write_text('')  # output_root is blocked/runs: a file, not a directory
+    suite, _, _, _ = make_suite(ros_context, blocked, truth_file)
+    try:
+        response = suite.wait(suite.call())
+        assert not response.success
+        assert 'cannot write the run directory' in response.message, response.message
+        assert not any(p.phase == names.PHASE_MOVING for p in list(suite.progress))
+    finally:
+        suite.close()
+
+
+def test_a_flood_from_a_second_publisher_ends_the_run_naming_the_topic(
+    ros_context, tmp_path, truth_file
+):
+    suite, _, _, _ = make_suite(ros_context, tmp_path, truth_file)
+    flood = suite.client_node.create_publisher(
+        JointState, names.TOPIC_ENCODER, qos.TOPIC_QOS[names.TOPIC_ENCODER]
+    )
+    stop = threading.Event()
+
+    def publish():  # 1 kHz of valid-looking readings from a second source
+        while not stop.wait(0.001):
+            stamp = suite.client_node.get_clock().now().to_msg()
+            flood.publish(conversions.encoder_to_msg(0.25, stamp))
+
+    thread = threading.Thread(target=publish, daemon=True)
+    try:
+        thread.start()
+        response = suite.wait(suite.call())
+        assert not response.success
+        assert re.search(f'topic {names.TOPIC_ENCODER} has [2-9] publishers', response.message)
+        runs = list((tmp_path / 'runs').iterdir())
+        assert run_state.read_state(runs[0]).phase == run_state.PHASE_FAILED
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
+        suite.close()
+
+
+def test_parameter_overrides_of_the_resume_directory(ros_context, tmp_path, truth_file):
+    """resume_run_directory names the run; a missing state.json is refused with its path."""
+    (tmp_path / 'somewhere').mkdir()
+    suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
+    try:
+        calibrator.set_parameters(
+            [Parameter('resume_run_directory', value=str(tmp_path / 'somewhere'))]
+        )
+        client = suite.client_node.create_client(Trigger, names.SERVICE_RESUME)
+        assert client.wait_for_service(timeout_sec=30.0)
+        response = suite.wait(client.call_async(Trigger.Request()))
+        assert not response.success
+        assert 'resume refused' in response.message and 'state.json' in response.message
+    finally:
+        suite.close()
