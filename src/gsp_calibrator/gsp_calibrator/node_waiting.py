@@ -261,6 +261,11 @@ class SensorListener:
             self.executor.spin()
         except (ExternalShutdownException, ShutdownException):
             pass
+        except Exception:
+            # A signal shuts the context down from another thread; this thread's wait can then
+            # fail (RCLError from rcl_wait) instead of raising ExternalShutdownException.
+            if self.node.context.ok():
+                raise
 
     @property
     def subscribed(self):
