@@ -26,27 +26,40 @@ def _rotation_vector(commanded, reached):
     return np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], axis=1)
 
 
-def test_pose_sensitivities_match_finite_differences(exact, postures):
-    poses = postures[:5]
-    sensitivity = pose_sensitivities(exact, poses)
-    assert sensitivity.shape == (5, 6, NUM_PARAMETERS)
-    assert np.all(sensitivity[:, :, 42:] == 0.0)  # the device does not move the platform
-    vector, step = exact.to_vector(), 1e-7
-    for column in range(42):
-        columns = []
+def _assert_columns_match_finite_differences(exact, poses, sensitivity, vector, columns, build):
+    """Each column of ``sensitivity`` against a central difference of the reached pose when the
+    controller's parameter ``vector[column]`` moves (``build``: vector -> controller geometry)."""
+    step = 1e-7
+    for column in columns:
+        moves = []
         for sign in (1.0, -1.0):
             moved = vector.copy()
             moved[column] += sign * step
-            reached = reached_poses(exact, Geometry.from_vector(moved, exact.limits), poses)
-            columns.append(
+            reached = reached_poses(exact, build(moved), poses)
+            moves.append(
                 np.concatenate(
                     [reached[:, :3] - poses[:, :3], _rotation_vector(poses[:, 3:], reached[:, 3:])],
                     axis=1,
                 )
             )
-        numeric = (columns[0] - columns[1]) / (2 * step)
+        numeric = (moves[0] - moves[1]) / (2 * step)
         scale = max(np.abs(numeric).max(), 1e-3)
         assert np.abs(numeric - sensitivity[:, :, column]).max() < 1e-5 * scale, column
+
+
+def test_pose_sensitivities_match_finite_differences(exact, postures):
+    poses = postures[:5]
+    sensitivity = pose_sensitivities(exact, poses)
+    assert sensitivity.shape == (5, 6, NUM_PARAMETERS)
+    assert np.all(sensitivity[:, :, 42:] == 0.0)  # the device does not move the platform
+    _assert_columns_match_finite_differences(
+        exact,
+        poses,
+        sensitivity,
+        exact.to_vector(),
+        range(42),
+        lambda moved: Geometry.from_vector(moved, exact.limits),
+    )
 
 
 def test_leg_gain_columns_match_finite_differences(exact, postures):
@@ -56,23 +69,14 @@ def test_leg_gain_columns_match_finite_differences(exact, postures):
     first_gain = PARAMETER_INDEX['kq1']
     others = [PARAMETER_INDEX[name] for name in ('alpha0', 'beta0', 'phi0', 'kDm')]
     assert np.all(sensitivity[:, :, others] == 0.0)
-    vector, step = exact.to_full_vector(), 1e-7
-    for column in range(first_gain, first_gain + 6):
-        columns = []
-        for sign in (1.0, -1.0):
-            moved = vector.copy()
-            moved[column] += sign * step
-            controller = Geometry.from_full_vector(moved, exact.limits)
-            reached = reached_poses(exact, controller, poses)
-            columns.append(
-                np.concatenate(
-                    [reached[:, :3] - poses[:, :3], _rotation_vector(poses[:, 3:], reached[:, 3:])],
-                    axis=1,
-                )
-            )
-        numeric = (columns[0] - columns[1]) / (2 * step)
-        scale = max(np.abs(numeric).max(), 1e-3)
-        assert np.abs(numeric - sensitivity[:, :, column]).max() < 1e-5 * scale, column
+    _assert_columns_match_finite_differences(
+        exact,
+        poses,
+        sensitivity,
+        exact.to_full_vector(),
+        range(first_gain, first_gain + 6),
+        lambda moved: Geometry.from_full_vector(moved, exact.limits),
+    )
 
 
 def test_free_mask_selects_columns(exact, postures):
