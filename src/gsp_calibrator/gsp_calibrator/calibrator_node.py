@@ -452,6 +452,8 @@ class CalibratorNode(Node):
                 remaining = list(range(1, len(selection.poses) + 1))
             else:
                 log.info(f'resuming: {len(samples)} rows kept, {len(remaining)} postures to go')
+                if len(samples):
+                    collection.continue_after(samples.readings[-1])
             state.pid = os.getpid()
             state.phase, state.stop_reason = run_state.PHASE_COLLECTING, ''
             if part is not None:

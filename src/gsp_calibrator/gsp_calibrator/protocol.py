@@ -16,11 +16,19 @@ consistent window gives the row (:class:`RowReady`). The posture is skipped when
 ``max_pairs_per_sample * samples_per_posture`` pairs hold no consistent window, or when no window
 comes within ``settle_timeout + topic_timeout`` of the start. The run fails
 (:class:`TopicSilent`, :class:`NoSynchronisedSample`) when a sensor topic says nothing, or the
-pairs stop growing, for ``topic_timeout``. Timeouts are decided from the times given to each call
-(:meth:`~CollectionProtocol.poll` with the current time), so the protocol runs offline.
+pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
+is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
+with the current time), so the protocol runs offline.
+
+A gap of half a ``topic_timeout`` or more between two calls means the caller itself did not run
+(an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
+silence is judged over the gap; every timeout counts again from the end of the gap.
 
 The previous posture's device readings (the collector's "unchanged" check) are the last row's,
-and before the first row the latest complete device instant received before the command.
+and before the first row the latest complete device instant received before the command. A
+resumed run starts from its last kept row (:meth:`~CollectionProtocol.continue_after`): the
+platform may still stand at the posture that was being collected when the run stopped, so the
+readings before the command would equal that posture's.
 
 With ``keep_pairs=True`` (replay) no row is taken: every pair after the settle, up to the next
 command, is kept and handed over in :class:`PairsCollected` (also for the samples before the
@@ -58,6 +66,8 @@ DEVICE_STREAMS = (INCLINOMETER, ENCODER, LVDT)
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collector).
 MAX_PAIRS_PER_SAMPLE = 20
+#: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
+STALL_FRACTION = 0.5
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
 MIN_BUFFER = 2000
 #: Pairs handed over per posture with ``keep_pairs`` (the first ones after the settle), and
@@ -246,6 +256,8 @@ class CollectionProtocol:
         self._last_heard = {}  # topic -> receive time (ns) of its latest message
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None
+        self._attended_ns = None  # receive time of the latest call
+        self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
         self.skipped = []
         self._idle = None  # keep_pairs: the samples before the first command
@@ -292,10 +304,16 @@ class CollectionProtocol:
             },
         }
 
+    def continue_after(self, readings):
+        """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
+        d_m]`` (rad, m): they are the previous posture's for the next row."""
+        self._previous = np.asarray(readings, dtype=float).reshape(4)
+
     # --- inputs ------------------------------------------------------------------------------
 
     def command(self, posture, pose, command_id, now_ns):
         """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
+        self._attend(now_ns)
         events = self._end_segment() if self.keep_pairs else []
         if self._previous is None:
             # What the device reports before the platform moves (stale readings would match).
@@ -314,6 +332,7 @@ class CollectionProtocol:
         ``start_ns``: the collection start to use if this status settles the posture (default
         ``now_ns``).
         """
+        self._attend(now_ns)
         posture = self._posture
         if posture is None or status.command_id != posture.command_id:
             return self.poll(now_ns)
@@ -330,6 +349,7 @@ class CollectionProtocol:
 
     def sensor(self, topic, msg, now_ns):
         """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) received at ``now_ns``."""
+        self._attend(now_ns)
         self._last_heard[topic] = int(now_ns)
         try:
             stream, stamp_ns, values = read_sensor(topic, msg)
@@ -345,6 +365,7 @@ class CollectionProtocol:
 
     def sample(self, stream, stamp_ns, values, now_ns, heard=True):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``)."""
+        self._attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self._last_heard[topic] = int(now_ns)
@@ -364,12 +385,13 @@ class CollectionProtocol:
 
     def poll(self, now_ns):
         """Events due at ``now_ns`` (timeouts)."""
+        self._attend(now_ns)
         posture = self._posture
         if posture is None:
             return []
         now_ns = int(now_ns)
         if posture.state == _AWAIT_STATUS:
-            if _elapsed(posture.commanded_ns, now_ns) >= self.topic_timeout:
+            if _elapsed(self._since(posture.commanded_ns), now_ns) >= self.topic_timeout:
                 doing = (
                     f'waiting for the status of posture {posture.number} '
                     f'(command {posture.command_id})'
@@ -384,7 +406,7 @@ class CollectionProtocol:
                     )
                 )
         elif posture.state == _AWAIT_SETTLE:
-            if _elapsed(posture.first_status_ns, now_ns) >= self.settle_timeout:
+            if _elapsed(self._since(posture.first_status_ns), now_ns) >= self.settle_timeout:
                 return self._skip(f'not settled within {self.settle_timeout:g} s')
         elif posture.state == _COLLECTING and not self.keep_pairs:
             return self._collection_timeouts(now_ns)
@@ -430,31 +452,31 @@ class CollectionProtocol:
 
     def _collection_timeouts(self, now_ns):
         posture, collector = self._posture, self.collector
-        for topic in SENSOR_TOPICS:
-            heard = max(self._last_heard.get(topic, posture.started_ns), posture.started_ns)
-            # >= as for the progress timeout below: a topic that died at the collection start
-            # expires together with the progress, and the silent topic is the cause to name.
-            if _elapsed(heard, now_ns) >= self.topic_timeout:
-                doing = f'collecting posture {posture.number}'
-                return self._fail(
-                    TopicSilent(
-                        topic,
-                        doing,
-                        f'topic {topic} is silent: no message for '
-                        f'{self.topic_timeout:g} s while {doing}',
-                    )
+        silences = {  # s, since the topic's latest message (or the settle, or a stall)
+            topic: _elapsed(
+                self._since(max(self._last_heard.get(topic, 0), posture.started_ns)), now_ns
+            )
+            for topic in SENSOR_TOPICS
+        }
+        topic = max(silences, key=silences.get)  # the first to fall silent is the cause
+        # >= as for the progress timeout below: a topic that died at the collection start
+        # expires together with the progress, and the silent topic is the cause to name.
+        if silences[topic] >= self.topic_timeout:
+            doing = f'collecting posture {posture.number}'
+            return self._fail(
+                TopicSilent(
+                    topic,
+                    doing,
+                    f'topic {topic} is silent: no message for '
+                    f'{self.topic_timeout:g} s while {doing}',
                 )
+            )
         count = collector.pair_count()
         if count != posture.progress:
             posture.progress, posture.progress_ns = count, now_ns
-        if _elapsed(posture.progress_ns, now_ns) >= self.topic_timeout:
+        if _elapsed(self._since(posture.progress_ns), now_ns) >= self.topic_timeout:
             # The pairs stopped: if a topic stopped too (a dead node whose last messages still
             # paired a little later), it is the cause to name.
-            silences = {
-                topic: _elapsed(max(self._last_heard.get(topic, 0), posture.started_ns), now_ns)
-                for topic in SENSOR_TOPICS
-            }
-            topic = max(silences, key=silences.get)
             if silences[topic] >= 0.5 * self.topic_timeout:
                 doing = f'collecting posture {posture.number}'
                 return self._fail(
@@ -480,7 +502,7 @@ class CollectionProtocol:
         # The collection is bounded as a whole: pairs that keep coming without a consistent
         # window would otherwise restart the progress timeout for ever.
         limit = self.settle_timeout + self.topic_timeout
-        if _elapsed(posture.started_ns, now_ns) >= limit:
+        if _elapsed(self._since(posture.started_ns), now_ns) >= limit:
             counts = collector.counts()
             return self._skip(
                 f'no {self.samples_per_posture} consistent synchronised samples within '
@@ -489,6 +511,18 @@ class CollectionProtocol:
                 f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
             )
         return []
+
+    def _attend(self, now_ns):
+        """Note a call at ``now_ns``; a long gap since the previous one is a stall."""
+        now_ns = int(now_ns)
+        if self._attended_ns is not None and now_ns > self._attended_ns:
+            if _elapsed(self._attended_ns, now_ns) >= STALL_FRACTION * self.topic_timeout:
+                self._stall_end_ns = now_ns
+        self._attended_ns = now_ns if self._attended_ns is None else max(self._attended_ns, now_ns)
+
+    def _since(self, reference_ns):
+        """The start of a timeout from ``reference_ns``: no later than the latest stall."""
+        return max(int(reference_ns), self._stall_end_ns)
 
     def _row(self):
         posture, collector = self._posture, self.collector

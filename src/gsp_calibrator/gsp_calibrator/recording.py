@@ -200,11 +200,14 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
         )
     if noise_std is None:
         noise_std = noise_std_from_options(stored)
-    # Each part is one session of the run, fed to a protocol of its own; a posture collected
-    # again by a later session (its earlier collection was cut short) keeps its later row.
+    # Each part is one session of the run, fed to a protocol of its own that continues after
+    # the last row so far, as the resumed calibrator did; a posture collected again by a later
+    # session (its earlier collection was cut short) keeps its later row.
     rows = {}
     for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
         collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+        if rows:
+            collection.continue_after(next(reversed(rows.values())).sample.readings)
         for event in feed_recording(part, collection):
             if isinstance(event, protocol.RowReady):
                 rows.pop(event.posture, None)

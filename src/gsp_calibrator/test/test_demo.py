@@ -39,6 +39,7 @@ def test_node_commands(tmp_path):
         f'output_root:={tmp_path}',
         'posture_count:=30',
         'apply_result:=true',
+        'apply_rejected_fit:=true',
         f'nominal_geometry_file:={args.nominal_geometry}',
         'sync_tolerance:=0.005',
     ):

@@ -204,13 +204,17 @@ def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(suite):
     other = runs_under(root)[-1]
     assert other != run
     (a, sd_a), (b, sd_b) = estimates(run), estimates(other)
-    compared = 0
+    z = {}  # |difference| in standard deviations of the difference of two independent estimates
     for name, sd in sd_a.items():
         if sd is None or sd_b.get(name) is None:
             continue  # not a free parameter
-        bound = 3.0 * math.hypot(sd, sd_b[name])  # the difference of two independent estimates
-        assert abs(a[name] - b[name]) <= bound, (name, a[name], b[name], bound)
-        compared += 1
+        z[name] = abs(a[name] - b[name]) / math.hypot(sd, sd_b[name])
+    # Within 3 sigmas on every parameter, as the noise allows: of ~50 parameters, 0.13 are
+    # expected beyond 3 sigmas by chance and 3 or more almost never (p ~ 3e-4); none beyond 5
+    # (p ~ 3e-5). A broken resume (a lost, shifted or repeated row) is far outside both.
+    assert sum(value > 3.0 for value in z.values()) <= 2, sorted(z.items(), key=lambda i: -i[1])
+    assert max(z.values()) <= 5.0, max(z.items(), key=lambda item: item[1])
+    compared = len(z)
     assert compared > 30
 
 

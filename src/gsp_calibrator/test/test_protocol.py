@@ -110,18 +110,71 @@ def test_a_rejected_posture_is_skipped_and_reported():
     ]
 
 
+def poll_until(collection, end, since, step=100 * MS):
+    """Poll every ``step`` (as the node's watchdog does) from ``since`` to ``end``; the events."""
+    events = []
+    for now in range(since + step, end + 1, step):
+        events += collection.poll(now)
+    return events
+
+
 def test_timeouts_of_the_status_and_the_settle():
     collection = make()
     collection.command(1, POSE, 'c1', T0)
-    assert collection.poll(T0 + 999 * MS) == []
-    (silent,) = collection.poll(T0 + S)
+    assert poll_until(collection, T0 + 900 * MS, T0) == []
+    (silent,) = poll_until(collection, T0 + S, T0 + 900 * MS)
     assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_PLATFORM_STATUS
     assert 'no status for posture 1 (command c1) within 1 s' in silent.message
 
     collection.command(2, POSE, 'c2', T0 + 2 * S)
-    collection.status(status('c2', names.STATE_MOVING, ''), T0 + 3 * S)
-    assert collection.poll(T0 + 4 * S) == []  # 1 s after the first status: settle_timeout 2 s
-    assert collection.poll(T0 + 5 * S) == [PostureSkipped(2, 'not settled within 2 s')]
+    collection.status(status('c2', names.STATE_MOVING, ''), T0 + 2 * S + 10 * MS)
+    # settle_timeout 2 s from the first status
+    assert poll_until(collection, T0 + 4 * S, T0 + 2 * S + 10 * MS) == []
+    assert poll_until(collection, T0 + 4 * S + 100 * MS, T0 + 4 * S) == [
+        PostureSkipped(2, 'not settled within 2 s')
+    ]
+
+
+def test_a_stall_of_the_caller_is_not_a_silence():
+    """No call for 2 topic timeouts (the calibrator did not run): the topics get a new timeout
+    from the end of the gap, and a posture whose messages come again is collected."""
+    collection = make()
+    settle(collection)
+    assert collection.poll(T0 + 10 * MS + 2 * S) == []  # the stall ends here
+    assert poll_until(collection, T0 + 2 * S + 900 * MS, T0 + 10 * MS + 2 * S, 10 * MS) == []
+    events = []
+    for j in range(3):
+        events += instant(collection, T0 + 3 * S + 5 * MS * j)
+    assert isinstance(events[0], RowReady)
+    # ... but a topic that stays silent after the stall is named one timeout later.
+    settle(collection, 2, T0 + 4 * S, 'c2')
+    assert collection.poll(T0 + 7 * S) == []  # another stall
+    (silent,) = poll_until(collection, T0 + 8 * S, T0 + 7 * S)
+    assert isinstance(silent, TopicSilent) and silent.doing == 'collecting posture 2'
+
+
+def test_of_several_silent_topics_the_one_silent_longest_is_named():
+    collection = make()
+    settle(collection)
+    start = T0 + 10 * MS
+    for j in range(11):  # the encoder stops first; 0.1 s later every topic stops
+        assert instant(collection, start + 10 * MS * j, skip=(ENCODER,) if j else ()) == []
+    assert collection.poll(start + 500 * MS) == []
+    assert collection.poll(start + 990 * MS) == []
+    (silent,) = collection.poll(start + 1450 * MS)  # all silent for over 1 s by now
+    assert silent.topic == names.TOPIC_ENCODER
+
+
+def test_a_resumed_run_compares_its_first_posture_with_the_last_kept_row():
+    """The platform still stands at the posture cut short: its readings before the command
+    equal the posture's, which is not a stale device."""
+    collection = make()
+    collection.continue_after(R - 0.05)  # the last kept row's readings
+    instant(collection, T0 - 100 * MS)  # the platform already stands at posture 1
+    settle(collection)
+    for j in range(3):
+        events = instant(collection, T0 + 11 * MS + 5 * MS * j)
+    assert isinstance(events[0], RowReady)
 
 
 def test_a_silent_sensor_topic_ends_the_collection():

@@ -421,6 +421,7 @@ CALIBRATION = {
     'seed': 5,
     'topic_timeout': 10.0,
     'settle_timeout': 10.0,
+    'apply_rejected_fit': True,  # the test is of the replay, not of the goodness of fit
 }
 
 
