@@ -1,0 +1,49 @@
+"""The ``sensor_errors`` bench's model figure: no bias from the sensor errors, a Cramer-Rao
+prediction that matches the measured errors, and the selection bound of the diagnosis."""
+
+import numpy as np
+import pytest
+
+from gsp_experiments import bench_sensor_errors as bench
+from gsp_experiments.nominal_sets import default_true_and_nominal
+from gsp_kinematics.kinematics import Workspace, sample_valid_postures
+
+
+@pytest.fixture(scope='module')
+def design():
+    true, nominal = default_true_and_nominal()
+    pool = sample_valid_postures(nominal, 300, np.random.default_rng(0), Workspace())
+    chosen, _ = bench.select_postures(
+        nominal, pool, bench.POSTURES, bench.averaged(bench.SIGMAS), free='extended'
+    )
+    validation = sample_valid_postures(nominal, 30, np.random.default_rng(1), Workspace())
+    return true, nominal, pool, chosen, validation
+
+
+def test_pose_error_exchange_lowers_the_predicted_error(design):
+    true, nominal, pool, chosen, validation = design
+    targets = sample_valid_postures(nominal, 100, np.random.default_rng(2), Workspace())
+    best = bench.pose_error_exchange(nominal, pool, chosen, 'extended', targets, passes=1)
+    assert len(best) == len(chosen) and len(set(best.tolist())) == len(best)
+    before = bench.design_position_error_mm(true, pool[chosen], 'extended', validation)
+    after = bench.design_position_error_mm(true, pool[best], 'extended', validation)
+    assert after < before
+
+
+def test_model_figure_is_variance_not_bias(design):
+    true, nominal, pool, chosen, validation = design
+    model = bench.model_section(true, nominal, pool, chosen, validation, quick=True)
+    # The sensor errors are fully modelled: the extended fit on them gives the same validation
+    # error as on the same noise with ideal sensors, to a small fraction of the error itself.
+    assert model['sensor_error_bias_mm_max'] < 0.05 * model['extended_validation_mm']
+    # The excess over the 44 is the variance of the freed parameters: Cramer-Rao predicts it,
+    # and predicts the measured mean errors (20 seeds scatter the means by about 7%).
+    for ratio in model['measured_over_predicted'].values():
+        assert 0.75 < ratio < 1.25
+    costs = model['predicted_over_paper']
+    assert 1.0 < costs['kq1_to_kq6'] < costs['extended']
+    assert 1.0 < costs['alpha0'] < costs['extended']
+    assert costs['extended_on_postures_selected_for_validation'] < costs['extended']
+    low, high = model['extended_over_ideal_bootstrap_p5_p95']
+    assert low <= model['extended_over_ideal'] <= high
+    assert model['paper_p_value_max'] < 0.01 and model['paper_over_extended'] > 5.0
