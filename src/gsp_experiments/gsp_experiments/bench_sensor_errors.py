@@ -21,8 +21,12 @@ from gsp_kinematics.kinematics import (
     forward_kinematics_masked,
     sample_valid_postures,
 )
-from gsp_kinematics.prediction import pose_sensitivities, predicted_errors
-from gsp_kinematics.selection import posture_factors, posture_information, select_postures
+from gsp_kinematics.prediction import predicted_errors
+from gsp_kinematics.selection import (
+    exchange_for_pose_error,
+    posture_information,
+    select_postures,
+)
 from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
 
 from .nominal_sets import default_true_and_nominal
@@ -98,48 +102,6 @@ def design_position_error_mm(geometry, poses, free, validation_poses):
     return float(position.mean())
 
 
-def pose_error_exchange(geometry, pool, start, free, targets, passes=3):
-    """Postures of ``pool`` that minimise the predicted position error of fitting ``free`` at the
-    ``targets`` postures (``trace(W C)``, W the position sensitivities' Gram matrix), by exchange
-    from the indices ``start``: a bound on what the selection could buy, not the calibrator's
-    criterion (that is the condition number, :func:`select_postures`)."""
-    mask = resolve_free(free)
-    factors = posture_factors(geometry, pool, averaged(SIGMAS), mask)  # (N, r, n)
-    sensitivity = pose_sensitivities(geometry, targets, mask)[:, :3]
-    weight = np.einsum('tai,taj->ij', sensitivity, sensitivity)
-    information = np.einsum('mri,mrj->mij', factors, factors)
-    chosen = list(start)
-    total = information[chosen].sum(axis=0)
-    rows = factors.shape[1]
-    for _ in range(passes):
-        improved = False
-        for position in range(len(chosen)):
-            base = total - information[chosen[position]]
-            inverse = np.linalg.inv(base)
-            candidates = np.setdiff1d(np.arange(len(pool)), chosen)
-            # trace(W (B + G^T G)^-1) by Woodbury: trace(W B^-1) minus this decrease.
-            projected = factors[candidates] @ inverse  # (c, r, n)
-            inner = np.eye(rows)[None] + projected @ np.swapaxes(factors[candidates], 1, 2)
-            weighted = projected @ weight @ np.swapaxes(projected, 1, 2)
-            decrease = np.einsum('cij,cji->c', np.linalg.inv(inner), weighted)
-            outgoing = chosen[position]
-            projected = factors[outgoing] @ inverse
-            current = np.trace(
-                np.linalg.inv(np.eye(rows) + projected @ factors[outgoing].T)
-                @ projected
-                @ weight
-                @ projected.T
-            )
-            best = int(np.argmax(decrease))
-            if decrease[best] > current * (1.0 + 1e-9):
-                chosen[position] = int(candidates[best])
-                total = base + information[chosen[position]]
-                improved = True
-        if not improved:
-            break
-    return np.array(chosen)
-
-
 def spread(values):
     """Median and the 5th, 25th, 75th and 95th percentiles of ``values``."""
     p5, p25, median, p75, p95 = np.percentile(values, [5, 25, 50, 75, 95])
@@ -199,7 +161,9 @@ def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
 
     paper_chosen, _ = select_postures(nominal, pool, POSTURES, averaged(SIGMAS), free='paper')
     targets = sample_valid_postures(nominal, 200, np.random.default_rng(2), Workspace())
-    best = pose_error_exchange(nominal, pool, chosen, 'extended', targets)
+    best = exchange_for_pose_error(
+        nominal, pool, chosen, targets, averaged(SIGMAS), 'extended', passes=3
+    )
     gains = [f'kq{leg}' for leg in range(1, 7)]
     return {
         'seeds': seeds,

@@ -4,6 +4,7 @@ import numpy as np
 
 from ._formulations import leg_readings_jacobians, sensor_readings_jacobians
 from .identification import SENSOR_NAMES, Sigmas, resolve_free
+from .prediction import pose_sensitivities
 
 #: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
 SHORTLIST = 12
@@ -159,3 +160,59 @@ def select_postures(
         if not improved:
             break
     return np.array(chosen), float(scaled_condition_number(total))
+
+
+def position_weight(geometry, targets, free=None):
+    """``W`` (n, n): the Gram matrix of the position sensitivities at ``targets`` (M, 6), so that
+    ``trace(W C)`` is the summed predicted squared position error (m^2) under a covariance C."""
+    sensitivity = pose_sensitivities(geometry, targets, resolve_free(free))[:, :3]
+    return np.einsum('tai,taj->ij', sensitivity, sensitivity)
+
+
+def exchange_for_pose_error(
+    geometry,
+    pool,
+    chosen,
+    targets,
+    sigmas=Sigmas(),
+    free=None,
+    formulation='implicit',
+    passes=1,
+):
+    """Indices of ``pool`` from ``chosen`` by exchange, minimising the predicted position error at
+    ``targets`` (``trace(W T^-1)``, :func:`position_weight`, T the information of the chosen
+    postures) instead of the condition number: a design for the validation error itself.
+
+    Each sweep replaces each chosen posture by the candidate that lowers the objective most, if
+    any (exact for every candidate through the Woodbury identity on its low-rank factor).
+    """
+    pool = np.asarray(pool, dtype=float)
+    factors = posture_factors(geometry, pool, sigmas, free, formulation)  # (N, r, n)
+    weight = position_weight(geometry, targets, free)
+    information = np.einsum('mri,mrj->mij', factors, factors)
+    chosen = [int(index) for index in chosen]
+    total = information[chosen].sum(axis=0)
+    identity = np.eye(factors.shape[1])
+
+    def decrease(indices, inverse):
+        # trace(W B^-1) - trace(W (B + G^T G)^-1) = trace((I + G B^-1 G^T)^-1 G B^-1 W B^-1 G^T)
+        projected = factors[indices] @ inverse
+        inner = identity + projected @ np.swapaxes(factors[indices], -1, -2)
+        weighted = projected @ weight @ np.swapaxes(projected, -1, -2)
+        return np.einsum('...ij,...ji->...', np.linalg.inv(inner), weighted)
+
+    for _ in range(passes):
+        improved = False
+        for position in range(len(chosen)):
+            base = total - information[chosen[position]]
+            inverse = np.linalg.inv(base)
+            candidates = np.setdiff1d(np.arange(len(pool)), chosen)
+            gains = decrease(candidates, inverse)
+            best = int(np.argmax(gains))
+            if gains[best] > decrease(chosen[position], inverse) * (1.0 + 1e-9):
+                chosen[position] = int(candidates[best])
+                total = base + information[chosen[position]]
+                improved = True
+        if not improved:
+            break
+    return np.array(chosen)
