@@ -95,6 +95,9 @@ def _damped(matrix, diagonal, damping):
 class _FkModel(_Model):
     """Residuals of device readings predicted through FK of the measured legs."""
 
+    #: Cautious: FK may fail for a posture after a long step (see accept and give_up).
+    initial_damping = 1e-3
+
     def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, paper, sensors):
         super().__init__(nominal, free)
         self.leg_lengths = leg_lengths
@@ -275,6 +278,10 @@ class _ImplicitModel(_Model):
     A point's ``linearization`` is a :class:`_LazyJacobian`: a trial step's Jacobian is computed
     only if the driver keeps the step.
     """
+
+    #: The start (nominal, pose guesses) is close and the model nearly linear: Gauss-Newton-like
+    #: steps from the first (cf. Madsen, Nielsen & Tingleff: tau = 1e-6 for a good start).
+    initial_damping = 1e-6
 
     def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors):
         super().__init__(nominal, free)

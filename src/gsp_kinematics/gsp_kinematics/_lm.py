@@ -12,6 +12,7 @@ only its maths:
   cannot be, e.g. FK fails for a posture in use); its Jacobian may wait for ``normal_equations``,
   so that a rejected step does not pay for it;
 * ``give_up(point, trial) -> Point``: after ``max_fk_rejections`` infeasible trials in a row;
+* ``initial_damping``: the damping to start from unless the options set one;
 * ``accept(trial) -> (point, changed)``: take the step; ``changed`` when the model changed its
   problem on the way (e.g. a posture readmitted), so that this step says nothing of convergence.
 
@@ -68,7 +69,8 @@ def levenberg_marquardt(model, start, options):
     (:class:`gsp_kinematics.identification.Options`).
     """
     point = start
-    damping, nu = options.initial_damping, 2.0
+    damping = options.initial_damping
+    damping, nu = model.initial_damping if damping is None else damping, 2.0
     status, iteration, rejections = 0, 0, 0
     linearized = None  # the point the normal equations ``system`` belong to
     for iteration in range(1, options.max_iterations + 1):  # noqa: B007 (reported after)
