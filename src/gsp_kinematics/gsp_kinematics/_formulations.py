@@ -15,8 +15,8 @@ solve, and what the result reports (information, residuals per sensor, poses, no
 import numpy as np
 
 from ._lm import Point, Step, block_normal_equations, cost_of, eliminate_poses
-from ._readings import PHI_ROW, ReadingsModel
-from .device import READING_NAMES, device_readings_jacobians, paper_inclinations_jacobians
+from ._readings import PHI_ROW, ReadingsModel, readings_jacobians
+from .device import READING_NAMES, paper_inclinations_jacobians
 from .geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX, Geometry
 from .kinematics import (
     expand_leg_parameters,
@@ -53,30 +53,15 @@ class _Model:
 def leg_readings_jacobians(geometry, poses):
     """What the leg sensors read at ``poses``, ``q_r = IK / (1 + kq)`` (M, 6), its derivatives
     w.r.t. the pose (M, 6, 6) and w.r.t. the extended parameter vector (M, 6, 54)."""
-    q, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
-    scale = 1.0 / (1.0 + geometry.sensors.leg_gain_errors)
-    d_u = np.zeros(q.shape + (NUM_ALL_PARAMETERS,))
-    d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg) * scale[None, :, None]
-    legs = np.arange(6)
-    d_u[:, legs, _KQ.start + legs] = -q * scale**2
-    return q * scale, d_q_d_pose * scale[None, :, None], d_u
+    readings, d_pose, d_u = readings_jacobians(geometry, poses)
+    return readings[:, :6], d_pose[:, :6], d_u[:, :6]
 
 
 def sensor_readings_jacobians(geometry, poses):
     """Readings ``[alpha, beta, phi, d_m]`` with the sensor errors (M, 4), their derivatives
     w.r.t. the pose (M, 4, 6) and w.r.t. the extended parameter vector (M, 4, 54)."""
-    ideal, d_pose, d_device = device_readings_jacobians(geometry, poses)
-    sensors = geometry.sensors
-    gain = 1.0 / (1.0 + sensors.lvdt_gain_error)
-    d_u = np.zeros(ideal.shape + (NUM_ALL_PARAMETERS,))
-    d_u[:, :, [_D0, _GAMMA]] = d_device
-    d_u[:, 3] *= gain
-    d_u[:, 3, _KDM] = -ideal[:, 3] * gain**2
-    for row, column in enumerate(_OFFSETS):
-        d_u[:, row, column] = 1.0
-    d_pose = d_pose.copy()
-    d_pose[:, 3] *= gain
-    return sensors.device_readings(ideal), d_pose, d_u
+    readings, d_pose, d_u = readings_jacobians(geometry, poses)
+    return readings[:, 6:], d_pose[:, 6:], d_u[:, 6:]
 
 
 def _wrap_phi(difference, columns):

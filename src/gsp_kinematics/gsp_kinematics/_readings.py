@@ -14,7 +14,7 @@ Levenberg-Marquardt driver rejects never pays for its Jacobian.
 
 import numpy as np
 
-from .device import READING_NAMES, link_direction_derivatives, position_to_inclinations
+from .device import READING_NAMES, position_to_inclinations
 from .geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX
 from .rotation import euler_to_matrix
 
@@ -117,56 +117,70 @@ class Prediction:
             out = np.zeros((count, 10, model.width))
         scale = self.leg_scale[:, None]
         directions = vectors / lengths[..., None]
-        # d(R B_i)/d(angle a) = omega_a x R B_i, so dq_i/d(angle a) = omega_a . (R B_i x n_i); for
-        # R = R_Y(theta) R_X(psi) R_z(phi): omega_psi = R_Y e_x, omega_theta = e_y, omega_phi = R e_z.
-        theta = self.poses[:, 4]
-        omega = np.zeros((count, 3, 3))
-        omega[:, 0, 0] = np.cos(theta)
-        omega[:, 2, 0] = -np.sin(theta)
-        omega[:, 1, 1] = 1.0
-        omega[:, :, 2] = rotation[:, :, 2]
-        out[:, :6, :3] = directions * scale
-        out[:, :6, 3:6] = np.matmul(np.cross(rotated, directions), omega) * scale
-        # Leg parameters: dq/dA_i = -n_i, dq/dB_i = R^T n_i, dq/dL_off_i = -1; the reading
-        # q_i / (1 + kq_i) adds -reading / (1 + kq_i) for kq_i.
+        scaled = directions * scale  # d reading_i / dt = n_i / (1 + kq_i)
+        out[:, :6, :3] = scaled
+        # d(R B_i)/d(angle a) = omega_a x R B_i, so d reading_i/d(angle a) = omega_a . c_i with
+        # c_i = R B_i x n_i / (1 + kq_i); for R = R_Y(theta) R_X(psi) R_z(phi):
+        # omega_psi = R_Y e_x = (cos theta, 0, -sin theta), omega_theta = e_y, omega_phi = R e_z.
+        p_x, p_y, p_z = rotated[..., 0], rotated[..., 1], rotated[..., 2]
+        n_x, n_y, n_z = scaled[..., 0], scaled[..., 1], scaled[..., 2]
+        c_x, c_y, c_z = p_y * n_z - p_z * n_y, p_z * n_x - p_x * n_z, p_x * n_y - p_y * n_x
+        theta = self.poses[:, 4:5]
+        out[:, :6, 3] = c_x * np.cos(theta) - c_z * np.sin(theta)
+        out[:, :6, 4] = c_y
+        axis = rotation[:, None, :, 2]
+        out[:, :6, 5] = c_x * axis[..., 0] + c_y * axis[..., 1] + c_z * axis[..., 2]
+        # Leg parameters: d/dA_i = -n_i, d/dB_i = R^T n_i, d/dL_off_i = -1, all over (1 + kq_i);
+        # d/dkq_i = -reading_i / (1 + kq_i).
         legs, columns, entries = model._leg_plan
         if legs.size:
             compact = np.empty((count, 6, 8))
-            compact[:, :, 0:3] = -directions
-            compact[:, :, 3:6] = np.matmul(directions, rotation)
-            compact[:, :, 6] = -1.0
-            compact[:, :, 7] = -self.readings[:, :6]
-            compact *= scale
+            compact[:, :, 0:3] = -scaled
+            compact[:, :, 3:6] = np.matmul(scaled, rotation)
+            compact[:, :, 6] = -scale[:, 0]
+            compact[:, :, 7] = -self.readings[:, :6] * scale[:, 0]
             out[:, legs, columns] = compact[:, legs, entries]
-        self._device_jacobian(out, link, alpha, beta)
+        self._device_jacobian(out, link, alpha)
         return out
 
-    def _device_jacobian(self, out, link, alpha, beta):
-        """Rows 6-9: the inclinometer, the encoder and the LVDT."""
+    def _device_jacobian(self, out, link, alpha):
+        """Rows 6-9: the inclinometer, the encoder and the LVDT.
+
+        With the unit link direction ``u`` (device.position_to_inclinations): ``sin(alpha) =
+        u_y - u_x cot(gamma)``, and ``beta = atan2(b, a) + atan2(-u_z, r)`` with ``a = cos(gamma)
+        sin(alpha)``, ``b = cos(alpha)``, ``r = u_x / sin(gamma) + a``. Only the tangent part of
+        dt moves u: ``du = (I - u u^T) dt / |t|``.
+        """
         gamma = self.parameters[_GAMMA]
+        sin_gamma, cos_gamma = np.sin(gamma), np.cos(gamma)
         unit = self.poses[:, :3] / link[:, None]
-        d_alpha, d_beta, d_gamma = link_direction_derivatives(alpha, beta, gamma)
-        # On the link's unit sphere, sin(alpha) = u_y - u_x cot(gamma) (device.position_to_
-        # inclinations): d alpha = row_alpha . du; then du = G_alpha d alpha + G_beta d beta gives
-        # d beta = G_beta . (du - G_alpha d alpha) / |G_beta|^2. Only the tangent part of dt
-        # moves u: du = (I - u u^T) dt / |t|.
-        cos_alpha = np.cos(alpha)
-        row_alpha = np.zeros((alpha.size, 3))
-        row_alpha[:, 0] = -1.0 / (np.tan(gamma) * cos_alpha)
-        row_alpha[:, 1] = 1.0 / cos_alpha
-        beta_norm = np.einsum('mk,mk->m', d_beta, d_beta)
-        cross_term = np.einsum('mk,mk->m', d_beta, d_alpha)
-        row_beta = (d_beta - cross_term[:, None] * row_alpha) / beta_norm[:, None]
-        rows = np.stack([row_alpha, row_beta], axis=1)  # (M, 2, 3)
+        u_x, u_z = unit[:, 0], unit[:, 2]
+        sin_alpha, cos_alpha = np.sin(alpha), np.cos(alpha)
+        r = u_x / sin_gamma + cos_gamma * sin_alpha
+        first = 1.0 - (sin_gamma * sin_alpha) ** 2  # a^2 + b^2
+        second = r**2 + u_z**2
+        # d alpha = (du_y - cot(gamma) du_x + u_x / sin(gamma)^2 dgamma) / cos(alpha);
+        # d beta = (-cos(gamma) d alpha + sin(gamma) sin(alpha) cos(alpha) dgamma) / first
+        #          + (u_z dr - r du_z) / second, dr = du_x / sin(gamma) + da - u_x cos(gamma) /
+        #          sin(gamma)^2 dgamma, da = cos(gamma) cos(alpha) d alpha - sin(gamma) sin(alpha) dgamma
+        via_alpha = cos_gamma * (u_z * cos_alpha / second - 1.0 / first)
+        rows = np.zeros((alpha.size, 2, 3))
+        rows[:, 0, 0] = -cos_gamma / (sin_gamma * cos_alpha)
+        rows[:, 0, 1] = 1.0 / cos_alpha
+        rows[:, 1] = via_alpha[:, None] * rows[:, 0]
+        rows[:, 1, 0] += u_z / (sin_gamma * second)
+        rows[:, 1, 2] -= r / second
         tangent = rows - np.einsum('mrk,mk->mr', rows, unit)[..., None] * unit[:, None, :]
         out[:, 6:8, :3] = tangent / link[:, None, None]
         out[:, 8, 5] = 1.0
         out[:, 9, :3] = unit * self.lvdt_scale
         rows, columns, device_rows, entries = self.model._device_plan
         if rows.size:
-            alpha_gamma = unit[:, 0] / (np.sin(gamma) ** 2 * cos_alpha)
+            alpha_gamma = u_x / (sin_gamma**2 * cos_alpha)
             beta_gamma = (
-                -np.einsum('mk,mk->m', d_beta, d_alpha * alpha_gamma[:, None] + d_gamma) / beta_norm
+                via_alpha * alpha_gamma
+                + sin_gamma * sin_alpha * cos_alpha / first
+                - u_z * (u_x * cos_gamma / sin_gamma**2 + sin_gamma * sin_alpha) / second
             )
             compact = np.zeros((alpha.size, 4, 6))
             compact[:, 0, 1] = alpha_gamma
@@ -175,3 +189,16 @@ class Prediction:
             compact[:, 3, 0] = -self.lvdt_scale
             compact[:, 3, 5] = -self.readings[:, 9] * self.lvdt_scale
             out[:, rows, columns] = compact[:, device_rows, entries]
+
+
+#: Every parameter free: the full extended Jacobian.
+_EVERY_PARAMETER = ReadingsModel(np.ones(NUM_ALL_PARAMETERS, dtype=bool))
+
+
+def readings_jacobians(geometry, poses):
+    """The ten readings (M, 10) at ``poses`` (M, 6) under ``geometry``, their derivatives w.r.t.
+    the pose (M, 10, 6) and w.r.t. the extended parameter vector (M, 10, 54)."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    prediction = _EVERY_PARAMETER.predict(geometry.to_full_vector(), poses)
+    jacobian = prediction.jacobian()
+    return prediction.readings, jacobian[:, :, :6], jacobian[:, :, 6:]
