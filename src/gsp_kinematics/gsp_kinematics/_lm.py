@@ -82,6 +82,11 @@ def levenberg_marquardt(model, start, options):
                 status = 3
                 break
         step = model.solve(point, system, damping)
+        if step.predicted_reduction <= options.cost_tolerance * point.cost:
+            # The linear model promises less than dX's tolerance, below the rounding noise of the
+            # cost itself: another step would only shuffle the last digits (cf. MINPACK's ftol).
+            status = 2
+            break
         trial = model.trial(point, step)
         if not trial.feasible:
             rejections += 1
@@ -109,11 +114,6 @@ def levenberg_marquardt(model, start, options):
                 break
         elif _step_is_small(step, point.values, options):
             status = 1
-            break
-        if step.predicted_reduction <= options.cost_tolerance * point.cost:
-            # The linear model promises less than dX's tolerance, below the rounding noise of the
-            # cost itself: more steps would only shuffle the last digits (cf. MINPACK's ftol).
-            status = 2
             break
     return point, status, iteration
 
