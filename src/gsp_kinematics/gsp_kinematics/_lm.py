@@ -162,7 +162,8 @@ def eliminate_poses(pose_rows, parameter_block, pose_damping=None, parameter_dam
     size = parameter_block.shape[0] - 1
     h_xx = pose_rows[:, :, :6]
     if pose_damping is not None:
-        h_xx = h_xx + pose_damping[:, :, None] * np.eye(6)
+        h_xx = h_xx.copy()
+        h_xx.reshape(-1, 36)[:, ::7] += pose_damping  # the diagonals of the 6x6 blocks
     # One batched inverse of the 6 x 6 blocks: far cheaper than a batched solve with n + 1
     # right-hand sides, which copies each posture's system.
     solved = np.linalg.inv(h_xx) @ pose_rows[:, :, 6:]
