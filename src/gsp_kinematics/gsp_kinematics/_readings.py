@@ -35,8 +35,10 @@ _LEG_COLUMNS = np.array(
 _DEVICE_COLUMNS = np.array(
     [PARAMETER_INDEX[name] for name in ('D0', 'gamma', 'alpha0', 'beta0', 'phi0', 'kDm')]
 )
-_A, _B = slice(0, 18), slice(18, 36)
-_LOFF, _KQ = slice(36, 42), slice(44, 50)
+_A = slice(PARAMETER_INDEX['A1x'], PARAMETER_INDEX['A6z'] + 1)
+_B = slice(PARAMETER_INDEX['B1x'], PARAMETER_INDEX['B6z'] + 1)
+_LOFF = slice(PARAMETER_INDEX['Loff1'], PARAMETER_INDEX['Loff6'] + 1)
+_KQ = slice(PARAMETER_INDEX['kq1'], PARAMETER_INDEX['kq6'] + 1)
 _D0, _GAMMA, _KDM = PARAMETER_INDEX['D0'], PARAMETER_INDEX['gamma'], PARAMETER_INDEX['kDm']
 _OFFSETS = slice(PARAMETER_INDEX['alpha0'], PARAMETER_INDEX['phi0'] + 1)
 
@@ -105,16 +107,15 @@ class Prediction:
         readings[:, 6:9] += parameters[_OFFSETS]
         readings[:, 9] = (link - parameters[_D0]) * self.lvdt_scale
         self.readings = readings
-        self._kept = (rotation, rotated, vectors, lengths, alpha, beta, link)
+        self._kept = (rotation, rotated, vectors, lengths, alpha, link)
 
-    def jacobian(self, out=None):
-        """The Jacobian of the readings (M, 10, width): the pose, then the free parameters;
-        written into ``out`` when given (its other columns untouched, zeros expected)."""
+    def jacobian(self):
+        """The Jacobian of the readings (M, 10, width): the pose, then the free parameters (the
+        extra columns zero)."""
         model = self.model
-        rotation, rotated, vectors, lengths, alpha, beta, link = self._kept
+        rotation, rotated, vectors, lengths, alpha, link = self._kept
         count = self.poses.shape[0]
-        if out is None:
-            out = np.zeros((count, 10, model.width))
+        out = np.zeros((count, 10, model.width))
         scale = self.leg_scale[:, None]
         directions = vectors / lengths[..., None]
         scaled = directions * scale  # d reading_i / dt = n_i / (1 + kq_i)
