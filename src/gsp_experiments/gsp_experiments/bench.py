@@ -6,6 +6,7 @@
   Jacobian on the noise-weighted FK-based residuals (FK of the measured legs under the parameters,
   predicted device readings) from the same start; ``speedup`` = scipy median / ours.
 * ``fk``: batched forward-kinematics throughput (postures per second).
+* ``--profile``: no JSON; a cProfile summary of the ``identification`` case on stderr.
 * ``identification.scaling``, ``selection`` and ``prediction``: see :mod:`.bench_scale`
   (``--skip-scale`` leaves them out).
 
@@ -183,6 +184,23 @@ def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAUL
     }
 
 
+def profile_identification(problem, repeats=20, top=25, stream=None):
+    """Print a cProfile summary of ``repeats`` identifications of ``problem`` (after a warm-up):
+    the ``top`` functions by cumulative time, to ``stream`` (default stderr)."""
+    import cProfile
+    import pstats
+
+    arguments = (problem['nominal'], problem['leg_lengths'], problem['readings'], problem['sigmas'])
+    identify(*arguments, pose_guesses=problem['poses'])
+    profiler = cProfile.Profile()
+    profiler.enable()
+    for _ in range(repeats):
+        identify(*arguments, pose_guesses=problem['poses'])
+    profiler.disable()
+    stats = pstats.Stats(profiler, stream=stream or sys.stderr)
+    stats.sort_stats('cumulative').print_stats(top)
+
+
 def bench_fk(count=10000, repeats=5, seed=1):
     """FK of ``count`` postures from guesses perturbed by ~2 mm and ~0.2 deg (several Newton steps)."""
     exact = drawing_geometry()
@@ -290,6 +308,11 @@ def main(argv=None, extra_sections=None):
         action='store_true',
         help='skip identification.scaling, selection and prediction',
     )
+    parser.add_argument(
+        '--profile',
+        action='store_true',
+        help='print a cProfile summary of the standard identification to stderr and exit',
+    )
     for key in extra_sections:
         parser.add_argument(
             skip_option(key),
@@ -312,6 +335,9 @@ def main(argv=None, extra_sections=None):
     log('gsp_bench: building the problem (nominal set 2, 60 selected postures) ...')
     noise = (0.0, 0.0) if args.noise_free else (0.001, 0.001)
     problem = build_problem(angle_noise_deg=noise[0], length_noise_mm=noise[1])
+    if args.profile:
+        profile_identification(problem)
+        return 0
     log('gsp_bench: timing identification and the scipy finite-difference baseline ...')
     sections = {'identification': bench_identification(problem, repeats, scipy_repeats)}
     log('gsp_bench: timing batched FK ...')

@@ -14,8 +14,9 @@ solve, and what the result reports (information, residuals per sensor, poses, no
 
 import numpy as np
 
-from ._lm import Point, Step, cost_of, normal_blocks, schur_complement, schur_information
-from .device import READING_NAMES, device_readings_jacobians, paper_inclinations_jacobians
+from ._lm import Point, Step, block_normal_equations, cost_of, eliminate_poses
+from ._readings import PHI_ROW, ReadingsModel, readings_jacobians
+from .device import READING_NAMES, paper_inclinations_jacobians
 from .geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX, Geometry
 from .kinematics import (
     expand_leg_parameters,
@@ -52,30 +53,15 @@ class _Model:
 def leg_readings_jacobians(geometry, poses):
     """What the leg sensors read at ``poses``, ``q_r = IK / (1 + kq)`` (M, 6), its derivatives
     w.r.t. the pose (M, 6, 6) and w.r.t. the extended parameter vector (M, 6, 54)."""
-    q, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
-    scale = 1.0 / (1.0 + geometry.sensors.leg_gain_errors)
-    d_u = np.zeros(q.shape + (NUM_ALL_PARAMETERS,))
-    d_u[:, :, :42] = expand_leg_parameters(d_q_d_leg) * scale[None, :, None]
-    legs = np.arange(6)
-    d_u[:, legs, _KQ.start + legs] = -q * scale**2
-    return q * scale, d_q_d_pose * scale[None, :, None], d_u
+    readings, d_pose, d_u = readings_jacobians(geometry, poses)
+    return readings[:, :6], d_pose[:, :6], d_u[:, :6]
 
 
 def sensor_readings_jacobians(geometry, poses):
     """Readings ``[alpha, beta, phi, d_m]`` with the sensor errors (M, 4), their derivatives
     w.r.t. the pose (M, 4, 6) and w.r.t. the extended parameter vector (M, 4, 54)."""
-    ideal, d_pose, d_device = device_readings_jacobians(geometry, poses)
-    sensors = geometry.sensors
-    gain = 1.0 / (1.0 + sensors.lvdt_gain_error)
-    d_u = np.zeros(ideal.shape + (NUM_ALL_PARAMETERS,))
-    d_u[:, :, [_D0, _GAMMA]] = d_device
-    d_u[:, 3] *= gain
-    d_u[:, 3, _KDM] = -ideal[:, 3] * gain**2
-    for row, column in enumerate(_OFFSETS):
-        d_u[:, row, column] = 1.0
-    d_pose = d_pose.copy()
-    d_pose[:, 3] *= gain
-    return sensors.device_readings(ideal), d_pose, d_u
+    readings, d_pose, d_u = readings_jacobians(geometry, poses)
+    return readings[:, 6:], d_pose[:, 6:], d_u[:, 6:]
 
 
 def _wrap_phi(difference, columns):
@@ -93,6 +79,9 @@ def _damped(matrix, diagonal, damping):
 
 class _FkModel(_Model):
     """Residuals of device readings predicted through FK of the measured legs."""
+
+    #: Cautious: FK may fail for a posture after a long step (see accept and give_up).
+    initial_damping = 1e-3
 
     def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, paper, sensors):
         super().__init__(nominal, free)
@@ -269,7 +258,15 @@ class _FkModel(_Model):
 
 
 class _ImplicitModel(_Model):
-    """All sensors as residuals; the parameters and every pose are unknowns."""
+    """All sensors as residuals; the parameters and every pose are unknowns.
+
+    A point's ``linearization`` is a :class:`_LazyJacobian`: a trial step's Jacobian is computed
+    only if the driver keeps the step.
+    """
+
+    #: The start (nominal, pose guesses) is close and the model nearly linear: Gauss-Newton-like
+    #: steps from the first (cf. Madsen, Nielsen & Tingleff: tau = 1e-6 for a good start).
+    initial_damping = 1e-6
 
     def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors):
         super().__init__(nominal, free)
@@ -281,37 +278,54 @@ class _ImplicitModel(_Model):
         self.reading_weights = 1.0 / sigmas.readings()[self.columns]
         self.use_legs = 'leg_lengths' in sensors
         self.root_weights = None  #: (M, k) square roots of the robust weights (None: all 1)
+        # The residual's rows among the ten readings of a posture (_readings.ROW_NAMES).
+        self.rows = (list(range(6)) if self.use_legs else []) + [6 + c for c in self.columns]
+        self.row_weights = np.concatenate(
+            [np.full(6 if self.use_legs else 0, self.leg_weight), self.reading_weights]
+        )
+        self.measured = np.concatenate([leg_lengths, readings], axis=1)[:, self.rows]
+        self.phi_row = self.rows.index(PHI_ROW) if PHI_ROW in self.rows else None
+        self.readings_model = ReadingsModel(free, extra_columns=1)  # the residual's column
 
     def evaluate(self, free_values, poses, linearize):
         """``(residuals (M, k), jac_pose (M, k, 6), jac_u (M, k, n))``; Jacobians None unless
         ``linearize``."""
-        geometry = self.geometry(free_values)
-        q, d_q_d_pose, d_q_d_u = leg_readings_jacobians(geometry, poses)
-        predicted, d_pred_d_pose, d_pred_d_u = sensor_readings_jacobians(geometry, poses)
-        leg_residuals = (q - self.leg_lengths) * self.leg_weight
-        if not self.use_legs:
-            leg_residuals = leg_residuals[:, :0]
-        difference = _wrap_phi(
-            predicted[:, self.columns] - self.readings[:, self.columns], self.columns
-        )
-        residuals = np.concatenate([leg_residuals, difference * self.reading_weights], axis=1)
-        root = 1.0 if self.root_weights is None else self.root_weights
-        residuals = residuals * root
+        residuals, jacobian = self._evaluate(free_values, poses)
         if not linearize:
             return residuals, None, None
-        weights = self.reading_weights[None, :, None]
-        blocks_pose = [d_q_d_pose * self.leg_weight] if self.use_legs else []
-        blocks_pose.append(d_pred_d_pose[:, self.columns] * weights)
-        blocks_u = [d_q_d_u[:, :, self.free] * self.leg_weight] if self.use_legs else []
-        blocks_u.append(d_pred_d_u[:, self.columns][:, :, self.free] * weights)
-        jac_pose, jac_u = np.concatenate(blocks_pose, axis=1), np.concatenate(blocks_u, axis=1)
+        augmented = jacobian()
+        return residuals, augmented[:, :, :6], augmented[:, :, 6:-1]
+
+    def _evaluate(self, free_values, poses):
+        """``(residuals, _LazyJacobian)`` at the free parameters and poses."""
+        vector = self.nominal_vector.copy()
+        vector[self.free] = free_values
+        prediction = self.readings_model.predict(vector, poses)
+        predicted = prediction.readings
+        if len(self.rows) < predicted.shape[1]:
+            predicted = predicted[:, self.rows]
+        residuals = predicted - self.measured
+        if self.phi_row is not None:
+            residuals[:, self.phi_row] = wrap_angle(residuals[:, self.phi_row])
+        residuals *= self.row_weights
         if self.root_weights is not None:
-            jac_pose, jac_u = jac_pose * root[..., None], jac_u * root[..., None]
-        return residuals, jac_pose, jac_u
+            residuals *= self.root_weights
+        return residuals, _LazyJacobian(self, prediction, residuals)
+
+    def _augmented(self, prediction, residuals):
+        """The weighted ``[J_X | J_u | r]`` (M, k, 6 + n + 1) of a prediction."""
+        augmented = prediction.jacobian()
+        if len(self.rows) < augmented.shape[1]:
+            augmented = augmented[:, self.rows]
+        augmented *= self.row_weights[:, None]
+        if self.root_weights is not None:
+            augmented *= self.root_weights[..., None]
+        augmented[:, :, -1] = residuals
+        return augmented
 
     def _point(self, values, poses):
-        residuals, jac_pose, jac_u = self.evaluate(values, poses, linearize=True)
-        return Point(values, residuals, cost_of(residuals), (jac_pose, jac_u), poses)
+        residuals, jacobian = self._evaluate(values, poses)
+        return Point(values, residuals, cost_of(residuals), jacobian, poses)
 
     # --- the driver's interface ---
 
@@ -324,45 +338,41 @@ class _ImplicitModel(_Model):
         return int(self.free.sum()) + 6 * self.leg_lengths.shape[0]
 
     def start(self):
-        """The point at the nominal, with the poses FK finds there under the nominal."""
-        poses, converged = forward_kinematics_masked(
-            self.nominal, self.nominal.sensors.true_leg_lengths(self.leg_lengths), self.pose_guesses
-        )
-        # Where FK under the nominal fails, the pose still has a start: the guess itself.
-        poses = np.where(converged[:, None], poses, self.pose_guesses)
-        return self._point(self.nominal_vector[self.free], poses)
+        """The point at the nominal with the pose guesses. The poses are unknowns: the first
+        steps (each a damped Newton step on the poses too) do the work of an FK beforehand."""
+        return self._point(self.nominal_vector[self.free], self.pose_guesses.copy())
 
     def too_few_residuals(self):
         return False  # the poses are unknowns too: the design, not FK, decides identifiability
 
     def normal_equations(self, point):
-        jac_pose, jac_u = point.linearization
-        residuals = point.residuals
-        h_xx, h_xu, h_uu = normal_blocks(jac_pose, jac_u)
-        gradient_pose = (np.swapaxes(jac_pose, 1, 2) @ residuals[..., None])[..., 0]
-        gradient_u = jac_u.reshape(-1, jac_u.shape[2]).T @ residuals.ravel()
-        diag_pose = np.maximum(np.diagonal(h_xx, axis1=1, axis2=2), 1e-30)
-        diag_u = np.maximum(np.diag(h_uu), 1e-30)
+        pose_rows, parameter_block = point.linearization.normal_equations()
+        size = parameter_block.shape[0] - 1
+        diag_pose = np.maximum(np.diagonal(pose_rows[:, :, :6], axis1=1, axis2=2), 1e-30)
+        diag_u = np.maximum(np.diag(parameter_block)[:size], 1e-30)
         scaled_gradient = max(
-            np.max(np.abs(gradient_u) / np.sqrt(diag_u)),
-            np.max(np.abs(gradient_pose) / np.sqrt(diag_pose)),
+            np.max(np.abs(parameter_block[:size, size]) / np.sqrt(diag_u)),
+            np.max(np.abs(pose_rows[:, :, -1]) / np.sqrt(diag_pose)),
         )
-        return scaled_gradient, (h_xx, h_xu, h_uu, gradient_pose, gradient_u, diag_pose, diag_u)
+        return scaled_gradient, (pose_rows, parameter_block, diag_pose, diag_u)
 
     def solve(self, point, system, damping):
-        h_xx, h_xu, h_uu, gradient_pose, gradient_u, diag_pose, diag_u = system
-        damped_xx = h_xx + damping * diag_pose[:, :, None] * np.eye(6)[None]
-        reduced, solved_xu = schur_complement(damped_xx, h_xu, _damped(h_uu, diag_u, damping))
-        solved_gx = np.linalg.solve(damped_xx, gradient_pose[..., None])[..., 0]  # (M, 6)
-        reduced_rhs = -gradient_u + h_xu.reshape(-1, h_xu.shape[2]).T @ solved_gx.ravel()
-        step_u = np.linalg.solve(reduced, reduced_rhs)
-        step_pose = -(solved_gx + solved_xu @ step_u)
-        # Predicted reduction of the Gauss-Newton model for the combined step.
-        jac_pose, jac_u = point.linearization
-        jac_step = (jac_pose @ step_pose[..., None])[..., 0] + jac_u @ step_u
-        predicted_reduction = -float(np.sum(point.residuals * jac_step)) - 0.5 * float(
-            np.sum(jac_step**2)
+        pose_rows, parameter_block, diag_pose, diag_u = system
+        reduced, solved = eliminate_poses(
+            pose_rows, parameter_block, damping * diag_pose, damping * diag_u
         )
+        size = reduced.shape[0]
+        step_u = np.linalg.solve(reduced[:, :size], -reduced[:, size])
+        step_pose = -(solved[:, :, size] + solved[:, :, :size] @ step_u)
+        # The Gauss-Newton model's decrease for a step h of (H + damping D) h = -g:
+        # -g.h - h.H.h / 2 = (damping h.D.h - g.h) / 2 (no cancellation, no J h needed).
+        gradient_step = float(
+            np.einsum('mj,mj->', pose_rows[:, :, -1], step_pose)
+            + parameter_block[:size, size] @ step_u
+        )
+        damped_step = float(np.einsum('mj,mj,mj->', diag_pose, step_pose, step_pose))
+        damped_step += float(diag_u @ step_u**2)
+        predicted_reduction = 0.5 * (damping * damped_step - gradient_step)
         return Step(step_u, step_pose, predicted_reduction)
 
     def trial(self, point, step):
@@ -377,7 +387,8 @@ class _ImplicitModel(_Model):
     # --- what the result reports ---
 
     def information(self, point):
-        return schur_information(*point.linearization)
+        reduced, _ = eliminate_poses(*point.linearization.normal_equations())
+        return reduced[:, :-1]
 
     def reported_residuals(self, point):
         """Normalised residuals (no robust weights)."""
@@ -409,3 +420,25 @@ class _ImplicitModel(_Model):
 
     def notes(self):
         return ''
+
+
+class _LazyJacobian:
+    """A point's weighted ``[J_X | J_u | r]``, computed on the first call and kept, and its
+    normal equations (:func:`gsp_kinematics._lm.block_normal_equations`), likewise."""
+
+    def __init__(self, model, prediction, residuals):
+        self._arguments = (prediction, residuals)
+        self._model = model
+        self._value = None
+        self._normal_equations = None
+
+    def normal_equations(self):
+        if self._normal_equations is None:
+            self._normal_equations = block_normal_equations(self())
+        return self._normal_equations
+
+    def __call__(self):
+        if self._value is None:
+            self._value = self._model._augmented(*self._arguments)
+            self._arguments = None  # the prediction's intermediates are no longer needed
+        return self._value

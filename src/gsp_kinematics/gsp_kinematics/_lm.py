@@ -5,16 +5,19 @@ messages, the formulation chosen before the solve). A formulation is a *model* t
 only its maths:
 
 * ``normal_equations(point) -> (scaled_gradient, system)``: the Gauss-Newton normal equations at
-  ``point`` and the largest gradient entry scaled by the square root of its diagonal;
+  ``point`` and the largest gradient entry scaled by the square root of its diagonal (asked once
+  per point: a rejected step reuses them with more damping);
 * ``solve(point, system, damping) -> Step``: the damped step (Marquardt's diagonal scaling);
 * ``trial(point, step) -> Point``: the model evaluated after the step (``feasible`` False where it
-  cannot be, e.g. FK fails for a posture in use);
+  cannot be, e.g. FK fails for a posture in use); its Jacobian may wait for ``normal_equations``,
+  so that a rejected step does not pay for it;
 * ``give_up(point, trial) -> Point``: after ``max_fk_rejections`` infeasible trials in a row;
+* ``initial_damping``: the damping to start from unless the options set one;
 * ``accept(trial) -> (point, changed)``: take the step; ``changed`` when the model changed its
   problem on the way (e.g. a posture readmitted), so that this step says nothing of convergence.
 
-The driver stops on the step ``du`` or on the change of the residual ``dX``, as in the paper's
-Fig. 5, or on a vanishing gradient; :data:`TERMINATION_MESSAGES` names every status.
+The driver stops on the step ``du`` or on the change of the residual ``dX`` (achieved, or predicted
+by the linear model), as in the paper's Fig. 5, or on a vanishing gradient; :data:`TERMINATION_MESSAGES` names every status.
 """
 
 import dataclasses
@@ -66,14 +69,24 @@ def levenberg_marquardt(model, start, options):
     (:class:`gsp_kinematics.identification.Options`).
     """
     point = start
-    damping, nu = options.initial_damping, 2.0
+    damping = options.initial_damping
+    damping, nu = model.initial_damping if damping is None else damping, 2.0
     status, iteration, rejections = 0, 0, 0
+    linearized = None  # the point the normal equations ``system`` belong to
     for iteration in range(1, options.max_iterations + 1):  # noqa: B007 (reported after)
-        scaled_gradient, system = model.normal_equations(point)
-        if scaled_gradient <= options.gradient_tolerance * max(1.0, math.sqrt(2 * point.cost)):
-            status = 3
-            break
+        if point is not linearized:
+            # After a rejected step only the damping changes: the system is reused.
+            scaled_gradient, system = model.normal_equations(point)
+            linearized = point
+            if scaled_gradient <= options.gradient_tolerance * max(1.0, math.sqrt(2 * point.cost)):
+                status = 3
+                break
         step = model.solve(point, system, damping)
+        if step.predicted_reduction <= options.cost_tolerance * point.cost:
+            # The linear model promises less than dX's tolerance, below the rounding noise of the
+            # cost itself: another step would only shuffle the last digits (cf. MINPACK's ftol).
+            status = 2
+            break
         trial = model.trial(point, step)
         if not trial.feasible:
             rejections += 1
@@ -121,36 +134,55 @@ def _step_is_small(step, values, options):
 
 
 # --- the poses eliminated: Schur complement --------------------------------------------------------
+#
+# The implicit formulation's Jacobian is block-sparse: posture m's k residuals depend on its own
+# pose X_m (6) and on the n parameters u. Its rows are kept per posture as one augmented array
+# ``[J_X | J_u | r]`` (M, k, 6 + n + 1), and the normal equations as two dense pieces whose size
+# grows linearly with M: ``pose_rows`` (M, 6, 6 + n + 1) = ``J_X^T [J_X | J_u | r]`` per posture,
+# and ``parameter_block`` (n + 1, n + 1) = ``[J_u | r]^T [J_u | r]`` summed over the postures.
+# Eliminating the 6 x 6 pose blocks (the Schur complement) leaves an n x n system.
 
 
-def normal_blocks(jac_pose, jac_u, per_posture=False):
-    """``(H_XX (M, 6, 6), H_Xu (M, 6, n), H_uu)`` of the Jacobians ``(M, k, 6)`` and ``(M, k, n)``.
+def block_normal_equations(augmented):
+    """``(pose_rows, parameter_block)`` of an augmented Jacobian ``[J_X | J_u | r]`` (M, k, 6+n+1)."""
+    pose_rows = np.matmul(np.swapaxes(augmented[:, :, :6], 1, 2), augmented)
+    # Merging the posture and row axes of the slice is a view: one product over all rows.
+    flat = augmented[:, :, 6:].reshape(-1, augmented.shape[2] - 6)
+    return pose_rows, flat.T @ flat
 
-    ``H_uu`` is ``(n, n)`` summed over the postures, or ``(M, n, n)`` with ``per_posture``.
+
+def eliminate_poses(pose_rows, parameter_block, pose_damping=None, parameter_damping=None):
+    """``(reduced (n, n+1), solved (M, 6, n+1))``: the reduced system ``[S | g_S]`` and
+    ``H_XX^-1 [H_Xu | g_X]``, where ``S = H_uu - sum_m H_Xu^T H_XX^-1 H_Xu`` and
+    ``g_S = g_u - sum_m H_Xu^T H_XX^-1 g_X``.
+
+    ``pose_damping`` (M, 6) and ``parameter_damping`` (n,), if given, are added to the diagonals
+    of ``H_XX`` and ``H_uu`` (the damped normal equations).
     """
-    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
-    h_xx = jac_pose_t @ jac_pose
-    h_xu = jac_pose_t @ jac_u
-    if per_posture:
-        h_uu = np.swapaxes(jac_u, 1, 2) @ jac_u
-    else:
-        flat_u = jac_u.reshape(-1, jac_u.shape[2])
-        h_uu = flat_u.T @ flat_u
-    return h_xx, h_xu, h_uu
-
-
-def schur_complement(h_xx, h_xu, h_uu, per_posture=False):
-    """``(H_uu - sum_m H_Xu_m^T H_XX_m^-1 H_Xu_m, H_XX^-1 H_Xu)``: each posture's pose eliminated.
-
-    ``per_posture``: ``h_uu`` is ``(M, n, n)`` and so is the result (one complement a posture).
-    """
-    solved = np.linalg.solve(h_xx, h_xu)
-    if per_posture:
-        return h_uu - np.swapaxes(h_xu, 1, 2) @ solved, solved
-    size = h_xu.shape[2]
-    return h_uu - h_xu.reshape(-1, size).T @ solved.reshape(-1, size), solved
+    size = parameter_block.shape[0] - 1
+    h_xx = pose_rows[:, :, :6]
+    if pose_damping is not None:
+        h_xx = h_xx.copy()
+        h_xx.reshape(-1, 36)[:, ::7] += pose_damping  # the diagonals of the 6x6 blocks
+    # One batched inverse of the 6 x 6 blocks: far cheaper than a batched solve with n + 1
+    # right-hand sides, which copies each posture's system.
+    solved = np.linalg.inv(h_xx) @ pose_rows[:, :, 6:]
+    h_xu = pose_rows[:, :, 6 : 6 + size].reshape(-1, size)
+    reduced = parameter_block[:size] - h_xu.T @ solved.reshape(-1, size + 1)
+    if parameter_damping is not None:
+        reduced[:, :size] += np.diag(parameter_damping)
+    return reduced, solved
 
 
 def schur_information(jac_pose, jac_u, per_posture=False):
-    """Information ``J^T J`` of the parameters with the poses eliminated (see :func:`schur_complement`)."""
-    return schur_complement(*normal_blocks(jac_pose, jac_u, per_posture), per_posture)[0]
+    """Information ``J^T J`` of the parameters with each posture's pose eliminated,
+    ``H_uu - sum_m H_Xu_m^T H_XX_m^-1 H_Xu_m``, from the Jacobians ``(M, k, 6)`` and
+    ``(M, k, n)``; ``per_posture``: ``(M, n, n)``, one complement a posture."""
+    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
+    h_xu = jac_pose_t @ jac_u
+    solved = np.linalg.inv(jac_pose_t @ jac_pose) @ h_xu
+    if per_posture:
+        return np.swapaxes(jac_u, 1, 2) @ jac_u - np.swapaxes(h_xu, 1, 2) @ solved
+    size = jac_u.shape[2]
+    flat_u = jac_u.reshape(-1, size)
+    return flat_u.T @ flat_u - h_xu.reshape(-1, size).T @ solved.reshape(-1, size)

@@ -104,7 +104,9 @@ class Options:
     step_tolerance: float = 1e-12  #: du: stop when |du| <= tol * (tol + |u|)
     cost_tolerance: float = 1e-12  #: dX: stop when the relative cost decrease is below this
     gradient_tolerance: float = 1e-12  #: stop when the scaled gradient is below this
-    initial_damping: float = 1e-3  #: lambda, relative to Marquardt's diag(J^T J)
+    #: lambda, relative to Marquardt's diag(J^T J); None: the formulation's own (1e-6 for
+    #: 'implicit', whose start is close and whose model is nearly linear; 1e-3 for 'fk', 'paper')
+    initial_damping: float | None = None
     max_fk_rejections: int = 8  #: rejected steps (FK failures) before a posture is dropped
     loss: str = 'linear'  #: robust loss: 'linear', 'huber' or 'cauchy' (goodness.LOSSES)
     #: Where the robust loss departs from least squares, in sigmas (Huber's 95%-efficiency 1.345).
