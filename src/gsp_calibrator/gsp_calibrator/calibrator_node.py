@@ -25,12 +25,12 @@ calls would take every thread of the executor). The sensor topics are taken by a
 second one (``<name>_recorder``). The protocol is guarded by one lock.
 """
 
+import collections
 import os
 import threading
 import time
 import traceback
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -51,10 +51,11 @@ from .node_waiting import (
     first_timeout,
     new_future,
     run_in_thread,
+    system_checks,
 )
-from .run_directory import RunDirectory, RunDirectoryError, Samples
+from .run_session import RunRefused, RunSession, RunWriteError, WriteFailed
 from .settings import PARAMETERS, CalibratorSettings, check_parameters
-from .sources import SecondSource, SingleSourceGuard
+from .sources import SecondSource, SingleSourceGuard, other_calibrators
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
@@ -65,43 +66,12 @@ OUTPUTS = (
     names.TOPIC_CALIBRATION_PROGRESS,
     names.TOPIC_CALIBRATION_RESULT,
 )
+#: Final posture events that end the run.
+RUN_FAILURES = (protocol.TopicSilent, protocol.NoSynchronisedSample, SecondSource, WriteFailed)
 
 
 class RunFailed(Exception):
     """Ends a run early; the message says why (e.g. names the silent topic)."""
-
-
-def _other_calibrators(node):
-    """Nodes named like this one, elsewhere, that publish pose commands (a second calibrator)."""
-    own = (node.get_name(), node.get_namespace())
-    return sorted(
-        {
-            f'{info.node_namespace.rstrip("/")}/{info.node_name}'
-            for info in node.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND)
-            if info.node_name == names.NODE_CALIBRATOR
-            and (info.node_name, info.node_namespace) != own
-        }
-    )
-
-
-def _system_checks(node, collection, timeout):
-    """``[(predicate, failure message)]`` a run waits on before its first posture."""
-    checks = [
-        (
-            lambda: node._command_pub.get_subscription_count() > 0,
-            f'no subscriber on {names.TOPIC_POSE_COMMAND} within {timeout:g} s '
-            '(is platform_sim running?)',
-        ),
-        (
-            lambda: node.count_publishers(names.TOPIC_PLATFORM_STATUS) > 0,
-            f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no publisher within {timeout:g} s '
-            '(is platform_sim running?)',
-        ),
-    ]
-    for topic in protocol.SENSOR_TOPICS:
-        message = f'topic {topic} is silent: no message within {timeout:g} s'
-        checks.append((lambda t=topic: collection.heard(t), message))
-    return checks
 
 
 class CalibratorNode(Node):
@@ -120,14 +90,16 @@ class CalibratorNode(Node):
             self, PARAMETERS, apply=self._apply_parameters, validate=check_parameters
         )
 
-        self._lock = threading.RLock()  # guards the protocol and the run state
+        self._lock = threading.RLock()  # guards the protocol and the run
         self._running = False
         self._sensors_active = False  # sensor and status messages are dropped while False
         self._protocol = None  # CollectionProtocol of the current (or last) run
-        self._posture_future = None  # completed by the event that ends the awaited posture
+        self._session = None  # RunSession of the current run
+        self._finals = collections.deque()  # final posture events not yet reported
+        self._finals_future = None  # completed when an event joins _finals
+        self._failure = None  # the event that ends the current run
         self._posture_count = 0
         self._sources = SingleSourceGuard()
-        self._source_failure = None  # SecondSource seen during the current run
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
@@ -141,7 +113,11 @@ class CalibratorNode(Node):
             self, 'sensors', {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS}
         )
         self._recorder_listener = SensorListener.beside(
-            self, 'recorder', {}, setup=lambda node: recording.RunRecorder(node, persistent=True)
+            self,
+            'recorder',
+            {},
+            setup=lambda node: recording.RunRecorder(node, persistent=True),
+            on_error=self._on_recording_error,
         )
         self._recorder = self._recorder_listener.extra
         self.create_subscription(
@@ -154,13 +130,11 @@ class CalibratorNode(Node):
         self.create_timer(
             WATCHDOG_PERIOD_S, self._on_watchdog, callback_group=MutuallyExclusiveCallbackGroup()
         )
-        self.create_service(
-            Trigger, names.SERVICE_CALIBRATE, self._on_calibrate, callback_group=self._service_group
-        )
-        self.create_service(
-            Trigger, names.SERVICE_RESUME, self._on_resume, callback_group=self._service_group
-        )
-        self._run = None  # (RunDirectory, RunState) of the current run
+        for service, callback in (
+            (names.SERVICE_CALIBRATE, self._on_calibrate),
+            (names.SERVICE_RESUME, self._on_resume),
+        ):
+            self.create_service(Trigger, service, callback, callback_group=self._service_group)
 
         # Posture selection takes seconds: start it now for the current parameters.
         self._selection_future(self._settings)
@@ -189,34 +163,18 @@ class CalibratorNode(Node):
         def callback(msg, info):
             if not self._sensors_active:  # no run: drop at once
                 return
-            if self._second_source(topic, msg, info):
-                return
             with self._lock:
-                events = self._protocol.sensor(topic, msg, self._now_ns())
+                failure = self._sources.check_reading(
+                    topic,
+                    msg,
+                    info.get('publication_sequence_number'),
+                    lambda: self._sensors.node.count_publishers(topic),
+                )
+                events = [failure] if failure else self._protocol.sensor(topic, msg, self._now_ns())
             if events:
                 self._handle(events)
 
         return callback
-
-    def _second_source(self, topic, msg, info):
-        """Whether ``msg`` (a valid reading) shows a second publisher; ends the posture if so."""
-        try:
-            protocol.read_sensor(topic, msg)
-        except (ValueError, TypeError):
-            return False  # dropped by the protocol anyway
-        with self._lock:
-            failure = self._sources.check(
-                topic,
-                info.get('publication_sequence_number'),
-                lambda: self._sensors.node.count_publishers(topic),
-            )
-            if failure is None:
-                return False
-            self._source_failure = self._source_failure or failure
-            future = self._posture_future
-        if future is not None and not future.done():
-            future.set_result(failure)
-        return True
 
     def _on_status(self, msg):
         try:
@@ -236,6 +194,14 @@ class CalibratorNode(Node):
             events = self._protocol.poll(self._now_ns()) if self._sensors_active else []
         self._handle(events)
 
+    def _on_recording_error(self, error):
+        """A recording write failed (recorder thread): the run ends, naming the file."""
+        path = self._recorder.path
+        if not isinstance(error, OSError) or path is None:
+            self.get_logger().error(f'recording: {error}', throttle_duration_sec=WARN_THROTTLE_S)
+            return
+        self._handle([WriteFailed(str(RunWriteError(f'{path}.tmp', error)))])
+
     def _handle(self, events):
         """Act on the protocol's events (any thread)."""
         for event in events:
@@ -250,10 +216,56 @@ class CalibratorNode(Node):
                 )
             elif isinstance(event, protocol.SampleDropped):
                 self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
-            elif isinstance(event, protocol.FINAL_EVENTS):
-                future = self._posture_future
-                if future is not None and not future.done():
-                    future.set_result(event)
+            elif isinstance(event, protocol.FINAL_EVENTS + RUN_FAILURES):
+                self._end_posture(event)
+
+    def _end_posture(self, event):
+        """Keep the row (samples.csv) or the skip of a posture and command the next one at once,
+        from the event; the run coroutine reports it (and ends the run on a failure)."""
+        next_events = []
+        with self._lock:
+            if not self._sensors_active or self._session is None or self._failure is not None:
+                return
+            if isinstance(event, protocol.RowReady):
+                try:
+                    self._session.add_row(event)
+                except RunWriteError as error:
+                    event = WriteFailed(str(error))
+            elif isinstance(event, protocol.PostureSkipped):
+                self._session.skip(event)
+            if isinstance(event, RUN_FAILURES):
+                self._failure = event
+            else:
+                next_events = self._command_next()
+            self._finals.append(event)
+            future, self._finals_future = self._finals_future, None
+        if future is not None and not future.done():
+            future.set_result(None)
+        self._handle(next_events)
+
+    def _command_next(self):
+        """Command the run's next posture (with the lock held); the protocol's events."""
+        posture = self._session.next_posture()
+        if posture is None:
+            return []
+        k, pose = posture
+        stamp = self.get_clock().now()
+        command_id = conversions.command_id_from_stamp(stamp)
+        events = self._protocol.command(k, pose, command_id, stamp.nanoseconds)
+        self._command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
+        self._progress(k, names.PHASE_MOVING, f'posture {k} of {self._posture_count}: moving')
+        return events
+
+    async def _next_final(self):
+        """The next final posture event (awaits one if none is queued)."""
+        with self._lock:
+            future = None
+            if not self._finals:
+                future = self._finals_future = self._new_future()
+        if future is not None:
+            await future
+        with self._lock:
+            return self._finals.popleft()
 
     # --------------------------------------------------------------------------- helpers
 
@@ -290,24 +302,21 @@ class CalibratorNode(Node):
         )
 
     def _save_state(self, phase=None, stop_reason=None):
-        """Rewrite the current run's state.json (atomic); a write error is logged, never raised:
-        samples.csv and the recording go on."""
-        if self._run is None:
-            return
-        run, state = self._run
-        if phase is not None:
-            state.phase = phase
-        if stop_reason is not None:
-            state.stop_reason = stop_reason
+        """Rewrite the current run's state.json; an error is logged (the run is ending)."""
         try:
-            run_state.write_state(run.path, state)
-        except OSError as error:
+            if self._session is not None:
+                self._session.save(phase, stop_reason)
+        except RunWriteError as error:
             self.get_logger().error(f'{run_state.STATE_FILE} not written: {error}')
 
     def destroy_node(self):
         self._sensors_active = False
-        if self._running and self._run is not None and self._run[1].phase != run_state.PHASE_DONE:
-            self._save_state(run_state.PHASE_INTERRUPTED, 'the calibrator shut down during the run')
+        session = self._session
+        if self._running and session is not None and session.state is not None:
+            if session.state.phase != run_state.PHASE_DONE:
+                self._save_state(
+                    run_state.PHASE_INTERRUPTED, 'the calibrator shut down during the run'
+                )
         recorder = getattr(self, '_recorder', None)
         if recorder is not None:
             try:
@@ -355,7 +364,6 @@ class CalibratorNode(Node):
             response.success, response.message = False, f'calibration failed: {error}'
         with self._lock:
             self._sensors_active = False
-            self._posture_future = None
         self._waits.cancel()
         try:
             # Drain (the last progress, the result) and close the file off the executor.
@@ -365,146 +373,182 @@ class CalibratorNode(Node):
         finally:
             with self._lock:
                 self._running = False
-                self._run = None
+                if self._session is not None:
+                    self._session.close()
+                self._session = None
         return response
 
-    def _open_run(self, settings, resume):
-        """``(run, state or None, samples, postures to collect or None)``; RunFailed if refused."""
-        if not resume:
-            run = RunDirectory.create(settings.output_root)
-            samples = Samples.empty()
-            run.write_samples(samples)  # fails at once on an unwritable output_root
-            return run, None, samples, None
-        try:
-            if settings.resume_run_directory:
-                path = settings.resume_run_directory
-            else:
-                path = run_state.latest_unfinished_run(settings.output_root, os.getpid())
-            run = RunDirectory(path)
-            state = run_state.read_state(run.path)
-            samples = run.read_samples()
-            run_state.check_resume(state, settings, samples)
-        except (run_state.ResumeRefused, RunDirectoryError) as error:
-            raise RunFailed(f'resume refused: {error}') from None
-        for recovered in recording.recover_recordings(run.path):
-            self.get_logger().warning(
-                f'recovered {recovered["message_count"]} messages of a recording left '
-                f'unfinished into {recovered["path"]}'
+    def _open_session(self, settings, resume):
+        """The run's :class:`RunSession`; RunFailed (with its message) if it cannot start."""
+        others = other_calibrators(
+            self.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND),
+            self.get_name(),
+            self.get_namespace(),
+        )
+        if others:
+            raise RunFailed(
+                f'another calibrator publishes on {names.TOPIC_POSE_COMMAND} ({", ".join(others)})'
+                ': two calibrators must not drive one platform; run refused'
             )
-        state.sessions += 1
-        return run, state, samples, run_state.postures_to_collect(state, samples)
+        try:
+            session = RunSession.resume(settings, os.getpid()) if resume else None
+            return session or RunSession.create(settings.output_root)
+        except RunRefused as error:
+            raise RunFailed(str(error)) from None
+        except OSError as error:  # unwritable or full output_root: nothing has moved
+            raise RunFailed(
+                f'cannot write the run directory under {settings.output_root}: {error}'
+            ) from None
 
     async def _calibrate(self, settings, resume=False):
         """One run, or the rest of an unfinished one; ``(success, message)``."""
         log = self.get_logger()
         started = time.monotonic()
-        others = _other_calibrators(self)
-        if others:
-            message = (
-                f'another calibrator publishes on {names.TOPIC_POSE_COMMAND} ({", ".join(others)})'
-                ': two calibrators must not drive one platform; run refused'
-            )
-            log.error(message)
-            return False, message
         try:
-            run, state, samples, remaining = self._open_run(settings, resume)
+            session = self._open_session(settings, resume)
         except RunFailed as error:
             log.error(str(error))
             return False, str(error)
-        except OSError as error:  # unwritable or full output_root: nothing has moved
-            message = f'cannot write the run directory under {settings.output_root}: {error}'
-            log.error(message)
-            return False, message
-        log.info(f'calibration {"resumed" if resume else "started"}: run directory {run.path}')
+        for recovered in session.recovered:
+            log.warning(
+                f'recovered {recovered["message_count"]} messages of a recording left '
+                f'unfinished into {recovered["path"]}'
+            )
+        log.info(f'calibration {"resumed" if resume else "started"}: run directory {session.run}')
         try:
-            part = recording.next_recording_file(run.path)
+            part = recording.next_recording_file(session.run.path)
             self._recorder.start(part, options=recording.settings_options(settings))
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
             part = None
             log.error(f'not recording the run: {error}')
-        # Per posture collected in this session: the sample std of the 6 legs and 4 readings
-        # (the noise estimates; a resumed run has none for its earlier rows, so none are made).
-        spreads = []
         count = settings.posture_count
         collection = protocol.CollectionProtocol.for_settings(settings)
         with self._lock:
-            self._protocol = collection
+            self._protocol, self._session, self._failure = collection, session, None
             self._posture_count = count
+            self._finals.clear()
             self._sources.reset()
-            self._source_failure = None
             self._sensors_active = True
         try:
-            self._progress(
-                0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
-            )
-            if state is None:
-                try:
-                    selection = await self._await_thread(self._selection_future(settings))
-                except (calibration.CalibrationError, RuntimeError, ValueError) as error:
-                    raise RunFailed(f'posture selection failed: {error}') from None
-                log.info(
-                    f'{len(selection.poses)} postures selected (scaled condition number '
-                    f'{selection.condition_number:.4g})'
-                )
-                state = run_state.RunState(
-                    run_state.selection_options(settings), selection.poses.tolist()
-                )
-                remaining = list(range(1, len(selection.poses) + 1))
-            else:
-                log.info(f'resuming: {len(samples)} rows kept, {len(remaining)} postures to go')
-                if len(samples):
-                    collection.continue_after(samples.readings[-1])
-            state.pid = os.getpid()
-            state.phase, state.stop_reason = run_state.PHASE_COLLECTING, ''
-            if part is not None:
-                state.recordings.append(os.path.basename(part))
-            self._run = (run, state)
-            self._save_state()
+            await self._begin(settings, session, collection, part)
             await self._wait_for_system(settings, collection)
-            poses = state.poses
-            for k in remaining:
-                row = await self._collect_posture(settings, k, count, poses[k - 1])
-                if row is None:
-                    state.record_skip(k, collection.summary()['skipped'][-1]['reason'])
-                else:
-                    samples.append(
-                        k, poses[k - 1], row.leg_lengths, row.readings, row.n_samples, row.stamp
-                    )
-                    spreads.append(np.concatenate([row.leg_lengths_std, row.readings_std]))
-                    run.write_samples(samples)
-                    state.record_done(k)
-                self._save_state()
-        except RunFailed as error:
-            run.write_samples(samples)
+            await self._collect(settings)
+        except (RunFailed, RunWriteError) as error:
             self._save_state(run_state.PHASE_FAILED, str(error))
-            message = calibration.failure_message(error, len(samples), run)
+            message = calibration.failure_message(error, len(session.samples), session.run)
             log.error(message)
-            self._progress(len(samples), names.PHASE_FAILED, str(error))
-            return False, message
-        except OSError as error:  # disk full mid-run: the files written so far are intact
-            message = f'run stopped: cannot write {run.path} ({error}); rows so far are kept'
-            self._save_state(run_state.PHASE_FAILED, message)
-            log.error(message)
-            self._progress(len(samples), names.PHASE_FAILED, message)
+            self._progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
         with self._lock:
             self._sensors_active = False
-        self._save_state(run_state.PHASE_IDENTIFYING)
+        return await self._identify(settings, session, collection, started)
 
+    async def _begin(self, settings, session, collection, part):
+        """Select the postures of a new run (a resumed one keeps its own); write state.json."""
+        log, count = self.get_logger(), settings.posture_count
+        self._progress(
+            0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
+        )
+        poses = None
+        if session.state is None:
+            try:
+                selection = await self._await_thread(self._selection_future(settings))
+            except (calibration.CalibrationError, RuntimeError, ValueError) as error:
+                raise RunFailed(f'posture selection failed: {error}') from None
+            log.info(
+                f'{len(selection.poses)} postures selected (scaled condition number '
+                f'{selection.condition_number:.4g})'
+            )
+            poses = selection.poses
+        session.begin(settings, poses, os.getpid(), part)
+        if session.resumed:
+            log.info(
+                f'resuming: {len(session.samples)} rows kept, '
+                f'{len(session.remaining)} postures to go'
+            )
+            if len(session.samples):
+                collection.continue_after(session.samples.readings[-1])
+
+    async def _wait_for_system(self, settings, collection):
+        """Wait until platform_sim listens to commands and every sensor topic has spoken."""
+        checks = system_checks(
+            self,
+            self._command_pub,
+            collection.heard,
+            protocol.SENSOR_TOPICS,
+            settings.topic_timeout,
+        )
+        failure = await first_timeout(self._wait_for, settings.topic_timeout, checks)
+        if failure:
+            raise RunFailed(failure)
+        if self._failure is not None:
+            raise RunFailed(self._failure.message)
+
+    async def _collect(self, settings):
+        """Command every posture left (each from the end of the previous one, see
+        :meth:`_end_posture`) and report each as it ends; RunFailed on a failure."""
+        with self._lock:
+            events = self._command_next()
+        self._handle(events)
+        while True:
+            with self._lock:
+                if (
+                    self._session.commanded_all
+                    and self._protocol.posture is None
+                    and not self._finals
+                ):
+                    return
+            event = await self._next_final()
+            if isinstance(event, RUN_FAILURES):
+                raise RunFailed(event.message)
+            self._report_posture(settings, event)
+            self._session.save()
+
+    def _report_posture(self, settings, event):
+        """Log and publish the end of a posture (its row, or its skip)."""
+        log, k, count = self.get_logger(), event.posture, self._posture_count
+        if isinstance(event, protocol.PostureSkipped):
+            log.warning(f'posture {k}/{count} skipped: {event.reason}')
+            self._progress(
+                k,
+                names.PHASE_MOVING,
+                f'posture {k} of {count} skipped: {event.reason}',
+                level=DiagnosticStatus.WARN,
+                skipped=k,
+            )
+            return
+        row = event.sample
+        if event.dropped:
+            log.warning(
+                f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
+                'inconsistent with the rest (glitch, or a stream still reporting the '
+                'previous posture)'
+            )
+        residuals = calibration.posture_residuals(
+            settings.nominal, event.pose, row.leg_lengths, row.readings
+        )
+        message = f'posture {k} of {count}: {row.n_samples} samples averaged'
+        self._progress(k, names.PHASE_COLLECTING, message, residuals)
+        log.info(f'posture {k}/{count}: {row.n_samples} samples averaged')
+
+    async def _identify(self, settings, session, collection, started):
+        """Identify over every row, write the results, publish and apply; ``(success, text)``."""
+        log, count = self.get_logger(), settings.posture_count
+        self._save_state(run_state.PHASE_IDENTIFYING)
         self._progress(
             count,
             names.PHASE_IDENTIFYING,
-            f'identifying {settings.free_count} parameters from {len(samples)} postures',
+            f'identifying {settings.free_count} parameters from {len(session.samples)} postures',
         )
         finished = await self._await_thread(
             run_in_thread(
                 calibration.finish_run,
-                run,
+                session.run,
                 settings,
-                samples,
+                session.samples,
                 collection.summary(),
                 recording.settings_options(settings),
-                np.array(spreads).reshape(-1, 10),
+                session.spread_table(),
             )
         )
         if finished.report_error:
@@ -528,63 +572,9 @@ class CalibratorNode(Node):
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'
         (log.info if success else log.error)(summary)
         phase = names.PHASE_DONE if success else names.PHASE_FAILED
-        self._progress(count, phase, summary.splitlines()[0], residuals, run_directory=run.path)
+        run_path = session.run.path
+        self._progress(count, phase, summary.splitlines()[0], residuals, run_directory=run_path)
         return success, calibration.format_response(summary, geometry)
-
-    async def _wait_for_system(self, settings, collection):
-        """Wait until platform_sim listens to commands and every sensor topic has spoken."""
-        checks = _system_checks(self, collection, settings.topic_timeout)
-        failure = await first_timeout(self._wait_for, settings.topic_timeout, checks)
-        if failure:
-            raise RunFailed(failure)
-        if self._source_failure is not None:
-            raise RunFailed(self._source_failure.message)
-
-    async def _collect_posture(self, settings, k, count, pose):
-        """Command posture k and await the protocol's verdict: its row, or None if skipped."""
-        stamp = self.get_clock().now()
-        command_id = conversions.command_id_from_stamp(stamp)
-        future = self._new_future()
-        with self._lock:
-            if self._source_failure is not None:
-                raise RunFailed(self._source_failure.message)
-            self._posture_future = future
-            events = self._protocol.command(k, pose, command_id, stamp.nanoseconds)
-        self._command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
-        self._progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
-        self._handle(events)
-        event = await future
-        log = self.get_logger()
-        if isinstance(event, (protocol.TopicSilent, protocol.NoSynchronisedSample, SecondSource)):
-            raise RunFailed(event.message)
-        if isinstance(event, protocol.PostureSkipped):
-            log.warning(f'posture {k}/{count} skipped: {event.reason}')
-            self._progress(
-                k,
-                names.PHASE_MOVING,
-                f'posture {k} of {count} skipped: {event.reason}',
-                level=DiagnosticStatus.WARN,
-                skipped=k,
-            )
-            return None
-        row = event.sample
-        if event.dropped:
-            log.warning(
-                f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
-                'inconsistent with the rest (glitch, or a stream still reporting the '
-                'previous posture)'
-            )
-        residuals = calibration.posture_residuals(
-            settings.nominal, pose, row.leg_lengths, row.readings
-        )
-        self._progress(
-            k,
-            names.PHASE_COLLECTING,
-            f'posture {k} of {count}: {row.n_samples} samples averaged',
-            residuals,
-        )
-        log.info(f'posture {k}/{count}: {row.n_samples} samples averaged')
-        return row
 
     async def _apply_to_platform(self, settings, geometry):
         """Set the controller's ``geometry.*`` atomically; ``(applied, human message)``."""

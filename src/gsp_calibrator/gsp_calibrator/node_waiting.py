@@ -28,7 +28,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-from gsp_msgs_py import qos
+from gsp_msgs_py import names, qos
 
 WAIT_OK = 'ok'
 WAIT_TIMEOUT = 'timeout'
@@ -149,6 +149,28 @@ async def set_parameters_atomically(client, service, values, timeout_s, wait_for
     return True, ''
 
 
+def system_checks(node, command_publisher, heard, sensor_topics, timeout):
+    """``[(predicate, failure message)]`` a run awaits (:func:`first_timeout`) before its first
+    posture: a subscriber to the pose commands, a status publisher, and a message on each of
+    ``sensor_topics`` (``heard(topic)``); ``timeout`` (s) is for the messages."""
+    checks = [
+        (
+            lambda: command_publisher.get_subscription_count() > 0,
+            f'no subscriber on {names.TOPIC_POSE_COMMAND} within {timeout:g} s '
+            '(is platform_sim running?)',
+        ),
+        (
+            lambda: node.count_publishers(names.TOPIC_PLATFORM_STATUS) > 0,
+            f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no publisher within {timeout:g} s '
+            '(is platform_sim running?)',
+        ),
+    ]
+    for topic in sensor_topics:
+        message = f'topic {topic} is silent: no message within {timeout:g} s'
+        checks.append((lambda t=topic: heard(t), message))
+    return checks
+
+
 async def first_timeout(wait_for, timeout_s, checks):
     """Await each ``(predicate, message)`` of ``checks`` in turn (``wait_for``, see
     :func:`set_parameters_atomically`); the message of the first that times out, else ''."""
@@ -222,12 +244,13 @@ class SensorListener:
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
     :data:`SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
     kept until :meth:`close`. ``setup``: None or a function of the node called before the thread
-    starts (its result is :attr:`extra`), to create further entities on the node. :meth:`close`
-    stops the thread and destroys the node.
+    starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
+    None, or a function given any exception a callback raises (e.g. a recording's full disk);
+    the thread then goes on. :meth:`close` stops the thread and destroys the node.
     """
 
     @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None):
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None):
         """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
         ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
         return cls(
@@ -236,9 +259,11 @@ class SensorListener:
             node.context,
             {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
             setup=setup,
+            on_error=on_error,
         )
 
-    def __init__(self, name, namespace, context, callbacks, setup=None):
+    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None):
+        self.on_error = on_error
         self.node = Node(
             name,
             namespace=namespace,
@@ -257,15 +282,20 @@ class SensorListener:
         self._thread.start()
 
     def _spin(self):
-        try:
-            self.executor.spin()
-        except (ExternalShutdownException, ShutdownException):
-            pass
-        except Exception:
-            # A signal shuts the context down from another thread; this thread's wait can then
-            # fail (RCLError from rcl_wait) instead of raising ExternalShutdownException.
-            if self.node.context.ok():
-                raise
+        while True:
+            try:
+                self.executor.spin()
+                return
+            except (ExternalShutdownException, ShutdownException):
+                return
+            except Exception as error:
+                # A signal shuts the context down from another thread; this thread's wait can
+                # then fail (RCLError from rcl_wait) instead of raising ExternalShutdownException.
+                if not self.node.context.ok():
+                    return
+                if self.on_error is None:
+                    raise
+                self.on_error(error)  # a callback failed: report it and keep listening
 
     @property
     def subscribed(self):
