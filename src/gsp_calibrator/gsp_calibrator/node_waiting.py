@@ -16,6 +16,7 @@ subscription while that thread builds its wait set can raise ``InvalidHandle``
 (ros2/rclpy#1206).
 """
 
+import collections
 import concurrent.futures
 import dataclasses
 import threading
@@ -28,7 +29,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-from gsp_msgs_py import names, qos
+from gsp_msgs_py import qos
 
 WAIT_OK = 'ok'
 WAIT_TIMEOUT = 'timeout'
@@ -149,28 +150,6 @@ async def set_parameters_atomically(client, service, values, timeout_s, wait_for
     return True, ''
 
 
-def system_checks(node, command_publisher, heard, sensor_topics, timeout):
-    """``[(predicate, failure message)]`` a run awaits (:func:`first_timeout`) before its first
-    posture: a subscriber to the pose commands, a status publisher, and a message on each of
-    ``sensor_topics`` (``heard(topic)``); ``timeout`` (s) is for the messages."""
-    checks = [
-        (
-            lambda: command_publisher.get_subscription_count() > 0,
-            f'no subscriber on {names.TOPIC_POSE_COMMAND} within {timeout:g} s '
-            '(is platform_sim running?)',
-        ),
-        (
-            lambda: node.count_publishers(names.TOPIC_PLATFORM_STATUS) > 0,
-            f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no publisher within {timeout:g} s '
-            '(is platform_sim running?)',
-        ),
-    ]
-    for topic in sensor_topics:
-        message = f'topic {topic} is silent: no message within {timeout:g} s'
-        checks.append((lambda t=topic: heard(t), message))
-    return checks
-
-
 async def first_timeout(wait_for, timeout_s, checks):
     """Await each ``(predicate, message)`` of ``checks`` in turn (``wait_for``, see
     :func:`set_parameters_atomically`); the message of the first that times out, else ''."""
@@ -178,6 +157,44 @@ async def first_timeout(wait_for, timeout_s, checks):
         if await wait_for(predicate, timeout_s) != WAIT_OK:
             return message
     return ''
+
+
+class EventQueue:
+    """Events put by callbacks (any thread) and taken, in order, by a coroutine (thread-safe).
+
+    ``new_future()``: an rclpy Future that wakes the coroutine's executor (:func:`new_future`).
+    """
+
+    def __init__(self, new_future):
+        self._new_future = new_future
+        self._events = collections.deque()
+        self._future = None
+        self._lock = threading.Lock()
+
+    def put(self, event):
+        with self._lock:
+            self._events.append(event)
+            future, self._future = self._future, None
+        if future is not None and not future.done():
+            future.set_result(None)
+
+    async def get(self):
+        """The next event (awaited if none is queued)."""
+        with self._lock:
+            future = None
+            if not self._events:
+                future = self._future = self._new_future()
+        if future is not None:
+            await future
+        with self._lock:
+            return self._events.popleft()
+
+    def clear(self):
+        with self._lock:
+            self._events.clear()
+
+    def __len__(self):
+        return len(self._events)
 
 
 @dataclasses.dataclass

@@ -171,7 +171,7 @@ class SamplesAppender:
 
     def __init__(self, path):
         self.path = Path(path)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+        self._fd = os.open(self.path, os.O_RDWR | os.O_APPEND)
         self._size = os.fstat(self._fd).st_size
         if self._size and os.pread(self._fd, 1, self._size - 1) != b'\n':
             # A row cut by a crash or a full disk (no newline yet): drop it, as if never written.

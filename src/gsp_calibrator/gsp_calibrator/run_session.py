@@ -20,9 +20,11 @@ import threading
 import numpy as np
 
 from gsp_kinematics.fileio import atomic_write_text, to_json
+from gsp_msgs_py import names
 
 from . import recording, run_state
 from .run_directory import SAMPLES_FILE, RunDirectory, RunDirectoryError, Samples, SamplesAppender
+from .sources import other_calibrators
 
 
 class RunRefused(Exception):
@@ -144,6 +146,18 @@ class RunSession:
             self.spreads.append(np.concatenate([row.leg_lengths_std, row.readings_std]))
             self.state.record_done(event.posture)
 
+    def end_posture(self, event):
+        """Keep what ends a posture: a ``RowReady`` (its row) or a ``PostureSkipped``; returns
+        the event, or a :class:`WriteFailed` when the row could not be written."""
+        try:
+            if hasattr(event, 'sample'):
+                self.add_row(event)
+            elif hasattr(event, 'reason') and hasattr(event, 'posture'):
+                self.skip(event)
+        except RunWriteError as error:
+            return WriteFailed(str(error))
+        return event
+
     def skip(self, event):
         """Note a ``protocol.PostureSkipped``."""
         with self._lock:
@@ -176,6 +190,29 @@ class RunSession:
         if self._appender is not None:
             self._appender.close()
             self._appender = None
+
+
+def open_session(settings, resume, pid, pose_command_publishers=(), node=('calibrator', '/')):
+    """The :class:`RunSession` of a run (``resume``: the rest of an unfinished one).
+
+    :class:`RunRefused` when it must not start: another calibrator among
+    ``pose_command_publishers`` (``TopicEndpointInfo``; ``node``: this one's name and namespace),
+    a refused resume, or an unwritable or full ``output_root`` (nothing has moved yet).
+    """
+    others = other_calibrators(pose_command_publishers, *node)
+    if others:
+        raise RunRefused(
+            f'another calibrator publishes on {names.TOPIC_POSE_COMMAND} ({", ".join(others)})'
+            ': two calibrators must not drive one platform; run refused'
+        )
+    try:
+        return (
+            RunSession.resume(settings, pid) if resume else RunSession.create(settings.output_root)
+        )
+    except OSError as error:
+        raise RunRefused(
+            f'cannot write the run directory under {settings.output_root}: {error}'
+        ) from None
 
 
 def _without_last(samples):
