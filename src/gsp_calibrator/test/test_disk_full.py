@@ -74,6 +74,15 @@ def test_a_state_json_that_cannot_be_written_keeps_the_previous_one(tmp_path, mo
     assert run_state.read_state(session.run.path).phase == run_state.PHASE_COLLECTING
 
 
+def _run_failed_on(suite, tmp_path, name):
+    """Calibrate; the run fails naming ``name`` in its directory and the full disk. Its path."""
+    response = suite.wait(suite.call())
+    assert not response.success
+    (run,) = list((tmp_path / 'runs').iterdir())
+    assert f'cannot write {run / name}: {NO_SPACE}' in response.message, response.message
+    return run
+
+
 @pytest.fixture
 def truth_file(tmp_path):
     perturbed_truth(tmp_path / 'true.yaml')
@@ -96,10 +105,7 @@ def test_a_full_disk_mid_run_ends_it_keeps_the_rows_and_resume_continues(
     monkeypatch.setattr(SamplesAppender, '_write', write)
     suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
     try:
-        response = suite.wait(suite.call())
-        assert not response.success
-        (run,) = list((tmp_path / 'runs').iterdir())
-        assert f'cannot write {run / "samples.csv"}: {NO_SPACE}' in response.message
+        run = _run_failed_on(suite, tmp_path, 'samples.csv')
         kept = read_samples(run / 'samples.csv')
         assert len(kept) == 3  # every complete row, no half row
         state = run_state.read_state(run)
@@ -135,10 +141,7 @@ def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
     monkeypatch.setattr(mcap_io.McapRecorder, '_flush_if_crash_safe', flush)
     suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
     try:
-        response = suite.wait(suite.call())
-        assert not response.success
-        (run,) = list((tmp_path / 'runs').iterdir())
-        assert f'cannot write {run / "recording.mcap.tmp"}: {NO_SPACE}' in response.message
+        run = _run_failed_on(suite, tmp_path, 'recording.mcap.tmp')
         assert run_state.read_state(run).phase == run_state.PHASE_FAILED
         suite.wait_until(lambda: (run / 'recording.mcap').exists())
         messages = list(recording.read_recording(run / 'recording.mcap'))
