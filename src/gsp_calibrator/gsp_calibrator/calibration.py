@@ -369,6 +369,45 @@ def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
     return residuals
 
 
+@dataclasses.dataclass(frozen=True)
+class PostureReport:
+    """How the calibrator reports the end of a posture: log lines and one progress message."""
+
+    log: tuple  #: ``(('info' | 'warning', text), ...)``
+    phase: str  #: progress phase
+    message: str  #: progress message
+    residuals: dict = None  #: :func:`posture_residuals` of a row
+    warning: bool = False  #: progress level WARN
+    skipped: int = None  #: the posture, when skipped
+
+
+def posture_report(event, count, nominal):
+    """The :class:`PostureReport` of a protocol ``RowReady`` or ``PostureSkipped`` ``event`` of a
+    run of ``count`` postures under the ``nominal`` geometry."""
+    from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
+
+    k = event.posture
+    if not hasattr(event, 'sample'):  # skipped
+        text = f'posture {k} of {count} skipped: {event.reason}'
+        log = (('warning', f'posture {k}/{count} skipped: {event.reason}'),)
+        return PostureReport(log, PHASE_MOVING, text, warning=True, skipped=k)
+    row = event.sample
+    log = ()
+    if event.dropped:
+        log = (
+            (
+                'warning',
+                f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
+                'inconsistent with the rest (glitch, or a stream still reporting the '
+                'previous posture)',
+            ),
+        )
+    log += (('info', f'posture {k}/{count}: {row.n_samples} samples averaged'),)
+    residuals = posture_residuals(nominal, event.pose, row.leg_lengths, row.readings)
+    text = f'posture {k} of {count}: {row.n_samples} samples averaged'
+    return PostureReport(log, PHASE_COLLECTING, text, residuals)
+
+
 # --- reports -------------------------------------------------------------------------------------
 
 

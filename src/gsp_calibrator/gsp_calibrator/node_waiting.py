@@ -16,6 +16,7 @@ subscription while that thread builds its wait set can raise ``InvalidHandle``
 (ros2/rclpy#1206).
 """
 
+import collections
 import concurrent.futures
 import dataclasses
 import threading
@@ -158,6 +159,44 @@ async def first_timeout(wait_for, timeout_s, checks):
     return ''
 
 
+class EventQueue:
+    """Events put by callbacks (any thread) and taken, in order, by a coroutine (thread-safe).
+
+    ``new_future()``: an rclpy Future that wakes the coroutine's executor (:func:`new_future`).
+    """
+
+    def __init__(self, new_future):
+        self._new_future = new_future
+        self._events = collections.deque()
+        self._future = None
+        self._lock = threading.Lock()
+
+    def put(self, event):
+        with self._lock:
+            self._events.append(event)
+            future, self._future = self._future, None
+        if future is not None and not future.done():
+            future.set_result(None)
+
+    async def get(self):
+        """The next event (awaited if none is queued)."""
+        with self._lock:
+            future = None
+            if not self._events:
+                future = self._future = self._new_future()
+        if future is not None:
+            await future
+        with self._lock:
+            return self._events.popleft()
+
+    def clear(self):
+        with self._lock:
+            self._events.clear()
+
+    def __len__(self):
+        return len(self._events)
+
+
 @dataclasses.dataclass
 class _Wait:
     predicate: object  # () -> bool
@@ -222,12 +261,13 @@ class SensorListener:
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
     :data:`SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
     kept until :meth:`close`. ``setup``: None or a function of the node called before the thread
-    starts (its result is :attr:`extra`), to create further entities on the node. :meth:`close`
-    stops the thread and destroys the node.
+    starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
+    None, or a function given any exception a callback raises (e.g. a recording's full disk);
+    the thread then goes on. :meth:`close` stops the thread and destroys the node.
     """
 
     @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None):
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None):
         """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
         ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
         return cls(
@@ -236,9 +276,11 @@ class SensorListener:
             node.context,
             {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
             setup=setup,
+            on_error=on_error,
         )
 
-    def __init__(self, name, namespace, context, callbacks, setup=None):
+    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None):
+        self.on_error = on_error
         self.node = Node(
             name,
             namespace=namespace,
@@ -257,15 +299,20 @@ class SensorListener:
         self._thread.start()
 
     def _spin(self):
-        try:
-            self.executor.spin()
-        except (ExternalShutdownException, ShutdownException):
-            pass
-        except Exception:
-            # A signal shuts the context down from another thread; this thread's wait can then
-            # fail (RCLError from rcl_wait) instead of raising ExternalShutdownException.
-            if self.node.context.ok():
-                raise
+        while True:
+            try:
+                self.executor.spin()
+                return
+            except (ExternalShutdownException, ShutdownException):
+                return
+            except Exception as error:
+                # A signal shuts the context down from another thread; this thread's wait can
+                # then fail (RCLError from rcl_wait) instead of raising ExternalShutdownException.
+                if not self.node.context.ok():
+                    return
+                if self.on_error is None:
+                    raise
+                self.on_error(error)  # a callback failed: report it and keep listening
 
     @property
     def subscribed(self):

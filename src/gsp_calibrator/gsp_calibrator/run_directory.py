@@ -93,12 +93,14 @@ class Samples:
         return self.commanded_poses, self.leg_lengths, self.readings, self.n_samples, self.stamps
 
 
-def samples_to_csv(samples):
-    """CSV text of ``samples`` (full float precision, ``repr``)."""
+def samples_to_csv(samples, header=True, rows=None):
+    """CSV text of ``samples`` (full float precision, ``repr``): the header (``header``) and the
+    rows ``rows`` (a range of row indices; default all)."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator='\n')
-    writer.writerow(SAMPLES_COLUMNS)
-    for m in range(len(samples)):
+    if header:
+        writer.writerow(SAMPLES_COLUMNS)
+    for m in range(len(samples)) if rows is None else rows:
         writer.writerow(
             [str(int(samples.posture[m]))]
             + [repr(float(v)) for v in samples.commanded_poses[m]]
@@ -156,6 +158,50 @@ def samples_from_csv(text, source='<string>'):
 def write_samples(path, samples):
     """Write ``samples.csv`` atomically."""
     return atomic_write_text(path, samples_to_csv(samples))
+
+
+class SamplesAppender:
+    """Appends rows to an existing ``samples.csv`` as they are collected (one per posture).
+
+    Each row is one ``write`` to a file opened for appending, so it reaches the operating system
+    at once (it survives a killed process, not a power cut) without rewriting the file. A row is
+    either complete or absent: when a write fails (a full disk) the file is cut back to its
+    previous length and the error (an ``OSError`` naming the file) is raised.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self._fd = os.open(self.path, os.O_RDWR | os.O_APPEND)
+        self._size = os.fstat(self._fd).st_size
+        if self._size and os.pread(self._fd, 1, self._size - 1) != b'\n':
+            # A row cut by a crash or a full disk (no newline yet): drop it, as if never written.
+            text = os.pread(self._fd, self._size, 0)
+            self._size = text.rfind(b'\n') + 1
+            os.ftruncate(self._fd, self._size)
+
+    def append(self, samples, row=-1):
+        """Append row ``row`` of ``samples`` (default the last)."""
+        row = range(len(samples))[row]
+        data = samples_to_csv(samples, header=False, rows=(row,)).encode('utf-8')
+        try:
+            written = 0
+            while written < len(data):
+                written += self._write(data[written:])
+        except OSError as error:
+            try:
+                os.ftruncate(self._fd, self._size)  # no half row
+            except OSError:
+                pass
+            raise OSError(error.errno, error.strerror or str(error), str(self.path)) from None
+        self._size += len(data)
+
+    def _write(self, data):
+        return os.write(self._fd, data)
+
+    def close(self):
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
 
 def read_samples(path):

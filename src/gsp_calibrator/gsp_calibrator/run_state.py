@@ -167,9 +167,11 @@ def latest_unfinished_run(output_root, own_pid=None):
     raise ResumeRefused(f'no unfinished run to resume under {root.resolve()}')
 
 
-def check_resume(state, settings, samples):
+def check_resume(state, settings, samples, own_pid=None):
     """Refuse (:class:`ResumeRefused`) a resume of ``state`` with ``settings`` and the run's
-    ``samples`` (``Samples`` of its samples.csv) when they do not belong together."""
+    ``samples`` (``Samples`` of its samples.csv) when they do not belong together. ``own_pid``:
+    the resuming calibrator's process (a run it left unfinished, e.g. on a full disk whose
+    state.json kept ``collecting``, is resumable)."""
     current = selection_options(settings)
     stored = state.selection
     if stored.get('device_digest') != current['device_digest']:
@@ -188,7 +190,7 @@ def check_resume(state, settings, samples):
                 f'option {name} changed since the run started ({stored.get(name)} -> '
                 f'{current[name]}): it would change the selection; resume refused'
             )
-    if not resumable(state):
+    if not resumable(state, own_pid):
         if state.phase == PHASE_DONE:
             raise ResumeRefused('the run is finished (phase done): nothing to resume')
         raise ResumeRefused(

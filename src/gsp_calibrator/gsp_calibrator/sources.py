@@ -7,7 +7,27 @@ means two sources interleave (a second device driver, a simulator left running, 
 calibrator then ends the run naming the topic instead of averaging or pairing readings of
 different sources. A number that falls back while there is one publisher is a restarted
 publisher, which is accepted. See docs/faults.md.
+
+A second calibrator is the same fault one level up: :func:`other_calibrators` names the other
+nodes called ``calibrator`` that publish pose commands, and a run is refused while there is one.
 """
+
+from gsp_msgs_py import names
+
+from .protocol import read_sensor
+
+
+def other_calibrators(publishers, own_name, own_namespace):
+    """``['/ns/calibrator', ...]``: the calibrators among ``publishers`` (the
+    ``TopicEndpointInfo`` of the pose-command publishers) other than ``own_namespace/own_name``."""
+    return sorted(
+        {
+            f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+            for info in publishers
+            if info.node_name == names.NODE_CALIBRATOR
+            and (info.node_name, info.node_namespace) != (own_name, own_namespace)
+        }
+    )
 
 
 class SecondSource:
@@ -45,3 +65,12 @@ class SingleSourceGuard:
             return None
         count = publisher_count()
         return SecondSource(topic, count) if count > 1 else None
+
+    def check_reading(self, topic, msg, sequence, publisher_count):
+        """:meth:`check` for a sensor message ``msg``; None for an unusable one (the collection
+        protocol drops it anyway)."""
+        try:
+            read_sensor(topic, msg)
+        except (ValueError, TypeError):
+            return None
+        return self.check(topic, sequence, publisher_count)
