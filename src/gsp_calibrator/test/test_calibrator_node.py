@@ -30,6 +30,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.node_tools import ConfigurationError
+from gsp_msgs_py.testing import SpinThread
 
 RATE_HZ = 100.0
 CALL_TIMEOUT_S = 120.0
@@ -91,8 +92,7 @@ class Suite:
         self.executor = MultiThreadedExecutor(num_threads=4, context=context)
         for node in self.nodes + [self.client_node]:
             self.executor.add_node(node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        self.spinning = SpinThread(self.executor)
         assert self.client.wait_for_service(timeout_sec=30.0)
 
     def call(self):
@@ -121,11 +121,11 @@ class Suite:
         self.executor.remove_node(node)
 
     def close(self):
+        self.spinning.stop()
         # Remove the nodes first: the executor then has no new work when it shuts down.
         for node in self.executor.get_nodes():
             self.executor.remove_node(node)
         self.executor.shutdown(timeout_sec=5.0)  # waits for the callbacks in progress
-        self.thread.join(timeout=5.0)
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
 

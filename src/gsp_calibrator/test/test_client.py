@@ -1,7 +1,6 @@
 """gsp_calibrate_client against a fake calibrator (Trigger service + progress) in one context."""
 
 import io
-import threading
 
 import pytest
 
@@ -9,7 +8,7 @@ from gsp_calibrator import calibration, client
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
-from gsp_msgs_py.testing import wait_until
+from gsp_msgs_py.testing import SpinThread, wait_until
 
 RUN_DIRECTORY = '/tmp/runs/20260101T000000Z'
 WAIT_S = 30.0  # bounds a failure only
@@ -39,7 +38,6 @@ class FakeCalibrator:
         self.node.create_service(Trigger, service, self._calibrate)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
 
     def _calibrate(self, request, response):
         self.calls += 1
@@ -76,12 +74,12 @@ class FakeCalibrator:
         return response
 
     def __enter__(self):
-        self.thread.start()
+        self.spinning = SpinThread(self.executor)
         return self
 
     def __exit__(self, *exc_info):
+        self.spinning.stop()
         self.executor.shutdown()
-        self.thread.join(timeout=5.0)
         self.node.destroy_node()
 
 

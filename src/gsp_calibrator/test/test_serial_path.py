@@ -2,8 +2,6 @@
 (serial backend) -> calibrator, in one process. A silence of the device (until the run ends) is
 reported as a silent topic; an unplug and replug mid-stream resumes publishing without a restart."""
 
-import threading
-
 import numpy as np
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
@@ -74,8 +72,7 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
     executor = MultiThreadedExecutor(num_threads=4, context=ros_context)
     for node in nodes:
         executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+    spinning = testing.SpinThread(executor)
     try:
         assert client.wait_for_service(timeout_sec=30.0)
         future = client.call_async(Trigger.Request())
@@ -101,9 +98,9 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
         assert wait_until(lambda: backend.counters['connects'] >= 2 and len(lvdt) > heard + 20)
         assert np.isfinite(lvdt[-1].position[0])
     finally:
+        spinning.stop()
         for node in executor.get_nodes():
             executor.remove_node(node)
         executor.shutdown(timeout_sec=5.0)
-        thread.join(timeout=5.0)
         for node in nodes:
             node.destroy_node()
