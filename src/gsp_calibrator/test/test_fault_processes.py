@@ -280,12 +280,15 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
     client.wait_for_services()
     # Just after a restart a request (or its response) can be lost to discovery: the resume
     # is judged by state.json, and sent again only if no session started on it.
+    # A request sent again while the first one's session is starting (slowly, on a loaded
+    # machine) is answered 'calibration already running': harmless, and accepted below.
     sessions = state_of(run)['sessions']
+    pendings = []
     for _ in range(3):
-        pending = client.call_async(names.SERVICE_RESUME)
+        pendings.append(client.call_async(names.SERVICE_RESUME))
         started = threading.Event()
-        for _ in range(200):  # up to 10 s for the session to start
-            if pending.done() or state_of(run)['sessions'] > sessions:
+        for _ in range(200):  # up to 10 s for the session to start, then ask again
+            if any(p.done() for p in pendings) or state_of(run)['sessions'] > sessions:
                 started.set()
                 break
             started.wait(0.05)
@@ -298,7 +301,9 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
         ),
         what='the resumed run',
     )
-    if pending.done():
-        assert pending.result().success, pending.result().message
+    for pending in pendings:
+        if pending.done():
+            message = pending.result().message
+            assert pending.result().success or message == 'calibration already running', message
     assert state_of(run)['phase'] == run_state.PHASE_DONE, state_of(run)['stop_reason']
     assert all_accounted_for(run)
