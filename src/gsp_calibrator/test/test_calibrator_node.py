@@ -72,15 +72,13 @@ def perturbed_truth(path):
 
 
 class Suite:
-    """The calibrator and a test client in one MultiThreadedExecutor (background thread); each
-    peer (simulator, driver) spun alone, as in a process of its own (``SpinThread.alone``)."""
+    """Nodes spinning in one MultiThreadedExecutor (background thread) plus a test client."""
 
-    def __init__(self, context, nodes, peers=()):
+    def __init__(self, context, nodes):
         import rclpy
 
         self.context = context
-        self.nodes = list(nodes) + list(peers)
-        self.peers = {node: SpinThread.alone(node) for node in peers}
+        self.nodes = list(nodes)
         self.client_node = rclpy.create_node('calibrator_test_client', context=context)
         self.progress = []
         self.results = []
@@ -92,7 +90,7 @@ class Suite:
         )
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
         self.executor = MultiThreadedExecutor(num_threads=4, context=context)
-        for node in [n for n in self.nodes if n not in self.peers] + [self.client_node]:
+        for node in self.nodes + [self.client_node]:
             self.executor.add_node(node)
         self.spinning = SpinThread(self.executor)
         assert self.client.wait_for_service(timeout_sec=30.0)
@@ -118,13 +116,11 @@ class Suite:
     def phase_seen(self, phase):
         return any(p.phase == phase for p in list(self.progress))
 
-    def stop_spinning(self, peer):
-        """The peer's callbacks stop (its timers no longer publish); destroyed in close()."""
-        self.peers[peer].stop()
+    def stop_spinning(self, node):
+        """The node's callbacks stop (its timers no longer publish); destroyed in close()."""
+        self.executor.remove_node(node)
 
     def close(self):
-        for spinning in self.peers.values():
-            spinning.close()
         self.spinning.stop()
         # Remove the nodes first: the executor then has no new work when it shuts down.
         for node in self.executor.get_nodes():
@@ -153,7 +149,7 @@ def make_suite(context, tmp_path, truth_file, calibrator_overrides=(), platform_
         context=context,
         parameter_overrides=calibrator_parameters(tmp_path / 'runs', **dict(calibrator_overrides)),
     )
-    return Suite(context, [calibrator], [platform, device]), calibrator, platform, device
+    return Suite(context, [calibrator, platform, device]), calibrator, platform, device
 
 
 def test_calibration_in_process(ros_context, tmp_path):
@@ -418,7 +414,7 @@ def test_a_device_that_does_not_follow_the_platform_is_detected(ros_context, tmp
         context=ros_context,
         parameter_overrides=calibrator_parameters(tmp_path / 'runs', posture_count=2, pool_size=20),
     )
-    suite = Suite(ros_context, [calibrator], [platform, frozen])
+    suite = Suite(ros_context, [calibrator, platform, frozen])
     try:
         response = suite.wait(suite.call())
         assert not response.success and 'no posture was collected' in response.message

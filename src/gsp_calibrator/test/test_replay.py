@@ -435,16 +435,14 @@ CALIBRATION = {
 
 
 class Suite:
-    """The calibrator and a client of its calibrate service in one multi-threaded executor;
-    each peer (simulator, driver, replay) spun alone, as in a process of its own."""
+    """Nodes in one multi-threaded executor, plus a client of the calibrate service."""
 
-    def __init__(self, context, nodes, peers):
-        self.nodes = list(nodes) + list(peers)
-        self.peers = [testing.SpinThread.alone(node) for node in peers]
+    def __init__(self, context, nodes):
+        self.nodes = list(nodes)
         self.client_node = rclpy.create_node('replay_test_client', context=context)
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
         self.executor = MultiThreadedExecutor(num_threads=3, context=context)
-        for node in list(nodes) + [self.client_node]:
+        for node in self.nodes + [self.client_node]:
             self.executor.add_node(node)
 
     def calibrate(self, timeout=120.0):
@@ -460,9 +458,7 @@ class Suite:
         return RunDirectory(parse_response(response.message).run_directory)
 
     def close(self):
-        for spinning in self.peers:
-            spinning.close()
-        for node in self.executor.get_nodes():
+        for node in self.nodes + [self.client_node]:
             self.executor.remove_node(node)
         # rclpy 7.1's Executor.shutdown does not wait for the callbacks still running in the
         # thread pool: let them finish first, so none meets a destroyed node or guard condition.
@@ -489,13 +485,13 @@ def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path)
     fast = [Parameter('settle_time', value=0.02)]
     live = Suite(
         ros_context,
-        [_calibrator(ros_context, tmp_path / 'live')],
         [
             PlatformSimNode(
                 context=ros_context,
                 parameter_overrides=fast + [Parameter('publish_markers', value=False)],
             ),
             DeviceDriverNode(context=ros_context),
+            _calibrator(ros_context, tmp_path / 'live'),
         ],
     )
     try:
@@ -505,12 +501,12 @@ def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path)
 
     replay = Suite(
         ros_context,
-        [_calibrator(ros_context, tmp_path / 'replay')],
         [
             ReplayNode(
                 context=ros_context,
                 parameter_overrides=fast + [Parameter('run', value=str(original.path))],
-            )
+            ),
+            _calibrator(ros_context, tmp_path / 'replay'),
         ],
     )
     try:

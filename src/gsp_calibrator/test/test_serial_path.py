@@ -69,11 +69,8 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
     )
     client = client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
     nodes = [platform, fake, driver, calibrator, client_node]
-    # The calibrator and the client share a multi-threaded executor; each peer is spun alone, as
-    # in a process of its own (see testing.SpinThread.alone).
-    peers = [testing.SpinThread.alone(node) for node in (platform, fake, driver)]
     executor = MultiThreadedExecutor(num_threads=4, context=ros_context)
-    for node in (calibrator, client_node):
+    for node in nodes:
         executor.add_node(node)
     spinning = testing.SpinThread(executor)
     try:
@@ -101,8 +98,6 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
         assert wait_until(lambda: backend.counters['connects'] >= 2 and len(lvdt) > heard + 20)
         assert np.isfinite(lvdt[-1].position[0])
     finally:
-        for peer in peers:
-            peer.close()
         spinning.stop()
         for node in executor.get_nodes():
             executor.remove_node(node)

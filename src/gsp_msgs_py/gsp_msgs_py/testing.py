@@ -37,19 +37,6 @@ class SpinThread:
     condition). :meth:`stop` ends the loop first.
     """
 
-    @classmethod
-    def alone(cls, node):
-        """``node`` in a ``SingleThreadedExecutor`` of its own, as ``rclpy.spin`` runs it in its
-        own process. Peers of the node under test (simulator, driver, replay) run so: in one
-        shared ``MultiThreadedExecutor`` a loaded machine starves a subscription behind a
-        200 Hz timer of the same mutually exclusive group (rclpy yields a node's timers first),
-        e.g. device_driver's true pose, so that it never publishes."""
-        from rclpy.executors import SingleThreadedExecutor
-
-        executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        return cls(executor)
-
     def __init__(self, executor, period_s=0.05):
         import threading
 
@@ -67,13 +54,6 @@ class SpinThread:
         """End the loop and wait for it (``timeout`` s bounds a failure)."""
         self._stop.set()
         self.thread.join(timeout=timeout)
-
-    def close(self):
-        """:meth:`stop`, then shut the executor down (its nodes are left to destroy)."""
-        self.stop()
-        for node in self.executor.get_nodes():
-            self.executor.remove_node(node)
-        self.executor.shutdown(timeout_sec=5.0)
 
 
 def use_loopback_domain():
