@@ -22,7 +22,9 @@ with the current time), so the protocol runs offline.
 
 A gap of half a ``topic_timeout`` or more between two calls means the caller itself did not run
 (an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
-silence is judged over the gap; every timeout counts again from the end of the gap.
+silence is judged over the gap; every timeout counts again from the end of the gap. Likewise a
+sample stamped before the collection start but received after it shows a caller still working
+through a backlog: the pairs' progress timeout counts again from its receipt.
 
 The previous posture's device readings (the collector's "unchanged" check) are the last row's,
 and before the first row the latest complete device instant received before the command. A
@@ -380,6 +382,10 @@ class CollectionProtocol:
         if posture.state != _COLLECTING:
             self._recent.append((adder, stamp_ns, values))
             return self.poll(now_ns)
+        if stamp_ns < posture.start_ns:
+            # Stamped before the start, received now: the caller is still working through a
+            # backlog (its listener fell behind), which is no lack of progress of the pairs.
+            posture.progress_ns = max(posture.progress_ns, int(now_ns))
         adder(self.collector, stamp_ns, *values)
         return self._check_collection(now_ns)
 

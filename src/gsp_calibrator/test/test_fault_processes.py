@@ -20,11 +20,13 @@ from gsp_calibrator import demo, protocol, recording, run_state
 from gsp_calibrator.processes import NodeProcesses
 from gsp_calibrator.run_directory import read_samples
 from gsp_msgs_py import names, qos
+from gsp_msgs_py.testing import SpinThread
 
 POSTURES = 60
 KILL_AT = 30  #: collected postures before the kill
 DEVICE_TOPICS = [names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT]
 TIMEOUT_S = 240.0  #: bounds a failure only (selection + 60 postures on a loaded machine)
+TOPIC_TIMEOUT_S = 10.0  #: the calibrator's (see the suite fixture)
 
 
 def wait_until(predicate, timeout=TIMEOUT_S, what='event'):
@@ -71,8 +73,7 @@ class Client:
             )
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        self.spinning = SpinThread(self.executor)
 
     def _count(self, topic):
         self.heard[topic] = self.heard.get(topic, 0) + 1
@@ -112,18 +113,28 @@ class Client:
         return future.result()
 
     def close(self):
+        self.spinning.stop()
         self.executor.shutdown(timeout_sec=5.0)
-        self.thread.join(timeout=5.0)
         self.node.destroy_node()
 
 
 @pytest.fixture
 def suite(tmp_path, ros_context):
+    # 100 Hz (sync_tolerance 5 ms) and a 10 s topic_timeout: three processes at 200 Hz on a
+    # loaded 2-core machine starved platform_sim to a few leg lengths in 2 s (none within 2.5 ms
+    # of a device stamp), and a 2 s timeout then failed the resumed run ("no synchronised
+    # sample"). The kill tests wait for the timeout once; the rest of the runs must not.
     args = demo.parse_arguments(
         ['--postures', str(POSTURES), '--pool-size', '240', '--samples-per-posture', '5']
+        + ['--sensor-rate', '100']
     )
     commands = demo.node_commands(args, tmp_path / 'runs')
-    commands['calibrator'] += ['-p', 'apply_result:=false', '-p', 'topic_timeout:=2.0']
+    commands['calibrator'] += [
+        '-p',
+        'apply_result:=false',
+        '-p',
+        f'topic_timeout:={TOPIC_TIMEOUT_S}',
+    ]
     env = demo.ros_environment(dict(os.environ))
     processes = NodeProcesses(commands, env, tmp_path)
     processes.start()
@@ -269,12 +280,15 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
     client.wait_for_services()
     # Just after a restart a request (or its response) can be lost to discovery: the resume
     # is judged by state.json, and sent again only if no session started on it.
+    # A request sent again while the first one's session is starting (slowly, on a loaded
+    # machine) is answered 'calibration already running': harmless, and accepted below.
     sessions = state_of(run)['sessions']
+    pendings = []
     for _ in range(3):
-        pending = client.call_async(names.SERVICE_RESUME)
+        pendings.append(client.call_async(names.SERVICE_RESUME))
         started = threading.Event()
-        for _ in range(200):  # up to 10 s for the session to start
-            if pending.done() or state_of(run)['sessions'] > sessions:
+        for _ in range(200):  # up to 10 s for the session to start, then ask again
+            if any(p.done() for p in pendings) or state_of(run)['sessions'] > sessions:
                 started.set()
                 break
             started.wait(0.05)
@@ -287,7 +301,9 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
         ),
         what='the resumed run',
     )
-    if pending.done():
-        assert pending.result().success, pending.result().message
+    for pending in pendings:
+        if pending.done():
+            message = pending.result().message
+            assert pending.result().success or message == 'calibration already running', message
     assert state_of(run)['phase'] == run_state.PHASE_DONE, state_of(run)['stop_reason']
     assert all_accounted_for(run)

@@ -153,6 +153,21 @@ def test_a_stall_of_the_caller_is_not_a_silence():
     assert isinstance(silent, TopicSilent) and silent.doing == 'collecting posture 2'
 
 
+def test_a_backlog_of_the_caller_is_not_a_lack_of_progress():
+    """A listener 1.5 s behind (a starved process) still delivers samples stamped before the
+    start, for longer than topic_timeout: no failure; the samples after them make the row."""
+    collection = make()
+    settle(collection)
+    start = T0 + 10 * MS
+    for j in range(30):  # received over 1.5 s, stamped 1.5 s earlier
+        now = start + 50 * MS * (j + 1)
+        assert instant(collection, now - 1500 * MS, now=now) == []
+    events = []
+    for j in range(3):
+        events += instant(collection, start + 5 * MS * j, now=start + 1550 * MS + MS * j)
+    assert isinstance(events[0], RowReady)
+
+
 def test_of_several_silent_topics_the_one_silent_longest_is_named():
     collection = make()
     settle(collection)

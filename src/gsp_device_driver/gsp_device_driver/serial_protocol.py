@@ -205,6 +205,10 @@ def parse_line(line, angle_unit='rad', length_unit='m'):
     return Reading(seq, t_us, alpha, beta, phi, d_m)
 
 
+#: Least step (s) between two stamps of :class:`DeviceClock` (1 us: distinct in ns stamps).
+MIN_STAMP_STEP_S = 1e-6
+
+
 class DeviceClock:
     """Maps device time to host time: the documented stamping rule of the serial backend.
 
@@ -214,12 +218,17 @@ class DeviceClock:
     offset over the last ``window`` lines, and stamps ``t_d + min_offset - latency`` (s). A jump
     back of the device time (wrap, reboot) or a gap longer than ``max_gap_s`` restarts the
     window. ``latency`` (s) is the remaining fixed delay (sensor filter, USB frame), measured once.
+    Stamps only grow, by at least :data:`MIN_STAMP_STEP_S`: a backlog read at once (a late
+    reader at start-up) would otherwise get one stamp for all its lines, or stamps out of device
+    order when a less-delayed line lowers the offset, and the three readings of different
+    instants would share stamps downstream.
     """
 
     def __init__(self, latency=0.0, window=200, max_gap_s=1.0):
         self.latency = float(latency)
         self.window = int(window)
         self.max_gap_s = float(max_gap_s)
+        self._last_stamp = None  # kept across reset(): host time only grows
         self.reset()
 
     def reset(self):
@@ -238,4 +247,8 @@ class DeviceClock:
         self._offsets.append(receive_s - device_s)
         if len(self._offsets) > self.window:
             del self._offsets[0]
-        return device_s + min(self._offsets) - self.latency
+        stamp = device_s + min(self._offsets) - self.latency
+        if self._last_stamp is not None and stamp < self._last_stamp + MIN_STAMP_STEP_S:
+            stamp = self._last_stamp + MIN_STAMP_STEP_S
+        self._last_stamp = stamp
+        return stamp

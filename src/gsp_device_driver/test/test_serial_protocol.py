@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from gsp_device_driver import serial_protocol as sp
@@ -87,3 +88,13 @@ def test_device_clock_restarts_after_a_reboot_or_a_gap():
     clock.stamp(1_000_000, 50.0)
     assert clock.stamp(10, 60.0) == pytest.approx(60.0)  # device time went back: reboot
     assert clock.stamp(5_000_010, 70.0) == pytest.approx(70.0)  # 5 s gap > max_gap_s
+
+
+def test_device_clock_stamps_a_backlog_in_device_order():
+    # A reader late at start-up takes 4 queued lines (5 ms apart) at once, then the next on time:
+    # each backlog line's own offset is the least so far, which alone would give all four the
+    # receive time, and the on-time line one earlier than theirs.
+    clock = sp.DeviceClock()
+    stamps = [clock.stamp(k * 5000, 10.0) for k in range(4)] + [clock.stamp(20_000, 10.0001)]
+    assert np.all(np.diff(stamps) >= sp.MIN_STAMP_STEP_S - 1e-12)
+    assert stamps[0] == pytest.approx(10.0)

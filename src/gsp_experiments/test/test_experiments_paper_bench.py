@@ -175,6 +175,8 @@ def test_bench_main_runs_extra_sections_unless_skipped(tmp_path, monkeypatch, ca
 def test_scaling_fits_the_exponent_and_skips_what_exceeds_the_budget():
     from gsp_experiments import bench_scale
 
+    # A zero budget skips every size after the first two whatever their times: with a small one,
+    # a load spike in the 16-posture timing (a negative exponent) would let 64000 postures run.
     section = bench_scale.identification_scaling((16, 32, 64000), repeats=1, budget_s=0.0)
     assert section['postures'] == [16, 32] and len(section['ms']) == 2
     assert section['exponent'] == pytest.approx(

@@ -29,6 +29,33 @@ def wait_until(predicate, timeout):
     return True
 
 
+class SpinThread:
+    """Spins ``executor`` in a daemon thread until :meth:`stop` (then shut it down yourself).
+
+    Not ``executor.spin()`` in a thread: shutting an executor down while another thread builds
+    its wait set can fail in that thread (rclpy 7.1: AttributeError on the destroyed guard
+    condition). :meth:`stop` ends the loop first.
+    """
+
+    def __init__(self, executor, period_s=0.05):
+        import threading
+
+        self.executor = executor
+        self._period_s = period_s
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=self._period_s)
+
+    def stop(self, timeout=30.0):
+        """End the loop and wait for it (``timeout`` s bounds a failure)."""
+        self._stop.set()
+        self.thread.join(timeout=timeout)
+
+
 def use_loopback_domain():
     """Keep DDS on loopback, in a random ROS domain unless one is already set."""
     env = loopback_environment()

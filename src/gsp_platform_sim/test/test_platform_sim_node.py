@@ -104,10 +104,15 @@ def test_command_moves_then_settles_and_streams_the_new_posture(harness):
         forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], POSE[None])[0],
         atol=1e-9,
     )
-    # leg_lengths and true_pose come from one timer with one stamp.
-    leg_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths}
-    pose_stamps = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.true_poses}
-    assert len(leg_stamps & pose_stamps) >= 0.8 * min(len(leg_stamps), len(pose_stamps))
+
+    # leg_lengths and true_pose come from one timer with one stamp (best effort: some may be
+    # dropped, so wait for a few stamps received on both; separate clocks would share none).
+    def common_stamps():
+        legs = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths}
+        poses = {conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.true_poses}
+        return legs & poses
+
+    assert harness.spin_until(lambda: len(common_stamps()) >= 5)
 
 
 @pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.0)]], indirect=True)
@@ -154,12 +159,16 @@ def test_bad_commands_are_rejected_with_a_reason_and_the_node_survives(harness):
     assert harness.wait_final(command_id)[-1].settled
 
 
-@pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.3)]], indirect=True)
+@pytest.mark.parametrize('harness', [[Parameter('settle_time', value=60.0)]], indirect=True)
 def test_a_new_command_supersedes_one_still_moving(harness):
+    # The first command cannot settle before the second arrives, however slow the machine; the
+    # settle time applies from the next command, so the second settles at once.
     first = harness.command(POSE)
     assert harness.spin_until(lambda: harness.states(first))
+    assert harness.sim.set_parameters([Parameter('settle_time', value=0.0)])[0].successful
     second = harness.command(POSE + [0.01, 0.0, 0.0, 0.0, 0.0, 0.0])
     assert [s.state for s in harness.wait_final(second)] == ['moving', 'settled']
+    assert harness.spin_until(lambda: len(harness.states(first)) == 2)
     first_states = harness.states(first)
     assert [s.state for s in first_states] == ['moving', 'rejected']
     assert 'superseded' in first_states[1].reason
