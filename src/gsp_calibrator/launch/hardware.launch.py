@@ -11,12 +11,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 
-from gsp_calibrator.launch_arguments import (
-    geometry_file_argument,
-    params_file_argument,
-    screen_node,
-    use_sim_time_argument,
-)
+from gsp_calibrator import launch_arguments
 
 
 def generate_launch_description():
@@ -25,10 +20,10 @@ def generate_launch_description():
     controller = {'controller_name': LaunchConfiguration('controller_name')}
     return LaunchDescription(
         [
-            params_file_argument(
+            launch_arguments.params_file_argument(
                 'gsp_hardware.yaml', 'Parameters of device_driver and platform_bridge'
             ),
-            geometry_file_argument(
+            launch_arguments.geometry_file_argument(
                 "Controller geometry params file of the bridge (the hexapod's model)"
             ),
             DeclareLaunchArgument(
@@ -39,9 +34,9 @@ def generate_launch_description():
                 default_value='joint_trajectory_controller',
                 description='The joint_trajectory_controller of the six legs',
             ),
-            use_sim_time_argument(),
-            screen_node('gsp_device_driver', 'device_driver', [params_file, port]),
-            screen_node(
+            launch_arguments.use_sim_time_argument(),
+            launch_arguments.screen_node('gsp_device_driver', 'device_driver', [params_file, port]),
+            launch_arguments.screen_node(
                 'gsp_platform_bridge',
                 'platform_bridge',
                 [LaunchConfiguration('geometry_file'), params_file, controller],

@@ -7,12 +7,7 @@ ros2 launch gsp_calibrator sim_suite.launch.py [params_file:=...] [geometry_file
 from launch import LaunchDescription
 from launch.substitutions import LaunchConfiguration
 
-from gsp_calibrator.launch_arguments import (
-    geometry_file_argument,
-    params_file_argument,
-    screen_node,
-    use_sim_time_argument,
-)
+from gsp_calibrator import launch_arguments
 
 
 def generate_launch_description():
@@ -21,19 +16,25 @@ def generate_launch_description():
     truth = {'true_geometry_file': LaunchConfiguration('true_geometry_file')}
     return LaunchDescription(
         [
-            params_file_argument(
+            launch_arguments.params_file_argument(
                 'gsp_suite.yaml', 'Parameters of every node (one section per node name)'
             ),
-            geometry_file_argument('Controller geometry params file (nominal or calibrated)'),
-            geometry_file_argument(
+            launch_arguments.geometry_file_argument(
+                'Controller geometry params file (nominal or calibrated)'
+            ),
+            launch_arguments.geometry_file_argument(
                 'Geometry of the simulated real platform and device',
                 name='true_geometry_file',
                 kind='true',
             ),
-            use_sim_time_argument(),
-            screen_node('gsp_platform_sim', 'platform_sim', [geometry_file, params_file, truth]),
-            screen_node('gsp_device_driver', 'device_driver', [params_file, truth]),
-            screen_node(
+            launch_arguments.use_sim_time_argument(),
+            launch_arguments.screen_node(
+                'gsp_platform_sim', 'platform_sim', [geometry_file, params_file, truth]
+            ),
+            launch_arguments.screen_node(
+                'gsp_device_driver', 'device_driver', [params_file, truth]
+            ),
+            launch_arguments.screen_node(
                 'gsp_calibrator',
                 'calibrator',
                 [params_file, {'nominal_geometry_file': geometry_file}],
