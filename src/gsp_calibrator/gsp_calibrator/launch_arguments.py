@@ -42,6 +42,17 @@ def use_sim_time_argument():
     )
 
 
+def standard_arguments(config_file, params_description, geometry_description):
+    """The arguments every launch file of the package declares: ``params_file`` (default:
+    ``config/<config_file>`` of this package), ``geometry_file`` (default: the nominal geometry)
+    and ``use_sim_time``."""
+    return [
+        params_file_argument(config_file, params_description),
+        geometry_file_argument(geometry_description),
+        use_sim_time_argument(),
+    ]
+
+
 def screen_node(package, executable, parameters):
     """The node ``executable`` of ``package``, named after it, logging to the screen.
 

@@ -11,16 +11,17 @@ from gsp_calibrator import launch_arguments
 
 
 def generate_launch_description():
-    geometry = {'nominal_geometry_file': LaunchConfiguration('geometry_file')}
+    calibrator_parameters = [
+        LaunchConfiguration('params_file'),
+        {'nominal_geometry_file': LaunchConfiguration('geometry_file')},
+    ]
     return LaunchDescription(
         [
-            launch_arguments.params_file_argument(
-                'gsp_hardware.yaml', 'Calibrator parameters (its calibrator: section is used)'
+            *launch_arguments.standard_arguments(
+                'gsp_hardware.yaml',
+                'Calibrator parameters (its calibrator: section is used)',
+                'Nominal geometry: the identification start',
             ),
-            launch_arguments.geometry_file_argument('Nominal geometry: the identification start'),
-            launch_arguments.use_sim_time_argument(),
-            launch_arguments.screen_node(
-                'gsp_calibrator', 'calibrator', [LaunchConfiguration('params_file'), geometry]
-            ),
+            launch_arguments.screen_node('gsp_calibrator', 'calibrator', calibrator_parameters),
         ]
     )

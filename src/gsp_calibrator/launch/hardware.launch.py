@@ -16,15 +16,12 @@ from gsp_calibrator import launch_arguments
 
 def generate_launch_description():
     params_file = LaunchConfiguration('params_file')
-    port = {'serial.port': LaunchConfiguration('port')}
-    controller = {'controller_name': LaunchConfiguration('controller_name')}
     return LaunchDescription(
         [
-            launch_arguments.params_file_argument(
-                'gsp_hardware.yaml', 'Parameters of device_driver and platform_bridge'
-            ),
-            launch_arguments.geometry_file_argument(
-                "Controller geometry params file of the bridge (the hexapod's model)"
+            *launch_arguments.standard_arguments(
+                'gsp_hardware.yaml',
+                'Parameters of device_driver and platform_bridge',
+                "Controller geometry params file of the bridge (the hexapod's model)",
             ),
             DeclareLaunchArgument(
                 'port', default_value='/dev/ttyACM0', description='Serial port of the device'
@@ -34,12 +31,19 @@ def generate_launch_description():
                 default_value='joint_trajectory_controller',
                 description='The joint_trajectory_controller of the six legs',
             ),
-            launch_arguments.use_sim_time_argument(),
-            launch_arguments.screen_node('gsp_device_driver', 'device_driver', [params_file, port]),
+            launch_arguments.screen_node(
+                'gsp_device_driver',
+                'device_driver',
+                [params_file, {'serial.port': LaunchConfiguration('port')}],
+            ),
             launch_arguments.screen_node(
                 'gsp_platform_bridge',
                 'platform_bridge',
-                [LaunchConfiguration('geometry_file'), params_file, controller],
+                [
+                    LaunchConfiguration('geometry_file'),
+                    params_file,
+                    {'controller_name': LaunchConfiguration('controller_name')},
+                ],
             ),
         ]
     )

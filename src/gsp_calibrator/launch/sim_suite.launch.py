@@ -14,20 +14,17 @@ def generate_launch_description():
     params_file = LaunchConfiguration('params_file')
     geometry_file = LaunchConfiguration('geometry_file')
     truth = {'true_geometry_file': LaunchConfiguration('true_geometry_file')}
+    true_geometry_argument = launch_arguments.geometry_file_argument(
+        'Geometry of the simulated real platform and device', name='true_geometry_file', kind='true'
+    )
     return LaunchDescription(
         [
-            launch_arguments.params_file_argument(
-                'gsp_suite.yaml', 'Parameters of every node (one section per node name)'
+            *launch_arguments.standard_arguments(
+                'gsp_suite.yaml',
+                'Parameters of every node (one section per node name)',
+                'Controller geometry params file (nominal or calibrated)',
             ),
-            launch_arguments.geometry_file_argument(
-                'Controller geometry params file (nominal or calibrated)'
-            ),
-            launch_arguments.geometry_file_argument(
-                'Geometry of the simulated real platform and device',
-                name='true_geometry_file',
-                kind='true',
-            ),
-            launch_arguments.use_sim_time_argument(),
+            true_geometry_argument,
             launch_arguments.screen_node(
                 'gsp_platform_sim', 'platform_sim', [geometry_file, params_file, truth]
             ),
