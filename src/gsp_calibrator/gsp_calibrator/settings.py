@@ -223,6 +223,44 @@ PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
 
 
+# --- command-line options of a run (gsp_demo, gsp_plan) ------------------------------------------
+
+
+def add_run_options(parser, seed_help='seed of the posture pool'):
+    """Add to ``parser`` the options of a run that mirror the parameters above, with their
+    defaults: ``--postures``, ``--pool-size``, ``--samples-per-posture``, ``--seed``, ``--free``
+    and ``--formulation``. Check the parsed values with :func:`run_options_error`."""
+    add = parser.add_argument
+    for option, name, help_text in (
+        ('--postures', 'posture_count', 'postures commanded'),
+        ('--pool-size', 'pool_size', 'random postures the selection picks from'),
+        ('--samples-per-posture', 'samples_per_posture', 'samples averaged per posture'),
+        ('--seed', 'seed', seed_help),
+    ):
+        add(option, type=int, default=DEFAULTS[name], help=f'{help_text} ({DEFAULTS[name]})')
+    add(
+        '--free',
+        nargs='+',
+        default=list(DEFAULTS['free_parameters']),
+        metavar='NAME',
+        help='free parameters: groups paper or extended, and/or names (default: extended)',
+    )
+    add('--formulation', choices=FORMULATIONS, default=DEFAULTS['formulation'])
+
+
+def run_options_error(args):
+    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid.
+
+    ``args.free`` also takes comma-separated names: it is split in place first.
+    """
+    for name in ('postures', 'pool_size', 'samples_per_posture'):
+        if getattr(args, name) < 1:
+            return f'--{name.replace("_", "-")} must be >= 1'
+    args.free = [n.strip() for value in args.free for n in value.split(',') if n.strip()]
+    reason = check_free_parameters(args.free)
+    return f'--free: {reason}' if reason else ''
+
+
 def check_combination(values):
     """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
     (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
