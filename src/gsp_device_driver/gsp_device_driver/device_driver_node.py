@@ -187,9 +187,7 @@ class DeviceDriverNode(Node):
         return node_tools.device_messages(sample.readings(), stamp, self._frame_id)
 
     def destroy_node(self):
-        backend = getattr(self, '_backend', None)
-        if backend is not None:
-            backend.close()
+        node_tools.close_opened(self, '_backend')
         return super().destroy_node()
 
 

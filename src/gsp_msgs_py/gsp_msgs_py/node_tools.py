@@ -369,6 +369,15 @@ def publish_messages(node, publishers, what, build, *args):
     return True
 
 
+def close_opened(node, *attributes):
+    """Close each of ``node``'s ``attributes`` that is set (from ``destroy_node``: a constructor
+    that failed part-way leaves the later ones unset)."""
+    for attribute in attributes:
+        resource = getattr(node, attribute, None)
+        if resource is not None:
+            resource.close()
+
+
 def spin_until(executor, predicate, timeout):
     """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first.
 
