@@ -17,15 +17,6 @@ def share_path(package, *parts):
     return PathJoinSubstitution([FindPackageShare(package), *parts])
 
 
-def params_file_argument(config_file, description):
-    """``params_file``; default: ``config/<config_file>`` of this package."""
-    return DeclareLaunchArgument(
-        'params_file',
-        default_value=share_path('gsp_calibrator', 'config', config_file),
-        description=description,
-    )
-
-
 def geometry_file_argument(description, name='geometry_file', kind='nominal'):
     """A geometry params file argument; default: gsp_kinematics' ``config/<kind>_geometry.yaml``."""
     return DeclareLaunchArgument(
@@ -35,21 +26,18 @@ def geometry_file_argument(description, name='geometry_file', kind='nominal'):
     )
 
 
-def use_sim_time_argument():
-    """``use_sim_time`` (default false): every node of the file then runs on /clock time."""
-    return DeclareLaunchArgument(
-        'use_sim_time', default_value='false', description='Use /clock time'
-    )
-
-
 def standard_arguments(config_file, params_description, geometry_description):
     """The arguments every launch file of the package declares: ``params_file`` (default:
     ``config/<config_file>`` of this package), ``geometry_file`` (default: the nominal geometry)
     and ``use_sim_time``."""
     return [
-        params_file_argument(config_file, params_description),
+        DeclareLaunchArgument(
+            'params_file',
+            default_value=share_path('gsp_calibrator', 'config', config_file),
+            description=params_description,
+        ),
         geometry_file_argument(geometry_description),
-        use_sim_time_argument(),
+        DeclareLaunchArgument('use_sim_time', default_value='false', description='Use /clock time'),
     ]
 
 
