@@ -32,7 +32,6 @@ NODE_NAME = 'replay'
 REASON_NOT_RECORDED = 'not in the recording'
 #: Periods of silence after a ``settled`` status before the posture's stream restarts.
 RESTART_PERIODS = 2
-WARN_THROTTLE_S = 1.0
 
 PARAMETERS = (
     ParameterSpec(
