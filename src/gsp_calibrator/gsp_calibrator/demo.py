@@ -37,11 +37,10 @@ from gsp_kinematics.validation import pose_errors, summarise
 from gsp_msgs_py.ros_environment import loopback_environment
 
 from . import calibration
-from .calibration import DEFAULT_FREE
 from .processes import NodeProcesses
 from .report import RESULT_JSON
 from .run_directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
-from .settings import check_free_parameters
+from .settings import add_run_options, run_options_error
 
 #: The three nodes: executable (console script) and module (fallback: ``python -m``).
 NODES = {
@@ -328,19 +327,8 @@ def parse_arguments(argv=None):
         default=default_geometry_path('nominal'),
         help='nominal geometry: controller start and identification start',
     )
-    parser.add_argument('--postures', type=int, default=60, help='calibration postures (60)')
-    parser.add_argument('--pool-size', type=int, default=600, help='selection pool (600)')
-    parser.add_argument('--samples-per-posture', type=int, default=10, help='(10)')
+    add_run_options(parser, seed_help='seed of postures and noise')
     parser.add_argument('--validation-postures', type=int, default=50, help='(50)')
-    parser.add_argument('--formulation', default='implicit', choices=('implicit', 'fk', 'paper'))
-    parser.add_argument(
-        '--free',
-        nargs='+',
-        default=list(DEFAULT_FREE),
-        metavar='NAME',
-        help='free parameters: groups paper or extended, and/or names (default: extended)',
-    )
-    parser.add_argument('--seed', type=int, default=0, help='seed of postures and noise (0)')
     add = parser.add_argument
     add('--sensor-rate', type=float, default=200.0, help='leg-length and device rate, Hz (200)')
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
@@ -359,13 +347,11 @@ def parse_arguments(argv=None):
         help="sim: device_driver's sim backend; serial: gsp_fake_device on a pty (sim)",
     )
     args = parser.parse_args(argv)
-    for name in ('postures', 'pool_size', 'samples_per_posture', 'validation_postures'):
-        if getattr(args, name) < 1:
-            parser.error(f'--{name.replace("_", "-")} must be >= 1')
-    args.free = [n.strip() for value in args.free for n in value.split(',') if n.strip()]
-    reason = check_free_parameters(args.free)
+    reason = run_options_error(args)
     if reason:
-        parser.error(f'--free: {reason}')
+        parser.error(reason)
+    if args.validation_postures < 1:
+        parser.error('--validation-postures must be >= 1')
     if not args.sensor_rate > 0 or not args.settle_time >= 0:
         parser.error('--sensor-rate must be > 0 and --settle-time >= 0')
     args.true_geometry = os.path.abspath(args.true_geometry)

@@ -25,7 +25,7 @@ import numpy as np
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
-from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Sigmas, resolve_free
+from gsp_kinematics.identification import IdentificationError, Sigmas, resolve_free
 from gsp_kinematics.kinematics import Workspace
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.selection import posture_information
@@ -38,6 +38,7 @@ from .calibration import (
     selection_formulation,
 )
 from .report import sigmas_record
+from .settings import add_run_options, run_options_error
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
@@ -243,18 +244,7 @@ def parse_arguments(argv=None):
     )
     add = parser.add_argument
     add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
-    add('--postures', type=int, default=60, help='postures commanded (60)')
-    add('--samples-per-posture', type=int, default=10, help='samples averaged per posture (10)')
-    add('--pool-size', type=int, default=600, help='random postures the selection picks from (600)')
-    add('--seed', type=int, default=0, help="the calibrator's seed of the posture pool (0)")
-    add(
-        '--free',
-        nargs='+',
-        default=list(DEFAULT_FREE),
-        metavar='NAME',
-        help='free parameter or group names: paper, extended (default, as the calibrator), A1x, ...',
-    )
-    add('--formulation', choices=FORMULATIONS, default='implicit')
+    add_run_options(parser, seed_help="the calibrator's seed of the posture pool")
     defaults = Sigmas()
     add('--sigma-leg-um', type=float, default=defaults.leg_lengths * 1e6, help='leg sensor, µm')
     add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
@@ -275,6 +265,9 @@ def parse_arguments(argv=None):
     add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
     add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
     args = parser.parse_args(argv)
+    reason = run_options_error(args)
+    if reason:
+        parser.error(reason)
     for name in ('sigma_leg_um', 'sigma_inclinometer_deg', 'sigma_encoder_deg', 'sigma_lvdt_um'):
         if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
             parser.error(f'--{name.replace("_", "-")} must be a finite number > 0')

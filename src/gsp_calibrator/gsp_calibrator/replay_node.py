@@ -32,7 +32,6 @@ NODE_NAME = 'replay'
 REASON_NOT_RECORDED = 'not in the recording'
 #: Periods of silence after a ``settled`` status before the posture's stream restarts.
 RESTART_PERIODS = 2
-WARN_THROTTLE_S = 1.0
 
 PARAMETERS = (
     ParameterSpec(
@@ -132,25 +131,23 @@ class ReplayNode(Node):
         stream = self._stream
         if len(stream) == 0:
             return
-        q, readings, true_pose = stream.sample(self._cursor)
+        sample = stream.sample(self._cursor)
         self._cursor = (self._cursor + 1) % len(stream)
-        stamp = now.to_msg()
-        try:
-            messages = {
-                names.TOPIC_LEG_LENGTHS: conversions.leg_lengths_to_msg(q, stamp, self._frame_id),
-                **node_tools.device_messages(readings, stamp, self._frame_id),
-            }
-            if names.TOPIC_TRUE_POSE in self._pubs and true_pose is not None:
-                messages[names.TOPIC_TRUE_POSE] = conversions.pose_to_pose_stamped(
-                    true_pose, stamp, self._frame_id
-                )
-        except ValueError as error:
-            self.get_logger().warning(
-                f'dropping a recorded sample: {error}', throttle_duration_sec=WARN_THROTTLE_S
+        node_tools.publish_messages(
+            self, self._pubs, 'a recorded sample', self._sample_messages, *sample, now.to_msg()
+        )
+
+    def _sample_messages(self, q, readings, true_pose, stamp):
+        """``{topic: message}`` of one recorded instant; ValueError naming a non-finite value."""
+        messages = {
+            names.TOPIC_LEG_LENGTHS: conversions.leg_lengths_to_msg(q, stamp, self._frame_id),
+            **node_tools.device_messages(readings, stamp, self._frame_id),
+        }
+        if names.TOPIC_TRUE_POSE in self._pubs and true_pose is not None:
+            messages[names.TOPIC_TRUE_POSE] = conversions.pose_to_pose_stamped(
+                true_pose, stamp, self._frame_id
             )
-            return
-        for topic, msg in messages.items():
-            self._pubs[topic].publish(msg)
+        return messages
 
     @property
     def run(self):

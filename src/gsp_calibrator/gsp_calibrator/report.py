@@ -240,27 +240,51 @@ def residuals_by_sensor(result):
 # --- result.json -------------------------------------------------------------------------------
 
 
-def result_data(
-    result,
-    analysis=None,
-    validation_before=None,
-    validation_after=None,
-    truth=None,
-    nominal=None,
-    sigmas=None,
-    extra=None,
-    prediction=None,
-):
+#: The optional inputs of a report, by keyword (absent or None: not known); see :func:`result_data`.
+REPORT_INPUTS = (
+    'analysis',
+    'validation_before',
+    'validation_after',
+    'truth',
+    'nominal',
+    'sigmas',
+    'extra',
+    'prediction',
+)
+#: The scalar fields of an ``IdentificationResult`` that ``result.json`` holds as they are.
+_RESULT_FIELDS = (
+    'formulation',
+    'converged',
+    'status',
+    'message',
+    'iterations',
+    'cost',
+    'duration_s',
+)
+
+
+def _report_inputs(inputs):
+    """Every input of :data:`REPORT_INPUTS` (None where not given); TypeError on another name."""
+    unknown = sorted(set(inputs) - set(REPORT_INPUTS))
+    if unknown:
+        raise TypeError(f'unknown report input(s) {unknown}; expected {list(REPORT_INPUTS)}')
+    return {**dict.fromkeys(REPORT_INPUTS), **inputs}
+
+
+def result_data(result, **inputs):
     """The ``result.json`` content (a JSON-safe dict).
 
-    ``result``: the core's ``IdentificationResult``. ``analysis``: an identifiability analysis
-    (computed with ``gsp_kinematics.identifiability`` when None). ``validation_before`` /
-    ``validation_after``: ``gsp_kinematics.validation.validate`` summaries, or
-    :func:`validation_errors` dicts (per-posture arrays). ``truth``: the true geometry, if known
-    (errors are then against it; else corrections against ``nominal``). ``nominal`` defaults to
-    the shipped nominal geometry. ``sigmas``: the weights used. ``extra``: more top-level keys.
-    ``prediction``: :func:`.report_accuracy.prediction_for` of ``result`` (computed when None).
+    ``result``: the core's ``IdentificationResult``. ``inputs`` (:data:`REPORT_INPUTS`, each
+    optional): ``analysis``, an identifiability analysis (computed with
+    ``gsp_kinematics.identifiability`` when None); ``validation_before`` / ``validation_after``:
+    ``gsp_kinematics.validation.validate`` summaries, or :func:`validation_errors` dicts
+    (per-posture arrays); ``truth``: the true geometry, if known (errors are then against it;
+    else corrections against ``nominal``); ``nominal``, default the shipped nominal geometry;
+    ``sigmas``: the weights used; ``extra``: more top-level keys; ``prediction``:
+    :func:`.report_accuracy.prediction_for` of ``result`` (computed when None).
     """
+    inputs = _report_inputs(inputs)
+    analysis, truth, nominal = inputs['analysis'], inputs['truth'], inputs['nominal']
     from . import report_accuracy
 
     nominal = default_geometry('nominal') if nominal is None else nominal
@@ -288,14 +312,8 @@ def result_data(
             'report': float(value) * factor,
             'report_unit': unit,
         }
-    data = {
-        'formulation': result.formulation,
-        'converged': bool(result.converged),
-        'status': int(result.status),
-        'message': result.message,
-        'iterations': int(result.iterations),
-        'cost': result.cost,
-        'duration_s': result.duration_s,
+    data = {name: getattr(result, name) for name in _RESULT_FIELDS}
+    data |= {
         'postures': int(np.asarray(result.poses).shape[0]) if result.poses is not None else None,
         'excluded_postures': list(result.excluded_postures or []),
         'free_parameters': list(result.free_names),
@@ -323,23 +341,23 @@ def result_data(
         'identifiability': _identifiability(analysis),
         'residual_rms': residual_rms,
         'validation': {
-            'before': _validation_summary(validation_before),
-            'after': _validation_summary(validation_after),
+            'before': _validation_summary(inputs['validation_before']),
+            'after': _validation_summary(inputs['validation_after']),
         },
         'predicted_accuracy': report_accuracy.result_json_entry(
-            report_accuracy.prediction_for(result, validation_after)
-            if prediction is None
-            else prediction
+            report_accuracy.prediction_for(result, inputs['validation_after'])
+            if inputs['prediction'] is None
+            else inputs['prediction']
         ),
     }
     lengths = np.array([i not in _ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     data.update(fit_data(result, truth, nominal))
-    if sigmas is not None:
-        data['sigmas'] = sigmas_record(sigmas)
-    if extra:
-        data.update(extra)
+    if inputs['sigmas'] is not None:
+        data['sigmas'] = sigmas_record(inputs['sigmas'])
+    if inputs['extra']:
+        data.update(inputs['extra'])
     return json_safe(data)
 
 

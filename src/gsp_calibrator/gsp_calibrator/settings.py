@@ -66,6 +66,32 @@ def _check_geometry_file(value):
 
 _POSITIVE = greater_than(0.0, reason='must be a finite number > 0')
 
+
+def _positive(name, default, description, unit=''):
+    """A parameter that must be a finite number > 0."""
+    return ParameterSpec(name, default, description, unit=unit, constraints='> 0', check=_POSITIVE)
+
+
+def _one_of(name, default, description, options):
+    """A parameter that must be one of ``options``."""
+    return ParameterSpec(
+        name,
+        default,
+        description,
+        constraints='one of ' + ', '.join(options),
+        check=one_of(options),
+    )
+
+
+#: The per-sample noise of each sensor (a ``Sigmas`` field and its parameter ``sigma_<field>``):
+#: field, unit, what the sigma weighs.
+_SIGMA_TABLE = (
+    ('leg_lengths', 'm', 'Noise std of one leg-length sample (weight of the leg residuals)'),
+    ('inclinometer', 'rad', 'Noise std of one inclinometer sample (alpha, beta)'),
+    ('encoder', 'rad', 'Noise std of one encoder sample (phi)'),
+    ('lvdt', 'm', 'Noise std of one LVDT sample (d_m)'),
+)
+
 PARAMETERS = (
     ParameterSpec(
         'nominal_geometry_file',
@@ -106,23 +132,19 @@ PARAMETERS = (
         constraints='>= 0',
         check=at_least(0.0, reason='must be finite and >= 0 s'),
     ),
-    ParameterSpec(
+    _positive(
         'settle_timeout',
         5.0,
         "Longest wait for a commanded posture's 'settled' status after its first "
         'status; a posture that does not settle is skipped',
         unit='s',
-        constraints='> 0',
-        check=_POSITIVE,
     ),
-    ParameterSpec(
+    _positive(
         'topic_timeout',
         2.0,
         'Longest silence of a topic (or service) the run waits on before it ends with '
         'an error naming it',
         unit='s',
-        constraints='> 0',
-        check=_POSITIVE,
     ),
     ParameterSpec(
         'seed', 0, 'Seed of the random posture pool', constraints='>= 0', check=at_least(0)
@@ -136,27 +158,22 @@ PARAMETERS = (
         constraints='non-empty, known names or groups, no duplicates',
         check=_check_free,
     ),
-    ParameterSpec(
+    _one_of(
         'loss',
         'linear',
         'Loss of the fit: linear (least squares), huber or cauchy (robust to outlier postures; '
         'down-weighted postures are reported)',
-        constraints='one of ' + ', '.join(LOSSES),
-        check=one_of(LOSSES),
+        LOSSES,
     ),
-    ParameterSpec(
+    _positive(
         'loss_scale',
         Options().loss_scale,
         'Normalised residual (in sigmas) where the robust loss departs from least squares',
-        constraints='> 0',
-        check=_POSITIVE,
     ),
-    ParameterSpec(
+    _positive(
         'outlier_threshold',
         DEFAULT_OUTLIER_THRESHOLD,
         'A posture whose largest normalised residual (in sigmas) exceeds this is reported',
-        constraints='> 0',
-        check=_POSITIVE,
     ),
     ParameterSpec(
         'apply_rejected_fit',
@@ -164,45 +181,16 @@ PARAMETERS = (
         'With apply_result: apply a result that converged but failed the goodness-of-fit '
         'check (p < 0.01) anyway; the result is written and marked in either case',
     ),
-    ParameterSpec(
+    _one_of(
         'formulation',
         'implicit',
         'Identification formulation: implicit (all sensors, poses as unknowns), fk '
         "(device residuals through FK) or paper (the paper's eq 11)",
-        constraints='one of ' + ', '.join(FORMULATIONS),
-        check=one_of(FORMULATIONS),
+        FORMULATIONS,
     ),
-    ParameterSpec(
-        'sigma_leg_lengths',
-        DEFAULT_SIGMAS.leg_lengths,
-        'Noise std of one leg-length sample (weight of the leg residuals)',
-        unit='m',
-        constraints='> 0',
-        check=_POSITIVE,
-    ),
-    ParameterSpec(
-        'sigma_inclinometer',
-        DEFAULT_SIGMAS.inclinometer,
-        'Noise std of one inclinometer sample (alpha, beta)',
-        unit='rad',
-        constraints='> 0',
-        check=_POSITIVE,
-    ),
-    ParameterSpec(
-        'sigma_encoder',
-        DEFAULT_SIGMAS.encoder,
-        'Noise std of one encoder sample (phi)',
-        unit='rad',
-        constraints='> 0',
-        check=_POSITIVE,
-    ),
-    ParameterSpec(
-        'sigma_lvdt',
-        DEFAULT_SIGMAS.lvdt,
-        'Noise std of one LVDT sample (d_m)',
-        unit='m',
-        constraints='> 0',
-        check=_POSITIVE,
+    *(
+        _positive(f'sigma_{field}', getattr(DEFAULT_SIGMAS, field), text, unit)
+        for field, unit, text in _SIGMA_TABLE
     ),
     ParameterSpec(
         'output_root',
@@ -233,6 +221,44 @@ PARAMETERS = (
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
+
+
+# --- command-line options of a run (gsp_demo, gsp_plan) ------------------------------------------
+
+
+def add_run_options(parser, seed_help='seed of the posture pool'):
+    """Add to ``parser`` the options of a run that mirror the parameters above, with their
+    defaults: ``--postures``, ``--pool-size``, ``--samples-per-posture``, ``--seed``, ``--free``
+    and ``--formulation``. Check the parsed values with :func:`run_options_error`."""
+    add = parser.add_argument
+    for option, name, help_text in (
+        ('--postures', 'posture_count', 'postures commanded'),
+        ('--pool-size', 'pool_size', 'random postures the selection picks from'),
+        ('--samples-per-posture', 'samples_per_posture', 'samples averaged per posture'),
+        ('--seed', 'seed', seed_help),
+    ):
+        add(option, type=int, default=DEFAULTS[name], help=f'{help_text} ({DEFAULTS[name]})')
+    add(
+        '--free',
+        nargs='+',
+        default=list(DEFAULTS['free_parameters']),
+        metavar='NAME',
+        help='free parameters: groups paper or extended, and/or names (default: extended)',
+    )
+    add('--formulation', choices=FORMULATIONS, default=DEFAULTS['formulation'])
+
+
+def run_options_error(args):
+    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid.
+
+    ``args.free`` also takes comma-separated names: it is split in place first.
+    """
+    for name in ('postures', 'pool_size', 'samples_per_posture'):
+        if getattr(args, name) < 1:
+            return f'--{name.replace("_", "-")} must be >= 1'
+    args.free = [n.strip() for value in args.free for n in value.split(',') if n.strip()]
+    reason = check_free_parameters(args.free)
+    return f'--free: {reason}' if reason else ''
 
 
 def check_combination(values):
@@ -322,12 +348,7 @@ class CalibratorSettings:
             seed=int(merged['seed']),
             free_parameters=tuple(merged['free_parameters']),
             formulation=str(merged['formulation']),
-            sigmas=Sigmas(
-                leg_lengths=float(merged['sigma_leg_lengths']),
-                inclinometer=float(merged['sigma_inclinometer']),
-                encoder=float(merged['sigma_encoder']),
-                lvdt=float(merged['sigma_lvdt']),
-            ),
+            sigmas=Sigmas(**{f: float(merged[f'sigma_{f}']) for f, _, _ in _SIGMA_TABLE}),
             output_root=str(merged['output_root']),
             resume_run_directory=str(merged['resume_run_directory']),
             apply_result=bool(merged['apply_result']),

@@ -5,67 +5,36 @@ ros2 launch gsp_calibrator sim_suite.launch.py [params_file:=...] [geometry_file
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
-from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
-from launch_ros.substitutions import FindPackageShare
+from launch.substitutions import LaunchConfiguration
+
+from gsp_calibrator import launch_arguments
 
 
 def generate_launch_description():
     params_file = LaunchConfiguration('params_file')
     geometry_file = LaunchConfiguration('geometry_file')
-    true_geometry_file = LaunchConfiguration('true_geometry_file')
-    use_sim_time = ParameterValue(LaunchConfiguration('use_sim_time'), value_type=bool)
-    geometry_config = PathJoinSubstitution([FindPackageShare('gsp_kinematics'), 'config'])
-    common = {'use_sim_time': use_sim_time}
+    truth = {'true_geometry_file': LaunchConfiguration('true_geometry_file')}
+    true_geometry_argument = launch_arguments.geometry_file_argument(
+        'Geometry of the simulated real platform and device', name='true_geometry_file', kind='true'
+    )
     return LaunchDescription(
         [
-            DeclareLaunchArgument(
-                'params_file',
-                default_value=PathJoinSubstitution(
-                    [FindPackageShare('gsp_calibrator'), 'config', 'gsp_suite.yaml']
-                ),
-                description='Parameters of every node (one section per node name)',
+            *launch_arguments.standard_arguments(
+                'gsp_suite.yaml',
+                'Parameters of every node (one section per node name)',
+                'Controller geometry params file (nominal or calibrated)',
             ),
-            DeclareLaunchArgument(
-                'geometry_file',
-                default_value=PathJoinSubstitution([geometry_config, 'nominal_geometry.yaml']),
-                description='Controller geometry params file (nominal or calibrated)',
+            true_geometry_argument,
+            launch_arguments.screen_node(
+                'gsp_platform_sim', 'platform_sim', [geometry_file, params_file, truth]
             ),
-            DeclareLaunchArgument(
-                'true_geometry_file',
-                default_value=PathJoinSubstitution([geometry_config, 'true_geometry.yaml']),
-                description='Geometry of the simulated real platform and device',
+            launch_arguments.screen_node(
+                'gsp_device_driver', 'device_driver', [params_file, truth]
             ),
-            DeclareLaunchArgument(
-                'use_sim_time', default_value='false', description='Use /clock time'
-            ),
-            Node(
-                package='gsp_platform_sim',
-                executable='platform_sim',
-                name='platform_sim',
-                output='screen',
-                parameters=[
-                    geometry_file,
-                    params_file,
-                    {'true_geometry_file': true_geometry_file},
-                    common,
-                ],
-            ),
-            Node(
-                package='gsp_device_driver',
-                executable='device_driver',
-                name='device_driver',
-                output='screen',
-                parameters=[params_file, {'true_geometry_file': true_geometry_file}, common],
-            ),
-            Node(
-                package='gsp_calibrator',
-                executable='calibrator',
-                name='calibrator',
-                output='screen',
-                parameters=[params_file, {'nominal_geometry_file': geometry_file}, common],
+            launch_arguments.screen_node(
+                'gsp_calibrator',
+                'calibrator',
+                [params_file, {'nominal_geometry_file': geometry_file}],
             ),
         ]
     )

@@ -6,7 +6,6 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -25,6 +24,7 @@ from gsp_calibrator.replay import (
 from gsp_calibrator.replay_node import REASON_NOT_RECORDED, ReplayNode
 from gsp_calibrator.run_directory import RunDirectory, Samples, write_samples
 from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py.check_interfaces import PoseCommandProbe
 from gsp_msgs_py.node_tools import ConfigurationError
 
 MS = 1_000_000
@@ -224,7 +224,7 @@ class NodeHarness:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.replay)
         self.executor.add_node(self.node)
-        self.statuses = []
+        self.commands = PoseCommandProbe(self.node)
         self.received = {
             topic: []
             for topic in (
@@ -235,12 +235,6 @@ class NodeHarness:
             )
         }
         self.true_poses = []
-        self.node.create_subscription(
-            DiagnosticStatus,
-            names.TOPIC_PLATFORM_STATUS,
-            lambda m: self.statuses.append(conversions.parse_status(m)),
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
-        )
         for topic, messages in self.received.items():
             self.node.create_subscription(JointState, topic, messages.append, qos.TOPIC_QOS[topic])
         self.node.create_subscription(
@@ -249,29 +243,20 @@ class NodeHarness:
             self.true_poses.append,
             qos.TOPIC_QOS[names.TOPIC_TRUE_POSE],
         )
-        self.command_pub = self.node.create_publisher(
-            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
-        )
         assert self.spin_until(
-            lambda: (
-                self.command_pub.get_subscription_count() > 0 and self.received[names.TOPIC_LVDT]
-            )
+            lambda: self.commands.listened() and self.received[names.TOPIC_LVDT]
         ), 'no discovery'
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
         return testing.spin_until(self.executor, predicate, timeout)
 
     def command(self, pose, frame_id=names.FRAME_BASE):
-        stamp = self.node.get_clock().now().to_msg()
-        self.command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp, frame_id))
-        return conversions.command_id_from_stamp(stamp)
+        return self.commands.send(pose, frame_id)
 
     def final_states(self, command_id):
-        def states():
-            return [s for s in self.statuses if s.command_id == command_id]
-
-        assert self.spin_until(lambda: any(s.settled or s.rejected for s in states()))
-        return states()
+        """Every status of ``command_id`` once it is settled or rejected."""
+        assert self.spin_until(lambda: self.commands.final_status(command_id) is not None)
+        return self.commands.answers(command_id)
 
     def instants_after(self, stamp_ns, count):
         """``count`` replayed instants stamped after ``stamp_ns``: ``[(stamp, {topic: msg})]``."""

@@ -179,20 +179,15 @@ class DeviceDriverNode(Node):
                 if sample.stamp_s == now_s
                 else conversions.seconds_to_stamp(sample.stamp_s)
             )
-            try:
-                messages = node_tools.device_messages(sample.readings(), stamp, self._frame_id)
-            except ValueError as error:
-                self.get_logger().warning(
-                    f'dropping device sample: {error}', throttle_duration_sec=WARN_THROTTLE_S
-                )
-                continue
-            for topic, msg in messages.items():
-                self._pubs[topic].publish(msg)
+            node_tools.publish_messages(
+                self, self._pubs, 'device sample', self._sample_messages, sample, stamp
+            )
+
+    def _sample_messages(self, sample, stamp):
+        return node_tools.device_messages(sample.readings(), stamp, self._frame_id)
 
     def destroy_node(self):
-        backend = getattr(self, '_backend', None)
-        if backend is not None:
-            backend.close()
+        node_tools.close_opened(self, '_backend')
         return super().destroy_node()
 
 

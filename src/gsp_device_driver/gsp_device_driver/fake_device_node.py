@@ -109,9 +109,7 @@ class FakeDeviceNode(Node):
         getattr(self.device, kind)(duration)
 
     def destroy_node(self):
-        device = getattr(self, 'device', None)
-        if device is not None:
-            device.close()
+        node_tools.close_opened(self, 'device')
         return super().destroy_node()
 
 

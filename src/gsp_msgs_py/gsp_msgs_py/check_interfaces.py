@@ -20,6 +20,57 @@ from .node_tools import spin_until
 NODE_NAME = 'gsp_check_interfaces'
 
 
+class PoseCommandProbe:
+    """Commands poses on ``node`` and collects the platform's status answers to them.
+
+    Subscribes ``/gsp/platform/status`` and advertises ``/gsp/platform/pose_command`` with the
+    suite's QoS; :meth:`send` returns the command id the answers carry.
+    """
+
+    def __init__(self, node):
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from geometry_msgs.msg import PoseStamped
+
+        self.node = node
+        self.statuses = []  #: every status message received, in order
+        self._subscription = node.create_subscription(
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
+            self.statuses.append,
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
+        self._publisher = node.create_publisher(
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+        )
+
+    def listened(self):
+        """Whether anybody subscribes to the pose commands."""
+        return self._publisher.get_subscription_count() > 0
+
+    def send(self, pose, frame_id=names.FRAME_BASE):
+        """Command ``pose`` (m, rad) in ``frame_id``, stamped now; returns its command id."""
+        stamp = self.node.get_clock().now().to_msg()
+        self._publisher.publish(conversions.pose_to_pose_stamped(pose, stamp, frame_id))
+        return conversions.command_id_from_stamp(stamp)
+
+    def answers(self, command_id):
+        """The parsed statuses of ``command_id``, in order (unparsable ones skipped)."""
+        answers = []
+        for msg in self.statuses:
+            try:
+                status = conversions.parse_status(msg)
+            except ValueError:
+                continue
+            if status.command_id == command_id:
+                answers.append(status)
+        return answers
+
+    def final_status(self, command_id):
+        """The first settled or rejected status of ``command_id``, or None."""
+        final = [s for s in self.answers(command_id) if s.state != names.STATE_MOVING]
+        return final[0] if final else None
+
+
 class InterfaceChecker:
     """Records the sensor topics on ``node`` and judges them (see :meth:`problems`)."""
 
@@ -29,7 +80,6 @@ class InterfaceChecker:
         self.node = node
         self.limits = limits
         self.received = {topic: [] for topic in SENSOR_TOPICS}
-        self.statuses = []
         self.recording = True
         for topic in SENSOR_TOPICS:
             node.create_subscription(
@@ -38,8 +88,7 @@ class InterfaceChecker:
                 lambda msg, t=topic: self._on_joint_state(t, msg),
                 qos.TOPIC_QOS[topic],
             )
-        self._status_sub = None
-        self._command_pub = None
+        self._probe = None
         self.command_id = None
 
     def _now_s(self):
@@ -60,43 +109,21 @@ class InterfaceChecker:
 
     def prepare_test_command(self):
         """Subscribe the status topic and advertise pose commands (before :meth:`send`)."""
-        from diagnostic_msgs.msg import DiagnosticStatus
-        from geometry_msgs.msg import PoseStamped
-
-        self._status_sub = self.node.create_subscription(
-            DiagnosticStatus,
-            names.TOPIC_PLATFORM_STATUS,
-            self.statuses.append,
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
-        )
-        self._command_pub = self.node.create_publisher(
-            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
-        )
+        self._probe = PoseCommandProbe(self.node)
 
     def command_listened(self):
-        return self._command_pub.get_subscription_count() > 0
+        return self._probe.listened()
 
     def send_test_command(self, pose):
-        msg = conversions.pose_to_pose_stamped(pose, self.node.get_clock().now().to_msg())
-        self.command_id = conversions.command_id_from_stamp(msg.header.stamp)
-        self._command_pub.publish(msg)
+        self.command_id = self._probe.send(pose)
 
     def _answers(self):
         """The parsed statuses of the test command, in order (unparsable ones skipped)."""
-        answers = []
-        for msg in self.statuses:
-            try:
-                status = conversions.parse_status(msg)
-            except ValueError:
-                continue
-            if status.command_id == self.command_id:
-                answers.append(status)
-        return answers
+        return self._probe.answers(self.command_id)
 
     def final_status(self):
         """The parsed settled/rejected status of the test command, or None."""
-        final = [s for s in self._answers() if s.state != names.STATE_MOVING]
-        return final[0] if final else None
+        return self._probe.final_status(self.command_id)
 
     def status_problems(self):
         if not self.command_listened():

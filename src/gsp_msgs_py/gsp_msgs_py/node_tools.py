@@ -346,6 +346,38 @@ def device_messages(readings, stamp, frame_id):
     }
 
 
+#: Least interval (s) between two warnings about dropped messages of one kind.
+DROP_WARNING_THROTTLE_S = 1.0
+
+
+def publish_messages(node, publishers, what, build, *args):
+    """Publish the ``{topic: message}`` of ``build(*args)``, each on ``publishers[topic]``.
+
+    A ValueError while building (e.g. a value that is not finite) drops them all with a
+    throttled warning ``dropping <what>: <error>``: a node never dies on one bad sample.
+    Returns whether they were published.
+    """
+    try:
+        messages = build(*args)
+    except ValueError as error:
+        node.get_logger().warning(
+            f'dropping {what}: {error}', throttle_duration_sec=DROP_WARNING_THROTTLE_S
+        )
+        return False
+    for topic, msg in messages.items():
+        publishers[topic].publish(msg)
+    return True
+
+
+def close_opened(node, *attributes):
+    """Close each of ``node``'s ``attributes`` that is set (from ``destroy_node``: a constructor
+    that failed part-way leaves the later ones unset)."""
+    for attribute in attributes:
+        resource = getattr(node, attribute, None)
+        if resource is not None:
+            resource.close()
+
+
 def spin_until(executor, predicate, timeout):
     """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first.
 
