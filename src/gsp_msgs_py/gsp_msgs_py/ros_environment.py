@@ -27,7 +27,7 @@ import threading
 import time
 from pathlib import Path
 
-#: Domain ids drawn by :func:`random_domain_id` (valid for any participant count on Linux).
+#: Domain ids claimed by :func:`claim_domain_id` (valid for any participant count on Linux).
 DOMAIN_IDS = range(1, 102)
 #: Environment variable naming the lock directory (default: ``<tmp>/gsp-ros-domains``).
 LOCK_DIRECTORY_VARIABLE = 'GSP_ROS_DOMAIN_LOCK_DIR'
@@ -170,14 +170,6 @@ def domain_holder(domain_id, directory=None):
         return int(fields[0]), fields[2].strip() if len(fields) > 2 else '?'
     except (OSError, ValueError, IndexError):
         return 0, 'a process that is claiming it now'
-
-
-def random_domain_id(rng=None, exclude=()):
-    """A domain id from :data:`DOMAIN_IDS`, avoiding ``exclude``; ``rng`` a ``random.Random``.
-    Not locked: see :func:`claim_domain_id`."""
-    rng = rng or random.SystemRandom()
-    choices = [d for d in DOMAIN_IDS if d not in set(exclude)] or list(DOMAIN_IDS)
-    return rng.choice(choices)
 
 
 def claim_domain_id(rng=None, exclude=(), directory=None, owner_pid=None):
