@@ -63,6 +63,9 @@ class DomainLock:
     def held(self):
         return self._fd is not None
 
+    def fileno(self):
+        return self._fd
+
     def release(self):
         """Give the domain back (closing the file releases the lock)."""
         if self._fd is not None:
@@ -357,6 +360,9 @@ def _claim_for(owner_pid):
             devnull = os.open(os.devnull, os.O_RDWR)
             for fd in (0, 1, 2):  # the shell's $(...) ends once stdout is closed
                 os.dup2(devnull, fd)
+            # Nothing else the shell had open (pipes others wait on) stays open here.
+            os.closerange(3, lock.fileno())
+            os.closerange(lock.fileno() + 1, os.sysconf('SC_OPEN_MAX'))
             _wait_for_exit(owner_pid)
         finally:
             os._exit(0)
