@@ -69,7 +69,7 @@ class DomainLock:
     def release(self):
         """Give the domain back (closing the file releases the lock)."""
         if self._fd is not None:
-            _HELD.pop(self.domain_id, None)
+            _HELD.pop(str(self.path), None)
             os.close(self._fd)
             self._fd = None
 
@@ -83,7 +83,7 @@ class DomainLock:
         return f'DomainLock({self.domain_id}, {str(self.path)!r}, held={self.held})'
 
 
-#: Locks this process holds, by domain id: kept referenced so they last as long as the process.
+#: Locks this process holds, by lock file: kept referenced so they last as long as the process.
 _HELD = {}
 _HELD_LOCK = threading.Lock()
 
@@ -126,7 +126,7 @@ def _try_lock(domain_id, directory=None, owner_pid=None):
     os.pwrite(fd, record, 0)
     lock = DomainLock(domain_id, path, fd)
     with _HELD_LOCK:
-        _HELD[lock.domain_id] = lock
+        _HELD[str(path)] = lock
     return lock
 
 
@@ -162,7 +162,7 @@ def domain_holder(domain_id, directory=None):
     if not path.exists():
         return None
     with _HELD_LOCK:
-        if domain_id in _HELD:
+        if str(path) in _HELD:
             return os.getpid(), f'this process ({_command_line(os.getpid())})'
     probe = _try_lock(domain_id, directory)
     if probe is not None:
@@ -204,7 +204,7 @@ def hold_domain_id(domain_id, directory=None):
     """
     domain_id = int(domain_id)
     with _HELD_LOCK:
-        if domain_id in _HELD:
+        if str(lock_path(domain_id, directory)) in _HELD:
             return None
     lock = _try_lock(domain_id, directory)
     if lock is not None:
