@@ -10,7 +10,8 @@
 #   make bench   benchmark (gsp_bench; ARGS=...)
 #   make clean   remove build/ install/ log/ and caches (distclean: also .venv)
 #
-# Every run keeps DDS on loopback in one random ROS domain (override: make test ROS_DOMAIN_ID=7).
+# Every run keeps DDS on loopback in a ROS domain of its own: each test session, demo and bench
+# claims a free one by lock (docs/faults.md), unless given: make test ROS_DOMAIN_ID=7.
 
 SHELL := /bin/bash
 .SHELLFLAGS := -eo pipefail -c
@@ -27,11 +28,9 @@ ENV_SH := . scripts/env.sh
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 # The maths works on many small matrices: BLAS threads only contend on this 2-core machine.
 export OPENBLAS_NUM_THREADS ?= 1
-ifeq ($(strip $(ROS_DOMAIN_ID)),)
-# Evaluated once (:=), so every recipe of this run shares the domain.
-ROS_DOMAIN_ID := $(shell echo $$((RANDOM % 101 + 1)))
-endif
+ifneq ($(strip $(ROS_DOMAIN_ID)),)
 export ROS_DOMAIN_ID
+endif
 # The wheels keep their ament resources in .venv/share.
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)$(if $(AMENT_PREFIX_PATH),:$(AMENT_PREFIX_PATH))
 

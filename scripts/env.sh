@@ -2,7 +2,7 @@
 # Environment of the workspace: `source scripts/env.sh` (bash, zsh or sh) from anywhere.
 # Gives: the .venv python (ROS 2 Jazzy wheels), the colcon install/ packages (PYTHONPATH,
 # AMENT_PREFIX_PATH), every console script on PATH (platform_sim, calibrator, gsp_demo, ...),
-# and DDS kept on loopback in a random domain unless ROS_DOMAIN_ID is already set.
+# and DDS kept on loopback in a free domain, locked for this shell, unless ROS_DOMAIN_ID is set.
 # Run `make build` first (`make venv` alone gives the core and ROS wheels, not the nodes).
 
 if [ -n "${BASH_SOURCE:-}" ]; then
@@ -57,8 +57,15 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE
 # Small matrices: BLAS threads only contend with the nodes on a 2-core machine.
 OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
 export OPENBLAS_NUM_THREADS
+# A free domain, locked until this shell exits (a small holder process waits for it), so that
+# no concurrent run claims it; the shell's children share it (docs/faults.md, ROS domains).
 if [ -z "${ROS_DOMAIN_ID:-}" ]; then
-  ROS_DOMAIN_ID=$(( $(od -An -N2 -tu2 /dev/urandom | tr -d ' ') % 101 + 1 ))
+  ROS_DOMAIN_ID=$("$GSP_WS/.venv/bin/python" \
+    "$GSP_WS/src/gsp_msgs_py/gsp_msgs_py/ros_environment.py" claim --owner $$) || ROS_DOMAIN_ID=''
+  if [ -z "$ROS_DOMAIN_ID" ]; then
+    ROS_DOMAIN_ID=$(( $(od -An -N2 -tu2 /dev/urandom | tr -d ' ') % 101 + 1 ))
+    echo "scripts/env.sh: no domain lock; ROS_DOMAIN_ID=$ROS_DOMAIN_ID drawn at random" >&2
+  fi
 fi
 export ROS_DOMAIN_ID
 

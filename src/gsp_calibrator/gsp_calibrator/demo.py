@@ -34,7 +34,12 @@ import numpy as np
 from gsp_kinematics.geometry import default_geometry_path, load_geometry, parameter_errors
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.validation import pose_errors, summarise
-from gsp_msgs_py.ros_environment import loopback_environment
+from gsp_msgs_py.ros_environment import (
+    DomainInUseError,
+    enter_private_domain,
+    foreign_nodes_in_child,
+    loopback_environment,
+)
 
 from . import calibration
 from .processes import NodeProcesses
@@ -365,8 +370,14 @@ def run(args):
     true_geometry = load_geometry(args.true_geometry)
     nominal = load_geometry(args.nominal_geometry)
     output_root = os.path.abspath(args.output_root)
+    try:
+        # A domain of the demo's own (claimed by lock, or the given one checked), probed for
+        # nodes by a child: this process forks its nodes before it starts DDS threads itself.
+        enter_private_domain(probe=foreign_nodes_in_child)
+    except DomainInUseError as error:
+        print(f'gsp_demo: {error}', file=sys.stderr, flush=True)
+        return 1
     env = ros_environment()
-    os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID')})
     print(
         f'gsp_demo: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} (loopback only), output under '
         f'{output_root}',

@@ -9,10 +9,15 @@ per recorded posture (:class:`RecordedPosture`), its commanded pose and the samp
   order, collected by the calibrator's own protocol
   (:class:`gsp_calibrator.protocol.CollectionProtocol` with ``keep_pairs``, the recording's
   ``sync_tolerance``); with the simulator's ``true_pose`` of each sample when it was recorded.
+  A resumed run has one recording part per session (``recording.mcap``, ``recording-2.mcap``
+  ..., see :func:`gsp_calibrator.recording.recording_parts`): every part is read, in order, and
+  a posture collected again by a later session keeps its later segment (as
+  :func:`gsp_calibrator.recording.samples_from_recording` keeps its later row).
 
 A run directory is replayed from its ``samples.csv`` when it has one (the rows the calibration
 was computed from, so a replay reproduces it exactly whatever the timing), else from its
-``recording.mcap``. Give the file itself to choose.
+recording parts. Give a file to choose: ``recording.mcap`` reads it with the run's later parts
+beside it, ``recording-<n>.mcap`` that part alone.
 
 :meth:`RecordedRun.match` finds the recorded posture of a commanded pose (position within
 ``tolerance`` m and orientation within ``tolerance`` rad).
@@ -111,6 +116,7 @@ class RecordedRun:
     #: Commands that gave no posture: ``[(k, reason), ...]`` (rejected, never settled, no samples).
     skipped: tuple = ()
     options: dict = dataclasses.field(default_factory=dict)  #: run options stored in the file
+    parts: tuple = ()  #: the recording parts read, in order (empty for a ``samples.csv``)
 
     def __post_init__(self):
         if not self.postures:
@@ -144,17 +150,20 @@ class RecordedRun:
             raise ReplayError('no run given: a run directory, samples.csv or recording.mcap')
         path = Path(os.path.expanduser(str(path)))
         if path.is_dir():
-            samples, mcap = path / SAMPLES_FILE, path / recording.RECORDING_FILE
+            samples = path / SAMPLES_FILE
             if samples.is_file():
                 return cls.from_samples(samples)
-            if mcap.is_file():
-                return cls.from_recording(mcap, sync_tolerance)
+            parts = recording.recording_parts(path)
+            if parts:
+                return cls.from_recording(parts, sync_tolerance)
             raise ReplayError(
                 f'{path}: run directory without {SAMPLES_FILE} or {recording.RECORDING_FILE}'
             )
         if not path.exists():
             raise ReplayError(f'{path}: no such file or directory')
         if path.suffix.lower() == '.mcap':
+            if path.name == recording.RECORDING_FILE:  # with the later parts of a resumed run
+                return cls.from_recording(recording.recording_parts(path.parent), sync_tolerance)
             return cls.from_recording(path, sync_tolerance)
         return cls.from_samples(path)
 
@@ -182,24 +191,34 @@ class RecordedRun:
 
     @classmethod
     def from_recording(cls, path, sync_tolerance=None):
-        """The synchronised samples after each posture's settle, from an MCAP recording.
+        """The synchronised samples after each posture's settle, from an MCAP recording or
+        the parts of a resumed run (a list, in order: :func:`~gsp_calibrator.recording.recording_parts`).
 
         Each pose command starts a posture; its ``settled`` status (of the same ``command_id``)
         starts the collection at the start the calibrator noted (MCAP metadata), else at the
         status's receive time; sensor samples stamped from then on, up to the next command, are
-        paired like the calibrator pairs them. ``sync_tolerance`` (s) defaults to the
-        recording's stored option, else the calibrator's default.
+        paired like the calibrator pairs them. Each part is one session, fed to a protocol of
+        its own that continues after the last posture so far, as the resumed calibrator did; a
+        posture collected again keeps its later segment (and a skip is forgotten once the
+        posture is collected). ``sync_tolerance`` (s) defaults to the first part's stored
+        option, else the calibrator's default.
         """
-        path = Path(path)
+        if isinstance(path, (str, os.PathLike)):
+            parts = [Path(path)]
+        else:
+            parts = [Path(p) for p in path]
+        if not parts:
+            raise ReplayError('no recording part to replay')
         try:
-            return cls._from_recording(path, sync_tolerance)
+            return cls._from_recording(parts, sync_tolerance)
         except recording.RecordingError as error:
             raise ReplayError(str(error)) from None
 
     @classmethod
-    def _from_recording(cls, path, sync_tolerance):
+    def _from_recording(cls, parts, sync_tolerance):
         from gsp_msgs_py import conversions
 
+        path = parts[0]
         options = recording.recording_options(path)
         if sync_tolerance is None:
             sync_tolerance = options.get('sync_tolerance', DEFAULTS['sync_tolerance'])
@@ -214,7 +233,6 @@ class RecordedRun:
 
         # Every pair after each settle, paired by the calibrator's own protocol; the true poses
         # of each segment (command to command) are kept beside it, by command id.
-        collection = CollectionProtocol(sync_tolerance, 1, keep_pairs=True)
         true_poses = {'': {}}  # command id ('' before the first command) -> {stamp_ns: pose}
         current = ['']
         commands = []
@@ -231,35 +249,43 @@ class RecordedRun:
             except (ValueError, TypeError):
                 pass  # malformed: dropped, as the calibrator drops it
 
-        postures, skipped, initial_stream = [], [], None
-        margin = collection.collector.tolerance_ns
-        for event in recording.feed_recording(
-            path, collection, extra_topics=(names.TOPIC_TRUE_POSE,), on_message=on_message
-        ):
-            if isinstance(event, PairsCollected):
-                stream = SampleStream(
-                    event.leg_lengths,
-                    event.readings,
-                    _true_poses(true_poses.get(event.command_id, {}), event.stamps, margin),
-                )
-                if event.posture is None:
-                    initial_stream = stream
-                else:
-                    postures.append(
-                        RecordedPosture(event.posture, event.pose, stream, event.command_id)
+        postures, skipped, initial_stream = {}, {}, None  # postures and skips by number
+        for part in parts:
+            collection = CollectionProtocol(sync_tolerance, 1, keep_pairs=True)
+            if postures:
+                last = next(reversed(postures.values()))
+                collection.continue_after(np.mean(last.stream.readings, axis=0))
+            current[0] = ''  # idle samples of a new session belong to no command
+            margin = collection.collector.tolerance_ns
+            for event in recording.feed_recording(
+                part, collection, extra_topics=(names.TOPIC_TRUE_POSE,), on_message=on_message
+            ):
+                if isinstance(event, PairsCollected):
+                    stream = SampleStream(
+                        event.leg_lengths,
+                        event.readings,
+                        _true_poses(true_poses.get(event.command_id, {}), event.stamps, margin),
                     )
-            elif isinstance(event, PostureSkipped):
-                skipped.append(
-                    (
-                        event.posture,
+                    if event.posture is None:
+                        if initial_stream is None or len(initial_stream) == 0:
+                            initial_stream = stream  # the first session's idle samples
+                    else:
+                        postures.pop(event.posture, None)
+                        skipped.pop(event.posture, None)
+                        postures[event.posture] = RecordedPosture(
+                            event.posture, event.pose, stream, event.command_id
+                        )
+                elif isinstance(event, PostureSkipped) and event.posture not in postures:
+                    skipped[event.posture] = (
                         f'rejected: {event.platform_reason}'
                         if event.rejected_by_platform
-                        else event.reason,
+                        else event.reason
                     )
-                )
+        postures = list(postures.values())
         if not postures:
             raise ReplayError(
-                f'{path}: no settled posture with synchronised samples '
+                f'{path}{f" and {len(parts) - 1} later part(s)" if len(parts) > 1 else ""}: '
+                f'no settled posture with synchronised samples '
                 f'({len(commands)} pose command(s) recorded)'
             )
         if initial_stream is None or len(initial_stream) == 0:
@@ -269,8 +295,9 @@ class RecordedRun:
             kind=SOURCE_RECORDING,
             postures=tuple(postures),
             initial_stream=initial_stream,
-            skipped=tuple(skipped),
+            skipped=tuple(skipped.items()),
             options=dict(options, sync_tolerance=sync_tolerance),
+            parts=tuple(parts),
         )
 
     # --- lookup ----------------------------------------------------------------------------

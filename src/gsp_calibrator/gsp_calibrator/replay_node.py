@@ -2,7 +2,7 @@
 
 It stands in for both ``platform_sim`` and ``device_driver`` (see docs/nodes.md). The
 recorded run (:class:`gsp_calibrator.replay.RecordedRun`: a run directory, ``samples.csv`` or
-``recording.mcap``) gives, per recorded posture, its commanded pose and its samples. For each
+``recording.mcap``, with the later recording parts of a resumed run) gives, per recorded posture, its commanded pose and its samples. For each
 ``PoseStamped`` on ``/gsp/platform/pose_command`` (``command_id`` = its header stamp in ns):
 
 * a pose within ``pose_tolerance`` of a recorded commanded pose: ``moving``, then ``settled``
@@ -37,8 +37,8 @@ PARAMETERS = (
     ParameterSpec(
         'run',
         '',
-        'Recorded run to replay: a run directory (its samples.csv, else its '
-        'recording.mcap), a samples.csv or a recording.mcap',
+        'Recorded run to replay: a run directory (its samples.csv, else every recording part '
+        'of it), a samples.csv or a recording.mcap (with the later parts of a resumed run)',
         read_only=True,
         constraints='required, readable',
         check=not_blank(reason='required: a run directory, samples.csv or recording.mcap'),
@@ -90,8 +90,9 @@ class ReplayNode(Node):
 
         run = self._run
         samples = sum(len(p.stream) for p in run.postures)
+        later = f' and {len(run.parts) - 1} later part(s)' if len(run.parts) > 1 else ''
         self.get_logger().info(
-            f'replay ready: {len(run)} posture(s), {samples} sample(s) from {run.source} '
+            f'replay ready: {len(run)} posture(s), {samples} sample(s) from {run.source}{later} '
             f'({run.kind}), publishing at {values["publish_rate"]:g} Hz, settle time '
             f'{values["settle_time"]:g} s, pose tolerance {self._tolerance:g}, true pose '
             f'{"replayed" if run.has_true_pose else "not recorded"}'

@@ -6,6 +6,7 @@ import random
 import pytest
 
 from gsp_calibrator import bench_end_to_end as bench
+from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 
 PLATFORM_REJECTION = {
     'posture': 2,
@@ -30,7 +31,8 @@ def _run(samples, collection=None, exit_code=0, where='result'):
     return run
 
 
-def test_environment_is_loopback_with_a_fresh_domain():
+def test_environment_is_loopback_with_a_fresh_domain(tmp_path, monkeypatch):
+    monkeypatch.setenv(LOCK_DIRECTORY_VARIABLE, str(tmp_path))  # private domain locks
     env = bench.demo_environment({'ROS_DOMAIN_ID': '7'}, rng=random.Random(0), used=range(1, 101))
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert env['ROS_DOMAIN_ID'] == '101'

@@ -12,10 +12,12 @@ import pytest
 from gsp_calibrator import demo
 from gsp_calibrator import processes as processes_module
 from gsp_kinematics.geometry import default_geometry
+from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 from gsp_msgs_py.testing import wait_until
 
 
-def test_ros_environment_is_loopback_with_a_domain():
+def test_ros_environment_is_loopback_with_a_domain(tmp_path, monkeypatch):
+    monkeypatch.setenv(LOCK_DIRECTORY_VARIABLE, str(tmp_path))  # private domain locks
     env = demo.ros_environment({'PATH': '/bin'}, rng=random.Random(1))
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert 1 <= int(env['ROS_DOMAIN_ID']) <= 101 and env['PATH'] == '/bin'

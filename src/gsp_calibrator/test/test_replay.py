@@ -79,25 +79,38 @@ def _write_instant(recorder, stamp, q, r, true_pose=None):
     recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9), device + MS // 5)
 
 
-def write_recording(path, poses, per_posture=4, rejected=(), true_pose=True, notes=False):
-    """A recorded session: idle samples, then per pose a command, statuses and sensor samples
-    (wrong values while moving). Returns ``{k: (legs, readings, true poses)}`` after settling."""
+def write_recording(
+    path,
+    poses,
+    per_posture=4,
+    rejected=(),
+    true_pose=True,
+    notes=False,
+    start_ns=T0,
+    numbers=None,
+    note_after_ns=2 * MS,
+):
+    """A recorded session from ``start_ns``: idle samples, then per pose a command, statuses and
+    sensor samples (wrong values while moving). ``numbers``: the posture numbers of ``poses``
+    (default 1, 2, ...); ``notes``: note each collection start ``note_after_ns`` after its
+    command (the settle is at 10 ms). Returns ``{k: (legs, readings, true poses)}`` after
+    settling."""
     sent = {}
+    numbers = numbers or range(1, len(poses) + 1)
     with recording.McapRecorder(path) as recorder:
         recorder.add_metadata(recording.RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
         for j in range(3):  # idle at home before the first command
             _write_instant(
                 recorder,
-                T0 + 5 * MS * j,
+                start_ns + 5 * MS * j,
                 np.full(6, 0.7 + j * 1e-6),
                 np.full(4, 0.07),
                 np.array([0, 0, 1.0, 0, 0, 0]) if true_pose else None,
             )
-        t = T0 + 100 * MS
-        for k, pose in enumerate(poses, start=1):
-            command_id = write_command(
-                recorder, t, pose, k in rejected, posture=k, note=t + 2 * MS if notes else None
-            )
+        t = start_ns + 100 * MS
+        for k, pose in zip(numbers, poses, strict=True):
+            note = t + note_after_ns if notes else None
+            command_id = write_command(recorder, t, pose, k in rejected, posture=k, note=note)
             if k in rejected:
                 t += 100 * MS
                 continue
@@ -210,6 +223,44 @@ def test_from_recording_streams_the_samples_after_each_settle(tmp_path):
     run = RecordedRun.load(noted)
     assert not run.has_true_pose and len(run.postures[0].stream) == 3
     assert run.postures[0].stream.leg_lengths[0, 0] == 9.0
+
+
+def test_a_resumed_run_is_replayed_from_every_recording_part(tmp_path):
+    poses = _poses(4)
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    # Session 1: postures 1-3, posture 2 rejected; posture 3 is collected again in session 2.
+    first = write_recording(run_dir / 'recording.mcap', poses[:3], per_posture=4, rejected={2})
+    # Session 2 (resumed, 10 s later): postures 2 (accepted now), 3 again and 4, as noted.
+    second = write_recording(
+        run_dir / 'recording-2.mcap',
+        poses[1:],
+        per_posture=6,
+        notes=True,
+        start_ns=T0 + 10_000 * MS,
+        numbers=[2, 3, 4],
+        note_after_ns=10 * MS,
+    )
+    for given in (run_dir, run_dir / 'recording.mcap'):
+        run = RecordedRun.load(given)
+        assert run.parts == (run_dir / 'recording.mcap', run_dir / 'recording-2.mcap')
+        assert run.source == run_dir / 'recording.mcap' and run.kind == SOURCE_RECORDING
+        assert [p.posture for p in run.postures] == [1, 2, 3, 4]
+        assert run.skipped == ()  # posture 2, rejected in session 1, was collected in session 2
+        for posture in run.postures:
+            legs, readings, truths = (first if posture.posture == 1 else second)[posture.posture]
+            np.testing.assert_array_equal(posture.stream.leg_lengths, legs)
+            np.testing.assert_array_equal(posture.stream.readings, readings)
+            np.testing.assert_allclose(posture.stream.true_poses, truths, atol=1e-12)
+            assert run.match(poses[posture.posture - 1]) is posture
+        assert len(run.postures[2].stream) == 6  # session 2's segment of posture 3, not 4 samples
+        assert len(run.initial_stream) == 3  # session 1's idle samples
+        assert run.initial_stream.true_poses[0, 2] == 1.0
+
+    # A later part given by name is read alone.
+    alone = RecordedRun.load(run_dir / 'recording-2.mcap')
+    assert alone.parts == (run_dir / 'recording-2.mcap',)
+    assert [p.posture for p in alone.postures] == [2, 3, 4]
 
 
 # --- the replay node -------------------------------------------------------------------------------

@@ -218,10 +218,10 @@ class DeviceClock:
     offset over the last ``window`` lines, and stamps ``t_d + min_offset - latency`` (s). A jump
     back of the device time (wrap, reboot) or a gap longer than ``max_gap_s`` restarts the
     window. ``latency`` (s) is the remaining fixed delay (sensor filter, USB frame), measured once.
-    Stamps only grow, by at least :data:`MIN_STAMP_STEP_S`: a backlog read at once (a late
-    reader at start-up) would otherwise get one stamp for all its lines, or stamps out of device
-    order when a less-delayed line lowers the offset, and the three readings of different
-    instants would share stamps downstream.
+    A lower offset (a less-delayed line after a backlog, e.g. on a loaded host) is slewed in by
+    at most half the device step per line, so stamps keep the order of the device times. And
+    stamps only grow, by at least :data:`MIN_STAMP_STEP_S`, also across a restarted window: the
+    three readings of different instants must never share a stamp downstream.
     """
 
     def __init__(self, latency=0.0, window=200, max_gap_s=1.0):
@@ -234,20 +234,26 @@ class DeviceClock:
     def reset(self):
         self._last_device_s = None
         self._offsets = []
+        self._offset = None  # the offset of the last stamp (s)
 
     def stamp(self, device_time_us, receive_s):
         """Host time (s) of the instant of a line with ``device_time_us`` received at
         ``receive_s`` (s, host clock)."""
         device_s = device_time_us * 1e-6
+        step = None
         if self._last_device_s is not None:
             step = device_s - self._last_device_s
             if step < 0.0 or step > self.max_gap_s:
-                self._offsets = []
+                self._offsets, self._offset, step = [], None, None
         self._last_device_s = device_s
         self._offsets.append(receive_s - device_s)
         if len(self._offsets) > self.window:
             del self._offsets[0]
-        stamp = device_s + min(self._offsets) - self.latency
+        offset = min(self._offsets)
+        if step is not None and self._offset is not None:
+            offset = max(offset, self._offset - 0.5 * step)
+        self._offset = offset
+        stamp = device_s + offset - self.latency
         if self._last_stamp is not None and stamp < self._last_stamp + MIN_STAMP_STEP_S:
             stamp = self._last_stamp + MIN_STAMP_STEP_S
         self._last_stamp = stamp

@@ -83,6 +83,17 @@ def test_device_clock_keeps_the_least_delayed_offset():
     assert stamps[0] == pytest.approx(100.004 - 0.001)
 
 
+def test_device_clock_stamps_keep_device_order_after_a_backlog():
+    clock = sp.DeviceClock()
+    # The first lines wait 30 ms in a backlog (a loaded host), then arrive 1 ms late: the lower
+    # offset is slewed in by half a device step per line instead of stepping the stamps back.
+    delays = [0.030, 0.0255, 0.021] + [0.001] * 17
+    stamps = [clock.stamp(k * 5000, 100.0 + k * 0.005 + d) for k, d in enumerate(delays)]
+    assert all(b - a >= 0.0025 - 1e-12 for a, b in zip(stamps, stamps[1:], strict=False))
+    # 29 ms slewed in at 2.5 ms per line: converged to the least delay within 12 lines.
+    assert stamps[-1] == pytest.approx(100.0 + 19 * 0.005 + 0.001)
+
+
 def test_device_clock_restarts_after_a_reboot_or_a_gap():
     clock = sp.DeviceClock()
     clock.stamp(1_000_000, 50.0)

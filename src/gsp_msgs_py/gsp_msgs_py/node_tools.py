@@ -21,7 +21,6 @@ A check is a function ``value -> reason`` ('' when the value is accepted); the r
 ``'<name>: <value> rejected, <reason>'``. The ``check`` factories below cover the usual cases.
 """
 
-import contextlib
 import dataclasses
 import math
 import signal
@@ -397,23 +396,27 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
     """Initialise rclpy, build a node with ``make_node()`` and spin it until shutdown.
 
     ``executor`` is an executor instance or a factory (e.g. a class) called after the node is
-    built; without one the node is spun with ``rclpy.spin``. Returns the process exit code:
+    built; without one the node is spun by a ``SingleThreadedExecutor``. Returns the process exit code:
     1 if the node raised :class:`ConfigurationError` (logged as fatal under ``logger_name``),
-    otherwise 0 (including Ctrl-C and external shutdown).
+    otherwise 0 (including SIGINT, SIGTERM, any number of them, and external shutdown).
     """
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
+    # Before rclpy.init, so that rclpy's handlers chain to these (see StopSignals).
+    stop_signals = StopSignals().install()
     rclpy.init(args=args)
     node = None
     active_executor = None
     exit_code = 0
     try:
-        node = make_node()
-        if executor is None:
-            rclpy.spin(node)
-        else:
+        # A signal before rclpy's handlers were in place did not shut the context down.
+        if not stop_signals.received and rclpy.ok():
+            # The executor exists before the node: a signal during the node's start-up shuts
+            # the context down, on which no executor could be built any more.
+            executor = executor or SingleThreadedExecutor
             active_executor = executor() if callable(executor) else executor
+            node = make_node()
             active_executor.add_node(node)
             active_executor.spin()
     except ConfigurationError as error:
@@ -427,44 +430,42 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
         if rclpy.ok():
             raise
     finally:
-        # A second Ctrl-C (``ros2 launch`` forwards SIGINT on top of the terminal's) or a SIGTERM
-        # during the cleanup must not raise KeyboardInterrupt inside destroy_node(): the node
-        # closes its files (e.g. the recording) first, whatever arrives meanwhile.
-        with signals_deferred():
-            if active_executor is not None:
-                active_executor.shutdown(timeout_sec=1.0)
-            if node is not None:
-                node.destroy_node()
-            rclpy.try_shutdown()
+        if active_executor is not None:
+            active_executor.shutdown(timeout_sec=1.0)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
     return exit_code
 
 
-@contextlib.contextmanager
-def signals_deferred(signals=(signal.SIGINT, signal.SIGTERM)):
-    """Ignore ``signals`` inside the block (main thread only; elsewhere a no-op).
+class StopSignals:
+    """SIGINT and SIGTERM handlers of a node process that record the signal and never raise.
 
-    Used for shutdown: the process is already going down, so a repeated signal has nothing left
-    to ask for.
+    ``rclpy.init`` installs rclpy's own (C++) handlers, which shut every context down on SIGINT
+    or SIGTERM (ending the spin with ``ExternalShutdownException``) and then call the handler
+    that was in place before: this one. Python's default SIGINT handler would raise
+    ``KeyboardInterrupt`` there, once per signal, wherever the main thread happens to be: a
+    second Ctrl-C (``ros2 launch`` forwards SIGINT on top of the terminal's), or a SIGINT just
+    after a SIGTERM, then lands inside the cleanup (``destroy_node()``, closing the recording),
+    or escapes ``run_node`` so that the interpreter exits with rclpy's handler thread still
+    running (``terminate called without an active exception``, SIGABRT). Recording instead
+    makes every further signal harmless: the node always finishes its cleanup.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {}
-    for number in signals:
-        try:
-            previous[number] = signal.signal(number, signal.SIG_IGN)
-        except (OSError, ValueError):  # pragma: no cover (not settable here)
-            continue
-    try:
-        yield
-    finally:
-        for number, handler in previous.items():
-            with contextlib.suppress(OSError, ValueError, TypeError):
-                if handler is None:  # installed outside Python (rclpy's): Python's default
-                    handler = (
-                        signal.default_int_handler if number == signal.SIGINT else signal.SIG_DFL
-                    )
-                signal.signal(number, handler)
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.received = []  #: signal numbers, in order of arrival
+
+    def __call__(self, signal_number, frame):
+        self.received.append(signal_number)
+
+    def install(self):
+        """Install for :attr:`SIGNALS` (main thread only; elsewhere a no-op); returns self."""
+        if threading.current_thread() is threading.main_thread():
+            for number in self.SIGNALS:
+                signal.signal(number, self)
+        return self
 
 
 # --- documentation -----------------------------------------------------------------------------

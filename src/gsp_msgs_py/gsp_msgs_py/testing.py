@@ -6,13 +6,12 @@ context, and re-export the :func:`ros_context` fixture. In-process node tests su
 lazily, so importing this module does not load ROS.
 """
 
-import os
 import time
 
 import pytest
 
 from .node_tools import spin_until  # noqa: F401 (re-exported for the tests)
-from .ros_environment import loopback_environment
+from .ros_environment import DomainInUseError, enter_private_domain
 
 
 def wait_until(predicate, timeout):
@@ -57,10 +56,14 @@ class SpinThread:
 
 
 def use_loopback_domain():
-    """Keep DDS on loopback, in a random ROS domain unless one is already set."""
-    env = loopback_environment()
-    for key in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID'):
-        os.environ[key] = env[key]
+    """Keep DDS on loopback, in a ROS domain of this test session's own: a free one claimed by
+    lock unless ``ROS_DOMAIN_ID`` is set (then checked: no other run holds it, no nodes in it
+    yet); see :func:`~gsp_msgs_py.ros_environment.enter_private_domain`. A collision fails the
+    session at once with the reason, rather than letting two runs hear each other."""
+    try:
+        return enter_private_domain()
+    except DomainInUseError as error:
+        pytest.exit(f'ROS domain: {error}', returncode=3)
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""Keep DDS on loopback in a per-session random domain (set before rclpy creates a context)."""
+"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md)."""
 
 from gsp_msgs_py.testing import ros_context, use_loopback_domain  # noqa: F401
 
