@@ -199,9 +199,12 @@ class CalibratorNode(Node):
         """Act on the protocol's events (any thread)."""
         for event in events:
             if isinstance(event, protocol.CollectionStarted):
-                self.recorder.note_collection_start(
-                    event.command_id, event.start_ns, posture=event.posture
-                )
+                try:
+                    self.recorder.note_collection_start(
+                        event.command_id, event.start_ns, posture=event.posture
+                    )
+                except OSError as error:  # a full disk: the run ends, as on a message write
+                    self._on_recording_error(error)
                 count = self._settings_count()
                 self.progress(
                     event.posture,

@@ -131,6 +131,11 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     ``on_message(topic, log_time_ns, message)``, if given, sees every message read first
     (``extra_topics`` are read for it alone). Malformed messages are dropped, as the calibrator
     drops them.
+
+    A command takes effect at the first later sensor message stamped at or after it (or the
+    next status or command): the calibrator commands the next posture as soon as a row is
+    complete, and the recorder, a subscription of its own, may log the row's last samples after
+    that command; they still belong to the posture before it.
     """
     from gsp_msgs_py import conversions
 
@@ -145,11 +150,22 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
         + tuple(extra_topics)
     )
     count = 0
+    pending = None  # (number, pose, command_id, log time) of a command not yet in effect
+
+    def command_now():
+        nonlocal pending
+        if pending is None:
+            return []
+        events, pending = collection.command(*pending), None
+        return events
+
     messages = (m for part in paths for m in read_recording(part, topics=wanted))
     for topic, _, log_time, msg, _ in messages:
         if on_message is not None:
             on_message(topic, log_time, msg)
         if topic in protocol.TOPIC_STREAMS:
+            if pending is not None and not _stamped_before(msg, int(pending[2])):
+                yield from command_now()
             events = collection.sensor(topic, msg, log_time)
         elif topic == names.TOPIC_POSE_COMMAND:
             try:
@@ -157,21 +173,35 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
                 pose = conversions.pose_stamped_to_pose(msg)
             except (ValueError, TypeError):
                 continue
+            yield from command_now()
             count += 1
             number = notes.get(command_id, (None, None))[0] or count
-            events = collection.command(number, pose, command_id, log_time)
+            pending = (number, pose, command_id, log_time)
+            continue
         elif topic == names.TOPIC_PLATFORM_STATUS:
             try:
                 status = conversions.parse_status(msg)
             except ValueError:
                 continue
+            yield from command_now()
             events = collection.status(
                 status, log_time, notes.get(status.command_id, (None, None))[1]
             )
         else:
             continue
         yield from events
+    yield from command_now()
     yield from collection.finish()
+
+
+def _stamped_before(msg, stamp_ns):
+    """Whether ``msg``'s header stamp is before ``stamp_ns`` (False if it has none)."""
+    from gsp_msgs_py import conversions
+
+    try:
+        return conversions.stamp_to_nanoseconds(msg.header.stamp) < stamp_ns
+    except (AttributeError, ValueError, TypeError):
+        return False
 
 
 def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
