@@ -6,7 +6,6 @@ because the machine may be loaded, and end as soon as their condition holds.
 
 import json
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -28,7 +27,7 @@ from gsp_kinematics.geometry import (
     parameter_errors,
     save_geometry,
 )
-from gsp_msgs_py import conversions, names, qos
+from gsp_msgs_py import conversions, names, qos, testing
 from gsp_msgs_py.node_tools import ConfigurationError
 from gsp_msgs_py.testing import SpinThread
 
@@ -101,13 +100,7 @@ class Suite:
     @staticmethod
     def wait_until(predicate, timeout=CALL_TIMEOUT_S):
         """Wait for an event (``predicate()``); False if it has not come within ``timeout``."""
-        done = threading.Event()
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > deadline:
-                return False
-            done.wait(0.02)
-        return True
+        return testing.wait_until(predicate, timeout)
 
     def wait(self, future, timeout=CALL_TIMEOUT_S):
         assert self.wait_until(future.done, timeout), 'no calibrate response'
