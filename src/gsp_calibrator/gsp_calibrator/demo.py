@@ -111,7 +111,9 @@ def node_commands(args, output_root, which=shutil.which):
     ``--device serial``, its serial backend on ``args.device_port`` fed by gsp_fake_device) and
     the calibrator."""
     rate = float(args.sensor_rate)
-    common = ['-p', f'publish_rate:={rate!r}', '-p', f'seed:={int(args.seed)}']
+    # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
+    # noise (node_tools.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
+    common = ['-p', f'publish_rate:={rate!r}']
     commands = {
         'platform_sim': executable_command('platform_sim', which)
         + [
@@ -188,8 +190,6 @@ def node_commands(args, output_root, which=shutil.which):
             str(args.device_port),
             '--rate',
             repr(rate),
-            '--seed',
-            str(int(args.seed)),
             '--true-geometry',
             str(args.true_geometry),
         ]
@@ -332,7 +332,7 @@ def parse_arguments(argv=None):
         default=default_geometry_path('nominal'),
         help='nominal geometry: controller start and identification start',
     )
-    add_run_options(parser, seed_help='seed of postures and noise')
+    add_run_options(parser, seed_help='seed of the posture pool and the validation postures')
     parser.add_argument('--validation-postures', type=int, default=50, help='(50)')
     add = parser.add_argument
     add('--sensor-rate', type=float, default=200.0, help='leg-length and device rate, Hz (200)')

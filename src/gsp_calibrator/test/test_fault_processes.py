@@ -6,20 +6,24 @@ generous timeout that only limits a failure.
 """
 
 import json
-import math
 import os
 import signal
 import threading
 import time
 
+import numpy as np
 import pytest
+from scipy import stats
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from gsp_calibrator import demo, protocol, recording, run_state
+from gsp_calibrator import calibration, demo, mcap_io, offline, protocol, recording, run_state
 from gsp_calibrator.processes import NodeProcesses
 from gsp_calibrator.run_directory import read_samples
-from gsp_msgs_py import names, qos
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import default_geometry_path, load_geometry
+from gsp_kinematics.identification import ALL_PARAMETER_NAMES
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.testing import SpinThread
 
 POSTURES = 60
@@ -172,9 +176,26 @@ def assert_recorded(parts, samples):
     assert len(rebuilt) >= 0.8 * len(samples)
 
 
-def estimates(run):
+def identification(run):
+    """The run's identification, redone offline from its ``samples.csv`` and options (the
+    calibrator's own code) for the covariance, which ``result.json`` does not hold; checked
+    against the run's own estimates."""
     data = json.loads((run / 'result.json').read_text())
-    return data['estimates']['si'], data['standard_deviations']['si']
+    options = data['options']
+    result = calibration.identify_from_samples(
+        load_geometry(options['nominal_geometry_file']),
+        read_samples(run / 'samples.csv'),
+        offline.sigmas_of(options),
+        free=options['free_parameters'],
+        formulation=options['formulation'],
+    ).result
+    online = dict(data['estimates']['si'])
+    online.update({name: entry['estimate'] for name, entry in data['sensor_errors'].items()})
+    for name, value, sd in zip(
+        ALL_PARAMETER_NAMES, result.parameters, result.standard_deviations, strict=True
+    ):
+        assert np.isnan(sd) or abs(value - online[name]) <= 1e-3 * sd, name
+    return result
 
 
 def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(suite):
@@ -209,25 +230,62 @@ def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(suite):
     assert state['recordings'] == ['recording.mcap', 'recording-2.mcap']
     assert_recorded(parts, samples)
 
+    # The restarted device_driver draws fresh noise: with a fixed seed it replayed the draws of
+    # its first life, so the resumed run averaged the same noise twice (docs/faults.md).
+    first, second = (inclinometer_noise_draws(part) for part in parts)
+    assert len(first) > 50 and len(second) > 50 and not first & second
+
     # An uninterrupted run on the same postures (same selection options): within noise.
     full = client.call(names.SERVICE_CALIBRATE)
     assert full.success, full.message
     other = runs_under(root)[-1]
     assert other != run
-    (a, sd_a), (b, sd_b) = estimates(run), estimates(other)
-    z = {}  # |difference| in standard deviations of the difference of two independent estimates
-    for name, sd in sd_a.items():
-        if sd is None or sd_b.get(name) is None:
-            continue  # not a free parameter
-        z[name] = abs(a[name] - b[name]) / math.hypot(sd, sd_b[name])
-    # Every parameter within 5 sigmas of the difference: a lost, shifted or repeated row is far
-    # outside. The issue's 3 sigmas on every parameter is not met reliably: in about 1 run in 6
-    # several parameters differ by 3-4.3 sigmas, and online fits give chi2/dof of 1.1-1.3, so
-    # the rows' noise is underestimated somewhere (docs/faults.md, "Known limits").
-    ranked = sorted(z.items(), key=lambda item: -item[1])
-    assert ranked[0][1] <= 5.0, ranked[:10]
-    compared = len(z)
-    assert compared > 30
+    difference = parameter_difference(run, other)
+    # The difference of two independent estimates, against its covariance (the sum of theirs):
+    # its squared Mahalanobis length is chi2 with one degree per free parameter. 0.1 % of
+    # correct resumes fail this (and any one of them is a 3.3-sigma event); a lost, shifted or
+    # doubled row, or draws shared between the runs, is far outside. The issue's "3 standard
+    # deviations on every parameter" is reported, not asserted: with 51 correlated parameters,
+    # 9 % of pairs of correct runs have one beyond 3 (docs/faults.md, "Resume against an
+    # uninterrupted run").
+    assert difference['parameters'] > 30
+    assert difference['mahalanobis2'] <= difference['chi2_999'], difference
+    assert difference['max_sigmas'] <= 4.5, difference
+
+
+def inclinometer_noise_draws(path):
+    """The alpha noise draws (rad, rounded to 1e-12) of the inclinometer readings recorded in
+    ``path``: reading minus the exact reading of the recorded true pose of the simulated truth."""
+    truth = load_geometry(default_geometry_path('true'))
+    pose, draws = None, set()
+    for message in mcap_io.read_recording(
+        path, topics=[names.TOPIC_TRUE_POSE, names.TOPIC_INCLINOMETER]
+    ):
+        if message.topic == names.TOPIC_TRUE_POSE:
+            pose = conversions.pose_stamped_to_pose(message.message)[None]
+        elif pose is not None:
+            exact = truth.sensors.device_readings(device_readings(truth, pose))[0]
+            draws.add(round(message.message.position[0] - exact[0], 12))
+    return draws
+
+
+def parameter_difference(run, other):
+    """The free parameters' difference between two runs' results, in their standard deviations
+    (each parameter, largest) and jointly (squared Mahalanobis length and its 0.999 quantile)."""
+    a, b = identification(run), identification(other)
+    assert (a.free == b.free).all()
+    difference = (a.parameters - b.parameters)[a.free]
+    sigmas = difference / np.hypot(a.standard_deviations, b.standard_deviations)[a.free]
+    names_ = [name for name, free in zip(ALL_PARAMETER_NAMES, a.free, strict=True) if free]
+    return {
+        'parameters': len(difference),
+        'max_sigmas': float(np.abs(sigmas).max()),
+        'beyond_3_sigmas': [name for name, z in zip(names_, sigmas, strict=True) if abs(z) > 3],
+        'mahalanobis2': float(
+            difference @ np.linalg.solve(a.covariance + b.covariance, difference)
+        ),
+        'chi2_999': float(stats.chi2.ppf(0.999, len(difference))),
+    }
 
 
 def test_killed_platform_sim_names_the_status_and_resume_completes(suite):

@@ -92,7 +92,7 @@ class DeviceDriverNode(Node):
                 self, backend_parameters(backend_type)
             ).items()
         }
-        seed = values['seed'] if values['seed'] >= 0 else np.random.SeedSequence().entropy
+        seed = node_tools.resolve_seed(values['seed'])
         try:
             self._backend = backend_type.from_config(
                 true_geometry_file=values['true_geometry_file'],

@@ -5,7 +5,7 @@ of the true geometry's device with Gaussian noise and streams them in the serial
 :class:`~gsp_device_driver.fake_device.FakeDevice` at ``--port`` (a symlink to the pty). Faults:
 ``--garbage-fraction``, ``--checksum-error-fraction``, and periodic silences and disconnects.
 
-    gsp_fake_device --port /tmp/gsp_device [--rate 200] [--seed 0] [--ros-args ...]
+    gsp_fake_device --port /tmp/gsp_device [--rate 200] [--seed -1] [--ros-args ...]
     ros2 run gsp_device_driver device_driver --ros-args -p backend:=serial \\
         -p serial.port:=/tmp/gsp_device
 """
@@ -36,7 +36,7 @@ def parse_arguments(argv=None):
     add('--port', required=True, help='path of the symlink to the pty the driver opens')
     add('--rate', type=float, default=200.0, help='reading lines per second (200)')
     add('--true-geometry', default=default_geometry_path('true'), help='device D0 and gamma')
-    add('--seed', type=int, default=0, help='noise seed (0; -1 random)')
+    add('--seed', type=int, default=-1, help='noise seed (default -1: a fresh one at each start)')
     add('--inclinometer-noise-std', type=float, default=DEFAULT_ANGLE_NOISE_STD, help='rad')
     add('--encoder-noise-std', type=float, default=DEFAULT_ANGLE_NOISE_STD, help='rad')
     add('--lvdt-noise-std', type=float, default=DEFAULT_LENGTH_NOISE_STD, help='m')
@@ -62,7 +62,7 @@ class FakeDeviceNode(Node):
 
     def __init__(self, args, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        seed = args.seed if args.seed >= 0 else np.random.SeedSequence().entropy
+        seed = node_tools.resolve_seed(args.seed)
         try:
             self._model = SimDeviceBackend.from_config(
                 args.true_geometry,

@@ -26,6 +26,8 @@ import math
 import signal
 import threading
 
+import numpy as np
+
 from . import names
 
 # rclpy is imported inside the functions that need a node, so that pure modules (the
@@ -163,15 +165,29 @@ def publish_rate_spec(what, default=200.0):
 
 
 def seed_spec():
-    """``seed`` (read-only): of the node's noise generator; -1 draws one."""
+    """``seed`` (read-only): of the node's noise generator; -1 (default) draws one at each start."""
     return ParameterSpec(
         'seed',
-        0,
-        'Seed of the noise generator; -1 = random',
+        -1,
+        'Seed of the noise generator; -1 = a fresh one at each start (logged). A fixed seed '
+        'replays the same noise at every start of the node',
         read_only=True,
         integer_range=(-1, 2**31 - 1),
         check=at_least(-1, reason='must be >= 0, or -1 for a random seed'),
     )
+
+
+def resolve_seed(seed):
+    """The noise seed a node uses: ``seed`` if >= 0, else a fresh one in [0, 2**31) from the OS
+    entropy.
+
+    Fresh by default because a simulated sensor restarted with a fixed seed replays the noise of
+    its previous life: a resumed calibration would then average the same draws twice and its
+    parameters would be less independent than their standard deviations say (docs/faults.md).
+    """
+    seed = int(seed)
+    # Drawn in the parameter's own range, so the logged seed can be passed back to replay a life.
+    return seed if seed >= 0 else int(np.random.SeedSequence().generate_state(1)[0] >> 1)
 
 
 def frame_id_spec(description):

@@ -40,8 +40,13 @@ LATEST_STATE_QOS = _keep_last(1, reliable=False)
 # Pose commands must not be lost; a short queue is enough (one command per posture).
 COMMAND_QOS = _keep_last(10, reliable=True)
 
-# Status transitions (moving -> settled/rejected) are events: reliable, deep enough for bursts.
-STATUS_QOS = _keep_last(50, reliable=True)
+# Status transitions (moving -> settled/rejected) are events: reliable, deep enough for bursts,
+# and transient local (as ROS 2 action status topics are). A calibrator that has just started or
+# restarted sees the platform's status publisher in its graph before the publisher has matched
+# its subscription; a status published in that gap would be lost and the first posture would
+# wait for a status that never comes. Kept statuses reach a late subscription when it matches;
+# statuses of other commands are ignored by their command id.
+STATUS_QOS = _keep_last(50, reliable=True, latched=True)
 
 # The latest calibrated geometry, latched for late joiners.
 RESULT_QOS = _keep_last(1, reliable=True, latched=True)

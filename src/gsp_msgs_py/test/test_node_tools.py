@@ -17,6 +17,8 @@ from gsp_msgs_py.node_tools import (
     not_blank,
     one_of,
     parameter_table_markdown,
+    resolve_seed,
+    seed_spec,
     watch_parameters,
 )
 
@@ -136,3 +138,11 @@ def test_declare_parameters_runs_the_whole_set_check(ros_context):
             declare_parameters(node, SPECS, validate=lambda values: 'inconsistent')
     finally:
         node.destroy_node()
+
+
+def test_a_noise_seed_is_fresh_at_each_start_unless_fixed():
+    # Fresh by default: a simulated sensor restarted mid-run must not replay its noise.
+    assert seed_spec().default == -1
+    fresh = {resolve_seed(-1) for _ in range(5)}
+    assert len(fresh) == 5 and all(0 <= seed < 2**31 for seed in fresh)  # a valid `seed`
+    assert resolve_seed(7) == 7 and resolve_seed(0) == 0

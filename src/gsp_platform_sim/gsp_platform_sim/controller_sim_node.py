@@ -71,7 +71,7 @@ class ControllerSimNode(Node):
         self._joint_names = list(values['joint_names'])
         self._frame_id = values['frame_id']
         self._noise_std = values['leg_noise_std']
-        seed = values['seed'] if values['seed'] >= 0 else np.random.SeedSequence().entropy
+        seed = node_tools.resolve_seed(values['seed'])
         self._rng = np.random.default_rng([seed, RNG_STREAM])
         # Powered up where a nominal controller put the home pose.
         nominal = default_geometry('nominal')

@@ -85,7 +85,7 @@ class PlatformSimNode(Node):
         controller_geometry = geometry_from_parameters(
             {name: values[name] for name in GEOMETRY_PARAMETER_NAMES}
         )
-        seed = values['seed'] if values['seed'] >= 0 else np.random.SeedSequence().entropy
+        seed = node_tools.resolve_seed(values['seed'])
         try:
             self._simulator = PlatformSimulator(
                 true_geometry,
