@@ -25,7 +25,6 @@ from rcl_interfaces.srv import SetParametersAtomically
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
@@ -33,17 +32,6 @@ from gsp_msgs_py import qos
 
 WAIT_OK = 'ok'
 WAIT_TIMEOUT = 'timeout'
-
-#: Sensor QoS (best effort, volatile, keep last) with a deep queue: the calibrator pairs samples
-#: by stamp, so late samples are fine but lost ones are not. 1000 holds 5 s per topic at 200 Hz,
-#: enough to ride out a starved process without losing one of the three device topics of an
-#: instant (which would leave that instant incomplete).
-SENSOR_SUBSCRIPTION_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
-    reliability=qos.SENSOR_QOS.reliability,
-    durability=qos.SENSOR_QOS.durability,
-)
 
 
 def new_future(executor):
@@ -259,7 +247,7 @@ class SensorListener:
     """Takes topics in a thread of its own (see the module docstring).
 
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
-    :data:`SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
+    :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
     kept until :meth:`close`. ``setup``: None or a function of the node called before the thread
     starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
     None, or a function given any exception a callback raises (e.g. a recording's full disk);
@@ -291,7 +279,7 @@ class SensorListener:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self._subscriptions = [
-            self.node.create_subscription(JointState, topic, callback, SENSOR_SUBSCRIPTION_QOS)
+            self.node.create_subscription(JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS)
             for topic, callback in callbacks.items()
         ]
         self.extra = setup(self.node) if setup is not None else None

@@ -304,15 +304,18 @@ class RunRecorder:
             self._subscribe()
 
     def _subscribe(self):
-        from gsp_msgs_py.qos import SENSOR_QOS, TOPIC_QOS
+        from gsp_msgs_py.qos import SENSOR_QOS, SENSOR_SUBSCRIPTION_QOS, TOPIC_QOS
 
         for topic, type_name in self.topics.items():
+            profile = TOPIC_QOS.get(topic, SENSOR_QOS)
+            if profile == SENSOR_QOS:  # the collector's deep queue: record what it may use
+                profile = SENSOR_SUBSCRIPTION_QOS
             self._subscriptions.append(
                 self.node.create_subscription(
                     message_class(type_name),
                     topic,
                     self._callback(topic),
-                    TOPIC_QOS.get(topic, SENSOR_QOS),
+                    profile,
                     callback_group=self.callback_group,
                     raw=True,
                 )

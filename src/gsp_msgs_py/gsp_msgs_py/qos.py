@@ -32,6 +32,13 @@ def _keep_last(depth, reliable, latched=False):
 # memory cost is a few kB per topic. Best effort so a slow subscriber never throttles the sources.
 SENSOR_QOS = _keep_last(50, reliable=False)
 
+# What the calibrator's collector and its recorder subscribe the streams with: the sensor
+# profile with a deep queue. They pair samples by stamp, so late samples are fine but lost ones
+# are not; 1000 holds 5 s per topic at 200 Hz, enough to ride out a starved process without
+# losing one of the three device topics of an instant. The recorder needs it as much as the
+# collector: a reading it drops is missing from the rebuild and the replay of the run.
+SENSOR_SUBSCRIPTION_QOS = _keep_last(1000, reliable=False)
+
 # A sensor that samples the platform's current state needs only the newest pose: with depth 1 a
 # busy subscriber (the simulated device) never works through a backlog of stale poses, which
 # would make its readings lag the platform after a move.
