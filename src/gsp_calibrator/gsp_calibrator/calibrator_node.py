@@ -12,8 +12,9 @@ concurrency).
 
 This wrapper only moves messages and waits. The collection protocol is
 :class:`.protocol.CollectionProtocol`: every status and sensor message goes to it with its
-receive time, a watchdog timer polls it for timeouts, and its events (row ready, posture
-skipped, topic silent) end each posture. The course of a run is :class:`.run_flow.CalibrationRun`
+receive time (a status also with its publish instant: a posture's samples count from the
+publication of its ``settled``, :func:`.protocol.settle_start_ns`), a watchdog timer polls it for
+timeouts, and its events (row ready, posture skipped, topic silent) end each posture. The course of a run is :class:`.run_flow.CalibrationRun`
 (a coroutine), its files :class:`.run_session.RunSession`; the waiting machinery is
 :mod:`.node_waiting`, the second-source guard :mod:`.sources`. The end of a posture (in the
 thread of the message that ended it) appends the row to samples.csv and commands the next
@@ -169,7 +170,7 @@ class CalibratorNode(Node):
 
         return callback
 
-    def _on_status(self, msg):
+    def _on_status(self, msg, info):
         try:
             status = conversions.parse_status(msg)
         except ValueError as error:
@@ -178,7 +179,13 @@ class CalibratorNode(Node):
             )
             return
         with self._lock:
-            events = self._protocol.status(status, self._now_ns()) if self._sensors_active else []
+            events = []
+            if self._sensors_active:
+                now_ns = self._now_ns()
+                start_ns = protocol.settle_start_ns(
+                    info.get('source_timestamp'), now_ns, self._protocol.topic_timeout
+                )
+                events = self._protocol.status(status, now_ns, start_ns)
         self._handle(events)
 
     def _on_watchdog(self):

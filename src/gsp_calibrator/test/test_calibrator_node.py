@@ -4,6 +4,7 @@ The sensors run at 100 Hz here (three nodes share one Python process); waits are
 because the machine may be loaded, and end as soon as their condition holds.
 """
 
+import contextlib
 import json
 import threading
 
@@ -156,6 +157,20 @@ def test_calibration_in_process(ros_context, tmp_path):
     status_publisher = suite.client_node.create_publisher(
         DiagnosticStatus, names.TOPIC_PLATFORM_STATUS, qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS]
     )
+    settled_published = {}  # command id -> source timestamp (ns) of its settled status
+
+    def on_status(msg, info):
+        with contextlib.suppress(ValueError):  # the junk status below
+            status = conversions.parse_status(msg)
+            if status.settled:
+                settled_published[status.command_id] = info['source_timestamp']
+
+    suite.client_node.create_subscription(
+        DiagnosticStatus,
+        names.TOPIC_PLATFORM_STATUS,
+        on_status,
+        qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+    )
     try:
         first = suite.call()
         # Once the run has started (its first progress), a second call is answered at once.
@@ -234,6 +249,12 @@ def test_calibration_in_process(ros_context, tmp_path):
         ):
             assert info['topics'][topic]['count'] > 0, topic
         assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
+        # Each posture's samples count from the instant the platform published settled (not
+        # from the status's receipt): the noted starts are the statuses' source timestamps.
+        starts = recording.collection_notes(info)
+        assert starts and {c: start for c, (_, start) in starts.items()} == {
+            c: settled_published[c] for c in starts
+        }
         assert info['metadata'][recording.RUN_METADATA_NAME]
         assert json.loads((run.path / 'result.json').read_text())
 
