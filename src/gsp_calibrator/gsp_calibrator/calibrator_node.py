@@ -30,6 +30,7 @@ second one (``<name>_recorder``). The protocol and the run are guarded by one lo
 """
 
 import os
+import sys
 import threading
 import time
 
@@ -61,6 +62,11 @@ from .sources import SingleSourceGuard
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
+#: Longest time (s) a busy thread keeps the GIL while another waits for it (Python's default:
+#: 0.005). The node's threads (executor, sensor listener, recorder) share one GIL: the message
+#: that completes a posture, and the next command, would otherwise wait up to 5 ms for the
+#: recorder's thread at each hand-over.
+GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
 #: Topics the node publishes, in the order of its publisher attributes.
 OUTPUTS = (
@@ -374,8 +380,16 @@ class CalibratorNode(Node):
         return super().destroy_node()
 
 
+def share_the_gil_promptly():
+    """Set the process's GIL switch interval to :data:`GIL_SWITCH_INTERVAL_S`; the previous one."""
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    return previous
+
+
 def main(args=None):
     """Console script ``calibrator``; returns 1 if the parameters prevent start-up."""
+    share_the_gil_promptly()
     return node_tools.run_node(
         CalibratorNode,
         args,

@@ -6,6 +6,7 @@ because the machine may be loaded, and end as soon as their condition holds.
 
 import contextlib
 import json
+import sys
 import threading
 
 import numpy as np
@@ -20,7 +21,11 @@ from std_srvs.srv import Trigger
 
 from gsp_calibrator import recording
 from gsp_calibrator.calibration import parse_response
-from gsp_calibrator.calibrator_node import CalibratorNode
+from gsp_calibrator.calibrator_node import (
+    GIL_SWITCH_INTERVAL_S,
+    CalibratorNode,
+    share_the_gil_promptly,
+)
 from gsp_calibrator.run_directory import RunDirectory
 from gsp_kinematics.geometry import (
     default_geometry,
@@ -533,6 +538,15 @@ def test_bad_parameters_are_rejected_at_run_time(ros_context, tmp_path):
             assert node.describe_parameter(spec_name).description
     finally:
         node.destroy_node()
+
+
+def test_the_calibrator_process_hands_the_gil_over_promptly():
+    previous = share_the_gil_promptly()
+    try:
+        assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_INTERVAL_S)
+        assert GIL_SWITCH_INTERVAL_S < 0.005  # Python's default
+    finally:
+        sys.setswitchinterval(previous)
 
 
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
