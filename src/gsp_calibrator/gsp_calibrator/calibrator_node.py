@@ -12,8 +12,9 @@ concurrency).
 
 This wrapper only moves messages and waits. The collection protocol is
 :class:`.protocol.CollectionProtocol`: every status and sensor message goes to it with its
-receive time, a watchdog timer polls it for timeouts, and its events (row ready, posture
-skipped, topic silent) end each posture. The course of a run is :class:`.run_flow.CalibrationRun`
+receive time (a status also with its publish instant: a posture's samples count from the
+publication of its ``settled``, :func:`.protocol.settle_start_ns`), a watchdog timer polls it for
+timeouts, and its events (row ready, posture skipped, topic silent) end each posture. The course of a run is :class:`.run_flow.CalibrationRun`
 (a coroutine), its files :class:`.run_session.RunSession`; the waiting machinery is
 :mod:`.node_waiting`, the second-source guard :mod:`.sources`. The end of a posture (in the
 thread of the message that ended it) appends the row to samples.csv and commands the next
@@ -29,6 +30,7 @@ second one (``<name>_recorder``). The protocol and the run are guarded by one lo
 """
 
 import os
+import sys
 import threading
 import time
 
@@ -60,6 +62,11 @@ from .sources import SingleSourceGuard
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
+#: Longest time (s) a busy thread keeps the GIL while another waits for it (Python's default:
+#: 0.005). The node's threads (executor, sensor listener, recorder) share one GIL: the message
+#: that completes a posture, and the next command, would otherwise wait up to 5 ms for the
+#: recorder's thread at each hand-over.
+GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
 #: Topics the node publishes, in the order of its publisher attributes.
 OUTPUTS = (
@@ -169,7 +176,7 @@ class CalibratorNode(Node):
 
         return callback
 
-    def _on_status(self, msg):
+    def _on_status(self, msg, info):
         try:
             status = conversions.parse_status(msg)
         except ValueError as error:
@@ -178,7 +185,13 @@ class CalibratorNode(Node):
             )
             return
         with self._lock:
-            events = self._protocol.status(status, self._now_ns()) if self._sensors_active else []
+            events = []
+            if self._sensors_active:
+                now_ns = self._now_ns()
+                start_ns = protocol.settle_start_ns(
+                    info.get('source_timestamp'), now_ns, self._protocol.topic_timeout
+                )
+                events = self._protocol.status(status, now_ns, start_ns)
         self._handle(events)
 
     def _on_watchdog(self):
@@ -367,8 +380,16 @@ class CalibratorNode(Node):
         return super().destroy_node()
 
 
+def share_the_gil_promptly():
+    """Set the process's GIL switch interval to :data:`GIL_SWITCH_INTERVAL_S`; the previous one."""
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    return previous
+
+
 def main(args=None):
     """Console script ``calibrator``; returns 1 if the parameters prevent start-up."""
+    share_the_gil_promptly()
     return node_tools.run_node(
         CalibratorNode,
         args,

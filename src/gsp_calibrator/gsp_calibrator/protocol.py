@@ -9,8 +9,8 @@ recording's log time) and acts on the events it returns.
 Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first status must come
 within ``topic_timeout`` (else :class:`TopicSilent`); ``rejected`` skips it; ``settled`` must
 come within ``settle_timeout`` of that first status (else skipped) and starts the collection
-(:class:`CollectionStarted`) at its receive time, or at a start given with it (a recording's
-noted start). From then on the :class:`~gsp_calibrator.collector.SampleCollector` pairs the
+(:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
+the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collector.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
 consistent window gives the row (:class:`RowReady`). The posture is skipped when
 ``max_pairs_per_sample * samples_per_posture`` pairs hold no consistent window, or when no window
@@ -88,6 +88,26 @@ _ADDERS = {
     ENCODER: SampleCollector.add_encoder,
     LVDT: SampleCollector.add_lvdt,
 }
+
+
+def settle_start_ns(published_ns, received_ns, topic_timeout):
+    """The collection start of a ``settled`` status published at ``published_ns`` (the
+    publisher's stamp, e.g. the middleware's source timestamp; None or 0 if unknown) and
+    received at ``received_ns`` (ns, node clock).
+
+    The platform settled when it said so: samples stamped from the publish instant on count,
+    also those received before the status itself (the status latency would otherwise cost the
+    samples stamped meanwhile). The receive time when the publish instant is unknown or
+    implausible on this clock: after the receipt (a publisher clock ahead, a stamp in another
+    time base) or more than ``topic_timeout`` (s) before it.
+    """
+    received_ns = int(received_ns)
+    if not published_ns:
+        return received_ns
+    published_ns = int(published_ns)
+    if received_ns - topic_timeout * 1e9 <= published_ns <= received_ns:
+        return published_ns
+    return received_ns
 
 
 def read_sensor(topic, msg):

@@ -4,7 +4,9 @@ The sensors run at 100 Hz here (three nodes share one Python process); waits are
 because the machine may be loaded, and end as soon as their condition holds.
 """
 
+import contextlib
 import json
+import sys
 import threading
 
 import numpy as np
@@ -19,7 +21,11 @@ from std_srvs.srv import Trigger
 
 from gsp_calibrator import recording
 from gsp_calibrator.calibration import parse_response
-from gsp_calibrator.calibrator_node import CalibratorNode
+from gsp_calibrator.calibrator_node import (
+    GIL_SWITCH_INTERVAL_S,
+    CalibratorNode,
+    share_the_gil_promptly,
+)
 from gsp_calibrator.run_directory import RunDirectory
 from gsp_kinematics.geometry import (
     default_geometry,
@@ -156,6 +162,20 @@ def test_calibration_in_process(ros_context, tmp_path):
     status_publisher = suite.client_node.create_publisher(
         DiagnosticStatus, names.TOPIC_PLATFORM_STATUS, qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS]
     )
+    settled_published = {}  # command id -> source timestamp (ns) of its settled status
+
+    def on_status(msg, info):
+        with contextlib.suppress(ValueError):  # the junk status below
+            status = conversions.parse_status(msg)
+            if status.settled:
+                settled_published[status.command_id] = info['source_timestamp']
+
+    suite.client_node.create_subscription(
+        DiagnosticStatus,
+        names.TOPIC_PLATFORM_STATUS,
+        on_status,
+        qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+    )
     try:
         first = suite.call()
         # Once the run has started (its first progress), a second call is answered at once.
@@ -234,6 +254,12 @@ def test_calibration_in_process(ros_context, tmp_path):
         ):
             assert info['topics'][topic]['count'] > 0, topic
         assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
+        # Each posture's samples count from the instant the platform published settled (not
+        # from the status's receipt): the noted starts are the statuses' source timestamps.
+        starts = recording.collection_notes(info)
+        assert starts and {c: start for c, (_, start) in starts.items()} == {
+            c: settled_published[c] for c in starts
+        }
         assert info['metadata'][recording.RUN_METADATA_NAME]
         assert json.loads((run.path / 'result.json').read_text())
 
@@ -512,6 +538,15 @@ def test_bad_parameters_are_rejected_at_run_time(ros_context, tmp_path):
             assert node.describe_parameter(spec_name).description
     finally:
         node.destroy_node()
+
+
+def test_the_calibrator_process_hands_the_gil_over_promptly():
+    previous = share_the_gil_promptly()
+    try:
+        assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_INTERVAL_S)
+        assert GIL_SWITCH_INTERVAL_S < 0.005  # Python's default
+    finally:
+        sys.setswitchinterval(previous)
 
 
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():

@@ -91,6 +91,28 @@ def test_samples_received_before_the_settle_count_when_stamped_after_the_start()
     assert isinstance(events[0], RowReady) and events[0].sample.n_samples == 2
 
 
+def test_the_collection_starts_at_the_settled_status_publish_instant_when_plausible():
+    received = T0 + 10 * MS
+    # The platform published settled 3 ms before it was received: samples count from then.
+    assert protocol.settle_start_ns(T0 + 7 * MS, received, 1.0) == T0 + 7 * MS
+    assert protocol.settle_start_ns(received, received, 1.0) == received
+    # Unknown, after the receipt (a clock ahead), or older than topic_timeout (another time
+    # base): the receipt.
+    for published in (None, 0, received + MS, received - 2 * S):
+        assert protocol.settle_start_ns(published, received, 1.0) == received
+    # The samples received before the status and stamped from the publish instant count.
+    collection = make(samples=2)
+    collection.command(1, POSE, 'c1', T0)
+    instant(collection, T0 + 6 * MS, now=T0 + 8 * MS)  # before the publish instant: not used
+    instant(collection, T0 + 7 * MS, q=Q + 1e-7, now=T0 + 9 * MS)
+    start = protocol.settle_start_ns(T0 + 7 * MS, received, 1.0)
+    events = collection.status(status('c1', names.STATE_SETTLED, ''), received, start)
+    assert events == [CollectionStarted(1, 'c1', T0 + 7 * MS)]
+    (row,) = instant(collection, T0 + 12 * MS, q=Q + 3e-7)
+    assert isinstance(row, RowReady) and row.sample.n_samples == 2
+    np.testing.assert_allclose(row.sample.leg_lengths, Q + 2e-7, rtol=0, atol=1e-15)
+
+
 def test_a_rejected_posture_is_skipped_and_reported():
     collection = make()
     events = collection.command(1, POSE, 'c1', T0)

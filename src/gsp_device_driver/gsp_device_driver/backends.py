@@ -61,6 +61,10 @@ class DeviceBackend(abc.ABC):
     needs_true_pose = False
     #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
     simulates_noise = False
+    #: Whether a reading is taken at the node's publish timer (``now_s`` is then the timer's
+    #: scheduled tick, see ``gsp_msgs_py.node_tools.scheduled_tick_ns``), not received at the
+    #: device's own pace.
+    samples_at_tick = False
     #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.node_tools.ParameterSpec`).
     PARAMETERS = ()
 
@@ -115,6 +119,7 @@ class SimDeviceBackend(DeviceBackend):
     name = 'sim'
     needs_true_pose = True
     simulates_noise = True
+    samples_at_tick = True
 
     def __init__(
         self,

@@ -113,7 +113,7 @@ class DeviceDriverNode(Node):
             self.create_subscription(
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
-        self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
+        self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
         self.get_logger().info(
             f"device_driver ready: backend '{values['backend']}', publishing at "
             f'{values["publish_rate"]:g} Hz, noise std inclinometer '
@@ -152,7 +152,12 @@ class DeviceDriverNode(Node):
             )
 
     def _publish_readings(self):
-        now = self.get_clock().now()
+        # A backend sampling at the timer (sim) reads the instant of the scheduled tick: the
+        # callback's delay would jitter its stamps against the leg lengths'.
+        if self._backend.samples_at_tick:
+            now = node_tools.timer_tick_time(self, self._timer)
+        else:
+            now = self.get_clock().now()
         now_s = now.nanoseconds * 1e-9
         try:
             samples = self._backend.read_available(now_s)

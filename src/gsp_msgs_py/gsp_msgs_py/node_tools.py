@@ -361,6 +361,36 @@ def device_messages(readings, stamp, frame_id):
     }
 
 
+def scheduled_tick_ns(period_ns, until_next_ns, now_ns):
+    """The scheduled instant (ns) of the tick a periodic timer's callback is running for.
+
+    ``until_next_ns``: the timer's ``time_until_next_call()`` read at (or just after) ``now_ns``
+    in the callback. rcl advances a timer's next call before its callback runs, by whole periods
+    (missed ticks are skipped, the phase kept), so the tick is ``next - period``: the sample a
+    simulated sensor takes in the callback is stamped on the timer's regular grid, free of the
+    callback's scheduling delay (which would otherwise jitter the pairing of two streams). The
+    tick is never after ``now_ns``, so a reading taken now describes the state at its stamp or
+    later, and the ticks of successive calls only grow. ``now_ns`` when the timer says nothing
+    usable (None, or a grid ahead of ``now_ns``: a clock that jumped back).
+    """
+    if until_next_ns is None or period_ns <= 0:
+        return int(now_ns)
+    tick_ns = int(now_ns) + int(until_next_ns) - int(period_ns)
+    return tick_ns if tick_ns <= int(now_ns) else int(now_ns)
+
+
+def timer_tick_time(node, timer):
+    """``rclpy.time.Time`` (``node``'s clock) of :func:`scheduled_tick_ns` for ``timer``, called
+    from the timer's own callback."""
+    from rclpy.time import Time
+
+    now = node.get_clock().now()
+    tick_ns = scheduled_tick_ns(
+        timer.timer_period_ns, timer.time_until_next_call(), now.nanoseconds
+    )
+    return Time(nanoseconds=tick_ns, clock_type=now.clock_type)
+
+
 #: Least interval (s) between two warnings about dropped messages of one kind.
 DROP_WARNING_THROTTLE_S = 1.0
 

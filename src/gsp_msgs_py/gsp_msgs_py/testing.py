@@ -28,6 +28,18 @@ def wait_until(predicate, timeout):
     return True
 
 
+def off_grid(stamps_ns, period_ns):
+    """How far (in periods, 0 to 0.5) the steps between consecutive ``stamps_ns`` lie from whole
+    periods of ``period_ns``, at worst; 0.0 for stamps of a timer's scheduled ticks (see
+    :func:`gsp_msgs_py.node_tools.scheduled_tick_ns`). Repeated stamps count as off the grid."""
+    stamps = sorted(int(s) for s in stamps_ns)
+    worst = 0.0
+    for first, later in zip(stamps, stamps[1:], strict=False):
+        steps = (later - first) / period_ns
+        worst = max(worst, abs(steps - round(steps)) if steps >= 0.5 else 0.5)
+    return worst
+
+
 class SpinThread:
     """Spins ``executor`` in a daemon thread until :meth:`stop` (then shut it down yourself).
 

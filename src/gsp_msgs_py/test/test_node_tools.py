@@ -4,6 +4,7 @@ import math
 
 import pytest
 import rclpy
+import rclpy.executors
 from rclpy.parameter import Parameter
 
 from gsp_msgs_py.node_tools import (
@@ -18,9 +19,13 @@ from gsp_msgs_py.node_tools import (
     one_of,
     parameter_table_markdown,
     resolve_seed,
+    scheduled_tick_ns,
     seed_spec,
+    spin_until,
+    timer_tick_time,
     watch_parameters,
 )
+from gsp_msgs_py.testing import off_grid
 
 SPECS = (
     ParameterSpec(
@@ -146,3 +151,42 @@ def test_a_noise_seed_is_fresh_at_each_start_unless_fixed():
     fresh = {resolve_seed(-1) for _ in range(5)}
     assert len(fresh) == 5 and all(0 <= seed < 2**31 for seed in fresh)  # a valid `seed`
     assert resolve_seed(7) == 7 and resolve_seed(0) == 0
+
+
+def test_scheduled_tick_is_the_timer_grid_instant_before_its_next_call():
+    period = 5_000_000
+    # rcl has advanced the next call to 1_010 ms when the callback runs at 1_007.3 ms: the tick
+    # it runs for is 1_005 ms; a callback late by more than a period keeps the grid too.
+    assert scheduled_tick_ns(period, 2_700_000, 1_007_300_000) == 1_005_000_000
+    assert scheduled_tick_ns(period, 1_000_000, 1_019_000_000) == 1_015_000_000
+    assert scheduled_tick_ns(period, -1_000_000, 1_021_000_000) == 1_015_000_000  # due again
+    # Nothing usable: the current time.
+    assert scheduled_tick_ns(period, None, 1_007_300_000) == 1_007_300_000
+    assert scheduled_tick_ns(0, 2_700_000, 1_007_300_000) == 1_007_300_000
+    assert scheduled_tick_ns(period, 9_000_000, 1_007_300_000) == 1_007_300_000  # ahead of now
+    # The tests' measure of it: steps of whole periods (gaps allowed), repeats not.
+    assert off_grid([0, period, 3 * period, 4 * period], period) == 0.0
+    assert off_grid([0, period, 2 * period + 1_000_000], period) == pytest.approx(0.2)
+    assert off_grid([0, period + 1_000_000], period) == pytest.approx(0.2)
+    assert off_grid([0, period, period], period) == 0.5
+
+
+def test_timer_tick_time_stamps_a_timer_callback_on_its_grid(ros_context):
+    node = rclpy.create_node('node_tools_tick_test', context=ros_context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    ticks = []
+    try:
+        timer = node.create_timer(
+            0.1, lambda: ticks.append((timer_tick_time(node, timer), node.get_clock().now()))
+        )
+        assert spin_until(executor, lambda: len(ticks) >= 4, timeout=30.0)
+        period = timer.timer_period_ns
+        for tick, now in ticks:
+            assert tick.clock_type == now.clock_type and tick.nanoseconds <= now.nanoseconds
+        # On the grid up to the few us between two clock reads in the callback (the callback's
+        # own delay, whatever it is, does not show).
+        assert off_grid([tick.nanoseconds for tick, _ in ticks], period) < 0.25
+    finally:
+        executor.shutdown()
+        node.destroy_node()

@@ -106,7 +106,7 @@ class PlatformSimNode(Node):
             self, (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
         )
         self._commands = PoseCommandServer(self, self._frame_id, values['settle_time'], self._move)
-        self.create_timer(1.0 / values['publish_rate'], self._publish_state)
+        self._state_timer = self.create_timer(1.0 / values['publish_rate'], self._publish_state)
         if values['publish_markers']:
             self._markers_pub = node_tools.create_publishers(self, (names.TOPIC_MARKERS,))[
                 names.TOPIC_MARKERS
@@ -151,7 +151,9 @@ class PlatformSimNode(Node):
     # ------------------------------------------------------------------------ publishing
 
     def _publish_state(self):
-        stamp = self.get_clock().now().to_msg()
+        # Stamped at the timer's scheduled tick, as a sensor sampling on its own clock: the
+        # callback's delay would jitter the leg-length stamps against the device's.
+        stamp = node_tools.timer_tick_time(self, self._state_timer).to_msg()
         self._pubs[names.TOPIC_LEG_LENGTHS].publish(
             conversions.leg_lengths_to_msg(
                 self._simulator.measured_leg_lengths(), stamp, self._frame_id
