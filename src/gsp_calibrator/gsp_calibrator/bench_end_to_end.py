@@ -276,13 +276,15 @@ VALIDATION_POSTURES = {False: 50, True: 10}
 
 def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     """What the core alone reaches on the node suite's noise: same geometry files, same posture
-    selection, Table 3's first level averaged over ``SAMPLES_PER_POSTURE`` samples per posture
-    (as the calibrator does), then validated like the demo. Means over ``seeds`` noise draws."""
+    selection, same free parameters, Table 3's first level averaged over ``SAMPLES_PER_POSTURE``
+    samples per posture (as the calibrator does), then validated like the demo. The truth is
+    simulated as ``platform_sim`` and the ``sim`` device do, its sensor errors included. Means
+    over ``seeds`` noise draws."""
     import numpy as np
 
     from gsp_kinematics.device import device_readings
     from gsp_kinematics.geometry import default_geometry
-    from gsp_kinematics.identification import Sigmas, identify
+    from gsp_kinematics.identification import Sigmas, identify, resolve_free
     from gsp_kinematics.kinematics import (
         forward_kinematics_masked,
         inverse_kinematics,
@@ -290,39 +292,28 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     )
     from gsp_kinematics.validation import validate
 
-    from .calibration import choose_postures
+    from .calibration import DEFAULT_FREE, averaged_sigmas, choose_postures
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    per_sample = Sigmas()
-    averaged = Sigmas(
-        *(
-            value / np.sqrt(SAMPLES_PER_POSTURE)
-            for value in (
-                per_sample.leg_lengths,
-                per_sample.inclinometer,
-                per_sample.encoder,
-                per_sample.lvdt,
-            )
-        )
-    )
+    averaged = averaged_sigmas(Sigmas(), np.full(postures, SAMPLES_PER_POSTURE))
     poses = choose_postures(nominal, postures, 600, seed, averaged).poses
-    # As in the node suite: the controller commands with the nominal geometry, the real platform
-    # settles at FK of those legs under the truth (postures it cannot reach are skipped).
-    legs = inverse_kinematics(nominal, poses)
-    reached, ok = forward_kinematics_masked(true, legs, poses)
+    # As in the node suite: the controller drives the legs to the nominal IK's sensor readings,
+    # the real platform settles at FK of its true articular variables (postures it cannot reach
+    # are skipped) and the real device reads it with its own sensor errors.
+    legs = nominal.sensors.leg_readings(inverse_kinematics(nominal, poses))
+    reached, ok = forward_kinematics_masked(true, true.sensors.true_leg_lengths(legs), poses)
     poses, legs, reached = poses[ok], legs[ok], reached[ok]
+    exact_readings = true.sensors.device_readings(device_readings(true, reached))
     validation = sample_valid_postures(
         nominal, validation_postures, np.random.default_rng(seed + 1_000_003)
     )
+    free = resolve_free(DEFAULT_FREE)
     position, orientation = [], []
     for draw in range(seeds):
         rng = np.random.default_rng(10_000 + draw)
         measured_legs = legs + rng.normal(0.0, averaged.leg_lengths, legs.shape)
-        readings = (
-            device_readings(true, reached)
-            + rng.normal(0.0, 1.0, (len(legs), 4)) * averaged.readings()
-        )
-        result = identify(nominal, measured_legs, readings, averaged, pose_guesses=poses)
+        readings = exact_readings + rng.normal(0.0, 1.0, (len(legs), 4)) * averaged.readings()
+        result = identify(nominal, measured_legs, readings, averaged, free=free, pose_guesses=poses)
         errors = validate(true, result.geometry, validation)
         position.append(errors['position_mm_mean'])
         orientation.append(errors['orientation_deg_mean'])
