@@ -99,6 +99,9 @@ class CalibratorNode(Node):
         self._run = None  # CalibrationRun of the current run
         self._session = None  # its RunSession once collecting
         self.finals = EventQueue(self._new_future)  # final posture events not yet reported
+        # Final events the protocol has emitted (with the lock held) and _end_posture has not
+        # yet taken (ids): between the two the protocol is idle and `finals` may be empty.
+        self._ending = set()
         self.failure = None  # the event that ended the current run
         self._sources = SingleSourceGuard()
         self._waits = Waits(time.monotonic)
@@ -171,6 +174,7 @@ class CalibratorNode(Node):
                     lambda: self._sensors.node.count_publishers(topic),
                 )
                 events = [failure] if failure else self._protocol.sensor(topic, msg, self._now_ns())
+                self._note_finals(events)
             if events:
                 self._handle(events)
 
@@ -191,13 +195,14 @@ class CalibratorNode(Node):
                 start_ns = protocol.settle_start_ns(
                     info.get('source_timestamp'), now_ns, self._protocol.topic_timeout
                 )
-                events = self._protocol.status(status, now_ns, start_ns)
+                events = self._note_finals(self._protocol.status(status, now_ns, start_ns))
         self._handle(events)
 
     def _on_watchdog(self):
         self._waits.poll()
         with self._lock:
             events = self._protocol.poll(self._now_ns()) if self._sensors_active else []
+            self._note_finals(events)
         self._handle(events)
 
     def _on_recording_error(self, error):
@@ -229,11 +234,19 @@ class CalibratorNode(Node):
             elif isinstance(event, protocol.FINAL_EVENTS + RUN_FAILURES):
                 self._end_posture(event)
 
+    def _note_finals(self, events):
+        """Note the final events among ``events`` (the lock held) until they are taken."""
+        self._ending.update(
+            id(event) for event in events if isinstance(event, protocol.FINAL_EVENTS + RUN_FAILURES)
+        )
+        return events
+
     def _end_posture(self, event):
         """Keep the row (samples.csv) or the skip of a posture and command the next one at once,
         from the event's own thread; the run coroutine reports it (and ends on a failure)."""
         next_events = []
         with self._lock:
+            self._ending.discard(id(event))
             if not self._sensors_active or self._session is None or self.failure is not None:
                 return
             event = self._session.end_posture(event)
@@ -252,7 +265,7 @@ class CalibratorNode(Node):
         k, pose = posture
         stamp = self.get_clock().now()
         command_id = conversions.command_id_from_stamp(stamp)
-        events = self._protocol.command(k, pose, command_id, stamp.nanoseconds)
+        events = self._note_finals(self._protocol.command(k, pose, command_id, stamp.nanoseconds))
         self.command_publisher.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
         count = self._settings_count()
         self.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
@@ -304,6 +317,7 @@ class CalibratorNode(Node):
         with self._lock:
             self._protocol, self._session, self.failure = collection, session, None
             self.finals.clear()
+            self._ending.clear()
             self._sources.reset()
             self._sensors_active = True
 
@@ -319,7 +333,7 @@ class CalibratorNode(Node):
     def collection_done(self):
         """Whether every posture was commanded, has ended and was reported."""
         with self._lock:
-            idle = self._protocol.posture is None and not self.finals
+            idle = self._protocol.posture is None and not self.finals and not self._ending
             return idle and self._session.commanded_all
 
     def publish_result(self, yaml_text):
