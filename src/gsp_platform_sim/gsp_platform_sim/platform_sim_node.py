@@ -18,6 +18,7 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
     GEOMETRY_PARAMETER_NAMES,
@@ -64,6 +65,7 @@ PARAMETERS = (
     node_tools.frame_id_spec(
         'Base frame: of the published messages, and required of pose commands'
     ),
+    node_tools.diagnostics_period_spec(),
 )
 
 
@@ -106,6 +108,11 @@ class PlatformSimNode(Node):
             self, (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
         )
         self._commands = PoseCommandServer(self, self._frame_id, values['settle_time'], self._move)
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('commands', names.STATUS_HARDWARE_ID, self._commands.health)],
+        )
         self._state_timer = self.create_timer(1.0 / values['publish_rate'], self._publish_state)
         if values['publish_markers']:
             self._markers_pub = node_tools.create_publishers(self, (names.TOPIC_MARKERS,))[
