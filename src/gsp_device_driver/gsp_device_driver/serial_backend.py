@@ -11,6 +11,8 @@ import collections
 import threading
 import time
 
+from gsp_msgs_py.health import ERROR, OK, WARN, Health
+
 from .backends import BackendError, DeviceBackend, DeviceSample
 from .serial_protocol import (
     ANGLE_UNITS,
@@ -119,6 +121,7 @@ class SerialDeviceBackend(DeviceBackend):
             ('lines', 'readings', 'hello', 'connects', 'disconnects', *DROP_REASONS), 0
         )
         self.hello = None
+        self._reported = (dict(self.counters), self._clock())  # for health(): the last report
         self._stop = threading.Event()
         self._thread = None
 
@@ -154,6 +157,47 @@ class SerialDeviceBackend(DeviceBackend):
             messages = list(self._messages)
             self._messages.clear()
         return messages
+
+    @property
+    def hardware_id(self):
+        return self.port
+
+    def health(self):
+        """From :attr:`counters` since the previous call: ERROR while the port is not open or the
+        device's hello is refused (version, units: its readings are dropped); WARN when lines
+        were dropped, or none came, since the previous report; else OK."""
+        now = self._clock()
+        with self._lock:
+            counts, hello = dict(self.counters), self.hello
+        (before, before_s), self._reported = self._reported, (counts, now)
+        new = {key: counts[key] - before[key] for key in counts}
+        rate = new['lines'] / (now - before_s) if now > before_s else 0.0
+        values = {
+            **{key: counts[key] for key in ('lines', 'readings', 'hello', 'connects')},
+            'disconnects': counts['disconnects'],
+            **{f'dropped_{reason}': counts[reason] for reason in DROP_REASONS},
+            'line_rate_hz': f'{rate:.1f}',
+            'units': f'{self.angle_unit}/{self.length_unit}',
+            'last_hello': ''
+            if hello is None
+            else (
+                f'{hello.device_id} v{hello.version} {hello.angle_unit}/{hello.length_unit} '
+                f'{hello.rate_hz:g} Hz'
+            ),
+        }
+        dropped = sum(new[reason] for reason in DROP_REASONS)
+        if counts['connects'] <= counts['disconnects']:
+            return Health(ERROR, f'{self.port} is not open', values)
+        refused = self._refusal(hello)
+        if refused:
+            return Health(
+                ERROR, f'the device hello is refused ({refused}): readings dropped', values
+            )
+        if dropped:
+            return Health(WARN, f'{dropped} line(s) dropped since the last report', values)
+        if new['lines'] == 0:
+            return Health(WARN, f'no line from {self.port} since the last report', values)
+        return Health(OK, f'{rate:.1f} lines/s', values)
 
     def close(self):
         self._stop.set()

@@ -7,6 +7,7 @@ from gsp_device_driver.backends import backend_class
 from gsp_device_driver.fake_device import FakeDevice
 from gsp_device_driver.serial_backend import SerialDeviceBackend
 from gsp_msgs_py import testing
+from gsp_msgs_py.health import ERROR, WARN
 
 TIMEOUT_S = 20.0
 VALUES = np.array([0.01, -0.02, 0.3, 0.25])
@@ -68,6 +69,16 @@ def test_garbage_lines_are_dropped_and_each_counted(link):
         stamps = np.array([s.stamp_s for s in samples])
         assert np.all(np.diff(stamps) > 0)  # device time orders them
         assert backend.hello.device_id == 'gsp-fake-device'
+        # health(): the drops since the previous report make it a warning, counted by reason.
+        health = backend.health()
+        assert health.level == WARN and 'dropped since the last report' in health.message
+        assert health.values['dropped_garbage'] == str(fake.count('garbage'))
+        assert health.values['dropped_checksum'] == str(fake.count('checksum_errors'))
+        assert health.values['readings'] == str(fake.count('readings'))
+        assert health.values['last_hello'].startswith('gsp-fake-device v1 rad/m')
+        # Nothing since: no drop to report, but no line either.
+        health = backend.health()
+        assert health.level == WARN and 'no line' in health.message
     finally:
         fake.close()
         backend.close()
@@ -111,6 +122,9 @@ def test_units_that_disagree_with_the_hello_line_drop_the_readings(link):
         assert wait_until(lambda: backend.counters['units'] >= 5)
         assert backend.counters['readings'] == 0
         assert any('serial.angle_unit' in text for _, text in backend.messages())
+        health = backend.health()
+        assert health.level == ERROR and 'refused (units)' in health.message
+        assert int(health.values['dropped_units']) >= 5
     finally:
         fake.close()
         backend.close()
@@ -123,5 +137,7 @@ def test_a_missing_port_is_a_warning_and_a_retry(tmp_path):
         messages = []
         assert wait_until(lambda: messages.extend(backend.messages()) or messages)
         assert messages[0][0] == 'warning' and 'cannot open' in messages[0][1]
+        health = backend.health()
+        assert health.level == ERROR and health.message == f'{tmp_path / "absent"} is not open'
     finally:
         backend.close()
