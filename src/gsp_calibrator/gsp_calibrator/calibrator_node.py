@@ -43,6 +43,7 @@ from std_srvs.srv import Trigger
 
 from gsp_kinematics.geometry import geometry_to_parameters
 from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 
 from . import calibration, protocol, recording
 from .node_waiting import (
@@ -56,6 +57,7 @@ from .node_waiting import (
     run_in_thread,
 )
 from .run_flow import RUN_FAILURES, CalibrationRun
+from .run_health import calibrator_health
 from .run_session import RunWriteError, WriteFailed
 from .settings import PARAMETERS, CalibratorSettings, check_parameters
 from .sources import SingleSourceGuard
@@ -107,6 +109,11 @@ class CalibratorNode(Node):
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
+        # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
+        # run or not, and the latest progress published.
+        self._heard_ns = dict.fromkeys(protocol.SENSOR_TOPICS)
+        self._last_progress = None
+
         self._service_group = ReentrantCallbackGroup()
         self._data_group = ReentrantCallbackGroup()
         self._parameter_setter = ParameterSetter(self, self._data_group)
@@ -139,6 +146,11 @@ class CalibratorNode(Node):
                 Trigger, service, self._service(resume), callback_group=self._service_group
             )
 
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('calibration', names.PROGRESS_NAME, self._health)],
+        )
         # Posture selection takes seconds: start it now for the current parameters.
         self.selection_future(self._settings)
         self.get_logger().info(
@@ -164,6 +176,7 @@ class CalibratorNode(Node):
 
     def _sensor_callback(self, topic):
         def callback(msg, info):
+            self._heard_ns[topic] = time.monotonic_ns()
             if not self._sensors_active:  # no run: drop at once
                 return
             with self._lock:
@@ -294,16 +307,28 @@ class CalibratorNode(Node):
     def progress(self, index, phase, message='', residuals=None, warning=False, **extra):
         """Publish the run's progress at posture ``index`` (0 before the first)."""
         count = self._settings_count()
-        self._progress_pub.publish(
-            conversions.make_progress(
-                max(0, min(index, count)),
-                count,
-                phase,
-                residuals,
-                message,
-                level=DiagnosticStatus.WARN if warning else None,
-                extra={k: str(v) for k, v in extra.items()},
-            )
+        msg = conversions.make_progress(
+            max(0, min(index, count)),
+            count,
+            phase,
+            residuals,
+            message,
+            level=DiagnosticStatus.WARN if warning else None,
+            extra={k: str(v) for k, v in extra.items()},
+        )
+        self._progress_pub.publish(msg)
+        self._last_progress = conversions.parse_progress(msg)
+
+    def _health(self):
+        """The calibrator's health on /diagnostics (:func:`.run_health.calibrator_health`)."""
+        session = self._run.session if self._run is not None else None
+        return calibrator_health(
+            self._running,
+            self._last_progress,
+            session.run.path if session is not None else '',
+            dict(self._heard_ns),
+            time.monotonic_ns(),
+            self._settings.topic_timeout,
         )
 
     def selection_future(self, settings):

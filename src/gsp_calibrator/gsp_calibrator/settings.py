@@ -25,6 +25,7 @@ from gsp_kinematics.identification import (
     Sigmas,
     resolve_free,
 )
+from gsp_msgs_py import node_tools
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
 
 DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
@@ -218,6 +219,7 @@ PARAMETERS = (
         constraints='a valid node name',
         check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
     ),
+    node_tools.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
