@@ -103,3 +103,46 @@ def test_the_suites_own_nodes_conform_and_answer_a_test_command(ros_context):
         for node in (checker, driver, platform):
             node.destroy_node()
     assert problems == [], '\n'.join(problems + lines)
+    # What /diagnostics said, one line per status: level, message, number of keys.
+    assert any(line.startswith('    device_driver: device: OK ') for line in lines), lines
+    assert any(line.startswith('    platform_sim: commands: OK ') for line in lines), lines
+
+
+def test_a_suite_node_without_diagnostics_and_a_status_at_error_are_problems(ros_context):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from gsp_msgs_py import qos
+    from gsp_msgs_py.diagnostics import health_to_status
+    from gsp_msgs_py.health import ERROR, Health
+
+    driver = WrongDriver(ros_context, fault=None)
+    silent = rclpy.create_node(names.NODE_DEVICE_DRIVER, context=ros_context)  # reports nothing
+    bridge = rclpy.create_node(names.NODE_PLATFORM_BRIDGE, context=ros_context)
+    publisher = bridge.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS_QOS)
+    broken = Health(ERROR, 'no /joint_states received from the controller', {'goal_active': 0})
+    bridge.create_timer(
+        0.1,
+        lambda: publisher.publish(
+            DiagnosticArray(status=[health_to_status(broken, 'platform_bridge: controller', 'c')])
+        ),
+    )
+    checker = rclpy.create_node('gsp_check_interfaces', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (driver.node, silent, bridge, checker):
+        executor.add_node(node)
+    try:
+        problems, lines = run_check(checker, executor, arguments(duration=1.5))
+    finally:
+        executor.shutdown()
+        for node in (checker, bridge, silent, driver.node):
+            node.destroy_node()
+    assert problems == [
+        '/diagnostics: device_driver is running but published no status in 1.5 s',
+        '/diagnostics: platform_bridge: controller is ERROR: no /joint_states received from the '
+        'controller',
+    ], '\n'.join(problems + lines)
+    expected = (
+        '    platform_bridge: controller: ERROR no /joint_states received from the controller '
+        '(1 keys)'
+    )
+    assert expected in lines, lines

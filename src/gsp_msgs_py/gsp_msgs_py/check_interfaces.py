@@ -5,16 +5,28 @@
 Listens to the sensor topics for ``--duration`` seconds (the platform should stand still) and
 checks rates, joint names, units, non-finite values, the static noise level, the delay from stamp
 to receipt, that the device's three readings of one instant share one stamp, and that every
-publisher's type and QoS match the suite's. With ``--send-test-command`` it also commands the
-home pose (the platform MOVES) and expects ``/gsp/platform/status`` to answer it. Prints each
-problem; exits 0 when there is none, 1 otherwise (2 on bad arguments).
+publisher's type and QoS match the suite's. It also listens to ``/diagnostics``: it prints each
+status heard (level, message, number of keys), and counts as a problem a suite node running
+without a status (``--duration`` should span two diagnostics periods) and a status at ERROR.
+With ``--send-test-command`` it also commands the home pose (the platform MOVES) and expects
+``/gsp/platform/status`` to answer it. Prints each problem; exits 0 when there is none, 1
+otherwise (2 on bad arguments).
 """
 
 import argparse
 import sys
 
 from . import conversions, names, qos
-from .interface_checks import SENSOR_TOPICS, Limits, Received, check_topics, topic_summary
+from .diagnostics import DiagnosticsListener
+from .interface_checks import (
+    SENSOR_TOPICS,
+    Limits,
+    Received,
+    check_diagnostics,
+    check_topics,
+    diagnostics_summary,
+    topic_summary,
+)
 from .node_tools import spin_until
 
 NODE_NAME = 'gsp_check_interfaces'
@@ -202,12 +214,16 @@ def run_check(node, executor, args):
     import time
 
     checker = InterfaceChecker(node, Limits(min_rate_hz=args.min_rate))
+    diagnostics = DiagnosticsListener(node)
     if args.send_test_command:
         checker.prepare_test_command()
     deadline = time.monotonic() + args.duration
     spin_until(executor, lambda: time.monotonic() >= deadline, args.duration + 1.0)
     checker.recording = False
     problems = checker.problems()
+    running = [name for name, _ in node.get_node_names_and_namespaces()]
+    problems += check_diagnostics(diagnostics.reports, running, args.duration)
+    problems += [f'{names.TOPIC_DIAGNOSTICS}: {why}' for why in diagnostics.malformed[:1]]
     if args.send_test_command:
         from gsp_kinematics.kinematics import home_pose
 
@@ -216,7 +232,8 @@ def run_check(node, executor, args):
             checker.send_test_command(home_pose())
             spin_until(executor, lambda: checker.final_status() is not None, args.command_timeout)
         problems += checker.status_problems()
-    return problems, checker.summary_lines()
+    lines = checker.summary_lines() + [f'  {names.TOPIC_DIAGNOSTICS}:']
+    return problems, lines + (diagnostics_summary(diagnostics.reports) or ['    (none heard)'])
 
 
 def main(argv=None):

@@ -3,7 +3,8 @@
 ``gsp_check_interfaces`` records what a driver publishes and hands it here: each JointState
 topic as a list of :class:`Received` (receive time and stamp in s of one clock, names, values).
 :func:`check_topics` returns the problems, each a sentence naming the topic and what is wrong,
-and :func:`topic_summary` the figures shown for each topic. Rules: docs/hardware.md.
+and :func:`topic_summary` the figures shown for each topic. Rules: docs/hardware.md. The
+statuses heard on ``/diagnostics`` are judged by :func:`check_diagnostics`.
 """
 
 import dataclasses
@@ -12,6 +13,8 @@ import math
 import numpy as np
 
 from . import names
+from .diagnostics import node_of_status
+from .health import ERROR, LEVEL_NAMES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,3 +173,30 @@ def check_topics(received_by_topic, limits=Limits()):
                 f'{names.TOPIC_LVDT}'
             )
     return problems
+
+
+def check_diagnostics(reports, running_nodes, duration_s):
+    """The problems of the latest status of each name heard on ``/diagnostics``
+    (``{name: Health}``): a node of :data:`names.DIAGNOSED_NODES` among ``running_nodes`` that
+    published none in ``duration_s`` (s), and every status at ERROR or STALE."""
+    topic = names.TOPIC_DIAGNOSTICS
+    reported = {node_of_status(name) for name in reports}
+    problems = [
+        f'{topic}: {node} is running but published no status in {duration_s:g} s'
+        for node in sorted(set(running_nodes) & set(names.DIAGNOSED_NODES))
+        if node not in reported
+    ]
+    problems += [
+        f'{topic}: {name} is {LEVEL_NAMES[health.level]}: {health.message}'
+        for name, health in sorted(reports.items())
+        if health.level >= ERROR
+    ]
+    return problems
+
+
+def diagnostics_summary(reports):
+    """One line per status heard: ``name: LEVEL message (n keys)``."""
+    return [
+        f'    {name}: {LEVEL_NAMES[health.level]} {health.message} ({len(health.values)} keys)'
+        for name, health in sorted(reports.items())
+    ]
