@@ -175,16 +175,17 @@ def check_topics(received_by_topic, limits=Limits()):
     return problems
 
 
-def check_diagnostics(reports, running_nodes, duration_s):
+def check_diagnostics(reports, seen_for_s, grace_s):
     """The problems of the latest status of each name heard on ``/diagnostics``
-    (``{name: Health}``): a node of :data:`names.DIAGNOSED_NODES` among ``running_nodes`` that
-    published none in ``duration_s`` (s), and every status at ERROR or STALE."""
+    (``{name: Health}``): a node of :data:`names.DIAGNOSED_NODES` in the graph for at least
+    ``grace_s`` (``seen_for_s``: ``{node name: s}``) without a status, and every status at ERROR
+    or STALE."""
     topic = names.TOPIC_DIAGNOSTICS
     reported = {node_of_status(name) for name in reports}
     problems = [
-        f'{topic}: {node} is running but published no status in {duration_s:g} s'
-        for node in sorted(set(running_nodes) & set(names.DIAGNOSED_NODES))
-        if node not in reported
+        f'{topic}: {node} is running but published no status in {seen_for_s[node]:.1f} s'
+        for node in _silent_nodes(reported, seen_for_s)
+        if seen_for_s[node] >= grace_s
     ]
     problems += [
         f'{topic}: {name} is {LEVEL_NAMES[health.level]}: {health.message}'
@@ -194,9 +195,22 @@ def check_diagnostics(reports, running_nodes, duration_s):
     return problems
 
 
-def diagnostics_summary(reports):
-    """One line per status heard: ``name: LEVEL message (n keys)``."""
-    return [
+def _silent_nodes(reported, seen_for_s):
+    return sorted(n for n in set(seen_for_s) & set(names.DIAGNOSED_NODES) if n not in reported)
+
+
+def diagnostics_summary(reports, seen_for_s=None, grace_s=0.0):
+    """One line per status heard: ``name: LEVEL message (n keys)``; then one per suite node
+    without a status that appeared too recently (less than ``grace_s``) to be judged."""
+    lines = [
         f'    {name}: {LEVEL_NAMES[health.level]} {health.message} ({len(health.values)} keys)'
         for name, health in sorted(reports.items())
     ]
+    seen_for_s = seen_for_s or {}
+    reported = {node_of_status(name) for name in reports}
+    lines += [
+        f'    {node}: no status yet, started {seen_for_s[node]:.1f} s ago (not judged)'
+        for node in _silent_nodes(reported, seen_for_s)
+        if seen_for_s[node] < grace_s
+    ]
+    return lines

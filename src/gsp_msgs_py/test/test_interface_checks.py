@@ -98,13 +98,15 @@ def test_diagnostics_problems_name_a_silent_suite_node_and_a_status_at_error():
         'calibrator: calibration': Health(WARN, 'silent for more than 2 s: /gsp/device/lvdt'),
         'platform_bridge: controller': Health(ERROR, 'stale /joint_states'),
     }
-    running = ['platform_sim', 'device_driver', 'calibrator', 'platform_bridge', 'rviz2']
-    problems = check_diagnostics(reports, running, 3.0)
+    # Seconds each node has been in the graph: the replay started too recently to be judged.
+    seen = {'platform_sim': 5, 'device_driver': 3.0, 'calibrator': 5, 'replay': 0.5, 'rviz2': 5}
+    problems = check_diagnostics(reports, seen, 2.0)
     assert problems == [
-        '/diagnostics: device_driver is running but published no status in 3 s',
+        '/diagnostics: device_driver is running but published no status in 3.0 s',
         '/diagnostics: platform_bridge: controller is ERROR: stale /joint_states',
     ]
-    lines = diagnostics_summary(reports)
+    lines = diagnostics_summary(reports, seen, 2.0)
     assert '    platform_sim: commands: OK no command yet (1 keys)' in lines
     assert any('calibrator: calibration: WARN silent' in line for line in lines)
-    assert check_diagnostics({}, ['rviz2', 'controller_sim'], 3.0) == []
+    assert '    replay: no status yet, started 0.5 s ago (not judged)' in lines
+    assert check_diagnostics({}, {'rviz2': 9, 'controller_sim': 9}, 2.0) == []
