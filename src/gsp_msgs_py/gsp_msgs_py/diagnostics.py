@@ -63,20 +63,27 @@ class Component:
 
 class DiagnosticsPublisher:
     """Publishes the health of ``components`` (:class:`Component`) of ``node`` on
-    ``/diagnostics`` every ``period_s`` s (a timer in ``callback_group``, default: the node's).
+    ``/diagnostics`` every ``period_s`` s.
 
-    A ``health()`` that raises is reported as ERROR with its error (and logged, throttled): a
-    node never dies of its own report.
+    The timer has a mutually exclusive callback group of its own: in a multi-threaded executor
+    it then never holds the node's default group, so it never delays the node's own callbacks
+    (nor makes rclpy 7.1 dispatch one of them in vain, whose unguarded guard-condition trigger
+    fails when the executor shuts down meanwhile: "exception was never retrieved"). So a
+    ``health()`` must only read what other callbacks write (counters, latest values): a report
+    may be one message behind. A ``health()`` that raises is reported as ERROR with its error
+    (and logged, throttled): a node never dies of its own report.
     """
 
-    def __init__(self, node, period_s, components, callback_group=None):
+    def __init__(self, node, period_s, components):
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
         self._node = node
         self.components = tuple(components)
         self._publisher = node.create_publisher(
             DiagnosticArray, names.TOPIC_DIAGNOSTICS, qos.DIAGNOSTICS_QOS
         )
         self._timer = node.create_timer(
-            float(period_s), self.publish, callback_group=callback_group
+            float(period_s), self.publish, callback_group=MutuallyExclusiveCallbackGroup()
         )
 
     def _health(self, component):
