@@ -23,6 +23,7 @@ import numpy as np
 
 from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
+from gsp_msgs_py.health import OK, WARN, Health
 
 
 class BackendError(ValueError):
@@ -88,6 +89,15 @@ class DeviceBackend(abc.ABC):
         Default: none."""
         return []
 
+    def health(self):
+        """The backend's :class:`~gsp_msgs_py.health.Health` (level, message, key/values) for
+        /diagnostics. Default: OK, no values."""
+        return Health(OK, 'no health report from this backend')
+
+    def describe(self):
+        """One line for the node's start-up log: what the backend reads and how."""
+        return ''
+
     def observe_true_pose(self, pose):
         """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
 
@@ -151,6 +161,7 @@ class SimDeviceBackend(DeviceBackend):
         self._rng = rng if rng is not None else np.random.default_rng()
         self._pose = None
         self._exact = None  # cached noise-free readings of self._pose
+        self._published = 0
 
     @classmethod
     def from_config(cls, true_geometry_file, rng=None, **config):
@@ -205,9 +216,22 @@ class SimDeviceBackend(DeviceBackend):
                 ) from None
             self._exact, self._pose = exact, pose
 
+    def describe(self):
+        inclinometer, encoder, _, lvdt = self._stds
+        return (
+            f'noise std inclinometer {inclinometer:g} rad, encoder {encoder:g} rad, lvdt {lvdt:g} m'
+        )
+
+    def health(self):
+        values = {'readings published': self._published, 'noise std': self.describe()}
+        if self._exact is None:
+            return Health(WARN, 'waiting for the true pose', values)
+        return Health(OK, 'simulating', values)
+
     def read(self, now_s):
         if self._exact is None:
             return None
+        self._published += 1
         values = self._exact + self._rng.normal(0.0, 1.0, size=4) * self._stds
         return DeviceSample(float(now_s), *(float(v) for v in values))
 

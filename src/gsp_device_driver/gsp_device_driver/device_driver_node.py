@@ -98,6 +98,8 @@ class DeviceDriverNode(Node):
                 true_geometry_file=values['true_geometry_file'],
                 **{name: values[name] for name in NOISE_PARAMETERS},
                 rng=np.random.default_rng([seed, RNG_STREAM]),
+                # A backend receiving at its own pace stamps on this clock when a line arrives.
+                stamp_clock=self._now_s,
                 **extras,
             )
         except ValueError as error:  # BackendError, GeometryError
@@ -114,12 +116,15 @@ class DeviceDriverNode(Node):
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
         self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
+        described = self._backend.describe()
         self.get_logger().info(
             f"device_driver ready: backend '{values['backend']}', publishing at "
-            f'{values["publish_rate"]:g} Hz, noise std inclinometer '
-            f'{values["inclinometer_noise_std"]:g} rad, encoder {values["encoder_noise_std"]:g} '
-            f'rad, lvdt {values["lvdt_noise_std"]:g} m, seed {seed}'
+            f'{values["publish_rate"]:g} Hz, seed {seed}' + (f', {described}' if described else '')
         )
+
+    def _now_s(self):
+        """The node's clock (s); thread-safe (read by a backend's reader thread)."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _check_noise_change(self, changes, current):
         """Run-time check: only a backend that simulates noise takes new noise levels."""
