@@ -75,6 +75,17 @@ def backend_parameters(backend_type):
     )
 
 
+def startup_line(values, seed, backend):
+    """The node's start-up log line: what it publishes, and what the backend reads (a serial
+    device has no simulated noise to report)."""
+    line = (
+        f"device_driver ready: backend '{values['backend']}', publishing at "
+        f'{values["publish_rate"]:g} Hz, seed {seed}'
+    )
+    described = backend.describe()
+    return f'{line}, {described}' if described else line
+
+
 class DeviceDriverNode(Node):
     """Device driver; ``**kwargs`` go to ``Node`` (``context=``, ``parameter_overrides=``)."""
 
@@ -116,11 +127,7 @@ class DeviceDriverNode(Node):
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
         self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
-        described = self._backend.describe()
-        self.get_logger().info(
-            f"device_driver ready: backend '{values['backend']}', publishing at "
-            f'{values["publish_rate"]:g} Hz, seed {seed}' + (f', {described}' if described else '')
-        )
+        self.get_logger().info(startup_line(values, seed, self._backend))
 
     def _now_s(self):
         """The node's clock (s); thread-safe (read by a backend's reader thread)."""

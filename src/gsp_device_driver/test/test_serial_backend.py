@@ -224,7 +224,7 @@ def test_stamps_grow_and_are_never_early_beside_a_cpu_hog(link):
     consumer = threading.Thread(target=consume)
     consumer.start()
     try:
-        assert wait_until(lambda: len(samples) >= 600, timeout=60.0)
+        assert wait_until(lambda: len(samples) >= 1000, timeout=60.0)
     finally:
         stop.set()
         consumer.join()
