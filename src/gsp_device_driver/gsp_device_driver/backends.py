@@ -6,10 +6,12 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 * ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
   :mod:`.serial_protocol` and docs/hardware.md).
 
+Each backend reports its :meth:`DeviceBackend.health` for /diagnostics.
+
 Adding a backend (e.g. ``hardware``): subclass :class:`DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
-``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng`` and its own extra
-parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
+``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng``, ``stamp_clock``
+(the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
 ``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
 to the node is needed.

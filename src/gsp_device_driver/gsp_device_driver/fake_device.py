@@ -56,11 +56,22 @@ class FakeDevice:
         self._rng = rng if rng is not None else np.random.default_rng()
         self._lock = threading.Lock()
         self.counters = dict.fromkeys(
-            ('readings', 'garbage', 'checksum_errors', 'hello', 'requests', 'lost', 'connects'),
+            (
+                'readings',
+                'garbage',
+                'checksum_errors',
+                'hello',
+                'requests',
+                'lost',
+                'lost_hello',
+                'skipped',
+                'connects',
+            ),
             0,
         )
         self.paused = False  # True: no reading lines (a test's pause to let the reader catch up)
         self._silent_until = 0.0
+        self._skip = 0
         self._unplugged_until = 0.0
         self._fds = None
         self._seq = 0
@@ -75,6 +86,12 @@ class FakeDevice:
         self._thread = threading.Thread(target=self._run, name='gsp-fake-device', daemon=True)
         self._thread.start()
         return self
+
+    def skip(self, count):
+        """Lose the next ``count`` reading lines on the way (their seq is used, nothing is sent),
+        as a noisy cable would."""
+        with self._lock:
+            self._skip += int(count)
 
     def silence(self, duration_s):
         """Send nothing for ``duration_s`` (the port stays open)."""
@@ -123,7 +140,8 @@ class FakeDevice:
 
     def _send_hello(self, now):
         if self._send(
-            format_hello(self.device_id, self.angle_unit, self.length_unit, self.rate_hz)
+            format_hello(self.device_id, self.angle_unit, self.length_unit, self.rate_hz),
+            lost='lost_hello',
         ):
             self.counters['hello'] += 1
         self._last_hello = now
@@ -147,8 +165,9 @@ class FakeDevice:
                 os.close(fd)
             self._fds = None
 
-    def _send(self, data):
-        """Write one line. A line the full buffer cannot take at all is lost (counted), as on a
+    def _send(self, data, lost='lost'):
+        """Write one line. A line the full buffer cannot take at all is lost (counted under
+        ``lost``: reading lines, whose seq then shows a gap, apart from hello lines), as on a
         UART nobody reads; one it took in part is completed (waiting up to PARTIAL_WAIT_S), so
         that a reader never sees a torn line the emulator did not mean to send."""
         master = self._fds[0]
@@ -157,20 +176,20 @@ class FakeDevice:
         except OSError:  # BlockingIOError: buffer full; EIO: the reader side vanished
             written = 0
         if written == 0:
-            self.counters['lost'] += 1
+            self.counters[lost] += 1
             return False
         deadline = time.monotonic() + PARTIAL_WAIT_S
         while written < len(data):
             remaining = deadline - time.monotonic()
             if remaining <= 0 or not select.select([], [master], [], remaining)[1]:
-                self.counters['lost'] += 1
+                self.counters[lost] += 1
                 return False
             try:
                 written += os.write(master, data[written:])
             except BlockingIOError:
                 continue
             except OSError:
-                self.counters['lost'] += 1
+                self.counters[lost] += 1
                 return False
         return True
 
@@ -219,6 +238,10 @@ class FakeDevice:
                 if values is None:
                     continue
                 line, kind, reading = self._line(values, now)
+                if self._skip > 0:
+                    self._skip -= 1
+                    self.counters['skipped'] += 1
+                    continue
                 if self._send(line):
                     self.counters[kind] += 1
                     if self.sampling_log is not None and kind == 'readings':
