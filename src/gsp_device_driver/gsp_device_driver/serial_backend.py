@@ -494,7 +494,7 @@ class SerialDeviceBackend(DeviceBackend):
         if reason == 'no_hello':
             return (
                 f'no hello line from the device on {self.port} since {self._waiting_since}: its '
-                f'readings are dropped until one comes (asked with {REQUEST_LINE.strip()!r} '
+                f'readings are dropped until one comes (asked with {REQUEST_LINE.decode().strip()} '
                 f'every {HELLO_REQUEST_INTERVAL_S:g} s); set serial.trust_configured_units to '
                 f'publish them in {self.angle_unit}/{self.length_unit} without one'
             )
