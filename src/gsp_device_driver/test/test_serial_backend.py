@@ -273,3 +273,22 @@ def test_a_missing_port_is_a_warning_and_a_retry(tmp_path):
         assert messages[0][0] == 'warning' and 'cannot open' in messages[0][1]
     finally:
         backend.close()
+
+
+def test_health_warns_while_readings_wait_for_a_hello():
+    from gsp_device_driver.serial_check import ScriptedPort
+    from gsp_device_driver.serial_protocol import Reading, format_reading
+
+    lines = b''.join(format_reading(Reading(k, 5000 * k, *VALUES)) for k in range(30))
+    port = ScriptedPort(lines, timeout=0.01)
+    backend = SerialDeviceBackend('scripted', timeout=0.01, serial_factory=lambda *_: port)
+    backend.start()
+    try:
+        assert port.drained.wait(TIMEOUT_S)
+        report = backend.health()
+        assert report.level == health.WARN and 'hello' in report.message
+        assert report.values['drops no_hello'] == '30' and report.values['last hello'] == 'none'
+        assert float(report.values['line rate (lines/s)']) > 0.0
+        assert backend.read_available(0.0) == []
+    finally:
+        backend.close()
