@@ -6,8 +6,6 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 * ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
   :mod:`.serial_protocol` and docs/hardware.md).
 
-Each backend reports its :meth:`DeviceBackend.health` for /diagnostics.
-
 Adding a backend (e.g. ``hardware``): subclass :class:`DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
 ``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng``, ``stamp_clock``
@@ -25,7 +23,6 @@ import numpy as np
 
 from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
-from gsp_msgs_py.health import OK, WARN, Health
 
 
 class BackendError(ValueError):
@@ -90,11 +87,6 @@ class DeviceBackend(abc.ABC):
         """``[(level, text)]`` the node should log (``info`` or ``warning``) since the last call.
         Default: none."""
         return []
-
-    def health(self):
-        """The backend's :class:`~gsp_msgs_py.health.Health` (level, message, key/values) for
-        /diagnostics. Default: OK, no values."""
-        return Health(OK, 'no health report from this backend')
 
     def describe(self):
         """One line for the node's start-up log: what the backend reads and how."""
@@ -163,7 +155,6 @@ class SimDeviceBackend(DeviceBackend):
         self._rng = rng if rng is not None else np.random.default_rng()
         self._pose = None
         self._exact = None  # cached noise-free readings of self._pose
-        self._published = 0
 
     @classmethod
     def from_config(cls, true_geometry_file, rng=None, **config):
@@ -224,16 +215,9 @@ class SimDeviceBackend(DeviceBackend):
             f'noise std inclinometer {inclinometer:g} rad, encoder {encoder:g} rad, lvdt {lvdt:g} m'
         )
 
-    def health(self):
-        values = {'readings published': self._published, 'noise std': self.describe()}
-        if self._exact is None:
-            return Health(WARN, 'waiting for the true pose', values)
-        return Health(OK, 'simulating', values)
-
     def read(self, now_s):
         if self._exact is None:
             return None
-        self._published += 1
         values = self._exact + self._rng.normal(0.0, 1.0, size=4) * self._stds
         return DeviceSample(float(now_s), *(float(v) for v in values))
 

@@ -169,7 +169,7 @@ class SerialDeviceBackend(DeviceBackend):
         self._waiting_since = 'the port was opened'
         self._warned_at = {}  # refusal reason -> clock time of its last warning
         self._summary = (clock(), self._drop_total())  # last drop summary: time, total
-        self._health_snapshot = (clock(), dict(self.counters))
+        self._health_snapshot = (clock(), dict(self.counters))  # the last report: time, counters
         self._stop = threading.Event()
         self._thread = None
 
@@ -216,61 +216,63 @@ class SerialDeviceBackend(DeviceBackend):
             self._messages.clear()
         return messages
 
+    @property
+    def hardware_id(self):
+        """The ``hardware_id`` of the device's status on /diagnostics: the port."""
+        return self.port
+
     def health(self):
-        """The device path's :class:`~gsp_msgs_py.health.Health`: rates and changes are over the
-        period since the previous call (the node calls it at 1 Hz)."""
+        """The device path's :class:`~gsp_msgs_py.health.Health`; "since the last report" is
+        since the previous call (the node calls it every ``diagnostics_period``). Keys and levels:
+        docs/hardware.md section 2."""
         now = self._clock()
         with self._lock:
             counters = dict(self.counters)
             hello, last_hello = self.hello, self._last_hello
-            connected, silent = self._connected, self._silent
+            connected = self._connected
             refusal = self._refusal()
             last_drop = self._last_drop
-        then, before = self._health_snapshot
-        self._health_snapshot = (now, counters)
-        period = max(now - then, 1e-9)
-        new_drops = {
-            reason: counters[reason] - before[reason]
-            for reason in BACKEND_DROP_REASONS
-            if counters[reason] > before[reason]
-        }
-        new_lost = counters['lost'] - before['lost']
+        (then, before), self._health_snapshot = self._health_snapshot, (now, counters)
+        new = {key: counters[key] - before[key] for key in counters}
+        rate = new['lines'] / (now - then) if now > then else 0.0
+        offset = self.device_clock.offset
         values = {
-            'port': self.port,
-            'line rate (lines/s)': f'{(counters["lines"] - before["lines"]) / period:.1f}',
-            'lines': counters['lines'],
-            'readings published': counters['published'],
-            **{f'drops {reason}': counters[reason] for reason in BACKEND_DROP_REASONS},
-            'last drop': last_drop or 'none',
-            'lost lines': counters['lost'],
-            'resets': counters['resets'],
+            **{key: counters[key] for key in ('lines', 'readings', 'hello', 'connects')},
             'disconnects': counters['disconnects'],
+            'readings_published': counters['published'],
+            **{f'dropped_{reason}': counters[reason] for reason in BACKEND_DROP_REASONS},
+            'last_drop': last_drop,
+            'lost_lines': counters['lost'],
+            'resets': counters['resets'],
+            'line_rate_hz': f'{rate:.1f}',
             'units': f'{self.angle_unit}/{self.length_unit}',
-            'trust configured units': self.trust_configured_units,
-            'last hello': last_hello[0].text() if last_hello else 'none',
-            'last hello age (s)': f'{now - last_hello[1]:.1f}' if last_hello else 'never',
-            'clock offset (s)': (
-                f'{self.device_clock.offset:.6f}' if self.device_clock.offset is not None else ''
-            ),
+            'trust_configured_units': str(self.trust_configured_units).lower(),
+            'last_hello': last_hello[0].text() if last_hello else '',
+            'last_hello_age_s': f'{now - last_hello[1]:.1f}' if last_hello else '',
+            'clock_offset_s': f'{offset:.6f}' if offset is not None else '',
         }
+        dropped = sum(new[reason] for reason in BACKEND_DROP_REASONS)
         if not connected:
-            level, message = ERROR, f'disconnected: no device on {self.port}'
-        elif refusal in ('units', 'version'):
-            level, message = ERROR, f'readings dropped: the hello says {hello.text()}'
-            message += f', parameters {self.angle_unit}/{self.length_unit} v{PROTOCOL_VERSION}'
-        elif refusal == 'no_hello':
-            level, message = WARN, 'waiting for the hello line: readings dropped'
-        elif silent:
-            level, message = WARN, f'no line for more than {self.silence_warning:g} s'
-        elif new_drops or new_lost:
-            parts = [f'{reason} {n}' for reason, n in new_drops.items()]
-            if new_lost:
-                parts.append(f'lost {new_lost}')
-            level, message = WARN, f'streaming with drops in the last {period:.1f} s: '
-            message += ', '.join(parts)
-        else:
-            level, message = OK, 'streaming'
-        return Health(level, message, values)
+            return Health(ERROR, f'{self.port} is not open', values)
+        if refusal in ('units', 'version'):
+            return Health(
+                ERROR,
+                f'the device hello is refused ({refusal}): readings dropped; it says '
+                f'{hello.text()}, serial.angle_unit/length_unit are '
+                f'{self.angle_unit}/{self.length_unit}',
+                values,
+            )
+        if refusal == 'no_hello':
+            return Health(WARN, 'waiting for the device hello: readings dropped', values)
+        if dropped or new['lost']:
+            return Health(
+                WARN,
+                f'{dropped} line(s) dropped and {new["lost"]} lost since the last report',
+                values,
+            )
+        if new['lines'] == 0:
+            return Health(WARN, f'no line from {self.port} since the last report', values)
+        return Health(OK, f'{rate:.1f} lines/s', values)
 
     def close(self):
         self._stop.set()

@@ -84,11 +84,11 @@ def test_garbage_lines_are_dropped_and_each_counted(link):
         assert backend.hello.device_id == 'gsp-fake-device'
         # Every dropped or lost line is in health(): garbage is not counted lost as well.
         values = backend.health().values
-        assert int(values['drops garbage']) == fake.count('garbage')
-        assert int(values['drops checksum']) == fake.count('checksum_errors')
-        assert int(values['readings published']) == len(samples)
+        assert int(values['dropped_garbage']) == fake.count('garbage')
+        assert int(values['dropped_checksum']) == fake.count('checksum_errors')
+        assert int(values['readings_published']) == len(samples)
         assert fake.count('skipped') == 7
-        assert int(values['lost lines']) == fake.count('skipped') + fake.count('lost')
+        assert int(values['lost_lines']) == fake.count('skipped') + fake.count('lost')
     finally:
         fake.close()
         backend.close()
@@ -167,7 +167,7 @@ def test_firmware_in_other_units_publishes_nothing_with_one_warning_and_an_error
         assert len(told) == 1 and 'mrad/mm' in told[0] and 'urad/um' in told[0], warnings
         report = backend.health()
         assert report.level == health.ERROR and 'mrad/mm' in report.message
-        assert int(report.values['drops units']) >= 50
+        assert int(report.values['dropped_units']) >= 50
     finally:
         fake.close()
         backend.close()
@@ -287,8 +287,8 @@ def test_health_warns_while_readings_wait_for_a_hello():
         assert port.drained.wait(TIMEOUT_S)
         report = backend.health()
         assert report.level == health.WARN and 'hello' in report.message
-        assert report.values['drops no_hello'] == '30' and report.values['last hello'] == 'none'
-        assert float(report.values['line rate (lines/s)']) > 0.0
+        assert report.values['dropped_no_hello'] == '30' and report.values['last_hello'] == ''
+        assert float(report.values['line_rate_hz']) > 0.0
         assert backend.read_available(0.0) == []
     finally:
         backend.close()
