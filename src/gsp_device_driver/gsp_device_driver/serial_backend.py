@@ -265,11 +265,9 @@ class SerialDeviceBackend(DeviceBackend):
         if refusal == 'no_hello':
             return Health(WARN, 'waiting for the device hello: readings dropped', values)
         if dropped or new['lost']:
-            return Health(
-                WARN,
-                f'{dropped} line(s) dropped and {new["lost"]} lost since the last report',
-                values,
-            )
+            parts = [f'{dropped} line(s) dropped'] if dropped else []
+            parts += [f'{new["lost"]} line(s) lost (seq gaps)'] if new['lost'] else []
+            return Health(WARN, f'{" and ".join(parts)} since the last report', values)
         if new['lines'] == 0:
             return Health(WARN, f'no line from {self.port} since the last report', values)
         return Health(OK, f'{rate:.1f} lines/s', values)
