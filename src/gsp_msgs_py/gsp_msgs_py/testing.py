@@ -62,6 +62,41 @@ def drive_sim_clock(node, step_ns=SIM_CLOCK_STEP_NS, every_s=0.01):
     return node.create_timer(every_s, tick)
 
 
+#: Environment variable that marks the processes a test starts; their children inherit it,
+#: whatever session or process group they start (see :func:`marked_processes`).
+PROCESS_MARKER_VARIABLE = 'GSP_TEST_MARKER'
+
+
+def marked_environment(env=None):
+    """``(environment, marker)``: ``env`` (default ``os.environ``) plus a fresh
+    :data:`PROCESS_MARKER_VARIABLE` for the processes a test starts."""
+    import os
+    import uuid
+
+    marker = uuid.uuid4().hex
+    return {**(os.environ if env is None else env), PROCESS_MARKER_VARIABLE: marker}, marker
+
+
+def marked_processes(marker):
+    """PIDs of the live processes (this one aside) whose environment holds ``marker`` (from
+    :func:`marked_environment`): what a test started and has not ended, with every descendant.
+    Linux (``/proc``); a zombie has no environment left, so it does not count."""
+    import os
+    from pathlib import Path
+
+    needle = f'{PROCESS_MARKER_VARIABLE}={marker}'.encode()
+    found = []
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if needle in (entry / 'environ').read_bytes().split(b'\0'):
+                found.append(int(entry.name))
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+    return found
+
+
 class SpinThread:
     """Spins ``executor`` in a daemon thread until :meth:`stop` (then shut it down yourself).
 
