@@ -33,8 +33,14 @@ from gsp_kinematics.identification import (
     identify,
     resolve_free,
 )
-from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.kinematics import (
+    Workspace,
+    home_pose,
+    inverse_kinematics,
+    sample_valid_postures,
+)
 from gsp_kinematics.rotation import wrap_angle
+from gsp_kinematics.route import plan_route
 from gsp_kinematics.selection import select_postures
 
 #: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
@@ -112,6 +118,12 @@ def choose_postures(
         seed=int(seed),
         duration_s=time.perf_counter() - started,
     )
+
+
+def posture_route(settings, poses):
+    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from the home pose
+    (where platform_sim starts), with the run's nominal geometry and leg limits."""
+    return plan_route(settings.nominal, home_pose(), poses, settings.motion_limits)
 
 
 def selection_arguments(settings):

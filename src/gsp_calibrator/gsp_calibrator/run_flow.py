@@ -173,6 +173,14 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = selection.poses
+            if settings.posture_order == 'route':
+                # state.json keeps the poses in this order: a resumed run keeps it.
+                route = calibration.posture_route(settings, poses)
+                poses = poses[route.order]
+                self.log.info(
+                    f'route order: predicted travel {route.travel_s:.1f} s (selection order '
+                    f'{route.selection_order_s:.1f} s, lower bound {route.lower_bound_s:.1f} s)'
+                )
         session.begin(settings, poses, os.getpid(), part)
         if session.resumed:
             self.log.info(
