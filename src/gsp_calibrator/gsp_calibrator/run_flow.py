@@ -181,6 +181,10 @@ class CalibrationRun:
                     f'route order: predicted travel {route.travel_s:.1f} s (selection order '
                     f'{route.selection_order_s:.1f} s, lower bound {route.lower_bound_s:.1f} s)'
                 )
+        try:
+            session.replace = await self.node.in_thread(calibration.PostureReplacer, settings)
+        except (calibration.CalibrationError, RuntimeError, ValueError) as error:
+            self.log.warning(f'rejected postures will not be replaced: {error}')
         session.begin(settings, poses, os.getpid(), part)
         if session.resumed:
             self.log.info(
@@ -241,7 +245,7 @@ class CalibrationRun:
             session.run,
             settings,
             session.samples,
-            self.collection.summary(),
+            {**self.collection.summary(), 'replacements': session.state.replacements},
             recording.settings_options(settings),
             session.spread_table(),
         )

@@ -204,7 +204,7 @@ def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAUL
     )
     scipy_geometry = Geometry.from_vector(solution.x, nominal.limits)
     analytic_ms, analytic_times, (analytic, analytic_counters) = _median_ms(
-        lambda: scipy_analytic_identification(*arguments, problem['poses']), scipy_repeats
+        lambda: scipy_analytic_identification(*arguments, problem['poses']), scipy_repeats, cpu
     )
     analytic_vector = nominal.to_full_vector()
     analytic_vector[resolve_free(None)] = analytic.x[: int(resolve_free(None).sum())]
@@ -240,6 +240,8 @@ def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAUL
         'scipy_fd_max_param_error_mm': max_error(scipy_geometry),
         'scipy_analytic_ms': analytic_ms,
         'speedup_analytic': analytic_ms / median_ms,
+        'scipy_analytic_cpu_ms': cpu[2],
+        'speedup_analytic_cpu': cpu[2] / cpu[0],
         'scipy_analytic_times_ms': analytic_times,
         'scipy_analytic_cost': float(analytic.cost),
         'scipy_analytic_function_calls': analytic_counters['calls'],

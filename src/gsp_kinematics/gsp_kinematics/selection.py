@@ -162,28 +162,23 @@ def select_postures(
     return np.array(chosen), float(scaled_condition_number(total))
 
 
-def best_addition(
-    geometry, pool, chosen, excluded=(), sigmas=Sigmas(), free=None, formulation='implicit'
-):
-    """Index of the ``pool`` posture (not in ``chosen`` nor ``excluded``) that adds most to the
-    design of ``chosen``: the smallest scaled condition number of the information with it (the
-    criterion of :func:`select_postures`; the largest log det gain while that is singular).
-
-    Used to replace a posture the platform rejected. ValueError if no posture is left.
+def best_addition(information, chosen, excluded=()):
+    """Index of the posture (not in ``chosen`` nor ``excluded``) that adds most to the design of
+    ``chosen``, from the per-posture information matrices ``information`` (N, n, n) of a pool
+    (:func:`posture_information`): the smallest scaled condition number of the information with
+    it (the criterion of :func:`select_postures`; the largest log det gain while that stays
+    singular). Replaces a posture the platform rejected. ValueError if none is left.
     """
-    pool = np.asarray(pool, dtype=float)
-    available = np.ones(len(pool), dtype=bool)
+    available = np.ones(len(information), dtype=bool)
     available[list(chosen)] = False
     available[list(excluded)] = False
     candidates = np.flatnonzero(available)
     if not candidates.size:
         raise ValueError('no posture left in the pool to add')
-    information = posture_information(geometry, pool, sigmas, free, formulation)
     total = information[list(chosen)].sum(axis=0)
     conditions = scaled_condition_number(total[None] + information[candidates])
     if np.isfinite(conditions).any():
         return int(candidates[int(np.argmin(conditions))])
-    # Still rank-deficient with any one more: the largest gain in (regularised) log det.
     ridge = 1e-9 * max(np.trace(total), 1e-300) * np.eye(total.shape[0])
     gain = np.linalg.slogdet(total[None] + ridge + information[candidates])[1]
     return int(candidates[int(np.argmax(gain))])

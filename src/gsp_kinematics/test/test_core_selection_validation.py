@@ -170,9 +170,9 @@ def test_best_addition_picks_the_posture_that_lowers_the_condition_number_most()
     pool = _sample(nominal, 80, np.random.default_rng(5))
     chosen = list(range(20))
     excluded = [20, 21]
-    best = best_addition(nominal, pool, chosen, excluded)
-    assert best not in chosen and best not in excluded
     information = posture_information(nominal, pool)
+    best = best_addition(information, chosen, excluded)
+    assert best not in chosen and best not in excluded
     base = information[chosen].sum(axis=0)
     others = [k for k in range(80) if k not in chosen + excluded]
     conditions = {k: float(scaled_condition_number(base + information[k])) for k in others}
