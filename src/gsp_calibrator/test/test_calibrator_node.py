@@ -629,13 +629,21 @@ def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_cont
         node.destroy_node()
 
 
-#: Leg limits scaled up from the realistic ones (50 mm/s, 200 mm/s^2) so that a run takes seconds.
-FAST_MOTION = {'max_leg_speed': 1.0, 'max_leg_acceleration': 10.0}
+#: Leg limits scaled up from the realistic ones (50 mm/s, 200 mm/s^2) so that a run takes seconds:
+#: a move of 0.4 m takes 0.2 s.
+FAST_MOTION = {'max_leg_speed': 4.0, 'max_leg_acceleration': 40.0}
+MOVING_POSTURES = 8
 
 
 def _moving_run(ros_context, tmp_path, order, truth):
     platform = [Parameter(name, value=value) for name, value in FAST_MOTION.items()]
-    overrides = {'free_parameters': PERTURBED, 'posture_order': order, **FAST_MOTION}
+    overrides = {
+        'free_parameters': PERTURBED,
+        'posture_order': order,
+        'posture_count': MOVING_POSTURES,
+        'pool_size': 60,
+        **FAST_MOTION,
+    }
     suite, *_ = make_suite(
         ros_context, tmp_path / order, tmp_path / 'true.yaml', overrides, platform
     )
@@ -670,6 +678,6 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
     np.testing.assert_array_equal(route_poses, chosen_poses[route.order])
     assert route.travel_s < route.selection_order_s
     # Both collect every posture and calibrate to the same accuracy (mm, deg).
-    assert len(route_samples) == len(chosen_samples) == 12
+    assert len(route_samples) == len(chosen_samples) == MOVING_POSTURES
     for errors in (route_errors, chosen_errors):
         assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.01
