@@ -35,7 +35,7 @@ KILL_AT = 30  #: collected postures before that kill
 POSTURES = 30
 DEVICE_TOPICS = [names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT]
 TIMEOUT_S = 240.0  #: bounds a failure only (selection + 60 postures on a loaded machine)
-TOPIC_TIMEOUT_S = 10.0  #: the calibrator's (see the suite fixture)
+TOPIC_TIMEOUT_S = 5.0  #: the calibrator's (see node_suite)
 
 
 def wait_until(predicate, timeout=TIMEOUT_S, what='event'):
@@ -130,10 +130,12 @@ class Client:
 def node_suite(tmp_path, ros_context, postures):
     """The three nodes as processes, with a calibrator selecting ``postures``, and a client:
     yields ``(processes, client, runs root)``."""
-    # 100 Hz (sync_tolerance 5 ms) and a 10 s topic_timeout: three processes at 200 Hz on a
+    # 100 Hz (sync_tolerance 5 ms) and a 5 s topic_timeout: three processes at 200 Hz on a
     # loaded 2-core machine starved platform_sim to a few leg lengths in 2 s (none within 2.5 ms
     # of a device stamp), and a 2 s timeout then failed the resumed run ("no synchronised
-    # sample"). The kill tests wait for the timeout once; the rest of the runs must not.
+    # sample"). The kill tests wait for the timeout once (a dead node has no other sign), so it
+    # is no longer than that margin needs: the in-process node tests, whose three nodes share
+    # one process and so pause together, run with 5 s too.
     args = demo.parse_arguments(
         ['--postures', str(postures), '--pool-size', str(4 * postures)]
         + ['--samples-per-posture', '5']
