@@ -41,11 +41,9 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from gsp_kinematics.geometry import geometry_to_parameters
-from gsp_msgs_py import conversions, names, node_tools, qos
-
-from . import calibration, protocol, recording
-from .node_waiting import (
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.node_threads import (
     EventQueue,
     ParameterSetter,
     SensorListener,
@@ -55,10 +53,13 @@ from .node_waiting import (
     new_future,
     run_in_thread,
 )
-from .run_flow import RUN_FAILURES, CalibrationRun
-from .run_session import RunWriteError, WriteFailed
-from .settings import PARAMETERS, CalibratorSettings, check_parameters
-from .sources import SingleSourceGuard
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
+from gsp_calibrator.run.session import RunWriteError, WriteFailed
+from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
+from gsp_kinematics.geometry import geometry_to_parameters
+from gsp_msgs_py import conversions, names, node_tools, qos
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts

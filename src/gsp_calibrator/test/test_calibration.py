@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator import calibration
-from gsp_calibrator.run_directory import Samples
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry, geometry_from_yaml, parameter_errors
 from gsp_kinematics.identification import Options, Sigmas

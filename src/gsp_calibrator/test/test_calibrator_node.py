@@ -19,14 +19,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from gsp_calibrator import recording
-from gsp_calibrator.calibration import parse_response
 from gsp_calibrator.calibrator_node import (
     GIL_SWITCH_INTERVAL_S,
     CalibratorNode,
     share_the_gil_promptly,
 )
-from gsp_calibrator.run_directory import RunDirectory
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.run.identify import parse_response
 from gsp_kinematics.geometry import (
     default_geometry,
     geometry_from_yaml,
@@ -552,7 +552,7 @@ def test_the_calibrator_process_hands_the_gil_over_promptly():
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     from rclpy.task import Future
 
-    from gsp_calibrator.node_waiting import WAIT_OK, WAIT_TIMEOUT, Waits
+    from gsp_calibrator.node_threads import WAIT_OK, WAIT_TIMEOUT, Waits
 
     now = [100.0]
     flag = []
@@ -574,7 +574,7 @@ def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_cont
     # event queued for the run) once the lock is taken again. In between the protocol is idle
     # and the queue empty: the run once read that as the end and identified without its last
     # posture.
-    from gsp_calibrator import protocol
+    from gsp_calibrator.collection import protocol
 
     class LastPosture:  # the session with its last posture commanded
         commanded_all = True

@@ -4,7 +4,8 @@ import io
 
 import pytest
 
-from gsp_calibrator import calibration, client
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.tools import client
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS

@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from gsp_calibrator import demo
-from gsp_calibrator import processes as processes_module
+from gsp_calibrator.tools import demo
+from gsp_calibrator.tools import processes as processes_module
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 from gsp_msgs_py.testing import wait_until

@@ -17,9 +17,15 @@ from scipy import stats
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from gsp_calibrator import calibration, demo, mcap_io, offline, protocol, recording, run_state
-from gsp_calibrator.processes import NodeProcesses
-from gsp_calibrator.run_directory import read_samples
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.recording import mcap_io
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.directory import read_samples
+from gsp_calibrator.tools import demo
+from gsp_calibrator.tools import reidentify as offline
+from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples as make_samples
 
-from gsp_calibrator import calibration, offline, recording
-from gsp_calibrator.run_directory import read_samples, write_samples
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run.directory import read_samples, write_samples
+from gsp_calibrator.tools import reidentify as offline
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
     default_geometry,
@@ -266,7 +268,7 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
     write_samples(run_dir / 'samples.csv', samples)
     truth, nominal = default_geometry('true'), default_geometry('nominal')
     poses = sample_valid_postures(truth, 10, np.random.default_rng(3))
-    from gsp_calibrator.report import validation_errors
+    from gsp_calibrator.report.write import validation_errors
 
     before = validation_errors(truth, nominal, poses)
     # The calibrator's collection record survives the rewrite.

@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from gsp_calibrator import calibration, planning
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.tools import planning
 from gsp_kinematics.geometry import default_geometry
 
 QUICK = ['--pool-size', '120']

@@ -5,9 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator import protocol
-from gsp_calibrator.collector import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
-from gsp_calibrator.protocol import (
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection.protocol import (
     CollectionProtocol,
     CollectionStarted,
     NoSynchronisedSample,
@@ -17,6 +16,7 @@ from gsp_calibrator.protocol import (
     SampleDropped,
     TopicSilent,
 )
+from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000

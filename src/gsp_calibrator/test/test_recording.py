@@ -9,9 +9,9 @@ import pytest
 import yaml
 from recorded_runs import write_command
 
-from gsp_calibrator import recording
-from gsp_calibrator.collector import SampleCollector
-from gsp_calibrator.run_directory import read_samples, write_samples
+from gsp_calibrator.collection.synchroniser import SampleCollector
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import TOPIC_QOS
 

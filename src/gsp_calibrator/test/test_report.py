@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples
 
-from gsp_calibrator import calibration, report
+from gsp_calibrator.report import write as report
+from gsp_calibrator.run import identify as calibration
 from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
 from gsp_kinematics.identifiability import analyse_identifiability
 from gsp_kinematics.identification import Options, Sigmas
@@ -194,7 +195,7 @@ def test_residuals_by_sensor_recovers_si_units(calibrated):
 def test_no_prediction_without_a_full_rank_covariance(calibrated):
     import dataclasses
 
-    from gsp_calibrator import report_accuracy
+    from gsp_calibrator.report import accuracy as report_accuracy
 
     result = calibrated[0].result
     assert report_accuracy.prediction_for(result) is not None

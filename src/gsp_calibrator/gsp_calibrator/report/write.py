@@ -20,6 +20,8 @@ import os
 
 import numpy as np
 
+from gsp_calibrator.report.fit import fit_data, fit_markdown
+from gsp_calibrator.report.fit import format_number as _fmt
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
     ANGULAR_PARAMETERS,
@@ -27,9 +29,6 @@ from gsp_kinematics.geometry import (
     default_geometry,
     to_report_units,
 )
-
-from .report_fit import fit_data, fit_markdown
-from .report_fit import format_number as _fmt
 
 RESULT_JSON = 'result.json'
 REPORT_MD = 'report.md'
@@ -285,7 +284,7 @@ def result_data(result, **inputs):
     """
     inputs = _report_inputs(inputs)
     analysis, truth, nominal = inputs['analysis'], inputs['truth'], inputs['nominal']
-    from . import report_accuracy
+    from gsp_calibrator.report import accuracy as report_accuracy
 
     nominal = default_geometry('nominal') if nominal is None else nominal
     if analysis is None:
@@ -407,7 +406,7 @@ def write_result_json(run_dir, result, **inputs):
 
 def report_markdown(data, images, title='Calibration report'):
     """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots."""
-    from . import report_accuracy
+    from gsp_calibrator.report import accuracy as report_accuracy
 
     lines = [f'# {title}', '']
     lines.append(
@@ -519,7 +518,7 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
     validation is given (distributions from per-posture arrays, else the mean and max of the
     summaries).
     """
-    from . import report_accuracy
+    from gsp_calibrator.report import accuracy as report_accuracy
 
     validation_before = inputs.get('validation_before')
     validation_after = inputs.get('validation_after')
@@ -528,7 +527,7 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
     data = result_data(result, **inputs)
     truth, nominal = inputs.get('truth'), inputs.get('nominal')
     written = {}
-    from .report_plots import (
+    from gsp_calibrator.report.plots import (
         plot_chain_errors,
         plot_parameter_errors,
         plot_residuals,
@@ -559,7 +558,7 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
 
 def write_all(run_dir, result, **kwargs):
     """:func:`write_result_json` and :func:`write_report`; returns ``{kind: path}``."""
-    from . import report_accuracy
+    from gsp_calibrator.report import accuracy as report_accuracy
 
     if kwargs.get('prediction') is None:  # computed once for both files
         kwargs['prediction'] = report_accuracy.prediction_for(

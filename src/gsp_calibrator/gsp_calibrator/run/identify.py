@@ -485,7 +485,7 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
 def failure_message(error, collected, run):
     """The response text of a run that ended early with ``error`` after ``collected`` postures;
     ``run``: its ``RunDirectory`` (the rows are in its ``samples.csv``)."""
-    from .run_directory import SAMPLES_FILE
+    from gsp_calibrator.run.directory import SAMPLES_FILE
 
     return (
         f'calibration FAILED after {collected} collected posture(s): {error}\n'
@@ -552,8 +552,8 @@ def finish_run(run, settings, samples, collection, options, within_posture_std=N
     """
     import traceback
 
-    from . import report
-    from .run_directory import RESULT_FILE
+    from gsp_calibrator.report import write as report
+    from gsp_calibrator.run.directory import RESULT_FILE
 
     outcome = identify_from_samples(
         settings.nominal,

@@ -1,7 +1,7 @@
 """``replay`` node: publishes a recorded calibration run back onto the suite's topics.
 
 It stands in for both ``platform_sim`` and ``device_driver`` (see docs/nodes.md). The
-recorded run (:class:`gsp_calibrator.replay.RecordedRun`: a run directory, ``samples.csv`` or
+recorded run (:class:`gsp_calibrator.replay.recorded_run.RecordedRun`: a run directory, ``samples.csv`` or
 ``recording.mcap``, with the later recording parts of a resumed run) gives, per recorded posture, its commanded pose and its samples. For each
 ``PoseStamped`` on ``/gsp/platform/pose_command`` (``command_id`` = its header stamp in ns):
 
@@ -22,11 +22,10 @@ after the settle. The command protocol is :class:`gsp_msgs_py.pose_commands.Pose
 
 from rclpy.node import Node
 
+from gsp_calibrator.replay.recorded_run import RecordedRun, ReplayError
 from gsp_msgs_py import conversions, names, node_tools
 from gsp_msgs_py.node_tools import ParameterSpec, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
-
-from .replay import RecordedRun, ReplayError
 
 NODE_NAME = 'replay'
 REASON_NOT_RECORDED = 'not in the recording'
@@ -152,7 +151,7 @@ class ReplayNode(Node):
 
     @property
     def run(self):
-        """The :class:`~gsp_calibrator.replay.RecordedRun` being replayed."""
+        """The :class:`~gsp_calibrator.replay.recorded_run.RecordedRun` being replayed."""
         return self._run
 
 

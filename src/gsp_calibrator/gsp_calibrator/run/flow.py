@@ -12,13 +12,15 @@ import os
 import time
 import traceback
 
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection.single_source import SecondSource
+from gsp_calibrator.node_threads import first_timeout
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.session import RunRefused, RunWriteError, WriteFailed, open_session
 from gsp_kinematics.geometry import geometry_to_yaml
 from gsp_msgs_py import names
-
-from . import calibration, protocol, recording, run_state
-from .node_waiting import first_timeout
-from .run_session import RunRefused, RunWriteError, WriteFailed, open_session
-from .sources import SecondSource
 
 #: Final posture events that end the run.
 RUN_FAILURES = (protocol.TopicSilent, protocol.NoSynchronisedSample, SecondSource, WriteFailed)

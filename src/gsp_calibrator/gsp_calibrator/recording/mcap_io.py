@@ -5,7 +5,7 @@ with ``crash_safe=True`` every message reaches the file at once, and :func:`reco
 finalises the ``.tmp`` a killed process left behind (every complete record up to the kill);
 :func:`read_recording` iterates over its messages; :func:`recording_info` and
 :func:`recording_options` read its summary and the run options stored in it. The file format is
-described in :mod:`gsp_calibrator.recording` and docs/data.md.
+described in :mod:`gsp_calibrator.recording.recorder` and docs/data.md.
 """
 
 import collections
@@ -15,7 +15,7 @@ import threading
 import time
 from struct import error as struct_error
 
-from .mcap_format import (
+from gsp_calibrator.recording.mcap_format import (
     RecordingError,
     message_class,
     message_definition,

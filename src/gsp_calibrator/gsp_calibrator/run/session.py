@@ -19,12 +19,18 @@ import threading
 
 import numpy as np
 
+from gsp_calibrator.collection.single_source import other_calibrators
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.directory import (
+    SAMPLES_FILE,
+    RunDirectory,
+    RunDirectoryError,
+    Samples,
+    SamplesAppender,
+)
 from gsp_kinematics.fileio import atomic_write_text, to_json
 from gsp_msgs_py import names
-
-from . import recording, run_state
-from .run_directory import SAMPLES_FILE, RunDirectory, RunDirectoryError, Samples, SamplesAppender
-from .sources import other_calibrators
 
 
 class RunRefused(Exception):

@@ -6,9 +6,8 @@ by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/
 
 import sys
 
+from gsp_calibrator.tools import bench_end_to_end
 from gsp_experiments import bench, bench_sensor_errors
-
-from . import bench_end_to_end
 
 #: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
 EXTRA_SECTIONS = {

@@ -134,7 +134,7 @@ def markdown_lines(entry, image=None):
 def plot_accuracy_map(path, prediction):
     """``accuracy_map.png``: predicted position (top) and orientation (bottom) error maps, one
     column per panel, with the validation postures (measured error) overlaid when known."""
-    from .report_plots import _figure, _save
+    from gsp_calibrator.report.plots import _figure, _save
 
     maps = prediction['maps']
     validation = prediction.get('validation')

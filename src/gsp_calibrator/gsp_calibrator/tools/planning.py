@@ -22,6 +22,15 @@ import sys
 
 import numpy as np
 
+from gsp_calibrator.report.write import sigmas_record
+from gsp_calibrator.run.identify import (
+    DEFAULT_FREE,
+    CalibrationError,
+    averaged_sigmas,
+    choose_postures,
+    selection_formulation,
+)
+from gsp_calibrator.settings import add_run_options, run_options_error
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
@@ -29,16 +38,6 @@ from gsp_kinematics.identification import IdentificationError, Sigmas, resolve_f
 from gsp_kinematics.kinematics import Workspace
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.selection import posture_information
-
-from .calibration import (
-    DEFAULT_FREE,
-    CalibrationError,
-    averaged_sigmas,
-    choose_postures,
-    selection_formulation,
-)
-from .report import sigmas_record
-from .settings import add_run_options, run_options_error
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
@@ -201,7 +200,7 @@ def sweep_table(result):
 def plot_sweep(path, result):
     """Predicted mean position and orientation error against posture count, one curve per
     samples-per-posture (log scale)."""
-    from .report_plots import _figure, _save
+    from gsp_calibrator.report.plots import _figure, _save
 
     figure = _figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
     for column, (key, label) in enumerate(

@@ -2,7 +2,7 @@
 
 Message definitions are looked up through the ament index (``AMENT_PREFIX_PATH``) and, failing
 that, ``<sys.prefix>/share``; :func:`message_definition` concatenates them as rosbag2's
-``LocalMessageDefinitionSource`` does. Used by :mod:`gsp_calibrator.recording`.
+``LocalMessageDefinitionSource`` does. Used by :mod:`gsp_calibrator.recording.recorder`.
 """
 
 import importlib

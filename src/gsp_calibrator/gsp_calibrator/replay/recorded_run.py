@@ -7,12 +7,12 @@ per recorded posture (:class:`RecordedPosture`), its commanded pose and the samp
 * from ``samples.csv``: one averaged row per posture (republished as it is, again and again);
 * from ``recording.mcap``: the raw synchronised samples recorded after the posture's settle, in
   order, collected by the calibrator's own protocol
-  (:class:`gsp_calibrator.protocol.CollectionProtocol` with ``keep_pairs``, the recording's
+  (:class:`gsp_calibrator.collection.protocol.CollectionProtocol` with ``keep_pairs``, the recording's
   ``sync_tolerance``); with the simulator's ``true_pose`` of each sample when it was recorded.
   A resumed run has one recording part per session (``recording.mcap``, ``recording-2.mcap``
-  ..., see :func:`gsp_calibrator.recording.recording_parts`): every part is read, in order, and
+  ..., see :func:`gsp_calibrator.recording.recorder.recording_parts`): every part is read, in order, and
   a posture collected again by a later session keeps its later segment (as
-  :func:`gsp_calibrator.recording.samples_from_recording` keeps its later row).
+  :func:`gsp_calibrator.recording.recorder.samples_from_recording` keeps its later row).
 
 A run directory is replayed from its ``samples.csv`` when it has one (the rows the calibration
 was computed from, so a replay reproduces it exactly whatever the timing), else from its
@@ -30,13 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_calibrator.collection.protocol import CollectionProtocol, PairsCollected, PostureSkipped
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
+from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_quaternion
 from gsp_msgs_py import names
-
-from . import recording
-from .protocol import CollectionProtocol, PairsCollected, PostureSkipped
-from .run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
-from .settings import DEFAULTS
 
 SOURCE_SAMPLES = 'samples.csv'
 SOURCE_RECORDING = 'recording.mcap'
@@ -192,7 +191,7 @@ class RecordedRun:
     @classmethod
     def from_recording(cls, path, sync_tolerance=None):
         """The synchronised samples after each posture's settle, from an MCAP recording or
-        the parts of a resumed run (a list, in order: :func:`~gsp_calibrator.recording.recording_parts`).
+        the parts of a resumed run (a list, in order: :func:`~gsp_calibrator.recording.recorder.recording_parts`).
 
         Each pose command starts a posture; its ``settled`` status (of the same ``command_id``)
         starts the collection at the start the calibrator noted (MCAP metadata), else at the

@@ -1,8 +1,8 @@
 """The posture-collection protocol of a calibration run (pure, no rclpy).
 
 One :class:`CollectionProtocol` serves the ``calibrator`` node (live messages), the rebuilding
-of ``samples.csv`` from a recording (:func:`gsp_calibrator.recording.samples_from_recording`)
-and the replay of a recording (:mod:`gsp_calibrator.replay`): each feeds it the pose commands,
+of ``samples.csv`` from a recording (:func:`gsp_calibrator.recording.recorder.samples_from_recording`)
+and the replay of a recording (:mod:`gsp_calibrator.replay.recorded_run`): each feeds it the pose commands,
 platform statuses and sensor messages with their receive times (integer ns, the node clock; a
 recording's log time) and acts on the events it returns.
 
@@ -10,7 +10,7 @@ Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first 
 within ``topic_timeout`` (else :class:`TopicSilent`); ``rejected`` skips it; ``settled`` must
 come within ``settle_timeout`` of that first status (else skipped) and starts the collection
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
-the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collector.SampleCollector` pairs the
+the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
 consistent window gives the row (:class:`RowReady`). The posture is skipped when
 ``max_pairs_per_sample * samples_per_posture`` pairs hold no consistent window, or when no window
@@ -43,9 +43,7 @@ import math
 
 import numpy as np
 
-from gsp_msgs_py import conversions, names
-
-from .collector import (
+from gsp_calibrator.collection.synchroniser import (
     ENCODER,
     INCLINOMETER,
     LEG_LENGTHS,
@@ -53,6 +51,7 @@ from .collector import (
     PostureSample,
     SampleCollector,
 )
+from gsp_msgs_py import conversions, names
 
 #: THE table of sensor topics and the collector stream each one feeds.
 TOPIC_STREAMS = {
@@ -66,7 +65,7 @@ SENSOR_TOPICS = tuple(TOPIC_STREAMS)
 DEVICE_STREAMS = (INCLINOMETER, ENCODER, LVDT)
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
-#: consistent window (see gsp_calibrator.collector).
+#: consistent window (see gsp_calibrator.collection.synchroniser).
 MAX_PAIRS_PER_SAMPLE = 20
 #: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
 STALL_FRACTION = 0.5

@@ -29,12 +29,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from gsp_calibrator.report.write import RESULT_JSON
+from gsp_calibrator.run.directory import SAMPLES_FILE, SUMMARY_FILE
 from gsp_msgs_py.ros_environment import loopback_environment
 
-from .report import RESULT_JSON
-from .run_directory import SAMPLES_FILE, SUMMARY_FILE
-
-DEMO_MODULE = 'gsp_calibrator.demo'
+DEMO_MODULE = 'gsp_calibrator.tools.demo'
 CALIBRATION_POSTURES = 60
 QUICK_CALIBRATION_POSTURES = 30
 SYNC_RATES_HZ = (100.0, 200.0, 400.0, 800.0, 1600.0)
@@ -71,7 +70,7 @@ def demo_command(
     settle_time=SETTLE_TIME_S,
     extra_args=(),
 ):
-    """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.demo``);
+    """argv of one demo run (``gsp_demo`` from PATH, else ``python -m gsp_calibrator.tools.demo``);
     ``extra_args`` are appended (e.g. ``['--platform', 'ros2_control']``)."""
     executable = shutil.which('gsp_demo')
     prefix = [executable] if executable else [sys.executable, '-m', DEMO_MODULE]
@@ -282,6 +281,7 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     over ``seeds`` noise draws."""
     import numpy as np
 
+    from gsp_calibrator.run.identify import DEFAULT_FREE, averaged_sigmas, choose_postures
     from gsp_kinematics.device import device_readings
     from gsp_kinematics.geometry import default_geometry
     from gsp_kinematics.identification import Sigmas, identify, resolve_free
@@ -291,8 +291,6 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
         sample_valid_postures,
     )
     from gsp_kinematics.validation import validate
-
-    from .calibration import DEFAULT_FREE, averaged_sigmas, choose_postures
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
     averaged = averaged_sigmas(Sigmas(), np.full(postures, SAMPLES_PER_POSTURE))

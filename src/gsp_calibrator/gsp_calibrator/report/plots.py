@@ -10,10 +10,7 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.fileio import atomic_write_bytes
-from gsp_kinematics.geometry import NUM_LEGS, PARAMETER_CHAIN, PARAMETER_NAMES, default_geometry
-
-from .report import (
+from gsp_calibrator.report.write import (
     _ANGULAR,
     _SENSOR_KIND,
     _SENSOR_LABEL,
@@ -22,6 +19,8 @@ from .report import (
     _validation_summary,
     residuals_by_sensor,
 )
+from gsp_kinematics.fileio import atomic_write_bytes
+from gsp_kinematics.geometry import NUM_LEGS, PARAMETER_CHAIN, PARAMETER_NAMES, default_geometry
 
 _BEFORE_COLOUR = '#d62728'
 _AFTER_COLOUR = '#1f77b4'

@@ -7,9 +7,8 @@ node processes exits. Imported by :mod:`.demo` only after the ROS environment is
 
 import numpy as np
 
+from gsp_calibrator.tools.demo import DemoError, NodeExited
 from gsp_msgs_py.node_tools import spin_until
-
-from .demo import DemoError, NodeExited
 
 
 def make_demo_node(context):

@@ -2,8 +2,8 @@
 
 Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``, or a
 ``recording.mcap`` (the posture rows are rebuilt with the calibrator's own synchroniser, see
-:func:`gsp_calibrator.recording.samples_from_recording`). The identification is the calibrator
-node's own: :func:`gsp_calibrator.calibration.identify_from_samples` with the commanded postures
+:func:`gsp_calibrator.recording.recorder.samples_from_recording`). The identification is the calibrator
+node's own: :func:`gsp_calibrator.run.identify.identify_from_samples` with the commanded postures
 as pose guesses, so the same samples and options give the same result as the online run.
 
 Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success),
@@ -21,6 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run.directory import (
+    RESULT_FILE,
+    SAMPLES_FILE,
+    TRUE_GEOMETRY_FILE,
+    RunDirectory,
+    RunDirectoryError,
+    read_samples,
+)
+from gsp_calibrator.run.identify import DEFAULT_FREE
+from gsp_calibrator.settings import DEFAULTS, check_free_parameters
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
     GeometryError,
@@ -29,18 +40,6 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options, Sigmas
-
-from . import calibration
-from .calibration import DEFAULT_FREE
-from .run_directory import (
-    RESULT_FILE,
-    SAMPLES_FILE,
-    TRUE_GEOMETRY_FILE,
-    RunDirectory,
-    RunDirectoryError,
-    read_samples,
-)
-from .settings import DEFAULTS, check_free_parameters
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -193,7 +192,7 @@ def stored_options(kind, path, source_dir):
         else (source_dir / 'recording.mcap' if source_dir is not None else None)
     )
     if recording_path is not None and Path(recording_path).is_file():
-        from .recording import RecordingError, recording_options
+        from gsp_calibrator.recording.recorder import RecordingError, recording_options
 
         try:
             options.update(recording_options(recording_path))
@@ -275,8 +274,8 @@ def _geometry(path, option):
 def _recover_unfinished_recordings(run_path):
     """Finalise the ``recording*.mcap.tmp`` a killed calibrator left in ``run_path`` (never one a
     live calibrator is still writing: see its ``state.json``)."""
-    from . import run_state
-    from .recording import RecordingError, recover_recordings
+    from gsp_calibrator.recording.recorder import RecordingError, recover_recordings
+    from gsp_calibrator.run import state as run_state
 
     if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
         return
@@ -304,7 +303,7 @@ def resolve_input(path):
         _recover_unfinished_recordings(path)
         if (path / SAMPLES_FILE).is_file():
             return 'csv', path / SAMPLES_FILE, path
-        from .recording import RECORDING_FILE
+        from gsp_calibrator.recording.recorder import RECORDING_FILE
 
         if (path / RECORDING_FILE).is_file():
             return 'mcap', path / RECORDING_FILE, path
@@ -326,7 +325,7 @@ def load_input(kind, path, options):
         except RunDirectoryError as error:
             raise InputError(str(error)) from error
     else:
-        from .recording import (
+        from gsp_calibrator.recording.recorder import (
             RECORDING_FILE,
             RecordingError,
             recording_parts,
@@ -411,7 +410,7 @@ def reidentify(args, out=None):
     validation_before = validation_after = None
     if outcome.result is not None:
         if truth is not None and args.validation_postures > 0:
-            from .report import validation_errors
+            from gsp_calibrator.report.write import validation_errors
 
             poses = validation_postures(truth, args.validation_postures, args.seed)
             try:
@@ -420,7 +419,7 @@ def reidentify(args, out=None):
                     validation_after = validation_errors(truth, outcome.geometry, poses)
             except ValueError as error:
                 print(f'warning: validation skipped: {error}', file=sys.stderr)
-        from .report import outcome_arguments, write_report, write_result_json
+        from gsp_calibrator.report.write import outcome_arguments, write_report, write_result_json
 
         run_options = dict(
             options,
@@ -466,10 +465,10 @@ def refresh_report(
     once it knows the truth and has validated the calibrated geometry through the system. The
     samples are identified again with the run's stored options (``result.json`` ``options`` or
     the recording's), which gives the run's result exactly. ``validation_*``: validation
-    summaries or :func:`gsp_calibrator.report.validation_errors` dicts (per-posture arrays are
+    summaries or :func:`gsp_calibrator.report.write.validation_errors` dicts (per-posture arrays are
     plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
     """
-    from .report import outcome_arguments, write_report, write_result_json
+    from gsp_calibrator.report.write import outcome_arguments, write_report, write_result_json
 
     source_dir = Path(run_dir)
     kind, path, _ = resolve_input(source_dir)

@@ -20,10 +20,9 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
+from gsp_calibrator.run.identify import parse_response, residual_summary
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
-
-from .calibration import parse_response, residual_summary
 
 EXIT_OK = 0
 EXIT_FAILED = 1

@@ -12,9 +12,8 @@ A second calibrator is the same fault one level up: :func:`other_calibrators` na
 nodes called ``calibrator`` that publish pose commands, and a run is refused while there is one.
 """
 
+from gsp_calibrator.collection.protocol import read_sensor
 from gsp_msgs_py import names
-
-from .protocol import read_sensor
 
 
 def other_calibrators(publishers, own_name, own_namespace):

@@ -31,6 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_calibrator.report.write import RESULT_JSON
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
+from gsp_calibrator.settings import add_run_options, run_options_error
+from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.geometry import default_geometry_path, load_geometry, parameter_errors
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.validation import pose_errors, summarise
@@ -40,12 +45,6 @@ from gsp_msgs_py.ros_environment import (
     foreign_nodes_in_child,
     loopback_environment,
 )
-
-from . import calibration
-from .processes import NodeProcesses
-from .report import RESULT_JSON
-from .run_directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
-from .settings import add_run_options, run_options_error
 
 #: The three nodes: executable (console script) and module (fallback: ``python -m``).
 NODES = {
@@ -405,7 +404,7 @@ def run(args):
         # Ctrl-C (KeyboardInterrupt) and SIGTERM (Terminated) reach this thread; the finally
         # below stops the nodes.
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-        from . import demo_node  # rclpy only after the environment is set
+        from gsp_calibrator.tools import demo_node  # rclpy only after the environment is set
 
         node = demo_node.make_demo_node(context)
         executor = SingleThreadedExecutor(context=context)
@@ -499,7 +498,7 @@ def run(args):
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
     try:  # the calibrator's report, now against the truth and with the validation distributions
-        from . import offline
+        from gsp_calibrator.tools import reidentify as offline
 
         offline.refresh_report(
             run_directory.path,

@@ -10,12 +10,12 @@ recording.mcap``, ``ros2 bag play recording.mcap`` (storage ``mcap``) and Foxglo
 * :func:`read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
 * :func:`samples_from_recording` rebuilds the ``samples.csv`` rows of a run by feeding the
   recorded pose commands, statuses and sensor messages to the calibrator's own
-  :class:`gsp_calibrator.protocol.CollectionProtocol` (:func:`feed_recording`).
+  :class:`gsp_calibrator.collection.protocol.CollectionProtocol` (:func:`feed_recording`).
 * :class:`RunRecorder` records the suite's topics from inside a node (raw CDR subscriptions).
 
 Nothing here needs a ROS context except :class:`RunRecorder`. The MCAP writer and reader are
-:mod:`gsp_calibrator.mcap_io`; message definitions and QoS metadata are in
-:mod:`gsp_calibrator.mcap_format` (both re-exported here).
+:mod:`gsp_calibrator.recording.mcap_io`; message definitions and QoS metadata are in
+:mod:`gsp_calibrator.recording.mcap_format` (both re-exported here).
 """
 
 import json
@@ -26,11 +26,8 @@ import time
 
 import numpy as np
 
-from gsp_kinematics.fileio import json_safe
-from gsp_msgs_py import names
-
-from . import protocol
-from .mcap_format import (  # noqa: F401 (the recording API, re-exported)
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.recording.mcap_format import (  # noqa: F401 (the recording API, re-exported)
     DEFINITION_SEPARATOR,
     MessageDefinitionError,
     RecordingError,
@@ -42,7 +39,7 @@ from .mcap_format import (  # noqa: F401 (the recording API, re-exported)
     qos_profiles_yaml,
     split_type_name,
 )
-from .mcap_io import (  # noqa: F401 (the recording API, re-exported)
+from gsp_calibrator.recording.mcap_io import (  # noqa: F401 (the recording API, re-exported)
     MESSAGE_ENCODING,
     PROFILE,
     RUN_METADATA_NAME,
@@ -54,7 +51,9 @@ from .mcap_io import (  # noqa: F401 (the recording API, re-exported)
     recover_recording,
     recover_recordings,
 )
-from .run_directory import Samples
+from gsp_calibrator.run.directory import Samples
+from gsp_kinematics.fileio import json_safe
+from gsp_msgs_py import names
 
 RECORDING_FILE = 'recording.mcap'
 #: A resumed run records into ``recording-2.mcap``, ``recording-3.mcap`` ... (a finished MCAP
@@ -102,9 +101,8 @@ def noise_std_from_options(options):
         if values.shape != (10,):
             raise RecordingError(f'noise_std must hold 10 values, got {values.tolist()}')
         return values
+    from gsp_calibrator.settings import DEFAULTS
     from gsp_kinematics.identification import Sigmas
-
-    from .settings import DEFAULTS
 
     def sigma(name):
         return float(options.get(name, DEFAULTS[name]))
@@ -121,7 +119,7 @@ def noise_std_from_options(options):
 
 def feed_recording(path, collection, notes=None, extra_topics=(), on_message=None):
     """Feed every recorded command, status and sensor message to ``collection`` (a
-    :class:`~gsp_calibrator.protocol.CollectionProtocol`), receive time = log time; yields its
+    :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`), receive time = log time; yields its
     events. ``path``: one recording, or the parts of a resumed run in order
     (:func:`recording_parts`).
 
@@ -205,11 +203,11 @@ def _stamped_before(msg, stamp_ns):
 
 
 def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
-    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run_directory.Samples`) of one
+    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run.directory.Samples`) of one
     recording or of the parts of a resumed run (a list, see :func:`recording_parts`).
 
     Feeds every recorded message to the calibrator's own
-    :class:`~gsp_calibrator.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
+    :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
     rows are the ones the calibrator collected online (with no timeouts: the recording holds
     only what the calibrator waited for).
 
