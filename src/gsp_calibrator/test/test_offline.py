@@ -268,7 +268,7 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
     write_samples(run_dir / 'samples.csv', samples)
     truth, nominal = default_geometry('true'), default_geometry('nominal')
     poses = sample_valid_postures(truth, 10, np.random.default_rng(3))
-    from gsp_calibrator.report.write import validation_errors
+    from gsp_calibrator.report.data import validation_errors
 
     before = validation_errors(truth, nominal, poses)
     # The calibrator's collection record survives the rewrite.

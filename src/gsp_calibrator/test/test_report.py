@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples
 
+from gsp_calibrator.report import data as report_data
 from gsp_calibrator.report import write as report
 from gsp_calibrator.run import identify as calibration
 from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
@@ -23,8 +24,8 @@ def calibrated():
     outcome = calibration.identify_from_samples(nominal, synthetic_samples(), SIGMAS)
     assert outcome.success, outcome.message
     poses = sample_valid_postures(truth, 20, np.random.default_rng(7))
-    before = report.validation_errors(truth, nominal, poses)
-    after = report.validation_errors(truth, outcome.geometry, poses)
+    before = report_data.validation_errors(truth, nominal, poses)
+    after = report_data.validation_errors(truth, outcome.geometry, poses)
     return outcome, nominal, truth, before, after
 
 
@@ -104,7 +105,7 @@ def test_result_json(tmp_path, calibrated):
     assert data['residual_rms']['alpha']['si_unit'] == 'rad'
     assert data['iterations'] == result.iterations and data['status'] == result.status
     for when in ('before', 'after'):
-        for key in report.VALIDATION_KEYS:
+        for key in report_data.VALIDATION_KEYS:
             assert data['validation'][when][key] >= 0.0
     assert (
         data['validation']['after']['position_mm_mean']
@@ -185,7 +186,7 @@ def test_report_without_truth_and_failed_identification(tmp_path):
 
 def test_residuals_by_sensor_recovers_si_units(calibrated):
     result = calibrated[0].result
-    by_sensor = report.residuals_by_sensor(result)
+    by_sensor = report_data.residuals_by_sensor(result)
     assert set(by_sensor) == set(result.residual_rms)
     for sensor, values in by_sensor.items():
         assert math.sqrt(np.mean(values**2)) == pytest.approx(result.residual_rms[sensor])

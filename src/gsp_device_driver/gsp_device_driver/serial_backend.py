@@ -8,10 +8,11 @@ When the port fails (unplugged) or is absent, the thread reports it and retries 
 """
 
 import collections
+import dataclasses
 import threading
 import time
 
-from .backends import BackendError, DeviceBackend, DeviceSample
+from .device_backend import BackendError, DeviceBackend, DeviceSample
 from .serial_protocol import (
     ANGLE_UNITS,
     DROP_REASONS,
@@ -79,6 +80,20 @@ def _specs():
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class SerialSettings:
+    """The serial backend's parameters (the ``serial.*`` parameters of ``device_driver``)."""
+
+    port: str
+    baud: int = 115200
+    timeout: float = 0.1  #: s
+    angle_unit: str = 'rad'
+    length_unit: str = 'm'
+    latency: float = 0.0  #: s
+    reconnect_interval: float = 0.5  #: s
+    silence_warning: float = 0.5  #: s
+
+
 class SerialDeviceBackend(DeviceBackend):
     """Readings from a device speaking the serial protocol on ``port``.
 
@@ -88,28 +103,19 @@ class SerialDeviceBackend(DeviceBackend):
 
     name = 'serial'
 
-    def __init__(
-        self,
-        port,
-        baud=115200,
-        timeout=0.1,
-        angle_unit='rad',
-        length_unit='m',
-        latency=0.0,
-        reconnect_interval=0.5,
-        silence_warning=0.5,
-        clock=time.monotonic,
-        serial_factory=None,
-    ):
+    def __init__(self, settings, clock=time.monotonic, serial_factory=None):
+        """``settings``: a :class:`SerialSettings`; ``serial_factory(port, baud, timeout)`` opens
+        the port (tests; default: pyserial)."""
+        angle_unit, length_unit = settings.angle_unit, settings.length_unit
         if angle_unit not in ANGLE_UNITS or length_unit not in LENGTH_UNITS:
             raise BackendError(f'unknown units {angle_unit!r}, {length_unit!r}')
-        self.port = str(port)
-        self.baud = int(baud)
-        self.timeout = float(timeout)
+        self.port = str(settings.port)
+        self.baud = int(settings.baud)
+        self.timeout = float(settings.timeout)
         self.angle_unit, self.length_unit = angle_unit, length_unit
-        self.reconnect_interval = float(reconnect_interval)
-        self.silence_warning = float(silence_warning)
-        self.device_clock = DeviceClock(latency)
+        self.reconnect_interval = float(settings.reconnect_interval)
+        self.silence_warning = float(settings.silence_warning)
+        self.device_clock = DeviceClock(settings.latency)
         self._clock = clock
         self._serial_factory = serial_factory
         self._lock = threading.Lock()
@@ -125,7 +131,7 @@ class SerialDeviceBackend(DeviceBackend):
     @classmethod
     def from_config(cls, rng=None, **config):
         names = {spec.name for spec in cls.PARAMETERS}
-        backend = cls(**{k: v for k, v in config.items() if k in names})
+        backend = cls(SerialSettings(**{k: v for k, v in config.items() if k in names}))
         backend.start()
         return backend
 

@@ -5,7 +5,7 @@ import pytest
 
 from gsp_device_driver.backends import backend_class
 from gsp_device_driver.fake_device import FakeDevice
-from gsp_device_driver.serial_backend import SerialDeviceBackend
+from gsp_device_driver.serial_backend import SerialDeviceBackend, SerialSettings
 from gsp_msgs_py import testing
 
 TIMEOUT_S = 20.0
@@ -22,7 +22,7 @@ def link(tmp_path):
 
 
 def make_pair(link, **fake_options):
-    backend = SerialDeviceBackend(str(link), timeout=0.05, reconnect_interval=0.05)
+    backend = SerialDeviceBackend(SerialSettings(str(link), timeout=0.05, reconnect_interval=0.05))
     backend.start()  # before the device: it waits for the port to appear
     fake = FakeDevice(link, lambda: VALUES, rng=np.random.default_rng(1), **fake_options)
     # Paused until the backend has opened the port: opening flushes what was queued before.
@@ -117,7 +117,9 @@ def test_units_that_disagree_with_the_hello_line_drop_the_readings(link):
 
 
 def test_a_missing_port_is_a_warning_and_a_retry(tmp_path):
-    backend = SerialDeviceBackend(str(tmp_path / 'absent'), timeout=0.05, reconnect_interval=0.05)
+    backend = SerialDeviceBackend(
+        SerialSettings(str(tmp_path / 'absent'), timeout=0.05, reconnect_interval=0.05)
+    )
     backend.start()
     try:
         messages = []

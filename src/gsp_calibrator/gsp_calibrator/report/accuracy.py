@@ -134,12 +134,12 @@ def markdown_lines(entry, image=None):
 def plot_accuracy_map(path, prediction):
     """``accuracy_map.png``: predicted position (top) and orientation (bottom) error maps, one
     column per panel, with the validation postures (measured error) overlaid when known."""
-    from gsp_calibrator.report.plots import _figure, _save
+    from gsp_calibrator.report.plots import new_figure, save_figure
 
     maps = prediction['maps']
     validation = prediction.get('validation')
     columns = len(maps) + (1 if validation else 0)
-    figure = _figure(
+    figure = new_figure(
         3.3 * columns, 6.6, left=0.05, right=0.97, top=0.88, bottom=0.08, wspace=0.35, hspace=0.35
     )
     rows = (('position_mm', 'position (mm)'), ('orientation_deg', 'orientation (deg)'))
@@ -204,7 +204,7 @@ def plot_accuracy_map(path, prediction):
         else 'Predicted error of the calibrated platform (expected magnitude from the parameter '
         'covariance)'
     )
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def _height_step(maps):

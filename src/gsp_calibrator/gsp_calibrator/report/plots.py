@@ -1,4 +1,4 @@
-"""The PNG plots of a calibration report (pure, no rclpy; see :mod:`.report`).
+"""The PNG plots of a calibration report (pure, no rclpy; see :mod:`.write`).
 
 ``parameter_errors.png`` (the paper's Figs. 6-8), ``chain_errors.png`` (Figs. 9-12),
 ``residuals.png`` (histograms per sensor) and ``validation.png`` (error distributions before and
@@ -10,14 +10,14 @@ import math
 
 import numpy as np
 
-from gsp_calibrator.report.write import (
-    _ANGULAR,
-    _SENSOR_KIND,
-    _SENSOR_LABEL,
-    _errors,
-    _validation_arrays,
-    _validation_summary,
+from gsp_calibrator.report.data import (
+    ANGULAR,
+    SENSOR_KIND,
+    SENSOR_LABEL,
+    parameter_error_table,
     residuals_by_sensor,
+    validation_arrays,
+    validation_summary,
 )
 from gsp_kinematics.fileio import atomic_write_bytes
 from gsp_kinematics.geometry import NUM_LEGS, PARAMETER_CHAIN, PARAMETER_NAMES, default_geometry
@@ -44,7 +44,7 @@ def _residual_scale(kind, values):
     return options[-1]
 
 
-def _figure(width, height, **adjust):
+def new_figure(width, height, **adjust):
     """A figure on an Agg canvas (no pyplot, no GUI); ``adjust``: its subplot margins."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -56,12 +56,12 @@ def _figure(width, height, **adjust):
     return figure
 
 
-def _rows_figure(width, row_height, rows, margins, wspace):
+def rows_figure(width, row_height, rows, margins, wspace):
     """A figure of ``rows`` rows of ``row_height`` inches; ``margins``: left and right (figure
     fractions), then top, bottom and the gap between rows (inches)."""
     left, right, top_in, bottom_in, gap_in = margins
     height = row_height * rows
-    return _figure(
+    return new_figure(
         width,
         height,
         left=left,
@@ -73,7 +73,7 @@ def _rows_figure(width, row_height, rows, margins, wspace):
     )
 
 
-def _save(figure, path):
+def save_figure(figure, path):
     buffer = io.BytesIO()
     figure.savefig(buffer, format='png', dpi=100, pil_kwargs={'compress_level': 3})
     atomic_write_bytes(path, buffer.getvalue())
@@ -83,12 +83,12 @@ def _save(figure, path):
 def plot_parameter_errors(path, result, truth=None, nominal=None):
     """Each parameter's error before (nominal) and after (estimate), with 1-sigma bars."""
     nominal = default_geometry('nominal') if nominal is None else nominal
-    reference, before, after, sigma = _errors(result, truth, nominal)
+    reference, before, after, sigma = parameter_error_table(result, truth, nominal)
     free = np.asarray(result.free, dtype=bool)
-    lengths = [i for i in range(len(PARAMETER_NAMES)) if i not in _ANGULAR]
-    angles = sorted(_ANGULAR)
+    lengths = [i for i in range(len(PARAMETER_NAMES)) if i not in ANGULAR]
+    angles = sorted(ANGULAR)
     rows = 2 if reference == 'truth' else 1
-    figure = _rows_figure(15, 4.4, rows, margins=(0.06, 0.99, 0.3, 0.9, 1.0), wspace=0.2)
+    figure = rows_figure(15, 4.4, rows, margins=(0.06, 0.99, 0.3, 0.9, 1.0), wspace=0.2)
     grid = figure.add_gridspec(rows, 2, width_ratios=[len(lengths), 4])
 
     def panel(axes, indices, values, label, colour, marker, bars, unit, zero_line=True):
@@ -148,13 +148,13 @@ def plot_parameter_errors(path, result, truth=None, nominal=None):
         side.set_title('gamma')
         main.legend(loc='upper right', fontsize=8)
     figure.axes[-2].set_xlabel('parameter (grey band: fixed, not identified)')
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def chain_errors(result, truth=None, nominal=None):
     """``(reference, before, after)``: (3, 6) arrays of |A_i|, |B_i|, |Loff_i| errors in mm."""
     nominal = default_geometry('nominal') if nominal is None else nominal
-    reference, before, after, _ = _errors(result, truth, nominal)
+    reference, before, after, _ = parameter_error_table(result, truth, nominal)
     chains = np.array([c if c is not None else 0 for c in PARAMETER_CHAIN])
 
     def norms(values):
@@ -176,7 +176,7 @@ def chain_errors(result, truth=None, nominal=None):
 def plot_chain_errors(path, result, truth=None, nominal=None):
     """Per-leg (kinematic chain) error norms of A_i, B_i and Loff_i before and after."""
     reference, before, after = chain_errors(result, truth, nominal)
-    figure = _figure(13, 4.4, left=0.06, right=0.99, top=0.86, bottom=0.12, wspace=0.3)
+    figure = new_figure(13, 4.4, left=0.06, right=0.99, top=0.86, bottom=0.12, wspace=0.3)
     legs = np.arange(1, NUM_LEGS + 1)
     titles = ('base joint |ΔA_i|', 'platform joint |ΔB_i|', 'leg offset |ΔLoff_i|')
     width = 0.38
@@ -221,7 +221,7 @@ def plot_chain_errors(path, result, truth=None, nominal=None):
             else ': corrections (no true geometry known)'
         )
     )
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_residuals(path, result):
@@ -230,15 +230,15 @@ def plot_residuals(path, result):
     count = max(len(by_sensor), 1)
     columns = min(count, 3)
     rows = int(math.ceil(count / columns))
-    figure = _rows_figure(4.6 * columns, 3.8, rows, margins=(0.08, 0.98, 0.8, 0.5, 1.1), wspace=0.3)
+    figure = rows_figure(4.6 * columns, 3.8, rows, margins=(0.08, 0.98, 0.8, 0.5, 1.1), wspace=0.3)
     if not by_sensor:
         axes = figure.add_subplot(1, 1, 1)
         axes.text(0.5, 0.5, 'no residuals (identification failed)', ha='center', va='center')
         axes.set_axis_off()
-        return _save(figure, path)
+        return save_figure(figure, path)
     for k, (sensor, values) in enumerate(by_sensor.items()):
         axes = figure.add_subplot(rows, columns, k + 1)
-        factor, unit = _residual_scale(_SENSOR_KIND.get(sensor, 'length'), values)
+        factor, unit = _residual_scale(SENSOR_KIND.get(sensor, 'length'), values)
         scaled = values * factor
         bins = int(np.clip(np.sqrt(scaled.size) * 2, 10, 60))
         axes.hist(
@@ -249,16 +249,16 @@ def plot_residuals(path, result):
         axes.axvline(-rms, color=_BEFORE_COLOUR, ls='--', lw=1)
         axes.set_xlabel(f'residual at the solution ({unit})')
         axes.set_ylabel('count')
-        axes.set_title(_SENSOR_LABEL.get(sensor, sensor))
+        axes.set_title(SENSOR_LABEL.get(sensor, sensor))
         axes.legend(fontsize=8)
         axes.grid(True, alpha=0.3)
     figure.suptitle(f'Identification residuals at the solution ({result.formulation} formulation)')
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_validation(path, validation_before, validation_after):
     """Validation error distributions (position mm, orientation deg) before and after."""
-    figure = _figure(11, 4.4, left=0.08, right=0.98, top=0.86, bottom=0.08, wspace=0.25)
+    figure = new_figure(11, 4.4, left=0.08, right=0.98, top=0.86, bottom=0.08, wspace=0.25)
     series = (
         ('before', validation_before, _BEFORE_COLOUR),
         ('after', validation_after, _AFTER_COLOUR),
@@ -274,7 +274,7 @@ def plot_validation(path, validation_before, validation_after):
             if validation is None:
                 continue
             arrays = dict(
-                zip(('position_mm', 'orientation_deg'), _validation_arrays(validation), strict=True)
+                zip(('position_mm', 'orientation_deg'), validation_arrays(validation), strict=True)
             )
             values = arrays[key]
             if values is not None and values.size:
@@ -301,7 +301,7 @@ def plot_validation(path, validation_before, validation_after):
                 )
                 drawn.extend(values[values > 0].tolist())
             else:
-                summary = _validation_summary(validation)
+                summary = validation_summary(validation)
                 mean = summary.get(f'{key}_mean')
                 top = summary.get(f'{key}_max')
                 if mean is None:
@@ -328,4 +328,4 @@ def plot_validation(path, validation_before, validation_after):
         if axes.get_legend_handles_labels()[0]:
             axes.legend(fontsize=8)
     figure.suptitle('Validation: commanded pose versus where the platform really goes')
-    return _save(figure, path)
+    return save_figure(figure, path)

@@ -20,11 +20,23 @@ import os
 
 import numpy as np
 
+from gsp_calibrator.report.data import (
+    ANGULAR,
+    SENSOR_KIND,
+    SENSOR_LABEL,
+    VALIDATION_KEYS,
+    analyse,
+    by_name,
+    identifiability_record,
+    parameter_error_table,
+    report_unit,
+    si_unit,
+    validation_summary,
+)
 from gsp_calibrator.report.fit import fit_data, fit_markdown
 from gsp_calibrator.report.fit import format_number as _fmt
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
-    ANGULAR_PARAMETERS,
     PARAMETER_NAMES,
     default_geometry,
     to_report_units,
@@ -38,208 +50,14 @@ RESIDUALS_PNG = 'residuals.png'
 VALIDATION_PNG = 'validation.png'
 
 CORRELATION_THRESHOLD = 0.9
-VALIDATION_KEYS = (
-    'position_mm_mean',
-    'position_mm_max',
-    'orientation_deg_mean',
-    'orientation_deg_max',
-)
-_ANGULAR = set(ANGULAR_PARAMETERS)
-_SENSOR_KIND = {
-    'leg_lengths': 'length',
-    'alpha': 'angle',
-    'beta': 'angle',
-    'phi': 'angle',
-    'd_m': 'length',
-}
-_SENSOR_LABEL = {
-    'leg_lengths': 'leg lengths q1..q6',
-    'alpha': 'inclinometer alpha',
-    'beta': 'inclinometer beta',
-    'phi': 'encoder phi',
-    'd_m': 'LVDT d_m',
-}
-
 
 # --- helpers -----------------------------------------------------------------------------------
-
-
-def _report_unit(index):
-    return 'deg' if index in _ANGULAR else 'mm'
-
-
-def _si_unit(index):
-    return 'rad' if index in _ANGULAR else 'm'
-
-
-def _by_name(values, mask=None):
-    return {
-        name: (json_safe(values[i]) if mask is None or mask[i] else None)
-        for i, name in enumerate(PARAMETER_NAMES)
-    }
 
 
 def _path(run_dir, name):
     return os.path.join(os.fspath(run_dir), name)
 
 
-def analyse(result):
-    """The core's identifiability analysis of ``result`` (``None`` if it cannot be computed)."""
-    from gsp_kinematics.identifiability import analyse_identifiability
-
-    try:
-        return analyse_identifiability(result.information, result.free)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-
-
-def _identifiability(analysis):
-    """Normalised identifiability: unidentifiable combinations as text and parameter names."""
-    if not analysis:
-        return None
-    entries = []
-    for entry in analysis.get('unidentifiable', []) or []:
-        if isinstance(entry, dict):
-            entries.append(
-                {
-                    'combination': entry.get('combination', ''),
-                    'parameters': list(entry.get('parameters', [])),
-                    'coefficients': list(entry.get('coefficients', [])),
-                }
-            )
-        else:  # a plain parameter name
-            entries.append(
-                {'combination': str(entry), 'parameters': [str(entry)], 'coefficients': [1.0]}
-            )
-    size = analysis.get('parameters', analysis.get('size'))
-    return {
-        'rank': analysis.get('rank'),
-        'parameters': size,
-        'condition_number': analysis.get('condition_number'),
-        'singular_values': analysis.get('singular_values'),
-        'unidentifiable': entries,
-        'unidentifiable_parameters': sorted({p for e in entries for p in e['parameters']}),
-    }
-
-
-def _validation_summary(validation):
-    """``{position_mm_mean, ..., postures}`` of a validation (summary dict or per-posture arrays)."""
-    if validation is None:
-        return None
-    summary = {k: validation[k] for k in VALIDATION_KEYS if k in validation}
-    position, orientation = _validation_arrays(validation)
-    if position is not None and len(position):
-        summary.setdefault('position_mm_mean', float(np.mean(position)))
-        summary.setdefault('position_mm_max', float(np.max(position)))
-    if orientation is not None and len(orientation):
-        summary.setdefault('orientation_deg_mean', float(np.mean(orientation)))
-        summary.setdefault('orientation_deg_max', float(np.max(orientation)))
-    for key in ('postures', 'unreachable'):
-        if key in validation:
-            summary[key] = validation[key]
-    if 'postures' not in summary and position is not None:
-        summary['postures'] = len(position)
-    return summary
-
-
-def _validation_arrays(validation):
-    if validation is None:
-        return None, None
-    position = validation.get('position_mm')
-    orientation = validation.get('orientation_deg')
-    position = None if position is None else np.asarray(position, dtype=float).reshape(-1)
-    orientation = None if orientation is None else np.asarray(orientation, dtype=float).reshape(-1)
-    return position, orientation
-
-
-def validation_errors(true, controller, poses):
-    """Per-posture validation of ``controller`` against the real platform ``true`` (simulation).
-
-    ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
-    'unreachable'}``: the arrays that :func:`write_report` plots as distributions.
-    """
-    from gsp_kinematics.kinematics import forward_kinematics_masked
-    from gsp_kinematics.validation import commanded_articular, pose_errors, summarise
-
-    poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    reached, converged = forward_kinematics_masked(
-        true, commanded_articular(true, controller, poses), poses
-    )
-    if not converged.any():
-        raise ValueError('no validation posture is reachable by the real platform')
-    position, orientation = pose_errors(poses[converged], reached[converged])
-    out = summarise(position, orientation)
-    out.update(
-        position_mm=position.tolist(),
-        orientation_deg=orientation.tolist(),
-        poses=poses[converged].tolist(),
-        postures=int(converged.sum()),
-        unreachable=int((~converged).sum()),
-    )
-    return out
-
-
-def _errors(result, truth, nominal):
-    """``(reference kind, before, after, sigma)`` per parameter in report units."""
-    count = len(PARAMETER_NAMES)  # the 44; the sensor errors have their own section
-    estimate = np.asarray(result.parameters, dtype=float)[:count]
-    sigma = to_report_units(np.nan_to_num(result.standard_deviations[:count], nan=0.0))
-    sigma = np.where(np.asarray(result.free, dtype=bool)[:count], sigma, np.nan)
-    if truth is not None:
-        reference = truth.to_vector()
-        return (
-            'truth',
-            to_report_units(nominal.to_vector() - reference),
-            to_report_units(estimate - reference),
-            sigma,
-        )
-    return (
-        'nominal',
-        np.zeros(len(PARAMETER_NAMES)),
-        to_report_units(estimate - nominal.to_vector()),
-        sigma,
-    )
-
-
-def _residual_columns(result):
-    """``[(sensor, columns), ...]`` of ``result.residuals`` (weighted), in column order."""
-    residuals = np.asarray(result.residuals, dtype=float)
-    if residuals.ndim != 2 or not result.residual_rms:
-        return []
-    layout, column = [], 0
-    for sensor in result.residual_rms:
-        width = 6 if sensor == 'leg_lengths' else 1
-        layout.append((sensor, list(range(column, column + width))))
-        column += width
-    if column != residuals.shape[1]:
-        return []
-    return layout
-
-
-def residuals_by_sensor(result):
-    """``{sensor: residuals in SI (m or rad)}`` (1-D arrays, finite values only).
-
-    The core returns residuals weighted by each sensor's sigma and the per-sensor RMS in SI;
-    the sigma is their ratio, so the weights need not be known here.
-    """
-    residuals = np.asarray(result.residuals, dtype=float)
-    out = {}
-    for sensor, columns in _residual_columns(result):
-        weighted = residuals[:, columns].reshape(-1)
-        weighted = weighted[np.isfinite(weighted)]
-        rms_weighted = float(np.sqrt(np.mean(weighted**2))) if weighted.size else 0.0
-        rms_si = float(result.residual_rms.get(sensor, float('nan')))
-        if rms_weighted > 0.0 and math.isfinite(rms_si):
-            out[sensor] = weighted * (rms_si / rms_weighted)
-        else:
-            out[sensor] = np.zeros_like(weighted)
-    return out
-
-
-# --- result.json -------------------------------------------------------------------------------
-
-
-#: The optional inputs of a report, by keyword (absent or None: not known); see :func:`result_data`.
 REPORT_INPUTS = (
     'analysis',
     'validation_before',
@@ -293,7 +111,7 @@ def result_data(result, **inputs):
     free = np.asarray(result.free, dtype=bool)[:count]
     estimate = np.asarray(result.parameters, dtype=float)[:count]
     deviations = np.asarray(result.standard_deviations, dtype=float)[:count]
-    reference, before, after, _ = _errors(result, truth, nominal)
+    reference, before, after, _ = parameter_error_table(result, truth, nominal)
     correlations = []
     try:
         with np.errstate(invalid='ignore', divide='ignore'):
@@ -303,7 +121,7 @@ def result_data(result, **inputs):
         pass
     residual_rms = {}
     for sensor, value in (result.residual_rms or {}).items():
-        kind = _SENSOR_KIND.get(sensor, 'length')
+        kind = SENSOR_KIND.get(sensor, 'length')
         factor, unit = (1e6, 'um') if kind == 'length' else (math.degrees(1.0), 'deg')
         residual_rms[sensor] = {
             'si': value,
@@ -317,31 +135,31 @@ def result_data(result, **inputs):
         'excluded_postures': list(result.excluded_postures or []),
         'free_parameters': list(result.free_names),
         'units': {
-            'si': {n: _si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
-            'report': {n: _report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
+            'si': {n: si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
+            'report': {n: report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
         },
-        'estimates': {'si': _by_name(estimate), 'report': _by_name(to_report_units(estimate))},
+        'estimates': {'si': by_name(estimate), 'report': by_name(to_report_units(estimate))},
         'standard_deviations': {
-            'si': _by_name(deviations, free),
-            'report': _by_name(to_report_units(np.nan_to_num(deviations)), free),
+            'si': by_name(deviations, free),
+            'report': by_name(to_report_units(np.nan_to_num(deviations)), free),
         },
         'nominal': {
-            'si': _by_name(nominal.to_vector()),
-            'report': _by_name(to_report_units(nominal.to_vector())),
+            'si': by_name(nominal.to_vector()),
+            'report': by_name(to_report_units(nominal.to_vector())),
         },
         'parameter_errors': {
             'reference': reference,
             'unit': 'report',
-            'before': _by_name(before),
-            'after': _by_name(after),
+            'before': by_name(before),
+            'after': by_name(after),
         },
         'correlation_threshold': CORRELATION_THRESHOLD,
         'correlations': correlations,
-        'identifiability': _identifiability(analysis),
+        'identifiability': identifiability_record(analysis),
         'residual_rms': residual_rms,
         'validation': {
-            'before': _validation_summary(inputs['validation_before']),
-            'after': _validation_summary(inputs['validation_after']),
+            'before': validation_summary(inputs['validation_before']),
+            'after': validation_summary(inputs['validation_after']),
         },
         'predicted_accuracy': report_accuracy.result_json_entry(
             report_accuracy.prediction_for(result, inputs['validation_after'])
@@ -349,7 +167,7 @@ def result_data(result, **inputs):
             else inputs['prediction']
         ),
     }
-    lengths = np.array([i not in _ANGULAR for i in range(len(PARAMETER_NAMES))])
+    lengths = np.array([i not in ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     data.update(fit_data(result, truth, nominal))
@@ -502,8 +320,7 @@ def report_markdown(data, images, title='Calibration report'):
     lines += ['## Residuals', '', '| sensor | RMS | unit |', '|---|---|---|']
     for sensor, rms in data['residual_rms'].items():
         lines.append(
-            f'| {_SENSOR_LABEL.get(sensor, sensor)} | {_fmt(rms["report"])} | '
-            f'{rms["report_unit"]} |'
+            f'| {SENSOR_LABEL.get(sensor, sensor)} | {_fmt(rms["report"])} | {rms["report_unit"]} |'
         )
     lines.append('')
     if 'residuals' in images:

@@ -31,11 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.report.write import RESULT_JSON
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.settings import add_run_options, run_options_error
-from gsp_calibrator.tools.processes import NodeProcesses
+from gsp_calibrator.tools.processes import DemoError, NodeProcesses
 from gsp_kinematics.geometry import default_geometry_path, load_geometry, parameter_errors
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.validation import pose_errors, summarise
@@ -61,20 +62,6 @@ NODES = {
 #: the ros2_control mode spends its time like the direct one, in settling and sampling.
 EMULATED_LEG_SPEED = 5.0
 BRIDGE_LEG_SPEED = 2.5
-VALIDATION_KEYS = (
-    'position_mm_mean',
-    'position_mm_max',
-    'orientation_deg_mean',
-    'orientation_deg_max',
-)
-
-
-class DemoError(RuntimeError):
-    """The demo cannot go on; the message says why."""
-
-
-class NodeExited(DemoError):
-    """A node process has exited; the message names it and ends with its log."""
 
 
 class Terminated(Exception):
@@ -406,7 +393,7 @@ def run(args):
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
         from gsp_calibrator.tools import demo_node  # rclpy only after the environment is set
 
-        node = demo_node.make_demo_node(context)
+        node = demo_node.DemoNode(context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         demo = demo_node.Demo(node, executor, processes)

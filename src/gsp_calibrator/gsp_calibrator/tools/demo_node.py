@@ -1,123 +1,118 @@
 """The ROS part of ``gsp_demo``: a client node of the suite, driven from the main thread.
 
-:func:`make_demo_node` builds the node (progress printing, the calibrate call, validation
-postures); :class:`Demo` spins it until each awaited event, stopping at once when one of the
-node processes exits. Imported by :mod:`.demo` only after the ROS environment is set.
+:class:`DemoNode` is the node (progress printing, the calibrate call, validation postures);
+:class:`Demo` spins it until each awaited event, stopping at once when one of the node processes
+exits. Imported by :mod:`.demo` only after the ROS environment is set (it imports rclpy).
 """
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from std_srvs.srv import Trigger
 
-from gsp_calibrator.tools.demo import DemoError, NodeExited
+from gsp_calibrator.tools.processes import DemoError, NodeExited
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.node_tools import spin_until
 
 
-def make_demo_node(context):
-    """The demo's node (imports rclpy only here, after the environment is set)."""
-    from diagnostic_msgs.msg import DiagnosticStatus
-    from geometry_msgs.msg import PoseStamped
-    from rclpy.node import Node
-    from std_srvs.srv import Trigger
+class DemoNode(Node):
+    """Client of the suite: progress printing, the calibrate call, validation postures."""
 
-    from gsp_msgs_py import conversions, names, qos
+    def __init__(self, **kwargs):
+        """``**kwargs`` go to ``Node`` (``context=``)."""
+        super().__init__('gsp_demo', **kwargs)
+        self.statuses = {}  # command_id -> PlatformStatus
+        self.settled_at = {}  # command_id -> receive time (ns) of its settled status
+        self.true_poses = []  # [(stamp_ns, pose)], recent only
+        self.progress_lines = []
+        self._last_phase = None
+        self.calibrate_client = self.create_client(Trigger, names.SERVICE_CALIBRATE)
+        self.command_pub = self.create_publisher(
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+        )
+        self.create_subscription(
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
+            self._on_status,
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
+        self._true_pose_subscription = None  # only while validating (200 Hz)
+        self.create_subscription(
+            DiagnosticStatus,
+            names.TOPIC_CALIBRATION_PROGRESS,
+            self._on_progress,
+            qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS],
+        )
 
-    class DemoNode(Node):
-        """Client of the suite: progress printing, the calibrate call, validation postures."""
+    def _on_status(self, msg):
+        try:
+            status = conversions.parse_status(msg)
+        except ValueError:
+            return
+        self.statuses[status.command_id] = status
+        if status.settled:
+            self.settled_at[status.command_id] = self.get_clock().now().nanoseconds
 
-        def __init__(self, **kwargs):
-            super().__init__('gsp_demo', **kwargs)
-            self.statuses = {}  # command_id -> PlatformStatus
-            self.settled_at = {}  # command_id -> receive time (ns) of its settled status
-            self.true_poses = []  # [(stamp_ns, pose)], recent only
-            self.progress_lines = []
-            self._last_phase = None
-            self.calibrate_client = self.create_client(Trigger, names.SERVICE_CALIBRATE)
-            self.command_pub = self.create_publisher(
-                PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+    def watch_true_pose(self, on):
+        """Subscribe to (or unsubscribe from) the ground truth."""
+        if on and self._true_pose_subscription is None:
+            self.true_poses.clear()
+            self._true_pose_subscription = self.create_subscription(
+                PoseStamped,
+                names.TOPIC_TRUE_POSE,
+                self._on_true_pose,
+                qos.TOPIC_QOS[names.TOPIC_TRUE_POSE],
             )
-            self.create_subscription(
-                DiagnosticStatus,
-                names.TOPIC_PLATFORM_STATUS,
-                self._on_status,
-                qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        elif not on and self._true_pose_subscription is not None:
+            self.destroy_subscription(self._true_pose_subscription)
+            self._true_pose_subscription = None
+
+    def _on_true_pose(self, msg):
+        try:
+            pose = conversions.pose_stamped_to_pose(msg)
+        except ValueError:
+            return
+        self.true_poses.append((conversions.stamp_to_nanoseconds(msg.header.stamp), pose))
+        del self.true_poses[:-400]
+
+    def _on_progress(self, msg):
+        try:
+            progress = conversions.parse_progress(msg)
+        except ValueError:
+            return
+        k, m, phase = progress.posture_index, progress.posture_count, progress.phase
+        per_posture = phase in (names.PHASE_MOVING, names.PHASE_COLLECTING)
+        show = (
+            (not per_posture and phase != self._last_phase)
+            or 'skipped' in progress.extra
+            or (
+                phase == names.PHASE_COLLECTING
+                and 'averaged' in progress.message
+                and (k % 10 == 0 or k == m)
             )
-            self._true_pose_subscription = None  # only while validating (200 Hz)
-            self.create_subscription(
-                DiagnosticStatus,
-                names.TOPIC_CALIBRATION_PROGRESS,
-                self._on_progress,
-                qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS],
-            )
+        )
+        self._last_phase = phase
+        if show:
+            line = f'  [{phase}] {k}/{m}: {progress.message.splitlines()[0]}'
+            self.progress_lines.append(line)
+            print(line, flush=True)
 
-        def _on_status(self, msg):
-            try:
-                status = conversions.parse_status(msg)
-            except ValueError:
-                return
-            self.statuses[status.command_id] = status
-            if status.settled:
-                self.settled_at[status.command_id] = self.get_clock().now().nanoseconds
+    def command(self, pose):
+        stamp = self.get_clock().now()
+        command_id = conversions.command_id_from_stamp(stamp)
+        self.command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
+        return command_id
 
-        def watch_true_pose(self, on):
-            """Subscribe to (or unsubscribe from) the ground truth."""
-            if on and self._true_pose_subscription is None:
-                self.true_poses.clear()
-                self._true_pose_subscription = self.create_subscription(
-                    PoseStamped,
-                    names.TOPIC_TRUE_POSE,
-                    self._on_true_pose,
-                    qos.TOPIC_QOS[names.TOPIC_TRUE_POSE],
-                )
-            elif not on and self._true_pose_subscription is not None:
-                self.destroy_subscription(self._true_pose_subscription)
-                self._true_pose_subscription = None
-
-        def _on_true_pose(self, msg):
-            try:
-                pose = conversions.pose_stamped_to_pose(msg)
-            except ValueError:
-                return
-            self.true_poses.append((conversions.stamp_to_nanoseconds(msg.header.stamp), pose))
-            del self.true_poses[:-400]
-
-        def _on_progress(self, msg):
-            try:
-                progress = conversions.parse_progress(msg)
-            except ValueError:
-                return
-            k, m, phase = progress.posture_index, progress.posture_count, progress.phase
-            per_posture = phase in (names.PHASE_MOVING, names.PHASE_COLLECTING)
-            show = (
-                (not per_posture and phase != self._last_phase)
-                or 'skipped' in progress.extra
-                or (
-                    phase == names.PHASE_COLLECTING
-                    and 'averaged' in progress.message
-                    and (k % 10 == 0 or k == m)
-                )
-            )
-            self._last_phase = phase
-            if show:
-                line = f'  [{phase}] {k}/{m}: {progress.message.splitlines()[0]}'
-                self.progress_lines.append(line)
-                print(line, flush=True)
-
-        def command(self, pose):
-            stamp = self.get_clock().now()
-            command_id = conversions.command_id_from_stamp(stamp)
-            self.command_pub.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
-            return command_id
-
-        def reached_pose(self, command_id):
-            """True pose stamped after the settled status of ``command_id`` (None if not yet)."""
-            start = self.settled_at.get(command_id)
-            if start is None:
-                return None
-            for stamp, pose in self.true_poses:
-                if stamp >= start:
-                    return pose
+    def reached_pose(self, command_id):
+        """True pose stamped after the settled status of ``command_id`` (None if not yet)."""
+        start = self.settled_at.get(command_id)
+        if start is None:
             return None
-
-    return DemoNode(context=context)
+        for stamp, pose in self.true_poses:
+            if stamp >= start:
+                return pose
+        return None
 
 
 class Demo:
@@ -144,8 +139,6 @@ class Demo:
             raise DemoError(f'timed out after {timeout:g} s waiting for {what}')
 
     def wait_for_system(self, timeout):
-        from gsp_msgs_py import names
-
         node = self.node
         self.spin_until(
             node.calibrate_client.service_is_ready,
@@ -165,8 +158,6 @@ class Demo:
 
     def run_postures(self, poses, settle_timeout, startup_timeout):
         """Command each pose, wait until settled; reached poses (NaN rows where rejected)."""
-        from gsp_msgs_py import names
-
         node = self.node
         node.watch_true_pose(True)
         try:
@@ -201,8 +192,6 @@ class Demo:
         return reached
 
     def calibrate(self, timeout):
-        from std_srvs.srv import Trigger
-
         future = self.node.calibrate_client.call_async(Trigger.Request())
         self.spin_until(future.done, timeout, 'the calibration service to answer')
         return future.result()

@@ -200,9 +200,9 @@ def sweep_table(result):
 def plot_sweep(path, result):
     """Predicted mean position and orientation error against posture count, one curve per
     samples-per-posture (log scale)."""
-    from gsp_calibrator.report.plots import _figure, _save
+    from gsp_calibrator.report.plots import new_figure, save_figure
 
-    figure = _figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
+    figure = new_figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
     for column, (key, label) in enumerate(
         (
             ('position_mm_mean', 'position error (mm)'),
@@ -222,7 +222,7 @@ def plot_sweep(path, result):
         axes.grid(True, which='both', alpha=0.3)
         axes.legend(fontsize=8)
     figure.suptitle('Predicted accuracy after calibration (Cramér-Rao, selected postures)')
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def _positive_list(text, kind):

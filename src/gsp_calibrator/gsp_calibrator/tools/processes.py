@@ -34,6 +34,14 @@ def _die_with_parent():
         _LIBC.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
 
 
+class DemoError(RuntimeError):
+    """The demo cannot go on; the message says why."""
+
+
+class NodeExited(DemoError):
+    """A node process has exited; the message names it and ends with its log."""
+
+
 class NodeProcesses:
     """The nodes as child processes; :meth:`stop` ends all of them (idempotent)."""
 

@@ -410,7 +410,7 @@ def reidentify(args, out=None):
     validation_before = validation_after = None
     if outcome.result is not None:
         if truth is not None and args.validation_postures > 0:
-            from gsp_calibrator.report.write import validation_errors
+            from gsp_calibrator.report.data import validation_errors
 
             poses = validation_postures(truth, args.validation_postures, args.seed)
             try:
@@ -465,7 +465,7 @@ def refresh_report(
     once it knows the truth and has validated the calibrated geometry through the system. The
     samples are identified again with the run's stored options (``result.json`` ``options`` or
     the recording's), which gives the run's result exactly. ``validation_*``: validation
-    summaries or :func:`gsp_calibrator.report.write.validation_errors` dicts (per-posture arrays are
+    summaries or :func:`gsp_calibrator.report.data.validation_errors` dicts (per-posture arrays are
     plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
     """
     from gsp_calibrator.report.write import outcome_arguments, write_report, write_result_json
