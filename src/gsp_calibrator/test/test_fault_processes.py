@@ -24,11 +24,11 @@ from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.tools import demo
-from gsp_calibrator.tools import reidentify as offline
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES
+from gsp_kinematics.noise import SensorNoise
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.testing import SpinThread
 
@@ -191,7 +191,7 @@ def identification(run):
     result = calibration.identify_from_samples(
         load_geometry(options['nominal_geometry_file']),
         read_samples(run / 'samples.csv'),
-        offline.sigmas_of(options),
+        SensorNoise.from_parameters(options),
         free=options['free_parameters'],
         formulation=options['formulation'],
     ).result

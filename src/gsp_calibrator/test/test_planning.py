@@ -8,6 +8,7 @@ import pytest
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.tools import planning
 from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.noise import SensorNoise
 
 QUICK = ['--pool-size', '120']
 
@@ -33,7 +34,7 @@ def test_plan_json(tmp_path, capsys):
     assert plan['calibration_s'] == pytest.approx(30 * (0.02 + 4 / 200))
     # The same postures as the calibrator would command with these settings.
     nominal = default_geometry('nominal')
-    sigmas = calibration.averaged_sigmas(calibration.Sigmas(), [4])
+    sigmas = SensorNoise().averaged([4])
     chosen = calibration.choose_postures(nominal, 30, 120, 0, sigmas)
     assert np.allclose(plan['selection']['poses'], chosen.poses)
     assert 'rank 51 of 51' in capsys.readouterr().out

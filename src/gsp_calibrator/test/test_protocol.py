@@ -357,6 +357,6 @@ def test_the_topic_table_and_the_noise_vector():
     from gsp_kinematics.identification import Sigmas
 
     sigmas = Sigmas(leg_lengths=1.0, inclinometer=2.0, encoder=3.0, lvdt=4.0)
-    assert protocol.noise_std(sigmas).tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
+    assert sigmas.channel_std().tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
     with pytest.raises(KeyError):
         protocol.read_sensor('/not/a/sensor', None)

@@ -42,8 +42,9 @@ import numpy as np
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.fileio import write_json
 from gsp_kinematics.geometry import PARAMETER_NAMES, parameter_errors
-from gsp_kinematics.identification import DEFAULT_FORMULATION, FORMULATIONS, Sigmas, identify
+from gsp_kinematics.identification import DEFAULT_FORMULATION, FORMULATIONS, identify
 from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
 from gsp_kinematics.validation import validate
@@ -89,7 +90,7 @@ def add_noise(leg_lengths, readings, angle_noise_deg, length_noise_mm, rng):
     return noisy_legs, noisy_readings
 
 
-def select_for_set(exact, set_number, config, sigmas=Sigmas()):
+def select_for_set(exact, set_number, config, sigmas=DEFAULT_SENSOR_NOISE):
     """Nominal set, the selected postures (M, 6) and the selection's condition number.
 
     The pool depends on the set only, so selections for other sigmas pick from the same postures.
@@ -121,7 +122,7 @@ def _noise_free_task(args):
         nominal,
         leg_lengths,
         readings,
-        Sigmas(),
+        DEFAULT_SENSOR_NOISE,
         formulation=config.noise_free_formulation,
         pose_guesses=poses,
     )
@@ -165,7 +166,7 @@ def _noise_task(args):
     leg_lengths, readings = add_noise(
         leg_lengths, readings, level['angle_noise_deg'], level['length_noise_mm'], rng
     )
-    sigmas = Sigmas.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+    sigmas = SensorNoise.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
     rows = []
     for formulation in config.formulations:
         result = identify(
@@ -238,12 +239,12 @@ def run(config=PaperConfig(), tables=None, log=print, exact=None):
     # Postures are selected with the sigmas they are identified with: the noise-free studies with
     # the default (Table 3's first level), each noise level with its own.
     level_sigmas = [
-        Sigmas.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+        SensorNoise.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
         if config.select_per_level
-        else Sigmas()
+        else DEFAULT_SENSOR_NOISE
         for level in paper_levels
     ]
-    keys = [(k, Sigmas()) for k in config.sets] + [
+    keys = [(k, DEFAULT_SENSOR_NOISE) for k in config.sets] + [
         (config.noise_set, sigmas) for sigmas in level_sigmas
     ]
     keys = list(dict.fromkeys(keys))
@@ -263,7 +264,7 @@ def run(config=PaperConfig(), tables=None, log=print, exact=None):
     )
     nominal = nominal_set(exact, config.noise_set)
     tasks = [
-        ('noise_free', (exact, k, selections[(k, Sigmas())], config, validation_poses))
+        ('noise_free', (exact, k, selections[(k, DEFAULT_SENSOR_NOISE)], config, validation_poses))
         for k in config.sets
     ]
     tasks += [

@@ -8,7 +8,8 @@ condition number is that of the column-scaled identification Jacobian.
 import numpy as np
 
 from .geometry import ALL_PARAMETER_NAMES
-from .identification import SENSOR_NAMES, Sigmas, resolve_free
+from .identification import SENSOR_NAMES, resolve_free
+from .noise import DEFAULT_SENSOR_NOISE
 
 #: A scaled singular value below this fraction of the largest counts as zero.
 DEFAULT_RELATIVE_TOLERANCE = 1e-6
@@ -73,7 +74,7 @@ def unidentifiable_parameters(analysis):
 def analyse_design(
     geometry,
     poses,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
     formulation='implicit',
     sensors=SENSOR_NAMES,

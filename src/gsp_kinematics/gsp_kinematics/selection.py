@@ -3,7 +3,8 @@
 import numpy as np
 
 from ._formulations import leg_readings_jacobians, sensor_readings_jacobians
-from .identification import SENSOR_NAMES, Sigmas, resolve_free
+from .identification import SENSOR_NAMES, resolve_free
+from .noise import DEFAULT_SENSOR_NOISE
 from .prediction import pose_sensitivities
 
 #: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
@@ -13,7 +14,12 @@ FOCUS = 6.0
 
 
 def posture_factors(
-    geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
+    geometry,
+    poses,
+    sigmas=DEFAULT_SENSOR_NOISE,
+    free=None,
+    formulation='implicit',
+    sensors=SENSOR_NAMES,
 ):
     """Per-posture information factors ``G`` (N, r, n): posture k's information is ``G_k^T G_k``.
 
@@ -41,7 +47,12 @@ def posture_factors(
 
 
 def posture_information(
-    geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
+    geometry,
+    poses,
+    sigmas=DEFAULT_SENSOR_NOISE,
+    free=None,
+    formulation='implicit',
+    sensors=SENSOR_NAMES,
 ):
     """Per-posture information matrices (N, n, n) of the free parameters.
 
@@ -66,7 +77,7 @@ def select_postures(
     geometry,
     pool,
     count=60,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
     formulation='implicit',
     exchange_passes=1,
@@ -174,7 +185,7 @@ def exchange_for_pose_error(
     pool,
     chosen,
     targets,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
     formulation='implicit',
     passes=1,

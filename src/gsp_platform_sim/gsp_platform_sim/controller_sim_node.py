@@ -19,6 +19,7 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, names, node_tools, qos
 from gsp_msgs_py.node_tools import ParameterSpec, greater_than
 
@@ -51,7 +52,10 @@ PARAMETERS = (
     ),
     node_tools.publish_rate_spec('/joint_states and true_pose'),
     node_tools.noise_std_spec(
-        'leg_noise_std', 1e-6, 'Standard deviation of the leg position noise on /joint_states', 'm'
+        'leg_noise_std',
+        DEFAULT_SENSOR_NOISE.leg_lengths,
+        'Standard deviation of the leg position noise on /joint_states',
+        'm',
     ),
     node_tools.seed_spec(),
     node_tools.frame_id_spec('Frame of the published true pose'),

@@ -118,15 +118,6 @@ def read_sensor(topic, msg):
     return stream, conversions.stamp_to_nanoseconds(msg.header.stamp), tuple(_READERS[stream](msg))
 
 
-def noise_std(sigmas):
-    """The collector's 10 channel noise stds ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad) of a
-    ``Sigmas`` (per-sample noise of each sensor)."""
-    return np.array(
-        [sigmas.leg_lengths] * 6 + [sigmas.inclinometer] * 2 + [sigmas.encoder, sigmas.lvdt],
-        dtype=float,
-    )
-
-
 def _has_non_finite(msg):
     try:
         return any(not math.isfinite(v) for v in msg.position)
@@ -245,7 +236,7 @@ class CollectionProtocol:
         return cls(
             settings.sync_tolerance,
             settings.samples_per_posture,
-            noise_std(settings.sigmas),
+            settings.sigmas.channel_std(),
             topic_timeout=settings.topic_timeout,
             settle_timeout=settings.settle_timeout,
         )

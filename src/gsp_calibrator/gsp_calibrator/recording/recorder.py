@@ -24,8 +24,6 @@ import re
 import threading
 import time
 
-import numpy as np
-
 from gsp_calibrator.collection import protocol
 from gsp_calibrator.recording.mcap_format import (  # noqa: F401 (the recording API, re-exported)
     DEFINITION_SEPARATOR,
@@ -53,6 +51,7 @@ from gsp_calibrator.recording.mcap_io import (  # noqa: F401 (the recording API,
 )
 from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.fileio import json_safe
+from gsp_kinematics.noise import SensorNoise, SensorNoiseError
 from gsp_msgs_py import names
 
 RECORDING_FILE = 'recording.mcap'
@@ -96,25 +95,12 @@ def noise_std_from_options(options):
     From ``options['noise_std']`` (10 values), else the ``sigma_*`` options, else the calibrator's
     default sigmas (the calibrator builds its collector from its sigma parameters).
     """
-    if options.get('noise_std') is not None:
-        values = np.asarray(options['noise_std'], dtype=float).reshape(-1)
-        if values.shape != (10,):
-            raise RecordingError(f'noise_std must hold 10 values, got {values.tolist()}')
-        return values
-    from gsp_calibrator.settings import DEFAULTS
-    from gsp_kinematics.identification import Sigmas
-
-    def sigma(name):
-        return float(options.get(name, DEFAULTS[name]))
-
-    return protocol.noise_std(
-        Sigmas(
-            leg_lengths=sigma('sigma_leg_lengths'),
-            inclinometer=sigma('sigma_inclinometer'),
-            encoder=sigma('sigma_encoder'),
-            lvdt=sigma('sigma_lvdt'),
-        )
-    )
+    try:
+        if options.get('noise_std') is not None:
+            return SensorNoise.from_channel_std(options['noise_std']).channel_std()
+        return SensorNoise.from_parameters(options).channel_std()
+    except SensorNoiseError as error:
+        raise RecordingError(str(error)) from None
 
 
 def feed_recording(path, collection, notes=None, extra_topics=(), on_message=None):

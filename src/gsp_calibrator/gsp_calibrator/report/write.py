@@ -172,20 +172,10 @@ def result_data(result, **inputs):
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     data.update(fit_data(result, truth, nominal))
     if inputs['sigmas'] is not None:
-        data['sigmas'] = sigmas_record(inputs['sigmas'])
+        data['sigmas'] = inputs['sigmas'].to_record()
     if inputs['extra']:
         data.update(inputs['extra'])
     return json_safe(data)
-
-
-def sigmas_record(sigmas):
-    """The JSON record of a ``Sigmas`` (m, rad), as ``result.json`` and ``gsp_plan`` write it."""
-    return {
-        'leg_lengths_m': sigmas.leg_lengths,
-        'inclinometer_rad': sigmas.inclinometer,
-        'encoder_rad': sigmas.encoder,
-        'lvdt_m': sigmas.lvdt,
-    }
 
 
 def outcome_arguments(outcome, nominal, options, **extra):

@@ -29,11 +29,11 @@ from gsp_kinematics.geometry import (
 from gsp_kinematics.identification import (
     FORMULATIONS,
     IdentificationError,
-    Sigmas,
     identify,
     resolve_free,
 )
 from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.selection import select_postures
 
@@ -83,7 +83,7 @@ def choose_postures(
     count,
     pool_size,
     seed,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
     formulation='implicit',
     workspace=Workspace(),
@@ -198,34 +198,10 @@ class CalibrationOutcome:
         return list(self.identifiability.get('names', []))
 
 
-def averaged_sigmas(sigmas, n_samples):
-    """Weights of rows that average ``n_samples`` pairs: ``sigma / sqrt(n)`` (median n)."""
-    n_samples = np.asarray(n_samples, dtype=float)
-    if n_samples.size == 0 or not np.all(n_samples >= 1):
-        return sigmas
-    factor = 1.0 / math.sqrt(float(np.median(n_samples)))
-    return Sigmas(
-        leg_lengths=sigmas.leg_lengths * factor,
-        inclinometer=sigmas.inclinometer * factor,
-        encoder=sigmas.encoder * factor,
-        lvdt=sigmas.lvdt * factor,
-    )
-
-
-def noise_channels(sigmas):
-    """``{channel: configured per-sample sigma}`` of :func:`gsp_kinematics.goodness.estimate_noise`."""
-    return {
-        'leg_lengths': sigmas.leg_lengths,
-        'inclinometer': sigmas.inclinometer,
-        'encoder': sigmas.encoder,
-        'lvdt': sigmas.lvdt,
-    }
-
-
 def identify_from_samples(
     nominal,
     samples,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
     formulation='implicit',
     within_posture_std=None,
@@ -234,7 +210,7 @@ def identify_from_samples(
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
     ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
-    scaled by :func:`averaged_sigmas`. The commanded postures start the pose estimates. Fails
+    scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
     sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
@@ -245,7 +221,7 @@ def identify_from_samples(
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     free_mask = resolve_free(free)
     count = len(samples)
-    row_sigmas = averaged_sigmas(sigmas, samples.n_samples)
+    row_sigmas = sigmas.averaged(samples.n_samples)
     outcome = CalibrationOutcome(success=False, message='', postures=count, sigmas=row_sigmas)
     if count == 0:
         outcome.message = 'no posture was collected: nothing to identify'
@@ -292,7 +268,7 @@ def identify_from_samples(
     outcome.geometry = result.geometry
     if within_posture_std is not None and len(within_posture_std) == count:
         outcome.noise_estimates = goodness.estimate_noise(
-            within_posture_std, samples.n_samples, noise_channels(sigmas)
+            within_posture_std, samples.n_samples, sigmas.channels()
         )
     outcome.verdict = goodness.verdict(
         result.goodness_of_fit,

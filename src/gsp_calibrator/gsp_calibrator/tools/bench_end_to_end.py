@@ -31,6 +31,7 @@ from pathlib import Path
 
 from gsp_calibrator.report.write import RESULT_JSON
 from gsp_calibrator.run.directory import SAMPLES_FILE, SUMMARY_FILE
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py.ros_environment import loopback_environment
 
 DEMO_MODULE = 'gsp_calibrator.tools.demo'
@@ -281,10 +282,10 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     over ``seeds`` noise draws."""
     import numpy as np
 
-    from gsp_calibrator.run.identify import DEFAULT_FREE, averaged_sigmas, choose_postures
+    from gsp_calibrator.run.identify import DEFAULT_FREE, choose_postures
     from gsp_kinematics.device import device_readings
     from gsp_kinematics.geometry import default_geometry
-    from gsp_kinematics.identification import Sigmas, identify, resolve_free
+    from gsp_kinematics.identification import identify, resolve_free
     from gsp_kinematics.kinematics import (
         forward_kinematics_masked,
         inverse_kinematics,
@@ -293,7 +294,7 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     from gsp_kinematics.validation import validate
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    averaged = averaged_sigmas(Sigmas(), np.full(postures, SAMPLES_PER_POSTURE))
+    averaged = DEFAULT_SENSOR_NOISE.averaged(np.full(postures, SAMPLES_PER_POSTURE))
     poses = choose_postures(nominal, postures, 600, seed, averaged).poses
     # As in the node suite: the controller drives the legs to the nominal IK's sensor readings,
     # the real platform settles at FK of its true articular variables (postures it cannot reach

@@ -9,7 +9,7 @@ limits, a settle time and a sensor rate, predict what the calibrator would reach
 * the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum).
 
 The postures are those the calibrator would command: :func:`.calibration.choose_postures` with the
-same pool, seed, sigmas (averaged over the samples, :func:`.calibration.averaged_sigmas`), free
+same pool, seed, sigmas (averaged over the samples, ``SensorNoise.averaged``), free
 parameters and formulation. ``--sweep`` repeats the plan over posture counts and samples per
 posture (one selection per count: averaging scales every sigma alike, which leaves the selection
 unchanged) and writes a table, a plot and the sweep in JSON.
@@ -22,11 +22,9 @@ import sys
 
 import numpy as np
 
-from gsp_calibrator.report.write import sigmas_record
 from gsp_calibrator.run.identify import (
     DEFAULT_FREE,
     CalibrationError,
-    averaged_sigmas,
     choose_postures,
     selection_formulation,
 )
@@ -34,8 +32,9 @@ from gsp_calibrator.settings import add_run_options, run_options_error
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
-from gsp_kinematics.identification import IdentificationError, Sigmas, resolve_free
+from gsp_kinematics.identification import IdentificationError, resolve_free
 from gsp_kinematics.kinematics import Workspace
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.selection import posture_information
 
@@ -50,7 +49,7 @@ def calibration_seconds(postures, samples_per_posture, settle_s, sensor_rate_hz)
 
 def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formulation, workspace):
     """Rank, unidentifiable combinations and predicted accuracy of commanding ``poses``."""
-    row_sigmas = averaged_sigmas(sigmas, [samples_per_posture])
+    row_sigmas = sigmas.averaged([samples_per_posture])
     free_mask = resolve_free(free)
     information = posture_information(
         nominal, poses, row_sigmas, free_mask, selection_formulation(formulation)
@@ -79,7 +78,7 @@ def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formula
 class Design:
     """What the calibrator's selection and model depend on, besides the counts."""
 
-    sigmas: Sigmas = Sigmas()  #: per-sample sensor noise (m, rad)
+    sigmas: SensorNoise = DEFAULT_SENSOR_NOISE  #: per-sample sensor noise (m, rad)
     free: tuple = DEFAULT_FREE  #: free parameter and group names (the calibrator's default)
     formulation: str = 'implicit'
     workspace: Workspace = Workspace()
@@ -94,7 +93,7 @@ def select(nominal, postures, samples_per_posture, design=Design()):
         postures,
         design.pool_size,
         design.seed,
-        averaged_sigmas(design.sigmas, [samples_per_posture]),
+        design.sigmas.averaged([samples_per_posture]),
         design.free,
         design.formulation,
         design.workspace,
@@ -244,7 +243,7 @@ def parse_arguments(argv=None):
     add = parser.add_argument
     add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
     add_run_options(parser, seed_help="the calibrator's seed of the posture pool")
-    defaults = Sigmas()
+    defaults = DEFAULT_SENSOR_NOISE
     add('--sigma-leg-um', type=float, default=defaults.leg_lengths * 1e6, help='leg sensor, µm')
     add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
     add('--sigma-encoder-deg', type=float, default=math.degrees(defaults.encoder))
@@ -280,7 +279,7 @@ def parse_arguments(argv=None):
 
 def design_from(args):
     """The :class:`Design` of the command line."""
-    sigmas = Sigmas(
+    sigmas = SensorNoise(
         leg_lengths=args.sigma_leg_um * 1e-6,
         inclinometer=math.radians(args.sigma_inclinometer_deg),
         encoder=math.radians(args.sigma_encoder_deg),
@@ -328,7 +327,7 @@ def main(argv=None):
         timing = {'settle_s': args.settle_s, 'sensor_rate_hz': args.sensor_rate_hz}
         inputs = {
             'geometry': str(args.geometry),
-            'sigmas': sigmas_record(design.sigmas),
+            'sigmas': design.sigmas.to_record(),
             'workspace': {
                 'xy_range_m': design.workspace.xy_range,
                 'z_min_m': design.workspace.z_min,

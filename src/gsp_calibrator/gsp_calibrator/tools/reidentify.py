@@ -39,7 +39,8 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.goodness import LOSSES
-from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options, Sigmas
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options
+from gsp_kinematics.noise import SensorNoise
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -255,15 +256,6 @@ def resolve_options(args, stored):
     return options
 
 
-def sigmas_of(options):
-    return Sigmas(
-        leg_lengths=options['sigma_leg_lengths'],
-        inclinometer=options['sigma_inclinometer'],
-        encoder=options['sigma_encoder'],
-        lvdt=options['sigma_lvdt'],
-    )
-
-
 def _geometry(path, option):
     try:
         return load_geometry(path)
@@ -335,11 +327,7 @@ def load_input(kind, path, options):
         # A resumed run recorded into recording.mcap, recording-2.mcap ...: read every part.
         parts = recording_parts(Path(path).parent) if Path(path).name == RECORDING_FILE else []
 
-        noise_std = (
-            [options['sigma_leg_lengths']] * 6
-            + [options['sigma_inclinometer']] * 2
-            + [options['sigma_encoder'], options['sigma_lvdt']]
-        )
+        noise_std = SensorNoise.from_parameters(options).channel_std()
         try:
             samples = samples_from_recording(
                 parts or path, options['sync_tolerance'], options['samples_per_posture'], noise_std
@@ -370,7 +358,7 @@ def reidentify(args, out=None):
         free_parameters(args.free)  # a bad name is reported before anything is read
     kind, path, source_dir = resolve_input(args.input)
     options = resolve_options(args, stored_options(kind, path, source_dir))
-    sigmas = sigmas_of(options)
+    sigmas = SensorNoise.from_parameters(options)
     free = options['free_parameters']
     nominal_path = options['nominal_geometry_file']
     nominal = _geometry(nominal_path, '--nominal')
@@ -479,7 +467,7 @@ def refresh_report(
     outcome = calibration.identify_from_samples(
         nominal,
         samples,
-        sigmas_of(options),
+        SensorNoise.from_parameters(options),
         options['free_parameters'],
         options['formulation'],
         options=_options(options),
