@@ -21,17 +21,13 @@ import concurrent.futures
 import dataclasses
 import threading
 
-from rcl_interfaces.srv import SetParametersAtomically
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
+from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 from gsp_msgs_py import qos
-
-WAIT_OK = 'ok'
-WAIT_TIMEOUT = 'timeout'
 
 
 def new_future(executor):
@@ -96,55 +92,6 @@ class ThreadResults:
                 while len(self._futures) > self.size:
                     self._futures.pop(next(iter(self._futures)))
         return future
-
-
-class ParameterSetter:
-    """Sets other nodes' parameters atomically from ``node`` (one cached client per service)."""
-
-    def __init__(self, node, callback_group=None):
-        self.node = node
-        self.callback_group = callback_group
-        self._clients = {}
-
-    async def set(self, node_name, values, timeout_s, wait_for):
-        """Set ``values`` ({name: value}) on ``/<node_name>``; ``(True, '')`` or ``(False, why)``."""
-        service = f'/{node_name.lstrip("/")}/set_parameters_atomically'
-        if service not in self._clients:
-            self._clients[service] = self.node.create_client(
-                SetParametersAtomically, service, callback_group=self.callback_group
-            )
-        return await set_parameters_atomically(
-            self._clients[service], service, values, timeout_s, wait_for
-        )
-
-
-async def set_parameters_atomically(client, service, values, timeout_s, wait_for):
-    """Set ``values`` ({name: value}) through ``client`` (``SetParametersAtomically`` of
-    ``service``); ``(True, '')`` or ``(False, why)``. ``wait_for(predicate, timeout_s)``: a
-    future of :data:`WAIT_OK` or :data:`WAIT_TIMEOUT` (e.g. :meth:`Waits.add`)."""
-    if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
-        return False, f'parameter service {service} unavailable within {timeout_s:g} s'
-    request = SetParametersAtomically.Request()
-    request.parameters = [
-        Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
-    ]
-    future = client.call_async(request)
-    if await wait_for(future.done, timeout_s) != WAIT_OK:
-        client.remove_pending_request(future)
-        return False, f'no answer from {service} within {timeout_s:g} s'
-    result = future.result().result
-    if not result.successful:
-        return False, f'{service} refused the geometry: {result.reason}'
-    return True, ''
-
-
-async def first_timeout(wait_for, timeout_s, checks):
-    """Await each ``(predicate, message)`` of ``checks`` in turn (``wait_for``, see
-    :func:`set_parameters_atomically`); the message of the first that times out, else ''."""
-    for predicate, message in checks:
-        if await wait_for(predicate, timeout_s) != WAIT_OK:
-            return message
-    return ''
 
 
 class EventQueue:

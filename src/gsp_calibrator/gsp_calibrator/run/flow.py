@@ -1,11 +1,10 @@
-"""The course of one calibration run, as the calibrator node drives it.
+"""The course of one calibration run, as the calibrator node drives it (no rclpy).
 
-:class:`CalibrationRun` opens the run (:func:`.run_session.open_session`), starts its recording,
+:class:`CalibrationRun` opens the run (:func:`.session.open_session`), starts its recording,
 selects the postures (or keeps a resumed run's), waits for the system, collects, then identifies
-(:func:`.calibration.finish_run`), publishes and applies the result. The node supplies the
-messages and the waiting through a few methods (see :class:`CalibrationRun`); the postures
-themselves are commanded by the node, each at once from the end of the previous one, and this
-coroutine only reports them as they end (:class:`.node_waiting.EventQueue`).
+(:func:`.identify.finish_run`), publishes and applies the result. What it needs from the node is
+:class:`.host.RunHost`; the postures themselves are commanded by the node, each at once from the
+end of the previous one, and this coroutine only reports them as they end (``host.finals``).
 """
 
 import os
@@ -14,12 +13,11 @@ import traceback
 
 from gsp_calibrator.collection import protocol
 from gsp_calibrator.collection.single_source import SecondSource
-from gsp_calibrator.node_threads import first_timeout
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.host import RunHost, first_timeout
 from gsp_calibrator.run.session import RunRefused, RunWriteError, WriteFailed, open_session
-from gsp_kinematics.geometry import geometry_to_yaml
 from gsp_msgs_py import names
 
 #: Final posture events that end the run.
@@ -32,11 +30,11 @@ class RunFailed(Exception):
 
 def system_checks(node, heard, timeout):
     """``[(predicate, failure message)]`` a run awaits before its first posture: a subscriber to
-    the pose commands (``node.command_publisher``), a status publisher, and a message on each
-    sensor topic (``heard(topic)``); ``timeout`` (s) is for the messages."""
+    the pose commands, a status publisher, and a message on each sensor topic (``heard(topic)``);
+    ``node``: the :class:`.host.RunHost`; ``timeout`` (s) is for the messages."""
     checks = [
         (
-            lambda: node.command_publisher.get_subscription_count() > 0,
+            lambda: node.command_subscriber_count() > 0,
             f'no subscriber on {names.TOPIC_POSE_COMMAND} within {timeout:g} s '
             '(is platform_sim running?)',
         ),
@@ -53,19 +51,10 @@ def system_checks(node, heard, timeout):
 
 
 class CalibrationRun:
-    """One run (``resume``: the rest of an unfinished one) with ``settings``.
+    """One run (``resume``: the rest of an unfinished one) with ``settings``, hosted by ``node``
+    (a :class:`.host.RunHost`: the ``CalibratorNode``, or a test's plain Python host)."""
 
-    ``node`` (the ``CalibratorNode``) gives, besides its ``Node`` methods: ``progress(index,
-    phase, message, residuals=None, warning=False, **extra)``, ``await_thread(concurrent
-    future)``, ``in_thread(function, *args)``, ``selection_future(settings)``,
-    ``wait_for(predicate, timeout_s)``, ``command_publisher``, ``recorder``,
-    ``start_collection(session, collection)``, ``stop_collection()``, ``command_first()``,
-    ``collection_done()``, ``finals`` (final posture events), ``failure`` (the event that ended
-    the run), ``publish_result(yaml)``, ``apply_geometry(settings, geometry)`` and
-    ``run_ended()``.
-    """
-
-    def __init__(self, node, settings, resume):
+    def __init__(self, node: RunHost, settings, resume):
         self.node, self.settings, self.resume = node, settings, resume
         self.log = node.get_logger()
         self.session = None
@@ -84,7 +73,7 @@ class CalibrationRun:
             node.stop_collection()
             raise
         except Exception as error:  # the node must survive any failure of a run
-            if not node.context.ok():  # shut down meanwhile (Ctrl-C, SIGTERM): not a crash
+            if node.shutting_down():  # shut down meanwhile (Ctrl-C, SIGTERM): not a crash
                 node.stop_collection()
                 return False, 'the calibrator shut down'
             self.log.error(f'calibration crashed: {error}\n{traceback.format_exc()}')
@@ -250,12 +239,10 @@ class CalibrationRun:
             return False, summary
         self.save_state(run_state.PHASE_DONE)
         geometry = outcome.geometry
-        node.publish_result(geometry_to_yaml(geometry, comment=calibration.RESULT_COMMENT))
         # A result the goodness of fit rejects is written and latched, but applied only on demand.
-        success = outcome.fit_accepted or settings.apply_rejected_fit
-        if settings.apply_result and success:
-            success, reason = await node.apply_geometry(settings, geometry)
-            summary += '\n' + reason
+        success, note = await node.deliver_result(settings, geometry, outcome.fit_accepted)
+        if note:
+            summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'
         (log.info if success else log.error)(summary)
         phase = names.PHASE_DONE if success else names.PHASE_FAILED
