@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.identifiability import analyse_identifiability
+from gsp_kinematics.identifiability import analyse_result
 from gsp_kinematics.kinematics import Workspace
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy, predicted_errors
 
@@ -24,14 +24,16 @@ def _validation_poses(validation):
     return None if poses is None else np.asarray(poses, dtype=float).reshape(-1, 6)
 
 
-def prediction_for(result, validation_after=None, workspace=Workspace()):
+def prediction_for(result, validation_after=None, workspace=Workspace(), analysis=None):
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
     covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
-    the unidentifiable directions)."""
+    the unidentifiable directions). ``analysis``: the result's identifiability analysis
+    (``gsp_kinematics.identifiability.analyse_result``), computed here when None."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
-    analysis = analyse_identifiability(result.information, result.free)
+    if analysis is None:
+        analysis = analyse_result(result)
     if analysis['rank'] < analysis['parameters']:
         return None
     prediction = predict_accuracy(result.geometry, covariance, result.free, workspace)

@@ -51,16 +51,6 @@ def by_name(values, mask=None):
     }
 
 
-def analyse(result):
-    """The core's identifiability analysis of ``result`` (``None`` if it cannot be computed)."""
-    from gsp_kinematics.identifiability import analyse_identifiability
-
-    try:
-        return analyse_identifiability(result.information, result.free)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-
-
 def identifiability_record(analysis):
     """Normalised identifiability: unidentifiable combinations as text and parameter names."""
     if not analysis:

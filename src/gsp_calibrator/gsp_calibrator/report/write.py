@@ -25,7 +25,6 @@ from gsp_calibrator.report.data import (
     SENSOR_KIND,
     SENSOR_LABEL,
     VALIDATION_KEYS,
-    analyse,
     by_name,
     identifiability_record,
     parameter_error_table,
@@ -41,6 +40,7 @@ from gsp_kinematics.geometry import (
     default_geometry,
     to_report_units,
 )
+from gsp_kinematics.identifiability import analyse_result
 
 RESULT_JSON = 'result.json'
 REPORT_MD = 'report.md'
@@ -106,7 +106,7 @@ def result_data(result, **inputs):
 
     nominal = default_geometry('nominal') if nominal is None else nominal
     if analysis is None:
-        analysis = analyse(result)
+        analysis = analyse_result(result)
     count = len(PARAMETER_NAMES)
     free = np.asarray(result.free, dtype=bool)[:count]
     estimate = np.asarray(result.parameters, dtype=float)[:count]
@@ -162,7 +162,7 @@ def result_data(result, **inputs):
             'after': validation_summary(inputs['validation_after']),
         },
         'predicted_accuracy': report_accuracy.result_json_entry(
-            report_accuracy.prediction_for(result, inputs['validation_after'])
+            report_accuracy.prediction_for(result, inputs['validation_after'], analysis=analysis)
             if inputs['prediction'] is None
             else inputs['prediction']
         ),
@@ -329,8 +329,12 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
 
     validation_before = inputs.get('validation_before')
     validation_after = inputs.get('validation_after')
+    if inputs.get('analysis') is None:
+        inputs['analysis'] = analyse_result(result)
     if inputs.get('prediction') is None:
-        inputs['prediction'] = report_accuracy.prediction_for(result, validation_after)
+        inputs['prediction'] = report_accuracy.prediction_for(
+            result, validation_after, analysis=inputs['analysis']
+        )
     data = result_data(result, **inputs)
     truth, nominal = inputs.get('truth'), inputs.get('nominal')
     written = {}
@@ -367,9 +371,11 @@ def write_all(run_dir, result, **kwargs):
     """:func:`write_result_json` and :func:`write_report`; returns ``{kind: path}``."""
     from gsp_calibrator.report import accuracy as report_accuracy
 
-    if kwargs.get('prediction') is None:  # computed once for both files
+    if kwargs.get('analysis') is None:  # computed once for both files
+        kwargs['analysis'] = analyse_result(result)
+    if kwargs.get('prediction') is None:
         kwargs['prediction'] = report_accuracy.prediction_for(
-            result, kwargs.get('validation_after')
+            result, kwargs.get('validation_after'), analysis=kwargs['analysis']
         )
     paths = {
         'result_json': write_result_json(

@@ -142,30 +142,6 @@ def selection_key(nominal, count, pool_size, seed, sigmas, free, formulation):
     )
 
 
-# --- identifiability -----------------------------------------------------------------------------
-
-
-def analyse_identifiability(result):
-    """The core's identifiability analysis of an ``IdentificationResult``.
-
-    ``{'rank', 'parameters' (free count), 'condition_number' (scaled Jacobian),
-    'unidentifiable' (null directions), 'names' (every parameter in one, sorted)}``.
-    """
-    information = np.asarray(result.information, dtype=float)
-    if not np.all(np.isfinite(information)):
-        names = list(result.free_names)
-        return {
-            'rank': 0,
-            'parameters': len(names),
-            'condition_number': math.inf,
-            'unidentifiable': [],
-            'names': names,
-        }
-    analysis = identifiability.analyse_identifiability(information, result.free)
-    analysis['names'] = identifiability.unidentifiable_parameters(analysis)
-    return analysis
-
-
 # --- identification ------------------------------------------------------------------------------
 
 
@@ -250,7 +226,7 @@ def identify_from_samples(
             f'(status {result.status}: {result.message}); nothing applied'
         )
         return outcome
-    analysis = analyse_identifiability(result)
+    analysis = identifiability.analyse_result(result)
     outcome.identifiability = analysis
     if analysis['names'] or analysis['rank'] < analysis['parameters']:
         names = analysis['names']
