@@ -53,7 +53,7 @@ from gsp_calibrator.node_threads import (
 )
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.result_delivery import ResultDelivery
-from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
@@ -307,10 +307,8 @@ class CalibratorNode(Node):
 
     def selection_future(self, settings):
         """The (possibly running, cached) posture selection of ``settings``."""
-        args = calibration.selection_arguments(settings)
-        return self._selections.get(
-            calibration.selection_key(*args), calibration.choose_postures, *args
-        )
+        args = postures.selection_arguments(settings)
+        return self._selections.get(postures.selection_key(*args), postures.choose_postures, *args)
 
     def start_collection(self, session, collection):
         with self._lock:

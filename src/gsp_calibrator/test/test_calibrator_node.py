@@ -26,7 +26,7 @@ from gsp_calibrator.calibrator_node import (
 )
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run.directory import RunDirectory
-from gsp_calibrator.run.identify import parse_response
+from gsp_calibrator.run.response import parse_response
 from gsp_kinematics.geometry import (
     default_geometry,
     geometry_from_yaml,

@@ -8,6 +8,7 @@ from synthetic import synthetic_samples as make_samples
 
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_calibrator.tools import reidentify as offline
 from gsp_kinematics.geometry import (
@@ -30,10 +31,10 @@ def synthetic_samples(count=30, seed=11, n_samples=4):
 
 def _run_directory(output):
     lines = [
-        line for line in output.splitlines() if line.startswith(calibration.RUN_DIRECTORY_LABEL)
+        line for line in output.splitlines() if line.startswith(run_response.RUN_DIRECTORY_LABEL)
     ]
     assert lines, output
-    return lines[-1][len(calibration.RUN_DIRECTORY_LABEL) :].strip()
+    return lines[-1][len(run_response.RUN_DIRECTORY_LABEL) :].strip()
 
 
 def _json_parameters(run_dir):

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
 from gsp_calibrator.tools import planning
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.noise import SensorNoise
@@ -35,7 +35,7 @@ def test_plan_json(tmp_path, capsys):
     # The same postures as the calibrator would command with these settings.
     nominal = default_geometry('nominal')
     sigmas = SensorNoise().averaged([4])
-    chosen = calibration.choose_postures(nominal, 30, 120, 0, sigmas)
+    chosen = postures.choose_postures(nominal, 30, 120, 0, sigmas)
     assert np.allclose(plan['selection']['poses'], chosen.poses)
     assert 'rank 51 of 51' in capsys.readouterr().out
 

@@ -22,9 +22,9 @@ from gsp_calibrator.replay.recorded_run import (
 )
 from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
 from gsp_calibrator.run.directory import RunDirectory, Samples, write_samples
-from gsp_calibrator.run.identify import parse_response
+from gsp_calibrator.run.response import parse_response
 from gsp_msgs_py import conversions, names, qos, testing
-from gsp_msgs_py.check_interfaces import PoseCommandProbe
+from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
 from gsp_msgs_py.node_tools import ConfigurationError
 
 MS = 1_000_000

@@ -56,13 +56,15 @@ def test_result_json(tmp_path, calibrated):
     path = report.write_result_json(
         tmp_path,
         result,
-        analysis=outcome.identifiability,
-        validation_before=before,
-        validation_after=after,
-        truth=truth,
-        nominal=nominal,
-        sigmas=outcome.sigmas,
-        extra={'run': 'test'},
+        report.ReportInputs(
+            analysis=outcome.identifiability,
+            validation_before=before,
+            validation_after=after,
+            truth=truth,
+            nominal=nominal,
+            sigmas=outcome.sigmas,
+            extra={'run': 'test'},
+        ),
     )
     data = _strict_json(path)
     for key in (
@@ -134,11 +136,13 @@ def test_report_with_truth(tmp_path, calibrated):
     written = report.write_all(
         tmp_path,
         outcome.result,
-        analysis=outcome.identifiability,
-        validation_before=before,
-        validation_after=after,
-        truth=truth,
-        nominal=nominal,
+        report.ReportInputs(
+            analysis=outcome.identifiability,
+            validation_before=before,
+            validation_after=after,
+            truth=truth,
+            nominal=nominal,
+        ),
     )
     for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation', 'accuracy_map'):
         _check_png(written[kind])
@@ -167,7 +171,9 @@ def test_report_without_truth_and_failed_identification(tmp_path):
     assert result is not None and not result.converged
     singular = np.diag([1.0, 1.0, 1.0, 1.0, 0.0])
     analysis = analyse_identifiability(singular, result.free)
-    written = report.write_all(tmp_path, result, analysis=analysis, nominal=nominal)
+    written = report.write_all(
+        tmp_path, result, report.ReportInputs(analysis=analysis, nominal=nominal)
+    )
     assert 'validation' not in written
     for kind in ('parameter_errors', 'chain_errors', 'residuals'):
         _check_png(written[kind])

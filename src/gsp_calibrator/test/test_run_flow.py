@@ -10,7 +10,8 @@ import numpy as np
 
 from gsp_calibrator.collection.protocol import SENSOR_TOPICS, RowReady, TopicSilent
 from gsp_calibrator.collection.synchroniser import PostureSample
-from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
+from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, RunHost
@@ -90,7 +91,7 @@ class FakeHost:
 
     def selection_future(self, settings):
         future = concurrent.futures.Future()
-        future.set_result(calibration.choose_postures(*calibration.selection_arguments(settings)))
+        future.set_result(postures.choose_postures(*postures.selection_arguments(settings)))
         return future
 
     def progress(self, index, phase, message='', residuals=None, warning=False, **extra):
@@ -166,7 +167,7 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     success, message = asyncio.run(CalibrationRun(host, _settings(tmp_path), False).serve())
 
     assert success, message
-    parsed = calibration.parse_response(message)
+    parsed = run_response.parse_response(message)
     assert 'applied to the fake platform' in parsed.summary
     ((geometry, fit_accepted),) = host.delivered
     # 30 postures of 10 samples at Table 3's first noise level: every parameter within 0.05 mm

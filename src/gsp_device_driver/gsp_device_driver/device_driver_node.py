@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
-from gsp_msgs_py import checks, conversions, names, node_tools, qos
+from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
 from gsp_msgs_py.node_tools import ParameterSpec, not_blank
 
 from .backends import BackendError, backend_class, backend_names
@@ -143,7 +143,7 @@ class DeviceDriverNode(Node):
 
     def _on_true_pose(self, msg):
         try:
-            self._backend.observe_true_pose(checks.pose_in_frame(msg, self._frame_id))
+            self._backend.observe_true_pose(message_checks.pose_in_frame(msg, self._frame_id))
         except ValueError as error:
             self.get_logger().warning(
                 f'ignoring true pose: {error}', throttle_duration_sec=WARN_THROTTLE_S

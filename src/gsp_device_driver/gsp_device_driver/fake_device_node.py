@@ -18,7 +18,7 @@ from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
-from gsp_msgs_py import checks, names, node_tools, qos
+from gsp_msgs_py import message_checks, names, node_tools, qos
 
 from .backends import SimDeviceBackend
 from .device_driver_node import RNG_STREAM
@@ -105,7 +105,7 @@ class FakeDeviceNode(Node):
 
     def _on_true_pose(self, msg):
         try:
-            self._model.observe_true_pose(checks.pose_in_frame(msg, names.FRAME_BASE))
+            self._model.observe_true_pose(message_checks.pose_in_frame(msg, names.FRAME_BASE))
         except ValueError as error:
             self.get_logger().warning(f'ignoring true pose: {error}', throttle_duration_sec=1.0)
 

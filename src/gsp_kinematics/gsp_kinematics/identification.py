@@ -12,10 +12,10 @@ Formulations:
   there is no inner FK loop, and the block-sparse normal equations are solved through a Schur
   complement on the 6x6 pose blocks.
 
-All three are minimised by the same Levenberg-Marquardt driver (:mod:`gsp_kinematics._lm`,
+All three are minimised by the same Levenberg-Marquardt driver (:mod:`gsp_kinematics._solver.lm`,
 Marquardt's diagonal scaling), which stops on the step ``du`` or on the change of the residual
 ``dX``, as in the paper's Fig. 5; the formulations are its models
-(:mod:`gsp_kinematics._formulations`). :data:`TERMINATION_MESSAGES` names every status.
+(:mod:`gsp_kinematics._solver.formulations`). :data:`TERMINATION_MESSAGES` names every status.
 """
 
 import dataclasses
@@ -25,8 +25,8 @@ import time
 import numpy as np
 
 from . import goodness
-from ._formulations import _FkModel, _ImplicitModel
-from ._lm import TERMINATION_MESSAGES, levenberg_marquardt
+from ._solver.formulations import _FkModel, _ImplicitModel
+from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
 from .geometry import (
     ALL_PARAMETER_NAMES,

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ._formulations import leg_readings_jacobians, sensor_readings_jacobians
+from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
 from .identification import SENSOR_NAMES, resolve_free
 from .noise import DEFAULT_SENSOR_NOISE
 from .prediction import pose_sensitivities

@@ -15,6 +15,7 @@ Every file is written atomically; plots use matplotlib's Agg canvas directly (he
 pyplot state), and matplotlib is imported only when a report is written.
 """
 
+import dataclasses
 import math
 import os
 
@@ -58,16 +59,6 @@ def _path(run_dir, name):
     return os.path.join(os.fspath(run_dir), name)
 
 
-REPORT_INPUTS = (
-    'analysis',
-    'validation_before',
-    'validation_after',
-    'truth',
-    'nominal',
-    'sigmas',
-    'extra',
-    'prediction',
-)
 #: The scalar fields of an ``IdentificationResult`` that ``result.json`` holds as they are.
 _RESULT_FIELDS = (
     'formulation',
@@ -80,33 +71,45 @@ _RESULT_FIELDS = (
 )
 
 
-def _report_inputs(inputs):
-    """Every input of :data:`REPORT_INPUTS` (None where not given); TypeError on another name."""
-    unknown = sorted(set(inputs) - set(REPORT_INPUTS))
-    if unknown:
-        raise TypeError(f'unknown report input(s) {unknown}; expected {list(REPORT_INPUTS)}')
-    return {**dict.fromkeys(REPORT_INPUTS), **inputs}
+@dataclasses.dataclass(frozen=True)
+class ReportInputs:
+    """What a report shows besides the core's ``IdentificationResult`` (each optional)."""
+
+    #: The result's identifiability (``gsp_kinematics.identifiability.analyse_result``).
+    analysis: dict | None = None
+    #: ``gsp_kinematics.validation.validate`` summaries, or :func:`.data.validation_errors` dicts
+    #: (per-posture arrays).
+    validation_before: dict | None = None
+    validation_after: dict | None = None
+    #: The true geometry, if known: errors are then against it, else corrections against nominal.
+    truth: object = None
+    nominal: object = None  #: default: the shipped nominal geometry
+    sigmas: object = None  #: the ``SensorNoise`` weights used
+    extra: dict | None = None  #: more top-level keys of result.json
+    prediction: dict | None = None  #: :func:`.accuracy.prediction_for` of the result
+
+    def completed(self, result):
+        """These inputs with the analysis and the prediction of ``result`` computed where None
+        (once, for result.json and report.md alike)."""
+        from gsp_calibrator.report import accuracy as report_accuracy
+
+        analysis = analyse_result(result) if self.analysis is None else self.analysis
+        prediction = self.prediction
+        if prediction is None:
+            prediction = report_accuracy.prediction_for(
+                result, self.validation_after, analysis=analysis
+            )
+        return dataclasses.replace(self, analysis=analysis, prediction=prediction)
 
 
-def result_data(result, **inputs):
-    """The ``result.json`` content (a JSON-safe dict).
-
-    ``result``: the core's ``IdentificationResult``. ``inputs`` (:data:`REPORT_INPUTS`, each
-    optional): ``analysis``, an identifiability analysis (computed with
-    ``gsp_kinematics.identifiability`` when None); ``validation_before`` / ``validation_after``:
-    ``gsp_kinematics.validation.validate`` summaries, or :func:`validation_errors` dicts
-    (per-posture arrays); ``truth``: the true geometry, if known (errors are then against it;
-    else corrections against ``nominal``); ``nominal``, default the shipped nominal geometry;
-    ``sigmas``: the weights used; ``extra``: more top-level keys; ``prediction``:
-    :func:`.report_accuracy.prediction_for` of ``result`` (computed when None).
-    """
-    inputs = _report_inputs(inputs)
-    analysis, truth, nominal = inputs['analysis'], inputs['truth'], inputs['nominal']
+def result_data(result, inputs=ReportInputs()):
+    """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
+    ``result`` with :class:`ReportInputs` ``inputs``."""
     from gsp_calibrator.report import accuracy as report_accuracy
 
-    nominal = default_geometry('nominal') if nominal is None else nominal
-    if analysis is None:
-        analysis = analyse_result(result)
+    inputs = inputs.completed(result)
+    analysis, truth = inputs.analysis, inputs.truth
+    nominal = default_geometry('nominal') if inputs.nominal is None else inputs.nominal
     count = len(PARAMETER_NAMES)
     free = np.asarray(result.free, dtype=bool)[:count]
     estimate = np.asarray(result.parameters, dtype=float)[:count]
@@ -158,31 +161,27 @@ def result_data(result, **inputs):
         'identifiability': identifiability_record(analysis),
         'residual_rms': residual_rms,
         'validation': {
-            'before': validation_summary(inputs['validation_before']),
-            'after': validation_summary(inputs['validation_after']),
+            'before': validation_summary(inputs.validation_before),
+            'after': validation_summary(inputs.validation_after),
         },
-        'predicted_accuracy': report_accuracy.result_json_entry(
-            report_accuracy.prediction_for(result, inputs['validation_after'], analysis=analysis)
-            if inputs['prediction'] is None
-            else inputs['prediction']
-        ),
+        'predicted_accuracy': report_accuracy.result_json_entry(inputs.prediction),
     }
     lengths = np.array([i not in ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     data.update(fit_data(result, truth, nominal))
-    if inputs['sigmas'] is not None:
-        data['sigmas'] = inputs['sigmas'].to_record()
-    if inputs['extra']:
-        data.update(inputs['extra'])
+    if inputs.sigmas is not None:
+        data['sigmas'] = inputs.sigmas.to_record()
+    if inputs.extra:
+        data.update(inputs.extra)
     return json_safe(data)
 
 
-def outcome_arguments(outcome, nominal, options, **extra):
-    """Keyword arguments of :func:`write_result_json`, :func:`write_report` and :func:`write_all`
-    for a ``calibration.CalibrationOutcome``: its analysis and sigmas, and ``extra`` keys
-    ``success``, ``failure``, ``options`` and ``extra`` (e.g. the calibrator's ``collection``)."""
-    return dict(
+def outcome_inputs(outcome, nominal, options, **extra):
+    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis and
+    sigmas, and ``extra`` keys ``success``, ``failure``, ``options`` and ``extra`` (e.g. the
+    calibrator's ``collection``)."""
+    return ReportInputs(
         analysis=outcome.identifiability or None,
         nominal=nominal,
         sigmas=outcome.sigmas,
@@ -201,11 +200,11 @@ def outcome_arguments(outcome, nominal, options, **extra):
     )
 
 
-def write_result_json(run_dir, result, **inputs):
-    """Write ``run_dir/result.json`` atomically (``inputs``: see :func:`result_data`); returns
-    its path. Non-finite numbers are written as ``null``."""
+def write_result_json(run_dir, result, inputs=ReportInputs()):
+    """Write ``run_dir/result.json`` atomically (see :func:`result_data`); returns its path.
+    Non-finite numbers are written as ``null``."""
     path = _path(run_dir, RESULT_JSON)
-    atomic_write_text(path, to_json(result_data(result, **inputs)))
+    atomic_write_text(path, to_json(result_data(result, inputs)))
     return path
 
 
@@ -318,25 +317,18 @@ def report_markdown(data, images, title='Calibration report'):
     return '\n'.join(lines) + '\n'
 
 
-def write_report(run_dir, result, title='Calibration report', **inputs):
+def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration report'):
     """Write ``report.md`` and its PNGs into ``run_dir`` (atomic); returns ``{kind: path}``.
 
-    ``inputs``: the keywords of :func:`write_result_json`. The validation plot is drawn when a
-    validation is given (distributions from per-posture arrays, else the mean and max of the
-    summaries).
+    ``inputs``: :class:`ReportInputs`. The validation plot is drawn when a validation is given
+    (distributions from per-posture arrays, else the mean and max of the summaries).
     """
     from gsp_calibrator.report import accuracy as report_accuracy
 
-    validation_before = inputs.get('validation_before')
-    validation_after = inputs.get('validation_after')
-    if inputs.get('analysis') is None:
-        inputs['analysis'] = analyse_result(result)
-    if inputs.get('prediction') is None:
-        inputs['prediction'] = report_accuracy.prediction_for(
-            result, validation_after, analysis=inputs['analysis']
-        )
-    data = result_data(result, **inputs)
-    truth, nominal = inputs.get('truth'), inputs.get('nominal')
+    inputs = inputs.completed(result)
+    validation_before, validation_after = inputs.validation_before, inputs.validation_after
+    data = result_data(result, inputs)
+    truth, nominal = inputs.truth, inputs.nominal
     written = {}
     from gsp_calibrator.report.plots import (
         plot_chain_errors,
@@ -356,9 +348,9 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
         written['validation'] = plot_validation(
             _path(run_dir, VALIDATION_PNG), validation_before, validation_after
         )
-    if inputs['prediction'] is not None:
+    if inputs.prediction is not None:
         written['accuracy_map'] = report_accuracy.plot_accuracy_map(
-            _path(run_dir, report_accuracy.ACCURACY_MAP_PNG), inputs['prediction']
+            _path(run_dir, report_accuracy.ACCURACY_MAP_PNG), inputs.prediction
         )
     images = {kind: os.path.basename(path) for kind, path in written.items()}
     text = report_markdown(data, images, title)
@@ -367,20 +359,9 @@ def write_report(run_dir, result, title='Calibration report', **inputs):
     return written
 
 
-def write_all(run_dir, result, **kwargs):
+def write_all(run_dir, result, inputs=ReportInputs(), title='Calibration report'):
     """:func:`write_result_json` and :func:`write_report`; returns ``{kind: path}``."""
-    from gsp_calibrator.report import accuracy as report_accuracy
-
-    if kwargs.get('analysis') is None:  # computed once for both files
-        kwargs['analysis'] = analyse_result(result)
-    if kwargs.get('prediction') is None:
-        kwargs['prediction'] = report_accuracy.prediction_for(
-            result, kwargs.get('validation_after'), analysis=kwargs['analysis']
-        )
-    paths = {
-        'result_json': write_result_json(
-            run_dir, result, **{k: v for k, v in kwargs.items() if k != 'title'}
-        )
-    }
-    paths.update(write_report(run_dir, result, **kwargs))
+    inputs = inputs.completed(result)  # the analysis and prediction once for both files
+    paths = {'result_json': write_result_json(run_dir, result, inputs)}
+    paths.update(write_report(run_dir, result, inputs, title))
     return paths

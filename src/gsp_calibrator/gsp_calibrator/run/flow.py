@@ -15,6 +15,8 @@ from gsp_calibrator.collection import protocol
 from gsp_calibrator.collection.single_source import SecondSource
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
+from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.host import RunHost, first_timeout
 from gsp_calibrator.run.session import RunRefused, RunWriteError, WriteFailed, open_session
@@ -132,7 +134,7 @@ class CalibrationRun:
             await self._collect()
         except (RunFailed, RunWriteError) as error:
             self.save_state(run_state.PHASE_FAILED, str(error))
-            message = calibration.failure_message(error, len(session.samples), session.run)
+            message = run_response.failure_message(error, len(session.samples), session.run)
             log.error(message)
             node.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
@@ -157,7 +159,7 @@ class CalibrationRun:
         if session.state is None:
             try:
                 selection = await self.node.await_thread(self.node.selection_future(settings))
-            except (calibration.CalibrationError, RuntimeError, ValueError) as error:
+            except (postures.CalibrationError, RuntimeError, ValueError) as error:
                 raise RunFailed(f'posture selection failed: {error}') from None
             self.log.info(
                 f'{len(selection.poses)} postures selected (scaled condition number '
@@ -190,7 +192,7 @@ class CalibrationRun:
             event = await self.node.finals.get()
             if isinstance(event, RUN_FAILURES):
                 raise RunFailed(event.message)
-            report = calibration.posture_report(
+            report = run_response.posture_report(
                 event, self.settings.posture_count, self.settings.nominal
             )
             for level, line in report.log:  # one call site per severity (rclpy requires it)
@@ -249,4 +251,4 @@ class CalibrationRun:
         node.progress(
             count, phase, summary.splitlines()[0], residuals, run_directory=session.run.path
         )
-        return success, calibration.format_response(summary, geometry)
+        return success, run_response.format_response(summary, geometry)

@@ -282,7 +282,7 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     over ``seeds`` noise draws."""
     import numpy as np
 
-    from gsp_calibrator.run.identify import DEFAULT_FREE, choose_postures
+    from gsp_calibrator.run.postures import DEFAULT_FREE, choose_postures
     from gsp_kinematics.device import device_readings
     from gsp_kinematics.geometry import default_geometry
     from gsp_kinematics.identification import identify, resolve_free

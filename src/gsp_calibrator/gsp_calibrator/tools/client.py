@@ -20,7 +20,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.run.identify import parse_response, residual_summary
+from gsp_calibrator.run.response import parse_response, residual_summary
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
 

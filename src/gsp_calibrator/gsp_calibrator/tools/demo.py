@@ -33,7 +33,6 @@ import numpy as np
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.report.write import RESULT_JSON
-from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.settings import add_run_options, run_options_error
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
@@ -412,7 +411,7 @@ def run(args):
         calibration_started = time.monotonic()
         response = demo.calibrate(args.timeout)
         calibration_s = time.monotonic() - calibration_started
-        parsed = calibration.parse_response(response.message)
+        parsed = response.parse_response(response.message)
         if parsed.run_directory:
             run_directory = RunDirectory(parsed.run_directory)
         if not response.success:

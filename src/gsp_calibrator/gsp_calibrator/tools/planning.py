@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from gsp_calibrator.run.identify import (
+from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
     CalibrationError,
     choose_postures,

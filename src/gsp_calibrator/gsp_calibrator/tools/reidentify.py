@@ -14,6 +14,7 @@ Exit code: 0 success, 1 identification failed (or non-identifiable), 2 bad input
 """
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -22,6 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
+from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import (
     RESULT_FILE,
     SAMPLES_FILE,
@@ -30,7 +33,7 @@ from gsp_calibrator.run.directory import (
     RunDirectoryError,
     read_samples,
 )
-from gsp_calibrator.run.identify import DEFAULT_FREE
+from gsp_calibrator.run.postures import DEFAULT_FREE
 from gsp_calibrator.settings import DEFAULTS, check_free_parameters
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
@@ -378,7 +381,7 @@ def reidentify(args, out=None):
         outcome = calibration.identify_from_samples(
             nominal, samples, sigmas, free, options['formulation'], options=_options(options)
         )
-    except (IdentificationError, calibration.CalibrationError) as error:
+    except (IdentificationError, postures.CalibrationError) as error:
         raise InputError(str(error)) from error
 
     run = RunDirectory.create(args.output_root)
@@ -407,7 +410,7 @@ def reidentify(args, out=None):
                     validation_after = validation_errors(truth, outcome.geometry, poses)
             except ValueError as error:
                 print(f'warning: validation skipped: {error}', file=sys.stderr)
-        from gsp_calibrator.report.write import outcome_arguments, write_report, write_result_json
+        from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
 
         run_options = dict(
             options,
@@ -415,17 +418,17 @@ def reidentify(args, out=None):
             source_kind=kind,
             truth_geometry_file=str(truth_path) if truth_path else None,
         )
-        kwargs = dict(
-            outcome_arguments(outcome, nominal, run_options, tool='gsp_reidentify'),
+        inputs = dataclasses.replace(
+            outcome_inputs(outcome, nominal, run_options, tool='gsp_reidentify'),
             validation_before=validation_before,
             validation_after=validation_after,
             truth=truth,
-        )
-        write_result_json(run, outcome.result, **kwargs)
+        ).completed(outcome.result)
+        write_result_json(run, outcome.result, inputs)
         if not args.no_report:
-            write_report(run, outcome.result, title='Offline re-identification', **kwargs)
+            write_report(run, outcome.result, inputs, title='Offline re-identification')
 
-    print(calibration.outcome_summary(outcome, reference=truth), file=out)
+    print(run_response.outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
         if validation is not None:
             print(
@@ -435,7 +438,7 @@ def reidentify(args, out=None):
                 f'{validation["orientation_deg_max"]:.4g} deg',
                 file=out,
             )
-    print(f'{calibration.RUN_DIRECTORY_LABEL}{run.path}', file=out)
+    print(f'{run_response.RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
 
@@ -456,7 +459,7 @@ def refresh_report(
     summaries or :func:`gsp_calibrator.report.data.validation_errors` dicts (per-posture arrays are
     plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
     """
-    from gsp_calibrator.report.write import outcome_arguments, write_report, write_result_json
+    from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
 
     source_dir = Path(run_dir)
     kind, path, _ = resolve_input(source_dir)
@@ -481,17 +484,15 @@ def refresh_report(
         for key, value in _result_json(source_dir).items()
         if key in ('collection', 'noise_estimates')
     }
-    kwargs = dict(
-        outcome_arguments(
-            outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept
-        ),
+    inputs = dataclasses.replace(
+        outcome_inputs(outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept),
         validation_before=validation_before,
         validation_after=validation_after,
         truth=truth,
-    )
-    write_result_json(source_dir, outcome.result, **kwargs)
+    ).completed(outcome.result)
+    write_result_json(source_dir, outcome.result, inputs)
     if write_pngs:
-        write_report(source_dir, outcome.result, title=title, **kwargs)
+        write_report(source_dir, outcome.result, inputs, title=title)
     return outcome
 
 

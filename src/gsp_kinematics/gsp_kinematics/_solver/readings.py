@@ -14,9 +14,9 @@ Levenberg-Marquardt driver rejects never pays for its Jacobian.
 
 import numpy as np
 
-from .device import READING_NAMES, position_to_inclinations
-from .geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX
-from .rotation import euler_to_matrix
+from ..device import READING_NAMES, position_to_inclinations
+from ..geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX
+from ..rotation import euler_to_matrix
 
 #: The ten readings of a posture, in row order.
 ROW_NAMES = tuple(f'leg{leg}' for leg in range(1, 7)) + READING_NAMES

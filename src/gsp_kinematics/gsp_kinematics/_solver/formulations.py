@@ -14,16 +14,16 @@ solve, and what the result reports (information, residuals per sensor, poses, no
 
 import numpy as np
 
-from ._lm import Point, Step, block_normal_equations, cost_of, eliminate_poses
-from ._readings import PHI_ROW, ReadingsModel, readings_jacobians
-from .device import READING_NAMES, paper_inclinations_jacobians
-from .geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX, Geometry
-from .kinematics import (
+from ..device import READING_NAMES, paper_inclinations_jacobians
+from ..geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX, Geometry
+from ..kinematics import (
     expand_leg_parameters,
     forward_kinematics_masked,
     inverse_kinematics_jacobians,
 )
-from .rotation import wrap_angle
+from ..rotation import wrap_angle
+from .lm import Point, Step, block_normal_equations, cost_of, eliminate_poses
+from .readings import PHI_ROW, ReadingsModel, readings_jacobians
 
 #: Column of the yaw reading ``phi`` in ``READING_NAMES`` (an angle: its residual is wrapped).
 _PHI = READING_NAMES.index('phi')

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from . import names
+from .. import names
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,9 +13,9 @@ problem; exits 0 when there is none, 1 otherwise (2 on bad arguments).
 import argparse
 import sys
 
-from . import conversions, names, qos
-from .interface_checks import SENSOR_TOPICS, Limits, Received, check_topics, topic_summary
-from .node_tools import spin_until
+from .. import conversions, names, qos
+from ..node_tools import spin_until
+from .rules import SENSOR_TOPICS, Limits, Received, check_topics, topic_summary
 
 NODE_NAME = 'gsp_check_interfaces'
 
