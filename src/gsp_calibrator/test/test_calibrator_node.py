@@ -24,6 +24,7 @@ from gsp_calibrator.calibrator_node import (
     CalibratorNode,
     share_the_gil_promptly,
 )
+from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
@@ -256,7 +257,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
         # Each posture's samples count from the instant the platform published settled (not
         # from the status's receipt): the noted starts are the statuses' source timestamps.
-        starts = recording.collection_notes(info)
+        starts = rebuild.collection_notes(info)
         assert starts and {c: start for c, (_, start) in starts.items()} == {
             c: settled_published[c] for c in starts
         }

@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.collection import protocol
-from gsp_calibrator.recording import mcap_io
+from gsp_calibrator.recording import mcap_io, rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import state as run_state
@@ -174,10 +174,10 @@ def assert_recorded(parts, samples):
     """
     notes = {}
     for part in parts:
-        notes.update(recording.collection_notes(recording.recording_info(part), part))
+        notes.update(rebuild.collection_notes(recording.recording_info(part), part))
     noted = {posture for posture, _ in notes.values()}
     assert set(int(k) for k in samples.posture) <= noted
-    rebuilt = recording.samples_from_recording(parts)
+    rebuilt = rebuild.samples_from_recording(parts)
     assert set(rebuilt.posture) <= set(samples.posture)
     assert len(rebuilt) >= 0.8 * len(samples)
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples as make_samples
 
+from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import response as run_response
@@ -164,7 +165,7 @@ def test_offline_from_recording(tmp_path, capsys):
     samples = synthetic_samples(count=30, seed=13)
     mcap = tmp_path / 'recording.mcap'
     _write_recording(mcap, samples, per_posture=2)
-    rebuilt = recording.samples_from_recording(mcap)
+    rebuilt = rebuild.samples_from_recording(mcap)
     assert len(rebuilt) == len(samples)
     np.testing.assert_allclose(rebuilt.leg_lengths, samples.leg_lengths, rtol=0, atol=1e-15)
     np.testing.assert_allclose(rebuilt.readings, samples.readings, rtol=0, atol=1e-15)

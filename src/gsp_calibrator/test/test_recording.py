@@ -10,6 +10,7 @@ import yaml
 from recorded_runs import write_command
 
 from gsp_calibrator.collection.synchroniser import SampleCollector
+from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
@@ -248,7 +249,7 @@ def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path)
         nan_at=(1, 1),
         options={'sync_tolerance': 0.0025, 'samples_per_posture': per_posture},
     )
-    samples = recording.samples_from_recording(path)  # options as stored
+    samples = rebuild.samples_from_recording(path)  # options as stored
     assert list(samples.posture) == [1, 3, 4]  # posture 2 rejected, numbers kept
     for row, (k, pose, legs, readings) in enumerate(sent):
         assert samples.posture[row] == k
@@ -289,9 +290,9 @@ def test_noted_collection_start_is_used(tmp_path):
     # The calibrator noted a start before the moving samples (stamped t + 2 ms): they count.
     write_session(noted, postures, 2, notes=lambda t: t + MS)
     with pytest.raises(recording.RecordingError, match='sync_tolerance'):
-        recording.samples_from_recording(plain)
-    a = recording.samples_from_recording(plain, 0.0025, 2)
-    b = recording.samples_from_recording(noted, 0.0025, 2)
+        rebuild.samples_from_recording(plain)
+    a = rebuild.samples_from_recording(plain, 0.0025, 2)
+    b = rebuild.samples_from_recording(noted, 0.0025, 2)
     assert len(a) == len(b) == 2
     # First posture: its window starts with a moving sample (+1 m) stamped after the noted start.
     assert b.leg_lengths[0, 0] > a.leg_lengths[0, 0] + 0.4

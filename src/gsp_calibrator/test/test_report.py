@@ -1,5 +1,6 @@
 """result.json and report.md with PNGs: headless (Agg), readable, non-trivial images."""
 
+import dataclasses
 import json
 import math
 
@@ -50,21 +51,25 @@ def _check_png(path, min_width=500, min_height=250):
     assert np.mean(np.all(rgb > 0.98, axis=1)) < 0.97, f'{path} is almost blank'
 
 
+def _inputs(calibrated):
+    """The report inputs of the calibrated fixture: its analysis, validations and geometries."""
+    outcome, nominal, truth, before, after = calibrated
+    return report.ReportInputs(
+        analysis=outcome.identifiability,
+        validation_before=before,
+        validation_after=after,
+        truth=truth,
+        nominal=nominal,
+    )
+
+
 def test_result_json(tmp_path, calibrated):
     outcome, nominal, truth, before, after = calibrated
     result = outcome.result
     path = report.write_result_json(
         tmp_path,
         result,
-        report.ReportInputs(
-            analysis=outcome.identifiability,
-            validation_before=before,
-            validation_after=after,
-            truth=truth,
-            nominal=nominal,
-            sigmas=outcome.sigmas,
-            extra={'run': 'test'},
-        ),
+        dataclasses.replace(_inputs(calibrated), sigmas=outcome.sigmas, extra={'run': 'test'}),
     )
     data = _strict_json(path)
     for key in (
@@ -136,13 +141,7 @@ def test_report_with_truth(tmp_path, calibrated):
     written = report.write_all(
         tmp_path,
         outcome.result,
-        report.ReportInputs(
-            analysis=outcome.identifiability,
-            validation_before=before,
-            validation_after=after,
-            truth=truth,
-            nominal=nominal,
-        ),
+        _inputs(calibrated),
     )
     for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation', 'accuracy_map'):
         _check_png(written[kind])

@@ -14,12 +14,7 @@ FOCUS = 6.0
 
 
 def posture_factors(
-    geometry,
-    poses,
-    sigmas=DEFAULT_SENSOR_NOISE,
-    free=None,
-    formulation='implicit',
-    sensors=SENSOR_NAMES,
+    geometry, poses, sigmas=None, free=None, formulation='implicit', sensors=SENSOR_NAMES
 ):
     """Per-posture information factors ``G`` (N, r, n): posture k's information is ``G_k^T G_k``.
 
@@ -27,8 +22,10 @@ def posture_factors(
     ``[J_X | J_u]`` (k x (6 + n)) is projected on the orthogonal complement of ``J_X``'s columns
     (``r = k - 6`` rows of a complete QR), which gives the Schur complement
     ``J_u^T J_u - J_u^T J_X (J_X^T J_X)^-1 J_X^T J_u`` as a product of small factors; for ``'fk'``
-    it is the FK-based residual Jacobian itself (r = the device readings used).
+    it is the FK-based residual Jacobian itself (r = the device readings used). ``sigmas``: the
+    ``SensorNoise`` weights (default :data:`~gsp_kinematics.noise.DEFAULT_SENSOR_NOISE`).
     """
+    sigmas = DEFAULT_SENSOR_NOISE if sigmas is None else sigmas
     free = resolve_free(free)
     columns = [c for c, name in enumerate(('alpha', 'beta', 'phi', 'd_m')) if name in sensors]
     # Derivatives of the sensor readings (the sensor errors included) over the extended vector.
@@ -47,12 +44,7 @@ def posture_factors(
 
 
 def posture_information(
-    geometry,
-    poses,
-    sigmas=DEFAULT_SENSOR_NOISE,
-    free=None,
-    formulation='implicit',
-    sensors=SENSOR_NAMES,
+    geometry, poses, sigmas=None, free=None, formulation='implicit', sensors=SENSOR_NAMES
 ):
     """Per-posture information matrices (N, n, n) of the free parameters.
 

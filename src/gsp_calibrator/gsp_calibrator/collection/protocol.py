@@ -1,7 +1,7 @@
 """The posture-collection protocol of a calibration run (pure, no rclpy).
 
 One :class:`CollectionProtocol` serves the ``calibrator`` node (live messages), the rebuilding
-of ``samples.csv`` from a recording (:func:`gsp_calibrator.recording.recorder.samples_from_recording`)
+of ``samples.csv`` from a recording (:func:`gsp_calibrator.recording.rebuild.samples_from_recording`)
 and the replay of a recording (:mod:`gsp_calibrator.replay.recorded_run`): each feeds it the pose commands,
 platform statuses and sensor messages with their receive times (integer ns, the node clock; a
 recording's log time) and acts on the events it returns.

@@ -12,7 +12,7 @@ per recorded posture (:class:`RecordedPosture`), its commanded pose and the samp
   A resumed run has one recording part per session (``recording.mcap``, ``recording-2.mcap``
   ..., see :func:`gsp_calibrator.recording.recorder.recording_parts`): every part is read, in order, and
   a posture collected again by a later session keeps its later segment (as
-  :func:`gsp_calibrator.recording.recorder.samples_from_recording` keeps its later row).
+  :func:`gsp_calibrator.recording.rebuild.samples_from_recording` keeps its later row).
 
 A run directory is replayed from its ``samples.csv`` when it has one (the rows the calibration
 was computed from, so a replay reproduces it exactly whatever the timing), else from its
@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from gsp_calibrator.collection.protocol import CollectionProtocol, PairsCollected, PostureSkipped
+from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.settings import DEFAULTS
@@ -256,7 +257,7 @@ class RecordedRun:
                 collection.continue_after(np.mean(last.stream.readings, axis=0))
             current[0] = ''  # idle samples of a new session belong to no command
             margin = collection.collector.tolerance_ns
-            for event in recording.feed_recording(
+            for event in rebuild.feed_recording(
                 part, collection, extra_topics=(names.TOPIC_TRUE_POSE,), on_message=on_message
             ):
                 if isinstance(event, PairsCollected):

@@ -2,7 +2,7 @@
 
 Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``, or a
 ``recording.mcap`` (the posture rows are rebuilt with the calibrator's own synchroniser, see
-:func:`gsp_calibrator.recording.recorder.samples_from_recording`). The identification is the calibrator
+:func:`gsp_calibrator.recording.rebuild.samples_from_recording`). The identification is the calibrator
 node's own: :func:`gsp_calibrator.run.identify.identify_from_samples` with the commanded postures
 as pose guesses, so the same samples and options give the same result as the online run.
 
@@ -320,11 +320,11 @@ def load_input(kind, path, options):
         except RunDirectoryError as error:
             raise InputError(str(error)) from error
     else:
+        from gsp_calibrator.recording.rebuild import samples_from_recording
         from gsp_calibrator.recording.recorder import (
             RECORDING_FILE,
             RecordingError,
             recording_parts,
-            samples_from_recording,
         )
 
         # A resumed run recorded into recording.mcap, recording-2.mcap ...: read every part.
