@@ -19,6 +19,7 @@ thin ROS part (a client of the suite's topics and service), driven from the main
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -34,6 +35,7 @@ import numpy as np
 from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.report.write import RESULT_JSON
 from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
+from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import add_run_options, run_options_error
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
 from gsp_kinematics.geometry import default_geometry_path, load_geometry, parameter_errors
@@ -224,33 +226,37 @@ def parameter_error_maxima(calibrated, true):
     return float(np.max(np.abs(errors[:43]))), float(abs(errors[43]))
 
 
-def make_summary(
-    before,
-    after,
-    calibrated,
-    true,
-    identification_ms,
-    calibration_s,
-    total_s,
-    run_directory=None,
-    collection=None,
-    fit=None,
-):
-    """The ``summary.json`` document (keys as in issue 3, plus ``run_directory``, its path,
-    ``collection``, the calibrator's record of skipped postures and dropped samples, or None, and
-    the :func:`fit_record` keys ``goodness_of_fit``, ``noise_estimates``, ``verdict``)."""
-    max_mm, max_deg = parameter_error_maxima(calibrated, true)
-    return {
-        'validation': {'before': dict(before), 'after': dict(after)},
-        'max_param_error_mm': max_mm,
-        'max_param_error_deg': max_deg,
-        'identification_ms': float(identification_ms),
-        'calibration_s': float(calibration_s),
-        'total_s': float(total_s),
-        'run_directory': None if run_directory is None else str(run_directory),
-        'collection': collection,
-        **{key: (fit or {}).get(key) for key in FIT_KEYS},
-    }
+@dataclasses.dataclass(frozen=True)
+class DemoSummary:
+    """What ``summary.json`` records of a demo run (:meth:`document`)."""
+
+    before: dict  #: validation summary with the nominal controller
+    after: dict  #: validation summary with the calibrated controller
+    calibrated: object  #: the calibrated Geometry
+    true: object  #: the true Geometry
+    identification_ms: float
+    calibration_s: float
+    total_s: float
+    run_directory: object = None  #: its path
+    #: The calibrator's record of skipped postures and dropped samples, or None.
+    collection: dict | None = None
+    fit: dict | None = None  #: :func:`fit_record` (goodness of fit, noise estimates, verdict)
+
+    def document(self):
+        """The ``summary.json`` document (keys as in issue 3, plus ``run_directory``,
+        ``collection`` and the :data:`FIT_KEYS`)."""
+        max_mm, max_deg = parameter_error_maxima(self.calibrated, self.true)
+        return {
+            'validation': {'before': dict(self.before), 'after': dict(self.after)},
+            'max_param_error_mm': max_mm,
+            'max_param_error_deg': max_deg,
+            'identification_ms': float(self.identification_ms),
+            'calibration_s': float(self.calibration_s),
+            'total_s': float(self.total_s),
+            'run_directory': None if self.run_directory is None else str(self.run_directory),
+            'collection': self.collection,
+            **{key: (self.fit or {}).get(key) for key in FIT_KEYS},
+        }
 
 
 #: Keys of the calibrator's ``result.json`` that ``summary.json`` repeats.
@@ -411,7 +417,7 @@ def run(args):
         calibration_started = time.monotonic()
         response = demo.calibrate(args.timeout)
         calibration_s = time.monotonic() - calibration_started
-        parsed = response.parse_response(response.message)
+        parsed = parse_response(response.message)
         if parsed.run_directory:
             run_directory = RunDirectory(parsed.run_directory)
         if not response.success:
@@ -469,7 +475,7 @@ def run(args):
         if run_directory is not None:
             print(f'run directory: {run_directory.path}', flush=True)
         return exit_code
-    summary = make_summary(
+    summary = DemoSummary(
         before,
         after,
         calibrated,
@@ -480,7 +486,7 @@ def run(args):
         run_directory.path,
         collection_record(run_directory.path),
         fit_record(run_directory.path),
-    )
+    ).document()
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
     try:  # the calibrator's report, now against the truth and with the validation distributions
