@@ -355,6 +355,95 @@ def parse_arguments(argv=None):
     return args
 
 
+@dataclasses.dataclass
+class Measured:
+    """What the demo measured through the nodes; ``error`` says why it stopped early ('' if not)."""
+
+    run_directory: object = None  #: the calibration's RunDirectory once it has answered
+    error: str = ''
+    calibrated: object = None  #: the calibrated Geometry
+    identification_ms: float = math.nan
+    calibration_s: float = math.nan
+    before: dict | None = None  #: validation summaries before and after
+    after: dict | None = None
+    details_before: dict | None = None  #: per-posture validation errors before and after
+    details_after: dict | None = None
+    validated: int = 0  #: validation postures reached both times
+    rejected: int = 0  #: validation postures the platform rejected
+
+
+def _calibrate_and_validate(demo, args, validation_poses, measured):
+    """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
+    :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
+    from gsp_kinematics.geometry import geometry_from_yaml
+
+    try:
+        demo.wait_for_system(args.startup_timeout)
+        settle_timeout = 5.0 + 10.0 * args.settle_time
+        print(
+            f'validation before calibration: {len(validation_poses)} postures (nominal '
+            'controller) ...',
+            flush=True,
+        )
+        reached_before = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
+        print('calibrating (/gsp/calibrator/calibrate) ...', flush=True)
+        calibration_started = time.monotonic()
+        response = demo.calibrate(args.timeout)
+        measured.calibration_s = time.monotonic() - calibration_started
+        parsed = parse_response(response.message)
+        if parsed.run_directory:
+            measured.run_directory = RunDirectory(parsed.run_directory)
+        if not response.success:
+            raise DemoError(f'calibration failed:\n{parsed.summary}')
+        print(parsed.summary, flush=True)
+        measured.identification_ms = parsed.identification_ms
+        measured.calibrated = geometry_from_yaml(parsed.geometry_yaml, source='calibrate response')
+        print(f'validation after calibration: {len(validation_poses)} postures ...', flush=True)
+        reached_after = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
+    except DemoError as error:
+        measured.error = str(error)
+        return
+    both = np.all(np.isfinite(reached_before), axis=1) & np.all(np.isfinite(reached_after), axis=1)
+    if not both.any():
+        measured.error = 'every validation posture was rejected by the platform'
+        return
+    measured.before = validation_summary(validation_poses[both], reached_before[both])
+    measured.after = validation_summary(validation_poses[both], reached_after[both])
+    measured.details_before = validation_details(validation_poses[both], reached_before[both])
+    measured.details_after = validation_details(validation_poses[both], reached_after[both])
+    measured.validated, measured.rejected = int(both.sum()), int((~both).sum())
+
+
+def _shut_down(executor, node, context, processes, run_directory, log_directory, exit_code):
+    """Stop the demo's node and the suite's processes, keep their logs; the exit code (1 when a
+    process could not be stopped). Nothing interrupts it (it is bounded: SIGINT, SIGTERM,
+    SIGKILL)."""
+    import rclpy
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if executor is not None:
+        executor.shutdown()
+    if node is not None:
+        node.destroy_node()
+    if context is not None:
+        rclpy.try_shutdown(context=context)
+    codes = processes.stop()
+    left = [name for name, code in codes.items() if code is None]
+    if left:
+        print(f'gsp_demo: could not stop {left}', file=sys.stderr)
+        exit_code = exit_code or 1
+    if run_directory is not None:
+        for name in NODES:
+            log = log_directory / f'{name}.log'
+            if log.exists():
+                run_directory.write_bytes(f'{name}.log', log.read_bytes())
+        shutil.rmtree(log_directory, ignore_errors=True)
+    else:
+        print(f"gsp_demo: the nodes' logs are in {log_directory}", file=sys.stderr)
+    return exit_code
+
+
 def run(args):
     """The demo; returns the exit code."""
     started = time.monotonic()
@@ -389,7 +478,7 @@ def run(args):
     from rclpy.signals import SignalHandlerOptions
 
     context = node = executor = None
-    run_directory = None
+    measured = Measured()
     exit_code = 1
     try:
         context = rclpy.Context()
@@ -403,41 +492,9 @@ def run(args):
         executor.add_node(node)
         demo = demo_node.Demo(node, executor, processes)
         print(f'starting {", ".join(processes.commands)} ...', flush=True)
-        demo.wait_for_system(args.startup_timeout)
-        settle_timeout = 5.0 + 10.0 * args.settle_time
-
-        print(
-            f'validation before calibration: {len(validation_poses)} postures (nominal '
-            'controller) ...',
-            flush=True,
-        )
-        reached_before = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
-
-        print('calibrating (/gsp/calibrator/calibrate) ...', flush=True)
-        calibration_started = time.monotonic()
-        response = demo.calibrate(args.timeout)
-        calibration_s = time.monotonic() - calibration_started
-        parsed = parse_response(response.message)
-        if parsed.run_directory:
-            run_directory = RunDirectory(parsed.run_directory)
-        if not response.success:
-            raise DemoError(f'calibration failed:\n{parsed.summary}')
-        print(parsed.summary, flush=True)
-        from gsp_kinematics.geometry import geometry_from_yaml
-
-        calibrated = geometry_from_yaml(parsed.geometry_yaml, source='calibrate response')
-
-        print(f'validation after calibration: {len(validation_poses)} postures ...', flush=True)
-        reached_after = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
-        both = np.all(np.isfinite(reached_before), axis=1) & np.all(
-            np.isfinite(reached_after), axis=1
-        )
-        if not both.any():
-            raise DemoError('every validation posture was rejected by the platform')
-        before = validation_summary(validation_poses[both], reached_before[both])
-        after = validation_summary(validation_poses[both], reached_after[both])
-        details_before = validation_details(validation_poses[both], reached_before[both])
-        details_after = validation_details(validation_poses[both], reached_after[both])
+        _calibrate_and_validate(demo, args, validation_poses, measured)
+        if measured.error:
+            raise DemoError(measured.error)
         exit_code = 0
     except DemoError as error:
         print(f'gsp_demo: FAILED: {error}', file=sys.stderr, flush=True)
@@ -448,40 +505,22 @@ def run(args):
         print('gsp_demo: terminated', file=sys.stderr, flush=True)
         exit_code = 143
     finally:
-        # Nothing interrupts the clean-up (it is bounded: SIGINT, SIGTERM, SIGKILL).
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        if context is not None:
-            rclpy.try_shutdown(context=context)
-        codes = processes.stop()
-        left = [name for name, code in codes.items() if code is None]
-        if left:
-            print(f'gsp_demo: could not stop {left}', file=sys.stderr)
-            exit_code = exit_code or 1
-        if run_directory is not None:
-            for name in NODES:
-                log = log_directory / f'{name}.log'
-                if log.exists():
-                    run_directory.write_bytes(f'{name}.log', log.read_bytes())
-            shutil.rmtree(log_directory, ignore_errors=True)
-        else:
-            print(f"gsp_demo: the nodes' logs are in {log_directory}", file=sys.stderr)
+        run_directory = measured.run_directory
+        exit_code = _shut_down(
+            executor, node, context, processes, run_directory, log_directory, exit_code
+        )
 
     if exit_code != 0:
         if run_directory is not None:
             print(f'run directory: {run_directory.path}', flush=True)
         return exit_code
     summary = DemoSummary(
-        before,
-        after,
-        calibrated,
+        measured.before,
+        measured.after,
+        measured.calibrated,
         true_geometry,
-        parsed.identification_ms,
-        calibration_s,
+        measured.identification_ms,
+        measured.calibration_s,
         time.monotonic() - started,
         run_directory.path,
         collection_record(run_directory.path),
@@ -495,12 +534,12 @@ def run(args):
         offline.refresh_report(
             run_directory.path,
             truth=true_geometry,
-            validation_before=details_before,
-            validation_after=details_after,
+            validation_before=measured.details_before,
+            validation_after=measured.details_after,
         )
     except Exception as error:  # noqa: BLE001 (the demo itself succeeded)
         print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
-    print(summary_text(summary, int(both.sum()), int((~both).sum())), flush=True)
+    print(summary_text(summary, measured.validated, measured.rejected), flush=True)
     print(f'run directory: {run_directory.path}', flush=True)
     return 0
 
