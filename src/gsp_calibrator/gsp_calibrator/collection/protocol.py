@@ -43,26 +43,31 @@ import math
 
 import numpy as np
 
+from gsp_calibrator.collection.events import (  # noqa: F401 (callers take the events from here)
+    FINAL_EVENTS,
+    CollectionStarted,
+    NoSynchronisedSample,
+    PairsCollected,
+    PostureSkipped,
+    RowReady,
+    SampleDropped,
+    TopicSilent,
+)
 from gsp_calibrator.collection.synchroniser import (
     ENCODER,
     INCLINOMETER,
     LEG_LENGTHS,
     LVDT,
-    PostureSample,
     SampleCollector,
 )
-from gsp_msgs_py import conversions, names
-
-#: THE table of sensor topics and the collector stream each one feeds.
-TOPIC_STREAMS = {
-    names.TOPIC_LEG_LENGTHS: LEG_LENGTHS,
-    names.TOPIC_INCLINOMETER: INCLINOMETER,
-    names.TOPIC_ENCODER: ENCODER,
-    names.TOPIC_LVDT: LVDT,
-}
-SENSOR_TOPICS = tuple(TOPIC_STREAMS)
-#: Device streams, in the order of the readings ``[alpha, beta, phi, d_m]``.
-DEVICE_STREAMS = (INCLINOMETER, ENCODER, LVDT)
+from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
+    DEVICE_STREAMS,
+    SENSOR_TOPICS,
+    TOPIC_STREAMS,
+    has_non_finite,
+    read_sensor,
+)
+from gsp_msgs_py import names
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collection.synchroniser).
@@ -75,12 +80,6 @@ MIN_BUFFER = 2000
 #: before the first command (the last ones), so a long idle recording stays cheap.
 MAX_STREAM_SAMPLES = 2000
 
-_READERS = {
-    LEG_LENGTHS: lambda msg: (conversions.msg_to_leg_lengths(msg),),
-    INCLINOMETER: conversions.msg_to_inclinometer,
-    ENCODER: lambda msg: (conversions.msg_to_encoder(msg),),
-    LVDT: lambda msg: (conversions.msg_to_lvdt(msg),),
-}
 _ADDERS = {
     LEG_LENGTHS: SampleCollector.add_leg_lengths,
     INCLINOMETER: SampleCollector.add_inclinometer,
@@ -108,102 +107,6 @@ def settle_start_ns(published_ns, received_ns, topic_timeout):
         return published_ns
     return received_ns
 
-
-def read_sensor(topic, msg):
-    """``(stream, stamp_ns, values)`` of a sensor message; ValueError (or TypeError) if unusable.
-
-    ``values`` are the arguments after the stamp of the collector's ``add_<stream>``.
-    """
-    stream = TOPIC_STREAMS[topic]
-    return stream, conversions.stamp_to_nanoseconds(msg.header.stamp), tuple(_READERS[stream](msg))
-
-
-def _has_non_finite(msg):
-    try:
-        return any(not math.isfinite(v) for v in msg.position)
-    except (AttributeError, TypeError):
-        return False
-
-
-# --- events ------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class CollectionStarted:
-    """Posture ``posture`` settled: samples stamped from ``start_ns`` count."""
-
-    posture: int
-    command_id: str
-    start_ns: int
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class RowReady:
-    """The averaged row of posture ``posture``; ``dropped`` inconsistent pairs before it."""
-
-    posture: int
-    pose: np.ndarray  #: (6,) commanded [x, y, z, psi, theta, phi], m and rad
-    sample: PostureSample
-    dropped: int = 0
-
-
-@dataclasses.dataclass(frozen=True)
-class PostureSkipped:
-    """Posture ``posture`` gives no row; ``reason`` says why."""
-
-    posture: int
-    reason: str
-    rejected_by_platform: bool = False
-    platform_reason: str = ''  #: the platform's own reason of a rejection
-
-
-@dataclasses.dataclass(frozen=True)
-class TopicSilent:
-    """``topic`` said nothing for ``topic_timeout`` while ``doing``: the run cannot go on."""
-
-    topic: str
-    doing: str
-    message: str
-
-
-@dataclasses.dataclass(frozen=True)
-class NoSynchronisedSample:
-    """Messages come but no synchronised pair did for ``topic_timeout``: the run cannot go on."""
-
-    posture: int
-    message: str
-
-
-@dataclasses.dataclass(frozen=True)
-class SampleDropped:
-    """A sensor message was dropped (``non_finite``: counted, see ``non_finite_dropped``)."""
-
-    topic: str
-    reason: str
-    non_finite: bool
-    count: int = 0  #: non-finite readings dropped on the topic's stream so far
-
-    @property
-    def message(self):
-        if self.non_finite:
-            return f'dropped a non-finite reading on {self.topic} ({self.count} so far)'
-        return f'ignoring a malformed message on {self.topic}: {self.reason}'
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class PairsCollected:
-    """``keep_pairs``: every synchronised pair of a posture (None: before the first command)."""
-
-    posture: object
-    command_id: str
-    pose: object  #: (6,) commanded pose, None before the first command
-    stamps: np.ndarray  #: (N,) leg-length stamps, ns
-    leg_lengths: np.ndarray  #: (N, 6) q_i, m
-    readings: np.ndarray  #: (N, 4) [alpha, beta, phi, d_m]
-
-
-#: Events after which the posture (or the run) is over.
-FINAL_EVENTS = (RowReady, PostureSkipped, TopicSilent, NoSynchronisedSample)
 
 _IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
 
@@ -366,7 +269,7 @@ class CollectionProtocol:
         try:
             stream, stamp_ns, values = read_sensor(topic, msg)
         except (ValueError, TypeError) as error:
-            if _has_non_finite(msg):
+            if has_non_finite(msg):
                 stream = TOPIC_STREAMS[topic]
                 self.collector.record_non_finite(stream)
                 return [
