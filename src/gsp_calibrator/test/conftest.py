@@ -1,5 +1,15 @@
-"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md)."""
+"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md);
+``small_disk``: a small tmpfs that the disk-full tests really fill (full_disk.py)."""
+
+import full_disk
+import pytest
 
 from gsp_msgs_py.testing import ros_context, use_loopback_domain  # noqa: F401
 
 use_loopback_domain()
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 4 MiB tmpfs mounted for the test (:class:`full_disk.SmallDisk`), unmounted after it."""
+    yield from full_disk.small_disk(tmp_path / 'disk')

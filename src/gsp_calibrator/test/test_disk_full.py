@@ -1,53 +1,58 @@
 """A disk that fills up mid-run (issue 10): the run ends naming the file and the cause, every row
 written before is kept, the node lives on and a later resume continues (docs/faults.md).
 
-The full disk is injected: the writes of samples.csv, state.json or the recording raise ENOSPC
-(the machine has no tmpfs to fill)."""
+The disk really fills: a small tmpfs (conftest ``small_disk``) filled until the kernel refuses,
+so the writes of samples.csv, state.json and the recording fail in the kernel; in the node test
+of the recording, its file alone is full after a number of bytes (full_disk.WriteLimit), so that
+the recording, not another file, is the one to fail."""
 
 import errno
+import io
 import os
+import shutil
 
 import numpy as np
 import pytest
+from full_disk import NO_SPACE, WriteLimit
 from std_srvs.srv import Trigger
 from synthetic import synthetic_samples
 from test_calibrator_node import make_suite, perturbed_truth
 
 from gsp_calibrator.recording import mcap_io
 from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import directory as run_directory
 from gsp_calibrator.run import session as run_session
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.directory import SamplesAppender, read_samples, write_samples
-from gsp_msgs_py import names
+from gsp_msgs_py import conversions, names
 
-NO_SPACE = os.strerror(errno.ENOSPC)
+PAGE = 4096  # bytes: tmpfs allocates pages; a write within the file's last page needs none
 
 
 def _full_disk():
     return OSError(errno.ENOSPC, NO_SPACE)
 
 
-def test_a_failed_append_leaves_no_half_row_and_names_the_file(tmp_path, monkeypatch):
-    path = tmp_path / 'samples.csv'
+def test_a_failed_append_leaves_no_half_row_and_names_the_file(small_disk):
+    path = small_disk.path / 'samples.csv'
     samples = synthetic_samples(count=3)
-    write_samples(path, run_directory.Samples.empty())
+    write_samples(path, samples)
     appender = SamplesAppender(path)
-    appender.append(samples, 0)
-    appender.append(samples, 1)
-
-    def torn_write(self, data):  # half the row reaches the file, then the disk is full
-        os.write(self._fd, data[: len(data) // 2])
-        raise _full_disk()
-
-    monkeypatch.setattr(SamplesAppender, '_write', torn_write)
-    with pytest.raises(OSError, match=NO_SPACE) as raised:
-        appender.append(samples, 2)
-    assert raised.value.filename == str(path)
+    small_disk.fill()
+    # Rows still fit in the file's last page; the first that spans into a new page is written
+    # in part by the kernel (a short write), then refused.
+    appended = 0
+    with pytest.raises(OSError) as raised:
+        for _ in range(PAGE):
+            appender.append(samples, appended % 3)
+            appended += 1
+    assert raised.value.errno == errno.ENOSPC and raised.value.filename == str(path)
     appender.close()
-    kept = read_samples(path)
-    assert len(kept) == 2
-    np.testing.assert_array_equal(kept.leg_lengths, samples.leg_lengths[:2])
+    kept = read_samples(path)  # every row complete: the torn one was cut back
+    assert len(kept) == 3 + appended
+    np.testing.assert_array_equal(
+        kept.leg_lengths[3:], samples.leg_lengths[np.arange(appended) % 3]
+    )
+    assert path.read_bytes().endswith(b'\n')
 
 
 def test_a_row_cut_by_a_crash_is_dropped_when_the_file_is_appended_again(tmp_path):
@@ -63,19 +68,42 @@ def test_a_row_cut_by_a_crash_is_dropped_when_the_file_is_appended_again(tmp_pat
     assert list(kept.posture) == [samples.posture[0], samples.posture[1], samples.posture[1]]
 
 
-def test_a_state_json_that_cannot_be_written_keeps_the_previous_one(tmp_path, monkeypatch):
-    session = run_session.RunSession.create(tmp_path)
+def test_a_state_json_that_cannot_be_written_keeps_the_previous_one(small_disk):
+    session = run_session.RunSession.create(small_disk.path)
     session.state = run_state.RunState({'seed': 1}, np.zeros((2, 6)).tolist())
     session.save(run_state.PHASE_COLLECTING)
-
-    def full(path, text):
-        raise _full_disk()
-
-    monkeypatch.setattr(run_session, 'atomic_write_text', full)
+    files = sorted(os.listdir(session.run.path))
+    small_disk.fill()
+    reason = 'x' * 2 * PAGE  # more than the old file's page: a rewrite in place would be torn
     with pytest.raises(run_session.RunWriteError) as raised:
-        session.save(run_state.PHASE_FAILED, 'x')
+        session.save(run_state.PHASE_FAILED, reason)
     assert str(raised.value) == f'cannot write {session.run.path / "state.json"}: {NO_SPACE}'
     assert run_state.read_state(session.run.path).phase == run_state.PHASE_COLLECTING
+    assert sorted(os.listdir(session.run.path)) == files  # no temporary file left behind
+    small_disk.free()
+    session.save(run_state.PHASE_FAILED, reason)
+    assert run_state.read_state(session.run.path).stop_reason == reason
+
+
+def test_a_recording_on_a_full_disk_keeps_every_message_written(small_disk):
+    path = small_disk.path / 'recording.mcap'
+    recorder = mcap_io.McapRecorder(path, crash_safe=True)
+    small_disk.fill()
+    written = 0
+    with pytest.raises(OSError) as raised:
+        for j in range(PAGE):
+            recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(1e-3 * j, j), j)
+            written += 1
+    assert raised.value.errno == errno.ENOSPC
+    # Still full: the summary cannot be written, so nothing poses as a finished recording.
+    with pytest.raises(OSError):
+        recorder.close()
+    assert not path.exists()
+    small_disk.free()
+    recovered = mcap_io.recover_recording(f'{path}.tmp')
+    assert recovered['message_count'] == written > 0
+    values = [m.position[0] for _, _, _, m, _ in recording.read_recording(path)]
+    np.testing.assert_allclose(values, 1e-3 * np.arange(written), rtol=0, atol=1e-15)
 
 
 def _run_failed_on(suite, tmp_path, name):
@@ -132,25 +160,44 @@ def test_a_full_disk_mid_run_ends_it_keeps_the_rows_and_resume_continues(
 def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
     ros_context, tmp_path, truth_file, monkeypatch
 ):
-    real_flush = mcap_io.McapRecorder._flush_if_crash_safe
-    written = {'messages': 0}
+    # The recording's file is full after 64 KiB (mid-run: some 350 messages, 5 rows of 12);
+    # its writes fail below the MCAP writer and its buffer, in the raw file.
+    disk = {'full': True, 'bytes': 64 * 1024}
+    files = []
 
-    def flush(self):
-        count = getattr(self, 'message_count', 0)
-        if count >= 400:
-            raise _full_disk()
-        written['messages'] = count
-        real_flush(self)
+    def open_recording(file, mode='r', *args, **kwargs):
+        if mode == 'wb' and str(file).endswith(f'{recording.RECORDING_FILE}.tmp'):
+            files.append(WriteLimit(io.FileIO(file, 'w'), disk))
+            return io.BufferedWriter(files[-1])
+        return open(file, mode, *args, **kwargs)
 
-    monkeypatch.setattr(mcap_io.McapRecorder, '_flush_if_crash_safe', flush)
+    monkeypatch.setattr(mcap_io, 'open', open_recording, raising=False)
     suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
     try:
         run = _run_failed_on(suite, tmp_path, 'recording.mcap.tmp')
         assert run_state.read_state(run).phase == run_state.PHASE_FAILED
-        suite.wait_until(lambda: (run / 'recording.mcap').exists())
-        messages = list(recording.read_recording(run / 'recording.mcap'))
-        assert len(messages) >= written['messages'] > 0
-        # The node lives on: a second call is served (and fails on the same full disk).
-        assert not suite.wait(suite.call()).success
+        rows = read_samples(run / 'samples.csv')
+        assert 0 < len(rows) < 12  # mid-run
+        part = run / f'{recording.RECORDING_FILE}.tmp'
+        # The disk is still full when the run ends: the recording cannot be finished, so its
+        # .tmp is kept with every byte written, and nothing poses as a finished recording.
+        suite.wait_until(lambda: not calibrator.recorder.recording)
+        assert part.stat().st_size == files[0].written == disk['bytes']
+        assert not (run / recording.RECORDING_FILE).exists()
+        copy = tmp_path / 'copy.mcap'
+        shutil.copy(part, f'{copy}.tmp')
+        before = mcap_io.recover_recording(f'{copy}.tmp')['message_count']
+        assert before > 0
+
+        disk['full'] = False  # space freed: the same node resumes the run, recovering the .tmp
+        client = suite.client_node.create_client(Trigger, names.SERVICE_RESUME)
+        assert client.wait_for_service(timeout_sec=30.0)
+        response = suite.wait(client.call_async(Trigger.Request()))
+        assert response.success, response.message
+        assert not part.exists()
+        assert recording.recording_info(run / recording.RECORDING_FILE)['message_count'] == before
+        again = read_samples(run / 'samples.csv')
+        np.testing.assert_array_equal(again.leg_lengths[: len(rows)], rows.leg_lengths)
+        assert run_state.read_state(run).phase == run_state.PHASE_DONE
     finally:
         suite.close()

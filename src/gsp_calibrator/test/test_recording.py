@@ -160,22 +160,29 @@ def test_abort_and_errors(tmp_path):
 # --- samples from a recording --------------------------------------------------------------------
 
 
-def _write_sensors(recorder, stamp, q, r, nan_encoder=False):
+def _write_sensors(recorder, stamp, q, r, nan_encoder=False, log_delay=0):
+    """One instant stamped ``stamp`` (legs; the device 0.5 ms later), logged ``log_delay`` ns
+    plus a fraction of a ms after its stamp."""
     seconds = stamp / 1e9
+    logged = stamp + log_delay
     recorder.write(
-        names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, seconds), stamp + MS // 5
+        names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, seconds), logged + MS // 5
     )
     device = stamp + MS // 2
     recorder.write(
         names.TOPIC_INCLINOMETER,
         conversions.inclinometer_to_msg(r[0], r[1], device / 1e9),
-        device + MS // 5,
+        logged + MS // 2 + MS // 5,
     )
     encoder = conversions.encoder_to_msg(r[2], device / 1e9)
     if nan_encoder:
         encoder.position = [math.nan]
-    recorder.write(names.TOPIC_ENCODER, encoder, device + MS // 4)
-    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9), device + MS // 3)
+    recorder.write(names.TOPIC_ENCODER, encoder, logged + MS // 2 + MS // 4)
+    recorder.write(
+        names.TOPIC_LVDT,
+        conversions.lvdt_to_msg(r[3], device / 1e9),
+        logged + MS // 2 + MS // 3,
+    )
 
 
 def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=None, options=None):
@@ -296,6 +303,47 @@ def test_noted_collection_start_is_used(tmp_path):
     assert len(a) == len(b) == 2
     # First posture: its window starts with a moving sample (+1 m) stamped after the noted start.
     assert b.leg_lengths[0, 0] > a.leg_lengths[0, 0] + 0.4
+
+
+def test_a_settle_and_samples_logged_after_the_next_command_stay_with_their_posture(tmp_path):
+    """The recorder's subscriptions are served in no causal order: on a loaded machine it may log
+    a posture's ``settled`` status and its last samples after the next command and that
+    command's ``moving`` status (seen in a live run: replay and gsp_reidentify then lost the
+    posture). They belong to the posture the calibrator collected them for."""
+    (pose1, q1, r1), (pose2, q2, r2) = _postures(2, np.random.default_rng(5))
+    path = tmp_path / 'late.mcap'
+    legs = {1: [q1 + j * 1e-7 for j in range(3)], 2: [q2 + j * 1e-7 for j in range(3)]}
+    readings = {1: [r1 + j * 1e-8 for j in range(3)], 2: [r2 + j * 1e-8 for j in range(3)]}
+    with recording.McapRecorder(path) as recorder:
+        first = write_command(recorder, T0, pose1, note=T0 + 10 * MS, posture=1)
+        # Posture 1 settled at 10 ms and its 3 samples, stamped from 11 ms, made the calibrator
+        # command posture 2 at 30 ms (moving at 31 ms); the recorder logs them from 32 ms.
+        second = write_command(recorder, T0 + 30 * MS, pose2, note=T0 + 60 * MS, posture=2)
+        recorder.write(
+            names.TOPIC_PLATFORM_STATUS,
+            conversions.make_status(first, names.STATE_SETTLED),
+            T0 + 32 * MS,
+        )
+        for j in range(3):
+            _write_sensors(
+                recorder, T0 + (11 + 5 * j) * MS, legs[1][j], readings[1][j], log_delay=25 * MS
+            )
+        recorder.write(
+            names.TOPIC_PLATFORM_STATUS,
+            conversions.make_status(second, names.STATE_SETTLED),
+            T0 + 60 * MS,
+        )
+        for j in range(3):
+            _write_sensors(recorder, T0 + (61 + 5 * j) * MS, legs[2][j], readings[2][j])
+    samples = rebuild.samples_from_recording(path, 0.0025, 3)
+    assert list(samples.posture) == [1, 2]
+    for row, k in enumerate((1, 2)):
+        np.testing.assert_allclose(
+            samples.leg_lengths[row], np.mean(legs[k], axis=0), rtol=0, atol=1e-15
+        )
+        np.testing.assert_allclose(
+            samples.readings[row], np.mean(readings[k], axis=0), rtol=0, atol=1e-15
+        )
 
 
 # --- RunRecorder ---------------------------------------------------------------------------------

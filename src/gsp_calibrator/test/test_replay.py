@@ -514,52 +514,106 @@ def _calibrator(context, output_root):
     return CalibratorNode(context=context, parameter_overrides=overrides)
 
 
-def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path):
+@pytest.fixture(scope='module')
+def original_run(tmp_path_factory):
+    """One live calibration through platform_sim, device_driver and the calibrator: its run
+    directory (``samples.csv``, ``recording.mcap``, ``result.json``), shared by the replays."""
     from gsp_device_driver.device_driver_node import DeviceDriverNode
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
-    fast = [Parameter('settle_time', value=0.02)]
-    live = Suite(
-        ros_context,
-        [
-            PlatformSimNode(
-                context=ros_context,
-                parameter_overrides=fast + [Parameter('publish_markers', value=False)],
-            ),
-            DeviceDriverNode(context=ros_context),
-            _calibrator(ros_context, tmp_path / 'live'),
-        ],
-    )
+    context = rclpy.Context()
+    rclpy.init(context=context)
     try:
-        original = live.calibrate()
+        live = Suite(
+            context,
+            [
+                PlatformSimNode(
+                    context=context,
+                    parameter_overrides=FAST + [Parameter('publish_markers', value=False)],
+                ),
+                DeviceDriverNode(context=context),
+                _calibrator(context, tmp_path_factory.mktemp('live')),
+            ],
+        )
+        try:
+            return live.calibrate()
+        finally:
+            live.close()
     finally:
-        live.close()
+        rclpy.try_shutdown(context=context)
 
-    replay = Suite(
-        ros_context,
-        [
-            ReplayNode(
-                context=ros_context,
-                parameter_overrides=fast + [Parameter('run', value=str(original.path))],
-            ),
-            _calibrator(ros_context, tmp_path / 'replay'),
-        ],
-    )
+
+FAST = [Parameter('settle_time', value=0.02)]
+
+
+def _replay(context, run, output_root):
+    """Replay ``run`` (a path) to a fresh calibrator: the replay node and the replayed run."""
+    node = ReplayNode(context=context, parameter_overrides=FAST + [Parameter('run', value=run)])
+    suite = Suite(context, [node, _calibrator(context, output_root)])
     try:
-        replayed = replay.calibrate()
+        return node, suite.calibrate()
     finally:
-        replay.close()
+        suite.close()
 
+
+def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path, original_run):
+    """From the run directory, i.e. its samples.csv: the averaged rows, republished as they are,
+    are averaged again into the same rows, so the calibration is the same by construction."""
+    node, replayed = _replay(ros_context, str(original_run.path), tmp_path / 'replay')
+    assert node.run.kind == SOURCE_SAMPLES
+    _assert_same_calibration(original_run, replayed)
+
+
+def _assert_same_calibration(original, replayed):
+    """The replayed run collected the original's rows and identified the original's geometry."""
     assert replayed.path != original.path
     before, after = original.read_samples(), replayed.read_samples()
     assert len(before) >= CALIBRATION['posture_count'] - 2
     np.testing.assert_array_equal(after.posture, before.posture)
+    np.testing.assert_array_equal(after.n_samples, before.n_samples)
     np.testing.assert_allclose(after.commanded_poses, before.commanded_poses, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(after.leg_lengths, before.leg_lengths, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(after.readings, before.readings, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(after.leg_lengths, before.leg_lengths, rtol=0, atol=1e-12)  # m
+    np.testing.assert_allclose(after.readings, before.readings, rtol=0, atol=1e-12)  # rad, m
     np.testing.assert_allclose(
-        original.read_geometry().to_vector(),
         replayed.read_geometry().to_vector(),
+        original.read_geometry().to_vector(),
         rtol=0,
-        atol=1e-9,
+        atol=1e-9,  # m and rad: far below any parameter's 1-sigma (um, urad)
     )
+
+
+def test_replay_from_the_recording_collects_the_original_raw_samples(
+    ros_context, tmp_path, original_run
+):
+    """From ``recording.mcap``: every posture's raw synchronised samples, one per instant, are
+    published again and collected again by a fresh calibrator.
+
+    By design this reproduces the original exactly, not merely within its standard deviations:
+    after ``settled`` the replay restarts the posture's stream at the first sample the original
+    calibrator counted (replay_node.RESTART_PERIODS), in recorded order, and the calibrator takes
+    the first ``samples_per_posture`` pairs, so it averages the very samples the original
+    averaged (measured: identical rows and geometry). A replay that collected other samples
+    (another window, a dropped or shifted sample, another pairing) would differ by the sensor
+    noise (1 um, 1 mdeg), far above the 1e-12 tolerances. What tells a replay of the raw samples
+    from a copy of the averaged rows is the scatter within each posture: the calibrator
+    estimates each sensor's noise from it (``noise_estimates``), and a stream that republishes
+    one averaged row per posture has none.
+    """
+    node, replayed = _replay(
+        ros_context, str(original_run.path / recording.RECORDING_FILE), tmp_path / 'replay'
+    )
+    assert node.run.kind == SOURCE_RECORDING
+    assert all(len(p.stream) >= CALIBRATION['samples_per_posture'] for p in node.run.postures)
+    _assert_same_calibration(original_run, replayed)
+
+    noise_before = original_run.read_json('result.json')['noise_estimates']
+    noise_after = replayed.read_json('result.json')['noise_estimates']
+    assert set(noise_after) == {'leg_lengths', 'inclinometer', 'encoder', 'lvdt'}
+    for sensor, entry in noise_before.items():
+        # The same samples, so the same scatter: about the configured 1 um or 1 mdeg.
+        assert entry['estimated'] > 0.1 * entry['configured'], (sensor, entry)
+        assert noise_after[sensor]['estimated'] == pytest.approx(entry['estimated'], rel=1e-9), (
+            sensor,
+            noise_after[sensor],
+            entry,
+        )

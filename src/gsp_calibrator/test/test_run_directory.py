@@ -1,6 +1,7 @@
 """Run directory: unique creation, atomic writes, samples.csv and result.yaml round trips."""
 
 import datetime
+import errno
 import json
 import os
 
@@ -143,13 +144,25 @@ def test_run_directory_files(tmp_path):
         run.file('../escape.txt')
 
 
-def test_atomic_write_leaves_no_temporary_file_and_keeps_the_old_file_on_error(tmp_path):
-    path = tmp_path / 'out.json'
+def test_atomic_write_leaves_no_temporary_file_and_keeps_the_old_file_on_error(small_disk):
+    directory = small_disk.path / 'run'
+    path = directory / 'out.json'
     atomic_write_text(path, json.dumps({'v': 1}))
-    with pytest.raises(TypeError):
-        RunDirectory(tmp_path).write_json('out.json', {'v': object()})
+    with pytest.raises(TypeError):  # not serialisable: nothing is written
+        RunDirectory(directory).write_json('out.json', {'v': object()})
+    small_disk.fill()
+    # A full disk: the kernel refuses the new content (more than the old file's page, so that
+    # a rewrite in place would be torn, not refused).
+    new = {'v': 2, 'text': 'x' * 2 * 4096}
+    with pytest.raises(OSError) as raised:
+        RunDirectory(directory).write_json('out.json', new)
+    assert raised.value.errno == errno.ENOSPC
     assert json.loads(path.read_text()) == {'v': 1}
-    assert [p.name for p in tmp_path.iterdir()] == ['out.json']
+    assert [p.name for p in directory.iterdir()] == ['out.json']
+    small_disk.free()
+    RunDirectory(directory).write_json('out.json', new)
+    assert json.loads(path.read_text()) == new
+    assert [p.name for p in directory.iterdir()] == ['out.json']
 
 
 def test_csv_text_uses_repr_floats():

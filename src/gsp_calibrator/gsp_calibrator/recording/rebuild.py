@@ -43,10 +43,12 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     (``extra_topics`` are read for it alone). Malformed messages are dropped, as the calibrator
     drops them.
 
-    A command takes effect at the first later sensor message stamped at or after it (or the
-    next status or command): the calibrator commands the next posture as soon as a row is
-    complete, and the recorder, a subscription of its own, may log the row's last samples after
-    that command; they still belong to the posture before it.
+    A command takes effect at the first later sensor message stamped at or after it (or its
+    ``settled`` or ``rejected`` status, or the next command): the calibrator commands the next
+    posture as soon as a row is complete, and the recorder, subscriptions of its own, may log
+    the row's last samples after that command and its ``moving`` status; they still belong to
+    the posture before it. So does the posture's own ``settled`` status when logged that late
+    (a loaded machine: the calibrator had collected from the start it noted).
     """
     from gsp_msgs_py import conversions
 
@@ -62,12 +64,19 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     )
     count = 0
     pending = None  # (number, pose, command_id, log time) of a command not yet in effect
+    moving = []  # (status, log time) of the pending command: fed once it takes effect
+
+    def status_now(status, log_time):
+        return collection.status(status, log_time, notes.get(status.command_id, (None, None))[1])
 
     def command_now():
         nonlocal pending
         if pending is None:
             return []
         events, pending = collection.command(*pending), None
+        for status, log_time in moving:
+            events += status_now(status, log_time)
+        moving.clear()
         return events
 
     messages = (m for part in paths for m in read_recording(part, topics=wanted))
@@ -94,10 +103,12 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
                 status = conversions.parse_status(msg)
             except ValueError:
                 continue
-            yield from command_now()
-            events = collection.status(
-                status, log_time, notes.get(status.command_id, (None, None))[1]
-            )
+            if pending is not None and status.command_id == pending[2]:
+                if not (status.settled or status.rejected):
+                    moving.append((status, log_time))
+                    continue
+                yield from command_now()
+            events = status_now(status, log_time)
         else:
             continue
         yield from events
