@@ -211,33 +211,9 @@ def write_result_json(run_dir, result, inputs=ReportInputs()):
 # --- report.md ---------------------------------------------------------------------------------
 
 
-def report_markdown(data, images, title='Calibration report'):
-    """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots."""
-    from gsp_calibrator.report import accuracy as report_accuracy
-
-    lines = [f'# {title}', '']
-    lines.append(
-        f'- status: {"converged" if data["converged"] else "NOT converged"} '
-        f'(status {data["status"]}: {data["message"]})'
-    )
-    lines.append(
-        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; '
-        f'free parameters: {len(data["free_parameters"])}; iterations: '
-        f'{data["iterations"]}; identification time: '
-        f'{_fmt((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
-    )
-    if data.get('excluded_postures'):
-        lines.append(f'- excluded postures (FK failed): {data["excluded_postures"]}')
-    identifiability = data.get('identifiability')
-    if identifiability:
-        lines.append(
-            f'- identifiability: rank {identifiability["rank"]} of '
-            f'{identifiability["parameters"]}, scaled condition number '
-            f'{_fmt(identifiability["condition_number"])}'
-        )
-        for entry in identifiability['unidentifiable']:
-            lines.append(f'  - not identifiable: `{entry["combination"]}`')
-    lines.append('')
+def _validation_lines(data, images):
+    """The ``## Validation`` section of ``report.md`` (none without a validation)."""
+    lines = []
     validation = data.get('validation') or {}
     if validation.get('before') or validation.get('after'):
         lines += [
@@ -258,6 +234,12 @@ def report_markdown(data, images, title='Calibration report'):
         lines.append('')
         if 'validation' in images:
             lines += [f'![validation errors before and after]({images["validation"]})', '']
+    return lines
+
+
+def _parameter_lines(data, images):
+    """The ``## Parameters`` section of ``report.md``: errors against the truth, or corrections."""
+    lines = []
     errors = data['parameter_errors']
     against_truth = errors['reference'] == 'truth'
     lines += ['## Parameters', '']
@@ -293,6 +275,38 @@ def report_markdown(data, images, title='Calibration report'):
             row.append(_fmt(errors['after'][name], 3))
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
+    return lines
+
+
+def report_markdown(data, images, title='Calibration report'):
+    """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots."""
+    from gsp_calibrator.report import accuracy as report_accuracy
+
+    lines = [f'# {title}', '']
+    lines.append(
+        f'- status: {"converged" if data["converged"] else "NOT converged"} '
+        f'(status {data["status"]}: {data["message"]})'
+    )
+    lines.append(
+        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; '
+        f'free parameters: {len(data["free_parameters"])}; iterations: '
+        f'{data["iterations"]}; identification time: '
+        f'{_fmt((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
+    )
+    if data.get('excluded_postures'):
+        lines.append(f'- excluded postures (FK failed): {data["excluded_postures"]}')
+    identifiability = data.get('identifiability')
+    if identifiability:
+        lines.append(
+            f'- identifiability: rank {identifiability["rank"]} of '
+            f'{identifiability["parameters"]}, scaled condition number '
+            f'{_fmt(identifiability["condition_number"])}'
+        )
+        for entry in identifiability['unidentifiable']:
+            lines.append(f'  - not identifiable: `{entry["combination"]}`')
+    lines.append('')
+    lines += _validation_lines(data, images)
+    lines += _parameter_lines(data, images)
     lines += fit_markdown(data)
     lines += [f'## Correlations above {data["correlation_threshold"]}', '']
     if data['correlations']:
