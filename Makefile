@@ -2,8 +2,9 @@
 #
 #   make venv    create/refresh .venv from requirements.txt (+ editable gsp_kinematics)
 #   make build   colcon build into install/
-#   make test    ruff check and format check, colcon test (every package), colcon test-result,
-#                pytest test/
+#   make test    ruff check and format check, the kernel variants (test-kernels), colcon test
+#                (every package), colcon test-result, pytest test/
+#   make test-kernels  the numeric packages' tests under other CPUs' BLAS and SIMD kernels
 #   make format  ruff format (the formatter owns line breaks and quotes) and ruff check --fix
 #   make demo    end-to-end calibration demo (gsp_demo; DEMO_ARGS=... passes arguments)
 #   make paper   paper reproduction (gsp_paper; ARGS=...)
@@ -34,7 +35,7 @@ endif
 # The wheels keep their ament resources in .venv/share.
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)$(if $(AMENT_PREFIX_PATH),:$(AMENT_PREFIX_PATH))
 
-.PHONY: venv build test format demo paper bench clean distclean
+.PHONY: venv build test test-kernels format demo paper bench clean distclean
 
 venv: $(VENV_STAMP)
 
@@ -61,10 +62,19 @@ test: build
 	$(VENV)/bin/ruff check --output-format concise $(RUFF_ARGS) .
 	$(VENV)/bin/ruff format --check . || \
 	  { echo "not formatted: run 'make format'" >&2; exit 1; }
+	$(TEST_KERNELS)
 	$(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
 	  --event-handlers console_direct+
 	$(COLCON) test-result --test-result-base build --verbose
 	$(ENV_SH) && python -m pytest test
+
+# OpenBLAS and numpy pick their kernels by CPU, and the kernels round differently: the numeric
+# packages' tests once more under forced OpenBLAS cores (SkylakeX, Haswell) and without numpy's
+# AVX-512 loops, each where this CPU can run it (scripts/test-kernels says which ran and why not).
+TEST_KERNELS = $(ENV_SH) && python scripts/test-kernels
+
+test-kernels: build
+	$(TEST_KERNELS)
 
 format: venv
 	$(VENV)/bin/ruff format .

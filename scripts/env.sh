@@ -60,8 +60,13 @@ export OPENBLAS_NUM_THREADS
 # A free domain, locked until this shell exits (a small holder process waits for it), so that
 # no concurrent run claims it; the shell's children share it (docs/faults.md, ROS domains).
 if [ -z "${ROS_DOMAIN_ID:-}" ]; then
+  # The owner is the shell that sources this file: in bash, $BASHPID is that (sub)shell, so
+  # `( . scripts/env.sh; cmd )` frees its domain when the subshell ends ($$ would be the parent
+  # shell, which may live for hours). Taken here: inside $(...) it would name the substitution.
+  _gsp_owner=${BASHPID:-$$}
   ROS_DOMAIN_ID=$("$GSP_WS/.venv/bin/python" \
-    "$GSP_WS/src/gsp_msgs_py/gsp_msgs_py/ros_environment.py" claim --owner $$) || ROS_DOMAIN_ID=''
+    "$GSP_WS/src/gsp_msgs_py/gsp_msgs_py/ros_environment.py" claim --owner "$_gsp_owner") || ROS_DOMAIN_ID=''
+  unset _gsp_owner
   if [ -z "$ROS_DOMAIN_ID" ]; then
     ROS_DOMAIN_ID=$(( $(od -An -N2 -tu2 /dev/urandom | tr -d ' ') % 101 + 1 ))
     echo "scripts/env.sh: no domain lock; ROS_DOMAIN_ID=$ROS_DOMAIN_ID drawn at random" >&2

@@ -2,13 +2,11 @@
 applies, validates, and leaves nothing running."""
 
 import json
-import os
 import re
 import shutil
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +14,7 @@ import pytest
 
 from gsp_calibrator.tools import demo
 from gsp_kinematics.geometry import load_geometry, parameter_errors
-from gsp_msgs_py.testing import wait_until
+from gsp_msgs_py.testing import marked_environment, marked_processes, wait_until
 
 DEMO_TIMEOUT_S = 300.0  # generous: the machine may be loaded (the target is < 60 s)
 #: Keys every summary.json has (the demo writes more: the run directory, the fit, ...).
@@ -34,24 +32,8 @@ def demo_command():
     return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
 
 
-def processes_with_marker(marker):
-    """PIDs of live processes whose environment holds ``GSP_E2E_MARKER=<marker>``."""
-    found = []
-    needle = f'GSP_E2E_MARKER={marker}'.encode()
-    for entry in Path('/proc').iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            if needle in (entry / 'environ').read_bytes().split(b'\0'):
-                found.append(int(entry.name))
-        except OSError:
-            continue
-    return found
-
-
 def test_main_job_calibrates_and_improves_accuracy(tmp_path):
-    marker = uuid.uuid4().hex
-    env = dict(os.environ, GSP_E2E_MARKER=marker)
+    env, marker = marked_environment()
     # The demo keeps this run's ROS_DOMAIN_ID (make test sets one): a domain the demo drew at
     # random (test_demo covers the draw) could be another concurrent run's.
     started = time.monotonic()
@@ -68,8 +50,8 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
 
     # No node is left behind.
     # (a child the demo stopped may take a moment to be reaped; the wait only bounds a failure)
-    wait_until(lambda: not processes_with_marker(marker), 30.0)
-    assert processes_with_marker(marker) == [], output
+    wait_until(lambda: not marked_processes(marker), 30.0)
+    assert marked_processes(marker) == [], output
 
     assert re.search(r'ROS_DOMAIN_ID=\d+ \(loopback only\)', output)
     assert '[done] 60/60' in output  # progress shown

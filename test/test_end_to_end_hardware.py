@@ -3,12 +3,13 @@ the emulated ros2_control controller, the device through gsp_fake_device on a pt
 serial backend. Calibrates, applies to the bridge, validates."""
 
 import json
-import os
 import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+from gsp_msgs_py.testing import marked_environment, marked_processes, wait_until
 
 DEMO_TIMEOUT_S = 400.0  # generous: bounds a failure only
 
@@ -16,7 +17,7 @@ DEMO_TIMEOUT_S = 400.0  # generous: bounds a failure only
 def test_main_job_through_ros2_control_and_the_serial_device(tmp_path):
     executable = shutil.which('gsp_demo')
     command = [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
-    env = dict(os.environ)
+    env, marker = marked_environment()
     env.pop('ROS_DOMAIN_ID', None)  # the demo chooses a private one
     completed = subprocess.run(
         command
@@ -39,11 +40,21 @@ def test_main_job_through_ros2_control_and_the_serial_device(tmp_path):
     )
     output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output
+    # Nothing the demo started is left (each node has a session of its own, so look for the
+    # environment they inherited; the wait only bounds a failure while they are reaped).
+    wait_until(lambda: not marked_processes(marker), 30.0)
+    assert marked_processes(marker) == [], output
     assert 'applied to /platform_bridge' in output
     run = Path(re.findall(r'^run directory: (.+)$', completed.stdout, re.MULTILINE)[-1])
     for name in ('platform_bridge.log', 'controller_sim.log', 'gsp_fake_device.log'):
         assert (run / name).is_file(), name
-    assert 'backend' in (run / 'device_driver.log').read_text()
+    # The readings came through the serial backend from the emulated device on its pty.
+    driver_log = (run / 'device_driver.log').read_text()
+    assert "device_driver ready: backend 'serial'" in driver_log, driver_log
+    assert re.search(r'serial device connected on \S+/gsp_device at \d+ baud', driver_log), (
+        driver_log
+    )
+    assert "backend 'sim'" not in driver_log
     summary = json.loads((run / 'summary.json').read_text())
     before, after = summary['validation']['before'], summary['validation']['after']
     assert after['position_mm_mean'] < 0.01 * before['position_mm_mean']

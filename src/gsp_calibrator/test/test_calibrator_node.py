@@ -19,11 +19,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.calibrator_node import (
-    GIL_SWITCH_INTERVAL_S,
-    CalibratorNode,
-    share_the_gil_promptly,
-)
+from gsp_calibrator import calibrator_node
+from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run.directory import RunDirectory
@@ -541,13 +538,26 @@ def test_bad_parameters_are_rejected_at_run_time(ros_context, tmp_path):
         node.destroy_node()
 
 
-def test_the_calibrator_process_hands_the_gil_over_promptly():
-    previous = share_the_gil_promptly()
+def test_the_calibrator_process_hands_the_gil_over_promptly(monkeypatch):
+    # main() sets the switch interval before the node spins (checked inside run_node, which is
+    # replaced here: the real one would take over this process's signals and rclpy's default
+    # context).
+    seen = {}
+
+    def run_node(make_node, args=None, executor=None, *, logger_name):
+        seen.update(interval=sys.getswitchinterval(), make_node=make_node, args=args)
+        return 0
+
+    monkeypatch.setattr(calibrator_node.node_tools, 'run_node', run_node)
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(0.005)  # Python's default
     try:
-        assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_INTERVAL_S)
-        assert GIL_SWITCH_INTERVAL_S < 0.005  # Python's default
+        assert calibrator_node.main(['--ros-args']) == 0
     finally:
         sys.setswitchinterval(previous)
+    assert seen['make_node'] is CalibratorNode and seen['args'] == ['--ros-args']
+    assert seen['interval'] == pytest.approx(GIL_SWITCH_INTERVAL_S)
+    assert GIL_SWITCH_INTERVAL_S < 0.005
 
 
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():

@@ -279,6 +279,7 @@ def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path)
         collector.add_encoder(j * 5 * MS + MS // 2, r[2])
         collector.add_lvdt(j * 5 * MS + MS // 2, r[3])
     expected = collector.take_posture()
+    # Bit-equal: the recording averages with the same collector code (same operations).
     np.testing.assert_array_equal(samples.leg_lengths[0], expected.leg_lengths)
     np.testing.assert_array_equal(samples.readings[0], expected.readings)
 

@@ -120,7 +120,15 @@ def test_result_json(tmp_path, calibrated):
     )
     assert data['parameter_errors']['reference'] == 'truth'
     assert data['max_param_error_mm'] < 0.5
-    assert isinstance(data['correlations'], list)
+    # The pairs above the threshold, from the covariance directly (this fit has some).
+    names = result.free_names
+    deviations = np.sqrt(np.diag(result.covariance))
+    matrix = result.covariance / np.outer(deviations, deviations)
+    rows, columns = np.triu_indices(len(names), k=1)
+    strong = np.abs(matrix[rows, columns]) > data['correlation_threshold']
+    expected = [(names[i], names[j]) for i, j in zip(rows[strong], columns[strong], strict=True)]
+    assert data['correlation_threshold'] == 0.9 and len(expected) >= 1
+    assert [(pair['a'], pair['b']) for pair in data['correlations']] == expected
     for pair in data['correlations']:
         assert abs(pair['correlation']) > 0.9
     predicted = data['predicted_accuracy']

@@ -8,8 +8,8 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 
 Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
-``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng`` and its own extra
-parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
+``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng``, ``stamp_clock``
+(the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
 ``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
 to the node is needed.
@@ -123,6 +123,12 @@ class SimDeviceBackend(DeviceBackend):
                     f'no device reading for true pose {pose.tolist()}: {error}'
                 ) from None
             self._exact, self._pose = exact, pose
+
+    def describe(self):
+        inclinometer, encoder, _, lvdt = self._stds
+        return (
+            f'noise std inclinometer {inclinometer:g} rad, encoder {encoder:g} rad, lvdt {lvdt:g} m'
+        )
 
     def read(self, now_s):
         if self._exact is None:

@@ -73,6 +73,10 @@ class DeviceBackend(abc.ABC):
         Default: none."""
         return []
 
+    def describe(self):
+        """One line for the node's start-up log: what the backend reads and how."""
+        return ''
+
     def observe_true_pose(self, pose):
         """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
 

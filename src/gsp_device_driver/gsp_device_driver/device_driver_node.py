@@ -73,6 +73,17 @@ def backend_parameters(backend_type):
     )
 
 
+def startup_line(values, seed, backend):
+    """The node's start-up log line: what it publishes, and what the backend reads (a serial
+    device has no simulated noise to report)."""
+    line = (
+        f"device_driver ready: backend '{values['backend']}', publishing at "
+        f'{values["publish_rate"]:g} Hz, seed {seed}'
+    )
+    described = backend.describe()
+    return f'{line}, {described}' if described else line
+
+
 class DeviceDriverNode(Node):
     """Device driver; ``**kwargs`` go to ``Node`` (``context=``, ``parameter_overrides=``)."""
 
@@ -96,6 +107,8 @@ class DeviceDriverNode(Node):
                 true_geometry_file=values['true_geometry_file'],
                 **{name: values[name] for name in NOISE_PARAMETERS},
                 rng=np.random.default_rng([seed, RNG_STREAM]),
+                # A backend receiving at its own pace stamps on this clock when a line arrives.
+                stamp_clock=self._now_s,
                 **extras,
             )
         except ValueError as error:  # BackendError, GeometryError
@@ -112,12 +125,11 @@ class DeviceDriverNode(Node):
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
         self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
-        self.get_logger().info(
-            f"device_driver ready: backend '{values['backend']}', publishing at "
-            f'{values["publish_rate"]:g} Hz, noise std inclinometer '
-            f'{values["inclinometer_noise_std"]:g} rad, encoder {values["encoder_noise_std"]:g} '
-            f'rad, lvdt {values["lvdt_noise_std"]:g} m, seed {seed}'
-        )
+        self.get_logger().info(startup_line(values, seed, self._backend))
+
+    def _now_s(self):
+        """The node's clock (s); thread-safe (read by a backend's reader thread)."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _check_noise_change(self, changes, current):
         """Run-time check: only a backend that simulates noise takes new noise levels."""

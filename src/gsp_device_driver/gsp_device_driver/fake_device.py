@@ -2,8 +2,8 @@
 
 :class:`FakeDevice` opens a pty pair, points the symlink ``link`` at its slave end (the "port" a
 driver opens, like a udev ``/dev/gsp_device`` rule) and writes the serial protocol to it from a
-thread: a hello line at connection and every second, then one reading line per ``1/rate_hz``
-from ``readings()`` (``[alpha, beta, phi, d_m]`` in SI, or None while there is nothing to
+thread: a hello line at connection, every ``hello_period_s`` and in answer to the host's hello
+request, then one reading line per ``1/rate_hz`` from ``readings()`` (``[alpha, beta, phi, d_m]`` in SI, or None while there is nothing to
 report). Faults: garbage lines and checksum errors (each replacing a reading line, with the
 given probabilities, counted in :attr:`counters`), :meth:`silence` and :meth:`disconnect`
 (closes the pty, as an unplugged USB device; a new one appears after the given time).
@@ -17,9 +17,10 @@ import tty
 
 import numpy as np
 
-from .serial_protocol import U32, Reading, format_hello, format_reading
+from .serial_protocol import U32, Reading, format_hello, format_reading, is_request
 
 HELLO_PERIOD_S = 1.0
+MAX_REQUEST_BYTES = 256  #: host input kept while looking for a request line
 PARTIAL_WAIT_S = 0.5  #: longest wait to complete a line the buffer took in part
 
 
@@ -37,6 +38,8 @@ class FakeDevice:
         checksum_error_fraction=0.0,
         device_id='gsp-fake-device',
         rng=None,
+        hello_period_s=HELLO_PERIOD_S,
+        record_sampling=False,
     ):
         self.link = str(link)
         self._readings = readings
@@ -46,13 +49,29 @@ class FakeDevice:
         self.garbage_fraction = float(garbage_fraction)
         self.checksum_error_fraction = float(checksum_error_fraction)
         self.device_id = device_id
+        self.hello_period_s = float(hello_period_s)  # 0: only at connection and on request
+        #: (sampling instant on time.monotonic (s), Reading) of each reading line sent, if asked
+        self.sampling_log = [] if record_sampling else None
+        self._host_input = b''
         self._rng = rng if rng is not None else np.random.default_rng()
         self._lock = threading.Lock()
         self.counters = dict.fromkeys(
-            ('readings', 'garbage', 'checksum_errors', 'hello', 'lost', 'connects'), 0
+            (
+                'readings',
+                'garbage',
+                'checksum_errors',
+                'hello',
+                'requests',
+                'lost',
+                'lost_hello',
+                'skipped',
+                'connects',
+            ),
+            0,
         )
         self.paused = False  # True: no reading lines (a test's pause to let the reader catch up)
         self._silent_until = 0.0
+        self._skip = 0
         self._unplugged_until = 0.0
         self._fds = None
         self._seq = 0
@@ -67,6 +86,12 @@ class FakeDevice:
         self._thread = threading.Thread(target=self._run, name='gsp-fake-device', daemon=True)
         self._thread.start()
         return self
+
+    def skip(self, count):
+        """Lose the next ``count`` reading lines on the way (their seq is used, nothing is sent),
+        as a noisy cable would."""
+        with self._lock:
+            self._skip += int(count)
 
     def silence(self, duration_s):
         """Send nothing for ``duration_s`` (the port stays open)."""
@@ -109,10 +134,30 @@ class FakeDevice:
         os.symlink(os.ttyname(slave), temporary)
         os.replace(temporary, self.link)
         self._fds = (master, slave)
+        self._host_input = b''
         self.counters['connects'] += 1
-        self._send(format_hello(self.device_id, self.angle_unit, self.length_unit, self.rate_hz))
-        self.counters['hello'] += 1
-        self._last_hello = time.monotonic()
+        self._send_hello(time.monotonic())
+
+    def _send_hello(self, now):
+        if self._send(
+            format_hello(self.device_id, self.angle_unit, self.length_unit, self.rate_hz),
+            lost='lost_hello',
+        ):
+            self.counters['hello'] += 1
+        self._last_hello = now
+
+    def _serve_requests(self, now):
+        """Answer each hello request the host wrote since the last tick with the hello line."""
+        try:
+            self._host_input += os.read(self._fds[0], 4096)
+        except OSError:  # BlockingIOError: nothing written; EIO: no reader opened the port
+            pass
+        *lines, self._host_input = self._host_input.split(b'\n')
+        self._host_input = self._host_input[-MAX_REQUEST_BYTES:]
+        requests = sum(is_request(line + b'\n') for line in lines)
+        if requests:
+            self.counters['requests'] += requests
+            self._send_hello(now)
 
     def _unplug(self):
         if self._fds is not None:
@@ -120,8 +165,9 @@ class FakeDevice:
                 os.close(fd)
             self._fds = None
 
-    def _send(self, data):
-        """Write one line. A line the full buffer cannot take at all is lost (counted), as on a
+    def _send(self, data, lost='lost'):
+        """Write one line. A line the full buffer cannot take at all is lost (counted under
+        ``lost``: reading lines, whose seq then shows a gap, apart from hello lines), as on a
         UART nobody reads; one it took in part is completed (waiting up to PARTIAL_WAIT_S), so
         that a reader never sees a torn line the emulator did not mean to send."""
         master = self._fds[0]
@@ -130,26 +176,27 @@ class FakeDevice:
         except OSError:  # BlockingIOError: buffer full; EIO: the reader side vanished
             written = 0
         if written == 0:
-            self.counters['lost'] += 1
+            self.counters[lost] += 1
             return False
         deadline = time.monotonic() + PARTIAL_WAIT_S
         while written < len(data):
             remaining = deadline - time.monotonic()
             if remaining <= 0 or not select.select([], [master], [], remaining)[1]:
-                self.counters['lost'] += 1
+                self.counters[lost] += 1
                 return False
             try:
                 written += os.write(master, data[written:])
             except BlockingIOError:
                 continue
             except OSError:
-                self.counters['lost'] += 1
+                self.counters[lost] += 1
                 return False
         return True
 
     # ------------------------------------------------------------------------- thread
 
     def _line(self, values, now):
+        """(line, counter key, Reading) of one reading instant."""
         reading = Reading(
             self._seq % U32, int((now - self._t0) * 1e6) % U32, *(float(v) for v in values)
         )
@@ -158,12 +205,12 @@ class FakeDevice:
         if draw < self.garbage_fraction:
             junk = self._rng.integers(0x21, 0x7F, size=int(self._rng.integers(1, 60)))
             junk[0] = ord('#')  # never the '$' of a protocol line
-            return bytes(junk.astype(np.uint8)) + b'\r\n', 'garbage'
+            return bytes(junk.astype(np.uint8)) + b'\r\n', 'garbage', reading
         line = format_reading(reading, self.angle_unit, self.length_unit)
         if draw < self.garbage_fraction + self.checksum_error_fraction:
             bad = (int(line[-4:-2], 16) ^ 0x5A) & 0xFF
-            return line[:-4] + f'{bad:02X}'.encode() + b'\r\n', 'checksum_errors'
-        return line, 'readings'
+            return line[:-4] + f'{bad:02X}'.encode() + b'\r\n', 'checksum_errors', reading
+        return line, 'readings', reading
 
     def _run(self):
         deadline = time.monotonic()
@@ -182,19 +229,20 @@ class FakeDevice:
                     continue
                 if now < self._silent_until:
                     continue
-                if now - self._last_hello >= HELLO_PERIOD_S:
-                    if self._send(
-                        format_hello(
-                            self.device_id, self.angle_unit, self.length_unit, self.rate_hz
-                        )
-                    ):
-                        self.counters['hello'] += 1
-                    self._last_hello = now
+                self._serve_requests(now)
+                if self.hello_period_s > 0 and now - self._last_hello >= self.hello_period_s:
+                    self._send_hello(now)
                 if self.paused:
                     continue
                 values = self._readings()
                 if values is None:
                     continue
-                line, kind = self._line(values, now)
+                line, kind, reading = self._line(values, now)
+                if self._skip > 0:
+                    self._skip -= 1
+                    self.counters['skipped'] += 1
+                    continue
                 if self._send(line):
                     self.counters[kind] += 1
+                    if self.sampling_log is not None and kind == 'readings':
+                        self.sampling_log.append((now, reading))

@@ -22,7 +22,7 @@ from gsp_msgs_py import message_checks, names, node_tools, qos
 
 from .backends import SimDeviceBackend
 from .device_driver_node import RNG_STREAM
-from .fake_device import FakeDevice
+from .fake_device import HELLO_PERIOD_S, FakeDevice
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS
 
 NODE_NAME = 'fake_device'
@@ -48,6 +48,12 @@ def parse_arguments(argv=None):
     add('--lvdt-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.lvdt, help='m')
     add('--angle-unit', default='rad', choices=tuple(ANGLE_UNITS))
     add('--length-unit', default='m', choices=tuple(LENGTH_UNITS))
+    add(
+        '--hello-period',
+        type=float,
+        default=HELLO_PERIOD_S,
+        help='s between hello lines (1; 0: only at connection and when the driver asks)',
+    )
     add('--garbage-fraction', type=float, default=0.0, help='share of garbage lines (0..1)')
     add('--checksum-error-fraction', type=float, default=0.0, help='share of bad checksums')
     add('--silence-every', type=float, default=0.0, help='a silence every S seconds (0: never)')
@@ -57,6 +63,8 @@ def parse_arguments(argv=None):
     args, ros_args = parser.parse_known_args(argv)
     if not args.rate > 0:
         parser.error('--rate must be > 0')
+    if not args.hello_period >= 0:
+        parser.error('--hello-period must be >= 0')
     for name in ('garbage_fraction', 'checksum_error_fraction'):
         if not 0.0 <= getattr(args, name) <= 1.0:
             parser.error(f'--{name.replace("_", "-")} must be in [0, 1]')
@@ -87,6 +95,7 @@ class FakeDeviceNode(Node):
             length_unit=args.length_unit,
             garbage_fraction=args.garbage_fraction,
             checksum_error_fraction=args.checksum_error_fraction,
+            hello_period_s=args.hello_period,
             rng=np.random.default_rng([seed, RNG_STREAM + 100]),
         ).start()
         self.create_subscription(

@@ -1,35 +1,33 @@
 """The measuring device's serial line protocol, version 1 (pure: no pyserial, no rclpy).
 
-One ASCII line per instant, NMEA-like, ended by ``\\r\\n`` (a bare ``\\n`` is accepted)::
+The grammar (ABNF) and the rules are in docs/hardware.md section 1; the test vectors in
+docs/serial_test_vectors.json. In short, one ASCII line per instant, NMEA-like::
 
-    $GSP,<seq>,<t_us>,<alpha>,<beta>,<phi>,<d>,<status>*<CC>
-    $GSPHELLO,<version>,<device_id>,<angle_unit>,<length_unit>,<rate_hz>*<CC>
+    $GSP,<seq>,<t_us>,<alpha>,<beta>,<phi>,<d>,<status>*<CC><CR><LF>
+    $GSPHELLO,<version>,<device_id>,<angle_unit>,<length_unit>,<rate_hz>*<CC><CR><LF>
 
-* ``seq``: line counter, decimal, 0..2**32-1, wraps; ``t_us``: device clock in microseconds,
-  decimal, 0..2**32-1, wraps (~71.6 min);
-* ``alpha``, ``beta`` (inclinometer), ``phi`` (encoder): decimal numbers in ``angle_unit``
-  (``rad``, ``mrad``, ``urad`` or ``deg``); ``d`` (LVDT): in ``length_unit`` (``m``, ``mm`` or
-  ``um``). Integers are fine (e.g. ``urad`` and ``um`` from fixed-point firmware);
-* ``status``: hexadecimal bit mask, 0 = all good (:data:`STATUS_BITS`); a non-zero line is
-  dropped;
-* ``CC``: two hex digits, the XOR of every byte between ``$`` and ``*`` (exclusive).
-
-The hello line is sent at connection (and may be repeated, e.g. once per second). Its
-``version`` must be :data:`PROTOCOL_VERSION`. Full text for firmware writers: docs/hardware.md.
+and one line from the host, the hello request ``$GSPQ,HELLO*<CC><CR><LF>``, that a device
+answers with its hello line. :func:`parse_line` accepts exactly what the grammar accepts.
 """
 
 import dataclasses
 import math
+import re
+
+import numpy as np
 
 PROTOCOL_VERSION = 1
 READING_TAG = 'GSP'
 HELLO_TAG = 'GSPHELLO'
-MAX_LINE_BYTES = 160  #: a longer line is garbage
+REQUEST_BODY = 'GSPQ,HELLO'  #: the host's hello request (body between '$' and '*')
+MAX_LINE_BYTES = 160  #: a longer line (counting '$' and the line end) is garbage
 U32 = 2**32
 
 #: Angle and length units: name -> factor to SI (rad, m).
 ANGLE_UNITS = {'rad': 1.0, 'mrad': 1e-3, 'urad': 1e-6, 'deg': math.pi / 180.0}
 LENGTH_UNITS = {'m': 1.0, 'mm': 1e-3, 'um': 1e-6}
+#: Decimal units divide by a power of ten: the correctly rounded SI value of the decimal text.
+_DIVISORS = {'mrad': 1e3, 'urad': 1e6, 'mm': 1e3, 'um': 1e6}
 
 #: Status bits of a reading line (a set bit means that sensor's value is not valid).
 STATUS_BITS = {
@@ -45,16 +43,33 @@ MAX_TILT_RAD = math.pi / 2
 MAX_PHI_RAD = 2 * math.pi
 LVDT_RANGE_M = (0.0, 10.0)
 
-#: Why a line is dropped (counter keys of the backend).
-DROP_REASONS = ('garbage', 'checksum', 'range', 'status', 'version', 'units')
+#: Why a line is dropped (counter keys of the backend). The first four come from one line
+#: (:func:`parse_line`); the last three from the stream's state (the hello rules).
+DROP_REASONS = ('garbage', 'checksum', 'range', 'status', 'no_hello', 'version', 'units')
+
+# The grammar's tokens (docs/hardware.md): ABNF rule -> regular expression.
+_UINT32 = r'[0-9]{1,10}'
+_NUMBER = r'-?[0-9]+(?:\.[0-9]+)?'
+_UNSIGNED = r'[0-9]+(?:\.[0-9]+)?'
+_STATUS = r'[0-9A-Fa-f]{1,8}'
+_FRAME = re.compile(r'\$([\x20-\x29\x2B-\x7E]*)\*([0-9A-Fa-f]{2})\r?\n')
+_READING = re.compile(
+    rf'GSP,({_UINT32}),({_UINT32}),({_NUMBER}),({_NUMBER}),({_NUMBER}),({_NUMBER}),({_STATUS})'
+)
+_HELLO = re.compile(
+    rf'GSPHELLO,([0-9]{{1,3}}),([A-Za-z0-9_.-]{{1,32}}),([A-Za-z]{{1,8}}),([A-Za-z]{{1,8}}),'
+    rf'({_UNSIGNED})'
+)
+_EMPTY = (b'\n', b'\r\n')
 
 
 class LineError(ValueError):
     """A line is not a valid protocol line; ``reason`` is one of :data:`DROP_REASONS`."""
 
-    def __init__(self, reason, message):
+    def __init__(self, reason, message, seq=None):
         super().__init__(message)
         self.reason = reason
+        self.seq = seq  # the line's seq when it could be read (a range or status drop)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,13 +86,25 @@ class Reading:
 
 @dataclasses.dataclass(frozen=True)
 class Hello:
-    """The hello line: protocol ``version``, ``device_id``, units, nominal ``rate_hz``."""
+    """The hello line: protocol ``version``, ``device_id``, units (as sent: maybe unknown to this
+    driver, see :attr:`units_known`), nominal ``rate_hz``."""
 
     version: int
     device_id: str
     angle_unit: str
     length_unit: str
     rate_hz: float
+
+    @property
+    def units_known(self):
+        return self.angle_unit in ANGLE_UNITS and self.length_unit in LENGTH_UNITS
+
+    def text(self):
+        """One-line summary for logs and /diagnostics."""
+        return (
+            f'{self.device_id} v{self.version} {self.angle_unit}/{self.length_unit} '
+            f'{self.rate_hz:g} Hz'
+        )
 
 
 def checksum(body):
@@ -93,11 +120,16 @@ def frame(body):
     return f'${body}*{checksum(body):02X}\r\n'.encode('ascii')
 
 
+#: The host's hello request line (bytes).
+REQUEST_LINE = frame(REQUEST_BODY)
+
+
 def format_number(value):
-    """A decimal text of ``value`` a microcontroller could print (no exponent for integers)."""
-    if isinstance(value, int):
-        return str(value)
-    return f'{value:.9g}'
+    """The grammar's ``number`` of ``value``: decimal, no exponent, the shortest text that reads
+    back as the same double (an int prints as is)."""
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    return np.format_float_positional(float(value), trim='-')
 
 
 def format_reading(reading, angle_unit='rad', length_unit='m', status=0):
@@ -117,91 +149,94 @@ def format_reading(reading, angle_unit='rad', length_unit='m', status=0):
 def format_hello(device_id, angle_unit='rad', length_unit='m', rate_hz=200.0):
     """The hello line (bytes)."""
     body = ','.join(
-        [HELLO_TAG, str(PROTOCOL_VERSION), device_id, angle_unit, length_unit, f'{rate_hz:g}']
+        [
+            HELLO_TAG,
+            str(PROTOCOL_VERSION),
+            device_id,
+            angle_unit,
+            length_unit,
+            format_number(float(rate_hz)),
+        ]
     )
     return frame(body)
 
 
+def is_request(line):
+    """Whether ``line`` (bytes, with its line end) is the host's hello request."""
+    return line in (REQUEST_LINE, REQUEST_LINE[:-2] + b'\n')
+
+
 def _unframe(line):
-    """The body of a framed line (bytes or str); LineError('garbage' or 'checksum')."""
-    if isinstance(line, bytes):
-        if len(line) > MAX_LINE_BYTES:
-            raise LineError('garbage', f'line longer than {MAX_LINE_BYTES} bytes')
-        try:
-            line = line.decode('ascii')
-        except UnicodeDecodeError:
-            raise LineError('garbage', 'line is not ASCII') from None
-    line = line.strip()
-    star = line.rfind('*')
-    if not line.startswith('$') or star < 0 or len(line) - star != 3:
-        raise LineError('garbage', f'not a $...*CC line: {line[:40]!r}')
-    body = line[1:star]
+    """The body of a framed line (bytes, with its line end); LineError('garbage' or 'checksum')."""
+    if len(line) > MAX_LINE_BYTES:
+        raise LineError('garbage', f'line longer than {MAX_LINE_BYTES} bytes ({len(line)})')
     try:
-        expected = int(line[star + 1 :], 16)
-    except ValueError:
-        raise LineError('garbage', f'checksum is not hex: {line[star + 1 :]!r}') from None
+        text = line.decode('ascii')
+    except UnicodeDecodeError:
+        raise LineError('garbage', 'line is not ASCII') from None
+    framed = _FRAME.fullmatch(text)
+    if framed is None:
+        raise LineError('garbage', f'not a $<body>*<CC><CR><LF> line: {text[:40]!r}')
+    body, expected = framed.group(1), int(framed.group(2), 16)
     if checksum(body) != expected:
         raise LineError('checksum', f'checksum {expected:02X} != computed {checksum(body):02X}')
     return body
 
 
-def _number(text, what):
-    try:
-        value = float(text)
-    except ValueError:
-        raise LineError('garbage', f'{what} is not a number: {text!r}') from None
-    if not math.isfinite(value):
-        raise LineError('range', f'{what} is not finite: {text!r}')
-    return value
+def _to_si(text, unit, units):
+    if unit in _DIVISORS:
+        return float(text) / _DIVISORS[unit]
+    return float(text) * units[unit]
 
 
 def _counter(text, what):
-    if not text.isdigit() or int(text) >= U32:
-        raise LineError('garbage', f'{what} is not an unsigned 32-bit decimal: {text!r}')
-    return int(text)
+    value = int(text)
+    if value >= U32:
+        raise LineError('garbage', f'{what} {value} is beyond 32 bits')
+    return value
 
 
 def parse_line(line, angle_unit='rad', length_unit='m'):
-    """A :class:`Reading` (SI) or :class:`Hello` of one line; :class:`LineError` otherwise.
+    """A :class:`Reading` (SI) or :class:`Hello` of one line (bytes or str, with its line end
+    ``\\r\\n`` or ``\\n``); None for an empty line; :class:`LineError` otherwise.
 
     ``angle_unit`` and ``length_unit`` are the units the reading lines are in.
     """
-    fields = _unframe(line).split(',')
-    if fields[0] == HELLO_TAG:
-        if len(fields) != 6:
-            raise LineError('garbage', f'hello line has {len(fields) - 1} fields, expected 5')
-        try:
-            version = int(fields[1])
-        except ValueError:
-            raise LineError('garbage', f'hello version is not an integer: {fields[1]!r}') from None
-        if fields[3] not in ANGLE_UNITS or fields[4] not in LENGTH_UNITS:
-            raise LineError('units', f'hello line names unknown units {fields[3:5]}')
-        return Hello(version, fields[2], fields[3], fields[4], _number(fields[5], 'rate'))
-    if fields[0] != READING_TAG:
-        raise LineError('garbage', f'unknown line tag {fields[0]!r}')
-    if len(fields) != 8:
-        raise LineError('garbage', f'reading line has {len(fields) - 1} fields, expected 7')
-    seq, t_us = _counter(fields[1], 'seq'), _counter(fields[2], 't_us')
-    try:
-        status = int(fields[7], 16)
-    except ValueError:
-        raise LineError('garbage', f'status is not hex: {fields[7]!r}') from None
+    if isinstance(line, str):
+        line = line.encode('latin-1')
+    if line in _EMPTY:
+        return None
+    body = _unframe(line)
+    if body.startswith(HELLO_TAG + ','):
+        hello = _HELLO.fullmatch(body)
+        if hello is None:
+            raise LineError('garbage', f'hello line does not follow the grammar: {body[:60]!r}')
+        version, device_id, angle, length, rate = hello.groups()
+        if float(rate) <= 0.0:
+            raise LineError('garbage', f'hello rate_hz must be > 0, got {rate}')
+        return Hello(int(version), device_id, angle, length, float(rate))
+    reading = _READING.fullmatch(body)
+    if reading is None:
+        raise LineError('garbage', f'not a reading or hello line: {body[:60]!r}')
+    seq_text, t_text, *values, status_text = reading.groups()
+    seq, t_us = _counter(seq_text, 'seq'), _counter(t_text, 't_us')
+    status = int(status_text, 16)
     if status:
         faults = [text for bit, text in STATUS_BITS.items() if status & bit] or ['unknown bit']
-        raise LineError('status', f'status 0x{status:X}: {", ".join(faults)}')
-    angle, length = ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit]
-    alpha, beta, phi = (
-        _number(text, name) * angle
-        for text, name in zip(fields[3:6], ('alpha', 'beta', 'phi'), strict=True)
-    )
-    d_m = _number(fields[6], 'd') * length
+        raise LineError('status', f'status 0x{status:X}: {", ".join(faults)}', seq)
+    alpha, beta, phi = (_to_si(text, angle_unit, ANGLE_UNITS) for text in values[:3])
+    d_m = _to_si(values[3], length_unit, LENGTH_UNITS)
     for name, value in (('alpha', alpha), ('beta', beta)):
         if abs(value) > MAX_TILT_RAD:
-            raise LineError('range', f'{name} {value:.6g} rad is beyond +-90 deg (wrong unit?)')
+            raise LineError(
+                'range', f'{name} {value:.6g} rad is beyond +-90 deg (wrong unit?)', seq
+            )
     if abs(phi) > MAX_PHI_RAD:
-        raise LineError('range', f'phi {phi:.6g} rad is beyond +-2 pi (wrong unit?)')
+        raise LineError('range', f'phi {phi:.6g} rad is beyond +-2 pi (wrong unit?)', seq)
     if not LVDT_RANGE_M[0] <= d_m <= LVDT_RANGE_M[1]:
-        raise LineError('range', f'd {d_m:.6g} m is outside {list(LVDT_RANGE_M)} m (wrong unit?)')
+        raise LineError(
+            'range', f'd {d_m:.6g} m is outside {list(LVDT_RANGE_M)} m (wrong unit?)', seq
+        )
     return Reading(seq, t_us, alpha, beta, phi, d_m)
 
 
@@ -230,6 +265,11 @@ class DeviceClock:
         self.max_gap_s = float(max_gap_s)
         self._last_stamp = None  # kept across reset(): host time only grows
         self.reset()
+
+    @property
+    def offset(self):
+        """Host time minus device time of the last stamp (s, before ``latency``), or None."""
+        return self._offset
 
     def reset(self):
         self._last_device_s = None

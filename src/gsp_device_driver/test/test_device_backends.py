@@ -121,3 +121,15 @@ def test_a_backend_without_simulated_noise_refuses_noise_changes():
     with pytest.raises(BackendError, match='no simulated noise'):
         backend.update_noise(lvdt_std=1e-6)
     backend.close()  # nothing to release
+
+
+def test_the_start_up_line_reports_noise_only_for_a_backend_that_simulates_it(tmp_path):
+    from gsp_device_driver.device_driver_node import startup_line
+    from gsp_device_driver.serial_backend import SerialDeviceBackend
+
+    values = {'backend': 'serial', 'publish_rate': 200.0}
+    serial = SerialDeviceBackend(str(tmp_path / 'absent'), angle_unit='urad', length_unit='um')
+    line = startup_line(values, 0, serial)
+    assert 'noise' not in line and 'urad/um' in line and str(tmp_path / 'absent') in line
+    sim = SimDeviceBackend(0.5, 1.0, inclinometer_std=1e-5)
+    assert 'noise std inclinometer 1e-05 rad' in startup_line(dict(values, backend='sim'), 0, sim)

@@ -1,13 +1,49 @@
-"""The serial line protocol: framing, checksum, units, range checks and the stamping rule."""
+"""The serial line protocol: framing, checksum, units, range checks and the stamping rule, and
+the spec's test vectors (docs/serial_test_vectors.json) through the parser and the backend."""
 
 import math
+import pathlib
 
 import numpy as np
 import pytest
 
+from gsp_device_driver import serial_check
 from gsp_device_driver import serial_protocol as sp
 
 READING = sp.Reading(7, 123456, 0.01, -0.02, 0.3, 0.25)
+#: The spec's test vectors, read where firmware writers find them (the repository's docs/).
+VECTORS_PATH = pathlib.Path(__file__).resolve().parents[3] / 'docs' / 'serial_test_vectors.json'
+VECTORS = serial_check.load_vectors(VECTORS_PATH)
+
+
+@pytest.mark.parametrize('case', VECTORS['lines'], ids=lambda case: case['name'])
+def test_each_line_vector_gives_its_outcome(case):
+    assert serial_check.line_mismatch(case) == ''
+
+
+@pytest.mark.parametrize('case', VECTORS['sequences'], ids=lambda case: case['name'])
+def test_each_sequence_vector_publishes_drops_and_counts_as_specified(case):
+    assert serial_check.sequence_mismatch(case) == ''
+
+
+def test_the_vectors_request_line_is_the_drivers():
+    assert serial_check.line_bytes(VECTORS['request_line']) == sp.REQUEST_LINE
+    assert sp.is_request(sp.REQUEST_LINE) and VECTORS['protocol_version'] == sp.PROTOCOL_VERSION
+
+
+def test_the_vector_check_reports_a_driver_that_disagrees(tmp_path):
+    # A vector whose expectation is wrong must be reported: the check is not vacuous.
+    wrong = dict(VECTORS['lines'][0], reading=dict(VECTORS['lines'][0]['reading'], d_m=0.3))
+    assert 'd_m' in serial_check.line_mismatch(wrong)
+    sequence = VECTORS['sequences'][0]
+    # Without its two readings before the hello, nothing is dropped for want of a hello.
+    without = dict(sequence, lines=sequence['lines'][2:])
+    assert "expected {'no_hello': 2}" in serial_check.sequence_mismatch(without)
+
+
+def test_the_request_is_sent_when_the_port_opens():
+    _, _, port = serial_check.read_through_backend(b'', 'rad', 'm')
+    assert port.written[0] == sp.REQUEST_LINE
 
 
 @pytest.mark.parametrize('angle_unit', list(sp.ANGLE_UNITS))
@@ -23,7 +59,7 @@ def test_a_formatted_reading_parses_back_in_every_unit(angle_unit, length_unit):
 
 def test_the_checksum_is_the_xor_of_the_body_like_nmea():
     # Worked example of docs/hardware.md.
-    line = b'$GSP,0,0,0,0,0,0.25,0*' + f'{sp.checksum("GSP,0,0,0,0,0,0.25,0"):02X}'.encode()
+    line = b'$GSP,0,0,0,0,0,0.25,0*' + f'{sp.checksum("GSP,0,0,0,0,0,0.25,0"):02X}\r\n'.encode()
     assert sp.parse_line(line).d_m == 0.25
     assert sp.checksum('GSP') == ord('G') ^ ord('S') ^ ord('P')
 
@@ -46,13 +82,13 @@ def _body_line(body):
         (_body_line('GSP,1,2,0,0,0,0.2'), 'garbage'),  # a field missing
         (_body_line('GSP,x,2,0,0,0,0.2,0'), 'garbage'),
         (_body_line('GSP,1,2,zero,0,0,0.2,0'), 'garbage'),
-        (_body_line('GSP,1,2,nan,0,0,0.2,0'), 'range'),
+        (_body_line('GSP,1,2,nan,0,0,0.2,0'), 'garbage'),  # not a number of the grammar
         (_body_line('GSP,1,2,0,0,0,0.2,4'), 'status'),
         (_body_line('GSP,1,2,0,2.0,0,0.2,0'), 'range'),  # beta 2 rad: degrees?
         (_body_line('GSP,1,2,0,0,7,0.2,0'), 'range'),
         (_body_line('GSP,1,2,0,0,0,250,0'), 'range'),  # 250 m: millimetres?
         (_body_line('NMEA,1,2'), 'garbage'),
-        (_body_line('GSPHELLO,1,dev,furlong,m,200'), 'units'),
+        (_body_line('GSPHELLO,1,dev,rad,m,2e2'), 'garbage'),
         (b'$' + b'1' * 200 + b'*00\r\n', 'garbage'),
     ],
 )
@@ -65,6 +101,18 @@ def test_bad_lines_raise_with_their_reason(line, reason):
 def test_status_names_the_faulty_sensor():
     with pytest.raises(sp.LineError, match='LVDT fault'):
         sp.parse_line(_body_line('GSP,1,2,0,0,0,0.2,4'))
+
+
+def test_an_unknown_unit_in_a_hello_is_reported_not_refused_by_the_parser():
+    # The backend decides (drops the readings, counted as 'units'): the parser keeps what it said.
+    hello = sp.parse_line(_body_line('GSPHELLO,1,dev,furlong,m,200'))
+    assert hello.angle_unit == 'furlong' and not hello.units_known
+
+
+@pytest.mark.parametrize('value', [1e-5, -3.25e-7, 123456.789, 0.1, 2.0**-30])
+def test_format_number_prints_no_exponent_and_reads_back_exactly(value):
+    text = sp.format_number(value)
+    assert 'e' not in text.lower() and float(text) == value
 
 
 def test_degrees_are_converted_to_radians():

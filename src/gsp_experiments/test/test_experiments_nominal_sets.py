@@ -1,4 +1,4 @@
-"""The nominal sets match Tables 1 and 2, and the core's test fixtures are exactly these sets."""
+"""The nominal sets match Tables 1 and 2, and the core's test fixtures are these sets."""
 
 import math
 from pathlib import Path
@@ -36,5 +36,10 @@ def test_the_core_test_fixtures_are_the_paper_geometries(exact, nominal_sets):
     }
     for name, geometry in expected.items():
         fixture = load_geometry(CORE_FIXTURES / f'{name}.yaml')
-        np.testing.assert_array_equal(fixture.to_vector(), geometry.to_vector(), err_msg=name)
-        assert fixture.limits == geometry.limits, name
+        # The sets come from a least-squares fit and numpy's SIMD loops, whose BLAS/LAPACK and
+        # SIMD kernels round differently per CPU (up to ~5e-16 m): the fixtures hold the sets
+        # within 1e-12 m (rad for gamma), far below any figure of the paper.
+        np.testing.assert_allclose(
+            fixture.to_vector(), geometry.to_vector(), rtol=0, atol=1e-12, err_msg=name
+        )
+        assert fixture.limits == geometry.limits, name  # constants, not computed

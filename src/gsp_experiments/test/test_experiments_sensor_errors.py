@@ -28,12 +28,17 @@ def test_model_figure_is_variance_not_bias(design):
     assert model['sensor_error_bias_mm_max'] < 0.05 * model['extended_validation_mm']
     # The excess over the 44 is the variance of the freed parameters: Cramer-Rao predicts it,
     # and predicts the measured mean errors (20 seeds scatter the means by about 7%).
-    for ratio in model['measured_over_predicted'].values():
+    ratios = model['measured_over_predicted']
+    assert set(ratios) == {'extended', 'ideal_sensors_paper'}
+    for ratio in ratios.values():
         assert 0.75 < ratio < 1.25
     costs = model['predicted_over_paper']
     assert 1.0 < costs['kq1_to_kq6'] < costs['extended']
     assert 1.0 < costs['alpha0'] < costs['extended']
     assert costs['extended_on_postures_selected_for_validation'] < costs['extended']
+    # The measured excess over the ideal 44 (ratio of medians over the seeds, its bootstrap 90 %
+    # interval) is real, and its interval covers what Cramer-Rao predicts from the covariances
+    # alone, without a noise draw (docs/sensor_errors.md).
     low, high = model['extended_over_ideal_bootstrap_p5_p95']
-    assert low <= model['extended_over_ideal'] <= high
+    assert 1.0 < low <= model['predicted_extended_over_ideal'] <= high
     assert model['paper_p_value_max'] < 0.01 and model['paper_over_extended'] > 5.0

@@ -6,6 +6,7 @@ context, and re-export the :func:`ros_context` fixture. In-process node tests su
 lazily, so importing this module does not load ROS.
 """
 
+import itertools
 import time
 
 import pytest
@@ -28,16 +29,72 @@ def wait_until(predicate, timeout):
     return True
 
 
-def off_grid(stamps_ns, period_ns):
-    """How far (in periods, 0 to 0.5) the steps between consecutive ``stamps_ns`` lie from whole
-    periods of ``period_ns``, at worst; 0.0 for stamps of a timer's scheduled ticks (see
-    :func:`gsp_msgs_py.node_tools.scheduled_tick_ns`). Repeated stamps count as off the grid."""
-    stamps = sorted(int(s) for s in stamps_ns)
-    worst = 0.0
-    for first, later in zip(stamps, stamps[1:], strict=False):
-        steps = (later - first) / period_ns
-        worst = max(worst, abs(steps - round(steps)) if steps >= 0.5 else 0.5)
-    return worst
+def grid_offsets(stamps_ns, period_ns):
+    """The distinct offsets (integer ns, 0 to ``period_ns - 1``) of ``stamps_ns`` from whole
+    periods of ``period_ns``: a single one for stamps on one timer's grid of scheduled ticks
+    (see :func:`gsp_msgs_py.node_tools.scheduled_tick_ns`), exactly, under a simulated clock."""
+    return {int(stamp) % int(period_ns) for stamp in stamps_ns}
+
+
+#: Step (ns) by which :func:`drive_sim_clock` advances ``/clock``: a whole number of ns, no divisor
+#: of the tests' timer periods (10 to 100 ms), so the instants at which a timer's callback runs
+#: fall off its grid, by a different offset each time (37.3 ms steps repeat a 50 ms phase only
+#: after 500 steps).
+SIM_CLOCK_STEP_NS = 37_300_000
+
+
+def drive_sim_clock(node, step_ns=SIM_CLOCK_STEP_NS, every_s=0.01):
+    """Publish ``/clock`` from ``node`` every ``every_s`` s of ``node``'s own clock, advancing by
+    ``step_ns`` each time from ``step_ns``: the clock of a node with ``use_sim_time`` then reads
+    only these instants, and does not move between two reads in one callback. Returns the
+    timer (destroyed with ``node``)."""
+    from rosgraph_msgs.msg import Clock
+
+    publisher = node.create_publisher(Clock, '/clock', 10)
+    steps = itertools.count(1)
+
+    def tick():
+        nanoseconds = next(steps) * int(step_ns)
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(nanoseconds, 1_000_000_000)
+        publisher.publish(msg)
+
+    return node.create_timer(every_s, tick)
+
+
+#: Environment variable that marks the processes a test starts; their children inherit it,
+#: whatever session or process group they start (see :func:`marked_processes`).
+PROCESS_MARKER_VARIABLE = 'GSP_TEST_MARKER'
+
+
+def marked_environment(env=None):
+    """``(environment, marker)``: ``env`` (default ``os.environ``) plus a fresh
+    :data:`PROCESS_MARKER_VARIABLE` for the processes a test starts."""
+    import os
+    import uuid
+
+    marker = uuid.uuid4().hex
+    return {**(os.environ if env is None else env), PROCESS_MARKER_VARIABLE: marker}, marker
+
+
+def marked_processes(marker):
+    """PIDs of the live processes (this one aside) whose environment holds ``marker`` (from
+    :func:`marked_environment`): what a test started and has not ended, with every descendant.
+    Linux (``/proc``); a zombie has no environment left, so it does not count."""
+    import os
+    from pathlib import Path
+
+    needle = f'{PROCESS_MARKER_VARIABLE}={marker}'.encode()
+    found = []
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if needle in (entry / 'environ').read_bytes().split(b'\0'):
+                found.append(int(entry.name))
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+    return found
 
 
 class SpinThread:
@@ -95,7 +152,8 @@ class NodeHarness:
     """A node under test and a test node (:attr:`node`), spun together by one executor.
 
     ``timeout`` (s) bounds every :meth:`spin_until`; generous, since the machine may be loaded,
-    and waits end as soon as their predicate holds.
+    and waits end as soon as their predicate holds. A node under test with ``use_sim_time``
+    gets its ``/clock`` from the test node (:func:`drive_sim_clock`).
     """
 
     def __init__(self, context, node_under_test, test_node_name, timeout=10.0):
@@ -108,6 +166,8 @@ class NodeHarness:
         self._under_test = node_under_test
         self.executor.add_node(node_under_test)
         self.executor.add_node(self.node)
+        if node_under_test.get_parameter('use_sim_time').value:
+            drive_sim_clock(self.node)
 
     def subscribe(self, topic, callback):
         """Subscribe the test node to ``topic`` with its interface type and QoS."""

@@ -25,7 +25,7 @@ from gsp_msgs_py.node_tools import (
     timer_tick_time,
     watch_parameters,
 )
-from gsp_msgs_py.testing import off_grid
+from gsp_msgs_py.testing import SIM_CLOCK_STEP_NS, drive_sim_clock, grid_offsets
 
 SPECS = (
     ParameterSpec(
@@ -164,29 +164,44 @@ def test_scheduled_tick_is_the_timer_grid_instant_before_its_next_call():
     assert scheduled_tick_ns(period, None, 1_007_300_000) == 1_007_300_000
     assert scheduled_tick_ns(0, 2_700_000, 1_007_300_000) == 1_007_300_000
     assert scheduled_tick_ns(period, 9_000_000, 1_007_300_000) == 1_007_300_000  # ahead of now
-    # The tests' measure of it: steps of whole periods (gaps allowed), repeats not.
-    assert off_grid([0, period, 3 * period, 4 * period], period) == 0.0
-    assert off_grid([0, period, 2 * period + 1_000_000], period) == pytest.approx(0.2)
-    assert off_grid([0, period + 1_000_000], period) == pytest.approx(0.2)
-    assert off_grid([0, period, period], period) == 0.5
+    # The tests' measure of it: the offsets from whole periods, exact integer ns.
+    assert grid_offsets([0, period, 3 * period, 4 * period], period) == {0}
+    assert grid_offsets([7, period + 7, 3 * period + 7], period) == {7}
+    assert grid_offsets([0, period, 2 * period + 1], period) == {0, 1}
 
 
-def test_timer_tick_time_stamps_a_timer_callback_on_its_grid(ros_context):
-    node = rclpy.create_node('node_tools_tick_test', context=ros_context)
+def test_timer_tick_time_stamps_a_timer_callback_exactly_on_its_grid(ros_context):
+    # Under a simulated clock that jumps by steps off the timer's grid, the callbacks run at
+    # instants off the grid (by a different offset each time) and the clock does not move
+    # between the reads in one callback: the ticks are exactly on the grid, to the ns, whatever
+    # the machine's load. The callback's own clock reading would not be.
+    node = rclpy.create_node(
+        'node_tools_tick_test',
+        context=ros_context,
+        parameter_overrides=[Parameter('use_sim_time', value=True)],
+    )
+    clock_node = rclpy.create_node('node_tools_tick_clock', context=ros_context)
     executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
+    executor.add_node(clock_node)
     ticks = []
     try:
         timer = node.create_timer(
             0.1, lambda: ticks.append((timer_tick_time(node, timer), node.get_clock().now()))
         )
-        assert spin_until(executor, lambda: len(ticks) >= 4, timeout=30.0)
+        drive_sim_clock(clock_node)
+        assert spin_until(executor, lambda: len(ticks) >= 6, timeout=30.0)
         period = timer.timer_period_ns
+        nows = [now.nanoseconds for _, now in ticks]
+        stamps = [tick.nanoseconds for tick, _ in ticks]
+        # The callbacks ran at the simulated instants, off the grid.
+        assert all(now % SIM_CLOCK_STEP_NS == 0 for now in nows), nows
+        assert len(grid_offsets(nows, period)) > 1, nows
         for tick, now in ticks:
-            assert tick.clock_type == now.clock_type and tick.nanoseconds <= now.nanoseconds
-        # On the grid up to the few us between two clock reads in the callback (the callback's
-        # own delay, whatever it is, does not show).
-        assert off_grid([tick.nanoseconds for tick, _ in ticks], period) < 0.25
+            assert tick.clock_type == now.clock_type
+            assert now.nanoseconds - period < tick.nanoseconds <= now.nanoseconds
+        assert len(set(stamps)) == len(stamps) and len(grid_offsets(stamps, period)) == 1, stamps
     finally:
         executor.shutdown()
+        clock_node.destroy_node()
         node.destroy_node()

@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.geometry import (
+    default_geometry,
+    geometry_from_parameters,
+    geometry_to_parameters,
+)
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
 from gsp_msgs_py import conversions, names, testing
 from gsp_platform_bridge.platform_bridge_node import PlatformBridgeNode
@@ -133,10 +137,23 @@ def test_a_goal_not_reached_in_time_is_rejected(harness):
 
 
 def test_the_bridge_takes_a_calibrated_geometry_like_platform_sim(harness):
-    offsets = list(TRUE.leg_offsets)
-    result = harness.bridge.set_parameters([Parameter('geometry.leg_offsets', value=offsets)])[0]
-    assert result.successful
+    # The calibrator's apply_result sets the whole geometry.* set at once. The true geometry
+    # stands for a calibrated one: it moves the legs at POSE by up to 4 mm from the nominal
+    # model's, far outside the 10 um tolerance, so a geometry accepted but not applied fails.
+    sent = geometry_to_parameters(TRUE)
+    result = harness.bridge.set_parameters_atomically(
+        [Parameter(name, value=value) for name, value in sent.items()]
+    )
+    assert result.successful, result.reason
+    # The expectation comes from the geometry sent, independently of the bridge's state.
+    calibrated = geometry_from_parameters(sent)
+    target = calibrated.sensors.leg_readings(inverse_kinematics(calibrated, POSE[None]))[0]
+    nominal = NOMINAL.sensors.leg_readings(inverse_kinematics(NOMINAL, POSE[None]))[0]
+    assert np.max(np.abs(target - nominal)) > 1e-3
     assert harness.spin_until(lambda: len(harness.legs) > 0)
     assert harness.command(POSE).state == names.STATE_SETTLED
-    target = inverse_kinematics(harness.bridge._geometry, POSE[None])[0]
-    np.testing.assert_allclose(harness.bridge._monitor.positions, target, atol=1e-5)
+    harness.legs.clear()
+    assert harness.spin_until(lambda: len(harness.legs) >= 3)
+    np.testing.assert_allclose(
+        conversions.msg_to_leg_lengths(harness.legs[-1]), target, rtol=0, atol=1e-5
+    )

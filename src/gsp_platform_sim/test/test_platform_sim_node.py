@@ -1,5 +1,6 @@
 """In-process tests of the platform_sim node: a test node commands poses and listens."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -7,7 +8,12 @@ import pytest
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from rclpy.parameter import Parameter
 
-from gsp_kinematics.geometry import default_geometry, geometry_to_parameters
+from gsp_kinematics.geometry import (
+    Limits,
+    SensorErrors,
+    default_geometry,
+    geometry_to_parameters,
+)
 from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
 from gsp_msgs_py import conversions, names, testing
 from gsp_msgs_py.node_tools import ConfigurationError
@@ -115,14 +121,21 @@ def test_command_moves_then_settles_and_streams_the_new_posture(harness):
     assert harness.spin_until(lambda: len(common_stamps()) >= 5)
 
 
-@pytest.mark.parametrize('harness', [[Parameter('publish_rate', value=20.0)]], indirect=True)
-def test_leg_lengths_are_stamped_at_the_timer_ticks(harness):
-    # As a sensor sampling on its own clock: the stamps are the publish timer's scheduled ticks
-    # (a whole number of periods apart), not the callback's delayed clock readings.
+@pytest.mark.parametrize(
+    'harness',
+    [[Parameter('publish_rate', value=20.0), Parameter('use_sim_time', value=True)]],
+    indirect=True,
+)
+def test_leg_lengths_are_stamped_exactly_at_the_timer_ticks(harness):
+    # As a sensor sampling on its own clock: the stamps are the publish timer's scheduled ticks,
+    # not the callback's clock readings. Under the simulated clock (steps off the 50 ms grid,
+    # still between the reads of one callback), the ticks are on one grid to the ns, and the
+    # instants the callbacks ran at are not.
     harness.leg_lengths.clear()
     assert harness.spin_until(lambda: len(harness.leg_lengths) >= 6)
     stamps = [conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths]
-    assert testing.off_grid(stamps, 50_000_000) < 0.25
+    assert len(set(stamps)) == len(stamps), stamps
+    assert len(testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
 
 
 @pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.0)]], indirect=True)
@@ -209,10 +222,31 @@ def test_bad_parameter_values_are_rejected_with_a_reason(harness):
 
 
 def _calibrated_geometry():
+    """A geometry off nominal in every group of the geometry.* parameters."""
     return NOMINAL.replace(
-        leg_offsets=NOMINAL.leg_offsets + [0.002, -0.001, 0.0, 0.001, 0.0, 0.003],
-        base_joints=NOMINAL.base_joints + 0.001,
+        base_joints=NOMINAL.base_joints + np.linspace(-1e-3, 1e-3, 18).reshape(6, 3),
+        platform_joints=NOMINAL.platform_joints + np.linspace(1e-3, -1e-3, 18).reshape(6, 3),
+        leg_offsets=NOMINAL.leg_offsets + [0.002, -0.001, 0.0005, 0.001, -0.0015, 0.003],
+        device_length=NOMINAL.device_length + 0.002,
+        inclinometer_axes_angle=NOMINAL.inclinometer_axes_angle + 0.01,
+        limits=Limits(
+            leg_stroke_min=0.01,
+            leg_stroke_max=1.1,
+            base_joint_max_angle=math.radians(64.0),
+            platform_joint_max_angle=math.radians(74.0),
+        ),
+        sensors=SensorErrors(
+            leg_gain_errors=[1e-3, -2e-3, 1.5e-3, -1e-3, 2e-3, -1.5e-3],
+            inclinometer_offsets=[1e-3, -1e-3],
+            encoder_offset=2e-3,
+            lvdt_gain_error=-1e-3,
+        ),
     )
+
+
+def _legs(geometry, pose):
+    """Leg sensor readings (6,) the controller drives to for ``pose`` (m)."""
+    return geometry.sensors.leg_readings(inverse_kinematics(geometry, pose[None]))[0]
 
 
 @pytest.mark.parametrize('service', ['set_parameters', 'set_parameters_atomically'])
@@ -220,27 +254,40 @@ def test_controller_geometry_applied_through_the_parameter_service(harness, serv
     command_id = harness.command(POSE)
     harness.wait_final(command_id)
     calibrated = _calibrated_geometry()
-    parameters = [
-        Parameter(name, value=value).to_parameter_msg()
-        for name, value in geometry_to_parameters(calibrated).items()
-    ]
+    sent = geometry_to_parameters(calibrated)
+    nominal = geometry_to_parameters(NOMINAL)
+    assert all(not np.array_equal(sent[name], nominal[name]) for name in sent), 'a group nominal'
+    q_new = _legs(calibrated, POSE)
+    # Each group the leg lengths depend on moves them by far more than the 10 um tolerance on its
+    # own, so the published legs miss any one of them (the other groups: the node's geometry).
+    for group in ('base_joints', 'platform_joints', 'leg_offsets'):
+        without = calibrated.replace(**{group: getattr(NOMINAL, group)})
+        assert np.max(np.abs(_legs(without, POSE) - q_new)) > 1e-4, group
+    without_gains = calibrated.replace(
+        sensors=dataclasses.replace(calibrated.sensors, leg_gain_errors=np.zeros(6))
+    )
+    assert np.max(np.abs(_legs(without_gains, POSE) - q_new)) > 1e-4
+
+    parameters = [Parameter(name, value=value).to_parameter_msg() for name, value in sent.items()]
     service_type = SetParameters if service == 'set_parameters' else SetParametersAtomically
     client = harness.node.create_client(service_type, f'/{names.NODE_PLATFORM_SIM}/{service}')
     response = harness.call(client, service_type.Request(parameters=parameters))
     results = response.results if service == 'set_parameters' else [response.result]
     assert all(r.successful for r in results), [r.reason for r in results]
-    np.testing.assert_array_equal(
-        harness.sim.get_parameter('geometry.leg_offsets').value, calibrated.leg_offsets
-    )
+
+    # Every group reached the controller model, compared with the geometry sent (1e-12 in the
+    # parameters' own units: m, rad, 1).
+    applied = geometry_to_parameters(harness.sim._simulator.controller_geometry)
+    for name, value in sent.items():
+        np.testing.assert_allclose(applied[name], value, rtol=0, atol=1e-12, err_msg=name)
 
     # The legs hold until the next command, which uses the new geometry.
-    q_old = inverse_kinematics(NOMINAL, POSE[None])[0]
+    q_old = _legs(NOMINAL, POSE)
     np.testing.assert_allclose(harness.leg_lengths_after(1)[0], q_old, atol=1e-5)
     command_id = harness.command(POSE)
     assert harness.wait_final(command_id)[-1].settled
-    q_new = inverse_kinematics(calibrated, POSE[None])[0]
     assert np.max(np.abs(q_new - q_old)) > 1e-3
-    np.testing.assert_allclose(harness.leg_lengths_after(3)[-1], q_new, atol=1e-5)
+    np.testing.assert_allclose(harness.leg_lengths_after(3)[-1], q_new, rtol=0, atol=1e-5)
 
 
 def test_invalid_geometry_through_the_service_is_rejected(harness):

@@ -1,0 +1,45 @@
+"""scripts/test-kernels runs only the kernel variants this CPU can execute, and says why not."""
+
+import importlib.machinery
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+WS = Path(__file__).resolve().parents[1]
+SCRIPT = WS / 'scripts' / 'test-kernels'
+
+
+@pytest.fixture(scope='module')
+def kernels():
+    loader = importlib.machinery.SourceFileLoader('test_kernels', str(SCRIPT))
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
+    loader.exec_module(module)
+    return module
+
+
+def test_a_core_the_cpu_cannot_execute_is_skipped_with_the_missing_flags(kernels):
+    settings, reason = kernels.openblas_variant('SkylakeX', {'sse2', 'avx', 'avx2', 'fma'})
+    assert settings is None
+    assert 'avx512f avx512cd avx512bw avx512dq avx512vl' in reason and 'SIGILL' in reason
+    settings, reason = kernels.openblas_variant('Haswell', set())
+    assert settings is None and '/proc/cpuinfo' in reason
+
+
+@pytest.mark.parametrize('core', ['SkylakeX', 'Haswell'])
+def test_a_core_the_cpu_executes_is_forced_and_checked(kernels, core):
+    flags = kernels.cpu_flags()
+    if not set(kernels.OPENBLAS_CORES[core]) <= flags:
+        pytest.skip(f'this CPU cannot execute the OpenBLAS {core} kernels')
+    settings, reason = kernels.openblas_variant(core, flags)
+    # None only for a BLAS that is not OpenBLAS with dynamic kernels: then it says so.
+    assert settings == {'OPENBLAS_CORETYPE': core} or 'no OpenBLAS core' in reason
+
+
+def test_the_numpy_variant_disables_every_avx512_loop_or_says_there_is_none(kernels):
+    settings, reason = kernels.numpy_variant()  # raises if a target were left enabled
+    if settings is None:
+        assert 'no AVX-512' in reason
+    else:
+        disabled = settings['NPY_DISABLE_CPU_FEATURES'].split()
+        assert disabled and all('AVX512' in name or name == 'X86_V4' for name in disabled)
