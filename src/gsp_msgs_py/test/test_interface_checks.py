@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_msgs_py import names
-from gsp_msgs_py.interface_checks import Received, check_topics, stamp_sharing, topic_summary
+from gsp_msgs_py.interfaces.rules import Received, check_topics, stamp_sharing, topic_summary
 
 RATE = 200.0
 LEGS = np.array([0.1, 0.2, 0.3, 0.25, 0.15, 0.05])
@@ -91,7 +91,7 @@ def test_a_missing_topic_and_a_low_rate_are_named():
 
 def test_diagnostics_problems_name_a_silent_suite_node_and_a_status_at_error():
     from gsp_msgs_py.health import ERROR, OK, WARN, Health
-    from gsp_msgs_py.interface_checks import check_diagnostics, diagnostics_summary
+    from gsp_msgs_py.interfaces.rules import check_diagnostics, diagnostics_summary
 
     reports = {
         'platform_sim: commands': Health(OK, 'no command yet', {'commands': '0'}),
