@@ -21,6 +21,7 @@ import numpy as np
 
 from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
+from gsp_msgs_py.health import OK, WARN, Health
 
 from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
 from .serial_backend import SerialDeviceBackend
@@ -70,6 +71,10 @@ class SimDeviceBackend(DeviceBackend):
         self._rng = rng if rng is not None else np.random.default_rng()
         self._pose = None
         self._exact = None  # cached noise-free readings of self._pose
+        # For health(): readings taken, true poses taken and refused; at the previous report.
+        self._counts = dict.fromkeys(('readings', 'true_poses', 'true_poses_refused'), 0)
+        self._reported = (dict(self._counts), None)  # counts and the latest reading's time
+        self._latest_s = None  # time (s) of the latest reading
 
     @classmethod
     def from_config(cls, true_geometry_file, rng=None, **config):
@@ -119,10 +124,12 @@ class SimDeviceBackend(DeviceBackend):
                 ideal = device_readings(self._device, pose[None])[0]
                 exact = self._device.sensors.device_readings(ideal)
             except DeviceModelError as error:
+                self._counts['true_poses_refused'] += 1
                 raise ValueError(
                     f'no device reading for true pose {pose.tolist()}: {error}'
                 ) from None
             self._exact, self._pose = exact, pose
+        self._counts['true_poses'] += 1
 
     def describe(self):
         inclinometer, encoder, _, lvdt = self._stds
@@ -134,7 +141,37 @@ class SimDeviceBackend(DeviceBackend):
         if self._exact is None:
             return None
         values = self._exact + self._rng.normal(0.0, 1.0, size=4) * self._stds
+        self._counts['readings'] += 1
+        if self._latest_s is None:  # the first reading opens the first window of the rate
+            self._reported[0]['readings'] = self._counts['readings']
+            self._reported = (self._reported[0], float(now_s))
+        self._latest_s = float(now_s)
         return DeviceSample(float(now_s), *(float(v) for v in values))
+
+    def health(self):
+        """OK while readings of fresh true poses flow. WARN before the first true pose, and when
+        no true pose came since the previous report (the readings repeat the last one: is
+        platform_sim running?). Keys: counts, reading rate, noise stds."""
+        (before, before_s), counts = self._reported, dict(self._counts)
+        self._reported = (counts, self._latest_s)
+        new = {key: counts[key] - before[key] for key in counts}
+        span_s = self._latest_s - before_s if before_s is not None else 0.0
+        rate = (new['readings'] / span_s) if span_s > 0 else 0.0
+        stds = self._stds
+        values = {
+            **counts,
+            'reading_rate_hz': f'{rate:.1f}',
+            'inclinometer_noise_std_rad': f'{stds[0]:.6g}',
+            'encoder_noise_std_rad': f'{stds[2]:.6g}',
+            'lvdt_noise_std_m': f'{stds[3]:.6g}',
+        }
+        if self._exact is None:
+            return Health(WARN, 'waiting for the first true pose', values)
+        if new['true_poses'] == 0:
+            return Health(
+                WARN, 'no true pose since the last report: readings of a stale pose', values
+            )
+        return Health(OK, f'simulating readings at {rate:.1f} Hz', values)
 
 
 _BACKENDS = {backend.name: backend for backend in (SimDeviceBackend, SerialDeviceBackend)}

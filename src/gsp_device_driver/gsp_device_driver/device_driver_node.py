@@ -16,6 +16,7 @@ from rclpy.node import Node
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.node_tools import ParameterSpec, not_blank
 
 from .backends import BackendError, backend_class, backend_names
@@ -61,6 +62,7 @@ PARAMETERS = (
         'lvdt_noise_std', DEFAULT_SENSOR_NOISE.lvdt, 'Std of the Gaussian noise on d_m', 'm'
     ),
     node_tools.frame_id_spec('Frame of the published readings, and required of true_pose'),
+    node_tools.diagnostics_period_spec(),
 )
 
 
@@ -125,6 +127,11 @@ class DeviceDriverNode(Node):
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
         self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('device', self._backend.hardware_id, self._backend.health)],
+        )
         self.get_logger().info(startup_line(values, seed, self._backend))
 
     def _now_s(self):
