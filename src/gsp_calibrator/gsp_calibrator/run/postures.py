@@ -10,7 +10,13 @@ import numpy as np
 from gsp_kinematics.identification import (
     resolve_free,
 )
-from gsp_kinematics.kinematics import Workspace, home_pose, sample_valid_postures
+from gsp_kinematics.kinematics import (
+    ForwardKinematicsError,
+    Workspace,
+    home_pose,
+    pose_from_leg_readings,
+    sample_valid_postures,
+)
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.route import plan_route
 from gsp_kinematics.selection import best_addition, posture_information, select_postures
@@ -82,10 +88,22 @@ def choose_postures(
     )
 
 
-def posture_route(settings, poses):
-    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from the home pose
-    (where platform_sim starts), with the run's nominal geometry and leg limits."""
-    return plan_route(settings.nominal, home_pose(), poses, settings.motion_limits)
+def route_start(nominal, leg_readings):
+    """``(pose (6,) m and rad, reason)``: where the route starts, the current posture of a
+    platform whose leg sensors read ``leg_readings`` (6,) m or None (FK of ``nominal``); the home
+    pose when it is unknown, with ``reason`` saying why (else '')."""
+    if leg_readings is None:
+        return home_pose(), 'no leg lengths received'
+    try:
+        return pose_from_leg_readings(nominal, leg_readings), ''
+    except (ForwardKinematicsError, ValueError) as error:
+        return home_pose(), f'no forward kinematics of the latest leg lengths: {error}'
+
+
+def posture_route(settings, poses, start_pose):
+    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from ``start_pose``
+    (:func:`route_start`), with the run's nominal geometry and leg limits."""
+    return plan_route(settings.nominal, start_pose, poses, settings.motion_limits)
 
 
 class PostureReplacer:
