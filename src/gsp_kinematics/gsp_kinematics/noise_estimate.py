@@ -36,8 +36,9 @@ class NoiseOfMean:
     """Per channel (C,): ``sample_std`` (the std of one sample, the channel's unit),
     ``std_of_mean`` (of the mean of ``n_samples`` samples), ``n_eff`` (``(sample_std /
     std_of_mean)^2``), ``lags`` (autocovariance lags summed), and ``window_too_short`` (the
-    autocorrelation was still positive at the largest usable lag: the windows are not long
-    against the correlation time, so ``std_of_mean`` is a lower bound)."""
+    autocorrelation was still positive at the largest usable lag (always so below 4 samples),
+    or ``n_eff`` < :data:`MIN_N_EFF` and < n/2: the windows are not long against the
+    correlation time, and ``std_of_mean`` is biased low, a lower bound)."""
 
     n_samples: int
     sample_std: np.ndarray
@@ -130,7 +131,9 @@ def noise_of_mean(samples, max_lag=None):
         std_of_mean=np.sqrt(variance_of_mean),
         n_eff=n_eff,
         lags=lags,
-        window_too_short=window_too_short | (n_eff < MIN_N_EFF),
+        # White windows of few samples are not short: n_eff < MIN_N_EFF only counts when the
+        # samples are correlated (n_eff well below n).
+        window_too_short=window_too_short | ((n_eff < MIN_N_EFF) & (n_eff < 0.5 * n)),
     )
 
 

@@ -69,6 +69,13 @@ def test_ar1_std_of_mean_matches_the_exact_finite_n_formula(phi):
     assert np.all(samples.std(axis=1, ddof=1).mean(axis=0) / math.sqrt(n) < 0.6 * exact)
 
 
+def test_short_white_windows_are_not_flagged():
+    samples = np.random.default_rng(4).normal(size=(2000, 10, 2))
+    estimate = noise_of_mean(samples)
+    assert not estimate.window_too_short.any()
+    np.testing.assert_allclose(estimate.n_eff, 10, rtol=0.15)
+
+
 def test_windows_short_against_the_correlation_time_are_flagged():
     samples = ar1_windows(np.random.default_rng(3), 500, 10, 0.99, np.array([1.0]))
     assert noise_of_mean(samples).window_too_short.all()
