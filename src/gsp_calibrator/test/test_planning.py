@@ -5,8 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from gsp_calibrator import calibration, planning
+from gsp_calibrator.run import postures
+from gsp_calibrator.tools import planning
 from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.noise import SensorNoise
 
 QUICK = ['--pool-size', '120']
 
@@ -32,8 +34,8 @@ def test_plan_json(tmp_path, capsys):
     assert plan['calibration_s'] == pytest.approx(30 * (0.02 + 4 / 200))
     # The same postures as the calibrator would command with these settings.
     nominal = default_geometry('nominal')
-    sigmas = calibration.averaged_sigmas(calibration.Sigmas(), [4])
-    chosen = calibration.choose_postures(nominal, 30, 120, 0, sigmas)
+    sigmas = SensorNoise().averaged([4])
+    chosen = postures.choose_postures(nominal, 30, 120, 0, sigmas)
     assert np.allclose(plan['selection']['poses'], chosen.poses)
     assert 'rank 51 of 51' in capsys.readouterr().out
 

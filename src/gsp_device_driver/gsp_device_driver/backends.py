@@ -6,122 +6,32 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 * ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
   :mod:`.serial_protocol` and docs/hardware.md).
 
-Adding a backend (e.g. ``hardware``): subclass :class:`DeviceBackend` and give it a
+Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
 ``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, the ``<sensor>_response_time``
-and ``<sensor>_noise_correlation_time`` of each sensor (:data:`SENSORS`), ``rng``, ``stamp_clock``
+and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.device.SENSORS``), ``rng``, ``stamp_clock``
 (the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
 ``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
 to the node is needed.
 """
 
-import abc
-import dataclasses
 import math
 
 import numpy as np
 
-from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
+from gsp_kinematics.device import (
+    READING_NAMES,
+    SENSORS,
+    DeviceModelError,
+    device_readings,
+    per_reading,
+)
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
 from gsp_kinematics.sensor_dynamics import SensorDynamics
 
-#: The device's sensors -> their columns of :data:`READING_NAMES`.
-SENSORS = {'inclinometer': (0, 1), 'encoder': (2,), 'lvdt': (3,)}
-
-
-def per_channel(inclinometer, encoder, lvdt):
-    """One value per sensor -> one per reading channel (4,), in :data:`READING_NAMES` order."""
-    values = np.zeros(len(READING_NAMES))
-    for columns, value in zip(SENSORS.values(), (inclinometer, encoder, lvdt), strict=True):
-        values[list(columns)] = value
-    return values
-
-
-class BackendError(ValueError):
-    """A backend cannot be made or configured; the message says why."""
-
-
-@dataclasses.dataclass(frozen=True)
-class DeviceSample:
-    """One reading of the device: ``stamp_s`` (s, the instant it refers to), ``alpha``, ``beta``
-    (inclinometer, rad), ``phi`` (encoder, rad), ``d_m`` (LVDT, m)."""
-
-    stamp_s: float
-    alpha: float
-    beta: float
-    phi: float
-    d_m: float
-
-    def readings(self):
-        """``[alpha, beta, phi, d_m]`` (4,) in :data:`READING_NAMES` order."""
-        return np.array([self.alpha, self.beta, self.phi, self.d_m])
-
-
-def _check_std(value, name):
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0.0):
-        raise BackendError(f'{name} must be finite and >= 0, got {value}')
-    return value
-
-
-class DeviceBackend(abc.ABC):
-    """Interface of a source of device readings."""
-
-    #: Registry name (``sim``, ``hardware``...).
-    name = ''
-    #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
-    needs_true_pose = False
-    #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
-    simulates_noise = False
-    #: Whether a reading is taken at the node's publish timer (``now_s`` is then the timer's
-    #: scheduled tick, see ``gsp_msgs_py.node_tools.scheduled_tick_ns``), not received at the
-    #: device's own pace.
-    samples_at_tick = False
-    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.node_tools.ParameterSpec`).
-    PARAMETERS = ()
-
-    @classmethod
-    @abc.abstractmethod
-    def from_config(cls, **config):
-        """Make the backend from the node's configuration (ignore unused keys)."""
-
-    @abc.abstractmethod
-    def read(self, now_s):
-        """The sample for the current time ``now_s`` (s), or None if none is available yet."""
-
-    def read_available(self, now_s):
-        """Every sample available at ``now_s`` (a list, maybe empty). A backend that receives
-        samples at its own pace (``serial``) returns each one once; default: ``[read(now_s)]``."""
-        sample = self.read(now_s)
-        return [] if sample is None else [sample]
-
-    def messages(self):
-        """``[(level, text)]`` the node should log (``info`` or ``warning``) since the last call.
-        Default: none."""
-        return []
-
-    def describe(self):
-        """One line for the node's start-up log: what the backend reads and how."""
-        return ''
-
-    def observe_true_pose(self, pose):
-        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
-
-        ValueError if the pose is unusable (the previous one is kept). Default: ignored.
-        """
-        return None
-
-    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
-        """Change the simulated noise std (rad, rad, m); None keeps a value.
-
-        Raises BackendError for backends whose noise is not simulated.
-        """
-        raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
-
-    def close(self):
-        """Release the device (files, ports). Idempotent. Default: nothing to release."""
-        return None
+from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
+from .serial_backend import SerialDeviceBackend
 
 
 class SimDeviceBackend(DeviceBackend):
@@ -172,8 +82,8 @@ class SimDeviceBackend(DeviceBackend):
         self.update_noise(inclinometer_std, encoder_std, lvdt_std)
         try:
             self._dynamics = SensorDynamics(
-                per_channel(*response_times),
-                per_channel(*correlation_times),
+                per_reading(*response_times),
+                per_reading(*correlation_times),
                 len(READING_NAMES),
                 circular=[name == 'phi' for name in READING_NAMES],
             )
@@ -222,7 +132,7 @@ class SimDeviceBackend(DeviceBackend):
             SENSORS.items(), (inclinometer_std, encoder_std, lvdt_std), strict=True
         ):
             if std is not None:
-                stds[list(columns)] = _check_std(std, f'{sensor} noise std')
+                stds[list(columns)] = check_std(std, f'{sensor} noise std')
         self._stds = stds
 
     def observe_true_pose(self, pose):
@@ -263,17 +173,7 @@ class SimDeviceBackend(DeviceBackend):
         return DeviceSample(float(now_s), *(float(v) for v in values))
 
 
-_BACKENDS = {SimDeviceBackend.name: SimDeviceBackend}
-
-
-def _register_serial():
-    # Imported here: serial_backend subclasses DeviceBackend from this module.
-    from .serial_backend import SerialDeviceBackend
-
-    _BACKENDS[SerialDeviceBackend.name] = SerialDeviceBackend
-
-
-_register_serial()
+_BACKENDS = {backend.name: backend for backend in (SimDeviceBackend, SerialDeviceBackend)}
 
 
 def backend_names():
@@ -296,9 +196,7 @@ __all__ = [
     'BackendError',
     'DeviceBackend',
     'DeviceSample',
-    'SENSORS',
     'SimDeviceBackend',
     'backend_class',
     'backend_names',
-    'per_channel',
 ]
