@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
-from gsp_kinematics._readings import readings_jacobians
+from gsp_kinematics._solver.readings import readings_jacobians
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.fileio import to_json, write_json
 from gsp_kinematics.geometry import Geometry, parameter_errors

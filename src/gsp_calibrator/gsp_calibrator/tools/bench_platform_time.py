@@ -10,12 +10,12 @@
   (``summary.json`` ``calibration_s``, which also holds the start-up checks, the identification
   and the report).
 * ``target_plan``: for a target of 1.5x the default plan's predicted mean position error, the
-  plan of least platform time (:func:`.planning.target_plan`) against the default plan.
+  plan of least platform time (:func:`.plans.target_plan`) against the default plan.
 """
 
 import sys
 
-from gsp_calibrator.tools import planning
+from gsp_calibrator.tools import plans
 from gsp_calibrator.tools.bench_end_to_end import SETTLE_TIME_S, run_demo
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.motion import MotionLimits
@@ -49,7 +49,7 @@ def measured_run(postures, limits, log):
         '--max-leg-acceleration',
         repr(limits.max_acceleration),
     ]
-    predicted = planning.plan(
+    predicted = plans.plan(
         nominal,
         postures,
         SAMPLES_PER_POSTURE,
@@ -98,7 +98,7 @@ def run(quick=False, log=None):
     nominal = default_geometry('nominal')
     limits = MotionLimits()
     log('gsp_bench: platform_time: the default plan and its route ...')
-    default = planning.plan(nominal, 60, SAMPLES_PER_POSTURE, limits=limits)
+    default = plans.plan(nominal, 60, SAMPLES_PER_POSTURE, limits=limits)
     timing = default['platform_time']
     section = {
         'max_leg_speed_m_s': limits.max_speed,
@@ -112,7 +112,7 @@ def run(quick=False, log=None):
     }
     log('gsp_bench: platform_time: the plan aimed at 1.5x the default accuracy ...')
     target_mm = TARGET_FACTOR * default['predicted']['position_mm_mean']
-    found = planning.target_plan(nominal, target_mm, limits=limits)
+    found = plans.target_plan(nominal, target_mm, limits=limits)
     section['target_plan'] = {
         'target_position_mm': target_mm,
         'default': _plan_record(default),

@@ -1,4 +1,4 @@
-"""The identification's formulations as models of :func:`gsp_kinematics._lm.levenberg_marquardt`.
+"""The identification's formulations as models of :func:`gsp_kinematics._solver.lm.levenberg_marquardt`.
 
 * :class:`_FkModel` (``'fk'``, and ``'paper'``: eq (11)): per posture, FK of the measured leg
   lengths under the parameters predicts the device readings; the Jacobian comes from the implicit
@@ -424,7 +424,7 @@ class _ImplicitModel(_Model):
 
 class _LazyJacobian:
     """A point's weighted ``[J_X | J_u | r]``, computed on the first call and kept, and its
-    normal equations (:func:`gsp_kinematics._lm.block_normal_equations`), likewise."""
+    normal equations (:func:`gsp_kinematics._solver.lm.block_normal_equations`), likewise."""
 
     def __init__(self, model, prediction, residuals):
         self._arguments = (prediction, residuals)
