@@ -28,7 +28,7 @@ from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES
-from gsp_kinematics.noise import SensorNoise
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.testing import SpinThread
 

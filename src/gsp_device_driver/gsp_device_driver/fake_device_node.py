@@ -18,7 +18,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import message_checks, names, node_tools, qos
 
 from .backends import SimDeviceBackend
