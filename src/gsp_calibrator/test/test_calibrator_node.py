@@ -122,7 +122,7 @@ class Suite:
         # Remove the nodes first: the executor then has no new work when it shuts down.
         for node in self.executor.get_nodes():
             self.executor.remove_node(node)
-        self.executor.shutdown(timeout_sec=5.0)  # waits for the callbacks in progress
+        testing.shutdown_executor(self.executor)  # after the callbacks in progress
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
 
