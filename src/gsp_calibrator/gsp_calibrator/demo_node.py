@@ -17,6 +17,7 @@ def make_demo_node(context):
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
     from rclpy.node import Node
+    from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
 
     from gsp_msgs_py import conversions, names, qos
@@ -42,6 +43,8 @@ def make_demo_node(context):
                 qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
             )
             self._true_pose_subscription = None  # only while validating (200 Hz)
+            self._leg_lengths_subscription = None  # only while waiting for the platform
+            self.leg_lengths_seen = False
             self.create_subscription(
                 DiagnosticStatus,
                 names.TOPIC_CALIBRATION_PROGRESS,
@@ -71,6 +74,23 @@ def make_demo_node(context):
             elif not on and self._true_pose_subscription is not None:
                 self.destroy_subscription(self._true_pose_subscription)
                 self._true_pose_subscription = None
+
+        def watch_leg_lengths(self, on):
+            """Subscribe to (or unsubscribe from) the platform's leg lengths."""
+            if on and self._leg_lengths_subscription is None:
+                self.leg_lengths_seen = False
+                self._leg_lengths_subscription = self.create_subscription(
+                    JointState,
+                    names.TOPIC_LEG_LENGTHS,
+                    self._on_leg_lengths,
+                    qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS],
+                )
+            elif not on and self._leg_lengths_subscription is not None:
+                self.destroy_subscription(self._leg_lengths_subscription)
+                self._leg_lengths_subscription = None
+
+        def _on_leg_lengths(self, msg):
+            self.leg_lengths_seen = True
 
         def _on_true_pose(self, msg):
             try:
@@ -163,6 +183,20 @@ class Demo:
             timeout,
             f'platform_sim to publish {names.TOPIC_PLATFORM_STATUS}',
         )
+        # The platform takes commands only once it knows where the legs are: platform_bridge
+        # rejects every command until the controller's first /joint_states reached it, and it
+        # publishes leg lengths from them. Without this wait the validation postures were all
+        # rejected on a loaded host ('no /joint_states received from the controller').
+        node.watch_leg_lengths(True)
+        try:
+            self.spin_until(
+                lambda: node.leg_lengths_seen,
+                timeout,
+                f"the platform's first {names.TOPIC_LEG_LENGTHS} (platform_bridge: the "
+                "controller's /joint_states)",
+            )
+        finally:
+            node.watch_leg_lengths(False)
 
     def run_postures(self, poses, settle_timeout, startup_timeout):
         """Command each pose, wait until settled; reached poses (NaN rows where rejected)."""
