@@ -72,7 +72,15 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert SUMMARY_KEYS <= set(summary)
     # The calibrator's collection record (result.json 'collection', copied by the demo).
     collection = summary['collection']
-    assert set(collection) == {'skipped', 'inconsistent_dropped', 'non_finite_dropped'}
+    assert set(collection) == {
+        'skipped',
+        'inconsistent_dropped',
+        'non_finite_dropped',
+        'replacements',
+    }
+    # Each posture the platform rejected was replaced (the pool of 600 has plenty left).
+    rejected = {s['posture'] for s in collection['skipped'] if s['rejected_by_platform']}
+    assert {r['rejected'] for r in collection['replacements']} == rejected
     assert set(collection['non_finite_dropped']) == {
         'leg_lengths',
         'inclinometer',

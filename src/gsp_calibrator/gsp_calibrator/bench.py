@@ -8,12 +8,13 @@ import sys
 
 from gsp_experiments import bench, bench_sensor_errors
 
-from . import bench_end_to_end
+from . import bench_end_to_end, bench_platform_time
 
 #: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
 EXTRA_SECTIONS = {
     'end_to_end': bench_end_to_end.run,
     'sensor_errors': bench_sensor_errors.run,  # docs/sensor_errors.md
+    'platform_time': bench_platform_time.run,  # docs/planning.md
 }
 
 

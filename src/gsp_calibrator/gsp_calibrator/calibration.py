@@ -33,9 +33,15 @@ from gsp_kinematics.identification import (
     identify,
     resolve_free,
 )
-from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.kinematics import (
+    Workspace,
+    home_pose,
+    inverse_kinematics,
+    sample_valid_postures,
+)
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.selection import select_postures
+from gsp_kinematics.route import plan_route
+from gsp_kinematics.selection import best_addition, posture_information, select_postures
 
 #: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
 DEFAULT_FREE = ('extended',)
@@ -112,6 +118,55 @@ def choose_postures(
         seed=int(seed),
         duration_s=time.perf_counter() - started,
     )
+
+
+def posture_route(settings, poses):
+    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from the home pose
+    (where platform_sim starts), with the run's nominal geometry and leg limits."""
+    return plan_route(settings.nominal, home_pose(), poses, settings.motion_limits)
+
+
+class PostureReplacer:
+    """The replacement of a posture the platform rejected: the best remaining posture of the
+    run's pool (:func:`gsp_kinematics.selection.best_addition`, the selection's criterion).
+
+    Built once per run (the pool and its information, about 0.1 s); called with the run's poses
+    (M, 6) and the 1-based postures rejected, it returns the pose (6,) to add, or None when the
+    pool has none left. A pose that is not in the pool (another selection) counts as chosen
+    only if it is.
+    """
+
+    def __init__(self, settings):
+        self.pool = posture_pool(settings.nominal, settings.pool_size, settings.seed)
+        self.information = posture_information(
+            settings.nominal,
+            self.pool,
+            settings.sigmas,
+            resolve_free(list(settings.free_parameters)),
+            selection_formulation(settings.formulation),
+        )
+
+    def _pool_indices(self, poses):
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        distance = np.max(np.abs(poses[:, None, :] - self.pool[None, :, :]), axis=2)
+        nearest = np.argmin(distance, axis=1)
+        return [
+            int(i)
+            for i, d in zip(nearest, distance[np.arange(len(poses)), nearest], strict=True)
+            if d < 1e-9
+        ]
+
+    def __call__(self, poses, rejected):
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        rejected_rows = [k - 1 for k in rejected]
+        kept = [m for m in range(len(poses)) if m not in rejected_rows]
+        chosen = self._pool_indices(poses[kept])
+        excluded = self._pool_indices(poses[rejected_rows]) if rejected_rows else []
+        try:
+            index = best_addition(self.information, chosen, excluded)
+        except ValueError:
+            return None
+        return self.pool[index].copy()
 
 
 def selection_arguments(settings):

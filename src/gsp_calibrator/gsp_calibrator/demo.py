@@ -105,6 +105,35 @@ def executable_command(name, which=shutil.which):
     return [sys.executable, '-m', NODES[name]]
 
 
+#: The calibrator's settle_timeout when the legs move at their limits: longer than any move.
+MOVING_SETTLE_TIMEOUT_S = 60.0
+
+
+def motion_parameters(args):
+    """platform_sim's leg limits of ``--max-leg-speed`` / ``--max-leg-acceleration`` (0: none)."""
+    speed = float(getattr(args, 'max_leg_speed', 0.0))
+    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
+    return ['-p', f'max_leg_speed:={speed!r}', '-p', f'max_leg_acceleration:={acceleration!r}']
+
+
+def calibrator_motion_parameters(args):
+    """With leg limits, the calibrator plans its route with them and waits long enough for a
+    move (``settle_timeout``); without, its defaults."""
+    speed = float(getattr(args, 'max_leg_speed', 0.0))
+    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
+    if not speed > 0:
+        return []
+    extra = [
+        '-p',
+        f'max_leg_speed:={speed!r}',
+        '-p',
+        f'settle_timeout:={MOVING_SETTLE_TIMEOUT_S!r}',
+    ]
+    if acceleration > 0:
+        extra += ['-p', f'max_leg_acceleration:={acceleration!r}']
+    return extra
+
+
 def node_commands(args, output_root, which=shutil.which):
     """``{node name: argv}`` of the nodes for the parsed ``args``: platform_sim (or, with
     ``--platform ros2_control``, controller_sim and platform_bridge), device_driver (with
@@ -126,6 +155,7 @@ def node_commands(args, output_root, which=shutil.which):
             f'settle_time:={float(args.settle_time)!r}',
             '-p',
             'publish_markers:=false',
+            *motion_parameters(args),
             *common,
         ],
         'device_driver': executable_command('device_driver', which)
@@ -158,6 +188,7 @@ def node_commands(args, output_root, which=shutil.which):
             # platform is the stronger check, so it applies the result and prints the verdict.
             '-p',
             'apply_rejected_fit:=true',
+            *calibrator_motion_parameters(args),
         ],
     }
     platform = getattr(args, 'platform', 'sim')
@@ -338,6 +369,18 @@ def parse_arguments(argv=None):
     add('--sensor-rate', type=float, default=200.0, help='leg-length and device rate, Hz (200)')
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
     add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
+    add(
+        '--max-leg-speed',
+        type=float,
+        default=0.0,
+        help="platform_sim's leg speed limit, m/s (0: none, the platform jumps)",
+    )
+    add(
+        '--max-leg-acceleration',
+        type=float,
+        default=0.0,
+        help="platform_sim's leg acceleration limit, m/s^2 (0: none)",
+    )
     add('--startup-timeout', type=float, default=30.0, help='longest node start-up, s (30)')
     add(
         '--platform',
@@ -359,6 +402,8 @@ def parse_arguments(argv=None):
         parser.error('--validation-postures must be >= 1')
     if not args.sensor_rate > 0 or not args.settle_time >= 0:
         parser.error('--sensor-rate must be > 0 and --settle-time >= 0')
+    if not (args.max_leg_speed >= 0 and args.max_leg_acceleration >= 0):
+        parser.error('--max-leg-speed and --max-leg-acceleration must be >= 0 (0: no limit)')
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
     return args
@@ -414,6 +459,8 @@ def run(args):
         print(f'starting {", ".join(processes.commands)} ...', flush=True)
         demo.wait_for_system(args.startup_timeout)
         settle_timeout = 5.0 + 10.0 * args.settle_time
+        if args.max_leg_speed > 0:
+            settle_timeout += MOVING_SETTLE_TIMEOUT_S
 
         print(
             f'validation before calibration: {len(validation_poses)} postures (nominal '

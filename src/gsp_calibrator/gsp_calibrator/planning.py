@@ -6,13 +6,18 @@ limits, a settle time and a sensor rate, predict what the calibrator would reach
 * the accuracy of the calibrated platform (:func:`gsp_kinematics.prediction.predict_accuracy` on
   the Cramér-Rao covariance of the selected design);
 * the rank of the design and its unidentifiable parameter combinations;
-* the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum).
+* the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum without
+  the moves), and the platform time: the travel of the route through the postures
+  (:func:`gsp_kinematics.route.plan_route`, legs within :class:`gsp_kinematics.motion.MotionLimits`)
+  plus that settling and sampling.
 
 The postures are those the calibrator would command: :func:`.calibration.choose_postures` with the
 same pool, seed, sigmas (averaged over the samples, :func:`.calibration.averaged_sigmas`), free
 parameters and formulation. ``--sweep`` repeats the plan over posture counts and samples per
 posture (one selection per count: averaging scales every sigma alike, which leaves the selection
-unchanged) and writes a table, a plot and the sweep in JSON.
+unchanged) and writes a table, a plot and the sweep in JSON. ``--target-position-mm`` (or
+``--target-orientation-deg`` alone) finds the plan of least platform time reaching a target
+(:func:`target_plan`).
 """
 
 import argparse
@@ -26,8 +31,10 @@ from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
 from gsp_kinematics.identification import IdentificationError, Sigmas, resolve_free
-from gsp_kinematics.kinematics import Workspace
+from gsp_kinematics.kinematics import Workspace, home_pose
+from gsp_kinematics.motion import MotionLimits
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
+from gsp_kinematics.route import plan_route
 from gsp_kinematics.selection import posture_information
 
 from .calibration import (
@@ -42,6 +49,11 @@ from .settings import add_run_options, run_options_error
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
+#: Posture counts :func:`target_plan` considers (the 44 parameters need at least 11).
+DEFAULT_TARGET_POSTURES = (12, 15, 20, 25, 30, 40, 50, 60, 75, 90, 120)
+#: Most samples per posture a target plan averages: 0.5 s at 200 Hz. Averaging more assumes white
+#: sensor noise for longer than a real sensor's drift allows.
+MAX_SAMPLES_PER_POSTURE = 100
 
 
 def calibration_seconds(postures, samples_per_posture, settle_s, sensor_rate_hz):
@@ -74,6 +86,24 @@ def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formula
             'statistic': prediction['statistic'],
         }
     return plan
+
+
+def platform_time(nominal, poses, samples_per_posture, settle_s, sensor_rate_hz, limits):
+    """Predicted platform time (s) of commanding ``poses`` in route order from the home pose:
+    ``{'total_s', 'travel_s', 'settle_s', 'sampling_s', 'selection_order_travel_s',
+    'lower_bound_travel_s', 'order'}``."""
+    route = plan_route(nominal, home_pose(), poses, limits)
+    count = len(poses)
+    settle, sampling = count * settle_s, count * samples_per_posture / sensor_rate_hz
+    return {
+        'total_s': route.travel_s + settle + sampling,
+        'travel_s': route.travel_s,
+        'settle_s': settle,
+        'sampling_s': sampling,
+        'selection_order_travel_s': route.selection_order_s,
+        'lower_bound_travel_s': route.lower_bound_s,
+        'order': route.order.tolist(),
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,9 +140,11 @@ def plan(
     settle_s=0.02,
     sensor_rate_hz=200.0,
     selection=None,
+    limits=MotionLimits(),
 ):
     """One plan (a JSON-ready dict); ``selection``: a :class:`.calibration.PostureSelection` of
-    these settings to reuse (the sweep shares one per posture count)."""
+    these settings to reuse (the sweep shares one per posture count); ``limits``: the legs'
+    motion limits of the platform time."""
     if samples_per_posture < 1:
         raise CalibrationError(f'samples per posture must be >= 1, got {samples_per_posture}')
     if not (sensor_rate_hz > 0 and settle_s >= 0):
@@ -135,6 +167,9 @@ def plan(
         'calibration_s': calibration_seconds(
             postures, samples_per_posture, settle_s, sensor_rate_hz
         ),
+        'platform_time': platform_time(
+            nominal, selection.poses, samples_per_posture, settle_s, sensor_rate_hz, limits
+        ),
         'selection': {
             'pool_size': selection.pool_size,
             'seed': selection.seed,
@@ -147,7 +182,7 @@ def plan(
 
 def sweep(nominal, posture_counts, samples, design=Design(), **timing):
     """Plans over ``posture_counts`` x ``samples`` (without the poses): ``{'rows': [...]}``;
-    ``timing``: ``settle_s`` and ``sensor_rate_hz`` of :func:`plan`."""
+    ``timing``: ``settle_s``, ``sensor_rate_hz`` and ``limits`` of :func:`plan`."""
     rows = []
     for count in posture_counts:
         # Averaging scales every sigma alike: the selection does not depend on the samples.
@@ -155,11 +190,98 @@ def sweep(nominal, posture_counts, samples, design=Design(), **timing):
         for samples_per_posture in samples:
             entry = plan(nominal, count, samples_per_posture, design, selection=selection, **timing)
             entry.pop('selection')
+            entry['platform_time'].pop('order')
             rows.append(entry)
     return {
         'posture_counts': list(posture_counts),
         'samples_per_posture': list(samples),
         'rows': rows,
+    }
+
+
+def _meets(predicted, position_mm, orientation_deg):
+    return bool(predicted) and (
+        (position_mm is None or predicted['position_mm_mean'] <= position_mm)
+        and (orientation_deg is None or predicted['orientation_deg_mean'] <= orientation_deg)
+    )
+
+
+def target_plan(
+    nominal,
+    position_mm=None,
+    orientation_deg=None,
+    design=Design(),
+    posture_counts=DEFAULT_TARGET_POSTURES,
+    max_samples=MAX_SAMPLES_PER_POSTURE,
+    settle_s=0.02,
+    sensor_rate_hz=200.0,
+    limits=MotionLimits(),
+):
+    """The plan of least predicted platform time whose predicted mean errors reach the targets
+    (mm, deg): ``{'plan': plan or None, 'candidates': [...], 'best_reachable': {...}}``.
+
+    For each posture count (one selection and one route), the samples per posture are the fewest
+    that reach the target: averaging n samples divides every sigma by sqrt(n), so the predicted
+    errors scale exactly as 1/sqrt(n) (up to ``max_samples``). ``best_reachable``: the smallest
+    predicted errors any count reaches with ``max_samples``.
+    """
+    if position_mm is None and orientation_deg is None:
+        raise CalibrationError('a target needs a position (mm) or an orientation (deg)')
+    timing = {'settle_s': settle_s, 'sensor_rate_hz': sensor_rate_hz, 'limits': limits}
+    candidates, best, best_reachable = [], None, None
+    for count in sorted(c for c in posture_counts if c <= design.pool_size):
+        selection = select(nominal, count, 1, design)
+        single = design_prediction(
+            nominal,
+            selection.poses,
+            design.sigmas,
+            1,
+            design.free,
+            design.formulation,
+            design.workspace,
+        )['predicted']
+        if not single:
+            continue  # rank-deficient: no count of samples helps
+        ratios = [
+            (single[key] / target) ** 2
+            for key, target in (
+                ('position_mm_mean', position_mm),
+                ('orientation_deg_mean', orientation_deg),
+            )
+            if target is not None
+        ]
+        reachable = {
+            key: single[key] / math.sqrt(max_samples)
+            for key in ('position_mm_mean', 'orientation_deg_mean')
+        }
+        if (
+            best_reachable is None
+            or reachable['position_mm_mean'] < best_reachable['position_mm_mean']
+        ):
+            best_reachable = {'postures': count, 'samples_per_posture': max_samples, **reachable}
+        samples = max(1, math.ceil(max(ratios) * (1.0 - 1e-12)))
+        if samples > max_samples:
+            continue
+        entry = plan(nominal, count, samples, design, selection=selection, **timing)
+        if not _meets(entry['predicted'], position_mm, orientation_deg):  # rounding
+            entry = plan(nominal, count, samples + 1, design, selection=selection, **timing)
+        candidates.append(
+            {
+                'postures': count,
+                'samples_per_posture': entry['samples_per_posture'],
+                'platform_s': entry['platform_time']['total_s'],
+                'position_mm_mean': entry['predicted']['position_mm_mean'],
+                'orientation_deg_mean': entry['predicted']['orientation_deg_mean'],
+            }
+        )
+        if best is None or entry['platform_time']['total_s'] < best['platform_time']['total_s']:
+            best = entry
+    return {
+        'target': {'position_mm': position_mm, 'orientation_deg': orientation_deg},
+        'plan': best,
+        'candidates': candidates,
+        'best_reachable': best_reachable,
+        'max_samples_per_posture': max_samples,
     }
 
 
@@ -264,11 +386,34 @@ def parse_arguments(argv=None):
     add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
     add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
     add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
+    limits = MotionLimits()
+    add('--max-leg-speed-mm-s', type=float, default=limits.max_speed * 1e3, help='leg speed limit')
+    add(
+        '--max-leg-acceleration-mm-s2',
+        type=float,
+        default=limits.max_acceleration * 1e3,
+        help='leg acceleration limit',
+    )
+    add('--target-position-mm', type=float, default=None, help='plan for this mean position error')
+    add(
+        '--target-postures',
+        type=lambda t: _positive_list(t, int),
+        default=DEFAULT_TARGET_POSTURES,
+        help='posture counts a target plan considers',
+    )
+    add('--max-samples-per-posture', type=int, default=MAX_SAMPLES_PER_POSTURE)
     args = parser.parse_args(argv)
     reason = run_options_error(args)
     if reason:
         parser.error(reason)
-    for name in ('sigma_leg_um', 'sigma_inclinometer_deg', 'sigma_encoder_deg', 'sigma_lvdt_um'):
+    for name in (
+        'sigma_leg_um',
+        'sigma_inclinometer_deg',
+        'sigma_encoder_deg',
+        'sigma_lvdt_um',
+        'max_leg_speed_mm_s',
+        'max_leg_acceleration_mm_s2',
+    ):
         if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
             parser.error(f'--{name.replace("_", "-")} must be a finite number > 0')
     if not args.z_min_mm < args.z_max_mm or args.xy_range_mm <= 0 or args.rotation_range_deg < 0:
@@ -317,7 +462,42 @@ def _summary_text(entry):
         )
     for entry_ in entry['unidentifiable']:
         lines.append(f'not identifiable: {entry_["combination"]}')
+    lines.append(_platform_time_text(entry['platform_time']))
     return '\n'.join(lines)
+
+
+def _platform_time_text(timing):
+    return (
+        f'platform time {timing["total_s"]:.1f} s: travel {timing["travel_s"]:.1f} s in route '
+        f'order (selection order {timing["selection_order_travel_s"]:.1f} s, lower bound '
+        f'{timing["lower_bound_travel_s"]:.1f} s), settle {timing["settle_s"]:.1f} s, sampling '
+        f'{timing["sampling_s"]:.1f} s\nroute (selection indices): '
+        + ' '.join(str(index) for index in timing['order'])
+    )
+
+
+def _target_text(result):
+    best, target = result['plan'], result['target']
+    wanted = ', '.join(
+        text
+        for text in (
+            None if target['position_mm'] is None else f'position {target["position_mm"]:g} mm',
+            None
+            if target['orientation_deg'] is None
+            else f'orientation {target["orientation_deg"]:g} deg',
+        )
+        if text
+    )
+    if best is None:
+        reach = result['best_reachable']
+        if reach is None:
+            return f'no plan reaches {wanted}: no posture count is identifiable'
+        return (
+            f'no plan within the pool reaches {wanted}; the best reaches position '
+            f'{reach["position_mm_mean"]:.3g} mm, orientation {reach["orientation_deg_mean"]:.3g} '
+            f'deg mean ({reach["postures"]} postures x {reach["samples_per_posture"]} samples)'
+        )
+    return f'least platform time reaching {wanted}:\n' + _summary_text(best)
 
 
 def main(argv=None):
@@ -343,7 +523,27 @@ def main(argv=None):
             'formulation': args.formulation,
             'free': args.free,
         }
-        if args.sweep:
+        limits = MotionLimits(args.max_leg_speed_mm_s / 1e3, args.max_leg_acceleration_mm_s2 / 1e3)
+        inputs['max_leg_speed_m_s'] = limits.max_speed
+        inputs['max_leg_acceleration_m_s2'] = limits.max_acceleration
+        targeted = args.target_position_mm is not None or (
+            not args.sweep and args.target_orientation_deg is not None
+        )
+        if targeted:
+            result = target_plan(
+                nominal,
+                args.target_position_mm,
+                args.target_orientation_deg,
+                design,
+                args.target_postures,
+                args.max_samples_per_posture,
+                limits=limits,
+                **timing,
+            )
+            document = {'inputs': inputs, **result}
+            print(_target_text(result))
+        elif args.sweep:
+            timing['limits'] = limits
             result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
             document = {'inputs': inputs, 'sweep': result}
             print(sweep_table(result))
@@ -371,7 +571,14 @@ def main(argv=None):
         else:
             document = {
                 'inputs': inputs,
-                **plan(nominal, args.postures, args.samples_per_posture, design, **timing),
+                **plan(
+                    nominal,
+                    args.postures,
+                    args.samples_per_posture,
+                    design,
+                    limits=limits,
+                    **timing,
+                ),
             }
             print(_summary_text(document))
     except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:

@@ -173,6 +173,18 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = selection.poses
+            if settings.posture_order == 'route':
+                # state.json keeps the poses in this order: a resumed run keeps it.
+                route = calibration.posture_route(settings, poses)
+                poses = poses[route.order]
+                self.log.info(
+                    f'route order: predicted travel {route.travel_s:.1f} s (selection order '
+                    f'{route.selection_order_s:.1f} s, lower bound {route.lower_bound_s:.1f} s)'
+                )
+        try:
+            session.replace = await self.node.in_thread(calibration.PostureReplacer, settings)
+        except (calibration.CalibrationError, RuntimeError, ValueError) as error:
+            self.log.warning(f'rejected postures will not be replaced: {error}')
         session.begin(settings, poses, os.getpid(), part)
         if session.resumed:
             self.log.info(
@@ -233,7 +245,7 @@ class CalibrationRun:
             session.run,
             settings,
             session.samples,
-            self.collection.summary(),
+            {**self.collection.summary(), 'replacements': session.state.replacements},
             recording.settings_options(settings),
             session.spread_table(),
         )

@@ -57,6 +57,8 @@ class RunSession:
         self.state = state
         self.recovered = list(recovered)
         self.remaining = []  #: postures (1-based) still to command, in order
+        #: ``replace(poses, rejected)``: the pose (6,) to add for a rejected posture, or None
+        self.replace = None
         self.spreads = []  #: per row of this session: std of the 6 legs and 4 readings
         self._appender = None
         self._lock = threading.Lock()  # guards samples, state and remaining
@@ -159,9 +161,26 @@ class RunSession:
         return event
 
     def skip(self, event):
-        """Note a ``protocol.PostureSkipped``."""
+        """Note a ``protocol.PostureSkipped``; one the platform rejected gets a replacement
+        (``replace``), appended to the postures to command and recorded."""
         with self._lock:
             self.state.record_skip(event.posture, event.reason)
+            if not (event.rejected_by_platform and self.replace is not None):
+                return
+            rejected = [event.posture] + [r['rejected'] for r in self.state.replacements]
+            pose = self.replace(np.asarray(self.state.poses), rejected)
+            if pose is None:
+                return
+            self.state.poses.append(np.asarray(pose, dtype=float).tolist())
+            replacement = len(self.state.poses)
+            self.remaining.append(replacement)
+            self.state.replacements.append(
+                {
+                    'rejected': int(event.posture),
+                    'replacement': replacement,
+                    'reason': str(event.reason),
+                }
+            )
 
     def save(self, phase=None, stop_reason=None):
         """Rewrite state.json (atomic) with ``phase`` / ``stop_reason`` if given;

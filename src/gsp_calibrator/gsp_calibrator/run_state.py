@@ -85,6 +85,9 @@ class RunState:
     sessions: int = 1  #: 1 + the number of resumes
     recordings: list = dataclasses.field(default_factory=list)  #: recording files, in order
     pid: int = 0  #: process of the calibrator of the current session
+    #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
+    #: (1-based) in their place
+    replacements: list = dataclasses.field(default_factory=list)
 
     def to_dict(self):
         data = dataclasses.asdict(self)
@@ -208,6 +211,8 @@ def check_resume(state, settings, samples, own_pid=None):
 
 
 def postures_to_collect(state, samples):
-    """The 1-based postures without a samples.csv row (skipped ones are tried again)."""
+    """The 1-based postures without a samples.csv row (skipped ones are tried again, except those
+    a replacement stands in for)."""
     collected = set(int(k) for k in samples.posture)
-    return [k for k in range(1, len(state.poses) + 1) if k not in collected]
+    replaced = {int(r['rejected']) for r in state.replacements}
+    return [k for k in range(1, len(state.poses) + 1) if k not in collected and k not in replaced]

@@ -25,6 +25,7 @@ from gsp_kinematics.identification import (
     Sigmas,
     resolve_free,
 )
+from gsp_kinematics.motion import MotionLimits
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
 
 DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
@@ -65,6 +66,10 @@ def _check_geometry_file(value):
 
 
 _POSITIVE = greater_than(0.0, reason='must be a finite number > 0')
+
+
+#: Values of the ``posture_order`` parameter.
+POSTURE_ORDERS = ('route', 'selection')
 
 
 def _positive(name, default, description, unit=''):
@@ -192,6 +197,25 @@ PARAMETERS = (
         _positive(f'sigma_{field}', getattr(DEFAULT_SIGMAS, field), text, unit)
         for field, unit, text in _SIGMA_TABLE
     ),
+    _one_of(
+        'posture_order',
+        'route',
+        'Order the postures are commanded in: route (the shortest travel from the home pose, '
+        'docs/planning.md) or selection (the order the selection found them)',
+        POSTURE_ORDERS,
+    ),
+    _positive(
+        'max_leg_speed',
+        MotionLimits().max_speed,
+        "The platform's leg speed limit, for the route's travel times",
+        'm/s',
+    ),
+    _positive(
+        'max_leg_acceleration',
+        MotionLimits().max_acceleration,
+        "The platform's leg acceleration limit, for the route's travel times",
+        'm/s^2',
+    ),
     ParameterSpec(
         'output_root',
         'runs',
@@ -307,6 +331,14 @@ class CalibratorSettings:
     loss_scale: float = Options().loss_scale  #: sigmas
     outlier_threshold: float = DEFAULT_OUTLIER_THRESHOLD  #: sigmas
     apply_rejected_fit: bool = False
+    posture_order: str = 'route'
+    max_leg_speed: float = MotionLimits().max_speed  #: m/s
+    max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
+
+    @property
+    def motion_limits(self):
+        """The platform's leg limits the route is planned with."""
+        return MotionLimits(self.max_leg_speed, self.max_leg_acceleration)
 
     @property
     def free_count(self):
@@ -357,4 +389,7 @@ class CalibratorSettings:
             loss_scale=float(merged['loss_scale']),
             outlier_threshold=float(merged['outlier_threshold']),
             apply_rejected_fit=bool(merged['apply_rejected_fit']),
+            posture_order=str(merged['posture_order']),
+            max_leg_speed=float(merged['max_leg_speed']),
+            max_leg_acceleration=float(merged['max_leg_acceleration']),
         )

@@ -122,12 +122,17 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
     )
     assert calibrator_bench.main(['--skip-end-to-end']) == 0
+    from gsp_calibrator import bench_platform_time
     from gsp_experiments import bench_sensor_errors
 
     assert calls == [
         (
             ['--skip-end-to-end'],
-            {'end_to_end': bench.run, 'sensor_errors': bench_sensor_errors.run},
+            {
+                'end_to_end': bench.run,
+                'sensor_errors': bench_sensor_errors.run,
+                'platform_time': bench_platform_time.run,
+            },
         )
     ]
 

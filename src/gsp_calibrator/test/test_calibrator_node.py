@@ -227,7 +227,10 @@ def test_calibration_in_process(ros_context, tmp_path):
         skipped = [
             line for line in response.message.splitlines() if line.startswith('skipped posture')
         ]
-        assert len(collection['skipped']) == len(skipped) == 12 - len(samples)
+        # A posture the platform rejects is replaced; only other skips leave a gap.
+        replaced = {r['rejected'] for r in collection['replacements']}
+        gaps = [s for s in collection['skipped'] if s['posture'] not in replaced]
+        assert len(collection['skipped']) == len(skipped) and len(samples) == 12 - len(gaps)
         assert all(
             set(s) == {'posture', 'reason', 'rejected_by_platform'} for s in collection['skipped']
         )
@@ -297,7 +300,9 @@ def test_calibration_in_process(ros_context, tmp_path):
         suite.close()
 
 
-def test_unreachable_postures_are_skipped(ros_context, tmp_path):
+def test_rejected_postures_are_replaced_and_the_run_ends_with_the_planned_count(
+    ros_context, tmp_path
+):
     perturbed_truth(tmp_path / 'true.yaml')
     # The platform's controller allows less leg stroke than the nominal the postures come from.
     tight = [Parameter('geometry.limits.leg_stroke_max', value=1.0)]
@@ -313,9 +318,24 @@ def test_unreachable_postures_are_skipped(ros_context, tmp_path):
         assert skipped and all(
             'rejected by the platform' in line and 'stroke' in line for line in skipped
         )
-        samples = RunDirectory(parse_response(response.message).run_directory).read_samples()
-        assert len(samples) == 12 - len(skipped) >= 4
+        run = RunDirectory(parse_response(response.message).run_directory)
+        samples = run.read_samples()
+        assert len(samples) == 12  # the planned count, thanks to the replacements
         assert any('skipped' in p.extra for p in suite.progress)
+        # result.json lists each rejected posture and the one that replaced it.
+        replacements = json.loads((run.path / 'result.json').read_text())['collection'][
+            'replacements'
+        ]
+        assert len(replacements) == len(skipped)
+        state = json.loads((run.path / 'state.json').read_text())
+        assert state['replacements'] == replacements
+        rejected = {r['rejected'] for r in replacements}
+        assert rejected == {int(line.split()[2].rstrip(':')) for line in skipped}, skipped
+        # Every posture planned or added has a row, except the rejected ones.
+        assert set(samples.posture) == set(range(1, len(state['poses']) + 1)) - rejected
+        # A replacement is a pool posture not already in the run.
+        poses = np.asarray(state['poses'])
+        assert len({tuple(np.round(p, 12)) for p in poses}) == len(poses)
     finally:
         suite.close()
 
@@ -616,3 +636,57 @@ def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_cont
         assert node.collection_done()
     finally:
         node.destroy_node()
+
+
+#: Leg limits scaled up from the realistic ones (50 mm/s, 200 mm/s^2) so that a run takes seconds:
+#: a move of 0.4 m takes 0.2 s.
+FAST_MOTION = {'max_leg_speed': 4.0, 'max_leg_acceleration': 40.0}
+MOVING_POSTURES = 8
+
+
+def _moving_run(ros_context, tmp_path, order, truth):
+    platform = [Parameter(name, value=value) for name, value in FAST_MOTION.items()]
+    overrides = {
+        'free_parameters': PERTURBED,
+        'posture_order': order,
+        'posture_count': MOVING_POSTURES,
+        'pool_size': 60,
+        **FAST_MOTION,
+    }
+    suite, *_ = make_suite(
+        ros_context, tmp_path / order, tmp_path / 'true.yaml', overrides, platform
+    )
+    try:
+        response = suite.wait(suite.call())
+        assert response.success, response.message
+        run = RunDirectory(parse_response(response.message).run_directory)
+        state = json.loads((run.path / 'state.json').read_text())
+        errors = parameter_errors(run.read_geometry(), truth)
+        return np.asarray(state['poses']), run.read_samples(), errors
+    finally:
+        suite.close()
+
+
+def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
+    ros_context, tmp_path
+):
+    from gsp_kinematics.kinematics import home_pose
+    from gsp_kinematics.motion import MotionLimits
+    from gsp_kinematics.route import plan_route
+
+    truth = perturbed_truth(tmp_path / 'true.yaml')
+    route_poses, route_samples, route_errors = _moving_run(ros_context, tmp_path, 'route', truth)
+    chosen_poses, chosen_samples, chosen_errors = _moving_run(
+        ros_context, tmp_path, 'selection', truth
+    )
+    # The same postures, in another order: the route's, whose travel is shorter.
+    assert sorted(map(tuple, route_poses)) == sorted(map(tuple, chosen_poses))
+    assert not np.array_equal(route_poses, chosen_poses)
+    limits = MotionLimits(FAST_MOTION['max_leg_speed'], FAST_MOTION['max_leg_acceleration'])
+    route = plan_route(default_geometry('nominal'), home_pose(), chosen_poses, limits)
+    np.testing.assert_array_equal(route_poses, chosen_poses[route.order])
+    assert route.travel_s < route.selection_order_s
+    # Both collect every posture and calibrate to the same accuracy (mm, deg).
+    assert len(route_samples) == len(chosen_samples) == MOVING_POSTURES
+    for errors in (route_errors, chosen_errors):
+        assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.01

@@ -118,6 +118,38 @@ def test_state_round_trips_and_lists_what_is_left(tmp_path):
     assert run_state.latest_unfinished_run(tmp_path / 'runs') == run
 
 
+def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
+    settings = _settings()
+    state, poses = _state(settings)
+    # Posture 2 was rejected and replaced by posture 5, appended; posture 4 never came.
+    state.poses.append((poses[1] + 0.5).tolist())
+    state.record_skip(2, 'rejected by the platform: stroke')
+    state.replacements.append({'rejected': 2, 'replacement': 5, 'reason': 'stroke'})
+    run = tmp_path / 'a_run'
+    run.mkdir()
+    run_state.write_state(run, state)
+    again = run_state.read_state(run)
+    assert again.replacements == state.replacements and again.poses == state.poses
+    samples = Samples.empty()
+    samples.append(1, poses[0], np.ones(6), np.ones(4), 5, 0.0)
+    samples.append(3, poses[2], np.ones(6), np.ones(4), 5, 0.0)
+    # In the recorded order, without the replaced posture.
+    assert run_state.postures_to_collect(again, samples) == [4, 5]
+
+
+def test_the_replacement_is_the_best_remaining_pool_posture():
+    from gsp_calibrator.calibration import PostureReplacer
+    from gsp_kinematics.selection import best_addition
+
+    settings = _settings(posture_count=12, pool_size=60, free_parameters=['paper'])
+    replacer = PostureReplacer(settings)
+    run_poses = replacer.pool[:12]
+    pose = replacer(run_poses, rejected=[3])
+    expected = best_addition(replacer.information, [k for k in range(12) if k != 2], [2])
+    np.testing.assert_array_equal(pose, replacer.pool[expected])
+    assert not np.any(np.all(replacer.pool[:12] == pose, axis=1))
+
+
 @pytest.mark.parametrize(
     'change, named',
     [

@@ -109,3 +109,44 @@ def test_run_options_are_the_calibrators_and_checked_as_gsp_demo_checks_them(cap
         with pytest.raises(SystemExit):
             planning.parse_arguments(argv)
         assert named in capsys.readouterr().err
+
+
+def test_plan_reports_the_route_and_its_platform_time(tmp_path, capsys):
+    output = tmp_path / 'plan.json'
+    argv = ['--postures', '20', '--samples-per-posture', '4', '--output', str(output), *QUICK]
+    assert planning.main(argv) == 0
+    timing = _read(output)['platform_time']
+    assert sorted(timing['order']) == list(range(20))
+    assert (
+        timing['lower_bound_travel_s'] <= timing['travel_s'] <= timing['selection_order_travel_s']
+    )
+    assert timing['settle_s'] == pytest.approx(20 * 0.02)
+    assert timing['sampling_s'] == pytest.approx(20 * 4 / 200)
+    assert timing['total_s'] == pytest.approx(
+        timing['travel_s'] + timing['settle_s'] + timing['sampling_s']
+    )
+    assert 'route (selection indices): ' in capsys.readouterr().out
+
+
+def test_the_target_plan_is_the_quickest_candidate_reaching_the_target(tmp_path, capsys):
+    nominal = default_geometry('nominal')
+    design = planning.Design(pool_size=120)
+    counts = (15, 20, 30)
+    reference = planning.plan(nominal, 30, 10, design)
+    target_mm = 1.5 * reference['predicted']['position_mm_mean']
+    result = planning.target_plan(nominal, target_mm, None, design, counts)
+    best = result['plan']
+    assert best['predicted']['position_mm_mean'] <= target_mm
+    assert best['platform_time']['total_s'] == min(c['platform_s'] for c in result['candidates'])
+    assert best['platform_time']['total_s'] < reference['platform_time']['total_s']
+    # The fewest samples that reach it: one less would not.
+    fewer = planning.plan(nominal, best['postures'], best['samples_per_posture'] - 1, design)
+    assert fewer['predicted']['position_mm_mean'] > target_mm
+    # Out of reach: says what the best reaches.
+    output = tmp_path / 'target.json'
+    argv = ['--target-position-mm', '1e-5', '--target-postures', '15,20', '--output', str(output)]
+    assert planning.main([*argv, *QUICK]) == 0
+    assert _read(output)['plan'] is None
+    assert 'no plan within the pool reaches position 1e-05 mm; the best reaches' in (
+        capsys.readouterr().out
+    )

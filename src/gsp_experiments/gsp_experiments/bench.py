@@ -4,7 +4,10 @@
   nominal set 2, the default formulation, Table 3's first noise level), and in the same run the
   same problem solved by ``scipy.optimize.least_squares(method='lm')`` with its finite-difference
   Jacobian on the noise-weighted FK-based residuals (FK of the measured legs under the parameters,
-  predicted device readings) from the same start; ``speedup`` = scipy median / ours.
+  predicted device readings) from the same start; ``speedup`` = scipy median / ours. Beside it,
+  ``scipy_analytic_ms``: the peer a scipy user would write, ``least_squares(method='trf',
+  tr_solver='lsmr')`` on the implicit residuals with the analytic sparse Jacobian
+  (:func:`scipy_analytic_identification`); ``speedup_analytic`` = that median / ours.
 * ``fk``: batched forward-kinematics throughput (postures per second).
 * ``--profile``: no JSON; a cProfile summary of the ``identification`` case on stderr.
 * ``identification.scaling``, ``selection`` and ``prediction``: see :mod:`.bench_scale`
@@ -14,7 +17,7 @@ Other packages add sections by calling the benchmark: ``main(extra_sections={key
 ``run(quick=bool) -> dict`` giving the ``bench.json`` section ``key`` (``gsp_bench`` itself is
 ``gsp_calibrator.bench``, which adds ``end_to_end``); each gets a ``--skip-<key>`` option. The core's
 sections alone: ``python -m gsp_experiments.bench``. With ``--merge`` (the default) keys already in
-``bench.json`` that this run does not produce are kept.
+``bench.json`` that this run does not produce are kept, so ``--only`` reruns some sections.
 """
 
 import argparse
@@ -28,11 +31,13 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 
+from gsp_kinematics._readings import readings_jacobians
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.fileio import to_json, write_json
 from gsp_kinematics.geometry import Geometry, parameter_errors
-from gsp_kinematics.identification import DEFAULT_FORMULATION, Sigmas, identify
+from gsp_kinematics.identification import DEFAULT_FORMULATION, Sigmas, identify, resolve_free
 from gsp_kinematics.kinematics import (
     forward_kinematics_masked,
     inverse_kinematics,
@@ -115,6 +120,55 @@ def scipy_fd_identification(nominal, leg_lengths, readings, sigmas, pose_guesses
     return least_squares(function, nominal.to_vector(), method='lm'), counters
 
 
+def scipy_analytic_identification(nominal, leg_lengths, readings, sigmas, pose_guesses):
+    """The peer a scipy user would write: ``least_squares(method='trf', tr_solver='lsmr')`` on the
+    implicit residuals (legs and device readings, every posture's pose unknown with the 44
+    parameters) with the analytic Jacobian as a sparse matrix (each posture's rows touch the 44
+    and its own 6 pose columns). Returns ``(solution, counters)``."""
+    free = resolve_free(None)
+    full = nominal.to_full_vector()
+    count, size = len(pose_guesses), int(free.sum())
+    weights = np.concatenate([np.full(6, 1.0 / sigmas.leg_lengths), 1.0 / sigmas.readings()])
+    measured = np.concatenate([leg_lengths, readings], axis=1)
+    # The sparsity pattern: row 10k + i holds the 44 columns and the pose columns of posture k.
+    pose_columns = size + 6 * np.arange(count)[:, None] + np.arange(6)[None, :]
+    columns = np.concatenate(
+        [np.broadcast_to(np.arange(size), (count, size)), pose_columns], axis=1
+    )[:, None, :].repeat(10, axis=1)
+    rows = np.broadcast_to(np.arange(10 * count).reshape(count, 10, 1), columns.shape)
+    shape = (10 * count, size + 6 * count)
+    counters = {'calls': 0, 'jacobians': 0}
+    cache = {}
+
+    def evaluate(x):
+        key = x.tobytes()
+        if cache.get('key') != key:
+            vector = full.copy()
+            vector[free] = x[:size]
+            geometry = Geometry.from_full_vector(vector, nominal.limits)
+            cache.update(key=key, value=readings_jacobians(geometry, x[size:].reshape(count, 6)))
+        return cache['value']
+
+    def residuals(x):
+        counters['calls'] += 1
+        predicted = evaluate(x)[0]
+        difference = predicted - measured
+        difference[:, 8] = wrap_angle(difference[:, 8])
+        return (difference * weights).ravel()
+
+    def jacobian(x):
+        counters['jacobians'] += 1
+        _, d_pose, d_u = evaluate(x)
+        data = np.concatenate([d_u[:, :, free], d_pose], axis=2) * weights[None, :, None]
+        return csr_matrix((data.ravel(), (rows.ravel(), columns.ravel())), shape=shape)
+
+    start = np.concatenate([full[free], np.asarray(pose_guesses, dtype=float).ravel()])
+    solution = least_squares(
+        residuals, start, jac=jacobian, method='trf', tr_solver='lsmr', x_scale='jac'
+    )
+    return solution, counters
+
+
 def _median_ms(function, repeats, cpu=None):
     """Median wall time (ms) of ``repeats`` calls, all wall times, and the last value.
 
@@ -149,6 +203,12 @@ def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAUL
         lambda: scipy_fd_identification(*arguments, problem['poses']), scipy_repeats, cpu
     )
     scipy_geometry = Geometry.from_vector(solution.x, nominal.limits)
+    analytic_ms, analytic_times, (analytic, analytic_counters) = _median_ms(
+        lambda: scipy_analytic_identification(*arguments, problem['poses']), scipy_repeats, cpu
+    )
+    analytic_vector = nominal.to_full_vector()
+    analytic_vector[resolve_free(None)] = analytic.x[: int(resolve_free(None).sum())]
+    analytic_geometry = Geometry.from_full_vector(analytic_vector, nominal.limits)
 
     def max_error(geometry):
         return float(np.max(np.abs(parameter_errors(geometry, exact)[:43])))
@@ -178,6 +238,15 @@ def bench_identification(problem, repeats=7, scipy_repeats=3, formulation=DEFAUL
         'scipy_fd_calls_with_fk_failures': counters['calls_with_fk_failures'],
         'scipy_fd_status': int(solution.status),
         'scipy_fd_max_param_error_mm': max_error(scipy_geometry),
+        'scipy_analytic_ms': analytic_ms,
+        'speedup_analytic': analytic_ms / median_ms,
+        'scipy_analytic_cpu_ms': cpu[2],
+        'speedup_analytic_cpu': cpu[2] / cpu[0],
+        'scipy_analytic_times_ms': analytic_times,
+        'scipy_analytic_cost': float(analytic.cost),
+        'scipy_analytic_function_calls': analytic_counters['calls'],
+        'scipy_analytic_status': int(analytic.status),
+        'scipy_analytic_max_param_error_mm': max_error(analytic_geometry),
         'noise': problem['noise'],
         'nominal_set': problem['nominal_set'],
         'pool_size': problem['pool_size'],
@@ -313,6 +382,13 @@ def main(argv=None, extra_sections=None):
         action='store_true',
         help='print a cProfile summary of the standard identification to stderr and exit',
     )
+    parser.add_argument(
+        '--only',
+        default=None,
+        help='comma-separated sections to run (identification, fk, scale, '
+        + ', '.join(extra_sections)
+        + '); the others keep their values in the output file',
+    )
     for key in extra_sections:
         parser.add_argument(
             skip_option(key),
@@ -332,21 +408,35 @@ def main(argv=None, extra_sections=None):
     def log(text):
         print(text, file=sys.stderr, flush=True)
 
-    log('gsp_bench: building the problem (nominal set 2, 60 selected postures) ...')
-    noise = (0.0, 0.0) if args.noise_free else (0.001, 0.001)
-    problem = build_problem(angle_noise_deg=noise[0], length_noise_mm=noise[1])
-    if args.profile:
-        profile_identification(problem)
-        return 0
-    log('gsp_bench: timing identification and the scipy finite-difference baseline ...')
-    sections = {'identification': bench_identification(problem, repeats, scipy_repeats)}
-    log('gsp_bench: timing batched FK ...')
-    sections['fk'] = bench_fk(fk_count, repeats=5)
-    if not args.skip_scale:
+    only = None if args.only is None else {key.strip() for key in args.only.split(',')}
+    unknown = (only or set()) - {'identification', 'fk', 'scale', *extra_sections}
+    if unknown:
+        parser.error(f'--only: unknown sections {sorted(unknown)}')
+
+    def wanted(key):
+        return only is None or key in only
+
+    sections = {}
+    if wanted('identification') or args.profile:
+        log('gsp_bench: building the problem (nominal set 2, 60 selected postures) ...')
+        noise = (0.0, 0.0) if args.noise_free else (0.001, 0.001)
+        problem = build_problem(angle_noise_deg=noise[0], length_noise_mm=noise[1])
+        if args.profile:
+            profile_identification(problem)
+            return 0
+        log('gsp_bench: timing identification and the scipy baselines ...')
+        sections['identification'] = bench_identification(problem, repeats, scipy_repeats)
+        sections['identification']['blas_threads'] = os.environ.get(
+            'OPENBLAS_NUM_THREADS', 'default'
+        )
+    if wanted('fk'):
+        log('gsp_bench: timing batched FK ...')
+        sections['fk'] = bench_fk(fk_count, repeats=5)
+    # The scaling belongs to the identification section: run with it.
+    if not args.skip_scale and wanted('scale') and 'identification' in sections:
         sections.update(scale_sections(sections['identification'], args.quick, log))
-    skip = {key for key in extra_sections if getattr(args, f'skip_{key}')}
+    skip = {key for key in extra_sections if getattr(args, f'skip_{key}') or not wanted(key)}
     sections.update(run_extra_sections(extra_sections, skip=skip, quick=args.quick, log=log))
-    sections['identification']['blas_threads'] = os.environ.get('OPENBLAS_NUM_THREADS', 'default')
     document = merge_sections(args.output, sections, merge=args.merge)
     sys.stdout.write(to_json(document))
     return 0

@@ -162,6 +162,28 @@ def select_postures(
     return np.array(chosen), float(scaled_condition_number(total))
 
 
+def best_addition(information, chosen, excluded=()):
+    """Index of the posture (not in ``chosen`` nor ``excluded``) that adds most to the design of
+    ``chosen``, from the per-posture information matrices ``information`` (N, n, n) of a pool
+    (:func:`posture_information`): the smallest scaled condition number of the information with
+    it (the criterion of :func:`select_postures`; the largest log det gain while that stays
+    singular). Replaces a posture the platform rejected. ValueError if none is left.
+    """
+    available = np.ones(len(information), dtype=bool)
+    available[list(chosen)] = False
+    available[list(excluded)] = False
+    candidates = np.flatnonzero(available)
+    if not candidates.size:
+        raise ValueError('no posture left in the pool to add')
+    total = information[list(chosen)].sum(axis=0)
+    conditions = scaled_condition_number(total[None] + information[candidates])
+    if np.isfinite(conditions).any():
+        return int(candidates[int(np.argmin(conditions))])
+    ridge = 1e-9 * max(np.trace(total), 1e-300) * np.eye(total.shape[0])
+    gain = np.linalg.slogdet(total[None] + ridge + information[candidates])[1]
+    return int(candidates[int(np.argmax(gain))])
+
+
 def position_weight(geometry, targets, free=None):
     """``W`` (n, n): the Gram matrix of the position sensitivities at ``targets`` (M, 6), so that
     ``trace(W C)`` is the summed predicted squared position error (m^2) under a covariance C."""

@@ -155,3 +155,25 @@ def test_selection_is_not_worse_than_scoring_every_candidate(nominal_sets):
     _, shortlisted = select_postures(nominal, pool, 30)
     _, exhaustive = select_postures(nominal, pool, 30, shortlist=None)
     assert shortlisted <= 1.1 * exhaustive
+
+
+def test_best_addition_picks_the_posture_that_lowers_the_condition_number_most():
+    from gsp_kinematics.geometry import default_geometry as _default
+    from gsp_kinematics.kinematics import sample_valid_postures as _sample
+    from gsp_kinematics.selection import (
+        best_addition,
+        posture_information,
+        scaled_condition_number,
+    )
+
+    nominal = _default('nominal')
+    pool = _sample(nominal, 80, np.random.default_rng(5))
+    chosen = list(range(20))
+    excluded = [20, 21]
+    information = posture_information(nominal, pool)
+    best = best_addition(information, chosen, excluded)
+    assert best not in chosen and best not in excluded
+    base = information[chosen].sum(axis=0)
+    others = [k for k in range(80) if k not in chosen + excluded]
+    conditions = {k: float(scaled_condition_number(base + information[k])) for k in others}
+    assert conditions[best] == min(conditions.values())

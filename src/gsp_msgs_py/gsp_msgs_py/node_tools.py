@@ -202,14 +202,35 @@ def frame_id_spec(description):
 
 
 def settle_time_spec(what):
-    """``settle_time`` (s): from the 'moving' to the 'settled' status of ``what``."""
+    """``settle_time`` (s): from the legs' arrival to the 'settled' status of ``what``."""
     return ParameterSpec(
         'settle_time',
         0.05,
-        f"Time from the 'moving' to the 'settled' status of {what}",
+        f"Time from the legs' arrival to the 'settled' status of {what}",
         unit='s',
         float_range=(0.0, 60.0),
         check=at_least(0.0, 's'),
+    )
+
+
+def motion_limit_specs(speed, acceleration, read_only=False):
+    """``max_leg_speed`` (m/s) and ``max_leg_acceleration`` (m/s^2) of the simulated legs, with
+    these defaults; 0 removes a limit (:class:`gsp_kinematics.motion.MotionLimits`)."""
+    return tuple(
+        ParameterSpec(
+            name,
+            float(default),
+            f'{what} limit of every leg (synchronised moves, docs/planning.md); 0: no limit',
+            unit=unit,
+            read_only=read_only,
+            float_range=(0.0, 1e3),
+            constraints='>= 0',
+            check=at_least(0.0, unit),
+        )
+        for name, default, what, unit in (
+            ('max_leg_speed', speed, 'Speed', 'm/s'),
+            ('max_leg_acceleration', acceleration, 'Acceleration', 'm/s^2'),
+        )
     )
 
 

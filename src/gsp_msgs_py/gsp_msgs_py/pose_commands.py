@@ -25,15 +25,17 @@ class PoseCommandServer:
     rejected (a ValueError or TypeError it raises counts as a rejection with its message).
     ``on_settled(command_id)`` (optional) runs right after a ``settled`` status. Every callback
     runs in the node's default callback group. ``settle_time`` (s) may be changed at any time;
-    it applies from the next accepted command.
+    it applies from the next accepted command. ``travel_s()`` (optional) gives the time (s) the
+    command just accepted by ``move`` takes to arrive: it settles ``travel + settle_time`` later.
 
     A node that learns itself when the platform has arrived (``platform_bridge``, from the
     controller's joint states) passes ``settle_time=None``: an accepted command then stays
     ``moving`` until it calls :meth:`settled` or :meth:`reject_moving`.
     """
 
-    def __init__(self, node, frame_id, settle_time, move, on_settled=None):
+    def __init__(self, node, frame_id, settle_time, move, on_settled=None, travel_s=None):
         self.settle_time = settle_time
+        self._travel_s = travel_s
         self._reports = settle_time is None
         self._node = node
         self._frame_id = frame_id
@@ -81,7 +83,8 @@ class PoseCommandServer:
             self._reject(command_id, reason)
             return
         now_ns = self._now_ns()
-        superseded = self._tracker.accept(command_id, now_ns, self.settle_time or 0.0)
+        wait_s = (self.settle_time or 0.0) + (self._travel_s() if self._travel_s else 0.0)
+        superseded = self._tracker.accept(command_id, now_ns, wait_s)
         if superseded is not None:
             self._reject(superseded, superseded_reason(command_id))
         self._publish_status(command_id, names.STATE_MOVING)

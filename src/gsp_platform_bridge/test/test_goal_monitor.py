@@ -1,8 +1,11 @@
 """The bridge's goal verdicts and the emulated controller's trajectory following (pure)."""
 
+import math
+
 import numpy as np
 import pytest
 
+from gsp_kinematics.motion import MotionLimits
 from gsp_platform_bridge.goal_monitor import (
     REJECTED,
     SETTLED,
@@ -78,7 +81,7 @@ def test_waypoint_times_follow_the_fastest_leg_and_the_minimum_duration():
 
 
 def test_the_follower_interpolates_at_the_point_time_and_respects_the_speed_limit():
-    follower = TrajectoryFollower(np.zeros(6), max_speed=0.1)
+    follower = TrajectoryFollower(np.zeros(6), MotionLimits(0.1, math.inf))
     follower.set_trajectory([(1.0, np.full(6, 0.05))], 0.0)
     np.testing.assert_allclose(follower.step(0.5), 0.025)
     np.testing.assert_allclose(follower.step(1.0), 0.05)
@@ -91,7 +94,7 @@ def test_the_follower_interpolates_at_the_point_time_and_respects_the_speed_limi
 
 
 def test_the_follower_stops_where_it_is_told_on_a_fault():
-    follower = TrajectoryFollower(np.zeros(6), max_speed=0.1)
+    follower = TrajectoryFollower(np.zeros(6), MotionLimits(0.1, math.inf))
     follower.set_trajectory([(1.0, np.full(6, 0.05)), (2.0, np.full(6, 0.1))], 0.0)
     follower.step(0.5)
     follower.abort(np.full(6, 0.01))

@@ -1,8 +1,8 @@
 """``controller_sim`` node: an emulated ros2_control hexapod for the bridge (docs/hardware.md).
 
 Plays what a real install has behind ``platform_bridge``: a ``joint_trajectory_controller``
-subscribing ``/<controller_name>/joint_trajectory`` (followed at ``max_leg_speed``,
-:mod:`gsp_platform_sim.trajectory_follower`) and a ``joint_state_broadcaster`` publishing
+subscribing ``/<controller_name>/joint_trajectory`` (followed within ``max_leg_speed`` and
+``max_leg_acceleration``, :mod:`gsp_platform_sim.trajectory_follower`) and a ``joint_state_broadcaster`` publishing
 ``/joint_states`` (with leg sensor noise). The hardware is built to ``true_geometry_file``: it
 publishes ``/gsp/platform/true_pose`` = FK(true geometry, legs) for the simulated device.
 """
@@ -19,8 +19,8 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
+from gsp_kinematics.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, qos
-from gsp_msgs_py.node_tools import ParameterSpec, greater_than
 
 from .trajectory_follower import TrajectoryFollower
 
@@ -41,14 +41,8 @@ PARAMETERS = (
         'Emulated controller: goals on /<controller_name>/joint_trajectory'
     ),
     node_tools.joint_names_spec('Joint names of legs 1..6 on /joint_states'),
-    ParameterSpec(
-        'max_leg_speed',
-        0.1,
-        'Speed limit of every leg',
-        unit='m/s',
-        read_only=True,
-        check=greater_than(0.0, 'm/s'),
-    ),
+    # A speed limit alone by default (0: no acceleration limit), as before the motion model.
+    *node_tools.motion_limit_specs(0.1, 0.0, read_only=True),
     node_tools.publish_rate_spec('/joint_states and true_pose'),
     node_tools.noise_std_spec(
         'leg_noise_std', 1e-6, 'Standard deviation of the leg position noise on /joint_states', 'm'
@@ -76,7 +70,10 @@ class ControllerSimNode(Node):
         # Powered up where a nominal controller put the home pose.
         nominal = default_geometry('nominal')
         start = nominal.sensors.leg_readings(inverse_kinematics(nominal, home_pose()[None]))[0]
-        self._follower = TrajectoryFollower(start, values['max_leg_speed'])
+        self._follower = TrajectoryFollower(
+            start,
+            MotionLimits.from_parameters(values['max_leg_speed'], values['max_leg_acceleration']),
+        )
         pose, converged = forward_kinematics_masked(
             self._true, self._true.sensors.true_leg_lengths(start[None]), home_pose()[None]
         )

@@ -17,6 +17,7 @@ from gsp_kinematics.geometry import (
     geometry_from_parameters,
     load_geometry,
 )
+from gsp_kinematics.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
@@ -48,6 +49,9 @@ PARAMETERS = (
     ),
     node_tools.seed_spec(),
     node_tools.settle_time_spec('an accepted command'),
+    # Defaults: no limits, the platform jumps (quick demos and tests); the realistic limits are
+    # gsp_kinematics.motion.MotionLimits() (docs/planning.md).
+    *node_tools.motion_limit_specs(0.0, 0.0),
     ParameterSpec(
         'max_condition',
         DEFAULT_MAX_CONDITION,
@@ -93,6 +97,9 @@ class PlatformSimNode(Node):
                 leg_noise_std=values['leg_noise_std'],
                 rng=np.random.default_rng([seed, RNG_STREAM]),
                 max_condition=values['max_condition'],
+                limits=MotionLimits.from_parameters(
+                    values['max_leg_speed'], values['max_leg_acceleration']
+                ),
             )
         except ValueError as error:
             raise node_tools.ConfigurationError(str(error)) from None
@@ -105,7 +112,14 @@ class PlatformSimNode(Node):
         self._pubs = node_tools.create_publishers(
             self, (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
         )
-        self._commands = PoseCommandServer(self, self._frame_id, values['settle_time'], self._move)
+        self._travel_s = 0.0  # of the command just accepted
+        self._commands = PoseCommandServer(
+            self,
+            self._frame_id,
+            values['settle_time'],
+            self._move,
+            travel_s=lambda: self._travel_s,
+        )
         self._state_timer = self.create_timer(1.0 / values['publish_rate'], self._publish_state)
         if values['publish_markers']:
             self._markers_pub = node_tools.create_publishers(self, (names.TOPIC_MARKERS,))[
@@ -117,7 +131,9 @@ class PlatformSimNode(Node):
             f'platform_sim ready: true geometry from {values["true_geometry_file"]}, '
             f'publishing at {values["publish_rate"]:g} Hz, '
             f'leg noise {values["leg_noise_std"]:g} m, '
-            f'settle time {values["settle_time"]:g} s, seed {seed}, '
+            f'settle time {values["settle_time"]:g} s, leg limits '
+            f'{values["max_leg_speed"]:g} m/s and {values["max_leg_acceleration"]:g} m/s^2 '
+            f'(0: none), seed {seed}, '
             f'home pose {self._simulator.true_pose.round(6).tolist()}'
         )
 
@@ -129,6 +145,12 @@ class PlatformSimNode(Node):
             self._simulator.max_condition = changes['max_condition']
         if 'settle_time' in changes:
             self._commands.settle_time = changes['settle_time']
+        if {'max_leg_speed', 'max_leg_acceleration'} & set(changes):
+            # From the next command (a move under way keeps its profile).
+            self._simulator.limits = MotionLimits.from_parameters(
+                self.get_parameter('max_leg_speed').value,
+                self.get_parameter('max_leg_acceleration').value,
+            )
         changed = sorted(name for name in changes if name in GEOMETRY_PARAMETER_NAMES)
         if changed:
             self._simulator.set_controller_geometry(
@@ -143,17 +165,23 @@ class PlatformSimNode(Node):
 
     def _move(self, command_id, pose):
         """PoseCommandServer callback: move to ``pose`` (m, rad); '' or the rejection reason."""
-        outcome = self._simulator.command(pose)
+        outcome = self._simulator.command(pose, self._now_s())
+        self._travel_s = outcome.travel_s
         if outcome.accepted:
             self.get_logger().debug(f'pose command {command_id} accepted: {pose.tolist()}')
         return '' if outcome.accepted else outcome.reason
+
+    def _now_s(self):
+        return self.get_clock().now().nanoseconds * 1e-9
 
     # ------------------------------------------------------------------------ publishing
 
     def _publish_state(self):
         # Stamped at the timer's scheduled tick, as a sensor sampling on its own clock: the
         # callback's delay would jitter the leg-length stamps against the device's.
-        stamp = node_tools.timer_tick_time(self, self._state_timer).to_msg()
+        tick = node_tools.timer_tick_time(self, self._state_timer)
+        self._simulator.update(tick.nanoseconds * 1e-9)
+        stamp = tick.to_msg()
         self._pubs[names.TOPIC_LEG_LENGTHS].publish(
             conversions.leg_lengths_to_msg(
                 self._simulator.measured_leg_lengths(), stamp, self._frame_id

@@ -8,6 +8,13 @@ commanded and the real pose is what calibration removes.
 Leg sensors with gain errors (``geometry.sensors.leg_gain_errors``, docs/sensor_errors.md): the
 controller drives each leg until its sensor reads ``q = IK(controller, pose) / (1 + kq_controller)``;
 the real articular variable is then ``(1 + kq_true) q``, and the published reading is ``q``.
+
+Motion (docs/planning.md): with :class:`gsp_kinematics.motion.MotionLimits`, an accepted command
+starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.motion.LegMove`);
+:meth:`PlatformSimulator.update` advances it. While it moves, the real pose is interpolated
+between the start and the end poses at the legs' common fraction (FK of the legs at every tick
+would cost more than the readings are worth: the collection uses none taken before the settle).
+Without limits the platform jumps.
 """
 
 import dataclasses
@@ -20,6 +27,7 @@ from gsp_kinematics.kinematics import (
     home_pose,
     inverse_kinematics,
 )
+from gsp_kinematics.motion import LegMove
 
 #: Largest condition number of dq/dX a command may have (singularity guard). Above the
 #: ``Workspace().max_condition`` (60) used to sample postures, so sampled postures stay accepted
@@ -32,13 +40,15 @@ class CommandOutcome:
     """Result of :meth:`PlatformSimulator.command`.
 
     ``commanded_leg_lengths`` is q (6,) in m, or None when rejected; ``true_pose`` (6,) is where the
-    real platform is after the command (unchanged when rejected).
+    real platform is once the command is carried out (unchanged when rejected); ``travel_s`` the
+    time (s) the legs take to get there (0 without motion limits).
     """
 
     accepted: bool
     reason: str
     commanded_leg_lengths: np.ndarray | None
     true_pose: np.ndarray
+    travel_s: float = 0.0
 
 
 def _check_noise_std(value, name):
@@ -53,7 +63,8 @@ class PlatformSimulator:
 
     ``leg_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
     sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
-    through :meth:`command`; ValueError if the home pose is not reachable.
+    through :meth:`command`; ValueError if the home pose is not reachable. ``limits``: the legs'
+    :class:`gsp_kinematics.motion.MotionLimits` (None: the platform jumps to each command).
     """
 
     def __init__(
@@ -64,7 +75,10 @@ class PlatformSimulator:
         rng=None,
         max_condition=DEFAULT_MAX_CONDITION,
         initial_pose=None,
+        limits=None,
     ):
+        self.limits = limits
+        self._move = None  # the LegMove under way, with the real poses at its ends
         self._true_geometry = true_geometry
         self._controller_geometry = controller_geometry
         self.leg_noise_std = leg_noise_std
@@ -118,6 +132,23 @@ class PlatformSimulator:
     # ------------------------------------------------------------------------------ state
 
     @property
+    def moving(self):
+        """True while the legs have not arrived (as of the last :meth:`update`)."""
+        return self._move is not None
+
+    def update(self, now_s):
+        """Advance the move under way to ``now_s`` (s, the clock of :meth:`command`)."""
+        if self._move is None:
+            return
+        move, start_pose, end_pose = self._move
+        fraction = move.fraction(now_s)
+        if fraction >= 1.0:
+            self._leg_lengths, self._true_pose, self._move = move.end.copy(), end_pose, None
+            return
+        self._leg_lengths = move.start + fraction * (move.end - move.start)
+        self._true_pose = start_pose + fraction * (end_pose - start_pose)
+
+    @property
     def leg_lengths(self):
         """Noise-free leg sensor readings q (6,) the legs are driven to (m); the real articular
         variables are ``(1 + kq_true) q``."""
@@ -144,8 +175,8 @@ class PlatformSimulator:
             False, reason, None, None if self._true_pose is None else self._true_pose.copy()
         )
 
-    def command(self, pose):
-        """Drive the platform to ``pose`` (6,) as the controller understands it.
+    def command(self, pose, now_s=0.0):
+        """Drive the platform to ``pose`` (6,) as the controller understands it, from ``now_s`` (s).
 
         Rejected (platform unchanged, ``reason`` says why) if the pose is not six finite numbers,
         is unreachable for the controller geometry (leg stroke, joint angles, singularity), or the
@@ -173,7 +204,15 @@ class PlatformSimulator:
                 'forward kinematics of the real platform found no pose near the command for '
                 f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)'
             )
-        self._leg_lengths = leg_lengths
-        self._true_pose = true_pose[0]
         self._commanded_pose = pose.copy()
-        return CommandOutcome(True, '', leg_lengths.copy(), true_pose[0].copy())
+        travel_s = 0.0
+        if self._leg_lengths is None or self.limits is None or self.limits.instantaneous:
+            self._leg_lengths, self._true_pose, self._move = leg_lengths, true_pose[0], None
+        else:
+            # From where the legs are now: a command may supersede a move under way.
+            self.update(now_s)
+            move = LegMove(self._leg_lengths, leg_lengths, self.limits, now_s)
+            travel_s = move.duration_s
+            self._move = (move, self._true_pose.copy(), true_pose[0])
+            self.update(now_s)
+        return CommandOutcome(True, '', leg_lengths.copy(), true_pose[0].copy(), travel_s)

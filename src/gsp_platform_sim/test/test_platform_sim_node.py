@@ -331,3 +331,37 @@ def test_markers_show_the_platform(harness):
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
     with pytest.raises(ConfigurationError, match=words):
         PlatformSimNode(context=ros_context, parameter_overrides=overrides)
+
+
+LIMITED = [
+    Parameter('max_leg_speed', value=0.5),
+    Parameter('max_leg_acceleration', value=2.0),
+    Parameter('leg_noise_std', value=0.0),
+    Parameter('settle_time', value=0.0),
+]
+
+
+@pytest.mark.parametrize('harness', [LIMITED], indirect=True)
+def test_with_leg_limits_the_legs_follow_a_synchronised_profile_until_settled(harness):
+    start = conversions.msg_to_leg_lengths(harness.leg_lengths[-1])
+    target = inverse_kinematics(NOMINAL, POSE[None])[0]
+    harness.leg_lengths.clear()
+    command_id = harness.command(POSE)
+    assert [s.state for s in harness.wait_final(command_id)] == ['moving', 'settled']
+    # Everything received up to the settle, then the first readings after it.
+    during = list(harness.leg_lengths)
+    after = harness.leg_lengths_after(3)
+    np.testing.assert_allclose(after, np.broadcast_to(target, after.shape), atol=1e-12)
+    legs = np.array([conversions.msg_to_leg_lengths(m) for m in during])
+    stamps = np.array([conversions.stamp_to_nanoseconds(m.header.stamp) for m in during]) * 1e-9
+    order = np.argsort(stamps)
+    legs, stamps = legs[order], stamps[order]
+    # On the straight line from the start to the target (all legs at one fraction), 1 nm.
+    span = target - start
+    fraction = (legs - start) @ span / (span @ span)
+    np.testing.assert_allclose(legs, start + fraction[:, None] * span, atol=1e-9)
+    assert np.all(np.diff(fraction) >= -1e-12)
+    assert np.any((fraction > 0.05) & (fraction < 0.95)), fraction  # seen under way
+    # No leg faster than its limit (0.5 m/s, 1 mm/s of slack).
+    speeds = np.abs(np.diff(legs, axis=0)) / np.maximum(np.diff(stamps), 1e-9)[:, None]
+    assert np.max(speeds) <= 0.5 + 1e-3

@@ -145,3 +145,28 @@ def test_marker_lines():
     assert [len(m.points) for m in markers] == [7, 7, 12, 2]
     assert len({(m.ns, m.id) for m in markers}) == 4
     assert all(m.header.frame_id == 'gsp_base' for m in markers)
+
+
+def test_with_motion_limits_the_legs_move_from_where_they_are():
+    from gsp_kinematics.motion import MotionLimits, move_time
+
+    limits = MotionLimits(0.05, 0.2)
+    sim = make_simulator(limits=limits)
+    home_legs = sim.leg_lengths
+    outcome = sim.command(POSE, now_s=100.0)
+    target = inverse_kinematics(NOMINAL, POSE[None])[0]
+    assert outcome.accepted and outcome.travel_s == pytest.approx(
+        move_time(home_legs, target, limits), abs=1e-12
+    )
+    assert sim.moving
+    np.testing.assert_allclose(sim.leg_lengths, home_legs, atol=0.0)  # not yet under way
+    sim.update(100.0 + outcome.travel_s / 2)  # symmetric profile: half way
+    np.testing.assert_allclose(sim.leg_lengths, (home_legs + target) / 2, atol=1e-12)
+    # A new command starts from the legs' current lengths.
+    halfway = sim.leg_lengths
+    second = sim.command(home_pose(), now_s=100.0 + outcome.travel_s / 2)
+    assert second.travel_s == pytest.approx(move_time(halfway, home_legs, limits), abs=1e-12)
+    sim.update(1e6)
+    assert not sim.moving
+    np.testing.assert_allclose(sim.leg_lengths, home_legs, atol=0.0)
+    np.testing.assert_allclose(sim.true_pose, second.true_pose, atol=0.0)
