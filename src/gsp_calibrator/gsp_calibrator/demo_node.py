@@ -42,8 +42,9 @@ def make_demo_node(context):
                 self._on_status,
                 qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
             )
-            self._true_pose_subscription = None  # only while validating (200 Hz)
-            self._leg_lengths_subscription = None  # only while waiting for the platform
+            # Subscriptions held only while needed: the true pose while validating (200 Hz),
+            # the leg lengths while waiting for the platform.
+            self._watched = {}
             self.leg_lengths_seen = False
             self.create_subscription(
                 DiagnosticStatus,
@@ -61,33 +62,27 @@ def make_demo_node(context):
             if status.settled:
                 self.settled_at[status.command_id] = self.get_clock().now().nanoseconds
 
+        def _watch(self, topic, message_type, callback, on):
+            """Subscribe to ``topic`` (or unsubscribe) while it is needed; True when it starts."""
+            subscription = self._watched.get(topic)
+            if on and subscription is None:
+                self._watched[topic] = self.create_subscription(
+                    message_type, topic, callback, qos.TOPIC_QOS[topic]
+                )
+                return True
+            if not on and subscription is not None:
+                self.destroy_subscription(self._watched.pop(topic))
+            return False
+
         def watch_true_pose(self, on):
             """Subscribe to (or unsubscribe from) the ground truth."""
-            if on and self._true_pose_subscription is None:
+            if self._watch(names.TOPIC_TRUE_POSE, PoseStamped, self._on_true_pose, on):
                 self.true_poses.clear()
-                self._true_pose_subscription = self.create_subscription(
-                    PoseStamped,
-                    names.TOPIC_TRUE_POSE,
-                    self._on_true_pose,
-                    qos.TOPIC_QOS[names.TOPIC_TRUE_POSE],
-                )
-            elif not on and self._true_pose_subscription is not None:
-                self.destroy_subscription(self._true_pose_subscription)
-                self._true_pose_subscription = None
 
         def watch_leg_lengths(self, on):
             """Subscribe to (or unsubscribe from) the platform's leg lengths."""
-            if on and self._leg_lengths_subscription is None:
+            if self._watch(names.TOPIC_LEG_LENGTHS, JointState, self._on_leg_lengths, on):
                 self.leg_lengths_seen = False
-                self._leg_lengths_subscription = self.create_subscription(
-                    JointState,
-                    names.TOPIC_LEG_LENGTHS,
-                    self._on_leg_lengths,
-                    qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS],
-                )
-            elif not on and self._leg_lengths_subscription is not None:
-                self.destroy_subscription(self._leg_lengths_subscription)
-                self._leg_lengths_subscription = None
 
         def _on_leg_lengths(self, msg):
             self.leg_lengths_seen = True
