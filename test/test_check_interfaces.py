@@ -12,7 +12,7 @@ from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import inverse_kinematics
 from gsp_msgs_py import conversions, names, node_tools
-from gsp_msgs_py.check_interfaces import run_check
+from gsp_msgs_py.interfaces.check_tool import run_check
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
 TRUE = default_geometry('true')

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gsp_calibrator import demo
+from gsp_calibrator.tools import demo
 from gsp_kinematics.geometry import load_geometry, parameter_errors
 from gsp_msgs_py.testing import marked_environment, marked_processes, wait_until
 
@@ -29,7 +29,7 @@ VALIDATION_KEYS = set(demo.VALIDATION_KEYS)
 def demo_command():
     """``gsp_demo`` from PATH (``make test``), else the module with this interpreter."""
     executable = shutil.which('gsp_demo')
-    return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.demo']
+    return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
 
 
 def test_main_job_calibrates_and_improves_accuracy(tmp_path):

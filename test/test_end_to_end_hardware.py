@@ -16,7 +16,7 @@ DEMO_TIMEOUT_S = 400.0  # generous: bounds a failure only
 
 def test_main_job_through_ros2_control_and_the_serial_device(tmp_path):
     executable = shutil.which('gsp_demo')
-    command = [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.demo']
+    command = [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
     env, marker = marked_environment()
     env.pop('ROS_DOMAIN_ID', None)  # the demo chooses a private one
     completed = subprocess.run(

@@ -20,7 +20,7 @@ import threading
 import numpy as np
 import pytest
 
-from gsp_calibrator.run_directory import Samples, write_samples
+from gsp_calibrator.run.directory import Samples, write_samples
 
 TIMEOUT_S = 60.0  #: bounds a failure only (start-up on a loaded machine)
 PAIRS = {
@@ -61,7 +61,7 @@ def node_commands(tmp_path):
         ],
         'replay': python
         + [
-            'gsp_calibrator.replay_node',
+            'gsp_calibrator.replay.replay_node',
             '--ros-args',
             '-p',
             f'run:={replayable_run(tmp_path / "recorded")}',

@@ -38,16 +38,12 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from gsp_kinematics.geometry import geometry_to_parameters
-from gsp_msgs_py import conversions, names, node_tools, qos
-
-from . import calibration, protocol, recording
-from .node_waiting import (
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.node_threads import (
     EventQueue,
-    ParameterSetter,
     SensorListener,
     ThreadResults,
     Waits,
@@ -55,10 +51,13 @@ from .node_waiting import (
     new_future,
     run_in_thread,
 )
-from .run_flow import RUN_FAILURES, CalibrationRun
-from .run_session import RunWriteError, WriteFailed
-from .settings import PARAMETERS, CalibratorSettings, check_parameters
-from .sources import SingleSourceGuard
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.result_delivery import ResultDelivery
+from gsp_calibrator.run import postures
+from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
+from gsp_calibrator.run.session import RunWriteError, WriteFailed
+from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
+from gsp_msgs_py import conversions, names, node_tools, qos
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
@@ -109,10 +108,10 @@ class CalibratorNode(Node):
 
         self._service_group = ReentrantCallbackGroup()
         self._data_group = ReentrantCallbackGroup()
-        self._parameter_setter = ParameterSetter(self, self._data_group)
-        self.command_publisher, self._progress_pub, self._result_pub = node_tools.create_publishers(
+        self.command_publisher, self._progress_pub, result_publisher = node_tools.create_publishers(
             self, OUTPUTS
         ).values()
+        self._results = ResultDelivery(self, result_publisher, self._data_group)
         self._sensors = SensorListener.beside(
             self, 'sensors', {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS}
         )
@@ -271,7 +270,7 @@ class CalibratorNode(Node):
         self.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
         return events
 
-    # ------------------------------------------------- what a CalibrationRun asks of the node
+    # ------------------------------------ what a CalibrationRun asks of the node (run.host.RunHost)
 
     def _settings_count(self):
         run = self._run
@@ -308,10 +307,8 @@ class CalibratorNode(Node):
 
     def selection_future(self, settings):
         """The (possibly running, cached) posture selection of ``settings``."""
-        args = calibration.selection_arguments(settings)
-        return self._selections.get(
-            calibration.selection_key(*args), calibration.choose_postures, *args
-        )
+        args = postures.selection_arguments(settings)
+        return self._selections.get(postures.selection_key(*args), postures.choose_postures, *args)
 
     def start_collection(self, session, collection):
         with self._lock:
@@ -336,19 +333,14 @@ class CalibratorNode(Node):
             idle = self._protocol.posture is None and not self.finals and not self._ending
             return idle and self._session.commanded_all
 
-    def publish_result(self, yaml_text):
-        self._result_pub.publish(String(data=yaml_text))
+    def deliver_result(self, settings, geometry, fit_accepted):
+        return self._results.deliver(settings, geometry, fit_accepted, self.wait_for)
 
-    async def apply_geometry(self, settings, geometry):
-        """Set the controller's ``geometry.*`` atomically; ``(applied, human message)``."""
-        node_name = settings.platform_node_name
-        applied, why = await self._parameter_setter.set(
-            node_name, geometry_to_parameters(geometry), settings.topic_timeout, self.wait_for
-        )
-        if not applied:
-            return False, f'NOT applied: {why}'
-        self.get_logger().info(f'calibrated geometry applied to /{node_name}')
-        return True, f'applied to /{node_name} (geometry.* parameters)'
+    def shutting_down(self):
+        return not self.context.ok()
+
+    def command_subscriber_count(self):
+        return self.command_publisher.get_subscription_count()
 
     # --------------------------------------------------------------------------- the run
 

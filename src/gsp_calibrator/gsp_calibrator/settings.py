@@ -22,13 +22,11 @@ from gsp_kinematics.identification import (
     FORMULATIONS,
     PARAMETER_GROUPS,
     Options,
-    Sigmas,
     resolve_free,
 )
 from gsp_kinematics.motion import MotionLimits
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
-
-DEFAULT_SIGMAS = Sigmas()  # Table 3, first level: 0.001 deg and 0.001 mm
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
@@ -88,7 +86,7 @@ def _one_of(name, default, description, options):
     )
 
 
-#: The per-sample noise of each sensor (a ``Sigmas`` field and its parameter ``sigma_<field>``):
+#: The per-sample noise of each sensor (a ``SensorNoise`` field and its parameter ``sigma_<field>``):
 #: field, unit, what the sigma weighs.
 _SIGMA_TABLE = (
     ('leg_lengths', 'm', 'Noise std of one leg-length sample (weight of the leg residuals)'),
@@ -194,7 +192,7 @@ PARAMETERS = (
         FORMULATIONS,
     ),
     *(
-        _positive(f'sigma_{field}', getattr(DEFAULT_SIGMAS, field), text, unit)
+        _positive(f'sigma_{field}', getattr(DEFAULT_SENSOR_NOISE, field), text, unit)
         for field, unit, text in _SIGMA_TABLE
     ),
     _one_of(
@@ -322,7 +320,7 @@ class CalibratorSettings:
     seed: int
     free_parameters: tuple
     formulation: str
-    sigmas: Sigmas  #: per-sample noise std (m, rad)
+    sigmas: SensorNoise  #: per-sample noise std (m, rad)
     output_root: str
     resume_run_directory: str
     apply_result: bool
@@ -380,7 +378,7 @@ class CalibratorSettings:
             seed=int(merged['seed']),
             free_parameters=tuple(merged['free_parameters']),
             formulation=str(merged['formulation']),
-            sigmas=Sigmas(**{f: float(merged[f'sigma_{f}']) for f, _, _ in _SIGMA_TABLE}),
+            sigmas=SensorNoise.from_parameters(merged),
             output_root=str(merged['output_root']),
             resume_run_directory=str(merged['resume_run_directory']),
             apply_result=bool(merged['apply_result']),

@@ -1,6 +1,6 @@
 """Test helper shared by test_recording.py and test_replay.py: a recorded pose command."""
 
-from gsp_calibrator import recording
+from gsp_calibrator.recording import recorder as recording
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000

@@ -1,11 +1,11 @@
-"""Pure parts of gsp_calibrator.bench_end_to_end (no processes started) and gsp_bench's wiring."""
+"""Pure parts of gsp_calibrator.tools.bench_end_to_end (no processes started) and gsp_bench's wiring."""
 
 import json
 import random
 
 import pytest
 
-from gsp_calibrator import bench_end_to_end as bench
+from gsp_calibrator.tools import bench_end_to_end as bench
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 
 PLATFORM_REJECTION = {
@@ -112,8 +112,8 @@ def test_sync_check_without_a_collection_record_is_unknown_not_a_crash():
 
 
 def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
-    # Imported here: gsp_calibrator.bench needs gsp_experiments, the pure checks above do not.
-    from gsp_calibrator import bench as calibrator_bench
+    # Imported here: gsp_calibrator.tools.bench needs gsp_experiments, the pure checks above do not.
+    from gsp_calibrator.tools import bench as calibrator_bench
 
     calls = []
     monkeypatch.setattr(
@@ -122,7 +122,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
     )
     assert calibrator_bench.main(['--skip-end-to-end']) == 0
-    from gsp_calibrator import bench_platform_time
+    from gsp_calibrator.tools import bench_platform_time
     from gsp_experiments import bench_sensor_errors
 
     assert calls == [

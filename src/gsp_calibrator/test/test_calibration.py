@@ -5,8 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator import calibration
-from gsp_calibrator.run_directory import Samples
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
+from gsp_calibrator.run import response as run_response
+from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry, geometry_from_yaml, parameter_errors
 from gsp_kinematics.identification import Options, Sigmas
@@ -40,37 +42,37 @@ def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, s
 
 @pytest.fixture(scope='module')
 def selection():
-    return calibration.choose_postures(NOMINAL, 40, 300, seed=3)
+    return postures.choose_postures(NOMINAL, 40, 300, seed=3)
 
 
 def test_choose_postures_is_seeded_and_reachable(selection):
     assert selection.poses.shape == (40, 6) and len(set(selection.pool_indices)) == 40
     assert np.all(check_reachable(NOMINAL, selection.poses)[0])
     assert math.isfinite(selection.condition_number) and selection.condition_number > 1
-    again = calibration.choose_postures(NOMINAL, 40, 300, seed=3)
+    again = postures.choose_postures(NOMINAL, 40, 300, seed=3)
     # Bit-equal: the same operations in the same process (the seed decides, not the kernel).
     np.testing.assert_array_equal(again.poses, selection.poses)
-    other = calibration.choose_postures(NOMINAL, 40, 300, seed=4)
+    other = postures.choose_postures(NOMINAL, 40, 300, seed=4)
     assert not np.array_equal(other.poses, selection.poses)
 
 
 def test_choose_postures_rejects_bad_counts():
-    with pytest.raises(calibration.CalibrationError, match='pool_size'):
-        calibration.choose_postures(NOMINAL, 10, 5, seed=0)
-    with pytest.raises(calibration.CalibrationError, match='>= 1'):
-        calibration.choose_postures(NOMINAL, 0, 5, seed=0)
+    with pytest.raises(postures.CalibrationError, match='pool_size'):
+        postures.choose_postures(NOMINAL, 10, 5, seed=0)
+    with pytest.raises(postures.CalibrationError, match='>= 1'):
+        postures.choose_postures(NOMINAL, 0, 5, seed=0)
 
 
 def test_selection_key_changes_with_its_inputs():
-    key = calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'implicit')
-    assert key == calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'implicit')
-    assert key != calibration.selection_key(NOMINAL, 60, 600, 1, SIGMAS, None, 'implicit')
-    assert key != calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, ['D0'], 'implicit')
-    assert key != calibration.selection_key(TRUE, 60, 600, 0, SIGMAS, None, 'implicit')
+    key = postures.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'implicit')
+    assert key == postures.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'implicit')
+    assert key != postures.selection_key(NOMINAL, 60, 600, 1, SIGMAS, None, 'implicit')
+    assert key != postures.selection_key(NOMINAL, 60, 600, 0, SIGMAS, ['D0'], 'implicit')
+    assert key != postures.selection_key(TRUE, 60, 600, 0, SIGMAS, None, 'implicit')
     # fk and paper select with the same (FK) information model.
-    assert calibration.selection_key(
+    assert postures.selection_key(
         NOMINAL, 60, 600, 0, SIGMAS, None, 'fk'
-    ) == calibration.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'paper')
+    ) == postures.selection_key(NOMINAL, 60, 600, 0, SIGMAS, None, 'paper')
 
 
 @pytest.mark.parametrize('formulation', ['implicit', 'fk'])
@@ -130,26 +132,26 @@ def test_bad_inputs_are_a_failure_not_an_exception(selection):
     samples.readings[3, 1] = np.nan
     outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
     assert not outcome.success and 'identification failed' in outcome.message
-    with pytest.raises(calibration.CalibrationError, match='formulation'):
+    with pytest.raises(postures.CalibrationError, match='formulation'):
         calibration.identify_from_samples(NOMINAL, samples, SIGMAS, formulation='magic')
 
 
 def test_response_round_trip(selection, tmp_path):
     samples = synthetic_samples(selection.poses)
     outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
-    summary = calibration.outcome_summary(
+    summary = run_response.outcome_summary(
         outcome, selected=40, skipped=[(7, 'rejected: far')], run_directory=tmp_path, reference=TRUE
     )
     assert summary.splitlines()[0].startswith('calibration succeeded')
     assert 'skipped posture 7: rejected: far' in summary
-    message = calibration.format_response(summary, outcome.geometry)
-    parsed = calibration.parse_response(message)
+    message = run_response.format_response(summary, outcome.geometry)
+    parsed = run_response.parse_response(message)
     assert parsed.summary == summary and parsed.run_directory == str(tmp_path)
     assert parsed.identification_ms == pytest.approx(outcome.duration_s * 1000.0, abs=0.1)
     np.testing.assert_array_equal(
         geometry_from_yaml(parsed.geometry_yaml).to_vector(), outcome.geometry.to_vector()
     )
-    failed = calibration.parse_response('calibration FAILED: no posture')
+    failed = run_response.parse_response('calibration FAILED: no posture')
     assert failed.geometry_yaml == '' and failed.run_directory == ''
     assert math.isnan(failed.identification_ms)
 
@@ -158,10 +160,10 @@ def test_posture_residuals_against_the_nominal_model(selection):
     pose = selection.poses[0]
     q = inverse_kinematics(NOMINAL, pose[None])[0]
     readings = device_readings(NOMINAL, pose[None])[0]
-    residuals = calibration.posture_residuals(NOMINAL, pose, q, readings)
+    residuals = run_response.posture_residuals(NOMINAL, pose, q, readings)
     assert set(residuals) == {'leg_lengths', 'alpha', 'beta', 'phi', 'd_m'}
     assert max(abs(v) for v in residuals.values()) < 1e-12
-    residuals = calibration.posture_residuals(NOMINAL, pose, q + 1e-3, readings + [0, 0, 0, 2e-3])
+    residuals = run_response.posture_residuals(NOMINAL, pose, q + 1e-3, readings + [0, 0, 0, 2e-3])
     assert residuals['leg_lengths'] == pytest.approx(1e-3) and residuals['d_m'] == pytest.approx(
         2e-3
     )
@@ -173,11 +175,11 @@ def test_paper_model_on_sensor_errors_is_rejected_with_a_verdict(selection):
     assert outcome.success and not outcome.fit_accepted
     assert 'does NOT explain the data' in outcome.verdict
     assert 'try free_parameters: extended' in outcome.verdict
-    summary = calibration.outcome_summary(outcome)
+    summary = run_response.outcome_summary(outcome)
     assert 'result REJECTED by the goodness-of-fit check' in summary
     extended = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
     assert extended.fit_accepted and 'explains the data' in extended.verdict
-    assert 'sensor errors: kq1 ' in calibration.outcome_summary(extended)
+    assert 'sensor errors: kq1 ' in run_response.outcome_summary(extended)
 
 
 def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
@@ -190,5 +192,5 @@ def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
     estimates = outcome.noise_estimates
     assert estimates['leg_lengths']['estimated'] == pytest.approx(SIGMAS.leg_lengths, rel=0.1)
     assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
-    assert 'noise lvdt: estimated' in calibration.outcome_summary(outcome)
-    assert 'WARNING: differs by more than 2x' in calibration.outcome_summary(outcome)
+    assert 'noise lvdt: estimated' in run_response.outcome_summary(outcome)
+    assert 'WARNING: differs by more than 2x' in run_response.outcome_summary(outcome)

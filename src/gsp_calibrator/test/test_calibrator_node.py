@@ -19,10 +19,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from gsp_calibrator import calibrator_node, recording
-from gsp_calibrator.calibration import parse_response
+from gsp_calibrator import calibrator_node
 from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
-from gsp_calibrator.run_directory import RunDirectory
+from gsp_calibrator.recording import rebuild
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.run.response import parse_response
 from gsp_kinematics.geometry import (
     default_geometry,
     geometry_from_yaml,
@@ -255,7 +257,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
         # Each posture's samples count from the instant the platform published settled (not
         # from the status's receipt): the noted starts are the statuses' source timestamps.
-        starts = recording.collection_notes(info)
+        starts = rebuild.collection_notes(info)
         assert starts and {c: start for c, (_, start) in starts.items()} == {
             c: settled_published[c] for c in starts
         }
@@ -581,7 +583,7 @@ def test_the_calibrator_process_hands_the_gil_over_promptly(monkeypatch):
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     from rclpy.task import Future
 
-    from gsp_calibrator.node_waiting import WAIT_OK, WAIT_TIMEOUT, Waits
+    from gsp_calibrator.node_threads import WAIT_OK, WAIT_TIMEOUT, Waits
 
     now = [100.0]
     flag = []
@@ -603,7 +605,7 @@ def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_cont
     # event queued for the run) once the lock is taken again. In between the protocol is idle
     # and the queue empty: the run once read that as the end and identified without its last
     # posture.
-    from gsp_calibrator import protocol
+    from gsp_calibrator.collection import protocol
 
     class LastPosture:  # the session with its last posture commanded
         commanded_all = True

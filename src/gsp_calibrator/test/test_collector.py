@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator.collector import (
+from gsp_calibrator.collection.synchroniser import (
     ENCODER,
     INCLINOMETER,
     LEG_LENGTHS,

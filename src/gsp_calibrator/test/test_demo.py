@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from gsp_calibrator import demo
-from gsp_calibrator import processes as processes_module
+from gsp_calibrator.tools import demo
+from gsp_calibrator.tools import processes as processes_module
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 from gsp_msgs_py.testing import wait_until
@@ -83,7 +83,7 @@ def test_validation_summary_ignores_rejected_postures():
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
-    summary = demo.make_summary(before, before, nominal, true, 600.0, 12.0, 40.0)
+    summary = demo.DemoSummary(before, before, nominal, true, 600.0, 12.0, 40.0).document()
     assert set(summary) == {
         'validation',
         'max_param_error_mm',
@@ -115,7 +115,7 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     record = demo.fit_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
-    summary = demo.make_summary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record)
+    summary = demo.DemoSummary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record).document()
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
     assert demo.summary_text(summary, 1, 0).endswith('ok')
 
@@ -147,9 +147,9 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
     assert demo.collection_record(tmp_path) == record
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
-    summary = demo.make_summary(
+    summary = demo.DemoSummary(
         before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, demo.collection_record(tmp_path)
-    )
+    ).document()
     assert summary['run_directory'] == str(tmp_path) and summary['collection'] == record
 
 

@@ -2,7 +2,7 @@
 
 import sys
 
-from gsp_calibrator import bench_end_to_end, demo
+from gsp_calibrator.tools import bench_end_to_end, demo
 
 
 def test_ros2_control_replaces_platform_sim_by_the_bridge_and_the_emulated_controller(tmp_path):

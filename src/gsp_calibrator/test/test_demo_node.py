@@ -21,11 +21,11 @@ def test_the_demo_waits_for_the_platforms_first_leg_lengths(ros_context):
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
 
-    from gsp_calibrator import demo_node
-    from gsp_calibrator.demo import DemoError
+    from gsp_calibrator.tools import demo_node
+    from gsp_calibrator.tools.processes import DemoError
     from gsp_msgs_py import conversions, names, qos
 
-    node = demo_node.make_demo_node(ros_context)
+    node = demo_node.DemoNode(context=ros_context)
     platform = rclpy.create_node('fake_platform', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)

@@ -18,8 +18,11 @@ from std_srvs.srv import Trigger
 from synthetic import synthetic_samples
 from test_calibrator_node import make_suite, perturbed_truth
 
-from gsp_calibrator import mcap_io, recording, run_session, run_state
-from gsp_calibrator.run_directory import SamplesAppender, read_samples, write_samples
+from gsp_calibrator.recording import mcap_io
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import session as run_session
+from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.directory import SamplesAppender, read_samples, write_samples
 from gsp_msgs_py import conversions, names
 
 PAGE = 4096  # bytes: tmpfs allocates pages; a write within the file's last page needs none

@@ -17,12 +17,18 @@ from scipy import stats
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from gsp_calibrator import calibration, demo, mcap_io, offline, protocol, recording, run_state
-from gsp_calibrator.processes import NodeProcesses
-from gsp_calibrator.run_directory import read_samples
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.recording import mcap_io, rebuild
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.directory import read_samples
+from gsp_calibrator.tools import demo
+from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES
+from gsp_kinematics.noise import SensorNoise
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.testing import SpinThread
 
@@ -187,10 +193,10 @@ def assert_recorded(parts, samples):
     """
     notes = {}
     for part in parts:
-        notes.update(recording.collection_notes(recording.recording_info(part), part))
+        notes.update(rebuild.collection_notes(recording.recording_info(part), part))
     noted = {posture for posture, _ in notes.values()}
     assert set(int(k) for k in samples.posture) <= noted
-    rebuilt = recording.samples_from_recording(parts)
+    rebuilt = rebuild.samples_from_recording(parts)
     assert set(rebuilt.posture) <= set(samples.posture)
     assert len(rebuilt) >= 0.8 * len(samples)
 
@@ -204,7 +210,7 @@ def identification(run):
     result = calibration.identify_from_samples(
         load_geometry(options['nominal_geometry_file']),
         read_samples(run / 'samples.csv'),
-        offline.sigmas_of(options),
+        SensorNoise.from_parameters(options),
         free=options['free_parameters'],
         formulation=options['formulation'],
     ).result

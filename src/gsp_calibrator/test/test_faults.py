@@ -15,17 +15,18 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from test_calibrator_node import make_suite, perturbed_truth
 
-from gsp_calibrator import recording, run_state
-from gsp_calibrator.run_directory import Samples
+from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import state as run_state
+from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.settings import CalibratorSettings
-from gsp_calibrator.sources import SingleSourceGuard
 from gsp_msgs_py import conversions, names, qos
 
 WRITER = r"""
 import sys
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from gsp_calibrator.recording import McapRecorder
+from gsp_calibrator.recording.recorder import McapRecorder
 recorder = McapRecorder(sys.argv[1], crash_safe=True)
 for n in range(1, 100000):
     recorder.write('/gsp/device/encoder', JointState(name=['phi'], position=[n * 1e-3]), n)
@@ -138,7 +139,7 @@ def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
 
 
 def test_the_replacement_is_the_best_remaining_pool_posture():
-    from gsp_calibrator.calibration import PostureReplacer
+    from gsp_calibrator.run.postures import PostureReplacer
     from gsp_kinematics.selection import best_addition
 
     settings = _settings(posture_count=12, pool_size=60, free_parameters=['paper'])

@@ -6,8 +6,12 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples as make_samples
 
-from gsp_calibrator import calibration, offline, recording
-from gsp_calibrator.run_directory import read_samples, write_samples
+from gsp_calibrator.recording import rebuild
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import response as run_response
+from gsp_calibrator.run.directory import read_samples, write_samples
+from gsp_calibrator.tools import reidentify as offline
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
     default_geometry,
@@ -28,10 +32,10 @@ def synthetic_samples(count=30, seed=11, n_samples=4):
 
 def _run_directory(output):
     lines = [
-        line for line in output.splitlines() if line.startswith(calibration.RUN_DIRECTORY_LABEL)
+        line for line in output.splitlines() if line.startswith(run_response.RUN_DIRECTORY_LABEL)
     ]
     assert lines, output
-    return lines[-1][len(calibration.RUN_DIRECTORY_LABEL) :].strip()
+    return lines[-1][len(run_response.RUN_DIRECTORY_LABEL) :].strip()
 
 
 def _json_parameters(run_dir):
@@ -161,7 +165,7 @@ def test_offline_from_recording(tmp_path, capsys):
     samples = synthetic_samples(count=30, seed=13)
     mcap = tmp_path / 'recording.mcap'
     _write_recording(mcap, samples, per_posture=2)
-    rebuilt = recording.samples_from_recording(mcap)
+    rebuilt = rebuild.samples_from_recording(mcap)
     assert len(rebuilt) == len(samples)
     np.testing.assert_allclose(rebuilt.leg_lengths, samples.leg_lengths, rtol=0, atol=1e-15)
     np.testing.assert_allclose(rebuilt.readings, samples.readings, rtol=0, atol=1e-15)
@@ -266,7 +270,7 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
     write_samples(run_dir / 'samples.csv', samples)
     truth, nominal = default_geometry('true'), default_geometry('nominal')
     poses = sample_valid_postures(truth, 10, np.random.default_rng(3))
-    from gsp_calibrator.report import validation_errors
+    from gsp_calibrator.report.data import validation_errors
 
     before = validation_errors(truth, nominal, poses)
     # The calibrator's collection record survives the rewrite.

@@ -5,8 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from gsp_calibrator import calibration, planning
+from gsp_calibrator.run import postures
+from gsp_calibrator.tools import planning, plans
 from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.noise import SensorNoise
 
 QUICK = ['--pool-size', '120']
 
@@ -32,17 +34,17 @@ def test_plan_json(tmp_path, capsys):
     assert plan['calibration_s'] == pytest.approx(30 * (0.02 + 4 / 200))
     # The same postures as the calibrator would command with these settings.
     nominal = default_geometry('nominal')
-    sigmas = calibration.averaged_sigmas(calibration.Sigmas(), [4])
-    chosen = calibration.choose_postures(nominal, 30, 120, 0, sigmas)
+    sigmas = SensorNoise().averaged([4])
+    chosen = postures.choose_postures(nominal, 30, 120, 0, sigmas)
     assert np.allclose(plan['selection']['poses'], chosen.poses)
     assert 'rank 51 of 51' in capsys.readouterr().out
 
 
 def test_more_samples_predict_better_accuracy():
     nominal = default_geometry('nominal')
-    design = planning.Design(pool_size=120)
-    few = planning.plan(nominal, 30, 1, design)
-    many = planning.plan(nominal, 30, 16, design)
+    design = plans.Design(pool_size=120)
+    few = plans.plan(nominal, 30, 1, design)
+    many = plans.plan(nominal, 30, 16, design)
     # Averaging 16 samples divides every sigma by 4: the error scales alike.
     ratio = few['predicted']['position_mm_mean'] / many['predicted']['position_mm_mean']
     assert ratio == pytest.approx(4.0, rel=1e-6)
@@ -130,17 +132,17 @@ def test_plan_reports_the_route_and_its_platform_time(tmp_path, capsys):
 
 def test_the_target_plan_is_the_quickest_candidate_reaching_the_target(tmp_path, capsys):
     nominal = default_geometry('nominal')
-    design = planning.Design(pool_size=120)
+    design = plans.Design(pool_size=120)
     counts = (15, 20, 30)
-    reference = planning.plan(nominal, 30, 10, design)
+    reference = plans.plan(nominal, 30, 10, design)
     target_mm = 1.5 * reference['predicted']['position_mm_mean']
-    result = planning.target_plan(nominal, target_mm, None, design, counts)
+    result = plans.target_plan(nominal, target_mm, None, design, counts)
     best = result['plan']
     assert best['predicted']['position_mm_mean'] <= target_mm
     assert best['platform_time']['total_s'] == min(c['platform_s'] for c in result['candidates'])
     assert best['platform_time']['total_s'] < reference['platform_time']['total_s']
     # The fewest samples that reach it: one less would not.
-    fewer = planning.plan(nominal, best['postures'], best['samples_per_posture'] - 1, design)
+    fewer = plans.plan(nominal, best['postures'], best['samples_per_posture'] - 1, design)
     assert fewer['predicted']['position_mm_mean'] > target_mm
     # Out of reach: says what the best reaches.
     output = tmp_path / 'target.json'

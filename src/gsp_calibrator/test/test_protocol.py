@@ -5,9 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator import protocol
-from gsp_calibrator.collector import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
-from gsp_calibrator.protocol import (
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection.protocol import (
     CollectionProtocol,
     CollectionStarted,
     NoSynchronisedSample,
@@ -17,6 +16,7 @@ from gsp_calibrator.protocol import (
     SampleDropped,
     TopicSilent,
 )
+from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000
@@ -357,6 +357,6 @@ def test_the_topic_table_and_the_noise_vector():
     from gsp_kinematics.identification import Sigmas
 
     sigmas = Sigmas(leg_lengths=1.0, inclinometer=2.0, encoder=3.0, lvdt=4.0)
-    assert protocol.noise_std(sigmas).tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
+    assert sigmas.channel_std().tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
     with pytest.raises(KeyError):
         protocol.read_sensor('/not/a/sensor', None)

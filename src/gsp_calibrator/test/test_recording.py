@@ -9,9 +9,10 @@ import pytest
 import yaml
 from recorded_runs import write_command
 
-from gsp_calibrator import recording
-from gsp_calibrator.collector import SampleCollector
-from gsp_calibrator.run_directory import read_samples, write_samples
+from gsp_calibrator.collection.synchroniser import SampleCollector
+from gsp_calibrator.recording import rebuild
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import TOPIC_QOS
 
@@ -255,7 +256,7 @@ def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path)
         nan_at=(1, 1),
         options={'sync_tolerance': 0.0025, 'samples_per_posture': per_posture},
     )
-    samples = recording.samples_from_recording(path)  # options as stored
+    samples = rebuild.samples_from_recording(path)  # options as stored
     assert list(samples.posture) == [1, 3, 4]  # posture 2 rejected, numbers kept
     for row, (k, pose, legs, readings) in enumerate(sent):
         assert samples.posture[row] == k
@@ -297,9 +298,9 @@ def test_noted_collection_start_is_used(tmp_path):
     # The calibrator noted a start before the moving samples (stamped t + 2 ms): they count.
     write_session(noted, postures, 2, notes=lambda t: t + MS)
     with pytest.raises(recording.RecordingError, match='sync_tolerance'):
-        recording.samples_from_recording(plain)
-    a = recording.samples_from_recording(plain, 0.0025, 2)
-    b = recording.samples_from_recording(noted, 0.0025, 2)
+        rebuild.samples_from_recording(plain)
+    a = rebuild.samples_from_recording(plain, 0.0025, 2)
+    b = rebuild.samples_from_recording(noted, 0.0025, 2)
     assert len(a) == len(b) == 2
     # First posture: its window starts with a moving sample (+1 m) stamped after the noted start.
     assert b.leg_lengths[0, 0] > a.leg_lengths[0, 0] + 0.4
@@ -335,7 +336,7 @@ def test_a_settle_and_samples_logged_after_the_next_command_stay_with_their_post
         )
         for j in range(3):
             _write_sensors(recorder, T0 + (61 + 5 * j) * MS, legs[2][j], readings[2][j])
-    samples = recording.samples_from_recording(path, 0.0025, 3)
+    samples = rebuild.samples_from_recording(path, 0.0025, 3)
     assert list(samples.posture) == [1, 2]
     for row, k in enumerate((1, 2)):
         np.testing.assert_allclose(

@@ -13,18 +13,18 @@ from recorded_runs import write_command
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from gsp_calibrator import recording
-from gsp_calibrator.calibration import parse_response
-from gsp_calibrator.replay import (
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
     SOURCE_SAMPLES,
     RecordedRun,
     ReplayError,
 )
-from gsp_calibrator.replay_node import REASON_NOT_RECORDED, ReplayNode
-from gsp_calibrator.run_directory import RunDirectory, Samples, write_samples
+from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
+from gsp_calibrator.run.directory import RunDirectory, Samples, write_samples
+from gsp_calibrator.run.response import parse_response
 from gsp_msgs_py import conversions, names, qos, testing
-from gsp_msgs_py.check_interfaces import PoseCommandProbe
+from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
 from gsp_msgs_py.node_tools import ConfigurationError
 
 MS = 1_000_000

@@ -1,5 +1,6 @@
 """result.json and report.md with PNGs: headless (Agg), readable, non-trivial images."""
 
+import dataclasses
 import json
 import math
 
@@ -7,7 +8,9 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples
 
-from gsp_calibrator import calibration, report
+from gsp_calibrator.report import data as report_data
+from gsp_calibrator.report import write as report
+from gsp_calibrator.run import identify as calibration
 from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
 from gsp_kinematics.identifiability import analyse_identifiability
 from gsp_kinematics.identification import Options, Sigmas
@@ -22,8 +25,8 @@ def calibrated():
     outcome = calibration.identify_from_samples(nominal, synthetic_samples(), SIGMAS)
     assert outcome.success, outcome.message
     poses = sample_valid_postures(truth, 20, np.random.default_rng(7))
-    before = report.validation_errors(truth, nominal, poses)
-    after = report.validation_errors(truth, outcome.geometry, poses)
+    before = report_data.validation_errors(truth, nominal, poses)
+    after = report_data.validation_errors(truth, outcome.geometry, poses)
     return outcome, nominal, truth, before, after
 
 
@@ -50,19 +53,25 @@ def _check_png(path, min_width=500, min_height=250):
     assert np.mean(np.all(rgb > 0.98, axis=1)) < 0.97, f'{path} is almost blank'
 
 
+def _inputs(calibrated):
+    """The report inputs of the calibrated fixture: its analysis, validations and geometries."""
+    outcome, nominal, truth, before, after = calibrated
+    return report.ReportInputs(
+        analysis=outcome.identifiability,
+        validation_before=before,
+        validation_after=after,
+        truth=truth,
+        nominal=nominal,
+    )
+
+
 def test_result_json(tmp_path, calibrated):
     outcome, nominal, truth, before, after = calibrated
     result = outcome.result
     path = report.write_result_json(
         tmp_path,
         result,
-        analysis=outcome.identifiability,
-        validation_before=before,
-        validation_after=after,
-        truth=truth,
-        nominal=nominal,
-        sigmas=outcome.sigmas,
-        extra={'run': 'test'},
+        dataclasses.replace(_inputs(calibrated), sigmas=outcome.sigmas, extra={'run': 'test'}),
     )
     data = _strict_json(path)
     for key in (
@@ -105,7 +114,7 @@ def test_result_json(tmp_path, calibrated):
     assert data['residual_rms']['alpha']['si_unit'] == 'rad'
     assert data['iterations'] == result.iterations and data['status'] == result.status
     for when in ('before', 'after'):
-        for key in report.VALIDATION_KEYS:
+        for key in report_data.VALIDATION_KEYS:
             assert data['validation'][when][key] >= 0.0
     assert (
         data['validation']['after']['position_mm_mean']
@@ -142,11 +151,7 @@ def test_report_with_truth(tmp_path, calibrated):
     written = report.write_all(
         tmp_path,
         outcome.result,
-        analysis=outcome.identifiability,
-        validation_before=before,
-        validation_after=after,
-        truth=truth,
-        nominal=nominal,
+        _inputs(calibrated),
     )
     for kind in ('parameter_errors', 'chain_errors', 'residuals', 'validation', 'accuracy_map'):
         _check_png(written[kind])
@@ -175,7 +180,9 @@ def test_report_without_truth_and_failed_identification(tmp_path):
     assert result is not None and not result.converged
     singular = np.diag([1.0, 1.0, 1.0, 1.0, 0.0])
     analysis = analyse_identifiability(singular, result.free)
-    written = report.write_all(tmp_path, result, analysis=analysis, nominal=nominal)
+    written = report.write_all(
+        tmp_path, result, report.ReportInputs(analysis=analysis, nominal=nominal)
+    )
     assert 'validation' not in written
     for kind in ('parameter_errors', 'chain_errors', 'residuals'):
         _check_png(written[kind])
@@ -194,7 +201,7 @@ def test_report_without_truth_and_failed_identification(tmp_path):
 
 def test_residuals_by_sensor_recovers_si_units(calibrated):
     result = calibrated[0].result
-    by_sensor = report.residuals_by_sensor(result)
+    by_sensor = report_data.residuals_by_sensor(result)
     assert set(by_sensor) == set(result.residual_rms)
     for sensor, values in by_sensor.items():
         assert math.sqrt(np.mean(values**2)) == pytest.approx(result.residual_rms[sensor])
@@ -204,7 +211,7 @@ def test_residuals_by_sensor_recovers_si_units(calibrated):
 def test_no_prediction_without_a_full_rank_covariance(calibrated):
     import dataclasses
 
-    from gsp_calibrator import report_accuracy
+    from gsp_calibrator.report import accuracy as report_accuracy
 
     result = calibrated[0].result
     assert report_accuracy.prediction_for(result) is not None

@@ -6,7 +6,7 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 * ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
   :mod:`.serial_protocol` and docs/hardware.md).
 
-Adding a backend (e.g. ``hardware``): subclass :class:`DeviceBackend` and give it a
+Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
 ``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng``, ``stamp_clock``
 (the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
@@ -15,8 +15,6 @@ ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node de
 to the node is needed.
 """
 
-import abc
-import dataclasses
 import math
 
 import numpy as np
@@ -24,91 +22,8 @@ import numpy as np
 from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
 
-
-class BackendError(ValueError):
-    """A backend cannot be made or configured; the message says why."""
-
-
-@dataclasses.dataclass(frozen=True)
-class DeviceSample:
-    """One reading of the device: ``stamp_s`` (s, the instant it refers to), ``alpha``, ``beta``
-    (inclinometer, rad), ``phi`` (encoder, rad), ``d_m`` (LVDT, m)."""
-
-    stamp_s: float
-    alpha: float
-    beta: float
-    phi: float
-    d_m: float
-
-    def readings(self):
-        """``[alpha, beta, phi, d_m]`` (4,) in :data:`READING_NAMES` order."""
-        return np.array([self.alpha, self.beta, self.phi, self.d_m])
-
-
-def _check_std(value, name):
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0.0):
-        raise BackendError(f'{name} must be finite and >= 0, got {value}')
-    return value
-
-
-class DeviceBackend(abc.ABC):
-    """Interface of a source of device readings."""
-
-    #: Registry name (``sim``, ``hardware``...).
-    name = ''
-    #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
-    needs_true_pose = False
-    #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
-    simulates_noise = False
-    #: Whether a reading is taken at the node's publish timer (``now_s`` is then the timer's
-    #: scheduled tick, see ``gsp_msgs_py.node_tools.scheduled_tick_ns``), not received at the
-    #: device's own pace.
-    samples_at_tick = False
-    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.node_tools.ParameterSpec`).
-    PARAMETERS = ()
-
-    @classmethod
-    @abc.abstractmethod
-    def from_config(cls, **config):
-        """Make the backend from the node's configuration (ignore unused keys)."""
-
-    @abc.abstractmethod
-    def read(self, now_s):
-        """The sample for the current time ``now_s`` (s), or None if none is available yet."""
-
-    def read_available(self, now_s):
-        """Every sample available at ``now_s`` (a list, maybe empty). A backend that receives
-        samples at its own pace (``serial``) returns each one once; default: ``[read(now_s)]``."""
-        sample = self.read(now_s)
-        return [] if sample is None else [sample]
-
-    def messages(self):
-        """``[(level, text)]`` the node should log (``info`` or ``warning``) since the last call.
-        Default: none."""
-        return []
-
-    def describe(self):
-        """One line for the node's start-up log: what the backend reads and how."""
-        return ''
-
-    def observe_true_pose(self, pose):
-        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
-
-        ValueError if the pose is unusable (the previous one is kept). Default: ignored.
-        """
-        return None
-
-    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
-        """Change the simulated noise std (rad, rad, m); None keeps a value.
-
-        Raises BackendError for backends whose noise is not simulated.
-        """
-        raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
-
-    def close(self):
-        """Release the device (files, ports). Idempotent. Default: nothing to release."""
-        return None
+from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
+from .serial_backend import SerialDeviceBackend
 
 
 class SimDeviceBackend(DeviceBackend):
@@ -188,11 +103,11 @@ class SimDeviceBackend(DeviceBackend):
     def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
         stds = self._stds.copy()
         if inclinometer_std is not None:
-            stds[0:2] = _check_std(inclinometer_std, 'inclinometer noise std')
+            stds[0:2] = check_std(inclinometer_std, 'inclinometer noise std')
         if encoder_std is not None:
-            stds[2] = _check_std(encoder_std, 'encoder noise std')
+            stds[2] = check_std(encoder_std, 'encoder noise std')
         if lvdt_std is not None:
-            stds[3] = _check_std(lvdt_std, 'lvdt noise std')
+            stds[3] = check_std(lvdt_std, 'lvdt noise std')
         self._stds = stds
 
     def observe_true_pose(self, pose):
@@ -222,17 +137,7 @@ class SimDeviceBackend(DeviceBackend):
         return DeviceSample(float(now_s), *(float(v) for v in values))
 
 
-_BACKENDS = {SimDeviceBackend.name: SimDeviceBackend}
-
-
-def _register_serial():
-    # Imported here: serial_backend subclasses DeviceBackend from this module.
-    from .serial_backend import SerialDeviceBackend
-
-    _BACKENDS[SerialDeviceBackend.name] = SerialDeviceBackend
-
-
-_register_serial()
+_BACKENDS = {backend.name: backend for backend in (SimDeviceBackend, SerialDeviceBackend)}
 
 
 def backend_names():

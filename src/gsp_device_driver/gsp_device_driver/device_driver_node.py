@@ -8,14 +8,14 @@ since the last tick is published.
 """
 
 import dataclasses
-import math
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_msgs_py import checks, conversions, names, node_tools, qos
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
 from gsp_msgs_py.node_tools import ParameterSpec, not_blank
 
 from .backends import BackendError, backend_class, backend_names
@@ -23,8 +23,6 @@ from .backends import BackendError, backend_class, backend_names
 #: Random stream of this node: platform_sim with the same ``seed`` draws independent noise.
 RNG_STREAM = 2
 WARN_THROTTLE_S = 1.0
-DEFAULT_ANGLE_NOISE_STD = math.radians(0.001)  # rad (Table 3, first level)
-DEFAULT_LENGTH_NOISE_STD = 1e-6  # m
 
 #: Noise parameter -> keyword of DeviceBackend.update_noise.
 NOISE_PARAMETERS = {
@@ -52,15 +50,15 @@ PARAMETERS = (
     node_tools.seed_spec(),
     node_tools.noise_std_spec(
         'inclinometer_noise_std',
-        DEFAULT_ANGLE_NOISE_STD,
+        DEFAULT_SENSOR_NOISE.inclinometer,
         'Std of the Gaussian noise on alpha and beta',
         'rad',
     ),
     node_tools.noise_std_spec(
-        'encoder_noise_std', DEFAULT_ANGLE_NOISE_STD, 'Std of the Gaussian noise on phi', 'rad'
+        'encoder_noise_std', DEFAULT_SENSOR_NOISE.encoder, 'Std of the Gaussian noise on phi', 'rad'
     ),
     node_tools.noise_std_spec(
-        'lvdt_noise_std', DEFAULT_LENGTH_NOISE_STD, 'Std of the Gaussian noise on d_m', 'm'
+        'lvdt_noise_std', DEFAULT_SENSOR_NOISE.lvdt, 'Std of the Gaussian noise on d_m', 'm'
     ),
     node_tools.frame_id_spec('Frame of the published readings, and required of true_pose'),
 )
@@ -157,7 +155,7 @@ class DeviceDriverNode(Node):
 
     def _on_true_pose(self, msg):
         try:
-            self._backend.observe_true_pose(checks.pose_in_frame(msg, self._frame_id))
+            self._backend.observe_true_pose(message_checks.pose_in_frame(msg, self._frame_id))
         except ValueError as error:
             self.get_logger().warning(
                 f'ignoring true pose: {error}', throttle_duration_sec=WARN_THROTTLE_S

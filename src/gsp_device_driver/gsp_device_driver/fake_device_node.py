@@ -21,10 +21,11 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_msgs_py import checks, conversions, names, node_tools, qos
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
 
 from .backends import SimDeviceBackend
-from .device_driver_node import DEFAULT_ANGLE_NOISE_STD, DEFAULT_LENGTH_NOISE_STD, RNG_STREAM
+from .device_driver_node import RNG_STREAM
 from .fake_device import HELLO_PERIOD_S, FakeDevice, TruthFeed
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS
 
@@ -41,9 +42,14 @@ def parse_arguments(argv=None):
     add('--rate', type=float, default=200.0, help='reading lines per second (200)')
     add('--true-geometry', default=default_geometry_path('true'), help='device D0 and gamma')
     add('--seed', type=int, default=-1, help='noise seed (default -1: a fresh one at each start)')
-    add('--inclinometer-noise-std', type=float, default=DEFAULT_ANGLE_NOISE_STD, help='rad')
-    add('--encoder-noise-std', type=float, default=DEFAULT_ANGLE_NOISE_STD, help='rad')
-    add('--lvdt-noise-std', type=float, default=DEFAULT_LENGTH_NOISE_STD, help='m')
+    add(
+        '--inclinometer-noise-std',
+        type=float,
+        default=DEFAULT_SENSOR_NOISE.inclinometer,
+        help='rad',
+    )
+    add('--encoder-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.encoder, help='rad')
+    add('--lvdt-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.lvdt, help='m')
     add('--angle-unit', default='rad', choices=tuple(ANGLE_UNITS))
     add('--length-unit', default='m', choices=tuple(LENGTH_UNITS))
     add(
@@ -123,7 +129,7 @@ class FakeDeviceNode(Node):
 
     def _on_true_pose(self, msg):
         try:
-            pose = checks.pose_in_frame(msg, names.FRAME_BASE)
+            pose = message_checks.pose_in_frame(msg, names.FRAME_BASE)
         except ValueError as error:
             self.get_logger().warning(f'ignoring true pose: {error}', throttle_duration_sec=1.0)
             return

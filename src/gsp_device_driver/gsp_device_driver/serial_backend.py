@@ -15,7 +15,7 @@ import time
 
 from gsp_msgs_py.health import ERROR, OK, WARN, Health
 
-from .backends import BackendError, DeviceBackend, DeviceSample
+from .device_backend import BackendError, DeviceBackend, DeviceSample
 from .serial_protocol import (
     ANGLE_UNITS,
     DROP_REASONS,

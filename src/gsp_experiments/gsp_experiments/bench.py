@@ -33,16 +33,17 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
-from gsp_kinematics._readings import readings_jacobians
+from gsp_kinematics._solver.readings import readings_jacobians
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.fileio import to_json, write_json
 from gsp_kinematics.geometry import Geometry, parameter_errors
-from gsp_kinematics.identification import DEFAULT_FORMULATION, Sigmas, identify, resolve_free
+from gsp_kinematics.identification import DEFAULT_FORMULATION, identify, resolve_free
 from gsp_kinematics.kinematics import (
     forward_kinematics_masked,
     inverse_kinematics,
     sample_valid_postures,
 )
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.selection import select_postures
 
@@ -59,7 +60,7 @@ def build_problem(
     nominal = nominal_set(exact, set_number)
     rng = np.random.default_rng([seed, set_number])
     pool = sample_valid_postures(nominal, pool_size, rng)
-    indices, _ = select_postures(nominal, pool, postures, Sigmas())
+    indices, _ = select_postures(nominal, pool, postures, DEFAULT_SENSOR_NOISE)
     poses = pool[indices]
     leg_lengths = inverse_kinematics(exact, poses)
     readings = device_readings(exact, poses)
@@ -71,7 +72,7 @@ def build_problem(
             length_noise_mm,
             np.random.default_rng([seed, 99]),
         )
-    sigmas = Sigmas.from_levels(angle_noise_deg or 0.001, length_noise_mm or 0.001)
+    sigmas = SensorNoise.from_levels(angle_noise_deg or 0.001, length_noise_mm or 0.001)
     return {
         'exact': exact,
         'nominal': nominal,

@@ -20,12 +20,13 @@ import numpy as np
 
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.identification import Sigmas, identify
+from gsp_kinematics.identification import identify
 from gsp_kinematics.kinematics import (
     forward_kinematics_masked,
     inverse_kinematics,
     sample_valid_postures,
 )
+from gsp_kinematics.noise import SensorNoise
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
 from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
@@ -64,7 +65,7 @@ def identification_scaling(sizes=SCALING_POSTURES, repeats=3, budget_s=SCALING_B
     A size is skipped when its time predicted from the last size run, at least linear in the
     postures whatever the fit says (timing noise can make the fit flat), exceeds ``budget_s``
     (wall time)."""
-    sigmas = Sigmas.from_levels(0.001, 0.001)
+    sigmas = SensorNoise.from_levels(0.001, 0.001)
     done, milliseconds, cpu_milliseconds, iterations, skipped = [], [], [], [], []
     warm = False
     for size in sizes:
@@ -128,7 +129,7 @@ def bench_prediction(seeds=20, postures=60, samples_per_posture=10, validation_p
     geometry, the calibrator's default ``extended`` parameters identified."""
     true, nominal = default_geometry('true'), default_geometry('nominal')
     factor = 1.0 / math.sqrt(samples_per_posture)
-    sigmas = Sigmas.from_levels(0.001 * factor, 0.001 * factor)
+    sigmas = SensorNoise.from_levels(0.001 * factor, 0.001 * factor)
     pool = sample_valid_postures(nominal, 600, np.random.default_rng(0))
     indices, _ = select_postures(nominal, pool, postures, sigmas, free=FREE)
     poses = pool[indices]

@@ -15,12 +15,13 @@ import statistics
 import numpy as np
 
 from gsp_kinematics import goodness
-from gsp_kinematics.identification import Options, Sigmas, identify, resolve_free
+from gsp_kinematics.identification import Options, identify, resolve_free
 from gsp_kinematics.kinematics import (
     Workspace,
     forward_kinematics_masked,
     sample_valid_postures,
 )
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import (
     exchange_for_pose_error,
@@ -31,7 +32,7 @@ from gsp_kinematics.validation import commanded_articular, sensor_measurements, 
 
 from .nominal_sets import default_true_and_nominal
 
-SIGMAS = Sigmas()  # per-sample noise: 1 um, 0.001 deg (Table 3's first level)
+SIGMAS = DEFAULT_SENSOR_NOISE  # per-sample noise: 1 um, 0.001 deg (Table 3's first level)
 POSTURES = 60
 SAMPLES = 10
 #: Seeds of the model figure: one seed's validation error scatters widely, so a ratio of medians
@@ -67,22 +68,12 @@ def collect(true, controller, poses, seed, samples=SAMPLES, sigmas=SIGMAS, keep=
     return mean[:, :6], mean[:, 6:], std, poses[ok]
 
 
-def averaged(sigmas, samples=SAMPLES):
-    factor = 1.0 / math.sqrt(samples)
-    return Sigmas(
-        *(
-            value * factor
-            for value in (sigmas.leg_lengths, sigmas.inclinometer, sigmas.encoder, sigmas.lvdt)
-        )
-    )
-
-
 def fit(nominal, legs, readings, commanded, free, loss='linear'):
     return identify(
         nominal,
         legs,
         readings,
-        averaged(SIGMAS),
+        SIGMAS.averaged([SAMPLES]),
         free=free,
         pose_guesses=commanded,
         options=Options(loss=loss),
@@ -97,7 +88,7 @@ def design_position_error_mm(geometry, poses, free, validation_poses):
     """Cramer-Rao prediction of the validation's mean position error (mm) of fitting ``free`` on
     ``poses``: the covariance is the inverse information of the design (selection's factors)."""
     mask = resolve_free(free)
-    information = posture_information(geometry, poses, averaged(SIGMAS), mask).sum(axis=0)
+    information = posture_information(geometry, poses, SIGMAS.averaged([SAMPLES]), mask).sum(axis=0)
     position, _ = predicted_errors(geometry, np.linalg.inv(information), validation_poses, mask)
     return float(position.mean())
 
@@ -159,10 +150,12 @@ def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
         paper_mm = design_position_error_mm(true, on, 'paper', validation_poses)
         return design_position_error_mm(true, on, free, validation_poses) / paper_mm
 
-    paper_chosen, _ = select_postures(nominal, pool, POSTURES, averaged(SIGMAS), free='paper')
+    paper_chosen, _ = select_postures(
+        nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='paper'
+    )
     targets = sample_valid_postures(nominal, 200, np.random.default_rng(2), Workspace())
     best = exchange_for_pose_error(
-        nominal, pool, chosen, targets, averaged(SIGMAS), 'extended', passes=3
+        nominal, pool, chosen, targets, SIGMAS.averaged([SAMPLES]), 'extended', passes=3
     )
     gains = [f'kq{leg}' for leg in range(1, 7)]
     return {
@@ -207,7 +200,9 @@ def run(quick=False):
     workspace = Workspace()
     pool = sample_valid_postures(nominal, 600, np.random.default_rng(0), workspace)
     # Selected for the extended free set, as the calibrator selects for its free_parameters.
-    chosen, _ = select_postures(nominal, pool, POSTURES, averaged(SIGMAS), free='extended')
+    chosen, _ = select_postures(
+        nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='extended'
+    )
     poses = pool[chosen]
     validation_poses = sample_valid_postures(nominal, 50, np.random.default_rng(1), workspace)
 

@@ -29,26 +29,21 @@ Writes ``results/paper.json`` (its keys: docs/results.md) and one PNG per nomina
 
 import concurrent.futures
 import dataclasses
-import itertools
 import math
 import multiprocessing
-import os
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from gsp_kinematics.device import device_readings
-from gsp_kinematics.fileio import write_json
 from gsp_kinematics.geometry import PARAMETER_NAMES, parameter_errors
-from gsp_kinematics.identification import DEFAULT_FORMULATION, FORMULATIONS, Sigmas, identify
+from gsp_kinematics.identification import DEFAULT_FORMULATION, identify
 from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
 from gsp_kinematics.validation import validate
 
-from .cli import experiment_parser, reexec_with_single_threaded_blas
 from .nominal_sets import drawing_geometry, nominal_set
 from .tables import load_tables, table3
 
@@ -89,7 +84,7 @@ def add_noise(leg_lengths, readings, angle_noise_deg, length_noise_mm, rng):
     return noisy_legs, noisy_readings
 
 
-def select_for_set(exact, set_number, config, sigmas=Sigmas()):
+def select_for_set(exact, set_number, config, sigmas=DEFAULT_SENSOR_NOISE):
     """Nominal set, the selected postures (M, 6) and the selection's condition number.
 
     The pool depends on the set only, so selections for other sigmas pick from the same postures.
@@ -121,7 +116,7 @@ def _noise_free_task(args):
         nominal,
         leg_lengths,
         readings,
-        Sigmas(),
+        DEFAULT_SENSOR_NOISE,
         formulation=config.noise_free_formulation,
         pose_guesses=poses,
     )
@@ -165,7 +160,7 @@ def _noise_task(args):
     leg_lengths, readings = add_noise(
         leg_lengths, readings, level['angle_noise_deg'], level['length_noise_mm'], rng
     )
-    sigmas = Sigmas.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+    sigmas = SensorNoise.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
     rows = []
     for formulation in config.formulations:
         result = identify(
@@ -217,33 +212,18 @@ def _map(function, tasks, jobs):
         return list(executor.map(function, tasks, chunksize=max(1, len(tasks) // (4 * jobs))))
 
 
-def run(config=PaperConfig(), tables=None, log=print, exact=None):
-    """Run the reproduction; returns the JSON-ready document (see the module docstring).
+def _select(exact, config, paper_levels, log):
+    """The posture selections of a run: ``(level_sigmas, {(nominal set, sigmas): selection})``.
 
-    ``exact``: the real platform (default :func:`drawing_geometry`); its nominal sets are drawn
-    from it with Table 1's statistics (see :mod:`.paper_matched`)."""
-    if tables is None:
-        tables, tables_source = load_tables()
-    else:
-        tables_source = 'given'
-    paper_initial, paper_levels = table3(tables)
-    started = time.perf_counter()
-    exact_description = 'nominal_sets.drawing_geometry()' if exact is None else 'given'
-    exact = drawing_geometry() if exact is None else exact
-    validation_poses = sample_valid_postures(
-        exact, config.validation_postures, np.random.default_rng([config.seed, 50])
-    )
-    initial = validate(exact, nominal_set(exact, config.noise_set), validation_poses)
-
-    # Postures are selected with the sigmas they are identified with: the noise-free studies with
-    # the default (Table 3's first level), each noise level with its own.
+    Postures are selected with the sigmas they are identified with: the noise-free studies with
+    the default (Table 3's first level), each noise level with its own."""
     level_sigmas = [
-        Sigmas.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+        SensorNoise.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
         if config.select_per_level
-        else Sigmas()
+        else DEFAULT_SENSOR_NOISE
         for level in paper_levels
     ]
-    keys = [(k, Sigmas()) for k in config.sets] + [
+    keys = [(k, DEFAULT_SENSOR_NOISE) for k in config.sets] + [
         (config.noise_set, sigmas) for sigmas in level_sigmas
     ]
     keys = list(dict.fromkeys(keys))
@@ -256,6 +236,12 @@ def run(config=PaperConfig(), tables=None, log=print, exact=None):
     )
     selections = dict(zip(keys, selected, strict=True))
 
+    return level_sigmas, selections
+
+
+def _identify_all(exact, config, paper_levels, level_sigmas, selections, validation_poses, log):
+    """Every identification of a run, in ``config.jobs`` processes: ``(noise-free rows, noise
+    rows)``."""
     log(
         f'identifying: nominal sets {list(config.sets)} noise-free ({config.noise_free_formulation}); '
         f'noise study on nominal set {config.noise_set}: {len(paper_levels)} levels x {config.seeds} seeds '
@@ -263,7 +249,7 @@ def run(config=PaperConfig(), tables=None, log=print, exact=None):
     )
     nominal = nominal_set(exact, config.noise_set)
     tasks = [
-        ('noise_free', (exact, k, selections[(k, Sigmas())], config, validation_poses))
+        ('noise_free', (exact, k, selections[(k, DEFAULT_SENSOR_NOISE)], config, validation_poses))
         for k in config.sets
     ]
     tasks += [
@@ -296,55 +282,73 @@ def run(config=PaperConfig(), tables=None, log=print, exact=None):
         if task[0] == 'noise'
         for row in output
     ]
+    return noise_free, rows
+
+
+def _noise_summary(level, formulation, rows, condition_number):
+    """One row of Table 3 reproduced: the noise ``level``'s ``rows`` (one per seed) with
+    ``formulation``, against the paper's figures; ``condition_number``: the selection's."""
+    position = np.array([row['position_mm'] for row in rows])
+    orientation = np.array([row['orientation_deg'] for row in rows])
+    return {
+        'angle_noise_deg': level['angle_noise_deg'],
+        'length_noise_mm': level['length_noise_mm'],
+        'formulation': formulation,
+        'seeds': len(rows),
+        'position_mm': float(position.mean()),
+        'orientation_deg': float(orientation.mean()),
+        'paper_position_mm': level['position_mm'],
+        'paper_orientation_deg': level['orientation_deg'],
+        'selection_condition_number': condition_number,
+        'position_ratio_to_paper': float(position.mean() / level['position_mm']),
+        'orientation_ratio_to_paper': float(orientation.mean() / level['orientation_deg']),
+        'cramer_rao_position_mm': float(np.mean([row['cramer_rao_position_mm'] for row in rows])),
+        'cramer_rao_orientation_deg': float(
+            np.mean([row['cramer_rao_orientation_deg'] for row in rows])
+        ),
+        'position_mm_std_over_seeds': float(position.std()),
+        'orientation_deg_std_over_seeds': float(orientation.std()),
+        'position_mm_max': float(max(row['position_mm_max'] for row in rows)),
+        'orientation_deg_max': float(max(row['orientation_deg_max'] for row in rows)),
+        'max_param_error_mm_mean': float(np.mean([row['max_param_error_mm'] for row in rows])),
+        'converged': int(sum(row['converged'] for row in rows)),
+        'excluded_postures_total': int(sum(row['excluded'] for row in rows)),
+        'unreachable_validation_postures_total': int(sum(row['unreachable'] for row in rows)),
+        'iterations_mean': float(np.mean([row['iterations'] for row in rows])),
+        'identification_ms_median': float(np.median([row['identification_ms'] for row in rows])),
+    }
+
+
+def run(config=PaperConfig(), tables=None, log=print, exact=None):
+    """Run the reproduction; returns the JSON-ready document (see the module docstring).
+
+    ``exact``: the real platform (default :func:`drawing_geometry`); its nominal sets are drawn
+    from it with Table 1's statistics (see :mod:`.paper_matched`)."""
+    if tables is None:
+        tables, tables_source = load_tables()
+    else:
+        tables_source = 'given'
+    paper_initial, paper_levels = table3(tables)
+    started = time.perf_counter()
+    exact_description = 'nominal_sets.drawing_geometry()' if exact is None else 'given'
+    exact = drawing_geometry() if exact is None else exact
+    validation_poses = sample_valid_postures(
+        exact, config.validation_postures, np.random.default_rng([config.seed, 50])
+    )
+    initial = validate(exact, nominal_set(exact, config.noise_set), validation_poses)
+
+    level_sigmas, selections = _select(exact, config, paper_levels, log)
+    noise_free, rows = _identify_all(
+        exact, config, paper_levels, level_sigmas, selections, validation_poses, log
+    )
     noise = []
     for index, level in enumerate(paper_levels):
+        condition = selections[(config.noise_set, level_sigmas[index])]['condition_number']
         for formulation in config.formulations:
             mine = [
                 row for row in rows if row['level'] == index and row['formulation'] == formulation
             ]
-            position = np.array([row['position_mm'] for row in mine])
-            orientation = np.array([row['orientation_deg'] for row in mine])
-            noise.append(
-                {
-                    'angle_noise_deg': level['angle_noise_deg'],
-                    'length_noise_mm': level['length_noise_mm'],
-                    'formulation': formulation,
-                    'seeds': len(mine),
-                    'position_mm': float(position.mean()),
-                    'orientation_deg': float(orientation.mean()),
-                    'paper_position_mm': level['position_mm'],
-                    'paper_orientation_deg': level['orientation_deg'],
-                    'selection_condition_number': selections[
-                        (config.noise_set, level_sigmas[index])
-                    ]['condition_number'],
-                    'position_ratio_to_paper': float(position.mean() / level['position_mm']),
-                    'orientation_ratio_to_paper': float(
-                        orientation.mean() / level['orientation_deg']
-                    ),
-                    'cramer_rao_position_mm': float(
-                        np.mean([row['cramer_rao_position_mm'] for row in mine])
-                    ),
-                    'cramer_rao_orientation_deg': float(
-                        np.mean([row['cramer_rao_orientation_deg'] for row in mine])
-                    ),
-                    'position_mm_std_over_seeds': float(position.std()),
-                    'orientation_deg_std_over_seeds': float(orientation.std()),
-                    'position_mm_max': float(max(row['position_mm_max'] for row in mine)),
-                    'orientation_deg_max': float(max(row['orientation_deg_max'] for row in mine)),
-                    'max_param_error_mm_mean': float(
-                        np.mean([row['max_param_error_mm'] for row in mine])
-                    ),
-                    'converged': int(sum(row['converged'] for row in mine)),
-                    'excluded_postures_total': int(sum(row['excluded'] for row in mine)),
-                    'unreachable_validation_postures_total': int(
-                        sum(row['unreachable'] for row in mine)
-                    ),
-                    'iterations_mean': float(np.mean([row['iterations'] for row in mine])),
-                    'identification_ms_median': float(
-                        np.median([row['identification_ms'] for row in mine])
-                    ),
-                }
-            )
+            noise.append(_noise_summary(level, formulation, mine, condition))
     return {
         'initial': {
             'position_mm': initial['position_mm_mean'],
@@ -371,194 +375,3 @@ def run(config=PaperConfig(), tables=None, log=print, exact=None):
         'tables_source': tables_source,
         'duration_s': time.perf_counter() - started,
     }
-
-
-# --- output -------------------------------------------------------------------------------------
-
-
-def plot_parameter_errors(row, path):
-    """Figs. 6-8 style: initial errors as dots, final as crosses, one column per parameter."""
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    names = [entry['name'] for entry in row['parameters']]
-    initial = np.array([entry['initial_error'] for entry in row['parameters']])
-    final = np.array([entry['final_error'] for entry in row['parameters']])
-    positions = np.arange(len(names))
-    figure, axes = plt.subplots(figsize=(13, 4.5), constrained_layout=True)
-    axes.axhline(0.0, color='0.4', linewidth=0.8)
-    axes.plot(
-        positions, initial, 'o', markersize=4, color='tab:blue', label='initial error (nominal set)'
-    )
-    axes.plot(
-        positions, final, 'x', markersize=7, color='tab:red', label='final error (identified)'
-    )
-    axes.set_xticks(positions, names, rotation=90, fontsize=8)
-    axes.set_xlim(-0.7, len(names) - 0.3)
-    axes.set_xlabel('identification parameter')
-    axes.set_ylabel('error (mm; deg for gamma)')
-    axes.set_title(
-        f'Errors in individual parameters (nominal set {row["set"]}): '
-        f'max final error {row["max_param_error_mm"]:.1e} mm, {row["max_param_error_deg"]:.1e} deg'
-    )
-    axes.grid(axis='y', alpha=0.3)
-    axes.legend(loc='upper right')
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-
-
-def format_report(document):
-    lines = []
-    for row in document['noise_free']:
-        lines.append(
-            f'\nNominal set {row["set"]} (noise-free, {row["formulation"]}, condition {row["condition_number"]:.1f}, '
-            f'{row["iterations"]} iterations, {row["message"]})'
-        )
-        lines.append(
-            f'  {"param":>6} {"initial":>10} {"final":>10}    {"param":>6} {"initial":>10} {"final":>10}'
-        )
-        entries = row['parameters']
-        half = (len(entries) + 1) // 2
-        for left, right in itertools.zip_longest(entries[:half], entries[half:]):
-            text = (
-                f'  {left["name"]:>6} {left["initial_error"]:>10.4f} {left["final_error"]:>10.1e}'
-            )
-            if right:
-                text += f'    {right["name"]:>6} {right["initial_error"]:>10.4f} {right["final_error"]:>10.1e}'
-            lines.append(text)
-        lines.append(
-            f'  max |final error|: {row["max_param_error_mm"]:.2e} mm, gamma {row["max_param_error_deg"]:.2e} deg '
-            f'(converged: {row["converged"]})'
-        )
-    initial = document['initial']
-    lines.append(
-        '\nTable 3: mean errors over the validation postures (position mm / orientation deg)'
-    )
-    lines.append(
-        f'  initial (nominal set {initial["nominal_set"]}): {initial["position_mm"]:.4f} / {initial["orientation_deg"]:.4f}'
-        f'   paper: {initial["paper_position_mm"]:.4f} / {initial["paper_orientation_deg"]:.4f}'
-    )
-    header = f'  {"noise deg":>9} {"noise mm":>8} {"formulation":>11} {"seeds":>5} {"position":>9} {"CR":>9} {"paper":>8} {"ratio":>6}   {"orient.":>8} {"CR":>8} {"paper":>8} {"ratio":>6}'
-    if initial.get('unreachable_validation_postures'):
-        lines.append(
-            f'  ({initial["unreachable_validation_postures"]} of {initial["validation_postures"]} validation postures '
-            'cannot be assembled by the real platform under the nominal controller: left out)'
-        )
-    lines.append(header)
-    for row in document['noise']:
-        lines.append(
-            f'  {row["angle_noise_deg"]:>9.3f} {row["length_noise_mm"]:>8.3f} {row["formulation"]:>11} {row["seeds"]:>5} '
-            f'{row["position_mm"]:>9.5f} {row["cramer_rao_position_mm"]:>9.5f} {row["paper_position_mm"]:>8.4f} {row["position_ratio_to_paper"]:>6.2f}   '
-            f'{row["orientation_deg"]:>8.5f} {row["cramer_rao_orientation_deg"]:>8.5f} {row["paper_orientation_deg"]:>8.4f} {row["orientation_ratio_to_paper"]:>6.2f}'
-        )
-    return '\n'.join(lines)
-
-
-def main(argv=None):
-    if argv is None:
-        reexec_with_single_threaded_blas()
-    parser = experiment_parser(
-        'gsp_paper', __doc__, 'results/paper.json', 'smaller pool and 3 seeds (a smoke run)'
-    )
-    parser.add_argument(
-        '--seeds', type=int, default=20, help='noise draws per Table 3 level (default 20)'
-    )
-    parser.add_argument(
-        '--plot-dir', default='results', help='where the Figs. 6-8 PNGs go (default results)'
-    )
-    parser.add_argument('--no-plots', action='store_true', help='skip the PNGs')
-    parser.add_argument(
-        '--select-once',
-        action='store_true',
-        help='one posture selection (default sigmas) for every noise level instead of one per level',
-    )
-    parser.add_argument(
-        '--jobs', type=int, default=min(2, os.cpu_count() or 1), help='worker processes (default 2)'
-    )
-    parser.add_argument(
-        '--pool', type=int, default=None, help='random valid postures to select from (default 600)'
-    )
-    parser.add_argument('--seed', type=int, default=0, help='base random seed')
-    parser.add_argument(
-        '--skip-matched',
-        action='store_true',
-        help='skip the search for a platform matching the paper (paper_matched)',
-    )
-    parser.add_argument(
-        '--matched-evaluations',
-        type=int,
-        default=120,
-        help='paper_matched: evaluations per search start (default 120)',
-    )
-    parser.add_argument(
-        '--sets', default='1,2,3', help='nominal sets of the noise-free study (default 1,2,3)'
-    )
-    parser.add_argument(
-        '--tables',
-        default=None,
-        help="the paper's tables.yaml (default: the copy shipped in gsp_experiments)",
-    )
-    parser.add_argument(
-        '--formulations',
-        default=','.join(NOISE_FORMULATIONS),
-        help=f'comma-separated formulations for the noise study (of {", ".join(FORMULATIONS)})',
-    )
-    args = parser.parse_args(argv)
-    formulations = tuple(name.strip() for name in args.formulations.split(',') if name.strip())
-    unknown = [name for name in formulations if name not in FORMULATIONS]
-    if unknown or not formulations:
-        parser.error(f'unknown formulation(s) {unknown}; expected some of {FORMULATIONS}')
-    if args.seeds < 1:
-        parser.error('--seeds must be at least 1')
-    try:
-        sets = tuple(sorted({int(item) for item in args.sets.split(',') if item.strip()}))
-    except ValueError:
-        sets = ()
-    if not sets or not set(sets) <= {1, 2, 3}:
-        parser.error(f'--sets must list nominal sets among 1, 2, 3 (got {args.sets!r})')
-    seeds = min(args.seeds, 3) if args.quick and args.seeds == 20 else args.seeds
-    pool = args.pool or (250 if args.quick else 600)
-    config = PaperConfig(
-        seeds=seeds,
-        pool_size=pool,
-        sets=sets,
-        formulations=formulations,
-        select_per_level=not args.select_once,
-        seed=args.seed,
-        jobs=max(1, args.jobs),
-    )
-    tables, source = load_tables(args.tables)
-    print(f'gsp_paper: tables from {source}', flush=True)
-    document = run(config, tables=tables, log=lambda text: print(text, flush=True))
-    document['tables_source'] = source
-    if not args.skip_matched:
-        from . import paper_matched
-
-        document['paper_matched'] = paper_matched.run(
-            config,
-            tables,
-            table3(tables)[0],
-            log=lambda text: print(text, flush=True),
-            max_evaluations=max(1, args.matched_evaluations),
-        )
-    if not args.no_plots:
-        plot_dir = Path(args.plot_dir)
-        plot_dir.mkdir(parents=True, exist_ok=True)
-        document['plots'] = []
-        for row in document['noise_free']:
-            path = plot_dir / f'paper_fig{5 + row["set"]}_set{row["set"]}_parameter_errors.png'
-            plot_parameter_errors(row, path)
-            document['plots'].append(str(path))
-    write_json(args.output, document)
-    print(format_report(document))
-    print(
-        f'\nwrote {args.output} in {document["duration_s"]:.1f} s'
-        + (f'; plots: {", ".join(document["plots"])}' if document.get('plots') else '')
-    )
-    return 0 if all(row['converged'] for row in document['noise_free']) else 1
-
-
-if __name__ == '__main__':
-    sys.exit(main())

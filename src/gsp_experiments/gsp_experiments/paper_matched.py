@@ -192,14 +192,13 @@ def _within(errors, target):
     )
 
 
-def run(config, tables, paper_initial, log=print, max_evaluations=MAX_EVALUATIONS):
+def run(config, rerun_table3, paper_initial, log=print, max_evaluations=MAX_EVALUATIONS):
     """The ``paper_matched`` section of ``results/paper.json``.
 
-    ``config``: the :class:`.paper.PaperConfig` of the default run (Table 3 is rerun on the
-    candidate with it, nominal set 1 only); ``paper_initial``: Table 3's initial row.
+    ``config``: the :class:`.paper.PaperConfig` of the default run; ``rerun_table3(exact)``:
+    Table 3 rerun on the candidate geometry ``exact`` (the caller's ``paper.run``, nominal set 1
+    only); ``paper_initial``: Table 3's initial row.
     """
-    from . import paper
-
     target = (paper_initial['position_mm'], paper_initial['orientation_deg'])
     log(f'paper_matched: searching a platform with initial error {target} (mm, deg) ...')
     found = search(target, max_evaluations, seed=config.seed, log=log)
@@ -226,22 +225,7 @@ def run(config, tables, paper_initial, log=print, max_evaluations=MAX_EVALUATION
     log(
         f'paper_matched: {"matched" if matched else "no match"}; rerunning Table 3 on the candidate'
     )
-    table3 = paper.run(
-        paper.PaperConfig(
-            seeds=config.seeds,
-            pool_size=config.pool_size,
-            postures=config.postures,
-            validation_postures=config.validation_postures,
-            sets=(1,),
-            formulations=config.formulations,
-            select_per_level=config.select_per_level,
-            seed=config.seed,
-            jobs=config.jobs,
-        ),
-        tables=tables,
-        log=log,
-        exact=candidate_geometry(best['parameters']),
-    )
+    table3 = rerun_table3(candidate_geometry(best['parameters']))
     return {
         'target': {'position_mm': target[0], 'orientation_deg': target[1], 'tolerance': TOLERANCE},
         'matched': matched,

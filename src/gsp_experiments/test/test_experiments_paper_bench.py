@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from gsp_experiments import bench, paper, tables
+from gsp_experiments import bench, paper, paper_cli, tables
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.identification import Sigmas
 from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
@@ -46,7 +46,7 @@ def test_noise_model_hits_the_right_sensors(rng):
 
 def test_paper_main_writes_the_contract(tmp_path, capsys):
     output = tmp_path / 'paper.json'
-    code = paper.main(
+    code = paper_cli.main(
         [
             '--seeds',
             '1',

@@ -14,7 +14,7 @@ def design():
     true, nominal = default_true_and_nominal()
     pool = sample_valid_postures(nominal, 300, np.random.default_rng(0), Workspace())
     chosen, _ = bench.select_postures(
-        nominal, pool, bench.POSTURES, bench.averaged(bench.SIGMAS), free='extended'
+        nominal, pool, bench.POSTURES, bench.SIGMAS.averaged([bench.SAMPLES]), free='extended'
     )
     validation = sample_valid_postures(nominal, 30, np.random.default_rng(1), Workspace())
     return true, nominal, pool, chosen, validation

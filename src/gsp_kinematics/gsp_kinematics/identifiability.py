@@ -5,10 +5,13 @@ the Schur complement after eliminating the poses). Columns are scaled to unit no
 condition number is that of the column-scaled identification Jacobian.
 """
 
+import math
+
 import numpy as np
 
 from .geometry import ALL_PARAMETER_NAMES
-from .identification import SENSOR_NAMES, Sigmas, resolve_free
+from .identification import SENSOR_NAMES, resolve_free
+from .noise import DEFAULT_SENSOR_NOISE
 
 #: A scaled singular value below this fraction of the largest counts as zero.
 DEFAULT_RELATIVE_TOLERANCE = 1e-6
@@ -70,10 +73,30 @@ def unidentifiable_parameters(analysis):
     return sorted({name for entry in analysis['unidentifiable'] for name in entry['parameters']})
 
 
+def analyse_result(result):
+    """The identifiability analysis of an ``IdentificationResult``: :func:`analyse_identifiability`
+    of its information matrix, plus ``names`` (:func:`unidentifiable_parameters`). A non-finite
+    information matrix (a failed fit) gives rank 0 with every free parameter named. Computed once
+    per result; the calibration, its report and its predicted accuracy share it."""
+    information = np.asarray(result.information, dtype=float)
+    if not np.all(np.isfinite(information)):
+        names = list(result.free_names)
+        return {
+            'rank': 0,
+            'parameters': len(names),
+            'condition_number': math.inf,
+            'unidentifiable': [],
+            'names': names,
+        }
+    analysis = analyse_identifiability(information, result.free)
+    analysis['names'] = unidentifiable_parameters(analysis)
+    return analysis
+
+
 def analyse_design(
     geometry,
     poses,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
     formulation='implicit',
     sensors=SENSOR_NAMES,

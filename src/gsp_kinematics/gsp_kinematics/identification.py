@@ -12,10 +12,10 @@ Formulations:
   there is no inner FK loop, and the block-sparse normal equations are solved through a Schur
   complement on the 6x6 pose blocks.
 
-All three are minimised by the same Levenberg-Marquardt driver (:mod:`gsp_kinematics._lm`,
+All three are minimised by the same Levenberg-Marquardt driver (:mod:`gsp_kinematics._solver.lm`,
 Marquardt's diagonal scaling), which stops on the step ``du`` or on the change of the residual
 ``dX``, as in the paper's Fig. 5; the formulations are its models
-(:mod:`gsp_kinematics._formulations`). :data:`TERMINATION_MESSAGES` names every status.
+(:mod:`gsp_kinematics._solver.formulations`). :data:`TERMINATION_MESSAGES` names every status.
 """
 
 import dataclasses
@@ -25,8 +25,8 @@ import time
 import numpy as np
 
 from . import goodness
-from ._formulations import _FkModel, _ImplicitModel
-from ._lm import TERMINATION_MESSAGES, levenberg_marquardt
+from ._solver.formulations import _FkModel, _ImplicitModel
+from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
 from .geometry import (
     ALL_PARAMETER_NAMES,
@@ -38,6 +38,7 @@ from .geometry import (
     Geometry,
 )
 from .kinematics import forward_kinematics_masked
+from .noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 DEFAULT_FORMULATION = 'implicit'
@@ -64,36 +65,8 @@ class IdentificationError(ValueError):
     """Inputs to the identification are unusable; the message says which."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Sigmas:
-    """Standard deviation of each sensor's noise (m, rad): the residual weights."""
-
-    leg_lengths: float = 1e-6
-    inclinometer: float = math.radians(0.001)
-    encoder: float = math.radians(0.001)
-    lvdt: float = 1e-6
-
-    @classmethod
-    def from_levels(cls, angle_noise_deg, length_noise_mm):
-        """Table 3's convention: one angular level (deg) and one length level (mm)."""
-        return cls(
-            leg_lengths=length_noise_mm / 1000.0,
-            inclinometer=math.radians(angle_noise_deg),
-            encoder=math.radians(angle_noise_deg),
-            lvdt=length_noise_mm / 1000.0,
-        )
-
-    def readings(self):
-        """Sigmas of ``[alpha, beta, phi, d_m]``."""
-        return np.array([self.inclinometer, self.inclinometer, self.encoder, self.lvdt])
-
-    def validate(self):
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise IdentificationError(
-                    f'sigma for {field.name} must be positive and finite, got {value}'
-                )
+#: The former name of :class:`~gsp_kinematics.noise.SensorNoise`, kept for existing callers.
+Sigmas = SensorNoise
 
 
 @dataclasses.dataclass(frozen=True)
@@ -244,7 +217,7 @@ def identify(
     nominal,
     leg_lengths,
     readings,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     formulation=DEFAULT_FORMULATION,
     free=None,
     pose_guesses=None,
@@ -267,7 +240,10 @@ def identify(
         raise IdentificationError(
             f'unknown sensors {sorted(unknown)}; expected some of {SENSOR_NAMES}'
         )
-    sigmas.validate()
+    try:
+        sigmas.validate()
+    except SensorNoiseError as error:
+        raise IdentificationError(str(error)) from None
     try:
         goodness.check_loss(options.loss, options.loss_scale)
     except ValueError as error:

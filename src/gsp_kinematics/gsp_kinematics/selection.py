@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from ._formulations import leg_readings_jacobians, sensor_readings_jacobians
-from .identification import SENSOR_NAMES, Sigmas, resolve_free
+from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
+from .identification import SENSOR_NAMES, resolve_free
+from .noise import DEFAULT_SENSOR_NOISE
 from .prediction import pose_sensitivities
 
 #: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
@@ -13,7 +14,7 @@ FOCUS = 6.0
 
 
 def posture_factors(
-    geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
+    geometry, poses, sigmas=None, free=None, formulation='implicit', sensors=SENSOR_NAMES
 ):
     """Per-posture information factors ``G`` (N, r, n): posture k's information is ``G_k^T G_k``.
 
@@ -21,8 +22,10 @@ def posture_factors(
     ``[J_X | J_u]`` (k x (6 + n)) is projected on the orthogonal complement of ``J_X``'s columns
     (``r = k - 6`` rows of a complete QR), which gives the Schur complement
     ``J_u^T J_u - J_u^T J_X (J_X^T J_X)^-1 J_X^T J_u`` as a product of small factors; for ``'fk'``
-    it is the FK-based residual Jacobian itself (r = the device readings used).
+    it is the FK-based residual Jacobian itself (r = the device readings used). ``sigmas``: the
+    ``SensorNoise`` weights (default :data:`~gsp_kinematics.noise.DEFAULT_SENSOR_NOISE`).
     """
+    sigmas = DEFAULT_SENSOR_NOISE if sigmas is None else sigmas
     free = resolve_free(free)
     columns = [c for c, name in enumerate(('alpha', 'beta', 'phi', 'd_m')) if name in sensors]
     # Derivatives of the sensor readings (the sensor errors included) over the extended vector.
@@ -41,7 +44,7 @@ def posture_factors(
 
 
 def posture_information(
-    geometry, poses, sigmas=Sigmas(), free=None, formulation='implicit', sensors=SENSOR_NAMES
+    geometry, poses, sigmas=None, free=None, formulation='implicit', sensors=SENSOR_NAMES
 ):
     """Per-posture information matrices (N, n, n) of the free parameters.
 
@@ -66,7 +69,7 @@ def select_postures(
     geometry,
     pool,
     count=60,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
     formulation='implicit',
     exchange_passes=1,
@@ -196,7 +199,7 @@ def exchange_for_pose_error(
     pool,
     chosen,
     targets,
-    sigmas=Sigmas(),
+    sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
     formulation='implicit',
     passes=1,

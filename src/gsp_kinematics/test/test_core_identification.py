@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics._formulations import _FkModel, _ImplicitModel
+from gsp_kinematics._solver.formulations import _FkModel, _ImplicitModel
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import PARAMETER_INDEX, PARAMETER_NAMES, Geometry, parameter_errors
 from gsp_kinematics.identification import (

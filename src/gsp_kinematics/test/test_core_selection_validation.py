@@ -126,7 +126,7 @@ def test_validation_commands_with_the_controller_and_moves_the_true_platform(
 
 
 def test_posture_factors_give_the_schur_complement(nominal_sets, postures):
-    from gsp_kinematics._lm import schur_information
+    from gsp_kinematics._solver.lm import schur_information
     from gsp_kinematics.device import device_readings_jacobians
     from gsp_kinematics.identification import Sigmas
     from gsp_kinematics.kinematics import expand_leg_parameters, inverse_kinematics_jacobians

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gsp_kinematics import goodness
-from gsp_kinematics._formulations import _FkModel, _ImplicitModel
+from gsp_kinematics._solver.formulations import _FkModel, _ImplicitModel
 from gsp_kinematics.geometry import (
     NUM_PARAMETERS,
     PARAMETER_INDEX,

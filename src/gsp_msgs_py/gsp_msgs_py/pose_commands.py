@@ -11,7 +11,7 @@ a newer command supersedes it first: then it is ``rejected`` with the reason
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 
-from . import checks, conversions, names, qos
+from . import conversions, message_checks, names, qos
 from .settle import SettleTracker, superseded_reason
 
 WARN_THROTTLE_S = 1.0
@@ -76,7 +76,7 @@ class PoseCommandServer:
             )
             return
         try:
-            reason = self._move(command_id, checks.pose_in_frame(msg, self._frame_id))
+            reason = self._move(command_id, message_checks.pose_in_frame(msg, self._frame_id))
         except (TypeError, ValueError) as error:
             reason = str(error)
         if reason:

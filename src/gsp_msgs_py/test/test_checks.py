@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gsp_msgs_py import checks, conversions, names
+from gsp_msgs_py import conversions, names
+from gsp_msgs_py import message_checks as checks
 
 X = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
 

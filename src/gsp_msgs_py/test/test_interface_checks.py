@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_msgs_py import names
-from gsp_msgs_py.interface_checks import Received, check_topics, stamp_sharing, topic_summary
+from gsp_msgs_py.interfaces.rules import Received, check_topics, stamp_sharing, topic_summary
 
 RATE = 200.0
 LEGS = np.array([0.1, 0.2, 0.3, 0.25, 0.15, 0.05])

@@ -20,6 +20,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
 from gsp_kinematics.motion import MotionLimits
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, names, node_tools, qos
 
 from .trajectory_follower import TrajectoryFollower
@@ -45,7 +46,10 @@ PARAMETERS = (
     *node_tools.motion_limit_specs(0.1, 0.0, read_only=True),
     node_tools.publish_rate_spec('/joint_states and true_pose'),
     node_tools.noise_std_spec(
-        'leg_noise_std', 1e-6, 'Standard deviation of the leg position noise on /joint_states', 'm'
+        'leg_noise_std',
+        DEFAULT_SENSOR_NOISE.leg_lengths,
+        'Standard deviation of the leg position noise on /joint_states',
+        'm',
     ),
     node_tools.seed_spec(),
     node_tools.frame_id_spec('Frame of the published true pose'),

@@ -18,6 +18,7 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.motion import MotionLimits
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, names, node_tools
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
@@ -45,7 +46,10 @@ PARAMETERS = (
     *CONTROLLER_GEOMETRY_SPECS,
     node_tools.publish_rate_spec('leg_lengths and true_pose'),
     node_tools.noise_std_spec(
-        'leg_noise_std', 1e-6, 'Standard deviation of the Gaussian leg length sensor noise', 'm'
+        'leg_noise_std',
+        DEFAULT_SENSOR_NOISE.leg_lengths,
+        'Standard deviation of the Gaussian leg length sensor noise',
+        'm',
     ),
     node_tools.seed_spec(),
     node_tools.settle_time_spec('an accepted command'),

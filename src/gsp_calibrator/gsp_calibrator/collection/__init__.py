@@ -1,0 +1,1 @@
+"""Collecting postures: the pure collection protocol, its stamp synchroniser and the one-source-per-topic check (no rclpy)."""

@@ -1,0 +1,496 @@
+"""The posture-collection protocol of a calibration run (pure, no rclpy).
+
+One :class:`CollectionProtocol` serves the ``calibrator`` node (live messages), the rebuilding
+of ``samples.csv`` from a recording (:func:`gsp_calibrator.recording.rebuild.samples_from_recording`)
+and the replay of a recording (:mod:`gsp_calibrator.replay.recorded_run`): each feeds it the pose commands,
+platform statuses and sensor messages with their receive times (integer ns, the node clock; a
+recording's log time) and acts on the events it returns.
+
+Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first status must come
+within ``topic_timeout`` (else :class:`TopicSilent`); ``rejected`` skips it; ``settled`` must
+come within ``settle_timeout`` of that first status (else skipped) and starts the collection
+(:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
+the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
+sensor samples stamped from the start (including samples received since the command) and the
+consistent window gives the row (:class:`RowReady`). The posture is skipped when
+``max_pairs_per_sample * samples_per_posture`` pairs hold no consistent window, or when no window
+comes within ``settle_timeout + topic_timeout`` of the start. The run fails
+(:class:`TopicSilent`, :class:`NoSynchronisedSample`) when a sensor topic says nothing, or the
+pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
+is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
+with the current time), so the protocol runs offline.
+
+A gap of half a ``topic_timeout`` or more between two calls means the caller itself did not run
+(an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
+silence is judged over the gap; every timeout counts again from the end of the gap. Likewise a
+sample stamped before the collection start but received after it shows a caller still working
+through a backlog: the pairs' progress timeout counts again from its receipt.
+
+The previous posture's device readings (the collector's "unchanged" check) are the last row's,
+and before the first row the latest complete device instant received before the command. A
+resumed run starts from its last kept row (:meth:`~CollectionProtocol.continue_after`): the
+platform may still stand at the posture that was being collected when the run stopped, so the
+readings before the command would equal that posture's.
+
+With ``keep_pairs=True`` (replay) no row is taken: every pair after the settle, up to the next
+command, is kept and handed over in :class:`PairsCollected` (also for the samples before the
+first command, ``posture=None``) at the next command and at :meth:`~CollectionProtocol.finish`.
+"""
+
+import collections
+import dataclasses
+import math
+
+import numpy as np
+
+from gsp_calibrator.collection.events import (  # noqa: F401 (callers take the events from here)
+    FINAL_EVENTS,
+    CollectionStarted,
+    NoSynchronisedSample,
+    PairsCollected,
+    PostureSkipped,
+    RowReady,
+    SampleDropped,
+    TopicSilent,
+)
+from gsp_calibrator.collection.synchroniser import (
+    ENCODER,
+    INCLINOMETER,
+    LEG_LENGTHS,
+    LVDT,
+    SampleCollector,
+)
+from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
+    DEVICE_STREAMS,
+    SENSOR_TOPICS,
+    TOPIC_STREAMS,
+    has_non_finite,
+    read_sensor,
+)
+from gsp_msgs_py import names
+
+#: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
+#: consistent window (see gsp_calibrator.collection.synchroniser).
+MAX_PAIRS_PER_SAMPLE = 20
+#: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
+STALL_FRACTION = 0.5
+#: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
+MIN_BUFFER = 2000
+#: Pairs handed over per posture with ``keep_pairs`` (the first ones after the settle), and
+#: before the first command (the last ones), so a long idle recording stays cheap.
+MAX_STREAM_SAMPLES = 2000
+
+_ADDERS = {
+    LEG_LENGTHS: SampleCollector.add_leg_lengths,
+    INCLINOMETER: SampleCollector.add_inclinometer,
+    ENCODER: SampleCollector.add_encoder,
+    LVDT: SampleCollector.add_lvdt,
+}
+
+
+def settle_start_ns(published_ns, received_ns, topic_timeout):
+    """The collection start of a ``settled`` status published at ``published_ns`` (the
+    publisher's stamp, e.g. the middleware's source timestamp; None or 0 if unknown) and
+    received at ``received_ns`` (ns, node clock).
+
+    The platform settled when it said so: samples stamped from the publish instant on count,
+    also those received before the status itself (the status latency would otherwise cost the
+    samples stamped meanwhile). The receive time when the publish instant is unknown or
+    implausible on this clock: after the receipt (a publisher clock ahead, a stamp in another
+    time base) or more than ``topic_timeout`` (s) before it.
+    """
+    received_ns = int(received_ns)
+    if not published_ns:
+        return received_ns
+    published_ns = int(published_ns)
+    if received_ns - topic_timeout * 1e9 <= published_ns <= received_ns:
+        return published_ns
+    return received_ns
+
+
+_IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
+
+
+@dataclasses.dataclass
+class _Posture:
+    number: int
+    pose: np.ndarray
+    command_id: str
+    commanded_ns: int
+    state: str = _AWAIT_STATUS
+    first_status_ns: int = None
+    start_ns: int = None  # collection start (stamps), set when settled
+    started_ns: int = None  # receive time of the settle (time base of the timeouts)
+    progress: int = 0  # pairs at the last change
+    progress_ns: int = None  # time of the last change of the pairs
+
+
+class CollectionProtocol:
+    """The collection protocol (see the module docstring); every input returns a list of events.
+
+    ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds or None)
+    configure the collector; ``topic_timeout`` / ``settle_timeout`` (s, default: none) the
+    timeouts. Times are integer ns of one clock (receive times).
+    """
+
+    @classmethod
+    def for_settings(cls, settings):
+        """The protocol of a calibrator run with ``settings`` (a ``CalibratorSettings``)."""
+        return cls(
+            settings.sync_tolerance,
+            settings.samples_per_posture,
+            settings.sigmas.channel_std(),
+            topic_timeout=settings.topic_timeout,
+            settle_timeout=settings.settle_timeout,
+        )
+
+    def __init__(
+        self,
+        sync_tolerance,
+        samples_per_posture,
+        noise_std=None,
+        *,
+        topic_timeout=math.inf,
+        settle_timeout=math.inf,
+        max_pairs_per_sample=MAX_PAIRS_PER_SAMPLE,
+        keep_pairs=False,
+    ):
+        self.samples_per_posture = int(samples_per_posture)
+        self.topic_timeout = float(topic_timeout)
+        self.settle_timeout = float(settle_timeout)
+        self.sync_tolerance = float(sync_tolerance)
+        self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
+        self.keep_pairs = bool(keep_pairs)
+        buffer = None if keep_pairs else max(MIN_BUFFER, 2 * self.pair_limit)
+        self.collector = SampleCollector(
+            sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std
+        )
+        self._posture = None  # the awaited posture (_Posture) or None
+        self._previous = None  # device readings of the previous row
+        self._latest = {}  # device stream -> (stamp_ns, values) of its latest usable message
+        self._last_heard = {}  # topic -> receive time (ns) of its latest message
+        self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
+        self._checked_pairs = None
+        self._attended_ns = None  # receive time of the latest call
+        self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
+        #: Posture skips of the run: ``[PostureSkipped, ...]``.
+        self.skipped = []
+        self._idle = None  # keep_pairs: the samples before the first command
+        if self.keep_pairs:
+            self._idle = SampleCollector(sync_tolerance, 1, max_buffer=2 * MAX_STREAM_SAMPLES)
+            self._idle.start(-(2**62))
+
+    # --- state -------------------------------------------------------------------------------
+
+    def heard(self, topic):
+        """Whether ``topic`` has said anything yet."""
+        return topic in self._last_heard
+
+    @property
+    def posture(self):
+        """Number of the awaited posture, or None."""
+        return None if self._posture is None else self._posture.number
+
+    @property
+    def collecting(self):
+        return self._posture is not None and self._posture.state == _COLLECTING
+
+    def latest_device_readings(self):
+        """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
+        items = [self._latest.get(stream) for stream in DEVICE_STREAMS]
+        if any(item is None for item in items) or len({item[0] for item in items}) != 1:
+            return None
+        return np.concatenate([np.asarray(item[1], dtype=float) for item in items])
+
+    def summary(self):
+        """The run's collection data: skips, inconsistent and non-finite samples dropped."""
+        return {
+            'skipped': [
+                {
+                    'posture': s.posture,
+                    'reason': s.reason,
+                    'rejected_by_platform': s.rejected_by_platform,
+                }
+                for s in self.skipped
+            ],
+            'inconsistent_dropped': int(self.collector.inconsistent),
+            'non_finite_dropped': {
+                stream: int(count) for stream, count in self.collector.non_finite.items()
+            },
+        }
+
+    def continue_after(self, readings):
+        """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
+        d_m]`` (rad, m): they are the previous posture's for the next row."""
+        self._previous = np.asarray(readings, dtype=float).reshape(4)
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def command(self, posture, pose, command_id, now_ns):
+        """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
+        self._attend(now_ns)
+        events = self._end_segment() if self.keep_pairs else []
+        if self._previous is None:
+            # What the device reports before the platform moves (stale readings would match).
+            self._previous = self.latest_device_readings()
+        self.collector.stop()
+        self._recent.clear()
+        self._checked_pairs = None
+        self._posture = _Posture(
+            int(posture), np.asarray(pose, dtype=float).reshape(6), str(command_id), int(now_ns)
+        )
+        return events + self.poll(now_ns)
+
+    def status(self, status, now_ns, start_ns=None):
+        """A platform status (``conversions.PlatformStatus``) received at ``now_ns``.
+
+        ``start_ns``: the collection start to use if this status settles the posture (default
+        ``now_ns``).
+        """
+        self._attend(now_ns)
+        posture = self._posture
+        if posture is None or status.command_id != posture.command_id:
+            return self.poll(now_ns)
+        if posture.state in (_AWAIT_STATUS, _AWAIT_SETTLE):
+            if posture.first_status_ns is None:
+                posture.first_status_ns = int(now_ns)
+                posture.state = _AWAIT_SETTLE
+            if status.rejected:
+                reason = status.reason or 'rejected'
+                return self._skip(f'rejected by the platform: {reason}', True, reason)
+            if status.settled:
+                return self._start(now_ns, now_ns if start_ns is None else start_ns)
+        return self.poll(now_ns)
+
+    def sensor(self, topic, msg, now_ns):
+        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) received at ``now_ns``."""
+        self._attend(now_ns)
+        self._last_heard[topic] = int(now_ns)
+        try:
+            stream, stamp_ns, values = read_sensor(topic, msg)
+        except (ValueError, TypeError) as error:
+            if has_non_finite(msg):
+                stream = TOPIC_STREAMS[topic]
+                self.collector.record_non_finite(stream)
+                return [
+                    SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
+                ] + self.poll(now_ns)
+            return [SampleDropped(topic, str(error), False)] + self.poll(now_ns)
+        return self.sample(stream, stamp_ns, values, now_ns, heard=False)
+
+    def sample(self, stream, stamp_ns, values, now_ns, heard=True):
+        """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``)."""
+        self._attend(now_ns)
+        if heard:
+            topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
+            self._last_heard[topic] = int(now_ns)
+        if stream != LEG_LENGTHS:
+            self._latest[stream] = (int(stamp_ns), values)
+        adder = _ADDERS[stream]
+        posture = self._posture
+        if posture is None:
+            if self._idle is not None:
+                adder(self._idle, stamp_ns, *values)
+            return self.poll(now_ns)
+        if posture.state != _COLLECTING:
+            self._recent.append((adder, stamp_ns, values))
+            return self.poll(now_ns)
+        if stamp_ns < posture.start_ns:
+            # Stamped before the start, received now: the caller is still working through a
+            # backlog (its listener fell behind), which is no lack of progress of the pairs.
+            posture.progress_ns = max(posture.progress_ns, int(now_ns))
+        adder(self.collector, stamp_ns, *values)
+        return self._check_collection(now_ns)
+
+    def poll(self, now_ns):
+        """Events due at ``now_ns`` (timeouts)."""
+        self._attend(now_ns)
+        posture = self._posture
+        if posture is None:
+            return []
+        now_ns = int(now_ns)
+        if posture.state == _AWAIT_STATUS:
+            if _elapsed(self._since(posture.commanded_ns), now_ns) >= self.topic_timeout:
+                doing = (
+                    f'waiting for the status of posture {posture.number} '
+                    f'(command {posture.command_id})'
+                )
+                return self._fail(
+                    TopicSilent(
+                        names.TOPIC_PLATFORM_STATUS,
+                        doing,
+                        f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no status for posture '
+                        f'{posture.number} (command {posture.command_id}) within '
+                        f'{self.topic_timeout:g} s',
+                    )
+                )
+        elif posture.state == _AWAIT_SETTLE:
+            if _elapsed(self._since(posture.first_status_ns), now_ns) >= self.settle_timeout:
+                return self._skip(f'not settled within {self.settle_timeout:g} s')
+        elif posture.state == _COLLECTING and not self.keep_pairs:
+            return self._collection_timeouts(now_ns)
+        return []
+
+    def finish(self, now_ns=None):
+        """End of input (recordings): ``keep_pairs`` hands over the last segment."""
+        return self._end_segment() if self.keep_pairs else []
+
+    # --- collection --------------------------------------------------------------------------
+
+    def _start(self, now_ns, start_ns):
+        posture = self._posture
+        posture.state = _COLLECTING
+        posture.start_ns, posture.started_ns = int(start_ns), int(now_ns)
+        posture.progress, posture.progress_ns = 0, int(now_ns)
+        self.collector.start(posture.start_ns, self._previous)
+        for adder, stamp_ns, values in self._recent:  # those stamped after the start count
+            adder(self.collector, stamp_ns, *values)
+        self._recent.clear()
+        events = [CollectionStarted(posture.number, posture.command_id, posture.start_ns)]
+        if self.keep_pairs:
+            return events
+        return events + self._check_collection(now_ns)
+
+    def _check_collection(self, now_ns):
+        if self.keep_pairs:
+            return []
+        collector = self.collector
+        # ready() is a function of the pairs: only ask again when they changed (it is costly).
+        pairs = collector.pairs()
+        if pairs != self._checked_pairs:
+            self._checked_pairs = pairs
+            if collector.ready():
+                return self._row()
+            if len(pairs) >= self.pair_limit:
+                return self._skip(
+                    f'no {self.samples_per_posture} consistent samples among {len(pairs)} '
+                    'synchronised ones (too noisy, or the device readings did not change from '
+                    'the previous posture)'
+                )
+        return self._collection_timeouts(now_ns)
+
+    def _collection_timeouts(self, now_ns):
+        posture, collector = self._posture, self.collector
+        silences = {  # s, since the topic's latest message (or the settle, or a stall)
+            topic: _elapsed(
+                self._since(max(self._last_heard.get(topic, 0), posture.started_ns)), now_ns
+            )
+            for topic in SENSOR_TOPICS
+        }
+        topic = max(silences, key=silences.get)  # the first to fall silent is the cause
+        # >= as for the progress timeout below: a topic that died at the collection start
+        # expires together with the progress, and the silent topic is the cause to name.
+        if silences[topic] >= self.topic_timeout:
+            doing = f'collecting posture {posture.number}'
+            return self._fail(
+                TopicSilent(
+                    topic,
+                    doing,
+                    f'topic {topic} is silent: no message for '
+                    f'{self.topic_timeout:g} s while {doing}',
+                )
+            )
+        count = collector.pair_count()
+        if count != posture.progress:
+            posture.progress, posture.progress_ns = count, now_ns
+        if _elapsed(self._since(posture.progress_ns), now_ns) >= self.topic_timeout:
+            # The pairs stopped: if a topic stopped too (a dead node whose last messages still
+            # paired a little later), it is the cause to name.
+            if silences[topic] >= 0.5 * self.topic_timeout:
+                doing = f'collecting posture {posture.number}'
+                return self._fail(
+                    TopicSilent(
+                        topic,
+                        doing,
+                        f'topic {topic} is silent: no message for {silences[topic]:.3g} s '
+                        f'while {doing} (and no synchronised sample for '
+                        f'{self.topic_timeout:g} s)',
+                    )
+                )
+            counts = collector.counts()
+            return self._fail(
+                NoSynchronisedSample(
+                    posture.number,
+                    f'no synchronised sample for {self.topic_timeout:g} s at posture '
+                    f'{posture.number}: {counts[LEG_LENGTHS]} leg-length and {counts["device"]} '
+                    f'complete device samples since settling, {counts["pairs"]} within '
+                    f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
+                    f'(non-finite readings dropped so far: {collector.non_finite})',
+                )
+            )
+        # The collection is bounded as a whole: pairs that keep coming without a consistent
+        # window would otherwise restart the progress timeout for ever.
+        limit = self.settle_timeout + self.topic_timeout
+        if _elapsed(self._since(posture.started_ns), now_ns) >= limit:
+            counts = collector.counts()
+            return self._skip(
+                f'no {self.samples_per_posture} consistent synchronised samples within '
+                f'{limit:g} s (settle_timeout + topic_timeout) of settling: '
+                f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '
+                f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
+            )
+        return []
+
+    def _attend(self, now_ns):
+        """Note a call at ``now_ns``; a long gap since the previous one is a stall."""
+        now_ns = int(now_ns)
+        if self._attended_ns is not None and now_ns > self._attended_ns:
+            if _elapsed(self._attended_ns, now_ns) >= STALL_FRACTION * self.topic_timeout:
+                self._stall_end_ns = now_ns
+        self._attended_ns = now_ns if self._attended_ns is None else max(self._attended_ns, now_ns)
+
+    def _since(self, reference_ns):
+        """The start of a timeout from ``reference_ns``: no later than the latest stall."""
+        return max(int(reference_ns), self._stall_end_ns)
+
+    def _row(self):
+        posture, collector = self._posture, self.collector
+        dropped_before = collector.inconsistent
+        sample = collector.take_posture()
+        self._previous = sample.readings
+        self._posture = None
+        return [
+            RowReady(posture.number, posture.pose, sample, collector.inconsistent - dropped_before)
+        ]
+
+    def _skip(self, reason, rejected=False, platform_reason=''):
+        event = PostureSkipped(self._posture.number, reason, rejected, platform_reason)
+        self.skipped.append(event)
+        self.collector.stop()
+        self._posture = None
+        return [event]
+
+    def _fail(self, event):
+        self.collector.stop()
+        self._posture = None
+        return [event]
+
+    def _end_segment(self):
+        """``keep_pairs``: the pairs of the segment that the next command (or the end) closes."""
+        posture = self._posture
+        if posture is None:
+            if self._idle is None:
+                return []
+            idle, self._idle = self._idle, None
+            stamps, legs, readings = idle.stream(MAX_STREAM_SAMPLES, last=True)
+            return [PairsCollected(None, '', None, stamps, legs, readings)]
+        if posture.state != _COLLECTING:
+            return self._skip('never settled')
+        stamps, legs, readings = self.collector.stream(MAX_STREAM_SAMPLES)
+        self.collector.stop()
+        self._posture = None
+        if len(stamps) == 0:
+            return self._skip_closed(posture, 'no synchronised sample after settling')
+        return [
+            PairsCollected(posture.number, posture.command_id, posture.pose, stamps, legs, readings)
+        ]
+
+    def _skip_closed(self, posture, reason):
+        event = PostureSkipped(posture.number, reason)
+        self.skipped.append(event)
+        return [event]
+
+
+def _elapsed(since_ns, now_ns):
+    """Seconds from ``since_ns`` to ``now_ns``."""
+    return (int(now_ns) - int(since_ns)) * 1e-9

@@ -1,0 +1,42 @@
+"""THE table of the sensor topics a calibration collects, the stream each one feeds, and how a
+sensor message is read (pure, no rclpy)."""
+
+import math
+
+from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
+from gsp_msgs_py import conversions, names
+
+#: THE table of sensor topics and the collector stream each one feeds.
+TOPIC_STREAMS = {
+    names.TOPIC_LEG_LENGTHS: LEG_LENGTHS,
+    names.TOPIC_INCLINOMETER: INCLINOMETER,
+    names.TOPIC_ENCODER: ENCODER,
+    names.TOPIC_LVDT: LVDT,
+}
+SENSOR_TOPICS = tuple(TOPIC_STREAMS)
+#: Device streams, in the order of the readings ``[alpha, beta, phi, d_m]``.
+DEVICE_STREAMS = (INCLINOMETER, ENCODER, LVDT)
+
+_READERS = {
+    LEG_LENGTHS: lambda msg: (conversions.msg_to_leg_lengths(msg),),
+    INCLINOMETER: conversions.msg_to_inclinometer,
+    ENCODER: lambda msg: (conversions.msg_to_encoder(msg),),
+    LVDT: lambda msg: (conversions.msg_to_lvdt(msg),),
+}
+
+
+def read_sensor(topic, msg):
+    """``(stream, stamp_ns, values)`` of a sensor message; ValueError (or TypeError) if unusable.
+
+    ``values`` are the arguments after the stamp of the collector's ``add_<stream>``.
+    """
+    stream = TOPIC_STREAMS[topic]
+    return stream, conversions.stamp_to_nanoseconds(msg.header.stamp), tuple(_READERS[stream](msg))
+
+
+def has_non_finite(msg):
+    """Whether a JointState sensor message holds a non-finite position."""
+    try:
+        return any(not math.isfinite(v) for v in msg.position)
+    except (AttributeError, TypeError):
+        return False

@@ -1,0 +1,259 @@
+"""Waiting without blocking, for the calibrator node: predicate waits, worker threads and the
+sensor listener thread.
+
+The node's run is a coroutine. It awaits ``rclpy.task.Future`` objects that callbacks complete:
+:class:`Waits` completes a predicate wait when :meth:`Waits.poll` (the node's watchdog timer)
+finds its predicate true or its timeout passed; :func:`run_in_thread` and :func:`await_thread`
+turn CPU-heavy work (selection, identification, report) into a future; nothing blocks inside a
+callback.
+
+:class:`SensorListener` takes high-rate topics in a thread of its own. Measured on the 2-core
+machine under load, a ``MultiThreadedExecutor`` took the four sensor streams (800 messages/s at
+200 Hz) at ~560 messages/s with ~300 ms of lag (GIL hand-offs to its pool), so samples piled up
+behind the settled status; a ``SingleThreadedExecutor`` in a dedicated thread kept up (~2 ms
+median lag) at a third less CPU. Its subscriptions live as long as the node: destroying a
+subscription while that thread builds its wait set can raise ``InvalidHandle``
+(ros2/rclpy#1206).
+"""
+
+import collections
+import concurrent.futures
+import dataclasses
+import threading
+
+from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+
+from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
+from gsp_msgs_py import qos
+
+
+def new_future(executor):
+    """An rclpy Future whose completion wakes ``executor`` (and the coroutine awaiting it)."""
+    future = Future(executor=executor)
+    # A done callback makes the executor wake up (and resume the awaiting coroutine) at once.
+    future.add_done_callback(lambda _: None)
+    return future
+
+
+def run_in_thread(function, *args, **kwargs):
+    """Run ``function`` in a daemon thread; a ``concurrent.futures.Future`` of its result."""
+    result = concurrent.futures.Future()
+
+    def target():
+        if not result.set_running_or_notify_cancel():
+            return
+        try:
+            result.set_result(function(*args, **kwargs))
+        except BaseException as error:  # noqa: B036 (handed to the awaiting coroutine)
+            result.set_exception(error)
+
+    threading.Thread(target=target, name=f'calibrator-{function.__name__}', daemon=True).start()
+    return result
+
+
+def await_thread(concurrent_future, future):
+    """Complete the rclpy ``future`` with the result (or exception) of ``concurrent_future``."""
+
+    def done(source):
+        if future.done():
+            return
+        error = source.exception()
+        try:
+            if error is not None:
+                future.set_exception(error)
+            else:
+                future.set_result(source.result())
+        except AttributeError:
+            # The executor was shut down meanwhile (the node is going down): nobody awaits.
+            pass
+
+    concurrent_future.add_done_callback(done)
+    return future
+
+
+class ThreadResults:
+    """Results of :func:`run_in_thread` calls by key, the ``size`` latest kept (thread-safe)."""
+
+    def __init__(self, size):
+        self.size = int(size)
+        self._futures = {}
+        self._lock = threading.Lock()
+
+    def get(self, key, function, *args):
+        """The (possibly running) concurrent Future of ``function(*args)`` under ``key``; run
+        again when the kept one failed."""
+        with self._lock:
+            future = self._futures.get(key)
+            if future is None or (future.done() and future.exception() is not None):
+                future = self._futures[key] = run_in_thread(function, *args)
+                while len(self._futures) > self.size:
+                    self._futures.pop(next(iter(self._futures)))
+        return future
+
+
+class EventQueue:
+    """Events put by callbacks (any thread) and taken, in order, by a coroutine (thread-safe).
+
+    ``new_future()``: an rclpy Future that wakes the coroutine's executor (:func:`new_future`).
+    """
+
+    def __init__(self, new_future):
+        self._new_future = new_future
+        self._events = collections.deque()
+        self._future = None
+        self._lock = threading.Lock()
+
+    def put(self, event):
+        with self._lock:
+            self._events.append(event)
+            future, self._future = self._future, None
+        if future is not None and not future.done():
+            future.set_result(None)
+
+    async def get(self):
+        """The next event (awaited if none is queued)."""
+        with self._lock:
+            future = None
+            if not self._events:
+                future = self._future = self._new_future()
+        if future is not None:
+            await future
+        with self._lock:
+            return self._events.popleft()
+
+    def clear(self):
+        with self._lock:
+            self._events.clear()
+
+    def __len__(self):
+        return len(self._events)
+
+
+@dataclasses.dataclass
+class _Wait:
+    predicate: object  # () -> bool
+    timeout: float  # s from the start before WAIT_TIMEOUT
+    started: float  # s, the clock of poll()
+    future: Future
+
+
+class Waits:
+    """Predicate waits completed by :meth:`poll` (thread-safe).
+
+    ``clock``: a function giving the time in s (e.g. ``time.monotonic``).
+    """
+
+    def __init__(self, clock):
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._waits = []
+
+    def add(self, predicate, timeout_s, future):
+        """``future`` completes with :data:`WAIT_OK` once ``predicate()`` holds, or
+        :data:`WAIT_TIMEOUT` after ``timeout_s``; returns it."""
+        with self._lock:
+            self._waits.append(_Wait(predicate, float(timeout_s), self._clock(), future))
+        self.poll()
+        return future
+
+    def poll(self):
+        """Complete the waits whose condition or timeout has come."""
+        finished = []
+        with self._lock:
+            now = self._clock()
+            for wait in list(self._waits):
+                try:
+                    outcome = WAIT_OK if wait.predicate() else None
+                except Exception as error:  # a broken predicate must not kill the callbacks
+                    outcome = f'error: {error}'
+                if outcome is None and now - wait.started >= wait.timeout:
+                    outcome = WAIT_TIMEOUT
+                if outcome is not None:
+                    self._waits.remove(wait)
+                    finished.append((wait.future, outcome))
+        for future, outcome in finished:
+            if not future.done():
+                future.set_result(outcome)
+
+    def cancel(self):
+        """Cancel every pending wait."""
+        with self._lock:
+            waits, self._waits = self._waits, []
+        for wait in waits:
+            if not wait.future.done():
+                wait.future.cancel()
+
+    def __len__(self):
+        return len(self._waits)
+
+
+class SensorListener:
+    """Takes topics in a thread of its own (see the module docstring).
+
+    ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
+    :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
+    kept until :meth:`close`. ``setup``: None or a function of the node called before the thread
+    starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
+    None, or a function given any exception a callback raises (e.g. a recording's full disk);
+    the thread then goes on. :meth:`close` stops the thread and destroys the node.
+    """
+
+    @classmethod
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None):
+        """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
+        ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
+        return cls(
+            f'{node.get_name()}_{suffix}',
+            node.get_namespace(),
+            node.context,
+            {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
+            setup=setup,
+            on_error=on_error,
+        )
+
+    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None):
+        self.on_error = on_error
+        self.node = Node(
+            name,
+            namespace=namespace,
+            context=context,
+            use_global_arguments=False,
+            start_parameter_services=False,
+        )
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self._subscriptions = [
+            self.node.create_subscription(JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS)
+            for topic, callback in callbacks.items()
+        ]
+        self.extra = setup(self.node) if setup is not None else None
+        self._thread = threading.Thread(target=self._spin, name=f'{name}-executor', daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while True:
+            try:
+                self.executor.spin()
+                return
+            except (ExternalShutdownException, ShutdownException):
+                return
+            except Exception as error:
+                # A signal shuts the context down from another thread; this thread's wait can
+                # then fail (RCLError from rcl_wait) instead of raising ExternalShutdownException.
+                if not self.node.context.ok():
+                    return
+                if self.on_error is None:
+                    raise
+                self.on_error(error)  # a callback failed: report it and keep listening
+
+    @property
+    def subscribed(self):
+        return bool(self._subscriptions)
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=2.0)
+        self._thread.join(timeout=2.0)
+        self.node.destroy_node()

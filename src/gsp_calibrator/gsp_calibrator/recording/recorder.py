@@ -1,0 +1,254 @@
+"""``recording.mcap``: every message on the suite's topics during a run, as rosbag2 writes it.
+
+The file is an MCAP file with profile ``ros2``: one schema per message type (encoding ``ros2msg``,
+the complete concatenated ``.msg`` definition exactly as rosbag2's local definition source builds
+it), one channel per topic (message encoding ``cdr``, rosbag2's ``offered_qos_profiles`` channel
+metadata), ``log_time`` = receive time and ``publish_time`` in nanoseconds. ``ros2 bag info
+recording.mcap``, ``ros2 bag play recording.mcap`` (storage ``mcap``) and Foxglove read it.
+
+* :class:`McapRecorder` writes one file atomically (``<path>.tmp``, then ``os.replace`` on close).
+* :func:`read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
+* :mod:`.rebuild` rebuilds the ``samples.csv`` rows of a run from its recording.
+* :class:`RunRecorder` records the suite's topics from inside a node (raw CDR subscriptions).
+
+Nothing here needs a ROS context except :class:`RunRecorder`. The MCAP writer and reader are
+:mod:`gsp_calibrator.recording.mcap_io`; message definitions and QoS metadata are in
+:mod:`gsp_calibrator.recording.mcap_format` (both re-exported here).
+"""
+
+import json
+import os
+import re
+import threading
+import time
+
+from gsp_calibrator.recording.mcap_format import (  # noqa: F401 (the recording API, re-exported)
+    DEFINITION_SEPARATOR,
+    MessageDefinitionError,
+    RecordingError,
+    message_class,
+    message_definition,
+    message_type_name,
+    msg_file,
+    normalise_type_name,
+    qos_profiles_yaml,
+    split_type_name,
+)
+from gsp_calibrator.recording.mcap_io import (  # noqa: F401 (the recording API, re-exported)
+    MESSAGE_ENCODING,
+    PROFILE,
+    RUN_METADATA_NAME,
+    SCHEMA_ENCODING,
+    McapRecorder,
+    read_recording,
+    recording_info,
+    recording_options,
+    recover_recording,
+    recover_recordings,
+)
+from gsp_kinematics.fileio import json_safe
+from gsp_msgs_py import names
+
+RECORDING_FILE = 'recording.mcap'
+#: A resumed run records into ``recording-2.mcap``, ``recording-3.mcap`` ... (a finished MCAP
+#: file cannot be appended to); offline tools read the parts in this order.
+RECORDING_PART_PATTERN = re.compile(r'^recording(?:-(\d+))?\.mcap$')
+
+
+def recording_parts(directory):
+    """The recordings of a run directory in order: ``recording.mcap``, ``recording-2.mcap`` ..."""
+    parts = []
+    for name in os.listdir(directory):
+        match = RECORDING_PART_PATTERN.match(name)
+        if match:
+            parts.append((int(match.group(1) or 1), os.path.join(directory, name)))
+    return [path for _, path in sorted(parts)]
+
+
+def next_recording_file(directory):
+    """The file the next (resumed) session of a run records into (no part, no ``.tmp`` of it)."""
+    for number in range(1, 10_000):
+        name = RECORDING_FILE if number == 1 else f'recording-{number}.mcap'
+        path = os.path.join(directory, name)
+        if not os.path.exists(path) and not os.path.exists(path + '.tmp'):
+            return path
+    raise RecordingError(f'{directory}: too many recording parts')
+
+
+#: MCAP metadata record of one posture's collection start (see :meth:`RunRecorder.note_collection_start`).
+POSTURE_METADATA_NAME = 'gsp_posture'
+
+#: Topics :class:`RunRecorder` records by default: every topic of the suite.
+SUITE_TOPICS = dict(names.TOPIC_TYPES)
+
+
+class RunRecorder:
+    """Records the suite's topics from inside a node into ``recording.mcap``.
+
+    Subscriptions (``raw=True``: CDR bytes, no deserialisation) are created by :meth:`start` with
+    each topic's profile of :data:`gsp_msgs_py.qos.TOPIC_QOS` (sensor QoS for the streams, the
+    publishers' QoS for the others) and destroyed by :meth:`stop`. Each message is written with
+    its receive time on the node's clock, the time base of the calibrator's collector. Callbacks
+    run in the recorder's own callback group, so they never wait for the node's other callbacks.
+
+    ``persistent=True``: the subscriptions are created once, here, and kept for the node's
+    lifetime (messages outside a recording are dropped at once). Destroying a subscription while
+    another thread's executor builds its wait set can raise ``InvalidHandle`` (ros2/rclpy#1206).
+    """
+
+    def __init__(self, node, topics=None, callback_group=None, persistent=False):
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
+        self.node = node
+        self.topics = dict(SUITE_TOPICS if topics is None else topics)
+        self.callback_group = callback_group or MutuallyExclusiveCallbackGroup()
+        self.persistent = bool(persistent)
+        self._recorder = None
+        self._subscriptions = []
+        self._lock = threading.Lock()
+        if self.persistent:
+            self._subscribe()
+
+    def _subscribe(self):
+        from gsp_msgs_py.qos import SENSOR_QOS, SENSOR_SUBSCRIPTION_QOS, TOPIC_QOS
+
+        for topic, type_name in self.topics.items():
+            profile = TOPIC_QOS.get(topic, SENSOR_QOS)
+            if profile == SENSOR_QOS:  # the collector's deep queue: record what it may use
+                profile = SENSOR_SUBSCRIPTION_QOS
+            self._subscriptions.append(
+                self.node.create_subscription(
+                    message_class(type_name),
+                    topic,
+                    self._callback(topic),
+                    profile,
+                    callback_group=self.callback_group,
+                    raw=True,
+                )
+            )
+
+    @property
+    def recording(self):
+        return self._recorder is not None
+
+    @property
+    def path(self):
+        return self._recorder.path if self._recorder is not None else None
+
+    @property
+    def counts(self):
+        """Messages recorded per topic so far (empty when not recording)."""
+        recorder = self._recorder
+        return dict(recorder.counts) if recorder is not None else {}
+
+    def start(self, path, options=None):
+        """Start recording to ``path`` (e.g. ``run_dir / 'recording.mcap'``).
+
+        ``options`` (e.g. ``{'sync_tolerance': 0.002, 'samples_per_posture': 5}``) are stored in
+        the file so that offline re-identification uses the same ones by default.
+        """
+        from gsp_msgs_py.qos import SENSOR_QOS, TOPIC_QOS
+
+        self.stop()
+        recorder = McapRecorder(path, crash_safe=True)
+        try:
+            for topic, type_name in self.topics.items():
+                recorder.add_topic(topic, type_name, TOPIC_QOS.get(topic, SENSOR_QOS))
+            if options:
+                recorder.add_metadata(
+                    RUN_METADATA_NAME, {k: json.dumps(json_safe(v)) for k, v in options.items()}
+                )
+        except BaseException:
+            recorder.abort()
+            raise
+        with self._lock:
+            self._recorder = recorder
+        if not self.persistent:
+            self._subscribe()
+        return recorder.path
+
+    def note_collection_start(self, command_id, start_ns, posture=None):
+        """Note that the samples of command ``command_id`` count from ``start_ns`` (node clock).
+
+        Optional (an MCAP metadata record, ignored by rosbag2): with it,
+        :func:`samples_from_recording` starts each posture exactly where the calibrator's
+        collector did, instead of at the receive time of the ``settled`` status.
+        """
+        with self._lock:
+            if self._recorder is not None:
+                self._recorder.add_metadata(
+                    POSTURE_METADATA_NAME,
+                    {
+                        'posture': '' if posture is None else int(posture),
+                        'command_id': str(command_id),
+                        'start_ns': int(start_ns),
+                    },
+                )
+
+    def stop(self, drain_s=0.0):
+        """Stop recording and close the file (atomic); returns its path, or None if idle.
+
+        ``drain_s``: first wait this long (s) so that messages published just before (the last
+        progress, the result) are received; the recorder's callbacks must be able to run
+        meanwhile (a multi-threaded executor: they have their own callback group).
+        """
+        if drain_s > 0.0 and self._recorder is not None:
+            time.sleep(drain_s)
+        if not self.persistent:
+            self.close_subscriptions()
+        with self._lock:
+            recorder, self._recorder = self._recorder, None
+        if recorder is None:
+            return None
+        return recorder.close()
+
+    def close_subscriptions(self):
+        """Destroy the subscriptions (with ``persistent``: when the node is destroyed)."""
+        subscriptions, self._subscriptions = self._subscriptions, []
+        for subscription in subscriptions:
+            self.node.destroy_subscription(subscription)
+
+    def _callback(self, topic):
+        clock = self.node.get_clock()
+
+        def on_message(data):
+            if self._recorder is None:  # not recording: drop at once
+                return
+            now = clock.now().nanoseconds
+            with self._lock:
+                recorder = self._recorder
+                if recorder is None:
+                    return
+                try:
+                    recorder.write(topic, data, now)
+                except RecordingError:
+                    return
+
+        return on_message
+
+
+def settings_options(settings):
+    """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`).
+
+    ``settings``: a :class:`gsp_calibrator.settings.CalibratorSettings` (or anything with the same
+    attributes); :func:`samples_from_recording` and ``gsp_reidentify`` read them back.
+    """
+    options = {}
+    for name in (
+        'sync_tolerance',
+        'samples_per_posture',
+        'formulation',
+        'loss',
+        'posture_count',
+        'pool_size',
+        'seed',
+        'nominal_geometry_file',
+    ):
+        if hasattr(settings, name):
+            options[name] = getattr(settings, name)
+    if hasattr(settings, 'free_parameters'):
+        options['free_parameters'] = list(settings.free_parameters)
+    sigmas = getattr(settings, 'sigmas', None)
+    if sigmas is not None:
+        options.update(sigmas.to_parameters())
+    return options

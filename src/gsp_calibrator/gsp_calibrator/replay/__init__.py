@@ -1,0 +1,1 @@
+"""Replaying a recorded run: the recorded run (pure) and the `replay` node."""

@@ -1,0 +1,352 @@
+"""A recorded calibration run, ready to be published again (pure, no rclpy node or context).
+
+:class:`RecordedRun` loads a run directory, a ``samples.csv`` or a ``recording.mcap`` and gives,
+per recorded posture (:class:`RecordedPosture`), its commanded pose and the sample stream
+(:class:`SampleStream`) the ``replay`` node publishes when that pose is commanded again:
+
+* from ``samples.csv``: one averaged row per posture (republished as it is, again and again);
+* from ``recording.mcap``: the raw synchronised samples recorded after the posture's settle, in
+  order, collected by the calibrator's own protocol
+  (:class:`gsp_calibrator.collection.protocol.CollectionProtocol` with ``keep_pairs``, the recording's
+  ``sync_tolerance``); with the simulator's ``true_pose`` of each sample when it was recorded.
+  A resumed run has one recording part per session (``recording.mcap``, ``recording-2.mcap``
+  ..., see :func:`gsp_calibrator.recording.recorder.recording_parts`): every part is read, in order, and
+  a posture collected again by a later session keeps its later segment (as
+  :func:`gsp_calibrator.recording.rebuild.samples_from_recording` keeps its later row).
+
+A run directory is replayed from its ``samples.csv`` when it has one (the rows the calibration
+was computed from, so a replay reproduces it exactly whatever the timing), else from its
+recording parts. Give a file to choose: ``recording.mcap`` reads it with the run's later parts
+beside it, ``recording-<n>.mcap`` that part alone.
+
+:meth:`RecordedRun.match` finds the recorded posture of a commanded pose (position within
+``tolerance`` m and orientation within ``tolerance`` rad).
+"""
+
+import dataclasses
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from gsp_calibrator.collection.protocol import CollectionProtocol, PairsCollected, PostureSkipped
+from gsp_calibrator.recording import rebuild
+from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
+from gsp_calibrator.settings import DEFAULTS
+from gsp_kinematics.rotation import euler_to_matrix, matrix_to_quaternion
+from gsp_msgs_py import names
+
+SOURCE_SAMPLES = 'samples.csv'
+SOURCE_RECORDING = 'recording.mcap'
+
+
+class ReplayError(ValueError):
+    """A run cannot be replayed; the message names the file and the problem."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SampleStream:
+    """Samples to publish in turn (cyclically): N instants, SI units."""
+
+    leg_lengths: np.ndarray  #: (N, 6) q_i, m
+    readings: np.ndarray  #: (N, 4) [alpha, beta, phi, d_m], rad and m
+    true_poses: np.ndarray = None  #: (N, 6) true pose of each instant, or None if not recorded
+
+    def __post_init__(self):
+        legs = np.asarray(self.leg_lengths, dtype=float).reshape(-1, 6)
+        count = legs.shape[0]
+        object.__setattr__(self, 'leg_lengths', legs)
+        object.__setattr__(
+            self, 'readings', np.asarray(self.readings, dtype=float).reshape(count, 4)
+        )
+        if self.true_poses is not None:
+            object.__setattr__(
+                self, 'true_poses', np.asarray(self.true_poses, dtype=float).reshape(count, 6)
+            )
+
+    def __len__(self):
+        return int(self.leg_lengths.shape[0])
+
+    @property
+    def has_true_pose(self):
+        return self.true_poses is not None and len(self) > 0
+
+    def sample(self, index):
+        """``(q (6,), readings (4,), true_pose (6,) or None)`` of instant ``index`` (cyclic)."""
+        if len(self) == 0:
+            raise IndexError('empty sample stream')
+        i = int(index) % len(self)
+        true_pose = self.true_poses[i] if self.true_poses is not None else None
+        return self.leg_lengths[i], self.readings[i], true_pose
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RecordedPosture:
+    """One recorded posture: what was commanded and what the sensors said after settling."""
+
+    posture: int  #: posture number k (1-based, in commanded order)
+    commanded_pose: np.ndarray  #: (6,) [x, y, z, psi, theta, phi], m and rad
+    stream: SampleStream
+    command_id: str = ''  #: the recorded command's id ('' from samples.csv)
+
+    def __post_init__(self):
+        object.__setattr__(
+            self, 'commanded_pose', np.asarray(self.commanded_pose, dtype=float).reshape(6)
+        )
+
+
+def _quaternions(poses):
+    poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+    return matrix_to_quaternion(euler_to_matrix(poses[:, 3:]))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RecordedRun:
+    """The postures of a recorded run (see the module docstring)."""
+
+    source: Path  #: the file read
+    kind: str  #: :data:`SOURCE_SAMPLES` or :data:`SOURCE_RECORDING`
+    postures: tuple  #: of :class:`RecordedPosture`, in recorded order
+    #: Stream before the first command: the recorded idle samples, else the last posture's
+    #: stream (the platform rests where the recorded run left it; never the first posture, which
+    #: a calibrator would take for a device still reporting the previous posture).
+    initial_stream: SampleStream
+    #: Commands that gave no posture: ``[(k, reason), ...]`` (rejected, never settled, no samples).
+    skipped: tuple = ()
+    options: dict = dataclasses.field(default_factory=dict)  #: run options stored in the file
+    parts: tuple = ()  #: the recording parts read, in order (empty for a ``samples.csv``)
+
+    def __post_init__(self):
+        if not self.postures:
+            raise ReplayError(f'{self.source}: no recorded posture to replay')
+        poses = np.array([p.commanded_pose for p in self.postures])
+        object.__setattr__(self, '_positions', poses[:, :3].copy())
+        object.__setattr__(self, '_quaternions', _quaternions(poses))
+
+    def __len__(self):
+        return len(self.postures)
+
+    @property
+    def has_true_pose(self):
+        """True if the recording holds the true pose of every replayed sample of some posture."""
+        return self.initial_stream.has_true_pose or any(
+            p.stream.has_true_pose for p in self.postures
+        )
+
+    @property
+    def commanded_poses(self):
+        """(M, 6) recorded commanded poses."""
+        return np.array([p.commanded_pose for p in self.postures])
+
+    # --- loading ---------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, path, sync_tolerance=None):
+        """A run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``
+        or an MCAP recording (``.mcap``); :class:`ReplayError` naming the file otherwise."""
+        if path is None or not str(path).strip():
+            raise ReplayError('no run given: a run directory, samples.csv or recording.mcap')
+        path = Path(os.path.expanduser(str(path)))
+        if path.is_dir():
+            samples = path / SAMPLES_FILE
+            if samples.is_file():
+                return cls.from_samples(samples)
+            parts = recording.recording_parts(path)
+            if parts:
+                return cls.from_recording(parts, sync_tolerance)
+            raise ReplayError(
+                f'{path}: run directory without {SAMPLES_FILE} or {recording.RECORDING_FILE}'
+            )
+        if not path.exists():
+            raise ReplayError(f'{path}: no such file or directory')
+        if path.suffix.lower() == '.mcap':
+            if path.name == recording.RECORDING_FILE:  # with the later parts of a resumed run
+                return cls.from_recording(recording.recording_parts(path.parent), sync_tolerance)
+            return cls.from_recording(path, sync_tolerance)
+        return cls.from_samples(path)
+
+    @classmethod
+    def from_samples(cls, path):
+        """One averaged row per posture, from ``samples.csv``."""
+        path = Path(path)
+        try:
+            samples = read_samples(path)
+        except RunDirectoryError as error:
+            raise ReplayError(str(error)) from None
+        postures = tuple(
+            RecordedPosture(
+                posture=int(samples.posture[m]),
+                commanded_pose=samples.commanded_poses[m],
+                stream=SampleStream(samples.leg_lengths[m : m + 1], samples.readings[m : m + 1]),
+            )
+            for m in range(len(samples))
+        )
+        if not postures:
+            raise ReplayError(f'{path}: no posture rows to replay')
+        return cls(
+            source=path, kind=SOURCE_SAMPLES, postures=postures, initial_stream=postures[-1].stream
+        )
+
+    @classmethod
+    def from_recording(cls, path, sync_tolerance=None):
+        """The synchronised samples after each posture's settle, from an MCAP recording or
+        the parts of a resumed run (a list, in order: :func:`~gsp_calibrator.recording.recorder.recording_parts`).
+
+        Each pose command starts a posture; its ``settled`` status (of the same ``command_id``)
+        starts the collection at the start the calibrator noted (MCAP metadata), else at the
+        status's receive time; sensor samples stamped from then on, up to the next command, are
+        paired like the calibrator pairs them. Each part is one session, fed to a protocol of
+        its own that continues after the last posture so far, as the resumed calibrator did; a
+        posture collected again keeps its later segment (and a skip is forgotten once the
+        posture is collected). ``sync_tolerance`` (s) defaults to the first part's stored
+        option, else the calibrator's default.
+        """
+        if isinstance(path, (str, os.PathLike)):
+            parts = [Path(path)]
+        else:
+            parts = [Path(p) for p in path]
+        if not parts:
+            raise ReplayError('no recording part to replay')
+        try:
+            return cls._from_recording(parts, sync_tolerance)
+        except recording.RecordingError as error:
+            raise ReplayError(str(error)) from None
+
+    @classmethod
+    def _from_recording(cls, parts, sync_tolerance):
+        from gsp_msgs_py import conversions
+
+        path = parts[0]
+        options = recording.recording_options(path)
+        if sync_tolerance is None:
+            sync_tolerance = options.get('sync_tolerance', DEFAULTS['sync_tolerance'])
+        try:
+            sync_tolerance = float(sync_tolerance)
+        except (TypeError, ValueError):
+            raise ReplayError(
+                f'{path}: sync_tolerance {sync_tolerance!r} is not a number'
+            ) from None
+        if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
+            raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} must be >= 0 s')
+
+        # Every pair after each settle, paired by the calibrator's own protocol; the true poses
+        # of each segment (command to command) are kept beside it, by command id.
+        true_poses = {'': {}}  # command id ('' before the first command) -> {stamp_ns: pose}
+        current = ['']
+        commands = []
+
+        def on_message(topic, _, msg):
+            try:
+                if topic == names.TOPIC_POSE_COMMAND:
+                    commands.append(msg)
+                    current[0] = conversions.command_id_from_stamp(msg.header.stamp)
+                    true_poses[current[0]] = {}
+                elif topic == names.TOPIC_TRUE_POSE:
+                    stamp = conversions.stamp_to_nanoseconds(msg.header.stamp)
+                    true_poses[current[0]][stamp] = conversions.pose_stamped_to_pose(msg)
+            except (ValueError, TypeError):
+                pass  # malformed: dropped, as the calibrator drops it
+
+        postures, skipped, initial_stream = {}, {}, None  # postures and skips by number
+        for part in parts:
+            collection = CollectionProtocol(sync_tolerance, 1, keep_pairs=True)
+            if postures:
+                last = next(reversed(postures.values()))
+                collection.continue_after(np.mean(last.stream.readings, axis=0))
+            current[0] = ''  # idle samples of a new session belong to no command
+            margin = collection.collector.tolerance_ns
+            for event in rebuild.feed_recording(
+                part, collection, extra_topics=(names.TOPIC_TRUE_POSE,), on_message=on_message
+            ):
+                if isinstance(event, PairsCollected):
+                    stream = SampleStream(
+                        event.leg_lengths,
+                        event.readings,
+                        _true_poses(true_poses.get(event.command_id, {}), event.stamps, margin),
+                    )
+                    if event.posture is None:
+                        if initial_stream is None or len(initial_stream) == 0:
+                            initial_stream = stream  # the first session's idle samples
+                    else:
+                        postures.pop(event.posture, None)
+                        skipped.pop(event.posture, None)
+                        postures[event.posture] = RecordedPosture(
+                            event.posture, event.pose, stream, event.command_id
+                        )
+                elif isinstance(event, PostureSkipped) and event.posture not in postures:
+                    skipped[event.posture] = (
+                        f'rejected: {event.platform_reason}'
+                        if event.rejected_by_platform
+                        else event.reason
+                    )
+        postures = list(postures.values())
+        if not postures:
+            raise ReplayError(
+                f'{path}{f" and {len(parts) - 1} later part(s)" if len(parts) > 1 else ""}: '
+                f'no settled posture with synchronised samples '
+                f'({len(commands)} pose command(s) recorded)'
+            )
+        if initial_stream is None or len(initial_stream) == 0:
+            initial_stream = postures[-1].stream
+        return cls(
+            source=path,
+            kind=SOURCE_RECORDING,
+            postures=tuple(postures),
+            initial_stream=initial_stream,
+            skipped=tuple(skipped.items()),
+            options=dict(options, sync_tolerance=sync_tolerance),
+            parts=tuple(parts),
+        )
+
+    # --- lookup ----------------------------------------------------------------------------
+
+    def distances(self, commanded_pose):
+        """``(position (M,) m, orientation (M,) rad)`` of ``commanded_pose`` to each posture."""
+        pose = np.asarray(commanded_pose, dtype=float)
+        if pose.shape != (6,):
+            raise ValueError(f'pose: expected [x, y, z, psi, theta, phi], got shape {pose.shape}')
+        if not np.all(np.isfinite(pose)):
+            raise ValueError(f'pose: non-finite component(s) in {pose.tolist()}')
+        position = np.linalg.norm(self._positions - pose[:3], axis=1)
+        quaternion = _quaternions(pose)[0]
+        chord = np.minimum(
+            np.linalg.norm(self._quaternions - quaternion, axis=1),
+            np.linalg.norm(self._quaternions + quaternion, axis=1),
+        )
+        # Unit quaternions a rotation angle t apart are 2 sin(t / 4) apart (accurate near 0).
+        angle = 4.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0))
+        return position, angle
+
+    def match(self, commanded_pose, tolerance=1e-6):
+        """The :class:`RecordedPosture` commanded at ``commanded_pose``, or None.
+
+        It must lie within ``tolerance`` (m for the position, rad for the rotation angle between
+        the orientations); the nearest one wins (the first of equals). ValueError for a pose
+        that is not 6 finite values.
+        """
+        position, angle = self.distances(commanded_pose)
+        distance = np.maximum(position, angle)
+        best = int(np.argmin(distance))
+        if distance[best] <= float(tolerance):
+            return self.postures[best]
+        return None
+
+
+def _true_poses(known, stamps, margin):
+    """True pose (``known``: {stamp_ns: pose}) of each leg-length stamp: the same stamp, else
+    the nearest within ``margin`` ns; None unless every stamp has one."""
+    if not known or len(stamps) == 0:
+        return None
+    sorted_stamps = np.array(sorted(known), dtype=np.int64)
+    poses = []
+    for stamp in stamps:
+        stamp = int(stamp)
+        i = int(np.searchsorted(sorted_stamps, stamp))
+        near = [j for j in (i - 1, i) if 0 <= j < sorted_stamps.size]
+        j = min(near, key=lambda j: abs(int(sorted_stamps[j]) - stamp))
+        if abs(int(sorted_stamps[j]) - stamp) > margin:
+            return None
+        poses.append(known[int(sorted_stamps[j])])
+    return np.array(poses)

@@ -1,0 +1,1 @@
+"""The report of a calibration: `result.json`, `report.md` and its plots (pure, no rclpy)."""

@@ -1,0 +1,200 @@
+"""The numbers of a calibration report, shared by ``result.json``, ``report.md`` and the plots
+(pure, no rclpy): report and SI units, parameter errors, validation summaries, residuals per
+sensor and the identifiability record."""
+
+import math
+
+import numpy as np
+
+from gsp_kinematics.fileio import json_safe
+from gsp_kinematics.geometry import ANGULAR_PARAMETERS, PARAMETER_NAMES, to_report_units
+
+ANGULAR = set(ANGULAR_PARAMETERS)
+SENSOR_KIND = {
+    'leg_lengths': 'length',
+    'alpha': 'angle',
+    'beta': 'angle',
+    'phi': 'angle',
+    'd_m': 'length',
+}
+SENSOR_LABEL = {
+    'leg_lengths': 'leg lengths q1..q6',
+    'alpha': 'inclinometer alpha',
+    'beta': 'inclinometer beta',
+    'phi': 'encoder phi',
+    'd_m': 'LVDT d_m',
+}
+
+VALIDATION_KEYS = (
+    'position_mm_mean',
+    'position_mm_max',
+    'orientation_deg_mean',
+    'orientation_deg_max',
+)
+
+
+# --- helpers -----------------------------------------------------------------------------------
+
+
+def report_unit(index):
+    return 'deg' if index in ANGULAR else 'mm'
+
+
+def si_unit(index):
+    return 'rad' if index in ANGULAR else 'm'
+
+
+def by_name(values, mask=None):
+    return {
+        name: (json_safe(values[i]) if mask is None or mask[i] else None)
+        for i, name in enumerate(PARAMETER_NAMES)
+    }
+
+
+def identifiability_record(analysis):
+    """Normalised identifiability: unidentifiable combinations as text and parameter names."""
+    if not analysis:
+        return None
+    entries = []
+    for entry in analysis.get('unidentifiable', []) or []:
+        if isinstance(entry, dict):
+            entries.append(
+                {
+                    'combination': entry.get('combination', ''),
+                    'parameters': list(entry.get('parameters', [])),
+                    'coefficients': list(entry.get('coefficients', [])),
+                }
+            )
+        else:  # a plain parameter name
+            entries.append(
+                {'combination': str(entry), 'parameters': [str(entry)], 'coefficients': [1.0]}
+            )
+    size = analysis.get('parameters', analysis.get('size'))
+    return {
+        'rank': analysis.get('rank'),
+        'parameters': size,
+        'condition_number': analysis.get('condition_number'),
+        'singular_values': analysis.get('singular_values'),
+        'unidentifiable': entries,
+        'unidentifiable_parameters': sorted({p for e in entries for p in e['parameters']}),
+    }
+
+
+def validation_summary(validation):
+    """``{position_mm_mean, ..., postures}`` of a validation (summary dict or per-posture arrays)."""
+    if validation is None:
+        return None
+    summary = {k: validation[k] for k in VALIDATION_KEYS if k in validation}
+    position, orientation = validation_arrays(validation)
+    if position is not None and len(position):
+        summary.setdefault('position_mm_mean', float(np.mean(position)))
+        summary.setdefault('position_mm_max', float(np.max(position)))
+    if orientation is not None and len(orientation):
+        summary.setdefault('orientation_deg_mean', float(np.mean(orientation)))
+        summary.setdefault('orientation_deg_max', float(np.max(orientation)))
+    for key in ('postures', 'unreachable'):
+        if key in validation:
+            summary[key] = validation[key]
+    if 'postures' not in summary and position is not None:
+        summary['postures'] = len(position)
+    return summary
+
+
+def validation_arrays(validation):
+    if validation is None:
+        return None, None
+    position = validation.get('position_mm')
+    orientation = validation.get('orientation_deg')
+    position = None if position is None else np.asarray(position, dtype=float).reshape(-1)
+    orientation = None if orientation is None else np.asarray(orientation, dtype=float).reshape(-1)
+    return position, orientation
+
+
+def validation_errors(true, controller, poses):
+    """Per-posture validation of ``controller`` against the real platform ``true`` (simulation).
+
+    ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
+    'unreachable'}``: the arrays that :func:`write_report` plots as distributions.
+    """
+    from gsp_kinematics.kinematics import forward_kinematics_masked
+    from gsp_kinematics.validation import commanded_articular, pose_errors, summarise
+
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    reached, converged = forward_kinematics_masked(
+        true, commanded_articular(true, controller, poses), poses
+    )
+    if not converged.any():
+        raise ValueError('no validation posture is reachable by the real platform')
+    position, orientation = pose_errors(poses[converged], reached[converged])
+    out = summarise(position, orientation)
+    out.update(
+        position_mm=position.tolist(),
+        orientation_deg=orientation.tolist(),
+        poses=poses[converged].tolist(),
+        postures=int(converged.sum()),
+        unreachable=int((~converged).sum()),
+    )
+    return out
+
+
+def parameter_error_table(result, truth, nominal):
+    """``(reference kind, before, after, sigma)`` per parameter in report units."""
+    count = len(PARAMETER_NAMES)  # the 44; the sensor errors have their own section
+    estimate = np.asarray(result.parameters, dtype=float)[:count]
+    sigma = to_report_units(np.nan_to_num(result.standard_deviations[:count], nan=0.0))
+    sigma = np.where(np.asarray(result.free, dtype=bool)[:count], sigma, np.nan)
+    if truth is not None:
+        reference = truth.to_vector()
+        return (
+            'truth',
+            to_report_units(nominal.to_vector() - reference),
+            to_report_units(estimate - reference),
+            sigma,
+        )
+    return (
+        'nominal',
+        np.zeros(len(PARAMETER_NAMES)),
+        to_report_units(estimate - nominal.to_vector()),
+        sigma,
+    )
+
+
+def residual_columns(result):
+    """``[(sensor, columns), ...]`` of ``result.residuals`` (weighted), in column order."""
+    residuals = np.asarray(result.residuals, dtype=float)
+    if residuals.ndim != 2 or not result.residual_rms:
+        return []
+    layout, column = [], 0
+    for sensor in result.residual_rms:
+        width = 6 if sensor == 'leg_lengths' else 1
+        layout.append((sensor, list(range(column, column + width))))
+        column += width
+    if column != residuals.shape[1]:
+        return []
+    return layout
+
+
+def residuals_by_sensor(result):
+    """``{sensor: residuals in SI (m or rad)}`` (1-D arrays, finite values only).
+
+    The core returns residuals weighted by each sensor's sigma and the per-sensor RMS in SI;
+    the sigma is their ratio, so the weights need not be known here.
+    """
+    residuals = np.asarray(result.residuals, dtype=float)
+    out = {}
+    for sensor, columns in residual_columns(result):
+        weighted = residuals[:, columns].reshape(-1)
+        weighted = weighted[np.isfinite(weighted)]
+        rms_weighted = float(np.sqrt(np.mean(weighted**2))) if weighted.size else 0.0
+        rms_si = float(result.residual_rms.get(sensor, float('nan')))
+        if rms_weighted > 0.0 and math.isfinite(rms_si):
+            out[sensor] = weighted * (rms_si / rms_weighted)
+        else:
+            out[sensor] = np.zeros_like(weighted)
+    return out
+
+
+# --- result.json -------------------------------------------------------------------------------
+
+
+#: The optional inputs of a report, by keyword (absent or None: not known); see :func:`result_data`.

@@ -1,0 +1,381 @@
+"""``result.json`` and ``report.md`` (with PNG plots) of a calibration run (pure, no rclpy).
+
+* :func:`write_result_json`: estimates (SI and report units), standard deviations, correlations
+  above 0.9, identifiability (rank, condition number, unidentifiable combinations), residual RMS
+  per sensor, iterations, status, validation errors before and after, and the predicted accuracy
+  (:mod:`.report_accuracy`).
+* :func:`write_report`: ``report.md`` and its plots: ``parameter_errors.png`` (the paper's
+  Figs. 6-8), ``chain_errors.png`` (Figs. 9-12), ``residuals.png`` (histograms per sensor) and
+  ``validation.png`` (error distributions before and after, when a validation is given) and
+  ``accuracy_map.png`` (predicted error maps, measured validation overlaid).
+
+Parameter errors are taken against the true geometry when one is given (simulation), otherwise
+the plots show the correction (estimate - nominal). Report units: mm, and deg for gamma.
+Every file is written atomically; plots use matplotlib's Agg canvas directly (headless, no
+pyplot state), and matplotlib is imported only when a report is written.
+"""
+
+import dataclasses
+import math
+import os
+
+import numpy as np
+
+from gsp_calibrator.report.data import (
+    ANGULAR,
+    SENSOR_KIND,
+    SENSOR_LABEL,
+    VALIDATION_KEYS,
+    by_name,
+    identifiability_record,
+    parameter_error_table,
+    report_unit,
+    si_unit,
+    validation_summary,
+)
+from gsp_calibrator.report.fit import fit_data, fit_markdown
+from gsp_calibrator.report.fit import format_number as _fmt
+from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
+from gsp_kinematics.geometry import (
+    PARAMETER_NAMES,
+    default_geometry,
+    to_report_units,
+)
+from gsp_kinematics.identifiability import analyse_result
+
+RESULT_JSON = 'result.json'
+REPORT_MD = 'report.md'
+PARAMETER_ERRORS_PNG = 'parameter_errors.png'
+CHAIN_ERRORS_PNG = 'chain_errors.png'
+RESIDUALS_PNG = 'residuals.png'
+VALIDATION_PNG = 'validation.png'
+
+CORRELATION_THRESHOLD = 0.9
+
+# --- helpers -----------------------------------------------------------------------------------
+
+
+def _path(run_dir, name):
+    return os.path.join(os.fspath(run_dir), name)
+
+
+#: The scalar fields of an ``IdentificationResult`` that ``result.json`` holds as they are.
+_RESULT_FIELDS = (
+    'formulation',
+    'converged',
+    'status',
+    'message',
+    'iterations',
+    'cost',
+    'duration_s',
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportInputs:
+    """What a report shows besides the core's ``IdentificationResult`` (each optional)."""
+
+    #: The result's identifiability (``gsp_kinematics.identifiability.analyse_result``).
+    analysis: dict | None = None
+    #: ``gsp_kinematics.validation.validate`` summaries, or :func:`.data.validation_errors` dicts
+    #: (per-posture arrays).
+    validation_before: dict | None = None
+    validation_after: dict | None = None
+    #: The true geometry, if known: errors are then against it, else corrections against nominal.
+    truth: object = None
+    nominal: object = None  #: default: the shipped nominal geometry
+    sigmas: object = None  #: the ``SensorNoise`` weights used
+    extra: dict | None = None  #: more top-level keys of result.json
+    prediction: dict | None = None  #: :func:`.accuracy.prediction_for` of the result
+
+    def completed(self, result):
+        """These inputs with the analysis and the prediction of ``result`` computed where None
+        (once, for result.json and report.md alike)."""
+        from gsp_calibrator.report import accuracy as report_accuracy
+
+        analysis = analyse_result(result) if self.analysis is None else self.analysis
+        prediction = self.prediction
+        if prediction is None:
+            prediction = report_accuracy.prediction_for(
+                result, self.validation_after, analysis=analysis
+            )
+        return dataclasses.replace(self, analysis=analysis, prediction=prediction)
+
+
+def result_data(result, inputs=ReportInputs()):
+    """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
+    ``result`` with :class:`ReportInputs` ``inputs``."""
+    from gsp_calibrator.report import accuracy as report_accuracy
+
+    inputs = inputs.completed(result)
+    analysis, truth = inputs.analysis, inputs.truth
+    nominal = default_geometry('nominal') if inputs.nominal is None else inputs.nominal
+    count = len(PARAMETER_NAMES)
+    free = np.asarray(result.free, dtype=bool)[:count]
+    estimate = np.asarray(result.parameters, dtype=float)[:count]
+    deviations = np.asarray(result.standard_deviations, dtype=float)[:count]
+    reference, before, after, _ = parameter_error_table(result, truth, nominal)
+    correlations = []
+    try:
+        with np.errstate(invalid='ignore', divide='ignore'):
+            pairs = result.correlations(CORRELATION_THRESHOLD)
+        correlations = [{'a': a, 'b': b, 'correlation': r} for a, b, r in pairs]
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        pass
+    residual_rms = {}
+    for sensor, value in (result.residual_rms or {}).items():
+        kind = SENSOR_KIND.get(sensor, 'length')
+        factor, unit = (1e6, 'um') if kind == 'length' else (math.degrees(1.0), 'deg')
+        residual_rms[sensor] = {
+            'si': value,
+            'si_unit': 'm' if kind == 'length' else 'rad',
+            'report': float(value) * factor,
+            'report_unit': unit,
+        }
+    data = {name: getattr(result, name) for name in _RESULT_FIELDS}
+    data |= {
+        'postures': int(np.asarray(result.poses).shape[0]) if result.poses is not None else None,
+        'excluded_postures': list(result.excluded_postures or []),
+        'free_parameters': list(result.free_names),
+        'units': {
+            'si': {n: si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
+            'report': {n: report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
+        },
+        'estimates': {'si': by_name(estimate), 'report': by_name(to_report_units(estimate))},
+        'standard_deviations': {
+            'si': by_name(deviations, free),
+            'report': by_name(to_report_units(np.nan_to_num(deviations)), free),
+        },
+        'nominal': {
+            'si': by_name(nominal.to_vector()),
+            'report': by_name(to_report_units(nominal.to_vector())),
+        },
+        'parameter_errors': {
+            'reference': reference,
+            'unit': 'report',
+            'before': by_name(before),
+            'after': by_name(after),
+        },
+        'correlation_threshold': CORRELATION_THRESHOLD,
+        'correlations': correlations,
+        'identifiability': identifiability_record(analysis),
+        'residual_rms': residual_rms,
+        'validation': {
+            'before': validation_summary(inputs.validation_before),
+            'after': validation_summary(inputs.validation_after),
+        },
+        'predicted_accuracy': report_accuracy.result_json_entry(inputs.prediction),
+    }
+    lengths = np.array([i not in ANGULAR for i in range(len(PARAMETER_NAMES))])
+    data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
+    data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
+    data.update(fit_data(result, truth, nominal))
+    if inputs.sigmas is not None:
+        data['sigmas'] = inputs.sigmas.to_record()
+    if inputs.extra:
+        data.update(inputs.extra)
+    return json_safe(data)
+
+
+def outcome_inputs(outcome, nominal, options, **extra):
+    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis and
+    sigmas, and ``extra`` keys ``success``, ``failure``, ``options`` and ``extra`` (e.g. the
+    calibrator's ``collection``)."""
+    return ReportInputs(
+        analysis=outcome.identifiability or None,
+        nominal=nominal,
+        sigmas=outcome.sigmas,
+        extra={
+            'success': outcome.success,
+            'failure': outcome.message or None,
+            'options': options,
+            'noise_estimates': {
+                channel: {'configured': entry['configured'], 'estimated': entry['estimated']}
+                for channel, entry in outcome.noise_estimates.items()
+            },
+            'fit_accepted': outcome.fit_accepted,
+            'verdict': outcome.verdict or None,
+            **extra,
+        },
+    )
+
+
+def write_result_json(run_dir, result, inputs=ReportInputs()):
+    """Write ``run_dir/result.json`` atomically (see :func:`result_data`); returns its path.
+    Non-finite numbers are written as ``null``."""
+    path = _path(run_dir, RESULT_JSON)
+    atomic_write_text(path, to_json(result_data(result, inputs)))
+    return path
+
+
+# --- report.md ---------------------------------------------------------------------------------
+
+
+def _validation_lines(data, images):
+    """The ``## Validation`` section of ``report.md`` (none without a validation)."""
+    lines = []
+    validation = data.get('validation') or {}
+    if validation.get('before') or validation.get('after'):
+        lines += [
+            '## Validation',
+            '',
+            '| | position mean (mm) | position max (mm) | orientation mean (deg) '
+            '| orientation max (deg) | postures |',
+            '|---|---|---|---|---|---|',
+        ]
+        for when in ('before', 'after'):
+            summary = validation.get(when)
+            if summary:
+                lines.append(
+                    f'| {when} | '
+                    + ' | '.join(_fmt(summary.get(k)) for k in VALIDATION_KEYS)
+                    + f' | {summary.get("postures", "–")} |'
+                )
+        lines.append('')
+        if 'validation' in images:
+            lines += [f'![validation errors before and after]({images["validation"]})', '']
+    return lines
+
+
+def _parameter_lines(data, images):
+    """The ``## Parameters`` section of ``report.md``: errors against the truth, or corrections."""
+    lines = []
+    errors = data['parameter_errors']
+    against_truth = errors['reference'] == 'truth'
+    lines += ['## Parameters', '']
+    if against_truth:
+        lines.append(
+            f'Errors against the true geometry. Largest after calibration: '
+            f'{_fmt(data["max_param_error_mm"])} mm, gamma '
+            f'{_fmt(data["max_param_error_deg"])} deg.'
+        )
+    else:
+        lines.append('No true geometry is known: the corrections (estimate − nominal) are shown.')
+    lines.append('')
+    if 'parameter_errors' in images:
+        lines += [f'![parameter errors]({images["parameter_errors"]})', '']
+    if 'chain_errors' in images:
+        lines += [f'![kinematic chain errors]({images["chain_errors"]})', '']
+    header = '| parameter | unit | nominal | estimate | 1σ | ' + (
+        'error before | error after |' if against_truth else 'correction |'
+    )
+    lines += [header, '|' + '---|' * (header.count('|') - 1)]
+    units = data['units']['report']
+    for name in PARAMETER_NAMES:
+        row = [
+            name,
+            units[name],
+            _fmt(data['nominal']['report'][name], 7),
+            _fmt(data['estimates']['report'][name], 7),
+            _fmt(data['standard_deviations']['report'][name], 3),
+        ]
+        if against_truth:
+            row += [_fmt(errors['before'][name], 3), _fmt(errors['after'][name], 3)]
+        else:
+            row.append(_fmt(errors['after'][name], 3))
+        lines.append('| ' + ' | '.join(row) + ' |')
+    lines.append('')
+    return lines
+
+
+def report_markdown(data, images, title='Calibration report'):
+    """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots."""
+    from gsp_calibrator.report import accuracy as report_accuracy
+
+    lines = [f'# {title}', '']
+    lines.append(
+        f'- status: {"converged" if data["converged"] else "NOT converged"} '
+        f'(status {data["status"]}: {data["message"]})'
+    )
+    lines.append(
+        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; '
+        f'free parameters: {len(data["free_parameters"])}; iterations: '
+        f'{data["iterations"]}; identification time: '
+        f'{_fmt((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
+    )
+    if data.get('excluded_postures'):
+        lines.append(f'- excluded postures (FK failed): {data["excluded_postures"]}')
+    identifiability = data.get('identifiability')
+    if identifiability:
+        lines.append(
+            f'- identifiability: rank {identifiability["rank"]} of '
+            f'{identifiability["parameters"]}, scaled condition number '
+            f'{_fmt(identifiability["condition_number"])}'
+        )
+        for entry in identifiability['unidentifiable']:
+            lines.append(f'  - not identifiable: `{entry["combination"]}`')
+    lines.append('')
+    lines += _validation_lines(data, images)
+    lines += _parameter_lines(data, images)
+    lines += fit_markdown(data)
+    lines += [f'## Correlations above {data["correlation_threshold"]}', '']
+    if data['correlations']:
+        lines += ['| a | b | correlation |', '|---|---|---|']
+        lines += [
+            f'| {c["a"]} | {c["b"]} | {_fmt(c["correlation"], 4)} |' for c in data['correlations']
+        ]
+    else:
+        lines.append('None.')
+    lines.append('')
+    lines += report_accuracy.markdown_lines(
+        data.get('predicted_accuracy'), images.get('accuracy_map')
+    )
+    lines += ['## Residuals', '', '| sensor | RMS | unit |', '|---|---|---|']
+    for sensor, rms in data['residual_rms'].items():
+        lines.append(
+            f'| {SENSOR_LABEL.get(sensor, sensor)} | {_fmt(rms["report"])} | {rms["report_unit"]} |'
+        )
+    lines.append('')
+    if 'residuals' in images:
+        lines += [f'![residual histograms]({images["residuals"]})', '']
+    return '\n'.join(lines) + '\n'
+
+
+def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration report'):
+    """Write ``report.md`` and its PNGs into ``run_dir`` (atomic); returns ``{kind: path}``.
+
+    ``inputs``: :class:`ReportInputs`. The validation plot is drawn when a validation is given
+    (distributions from per-posture arrays, else the mean and max of the summaries).
+    """
+    from gsp_calibrator.report import accuracy as report_accuracy
+
+    inputs = inputs.completed(result)
+    validation_before, validation_after = inputs.validation_before, inputs.validation_after
+    data = result_data(result, inputs)
+    truth, nominal = inputs.truth, inputs.nominal
+    written = {}
+    from gsp_calibrator.report.plots import (
+        plot_chain_errors,
+        plot_parameter_errors,
+        plot_residuals,
+        plot_validation,
+    )
+
+    written['parameter_errors'] = plot_parameter_errors(
+        _path(run_dir, PARAMETER_ERRORS_PNG), result, truth, nominal
+    )
+    written['chain_errors'] = plot_chain_errors(
+        _path(run_dir, CHAIN_ERRORS_PNG), result, truth, nominal
+    )
+    written['residuals'] = plot_residuals(_path(run_dir, RESIDUALS_PNG), result)
+    if validation_before is not None or validation_after is not None:
+        written['validation'] = plot_validation(
+            _path(run_dir, VALIDATION_PNG), validation_before, validation_after
+        )
+    if inputs.prediction is not None:
+        written['accuracy_map'] = report_accuracy.plot_accuracy_map(
+            _path(run_dir, report_accuracy.ACCURACY_MAP_PNG), inputs.prediction
+        )
+    images = {kind: os.path.basename(path) for kind, path in written.items()}
+    text = report_markdown(data, images, title)
+    written['report'] = _path(run_dir, REPORT_MD)
+    atomic_write_text(written['report'], text)
+    return written
+
+
+def write_all(run_dir, result, inputs=ReportInputs(), title='Calibration report'):
+    """:func:`write_result_json` and :func:`write_report`; returns ``{kind: path}``."""
+    inputs = inputs.completed(result)  # the analysis and prediction once for both files
+    paths = {'result_json': write_result_json(run_dir, result, inputs)}
+    paths.update(write_report(run_dir, result, inputs, title))
+    return paths

@@ -1,0 +1,194 @@
+"""Identification of a collected run, without ROS (pure).
+
+1. :func:`identify_from_samples`: the core's ``identify`` on the averaged posture rows
+   (``run.directory.Samples``), then checks: converged, and every free parameter identifiable
+   (full rank of the column-scaled information matrix). A failed check gives
+   ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
+2. :func:`finish_run`: identification of a collected run, and its result files.
+
+The postures are chosen by :mod:`.postures`; the texts are :mod:`.response`.
+"""
+
+import dataclasses
+import time
+
+import numpy as np
+
+from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
+from gsp_calibrator.run.response import outcome_summary
+from gsp_kinematics import goodness, identifiability
+from gsp_kinematics.identification import (
+    FORMULATIONS,
+    IdentificationError,
+    identify,
+    resolve_free,
+)
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+
+#: Comment of the calibrated geometry file and the latched result.
+RESULT_COMMENT = 'calibrated by gsp_calibrator'
+#: Added to the result's comment when the goodness of fit rejects the model.
+REJECTED_COMMENT = 'REJECTED by the goodness-of-fit check (p < 0.01): see result.json'
+
+
+@dataclasses.dataclass
+class CalibrationOutcome:
+    """What :func:`identify_from_samples` found."""
+
+    success: bool
+    message: str  #: why it failed ('' on success)
+    result: object = None  #: the core's IdentificationResult (None if identify raised)
+    geometry: object = None  #: the calibrated Geometry, only on success
+    identifiability: dict = dataclasses.field(default_factory=dict)
+    postures: int = 0  #: posture rows given
+    sigmas: object = None  #: the weights of the averaged rows
+    duration_s: float = 0.0  #: identification wall time, s
+    noise_estimates: dict = dataclasses.field(default_factory=dict)  #: goodness.estimate_noise
+    verdict: str = ''  #: the goodness-of-fit verdict (plain text)
+
+    @property
+    def fit_accepted(self):
+        """The goodness of fit accepts the model (p >= 0.01); False without a fit."""
+        result = self.result
+        return bool(
+            result is not None and result.goodness_of_fit and result.goodness_of_fit.accepted
+        )
+
+    @property
+    def unidentifiable(self):
+        """Names of the parameters in a null direction (sorted; empty if identifiable)."""
+        return list(self.identifiability.get('names', []))
+
+
+def identify_from_samples(
+    nominal,
+    samples,
+    sigmas=DEFAULT_SENSOR_NOISE,
+    free=DEFAULT_FREE,
+    formulation='implicit',
+    within_posture_std=None,
+    **identify_options,
+):
+    """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
+
+    ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
+    scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
+    (``success=False``, message naming the parameters) when the identification raises, does not
+    converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
+    sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
+    estimates (None: not estimated). A successful outcome carries the goodness-of-fit
+    ``verdict``; :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
+    """
+    if formulation not in FORMULATIONS:
+        raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
+    free_mask = resolve_free(free)
+    count = len(samples)
+    row_sigmas = sigmas.averaged(samples.n_samples)
+    outcome = CalibrationOutcome(success=False, message='', postures=count, sigmas=row_sigmas)
+    if count == 0:
+        outcome.message = 'no posture was collected: nothing to identify'
+        return outcome
+    started = time.perf_counter()
+    try:
+        result = identify(
+            nominal,
+            samples.leg_lengths,
+            samples.readings,
+            row_sigmas,
+            formulation=formulation,
+            free=free_mask,
+            pose_guesses=samples.commanded_poses,
+            **identify_options,
+        )
+    except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
+        outcome.duration_s = time.perf_counter() - started
+        outcome.message = f'identification failed: {error}'
+        return outcome
+    outcome.duration_s = time.perf_counter() - started
+    outcome.result = result
+    if not result.converged:
+        outcome.message = (
+            f'identification did not converge after {result.iterations} iteration(s) '
+            f'(status {result.status}: {result.message}); nothing applied'
+        )
+        return outcome
+    analysis = identifiability.analyse_result(result)
+    outcome.identifiability = analysis
+    if analysis['names'] or analysis['rank'] < analysis['parameters']:
+        names = analysis['names']
+        combinations = [entry['combination'] for entry in analysis['unidentifiable']]
+        shown = '; '.join(combinations[:5]) + (' ...' if len(combinations) > 5 else '')
+        outcome.message = (
+            f'non-identifiable parameters: the scaled information matrix has rank '
+            f'{analysis["rank"]} of {analysis["parameters"]} with {count} posture(s); '
+            f'not identifiable: {", ".join(names) if names else "(unnamed)"} '
+            f'(null directions: {shown}). Add postures or fix these parameters '
+            '(free_parameters); nothing applied'
+        )
+        return outcome
+    outcome.success = True
+    outcome.geometry = result.geometry
+    if within_posture_std is not None and len(within_posture_std) == count:
+        outcome.noise_estimates = goodness.estimate_noise(
+            within_posture_std, samples.n_samples, sigmas.channels()
+        )
+    outcome.verdict = goodness.verdict(
+        result.goodness_of_fit,
+        result.outliers,
+        outcome.noise_estimates,
+        free_sensor_errors=result.sensor_errors_free,
+    )
+    return outcome
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishedRun:
+    """What :func:`finish_run` did: the outcome, its human summary, and a report failure."""
+
+    outcome: CalibrationOutcome
+    summary: str
+    report_error: str = ''  #: '' when result.json and report.md were written (or not due)
+
+
+def finish_run(run, settings, samples, collection, options, within_posture_std=None):
+    """Identify a collected run and write its files (pure; the node runs it in a worker thread).
+
+    ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``samples``:
+    the collected rows; ``collection``: the protocol's ``summary()`` (skipped postures, drops);
+    ``options``: the run options stored with the results; ``within_posture_std``: see
+    :func:`identify_from_samples`. Writes ``result.json``, ``report.md``
+    and its PNGs when identification gives a result (a failure there is returned, never raised:
+    the report must not fail the run) and ``result.yaml`` when the calibration succeeded.
+    """
+    import traceback
+
+    from gsp_calibrator.report import write as report
+    from gsp_calibrator.run.directory import RESULT_FILE
+
+    outcome = identify_from_samples(
+        settings.nominal,
+        samples,
+        settings.sigmas,
+        list(settings.free_parameters),
+        settings.formulation,
+        within_posture_std,
+        options=settings.identify_options(),
+    )
+    skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
+    summary = outcome_summary(
+        outcome, selected=settings.posture_count, skipped=skipped, run_directory=run.path
+    )
+    report_error = ''
+    if outcome.result is not None:
+        try:
+            report.write_all(
+                run.path,
+                outcome.result,
+                report.outcome_inputs(outcome, settings.nominal, options, collection=collection),
+            )
+        except Exception as error:
+            report_error = f'{error}\n{traceback.format_exc()}'
+    if outcome.success:
+        comment = RESULT_COMMENT + ('' if outcome.fit_accepted else f'\n{REJECTED_COMMENT}')
+        run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
+    return FinishedRun(outcome, summary, report_error)

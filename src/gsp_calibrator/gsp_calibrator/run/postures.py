@@ -1,0 +1,158 @@
+"""The postures of a calibration run: a seeded pool of postures reachable under the nominal
+geometry, then the core's condition-number selection (pure; the node caches selections by
+:func:`selection_key`)."""
+
+import dataclasses
+import time
+
+import numpy as np
+
+from gsp_kinematics.identification import (
+    resolve_free,
+)
+from gsp_kinematics.kinematics import Workspace, home_pose, sample_valid_postures
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.route import plan_route
+from gsp_kinematics.selection import best_addition, posture_information, select_postures
+
+#: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
+DEFAULT_FREE = ('extended',)
+
+
+class CalibrationError(RuntimeError):
+    """The calibration cannot go on; the message says why."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PostureSelection:
+    """Postures chosen for a calibration."""
+
+    poses: np.ndarray  #: (count, 6) commanded postures [x, y, z, psi, theta, phi], m and rad
+    pool_indices: np.ndarray  #: (count,) their indices in the pool
+    condition_number: float  #: scaled condition number of the selected set's information
+    pool_size: int
+    seed: int
+    duration_s: float  #: wall time of the selection, s
+
+
+def posture_pool(nominal, pool_size, seed, workspace=Workspace()):
+    """``pool_size`` random postures (N, 6), reachable under ``nominal``, from ``seed``."""
+    rng = np.random.default_rng(int(seed))
+    return sample_valid_postures(nominal, int(pool_size), rng, workspace)
+
+
+def selection_formulation(formulation):
+    """The information model of the selection for an identification ``formulation``."""
+    return 'implicit' if formulation == 'implicit' else 'fk'
+
+
+def choose_postures(
+    nominal,
+    count,
+    pool_size,
+    seed,
+    sigmas=DEFAULT_SENSOR_NOISE,
+    free=DEFAULT_FREE,
+    formulation='implicit',
+    workspace=Workspace(),
+):
+    """Select ``count`` postures from a seeded pool of ``pool_size`` (:class:`PostureSelection`)."""
+    count, pool_size = int(count), int(pool_size)
+    if count < 1:
+        raise CalibrationError(f'posture count must be >= 1, got {count}')
+    if pool_size < count:
+        raise CalibrationError(f'pool_size ({pool_size}) must be >= posture_count ({count})')
+    started = time.perf_counter()
+    pool = posture_pool(nominal, pool_size, seed, workspace)
+    indices, condition = select_postures(
+        nominal,
+        pool,
+        count,
+        sigmas,
+        free=resolve_free(free),
+        formulation=selection_formulation(formulation),
+    )
+    return PostureSelection(
+        poses=pool[indices],
+        pool_indices=np.asarray(indices),
+        condition_number=float(condition),
+        pool_size=pool_size,
+        seed=int(seed),
+        duration_s=time.perf_counter() - started,
+    )
+
+
+def posture_route(settings, poses):
+    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from the home pose
+    (where platform_sim starts), with the run's nominal geometry and leg limits."""
+    return plan_route(settings.nominal, home_pose(), poses, settings.motion_limits)
+
+
+class PostureReplacer:
+    """The replacement of a posture the platform rejected: the best remaining posture of the
+    run's pool (:func:`gsp_kinematics.selection.best_addition`, the selection's criterion).
+
+    Built once per run (the pool and its information); called with the run's poses (M, 6) and
+    the 1-based postures rejected, it returns the pose (6,) to add, or None when the pool has
+    none left. A pose that is not in the pool (another selection) counts as chosen only if it is.
+    """
+
+    def __init__(self, settings):
+        self.pool = posture_pool(settings.nominal, settings.pool_size, settings.seed)
+        self.information = posture_information(
+            settings.nominal,
+            self.pool,
+            settings.sigmas,
+            resolve_free(list(settings.free_parameters)),
+            selection_formulation(settings.formulation),
+        )
+
+    def _pool_indices(self, poses):
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        distance = np.max(np.abs(poses[:, None, :] - self.pool[None, :, :]), axis=2)
+        nearest = np.argmin(distance, axis=1)
+        return [
+            int(i)
+            for i, d in zip(nearest, distance[np.arange(len(poses)), nearest], strict=True)
+            if d < 1e-9
+        ]
+
+    def __call__(self, poses, rejected):
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        rejected_rows = [k - 1 for k in rejected]
+        kept = [m for m in range(len(poses)) if m not in rejected_rows]
+        chosen = self._pool_indices(poses[kept])
+        excluded = self._pool_indices(poses[rejected_rows]) if rejected_rows else []
+        try:
+            index = best_addition(self.information, chosen, excluded)
+        except ValueError:
+            return None
+        return self.pool[index].copy()
+
+
+def selection_arguments(settings):
+    """The positional arguments of :func:`choose_postures` and :func:`selection_key` for a run's
+    ``CalibratorSettings``."""
+    return (
+        settings.nominal,
+        settings.posture_count,
+        settings.pool_size,
+        settings.seed,
+        settings.sigmas,
+        list(settings.free_parameters),
+        settings.formulation,
+    )
+
+
+def selection_key(nominal, count, pool_size, seed, sigmas, free, formulation):
+    """A hashable key of everything :func:`choose_postures` depends on (for caching)."""
+    return (
+        tuple(np.round(nominal.to_full_vector(), 15)),
+        nominal.limits,
+        int(count),
+        int(pool_size),
+        int(seed),
+        sigmas,
+        tuple(resolve_free(free)),
+        selection_formulation(formulation),
+    )

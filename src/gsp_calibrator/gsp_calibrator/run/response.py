@@ -1,0 +1,250 @@
+"""The text of a calibration run (pure): each posture's report line and residuals, the outcome
+summary, the failure message, and the Trigger response (a human summary, then the calibrated
+geometry params-file YAML) with its parser."""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.geometry import (
+    ALL_PARAMETER_NAMES,
+    ANGULAR_SENSOR_PARAMETERS,
+    NUM_PARAMETERS,
+    geometry_to_yaml,
+    parameter_errors,
+)
+from gsp_kinematics.kinematics import inverse_kinematics
+from gsp_kinematics.rotation import wrap_angle
+
+RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
+RUN_DIRECTORY_LABEL = 'run directory: '
+
+
+IDENTIFICATION_TIME_LABEL = 'identification time: '
+
+
+def sensor_error_text(result):
+    """``'kq1 +3.1e-04 (sd 2e-05), alpha0 +0.0101 deg (sd 0.0004)'`` of the free sensor errors."""
+    parts = []
+    for index, name in enumerate(ALL_PARAMETER_NAMES[NUM_PARAMETERS:], start=NUM_PARAMETERS):
+        if not result.free[index]:
+            continue
+        value, deviation = result.parameters[index], result.standard_deviations[index]
+        if name in ANGULAR_SENSOR_PARAMETERS:
+            parts.append(
+                f'{name} {math.degrees(value):+.4f} deg (sd {math.degrees(deviation):.2g})'
+            )
+        else:
+            parts.append(f'{name} {value:+.2e} (sd {deviation:.1g})')
+    return ', '.join(parts)
+
+
+def _angle_or_length(channel, value):
+    if channel in ('inclinometer', 'encoder'):
+        return f'{math.degrees(value):.3g} deg'
+    return f'{value * 1e6:.3g} um'
+
+
+def fit_lines(outcome):
+    """Summary lines of the goodness of fit, outliers, down-weighted postures and noise."""
+    result = outcome.result
+    lines = [outcome.verdict] if outcome.verdict else []
+    if result is None:
+        return lines
+    if result.outliers:
+        shown = ', '.join(
+            f'{entry["posture"]} ({entry["sensor"]} {entry["max_normalised_residual"]:.1f} sigma)'
+            for entry in result.outliers[:10]
+        )
+        lines.append(f'outlier postures (normalised residual > threshold): {shown}')
+    if result.down_weighted:
+        shown = ', '.join(
+            f'{entry["posture"]} (weight {entry["weight"]:.3g})'
+            for entry in result.down_weighted[:10]
+        )
+        lines.append(f'{result.loss} loss down-weighted postures: {shown}')
+    for channel, entry in outcome.noise_estimates.items():
+        lines.append(
+            f'noise {channel}: estimated {_angle_or_length(channel, entry["estimated"])}, '
+            f'configured {_angle_or_length(channel, entry["configured"])}'
+            + (' -- WARNING: differs by more than 2x' if entry['warning'] else '')
+        )
+    return lines
+
+
+def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
+    """Measured minus the nominal model at the commanded pose: ``{sensor: value}`` (m, rad).
+
+    ``leg_lengths`` is the largest |q - IK(nominal, pose)| over the six legs; the device
+    readings are ``alpha, beta, phi, d_m`` minus ``device_readings(nominal, pose)``.
+    """
+    pose = np.reshape(np.asarray(commanded_pose, dtype=float), (1, 6))
+    legs = np.asarray(leg_lengths, dtype=float) - inverse_kinematics(nominal, pose)[0]
+    device = np.asarray(readings, dtype=float) - device_readings(nominal, pose)[0]
+    device[2] = wrap_angle(device[2])
+    residuals = {'leg_lengths': float(np.max(np.abs(legs)))}
+    residuals.update(
+        {name: float(v) for name, v in zip(('alpha', 'beta', 'phi', 'd_m'), device, strict=True)}
+    )
+    return residuals
+
+
+@dataclasses.dataclass(frozen=True)
+class PostureReport:
+    """How the calibrator reports the end of a posture: log lines and one progress message."""
+
+    log: tuple  #: ``(('info' | 'warning', text), ...)``
+    phase: str  #: progress phase
+    message: str  #: progress message
+    residuals: dict = None  #: :func:`posture_residuals` of a row
+    warning: bool = False  #: progress level WARN
+    skipped: int = None  #: the posture, when skipped
+
+
+def posture_report(event, count, nominal):
+    """The :class:`PostureReport` of a protocol ``RowReady`` or ``PostureSkipped`` ``event`` of a
+    run of ``count`` postures under the ``nominal`` geometry."""
+    from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
+
+    k = event.posture
+    if not hasattr(event, 'sample'):  # skipped
+        text = f'posture {k} of {count} skipped: {event.reason}'
+        log = (('warning', f'posture {k}/{count} skipped: {event.reason}'),)
+        return PostureReport(log, PHASE_MOVING, text, warning=True, skipped=k)
+    row = event.sample
+    log = ()
+    if event.dropped:
+        log = (
+            (
+                'warning',
+                f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
+                'inconsistent with the rest (glitch, or a stream still reporting the '
+                'previous posture)',
+            ),
+        )
+    log += (('info', f'posture {k}/{count}: {row.n_samples} samples averaged'),)
+    residuals = posture_residuals(nominal, event.pose, row.leg_lengths, row.readings)
+    text = f'posture {k} of {count}: {row.n_samples} samples averaged'
+    return PostureReport(log, PHASE_COLLECTING, text, residuals)
+
+
+def residual_summary(residual_rms):
+    """``'legs 0.06 um, alpha 0.0003 deg, ...'`` of per-sensor residual RMS (m, rad)."""
+    parts = []
+    for name, value in residual_rms.items():
+        if name in ('alpha', 'beta', 'phi'):
+            parts.append(f'{name} {math.degrees(value):.2g} deg')
+        else:
+            parts.append(f'{"legs" if name == "leg_lengths" else name} {value * 1e6:.3g} um')
+    return ', '.join(parts)
+
+
+def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, reference=None):
+    """Human summary lines of a calibration (str, no trailing newline).
+
+    ``selected``: postures commanded; ``skipped``: ``[(k, reason), ...]``; ``reference``: a
+    geometry to print parameter errors against (e.g. the truth, in tests and the demo).
+    """
+    lines = []
+    head = 'calibration succeeded' if outcome.success else 'calibration FAILED'
+    used = f'{outcome.postures} posture(s)' + (f' of {selected} commanded' if selected else '')
+    lines.append(f'{head}: {used}')
+    if not outcome.success:
+        lines.append(f'reason: {outcome.message}')
+    for k, reason in skipped:
+        lines.append(f'skipped posture {k}: {reason}')
+    result = outcome.result
+    if result is not None:
+        lines.append(
+            f'{result.formulation} formulation, {int(np.sum(result.free))} free parameter(s), '
+            f'{result.iterations} iteration(s): {result.message}'
+        )
+        lines.append(f'{IDENTIFICATION_TIME_LABEL}{outcome.duration_s * 1000.0:.1f} ms')
+        if result.residual_rms:
+            lines.append(f'residual rms: {residual_summary(result.residual_rms)}')
+    if outcome.identifiability:
+        condition = outcome.identifiability.get('condition_number', math.inf)
+        lines.append(
+            f'identifiability: rank {outcome.identifiability.get("rank")} of '
+            f'{outcome.identifiability.get("parameters")}, scaled condition number '
+            f'{condition:.4g}'
+        )
+    if outcome.success and result is not None:
+        deviations = result.standard_deviations
+        free = np.asarray(result.free, dtype=bool)
+        lengths = deviations[:43][free[:43]]
+        if lengths.size:
+            lines.append(
+                f'largest standard deviation: {np.nanmax(lengths) * 1000.0:.4g} mm'
+                + (f', gamma {math.degrees(deviations[43]):.3g} deg' if free[43] else '')
+            )
+        sensor_text = sensor_error_text(result)
+        if sensor_text:
+            lines.append(f'sensor errors: {sensor_text}')
+    if outcome.success:
+        lines.extend(fit_lines(outcome))
+        if not outcome.fit_accepted:
+            lines.append(
+                'result REJECTED by the goodness-of-fit check: written but not applied '
+                '(apply_rejected_fit applies it anyway)'
+            )
+    if outcome.success and reference is not None:
+        errors = parameter_errors(outcome.geometry, reference)
+        lines.append(
+            f'parameter errors vs reference: max {np.max(np.abs(errors[:43])):.4g} mm, '
+            f'gamma {abs(errors[43]):.3g} deg'
+        )
+    if run_directory is not None:
+        lines.append(f'{RUN_DIRECTORY_LABEL}{run_directory}')
+    return '\n'.join(lines)
+
+
+def failure_message(error, collected, run):
+    """The response text of a run that ended early with ``error`` after ``collected`` postures;
+    ``run``: its ``RunDirectory`` (the rows are in its ``samples.csv``)."""
+    from gsp_calibrator.run.directory import SAMPLES_FILE
+
+    return (
+        f'calibration FAILED after {collected} collected posture(s): {error}\n'
+        f'{collected} posture(s) saved to {run.file(SAMPLES_FILE)}\n'
+        f'{RUN_DIRECTORY_LABEL}{run.path}'
+    )
+
+
+def format_response(summary, geometry=None, node_name='/**'):
+    """Trigger response message: the summary, then (on success) the geometry params file."""
+    if geometry is None:
+        return summary
+    yaml_text = geometry_to_yaml(
+        geometry, node_name=node_name, comment='calibrated by gsp_calibrator'
+    )
+    return f'{summary}\n{RESPONSE_SEPARATOR}\n{yaml_text}'
+
+
+@dataclasses.dataclass(frozen=True)
+class ParsedResponse:
+    """A Trigger response message split into its parts."""
+
+    summary: str
+    geometry_yaml: str  #: '' when the response carries no geometry
+    run_directory: str  #: '' when not named
+    identification_ms: float  #: NaN when not given
+
+
+def parse_response(message):
+    """Split a calibrate response (see :func:`format_response`) into a :class:`ParsedResponse`."""
+    summary, separator, geometry_yaml = message.partition('\n' + RESPONSE_SEPARATOR + '\n')
+    if not separator:
+        summary, geometry_yaml = message, ''
+    run_directory, identification_ms = '', math.nan
+    for line in summary.splitlines():
+        if line.startswith(RUN_DIRECTORY_LABEL):
+            run_directory = line[len(RUN_DIRECTORY_LABEL) :].strip()
+        elif line.startswith(IDENTIFICATION_TIME_LABEL):
+            try:
+                identification_ms = float(line[len(IDENTIFICATION_TIME_LABEL) :].split()[0])
+            except (ValueError, IndexError):
+                pass
+    return ParsedResponse(summary, geometry_yaml, run_directory, identification_ms)

@@ -1,0 +1,26 @@
+"""``gsp_bench`` (``make bench``): the core's benchmark plus this package's ``end_to_end`` section.
+
+The benchmark itself is :func:`gsp_experiments.bench.main`; this package contributes its section
+by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/bench.json``.
+"""
+
+import sys
+
+from gsp_calibrator.tools import bench_end_to_end, bench_platform_time
+from gsp_experiments import bench, bench_sensor_errors
+
+#: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
+EXTRA_SECTIONS = {
+    'end_to_end': bench_end_to_end.run,
+    'sensor_errors': bench_sensor_errors.run,  # docs/sensor_errors.md
+    'platform_time': bench_platform_time.run,  # docs/planning.md
+}
+
+
+def main(argv=None):
+    """Console script ``gsp_bench``; ``argv`` as :func:`gsp_experiments.bench.main` takes it."""
+    return bench.main(argv, extra_sections=EXTRA_SECTIONS)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,248 @@
+"""``gsp_calibrate_client``: run a calibration without the ``ros2`` CLI.
+
+Waits for ``/gsp/calibrator/calibrate`` (std_srvs/Trigger), calls it asynchronously, shows a live
+progress bar on stderr from ``/gsp/calibrator/progress`` (posture k of M, phase, latest residuals),
+then prints the response's summary (and, with ``--geometry``, the calibrated geometry YAML) on
+stdout. Exit code 0 when the calibration succeeded, 1 otherwise (service missing, call timed
+out, calibration failed), 130 on Ctrl-C.
+
+Equivalent to ``ros2 service call /gsp/calibrator/calibrate std_srvs/srv/Trigger`` plus
+``ros2 topic echo /gsp/calibrator/progress``.
+"""
+
+import argparse
+import sys
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from gsp_calibrator.run.response import parse_response, residual_summary
+from gsp_msgs_py import conversions, names
+from gsp_msgs_py.qos import PROGRESS_QOS
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_INTERRUPTED = 130
+
+NODE_NAME = 'gsp_calibrate_client'
+BAR_WIDTH = 30
+#: Longest progress message shown on the bar (the full text comes with the response).
+MESSAGE_WIDTH = 100
+
+
+class ProgressBar:
+    """Renders calibration progress on a stream: one redrawn line on a terminal, else a line per
+    phase change and about every tenth posture (logs stay short)."""
+
+    def __init__(self, stream=None, width=BAR_WIDTH, interactive=None):
+        stream = sys.stderr if stream is None else stream
+        self.stream = stream
+        self.width = int(width)
+        self.interactive = (
+            (stream.isatty() if hasattr(stream, 'isatty') else False)
+            if interactive is None
+            else bool(interactive)
+        )
+        self.updates = 0
+        self._last = None
+        self._drawn = False
+
+    def line(self, progress):
+        """Text of one progress update (no newline)."""
+        count = max(progress.posture_count, 0)
+        index = min(max(progress.posture_index, 0), count) if count else 0
+        filled = int(round(self.width * index / count)) if count else 0
+        bar = '#' * filled + '-' * (self.width - filled)
+        text = f'[{bar}] {index}/{count} {progress.phase}'
+        residuals = progress.residuals
+        if isinstance(residuals, dict) and residuals:
+            try:
+                text += f'  residuals: {residual_summary(residuals)}'
+            except (TypeError, ValueError):
+                pass
+        message = ' '.join(str(progress.message).split())  # one line
+        if message and message != f'{progress.phase} {index}/{count}':
+            if len(message) > MESSAGE_WIDTH:
+                message = message[: MESSAGE_WIDTH - 3] + '...'
+            text += f'  ({message})'
+        return text
+
+    def update(self, progress):
+        self.updates += 1
+        text = self.line(progress)
+        if self.interactive:
+            self.stream.write('\r\x1b[2K' + text)
+            self._drawn = True
+        else:
+            key = (progress.phase, progress.posture_index)
+            step = max(1, progress.posture_count // 10)
+            last_phase = self._last[0] if self._last else None
+            if key != self._last and (
+                progress.phase != last_phase
+                or progress.posture_index % step == 0
+                or progress.posture_index == progress.posture_count
+            ):
+                self.stream.write(text + '\n')
+            self._last = key
+        self.stream.flush()
+
+    def finish(self):
+        if self.interactive and self._drawn:
+            self.stream.write('\n')
+            self.stream.flush()
+            self._drawn = False
+
+
+class CalibrateClient(Node):
+    """Calls the calibrate service and follows the progress topic (keyword arguments go to Node)."""
+
+    def __init__(
+        self,
+        service=names.SERVICE_CALIBRATE,
+        progress_topic=names.TOPIC_CALIBRATION_PROGRESS,
+        progress=None,
+        **kwargs,
+    ):
+        kwargs.setdefault('node_name', NODE_NAME)
+        super().__init__(**kwargs)
+        self.service_name = service
+        self.client = self.create_client(Trigger, service)
+        self.progress = progress
+        self.last_progress = None
+        self.bad_progress = 0
+        self.create_subscription(DiagnosticStatus, progress_topic, self._on_progress, PROGRESS_QOS)
+
+    def _on_progress(self, msg):
+        try:
+            progress = conversions.parse_progress(msg)
+        except ValueError as error:
+            self.bad_progress += 1
+            if self.bad_progress == 1:
+                self.get_logger().warning(f'ignoring a malformed progress message: {error}')
+            return
+        self.last_progress = progress
+        if self.progress is not None:
+            self.progress.update(progress)
+
+    def wait_for_service(self, executor, timeout):
+        """Spin until the service is available; False after ``timeout`` s (None: forever)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self.client.service_is_ready():
+            if deadline is not None and time.monotonic() >= deadline:
+                return False
+            executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def call(self, executor, timeout=None):
+        """Call the service, spinning (progress updates) until the response; None on timeout."""
+        future = self.client.call_async(Trigger.Request())
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not future.done():
+            if deadline is not None and time.monotonic() >= deadline:
+                self.client.remove_pending_request(future)
+                return None
+            executor.spin_once(timeout_sec=0.1)
+        return future.result()
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog='gsp_calibrate_client',
+        description='Call the calibrator service, show its progress, print the summary and the '
+        'run directory (for installs without the ros2 CLI).',
+    )
+    parser.add_argument(
+        '--service',
+        default=names.SERVICE_CALIBRATE,
+        help='Trigger service to call (default %(default)s)',
+    )
+    parser.add_argument(
+        '--wait-timeout',
+        type=float,
+        default=10.0,
+        metavar='S',
+        help='longest wait for the service to appear, s (default %(default)g; 0: forever)',
+    )
+    parser.add_argument(
+        '--timeout',
+        type=float,
+        default=0.0,
+        metavar='S',
+        help='longest wait for the response, s (default: 0, forever)',
+    )
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument(
+        '--geometry',
+        action='store_true',
+        help='also print the calibrated geometry (ROS 2 parameters YAML)',
+    )
+    return parser
+
+
+def run(args, context=None, out=None, err=None):
+    """Run the client for parsed ``args`` in an initialised ``context``; returns the exit code."""
+    out = sys.stdout if out is None else out
+    err = sys.stderr if err is None else err
+    progress = None if args.no_progress else ProgressBar(err)
+    node = CalibrateClient(service=args.service, progress=progress, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        wait = args.wait_timeout if args.wait_timeout > 0 else None
+        if not node.wait_for_service(executor, wait):
+            print(
+                f'gsp_calibrate_client: service {args.service} not available after '
+                f'{args.wait_timeout:g} s (is the calibrator running, in this ROS_DOMAIN_ID?)',
+                file=err,
+            )
+            return EXIT_FAILED
+        print(f'calling {args.service} ...', file=err)
+        response = node.call(executor, args.timeout if args.timeout > 0 else None)
+        if progress is not None:
+            progress.finish()
+        if response is None:
+            print(
+                f'gsp_calibrate_client: no response from {args.service} within {args.timeout:g} s',
+                file=err,
+            )
+            return EXIT_FAILED
+        parsed = parse_response(response.message)
+        print(parsed.summary, file=out)
+        if args.geometry and parsed.geometry_yaml:
+            print(
+                parsed.geometry_yaml,
+                file=out,
+                end='' if parsed.geometry_yaml.endswith('\n') else '\n',
+            )
+        if not response.success:
+            print('gsp_calibrate_client: calibration failed', file=err)
+        return EXIT_OK if response.success else EXIT_FAILED
+    finally:
+        if progress is not None:
+            progress.finish()
+        executor.remove_node(node)
+        executor.shutdown()
+        node.destroy_node()
+
+
+def main(argv=None):
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv if argv is None else [sys.argv[0], *argv]
+    args = build_parser().parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
+    try:
+        return run(args)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        print('\ngsp_calibrate_client: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

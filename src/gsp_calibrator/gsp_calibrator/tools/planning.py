@@ -1,0 +1,322 @@
+"""``gsp_plan``: plan a calibration before moving the platform (pure, no ROS).
+
+From a nominal geometry, the sensors' noise, a posture count, samples per posture, the workspace
+limits, a settle time and a sensor rate, predict what the calibrator would reach:
+
+* the accuracy of the calibrated platform (:func:`gsp_kinematics.prediction.predict_accuracy` on
+  the Cramér-Rao covariance of the selected design);
+* the rank of the design and its unidentifiable parameter combinations;
+* the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum without
+  the moves), and the platform time: the travel of the route through the postures
+  (:func:`gsp_kinematics.route.plan_route`, legs within :class:`gsp_kinematics.motion.MotionLimits`)
+  plus that settling and sampling.
+
+The postures are those the calibrator would command: :func:`gsp_calibrator.run.postures.choose_postures` with the
+same pool, seed, sigmas (averaged over the samples, ``SensorNoise.averaged``), free
+parameters and formulation. ``--sweep`` repeats the plan over posture counts and samples per
+posture (one selection per count: averaging scales every sigma alike, which leaves the selection
+unchanged) and writes a table, a plot and the sweep in JSON. ``--target-position-mm`` (or
+``--target-orientation-deg`` alone) finds the plan of least platform time reaching a target
+(:func:`target_plan`).
+"""
+
+import argparse
+import math
+import sys
+
+from gsp_calibrator.run.postures import (
+    CalibrationError,
+)
+from gsp_calibrator.settings import add_run_options, run_options_error
+from gsp_calibrator.tools.plans import (
+    DEFAULT_SWEEP_POSTURES,
+    DEFAULT_SWEEP_SAMPLES,
+    DEFAULT_TARGET_POSTURES,
+    MAX_SAMPLES_PER_POSTURE,
+    Design,
+    cheapest_meeting,
+    plan,
+    sweep,
+    sweep_table,
+    target_plan,
+)
+from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
+from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
+from gsp_kinematics.identification import IdentificationError
+from gsp_kinematics.kinematics import Workspace
+from gsp_kinematics.motion import MotionLimits
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+
+
+def plot_sweep(path, result):
+    """Predicted mean position and orientation error against posture count, one curve per
+    samples-per-posture (log scale)."""
+    from gsp_calibrator.report.plots import new_figure, save_figure
+
+    figure = new_figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
+    for column, (key, label) in enumerate(
+        (
+            ('position_mm_mean', 'position error (mm)'),
+            ('orientation_deg_mean', 'orientation error (deg)'),
+        )
+    ):
+        axes = figure.add_subplot(1, 2, column + 1)
+        for samples in result['samples_per_posture']:
+            rows = [r for r in result['rows'] if r['samples_per_posture'] == samples]
+            points = [(r['postures'], r['predicted'][key]) for r in rows if r['predicted']]
+            if points:
+                x, y = zip(*points, strict=True)
+                axes.plot(x, y, 'o-', label=f'{samples} samples/posture')
+        axes.set_yscale('log')
+        axes.set_xlabel('postures')
+        axes.set_ylabel(f'predicted mean {label}')
+        axes.grid(True, which='both', alpha=0.3)
+        axes.legend(fontsize=8)
+    figure.suptitle('Predicted accuracy after calibration (Cramér-Rao, selected postures)')
+    return save_figure(figure, path)
+
+
+def _positive_list(text, kind):
+    try:
+        values = [kind(part) for part in text.split(',') if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a comma-separated list, got {text!r}') from None
+    if not values or any(value < 1 for value in values):
+        raise argparse.ArgumentTypeError(f'expected values >= 1, got {text!r}')
+    return values
+
+
+def parse_arguments(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='gsp_plan',
+        description='Predict the accuracy, identifiability and duration of a calibration before '
+        'moving the platform (no ROS needed).',
+    )
+    add = parser.add_argument
+    add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
+    add_run_options(parser, seed_help="the calibrator's seed of the posture pool")
+    defaults = DEFAULT_SENSOR_NOISE
+    add('--sigma-leg-um', type=float, default=defaults.leg_lengths * 1e6, help='leg sensor, µm')
+    add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
+    add('--sigma-encoder-deg', type=float, default=math.degrees(defaults.encoder))
+    add('--sigma-lvdt-um', type=float, default=defaults.lvdt * 1e6, help='LVDT, µm')
+    workspace = Workspace()
+    add('--xy-range-mm', type=float, default=workspace.xy_range * 1e3, help='+- x and y (400)')
+    add('--z-min-mm', type=float, default=workspace.z_min * 1e3)
+    add('--z-max-mm', type=float, default=workspace.z_max * 1e3)
+    add('--rotation-range-deg', type=float, default=math.degrees(workspace.rotation_range))
+    add('--settle-s', type=float, default=0.02, help='settle time per posture, s (0.02)')
+    add('--sensor-rate-hz', type=float, default=200.0, help='synchronised sample rate, Hz (200)')
+    add('--output', default=None, help='write the plan (or the sweep) as JSON here')
+    add('--sweep', action='store_true', help='sweep posture counts and samples per posture')
+    add('--sweep-postures', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_POSTURES)
+    add('--sweep-samples', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_SAMPLES)
+    add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
+    add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
+    add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
+    limits = MotionLimits()
+    add('--max-leg-speed-mm-s', type=float, default=limits.max_speed * 1e3, help='leg speed limit')
+    add(
+        '--max-leg-acceleration-mm-s2',
+        type=float,
+        default=limits.max_acceleration * 1e3,
+        help='leg acceleration limit',
+    )
+    add('--target-position-mm', type=float, default=None, help='plan for this mean position error')
+    add(
+        '--target-postures',
+        type=lambda t: _positive_list(t, int),
+        default=DEFAULT_TARGET_POSTURES,
+        help='posture counts a target plan considers',
+    )
+    add('--max-samples-per-posture', type=int, default=MAX_SAMPLES_PER_POSTURE)
+    args = parser.parse_args(argv)
+    reason = run_options_error(args)
+    if reason:
+        parser.error(reason)
+    for name in (
+        'sigma_leg_um',
+        'sigma_inclinometer_deg',
+        'sigma_encoder_deg',
+        'sigma_lvdt_um',
+        'max_leg_speed_mm_s',
+        'max_leg_acceleration_mm_s2',
+    ):
+        if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
+            parser.error(f'--{name.replace("_", "-")} must be a finite number > 0')
+    if not args.z_min_mm < args.z_max_mm or args.xy_range_mm <= 0 or args.rotation_range_deg < 0:
+        parser.error(
+            'workspace: need --z-min-mm < --z-max-mm, --xy-range-mm > 0 and '
+            '--rotation-range-deg >= 0'
+        )
+    return args
+
+
+def design_from(args):
+    """The :class:`Design` of the command line."""
+    sigmas = SensorNoise(
+        leg_lengths=args.sigma_leg_um * 1e-6,
+        inclinometer=math.radians(args.sigma_inclinometer_deg),
+        encoder=math.radians(args.sigma_encoder_deg),
+        lvdt=args.sigma_lvdt_um * 1e-6,
+    )
+    workspace = Workspace(
+        xy_range=args.xy_range_mm / 1e3,
+        z_min=args.z_min_mm / 1e3,
+        z_max=args.z_max_mm / 1e3,
+        rotation_range=math.radians(args.rotation_range_deg),
+    )
+    return Design(
+        sigmas=sigmas,
+        free=tuple(args.free),
+        formulation=args.formulation,
+        workspace=workspace,
+        pool_size=args.pool_size,
+        seed=args.seed,
+    )
+
+
+def _summary_text(entry):
+    predicted = entry['predicted']
+    lines = [
+        f'{entry["postures"]} postures x {entry["samples_per_posture"]} samples: rank '
+        f'{entry["rank"]} of {entry["parameters"]}, calibration {entry["calibration_s"]:.1f} s'
+    ]
+    if predicted:
+        lines.append(
+            f'predicted after calibration: position {predicted["position_mm_mean"]:.3g} mm mean '
+            f'({predicted["position_mm_p95"]:.3g} p95), orientation '
+            f'{predicted["orientation_deg_mean"]:.3g} deg mean'
+        )
+    for entry_ in entry['unidentifiable']:
+        lines.append(f'not identifiable: {entry_["combination"]}')
+    lines.append(_platform_time_text(entry['platform_time']))
+    return '\n'.join(lines)
+
+
+def _platform_time_text(timing):
+    return (
+        f'platform time {timing["total_s"]:.1f} s: travel {timing["travel_s"]:.1f} s in route '
+        f'order (selection order {timing["selection_order_travel_s"]:.1f} s, lower bound '
+        f'{timing["lower_bound_travel_s"]:.1f} s), settle {timing["settle_s"]:.1f} s, sampling '
+        f'{timing["sampling_s"]:.1f} s\nroute (selection indices): '
+        + ' '.join(str(index) for index in timing['order'])
+    )
+
+
+def _target_text(result):
+    best, target = result['plan'], result['target']
+    wanted = ', '.join(
+        text
+        for text in (
+            None if target['position_mm'] is None else f'position {target["position_mm"]:g} mm',
+            None
+            if target['orientation_deg'] is None
+            else f'orientation {target["orientation_deg"]:g} deg',
+        )
+        if text
+    )
+    if best is None:
+        reach = result['best_reachable']
+        if reach is None:
+            return f'no plan reaches {wanted}: no posture count is identifiable'
+        return (
+            f'no plan within the pool reaches {wanted}; the best reaches position '
+            f'{reach["position_mm_mean"]:.3g} mm, orientation {reach["orientation_deg_mean"]:.3g} '
+            f'deg mean ({reach["postures"]} postures x {reach["samples_per_posture"]} samples)'
+        )
+    return f'least platform time reaching {wanted}:\n' + _summary_text(best)
+
+
+def main(argv=None):
+    """Console script ``gsp_plan``."""
+    args = parse_arguments(argv)
+    try:
+        nominal = load_geometry(args.geometry)
+        design = design_from(args)
+        timing = {'settle_s': args.settle_s, 'sensor_rate_hz': args.sensor_rate_hz}
+        inputs = {
+            'geometry': str(args.geometry),
+            'sigmas': design.sigmas.to_record(),
+            'workspace': {
+                'xy_range_m': design.workspace.xy_range,
+                'z_min_m': design.workspace.z_min,
+                'z_max_m': design.workspace.z_max,
+                'rotation_range_rad': design.workspace.rotation_range,
+            },
+            'settle_s': args.settle_s,
+            'sensor_rate_hz': args.sensor_rate_hz,
+            'pool_size': args.pool_size,
+            'seed': args.seed,
+            'formulation': args.formulation,
+            'free': args.free,
+        }
+        limits = MotionLimits(args.max_leg_speed_mm_s / 1e3, args.max_leg_acceleration_mm_s2 / 1e3)
+        inputs['max_leg_speed_m_s'] = limits.max_speed
+        inputs['max_leg_acceleration_m_s2'] = limits.max_acceleration
+        targeted = args.target_position_mm is not None or (
+            not args.sweep and args.target_orientation_deg is not None
+        )
+        if targeted:
+            result = target_plan(
+                nominal,
+                args.target_position_mm,
+                args.target_orientation_deg,
+                design,
+                args.target_postures,
+                args.max_samples_per_posture,
+                limits=limits,
+                **timing,
+            )
+            document = {'inputs': inputs, **result}
+            print(_target_text(result))
+        elif args.sweep:
+            timing['limits'] = limits
+            result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
+            document = {'inputs': inputs, 'sweep': result}
+            print(sweep_table(result))
+            if args.target_position_um is not None or args.target_orientation_deg is not None:
+                best = cheapest_meeting(
+                    result, args.target_position_um, args.target_orientation_deg
+                )
+                document['target'] = {
+                    'position_um': args.target_position_um,
+                    'orientation_deg': args.target_orientation_deg,
+                    'cheapest': best,
+                }
+                print(
+                    'no swept design meets the target'
+                    if best is None
+                    else f'cheapest design meeting the target: {best["postures"]} postures x '
+                    f'{best["samples_per_posture"]} samples ({best["calibration_s"]:.1f} s)'
+                )
+            plot_path = args.plot or (
+                f'{args.output.rsplit(".", 1)[0]}.png' if args.output else 'gsp_plan.png'
+            )
+            plot_sweep(plot_path, result)
+            document['plot'] = plot_path
+            print(f'plot: {plot_path}')
+        else:
+            document = {
+                'inputs': inputs,
+                **plan(
+                    nominal,
+                    args.postures,
+                    args.samples_per_posture,
+                    design,
+                    limits=limits,
+                    **timing,
+                ),
+            }
+            print(_summary_text(document))
+    except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:
+        print(f'gsp_plan: error: {error}', file=sys.stderr)
+        return 2
+    if args.output:
+        atomic_write_text(args.output, to_json(json_safe(document)))
+        print(f'plan: {args.output}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

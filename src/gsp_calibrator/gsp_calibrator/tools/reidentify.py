@@ -1,0 +1,321 @@
+"""``gsp_reidentify``: re-identify a calibration offline, into a new run directory (no ROS graph).
+
+Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``, or a
+``recording.mcap`` (the posture rows are rebuilt with the calibrator's own synchroniser, see
+:func:`gsp_calibrator.recording.rebuild.samples_from_recording`). The identification is the calibrator
+node's own: :func:`gsp_calibrator.run.identify.identify_from_samples` with the commanded postures
+as pose guesses, so the same samples and options give the same result as the online run.
+
+Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success),
+``result.json``, ``report.md`` with its PNGs, a copy of the recording (when the input has one) and
+``true_geometry.yaml`` (when a truth is given). Prints the summary and the run directory.
+
+Exit code: 0 success, 1 identification failed (or non-identifiable), 2 bad input.
+"""
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures
+from gsp_calibrator.run import response as run_response
+from gsp_calibrator.run.directory import (
+    RESULT_FILE,
+    TRUE_GEOMETRY_FILE,
+    RunDirectory,
+)
+from gsp_calibrator.settings import DEFAULTS
+from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
+    _SIGMA_OPTIONS,
+    InputError,
+    free_parameters,
+    geometry_option,
+    load_input,
+    recover_unfinished_recordings,
+    resolve_input,
+    resolve_options,
+    result_json,
+    stored_options,
+)
+from gsp_kinematics.fileio import atomic_copy
+from gsp_kinematics.geometry import (
+    default_geometry_path,
+)
+from gsp_kinematics.goodness import LOSSES
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options
+from gsp_kinematics.noise import SensorNoise
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+VALIDATION_POSTURES = 50
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog='gsp_reidentify',
+        description='Re-identify a Gough-Stewart platform calibration offline from a run '
+        'directory, a samples.csv or a recording.mcap, into a new run directory.',
+    )
+    parser.add_argument('input', help='run directory, samples.csv or recording.mcap')
+    stored = 'default: as stored with the input run, else'
+    parser.add_argument(
+        '--nominal',
+        default=None,
+        help='nominal geometry params file (default: as stored with the input run '
+        'if that file exists, else the shipped nominal, '
+        f'{default_geometry_path("nominal")})',
+    )
+    parser.add_argument(
+        '--formulation',
+        choices=FORMULATIONS,
+        default=None,
+        help=f'identification formulation ({stored} {DEFAULTS["formulation"]})',
+    )
+    parser.add_argument(
+        '--loss',
+        choices=LOSSES,
+        default=None,
+        help=f'loss of the fit: linear, or robust huber/cauchy ({stored} {DEFAULTS["loss"]})',
+    )
+    parser.add_argument(
+        '--free',
+        nargs='+',
+        metavar='NAME',
+        default=None,
+        help='parameters identified: groups paper (the 44) or extended (the 44 and the '
+        'identifiable sensor errors), and/or names (comma-separated lists allowed, e.g. '
+        f'paper kq1 or A1x B1x,B1y Loff1 D0 gamma; {stored} extended)',
+    )
+    for name, option, metavar, what in _SIGMA_OPTIONS:
+        parser.add_argument(
+            option,
+            type=float,
+            default=None,
+            metavar=metavar,
+            help=f'noise std of one {what} ({stored} {DEFAULTS[name]:g})',
+        )
+    parser.add_argument(
+        '--samples-per-posture',
+        type=int,
+        default=None,
+        metavar='N',
+        help='recording input: synchronised samples averaged per posture '
+        f'({stored} {DEFAULTS["samples_per_posture"]})',
+    )
+    parser.add_argument(
+        '--sync-tolerance',
+        type=float,
+        default=None,
+        metavar='S',
+        help='recording input: largest stamp difference of a pair, s '
+        f'({stored} {DEFAULTS["sync_tolerance"]:g})',
+    )
+    parser.add_argument(
+        '--output-root',
+        default=DEFAULTS['output_root'],
+        help='directory of the new run directory (default %(default)s)',
+    )
+    parser.add_argument(
+        '--truth',
+        default=None,
+        help='true geometry params file, for errors against the truth and a '
+        "validation in the report (default: the input run directory's "
+        f'{TRUE_GEOMETRY_FILE}, if any)',
+    )
+    parser.add_argument(
+        '--validation-postures',
+        type=int,
+        default=VALIDATION_POSTURES,
+        metavar='N',
+        help='random postures of the validation against the truth (default %(default)s; 0: none)',
+    )
+    parser.add_argument(
+        '--seed', type=int, default=0, help='seed of the validation postures (default %(default)s)'
+    )
+    parser.add_argument(
+        '--no-report',
+        action='store_true',
+        help='write samples.csv, result.yaml and result.json only',
+    )
+    return parser
+
+
+# --- inputs ------------------------------------------------------------------------------------
+
+
+def _options(options):
+    """The core's identification ``Options`` of the resolved ``options`` (the loss)."""
+    return Options(loss=options.get('loss', DEFAULTS['loss']))
+
+
+def validation_postures(truth, count, seed):
+    from gsp_kinematics.kinematics import sample_valid_postures
+
+    return sample_valid_postures(truth, int(count), np.random.default_rng(int(seed)))
+
+
+# --- main --------------------------------------------------------------------------------------
+
+
+def reidentify(args, out=None):
+    """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
+    out = sys.stdout if out is None else out
+    if args.free is not None:
+        free_parameters(args.free)  # a bad name is reported before anything is read
+    kind, path, source_dir = resolve_input(args.input)
+    options = resolve_options(args, stored_options(kind, path, source_dir))
+    sigmas = SensorNoise.from_parameters(options)
+    free = options['free_parameters']
+    nominal_path = options['nominal_geometry_file']
+    nominal = geometry_option(nominal_path, '--nominal')
+    truth_path = args.truth
+    if (
+        truth_path is None
+        and source_dir is not None
+        and (source_dir / TRUE_GEOMETRY_FILE).is_file()
+    ):
+        truth_path = source_dir / TRUE_GEOMETRY_FILE
+    truth = geometry_option(truth_path, '--truth') if truth_path is not None else None
+    if args.validation_postures < 0:
+        raise InputError('--validation-postures must be >= 0')
+    samples = load_input(kind, path, options)
+
+    try:
+        outcome = calibration.identify_from_samples(
+            nominal, samples, sigmas, free, options['formulation'], options=_options(options)
+        )
+    except (IdentificationError, postures.CalibrationError) as error:
+        raise InputError(str(error)) from error
+
+    run = RunDirectory.create(args.output_root)
+    run.write_samples(samples)
+    if kind == 'mcap' or (source_dir is not None and (source_dir / 'recording.mcap').is_file()):
+        recording_path = path if kind == 'mcap' else source_dir / 'recording.mcap'
+        atomic_copy(recording_path, run.file('recording.mcap'))
+    if truth is not None:
+        run.write_geometry(truth, name=TRUE_GEOMETRY_FILE, comment='true geometry (given)')
+    if outcome.success:
+        run.write_geometry(
+            outcome.geometry,
+            name=RESULT_FILE,
+            comment=f'calibrated offline by gsp_reidentify from {path}',
+        )
+
+    validation_before = validation_after = None
+    if outcome.result is not None:
+        if truth is not None and args.validation_postures > 0:
+            from gsp_calibrator.report.data import validation_errors
+
+            poses = validation_postures(truth, args.validation_postures, args.seed)
+            try:
+                validation_before = validation_errors(truth, nominal, poses)
+                if outcome.success:
+                    validation_after = validation_errors(truth, outcome.geometry, poses)
+            except ValueError as error:
+                print(f'warning: validation skipped: {error}', file=sys.stderr)
+        from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
+
+        run_options = dict(
+            options,
+            source=str(path),
+            source_kind=kind,
+            truth_geometry_file=str(truth_path) if truth_path else None,
+        )
+        inputs = dataclasses.replace(
+            outcome_inputs(outcome, nominal, run_options, tool='gsp_reidentify'),
+            validation_before=validation_before,
+            validation_after=validation_after,
+            truth=truth,
+        ).completed(outcome.result)
+        write_result_json(run, outcome.result, inputs)
+        if not args.no_report:
+            write_report(run, outcome.result, inputs, title='Offline re-identification')
+
+    print(run_response.outcome_summary(outcome, reference=truth), file=out)
+    for when, validation in (('before', validation_before), ('after', validation_after)):
+        if validation is not None:
+            print(
+                f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
+                f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
+                f'{validation["orientation_deg_mean"]:.4g} deg, max '
+                f'{validation["orientation_deg_max"]:.4g} deg',
+                file=out,
+            )
+    print(f'{run_response.RUN_DIRECTORY_LABEL}{run.path}', file=out)
+    return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
+
+
+def refresh_report(
+    run_dir,
+    truth=None,
+    validation_before=None,
+    validation_after=None,
+    write_pngs=True,
+    title='Calibration report',
+):
+    """Rewrite ``result.json`` (and ``report.md`` with its PNGs) of an existing run directory.
+
+    For a caller that has the run directory but not the identification result, e.g. the main job
+    once it knows the truth and has validated the calibrated geometry through the system. The
+    samples are identified again with the run's stored options (``result.json`` ``options`` or
+    the recording's), which gives the run's result exactly. ``validation_*``: validation
+    summaries or :func:`gsp_calibrator.report.data.validation_errors` dicts (per-posture arrays are
+    plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
+    """
+    from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
+
+    source_dir = Path(run_dir)
+    kind, path, _ = resolve_input(source_dir)
+    args = build_parser().parse_args([str(source_dir)])
+    options = resolve_options(args, stored_options(kind, path, source_dir))
+    nominal = geometry_option(options['nominal_geometry_file'], 'nominal_geometry_file')
+    samples = load_input(kind, path, options)
+    outcome = calibration.identify_from_samples(
+        nominal,
+        samples,
+        SensorNoise.from_parameters(options),
+        options['free_parameters'],
+        options['formulation'],
+        options=_options(options),
+    )
+    if outcome.result is None:
+        raise InputError(f'{source_dir}: {outcome.message}')
+    # The calibrator's own record of the collection (skips, drops) is kept as it was.
+    # ... and so are its noise estimates (samples.csv keeps the averages, not the scatter).
+    kept = {
+        key: value
+        for key, value in result_json(source_dir).items()
+        if key in ('collection', 'noise_estimates')
+    }
+    inputs = dataclasses.replace(
+        outcome_inputs(outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept),
+        validation_before=validation_before,
+        validation_after=validation_after,
+        truth=truth,
+    ).completed(outcome.result)
+    write_result_json(source_dir, outcome.result, inputs)
+    if write_pngs:
+        write_report(source_dir, outcome.result, inputs, title=title)
+    return outcome
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        code, _ = reidentify(args)
+    except InputError as error:
+        print(f'gsp_reidentify: error: {error}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

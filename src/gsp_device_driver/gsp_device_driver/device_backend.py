@@ -1,0 +1,96 @@
+"""The interface of a source of measuring device readings (pure, no rclpy): :class:`DeviceBackend`,
+the sample it gives (:class:`DeviceSample`) and its error (:class:`BackendError`). The backends
+themselves and their registry are in :mod:`.backends`."""
+
+import abc
+import dataclasses
+import math
+
+import numpy as np
+
+
+class BackendError(ValueError):
+    """A backend cannot be made or configured; the message says why."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceSample:
+    """One reading of the device: ``stamp_s`` (s, the instant it refers to), ``alpha``, ``beta``
+    (inclinometer, rad), ``phi`` (encoder, rad), ``d_m`` (LVDT, m)."""
+
+    stamp_s: float
+    alpha: float
+    beta: float
+    phi: float
+    d_m: float
+
+    def readings(self):
+        """``[alpha, beta, phi, d_m]`` (4,) in ``gsp_kinematics.device.READING_NAMES`` order."""
+        return np.array([self.alpha, self.beta, self.phi, self.d_m])
+
+
+def check_std(value, name):
+    """``value`` as a float noise standard deviation (finite, >= 0); BackendError otherwise."""
+    value = float(value)
+    if not (math.isfinite(value) and value >= 0.0):
+        raise BackendError(f'{name} must be finite and >= 0, got {value}')
+    return value
+
+
+class DeviceBackend(abc.ABC):
+    """Interface of a source of device readings."""
+
+    #: Registry name (``sim``, ``hardware``...).
+    name = ''
+    #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
+    needs_true_pose = False
+    #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
+    simulates_noise = False
+    #: Whether a reading is taken at the node's publish timer (``now_s`` is then the timer's
+    #: scheduled tick, see ``gsp_msgs_py.node_tools.scheduled_tick_ns``), not received at the
+    #: device's own pace.
+    samples_at_tick = False
+    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.node_tools.ParameterSpec`).
+    PARAMETERS = ()
+
+    @classmethod
+    @abc.abstractmethod
+    def from_config(cls, **config):
+        """Make the backend from the node's configuration (ignore unused keys)."""
+
+    @abc.abstractmethod
+    def read(self, now_s):
+        """The sample for the current time ``now_s`` (s), or None if none is available yet."""
+
+    def read_available(self, now_s):
+        """Every sample available at ``now_s`` (a list, maybe empty). A backend that receives
+        samples at its own pace (``serial``) returns each one once; default: ``[read(now_s)]``."""
+        sample = self.read(now_s)
+        return [] if sample is None else [sample]
+
+    def messages(self):
+        """``[(level, text)]`` the node should log (``info`` or ``warning``) since the last call.
+        Default: none."""
+        return []
+
+    def describe(self):
+        """One line for the node's start-up log: what the backend reads and how."""
+        return ''
+
+    def observe_true_pose(self, pose):
+        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
+
+        ValueError if the pose is unusable (the previous one is kept). Default: ignored.
+        """
+        return None
+
+    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
+        """Change the simulated noise std (rad, rad, m); None keeps a value.
+
+        Raises BackendError for backends whose noise is not simulated.
+        """
+        raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
+
+    def close(self):
+        """Release the device (files, ports). Idempotent. Default: nothing to release."""
+        return None

@@ -1,0 +1,144 @@
+"""The noise of the measuring sensors: one type, :class:`SensorNoise`, and its conversions.
+
+A :class:`SensorNoise` holds the standard deviation of one sample of each sensor: the six leg
+lengths (m, one value for all legs), the inclinometer (rad, alpha and beta), the encoder (rad,
+phi) and the LVDT (m, d_m). It weighs the identification's residuals, sets the collector's
+consistency window and is written into ``result.json``, the run options and the recording's
+metadata. Each of those views is one method here, so no caller unpacks the fields itself:
+
+- :meth:`SensorNoise.readings`: the four device readings ``[alpha, beta, phi, d_m]``;
+- :meth:`SensorNoise.channel_std` / :meth:`SensorNoise.from_channel_std`: the collector's ten
+  channels ``[q_1..q_6, alpha, beta, phi, d_m]``;
+- :meth:`SensorNoise.channels` / :meth:`SensorNoise.from_channels`: ``{channel: std}`` by field
+  name, as :func:`gsp_kinematics.goodness.estimate_noise` gives a data estimate;
+- :meth:`SensorNoise.averaged`: the noise of a row that averages ``n`` samples;
+- :meth:`SensorNoise.to_parameters` / :meth:`SensorNoise.from_parameters`: node parameters and
+  run options (``sigma_<field>`` on the calibrator, ``<field>_noise_std`` on the simulated nodes);
+- :meth:`SensorNoise.to_record` / :meth:`SensorNoise.from_record`: the JSON record of
+  ``result.json`` and ``gsp_plan`` (``leg_lengths_m``, ``inclinometer_rad``...).
+
+:data:`DEFAULT_SENSOR_NOISE` is the one default noise level of the suite (Table 3's first level,
+0.001 deg and 0.001 mm): the simulated platform and device, the fake serial device and the
+calibrator all start from it.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+#: The fields of :class:`SensorNoise`, in order, with their SI unit.
+NOISE_FIELDS = ('leg_lengths', 'inclinometer', 'encoder', 'lvdt')
+NOISE_UNITS = {'leg_lengths': 'm', 'inclinometer': 'rad', 'encoder': 'rad', 'lvdt': 'm'}
+#: Prefix of the calibrator's noise parameters and run options (``sigma_leg_lengths``...).
+CALIBRATOR_PARAMETER_PREFIX = 'sigma_'
+#: Number of legs, hence leg-length channels.
+_LEGS = 6
+
+
+class SensorNoiseError(ValueError):
+    """A noise value or record is unusable; the message names it."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorNoise:
+    """Standard deviation of one sample of each sensor (m, rad); also the residual weights."""
+
+    leg_lengths: float = 1e-6
+    inclinometer: float = math.radians(0.001)
+    encoder: float = math.radians(0.001)
+    lvdt: float = 1e-6
+
+    @classmethod
+    def from_levels(cls, angle_noise_deg, length_noise_mm):
+        """Table 3's convention: one angular level (deg) and one length level (mm)."""
+        return cls(
+            leg_lengths=length_noise_mm / 1000.0,
+            inclinometer=math.radians(angle_noise_deg),
+            encoder=math.radians(angle_noise_deg),
+            lvdt=length_noise_mm / 1000.0,
+        )
+
+    def validate(self):
+        """SensorNoiseError unless every standard deviation is positive and finite."""
+        for name, value in self.channels().items():
+            if not (math.isfinite(value) and value > 0.0):
+                raise SensorNoiseError(f'sigma for {name} must be positive and finite, got {value}')
+
+    # --- channels ------------------------------------------------------------------------------
+
+    def readings(self):
+        """Standard deviations of the device readings ``[alpha, beta, phi, d_m]`` (4,)."""
+        return np.array([self.inclinometer, self.inclinometer, self.encoder, self.lvdt])
+
+    def channel_std(self):
+        """The collector's ten channel standard deviations ``[q_1..q_6, alpha, beta, phi, d_m]``."""
+        return np.concatenate([np.full(_LEGS, self.leg_lengths), self.readings()])
+
+    @classmethod
+    def from_channel_std(cls, values):
+        """Inverse of :meth:`channel_std` (ten values; each sensor's first channel is used)."""
+        values = np.asarray(values, dtype=float).reshape(-1)
+        if values.shape != (_LEGS + 4,):
+            raise SensorNoiseError(f'noise_std must hold 10 values, got {values.tolist()}')
+        return cls(float(values[0]), float(values[6]), float(values[8]), float(values[9]))
+
+    def channels(self):
+        """``{field: std}`` in :data:`NOISE_FIELDS` order."""
+        return {name: float(getattr(self, name)) for name in NOISE_FIELDS}
+
+    @classmethod
+    def from_channels(cls, values, default=None):
+        """From ``{field: std}`` (e.g. a noise estimate); a missing or None field is taken from
+        ``default`` (a :class:`SensorNoise`; SensorNoiseError if there is none)."""
+        fields = {}
+        for name in NOISE_FIELDS:
+            value = values.get(name)
+            if value is None:
+                if default is None:
+                    raise SensorNoiseError(f'no noise value for {name}')
+                value = getattr(default, name)
+            fields[name] = float(value)
+        return cls(**fields)
+
+    def averaged(self, n_samples):
+        """The noise of rows that average ``n_samples`` samples each: ``sigma / sqrt(n)`` with
+        the median ``n`` (unchanged when ``n_samples`` is empty or holds a count below 1)."""
+        n_samples = np.asarray(n_samples, dtype=float)
+        if n_samples.size == 0 or not np.all(n_samples >= 1):
+            return self
+        factor = 1.0 / math.sqrt(float(np.median(n_samples)))
+        return SensorNoise(**{name: value * factor for name, value in self.channels().items()})
+
+    # --- parameters and files -----------------------------------------------------------------
+
+    def to_parameters(self, prefix=CALIBRATOR_PARAMETER_PREFIX, suffix=''):
+        """``{prefix + field + suffix: std}``: the calibrator's ``sigma_<field>`` by default."""
+        return {f'{prefix}{name}{suffix}': value for name, value in self.channels().items()}
+
+    @classmethod
+    def from_parameters(cls, values, prefix=CALIBRATOR_PARAMETER_PREFIX, suffix='', default=None):
+        """Inverse of :meth:`to_parameters`; a missing key is taken from ``default`` (a
+        :class:`SensorNoise`, :data:`DEFAULT_SENSOR_NOISE` when None)."""
+        default = DEFAULT_SENSOR_NOISE if default is None else default
+        return cls.from_channels(
+            {name: values.get(f'{prefix}{name}{suffix}') for name in NOISE_FIELDS}, default
+        )
+
+    def to_record(self):
+        """The JSON record of ``result.json`` and ``gsp_plan``: ``{field_unit: std}``."""
+        return {f'{name}_{NOISE_UNITS[name]}': value for name, value in self.channels().items()}
+
+    @classmethod
+    def from_record(cls, record):
+        """Inverse of :meth:`to_record`."""
+        try:
+            return cls(
+                **{name: float(record[f'{name}_{NOISE_UNITS[name]}']) for name in NOISE_FIELDS}
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise SensorNoiseError(f'not a sensor noise record: {record!r} ({error})') from None
+
+
+#: The suite's default noise: Table 3's first level (0.001 deg, 0.001 mm) on every sensor.
+DEFAULT_SENSOR_NOISE = SensorNoise()

@@ -1,0 +1,71 @@
+"""SensorNoise: one noise type and its conversions (channels, averaged rows, parameters, files)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
+
+NOISE = SensorNoise(leg_lengths=1e-6, inclinometer=2e-5, encoder=3e-5, lvdt=4e-6)
+
+
+def test_the_default_is_table_3_first_level():
+    assert DEFAULT_SENSOR_NOISE == SensorNoise.from_levels(0.001, 0.001)
+    assert DEFAULT_SENSOR_NOISE.inclinometer == pytest.approx(math.radians(0.001), rel=1e-15)
+    assert DEFAULT_SENSOR_NOISE.lvdt == pytest.approx(1e-6, rel=1e-15)
+
+
+def test_channels_in_the_collector_order_and_back():
+    channel_std = NOISE.channel_std()
+    assert channel_std.tolist() == [1e-6] * 6 + [2e-5, 2e-5, 3e-5, 4e-6]
+    assert SensorNoise.from_channel_std(channel_std) == NOISE
+    assert NOISE.readings().tolist() == [2e-5, 2e-5, 3e-5, 4e-6]
+    with pytest.raises(SensorNoiseError, match='10 values'):
+        SensorNoise.from_channel_std([1e-6] * 9)
+
+
+def test_an_estimate_feeds_the_type_with_the_configured_value_where_it_has_none():
+    estimate = {'leg_lengths': 3e-6, 'inclinometer': None, 'encoder': 6e-5, 'lvdt': 1e-5}
+    noise = SensorNoise.from_channels(estimate, default=NOISE)
+    assert noise == SensorNoise(3e-6, 2e-5, 6e-5, 1e-5)
+    assert SensorNoise.from_channels(NOISE.channels()) == NOISE
+    with pytest.raises(SensorNoiseError, match='inclinometer'):
+        SensorNoise.from_channels(estimate)
+
+
+def test_averaged_rows_have_sigma_over_root_n_of_the_median_count():
+    averaged = NOISE.averaged([9, 9, 10])
+    np.testing.assert_allclose(averaged.channel_std(), NOISE.channel_std() / 3.0, rtol=1e-15)
+    assert NOISE.averaged([]) == NOISE
+    assert NOISE.averaged([0, 4]) == NOISE  # a count below one: rows are not averages
+
+
+def test_parameters_and_records_round_trip_with_the_names_users_type():
+    assert NOISE.to_parameters() == {
+        'sigma_leg_lengths': 1e-6,
+        'sigma_inclinometer': 2e-5,
+        'sigma_encoder': 3e-5,
+        'sigma_lvdt': 4e-6,
+    }
+    assert SensorNoise.from_parameters(NOISE.to_parameters()) == NOISE
+    assert SensorNoise.from_parameters({'sigma_lvdt': 5e-6}) == SensorNoise(lvdt=5e-6)
+    device = NOISE.to_parameters(prefix='', suffix='_noise_std')
+    assert device['inclinometer_noise_std'] == 2e-5
+    assert SensorNoise.from_parameters(device, prefix='', suffix='_noise_std') == NOISE
+    record = NOISE.to_record()
+    assert record == {
+        'leg_lengths_m': 1e-6,
+        'inclinometer_rad': 2e-5,
+        'encoder_rad': 3e-5,
+        'lvdt_m': 4e-6,
+    }
+    assert SensorNoise.from_record(record) == NOISE
+    with pytest.raises(SensorNoiseError, match='not a sensor noise record'):
+        SensorNoise.from_record({'leg_lengths_m': 1e-6})
+
+
+@pytest.mark.parametrize('value', [0.0, -1e-6, math.nan, math.inf])
+def test_validate_names_the_bad_sensor(value):
+    with pytest.raises(SensorNoiseError, match='encoder'):
+        SensorNoise(encoder=value).validate()

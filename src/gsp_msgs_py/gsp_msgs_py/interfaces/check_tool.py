@@ -1,0 +1,249 @@
+"""``gsp_check_interfaces``: does a driver honour the suite's interface contract? (docs/hardware.md)
+
+    gsp_check_interfaces [--duration S] [--send-test-command] [--min-rate HZ]
+
+Listens to the sensor topics for ``--duration`` seconds (the platform should stand still) and
+checks rates, joint names, units, non-finite values, the static noise level, the delay from stamp
+to receipt, that the device's three readings of one instant share one stamp, and that every
+publisher's type and QoS match the suite's. With ``--send-test-command`` it also commands the
+home pose (the platform MOVES) and expects ``/gsp/platform/status`` to answer it. Prints each
+problem; exits 0 when there is none, 1 otherwise (2 on bad arguments).
+"""
+
+import argparse
+import sys
+
+from .. import conversions, names, qos
+from ..node_tools import spin_until
+from .rules import SENSOR_TOPICS, Limits, Received, check_topics, topic_summary
+
+NODE_NAME = 'gsp_check_interfaces'
+
+
+class PoseCommandProbe:
+    """Commands poses on ``node`` and collects the platform's status answers to them.
+
+    Subscribes ``/gsp/platform/status`` and advertises ``/gsp/platform/pose_command`` with the
+    suite's QoS; :meth:`send` returns the command id the answers carry.
+    """
+
+    def __init__(self, node):
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from geometry_msgs.msg import PoseStamped
+
+        self.node = node
+        self.statuses = []  #: every status message received, in order
+        self._subscription = node.create_subscription(
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
+            self.statuses.append,
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
+        self._publisher = node.create_publisher(
+            PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
+        )
+
+    def listened(self):
+        """Whether anybody subscribes to the pose commands."""
+        return self._publisher.get_subscription_count() > 0
+
+    def send(self, pose, frame_id=names.FRAME_BASE):
+        """Command ``pose`` (m, rad) in ``frame_id``, stamped now; returns its command id."""
+        stamp = self.node.get_clock().now().to_msg()
+        self._publisher.publish(conversions.pose_to_pose_stamped(pose, stamp, frame_id))
+        return conversions.command_id_from_stamp(stamp)
+
+    def answers(self, command_id):
+        """The parsed statuses of ``command_id``, in order (unparsable ones skipped)."""
+        answers = []
+        for msg in self.statuses:
+            try:
+                status = conversions.parse_status(msg)
+            except ValueError:
+                continue
+            if status.command_id == command_id:
+                answers.append(status)
+        return answers
+
+    def final_status(self, command_id):
+        """The first settled or rejected status of ``command_id``, or None."""
+        final = [s for s in self.answers(command_id) if s.state != names.STATE_MOVING]
+        return final[0] if final else None
+
+
+class InterfaceChecker:
+    """Records the sensor topics on ``node`` and judges them (see :meth:`problems`)."""
+
+    def __init__(self, node, limits=Limits()):
+        from sensor_msgs.msg import JointState
+
+        self.node = node
+        self.limits = limits
+        self.received = {topic: [] for topic in SENSOR_TOPICS}
+        self.recording = True
+        for topic in SENSOR_TOPICS:
+            node.create_subscription(
+                JointState,
+                topic,
+                lambda msg, t=topic: self._on_joint_state(t, msg),
+                qos.TOPIC_QOS[topic],
+            )
+        self._probe = None
+        self.command_id = None
+
+    def _now_s(self):
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def _on_joint_state(self, topic, msg):
+        if self.recording:
+            self.received[topic].append(
+                Received(
+                    self._now_s(),
+                    conversions.stamp_to_seconds(msg.header.stamp),
+                    tuple(msg.name),
+                    tuple(msg.position),
+                )
+            )
+
+    # ---------------------------------------------------------------- test command
+
+    def prepare_test_command(self):
+        """Subscribe the status topic and advertise pose commands (before :meth:`send`)."""
+        self._probe = PoseCommandProbe(self.node)
+
+    def command_listened(self):
+        return self._probe.listened()
+
+    def send_test_command(self, pose):
+        self.command_id = self._probe.send(pose)
+
+    def _answers(self):
+        """The parsed statuses of the test command, in order (unparsable ones skipped)."""
+        return self._probe.answers(self.command_id)
+
+    def final_status(self):
+        """The parsed settled/rejected status of the test command, or None."""
+        return self._probe.final_status(self.command_id)
+
+    def status_problems(self):
+        if not self.command_listened():
+            return [f'{names.TOPIC_POSE_COMMAND}: nobody subscribes to pose commands']
+        status = self.final_status()
+        if status is None:
+            answered = bool(self._answers())
+            return [
+                f'{names.TOPIC_PLATFORM_STATUS}: the test command {self.command_id} was '
+                + ('never settled or rejected' if answered else 'not answered')
+            ]
+        if status.state == names.STATE_REJECTED:
+            return [
+                f'{names.TOPIC_PLATFORM_STATUS}: the test command was rejected: {status.reason}'
+            ]
+        return []
+
+    # -------------------------------------------------------------------- verdicts
+
+    def qos_problems(self):
+        """Publishers of the sensor topics with another type or an incompatible QoS."""
+        from rclpy.qos import QoSCompatibility, qos_check_compatible
+
+        problems = []
+        for topic in SENSOR_TOPICS:
+            expected_type = names.TOPIC_TYPES[topic]
+            for info in self.node.get_publishers_info_by_topic(topic):
+                who = f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+                if info.topic_type != expected_type:
+                    problems.append(
+                        f'{topic}: {who} publishes {info.topic_type}, not {expected_type}'
+                    )
+                    continue
+                compatibility, reason = qos_check_compatible(info.qos_profile, qos.TOPIC_QOS[topic])
+                if compatibility == QoSCompatibility.ERROR:
+                    problems.append(f'{topic}: QoS of {who} is incompatible: {reason}')
+        return problems
+
+    def problems(self):
+        return self.qos_problems() + check_topics(self.received, self.limits)
+
+    def summary_lines(self):
+        lines = []
+        for topic, received in self.received.items():
+            summary = topic_summary(received)
+            noise = ', '.join(f'{v:.3g}' for v in summary['noise_std']) or '-'
+            lines.append(
+                f'  {topic}: {summary["count"]} messages, {summary["rate_hz"]:.1f} Hz, '
+                f'delay {summary["delay_s"] * 1e3:.2f} ms, noise std [{noise}]'
+            )
+        return lines
+
+
+def parse_arguments(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='gsp_check_interfaces', description=__doc__.split('\n')[0]
+    )
+    parser.add_argument('--duration', type=float, default=5.0, help='listening time, s (5)')
+    parser.add_argument(
+        '--send-test-command',
+        action='store_true',
+        help='command the home pose (the platform moves) and expect a status answer',
+    )
+    parser.add_argument('--command-timeout', type=float, default=10.0, help='s (10)')
+    parser.add_argument(
+        '--min-rate', type=float, default=Limits().min_rate_hz, help='least rate of each topic, Hz'
+    )
+    args, ros_args = parser.parse_known_args(argv)
+    if not args.duration > 0 or not args.command_timeout > 0 or not args.min_rate > 0:
+        parser.error('--duration, --command-timeout and --min-rate must be > 0')
+    return args, ros_args
+
+
+def run_check(node, executor, args):
+    """Listen, optionally command; returns ``(problems, summary lines)``."""
+    import time
+
+    checker = InterfaceChecker(node, Limits(min_rate_hz=args.min_rate))
+    if args.send_test_command:
+        checker.prepare_test_command()
+    deadline = time.monotonic() + args.duration
+    spin_until(executor, lambda: time.monotonic() >= deadline, args.duration + 1.0)
+    checker.recording = False
+    problems = checker.problems()
+    if args.send_test_command:
+        from gsp_kinematics.kinematics import home_pose
+
+        spin_until(executor, checker.command_listened, args.command_timeout)
+        if checker.command_listened():
+            checker.send_test_command(home_pose())
+            spin_until(executor, lambda: checker.final_status() is not None, args.command_timeout)
+        problems += checker.status_problems()
+    return problems, checker.summary_lines()
+
+
+def main(argv=None):
+    """Console script ``gsp_check_interfaces``: 0 if the interfaces conform, else 1."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    args, ros_args = parse_arguments(sys.argv[1:] if argv is None else argv)
+    rclpy.init(args=['gsp_check_interfaces', *ros_args])
+    node = rclpy.create_node(NODE_NAME)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        problems, lines = run_check(node, executor, args)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 130
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    print(f'gsp_check_interfaces: listened {args.duration:g} s')
+    print('\n'.join(lines))
+    for problem in problems:
+        print(f'PROBLEM: {problem}')
+    print('conforms' if not problems else f'{len(problems)} problem(s)')
+    return 1 if problems else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
