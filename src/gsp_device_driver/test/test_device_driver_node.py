@@ -221,12 +221,29 @@ def test_diagnostics_say_whether_the_sim_device_follows_a_live_true_pose(harness
         ),
         ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
         ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),
+        ([Parameter('inclinometer_response_time', value=-0.1)], 'inclinometer_response_time'),
         ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'nonexistent'),
     ],
 )
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
     with pytest.raises(ConfigurationError, match=words):
         DeviceDriverNode(context=ros_context, parameter_overrides=overrides)
+
+
+def test_the_sensor_dynamics_parameters_reach_the_sim_backend(ros_context):
+    driver = DeviceDriverNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter('inclinometer_response_time', value=0.3),
+            Parameter('lvdt_noise_correlation_time', value=0.001),
+        ],
+    )
+    try:
+        described = driver._backend.describe()
+    finally:
+        driver.destroy_node()
+    assert 'inclinometer response 0.3 s, noise correlation 0 s' in described
+    assert 'lvdt response 0 s, noise correlation 0.001 s' in described
 
 
 def test_the_serial_backend_publishes_every_reading_of_the_emulated_device(ros_context, tmp_path):

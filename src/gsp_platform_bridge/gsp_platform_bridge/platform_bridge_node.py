@@ -21,7 +21,7 @@ from gsp_kinematics.kinematics import (
     home_pose,
     inverse_kinematics,
 )
-from gsp_kinematics.motion import REALISTIC_MAX_SPEED, MotionLimits
+from gsp_kinematics.travel.motion import REALISTIC_MAX_SPEED, MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (

@@ -17,9 +17,9 @@ from gsp_kinematics.kinematics import (
     pose_from_leg_readings,
     sample_valid_postures,
 )
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.route import plan_route
 from gsp_kinematics.selection import best_addition, posture_information, select_postures
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.travel.route import plan_route
 
 #: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
 DEFAULT_FREE = ('extended',)
@@ -101,8 +101,8 @@ def route_start(nominal, leg_readings):
 
 
 def posture_route(settings, poses, start_pose):
-    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from ``start_pose``
-    (:func:`route_start`), with the run's nominal geometry and leg limits."""
+    """The route (:func:`gsp_kinematics.travel.route.plan_route`) through ``poses`` from
+    ``start_pose`` (:func:`route_start`), with the run's nominal geometry and leg limits."""
     return plan_route(settings.nominal, start_pose, poses, settings.motion_limits)
 
 
