@@ -1,8 +1,8 @@
 """The course of one calibration run, as the calibrator node drives it (no rclpy).
 
 :class:`CalibrationRun` opens the run (:func:`.session.open_session`), starts its recording,
-selects the postures (or keeps a resumed run's), waits for the system, orders a new run's
-postures from the platform's current posture, collects, then identifies
+selects the postures (or keeps a resumed run's), orders a new run's postures from the
+platform's current posture, waits for the system, collects, then identifies
 (:func:`.identify.finish_run`), publishes and applies the result. What it needs from the node is
 :class:`.host.RunHost`; the postures themselves are commanded by the node, each at once from the
 end of the previous one, and this coroutine only reports them as they end (``host.finals``).
@@ -131,6 +131,7 @@ class CalibrationRun:
         node.start_collection(session, self.collection)
         try:
             await self._begin(part)
+            await self._wait_for_system()
             await self._collect()
         except (RunFailed, RunWriteError) as error:
             self.save_state(run_state.PHASE_FAILED, str(error))
@@ -150,8 +151,8 @@ class CalibrationRun:
             self.log.error(f'{run_state.STATE_FILE} not written: {error}')
 
     async def _begin(self, part):
-        """Select the postures of a new run (a resumed one keeps its own), wait for the system,
-        order a new run's postures from where the platform is; write state.json."""
+        """Select the postures of a new run (a resumed one keeps its own) and order them from
+        where the platform is; write state.json."""
         settings, session, count = self.settings, self.session, self.settings.posture_count
         self.node.progress(
             0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
@@ -167,9 +168,11 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = selection.poses
-        # The route starts from the leg lengths heard meanwhile.
-        await self._wait_for_system()
         if poses is not None and settings.posture_order == 'route':
+            # From the latest leg lengths (if none come, the system check fails the run next).
+            await self.node.wait_for(
+                lambda: self.collection.latest_leg_lengths() is not None, settings.topic_timeout
+            )
             start, reason = postures.route_start(
                 settings.nominal, self.collection.latest_leg_lengths()
             )
