@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_kinematics.device import device_readings
@@ -21,13 +22,17 @@ READINGS = device_readings(TRUE, POSE[None])[0]
 LEGS = inverse_kinematics(TRUE, POSE[None])[0]
 
 
-def arguments(duration=1.5, send_test_command=False):
+def arguments(duration=1.5, send_test_command=False, diagnostics_period=1.0):
     # The least rate is 1 Hz: these tests are of what the checker finds wrong, not of how fast a
     # loaded machine runs the nodes (a 100 Hz node measured below 50 Hz is a busy CI, not a bug).
     # The listening time is a fixed window (the checker's semantics, not a wait on an event):
     # long enough for in-process discovery and the 10 messages of the noise check, no longer.
     return argparse.Namespace(
-        duration=duration, send_test_command=send_test_command, command_timeout=10.0, min_rate=1.0
+        duration=duration,
+        send_test_command=send_test_command,
+        command_timeout=10.0,
+        min_rate=1.0,
+        diagnostics_period=diagnostics_period,
     )
 
 
@@ -92,16 +97,67 @@ def test_each_wrong_publisher_is_named(ros_context, fault, words):
 
 
 def test_the_suites_own_nodes_conform_and_answer_a_test_command(ros_context):
-    platform = PlatformSimNode(context=ros_context)
-    driver = DeviceDriverNode(context=ros_context)
+    # Reports every 0.2 s, so that the checker judges them within its 1.5 s.
+    fast = [Parameter('diagnostics_period', value=0.2)]
+    platform = PlatformSimNode(context=ros_context, parameter_overrides=fast)
+    driver = DeviceDriverNode(context=ros_context, parameter_overrides=fast)
     checker = rclpy.create_node('gsp_check_interfaces', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     for node in (platform, driver, checker):
         executor.add_node(node)
     try:
-        problems, lines = run_check(checker, executor, arguments(send_test_command=True))
+        problems, lines = run_check(
+            checker, executor, arguments(send_test_command=True, diagnostics_period=0.2)
+        )
     finally:
         executor.shutdown()
         for node in (checker, driver, platform):
             node.destroy_node()
     assert problems == [], '\n'.join(problems + lines)
+    # What /diagnostics said, one line per status: level, message, number of keys.
+    assert any(line.startswith('    device_driver: device: OK ') for line in lines), lines
+    assert any(line.startswith('    platform_sim: commands: OK ') for line in lines), lines
+
+
+def test_a_suite_node_without_diagnostics_and_a_status_at_error_are_problems(ros_context):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from gsp_msgs_py import qos
+    from gsp_msgs_py.diagnostics import health_to_status
+    from gsp_msgs_py.health import ERROR, Health
+
+    driver = WrongDriver(ros_context, fault=None)
+    silent = rclpy.create_node(names.NODE_DEVICE_DRIVER, context=ros_context)  # reports nothing
+    bridge = rclpy.create_node(names.NODE_PLATFORM_BRIDGE, context=ros_context)
+    publisher = bridge.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS_QOS)
+    broken = Health(ERROR, 'no /joint_states received from the controller', {'goal_active': 0})
+    bridge.create_timer(
+        0.1,
+        lambda: publisher.publish(
+            DiagnosticArray(status=[health_to_status(broken, 'platform_bridge: controller', 'c')])
+        ),
+    )
+    checker = rclpy.create_node('gsp_check_interfaces', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (driver.node, silent, bridge, checker):
+        executor.add_node(node)
+    try:
+        # The silent node is there from the start: seen for 1.5 s, over two periods of 0.5 s.
+        problems, lines = run_check(
+            checker, executor, arguments(duration=1.5, diagnostics_period=0.5)
+        )
+    finally:
+        executor.shutdown()
+        for node in (checker, bridge, silent, driver.node):
+            node.destroy_node()
+    assert len(problems) == 2, '\n'.join(problems + lines)
+    assert problems[0].startswith('/diagnostics: device_driver is running but published no status')
+    assert problems[1] == (
+        '/diagnostics: platform_bridge: controller is ERROR: no /joint_states received from the '
+        'controller'
+    )
+    expected = (
+        '    platform_bridge: controller: ERROR no /joint_states received from the controller '
+        '(1 keys)'
+    )
+    assert expected in lines, lines

@@ -117,3 +117,9 @@ def test_streams_are_published_only_by_their_sources(profiles):
     }
     for topic, nodes in sources.items():
         assert _holders(profiles, 'topics', 'publish', _relative(topic)) == nodes, topic
+
+
+def test_every_node_that_reports_its_health_may_publish_diagnostics(profiles):
+    publishers = _holders(profiles, 'topics', 'publish', _relative(names.TOPIC_DIAGNOSTICS))
+    with_profile = {node for _, node in profiles} & set(names.DIAGNOSED_NODES)
+    assert with_profile and with_profile <= publishers

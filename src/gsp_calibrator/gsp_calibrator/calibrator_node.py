@@ -55,9 +55,11 @@ from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
+from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
 from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
@@ -106,6 +108,11 @@ class CalibratorNode(Node):
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
+        # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
+        # run or not, and the latest progress published.
+        self._heard_ns = dict.fromkeys(protocol.SENSOR_TOPICS)
+        self._last_progress = None
+
         self._service_group = ReentrantCallbackGroup()
         self._data_group = ReentrantCallbackGroup()
         self.command_publisher, self._progress_pub, result_publisher = node_tools.create_publishers(
@@ -138,6 +145,11 @@ class CalibratorNode(Node):
                 Trigger, service, self._service(resume), callback_group=self._service_group
             )
 
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('calibration', names.PROGRESS_NAME, self._health)],
+        )
         # Posture selection takes seconds: start it now for the current parameters.
         self.selection_future(self._settings)
         self.get_logger().info(
@@ -163,6 +175,7 @@ class CalibratorNode(Node):
 
     def _sensor_callback(self, topic):
         def callback(msg, info):
+            self._heard_ns[topic] = time.monotonic_ns()
             if not self._sensors_active:  # no run: drop at once
                 return
             with self._lock:
@@ -293,16 +306,28 @@ class CalibratorNode(Node):
     def progress(self, index, phase, message='', residuals=None, warning=False, **extra):
         """Publish the run's progress at posture ``index`` (0 before the first)."""
         count = self._settings_count()
-        self._progress_pub.publish(
-            conversions.make_progress(
-                max(0, min(index, count)),
-                count,
-                phase,
-                residuals,
-                message,
-                level=DiagnosticStatus.WARN if warning else None,
-                extra={k: str(v) for k, v in extra.items()},
-            )
+        msg = conversions.make_progress(
+            max(0, min(index, count)),
+            count,
+            phase,
+            residuals,
+            message,
+            level=DiagnosticStatus.WARN if warning else None,
+            extra={k: str(v) for k, v in extra.items()},
+        )
+        self._progress_pub.publish(msg)
+        self._last_progress = conversions.parse_progress(msg)
+
+    def _health(self):
+        """The calibrator's health on /diagnostics (:func:`.run.health.calibrator_health`)."""
+        session = self._run.session if self._run is not None else None
+        return calibrator_health(
+            self._running,
+            self._last_progress,
+            session.run.path if session is not None else '',
+            dict(self._heard_ns),
+            time.monotonic_ns(),
+            self._settings.topic_timeout,
         )
 
     def selection_future(self, settings):

@@ -26,6 +26,7 @@ from gsp_kinematics.identification import (
 )
 from gsp_kinematics.motion import MotionLimits
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_msgs_py import node_tools
 from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
@@ -240,6 +241,7 @@ PARAMETERS = (
         constraints='a valid node name',
         check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
     ),
+    node_tools.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}

@@ -692,3 +692,69 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
     assert len(route_samples) == len(chosen_samples) == MOVING_POSTURES
     for errors in (route_errors, chosen_errors):
         assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.01
+
+
+def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path):
+    from gsp_calibrator.collection import protocol
+    from gsp_calibrator.run.health import topic_age_key
+    from gsp_msgs_py.diagnostics import DiagnosticsListener
+    from gsp_msgs_py.health import ERROR, OK, WARN
+
+    calibrator = CalibratorNode(
+        context=ros_context,
+        parameter_overrides=calibrator_parameters(
+            tmp_path / 'runs',
+            posture_count=4,
+            pool_size=20,
+            topic_timeout=0.5,
+            diagnostics_period=0.05,
+        ),
+    )
+    suite = Suite(ros_context, [calibrator])
+    listener = DiagnosticsListener(suite.client_node)
+    name = 'calibrator: calibration'
+
+    def health(predicate):
+        assert suite.wait_until(
+            lambda: name in listener.reports and predicate(listener.reports[name]), 30.0
+        ), listener.reports
+        return listener.reports[name]
+
+    publishers = {
+        topic: suite.client_node.create_publisher(JointState, topic, qos.TOPIC_QOS[topic])
+        for topic in protocol.SENSOR_TOPICS
+    }
+    streaming = threading.Event()
+
+    def publish():
+        if streaming.is_set():
+            for publisher in publishers.values():
+                publisher.publish(JointState())
+
+    suite.client_node.create_timer(0.02, publish)
+    try:
+        # Nothing heard yet: a run could not start.
+        report = health(lambda h: True)
+        assert report.level == WARN and 'silent for more than 0.5 s' in report.message
+        assert report.values['state'] == 'idle' and report.values['posture'] == '0 of 0'
+        assert all(report.values[topic_age_key(t)] == 'never' for t in protocol.SENSOR_TOPICS)
+        assert listener.hardware_ids[name] == names.PROGRESS_NAME
+
+        streaming.set()
+        report = health(lambda h: h.level == OK)
+        ages = [float(report.values[topic_age_key(t)]) for t in protocol.SENSOR_TOPICS]
+        assert max(ages) <= 0.5
+
+        streaming.clear()  # every sensor falls silent
+        report = health(lambda h: h.level == WARN)
+        assert all(topic in report.message for topic in protocol.SENSOR_TOPICS), report
+
+        # A run with no platform: it fails, and the status says so until the next run.
+        response = suite.wait(suite.call())
+        assert not response.success
+        report = health(lambda h: h.level == ERROR)
+        assert report.message.startswith('the last run failed: ') and report.values['run']
+        assert report.values['phase'] == names.PHASE_FAILED
+        assert report.values['state'] == 'idle'
+    finally:
+        suite.close()

@@ -24,6 +24,8 @@ from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
 from gsp_calibrator.run.directory import RunDirectory, Samples, write_samples
 from gsp_calibrator.run.response import parse_response
 from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py.diagnostics import DiagnosticsListener
+from gsp_msgs_py.health import OK, Health
 from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
 from gsp_msgs_py.node_tools import ConfigurationError
 
@@ -276,6 +278,7 @@ class NodeHarness:
         self.executor.add_node(self.replay)
         self.executor.add_node(self.node)
         self.commands = PoseCommandProbe(self.node)
+        self.diagnostics = DiagnosticsListener(self.node)
         self.received = {
             topic: []
             for topic in (
@@ -340,6 +343,7 @@ def test_node_replays_a_recorded_posture_like_the_live_suite(ros_context, tmp_pa
             Parameter('run', value=str(path)),
             Parameter('settle_time', value=0.02),
             Parameter('publish_rate', value=20.0),
+            Parameter('diagnostics_period', value=0.05),
         ],
     )
     try:
@@ -415,6 +419,15 @@ def test_node_replays_a_recorded_posture_like_the_live_suite(ros_context, tmp_pa
         ].successful
         near = harness.command(poses[1] + [0.01, 0, 0, 0, 0, 0])
         assert harness.final_states(near)[-1].settled
+
+        # /diagnostics counts them as platform_sim does: 5 commands, 3 settled, 2 refused.
+        reports = harness.diagnostics.reports
+        assert harness.spin_until(
+            lambda: reports.get('replay: commands', Health(OK, '')).values.get('settled') == '3'
+        ), reports
+        health = reports['replay: commands']
+        assert health.level == OK and health.values['refused'] == '2'
+        assert health.values['commands'] == '5' and REASON_NOT_RECORDED not in health.message
     finally:
         harness.close()
 

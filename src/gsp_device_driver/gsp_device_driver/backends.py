@@ -8,7 +8,8 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 
 Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
-``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, ``rng``, ``stamp_clock``
+``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, the ``<sensor>_response_time``
+and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.device.SENSORS``), ``rng``, ``stamp_clock``
 (the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
 ``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
@@ -19,20 +20,31 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.device import READING_NAMES, DeviceModelError, device_readings
+from gsp_kinematics.device import (
+    READING_NAMES,
+    SENSORS,
+    DeviceModelError,
+    device_readings,
+    per_reading,
+)
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
+from gsp_kinematics.sensor_dynamics import SensorDynamics
+from gsp_msgs_py.health import OK, WARN, Health
 
 from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
 from .serial_backend import SerialDeviceBackend
 
 
 class SimDeviceBackend(DeviceBackend):
-    """Simulated device: exact readings of the latest true pose + Gaussian noise.
+    """Simulated device: readings of the latest true pose through each sensor's dynamics, + noise.
 
     ``device_length`` D0 (m) and ``inclinometer_axes_angle`` gamma (rad) are the real device's;
     noise stds in rad (inclinometer: alpha and beta, encoder: phi) and m (LVDT: d_m).
     ``sensors``: the real device's ``SensorErrors`` (inclinometer and encoder offsets, LVDT gain
-    error; docs/sensor_errors.md); None: ideal sensors.
+    error; docs/sensor_errors.md); None: ideal sensors. ``response_times`` and
+    ``correlation_times``: ``(inclinometer, encoder, lvdt)`` in s, the first-order response and
+    the noise correlation time of each sensor (:mod:`gsp_kinematics.sensor_dynamics`); 0 (the
+    default): instant readings and white noise.
     """
 
     name = 'sim'
@@ -49,6 +61,8 @@ class SimDeviceBackend(DeviceBackend):
         lvdt_std=0.0,
         rng=None,
         sensors=None,
+        response_times=(0.0, 0.0, 0.0),
+        correlation_times=(0.0, 0.0, 0.0),
     ):
         device_length = float(device_length)
         gamma = float(inclinometer_axes_angle)
@@ -67,14 +81,27 @@ class SimDeviceBackend(DeviceBackend):
         )
         self._stds = np.zeros(4)
         self.update_noise(inclinometer_std, encoder_std, lvdt_std)
+        try:
+            self._dynamics = SensorDynamics(
+                per_reading(*response_times),
+                per_reading(*correlation_times),
+                len(READING_NAMES),
+                circular=[name == 'phi' for name in READING_NAMES],
+            )
+        except ValueError as error:
+            raise BackendError(str(error)) from None
         self._rng = rng if rng is not None else np.random.default_rng()
         self._pose = None
         self._exact = None  # cached noise-free readings of self._pose
+        # For health(): readings taken, true poses taken and refused; at the previous report.
+        self._counts = dict.fromkeys(('readings', 'true_poses', 'true_poses_refused'), 0)
+        self._reported = (dict(self._counts), None)  # counts and the latest reading's time
+        self._latest_s = None  # time (s) of the latest reading
 
     @classmethod
     def from_config(cls, true_geometry_file, rng=None, **config):
         """From the true geometry file (D0, gamma, sensor errors) and the node's
-        ``*_noise_std`` parameters."""
+        ``*_noise_std``, ``*_response_time`` and ``*_noise_correlation_time`` parameters."""
         geometry = load_geometry(true_geometry_file)
         return cls(
             geometry.device_length,
@@ -85,6 +112,10 @@ class SimDeviceBackend(DeviceBackend):
             ),
             rng=rng,
             sensors=geometry.sensors,
+            response_times=[config.get(f'{sensor}_response_time', 0.0) for sensor in SENSORS],
+            correlation_times=[
+                config.get(f'{sensor}_noise_correlation_time', 0.0) for sensor in SENSORS
+            ],
         )
 
     @property
@@ -102,12 +133,11 @@ class SimDeviceBackend(DeviceBackend):
 
     def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
         stds = self._stds.copy()
-        if inclinometer_std is not None:
-            stds[0:2] = check_std(inclinometer_std, 'inclinometer noise std')
-        if encoder_std is not None:
-            stds[2] = check_std(encoder_std, 'encoder noise std')
-        if lvdt_std is not None:
-            stds[3] = check_std(lvdt_std, 'lvdt noise std')
+        for (sensor, columns), std in zip(
+            SENSORS.items(), (inclinometer_std, encoder_std, lvdt_std), strict=True
+        ):
+            if std is not None:
+                stds[list(columns)] = check_std(std, f'{sensor} noise std')
         self._stds = stds
 
     def observe_true_pose(self, pose):
@@ -119,22 +149,65 @@ class SimDeviceBackend(DeviceBackend):
                 ideal = device_readings(self._device, pose[None])[0]
                 exact = self._device.sensors.device_readings(ideal)
             except DeviceModelError as error:
+                self._counts['true_poses_refused'] += 1
                 raise ValueError(
                     f'no device reading for true pose {pose.tolist()}: {error}'
                 ) from None
             self._exact, self._pose = exact, pose
+        self._counts['true_poses'] += 1
 
     def describe(self):
         inclinometer, encoder, _, lvdt = self._stds
-        return (
+        line = (
             f'noise std inclinometer {inclinometer:g} rad, encoder {encoder:g} rad, lvdt {lvdt:g} m'
+        )
+        if self._dynamics.is_white_and_instant:
+            return line
+        tau, tc = self._dynamics.response_time, self._dynamics.correlation_time
+        return (
+            line
+            + ', '
+            + ', '.join(
+                f'{sensor} response {tau[columns[0]]:g} s, noise correlation {tc[columns[0]]:g} s'
+                for sensor, columns in SENSORS.items()
+            )
         )
 
     def read(self, now_s):
         if self._exact is None:
             return None
-        values = self._exact + self._rng.normal(0.0, 1.0, size=4) * self._stds
+        values = self._dynamics.step(now_s, self._exact, self._stds, self._rng)
+        self._counts['readings'] += 1
+        if self._latest_s is None:  # the first reading opens the first window of the rate
+            self._reported[0]['readings'] = self._counts['readings']
+            self._reported = (self._reported[0], float(now_s))
+        self._latest_s = float(now_s)
         return DeviceSample(float(now_s), *(float(v) for v in values))
+
+    def health(self):
+        """OK while readings of fresh true poses flow. WARN before the first true pose, and when
+        no true pose came since the previous report (the readings repeat the last one: is
+        platform_sim running?). Keys: counts, reading rate, noise stds."""
+        (before, before_s), counts = self._reported, dict(self._counts)
+        self._reported = (counts, self._latest_s)
+        new = {key: counts[key] - before[key] for key in counts}
+        span_s = self._latest_s - before_s if before_s is not None else 0.0
+        rate = (new['readings'] / span_s) if span_s > 0 else 0.0
+        stds = self._stds
+        values = {
+            **counts,
+            'reading_rate_hz': f'{rate:.1f}',
+            'inclinometer_noise_std_rad': f'{stds[0]:.6g}',
+            'encoder_noise_std_rad': f'{stds[2]:.6g}',
+            'lvdt_noise_std_m': f'{stds[3]:.6g}',
+        }
+        if self._exact is None:
+            return Health(WARN, 'waiting for the first true pose', values)
+        if new['true_poses'] == 0:
+            return Health(
+                WARN, 'no true pose since the last report: readings of a stale pose', values
+            )
+        return Health(OK, f'simulating readings at {rate:.1f} Hz', values)
 
 
 _BACKENDS = {backend.name: backend for backend in (SimDeviceBackend, SerialDeviceBackend)}

@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 
+from gsp_msgs_py.health import WARN, Health
+
 
 class BackendError(ValueError):
     """A backend cannot be made or configured; the message says why."""
@@ -94,3 +96,13 @@ class DeviceBackend(abc.ABC):
     def close(self):
         """Release the device (files, ports). Idempotent. Default: nothing to release."""
         return None
+
+    @property
+    def hardware_id(self):
+        """The ``hardware_id`` of the backend's status on ``/diagnostics``. Default: its name."""
+        return self.name
+
+    def health(self):
+        """The device's :class:`~gsp_msgs_py.health.Health` since the previous call (the node
+        publishes it on ``/diagnostics``). Default: WARN, the backend reports nothing."""
+        return Health(WARN, f"the '{self.name}' device backend reports no health")

@@ -13,9 +13,11 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
+from gsp_kinematics.device import SENSORS
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.node_tools import ParameterSpec, not_blank
 
 from .backends import BackendError, backend_class, backend_names
@@ -30,6 +32,32 @@ NOISE_PARAMETERS = {
     'encoder_noise_std': 'encoder_std',
     'lvdt_noise_std': 'lvdt_std',
 }
+
+#: sim backend: each sensor's dynamics (docs/sensor_errors.md), s; 0 = instant / white.
+DYNAMICS_PARAMETERS = tuple(
+    f'{sensor}_{what}' for sensor in SENSORS for what in ('response_time', 'noise_correlation_time')
+)
+
+
+def _dynamics_spec(name):
+    sensor, what = name.split('_', 1)
+    description = (
+        f'sim backend: first-order time constant of the {sensor} reading after a change '
+        '(0: instant)'
+        if what == 'response_time'
+        else f'sim backend: correlation time of the {sensor} noise, a Gauss-Markov process whose '
+        f'stationary std is {sensor}_noise_std (0: white)'
+    )
+    return ParameterSpec(
+        name,
+        0.0,
+        description,
+        unit='s',
+        read_only=True,
+        float_range=(0.0, 60.0),
+        check=node_tools.at_least(0.0, 's'),
+    )
+
 
 PARAMETERS = (
     ParameterSpec(
@@ -60,7 +88,9 @@ PARAMETERS = (
     node_tools.noise_std_spec(
         'lvdt_noise_std', DEFAULT_SENSOR_NOISE.lvdt, 'Std of the Gaussian noise on d_m', 'm'
     ),
+    *(_dynamics_spec(name) for name in DYNAMICS_PARAMETERS),
     node_tools.frame_id_spec('Frame of the published readings, and required of true_pose'),
+    node_tools.diagnostics_period_spec(),
 )
 
 
@@ -105,7 +135,7 @@ class DeviceDriverNode(Node):
         try:
             self._backend = backend_type.from_config(
                 true_geometry_file=values['true_geometry_file'],
-                **{name: values[name] for name in NOISE_PARAMETERS},
+                **{name: values[name] for name in (*NOISE_PARAMETERS, *DYNAMICS_PARAMETERS)},
                 rng=np.random.default_rng([seed, RNG_STREAM]),
                 # A backend receiving at its own pace stamps on this clock when a line arrives.
                 stamp_clock=self._now_s,
@@ -125,6 +155,11 @@ class DeviceDriverNode(Node):
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
         self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('device', self._backend.hardware_id, self._backend.health)],
+        )
         self.get_logger().info(startup_line(values, seed, self._backend))
 
     def _now_s(self):

@@ -11,6 +11,7 @@ of the true geometry's device with Gaussian noise and streams them in the serial
 """
 
 import argparse
+import time
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -21,7 +22,7 @@ from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import message_checks, names, node_tools, qos
 
 from .backends import SimDeviceBackend
-from .device_driver_node import RNG_STREAM
+from .device_driver_node import DYNAMICS_PARAMETERS, RNG_STREAM
 from .fake_device import HELLO_PERIOD_S, FakeDevice
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS
 
@@ -46,6 +47,8 @@ def parse_arguments(argv=None):
     )
     add('--encoder-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.encoder, help='rad')
     add('--lvdt-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.lvdt, help='m')
+    for name in DYNAMICS_PARAMETERS:  # as device_driver's parameters (docs/sensor_errors.md)
+        add(f'--{name.replace("_", "-")}', type=float, default=0.0, help='s (0: instant / white)')
     add('--angle-unit', default='rad', choices=tuple(ANGLE_UNITS))
     add('--length-unit', default='m', choices=tuple(LENGTH_UNITS))
     add(
@@ -65,6 +68,9 @@ def parse_arguments(argv=None):
         parser.error('--rate must be > 0')
     if not args.hello_period >= 0:
         parser.error('--hello-period must be >= 0')
+    for name in DYNAMICS_PARAMETERS:
+        if not 0.0 <= getattr(args, name) < float('inf'):
+            parser.error(f'--{name.replace("_", "-")} must be finite and >= 0')
     for name in ('garbage_fraction', 'checksum_error_fraction'):
         if not 0.0 <= getattr(args, name) <= 1.0:
             parser.error(f'--{name.replace("_", "-")} must be in [0, 1]')
@@ -83,6 +89,7 @@ class FakeDeviceNode(Node):
                 inclinometer_noise_std=args.inclinometer_noise_std,
                 encoder_noise_std=args.encoder_noise_std,
                 lvdt_noise_std=args.lvdt_noise_std,
+                **{name: getattr(args, name) for name in DYNAMICS_PARAMETERS},
                 rng=np.random.default_rng([seed, RNG_STREAM]),
             )
         except ValueError as error:
@@ -108,8 +115,9 @@ class FakeDeviceNode(Node):
         self.get_logger().info(f'fake device on {args.port} at {args.rate:g} Hz, seed {seed}')
 
     def _readings(self):
-        """Called from the emulator's thread: the reading of the latest true pose, or None."""
-        sample = self._model.read(0.0)
+        """Called from the emulator's thread: the reading of the latest true pose, or None; the
+        sensor dynamics advance on the monotonic clock the emulator samples on."""
+        sample = self._model.read(time.monotonic())
         return None if sample is None else sample.readings()
 
     def _on_true_pose(self, msg):

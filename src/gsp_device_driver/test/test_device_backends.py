@@ -133,3 +133,45 @@ def test_the_start_up_line_reports_noise_only_for_a_backend_that_simulates_it(tm
     assert 'noise' not in line and 'urad/um' in line and str(tmp_path / 'absent') in line
     sim = SimDeviceBackend(0.5, 1.0, inclinometer_std=1e-5)
     assert 'noise std inclinometer 1e-05 rad' in startup_line(dict(values, backend='sim'), 0, sim)
+
+
+def test_default_dynamics_reproduce_the_white_instant_readings_of_a_seed():
+    # Before sensor dynamics the sim read exact + N(0, 1) x std, one draw of 4 per read.
+    sim = make_sim((STDS[0], STDS[2], STDS[3]), seed=11)
+    twin = np.random.default_rng(11)
+    exact = TRUE.sensors.device_readings(device_readings(TRUE, POSE[None])[0])
+    sim.observe_true_pose(POSE)
+    for k in range(20):
+        np.testing.assert_array_equal(
+            sim.read(k * 0.005).readings(), exact + twin.normal(0.0, 1.0, size=4) * STDS
+        )
+
+
+def test_sim_dynamics_come_from_the_node_parameters_per_sensor():
+    sim = SimDeviceBackend.from_config(
+        default_geometry_path('true'),
+        rng=np.random.default_rng(0),
+        inclinometer_response_time=0.3,
+        lvdt_response_time=0.01,
+        inclinometer_noise_std=0.0,
+        encoder_noise_std=0.0,
+        lvdt_noise_std=0.0,
+    )
+    sim.observe_true_pose(POSE)
+    before = sim.read(0.0).readings()
+    moved = POSE + np.array([0.01, 0.01, 0.01, 0.0, 0.0, 0.05])
+    sim.observe_true_pose(moved)
+    after = TRUE.sensors.device_readings(device_readings(TRUE, moved[None])[0])
+    reading = sim.read(0.3).readings()
+    # Inclinometer (tau 0.3 s) at 1 - 1/e of its step; encoder instant; LVDT (tau 0.01 s) there.
+    np.testing.assert_allclose(
+        reading[:2], before[:2] + (1 - math.exp(-1)) * (after[:2] - before[:2]), atol=1e-12
+    )  # rad
+    assert reading[2] == after[2]
+    assert reading[3] == pytest.approx(after[3], abs=1e-12)  # m
+    assert 'inclinometer response 0.3 s' in sim.describe()
+
+
+def test_negative_response_time_is_a_backend_error():
+    with pytest.raises(BackendError, match='response time must be finite and >= 0 s'):
+        SimDeviceBackend(1.0, 1.5, response_times=(-1.0, 0.0, 0.0))

@@ -11,6 +11,7 @@ from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py.health import ERROR, OK, WARN
 from gsp_msgs_py.node_tools import ConfigurationError
 
 TRUE = default_geometry('true')
@@ -186,6 +187,31 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
     assert 'read-only' in driver.set_parameters([Parameter('backend', value='replay')])[0].reason
 
 
+FAST_DIAGNOSTICS = [Parameter('diagnostics_period', value=0.05)]
+
+
+@pytest.mark.parametrize('harness', [FAST_DIAGNOSTICS], indirect=True)
+def test_diagnostics_say_whether_the_sim_device_follows_a_live_true_pose(harness):
+    name = 'device_driver: device'
+    health = harness.wait_health(name)
+    assert health.level == WARN and health.message == 'waiting for the first true pose'
+    assert harness.diagnostics.hardware_ids[name] == 'sim'
+
+    harness.published_stamps(conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE))
+    # (The first report after the first reading may hold that reading alone: no rate yet.)
+    health = harness.wait_health(
+        name, lambda h: h.level == OK and float(h.values['reading_rate_hz']) > 0
+    )
+    assert int(health.values['readings']) > 0
+    assert float(health.values['lvdt_noise_std_m']) == pytest.approx(1e-6, rel=1e-5)
+    assert float(health.values['encoder_noise_std_rad']) == pytest.approx(math.radians(0.001))
+
+    # platform_sim gone: the readings repeat the last pose, which the status says.
+    harness.true_pose_msg = None
+    health = harness.wait_health(name, lambda h: h.level == WARN)
+    assert 'no true pose since the last report' in health.message
+
+
 @pytest.mark.parametrize(
     'overrides, words',
     [
@@ -195,12 +221,29 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
         ),
         ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
         ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),
+        ([Parameter('inclinometer_response_time', value=-0.1)], 'inclinometer_response_time'),
         ([Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')], 'nonexistent'),
     ],
 )
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
     with pytest.raises(ConfigurationError, match=words):
         DeviceDriverNode(context=ros_context, parameter_overrides=overrides)
+
+
+def test_the_sensor_dynamics_parameters_reach_the_sim_backend(ros_context):
+    driver = DeviceDriverNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter('inclinometer_response_time', value=0.3),
+            Parameter('lvdt_noise_correlation_time', value=0.001),
+        ],
+    )
+    try:
+        described = driver._backend.describe()
+    finally:
+        driver.destroy_node()
+    assert 'inclinometer response 0.3 s, noise correlation 0 s' in described
+    assert 'lvdt response 0 s, noise correlation 0.001 s' in described
 
 
 def test_the_serial_backend_publishes_every_reading_of_the_emulated_device(ros_context, tmp_path):
@@ -213,6 +256,7 @@ def test_the_serial_backend_publishes_every_reading_of_the_emulated_device(ros_c
         Parameter('backend', value='serial'),
         Parameter('serial.port', value=str(link)),
         Parameter('serial.reconnect_interval', value=0.05),
+        *FAST_DIAGNOSTICS,
     ]
     harness = Harness(ros_context, overrides)
     try:
@@ -224,8 +268,30 @@ def test_the_serial_backend_publishes_every_reading_of_the_emulated_device(ros_c
         fake.silence(3600.0)
         backend = harness.driver._backend
         assert harness.spin_until(lambda: backend.counters['garbage'] == fake.count('garbage'))
+        # ... and on /diagnostics, where the port names the hardware.
+        name = 'device_driver: device'
+        garbage = str(fake.count('garbage'))
+        health = harness.wait_health(name, lambda h: h.values.get('dropped_garbage') == garbage)
+        assert health.level in (OK, WARN) and health.values['units'] == 'rad/m'
+        assert harness.diagnostics.hardware_ids[name] == str(link)
         result = harness.driver.set_parameters([Parameter('lvdt_noise_std', value=1e-5)])[0]
         assert not result.successful and 'no simulated noise' in result.reason
     finally:
         fake.close()
+        harness.close()
+
+
+def test_diagnostics_report_a_serial_port_that_cannot_be_opened(ros_context, tmp_path):
+    overrides = [
+        Parameter('backend', value='serial'),
+        Parameter('serial.port', value=str(tmp_path / 'absent')),
+        Parameter('serial.reconnect_interval', value=0.05),
+        *FAST_DIAGNOSTICS,
+    ]
+    harness = Harness(ros_context, overrides)
+    try:
+        health = harness.wait_health('device_driver: device')
+        assert health.level == ERROR and 'not open' in health.message
+        assert health.values['connects'] == '0' and health.values['lines'] == '0'
+    finally:
         harness.close()

@@ -292,3 +292,12 @@ def test_health_warns_while_readings_wait_for_a_hello():
         assert backend.read_available(0.0) == []
     finally:
         backend.close()
+
+
+def test_fake_device_takes_the_sensor_dynamics_options():
+    from gsp_device_driver.fake_device_node import parse_arguments
+
+    args, _ = parse_arguments(['--port', 'p', '--inclinometer-response-time', '0.3'])
+    assert args.inclinometer_response_time == 0.3 and args.lvdt_noise_correlation_time == 0.0
+    with pytest.raises(SystemExit):
+        parse_arguments(['--port', 'p', '--encoder-noise-correlation-time', '-1'])

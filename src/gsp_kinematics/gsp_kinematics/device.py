@@ -9,6 +9,16 @@ import numpy as np
 
 #: Reading columns, in this order everywhere.
 READING_NAMES = ('alpha', 'beta', 'phi', 'd_m')
+#: The device's sensors -> their columns of :data:`READING_NAMES`.
+SENSORS = {'inclinometer': (0, 1), 'encoder': (2,), 'lvdt': (3,)}
+
+
+def per_reading(inclinometer, encoder, lvdt):
+    """One value per sensor -> one per reading (4,), in :data:`READING_NAMES` order."""
+    values = np.zeros(len(READING_NAMES))
+    for columns, value in zip(SENSORS.values(), (inclinometer, encoder, lvdt), strict=True):
+        values[list(columns)] = value
+    return values
 
 
 class DeviceModelError(RuntimeError):

@@ -3,8 +3,9 @@
 A pure-Python layer over standard common_interfaces messages (like ``sensor_msgs_py``):
 ``names`` (topics, frames, joints), ``qos`` (profiles), ``conversions`` (messages <-> numpy
 arrays), ``checks`` (incoming poses), ``node_tools`` (parameter specs, declare/watch, main),
-``settle`` and ``pose_commands`` (the platform side of the command/status protocol) and
-``testing`` (pytest helpers). Submodules are imported on demand; importing this package is cheap.
+``settle`` and ``pose_commands`` (the platform side of the command/status protocol),
+``health`` and ``diagnostics`` (every node's health on ``/diagnostics``) and ``testing`` (pytest
+helpers). Submodules are imported on demand; importing this package is cheap.
 """
 
 __version__ = '0.1.0'

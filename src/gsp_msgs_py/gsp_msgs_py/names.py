@@ -35,6 +35,16 @@ FRAME_PLATFORM = 'gsp_platform'
 NODE_PLATFORM_SIM = 'platform_sim'
 NODE_DEVICE_DRIVER = 'device_driver'
 NODE_CALIBRATOR = 'calibrator'
+NODE_PLATFORM_BRIDGE = 'platform_bridge'
+NODE_REPLAY = 'replay'
+#: Nodes that report their health on /diagnostics (docs/nodes.md#diagnostics).
+DIAGNOSED_NODES = (
+    NODE_PLATFORM_SIM,
+    NODE_PLATFORM_BRIDGE,
+    NODE_DEVICE_DRIVER,
+    NODE_CALIBRATOR,
+    NODE_REPLAY,
+)
 
 # Platform topics.
 TOPIC_POSE_COMMAND = '/gsp/platform/pose_command'
@@ -53,6 +63,12 @@ SERVICE_CALIBRATE = '/gsp/calibrator/calibrate'
 SERVICE_RESUME = '/gsp/calibrator/resume'
 TOPIC_CALIBRATION_RESULT = '/gsp/calibrator/result'
 TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
+
+# Health of every node (the ROS convention that rqt_robot_monitor and Foxglove read): one
+# DiagnosticArray per period, each status named '<node name>: <component>'. Not a suite data topic
+# (not in TOPIC_TYPES: runs do not record it).
+TOPIC_DIAGNOSTICS = '/diagnostics'
+DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
 # Joint names carried by the JointState topics (values in JointState.position).
 LEG_JOINT_NAMES = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')

@@ -213,6 +213,20 @@ def settle_time_spec(what):
     )
 
 
+def diagnostics_period_spec():
+    """``diagnostics_period`` (s, read-only): how often the node publishes its health on
+    ``/diagnostics`` (:class:`gsp_msgs_py.diagnostics.DiagnosticsPublisher`)."""
+    return ParameterSpec(
+        'diagnostics_period',
+        1.0,
+        f'Period of the health reports on {names.TOPIC_DIAGNOSTICS}',
+        unit='s',
+        read_only=True,
+        float_range=(0.01, 60.0),
+        check=greater_than(0.0, 's'),
+    )
+
+
 def motion_limit_specs(speed, acceleration, read_only=False):
     """``max_leg_speed`` (m/s) and ``max_leg_acceleration`` (m/s^2) of the simulated legs, with
     these defaults; 0 removes a limit (:class:`gsp_kinematics.motion.MotionLimits`)."""

@@ -12,7 +12,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 
 from . import conversions, message_checks, names, qos
-from .settle import SettleTracker, superseded_reason
+from .settle import CommandStatistics, SettleTracker, superseded_reason
 
 WARN_THROTTLE_S = 1.0
 
@@ -42,6 +42,7 @@ class PoseCommandServer:
         self._move = move
         self._on_settled = on_settled
         self._tracker = SettleTracker()
+        self.statistics = CommandStatistics()  #: what became of the commands (/diagnostics)
         self._status_pub = node.create_publisher(
             DiagnosticStatus,
             names.TOPIC_PLATFORM_STATUS,
@@ -80,16 +81,23 @@ class PoseCommandServer:
         except (TypeError, ValueError) as error:
             reason = str(error)
         if reason:
+            self.statistics.refused(command_id, reason)
             self._reject(command_id, reason)
             return
         now_ns = self._now_ns()
         wait_s = (self.settle_time or 0.0) + (self._travel_s() if self._travel_s else 0.0)
         superseded = self._tracker.accept(command_id, now_ns, wait_s)
+        self.statistics.accepted(command_id, now_ns)
         if superseded is not None:
+            self.statistics.superseded(superseded, superseded_reason(command_id))
             self._reject(superseded, superseded_reason(command_id))
         self._publish_status(command_id, names.STATE_MOVING)
         if not self._reports:
             self._settle_or_wait(now_ns)
+
+    def health(self):
+        """The commands' :class:`~gsp_msgs_py.health.Health` (see :class:`CommandStatistics`)."""
+        return self.statistics.health()
 
     @property
     def moving(self):
@@ -98,7 +106,9 @@ class PoseCommandServer:
 
     def settled(self, command_id):
         """Report-mode: ``command_id`` (if still the moving one) has arrived: ``settled``."""
-        if self._tracker.moving == command_id and self._tracker.due(self._now_ns()) is not None:
+        now_ns = self._now_ns()
+        if self._tracker.moving == command_id and self._tracker.due(now_ns) is not None:
+            self.statistics.settled(command_id, now_ns)
             self._publish_status(command_id, names.STATE_SETTLED)
             if self._on_settled is not None:
                 self._on_settled(command_id)
@@ -108,6 +118,7 @@ class PoseCommandServer:
         command_id = self._tracker.moving
         if command_id is not None:
             self._tracker.forget()
+            self.statistics.abandoned(command_id, reason)
             self._reject(command_id, reason)
 
     def _settle_or_wait(self, now_ns):
@@ -115,6 +126,7 @@ class PoseCommandServer:
         settled = self._tracker.due(now_ns)
         if settled is not None:
             self._settle_timer.cancel()
+            self.statistics.settled(settled, now_ns)
             self._publish_status(settled, names.STATE_SETTLED)
             if self._on_settled is not None:
                 self._on_settled(settled)

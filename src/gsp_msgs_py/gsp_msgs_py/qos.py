@@ -64,6 +64,12 @@ PROGRESS_QOS = _keep_last(10, reliable=True)
 # RViz markers: latest state, latched so a late RViz still draws the platform.
 MARKER_QOS = _keep_last(1, reliable=True, latched=True)
 
+# /diagnostics as diagnostic_updater publishes it upstream (reliable, volatile, keep last), so
+# `ros2 topic echo /diagnostics`, rqt_robot_monitor and the aggregator match it. Upstream keeps
+# depth 1 on its publisher; 10 here, because one subscriber hears every node of the suite on this
+# one keyless topic and its reader history is shared by all of them.
+DIAGNOSTICS_QOS = _keep_last(10, reliable=True)
+
 TOPIC_QOS = {
     names.TOPIC_POSE_COMMAND: COMMAND_QOS,
     names.TOPIC_LEG_LENGTHS: SENSOR_QOS,

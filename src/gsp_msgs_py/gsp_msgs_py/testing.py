@@ -168,6 +168,9 @@ class NodeHarness:
         self.executor.add_node(self.node)
         if node_under_test.get_parameter('use_sim_time').value:
             drive_sim_clock(self.node)
+        from .diagnostics import DiagnosticsListener
+
+        self.diagnostics = DiagnosticsListener(self.node)  #: what /diagnostics said
 
     def subscribe(self, topic, callback):
         """Subscribe the test node to ``topic`` with its interface type and QoS."""
@@ -188,6 +191,17 @@ class NodeHarness:
     def spin_until(self, predicate, timeout=None):
         """Spin until ``predicate()`` holds; False if the timeout passes first."""
         return spin_until(self.executor, predicate, self.timeout if timeout is None else timeout)
+
+    def wait_health(self, name, predicate=lambda health: True):
+        """The latest ``Health`` of the status ``name`` on ``/diagnostics`` once
+        ``predicate(health)`` holds; AssertionError with what was heard if it does not in time."""
+        reports = self.diagnostics.reports
+
+        def holds():
+            return name in reports and predicate(reports[name])
+
+        assert self.spin_until(holds), f'/diagnostics: {name!r} not as expected; heard {reports}'
+        return reports[name]
 
     def spin_for(self, duration):
         """Spin for ``duration`` seconds (to let messages that must be ignored arrive)."""

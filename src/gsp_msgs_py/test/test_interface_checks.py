@@ -87,3 +87,26 @@ def test_a_missing_topic_and_a_low_rate_are_named():
     problems = '\n'.join(check_topics(topics))
     assert '/gsp/device/encoder: no message received' in problems
     assert '/gsp/device/lvdt: 20.0 Hz is below the 50 Hz needed' in problems
+
+
+def test_diagnostics_problems_name_a_silent_suite_node_and_a_status_at_error():
+    from gsp_msgs_py.health import ERROR, OK, WARN, Health
+    from gsp_msgs_py.interfaces.rules import check_diagnostics, diagnostics_summary
+
+    reports = {
+        'platform_sim: commands': Health(OK, 'no command yet', {'commands': '0'}),
+        'calibrator: calibration': Health(WARN, 'silent for more than 2 s: /gsp/device/lvdt'),
+        'platform_bridge: controller': Health(ERROR, 'stale /joint_states'),
+    }
+    # Seconds each node has been in the graph: the replay started too recently to be judged.
+    seen = {'platform_sim': 5, 'device_driver': 3.0, 'calibrator': 5, 'replay': 0.5, 'rviz2': 5}
+    problems = check_diagnostics(reports, seen, 2.0)
+    assert problems == [
+        '/diagnostics: device_driver is running but published no status in 3.0 s',
+        '/diagnostics: platform_bridge: controller is ERROR: stale /joint_states',
+    ]
+    lines = diagnostics_summary(reports, seen, 2.0)
+    assert '    platform_sim: commands: OK no command yet (1 keys)' in lines
+    assert any('calibrator: calibration: WARN silent' in line for line in lines)
+    assert '    replay: no status yet, started 0.5 s ago (not judged)' in lines
+    assert check_diagnostics({}, {'rviz2': 9, 'controller_sim': 9}, 2.0) == []

@@ -31,3 +31,40 @@ def test_a_new_command_supersedes_the_moving_one():
     assert tracker.due(400 * MS) == '2'
     assert tracker.accept('3', 500 * MS, 0.3) is None  # '2' has settled: nothing superseded
     assert superseded_reason('2') == 'superseded by command 2 before settling'
+
+
+def test_command_statistics_count_each_outcome_and_time_the_settles():
+    from gsp_msgs_py.health import ERROR, OK, WARN
+    from gsp_msgs_py.settle import CommandStatistics
+
+    stats = CommandStatistics()
+    assert stats.health().level == OK and stats.health().message == 'no command yet'
+    stats.accepted('1', 0)
+    stats.settled('1', 50 * MS)
+    stats.accepted('2', 100 * MS)
+    stats.superseded('2', superseded_reason('3'))
+    stats.accepted('3', 120 * MS)
+    stats.settled('3', 270 * MS)
+    health = stats.health()
+    assert health.level == OK, health  # a superseded command is not a fault of the platform
+    assert health.values['commands'] == '3' and health.values['accepted'] == '3'
+    assert health.values['settled'] == '2' and health.values['superseded'] == '1'
+    assert health.values['rejected'] == '1'
+    # Settle times: 50 ms and 150 ms, from the acceptance to the settled status.
+    assert abs(float(health.values['settle_time_last_s']) - 0.150) < 1e-4
+    assert abs(float(health.values['settle_time_mean_s']) - 0.100) < 1e-4
+    assert abs(float(health.values['settle_time_max_s']) - 0.150) < 1e-4
+
+    stats.refused('4', 'stroke limit of leg 3')
+    health = stats.health()
+    assert health.level == WARN and 'stroke limit of leg 3' in health.message
+    assert health.values['refused'] == '1' and health.values['rejected'] == '2'
+    assert health.values['last_rejection'] == '4: stroke limit of leg 3'
+
+    stats.accepted('5', 300 * MS)
+    assert stats.health().level == OK  # the latest command is moving
+    stats.abandoned('5', 'goal not reached in time')
+    health = stats.health()
+    assert health.level == ERROR and 'goal not reached in time' in health.message
+    assert health.values['abandoned'] == '1' and health.values['rejected'] == '3'
+    assert health.values['settled'] == '2'

@@ -8,6 +8,8 @@ the joint states, or when they are stale (none for ``state_timeout`` s). Times i
 
 import numpy as np
 
+from gsp_msgs_py.health import ERROR, OK, Health
+
 SETTLED = 'settled'
 REJECTED = 'rejected'
 
@@ -65,6 +67,21 @@ class GoalMonitor:
         if self.positions is None:
             return 'no complete /joint_states yet'
         return ''
+
+    def health(self, now_s):
+        """The controller's ``Health`` at ``now_s``: ERROR while :meth:`state_problem` says the
+        joint states cannot be trusted (commands are then rejected), else OK."""
+        age = '' if self.last_state_s is None else f'{now_s - self.last_state_s:.3f}'
+        values = {
+            'joint_states_age_s': age,
+            'state_timeout_s': f'{self.state_timeout:g}',
+            'missing_joints': ', '.join(self.missing),
+            'goal_active': str(self.active).lower(),
+        }
+        problem = self.state_problem(now_s)
+        if problem:
+            return Health(ERROR, problem, values)
+        return Health(OK, 'moving to a goal' if self.active else 'joint states fresh', values)
 
     # ------------------------------------------------------------------------- goals
 

@@ -22,6 +22,7 @@ from gsp_kinematics.kinematics import (
     inverse_kinematics,
 )
 from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
     GEOMETRY_PARAMETER_NAMES,
@@ -34,7 +35,7 @@ from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .goal_monitor import REJECTED, SETTLED, GoalMonitor, pose_path, waypoint_times
 
-NODE_NAME = 'platform_bridge'
+NODE_NAME = names.NODE_PLATFORM_BRIDGE
 CHECK_RATE_HZ = 50.0  #: deadline and staleness checks between joint states
 DEFAULT_MAX_CONDITION = 100.0  #: as platform_sim
 
@@ -110,6 +111,7 @@ PARAMETERS = (
         check=at_least(1.0),
     ),
     node_tools.frame_id_spec('Base frame: required of pose commands, and of leg_lengths'),
+    node_tools.diagnostics_period_spec(),
 )
 
 
@@ -152,6 +154,18 @@ class PlatformBridgeNode(Node):
         )
         self._commands = PoseCommandServer(self, self._frame_id, None, self._move)
         self.create_timer(1.0 / CHECK_RATE_HZ, self._check_goal)
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [
+                Component('commands', names.STATUS_HARDWARE_ID, self._commands.health),
+                Component(
+                    'controller',
+                    values['controller_name'],
+                    lambda: self._monitor.health(self._now_s()),
+                ),
+            ],
+        )
         self.get_logger().info(
             f'platform_bridge ready: goals on {self._trajectory_topic}, joint states on '
             f'{values["joint_states_topic"]}, joints {list(values["joint_names"])}'

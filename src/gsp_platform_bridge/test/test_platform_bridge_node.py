@@ -11,6 +11,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
 from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py.health import ERROR, OK, WARN
 from gsp_platform_bridge.platform_bridge_node import PlatformBridgeNode
 from gsp_platform_sim.controller_sim_node import ControllerSimNode
 
@@ -157,3 +158,36 @@ def test_the_bridge_takes_a_calibrated_geometry_like_platform_sim(harness):
     np.testing.assert_allclose(
         conversions.msg_to_leg_lengths(harness.legs[-1]), target, rtol=0, atol=1e-5
     )
+
+
+FAST_DIAGNOSTICS = Parameter('diagnostics_period', value=0.05)
+
+
+@pytest.mark.parametrize('harness', [[FAST_DIAGNOSTICS]], indirect=True)
+def test_diagnostics_count_commands_and_report_the_controller(harness):
+    controller = harness.wait_health('platform_bridge: controller', lambda h: h.level == OK)
+    assert float(controller.values['joint_states_age_s']) < 5.0
+    assert harness.diagnostics.hardware_ids['platform_bridge: controller'] == (
+        'joint_trajectory_controller'
+    )
+    assert harness.command(POSE).settled
+    commands = harness.wait_health(
+        'platform_bridge: commands', lambda h: h.values['settled'] == '1'
+    )
+    assert commands.level == OK and float(commands.values['settle_time_last_s']) > 0
+    rejected = harness.command(home_pose() + np.array([0, 0, 5.0, 0, 0, 0]))
+    assert rejected.rejected
+    commands = harness.wait_health(
+        'platform_bridge: commands', lambda h: h.values['refused'] == '1'
+    )
+    assert commands.level == WARN and 'unreachable' in commands.values['last_rejection']
+    assert commands.values['rejected'] == '1' and commands.values['commands'] == '2'
+
+
+@pytest.mark.parametrize(
+    'harness', [[Parameter('controller_sim.absent', value=True), FAST_DIAGNOSTICS]], indirect=True
+)
+def test_diagnostics_report_a_missing_controller_as_an_error(harness):
+    controller = harness.wait_health('platform_bridge: controller')
+    assert controller.level == ERROR and 'no /joint_states' in controller.message
+    assert controller.values['joint_states_age_s'] == ''

@@ -20,6 +20,7 @@ from gsp_kinematics.geometry import (
 from gsp_kinematics.motion import MotionLimits
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
     GEOMETRY_PARAMETER_NAMES,
@@ -72,6 +73,7 @@ PARAMETERS = (
     node_tools.frame_id_spec(
         'Base frame: of the published messages, and required of pose commands'
     ),
+    node_tools.diagnostics_period_spec(),
 )
 
 
@@ -123,6 +125,11 @@ class PlatformSimNode(Node):
             values['settle_time'],
             self._move,
             travel_s=lambda: self._travel_s,
+        )
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('commands', names.STATUS_HARDWARE_ID, self._commands.health)],
         )
         self._state_timer = self.create_timer(1.0 / values['publish_rate'], self._publish_state)
         if values['publish_markers']:

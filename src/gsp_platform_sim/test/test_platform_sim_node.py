@@ -16,6 +16,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
 from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py.health import OK, WARN
 from gsp_msgs_py.node_tools import ConfigurationError
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
@@ -142,6 +143,31 @@ def test_leg_lengths_are_stamped_exactly_at_the_timer_ticks(harness):
 def test_zero_settle_time_settles_at_once(harness):
     command_id = harness.command(POSE)
     assert [s.state for s in harness.wait_final(command_id)] == ['moving', 'settled']
+
+
+FAST_DIAGNOSTICS = [Parameter('diagnostics_period', value=0.05)]
+
+
+@pytest.mark.parametrize('harness', [FAST_DIAGNOSTICS], indirect=True)
+def test_diagnostics_count_the_commands_their_rejections_and_settle_times(harness):
+    name = 'platform_sim: commands'
+    health = harness.wait_health(name)
+    assert health.level == OK and health.values['commands'] == '0'
+    assert harness.diagnostics.hardware_ids[name] == names.STATUS_HARDWARE_ID
+
+    harness.wait_final(harness.command(POSE))
+    health = harness.wait_health(name, lambda h: h.values['settled'] == '1')
+    assert health.level == OK and health.values['accepted'] == '1'
+    # From the acceptance to the settled status: settle_time (0.05 s) and a timer's delay.
+    assert 0.05 <= float(health.values['settle_time_last_s']) < 5.0
+
+    far = POSE + np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    rejected = harness.command(far)
+    assert harness.wait_final(rejected)[-1].rejected
+    health = harness.wait_health(name, lambda h: h.values['refused'] == '1')
+    assert health.level == WARN and rejected in health.message
+    assert health.values['rejected'] == '1' and health.values['commands'] == '2'
+    assert health.values['last_rejection'].startswith(f'{rejected}: ')
 
 
 def _bad_messages():

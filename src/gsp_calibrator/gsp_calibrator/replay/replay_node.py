@@ -24,10 +24,11 @@ from rclpy.node import Node
 
 from gsp_calibrator.replay.recorded_run import RecordedRun, ReplayError
 from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.node_tools import ParameterSpec, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
-NODE_NAME = 'replay'
+NODE_NAME = names.NODE_REPLAY
 REASON_NOT_RECORDED = 'not in the recording'
 #: Periods of silence after a ``settled`` status before the posture's stream restarts.
 RESTART_PERIODS = 2
@@ -56,6 +57,7 @@ PARAMETERS = (
     node_tools.frame_id_spec(
         'Base frame: of the published messages, and required of pose commands'
     ),
+    node_tools.diagnostics_period_spec(),
 )
 
 
@@ -86,6 +88,11 @@ class ReplayNode(Node):
             self, self._frame_id, values['settle_time'], self._move, on_settled=self._restart_stream
         )
         self.create_timer(1.0 / values['publish_rate'], self._publish_sample)
+        self._diagnostics = DiagnosticsPublisher(
+            self,
+            values['diagnostics_period'],
+            [Component('commands', names.STATUS_HARDWARE_ID, self._commands.health)],
+        )
 
         run = self._run
         samples = sum(len(p.stream) for p in run.postures)

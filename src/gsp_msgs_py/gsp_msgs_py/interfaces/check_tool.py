@@ -5,17 +5,29 @@
 Listens to the sensor topics for ``--duration`` seconds (the platform should stand still) and
 checks rates, joint names, units, non-finite values, the static noise level, the delay from stamp
 to receipt, that the device's three readings of one instant share one stamp, and that every
-publisher's type and QoS match the suite's. With ``--send-test-command`` it also commands the
-home pose (the platform MOVES) and expects ``/gsp/platform/status`` to answer it. Prints each
-problem; exits 0 when there is none, 1 otherwise (2 on bad arguments).
+publisher's type and QoS match the suite's. It also listens to ``/diagnostics``: it prints each
+status heard (level, message, number of keys), and counts as a problem a suite node in the
+graph for two ``--diagnostics-period`` without a status, and a status at ERROR.
+With ``--send-test-command`` it also commands the home pose (the platform MOVES) and expects
+``/gsp/platform/status`` to answer it. Prints each problem; exits 0 when there is none, 1
+otherwise (2 on bad arguments).
 """
 
 import argparse
 import sys
 
 from .. import conversions, names, qos
+from ..diagnostics import DiagnosticsListener
 from ..node_tools import spin_until
-from .rules import SENSOR_TOPICS, Limits, Received, check_topics, topic_summary
+from .rules import (
+    SENSOR_TOPICS,
+    Limits,
+    Received,
+    check_diagnostics,
+    check_topics,
+    diagnostics_summary,
+    topic_summary,
+)
 
 NODE_NAME = 'gsp_check_interfaces'
 
@@ -69,6 +81,30 @@ class PoseCommandProbe:
         """The first settled or rejected status of ``command_id``, or None."""
         final = [s for s in self.answers(command_id) if s.state != names.STATE_MOVING]
         return final[0] if final else None
+
+
+class NodesSeen:
+    """When each node name was first seen in ``node``'s graph (monotonic s)."""
+
+    LOOK_PERIOD_S = 0.1  #: graph queries are not free: at most one per period
+
+    def __init__(self, node):
+        self.node = node
+        self.first_s = {}
+        self._next_look_s = 0.0
+
+    def look(self, now_s):
+        if now_s >= self._next_look_s:
+            self._next_look_s = now_s + self.LOOK_PERIOD_S
+            for name, _ in self.node.get_node_names_and_namespaces():
+                self.first_s.setdefault(name, now_s)
+
+    def seen_for(self, now_s):
+        """``{name: s since first seen}`` of the nodes in the graph now."""
+        self._next_look_s = 0.0
+        self.look(now_s)
+        present = {name for name, _ in self.node.get_node_names_and_namespaces()}
+        return {name: now_s - self.first_s[name] for name in present}
 
 
 class InterfaceChecker:
@@ -189,11 +225,20 @@ def parse_arguments(argv=None):
     )
     parser.add_argument('--command-timeout', type=float, default=10.0, help='s (10)')
     parser.add_argument(
+        '--diagnostics-period',
+        type=float,
+        default=1.0,
+        help="the nodes' diagnostics_period, s (1): a suite node seen for two without a status "
+        'on /diagnostics is a problem',
+    )
+    parser.add_argument(
         '--min-rate', type=float, default=Limits().min_rate_hz, help='least rate of each topic, Hz'
     )
     args, ros_args = parser.parse_known_args(argv)
-    if not args.duration > 0 or not args.command_timeout > 0 or not args.min_rate > 0:
-        parser.error('--duration, --command-timeout and --min-rate must be > 0')
+    if not min(args.duration, args.command_timeout, args.min_rate, args.diagnostics_period) > 0:
+        parser.error(
+            '--duration, --command-timeout, --min-rate and --diagnostics-period must be > 0'
+        )
     return args, ros_args
 
 
@@ -202,12 +247,23 @@ def run_check(node, executor, args):
     import time
 
     checker = InterfaceChecker(node, Limits(min_rate_hz=args.min_rate))
+    diagnostics = DiagnosticsListener(node)
     if args.send_test_command:
         checker.prepare_test_command()
+    nodes = NodesSeen(node)
     deadline = time.monotonic() + args.duration
-    spin_until(executor, lambda: time.monotonic() >= deadline, args.duration + 1.0)
+
+    def listened():
+        now_s = time.monotonic()
+        nodes.look(now_s)
+        return now_s >= deadline
+
+    spin_until(executor, listened, args.duration + 1.0)
     checker.recording = False
     problems = checker.problems()
+    seen_for_s, grace_s = nodes.seen_for(time.monotonic()), 2.0 * args.diagnostics_period
+    problems += check_diagnostics(diagnostics.reports, seen_for_s, grace_s)
+    problems += [f'{names.TOPIC_DIAGNOSTICS}: {why}' for why in diagnostics.malformed[:1]]
     if args.send_test_command:
         from gsp_kinematics.kinematics import home_pose
 
@@ -216,7 +272,9 @@ def run_check(node, executor, args):
             checker.send_test_command(home_pose())
             spin_until(executor, lambda: checker.final_status() is not None, args.command_timeout)
         problems += checker.status_problems()
-    return problems, checker.summary_lines()
+    lines = checker.summary_lines() + [f'  {names.TOPIC_DIAGNOSTICS}:']
+    heard = diagnostics_summary(diagnostics.reports, seen_for_s, grace_s)
+    return problems, lines + (heard or ['    (none heard)'])
 
 
 def main(argv=None):

@@ -3,7 +3,8 @@
 ``gsp_check_interfaces`` records what a driver publishes and hands it here: each JointState
 topic as a list of :class:`Received` (receive time and stamp in s of one clock, names, values).
 :func:`check_topics` returns the problems, each a sentence naming the topic and what is wrong,
-and :func:`topic_summary` the figures shown for each topic. Rules: docs/hardware.md.
+and :func:`topic_summary` the figures shown for each topic. Rules: docs/hardware.md. The
+statuses heard on ``/diagnostics`` are judged by :func:`check_diagnostics`.
 """
 
 import dataclasses
@@ -12,6 +13,8 @@ import math
 import numpy as np
 
 from .. import names
+from ..diagnostics import node_of_status
+from ..health import ERROR, LEVEL_NAMES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,3 +173,44 @@ def check_topics(received_by_topic, limits=Limits()):
                 f'{names.TOPIC_LVDT}'
             )
     return problems
+
+
+def check_diagnostics(reports, seen_for_s, grace_s):
+    """The problems of the latest status of each name heard on ``/diagnostics``
+    (``{name: Health}``): a node of :data:`names.DIAGNOSED_NODES` in the graph for at least
+    ``grace_s`` (``seen_for_s``: ``{node name: s}``) without a status, and every status at ERROR
+    or STALE."""
+    topic = names.TOPIC_DIAGNOSTICS
+    reported = {node_of_status(name) for name in reports}
+    problems = [
+        f'{topic}: {node} is running but published no status in {seen_for_s[node]:.1f} s'
+        for node in _silent_nodes(reported, seen_for_s)
+        if seen_for_s[node] >= grace_s
+    ]
+    problems += [
+        f'{topic}: {name} is {LEVEL_NAMES[health.level]}: {health.message}'
+        for name, health in sorted(reports.items())
+        if health.level >= ERROR
+    ]
+    return problems
+
+
+def _silent_nodes(reported, seen_for_s):
+    return sorted(n for n in set(seen_for_s) & set(names.DIAGNOSED_NODES) if n not in reported)
+
+
+def diagnostics_summary(reports, seen_for_s=None, grace_s=0.0):
+    """One line per status heard: ``name: LEVEL message (n keys)``; then one per suite node
+    without a status that appeared too recently (less than ``grace_s``) to be judged."""
+    lines = [
+        f'    {name}: {LEVEL_NAMES[health.level]} {health.message} ({len(health.values)} keys)'
+        for name, health in sorted(reports.items())
+    ]
+    seen_for_s = seen_for_s or {}
+    reported = {node_of_status(name) for name in reports}
+    lines += [
+        f'    {node}: no status yet, started {seen_for_s[node]:.1f} s ago (not judged)'
+        for node in _silent_nodes(reported, seen_for_s)
+        if seen_for_s[node] < grace_s
+    ]
+    return lines

@@ -1,0 +1,134 @@
+"""Noise of the averaged row from correlated samples, and the settle test, on known answers."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_kinematics.noise_estimate import (
+    NoiseEstimateError,
+    false_unsettled_rate,
+    noise_of_mean,
+    settled,
+    trend_std_factor,
+)
+
+DT = 0.005  # s, 200 Hz
+
+
+def ar1_windows(rng, postures, n, phi, sigma):
+    """(postures, n, len(sigma)) stationary AR(1) windows of stationary std ``sigma``."""
+    sigma = np.asarray(sigma, dtype=float)
+    z = np.empty((postures, n, sigma.size))
+    z[:, 0] = rng.normal(size=(postures, sigma.size))
+    for t in range(1, n):
+        z[:, t] = phi * z[:, t - 1] + math.sqrt(1 - phi**2) * rng.normal(
+            size=(postures, sigma.size)
+        )
+    return z * sigma
+
+
+def exact_std_of_mean(n, phi, sigma):
+    """Std of the mean of n stationary AR(1) samples: (sigma^2/n) [1 + 2 sum (1 - k/n) phi^k]."""
+    k = np.arange(1, n)
+    return sigma * math.sqrt((1 + 2 * np.sum((1 - k / n) * phi**k)) / n)
+
+
+def test_white_noise_gives_n_eff_n_and_s_over_sqrt_n():
+    postures, n, sigma = 2000, 20, np.array([1e-6, 1.7e-5, 3e-4])
+    samples = np.random.default_rng(1).normal(size=(postures, n, 3)) * sigma + [0.1, 2, -3]
+    estimate = noise_of_mean(samples)
+    # The variance of the mean pools ~postures x (n - 1) squares: relative standard error of
+    # its root 1/sqrt(2 postures (n - 1)), widened 3x for the summed lags; 5 of those.
+    tolerance = 5 * 3 / math.sqrt(2 * postures * (n - 1))
+    np.testing.assert_allclose(estimate.std_of_mean, sigma / math.sqrt(n), rtol=tolerance)
+    np.testing.assert_allclose(estimate.sample_std, sigma, rtol=tolerance)
+    np.testing.assert_allclose(estimate.n_eff, n, rtol=2 * tolerance)
+    assert not estimate.window_too_short.any()
+
+
+@pytest.mark.parametrize('phi', [0.5, 0.8, 0.9])
+def test_ar1_std_of_mean_matches_the_exact_finite_n_formula(phi):
+    postures, n, sigma = 2000, 100, np.array([1e-6, 2e-5])
+    samples = ar1_windows(np.random.default_rng(2), postures, n, phi, sigma)
+    estimate = noise_of_mean(samples)
+    exact = np.array([exact_std_of_mean(n, phi, s) for s in sigma])
+    # The std of the mean rests on about postures x n_eff independent values: relative
+    # standard error of its root ~ 1/sqrt(2 postures n_eff), widened 3x for the summed lags.
+    n_eff = n * (1 - phi) / (1 + phi)
+    tolerance = 5 * 3 / math.sqrt(2 * postures * n_eff)
+    np.testing.assert_allclose(estimate.std_of_mean, exact, rtol=tolerance)
+    np.testing.assert_allclose(estimate.sample_std, sigma, rtol=tolerance)
+    # Asymptotically n_eff = n (1 - phi) / (1 + phi); at finite n slightly more.
+    exact_n_eff = (sigma / exact) ** 2
+    np.testing.assert_allclose(estimate.n_eff, exact_n_eff, rtol=2 * tolerance)
+    # And it is what the windows' means actually scatter by (their true level is 0).
+    observed = np.sqrt(np.mean(samples.mean(axis=1) ** 2, axis=0))
+    np.testing.assert_allclose(estimate.std_of_mean, observed, rtol=2 * tolerance)
+    # The white formula s / sqrt(n) would be far too optimistic.
+    assert np.all(samples.std(axis=1, ddof=1).mean(axis=0) / math.sqrt(n) < 0.6 * exact)
+
+
+def test_short_white_windows_are_not_flagged():
+    samples = np.random.default_rng(4).normal(size=(2000, 10, 2))
+    estimate = noise_of_mean(samples)
+    assert not estimate.window_too_short.any()
+    np.testing.assert_allclose(estimate.n_eff, 10, rtol=0.15)
+
+
+def test_windows_short_against_the_correlation_time_are_flagged():
+    samples = ar1_windows(np.random.default_rng(3), 500, 10, 0.99, np.array([1.0]))
+    assert noise_of_mean(samples).window_too_short.all()
+
+
+@pytest.mark.parametrize(
+    'shape, match',
+    [((5, 10), 'postures, samples, channels'), ((3, 1, 2), 'at least 2 samples')],
+)
+def test_bad_windows_are_refused(shape, match):
+    with pytest.raises(NoiseEstimateError, match=match):
+        noise_of_mean(np.zeros(shape))
+
+
+def old_consistency_rule(window, sigma, threshold=10.0):
+    """The collector's rule (docs/architecture.md): every value within 10 robust stds of the
+    window's median, robust std max(1.4826 MAD, sigma)."""
+    median = np.median(window, axis=0)
+    robust = np.maximum(1.4826 * np.median(np.abs(window - median), axis=0), sigma)
+    return np.all(np.abs(window - median) <= threshold * robust, axis=0)
+
+
+def test_issue_worked_example_a_settling_reading_is_not_taken_for_noise():
+    """tau 0.3 s, per-sample noise sigma, a reading still 18 sigma off at the window's start."""
+    sigma, tau, bias = 1.0, 0.3, 18.0
+    times = np.arange(-30, 10) * DT  # the 200 ms to the end of the 50 ms averaging window
+    approach = bias * np.exp(-(times - times[30]) / tau)[:, None]
+    window, judged = approach[30:], approach  # 10 samples (50 ms), 40 samples (200 ms)
+    assert old_consistency_rule(window, sigma).all()  # the old rule takes it
+    # Over the 50 ms window alone the trend is 2.5 trend-stds: at the edge of significance.
+    _, z_short = settled(window, [sigma / math.sqrt(10)], times[30:])
+    assert 2.3 < z_short[0] < 2.7
+    # Judged over 200 ms it is plainly moving.
+    is_settled, z = settled(judged, [sigma / math.sqrt(40)], times)
+    assert not is_settled[0] and z[0] > 20
+    assert old_consistency_rule(judged[30:], sigma).all()
+
+
+def test_settled_white_windows_are_called_moving_at_the_nominal_rate():
+    rng = np.random.default_rng(5)
+    windows, n, sigma = 20000, 40, 2e-5
+    samples = rng.normal(size=(windows, n, 1)) * sigma + 0.3
+    flags = np.array([settled(w, [sigma / math.sqrt(n)])[0][0] for w in samples])
+    rate, expected = 1 - flags.mean(), false_unsettled_rate()
+    assert rate == pytest.approx(expected, abs=5 * math.sqrt(expected / windows))
+
+
+def test_trend_std_factor_is_the_white_trend_std():
+    rng = np.random.default_rng(6)
+    n = 10
+    samples = rng.normal(size=(20000, n))
+    t = np.arange(n) - (n - 1) / 2
+    trend = samples @ t / (t @ t) * (n - 1)
+    assert trend.std() == pytest.approx(
+        trend_std_factor(n) / math.sqrt(n), rel=5 / math.sqrt(2 * 20000)
+    )
