@@ -58,7 +58,7 @@ from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
-from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 
 WARN_THROTTLE_S = 1.0
@@ -82,14 +82,14 @@ class CalibratorNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(names.NODE_CALIBRATOR, **kwargs)
-        values = node_tools.declare_parameters(
+        values = parameter_specs.declare_parameters(
             self, PARAMETERS, validate=lambda values: check_parameters({}, values)
         )
         try:
             self._settings = CalibratorSettings.from_values(values)
         except ValueError as error:
-            raise node_tools.ConfigurationError(str(error)) from None
-        node_tools.watch_parameters(
+            raise parameter_specs.ConfigurationError(str(error)) from None
+        parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=check_parameters
         )
 
@@ -161,7 +161,7 @@ class CalibratorNode(Node):
         """The next run uses the new values (a running one keeps its own)."""
         try:
             self._settings = CalibratorSettings.from_values(
-                node_tools.parameter_values(self, PARAMETERS)
+                parameter_specs.parameter_values(self, PARAMETERS)
             )
         except ValueError as error:  # validated already; a file may have vanished since
             self.get_logger().error(f'parameters not applied: {error}')

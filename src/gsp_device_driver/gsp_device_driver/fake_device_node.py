@@ -19,7 +19,7 @@ from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
-from gsp_msgs_py import message_checks, names, node_tools, qos
+from gsp_msgs_py import message_checks, names, node_tools, parameter_specs, qos
 
 from .backends import SimDeviceBackend
 from .device_driver_node import DYNAMICS_PARAMETERS, RNG_STREAM
@@ -82,7 +82,7 @@ class FakeDeviceNode(Node):
 
     def __init__(self, args, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        seed = node_tools.resolve_seed(args.seed)
+        seed = parameter_specs.resolve_seed(args.seed)
         try:
             self._model = SimDeviceBackend.from_config(
                 args.true_geometry,
@@ -93,7 +93,7 @@ class FakeDeviceNode(Node):
                 rng=np.random.default_rng([seed, RNG_STREAM]),
             )
         except ValueError as error:
-            raise node_tools.ConfigurationError(str(error)) from None
+            raise parameter_specs.ConfigurationError(str(error)) from None
         self.device = FakeDevice(
             args.port,
             self._readings,

@@ -20,7 +20,7 @@ MAX_PENDING_BYTES = 1024  #: a longer run without a line end is dropped as garba
 
 
 def _specs():
-    from gsp_msgs_py.node_tools import ParameterSpec, at_least, greater_than, not_blank, one_of
+    from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank, one_of
 
     return (
         ParameterSpec(

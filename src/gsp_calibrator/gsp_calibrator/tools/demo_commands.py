@@ -79,7 +79,7 @@ def node_commands(args, output_root, which=shutil.which):
     the calibrator."""
     rate = float(args.sensor_rate)
     # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
-    # noise (node_tools.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
+    # noise (parameter_specs.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
     common = ['-p', f'publish_rate:={rate!r}']
     commands = {
         'platform_sim': executable_command('platform_sim', which)
