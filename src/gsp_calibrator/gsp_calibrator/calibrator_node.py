@@ -315,7 +315,10 @@ class CalibratorNode(CalibratorRunHost, Node):
         return response
 
     def destroy_node(self):
-        self._sensors_active = False
+        # Under the lock: a row the sensor thread is adding now is complete before the run's
+        # final state.json is written, so state.json and samples.csv agree after a SIGTERM.
+        if hasattr(self, '_lock'):  # not before __init__ made it
+            self.stop_collection()
         if self._running and self._run is not None:
             self._run.interrupted()
         recorder = getattr(self, 'recorder', None)

@@ -24,8 +24,8 @@ from gsp_kinematics.identification import (
     Options,
     resolve_free,
 )
-from gsp_kinematics.motion import MotionLimits
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import parameter_specs
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, check_values, greater_than, one_of
 

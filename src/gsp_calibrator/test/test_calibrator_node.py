@@ -122,7 +122,7 @@ class Suite:
         # Remove the nodes first: the executor then has no new work when it shuts down.
         for node in self.executor.get_nodes():
             self.executor.remove_node(node)
-        self.executor.shutdown(timeout_sec=5.0)  # waits for the callbacks in progress
+        testing.shutdown_executor(self.executor)  # after the callbacks in progress
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
 
@@ -673,8 +673,8 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
     ros_context, tmp_path
 ):
     from gsp_kinematics.kinematics import home_pose
-    from gsp_kinematics.motion import MotionLimits
-    from gsp_kinematics.route import plan_route
+    from gsp_kinematics.travel.motion import MotionLimits
+    from gsp_kinematics.travel.route import plan_route
 
     truth = perturbed_truth(tmp_path / 'true.yaml')
     route_poses, route_samples, route_errors = _moving_run(ros_context, tmp_path, 'route', truth)

@@ -17,8 +17,9 @@ from test_calibrator_node import make_suite, perturbed_truth
 
 from gsp_calibrator.collection.single_source import SingleSourceGuard
 from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.run import session as run_session
 from gsp_calibrator.run import state as run_state
-from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.directory import SAMPLES_FILE, Samples, read_samples, write_samples
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_msgs_py import conversions, names, qos
 
@@ -136,6 +137,30 @@ def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
     samples.append(3, poses[2], np.ones(6), np.ones(4), 5, 0.0)
     # In the recorded order, without the replaced posture.
     assert run_state.postures_to_collect(again, samples) == [4, 5]
+
+
+def test_a_row_state_json_does_not_list_yet_is_kept_once_by_a_resume(tmp_path):
+    """A calibrator killed after a row reached samples.csv but before state.json was rewritten
+    (it lags by the posture being reported): the resume keeps the row, does not command its
+    posture again, and counts it done."""
+    settings = _settings(resume_run_directory=str(tmp_path))
+    state, poses = _state(settings)
+    state.phase, state.pid = run_state.PHASE_COLLECTING, 0  # as a SIGKILL leaves it
+    state.record_done(1)
+    state.record_skip(3, 'not settled')
+    run_state.write_state(tmp_path, state)
+    samples = Samples.empty()
+    for posture in (1, 2):  # posture 2's row is not in state.json
+        samples.append(posture, poses[posture - 1], np.ones(6), np.ones(4), 5, 0.0)
+    write_samples(tmp_path / SAMPLES_FILE, samples)
+    session = run_session.RunSession.resume(settings, os.getpid())
+    try:
+        session.begin(settings, None, os.getpid())
+        assert session.remaining == [3, 4]
+        assert run_state.read_state(tmp_path).done == [1, 2]
+    finally:
+        session.close()
+    assert list(read_samples(tmp_path / SAMPLES_FILE).posture) == [1, 2]
 
 
 def test_the_replacement_is_the_best_remaining_pool_posture():

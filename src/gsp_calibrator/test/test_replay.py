@@ -509,12 +509,7 @@ class Suite:
     def close(self):
         for node in self.nodes + [self.client_node]:
             self.executor.remove_node(node)
-        # rclpy 7.1's Executor.shutdown does not wait for the callbacks still running in the
-        # thread pool: let them finish first, so none meets a destroyed node or guard condition.
-        pool = getattr(self.executor, '_executor', None)
-        if pool is not None:
-            pool.shutdown(wait=True)
-        self.executor.shutdown(timeout_sec=1.0)
+        testing.shutdown_executor(self.executor)  # after the callbacks in progress
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
 

@@ -17,7 +17,7 @@ from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, RunHost
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.geometry import default_geometry, parameter_errors
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.validation import sensor_measurements
 from gsp_msgs_py import conversions, names
 

@@ -28,7 +28,7 @@ from gsp_kinematics.device import (
     per_reading,
 )
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
-from gsp_kinematics.sensor_dynamics import SensorDynamics
+from gsp_kinematics.sensors.dynamics import SensorDynamics
 from gsp_msgs_py.health import OK, WARN, Health
 
 from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
@@ -43,7 +43,7 @@ class SimDeviceBackend(DeviceBackend):
     ``sensors``: the real device's ``SensorErrors`` (inclinometer and encoder offsets, LVDT gain
     error; docs/sensor_errors.md); None: ideal sensors. ``response_times`` and
     ``correlation_times``: ``(inclinometer, encoder, lvdt)`` in s, the first-order response and
-    the noise correlation time of each sensor (:mod:`gsp_kinematics.sensor_dynamics`); 0 (the
+    the noise correlation time of each sensor (:mod:`gsp_kinematics.sensors.dynamics`); 0 (the
     default): instant readings and white noise.
     """
 

@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from gsp_kinematics.device import SENSORS
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank

@@ -3,12 +3,14 @@
 :class:`FakeDevice` opens a pty pair, points the symlink ``link`` at its slave end (the "port" a
 driver opens, like a udev ``/dev/gsp_device`` rule) and writes the serial protocol to it from a
 thread: a hello line at connection, every ``hello_period_s`` and in answer to the host's hello
-request, then one reading line per ``1/rate_hz`` from ``readings()`` (``[alpha, beta, phi, d_m]`` in SI, or None while there is nothing to
-report). Faults: garbage lines and checksum errors (each replacing a reading line, with the
+request, then one reading line per ``1/rate_hz`` from ``readings()`` (``[alpha, beta, phi, d_m]``
+in SI, or None while there is nothing to report; with ``timed_readings``, ``(values, instant)``:
+the line's ``t_us`` is then the instant the values describe, see :class:`TruthFeed`). Faults: garbage lines and checksum errors (each replacing a reading line, with the
 given probabilities, counted in :attr:`counters`), :meth:`silence` and :meth:`disconnect`
 (closes the pty, as an unplugged USB device; a new one appears after the given time).
 """
 
+import math
 import os
 import select
 import threading
@@ -22,6 +24,37 @@ from .serial_protocol import U32, Reading, format_hello, format_reading, is_requ
 HELLO_PERIOD_S = 1.0
 MAX_REQUEST_BYTES = 256  #: host input kept while looking for a request line
 PARTIAL_WAIT_S = 0.5  #: longest wait to complete a line the buffer took in part
+
+
+class TruthFeed:
+    """What an emulated device measures: the newest item (a true pose) handed over with the
+    instant it describes (s, ``time.monotonic``), each taken at most once.
+
+    A real device samples the platform itself; the emulator only knows the true pose a message
+    brought. When those messages stall (a loaded host), reading the latest pose again would send
+    an old pose under a new ``t_us``: consistent, freshly stamped readings of where the platform
+    was, which the collection cannot tell from a settled posture. Taking each pose once, at its
+    own instant, makes a stalled feed a gap in the device's lines instead.
+    """
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._latest = None  # (instant s, item)
+        self._taken_s = -math.inf
+
+    def put(self, item, instant_s):
+        """Hand over ``item`` describing ``instant_s``; an item older than the newest is ignored."""
+        with self._lock:
+            if self._latest is None or instant_s > self._latest[0]:
+                self._latest = (float(instant_s), item)
+
+    def take(self):
+        """``(item, instant_s)``: the newest item not taken yet, or None."""
+        with self._lock:
+            if self._latest is None or not self._latest[0] > self._taken_s:
+                return None
+            self._taken_s = self._latest[0]
+            return self._latest[1], self._latest[0]
 
 
 class FakeDevice:
@@ -40,9 +73,11 @@ class FakeDevice:
         rng=None,
         hello_period_s=HELLO_PERIOD_S,
         record_sampling=False,
+        timed_readings=False,
     ):
         self.link = str(link)
         self._readings = readings
+        self.timed_readings = bool(timed_readings)
         self.period_s = 1.0 / float(rate_hz)
         self.rate_hz = float(rate_hz)
         self.angle_unit, self.length_unit = angle_unit, length_unit
@@ -234,10 +269,14 @@ class FakeDevice:
                     self._send_hello(now)
                 if self.paused:
                     continue
-                values = self._readings()
-                if values is None:
+                taken = self._readings()
+                if taken is None:
                     continue
-                line, kind, reading = self._line(values, now)
+                # t_us is the sampling instant: that of the values when the reader gives it.
+                values, sampled = taken if self.timed_readings else (taken, now)
+                if sampled < self._t0:  # before this device's clock started
+                    continue
+                line, kind, reading = self._line(values, sampled)
                 if self._skip > 0:
                     self._skip -= 1
                     self.counters['skipped'] += 1
@@ -245,4 +284,4 @@ class FakeDevice:
                 if self._send(line):
                     self.counters[kind] += 1
                     if self.sampling_log is not None and kind == 'readings':
-                        self.sampling_log.append((now, reading))
+                        self.sampling_log.append((sampled, reading))

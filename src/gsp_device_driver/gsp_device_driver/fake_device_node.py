@@ -2,7 +2,10 @@
 
 Subscribes ``/gsp/platform/true_pose`` (like the ``sim`` backend), computes the device readings
 of the true geometry's device with Gaussian noise and streams them in the serial protocol through
-:class:`~gsp_device_driver.fake_device.FakeDevice` at ``--port`` (a symlink to the pty). Faults:
+:class:`~gsp_device_driver.fake_device.FakeDevice` at ``--port`` (a symlink to the pty). Each true
+pose is sent at most once, with its own stamp as the line's sampling instant
+(:class:`~gsp_device_driver.fake_device.TruthFeed`): a stalled pose stream is a gap in the lines,
+never an old pose sent as a new sample. Faults:
 ``--garbage-fraction``, ``--checksum-error-fraction``, and periodic silences and disconnects.
 
     gsp_fake_device --port /tmp/gsp_device [--rate 200] [--seed -1] [--ros-args ...]
@@ -18,12 +21,12 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
-from gsp_msgs_py import message_checks, names, node_tools, parameter_specs, qos
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 
 from .backends import SimDeviceBackend
 from .device_driver_node import DYNAMICS_PARAMETERS, RNG_STREAM
-from .fake_device import HELLO_PERIOD_S, FakeDevice
+from .fake_device import HELLO_PERIOD_S, FakeDevice, TruthFeed
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS
 
 NODE_NAME = 'fake_device'
@@ -94,9 +97,11 @@ class FakeDeviceNode(Node):
             )
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
+        self._truth = TruthFeed()
         self.device = FakeDevice(
             args.port,
             self._readings,
+            timed_readings=True,
             rate_hz=args.rate,
             angle_unit=args.angle_unit,
             length_unit=args.length_unit,
@@ -115,16 +120,31 @@ class FakeDeviceNode(Node):
         self.get_logger().info(f'fake device on {args.port} at {args.rate:g} Hz, seed {seed}')
 
     def _readings(self):
-        """Called from the emulator's thread: the reading of the latest true pose, or None; the
-        sensor dynamics advance on the monotonic clock the emulator samples on."""
-        sample = self._model.read(time.monotonic())
-        return None if sample is None else sample.readings()
+        """Called from the emulator's thread (the only user of the model): ``(readings, instant
+        on time.monotonic)`` of the newest true pose not sent yet, or None. The sensor dynamics
+        advance to that instant (the monotonic clock the emulator samples on)."""
+        taken = self._truth.take()
+        if taken is None:
+            return None
+        pose, instant = taken
+        try:
+            self._model.observe_true_pose(pose)
+        except ValueError as error:
+            self.get_logger().warning(f'ignoring true pose: {error}', throttle_duration_sec=1.0)
+            return None
+        return self._model.read(instant).readings(), instant
 
     def _on_true_pose(self, msg):
         try:
-            self._model.observe_true_pose(message_checks.pose_in_frame(msg, names.FRAME_BASE))
+            pose = message_checks.pose_in_frame(msg, names.FRAME_BASE)
         except ValueError as error:
             self.get_logger().warning(f'ignoring true pose: {error}', throttle_duration_sec=1.0)
+            return
+        # The instant the pose describes (its stamp, node clock) on the emulator's monotonic clock.
+        # A zero stamp (none given) is taken as the receipt.
+        stamp_ns = conversions.stamp_to_nanoseconds(msg.header.stamp)
+        age_s = (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9 if stamp_ns else 0.0
+        self._truth.put(pose, time.monotonic() - age_s)
 
     def _fault(self, kind, args):
         duration = getattr(args, f'{kind}_duration')

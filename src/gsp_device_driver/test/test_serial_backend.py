@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gsp_device_driver.backends import backend_class
-from gsp_device_driver.fake_device import FakeDevice
+from gsp_device_driver.fake_device import FakeDevice, TruthFeed
 from gsp_device_driver.serial_backend import SerialDeviceBackend
 from gsp_device_driver.serial_protocol import MIN_STAMP_STEP_S
 from gsp_msgs_py import health, testing
@@ -301,3 +301,46 @@ def test_fake_device_takes_the_sensor_dynamics_options():
     assert args.inclinometer_response_time == 0.3 and args.lvdt_noise_correlation_time == 0.0
     with pytest.raises(SystemExit):
         parse_arguments(['--port', 'p', '--encoder-noise-correlation-time', '-1'])
+
+
+def test_the_truth_feed_gives_each_pose_once_and_never_an_older_one():
+    feed = TruthFeed()
+    assert feed.take() is None
+    feed.put('A', 10.0)
+    assert feed.take() == ('A', 10.0)
+    assert feed.take() is None  # stalled: nothing, not 'A' again
+    feed.put('late', 9.5)  # older than what was sent
+    assert feed.take() is None
+    feed.put('B', 10.005)
+    feed.put('C', 10.010)
+    assert feed.take() == ('C', 10.010)
+
+
+def test_a_stalled_truth_sends_no_line_and_a_line_carries_its_pose_instant(link):
+    """A loaded host: the true pose the emulator measures stops coming. Each pose goes out once,
+    at the instant it describes; the device must not repeat an old pose under new t_us (ten such
+    consistent lines after a settled status were averaged as the settled posture)."""
+    feed = TruthFeed()
+
+    def readings():
+        taken = feed.take()
+        return None if taken is None else (VALUES + [0.0, 0.0, 0.0, taken[0] * 1e-6], taken[1])
+
+    backend, fake = make_pair(
+        link, readings, timed_readings=True, record_sampling=True, hello_period_s=0.02
+    )
+    try:
+        instant = time.monotonic()
+        feed.put(7, instant)
+        assert wait_until(lambda: backend.counters['readings'] >= 1)
+        hellos = fake.count('hello')
+        # At least 4 device periods without a new pose (the hello lines mark the ticks).
+        assert wait_until(lambda: fake.count('hello') >= hellos + 2)
+        drain(backend, fake)
+        assert fake.count('readings') == 1, fake.counters
+        sampled, reading = fake.sampling_log[0]
+        assert sampled == instant  # the pose's instant, not the time the line went out
+        assert reading.d_m == pytest.approx(VALUES[3] + 7e-6, abs=1e-12)
+    finally:
+        fake.close()
+        backend.close()

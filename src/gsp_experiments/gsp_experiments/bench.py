@@ -43,9 +43,9 @@ from gsp_kinematics.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.selection import select_postures
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 from .cli import experiment_parser, reexec_with_single_threaded_blas
 from .nominal_sets import drawing_geometry, nominal_set

@@ -26,9 +26,9 @@ from gsp_kinematics.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.noise import SensorNoise
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
 
 from .nominal_sets import drawing_geometry, nominal_set

@@ -21,13 +21,13 @@ from gsp_kinematics.kinematics import (
     forward_kinematics_masked,
     sample_valid_postures,
 )
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import (
     exchange_for_pose_error,
     posture_information,
     select_postures,
 )
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
 
 from .nominal_sets import default_true_and_nominal

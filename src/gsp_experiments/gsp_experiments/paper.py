@@ -39,9 +39,9 @@ from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import PARAMETER_NAMES, parameter_errors
 from gsp_kinematics.identification import DEFAULT_FORMULATION, identify
 from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.validation import validate
 
 from .nominal_sets import drawing_geometry, nominal_set

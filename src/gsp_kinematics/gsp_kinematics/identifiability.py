@@ -11,7 +11,7 @@ import numpy as np
 
 from .geometry import ALL_PARAMETER_NAMES
 from .identification import SENSOR_NAMES, resolve_free
-from .noise import DEFAULT_SENSOR_NOISE
+from .sensors.noise import DEFAULT_SENSOR_NOISE
 
 #: A scaled singular value below this fraction of the largest counts as zero.
 DEFAULT_RELATIVE_TOLERANCE = 1e-6

@@ -38,7 +38,7 @@ from .geometry import (
     Geometry,
 )
 from .kinematics import forward_kinematics_masked
-from .noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
+from .sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 DEFAULT_FORMULATION = 'implicit'
@@ -65,7 +65,7 @@ class IdentificationError(ValueError):
     """Inputs to the identification are unusable; the message says which."""
 
 
-#: The former name of :class:`~gsp_kinematics.noise.SensorNoise`, kept for existing callers.
+#: The former name of :class:`~gsp_kinematics.sensors.noise.SensorNoise`, kept for existing callers.
 Sigmas = SensorNoise
 
 

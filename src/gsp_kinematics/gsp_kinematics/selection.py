@@ -4,8 +4,8 @@ import numpy as np
 
 from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
 from .identification import SENSOR_NAMES, resolve_free
-from .noise import DEFAULT_SENSOR_NOISE
 from .prediction import pose_sensitivities
+from .sensors.noise import DEFAULT_SENSOR_NOISE
 
 #: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
 SHORTLIST = 12
@@ -23,7 +23,7 @@ def posture_factors(
     (``r = k - 6`` rows of a complete QR), which gives the Schur complement
     ``J_u^T J_u - J_u^T J_X (J_X^T J_X)^-1 J_X^T J_u`` as a product of small factors; for ``'fk'``
     it is the FK-based residual Jacobian itself (r = the device readings used). ``sigmas``: the
-    ``SensorNoise`` weights (default :data:`~gsp_kinematics.noise.DEFAULT_SENSOR_NOISE`).
+    ``SensorNoise`` weights (default :data:`~gsp_kinematics.sensors.noise.DEFAULT_SENSOR_NOISE`).
     """
     sigmas = DEFAULT_SENSOR_NOISE if sigmas is None else sigmas
     free = resolve_free(free)

@@ -7,14 +7,14 @@ import pytest
 
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import Workspace, home_pose, sample_valid_postures
-from gsp_kinematics.motion import (
+from gsp_kinematics.travel.motion import (
     LegMove,
     MotionLimits,
     leg_travel_time,
     move_time,
     posture_leg_lengths,
 )
-from gsp_kinematics.route import (
+from gsp_kinematics.travel.route import (
     path_time,
     plan_route,
     shortest_path_order,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
 
 NOISE = SensorNoise(leg_lengths=1e-6, inclinometer=2e-5, encoder=3e-5, lvdt=4e-6)
 

@@ -228,7 +228,7 @@ def diagnostics_period_spec():
 
 def motion_limit_specs(speed, acceleration, read_only=False):
     """``max_leg_speed`` (m/s) and ``max_leg_acceleration`` (m/s^2) of the simulated legs, with
-    these defaults; 0 removes a limit (:class:`gsp_kinematics.motion.MotionLimits`)."""
+    these defaults; 0 removes a limit (:class:`gsp_kinematics.travel.motion.MotionLimits`)."""
     return tuple(
         ParameterSpec(
             name,

@@ -124,6 +124,21 @@ class SpinThread:
         self.thread.join(timeout=timeout)
 
 
+def shutdown_executor(executor, timeout_sec=5.0):
+    """Shut ``executor`` down once the callbacks it has handed to its thread pool (a
+    ``MultiThreadedExecutor``) have run; stop spinning it first (:meth:`SpinThread.stop`).
+
+    rclpy 7.1's ``Executor.shutdown`` does not wait for them (its wait is skipped) and destroys
+    the executor's guard condition: a queued callback that starts after that fails with
+    ``InvalidHandle`` inside a task nobody retrieves ("The following exception was never
+    retrieved: cannot use Destroyable because destruction was requested" at garbage collection).
+    """
+    pool = getattr(executor, '_executor', None)  # the MultiThreadedExecutor's ThreadPoolExecutor
+    if pool is not None:
+        pool.shutdown(wait=True)
+    return executor.shutdown(timeout_sec=timeout_sec)
+
+
 def use_loopback_domain():
     """Keep DDS on loopback, in a ROS domain of this test session's own: a free one claimed by
     lock unless ``ROS_DOMAIN_ID`` is set (then checked: no other run holds it, no nodes in it

@@ -203,3 +203,38 @@ def test_timer_tick_time_stamps_a_timer_callback_exactly_on_its_grid(ros_context
         executor.shutdown()
         clock_node.destroy_node()
         node.destroy_node()
+
+
+@pytest.mark.filterwarnings('ignore:MultiThreadedExecutor is used with a single thread')
+def test_shutdown_executor_runs_the_queued_callbacks_before_the_guard_goes(ros_context):
+    """A callback queued in a MultiThreadedExecutor's pool when the test shuts it down still runs;
+    rclpy's own shutdown destroys the guard condition under it (InvalidHandle, never retrieved)."""
+    import threading
+
+    from rclpy.callback_groups import ReentrantCallbackGroup
+
+    from gsp_msgs_py.testing import shutdown_executor, wait_until
+
+    node = rclpy.create_node('shutdown_executor_test', context=ros_context)
+    executor = rclpy.executors.MultiThreadedExecutor(num_threads=1, context=ros_context)
+    executor.add_node(node)
+    group, release, ran = ReentrantCallbackGroup(), threading.Event(), []
+    first = node.create_guard_condition(
+        lambda: (ran.append('first'), release.wait(30.0)), callback_group=group
+    )
+    second = node.create_guard_condition(lambda: ran.append('second'), callback_group=group)
+    first.trigger()
+    assert spin_until(executor, lambda: ran == ['first'], 30.0)  # holds the pool's one thread
+    second.trigger()
+    executor.spin_once(timeout_sec=30.0)  # hands the second callback to the pool: queued
+    pool = executor._executor
+    closing = threading.Thread(target=shutdown_executor, args=(executor,))
+    closing.start()
+    # Release the first callback once the shutdown is under way (rclpy's alone: already done).
+    assert wait_until(lambda: pool._shutdown or not closing.is_alive(), 30.0)
+    release.set()
+    closing.join(30.0)
+    try:
+        assert ran == ['first', 'second']
+    finally:
+        node.destroy_node()

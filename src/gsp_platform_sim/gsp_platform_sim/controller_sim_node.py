@@ -19,8 +19,8 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
-from gsp_kinematics.motion import MotionLimits
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 
 from .trajectory_follower import TrajectoryFollower

@@ -17,8 +17,8 @@ from gsp_kinematics.geometry import (
     geometry_from_parameters,
     load_geometry,
 )
-from gsp_kinematics.motion import MotionLimits
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
@@ -55,7 +55,7 @@ PARAMETERS = (
     parameter_specs.seed_spec(),
     parameter_specs.settle_time_spec('an accepted command'),
     # Defaults: no limits, the platform jumps (quick demos and tests); the realistic limits are
-    # gsp_kinematics.motion.MotionLimits() (docs/planning.md).
+    # gsp_kinematics.travel.motion.MotionLimits() (docs/planning.md).
     *parameter_specs.motion_limit_specs(0.0, 0.0),
     ParameterSpec(
         'max_condition',

@@ -9,8 +9,8 @@ Leg sensors with gain errors (``geometry.sensors.leg_gain_errors``, docs/sensor_
 controller drives each leg until its sensor reads ``q = IK(controller, pose) / (1 + kq_controller)``;
 the real articular variable is then ``(1 + kq_true) q``, and the published reading is ``q``.
 
-Motion (docs/planning.md): with :class:`gsp_kinematics.motion.MotionLimits`, an accepted command
-starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.motion.LegMove`);
+Motion (docs/planning.md): with :class:`gsp_kinematics.travel.motion.MotionLimits`, an accepted command
+starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.travel.motion.LegMove`);
 :meth:`PlatformSimulator.update` advances it. While it moves, the real pose is interpolated
 between the start and the end poses at the legs' common fraction (FK of the legs at every tick
 would cost more than the readings are worth: the collection uses none taken before the settle).
@@ -27,7 +27,7 @@ from gsp_kinematics.kinematics import (
     home_pose,
     inverse_kinematics,
 )
-from gsp_kinematics.motion import LegMove
+from gsp_kinematics.travel.motion import LegMove
 
 #: Largest condition number of dq/dX a command may have (singularity guard). Above the
 #: ``Workspace().max_condition`` (60) used to sample postures, so sampled postures stay accepted
@@ -64,7 +64,7 @@ class PlatformSimulator:
     ``leg_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
     sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
     through :meth:`command`; ValueError if the home pose is not reachable. ``limits``: the legs'
-    :class:`gsp_kinematics.motion.MotionLimits` (None: the platform jumps to each command).
+    :class:`gsp_kinematics.travel.motion.MotionLimits` (None: the platform jumps to each command).
     """
 
     def __init__(

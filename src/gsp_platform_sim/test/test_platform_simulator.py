@@ -148,7 +148,7 @@ def test_marker_lines():
 
 
 def test_with_motion_limits_the_legs_move_from_where_they_are():
-    from gsp_kinematics.motion import MotionLimits, move_time
+    from gsp_kinematics.travel.motion import MotionLimits, move_time
 
     limits = MotionLimits(0.05, 0.2)
     sim = make_simulator(limits=limits)

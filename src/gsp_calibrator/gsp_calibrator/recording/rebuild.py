@@ -12,7 +12,7 @@ from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
 from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.run.directory import Samples
-from gsp_kinematics.noise import SensorNoise, SensorNoiseError
+from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
 from gsp_msgs_py import names
 
 

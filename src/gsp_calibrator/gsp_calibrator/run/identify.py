@@ -23,7 +23,7 @@ from gsp_kinematics.identification import (
     identify,
     resolve_free,
 )
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'

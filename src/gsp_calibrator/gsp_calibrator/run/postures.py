@@ -11,9 +11,9 @@ from gsp_kinematics.identification import (
     resolve_free,
 )
 from gsp_kinematics.kinematics import Workspace, home_pose, sample_valid_postures
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.route import plan_route
 from gsp_kinematics.selection import best_addition, posture_information, select_postures
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.travel.route import plan_route
 
 #: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
 DEFAULT_FREE = ('extended',)
@@ -83,7 +83,7 @@ def choose_postures(
 
 
 def posture_route(settings, poses):
-    """The route (:func:`gsp_kinematics.route.plan_route`) through ``poses`` from the home pose
+    """The route (:func:`gsp_kinematics.travel.route.plan_route`) through ``poses`` from the home pose
     (where platform_sim starts), with the run's nominal geometry and leg limits."""
     return plan_route(settings.nominal, home_pose(), poses, settings.motion_limits)
 

@@ -93,6 +93,10 @@ class RunSession:
             run_state.check_resume(state, settings, samples, pid)
         except (run_state.ResumeRefused, RunDirectoryError) as error:
             raise RunRefused(f'resume refused: {error}') from None
+        # samples.csv decides what was collected: state.json lags it by the rows appended after
+        # its last write (a killed calibrator), so those rows count as done from here on.
+        for posture in samples.posture:
+            state.record_done(int(posture))
         recovered = recording.recover_recordings(run.path)
         state.sessions += 1
         return cls(run, samples, state, recovered)

@@ -9,6 +9,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.tools.processes import DemoError, NodeExited
@@ -37,7 +38,10 @@ class DemoNode(Node):
             self._on_status,
             qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
         )
-        self._true_pose_subscription = None  # only while validating (200 Hz)
+        # Subscriptions held only while needed: the true pose while validating (200 Hz), the
+        # leg lengths while waiting for the platform.
+        self._watched = {}
+        self.leg_lengths_seen = False
         self.create_subscription(
             DiagnosticStatus,
             names.TOPIC_CALIBRATION_PROGRESS,
@@ -54,19 +58,30 @@ class DemoNode(Node):
         if status.settled:
             self.settled_at[status.command_id] = self.get_clock().now().nanoseconds
 
+    def _watch(self, topic, message_type, callback, on):
+        """Subscribe to ``topic`` (or unsubscribe) while it is needed; True when it starts."""
+        subscription = self._watched.get(topic)
+        if on and subscription is None:
+            self._watched[topic] = self.create_subscription(
+                message_type, topic, callback, qos.TOPIC_QOS[topic]
+            )
+            return True
+        if not on and subscription is not None:
+            self.destroy_subscription(self._watched.pop(topic))
+        return False
+
     def watch_true_pose(self, on):
         """Subscribe to (or unsubscribe from) the ground truth."""
-        if on and self._true_pose_subscription is None:
+        if self._watch(names.TOPIC_TRUE_POSE, PoseStamped, self._on_true_pose, on):
             self.true_poses.clear()
-            self._true_pose_subscription = self.create_subscription(
-                PoseStamped,
-                names.TOPIC_TRUE_POSE,
-                self._on_true_pose,
-                qos.TOPIC_QOS[names.TOPIC_TRUE_POSE],
-            )
-        elif not on and self._true_pose_subscription is not None:
-            self.destroy_subscription(self._true_pose_subscription)
-            self._true_pose_subscription = None
+
+    def watch_leg_lengths(self, on):
+        """Subscribe to (or unsubscribe from) the platform's leg lengths."""
+        if self._watch(names.TOPIC_LEG_LENGTHS, JointState, self._on_leg_lengths, on):
+            self.leg_lengths_seen = False
+
+    def _on_leg_lengths(self, msg):
+        self.leg_lengths_seen = True
 
     def _on_true_pose(self, msg):
         try:
@@ -155,6 +170,20 @@ class Demo:
             timeout,
             f'platform_sim to publish {names.TOPIC_PLATFORM_STATUS}',
         )
+        # The platform takes commands only once it knows where the legs are: platform_bridge
+        # rejects every command until the controller's first /joint_states reached it, and it
+        # publishes leg lengths from them. Without this wait the validation postures were all
+        # rejected on a loaded host ('no /joint_states received from the controller').
+        node.watch_leg_lengths(True)
+        try:
+            self.spin_until(
+                lambda: node.leg_lengths_seen,
+                timeout,
+                f"the platform's first {names.TOPIC_LEG_LENGTHS} (platform_bridge: the "
+                "controller's /joint_states)",
+            )
+        finally:
+            node.watch_leg_lengths(False)
 
     def run_postures(self, poses, settle_timeout, startup_timeout):
         """Command each pose, wait until settled; reached poses (NaN rows where rejected)."""

@@ -8,7 +8,7 @@ limits, a settle time and a sensor rate, predict what the calibrator would reach
 * the rank of the design and its unidentifiable parameter combinations;
 * the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum without
   the moves), and the platform time: the travel of the route through the postures
-  (:func:`gsp_kinematics.route.plan_route`, legs within :class:`gsp_kinematics.motion.MotionLimits`)
+  (:func:`gsp_kinematics.travel.route.plan_route`, legs within :class:`gsp_kinematics.travel.motion.MotionLimits`)
   plus that settling and sampling.
 
 The postures are those the calibrator would command: :func:`gsp_calibrator.run.postures.choose_postures` with the
@@ -44,8 +44,8 @@ from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.identification import IdentificationError
 from gsp_kinematics.kinematics import Workspace
-from gsp_kinematics.motion import MotionLimits
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.travel.motion import MotionLimits
 
 
 def plot_sweep(path, result):

@@ -21,11 +21,11 @@ from gsp_calibrator.run.postures import (
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import Workspace, home_pose
-from gsp_kinematics.motion import MotionLimits
-from gsp_kinematics.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
-from gsp_kinematics.route import plan_route
 from gsp_kinematics.selection import posture_information
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.travel.route import plan_route
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)

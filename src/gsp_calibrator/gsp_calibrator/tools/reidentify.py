@@ -47,7 +47,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options
-from gsp_kinematics.noise import SensorNoise
+from gsp_kinematics.sensors.noise import SensorNoise
 
 EXIT_OK = 0
 EXIT_FAILED = 1

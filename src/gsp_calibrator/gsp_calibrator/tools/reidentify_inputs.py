@@ -13,7 +13,7 @@ from gsp_calibrator.settings import DEFAULTS, check_free_parameters
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import FORMULATIONS
-from gsp_kinematics.noise import SensorNoise
+from gsp_kinematics.sensors.noise import SensorNoise
 
 
 class InputError(ValueError):

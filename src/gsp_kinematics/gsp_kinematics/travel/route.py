@@ -1,7 +1,7 @@
 """The order to visit a set of postures in: the shortest route in platform time (pure numpy/scipy).
 
 The postures of a calibration are a set; their order is free. The travel time between two
-postures is the synchronised move time of :mod:`gsp_kinematics.motion` (the slowest leg's), a
+postures is the synchronised move time of :mod:`gsp_kinematics.travel.motion` (the slowest leg's), a
 metric on the commanded leg lengths. The route is an open path from the platform's current
 posture through every posture (no return):
 

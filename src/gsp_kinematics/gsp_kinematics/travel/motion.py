@@ -12,7 +12,7 @@ follows the same normalised profile ``s(t)`` in [0, 1], that of the slowest leg 
 travel), so all arrive together and the move takes the slowest leg's time. The other legs run
 at ``d_i / d_max`` of its speed and acceleration, within their limits. The move time between two
 postures is therefore a metric on leg-length vectors (it depends only on ``max_i |dq_i|``),
-the one :mod:`gsp_kinematics.route` orders postures with. See docs/planning.md.
+the one :mod:`gsp_kinematics.travel.route` orders postures with. See docs/planning.md.
 """
 
 import dataclasses
@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .kinematics import inverse_kinematics
+from ..kinematics import inverse_kinematics
 
 #: Leg speed limit (m/s) of a positioning hexapod: the order of magnitude of the maximum
 #: platform speeds in PI (Physik Instrumente) and Symetrie hexapod datasheets, tens of mm/s

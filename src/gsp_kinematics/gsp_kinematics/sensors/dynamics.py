@@ -18,7 +18,7 @@ generator. docs/sensor_errors.md gives typical values of real parts.
 
 import numpy as np
 
-from .rotation import wrap_angle
+from ..rotation import wrap_angle
 
 
 class SensorDynamicsError(ValueError):

@@ -1,0 +1,68 @@
+"""The demo's ROS side: it waits until the platform can take commands."""
+
+import numpy as np
+import pytest
+
+
+class _NoProcesses:
+    """The demo's node processes, none of which exits here."""
+
+    def exited(self):
+        return None
+
+
+def test_the_demo_waits_for_the_platforms_first_leg_lengths(ros_context):
+    """platform_bridge rejects every command until the controller's first /joint_states reached
+    it (it then publishes leg lengths): the demo must not command before that."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+    from std_srvs.srv import Trigger
+
+    from gsp_calibrator.tools import demo_node
+    from gsp_calibrator.tools.processes import DemoError
+    from gsp_msgs_py import conversions, names, qos
+
+    node = demo_node.DemoNode(context=ros_context)
+    platform = rclpy.create_node('fake_platform', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(platform)
+    try:
+        # Everything wait_for_system looked for before: the service, a command subscriber and
+        # a status publisher; no leg lengths yet (the bridge has no joint states).
+        platform.create_service(
+            Trigger, names.SERVICE_CALIBRATE, lambda request, response: response
+        )
+        platform.create_subscription(
+            PoseStamped,
+            names.TOPIC_POSE_COMMAND,
+            lambda msg: None,
+            qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND],
+        )
+        platform.create_publisher(
+            DiagnosticStatus,
+            names.TOPIC_PLATFORM_STATUS,
+            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
+        )
+        demo = demo_node.Demo(node, executor, _NoProcesses())
+        with pytest.raises(DemoError, match=names.TOPIC_LEG_LENGTHS):
+            demo.wait_for_system(2.0)
+        legs = platform.create_publisher(
+            JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS]
+        )
+        platform.create_timer(
+            0.01,
+            lambda: legs.publish(
+                conversions.leg_lengths_to_msg(
+                    np.full(6, 0.5), platform.get_clock().now().to_msg(), names.FRAME_BASE
+                )
+            ),
+        )
+        demo.wait_for_system(30.0)  # returns once the leg lengths come (30 s bounds a failure)
+    finally:
+        executor.shutdown()
+        platform.destroy_node()
+        node.destroy_node()
