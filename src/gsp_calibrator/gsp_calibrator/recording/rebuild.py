@@ -53,10 +53,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     from gsp_msgs_py import conversions
 
     paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
-    if notes is None:
-        notes = {}
-        for part in paths:
-            notes.update(collection_notes(recording_info(part), part))
+    notes = _notes_of(paths) if notes is None else notes
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
         + protocol.SENSOR_TOPICS
@@ -89,8 +86,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
             events = collection.sensor(topic, msg, log_time)
         elif topic == names.TOPIC_POSE_COMMAND:
             try:
-                command_id = conversions.command_id_from_stamp(msg.header.stamp)
-                pose = conversions.pose_stamped_to_pose(msg)
+                command_id, pose = _read_command(msg)
             except (ValueError, TypeError):
                 continue
             yield from command_now()
@@ -114,6 +110,23 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
         yield from events
     yield from command_now()
     yield from collection.finish()
+
+
+def _notes_of(paths):
+    """Command id -> (posture number, collection start) noted in the recordings ``paths``."""
+    notes = {}
+    for part in paths:
+        notes.update(collection_notes(recording_info(part), part))
+    return notes
+
+
+def _read_command(msg):
+    """``(command id, pose)`` of a recorded pose command; ValueError/TypeError if malformed."""
+    from gsp_msgs_py import conversions
+
+    return conversions.command_id_from_stamp(msg.header.stamp), conversions.pose_stamped_to_pose(
+        msg
+    )
 
 
 def _stamped_before(msg, stamp_ns):
