@@ -21,7 +21,7 @@ from gsp_kinematics.kinematics import (
     home_pose,
     inverse_kinematics,
 )
-from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
@@ -30,7 +30,7 @@ from gsp_msgs_py.geometry_parameters import (
     controller_geometry,
     controller_geometry_error,
 )
-from gsp_msgs_py.node_tools import ParameterSpec, at_least, greater_than, not_blank
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .goal_monitor import REJECTED, SETTLED, GoalMonitor, pose_path, waypoint_times
@@ -41,10 +41,10 @@ DEFAULT_MAX_CONDITION = 100.0  #: as platform_sim
 
 PARAMETERS = (
     *CONTROLLER_GEOMETRY_SPECS,
-    node_tools.controller_name_spec(
+    parameter_specs.controller_name_spec(
         'joint_trajectory_controller whose /<controller_name>/joint_trajectory takes the goals'
     ),
-    node_tools.joint_names_spec('The controller joints of legs 1..6, in leg order'),
+    parameter_specs.joint_names_spec('The controller joints of legs 1..6, in leg order'),
     ParameterSpec(
         'joint_states_topic',
         '/joint_states',
@@ -88,7 +88,7 @@ PARAMETERS = (
         unit='m',
         check=greater_than(0.0, 'm'),
     ),
-    node_tools.settle_time_spec('a goal, counted once every leg is within position_tolerance'),
+    parameter_specs.settle_time_spec('a goal, counted once every leg is within position_tolerance'),
     ParameterSpec(
         'goal_timeout',
         2.0,
@@ -110,8 +110,8 @@ PARAMETERS = (
         float_range=(1.0, 1e12),
         check=at_least(1.0),
     ),
-    node_tools.frame_id_spec('Base frame: required of pose commands, and of leg_lengths'),
-    node_tools.diagnostics_period_spec(),
+    parameter_specs.frame_id_spec('Base frame: required of pose commands, and of leg_lengths'),
+    parameter_specs.diagnostics_period_spec(),
 )
 
 
@@ -130,7 +130,7 @@ class PlatformBridgeNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        values = node_tools.declare_parameters(self, PARAMETERS, validate=_check_start_up)
+        values = parameter_specs.declare_parameters(self, PARAMETERS, validate=_check_start_up)
         self._values = values
         self._last_pose = None  # last commanded pose: the guess of FK at the joint states
         self._geometry = controller_geometry(values)
@@ -141,7 +141,7 @@ class PlatformBridgeNode(Node):
             values['settle_time'],
             values['state_timeout'],
         )
-        node_tools.watch_parameters(
+        parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=check_geometry_change
         )
         self._trajectory_topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'

@@ -54,10 +54,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     recording the commands still waiting take effect in turn.
     """
     paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
-    if notes is None:
-        notes = {}
-        for part in paths:
-            notes.update(collection_notes(recording_info(part), part))
+    notes = _notes_of(paths) if notes is None else notes
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
         + protocol.SENSOR_TOPICS
@@ -93,8 +90,7 @@ class _CausalOrder:
 
         if topic == names.TOPIC_POSE_COMMAND:
             try:
-                command_id = conversions.command_id_from_stamp(msg.header.stamp)
-                pose = conversions.pose_stamped_to_pose(msg)
+                command_id, pose = _read_command(msg)
             except (ValueError, TypeError):
                 return []
             self.count += 1
@@ -142,6 +138,23 @@ class _CausalOrder:
             self.final_status = True
         start_ns = self.notes.get(item.command_id, (None, None))[1]
         return self.collection.status(item, log_time, start_ns)
+
+
+def _notes_of(paths):
+    """Command id -> (posture number, collection start) noted in the recordings ``paths``."""
+    notes = {}
+    for part in paths:
+        notes.update(collection_notes(recording_info(part), part))
+    return notes
+
+
+def _read_command(msg):
+    """``(command id, pose)`` of a recorded pose command; ValueError/TypeError if malformed."""
+    from gsp_msgs_py import conversions
+
+    return conversions.command_id_from_stamp(msg.header.stamp), conversions.pose_stamped_to_pose(
+        msg
+    )
 
 
 def _stamp_ns(msg):
