@@ -69,6 +69,12 @@ def node_commands(tmp_path):
     }
 
 
+#: Popen options: no stdin, stdout and stderr merged into one text pipe.
+MERGED_TEXT = dict(
+    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+)
+
+
 def _default_sigint():
     """In the child before exec: SIGINT as an interactive shell leaves it (not ignored)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -80,15 +86,7 @@ class NodeProcess:
 
     def __init__(self, argv):
         env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM='0', PYTHONUNBUFFERED='1')
-        self.process = subprocess.Popen(
-            argv,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            preexec_fn=_default_sigint,
-        )
+        self.process = subprocess.Popen(argv, env=env, preexec_fn=_default_sigint, **MERGED_TEXT)
         self.lines = []
         self.started = threading.Event()
         self._reader = threading.Thread(target=self._read, daemon=True)

@@ -40,6 +40,7 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
+from gsp_calibrator.calibrator_host import CalibratorRunHost
 from gsp_calibrator.collection import protocol
 from gsp_calibrator.collection.single_source import SingleSourceGuard
 from gsp_calibrator.node_threads import (
@@ -47,18 +48,14 @@ from gsp_calibrator.node_threads import (
     SensorListener,
     ThreadResults,
     Waits,
-    await_thread,
-    new_future,
-    run_in_thread,
 )
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.result_delivery import ResultDelivery
-from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
-from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 
 WARN_THROTTLE_S = 1.0
@@ -77,19 +74,19 @@ OUTPUTS = (
 )
 
 
-class CalibratorNode(Node):
+class CalibratorNode(CalibratorRunHost, Node):
     """Calibration service node; ``**kwargs`` go to ``Node`` (``context=``, ``parameter_overrides=``)."""
 
     def __init__(self, **kwargs):
         super().__init__(names.NODE_CALIBRATOR, **kwargs)
-        values = node_tools.declare_parameters(
+        values = parameter_specs.declare_parameters(
             self, PARAMETERS, validate=lambda values: check_parameters({}, values)
         )
         try:
             self._settings = CalibratorSettings.from_values(values)
         except ValueError as error:
-            raise node_tools.ConfigurationError(str(error)) from None
-        node_tools.watch_parameters(
+            raise parameter_specs.ConfigurationError(str(error)) from None
+        parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=check_parameters
         )
 
@@ -161,7 +158,7 @@ class CalibratorNode(Node):
         """The next run uses the new values (a running one keeps its own)."""
         try:
             self._settings = CalibratorSettings.from_values(
-                node_tools.parameter_values(self, PARAMETERS)
+                parameter_specs.parameter_values(self, PARAMETERS)
             )
         except ValueError as error:  # validated already; a file may have vanished since
             self.get_logger().error(f'parameters not applied: {error}')
@@ -283,41 +280,6 @@ class CalibratorNode(Node):
         self.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
         return events
 
-    # ------------------------------------ what a CalibrationRun asks of the node (run.host.RunHost)
-
-    def _settings_count(self):
-        run = self._run
-        return run.settings.posture_count if run is not None else 0
-
-    def _new_future(self):
-        return new_future(self.executor)
-
-    def wait_for(self, predicate, timeout_s):
-        """Future of ``WAIT_OK`` once ``predicate()`` holds, else ``WAIT_TIMEOUT`` (s)."""
-        return self._waits.add(predicate, timeout_s, self._new_future())
-
-    def await_thread(self, concurrent_future):
-        return await_thread(concurrent_future, self._new_future())
-
-    def in_thread(self, function, *args, **kwargs):
-        """Awaitable of ``function(*args, **kwargs)`` run in a worker thread."""
-        return self.await_thread(run_in_thread(function, *args, **kwargs))
-
-    def progress(self, index, phase, message='', residuals=None, warning=False, **extra):
-        """Publish the run's progress at posture ``index`` (0 before the first)."""
-        count = self._settings_count()
-        msg = conversions.make_progress(
-            max(0, min(index, count)),
-            count,
-            phase,
-            residuals,
-            message,
-            level=DiagnosticStatus.WARN if warning else None,
-            extra={k: str(v) for k, v in extra.items()},
-        )
-        self._progress_pub.publish(msg)
-        self._last_progress = conversions.parse_progress(msg)
-
     def _health(self):
         """The calibrator's health on /diagnostics (:func:`.run.health.calibrator_health`)."""
         session = self._run.session if self._run is not None else None
@@ -329,43 +291,6 @@ class CalibratorNode(Node):
             time.monotonic_ns(),
             self._settings.topic_timeout,
         )
-
-    def selection_future(self, settings):
-        """The (possibly running, cached) posture selection of ``settings``."""
-        args = postures.selection_arguments(settings)
-        return self._selections.get(postures.selection_key(*args), postures.choose_postures, *args)
-
-    def start_collection(self, session, collection):
-        with self._lock:
-            self._protocol, self._session, self.failure = collection, session, None
-            self.finals.clear()
-            self._ending.clear()
-            self._sources.reset()
-            self._sensors_active = True
-
-    def stop_collection(self):
-        with self._lock:
-            self._sensors_active = False
-
-    def command_first(self):
-        with self._lock:
-            events = self._command_next()
-        self._handle(events)
-
-    def collection_done(self):
-        """Whether every posture was commanded, has ended and was reported."""
-        with self._lock:
-            idle = self._protocol.posture is None and not self.finals and not self._ending
-            return idle and self._session.commanded_all
-
-    def deliver_result(self, settings, geometry, fit_accepted):
-        return self._results.deliver(settings, geometry, fit_accepted, self.wait_for)
-
-    def shutting_down(self):
-        return not self.context.ok()
-
-    def command_subscriber_count(self):
-        return self.command_publisher.get_subscription_count()
 
     # --------------------------------------------------------------------------- the run
 
@@ -388,11 +313,6 @@ class CalibratorNode(Node):
             self._run = CalibrationRun(self, self._settings, resume)
         response.success, response.message = await self._run.serve()
         return response
-
-    def run_ended(self):
-        self._waits.cancel()
-        with self._lock:
-            self._running, self._session = False, None
 
     def destroy_node(self):
         # Under the lock: a row the sensor thread is adding now is complete before the run's

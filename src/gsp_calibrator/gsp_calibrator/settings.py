@@ -1,7 +1,7 @@
 """Parameters of the ``calibrator`` node: names, defaults, units, checks (pure, no rclpy).
 
 :data:`PARAMETERS` is the single source of the declarations (the node declares them with
-:func:`gsp_msgs_py.node_tools.declare_parameters`; docs/parameters.md is generated from it);
+:func:`gsp_msgs_py.parameter_specs.declare_parameters`; docs/parameters.md is generated from it);
 :func:`check_parameters` gives the reason a set of values is rejected, at start-up and in the
 set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
 settings of one run.
@@ -26,8 +26,8 @@ from gsp_kinematics.identification import (
 )
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.travel.motion import MotionLimits
-from gsp_msgs_py import node_tools
-from gsp_msgs_py.node_tools import ParameterSpec, at_least, check_values, greater_than, one_of
+from gsp_msgs_py import parameter_specs
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, check_values, greater_than, one_of
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
@@ -241,7 +241,7 @@ PARAMETERS = (
         constraints='a valid node name',
         check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
     ),
-    node_tools.diagnostics_period_spec(),
+    parameter_specs.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}

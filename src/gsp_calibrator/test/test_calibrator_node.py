@@ -32,7 +32,7 @@ from gsp_kinematics.geometry import (
     save_geometry,
 )
 from gsp_msgs_py import conversions, names, qos, testing
-from gsp_msgs_py.node_tools import ConfigurationError
+from gsp_msgs_py.parameter_specs import ConfigurationError
 from gsp_msgs_py.testing import SpinThread
 
 RATE_HZ = 100.0

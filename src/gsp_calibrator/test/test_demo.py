@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from gsp_calibrator.tools import demo
+from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools import processes as processes_module
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
@@ -18,17 +18,19 @@ from gsp_msgs_py.testing import wait_until
 
 def test_ros_environment_is_loopback_with_a_domain(tmp_path, monkeypatch):
     monkeypatch.setenv(LOCK_DIRECTORY_VARIABLE, str(tmp_path))  # private domain locks
-    env = demo.ros_environment({'PATH': '/bin'}, rng=random.Random(1))
+    env = demo_commands.ros_environment({'PATH': '/bin'}, rng=random.Random(1))
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert 1 <= int(env['ROS_DOMAIN_ID']) <= 101 and env['PATH'] == '/bin'
-    kept = demo.ros_environment({'ROS_DOMAIN_ID': '42', 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
+    kept = demo_commands.ros_environment(
+        {'ROS_DOMAIN_ID': '42', 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}
+    )
     assert kept['ROS_DOMAIN_ID'] == '42' and kept['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert kept['PYTHONUNBUFFERED'] == '1'
 
 
 def test_node_commands(tmp_path):
     args = demo.parse_arguments(['--postures', '30', '--seed', '3', '--sensor-rate', '100'])
-    found = demo.node_commands(args, str(tmp_path), which=lambda name: f'/opt/bin/{name}')
+    found = demo_commands.node_commands(args, str(tmp_path), which=lambda name: f'/opt/bin/{name}')
     assert set(found) == {'platform_sim', 'device_driver', 'calibrator'}
     platform = found['platform_sim']
     assert platform[:2] == ['/opt/bin/platform_sim', '--ros-args']
@@ -50,7 +52,7 @@ def test_node_commands(tmp_path):
         'sync_tolerance:=0.005',
     ):
         assert value in calibrator
-    missing = demo.node_commands(args, str(tmp_path), which=lambda name: None)
+    missing = demo_commands.node_commands(args, str(tmp_path), which=lambda name: None)
     assert missing['calibrator'][:3] == [sys.executable, '-m', 'gsp_calibrator.calibrator_node']
 
 

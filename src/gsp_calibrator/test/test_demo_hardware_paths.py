@@ -2,12 +2,12 @@
 
 import sys
 
-from gsp_calibrator.tools import bench_end_to_end, demo
+from gsp_calibrator.tools import bench_end_to_end, demo, demo_commands
 
 
 def test_ros2_control_replaces_platform_sim_by_the_bridge_and_the_emulated_controller(tmp_path):
     args = demo.parse_arguments(['--platform', 'ros2_control', '--seed', '4'])
-    found = demo.node_commands(args, str(tmp_path), which=lambda name: f'/opt/bin/{name}')
+    found = demo_commands.node_commands(args, str(tmp_path), which=lambda name: f'/opt/bin/{name}')
     assert set(found) == {'controller_sim', 'platform_bridge', 'device_driver', 'calibrator'}
     bridge = found['platform_bridge']
     assert bridge[:2] == ['/opt/bin/platform_bridge', '--ros-args']
@@ -20,7 +20,7 @@ def test_ros2_control_replaces_platform_sim_by_the_bridge_and_the_emulated_contr
 def test_serial_runs_the_emulated_device_into_the_serial_backend(tmp_path):
     args = demo.parse_arguments(['--device', 'serial', '--sensor-rate', '100'])
     args.device_port = str(tmp_path / 'gsp_device')
-    found = demo.node_commands(args, str(tmp_path), which=lambda name: None)
+    found = demo_commands.node_commands(args, str(tmp_path), which=lambda name: None)
     assert set(found) == {'platform_sim', 'gsp_fake_device', 'device_driver', 'calibrator'}
     fake = found['gsp_fake_device']
     assert fake[:3] == [sys.executable, '-m', 'gsp_device_driver.fake_device_node']

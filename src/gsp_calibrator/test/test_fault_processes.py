@@ -23,7 +23,7 @@ from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.directory import read_samples
-from gsp_calibrator.tools import demo
+from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
@@ -147,14 +147,14 @@ def node_suite(tmp_path, ros_context, postures):
         + ['--samples-per-posture', '5']
         + ['--sensor-rate', '100']
     )
-    commands = demo.node_commands(args, tmp_path / 'runs')
+    commands = demo_commands.node_commands(args, tmp_path / 'runs')
     commands['calibrator'] += [
         '-p',
         'apply_result:=false',
         '-p',
         f'topic_timeout:={TOPIC_TIMEOUT_S}',
     ]
-    env = demo.ros_environment(dict(os.environ))
+    env = demo_commands.ros_environment(dict(os.environ))
     processes = NodeProcesses(commands, env, tmp_path)
     processes.start()
     client = Client(ros_context)

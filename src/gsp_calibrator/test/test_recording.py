@@ -10,8 +10,10 @@ import yaml
 from recorded_runs import write_command
 
 from gsp_calibrator.collection.synchroniser import SampleCollector
+from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.replay.recorded_run import RecordedRun
 from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import TOPIC_QOS
@@ -345,6 +347,103 @@ def test_a_settle_and_samples_logged_after_the_next_command_stay_with_their_post
         np.testing.assert_allclose(
             samples.readings[row], np.mean(readings[k], axis=0), rtol=0, atol=1e-15
         )
+
+
+class _LaggingRecorder:
+    """Collects a recorder's writes and logs them in log-time order; ``lag(topic, message,
+    log_time)`` (ns) delays a message's log time (a recorder thread that fell behind)."""
+
+    def __init__(self, recorder, lag):
+        self.recorder, self.lag, self.writes = recorder, lag, []
+
+    def write(self, topic, message, log_time):
+        self.writes.append((log_time + self.lag(topic, message, log_time), topic, message))
+
+    def add_metadata(self, name, data):
+        self.recorder.add_metadata(name, data)
+
+    def flush(self):
+        for log_time, topic, message in sorted(self.writes, key=lambda w: w[0]):
+            self.recorder.write(topic, message, log_time)
+
+
+def _write_stalled_session(path, postures, per_posture, stall_ns=0):
+    """Postures commanded every 30 ms, settled 10 ms after their command, ``per_posture``
+    samples stamped 5 ms apart from 11 ms (the calibrator commands the next posture at 30 ms).
+    From 35 ms on the recorder logs the sensor messages and the ``settled`` statuses
+    ``stall_ns`` late (commands and ``moving`` statuses on time). Returns ``{k: (legs,
+    readings)}`` of the samples after settling."""
+    sent = {}
+    with recording.McapRecorder(path) as recorder:
+
+        def lag(topic, message, log_time):
+            late = topic in SENSOR_TOPICS or (
+                topic == names.TOPIC_PLATFORM_STATUS and conversions.parse_status(message).settled
+            )
+            return stall_ns if late and log_time >= T0 + 35 * MS else 0
+
+        lagging = _LaggingRecorder(recorder, lag)
+        for k, (pose, q, r) in enumerate(postures, start=1):
+            t = T0 + 30 * MS * (k - 1)
+            command_id = write_command(lagging, t, pose, note=t + 10 * MS, posture=k)
+            # Moving: other values, stamped before the settle, never averaged.
+            _write_sensors(lagging, t + 2 * MS, np.asarray(q) + 1.0, np.asarray(r) + 1.0)
+            lagging.write(
+                names.TOPIC_PLATFORM_STATUS,
+                conversions.make_status(command_id, names.STATE_SETTLED),
+                t + 10 * MS,
+            )
+            legs = [np.asarray(q) + j * 1e-7 for j in range(per_posture)]
+            readings = [np.asarray(r) + j * 1e-8 for j in range(per_posture)]
+            for j in range(per_posture):
+                _write_sensors(lagging, t + (11 + 5 * j) * MS, legs[j], readings[j])
+            sent[k] = (legs, readings)
+        lagging.flush()
+    return sent
+
+
+def test_a_settle_and_samples_logged_after_two_later_commands_stay_with_their_posture(tmp_path):
+    """A recorder thread that stalled 60 ms logs posture 2's ``settled`` status and samples
+    (stamped before posture 3's command) after the commands and ``moving`` statuses of postures
+    3 and 4 (seen in a loaded replay test: the rebuild closed posture 2 at posture 4's command,
+    before its samples, and skipped it). The rebuild and the replay keep them with posture 2."""
+    postures = _postures(4, np.random.default_rng(6))
+    ordinary, stalled = tmp_path / 'ordinary.mcap', tmp_path / 'stalled.mcap'
+    sent = _write_stalled_session(ordinary, postures, 3)
+    assert _write_stalled_session(stalled, postures, 3, stall_ns=60 * MS).keys() == sent.keys()
+    # The stalled log order: posture 2's settled status after posture 4's command and moving.
+    logged = []  # (command id, state or 'command'), in log order
+    for m in recording.read_recording(
+        stalled, topics=(names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
+    ):
+        if m.topic == names.TOPIC_POSE_COMMAND:
+            logged.append((conversions.command_id_from_stamp(m.message.header.stamp), 'command'))
+        else:
+            status = conversions.parse_status(m.message)
+            logged.append((status.command_id, status.state))
+    ids = [command_id for command_id, state in logged if state == 'command']
+    assert logged.index((ids[1], names.STATE_SETTLED)) > logged.index((ids[3], names.STATE_MOVING))
+
+    online = rebuild.samples_from_recording(ordinary, 0.0025, 3)
+    rebuilt = rebuild.samples_from_recording(stalled, 0.0025, 3)
+    assert list(online.posture) == list(rebuilt.posture) == [1, 2, 3, 4]
+    for row, k in enumerate(online.posture):
+        legs, readings = sent[k]
+        for samples in (online, rebuilt):
+            np.testing.assert_allclose(
+                samples.leg_lengths[row], np.mean(legs, axis=0), rtol=0, atol=1e-12
+            )
+            np.testing.assert_allclose(
+                samples.readings[row], np.mean(readings, axis=0), rtol=0, atol=1e-12
+            )
+    np.testing.assert_array_equal(rebuilt.stamps, online.stamps)
+
+    # The replay's segments: posture 2 holds exactly its three samples.
+    run = RecordedRun.from_recording(stalled, 0.0025)
+    assert [p.posture for p in run.postures] == [1, 2, 3, 4]
+    legs, readings = sent[2]
+    np.testing.assert_allclose(run.postures[1].stream.leg_lengths, legs, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.postures[1].stream.readings, readings, rtol=0, atol=1e-12)
 
 
 # --- RunRecorder ---------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from gsp_msgs_py import conversions, names, qos, testing
 from gsp_msgs_py.diagnostics import DiagnosticsListener
 from gsp_msgs_py.health import OK, Health
 from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
-from gsp_msgs_py.node_tools import ConfigurationError
+from gsp_msgs_py.parameter_specs import ConfigurationError
 
 MS = 1_000_000
 T0 = 1_700_000_000 * 1_000_000_000

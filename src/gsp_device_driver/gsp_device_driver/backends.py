@@ -10,7 +10,7 @@ Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBac
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
 ``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, the ``<sensor>_response_time``
 and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.device.SENSORS``), ``rng``, ``stamp_clock``
-(the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.node_tools.ParameterSpec` in ``PARAMETERS``; it should
+(the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.parameter_specs.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
 ``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
 to the node is needed.

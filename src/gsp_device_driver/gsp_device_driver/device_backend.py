@@ -52,7 +52,7 @@ class DeviceBackend(abc.ABC):
     #: scheduled tick, see ``gsp_msgs_py.node_tools.scheduled_tick_ns``), not received at the
     #: device's own pace.
     samples_at_tick = False
-    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.node_tools.ParameterSpec`).
+    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.parameter_specs.ParameterSpec`).
     PARAMETERS = ()
 
     @classmethod

@@ -16,9 +16,9 @@ from rclpy.node import Node
 from gsp_kinematics.device import SENSORS
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
+from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
-from gsp_msgs_py.node_tools import ParameterSpec, not_blank
+from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank
 
 from .backends import BackendError, backend_class, backend_names
 
@@ -55,7 +55,7 @@ def _dynamics_spec(name):
         unit='s',
         read_only=True,
         float_range=(0.0, 60.0),
-        check=node_tools.at_least(0.0, 's'),
+        check=parameter_specs.at_least(0.0, 's'),
     )
 
 
@@ -67,30 +67,30 @@ PARAMETERS = (
         read_only=True,
         check=not_blank('a backend'),
     ),
-    node_tools.geometry_file_spec(
+    parameter_specs.geometry_file_spec(
         'true_geometry_file',
         default_geometry_path('true'),
         'sim backend: geometry params file of the real platform; its device_length D0 '
         'and inclinometer_axes_angle gamma are used',
         default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     ),
-    node_tools.publish_rate_spec('the readings'),
-    node_tools.seed_spec(),
-    node_tools.noise_std_spec(
+    parameter_specs.publish_rate_spec('the readings'),
+    parameter_specs.seed_spec(),
+    parameter_specs.noise_std_spec(
         'inclinometer_noise_std',
         DEFAULT_SENSOR_NOISE.inclinometer,
         'Std of the Gaussian noise on alpha and beta',
         'rad',
     ),
-    node_tools.noise_std_spec(
+    parameter_specs.noise_std_spec(
         'encoder_noise_std', DEFAULT_SENSOR_NOISE.encoder, 'Std of the Gaussian noise on phi', 'rad'
     ),
-    node_tools.noise_std_spec(
+    parameter_specs.noise_std_spec(
         'lvdt_noise_std', DEFAULT_SENSOR_NOISE.lvdt, 'Std of the Gaussian noise on d_m', 'm'
     ),
     *(_dynamics_spec(name) for name in DYNAMICS_PARAMETERS),
-    node_tools.frame_id_spec('Frame of the published readings, and required of true_pose'),
-    node_tools.diagnostics_period_spec(),
+    parameter_specs.frame_id_spec('Frame of the published readings, and required of true_pose'),
+    parameter_specs.diagnostics_period_spec(),
 )
 
 
@@ -119,19 +119,19 @@ class DeviceDriverNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(names.NODE_DEVICE_DRIVER, **kwargs)
-        values = node_tools.declare_parameters(self, PARAMETERS)
+        values = parameter_specs.declare_parameters(self, PARAMETERS)
         try:
             backend_type = backend_class(values['backend'])
         except BackendError as error:
-            raise node_tools.ConfigurationError(str(error)) from None
+            raise parameter_specs.ConfigurationError(str(error)) from None
         prefix = f'{backend_type.name}.'
         extras = {
             name[len(prefix) :]: value
-            for name, value in node_tools.declare_parameters(
+            for name, value in parameter_specs.declare_parameters(
                 self, backend_parameters(backend_type)
             ).items()
         }
-        seed = node_tools.resolve_seed(values['seed'])
+        seed = parameter_specs.resolve_seed(values['seed'])
         try:
             self._backend = backend_type.from_config(
                 true_geometry_file=values['true_geometry_file'],
@@ -142,9 +142,11 @@ class DeviceDriverNode(Node):
                 **extras,
             )
         except ValueError as error:  # BackendError, GeometryError
-            raise node_tools.ConfigurationError(f"backend '{values['backend']}': {error}") from None
+            raise parameter_specs.ConfigurationError(
+                f"backend '{values['backend']}': {error}"
+            ) from None
         self._frame_id = values['frame_id']
-        node_tools.watch_parameters(
+        parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_noise, validate=self._check_noise_change
         )
 
@@ -176,7 +178,7 @@ class DeviceDriverNode(Node):
         return ''
 
     def _apply_noise(self, changes):
-        """Apply accepted noise levels (checked by node_tools.watch_parameters)."""
+        """Apply accepted noise levels (checked by parameter_specs.watch_parameters)."""
         noise = {
             NOISE_PARAMETERS[name]: value
             for name, value in changes.items()

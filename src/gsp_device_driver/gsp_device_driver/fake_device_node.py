@@ -22,7 +22,7 @@ from rclpy.node import Node
 
 from gsp_kinematics.geometry import default_geometry_path
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_msgs_py import conversions, message_checks, names, node_tools, qos
+from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 
 from .backends import SimDeviceBackend
 from .device_driver_node import DYNAMICS_PARAMETERS, RNG_STREAM
@@ -85,7 +85,7 @@ class FakeDeviceNode(Node):
 
     def __init__(self, args, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        seed = node_tools.resolve_seed(args.seed)
+        seed = parameter_specs.resolve_seed(args.seed)
         try:
             self._model = SimDeviceBackend.from_config(
                 args.true_geometry,
@@ -96,7 +96,7 @@ class FakeDeviceNode(Node):
                 rng=np.random.default_rng([seed, RNG_STREAM]),
             )
         except ValueError as error:
-            raise node_tools.ConfigurationError(str(error)) from None
+            raise parameter_specs.ConfigurationError(str(error)) from None
         self._truth = TruthFeed()
         self.device = FakeDevice(
             args.port,

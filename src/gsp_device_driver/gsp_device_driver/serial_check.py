@@ -22,7 +22,8 @@ import threading
 import time
 
 from . import backends  # noqa: F401  (first: it imports serial_backend, which needs it)
-from .serial_backend import BACKEND_DROP_REASONS, SerialDeviceBackend
+from .serial_backend import SerialDeviceBackend
+from .serial_gate import BACKEND_DROP_REASONS
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS, Hello, LineError, parse_line
 
 #: |published - expected| allowed for a vector (rad, m): far below any unit's quantisation.

@@ -12,7 +12,7 @@ from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py import conversions, names, testing
 from gsp_msgs_py.health import ERROR, OK, WARN
-from gsp_msgs_py.node_tools import ConfigurationError
+from gsp_msgs_py.parameter_specs import ConfigurationError
 
 TRUE = default_geometry('true')
 POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])

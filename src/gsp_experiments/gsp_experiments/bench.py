@@ -347,11 +347,8 @@ def merge_sections(path, sections, merge=True):
     return document
 
 
-def main(argv=None, extra_sections=None):
-    """``gsp_bench``: the core's sections, then ``extra_sections`` (``{key: run(quick=bool)}``)."""
-    if argv is None:
-        reexec_with_single_threaded_blas()
-    extra_sections = dict(extra_sections or {})
+def _parser(extra_sections):
+    """The command line of ``gsp_bench`` with a skip option per extra section."""
     parser = experiment_parser(
         'gsp_bench', __doc__, 'results/bench.json', 'fewer repeats and postures (a smoke run)'
     )
@@ -397,6 +394,15 @@ def main(argv=None, extra_sections=None):
             action='store_true',
             help=f'skip the {key} section',
         )
+    return parser
+
+
+def main(argv=None, extra_sections=None):
+    """``gsp_bench``: the core's sections, then ``extra_sections`` (``{key: run(quick=bool)}``)."""
+    if argv is None:
+        reexec_with_single_threaded_blas()
+    extra_sections = dict(extra_sections or {})
+    parser = _parser(extra_sections)
     args = parser.parse_args(argv)
     repeats, scipy_repeats, fk_count = (
         max(5, args.repeats),

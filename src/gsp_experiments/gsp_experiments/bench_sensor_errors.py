@@ -99,15 +99,8 @@ def spread(values):
     return {'median': median, 'p5': p5, 'p25': p25, 'p75': p75, 'p95': p95}
 
 
-def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
-    """The ``extended`` fit on sensor-error data against the ``paper`` fit on the same postures
-    and noise with ideal sensors, over many seeds, with its Cramer-Rao diagnosis."""
-    ideal_true = true.replace(sensors=nominal.sensors)  # the datum only: ideal sensors otherwise
-    poses = pool[chosen]
-    # The same postures in both runs: those the real platform reaches with and without its
-    # sensor errors (a posture at the edge can fail in one of them).
-    both = reachable(true, nominal, poses) & reachable(ideal_true, nominal, poses)
-    seeds = 20 if quick else MODEL_SEEDS
+def _model_runs(true, ideal_true, nominal, poses, both, seeds, validation_poses):
+    """Per seed: the fits' validation errors (mm), their predicted means and their p-values."""
     runs = {key: [] for key in ('extended', 'ideal', 'paper', 'extended_ideal_sensors')}
     predicted = {'extended': [], 'ideal': []}
     paper_p, extended_p = [], []
@@ -132,20 +125,15 @@ def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
             predicted[key].append(float(position.mean()))
         paper_p.append(paper.goodness_of_fit.p_value)
         extended_p.append(extended.goodness_of_fit.p_value)
-    runs = {key: np.asarray(values) for key, values in runs.items()}
-    median = {key: float(np.median(values)) for key, values in runs.items()}
-    rng = np.random.default_rng(0)
-    resampled = rng.integers(0, seeds, (2000, seeds))
-    bootstrap = np.median(runs['extended'][resampled], axis=1) / np.median(
-        runs['ideal'][resampled], axis=1
-    )
-    predicted_extended, predicted_ideal = (
-        np.mean(predicted['extended']),
-        np.mean(predicted['ideal']),
-    )
+    return runs, predicted, paper_p, extended_p
 
-    # Where the predicted excess comes from: each group of sensor errors freed alone, postures
-    # selected for the 44 instead, and the best a selection for the validation could do.
+
+def _excess_sources(true, nominal, pool, chosen, validation_poses):
+    """Where the predicted excess over the 44 comes from: each group of sensor errors freed
+    alone, postures selected for the 44 instead, and the best a selection for the validation
+    could do (predicted validation error over the 44's)."""
+    poses = pool[chosen]
+
     def cost(free, on=poses):
         paper_mm = design_position_error_mm(true, on, 'paper', validation_poses)
         return design_position_error_mm(true, on, free, validation_poses) / paper_mm
@@ -158,6 +146,39 @@ def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
         nominal, pool, chosen, targets, SIGMAS.averaged([SAMPLES]), 'extended', passes=3
     )
     gains = [f'kq{leg}' for leg in range(1, 7)]
+    return {
+        'kq1_to_kq6': cost(['paper', *gains]),
+        'alpha0': cost(['paper', 'alpha0']),
+        'extended': cost('extended'),
+        'extended_on_postures_selected_for_paper': cost('extended', pool[paper_chosen]),
+        'extended_on_postures_selected_for_validation': cost('extended', pool[best]),
+    }
+
+
+def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
+    """The ``extended`` fit on sensor-error data against the ``paper`` fit on the same postures
+    and noise with ideal sensors, over many seeds, with its Cramer-Rao diagnosis."""
+    ideal_true = true.replace(sensors=nominal.sensors)  # the datum only: ideal sensors otherwise
+    poses = pool[chosen]
+    # The same postures in both runs: those the real platform reaches with and without its
+    # sensor errors (a posture at the edge can fail in one of them).
+    both = reachable(true, nominal, poses) & reachable(ideal_true, nominal, poses)
+    seeds = 20 if quick else MODEL_SEEDS
+    runs, predicted, paper_p, extended_p = _model_runs(
+        true, ideal_true, nominal, poses, both, seeds, validation_poses
+    )
+    runs = {key: np.asarray(values) for key, values in runs.items()}
+    median = {key: float(np.median(values)) for key, values in runs.items()}
+    rng = np.random.default_rng(0)
+    resampled = rng.integers(0, seeds, (2000, seeds))
+    bootstrap = np.median(runs['extended'][resampled], axis=1) / np.median(
+        runs['ideal'][resampled], axis=1
+    )
+    predicted_extended, predicted_ideal = (
+        np.mean(predicted['extended']),
+        np.mean(predicted['ideal']),
+    )
+
     return {
         'seeds': seeds,
         'postures': int(both.sum()),
@@ -178,13 +199,7 @@ def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
         'sensor_error_bias_mm_max': float(
             np.max(np.abs(runs['extended'] - runs['extended_ideal_sensors']))
         ),
-        'predicted_over_paper': {
-            'kq1_to_kq6': cost(['paper', *gains]),
-            'alpha0': cost(['paper', 'alpha0']),
-            'extended': cost('extended'),
-            'extended_on_postures_selected_for_paper': cost('extended', pool[paper_chosen]),
-            'extended_on_postures_selected_for_validation': cost('extended', pool[best]),
-        },
+        'predicted_over_paper': _excess_sources(true, nominal, pool, chosen, validation_poses),
         'paper_validation_mm': median['paper'],
         'paper_over_extended': median['paper'] / median['extended'],
         'paper_p_value_max': max(paper_p),
@@ -193,23 +208,8 @@ def model_section(true, nominal, pool, chosen, validation_poses, quick=False):
     }
 
 
-def run(quick=False):
-    """The ``sensor_errors`` section (``quick``: fewer seeds for the model and the acceptance)."""
-    true, nominal = default_true_and_nominal()
-    ideal_true = true.replace(sensors=nominal.sensors)  # the datum only: ideal sensors otherwise
-    workspace = Workspace()
-    pool = sample_valid_postures(nominal, 600, np.random.default_rng(0), workspace)
-    # Selected for the extended free set, as the calibrator selects for its free_parameters.
-    chosen, _ = select_postures(
-        nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='extended'
-    )
-    poses = pool[chosen]
-    validation_poses = sample_valid_postures(nominal, 50, np.random.default_rng(1), workspace)
-
-    # 1. The extended model on sensor errors vs the 44 on ideal sensors (same postures and noise).
-    model = model_section(true, nominal, pool, chosen, validation_poses, quick)
-
-    # 2. On ideal data, the goodness of fit accepts the default (extended) model.
+def _good_model_section(ideal_true, nominal, poses, validation_poses, quick):
+    """On ideal data, the goodness of fit accepts the default (extended) model."""
     seeds = 10 if quick else 40
     accepted, paper_same = 0, []
     for seed in range(100, 100 + seeds):
@@ -230,8 +230,11 @@ def run(quick=False):
         'extended_vs_paper_validation_mm': paper_same,
     }
 
-    # 3. Noise estimates from the scatter within each posture.
-    legs, readings, std, commanded = collect(true, nominal, poses, 7)
+    return good
+
+
+def _noise_section(std):
+    """Noise estimates from the scatter ``std`` within each posture."""
     channels = {
         'leg_lengths': SIGMAS.leg_lengths,
         'inclinometer': SIGMAS.inclinometer,
@@ -245,7 +248,11 @@ def run(quick=False):
         'worst_relative_error': max(abs(entry['ratio'] - 1.0) for entry in estimates.values()),
     }
 
-    # 4. Outliers: 3 of 60 postures corrupted; huber vs linear vs the clean run.
+    return noise
+
+
+def _outlier_section(true, nominal, legs, readings, commanded, validation_poses):
+    """Outliers: 3 of 60 postures corrupted; huber vs linear vs the clean run."""
     clean = fit(nominal, legs, readings, commanded, 'extended')
     corrupted_legs, corrupted_readings = legs.copy(), readings.copy()
     for posture, column, offset in CORRUPTIONS:
@@ -271,6 +278,30 @@ def run(quick=False):
         outliers[f'{loss}_named_outliers'] = named
         outliers[f'{loss}_names_all_corrupted'] = set(corrupted) <= set(named)
     outliers['huber_down_weighted'] = runs['huber'].down_weighted[:10]
+    return outliers
+
+
+def run(quick=False):
+    """The ``sensor_errors`` section (``quick``: fewer seeds for the model and the acceptance)."""
+    true, nominal = default_true_and_nominal()
+    ideal_true = true.replace(sensors=nominal.sensors)  # the datum only: ideal sensors otherwise
+    workspace = Workspace()
+    pool = sample_valid_postures(nominal, 600, np.random.default_rng(0), workspace)
+    # Selected for the extended free set, as the calibrator selects for its free_parameters.
+    chosen, _ = select_postures(
+        nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='extended'
+    )
+    poses = pool[chosen]
+    validation_poses = sample_valid_postures(nominal, 50, np.random.default_rng(1), workspace)
+
+    # The extended model on sensor errors vs the 44 on ideal sensors (same postures and noise);
+    # the goodness of fit, the noise estimates and the outliers.
+    model = model_section(true, nominal, pool, chosen, validation_poses, quick)
+
+    good = _good_model_section(ideal_true, nominal, poses, validation_poses, quick)
+    legs, readings, std, commanded = collect(true, nominal, poses, 7)
+    noise = _noise_section(std)
+    outliers = _outlier_section(true, nominal, legs, readings, commanded, validation_poses)
     return {
         'description': (
             'shipped real platform with sensor errors (leg gains, alpha0, LVDT gain datum), 60 '

@@ -4,7 +4,7 @@ aggregator and Foxglove read.
 
 A node lists its components, each a pure function returning a :class:`~gsp_msgs_py.health.Health`,
 and :class:`DiagnosticsPublisher` publishes them every ``diagnostics_period`` s
-(:func:`gsp_msgs_py.node_tools.diagnostics_period_spec`), one status per component named
+(:func:`gsp_msgs_py.parameter_specs.diagnostics_period_spec`), one status per component named
 ``'<node name>: <component>'``. Keys and levels of each node: docs/nodes.md#diagnostics.
 """
 

@@ -11,7 +11,7 @@ from gsp_kinematics.geometry import (
     geometry_to_parameters,
 )
 
-from .node_tools import ParameterSpec
+from .parameter_specs import ParameterSpec
 
 _NOMINAL_PARAMETERS = geometry_to_parameters(default_geometry('nominal'))
 GEOMETRY_PARAMETER_NAMES = tuple(_NOMINAL_PARAMETERS)

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from .node_tools import spin_until  # noqa: F401 (re-exported for the tests)
+from .node_tools import spin_until
 from .ros_environment import DomainInUseError, enter_private_domain
 
 

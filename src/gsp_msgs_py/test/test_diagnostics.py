@@ -17,7 +17,7 @@ from gsp_msgs_py.diagnostics import (
     status_to_health,
 )
 from gsp_msgs_py.health import ERROR, OK, WARN, Health
-from gsp_msgs_py.node_tools import diagnostics_period_spec
+from gsp_msgs_py.parameter_specs import diagnostics_period_spec
 from gsp_msgs_py.testing import spin_until
 
 TIMEOUT_S = 10.0

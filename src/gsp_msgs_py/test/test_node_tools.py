@@ -7,7 +7,8 @@ import rclpy
 import rclpy.executors
 from rclpy.parameter import Parameter
 
-from gsp_msgs_py.node_tools import (
+from gsp_msgs_py.node_tools import scheduled_tick_ns, spin_until, timer_tick_time
+from gsp_msgs_py.parameter_specs import (
     ConfigurationError,
     ParameterSpec,
     at_least,
@@ -19,10 +20,7 @@ from gsp_msgs_py.node_tools import (
     one_of,
     parameter_table_markdown,
     resolve_seed,
-    scheduled_tick_ns,
     seed_spec,
-    spin_until,
-    timer_tick_time,
     watch_parameters,
 )
 from gsp_msgs_py.testing import SIM_CLOCK_STEP_NS, drive_sim_clock, grid_offsets

@@ -22,7 +22,7 @@ from gsp_kinematics.kinematics import (
     inverse_kinematics,
 )
 from gsp_kinematics.travel.motion import REALISTIC_MAX_SPEED, MotionLimits
-from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
@@ -31,7 +31,7 @@ from gsp_msgs_py.geometry_parameters import (
     controller_geometry,
     controller_geometry_error,
 )
-from gsp_msgs_py.node_tools import ParameterSpec, at_least, greater_than, not_blank
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .goal_monitor import REJECTED, SETTLED, GoalMonitor, pose_path, waypoint_times
@@ -42,10 +42,10 @@ DEFAULT_MAX_CONDITION = 100.0  #: as platform_sim
 
 PARAMETERS = (
     *CONTROLLER_GEOMETRY_SPECS,
-    node_tools.controller_name_spec(
+    parameter_specs.controller_name_spec(
         'joint_trajectory_controller whose /<controller_name>/joint_trajectory takes the goals'
     ),
-    node_tools.joint_names_spec('The controller joints of legs 1..6, in leg order'),
+    parameter_specs.joint_names_spec('The controller joints of legs 1..6, in leg order'),
     ParameterSpec(
         'joint_states_topic',
         '/joint_states',
@@ -55,7 +55,7 @@ PARAMETERS = (
     ),
     # The trajectory's times (docs/planning.md): the speed of a positioning hexapod, the
     # acceleration unlimited by default as before (set both to the platform's).
-    *node_tools.motion_limit_specs(REALISTIC_MAX_SPEED, 0.0),
+    *parameter_specs.motion_limit_specs(REALISTIC_MAX_SPEED, 0.0),
     ParameterSpec(
         'min_motion_duration',
         0.1,
@@ -85,7 +85,7 @@ PARAMETERS = (
         unit='m',
         check=greater_than(0.0, 'm'),
     ),
-    node_tools.settle_time_spec('a goal, counted once every leg is within position_tolerance'),
+    parameter_specs.settle_time_spec('a goal, counted once every leg is within position_tolerance'),
     ParameterSpec(
         'goal_timeout',
         2.0,
@@ -107,8 +107,8 @@ PARAMETERS = (
         float_range=(1.0, 1e12),
         check=at_least(1.0),
     ),
-    node_tools.frame_id_spec('Base frame: required of pose commands, and of leg_lengths'),
-    node_tools.diagnostics_period_spec(),
+    parameter_specs.frame_id_spec('Base frame: required of pose commands, and of leg_lengths'),
+    parameter_specs.diagnostics_period_spec(),
 )
 
 
@@ -127,7 +127,7 @@ class PlatformBridgeNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        values = node_tools.declare_parameters(self, PARAMETERS, validate=_check_start_up)
+        values = parameter_specs.declare_parameters(self, PARAMETERS, validate=_check_start_up)
         self._values = values
         self._last_pose = None  # last commanded pose: the guess of FK at the joint states
         self._geometry = controller_geometry(values)
@@ -138,7 +138,7 @@ class PlatformBridgeNode(Node):
             values['settle_time'],
             values['state_timeout'],
         )
-        node_tools.watch_parameters(
+        parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=check_geometry_change
         )
         self._trajectory_topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'

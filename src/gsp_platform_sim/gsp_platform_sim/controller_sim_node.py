@@ -21,7 +21,7 @@ from gsp_kinematics.geometry import (
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
-from gsp_msgs_py import conversions, names, node_tools, qos
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 
 from .trajectory_follower import TrajectoryFollower
 
@@ -32,27 +32,27 @@ RNG_STREAM = 3
 FK_CONTINUATION_STEPS = (1, 8, 64)
 
 PARAMETERS = (
-    node_tools.geometry_file_spec(
+    parameter_specs.geometry_file_spec(
         'true_geometry_file',
         default_geometry_path('true'),
         'Geometry params file of the emulated hexapod (its true pose is FK of this geometry)',
         default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     ),
-    node_tools.controller_name_spec(
+    parameter_specs.controller_name_spec(
         'Emulated controller: goals on /<controller_name>/joint_trajectory'
     ),
-    node_tools.joint_names_spec('Joint names of legs 1..6 on /joint_states'),
+    parameter_specs.joint_names_spec('Joint names of legs 1..6 on /joint_states'),
     # A speed limit alone by default (0: no acceleration limit), as before the motion model.
-    *node_tools.motion_limit_specs(0.1, 0.0, read_only=True),
-    node_tools.publish_rate_spec('/joint_states and true_pose'),
-    node_tools.noise_std_spec(
+    *parameter_specs.motion_limit_specs(0.1, 0.0, read_only=True),
+    parameter_specs.publish_rate_spec('/joint_states and true_pose'),
+    parameter_specs.noise_std_spec(
         'leg_noise_std',
         DEFAULT_SENSOR_NOISE.leg_lengths,
         'Standard deviation of the leg position noise on /joint_states',
         'm',
     ),
-    node_tools.seed_spec(),
-    node_tools.frame_id_spec('Frame of the published true pose'),
+    parameter_specs.seed_spec(),
+    parameter_specs.frame_id_spec('Frame of the published true pose'),
 )
 
 
@@ -61,15 +61,15 @@ class ControllerSimNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        values = node_tools.declare_parameters(self, PARAMETERS)
+        values = parameter_specs.declare_parameters(self, PARAMETERS)
         try:
             self._true = load_geometry(values['true_geometry_file'])
         except GeometryError as error:
-            raise node_tools.ConfigurationError(f'true_geometry_file: {error}') from None
+            raise parameter_specs.ConfigurationError(f'true_geometry_file: {error}') from None
         self._joint_names = list(values['joint_names'])
         self._frame_id = values['frame_id']
         self._noise_std = values['leg_noise_std']
-        seed = node_tools.resolve_seed(values['seed'])
+        seed = parameter_specs.resolve_seed(values['seed'])
         self._rng = np.random.default_rng([seed, RNG_STREAM])
         # Powered up where a nominal controller put the home pose.
         nominal = default_geometry('nominal')
@@ -82,11 +82,11 @@ class ControllerSimNode(Node):
             self._true, self._true.sensors.true_leg_lengths(start[None]), home_pose()[None]
         )
         if not converged[0]:
-            raise node_tools.ConfigurationError(
+            raise parameter_specs.ConfigurationError(
                 'true_geometry_file: no forward kinematics at the power-up leg strokes'
             )
         self._pose, self._pose_legs = pose[0], start
-        node_tools.watch_parameters(self, PARAMETERS, apply=self._apply)
+        parameter_specs.watch_parameters(self, PARAMETERS, apply=self._apply)
         topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self.create_subscription(JointTrajectory, topic, self._on_trajectory, 10)
         self._joint_pub = self.create_publisher(JointState, '/joint_states', qos.SENSOR_QOS)

@@ -19,7 +19,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
-from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
@@ -27,7 +27,7 @@ from gsp_msgs_py.geometry_parameters import (
     check_geometry_change,
     controller_geometry_error,
 )
-from gsp_msgs_py.node_tools import ParameterSpec, at_least
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .markers import make_marker_array
@@ -38,25 +38,25 @@ MARKER_RATE_HZ = 10.0
 RNG_STREAM = 1
 
 PARAMETERS = (
-    node_tools.geometry_file_spec(
+    parameter_specs.geometry_file_spec(
         'true_geometry_file',
         default_geometry_path('true'),
         'Geometry params file of the real (true) platform, read once at start-up; never published',
         default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     ),
     *CONTROLLER_GEOMETRY_SPECS,
-    node_tools.publish_rate_spec('leg_lengths and true_pose'),
-    node_tools.noise_std_spec(
+    parameter_specs.publish_rate_spec('leg_lengths and true_pose'),
+    parameter_specs.noise_std_spec(
         'leg_noise_std',
         DEFAULT_SENSOR_NOISE.leg_lengths,
         'Standard deviation of the Gaussian leg length sensor noise',
         'm',
     ),
-    node_tools.seed_spec(),
-    node_tools.settle_time_spec('an accepted command'),
+    parameter_specs.seed_spec(),
+    parameter_specs.settle_time_spec('an accepted command'),
     # Defaults: no limits, the platform jumps (quick demos and tests); the realistic limits are
     # gsp_kinematics.travel.motion.MotionLimits() (docs/planning.md).
-    *node_tools.motion_limit_specs(0.0, 0.0),
+    *parameter_specs.motion_limit_specs(0.0, 0.0),
     ParameterSpec(
         'max_condition',
         DEFAULT_MAX_CONDITION,
@@ -70,10 +70,10 @@ PARAMETERS = (
         f'Publish RViz markers on {names.TOPIC_MARKERS} at {MARKER_RATE_HZ:g} Hz',
         read_only=True,
     ),
-    node_tools.frame_id_spec(
+    parameter_specs.frame_id_spec(
         'Base frame: of the published messages, and required of pose commands'
     ),
-    node_tools.diagnostics_period_spec(),
+    parameter_specs.diagnostics_period_spec(),
 )
 
 
@@ -87,15 +87,15 @@ class PlatformSimNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(names.NODE_PLATFORM_SIM, **kwargs)
-        values = node_tools.declare_parameters(self, PARAMETERS, validate=_check_start_up)
+        values = parameter_specs.declare_parameters(self, PARAMETERS, validate=_check_start_up)
         try:
             true_geometry = load_geometry(values['true_geometry_file'])
         except GeometryError as error:
-            raise node_tools.ConfigurationError(f'true_geometry_file: {error}') from None
+            raise parameter_specs.ConfigurationError(f'true_geometry_file: {error}') from None
         controller_geometry = geometry_from_parameters(
             {name: values[name] for name in GEOMETRY_PARAMETER_NAMES}
         )
-        seed = node_tools.resolve_seed(values['seed'])
+        seed = parameter_specs.resolve_seed(values['seed'])
         try:
             self._simulator = PlatformSimulator(
                 true_geometry,
@@ -108,9 +108,9 @@ class PlatformSimNode(Node):
                 ),
             )
         except ValueError as error:
-            raise node_tools.ConfigurationError(str(error)) from None
+            raise parameter_specs.ConfigurationError(str(error)) from None
         self._frame_id = values['frame_id']
-        node_tools.watch_parameters(
+        parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=check_geometry_change
         )
 
@@ -149,7 +149,7 @@ class PlatformSimNode(Node):
         )
 
     def _apply_parameters(self, changes):
-        """Apply accepted run-time changes (checked by node_tools.watch_parameters)."""
+        """Apply accepted run-time changes (checked by parameter_specs.watch_parameters)."""
         if 'leg_noise_std' in changes:
             self._simulator.leg_noise_std = changes['leg_noise_std']
         if 'max_condition' in changes:

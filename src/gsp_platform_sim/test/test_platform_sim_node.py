@@ -17,7 +17,7 @@ from gsp_kinematics.geometry import (
 from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
 from gsp_msgs_py import conversions, names, testing
 from gsp_msgs_py.health import OK, WARN
-from gsp_msgs_py.node_tools import ConfigurationError
+from gsp_msgs_py.parameter_specs import ConfigurationError
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
 TRUE = default_geometry('true')

@@ -60,6 +60,7 @@ from gsp_calibrator.collection.synchroniser import (
     LVDT,
     SampleCollector,
 )
+from gsp_calibrator.collection.timeouts import CollectionTimeouts
 from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
     DEVICE_STREAMS,
     SENSOR_TOPICS,
@@ -67,13 +68,10 @@ from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, u
     has_non_finite,
     read_sensor,
 )
-from gsp_msgs_py import names
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collection.synchroniser).
 MAX_PAIRS_PER_SAMPLE = 20
-#: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
-STALL_FRACTION = 0.5
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
 MIN_BUFFER = 2000
 #: Pairs handed over per posture with ``keep_pairs`` (the first ones after the settle), and
@@ -156,9 +154,10 @@ class CollectionProtocol:
         keep_pairs=False,
     ):
         self.samples_per_posture = int(samples_per_posture)
-        self.topic_timeout = float(topic_timeout)
-        self.settle_timeout = float(settle_timeout)
-        self.sync_tolerance = float(sync_tolerance)
+        self.timeouts = CollectionTimeouts(
+            topic_timeout, settle_timeout, sync_tolerance, samples_per_posture
+        )
+        self.topic_timeout = self.timeouts.topic_timeout  # s
         self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
         self.keep_pairs = bool(keep_pairs)
         buffer = None if keep_pairs else max(MIN_BUFFER, 2 * self.pair_limit)
@@ -168,11 +167,8 @@ class CollectionProtocol:
         self._posture = None  # the awaited posture (_Posture) or None
         self._previous = None  # device readings of the previous row
         self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
-        self._last_heard = {}  # topic -> receive time (ns) of its latest message
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None
-        self._attended_ns = None  # receive time of the latest call
-        self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
         self.skipped = []
         self._idle = None  # keep_pairs: the samples before the first command
@@ -184,7 +180,7 @@ class CollectionProtocol:
 
     def heard(self, topic):
         """Whether ``topic`` has said anything yet."""
-        return topic in self._last_heard
+        return self.timeouts.heard(topic)
 
     @property
     def posture(self):
@@ -270,7 +266,7 @@ class CollectionProtocol:
     def sensor(self, topic, msg, now_ns):
         """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) received at ``now_ns``."""
         self._attend(now_ns)
-        self._last_heard[topic] = int(now_ns)
+        self.timeouts.hear(topic, now_ns)
         try:
             stream, stamp_ns, values = read_sensor(topic, msg)
         except (ValueError, TypeError) as error:
@@ -288,7 +284,7 @@ class CollectionProtocol:
         self._attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
-            self._last_heard[topic] = int(now_ns)
+            self.timeouts.hear(topic, now_ns)
         self._latest[stream] = (int(stamp_ns), values)
         adder = _ADDERS[stream]
         posture = self._posture
@@ -314,23 +310,13 @@ class CollectionProtocol:
             return []
         now_ns = int(now_ns)
         if posture.state == _AWAIT_STATUS:
-            if _elapsed(self._since(posture.commanded_ns), now_ns) >= self.topic_timeout:
-                doing = (
-                    f'waiting for the status of posture {posture.number} '
-                    f'(command {posture.command_id})'
-                )
-                return self._fail(
-                    TopicSilent(
-                        names.TOPIC_PLATFORM_STATUS,
-                        doing,
-                        f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no status for posture '
-                        f'{posture.number} (command {posture.command_id}) within '
-                        f'{self.topic_timeout:g} s',
-                    )
-                )
+            silent = self.timeouts.status_overdue(posture, now_ns)
+            if silent is not None:
+                return self._fail(silent)
         elif posture.state == _AWAIT_SETTLE:
-            if _elapsed(self._since(posture.first_status_ns), now_ns) >= self.settle_timeout:
-                return self._skip(f'not settled within {self.settle_timeout:g} s')
+            reason = self.timeouts.settle_overdue(posture, now_ns)
+            if reason:
+                return self._skip(reason)
         elif posture.state == _COLLECTING and not self.keep_pairs:
             return self._collection_timeouts(now_ns)
         return []
@@ -374,78 +360,13 @@ class CollectionProtocol:
         return self._collection_timeouts(now_ns)
 
     def _collection_timeouts(self, now_ns):
-        posture, collector = self._posture, self.collector
-        silences = {  # s, since the topic's latest message (or the settle, or a stall)
-            topic: _elapsed(
-                self._since(max(self._last_heard.get(topic, 0), posture.started_ns)), now_ns
-            )
-            for topic in SENSOR_TOPICS
-        }
-        topic = max(silences, key=silences.get)  # the first to fall silent is the cause
-        # >= as for the progress timeout below: a topic that died at the collection start
-        # expires together with the progress, and the silent topic is the cause to name.
-        if silences[topic] >= self.topic_timeout:
-            doing = f'collecting posture {posture.number}'
-            return self._fail(
-                TopicSilent(
-                    topic,
-                    doing,
-                    f'topic {topic} is silent: no message for '
-                    f'{self.topic_timeout:g} s while {doing}',
-                )
-            )
-        count = collector.pair_count()
-        if count != posture.progress:
-            posture.progress, posture.progress_ns = count, now_ns
-        if _elapsed(self._since(posture.progress_ns), now_ns) >= self.topic_timeout:
-            # The pairs stopped: if a topic stopped too (a dead node whose last messages still
-            # paired a little later), it is the cause to name.
-            if silences[topic] >= 0.5 * self.topic_timeout:
-                doing = f'collecting posture {posture.number}'
-                return self._fail(
-                    TopicSilent(
-                        topic,
-                        doing,
-                        f'topic {topic} is silent: no message for {silences[topic]:.3g} s '
-                        f'while {doing} (and no synchronised sample for '
-                        f'{self.topic_timeout:g} s)',
-                    )
-                )
-            counts = collector.counts()
-            return self._fail(
-                NoSynchronisedSample(
-                    posture.number,
-                    f'no synchronised sample for {self.topic_timeout:g} s at posture '
-                    f'{posture.number}: {counts[LEG_LENGTHS]} leg-length and {counts["device"]} '
-                    f'complete device samples since settling, {counts["pairs"]} within '
-                    f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
-                    f'(non-finite readings dropped so far: {collector.non_finite})',
-                )
-            )
-        # The collection is bounded as a whole: pairs that keep coming without a consistent
-        # window would otherwise restart the progress timeout for ever.
-        limit = self.settle_timeout + self.topic_timeout
-        if _elapsed(self._since(posture.started_ns), now_ns) >= limit:
-            counts = collector.counts()
-            return self._skip(
-                f'no {self.samples_per_posture} consistent synchronised samples within '
-                f'{limit:g} s (settle_timeout + topic_timeout) of settling: '
-                f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '
-                f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
-            )
-        return []
+        failure, reason = self.timeouts.collection_overdue(self._posture, self.collector, now_ns)
+        if failure is not None:
+            return self._fail(failure)
+        return self._skip(reason) if reason else []
 
     def _attend(self, now_ns):
-        """Note a call at ``now_ns``; a long gap since the previous one is a stall."""
-        now_ns = int(now_ns)
-        if self._attended_ns is not None and now_ns > self._attended_ns:
-            if _elapsed(self._attended_ns, now_ns) >= STALL_FRACTION * self.topic_timeout:
-                self._stall_end_ns = now_ns
-        self._attended_ns = now_ns if self._attended_ns is None else max(self._attended_ns, now_ns)
-
-    def _since(self, reference_ns):
-        """The start of a timeout from ``reference_ns``: no later than the latest stall."""
-        return max(int(reference_ns), self._stall_end_ns)
+        self.timeouts.attend(now_ns)
 
     def _row(self):
         posture, collector = self._posture, self.collector
@@ -493,8 +414,3 @@ class CollectionProtocol:
         event = PostureSkipped(posture.number, reason)
         self.skipped.append(event)
         return [event]
-
-
-def _elapsed(since_ns, now_ns):
-    """Seconds from ``since_ns`` to ``now_ns``."""
-    return (int(now_ns) - int(since_ns)) * 1e-9

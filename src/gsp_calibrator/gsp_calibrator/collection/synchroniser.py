@@ -74,6 +74,42 @@ class PostureSample:
         return self.stamp_ns / NS_PER_S
 
 
+def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
+    """``[(leg_stamp, device_stamp), ...]``: each of the sorted ``leg_stamps`` (ns) takes the
+    nearest unused one of the sorted ``device_stamps`` within ``tolerance_ns`` (one-to-one)."""
+    used = [False] * len(device_stamps)
+    result = []
+    for leg_stamp in leg_stamps:
+        # Nearest unused device stamp: walk outwards from the insertion point.
+        right = bisect.bisect_left(device_stamps, leg_stamp)
+        left = right - 1
+        while left >= 0 and used[left]:
+            left -= 1
+        while right < len(device_stamps) and used[right]:
+            right += 1
+        candidates = [i for i in (left, right) if 0 <= i < len(device_stamps)]
+        if not candidates:
+            continue
+        best = min(candidates, key=lambda i: (abs(device_stamps[i] - leg_stamp), device_stamps[i]))
+        if abs(device_stamps[best] - leg_stamp) <= tolerance_ns:
+            used[best] = True
+            result.append((leg_stamp, device_stamps[best]))
+    return result
+
+
+def median_and_spread(values, noise_std):
+    """Median (10,), absolute deviations (n, 10) and robust spread (10,) of the ``(n, 10)``
+    channel values (``phi`` unwrapped around the first); the spread is at least ``noise_std``."""
+    values = values.copy()
+    values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + wrap_angle(
+        values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL]
+    )
+    median = np.median(values, axis=0)
+    deviation = np.abs(values - median)
+    spread = np.maximum(1.4826 * np.median(deviation, axis=0), noise_std)
+    return median, deviation, spread
+
+
 class SampleCollector:
     """Buffers both streams and pairs them by nearest stamp (see the module docstring).
 
@@ -226,29 +262,10 @@ class SampleCollector:
         tolerance (one-to-one); a leg sample with none is left unpaired.
         """
         if self._pairs is None:
-            self._pairs = self._match()
+            self._pairs = nearest_pairs(
+                sorted(self._legs), self.complete_device_stamps(), self.tolerance_ns
+            )
         return list(self._pairs)
-
-    def _match(self):
-        device = self.complete_device_stamps()
-        used = [False] * len(device)
-        result = []
-        for leg_stamp in sorted(self._legs):
-            # Nearest unused device stamp: walk outwards from the insertion point.
-            right = bisect.bisect_left(device, leg_stamp)
-            left = right - 1
-            while left >= 0 and used[left]:
-                left -= 1
-            while right < len(device) and used[right]:
-                right += 1
-            candidates = [i for i in (left, right) if 0 <= i < len(device)]
-            if not candidates:
-                continue
-            best = min(candidates, key=lambda i: (abs(device[i] - leg_stamp), device[i]))
-            if abs(device[best] - leg_stamp) <= self.tolerance_ns:
-                used[best] = True
-                result.append((leg_stamp, device[best]))
-        return result
 
     def pair_count(self):
         """Number of synchronised pairs available now."""
@@ -261,27 +278,20 @@ class SampleCollector:
         )
 
     def _median_and_spread(self, pairs):
-        values = self._values(pairs)
-        values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + wrap_angle(
-            values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL]
-        )
-        median = np.median(values, axis=0)
-        deviation = np.abs(values - median)
-        spread = np.maximum(1.4826 * np.median(deviation, axis=0), self.noise_std)
-        return values, median, deviation, spread
+        return median_and_spread(self._values(pairs), self.noise_std)
 
     def consistent(self, pairs):
         """Whether every value of ``pairs`` lies within the threshold of their median."""
         if self.noise_std is None or len(pairs) < 3:
             return True
-        _, _, deviation, spread = self._median_and_spread(pairs)
+        _, deviation, spread = self._median_and_spread(pairs)
         return bool(np.all(deviation <= self.consistency_threshold * spread))
 
     def unchanged(self, pairs):
         """Whether the device readings of ``pairs`` still equal the previous posture's."""
         if self.noise_std is None or self.previous_readings is None or not pairs:
             return False
-        _, median, _, spread = self._median_and_spread(pairs)
+        median, _, spread = self._median_and_spread(pairs)
         difference = median[6:] - self.previous_readings
         difference[2] = wrap_angle(difference[2])
         return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))

@@ -1,10 +1,11 @@
 """Rebuilding a run from its recording, offline (pure, no rclpy node or context).
 
 :func:`samples_from_recording` feeds every recorded command, status and sensor message to the
-shared collection protocol (:func:`feed_recording`), in receive-time order, so the rows are the
-ones the calibrator collected online; ``gsp_reidentify`` and replay use it.
+shared collection protocol (:func:`feed_recording`), in causal order (each topic in log order),
+so the rows are the ones the calibrator collected online; ``gsp_reidentify`` and replay use it.
 """
 
+import collections
 import os
 
 from gsp_calibrator.collection import protocol
@@ -43,87 +44,127 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     (``extra_topics`` are read for it alone). Malformed messages are dropped, as the calibrator
     drops them.
 
-    A command takes effect at the first later sensor message stamped at or after it (or its
-    ``settled`` or ``rejected`` status, or the next command): the calibrator commands the next
-    posture as soon as a row is complete, and the recorder, subscriptions of its own, may log
-    the row's last samples after that command and its ``moving`` status; they still belong to
-    the posture before it. So does the posture's own ``settled`` status when logged that late
-    (a loaded machine: the calibrator had collected from the start it noted).
+    The log order is not causal across topics: the recorder serves its subscriptions in no
+    order, and a stalled recorder may log a posture's ``settled`` status and last samples after
+    the next commands and their statuses. Within one topic the stamps arrive in order. So a
+    command takes effect (the posture before it closes) only once every sensor topic has
+    delivered a message stamped at or after the command and the posture before it has
+    its ``settled`` or ``rejected`` status; the messages logged after it wait until then (a
+    sensor message stamped before it still goes to the posture before it). At the end of the
+    recording the commands still waiting take effect in turn.
     """
-    from gsp_msgs_py import conversions
-
     paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
-    if notes is None:
-        notes = {}
-        for part in paths:
-            notes.update(collection_notes(recording_info(part), part))
+    notes = _notes_of(paths) if notes is None else notes
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
         + protocol.SENSOR_TOPICS
         + tuple(extra_topics)
     )
-    count = 0
-    pending = None  # (number, pose, command_id, log time) of a command not yet in effect
-    moving = []  # (status, log time) of the pending command: fed once it takes effect
-
-    def status_now(status, log_time):
-        return collection.status(status, log_time, notes.get(status.command_id, (None, None))[1])
-
-    def command_now():
-        nonlocal pending
-        if pending is None:
-            return []
-        events, pending = collection.command(*pending), None
-        for status, log_time in moving:
-            events += status_now(status, log_time)
-        moving.clear()
-        return events
-
+    order = _CausalOrder(collection, notes)
     messages = (m for part in paths for m in read_recording(part, topics=wanted))
     for topic, _, log_time, msg, _ in messages:
         if on_message is not None:
             on_message(topic, log_time, msg)
-        if topic in protocol.TOPIC_STREAMS:
-            if pending is not None and not _stamped_before(msg, int(pending[2])):
-                yield from command_now()
-            events = collection.sensor(topic, msg, log_time)
-        elif topic == names.TOPIC_POSE_COMMAND:
-            try:
-                command_id = conversions.command_id_from_stamp(msg.header.stamp)
-                pose = conversions.pose_stamped_to_pose(msg)
-            except (ValueError, TypeError):
-                continue
-            yield from command_now()
-            count += 1
-            number = notes.get(command_id, (None, None))[0] or count
-            pending = (number, pose, command_id, log_time)
-            continue
-        elif topic == names.TOPIC_PLATFORM_STATUS:
-            try:
-                status = conversions.parse_status(msg)
-            except ValueError:
-                continue
-            if pending is not None and status.command_id == pending[2]:
-                if not (status.settled or status.rejected):
-                    moving.append((status, log_time))
-                    continue
-                yield from command_now()
-            events = status_now(status, log_time)
-        else:
-            continue
-        yield from events
-    yield from command_now()
+        yield from order.message(topic, log_time, msg)
+    yield from order.advance(final=True)
     yield from collection.finish()
 
 
-def _stamped_before(msg, stamp_ns):
-    """Whether ``msg``'s header stamp is before ``stamp_ns`` (False if it has none)."""
+class _CausalOrder:
+    """Feeds recorded messages to a collection protocol in causal order (see
+    :func:`feed_recording`): holds the messages logged after a command until it takes effect."""
+
+    def __init__(self, collection, notes):
+        self.collection = collection
+        self.notes = notes  # {command_id: (posture or None, start_ns)}
+        self.count = 0  # commands so far
+        self.active = None  # command id of the posture in effect
+        self.final_status = True  # whether the posture in effect has its settled/rejected
+        self.pending = collections.deque()  # (number, pose, command_id, log time), not in effect
+        self.held = []  # (topic, log time, message or status) logged after pending[0]
+        self.reached = set()  # sensor topics heard at or after pending[0]'s stamp
+
+    def message(self, topic, log_time, msg):
+        """Events of one recorded message (in log order)."""
+        from gsp_msgs_py import conversions
+
+        if topic == names.TOPIC_POSE_COMMAND:
+            try:
+                command_id, pose = _read_command(msg)
+            except (ValueError, TypeError):
+                return []
+            self.count += 1
+            number = self.notes.get(command_id, (None, None))[0] or self.count
+            self.pending.append((number, pose, command_id, log_time))
+            return self.advance()
+        if topic == names.TOPIC_PLATFORM_STATUS:
+            try:
+                msg = conversions.parse_status(msg)
+            except ValueError:
+                return []
+        elif topic not in protocol.TOPIC_STREAMS:
+            return []
+        return self._route(topic, log_time, msg) + self.advance()
+
+    def advance(self, final=False):
+        """Put the waiting commands into effect while they may (``final``: all of them)."""
+        events = []
+        while self.pending and (
+            final or (self.final_status and self.reached.issuperset(protocol.SENSOR_TOPICS))
+        ):
+            number, pose, command_id, log_time = self.pending.popleft()
+            events += self.collection.command(number, pose, command_id, log_time)
+            self.active, self.final_status = command_id, False
+            self.reached.clear()
+            backlog, self.held = self.held, []
+            for item in backlog:
+                events += self._route(*item)
+        return events
+
+    def _route(self, topic, log_time, item):
+        """Feed a sensor message or parsed status to the posture in effect, or hold it."""
+        if topic in protocol.TOPIC_STREAMS:
+            stamp_ns = _stamp_ns(item)
+            if stamp_ns is not None:
+                if self.pending and (topic in self.reached or stamp_ns >= int(self.pending[0][2])):
+                    self.reached.add(topic)
+                    self.held.append((topic, log_time, item))
+                    return []
+            return self.collection.sensor(topic, item, log_time)
+        if any(item.command_id == command[2] for command in self.pending):
+            self.held.append((topic, log_time, item))
+            return []
+        if item.command_id == self.active and (item.settled or item.rejected):
+            self.final_status = True
+        start_ns = self.notes.get(item.command_id, (None, None))[1]
+        return self.collection.status(item, log_time, start_ns)
+
+
+def _notes_of(paths):
+    """Command id -> (posture number, collection start) noted in the recordings ``paths``."""
+    notes = {}
+    for part in paths:
+        notes.update(collection_notes(recording_info(part), part))
+    return notes
+
+
+def _read_command(msg):
+    """``(command id, pose)`` of a recorded pose command; ValueError/TypeError if malformed."""
+    from gsp_msgs_py import conversions
+
+    return conversions.command_id_from_stamp(msg.header.stamp), conversions.pose_stamped_to_pose(
+        msg
+    )
+
+
+def _stamp_ns(msg):
+    """``msg``'s header stamp (int ns), or None if it has none."""
     from gsp_msgs_py import conversions
 
     try:
-        return conversions.stamp_to_nanoseconds(msg.header.stamp) < stamp_ns
+        return conversions.stamp_to_nanoseconds(msg.header.stamp)
     except (AttributeError, ValueError, TypeError):
-        return False
+        return None
 
 
 def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):

@@ -220,16 +220,7 @@ class RecordedRun:
 
         path = parts[0]
         options = recording.recording_options(path)
-        if sync_tolerance is None:
-            sync_tolerance = options.get('sync_tolerance', DEFAULTS['sync_tolerance'])
-        try:
-            sync_tolerance = float(sync_tolerance)
-        except (TypeError, ValueError):
-            raise ReplayError(
-                f'{path}: sync_tolerance {sync_tolerance!r} is not a number'
-            ) from None
-        if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
-            raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} must be >= 0 s')
+        sync_tolerance = _sync_tolerance(path, options, sync_tolerance)
 
         # Every pair after each settle, paired by the calibrator's own protocol; the true poses
         # of each segment (command to command) are kept beside it, by command id.
@@ -332,6 +323,20 @@ class RecordedRun:
         if distance[best] <= float(tolerance):
             return self.postures[best]
         return None
+
+
+def _sync_tolerance(path, options, sync_tolerance):
+    """The pairing tolerance (s): ``sync_tolerance`` if given, else the recorded run's option,
+    else the calibrator's default; ReplayError if it is not a time >= 0."""
+    if sync_tolerance is None:
+        sync_tolerance = options.get('sync_tolerance', DEFAULTS['sync_tolerance'])
+    try:
+        sync_tolerance = float(sync_tolerance)
+    except (TypeError, ValueError):
+        raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} is not a number') from None
+    if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
+        raise ReplayError(f'{path}: sync_tolerance {sync_tolerance!r} must be >= 0 s')
+    return sync_tolerance
 
 
 def _true_poses(known, stamps, margin):

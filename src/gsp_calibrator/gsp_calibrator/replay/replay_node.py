@@ -23,9 +23,9 @@ after the settle. The command protocol is :class:`gsp_msgs_py.pose_commands.Pose
 from rclpy.node import Node
 
 from gsp_calibrator.replay.recorded_run import RecordedRun, ReplayError
-from gsp_msgs_py import conversions, names, node_tools
+from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
-from gsp_msgs_py.node_tools import ParameterSpec, greater_than, not_blank
+from gsp_msgs_py.parameter_specs import ParameterSpec, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 NODE_NAME = names.NODE_REPLAY
@@ -43,8 +43,8 @@ PARAMETERS = (
         constraints='required, readable',
         check=not_blank(reason='required: a run directory, samples.csv or recording.mcap'),
     ),
-    node_tools.publish_rate_spec('the replayed samples'),
-    node_tools.settle_time_spec('a recorded posture'),
+    parameter_specs.publish_rate_spec('the replayed samples'),
+    parameter_specs.settle_time_spec('a recorded posture'),
     ParameterSpec(
         'pose_tolerance',
         1e-6,
@@ -54,10 +54,10 @@ PARAMETERS = (
         constraints='> 0',
         check=greater_than(0.0, reason='must be > 0 (m and rad)'),
     ),
-    node_tools.frame_id_spec(
+    parameter_specs.frame_id_spec(
         'Base frame: of the published messages, and required of pose commands'
     ),
-    node_tools.diagnostics_period_spec(),
+    parameter_specs.diagnostics_period_spec(),
 )
 
 
@@ -66,18 +66,18 @@ class ReplayNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        values = node_tools.declare_parameters(self, PARAMETERS)
+        values = parameter_specs.declare_parameters(self, PARAMETERS)
         try:
             self._run = RecordedRun.load(values['run'])
         except (ReplayError, OSError) as error:
-            raise node_tools.ConfigurationError(f'run: {error}') from None
+            raise parameter_specs.ConfigurationError(f'run: {error}') from None
         self._frame_id = values['frame_id']
         self._tolerance = values['pose_tolerance']
         self._period_ns = int(round(1e9 / values['publish_rate']))
         self._stream = self._run.initial_stream
         self._cursor = 0
         self._resume_ns = None  # the stream is silent until then (after a 'settled' status)
-        node_tools.watch_parameters(self, PARAMETERS, apply=self._apply_parameters)
+        parameter_specs.watch_parameters(self, PARAMETERS, apply=self._apply_parameters)
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.
         topics = (names.TOPIC_LEG_LENGTHS, *node_tools.DEVICE_TOPICS)
@@ -107,7 +107,7 @@ class ReplayNode(Node):
             self.get_logger().info(f'recorded command {k} gives no posture: {why}')
 
     def _apply_parameters(self, changes):
-        """Apply accepted run-time changes (checked by node_tools.watch_parameters)."""
+        """Apply accepted run-time changes (checked by parameter_specs.watch_parameters)."""
         if 'settle_time' in changes:
             self._commands.settle_time = changes['settle_time']
         if 'pose_tolerance' in changes:

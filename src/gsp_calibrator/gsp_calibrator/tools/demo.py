@@ -33,6 +33,12 @@ import numpy as np
 from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import add_run_options, run_options_error
+from gsp_calibrator.tools.demo_commands import (
+    MOVING_SETTLE_TIMEOUT_S,
+    NODES,
+    node_commands,
+    ros_environment,
+)
 from gsp_calibrator.tools.demo_summary import (  # noqa: F401 (the demo's figures)
     FIT_KEYS,
     VALIDATION_KEYS,
@@ -51,24 +57,7 @@ from gsp_msgs_py.ros_environment import (
     DomainInUseError,
     enter_private_domain,
     foreign_nodes_in_child,
-    loopback_environment,
 )
-
-#: The three nodes: executable (console script) and module (fallback: ``python -m``).
-NODES = {
-    'platform_sim': 'gsp_platform_sim.platform_sim_node',
-    'device_driver': 'gsp_device_driver.device_driver_node',
-    'calibrator': 'gsp_calibrator.calibrator_node',
-    # --platform ros2_control: the bridge and the emulated controller replace platform_sim.
-    'controller_sim': 'gsp_platform_sim.controller_sim_node',
-    'platform_bridge': 'gsp_platform_bridge.platform_bridge_node',
-    # --device serial: the emulated device on a pty feeds device_driver's serial backend.
-    'gsp_fake_device': 'gsp_device_driver.fake_device_node',
-}
-#: Leg speeds of the emulated controller and of the bridge's trajectories (m/s): fast, so that
-#: the ros2_control mode spends its time like the direct one, in settling and sampling.
-EMULATED_LEG_SPEED = 5.0
-BRIDGE_LEG_SPEED = 2.5
 
 
 class Terminated(Exception):
@@ -77,158 +66,6 @@ class Terminated(Exception):
 
 def _raise_terminated(signum, frame):
     raise Terminated()
-
-
-# --- pure parts ----------------------------------------------------------------------------------
-
-
-def ros_environment(environ=None, rng=None):
-    """The nodes' environment: :func:`~gsp_msgs_py.ros_environment.loopback_environment` (a
-    random domain unless one is set) with unbuffered output, so their logs are complete."""
-    env = loopback_environment(environ, rng=rng)
-    env['PYTHONUNBUFFERED'] = '1'
-    return env
-
-
-def executable_command(name, which=shutil.which):
-    """argv prefix of node ``name``: its console script from PATH, else ``python -m <module>``."""
-    path = which(name)
-    if path:
-        return [path]
-    return [sys.executable, '-m', NODES[name]]
-
-
-#: The calibrator's settle_timeout when the legs move at their limits: longer than any move.
-MOVING_SETTLE_TIMEOUT_S = 60.0
-
-
-def motion_parameters(args):
-    """platform_sim's leg limits of ``--max-leg-speed`` / ``--max-leg-acceleration`` (0: none)."""
-    speed = float(getattr(args, 'max_leg_speed', 0.0))
-    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
-    return ['-p', f'max_leg_speed:={speed!r}', '-p', f'max_leg_acceleration:={acceleration!r}']
-
-
-def calibrator_motion_parameters(args):
-    """With leg limits, the calibrator plans its route with them and waits long enough for a
-    move (``settle_timeout``); without, its defaults."""
-    speed = float(getattr(args, 'max_leg_speed', 0.0))
-    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
-    if not speed > 0:
-        return []
-    extra = [
-        '-p',
-        f'max_leg_speed:={speed!r}',
-        '-p',
-        f'settle_timeout:={MOVING_SETTLE_TIMEOUT_S!r}',
-    ]
-    if acceleration > 0:
-        extra += ['-p', f'max_leg_acceleration:={acceleration!r}']
-    return extra
-
-
-def node_commands(args, output_root, which=shutil.which):
-    """``{node name: argv}`` of the nodes for the parsed ``args``: platform_sim (or, with
-    ``--platform ros2_control``, controller_sim and platform_bridge), device_driver (with
-    ``--device serial``, its serial backend on ``args.device_port`` fed by gsp_fake_device) and
-    the calibrator."""
-    rate = float(args.sensor_rate)
-    # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
-    # noise (node_tools.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
-    common = ['-p', f'publish_rate:={rate!r}']
-    commands = {
-        'platform_sim': executable_command('platform_sim', which)
-        + [
-            '--ros-args',
-            '--params-file',
-            str(args.nominal_geometry),
-            '-p',
-            f'true_geometry_file:={args.true_geometry}',
-            '-p',
-            f'settle_time:={float(args.settle_time)!r}',
-            '-p',
-            'publish_markers:=false',
-            *motion_parameters(args),
-            *common,
-        ],
-        'device_driver': executable_command('device_driver', which)
-        + ['--ros-args', '-p', f'true_geometry_file:={args.true_geometry}', *common],
-        'calibrator': executable_command('calibrator', which)
-        + [
-            '--ros-args',
-            '-p',
-            f'nominal_geometry_file:={args.nominal_geometry}',
-            '-p',
-            f'output_root:={output_root}',
-            '-p',
-            f'posture_count:={int(args.postures)}',
-            '-p',
-            f'pool_size:={max(int(args.pool_size), int(args.postures))}',
-            '-p',
-            f'samples_per_posture:={int(args.samples_per_posture)}',
-            '-p',
-            f'sync_tolerance:={0.5 / rate!r}',
-            '-p',
-            f'seed:={int(args.seed)}',
-            '-p',
-            f'formulation:={args.formulation}',
-            '-p',
-            f'free_parameters:=[{",".join(args.free)}]',
-            '-p',
-            'apply_result:=true',
-            # On a truth the model describes exactly, the goodness-of-fit check still rejects 1
-            # run in 100 (its significance level); the demo's validation against the true
-            # platform is the stronger check, so it applies the result and prints the verdict.
-            '-p',
-            'apply_rejected_fit:=true',
-            *calibrator_motion_parameters(args),
-        ],
-    }
-    platform = getattr(args, 'platform', 'sim')
-    device = getattr(args, 'device', 'sim')
-    if platform == 'ros2_control':
-        del commands['platform_sim']
-        commands['controller_sim'] = executable_command('controller_sim', which) + [
-            '--ros-args',
-            '-p',
-            f'true_geometry_file:={args.true_geometry}',
-            '-p',
-            f'max_leg_speed:={EMULATED_LEG_SPEED!r}',
-            *common,
-        ]
-        commands['platform_bridge'] = executable_command('platform_bridge', which) + [
-            '--ros-args',
-            '--params-file',
-            str(args.nominal_geometry),
-            '-p',
-            f'settle_time:={float(args.settle_time)!r}',
-            '-p',
-            f'max_leg_speed:={BRIDGE_LEG_SPEED!r}',
-            '-p',
-            'min_motion_duration:=0.02',
-        ]
-        commands['calibrator'] += ['-p', 'platform_node_name:=platform_bridge']
-    if device == 'serial':
-        commands['gsp_fake_device'] = executable_command('gsp_fake_device', which) + [
-            '--port',
-            str(args.device_port),
-            '--rate',
-            repr(rate),
-            '--true-geometry',
-            str(args.true_geometry),
-        ]
-        commands['device_driver'] = executable_command('device_driver', which) + [
-            '--ros-args',
-            '-p',
-            'backend:=serial',
-            '-p',
-            f'serial.port:={args.device_port}',
-            '-p',
-            'serial.reconnect_interval:=0.1',
-            '-p',
-            f'publish_rate:={rate!r}',
-        ]
-    return commands
 
 
 def parse_arguments(argv=None):
@@ -385,32 +222,9 @@ def _shut_down(executor, node, context, processes, run_directory, log_directory,
     return exit_code
 
 
-def run(args):
-    """The demo; returns the exit code."""
-    started = time.monotonic()
-    true_geometry = load_geometry(args.true_geometry)
-    nominal = load_geometry(args.nominal_geometry)
-    output_root = os.path.abspath(args.output_root)
-    try:
-        # A domain of the demo's own (claimed by lock, or the given one checked), probed for
-        # nodes by a child: this process forks its nodes before it starts DDS threads itself.
-        enter_private_domain(probe=foreign_nodes_in_child)
-    except DomainInUseError as error:
-        print(f'gsp_demo: {error}', file=sys.stderr, flush=True)
-        return 1
-    env = ros_environment()
-    print(
-        f'gsp_demo: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} (loopback only), output under '
-        f'{output_root}',
-        flush=True,
-    )
-    validation_poses = sample_valid_postures(
-        nominal, args.validation_postures, np.random.default_rng(args.seed + 1_000_003)
-    )
-
-    log_directory = Path(tempfile.mkdtemp(prefix='gsp_demo_logs_'))
-    args.device_port = str(log_directory / 'gsp_device')  # the pty link of --device serial
-    processes = NodeProcesses(node_commands(args, output_root), env, log_directory)
+def _run_nodes(args, validation_poses, processes, log_directory, measured):
+    """Start the nodes, validate, calibrate and validate again into ``measured``; stop the nodes
+    whatever happens. The exit code so far (0, 1, 130 interrupted, 143 terminated)."""
     # The children first, before rclpy starts its middleware threads (preexec_fn runs between
     # fork and exec).
     processes.start()
@@ -419,7 +233,6 @@ def run(args):
     from rclpy.signals import SignalHandlerOptions
 
     context = node = executor = None
-    measured = Measured()
     exit_code = 1
     try:
         context = rclpy.Context()
@@ -446,15 +259,16 @@ def run(args):
         print('gsp_demo: terminated', file=sys.stderr, flush=True)
         exit_code = 143
     finally:
-        run_directory = measured.run_directory
         exit_code = _shut_down(
-            executor, node, context, processes, run_directory, log_directory, exit_code
+            executor, node, context, processes, measured.run_directory, log_directory, exit_code
         )
+    return exit_code
 
-    if exit_code != 0:
-        if run_directory is not None:
-            print(f'run directory: {run_directory.path}', flush=True)
-        return exit_code
+
+def _write_results(args, measured, true_geometry, elapsed_s):
+    """Write the truth and ``summary.json`` into the run directory, refresh its report against
+    the truth and print the summary; ``elapsed_s``: the demo's duration so far (s)."""
+    run_directory = measured.run_directory
     summary = DemoSummary(
         measured.before,
         measured.after,
@@ -462,7 +276,7 @@ def run(args):
         true_geometry,
         measured.identification_ms,
         measured.calibration_s,
-        time.monotonic() - started,
+        elapsed_s,
         run_directory.path,
         collection_record(run_directory.path),
         fit_record(run_directory.path),
@@ -482,6 +296,40 @@ def run(args):
         print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
     print(summary_text(summary, measured.validated, measured.rejected), flush=True)
     print(f'run directory: {run_directory.path}', flush=True)
+
+
+def run(args):
+    """The demo; returns the exit code."""
+    started = time.monotonic()
+    true_geometry = load_geometry(args.true_geometry)
+    nominal = load_geometry(args.nominal_geometry)
+    output_root = os.path.abspath(args.output_root)
+    try:
+        # A domain of the demo's own (claimed by lock, or the given one checked), probed for
+        # nodes by a child: this process forks its nodes before it starts DDS threads itself.
+        enter_private_domain(probe=foreign_nodes_in_child)
+    except DomainInUseError as error:
+        print(f'gsp_demo: {error}', file=sys.stderr, flush=True)
+        return 1
+    env = ros_environment()
+    print(
+        f'gsp_demo: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} (loopback only), output under '
+        f'{output_root}',
+        flush=True,
+    )
+    validation_poses = sample_valid_postures(
+        nominal, args.validation_postures, np.random.default_rng(args.seed + 1_000_003)
+    )
+    log_directory = Path(tempfile.mkdtemp(prefix='gsp_demo_logs_'))
+    args.device_port = str(log_directory / 'gsp_device')  # the pty link of --device serial
+    processes = NodeProcesses(node_commands(args, output_root), env, log_directory)
+    measured = Measured()
+    exit_code = _run_nodes(args, validation_poses, processes, log_directory, measured)
+    if exit_code != 0:
+        if measured.run_directory is not None:
+            print(f'run directory: {measured.run_directory.path}', flush=True)
+        return exit_code
+    _write_results(args, measured, true_geometry, time.monotonic() - started)
     return 0
 
 

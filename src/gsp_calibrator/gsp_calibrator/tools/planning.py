@@ -228,6 +228,56 @@ def _target_text(result):
     return f'least platform time reaching {wanted}:\n' + _summary_text(best)
 
 
+def _inputs(args, design, limits):
+    """The plan's inputs, as written beside it (SI units)."""
+    inputs = {
+        'geometry': str(args.geometry),
+        'sigmas': design.sigmas.to_record(),
+        'workspace': {
+            'xy_range_m': design.workspace.xy_range,
+            'z_min_m': design.workspace.z_min,
+            'z_max_m': design.workspace.z_max,
+            'rotation_range_rad': design.workspace.rotation_range,
+        },
+        'settle_s': args.settle_s,
+        'sensor_rate_hz': args.sensor_rate_hz,
+        'pool_size': args.pool_size,
+        'seed': args.seed,
+        'formulation': args.formulation,
+        'free': args.free,
+        'max_leg_speed_m_s': limits.max_speed,
+        'max_leg_acceleration_m_s2': limits.max_acceleration,
+    }
+    return inputs
+
+
+def _sweep_document(args, nominal, design, timing):
+    """``--sweep``: the sweep (printed and plotted), with the cheapest design meeting a target."""
+    result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
+    document = {'sweep': result}
+    print(sweep_table(result))
+    if args.target_position_um is not None or args.target_orientation_deg is not None:
+        best = cheapest_meeting(result, args.target_position_um, args.target_orientation_deg)
+        document['target'] = {
+            'position_um': args.target_position_um,
+            'orientation_deg': args.target_orientation_deg,
+            'cheapest': best,
+        }
+        print(
+            'no swept design meets the target'
+            if best is None
+            else f'cheapest design meeting the target: {best["postures"]} postures x '
+            f'{best["samples_per_posture"]} samples ({best["calibration_s"]:.1f} s)'
+        )
+    plot_path = args.plot or (
+        f'{args.output.rsplit(".", 1)[0]}.png' if args.output else 'gsp_plan.png'
+    )
+    plot_sweep(plot_path, result)
+    document['plot'] = plot_path
+    print(f'plot: {plot_path}')
+    return document
+
+
 def main(argv=None):
     """Console script ``gsp_plan``."""
     args = parse_arguments(argv)
@@ -235,25 +285,8 @@ def main(argv=None):
         nominal = load_geometry(args.geometry)
         design = design_from(args)
         timing = {'settle_s': args.settle_s, 'sensor_rate_hz': args.sensor_rate_hz}
-        inputs = {
-            'geometry': str(args.geometry),
-            'sigmas': design.sigmas.to_record(),
-            'workspace': {
-                'xy_range_m': design.workspace.xy_range,
-                'z_min_m': design.workspace.z_min,
-                'z_max_m': design.workspace.z_max,
-                'rotation_range_rad': design.workspace.rotation_range,
-            },
-            'settle_s': args.settle_s,
-            'sensor_rate_hz': args.sensor_rate_hz,
-            'pool_size': args.pool_size,
-            'seed': args.seed,
-            'formulation': args.formulation,
-            'free': args.free,
-        }
         limits = MotionLimits(args.max_leg_speed_mm_s / 1e3, args.max_leg_acceleration_mm_s2 / 1e3)
-        inputs['max_leg_speed_m_s'] = limits.max_speed
-        inputs['max_leg_acceleration_m_s2'] = limits.max_acceleration
+        inputs = _inputs(args, design, limits)
         targeted = args.target_position_mm is not None or (
             not args.sweep and args.target_orientation_deg is not None
         )
@@ -271,31 +304,8 @@ def main(argv=None):
             document = {'inputs': inputs, **result}
             print(_target_text(result))
         elif args.sweep:
-            timing['limits'] = limits
-            result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
-            document = {'inputs': inputs, 'sweep': result}
-            print(sweep_table(result))
-            if args.target_position_um is not None or args.target_orientation_deg is not None:
-                best = cheapest_meeting(
-                    result, args.target_position_um, args.target_orientation_deg
-                )
-                document['target'] = {
-                    'position_um': args.target_position_um,
-                    'orientation_deg': args.target_orientation_deg,
-                    'cheapest': best,
-                }
-                print(
-                    'no swept design meets the target'
-                    if best is None
-                    else f'cheapest design meeting the target: {best["postures"]} postures x '
-                    f'{best["samples_per_posture"]} samples ({best["calibration_s"]:.1f} s)'
-                )
-            plot_path = args.plot or (
-                f'{args.output.rsplit(".", 1)[0]}.png' if args.output else 'gsp_plan.png'
-            )
-            plot_sweep(plot_path, result)
-            document['plot'] = plot_path
-            print(f'plot: {plot_path}')
+            sweep_document = _sweep_document(args, nominal, design, dict(timing, limits=limits))
+            document = {'inputs': inputs, **sweep_document}
         else:
             document = {
                 'inputs': inputs,

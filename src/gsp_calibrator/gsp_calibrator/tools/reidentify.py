@@ -163,6 +163,46 @@ def validation_postures(truth, count, seed):
 # --- main --------------------------------------------------------------------------------------
 
 
+def _truth(args, source_dir):
+    """``(path, Geometry)`` of ``--truth``, else of the source run's true geometry, else None."""
+    truth_path = args.truth
+    if (
+        truth_path is None
+        and source_dir is not None
+        and (source_dir / TRUE_GEOMETRY_FILE).is_file()
+    ):
+        truth_path = source_dir / TRUE_GEOMETRY_FILE
+    truth = geometry_option(truth_path, '--truth') if truth_path is not None else None
+    return truth_path, truth
+
+
+def _validate(truth, nominal, outcome, args):
+    """Validation errors against ``truth`` before and after (None where not measured)."""
+    if truth is None or args.validation_postures <= 0:
+        return None, None
+    from gsp_calibrator.report.data import validation_errors
+
+    before = after = None
+    poses = validation_postures(truth, args.validation_postures, args.seed)
+    try:
+        before = validation_errors(truth, nominal, poses)
+        if outcome.success:
+            after = validation_errors(truth, outcome.geometry, poses)
+    except ValueError as error:
+        print(f'warning: validation skipped: {error}', file=sys.stderr)
+    return before, after
+
+
+def _validation_line(when, validation):
+    """One line of a validation summary (mm, deg)."""
+    return (
+        f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
+        f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
+        f'{validation["orientation_deg_mean"]:.4g} deg, max '
+        f'{validation["orientation_deg_max"]:.4g} deg'
+    )
+
+
 def reidentify(args, out=None):
     """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
     out = sys.stdout if out is None else out
@@ -174,14 +214,7 @@ def reidentify(args, out=None):
     free = options['free_parameters']
     nominal_path = options['nominal_geometry_file']
     nominal = geometry_option(nominal_path, '--nominal')
-    truth_path = args.truth
-    if (
-        truth_path is None
-        and source_dir is not None
-        and (source_dir / TRUE_GEOMETRY_FILE).is_file()
-    ):
-        truth_path = source_dir / TRUE_GEOMETRY_FILE
-    truth = geometry_option(truth_path, '--truth') if truth_path is not None else None
+    truth_path, truth = _truth(args, source_dir)
     if args.validation_postures < 0:
         raise InputError('--validation-postures must be >= 0')
     samples = load_input(kind, path, options)
@@ -209,16 +242,7 @@ def reidentify(args, out=None):
 
     validation_before = validation_after = None
     if outcome.result is not None:
-        if truth is not None and args.validation_postures > 0:
-            from gsp_calibrator.report.data import validation_errors
-
-            poses = validation_postures(truth, args.validation_postures, args.seed)
-            try:
-                validation_before = validation_errors(truth, nominal, poses)
-                if outcome.success:
-                    validation_after = validation_errors(truth, outcome.geometry, poses)
-            except ValueError as error:
-                print(f'warning: validation skipped: {error}', file=sys.stderr)
+        validation_before, validation_after = _validate(truth, nominal, outcome, args)
         from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
 
         run_options = dict(
@@ -240,13 +264,7 @@ def reidentify(args, out=None):
     print(run_response.outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
         if validation is not None:
-            print(
-                f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
-                f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
-                f'{validation["orientation_deg_mean"]:.4g} deg, max '
-                f'{validation["orientation_deg_max"]:.4g} deg',
-                file=out,
-            )
+            print(_validation_line(when, validation), file=out)
     print(f'{run_response.RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 

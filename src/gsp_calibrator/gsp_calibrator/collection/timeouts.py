@@ -1,0 +1,122 @@
+"""The collection protocol's timeouts: who spoke when, the caller's stalls (pure, no rclpy).
+
+:class:`CollectionTimeouts` notes every call and every sensor topic's latest message, and judges
+from them (and from the awaited posture's times) which timeout has expired, with the event or
+the skip reason that says so. :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`
+keeps the posture's state and acts on the verdict; the stall rule is in its module docstring.
+"""
+
+from gsp_calibrator.collection.events import NoSynchronisedSample, TopicSilent
+from gsp_calibrator.collection.synchroniser import LEG_LENGTHS
+from gsp_calibrator.collection.topics import SENSOR_TOPICS
+from gsp_msgs_py import names
+
+#: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
+STALL_FRACTION = 0.5
+
+
+class CollectionTimeouts:
+    """The timeouts of one run: ``topic_timeout`` and ``settle_timeout`` (s); the collector's
+    ``sync_tolerance`` (s) and ``samples_per_posture`` only appear in the messages."""
+
+    def __init__(self, topic_timeout, settle_timeout, sync_tolerance, samples_per_posture):
+        self.topic_timeout = float(topic_timeout)
+        self.settle_timeout = float(settle_timeout)
+        self.sync_tolerance = float(sync_tolerance)
+        self.samples_per_posture = int(samples_per_posture)
+        self._last_heard = {}  # topic -> receive time (ns) of its latest message
+        self._attended_ns = None  # receive time of the latest call
+        self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
+
+    def attend(self, now_ns):
+        """Note a call at ``now_ns``; a long gap since the previous one is a stall."""
+        now_ns = int(now_ns)
+        if self._attended_ns is not None and now_ns > self._attended_ns:
+            if elapsed(self._attended_ns, now_ns) >= STALL_FRACTION * self.topic_timeout:
+                self._stall_end_ns = now_ns
+        self._attended_ns = now_ns if self._attended_ns is None else max(self._attended_ns, now_ns)
+
+    def hear(self, topic, now_ns):
+        """``topic`` said something at ``now_ns``."""
+        self._last_heard[topic] = int(now_ns)
+
+    def heard(self, topic):
+        """Whether ``topic`` has said anything yet."""
+        return topic in self._last_heard
+
+    def since(self, reference_ns, now_ns):
+        """Seconds from ``reference_ns`` to ``now_ns``, counted again from the latest stall."""
+        return elapsed(max(int(reference_ns), self._stall_end_ns), now_ns)
+
+    def status_overdue(self, posture, now_ns):
+        """:class:`TopicSilent` if the command's first status is overdue, else None."""
+        if self.since(posture.commanded_ns, now_ns) < self.topic_timeout:
+            return None
+        doing = f'waiting for the status of posture {posture.number} (command {posture.command_id})'
+        return TopicSilent(
+            names.TOPIC_PLATFORM_STATUS,
+            doing,
+            f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no status for posture '
+            f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
+        )
+
+    def settle_overdue(self, posture, now_ns):
+        """The skip reason if the settle is overdue, else ''."""
+        if self.since(posture.first_status_ns, now_ns) >= self.settle_timeout:
+            return f'not settled within {self.settle_timeout:g} s'
+        return ''
+
+    def collection_overdue(self, posture, collector, now_ns):
+        """The collection's verdict at ``now_ns``: ``(failure event or None, skip reason or '')``.
+
+        Updates ``posture.progress``/``progress_ns`` from the collector's pair count.
+        """
+        silences = {  # s, since the topic's latest message (or the settle, or a stall)
+            topic: self.since(max(self._last_heard.get(topic, 0), posture.started_ns), now_ns)
+            for topic in SENSOR_TOPICS
+        }
+        topic = max(silences, key=silences.get)  # the first to fall silent is the cause
+        doing = f'collecting posture {posture.number}'
+        # >= as for the progress timeout below: a topic that died at the collection start
+        # expires together with the progress, and the silent topic is the cause to name.
+        if silences[topic] >= self.topic_timeout:
+            text = f'topic {topic} is silent: no message for {self.topic_timeout:g} s while {doing}'
+            return TopicSilent(topic, doing, text), ''
+        count = collector.pair_count()
+        if count != posture.progress:
+            posture.progress, posture.progress_ns = count, now_ns
+        if self.since(posture.progress_ns, now_ns) >= self.topic_timeout:
+            # The pairs stopped: if a topic stopped too (a dead node whose last messages still
+            # paired a little later), it is the cause to name.
+            if silences[topic] >= 0.5 * self.topic_timeout:
+                text = (
+                    f'topic {topic} is silent: no message for {silences[topic]:.3g} s while '
+                    f'{doing} (and no synchronised sample for {self.topic_timeout:g} s)'
+                )
+                return TopicSilent(topic, doing, text), ''
+            counts = collector.counts()
+            return NoSynchronisedSample(
+                posture.number,
+                f'no synchronised sample for {self.topic_timeout:g} s at posture '
+                f'{posture.number}: {counts[LEG_LENGTHS]} leg-length and {counts["device"]} '
+                f'complete device samples since settling, {counts["pairs"]} within '
+                f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
+                f'(non-finite readings dropped so far: {collector.non_finite})',
+            ), ''
+        # The collection is bounded as a whole: pairs that keep coming without a consistent
+        # window would otherwise restart the progress timeout for ever.
+        limit = self.settle_timeout + self.topic_timeout
+        if self.since(posture.started_ns, now_ns) >= limit:
+            counts = collector.counts()
+            return None, (
+                f'no {self.samples_per_posture} consistent synchronised samples within '
+                f'{limit:g} s (settle_timeout + topic_timeout) of settling: '
+                f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '
+                f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
+            )
+        return None, ''
+
+
+def elapsed(since_ns, now_ns):
+    """Seconds from ``since_ns`` to ``now_ns``."""
+    return (int(now_ns) - int(since_ns)) * 1e-9

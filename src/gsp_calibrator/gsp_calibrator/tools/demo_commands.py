@@ -1,0 +1,196 @@
+"""The command lines of ``gsp_demo``'s nodes, and their environment (pure, no rclpy).
+
+:func:`node_commands` gives each node's argv for the demo's parsed arguments: platform_sim (or
+the emulated ros2_control controller and platform_bridge), device_driver (or its serial backend
+fed by gsp_fake_device) and the calibrator.
+"""
+
+import shutil
+import sys
+
+from gsp_msgs_py.ros_environment import loopback_environment
+
+#: The three nodes: executable (console script) and module (fallback: ``python -m``).
+NODES = {
+    'platform_sim': 'gsp_platform_sim.platform_sim_node',
+    'device_driver': 'gsp_device_driver.device_driver_node',
+    'calibrator': 'gsp_calibrator.calibrator_node',
+    # --platform ros2_control: the bridge and the emulated controller replace platform_sim.
+    'controller_sim': 'gsp_platform_sim.controller_sim_node',
+    'platform_bridge': 'gsp_platform_bridge.platform_bridge_node',
+    # --device serial: the emulated device on a pty feeds device_driver's serial backend.
+    'gsp_fake_device': 'gsp_device_driver.fake_device_node',
+}
+#: Leg speeds of the emulated controller and of the bridge's trajectories (m/s): fast, so that
+#: the ros2_control mode spends its time like the direct one, in settling and sampling.
+EMULATED_LEG_SPEED = 5.0
+BRIDGE_LEG_SPEED = 2.5
+
+
+def ros_environment(environ=None, rng=None):
+    """The nodes' environment: :func:`~gsp_msgs_py.ros_environment.loopback_environment` (a
+    random domain unless one is set) with unbuffered output, so their logs are complete."""
+    env = loopback_environment(environ, rng=rng)
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+def executable_command(name, which=shutil.which):
+    """argv prefix of node ``name``: its console script from PATH, else ``python -m <module>``."""
+    path = which(name)
+    if path:
+        return [path]
+    return [sys.executable, '-m', NODES[name]]
+
+
+#: The calibrator's settle_timeout when the legs move at their limits: longer than any move.
+MOVING_SETTLE_TIMEOUT_S = 60.0
+
+
+def motion_parameters(args):
+    """platform_sim's leg limits of ``--max-leg-speed`` / ``--max-leg-acceleration`` (0: none)."""
+    speed = float(getattr(args, 'max_leg_speed', 0.0))
+    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
+    return ['-p', f'max_leg_speed:={speed!r}', '-p', f'max_leg_acceleration:={acceleration!r}']
+
+
+def calibrator_motion_parameters(args):
+    """With leg limits, the calibrator plans its route with them and waits long enough for a
+    move (``settle_timeout``); without, its defaults."""
+    speed = float(getattr(args, 'max_leg_speed', 0.0))
+    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
+    if not speed > 0:
+        return []
+    extra = [
+        '-p',
+        f'max_leg_speed:={speed!r}',
+        '-p',
+        f'settle_timeout:={MOVING_SETTLE_TIMEOUT_S!r}',
+    ]
+    if acceleration > 0:
+        extra += ['-p', f'max_leg_acceleration:={acceleration!r}']
+    return extra
+
+
+def node_commands(args, output_root, which=shutil.which):
+    """``{node name: argv}`` of the nodes for the parsed ``args``: platform_sim (or, with
+    ``--platform ros2_control``, controller_sim and platform_bridge), device_driver (with
+    ``--device serial``, its serial backend on ``args.device_port`` fed by gsp_fake_device) and
+    the calibrator."""
+    rate = float(args.sensor_rate)
+    # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
+    # noise (parameter_specs.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
+    common = ['-p', f'publish_rate:={rate!r}']
+    commands = {
+        'platform_sim': executable_command('platform_sim', which)
+        + [
+            '--ros-args',
+            '--params-file',
+            str(args.nominal_geometry),
+            '-p',
+            f'true_geometry_file:={args.true_geometry}',
+            '-p',
+            f'settle_time:={float(args.settle_time)!r}',
+            '-p',
+            'publish_markers:=false',
+            *motion_parameters(args),
+            *common,
+        ],
+        'device_driver': executable_command('device_driver', which)
+        + ['--ros-args', '-p', f'true_geometry_file:={args.true_geometry}', *common],
+        'calibrator': executable_command('calibrator', which)
+        + ['--ros-args', *_calibrator_parameters(args, output_root, rate)],
+    }
+    if getattr(args, 'platform', 'sim') == 'ros2_control':
+        del commands['platform_sim']
+        commands.update(_ros2_control_commands(args, common, which))
+        commands['calibrator'] += ['-p', 'platform_node_name:=platform_bridge']
+    if getattr(args, 'device', 'sim') == 'serial':
+        commands.update(_serial_device_commands(args, rate, which))
+    return commands
+
+
+def _calibrator_parameters(args, output_root, rate):
+    """The calibrator's ``-p`` arguments: the run of ``args``, applied to the platform."""
+    return [
+        '-p',
+        f'nominal_geometry_file:={args.nominal_geometry}',
+        '-p',
+        f'output_root:={output_root}',
+        '-p',
+        f'posture_count:={int(args.postures)}',
+        '-p',
+        f'pool_size:={max(int(args.pool_size), int(args.postures))}',
+        '-p',
+        f'samples_per_posture:={int(args.samples_per_posture)}',
+        '-p',
+        f'sync_tolerance:={0.5 / rate!r}',
+        '-p',
+        f'seed:={int(args.seed)}',
+        '-p',
+        f'formulation:={args.formulation}',
+        '-p',
+        f'free_parameters:=[{",".join(args.free)}]',
+        '-p',
+        'apply_result:=true',
+        # On a truth the model describes exactly, the goodness-of-fit check still rejects 1
+        # run in 100 (its significance level); the demo's validation against the true
+        # platform is the stronger check, so it applies the result and prints the verdict.
+        '-p',
+        'apply_rejected_fit:=true',
+        *calibrator_motion_parameters(args),
+    ]
+
+
+def _ros2_control_commands(args, common, which):
+    """``--platform ros2_control``: the emulated controller and the bridge."""
+    return {
+        'controller_sim': executable_command('controller_sim', which)
+        + [
+            '--ros-args',
+            '-p',
+            f'true_geometry_file:={args.true_geometry}',
+            '-p',
+            f'max_leg_speed:={EMULATED_LEG_SPEED!r}',
+            *common,
+        ],
+        'platform_bridge': executable_command('platform_bridge', which)
+        + [
+            '--ros-args',
+            '--params-file',
+            str(args.nominal_geometry),
+            '-p',
+            f'settle_time:={float(args.settle_time)!r}',
+            '-p',
+            f'max_leg_speed:={BRIDGE_LEG_SPEED!r}',
+            '-p',
+            'min_motion_duration:=0.02',
+        ],
+    }
+
+
+def _serial_device_commands(args, rate, which):
+    """``--device serial``: gsp_fake_device on the pty, device_driver's serial backend on it."""
+    return {
+        'gsp_fake_device': executable_command('gsp_fake_device', which)
+        + [
+            '--port',
+            str(args.device_port),
+            '--rate',
+            repr(rate),
+            '--true-geometry',
+            str(args.true_geometry),
+        ],
+        'device_driver': executable_command('device_driver', which)
+        + [
+            '--ros-args',
+            '-p',
+            'backend:=serial',
+            '-p',
+            f'serial.port:={args.device_port}',
+            '-p',
+            'serial.reconnect_interval:=0.1',
+            '-p',
+            f'publish_rate:={rate!r}',
+        ],
+    }

@@ -1,0 +1,117 @@
+"""Size limits of the package sources under src/ (tests excluded): a file a newcomer can read.
+
+No file over MAX_FILE_LINES lines, no class over MAX_CLASS_LINES, no function or method over
+MAX_FUNCTION_LINES unless it is a flat table (an argument parser, a parameter list) listed in
+FLAT_TABLES with the reason. Lines are source lines, docstrings and comments included.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+WS = Path(__file__).resolve().parents[1]
+SRC = WS / 'src'
+
+MAX_FILE_LINES = 500
+MAX_CLASS_LINES = 300
+MAX_FUNCTION_LINES = 80
+
+#: ``'package/path.py:qualified.name'`` -> why it may be longer than MAX_FUNCTION_LINES.
+FLAT_TABLES = {
+    'gsp_calibrator/tools/reidentify.py:build_parser': (
+        'the command line of gsp_reidentify: one add_argument per option'
+    ),
+}
+
+
+def source_files(src=SRC):
+    """``{'package/path.py': Path}`` of every package module under ``src`` (tests excluded)."""
+    files = {}
+    for package_dir in sorted(src.glob('*/gsp_*')):
+        if (package_dir / '__init__.py').is_file():
+            for path in sorted(package_dir.rglob('*.py')):
+                files[path.relative_to(package_dir.parent).as_posix()] = path
+    return files
+
+
+def _definitions(tree):
+    """``(kind, qualified name, lines)`` of every class and function of ``tree``, nested too."""
+    found = []
+
+    def visit(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+                name = f'{prefix}{child.name}'
+                kind = 'class' if isinstance(child, ast.ClassDef) else 'function'
+                found.append((kind, name, child.end_lineno - child.lineno + 1))
+                visit(child, f'{name}.')
+            else:
+                visit(child, prefix)
+
+    visit(tree, '')
+    return found
+
+
+def oversized(files, flat_tables=FLAT_TABLES):
+    """Human-readable violations of the limits in ``files`` (``source_files()``)."""
+    found = []
+    for relative, path in files.items():
+        text = path.read_text()
+        lines = len(text.splitlines())
+        if lines > MAX_FILE_LINES:
+            found.append(f'{relative}: {lines} lines (> {MAX_FILE_LINES})')
+        for kind, name, length in _definitions(ast.parse(text, str(path))):
+            limit = MAX_CLASS_LINES if kind == 'class' else MAX_FUNCTION_LINES
+            if length > limit and f'{relative}:{name}' not in flat_tables:
+                found.append(f'{relative}: {kind} {name} is {length} lines (> {limit})')
+    return found
+
+
+@pytest.fixture(scope='module')
+def files():
+    return source_files()
+
+
+def test_the_check_sees_every_package(files):
+    packages = {relative.split('/')[0] for relative in files}
+    assert {'gsp_kinematics', 'gsp_msgs_py', 'gsp_calibrator', 'gsp_device_driver'} <= packages
+    assert len(files) > 50
+
+
+def test_no_file_class_or_function_over_its_limit(files):
+    found = oversized(files)
+    assert not found, 'over the size limits (split by concept):\n' + '\n'.join(found)
+
+
+def test_every_flat_table_exception_still_exists_and_is_needed(files):
+    definitions = {
+        f'{relative}:{name}': length
+        for relative, path in files.items()
+        for kind, name, length in _definitions(ast.parse(path.read_text()))
+        if kind == 'function'
+    }
+    stale = [key for key in FLAT_TABLES if definitions.get(key, 0) <= MAX_FUNCTION_LINES]
+    assert not stale, f'FLAT_TABLES entries no longer needed: {stale}'
+
+
+def test_the_check_catches_a_long_file_class_and_function(tmp_path):
+    package = tmp_path / 'gsp_x' / 'gsp_x'
+    package.mkdir(parents=True)
+    (package / '__init__.py').write_text('')
+    body = ''.join(f'    x{i} = {i}\n' for i in range(MAX_FUNCTION_LINES))  # def + body: 81
+    methods = ''.join(
+        f'    def m{k}(self):\n' + body.replace('    x', '        x') for k in range(7)
+    )
+    (package / 'big.py').write_text(f'def long():\n{body}\n\nclass Big:\n{methods}')
+    (package / 'table.py').write_text(f'def parser():\n{body}')
+    found = oversized(source_files(tmp_path), flat_tables={'gsp_x/table.py:parser': 'a table'})
+    assert found == [
+        f'gsp_x/big.py: {81 + 2 + 1 + 7 * 81} lines (> {MAX_FILE_LINES})',
+        f'gsp_x/big.py: function long is 81 lines (> {MAX_FUNCTION_LINES})',
+        f'gsp_x/big.py: class Big is {1 + 7 * 81} lines (> {MAX_CLASS_LINES})',
+        *(
+            f'gsp_x/big.py: function Big.m{k} is 81 lines (> {MAX_FUNCTION_LINES})'
+            for k in range(7)
+        ),
+    ]
