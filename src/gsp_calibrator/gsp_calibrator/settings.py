@@ -199,8 +199,8 @@ PARAMETERS = (
     _one_of(
         'posture_order',
         'route',
-        'Order the postures are commanded in: route (the shortest travel from the home pose, '
-        'docs/planning.md) or selection (the order the selection found them)',
+        "Order the postures are commanded in: route (the shortest travel from the platform's "
+        'current posture, docs/planning.md) or selection (the order the selection found them)',
         POSTURE_ORDERS,
     ),
     _positive(

@@ -17,7 +17,9 @@ from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, RunHost
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.geometry import default_geometry, parameter_errors
+from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.travel.motion import posture_leg_lengths
 from gsp_kinematics.validation import sensor_measurements
 from gsp_msgs_py import conversions, names
 
@@ -47,8 +49,9 @@ class FakeHost:
     """A platform measured exactly by the true geometry plus the default noise; each posture's
     row is ready as soon as it is commanded. ``failure``: an event ending the run instead."""
 
-    def __init__(self, seed=0, failure_after=None):
+    def __init__(self, seed=0, failure_after=None, start_legs=None):
         self.truth = default_geometry('true')
+        self.start_legs = start_legs  #: leg readings (6,) m before the run, else those at z 0.6 m
         self.rng = np.random.default_rng(seed)
         self.failure_after = failure_after
         self.recorder = FakeRecorder()
@@ -101,6 +104,8 @@ class FakeHost:
         """Every sensor topic speaks once, at its current reading (the system check awaits it)."""
         self.session = session
         legs, readings = sensor_measurements(self.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
+        if self.start_legs is not None:
+            legs = np.asarray(self.start_legs, dtype=float)[None]
         messages = {
             names.TOPIC_LEG_LENGTHS: conversions.leg_lengths_to_msg(legs[0]),
             names.TOPIC_INCLINOMETER: conversions.inclinometer_to_msg(*readings[0, :2]),
@@ -179,6 +184,41 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     assert len((run_directory / 'samples.csv').read_text().splitlines()) == 1 + 30
     assert host.progress_log[-1][1] == names.PHASE_DONE
     assert [call[0] for call in host.recorder.calls] == ['start', 'stop'] and host.ended
+
+
+def test_the_route_starts_from_the_platforms_current_posture(tmp_path):
+    """The first planned move is from where the leg lengths say the platform is, not home."""
+    settings = _settings(tmp_path)
+    selection = postures.choose_postures(*postures.selection_arguments(settings))
+    # A selected posture far from home: the route from it differs from the route from home.
+    start = selection.poses[np.argmax(np.abs(selection.poses[:, 0]))]
+    # The legs where a controller with the nominal geometry put them (platform_sim's).
+    heard_legs = posture_leg_lengths(settings.nominal, start[None])[0]
+    host = FakeHost(start_legs=heard_legs)
+    success, message = asyncio.run(CalibrationRun(host, settings, False).serve())
+    assert success, message
+
+    current, reason = postures.route_start(settings.nominal, heard_legs)
+    assert reason == ''
+    np.testing.assert_allclose(current, start, atol=1e-9)  # m, rad
+    expected = postures.posture_route(settings, selection.poses, current)
+    from_home = postures.posture_route(settings, selection.poses, home_pose())
+    assert not np.array_equal(expected.order, from_home.order)
+    commanded = np.asarray(host.session.state.poses)
+    # The platform stands at a selected posture: commanded first, the device would not change
+    # and the posture would be skipped, so it comes last.
+    np.testing.assert_allclose(commanded[-1], start, atol=1e-12)
+    np.testing.assert_allclose(commanded, selection.poses[expected.order], atol=1e-12)  # m, rad
+
+
+def test_the_route_start_is_the_home_pose_without_leg_lengths():
+    nominal = default_geometry('nominal')
+    pose, reason = postures.route_start(nominal, None)
+    np.testing.assert_array_equal(pose, home_pose())
+    assert reason == 'no leg lengths received'
+    pose, reason = postures.route_start(nominal, np.full(6, 5.0))
+    np.testing.assert_array_equal(pose, home_pose())
+    assert reason.startswith('no forward kinematics of the latest leg lengths')
 
 
 def test_a_failure_event_ends_the_run_without_delivering(tmp_path):

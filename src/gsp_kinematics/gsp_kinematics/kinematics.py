@@ -171,6 +171,29 @@ def forward_kinematics(geometry, leg_lengths, guess, **options):
     return poses
 
 
+def pose_from_leg_readings(geometry, leg_readings, guess=None):
+    """The pose (6,) [x, y, z, psi, theta, phi] (m, rad) of a platform with ``geometry`` whose
+    leg sensors read ``leg_readings`` (6,) m: FK from ``guess`` (default: the home pose).
+
+    The pose may lie anywhere in the workspace, so it may be far from the guess: the jump limits
+    of :func:`forward_kinematics` are widened to the workspace's extent. Raises
+    :class:`ForwardKinematicsError` when Newton's method finds no pose, ValueError on a shape.
+    """
+    readings = np.asarray(leg_readings, dtype=float)
+    if readings.shape != (6,):
+        raise ValueError(f'leg_readings must have shape (6,), got {readings.shape}')
+    workspace = Workspace()
+    guess = home_pose(workspace) if guess is None else np.asarray(guess, dtype=float)
+    reach = math.hypot(workspace.xy_range, workspace.xy_range, workspace.z_max - workspace.z_min)
+    return forward_kinematics(
+        geometry,
+        geometry.sensors.true_leg_lengths(readings[None]),
+        guess[None],
+        max_position_jump=reach,
+        max_angle_jump=2.0 * workspace.rotation_range,
+    )[0]
+
+
 # --- reachability ------------------------------------------------------------------------------
 
 

@@ -15,6 +15,7 @@ from gsp_kinematics.kinematics import (
     home_pose,
     inverse_kinematics,
     inverse_kinematics_jacobians,
+    pose_from_leg_readings,
     sample_valid_postures,
 )
 from gsp_kinematics.rotation import euler_to_matrix
@@ -65,6 +66,26 @@ def test_fk_accepts_one_guess_for_all_postures(exact, rng):
     )
     solved = forward_kinematics(exact, inverse_kinematics(exact, poses), home)
     np.testing.assert_allclose(solved, poses, atol=1e-10)
+
+
+def test_the_pose_from_leg_readings_anywhere_in_the_workspace(rng):
+    """FK from the home pose of the readings IK gives: the posture, even far from home (the
+    calibrator's route starts there)."""
+    from gsp_kinematics.travel.motion import posture_leg_lengths
+
+    geometry = default_geometry('true')  # leg gain errors: readings are not articular values
+    poses = sample_valid_postures(geometry, 40, rng)
+    far = np.max(np.abs(poses[:, 3:]), axis=1) > math.radians(30.0)
+    far |= np.linalg.norm(poses[:, :3] - home_pose()[:3], axis=1) > 0.15
+    assert far.sum() >= 10  # beyond forward_kinematics' default jump limits
+    readings = posture_leg_lengths(geometry, poses)
+    solved = np.array([pose_from_leg_readings(geometry, q) for q in readings])
+    np.testing.assert_allclose(solved[:, :3], poses[:, :3], atol=1e-9)  # m
+    np.testing.assert_allclose(solved[:, 3:], poses[:, 3:], atol=1e-9)  # rad
+    with pytest.raises(ForwardKinematicsError):
+        pose_from_leg_readings(geometry, np.full(6, 5.0))  # legs 5 m beyond the stroke
+    with pytest.raises(ValueError, match='shape'):
+        pose_from_leg_readings(geometry, np.zeros(5))
 
 
 def test_ik_jacobian_with_respect_to_the_pose(exact, postures, fd):

@@ -8,6 +8,7 @@ the joint states, or when they are stale (none for ``state_timeout`` s). Times i
 
 import numpy as np
 
+from gsp_kinematics.travel.motion import move_time
 from gsp_msgs_py.health import ERROR, OK, Health
 
 SETTLED = 'settled'
@@ -138,11 +139,13 @@ def pose_path(start, goal, position_step, angle_step):
     return start[None] + fractions * delta[None]
 
 
-def waypoint_times(current, waypoints, max_speed, min_duration):
-    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): each segment
-    at ``max_speed`` (m/s) for its longest leg move, the whole at least ``min_duration``."""
+def waypoint_times(current, waypoints, limits, min_duration):
+    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): each segment a
+    synchronised rest-to-rest move at the legs' ``limits`` (a :class:`gsp_kinematics.travel.
+    motion.MotionLimits`: the model controller_sim follows the points with), the whole at least
+    ``min_duration`` (s)."""
     legs = np.vstack([np.asarray(current, dtype=float)[None], np.asarray(waypoints, dtype=float)])
-    times = np.cumsum(np.max(np.abs(np.diff(legs, axis=0)), axis=1) / float(max_speed))
+    times = np.cumsum(move_time(legs[:-1], legs[1:], limits))
     if times[-1] < min_duration:
         times = (
             times * (min_duration / times[-1])

@@ -21,6 +21,7 @@ from gsp_kinematics.kinematics import (
     home_pose,
     inverse_kinematics,
 )
+from gsp_kinematics.travel.motion import REALISTIC_MAX_SPEED, MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
@@ -52,13 +53,9 @@ PARAMETERS = (
         read_only=True,
         check=not_blank('a topic'),
     ),
-    ParameterSpec(
-        'max_leg_speed',
-        0.05,
-        'Speed of the fastest leg in a move: fixes the trajectory duration',
-        unit='m/s',
-        check=greater_than(0.0, 'm/s'),
-    ),
+    # The trajectory's times (docs/planning.md): the speed of a positioning hexapod, the
+    # acceleration unlimited by default as before (set both to the platform's).
+    *parameter_specs.motion_limit_specs(REALISTIC_MAX_SPEED, 0.0),
     ParameterSpec(
         'min_motion_duration',
         0.1,
@@ -177,6 +174,7 @@ class PlatformBridgeNode(Node):
     def _apply_parameters(self, changes):
         for name in (
             'max_leg_speed',
+            'max_leg_acceleration',
             'min_motion_duration',
             'goal_timeout',
             'max_condition',
@@ -212,11 +210,11 @@ class PlatformBridgeNode(Node):
             return reason
         # The joints are the leg sensors: command what they must read (their gain errors applied).
         waypoints = self._geometry.sensors.leg_readings(inverse_kinematics(self._geometry, path))
+        limits = MotionLimits.from_parameters(
+            self._values['max_leg_speed'], self._values['max_leg_acceleration']
+        )
         times = waypoint_times(
-            self._monitor.positions,
-            waypoints,
-            self._values['max_leg_speed'],
-            self._values['min_motion_duration'],
+            self._monitor.positions, waypoints, limits, self._values['min_motion_duration']
         )
         if self._monitor.active:  # the server rejects the superseded command
             self._monitor.clear()

@@ -70,14 +70,41 @@ def test_the_path_is_cut_into_steps_along_the_cartesian_line():
     assert len(pose_path(start, start, 0.01, 0.02)) == 1
 
 
-def test_waypoint_times_follow_the_fastest_leg_and_the_minimum_duration():
-    waypoints = np.array([[0.01] * 6, [0.01] * 5 + [0.05]])
+def test_waypoint_times_are_the_motion_models_closed_form_times():
+    # Longest leg moves 5 mm then 40 mm; v = 50 mm/s, a = 200 mm/s^2 (v^2/a = 12.5 mm).
+    waypoints = np.array([[0.002] * 5 + [0.005], [0.03] * 5 + [0.045]])
+    limits = MotionLimits(0.05, 0.2)
+    triangle = 2.0 * math.sqrt(0.005 / 0.2)  # too short to reach the speed limit
+    trapezoid = 0.04 / 0.05 + 0.05 / 0.2
     np.testing.assert_allclose(
-        waypoint_times(np.zeros(6), waypoints, 0.1, 0.0), [0.1, 0.5], atol=1e-5
+        waypoint_times(np.zeros(6), waypoints, limits, 0.0),
+        [triangle, triangle + trapezoid],
+        atol=1e-5,  # s (the 1 us spacing that keeps the times increasing)
+    )
+    # A speed limit alone; a minimum duration stretches the whole.
+    speed_only = MotionLimits(0.1, math.inf)
+    np.testing.assert_allclose(
+        waypoint_times(np.zeros(6), waypoints, speed_only, 0.0), [0.05, 0.45], atol=1e-5
     )
     np.testing.assert_allclose(
-        waypoint_times(np.zeros(6), waypoints, 0.1, 1.0), [0.2, 1.0], atol=1e-5
+        waypoint_times(np.zeros(6), waypoints, speed_only, 0.9), [0.1, 0.9], atol=1e-5
     )
+    # No limits: the minimum duration, spread over the points.
+    no_limits = MotionLimits.from_parameters(0.0, 0.0)
+    np.testing.assert_allclose(
+        waypoint_times(np.zeros(6), waypoints, no_limits, 0.2), [0.1, 0.2], atol=1e-5
+    )
+
+
+def test_controller_sim_arrives_at_the_bridges_waypoint_times():
+    """The bridge's times are the ones controller_sim's follower can keep at the same limits."""
+    limits = MotionLimits(0.05, 0.2)
+    waypoints = np.cumsum(np.full((8, 6), 0.01) * np.linspace(0.2, 1.0, 6), axis=0)
+    times = waypoint_times(np.zeros(6), waypoints, limits, 0.0)
+    follower = TrajectoryFollower(np.zeros(6), limits)
+    follower.set_trajectory(list(zip(times, waypoints, strict=True)), 0.0)
+    for time_s, target in zip(times, waypoints, strict=True):
+        np.testing.assert_allclose(follower.step(time_s), target, atol=1e-9)  # m
 
 
 def test_the_follower_interpolates_at_the_point_time_and_respects_the_speed_limit():

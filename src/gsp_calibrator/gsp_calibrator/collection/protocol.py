@@ -166,7 +166,7 @@ class CollectionProtocol:
         )
         self._posture = None  # the awaited posture (_Posture) or None
         self._previous = None  # device readings of the previous row
-        self._latest = {}  # device stream -> (stamp_ns, values) of its latest usable message
+        self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
@@ -197,6 +197,11 @@ class CollectionProtocol:
         if any(item is None for item in items) or len({item[0] for item in items}) != 1:
             return None
         return np.concatenate([np.asarray(item[1], dtype=float) for item in items])
+
+    def latest_leg_lengths(self):
+        """Latest leg-length readings (6,) m received, or None."""
+        item = self._latest.get(LEG_LENGTHS)
+        return None if item is None else np.asarray(item[1], dtype=float).reshape(6)
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
@@ -280,8 +285,7 @@ class CollectionProtocol:
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self.timeouts.hear(topic, now_ns)
-        if stream != LEG_LENGTHS:
-            self._latest[stream] = (int(stamp_ns), values)
+        self._latest[stream] = (int(stamp_ns), values)
         adder = _ADDERS[stream]
         posture = self._posture
         if posture is None:

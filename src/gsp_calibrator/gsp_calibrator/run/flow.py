@@ -1,7 +1,8 @@
 """The course of one calibration run, as the calibrator node drives it (no rclpy).
 
 :class:`CalibrationRun` opens the run (:func:`.session.open_session`), starts its recording,
-selects the postures (or keeps a resumed run's), waits for the system, collects, then identifies
+selects the postures (or keeps a resumed run's), orders a new run's postures from the
+platform's current posture, waits for the system, collects, then identifies
 (:func:`.identify.finish_run`), publishes and applies the result. What it needs from the node is
 :class:`.host.RunHost`; the postures themselves are commanded by the node, each at once from the
 end of the previous one, and this coroutine only reports them as they end (``host.finals``).
@@ -150,7 +151,8 @@ class CalibrationRun:
             self.log.error(f'{run_state.STATE_FILE} not written: {error}')
 
     async def _begin(self, part):
-        """Select the postures of a new run (a resumed one keeps its own); write state.json."""
+        """Select the postures of a new run (a resumed one keeps its own) and order them from
+        where the platform is; write state.json."""
         settings, session, count = self.settings, self.session, self.settings.posture_count
         self.node.progress(
             0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
@@ -166,14 +168,25 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = selection.poses
-            if settings.posture_order == 'route':
-                # state.json keeps the poses in this order: a resumed run keeps it.
-                route = postures.posture_route(settings, poses)
-                poses = poses[route.order]
-                self.log.info(
-                    f'route order: predicted travel {route.travel_s:.1f} s (selection order '
-                    f'{route.selection_order_s:.1f} s, lower bound {route.lower_bound_s:.1f} s)'
-                )
+        if poses is not None and settings.posture_order == 'route':
+            # From the latest leg lengths (if none come, the system check fails the run next).
+            await self.node.wait_for(
+                lambda: self.collection.latest_leg_lengths() is not None, settings.topic_timeout
+            )
+            start, reason = postures.route_start(
+                settings.nominal, self.collection.latest_leg_lengths()
+            )
+            if reason:
+                self.log.warning(f'route from the home pose: {reason}')
+            # state.json keeps the poses in this order: a resumed run keeps it.
+            route = postures.posture_route(settings, poses, start)
+            poses = poses[route.order]
+            x, y, z = start[:3] * 1e3
+            self.log.info(
+                f'route order from ({x:.1f}, {y:.1f}, {z:.1f}) mm: predicted travel '
+                f'{route.travel_s:.1f} s (selection order {route.selection_order_s:.1f} s, '
+                f'lower bound {route.lower_bound_s:.1f} s)'
+            )
         try:
             session.replace = await self.node.in_thread(postures.PostureReplacer, settings)
         except (postures.CalibrationError, RuntimeError, ValueError) as error:

@@ -10,10 +10,22 @@ import numpy as np
 from gsp_kinematics.identification import (
     resolve_free,
 )
-from gsp_kinematics.kinematics import Workspace, home_pose, sample_valid_postures
+from gsp_kinematics.kinematics import (
+    ForwardKinematicsError,
+    Workspace,
+    home_pose,
+    pose_from_leg_readings,
+    sample_valid_postures,
+)
 from gsp_kinematics.selection import best_addition, posture_information, select_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.route import plan_route
+from gsp_kinematics.travel.motion import posture_leg_lengths
+from gsp_kinematics.travel.route import path_time, plan_route, travel_time_matrix
+
+#: Leg distance (m) within which the platform already holds a posture: commanded first, it would
+#: leave the device readings unchanged, and the collection's previous-posture check would skip it
+#: (a run after a run of the same selection starts where that one ended).
+HELD_TOLERANCE = 1e-4
 
 #: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
 DEFAULT_FREE = ('extended',)
@@ -82,10 +94,33 @@ def choose_postures(
     )
 
 
-def posture_route(settings, poses):
-    """The route (:func:`gsp_kinematics.travel.route.plan_route`) through ``poses`` from the home pose
-    (where platform_sim starts), with the run's nominal geometry and leg limits."""
-    return plan_route(settings.nominal, home_pose(), poses, settings.motion_limits)
+def route_start(nominal, leg_readings):
+    """``(pose (6,) m and rad, reason)``: where the route starts, the current posture of a
+    platform whose leg sensors read ``leg_readings`` (6,) m or None (FK of ``nominal``); the home
+    pose when it is unknown, with ``reason`` saying why (else '')."""
+    if leg_readings is None:
+        return home_pose(), 'no leg lengths received'
+    try:
+        return pose_from_leg_readings(nominal, leg_readings), ''
+    except (ForwardKinematicsError, ValueError) as error:
+        return home_pose(), f'no forward kinematics of the latest leg lengths: {error}'
+
+
+def posture_route(settings, poses, start_pose):
+    """The route (:func:`gsp_kinematics.travel.route.plan_route`) through ``poses`` from
+    ``start_pose`` (:func:`route_start`), with the run's nominal geometry and leg limits; a
+    posture the platform already holds (:data:`HELD_TOLERANCE`) comes last, not first."""
+    route = plan_route(settings.nominal, start_pose, poses, settings.motion_limits)
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    legs = posture_leg_lengths(settings.nominal, np.vstack([np.asarray(start_pose)[None], poses]))
+    first = route.order[0]
+    if len(route.order) > 1 and np.max(np.abs(legs[first + 1] - legs[0])) < HELD_TOLERANCE:
+        order = np.r_[route.order[1:], first]
+        times = travel_time_matrix(legs, settings.motion_limits)
+        route = dataclasses.replace(
+            route, order=order, travel_s=path_time(times, np.r_[0, order + 1])
+        )
+    return route
 
 
 class PostureReplacer:
