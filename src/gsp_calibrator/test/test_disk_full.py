@@ -160,10 +160,21 @@ def test_a_full_disk_mid_run_ends_it_keeps_the_rows_and_resume_continues(
 def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
     ros_context, tmp_path, truth_file, monkeypatch
 ):
-    # The recording's file is full after 64 KiB (mid-run: some 350 messages, 5 rows of 12);
-    # its writes fail below the MCAP writer and its buffer, in the raw file.
-    disk = {'full': True, 'bytes': 64 * 1024}
+    # The recording's file fills up mid-run, on an event and not after a number of bytes: the
+    # streams are recorded from the start, so a byte count is reached at a time that depends on
+    # how long the posture selection took, before the first row on a slow machine. Once the
+    # third row of samples.csv is written, the recording has 1 KiB of room left (a write cut
+    # short at the limit, then ENOSPC); its writes fail below the MCAP writer and its buffer.
+    disk = {'full': True, 'bytes': 1 << 62, 'rows': 0}
     files = []
+    rows_before_full = 3
+    real_append = SamplesAppender.append
+
+    def append_row(self, *args, **kwargs):
+        real_append(self, *args, **kwargs)
+        disk['rows'] += 1
+        if disk['rows'] == rows_before_full:
+            disk['bytes'] = files[0].written + 1024
 
     def open_recording(file, mode='r', *args, **kwargs):
         if mode == 'wb' and str(file).endswith(f'{recording.RECORDING_FILE}.tmp'):
@@ -172,12 +183,13 @@ def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
         return open(file, mode, *args, **kwargs)
 
     monkeypatch.setattr(mcap_io, 'open', open_recording, raising=False)
+    monkeypatch.setattr(SamplesAppender, 'append', append_row)
     suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
     try:
         run = _run_failed_on(suite, tmp_path, 'recording.mcap.tmp')
         assert run_state.read_state(run).phase == run_state.PHASE_FAILED
         rows = read_samples(run / 'samples.csv')
-        assert 0 < len(rows) < 12  # mid-run
+        assert rows_before_full <= len(rows) < 12  # mid-run
         part = run / f'{recording.RECORDING_FILE}.tmp'
         # The disk is still full when the run ends: the recording cannot be finished, so its
         # .tmp is kept with every byte written, and nothing poses as a finished recording.
