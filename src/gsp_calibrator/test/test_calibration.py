@@ -78,7 +78,9 @@ def test_selection_key_changes_with_its_inputs():
 @pytest.mark.parametrize('formulation', ['implicit', 'fk'])
 def test_identification_recovers_the_true_geometry(selection, formulation):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, formulation=formulation)
+    outcome = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, formulation=formulation, noise_source='configured'
+    )
     assert outcome.success, outcome.message
     assert outcome.postures == len(samples) and outcome.duration_s > 0
     errors = parameter_errors(outcome.geometry, TRUE)
@@ -171,13 +173,17 @@ def test_posture_residuals_against_the_nominal_model(selection):
 
 def test_paper_model_on_sensor_errors_is_rejected_with_a_verdict(selection):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, free=['paper'])
+    outcome = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, free=['paper'], noise_source='configured'
+    )
     assert outcome.success and not outcome.fit_accepted
     assert 'does NOT explain the data' in outcome.verdict
     assert 'try free_parameters: extended' in outcome.verdict
     summary = run_response.outcome_summary(outcome)
     assert 'result REJECTED by the goodness-of-fit check' in summary
-    extended = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    extended = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, noise_source='configured'
+    )
     assert extended.fit_accepted and 'explains the data' in extended.verdict
     assert 'sensor errors: kq1 ' in run_response.outcome_summary(extended)
 

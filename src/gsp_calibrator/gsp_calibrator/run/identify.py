@@ -16,7 +16,8 @@ import numpy as np
 
 from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
 from gsp_calibrator.run.response import outcome_summary
-from gsp_kinematics import goodness, identifiability
+from gsp_kinematics import identifiability, noise_from_data
+from gsp_kinematics.goodness import verdict
 from gsp_kinematics.identification import (
     FORMULATIONS,
     IdentificationError,
@@ -43,7 +44,9 @@ class CalibrationOutcome:
     postures: int = 0  #: posture rows given
     sigmas: object = None  #: the weights of the averaged rows
     duration_s: float = 0.0  #: identification wall time, s
-    noise_estimates: dict = dataclasses.field(default_factory=dict)  #: goodness.estimate_noise
+    #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
+    noise_estimates: dict = dataclasses.field(default_factory=dict)
+    noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
     verdict: str = ''  #: the goodness-of-fit verdict (plain text)
 
     @property
@@ -67,6 +70,7 @@ def identify_from_samples(
     free=DEFAULT_FREE,
     formulation='implicit',
     within_posture_std=None,
+    noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
@@ -76,30 +80,48 @@ def identify_from_samples(
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
     sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
-    estimates (None: not estimated). A successful outcome carries the goodness-of-fit
-    ``verdict``; :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
+    estimates (None: between postures only). ``noise_source``: ``estimated`` (the weights are the
+    noise estimated from the run, :func:`noise_from_data.identify_with_estimated_noise`) or
+    ``configured`` (``sigmas``; the estimate is still reported). A successful outcome carries
+    the goodness-of-fit ``verdict``; :attr:`CalibrationOutcome.fit_accepted` says whether the
+    model explains the data.
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
+    try:
+        noise_from_data.check_noise_source(noise_source)
+    except ValueError as error:
+        raise CalibrationError(str(error)) from None
     free_mask = resolve_free(free)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
-    outcome = CalibrationOutcome(success=False, message='', postures=count, sigmas=row_sigmas)
+    outcome = CalibrationOutcome(
+        success=False, message='', postures=count, sigmas=row_sigmas, noise_source=noise_source
+    )
     if count == 0:
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
+    within = {}
+    if within_posture_std is not None and len(within_posture_std) == count:
+        within = noise_from_data.within_row_noise(within_posture_std, samples.n_samples)
+    inputs = (nominal, samples.leg_lengths, samples.readings)
+    options = dict(
+        formulation=formulation,
+        free=free_mask,
+        pose_guesses=samples.commanded_poses,
+        **identify_options,
+    )
     started = time.perf_counter()
+    estimates = {}
     try:
-        result = identify(
-            nominal,
-            samples.leg_lengths,
-            samples.readings,
-            row_sigmas,
-            formulation=formulation,
-            free=free_mask,
-            pose_guesses=samples.commanded_poses,
-            **identify_options,
-        )
+        if noise_source == 'estimated':
+            result, estimates, outcome.sigmas = noise_from_data.identify_with_estimated_noise(
+                *inputs, row_sigmas, within, **options
+            )
+        else:
+            result = identify(*inputs, row_sigmas, **options)
+            if result.converged:
+                estimates = noise_from_data.estimate_row_noise(result, row_sigmas, within)
     except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
         outcome.duration_s = time.perf_counter() - started
         outcome.message = f'identification failed: {error}'
@@ -128,11 +150,8 @@ def identify_from_samples(
         return outcome
     outcome.success = True
     outcome.geometry = result.geometry
-    if within_posture_std is not None and len(within_posture_std) == count:
-        outcome.noise_estimates = goodness.estimate_noise(
-            within_posture_std, samples.n_samples, sigmas.channels()
-        )
-    outcome.verdict = goodness.verdict(
+    outcome.noise_estimates = noise_from_data.noise_record(estimates, sigmas, samples.n_samples)
+    outcome.verdict = verdict(
         result.goodness_of_fit,
         result.outliers,
         outcome.noise_estimates,
@@ -172,6 +191,7 @@ def finish_run(run, settings, samples, collection, options, within_posture_std=N
         list(settings.free_parameters),
         settings.formulation,
         within_posture_std,
+        settings.noise_source,
         options=settings.identify_options(),
     )
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
