@@ -180,7 +180,7 @@ PARAMETERS = (
         0.0,
         'A posture whose largest studentised residual (each residual over its own standard '
         'deviation under the noise the residuals show) exceeds this is reported; 0: the '
-        'Bonferroni threshold at 1 % over all residuals (about 4.2 for 600)',
+        'Bonferroni threshold at 1 % over all residuals (about 4.3 for 600)',
         constraints='>= 0',
         check=at_least(0.0),
     ),

@@ -200,3 +200,45 @@ def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
     assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
     assert 'noise lvdt: estimated' in run_response.outcome_summary(outcome)
     assert 'WARNING: differs by more than 2x' in run_response.outcome_summary(outcome)
+
+
+def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
+    """The issue's scenario in the pure pipeline: every sensor 3x noisier than configured."""
+    noisy = Sigmas(*(3.0 * value for value in SIGMAS.channels().values()))
+    samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5)
+    rng = np.random.default_rng(6)
+    spread = noisy.channel_std() * np.sqrt(rng.chisquare(9, (len(samples), 10)) / 9)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, within_posture_std=spread)
+    assert outcome.success and outcome.fit_accepted, outcome.verdict
+    assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.verdict
+    assert outcome.sigmas.leg_lengths == pytest.approx(noisy.leg_lengths / math.sqrt(10), rel=0.1)
+    for channel, entry in outcome.noise_estimates.items():
+        assert entry['source'] == 'pooled'
+        assert entry['estimated'] == pytest.approx(getattr(noisy, channel), rel=0.1), channel
+    configured = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, within_posture_std=spread, noise_source='configured'
+    )
+    assert configured.success and not configured.fit_accepted
+    assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict
+    summary = run_response.outcome_summary(configured)
+    assert summary.splitlines()[0].startswith(run_response.REJECTED_HEAD + ':')
+    assert 'weights from the configured noise' in summary
+    with pytest.raises(postures.CalibrationError, match='noise_source'):
+        calibration.identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='guessed')
+
+
+def test_last_progress_message_agrees_with_the_phase():
+    rejected = f'{run_response.REJECTED_HEAD}: 60 posture(s) of 60 commanded\nmore'
+    assert run_response.final_progress_message(rejected, False, '').startswith(
+        'calibration REJECTED'
+    )
+    assert (
+        run_response.final_progress_message(
+            'calibration succeeded: 60\nx', False, 'NOT applied: why'
+        )
+        == 'NOT applied: why'
+    )
+    assert (
+        run_response.final_progress_message('calibration succeeded: 60\nx', True, 'applied')
+        == 'calibration succeeded: 60'
+    )
