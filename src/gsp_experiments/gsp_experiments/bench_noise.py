@@ -16,13 +16,10 @@ import numpy as np
 
 from gsp_kinematics import noise_from_data
 from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import Workspace, sample_valid_postures
 from gsp_kinematics.prediction import predicted_errors
-from gsp_kinematics.selection import select_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
 
-from .bench_sensor_errors import POSTURES, SAMPLES, collect, position_error_mm
-from .nominal_sets import default_true_and_nominal
+from .bench_sensor_errors import SAMPLES, calibrator_design, collect, position_error_mm
 
 SEEDS = 20
 #: Seeds of the F test's level check (the rejection rate of a right model at 1 %).
@@ -60,14 +57,8 @@ def _seed(true, nominal, poses, truth, seed, validation_poses):
 def run(quick=False):
     """The ``noise_unknown`` section: the figures over :data:`SEEDS` seeds, and (not ``quick``)
     the lack-of-fit test's rejection rate over :data:`LEVEL_SEEDS` more."""
-    true, nominal = default_true_and_nominal()
-    workspace = Workspace()
-    pool = sample_valid_postures(nominal, 600, np.random.default_rng(0), workspace)
-    chosen, _ = select_postures(
-        nominal, pool, POSTURES, DEFAULT_SENSOR_NOISE.averaged([SAMPLES]), free='extended'
-    )
+    true, nominal, pool, chosen, validation_poses = calibrator_design()
     poses = pool[chosen]
-    validation_poses = sample_valid_postures(nominal, 50, np.random.default_rng(1), workspace)
     truth = SensorNoise(
         **{name: FACTORS[name] * getattr(DEFAULT_SENSOR_NOISE, name) for name in NOISE_FIELDS}
     )

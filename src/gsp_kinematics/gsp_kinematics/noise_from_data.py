@@ -162,6 +162,20 @@ def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within,
     return result, estimates, sigmas
 
 
+def identify_with_noise(source, nominal, leg_lengths, readings, row_sigmas, within, **options):
+    """``(result, {channel: ChannelNoise}, SensorNoise of the rows used)`` with the weights of
+    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``) or
+    ``configured`` (``row_sigmas``; the estimate is made from the fit and only reported)."""
+    check_noise_source(source)
+    if source == 'estimated':
+        return identify_with_estimated_noise(
+            nominal, leg_lengths, readings, row_sigmas, within, **options
+        )
+    result = identify(nominal, leg_lengths, readings, row_sigmas, **options)
+    estimates = estimate_row_noise(result, row_sigmas, within) if result.converged else {}
+    return result, estimates, row_sigmas
+
+
 def noise_record(estimates, configured, n_samples):
     """``{channel: {...}}`` for result.json: per-sample equivalents (SI: the row std times
     ``sqrt(n)``, comparable with the configured ``sigma_<field>``) of the estimate, its

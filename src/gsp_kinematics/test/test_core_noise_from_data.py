@@ -49,6 +49,17 @@ def ar1(rng, shape, rho):
     return out
 
 
+def arrow_jacobian(jac_pose, jac_u):
+    """The dense Jacobian of the implicit formulation's shape: a 6-column pose block a posture
+    on the diagonal, the parameters' columns shared."""
+    count, rows, parameters = jac_u.shape
+    dense = np.zeros((count * rows, 6 * count + parameters))
+    for m in range(count):
+        dense[m * rows : (m + 1) * rows, 6 * m : 6 * m + 6] = jac_pose[m]
+        dense[m * rows : (m + 1) * rows, 6 * count :] = jac_u[m]
+    return dense
+
+
 def run(exact_readings, seed, correlation=None):
     """``(legs, readings, within std (M, 10))`` of a simulated run with :data:`TRUTH` noise;
     ``correlation``: ``{column: rho}`` of AR(1) samples."""
@@ -79,10 +90,7 @@ def test_redundancy_numbers_are_the_hat_matrix_diagonal(rng):
     count, rows, parameters = 7, 10, 5
     jac_pose = rng.normal(size=(count, rows, 6))
     jac_u = rng.normal(size=(count, rows, parameters))
-    dense = np.zeros((count * rows, 6 * count + parameters))
-    for m in range(count):
-        dense[m * rows : (m + 1) * rows, 6 * m : 6 * m + 6] = jac_pose[m]
-        dense[m * rows : (m + 1) * rows, 6 * count :] = jac_u[m]
+    dense = arrow_jacobian(jac_pose, jac_u)
     expected = 1.0 - np.diag(dense @ np.linalg.inv(dense.T @ dense) @ dense.T)
     inverse = np.linalg.inv(np.einsum('mki,mkj->mij', jac_pose, jac_pose))
     w = np.einsum('mki,mkj->mij', jac_pose, jac_u)
@@ -162,10 +170,7 @@ def test_lack_of_fit_holds_its_level_and_rejects_an_unmodelled_error(rng):
     count, rows, parameters, seeds = 30, 10, 20, 2000
     jac_pose = rng.normal(size=(count, rows, 6))
     jac_u = rng.normal(size=(count, rows, parameters))
-    dense = np.zeros((count * rows, 6 * count + parameters))
-    for m in range(count):
-        dense[m * rows : (m + 1) * rows, 6 * m : 6 * m + 6] = jac_pose[m]
-        dense[m * rows : (m + 1) * rows, 6 * count :] = jac_u[m]
+    dense = arrow_jacobian(jac_pose, jac_u)
     projector = np.eye(count * rows) - dense @ np.linalg.pinv(dense)
     redundancy = np.diag(projector).reshape(count, rows)
     columns = [f'leg{i}' for i in range(1, 7)] + ['alpha', 'beta', 'phi', 'd_m']

@@ -18,12 +18,7 @@ from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import identifiability, noise_from_data
 from gsp_kinematics.goodness import verdict
-from gsp_kinematics.identification import (
-    FORMULATIONS,
-    IdentificationError,
-    identify,
-    resolve_free,
-)
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, resolve_free
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 
 #: Comment of the calibrated geometry file and the latched result.
@@ -63,6 +58,20 @@ class CalibrationOutcome:
         return list(self.identifiability.get('names', []))
 
 
+def _unidentifiable_message(analysis, count):
+    """Why a rank-deficient result is not applied: the rank, the names, the null directions."""
+    names = analysis['names']
+    combinations = [entry['combination'] for entry in analysis['unidentifiable']]
+    shown = '; '.join(combinations[:5]) + (' ...' if len(combinations) > 5 else '')
+    return (
+        f'non-identifiable parameters: the scaled information matrix has rank '
+        f'{analysis["rank"]} of {analysis["parameters"]} with {count} posture(s); '
+        f'not identifiable: {", ".join(names) if names else "(unnamed)"} '
+        f'(null directions: {shown}). Add postures or fix these parameters '
+        '(free_parameters); nothing applied'
+    )
+
+
 def identify_from_samples(
     nominal,
     samples,
@@ -80,11 +89,9 @@ def identify_from_samples(
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
     sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
-    estimates (None: between postures only). ``noise_source``: ``estimated`` (the weights are the
-    noise estimated from the run, :func:`noise_from_data.identify_with_estimated_noise`) or
-    ``configured`` (``sigmas``; the estimate is still reported). A successful outcome carries
-    the goodness-of-fit ``verdict``; :attr:`CalibrationOutcome.fit_accepted` says whether the
-    model explains the data.
+    estimates (None: between postures only). ``noise_source``: ``estimated`` or ``configured``
+    (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
+    :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
@@ -104,24 +111,20 @@ def identify_from_samples(
     within = {}
     if within_posture_std is not None and len(within_posture_std) == count:
         within = noise_from_data.within_row_noise(within_posture_std, samples.n_samples)
-    inputs = (nominal, samples.leg_lengths, samples.readings)
-    options = dict(
-        formulation=formulation,
-        free=free_mask,
-        pose_guesses=samples.commanded_poses,
-        **identify_options,
-    )
     started = time.perf_counter()
-    estimates = {}
     try:
-        if noise_source == 'estimated':
-            result, estimates, outcome.sigmas = noise_from_data.identify_with_estimated_noise(
-                *inputs, row_sigmas, within, **options
-            )
-        else:
-            result = identify(*inputs, row_sigmas, **options)
-            if result.converged:
-                estimates = noise_from_data.estimate_row_noise(result, row_sigmas, within)
+        result, estimates, outcome.sigmas = noise_from_data.identify_with_noise(
+            noise_source,
+            nominal,
+            samples.leg_lengths,
+            samples.readings,
+            row_sigmas,
+            within,
+            formulation=formulation,
+            free=free_mask,
+            pose_guesses=samples.commanded_poses,
+            **identify_options,
+        )
     except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
         outcome.duration_s = time.perf_counter() - started
         outcome.message = f'identification failed: {error}'
@@ -137,16 +140,7 @@ def identify_from_samples(
     analysis = identifiability.analyse_result(result)
     outcome.identifiability = analysis
     if analysis['names'] or analysis['rank'] < analysis['parameters']:
-        names = analysis['names']
-        combinations = [entry['combination'] for entry in analysis['unidentifiable']]
-        shown = '; '.join(combinations[:5]) + (' ...' if len(combinations) > 5 else '')
-        outcome.message = (
-            f'non-identifiable parameters: the scaled information matrix has rank '
-            f'{analysis["rank"]} of {analysis["parameters"]} with {count} posture(s); '
-            f'not identifiable: {", ".join(names) if names else "(unnamed)"} '
-            f'(null directions: {shown}). Add postures or fix these parameters '
-            '(free_parameters); nothing applied'
-        )
+        outcome.message = _unidentifiable_message(analysis, count)
         return outcome
     outcome.success = True
     outcome.geometry = result.geometry
