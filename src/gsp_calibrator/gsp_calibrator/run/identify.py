@@ -88,17 +88,15 @@ def identify_from_samples(
     scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
-    sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
-    estimates (None: between postures only). ``noise_source``: ``estimated`` or ``configured``
-    (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
+    sample standard deviation of the 6 legs and 4 readings within each posture (of the last
+    rows, after a resume), for the noise estimates (None: between postures only).
+    ``noise_source``: ``estimated`` or ``configured`` (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
     :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
-    try:
-        noise_from_data.check_noise_source(noise_source)
-    except ValueError as error:
-        raise CalibrationError(str(error)) from None
+    if noise_source not in noise_from_data.NOISE_SOURCES:
+        raise CalibrationError(f'noise_source must be one of {noise_from_data.NOISE_SOURCES}')
     free_mask = resolve_free(free)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -109,8 +107,9 @@ def identify_from_samples(
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
     within = {}
-    if within_posture_std is not None and len(within_posture_std) == count:
-        within = noise_from_data.within_row_noise(within_posture_std, samples.n_samples)
+    spread = 0 if within_posture_std is None else len(within_posture_std)
+    if 0 < spread <= count:  # a resumed run has the scatter of its last session's rows only
+        within = noise_from_data.within_row_noise(within_posture_std, samples.n_samples[-spread:])
     started = time.perf_counter()
     try:
         result, estimates, outcome.sigmas = noise_from_data.identify_with_noise(
