@@ -63,7 +63,9 @@ class ChannelNoise:
 
 def within_row_noise(sample_std, n_samples):
     """``{channel: (row std, dof)}``: the within-posture per-sample noise over ``sqrt(n)``, with
-    ``n`` the median samples a row (the convention of ``SensorNoise.averaged``)."""
+    ``n`` the median samples a row (the convention of ``SensorNoise.averaged``). A channel that
+    does not scatter within a posture (noise-free data, a quantised encoder at rest) has no
+    within-posture estimate: it is left out."""
     n_samples = np.asarray(n_samples, dtype=float).reshape(-1)
     if n_samples.size == 0:
         return {}
@@ -71,6 +73,7 @@ def within_row_noise(sample_std, n_samples):
     return {
         channel: (sigma / root, dof)
         for channel, (sigma, dof) in goodness.within_posture_noise(sample_std, n_samples).items()
+        if sigma > 0.0
     }
 
 

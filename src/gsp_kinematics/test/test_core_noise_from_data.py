@@ -229,3 +229,11 @@ def test_bonferroni_threshold():
 def test_unknown_noise_source_is_named():
     with pytest.raises(noise_from_data.NoiseSourceError, match="'guessed'"):
         noise_from_data.check_noise_source('guessed')
+
+
+def test_a_channel_without_scatter_has_no_within_posture_estimate():
+    std = np.tile(TRUTH.channel_std(), (20, 1))
+    std[:, 8] = 0.0  # an encoder that reads one count all window long
+    within = noise_from_data.within_row_noise(std, np.full(20, SAMPLES))
+    assert set(within) == {'leg_lengths', 'inclinometer', 'lvdt'}
+    assert within['lvdt'][0] == pytest.approx(TRUTH.lvdt / math.sqrt(SAMPLES))

@@ -284,6 +284,27 @@ def reidentify(args, out=None):
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
 
+def stored_weights(stored, options, samples):
+    """``(sigmas, noise_source, keys of result.json to keep)`` that identify a run again from
+    its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
+
+    ``samples.csv`` keeps the averages, not the within-posture scatter an ``estimated`` run's
+    noise came from: the row noise it used (``result.json`` ``sigmas``) is given as configured
+    per-sample sigmas, and its noise estimates and goodness of fit are kept as written."""
+    source = options.get('noise_source', DEFAULTS['noise_source'])
+    sigmas, kept = SensorNoise.from_parameters(options), ('collection', 'noise_estimates')
+    if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
+        rows = SensorNoise.from_record(stored['sigmas'])
+        root = float(np.sqrt(np.median(samples.n_samples))) if len(samples) else 1.0
+        sigmas = SensorNoise.from_channels({k: v * root for k, v in rows.channels().items()})
+        return (
+            sigmas,
+            'configured',
+            kept + ('noise_source', 'goodness_of_fit', 'verdict', 'fit_accepted'),
+        )
+    return sigmas, source, kept
+
+
 def refresh_report(
     run_dir,
     truth=None,
@@ -310,17 +331,7 @@ def refresh_report(
     nominal = geometry_option(options['nominal_geometry_file'], 'nominal_geometry_file')
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
-    sigmas, kept_keys = SensorNoise.from_parameters(options), ('collection', 'noise_estimates')
-    source = options['noise_source']
-    if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
-        # samples.csv keeps the averages, not the within-posture scatter the estimate used: the
-        # run's estimated row noise (result.json 'sigmas') gives its result exactly, and its
-        # noise estimates and goodness of fit are kept as the calibrator wrote them.
-        rows = SensorNoise.from_record(stored['sigmas'])
-        root = float(np.sqrt(np.median(samples.n_samples))) if len(samples) else 1.0
-        sigmas = SensorNoise.from_channels({k: v * root for k, v in rows.channels().items()})
-        kept_keys += ('noise_source', 'goodness_of_fit', 'verdict', 'fit_accepted')
-        source = 'configured'
+    sigmas, source, kept_keys = stored_weights(stored, options, samples)
     outcome = calibration.identify_from_samples(
         nominal,
         samples,
