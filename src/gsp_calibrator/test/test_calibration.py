@@ -13,15 +13,20 @@ from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry, geometry_from_yaml, parameter_errors
 from gsp_kinematics.identification import Options, Sigmas
 from gsp_kinematics.kinematics import check_reachable, forward_kinematics_masked, inverse_kinematics
+from gsp_kinematics.noise_from_data import posture_lag_sums
 
 NOMINAL = default_geometry('nominal')
 TRUE = default_geometry('true')
 SIGMAS = Sigmas()  # Table 3, first level
 
 
-def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, sigmas=SIGMAS):
+def synthetic_samples(
+    poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, sigmas=SIGMAS, windows=False
+):
     """Rows as the calibrator would collect them: nominal controller, true platform, noise
-    averaged over ``n_samples`` samples; postures FK cannot reach are left out."""
+    averaged over ``n_samples`` samples; postures FK cannot reach are left out. ``windows``:
+    draw each window's samples and keep their lag sums (the within-posture estimate), else
+    draw the rows' noise only."""
     rng = np.random.default_rng(seed)
     q = nominal.sensors.leg_readings(inverse_kinematics(nominal, poses))
     real, ok = forward_kinematics_masked(true, true.sensors.true_leg_lengths(q), poses)
@@ -29,14 +34,17 @@ def synthetic_samples(poses, n_samples=10, seed=1, true=TRUE, nominal=NOMINAL, s
     scale = 1.0 / math.sqrt(n_samples)
     samples = Samples.empty()
     for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
-        samples.append(
-            k,
-            pose,
-            legs + rng.normal(0, sigmas.leg_lengths * scale, 6),
-            reading + rng.normal(0, 1, 4) * sigmas.readings() * scale,
-            n_samples,
-            1.7e9 + k,
-        )
+        lag_sums = None
+        if windows:
+            window = np.concatenate([legs, reading]) + rng.normal(
+                size=(n_samples, 10)
+            ) * np.concatenate([np.full(6, sigmas.leg_lengths), sigmas.readings()])
+            legs, reading = window[:, :6].mean(axis=0), window[:, 6:].mean(axis=0)
+            lag_sums = posture_lag_sums(window)
+        else:
+            legs = legs + rng.normal(0, sigmas.leg_lengths * scale, 6)
+            reading = reading + rng.normal(0, 1, 4) * sigmas.readings() * scale
+        samples.append(k, pose, legs, reading, n_samples, 1.7e9 + k, lag_sums)
     return samples
 
 
@@ -189,12 +197,10 @@ def test_paper_model_on_sensor_errors_is_rejected_with_a_verdict(selection):
 
 
 def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
-    samples = synthetic_samples(selection.poses)
-    rng = np.random.default_rng(4)
-    per_sample = np.concatenate([np.full(6, SIGMAS.leg_lengths), SIGMAS.readings()])
-    spread = per_sample * np.sqrt(rng.chisquare(9, (len(samples), 10)) / 9)
-    spread[:, 9] *= 3.0  # the LVDT is three times noisier than configured
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, within_posture_std=spread)
+    # The LVDT is three times noisier than configured.
+    device = Sigmas(SIGMAS.leg_lengths, SIGMAS.inclinometer, SIGMAS.encoder, 3 * SIGMAS.lvdt)
+    samples = synthetic_samples(selection.poses, sigmas=device, windows=True)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
     estimates = outcome.noise_estimates
     assert estimates['leg_lengths']['estimated'] == pytest.approx(SIGMAS.leg_lengths, rel=0.1)
     assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
@@ -205,10 +211,8 @@ def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
 def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
     """The issue's scenario in the pure pipeline: every sensor 3x noisier than configured."""
     noisy = Sigmas(*(3.0 * value for value in SIGMAS.channels().values()))
-    samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5)
-    rng = np.random.default_rng(6)
-    spread = noisy.channel_std() * np.sqrt(rng.chisquare(9, (len(samples), 10)) / 9)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, within_posture_std=spread)
+    samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5, windows=True)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
     assert outcome.success and outcome.fit_accepted, outcome.verdict
     assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.verdict
     assert outcome.sigmas.leg_lengths == pytest.approx(noisy.leg_lengths / math.sqrt(10), rel=0.1)
@@ -216,7 +220,7 @@ def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
         assert entry['source'] == 'pooled'
         assert entry['estimated'] == pytest.approx(getattr(noisy, channel), rel=0.1), channel
     configured = calibration.identify_from_samples(
-        NOMINAL, samples, SIGMAS, within_posture_std=spread, noise_source='configured'
+        NOMINAL, samples, SIGMAS, noise_source='configured'
     )
     assert configured.success and not configured.fit_accepted
     assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict

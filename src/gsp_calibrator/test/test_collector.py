@@ -134,6 +134,17 @@ def test_average_and_take_posture():
     np.testing.assert_allclose(row.leg_lengths, legs[:4].mean(axis=0), rtol=0, atol=1e-15)
     np.testing.assert_allclose(row.readings, readings[:4].mean(axis=0), rtol=0, atol=1e-15)
     np.testing.assert_allclose(row.leg_lengths_std, legs[:4].std(axis=0, ddof=1))
+    # The window's lag sums (lags 0..2) per noise channel: lag 0 is (n - 1) s^2 summed over
+    # the channel's columns (m^2, rad^2).
+    assert row.lag_sums.shape == (4, 3)
+    np.testing.assert_allclose(
+        row.lag_sums[0, 0], 3 * np.sum(legs[:4].var(axis=0, ddof=1)), rtol=1e-9
+    )
+    np.testing.assert_allclose(
+        row.lag_sums[1, 0], 3 * np.sum(readings[:4, :2].var(axis=0, ddof=1)), rtol=1e-9
+    )
+    centred = readings[:4, 3] - readings[:4, 3].mean()
+    np.testing.assert_allclose(row.lag_sums[3, 1], centred[:-1] @ centred[1:], rtol=1e-9)
     assert row.n_samples == 4
     assert row.stamp_ns == T0 + 7 * MS + MS // 2 and row.stamp == pytest.approx(row.stamp_ns / 1e9)
     # Collection stops after taking the posture.

@@ -13,13 +13,19 @@ import pytest
 from rclpy.parameter import Parameter
 from test_calibrator_node import CALL_TIMEOUT_S, make_suite, perturbed_truth
 
+from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
+from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
-from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.run import postures as run_postures
+from gsp_calibrator.run.directory import RunDirectory, Samples
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.tools import client
 from gsp_calibrator.tools import reidentify as offline
+from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS
+from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
 from gsp_msgs_py import names
 
 FACTOR = 3.0
@@ -85,3 +91,118 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
     # One run of 8 parameters: its error along a few directions scatters like chi with few
     # degrees of freedom around the prediction; the 1.3x target is the bench's mean over seeds.
     assert ratio <= 2.5, ratio
+
+
+def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context, tmp_path):
+    """The device's inclinometer noise is correlated over 0.05 s (a real part's filtered output);
+    1.5 s windows (150 samples at 100 Hz, about 15 effective): the effective sample count gives
+    the inclinometer's row noise within postures, it agrees with the between-posture residuals
+    (the noise of the averaged rows, whatever the timers' jitter did to the correlation), the
+    fit is accepted, and the run directory (samples.csv) and its recording carry what the
+    estimate came from."""
+    samples = 150
+    perturbed_truth(tmp_path / 'true.yaml')
+    suite, _, _, _ = make_suite(
+        ros_context,
+        tmp_path,
+        tmp_path / 'true.yaml',
+        {'posture_count': 16, 'pool_size': 160, 'samples_per_posture': samples},
+        device_overrides=[Parameter('inclinometer_noise_correlation_time', value=0.05)],
+    )
+    try:
+        response = suite.wait(suite.call())
+    finally:
+        suite.close()
+    assert response.success, response.message
+    run = RunDirectory(parse_response(response.message).run_directory)
+    data = json.loads((run.path / 'result.json').read_text())
+    assert data['noise_source'] == 'estimated' and data['fit_accepted'] is True, data['verdict']
+    assert data['goodness_of_fit']['test'] == 'lack_of_fit'
+    inclinometer = data['noise_estimates']['inclinometer']
+    assert not inclinometer['within_lower_bound'] and inclinometer['source'] == 'pooled'
+    # The white formula s / sqrt(n) would be far too small: n_eff is well below n.
+    assert inclinometer['within_n_eff'] < samples / 3
+    # gsp_reidentify of the run directory has the same within-posture estimate (samples.csv
+    # keeps each row's lag sums), and so has the rebuild of its recording.
+    rows = run.read_samples()
+    assert np.isfinite(rows.lag_sums[:, :, : samples // 2 + 1]).all()
+    again = offline.refresh_report(run.path, write_pngs=False)
+    assert again.noise_estimates['inclinometer']['row_std'] == pytest.approx(
+        inclinometer['row_std'], rel=1e-9
+    )
+    rebuilt = rebuild.samples_from_recording(run.path / 'recording.mcap')
+    np.testing.assert_allclose(rebuilt.lag_sums, rows.lag_sums, rtol=1e-9, atol=0.0)
+
+
+def offline_run(poses, samples, rate_hz, correlation_time, seed):
+    """The collection protocol's rows without ROS: platform_sim's simulator (nominal
+    controller, the shipped truth, default leg noise) and device_driver's ``sim`` backend
+    (default noise, the inclinometer's correlated over ``correlation_time`` s) sampled at
+    ``rate_hz`` on one clock, ``samples`` pairs averaged a posture by the collector."""
+    from gsp_device_driver.backends import SimDeviceBackend
+    from gsp_platform_sim.simulator import PlatformSimulator
+
+    true = default_geometry('true')
+    rng = np.random.default_rng(seed)
+    platform = PlatformSimulator(
+        true, default_geometry('nominal'), DEFAULT_SENSOR_NOISE.leg_lengths, rng
+    )
+    device = SimDeviceBackend(
+        true.device_length,
+        true.inclinometer_axes_angle,
+        DEFAULT_SENSOR_NOISE.inclinometer,
+        DEFAULT_SENSOR_NOISE.encoder,
+        DEFAULT_SENSOR_NOISE.lvdt,
+        rng=rng,
+        sensors=true.sensors,
+        correlation_times=(correlation_time, 0.0, 0.0),
+    )
+    collector = SampleCollector(
+        0.25 / rate_hz, samples, noise_std=DEFAULT_SENSOR_NOISE.channel_std()
+    )
+    rows, step = Samples.empty(), 0
+    for posture, pose in enumerate(poses, 1):
+        assert platform.command(pose).accepted
+        device.observe_true_pose(platform.true_pose)
+        collector.start(seconds_to_ns(step / rate_hz))
+        for _ in range(samples):
+            stamp = seconds_to_ns(step / rate_hz)
+            reading = device.read(step / rate_hz)
+            collector.add_leg_lengths(stamp, platform.measured_leg_lengths())
+            collector.add_inclinometer(stamp, reading.alpha, reading.beta)
+            collector.add_encoder(stamp, reading.phi)
+            collector.add_lvdt(stamp, reading.d_m)
+            step += 1
+        row = collector.take_posture()
+        rows.append(posture, pose, row.leg_lengths, row.readings, samples, row.stamp, row.lag_sums)
+    return rows
+
+
+@pytest.mark.parametrize(
+    'postures, samples, lower_bound',
+    [(60, 10, True), (30, 300, False)],  # 0.05 s and 1.5 s windows at 200 Hz
+)
+def test_correlated_device_noise_offline_is_estimated_and_accepted(postures, samples, lower_bound):
+    """The realistic inclinometer (noise correlated over 0.05 s, 200 Hz): with the default
+    10-sample windows the within estimate is only a lower bound (n_eff ~ 3), the row noise comes
+    from the residuals between postures and the inclinometer is left out of the F test; with
+    1.5 s windows the effective sample count gives it within postures. Either way the right
+    model is accepted and the row noise is the AR(1) truth within 15 %."""
+    rate_hz, correlation_time = 200.0, 0.05
+    nominal = default_geometry('nominal')
+    poses = run_postures.choose_postures(nominal, postures, 10 * postures, seed=5).poses
+    rows = offline_run(poses, samples, rate_hz, correlation_time, seed=postures)
+    outcome = calibration.identify_from_samples(nominal, rows, DEFAULT_SENSOR_NOISE)
+    assert outcome.success and outcome.fit_accepted, outcome.verdict
+    assert outcome.result.goodness_of_fit.test == 'lack_of_fit'
+    inclinometer = outcome.noise_estimates['inclinometer']
+    assert inclinometer['within_lower_bound'] is lower_bound
+    assert inclinometer['source'] == ('between' if lower_bound else 'pooled')
+    rho = np.exp(-1.0 / (rate_hz * correlation_time))
+    true_row = ar1_std_of_mean(DEFAULT_SENSOR_NOISE.inclinometer, rho, samples)
+    assert inclinometer['row_std'] == pytest.approx(true_row, rel=0.15)
+    # s / sqrt(n) would be less than 0.4x the truth: the correlation matters.
+    assert DEFAULT_SENSOR_NOISE.inclinometer / np.sqrt(samples) < 0.4 * true_row
+    for channel in ('leg_lengths', 'encoder', 'lvdt'):  # white: s / sqrt(n)
+        truth = getattr(DEFAULT_SENSOR_NOISE, channel) / np.sqrt(samples)
+        assert outcome.noise_estimates[channel]['row_std'] == pytest.approx(truth, rel=0.15)

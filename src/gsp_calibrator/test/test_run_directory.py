@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.run.directory import (
+    LEGACY_SAMPLES_COLUMNS as LEGACY,
+)
+from gsp_calibrator.run.directory import (
     SAMPLES_COLUMNS,
     RunDirectory,
     RunDirectoryError,
@@ -18,6 +21,7 @@ from gsp_calibrator.run.directory import (
     read_samples,
     samples_from_csv,
     samples_to_csv,
+    upgrade_samples_file,
     write_samples,
 )
 from gsp_kinematics.fileio import atomic_write_text
@@ -37,6 +41,7 @@ def make_samples(count=4, seed=0):
             rng.normal(size=4) / 3.0,
             10 - k,
             1.7e9 + rng.uniform(),
+            None if k == 1 else rng.uniform(size=(4, (10 - k) // 2 + 1)),  # row 2: none
         )
     return samples
 
@@ -62,6 +67,10 @@ def test_columns_are_exactly_the_contract():
         'd_m',
         'n_samples',
         'stamp',
+        'lag_sums_leg_lengths',
+        'lag_sums_inclinometer',
+        'lag_sums_encoder',
+        'lag_sums_lvdt',
     )
 
 
@@ -76,6 +85,9 @@ def test_samples_round_trip_at_full_precision(tmp_path):
     np.testing.assert_array_equal(back.readings, samples.readings)
     np.testing.assert_array_equal(back.n_samples, samples.n_samples)
     np.testing.assert_array_equal(back.stamps, samples.stamps)
+    np.testing.assert_array_equal(back.lag_sums, samples.lag_sums)  # NaN where none
+    assert back.lag_sums.shape == (4, 4, 6) and np.isnan(back.lag_sums[1]).all()
+    assert np.isnan(back.lag_sums[3, :, 4:]).all()  # 7 samples: lags 0..3
     commanded, legs, readings, n_samples, stamps = load_samples(path)
     assert commanded.shape == (4, 6) and legs.shape == (4, 6) and readings.shape == (4, 4)
     assert n_samples.tolist() == [10, 9, 8, 7] and stamps.shape == (4,)
@@ -93,16 +105,33 @@ def test_empty_samples_round_trip(tmp_path):
         ('', 'empty'),
         ('a,b\n', 'columns'),
         (','.join(SAMPLES_COLUMNS) + '\n1,2\n', ':2: 2 values'),
-        (','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x']) + '\n', 'column stamp'),
+        (','.join(LEGACY) + '\n' + ','.join(['1'] * 18 + ['x']) + '\n', 'column stamp'),
         (
-            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8) + '\n',
+            ','.join(LEGACY) + '\n' + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8) + '\n',
             'column leg_4 is not finite',
+        ),
+        (
+            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 19 + ['1 2', '3 x', '', '']),
+            'column lag_sums_inclinometer',
         ),
     ],
 )
 def test_malformed_samples_are_reported(text, match):
     with pytest.raises(RunDirectoryError, match=match):
         samples_from_csv(text)
+
+
+def test_a_samples_file_without_lag_sums_is_read_and_upgraded(tmp_path):
+    samples = make_samples()
+    path = tmp_path / 'samples.csv'
+    legacy = [line.split(',')[: len(LEGACY)] for line in samples_to_csv(samples).splitlines()]
+    path.write_text('\n'.join(','.join(row) for row in legacy) + '\n')
+    back = read_samples(path)
+    np.testing.assert_array_equal(back.leg_lengths, samples.leg_lengths)
+    assert back.lag_sums.shape == (4, 4, 0)
+    upgrade_samples_file(path, back)  # a resumed older run appends rows with lag sums
+    assert path.read_text().splitlines()[0] == ','.join(SAMPLES_COLUMNS)
+    np.testing.assert_array_equal(read_samples(path).readings, samples.readings)
 
 
 def test_missing_samples_file_is_reported(tmp_path):
@@ -169,4 +198,5 @@ def test_csv_text_uses_repr_floats():
     samples = Samples.empty()
     samples.append(1, [0.1] * 6, [1 / 3] * 6, [2 / 3] * 4, 10, 1.7e9 + 0.123456789)
     row = samples_to_csv(samples).splitlines()[1].split(',')
-    assert row[7] == repr(1 / 3) and row[-1] == repr(1.7e9 + 0.123456789) and row[-2] == '10'
+    assert row[7] == repr(1 / 3) and row[18] == repr(1.7e9 + 0.123456789) and row[17] == '10'
+    assert row[19:] == [''] * 4

@@ -2,9 +2,10 @@
 
 Two independent estimates of each channel's row noise (legs, inclinometer, encoder, LVDT):
 
-* **within** a posture: the pooled per-sample scatter over the window
-  (:func:`gsp_kinematics.goodness.within_posture_noise`) divided by ``sqrt(n)``; many degrees of
-  freedom, but blind to noise correlated over longer than the window (``n_eff`` < ``n``);
+* **within** a posture: the std of a window's mean from the autocovariance within the windows,
+  pooled over postures (:func:`within_row_noise`: ``s / sqrt(n_eff)``, ``n_eff`` the effective
+  sample count, ``n`` for white samples); many degrees of freedom, but only a lower bound when
+  the windows are short against the noise's correlation time (``WithinNoise.lower_bound``);
 * **between** postures: the fit's residuals, ``sigma_g^2 = sigma_used^2 q_g / r_g`` with ``q_g``
   the channel's sum of squared normalised residuals and ``r_g`` the sum of its redundancy numbers
   (Förstner's variance-component estimate, iterated with the weights it gives). It measures the
@@ -13,8 +14,9 @@ Two independent estimates of each channel's row noise (legs, inclinometer, encod
 Where both exist and agree (the between/within F test of the channel accepts at 1 %, Bonferroni
 over the channels), the pooled variance ``(r_g v_between + d_g v_within) / (r_g + d_g)`` is used;
 where the between-posture residuals are significantly larger, the between estimate (the within
-scatter misses part of the noise); where only one exists, that one. The goodness of fit is then
-the lack-of-fit F test (:func:`fit_test`).
+scatter misses part of the noise) and likewise where the within estimate is only a lower bound;
+where only one exists, that one. The goodness of fit is then the lack-of-fit F test
+(:func:`fit_test`) over the channels whose within estimate is not a lower bound.
 """
 
 import dataclasses
@@ -25,6 +27,7 @@ from scipy import special
 
 from . import goodness
 from .identification import identify
+from .sensors import noise_estimate
 from .sensors.noise import NOISE_FIELDS, SensorNoise
 
 #: Where the weights come from: the run's data, or the configured sigmas.
@@ -58,43 +61,110 @@ class ChannelNoise:
     within_dof: float
     between: float | None  #: from the between-posture residuals (None: too little redundancy)
     redundancy: float  #: the sum of the channel's redundancy numbers
-    p_value: float  #: F test of between against within (NaN unless both exist)
+    p_value: float  #: F test of between against within (NaN unless both exist and it is used)
+    #: the within estimate is only a lower bound (windows too short against the correlation)
+    within_lower_bound: bool = False
+    within_n_eff: float = math.nan  #: effective sample count of a row (within-posture)
 
 
-def within_row_noise(sample_std, n_samples):
-    """``{channel: (row std, dof)}``: the within-posture per-sample noise over ``sqrt(n)``, with
-    ``n`` the median samples a row (the convention of ``SensorNoise.averaged``). A channel that
-    does not scatter within a posture (noise-free data, a quantised encoder at rest) has no
-    within-posture estimate: it is left out."""
-    n_samples = np.asarray(n_samples, dtype=float).reshape(-1)
-    if n_samples.size == 0:
+#: The channels of :func:`posture_lag_sums`, in order.
+LAG_SUMS_CHANNELS = tuple(goodness.NOISE_CHANNELS)
+
+
+@dataclasses.dataclass(frozen=True)
+class WithinNoise:
+    """One channel's within-posture estimate of its row noise: ``row`` (std of the averaged
+    row, m or rad), ``dof`` (its degrees of freedom, ``windows (n_eff - 1)``), ``n_eff`` (the
+    effective sample count of a row) and ``lower_bound`` (the windows are too short against
+    the correlation time: ``row`` is biased low, only a lower bound)."""
+
+    row: float
+    dof: float
+    n_eff: float = math.nan
+    lower_bound: bool = False
+
+
+def posture_lag_sums(values):
+    """What a posture's window contributes to the within-posture estimate: per channel of
+    :data:`LAG_SUMS_CHANNELS` (legs, inclinometer, encoder, LVDT), the window's lag sums
+    (:func:`~gsp_kinematics.sensors.noise_estimate.window_lag_sums`, lags 0..n // 2) summed over
+    the channel's columns (m^2, rad^2). ``values`` (n, 10) or (P, n, 10) windows of
+    ``[q_1..q_6, alpha, beta, phi, d_m]`` (``phi`` unwrapped), n >= 2: (4, n // 2 + 1) or
+    (P, 4, n // 2 + 1)."""
+    values = np.asarray(values, dtype=float)
+    if values.ndim not in (2, 3) or values.shape[-1] != 10:
+        raise ValueError(f'windows must be (samples, 10) or (P, samples, 10), got {values.shape}')
+    sums = noise_estimate.window_lag_sums(values.reshape((-1,) + values.shape[-2:]))
+    grouped = np.stack(
+        [sums[:, :, columns].sum(axis=2) for columns in goodness.NOISE_CHANNELS.values()], axis=1
+    )
+    return grouped[0] if values.ndim == 2 else grouped
+
+
+def within_row_noise(lag_sums, n_samples):
+    """``{channel: WithinNoise}`` from the rows' :func:`posture_lag_sums` ``lag_sums``
+    (M, 4, L; NaN where a row has none or fewer lags) and their ``n_samples`` (M,).
+
+    The rows of the most common sample count ``n`` (the others are left out) are pooled per
+    channel; :func:`~gsp_kinematics.sensors.noise_estimate.noise_of_mean_from_sums` gives the
+    std of a row's mean from the pooled autocovariance (white samples, tested at
+    :data:`goodness.DEFAULT_SIGNIFICANCE`: exactly the pooled ``s / sqrt(n)``), with ``dof =
+    windows (n_eff - 1)`` (``windows``: rows x the channel's columns; ``windows (n - 1)`` for
+    white samples). A channel that does not scatter within a posture (noise-free data, a
+    quantised encoder at rest) has no within-posture estimate: it is left out."""
+    n_samples = np.asarray(n_samples, dtype=int).reshape(-1)
+    if n_samples.size == 0 or lag_sums is None:
         return {}
-    root = math.sqrt(float(np.median(n_samples)))
-    return {
-        channel: (sigma / root, dof)
-        for channel, (sigma, dof) in goodness.within_posture_noise(sample_std, n_samples).items()
-        if sigma > 0.0
-    }
+    lag_sums = np.asarray(lag_sums, dtype=float).reshape(n_samples.size, 4, -1)
+    counts = np.bincount(n_samples[n_samples >= 2]) if np.any(n_samples >= 2) else []
+    if not len(counts):
+        return {}
+    n = int(np.argmax(counts))
+    lags = min(n // 2 + 1, lag_sums.shape[2])
+    if lags < 1:
+        return {}
+    estimates = {}
+    for index, (channel, columns) in enumerate(goodness.NOISE_CHANNELS.items()):
+        sums = lag_sums[n_samples == n, index, :lags]
+        sums = sums[np.all(np.isfinite(sums), axis=1)]
+        if not len(sums) or np.sum(sums[:, 0]) <= 0.0:
+            continue
+        windows = len(sums) * len(range(10)[columns])
+        noise = noise_estimate.noise_of_mean_from_sums(
+            sums.sum(axis=0)[:, None], n, windows, goodness.DEFAULT_SIGNIFICANCE
+        )
+        n_eff = float(noise.n_eff[0])
+        estimates[channel] = WithinNoise(
+            float(noise.std_of_mean[0]),
+            windows * max(n_eff - 1.0, 0.0),
+            n_eff,
+            bool(noise.window_too_short[0]),
+        )
+    return estimates
 
 
 def _combine(between, redundancy, within, significance):
-    """A :class:`ChannelNoise` from a between-posture row std (or None) and ``within`` (row std,
-    dof) or None."""
+    """A :class:`ChannelNoise` from a between-posture row std (or None) and a
+    :class:`WithinNoise` (or None). A within estimate that is only a lower bound is reported
+    but not used where the between estimate exists (nor tested against it)."""
     if within is None:
         return ChannelNoise(between, 'between', None, 0.0, between, redundancy, math.nan)
-    within_row, dof = within
+    parts = (within.row, within.dof, between, redundancy)
+    flags = (within.lower_bound, within.n_eff)
     if between is None:
-        return ChannelNoise(within_row, 'within', within_row, dof, None, redundancy, math.nan)
-    p_value = float(special.fdtrc(redundancy, dof, (between / within_row) ** 2))
+        return ChannelNoise(within.row, 'within', *parts, math.nan, *flags)
+    if within.lower_bound:
+        return ChannelNoise(between, 'between', *parts, math.nan, *flags)
+    p_value = float(special.fdtrc(redundancy, within.dof, (between / within.row) ** 2))
     if p_value < significance:
-        return ChannelNoise(between, 'between', within_row, dof, between, redundancy, p_value)
-    pooled = (redundancy * between**2 + dof * within_row**2) / (redundancy + dof)
-    return ChannelNoise(math.sqrt(pooled), 'pooled', within_row, dof, between, redundancy, p_value)
+        return ChannelNoise(between, 'between', *parts, p_value, *flags)
+    pooled = (redundancy * between**2 + within.dof * within.row**2) / (redundancy + within.dof)
+    return ChannelNoise(math.sqrt(pooled), 'pooled', *parts, p_value, *flags)
 
 
 def estimate_row_noise(result, row_sigmas, within):
     """``{channel: ChannelNoise}`` of a fit ``result`` made with ``row_sigmas`` (SensorNoise of the
-    rows) and the within-posture ``{channel: (row std, dof)}``; channels with neither left out."""
+    rows) and the within-posture ``{channel: WithinNoise}``; channels with neither left out."""
     components = result.variance_components()
     channels = [name for name in NOISE_FIELDS if name in components or name in within]
     significance = goodness.DEFAULT_SIGNIFICANCE / max(len(channels), 1)
@@ -112,7 +182,9 @@ def estimate_row_noise(result, row_sigmas, within):
 def fit_test(result, row_sigmas, within):
     """The goodness of fit of a fit whose weights were estimated: the lack-of-fit F test of the
     between-posture residuals, in within-posture noise units, against the within-posture
-    (pure error) variance; ``none`` when no channel has a within-posture estimate.
+    (pure error) variance; ``none`` when no channel has a within-posture estimate. A channel
+    whose within estimate is only a lower bound (:attr:`WithinNoise.lower_bound`) is left out:
+    tested against it, a right model would be rejected.
 
     The pure-error degrees of freedom of several channels are combined by Satterthwaite's
     ``(sum r_g)^2 / sum (r_g^2 / d_g)``."""
@@ -121,12 +193,12 @@ def fit_test(result, row_sigmas, within):
     total_q = total_r = 0.0
     for channel, (q, r) in result.variance_components().items():
         total_q, total_r = total_q + q, total_r + r
-        if channel not in within or r <= 0:
+        pure = within.get(channel)
+        if pure is None or pure.lower_bound or r <= 0:
             continue
-        within_row, dof = within[channel]
-        between += q * (getattr(row_sigmas, channel) / within_row) ** 2
+        between += q * (getattr(row_sigmas, channel) / pure.row) ** 2
         redundancy += r
-        spread += r**2 / dof
+        spread += r**2 / pure.dof
     if redundancy <= 0:
         return goodness.GoodnessOfFit(total_q, total_r, math.nan, excluded, 'none')
     return goodness.lack_of_fit(between, redundancy, redundancy**2 / spread, excluded)
@@ -137,13 +209,14 @@ def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within,
     SensorNoise of the rows used)``.
 
     ``start``: the row sigmas to begin with (the configured ones, averaged); a channel with a
-    within-posture estimate starts from it. Each round fits, estimates (:func:`estimate_row_noise`)
+    within-posture estimate (not a lower bound) starts from it. Each round fits, estimates (:func:`estimate_row_noise`)
     and refits with the estimate, until no row sigma changes by more than :data:`TOLERANCE`
     (at most :data:`MAX_ROUNDS` fits). ``options`` go to :func:`identify`. The result's goodness
     of fit is :func:`fit_test`.
     """
     sigmas = SensorNoise.from_channels(
-        {channel: row for channel, (row, _) in within.items()}, default=start
+        {channel: entry.row for channel, entry in within.items() if not entry.lower_bound},
+        default=start,
     )
     estimates = {}
     for _ in range(MAX_ROUNDS):
@@ -183,7 +256,8 @@ def noise_record(estimates, configured, n_samples):
     """``{channel: {...}}`` for result.json: per-sample equivalents (SI: the row std times
     ``sqrt(n)``, comparable with the configured ``sigma_<field>``) of the estimate, its
     within-posture and between-posture parts, the row std, the source, the redundancy and the
-    within-posture degrees of freedom, the F test's p-value, and the ratio to the configured
+    within-posture degrees of freedom and effective sample count of a row, whether the
+    within-posture estimate is only a lower bound, the F test's p-value, and the ratio to the configured
     sigma with its warning (beyond 2x either way)."""
     n_samples = np.asarray(n_samples, dtype=float).reshape(-1)
     root = math.sqrt(float(np.median(n_samples))) if n_samples.size else 1.0
@@ -201,6 +275,8 @@ def noise_record(estimates, configured, n_samples):
             'source': entry.source,
             'redundancy': entry.redundancy,
             'within_dof': entry.within_dof,
+            'within_n_eff': entry.within_n_eff,
+            'within_lower_bound': entry.within_lower_bound,
             'consistency_p_value': entry.p_value,
             'ratio': ratio,
             'warning': warning,

@@ -11,6 +11,7 @@ from gsp_kinematics._solver.redundancy import redundancy_flat, redundancy_with_p
 from gsp_kinematics.geometry import SensorErrors
 from gsp_kinematics.identification import identify
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
+from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
 from gsp_kinematics.validation import sensor_measurements
 
 SAMPLES = 10
@@ -60,21 +61,26 @@ def arrow_jacobian(jac_pose, jac_u):
     return dense
 
 
-def run(exact_readings, seed, correlation=None):
-    """``(legs, readings, within std (M, 10))`` of a simulated run with :data:`TRUTH` noise;
+def draw(exact_readings, seed, correlation=None, samples=SAMPLES):
+    """The windows (M, samples, 10) of a simulated run with :data:`TRUTH` noise;
     ``correlation``: ``{column: rho}`` of AR(1) samples."""
     rng = np.random.default_rng(seed)
     count = len(exact_readings)
-    noise = rng.normal(size=(count, SAMPLES, 10))
+    noise = rng.normal(size=(count, samples, 10))
     for column, rho in (correlation or {}).items():
-        noise[:, :, column] = ar1(rng, (count, SAMPLES), rho)
-    drawn = exact_readings[:, None, :] + noise * TRUTH.channel_std()
+        noise[:, :, column] = ar1(rng, (count, samples), rho)
+    return exact_readings[:, None, :] + noise * TRUTH.channel_std()
+
+
+def run(exact_readings, seed, correlation=None, samples=SAMPLES):
+    """``(legs, readings, lag sums (M, 4, L))`` of a simulated run (:func:`draw`)."""
+    drawn = draw(exact_readings, seed, correlation, samples)
     mean = drawn.mean(axis=1)
-    return mean[:, :6], mean[:, 6:], drawn.std(axis=1, ddof=1)
+    return mean[:, :6], mean[:, 6:], noise_from_data.posture_lag_sums(drawn)
 
 
-def estimated(nominal, moderate_postures, legs, readings, std):
-    within = noise_from_data.within_row_noise(std, np.full(len(legs), SAMPLES))
+def estimated(nominal, moderate_postures, legs, readings, lag_sums, samples=SAMPLES):
+    within = noise_from_data.within_row_noise(lag_sums, np.full(len(legs), samples))
     return noise_from_data.identify_with_estimated_noise(
         nominal,
         legs,
@@ -105,8 +111,10 @@ def test_redundancy_numbers_are_the_hat_matrix_diagonal(rng):
 def test_white_noise_3x_and_half_is_estimated_per_channel(
     nominal_sets, moderate_postures, exact_readings
 ):
-    legs, readings, std = run(exact_readings, seed=1)
-    result, estimates, rows = estimated(nominal_sets[1], moderate_postures, legs, readings, std)
+    legs, readings, lag_sums = run(exact_readings, seed=1)
+    result, estimates, rows = estimated(
+        nominal_sets[1], moderate_postures, legs, readings, lag_sums
+    )
     assert result.converged
     truth_rows = TRUTH.averaged([SAMPLES])
     for channel in NOISE_FIELDS:
@@ -130,7 +138,7 @@ def test_white_noise_3x_and_half_is_estimated_per_channel(
         noise_from_data.estimate_row_noise(
             configured,
             DEFAULT_SENSOR_NOISE.averaged([SAMPLES]),
-            noise_from_data.within_row_noise(std, np.full(len(legs), SAMPLES)),
+            noise_from_data.within_row_noise(lag_sums, np.full(len(legs), SAMPLES)),
         ),
         DEFAULT_SENSOR_NOISE,
         np.full(len(legs), SAMPLES),
@@ -141,26 +149,67 @@ def test_white_noise_3x_and_half_is_estimated_per_channel(
     assert 'leg_lengths' in text and 'encoder' in text
 
 
-def test_correlated_samples_are_seen_between_postures(
+def test_correlated_samples_too_short_a_window_fall_back_to_between_and_are_accepted(
     nominal_sets, moderate_postures, exact_readings
 ):
     # The encoder's samples are strongly correlated (rho 0.95 a sample): the window's scatter
-    # misses most of the noise of its mean, the residuals between postures do not.
+    # misses most of the noise of its mean, and 10 samples cannot show it (n_eff ~ 1): the
+    # within estimate is a lower bound. The residuals between postures give the row noise, and
+    # the lack-of-fit test leaves the encoder out, so the right model is accepted.
     rho = 0.95
-    legs, readings, std = run(exact_readings, seed=2, correlation={8: rho})
-    result, estimates, rows = estimated(nominal_sets[1], moderate_postures, legs, readings, std)
-    lags = np.abs(np.subtract.outer(np.arange(SAMPLES), np.arange(SAMPLES)))
-    true_row = TRUTH.encoder * math.sqrt(np.sum(rho**lags)) / SAMPLES
+    legs, readings, lag_sums = run(exact_readings, seed=2, correlation={8: rho})
+    result, estimates, rows = estimated(
+        nominal_sets[1], moderate_postures, legs, readings, lag_sums
+    )
+    true_row = ar1_std_of_mean(TRUTH.encoder, rho, SAMPLES)
     encoder = estimates['encoder']
-    assert encoder.source == 'between'
-    assert encoder.within < 0.5 * true_row  # the window alone: far too optimistic
+    assert encoder.within_lower_bound and encoder.source == 'between'
+    assert encoder.within < 0.8 * true_row  # the window alone: too optimistic
     # The between estimate's own spread is about 1 / sqrt(2 r) (r ~ 55): 30 % is > 3 sd.
     assert rows.encoder == pytest.approx(true_row, rel=0.3)
     assert estimates['leg_lengths'].source == 'pooled'
+    assert not estimates['leg_lengths'].within_lower_bound
     fit = result.goodness_of_fit
-    assert fit.test == 'lack_of_fit' and not fit.accepted
-    text = goodness.verdict(fit, result.outliers, None, True)
-    assert "correlated over longer than a posture's averaging window" in text
+    assert fit.test == 'lack_of_fit' and fit.accepted, fit
+
+
+def test_correlated_samples_in_long_windows_give_the_row_noise_within(
+    nominal_sets, moderate_postures, exact_readings
+):
+    # The inclinometer's samples are AR(1) with rho 0.6 over 60-sample windows (n_eff ~ 15):
+    # the effective sample count gives the std of the row within postures, and the F test
+    # against it accepts the right model.
+    rho, samples = 0.6, 60
+    legs, readings, lag_sums = run(exact_readings, 4, {6: rho, 7: rho}, samples)
+    within = noise_from_data.within_row_noise(lag_sums, np.full(len(legs), samples))
+    inclinometer = within['inclinometer']
+    true_row = ar1_std_of_mean(TRUTH.inclinometer, rho, samples)
+    assert not inclinometer.lower_bound
+    assert inclinometer.row == pytest.approx(true_row, rel=0.10)
+    # The white formula s / sqrt(n) would be 2x too optimistic.
+    assert TRUTH.inclinometer / math.sqrt(samples) < 0.6 * true_row
+    windows = 2 * len(legs)
+    assert inclinometer.dof == pytest.approx(windows * (inclinometer.n_eff - 1))
+    assert inclinometer.n_eff == pytest.approx((1 - rho) / (1 + rho) * samples, rel=0.3)
+    result, estimates, rows = estimated(
+        nominal_sets[1], moderate_postures, legs, readings, lag_sums, samples
+    )
+    assert estimates['inclinometer'].source == 'pooled'
+    assert rows.inclinometer == pytest.approx(true_row, rel=0.10)
+    assert result.goodness_of_fit.test == 'lack_of_fit' and result.goodness_of_fit.accepted
+
+
+def test_white_samples_give_the_pooled_scatter_over_sqrt_n(exact_readings):
+    drawn = draw(exact_readings, seed=6)
+    within = noise_from_data.within_row_noise(
+        noise_from_data.posture_lag_sums(drawn), np.full(len(drawn), SAMPLES)
+    )
+    pooled = goodness.within_posture_noise(drawn.std(axis=1, ddof=1), np.full(len(drawn), SAMPLES))
+    for channel, (sigma, dof) in pooled.items():
+        assert within[channel].row == pytest.approx(sigma / math.sqrt(SAMPLES), rel=1e-12)
+        assert within[channel].dof == pytest.approx(dof, rel=1e-12)
+        assert within[channel].n_eff == pytest.approx(SAMPLES, rel=1e-12)
+        assert not within[channel].lower_bound
 
 
 def test_lack_of_fit_holds_its_level_and_rejects_an_unmodelled_error(rng):
@@ -186,7 +235,7 @@ def test_lack_of_fit_holds_its_level_and_rejects_an_unmodelled_error(rng):
         for seed in range(seeds):
             components = goodness.variance_components(residuals[seed], redundancy, columns)
             within = {
-                channel: (math.sqrt(rng.chisquare(dof) / dof), dof)
+                channel: noise_from_data.WithinNoise(math.sqrt(rng.chisquare(dof) / dof), dof)
                 for channel, dof in within_dof.items()
             }
             stand_in = _Fit(components)
@@ -213,9 +262,9 @@ class _Fit:
 
 
 def test_a_real_outlier_is_named_and_noise_is_not(nominal_sets, moderate_postures, exact_readings):
-    legs, readings, std = run(exact_readings, seed=3)
+    legs, readings, lag_sums = run(exact_readings, seed=3)
     legs[17, 2] += 20 * TRUTH.leg_lengths / math.sqrt(SAMPLES)  # 20 sigma of the row on leg 3
-    result, _, _ = estimated(nominal_sets[1], moderate_postures, legs, readings, std)
+    result, _, _ = estimated(nominal_sets[1], moderate_postures, legs, readings, lag_sums)
     assert [entry['posture'] for entry in result.outliers] == [17]
     assert not result.goodness_of_fit.accepted
     assert 'outlier postures 17' in goodness.verdict(result.goodness_of_fit, result.outliers)
@@ -231,9 +280,10 @@ def test_unknown_noise_source_is_named():
         noise_from_data.check_noise_source('guessed')
 
 
-def test_a_channel_without_scatter_has_no_within_posture_estimate():
-    std = np.tile(TRUTH.channel_std(), (20, 1))
-    std[:, 8] = 0.0  # an encoder that reads one count all window long
-    within = noise_from_data.within_row_noise(std, np.full(20, SAMPLES))
+def test_a_channel_without_scatter_has_no_within_posture_estimate(exact_readings):
+    drawn = draw(exact_readings[:20], seed=7)
+    drawn[:, :, 8] = 1.0  # an encoder that reads one count all window long
+    within = noise_from_data.within_row_noise(
+        noise_from_data.posture_lag_sums(drawn), np.full(20, SAMPLES)
+    )
     assert set(within) == {'leg_lengths', 'inclinometer', 'lvdt'}
-    assert within['lvdt'][0] == pytest.approx(TRUTH.lvdt / math.sqrt(SAMPLES))

@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.rotation import wrap_angle
 
 NS_PER_S = 1_000_000_000
@@ -67,6 +68,9 @@ class PostureSample:
     stamp_ns: int  #: mean stamp of the averaged leg-length samples, ns
     leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
     readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
+    #: (4, n // 2 + 1) the window's lag sums per noise channel (the within-posture noise
+    #: estimate, ``gsp_kinematics.noise_from_data.posture_lag_sums``); None below 2 samples
+    lag_sums: np.ndarray | None = None
 
     @property
     def stamp(self):
@@ -353,6 +357,7 @@ class SampleCollector:
             stamp_ns=mean_stamp,
             leg_lengths_std=legs.std(axis=0, ddof=ddof),
             readings_std=readings.std(axis=0, ddof=ddof),
+            lag_sums=posture_lag_sums(np.hstack([legs, readings])) if len(pairs) > 1 else None,
         )
 
     def stream(self, limit=None, last=False):

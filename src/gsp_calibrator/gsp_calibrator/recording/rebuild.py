@@ -215,6 +215,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
             sample.readings,
             sample.n_samples,
             sample.stamp,
+            sample.lag_sums,
         )
     return samples
 

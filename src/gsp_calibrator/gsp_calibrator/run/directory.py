@@ -21,6 +21,7 @@ import numpy as np
 
 from gsp_kinematics.fileio import atomic_write_bytes, atomic_write_text, to_json
 from gsp_kinematics.geometry import load_geometry, save_geometry
+from gsp_kinematics.noise_from_data import LAG_SUMS_CHANNELS
 
 SAMPLES_FILE = 'samples.csv'
 RESULT_FILE = 'result.yaml'
@@ -30,10 +31,15 @@ TRUE_GEOMETRY_FILE = 'true_geometry.yaml'
 POSE_COLUMNS = ('x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd')
 LEG_COLUMNS = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
 READING_COLUMNS = ('alpha', 'beta', 'phi', 'd_m')
-#: Columns of ``samples.csv``, exactly (m, rad, s).
-SAMPLES_COLUMNS = (
+#: The lag sums of each row's window per noise channel (``noise_from_data.posture_lag_sums``,
+#: m^2 and rad^2): lags 0..n // 2, space-separated, empty when the row has none.
+LAG_SUM_COLUMNS = tuple(f'lag_sums_{channel}' for channel in LAG_SUMS_CHANNELS)
+#: Columns of a ``samples.csv`` written before the lag sums (still read: no within estimate).
+LEGACY_SAMPLES_COLUMNS = (
     ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_samples', 'stamp')
 )
+#: Columns of ``samples.csv``, exactly (m, rad, s).
+SAMPLES_COLUMNS = LEGACY_SAMPLES_COLUMNS + LAG_SUM_COLUMNS
 
 TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
 
@@ -55,6 +61,9 @@ class Samples:
     readings: np.ndarray  #: (M, 4) mean [alpha, beta, phi, d_m], rad and m
     n_samples: np.ndarray  #: (M,) int, synchronised pairs averaged
     stamps: np.ndarray  #: (M,) float, mean stamp, s
+    #: (M, 4, L) each row's window lag sums per noise channel (``LAG_SUM_COLUMNS``), NaN where a
+    #: row has none or fewer lags; None: no row has them
+    lag_sums: np.ndarray | None = None
 
     def __post_init__(self):
         self.posture = np.asarray(self.posture, dtype=int).reshape(-1)
@@ -64,6 +73,11 @@ class Samples:
         self.readings = np.asarray(self.readings, dtype=float).reshape(count, 4)
         self.n_samples = np.asarray(self.n_samples, dtype=int).reshape(count)
         self.stamps = np.asarray(self.stamps, dtype=float).reshape(count)
+        lag_sums = np.full((count, 4, 0), np.nan) if self.lag_sums is None else self.lag_sums
+        lag_sums = np.asarray(lag_sums, dtype=float)
+        if lag_sums.ndim != 3 or lag_sums.shape[:2] != (count, len(LAG_SUM_COLUMNS)):
+            raise ValueError(f'lag_sums must be ({count}, 4, lags), got shape {lag_sums.shape}')
+        self.lag_sums = lag_sums
 
     def __len__(self):
         return int(self.posture.shape[0])
@@ -79,18 +93,61 @@ class Samples:
             np.zeros(0),
         )
 
-    def append(self, posture, commanded_pose, leg_lengths, readings, n_samples, stamp):
-        """Add one row (in place)."""
+    def append(
+        self, posture, commanded_pose, leg_lengths, readings, n_samples, stamp, lag_sums=None
+    ):
+        """Add one row (in place); ``lag_sums`` (4, L) or None: its window's lag sums."""
         self.posture = np.append(self.posture, int(posture))
         self.commanded_poses = np.vstack([self.commanded_poses, np.reshape(commanded_pose, (1, 6))])
         self.leg_lengths = np.vstack([self.leg_lengths, np.reshape(leg_lengths, (1, 6))])
         self.readings = np.vstack([self.readings, np.reshape(readings, (1, 4))])
         self.n_samples = np.append(self.n_samples, int(n_samples))
         self.stamps = np.append(self.stamps, float(stamp))
+        row = np.full((1, len(LAG_SUM_COLUMNS), 0), np.nan)
+        if lag_sums is not None:
+            row = np.asarray(lag_sums, dtype=float)[None].reshape(1, len(LAG_SUM_COLUMNS), -1)
+        self.lag_sums = np.concatenate(_padded([self.lag_sums, row], row.shape[2]), axis=0)
+
+    def rows(self, keep):
+        """The rows ``keep`` (a slice or an index array) as a new :class:`Samples`."""
+        return Samples(
+            self.posture[keep],
+            self.commanded_poses[keep],
+            self.leg_lengths[keep],
+            self.readings[keep],
+            self.n_samples[keep],
+            self.stamps[keep],
+            self.lag_sums[keep],
+        )
 
     def as_tuple(self):
         """``(commanded_poses, leg_lengths, readings, n_samples, stamps)``."""
         return self.commanded_poses, self.leg_lengths, self.readings, self.n_samples, self.stamps
+
+
+def _padded(tables, lags):
+    """``tables`` (M, 4, L) padded with NaN to at least ``lags`` lags, all the same width."""
+    width = max([lags] + [table.shape[2] for table in tables])
+    return [
+        np.pad(table, ((0, 0), (0, 0), (0, width - table.shape[2])), constant_values=np.nan)
+        for table in tables
+    ]
+
+
+def _lag_sums_text(values):
+    return ' '.join(repr(float(v)) for v in values if math.isfinite(v))
+
+
+def _lag_sums_values(text, source, line, name):
+    try:
+        values = [float(v) for v in text.split()]
+    except ValueError:
+        raise RunDirectoryError(
+            f'{source}:{line}: column {name}: {text!r} is not space-separated numbers'
+        ) from None
+    if not all(math.isfinite(v) for v in values):
+        raise RunDirectoryError(f'{source}:{line}: column {name} is not finite')
+    return values
 
 
 def samples_to_csv(samples, header=True, rows=None):
@@ -107,6 +164,7 @@ def samples_to_csv(samples, header=True, rows=None):
             + [repr(float(v)) for v in samples.leg_lengths[m]]
             + [repr(float(v)) for v in samples.readings[m]]
             + [str(int(samples.n_samples[m])), repr(float(samples.stamps[m]))]
+            + [_lag_sums_text(values) for values in samples.lag_sums[m]]
         )
     return buffer.getvalue()
 
@@ -118,20 +176,24 @@ def samples_from_csv(text, source='<string>'):
         header = next(reader)
     except StopIteration:
         raise RunDirectoryError(f'{source}: empty file (expected a header)') from None
-    if tuple(header) != SAMPLES_COLUMNS:
+    if tuple(header) not in (SAMPLES_COLUMNS, LEGACY_SAMPLES_COLUMNS):
         raise RunDirectoryError(
             f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
         )
-    rows = []
+    columns = len(header)
+    rows, lag_rows = [], []
     for line, row in enumerate(reader, start=2):
         if not row:
             continue
-        if len(row) != len(SAMPLES_COLUMNS):
-            raise RunDirectoryError(
-                f'{source}:{line}: {len(row)} values, expected {len(SAMPLES_COLUMNS)}'
-            )
+        if len(row) != columns:
+            raise RunDirectoryError(f'{source}:{line}: {len(row)} values, expected {columns}')
+        sums = [
+            _lag_sums_values(text, source, line, name)
+            for name, text in zip(LAG_SUM_COLUMNS, row[len(LEGACY_SAMPLES_COLUMNS) :], strict=False)
+        ]
+        lag_rows.append(sums or [[]] * len(LAG_SUM_COLUMNS))
         values = []
-        for name, text_value in zip(SAMPLES_COLUMNS, row, strict=True):
+        for name, text_value in zip(LEGACY_SAMPLES_COLUMNS, row, strict=False):
             try:
                 value = int(text_value) if name in ('posture', 'n_samples') else float(text_value)
             except ValueError:
@@ -145,6 +207,11 @@ def samples_from_csv(text, source='<string>'):
     if not rows:
         return Samples.empty()
     table = np.array(rows, dtype=float)
+    width = max(len(values) for sums in lag_rows for values in sums)
+    lag_sums = np.full((len(rows), len(LAG_SUM_COLUMNS), width), np.nan)
+    for m, sums in enumerate(lag_rows):
+        for channel, values in enumerate(sums):
+            lag_sums[m, channel, : len(values)] = values
     return Samples(
         posture=table[:, 0].astype(int),
         commanded_poses=table[:, 1:7],
@@ -152,6 +219,7 @@ def samples_from_csv(text, source='<string>'):
         readings=table[:, 13:17],
         n_samples=table[:, 17].astype(int),
         stamps=table[:, 18],
+        lag_sums=lag_sums,
     )
 
 
@@ -202,6 +270,15 @@ class SamplesAppender:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+
+
+def upgrade_samples_file(path, samples):
+    """Rewrite ``samples.csv`` (``samples``: its rows) with the current columns if it has the
+    legacy ones, so rows with lag sums can be appended to it (a resumed older run)."""
+    with open(path, encoding='utf-8') as stream:
+        header = stream.readline().strip()
+    if header != ','.join(SAMPLES_COLUMNS):
+        write_samples(path, samples)
 
 
 def read_samples(path):

@@ -253,7 +253,6 @@ class CalibrationRun:
             session.samples,
             {**self.collection.summary(), 'replacements': session.state.replacements},
             recording.settings_options(settings),
-            session.spread_table(),
         )
         if finished.report_error:
             log.error(f'report not written: {finished.report_error}')

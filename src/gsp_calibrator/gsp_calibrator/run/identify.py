@@ -78,7 +78,6 @@ def identify_from_samples(
     sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
     formulation='implicit',
-    within_posture_std=None,
     noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
     **identify_options,
 ):
@@ -87,10 +86,10 @@ def identify_from_samples(
     ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
     scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
-    converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
-    sample standard deviation of the 6 legs and 4 readings within each posture (of the last
-    rows, after a resume), for the noise estimates (None: between postures only).
-    ``noise_source``: ``estimated`` or ``configured`` (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
+    converge, or leaves free parameters unidentifiable. The rows' window lag sums
+    (``samples.lag_sums``) give the within-posture noise estimate (rows without: none).
+    ``noise_source``: ``estimated`` or ``configured``
+    (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
     :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
     """
     if formulation not in FORMULATIONS:
@@ -106,10 +105,7 @@ def identify_from_samples(
     if count == 0:
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
-    within = {}
-    spread = 0 if within_posture_std is None else len(within_posture_std)
-    if 0 < spread <= count:  # a resumed run has the scatter of its last session's rows only
-        within = noise_from_data.within_row_noise(within_posture_std, samples.n_samples[-spread:])
+    within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
     started = time.perf_counter()
     try:
         result, estimates, outcome.sigmas = noise_from_data.identify_with_noise(
@@ -162,13 +158,12 @@ class FinishedRun:
     report_error: str = ''  #: '' when result.json and report.md were written (or not due)
 
 
-def finish_run(run, settings, samples, collection, options, within_posture_std=None):
+def finish_run(run, settings, samples, collection, options):
     """Identify a collected run and write its files (pure; the node runs it in a worker thread).
 
     ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``samples``:
     the collected rows; ``collection``: the protocol's ``summary()`` (skipped postures, drops);
-    ``options``: the run options stored with the results; ``within_posture_std``: see
-    :func:`identify_from_samples`. Writes ``result.json``, ``report.md``
+    ``options``: the run options stored with the results. Writes ``result.json``, ``report.md``
     and its PNGs when identification gives a result (a failure there is returned, never raised:
     the report must not fail the run) and ``result.yaml`` when the calibration succeeded.
     """
@@ -183,7 +178,6 @@ def finish_run(run, settings, samples, collection, options, within_posture_std=N
         settings.sigmas,
         list(settings.free_parameters),
         settings.formulation,
-        within_posture_std,
         settings.noise_source,
         options=settings.identify_options(),
     )

@@ -28,6 +28,7 @@ from gsp_calibrator.run.directory import (
     RunDirectoryError,
     Samples,
     SamplesAppender,
+    upgrade_samples_file,
 )
 from gsp_kinematics.fileio import atomic_write_text, to_json
 from gsp_msgs_py import names
@@ -65,7 +66,6 @@ class RunSession:
         self.remaining = []  #: postures (1-based) still to command, in order
         #: ``replace(poses, rejected)``: the pose (6,) to add for a rejected posture, or None
         self.replace = None
-        self.spreads = []  #: per row of this session: std of the 6 legs and 4 readings
         self._appender = None
         self._lock = threading.Lock()  # guards samples, state and remaining
         self._save_lock = threading.Lock()  # orders the state.json writes
@@ -91,6 +91,7 @@ class RunSession:
             state = run_state.read_state(run.path)
             samples = run.read_samples()
             run_state.check_resume(state, settings, samples, pid)
+            upgrade_samples_file(run.file(SAMPLES_FILE), samples)
         except (run_state.ResumeRefused, RunDirectoryError) as error:
             raise RunRefused(f'resume refused: {error}') from None
         # samples.csv decides what was collected: state.json lags it by the rows appended after
@@ -149,13 +150,13 @@ class RunSession:
                 row.readings,
                 row.n_samples,
                 row.stamp,
+                row.lag_sums,
             )
             try:
                 self._appender.append(self.samples)
             except OSError as error:
                 self.samples = _without_last(self.samples)
                 raise RunWriteError(self._appender.path, error) from None
-            self.spreads.append(np.concatenate([row.leg_lengths_std, row.readings_std]))
             self.state.record_done(event.posture)
 
     def end_posture(self, event):
@@ -210,11 +211,6 @@ class RunSession:
             except OSError as error:
                 raise RunWriteError(path, error) from None
 
-    def spread_table(self):
-        """``(rows of this session, 10)`` within-posture std of the legs and readings."""
-        with self._lock:
-            return np.array(self.spreads).reshape(-1, 10)
-
     def close(self):
         if self._appender is not None:
             self._appender.close()
@@ -245,12 +241,4 @@ def open_session(settings, resume, pid, pose_command_publishers=(), node=('calib
 
 
 def _without_last(samples):
-    keep = slice(0, len(samples) - 1)
-    return Samples(
-        samples.posture[keep],
-        samples.commanded_poses[keep],
-        samples.leg_lengths[keep],
-        samples.readings[keep],
-        samples.n_samples[keep],
-        samples.stamps[keep],
-    )
+    return samples.rows(slice(0, len(samples) - 1))

@@ -82,8 +82,8 @@ def build_parser():
         '--noise-source',
         choices=NOISE_SOURCES,
         default=None,
-        help='noise of the weights: estimated from the data (between-posture residuals; a '
-        'samples.csv keeps no within-posture scatter) or configured (the --sigma-* options) '
+        help="noise of the weights: estimated from the data (the rows' within-posture lag "
+        'sums and the between-posture residuals) or configured (the --sigma-* options) '
         f'({stored} {DEFAULTS["noise_source"]})',
     )
     parser.add_argument(
@@ -288,11 +288,14 @@ def stored_weights(stored, options, samples):
     """``(sigmas, noise_source, keys of result.json to keep)`` that identify a run again from
     its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
 
-    ``samples.csv`` keeps the averages, not the within-posture scatter an ``estimated`` run's
-    noise came from: the row noise it used (``result.json`` ``sigmas``) is given as configured
-    per-sample sigmas, and its noise estimates and goodness of fit are kept as written."""
+    A ``samples.csv`` with the rows' lag sums holds what an ``estimated`` run's noise came from.
+    One written before them keeps only the averages: the row noise the run used
+    (``result.json`` ``sigmas``) is given as configured per-sample sigmas, and its noise
+    estimates and goodness of fit are kept as written."""
     source = options.get('noise_source', DEFAULTS['noise_source'])
     sigmas, kept = SensorNoise.from_parameters(options), ('collection', 'noise_estimates')
+    if np.isfinite(samples.lag_sums).any():
+        return sigmas, source, ('collection',)
     if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
         rows = SensorNoise.from_record(stored['sigmas'])
         root = float(np.sqrt(np.median(samples.n_samples))) if len(samples) else 1.0

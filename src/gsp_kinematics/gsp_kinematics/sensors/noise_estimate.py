@@ -12,6 +12,7 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy import special
 
 #: Default of :func:`settled`: a channel is still moving when its trend exceeds this many
 #: standard deviations of the trend of a settled window.
@@ -80,35 +81,88 @@ def _initial_positive_lags(autocovariance):
     return 2 * leading, leading == pairs
 
 
-def noise_of_mean(samples, max_lag=None):
-    """Estimate, per channel, the std of one sample and of the mean of a posture's window.
-
-    ``samples`` (P, n, C): P postures' windows of n consecutive samples (equally spaced in time)
-    of C channels. ``max_lag``: the largest autocovariance lag considered (default ``n // 2``;
-    beyond it too few pairs remain in each window).
-
-    The autocovariance ``c_k`` is pooled over postures, each window centred on its own mean and
-    ``c_k`` averaged over its ``n - k`` pairs. Centring biases every ``c_k`` low by about
-    ``var(mean)`` (the windows' own means scatter), which is corrected in closed form: with
-    ``g_k = c_k + V`` in ``V = (1/n) [g0 + 2 sum_{k<=K} (1 - k/n) g_k]``,
-    ``V = [c0 + 2 sum (1 - k/n) c_k] / (n - S)``, ``S = 1 + 2 sum_{k<=K} (1 - k/n)``. For white
-    noise (K = 0) this is the usual ``s^2 / n`` with ddof 1. Returns :class:`NoiseOfMean`.
-    """
+def window_lag_sums(samples, max_lag=None):
+    """Per window of ``samples`` (P, n, C), the sums of the lag-k products of the window centred
+    on its own mean, ``sum_i x_i x_(i+k)`` for k = 0..``max_lag`` (default ``n // 2``):
+    (P, max_lag + 1, C), the channel's unit squared. What a posture contributes to
+    :func:`noise_of_mean_from_sums`: additive over windows of the same n."""
     samples = _check_windows(samples)
-    n_postures, n, n_channels = samples.shape
+    n = samples.shape[1]
     max_lag = n // 2 if max_lag is None else int(max_lag)
     if not 0 <= max_lag < n:
         raise NoiseEstimateError(f'max_lag must be in [0, {n - 1}] for {n} samples, got {max_lag}')
     centred = samples - samples.mean(axis=1, keepdims=True)
-    # c_k (max_lag + 1, C): products of pairs k apart, averaged over pairs and postures.
-    autocovariance = np.stack(
-        [
-            np.einsum('pic,pic->c', centred[:, : n - k], centred[:, k:]) / (n_postures * (n - k))
-            for k in range(max_lag + 1)
-        ]
+    return np.stack(
+        [np.einsum('pic,pic->pc', centred[:, : n - k], centred[:, k:]) for k in range(max_lag + 1)],
+        axis=1,
     )
+
+
+def lag_sums(samples, max_lag=None):
+    """:func:`window_lag_sums` summed over the windows: (max_lag + 1, C)."""
+    return window_lag_sums(samples, max_lag).sum(axis=0)
+
+
+def noise_of_mean(samples, max_lag=None, white_level=None):
+    """Estimate, per channel, the std of one sample and of the mean of a posture's window.
+
+    ``samples`` (P, n, C): P postures' windows of n consecutive samples (equally spaced in time)
+    of C channels. ``max_lag``: the largest autocovariance lag considered (default ``n // 2``;
+    beyond it too few pairs remain in each window). ``white_level``: see
+    :func:`noise_of_mean_from_sums`, of the windows' :func:`lag_sums`.
+    """
+    samples = _check_windows(samples)
+    return noise_of_mean_from_sums(
+        lag_sums(samples, max_lag), samples.shape[1], samples.shape[0], white_level
+    )
+
+
+def white_statistic(autocovariance, n, windows):
+    """Per channel (C,): the pooled lag-1 autocorrelation of ``windows`` centred windows of
+    ``n`` samples (``autocovariance`` (>= 2, C), averaged over pairs), corrected for the
+    centring (``+ 1 / (n - 1)``: its mean for white samples), in units of its standard error
+    for white samples ``1 / sqrt(windows (n - 1))``: about N(0, 1) for white samples."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        rho = np.where(autocovariance[0] > 0, autocovariance[1] / autocovariance[0], 0.0)
+    return (rho + 1.0 / (n - 1)) * math.sqrt(windows * (n - 1))
+
+
+def noise_of_mean_from_sums(sums, n, windows, white_level=None):
+    """:class:`NoiseOfMean` from the pooled :func:`lag_sums` ``sums`` (K + 1, C) of ``windows``
+    windows of ``n`` samples each.
+
+    The autocovariance ``c_k`` is the sums averaged over the ``windows (n - k)`` pairs. Centring
+    each window biases every ``c_k`` low by about ``var(mean)`` (the windows' own means
+    scatter), which is corrected in closed form: with ``g_k = c_k + V`` in
+    ``V = (1/n) [g0 + 2 sum_{k<=K} (1 - k/n) g_k]``, ``V = [c0 + 2 sum (1 - k/n) c_k] / (n - S)``,
+    ``S = 1 + 2 sum_{k<=K} (1 - k/n)``. For white noise (K = 0) this is the usual ``s^2 / n``
+    with ddof 1.
+
+    ``white_level``: None, or the significance of a test of whiteness first: a channel whose
+    lag-1 autocorrelation is not significantly positive at that level (:func:`white_statistic`,
+    one-sided) is taken as white (K = 0, exactly the pooled ``s^2 / n``), so white samples are
+    not given a noisier lag sum (nor called too short) by chance.
+    """
+    sums = np.asarray(sums, dtype=float)
+    if sums.ndim != 2 or sums.shape[0] < 1:
+        raise NoiseEstimateError(f'sums must be (lags, channels), got shape {sums.shape}')
+    n, windows = int(n), int(windows)
+    max_lag = sums.shape[0] - 1
+    if n < 2 or windows < 1 or max_lag >= n:
+        raise NoiseEstimateError(
+            f'need windows >= 1 of n >= 2 samples and fewer than n lags, got {windows} windows '
+            f'of {n} samples and {max_lag + 1} lags'
+        )
+    if not np.all(np.isfinite(sums)):
+        raise NoiseEstimateError('lag sums must be finite')
+    n_channels = sums.shape[1]
+    # c_k (max_lag + 1, C): products of pairs k apart, averaged over pairs and windows.
+    autocovariance = sums / (windows * (n - np.arange(max_lag + 1)))[:, None]
     weights = 1.0 - np.arange(max_lag + 1) / n  # (1 - k/n)
     doubled = np.where(np.arange(max_lag + 1) == 0, 1.0, 2.0)[:, None] * weights[:, None]
+    white = np.zeros(n_channels, dtype=bool)
+    if white_level is not None and max_lag >= 1:
+        white = white_statistic(autocovariance, n, windows) < special.ndtri(1.0 - white_level)
     # Truncate on the corrected autocovariance c_k + V: the centred c_k cross 0 early. V and
     # the truncation depend on each other; a few rounds settle them.
     variance_of_mean = np.zeros(n_channels)
@@ -116,6 +170,7 @@ def noise_of_mean(samples, max_lag=None):
     for _ in range(MAX_ROUNDS):
         previous = lags
         lags, window_too_short = _initial_positive_lags(autocovariance + variance_of_mean)
+        lags, window_too_short = np.where(white, 0, lags), window_too_short & ~white
         included = np.arange(max_lag + 1)[:, None] <= lags[None, :]  # (max_lag + 1, C)
         weighted = np.sum(np.where(included, doubled * autocovariance, 0.0), axis=0)
         weight_sum = np.sum(np.where(included, doubled, 0.0), axis=0)
@@ -135,6 +190,15 @@ def noise_of_mean(samples, max_lag=None):
         # samples are correlated (n_eff well below n).
         window_too_short=window_too_short | ((n_eff < MIN_N_EFF) & (n_eff < 0.5 * n)),
     )
+
+
+def ar1_std_of_mean(sigma, rho, n_samples):
+    """Std of the mean of ``n`` consecutive samples of a stationary AR(1) noise of std ``sigma``
+    and lag-1 correlation ``rho`` (``exp(-dt / correlation time)``, see
+    :mod:`gsp_kinematics.sensors.dynamics`): ``(sigma / n) sqrt(sum_ij rho^|i - j|)``."""
+    n = int(n_samples)
+    lags = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    return float(sigma) * math.sqrt(float(np.sum(float(rho) ** lags))) / n
 
 
 def trend_std_factor(n_samples):
@@ -192,9 +256,14 @@ __all__ = [
     'DEFAULT_SETTLE_SIGMAS',
     'NoiseEstimateError',
     'NoiseOfMean',
+    'ar1_std_of_mean',
     'false_unsettled_rate',
+    'lag_sums',
     'noise_of_mean',
+    'noise_of_mean_from_sums',
     'settled',
     'trend_std_factor',
+    'white_statistic',
+    'window_lag_sums',
     'window_trend',
 ]
