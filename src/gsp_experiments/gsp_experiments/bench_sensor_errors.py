@@ -48,13 +48,20 @@ def reachable(true, controller, poses):
     return ok
 
 
-def collect(true, controller, poses, seed, samples=SAMPLES, sigmas=SIGMAS, keep=None):
-    """Averaged rows and within-posture std of a simulated run: ``(legs (M, 6), readings (M, 4),
-    std (M, 10), reached)``; postures the real platform cannot reach, or not in the mask
-    ``keep``, are left out. Posture m's noise depends on the seed and m only, so runs of two
-    truths on the same postures and seed see the same noise."""
+def collect(
+    true, controller, poses, seed, samples=SAMPLES, sigmas=SIGMAS, keep=None, correlation=None
+):
+    """Averaged rows and the windows of a simulated run: ``(legs (M, 6), readings (M, 4),
+    windows (M, samples, 10), reached)``; postures the real platform cannot reach, or not in the
+    mask ``keep``, are left out. Posture m's noise depends on the seed and m only, so runs of two
+    truths on the same postures and seed see the same noise. ``correlation`` (10,): the lag-1
+    correlation of each channel's samples (stationary AR(1); None: white)."""
     rng = np.random.default_rng(seed)
     noise = rng.normal(0.0, 1.0, (len(poses), samples, 10))
+    if correlation is not None:
+        rho = np.asarray(correlation, dtype=float)
+        for i in range(1, samples):  # AR(1) along the window, unit stationary variance
+            noise[:, i] = rho * noise[:, i - 1] + np.sqrt(1.0 - rho**2) * noise[:, i]
     reached, ok = forward_kinematics_masked(
         true, commanded_articular(true, controller, poses), poses
     )
@@ -64,8 +71,8 @@ def collect(true, controller, poses, seed, samples=SAMPLES, sigmas=SIGMAS, keep=
     exact = np.concatenate([legs, readings], axis=1)
     scale = np.concatenate([np.full(6, sigmas.leg_lengths), sigmas.readings()])
     drawn = exact[:, None, :] + noise[ok] * scale
-    mean, std = drawn.mean(axis=1), drawn.std(axis=1, ddof=1)
-    return mean[:, :6], mean[:, 6:], std, poses[ok]
+    mean = drawn.mean(axis=1)
+    return mean[:, :6], mean[:, 6:], drawn, poses[ok]
 
 
 def fit(nominal, legs, readings, commanded, free, loss='linear'):
@@ -306,8 +313,8 @@ def run(quick=False):
     model = model_section(true, nominal, pool, chosen, validation_poses, quick)
 
     good = _good_model_section(ideal_true, nominal, poses, validation_poses, quick)
-    legs, readings, std, commanded = collect(true, nominal, poses, 7)
-    noise = _noise_section(std)
+    legs, readings, windows, commanded = collect(true, nominal, poses, 7)
+    noise = _noise_section(windows.std(axis=1, ddof=1))
     outliers = _outlier_section(true, nominal, legs, readings, commanded, validation_poses)
     return {
         'description': (
