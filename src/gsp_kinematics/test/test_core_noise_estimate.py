@@ -8,9 +8,12 @@ import pytest
 from gsp_kinematics.sensors.noise_estimate import (
     NoiseEstimateError,
     false_unsettled_rate,
+    lag_sums,
     noise_of_mean,
+    noise_of_mean_from_sums,
     settled,
     trend_std_factor,
+    window_lag_sums,
 )
 
 DT = 0.005  # s, 200 Hz
@@ -132,3 +135,27 @@ def test_trend_std_factor_is_the_white_trend_std():
     assert trend.std() == pytest.approx(
         trend_std_factor(n) / math.sqrt(n), rel=5 / math.sqrt(2 * 20000)
     )
+
+
+def test_lag_sums_are_additive_over_windows_and_give_the_same_estimate():
+    # What each posture contributes (its window's lag sums) pools into the estimate of all.
+    samples = ar1_windows(np.random.default_rng(8), 40, 30, 0.7, np.array([1e-6, 3e-5]))
+    parts = window_lag_sums(samples)
+    np.testing.assert_allclose(parts[:15].sum(axis=0) + parts[15:].sum(axis=0), lag_sums(samples))
+    pooled = noise_of_mean_from_sums(parts.sum(axis=0), 30, 40)
+    direct = noise_of_mean(samples)
+    np.testing.assert_allclose(pooled.std_of_mean, direct.std_of_mean, rtol=1e-12)
+    np.testing.assert_array_equal(pooled.lags, direct.lags)
+    with pytest.raises(NoiseEstimateError, match='fewer than n lags'):
+        noise_of_mean_from_sums(parts.sum(axis=0), 10, 40)
+
+
+def test_the_whiteness_test_gives_white_samples_exactly_the_pooled_scatter():
+    samples = np.random.default_rng(9).normal(size=(60, 10, 4)) * [1e-6, 1.0, 3.0, 1e-3]
+    estimate = noise_of_mean(samples, white_level=0.01)
+    pooled = np.sqrt(samples.var(axis=1, ddof=1).mean(axis=0) / 10)
+    np.testing.assert_allclose(estimate.std_of_mean, pooled, rtol=1e-12)
+    assert (estimate.lags == 0).all() and not estimate.window_too_short.any()
+    # Correlated samples pass the test and keep their lags.
+    correlated = ar1_windows(np.random.default_rng(10), 60, 10, 0.9, np.array([1.0]))
+    assert noise_of_mean(correlated, white_level=0.01).lags[0] > 0
