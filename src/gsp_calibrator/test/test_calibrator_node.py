@@ -53,6 +53,9 @@ def calibrator_parameters(output_root, **overrides):
         # The goodness-of-fit check rejects 1% of good fits (its significance level): the tests
         # of other things must not depend on it (test_a_rejected_fit_... turns it back on).
         'apply_rejected_fit': True,
+        # Drawing the report's PNGs takes the calibrator many seconds while the sensor streams
+        # hold the GIL; test_calibration_in_process draws them, the other tests need the tables.
+        'write_report_plots': False,
     }
     values.update(overrides)
     return [Parameter(name, value=value) for name, value in values.items()]
@@ -152,7 +155,10 @@ def make_suite(context, tmp_path, truth_file, calibrator_overrides=(), platform_
 def test_calibration_in_process(ros_context, tmp_path):
     truth = perturbed_truth(tmp_path / 'true.yaml')
     suite, calibrator, platform, _ = make_suite(
-        ros_context, tmp_path, tmp_path / 'true.yaml', {'apply_result': True}
+        ros_context,
+        tmp_path,
+        tmp_path / 'true.yaml',
+        {'apply_result': True, 'write_report_plots': True},
     )
     nan_publisher = suite.client_node.create_publisher(
         JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS]
