@@ -23,6 +23,7 @@ from gsp_calibrator import calibrator_node
 from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_kinematics.geometry import (
@@ -54,7 +55,7 @@ def calibrator_parameters(output_root, **overrides):
         # of other things must not depend on it (test_a_rejected_fit_... turns it back on).
         'apply_rejected_fit': True,
         # Drawing the report's PNGs takes the calibrator many seconds while the sensor streams
-        # hold the GIL; test_calibration_in_process draws them, the other tests need the tables.
+        # hold the GIL; the tests need the tables (test_report and test_end_to_end draw them).
         'write_report_plots': False,
     }
     values.update(overrides)
@@ -158,7 +159,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         ros_context,
         tmp_path,
         tmp_path / 'true.yaml',
-        {'apply_result': True, 'write_report_plots': True},
+        {'apply_result': True},
     )
     nan_publisher = suite.client_node.create_publisher(
         JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS]
@@ -246,10 +247,13 @@ def test_calibration_in_process(ros_context, tmp_path):
         # The sensor subscriptions outlive the run (ros2/rclpy#1206); messages are dropped now.
         assert calibrator._sensors.subscribed and not calibrator._sensors_active
 
-        # Issue 4: the run directory holds the recording and the report.
+        # Issue 4: the run directory holds the recording and the report, here without its plots
+        # (write_report_plots false).
         for name in ('recording.mcap', 'result.json', 'report.md'):
             assert (run.path / name).is_file(), name
-        assert list(run.path.glob('*.png'))
+        report_text = (run.path / 'report.md').read_text(encoding='utf-8')
+        assert PLOTS_SKIPPED_NOTE in report_text and '| Loff1 | mm |' in report_text
+        assert not list(run.path.glob('*.png'))
         assert not list(run.path.glob('*.tmp'))
         info = recording.recording_info(run.path / 'recording.mcap')
         for topic in (
