@@ -281,7 +281,10 @@ def _parameter_lines(data, images):
 
 
 #: The line of ``report.md`` written in place of the plots when they were not drawn.
-PLOTS_SKIPPED_NOTE = '- plots: not drawn for this report (only its tables)'
+PLOTS_SKIPPED_NOTE = (
+    '- plots: skipped (write_report_plots false, or --no-plots); '
+    '`gsp_reidentify <run directory>` writes a report with them'
+)
 
 
 def report_markdown(data, images, title='Calibration report', plots=True):
