@@ -238,6 +238,7 @@ def settings_options(settings):
         'sync_tolerance',
         'samples_per_posture',
         'formulation',
+        'noise_source',
         'loss',
         'posture_count',
         'pool_size',
