@@ -237,6 +237,13 @@ PARAMETERS = (
         check=lambda v: '' if str(v).strip() else 'must not be empty',
     ),
     ParameterSpec(
+        'write_report_plots',
+        True,
+        'Draw the PNG plots of report.md (parameter and chain errors, residuals, accuracy map); '
+        'false: result.json, report.md (saying the plots were skipped) and the CSVs only, '
+        'which is much faster',
+    ),
+    ParameterSpec(
         'resume_run_directory',
         '',
         'Run directory /gsp/calibrator/resume continues; empty: the latest unfinished run under '
@@ -349,6 +356,7 @@ class CalibratorSettings:
     posture_order: str = 'route'
     max_leg_speed: float = MotionLimits().max_speed  #: m/s
     max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
+    write_report_plots: bool = True
 
     @property
     def motion_limits(self):
@@ -410,4 +418,5 @@ class CalibratorSettings:
             posture_order=str(merged['posture_order']),
             max_leg_speed=float(merged['max_leg_speed']),
             max_leg_acceleration=float(merged['max_leg_acceleration']),
+            write_report_plots=bool(merged['write_report_plots']),
         )

@@ -83,7 +83,7 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
         run.path,
         truth=truth,
         validation_after=validation_errors(truth, calibrated, poses),
-        write_pngs=False,
+        plots=False,
     )
     refreshed = json.loads((run.path / 'result.json').read_text())
     assert refreshed['fit_accepted'] is True and refreshed['noise_source'] == 'estimated'
@@ -126,7 +126,7 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
     # keeps each row's lag sums), and so has the rebuild of its recording.
     rows = run.read_samples()
     assert np.isfinite(rows.lag_sums[:, :, : samples // 2 + 1]).all()
-    again = offline.refresh_report(run.path, write_pngs=False)
+    again = offline.refresh_report(run.path, plots=False)
     assert again.noise_estimates['inclinometer']['row_std'] == pytest.approx(
         inclinometer['row_std'], rel=1e-9
     )

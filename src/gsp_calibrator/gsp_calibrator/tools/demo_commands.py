@@ -140,6 +140,10 @@ def _calibrator_parameters(args, output_root, rate):
         # platform is the stronger check, so it applies the result and prints the verdict.
         '-p',
         'apply_rejected_fit:=true',
+        # The demo redraws the report against the truth once it has validated (its
+        # refresh_report): plots drawn by the calibrator would only be overwritten.
+        '-p',
+        'write_report_plots:=false',
         *calibrator_motion_parameters(args),
     ]
 
