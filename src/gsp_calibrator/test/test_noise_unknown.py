@@ -18,6 +18,7 @@ from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import postures as run_postures
+from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import RunDirectory, Samples
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.tools import client
@@ -198,6 +199,12 @@ def test_correlated_device_noise_offline_is_estimated_and_accepted(postures, sam
     inclinometer = outcome.noise_estimates['inclinometer']
     assert inclinometer['within_lower_bound'] is lower_bound
     assert inclinometer['source'] == ('between' if lower_bound else 'pooled')
+    # The summary says so on the inclinometer's line.
+    lines = run_response.outcome_summary(outcome).splitlines()
+    noted = [line for line in lines if run_response.LOWER_BOUND_NOTE in line]
+    assert noted == (
+        [next(x for x in lines if x.startswith('noise inclinometer'))] if lower_bound else []
+    )
     rho = np.exp(-1.0 / (rate_hz * correlation_time))
     true_row = ar1_std_of_mean(DEFAULT_SENSOR_NOISE.inclinometer, rho, samples)
     assert inclinometer['row_std'] == pytest.approx(true_row, rel=0.15)

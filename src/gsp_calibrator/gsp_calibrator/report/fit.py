@@ -130,5 +130,8 @@ def fit_markdown(data):
                 entry.get('between_postures')
             ]
             shown = ' | '.join(_fmt(None if v is None else v * factor, 3) for v in values)
-            lines.append(f'| {channel} | {shown} | {entry.get("source", "")} | {unit} |')
+            source = entry.get('source', '') + (
+                ' (within: lower bound)' if entry.get('within_lower_bound') else ''
+            )
+            lines.append(f'| {channel} | {shown} | {source} | {unit} |')
     return lines + ['']

@@ -69,11 +69,19 @@ def fit_lines(outcome):
         lines.append(
             f'noise {channel}: estimated {_angle_or_length(channel, entry["estimated"])} '
             f'({entry["source"]}), configured {_angle_or_length(channel, entry["configured"])}'
+            + (LOWER_BOUND_NOTE if entry.get('within_lower_bound') else '')
             + (' -- WARNING: differs by more than 2x' if entry['warning'] else '')
         )
     if outcome.noise_estimates:
         lines.append(f'weights from the {outcome.noise_source} noise (noise_source)')
     return lines
+
+
+#: Said of a channel whose within-posture estimate is only a lower bound (not used, not tested).
+LOWER_BOUND_NOTE = (
+    '; within postures only a lower bound (windows short against the noise correlation time): '
+    'not used, nor in the F test'
+)
 
 
 def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
