@@ -25,6 +25,7 @@ from gsp_kinematics.identification import (
     resolve_free,
 )
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import parameter_specs
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, check_values, greater_than, one_of
@@ -142,6 +143,23 @@ PARAMETERS = (
         "Longest wait for a commanded posture's 'settled' status after its first "
         'status; a posture that does not settle is skipped',
         unit='s',
+    ),
+    ParameterSpec(
+        'settle_lookback',
+        0.0,
+        'Span the settle rule judges each channel over, ending with the averaged window (at '
+        "least that window): set it to at least the slowest sensor's response time; the "
+        'readings are waited for until at rest over it (docs/sensor_errors.md)',
+        unit='s',
+        constraints='>= 0',
+        check=at_least(0.0, reason='must be finite and >= 0 s'),
+    ),
+    _positive(
+        'settle_sigmas',
+        3.0,
+        "Trend over the settle look-back, in stds of a settled span's trend, above which a "
+        'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
+        'spans)',
     ),
     _positive(
         'topic_timeout',
@@ -334,6 +352,8 @@ class CalibratorSettings:
     posture_order: str = 'route'
     max_leg_speed: float = MotionLimits().max_speed  #: m/s
     max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
+    settle_lookback: float = 0.0  #: s
+    settle_sigmas: float = DEFAULT_SETTLE_SIGMAS
 
     @property
     def motion_limits(self):
@@ -392,4 +412,6 @@ class CalibratorSettings:
             posture_order=str(merged['posture_order']),
             max_leg_speed=float(merged['max_leg_speed']),
             max_leg_acceleration=float(merged['max_leg_acceleration']),
+            settle_lookback=float(merged['settle_lookback']),
+            settle_sigmas=float(merged['settle_sigmas']),
         )

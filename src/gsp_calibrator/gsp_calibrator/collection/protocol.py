@@ -12,9 +12,12 @@ come within ``settle_timeout`` of that first status (else skipped) and starts th
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
 the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
-consistent window gives the row (:class:`RowReady`). The posture is skipped when
-``max_pairs_per_sample * samples_per_posture`` pairs hold no consistent window, or when no window
-comes within ``settle_timeout + topic_timeout`` of the start. The run fails
+earliest consistent window whose channels are at rest over the ``settle_lookback`` ending with
+it (see :mod:`~gsp_calibrator.collection.synchroniser`) gives the row (:class:`RowReady`, with
+its ``settle_wait``). The posture is skipped when the readings still move ``settle_timeout``
+after the start (the reason names the channel and its trend), when
+``max_pairs_per_sample * samples_per_posture`` settled pairs hold no consistent window, or
+when no window comes within ``settle_timeout + topic_timeout`` of the start. The run fails
 (:class:`TopicSilent`, :class:`NoSynchronisedSample`) when a sensor topic says nothing, or the
 pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
 is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
@@ -61,6 +64,7 @@ from gsp_calibrator.collection.synchroniser import (
     SampleCollector,
 )
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
     DEVICE_STREAMS,
     SENSOR_TOPICS,
@@ -126,8 +130,8 @@ class _Posture:
 class CollectionProtocol:
     """The collection protocol (see the module docstring); every input returns a list of events.
 
-    ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds or None)
-    configure the collector; ``topic_timeout`` / ``settle_timeout`` (s, default: none) the
+    ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
+    ``settle_lookback`` (s) and ``settle_sigmas`` configure the collector; ``topic_timeout`` / ``settle_timeout`` (s, default: none) the
     timeouts. Times are integer ns of one clock (receive times).
     """
 
@@ -140,6 +144,8 @@ class CollectionProtocol:
             settings.sigmas.channel_std(),
             topic_timeout=settings.topic_timeout,
             settle_timeout=settings.settle_timeout,
+            settle_lookback=settings.settle_lookback,
+            settle_sigmas=settings.settle_sigmas,
         )
 
     def __init__(
@@ -152,6 +158,8 @@ class CollectionProtocol:
         settle_timeout=math.inf,
         max_pairs_per_sample=MAX_PAIRS_PER_SAMPLE,
         keep_pairs=False,
+        settle_lookback=0.0,
+        settle_sigmas=DEFAULT_SETTLE_SIGMAS,
     ):
         self.samples_per_posture = int(samples_per_posture)
         self.timeouts = CollectionTimeouts(
@@ -162,7 +170,12 @@ class CollectionProtocol:
         self.keep_pairs = bool(keep_pairs)
         buffer = None if keep_pairs else max(MIN_BUFFER, 2 * self.pair_limit)
         self.collector = SampleCollector(
-            sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std
+            sync_tolerance,
+            samples_per_posture,
+            max_buffer=buffer,
+            noise_std=noise_std,
+            settle_lookback=settle_lookback,
+            settle_sigmas=settle_sigmas,
         )
         self._posture = None  # the awaited posture (_Posture) or None
         self._previous = None  # device readings of the previous row
@@ -351,7 +364,8 @@ class CollectionProtocol:
             self._checked_pairs = pairs
             if collector.ready():
                 return self._row()
-            if len(pairs) >= self.pair_limit:
+            # While the readings still move, settle_timeout bounds the wait (the timeouts).
+            if len(pairs) >= self.pair_limit and not collector.settling:
                 return self._skip(
                     f'no {self.samples_per_posture} consistent samples among {len(pairs)} '
                     'synchronised ones (too noisy, or the device readings did not change from '

@@ -20,6 +20,14 @@ same values is reporting the previous posture. (Postures that differ only by a t
 platform about its centre, with the same device position and phi, would look alike; posture
 pools sampled at random never hold such pairs.)
 
+Settling (:mod:`gsp_kinematics.sensors.noise_estimate`, docs/sensor_errors.md): a window is used
+only when every channel is at rest over the ``settle_lookback`` (s) that ends with the window (at
+least the window itself): its least-squares trend over that span is within ``settle_sigmas`` of
+the noise the span itself shows (:func:`~gsp_kinematics.sensors.noise_estimate.settle_test`, the
+per-sample noise at least ``noise_std``). A window is not judged before the look-back is covered
+by samples stamped from the start, so a slow sensor is waited for, and the wait (start to the
+window's first sample) is kept with the row (``settle_wait``).
+
 Stamps are integer nanoseconds. Messages may arrive out of order or go missing: pairing is
 recomputed from the buffers, and an incomplete device instant (one of its three topics missing)
 is never used.
@@ -32,6 +40,7 @@ import math
 import numpy as np
 
 from gsp_kinematics.rotation import wrap_angle
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS, settle_test
 
 NS_PER_S = 1_000_000_000
 
@@ -49,6 +58,10 @@ _STREAM_COLUMNS = {INCLINOMETER: (0, 1), ENCODER: (2,), LVDT: (3,)}
 DEFAULT_CONSISTENCY_THRESHOLD = 10.0
 #: Index of phi among the 10 channels [q_1..q_6, alpha, beta, phi, d_m] (compared on the circle).
 _PHI_CHANNEL = 8
+#: Names of the 10 channels, as a settle verdict names them.
+CHANNEL_NAMES = ('q_1', 'q_2', 'q_3', 'q_4', 'q_5', 'q_6', 'alpha', 'beta', 'phi', 'd_m')
+#: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
+MIN_SETTLE_SAMPLES = 4
 _UNKNOWN = object()
 
 
@@ -67,6 +80,7 @@ class PostureSample:
     stamp_ns: int  #: mean stamp of the averaged leg-length samples, ns
     leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
     readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
+    settle_wait: float = 0.0  #: s from the collection start to the first averaged sample
 
     @property
     def stamp(self):
@@ -97,13 +111,39 @@ def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
     return result
 
 
-def median_and_spread(values, noise_std):
-    """Median (10,), absolute deviations (n, 10) and robust spread (10,) of the ``(n, 10)``
-    channel values (``phi`` unwrapped around the first); the spread is at least ``noise_std``."""
-    values = values.copy()
+def unwrap_phi(values):
+    """``values`` (n, 10) with ``phi`` unwrapped around its first value (a copy)."""
+    values = np.array(values, dtype=float)
     values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + wrap_angle(
         values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL]
     )
+    return values
+
+
+@dataclasses.dataclass(frozen=True)
+class Unsettled:
+    """Why the latest window judged is not used yet: the look-back is not yet covered
+    (``pending``), or ``channel`` moved: its trend ``z`` stds over ``span`` s (``threshold``)."""
+
+    pending: bool
+    channel: str = ''
+    z: float = 0.0
+    threshold: float = 0.0
+    span: float = 0.0
+
+    def describe(self):
+        if self.pending:
+            return 'the settle look-back is not yet covered'
+        return (
+            f'{self.channel} still moving: trend {self.z:.3g} stds over the last '
+            f'{self.span:.3g} s (at most {self.threshold:.3g})'
+        )
+
+
+def median_and_spread(values, noise_std):
+    """Median (10,), absolute deviations (n, 10) and robust spread (10,) of the ``(n, 10)``
+    channel values (``phi`` unwrapped around the first); the spread is at least ``noise_std``."""
+    values = unwrap_phi(values)
     median = np.median(values, axis=0)
     deviation = np.abs(values - median)
     spread = np.maximum(1.4826 * np.median(deviation, axis=0), noise_std)
@@ -117,7 +157,9 @@ class SampleCollector:
     averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
     all, for a caller that wants every pair, see :meth:`stream`).
     ``noise_std``: None (no consistency check) or the noise std of the 10 channels
-    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread.
+    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
+    settle test's noise. ``settle_lookback`` (s, >= 0) and ``settle_sigmas`` (> 0, ``inf``: no
+    settle test): the settle rule (see the module docstring).
     """
 
     def __init__(
@@ -127,6 +169,8 @@ class SampleCollector:
         max_buffer=2000,
         noise_std=None,
         consistency_threshold=DEFAULT_CONSISTENCY_THRESHOLD,
+        settle_lookback=0.0,
+        settle_sigmas=DEFAULT_SETTLE_SIGMAS,
     ):
         sync_tolerance = float(sync_tolerance)
         if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
@@ -141,6 +185,15 @@ class SampleCollector:
                 raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
         if not float(consistency_threshold) > 0.0:
             raise ValueError(f'consistency_threshold must be > 0, got {consistency_threshold}')
+        settle_lookback, settle_sigmas = float(settle_lookback), float(settle_sigmas)
+        if not (math.isfinite(settle_lookback) and settle_lookback >= 0.0):
+            raise ValueError(f'settle_lookback must be a finite time >= 0 s, got {settle_lookback}')
+        if not settle_sigmas > 0.0:
+            raise ValueError(f'settle_sigmas must be > 0 (inf: no settle test), got {settle_sigmas}')
+        self.settle_lookback_ns = seconds_to_ns(settle_lookback)
+        self.settle_sigmas = settle_sigmas
+        #: Why the latest window judged waits for settling (:class:`Unsettled`), or None.
+        self.unsettled = None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
         self.tolerance_ns = seconds_to_ns(sync_tolerance)
@@ -179,6 +232,7 @@ class SampleCollector:
         self._legs.clear()
         self._device.clear()
         self._window_checks.clear()
+        self.unsettled = None
         self._invalidate()
 
     def stop(self):
@@ -296,9 +350,38 @@ class SampleCollector:
         difference[2] = wrap_angle(difference[2])
         return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))
 
+    def settle_verdict(self, pairs, end):
+        """None if the channels are at rest over the look-back that ends with ``pairs[end]``
+        (at least the window of ``samples_per_posture`` pairs ending there), else
+        :class:`Unsettled` (see the module docstring)."""
+        if not math.isfinite(self.settle_sigmas):
+            return None
+        end_stamp = pairs[end][0]
+        if end_stamp - self.start_ns < self.settle_lookback_ns:
+            return Unsettled(pending=True)
+        first = bisect.bisect_left([leg for leg, _ in pairs], end_stamp - self.settle_lookback_ns)
+        span = pairs[min(first, end - self.samples_per_posture + 1) : end + 1]
+        if len(span) < MIN_SETTLE_SAMPLES:
+            return None
+        times = np.array([leg - span[0][0] for leg, _ in span], dtype=float) * 1e-9
+        verdict = settle_test(
+            unwrap_phi(self._values(span)), times, self.settle_sigmas, self.noise_std
+        )
+        if verdict.settled.all():
+            return None
+        worst = int(np.argmax(verdict.z / verdict.threshold))
+        return Unsettled(
+            False,
+            CHANNEL_NAMES[worst],
+            float(verdict.z[worst]),
+            float(verdict.threshold[worst]),
+            float(times[-1]),
+        )
+
     def window(self):
-        """The pairs to average: the earliest consistent run of ``samples_per_posture``
-        consecutive pairs, or None if there is none yet."""
+        """The pairs to average: the earliest run of ``samples_per_posture`` consecutive pairs
+        that is consistent, changed from the previous posture and settled, or None if there is
+        none yet (:attr:`unsettled` then says why the latest run judged waits, if it does)."""
         if self._window is _UNKNOWN:
             self._window = None
             pairs = self.pairs()
@@ -309,11 +392,20 @@ class SampleCollector:
                 usable = self._window_checks.get(key)
                 if usable is None:
                     usable = self.consistent(candidate) and not self.unchanged(candidate)
+                    if usable:
+                        self.unsettled = self.settle_verdict(pairs, start + count - 1)
+                        usable = self.unsettled is None
+                    # (A window ending before the look-back is covered never will be.)
                     self._window_checks[key] = usable
                 if usable:
                     self._window = candidate
                     break
         return None if self._window is None else list(self._window)
+
+    @property
+    def settling(self):
+        """Whether the latest window judged waits for the channels to settle."""
+        return self.unsettled is not None
 
     def ready(self):
         """True once ``samples_per_posture`` consistent pairs are available."""
@@ -393,6 +485,8 @@ class SampleCollector:
                 'consistent ones'
             )
         self.inconsistent += self.pairs().index(window[0])
-        sample = self.average(window)
+        sample = dataclasses.replace(
+            self.average(window), settle_wait=(window[0][0] - self.start_ns) * 1e-9
+        )
         self.stop()
         return sample

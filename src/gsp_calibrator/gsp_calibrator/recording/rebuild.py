@@ -14,6 +14,7 @@ from gsp_calibrator.recording.mcap_io import read_recording, recording_info, rec
 from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_msgs_py import names
 
 
@@ -29,6 +30,15 @@ def noise_std_from_options(options):
         return SensorNoise.from_parameters(options).channel_std()
     except SensorNoiseError as error:
         raise RecordingError(str(error)) from None
+
+
+def settle_options(options):
+    """The settle rule's ``{settle_lookback, settle_sigmas}`` of a recording's stored
+    ``options`` (a recording made before the rule: the window alone, the default sigmas)."""
+    return {
+        'settle_lookback': float(options.get('settle_lookback', 0.0)),
+        'settle_sigmas': float(options.get('settle_sigmas', DEFAULT_SETTLE_SIGMAS)),
+    }
 
 
 def feed_recording(path, collection, notes=None, extra_topics=(), on_message=None):
@@ -198,7 +208,9 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     # session (its earlier collection was cut short) keeps its later row.
     rows = {}
     for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
-        collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+        collection = protocol.CollectionProtocol(
+            sync_tolerance, samples_per_posture, noise_std, **settle_options(stored)
+        )
         if rows:
             collection.continue_after(next(reversed(rows.values())).sample.readings)
         for event in feed_recording(part, collection):

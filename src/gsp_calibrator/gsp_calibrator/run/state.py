@@ -88,6 +88,9 @@ class RunState:
     #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
     #: (1-based) in their place
     replacements: list = dataclasses.field(default_factory=list)
+    #: {posture (str): s}: each kept row's settle wait, from the platform's settled status to
+    #: the first averaged sample (:mod:`gsp_calibrator.collection.synchroniser`)
+    settle_waits: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self):
         data = dataclasses.asdict(self)
@@ -111,10 +114,27 @@ class RunState:
         self.skipped = [s for s in self.skipped if s['posture'] != posture]
         self.skipped.append({'posture': int(posture), 'reason': str(reason)})
 
-    def record_done(self, posture):
+    def record_done(self, posture, settle_wait=None):
         self.skipped = [s for s in self.skipped if s['posture'] != posture]
         if posture not in self.done:
             self.done.append(int(posture))
+        if settle_wait is not None:
+            self.settle_waits[str(int(posture))] = float(settle_wait)
+
+
+def settle_statistics(waits):
+    """``result.json`` ``collection.settle``: the settle waits (s) of the kept rows
+    (``{posture: s}``): median, max, mean, and how many rows waited at all."""
+    values = np.asarray(list(waits.values()), dtype=float)
+    if values.size == 0:
+        return {'rows': 0, 'median_s': None, 'max_s': None, 'mean_s': None, 'waited': 0}
+    return {
+        'rows': int(values.size),
+        'median_s': float(np.median(values)),
+        'max_s': float(values.max()),
+        'mean_s': float(values.mean()),
+        'waited': int(np.count_nonzero(values > 0.0)),
+    }
 
 
 def write_state(directory, state):
