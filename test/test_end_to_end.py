@@ -75,9 +75,12 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert set(collection) == {
         'skipped',
         'inconsistent_dropped',
+        'settling_dropped',
         'non_finite_dropped',
         'replacements',
+        'settle',
     }
+    assert collection['settle']['rows'] >= 1 and collection['settle']['max_s'] >= 0.0
     # Each posture the platform rejected was replaced (the pool of 600 has plenty left).
     rejected = {s['posture'] for s in collection['skipped'] if s['rejected_by_platform']}
     assert {r['rejected'] for r in collection['replacements']} == rejected

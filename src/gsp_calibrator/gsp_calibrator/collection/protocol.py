@@ -228,6 +228,7 @@ class CollectionProtocol:
                 for s in self.skipped
             ],
             'inconsistent_dropped': int(self.collector.inconsistent),
+            'settling_dropped': int(self.collector.settling_dropped),
             'non_finite_dropped': {
                 stream: int(count) for stream, count in self.collector.non_finite.items()
             },

@@ -63,6 +63,8 @@ CHANNEL_NAMES = ('q_1', 'q_2', 'q_3', 'q_4', 'q_5', 'q_6', 'alpha', 'beta', 'phi
 #: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
 MIN_SETTLE_SAMPLES = 4
 _UNKNOWN = object()
+#: Verdicts of a candidate window (:meth:`SampleCollector.window`).
+_USABLE, _INCONSISTENT, _UNSETTLED = 'usable', 'inconsistent', 'unsettled'
 
 
 def seconds_to_ns(seconds):
@@ -205,7 +207,7 @@ class SampleCollector:
         self._device = {}  # stamp_ns -> readings (4,), NaN where not received yet
         self._pairs = None  # cached result of pairs(), None when a buffer changed
         self._window = _UNKNOWN  # cached result of window()
-        self._window_checks = {}  # tuple(window pairs) -> usable (consistent and changed)
+        self._window_checks = {}  # tuple(window pairs) -> _USABLE, _INCONSISTENT or _UNSETTLED
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
         self.non_finite = dict.fromkeys(STREAMS, 0)
         #: Finite samples received, per stream (over the collector's lifetime).
@@ -214,6 +216,8 @@ class SampleCollector:
         self.too_early = dict.fromkeys(STREAMS, 0)
         #: Pairs dropped because inconsistent with the window averaged after them.
         self.inconsistent = 0
+        #: Pairs dropped because the readings were still settling (the settle waits).
+        self.settling_dropped = 0
 
     # --- input -------------------------------------------------------------------------------
 
@@ -389,15 +393,15 @@ class SampleCollector:
             for start in range(0, len(pairs) - count + 1):
                 candidate = pairs[start : start + count]
                 key = tuple(candidate)
-                usable = self._window_checks.get(key)
-                if usable is None:
-                    usable = self.consistent(candidate) and not self.unchanged(candidate)
-                    if usable:
+                verdict = self._window_checks.get(key)
+                if verdict is None:
+                    verdict = _INCONSISTENT
+                    if self.consistent(candidate) and not self.unchanged(candidate):
                         self.unsettled = self.settle_verdict(pairs, start + count - 1)
-                        usable = self.unsettled is None
+                        verdict = _USABLE if self.unsettled is None else _UNSETTLED
                     # (A window ending before the look-back is covered never will be.)
-                    self._window_checks[key] = usable
-                if usable:
+                    self._window_checks[key] = verdict
+                if verdict == _USABLE:
                     self._window = candidate
                     break
         return None if self._window is None else list(self._window)
@@ -484,7 +488,14 @@ class SampleCollector:
                 f'only {self.pair_count()} synchronised samples, no {self.samples_per_posture} '
                 'consistent ones'
             )
-        self.inconsistent += self.pairs().index(window[0])
+        pairs, count = self.pairs(), self.samples_per_posture
+        before = pairs.index(window[0])
+        unsettled = sum(
+            self._window_checks.get(tuple(pairs[i : i + count])) == _UNSETTLED
+            for i in range(before)
+        )
+        self.settling_dropped += unsettled
+        self.inconsistent += before - unsettled
         sample = dataclasses.replace(
             self.average(window), settle_wait=(window[0][0] - self.start_ns) * 1e-9
         )
