@@ -83,6 +83,7 @@ class PostureSample:
     leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
     readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
     settle_wait: float = 0.0  #: s from the collection start to the first averaged sample
+    settling_pairs: int = 0  #: pairs before the window waited out as still settling
 
     @property
     def stamp(self):
@@ -497,7 +498,9 @@ class SampleCollector:
         self.settling_dropped += unsettled
         self.inconsistent += before - unsettled
         sample = dataclasses.replace(
-            self.average(window), settle_wait=(window[0][0] - self.start_ns) * 1e-9
+            self.average(window),
+            settle_wait=(window[0][0] - self.start_ns) * 1e-9,
+            settling_pairs=int(unsettled),
         )
         self.stop()
         return sample

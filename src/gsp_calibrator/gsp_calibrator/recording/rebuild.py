@@ -184,12 +184,29 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
     rows are the ones the calibrator collected online (with no timeouts: the recording holds
-    only what the calibrator waited for).
+    only what the calibrator waited for), by the same settle rule (its stored options).
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
     :func:`noise_std_from_options`) default to the options stored by :meth:`RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
+    samples = Samples.empty()
+    for event in rows_from_recording(path, sync_tolerance, samples_per_posture, noise_std):
+        sample = event.sample
+        samples.append(
+            event.posture,
+            event.pose,
+            sample.leg_lengths,
+            sample.readings,
+            sample.n_samples,
+            sample.stamp,
+        )
+    return samples
+
+
+def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
+    """The :class:`~gsp_calibrator.collection.protocol.RowReady` events of
+    :func:`samples_from_recording` (with each row's ``settle_wait``), in row order."""
     first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
     stored = recording_options(first)
     if sync_tolerance is None:
@@ -217,18 +234,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
             if isinstance(event, protocol.RowReady):
                 rows.pop(event.posture, None)
                 rows[event.posture] = event
-    samples = Samples.empty()
-    for event in rows.values():
-        sample = event.sample
-        samples.append(
-            event.posture,
-            event.pose,
-            sample.leg_lengths,
-            sample.readings,
-            sample.n_samples,
-            sample.stamp,
-        )
-    return samples
+    return list(rows.values())
 
 
 def collection_notes(info, path='<recording>'):

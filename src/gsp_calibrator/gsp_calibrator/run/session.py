@@ -156,7 +156,7 @@ class RunSession:
                 self.samples = _without_last(self.samples)
                 raise RunWriteError(self._appender.path, error) from None
             self.spreads.append(np.concatenate([row.leg_lengths_std, row.readings_std]))
-            self.state.record_done(event.posture, row.settle_wait)
+            self.state.record_done(event.posture, row)
 
     def end_posture(self, event):
         """Keep what ends a posture: a ``RowReady`` (its row) or a ``PostureSkipped``; returns

@@ -80,7 +80,7 @@ def row_noise(correlation, n=SAMPLES, sigmas=SIGMAS):
 
 def collect_run(legs, readings, poses, rule, seed):
     """Feed the streams of every posture to a protocol with ``rule``; ``(rows legs (M, 6),
-    readings (M, 4), commanded (M, 6), settle waits (M,) s, skipped)``."""
+    readings (M, 4), commanded (M, 6), settle waits (M,) s, skipped, posture index (M,))``."""
     response, correlation = device_times()
     dynamics = SensorDynamics(response, correlation, 4, circular=[False, False, True, False])
     rng = np.random.default_rng(seed)
@@ -120,12 +120,12 @@ def collect_run(legs, readings, poses, rule, seed):
             out += collection.sample(LVDT, now, (device[3],), received)
             done = next((e for e in out if isinstance(e, events.FINAL_EVENTS)), None)
         if isinstance(done, events.RowReady):
-            rows.append((done.sample.leg_lengths, done.sample.readings, done.pose))
+            rows.append((done.sample.leg_lengths, done.sample.readings, done.pose, m))
             waits.append(done.sample.settle_wait)
         else:
             skipped += 1
-    legs_rows, readings_rows, commanded = (np.array(x) for x in zip(*rows, strict=True))
-    return legs_rows, readings_rows, commanded, np.array(waits), skipped
+    legs_rows, readings_rows, commanded, index = (np.array(x) for x in zip(*rows, strict=True))
+    return legs_rows, readings_rows, commanded, np.array(waits), skipped, index
 
 
 def _setting():
@@ -136,9 +136,7 @@ def _setting():
         nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='extended'
     )
     poses = pool[chosen]
-    reached, ok = forward_kinematics_masked(
-        true, commanded_articular(true, nominal, poses), poses
-    )
+    reached, ok = forward_kinematics_masked(true, commanded_articular(true, nominal, poses), poses)
     legs, readings = sensor_measurements(true, reached[ok])
     validation_poses = sample_valid_postures(nominal, 50, np.random.default_rng(1), workspace)
     return true, nominal, poses[ok], legs, readings, validation_poses
@@ -150,9 +148,13 @@ def run_rule(rule, seeds, setting=None):
     weights = row_noise(device_times()[1])
     runs = []
     for seed in seeds:
-        rows_legs, rows_readings, commanded, waits, skipped = collect_run(
+        rows_legs, rows_readings, commanded, waits, skipped, index = collect_run(
             legs, readings, poses, rule, seed
         )
+        # The rows' device readings against the truth, in the rows' own noise.
+        error = rows_readings - readings[index]
+        error[:, 2] = (error[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        z = error / weights.readings()
         result = identify(
             nominal,
             rows_legs,
@@ -163,18 +165,20 @@ def run_rule(rule, seeds, setting=None):
             options=Options(),
         )
         try:
-            error = validate(true, result.geometry, validation_poses)['position_mm_mean']
+            validation = validate(true, result.geometry, validation_poses)['position_mm_mean']
         except ValueError:  # the fit is so far off that no validation posture is reachable
-            error = math.inf
+            validation = math.inf
         position, _ = predicted_errors(
             result.geometry, result.covariance, validation_poses, result.free
         )
         predicted = float(position.mean())
         runs.append(
             {
-                'validation_mm': error,
+                'validation_mm': validation,
                 'predicted_mm': predicted,
-                'ratio': error / predicted,
+                'ratio': validation / predicted,
+                'row_error_rms_row_sigmas': float(np.sqrt(np.mean(z**2))),
+                'alpha_error_max_deg': float(np.degrees(np.abs(error[:, 0]).max())),
                 'settle_wait_mean_s': float(np.mean(waits)),
                 'skipped': skipped,
                 'chi2_p': result.goodness_of_fit.p_value,
@@ -184,6 +188,7 @@ def run_rule(rule, seeds, setting=None):
 
 
 def _summary(runs):
+    """Over seeds; a fit so far off that the validation reaches nothing counts as inf."""
     return {
         'ratio_median': statistics.median(r['ratio'] for r in runs),
         'ratio_of_means': statistics.mean(r['validation_mm'] for r in runs)
@@ -191,6 +196,9 @@ def _summary(runs):
         'validation_mm_mean': statistics.mean(r['validation_mm'] for r in runs),
         'predicted_mm_mean': statistics.mean(r['predicted_mm'] for r in runs),
         'settle_wait_mean_s': statistics.mean(r['settle_wait_mean_s'] for r in runs),
+        'row_error_rms_row_sigmas': statistics.median(r['row_error_rms_row_sigmas'] for r in runs),
+        'alpha_error_max_deg': max(r['alpha_error_max_deg'] for r in runs),
+        'unreachable_validations': sum(not math.isfinite(r['validation_mm']) for r in runs),
         'skipped': sum(r['skipped'] for r in runs),
         'fit_p_median': statistics.median(r['chi2_p'] for r in runs),
         'runs': runs,
@@ -210,8 +218,9 @@ def run(quick=False):
             f'{response.tolist()} s, noise correlation times {correlation.tolist()} s), '
             f'{POSTURES} selected postures, {SAMPLES} samples at {RATE_HZ:g} Hz, platform '
             f'settled {PLATFORM_SETTLE_S:g} s after each jump; offline through the collection '
-            'protocol; weights: the rows\' true noise; validation: mean position error over 50 '
-            'postures (mm) / its prediction from the covariance'
+            "protocol; weights: the rows' true noise; validation: mean position error over 50 "
+            "postures (mm) / its prediction from the covariance; row error: the rows' device "
+            "readings against the truth, RMS in the rows' own noise (1 when unbiased)"
         ),
         'target_ratio': 1.3,
         'settle_from_data': {'rule': realistic_rule(), **settle},
