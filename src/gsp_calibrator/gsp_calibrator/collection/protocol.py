@@ -62,9 +62,9 @@ from gsp_calibrator.collection.synchroniser import (
     LEG_LENGTHS,
     LVDT,
     SampleCollector,
+    segment_pairs,
 )
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
     DEVICE_STREAMS,
     SENSOR_TOPICS,
@@ -72,6 +72,7 @@ from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, u
     has_non_finite,
     read_sensor,
 )
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collection.synchroniser).
@@ -131,8 +132,9 @@ class CollectionProtocol:
     """The collection protocol (see the module docstring); every input returns a list of events.
 
     ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
-    ``settle_lookback`` (s) and ``settle_sigmas`` configure the collector; ``topic_timeout`` / ``settle_timeout`` (s, default: none) the
-    timeouts. Times are integer ns of one clock (receive times).
+    ``settle_lookback`` (s) and ``settle_sigmas`` configure the collector; ``topic_timeout`` /
+    ``settle_timeout`` (s, default: none) the timeouts. Times are integer ns of one clock
+    (receive times).
     """
 
     @classmethod
@@ -169,13 +171,9 @@ class CollectionProtocol:
         self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
         self.keep_pairs = bool(keep_pairs)
         buffer = None if keep_pairs else max(MIN_BUFFER, 2 * self.pair_limit)
+        settle = {'settle_lookback': settle_lookback, 'settle_sigmas': settle_sigmas}
         self.collector = SampleCollector(
-            sync_tolerance,
-            samples_per_posture,
-            max_buffer=buffer,
-            noise_std=noise_std,
-            settle_lookback=settle_lookback,
-            settle_sigmas=settle_sigmas,
+            sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std, **settle
         )
         self._posture = None  # the awaited posture (_Posture) or None
         self._previous = None  # device readings of the previous row
@@ -365,8 +363,8 @@ class CollectionProtocol:
             self._checked_pairs = pairs
             if collector.ready():
                 return self._row()
-            # While the readings still move, settle_timeout bounds the wait (the timeouts).
-            if len(pairs) >= self.pair_limit and not collector.settling:
+            # (while the readings still move, settle_timeout bounds the wait: the timeouts)
+            if len(pairs) >= self.pair_limit and collector.unsettled is None:
                 return self._skip(
                     f'no {self.samples_per_posture} consistent samples among {len(pairs)} '
                     'synchronised ones (too noisy, or the device readings did not change from '
@@ -412,11 +410,11 @@ class CollectionProtocol:
             if self._idle is None:
                 return []
             idle, self._idle = self._idle, None
-            stamps, legs, readings = idle.stream(MAX_STREAM_SAMPLES, last=True)
+            stamps, legs, readings = segment_pairs(idle, MAX_STREAM_SAMPLES, last=True)
             return [PairsCollected(None, '', None, stamps, legs, readings)]
         if posture.state != _COLLECTING:
             return self._skip('never settled')
-        stamps, legs, readings = self.collector.stream(MAX_STREAM_SAMPLES)
+        stamps, legs, readings = segment_pairs(self.collector, MAX_STREAM_SAMPLES)
         self.collector.stop()
         self._posture = None
         if len(stamps) == 0:

@@ -39,8 +39,9 @@ import math
 
 import numpy as np
 
+from gsp_calibrator.collection import settling
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS, settle_test
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 NS_PER_S = 1_000_000_000
 
@@ -58,10 +59,6 @@ _STREAM_COLUMNS = {INCLINOMETER: (0, 1), ENCODER: (2,), LVDT: (3,)}
 DEFAULT_CONSISTENCY_THRESHOLD = 10.0
 #: Index of phi among the 10 channels [q_1..q_6, alpha, beta, phi, d_m] (compared on the circle).
 _PHI_CHANNEL = 8
-#: Names of the 10 channels, as a settle verdict names them.
-CHANNEL_NAMES = ('q_1', 'q_2', 'q_3', 'q_4', 'q_5', 'q_6', 'alpha', 'beta', 'phi', 'd_m')
-#: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
-MIN_SETTLE_SAMPLES = 4
 _UNKNOWN = object()
 #: Verdicts of a candidate window (:meth:`SampleCollector.window`).
 _USABLE, _INCONSISTENT, _UNSETTLED = 'usable', 'inconsistent', 'unsettled'
@@ -123,26 +120,6 @@ def unwrap_phi(values):
     return values
 
 
-@dataclasses.dataclass(frozen=True)
-class Unsettled:
-    """Why the latest window judged is not used yet: the look-back is not yet covered
-    (``pending``), or ``channel`` moved: its trend ``z`` stds over ``span`` s (``threshold``)."""
-
-    pending: bool
-    channel: str = ''
-    z: float = 0.0
-    threshold: float = 0.0
-    span: float = 0.0
-
-    def describe(self):
-        if self.pending:
-            return 'the settle look-back is not yet covered'
-        return (
-            f'{self.channel} still moving: trend {self.z:.3g} stds over the last '
-            f'{self.span:.3g} s (at most {self.threshold:.3g})'
-        )
-
-
 def median_and_spread(values, noise_std):
     """Median (10,), absolute deviations (n, 10) and robust spread (10,) of the ``(n, 10)``
     channel values (``phi`` unwrapped around the first); the spread is at least ``noise_std``."""
@@ -158,7 +135,7 @@ class SampleCollector:
 
     ``sync_tolerance`` (s): largest stamp difference of a pair. ``samples_per_posture``: pairs
     averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
-    all, for a caller that wants every pair, see :meth:`stream`).
+    all, for a caller that wants every pair, see :func:`segment_pairs`).
     ``noise_std``: None (no consistency check) or the noise std of the 10 channels
     ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
     settle test's noise. ``settle_lookback`` (s, >= 0) and ``settle_sigmas`` (> 0, ``inf``: no
@@ -188,14 +165,8 @@ class SampleCollector:
                 raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
         if not float(consistency_threshold) > 0.0:
             raise ValueError(f'consistency_threshold must be > 0, got {consistency_threshold}')
-        settle_lookback, settle_sigmas = float(settle_lookback), float(settle_sigmas)
-        if not (math.isfinite(settle_lookback) and settle_lookback >= 0.0):
-            raise ValueError(f'settle_lookback must be a finite time >= 0 s, got {settle_lookback}')
-        if not settle_sigmas > 0.0:
-            raise ValueError(f'settle_sigmas must be > 0 (inf: no settle test), got {settle_sigmas}')
-        self.settle_lookback_ns = seconds_to_ns(settle_lookback)
-        self.settle_sigmas = settle_sigmas
-        #: Why the latest window judged waits for settling (:class:`Unsettled`), or None.
+        self.settle_rule = settling.SettleRule(settle_lookback, settle_sigmas)
+        #: Why the latest window judged waits for settling (``settling.Unsettled``), or None.
         self.unsettled = None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
@@ -355,34 +326,6 @@ class SampleCollector:
         difference[2] = wrap_angle(difference[2])
         return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))
 
-    def settle_verdict(self, pairs, end):
-        """None if the channels are at rest over the look-back that ends with ``pairs[end]``
-        (at least the window of ``samples_per_posture`` pairs ending there), else
-        :class:`Unsettled` (see the module docstring)."""
-        if not math.isfinite(self.settle_sigmas):
-            return None
-        end_stamp = pairs[end][0]
-        if end_stamp - self.start_ns < self.settle_lookback_ns:
-            return Unsettled(pending=True)
-        first = bisect.bisect_left([leg for leg, _ in pairs], end_stamp - self.settle_lookback_ns)
-        span = pairs[min(first, end - self.samples_per_posture + 1) : end + 1]
-        if len(span) < MIN_SETTLE_SAMPLES:
-            return None
-        times = np.array([leg - span[0][0] for leg, _ in span], dtype=float) * 1e-9
-        verdict = settle_test(
-            unwrap_phi(self._values(span)), times, self.settle_sigmas, self.noise_std
-        )
-        if verdict.settled.all():
-            return None
-        worst = int(np.argmax(verdict.z / verdict.threshold))
-        return Unsettled(
-            False,
-            CHANNEL_NAMES[worst],
-            float(verdict.z[worst]),
-            float(verdict.threshold[worst]),
-            float(times[-1]),
-        )
-
     def window(self):
         """The pairs to average: the earliest run of ``samples_per_posture`` consecutive pairs
         that is consistent, changed from the previous posture and settled, or None if there is
@@ -398,7 +341,14 @@ class SampleCollector:
                 if verdict is None:
                     verdict = _INCONSISTENT
                     if self.consistent(candidate) and not self.unchanged(candidate):
-                        self.unsettled = self.settle_verdict(pairs, start + count - 1)
+                        self.unsettled = self.settle_rule.verdict(
+                            pairs,
+                            start + count - 1,
+                            self.start_ns,
+                            count,
+                            lambda span: unwrap_phi(self._values(span)),
+                            self.noise_std,
+                        )
                         verdict = _USABLE if self.unsettled is None else _UNSETTLED
                     # (A window ending before the look-back is covered never will be.)
                     self._window_checks[key] = verdict
@@ -406,11 +356,6 @@ class SampleCollector:
                     self._window = candidate
                     break
         return None if self._window is None else list(self._window)
-
-    @property
-    def settling(self):
-        """Whether the latest window judged waits for the channels to settle."""
-        return self.unsettled is not None
 
     def ready(self):
         """True once ``samples_per_posture`` consistent pairs are available."""
@@ -452,35 +397,6 @@ class SampleCollector:
             readings_std=readings.std(axis=0, ddof=ddof),
         )
 
-    def stream(self, limit=None, last=False):
-        """Every pair of the first (``last``: the last) ``limit`` leg-length samples, as the
-        collector pairs them: ``(leg stamps (N,) ns, q (N, 6) m, readings (N, 4))`` in stamp order.
-
-        Only the device instants within the tolerance of those samples take part, so a long
-        buffer pairs its first (or last) samples exactly as a collector holding only them.
-        """
-        legs = sorted(self._legs)
-        if limit is not None:
-            legs = legs[-int(limit) :] if last else legs[: int(limit)]
-        if not legs:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros((0, 4))
-        margin = self.tolerance_ns
-        subset = SampleCollector(0.0, 1, max_buffer=None)
-        subset.tolerance_ns = margin
-        subset.start(legs[0] - margin)
-        subset._legs = {stamp: self._legs[stamp] for stamp in legs}
-        subset._device = {
-            stamp: row
-            for stamp, row in self._device.items()
-            if legs[0] - margin <= stamp <= legs[-1] + margin
-        }
-        pairs = subset.pairs()
-        return (
-            np.array([leg for leg, _ in pairs], dtype=np.int64),
-            np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, 6),
-            np.array([self._device[dev] for _, dev in pairs]).reshape(-1, 4),
-        )
-
     def take_posture(self):
         """Average the consistent window and stop collecting; ValueError if not ready."""
         window = self.window() if self.pair_count() >= self.samples_per_posture else None
@@ -491,10 +407,8 @@ class SampleCollector:
             )
         pairs, count = self.pairs(), self.samples_per_posture
         before = pairs.index(window[0])
-        unsettled = sum(
-            self._window_checks.get(tuple(pairs[i : i + count])) == _UNSETTLED
-            for i in range(before)
-        )
+        checks = (self._window_checks.get(tuple(pairs[i : i + count])) for i in range(before))
+        unsettled = sum(check == _UNSETTLED for check in checks)
         self.settling_dropped += unsettled
         self.inconsistent += before - unsettled
         sample = dataclasses.replace(
@@ -504,3 +418,34 @@ class SampleCollector:
         )
         self.stop()
         return sample
+
+
+def segment_pairs(collector, limit=None, last=False):
+    """Every pair of ``collector`` (a :class:`SampleCollector`) of its first (``last``: the
+    last) ``limit`` leg-length samples, as it pairs them: ``(leg stamps (N,) ns, q (N, 6) m,
+    readings (N, 4))`` in stamp order.
+
+    Only the device instants within the tolerance of those samples take part, so a long
+    buffer pairs its first (or last) samples exactly as a collector holding only them.
+    """
+    legs = sorted(collector._legs)
+    if limit is not None:
+        legs = legs[-int(limit) :] if last else legs[: int(limit)]
+    if not legs:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros((0, 4))
+    margin = collector.tolerance_ns
+    subset = SampleCollector(0.0, 1, max_buffer=None)
+    subset.tolerance_ns = margin
+    subset.start(legs[0] - margin)
+    subset._legs = {stamp: collector._legs[stamp] for stamp in legs}
+    subset._device = {
+        stamp: row
+        for stamp, row in collector._device.items()
+        if legs[0] - margin <= stamp <= legs[-1] + margin
+    }
+    pairs = subset.pairs()
+    return (
+        np.array([leg for leg, _ in pairs], dtype=np.int64),
+        np.array([collector._legs[leg] for leg, _ in pairs]).reshape(-1, 6),
+        np.array([collector._device[dev] for _, dev in pairs]).reshape(-1, 4),
+    )
