@@ -17,13 +17,14 @@ from gsp_kinematics.geometry import (
     default_geometry_path,
     load_geometry,
 )
-from gsp_kinematics.goodness import DEFAULT_OUTLIER_THRESHOLD, LOSSES
+from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import (
     FORMULATIONS,
     PARAMETER_GROUPS,
     Options,
     resolve_free,
 )
+from gsp_kinematics.noise_from_data import DEFAULT_NOISE_SOURCE, NOISE_SOURCES
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
@@ -192,10 +193,23 @@ PARAMETERS = (
         Options().loss_scale,
         'Normalised residual (in sigmas) where the robust loss departs from least squares',
     ),
-    _positive(
+    ParameterSpec(
         'outlier_threshold',
-        DEFAULT_OUTLIER_THRESHOLD,
-        'A posture whose largest normalised residual (in sigmas) exceeds this is reported',
+        0.0,
+        'A posture whose largest studentised residual (each residual over its own standard '
+        'deviation under the noise the residuals show) exceeds this is reported; 0: the '
+        'Bonferroni threshold at 1 % over all residuals (about 4.3 for 600)',
+        constraints='>= 0',
+        check=at_least(0.0),
+    ),
+    _one_of(
+        'noise_source',
+        DEFAULT_NOISE_SOURCE,
+        'Where the weights, covariance, predicted accuracy and goodness of fit take the sensor '
+        'noise from: estimated (from the run: the within-posture scatter and the '
+        'between-posture residuals; the sigma_* only start the estimate) or configured (the '
+        'sigma_* parameters); docs/sensor_errors.md',
+        NOISE_SOURCES,
     ),
     ParameterSpec(
         'apply_rejected_fit',
@@ -347,7 +361,8 @@ class CalibratorSettings:
     platform_node_name: str
     loss: str = 'linear'
     loss_scale: float = Options().loss_scale  #: sigmas
-    outlier_threshold: float = DEFAULT_OUTLIER_THRESHOLD  #: sigmas
+    outlier_threshold: float = 0.0  #: studentised; 0: Bonferroni at 1 %
+    noise_source: str = DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
     apply_rejected_fit: bool = False
     posture_order: str = 'route'
     max_leg_speed: float = MotionLimits().max_speed  #: m/s
@@ -368,7 +383,9 @@ class CalibratorSettings:
     def identify_options(self):
         """The core's ``Options`` for this run's loss and outlier threshold."""
         return Options(
-            loss=self.loss, loss_scale=self.loss_scale, outlier_threshold=self.outlier_threshold
+            loss=self.loss,
+            loss_scale=self.loss_scale,
+            outlier_threshold=self.outlier_threshold or None,
         )
 
     def describe(self):
@@ -408,6 +425,7 @@ class CalibratorSettings:
             loss=str(merged['loss']),
             loss_scale=float(merged['loss_scale']),
             outlier_threshold=float(merged['outlier_threshold']),
+            noise_source=str(merged['noise_source']),
             apply_rejected_fit=bool(merged['apply_rejected_fit']),
             posture_order=str(merged['posture_order']),
             max_leg_speed=float(merged['max_leg_speed']),

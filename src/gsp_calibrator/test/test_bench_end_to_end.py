@@ -123,7 +123,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
     )
     assert calibrator_bench.main(['--skip-end-to-end']) == 0
     from gsp_calibrator.tools import bench_platform_time
-    from gsp_experiments import bench_sensor_errors
+    from gsp_experiments import bench_noise, bench_sensor_errors
 
     assert calls == [
         (
@@ -131,6 +131,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
             {
                 'end_to_end': bench.run,
                 'sensor_errors': bench_sensor_errors.run,
+                'noise_unknown': bench_noise.run,
                 'platform_time': bench_platform_time.run,
             },
         )

@@ -78,7 +78,9 @@ def test_selection_key_changes_with_its_inputs():
 @pytest.mark.parametrize('formulation', ['implicit', 'fk'])
 def test_identification_recovers_the_true_geometry(selection, formulation):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, formulation=formulation)
+    outcome = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, formulation=formulation, noise_source='configured'
+    )
     assert outcome.success, outcome.message
     assert outcome.postures == len(samples) and outcome.duration_s > 0
     errors = parameter_errors(outcome.geometry, TRUE)
@@ -171,13 +173,17 @@ def test_posture_residuals_against_the_nominal_model(selection):
 
 def test_paper_model_on_sensor_errors_is_rejected_with_a_verdict(selection):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, free=['paper'])
+    outcome = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, free=['paper'], noise_source='configured'
+    )
     assert outcome.success and not outcome.fit_accepted
     assert 'does NOT explain the data' in outcome.verdict
     assert 'try free_parameters: extended' in outcome.verdict
     summary = run_response.outcome_summary(outcome)
     assert 'result REJECTED by the goodness-of-fit check' in summary
-    extended = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    extended = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, noise_source='configured'
+    )
     assert extended.fit_accepted and 'explains the data' in extended.verdict
     assert 'sensor errors: kq1 ' in run_response.outcome_summary(extended)
 
@@ -194,3 +200,45 @@ def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
     assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
     assert 'noise lvdt: estimated' in run_response.outcome_summary(outcome)
     assert 'WARNING: differs by more than 2x' in run_response.outcome_summary(outcome)
+
+
+def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
+    """The issue's scenario in the pure pipeline: every sensor 3x noisier than configured."""
+    noisy = Sigmas(*(3.0 * value for value in SIGMAS.channels().values()))
+    samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5)
+    rng = np.random.default_rng(6)
+    spread = noisy.channel_std() * np.sqrt(rng.chisquare(9, (len(samples), 10)) / 9)
+    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS, within_posture_std=spread)
+    assert outcome.success and outcome.fit_accepted, outcome.verdict
+    assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.verdict
+    assert outcome.sigmas.leg_lengths == pytest.approx(noisy.leg_lengths / math.sqrt(10), rel=0.1)
+    for channel, entry in outcome.noise_estimates.items():
+        assert entry['source'] == 'pooled'
+        assert entry['estimated'] == pytest.approx(getattr(noisy, channel), rel=0.1), channel
+    configured = calibration.identify_from_samples(
+        NOMINAL, samples, SIGMAS, within_posture_std=spread, noise_source='configured'
+    )
+    assert configured.success and not configured.fit_accepted
+    assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict
+    summary = run_response.outcome_summary(configured)
+    assert summary.splitlines()[0].startswith(run_response.REJECTED_HEAD + ':')
+    assert 'weights from the configured noise' in summary
+    with pytest.raises(postures.CalibrationError, match='noise_source'):
+        calibration.identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='guessed')
+
+
+def test_last_progress_message_agrees_with_the_phase():
+    rejected = f'{run_response.REJECTED_HEAD}: 60 posture(s) of 60 commanded\nmore'
+    assert run_response.final_progress_message(rejected, False, '').startswith(
+        'calibration REJECTED'
+    )
+    assert (
+        run_response.final_progress_message(
+            'calibration succeeded: 60\nx', False, 'NOT applied: why'
+        )
+        == 'NOT applied: why'
+    )
+    assert (
+        run_response.final_progress_message('calibration succeeded: 60\nx', True, 'applied')
+        == 'calibration succeeded: 60'
+    )

@@ -127,7 +127,14 @@ class Suite:
             node.destroy_node()
 
 
-def make_suite(context, tmp_path, truth_file, calibrator_overrides=(), platform_overrides=()):
+def make_suite(
+    context,
+    tmp_path,
+    truth_file,
+    calibrator_overrides=(),
+    platform_overrides=(),
+    device_overrides=(),
+):
     from gsp_device_driver.device_driver_node import DeviceDriverNode
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
@@ -141,7 +148,7 @@ def make_suite(context, tmp_path, truth_file, calibrator_overrides=(), platform_
         + [Parameter('publish_markers', value=False)]
         + list(platform_overrides),
     )
-    device = DeviceDriverNode(context=context, parameter_overrides=rate)
+    device = DeviceDriverNode(context=context, parameter_overrides=rate + list(device_overrides))
     calibrator = CalibratorNode(
         context=context,
         parameter_overrides=calibrator_parameters(tmp_path / 'runs', **dict(calibrator_overrides)),

@@ -37,6 +37,9 @@ class FakeCalibrator:
             DiagnosticStatus, names.TOPIC_CALIBRATION_PROGRESS, PROGRESS_QOS
         )
         self.node.create_service(Trigger, service, self._calibrate)
+        self.node.declare_parameter('noise_source', 'estimated')
+        self.refuse_parameters = False
+        self.node.add_on_set_parameters_callback(self._on_parameters)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
 
@@ -73,6 +76,13 @@ class FakeCalibrator:
             wait_until(self.shown, WAIT_S)
         response.success = self.success
         return response
+
+    def _on_parameters(self, parameters):
+        from rcl_interfaces.msg import SetParametersResult
+
+        if self.refuse_parameters:
+            return SetParametersResult(successful=False, reason='a run is active')
+        return SetParametersResult(successful=True)
 
     def __enter__(self):
         self.spinning = SpinThread(self.executor)
@@ -115,6 +125,35 @@ def test_client_failure_exits_1(ros_context):
     assert f'run directory: {RUN_DIRECTORY}' in out
     assert 'calibration failed' in err
     assert 'collecting' not in err  # --no-progress
+
+
+def test_client_sets_the_noise_source_before_the_call(ros_context):
+    with FakeCalibrator(ros_context) as fake:
+        code, out, err = _run(
+            ros_context,
+            '--wait-timeout',
+            '10',
+            '--no-progress',
+            '--noise-source',
+            'configured',
+            '--calibrator',
+            'fake_calibrator',
+        )
+        assert code == 0, err
+        assert fake.node.get_parameter('noise_source').value == 'configured'
+        assert fake.calls == 1
+        fake.refuse_parameters = True
+        code, out, err = _run(
+            ros_context,
+            '--wait-timeout',
+            '10',
+            '--noise-source',
+            'estimated',
+            '--calibrator',
+            'fake_calibrator',
+        )
+        assert code == 1 and fake.calls == 1  # not called with the wrong noise source
+        assert 'noise_source not set: noise_source rejected: a run is active' in err
 
 
 def test_client_without_service_times_out(ros_context):

@@ -116,6 +116,7 @@ def test_summary_has_the_keys_of_the_issue():
         'run_directory',
         'collection',
         'goodness_of_fit',
+        'noise_source',
         'noise_estimates',
         'verdict',
         'fit_accepted',

@@ -24,11 +24,11 @@ from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.tools import demo, demo_commands
+from gsp_calibrator.tools import reidentify as offline
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES
-from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.testing import SpinThread
 
@@ -207,12 +207,15 @@ def identification(run):
     against the run's own estimates."""
     data = json.loads((run / 'result.json').read_text())
     options = data['options']
+    samples = read_samples(run / 'samples.csv')
+    sigmas, noise_source, _ = offline.stored_weights(data, options, samples)
     result = calibration.identify_from_samples(
         load_geometry(options['nominal_geometry_file']),
-        read_samples(run / 'samples.csv'),
-        SensorNoise.from_parameters(options),
+        samples,
+        sigmas,
         free=options['free_parameters'],
         formulation=options['formulation'],
+        noise_source=noise_source,
     ).result
     online = dict(data['estimates']['si'])
     online.update({name: entry['estimate'] for name, entry in data['sensor_errors'].items()})

@@ -294,3 +294,23 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
     np.testing.assert_allclose(
         _json_parameters(run_dir), direct.result.parameters[:44], rtol=0, atol=1e-12
     )
+
+
+@pytest.mark.parametrize('source, test', [('estimated', 'none'), ('configured', 'chi2')])
+def test_reidentify_takes_either_noise_source(tmp_path, capsys, source, test):
+    csv_path = tmp_path / 'samples.csv'
+    write_samples(csv_path, make_samples(count=30, seed=4))
+    code = offline.main(
+        [str(csv_path), '--output-root', str(tmp_path / 'runs'), '--noise-source', source]
+        + ['--no-report']
+    )
+    out = capsys.readouterr().out
+    assert code == 0, out
+    with open(f'{_run_directory(out)}/result.json', encoding='utf-8') as stream:
+        data = json.load(stream)
+    assert data['noise_source'] == source and data['options']['noise_source'] == source
+    assert data['goodness_of_fit']['test'] == test
+    if source == 'estimated':
+        # A samples.csv has no within-posture scatter: between postures only, and said so.
+        assert {entry['source'] for entry in data['noise_estimates'].values()} == {'between'}
+        assert 'not testable' in data['verdict']

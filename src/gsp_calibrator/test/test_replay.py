@@ -480,6 +480,9 @@ CALIBRATION = {
     'topic_timeout': 10.0,
     'settle_timeout': 10.0,
     'apply_rejected_fit': True,  # the test is of the replay, not of the goodness of fit
+    # A replayed samples.csv republishes averaged rows, without the within-posture scatter an
+    # estimated noise uses: the replay gives the same calibration with the configured sigmas.
+    'noise_source': 'configured',
     # The replay rests at the original's last posture, so a route from there would command the
     # postures in another order than the original's (a route from home).
     'posture_order': 'selection',

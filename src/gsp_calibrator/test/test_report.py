@@ -22,7 +22,9 @@ SIGMAS = Sigmas()
 @pytest.fixture(scope='module')
 def calibrated():
     nominal, truth = default_geometry('nominal'), default_geometry('true')
-    outcome = calibration.identify_from_samples(nominal, synthetic_samples(), SIGMAS)
+    outcome = calibration.identify_from_samples(
+        nominal, synthetic_samples(), SIGMAS, noise_source='configured'
+    )
     assert outcome.success, outcome.message
     poses = sample_valid_postures(truth, 20, np.random.default_rng(7))
     before = report_data.validation_errors(truth, nominal, poses)

@@ -281,18 +281,25 @@ def _outlier_section(true, nominal, legs, readings, commanded, validation_poses)
     return outliers
 
 
-def run(quick=False):
-    """The ``sensor_errors`` section (``quick``: fewer seeds for the model and the acceptance)."""
+def calibrator_design():
+    """``(true, nominal, pool, chosen, validation_poses)``: the shipped pair, a pool of 600, the
+    postures the calibrator selects from it for its default free set (``extended``) with its
+    default sigmas, and 50 validation postures."""
     true, nominal = default_true_and_nominal()
-    ideal_true = true.replace(sensors=nominal.sensors)  # the datum only: ideal sensors otherwise
     workspace = Workspace()
     pool = sample_valid_postures(nominal, 600, np.random.default_rng(0), workspace)
-    # Selected for the extended free set, as the calibrator selects for its free_parameters.
     chosen, _ = select_postures(
         nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='extended'
     )
-    poses = pool[chosen]
     validation_poses = sample_valid_postures(nominal, 50, np.random.default_rng(1), workspace)
+    return true, nominal, pool, chosen, validation_poses
+
+
+def run(quick=False):
+    """The ``sensor_errors`` section (``quick``: fewer seeds for the model and the acceptance)."""
+    true, nominal, pool, chosen, validation_poses = calibrator_design()
+    ideal_true = true.replace(sensors=nominal.sensors)  # the datum only: ideal sensors otherwise
+    poses = pool[chosen]
 
     # The extended model on sensor errors vs the 44 on ideal sensors (same postures and noise);
     # the goodness of fit, the noise estimates and the outliers.

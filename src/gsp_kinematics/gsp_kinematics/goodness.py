@@ -1,8 +1,12 @@
-"""Does the model explain the data? Robust weights, outliers, noise estimates and the chi-square
+"""Does the model explain the data? Robust weights, studentised outliers, noise estimates and the
 goodness of fit of an identification (docs/sensor_errors.md says how to read the verdict).
 
 Everything works on *normalised* residuals ``z = (measured - model) / sigma``: under the model and
-the configured sigmas, each is a standard normal variable.
+the right sigmas, ``z_i`` has variance ``r_i``, its redundancy number (``_solver.redundancy``).
+Two goodness-of-fit tests: ``chi2`` when the sigmas are given (configured), and the lack-of-fit
+``F`` test when they are estimated from the run (the between-posture residuals against the
+independent within-posture scatter; a chi-square against the sigmas estimated from the same
+residuals would be circular).
 """
 
 import dataclasses
@@ -13,8 +17,13 @@ from scipy import special
 
 #: Robust losses (cf. ``scipy.optimize.least_squares(loss=...)``).
 LOSSES = ('linear', 'huber', 'cauchy')
-#: A posture whose largest |z| exceeds this is reported as an outlier.
-DEFAULT_OUTLIER_THRESHOLD = 5.0
+#: Outlier threshold on the studentised residuals; None: Bonferroni at DEFAULT_SIGNIFICANCE over
+#: all residuals (:func:`bonferroni_threshold`).
+DEFAULT_OUTLIER_THRESHOLD = None
+#: Redundancy number below which a residual is not judged (the fit follows it: nothing to see).
+MIN_REDUNDANCY = 1e-3
+#: Goodness-of-fit tests: sigmas given, sigmas estimated with a pure-error estimate, neither.
+FIT_TESTS = ('chi2', 'lack_of_fit', 'none')
 #: p-value below which the model is rejected.
 DEFAULT_SIGNIFICANCE = 0.01
 #: Estimated / configured noise ratio beyond which (or below its inverse) a warning is given.
@@ -46,19 +55,36 @@ def check_loss(loss, scale):
 
 @dataclasses.dataclass(frozen=True)
 class GoodnessOfFit:
-    """Chi-square of the normalised residuals against its degrees of freedom."""
+    """A goodness-of-fit test of the residuals (``test`` in :data:`FIT_TESTS`).
+
+    ``chi2``: the squared normalised residuals against ``dof``. ``lack_of_fit``: ``chi2`` is the
+    sum of the squared residuals in within-posture noise units, ``dof`` their redundancy, and
+    ``chi2 / dof`` is F-distributed with ``(dof, pure_error_dof)`` degrees of freedom. ``none``:
+    the noise came from the residuals alone and nothing independent tests it.
+    """
 
     chi2: float
-    dof: int
+    dof: float
     p_value: float
     excluded_postures: tuple = ()  #: outliers left out of the chi-square (robust fits only)
+    test: str = 'chi2'
+    pure_error_dof: float = math.nan  #: within-posture degrees of freedom (lack_of_fit)
 
     @property
     def accepted(self):
+        if self.test == 'none':
+            return self.dof > 0
         return self.dof > 0 and self.p_value >= DEFAULT_SIGNIFICANCE
 
+    @property
+    def f_statistic(self):
+        return self.chi2 / self.dof if self.dof > 0 else math.nan
+
     def as_dict(self):
-        return {'chi2': self.chi2, 'dof': self.dof, 'p_value': self.p_value}
+        record = {'test': self.test, 'chi2': self.chi2, 'dof': self.dof, 'p_value': self.p_value}
+        if self.test == 'lack_of_fit':
+            record.update(f_statistic=self.f_statistic, pure_error_dof=self.pure_error_dof)
+        return record
 
 
 def goodness_of_fit(normalised, unknowns, excluded=()):
@@ -78,10 +104,82 @@ def goodness_of_fit(normalised, unknowns, excluded=()):
     return GoodnessOfFit(chi2, dof, p_value, tuple(int(m) for m in excluded))
 
 
+def lack_of_fit(between, redundancy, pure_error_dof, excluded=()):
+    """Lack-of-fit F test: ``between`` (the sum of the squared residuals in units of the
+    within-posture noise of the averaged rows) over its ``redundancy`` against an independent
+    within-posture estimate with ``pure_error_dof`` degrees of freedom: F(redundancy, dof)."""
+    statistic = between / redundancy if redundancy > 0 else math.nan
+    # fdtrc is scipy.stats.f.sf without the distribution machinery's overhead.
+    p_value = (
+        float(special.fdtrc(redundancy, pure_error_dof, statistic)) if redundancy > 0 else math.nan
+    )
+    return GoodnessOfFit(
+        float(between),
+        float(redundancy),
+        p_value,
+        tuple(int(m) for m in excluded),
+        'lack_of_fit',
+        float(pure_error_dof),
+    )
+
+
+def channel_of_column(name):
+    """The noise channel (:data:`NOISE_CHANNELS`) of a residual column (``leg3``, ``alpha``...)."""
+    if name.startswith('leg'):
+        return 'leg_lengths'
+    return {'alpha': 'inclinometer', 'beta': 'inclinometer', 'phi': 'encoder', 'd_m': 'lvdt'}[name]
+
+
+def channel_columns(columns):
+    """``{channel: [column indices]}`` of the residual columns named ``columns``."""
+    grouped = {}
+    for index, name in enumerate(columns):
+        grouped.setdefault(channel_of_column(name), []).append(index)
+    return grouped
+
+
+def variance_components(normalised, redundancy, columns, weights=None):
+    """``{channel: (q, r)}``: the weighted sum of squared normalised residuals ``q`` and the sum of
+    redundancy numbers ``r`` of each channel's residuals (finite ones). ``q / r`` estimates the
+    channel's variance factor, ``(true sigma / sigma used)^2`` (Förstner's estimate)."""
+    normalised = np.asarray(normalised, dtype=float)
+    squared = normalised**2 if weights is None else np.asarray(weights) * normalised**2
+    components = {}
+    for channel, indices in channel_columns(columns).items():
+        z2, r = squared[:, indices], np.asarray(redundancy)[:, indices]
+        finite = np.isfinite(z2) & np.isfinite(r)
+        components[channel] = (float(np.sum(z2[finite])), float(np.sum(r[finite])))
+    return components
+
+
+def studentised(normalised, redundancy, columns, components):
+    """Studentised residuals ``z / sqrt(r f)`` (M, k): each residual over its own standard
+    deviation, with ``f = q / r`` its channel's variance factor (:func:`variance_components`).
+    Residuals with a redundancy below :data:`MIN_REDUNDANCY` (the fit follows them) give 0."""
+    factors = np.ones(len(columns))
+    for channel, indices in channel_columns(columns).items():
+        q, r = components[channel]
+        factors[indices] = q / r if r > 0 and q > 0 else 1.0
+    redundancy = np.asarray(redundancy, dtype=float)
+    usable = np.nan_to_num(redundancy, nan=0.0) >= MIN_REDUNDANCY
+    scale = np.sqrt(np.where(usable, redundancy, 1.0) * factors)
+    return np.where(usable, np.asarray(normalised, dtype=float) / scale, 0.0)
+
+
+def bonferroni_threshold(count, significance=DEFAULT_SIGNIFICANCE):
+    """|t| beyond which one of ``count`` standard normal residuals is an outlier at the family-wise
+    ``significance`` (two-sided Bonferroni)."""
+    return float(special.ndtri(1.0 - significance / (2.0 * max(int(count), 1))))
+
+
 def outlier_postures(normalised, threshold=DEFAULT_OUTLIER_THRESHOLD, columns=None):
-    """Postures whose largest |z| exceeds ``threshold``, worst first:
-    ``[{'posture', 'max_normalised_residual', 'sensor'}]``; ``columns`` names the residual columns."""
-    normalised = np.abs(np.nan_to_num(np.asarray(normalised, dtype=float), nan=0.0))
+    """Postures whose largest |t| (studentised residuals, :func:`studentised`) exceeds
+    ``threshold`` (None: :func:`bonferroni_threshold` over the finite residuals), worst first:
+    ``[{'posture', 'max_studentised_residual', 'sensor'}]``; ``columns`` names the residual columns."""
+    normalised = np.asarray(normalised, dtype=float)
+    if threshold is None:
+        threshold = bonferroni_threshold(np.count_nonzero(np.isfinite(normalised)))
+    normalised = np.abs(np.nan_to_num(normalised, nan=0.0))
     worst = normalised.max(axis=1) if normalised.size else np.zeros(0)
     report = []
     for m in np.argsort(-worst):
@@ -91,7 +189,7 @@ def outlier_postures(normalised, threshold=DEFAULT_OUTLIER_THRESHOLD, columns=No
         report.append(
             {
                 'posture': int(m),
-                'max_normalised_residual': float(worst[m]),
+                'max_studentised_residual': float(worst[m]),
                 'sensor': columns[column] if columns else column,
             }
         )
@@ -118,14 +216,14 @@ NOISE_CHANNELS = {
 }
 
 
-def estimate_noise(sample_std, n_samples, configured):
-    """Per-sample noise of each sensor from the scatter within each posture.
+def within_posture_noise(sample_std, n_samples):
+    """Per-sample noise of each channel from the scatter within each posture:
+    ``{channel: (sigma, dof)}`` (only channels with data).
 
     ``sample_std`` (M, 10): per posture, the sample standard deviation (ddof 1) of the 6 legs and
-    the 4 readings over its ``n_samples`` (M,) samples; ``configured``: ``{channel: sigma}``.
-    The pooled estimate ``sqrt(sum (n-1) s^2 / sum (n-1))`` is unbiased in the variance.
-    Returns ``{channel: {'configured', 'estimated', 'ratio', 'warning'}}`` (only channels with
-    data; ``warning`` when the ratio is beyond :data:`NOISE_WARNING_RATIO` either way).
+    the 4 readings over its ``n_samples`` (M,) samples. The pooled estimate
+    ``sqrt(sum (n-1) s^2 / sum (n-1))`` is unbiased in the variance; ``dof = sum (n - 1)`` over the
+    channel's columns.
     """
     sample_std = np.asarray(sample_std, dtype=float).reshape(-1, 10)
     degrees = np.clip(np.asarray(n_samples, dtype=float).reshape(-1) - 1.0, 0.0, None)
@@ -135,46 +233,90 @@ def estimate_noise(sample_std, n_samples, configured):
         usable = np.all(np.isfinite(values), axis=1) & (degrees > 0)
         if not usable.any():
             continue
-        variance = np.sum(degrees[usable, None] * values[usable] ** 2) / (
-            np.sum(degrees[usable]) * values.shape[1]
-        )
-        estimated = math.sqrt(variance)
+        dof = float(np.sum(degrees[usable]) * values.shape[1])
+        variance = np.sum(degrees[usable, None] * values[usable] ** 2) / dof
+        estimates[channel] = (math.sqrt(variance), dof)
+    return estimates
+
+
+def noise_warning(estimated, configured):
+    """``(ratio, warning)``: estimated / configured, and whether it is beyond
+    :data:`NOISE_WARNING_RATIO` either way."""
+    ratio = estimated / configured if configured > 0 else math.inf
+    return ratio, not (1.0 / NOISE_WARNING_RATIO <= ratio <= NOISE_WARNING_RATIO)
+
+
+def estimate_noise(sample_std, n_samples, configured):
+    """Per-sample noise of each sensor from the scatter within each posture
+    (:func:`within_posture_noise`) beside the ``configured`` ``{channel: sigma}``:
+    ``{channel: {'configured', 'estimated', 'ratio', 'warning'}}``."""
+    estimates = {}
+    for channel, (estimated, _) in within_posture_noise(sample_std, n_samples).items():
         sigma = float(configured[channel])
-        ratio = estimated / sigma if sigma > 0 else math.inf
+        ratio, warning = noise_warning(estimated, sigma)
         estimates[channel] = {
             'configured': sigma,
             'estimated': estimated,
             'ratio': ratio,
-            'warning': not (1.0 / NOISE_WARNING_RATIO <= ratio <= NOISE_WARNING_RATIO),
+            'warning': warning,
         }
     return estimates
 
 
+def _head(fit):
+    """The verdict's first clause: the test, its statistic and p-value."""
+    if fit.test == 'lack_of_fit':
+        return (
+            f'goodness of fit (lack-of-fit F test, noise estimated from the run): '
+            f'F {fit.f_statistic:.3f} for ({fit.dof:.0f}, {fit.pure_error_dof:.0f}) dof, '
+            f'p = {fit.p_value:.3g}'
+        )
+    return f'goodness of fit: chi2 {fit.chi2:.1f} for {fit.dof:.0f} dof, p = {fit.p_value:.3g}'
+
+
 def verdict(fit, outliers=(), noise=None, free_sensor_errors=False):
-    """Plain text: does the model explain the data, and if not, the likely causes."""
+    """Plain text: does the model explain the data, and if not, the likely causes.
+
+    ``outliers``: :func:`outlier_postures` of the studentised residuals; ``noise``:
+    ``{channel: {'warning', ...}}`` (configured sigmas that differ from the data's estimate)."""
     if fit.dof <= 0:
         return (
             'goodness of fit: not assessable (no degrees of freedom left: add postures or fix '
             'parameters)'
         )
-    head = f'goodness of fit: chi2 {fit.chi2:.1f} for {fit.dof} dof, p = {fit.p_value:.3g}'
+    if fit.test == 'none':
+        return (
+            'goodness of fit: not testable (the noise was estimated from these residuals and no '
+            'within-posture scatter was recorded to test it against)'
+        )
+    head = _head(fit)
     if fit.accepted:
-        return head + ': the model explains the data within the configured noise'
+        source = 'estimated' if fit.test == 'lack_of_fit' else 'configured'
+        return head + f': the model explains the data within the {source} noise'
     causes = []
-    ratio = fit.chi2 / fit.dof
     if outliers:
         causes.append(
             'outlier postures '
             + ', '.join(str(entry['posture']) for entry in outliers[:10])
             + ' (try loss: huber, or check those postures)'
         )
-    if noise and any(entry['warning'] for entry in noise.values()):
-        names = [name for name, entry in noise.items() if entry['warning']]
-        causes.append(f'wrong sigmas: the estimated noise of {", ".join(names)} differs > 2x')
-    if ratio > 1.0:
+    wrong = [name for name, entry in (noise or {}).items() if entry.get('warning')]
+    if fit.test == 'chi2' and wrong:
+        causes.append(
+            f'wrong sigmas: the noise of {", ".join(wrong)} estimated from the data differs > '
+            f'{NOISE_WARNING_RATIO:g}x from the configured one (noise_source: estimated)'
+        )
+    hint = '' if free_sensor_errors else ' (try free_parameters: extended)'
+    if fit.test == 'lack_of_fit':
+        causes.append(
+            'residuals between postures larger than the noise within them: an unmodelled error'
+            + hint
+            + " or sensor noise correlated over longer than a posture's averaging window"
+        )
+    elif fit.chi2 > fit.dof:
         causes.append(
             'residuals larger than the noise: an unmodelled error'
-            + ('' if free_sensor_errors else ' (try free_parameters: extended)')
+            + hint
             + ' or sigmas set too small'
         )
     else:

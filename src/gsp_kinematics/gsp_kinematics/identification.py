@@ -84,7 +84,8 @@ class Options:
     loss: str = 'linear'  #: robust loss: 'linear', 'huber' or 'cauchy' (goodness.LOSSES)
     #: Where the robust loss departs from least squares, in sigmas (Huber's 95%-efficiency 1.345).
     loss_scale: float = 1.345
-    outlier_threshold: float = goodness.DEFAULT_OUTLIER_THRESHOLD  #: |z| naming an outlier
+    #: |studentised residual| naming an outlier; None: Bonferroni over the residuals at 1 %
+    outlier_threshold: float | None = goodness.DEFAULT_OUTLIER_THRESHOLD
 
 
 @dataclasses.dataclass
@@ -112,6 +113,20 @@ class IdentificationResult:
     residual_columns: tuple = ()  #: name of each residual column
     outliers: list = dataclasses.field(default_factory=list)  #: goodness.outlier_postures
     down_weighted: list = dataclasses.field(default_factory=list)  #: [{'posture', 'weight'}]
+    #: (M, k) redundancy numbers of the residuals (their variance under the model; None: no fit)
+    redundancy: np.ndarray | None = None
+    robust_weights: np.ndarray | None = None  #: (M, k) IRLS weights of a robust fit (None: 1)
+
+    def variance_components(self):
+        """``{channel: (q, r)}`` of the residuals (:func:`goodness.variance_components`)."""
+        residuals = self.residuals
+        excluded = self.goodness_of_fit.excluded_postures if self.goodness_of_fit else ()
+        if excluded:  # postures a robust fit left out are not in its test either
+            residuals = residuals.copy()
+            residuals[list(excluded)] = np.nan
+        return goodness.variance_components(
+            residuals, self.redundancy, self.residual_columns, self.robust_weights
+        )
 
     @property
     def converged(self):
@@ -299,14 +314,22 @@ def _result(model, point, formulation, status, iterations, options):
     vector = model.nominal_vector.copy()
     residuals = model.reported_residuals(point)
     rms = {}
-    fit, outliers, down_weighted = None, [], []
+    fit, outliers, down_weighted, redundancy, weights = None, [], [], None, None
     if status >= 0:
+        columns = model.column_names()
+        redundancy = model.redundancy(point)
+        weights = None if model.root_weights is None else model.root_weights**2
+        # Each residual against its own standard deviation under the noise the residuals show:
+        # wrong sigmas scale every residual of a channel alike and name no posture.
+        components = goodness.variance_components(residuals, redundancy, columns, weights)
         outliers = goodness.outlier_postures(
-            residuals, options.outlier_threshold, model.column_names()
+            goodness.studentised(residuals, redundancy, columns, components),
+            options.outlier_threshold,
+            columns,
         )
         excluded = []
-        if model.root_weights is not None:
-            down_weighted = goodness.down_weighted_postures(model.root_weights**2)
+        if weights is not None:
+            down_weighted = goodness.down_weighted_postures(weights)
             # A robust fit judges the model on the data it kept: named outliers are left out.
             excluded = [entry['posture'] for entry in outliers]
         unknowns = model.unknowns() - (6 * len(excluded) if formulation == 'implicit' else 0)
@@ -347,6 +370,8 @@ def _result(model, point, formulation, status, iterations, options):
         residual_columns=tuple(model.column_names()),
         outliers=outliers,
         down_weighted=down_weighted,
+        redundancy=redundancy,
+        robust_weights=weights,
     )
 
 

@@ -240,6 +240,7 @@ def settings_options(settings):
         'settle_lookback',
         'settle_sigmas',
         'formulation',
+        'noise_source',
         'loss',
         'posture_count',
         'pool_size',

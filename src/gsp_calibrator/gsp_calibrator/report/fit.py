@@ -80,19 +80,32 @@ def fit_markdown(data):
     lines += ['', '## Goodness of fit', '']
     fit = data.get('goodness_of_fit')
     if fit:
-        lines.append(
-            f'chi2 {_fmt(fit["chi2"])} for {fit["dof"]} degrees of freedom, p = '
-            f'{_fmt(fit["p_value"], 3)} (loss: {data.get("loss", "linear")}).'
-        )
+        loss = data.get('loss', 'linear')
+        if fit.get('test') == 'lack_of_fit':
+            lines.append(
+                f'Lack-of-fit F test (noise estimated from the run): F '
+                f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
+                f'{_fmt(fit["pure_error_dof"])}) degrees of freedom, p = '
+                f'{_fmt(fit["p_value"], 3)} (loss: {loss}).'
+            )
+        else:
+            lines.append(
+                f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])} degrees of freedom, p = '
+                f'{_fmt(fit["p_value"], 3)} (loss: {loss}).'
+            )
     if data.get('verdict'):
         lines += ['', f'**{data["verdict"]}**']
     if data.get('fit_accepted') is False:
         lines += ['', 'The result is written but marked REJECTED and not applied.']
     if data.get('outliers'):
-        lines += ['', '| outlier posture | largest normalised residual | sensor |', '|---|---|---|']
+        lines += [
+            '',
+            '| outlier posture | largest studentised residual | sensor |',
+            '|---|---|---|',
+        ]
         for entry in data['outliers']:
             lines.append(
-                f'| {entry["posture"]} | {_fmt(entry["max_normalised_residual"], 3)} | '
+                f'| {entry["posture"]} | {_fmt(entry["max_studentised_residual"], 3)} | '
                 f'{entry["sensor"]} |'
             )
     if data.get('down_weighted'):
@@ -100,13 +113,22 @@ def fit_markdown(data):
         lines += [f'| {e["posture"]} | {_fmt(e["weight"], 3)} |' for e in data['down_weighted']]
     noise = data.get('noise_estimates') or {}
     if noise:
-        lines += ['', '| sensor noise (per sample) | configured | estimated | unit |']
-        lines.append('|---|---|---|---|')
+        used = data.get('noise_source', 'configured')
+        lines += [
+            '',
+            f'Weights from the {used} noise. Per-sample equivalents (the noise of an averaged row '
+            'times sqrt(samples)):',
+            '',
+            '| sensor noise | configured | estimated | within postures | between postures | '
+            'source | unit |',
+            '|---|---|---|---|---|---|---|',
+        ]
         for channel, entry in noise.items():
             angular = channel in ('inclinometer', 'encoder')
-            factor, unit = (math.degrees(1.0), 'deg') if angular else (1e6, 'um')
-            lines.append(
-                f'| {channel} | {_fmt(entry["configured"] * factor, 3)} | '
-                f'{_fmt(entry["estimated"] * factor, 3)} | {unit} |'
-            )
+            factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
+            values = [entry.get(key) for key in ('configured', 'estimated', 'within_posture')] + [
+                entry.get('between_postures')
+            ]
+            shown = ' | '.join(_fmt(None if v is None else v * factor, 3) for v in values)
+            lines.append(f'| {channel} | {shown} | {entry.get("source", "")} | {unit} |')
     return lines + ['']

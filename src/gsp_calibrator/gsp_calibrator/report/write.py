@@ -189,10 +189,8 @@ def outcome_inputs(outcome, nominal, options, **extra):
             'success': outcome.success,
             'failure': outcome.message or None,
             'options': options,
-            'noise_estimates': {
-                channel: {'configured': entry['configured'], 'estimated': entry['estimated']}
-                for channel, entry in outcome.noise_estimates.items()
-            },
+            'noise_source': outcome.noise_source,
+            'noise_estimates': outcome.noise_estimates,
             'fit_accepted': outcome.fit_accepted,
             'verdict': outcome.verdict or None,
             **extra,

@@ -278,6 +278,10 @@ class CalibrationRun:
         (log.info if success else log.error)(summary)
         phase = names.PHASE_DONE if success else names.PHASE_FAILED
         node.progress(
-            count, phase, summary.splitlines()[0], residuals, run_directory=session.run.path
+            count,
+            phase,
+            run_response.final_progress_message(summary, success, note),
+            residuals,
+            run_directory=session.run.path,
         )
         return success, run_response.format_response(summary, geometry)

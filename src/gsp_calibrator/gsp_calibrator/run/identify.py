@@ -16,13 +16,9 @@ import numpy as np
 
 from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
 from gsp_calibrator.run.response import outcome_summary
-from gsp_kinematics import goodness, identifiability
-from gsp_kinematics.identification import (
-    FORMULATIONS,
-    IdentificationError,
-    identify,
-    resolve_free,
-)
+from gsp_kinematics import identifiability, noise_from_data
+from gsp_kinematics.goodness import verdict
+from gsp_kinematics.identification import FORMULATIONS, IdentificationError, resolve_free
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 
 #: Comment of the calibrated geometry file and the latched result.
@@ -43,7 +39,9 @@ class CalibrationOutcome:
     postures: int = 0  #: posture rows given
     sigmas: object = None  #: the weights of the averaged rows
     duration_s: float = 0.0  #: identification wall time, s
-    noise_estimates: dict = dataclasses.field(default_factory=dict)  #: goodness.estimate_noise
+    #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
+    noise_estimates: dict = dataclasses.field(default_factory=dict)
+    noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
     verdict: str = ''  #: the goodness-of-fit verdict (plain text)
 
     @property
@@ -60,6 +58,20 @@ class CalibrationOutcome:
         return list(self.identifiability.get('names', []))
 
 
+def _unidentifiable_message(analysis, count):
+    """Why a rank-deficient result is not applied: the rank, the names, the null directions."""
+    names = analysis['names']
+    combinations = [entry['combination'] for entry in analysis['unidentifiable']]
+    shown = '; '.join(combinations[:5]) + (' ...' if len(combinations) > 5 else '')
+    return (
+        f'non-identifiable parameters: the scaled information matrix has rank '
+        f'{analysis["rank"]} of {analysis["parameters"]} with {count} posture(s); '
+        f'not identifiable: {", ".join(names) if names else "(unnamed)"} '
+        f'(null directions: {shown}). Add postures or fix these parameters '
+        '(free_parameters); nothing applied'
+    )
+
+
 def identify_from_samples(
     nominal,
     samples,
@@ -67,6 +79,7 @@ def identify_from_samples(
     free=DEFAULT_FREE,
     formulation='implicit',
     within_posture_std=None,
+    noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
@@ -75,26 +88,37 @@ def identify_from_samples(
     scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. ``within_posture_std`` (M, 10): the
-    sample standard deviation of the 6 legs and 4 readings within each posture, for the noise
-    estimates (None: not estimated). A successful outcome carries the goodness-of-fit
-    ``verdict``; :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
+    sample standard deviation of the 6 legs and 4 readings within each posture (of the last
+    rows, after a resume), for the noise estimates (None: between postures only).
+    ``noise_source``: ``estimated`` or ``configured`` (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
+    :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
+    if noise_source not in noise_from_data.NOISE_SOURCES:
+        raise CalibrationError(f'noise_source must be one of {noise_from_data.NOISE_SOURCES}')
     free_mask = resolve_free(free)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
-    outcome = CalibrationOutcome(success=False, message='', postures=count, sigmas=row_sigmas)
+    outcome = CalibrationOutcome(
+        success=False, message='', postures=count, sigmas=row_sigmas, noise_source=noise_source
+    )
     if count == 0:
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
+    within = {}
+    spread = 0 if within_posture_std is None else len(within_posture_std)
+    if 0 < spread <= count:  # a resumed run has the scatter of its last session's rows only
+        within = noise_from_data.within_row_noise(within_posture_std, samples.n_samples[-spread:])
     started = time.perf_counter()
     try:
-        result = identify(
+        result, estimates, outcome.sigmas = noise_from_data.identify_with_noise(
+            noise_source,
             nominal,
             samples.leg_lengths,
             samples.readings,
             row_sigmas,
+            within,
             formulation=formulation,
             free=free_mask,
             pose_guesses=samples.commanded_poses,
@@ -115,24 +139,12 @@ def identify_from_samples(
     analysis = identifiability.analyse_result(result)
     outcome.identifiability = analysis
     if analysis['names'] or analysis['rank'] < analysis['parameters']:
-        names = analysis['names']
-        combinations = [entry['combination'] for entry in analysis['unidentifiable']]
-        shown = '; '.join(combinations[:5]) + (' ...' if len(combinations) > 5 else '')
-        outcome.message = (
-            f'non-identifiable parameters: the scaled information matrix has rank '
-            f'{analysis["rank"]} of {analysis["parameters"]} with {count} posture(s); '
-            f'not identifiable: {", ".join(names) if names else "(unnamed)"} '
-            f'(null directions: {shown}). Add postures or fix these parameters '
-            '(free_parameters); nothing applied'
-        )
+        outcome.message = _unidentifiable_message(analysis, count)
         return outcome
     outcome.success = True
     outcome.geometry = result.geometry
-    if within_posture_std is not None and len(within_posture_std) == count:
-        outcome.noise_estimates = goodness.estimate_noise(
-            within_posture_std, samples.n_samples, sigmas.channels()
-        )
-    outcome.verdict = goodness.verdict(
+    outcome.noise_estimates = noise_from_data.noise_record(estimates, sigmas, samples.n_samples)
+    outcome.verdict = verdict(
         result.goodness_of_fit,
         result.outliers,
         outcome.noise_estimates,
@@ -172,6 +184,7 @@ def finish_run(run, settings, samples, collection, options, within_posture_std=N
         list(settings.free_parameters),
         settings.formulation,
         within_posture_std,
+        settings.noise_source,
         options=settings.identify_options(),
     )
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]

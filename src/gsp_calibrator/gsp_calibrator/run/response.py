@@ -44,7 +44,7 @@ def sensor_error_text(result):
 def _angle_or_length(channel, value):
     if channel in ('inclinometer', 'encoder'):
         return f'{math.degrees(value):.3g} deg'
-    return f'{value * 1e6:.3g} um'
+    return f'{value * 1e3:.3g} mm'
 
 
 def fit_lines(outcome):
@@ -55,10 +55,10 @@ def fit_lines(outcome):
         return lines
     if result.outliers:
         shown = ', '.join(
-            f'{entry["posture"]} ({entry["sensor"]} {entry["max_normalised_residual"]:.1f} sigma)'
+            f'{entry["posture"]} ({entry["sensor"]} {entry["max_studentised_residual"]:.1f} sigma)'
             for entry in result.outliers[:10]
         )
-        lines.append(f'outlier postures (normalised residual > threshold): {shown}')
+        lines.append(f'outlier postures (studentised residual > threshold): {shown}')
     if result.down_weighted:
         shown = ', '.join(
             f'{entry["posture"]} (weight {entry["weight"]:.3g})'
@@ -67,10 +67,12 @@ def fit_lines(outcome):
         lines.append(f'{result.loss} loss down-weighted postures: {shown}')
     for channel, entry in outcome.noise_estimates.items():
         lines.append(
-            f'noise {channel}: estimated {_angle_or_length(channel, entry["estimated"])}, '
-            f'configured {_angle_or_length(channel, entry["configured"])}'
+            f'noise {channel}: estimated {_angle_or_length(channel, entry["estimated"])} '
+            f'({entry["source"]}), configured {_angle_or_length(channel, entry["configured"])}'
             + (' -- WARNING: differs by more than 2x' if entry['warning'] else '')
         )
+    if outcome.noise_estimates:
+        lines.append(f'weights from the {outcome.noise_source} noise (noise_source)')
     return lines
 
 
@@ -141,6 +143,18 @@ def residual_summary(residual_rms):
     return ', '.join(parts)
 
 
+#: Head of the summary of a converged fit the goodness of fit rejects.
+REJECTED_HEAD = 'calibration REJECTED by the goodness of fit'
+
+
+def final_progress_message(summary, success, note):
+    """The last progress message of a run that identified: the summary's head, or, when
+    applying the result failed (``note`` 'NOT applied: ...'), that note, so that the text
+    agrees with the phase (done when ``success``, else failed)."""
+    head = summary.splitlines()[0] if summary else ''
+    return head if success or not note else note
+
+
 def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, reference=None):
     """Human summary lines of a calibration (str, no trailing newline).
 
@@ -148,7 +162,11 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
     geometry to print parameter errors against (e.g. the truth, in tests and the demo).
     """
     lines = []
-    head = 'calibration succeeded' if outcome.success else 'calibration FAILED'
+    head = 'calibration FAILED'
+    if outcome.success:
+        # A converged fit the goodness of fit rejects is not applied: the head must not say
+        # 'succeeded' above a failed phase (the client's last progress line is this head).
+        head = 'calibration succeeded' if outcome.fit_accepted else REJECTED_HEAD
     used = f'{outcome.postures} posture(s)' + (f' of {selected} commanded' if selected else '')
     lines.append(f'{head}: {used}')
     if not outcome.success:

@@ -7,7 +7,8 @@ stdout. Exit code 0 when the calibration succeeded, 1 otherwise (service missing
 out, calibration failed), 130 on Ctrl-C.
 
 Equivalent to ``ros2 service call /gsp/calibrator/calibrate std_srvs/srv/Trigger`` plus
-``ros2 topic echo /gsp/calibrator/progress``.
+``ros2 topic echo /gsp/calibrator/progress``. ``--noise-source`` first sets the calibrator's
+``noise_source`` parameter (``ros2 param set /calibrator noise_source ...``).
 """
 
 import argparse
@@ -16,11 +17,14 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.srv import SetParameters
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.run.response import parse_response, residual_summary
+from gsp_kinematics.noise_from_data import NOISE_SOURCES
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
 
@@ -137,6 +141,29 @@ class CalibrateClient(Node):
             executor.spin_once(timeout_sec=0.05)
         return True
 
+    def set_parameter(self, executor, node_name, name, value, timeout=None):
+        """Set parameter ``name`` of ``/<node_name>``; ``''`` or why it was not set."""
+        service = f'/{node_name.lstrip("/")}/set_parameters'
+        client = self.create_client(SetParameters, service)
+        try:
+            deadline = None if timeout is None else time.monotonic() + timeout
+            while not client.service_is_ready():
+                if deadline is not None and time.monotonic() >= deadline:
+                    return f'{service} not available after {timeout:g} s'
+                executor.spin_once(timeout_sec=0.05)
+            request = SetParameters.Request()
+            request.parameters = [Parameter(name, value=value).to_parameter_msg()]
+            future = client.call_async(request)
+            while not future.done():
+                if deadline is not None and time.monotonic() >= deadline:
+                    client.remove_pending_request(future)
+                    return f'{service}: no answer within {timeout:g} s'
+                executor.spin_once(timeout_sec=0.05)
+            result = future.result().results[0]
+            return '' if result.successful else f'{name} rejected: {result.reason}'
+        finally:
+            self.destroy_client(client)
+
     def call(self, executor, timeout=None):
         """Call the service, spinning (progress updates) until the response; None on timeout."""
         future = self.client.call_async(Trigger.Request())
@@ -174,6 +201,18 @@ def build_parser():
         metavar='S',
         help='longest wait for the response, s (default: 0, forever)',
     )
+    parser.add_argument(
+        '--noise-source',
+        choices=NOISE_SOURCES,
+        default=None,
+        help="set the calibrator's noise_source parameter first: the weights from the noise "
+        'estimated from the run or from the configured sigma_* (default: leave it as it is)',
+    )
+    parser.add_argument(
+        '--calibrator',
+        default=names.NODE_CALIBRATOR,
+        help='the calibrator node whose parameter --noise-source sets (default %(default)s)',
+    )
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument(
         '--geometry',
@@ -200,6 +239,13 @@ def run(args, context=None, out=None, err=None):
                 file=err,
             )
             return EXIT_FAILED
+        if args.noise_source is not None:
+            why = node.set_parameter(
+                executor, args.calibrator, 'noise_source', args.noise_source, wait
+            )
+            if why:
+                print(f'gsp_calibrate_client: noise_source not set: {why}', file=err)
+                return EXIT_FAILED
         print(f'calling {args.service} ...', file=err)
         response = node.call(executor, args.timeout if args.timeout > 0 else None)
         if progress is not None:

@@ -32,7 +32,7 @@ import numpy as np
 
 from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
-from gsp_calibrator.settings import add_run_options, run_options_error
+from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
 from gsp_calibrator.tools.demo_commands import (
     MOVING_SETTLE_TIMEOUT_S,
     NODES,
@@ -54,6 +54,7 @@ from gsp_calibrator.tools.demo_summary import (  # noqa: F401 (the demo's figure
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.noise_from_data import NOISE_SOURCES
 from gsp_msgs_py.ros_environment import (
     DomainInUseError,
     enter_private_domain,
@@ -89,6 +90,13 @@ def parse_arguments(argv=None):
     add_run_options(parser, seed_help='seed of the posture pool and the validation postures')
     parser.add_argument('--validation-postures', type=int, default=50, help='(50)')
     add = parser.add_argument
+    add(
+        '--noise-source',
+        choices=NOISE_SOURCES,
+        default=DEFAULTS['noise_source'],
+        help="the calibrator's noise_source: the weights from the noise estimated from the run "
+        f'or from its configured sigma_* ({DEFAULTS["noise_source"]})',
+    )
     add('--sensor-rate', type=float, default=200.0, help='leg-length and device rate, Hz (200)')
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
     add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')

@@ -168,6 +168,8 @@ def _calibrator_parameters(args, output_root, rate):
         '-p',
         f'formulation:={args.formulation}',
         '-p',
+        f'noise_source:={args.noise_source}',
+        '-p',
         f'free_parameters:=[{",".join(args.free)}]',
         '-p',
         'apply_result:=true',

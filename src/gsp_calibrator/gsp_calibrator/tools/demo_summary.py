@@ -82,7 +82,7 @@ class DemoSummary:
 
 
 #: Keys of the calibrator's ``result.json`` that ``summary.json`` repeats.
-FIT_KEYS = ('goodness_of_fit', 'noise_estimates', 'verdict', 'fit_accepted')
+FIT_KEYS = ('goodness_of_fit', 'noise_source', 'noise_estimates', 'verdict', 'fit_accepted')
 
 
 def fit_record(run_directory):

@@ -47,6 +47,7 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options
+from gsp_kinematics.noise_from_data import NOISE_SOURCES
 from gsp_kinematics.sensors.noise import SensorNoise
 
 EXIT_OK = 0
@@ -76,6 +77,14 @@ def build_parser():
         choices=FORMULATIONS,
         default=None,
         help=f'identification formulation ({stored} {DEFAULTS["formulation"]})',
+    )
+    parser.add_argument(
+        '--noise-source',
+        choices=NOISE_SOURCES,
+        default=None,
+        help='noise of the weights: estimated from the data (between-posture residuals; a '
+        'samples.csv keeps no within-posture scatter) or configured (the --sigma-* options) '
+        f'({stored} {DEFAULTS["noise_source"]})',
     )
     parser.add_argument(
         '--loss',
@@ -221,7 +230,13 @@ def reidentify(args, out=None):
 
     try:
         outcome = calibration.identify_from_samples(
-            nominal, samples, sigmas, free, options['formulation'], options=_options(options)
+            nominal,
+            samples,
+            sigmas,
+            free,
+            options['formulation'],
+            noise_source=options['noise_source'],
+            options=_options(options),
         )
     except (IdentificationError, postures.CalibrationError) as error:
         raise InputError(str(error)) from error
@@ -269,6 +284,27 @@ def reidentify(args, out=None):
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
 
+def stored_weights(stored, options, samples):
+    """``(sigmas, noise_source, keys of result.json to keep)`` that identify a run again from
+    its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
+
+    ``samples.csv`` keeps the averages, not the within-posture scatter an ``estimated`` run's
+    noise came from: the row noise it used (``result.json`` ``sigmas``) is given as configured
+    per-sample sigmas, and its noise estimates and goodness of fit are kept as written."""
+    source = options.get('noise_source', DEFAULTS['noise_source'])
+    sigmas, kept = SensorNoise.from_parameters(options), ('collection', 'noise_estimates')
+    if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
+        rows = SensorNoise.from_record(stored['sigmas'])
+        root = float(np.sqrt(np.median(samples.n_samples))) if len(samples) else 1.0
+        sigmas = SensorNoise.from_channels({k: v * root for k, v in rows.channels().items()})
+        return (
+            sigmas,
+            'configured',
+            kept + ('noise_source', 'goodness_of_fit', 'verdict', 'fit_accepted'),
+        )
+    return sigmas, source, kept
+
+
 def refresh_report(
     run_dir,
     truth=None,
@@ -294,23 +330,21 @@ def refresh_report(
     options = resolve_options(args, stored_options(kind, path, source_dir))
     nominal = geometry_option(options['nominal_geometry_file'], 'nominal_geometry_file')
     samples = load_input(kind, path, options)
+    stored = result_json(source_dir)
+    sigmas, source, kept_keys = stored_weights(stored, options, samples)
     outcome = calibration.identify_from_samples(
         nominal,
         samples,
-        SensorNoise.from_parameters(options),
+        sigmas,
         options['free_parameters'],
         options['formulation'],
+        noise_source=source,
         options=_options(options),
     )
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.
-    # ... and so are its noise estimates (samples.csv keeps the averages, not the scatter).
-    kept = {
-        key: value
-        for key, value in result_json(source_dir).items()
-        if key in ('collection', 'noise_estimates')
-    }
+    kept = {key: value for key, value in stored.items() if key in kept_keys}
     inputs = dataclasses.replace(
         outcome_inputs(outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept),
         validation_before=validation_before,

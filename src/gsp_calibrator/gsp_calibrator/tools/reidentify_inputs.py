@@ -13,6 +13,7 @@ from gsp_calibrator.settings import DEFAULTS, check_free_parameters
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import FORMULATIONS
+from gsp_kinematics.noise_from_data import NOISE_SOURCES
 from gsp_kinematics.sensors.noise import SensorNoise
 
 
@@ -94,6 +95,11 @@ def resolve_options(args, stored):
     if options['formulation'] not in FORMULATIONS:
         raise InputError(
             f'formulation {options["formulation"]!r} (stored) is not one of {list(FORMULATIONS)}'
+        )
+    options['noise_source'] = pick(args.noise_source, 'noise_source')
+    if options['noise_source'] not in NOISE_SOURCES:
+        raise InputError(
+            f'noise source {options["noise_source"]!r} (stored) is not one of {list(NOISE_SOURCES)}'
         )
     options['loss'] = pick(args.loss, 'loss')
     if options['loss'] not in LOSSES:

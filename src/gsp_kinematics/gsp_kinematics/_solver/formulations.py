@@ -24,6 +24,7 @@ from ..kinematics import (
 from ..rotation import wrap_angle
 from .lm import Point, Step, block_normal_equations, cost_of, eliminate_poses
 from .readings import PHI_ROW, ReadingsModel, readings_jacobians
+from .redundancy import redundancy_flat, redundancy_with_poses
 
 #: Column of the yaw reading ``phi`` in ``READING_NAMES`` (an angle: its residual is wrapped).
 _PHI = READING_NAMES.index('phi')
@@ -221,6 +222,10 @@ class _FkModel(_Model):
         flat_jacobian = point.linearization.reshape(-1, point.linearization.shape[2])
         return flat_jacobian.T @ flat_jacobian
 
+    def redundancy(self, point):
+        """Redundancy numbers (M, k) of the weighted residuals; NaN rows: postures left out."""
+        return redundancy_flat(point.linearization, self.active)
+
     def reported_residuals(self, point):
         """Normalised residuals (no robust weights) with NaN rows for the postures left out."""
         residuals = point.residuals.copy()
@@ -389,6 +394,13 @@ class _ImplicitModel(_Model):
     def information(self, point):
         reduced, _ = eliminate_poses(*point.linearization.normal_equations())
         return reduced[:, :-1]
+
+    def redundancy(self, point):
+        """Redundancy numbers (M, k) of the weighted residuals (the poses are unknowns too)."""
+        augmented = point.linearization()
+        return redundancy_with_poses(
+            augmented[:, :, :6], augmented[:, :, 6:-1], self.information(point)
+        )
 
     def reported_residuals(self, point):
         """Normalised residuals (no robust weights)."""

@@ -1,0 +1,43 @@
+"""Redundancy numbers of a weighted least-squares fit (private).
+
+The redundancy number of a residual is ``r_i = 1 - h_ii``, ``h_ii`` the diagonal of the hat matrix
+``J (J^T J)^-1 J^T`` of the weighted Jacobian: the share of the residual's variance that the fit
+leaves in the residual. They sum to the degrees of freedom. A residual's expected square is
+``r_i sigma_i^2``, which is what the variance-component estimate and the studentised residuals
+use (Förstner 1979; Koch, Parameter Estimation and Hypothesis Testing in Linear Models, 4.2.2).
+"""
+
+import numpy as np
+
+
+def redundancy_flat(jacobian, active=None):
+    """``(M, k)`` redundancy numbers of a Jacobian ``(M, k, n)``; rows of inactive postures
+    (``active`` False) are NaN (they are not in the fit)."""
+    count, k, n = jacobian.shape
+    flat = jacobian.reshape(-1, n)
+    covariance = np.linalg.pinv(flat.T @ flat)
+    leverage = np.einsum('ij,jk,ik->i', flat, covariance, flat).reshape(count, k)
+    redundancy = 1.0 - leverage
+    if active is not None:
+        redundancy[~np.asarray(active, dtype=bool)] = np.nan
+    return redundancy
+
+
+def redundancy_with_poses(jac_pose, jac_u, information):
+    """``(M, k)`` redundancy numbers of the implicit formulation: Jacobians w.r.t. each posture's
+    pose ``(M, k, 6)`` and the parameters ``(M, k, n)``, ``information`` the Schur-reduced
+    ``S = J_u^T J_u - sum_m W_m^T U_m^-1 W_m`` (n, n).
+
+    With the block inverse of the arrow-shaped normal equations, the hat matrix's diagonal of the
+    rows of posture m is ``diag(P U^-1 P^T) + diag(E S^-1 E^T)``, ``P, Q`` its pose and parameter
+    Jacobians, ``U = P^T P``, ``W = P^T Q``, ``E = Q - P U^-1 W``: one batched 6x6 inverse.
+    """
+    inverse_u = np.linalg.pinv(np.matmul(np.swapaxes(jac_pose, 1, 2), jac_pose))
+    pose_part = jac_pose @ inverse_u  # (M, k, 6)
+    leverage = np.einsum('mkj,mkj->mk', pose_part, jac_pose)
+    if jac_u.shape[2]:
+        w = np.matmul(np.swapaxes(jac_pose, 1, 2), jac_u)  # (M, 6, n)
+        e = jac_u - pose_part @ w
+        covariance = np.linalg.pinv(information)
+        leverage += np.einsum('mki,ij,mkj->mk', e, covariance, e)
+    return 1.0 - leverage
