@@ -4,12 +4,11 @@ the rebuild of the run from its recording takes the same windows after the same 
 
 import json
 import re
-import subprocess
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
-from test_end_to_end import DEMO_TIMEOUT_S, demo_command
+from test_end_to_end import run_demo
 
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.run.directory import read_samples
@@ -26,16 +25,11 @@ FALSE_ALARM = 1e-3
 
 def test_realistic_device_rows_have_no_bias_beyond_their_noise(tmp_path):
     env, _ = marked_environment()
-    completed = subprocess.run(
-        demo_command()
-        + ['--output-root', str(tmp_path / 'runs'), '--sensor-dynamics', 'realistic']
+    completed, output = run_demo(
+        ['--output-root', str(tmp_path / 'runs'), '--sensor-dynamics', 'realistic']
         + ['--postures', str(POSTURES), '--validation-postures', '5'],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=DEMO_TIMEOUT_S,
+        env,
     )
-    output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output
     run = Path(re.findall(r'^run directory: (.+)$', completed.stdout, re.MULTILINE)[-1])
     samples = read_samples(run / 'samples.csv')

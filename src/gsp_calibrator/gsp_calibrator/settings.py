@@ -78,6 +78,18 @@ def _positive(name, default, description, unit=''):
     return ParameterSpec(name, default, description, unit=unit, constraints='> 0', check=_POSITIVE)
 
 
+def _seconds(name, default, description):
+    """A time in s that must be finite and >= 0."""
+    return ParameterSpec(
+        name,
+        default,
+        description,
+        unit='s',
+        constraints='>= 0',
+        check=at_least(0.0, reason='must be finite and >= 0 s'),
+    )
+
+
 def _one_of(name, default, description, options):
     """A parameter that must be one of ``options``."""
     return ParameterSpec(
@@ -129,14 +141,11 @@ PARAMETERS = (
         constraints='>= 1',
         check=at_least(1),
     ),
-    ParameterSpec(
+    _seconds(
         'sync_tolerance',
         0.0025,
         'Largest stamp difference of a leg-length sample and the device sample it is '
         'paired with (about half the sensor period)',
-        unit='s',
-        constraints='>= 0',
-        check=at_least(0.0, reason='must be finite and >= 0 s'),
     ),
     _positive(
         'settle_timeout',
@@ -145,15 +154,12 @@ PARAMETERS = (
         'status; a posture that does not settle is skipped',
         unit='s',
     ),
-    ParameterSpec(
+    _seconds(
         'settle_lookback',
         0.0,
         'Span the settle rule judges each channel over, ending with the averaged window (at '
-        "least that window): set it to at least the slowest sensor's response time; the "
+        "least that window): about 5 times the slowest sensor's response time; the "
         'readings are waited for until at rest over it (docs/sensor_errors.md)',
-        unit='s',
-        constraints='>= 0',
-        check=at_least(0.0, reason='must be finite and >= 0 s'),
     ),
     _positive(
         'settle_sigmas',
