@@ -114,3 +114,10 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert summary['max_param_error_mm'] == pytest.approx(np.max(np.abs(errors[:43])))
     rows = (run / 'samples.csv').read_text().strip().splitlines()
     assert 55 <= len(rows) - 1 <= 60
+
+    # The report against the truth, with its plots: the demo draws them once it has validated
+    # (its calibrator runs with write_report_plots false).
+    report = (run / 'report.md').read_text(encoding='utf-8')
+    assert 'Errors against the true geometry' in report and '## Validation' in report
+    for name in ('parameter_errors', 'chain_errors', 'residuals', 'validation', 'accuracy_map'):
+        assert f']({name}.png)' in report and (run / f'{name}.png').stat().st_size > 10_000, name

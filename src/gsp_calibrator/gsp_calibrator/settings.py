@@ -261,6 +261,13 @@ PARAMETERS = (
         check=lambda v: '' if str(v).strip() else 'must not be empty',
     ),
     ParameterSpec(
+        'write_report_plots',
+        True,
+        'Draw the PNG plots of report.md (parameter and chain errors, residuals, accuracy map); '
+        'false: result.json, report.md (saying the plots were skipped) and the CSVs only, '
+        'which is much faster',
+    ),
+    ParameterSpec(
         'resume_run_directory',
         '',
         'Run directory /gsp/calibrator/resume continues; empty: the latest unfinished run under '
@@ -375,6 +382,7 @@ class CalibratorSettings:
     max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
     settle_lookback: float = 0.0  #: s
     settle_sigmas: float = DEFAULT_SETTLE_SIGMAS
+    write_report_plots: bool = True
 
     @property
     def motion_limits(self):
@@ -438,4 +446,5 @@ class CalibratorSettings:
             max_leg_acceleration=float(merged['max_leg_acceleration']),
             settle_lookback=float(merged['settle_lookback']),
             settle_sigmas=float(merged['settle_sigmas']),
+            write_report_plots=bool(merged['write_report_plots']),
         )

@@ -153,6 +153,8 @@ def node_suite(tmp_path, ros_context, postures):
         'apply_result:=false',
         '-p',
         f'topic_timeout:={TOPIC_TIMEOUT_S}',
+        '-p',
+        'write_report_plots:=false',  # the tests are of the faults, not of the report's plots
     ]
     env = demo_commands.ros_environment(dict(os.environ))
     processes = NodeProcesses(commands, env, tmp_path)

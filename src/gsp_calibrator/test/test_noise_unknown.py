@@ -77,7 +77,7 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
         run.path,
         truth=truth,
         validation_after=validation_errors(truth, calibrated, poses),
-        write_pngs=False,
+        plots=False,
     )
     refreshed = json.loads((run.path / 'result.json').read_text())
     assert refreshed['fit_accepted'] is True and refreshed['noise_source'] == 'estimated'

@@ -1,6 +1,7 @@
 """gsp_reidentify: offline equals the pipeline the node runs; bad input exits 2 with a reason."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ from synthetic import synthetic_samples as make_samples
 
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
 from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import read_samples, write_samples
@@ -185,13 +187,17 @@ def test_offline_from_recording(tmp_path, capsys):
         options = json.load(stream)['options']
     assert options['samples_per_posture'] == 2 and options['sync_tolerance'] == 0.0025
     assert options['sigma_lvdt'] == 2e-6 and options['source_kind'] == 'mcap'
-    # ... and the new run directory re-identifies to the same result with the same options.
-    code = offline.main([run_dir, '--output-root', str(tmp_path / 'runs'), '--no-report'])
+    # ... and the new run directory re-identifies to the same result with the same options;
+    # --no-plots: its report.md without PNGs.
+    code = offline.main([run_dir, '--output-root', str(tmp_path / 'runs'), '--no-plots'])
     out = capsys.readouterr().out
     assert code == 0, out
+    again = Path(_run_directory(out))
     np.testing.assert_allclose(
-        _json_parameters(_run_directory(out)), direct.result.parameters[:44], rtol=0, atol=1e-12
+        _json_parameters(again), direct.result.parameters[:44], rtol=0, atol=1e-12
     )
+    assert PLOTS_SKIPPED_NOTE in (again / 'report.md').read_text(encoding='utf-8')
+    assert not list(again.glob('*.png'))
 
 
 @pytest.mark.parametrize(
@@ -280,12 +286,12 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
         'non_finite_dropped': {'leg_lengths': 1},
     }
     (run_dir / 'result.json').write_text(json.dumps({'collection': collection}))
-    outcome = offline.refresh_report(
-        run_dir, truth=truth, validation_before=before, write_pngs=False
-    )
+    outcome = offline.refresh_report(run_dir, truth=truth, validation_before=before, plots=False)
     assert outcome.success
     with open(run_dir / 'result.json', encoding='utf-8') as stream:
         data = json.load(stream)
+    assert PLOTS_SKIPPED_NOTE in (run_dir / 'report.md').read_text(encoding='utf-8')
+    assert not list(run_dir.glob('*.png'))
     assert data['collection'] == collection
     assert data['parameter_errors']['reference'] == 'truth'
     validated = data['validation']['before']

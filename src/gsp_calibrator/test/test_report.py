@@ -222,3 +222,47 @@ def test_no_prediction_without_a_full_rank_covariance(calibrated):
     assert report_accuracy.prediction_for(dataclasses.replace(result, information=singular)) is None
     unconverged = dataclasses.replace(result, status=0)
     assert report_accuracy.result_json_entry(report_accuracy.prediction_for(unconverged)) is None
+
+
+def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
+    """The calibrator's ``write_report_plots``: false skips every PNG and says so in report.md;
+    result.json, report.md's tables and result.yaml are as with the plots (the default)."""
+    from gsp_calibrator.run.directory import RESULT_FILE, RunDirectory
+    from gsp_calibrator.settings import CalibratorSettings
+
+    samples = synthetic_samples(count=25, seed=5)
+    collection = {'skipped': [], 'inconsistent_dropped': 0}
+    written = {}
+    for plots in (True, False):
+        settings = CalibratorSettings.from_values(
+            {'posture_count': 25, 'free_parameters': ['paper'], 'write_report_plots': plots}
+        )
+        if plots:  # the parameter's default
+            default = CalibratorSettings.from_values({'posture_count': 25})
+            assert default.write_report_plots is True
+        run = RunDirectory(tmp_path / str(plots))
+        run.path.mkdir()
+        finished = calibration.finish_run(run, settings, samples, collection, {'plots': plots})
+        assert finished.outcome.success and finished.report_error == ''
+        written[plots] = run.path
+    with_plots, without_plots = written[True], written[False]
+    pngs = sorted(p.name for p in with_plots.glob('*.png'))
+    assert pngs == sorted(
+        ['parameter_errors.png', 'chain_errors.png', 'residuals.png', 'accuracy_map.png']
+    )
+    assert not list(without_plots.glob('*.png'))
+    assert (without_plots / RESULT_FILE).read_text() == (with_plots / RESULT_FILE).read_text()
+    drawn = _strict_json(with_plots / 'result.json')
+    skipped = _strict_json(without_plots / 'result.json')
+    assert skipped['options'] == {'plots': False} and drawn['options'] == {'plots': True}
+    drawn.pop('duration_s'), skipped.pop('duration_s')  # wall time
+    assert {**skipped, 'options': None} == {**drawn, 'options': None}
+    text = (without_plots / 'report.md').read_text(encoding='utf-8')
+    assert report.PLOTS_SKIPPED_NOTE in text and '.png' not in text
+    assert report.PLOTS_SKIPPED_NOTE not in (with_plots / 'report.md').read_text(encoding='utf-8')
+    tables = [
+        line
+        for line in (with_plots / 'report.md').read_text(encoding='utf-8').splitlines()
+        if line.startswith('|') and 'ms' not in line
+    ]
+    assert len(tables) > len(PARAMETER_NAMES) and all(line in text for line in tables)

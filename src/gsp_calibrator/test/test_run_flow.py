@@ -157,6 +157,7 @@ def _settings(tmp_path, **values):
             'posture_count': 30,
             'pool_size': 120,
             'samples_per_posture': SAMPLES_PER_POSTURE,
+            'write_report_plots': False,  # the tests are of the flow, not of the report
             **values,
         }
     )

@@ -53,6 +53,7 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
             # enough not to take a loaded machine's pause of the simulator for a silence.
             Parameter('topic_timeout', value=5.0),
             Parameter('output_root', value=str(tmp_path / 'runs')),
+            Parameter('write_report_plots', value=False),  # the test is of the serial path
         ],
     )
     client_node = rclpy.create_node('serial_path_test', context=ros_context)

@@ -7,7 +7,9 @@
 * :func:`write_report`: ``report.md`` and its plots: ``parameter_errors.png`` (the paper's
   Figs. 6-8), ``chain_errors.png`` (Figs. 9-12), ``residuals.png`` (histograms per sensor) and
   ``validation.png`` (error distributions before and after, when a validation is given) and
-  ``accuracy_map.png`` (predicted error maps, measured validation overlaid).
+  ``accuracy_map.png`` (predicted error maps, measured validation overlaid). With
+  ``plots=False`` the PNGs are not drawn (matplotlib is the slow part of a report) and
+  ``report.md`` says so; its tables are the same.
 
 Parameter errors are taken against the true geometry when one is given (simulation), otherwise
 the plots show the correction (estimate - nominal). Report units: mm, and deg for gamma.
@@ -276,8 +278,16 @@ def _parameter_lines(data, images):
     return lines
 
 
-def report_markdown(data, images, title='Calibration report'):
-    """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots."""
+#: The line of ``report.md`` written in place of the plots when they were not drawn.
+PLOTS_SKIPPED_NOTE = (
+    '- plots: skipped (write_report_plots false, or --no-plots); '
+    '`gsp_reidentify <run directory>` writes a report with them'
+)
+
+
+def report_markdown(data, images, title='Calibration report', plots=True):
+    """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots;
+    ``plots=False``: the report says its plots were not drawn."""
     from gsp_calibrator.report import accuracy as report_accuracy
 
     lines = [f'# {title}', '']
@@ -302,6 +312,8 @@ def report_markdown(data, images, title='Calibration report'):
         )
         for entry in identifiability['unidentifiable']:
             lines.append(f'  - not identifiable: `{entry["combination"]}`')
+    if not plots:
+        lines.append(PLOTS_SKIPPED_NOTE)
     lines.append('')
     lines += _validation_lines(data, images)
     lines += _parameter_lines(data, images)
@@ -329,19 +341,26 @@ def report_markdown(data, images, title='Calibration report'):
     return '\n'.join(lines) + '\n'
 
 
-def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration report'):
+def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration report', plots=True):
     """Write ``report.md`` and its PNGs into ``run_dir`` (atomic); returns ``{kind: path}``.
 
     ``inputs``: :class:`ReportInputs`. The validation plot is drawn when a validation is given
     (distributions from per-posture arrays, else the mean and max of the summaries).
+    ``plots=False``: ``report.md`` only, saying that its plots were not drawn.
     """
-    from gsp_calibrator.report import accuracy as report_accuracy
-
     inputs = inputs.completed(result)
-    validation_before, validation_after = inputs.validation_before, inputs.validation_after
     data = result_data(result, inputs)
-    truth, nominal = inputs.truth, inputs.nominal
-    written = {}
+    written = _write_plots(run_dir, result, inputs) if plots else {}
+    images = {kind: os.path.basename(path) for kind, path in written.items()}
+    text = report_markdown(data, images, title, plots)
+    written['report'] = _path(run_dir, REPORT_MD)
+    atomic_write_text(written['report'], text)
+    return written
+
+
+def _write_plots(run_dir, result, inputs):
+    """The PNGs of :func:`write_report` (``inputs`` completed); returns ``{kind: path}``."""
+    from gsp_calibrator.report import accuracy as report_accuracy
     from gsp_calibrator.report.plots import (
         plot_chain_errors,
         plot_parameter_errors,
@@ -349,13 +368,15 @@ def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration repo
         plot_validation,
     )
 
-    written['parameter_errors'] = plot_parameter_errors(
-        _path(run_dir, PARAMETER_ERRORS_PNG), result, truth, nominal
-    )
-    written['chain_errors'] = plot_chain_errors(
-        _path(run_dir, CHAIN_ERRORS_PNG), result, truth, nominal
-    )
-    written['residuals'] = plot_residuals(_path(run_dir, RESIDUALS_PNG), result)
+    validation_before, validation_after = inputs.validation_before, inputs.validation_after
+    truth, nominal = inputs.truth, inputs.nominal
+    written = {
+        'parameter_errors': plot_parameter_errors(
+            _path(run_dir, PARAMETER_ERRORS_PNG), result, truth, nominal
+        ),
+        'chain_errors': plot_chain_errors(_path(run_dir, CHAIN_ERRORS_PNG), result, truth, nominal),
+        'residuals': plot_residuals(_path(run_dir, RESIDUALS_PNG), result),
+    }
     if validation_before is not None or validation_after is not None:
         written['validation'] = plot_validation(
             _path(run_dir, VALIDATION_PNG), validation_before, validation_after
@@ -364,16 +385,13 @@ def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration repo
         written['accuracy_map'] = report_accuracy.plot_accuracy_map(
             _path(run_dir, report_accuracy.ACCURACY_MAP_PNG), inputs.prediction
         )
-    images = {kind: os.path.basename(path) for kind, path in written.items()}
-    text = report_markdown(data, images, title)
-    written['report'] = _path(run_dir, REPORT_MD)
-    atomic_write_text(written['report'], text)
     return written
 
 
-def write_all(run_dir, result, inputs=ReportInputs(), title='Calibration report'):
-    """:func:`write_result_json` and :func:`write_report`; returns ``{kind: path}``."""
+def write_all(run_dir, result, inputs=ReportInputs(), title='Calibration report', plots=True):
+    """:func:`write_result_json` and :func:`write_report` (``plots``: draw its PNGs); returns
+    ``{kind: path}``."""
     inputs = inputs.completed(result)  # the analysis and prediction once for both files
     paths = {'result_json': write_result_json(run_dir, result, inputs)}
-    paths.update(write_report(run_dir, result, inputs, title))
+    paths.update(write_report(run_dir, result, inputs, title, plots))
     return paths

@@ -169,7 +169,8 @@ def finish_run(run, settings, samples, collection, options, within_posture_std=N
     the collected rows; ``collection``: the protocol's ``summary()`` (skipped postures, drops);
     ``options``: the run options stored with the results; ``within_posture_std``: see
     :func:`identify_from_samples`. Writes ``result.json``, ``report.md``
-    and its PNGs when identification gives a result (a failure there is returned, never raised:
+    and its PNGs (unless ``settings.write_report_plots`` is false) when identification gives a
+    result (a failure there is returned, never raised:
     the report must not fail the run) and ``result.yaml`` when the calibration succeeded.
     """
     import traceback
@@ -198,6 +199,7 @@ def finish_run(run, settings, samples, collection, options, within_posture_std=N
                 run.path,
                 outcome.result,
                 report.outcome_inputs(outcome, settings.nominal, options, collection=collection),
+                plots=settings.write_report_plots,
             )
         except Exception as error:
             report_error = f'{error}\n{traceback.format_exc()}'

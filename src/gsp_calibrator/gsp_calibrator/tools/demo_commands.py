@@ -180,6 +180,10 @@ def _calibrator_parameters(args, output_root, rate):
         'apply_rejected_fit:=true',
         '-p',
         f'settle_lookback:={_dynamics(args)["settle_lookback"]!r}',
+        # The demo redraws the report against the truth once it has validated (its
+        # refresh_report): plots drawn by the calibrator would only be overwritten.
+        '-p',
+        'write_report_plots:=false',
         *calibrator_motion_parameters(args),
     ]
 

@@ -152,6 +152,11 @@ def build_parser():
         action='store_true',
         help='write samples.csv, result.yaml and result.json only',
     )
+    parser.add_argument(
+        '--no-plots',
+        action='store_true',
+        help="write report.md without its PNG plots (the calibrator's write_report_plots: false)",
+    )
     return parser
 
 
@@ -274,7 +279,9 @@ def reidentify(args, out=None):
         ).completed(outcome.result)
         write_result_json(run, outcome.result, inputs)
         if not args.no_report:
-            write_report(run, outcome.result, inputs, title='Offline re-identification')
+            write_report(
+                run, outcome.result, inputs, 'Offline re-identification', not args.no_plots
+            )
 
     print(run_response.outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
@@ -310,10 +317,11 @@ def refresh_report(
     truth=None,
     validation_before=None,
     validation_after=None,
-    write_pngs=True,
+    plots=True,
     title='Calibration report',
 ):
-    """Rewrite ``result.json`` (and ``report.md`` with its PNGs) of an existing run directory.
+    """Rewrite ``result.json`` and ``report.md`` (with its PNGs unless ``plots`` is false) of an
+    existing run directory.
 
     For a caller that has the run directory but not the identification result, e.g. the main job
     once it knows the truth and has validated the calibrated geometry through the system. The
@@ -352,8 +360,7 @@ def refresh_report(
         truth=truth,
     ).completed(outcome.result)
     write_result_json(source_dir, outcome.result, inputs)
-    if write_pngs:
-        write_report(source_dir, outcome.result, inputs, title=title)
+    write_report(source_dir, outcome.result, inputs, title, plots)
     return outcome
 
 
