@@ -32,20 +32,27 @@ def demo_command():
     return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
 
 
-def test_main_job_calibrates_and_improves_accuracy(tmp_path):
-    env, marker = marked_environment()
-    # The demo keeps this run's ROS_DOMAIN_ID (make test sets one): a domain the demo drew at
-    # random (test_demo covers the draw) could be another concurrent run's.
-    started = time.monotonic()
+def run_demo(arguments, env):
+    """Run ``gsp_demo arguments`` in ``env``; ``(completed process, stdout + stderr)``."""
     completed = subprocess.run(
-        demo_command() + ['--output-root', str(tmp_path / 'runs'), '--validation-postures', '30'],
+        demo_command() + list(arguments),
         env=env,
         capture_output=True,
         text=True,
         timeout=DEMO_TIMEOUT_S,
     )
+    return completed, completed.stdout + completed.stderr
+
+
+def test_main_job_calibrates_and_improves_accuracy(tmp_path):
+    env, marker = marked_environment()
+    # The demo keeps this run's ROS_DOMAIN_ID (make test sets one): a domain the demo drew at
+    # random (test_demo covers the draw) could be another concurrent run's.
+    started = time.monotonic()
+    completed, output = run_demo(
+        ['--output-root', str(tmp_path / 'runs'), '--validation-postures', '30'], env
+    )
     elapsed = time.monotonic() - started
-    output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output
 
     # No node is left behind.
@@ -75,9 +82,12 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert set(collection) == {
         'skipped',
         'inconsistent_dropped',
+        'settling_dropped',
         'non_finite_dropped',
         'replacements',
+        'settle',
     }
+    assert collection['settle']['rows'] >= 1 and collection['settle']['max_s'] >= 0.0
     # Each posture the platform rejected was replaced (the pool of 600 has plenty left).
     rejected = {s['posture'] for s in collection['skipped'] if s['rejected_by_platform']}
     assert {r['rejected'] for r in collection['replacements']} == rejected

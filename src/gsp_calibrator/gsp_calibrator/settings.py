@@ -26,6 +26,7 @@ from gsp_kinematics.identification import (
 )
 from gsp_kinematics.noise_from_data import DEFAULT_NOISE_SOURCE, NOISE_SOURCES
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import parameter_specs
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, check_values, greater_than, one_of
@@ -75,6 +76,18 @@ POSTURE_ORDERS = ('route', 'selection')
 def _positive(name, default, description, unit=''):
     """A parameter that must be a finite number > 0."""
     return ParameterSpec(name, default, description, unit=unit, constraints='> 0', check=_POSITIVE)
+
+
+def _seconds(name, default, description):
+    """A time in s that must be finite and >= 0."""
+    return ParameterSpec(
+        name,
+        default,
+        description,
+        unit='s',
+        constraints='>= 0',
+        check=at_least(0.0, reason='must be finite and >= 0 s'),
+    )
 
 
 def _one_of(name, default, description, options):
@@ -128,14 +141,11 @@ PARAMETERS = (
         constraints='>= 1',
         check=at_least(1),
     ),
-    ParameterSpec(
+    _seconds(
         'sync_tolerance',
         0.0025,
         'Largest stamp difference of a leg-length sample and the device sample it is '
         'paired with (about half the sensor period)',
-        unit='s',
-        constraints='>= 0',
-        check=at_least(0.0, reason='must be finite and >= 0 s'),
     ),
     _positive(
         'settle_timeout',
@@ -143,6 +153,20 @@ PARAMETERS = (
         "Longest wait for a commanded posture's 'settled' status after its first "
         'status; a posture that does not settle is skipped',
         unit='s',
+    ),
+    _seconds(
+        'settle_lookback',
+        0.0,
+        'Span the settle rule judges each channel over, ending with the averaged window (at '
+        "least that window): about 5 times the slowest sensor's response time; the "
+        'readings are waited for until at rest over it (docs/sensor_errors.md)',
+    ),
+    _positive(
+        'settle_sigmas',
+        3.0,
+        "Trend over the settle look-back, in stds of a settled span's trend, above which a "
+        'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
+        'spans)',
     ),
     _positive(
         'topic_timeout',
@@ -356,6 +380,8 @@ class CalibratorSettings:
     posture_order: str = 'route'
     max_leg_speed: float = MotionLimits().max_speed  #: m/s
     max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
+    settle_lookback: float = 0.0  #: s
+    settle_sigmas: float = DEFAULT_SETTLE_SIGMAS
     write_report_plots: bool = True
 
     @property
@@ -418,5 +444,7 @@ class CalibratorSettings:
             posture_order=str(merged['posture_order']),
             max_leg_speed=float(merged['max_leg_speed']),
             max_leg_acceleration=float(merged['max_leg_acceleration']),
+            settle_lookback=float(merged['settle_lookback']),
+            settle_sigmas=float(merged['settle_sigmas']),
             write_report_plots=bool(merged['write_report_plots']),
         )

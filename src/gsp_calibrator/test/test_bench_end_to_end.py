@@ -122,7 +122,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
     )
     assert calibrator_bench.main(['--skip-end-to-end']) == 0
-    from gsp_calibrator.tools import bench_platform_time
+    from gsp_calibrator.tools import bench_platform_time, bench_sensor_dynamics
     from gsp_experiments import bench_noise, bench_sensor_errors
 
     assert calls == [
@@ -133,6 +133,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'sensor_errors': bench_sensor_errors.run,
                 'noise_unknown': bench_noise.run,
                 'platform_time': bench_platform_time.run,
+                'sensor_dynamics': bench_sensor_dynamics.run,
             },
         )
     ]

@@ -56,6 +56,26 @@ def test_node_commands(tmp_path):
     assert missing['calibrator'][:3] == [sys.executable, '-m', 'gsp_calibrator.calibrator_node']
 
 
+def test_the_realistic_device_preset_sets_the_device_and_the_settle_look_back(tmp_path):
+    preset = demo_commands.SENSOR_DYNAMICS['realistic']
+    for device in ('sim', 'serial'):
+        args = demo.parse_arguments(['--sensor-dynamics', 'realistic', '--device', device])
+        args.device_port = str(tmp_path / 'gsp_device')  # as the demo sets it
+        found = demo_commands.node_commands(args, str(tmp_path), which=lambda name: name)
+        source = found['gsp_fake_device' if device == 'serial' else 'device_driver']
+        for name, value in preset['device'].items():
+            expected = (
+                [f'--{name.replace("_", "-")}', repr(value)]
+                if device == 'serial'
+                else [f'{name}:={value!r}']
+            )
+            assert all(arg in source for arg in expected), (name, source)
+        assert f'settle_lookback:={preset["settle_lookback"]!r}' in found['calibrator']
+    plain = demo_commands.node_commands(demo.parse_arguments([]), str(tmp_path), lambda n: n)
+    assert not any('response_time' in arg for arg in plain['device_driver'])
+    assert 'settle_lookback:=0.0' in plain['calibrator']
+
+
 @pytest.mark.parametrize(
     'argv', [['--postures', '0'], ['--sensor-rate', '0'], ['--settle-time', '-1']]
 )

@@ -120,6 +120,26 @@ def test_state_round_trips_and_lists_what_is_left(tmp_path):
     assert run_state.latest_unfinished_run(tmp_path / 'runs') == run
 
 
+def test_settle_waits_survive_a_resume_and_give_the_statistics(tmp_path):
+    from gsp_calibrator.collection.synchroniser import PostureSample
+
+    state, _ = _state(_settings())
+    rows = {1: (0.004, 0), 2: (0.6, 110), 4: (0.2, 30)}
+    for posture, (wait, pairs) in rows.items():
+        zeros = np.zeros(6)
+        state.record_done(
+            posture, PostureSample(zeros, zeros[:4], 10, 0, zeros, zeros[:4], wait, pairs)
+        )
+    run = tmp_path / 'a_run'
+    run.mkdir()
+    run_state.write_state(run, state)
+    again = run_state.read_state(run)
+    assert again.settle_waits == state.settle_waits
+    statistics = run_state.settle_statistics(again.settle_waits)
+    assert statistics == {'rows': 3, 'median_s': 0.2, 'max_s': 0.6, 'mean_s': 0.268, 'waited': 2}
+    assert run_state.settle_statistics({})['rows'] == 0
+
+
 def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
     settings = _settings()
     state, poses = _state(settings)

@@ -139,7 +139,8 @@ def offline_run(poses, samples, rate_hz, correlation_time, seed):
     """The collection protocol's rows without ROS: platform_sim's simulator (nominal
     controller, the shipped truth, default leg noise) and device_driver's ``sim`` backend
     (default noise, the inclinometer's correlated over ``correlation_time`` s) sampled at
-    ``rate_hz`` on one clock, ``samples`` pairs averaged a posture by the collector."""
+    ``rate_hz`` on one clock, ``samples`` pairs averaged a posture by the collector (its
+    consistency and settle checks at their defaults)."""
     from gsp_device_driver.backends import SimDeviceBackend
     from gsp_platform_sim.simulator import PlatformSimulator
 
@@ -166,14 +167,17 @@ def offline_run(poses, samples, rate_hz, correlation_time, seed):
         assert platform.command(pose).accepted
         device.observe_true_pose(platform.true_pose)
         collector.start(seconds_to_ns(step / rate_hz))
-        for _ in range(samples):
-            stamp = seconds_to_ns(step / rate_hz)
-            reading = device.read(step / rate_hz)
-            collector.add_leg_lengths(stamp, platform.measured_leg_lengths())
-            collector.add_inclinometer(stamp, reading.alpha, reading.beta)
-            collector.add_encoder(stamp, reading.phi)
-            collector.add_lvdt(stamp, reading.d_m)
-            step += 1
+        chunk = samples
+        while not collector.ready():  # as the protocol: until a window passes its checks
+            for _ in range(chunk):
+                stamp = seconds_to_ns(step / rate_hz)
+                reading = device.read(step / rate_hz)
+                collector.add_leg_lengths(stamp, platform.measured_leg_lengths())
+                collector.add_inclinometer(stamp, reading.alpha, reading.beta)
+                collector.add_encoder(stamp, reading.phi)
+                collector.add_lvdt(stamp, reading.d_m)
+                step += 1
+            chunk = max(samples // 10, 1)
         row = collector.take_posture()
         rows.append(posture, pose, row.leg_lengths, row.readings, samples, row.stamp, row.lag_sums)
     return rows

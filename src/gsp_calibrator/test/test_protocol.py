@@ -316,6 +316,7 @@ def test_malformed_and_non_finite_messages_are_dropped_and_counted():
     assert collection.summary() == {
         'skipped': [],
         'inconsistent_dropped': 0,
+        'settling_dropped': 0,
         'non_finite_dropped': {'leg_lengths': 1, 'inclinometer': 0, 'encoder': 0, 'lvdt': 0},
     }
 
@@ -358,3 +359,68 @@ def test_the_topic_table_and_the_noise_vector():
     assert sigmas.channel_std().tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
     with pytest.raises(KeyError):
         protocol.read_sensor('/not/a/sensor', None)
+
+
+def settling_readings(rng, t, tau=0.1, step=2e-3):
+    """Device readings at ``t`` s after the settle: alpha still approaches R with time
+    constant ``tau`` from ``step`` rad off; every channel with its noise."""
+    readings = R + rng.normal(size=4) * np.asarray(NOISE[6:])
+    readings[0] += step * math.exp(-t / tau)
+    return readings
+
+
+def collect_settling(collection, rng, seconds, tau=0.1, step=2e-3):
+    """Settle posture 1 (start T0 + 10 ms) and feed 200 Hz samples for ``seconds``; the
+    events after the settle."""
+    settle(collection)
+    events = []
+    for j in range(int(seconds * 200)):
+        stamp = T0 + 11 * MS + 5 * MS * j
+        t = (stamp - (T0 + 10 * MS)) * 1e-9
+        q = Q + rng.normal(size=6) * 1e-6
+        events += instant(collection, stamp, q=q, readings=settling_readings(rng, t, tau, step))
+        if any(isinstance(e, event_types.FINAL_EVENTS) for e in events):
+            break
+    return events
+
+
+def test_a_posture_waits_for_a_settling_sensor_and_its_wait_is_recorded():
+    """alpha lags 2e-3 rad (118 sigma) with tau 0.1 s: the row waits until it is at rest."""
+    rng = np.random.default_rng(3)
+    collection = make(samples=10, settle_lookback=0.2)
+    (*_, row) = collect_settling(collection, rng, 2.0)
+    assert isinstance(row, event_types.RowReady)
+    # The remaining lag at the averaged window is within the noise of the row's mean.
+    wait = row.sample.settle_wait
+    left = 2e-3 * math.exp(-wait / 0.1)
+    assert left < 3 * NOISE[6] / math.sqrt(10)
+    assert abs(row.sample.readings[0] - R[0]) < 5 * NOISE[6] / math.sqrt(10)
+    assert wait >= 0.2 - 0.05  # not before the look-back is covered
+    assert collection.summary()['settling_dropped'] == round(wait / 0.005)
+
+
+def test_settle_timeout_bounds_the_wait_with_a_reason_naming_the_channel():
+    rng = np.random.default_rng(4)
+    collection = make(samples=10, settle_lookback=0.2, settle_timeout=0.5)
+    (*_, skip) = collect_settling(collection, rng, 2.0, tau=30.0, step=0.1)  # a slow drift
+    assert isinstance(skip, event_types.PostureSkipped) and skip.posture == 1
+    assert 'not settled within settle_timeout 0.5 s' in skip.reason
+    assert 'alpha still moving' in skip.reason
+
+
+def test_the_look_back_sees_a_lag_the_window_alone_cannot():
+    """The issue's case: tau 0.3 s, alpha 25 sigma off at the settle. Over the 50 ms window
+    alone (settle_lookback 0) the trend is within the noise and the row comes at once,
+    biased; judged over 0.6 s (2 tau) the row waits until the lag is within its noise."""
+    sigma_of_mean = NOISE[6] / math.sqrt(10)
+    step = 25 * NOISE[6]
+    rows = {}
+    for lookback in (0.0, 0.6):
+        rng = np.random.default_rng(5)
+        collection = make(samples=10, settle_lookback=lookback, settle_timeout=5.0)
+        (*_, rows[lookback]) = collect_settling(collection, rng, 5.0, tau=0.3, step=step)
+    biased, settled = rows[0.0].sample, rows[0.6].sample
+    assert biased.settle_wait < 0.02 and biased.readings[0] - R[0] > 10 * sigma_of_mean
+    assert settled.settle_wait > 0.6 and abs(settled.readings[0] - R[0]) < 4 * sigma_of_mean
+    # The pairs waited out are counted as settling, not as inconsistent.
+    assert rows[0.6].dropped == 0

@@ -11,6 +11,7 @@ from gsp_kinematics.sensors.noise_estimate import (
     lag_sums,
     noise_of_mean,
     noise_of_mean_from_sums,
+    settle_test,
     settled,
     trend_std_factor,
     window_lag_sums,
@@ -159,3 +160,53 @@ def test_the_whiteness_test_gives_white_samples_exactly_the_pooled_scatter():
     # Correlated samples pass the test and keep their lags.
     correlated = ar1_windows(np.random.default_rng(10), 60, 10, 0.9, np.array([1.0]))
     assert noise_of_mean(correlated, white_level=0.01).lags[0] > 0
+
+
+def first_settled_windows(signal, times, lookback, window):
+    """Per seed, the start index of the first ``window``-sample window judged settled over the
+    ``lookback`` samples ending with it (settle_test vectorised over seeds), or -1."""
+    seeds, n = signal.shape[:2]
+    first = np.full(seeds, -1)
+    for end in range(lookback - 1, n):
+        span = slice(end - lookback + 1, end + 1)
+        verdict = settle_test(signal[:, span], times[span])
+        newly = (first < 0) & verdict.settled[:, 0]
+        first[newly] = end - window + 1
+    return first
+
+
+def test_settle_rule_waits_out_an_exponential_approach_until_the_offset_is_below_the_noise():
+    """The issue's numbers: tau 0.3 s at 200 Hz, 10-sample window, judged over 2 tau."""
+    rng = np.random.default_rng(11)
+    seeds, sigma, tau, window, lookback = 400, 1.0, 0.3, 10, 120
+    times = np.arange(600) * DT  # 3 s after the platform settled
+    offset = 300.0 * sigma * np.exp(-times / tau)  # a tilt step of 300 sigma, lagging
+    signal = (offset + rng.normal(size=(seeds, times.size)) * sigma)[:, :, None]
+    first = first_settled_windows(signal, times, lookback, window)
+    assert np.all(first >= 0)
+    # The bias left in the averaged window, against the per-sample noise and the mean's noise.
+    left = np.array([offset[f : f + window].mean() for f in first])
+    assert np.median(left) < sigma / math.sqrt(window)
+    assert np.percentile(left, 95) < sigma
+    # The worked example's window (still 18 sigma off) is never taken: it would have been
+    # without the rule (the old consistency rule accepts it, see the test above).
+    start_18 = int(np.searchsorted(-offset, -18.0 * sigma))
+    assert np.all(first > start_18)
+
+
+@pytest.mark.parametrize('n', [10, 40])
+def test_settle_test_calls_settled_white_spans_moving_at_the_nominal_rate(n):
+    rng = np.random.default_rng(12 + n)
+    spans, sigma = 40000, 3e-6
+    verdict = settle_test(rng.normal(size=(spans, n, 1)) * sigma + 0.2, np.arange(n) * DT)
+    rate, expected = 1 - verdict.settled.mean(), false_unsettled_rate()
+    standard_error = math.sqrt(expected / spans)
+    # Exact (Student-t) for spans too short to count correlation; slightly below the nominal
+    # rate where the chance lags the truncation keeps make the noise a little larger.
+    assert expected - 5 * standard_error < rate < expected + 5 * standard_error
+
+
+def test_settle_test_noise_floor_keeps_a_noiseless_channel_settled():
+    flat = np.full((12, 2), 0.3) + np.arange(12)[:, None] * np.array([1e-15, 0.0])
+    assert not settle_test(flat).settled[0]  # a ramp of a few ulps on no noise
+    assert settle_test(flat, noise_floor=[1e-9, 1e-9]).settled.all()

@@ -12,9 +12,12 @@ come within ``settle_timeout`` of that first status (else skipped) and starts th
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
 the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
-consistent window gives the row (:class:`RowReady`). The posture is skipped when
-``max_pairs_per_sample * samples_per_posture`` pairs hold no consistent window, or when no window
-comes within ``settle_timeout + topic_timeout`` of the start. The run fails
+earliest consistent window whose channels are at rest over the ``settle_lookback`` ending with
+it (see :mod:`~gsp_calibrator.collection.synchroniser`) gives the row (:class:`RowReady`, with
+its ``settle_wait``). The posture is skipped when the readings still move ``settle_timeout``
+after the start (the reason names the channel and its trend), when
+``max_pairs_per_sample * samples_per_posture`` settled pairs hold no consistent window, or
+when no window comes within ``settle_timeout + topic_timeout`` of the start. The run fails
 (:class:`TopicSilent`, :class:`NoSynchronisedSample`) when a sensor topic says nothing, or the
 pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
 is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
@@ -59,6 +62,7 @@ from gsp_calibrator.collection.synchroniser import (
     LEG_LENGTHS,
     LVDT,
     SampleCollector,
+    segment_pairs,
 )
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
 from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
@@ -68,6 +72,7 @@ from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, u
     has_non_finite,
     read_sensor,
 )
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collection.synchroniser).
@@ -126,9 +131,10 @@ class _Posture:
 class CollectionProtocol:
     """The collection protocol (see the module docstring); every input returns a list of events.
 
-    ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds or None)
-    configure the collector; ``topic_timeout`` / ``settle_timeout`` (s, default: none) the
-    timeouts. Times are integer ns of one clock (receive times).
+    ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
+    ``settle_lookback`` (s) and ``settle_sigmas`` configure the collector; ``topic_timeout`` /
+    ``settle_timeout`` (s, default: none) the timeouts. Times are integer ns of one clock
+    (receive times).
     """
 
     @classmethod
@@ -140,6 +146,8 @@ class CollectionProtocol:
             settings.sigmas.channel_std(),
             topic_timeout=settings.topic_timeout,
             settle_timeout=settings.settle_timeout,
+            settle_lookback=settings.settle_lookback,
+            settle_sigmas=settings.settle_sigmas,
         )
 
     def __init__(
@@ -152,6 +160,8 @@ class CollectionProtocol:
         settle_timeout=math.inf,
         max_pairs_per_sample=MAX_PAIRS_PER_SAMPLE,
         keep_pairs=False,
+        settle_lookback=0.0,
+        settle_sigmas=DEFAULT_SETTLE_SIGMAS,
     ):
         self.samples_per_posture = int(samples_per_posture)
         self.timeouts = CollectionTimeouts(
@@ -161,8 +171,9 @@ class CollectionProtocol:
         self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
         self.keep_pairs = bool(keep_pairs)
         buffer = None if keep_pairs else max(MIN_BUFFER, 2 * self.pair_limit)
+        settle = {'settle_lookback': settle_lookback, 'settle_sigmas': settle_sigmas}
         self.collector = SampleCollector(
-            sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std
+            sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std, **settle
         )
         self._posture = None  # the awaited posture (_Posture) or None
         self._previous = None  # device readings of the previous row
@@ -215,6 +226,7 @@ class CollectionProtocol:
                 for s in self.skipped
             ],
             'inconsistent_dropped': int(self.collector.inconsistent),
+            'settling_dropped': int(self.collector.settling_dropped),
             'non_finite_dropped': {
                 stream: int(count) for stream, count in self.collector.non_finite.items()
             },
@@ -351,7 +363,8 @@ class CollectionProtocol:
             self._checked_pairs = pairs
             if collector.ready():
                 return self._row()
-            if len(pairs) >= self.pair_limit:
+            # (while the readings still move, settle_timeout bounds the wait: the timeouts)
+            if len(pairs) >= self.pair_limit and collector.unsettled is None:
                 return self._skip(
                     f'no {self.samples_per_posture} consistent samples among {len(pairs)} '
                     'synchronised ones (too noisy, or the device readings did not change from '
@@ -397,11 +410,11 @@ class CollectionProtocol:
             if self._idle is None:
                 return []
             idle, self._idle = self._idle, None
-            stamps, legs, readings = idle.stream(MAX_STREAM_SAMPLES, last=True)
+            stamps, legs, readings = segment_pairs(idle, MAX_STREAM_SAMPLES, last=True)
             return [PairsCollected(None, '', None, stamps, legs, readings)]
         if posture.state != _COLLECTING:
             return self._skip('never settled')
-        stamps, legs, readings = self.collector.stream(MAX_STREAM_SAMPLES)
+        stamps, legs, readings = segment_pairs(self.collector, MAX_STREAM_SAMPLES)
         self.collector.stop()
         self._posture = None
         if len(stamps) == 0:

@@ -20,6 +20,14 @@ same values is reporting the previous posture. (Postures that differ only by a t
 platform about its centre, with the same device position and phi, would look alike; posture
 pools sampled at random never hold such pairs.)
 
+Settling (:mod:`gsp_kinematics.sensors.noise_estimate`, docs/sensor_errors.md): a window is used
+only when every channel is at rest over the ``settle_lookback`` (s) that ends with the window (at
+least the window itself): its least-squares trend over that span is within ``settle_sigmas`` of
+the noise the span itself shows (:func:`~gsp_kinematics.sensors.noise_estimate.settle_test`, the
+per-sample noise at least ``noise_std``). A window is not judged before the look-back is covered
+by samples stamped from the start, so a slow sensor is waited for, and the wait (start to the
+window's first sample) is kept with the row (``settle_wait``).
+
 Stamps are integer nanoseconds. Messages may arrive out of order or go missing: pairing is
 recomputed from the buffers, and an incomplete device instant (one of its three topics missing)
 is never used.
@@ -31,8 +39,10 @@ import math
 
 import numpy as np
 
+from gsp_calibrator.collection import settling
 from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.rotation import wrap_angle
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 NS_PER_S = 1_000_000_000
 
@@ -51,6 +61,8 @@ DEFAULT_CONSISTENCY_THRESHOLD = 10.0
 #: Index of phi among the 10 channels [q_1..q_6, alpha, beta, phi, d_m] (compared on the circle).
 _PHI_CHANNEL = 8
 _UNKNOWN = object()
+#: Verdicts of a candidate window (:meth:`SampleCollector.window`).
+_USABLE, _INCONSISTENT, _UNSETTLED = 'usable', 'inconsistent', 'unsettled'
 
 
 def seconds_to_ns(seconds):
@@ -68,6 +80,8 @@ class PostureSample:
     stamp_ns: int  #: mean stamp of the averaged leg-length samples, ns
     leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
     readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
+    settle_wait: float = 0.0  #: s from the collection start to the first averaged sample
+    settling_pairs: int = 0  #: pairs before the window waited out as still settling
     #: (4, n // 2 + 1) the window's lag sums per noise channel (the within-posture noise
     #: estimate, ``gsp_kinematics.noise_from_data.posture_lag_sums``); None below 2 samples
     lag_sums: np.ndarray | None = None
@@ -101,13 +115,19 @@ def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
     return result
 
 
-def median_and_spread(values, noise_std):
-    """Median (10,), absolute deviations (n, 10) and robust spread (10,) of the ``(n, 10)``
-    channel values (``phi`` unwrapped around the first); the spread is at least ``noise_std``."""
-    values = values.copy()
+def unwrap_phi(values):
+    """``values`` (n, 10) with ``phi`` unwrapped around its first value (a copy)."""
+    values = np.array(values, dtype=float)
     values[:, _PHI_CHANNEL] = values[0, _PHI_CHANNEL] + wrap_angle(
         values[:, _PHI_CHANNEL] - values[0, _PHI_CHANNEL]
     )
+    return values
+
+
+def median_and_spread(values, noise_std):
+    """Median (10,), absolute deviations (n, 10) and robust spread (10,) of the ``(n, 10)``
+    channel values (``phi`` unwrapped around the first); the spread is at least ``noise_std``."""
+    values = unwrap_phi(values)
     median = np.median(values, axis=0)
     deviation = np.abs(values - median)
     spread = np.maximum(1.4826 * np.median(deviation, axis=0), noise_std)
@@ -119,9 +139,11 @@ class SampleCollector:
 
     ``sync_tolerance`` (s): largest stamp difference of a pair. ``samples_per_posture``: pairs
     averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
-    all, for a caller that wants every pair, see :meth:`stream`).
+    all, for a caller that wants every pair, see :func:`segment_pairs`).
     ``noise_std``: None (no consistency check) or the noise std of the 10 channels
-    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread.
+    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
+    settle test's noise. ``settle_lookback`` (s, >= 0) and ``settle_sigmas`` (> 0, ``inf``: no
+    settle test): the settle rule (see the module docstring).
     """
 
     def __init__(
@@ -131,6 +153,8 @@ class SampleCollector:
         max_buffer=2000,
         noise_std=None,
         consistency_threshold=DEFAULT_CONSISTENCY_THRESHOLD,
+        settle_lookback=0.0,
+        settle_sigmas=DEFAULT_SETTLE_SIGMAS,
     ):
         sync_tolerance = float(sync_tolerance)
         if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
@@ -145,6 +169,9 @@ class SampleCollector:
                 raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
         if not float(consistency_threshold) > 0.0:
             raise ValueError(f'consistency_threshold must be > 0, got {consistency_threshold}')
+        self.settle_rule = settling.SettleRule(settle_lookback, settle_sigmas)
+        #: Why the latest window judged waits for settling (``settling.Unsettled``), or None.
+        self.unsettled = None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
         self.tolerance_ns = seconds_to_ns(sync_tolerance)
@@ -156,7 +183,7 @@ class SampleCollector:
         self._device = {}  # stamp_ns -> readings (4,), NaN where not received yet
         self._pairs = None  # cached result of pairs(), None when a buffer changed
         self._window = _UNKNOWN  # cached result of window()
-        self._window_checks = {}  # tuple(window pairs) -> usable (consistent and changed)
+        self._window_checks = {}  # tuple(window pairs) -> _USABLE, _INCONSISTENT or _UNSETTLED
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
         self.non_finite = dict.fromkeys(STREAMS, 0)
         #: Finite samples received, per stream (over the collector's lifetime).
@@ -165,6 +192,8 @@ class SampleCollector:
         self.too_early = dict.fromkeys(STREAMS, 0)
         #: Pairs dropped because inconsistent with the window averaged after them.
         self.inconsistent = 0
+        #: Pairs dropped because the readings were still settling (the settle waits).
+        self.settling_dropped = 0
 
     # --- input -------------------------------------------------------------------------------
 
@@ -183,6 +212,7 @@ class SampleCollector:
         self._legs.clear()
         self._device.clear()
         self._window_checks.clear()
+        self.unsettled = None
         self._invalidate()
 
     def stop(self):
@@ -301,8 +331,9 @@ class SampleCollector:
         return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))
 
     def window(self):
-        """The pairs to average: the earliest consistent run of ``samples_per_posture``
-        consecutive pairs, or None if there is none yet."""
+        """The pairs to average: the earliest run of ``samples_per_posture`` consecutive pairs
+        that is consistent, changed from the previous posture and settled, or None if there is
+        none yet (:attr:`unsettled` then says why the latest run judged waits, if it does)."""
         if self._window is _UNKNOWN:
             self._window = None
             pairs = self.pairs()
@@ -310,11 +341,22 @@ class SampleCollector:
             for start in range(0, len(pairs) - count + 1):
                 candidate = pairs[start : start + count]
                 key = tuple(candidate)
-                usable = self._window_checks.get(key)
-                if usable is None:
-                    usable = self.consistent(candidate) and not self.unchanged(candidate)
-                    self._window_checks[key] = usable
-                if usable:
+                verdict = self._window_checks.get(key)
+                if verdict is None:
+                    verdict = _INCONSISTENT
+                    if self.consistent(candidate) and not self.unchanged(candidate):
+                        self.unsettled = self.settle_rule.verdict(
+                            pairs,
+                            start + count - 1,
+                            self.start_ns,
+                            count,
+                            lambda span: unwrap_phi(self._values(span)),
+                            self.noise_std,
+                        )
+                        verdict = _USABLE if self.unsettled is None else _UNSETTLED
+                    # (A window ending before the look-back is covered never will be.)
+                    self._window_checks[key] = verdict
+                if verdict == _USABLE:
                     self._window = candidate
                     break
         return None if self._window is None else list(self._window)
@@ -360,35 +402,6 @@ class SampleCollector:
             lag_sums=posture_lag_sums(np.hstack([legs, readings])) if len(pairs) > 1 else None,
         )
 
-    def stream(self, limit=None, last=False):
-        """Every pair of the first (``last``: the last) ``limit`` leg-length samples, as the
-        collector pairs them: ``(leg stamps (N,) ns, q (N, 6) m, readings (N, 4))`` in stamp order.
-
-        Only the device instants within the tolerance of those samples take part, so a long
-        buffer pairs its first (or last) samples exactly as a collector holding only them.
-        """
-        legs = sorted(self._legs)
-        if limit is not None:
-            legs = legs[-int(limit) :] if last else legs[: int(limit)]
-        if not legs:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros((0, 4))
-        margin = self.tolerance_ns
-        subset = SampleCollector(0.0, 1, max_buffer=None)
-        subset.tolerance_ns = margin
-        subset.start(legs[0] - margin)
-        subset._legs = {stamp: self._legs[stamp] for stamp in legs}
-        subset._device = {
-            stamp: row
-            for stamp, row in self._device.items()
-            if legs[0] - margin <= stamp <= legs[-1] + margin
-        }
-        pairs = subset.pairs()
-        return (
-            np.array([leg for leg, _ in pairs], dtype=np.int64),
-            np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, 6),
-            np.array([self._device[dev] for _, dev in pairs]).reshape(-1, 4),
-        )
-
     def take_posture(self):
         """Average the consistent window and stop collecting; ValueError if not ready."""
         window = self.window() if self.pair_count() >= self.samples_per_posture else None
@@ -397,7 +410,47 @@ class SampleCollector:
                 f'only {self.pair_count()} synchronised samples, no {self.samples_per_posture} '
                 'consistent ones'
             )
-        self.inconsistent += self.pairs().index(window[0])
-        sample = self.average(window)
+        pairs, count = self.pairs(), self.samples_per_posture
+        before = pairs.index(window[0])
+        checks = (self._window_checks.get(tuple(pairs[i : i + count])) for i in range(before))
+        unsettled = sum(check == _UNSETTLED for check in checks)
+        self.settling_dropped += unsettled
+        self.inconsistent += before - unsettled
+        sample = dataclasses.replace(
+            self.average(window),
+            settle_wait=(window[0][0] - self.start_ns) * 1e-9,
+            settling_pairs=int(unsettled),
+        )
         self.stop()
         return sample
+
+
+def segment_pairs(collector, limit=None, last=False):
+    """Every pair of ``collector`` (a :class:`SampleCollector`) of its first (``last``: the
+    last) ``limit`` leg-length samples, as it pairs them: ``(leg stamps (N,) ns, q (N, 6) m,
+    readings (N, 4))`` in stamp order.
+
+    Only the device instants within the tolerance of those samples take part, so a long
+    buffer pairs its first (or last) samples exactly as a collector holding only them.
+    """
+    legs = sorted(collector._legs)
+    if limit is not None:
+        legs = legs[-int(limit) :] if last else legs[: int(limit)]
+    if not legs:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros((0, 4))
+    margin = collector.tolerance_ns
+    subset = SampleCollector(0.0, 1, max_buffer=None)
+    subset.tolerance_ns = margin
+    subset.start(legs[0] - margin)
+    subset._legs = {stamp: collector._legs[stamp] for stamp in legs}
+    subset._device = {
+        stamp: row
+        for stamp, row in collector._device.items()
+        if legs[0] - margin <= stamp <= legs[-1] + margin
+    }
+    pairs = subset.pairs()
+    return (
+        np.array([leg for leg, _ in pairs], dtype=np.int64),
+        np.array([collector._legs[leg] for leg, _ in pairs]).reshape(-1, 6),
+        np.array([collector._device[dev] for _, dev in pairs]).reshape(-1, 4),
+    )

@@ -103,6 +103,14 @@ class CollectionTimeouts:
                 f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
+        if (
+            collector.unsettled is not None
+            and self.since(posture.started_ns, now_ns) >= self.settle_timeout
+        ):
+            return None, (
+                f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '
+                f"platform's settled status: {collector.unsettled.describe()}"
+            )
         # The collection is bounded as a whole: pairs that keep coming without a consistent
         # window would otherwise restart the progress timeout for ever.
         limit = self.settle_timeout + self.topic_timeout

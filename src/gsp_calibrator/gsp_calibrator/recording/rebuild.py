@@ -14,6 +14,7 @@ from gsp_calibrator.recording.mcap_io import read_recording, recording_info, rec
 from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_msgs_py import names
 
 
@@ -29,6 +30,15 @@ def noise_std_from_options(options):
         return SensorNoise.from_parameters(options).channel_std()
     except SensorNoiseError as error:
         raise RecordingError(str(error)) from None
+
+
+def settle_options(options):
+    """The settle rule's ``{settle_lookback, settle_sigmas}`` of a recording's stored
+    ``options`` (a recording made before the rule: the window alone, the default sigmas)."""
+    return {
+        'settle_lookback': float(options.get('settle_lookback', 0.0)),
+        'settle_sigmas': float(options.get('settle_sigmas', DEFAULT_SETTLE_SIGMAS)),
+    }
 
 
 def feed_recording(path, collection, notes=None, extra_topics=(), on_message=None):
@@ -174,12 +184,30 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
     rows are the ones the calibrator collected online (with no timeouts: the recording holds
-    only what the calibrator waited for).
+    only what the calibrator waited for), by the same settle rule (its stored options).
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
     :func:`noise_std_from_options`) default to the options stored by :meth:`RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
+    samples = Samples.empty()
+    for event in rows_from_recording(path, sync_tolerance, samples_per_posture, noise_std):
+        sample = event.sample
+        samples.append(
+            event.posture,
+            event.pose,
+            sample.leg_lengths,
+            sample.readings,
+            sample.n_samples,
+            sample.stamp,
+            sample.lag_sums,
+        )
+    return samples
+
+
+def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
+    """The :class:`~gsp_calibrator.collection.protocol.RowReady` events of
+    :func:`samples_from_recording` (with each row's ``settle_wait``), in row order."""
     first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
     stored = recording_options(first)
     if sync_tolerance is None:
@@ -198,26 +226,16 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     # session (its earlier collection was cut short) keeps its later row.
     rows = {}
     for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
-        collection = protocol.CollectionProtocol(sync_tolerance, samples_per_posture, noise_std)
+        collection = protocol.CollectionProtocol(
+            sync_tolerance, samples_per_posture, noise_std, **settle_options(stored)
+        )
         if rows:
             collection.continue_after(next(reversed(rows.values())).sample.readings)
         for event in feed_recording(part, collection):
             if isinstance(event, protocol.RowReady):
                 rows.pop(event.posture, None)
                 rows[event.posture] = event
-    samples = Samples.empty()
-    for event in rows.values():
-        sample = event.sample
-        samples.append(
-            event.posture,
-            event.pose,
-            sample.leg_lengths,
-            sample.readings,
-            sample.n_samples,
-            sample.stamp,
-            sample.lag_sums,
-        )
-    return samples
+    return list(rows.values())
 
 
 def collection_notes(info, path='<recording>'):

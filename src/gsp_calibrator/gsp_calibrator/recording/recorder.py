@@ -237,6 +237,8 @@ def settings_options(settings):
     for name in (
         'sync_tolerance',
         'samples_per_posture',
+        'settle_lookback',
+        'settle_sigmas',
         'formulation',
         'noise_source',
         'loss',

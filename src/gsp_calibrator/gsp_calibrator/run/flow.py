@@ -251,7 +251,11 @@ class CalibrationRun:
             session.run,
             settings,
             session.samples,
-            {**self.collection.summary(), 'replacements': session.state.replacements},
+            {
+                **self.collection.summary(),
+                'replacements': session.state.replacements,
+                'settle': run_state.settle_statistics(session.state.settle_waits),
+            },
             recording.settings_options(settings),
         )
         if finished.report_error:

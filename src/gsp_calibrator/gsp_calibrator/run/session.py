@@ -157,7 +157,7 @@ class RunSession:
             except OSError as error:
                 self.samples = _without_last(self.samples)
                 raise RunWriteError(self._appender.path, error) from None
-            self.state.record_done(event.posture)
+            self.state.record_done(event.posture, row)
 
     def end_posture(self, event):
         """Keep what ends a posture: a ``RowReady`` (its row) or a ``PostureSkipped``; returns

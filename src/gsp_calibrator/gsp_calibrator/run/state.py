@@ -88,6 +88,10 @@ class RunState:
     #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
     #: (1-based) in their place
     replacements: list = dataclasses.field(default_factory=list)
+    #: {posture (str): {wait_s, settling_pairs}}: each kept row's settle wait, from the
+    #: platform's settled status to the first averaged sample, and the pairs waited out as still
+    #: settling (:mod:`gsp_calibrator.collection.synchroniser`)
+    settle_waits: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self):
         data = dataclasses.asdict(self)
@@ -111,10 +115,33 @@ class RunState:
         self.skipped = [s for s in self.skipped if s['posture'] != posture]
         self.skipped.append({'posture': int(posture), 'reason': str(reason)})
 
-    def record_done(self, posture):
+    def record_done(self, posture, sample=None):
+        """``posture`` has its row; ``sample`` (its ``PostureSample``) gives its settle wait."""
         self.skipped = [s for s in self.skipped if s['posture'] != posture]
         if posture not in self.done:
             self.done.append(int(posture))
+        if sample is not None:
+            self.settle_waits[str(int(posture))] = {
+                'wait_s': float(sample.settle_wait),
+                'settling_pairs': int(sample.settling_pairs),
+            }
+
+
+def settle_statistics(waits):
+    """``result.json`` ``collection.settle`` of the kept rows' settle waits (``settle_waits``):
+    ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, and ``waited``: the rows that
+    waited for a channel still moving (not only for their first samples)."""
+    entries = list(waits.values())
+    values = np.array([entry['wait_s'] for entry in entries], dtype=float)
+    if values.size == 0:
+        return {'rows': 0, 'median_s': None, 'max_s': None, 'mean_s': None, 'waited': 0}
+    return {
+        'rows': int(values.size),
+        'median_s': float(np.median(values)),
+        'max_s': float(values.max()),
+        'mean_s': float(values.mean()),
+        'waited': sum(1 for entry in entries if entry['settling_pairs'] > 0),
+    }
 
 
 def write_state(directory, state):

@@ -36,6 +36,7 @@ from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
 from gsp_calibrator.tools.demo_commands import (
     MOVING_SETTLE_TIMEOUT_S,
     NODES,
+    SENSOR_DYNAMICS,
     node_commands,
     ros_environment,
 )
@@ -110,6 +111,14 @@ def parse_arguments(argv=None):
         type=float,
         default=0.0,
         help="platform_sim's leg acceleration limit, m/s^2 (0: none)",
+    )
+    add(
+        '--sensor-dynamics',
+        default='none',
+        choices=tuple(SENSOR_DYNAMICS),
+        help='none: an instant device with white noise; realistic: response and noise '
+        "correlation times of typical parts, and the calibrator's settle look-back to match "
+        '(docs/sensor_errors.md) (none)',
     )
     add('--startup-timeout', type=float, default=30.0, help='longest node start-up, s (30)')
     add(

@@ -47,6 +47,38 @@ def executable_command(name, which=shutil.which):
 MOVING_SETTLE_TIMEOUT_S = 60.0
 
 
+#: ``gsp_demo --sensor-dynamics``: the simulated device's response and noise correlation
+#: times (s) per sensor, and the calibrator's settle look-back (s) that goes with them
+#: (docs/sensor_errors.md: typical values of real parts, and the settle rule).
+SENSOR_DYNAMICS = {
+    'none': {'device': {}, 'settle_lookback': 0.0},
+    'realistic': {
+        'device': {
+            'inclinometer_response_time': 0.05,
+            'inclinometer_noise_correlation_time': 0.05,
+            'encoder_response_time': 0.0,
+            'encoder_noise_correlation_time': 0.0,
+            'lvdt_response_time': 0.001,
+            'lvdt_noise_correlation_time': 0.001,
+        },
+        # Five times the slowest response time: with noise as slow as the lag, a shorter span
+        # lets a lag of about the row's noise through (make bench, sensor_dynamics).
+        'settle_lookback': 0.25,
+    },
+}
+
+
+def _dynamics(args):
+    return SENSOR_DYNAMICS[getattr(args, 'sensor_dynamics', 'none')]
+
+
+def device_dynamics_parameters(args):
+    """The device's ``-p`` arguments of ``args.sensor_dynamics`` (none: the defaults)."""
+    return [
+        a for name, value in _dynamics(args)['device'].items() for a in ('-p', f'{name}:={value!r}')
+    ]
+
+
 def motion_parameters(args):
     """platform_sim's leg limits of ``--max-leg-speed`` / ``--max-leg-acceleration`` (0: none)."""
     speed = float(getattr(args, 'max_leg_speed', 0.0))
@@ -97,7 +129,13 @@ def node_commands(args, output_root, which=shutil.which):
             *common,
         ],
         'device_driver': executable_command('device_driver', which)
-        + ['--ros-args', '-p', f'true_geometry_file:={args.true_geometry}', *common],
+        + [
+            '--ros-args',
+            '-p',
+            f'true_geometry_file:={args.true_geometry}',
+            *device_dynamics_parameters(args),
+            *common,
+        ],
         'calibrator': executable_command('calibrator', which)
         + ['--ros-args', *_calibrator_parameters(args, output_root, rate)],
     }
@@ -140,6 +178,8 @@ def _calibrator_parameters(args, output_root, rate):
         # platform is the stronger check, so it applies the result and prints the verdict.
         '-p',
         'apply_rejected_fit:=true',
+        '-p',
+        f'settle_lookback:={_dynamics(args)["settle_lookback"]!r}',
         # The demo redraws the report against the truth once it has validated (its
         # refresh_report): plots drawn by the calibrator would only be overwritten.
         '-p',
@@ -186,6 +226,11 @@ def _serial_device_commands(args, rate, which):
             repr(rate),
             '--true-geometry',
             str(args.true_geometry),
+            *[
+                a
+                for name, value in _dynamics(args)['device'].items()
+                for a in (f'--{name.replace("_", "-")}', repr(value))
+            ],
         ],
         'device_driver': executable_command('device_driver', which)
         + [

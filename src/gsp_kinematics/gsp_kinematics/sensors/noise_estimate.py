@@ -24,6 +24,9 @@ DEFAULT_SETTLE_SIGMAS = 3.0
 #: docs/sensor_errors.md).
 MIN_N_EFF = 10.0
 
+#: Fewest samples over which :func:`settle_test` counts the correlation of the noise.
+MIN_CORRELATED_SPAN = 16
+
 #: Rounds of :func:`noise_of_mean`'s truncation and bias correction (they settle in 2 to 4).
 MAX_ROUNDS = 20
 
@@ -103,17 +106,17 @@ def lag_sums(samples, max_lag=None):
     return window_lag_sums(samples, max_lag).sum(axis=0)
 
 
-def noise_of_mean(samples, max_lag=None, white_level=None):
+def noise_of_mean(samples, max_lag=None, white_level=None, fitted=1):
     """Estimate, per channel, the std of one sample and of the mean of a posture's window.
 
     ``samples`` (P, n, C): P postures' windows of n consecutive samples (equally spaced in time)
     of C channels. ``max_lag``: the largest autocovariance lag considered (default ``n // 2``;
-    beyond it too few pairs remain in each window). ``white_level``: see
+    beyond it too few pairs remain in each window). ``white_level`` and ``fitted``: see
     :func:`noise_of_mean_from_sums`, of the windows' :func:`lag_sums`.
     """
     samples = _check_windows(samples)
     return noise_of_mean_from_sums(
-        lag_sums(samples, max_lag), samples.shape[1], samples.shape[0], white_level
+        lag_sums(samples, max_lag), samples.shape[1], samples.shape[0], white_level, fitted
     )
 
 
@@ -127,7 +130,7 @@ def white_statistic(autocovariance, n, windows):
     return (rho + 1.0 / (n - 1)) * math.sqrt(windows * (n - 1))
 
 
-def noise_of_mean_from_sums(sums, n, windows, white_level=None):
+def noise_of_mean_from_sums(sums, n, windows, white_level=None, fitted=1):
     """:class:`NoiseOfMean` from the pooled :func:`lag_sums` ``sums`` (K + 1, C) of ``windows``
     windows of ``n`` samples each.
 
@@ -136,7 +139,9 @@ def noise_of_mean_from_sums(sums, n, windows, white_level=None):
     scatter), which is corrected in closed form: with ``g_k = c_k + V`` in
     ``V = (1/n) [g0 + 2 sum_{k<=K} (1 - k/n) g_k]``, ``V = [c0 + 2 sum (1 - k/n) c_k] / (n - S)``,
     ``S = 1 + 2 sum_{k<=K} (1 - k/n)``. For white noise (K = 0) this is the usual ``s^2 / n``
-    with ddof 1.
+    with ddof 1. ``fitted``: terms fitted to each window before (1: its mean; 3: a line and a
+    parabola, see :func:`settle_test`): ddof ``fitted`` (each fitted term absorbs about one
+    ``V`` more).
 
     ``white_level``: None, or the significance of a test of whiteness first: a channel whose
     lag-1 autocorrelation is not significantly positive at that level (:func:`white_statistic`,
@@ -146,8 +151,10 @@ def noise_of_mean_from_sums(sums, n, windows, white_level=None):
     sums = np.asarray(sums, dtype=float)
     if sums.ndim != 2 or sums.shape[0] < 1:
         raise NoiseEstimateError(f'sums must be (lags, channels), got shape {sums.shape}')
-    n, windows = int(n), int(windows)
+    n, windows, fitted = int(n), int(windows), int(fitted)
     max_lag = sums.shape[0] - 1
+    if not 1 <= fitted < n:
+        raise NoiseEstimateError(f'fitted must be in [1, {n - 1}] for {n} samples, got {fitted}')
     if n < 2 or windows < 1 or max_lag >= n:
         raise NoiseEstimateError(
             f'need windows >= 1 of n >= 2 samples and fewer than n lags, got {windows} windows '
@@ -174,7 +181,7 @@ def noise_of_mean_from_sums(sums, n, windows, white_level=None):
         included = np.arange(max_lag + 1)[:, None] <= lags[None, :]  # (max_lag + 1, C)
         weighted = np.sum(np.where(included, doubled * autocovariance, 0.0), axis=0)
         weight_sum = np.sum(np.where(included, doubled, 0.0), axis=0)
-        variance_of_mean = np.clip(weighted / (n - weight_sum), 0.0, None)
+        variance_of_mean = np.clip(weighted / (n - weight_sum - (fitted - 1)), 0.0, None)
         if previous is not None and np.array_equal(lags, previous):
             break
     sample_variance = autocovariance[0] + variance_of_mean
@@ -247,6 +254,79 @@ def settled(window, std_of_mean, times=None, sigmas=DEFAULT_SETTLE_SIGMAS):
     return z <= sigmas, z
 
 
+@dataclasses.dataclass(frozen=True)
+class SettleTest:
+    """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled
+    span's trend), ``threshold`` (the ``z`` a channel may reach: ``sigmas`` turned into the
+    Student-t quantile of the same two-sided rate, ``n_eff - 2`` degrees of freedom),
+    ``trend`` (the change across the span, the channel's unit) and ``std_of_mean``."""
+
+    settled: np.ndarray
+    z: np.ndarray
+    threshold: np.ndarray
+    trend: np.ndarray
+    std_of_mean: np.ndarray
+
+
+def settle_test(values, times=None, sigmas=DEFAULT_SETTLE_SIGMAS, noise_floor=None):
+    """Is each channel of ``values`` (..., n, C) at rest over its span? Noise from the span.
+
+    The least-squares trend of each channel (:func:`window_trend` against ``times`` (n,) s,
+    default 0..n-1) is judged against the noise of the span itself: the residuals about the
+    straight line and a parabola, through :func:`noise_of_mean` (``fitted=3``; correlation
+    counted over lags up to n // 4 from :data:`MIN_CORRELATED_SPAN` samples on; each
+    channel and leading index on its own). The trend's std is ``std_of_mean`` x
+    :func:`trend_std_factor`; a channel is settled when ``|trend|`` is within ``threshold`` of
+    those stds: for white noise ``z`` is then Student-t with ``n - 3`` degrees of freedom, so a
+    settled channel is called moving at exactly :func:`false_unsettled_rate` (``sigmas``).
+    ``noise_floor`` (C,): the least per-sample std believed (the channel's unit), so a
+    quantised or noiseless channel whose samples barely differ is not called moving over a
+    rounding error. Returns :class:`SettleTest`.
+    """
+    from scipy import stats
+
+    values = np.asarray(values, dtype=float)
+    if values.ndim < 2 or values.shape[-2] < 4:
+        raise NoiseEstimateError(
+            f'values must be (..., samples >= 4, channels), got shape {values.shape}'
+        )
+    n, n_channels = values.shape[-2:]
+    times = np.arange(n, dtype=float) if times is None else np.asarray(times, dtype=float)
+    if times.shape != (n,) or not np.all(np.diff(times) > 0):
+        raise NoiseEstimateError('times must be (samples,) and strictly increasing')
+    centred_t = times - times.mean()
+    centred = values - values.mean(axis=-2, keepdims=True)
+    slope = np.einsum('i,...ic->...c', centred_t, centred) / (centred_t @ centred_t)
+    # The noise is the scatter about a parabola: an exponential approach bends, and its bend
+    # would otherwise count as noise and hide the trend (orthogonal to the line's slope, so
+    # for white noise the slope and this scatter are independent).
+    bend = centred_t**2 - np.mean(centred_t**2)
+    bend = bend - centred_t * (centred_t @ bend) / (centred_t @ centred_t)
+    curvature = np.einsum('i,...ic->...c', bend, centred) / (bend @ bend)
+    residuals = (
+        centred - centred_t[:, None] * slope[..., None, :] - bend[:, None] * curvature[..., None, :]
+    )
+    lead = values.shape[:-2]
+    # Every (leading index, channel) is a channel of its own for noise_of_mean.
+    columns = np.moveaxis(residuals, -2, 0).reshape(1, n, -1)
+    # Short spans cannot show their correlation (and its lags would eat the few degrees of
+    # freedom left): white below MIN_CORRELATED_SPAN samples.
+    max_lag = n // 4 if n >= MIN_CORRELATED_SPAN else 0
+    noise = noise_of_mean(columns, max_lag=max_lag, fitted=3)
+    std_of_mean = noise.std_of_mean.reshape(lead + (n_channels,))
+    n_eff = noise.n_eff.reshape(lead + (n_channels,))
+    if noise_floor is not None:
+        floor = np.broadcast_to(np.asarray(noise_floor, dtype=float), (n_channels,))
+        std_of_mean = np.maximum(std_of_mean, floor / np.sqrt(n_eff))
+    trend = slope * (times[-1] - times[0])
+    scale = std_of_mean * trend_std_factor(n)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        z = np.where(scale > 0, np.abs(trend) / np.where(scale > 0, scale, 1.0), np.inf)
+    z = np.where((scale == 0) & (trend == 0), 0.0, z)
+    threshold = stats.t.isf(0.5 * false_unsettled_rate(sigmas), np.maximum(n_eff - 1.0, 1.0))
+    return SettleTest(z <= threshold, z, threshold, trend, std_of_mean)
+
+
 def false_unsettled_rate(sigmas=DEFAULT_SETTLE_SIGMAS):
     """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
     return math.erfc(sigmas / math.sqrt(2.0))
@@ -256,11 +336,13 @@ __all__ = [
     'DEFAULT_SETTLE_SIGMAS',
     'NoiseEstimateError',
     'NoiseOfMean',
+    'SettleTest',
     'ar1_std_of_mean',
     'false_unsettled_rate',
     'lag_sums',
     'noise_of_mean',
     'noise_of_mean_from_sums',
+    'settle_test',
     'settled',
     'trend_std_factor',
     'white_statistic',
