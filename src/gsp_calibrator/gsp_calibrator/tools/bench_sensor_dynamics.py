@@ -32,6 +32,7 @@ from gsp_kinematics.prediction import predicted_errors
 from gsp_kinematics.selection import select_postures
 from gsp_kinematics.sensors.dynamics import SensorDynamics
 from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
 from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
 from gsp_msgs_py import conversions, names
 
@@ -65,11 +66,10 @@ def device_times():
 def row_noise(correlation, n=SAMPLES, sigmas=SIGMAS):
     """The true noise of a row (``SensorNoise``): per channel the std of the mean of ``n``
     stationary AR(1) samples at :data:`RATE_HZ` of correlation time ``correlation`` (4,) s."""
-    k = np.arange(1, n)
     factors = []
     for tc in correlation[[0, 2, 3]]:
         phi = math.exp(-1.0 / (RATE_HZ * tc)) if tc > 0 else 0.0
-        factors.append(math.sqrt((1 + 2 * np.sum((1 - k / n) * phi**k)) / n))
+        factors.append(ar1_std_of_mean(1.0, phi, n))
     return SensorNoise(
         sigmas.leg_lengths / math.sqrt(n),
         sigmas.inclinometer * factors[0],
