@@ -12,7 +12,6 @@ import threading
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -34,7 +33,6 @@ from gsp_kinematics.geometry import (
 )
 from gsp_msgs_py import conversions, names, qos, testing
 from gsp_msgs_py.parameter_specs import ConfigurationError
-from gsp_msgs_py.testing import SpinThread
 
 RATE_HZ = 100.0
 CALL_TIMEOUT_S = 120.0
@@ -79,7 +77,7 @@ def perturbed_truth(path):
 
 
 class Suite:
-    """Nodes spinning in one MultiThreadedExecutor (background thread) plus a test client."""
+    """In-process nodes spun as in use (``testing.SpinningNodes``) plus a test client."""
 
     def __init__(self, context, nodes):
         import rclpy
@@ -96,10 +94,13 @@ class Suite:
             qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS],
         )
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
-        self.executor = MultiThreadedExecutor(num_threads=4, context=context)
-        for node in self.nodes + [self.client_node]:
-            self.executor.add_node(node)
-        self.spinning = SpinThread(self.executor)
+        calibrators = [node for node in self.nodes if isinstance(node, CalibratorNode)]
+        self.spinning = testing.SpinningNodes(
+            context,
+            together=calibrators + [self.client_node],
+            apart=[node for node in self.nodes if node not in calibrators],
+        )
+        self.executor = self.spinning.executor
         assert self.client.wait_for_service(timeout_sec=30.0)
 
     def call(self):
@@ -119,14 +120,10 @@ class Suite:
 
     def stop_spinning(self, node):
         """The node's callbacks stop (its timers no longer publish); destroyed in close()."""
-        self.executor.remove_node(node)
+        self.spinning.remove(node)
 
     def close(self):
-        self.spinning.stop()
-        # Remove the nodes first: the executor then has no new work when it shuts down.
-        for node in self.executor.get_nodes():
-            self.executor.remove_node(node)
-        testing.shutdown_executor(self.executor)  # after the callbacks in progress
+        self.spinning.close()
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
 

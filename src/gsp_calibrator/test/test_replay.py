@@ -1,13 +1,12 @@
 """Replay of a recorded run: RecordedRun (pure), the replay node, and replay == original."""
 
 import math
-import time
 
 import numpy as np
 import pytest
 import rclpy
 from geometry_msgs.msg import PoseStamped
-from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from recorded_runs import write_command
 from sensor_msgs.msg import JointState
@@ -491,32 +490,33 @@ CALIBRATION = {
 
 
 class Suite:
-    """Nodes in one multi-threaded executor, plus a client of the calibrate service."""
+    """Nodes spun as in use (``testing.SpinningNodes``: the calibrators with the test's client,
+    every other node apart), plus a client of the calibrate service."""
 
     def __init__(self, context, nodes):
+        from gsp_calibrator.calibrator_node import CalibratorNode
+
         self.nodes = list(nodes)
         self.client_node = rclpy.create_node('replay_test_client', context=context)
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
-        self.executor = MultiThreadedExecutor(num_threads=3, context=context)
-        for node in self.nodes + [self.client_node]:
-            self.executor.add_node(node)
+        calibrators = [node for node in self.nodes if isinstance(node, CalibratorNode)]
+        self.spinning = testing.SpinningNodes(
+            context,
+            together=calibrators + [self.client_node],
+            apart=[node for node in self.nodes if node not in calibrators],
+            num_threads=3,
+        )
 
     def calibrate(self, timeout=120.0):
-        deadline = time.monotonic() + TIMEOUT_S
-        while not self.client.service_is_ready():
-            assert time.monotonic() < deadline, 'calibrate service not available'
-            self.executor.spin_once(timeout_sec=0.05)
+        assert self.client.wait_for_service(timeout_sec=TIMEOUT_S), 'calibrate service missing'
         future = self.client.call_async(Trigger.Request())
-        self.executor.spin_until_future_complete(future, timeout_sec=timeout)
-        assert future.done(), 'no calibrate response'
+        assert testing.wait_until(future.done, timeout), 'no calibrate response'
         response = future.result()
         assert response.success, response.message
         return RunDirectory(parse_response(response.message).run_directory)
 
     def close(self):
-        for node in self.nodes + [self.client_node]:
-            self.executor.remove_node(node)
-        testing.shutdown_executor(self.executor)  # after the callbacks in progress
+        self.spinning.close()
         for node in self.nodes + [self.client_node]:
             node.destroy_node()
 

@@ -3,7 +3,6 @@
 reported as a silent topic; an unplug and replug mid-stream resumes publishing without a restart."""
 
 import numpy as np
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -70,10 +69,9 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
     )
     client = client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
     nodes = [platform, fake, driver, calibrator, client_node]
-    executor = MultiThreadedExecutor(num_threads=4, context=ros_context)
-    for node in nodes:
-        executor.add_node(node)
-    spinning = testing.SpinThread(executor)
+    spinning = testing.SpinningNodes(
+        ros_context, together=[calibrator, client_node], apart=[platform, fake, driver]
+    )
     try:
         assert client.wait_for_service(timeout_sec=30.0)
         future = client.call_async(Trigger.Request())
@@ -99,9 +97,6 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
         assert wait_until(lambda: backend.counters['connects'] >= 2 and len(lvdt) > heard + 20)
         assert np.isfinite(lvdt[-1].position[0])
     finally:
-        spinning.stop()
-        for node in executor.get_nodes():
-            executor.remove_node(node)
-        executor.shutdown(timeout_sec=5.0)
+        spinning.close()
         for node in nodes:
             node.destroy_node()
