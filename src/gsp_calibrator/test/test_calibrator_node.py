@@ -76,6 +76,17 @@ def perturbed_truth(path):
     return truth
 
 
+def spin_as_in_use(context, nodes, client_node, num_threads=4):
+    """``testing.SpinningNodes``: the calibrators with the test's client, every other node apart."""
+    calibrators = [node for node in nodes if isinstance(node, CalibratorNode)]
+    return testing.SpinningNodes(
+        context,
+        together=calibrators + [client_node],
+        apart=[node for node in nodes if node not in calibrators],
+        num_threads=num_threads,
+    )
+
+
 class Suite:
     """In-process nodes spun as in use (``testing.SpinningNodes``) plus a test client."""
 
@@ -94,13 +105,7 @@ class Suite:
             qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS],
         )
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
-        calibrators = [node for node in self.nodes if isinstance(node, CalibratorNode)]
-        self.spinning = testing.SpinningNodes(
-            context,
-            together=calibrators + [self.client_node],
-            apart=[node for node in self.nodes if node not in calibrators],
-        )
-        self.executor = self.spinning.executor
+        self.spinning = spin_as_in_use(context, self.nodes, self.client_node)
         assert self.client.wait_for_service(timeout_sec=30.0)
 
     def call(self):

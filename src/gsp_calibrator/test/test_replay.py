@@ -11,6 +11,7 @@ from rclpy.parameter import Parameter
 from recorded_runs import write_command
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from test_calibrator_node import spin_as_in_use
 
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.replay.recorded_run import (
@@ -490,22 +491,13 @@ CALIBRATION = {
 
 
 class Suite:
-    """Nodes spun as in use (``testing.SpinningNodes``: the calibrators with the test's client,
-    every other node apart), plus a client of the calibrate service."""
+    """Nodes spun as in use (``spin_as_in_use``), plus a client of the calibrate service."""
 
     def __init__(self, context, nodes):
-        from gsp_calibrator.calibrator_node import CalibratorNode
-
         self.nodes = list(nodes)
         self.client_node = rclpy.create_node('replay_test_client', context=context)
         self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
-        calibrators = [node for node in self.nodes if isinstance(node, CalibratorNode)]
-        self.spinning = testing.SpinningNodes(
-            context,
-            together=calibrators + [self.client_node],
-            apart=[node for node in self.nodes if node not in calibrators],
-            num_threads=3,
-        )
+        self.spinning = spin_as_in_use(context, self.nodes, self.client_node, num_threads=3)
 
     def calibrate(self, timeout=120.0):
         assert self.client.wait_for_service(timeout_sec=TIMEOUT_S), 'calibrate service missing'
