@@ -7,10 +7,12 @@ inclinometer reads ``alpha`` and ``beta`` with axes ``gamma`` apart; the encoder
 
 import numpy as np
 
-#: Reading columns, in this order everywhere.
-READING_NAMES = ('alpha', 'beta', 'phi', 'd_m')
+from gsp_kinematics import channels
+
+#: Reading columns, in this order everywhere (from :data:`.channels.CHANNELS`).
+READING_NAMES = channels.READING_NAMES
 #: The device's sensors -> their columns of :data:`READING_NAMES`.
-SENSORS = {'inclinometer': (0, 1), 'encoder': (2,), 'lvdt': (3,)}
+SENSORS = channels.DEVICE_READING_COLUMNS
 
 
 def per_reading(inclinometer, encoder, lvdt):

@@ -15,6 +15,8 @@ import math
 import numpy as np
 from scipy import special
 
+from gsp_kinematics import channels
+
 #: Robust losses (cf. ``scipy.optimize.least_squares(loss=...)``).
 LOSSES = ('linear', 'huber', 'cauchy')
 #: Outlier threshold on the studentised residuals; None: Bonferroni at DEFAULT_SIGNIFICANCE over
@@ -208,12 +210,7 @@ def down_weighted_postures(weights, below=0.999):
 
 
 #: Channels of the noise estimate -> (columns of the leg/readings std table (M, 10)).
-NOISE_CHANNELS = {
-    'leg_lengths': slice(0, 6),
-    'inclinometer': slice(6, 8),
-    'encoder': slice(8, 9),
-    'lvdt': slice(9, 10),
-}
+NOISE_CHANNELS = channels.SENSOR_SLICES
 
 
 def within_posture_noise(sample_std, n_samples):

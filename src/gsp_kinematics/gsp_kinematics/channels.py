@@ -1,0 +1,74 @@
+"""THE table of the ten reading channels a calibration collects at each instant (no rclpy).
+
+Every layout of the readings is derived from :data:`CHANNELS`: the ten columns
+``[q1..q6, alpha, beta, phi, d_m]`` of a synchronised sample, the four device readings
+``[alpha, beta, phi, d_m]`` of the core, the sensors that produce them and their units.
+"""
+
+import dataclasses
+
+LEG_COUNT = 6
+
+
+@dataclasses.dataclass(frozen=True)
+class Channel:
+    """One reading channel: its ``name``, the ``sensor`` that produces it, its SI ``unit``, its
+    ``column`` among the ten and whether it is an angle compared on the circle (``circular``)."""
+
+    name: str
+    sensor: str
+    unit: str
+    column: int
+    circular: bool = False
+
+
+#: The sensors, in column order: the six legs, then the device's three.
+LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT = 'leg_lengths', 'inclinometer', 'encoder', 'lvdt'
+SENSORS = (LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT)
+DEVICE_SENSORS = (INCLINOMETER, ENCODER, LVDT)
+
+#: THE channel table.
+CHANNELS = (
+    *(Channel(f'q{i + 1}', LEG_LENGTHS, 'm', i) for i in range(LEG_COUNT)),
+    Channel('alpha', INCLINOMETER, 'rad', 6),
+    Channel('beta', INCLINOMETER, 'rad', 7),
+    # phi is the encoder's absolute rotation: compared and averaged on the circle.
+    Channel('phi', ENCODER, 'rad', 8, circular=True),
+    Channel('d_m', LVDT, 'm', 9),
+)
+CHANNEL_NAMES = tuple(channel.name for channel in CHANNELS)
+CHANNEL_COUNT = len(CHANNELS)
+#: The device's channels (the core's ``readings`` rows), in column order.
+DEVICE_CHANNELS = tuple(channel for channel in CHANNELS if channel.sensor != LEG_LENGTHS)
+READING_NAMES = tuple(channel.name for channel in DEVICE_CHANNELS)
+#: Column of the first device channel among the ten.
+FIRST_READING_COLUMN = DEVICE_CHANNELS[0].column
+#: Columns among the ten of the circular channels (phi).
+CIRCULAR_COLUMNS = tuple(channel.column for channel in CHANNELS if channel.circular)
+
+
+def sensor_columns(sensor):
+    """Columns among the ten of ``sensor``'s channels (a tuple of ints)."""
+    columns = tuple(channel.column for channel in CHANNELS if channel.sensor == sensor)
+    if not columns:
+        raise KeyError(f'unknown sensor {sensor!r}; the sensors are {", ".join(SENSORS)}')
+    return columns
+
+
+def sensor_slice(sensor):
+    """``slice`` of ``sensor``'s (contiguous) columns among the ten."""
+    columns = sensor_columns(sensor)
+    return slice(columns[0], columns[-1] + 1)
+
+
+def reading_columns(sensor):
+    """Columns of a device ``sensor``'s channels among the four readings (a tuple of ints)."""
+    return tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
+
+
+#: Each device sensor -> its columns among the four readings.
+DEVICE_READING_COLUMNS = {sensor: reading_columns(sensor) for sensor in DEVICE_SENSORS}
+#: Each sensor -> the slice of its columns among the ten.
+SENSOR_SLICES = {sensor: sensor_slice(sensor) for sensor in SENSORS}
+#: Column among the four readings of phi (the encoder).
+PHI_READING_COLUMN = CHANNEL_NAMES.index('phi') - FIRST_READING_COLUMN
