@@ -22,9 +22,10 @@ import time
 
 import numpy as np
 
-from .device import device_position, link_direction_derivatives
+from .device import device_position
 from .identification import IdentificationError, Options, identify
-from .kinematics import forward_kinematics_masked, inverse_kinematics_jacobians
+from .kinematics import forward_kinematics_masked
+from .prediction import reading_pose_covariance
 from .rotation import wrap_angle
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
@@ -62,26 +63,11 @@ def _errors(legs_geometry, device_geometry, leg_lengths, readings, guesses):
 
 def noise_variances(geometry, poses, readings, row_sigmas):
     """The variance the rows' noise (``row_sigmas``, a SensorNoise of the averaged rows) adds to
-    the prediction errors at ``poses`` (M, 6): ``(position (M,) m^2, the trace of its 3x3
-    covariance; phi (M,) rad^2)``. The legs' noise goes through FK
-    (``(dq/dX)^-1 (1 + kq)``), the device's through eq 9."""
-    poses = np.atleast_2d(poses)
-    _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
-    gains = np.broadcast_to(np.diag(1.0 + geometry.sensors.leg_gain_errors), d_q_d_pose.shape)
-    d_pose_d_legs = np.linalg.solve(d_q_d_pose, gains)
-    legs = row_sigmas.leg_lengths**2
-    position = legs * np.sum(d_pose_d_legs[:, :3] ** 2, axis=(1, 2))
-    phi = legs * np.sum(d_pose_d_legs[:, 5] ** 2, axis=1) + row_sigmas.encoder**2
-    ideal = geometry.sensors.ideal_device_readings(np.atleast_2d(readings))
-    d_alpha, d_beta, _ = link_direction_derivatives(
-        ideal[:, 0], ideal[:, 1], geometry.inclinometer_axes_angle
-    )
-    length = geometry.device_length + ideal[:, 3]
-    slope = (1.0 + geometry.sensors.lvdt_gain_error) * row_sigmas.lvdt
-    position = position + length**2 * row_sigmas.inclinometer**2 * (
-        np.sum(d_alpha**2, axis=1) + np.sum(d_beta**2, axis=1)
-    )
-    return position + slope**2, phi
+    the prediction errors at ``poses`` (M, 6) with ``readings`` (M, 4): ``(position (M,) m^2,
+    the trace of its 3x3 covariance; phi (M,) rad^2)``
+    (:func:`~gsp_kinematics.prediction.reading_pose_covariance`)."""
+    position, euler = reading_pose_covariance(geometry, poses, readings, row_sigmas)
+    return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
 
 
 def noise_removed(errors, variances):
@@ -175,7 +161,14 @@ def fold_assignment(count, folds=DEFAULT_FOLDS):
 
 
 def cross_validate(
-    result, nominal, leg_lengths, readings, row_sigmas, folds=DEFAULT_FOLDS, options=Options()
+    result,
+    nominal,
+    leg_lengths,
+    readings,
+    row_sigmas,
+    folds=DEFAULT_FOLDS,
+    options=Options(),
+    noise=None,
 ):
     """Cross-validate the identification ``result`` (an ``IdentificationResult`` of the rows
     ``leg_lengths`` (M, 6) and ``readings`` (M, 4) with the row weights ``row_sigmas``): for
@@ -184,7 +177,10 @@ def cross_validate(
     posture. Returns a :class:`CrossValidation`.
 
     The device's reference of a held-out posture uses the device parameters of the fit that did
-    not see it, the nominal baseline those of the full fit (its best estimate of the device)."""
+    not see it, the nominal baseline those of the full fit (its best estimate of the device).
+    ``noise``: the rows' measurement noise removed from the errors (a SensorNoise of the rows;
+    None: ``row_sigmas``). Weights that hold a model error (estimated between postures) are not
+    the noise: pass the within-posture noise here."""
     started = time.perf_counter()
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     readings = np.asarray(readings, dtype=float)
@@ -215,7 +211,8 @@ def cross_validate(
         position[held], phi[held], _ = prediction_errors(
             fitted.geometry, leg_lengths[held], readings[held], guesses[held]
         )
-    position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, row_sigmas)
+    noise = row_sigmas if noise is None else noise
+    position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
