@@ -22,12 +22,18 @@ from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import acceptance, identifiability, noise_from_data
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.goodness import verdict
 from gsp_kinematics.identification import FORMULATIONS, IdentificationError, resolve_free
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'
+#: Said when the device readings do not fit the device model at all.
+DEVICE_MODEL_HINT = (
+    ': the device readings do not fit the device model (swapped, mis-signed or mis-scaled '
+    'device channels? check the inclinometer, encoder and LVDT wiring and units)'
+)
 #: Added to the result's comment when the calibration is not accepted (not applied).
 NOT_ACCEPTED_COMMENT = 'NOT ACCEPTED (not applied): see the verdict in result.json'
 
@@ -143,9 +149,10 @@ def identify_from_samples(
             pose_guesses=samples.commanded_poses,
             **identify_options,
         )
-    except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
+    except (IdentificationError, DeviceModelError, np.linalg.LinAlgError, ValueError) as error:
         outcome.duration_s = time.perf_counter() - started
-        outcome.message = f'identification failed: {error}'
+        hint = DEVICE_MODEL_HINT if isinstance(error, DeviceModelError) else ''
+        outcome.message = f'identification failed: {error}{hint}'
         return outcome
     outcome.duration_s = time.perf_counter() - started
     outcome.result = result
