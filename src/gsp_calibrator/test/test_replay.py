@@ -479,7 +479,6 @@ CALIBRATION = {
     'seed': 5,
     'topic_timeout': 10.0,
     'settle_timeout': 10.0,
-    'apply_rejected_fit': True,  # the test is of the replay, not of the goodness of fit
     'write_report_plots': False,  # ... nor of the report's plots (slow to draw)
     # A replayed samples.csv republishes averaged rows, without the within-posture scatter an
     # estimated noise uses: the replay gives the same calibration with the configured sigmas.
