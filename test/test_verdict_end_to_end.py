@@ -80,7 +80,7 @@ def test_a_realistic_platform_is_calibrated_and_applied_through_the_nodes(tmp_pa
     # every platform (docs/verdict.md: the bench's medians range from 0.5x to 1.6x for the
     # cross-validation, measured at the run's postures against a truth over the workspace, and
     # 0.45x for the prediction where the legs' compliance dominates, as in this short run).
-    # Through the nodes (30 postures) two runs gave 0.49x and about 1x: the test bounds both at
+    # Through the nodes (30 postures) runs gave 0.5x to 1x for both: the test bounds them at
     # 2.5x, and the nominal baseline within 30 %.
     assert true_mm / 2.5 < measured < 2.5 * true_mm, (measured, true_mm)
     assert true_mm / 2.5 < predicted < 1.5 * true_mm, (predicted, true_mm)
