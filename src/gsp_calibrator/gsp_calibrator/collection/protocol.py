@@ -179,7 +179,7 @@ class CollectionProtocol:
         self._previous = None  # device readings of the previous row
         self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
-        self._checked_pairs = None
+        self._checked_pairs = None  # the collector's pair revision last checked
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
         self.skipped = []
         self._idle = None  # keep_pairs: the samples before the first command
@@ -357,16 +357,16 @@ class CollectionProtocol:
         if self.keep_pairs:
             return []
         collector = self.collector
-        # ready() is a function of the pairs: only ask again when they changed (it is costly).
-        pairs = collector.pairs()
-        if pairs != self._checked_pairs:
-            self._checked_pairs = pairs
+        # ready() is a function of the pairs: only ask again when they changed.
+        if collector.pair_revision != self._checked_pairs:
+            self._checked_pairs = collector.pair_revision
             if collector.ready():
                 return self._row()
             # (while the readings still move, settle_timeout bounds the wait: the timeouts)
-            if len(pairs) >= self.pair_limit and collector.unsettled is None:
+            count = collector.pair_count()
+            if count >= self.pair_limit and collector.unsettled is None:
                 return self._skip(
-                    f'no {self.samples_per_posture} consistent samples among {len(pairs)} '
+                    f'no {self.samples_per_posture} consistent samples among {count} '
                     'synchronised ones (too noisy, or the device readings did not change from '
                     'the previous posture)'
                 )

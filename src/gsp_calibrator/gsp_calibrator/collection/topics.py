@@ -4,6 +4,7 @@ sensor message is read (pure, no rclpy)."""
 import math
 
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
+from gsp_kinematics import channels
 from gsp_msgs_py import conversions, names
 
 #: THE table of sensor topics and the collector stream each one feeds.
@@ -15,7 +16,7 @@ TOPIC_STREAMS = {
 }
 SENSOR_TOPICS = tuple(TOPIC_STREAMS)
 #: Device streams, in the order of the readings ``[alpha, beta, phi, d_m]``.
-DEVICE_STREAMS = (INCLINOMETER, ENCODER, LVDT)
+DEVICE_STREAMS = channels.DEVICE_SENSORS
 
 _READERS = {
     LEG_LENGTHS: lambda msg: (conversions.msg_to_leg_lengths(msg),),
