@@ -126,6 +126,15 @@ class _Posture:
     started_ns: int = None  # receive time of the settle (time base of the timeouts)
     progress: int = 0  # pairs at the last change
     progress_ns: int = None  # time of the last change of the pairs
+    #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
+    latest_ns: dict = dataclasses.field(default_factory=dict)
+
+    def data_elapsed(self):
+        """s of the data since the start: the stamps every stream that has given samples from
+        the start has reached (0 before any)."""
+        if not self.latest_ns:
+            return 0.0
+        return (min(self.latest_ns.values()) - self.start_ns) * 1e-9
 
 
 class CollectionProtocol:
@@ -275,8 +284,10 @@ class CollectionProtocol:
                 return self._start(now_ns, now_ns if start_ns is None else start_ns)
         return self.poll(now_ns)
 
-    def sensor(self, topic, msg, now_ns):
-        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) received at ``now_ns``."""
+    def sensor(self, topic, msg, now_ns, received_ns=None):
+        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) handled at ``now_ns``;
+        ``received_ns``: when it came off the wire (the middleware's receive time on the same
+        clock), None if unknown."""
         self._attend(now_ns)
         self.timeouts.hear(topic, now_ns)
         try:
@@ -289,30 +300,38 @@ class CollectionProtocol:
                     SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
                 ] + self.poll(now_ns)
             return [SampleDropped(topic, str(error), False)] + self.poll(now_ns)
-        return self.sample(stream, stamp_ns, values, now_ns, heard=False)
+        return self.sample(stream, stamp_ns, values, now_ns, heard=False, received_ns=received_ns)
 
-    def sample(self, stream, stamp_ns, values, now_ns, heard=True):
-        """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``)."""
+    def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
+        """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
+        at ``now_ns``, off the wire at ``received_ns`` (None: unknown)."""
         self._attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self.timeouts.hear(topic, now_ns)
         self._latest[stream] = (int(stamp_ns), values)
-        adder = _ADDERS[stream]
         posture = self._posture
         if posture is None:
             if self._idle is not None:
-                adder(self._idle, stamp_ns, *values)
+                _ADDERS[stream](self._idle, stamp_ns, *values)
             return self.poll(now_ns)
         if posture.state != _COLLECTING:
-            self._recent.append((adder, stamp_ns, values))
+            self._recent.append((stream, stamp_ns, values))
             return self.poll(now_ns)
-        if stamp_ns < posture.start_ns:
-            # Stamped before the start, received now: the caller is still working through a
-            # backlog (its listener fell behind), which is no lack of progress of the pairs.
+        if stamp_ns < posture.start_ns and (
+            received_ns is None or received_ns <= posture.started_ns
+        ):
+            # Stamped before the start, handled now: the caller is still working through a
+            # backlog (its listener fell behind), which is no lack of progress of the pairs. (Off
+            # the wire after the settle, it is no backlog: a sensor clock behind, for instance.)
             posture.progress_ns = max(posture.progress_ns, int(now_ns))
-        adder(self.collector, stamp_ns, *values)
+        self._add(posture, stream, stamp_ns, values)
         return self._check_collection(now_ns)
+
+    def _add(self, posture, stream, stamp_ns, values):
+        if _ADDERS[stream](self.collector, stamp_ns, *values):
+            latest = posture.latest_ns.get(stream, stamp_ns)
+            posture.latest_ns[stream] = max(latest, int(stamp_ns))
 
     def poll(self, now_ns):
         """Events due at ``now_ns`` (timeouts)."""
@@ -345,8 +364,8 @@ class CollectionProtocol:
         posture.start_ns, posture.started_ns = int(start_ns), int(now_ns)
         posture.progress, posture.progress_ns = 0, int(now_ns)
         self.collector.start(posture.start_ns, self._previous)
-        for adder, stamp_ns, values in self._recent:  # those stamped after the start count
-            adder(self.collector, stamp_ns, *values)
+        for stream, stamp_ns, values in self._recent:  # those stamped after the start count
+            self._add(posture, stream, stamp_ns, values)
         self._recent.clear()
         events = [CollectionStarted(posture.number, posture.command_id, posture.start_ns)]
         if self.keep_pairs:

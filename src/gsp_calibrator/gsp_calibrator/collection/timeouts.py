@@ -103,10 +103,10 @@ class CollectionTimeouts:
                 f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
-        if (
-            collector.unsettled is not None
-            and self.since(posture.started_ns, now_ns) >= self.settle_timeout
-        ):
+        # The bounds below count in the data's time (the samples' stamps since the start), so a
+        # posture whose samples were sent is never skipped because they were handled late.
+        data_s = posture.data_elapsed()
+        if collector.unsettled is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '
                 f"platform's settled status: {collector.unsettled.describe()}"
@@ -114,11 +114,12 @@ class CollectionTimeouts:
         # The collection is bounded as a whole: pairs that keep coming without a consistent
         # window would otherwise restart the progress timeout for ever.
         limit = self.settle_timeout + self.topic_timeout
-        if self.since(posture.started_ns, now_ns) >= limit:
+        if data_s >= limit:
             counts = collector.counts()
             return None, (
                 f'no {self.samples_per_posture} consistent synchronised samples within '
-                f'{limit:g} s (settle_timeout + topic_timeout) of settling: '
+                f"{limit:g} s (settle_timeout + topic_timeout) of settling, in the samples' "
+                'stamps: '
                 f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '
                 f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
             )

@@ -63,9 +63,10 @@ def posture_messages(rng, first_ns, count, noise_std, offset):
     return messages
 
 
-def collect(samples_per_posture, postures, seed=0):
+def collect(samples_per_posture, postures, seed=0, rows_out=None):
     """Collect ``postures`` postures of ``samples_per_posture`` samples (see the module
-    docstring); ``(messages handled, thread CPU s, rows)``."""
+    docstring); ``(messages handled, thread CPU s, rows)``. ``rows_out``: None or a list that
+    gets each ``RowReady``."""
     settings = CalibratorSettings.from_values({'samples_per_posture': samples_per_posture})
     collection = protocol.CollectionProtocol.for_settings(settings)
     noise_std = np.asarray(settings.sigmas.channel_std(), dtype=float)
@@ -98,7 +99,10 @@ def collect(samples_per_posture, postures, seed=0):
             events = collection.sensor(topic, deserialize_message(raw, JointState), receive_ns)
             handled += 1
             if any(isinstance(event, FINAL_EVENTS) for event in events):
-                rows += sum(isinstance(event, RowReady) for event in events)
+                ready = [event for event in events if isinstance(event, RowReady)]
+                rows += len(ready)
+                if rows_out is not None:
+                    rows_out.extend(ready)
                 break
     return handled, time.thread_time() - start, rows
 
