@@ -42,6 +42,7 @@ from std_srvs.srv import Trigger
 from gsp_calibrator.calibrator_host import CalibratorRunHost
 from gsp_calibrator.collection import protocol
 from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.collection.topics import sensor_message
 from gsp_calibrator.node_threads import (
     EventQueue,
     SensorListener,
@@ -51,7 +52,7 @@ from gsp_calibrator.node_threads import (
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
-from gsp_calibrator.run.health import calibrator_health
+from gsp_calibrator.run.health import ProcessingLags, calibrator_health
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
@@ -108,6 +109,7 @@ class CalibratorNode(CalibratorRunHost, Node):
         # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
         # run or not, and the latest progress published.
         self._heard_ns = dict.fromkeys(protocol.SENSOR_TOPICS)
+        self._lags = ProcessingLags(protocol.SENSOR_TOPICS)
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -117,7 +119,10 @@ class CalibratorNode(CalibratorRunHost, Node):
         ).values()
         self._results = ResultDelivery(self, result_publisher, self._data_group)
         self._sensors = SensorListener.beside(
-            self, 'sensors', {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS}
+            self,
+            'sensors',
+            {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS},
+            raw=True,  # decoded here, cheaply (collection.joint_state_cdr)
         )
         self._recorder_listener = SensorListener.beside(
             self,
@@ -171,10 +176,13 @@ class CalibratorNode(CalibratorRunHost, Node):
         return self.get_clock().now().nanoseconds
 
     def _sensor_callback(self, topic):
-        def callback(msg, info):
+        def callback(raw, info):
             self._heard_ns[topic] = time.monotonic_ns()
+            received_ns = info.get('received_timestamp')
             if not self._sensors_active:  # no run: drop at once
+                self._lags.note(topic, received_ns, time.time_ns())
                 return
+            msg = sensor_message(raw)
             with self._lock:
                 failure = self._sources.check_reading(
                     topic,
@@ -182,8 +190,13 @@ class CalibratorNode(CalibratorRunHost, Node):
                     info.get('publication_sequence_number'),
                     lambda: self._sensors.node.count_publishers(topic),
                 )
-                events = [failure] if failure else self._protocol.sensor(topic, msg, self._now_ns())
+                now_ns = self._now_ns()
+                wire_ns = protocol.wire_receipt_ns(received_ns, now_ns)
+                events = (
+                    [failure] if failure else self._protocol.sensor(topic, msg, now_ns, wire_ns)
+                )
                 self._note_finals(events)
+            self._lags.note(topic, received_ns, time.time_ns())
             if events:
                 self._handle(events)
 
@@ -290,6 +303,7 @@ class CalibratorNode(CalibratorRunHost, Node):
             dict(self._heard_ns),
             time.monotonic_ns(),
             self._settings.topic_timeout,
+            lags=self._lags.take(),
         )
 
     # --------------------------------------------------------------------------- the run

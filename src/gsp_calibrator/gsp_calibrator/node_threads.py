@@ -195,14 +195,15 @@ class SensorListener:
 
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
     :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
-    kept until :meth:`close`. ``setup``: None or a function of the node called before the thread
+    kept until :meth:`close`; ``raw=True``: the callbacks get the messages' CDR bytes (as the
+    recorder takes them: no message object is built). ``setup``: None or a function of the node called before the thread
     starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
     None, or a function given any exception a callback raises (e.g. a recording's full disk);
     the thread then goes on. :meth:`close` stops the thread and destroys the node.
     """
 
     @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None, on_error=None):
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):
         """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
         ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
         return cls(
@@ -212,9 +213,10 @@ class SensorListener:
             {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
             setup=setup,
             on_error=on_error,
+            raw=raw,
         )
 
-    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None):
+    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False):
         self.on_error = on_error
         self.node = Node(
             name,
@@ -226,7 +228,9 @@ class SensorListener:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self._subscriptions = [
-            self.node.create_subscription(JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS)
+            self.node.create_subscription(
+                JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
+            )
             for topic, callback in callbacks.items()
         ]
         self.extra = setup(self.node) if setup is not None else None

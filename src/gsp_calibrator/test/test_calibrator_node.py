@@ -719,7 +719,7 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
 
 def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path):
     from gsp_calibrator.collection import protocol
-    from gsp_calibrator.run.health import topic_age_key
+    from gsp_calibrator.run.health import LAG_WARN_S, topic_age_key, topic_lag_key
     from gsp_msgs_py.diagnostics import DiagnosticsListener
     from gsp_msgs_py.health import ERROR, OK, WARN
 
@@ -767,6 +767,17 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
         report = health(lambda h: h.level == OK)
         ages = [float(report.values[topic_age_key(t)]) for t in protocol.SENSOR_TOPICS]
         assert max(ages) <= 0.5
+        # The processing lag of each topic, from the middleware's receive time on.
+        report = health(
+            lambda h: (
+                h.level == OK
+                and all(
+                    h.values.get(topic_lag_key(t), 'none') != 'none' for t in protocol.SENSOR_TOPICS
+                )
+            )
+        )
+        lags = [float(report.values[topic_lag_key(t)]) for t in protocol.SENSOR_TOPICS]
+        assert 0.0 <= min(lags) and max(lags) <= LAG_WARN_S
 
         streaming.clear()  # every sensor falls silent
         report = health(lambda h: h.level == WARN)

@@ -111,6 +111,15 @@ def settle_start_ns(published_ns, received_ns, topic_timeout):
     return received_ns
 
 
+def wire_receipt_ns(received_ns, now_ns):
+    """The middleware's receive time ``received_ns`` of a message handled at ``now_ns`` (ns, the
+    node clock), or None if unknown (0) or implausible on this clock (after ``now_ns``: another
+    time base)."""
+    if not received_ns or int(received_ns) > int(now_ns):
+        return None
+    return int(received_ns)
+
+
 _IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
 
 
