@@ -120,6 +120,26 @@ def wire_receipt_ns(received_ns, now_ns):
     return int(received_ns)
 
 
+def collection_summary(skipped, collector):
+    """The collection data of a run: its ``skipped`` (``[PostureSkipped, ...]``) and what its
+    ``collector`` dropped (the ``collection`` of ``result.json``)."""
+    return {
+        'skipped': [
+            {
+                'posture': s.posture,
+                'reason': s.reason,
+                'rejected_by_platform': s.rejected_by_platform,
+            }
+            for s in skipped
+        ],
+        'inconsistent_dropped': int(collector.inconsistent),
+        'settling_dropped': int(collector.settling_dropped),
+        'non_finite_dropped': {
+            stream: int(count) for stream, count in collector.non_finite.items()
+        },
+    }
+
+
 _IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
 
 
@@ -234,21 +254,7 @@ class CollectionProtocol:
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
-        return {
-            'skipped': [
-                {
-                    'posture': s.posture,
-                    'reason': s.reason,
-                    'rejected_by_platform': s.rejected_by_platform,
-                }
-                for s in self.skipped
-            ],
-            'inconsistent_dropped': int(self.collector.inconsistent),
-            'settling_dropped': int(self.collector.settling_dropped),
-            'non_finite_dropped': {
-                stream: int(count) for stream, count in self.collector.non_finite.items()
-            },
-        }
+        return collection_summary(self.skipped, self.collector)
 
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,

@@ -117,6 +117,45 @@ def median_and_spread(values, noise_std):
     return median, deviation, spread
 
 
+def average_row(legs, readings, stamps):
+    """The :class:`PostureSample` of ``legs`` (n, 6) m, ``readings`` (n, 4) and their leg
+    stamps (n,) ns: means, sample stds and lag sums; ``phi`` averaged on the circle."""
+    readings = np.array(readings, dtype=float)
+    phi0 = readings[0, _PHI_READING]
+    readings[:, _PHI_READING] = phi0 + wrap_angle(readings[:, _PHI_READING] - phi0)
+    mean_readings = readings.mean(axis=0)
+    mean_readings[_PHI_READING] = float(wrap_angle(mean_readings[_PHI_READING]))
+    ddof = 1 if len(legs) > 1 else 0
+    mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
+    return PostureSample(
+        leg_lengths=legs.mean(axis=0),
+        readings=mean_readings,
+        n_samples=len(legs),
+        stamp_ns=mean_stamp,
+        leg_lengths_std=legs.std(axis=0, ddof=ddof),
+        readings_std=readings.std(axis=0, ddof=ddof),
+        lag_sums=posture_lag_sums(np.hstack([legs, readings])) if len(legs) > 1 else None,
+    )
+
+
+def _checked_options(sync_tolerance, samples_per_posture, max_buffer, noise_std, threshold):
+    """``(sync_tolerance, noise_std)`` of a :class:`SampleCollector`; ValueError if invalid."""
+    sync_tolerance = float(sync_tolerance)
+    if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
+        raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
+    if int(samples_per_posture) < 1:
+        raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
+    if max_buffer is not None and int(max_buffer) < int(samples_per_posture):
+        raise ValueError('max_buffer must hold at least samples_per_posture samples')
+    if noise_std is not None:
+        noise_std = np.asarray(noise_std, dtype=float).reshape(_CHANNELS)
+        if not np.all(np.isfinite(noise_std) & (noise_std > 0.0)):
+            raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
+    if not float(threshold) > 0.0:
+        raise ValueError(f'consistency_threshold must be > 0, got {threshold}')
+    return sync_tolerance, noise_std
+
+
 class SampleCollector:
     """Buffers both streams and pairs them by nearest stamp (see the module docstring).
 
@@ -139,19 +178,9 @@ class SampleCollector:
         settle_lookback=0.0,
         settle_sigmas=DEFAULT_SETTLE_SIGMAS,
     ):
-        sync_tolerance = float(sync_tolerance)
-        if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
-            raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
-        if int(samples_per_posture) < 1:
-            raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
-        if max_buffer is not None and int(max_buffer) < int(samples_per_posture):
-            raise ValueError('max_buffer must hold at least samples_per_posture samples')
-        if noise_std is not None:
-            noise_std = np.asarray(noise_std, dtype=float).reshape(_CHANNELS)
-            if not np.all(np.isfinite(noise_std) & (noise_std > 0.0)):
-                raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
-        if not float(consistency_threshold) > 0.0:
-            raise ValueError(f'consistency_threshold must be > 0, got {consistency_threshold}')
+        sync_tolerance, noise_std = _checked_options(
+            sync_tolerance, samples_per_posture, max_buffer, noise_std, consistency_threshold
+        )
         self.settle_rule = settling.SettleRule(settle_lookback, settle_sigmas)
         #: Why the latest window judged waits for settling (``settling.Unsettled``), or None.
         self.unsettled = None
@@ -166,9 +195,7 @@ class SampleCollector:
         self._device = {}  # stamp_ns -> readings (4,), NaN where not received yet
         self._device_stamps = []  # sorted keys of _device
         self._window_checks = {}  # tuple(window pairs) -> _USABLE, _INCONSISTENT or _UNSETTLED
-        # Verdicts of the windows starting at pairs 0, 1, ... judged so far, none usable: a
-        # window's verdict holds until one of its pairs changes (StampPairing.take_changed).
-        self._verdicts = []
+        self._verdicts = []  # of the windows starting at pairs 0, 1, ..., none usable
         self._window_start = None  # start of the usable window, or None
         self._window_revision = None  # pairing revision of _verdicts and _window_start
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
@@ -220,8 +247,7 @@ class SampleCollector:
         return self._pairing.tolerance_ns
 
     @property
-    def pair_revision(self):
-        """A number that changes whenever the pairs change."""
+    def pair_revision(self):  # changes whenever the pairs change
         return self._pairing.revision
 
     def record_non_finite(self, stream):
@@ -301,7 +327,6 @@ class SampleCollector:
         return list(self._pairing.pairs)
 
     def pair_count(self):
-        """Number of synchronised pairs available now."""
         return len(self._pairing.pairs)
 
     def _values(self, pairs):
@@ -339,7 +364,8 @@ class SampleCollector:
         return None if start is None else self._pairing.pairs[start : start + count]
 
     def _window_start_now(self):
-        """Index of the first pair of :meth:`window`, or None."""
+        """Index of the first pair of :meth:`window`, or None. A window's verdict holds until
+        one of its pairs changes (``StampPairing.take_changed``)."""
         pairing = self._pairing
         if self._window_revision == pairing.revision:
             return self._window_start
@@ -405,23 +431,10 @@ class SampleCollector:
             pairs = self.window() or self.pairs()[: self.samples_per_posture]
         if not pairs:
             raise ValueError('no synchronised samples to average')
-        legs = np.array([self._legs[leg] for leg, _ in pairs])
-        readings = np.array([self._device[dev] for _, dev in pairs])
-        phi0 = readings[0, _PHI_READING]
-        readings[:, _PHI_READING] = phi0 + wrap_angle(readings[:, _PHI_READING] - phi0)
-        mean_readings = readings.mean(axis=0)
-        mean_readings[_PHI_READING] = float(wrap_angle(mean_readings[_PHI_READING]))
-        ddof = 1 if len(pairs) > 1 else 0
-        stamps = np.array([leg for leg, _ in pairs], dtype=np.int64)
-        mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
-        return PostureSample(
-            leg_lengths=legs.mean(axis=0),
-            readings=mean_readings,
-            n_samples=len(pairs),
-            stamp_ns=mean_stamp,
-            leg_lengths_std=legs.std(axis=0, ddof=ddof),
-            readings_std=readings.std(axis=0, ddof=ddof),
-            lag_sums=posture_lag_sums(np.hstack([legs, readings])) if len(pairs) > 1 else None,
+        return average_row(
+            np.array([self._legs[leg] for leg, _ in pairs]),
+            np.array([self._device[dev] for _, dev in pairs]),
+            np.array([leg for leg, _ in pairs], dtype=np.int64),
         )
 
     def take_posture(self):
