@@ -72,6 +72,7 @@ from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, u
     has_non_finite,
     read_sensor,
 )
+from gsp_kinematics import channels
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
@@ -250,7 +251,9 @@ class CollectionProtocol:
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
         item = self._latest.get(LEG_LENGTHS)
-        return None if item is None else np.asarray(item[1], dtype=float).reshape(6)
+        return (
+            None if item is None else np.asarray(item[1], dtype=float).reshape(channels.LEG_COUNT)
+        )
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
@@ -259,7 +262,7 @@ class CollectionProtocol:
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
         d_m]`` (rad, m): they are the previous posture's for the next row."""
-        self._previous = np.asarray(readings, dtype=float).reshape(4)
+        self._previous = np.asarray(readings, dtype=float).reshape(len(channels.READING_NAMES))
 
     # --- inputs ------------------------------------------------------------------------------
 
