@@ -4,8 +4,10 @@ collection sustains on one core (docs/results.md, docs/architecture.md#synchroni
 Postures of the calibrator's default settings (and of a 300-sample window) are collected as the
 node collects them, in one thread and as fast as it goes: a command, the platform's ``moving``
 and ``settled`` statuses, then the four sensor streams at 200 Hz (legs, inclinometer, encoder,
-LVDT, each message serialised as on the wire and decoded here, with the default noise and new
-device readings at each posture) until the row is ready. While the platform moves, 0.2 s of
+LVDT, each message serialised as on the wire, with the default noise and new device readings at
+each posture) until the row is ready. The collection takes each message's CDR bytes as the node
+does (``intake`` ``cdr``: read by ``collection.joint_state_cdr``; ``message``: deserialised by
+rclpy into a ``JointState``, the intake before the node took its streams raw). While the platform moves, 0.2 s of
 samples arrive before the settle. ``messages_per_s`` is the messages decoded and handled per
 second of thread CPU time (median of ``repeats`` runs); ``load_factor`` is that rate over the
 default load, four streams at 200 Hz (800 messages/s).
@@ -21,11 +23,13 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import protocol, topics
 from gsp_calibrator.collection.events import FINAL_EVENTS, RowReady
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_msgs_py import conversions, names
 
+#: How the collection takes a message's bytes: as the node does (the CDR bytes themselves).
+INTAKE = 'cdr' if hasattr(topics, 'sensor_message') else 'message'
 SENSOR_RATE_HZ = 200.0
 STREAM_COUNT = 4
 DEFAULT_LOAD_MSG_S = STREAM_COUNT * SENSOR_RATE_HZ
@@ -96,7 +100,8 @@ def collect(samples_per_posture, postures, seed=0, rows_out=None):
             if not settle_sent and receive_ns > settle_ns:
                 collection.status(settled_status, settle_ns, settle_ns)
                 settle_sent = True
-            events = collection.sensor(topic, deserialize_message(raw, JointState), receive_ns)
+            msg = raw if INTAKE == 'cdr' else deserialize_message(raw, JointState)
+            events = collection.sensor(topic, msg, receive_ns)
             handled += 1
             if any(isinstance(event, FINAL_EVENTS) for event in events):
                 ready = [event for event in events if isinstance(event, RowReady)]
@@ -140,7 +145,11 @@ def run(quick=False, log=None):
 
     default_window = CalibratorSettings.from_values({}).samples_per_posture
     repeats = 3 if quick else 5
-    section = {'default_load_msg_s': DEFAULT_LOAD_MSG_S, 'target_load_factor': 4.0}
+    section = {
+        'default_load_msg_s': DEFAULT_LOAD_MSG_S,
+        'target_load_factor': 4.0,
+        'intake': INTAKE,
+    }
     for key, window, postures in (
         ('default_window', default_window, 20 if quick else 60),
         ('window_300', LARGE_WINDOW, 3 if quick else 6),
