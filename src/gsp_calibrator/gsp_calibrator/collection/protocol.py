@@ -17,7 +17,9 @@ it (see :mod:`~gsp_calibrator.collection.synchroniser`) gives the row (:class:`R
 its ``settle_wait``). The posture is skipped when the readings still move ``settle_timeout``
 after the start (the reason names the channel and its trend), when
 ``max_pairs_per_sample * samples_per_posture`` settled pairs hold no consistent window, or
-when no window comes within ``settle_timeout + topic_timeout`` of the start. The run fails
+when no window comes within ``settle_timeout + topic_timeout`` of the start. These two bounds
+count in the data's time, the samples' stamps since the start (as far as every stream that has
+given any has reached): a caller that handles the samples late decides late, not otherwise. The run fails
 (:class:`TopicSilent`, :class:`NoSynchronisedSample`) when a sensor topic says nothing, or the
 pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
 is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
@@ -27,7 +29,10 @@ A gap of half a ``topic_timeout`` or more between two calls means the caller its
 (an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
 silence is judged over the gap; every timeout counts again from the end of the gap. Likewise a
 sample stamped before the collection start but received after it shows a caller still working
-through a backlog: the pairs' progress timeout counts again from its receipt.
+through a backlog: the pairs' progress timeout counts again from its receipt. When the caller
+gives the middleware's receive time of a sample (``received_ns``), only a sample off the wire
+before the settle was handled is such a backlog (one received after it, stamped before the
+start, comes from a sensor clock behind, and holds nothing up).
 
 The previous posture's device readings (the collector's "unchanged" check) are the last row's,
 and before the first row the latest complete device instant received before the command. A
