@@ -10,6 +10,11 @@ import math
 
 import numpy as np
 
+# The settle test takes scipy.stats, which imports lazily and slowly (about 6 s on a busy
+# machine): loaded with the collection, at the calibrator's start, not by the first settle test
+# in the sensor listener in the middle of a run's first posture.
+import scipy.stats  # noqa: F401
+
 from gsp_kinematics.channels import CHANNEL_NAMES
 from gsp_kinematics.sensors.noise_estimate import settle_test
 
