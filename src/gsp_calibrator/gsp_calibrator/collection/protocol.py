@@ -29,10 +29,13 @@ A gap of half a ``topic_timeout`` or more between two calls means the caller its
 (an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
 silence is judged over the gap; every timeout counts again from the end of the gap. Likewise a
 sample stamped before the collection start but received after it shows a caller still working
-through a backlog: the pairs' progress timeout counts again from its receipt. When the caller
-gives the middleware's receive time of a sample (``received_ns``), only a sample off the wire
-before the settle was handled is such a backlog (one received after it, stamped before the
-start, comes from a sensor clock behind, and holds nothing up).
+through a backlog: the pairs' progress timeout counts again from its receipt. That timeout
+counts in the receive times of the samples handled (the middleware's, ``received_ns``, when
+the caller gives them; else the times of the calls), not in the watchdog's polls: a listener
+that falls behind delays it, a backlog (samples received before the settle) does not count,
+and samples stamped before the start but received after it (a sensor clock behind) do. It also
+counts in the data's time: samples whose stamps move on by ``topic_timeout`` without a new pair
+end the run as well.
 
 The previous posture's device readings (the collector's "unchanged" check) are the last row's,
 and before the first row the latest complete device instant received before the command. A
@@ -160,16 +163,21 @@ class _Posture:
     start_ns: int = None  # collection start (stamps), set when settled
     started_ns: int = None  # receive time of the settle (time base of the timeouts)
     progress: int = 0  # pairs at the last change
-    progress_ns: int = None  # time of the last change of the pairs
+    progress_ns: int = None  # receive time of the last change of the pairs
+    #: data time (data_ns) of the last change of the pairs (or of the first sample)
+    progress_data_ns: int = None
+    received_ns: int = None  # latest receive time of a sample since the start
     #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
     latest_ns: dict = dataclasses.field(default_factory=dict)
 
+    def data_ns(self):
+        """The data's time: the stamp every stream that has given samples from the start has
+        reached (the start before any)."""
+        return min(self.latest_ns.values()) if self.latest_ns else self.start_ns
+
     def data_elapsed(self):
-        """s of the data since the start: the stamps every stream that has given samples from
-        the start has reached (0 before any)."""
-        if not self.latest_ns:
-            return 0.0
-        return (min(self.latest_ns.values()) - self.start_ns) * 1e-9
+        """s of the data since the start."""
+        return (self.data_ns() - self.start_ns) * 1e-9
 
 
 class CollectionProtocol:
@@ -341,13 +349,14 @@ class CollectionProtocol:
         if posture.state != _COLLECTING:
             self._recent.append((stream, stamp_ns, values))
             return self.poll(now_ns)
-        if stamp_ns < posture.start_ns and (
-            received_ns is None or received_ns <= posture.started_ns
-        ):
-            # Stamped before the start, handled now: the caller is still working through a
-            # backlog (its listener fell behind), which is no lack of progress of the pairs. (Off
-            # the wire after the settle, it is no backlog: a sensor clock behind, for instance.)
-            posture.progress_ns = max(posture.progress_ns, int(now_ns))
+        received = int(now_ns if received_ns is None else received_ns)
+        posture.received_ns = max(posture.received_ns, received)
+        if stamp_ns < posture.start_ns and received_ns is None:
+            # Stamped before the start, handled now: the caller may still be working through a
+            # backlog (its listener fell behind), which is no lack of progress of the pairs.
+            # (With the receive time off the wire, the backlog shows itself: received before
+            # the settle.)
+            posture.progress_ns = max(posture.progress_ns, received)
         self._add(posture, stream, stamp_ns, values)
         return self._check_collection(now_ns)
 
@@ -386,6 +395,7 @@ class CollectionProtocol:
         posture.state = _COLLECTING
         posture.start_ns, posture.started_ns = int(start_ns), int(now_ns)
         posture.progress, posture.progress_ns = 0, int(now_ns)
+        posture.progress_data_ns, posture.received_ns = None, int(now_ns)
         self.collector.start(posture.start_ns, self._previous)
         for stream, stamp_ns, values in self._recent:  # those stamped after the start count
             self._add(posture, stream, stamp_ns, values)

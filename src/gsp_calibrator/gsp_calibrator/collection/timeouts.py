@@ -69,7 +69,8 @@ class CollectionTimeouts:
     def collection_overdue(self, posture, collector, now_ns):
         """The collection's verdict at ``now_ns``: ``(failure event or None, skip reason or '')``.
 
-        Updates ``posture.progress``/``progress_ns`` from the collector's pair count.
+        Updates ``posture.progress``, ``progress_ns`` and ``progress_data_ns`` from the
+        collector's pair count.
         """
         silences = {  # s, since the topic's latest message (or the settle, or a stall)
             topic: self.since(max(self._last_heard.get(topic, 0), posture.started_ns), now_ns)
@@ -83,9 +84,19 @@ class CollectionTimeouts:
             text = f'topic {topic} is silent: no message for {self.topic_timeout:g} s while {doing}'
             return TopicSilent(topic, doing, text), ''
         count = collector.pair_count()
+        data_ns = posture.data_ns()
+        if posture.progress_data_ns is None and posture.latest_ns:
+            posture.progress_data_ns = data_ns  # the data's time counts from their first sample
         if count != posture.progress:
-            posture.progress, posture.progress_ns = count, now_ns
-        if self.since(posture.progress_ns, now_ns) >= self.topic_timeout:
+            posture.progress, posture.progress_ns = count, posture.received_ns
+            posture.progress_data_ns = data_ns
+        # The pairs' progress in the samples' receive times (a listener that falls behind
+        # delays it) and in their stamps.
+        stalled_s = max(
+            self.since(posture.progress_ns, posture.received_ns),
+            (data_ns - (posture.progress_data_ns or data_ns)) * 1e-9,
+        )
+        if stalled_s >= self.topic_timeout:
             # The pairs stopped: if a topic stopped too (a dead node whose last messages still
             # paired a little later), it is the cause to name.
             if silences[topic] >= 0.5 * self.topic_timeout:
