@@ -245,6 +245,27 @@ def test_samples_stamped_before_the_start_but_off_the_wire_after_it_are_no_backl
     assert '0 leg-length and 0 complete device samples since settling' in failed.message
 
 
+def test_a_silent_topic_is_named_while_the_others_are_handled_after_a_late_settle():
+    """The platform dies as its settled status is handled, 3 s late: the device's samples from
+    the start are handled quickly (a backlog), so their stamps pass topic_timeout before the
+    handling time does. The leg-length topic is silent, and named: the data's time counts only
+    once every stream has given samples."""
+    collection = make()
+    collection.command(1, POSE, 'c1', T0)
+    late = T0 + 3 * S
+    collection.status(status('c1', names.STATE_SETTLED, ''), late, start_ns=T0 + 10 * MS)
+    events = []
+    for j in range(1000):
+        stamp, now = T0 + 11 * MS + 5 * MS * j, late + 5 * MS * j // 4
+        for stream, values in ((INCLINOMETER, R[:2]), (ENCODER, R[2:3]), (LVDT, R[3:])):
+            events += collection.sample(stream, stamp, tuple(values), now)
+        if events:
+            break
+    (silent,) = events
+    assert isinstance(silent, event_types.TopicSilent), silent
+    assert silent.topic == names.TOPIC_LEG_LENGTHS
+
+
 def test_of_several_silent_topics_the_one_silent_longest_is_named():
     collection = make()
     settle(collection)

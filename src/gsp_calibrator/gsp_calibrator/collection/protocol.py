@@ -171,13 +171,17 @@ class _Posture:
     latest_ns: dict = dataclasses.field(default_factory=dict)
 
     def data_ns(self):
-        """The data's time: the stamp every stream that has given samples from the start has
-        reached (the start before any)."""
-        return min(self.latest_ns.values()) if self.latest_ns else self.start_ns
+        """The data's time: the stamp every stream has reached with its samples from the start;
+        None until each has given one (a stream that gives none is silent, or stamped in
+        another time base: the receive times judge it)."""
+        if len(self.latest_ns) < len(SENSOR_TOPICS):
+            return None
+        return min(self.latest_ns.values())
 
     def data_elapsed(self):
-        """s of the data since the start."""
-        return (self.data_ns() - self.start_ns) * 1e-9
+        """s of the data since the start (0 while :meth:`data_ns` is None)."""
+        data_ns = self.data_ns()
+        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
 
 
 class CollectionProtocol:

@@ -85,17 +85,16 @@ class CollectionTimeouts:
             return TopicSilent(topic, doing, text), ''
         count = collector.pair_count()
         data_ns = posture.data_ns()
-        if posture.progress_data_ns is None and posture.latest_ns:
-            posture.progress_data_ns = data_ns  # the data's time counts from their first sample
+        if posture.progress_data_ns is None:
+            posture.progress_data_ns = data_ns
         if count != posture.progress:
             posture.progress, posture.progress_ns = count, posture.received_ns
             posture.progress_data_ns = data_ns
         # The pairs' progress in the samples' receive times (a listener that falls behind
         # delays it) and in their stamps.
-        stalled_s = max(
-            self.since(posture.progress_ns, posture.received_ns),
-            (data_ns - (posture.progress_data_ns or data_ns)) * 1e-9,
-        )
+        stalled_s = self.since(posture.progress_ns, posture.received_ns)
+        if data_ns is not None and posture.progress_data_ns is not None:
+            stalled_s = max(stalled_s, (data_ns - posture.progress_data_ns) * 1e-9)
         if stalled_s >= self.topic_timeout:
             # The pairs stopped: if a topic stopped too (a dead node whose last messages still
             # paired a little later), it is the cause to name.
