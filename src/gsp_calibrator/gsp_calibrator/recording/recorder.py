@@ -165,7 +165,7 @@ class RunRecorder:
                 recorder.add_metadata(
                     RUN_METADATA_NAME, {k: json.dumps(json_safe(v)) for k, v in options.items()}
                 )
-            recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
+            note_outcomes(recorder)
         except BaseException:
             recorder.abort()
             raise
@@ -200,15 +200,7 @@ class RunRecorder:
         noted ``kept``, so the rebuild gives the rows of samples.csv."""
         with self._lock:
             if self._recorder is not None:
-                self._recorder.add_metadata(
-                    POSTURE_END_METADATA_NAME,
-                    {
-                        'posture': int(posture),
-                        'command_id': str(command_id),
-                        'outcome': str(outcome),
-                        'reason': str(reason),
-                    },
-                )
+                note_posture_end(self._recorder, command_id, posture, outcome, reason)
 
     def stop(self, drain_s=0.0):
         """Stop recording and close the file (atomic); returns its path, or None if idle.
@@ -250,6 +242,25 @@ class RunRecorder:
                     return
 
         return on_message
+
+
+def note_outcomes(recorder):
+    """Say in ``recorder`` (a :class:`McapRecorder`) that its postures' outcomes are noted."""
+    recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
+
+
+def note_posture_end(recorder, command_id, posture, outcome, reason=''):
+    """Note in ``recorder`` (a :class:`McapRecorder`) how a posture ended (see
+    :meth:`RunRecorder.note_posture_end`)."""
+    recorder.add_metadata(
+        POSTURE_END_METADATA_NAME,
+        {
+            'posture': int(posture),
+            'command_id': str(command_id),
+            'outcome': str(outcome),
+            'reason': str(reason),
+        },
+    )
 
 
 def settings_options(settings):
