@@ -232,12 +232,6 @@ class CollectionProtocol:
             },
         }
 
-    @property
-    def previous_readings(self):
-        """Device readings ``[alpha, beta, phi, d_m]`` the next row is compared to (the last
-        row's), or None."""
-        return None if self._previous is None else self._previous.copy()
-
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
         d_m]`` (rad, m): they are the previous posture's for the next row."""

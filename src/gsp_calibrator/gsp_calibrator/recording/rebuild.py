@@ -247,7 +247,7 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
         previous = {}  # posture -> the readings its row was compared to
         for event in feed_recording(part, collection):
             if isinstance(event, protocol.CollectionStarted):
-                previous[event.posture] = collection.previous_readings
+                previous[event.posture] = collection.collector.previous_readings
             elif isinstance(event, protocol.RowReady):
                 if kept is not None and event.posture not in kept:
                     # Not kept online (skipped, or in progress at the stop): the next row is
