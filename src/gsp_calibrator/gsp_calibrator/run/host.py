@@ -17,7 +17,7 @@ import typing
 from collections.abc import Awaitable, Callable
 
 from gsp_calibrator.collection.protocol import FINAL_EVENTS, PostureSkipped, RowReady
-from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED
+from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED, RecordingError
 
 #: Results of :attr:`RunHost.wait_for`.
 WAIT_OK = 'ok'
@@ -78,9 +78,10 @@ class PostureLink:
             command_id, now_ns, publish = self._commander(pose)
             self.current, self._end = (int(posture), command_id), future
             # The protocol knows the command before the platform can answer it.
-            events = self.protocol.command(posture, pose, command_id, now_ns)
+            others = self._end_on(self.protocol.command(posture, pose, command_id, now_ns))
             publish()
-        self._dispatch(events)
+        for event in others:
+            self._on_event(event)
         return future
 
     def feed(self, step):
@@ -89,8 +90,9 @@ class PostureLink:
         with self.lock:
             if not self.active:
                 return
-            events = step(self.protocol)
-        self._dispatch(events)
+            others = self._end_on(step(self.protocol))
+        for event in others:
+            self._on_event(event)
 
     def fail(self, event):
         """End the run with ``event`` (``message`` says why): a second source, a failed write."""
@@ -99,16 +101,13 @@ class PostureLink:
                 self.failure = event
                 self._finish(event)
 
-    def _dispatch(self, events):
-        others = []
-        with self.lock:
-            for event in events:
-                if isinstance(event, FINAL_EVENTS):
-                    self._finish(event)
-                else:
-                    others.append(event)
-        for event in others:
-            self._on_event(event)
+    def _end_on(self, events):
+        """End the posture on a final event among the protocol's ``events`` (the lock held);
+        the other events, for ``on_event`` once the lock is released."""
+        for event in events:
+            if isinstance(event, FINAL_EVENTS):
+                self._finish(event)
+        return [event for event in events if not isinstance(event, FINAL_EVENTS)]
 
     def _finish(self, event):
         """Keep the outcome of the current posture (the lock held) and complete its future."""
@@ -130,7 +129,7 @@ class PostureLink:
     def _note(self, current, outcome, reason=''):
         try:
             self._recorder.note_posture_end(current[1], current[0], outcome, reason)
-        except OSError:
+        except (OSError, RecordingError):
             pass  # a full disk: the recorder's own write reports it and ends the run
 
 
