@@ -113,9 +113,6 @@ class CalibratorNode(Node):
             self, OUTPUTS
         ).values()
         self._results = ResultDelivery(self, result_publisher, self._data_group)
-        self._sensors = SensorListener.beside(
-            self, 'sensors', {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS}
-        )
         self._recorder_listener = SensorListener.beside(
             self,
             'recorder',
@@ -126,6 +123,11 @@ class CalibratorNode(Node):
         self.recorder = self._recorder_listener.extra
         self.postures = PostureLink(
             lambda: new_future(self.executor), self._new_command, self.recorder, self._on_event
+        )
+        # After the link: the listener's thread calls back at once, and a callback that raised
+        # would end that thread for the node's lifetime.
+        self._sensors = SensorListener.beside(
+            self, 'sensors', {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS}
         )
         self.create_subscription(
             DiagnosticStatus,
