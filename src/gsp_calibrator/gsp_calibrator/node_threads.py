@@ -16,7 +16,6 @@ subscription while that thread builds its wait set can raise ``InvalidHandle``
 (ros2/rclpy#1206).
 """
 
-import collections
 import concurrent.futures
 import dataclasses
 import threading
@@ -92,44 +91,6 @@ class ThreadResults:
                 while len(self._futures) > self.size:
                     self._futures.pop(next(iter(self._futures)))
         return future
-
-
-class EventQueue:
-    """Events put by callbacks (any thread) and taken, in order, by a coroutine (thread-safe).
-
-    ``new_future()``: an rclpy Future that wakes the coroutine's executor (:func:`new_future`).
-    """
-
-    def __init__(self, new_future):
-        self._new_future = new_future
-        self._events = collections.deque()
-        self._future = None
-        self._lock = threading.Lock()
-
-    def put(self, event):
-        with self._lock:
-            self._events.append(event)
-            future, self._future = self._future, None
-        if future is not None and not future.done():
-            future.set_result(None)
-
-    async def get(self):
-        """The next event (awaited if none is queued)."""
-        with self._lock:
-            future = None
-            if not self._events:
-                future = self._future = self._new_future()
-        if future is not None:
-            await future
-        with self._lock:
-            return self._events.popleft()
-
-    def clear(self):
-        with self._lock:
-            self._events.clear()
-
-    def __len__(self):
-        return len(self._events)
 
 
 @dataclasses.dataclass

@@ -214,7 +214,7 @@ def test_calibration_in_process(ros_context, tmp_path):
 
         suite.client_node.create_timer(0.05, publish_bad)
         assert suite.wait_until(
-            lambda: first.done() or calibrator._protocol.collector.non_finite['leg_lengths']
+            lambda: first.done() or calibrator.postures.protocol.collector.non_finite['leg_lengths']
         )
         counted.set()
         response = suite.wait(first)
@@ -254,7 +254,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         )
 
         # The sensor subscriptions outlive the run (ros2/rclpy#1206); messages are dropped now.
-        assert calibrator._sensors.subscribed and not calibrator._sensors_active
+        assert calibrator._sensors.subscribed and not calibrator.postures.active
 
         # Issue 4: the run directory holds the recording and the report, here without its plots
         # (write_report_plots false).
@@ -617,46 +617,6 @@ def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     flag.append(True)
     waits.poll()
     assert condition.result() == WAIT_OK and len(waits) == 0
-
-
-def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_context, tmp_path):
-    # The protocol emits a posture's final event with the lock held; the row is kept (and the
-    # event queued for the run) once the lock is taken again. In between the protocol is idle
-    # and the queue empty: the run once read that as the end and identified without its last
-    # posture.
-    from gsp_calibrator.collection import protocol
-
-    class LastPosture:  # the session with its last posture commanded
-        commanded_all = True
-        ended = []
-
-        def end_posture(self, event):
-            self.ended.append(event)
-            return event
-
-        def next_posture(self):
-            return None
-
-    class Idle:  # the protocol once it has emitted the final event
-        posture = None
-
-    node = CalibratorNode(
-        context=ros_context,
-        parameter_overrides=calibrator_parameters(tmp_path / 'runs'),
-    )
-    try:
-        node.start_collection(LastPosture(), Idle())
-        last = protocol.PostureSkipped(12, 'not settled within 10 s')
-        with node._lock:
-            events = node._note_finals([last])  # as a protocol call returns it
-        assert not node.collection_done()
-        node._handle(events)
-        assert LastPosture.ended == [last] and len(node.finals) == 1
-        assert not node.collection_done()  # not reported yet
-        node.finals.clear()
-        assert node.collection_done()
-    finally:
-        node.destroy_node()
 
 
 #: Leg limits scaled up from the realistic ones (50 mm/s, 200 mm/s^2) so that a run takes seconds:
