@@ -1,0 +1,143 @@
+"""The effects as parameter groups of the identification (docs/platform_effects.md).
+
+Each group adds one parameter per leg to the leg sensors' model (``'implicit'`` formulation):
+
+    q_i (1 + kq_i) = |R B_i + t - A_i| - L_off_i + sum_g theta_g,i h_g,i(posture)
+
+with the regressors ``h``:
+
+- ``compliance`` (``compliance1..6``, m/N): ``h = f_i``, the leg's axial force (N, compression
+  positive) under the user's ``payload_mass`` at ``centre_of_mass`` (:func:`.model.leg_forces` of
+  the nominal geometry at the posture). The device sees only the deflection ``c_i f_i``: so it
+  identifies ``c_i m``, the compliance times the mass the user gives.
+- ``backlash`` (``backlash1..6``, m): ``h = d_i / 2``, ``d_i`` the leg's approach direction (+1
+  extending) from the commanded sequence. Without both directions in the run it is the leg
+  offset.
+- ``thermal`` (``strain_rate1..6``, 1/s): ``h = -(t - t_ref) L_i``, a leg growth proportional
+  to the leg's length ``L_i`` (nominal, at the posture) and linear in the time since the
+  reference instant ``t_ref``; the geometry is the one at ``t_ref``. A steady growth is a leg
+  gain (``kq_i``): only the growth during the run is the group's.
+- ``joint_offsets`` (``joint_offset1..6``, m): ``h = -|u_i - (a_i . u_i) a_i|``, the base U
+  joint's axis offset seen along the leg (``a_i`` its first axis, :func:`.model.
+  base_joint_first_axes`); its constant part is the leg offset, only its variation with the
+  leg's direction is the joint's.
+
+The regressors are taken at the estimated poses; the derivatives of the model with respect to
+the pose leave out ``theta dh/dX`` (relative size ``theta |dh/dX|``, about 1e-4 for 40 kg on
+30 N/um legs).
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..kinematics import leg_vectors
+from .model import NUM_LEGS, PlatformEffects, base_joint_first_axes, leg_forces
+
+#: Group -> its per-leg parameter name stem, unit and what it is.
+EFFECT_GROUPS = {
+    'compliance': ('compliance', 'm/N', 'axial compliance of each leg (1 / stiffness)'),
+    'backlash': ('backlash', 'm', 'lost motion between the approach directions'),
+    'thermal': ('strain_rate', '1/s', 'relative growth rate of each leg'),
+    'joint_offsets': ('joint_offset', 'm', 'distance between the base U joint axes'),
+}
+#: The effect parameters, group by group, leg by leg.
+EFFECT_PARAMETER_NAMES = tuple(
+    f'{stem}{leg}' for stem, _, _ in EFFECT_GROUPS.values() for leg in range(1, NUM_LEGS + 1)
+)
+NUM_EFFECT_PARAMETERS = len(EFFECT_PARAMETER_NAMES)
+
+
+class EffectDesignError(ValueError):
+    """An effect group lacks what it needs (times, directions, a mass); the message says which."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectDesign:
+    """What the effect groups need besides the readings, posture by posture (M in the run's
+    order): ``times_s`` (M,) s, ``directions`` (M, 6) approach directions
+    (:func:`.model.approach_directions` of the commanded leg lengths in the order visited), the
+    user's ``payload_mass`` (kg) and ``centre_of_mass`` (platform frame, m), and the thermal
+    reference instant ``reference_time_s`` (s, on the clock of ``times_s``)."""
+
+    times_s: np.ndarray | None = None
+    directions: np.ndarray | None = None
+    payload_mass: float = 0.0
+    centre_of_mass: tuple = (0.0, 0.0, 0.0)
+    reference_time_s: float = 0.0
+
+    def check(self, groups, count):
+        """EffectDesignError naming what ``groups`` need and this design lacks for M = count."""
+        if 'compliance' in groups and not self.payload_mass > 0.0:
+            raise EffectDesignError('compliance needs the payload_mass (kg) the legs carry')
+        if 'thermal' in groups and (self.times_s is None or np.shape(self.times_s) != (count,)):
+            raise EffectDesignError(f'thermal needs times_s, one time (s) per posture ({count})')
+        if 'backlash' in groups:
+            if self.directions is None or np.shape(self.directions) != (count, NUM_LEGS):
+                raise EffectDesignError(
+                    f'backlash needs directions ({count}, 6), each leg +1 or -1 per posture'
+                )
+            if not np.all(np.isin(self.directions, (-1.0, 1.0))):
+                raise EffectDesignError('backlash: directions must each be +1 or -1')
+
+
+def effect_groups_of(names):
+    """The effect groups among ``names`` (groups or effect parameter names)."""
+    names = [names] if isinstance(names, str) else list(names)
+    return [group for group in EFFECT_GROUPS if group in names]
+
+
+def resolve_effects(free):
+    """A mask (24,) over :data:`EFFECT_PARAMETER_NAMES` of the effect groups and effect
+    parameter names in ``free`` (other names are ignored: they are the geometry's)."""
+    names = [free] if isinstance(free, str) else list(free or ())
+    mask = np.zeros(NUM_EFFECT_PARAMETERS, dtype=bool)
+    for index, (group, (stem, _, _)) in enumerate(EFFECT_GROUPS.items()):
+        block = slice(NUM_LEGS * index, NUM_LEGS * (index + 1))
+        if group in names:
+            mask[block] = True
+        for leg in range(NUM_LEGS):
+            if f'{stem}{leg + 1}' in names:
+                mask[block.start + leg] = True
+    return mask
+
+
+def is_effect_name(name):
+    return name in EFFECT_GROUPS or name in EFFECT_PARAMETER_NAMES
+
+
+class EffectTerms:
+    """The regressors of the free effect parameters (``mask`` (24,)) for a run."""
+
+    def __init__(self, nominal, design, mask, count):
+        self.mask = np.asarray(mask, dtype=bool)
+        self.count = int(self.mask.sum())
+        groups = [g for i, g in enumerate(EFFECT_GROUPS) if self.mask[6 * i : 6 * i + 6].any()]
+        design.check(groups, count)
+        self.nominal = nominal
+        self.design = design
+        self._load = PlatformEffects(
+            payload_mass=design.payload_mass, centre_of_mass=design.centre_of_mass
+        )
+        self._axes = base_joint_first_axes(nominal)
+        self._legs = np.flatnonzero(self.mask) % NUM_LEGS  # the leg of each free parameter
+
+    def regressors(self, poses):
+        """``h`` (M, 6, count): column j is nonzero only in the row of its leg."""
+        poses = np.atleast_2d(poses)
+        full = np.zeros((poses.shape[0], NUM_LEGS, NUM_EFFECT_PARAMETERS))
+        legs = np.arange(NUM_LEGS)
+        blocks = self.mask.reshape(len(EFFECT_GROUPS), NUM_LEGS).any(axis=1)
+        if blocks[0]:
+            full[:, legs, legs] = leg_forces(self.nominal, self._load, poses)
+        if blocks[1]:
+            full[:, legs, 6 + legs] = 0.5 * np.asarray(self.design.directions, dtype=float)
+        vectors, _ = leg_vectors(self.nominal, poses)
+        lengths = np.linalg.norm(vectors, axis=2)
+        if blocks[2]:
+            elapsed = np.asarray(self.design.times_s, float) - self.design.reference_time_s
+            full[:, legs, 12 + legs] = -elapsed[:, None] * lengths
+        if blocks[3]:
+            along = np.einsum('mik,ik->mi', vectors / lengths[..., None], self._axes)
+            full[:, legs, 18 + legs] = -np.sqrt(np.maximum(1.0 - along**2, 0.0))
+        return full[:, :, self.mask]
