@@ -10,6 +10,8 @@ from gsp_kinematics.effects.groups import (
     EFFECT_PARAMETER_NAMES,
     EffectDesign,
     EffectTerms,
+    IdentifiedEffects,
+    compensated_leg_readings,
     resolve_effects,
 )
 from gsp_kinematics.effects.model import PlatformEffects
@@ -21,8 +23,8 @@ from gsp_kinematics.identification import (
     identify,
     resolve_free,
 )
-from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.validation import simulate_commands
+from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.validation import simulate_commands, validate
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')
@@ -37,14 +39,14 @@ ALONE = {
     'joint_offsets': PlatformEffects(base_joint_offsets=np.array([20, 10, 30, 20, 25, 15]) * 1e-6),
 }
 #: Finite-difference step of each group's parameters (the model is linear in them).
+WORKSPACE = Workspace(rotation_range=np.radians(25.0))
 STEPS = {'compliance': 1e-10, 'backlash': 1e-8, 'thermal': 1e-11, 'joint_offsets': 1e-8}
 
 
 @pytest.fixture(scope='module')
 def sequence():
     """60 postures in the order visited, 10 s apart, that the real platform reaches."""
-    workspace = Workspace(rotation_range=np.radians(25.0))
-    poses = sample_valid_postures(NOMINAL, 80, np.random.default_rng(5), workspace)
+    poses = sample_valid_postures(NOMINAL, 80, np.random.default_rng(5), WORKSPACE)
     for effects in ALONE.values():
         poses = poses[simulate_commands(TRUE, NOMINAL, poses, effects).reachable]
     return poses[:60], np.arange(60) * 10.0
@@ -157,3 +159,43 @@ def test_what_a_group_lacks_is_named(sequence):
         identify(*args, free=['paper', 'backlash'], effects=EffectDesign(times[:20]))
     with pytest.raises(IdentificationError, match='implicit'):
         identify(*args, formulation='fk', free=['paper', 'backlash'], effects=design_of(run))
+
+
+@pytest.mark.parametrize('group', ['compliance', 'backlash', 'joint_offsets'])
+def test_a_controller_compensating_the_identified_effect_reaches_the_commands(sequence, group):
+    poses, times = sequence
+    truth = ALONE[group]
+    run = simulate_commands(TRUE, NOMINAL, poses, truth, times)
+    design = design_of(run)
+    plain = identify(NOMINAL, run.leg_readings, run.device_readings, free=['extended'])
+    result = identify(
+        NOMINAL, run.leg_readings, run.device_readings, free=['extended', group], effects=design
+    )
+    identified = IdentifiedEffects.from_result(result, design)
+    assert identified.groups() == [group]
+    validation = sample_valid_postures(NOMINAL, 40, np.random.default_rng(11), WORKSPACE)
+    before = validate(TRUE, plain.geometry, validation, truth)['position_mm_mean']
+    after = validate(TRUE, result.geometry, validation, truth, compensation=identified)
+    uncompensated = validate(TRUE, result.geometry, validation, truth)['position_mm_mean']
+    assert after['unreachable'] == 0
+    assert after['position_mm_mean'] < 0.1 * min(before, uncompensated), (
+        after['position_mm_mean'],
+        before,
+        uncompensated,
+    )
+
+
+def test_compensation_reads_the_model_backwards():
+    """Without effects the compensated readings are the controller's IK readings; with them,
+    the identification's model predicts exactly the commanded readings at the commanded pose."""
+    poses = sample_valid_postures(NOMINAL, 5, np.random.default_rng(3))
+    plain = compensated_leg_readings(NOMINAL, IdentifiedEffects(), poses)
+    np.testing.assert_array_equal(
+        plain, NOMINAL.sensors.leg_readings(inverse_kinematics(NOMINAL, poses))
+    )
+    values = np.zeros(24)
+    values[6:12] = 4e-6  # backlash: an extending leg is driven b / 2 further
+    identified = IdentifiedEffects(values)
+    directions = np.array([[1, -1, 1, -1, 1, -1]] * 5, dtype=float)
+    compensated = compensated_leg_readings(NOMINAL, identified, poses, directions)
+    np.testing.assert_allclose(compensated - plain, directions * 2e-6, atol=1e-15)

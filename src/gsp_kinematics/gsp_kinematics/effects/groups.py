@@ -31,7 +31,7 @@ import dataclasses
 
 import numpy as np
 
-from ..kinematics import leg_vectors
+from ..kinematics import inverse_kinematics, leg_vectors
 from .model import NUM_LEGS, PlatformEffects, base_joint_first_axes, leg_forces
 
 #: Group -> its per-leg parameter name stem, unit and what it is.
@@ -141,3 +141,70 @@ class EffectTerms:
             along = np.einsum('mik,ik->mi', vectors / lengths[..., None], self._axes)
             full[:, legs, 18 + legs] = -np.sqrt(np.maximum(1.0 - along**2, 0.0))
         return full[:, :, self.mask]
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentifiedEffects:
+    """Effect parameters a calibration identified (what a controller compensates): ``values``
+    (24,) in :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), the ``payload_mass`` (kg)
+    and ``centre_of_mass`` (platform frame, m) the compliance was identified for, and the
+    thermal ``reference_time_s`` (s) the geometry refers to."""
+
+    values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS))
+    payload_mass: float = 0.0
+    centre_of_mass: tuple = (0.0, 0.0, 0.0)
+    reference_time_s: float = 0.0
+
+    def __post_init__(self):
+        values = np.array(self.values, dtype=float).reshape(NUM_EFFECT_PARAMETERS)
+        if not np.all(np.isfinite(values)):
+            raise EffectDesignError(f'identified effects are not finite: {values.tolist()}')
+        values.setflags(write=False)
+        object.__setattr__(self, 'values', values)
+
+    @classmethod
+    def from_result(cls, result, design):
+        """The effects of an identification ``result`` made with the :class:`EffectDesign`."""
+        return cls(
+            result.effect_values,
+            design.payload_mass,
+            design.centre_of_mass,
+            design.reference_time_s,
+        )
+
+    @property
+    def none(self):
+        return not np.any(self.values)
+
+    def groups(self):
+        """The groups with a nonzero parameter."""
+        blocks = self.values.reshape(len(EFFECT_GROUPS), NUM_LEGS)
+        return [group for group, block in zip(EFFECT_GROUPS, blocks, strict=True) if block.any()]
+
+
+def compensated_leg_readings(
+    geometry, identified, poses, directions=None, times_s=None, thermal=False
+):
+    """Leg readings (M, 6) that bring a platform with the ``identified`` effects to ``poses``
+    (M, 6): the identification's model read backwards, ``q_i = (IK_i + sum theta h) / (1 +
+    kq_i)``. ``directions`` (M, 6): each leg's approach direction (default +1); ``times_s``
+    (M,) s. The thermal drift is left out unless ``thermal`` (a linear drift does not
+    extrapolate past the run: it is reported, docs/platform_effects.md)."""
+    poses = np.atleast_2d(poses)
+    rigid = inverse_kinematics(geometry, poses)
+    values = np.array(identified.values)
+    if not thermal:
+        values[12:18] = 0.0
+    mask = values != 0.0
+    if mask.any():
+        count = poses.shape[0]
+        design = EffectDesign(
+            np.zeros(count) if times_s is None else np.asarray(times_s, float),
+            np.ones((count, NUM_LEGS)) if directions is None else np.asarray(directions, float),
+            identified.payload_mass,
+            identified.centre_of_mass,
+            identified.reference_time_s,
+        )
+        terms = EffectTerms(geometry, design, mask, count)
+        rigid = rigid + terms.regressors(poses) @ values[mask]
+    return geometry.sensors.leg_readings(rigid)
