@@ -33,6 +33,7 @@ from .effects.groups import (
     EffectDesign,
     EffectDesignError,
     EffectTerms,
+    IdentifiedEffects,
     is_effect_name,
     resolve_effects,
 )
@@ -412,16 +413,17 @@ def _result(model, point, formulation, status, iterations, options):
     all_deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     deviations = np.full(NUM_ALL_PARAMETERS, np.nan)
     deviations[free] = all_deviations[: int(free.sum())]
-    effect_free = np.zeros(len(EFFECT_PARAMETER_NAMES), bool)
-    effect_values = np.zeros(len(EFFECT_PARAMETER_NAMES))
-    effect_deviations = np.full(len(EFFECT_PARAMETER_NAMES), np.nan)
-    if model_effects(model) is not None:
-        effect_free = model.effects.mask.copy()
-        effect_deviations[effect_free] = all_deviations[int(free.sum()) :]
-        if status >= 0:
-            effect_values[effect_free] = point.values[int(free.sum()) :]
+    effect_free, effect_values, effect_deviations = _effect_estimates(
+        model, point, status, all_deviations
+    )
+    geometry = Geometry.from_full_vector(vector, model.limits)
+    if model_effects(model) is not None:  # the geometry carries what the controller compensates
+        design = model.effects.design
+        geometry = geometry.replace(
+            effects=IdentifiedEffects.from_result_values(effect_values, design)
+        )
     return IdentificationResult(
-        geometry=Geometry.from_full_vector(vector, model.limits),
+        geometry=geometry,
         parameters=vector,
         standard_deviations=deviations,
         covariance=covariance,
@@ -448,6 +450,20 @@ def _result(model, point, formulation, status, iterations, options):
         effect_values=effect_values,
         effect_standard_deviations=effect_deviations,
     )
+
+
+def _effect_estimates(model, point, status, all_deviations):
+    """``(free (24,), estimates (24,), standard deviations (24,))`` of the effect parameters;
+    ``all_deviations``: of the free parameters, then of the free effects."""
+    names = len(EFFECT_PARAMETER_NAMES)
+    free, values, deviations = np.zeros(names, bool), np.zeros(names), np.full(names, np.nan)
+    if model_effects(model) is not None:
+        first = int(model.free.sum())
+        free = model.effects.mask.copy()
+        deviations[free] = all_deviations[first:]
+        if status >= 0:
+            values[free] = point.values[first:]
+    return free, values, deviations
 
 
 def model_effects(model):

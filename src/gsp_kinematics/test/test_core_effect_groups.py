@@ -15,7 +15,14 @@ from gsp_kinematics.effects.groups import (
     resolve_effects,
 )
 from gsp_kinematics.effects.model import PlatformEffects
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.geometry import (
+    GeometryError,
+    default_geometry,
+    geometry_from_parameters,
+    geometry_from_yaml,
+    geometry_to_parameters,
+    geometry_to_yaml,
+)
 from gsp_kinematics.identification import (
     SENSOR_NAMES,
     IdentificationError,
@@ -171,12 +178,12 @@ def test_a_controller_compensating_the_identified_effect_reaches_the_commands(se
     result = identify(
         NOMINAL, run.leg_readings, run.device_readings, free=['extended', group], effects=design
     )
-    identified = IdentifiedEffects.from_result(result, design)
-    assert identified.groups() == [group]
+    assert result.geometry.effects.groups() == [group]
+    rigid = result.geometry.replace(effects=IdentifiedEffects())
     validation = sample_valid_postures(NOMINAL, 40, np.random.default_rng(11), WORKSPACE)
     before = validate(TRUE, plain.geometry, validation, truth)['position_mm_mean']
-    after = validate(TRUE, result.geometry, validation, truth, compensation=identified)
-    uncompensated = validate(TRUE, result.geometry, validation, truth)['position_mm_mean']
+    after = validate(TRUE, result.geometry, validation, truth)
+    uncompensated = validate(TRUE, rigid, validation, truth)['position_mm_mean']
     assert after['unreachable'] == 0
     assert after['position_mm_mean'] < 0.1 * min(before, uncompensated), (
         after['position_mm_mean'],
@@ -199,3 +206,28 @@ def test_compensation_reads_the_model_backwards():
     directions = np.array([[1, -1, 1, -1, 1, -1]] * 5, dtype=float)
     compensated = compensated_leg_readings(NOMINAL, identified, poses, directions)
     np.testing.assert_allclose(compensated - plain, directions * 2e-6, atol=1e-15)
+
+
+def test_the_geometry_file_carries_the_identified_effects():
+    values = np.arange(1, 25) * 1e-7
+    values[:6] = np.arange(1, 7) * 1e-8  # compliance, m/N
+    identified = IdentifiedEffects(values, 40.0, (0.01, -0.02, 0.05), 1.7e9)
+    geometry = NOMINAL.replace(effects=identified)
+    text = geometry_to_yaml(geometry)
+    assert 'effects:' in text and 'effects:' not in geometry_to_yaml(NOMINAL)
+    for back in (
+        geometry_from_yaml(text),
+        geometry_from_parameters(geometry_to_parameters(geometry)),
+    ):
+        np.testing.assert_array_equal(back.effects.values, identified.values)
+        assert back.effects.payload_mass == 40.0 and back.effects.reference_time_s == 1.7e9
+        np.testing.assert_array_equal(back.effects.centre_of_mass, identified.centre_of_mass)
+        np.testing.assert_array_equal(back.to_full_vector(), NOMINAL.to_full_vector())
+    assert geometry_from_yaml(geometry_to_yaml(NOMINAL)).effects.none
+    parameters = geometry_to_parameters(geometry)
+    parameters['geometry.effects.payload_mass'] = 0.0
+    with pytest.raises(GeometryError, match='geometry.effects.payload_mass'):
+        geometry_from_parameters(parameters)
+    parameters['geometry.effects.backlash'] = [1e-6] * 5
+    with pytest.raises(GeometryError, match='geometry.effects.backlash'):
+        geometry_from_parameters(parameters)

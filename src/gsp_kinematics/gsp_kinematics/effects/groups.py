@@ -32,7 +32,13 @@ import dataclasses
 import numpy as np
 
 from ..kinematics import inverse_kinematics, leg_vectors
-from .model import NUM_LEGS, PlatformEffects, base_joint_first_axes, leg_forces
+from .model import (
+    NUM_LEGS,
+    PlatformEffects,
+    approach_directions,
+    base_joint_first_axes,
+    leg_forces,
+)
 
 #: Group -> its per-leg parameter name stem, unit and what it is.
 EFFECT_GROUPS = {
@@ -163,14 +169,9 @@ class IdentifiedEffects:
         object.__setattr__(self, 'values', values)
 
     @classmethod
-    def from_result(cls, result, design):
-        """The effects of an identification ``result`` made with the :class:`EffectDesign`."""
-        return cls(
-            result.effect_values,
-            design.payload_mass,
-            design.centre_of_mass,
-            design.reference_time_s,
-        )
+    def from_result_values(cls, values, design):
+        """The effects of identified ``values`` (24,) of a run with the :class:`EffectDesign`."""
+        return cls(values, design.payload_mass, design.centre_of_mass, design.reference_time_s)
 
     @property
     def none(self):
@@ -208,3 +209,17 @@ def compensated_leg_readings(
         terms = EffectTerms(geometry, design, mask, count)
         rigid = rigid + terms.regressors(poses) @ values[mask]
     return geometry.sensors.leg_readings(rigid)
+
+
+def commanded_leg_readings(geometry, poses, previous_readings=None):
+    """The leg readings (M, 6) a controller with ``geometry`` drives to for ``poses`` (M, 6)
+    visited in order from legs reading ``previous_readings`` (6,; None: the first is the
+    start): its IK through its sensor model, and the compensation of its identified effects
+    (``geometry.effects``) with each leg's direction of travel. Every consumer that commands
+    the platform (platform_sim, platform_bridge, the simulations) uses this."""
+    poses = np.atleast_2d(poses)
+    readings = geometry.sensors.leg_readings(inverse_kinematics(geometry, poses))
+    if geometry.effects.none:
+        return readings
+    directions = approach_directions(readings, previous_readings)
+    return compensated_leg_readings(geometry, geometry.effects, poses, directions)
