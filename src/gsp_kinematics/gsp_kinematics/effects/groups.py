@@ -31,7 +31,12 @@ import dataclasses
 
 import numpy as np
 
-from ..kinematics import inverse_kinematics, leg_vectors
+from ..kinematics import (
+    forward_kinematics_masked,
+    inverse_kinematics,
+    inverse_kinematics_jacobians,
+    leg_vectors,
+)
 from .model import (
     NUM_LEGS,
     PlatformEffects,
@@ -223,3 +228,36 @@ def commanded_leg_readings(geometry, poses, previous_readings=None):
         return readings
     directions = approach_directions(readings, previous_readings)
     return compensated_leg_readings(geometry, geometry.effects, poses, directions)
+
+
+def model_poses(geometry, leg_readings, guesses, design, tolerance=1e-12, iterations=12):
+    """Poses (M, 6) where the identification's model, with the effects ``geometry.effects``,
+    predicts the leg readings (M, 6) of a run with the :class:`EffectDesign` rows ``design``
+    (forward kinematics with the effects), and ``converged`` (M,). Newton's method on the rigid
+    Jacobian from rigid FK: the effects are micrometres."""
+    target = geometry.sensors.true_leg_lengths(np.atleast_2d(leg_readings))
+    poses, converged = forward_kinematics_masked(geometry, target, guesses)
+    values = geometry.effects.values
+    if geometry.effects.none:
+        return poses, converged
+    terms = EffectTerms(geometry, design, values != 0.0, len(poses))
+    for _ in range(iterations):
+        rigid, jacobian, _ = inverse_kinematics_jacobians(geometry, poses)
+        residual = rigid + terms.regressors(poses) @ values[values != 0.0] - target
+        residual[~converged] = 0.0
+        if not np.max(np.abs(residual), initial=0.0) > tolerance:
+            break
+        jacobian[~converged] = np.eye(6)
+        poses = poses - np.linalg.solve(jacobian, residual[..., None])[..., 0]
+    return poses, converged & (np.max(np.abs(residual), axis=1) < 1e-9)
+
+
+def design_rows(design, rows):
+    """The :class:`EffectDesign` of the postures ``rows`` (a mask or indices) of a run."""
+    if design is None:
+        return None
+    return dataclasses.replace(
+        design,
+        times_s=None if design.times_s is None else np.asarray(design.times_s)[rows],
+        directions=None if design.directions is None else np.asarray(design.directions)[rows],
+    )
