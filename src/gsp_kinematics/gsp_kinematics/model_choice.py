@@ -5,7 +5,9 @@ Forward selection from the plain model (``base``, e.g. ``extended``): each round
 current set plus each remaining effect group whose run design allows it, cross-validates each
 (:func:`gsp_kinematics.cross_validation.cross_validate`), and keeps the best group only if it
 lowers the held-out position error by more than ``min_gain`` (relative): the guard against
-over-fitting, so that on a platform the plain model describes, the plain model stays. The
+over-fitting, so that on a platform the plain model describes, the plain model stays. When
+no group alone gains enough, all the remaining groups together are tried once (effects that
+mask each other). The
 score is the measured mean held-out position error: every candidate predicts the same postures
 with the same noise, so the noise does not bias the comparison.
 """
@@ -136,6 +138,14 @@ def choose_model(
             break
         result, best, chosen = trial_result, trial, chosen + (group,)
         remaining.remove(group)
+    if len(remaining) > 1:
+        # Effects that mask each other: no one group alone gains enough, together they may.
+        together_result, together = _score(
+            nominal, data, base, chosen + tuple(remaining), folds, options
+        )
+        tried.append(together)
+        if together.position_mm < (1.0 - min_gain) * best.position_mm:
+            result, best, chosen = together_result, together, together.groups
     tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
     names = ', '.join(chosen) if chosen else 'none'
     reason = (
