@@ -30,6 +30,7 @@ from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
 from .effects.groups import (
     EFFECT_PARAMETER_NAMES,
+    NUM_EFFECT_PARAMETERS,
     EffectDesign,
     EffectDesignError,
     EffectTerms,
@@ -128,10 +129,14 @@ class IdentificationResult:
     #: The effect parameters (:data:`gsp_kinematics.effects.groups.EFFECT_PARAMETER_NAMES`, 24):
     #: which are free, their estimates (0 when fixed) and standard deviations (NaN when fixed).
     #: ``covariance`` and ``information`` cover the free parameters, then the free effects.
-    effect_free: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(24, bool))
-    effect_values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(24))
+    effect_free: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS, bool)
+    )
+    effect_values: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS)
+    )
     effect_standard_deviations: np.ndarray = dataclasses.field(
-        default_factory=lambda: np.full(24, np.nan)
+        default_factory=lambda: np.full(NUM_EFFECT_PARAMETERS, np.nan)
     )
 
     def variance_components(self):
@@ -457,8 +462,8 @@ def _result(model, point, formulation, status, iterations, options):
 def _effect_estimates(model, point, status, all_deviations):
     """``(free (24,), estimates (24,), standard deviations (24,))`` of the effect parameters;
     ``all_deviations``: of the free parameters, then of the free effects."""
-    names = len(EFFECT_PARAMETER_NAMES)
-    free, values, deviations = np.zeros(names, bool), np.zeros(names), np.full(names, np.nan)
+    count = NUM_EFFECT_PARAMETERS
+    free, values, deviations = np.zeros(count, bool), np.zeros(count), np.full(count, np.nan)
     if model_effects(model) is not None:
         first = int(model.free.sum())
         free = model.effects.mask.copy()
