@@ -384,16 +384,6 @@ def check_parameters(changes, current=None):
     )
 
 
-def requirement_from(values):
-    """The ``acceptance.Requirement`` of parameter ``values`` (defaults for missing names)."""
-    merged = {**DEFAULTS, **values}
-    return Requirement(
-        float(merged['required_position_accuracy_mm']),
-        float(merged['required_orientation_accuracy_deg']),
-        float(merged['required_improvement_over_nominal']),
-    )
-
-
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings:
     """The settings of one calibration run (a snapshot of the parameters)."""
@@ -442,11 +432,7 @@ class CalibratorSettings:
     @property
     def requirement(self):
         """What the result must achieve to be applied (``acceptance.Requirement``)."""
-        return Requirement(
-            self.required_position_accuracy_mm,
-            self.required_orientation_accuracy_deg,
-            self.required_improvement_over_nominal,
-        )
+        return Requirement.from_parameters(vars(self))
 
     def identify_options(self):
         """The core's ``Options`` for this run's loss and outlier threshold."""

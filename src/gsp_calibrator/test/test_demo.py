@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from gsp_calibrator.tools import demo, demo_commands
+from gsp_calibrator.tools import demo, demo_commands, demo_summary
 from gsp_calibrator.tools import processes as processes_module
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
@@ -47,7 +47,6 @@ def test_node_commands(tmp_path):
         f'output_root:={tmp_path}',
         'posture_count:=30',
         'apply_result:=true',
-        'apply_rejected_fit:=true',
         f'nominal_geometry_file:={args.nominal_geometry}',
         'sync_tolerance:=0.005',
     ):
@@ -137,11 +136,7 @@ def test_summary_has_the_keys_of_the_issue():
         'total_s',
         'run_directory',
         'collection',
-        'goodness_of_fit',
-        'noise_source',
-        'noise_estimates',
-        'verdict',
-        'fit_accepted',
+        *demo_summary.FIT_KEYS,
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}

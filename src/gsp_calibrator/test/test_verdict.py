@@ -87,3 +87,22 @@ def test_a_wrong_datum_is_refused_by_its_measured_accuracy(design):
     assert measured > 0.1 and math.isfinite(measured)
     summary = run_response.outcome_summary(outcome)
     assert summary.startswith(run_response.NOT_ACCEPTED_HEAD) and 'exceeds the required' in summary
+
+
+def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):
+    """Level postures at one height (no tilt, one z): the fit is full rank but ill-conditioned.
+    The held-out postures, level too, see nothing wrong; the prediction over the workspace
+    does (and the truth agrees): refused, saying that the postures do not identify the model."""
+    poses = design.poses.copy()
+    poses[:, 2:5] = [design.poses[:, 2].mean(), 0.0, 0.0]
+    level = bench_verdict.Design(
+        design.true, design.settings, poses, design.validation, design.dense
+    )
+    outcome = calibrate(design, bench_verdict.simulated_samples(level, None, seed=0))
+    assert outcome.success and not outcome.accepted
+    measured = outcome.accuracy['calibrated']['position_mm']['mean']
+    assert measured < 0.02  # the held-out level postures are predicted well
+    (failure,) = outcome.judgement.failures
+    assert failure.startswith('the postures do not identify the model over the workspace')
+    true_mm, _ = bench_verdict.true_accuracy(design, None, outcome.geometry)
+    assert true_mm > 0.1  # and over the workspace it is indeed worse than required

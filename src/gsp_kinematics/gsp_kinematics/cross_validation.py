@@ -137,7 +137,9 @@ class CrossValidation:
     def summary(self):
         """JSON-ready: the calibrated and nominal accuracy, position (mm) and phi (deg), each
         ``{mean, p95, rms}`` with the noise removed, beside the measured ``measured_mean``,
-        ``measured_p95``, the noise's own ``noise_rms`` and the ``noise_factor`` applied."""
+        ``measured_p95``, the noise's own ``noise_rms`` and the ``noise_factor`` applied;
+        ``per_posture``: each posture's measured position errors (mm, NaN: not predicted) and
+        its noise's standard deviation (mm), for plots."""
         position = np.linalg.norm(self.position_error, axis=1)
         nominal = np.linalg.norm(self.nominal_position_error, axis=1)
         degrees = math.degrees(1.0)
@@ -153,6 +155,11 @@ class CrossValidation:
             'nominal': {
                 'position_mm': _statistics(nominal, self.position_noise, 1e3),
                 'phi_deg': _statistics(np.abs(self.nominal_phi_error), self.phi_noise, degrees),
+            },
+            'per_posture': {
+                'position_mm': (1e3 * position).tolist(),
+                'nominal_position_mm': (1e3 * nominal).tolist(),
+                'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
             },
         }
 

@@ -221,3 +221,43 @@ def plot_accuracy_map(path, prediction):
 def _height_step(maps):
     heights = sorted({panel['z_m'] for panel in maps})
     return min(np.diff(heights)) if len(heights) > 1 else math.inf
+
+
+HELD_OUT_PNG = 'held_out_accuracy.png'
+
+
+def plot_held_out(path, accuracy, predicted=None, required_mm=None):
+    """Each posture's position error measured by the device with the geometry fitted without
+    it, beside the nominal geometry's and the posture's own noise (log scale), with the
+    cross-validated mean (noise removed), the predicted mean and the requirement as lines."""
+    from gsp_calibrator.report.plots import new_figure, save_figure
+
+    per_posture = accuracy['per_posture']
+    figure = new_figure(11, 4.4, left=0.07, right=0.98, top=0.88, bottom=0.12)
+    axes = figure.add_subplot(1, 1, 1)
+    postures = np.arange(1, len(per_posture['position_mm']) + 1)
+    for key, label, style in (
+        ('nominal_position_mm', 'nominal geometry', 'x'),
+        ('position_mm', 'calibrated, held out', 'o'),
+        ('noise_position_mm', "the posture's own noise (1 sigma)", '_'),
+    ):
+        values = np.array(per_posture[key], dtype=float)
+        axes.plot(postures, np.maximum(values, 1e-6), style, ms=4, label=label)
+    lines = (
+        (accuracy['calibrated']['position_mm']['mean'], 'k', 'held-out mean, noise removed'),
+        (predicted, 'tab:green', 'predicted mean (workspace)'),
+        (required_mm, 'tab:red', 'required'),
+    )
+    for value, colour, label in lines:
+        if value is not None and np.isfinite(value) and value > 0:
+            axes.axhline(value, color=colour, lw=1.2, ls='--', label=f'{label}: {value:.3g} mm')
+    axes.set_yscale('log')
+    axes.set_xlabel('posture (in the order collected)')
+    axes.set_ylabel('position error (mm)')
+    axes.grid(True, which='both', axis='y', alpha=0.3)
+    axes.legend(fontsize=8, ncol=2)
+    figure.suptitle(
+        'Accuracy measured by the device on postures the fit did not use '
+        f'({accuracy["folds"]}-fold cross-validation)'
+    )
+    return save_figure(figure, path)

@@ -321,6 +321,8 @@ def report_markdown(data, images, title='Calibration report', plots=True):
     lines += _validation_lines(data, images)
     lines += _parameter_lines(data, images)
     lines += fit_markdown(data)
+    if 'held_out' in images:
+        lines += [f'![accuracy measured on held-out postures]({images["held_out"]})', '']
     lines += [f'## Correlations above {data["correlation_threshold"]}', '']
     if data['correlations']:
         lines += ['| a | b | correlation |', '|---|---|---|']
@@ -383,6 +385,16 @@ def _write_plots(run_dir, result, inputs):
     if validation_before is not None or validation_after is not None:
         written['validation'] = plot_validation(
             _path(run_dir, VALIDATION_PNG), validation_before, validation_after
+        )
+    extra = inputs.extra or {}
+    if extra.get('accuracy'):
+        acceptance = extra.get('acceptance') or {}
+        predicted = (inputs.prediction or {}).get('random', {}).get('position_mm', {})
+        written['held_out'] = report_accuracy.plot_held_out(
+            _path(run_dir, report_accuracy.HELD_OUT_PNG),
+            extra['accuracy'],
+            predicted.get('mean'),
+            (acceptance.get('requirement') or {}).get('position_mm'),
         )
     if inputs.prediction is not None:
         written['accuracy_map'] = report_accuracy.plot_accuracy_map(

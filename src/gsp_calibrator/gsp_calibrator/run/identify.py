@@ -117,9 +117,8 @@ def identify_from_samples(
     (``samples.lag_sums``) give the within-posture noise estimate (rows without: none).
     ``noise_source``: ``estimated`` or ``configured``
     (:func:`noise_from_data.identify_with_noise`). A successful outcome is cross-validated
-    over ``folds`` folds and judged against ``requirement``
-    (:attr:`CalibrationOutcome.accepted`); it carries the goodness-of-fit verdict too
-    (:attr:`CalibrationOutcome.fit_accepted`, a diagnostic).
+    over ``folds`` folds and judged against ``requirement`` (:attr:`CalibrationOutcome.accepted`;
+    the goodness of fit, :attr:`CalibrationOutcome.fit_accepted`, is a diagnostic).
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')

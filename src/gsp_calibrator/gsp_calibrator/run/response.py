@@ -59,13 +59,6 @@ def fit_lines(outcome):
     return as_text(fit_summary(data))
 
 
-#: Said of a channel whose within-posture estimate is only a lower bound (not used, not tested).
-LOWER_BOUND_NOTE = (
-    '; within postures only a lower bound (windows short against the noise correlation time): '
-    'not used, nor in the F test'
-)
-
-
 def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
     """Measured minus the nominal model at the commanded pose: ``{sensor: value}`` (m, rad).
 

@@ -28,7 +28,7 @@ from gsp_calibrator.run.directory import (
     TRUE_GEOMETRY_FILE,
     RunDirectory,
 )
-from gsp_calibrator.settings import DEFAULTS, requirement_from
+from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
     _SIGMA_OPTIONS,
     InputError,
@@ -41,6 +41,7 @@ from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: 
     result_json,
     stored_options,
 )
+from gsp_kinematics.acceptance import Requirement
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
     default_geometry_path,
@@ -241,7 +242,7 @@ def reidentify(args, out=None):
             free,
             options['formulation'],
             noise_source=options['noise_source'],
-            requirement=requirement_from(options),
+            requirement=Requirement.from_parameters(options),
             folds=int(options['cross_validation_folds']),
             options=_options(options),
         )
@@ -352,7 +353,7 @@ def refresh_report(
         options['free_parameters'],
         options['formulation'],
         noise_source=source,
-        requirement=requirement_from(options),
+        requirement=Requirement.from_parameters(options),
         folds=int(options['cross_validation_folds']),
         options=_options(options),
     )
