@@ -423,14 +423,10 @@ def _result(model, point, formulation, status, iterations, options):
     effect_free, effect_values, effect_deviations = _effect_estimates(
         model, point, status, all_deviations
     )
-    geometry = Geometry.from_full_vector(vector, model.limits)
-    if model_effects(model) is not None:  # the geometry carries what the controller compensates
-        design = model.effects.design
-        geometry = geometry.replace(
-            effects=IdentifiedEffects.from_result_values(effect_values, design)
-        )
     return IdentificationResult(
-        geometry=geometry,
+        geometry=_geometry_with_effects(
+            Geometry.from_full_vector(vector, model.limits), model, effect_values
+        ),
         parameters=vector,
         standard_deviations=deviations,
         covariance=covariance,
@@ -471,6 +467,14 @@ def _effect_estimates(model, point, status, all_deviations):
         if status >= 0:
             values[free] = point.values[first:]
     return free, values, deviations
+
+
+def _geometry_with_effects(geometry, model, effect_values):
+    """``geometry`` carrying the identified effects (what its controller compensates)."""
+    if model_effects(model) is None:
+        return geometry
+    design = model.effects.design
+    return geometry.replace(effects=IdentifiedEffects.from_result_values(effect_values, design))
 
 
 def model_effects(model):
