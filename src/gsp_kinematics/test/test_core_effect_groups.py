@@ -12,6 +12,7 @@ from gsp_kinematics.effects.groups import (
     EffectTerms,
     IdentifiedEffects,
     compensated_leg_readings,
+    model_poses,
     resolve_effects,
 )
 from gsp_kinematics.effects.model import PlatformEffects
@@ -231,3 +232,19 @@ def test_the_geometry_file_carries_the_identified_effects():
     parameters['geometry.effects.backlash'] = [1e-6] * 5
     with pytest.raises(GeometryError, match='geometry.effects.backlash'):
         geometry_from_parameters(parameters)
+
+
+def test_forward_kinematics_with_the_identified_effects_finds_the_real_pose(sequence):
+    """A backlash the model holds exactly: the pose model_poses gives for the actuators'
+    readings is where the real platform is; the rigid forward kinematics is micrometres off."""
+    poses, times = sequence
+    truth = ALONE['backlash']
+    run = simulate_commands(TRUE, NOMINAL, poses, truth, times)
+    values = np.zeros(24)
+    values[6:12] = truth.backlash
+    knowing = TRUE.replace(effects=IdentifiedEffects(values))
+    found, converged = model_poses(knowing, run.leg_readings, poses, design_of(run))
+    assert converged.all()
+    np.testing.assert_allclose(found, run.real_poses, atol=1e-11)
+    rigid, _ = model_poses(TRUE, run.leg_readings, poses, design_of(run))
+    assert np.max(np.abs(rigid[:, :3] - run.real_poses[:, :3])) > 1e-6
