@@ -23,6 +23,8 @@ import time
 import numpy as np
 
 from .device import DeviceModelError, device_position
+from .effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
+from .geometry import ALL_PARAMETER_NAMES
 from .identification import IdentificationError, Options, identify
 from .kinematics import forward_kinematics_masked
 from .prediction import reading_pose_covariance
@@ -52,9 +54,12 @@ def prediction_errors(geometry, leg_lengths, readings, guesses):
     return _errors(geometry, geometry, leg_lengths, readings, guesses)
 
 
-def _errors(legs_geometry, device_geometry, leg_lengths, readings, guesses):
-    articular = legs_geometry.sensors.true_leg_lengths(leg_lengths)
-    poses, converged = forward_kinematics_masked(legs_geometry, articular, guesses)
+def _errors(legs_geometry, device_geometry, leg_lengths, readings, guesses, design=None):
+    if legs_geometry.effects.none:
+        articular = legs_geometry.sensors.true_leg_lengths(leg_lengths)
+        poses, converged = forward_kinematics_masked(legs_geometry, articular, guesses)
+    else:  # the identified effects (docs/platform_effects.md), with the rows' design
+        poses, converged = model_poses(legs_geometry, leg_lengths, guesses, design)
     position, phi = device_pose(device_geometry, readings)
     position_error = np.where(converged[:, None], poses[:, :3] - position, np.nan)
     phi_error = np.where(converged, wrap_angle(poses[:, 5] - phi), np.nan)
@@ -176,6 +181,7 @@ def cross_validate(
     folds=DEFAULT_FOLDS,
     options=Options(),
     noise=None,
+    effects=None,
 ):
     """Cross-validate the identification ``result`` (an ``IdentificationResult`` of the rows
     ``leg_lengths`` (M, 6) and ``readings`` (M, 4) with the row weights ``row_sigmas``): for
@@ -187,7 +193,9 @@ def cross_validate(
     not see it, the nominal baseline those of the full fit (its best estimate of the device).
     ``noise``: the rows' measurement noise removed from the errors (a SensorNoise of the rows;
     None: ``row_sigmas``). Weights that hold a model error (estimated between postures) are not
-    the noise: pass the within-posture noise here."""
+    the noise: pass the within-posture noise here. ``effects``: the rows'
+    :class:`~gsp_kinematics.effects.groups.EffectDesign` when ``result`` freed effect groups
+    (each fold is fitted with them and predicts its postures with what it identified)."""
     started = time.perf_counter()
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     readings = np.asarray(readings, dtype=float)
@@ -197,6 +205,8 @@ def cross_validate(
     position = np.full((count, 3), np.nan)
     phi = np.full(count, np.nan)
     failed = []
+    free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
+    free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
     for fold in range(int(assignment.max()) + 1):
         held, kept = assignment == fold, assignment != fold
         try:
@@ -206,17 +216,23 @@ def cross_validate(
                 readings[kept],
                 row_sigmas,
                 result.formulation,
-                result.free,
+                free,
                 guesses[kept],
                 options=options,
+                effects=design_rows(effects, kept),
             )
         except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
             fitted = None
         if fitted is None or not fitted.converged:
             failed.append(fold)
             continue
-        position[held], phi[held], _ = prediction_errors(
-            fitted.geometry, leg_lengths[held], readings[held], guesses[held]
+        position[held], phi[held], _ = _errors(
+            fitted.geometry,
+            fitted.geometry,
+            leg_lengths[held],
+            readings[held],
+            guesses[held],
+            design_rows(effects, held),
         )
     noise = row_sigmas if noise is None else noise
     position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)

@@ -28,6 +28,16 @@ from . import goodness
 from ._solver.formulations import _FkModel, _ImplicitModel
 from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
+from .effects.groups import (
+    EFFECT_PARAMETER_NAMES,
+    NUM_EFFECT_PARAMETERS,
+    EffectDesign,
+    EffectDesignError,
+    EffectTerms,
+    IdentifiedEffects,
+    is_effect_name,
+    resolve_effects,
+)
 from .geometry import (
     ALL_PARAMETER_NAMES,
     NUM_ALL_PARAMETERS,
@@ -116,6 +126,18 @@ class IdentificationResult:
     #: (M, k) redundancy numbers of the residuals (their variance under the model; None: no fit)
     redundancy: np.ndarray | None = None
     robust_weights: np.ndarray | None = None  #: (M, k) IRLS weights of a robust fit (None: 1)
+    #: The effect parameters (:data:`gsp_kinematics.effects.groups.EFFECT_PARAMETER_NAMES`, 24):
+    #: which are free, their estimates (0 when fixed) and standard deviations (NaN when fixed).
+    #: ``covariance`` and ``information`` cover the free parameters, then the free effects.
+    effect_free: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS, bool)
+    )
+    effect_values: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS)
+    )
+    effect_standard_deviations: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.full(NUM_EFFECT_PARAMETERS, np.nan)
+    )
 
     def variance_components(self):
         """``{channel: (q, r)}`` of the residuals (:func:`goodness.variance_components`)."""
@@ -134,9 +156,28 @@ class IdentificationResult:
 
     @property
     def free_names(self):
-        return [
-            name for name, is_free in zip(ALL_PARAMETER_NAMES, self.free, strict=True) if is_free
+        """The free parameters, then the free effect parameters (the covariance's order)."""
+        names = [name for name, free in zip(ALL_PARAMETER_NAMES, self.free, strict=True) if free]
+        return names + [
+            name
+            for name, free in zip(EFFECT_PARAMETER_NAMES, self.effect_free, strict=True)
+            if free
         ]
+
+    @property
+    def effects(self):
+        """``{name: (estimate, standard deviation)}`` of the free effect parameters (SI)."""
+        return {
+            name: (float(value), float(deviation))
+            for name, free, value, deviation in zip(
+                EFFECT_PARAMETER_NAMES,
+                self.effect_free,
+                self.effect_values,
+                self.effect_standard_deviations,
+                strict=True,
+            )
+            if free
+        }
 
     @property
     def sensor_errors_free(self):
@@ -173,17 +214,22 @@ def resolve_free(free):
             )
         return free.copy()
     mask = np.zeros(NUM_ALL_PARAMETERS, dtype=bool)
+    effects = False
     for name in free:
+        if is_effect_name(name):  # the effect groups: resolve_effects
+            effects = True
+            continue
         if name in PARAMETER_GROUPS:
             mask[[PARAMETER_INDEX[member] for member in PARAMETER_GROUPS[name]]] = True
             continue
         if name not in PARAMETER_INDEX:
             raise IdentificationError(
                 f'unknown parameter name {name!r} (expected a group {sorted(PARAMETER_GROUPS)} '
-                "or names such as 'A1x', 'Loff3', 'D0', 'gamma', 'kq2', 'alpha0', 'kDm')"
+                "or names such as 'A1x', 'Loff3', 'D0', 'gamma', 'kq2', 'alpha0', 'kDm', or an "
+                "effect group 'compliance', 'backlash', 'thermal', 'joint_offsets')"
             )
         mask[PARAMETER_INDEX[name]] = True
-    if not mask.any():
+    if not mask.any() and not effects:
         raise IdentificationError('no free parameters')
     return mask
 
@@ -238,6 +284,7 @@ def identify(
     pose_guesses=None,
     sensors=SENSOR_NAMES,
     options=Options(),
+    effects=None,
 ):
     """Identify the free parameters from M postures.
 
@@ -245,7 +292,9 @@ def identify(
     ``[alpha, beta, phi, d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (e.g. the
     commanded postures); by default built from the device readings. ``sensors`` drops
     measurements (e.g. without ``'d_m'``) for identifiability studies. ``free``: see
-    :func:`resolve_free` (default the paper's 44). ``options.loss`` other than ``'linear'``
+    :func:`resolve_free` (default the paper's 44); effect groups and parameters among it
+    (:mod:`gsp_kinematics.effects.groups`, ``'implicit'`` only) need ``effects``, an
+    :class:`EffectDesign` of the run (times, approach directions, the payload). ``options.loss`` other than ``'linear'``
     reweights each residual by the loss (IRLS, scale ``options.loss_scale`` sigmas).
     """
     if formulation not in FORMULATIONS:
@@ -263,13 +312,17 @@ def identify(
         goodness.check_loss(options.loss, options.loss_scale)
     except ValueError as error:
         raise IdentificationError(str(error)) from None
+    effect_mask = resolve_effects([] if free is None or isinstance(free, np.ndarray) else free)
     free = resolve_free(free)
     leg_lengths, readings, pose_guesses = _check_inputs(
         nominal, leg_lengths, readings, pose_guesses
     )
+    terms = _effect_terms(nominal, effects, effect_mask, formulation, len(leg_lengths))
     started = time.perf_counter()
     if formulation == 'implicit':
-        model = _ImplicitModel(nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors)
+        model = _ImplicitModel(
+            nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors, terms
+        )
     else:
         model = _FkModel(
             nominal,
@@ -289,6 +342,21 @@ def identify(
     result = _result(model, point, formulation, status, iterations, options)
     result.duration_s = time.perf_counter() - started
     return result
+
+
+def _effect_terms(nominal, design, mask, formulation, count):
+    """The :class:`EffectTerms` of the free effect parameters (None without any)."""
+    if not mask.any():
+        return None
+    if formulation != 'implicit':
+        raise IdentificationError(
+            f"the effect groups need formulation 'implicit' (the leg readings are residuals), "
+            f'got {formulation!r}'
+        )
+    try:
+        return EffectTerms(nominal, design or EffectDesign(), mask, count)
+    except EffectDesignError as error:
+        raise IdentificationError(str(error)) from None
 
 
 def _robust_rounds(model, point, status, iterations, options):
@@ -338,9 +406,10 @@ def _result(model, point, formulation, status, iterations, options):
         fit = goodness.goodness_of_fit(residuals, unknowns, excluded)
     if status < 0:
         cost = float('nan')
-        information = covariance = np.eye(int(free.sum())) * np.nan
+        size = int(free.sum()) + (model_effects(model).count if model_effects(model) else 0)
+        information = covariance = np.eye(size) * np.nan
     else:
-        vector[free] = point.values
+        vector[free] = point.values[: int(free.sum())]
         cost = point.cost
         information = model.information(point)
         covariance = _safe_inverse(information)
@@ -348,10 +417,16 @@ def _result(model, point, formulation, status, iterations, options):
             values = residuals[:, column] / weight
             values = values[np.isfinite(values)]
             rms[name] = float(np.sqrt(np.mean(values**2))) if values.size else float('nan')
+    all_deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     deviations = np.full(NUM_ALL_PARAMETERS, np.nan)
-    deviations[free] = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    deviations[free] = all_deviations[: int(free.sum())]
+    effect_free, effect_values, effect_deviations = _effect_estimates(
+        model, point, status, all_deviations
+    )
     return IdentificationResult(
-        geometry=Geometry.from_full_vector(vector, model.limits),
+        geometry=_geometry_with_effects(
+            Geometry.from_full_vector(vector, model.limits), model, effect_values
+        ),
         parameters=vector,
         standard_deviations=deviations,
         covariance=covariance,
@@ -374,7 +449,37 @@ def _result(model, point, formulation, status, iterations, options):
         down_weighted=down_weighted,
         redundancy=redundancy,
         robust_weights=weights,
+        effect_free=effect_free,
+        effect_values=effect_values,
+        effect_standard_deviations=effect_deviations,
     )
+
+
+def _effect_estimates(model, point, status, all_deviations):
+    """``(free (24,), estimates (24,), standard deviations (24,))`` of the effect parameters;
+    ``all_deviations``: of the free parameters, then of the free effects."""
+    count = NUM_EFFECT_PARAMETERS
+    free, values, deviations = np.zeros(count, bool), np.zeros(count), np.full(count, np.nan)
+    if model_effects(model) is not None:
+        first = int(model.free.sum())
+        free = model.effects.mask.copy()
+        deviations[free] = all_deviations[first:]
+        if status >= 0:
+            values[free] = point.values[first:]
+    return free, values, deviations
+
+
+def _geometry_with_effects(geometry, model, effect_values):
+    """``geometry`` carrying the identified effects (what its controller compensates)."""
+    if model_effects(model) is None:
+        return geometry
+    design = model.effects.design
+    return geometry.replace(effects=IdentifiedEffects.from_result_values(effect_values, design))
+
+
+def model_effects(model):
+    """The model's :class:`EffectTerms` (None: no effect parameter free)."""
+    return getattr(model, 'effects', None)
 
 
 def _safe_inverse(matrix):

@@ -15,6 +15,7 @@ import dataclasses
 import numpy as np
 
 from .device import device_readings
+from .effects.groups import commanded_leg_readings
 from .effects.model import approach_directions
 from .effects.real_pose import real_poses
 from .kinematics import forward_kinematics, forward_kinematics_masked, inverse_kinematics
@@ -75,13 +76,16 @@ def simulate_commands(
     """What the real platform (``true`` geometry and ``effects``) does when ``controller`` drives
     it through ``commanded`` (M, 6) in that order, at ``times_s`` (M,) s since the start
     (default 0): a :class:`SimulatedRun`. ``previous_readings`` (6,): the legs' readings before
-    the first command (None: it is the first; every leg counts as arrived extending)."""
+    the first command (None: it is the first; every leg counts as arrived extending).
+    A controller geometry with identified effects (``controller.effects``) compensates them: the
+    legs go to :func:`~gsp_kinematics.effects.groups.compensated_leg_readings`, each leg's
+    direction taken from the uncompensated readings."""
     commanded = np.atleast_2d(np.asarray(commanded, dtype=float))
-    readings = controller.sensors.leg_readings(inverse_kinematics(controller, commanded))
-    directions = approach_directions(readings, previous_readings)
+    readings = commanded_leg_readings(controller, commanded, previous_readings)
     times = np.zeros(len(commanded)) if times_s is None else np.asarray(times_s, dtype=float)
     if times.shape != (len(commanded),):
         raise ValueError(f'times_s must have shape ({len(commanded)},), got {times.shape}')
+    directions = approach_directions(readings, previous_readings)
     reached, ok = real_poses(true, effects, readings, commanded, directions, times)
     reached[~ok] = np.nan
     device = np.full((len(commanded), 4), np.nan)
@@ -104,10 +108,11 @@ def validate(true, controller, commanded, effects=None, times_s=None):
 
     A posture whose commanded legs the real platform cannot assemble near the command (FK fails)
     is left out of the statistics and counted in ``unreachable``. ``effects``: the real
-    platform's (:func:`simulate_commands`, in the order given, at ``times_s``).
+    platform's (:func:`simulate_commands`, in the order given, at ``times_s``); a controller
+    with identified effects compensates them.
     """
     commanded = np.atleast_2d(commanded)
-    if effects is None or effects.ideal:
+    if (effects is None or effects.ideal) and controller.effects.none:
         articular = commanded_articular(true, controller, commanded)
         reached, converged = forward_kinematics_masked(true, articular, commanded)
     else:

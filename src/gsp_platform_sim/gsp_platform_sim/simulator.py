@@ -21,16 +21,18 @@ real platform may bend under its load, have backlash, grow with temperature and 
 joint axes. Its real pose then comes from :func:`gsp_kinematics.effects.real_pose.real_poses`
 with each leg's approach direction (from its previous reading) and the time since ``start_s``;
 at rest the pose follows the thermal growth (:meth:`PlatformSimulator.update`). The leg readings
-stay what the actuators read.
+stay what the actuators read. A controller geometry with identified effects compensates them
+(:func:`gsp_kinematics.effects.groups.commanded_leg_readings`).
 """
 
 import dataclasses
 
 import numpy as np
 
+from gsp_kinematics.effects.groups import commanded_leg_readings
 from gsp_kinematics.effects.model import PlatformEffects, approach_directions, thermal_strains
 from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.kinematics import check_reachable, home_pose, inverse_kinematics
+from gsp_kinematics.kinematics import check_reachable, home_pose
 from gsp_kinematics.travel.motion import LegMove
 
 #: Largest condition number of dq/dX a command may have (singularity guard). Above the
@@ -237,10 +239,12 @@ class PlatformSimulator:
         )
         if not ok[0]:
             return self._reject(f'unreachable: {reasons[0]}')
-        controller = self._controller_geometry
-        leg_lengths = controller.sensors.leg_readings(inverse_kinematics(controller, pose[None]))[0]
         if self._leg_lengths is not None and self.limits is not None and self._move is not None:
             self.update(now_s)  # a command may supersede a move: from where the legs are now
+        # The controller's IK, compensating the effects it knows (geometry.effects).
+        leg_lengths = commanded_leg_readings(
+            self._controller_geometry, pose[None], self._leg_lengths
+        )[0]
         directions = approach_directions(leg_lengths[None], self._leg_lengths, self._directions)[0]
         true_pose = self._real_pose(leg_lengths, directions, now_s, pose)
         if true_pose is None:

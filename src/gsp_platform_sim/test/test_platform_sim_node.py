@@ -8,6 +8,7 @@ import pytest
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from rclpy.parameter import Parameter
 
+from gsp_kinematics.effects.groups import IdentifiedEffects, commanded_leg_readings
 from gsp_kinematics.effects.model import PlatformEffects
 from gsp_kinematics.effects.real_pose import real_poses
 from gsp_kinematics.geometry import (
@@ -269,12 +270,22 @@ def _calibrated_geometry():
             encoder_offset=2e-3,
             lvdt_gain_error=-1e-3,
         ),
+        # Identified effects (docs/platform_effects.md): micrometres at the legs.
+        effects=IdentifiedEffects(
+            np.concatenate(
+                [np.full(6, 3e-8), np.full(6, 4e-6), np.full(6, 1e-8), np.full(6, 2e-5)]
+            ),
+            40.0,
+            (0.0, 0.01, 0.05),
+            100.0,
+        ),
     )
 
 
 def _legs(geometry, pose):
-    """Leg sensor readings (6,) the controller drives to for ``pose`` (m)."""
-    return geometry.sensors.leg_readings(inverse_kinematics(geometry, pose[None]))[0]
+    """Leg sensor readings (6,) the controller drives to for ``pose`` (m), its identified
+    effects compensated (as arrived extending: the direction moves them by the backlash)."""
+    return commanded_leg_readings(geometry, pose[None])[0]
 
 
 @pytest.mark.parametrize('service', ['set_parameters', 'set_parameters_atomically'])

@@ -9,6 +9,7 @@ import shutil
 import sys
 
 from gsp_kinematics.effects.model import PRESETS as PLATFORM_EFFECTS
+from gsp_kinematics.fileio import yaml_float
 from gsp_msgs_py.ros_environment import loopback_environment
 
 #: The three nodes: executable (console script) and module (fallback: ``python -m``).
@@ -91,8 +92,7 @@ def _parameter_text(value):
     """A ``-p`` value: floats with a decimal point (``4e-06`` would not read as a double)."""
     if isinstance(value, list):
         return '[' + ', '.join(_parameter_text(item) for item in value) + ']'
-    text = repr(float(value))
-    return text if '.' in text or 'inf' in text or 'nan' in text else text.replace('e', '.0e')
+    return yaml_float(value)
 
 
 def platform_effect_parameters(args):
