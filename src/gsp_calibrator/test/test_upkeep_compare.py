@@ -4,30 +4,19 @@ import json
 
 import numpy as np
 import pytest
+from upkeep_runs import RUNS, write_runs
 
-from gsp_calibrator.report.write import ReportInputs, write_result_json
 from gsp_calibrator.tools import compare
 from gsp_calibrator.upkeep.calibration_files import CalibrationFileError, load_calibration
-from gsp_experiments.bench_upkeep import UpkeepDesign, changed_truth
 
 
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
     """Three run directories: a calibration, one of the unchanged platform, one after Loff3 +20 um."""
-    design = UpkeepDesign.default()
-    root = tmp_path_factory.mktemp('runs')
-    cases = {
-        'first': (design.true, 21),
-        'same': (design.true, 22),
-        'changed': (changed_truth(design.true, 'Loff3', 20e-6), 22),
-    }
+    written = write_runs(tmp_path_factory.mktemp('runs'))
     paths = {}
-    for name, (true, seed) in cases.items():
-        paths[name] = root / name
-        paths[name].mkdir()
-        result = design.identify(true, seed)
-        write_result_json(paths[name], result, ReportInputs(nominal=design.nominal))
-        paths[name, 'result'] = result
+    for key, (name, *_) in zip(('first', 'same', 'changed'), RUNS, strict=True):
+        paths[key], paths[key, 'result'] = written[name]
     return paths
 
 
