@@ -322,10 +322,12 @@ def _result(model, point, formulation, status, iterations, options):
         # Each residual against its own standard deviation under the noise the residuals show:
         # wrong sigmas scale every residual of a channel alike and name no posture.
         components = goodness.variance_components(residuals, redundancy, columns, weights)
-        outliers = goodness.outlier_postures(
-            goodness.studentised(residuals, redundancy, columns, components),
+        studentised = goodness.studentised(residuals, redundancy, columns, components)
+        outliers = goodness.isolated_outliers(
+            goodness.outlier_postures(studentised, options.outlier_threshold, columns),
+            studentised,
+            model.estimated_poses(point),
             options.outlier_threshold,
-            columns,
         )
         excluded = []
         if weights is not None:
