@@ -76,8 +76,30 @@ def test_the_realistic_device_preset_sets_the_device_and_the_settle_look_back(tm
     assert 'settle_lookback:=0.0' in plain['calibrator']
 
 
+def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):
+    preset = demo_commands.PLATFORM_EFFECTS['realistic'].to_parameters('effects.')
+    args = demo.parse_arguments(['--platform-effects', 'realistic'])
+    platform = demo_commands.node_commands(args, str(tmp_path), lambda n: n)['platform_sim']
+    given = dict(arg.split(':=', 1) for arg in platform if arg.startswith('effects.'))
+    assert set(given) == set(preset)
+    for name, value in preset.items():
+        text = given[name]
+        # A double (or double array) to ROS: every number written with a decimal point.
+        numbers = text.strip('[]').split(', ')
+        assert all('.' in number for number in numbers), (name, text)
+        np.testing.assert_array_equal(np.array(numbers, dtype=float), np.ravel(value))
+    plain = demo_commands.node_commands(demo.parse_arguments([]), str(tmp_path), lambda n: n)
+    assert not any(arg.startswith('effects.') for arg in plain['platform_sim'])
+
+
 @pytest.mark.parametrize(
-    'argv', [['--postures', '0'], ['--sensor-rate', '0'], ['--settle-time', '-1']]
+    'argv',
+    [
+        ['--postures', '0'],
+        ['--sensor-rate', '0'],
+        ['--settle-time', '-1'],
+        ['--platform-effects', 'realistic', '--platform', 'ros2_control'],
+    ],
 )
 def test_bad_arguments_are_rejected(argv):
     with pytest.raises(SystemExit):

@@ -36,6 +36,7 @@ from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
 from gsp_calibrator.tools.demo_commands import (
     MOVING_SETTLE_TIMEOUT_S,
     NODES,
+    PLATFORM_EFFECTS,
     SENSOR_DYNAMICS,
     node_commands,
     ros_environment,
@@ -120,6 +121,14 @@ def parse_arguments(argv=None):
         "correlation times of typical parts, and the calibrator's settle look-back to match "
         '(docs/sensor_errors.md) (none)',
     )
+    add(
+        '--platform-effects',
+        default='none',
+        choices=tuple(PLATFORM_EFFECTS),
+        help="platform_sim's real platform: none, rigid and ideal; realistic: 40 kg on 30 N/um "
+        'legs, 4 um backlash, legs warming 1.5 K within 15 min, base joint axes 20 um apart '
+        '(docs/platform_effects.md) (none)',
+    )
     add('--startup-timeout', type=float, default=30.0, help='longest node start-up, s (30)')
     add(
         '--platform',
@@ -134,6 +143,12 @@ def parse_arguments(argv=None):
         help="sim: device_driver's sim backend; serial: gsp_fake_device on a pty (sim)",
     )
     args = parser.parse_args(argv)
+    _check_arguments(parser, args)
+    return args
+
+
+def _check_arguments(parser, args):
+    """Exit through ``parser.error`` naming the first bad argument; make the paths absolute."""
     reason = run_options_error(args)
     if reason:
         parser.error(reason)
@@ -141,11 +156,12 @@ def parse_arguments(argv=None):
         parser.error('--validation-postures must be >= 1')
     if not args.sensor_rate > 0 or not args.settle_time >= 0:
         parser.error('--sensor-rate must be > 0 and --settle-time >= 0')
+    if args.platform_effects != 'none' and args.platform != 'sim':
+        parser.error('--platform-effects needs --platform sim (controller_sim has no effects)')
     if not (args.max_leg_speed >= 0 and args.max_leg_acceleration >= 0):
         parser.error('--max-leg-speed and --max-leg-acceleration must be >= 0 (0: no limit)')
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
-    return args
 
 
 @dataclasses.dataclass
