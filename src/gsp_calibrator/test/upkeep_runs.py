@@ -3,6 +3,7 @@ calibrator writes them (``result.json``), for the upkeep tests."""
 
 from gsp_calibrator.report.write import ReportInputs, write_result_json
 from gsp_experiments.bench_upkeep import UpkeepDesign, changed_truth
+from gsp_kinematics.geometry import save_geometry
 
 #: (directory name, truth changed?, noise seed): two calibrations of the unchanged platform,
 #: then one after Loff3 moved by 20 um.
@@ -27,5 +28,6 @@ def write_runs(root, platform='hexapod-7'):
             extra={'success': True, 'options': {'platform_id': platform}},
         )
         write_result_json(path, result, inputs)
+        save_geometry(result.geometry, path / 'result.yaml')
         written[name] = (path, result)
     return written
