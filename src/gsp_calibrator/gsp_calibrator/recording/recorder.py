@@ -246,6 +246,7 @@ def settings_options(settings):
         'pool_size',
         'seed',
         'nominal_geometry_file',
+        'platform_id',
     ):
         if hasattr(settings, name):
             options[name] = getattr(settings, name)
