@@ -165,6 +165,7 @@ def run(quick=False):
                 drifts, 'changed_only_that_parameter'
             ),
         },
+        'run_to_requirement': requirement,
     }
 
 
