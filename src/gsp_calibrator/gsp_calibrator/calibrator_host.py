@@ -80,8 +80,8 @@ class CalibratorRunHost:
             idle = self._protocol.posture is None and not self.finals and not self._ending
             return idle and self._session.commanded_all
 
-    def deliver_result(self, settings, geometry, fit_accepted):
-        return self._results.deliver(settings, geometry, fit_accepted, self.wait_for)
+    def deliver_result(self, settings, geometry, accepted):
+        return self._results.deliver(settings, geometry, accepted, self.wait_for)
 
     def shutting_down(self):
         return not self.context.ok()

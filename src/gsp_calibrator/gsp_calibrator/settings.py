@@ -11,6 +11,13 @@ import dataclasses
 import os
 import re
 
+from gsp_kinematics.acceptance import (
+    DEFAULT_REQUIRED_IMPROVEMENT,
+    DEFAULT_REQUIRED_ORIENTATION_DEG,
+    DEFAULT_REQUIRED_POSITION_MM,
+    Requirement,
+)
+from gsp_kinematics.cross_validation import DEFAULT_FOLDS
 from gsp_kinematics.geometry import (
     ALL_PARAMETER_NAMES,
     GeometryError,
@@ -217,11 +224,36 @@ PARAMETERS = (
         'sigma_* parameters); docs/sensor_errors.md',
         NOISE_SOURCES,
     ),
+    _positive(
+        'required_position_accuracy_mm',
+        DEFAULT_REQUIRED_POSITION_MM,
+        'The result is applied (apply_result) only if its mean position error, measured by the '
+        'device on postures the fit did not use (cross-validation, measurement noise removed), '
+        'is at most this (docs/verdict.md)',
+        'mm',
+    ),
+    _positive(
+        'required_orientation_accuracy_deg',
+        DEFAULT_REQUIRED_ORIENTATION_DEG,
+        'The result is applied only if its cross-validated mean error of the platform rotation '
+        'phi (the rotation the device measures) is at most this',
+        'deg',
+    ),
     ParameterSpec(
-        'apply_rejected_fit',
-        False,
-        'With apply_result: apply a result that converged but failed the goodness-of-fit '
-        'check (p < 0.01) anyway; the result is written and marked in either case',
+        'required_improvement_over_nominal',
+        DEFAULT_REQUIRED_IMPROVEMENT,
+        'The result is applied only if its cross-validated mean position error is at least '
+        "this many times smaller than the nominal geometry's on the same postures",
+        constraints='>= 1',
+        check=at_least(1.0, reason='must be finite and >= 1'),
+    ),
+    ParameterSpec(
+        'cross_validation_folds',
+        DEFAULT_FOLDS,
+        'Folds of the cross-validation that measures the accuracy (each fold of postures is '
+        'predicted by a fit without it); with fewer postures, each is left out alone',
+        constraints='>= 2',
+        check=at_least(2),
     ),
     _one_of(
         'formulation',
@@ -352,6 +384,16 @@ def check_parameters(changes, current=None):
     )
 
 
+def requirement_from(values):
+    """The ``acceptance.Requirement`` of parameter ``values`` (defaults for missing names)."""
+    merged = {**DEFAULTS, **values}
+    return Requirement(
+        float(merged['required_position_accuracy_mm']),
+        float(merged['required_orientation_accuracy_deg']),
+        float(merged['required_improvement_over_nominal']),
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings:
     """The settings of one calibration run (a snapshot of the parameters)."""
@@ -376,7 +418,10 @@ class CalibratorSettings:
     loss_scale: float = Options().loss_scale  #: sigmas
     outlier_threshold: float = 0.0  #: studentised; 0: Bonferroni at 1 %
     noise_source: str = DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
-    apply_rejected_fit: bool = False
+    required_position_accuracy_mm: float = DEFAULT_REQUIRED_POSITION_MM
+    required_orientation_accuracy_deg: float = DEFAULT_REQUIRED_ORIENTATION_DEG
+    required_improvement_over_nominal: float = DEFAULT_REQUIRED_IMPROVEMENT
+    cross_validation_folds: int = DEFAULT_FOLDS
     posture_order: str = 'route'
     max_leg_speed: float = MotionLimits().max_speed  #: m/s
     max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
@@ -393,6 +438,15 @@ class CalibratorSettings:
     def free_count(self):
         """Number of free parameters (the groups expanded)."""
         return int(resolve_free(self.free_parameters).sum())
+
+    @property
+    def requirement(self):
+        """What the result must achieve to be applied (``acceptance.Requirement``)."""
+        return Requirement(
+            self.required_position_accuracy_mm,
+            self.required_orientation_accuracy_deg,
+            self.required_improvement_over_nominal,
+        )
 
     def identify_options(self):
         """The core's ``Options`` for this run's loss and outlier threshold."""
@@ -440,7 +494,10 @@ class CalibratorSettings:
             loss_scale=float(merged['loss_scale']),
             outlier_threshold=float(merged['outlier_threshold']),
             noise_source=str(merged['noise_source']),
-            apply_rejected_fit=bool(merged['apply_rejected_fit']),
+            required_position_accuracy_mm=float(merged['required_position_accuracy_mm']),
+            required_orientation_accuracy_deg=float(merged['required_orientation_accuracy_deg']),
+            required_improvement_over_nominal=float(merged['required_improvement_over_nominal']),
+            cross_validation_folds=int(merged['cross_validation_folds']),
             posture_order=str(merged['posture_order']),
             max_leg_speed=float(merged['max_leg_speed']),
             max_leg_acceleration=float(merged['max_leg_acceleration']),

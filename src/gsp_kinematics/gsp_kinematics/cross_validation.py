@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from .device import device_position
+from .device import DeviceModelError, device_position
 from .identification import IdentificationError, Options, identify
 from .kinematics import forward_kinematics_masked
 from .prediction import reading_pose_covariance
@@ -203,7 +203,7 @@ def cross_validate(
                 guesses[kept],
                 options=options,
             )
-        except IdentificationError:
+        except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
             fitted = None
         if fitted is None or not fitted.converged:
             failed.append(fold)

@@ -200,6 +200,12 @@ def outlier_postures(normalised, threshold=DEFAULT_OUTLIER_THRESHOLD, columns=No
 
 #: Nearest postures (in pose space) whose residuals a posture's are compared with.
 NEIGHBOURS = 5
+#: The neighbour test's threshold when the model does not explain the data, in multiples of the
+#: studentised test's: a real platform's residual field changes faster than 60 postures sample
+#: it (compliance at the workspace's extremes reaches 11 robust sigmas from its neighbours on
+#: the realistic platform, docs/verdict.md); a bad row (a glitch, a wrong pose) stands out by
+#: far more.
+NEIGHBOUR_THRESHOLD_FACTOR = 3.0
 #: Metres per radian when postures are compared in pose space (a rotation of 1 rad moves the
 #: platform's joints by about half a metre).
 POSE_SCALE_M_PER_RAD = 0.5
@@ -233,7 +239,7 @@ def neighbour_deviations(normalised, poses, neighbours=NEIGHBOURS):
 def isolated_outliers(outliers, normalised, poses, threshold=DEFAULT_OUTLIER_THRESHOLD):
     """The entries of ``outliers`` (:func:`outlier_postures`) whose postures are also
     inconsistent with their neighbours (:func:`neighbour_deviations` of ``normalised`` beyond
-    ``threshold``, None: Bonferroni as there): a large residual in a smooth field of large
+    the threshold below; ``threshold`` None: Bonferroni as there): a large residual in a smooth field of large
     residuals is the model's error, not the posture's. Each kept entry gets its
     ``neighbour_deviation``."""
     if not outliers:
@@ -247,6 +253,16 @@ def isolated_outliers(outliers, normalised, poses, threshold=DEFAULT_OUTLIER_THR
         if worst > threshold:
             kept.append({**entry, 'neighbour_deviation': worst})
     return kept
+
+
+def outliers_beside_model_error(outliers, residual_count, threshold=None):
+    """The entries of :func:`isolated_outliers` that stand out from their neighbours by
+    :data:`NEIGHBOUR_THRESHOLD_FACTOR` times ``threshold`` (None: Bonferroni over
+    ``residual_count``): the outliers of a fit whose model does not explain the data."""
+    if threshold is None:
+        threshold = bonferroni_threshold(residual_count)
+    limit = NEIGHBOUR_THRESHOLD_FACTOR * threshold
+    return [entry for entry in outliers if entry.get('neighbour_deviation', math.inf) > limit]
 
 
 def down_weighted_postures(weights, below=0.999):

@@ -254,15 +254,25 @@ def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within,
 def identify_with_noise(source, nominal, leg_lengths, readings, row_sigmas, within, **options):
     """``(result, {channel: ChannelNoise}, SensorNoise of the rows used)`` with the weights of
     ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``) or
-    ``configured`` (``row_sigmas``; the estimate is made from the fit and only reported)."""
+    ``configured`` (``row_sigmas``; the estimate is made from the fit and only reported).
+    When the goodness of fit rejects the model, only the outliers that stand out from a smooth
+    field of model error are kept (:func:`goodness.outliers_beside_model_error`)."""
     check_noise_source(source)
     if source == 'estimated':
-        return identify_with_estimated_noise(
+        result, estimates, used = identify_with_estimated_noise(
             nominal, leg_lengths, readings, row_sigmas, within, **options
         )
-    result = identify(nominal, leg_lengths, readings, row_sigmas, **options)
-    estimates = estimate_row_noise(result, row_sigmas, within) if result.converged else {}
-    return result, estimates, row_sigmas
+    else:
+        result = identify(nominal, leg_lengths, readings, row_sigmas, **options)
+        estimates = estimate_row_noise(result, row_sigmas, within) if result.converged else {}
+        used = row_sigmas
+    fit = result.goodness_of_fit
+    if fit is not None and fit.test != 'none' and not fit.accepted and result.outliers:
+        threshold = options.get('options')
+        threshold = None if threshold is None else threshold.outlier_threshold
+        count = int(np.count_nonzero(np.isfinite(result.residuals)))
+        result.outliers = goodness.outliers_beside_model_error(result.outliers, count, threshold)
+    return result, estimates, used
 
 
 def unmodelled_error(estimates):

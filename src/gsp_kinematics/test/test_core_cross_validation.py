@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from gsp_kinematics import noise_from_data
 from gsp_kinematics.cross_validation import (
     cross_validate,
     device_pose,
@@ -128,3 +129,70 @@ def test_noise_removed_cross_validation_agrees_with_the_clean_one(smooth_platfor
     assert measured['position_mm']['measured_mean'] > 1.25 * true_rms  # the noise's share
     assert measured['position_mm']['mean'] == pytest.approx(true_rms, rel=0.25)
     assert math.isfinite(measured['phi_deg']['mean'])
+
+
+def _within(rows, dof=5000.0):
+    """The within-posture estimate a run of well-sampled windows gives (the rows' true noise)."""
+    return {
+        channel: noise_from_data.WithinNoise(value, dof, SAMPLES, False)
+        for channel, value in rows.channels().items()
+    }
+
+
+@pytest.fixture(scope='module')
+def strong_smooth(exact, nominal_sets, moderate_postures):
+    """Noisy rows of the exact platform with a 30 um smooth leg error, fitted with the noise
+    estimated from the run (the calibrator's default)."""
+    rng = np.random.default_rng(21)
+    legs, readings = rows(exact, moderate_postures, rng, lambda p: smooth_leg_error(p, 30e-6))
+    return legs, readings
+
+
+def test_the_unmodelled_error_is_kept_apart_from_the_noise(
+    nominal_sets, moderate_postures, strong_smooth
+):
+    """The legs' noise stays their noise (the within estimate); the excess of the residuals
+    between postures is the unmodelled part, of the order of the smooth error;
+    and a smooth field names no outlier."""
+    legs, readings = strong_smooth
+    result, estimates, _ = noise_from_data.identify_with_noise(
+        'estimated', nominal_sets[1], legs, readings, ROWS, _within(ROWS),
+        free='paper', pose_guesses=moderate_postures,
+    )  # fmt: skip
+    assert not result.goodness_of_fit.accepted
+    assert estimates['leg_lengths'].noise == pytest.approx(ROWS.leg_lengths)
+    unmodelled = noise_from_data.unmodelled_error(estimates)
+    # The weights put the 30 um leg error where it is cheapest: in the legs and, through the
+    # estimated poses, in the inclinations (about 1 m of link: 1 urad is 1 um).
+    assert 10e-6 < unmodelled.leg_lengths + 1.0 * unmodelled.inclinometer < 60e-6
+    assert result.outliers == []
+    record = noise_from_data.noise_record(estimates, DEFAULT_SENSOR_NOISE, [SAMPLES])
+    assert record['leg_lengths']['estimated'] == pytest.approx(DEFAULT_SENSOR_NOISE.leg_lengths)
+    assert not record['leg_lengths']['warning']
+
+
+def test_a_bad_row_in_a_smooth_field_is_still_named(nominal_sets, moderate_postures, strong_smooth):
+    legs, readings = strong_smooth
+    legs = legs.copy()
+    legs[17, 2] += 0.5e-3  # a glitch on leg 3
+    result, _, _ = noise_from_data.identify_with_noise(
+        'estimated', nominal_sets[1], legs, readings, ROWS, _within(ROWS),
+        free='paper', pose_guesses=moderate_postures,
+    )  # fmt: skip
+    assert [entry['posture'] for entry in result.outliers] == [17]
+
+
+def test_the_prediction_adds_the_unmodelled_part(exact, moderate_postures):
+    from gsp_kinematics.geometry import NUM_PARAMETERS
+    from gsp_kinematics.prediction import assumption, predicted_errors
+    from gsp_kinematics.sensors.noise import SensorNoise
+
+    covariance = np.eye(NUM_PARAMETERS) * 1e-12
+    alone, _ = predicted_errors(exact, covariance, moderate_postures[:5])
+    unmodelled = SensorNoise(10e-6, 0.0, 0.0, 0.0)
+    added, _ = predicted_errors(exact, covariance, moderate_postures[:5], unmodelled=unmodelled)
+    only, _ = predicted_errors(exact, covariance * 0.0, moderate_postures[:5], None, unmodelled)
+    # Independent parts add in quadrature (E|v| of a 3-D Gaussian: to within a few %).
+    assert np.allclose(added, np.hypot(alone, only), rtol=0.1)
+    assert np.all(only > 5e-3)  # 10 um in each leg moves the platform by several um (mm here)
+    assert 'exactly the model' in assumption(None) and '10 um rms' in assumption(unmodelled)

@@ -227,6 +227,16 @@ class RunRecorder:
         return on_message
 
 
+#: The options that decide whether a result is applied (stored, so a re-identification judges
+#: it alike).
+ACCEPTANCE_OPTIONS = (
+    'required_position_accuracy_mm',
+    'required_orientation_accuracy_deg',
+    'required_improvement_over_nominal',
+    'cross_validation_folds',
+)
+
+
 def settings_options(settings):
     """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`).
 
@@ -247,6 +257,7 @@ def settings_options(settings):
         'seed',
         'nominal_geometry_file',
         'platform_id',
+        *ACCEPTANCE_OPTIONS,
     ):
         if hasattr(settings, name):
             options[name] = getattr(settings, name)

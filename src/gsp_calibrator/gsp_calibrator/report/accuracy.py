@@ -24,11 +24,15 @@ def _validation_poses(validation):
     return None if poses is None else np.asarray(poses, dtype=float).reshape(-1, 6)
 
 
-def prediction_for(result, validation_after=None, workspace=Workspace(), analysis=None):
+def prediction_for(
+    result, validation_after=None, workspace=Workspace(), analysis=None, unmodelled=None
+):
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
     covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
     the unidentifiable directions). ``analysis``: the result's identifiability analysis
-    (``gsp_kinematics.identifiability.analyse_result``), computed here when None."""
+    (``gsp_kinematics.identifiability.analyse_result``), computed here when None.
+    ``unmodelled``: what the model leaves unexplained (``noise_from_data.unmodelled_error``),
+    added at every pose (None: the platform is taken to be exactly the model)."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
@@ -36,7 +40,9 @@ def prediction_for(result, validation_after=None, workspace=Workspace(), analysi
         analysis = analyse_result(result)
     if analysis['rank'] < analysis['parameters']:
         return None
-    prediction = predict_accuracy(result.geometry, covariance, result.free, workspace)
+    prediction = predict_accuracy(
+        result.geometry, covariance, result.free, workspace, unmodelled=unmodelled
+    )
     poses = _validation_poses(validation_after)
     measured_position = (validation_after or {}).get('position_mm')
     measured_orientation = (validation_after or {}).get('orientation_deg')
@@ -47,7 +53,9 @@ def prediction_for(result, validation_after=None, workspace=Workspace(), analysi
         and len(poses) == len(measured_position)
         and len(poses)
     ):
-        position, orientation = predicted_errors(result.geometry, covariance, poses, result.free)
+        position, orientation = predicted_errors(
+            result.geometry, covariance, poses, result.free, unmodelled
+        )
         measured_position = np.asarray(measured_position, dtype=float)
         measured_orientation = np.asarray(measured_orientation, dtype=float)
         prediction['validation'] = {
@@ -69,6 +77,7 @@ def result_json_entry(prediction):
         return None
     entry = {
         'statistic': prediction['statistic'],
+        'assumes': prediction.get('assumes'),
         'units': prediction['units'],
         **accuracy_summary(prediction),
         'random': prediction['random'],

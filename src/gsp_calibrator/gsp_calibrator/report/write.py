@@ -35,7 +35,7 @@ from gsp_calibrator.report.data import (
     si_unit,
     validation_summary,
 )
-from gsp_calibrator.report.fit import fit_data, fit_markdown
+from gsp_calibrator.report.fit import fit_data, fit_markdown, outcome_data
 from gsp_calibrator.report.fit import format_number as _fmt
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
@@ -89,6 +89,8 @@ class ReportInputs:
     sigmas: object = None  #: the ``SensorNoise`` weights used
     extra: dict | None = None  #: more top-level keys of result.json
     prediction: dict | None = None  #: :func:`.accuracy.prediction_for` of the result
+    #: what the model leaves unexplained (``noise_from_data.unmodelled_error``), in the prediction
+    unmodelled: object = None
 
     def completed(self, result):
         """These inputs with the analysis and the prediction of ``result`` computed where None
@@ -97,9 +99,10 @@ class ReportInputs:
 
         analysis = analyse_result(result) if self.analysis is None else self.analysis
         prediction = self.prediction
-        if prediction is None:
+        compare = self.validation_after is not None and 'validation' not in (prediction or {})
+        if prediction is None or compare:
             prediction = report_accuracy.prediction_for(
-                result, self.validation_after, analysis=analysis
+                result, self.validation_after, analysis=analysis, unmodelled=self.unmodelled
             )
         return dataclasses.replace(self, analysis=analysis, prediction=prediction)
 
@@ -181,21 +184,21 @@ def result_data(result, inputs=ReportInputs()):
 
 
 def outcome_inputs(outcome, nominal, options, **extra):
-    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis and
-    sigmas, and ``extra`` keys ``success``, ``failure``, ``options`` and ``extra`` (e.g. the
-    calibrator's ``collection``)."""
+    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis, sigmas,
+    prediction and unmodelled error, and ``extra`` keys ``success``, ``failure``, ``options``,
+    the verdict (:func:`.fit.outcome_data`) and ``extra`` (e.g. the calibrator's
+    ``collection``)."""
     return ReportInputs(
         analysis=outcome.identifiability or None,
         nominal=nominal,
         sigmas=outcome.sigmas,
+        prediction=outcome.prediction,
+        unmodelled=outcome.unmodelled,
         extra={
             'success': outcome.success,
             'failure': outcome.message or None,
             'options': options,
-            'noise_source': outcome.noise_source,
-            'noise_estimates': outcome.noise_estimates,
-            'fit_accepted': outcome.fit_accepted,
-            'verdict': outcome.verdict or None,
+            **outcome_data(outcome),
             **extra,
         },
     )

@@ -81,7 +81,7 @@ class RunHost(typing.Protocol):
     def collection_done(self) -> bool:
         """Whether every posture was commanded, has ended and was queued in :attr:`finals`."""
 
-    def deliver_result(self, settings, geometry, fit_accepted) -> typing.Awaitable:
+    def deliver_result(self, settings, geometry, accepted) -> typing.Awaitable:
         """Publish the calibrated ``geometry`` and apply it as ``settings`` ask; awaitable of
         ``(success, note)`` (see ``gsp_calibrator.result_delivery``)."""
 

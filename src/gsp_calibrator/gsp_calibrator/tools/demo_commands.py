@@ -193,11 +193,6 @@ def _calibrator_parameters(args, output_root, rate):
         f'free_parameters:=[{",".join(args.free)}]',
         '-p',
         'apply_result:=true',
-        # On a truth the model describes exactly, the goodness-of-fit check still rejects 1
-        # run in 100 (its significance level); the demo's validation against the true
-        # platform is the stronger check, so it applies the result and prints the verdict.
-        '-p',
-        'apply_rejected_fit:=true',
         '-p',
         f'settle_lookback:={_dynamics(args)["settle_lookback"]!r}',
         # The demo redraws the report against the truth once it has validated (its

@@ -28,7 +28,7 @@ from gsp_calibrator.run.directory import (
     TRUE_GEOMETRY_FILE,
     RunDirectory,
 )
-from gsp_calibrator.settings import DEFAULTS
+from gsp_calibrator.settings import DEFAULTS, requirement_from
 from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
     _SIGMA_OPTIONS,
     InputError,
@@ -241,6 +241,8 @@ def reidentify(args, out=None):
             free,
             options['formulation'],
             noise_source=options['noise_source'],
+            requirement=requirement_from(options),
+            folds=int(options['cross_validation_folds']),
             options=_options(options),
         )
     except (IdentificationError, postures.CalibrationError) as error:
@@ -350,6 +352,8 @@ def refresh_report(
         options['free_parameters'],
         options['formulation'],
         noise_source=source,
+        requirement=requirement_from(options),
+        folds=int(options['cross_validation_folds']),
         options=_options(options),
     )
     if outcome.result is None:

@@ -7,6 +7,7 @@ import math
 import sys
 from pathlib import Path
 
+from gsp_calibrator.recording.recorder import ACCEPTANCE_OPTIONS
 from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.run.postures import DEFAULT_FREE
 from gsp_calibrator.settings import DEFAULTS, check_free_parameters
@@ -101,6 +102,8 @@ def resolve_options(args, stored):
         raise InputError(
             f'noise source {options["noise_source"]!r} (stored) is not one of {list(NOISE_SOURCES)}'
         )
+    for name in ACCEPTANCE_OPTIONS:  # no command-line option: the stored ones, else defaults
+        options[name] = stored.get(name, DEFAULTS[name])
     options['loss'] = pick(args.loss, 'loss')
     if options['loss'] not in LOSSES:
         raise InputError(f'loss {options["loss"]!r} (stored) is not one of {list(LOSSES)}')
