@@ -27,7 +27,7 @@ def test_each_calibration_is_indexed_with_the_changes_since_the_one_before(root,
     assert len(indexed) == 3 and skipped == []
     found = history.runs(database, 'hexapod-7')
     assert [entry['time_utc'][:10] for entry in found] == ['2026-11-01', '2026-11-08', '2026-11-15']
-    assert all(entry['kind'] == 'calibration' and entry['verdict'] == 'applied' for entry in found)
+    assert all(entry['kind'] == 'calibration' and entry['verdict'] == 'identified' for entry in found)
     assert found[0]['changes'] == [] and found[0]['compared_with'] is None
     assert found[1]['changes'] == [] and found[1]['compared_with'] == found[0]['id']
     assert [change['parameter'] for change in found[2]['changes']] == ['Loff3']
@@ -126,3 +126,15 @@ def test_a_writer_killed_inside_its_transaction_leaves_a_consistent_history(root
     # A later writer carries on.
     history.record(database, second)
     assert len(history.runs(database)) == 2
+
+
+def test_a_judged_calibration_gives_its_cross_validated_accuracy_and_its_acceptance():
+    judged = {
+        'success': True,
+        'accepted': False,
+        'accuracy': {'calibrated': {'position_mm': {'mean': 0.048}, 'phi_deg': {'mean': 0.002}}},
+        'predicted_accuracy': {'position_mm_mean': 0.0116, 'orientation_deg_mean': 0.001},
+    }
+    assert history.calibration_accuracy(judged) == (0.048, 0.002, 'cross-validated')
+    assert history.calibration_verdict(judged) == (False, 'not accepted')
+    assert history.calibration_verdict({'success': False, 'accepted': True}) == (False, 'failed')

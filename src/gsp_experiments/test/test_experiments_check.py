@@ -6,13 +6,13 @@ import pytest
 
 from gsp_experiments.bench_sensor_errors import SAMPLES, SIGMAS, collect
 from gsp_experiments.bench_upkeep import UpkeepDesign, changed_truth
-from gsp_kinematics import check, drift
+from gsp_kinematics import acceptance, check, drift
 from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.travel.motion import MotionLimits, move_time, posture_leg_lengths
 
 ROWS = SIGMAS.averaged([SAMPLES])
-REQUIRED = check.Requirement(position_mm=0.05, orientation_deg=0.01)
+REQUIRED = acceptance.Requirement(position_mm=0.05, orientation_deg=0.01)
 NO_NOISE = SensorNoise(leg_lengths=0.0, inclinometer=0.0, encoder=0.0, lvdt=0.0)
 
 
@@ -59,13 +59,13 @@ def test_a_20_um_leg_offset_change_says_recalibrate_and_names_the_leg(calibrated
 
 def test_an_accuracy_that_misses_the_requirement_says_recalibrate(calibrated):
     # Unchanged platform, a phi requirement no calibration meets: the likeliest leg is named.
-    tight = check.Requirement(position_mm=0.05, orientation_deg=1e-9)
+    tight = acceptance.Requirement(position_mm=0.05, orientation_deg=1e-9)
     data = run_check(calibrated, calibrated[0].true, seed=41, required=tight)
     assert data['verdict'] == 'recalibrate'
     assert [reason.split()[0] for reason in data['reasons']] == ['phi']
     assert len(data['moved']) == 1 and data['moved'][0]['likely']
     # The changed platform against 0.01 mm: both the accuracy and the change say so.
-    tight = check.Requirement(position_mm=0.01, orientation_deg=0.01)
+    tight = acceptance.Requirement(position_mm=0.01, orientation_deg=0.01)
     changed = changed_truth(calibrated[0].true, 'Loff3', 20e-6)
     data = run_check(calibrated, changed, seed=41, required=tight)
     assert [reason.split()[0] for reason in data['reasons']] == ['position', 'the']

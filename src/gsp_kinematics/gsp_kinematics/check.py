@@ -44,14 +44,6 @@ VERDICTS = ('within tolerance', 'recalibrate')
 
 
 @dataclasses.dataclass(frozen=True)
-class Requirement:
-    """The required accuracy: mean position error (mm) and mean phi error (deg)."""
-
-    position_mm: float
-    orientation_deg: float
-
-
-@dataclasses.dataclass(frozen=True)
 class CheckPlan:
     """The postures of a check in route order and the platform time they take."""
 
@@ -191,7 +183,10 @@ def check_platform(
         reasons.append(f'phi error {phi:.5f} deg > required {required.orientation_deg} deg')
     data = {
         'kind': 'check',
-        'required': dataclasses.asdict(required),
+        'required': {
+            'position_mm': required.position_mm,
+            'orientation_deg': required.orientation_deg,
+        },
         'accuracy': _accuracy_record(accuracy),
         'accuracy_detail': accuracy,
         'level': level,

@@ -21,13 +21,6 @@ from gsp_msgs_py import names
 PHASE_CHECKING = 'checking'
 
 
-def requirement(settings):
-    """The required accuracy of ``settings`` (``check.Requirement``)."""
-    return check.Requirement(
-        float(settings.required_position_mm), float(settings.required_orientation_deg)
-    )
-
-
 class CheckRun(CalibrationRun):
     """One check with ``settings``, hosted by ``host`` (a ``run.host.RunHost``)."""
 
@@ -90,7 +83,7 @@ class CheckRun(CalibrationRun):
                 self.reference,
                 session.samples,
                 settings.sigmas,
-                requirement(settings),
+                settings.requirement,
                 settings.platform_id,
                 self.plan.platform_time_s,
             )

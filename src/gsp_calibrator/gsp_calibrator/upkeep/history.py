@@ -126,19 +126,28 @@ def run_time(run_dir, data):
 
 def calibration_accuracy(data):
     """``(position_mm, orientation_deg, source)`` of a ``result.json``: the accuracy measured
-    by cross-validation when the run has it, else the predicted accuracy (mean over the
-    workspace)."""
-    measured = data.get('cross_validated_accuracy') or {}
-    if measured.get('position_mm_mean') is not None:
-        return (
-            measured['position_mm_mean'],
-            measured.get('orientation_deg_mean'),
-            'cross-validated',
-        )
+    by cross-validation (``accuracy.calibrated``, the verdict's) when the run has it, else the
+    predicted accuracy (mean over the workspace)."""
+    measured = ((data.get('accuracy') or {}).get('calibrated')) or {}
+    position = (measured.get('position_mm') or {}).get('mean')
+    if position is not None:
+        return position, (measured.get('phi_deg') or {}).get('mean'), 'cross-validated'
     predicted = data.get('predicted_accuracy') or {}
     if predicted.get('position_mm_mean') is not None:
         return predicted['position_mm_mean'], predicted.get('orientation_deg_mean'), 'predicted'
     return None, None, None
+
+
+def calibration_verdict(data):
+    """``(usable, verdict)`` of a ``result.json``: identified and, when the run was judged,
+    accepted against the required accuracy (``accepted``, ``not accepted``), else
+    ``identified`` or ``failed``."""
+    success = bool(data.get('success', data.get('converged')))
+    if not success:
+        return False, 'failed'
+    if 'accepted' in data:
+        return bool(data['accepted']), 'accepted' if data['accepted'] else 'not accepted'
+    return True, 'identified'
 
 
 def _previous_calibration(connection, platform, time_utc):
@@ -168,11 +177,11 @@ def _describe(connection, run_dir, data, platform):
     else:
         calibration = calibration_from_result(data, run_file_path)
         position, orientation, source = calibration_accuracy(data)
-        success = bool(data.get('success', data.get('converged')))
+        success, verdict = calibration_verdict(data)
         row = {
             'kind': 'calibration',
             'success': int(success),
-            'verdict': 'applied' if success else 'not applied',
+            'verdict': verdict,
             'position_mm': position,
             'orientation_deg': orientation,
             'accuracy_source': source,
