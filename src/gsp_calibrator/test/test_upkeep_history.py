@@ -27,7 +27,9 @@ def test_each_calibration_is_indexed_with_the_changes_since_the_one_before(root,
     assert len(indexed) == 3 and skipped == []
     found = history.runs(database, 'hexapod-7')
     assert [entry['time_utc'][:10] for entry in found] == ['2026-11-01', '2026-11-08', '2026-11-15']
-    assert all(entry['kind'] == 'calibration' and entry['verdict'] == 'identified' for entry in found)
+    assert all(
+        entry['kind'] == 'calibration' and entry['verdict'] == 'identified' for entry in found
+    )
     assert found[0]['changes'] == [] and found[0]['compared_with'] is None
     assert found[1]['changes'] == [] and found[1]['compared_with'] == found[0]['id']
     assert [change['parameter'] for change in found[2]['changes']] == ['Loff3']
