@@ -54,6 +54,7 @@ from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
+from gsp_calibrator.upkeep.check_flow import CheckRun, record_calibration
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.executors import MultiThreadedExecutor
@@ -137,9 +138,13 @@ class CalibratorNode(CalibratorRunHost, Node):
         self.create_timer(
             WATCHDOG_PERIOD_S, self._on_watchdog, callback_group=MutuallyExclusiveCallbackGroup()
         )
-        for service, resume in ((names.SERVICE_CALIBRATE, False), (names.SERVICE_RESUME, True)):
+        for service, resume, check in (
+            (names.SERVICE_CALIBRATE, False, False),
+            (names.SERVICE_RESUME, True, False),
+            (names.SERVICE_CHECK, False, True),
+        ):
             self.create_service(
-                Trigger, service, self._service(resume), callback_group=self._service_group
+                Trigger, service, self._service(resume, check), callback_group=self._service_group
             )
 
         self._diagnostics = DiagnosticsPublisher(
@@ -150,7 +155,8 @@ class CalibratorNode(CalibratorRunHost, Node):
         # Posture selection takes seconds: start it now for the current parameters.
         self.selection_future(self._settings)
         self.get_logger().info(
-            f'calibrator ready: {names.SERVICE_CALIBRATE}, {names.SERVICE_RESUME} '
+            f'calibrator ready: {names.SERVICE_CALIBRATE}, {names.SERVICE_RESUME}, '
+            f'{names.SERVICE_CHECK} '
             f'({self._settings.describe()})'
         )
 
@@ -294,15 +300,16 @@ class CalibratorNode(CalibratorRunHost, Node):
 
     # --------------------------------------------------------------------------- the run
 
-    def _service(self, resume):
+    def _service(self, resume, check=False):
         async def callback(request, response):
             """Trigger: one whole calibration, or (``resume``) the rest of an unfinished run:
-            ``resume_run_directory`` or the latest. A second call meanwhile fails at once."""
-            return await self._serve(response, resume)
+            ``resume_run_directory`` or the latest, or (``check``) the one-minute check
+            (docs/upkeep.md). A second call meanwhile fails at once."""
+            return await self._serve(response, resume, check)
 
         return callback
 
-    async def _serve(self, response, resume):
+    async def _serve(self, response, resume, check=False):
         with self._lock:
             if self._running:
                 response.success = False
@@ -310,8 +317,11 @@ class CalibratorNode(CalibratorRunHost, Node):
                 self.get_logger().warning('calibrate: refused, a calibration is already running')
                 return response
             self._running = True
-            self._run = CalibrationRun(self, self._settings, resume)
-        response.success, response.message = await self._run.serve()
+            self._run = (CheckRun if check else CalibrationRun)(self, self._settings, resume)
+        run = self._run
+        response.success, response.message = await run.serve()
+        if not check and run.session is not None:  # a check indexes itself
+            await record_calibration(self, run.settings, run.session.run.path)
         return response
 
     def destroy_node(self):

@@ -85,3 +85,11 @@ def test_the_calibration_share_is_what_a_controller_error_does_to_the_check(cali
     single = drift.Calibration(names, np.zeros(len(names)), np.outer(error, error))
     predicted = np.sqrt(np.diag(check.calibration_share(shifted, commanded, ROWS, single)))
     np.testing.assert_allclose(np.abs(seen), predicted, atol=0.05e-6)  # m
+
+
+def test_a_posture_the_platform_already_holds_is_not_chosen(calibrated):
+    # The platform stands at the plan's first posture (as after a calibration ending there).
+    design, controller, _, plan = calibrated
+    held = plan.pool_indices[0]
+    again = check.choose_check_postures(controller, design.pool, design.pool[held], ROWS)
+    assert held not in again.pool_indices

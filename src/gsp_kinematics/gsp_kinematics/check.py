@@ -40,6 +40,9 @@ CHECK_BUDGET_S = 60.0
 CHECK_POSTURES = 10
 #: Time at each posture besides the samples (s): the settle rule's wait.
 SETTLE_ALLOWANCE_S = 0.5
+#: Leg distance (m) within which the platform already holds a posture: its readings would not
+#: change, and the collection would skip it (the calibrator's ``run.postures.HELD_TOLERANCE``).
+HELD_TOLERANCE_M = 1e-4
 VERDICTS = ('within tolerance', 'recalibrate')
 
 
@@ -82,7 +85,8 @@ def choose_check_postures(
     candidate_information *= np.outer(scale, scale)[None] * len(pool)
     legs = posture_leg_lengths(controller, np.vstack([np.asarray(start_pose, float), pool]))
     information = 1e-6 * np.eye(len(free))
-    current, chosen, travel, available = 0, [], 0.0, np.ones(len(pool), dtype=bool)
+    current, chosen, travel = 0, [], 0.0
+    available = np.max(np.abs(legs[1:] - legs[0]), axis=1) > HELD_TOLERANCE_M
     while len(chosen) < count:
         moves = np.asarray(move_time(legs[current], legs[1:], limits), dtype=float)
         fits = available & (travel + moves + per_posture * (len(chosen) + 1) <= budget_s)

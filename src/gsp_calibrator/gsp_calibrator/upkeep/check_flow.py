@@ -14,7 +14,7 @@ from gsp_calibrator.run import postures
 from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.flow import CalibrationRun, RunFailed
 from gsp_calibrator.upkeep import check_run, history
-from gsp_calibrator.upkeep.calibration_files import CalibrationFileError
+from gsp_calibrator.upkeep.calibration_files import RESULT_JSON, CalibrationFileError
 from gsp_kinematics import check
 from gsp_msgs_py import names
 
@@ -29,9 +29,18 @@ class CheckRun(CalibrationRun):
         self.reference = None
         self.plan = None
 
+    @property
+    def _host(self):
+        # TEMPORARY until the run loop's rewrite is merged (CalibrationRun.host).
+        return getattr(self, 'host', None) or self.node
+
+    async def _begin(self, part):
+        # TEMPORARY: the current CalibrationRun's name of _choose_postures.
+        await self._choose_postures(part)
+
     async def _choose_postures(self, part):
         """The check's postures, in route order from where the platform stands."""
-        settings, session, host = self.settings, self.session, self.host
+        settings, session, host = self.settings, self.session, self._host
         host.progress(0, names.PHASE_SELECTING, 'choosing the check postures')
         try:
             self.reference = await host.in_thread(
@@ -73,7 +82,7 @@ class CheckRun(CalibrationRun):
 
     async def _identify(self, started):
         """Judge the collected rows, write check.json, index the check; ``(success, text)``."""
-        settings, session, host, log = self.settings, self.session, self.host, self.log
+        settings, session, host, log = self.settings, self.session, self._host, self.log
         count = settings.posture_count
         self.save_state(run_state.PHASE_IDENTIFYING)
         host.progress(count, PHASE_CHECKING, f'checking from {len(session.samples)} postures')
@@ -96,7 +105,10 @@ class CheckRun(CalibrationRun):
         self.save_state(run_state.PHASE_DONE)
         await record_in_history(host, settings, session.run.path)
         summary = check_run.check_summary(data) + f'\nrun directory: {session.run.path}'
-        (log.info if data['verdict'] == check.VERDICTS[0] else log.warning)(summary)
+        if data['verdict'] == check.VERDICTS[0]:  # one call site per severity (rclpy)
+            log.info(summary)
+        else:
+            log.warning(summary)
         host.progress(
             count, names.PHASE_DONE, summary.splitlines()[0], run_directory=session.run.path
         )
@@ -105,6 +117,7 @@ class CheckRun(CalibrationRun):
 
 async def record_in_history(host, settings, run_dir):
     """Index ``run_dir`` in the history of ``settings.output_root`` (a failure is logged)."""
+    log = host.log if hasattr(host, 'log') else host.get_logger()
     try:
         await host.in_thread(
             history.record,
@@ -113,4 +126,10 @@ async def record_in_history(host, settings, run_dir):
             settings.platform_id,
         )
     except (history.HistoryError, CalibrationFileError, OSError, ValueError) as error:
-        host.log.error(f'history not updated with {run_dir}: {error}')
+        log.error(f'history not updated with {run_dir}: {error}')
+
+
+async def record_calibration(host, settings, run_dir):
+    """Index a calibration's ``run_dir`` in the history once it has a result.json."""
+    if os.path.isfile(os.path.join(run_dir, RESULT_JSON)):
+        await record_in_history(host, settings, run_dir)
