@@ -140,3 +140,24 @@ def test_a_judged_calibration_gives_its_cross_validated_accuracy_and_its_accepta
     assert history.calibration_accuracy(judged) == (0.048, 0.002, 'cross-validated')
     assert history.calibration_verdict(judged) == (False, 'not accepted')
     assert history.calibration_verdict({'success': False, 'accepted': True}) == (False, 'failed')
+
+
+def test_a_rank_deficient_calibration_is_indexed_without_its_meaningless_sigmas(root, tmp_path):
+    data = json.loads((root / RUNS[0][0] / 'result.json').read_text())
+    covariance = data['covariance']['si']
+    covariance[0][0] = -1e-12  # what the pseudo-inverse of a singular information can give
+    data['success'] = False
+    run_dir = tmp_path / '20261201T080000Z'
+    run_dir.mkdir()
+    (run_dir / 'result.json').write_text(json.dumps(data))
+    database = tmp_path / 'history.sqlite'
+    history.record(database, run_dir)
+    (entry,) = history.runs(database)
+    assert (entry['success'], entry['verdict']) == (0, 'failed')
+    name = data['free_parameters'][0]
+    assert history.estimates(database, entry['platform'], [name])[name] == []  # not usable
+    with sqlite3.connect(database) as connection:
+        sigma = connection.execute(
+            'SELECT sigma_si FROM estimates WHERE parameter = ?', (name,)
+        ).fetchone()[0]
+    assert sigma is None

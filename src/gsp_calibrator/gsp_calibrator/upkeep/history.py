@@ -15,6 +15,7 @@ refused rather than written.
 
 import contextlib
 import datetime
+import math
 import sqlite3
 from pathlib import Path
 
@@ -195,7 +196,11 @@ def _describe(connection, run_dir, data, platform):
                 compared_with = previous['id']
             except (CalibrationFileError, ValueError):
                 pass  # the earlier run's files are gone or unusable: no comparison
-    sigmas = [float(value) ** 0.5 for value in calibration.covariance.diagonal()]
+    # A rank-deficient fit can leave a variance negative or not finite: no sigma then.
+    sigmas = [
+        math.sqrt(value) if math.isfinite(value) and value >= 0.0 else None
+        for value in map(float, calibration.covariance.diagonal())
+    ]
     estimates = list(zip(calibration.names, calibration.estimates.tolist(), sigmas, strict=True))
     row |= {'platform': platform, 'run_dir': str(Path(run_dir).resolve()), 'time_utc': time_utc}
     row['compared_with'] = compared_with
