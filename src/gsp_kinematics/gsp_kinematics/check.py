@@ -169,14 +169,12 @@ def check_platform(
     calibration=None,
     level=drift.DEFAULT_LEVEL,
     free=CHECK_PARAMETERS,
-    systematic_m=0.0,
 ):
     """The check of ``controller`` (the geometry it runs) from the measured rows ``leg_lengths``
     (M, 6) and ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise
     ``row_sigmas`` (a ``SensorNoise``; add any unmodelled error the calibration found) and the
     :class:`Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
-    came from (its covariance; None: taken as exact). ``systematic_m``: the leg error (rms, m) its
-    model left unexplained, a possible bias of each leg offset. A JSON-ready dict: ``verdict``,
+    came from (its covariance; None: taken as exact). A JSON-ready dict: ``verdict``,
     ``reasons``, ``accuracy``, ``change`` (the drift test of the leg offsets), ``moved``,
     ``identification`` (names, SI estimates and covariance) and ``geometry_si``."""
     commanded = np.atleast_2d(np.asarray(commanded, dtype=float))
@@ -210,9 +208,6 @@ def check_platform(
         share = np.zeros((len(free), len(free)))
         if calibration is not None:
             share = calibration_share(controller, commanded, row_sigmas, calibration, free)
-        # What the model leaves unexplained is not noise at the check's postures: a smooth error
-        # of the legs biases each leg offset's estimate by up to about its rms.
-        share = share + systematic_m**2 * np.eye(len(free))
         comparison = drift.compare(
             drift.Calibration(free, before, share, controller, 'controller'),
             drift.Calibration(free, fitted.parameters[index], fitted.covariance, fitted.geometry),

@@ -159,7 +159,6 @@ def evaluate_check(reference, samples, sigmas, required, platform, planned_s=Non
         rows,
         required,
         reference.calibration,
-        systematic_m=0.0 if reference.unmodelled is None else reference.unmodelled.leg_lengths,
     )
     data |= {
         'platform_id': platform,
