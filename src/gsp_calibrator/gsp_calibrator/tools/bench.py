@@ -10,6 +10,7 @@ from gsp_calibrator.tools import (
     bench_end_to_end,
     bench_platform_time,
     bench_sensor_dynamics,
+    bench_upkeep_realistic,
     bench_verdict,
 )
 from gsp_experiments import bench, bench_noise, bench_sensor_errors, bench_upkeep
@@ -23,6 +24,7 @@ EXTRA_SECTIONS = {
     'sensor_dynamics': bench_sensor_dynamics.run,  # docs/sensor_errors.md
     'verdict': bench_verdict.run,  # docs/verdict.md
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
+    'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md
 }
 
 
