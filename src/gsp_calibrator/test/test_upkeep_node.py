@@ -16,6 +16,8 @@ from gsp_experiments.bench_upkeep import changed_truth
 from gsp_msgs_py import names
 
 PLATFORM = 'hexapod-test'
+#: Guard of each call (s): four runs of 16 postures on a machine that may be loaded.
+CALL_TIMEOUT_S = 600.0
 CALIBRATOR = {
     'apply_result': True,
     'platform_id': PLATFORM,
@@ -27,7 +29,7 @@ CALIBRATOR = {
 def call(suite, service):
     client = suite.client_node.create_client(Trigger, service)
     assert client.wait_for_service(timeout_sec=30.0)
-    return suite.wait(client.call_async(Trigger.Request()))
+    return suite.wait(client.call_async(Trigger.Request()), CALL_TIMEOUT_S)
 
 
 def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_path, capsys):
@@ -42,7 +44,7 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
         response = call(suite, names.SERVICE_CHECK)
         assert not response.success and 'run a calibration first' in response.message
 
-        first = suite.wait(suite.call())
+        first = suite.wait(suite.call(), CALL_TIMEOUT_S)
         assert first.success, first.message
         # The calibrated platform, checked at once: within tolerance.
         response = call(suite, names.SERVICE_CHECK)
@@ -61,7 +63,7 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
         data = json.loads((Path(check_dir) / 'check.json').read_text())
         assert data['moved_legs'] == [3] and data['verdict'] == 'recalibrate'
 
-        second = suite.wait(suite.call())
+        second = suite.wait(suite.call(), CALL_TIMEOUT_S)
         assert second.success, second.message
     finally:
         suite.close()
