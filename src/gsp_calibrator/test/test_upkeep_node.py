@@ -28,7 +28,7 @@ CALIBRATOR = {
 
 def call(suite, service):
     client = suite.client_node.create_client(Trigger, service)
-    assert client.wait_for_service(timeout_sec=30.0)
+    assert client.wait_for_service(timeout_sec=CALL_TIMEOUT_S)
     return suite.wait(client.call_async(Trigger.Request()), CALL_TIMEOUT_S)
 
 
