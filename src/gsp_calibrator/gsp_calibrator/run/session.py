@@ -1,11 +1,11 @@
 """One calibration run as the calibrator node drives it: directory, state and rows (pure, no rclpy).
 
 A :class:`RunSession` is a new run (:meth:`RunSession.create`) or the rest of an unfinished one
-(:meth:`RunSession.resume`). It holds the run's ``state.json`` (:mod:`.run_state`), its rows
-(:class:`.run_directory.Samples`, each appended to ``samples.csv`` as it is collected by a
-:class:`.run_directory.SamplesAppender`) and the postures still to command. It is thread-safe:
-the node adds a row from its sensor thread (and commands the next posture at once) while its run
-coroutine writes ``state.json``.
+(:meth:`RunSession.resume`). It holds the run's ``state.json`` (:mod:`.state`), its rows
+(:class:`.directory.Samples`, each appended to ``samples.csv`` as it is collected by a
+:class:`.directory.SamplesAppender`) and the postures still to command. It is thread-safe:
+a row is added by the node's thread whose message ended the posture
+(:class:`.host.PostureLink`) while the run coroutine writes ``state.json``.
 
 A file that cannot be written (a full disk: ENOSPC, or any ``OSError``) raises
 :class:`RunWriteError`, whose message names the file and the cause. Nothing written before is

@@ -7,6 +7,7 @@ by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/
 import sys
 
 from gsp_calibrator.tools import (
+    bench_collection_rate,
     bench_end_to_end,
     bench_platform_time,
     bench_sensor_dynamics,
@@ -22,6 +23,7 @@ EXTRA_SECTIONS = {
     'noise_unknown': bench_noise.run,  # docs/sensor_errors.md
     'platform_time': bench_platform_time.run,  # docs/planning.md
     'sensor_dynamics': bench_sensor_dynamics.run,  # docs/sensor_errors.md
+    'collection_rate': bench_collection_rate.run,  # docs/architecture.md#synchronisation
     'verdict': bench_verdict.run,  # docs/verdict.md
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
     'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md

@@ -29,18 +29,9 @@ class CheckRun(CalibrationRun):
         self.reference = None
         self.plan = None
 
-    @property
-    def _host(self):
-        # TEMPORARY until the run loop's rewrite is merged (CalibrationRun.host).
-        return getattr(self, 'host', None) or self.node
-
-    async def _begin(self, part):
-        # TEMPORARY: the current CalibrationRun's name of _choose_postures.
-        await self._choose_postures(part)
-
     async def _choose_postures(self, part):
         """The check's postures, in route order from where the platform stands."""
-        settings, session, host = self.settings, self.session, self._host
+        settings, session, host = self.settings, self.session, self.host
         host.progress(0, names.PHASE_SELECTING, 'choosing the check postures')
         try:
             self.reference = await host.in_thread(
@@ -82,7 +73,7 @@ class CheckRun(CalibrationRun):
 
     async def _identify(self, started):
         """Judge the collected rows, write check.json, index the check; ``(success, text)``."""
-        settings, session, host, log = self.settings, self.session, self._host, self.log
+        settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
         self.save_state(run_state.PHASE_IDENTIFYING)
         host.progress(count, PHASE_CHECKING, f'checking from {len(session.samples)} postures')
@@ -117,7 +108,7 @@ class CheckRun(CalibrationRun):
 
 async def record_in_history(host, settings, run_dir):
     """Index ``run_dir`` in the history of ``settings.output_root`` (a failure is logged)."""
-    log = host.log if hasattr(host, 'log') else host.get_logger()
+    log = host.log
     try:
         await host.in_thread(
             history.record,
