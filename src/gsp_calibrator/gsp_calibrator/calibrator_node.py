@@ -73,6 +73,13 @@ WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeou
 #: recorder's thread at each hand-over.
 GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
+#: The Trigger services: (name, resume an unfinished run, the run: a calibration or the check
+#: of docs/upkeep.md).
+SERVICES = (
+    (names.SERVICE_CALIBRATE, False, CalibrationRun),
+    (names.SERVICE_RESUME, True, CalibrationRun),
+    (names.SERVICE_CHECK, False, CheckRun),
+)
 #: Topics the node publishes, in the order of its publisher attributes.
 OUTPUTS = (
     names.TOPIC_POSE_COMMAND,
@@ -145,14 +152,9 @@ class CalibratorNode(Node):
         self.create_timer(
             WATCHDOG_PERIOD_S, self._on_watchdog, callback_group=MutuallyExclusiveCallbackGroup()
         )
-        for service, resume, check in (
-            (names.SERVICE_CALIBRATE, False, False),
-            (names.SERVICE_RESUME, True, False),
-            (names.SERVICE_CHECK, False, True),
-        ):
-            self.create_service(
-                Trigger, service, self._service(resume, check), callback_group=self._service_group
-            )
+        for service, resume, run_class in SERVICES:
+            callback = self._service(resume, run_class)
+            self.create_service(Trigger, service, callback, callback_group=self._service_group)
 
         self._diagnostics = DiagnosticsPublisher(
             self,
@@ -162,8 +164,7 @@ class CalibratorNode(Node):
         # Posture selection takes seconds: start it now for the current parameters.
         self._selection(self._settings)
         self.get_logger().info(
-            f'calibrator ready: {names.SERVICE_CALIBRATE}, {names.SERVICE_RESUME}, '
-            f'{names.SERVICE_CHECK} '
+            f'calibrator ready: {", ".join(service for service, *_ in SERVICES)} '
             f'({self._settings.describe()})'
         )
 
@@ -339,16 +340,15 @@ class CalibratorNode(Node):
 
     # --------------------------------------------------------------------------- the run
 
-    def _service(self, resume, check=False):
+    def _service(self, resume, run_class):
         async def callback(request, response):
             """Trigger: one whole calibration, or (``resume``) the rest of an unfinished run:
-            ``resume_run_directory`` or the latest, or (``check``) the one-minute check
-            (docs/upkeep.md). A second call meanwhile fails at once."""
-            return await self._serve(response, resume, check)
+            ``resume_run_directory`` or the latest; or the check of docs/upkeep.md."""
+            return await self._serve(response, resume, run_class)
 
         return callback
 
-    async def _serve(self, response, resume, check=False):
+    async def _serve(self, response, resume, run_class):
         with self._lock:
             if self._running:
                 response.success = False
@@ -356,15 +356,13 @@ class CalibratorNode(Node):
                 self.get_logger().warning('calibrate: refused, a calibration is already running')
                 return response
             self._running = True
-            host = self._run_host()
-            self._run = (CheckRun if check else CalibrationRun)(host, self._settings, resume)
-        run = self._run
+            self._run = run_class(self._run_host(), self._settings, resume)
         with self.postures.lock:
             self._sources.reset()
-        response.success, response.message = await run.serve()
+        response.success, response.message = await self._run.serve()
         if self.context.ok():  # else going down: destroy_node() marks the run interrupted
-            if not check and run.session is not None:  # a check indexes itself
-                await record_calibration(host, run.settings, run.session.run.path)
+            if run_class is CalibrationRun and (run := self._run).session is not None:
+                await record_calibration(run.host, run.settings, run.session.run.path)
             self._waits.cancel()
             with self._lock:
                 self._running = False

@@ -2,10 +2,12 @@
 the schema version, and a writer killed in the middle of a transaction."""
 
 import json
+import shutil
 import sqlite3
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 from upkeep_runs import RUNS, write_runs
@@ -161,3 +163,19 @@ def test_a_rank_deficient_calibration_is_indexed_without_its_meaningless_sigmas(
             'SELECT sigma_si FROM estimates WHERE parameter = ?', (name,)
         ).fetchone()[0]
     assert sigma is None
+
+
+def test_runs_started_in_the_same_second_keep_their_order(root, tmp_path):
+    # The calibrator names a second run of the same second <stamp>_2.
+    for index, (name, *_) in enumerate(RUNS[:2]):
+        target = tmp_path / ('20261101T080000Z' + ('_2' if index else ''))
+        shutil.copytree(root / name, target)
+    database = tmp_path / 'history.sqlite'
+    history.rebuild(database, tmp_path)
+    found = history.runs(database)
+    assert [entry['time_utc'] for entry in found] == ['2026-11-01T08:00:00+00:00'] * 2
+    assert [Path(entry['run_dir']).name for entry in found] == [
+        '20261101T080000Z',
+        '20261101T080000Z_2',
+    ]
+    assert found[1]['compared_with'] == found[0]['id']

@@ -113,9 +113,11 @@ def opened(path):
 
 
 def run_time(run_dir, data):
-    """The run's UTC time (ISO 8601): its directory's timestamp name, else the file's mtime."""
+    """The run's UTC time (ISO 8601): its directory's timestamp name (``<stamp>`` or
+    ``<stamp>_2`` ... for runs started in the same second), else the file's mtime."""
+    stamp_text = Path(run_dir).name.split('_', 1)[0]
     try:
-        stamp = datetime.datetime.strptime(Path(run_dir).name, TIMESTAMP_FORMAT)
+        stamp = datetime.datetime.strptime(stamp_text, TIMESTAMP_FORMAT)
         return stamp.replace(tzinfo=datetime.UTC).isoformat()
     except ValueError:
         pass
@@ -151,11 +153,12 @@ def calibration_verdict(data):
     return True, 'identified'
 
 
-def _previous_calibration(connection, platform, time_utc):
+def _previous_calibration(connection, platform, time_utc, run_dir):
     return connection.execute(
         "SELECT id, run_dir FROM runs WHERE platform = ? AND kind = 'calibration' "
-        'AND success = 1 AND time_utc < ? ORDER BY time_utc DESC LIMIT 1',
-        (platform, time_utc),
+        'AND success = 1 AND time_utc <= ? AND run_dir != ? ORDER BY time_utc DESC, id DESC '
+        'LIMIT 1',
+        (platform, time_utc, str(Path(run_dir).resolve())),
     ).fetchone()
 
 
@@ -188,7 +191,7 @@ def _describe(connection, run_dir, data, platform):
             'accuracy_source': source,
         }
         changes, compared_with = [], None
-        previous = _previous_calibration(connection, platform, time_utc)
+        previous = _previous_calibration(connection, platform, time_utc, run_dir)
         if previous is not None and success:
             try:
                 before = calibration_from_result(read_json(run_file(previous['run_dir'])))
@@ -296,7 +299,7 @@ def estimates(path, platform, parameters):
         for row in connection.execute(
             'SELECT r.time_utc, e.parameter, e.estimate_si, e.sigma_si FROM estimates e '
             "JOIN runs r ON r.id = e.run_id WHERE r.platform = ? AND r.kind = 'calibration' "
-            'AND r.success = 1 ORDER BY r.time_utc',
+            'AND r.success = 1 ORDER BY r.time_utc, r.id',
             (platform,),
         ):
             if row['parameter'] in series:
