@@ -11,6 +11,7 @@ import dataclasses
 import os
 import re
 
+from gsp_calibrator.upkeep.parameters import UPKEEP_PARAMETERS
 from gsp_kinematics.acceptance import (
     DEFAULT_REQUIRED_IMPROVEMENT,
     DEFAULT_REQUIRED_ORIENTATION_DEG,
@@ -318,6 +319,7 @@ PARAMETERS = (
         constraints='a valid node name',
         check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
     ),
+    *UPKEEP_PARAMETERS,
     parameter_specs.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
@@ -418,6 +420,8 @@ class CalibratorSettings:
     settle_lookback: float = 0.0  #: s
     settle_sigmas: float = DEFAULT_SETTLE_SIGMAS
     write_report_plots: bool = True
+    platform_id: str = 'default'  #: the history's platform (docs/upkeep.md)
+    check_geometry_file: str = ''  #: what a check checks ('': the latest calibration)
 
     @property
     def motion_limits(self):
@@ -490,4 +494,6 @@ class CalibratorSettings:
             settle_lookback=float(merged['settle_lookback']),
             settle_sigmas=float(merged['settle_sigmas']),
             write_report_plots=bool(merged['write_report_plots']),
+            platform_id=str(merged['platform_id']),
+            check_geometry_file=str(merged['check_geometry_file']),
         )

@@ -292,6 +292,7 @@ def settings_options(settings):
         'pool_size',
         'seed',
         'nominal_geometry_file',
+        'platform_id',
         *ACCEPTANCE_OPTIONS,
     ):
         if hasattr(settings, name):

@@ -161,6 +161,7 @@ def result_data(result, inputs=ReportInputs()):
             'before': by_name(before),
             'after': by_name(after),
         },
+        'covariance': {'parameters': list(result.free_names), 'si': result.covariance},
         'correlation_threshold': CORRELATION_THRESHOLD,
         'correlations': correlations,
         'identifiability': identifiability_record(analysis),
