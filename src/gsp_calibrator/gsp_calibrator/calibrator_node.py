@@ -208,7 +208,7 @@ class CalibratorNode(Node):
                 return collection.sensor(topic, msg, now_ns, wire_ns)
 
             self.postures.feed(step)
-            self._lags.note(topic, received_ns, time.time_ns())
+            self._lags.note(topic, received_ns, time.time_ns(), in_run=True)
 
         return callback
 
@@ -305,6 +305,7 @@ class CalibratorNode(Node):
             progress=self._progress,
             deliver_result=lambda *args: self._results.deliver(*args, self._wait_for),
             shutting_down=lambda: not self.context.ok(),
+            processing_lags=self._lags.run,
         )
 
     def _wait_for(self, predicate, timeout_s):

@@ -20,6 +20,7 @@ from std_srvs.srv import Trigger
 
 from gsp_calibrator import calibrator_node
 from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
+from gsp_calibrator.collection import protocol
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording import recorder as recording
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
@@ -239,6 +240,12 @@ def test_calibration_in_process(ros_context, tmp_path):
             'lvdt',
         }
         assert isinstance(collection['inconsistent_dropped'], int)
+        # Every sensor message's processing lag of the run, per topic (docs/data.md).
+        lags = collection['processing_lag']
+        assert set(lags) == set(protocol.SENSOR_TOPICS)
+        for topic, lag in lags.items():
+            assert lag['count'] > 0, topic
+            assert 0 <= lag['p50_s'] <= lag['p99_s'] <= lag['max_s'], topic
         skipped = [
             line for line in response.message.splitlines() if line.startswith('skipped posture')
         ]
@@ -685,7 +692,6 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
 
 
 def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path):
-    from gsp_calibrator.collection import protocol
     from gsp_calibrator.run.health import LAG_WARN_S, topic_age_key, topic_lag_key
     from gsp_msgs_py.diagnostics import DiagnosticsListener
     from gsp_msgs_py.health import ERROR, OK, WARN

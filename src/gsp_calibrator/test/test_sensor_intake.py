@@ -13,7 +13,16 @@ from gsp_calibrator.collection import events as event_types
 from gsp_calibrator.collection.joint_state_cdr import read_joint_state
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.topics import read_sensor
-from gsp_calibrator.run.health import LAG_WARN_S, ProcessingLags, calibrator_health, topic_lag_key
+from gsp_calibrator.run.health import (
+    LAG_CEILING_S,
+    LAG_FLOOR_S,
+    LAG_WARN_S,
+    LagHistogram,
+    ProcessingLags,
+    RunLags,
+    calibrator_health,
+    topic_lag_key,
+)
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import OK, WARN
 
@@ -102,6 +111,44 @@ def test_the_processing_lag_is_the_largest_since_the_previous_report():
     assert lags.note('/b', 0, T0) is None  # no receive time from the middleware: not counted
     assert lags.take() == {'/a': pytest.approx(1.2), '/b': None}
     assert lags.take() == {'/a': None, '/b': None}
+
+
+def test_the_lag_percentiles_are_the_nearest_rank_ones_to_one_percent():
+    lags = np.random.default_rng(7).permutation(np.arange(1, 1001) * 1e-3)  # 1 ms .. 1 s
+    histogram = LagHistogram()
+    assert histogram.summary() == {'count': 0, 'p50_s': None, 'p99_s': None, 'max_s': None}
+    for lag in lags:
+        histogram.add(lag)
+    summary = histogram.summary()
+    assert summary['count'] == 1000 and summary['max_s'] == 1.0
+    # Nearest rank: the 500th and the 990th smallest lags, to the bins' 1 %, never below them.
+    assert 0.5 <= summary['p50_s'] <= 0.5 * 1.01
+    assert 0.99 <= summary['p99_s'] <= 0.99 * 1.01
+    assert histogram.percentile(100) == 1.0  # capped at the largest lag, not its bin's edge
+
+
+def test_the_lag_histogram_keeps_tiny_negative_and_huge_lags():
+    histogram = LagHistogram()
+    for lag in (-0.5, 0.0, 1e-9):  # a clock step, none, below the first bin's edge
+        histogram.add(lag)
+    assert histogram.percentile(100) == 1e-9  # the largest, though its bin reaches LAG_FLOOR_S
+    histogram.add(2 * LAG_FLOOR_S)
+    assert histogram.percentile(75) == LAG_FLOOR_S  # the first bin's upper edge
+    assert histogram.percentile(76) == 2 * LAG_FLOOR_S
+    histogram.add(10 * LAG_CEILING_S)  # beyond the last bin: its percentile is the largest lag
+    assert histogram.percentile(100) == 10 * LAG_CEILING_S and histogram.count == 5
+
+
+def test_a_runs_lags_are_per_topic_and_start_afresh():
+    run_lags = RunLags(['/a', '/b'])
+    for lag in (0.002, 0.004, 0.3):
+        run_lags.add('/a', lag)
+    run_lags.add('/b', None)  # an unknown receive time: not counted
+    summary = run_lags.summary()
+    assert summary['/a']['count'] == 3 and summary['/a']['max_s'] == 0.3
+    assert summary['/b'] == {'count': 0, 'p50_s': None, 'p99_s': None, 'max_s': None}
+    run_lags.reset()
+    assert run_lags.summary()['/a']['count'] == 0
 
 
 def test_a_lag_above_one_second_warns_with_its_number():

@@ -119,6 +119,7 @@ class CalibrationRun:
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
             part = None
             log.error(f'not recording the run: {error}')
+        host.processing_lags.reset()
         host.postures.start(session, self.collection)
         try:
             await self._choose_postures(part)
@@ -254,6 +255,7 @@ class CalibrationRun:
                 **self.collection.summary(),
                 'replacements': session.state.replacements,
                 'settle': run_state.settle_statistics(session.state.settle_waits),
+                'processing_lag': host.processing_lags.summary(),
             },
             recording.settings_options(settings),
         )

@@ -2,6 +2,9 @@
 state of its run, the age of the sensor topics and how far behind them the calibrator is
 (pure, no rclpy; docs/nodes.md#diagnostics)."""
 
+import math
+import threading
+
 from gsp_msgs_py import names
 from gsp_msgs_py.health import ERROR, OK, WARN, Health, worst
 
@@ -20,20 +23,106 @@ def topic_lag_key(topic):
     return f'{topic} lag_s'
 
 
+#: The lag histogram's bins: geometric, each :data:`LAG_BIN_RATIO` times the previous, from
+#: :data:`LAG_FLOOR_S` (smaller lags share the first bin) to :data:`LAG_CEILING_S` (larger ones
+#: share the last). A percentile is its bin's upper edge (at most the largest lag noted): 1 %
+#: resolution in a few kB per topic however long the run.
+LAG_FLOOR_S = 1e-5
+LAG_CEILING_S = 1e3
+LAG_BIN_RATIO = 1.01
+_LAG_BINS = math.ceil(math.log(LAG_CEILING_S / LAG_FLOOR_S) / math.log(LAG_BIN_RATIO)) + 1
+
+
+class LagHistogram:
+    """The distribution of one topic's processing lags (s) in fixed geometric bins."""
+
+    def __init__(self):
+        self.counts = [0] * _LAG_BINS
+        self.count = 0
+        self.largest = None
+
+    def add(self, lag_s):
+        """Count one lag (s; a negative one, from clock steps, counts as 0)."""
+        lag_s = max(0.0, float(lag_s))
+        index = 0
+        if lag_s > LAG_FLOOR_S:
+            index = min(_LAG_BINS - 1, math.ceil(math.log(lag_s / LAG_FLOOR_S, LAG_BIN_RATIO)))
+        self.counts[index] += 1
+        self.count += 1
+        self.largest = lag_s if self.largest is None else max(self.largest, lag_s)
+
+    def percentile(self, percent):
+        """The nearest-rank ``percent`` percentile (s) to within one bin (1 %, never above the
+        largest lag); None before the first lag."""
+        if not self.count:
+            return None
+        rank = max(1, math.ceil(percent / 100.0 * self.count))
+        seen = 0
+        for index, n in enumerate(self.counts):
+            seen += n
+            if seen >= rank:
+                if index == _LAG_BINS - 1:  # the last bin has no upper edge
+                    return self.largest
+                return min(self.largest, LAG_FLOOR_S * LAG_BIN_RATIO**index)
+        return self.largest  # not reached: the counts add up to ``count``
+
+    def summary(self):
+        """``{count, p50_s, p99_s, max_s}`` (the figures None before the first lag)."""
+        return {
+            'count': self.count,
+            'p50_s': self.percentile(50),
+            'p99_s': self.percentile(99),
+            'max_s': self.largest,
+        }
+
+
+class RunLags:
+    """Every sensor message's processing lag during a run, per topic, as :class:`LagHistogram`
+    (thread-safe): :meth:`reset` at the run's start, :meth:`add` at each message handled by the
+    run (:meth:`ProcessingLags.note`), :meth:`summary` into its ``result.json``
+    (``collection.processing_lag``)."""
+
+    def __init__(self, topics):
+        self._topics = tuple(topics)
+        self._lock = threading.Lock()
+        self.reset()
+
+    def reset(self):
+        with self._lock:
+            self._histograms = {topic: LagHistogram() for topic in self._topics}
+
+    def add(self, topic, lag_s):
+        """Count ``lag_s`` (s) of ``topic``; None (an unknown receive time) is not counted."""
+        if lag_s is None:
+            return
+        with self._lock:
+            self._histograms[topic].add(lag_s)
+
+    def summary(self):
+        """``{topic: {count, p50_s, p99_s, max_s}}``."""
+        with self._lock:
+            return {topic: h.summary() for topic, h in self._histograms.items()}
+
+
 class ProcessingLags:
     """Each sensor topic's processing lag: from a message's receipt off the wire (the
     middleware's receive time) to the calibrator's decision on it, s. :meth:`note` at each
-    message (any thread), :meth:`take` at each status: the largest lag since the previous one."""
+    message (any thread), :meth:`take` at each status: the largest lag since the previous one;
+    :attr:`run`: every lag noted ``in_run`` (the run's distribution, :class:`RunLags`)."""
 
     def __init__(self, topics):
         self._largest = dict.fromkeys(topics)
+        self.run = RunLags(topics)
 
-    def note(self, topic, received_ns, decided_ns):
+    def note(self, topic, received_ns, decided_ns, in_run=False):
         """The lag (s) of a message of ``topic`` received at ``received_ns`` and decided on at
-        ``decided_ns`` (ns, one clock); None (not counted) when the receive time is unknown."""
+        ``decided_ns`` (ns, one clock), also counted in :attr:`run` if ``in_run`` (a message
+        the run handled); None (not counted) when the receive time is unknown."""
         if not received_ns:
             return None
         lag = (int(decided_ns) - int(received_ns)) * 1e-9
+        if in_run:
+            self.run.add(topic, lag)
         largest = self._largest.get(topic)
         if largest is None or lag > largest:
             self._largest[topic] = lag

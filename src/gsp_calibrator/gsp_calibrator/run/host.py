@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable
 
 from gsp_calibrator.collection.protocol import FINAL_EVENTS, PostureSkipped, RowReady
 from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED, RecordingError
+from gsp_calibrator.run.health import RunLags
 
 #: Results of :attr:`RunHost.wait_for`.
 WAIT_OK = 'ok'
@@ -164,6 +165,9 @@ class RunHost:
     deliver_result: Callable[..., Awaitable]
     #: whether the process is going down (Ctrl-C, SIGTERM): a failure then is no crash
     shutting_down: Callable[[], bool]
+    #: the processing lags of the run's sensor messages (reset at its start, summed up in its
+    #: ``result.json``)
+    processing_lags: RunLags = dataclasses.field(default_factory=lambda: RunLags(()))
 
 
 async def first_timeout(wait_for, timeout_s, checks):
