@@ -126,8 +126,10 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         bench_collection_rate,
         bench_platform_time,
         bench_sensor_dynamics,
+        bench_upkeep_realistic,
+        bench_verdict,
     )
-    from gsp_experiments import bench_noise, bench_sensor_errors
+    from gsp_experiments import bench_noise, bench_sensor_errors, bench_upkeep
 
     assert calls == [
         (
@@ -139,6 +141,9 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'platform_time': bench_platform_time.run,
                 'sensor_dynamics': bench_sensor_dynamics.run,
                 'collection_rate': bench_collection_rate.run,
+                'verdict': bench_verdict.run,
+                'upkeep': bench_upkeep.run,
+                'upkeep_realistic': bench_upkeep_realistic.run,
             },
         )
     ]
