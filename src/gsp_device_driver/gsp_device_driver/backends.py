@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics import channels
 from gsp_kinematics.device import (
     READING_NAMES,
     SENSORS,
@@ -86,7 +87,7 @@ class SimDeviceBackend(DeviceBackend):
                 per_reading(*response_times),
                 per_reading(*correlation_times),
                 len(READING_NAMES),
-                circular=[name == 'phi' for name in READING_NAMES],
+                circular=[channel.circular for channel in channels.DEVICE_CHANNELS],
             )
         except ValueError as error:
             raise BackendError(str(error)) from None

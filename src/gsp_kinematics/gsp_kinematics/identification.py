@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from . import goodness
+from . import channels, goodness
 from ._solver.formulations import _FkModel, _ImplicitModel
 from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
@@ -43,7 +43,8 @@ from .sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
 FORMULATIONS = ('implicit', 'fk', 'paper')
 DEFAULT_FORMULATION = 'implicit'
 
-SENSOR_NAMES = ('leg_lengths',) + READING_NAMES
+#: The residual groups: the leg lengths, then each device reading (:mod:`gsp_kinematics.channels`).
+SENSOR_NAMES = (channels.LEG_LENGTHS,) + READING_NAMES
 
 #: Sensor-error parameters left out of ``extended``: each is confounded with the 44 and the other
 #: sensor errors, so its nominal value is a datum (docs/sensor_errors.md): ``phi0`` with a yaw of

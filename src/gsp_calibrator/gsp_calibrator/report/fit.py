@@ -9,6 +9,7 @@ from gsp_kinematics.geometry import (
     SENSOR_PARAMETER_NAMES,
 )
 from gsp_kinematics.identification import DATUM_SENSOR_PARAMETERS
+from gsp_kinematics.sensors.noise import NOISE_UNITS
 
 
 def format_number(value, digits=4):
@@ -124,7 +125,7 @@ def fit_markdown(data):
             '|---|---|---|---|---|---|---|',
         ]
         for channel, entry in noise.items():
-            angular = channel in ('inclinometer', 'encoder')
+            angular = NOISE_UNITS[channel] == 'rad'
             factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
             values = [entry.get(key) for key in ('configured', 'estimated', 'within_posture')] + [
                 entry.get('between_postures')

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_kinematics import channels
 from gsp_kinematics.fileio import atomic_write_bytes, atomic_write_text, to_json
 from gsp_kinematics.geometry import load_geometry, save_geometry
 from gsp_kinematics.noise_from_data import LAG_SUMS_CHANNELS
@@ -29,8 +30,8 @@ SUMMARY_FILE = 'summary.json'
 TRUE_GEOMETRY_FILE = 'true_geometry.yaml'
 
 POSE_COLUMNS = ('x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd')
-LEG_COLUMNS = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
-READING_COLUMNS = ('alpha', 'beta', 'phi', 'd_m')
+LEG_COLUMNS = channels.LEG_JOINT_NAMES
+READING_COLUMNS = channels.READING_NAMES
 #: The lag sums of each row's window per noise channel (``noise_from_data.posture_lag_sums``,
 #: m^2 and rad^2): lags 0..n // 2, space-separated, empty when the row has none.
 LAG_SUM_COLUMNS = tuple(f'lag_sums_{channel}' for channel in LAG_SUMS_CHANNELS)

@@ -27,13 +27,14 @@ import math
 
 import numpy as np
 
-#: The fields of :class:`SensorNoise`, in order, with their SI unit.
-NOISE_FIELDS = ('leg_lengths', 'inclinometer', 'encoder', 'lvdt')
-NOISE_UNITS = {'leg_lengths': 'm', 'inclinometer': 'rad', 'encoder': 'rad', 'lvdt': 'm'}
+from gsp_kinematics import channels
+
+#: The fields of :class:`SensorNoise`: the sensors of :data:`gsp_kinematics.channels.CHANNELS`.
+NOISE_FIELDS = channels.SENSORS
+#: Each field's SI unit (its channels' unit).
+NOISE_UNITS = {channel.sensor: channel.unit for channel in channels.CHANNELS}
 #: Prefix of the calibrator's noise parameters and run options (``sigma_leg_lengths``...).
 CALIBRATOR_PARAMETER_PREFIX = 'sigma_'
-#: Number of legs, hence leg-length channels.
-_LEGS = 6
 
 
 class SensorNoiseError(ValueError):
@@ -69,19 +70,23 @@ class SensorNoise:
 
     def readings(self):
         """Standard deviations of the device readings ``[alpha, beta, phi, d_m]`` (4,)."""
-        return np.array([self.inclinometer, self.inclinometer, self.encoder, self.lvdt])
+        return np.array([getattr(self, channel.sensor) for channel in channels.DEVICE_CHANNELS])
 
     def channel_std(self):
         """The collector's ten channel standard deviations ``[q_1..q_6, alpha, beta, phi, d_m]``."""
-        return np.concatenate([np.full(_LEGS, self.leg_lengths), self.readings()])
+        return np.array([getattr(self, channel.sensor) for channel in channels.CHANNELS])
 
     @classmethod
     def from_channel_std(cls, values):
         """Inverse of :meth:`channel_std` (ten values; each sensor's first channel is used)."""
         values = np.asarray(values, dtype=float).reshape(-1)
-        if values.shape != (_LEGS + 4,):
-            raise SensorNoiseError(f'noise_std must hold 10 values, got {values.tolist()}')
-        return cls(float(values[0]), float(values[6]), float(values[8]), float(values[9]))
+        if values.shape != (channels.CHANNEL_COUNT,):
+            raise SensorNoiseError(
+                f'noise_std must hold {channels.CHANNEL_COUNT} values, got {values.tolist()}'
+            )
+        return cls(
+            **{name: float(values[channels.sensor_columns(name)[0]]) for name in NOISE_FIELDS}
+        )
 
     def channels(self):
         """``{field: std}`` in :data:`NOISE_FIELDS` order."""
