@@ -46,7 +46,7 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
         # model is still rejected 1 run in 100 (the F test's level): that is the test's risk.
         {'posture_count': 24, 'pool_size': 240, 'apply_result': True, 'apply_rejected_fit': False},
         platform_overrides=[
-            Parameter('leg_noise_std', value=FACTOR * DEFAULT_SENSOR_NOISE.leg_lengths)
+            Parameter('leg_lengths_noise_std', value=FACTOR * DEFAULT_SENSOR_NOISE.leg_lengths)
         ],
         device_overrides=device_noise,
     )
@@ -152,9 +152,7 @@ def offline_run(poses, samples, rate_hz, correlation_time, seed):
     device = SimDeviceBackend(
         true.device_length,
         true.inclinometer_axes_angle,
-        DEFAULT_SENSOR_NOISE.inclinometer,
-        DEFAULT_SENSOR_NOISE.encoder,
-        DEFAULT_SENSOR_NOISE.lvdt,
+        DEFAULT_SENSOR_NOISE,
         rng=rng,
         sensors=true.sensors,
         correlation_times=(correlation_time, 0.0, 0.0),

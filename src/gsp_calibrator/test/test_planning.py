@@ -96,8 +96,8 @@ def test_sweep_writes_table_plot_and_json(tmp_path, capsys):
 
 def test_bad_input_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
-        planning.main(['--sigma-leg-um', '0'])
-    assert '--sigma-leg-um' in capsys.readouterr().err
+        planning.main(['--sigma-leg-lengths-um', '0'])
+    assert '--sigma-leg-lengths-um' in capsys.readouterr().err
     assert planning.main(['--geometry', str(tmp_path / 'missing.yaml')]) == 2
     assert 'gsp_plan: error' in capsys.readouterr().err
     assert planning.main(['--postures', '700', '--pool-size', '600']) == 2

@@ -182,7 +182,7 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
     assert result.successful
     assert driver.get_parameter('inclinometer_noise_std').value == 8.7e-5
     np.testing.assert_allclose(
-        driver._backend.noise_stds, [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6]
+        driver._backend.noise.readings(), [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6]
     )
     assert 'read-only' in driver.set_parameters([Parameter('backend', value='replay')])[0].reason
 

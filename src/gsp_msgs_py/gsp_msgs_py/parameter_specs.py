@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER
+
 from . import names
 
 # rclpy is imported inside the functions that need a node, so that pure modules (the
@@ -247,10 +249,18 @@ def motion_limit_specs(speed, acceleration, read_only=False):
     )
 
 
-def noise_std_spec(name, default, description, unit):
-    """A simulated noise standard deviation (``unit``), changeable at run time."""
+def true_noise_spec(sensor, description):
+    """A simulated ``sensor``'s true noise std, ``<sensor>_noise_std``
+    (:data:`gsp_kinematics.sensors.noise.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
+    at run time; the default is the suite's default noise."""
+    unit = NOISE_UNITS[sensor]
     return ParameterSpec(
-        name, default, description, unit=unit, float_range=(0.0, 1.0), check=at_least(0.0, unit)
+        TRUE_NOISE_PARAMETER.format(sensor),
+        getattr(DEFAULT_SENSOR_NOISE, sensor),
+        description,
+        unit=unit,
+        float_range=(0.0, 1.0),
+        check=at_least(0.0, unit),
     )
 
 

@@ -226,7 +226,7 @@ def test_a_new_command_supersedes_one_still_moving(harness):
 def test_bad_parameter_values_are_rejected_with_a_reason(harness):
     sim = harness.sim
     for name, value in [
-        ('leg_noise_std', -1e-6),
+        ('leg_lengths_noise_std', -1e-6),
         ('settle_time', -0.1),
         ('geometry.leg_offsets', [0.6] * 5),
         ('geometry.device_length', -0.85),
@@ -241,8 +241,8 @@ def test_bad_parameter_values_are_rejected_with_a_reason(harness):
         in sim.set_parameters([Parameter('geometry.leg_offsets', value=[0.6] * 5)])[0].reason
     )
     assert 'read-only' in sim.set_parameters([Parameter('publish_rate', value=100.0)])[0].reason
-    assert sim.get_parameter('leg_noise_std').value == 1e-6
-    assert sim.set_parameters([Parameter('leg_noise_std', value=0.0)])[0].successful
+    assert sim.get_parameter('leg_lengths_noise_std').value == 1e-6
+    assert sim.set_parameters([Parameter('leg_lengths_noise_std', value=0.0)])[0].successful
     measured = harness.leg_lengths_after(3)
     np.testing.assert_array_equal(measured, np.broadcast_to(measured[0], measured.shape))
 
@@ -346,7 +346,7 @@ def test_markers_show_the_platform(harness):
     'overrides, words',
     [
         ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
-        ([Parameter('leg_noise_std', value=-1.0)], 'leg_noise_std'),
+        ([Parameter('leg_lengths_noise_std', value=-1.0)], 'leg_lengths_noise_std'),
         (
             [Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')],
             'true_geometry_file',
@@ -362,7 +362,7 @@ def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words
 LIMITED = [
     Parameter('max_leg_speed', value=0.5),
     Parameter('max_leg_acceleration', value=2.0),
-    Parameter('leg_noise_std', value=0.0),
+    Parameter('leg_lengths_noise_std', value=0.0),
     Parameter('settle_time', value=0.0),
 ]
 

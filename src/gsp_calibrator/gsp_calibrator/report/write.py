@@ -173,7 +173,7 @@ def result_data(result, inputs=ReportInputs()):
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     data.update(fit_data(result, truth, nominal))
     if inputs.sigmas is not None:
-        data['sigmas'] = inputs.sigmas.to_record()
+        data['sigmas'] = inputs.sigmas.channels()
     if inputs.extra:
         data.update(inputs.extra)
     return json_safe(data)

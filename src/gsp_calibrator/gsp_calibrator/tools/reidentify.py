@@ -304,7 +304,7 @@ def stored_weights(stored, options, samples):
     if np.isfinite(samples.lag_sums).any():
         return sigmas, source, ('collection',)
     if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
-        rows = SensorNoise.from_record(stored['sigmas'])
+        rows = SensorNoise.from_channels(stored['sigmas'])
         root = float(np.sqrt(np.median(samples.n_samples))) if len(samples) else 1.0
         sigmas = SensorNoise.from_channels({k: v * root for k, v in rows.channels().items()})
         return (
