@@ -144,8 +144,12 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
 
 
 def test_demo_free_accepts_groups_and_names_and_rejects_unknown(capsys):
-    assert demo.parse_arguments([]).free == ['extended']
-    assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free == ['paper', 'kq1', 'kq2']
+    assert demo.parse_arguments([]).free_parameters == ['extended']
+    assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free_parameters == [
+        'paper',
+        'kq1',
+        'kq2',
+    ]
     with pytest.raises(SystemExit):
         demo.parse_arguments(['--free', 'kq9'])
     assert 'unknown parameter name' in capsys.readouterr().err

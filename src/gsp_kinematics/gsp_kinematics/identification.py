@@ -158,6 +158,26 @@ class IdentificationResult:
         return pairs
 
 
+def free_parameters_error(names):
+    """Reason ('' if none) why ``names`` (parameter and group names, :data:`PARAMETER_GROUPS`) is
+    not a set of free parameters: empty, unknown or duplicated names. The one check of a
+    free-parameter list, for the calibrator's ``free_parameters`` and every command line."""
+    names = list(names)
+    if not names:
+        return 'must name at least one parameter'
+    unknown = [n for n in names if n not in PARAMETER_INDEX and n not in PARAMETER_GROUPS]
+    if unknown:
+        return (
+            f'unknown parameter name(s) {unknown}; expected groups ({", ".join(PARAMETER_GROUPS)}) '
+            'or names among A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma, kq1..kq6, alpha0, '
+            'beta0, phi0, kDm'
+        )
+    duplicated = sorted({n for n in names if names.count(n) > 1})
+    if duplicated:
+        return f'duplicated name(s) {duplicated}'
+    return ''
+
+
 def resolve_free(free):
     """A 54-bool mask (:data:`ALL_PARAMETER_NAMES`) from None (the paper's 44), a mask (44 or
     54 entries), or an iterable of parameter names and group names (:data:`PARAMETER_GROUPS`)."""
@@ -173,19 +193,14 @@ def resolve_free(free):
                 f'free mask must have {NUM_PARAMETERS} or {NUM_ALL_PARAMETERS} entries'
             )
         return free.copy()
+    free = list(free)
+    reason = free_parameters_error(free)
+    if reason:
+        raise IdentificationError(f'free parameters: {reason}')
     mask = np.zeros(NUM_ALL_PARAMETERS, dtype=bool)
     for name in free:
-        if name in PARAMETER_GROUPS:
-            mask[[PARAMETER_INDEX[member] for member in PARAMETER_GROUPS[name]]] = True
-            continue
-        if name not in PARAMETER_INDEX:
-            raise IdentificationError(
-                f'unknown parameter name {name!r} (expected a group {sorted(PARAMETER_GROUPS)} '
-                "or names such as 'A1x', 'Loff3', 'D0', 'gamma', 'kq2', 'alpha0', 'kDm')"
-            )
-        mask[PARAMETER_INDEX[name]] = True
-    if not mask.any():
-        raise IdentificationError('no free parameters')
+        members = PARAMETER_GROUPS.get(name, (name,))
+        mask[[PARAMETER_INDEX[member] for member in members]] = True
     return mask
 
 

@@ -170,7 +170,7 @@ def test_groups_and_names_resolve(exact):
     assert resolve_free(None).sum() == 44 and resolve_free('paper').sum() == 44
     mask = resolve_free(['paper', 'kDm'])
     assert mask[PARAMETER_INDEX['kDm']] and mask.sum() == 45
-    with pytest.raises(IdentificationError, match="unknown parameter name 'kq9'"):
+    with pytest.raises(IdentificationError, match=r"unknown parameter name\(s\) \['kq9'\]"):
         resolve_free(['kq9'])
 
 

@@ -91,6 +91,8 @@ class ParameterSpec:
     ``check`` is a function ``value -> reason`` ('' if accepted) applied at start-up and to every
     run-time change; ``constraints`` is the descriptor's human-readable summary of both.
     ``default_text`` is how the docs show a default that depends on the installation (a path).
+    ``subsets``: names of the node's subsets of its parameters this one belongs to (the
+    calibrator's: stored with a run, deciding the selection, accepted on a command line).
     """
 
     name: str
@@ -103,6 +105,7 @@ class ParameterSpec:
     constraints: str = ''
     check: object = None
     default_text: str = ''
+    subsets: frozenset = frozenset()
 
     @property
     def type_name(self):

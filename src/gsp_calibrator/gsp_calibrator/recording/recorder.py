@@ -46,6 +46,7 @@ from gsp_calibrator.recording.mcap_io import (  # noqa: F401 (the recording API,
     recover_recording,
     recover_recordings,
 )
+from gsp_calibrator.settings import STORED_PARAMETERS
 from gsp_kinematics.fileio import json_safe
 from gsp_msgs_py import names
 
@@ -228,30 +229,8 @@ class RunRecorder:
 
 
 def settings_options(settings):
-    """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`).
-
-    ``settings``: a :class:`gsp_calibrator.settings.CalibratorSettings` (or anything with the same
-    attributes); :func:`samples_from_recording` and ``gsp_reidentify`` read them back.
-    """
-    options = {}
-    for name in (
-        'sync_tolerance',
-        'samples_per_posture',
-        'settle_lookback',
-        'settle_sigmas',
-        'formulation',
-        'noise_source',
-        'loss',
-        'posture_count',
-        'pool_size',
-        'seed',
-        'nominal_geometry_file',
-    ):
-        if hasattr(settings, name):
-            options[name] = getattr(settings, name)
-    if hasattr(settings, 'free_parameters'):
-        options['free_parameters'] = list(settings.free_parameters)
-    sigmas = getattr(settings, 'sigmas', None)
-    if sigmas is not None:
-        options.update(sigmas.to_parameters())
-    return options
+    """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`):
+    those of ``settings`` (a :class:`gsp_calibrator.settings.CalibratorSettings`) marked
+    :data:`gsp_calibrator.settings.STORED`; :func:`samples_from_recording` and ``gsp_reidentify``
+    read them back."""
+    return settings.options(STORED_PARAMETERS)

@@ -94,8 +94,8 @@ def identify_from_samples(
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
-    if noise_source not in noise_from_data.NOISE_SOURCES:
-        raise CalibrationError(f'noise_source must be one of {noise_from_data.NOISE_SOURCES}')
+    if noise_from_data.noise_source_error(noise_source):
+        raise CalibrationError(f'noise_source {noise_from_data.noise_source_error(noise_source)}')
     free_mask = resolve_free(free)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)

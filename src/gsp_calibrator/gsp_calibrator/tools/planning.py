@@ -173,7 +173,7 @@ def design_from(args):
     )
     return Design(
         sigmas=sigmas,
-        free=tuple(args.free),
+        free=tuple(args.free_parameters),
         formulation=args.formulation,
         workspace=workspace,
         pool_size=args.pool_size,
@@ -249,7 +249,7 @@ def _inputs(args, design, limits):
         'pool_size': args.pool_size,
         'seed': args.seed,
         'formulation': args.formulation,
-        'free': args.free,
+        'free': args.free_parameters,
         'max_leg_speed_m_s': limits.max_speed,
         'max_leg_acceleration_m_s2': limits.max_acceleration,
     }
@@ -316,7 +316,7 @@ def main(argv=None):
                 'inputs': inputs,
                 **plan(
                     nominal,
-                    args.postures,
+                    args.posture_count,
                     args.samples_per_posture,
                     design,
                     limits=limits,
