@@ -11,12 +11,13 @@ parameter service. See docs/nodes.md (parameters, topics) and docs/architecture.
 concurrency).
 
 This wrapper only moves messages and waits. The collection protocol is
-:class:`.protocol.CollectionProtocol`: every status and sensor message goes to it with its
+:class:`.collection.protocol.CollectionProtocol`: every status and sensor message goes to it with its
 receive time (a status also with its publish instant: a posture's samples count from the
-publication of its ``settled``, :func:`.protocol.settle_start_ns`), a watchdog timer polls it for
-timeouts, and its events (row ready, posture skipped, topic silent) end each posture. The course of a run is :class:`.run_flow.CalibrationRun`
-(a coroutine), its files :class:`.run_session.RunSession`; the waiting machinery is
-:mod:`.node_waiting`, the second-source guard :mod:`.sources`. The end of a posture (in the
+publication of its ``settled``, :func:`.collection.protocol.settle_start_ns`), a watchdog timer polls it for
+timeouts, and its events (row ready, posture skipped, topic silent) end each posture. The course of a run is :class:`.run.flow.CalibrationRun`
+(a coroutine), its files :class:`.run.session.RunSession`; the waiting machinery is
+:mod:`.node_threads`, the second-source guard
+:class:`.collection.single_source.SingleSourceGuard`. The end of a posture (in the
 thread of the message that ended it) appends the row to samples.csv and commands the next
 posture at once; the run coroutine reports it afterwards and rewrites state.json.
 
@@ -25,7 +26,7 @@ answered at once while a run awaits. The status subscription and the parameter c
 reentrant group; the watchdog timer in a mutually exclusive group of its own (one executor thread
 at most: a reentrant timer is dispatched again while it waits for the lock, and its piled-up
 calls would take every thread of the executor). The sensor topics are taken by a
-:class:`.node_waiting.SensorListener` (node ``<name>_sensors``, own thread), the recording by a
+:class:`.node_threads.SensorListener` (node ``<name>_sensors``, own thread), the recording by a
 second one (``<name>_recorder``). The protocol and the run are guarded by one lock.
 """
 
@@ -40,7 +41,7 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.calibrator_host import CalibratorRunHost
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import protocol, topics
 from gsp_calibrator.collection.single_source import SingleSourceGuard
 from gsp_calibrator.node_threads import (
     EventQueue,
@@ -48,7 +49,7 @@ from gsp_calibrator.node_threads import (
     ThreadResults,
     Waits,
 )
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.recorder import RunRecorder
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
@@ -107,7 +108,7 @@ class CalibratorNode(CalibratorRunHost, Node):
 
         # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
         # run or not, and the latest progress published.
-        self._heard_ns = dict.fromkeys(protocol.SENSOR_TOPICS)
+        self._heard_ns = dict.fromkeys(topics.SENSOR_TOPICS)
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -117,13 +118,13 @@ class CalibratorNode(CalibratorRunHost, Node):
         ).values()
         self._results = ResultDelivery(self, result_publisher, self._data_group)
         self._sensors = SensorListener.beside(
-            self, 'sensors', {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS}
+            self, 'sensors', {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS}
         )
         self._recorder_listener = SensorListener.beside(
             self,
             'recorder',
             {},
-            setup=lambda node: recording.RunRecorder(node, persistent=True),
+            setup=lambda node: RunRecorder(node, persistent=True),
             on_error=self._on_recording_error,
         )
         self.recorder = self._recorder_listener.extra
@@ -225,7 +226,7 @@ class CalibratorNode(CalibratorRunHost, Node):
     def _handle(self, events):
         """Act on the protocol's events (any thread)."""
         for event in events:
-            if isinstance(event, protocol.CollectionStarted):
+            if isinstance(event, events.CollectionStarted):
                 try:
                     self.recorder.note_collection_start(
                         event.command_id, event.start_ns, posture=event.posture
@@ -238,15 +239,15 @@ class CalibratorNode(CalibratorRunHost, Node):
                     names.PHASE_COLLECTING,
                     f'posture {event.posture} of {count}: collecting',
                 )
-            elif isinstance(event, protocol.SampleDropped):
+            elif isinstance(event, events.SampleDropped):
                 self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
-            elif isinstance(event, protocol.FINAL_EVENTS + RUN_FAILURES):
+            elif isinstance(event, events.FINAL_EVENTS + RUN_FAILURES):
                 self._end_posture(event)
 
     def _note_finals(self, events):
         """Note the final events among ``events`` (the lock held) until they are taken."""
         self._ending.update(
-            id(event) for event in events if isinstance(event, protocol.FINAL_EVENTS + RUN_FAILURES)
+            id(event) for event in events if isinstance(event, events.FINAL_EVENTS + RUN_FAILURES)
         )
         return events
 

@@ -6,7 +6,7 @@ Everything else is derived from it: :class:`CalibratorSettings` has one field pe
 subsets marked in the table (``subsets=``) give the options stored with a run (:data:`STORED`),
 those that decide the posture selection (:data:`SELECTION`) and those accepted on the command
 lines of ``gsp_demo``/``gsp_plan`` (:data:`RUN_COMMAND_LINE`) and ``gsp_reidentify``
-(:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_error`).
+(:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_value`).
 :func:`check_parameters` gives the reason a set of values is rejected, at start-up and in the
 set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
 settings of one run.

@@ -21,7 +21,8 @@ from std_srvs.srv import Trigger
 from gsp_calibrator import calibrator_node
 from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
 from gsp_calibrator.recording import rebuild
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, recording_info
+from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
@@ -264,7 +265,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert PLOTS_SKIPPED_NOTE in report_text and '| Loff1 | mm |' in report_text
         assert not list(run.path.glob('*.png'))
         assert not list(run.path.glob('*.tmp'))
-        info = recording.recording_info(run.path / 'recording.mcap')
+        info = recording_info(run.path / 'recording.mcap')
         for topic in (
             names.TOPIC_LEG_LENGTHS,
             names.TOPIC_ENCODER,
@@ -273,14 +274,14 @@ def test_calibration_in_process(ros_context, tmp_path):
             names.TOPIC_CALIBRATION_PROGRESS,
         ):
             assert info['topics'][topic]['count'] > 0, topic
-        assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
+        assert len(info['metadata'][POSTURE_METADATA_NAME]) >= len(samples)
         # Each posture's samples count from the instant the platform published settled (not
         # from the status's receipt): the noted starts are the statuses' source timestamps.
         starts = rebuild.collection_notes(info)
         assert starts and {c: start for c, (_, start) in starts.items()} == {
             c: settled_published[c] for c in starts
         }
-        assert info['metadata'][recording.RUN_METADATA_NAME]
+        assert info['metadata'][RUN_METADATA_NAME]
         assert json.loads((run.path / 'result.json').read_text())
 
         # Applied to the platform controller through its parameter service.
@@ -602,7 +603,8 @@ def test_the_calibrator_process_hands_the_gil_over_promptly(monkeypatch):
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     from rclpy.task import Future
 
-    from gsp_calibrator.node_threads import WAIT_OK, WAIT_TIMEOUT, Waits
+    from gsp_calibrator.node_threads import Waits
+    from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 
     now = [100.0]
     flag = []
@@ -624,7 +626,7 @@ def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_cont
     # event queued for the run) once the lock is taken again. In between the protocol is idle
     # and the queue empty: the run once read that as the end and identified without its last
     # posture.
-    from gsp_calibrator.collection import protocol
+    from gsp_calibrator.collection import events
 
     class LastPosture:  # the session with its last posture commanded
         commanded_all = True
@@ -646,7 +648,7 @@ def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_cont
     )
     try:
         node.start_collection(LastPosture(), Idle())
-        last = protocol.PostureSkipped(12, 'not settled within 10 s')
+        last = events.PostureSkipped(12, 'not settled within 10 s')
         with node._lock:
             events = node._note_finals([last])  # as a protocol call returns it
         assert not node.collection_done()
@@ -718,7 +720,7 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
 
 
 def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path):
-    from gsp_calibrator.collection import protocol
+    from gsp_calibrator.collection import topics
     from gsp_calibrator.run.health import topic_age_key
     from gsp_msgs_py.diagnostics import DiagnosticsListener
     from gsp_msgs_py.health import ERROR, OK, WARN
@@ -745,7 +747,7 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
 
     publishers = {
         topic: suite.client_node.create_publisher(JointState, topic, qos.TOPIC_QOS[topic])
-        for topic in protocol.SENSOR_TOPICS
+        for topic in topics.SENSOR_TOPICS
     }
     streaming = threading.Event()
 
@@ -760,17 +762,17 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
         report = health(lambda h: True)
         assert report.level == WARN and 'silent for more than 0.5 s' in report.message
         assert report.values['state'] == 'idle' and report.values['posture'] == '0 of 0'
-        assert all(report.values[topic_age_key(t)] == 'never' for t in protocol.SENSOR_TOPICS)
+        assert all(report.values[topic_age_key(t)] == 'never' for t in topics.SENSOR_TOPICS)
         assert listener.hardware_ids[name] == names.PROGRESS_NAME
 
         streaming.set()
         report = health(lambda h: h.level == OK)
-        ages = [float(report.values[topic_age_key(t)]) for t in protocol.SENSOR_TOPICS]
+        ages = [float(report.values[topic_age_key(t)]) for t in topics.SENSOR_TOPICS]
         assert max(ages) <= 0.5
 
         streaming.clear()  # every sensor falls silent
         report = health(lambda h: h.level == WARN)
-        assert all(topic in report.message for topic in protocol.SENSOR_TOPICS), report
+        assert all(topic in report.message for topic in topics.SENSOR_TOPICS), report
 
         # A run with no platform: it fails, and the status says so until the next run.
         response = suite.wait(suite.call())

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.tools import demo, demo_commands
-from gsp_calibrator.tools import processes as processes_module
+from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 from gsp_msgs_py.testing import wait_until
@@ -210,7 +210,7 @@ def _wait_for_output(processes, names, timeout=60.0):
 
 
 def test_children_are_stopped_sigint_then_sigterm_then_sigkill(tmp_path):
-    processes = processes_module.NodeProcesses(
+    processes = NodeProcesses(
         {'polite': _child(POLITE), 'stubborn': _child(IGNORES_SIGINT), 'deaf': _child(IGNORES_ALL)},
         env=None,
         log_directory=tmp_path,
@@ -226,7 +226,7 @@ def test_children_are_stopped_sigint_then_sigterm_then_sigkill(tmp_path):
 
 
 def test_a_child_that_exits_is_reported_with_its_log(tmp_path):
-    processes = processes_module.NodeProcesses(
+    processes = NodeProcesses(
         {'broken': _child('import sys; print("cannot start: bad parameter"); sys.exit(3)')},
         env=None,
         log_directory=tmp_path,

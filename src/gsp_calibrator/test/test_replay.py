@@ -13,7 +13,8 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from test_calibrator_node import spin_as_in_use
 
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
+from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
     SOURCE_SAMPLES,
@@ -99,8 +100,8 @@ def write_recording(
     settling."""
     sent = {}
     numbers = numbers or range(1, len(poses) + 1)
-    with recording.McapRecorder(path) as recorder:
-        recorder.add_metadata(recording.RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
+    with McapRecorder(path) as recorder:
+        recorder.add_metadata(RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
         for j in range(3):  # idle at home before the first command
             _write_instant(
                 recorder,
@@ -607,7 +608,7 @@ def test_replay_from_the_recording_collects_the_original_raw_samples(
     one averaged row per posture has none.
     """
     node, replayed = _replay(
-        ros_context, str(original_run.path / recording.RECORDING_FILE), tmp_path / 'replay'
+        ros_context, str(original_run.path / RECORDING_FILE), tmp_path / 'replay'
     )
     assert node.run.kind == SOURCE_RECORDING
     assert all(len(p.stream) >= CALIBRATION['samples_per_posture'] for p in node.run.postures)

@@ -38,7 +38,7 @@ from .geometry import (
     Geometry,
 )
 from .kinematics import forward_kinematics_masked
-from .sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
+from .sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoiseError
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 DEFAULT_FORMULATION = 'implicit'
@@ -64,10 +64,6 @@ MAX_ROBUST_ROUNDS = 20
 
 class IdentificationError(ValueError):
     """Inputs to the identification are unusable; the message says which."""
-
-
-#: The former name of :class:`~gsp_kinematics.sensors.noise.SensorNoise`, kept for existing callers.
-Sigmas = SensorNoise
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,7 +8,7 @@ so the rows are the ones the calibrator collected online; ``gsp_reidentify`` and
 import collections
 import os
 
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
 from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
@@ -45,10 +45,10 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     """Feed every recorded command, status and sensor message to ``collection`` (a
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`), receive time = log time; yields its
     events. ``path``: one recording, or the parts of a resumed run in order
-    (:func:`recording_parts`).
+    (:func:`.recorder.recording_parts`).
 
     Each ``pose_command`` starts the next posture: its number is the one noted with it
-    (:meth:`RunRecorder.note_collection_start`), else its rank among the commands; the noted
+    (:meth:`.recorder.RunRecorder.note_collection_start`), else its rank among the commands; the noted
     start is the collection start of its ``settled`` status (else the status's receive time).
     ``on_message(topic, log_time_ns, message)``, if given, sees every message read first
     (``extra_topics`` are read for it alone). Malformed messages are dropped, as the calibrator
@@ -67,7 +67,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     notes = _notes_of(paths) if notes is None else notes
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
-        + protocol.SENSOR_TOPICS
+        + topics.SENSOR_TOPICS
         + tuple(extra_topics)
     )
     order = _CausalOrder(collection, notes)
@@ -112,7 +112,7 @@ class _CausalOrder:
                 msg = conversions.parse_status(msg)
             except ValueError:
                 return []
-        elif topic not in protocol.TOPIC_STREAMS:
+        elif topic not in topics.TOPIC_STREAMS:
             return []
         return self._route(topic, log_time, msg) + self.advance()
 
@@ -120,7 +120,7 @@ class _CausalOrder:
         """Put the waiting commands into effect while they may (``final``: all of them)."""
         events = []
         while self.pending and (
-            final or (self.final_status and self.reached.issuperset(protocol.SENSOR_TOPICS))
+            final or (self.final_status and self.reached.issuperset(topics.SENSOR_TOPICS))
         ):
             number, pose, command_id, log_time = self.pending.popleft()
             events += self.collection.command(number, pose, command_id, log_time)
@@ -133,7 +133,7 @@ class _CausalOrder:
 
     def _route(self, topic, log_time, item):
         """Feed a sensor message or parsed status to the posture in effect, or hold it."""
-        if topic in protocol.TOPIC_STREAMS:
+        if topic in topics.TOPIC_STREAMS:
             stamp_ns = _stamp_ns(item)
             if stamp_ns is not None:
                 if self.pending and (topic in self.reached or stamp_ns >= int(self.pending[0][2])):
@@ -179,7 +179,7 @@ def _stamp_ns(msg):
 
 def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
     """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run.directory.Samples`) of one
-    recording or of the parts of a resumed run (a list, see :func:`recording_parts`).
+    recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
@@ -187,7 +187,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     only what the calibrator waited for), by the same settle rule (its stored options).
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
-    :func:`noise_std_from_options`) default to the options stored by :meth:`RunRecorder.start`;
+    :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
     samples = Samples.empty()
@@ -232,14 +232,14 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
         if rows:
             collection.continue_after(next(reversed(rows.values())).sample.readings)
         for event in feed_recording(part, collection):
-            if isinstance(event, protocol.RowReady):
+            if isinstance(event, events.RowReady):
                 rows.pop(event.posture, None)
                 rows[event.posture] = event
     return list(rows.values())
 
 
 def collection_notes(info, path='<recording>'):
-    """``{command_id: (posture or None, start_ns)}`` noted by :meth:`RunRecorder.note_collection_start`."""
+    """``{command_id: (posture or None, start_ns)}`` noted by :meth:`.recorder.RunRecorder.note_collection_start`."""
     notes = {}
     for entry in info['metadata'].get(POSTURE_METADATA_NAME, []):
         try:

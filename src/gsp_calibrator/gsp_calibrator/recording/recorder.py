@@ -7,7 +7,7 @@ metadata), ``log_time`` = receive time and ``publish_time`` in nanoseconds. ``ro
 recording.mcap``, ``ros2 bag play recording.mcap`` (storage ``mcap``) and Foxglove read it.
 
 * :class:`McapRecorder` writes one file atomically (``<path>.tmp``, then ``os.replace`` on close).
-* :func:`read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
+* :func:`.mcap_io.read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
 * :mod:`.rebuild` rebuilds the ``samples.csv`` rows of a run from its recording.
 * :class:`RunRecorder` records the suite's topics from inside a node (raw CDR subscriptions).
 
@@ -22,29 +22,13 @@ import re
 import threading
 import time
 
-from gsp_calibrator.recording.mcap_format import (  # noqa: F401 (the recording API, re-exported)
-    DEFINITION_SEPARATOR,
-    MessageDefinitionError,
+from gsp_calibrator.recording.mcap_format import (
     RecordingError,
     message_class,
-    message_definition,
-    message_type_name,
-    msg_file,
-    normalise_type_name,
-    qos_profiles_yaml,
-    split_type_name,
 )
-from gsp_calibrator.recording.mcap_io import (  # noqa: F401 (the recording API, re-exported)
-    MESSAGE_ENCODING,
-    PROFILE,
+from gsp_calibrator.recording.mcap_io import (
     RUN_METADATA_NAME,
-    SCHEMA_ENCODING,
     McapRecorder,
-    read_recording,
-    recording_info,
-    recording_options,
-    recover_recording,
-    recover_recordings,
 )
 from gsp_calibrator.settings import STORED_PARAMETERS
 from gsp_kinematics.fileio import json_safe
@@ -172,7 +156,7 @@ class RunRecorder:
         """Note that the samples of command ``command_id`` count from ``start_ns`` (node clock).
 
         Optional (an MCAP metadata record, ignored by rosbag2): with it,
-        :func:`samples_from_recording` starts each posture exactly where the calibrator's
+        :func:`.rebuild.samples_from_recording` starts each posture exactly where the calibrator's
         collector did, instead of at the receive time of the ``settled`` status.
         """
         with self._lock:
@@ -231,6 +215,6 @@ class RunRecorder:
 def settings_options(settings):
     """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`):
     those of ``settings`` (a :class:`gsp_calibrator.settings.CalibratorSettings`) marked
-    :data:`gsp_calibrator.settings.STORED`; :func:`samples_from_recording` and ``gsp_reidentify``
+    :data:`gsp_calibrator.settings.STORED`; :func:`.rebuild.samples_from_recording` and ``gsp_reidentify``
     read them back."""
     return settings.options(STORED_PARAMETERS)

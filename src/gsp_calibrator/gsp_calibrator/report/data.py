@@ -115,7 +115,7 @@ def validation_errors(true, controller, poses):
     """Per-posture validation of ``controller`` against the real platform ``true`` (simulation).
 
     ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
-    'unreachable'}``: the arrays that :func:`write_report` plots as distributions.
+    'unreachable'}``: the arrays that :func:`.write.write_report` plots as distributions.
     """
     from gsp_kinematics.kinematics import forward_kinematics_masked
     from gsp_kinematics.validation import commanded_articular, pose_errors, summarise

@@ -12,19 +12,31 @@ import os
 import time
 import traceback
 
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.collection.single_source import SecondSource
-from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.recording.recorder import next_recording_file, settings_options
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import response as run_response
-from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.host import RunHost, first_timeout
+from gsp_calibrator.run.identify import finish_run
+from gsp_calibrator.run.response import (
+    failure_message,
+    final_progress_message,
+    format_response,
+    posture_report,
+)
 from gsp_calibrator.run.session import RunRefused, RunWriteError, WriteFailed, open_session
+from gsp_calibrator.run.state import (
+    PHASE_DONE,
+    PHASE_FAILED,
+    PHASE_IDENTIFYING,
+    PHASE_INTERRUPTED,
+    STATE_FILE,
+    settle_statistics,
+)
 from gsp_msgs_py import names
 
 #: Final posture events that end the run.
-RUN_FAILURES = (protocol.TopicSilent, protocol.NoSynchronisedSample, SecondSource, WriteFailed)
+RUN_FAILURES = (events.TopicSilent, events.NoSynchronisedSample, SecondSource, WriteFailed)
 
 
 class RunFailed(Exception):
@@ -47,7 +59,7 @@ def system_checks(node, heard, timeout):
             '(is platform_sim running?)',
         ),
     ]
-    for topic in protocol.SENSOR_TOPICS:
+    for topic in topics.SENSOR_TOPICS:
         message = f'topic {topic} is silent: no message within {timeout:g} s'
         checks.append((lambda t=topic: heard(t), message))
     return checks
@@ -96,8 +108,8 @@ class CalibrationRun:
     def interrupted(self):
         """The node goes down during the run: mark state.json ``interrupted``."""
         state = self.session.state if self.session is not None else None
-        if state is not None and state.phase != run_state.PHASE_DONE:
-            self.save_state(run_state.PHASE_INTERRUPTED, 'the calibrator shut down during the run')
+        if state is not None and state.phase != PHASE_DONE:
+            self.save_state(PHASE_INTERRUPTED, 'the calibrator shut down during the run')
 
     async def run(self):
         """``(success, message)``."""
@@ -123,8 +135,8 @@ class CalibrationRun:
             f'calibration {"resumed" if self.resume else "started"}: run directory {session.run}'
         )
         try:
-            part = recording.next_recording_file(session.run.path)
-            node.recorder.start(part, options=recording.settings_options(settings))
+            part = next_recording_file(session.run.path)
+            node.recorder.start(part, options=settings_options(settings))
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
             part = None
             log.error(f'not recording the run: {error}')
@@ -134,8 +146,8 @@ class CalibrationRun:
             await self._wait_for_system()
             await self._collect()
         except (RunFailed, RunWriteError) as error:
-            self.save_state(run_state.PHASE_FAILED, str(error))
-            message = run_response.failure_message(error, len(session.samples), session.run)
+            self.save_state(PHASE_FAILED, str(error))
+            message = failure_message(error, len(session.samples), session.run)
             log.error(message)
             node.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
@@ -148,7 +160,7 @@ class CalibrationRun:
             if self.session is not None:
                 self.session.save(phase, stop_reason)
         except RunWriteError as error:
-            self.log.error(f'{run_state.STATE_FILE} not written: {error}')
+            self.log.error(f'{STATE_FILE} not written: {error}')
 
     async def _begin(self, part):
         """Select the postures of a new run (a resumed one keeps its own) and order them from
@@ -217,9 +229,7 @@ class CalibrationRun:
             event = await self.node.finals.get()
             if isinstance(event, RUN_FAILURES):
                 raise RunFailed(event.message)
-            report = run_response.posture_report(
-                event, self.settings.posture_count, self.settings.nominal
-            )
+            report = posture_report(event, self.settings.posture_count, self.settings.nominal)
             for level, line in report.log:  # one call site per severity (rclpy requires it)
                 if level == 'warning':
                     self.log.warning(line)
@@ -240,23 +250,23 @@ class CalibrationRun:
         """Identify over every row, write the results, publish and apply; ``(success, text)``."""
         settings, session, node, log = self.settings, self.session, self.node, self.log
         count = settings.posture_count
-        self.save_state(run_state.PHASE_IDENTIFYING)
+        self.save_state(PHASE_IDENTIFYING)
         node.progress(
             count,
             names.PHASE_IDENTIFYING,
             f'identifying {settings.free_count} parameters from {len(session.samples)} postures',
         )
         finished = await node.in_thread(
-            calibration.finish_run,
+            finish_run,
             session.run,
             settings,
             session.samples,
             {
                 **self.collection.summary(),
                 'replacements': session.state.replacements,
-                'settle': run_state.settle_statistics(session.state.settle_waits),
+                'settle': settle_statistics(session.state.settle_waits),
             },
-            recording.settings_options(settings),
+            settings_options(settings),
         )
         if finished.report_error:
             log.error(f'report not written: {finished.report_error}')
@@ -264,10 +274,10 @@ class CalibrationRun:
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)
-            self.save_state(run_state.PHASE_FAILED, outcome.message)
+            self.save_state(PHASE_FAILED, outcome.message)
             node.progress(count, names.PHASE_FAILED, outcome.message, residuals)
             return False, summary
-        self.save_state(run_state.PHASE_DONE)
+        self.save_state(PHASE_DONE)
         geometry = outcome.geometry
         # A result the goodness of fit rejects is written and latched, but applied only on demand.
         success, note = await node.deliver_result(settings, geometry, outcome.fit_accepted)
@@ -279,8 +289,8 @@ class CalibrationRun:
         node.progress(
             count,
             phase,
-            run_response.final_progress_message(summary, success, note),
+            final_progress_message(summary, success, note),
             residuals,
             run_directory=session.run.path,
         )
-        return success, run_response.format_response(summary, geometry)
+        return success, format_response(summary, geometry)

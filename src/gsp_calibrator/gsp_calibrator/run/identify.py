@@ -83,7 +83,7 @@ def identify_from_samples(
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
-    ``samples`` is a ``run_directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
+    ``samples`` is a ``directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
     scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. The rows' window lag sums
@@ -170,7 +170,7 @@ def finish_run(run, settings, samples, collection, options):
     """
     import traceback
 
-    from gsp_calibrator.report import write as report
+    from gsp_calibrator.report.write import outcome_inputs, write_all
     from gsp_calibrator.run.directory import RESULT_FILE
 
     outcome = identify_from_samples(
@@ -189,10 +189,10 @@ def finish_run(run, settings, samples, collection, options):
     report_error = ''
     if outcome.result is not None:
         try:
-            report.write_all(
+            write_all(
                 run.path,
                 outcome.result,
-                report.outcome_inputs(outcome, settings.nominal, options, collection=collection),
+                outcome_inputs(outcome, settings.nominal, options, collection=collection),
                 plots=settings.write_report_plots,
             )
         except Exception as error:

@@ -13,7 +13,7 @@
    prints its path, stops every node (SIGINT, then SIGTERM, then SIGKILL) and
    exits 0 on success, 1 on failure.
 
-The orchestration (commands, process handling, summary) is plain Python; :class:`DemoNode` is the
+The orchestration (commands, process handling, summary) is plain Python; :class:`.demo_node.DemoNode` is the
 thin ROS part (a client of the suite's topics and service), driven from the main thread.
 """
 
@@ -40,13 +40,10 @@ from gsp_calibrator.tools.demo_commands import (
     node_commands,
     ros_environment,
 )
-from gsp_calibrator.tools.demo_summary import (  # noqa: F401 (the demo's figures)
-    FIT_KEYS,
-    VALIDATION_KEYS,
+from gsp_calibrator.tools.demo_summary import (
     DemoSummary,
     collection_record,
     fit_record,
-    parameter_error_maxima,
     summary_text,
     validation_details,
     validation_summary,
@@ -301,9 +298,9 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
     try:  # the calibrator's report, now against the truth and with the validation distributions
-        from gsp_calibrator.tools import reidentify as offline
+        from gsp_calibrator.tools.reidentify import refresh_report
 
-        offline.refresh_report(
+        refresh_report(
             run_directory.path,
             truth=true_geometry,
             validation_before=measured.details_before,

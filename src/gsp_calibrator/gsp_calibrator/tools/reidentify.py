@@ -20,14 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import (
     RESULT_FILE,
     TRUE_GEOMETRY_FILE,
     RunDirectory,
 )
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL, outcome_summary
 from gsp_calibrator.settings import DEFAULTS, PARAMETER_SPECS, option_name
 from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
     OPTION_PARAMETERS,
@@ -199,7 +199,7 @@ def reidentify(args, out=None):
     samples = load_input(kind, path, options)
 
     try:
-        outcome = calibration.identify_from_samples(
+        outcome = identify_from_samples(
             nominal,
             samples,
             sigmas,
@@ -248,11 +248,11 @@ def reidentify(args, out=None):
                 run, outcome.result, inputs, 'Offline re-identification', not args.no_plots
             )
 
-    print(run_response.outcome_summary(outcome, reference=truth), file=out)
+    print(outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
         if validation is not None:
             print(_validation_line(when, validation), file=out)
-    print(f'{run_response.RUN_DIRECTORY_LABEL}{run.path}', file=out)
+    print(f'{RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
 
@@ -261,7 +261,7 @@ def stored_weights(stored, options, samples):
     its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
 
     A ``samples.csv`` with the rows' lag sums holds what an ``estimated`` run's noise came from.
-    One written before them keeps only the averages: the row noise the run used
+    Rows without any (single samples) keep only the averages: the row noise the run used
     (``result.json`` ``sigmas``) is given as configured per-sample sigmas, and its noise
     estimates and goodness of fit are kept as written."""
     source = options.get('noise_source', DEFAULTS['noise_source'])
@@ -308,7 +308,7 @@ def refresh_report(
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
     sigmas, source, kept_keys = stored_weights(stored, options, samples)
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         nominal,
         samples,
         sigmas,

@@ -52,7 +52,8 @@ def stored_options(kind, path, source_dir):
         else (source_dir / 'recording.mcap' if source_dir is not None else None)
     )
     if recording_path is not None and Path(recording_path).is_file():
-        from gsp_calibrator.recording.recorder import RecordingError, recording_options
+        from gsp_calibrator.recording.mcap_format import RecordingError
+        from gsp_calibrator.recording.mcap_io import recording_options
 
         try:
             options.update(recording_options(recording_path))
@@ -100,16 +101,17 @@ def geometry_option(path, option):
 def recover_unfinished_recordings(run_path):
     """Finalise the ``recording*.mcap.tmp`` a killed calibrator left in ``run_path`` (never one a
     live calibrator is still writing: see its ``state.json``)."""
-    from gsp_calibrator.recording.recorder import RecordingError, recover_recordings
-    from gsp_calibrator.run import state as run_state
+    from gsp_calibrator.recording.mcap_format import RecordingError
+    from gsp_calibrator.recording.mcap_io import recover_recordings
+    from gsp_calibrator.run.state import ResumeRefused, read_state, resumable
 
     if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
         return
     try:
-        state = run_state.read_state(run_path)
-    except run_state.ResumeRefused:
+        state = read_state(run_path)
+    except ResumeRefused:
         state = None
-    if state is not None and not run_state.resumable(state) and state.phase != 'done':
+    if state is not None and not resumable(state) and state.phase != 'done':
         return  # still being written
     try:
         for recovered in recover_recordings(run_path):
@@ -151,12 +153,9 @@ def load_input(kind, path, options):
         except RunDirectoryError as error:
             raise InputError(str(error)) from error
     else:
+        from gsp_calibrator.recording.mcap_format import RecordingError
         from gsp_calibrator.recording.rebuild import samples_from_recording
-        from gsp_calibrator.recording.recorder import (
-            RECORDING_FILE,
-            RecordingError,
-            recording_parts,
-        )
+        from gsp_calibrator.recording.recorder import RECORDING_FILE, recording_parts
 
         # A resumed run recorded into recording.mcap, recording-2.mcap ...: read every part.
         parts = recording_parts(Path(path).parent) if Path(path).name == RECORDING_FILE else []
