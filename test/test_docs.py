@@ -120,8 +120,16 @@ def test_the_name_check_sees_a_moved_module_and_a_missing_file():
 #: Every Python file of the project whose docstrings are checked: the packages and their tests,
 #: the cross-package tests and the scripts.
 PYTHON_FILES = sorted(
-    [*SRC.glob('*/gsp_*/**/*.py'), *SRC.glob('*/test/**/*.py'), *(WS / 'test').glob('*.py')]
+    [
+        *SRC.glob('*/gsp_*/**/*.py'),
+        *SRC.glob('*/test/**/*.py'),
+        *(WS / 'test').glob('*.py'),
+        *(WS / 'test_support').glob('*.py'),
+    ]
 )
+#: The tests' shared support module (test_support/, not installed).
+TEST_SUPPORT_MODULE = 'gsp_testing'
+TEST_SUPPORT_FILE = WS / 'test_support' / 'gsp_testing.py'
 _ROLE = re.compile(r':(?:mod|class|func|meth|data|attr|exc|obj):`~?([^`<>]+?)`')
 #: A backticked dotted name in a docstring: ``module.name`` or ``object.attribute``.
 _DOTTED = re.compile(r'``([a-z_]\w*(?:\.[A-Za-z_]\w*)+)(?:\(\))?``')
@@ -205,6 +213,9 @@ def _resolves(target, module, tree):
         base = package[: len(package) - dots + 1]
         return not dangling_names('.'.join(base) + '.' + target.lstrip('.'))
     head = target.split('.')[0]
+    if head == TEST_SUPPORT_MODULE:
+        name = target.split('.')[1] if '.' in target else ''
+        return not name or name in _bound_names(ast.parse(TEST_SUPPORT_FILE.read_text()))
     if head.startswith('gsp_'):
         return head in PACKAGES and not dangling_names(target)
     if package and _module_path([*package, head]) is not None:

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gsp_testing import marked_environment, marked_processes, wait_until
 
 from gsp_calibrator.tools import demo
 from gsp_kinematics.geometry import load_geometry, parameter_errors
-from gsp_msgs_py.testing import marked_environment, marked_processes, wait_until
 
 DEMO_TIMEOUT_S = 300.0  # generous: the machine may be loaded (the target is < 60 s)
 #: Keys every summary.json has (the demo writes more: the run directory, the fit, ...).

@@ -81,6 +81,7 @@ def test_pose_command_and_status_round_trip(ros_context):
     import rclpy
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
+    from gsp_testing import spin_until
     from rclpy.executors import SingleThreadedExecutor
 
     from gsp_msgs_py import names, qos
@@ -91,7 +92,6 @@ def test_pose_command_and_status_round_trip(ros_context):
         pose_stamped_to_pose,
         pose_to_pose_stamped,
     )
-    from gsp_msgs_py.testing import spin_until
 
     node = rclpy.create_node('gsp_workspace_test', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)

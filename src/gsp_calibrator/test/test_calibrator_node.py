@@ -9,6 +9,7 @@ import json
 import sys
 import threading
 
+import gsp_testing
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -32,7 +33,7 @@ from gsp_kinematics.geometry import (
     parameter_errors,
     save_geometry,
 )
-from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.parameter_specs import ConfigurationError
 
 RATE_HZ = 100.0
@@ -78,9 +79,9 @@ def perturbed_truth(path):
 
 
 def spin_as_in_use(context, nodes, client_node, num_threads=4):
-    """``testing.SpinningNodes``: the calibrators with the test's client, every other node apart."""
+    """``gsp_testing.SpinningNodes``: the calibrators with the test's client, every other node apart."""
     calibrators = [node for node in nodes if isinstance(node, CalibratorNode)]
-    return testing.SpinningNodes(
+    return gsp_testing.SpinningNodes(
         context,
         together=calibrators + [client_node],
         apart=[node for node in nodes if node not in calibrators],
@@ -89,7 +90,7 @@ def spin_as_in_use(context, nodes, client_node, num_threads=4):
 
 
 class Suite:
-    """In-process nodes spun as in use (``testing.SpinningNodes``) plus a test client."""
+    """In-process nodes spun as in use (``gsp_testing.SpinningNodes``) plus a test client."""
 
     def __init__(self, context, nodes):
         import rclpy
@@ -115,7 +116,7 @@ class Suite:
     @staticmethod
     def wait_until(predicate, timeout=CALL_TIMEOUT_S):
         """Wait for an event (``predicate()``); False if it has not come within ``timeout``."""
-        return testing.wait_until(predicate, timeout)
+        return gsp_testing.wait_until(predicate, timeout)
 
     def wait(self, future, timeout=CALL_TIMEOUT_S):
         assert self.wait_until(future.done, timeout), 'no calibrate response'

@@ -3,13 +3,13 @@
 import io
 
 import pytest
+from gsp_testing import SpinThread, wait_until
 
 from gsp_calibrator.run.response import RESPONSE_SEPARATOR, RUN_DIRECTORY_LABEL, format_response
 from gsp_calibrator.tools import client
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
-from gsp_msgs_py.testing import SpinThread, wait_until
 
 RUN_DIRECTORY = '/tmp/runs/20260101T000000Z'
 WAIT_S = 30.0  # bounds a failure only

@@ -8,12 +8,12 @@ import sys
 
 import numpy as np
 import pytest
+from gsp_testing import wait_until
 
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
-from gsp_msgs_py.testing import wait_until
 
 
 def test_ros_environment_is_loopback_with_a_domain(tmp_path, monkeypatch):

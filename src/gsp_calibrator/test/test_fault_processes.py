@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+from gsp_testing import SpinThread
 from scipy import stats
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -37,7 +38,6 @@ from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES
 from gsp_msgs_py import conversions, names, qos
-from gsp_msgs_py.testing import SpinThread
 
 #: Postures of the run resumed after a killed device driver, which is compared with an
 #: uninterrupted run (a statistic of the two results: as many postures as the demo's).

@@ -2,6 +2,7 @@
 
 import math
 
+import gsp_testing
 import numpy as np
 import pytest
 import rclpy
@@ -24,7 +25,7 @@ from gsp_calibrator.replay.recorded_run import (
 from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
 from gsp_calibrator.run.directory import RunDirectory, Samples, write_samples
 from gsp_calibrator.run.response import parse_response
-from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.diagnostics import DiagnosticsListener
 from gsp_msgs_py.health import OK, Health
 from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
@@ -303,7 +304,7 @@ class NodeHarness:
         ), 'no discovery'
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
-        return testing.spin_until(self.executor, predicate, timeout)
+        return gsp_testing.spin_until(self.executor, predicate, timeout)
 
     def command(self, pose, frame_id=names.FRAME_BASE):
         return self.commands.send(pose, frame_id)
@@ -503,7 +504,7 @@ class Suite:
     def calibrate(self, timeout=120.0):
         assert self.client.wait_for_service(timeout_sec=TIMEOUT_S), 'calibrate service missing'
         future = self.client.call_async(Trigger.Request())
-        assert testing.wait_until(future.done, timeout), 'no calibrate response'
+        assert gsp_testing.wait_until(future.done, timeout), 'no calibrate response'
         response = future.result()
         assert response.success, response.message
         return RunDirectory(parse_response(response.message).run_directory)

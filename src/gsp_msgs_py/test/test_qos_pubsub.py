@@ -1,13 +1,13 @@
 """The profiles work end to end over loopback DDS: sensor data flows, results are latched."""
 
 import numpy as np
+from gsp_testing import spin_until
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from gsp_msgs_py import names, qos
 from gsp_msgs_py.conversions import leg_lengths_to_msg, msg_to_leg_lengths
-from gsp_msgs_py.testing import spin_until
 
 TIMEOUT_S = 10.0
 

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from gsp_msgs_py import ros_environment
 from gsp_msgs_py.ros_environment import (
     DOMAIN_IDS,
     LOCK_DIRECTORY_VARIABLE,
     DomainInUseError,
-    __file__,
     claim_domain_id,
     domain_holder,
     enter_private_domain,
@@ -29,7 +29,7 @@ from gsp_msgs_py.ros_environment import (
 )
 
 TIMEOUT_S = 30.0  #: bounds a failure only
-SOURCE = str(Path(__file__).resolve().parents[1])  #: for the children's sys.path
+SOURCE = str(Path(ros_environment.__file__).resolve().parents[1])  #: for the children's sys.path
 #: A child that claims a domain (same rng seed as the others: the same first candidate), prints
 #: it and holds it until its stdin closes.
 CLAIMER = (
@@ -147,7 +147,7 @@ def test_claim_for_a_shell_holds_until_the_owner_exits(lock_dir):
     )
     try:
         claimed = subprocess.run(
-            [sys.executable, __file__, 'claim', '--owner', str(owner.pid)],
+            [sys.executable, ros_environment.__file__, 'claim', '--owner', str(owner.pid)],
             capture_output=True,
             text=True,
             timeout=TIMEOUT_S,
@@ -160,7 +160,9 @@ def test_claim_for_a_shell_holds_until_the_owner_exits(lock_dir):
         owner.stdin.close()
         owner.wait(timeout=TIMEOUT_S)
     wait_until(lambda: domain_holder(domain_id) is None, 'the holder to let go')
-    usage = subprocess.run([sys.executable, __file__, 'claim'], capture_output=True, text=True)
+    usage = subprocess.run(
+        [sys.executable, ros_environment.__file__, 'claim'], capture_output=True, text=True
+    )
     assert usage.returncode == 2 and 'usage' in usage.stderr
 
 

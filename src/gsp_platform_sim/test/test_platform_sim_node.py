@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import gsp_testing
 import numpy as np
 import pytest
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
@@ -15,7 +16,7 @@ from gsp_kinematics.geometry import (
     geometry_to_parameters,
 )
 from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
-from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import OK, WARN
 from gsp_msgs_py.parameter_specs import ConfigurationError
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
@@ -26,7 +27,7 @@ POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
 TIMEOUT_S = 10.0  # generous: the machine may be loaded; tests finish as soon as they can
 
 
-class Harness(testing.NodeHarness):
+class Harness(gsp_testing.NodeHarness):
     """platform_sim plus a test node that commands poses and records what comes back."""
 
     def __init__(self, context, overrides=()):
@@ -89,7 +90,7 @@ class Harness(testing.NodeHarness):
         return future.result()
 
 
-harness = testing.harness_fixture(Harness)
+harness = gsp_testing.harness_fixture(Harness)
 
 
 def test_command_moves_then_settles_and_streams_the_new_posture(harness):
@@ -136,7 +137,7 @@ def test_leg_lengths_are_stamped_exactly_at_the_timer_ticks(harness):
     assert harness.spin_until(lambda: len(harness.leg_lengths) >= 6)
     stamps = [conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths]
     assert len(set(stamps)) == len(stamps), stamps
-    assert len(testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
+    assert len(gsp_testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
 
 
 @pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.0)]], indirect=True)
