@@ -207,8 +207,8 @@ def _resolves(target, module, tree):
     if module and _module_path(module.split('.')).name == '__init__.py':
         package = module.split('.')
     if target.startswith('.'):
-        if module is None:
-            return True
+        if module is None or target.lstrip('.') in _bound_names(tree):
+            return True  # a name of the module itself (Sphinx's ``.name``)
         dots = len(target) - len(target.lstrip('.'))
         base = package[: len(package) - dots + 1]
         return not dangling_names('.'.join(base) + '.' + target.lstrip('.'))

@@ -10,16 +10,16 @@ a row per posture, ``state.json``, ``result.yaml``, ``recording.mcap``, ``result
 parameter service. See docs/nodes.md (parameters, topics) and docs/architecture.md (protocol,
 concurrency).
 
-This wrapper only moves messages and waits. The collection protocol is
-:class:`.collection.protocol.CollectionProtocol`: every status and sensor message goes to it with its
-receive time (a status also with its publish instant: a posture's samples count from the
-publication of its ``settled``, :func:`.collection.protocol.settle_start_ns`), a watchdog timer polls it for
-timeouts, and its events (row ready, posture skipped, topic silent) end each posture. The course of a run is :class:`.run.flow.CalibrationRun`
-(a coroutine), its files :class:`.run.session.RunSession`; the waiting machinery is
-:mod:`.node_threads`, the second-source guard
-:class:`.collection.single_source.SingleSourceGuard`. The end of a posture (in the
-thread of the message that ended it) appends the row to samples.csv and commands the next
-posture at once; the run coroutine reports it afterwards and rewrites state.json.
+This wrapper only moves messages and waits. The course of a run is
+:class:`.run.flow.CalibrationRun` (a coroutine), its files :class:`.run.session.RunSession`.
+The node gives the run one :class:`.run.host.RunHost` (:meth:`CalibratorNode._run_host`) whose
+:class:`.run.host.PostureLink` joins the node's threads to the run: every status and sensor
+message goes through it to the :class:`.collection.protocol.CollectionProtocol` with its receive
+time (a status also with its publish instant: a posture's samples count from the publication of
+its ``settled``, :func:`.collection.protocol.settle_start_ns`), a watchdog timer polls it for
+timeouts, and the event that ends a posture (row ready, posture skipped, topic silent) keeps its
+row and completes the future the run awaits. The waiting machinery is :mod:`.node_threads`, the
+second-source guard :mod:`.collection.single_source`.
 
 Concurrency: the Trigger callback is a coroutine in its own reentrant group, so a second call is
 answered at once while a run awaits. The status subscription and the parameter client sit in a
@@ -27,7 +27,8 @@ reentrant group; the watchdog timer in a mutually exclusive group of its own (on
 at most: a reentrant timer is dispatched again while it waits for the lock, and its piled-up
 calls would take every thread of the executor). The sensor topics are taken by a
 :class:`.node_threads.SensorListener` (node ``<name>_sensors``, own thread), the recording by a
-second one (``<name>_recorder``). The protocol and the run are guarded by one lock.
+second one (``<name>_recorder``). The protocol and the posture in collection are guarded by
+the posture link's lock.
 """
 
 import os
@@ -40,19 +41,23 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.calibrator_host import CalibratorRunHost
-from gsp_calibrator.collection import protocol, topics
+from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.collection.topics import sensor_message
 from gsp_calibrator.node_threads import (
-    EventQueue,
     SensorListener,
     ThreadResults,
     Waits,
+    await_thread,
+    new_future,
+    run_in_thread,
 )
 from gsp_calibrator.recording.recorder import RunRecorder
 from gsp_calibrator.result_delivery import ResultDelivery
-from gsp_calibrator.run.flow import RUN_FAILURES, CalibrationRun
-from gsp_calibrator.run.health import calibrator_health
+from gsp_calibrator.run import postures
+from gsp_calibrator.run.flow import CalibrationRun
+from gsp_calibrator.run.health import ProcessingLags, calibrator_health
+from gsp_calibrator.run.host import PostureLink, RunHost
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
@@ -75,7 +80,7 @@ OUTPUTS = (
 )
 
 
-class CalibratorNode(CalibratorRunHost, Node):
+class CalibratorNode(Node):
     """Calibration service node; ``**kwargs`` go to ``Node`` (``context=``, ``parameter_overrides=``)."""
 
     def __init__(self, **kwargs):
@@ -91,24 +96,17 @@ class CalibratorNode(CalibratorRunHost, Node):
             self, PARAMETERS, apply=self._apply_parameters, validate=check_parameters
         )
 
-        self._lock = threading.RLock()  # guards the protocol and the run
+        self._lock = threading.Lock()  # guards _running and _run
         self._running = False
-        self._sensors_active = False  # sensor and status messages are dropped while False
-        self._protocol = None  # CollectionProtocol of the current (or last) run
-        self._run = None  # CalibrationRun of the current run
-        self._session = None  # its RunSession once collecting
-        self.finals = EventQueue(self._new_future)  # final posture events not yet reported
-        # Final events the protocol has emitted (with the lock held) and _end_posture has not
-        # yet taken (ids): between the two the protocol is idle and `finals` may be empty.
-        self._ending = set()
-        self.failure = None  # the event that ended the current run
-        self._sources = SingleSourceGuard()
+        self._run = None  # CalibrationRun of the current (or last) run
+        self._sources = SingleSourceGuard()  # reset at each run's first reading
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
         # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
         # run or not, and the latest progress published.
         self._heard_ns = dict.fromkeys(topics.SENSOR_TOPICS)
+        self._lags = ProcessingLags(topics.SENSOR_TOPICS)
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -117,9 +115,6 @@ class CalibratorNode(CalibratorRunHost, Node):
             self, OUTPUTS
         ).values()
         self._results = ResultDelivery(self, result_publisher, self._data_group)
-        self._sensors = SensorListener.beside(
-            self, 'sensors', {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS}
-        )
         self._recorder_listener = SensorListener.beside(
             self,
             'recorder',
@@ -128,6 +123,17 @@ class CalibratorNode(CalibratorRunHost, Node):
             on_error=self._on_recording_error,
         )
         self.recorder = self._recorder_listener.extra
+        self.postures = PostureLink(
+            lambda: new_future(self.executor), self._new_command, self.recorder, self._on_event
+        )
+        # After the link: the listener's thread calls back at once, and a callback that raised
+        # would end that thread for the node's lifetime.
+        self._sensors = SensorListener.beside(
+            self,
+            'sensors',
+            {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS},
+            raw=True,  # decoded here, cheaply (collection.joint_state_cdr)
+        )
         self.create_subscription(
             DiagnosticStatus,
             names.TOPIC_PLATFORM_STATUS,
@@ -149,7 +155,7 @@ class CalibratorNode(CalibratorRunHost, Node):
             [Component('calibration', names.PROGRESS_NAME, self._health)],
         )
         # Posture selection takes seconds: start it now for the current parameters.
-        self.selection_future(self._settings)
+        self._selection(self._settings)
         self.get_logger().info(
             f'calibrator ready: {names.SERVICE_CALIBRATE}, {names.SERVICE_RESUME} '
             f'({self._settings.describe()})'
@@ -164,7 +170,7 @@ class CalibratorNode(CalibratorRunHost, Node):
         except ValueError as error:  # validated already; a file may have vanished since
             self.get_logger().error(f'parameters not applied: {error}')
             return
-        self.selection_future(self._settings)
+        self._selection(self._settings)
 
     # ------------------------------------------------------------------ messages and events
 
@@ -172,21 +178,30 @@ class CalibratorNode(CalibratorRunHost, Node):
         return self.get_clock().now().nanoseconds
 
     def _sensor_callback(self, topic):
-        def callback(msg, info):
+        def callback(raw, info):
             self._heard_ns[topic] = time.monotonic_ns()
-            if not self._sensors_active:  # no run: drop at once
+            received_ns = info.get('received_timestamp')
+            if not self.postures.active:  # no run: drop at once
+                self._lags.note(topic, received_ns, time.time_ns())
                 return
-            with self._lock:
+            msg = sensor_message(raw)
+
+            def step(collection):
                 failure = self._sources.check_reading(
                     topic,
                     msg,
                     info.get('publication_sequence_number'),
                     lambda: self._sensors.node.count_publishers(topic),
                 )
-                events = [failure] if failure else self._protocol.sensor(topic, msg, self._now_ns())
-                self._note_finals(events)
-            if events:
-                self._handle(events)
+                if failure is not None:  # a second source: the run ends, naming the topic
+                    self.postures.fail(failure)
+                    return []
+                now_ns = self._now_ns()
+                wire_ns = protocol.wire_receipt_ns(received_ns, now_ns)
+                return collection.sensor(topic, msg, now_ns, wire_ns)
+
+            self.postures.feed(step)
+            self._lags.note(topic, received_ns, time.time_ns())
 
         return callback
 
@@ -198,22 +213,19 @@ class CalibratorNode(CalibratorRunHost, Node):
                 f'ignoring a malformed status: {error}', throttle_duration_sec=WARN_THROTTLE_S
             )
             return
-        with self._lock:
-            events = []
-            if self._sensors_active:
-                now_ns = self._now_ns()
-                start_ns = protocol.settle_start_ns(
-                    info.get('source_timestamp'), now_ns, self._protocol.topic_timeout
-                )
-                events = self._note_finals(self._protocol.status(status, now_ns, start_ns))
-        self._handle(events)
+
+        def step(collection):
+            now_ns = self._now_ns()
+            start_ns = protocol.settle_start_ns(
+                info.get('source_timestamp'), now_ns, collection.topic_timeout
+            )
+            return collection.status(status, now_ns, start_ns)
+
+        self.postures.feed(step)
 
     def _on_watchdog(self):
         self._waits.poll()
-        with self._lock:
-            events = self._protocol.poll(self._now_ns()) if self._sensors_active else []
-            self._note_finals(events)
-        self._handle(events)
+        self.postures.feed(lambda collection: collection.poll(self._now_ns()))
 
     def _on_recording_error(self, error):
         """A recording write failed (recorder thread): the run ends, naming the file."""
@@ -221,65 +233,34 @@ class CalibratorNode(CalibratorRunHost, Node):
         if not isinstance(error, OSError) or path is None:
             self.get_logger().error(f'recording: {error}', throttle_duration_sec=WARN_THROTTLE_S)
             return
-        self._handle([WriteFailed(str(RunWriteError(f'{path}.tmp', error)))])
+        self.postures.fail(WriteFailed(str(RunWriteError(f'{path}.tmp', error))))
 
-    def _handle(self, events):
-        """Act on the protocol's events (any thread)."""
-        for event in events:
-            if isinstance(event, events.CollectionStarted):
-                try:
-                    self.recorder.note_collection_start(
-                        event.command_id, event.start_ns, posture=event.posture
-                    )
-                except OSError as error:  # a full disk: the run ends, as on a message write
-                    self._on_recording_error(error)
-                count = self._settings_count()
-                self.progress(
-                    event.posture,
-                    names.PHASE_COLLECTING,
-                    f'posture {event.posture} of {count}: collecting',
+    def _on_event(self, event):
+        """Act on the protocol's events that do not end a posture (any thread)."""
+        if isinstance(event, events.CollectionStarted):
+            try:
+                self.recorder.note_collection_start(
+                    event.command_id, event.start_ns, posture=event.posture
                 )
-            elif isinstance(event, events.SampleDropped):
-                self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
-            elif isinstance(event, events.FINAL_EVENTS + RUN_FAILURES):
-                self._end_posture(event)
+            except OSError as error:  # a full disk: the run ends, as on a message write
+                self._on_recording_error(error)
+            self._progress(
+                event.posture,
+                names.PHASE_COLLECTING,
+                f'posture {event.posture} of {self._posture_count()}: collecting',
+            )
+        elif isinstance(event, events.SampleDropped):
+            self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
 
-    def _note_finals(self, events):
-        """Note the final events among ``events`` (the lock held) until they are taken."""
-        self._ending.update(
-            id(event) for event in events if isinstance(event, events.FINAL_EVENTS + RUN_FAILURES)
-        )
-        return events
-
-    def _end_posture(self, event):
-        """Keep the row (samples.csv) or the skip of a posture and command the next one at once,
-        from the event's own thread; the run coroutine reports it (and ends on a failure)."""
-        next_events = []
-        with self._lock:
-            self._ending.discard(id(event))
-            if not self._sensors_active or self._session is None or self.failure is not None:
-                return
-            event = self._session.end_posture(event)
-            if isinstance(event, RUN_FAILURES):
-                self.failure = event
-            else:
-                next_events = self._command_next()
-            self.finals.put(event)
-        self._handle(next_events)
-
-    def _command_next(self):
-        """Command the run's next posture (with the lock held); the protocol's events."""
-        posture = self._session.next_posture()
-        if posture is None:
-            return []
-        k, pose = posture
+    def _new_command(self, pose):
+        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.run.host.PostureLink`)."""
         stamp = self.get_clock().now()
-        command_id = conversions.command_id_from_stamp(stamp)
-        events = self._note_finals(self._protocol.command(k, pose, command_id, stamp.nanoseconds))
-        self.command_publisher.publish(conversions.pose_to_pose_stamped(pose, stamp.to_msg()))
-        count = self._settings_count()
-        self.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
-        return events
+        msg = conversions.pose_to_pose_stamped(pose, stamp.to_msg())
+        return (
+            conversions.command_id_from_stamp(stamp),
+            stamp.nanoseconds,
+            lambda: self.command_publisher.publish(msg),
+        )
 
     def _health(self):
         """The calibrator's health on /diagnostics (:func:`.run.health.calibrator_health`)."""
@@ -291,7 +272,64 @@ class CalibratorNode(CalibratorRunHost, Node):
             dict(self._heard_ns),
             time.monotonic_ns(),
             self._settings.topic_timeout,
+            lags=self._lags.take(),
         )
+
+    # --------------------------------------------------------------------- the run's host
+
+    def _run_host(self):
+        """The :class:`.run.host.RunHost` of a run: this node's graph, waits and threads."""
+
+        def in_thread(function, *args, **kwargs):
+            return self._await_thread(run_in_thread(function, *args, **kwargs))
+
+        return RunHost(
+            name=(self.get_name(), self.get_namespace()),
+            log=self.get_logger(),
+            command_publishers=lambda: self.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND),
+            command_subscribers=self.command_publisher.get_subscription_count,
+            status_publishers=lambda: self.count_publishers(names.TOPIC_PLATFORM_STATUS),
+            recorder=self.recorder,
+            postures=self.postures,
+            wait_for=self._wait_for,
+            in_thread=in_thread,
+            await_thread=self._await_thread,
+            selection=self._selection,
+            progress=self._progress,
+            deliver_result=lambda *args: self._results.deliver(*args, self._wait_for),
+            shutting_down=lambda: not self.context.ok(),
+        )
+
+    def _wait_for(self, predicate, timeout_s):
+        """Future of ``WAIT_OK`` once ``predicate()`` holds, else ``WAIT_TIMEOUT`` (s)."""
+        return self._waits.add(predicate, timeout_s, new_future(self.executor))
+
+    def _await_thread(self, concurrent_future):
+        return await_thread(concurrent_future, new_future(self.executor))
+
+    def _selection(self, settings):
+        """The (possibly running, cached) posture selection of ``settings``."""
+        args = postures.selection_arguments(settings)
+        return self._selections.get(postures.selection_key(*args), postures.choose_postures, *args)
+
+    def _posture_count(self):
+        run = self._run
+        return run.settings.posture_count if run is not None else 0
+
+    def _progress(self, index, phase, message='', residuals=None, warning=False, **extra):
+        """Publish the run's progress at posture ``index`` (0 before the first)."""
+        count = self._posture_count()
+        msg = conversions.make_progress(
+            max(0, min(index, count)),
+            count,
+            phase,
+            residuals,
+            message,
+            level=DiagnosticStatus.WARN if warning else None,
+            extra={k: str(v) for k, v in extra.items()},
+        )
+        self._progress_pub.publish(msg)
+        self._last_progress = conversions.parse_progress(msg)
 
     # --------------------------------------------------------------------------- the run
 
@@ -311,15 +349,22 @@ class CalibratorNode(CalibratorRunHost, Node):
                 self.get_logger().warning('calibrate: refused, a calibration is already running')
                 return response
             self._running = True
-            self._run = CalibrationRun(self, self._settings, resume)
+            self._run = CalibrationRun(self._run_host(), self._settings, resume)
+        with self.postures.lock:
+            self._sources.reset()
         response.success, response.message = await self._run.serve()
+        if self.context.ok():  # else going down: destroy_node() marks the run interrupted
+            self._waits.cancel()
+            with self._lock:
+                self._running = False
         return response
 
     def destroy_node(self):
-        # Under the lock: a row the sensor thread is adding now is complete before the run's
-        # final state.json is written, so state.json and samples.csv agree after a SIGTERM.
-        if hasattr(self, '_lock'):  # not before __init__ made it
-            self.stop_collection()
+        # Under the link's lock: a row the sensor thread is adding now is complete before the
+        # run's final state.json is written, so state.json and samples.csv agree after a SIGTERM.
+        postures = getattr(self, 'postures', None)  # not before __init__ made it
+        if postures is not None:
+            postures.stop()
         if self._running and self._run is not None:
             self._run.interrupted()
         recorder = getattr(self, 'recorder', None)

@@ -16,7 +16,6 @@ subscription while that thread builds its wait set can raise ``InvalidHandle``
 (ros2/rclpy#1206).
 """
 
-import collections
 import concurrent.futures
 import dataclasses
 import threading
@@ -94,44 +93,6 @@ class ThreadResults:
         return future
 
 
-class EventQueue:
-    """Events put by callbacks (any thread) and taken, in order, by a coroutine (thread-safe).
-
-    ``new_future()``: an rclpy Future that wakes the coroutine's executor (:func:`new_future`).
-    """
-
-    def __init__(self, new_future):
-        self._new_future = new_future
-        self._events = collections.deque()
-        self._future = None
-        self._lock = threading.Lock()
-
-    def put(self, event):
-        with self._lock:
-            self._events.append(event)
-            future, self._future = self._future, None
-        if future is not None and not future.done():
-            future.set_result(None)
-
-    async def get(self):
-        """The next event (awaited if none is queued)."""
-        with self._lock:
-            future = None
-            if not self._events:
-                future = self._future = self._new_future()
-        if future is not None:
-            await future
-        with self._lock:
-            return self._events.popleft()
-
-    def clear(self):
-        with self._lock:
-            self._events.clear()
-
-    def __len__(self):
-        return len(self._events)
-
-
 @dataclasses.dataclass
 class _Wait:
     predicate: object  # () -> bool
@@ -195,14 +156,15 @@ class SensorListener:
 
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
     :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
-    kept until :meth:`close`. ``setup``: None or a function of the node called before the thread
+    kept until :meth:`close`; ``raw=True``: the callbacks get the messages' CDR bytes (as the
+    recorder takes them: no message object is built). ``setup``: None or a function of the node called before the thread
     starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
     None, or a function given any exception a callback raises (e.g. a recording's full disk);
     the thread then goes on. :meth:`close` stops the thread and destroys the node.
     """
 
     @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None, on_error=None):
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):
         """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
         ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
         return cls(
@@ -212,9 +174,10 @@ class SensorListener:
             {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
             setup=setup,
             on_error=on_error,
+            raw=raw,
         )
 
-    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None):
+    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False):
         self.on_error = on_error
         self.node = Node(
             name,
@@ -226,7 +189,9 @@ class SensorListener:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self._subscriptions = [
-            self.node.create_subscription(JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS)
+            self.node.create_subscription(
+                JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
+            )
             for topic, callback in callbacks.items()
         ]
         self.extra = setup(self.node) if setup is not None else None

@@ -127,7 +127,11 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
     )
     assert bench.main(['--skip-end-to-end']) == 0
-    from gsp_calibrator.tools import bench_platform_time, bench_sensor_dynamics
+    from gsp_calibrator.tools import (
+        bench_collection_rate,
+        bench_platform_time,
+        bench_sensor_dynamics,
+    )
     from gsp_experiments import bench_noise, bench_sensor_errors
 
     assert calls == [
@@ -139,6 +143,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'noise_unknown': bench_noise.run,
                 'platform_time': bench_platform_time.run,
                 'sensor_dynamics': bench_sensor_dynamics.run,
+                'collection_rate': bench_collection_rate.run,
             },
         )
     ]

@@ -216,7 +216,7 @@ def test_calibration_in_process(ros_context, tmp_path):
 
         suite.client_node.create_timer(0.05, publish_bad)
         assert suite.wait_until(
-            lambda: first.done() or calibrator._protocol.collector.non_finite['leg_lengths']
+            lambda: first.done() or calibrator.postures.protocol.collector.non_finite['leg_lengths']
         )
         counted.set()
         response = suite.wait(first)
@@ -256,7 +256,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         )
 
         # The sensor subscriptions outlive the run (ros2/rclpy#1206); messages are dropped now.
-        assert calibrator._sensors.subscribed and not calibrator._sensors_active
+        assert calibrator._sensors.subscribed and not calibrator.postures.active
 
         # Issue 4: the run directory holds the recording and the report, here without its plots
         # (write_report_plots false).
@@ -622,46 +622,6 @@ def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     assert condition.result() == WAIT_OK and len(waits) == 0
 
 
-def test_the_collection_is_not_done_while_a_posture_s_end_is_on_its_way(ros_context, tmp_path):
-    # The protocol emits a posture's final event with the lock held; the row is kept (and the
-    # event queued for the run) once the lock is taken again. In between the protocol is idle
-    # and the queue empty: the run once read that as the end and identified without its last
-    # posture.
-    from gsp_calibrator.collection import events
-
-    class LastPosture:  # the session with its last posture commanded
-        commanded_all = True
-        ended = []
-
-        def end_posture(self, event):
-            self.ended.append(event)
-            return event
-
-        def next_posture(self):
-            return None
-
-    class Idle:  # the protocol once it has emitted the final event
-        posture = None
-
-    node = CalibratorNode(
-        context=ros_context,
-        parameter_overrides=calibrator_parameters(tmp_path / 'runs'),
-    )
-    try:
-        node.start_collection(LastPosture(), Idle())
-        last = events.PostureSkipped(12, 'not settled within 10 s')
-        with node._lock:
-            events = node._note_finals([last])  # as a protocol call returns it
-        assert not node.collection_done()
-        node._handle(events)
-        assert LastPosture.ended == [last] and len(node.finals) == 1
-        assert not node.collection_done()  # not reported yet
-        node.finals.clear()
-        assert node.collection_done()
-    finally:
-        node.destroy_node()
-
-
 #: Leg limits scaled up from the realistic ones (50 mm/s, 200 mm/s^2) so that a run takes seconds:
 #: a move of 0.4 m takes 0.2 s.
 FAST_MOTION = {'max_leg_speed': 4.0, 'max_leg_acceleration': 40.0}
@@ -722,7 +682,7 @@ def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
 
 def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path):
     from gsp_calibrator.collection import topics
-    from gsp_calibrator.run.health import topic_age_key
+    from gsp_calibrator.run.health import LAG_WARN_S, topic_age_key, topic_lag_key
     from gsp_msgs_py.diagnostics import DiagnosticsListener
     from gsp_msgs_py.health import ERROR, OK, WARN
 
@@ -770,6 +730,17 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
         report = health(lambda h: h.level == OK)
         ages = [float(report.values[topic_age_key(t)]) for t in topics.SENSOR_TOPICS]
         assert max(ages) <= 0.5
+        # The processing lag of each topic, from the middleware's receive time on.
+        report = health(
+            lambda h: (
+                h.level == OK
+                and all(
+                    h.values.get(topic_lag_key(t), 'none') != 'none' for t in topics.SENSOR_TOPICS
+                )
+            )
+        )
+        lags = [float(report.values[topic_lag_key(t)]) for t in topics.SENSOR_TOPICS]
+        assert 0.0 <= min(lags) and max(lags) <= LAG_WARN_S
 
         streaming.clear()  # every sensor falls silent
         report = health(lambda h: h.level == WARN)

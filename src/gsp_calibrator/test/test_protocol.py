@@ -191,6 +191,86 @@ def test_a_backlog_of_the_caller_is_not_a_lack_of_progress():
     assert isinstance(events[0], RowReady)
 
 
+def late_instants(collection, lag, until, skip=(), step=20 * MS):
+    """Instants stamped from the command on (every ``step``, then every 5 ms from the start at
+    T0 + 10 ms), each handled ``lag`` ns after its stamp, until one is stamped ``until``; the
+    events."""
+    events, stamp = [], T0
+    while stamp <= until and not any(isinstance(e, FINAL_EVENTS) for e in events):
+        events += instant(collection, stamp, now=stamp + lag, skip=skip)
+        if skip:
+            events += collection.poll(stamp + lag + MS)
+        stamp += step if stamp < T0 + 10 * MS else 5 * MS
+    return events
+
+
+def test_a_posture_whose_samples_are_handled_30_s_late_gives_its_row():
+    """The calibrator 30 s behind its streams (issue 26): the posture settles at T0 + 10 ms,
+    its samples are handled 30 s later, each one; the bounds count in the samples' stamps, so
+    the row comes (it was skipped after settle_timeout + topic_timeout of receipt time)."""
+    collection = make()
+    settle(collection)
+    # The samples of the 30 s before, handled meanwhile (a backlog), then those of the posture.
+    events = []
+    for j in range(1500):
+        stamp = T0 + 10 * MS - 30 * S + 20 * MS * j
+        events += instant(collection, stamp, now=stamp + 30 * S)
+    assert events == []
+    events = late_instants(collection, 30 * S, T0 + 100 * MS)
+    (row,) = events
+    assert isinstance(row, RowReady) and row.posture == 1
+    assert row.sample.stamp_ns >= T0 + 10 * MS
+    np.testing.assert_allclose(row.sample.readings, R, rtol=0, atol=1e-12)
+
+
+def test_a_silent_topic_is_named_also_when_the_others_are_handled_late():
+    collection = make()
+    settle(collection)
+    events = late_instants(collection, 30 * S, T0 + 40 * S, skip=(ENCODER,))
+    (silent,) = events
+    assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_ENCODER
+
+
+def test_samples_stamped_before_the_start_but_off_the_wire_after_it_are_no_backlog():
+    """A sensor clock 1 h behind: its samples, received after the settle, are no backlog; the
+    pairs do not grow for topic_timeout and the run ends naming the counts."""
+    collection = make()
+    settle(collection)
+    events = []
+    for j in range(300):
+        now = T0 + 11 * MS + 10 * MS * j
+        stamp = now - 3600 * S
+        events += collection.sample(LEG_LENGTHS, stamp, (Q,), now, received_ns=now)
+        for stream, values in ((INCLINOMETER, R[:2]), (ENCODER, R[2:3]), (LVDT, R[3:])):
+            events += collection.sample(stream, stamp + MS, tuple(values), now, received_ns=now)
+        if events:
+            break
+    (failed,) = events
+    assert isinstance(failed, NoSynchronisedSample)
+    assert '0 leg-length and 0 complete device samples since settling' in failed.message
+
+
+def test_a_silent_topic_is_named_while_the_others_are_handled_after_a_late_settle():
+    """The platform dies as its settled status is handled, 3 s late: the device's samples from
+    the start are handled quickly (a backlog), so their stamps pass topic_timeout before the
+    handling time does. The leg-length topic is silent, and named: the data's time counts only
+    once every stream has given samples."""
+    collection = make()
+    collection.command(1, POSE, 'c1', T0)
+    late = T0 + 3 * S
+    collection.status(status('c1', names.STATE_SETTLED, ''), late, start_ns=T0 + 10 * MS)
+    events = []
+    for j in range(1000):
+        stamp, now = T0 + 11 * MS + 5 * MS * j, late + 5 * MS * j // 4
+        for stream, values in ((INCLINOMETER, R[:2]), (ENCODER, R[2:3]), (LVDT, R[3:])):
+            events += collection.sample(stream, stamp, tuple(values), now)
+        if events:
+            break
+    (silent,) = events
+    assert isinstance(silent, TopicSilent), silent
+    assert silent.topic == names.TOPIC_LEG_LENGTHS
+
+
 def test_of_several_silent_topics_the_one_silent_longest_is_named():
     collection = make()
     settle(collection)

@@ -25,7 +25,13 @@ from gsp_calibrator.recording.mcap_io import (
     recording_info,
     recording_options,
 )
-from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME, SUITE_TOPICS, RunRecorder
+from gsp_calibrator.recording.recorder import (
+    POSTURE_METADATA_NAME,
+    SUITE_TOPICS,
+    RunRecorder,
+    note_outcomes,
+    note_posture_end,
+)
 from gsp_calibrator.replay.recorded_run import RecordedRun
 from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
@@ -521,3 +527,115 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
     legs = [m for m in messages if m.topic == names.TOPIC_LEG_LENGTHS]
     assert all(m.log_time_ns > T0 for m in legs)
     assert list(legs[0].message.name) == list(names.LEG_JOINT_NAMES)
+
+
+class _OnlineCalibrator:
+    """The calibrator's collection as it runs online (a protocol with timeouts behind a
+    :class:`PostureLink`, rows kept in a :class:`Samples`), fed each message as it is recorded;
+    the link notes each posture's outcome in the same recording, as the node does."""
+
+    def __init__(self, mcap, per_posture, settle_timeout):
+        from gsp_calibrator.collection.protocol import CollectionProtocol
+        from gsp_calibrator.run.directory import Samples
+        from gsp_calibrator.run.host import PostureLink
+
+        self.mcap, self.rows, self.commanded = mcap, Samples.empty(), None
+        self.ends = []
+
+        class Notes:
+            def note_posture_end(_, command_id, posture, outcome, reason=''):
+                note_posture_end(mcap, command_id, posture, outcome, reason)
+
+        note_outcomes(mcap)
+        self.link = PostureLink(
+            lambda: _Done(self.ends),
+            lambda pose: (*self.commanded, lambda: None),
+            Notes(),
+            lambda event: None,
+        )
+        protocol = CollectionProtocol(
+            0.0025, per_posture, topic_timeout=1.0, settle_timeout=settle_timeout
+        )
+        self.link.start(self, protocol)
+        self.count = 0
+
+    def end_posture(self, event):  # the RunSession's part: keep the row
+        if hasattr(event, 'sample'):
+            s = event.sample
+            self.rows.append(
+                event.posture,
+                event.pose,
+                s.leg_lengths,
+                s.readings,
+                s.n_samples,
+                s.stamp,
+                s.lag_sums,
+            )
+        return event
+
+    def write(self, topic, message, log_time):
+        self.mcap.write(topic, message, log_time)
+        if topic == names.TOPIC_POSE_COMMAND:
+            self.count += 1
+            self.commanded = (conversions.command_id_from_stamp(message.header.stamp), log_time)
+            self.link.command(self.count, conversions.pose_stamped_to_pose(message))
+        elif topic == names.TOPIC_PLATFORM_STATUS:
+            status = conversions.parse_status(message)
+            self.link.feed(lambda collection: collection.status(status, log_time))
+        else:
+            self.link.feed(lambda collection: collection.sensor(topic, message, log_time))
+
+    def add_metadata(self, name, data):
+        self.mcap.add_metadata(name, data)
+
+
+class _Done:
+    """A future completed by the link: its event is appended to ``ends``."""
+
+    def __init__(self, ends):
+        self.ends = ends
+
+    def set_result(self, event):
+        self.ends.append(event)
+
+
+def test_the_rebuild_of_a_run_with_skipped_postures_gives_the_rows_of_samples_csv(tmp_path):
+    """Online, posture 2 settles after its settle_timeout and is skipped; the recording still
+    holds its settled status and enough samples at rest for a row, which the rebuild (no
+    timeouts) would take. The recording says posture 2 was skipped: the rebuild gives exactly
+    the online rows (issue 26: rebuilt rows samples.csv lacked)."""
+    per_posture = 3
+    postures = _postures(3, np.random.default_rng(7))
+    path = tmp_path / 'recording.mcap'
+    with McapRecorder(path) as mcap:
+        mcap.add_metadata(
+            RUN_METADATA_NAME, {'sync_tolerance': '0.0025', 'samples_per_posture': '3'}
+        )
+        online = _OnlineCalibrator(mcap, per_posture, settle_timeout=0.05)
+        for k, (pose, q, r) in enumerate(postures, start=1):
+            t = T0 + 200 * MS * (k - 1)
+            command_id = write_command(online, t, pose)
+            settle_ms = 80 if k == 2 else 10  # posture 2: 79 ms after its first status
+            for j in range(2, settle_ms, 5):  # moving until then
+                _write_sensors(online, t + j * MS, np.asarray(q) + 1.0, np.asarray(r) + 1.0)
+            online.write(
+                names.TOPIC_PLATFORM_STATUS,
+                conversions.make_status(command_id, names.STATE_SETTLED),
+                t + settle_ms * MS,
+            )
+            for j in range(per_posture + 3):
+                stamp = t + (settle_ms + 1 + 5 * j) * MS
+                _write_sensors(online, stamp, np.asarray(q) + j * 1e-7, np.asarray(r) + j * 1e-8)
+    assert [type(e).__name__ for e in online.ends] == ['RowReady', 'PostureSkipped', 'RowReady']
+    assert list(online.rows.posture) == [1, 3]
+
+    rebuilt = rebuild.samples_from_recording(path)
+    assert list(rebuilt.posture) == list(online.rows.posture)
+    np.testing.assert_array_equal(rebuilt.stamps, online.rows.stamps)
+    for field in ('commanded_poses', 'leg_lengths', 'readings'):
+        np.testing.assert_allclose(
+            getattr(rebuilt, field), getattr(online.rows, field), rtol=0, atol=1e-15
+        )
+    outcomes = rebuild.posture_outcomes(recording_info(path))
+    assert outcomes[1] == ('kept', '') and outcomes[2][0] == 'skipped'
+    assert 'settle' in outcomes[2][1]

@@ -1,19 +1,19 @@
 """The run coroutine without rclpy: a plain Python RunHost drives CalibrationRun end to end."""
 
 import asyncio
-import collections
 import concurrent.futures
 import json
 import logging
+import threading
 
 import numpy as np
 
-from gsp_calibrator.collection.events import RowReady, TopicSilent
+from gsp_calibrator.collection.events import PostureSkipped, RowReady, TopicSilent
 from gsp_calibrator.collection.synchroniser import PostureSample
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
-from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, RunHost
+from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, PostureLink, RunHost
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.settings import CalibratorSettings
@@ -37,73 +37,25 @@ class FakeRecorder:
     def stop(self, drain_s=0.0):
         self.calls.append(('stop', drain_s))
 
-
-class FinalEvents:
-    def __init__(self):
-        self.events = collections.deque()
-
-    async def get(self):
-        return self.events.popleft()
+    def note_posture_end(self, command_id, posture, outcome, reason=''):
+        self.calls.append(('end', posture, outcome))
 
 
-class FakeHost:
-    """A platform measured exactly by the true geometry plus the default noise; each posture's
-    row is ready as soon as it is commanded. ``failure``: an event ending the run instead."""
+class FakePlatform:
+    """A platform measured exactly by the true geometry plus the default noise: each posture's
+    row is ready as soon as it is commanded. ``failure_after``: a silent topic ends the run
+    instead at the posture after it."""
 
     def __init__(self, seed=0, failure_after=None, start_legs=None):
         self.truth = default_geometry('true')
         self.start_legs = start_legs  #: leg readings (6,) m before the run, else those at z 0.6 m
         self.rng = np.random.default_rng(seed)
         self.failure_after = failure_after
-        self.recorder = FakeRecorder()
-        self.finals = FinalEvents()
-        self.failure = None
-        self.progress_log = []
-        self.delivered = []
-        self.ended = False
-        self.session = None
+        self.link = None
+        self.commands = 0
 
-    def get_logger(self):
-        return logging.getLogger('test_run_flow')
-
-    def shutting_down(self):
-        return False
-
-    def get_name(self):
-        return names.NODE_CALIBRATOR
-
-    def get_namespace(self):
-        return '/'
-
-    def get_publishers_info_by_topic(self, topic):
-        return []
-
-    def count_publishers(self, topic):
-        return 1
-
-    def command_subscriber_count(self):
-        return 1
-
-    async def wait_for(self, predicate, timeout_s):
-        return WAIT_OK if predicate() else WAIT_TIMEOUT
-
-    async def await_thread(self, concurrent_future):
-        return concurrent_future.result()
-
-    async def in_thread(self, function, *args, **kwargs):
-        return function(*args, **kwargs)
-
-    def selection_future(self, settings):
-        future = concurrent.futures.Future()
-        future.set_result(postures.choose_postures(*postures.selection_arguments(settings)))
-        return future
-
-    def progress(self, index, phase, message='', residuals=None, warning=False, **extra):
-        self.progress_log.append((index, phase, message))
-
-    def start_collection(self, session, collection):
+    def hear_every_topic(self, collection):
         """Every sensor topic speaks once, at its current reading (the system check awaits it)."""
-        self.session = session
         legs, readings = sensor_measurements(self.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
         if self.start_legs is not None:
             legs = np.asarray(self.start_legs, dtype=float)[None]
@@ -116,39 +68,94 @@ class FakeHost:
         for topic in SENSOR_TOPICS:
             collection.sensor(topic, messages[topic], 0)
 
-    def stop_collection(self):
-        pass
+    def commander(self, pose):
+        self.commands += 1
+        k = self.commands
+        return str(k), k * 1_000_000_000, lambda: self.link.feed(lambda _: self.end(k, pose))
 
-    def command_first(self):
+    def end(self, k, pose):
+        """The event that ends posture ``k`` (commanded ``pose``)."""
+        if self.failure_after is not None and k > self.failure_after:
+            return [
+                TopicSilent(names.TOPIC_LVDT, 'collecting', f'topic {names.TOPIC_LVDT} is silent')
+            ]
         sigma = DEFAULT_SENSOR_NOISE.averaged([SAMPLES_PER_POSTURE])
-        while (posture := self.session.next_posture()) is not None:
-            k, pose = posture
-            if self.failure_after is not None and k > self.failure_after:
-                self.failure = TopicSilent(
-                    names.TOPIC_LVDT, 'collecting', f'topic {names.TOPIC_LVDT} is silent'
-                )
-                self.finals.events.append(self.failure)
-                return
-            legs, readings = sensor_measurements(self.truth, pose[None])
-            sample = PostureSample(
-                legs[0] + self.rng.normal(0.0, sigma.leg_lengths, 6),
-                readings[0] + self.rng.normal(0.0, 1.0, 4) * sigma.readings(),
-                SAMPLES_PER_POSTURE,
-                k * 1_000_000_000,
-                np.full(6, DEFAULT_SENSOR_NOISE.leg_lengths),
-                DEFAULT_SENSOR_NOISE.readings(),
-            )
-            self.finals.events.append(self.session.end_posture(RowReady(k, pose, sample)))
+        legs, readings = sensor_measurements(self.truth, pose[None])
+        sample = PostureSample(
+            legs[0] + self.rng.normal(0.0, sigma.leg_lengths, 6),
+            readings[0] + self.rng.normal(0.0, 1.0, 4) * sigma.readings(),
+            SAMPLES_PER_POSTURE,
+            k * 1_000_000_000,
+            np.full(6, DEFAULT_SENSOR_NOISE.leg_lengths),
+            DEFAULT_SENSOR_NOISE.readings(),
+        )
+        return [RowReady(k, pose, sample)]
 
-    def collection_done(self):
-        return self.session.commanded_all and not self.finals.events
 
-    async def deliver_result(self, settings, geometry, fit_accepted):
-        self.delivered.append((geometry, fit_accepted))
-        return True, 'applied to the fake platform'
+class FakeHost:
+    """A plain Python :class:`RunHost` around a :class:`FakePlatform` (no rclpy)."""
 
-    def run_ended(self):
-        self.ended = True
+    def __init__(self, **platform):
+        self.platform = FakePlatform(**platform)
+        self.truth = self.platform.truth
+        self.recorder = FakeRecorder()
+        self.progress_log = []
+        self.delivered = []
+        self.postures = PostureLink(
+            lambda: asyncio.get_running_loop().create_future(),
+            self.platform.commander,
+            self.recorder,
+            lambda event: None,
+        )
+        self.platform.link = self.postures
+
+        async def wait_for(predicate, timeout_s):
+            return WAIT_OK if predicate() else WAIT_TIMEOUT
+
+        async def await_thread(concurrent_future):
+            return concurrent_future.result()
+
+        async def in_thread(function, *args, **kwargs):
+            return function(*args, **kwargs)
+
+        def selection(settings):
+            future = concurrent.futures.Future()
+            future.set_result(postures.choose_postures(*postures.selection_arguments(settings)))
+            return future
+
+        async def deliver_result(settings, geometry, fit_accepted):
+            self.delivered.append((geometry, fit_accepted))
+            return True, 'applied to the fake platform'
+
+        self.host = RunHost(
+            name=(names.NODE_CALIBRATOR, '/'),
+            log=logging.getLogger('test_run_flow'),
+            command_publishers=lambda: [],
+            command_subscribers=lambda: 1,
+            status_publishers=lambda: 1,
+            recorder=self.recorder,
+            postures=self.postures,
+            wait_for=wait_for,
+            in_thread=in_thread,
+            await_thread=await_thread,
+            selection=selection,
+            progress=lambda index, phase, message='', *_, **__: self.progress_log.append(
+                (index, phase, message)
+            ),
+            deliver_result=deliver_result,
+            shutting_down=lambda: False,
+        )
+
+    def serve(self, settings):
+        """One run: ``(success, message)``."""
+        run = CalibrationRun(self.host, settings, False)
+        self.platform.hear_every_topic(run.collection)
+        self.run = run
+        return asyncio.run(run.serve())
+
+    @property
+    def session(self):
+        return self.run.session
 
 
 def _settings(tmp_path, **values):
@@ -170,8 +177,7 @@ def _state(run_directory):
 
 def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     host = FakeHost()
-    assert isinstance(host, RunHost)  # every member the run may use
-    success, message = asyncio.run(CalibrationRun(host, _settings(tmp_path), False).serve())
+    success, message = host.serve(_settings(tmp_path))
 
     assert success, message
     parsed = parse_response(message)
@@ -185,7 +191,9 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     assert _state(run_directory)['phase'] == PHASE_DONE
     assert len((run_directory / 'samples.csv').read_text().splitlines()) == 1 + 30
     assert host.progress_log[-1][1] == names.PHASE_DONE
-    assert [call[0] for call in host.recorder.calls] == ['start', 'stop'] and host.ended
+    calls = host.recorder.calls
+    assert calls[0][0] == 'start' and calls[-1][0] == 'stop'
+    assert calls[1:-1] == [('end', k, 'kept') for k in range(1, 31)]
 
 
 def test_the_route_starts_from_the_platforms_current_posture(tmp_path):
@@ -197,7 +205,7 @@ def test_the_route_starts_from_the_platforms_current_posture(tmp_path):
     # The legs where a controller with the nominal geometry put them (platform_sim's).
     heard_legs = posture_leg_lengths(settings.nominal, start[None])[0]
     host = FakeHost(start_legs=heard_legs)
-    success, message = asyncio.run(CalibrationRun(host, settings, False).serve())
+    success, message = host.serve(settings)
     assert success, message
 
     current, reason = postures.route_start(settings.nominal, heard_legs)
@@ -225,7 +233,7 @@ def test_the_route_start_is_the_home_pose_without_leg_lengths():
 
 def test_a_failure_event_ends_the_run_without_delivering(tmp_path):
     host = FakeHost(failure_after=5)
-    success, message = asyncio.run(CalibrationRun(host, _settings(tmp_path), False).serve())
+    success, message = host.serve(_settings(tmp_path))
 
     assert not success
     assert names.TOPIC_LVDT in message
@@ -234,4 +242,41 @@ def test_a_failure_event_ends_the_run_without_delivering(tmp_path):
     state = _state(run_directory)
     assert state['phase'] == PHASE_FAILED and names.TOPIC_LVDT in state['stop_reason']
     assert host.progress_log[-1][1] == names.PHASE_FAILED
-    assert host.ended
+    # The posture the failure ended gave no row: in progress, as the recording says.
+    assert ('end', 6, 'in_progress') in host.recorder.calls
+
+
+def test_a_posture_s_end_is_kept_before_the_run_sees_it():
+    """The end comes in a message thread: the row (or skip) is kept, and its outcome noted,
+    before the future the run awaits completes; a failure between two postures ends the next."""
+
+    class Session:
+        def __init__(self):
+            self.ended = []
+
+        def end_posture(self, event):
+            self.ended.append(event)
+            return event
+
+    class Protocol:
+        def command(self, posture, pose, command_id, now_ns):
+            return []
+
+    session, recorder = Session(), FakeRecorder()
+    link = PostureLink(
+        concurrent.futures.Future, lambda pose: ('7', 0, lambda: None), recorder, print
+    )
+    link.start(session, Protocol())
+    pose = np.zeros(6)
+    ended = link.command(1, pose)
+    seen = []
+    ended.add_done_callback(lambda _: seen.append((list(session.ended), list(recorder.calls))))
+    skip = PostureSkipped(1, 'not settled within 10 s')
+    thread = threading.Thread(target=link.feed, args=(lambda _: [skip],))
+    thread.start()
+    thread.join()
+    assert ended.result() is skip
+    assert seen == [([skip], [('end', 1, 'skipped')])]
+    failure = TopicSilent(names.TOPIC_LVDT, 'waiting', 'silent')
+    link.fail(failure)  # between two postures (a second source, a failed write)
+    assert link.command(2, pose).result() is failure

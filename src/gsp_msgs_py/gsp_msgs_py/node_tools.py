@@ -176,6 +176,8 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        # Nothing is left to clean up: a later signal must not kill the process now.
+        stop_signals.ignore()
     return exit_code
 
 
@@ -203,7 +205,19 @@ class StopSignals:
 
     def install(self):
         """Install for :attr:`SIGNALS` (main thread only; elsewhere a no-op); returns self."""
+        return self._set(self)
+
+    def ignore(self):
+        """After the cleanup: ignore :attr:`SIGNALS` (``SIG_IGN``) until the process exits.
+
+        While the interpreter shuts down, Python puts the default action back for every signal
+        that has a Python handler (this one), but leaves an ignored signal ignored: a SIGINT or
+        SIGTERM then (a second Ctrl-C, ``ros2 launch``'s own SIGINT) would kill the process
+        (exit code -2 or -15) after a clean stop."""
+        return self._set(signal.SIG_IGN)
+
+    def _set(self, handler):
         if threading.current_thread() is threading.main_thread():
             for number in self.SIGNALS:
-                signal.signal(number, self)
+                signal.signal(number, handler)
         return self

@@ -237,3 +237,42 @@ def test_shutdown_executor_runs_the_queued_callbacks_before_the_guard_goes(ros_c
         assert ran == ['first', 'second']
     finally:
         node.destroy_node()
+
+
+#: A node process stopped by a signal of its own, then signalled again during interpreter
+#: shutdown (a module global's finaliser), after run_node has finished its cleanup.
+LATE_SIGNAL_CHILD = """
+import os, signal, sys
+from rclpy.node import Node
+from gsp_msgs_py import node_tools
+
+class LateSignal:
+    def __del__(self):
+        os.kill(os.getpid(), signal.{late})
+
+def make_node():
+    node = Node('late_signal_child')
+    node.create_timer(0.01, lambda: os.kill(os.getpid(), signal.SIGINT))
+    return node
+
+late = LateSignal()
+sys.exit(node_tools.run_node(make_node, logger_name='late_signal_child'))
+"""
+
+
+@pytest.mark.parametrize('late', ['SIGINT', 'SIGTERM'])
+def test_a_signal_after_the_cleanup_is_ignored_and_the_exit_code_stays_0(late):
+    # Python restores the default handlers while the interpreter shuts down: a second SIGINT
+    # arriving then (two Ctrl-C, ros2 launch) once killed the process (exit code -2).
+    import signal
+    import subprocess
+    import sys
+
+    process = subprocess.run(
+        [sys.executable, '-c', LATE_SIGNAL_CHILD.format(late=late)],
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal does
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert process.returncode == 0, process.stderr

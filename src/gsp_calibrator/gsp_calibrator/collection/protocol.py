@@ -17,7 +17,9 @@ it (see :mod:`~gsp_calibrator.collection.synchroniser`) gives the row (:class:`R
 its ``settle_wait``). The posture is skipped when the readings still move ``settle_timeout``
 after the start (the reason names the channel and its trend), when
 ``max_pairs_per_sample * samples_per_posture`` settled pairs hold no consistent window, or
-when no window comes within ``settle_timeout + topic_timeout`` of the start. The run fails
+when no window comes within ``settle_timeout + topic_timeout`` of the start. These two bounds
+count in the data's time, the samples' stamps since the start (as far as every stream that has
+given any has reached): a caller that handles the samples late decides late, not otherwise. The run fails
 (:class:`.events.TopicSilent`, :class:`.events.NoSynchronisedSample`) when a sensor topic says nothing, or the
 pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
 is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
@@ -27,7 +29,13 @@ A gap of half a ``topic_timeout`` or more between two calls means the caller its
 (an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
 silence is judged over the gap; every timeout counts again from the end of the gap. Likewise a
 sample stamped before the collection start but received after it shows a caller still working
-through a backlog: the pairs' progress timeout counts again from its receipt.
+through a backlog: the pairs' progress timeout counts again from its receipt. That timeout
+counts in the receive times of the samples handled (the middleware's, ``received_ns``, when
+the caller gives them; else the times of the calls), not in the watchdog's polls: a listener
+that falls behind delays it, a backlog (samples received before the settle) does not count,
+and samples stamped before the start but received after it (a sensor clock behind) do. It also
+counts in the data's time: samples whose stamps move on by ``topic_timeout`` without a new pair
+end the run as well.
 
 The previous posture's device readings (the collector's "unchanged" check) are the last row's,
 and before the first row the latest complete device instant received before the command. A
@@ -64,10 +72,12 @@ from gsp_calibrator.collection.synchroniser import (
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
 from gsp_calibrator.collection.topics import (
     DEVICE_STREAMS,
+    SENSOR_TOPICS,
     TOPIC_STREAMS,
     has_non_finite,
     read_sensor,
 )
+from gsp_kinematics import channels
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
@@ -107,6 +117,35 @@ def settle_start_ns(published_ns, received_ns, topic_timeout):
     return received_ns
 
 
+def wire_receipt_ns(received_ns, now_ns):
+    """The middleware's receive time ``received_ns`` of a message handled at ``now_ns`` (ns, the
+    node clock), or None if unknown (0) or implausible on this clock (after ``now_ns``: another
+    time base)."""
+    if not received_ns or int(received_ns) > int(now_ns):
+        return None
+    return int(received_ns)
+
+
+def collection_summary(skipped, collector):
+    """The collection data of a run: its ``skipped`` (``[PostureSkipped, ...]``) and what its
+    ``collector`` dropped (the ``collection`` of ``result.json``)."""
+    return {
+        'skipped': [
+            {
+                'posture': s.posture,
+                'reason': s.reason,
+                'rejected_by_platform': s.rejected_by_platform,
+            }
+            for s in skipped
+        ],
+        'inconsistent_dropped': int(collector.inconsistent),
+        'settling_dropped': int(collector.settling_dropped),
+        'non_finite_dropped': {
+            stream: int(count) for stream, count in collector.non_finite.items()
+        },
+    }
+
+
 _IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
 
 
@@ -121,7 +160,25 @@ class _Posture:
     start_ns: int = None  # collection start (stamps), set when settled
     started_ns: int = None  # receive time of the settle (time base of the timeouts)
     progress: int = 0  # pairs at the last change
-    progress_ns: int = None  # time of the last change of the pairs
+    progress_ns: int = None  # receive time of the last change of the pairs
+    #: data time (data_ns) of the last change of the pairs (or of the first sample)
+    progress_data_ns: int = None
+    received_ns: int = None  # latest receive time of a sample since the start
+    #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
+    latest_ns: dict = dataclasses.field(default_factory=dict)
+
+    def data_ns(self):
+        """The data's time: the stamp every stream has reached with its samples from the start;
+        None until each has given one (a stream that gives none is silent, or stamped in
+        another time base: the receive times judge it)."""
+        if len(self.latest_ns) < len(SENSOR_TOPICS):
+            return None
+        return min(self.latest_ns.values())
+
+    def data_elapsed(self):
+        """s of the data since the start (0 while :meth:`data_ns` is None)."""
+        data_ns = self.data_ns()
+        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
 
 
 class CollectionProtocol:
@@ -175,7 +232,7 @@ class CollectionProtocol:
         self._previous = None  # device readings of the previous row
         self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
-        self._checked_pairs = None
+        self._checked_pairs = None  # the collector's pair revision last checked
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
         self.skipped = []
         self._idle = None  # keep_pairs: the samples before the first command
@@ -208,30 +265,18 @@ class CollectionProtocol:
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
         item = self._latest.get(LEG_LENGTHS)
-        return None if item is None else np.asarray(item[1], dtype=float).reshape(6)
+        return (
+            None if item is None else np.asarray(item[1], dtype=float).reshape(channels.LEG_COUNT)
+        )
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
-        return {
-            'skipped': [
-                {
-                    'posture': s.posture,
-                    'reason': s.reason,
-                    'rejected_by_platform': s.rejected_by_platform,
-                }
-                for s in self.skipped
-            ],
-            'inconsistent_dropped': int(self.collector.inconsistent),
-            'settling_dropped': int(self.collector.settling_dropped),
-            'non_finite_dropped': {
-                stream: int(count) for stream, count in self.collector.non_finite.items()
-            },
-        }
+        return collection_summary(self.skipped, self.collector)
 
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
         d_m]`` (rad, m): they are the previous posture's for the next row."""
-        self._previous = np.asarray(readings, dtype=float).reshape(4)
+        self._previous = np.asarray(readings, dtype=float).reshape(len(channels.READING_NAMES))
 
     # --- inputs ------------------------------------------------------------------------------
 
@@ -271,8 +316,10 @@ class CollectionProtocol:
                 return self._start(now_ns, now_ns if start_ns is None else start_ns)
         return self.poll(now_ns)
 
-    def sensor(self, topic, msg, now_ns):
-        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) received at ``now_ns``."""
+    def sensor(self, topic, msg, now_ns, received_ns=None):
+        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) handled at ``now_ns``;
+        ``received_ns``: when it came off the wire (the middleware's receive time on the same
+        clock), None if unknown."""
         self._attend(now_ns)
         self.timeouts.hear(topic, now_ns)
         try:
@@ -285,30 +332,39 @@ class CollectionProtocol:
                     SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
                 ] + self.poll(now_ns)
             return [SampleDropped(topic, str(error), False)] + self.poll(now_ns)
-        return self.sample(stream, stamp_ns, values, now_ns, heard=False)
+        return self.sample(stream, stamp_ns, values, now_ns, heard=False, received_ns=received_ns)
 
-    def sample(self, stream, stamp_ns, values, now_ns, heard=True):
-        """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``)."""
+    def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
+        """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
+        at ``now_ns``, off the wire at ``received_ns`` (None: unknown)."""
         self._attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self.timeouts.hear(topic, now_ns)
         self._latest[stream] = (int(stamp_ns), values)
-        adder = _ADDERS[stream]
         posture = self._posture
         if posture is None:
             if self._idle is not None:
-                adder(self._idle, stamp_ns, *values)
+                _ADDERS[stream](self._idle, stamp_ns, *values)
             return self.poll(now_ns)
         if posture.state != _COLLECTING:
-            self._recent.append((adder, stamp_ns, values))
+            self._recent.append((stream, stamp_ns, values))
             return self.poll(now_ns)
-        if stamp_ns < posture.start_ns:
-            # Stamped before the start, received now: the caller is still working through a
+        received = int(now_ns if received_ns is None else received_ns)
+        posture.received_ns = max(posture.received_ns, received)
+        if stamp_ns < posture.start_ns and received_ns is None:
+            # Stamped before the start, handled now: the caller may still be working through a
             # backlog (its listener fell behind), which is no lack of progress of the pairs.
-            posture.progress_ns = max(posture.progress_ns, int(now_ns))
-        adder(self.collector, stamp_ns, *values)
+            # (With the receive time off the wire, the backlog shows itself: received before
+            # the settle.)
+            posture.progress_ns = max(posture.progress_ns, received)
+        self._add(posture, stream, stamp_ns, values)
         return self._check_collection(now_ns)
+
+    def _add(self, posture, stream, stamp_ns, values):
+        if _ADDERS[stream](self.collector, stamp_ns, *values):
+            latest = posture.latest_ns.get(stream, stamp_ns)
+            posture.latest_ns[stream] = max(latest, int(stamp_ns))
 
     def poll(self, now_ns):
         """Events due at ``now_ns`` (timeouts)."""
@@ -340,9 +396,10 @@ class CollectionProtocol:
         posture.state = _COLLECTING
         posture.start_ns, posture.started_ns = int(start_ns), int(now_ns)
         posture.progress, posture.progress_ns = 0, int(now_ns)
+        posture.progress_data_ns, posture.received_ns = None, int(now_ns)
         self.collector.start(posture.start_ns, self._previous)
-        for adder, stamp_ns, values in self._recent:  # those stamped after the start count
-            adder(self.collector, stamp_ns, *values)
+        for stream, stamp_ns, values in self._recent:  # those stamped after the start count
+            self._add(posture, stream, stamp_ns, values)
         self._recent.clear()
         events = [CollectionStarted(posture.number, posture.command_id, posture.start_ns)]
         if self.keep_pairs:
@@ -353,16 +410,16 @@ class CollectionProtocol:
         if self.keep_pairs:
             return []
         collector = self.collector
-        # ready() is a function of the pairs: only ask again when they changed (it is costly).
-        pairs = collector.pairs()
-        if pairs != self._checked_pairs:
-            self._checked_pairs = pairs
+        # ready() is a function of the pairs: only ask again when they changed.
+        if collector.pair_revision != self._checked_pairs:
+            self._checked_pairs = collector.pair_revision
             if collector.ready():
                 return self._row()
             # (while the readings still move, settle_timeout bounds the wait: the timeouts)
-            if len(pairs) >= self.pair_limit and collector.unsettled is None:
+            count = collector.pair_count()
+            if count >= self.pair_limit and collector.unsettled is None:
                 return self._skip(
-                    f'no {self.samples_per_posture} consistent samples among {len(pairs)} '
+                    f'no {self.samples_per_posture} consistent samples among {count} '
                     'synchronised ones (too noisy, or the device readings did not change from '
                     'the previous posture)'
                 )

@@ -10,10 +10,14 @@ import math
 
 import numpy as np
 
+# The settle test takes scipy.stats, which imports lazily and slowly (about 6 s on a busy
+# machine): loaded with the collection, at the calibrator's start, not by the first settle test
+# in the sensor listener in the middle of a run's first posture.
+import scipy.stats  # noqa: F401
+
+from gsp_kinematics.channels import CHANNEL_NAMES
 from gsp_kinematics.sensors.noise_estimate import settle_test
 
-#: Names of the 10 channels, as a settle verdict names them.
-CHANNEL_NAMES = ('q_1', 'q_2', 'q_3', 'q_4', 'q_5', 'q_6', 'alpha', 'beta', 'phi', 'd_m')
 #: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
 MIN_SETTLE_SAMPLES = 4
 
@@ -70,15 +74,18 @@ class SettleRule:
         self.lookback_ns = int(round(lookback * 1e9))
         self.sigmas = sigmas
 
-    def verdict(self, pairs, end, start_ns, window, values_of, noise_std=None):
+    def verdict(self, pairs, end, start_ns, window, values_of, noise_std=None, pair_legs=None):
         """None if the channels are at rest over the look-back that ends with ``pairs[end]``
         (``(leg stamp, device stamp)`` ns; at least the ``window`` pairs ending there), else
         :class:`Unsettled`; pending until the look-back is covered by pairs stamped from
         ``start_ns``. ``values_of(pairs)``: their (n, 10) channel values (``phi`` unwrapped);
-        ``noise_std`` (10,): the per-sample noise floor."""
+        ``noise_std`` (10,): the per-sample noise floor; ``pair_legs``: the leg stamps of
+        ``pairs`` if the caller keeps them (else they are listed here)."""
         end_stamp = pairs[end][0]
         if end_stamp - start_ns < self.lookback_ns:
             return Unsettled(pending=True)
-        first = bisect.bisect_left([leg for leg, _ in pairs], end_stamp - self.lookback_ns)
+        if pair_legs is None:
+            pair_legs = [leg for leg, _ in pairs]
+        first = bisect.bisect_left(pair_legs, end_stamp - self.lookback_ns)
         span = pairs[min(first, end - window + 1) : end + 1]
         return span_verdict(values_of(span), [leg for leg, _ in span], self.sigmas, noise_std)

@@ -28,9 +28,14 @@ per-sample noise at least ``noise_std``). A window is not judged before the look
 by samples stamped from the start, so a slow sensor is waited for, and the wait (start to the
 window's first sample) is kept with the row (``settle_wait``).
 
-Stamps are integer nanoseconds. Messages may arrive out of order or go missing: pairing is
-recomputed from the buffers, and an incomplete device instant (one of its three topics missing)
-is never used.
+Stamps are integer nanoseconds. Messages may arrive out of order or go missing: the pairs are
+kept up to date at each sample (:class:`~gsp_calibrator.collection.pairing.StampPairing`, the
+same pairs as pairing the buffers afresh), and an incomplete device instant (one of its three
+topics missing) is never used.
+
+The work per sample does not grow with the buffered samples: the pairs change only near the new
+sample's stamp, and a window once judged keeps its verdict (the candidate windows are judged in
+order, each once, and only a change of its pairs judges it again).
 """
 
 import bisect
@@ -40,27 +45,28 @@ import math
 import numpy as np
 
 from gsp_calibrator.collection import settling
+from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs  # noqa: F401
+from gsp_kinematics import channels
 from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 NS_PER_S = 1_000_000_000
 
-#: Stream names, as counted in :attr:`SampleCollector.non_finite` and ``received``.
-LEG_LENGTHS = 'leg_lengths'
-INCLINOMETER = 'inclinometer'
-ENCODER = 'encoder'
-LVDT = 'lvdt'
-STREAMS = (LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT)
+#: Stream names (the sensors of the channel table), as counted in
+#: :attr:`SampleCollector.non_finite` and ``received``.
+LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT = channels.SENSORS
+STREAMS = channels.SENSORS
 
-#: Device reading columns, in the order of the core's ``readings`` rows.
-_READING_COLUMNS = {'alpha': 0, 'beta': 1, 'phi': 2, 'd_m': 3}
-_STREAM_COLUMNS = {INCLINOMETER: (0, 1), ENCODER: (2,), LVDT: (3,)}
 #: Robust standard deviations a value may lie from its window's median (see the module docstring).
 DEFAULT_CONSISTENCY_THRESHOLD = 10.0
-#: Index of phi among the 10 channels [q_1..q_6, alpha, beta, phi, d_m] (compared on the circle).
-_PHI_CHANNEL = 8
-_UNKNOWN = object()
+_LEGS = channels.LEG_COUNT
+_CHANNELS = channels.CHANNEL_COUNT
+_READINGS = len(channels.DEVICE_CHANNELS)
+_FIRST_READING = channels.FIRST_READING_COLUMN
+#: phi: compared and averaged on the circle (among the ten channels, among the readings).
+(_PHI_CHANNEL,) = channels.CIRCULAR_COLUMNS
+_PHI_READING = channels.PHI_READING_COLUMN
 #: Verdicts of a candidate window (:meth:`SampleCollector.window`).
 _USABLE, _INCONSISTENT, _UNSETTLED = 'usable', 'inconsistent', 'unsettled'
 
@@ -92,29 +98,6 @@ class PostureSample:
         return self.stamp_ns / NS_PER_S
 
 
-def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
-    """``[(leg_stamp, device_stamp), ...]``: each of the sorted ``leg_stamps`` (ns) takes the
-    nearest unused one of the sorted ``device_stamps`` within ``tolerance_ns`` (one-to-one)."""
-    used = [False] * len(device_stamps)
-    result = []
-    for leg_stamp in leg_stamps:
-        # Nearest unused device stamp: walk outwards from the insertion point.
-        right = bisect.bisect_left(device_stamps, leg_stamp)
-        left = right - 1
-        while left >= 0 and used[left]:
-            left -= 1
-        while right < len(device_stamps) and used[right]:
-            right += 1
-        candidates = [i for i in (left, right) if 0 <= i < len(device_stamps)]
-        if not candidates:
-            continue
-        best = min(candidates, key=lambda i: (abs(device_stamps[i] - leg_stamp), device_stamps[i]))
-        if abs(device_stamps[best] - leg_stamp) <= tolerance_ns:
-            used[best] = True
-            result.append((leg_stamp, device_stamps[best]))
-    return result
-
-
 def unwrap_phi(values):
     """``values`` (n, 10) with ``phi`` unwrapped around its first value (a copy)."""
     values = np.array(values, dtype=float)
@@ -132,6 +115,45 @@ def median_and_spread(values, noise_std):
     deviation = np.abs(values - median)
     spread = np.maximum(1.4826 * np.median(deviation, axis=0), noise_std)
     return median, deviation, spread
+
+
+def average_row(legs, readings, stamps):
+    """The :class:`PostureSample` of ``legs`` (n, 6) m, ``readings`` (n, 4) and their leg
+    stamps (n,) ns: means, sample stds and lag sums; ``phi`` averaged on the circle."""
+    readings = np.array(readings, dtype=float)
+    phi0 = readings[0, _PHI_READING]
+    readings[:, _PHI_READING] = phi0 + wrap_angle(readings[:, _PHI_READING] - phi0)
+    mean_readings = readings.mean(axis=0)
+    mean_readings[_PHI_READING] = float(wrap_angle(mean_readings[_PHI_READING]))
+    ddof = 1 if len(legs) > 1 else 0
+    mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
+    return PostureSample(
+        leg_lengths=legs.mean(axis=0),
+        readings=mean_readings,
+        n_samples=len(legs),
+        stamp_ns=mean_stamp,
+        leg_lengths_std=legs.std(axis=0, ddof=ddof),
+        readings_std=readings.std(axis=0, ddof=ddof),
+        lag_sums=posture_lag_sums(np.hstack([legs, readings])) if len(legs) > 1 else None,
+    )
+
+
+def _checked_options(sync_tolerance, samples_per_posture, max_buffer, noise_std, threshold):
+    """``(sync_tolerance, noise_std)`` of a :class:`SampleCollector`; ValueError if invalid."""
+    sync_tolerance = float(sync_tolerance)
+    if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
+        raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
+    if int(samples_per_posture) < 1:
+        raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
+    if max_buffer is not None and int(max_buffer) < int(samples_per_posture):
+        raise ValueError('max_buffer must hold at least samples_per_posture samples')
+    if noise_std is not None:
+        noise_std = np.asarray(noise_std, dtype=float).reshape(_CHANNELS)
+        if not np.all(np.isfinite(noise_std) & (noise_std > 0.0)):
+            raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
+    if not float(threshold) > 0.0:
+        raise ValueError(f'consistency_threshold must be > 0, got {threshold}')
+    return sync_tolerance, noise_std
 
 
 class SampleCollector:
@@ -156,34 +178,26 @@ class SampleCollector:
         settle_lookback=0.0,
         settle_sigmas=DEFAULT_SETTLE_SIGMAS,
     ):
-        sync_tolerance = float(sync_tolerance)
-        if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
-            raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
-        if int(samples_per_posture) < 1:
-            raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
-        if max_buffer is not None and int(max_buffer) < int(samples_per_posture):
-            raise ValueError('max_buffer must hold at least samples_per_posture samples')
-        if noise_std is not None:
-            noise_std = np.asarray(noise_std, dtype=float).reshape(10)
-            if not np.all(np.isfinite(noise_std) & (noise_std > 0.0)):
-                raise ValueError(f'noise_std must be 10 positive values, got {noise_std}')
-        if not float(consistency_threshold) > 0.0:
-            raise ValueError(f'consistency_threshold must be > 0, got {consistency_threshold}')
+        sync_tolerance, noise_std = _checked_options(
+            sync_tolerance, samples_per_posture, max_buffer, noise_std, consistency_threshold
+        )
         self.settle_rule = settling.SettleRule(settle_lookback, settle_sigmas)
         #: Why the latest window judged waits for settling (``settling.Unsettled``), or None.
         self.unsettled = None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
-        self.tolerance_ns = seconds_to_ns(sync_tolerance)
+        self._pairing = StampPairing(seconds_to_ns(sync_tolerance))
         self.samples_per_posture = int(samples_per_posture)
         self.max_buffer = None if max_buffer is None else int(max_buffer)
         self.start_ns = None  # None: not collecting, every sample is ignored
         self.previous_readings = None  # device readings (4,) of the previous posture
         self._legs = {}  # stamp_ns -> q (6,)
         self._device = {}  # stamp_ns -> readings (4,), NaN where not received yet
-        self._pairs = None  # cached result of pairs(), None when a buffer changed
-        self._window = _UNKNOWN  # cached result of window()
+        self._device_stamps = []  # sorted keys of _device
         self._window_checks = {}  # tuple(window pairs) -> _USABLE, _INCONSISTENT or _UNSETTLED
+        self._verdicts = []  # of the windows starting at pairs 0, 1, ..., none usable
+        self._window_start = None  # start of the usable window, or None
+        self._window_revision = None  # pairing revision of _verdicts and _window_start
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
         self.non_finite = dict.fromkeys(STREAMS, 0)
         #: Finite samples received, per stream (over the collector's lifetime).
@@ -207,22 +221,34 @@ class SampleCollector:
         self.previous_readings = (
             None
             if previous_readings is None
-            else np.asarray(previous_readings, dtype=float).reshape(4)
+            else np.asarray(previous_readings, dtype=float).reshape(_READINGS)
         )
-        self._legs.clear()
-        self._device.clear()
-        self._window_checks.clear()
+        self._clear()
         self.unsettled = None
-        self._invalidate()
 
     def stop(self):
         """Stop collecting: ignore samples until the next :meth:`start`."""
         self.start_ns = None
         self.previous_readings = None
+        self._clear()
+
+    def _clear(self):
         self._legs.clear()
         self._device.clear()
+        self._device_stamps.clear()
         self._window_checks.clear()
-        self._invalidate()
+        self._pairing.clear()
+        self._verdicts.clear()
+        self._window_revision = None
+
+    @property
+    def tolerance_ns(self):
+        """Largest stamp difference (ns) of a pair."""
+        return self._pairing.tolerance_ns
+
+    @property
+    def pair_revision(self):  # changes whenever the pairs change
+        return self._pairing.revision
 
     def record_non_finite(self, stream):
         """Count a non-finite reading the caller has already dropped (e.g. at message parsing)."""
@@ -240,13 +266,17 @@ class SampleCollector:
 
     def add_leg_lengths(self, stamp_ns, leg_lengths):
         """Add a leg-length sample ``q`` (6, m). Returns False if dropped."""
-        leg_lengths = np.asarray(leg_lengths, dtype=float).reshape(6)
+        leg_lengths = np.asarray(leg_lengths, dtype=float).reshape(_LEGS)
         stamp_ns = int(stamp_ns)
         if not self._accept(LEG_LENGTHS, stamp_ns, leg_lengths):
             return False
+        if stamp_ns not in self._legs:
+            self._pairing.add_leg(stamp_ns)
         self._legs[stamp_ns] = leg_lengths.copy()
-        self._trim(self._legs)
-        self._invalidate()
+        while self.max_buffer is not None and len(self._legs) > self.max_buffer:
+            oldest = self._pairing.legs[0]
+            self._pairing.remove_leg(oldest)
+            del self._legs[oldest]
         return True
 
     def _add_device(self, stream, stamp_ns, values):
@@ -256,11 +286,17 @@ class SampleCollector:
             return False
         row = self._device.get(stamp_ns)
         if row is None:
-            row = np.full(4, np.nan)
+            row = np.full(_READINGS, np.nan)
             self._device[stamp_ns] = row
-            self._trim(self._device)
-        row[list(_STREAM_COLUMNS[stream])] = values
-        self._invalidate()
+            self._device_stamps.insert(bisect.bisect_left(self._device_stamps, stamp_ns), stamp_ns)
+            while self.max_buffer is not None and len(self._device) > self.max_buffer:
+                oldest = self._device_stamps.pop(0)
+                if np.all(np.isfinite(self._device.pop(oldest))):
+                    self._pairing.remove_device(oldest)
+        complete = np.all(np.isfinite(row))
+        row[list(channels.DEVICE_READING_COLUMNS[stream])] = values
+        if not complete and stamp_ns in self._device and np.all(np.isfinite(row)):
+            self._pairing.add_device(stamp_ns)
         return True
 
     def add_inclinometer(self, stamp_ns, alpha, beta):
@@ -275,41 +311,29 @@ class SampleCollector:
         """Add an LVDT sample ``d_m`` (m). Returns False if dropped."""
         return self._add_device(LVDT, stamp_ns, [d_m])
 
-    def _invalidate(self):
-        self._pairs = None
-        self._window = _UNKNOWN
-
-    def _trim(self, buffer):
-        while self.max_buffer is not None and len(buffer) > self.max_buffer:
-            del buffer[min(buffer)]
-
     # --- pairing -----------------------------------------------------------------------------
 
     def complete_device_stamps(self):
         """Sorted stamps (ns) of device instants with all three topics received."""
-        return sorted(s for s, row in self._device.items() if np.all(np.isfinite(row)))
+        return list(self._pairing.devices)
 
     def pairs(self):
-        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order.
+        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order (a copy).
 
         Each leg-length sample takes the nearest unused complete device sample within the
-        tolerance (one-to-one); a leg sample with none is left unpaired.
+        tolerance (one-to-one); a leg sample with none is left unpaired
+        (:func:`~gsp_calibrator.collection.pairing.nearest_pairs`).
         """
-        if self._pairs is None:
-            self._pairs = nearest_pairs(
-                sorted(self._legs), self.complete_device_stamps(), self.tolerance_ns
-            )
-        return list(self._pairs)
+        return list(self._pairing.pairs)
 
     def pair_count(self):
-        """Number of synchronised pairs available now."""
-        return len(self.pairs())
+        return len(self._pairing.pairs)
 
     def _values(self, pairs):
         """(n, 10) ``[q_1..q_6, alpha, beta, phi, d_m]`` of ``pairs``."""
-        return np.array(
-            [np.concatenate([self._legs[leg], self._device[dev]]) for leg, dev in pairs]
-        )
+        legs = np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS)
+        readings = np.array([self._device[dev] for _, dev in pairs]).reshape(-1, _READINGS)
+        return np.hstack([legs, readings])
 
     def _median_and_spread(self, pairs):
         return median_and_spread(self._values(pairs), self.noise_std)
@@ -326,40 +350,64 @@ class SampleCollector:
         if self.noise_std is None or self.previous_readings is None or not pairs:
             return False
         median, _, spread = self._median_and_spread(pairs)
-        difference = median[6:] - self.previous_readings
-        difference[2] = wrap_angle(difference[2])
-        return bool(np.all(np.abs(difference) <= self.consistency_threshold * spread[6:]))
+        difference = median[_FIRST_READING:] - self.previous_readings
+        difference[_PHI_READING] = wrap_angle(difference[_PHI_READING])
+        threshold = self.consistency_threshold * spread[_FIRST_READING:]
+        return bool(np.all(np.abs(difference) <= threshold))
 
     def window(self):
         """The pairs to average: the earliest run of ``samples_per_posture`` consecutive pairs
         that is consistent, changed from the previous posture and settled, or None if there is
         none yet (:attr:`unsettled` then says why the latest run judged waits, if it does)."""
-        if self._window is _UNKNOWN:
-            self._window = None
-            pairs = self.pairs()
-            count = self.samples_per_posture
-            for start in range(0, len(pairs) - count + 1):
-                candidate = pairs[start : start + count]
-                key = tuple(candidate)
-                verdict = self._window_checks.get(key)
-                if verdict is None:
-                    verdict = _INCONSISTENT
-                    if self.consistent(candidate) and not self.unchanged(candidate):
-                        self.unsettled = self.settle_rule.verdict(
-                            pairs,
-                            start + count - 1,
-                            self.start_ns,
-                            count,
-                            lambda span: unwrap_phi(self._values(span)),
-                            self.noise_std,
-                        )
-                        verdict = _USABLE if self.unsettled is None else _UNSETTLED
-                    # (A window ending before the look-back is covered never will be.)
-                    self._window_checks[key] = verdict
-                if verdict == _USABLE:
-                    self._window = candidate
-                    break
-        return None if self._window is None else list(self._window)
+        start = self._window_start_now()
+        count = self.samples_per_posture
+        return None if start is None else self._pairing.pairs[start : start + count]
+
+    def _window_start_now(self):
+        """Index of the first pair of :meth:`window`, or None. A window's verdict holds until
+        one of its pairs changes (``StampPairing.take_changed``)."""
+        pairing = self._pairing
+        if self._window_revision == pairing.revision:
+            return self._window_start
+        count = self.samples_per_posture
+        changed = pairing.take_changed()
+        if changed is not None:  # the windows holding a changed pair are judged again
+            del self._verdicts[max(0, changed - count + 1) :]
+        pairs = pairing.pairs
+        self._window_start = None
+        start = len(self._verdicts)
+        while start + count <= len(pairs):
+            verdict = self._verdict(pairs, start)
+            if verdict == _USABLE:
+                self._window_start = start
+                break
+            self._verdicts.append(verdict)
+            start += 1
+        self._window_revision = pairing.revision
+        return self._window_start
+
+    def _verdict(self, pairs, start):
+        """The verdict of the window of ``pairs`` starting at ``start`` (judged once)."""
+        count = self.samples_per_posture
+        candidate = pairs[start : start + count]
+        key = tuple(candidate)
+        verdict = self._window_checks.get(key)
+        if verdict is None:
+            verdict = _INCONSISTENT
+            if self.consistent(candidate) and not self.unchanged(candidate):
+                self.unsettled = self.settle_rule.verdict(
+                    pairs,
+                    start + count - 1,
+                    self.start_ns,
+                    count,
+                    lambda span: unwrap_phi(self._values(span)),
+                    self.noise_std,
+                    pair_legs=self._pairing.pair_legs,
+                )
+                verdict = _USABLE if self.unsettled is None else _UNSETTLED
+            # (A window ending before the look-back is covered never will be.)
+            self._window_checks[key] = verdict
+        return verdict
 
     def ready(self):
         """True once ``samples_per_posture`` consistent pairs are available."""
@@ -369,7 +417,7 @@ class SampleCollector:
         """Buffered samples per stream since the start time (device: complete instants)."""
         return {
             LEG_LENGTHS: len(self._legs),
-            'device': len(self.complete_device_stamps()),
+            'device': len(self._pairing.devices),
             'pairs': self.pair_count(),
             'consistent': self.window() is not None if self.pair_count() else False,
         }
@@ -383,23 +431,10 @@ class SampleCollector:
             pairs = self.window() or self.pairs()[: self.samples_per_posture]
         if not pairs:
             raise ValueError('no synchronised samples to average')
-        legs = np.array([self._legs[leg] for leg, _ in pairs])
-        readings = np.array([self._device[dev] for _, dev in pairs])
-        phi0 = readings[0, 2]
-        readings[:, 2] = phi0 + wrap_angle(readings[:, 2] - phi0)
-        mean_readings = readings.mean(axis=0)
-        mean_readings[2] = float(wrap_angle(mean_readings[2]))
-        ddof = 1 if len(pairs) > 1 else 0
-        stamps = np.array([leg for leg, _ in pairs], dtype=np.int64)
-        mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
-        return PostureSample(
-            leg_lengths=legs.mean(axis=0),
-            readings=mean_readings,
-            n_samples=len(pairs),
-            stamp_ns=mean_stamp,
-            leg_lengths_std=legs.std(axis=0, ddof=ddof),
-            readings_std=readings.std(axis=0, ddof=ddof),
-            lag_sums=posture_lag_sums(np.hstack([legs, readings])) if len(pairs) > 1 else None,
+        return average_row(
+            np.array([self._legs[leg] for leg, _ in pairs]),
+            np.array([self._device[dev] for _, dev in pairs]),
+            np.array([leg for leg, _ in pairs], dtype=np.int64),
         )
 
     def take_posture(self):
@@ -410,10 +445,8 @@ class SampleCollector:
                 f'only {self.pair_count()} synchronised samples, no {self.samples_per_posture} '
                 'consistent ones'
             )
-        pairs, count = self.pairs(), self.samples_per_posture
-        before = pairs.index(window[0])
-        checks = (self._window_checks.get(tuple(pairs[i : i + count])) for i in range(before))
-        unsettled = sum(check == _UNSETTLED for check in checks)
+        before = self._window_start
+        unsettled = sum(verdict == _UNSETTLED for verdict in self._verdicts[:before])
         self.settling_dropped += unsettled
         self.inconsistent += before - unsettled
         sample = dataclasses.replace(
@@ -437,20 +470,16 @@ def segment_pairs(collector, limit=None, last=False):
     if limit is not None:
         legs = legs[-int(limit) :] if last else legs[: int(limit)]
     if not legs:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros((0, 4))
+        return np.zeros(0, dtype=np.int64), np.zeros((0, _LEGS)), np.zeros((0, _READINGS))
     margin = collector.tolerance_ns
-    subset = SampleCollector(0.0, 1, max_buffer=None)
-    subset.tolerance_ns = margin
-    subset.start(legs[0] - margin)
-    subset._legs = {stamp: collector._legs[stamp] for stamp in legs}
-    subset._device = {
-        stamp: row
-        for stamp, row in collector._device.items()
+    devices = [
+        stamp
+        for stamp in collector.complete_device_stamps()
         if legs[0] - margin <= stamp <= legs[-1] + margin
-    }
-    pairs = subset.pairs()
+    ]
+    pairs = nearest_pairs(legs, devices, margin)
     return (
         np.array([leg for leg, _ in pairs], dtype=np.int64),
-        np.array([collector._legs[leg] for leg, _ in pairs]).reshape(-1, 6),
-        np.array([collector._device[dev] for _, dev in pairs]).reshape(-1, 4),
+        np.array([collector._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS),
+        np.array([collector._device[dev] for _, dev in pairs]).reshape(-1, _READINGS),
     )

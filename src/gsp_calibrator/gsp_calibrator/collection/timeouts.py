@@ -69,7 +69,8 @@ class CollectionTimeouts:
     def collection_overdue(self, posture, collector, now_ns):
         """The collection's verdict at ``now_ns``: ``(failure event or None, skip reason or '')``.
 
-        Updates ``posture.progress``/``progress_ns`` from the collector's pair count.
+        Updates ``posture.progress``, ``progress_ns`` and ``progress_data_ns`` from the
+        collector's pair count.
         """
         silences = {  # s, since the topic's latest message (or the settle, or a stall)
             topic: self.since(max(self._last_heard.get(topic, 0), posture.started_ns), now_ns)
@@ -83,9 +84,18 @@ class CollectionTimeouts:
             text = f'topic {topic} is silent: no message for {self.topic_timeout:g} s while {doing}'
             return TopicSilent(topic, doing, text), ''
         count = collector.pair_count()
+        data_ns = posture.data_ns()
+        if posture.progress_data_ns is None:
+            posture.progress_data_ns = data_ns
         if count != posture.progress:
-            posture.progress, posture.progress_ns = count, now_ns
-        if self.since(posture.progress_ns, now_ns) >= self.topic_timeout:
+            posture.progress, posture.progress_ns = count, posture.received_ns
+            posture.progress_data_ns = data_ns
+        # The pairs' progress in the samples' receive times (a listener that falls behind
+        # delays it) and in their stamps.
+        stalled_s = self.since(posture.progress_ns, posture.received_ns)
+        if data_ns is not None and posture.progress_data_ns is not None:
+            stalled_s = max(stalled_s, (data_ns - posture.progress_data_ns) * 1e-9)
+        if stalled_s >= self.topic_timeout:
             # The pairs stopped: if a topic stopped too (a dead node whose last messages still
             # paired a little later), it is the cause to name.
             if silences[topic] >= 0.5 * self.topic_timeout:
@@ -103,10 +113,10 @@ class CollectionTimeouts:
                 f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
-        if (
-            collector.unsettled is not None
-            and self.since(posture.started_ns, now_ns) >= self.settle_timeout
-        ):
+        # The bounds below count in the data's time (the samples' stamps since the start), so a
+        # posture whose samples were sent is never skipped because they were handled late.
+        data_s = posture.data_elapsed()
+        if collector.unsettled is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '
                 f"platform's settled status: {collector.unsettled.describe()}"
@@ -114,11 +124,12 @@ class CollectionTimeouts:
         # The collection is bounded as a whole: pairs that keep coming without a consistent
         # window would otherwise restart the progress timeout for ever.
         limit = self.settle_timeout + self.topic_timeout
-        if self.since(posture.started_ns, now_ns) >= limit:
+        if data_s >= limit:
             counts = collector.counts()
             return None, (
                 f'no {self.samples_per_posture} consistent synchronised samples within '
-                f'{limit:g} s (settle_timeout + topic_timeout) of settling: '
+                f"{limit:g} s (settle_timeout + topic_timeout) of settling, in the samples' "
+                'stamps: '
                 f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '
                 f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
             )

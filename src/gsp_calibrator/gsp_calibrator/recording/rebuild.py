@@ -3,6 +3,12 @@
 :func:`samples_from_recording` feeds every recorded command, status and sensor message to the
 shared collection protocol (:func:`feed_recording`), in causal order (each topic in log order),
 so the rows are the ones the calibrator collected online; ``gsp_reidentify`` and replay use it.
+
+A recording notes how each posture ended (:meth:`.recorder.RunRecorder.note_posture_end`: kept, skipped
+and why, in progress at the stop). The rebuild keeps exactly the rows noted ``kept``: a posture
+the calibrator skipped on a timeout, or was collecting when it stopped, gives no row even when
+the recording holds enough samples for one, so the rebuild equals samples.csv. A recording made
+before these notes keeps every row its messages give, as before.
 """
 
 import collections
@@ -11,7 +17,12 @@ import os
 from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
-from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
+from gsp_calibrator.recording.recorder import (
+    KEPT,
+    OUTCOMES_METADATA_NAME,
+    POSTURE_END_METADATA_NAME,
+    POSTURE_METADATA_NAME,
+)
 from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
@@ -183,8 +194,9 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
-    rows are the ones the calibrator collected online (with no timeouts: the recording holds
-    only what the calibrator waited for), by the same settle rule (its stored options).
+    rows are the ones the calibrator collected online, by the same settle rule (its stored
+    options). The rebuild has no timeouts: the postures' noted outcomes
+    (:func:`posture_outcomes`) decide which rows were kept.
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
     :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
@@ -206,7 +218,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
 
 
 def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
-    """The :class:`~gsp_calibrator.collection.protocol.RowReady` events of
+    """The :class:`~gsp_calibrator.collection.events.RowReady` events of
     :func:`samples_from_recording` (with each row's ``settle_wait``), in row order."""
     first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
     stored = recording_options(first)
@@ -231,11 +243,47 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
         )
         if rows:
             collection.continue_after(next(reversed(rows.values())).sample.readings)
+        kept = kept_postures(recording_info(part), part)
+        previous = {}  # posture -> the readings its row was compared to
         for event in feed_recording(part, collection):
-            if isinstance(event, events.RowReady):
+            if isinstance(event, events.CollectionStarted):
+                previous[event.posture] = collection.collector.previous_readings
+            elif isinstance(event, events.RowReady):
+                if kept is not None and event.posture not in kept:
+                    # Not kept online (skipped, or in progress at the stop): the next row is
+                    # compared to the readings this one was, as online.
+                    if previous.get(event.posture) is not None:
+                        collection.continue_after(previous[event.posture])
+                    continue
                 rows.pop(event.posture, None)
                 rows[event.posture] = event
     return list(rows.values())
+
+
+def posture_outcomes(info, path='<recording>'):
+    """``{posture: (outcome, reason)}`` noted by :meth:`.recorder.RunRecorder.note_posture_end` (the last
+    note of a posture wins), or None for a recording made before these notes."""
+    metadata = info['metadata']
+    if OUTCOMES_METADATA_NAME not in metadata:
+        return None
+    outcomes = {}
+    for entry in metadata.get(POSTURE_END_METADATA_NAME, []):
+        try:
+            outcomes[int(entry['posture'])] = (str(entry['outcome']), str(entry.get('reason', '')))
+        except (KeyError, ValueError) as error:
+            raise RecordingError(
+                f'{path}: malformed {POSTURE_END_METADATA_NAME} metadata {entry}'
+            ) from error
+    return outcomes
+
+
+def kept_postures(info, path='<recording>'):
+    """The postures whose rows the calibrator kept (in samples.csv), or None for a recording
+    made before the outcomes were noted (then every rebuilt row counts)."""
+    outcomes = posture_outcomes(info, path)
+    if outcomes is None:
+        return None
+    return {posture for posture, (outcome, _) in outcomes.items() if outcome == KEPT}
 
 
 def collection_notes(info, path='<recording>'):

@@ -62,6 +62,13 @@ def next_recording_file(directory):
 
 #: MCAP metadata record of one posture's collection start (see :meth:`RunRecorder.note_collection_start`).
 POSTURE_METADATA_NAME = 'gsp_posture'
+#: MCAP metadata record of one posture's outcome (see :meth:`RunRecorder.note_posture_end`).
+POSTURE_END_METADATA_NAME = 'gsp_posture_end'
+#: MCAP metadata record written when a recording starts: its postures' outcomes are noted, so a
+#: posture with no ``kept`` note gave no row (a recording without it: every rebuilt row counts).
+OUTCOMES_METADATA_NAME = 'gsp_posture_outcomes'
+#: The outcomes of a posture in a ``gsp_posture_end`` record.
+KEPT, SKIPPED, IN_PROGRESS = 'kept', 'skipped', 'in_progress'
 
 #: Topics :class:`RunRecorder` records by default: every topic of the suite.
 SUITE_TOPICS = dict(names.TOPIC_TYPES)
@@ -143,6 +150,7 @@ class RunRecorder:
                 recorder.add_metadata(
                     RUN_METADATA_NAME, {k: json.dumps(json_safe(v)) for k, v in options.items()}
                 )
+            note_outcomes(recorder)
         except BaseException:
             recorder.abort()
             raise
@@ -169,6 +177,15 @@ class RunRecorder:
                         'start_ns': int(start_ns),
                     },
                 )
+
+    def note_posture_end(self, command_id, posture, outcome, reason=''):
+        """Note how the posture of command ``command_id`` ended: ``outcome`` is ``kept`` (its
+        row is in samples.csv), ``skipped`` (``reason`` says why) or ``in_progress`` (the run
+        stopped during its collection). :func:`.rebuild.samples_from_recording` keeps exactly the rows
+        noted ``kept``, so the rebuild gives the rows of samples.csv."""
+        with self._lock:
+            if self._recorder is not None:
+                note_posture_end(self._recorder, command_id, posture, outcome, reason)
 
     def stop(self, drain_s=0.0):
         """Stop recording and close the file (atomic); returns its path, or None if idle.
@@ -210,6 +227,25 @@ class RunRecorder:
                     return
 
         return on_message
+
+
+def note_outcomes(recorder):
+    """Say in ``recorder`` (a :class:`McapRecorder`) that its postures' outcomes are noted."""
+    recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
+
+
+def note_posture_end(recorder, command_id, posture, outcome, reason=''):
+    """Note in ``recorder`` (a :class:`McapRecorder`) how a posture ended (see
+    :meth:`RunRecorder.note_posture_end`)."""
+    recorder.add_metadata(
+        POSTURE_END_METADATA_NAME,
+        {
+            'posture': int(posture),
+            'command_id': str(command_id),
+            'outcome': str(outcome),
+            'reason': str(reason),
+        },
+    )
 
 
 def settings_options(settings):

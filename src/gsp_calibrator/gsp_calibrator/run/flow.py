@@ -1,22 +1,21 @@
 """The course of one calibration run, as the calibrator node drives it (no rclpy).
 
-:class:`CalibrationRun` opens the run (:func:`.session.open_session`), starts its recording,
-selects the postures (or keeps a resumed run's), orders a new run's postures from the
-platform's current posture, waits for the system, collects, then identifies
-(:func:`.identify.finish_run`), publishes and applies the result. What it needs from the node is
-:class:`.host.RunHost`; the postures themselves are commanded by the node, each at once from the
-end of the previous one, and this coroutine only reports them as they end (``host.finals``).
+:meth:`CalibrationRun.run` reads as the run: open the run directory
+(:func:`.session.open_session`) and start the recording; choose the postures (or keep a resumed
+run's) and order them from where the platform stands; wait for the system; then for each
+posture, command it, await its end and record it (:meth:`CalibrationRun._collect`); then
+identify (:func:`.identify.finish_run`), report, publish and apply the result. What it needs
+from the node is one :class:`.host.RunHost`.
 """
 
 import os
 import time
 import traceback
 
-from gsp_calibrator.collection import events, protocol, topics
-from gsp_calibrator.collection.single_source import SecondSource
+from gsp_calibrator.collection import protocol, topics
 from gsp_calibrator.recording.recorder import next_recording_file, settings_options
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.host import RunHost, first_timeout
+from gsp_calibrator.run.host import POSTURE_ENDS, RunHost, first_timeout
 from gsp_calibrator.run.identify import finish_run
 from gsp_calibrator.run.response import (
     failure_message,
@@ -24,7 +23,7 @@ from gsp_calibrator.run.response import (
     format_response,
     posture_report,
 )
-from gsp_calibrator.run.session import RunRefused, RunWriteError, WriteFailed, open_session
+from gsp_calibrator.run.session import RunRefused, RunWriteError, open_session
 from gsp_calibrator.run.state import (
     PHASE_DONE,
     PHASE_FAILED,
@@ -35,26 +34,23 @@ from gsp_calibrator.run.state import (
 )
 from gsp_msgs_py import names
 
-#: Final posture events that end the run.
-RUN_FAILURES = (events.TopicSilent, events.NoSynchronisedSample, SecondSource, WriteFailed)
-
 
 class RunFailed(Exception):
     """Ends a run early; the message says why (e.g. names the silent topic)."""
 
 
-def system_checks(node, heard, timeout):
+def system_checks(host, heard, timeout):
     """``[(predicate, failure message)]`` a run awaits before its first posture: a subscriber to
     the pose commands, a status publisher, and a message on each sensor topic (``heard(topic)``);
-    ``node``: the :class:`.host.RunHost`; ``timeout`` (s) is for the messages."""
+    ``host``: the :class:`.host.RunHost`; ``timeout`` (s) is for the messages."""
     checks = [
         (
-            lambda: node.command_subscriber_count() > 0,
+            lambda: host.command_subscribers() > 0,
             f'no subscriber on {names.TOPIC_POSE_COMMAND} within {timeout:g} s '
             '(is platform_sim running?)',
         ),
         (
-            lambda: node.count_publishers(names.TOPIC_PLATFORM_STATUS) > 0,
+            lambda: host.status_publishers() > 0,
             f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no publisher within {timeout:g} s '
             '(is platform_sim running?)',
         ),
@@ -66,43 +62,42 @@ def system_checks(node, heard, timeout):
 
 
 class CalibrationRun:
-    """One run (``resume``: the rest of an unfinished one) with ``settings``, hosted by ``node``
-    (a :class:`.host.RunHost`: the ``CalibratorNode``, or a test's plain Python host)."""
+    """One run (``resume``: the rest of an unfinished one) with ``settings``, hosted by ``host``
+    (a :class:`.host.RunHost`)."""
 
-    def __init__(self, node: RunHost, settings, resume):
-        self.node, self.settings, self.resume = node, settings, resume
-        self.log = node.get_logger()
+    def __init__(self, host: RunHost, settings, resume):
+        self.host, self.settings, self.resume = host, settings, resume
+        self.log = host.log
         self.session = None
         self.collection = protocol.CollectionProtocol.for_settings(settings)
 
     async def serve(self):
         """:meth:`run`, answered whatever happens: ``(success, message)``; then the recording is
-        closed and the node told (``run_ended()``). Only ``GeneratorExit`` (the executor drops
-        the task: the node is going down) and a shutdown leave the run to ``destroy_node``."""
-        node = self.node
+        closed. Only ``GeneratorExit`` (the executor drops the task: the node is going down)
+        and a shutdown leave the run to the node's ``destroy_node``."""
+        host = self.host
         try:
             result = await self.run()
         except GeneratorExit:
             # Nothing may be awaited now (an await here would hang the garbage collector that
             # closes the coroutine); destroy_node() closes the recording and marks the run.
-            node.stop_collection()
+            host.postures.stop()
             raise
         except Exception as error:  # the node must survive any failure of a run
-            if node.shutting_down():  # shut down meanwhile (Ctrl-C, SIGTERM): not a crash
-                node.stop_collection()
+            if host.shutting_down():  # shut down meanwhile (Ctrl-C, SIGTERM): not a crash
+                host.postures.stop()
                 return False, 'the calibrator shut down'
             self.log.error(f'calibration crashed: {error}\n{traceback.format_exc()}')
             result = False, f'calibration failed: {error}'
-        node.stop_collection()
+        host.postures.stop()
         try:
             # Drain (the last progress, the result) and close the file off the executor.
-            await node.in_thread(node.recorder.stop, drain_s=0.2)
+            await host.in_thread(host.recorder.stop, drain_s=0.2)
         except Exception as error:
             self.log.error(f'recording not closed: {error}')
         finally:
             if self.session is not None:
                 self.session.close()
-            node.run_ended()
         return result
 
     def interrupted(self):
@@ -112,16 +107,12 @@ class CalibrationRun:
             self.save_state(PHASE_INTERRUPTED, 'the calibrator shut down during the run')
 
     async def run(self):
-        """``(success, message)``."""
-        settings, log, node = self.settings, self.log, self.node
+        """The whole run: ``(success, message)``."""
+        settings, log, host = self.settings, self.log, self.host
         started = time.monotonic()
         try:
             session = self.session = open_session(
-                settings,
-                self.resume,
-                os.getpid(),
-                node.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND),
-                (node.get_name(), node.get_namespace()),
+                settings, self.resume, os.getpid(), host.command_publishers(), host.name
             )
         except RunRefused as error:
             log.error(str(error))
@@ -136,22 +127,22 @@ class CalibrationRun:
         )
         try:
             part = next_recording_file(session.run.path)
-            node.recorder.start(part, options=settings_options(settings))
+            host.recorder.start(part, options=settings_options(settings))
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
             part = None
             log.error(f'not recording the run: {error}')
-        node.start_collection(session, self.collection)
+        host.postures.start(session, self.collection)
         try:
-            await self._begin(part)
+            await self._choose_postures(part)
             await self._wait_for_system()
             await self._collect()
         except (RunFailed, RunWriteError) as error:
             self.save_state(PHASE_FAILED, str(error))
             message = failure_message(error, len(session.samples), session.run)
             log.error(message)
-            node.progress(len(session.samples), names.PHASE_FAILED, str(error))
+            host.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
-        node.stop_collection()
+        host.postures.stop()
         return await self._identify(started)
 
     def save_state(self, phase=None, stop_reason=None):
@@ -162,17 +153,18 @@ class CalibrationRun:
         except RunWriteError as error:
             self.log.error(f'{STATE_FILE} not written: {error}')
 
-    async def _begin(self, part):
+    async def _choose_postures(self, part):
         """Select the postures of a new run (a resumed one keeps its own) and order them from
         where the platform is; write state.json."""
-        settings, session, count = self.settings, self.session, self.settings.posture_count
-        self.node.progress(
+        settings, session, host = self.settings, self.session, self.host
+        count = settings.posture_count
+        host.progress(
             0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
         )
         poses = None
         if session.state is None:
             try:
-                selection = await self.node.await_thread(self.node.selection_future(settings))
+                selection = await host.await_thread(host.selection(settings))
             except (postures.CalibrationError, RuntimeError, ValueError) as error:
                 raise RunFailed(f'posture selection failed: {error}') from None
             self.log.info(
@@ -181,26 +173,9 @@ class CalibrationRun:
             )
             poses = selection.poses
         if poses is not None and settings.posture_order == 'route':
-            # From the latest leg lengths (if none come, the system check fails the run next).
-            await self.node.wait_for(
-                lambda: self.collection.latest_leg_lengths() is not None, settings.topic_timeout
-            )
-            start, reason = postures.route_start(
-                settings.nominal, self.collection.latest_leg_lengths()
-            )
-            if reason:
-                self.log.warning(f'route from the home pose: {reason}')
-            # state.json keeps the poses in this order: a resumed run keeps it.
-            route = postures.posture_route(settings, poses, start)
-            poses = poses[route.order]
-            x, y, z = start[:3] * 1e3
-            self.log.info(
-                f'route order from ({x:.1f}, {y:.1f}, {z:.1f}) mm: predicted travel '
-                f'{route.travel_s:.1f} s (selection order {route.selection_order_s:.1f} s, '
-                f'lower bound {route.lower_bound_s:.1f} s)'
-            )
+            poses = await self._route(poses)
         try:
-            session.replace = await self.node.in_thread(postures.PostureReplacer, settings)
+            session.replace = await host.in_thread(postures.PostureReplacer, settings)
         except (postures.CalibrationError, RuntimeError, ValueError) as error:
             self.log.warning(f'rejected postures will not be replaced: {error}')
         session.begin(settings, poses, os.getpid(), part)
@@ -212,51 +187,75 @@ class CalibrationRun:
             if len(session.samples):
                 self.collection.continue_after(session.samples.readings[-1])
 
+    async def _route(self, poses):
+        """``poses`` in route order from the latest leg lengths (state.json keeps this order: a
+        resumed run keeps it); if none come, the system check fails the run next."""
+        settings, collection = self.settings, self.collection
+        await self.host.wait_for(
+            lambda: collection.latest_leg_lengths() is not None, settings.topic_timeout
+        )
+        start, reason = postures.route_start(settings.nominal, collection.latest_leg_lengths())
+        if reason:
+            self.log.warning(f'route from the home pose: {reason}')
+        route = postures.posture_route(settings, poses, start)
+        x, y, z = start[:3] * 1e3
+        self.log.info(
+            f'route order from ({x:.1f}, {y:.1f}, {z:.1f}) mm: predicted travel '
+            f'{route.travel_s:.1f} s (selection order {route.selection_order_s:.1f} s, '
+            f'lower bound {route.lower_bound_s:.1f} s)'
+        )
+        return poses[route.order]
+
     async def _wait_for_system(self):
         """Wait until platform_sim listens to commands and every sensor topic has spoken."""
         timeout = self.settings.topic_timeout
-        checks = system_checks(self.node, self.collection.heard, timeout)
-        failure = await first_timeout(self.node.wait_for, timeout, checks)
+        checks = system_checks(self.host, self.collection.heard, timeout)
+        failure = await first_timeout(self.host.wait_for, timeout, checks)
         if failure:
             raise RunFailed(failure)
-        if self.node.failure is not None:
-            raise RunFailed(self.node.failure.message)
+        if self.host.postures.failure is not None:
+            raise RunFailed(self.host.postures.failure.message)
 
     async def _collect(self):
-        """Have every posture left commanded and report each as it ends; RunFailed on a failure."""
-        self.node.command_first()
-        while not self.node.collection_done():
-            event = await self.node.finals.get()
-            if isinstance(event, RUN_FAILURES):
+        """For each posture left (a rejected one's replacement joins the end): command it,
+        await its end, record it. RunFailed when an end is a failure of the run."""
+        host, session, count = self.host, self.session, self.settings.posture_count
+        while (posture := session.next_posture()) is not None:
+            k, pose = posture
+            host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
+            # The row (samples.csv) or the skip is kept, and the outcome noted in the
+            # recording, by the thread of the message that ended the posture, before this
+            # await returns: a SIGTERM meanwhile loses nothing.
+            event = await host.postures.command(k, pose)
+            if not isinstance(event, POSTURE_ENDS):
                 raise RunFailed(event.message)
-            report = posture_report(event, self.settings.posture_count, self.settings.nominal)
-            for level, line in report.log:  # one call site per severity (rclpy requires it)
-                if level == 'warning':
-                    self.log.warning(line)
-                else:
-                    self.log.info(line)
-            extra = {} if report.skipped is None else {'skipped': report.skipped}
-            self.node.progress(
-                event.posture,
-                report.phase,
-                report.message,
-                report.residuals,
-                report.warning,
-                **extra,
-            )
-            self.session.save()
+            self._report(event)
+            session.save()
+
+    def _report(self, event):
+        """Log and publish the end of a posture (a row or a skip)."""
+        report = posture_report(event, self.settings.posture_count, self.settings.nominal)
+        for level, line in report.log:  # one call site per severity (rclpy requires it)
+            if level == 'warning':
+                self.log.warning(line)
+            else:
+                self.log.info(line)
+        extra = {} if report.skipped is None else {'skipped': report.skipped}
+        self.host.progress(
+            event.posture, report.phase, report.message, report.residuals, report.warning, **extra
+        )
 
     async def _identify(self, started):
         """Identify over every row, write the results, publish and apply; ``(success, text)``."""
-        settings, session, node, log = self.settings, self.session, self.node, self.log
+        settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
         self.save_state(PHASE_IDENTIFYING)
-        node.progress(
+        host.progress(
             count,
             names.PHASE_IDENTIFYING,
             f'identifying {settings.free_count} parameters from {len(session.samples)} postures',
         )
-        finished = await node.in_thread(
+        finished = await host.in_thread(
             finish_run,
             session.run,
             settings,
@@ -275,18 +274,18 @@ class CalibrationRun:
         if not outcome.success:
             log.error(summary)
             self.save_state(PHASE_FAILED, outcome.message)
-            node.progress(count, names.PHASE_FAILED, outcome.message, residuals)
+            host.progress(count, names.PHASE_FAILED, outcome.message, residuals)
             return False, summary
         self.save_state(PHASE_DONE)
         geometry = outcome.geometry
         # A result the goodness of fit rejects is written and latched, but applied only on demand.
-        success, note = await node.deliver_result(settings, geometry, outcome.fit_accepted)
+        success, note = await host.deliver_result(settings, geometry, outcome.fit_accepted)
         if note:
             summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'
         (log.info if success else log.error)(summary)
         phase = names.PHASE_DONE if success else names.PHASE_FAILED
-        node.progress(
+        host.progress(
             count,
             phase,
             final_progress_message(summary, success, note),

@@ -1,97 +1,175 @@
-"""What a calibration run needs from the node that hosts it: :class:`RunHost` (pure, no rclpy).
+"""What a calibration run uses of the node that hosts it (pure, no rclpy).
 
-The run (:class:`gsp_calibrator.run.flow.CalibrationRun`) is a coroutine. It never touches rclpy:
-everything it needs from the graph, the executor and the threads goes through this protocol,
-which the ``calibrator`` node implements (``CalibratorNode``) and a test can implement with
+The run (:class:`gsp_calibrator.run.flow.CalibrationRun`) is a coroutine. Everything it needs
+from the graph, the executor and the threads is one :class:`RunHost`, a plain record of typed
+members that the ``calibrator`` node fills (``CalibratorNode._run_host``) and a test fills with
 plain Python (``test_run_flow.py``). Awaitables may be rclpy futures (the node) or coroutines.
+
+The node's message threads and the run meet in one place, the :class:`PostureLink`: the run
+commands a posture through it and awaits that posture's end; the node feeds every status,
+sensor message and watchdog tick to the collection protocol through it, and the event that ends
+the posture (a row, a skip, or a failure of the run) completes the awaited future.
 """
 
+import dataclasses
+import threading
 import typing
+from collections.abc import Awaitable, Callable
 
-#: Results of :meth:`RunHost.wait_for`.
+from gsp_calibrator.collection.events import FINAL_EVENTS, PostureSkipped, RowReady
+from gsp_calibrator.recording.mcap_format import RecordingError
+from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED
+
+#: Results of :attr:`RunHost.wait_for`.
 WAIT_OK = 'ok'
 WAIT_TIMEOUT = 'timeout'
 
-
-class RunRecorder(typing.Protocol):
-    """The run's recorder (``recording.recorder.RunRecorder`` in the node)."""
-
-    def start(self, path, options=None): ...
-
-    def stop(self, drain_s=0.0): ...
+#: The ends of a posture after which the run goes on. Any other end (a silent topic, no
+#: synchronised sample, a second source on a topic, a file that cannot be written) ends the run;
+#: its ``message`` says why.
+POSTURE_ENDS = (RowReady, PostureSkipped)
 
 
-class FinalEvents(typing.Protocol):
-    """The final event of each posture, in order (``node_threads.EventQueue`` in the node)."""
+class PostureLink:
+    """The posture in collection, shared by the node's message threads and the run (thread-safe).
 
-    def get(self) -> typing.Awaitable: ...
+    ``new_future()``: an awaitable future that a thread may complete (the node: an rclpy Future
+    that wakes its executor); ``commander(pose)``: ``(command_id, now_ns, publish)`` of a new pose
+    command, ``publish()`` sending it; ``recorder``: notes each posture's outcome
+    (:meth:`~gsp_calibrator.recording.recorder.RunRecorder.note_posture_end`); ``on_event(event)``:
+    the node's reaction to the protocol's other events (collection started, sample dropped).
+    """
+
+    def __init__(self, new_future, commander, recorder, on_event):
+        self._new_future = new_future
+        self._commander = commander
+        self._recorder = recorder
+        self._on_event = on_event
+        self.lock = threading.RLock()  # guards every member below and the protocol
+        self.protocol = None  #: the run's CollectionProtocol (kept after the run: summary)
+        self.session = None  #: the run's RunSession while collecting
+        self.active = False  #: whether messages go to the protocol
+        self.failure = None  #: the event that ended the run early, else None
+        self.current = None  #: ``(posture, command_id)`` commanded and not yet ended
+        self._end = None  # the future of the current posture's end
+
+    def start(self, session, protocol):
+        """Feed messages to ``protocol`` and keep each posture's outcome in ``session``."""
+        with self.lock:
+            self.protocol, self.session = protocol, session
+            self.failure = self.current = self._end = None
+            self.active = True
+
+    def stop(self):
+        """Stop feeding the protocol; a posture still in collection is noted as in progress
+        in the recording (the rebuild leaves it out, as samples.csv does)."""
+        with self.lock:
+            current, self.current, self.active = self.current, None, False
+            if current is not None:
+                self._note(current, IN_PROGRESS, 'the run stopped during its collection')
+
+    def command(self, posture, pose):
+        """Command ``posture`` (``pose``); the future of the event that ends it. A row is in
+        samples.csv and the outcome in the recording before the future completes."""
+        with self.lock:
+            future = self._new_future()
+            if self.failure is not None:  # the run failed between two postures
+                future.set_result(self.failure)
+                return future
+            command_id, now_ns, publish = self._commander(pose)
+            self.current, self._end = (int(posture), command_id), future
+            # The protocol knows the command before the platform can answer it.
+            others = self._end_on(self.protocol.command(posture, pose, command_id, now_ns))
+            publish()
+        for event in others:
+            self._on_event(event)
+        return future
+
+    def feed(self, step):
+        """``step(protocol)`` (a message or a tick; its events) while a run collects (any
+        thread): the end of the posture completes its future, other events go to ``on_event``."""
+        with self.lock:
+            if not self.active:
+                return
+            others = self._end_on(step(self.protocol))
+        for event in others:
+            self._on_event(event)
+
+    def fail(self, event):
+        """End the run with ``event`` (``message`` says why): a second source, a failed write."""
+        with self.lock:
+            if self.active and self.failure is None:
+                self.failure = event
+                self._finish(event)
+
+    def _end_on(self, events):
+        """End the posture on a final event among the protocol's ``events`` (the lock held);
+        the other events, for ``on_event`` once the lock is released."""
+        for event in events:
+            if isinstance(event, FINAL_EVENTS):
+                self._finish(event)
+        return [event for event in events if not isinstance(event, FINAL_EVENTS)]
+
+    def _finish(self, event):
+        """Keep the outcome of the current posture (the lock held) and complete its future."""
+        future, current = self._end, self.current
+        if future is None or current is None or not self.active:
+            return
+        self._end = self.current = None
+        if isinstance(event, POSTURE_ENDS):
+            event = self.session.end_posture(event)
+        if isinstance(event, RowReady):
+            self._note(current, KEPT)
+        elif isinstance(event, PostureSkipped):
+            self._note(current, SKIPPED, event.reason)
+        else:
+            self.failure = event
+            self._note(current, IN_PROGRESS, event.message)
+        future.set_result(event)
+
+    def _note(self, current, outcome, reason=''):
+        try:
+            self._recorder.note_posture_end(current[1], current[0], outcome, reason)
+        except (OSError, RecordingError):
+            pass  # a full disk: the recorder's own write reports it and ends the run
 
 
-@typing.runtime_checkable
-class RunHost(typing.Protocol):
-    """The node side of a run. The node commands each posture itself, from the event that ends
-    the previous one, and queues that event in :attr:`finals`; the run reports it afterwards."""
+@dataclasses.dataclass
+class RunHost:
+    """The node side of a run: every member the run uses, given by the node or a test."""
 
-    recorder: RunRecorder
-    finals: FinalEvents
-    #: The event that ended the collection early (silent topic, second source...), else None.
-    failure: object
-
-    # --- the graph ------------------------------------------------------------------------------
-    def get_logger(self): ...
-
-    def shutting_down(self) -> bool:
-        """Whether the process is going down (Ctrl-C, SIGTERM): a failure then is no crash."""
-
-    def get_name(self) -> str: ...
-
-    def get_namespace(self) -> str: ...
-
-    def get_publishers_info_by_topic(self, topic) -> list: ...
-
-    def count_publishers(self, topic) -> int: ...
-
-    def command_subscriber_count(self) -> int:
-        """Subscribers to the run's pose commands (is the platform listening?)."""
-
-    # --- waiting and threads --------------------------------------------------------------------
-    def wait_for(self, predicate, timeout_s) -> typing.Awaitable:
-        """Awaitable of :data:`WAIT_OK` once ``predicate()`` holds, else :data:`WAIT_TIMEOUT`."""
-
-    def await_thread(self, concurrent_future) -> typing.Awaitable: ...
-
-    def in_thread(self, function, *args, **kwargs) -> typing.Awaitable:
-        """Awaitable of ``function(*args, **kwargs)`` run in a worker thread."""
-
-    def selection_future(self, settings):
-        """``concurrent.futures.Future`` of the (cached) posture selection of ``settings``."""
-
-    # --- the run --------------------------------------------------------------------------------
-    def progress(self, index, phase, message='', residuals=None, warning=False, **extra):
-        """Publish the run's progress at posture ``index`` (0 before the first)."""
-
-    def start_collection(self, session, collection):
-        """Feed messages to ``collection`` (a ``CollectionProtocol``) and rows to ``session``."""
-
-    def stop_collection(self): ...
-
-    def command_first(self):
-        """Command the first posture left; each next one follows from the end of the previous."""
-
-    def collection_done(self) -> bool:
-        """Whether every posture was commanded, has ended and was queued in :attr:`finals`."""
-
-    def deliver_result(self, settings, geometry, fit_accepted) -> typing.Awaitable:
-        """Publish the calibrated ``geometry`` and apply it as ``settings`` ask; awaitable of
-        ``(success, note)`` (see ``gsp_calibrator.result_delivery``)."""
-
-    def run_ended(self):
-        """The run is over (its answer is being sent)."""
+    name: tuple  #: ``(name, namespace)`` of the calibrator node
+    log: typing.Any  #: logger (``info``, ``warning``, ``error``)
+    #: ``TopicEndpointInfo`` of every publisher of pose commands (another calibrator?)
+    command_publishers: Callable[[], list]
+    #: subscribers to the pose commands (is the platform listening?)
+    command_subscribers: Callable[[], int]
+    #: publishers of the platform's status
+    status_publishers: Callable[[], int]
+    recorder: typing.Any  #: ``start(path, options)``, ``stop(drain_s)``, ``note_posture_end``
+    postures: PostureLink
+    #: ``wait_for(predicate, timeout_s)``: awaitable of :data:`WAIT_OK` once ``predicate()``
+    #: holds, else :data:`WAIT_TIMEOUT`
+    wait_for: Callable[[Callable[[], bool], float], Awaitable]
+    #: ``in_thread(function, *args)``: awaitable of ``function(*args)`` run in a worker thread
+    in_thread: Callable[..., Awaitable]
+    #: ``await_thread(concurrent_future)``: awaitable of a ``concurrent.futures.Future``
+    await_thread: Callable[..., Awaitable]
+    #: ``selection(settings)``: ``concurrent.futures.Future`` of the (cached) posture selection
+    selection: Callable[..., typing.Any]
+    #: ``progress(index, phase, message='', residuals=None, warning=False, **extra)``: publish
+    #: the run's progress at posture ``index`` (0 before the first)
+    progress: Callable[..., None]
+    #: ``deliver_result(settings, geometry, fit_accepted)``: awaitable of ``(success, note)``
+    #: (``gsp_calibrator.result_delivery``)
+    deliver_result: Callable[..., Awaitable]
+    #: whether the process is going down (Ctrl-C, SIGTERM): a failure then is no crash
+    shutting_down: Callable[[], bool]
 
 
 async def first_timeout(wait_for, timeout_s, checks):
     """Await each ``(predicate, message)`` of ``checks`` in turn through ``wait_for`` (see
-    :meth:`RunHost.wait_for`); the message of the first that times out, else ''."""
+    :attr:`RunHost.wait_for`); the message of the first that times out, else ''."""
     for predicate, message in checks:
         if await wait_for(predicate, timeout_s) != WAIT_OK:
             return message

@@ -83,7 +83,7 @@ def identify_from_samples(
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
-    ``samples`` is a ``directory.Samples``; ``sigmas`` are per-sample noise levels (m, rad),
+    ``samples`` is a :class:`.directory.Samples`; ``sigmas`` are per-sample noise levels (m, rad),
     scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. The rows' window lag sums

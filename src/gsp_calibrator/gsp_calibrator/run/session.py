@@ -4,8 +4,8 @@ A :class:`RunSession` is a new run (:meth:`RunSession.create`) or the rest of an
 (:meth:`RunSession.resume`). It holds the run's ``state.json`` (:mod:`.state`), its rows
 (:class:`.directory.Samples`, each appended to ``samples.csv`` as it is collected by a
 :class:`.directory.SamplesAppender`) and the postures still to command. It is thread-safe:
-the node adds a row from its sensor thread (and commands the next posture at once) while its run
-coroutine writes ``state.json``.
+a row is added by the node's thread whose message ended the posture
+(:class:`.host.PostureLink`) while the run coroutine writes ``state.json``.
 
 A file that cannot be written (a full disk: ENOSPC, or any ``OSError``) raises
 :class:`RunWriteError`, whose message names the file and the cause. Nothing written before is

@@ -6,7 +6,12 @@ by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/
 
 import sys
 
-from gsp_calibrator.tools import bench_end_to_end, bench_platform_time, bench_sensor_dynamics
+from gsp_calibrator.tools import (
+    bench_collection_rate,
+    bench_end_to_end,
+    bench_platform_time,
+    bench_sensor_dynamics,
+)
 from gsp_experiments import bench, bench_noise, bench_sensor_errors
 
 #: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
@@ -16,6 +21,7 @@ EXTRA_SECTIONS = {
     'noise_unknown': bench_noise.run,  # docs/sensor_errors.md
     'platform_time': bench_platform_time.run,  # docs/planning.md
     'sensor_dynamics': bench_sensor_dynamics.run,  # docs/sensor_errors.md
+    'collection_rate': bench_collection_rate.run,  # docs/architecture.md#synchronisation
 }
 
 

@@ -1,0 +1,143 @@
+"""Nearest-stamp pairing of leg-length and device stamps, kept up to date message by message
+(pure, no rclpy).
+
+THE pairing rule (:func:`nearest_pairs`): the leg stamps, in order, each take the nearest device
+stamp within the tolerance that no earlier leg stamp took (ties: the earlier device stamp).
+:class:`StampPairing` keeps the result of that rule while stamps come and go, at a cost per
+change that does not grow with the number of stamps held: a leg stamp only sees the device
+stamps within the tolerance, so a change at a stamp leaves every leg stamp more than a tolerance
+before it alone, and the legs after it are taken again, in order, only until no later leg can
+see a difference any more (usually one or two legs).
+"""
+
+import bisect
+
+
+def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
+    """``[(leg_stamp, device_stamp), ...]``: the pairing rule (module docstring) applied at once
+    to the sorted ``leg_stamps`` and ``device_stamps`` (ns)."""
+    pairing = StampPairing(tolerance_ns)
+    pairing.load(leg_stamps, device_stamps)
+    return list(pairing.pairs)
+
+
+class StampPairing:
+    """The pairs of the leg stamps and device stamps added so far (see the module docstring).
+
+    ``pairs``: ``[(leg stamp, device stamp), ...]`` in leg-stamp order; ``pair_legs`` their leg
+    stamps; ``revision`` grows at each change of the pairs; :meth:`take_changed` says from which
+    index on they changed since the last call. Read them, never change them.
+    """
+
+    def __init__(self, tolerance_ns):
+        self.tolerance_ns = int(tolerance_ns)
+        self.legs = []  # sorted leg stamps
+        self.devices = []  # sorted device stamps
+        self.pairs = []
+        self.pair_legs = []
+        self.revision = 0
+        self._choice = {}  # leg stamp -> its device stamp
+        self._taker = {}  # device stamp -> the leg stamp that took it
+        self._changed = None  # lowest index of self.pairs changed since take_changed()
+
+    def clear(self):
+        self.legs.clear()
+        self.devices.clear()
+        self.pairs.clear()
+        self.pair_legs.clear()
+        self._choice.clear()
+        self._taker.clear()
+        self._changed = 0
+        self.revision += 1
+
+    def load(self, leg_stamps, device_stamps):
+        """Pair the sorted ``leg_stamps`` and ``device_stamps`` from scratch."""
+        self.clear()
+        self.legs.extend(int(s) for s in leg_stamps)
+        self.devices.extend(int(s) for s in device_stamps)
+        for leg in self.legs:
+            self._retake(leg)
+
+    def take_changed(self):
+        """Lowest index of :attr:`pairs` changed since the previous call (None: none)."""
+        changed, self._changed = self._changed, None
+        return changed
+
+    # --- changes -----------------------------------------------------------------------------
+
+    def add_leg(self, stamp):
+        """A new leg stamp (not held yet)."""
+        index = bisect.bisect_left(self.legs, stamp)
+        self.legs.insert(index, stamp)
+        self._repair(index, set(), first_too=True)
+
+    def remove_leg(self, stamp):
+        """Forget the held leg stamp ``stamp``."""
+        index = bisect.bisect_left(self.legs, stamp)
+        device = self._choice.get(stamp)
+        self._set(stamp, device, None)
+        del self.legs[index]
+        self._repair(index, set() if device is None else {device})
+
+    def add_device(self, stamp):
+        """A new device stamp (not held yet)."""
+        bisect.insort(self.devices, stamp)
+        self._repair(bisect.bisect_left(self.legs, stamp - self.tolerance_ns), {stamp})
+
+    def remove_device(self, stamp):
+        """Forget the held device stamp ``stamp``."""
+        del self.devices[bisect.bisect_left(self.devices, stamp)]
+        leg = self._taker.get(stamp)
+        if leg is None:  # no leg took it: no leg's choice changes
+            return
+        self._set(leg, stamp, None)
+        self._repair(bisect.bisect_left(self.legs, leg), {stamp}, first_too=True)
+
+    # --- the rule ----------------------------------------------------------------------------
+
+    def _repair(self, index, changed, first_too=False):
+        """Take the legs from ``index`` on again until none can see a difference: ``changed``
+        holds the device stamps held, or taken by the legs so far, differently than before."""
+        legs, tolerance = self.legs, self.tolerance_ns
+        for k in range(index, len(legs)):
+            leg = legs[k]
+            if not first_too and all(device < leg - tolerance for device in changed):
+                return
+            first_too = False
+            old, new = self._retake(leg)
+            if old != new:
+                changed ^= {device for device in (old, new) if device is not None}
+
+    def _retake(self, leg):
+        """Apply the rule to ``leg`` (the legs before it done); ``(old, new)`` device stamps."""
+        devices, tolerance = self.devices, self.tolerance_ns
+        best = None
+        i = bisect.bisect_left(devices, leg - tolerance)
+        while i < len(devices) and devices[i] <= leg + tolerance:
+            device = devices[i]
+            taker = self._taker.get(device)
+            # A taker at or after this leg is an old choice of a leg not yet taken again.
+            if (taker is None or taker >= leg) and (
+                best is None or abs(device - leg) < abs(best - leg)
+            ):
+                best = device
+            i += 1
+        old = self._choice.get(leg)
+        if best != old:
+            self._set(leg, old, best)
+        return old, best
+
+    def _set(self, leg, old, new):
+        index = bisect.bisect_left(self.pair_legs, leg)
+        if old is not None:
+            if self._taker.get(old) == leg:
+                del self._taker[old]
+            del self._choice[leg], self.pairs[index], self.pair_legs[index]
+        if new is not None:
+            self._taker[new] = leg  # (a later leg's old choice: that leg is taken again)
+            self._choice[leg] = new
+            self.pairs.insert(index, (leg, new))
+            self.pair_legs.insert(index, leg)
+        if old is not None or new is not None:
+            self._changed = index if self._changed is None else min(self._changed, index)
+            self.revision += 1
