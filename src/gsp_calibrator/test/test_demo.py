@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from gsp_testing import wait_until
 
+from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.geometry import default_geometry
@@ -104,7 +105,7 @@ def test_validation_summary_ignores_rejected_postures():
 
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     summary = demo.DemoSummary(before, before, nominal, true, 600.0, 12.0, 40.0).document()
     assert set(summary) == {
         'validation',
@@ -123,7 +124,7 @@ def test_summary_has_the_keys_of_the_issue():
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}
-    assert set(summary['validation']['after']) == set(demo.VALIDATION_KEYS)
+    assert set(summary['validation']['after']) == set(VALIDATION_KEYS)
     assert summary['max_param_error_mm'] > 0.1 and summary['max_param_error_deg'] > 0.0
     text = demo.summary_text(summary, 49, 1)
     assert 'before (nominal)' in text and '1 rejected' in text
@@ -137,7 +138,7 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     )
     record = demo.fit_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     summary = demo.DemoSummary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record).document()
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
     assert demo.summary_text(summary, 1, 0).endswith('ok')
@@ -173,7 +174,7 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
     (tmp_path / 'result.json').write_text(json.dumps({'collection': record}))
     assert demo.collection_record(tmp_path) == record
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     summary = demo.DemoSummary(
         before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, demo.collection_record(tmp_path)
     ).document()
