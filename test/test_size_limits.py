@@ -21,7 +21,10 @@ MAX_FUNCTION_LINES = 80
 #: ``'package/path.py'`` (a file) or ``'package/path.py:qualified.name'`` (a class or a function)
 #: -> why it may exceed its limit. An entry no longer needed fails the test: none is kept "just in
 #: case".
-EXCEPTIONS = {}
+EXCEPTIONS = {
+    'gsp_calibrator/settings.py': "a flat table: the calibrator's parameters (one ParameterSpec "
+    'each, with its subsets) and the settings, command-line options and checks derived from it',
+}
 
 
 def source_files(src=SRC):

@@ -60,6 +60,7 @@ from gsp_calibrator.run.health import ProcessingLags, calibrator_health
 from gsp_calibrator.run.host import PostureLink, RunHost
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
+from gsp_calibrator.upkeep.check_flow import CheckRun, record_calibration
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.executors import MultiThreadedExecutor
@@ -72,6 +73,13 @@ WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeou
 #: recorder's thread at each hand-over.
 GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
+#: The Trigger services: (name, resume an unfinished run, the run: a calibration or the check
+#: of docs/upkeep.md).
+SERVICES = (
+    (names.SERVICE_CALIBRATE, False, CalibrationRun),
+    (names.SERVICE_RESUME, True, CalibrationRun),
+    (names.SERVICE_CHECK, False, CheckRun),
+)
 #: Topics the node publishes, in the order of its publisher attributes.
 OUTPUTS = (
     names.TOPIC_POSE_COMMAND,
@@ -144,10 +152,9 @@ class CalibratorNode(Node):
         self.create_timer(
             WATCHDOG_PERIOD_S, self._on_watchdog, callback_group=MutuallyExclusiveCallbackGroup()
         )
-        for service, resume in ((names.SERVICE_CALIBRATE, False), (names.SERVICE_RESUME, True)):
-            self.create_service(
-                Trigger, service, self._service(resume), callback_group=self._service_group
-            )
+        for service, resume, run_class in SERVICES:
+            callback = self._service(resume, run_class)
+            self.create_service(Trigger, service, callback, callback_group=self._service_group)
 
         self._diagnostics = DiagnosticsPublisher(
             self,
@@ -157,7 +164,7 @@ class CalibratorNode(Node):
         # Posture selection takes seconds: start it now for the current parameters.
         self._selection(self._settings)
         self.get_logger().info(
-            f'calibrator ready: {names.SERVICE_CALIBRATE}, {names.SERVICE_RESUME} '
+            f'calibrator ready: {", ".join(service for service, *_ in SERVICES)} '
             f'({self._settings.describe()})'
         )
 
@@ -333,15 +340,15 @@ class CalibratorNode(Node):
 
     # --------------------------------------------------------------------------- the run
 
-    def _service(self, resume):
+    def _service(self, resume, run_class):
         async def callback(request, response):
             """Trigger: one whole calibration, or (``resume``) the rest of an unfinished run:
-            ``resume_run_directory`` or the latest. A second call meanwhile fails at once."""
-            return await self._serve(response, resume)
+            ``resume_run_directory`` or the latest; or the check of docs/upkeep.md."""
+            return await self._serve(response, resume, run_class)
 
         return callback
 
-    async def _serve(self, response, resume):
+    async def _serve(self, response, resume, run_class):
         with self._lock:
             if self._running:
                 response.success = False
@@ -349,11 +356,13 @@ class CalibratorNode(Node):
                 self.get_logger().warning('calibrate: refused, a calibration is already running')
                 return response
             self._running = True
-            self._run = CalibrationRun(self._run_host(), self._settings, resume)
+            self._run = run_class(self._run_host(), self._settings, resume)
         with self.postures.lock:
             self._sources.reset()
         response.success, response.message = await self._run.serve()
         if self.context.ok():  # else going down: destroy_node() marks the run interrupted
+            if run_class is CalibrationRun and (run := self._run).session is not None:
+                await record_calibration(run.host, run.settings, run.session.run.path)
             self._waits.cancel()
             with self._lock:
                 self._running = False

@@ -3,8 +3,9 @@
 A run that succeeds hands its calibrated geometry to :class:`ResultDelivery`
 (``RunHost.deliver_result``). It latches the geometry params-file YAML on
 ``/gsp/calibrator/result`` and, with ``apply_result``, sets every ``geometry.*`` parameter of
-``platform_node_name`` in one ``SetParametersAtomically`` call. A result the goodness of fit
-rejects is published but applied only with ``apply_rejected_fit``.
+``platform_node_name`` in one ``SetParametersAtomically`` call. A result that is not accepted
+(its cross-validated accuracy misses the requirement, docs/verdict.md) is published, never
+applied.
 """
 
 from rcl_interfaces.srv import SetParametersAtomically
@@ -25,15 +26,14 @@ class ResultDelivery:
         self.publisher = publisher
         self.parameter_setter = ParameterSetter(node, callback_group)
 
-    async def deliver(self, settings, geometry, fit_accepted, wait_for):
-        """Publish ``geometry``; apply it if ``settings.apply_result`` (and the fit is accepted,
-        or ``settings.apply_rejected_fit``). ``(success, note)``: ``note`` says what the apply
-        did ('' when it was not asked for); success is False when the fit was rejected and the
-        rejected result is not to be applied, or when the apply failed."""
+    async def deliver(self, settings, geometry, accepted, wait_for):
+        """Publish ``geometry``; apply it if ``settings.apply_result`` and it is ``accepted``
+        (it meets the required accuracy). ``(success, note)``: ``note`` says what the apply did
+        ('' when it was not asked for); success is False when the result is not accepted, or
+        when the apply failed."""
         self.publisher.publish(String(data=geometry_to_yaml(geometry, comment=RESULT_COMMENT)))
-        success = fit_accepted or settings.apply_rejected_fit
-        if not (settings.apply_result and success):
-            return success, ''
+        if not (settings.apply_result and accepted):
+            return accepted, ''
         node_name = settings.platform_node_name
         applied, why = await self.parameter_setter.set(
             node_name, geometry_to_parameters(geometry), settings.topic_timeout, wait_for

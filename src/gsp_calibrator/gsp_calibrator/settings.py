@@ -17,6 +17,14 @@ import functools
 import os
 import re
 
+from gsp_calibrator.upkeep.parameters import UPKEEP_PARAMETERS
+from gsp_kinematics.acceptance import (
+    DEFAULT_REQUIRED_IMPROVEMENT,
+    DEFAULT_REQUIRED_ORIENTATION_DEG,
+    DEFAULT_REQUIRED_POSITION_MM,
+    Requirement,
+)
+from gsp_kinematics.cross_validation import DEFAULT_FOLDS
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import (
@@ -53,6 +61,8 @@ REIDENTIFY_COMMAND_LINE = 'reidentify_command_line'
 #: The command-line option of a parameter whose option is not ``--<name with dashes>``.
 _OPTION_NAMES = {'posture_count': '--postures', 'free_parameters': '--free'}
 _RUN = frozenset((STORED, SELECTION, RUN_COMMAND_LINE))
+#: The acceptance options: stored with the run, and a re-identification may judge it again.
+_JUDGED = frozenset((STORED, REIDENTIFY_COMMAND_LINE))
 
 
 def _check_geometry_file(value):
@@ -199,7 +209,7 @@ PARAMETERS = (
         'extended (the 44 and the identifiable sensor errors kq1..kq6, alpha0), and/or names '
         '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md)',
         constraints='non-empty, known names or groups, no duplicates',
-        check=free_parameters_error,
+        check=functools.partial(free_parameters_error, effects=False),
         subsets=_RUN | {REIDENTIFY_COMMAND_LINE},
     ),
     _one_of(
@@ -235,11 +245,40 @@ PARAMETERS = (
         frozenset((STORED, REIDENTIFY_COMMAND_LINE)),
         check=noise_source_error,
     ),
+    _positive(
+        'required_position_accuracy_mm',
+        DEFAULT_REQUIRED_POSITION_MM,
+        'The result is applied (apply_result) only if its mean position error, measured by the '
+        'device on postures the fit did not use (cross-validation, measurement noise removed), '
+        'is at most this (docs/verdict.md)',
+        'mm',
+        _JUDGED,
+    ),
+    _positive(
+        'required_orientation_accuracy_deg',
+        DEFAULT_REQUIRED_ORIENTATION_DEG,
+        'The result is applied only if its cross-validated mean error of the platform rotation '
+        'phi (the rotation the device measures) is at most this',
+        'deg',
+        _JUDGED,
+    ),
     ParameterSpec(
-        'apply_rejected_fit',
-        False,
-        'With apply_result: apply a result that converged but failed the goodness-of-fit '
-        'check (p < 0.01) anyway; the result is written and marked in either case',
+        'required_improvement_over_nominal',
+        DEFAULT_REQUIRED_IMPROVEMENT,
+        'The result is applied only if its cross-validated mean position error is at least '
+        "this many times smaller than the nominal geometry's on the same postures",
+        constraints='>= 1',
+        check=at_least(1.0, reason='must be finite and >= 1'),
+        subsets=_JUDGED,
+    ),
+    ParameterSpec(
+        'cross_validation_folds',
+        DEFAULT_FOLDS,
+        'Folds of the cross-validation that measures the accuracy (each fold of postures is '
+        'predicted by a fit without it); with fewer postures, each is left out alone',
+        constraints='>= 2',
+        check=at_least(2),
+        subsets=_JUDGED,
     ),
     _one_of(
         'formulation',
@@ -311,6 +350,7 @@ PARAMETERS = (
         constraints='a valid node name',
         check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
     ),
+    *UPKEEP_PARAMETERS,
     parameter_specs.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
@@ -441,6 +481,11 @@ class _RunSettings:
             name: list(value) if isinstance(value, tuple) else value
             for name, value in ((name, getattr(self, name)) for name in names)
         }
+
+    @property
+    def requirement(self):
+        """What the result must achieve to be applied (``acceptance.Requirement``)."""
+        return Requirement.from_parameters(vars(self))
 
     def identify_options(self):
         """The core's ``Options`` for this run's loss and outlier threshold."""

@@ -9,7 +9,7 @@ from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import (
-    REJECTED_HEAD,
+    NOT_ACCEPTED_HEAD,
     final_progress_message,
     format_response,
     outcome_summary,
@@ -185,18 +185,23 @@ def test_posture_residuals_against_the_nominal_model(selection):
     )
 
 
-def test_paper_model_on_sensor_errors_is_rejected_with_a_verdict(selection):
+def test_paper_model_on_sensor_errors_is_not_accepted_with_a_verdict(selection):
+    """The 44 on a platform with sensor errors: the accuracy the device measures on held-out
+    postures misses the required 0.1 mm, so the result is not accepted, and the summary says by
+    how much; the goodness of fit names the likely cause as a diagnostic."""
     samples = synthetic_samples(selection.poses)
     outcome = identify_from_samples(
         NOMINAL, samples, SIGMAS, free=['paper'], noise_source='configured'
     )
-    assert outcome.success and not outcome.fit_accepted
+    assert outcome.success and not outcome.fit_accepted and not outcome.accepted
     assert 'does NOT explain the data' in outcome.verdict
     assert 'try free_parameters: extended' in outcome.verdict
     summary = outcome_summary(outcome)
-    assert 'result REJECTED by the goodness-of-fit check' in summary
+    assert summary.startswith(NOT_ACCEPTED_HEAD)
+    assert 'exceeds the required 0.1 mm' in summary
     extended = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
     assert extended.fit_accepted and 'explains the data' in extended.verdict
+    assert extended.accepted
     assert 'sensor errors: kq1 ' in outcome_summary(extended)
 
 
@@ -208,7 +213,7 @@ def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
     estimates = outcome.noise_estimates
     assert estimates['leg_lengths']['estimated'] == pytest.approx(SIGMAS.leg_lengths, rel=0.1)
     assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
-    assert 'noise lvdt: estimated' in outcome_summary(outcome)
+    assert 'sensor noise lvdt: configured' in outcome_summary(outcome)
     assert 'WARNING: differs by more than 2x' in outcome_summary(outcome)
 
 
@@ -226,16 +231,19 @@ def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
     configured = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
     assert configured.success and not configured.fit_accepted
     assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict
+    # The goodness of fit is a diagnostic: the accuracy measured on held-out postures decides.
+    assert configured.accepted
     summary = outcome_summary(configured)
-    assert summary.splitlines()[0].startswith(REJECTED_HEAD + ':')
+    assert summary.splitlines()[0].startswith('calibration succeeded:')
+    assert 'does NOT explain the data' in summary
     assert 'weights from the configured noise' in summary
     with pytest.raises(postures.CalibrationError, match='noise_source'):
         identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='guessed')
 
 
 def test_last_progress_message_agrees_with_the_phase():
-    rejected = f'{REJECTED_HEAD}: 60 posture(s) of 60 commanded\nmore'
-    assert final_progress_message(rejected, False, '').startswith('calibration REJECTED')
+    rejected = f'{NOT_ACCEPTED_HEAD}: 60 posture(s) of 60 commanded\nmore'
+    assert final_progress_message(rejected, False, '').startswith('calibration NOT ACCEPTED')
     assert (
         final_progress_message('calibration succeeded: 60\nx', False, 'NOT applied: why')
         == 'NOT applied: why'

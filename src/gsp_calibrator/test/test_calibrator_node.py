@@ -51,9 +51,6 @@ def calibrator_parameters(output_root, **overrides):
         'settle_timeout': 10.0,
         'output_root': str(output_root),
         'free_parameters': DEVICE_FREE,
-        # The goodness-of-fit check rejects 1% of good fits (its significance level): the tests
-        # of other things must not depend on it (test_a_rejected_fit_... turns it back on).
-        'apply_rejected_fit': True,
         # Drawing the report's PNGs takes the calibrator many seconds while the sensor streams
         # hold the GIL; the tests need the tables (test_report and test_end_to_end draw them).
         'write_report_plots': False,
@@ -486,8 +483,9 @@ def test_a_device_that_does_not_follow_the_platform_is_detected(ros_context, tmp
 
 
 def applying_to_nobody(ros_context, tmp_path, **overrides):
-    """A 4-posture run fitting only D0 and gamma (the leg offsets' errors stay unmodelled, so the
-    goodness of fit rejects it) that applies its result to a node that does not exist."""
+    """A 4-posture run fitting only D0 and gamma (the leg offsets stay at their wrong nominal
+    values: a wrong datum, so the accuracy the device measures misses the requirement) that
+    applies its result to a node that does not exist."""
     perturbed_truth(tmp_path / 'true.yaml')
     parameters = {
         'posture_count': 4,
@@ -504,8 +502,10 @@ def applying_to_nobody(ros_context, tmp_path, **overrides):
 
 
 def test_a_failed_apply_is_reported(ros_context, tmp_path):
-    # The fit is rejected: apply it anyway, explicitly.
-    suite = applying_to_nobody(ros_context, tmp_path, apply_rejected_fit=True)
+    # Every wrong parameter free: the result is accepted, so the apply is tried.
+    suite = applying_to_nobody(
+        ros_context, tmp_path, free_parameters=DEVICE_FREE, posture_count=8, pool_size=80
+    )
     try:
         response = suite.wait(suite.call())
         assert not response.success
@@ -520,19 +520,26 @@ def test_a_failed_apply_is_reported(ros_context, tmp_path):
         suite.close()
 
 
-def test_a_rejected_fit_is_written_but_not_applied(ros_context, tmp_path):
-    suite = applying_to_nobody(ros_context, tmp_path, apply_rejected_fit=False)
+def test_a_wrong_datum_is_written_but_not_applied(ros_context, tmp_path):
+    """Garbage through the nodes: leg offsets held at wrong values. The device measures the
+    held-out postures millimetres from where the model puts them: the result is written, not
+    applied, and the response says which condition failed and by how much; the goodness of fit
+    stays a diagnostic beside it."""
+    suite = applying_to_nobody(ros_context, tmp_path)
     try:
         response = suite.wait(suite.call())
         assert not response.success
-        assert 'does NOT explain the data' in response.message
-        assert 'result REJECTED by the goodness-of-fit check' in response.message
+        assert response.message.startswith('calibration NOT ACCEPTED')
+        assert 'exceeds the required 0.1 mm' in response.message
+        assert 'does NOT explain the data' in response.message  # the diagnostic
         assert 'parameter service' not in response.message  # no apply was attempted
         parsed = parse_response(response.message)
         result_yaml = RunDirectory(parsed.run_directory).path / 'result.yaml'
-        assert 'REJECTED' in result_yaml.read_text()
+        assert 'NOT ACCEPTED' in result_yaml.read_text()
         data = json.loads((result_yaml.parent / 'result.json').read_text())
-        assert data['fit_accepted'] is False and data['goodness_of_fit']['p_value'] < 0.01
+        assert data['accepted'] is False and data['fit_accepted'] is False
+        assert data['accuracy']['calibrated']['position_mm']['mean'] > 0.1
+        assert any('exceeds the required' in f for f in data['acceptance']['failures'])
         assert set(data['noise_estimates']) == {'leg_lengths', 'inclinometer', 'encoder', 'lvdt'}
     finally:
         suite.close()

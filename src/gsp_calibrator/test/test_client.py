@@ -193,3 +193,27 @@ def test_main_help_exits_cleanly(argv, capsys):
         client.main(argv)
     assert exit_info.value.code == 0
     assert 'gsp_calibrate_client' in capsys.readouterr().out
+
+
+class FakeChecker(FakeCalibrator):
+    """A calibrator's /gsp/calibrator/check answering ``verdict``."""
+
+    def __init__(self, context, verdict):
+        super().__init__(context, service=names.SERVICE_CHECK)
+        self.verdict = verdict
+
+    def _calibrate(self, request, response):
+        self.calls += 1
+        response.success = True
+        response.message = f'check: {self.verdict} (platform default, 9 postures)\nrun directory: x'
+        return response
+
+
+@pytest.mark.parametrize(
+    ('verdict', 'code'), [('WITHIN TOLERANCE', client.EXIT_OK), ('RECALIBRATE', 3)]
+)
+def test_client_check_calls_the_check_and_exits_by_its_verdict(ros_context, verdict, code):
+    with FakeChecker(ros_context, verdict) as fake:
+        found, out, _ = _run(ros_context, '--check', '--wait-timeout', '10', '--no-progress')
+    assert fake.calls == 1 and found == code
+    assert out.startswith(f'check: {verdict}')

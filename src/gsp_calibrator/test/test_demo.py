@@ -11,8 +11,9 @@ import pytest
 from gsp_testing import wait_until
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
-from gsp_calibrator.tools import demo, demo_commands
+from gsp_calibrator.tools import demo, demo_commands, demo_summary
 from gsp_calibrator.tools.processes import NodeProcesses
+from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 
@@ -48,7 +49,6 @@ def test_node_commands(tmp_path):
         f'output_root:={tmp_path}',
         'posture_count:=30',
         'apply_result:=true',
-        'apply_rejected_fit:=true',
         f'nominal_geometry_file:={args.nominal_geometry}',
         'sync_tolerance:=0.005',
     ):
@@ -77,8 +77,30 @@ def test_the_realistic_device_preset_sets_the_device_and_the_settle_look_back(tm
     assert 'settle_lookback:=0.0' in plain['calibrator']
 
 
+def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):
+    preset = PRESETS['realistic'].to_parameters('effects.')
+    args = demo.parse_arguments(['--platform-effects', 'realistic'])
+    platform = demo_commands.node_commands(args, str(tmp_path), lambda n: n)['platform_sim']
+    given = dict(arg.split(':=', 1) for arg in platform if arg.startswith('effects.'))
+    assert set(given) == set(preset)
+    for name, value in preset.items():
+        text = given[name]
+        # A double (or double array) to ROS: every number written with a decimal point.
+        numbers = text.strip('[]').split(', ')
+        assert all('.' in number for number in numbers), (name, text)
+        np.testing.assert_array_equal(np.array(numbers, dtype=float), np.ravel(value))
+    plain = demo_commands.node_commands(demo.parse_arguments([]), str(tmp_path), lambda n: n)
+    assert not any(arg.startswith('effects.') for arg in plain['platform_sim'])
+
+
 @pytest.mark.parametrize(
-    'argv', [['--postures', '0'], ['--sensor-rate', '0'], ['--settle-time', '-1']]
+    'argv',
+    [
+        ['--postures', '0'],
+        ['--sensor-rate', '0'],
+        ['--settle-time', '-1'],
+        ['--platform-effects', 'realistic', '--platform', 'ros2_control'],
+    ],
 )
 def test_bad_arguments_are_rejected(argv):
     with pytest.raises(SystemExit):
@@ -116,11 +138,7 @@ def test_summary_has_the_keys_of_the_issue():
         'total_s',
         'run_directory',
         'collection',
-        'goodness_of_fit',
-        'noise_source',
-        'noise_estimates',
-        'verdict',
-        'fit_accepted',
+        *demo_summary.FIT_KEYS,
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}

@@ -19,7 +19,7 @@ from gsp_calibrator.report.data import validation_errors
 from gsp_calibrator.run.directory import RunDirectory, Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.postures import choose_postures
-from gsp_calibrator.run.response import LOWER_BOUND_NOTE, outcome_summary, parse_response
+from gsp_calibrator.run.response import outcome_summary, parse_response
 from gsp_calibrator.tools import client
 from gsp_calibrator.tools.reidentify import refresh_report
 from gsp_kinematics.geometry import default_geometry
@@ -43,7 +43,7 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
         tmp_path / 'true.yaml',
         # More postures than the other in-process tests: the estimate needs redundancy. A right
         # model is still rejected 1 run in 100 (the F test's level): that is the test's risk.
-        {'posture_count': 24, 'pool_size': 240, 'apply_result': True, 'apply_rejected_fit': False},
+        {'posture_count': 24, 'pool_size': 240, 'apply_result': True},
         platform_overrides=[
             Parameter('leg_lengths_noise_std', value=FACTOR * DEFAULT_SENSOR_NOISE.leg_lengths)
         ],
@@ -202,9 +202,9 @@ def test_correlated_device_noise_offline_is_estimated_and_accepted(postures, sam
     assert inclinometer['source'] == ('between' if lower_bound else 'pooled')
     # The summary says so on the inclinometer's line.
     lines = outcome_summary(outcome).splitlines()
-    noted = [line for line in lines if LOWER_BOUND_NOTE in line]
+    noted = [line for line in lines if 'within: lower bound' in line]
     assert noted == (
-        [next(x for x in lines if x.startswith('noise inclinometer'))] if lower_bound else []
+        [next(x for x in lines if x.startswith('sensor noise inclinometer'))] if lower_bound else []
     )
     rho = np.exp(-1.0 / (rate_hz * correlation_time))
     true_row = ar1_std_of_mean(DEFAULT_SENSOR_NOISE.inclinometer, rho, samples)

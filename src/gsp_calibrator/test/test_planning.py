@@ -37,7 +37,10 @@ def test_plan_json(tmp_path, capsys):
     sigmas = SensorNoise().averaged([4])
     chosen = postures.choose_postures(nominal, 30, 120, 0, sigmas)
     assert np.allclose(plan['selection']['poses'], chosen.poses)
-    assert 'rank 51 of 51' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert 'rank 51 of 51' in out
+    # It says what it assumes: a platform that is exactly the model (docs/verdict.md).
+    assert 'exactly the model' in predicted['assumes'] and 'the prediction assumes' in out
 
 
 def test_more_samples_predict_better_accuracy():

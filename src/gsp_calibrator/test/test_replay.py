@@ -481,7 +481,9 @@ CALIBRATION = {
     'seed': 5,
     'topic_timeout': 10.0,
     'settle_timeout': 10.0,
-    'apply_rejected_fit': True,  # the test is of the replay, not of the goodness of fit
+    # The test is of the replay, not of the verdict: 14 postures for 51 parameters leave each
+    # fold's fit (12 postures) poor, so the held-out accuracy misses the default 0.1 mm.
+    'required_position_accuracy_mm': 10.0,
     'write_report_plots': False,  # ... nor of the report's plots (slow to draw)
     # A replayed samples.csv republishes averaged rows, without the within-posture scatter an
     # estimated noise uses: the replay gives the same calibration with the configured sigmas.

@@ -250,7 +250,13 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     with_plots, without_plots = written[True], written[False]
     pngs = sorted(p.name for p in with_plots.glob('*.png'))
     assert pngs == sorted(
-        ['parameter_errors.png', 'chain_errors.png', 'residuals.png', 'accuracy_map.png']
+        [
+            'parameter_errors.png',
+            'chain_errors.png',
+            'residuals.png',
+            'accuracy_map.png',
+            'held_out_accuracy.png',
+        ]
     )
     assert not list(without_plots.glob('*.png'))
     assert (without_plots / RESULT_FILE).read_text() == (with_plots / RESULT_FILE).read_text()
@@ -258,10 +264,12 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     skipped = _strict_json(without_plots / 'result.json')
     assert skipped['options'] == {'plots': False} and drawn['options'] == {'plots': True}
     drawn.pop('duration_s'), skipped.pop('duration_s')  # wall time
+    drawn['accuracy'].pop('duration_s'), skipped['accuracy'].pop('duration_s')
     assert {**skipped, 'options': None} == {**drawn, 'options': None}
     text = (without_plots / 'report.md').read_text(encoding='utf-8')
     assert PLOTS_SKIPPED_NOTE in text and '.png' not in text
     assert PLOTS_SKIPPED_NOTE not in (with_plots / 'report.md').read_text(encoding='utf-8')
+    assert '](held_out_accuracy.png)' in (with_plots / 'report.md').read_text(encoding='utf-8')
     tables = [
         line
         for line in (with_plots / 'report.md').read_text(encoding='utf-8').splitlines()

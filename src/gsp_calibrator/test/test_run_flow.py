@@ -123,8 +123,8 @@ class FakeHost:
             future.set_result(postures.choose_postures(*postures.selection_arguments(settings)))
             return future
 
-        async def deliver_result(settings, geometry, fit_accepted):
-            self.delivered.append((geometry, fit_accepted))
+        async def deliver_result(settings, geometry, accepted):
+            self.delivered.append((geometry, accepted))
             return True, 'applied to the fake platform'
 
         self.host = RunHost(
@@ -182,7 +182,8 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     assert success, message
     parsed = parse_response(message)
     assert 'applied to the fake platform' in parsed.summary
-    ((geometry, fit_accepted),) = host.delivered
+    ((geometry, accepted),) = host.delivered
+    assert accepted  # the verdict: what the delivery applies
     # 30 postures of 10 samples at Table 3's first noise level: every parameter within 0.05 mm
     # (0.05 deg for gamma) of the truth; the nominal is off by millimetres.
     assert np.max(np.abs(parameter_errors(geometry, host.truth))) < 0.05

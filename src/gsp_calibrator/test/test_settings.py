@@ -33,7 +33,7 @@ def test_defaults():
     assert DEFAULTS['samples_per_posture'] == 10
     assert DEFAULTS['sync_tolerance'] == pytest.approx(0.0025)
     assert DEFAULTS['free_parameters'] == ['extended']
-    assert DEFAULTS['loss'] == 'linear' and DEFAULTS['apply_rejected_fit'] is False
+    assert DEFAULTS['loss'] == 'linear' and DEFAULTS['required_position_accuracy_mm'] == 0.1
     assert DEFAULTS['formulation'] == 'implicit' and DEFAULTS['output_root'] == 'runs'
     assert DEFAULTS['apply_result'] is False and DEFAULTS['platform_node_name'] == 'platform_sim'
     assert DEFAULTS['nominal_geometry_file'] == default_geometry_path('nominal')

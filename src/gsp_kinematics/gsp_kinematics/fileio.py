@@ -77,3 +77,10 @@ def to_json(value):
 def write_json(path, value):
     """Write ``value`` as strict JSON to ``path`` atomically."""
     return atomic_write_text(path, to_json(value))
+
+
+def yaml_float(value):
+    """``repr`` of a float that YAML 1.1 (and a ROS ``-p`` argument) reads back as a float:
+    ``1e-08`` would be a string, ``1.0e-08`` is not."""
+    text = repr(float(value))
+    return text.replace('e', '.0e') if 'e' in text and '.' not in text else text

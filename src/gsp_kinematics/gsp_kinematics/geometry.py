@@ -13,7 +13,8 @@ from importlib import resources
 import numpy as np
 import yaml
 
-from .fileio import atomic_write_text
+from .effects.groups import EFFECT_GROUPS, IdentifiedEffects
+from .fileio import atomic_write_text, yaml_float
 
 NUM_LEGS = 6
 NUM_PARAMETERS = 44
@@ -150,6 +151,8 @@ class Geometry:
     inclinometer_axes_angle: float  #: gamma, rad
     limits: Limits = dataclasses.field(default_factory=Limits)
     sensors: SensorErrors = dataclasses.field(default_factory=SensorErrors)
+    #: Identified effects the controller compensates (docs/platform_effects.md; none: rigid).
+    effects: IdentifiedEffects = dataclasses.field(default_factory=IdentifiedEffects)
 
     def __post_init__(self):
         for name, shape in (
@@ -232,6 +235,15 @@ SENSOR_KEYS = {
     'encoder_offset': None,
     'lvdt_gain_error': None,
 }
+_EFFECTS = f'{GEOMETRY_NAMESPACE}.effects'
+_EFFECT_STEMS = tuple(stem for stem, _, _ in EFFECT_GROUPS.values())
+#: ``geometry.effects.*`` keys (optional section) -> number of values (None: a scalar).
+EFFECT_KEYS = {
+    **dict.fromkeys(_EFFECT_STEMS, NUM_LEGS),
+    'payload_mass': None,
+    'centre_of_mass': 3,
+    'reference_time': None,
+}
 
 
 def geometry_to_parameters(geometry):
@@ -250,7 +262,46 @@ def geometry_to_parameters(geometry):
     parameters[f'{_SENSORS}.inclinometer_offsets'] = sensors.inclinometer_offsets.tolist()
     parameters[f'{_SENSORS}.encoder_offset'] = sensors.encoder_offset
     parameters[f'{_SENSORS}.lvdt_gain_error'] = sensors.lvdt_gain_error
+    parameters.update(_effect_parameters(geometry.effects))
     return parameters
+
+
+def _effect_parameters(effects):
+    """``{'geometry.effects.<key>': value}`` of :data:`EFFECT_KEYS`."""
+    # The mass first: set one at a time (ros2 param load), a compliance needs it.
+    parameters = {
+        f'{_EFFECTS}.payload_mass': float(effects.payload_mass),
+        f'{_EFFECTS}.centre_of_mass': [float(v) for v in effects.centre_of_mass],
+        f'{_EFFECTS}.reference_time': float(effects.reference_time_s),
+    }
+    blocks = effects.values.reshape(len(_EFFECT_STEMS), NUM_LEGS)
+    for stem, block in zip(_EFFECT_STEMS, blocks, strict=True):
+        parameters[f'{_EFFECTS}.{stem}'] = block.tolist()
+    return parameters
+
+
+def _effects_from_parameters(parameters):
+    """The optional ``geometry.effects`` section (absent keys: 0, nothing compensated)."""
+    values = {}
+    for key, length in EFFECT_KEYS.items():
+        full = f'{_EFFECTS}.{key}'
+        if parameters.get(full) is not None:
+            raw = parameters[full]
+            values[key] = (
+                _finite_float(raw, full) if length is None else _finite_list(raw, length, full)
+            )
+    mass = values.get('payload_mass', 0.0)
+    if mass < 0.0 or (np.any(values.get('compliance', 0.0)) and not mass > 0.0):
+        raise GeometryError(
+            f'{_EFFECTS}.payload_mass: the compliance needs the mass it was identified for '
+            f'(> 0 kg), got {mass}'
+        )
+    return IdentifiedEffects(
+        np.concatenate([values.get(stem, np.zeros(NUM_LEGS)) for stem in _EFFECT_STEMS]),
+        mass,
+        tuple(values.get('centre_of_mass', (0.0, 0.0, 0.0))),
+        values.get('reference_time', 0.0),
+    )
 
 
 def _finite_float(value, key):
@@ -330,6 +381,7 @@ def geometry_from_parameters(parameters, default_limits=None):
         inclinometer_axes_angle=values['inclinometer_axes_angle'],
         limits=limits,
         sensors=_sensor_errors_from_parameters(parameters),
+        effects=_effects_from_parameters(parameters),
     )
 
 
@@ -387,7 +439,7 @@ def geometry_to_yaml(geometry, node_name='/**', comment=None, extra_parameters=N
     """Serialise to the canonical params-file text (full float precision)."""
 
     def floats(values):
-        return '[' + ', '.join(repr(float(value)) for value in values) + ']'
+        return '[' + ', '.join(yaml_float(value) for value in values) + ']'
 
     lines = []
     if comment:
@@ -419,6 +471,11 @@ def geometry_to_yaml(geometry, node_name='/**', comment=None, extra_parameters=N
             f'        encoder_offset: {sensors.encoder_offset!r}  # phi0, rad',
             f'        lvdt_gain_error: {sensors.lvdt_gain_error!r}  # kDm',
         ]
+    if not geometry.effects.none:  # docs/platform_effects.md; none: no section
+        lines.append('      effects:  # identified, compensated by the controller')
+        for name, value in _effect_parameters(geometry.effects).items():
+            text = floats(value) if isinstance(value, list) else yaml_float(value)
+            lines.append(f'        {name.rpartition(".")[2]}: {text}')
     for key, value in (extra_parameters or {}).items():
         lines.append(f'    {key}: {yaml.safe_dump(value, default_flow_style=True).strip()}')
     return '\n'.join(lines) + '\n'

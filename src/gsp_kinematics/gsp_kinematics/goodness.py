@@ -199,6 +199,73 @@ def outlier_postures(normalised, threshold=DEFAULT_OUTLIER_THRESHOLD, columns=No
     return report
 
 
+#: Nearest postures (in pose space) whose residuals a posture's are compared with.
+NEIGHBOURS = 5
+#: The neighbour test's threshold when the model does not explain the data, in multiples of the
+#: studentised test's: a real platform's residual field changes faster than 60 postures sample
+#: it (compliance at the workspace's extremes reaches 11 robust sigmas from its neighbours on
+#: the realistic platform, docs/verdict.md); a bad row (a glitch, a wrong pose) stands out by
+#: far more.
+NEIGHBOUR_THRESHOLD_FACTOR = 3.0
+#: Metres per radian when postures are compared in pose space (a rotation of 1 rad moves the
+#: platform's joints by about half a metre).
+POSE_SCALE_M_PER_RAD = 0.5
+
+
+def neighbour_deviations(normalised, poses, neighbours=NEIGHBOURS):
+    """Each posture's residuals (M, k) minus the mean of its ``neighbours`` nearest postures' in
+    pose space (``poses`` (M, 6), angles at :data:`POSE_SCALE_M_PER_RAD`), in units of the
+    robust scale (1.4826 MAD) of these differences in each column. A residual field that is a
+    smooth function of the pose (an unmodelled error) gives small deviations everywhere; a
+    posture inconsistent with its neighbours (a bad row) stands out. NaN rows stay NaN."""
+    normalised = np.asarray(normalised, dtype=float)
+    scaled = np.array(poses, dtype=float)
+    scaled[:, 3:] *= POSE_SCALE_M_PER_RAD
+    usable = np.all(np.isfinite(normalised), axis=1)
+    distance = np.linalg.norm(scaled[:, None, :] - scaled[None, :, :], axis=2)
+    distance[:, ~usable] = np.inf
+    np.fill_diagonal(distance, np.inf)
+    count = max(1, min(int(neighbours), int(usable.sum()) - 1))
+    nearest = np.argsort(distance, axis=1)[:, :count]
+    deviations = normalised - np.nanmean(normalised[nearest], axis=1)
+    deviations[~usable] = np.nan
+    if usable.sum() < 3:
+        return np.zeros_like(deviations)
+    centre = np.nanmedian(deviations, axis=0)
+    scale = 1.4826 * np.nanmedian(np.abs(deviations - centre), axis=0)
+    scale = np.where(scale > 0.0, scale, 1.0)
+    return deviations / scale
+
+
+def isolated_outliers(outliers, normalised, poses, threshold=DEFAULT_OUTLIER_THRESHOLD):
+    """The entries of ``outliers`` (:func:`outlier_postures`) whose postures are also
+    inconsistent with their neighbours (:func:`neighbour_deviations` of ``normalised`` beyond
+    the threshold below; ``threshold`` None: Bonferroni as there): a large residual in a smooth field of large
+    residuals is the model's error, not the posture's. Each kept entry gets its
+    ``neighbour_deviation``."""
+    if not outliers:
+        return []
+    deviations = neighbour_deviations(normalised, poses)
+    if threshold is None:
+        threshold = bonferroni_threshold(np.count_nonzero(np.isfinite(deviations)))
+    kept = []
+    for entry in outliers:
+        worst = float(np.nanmax(np.abs(deviations[entry['posture']]), initial=0.0))
+        if worst > threshold:
+            kept.append({**entry, 'neighbour_deviation': worst})
+    return kept
+
+
+def outliers_beside_model_error(outliers, residual_count, threshold=None):
+    """The entries of :func:`isolated_outliers` that stand out from their neighbours by
+    :data:`NEIGHBOUR_THRESHOLD_FACTOR` times ``threshold`` (None: Bonferroni over
+    ``residual_count``): the outliers of a fit whose model does not explain the data."""
+    if threshold is None:
+        threshold = bonferroni_threshold(residual_count)
+    limit = NEIGHBOUR_THRESHOLD_FACTOR * threshold
+    return [entry for entry in outliers if entry.get('neighbour_deviation', math.inf) > limit]
+
+
 def down_weighted_postures(weights, below=0.999):
     """``[{'posture', 'weight'}]``: postures whose smallest residual weight is below ``below``."""
     weights = np.asarray(weights, dtype=float)

@@ -28,6 +28,18 @@ from . import channels, goodness
 from ._solver.formulations import _FkModel, _ImplicitModel
 from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
+from .effects.groups import (
+    EFFECT_PARAMETER_NAMES,
+    NUM_EFFECT_PARAMETERS,
+    EffectDesign,
+    EffectDesignError,
+    EffectTerms,
+    effect_estimates,
+    effect_terms_of,
+    geometry_with_effects,
+    is_effect_name,
+    resolve_effects,
+)
 from .geometry import (
     ALL_PARAMETER_NAMES,
     NUM_ALL_PARAMETERS,
@@ -113,6 +125,18 @@ class IdentificationResult:
     #: (M, k) redundancy numbers of the residuals (their variance under the model; None: no fit)
     redundancy: np.ndarray | None = None
     robust_weights: np.ndarray | None = None  #: (M, k) IRLS weights of a robust fit (None: 1)
+    #: The effect parameters (:data:`gsp_kinematics.effects.groups.EFFECT_PARAMETER_NAMES`, 24):
+    #: which are free, their estimates (0 when fixed) and standard deviations (NaN when fixed).
+    #: ``covariance`` and ``information`` cover the free parameters, then the free effects.
+    effect_free: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS, bool)
+    )
+    effect_values: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS)
+    )
+    effect_standard_deviations: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.full(NUM_EFFECT_PARAMETERS, np.nan)
+    )
 
     def variance_components(self):
         """``{channel: (q, r)}`` of the residuals (:func:`goodness.variance_components`)."""
@@ -131,9 +155,28 @@ class IdentificationResult:
 
     @property
     def free_names(self):
-        return [
-            name for name, is_free in zip(ALL_PARAMETER_NAMES, self.free, strict=True) if is_free
+        """The free parameters, then the free effect parameters (the covariance's order)."""
+        names = [name for name, free in zip(ALL_PARAMETER_NAMES, self.free, strict=True) if free]
+        return names + [
+            name
+            for name, free in zip(EFFECT_PARAMETER_NAMES, self.effect_free, strict=True)
+            if free
         ]
+
+    @property
+    def effects(self):
+        """``{name: (estimate, standard deviation)}`` of the free effect parameters (SI)."""
+        return {
+            name: (float(value), float(deviation))
+            for name, free, value, deviation in zip(
+                EFFECT_PARAMETER_NAMES,
+                self.effect_free,
+                self.effect_values,
+                self.effect_standard_deviations,
+                strict=True,
+            )
+            if free
+        }
 
     @property
     def sensor_errors_free(self):
@@ -154,19 +197,32 @@ class IdentificationResult:
         return pairs
 
 
-def free_parameters_error(names):
-    """Reason ('' if none) why ``names`` (parameter and group names, :data:`PARAMETER_GROUPS`) is
-    not a set of free parameters: empty, unknown or duplicated names. The one check of a
-    free-parameter list, for the calibrator's ``free_parameters`` and every command line."""
+def free_parameters_error(names, effects=True):
+    """Reason ('' if none) why ``names`` (parameter and group names, :data:`PARAMETER_GROUPS`;
+    with ``effects``, also the effect groups and their parameters, ``effects.groups``) is not a
+    set of free parameters: empty, unknown or duplicated names. The one check of a free-parameter
+    list, for the calibrator's ``free_parameters`` (``effects=False``: the calibrator has no
+    effect design) and every command line."""
     names = list(names)
     if not names:
         return 'must name at least one parameter'
-    unknown = [n for n in names if n not in PARAMETER_INDEX and n not in PARAMETER_GROUPS]
+    unknown = [
+        n
+        for n in names
+        if n not in PARAMETER_INDEX
+        and n not in PARAMETER_GROUPS
+        and not (effects and is_effect_name(n))
+    ]
     if unknown:
+        effect_names = (
+            ", or effect groups 'compliance', 'backlash', 'thermal', 'joint_offsets'"
+            if effects
+            else ''
+        )
         return (
             f'unknown parameter name(s) {unknown}; expected groups ({", ".join(PARAMETER_GROUPS)}) '
             'or names among A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma, kq1..kq6, alpha0, '
-            'beta0, phi0, kDm'
+            f'beta0, phi0, kDm{effect_names}'
         )
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
@@ -195,6 +251,8 @@ def resolve_free(free):
         raise IdentificationError(f'free parameters: {reason}')
     mask = np.zeros(NUM_ALL_PARAMETERS, dtype=bool)
     for name in free:
+        if is_effect_name(name):  # the effect groups and their parameters: resolve_effects
+            continue
         members = PARAMETER_GROUPS.get(name, (name,))
         mask[[PARAMETER_INDEX[member] for member in members]] = True
     return mask
@@ -250,6 +308,7 @@ def identify(
     pose_guesses=None,
     sensors=SENSOR_NAMES,
     options=Options(),
+    effects=None,
 ):
     """Identify the free parameters from M postures.
 
@@ -257,7 +316,9 @@ def identify(
     ``[alpha, beta, phi, d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (e.g. the
     commanded postures); by default built from the device readings. ``sensors`` drops
     measurements (e.g. without ``'d_m'``) for identifiability studies. ``free``: see
-    :func:`resolve_free` (default the paper's 44). ``options.loss`` other than ``'linear'``
+    :func:`resolve_free` (default the paper's 44); effect groups and parameters among it
+    (:mod:`gsp_kinematics.effects.groups`, ``'implicit'`` only) need ``effects``, an
+    :class:`EffectDesign` of the run (times, approach directions, the payload). ``options.loss`` other than ``'linear'``
     reweights each residual by the loss (IRLS, scale ``options.loss_scale`` sigmas).
     """
     if formulation not in FORMULATIONS:
@@ -275,13 +336,17 @@ def identify(
         goodness.check_loss(options.loss, options.loss_scale)
     except ValueError as error:
         raise IdentificationError(str(error)) from None
+    effect_mask = resolve_effects([] if free is None or isinstance(free, np.ndarray) else free)
     free = resolve_free(free)
     leg_lengths, readings, pose_guesses = _check_inputs(
         nominal, leg_lengths, readings, pose_guesses
     )
+    terms = _effect_terms(nominal, effects, effect_mask, formulation, len(leg_lengths))
     started = time.perf_counter()
     if formulation == 'implicit':
-        model = _ImplicitModel(nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors)
+        model = _ImplicitModel(
+            nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors, terms
+        )
     else:
         model = _FkModel(
             nominal,
@@ -301,6 +366,21 @@ def identify(
     result = _result(model, point, formulation, status, iterations, options)
     result.duration_s = time.perf_counter() - started
     return result
+
+
+def _effect_terms(nominal, design, mask, formulation, count):
+    """The :class:`EffectTerms` of the free effect parameters (None without any)."""
+    if not mask.any():
+        return None
+    if formulation != 'implicit':
+        raise IdentificationError(
+            f"the effect groups need formulation 'implicit' (the leg readings are residuals), "
+            f'got {formulation!r}'
+        )
+    try:
+        return EffectTerms(nominal, design or EffectDesign(), mask, count)
+    except EffectDesignError as error:
+        raise IdentificationError(str(error)) from None
 
 
 def _robust_rounds(model, point, status, iterations, options):
@@ -334,10 +414,12 @@ def _result(model, point, formulation, status, iterations, options):
         # Each residual against its own standard deviation under the noise the residuals show:
         # wrong sigmas scale every residual of a channel alike and name no posture.
         components = goodness.variance_components(residuals, redundancy, columns, weights)
-        outliers = goodness.outlier_postures(
-            goodness.studentised(residuals, redundancy, columns, components),
+        studentised = goodness.studentised(residuals, redundancy, columns, components)
+        outliers = goodness.isolated_outliers(
+            goodness.outlier_postures(studentised, options.outlier_threshold, columns),
+            studentised,
+            model.estimated_poses(point),
             options.outlier_threshold,
-            columns,
         )
         excluded = []
         if weights is not None:
@@ -348,9 +430,10 @@ def _result(model, point, formulation, status, iterations, options):
         fit = goodness.goodness_of_fit(residuals, unknowns, excluded)
     if status < 0:
         cost = float('nan')
-        information = covariance = np.eye(int(free.sum())) * np.nan
+        size = int(free.sum()) + (effect_terms_of(model).count if effect_terms_of(model) else 0)
+        information = covariance = np.eye(size) * np.nan
     else:
-        vector[free] = point.values
+        vector[free] = point.values[: int(free.sum())]
         cost = point.cost
         information = model.information(point)
         covariance = _safe_inverse(information)
@@ -358,10 +441,16 @@ def _result(model, point, formulation, status, iterations, options):
             values = residuals[:, column] / weight
             values = values[np.isfinite(values)]
             rms[name] = float(np.sqrt(np.mean(values**2))) if values.size else float('nan')
+    all_deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     deviations = np.full(NUM_ALL_PARAMETERS, np.nan)
-    deviations[free] = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    deviations[free] = all_deviations[: int(free.sum())]
+    effect_free, effect_values, effect_deviations = effect_estimates(
+        model, point, status, all_deviations
+    )
     return IdentificationResult(
-        geometry=Geometry.from_full_vector(vector, model.limits),
+        geometry=geometry_with_effects(
+            Geometry.from_full_vector(vector, model.limits), model, effect_values
+        ),
         parameters=vector,
         standard_deviations=deviations,
         covariance=covariance,
@@ -384,6 +473,9 @@ def _result(model, point, formulation, status, iterations, options):
         down_weighted=down_weighted,
         redundancy=redundancy,
         robust_weights=weights,
+        effect_free=effect_free,
+        effect_values=effect_values,
+        effect_standard_deviations=effect_deviations,
     )
 
 

@@ -13,10 +13,14 @@ Two independent estimates of each channel's row noise (legs, inclinometer, encod
 
 Where both exist and agree (the between/within F test of the channel accepts at 1 %, Bonferroni
 over the channels), the pooled variance ``(r_g v_between + d_g v_within) / (r_g + d_g)`` is used;
-where the between-posture residuals are significantly larger, the between estimate (the within
-scatter misses part of the noise) and likewise where the within estimate is only a lower bound;
-where only one exists, that one. The goodness of fit is then the lack-of-fit F test
-(:func:`fit_test`) over the channels whose within estimate is not a lower bound.
+where the between-posture residuals are significantly larger, the weights take the between
+estimate (the rows do scatter that much about the model) but the *noise* stays the within
+estimate, and the excess is the **unmodelled** part, ``sqrt(between^2 - within^2)``: what the
+model leaves unexplained, a property of the platform that averaging does not reduce
+(:func:`unmodelled_error`, docs/verdict.md). Where the within estimate is only a lower bound,
+the between estimate is both weight and noise (nothing tells the two apart); where only one
+exists, that one. The goodness of fit is then the lack-of-fit F test (:func:`fit_test`) over the
+channels whose within estimate is not a lower bound.
 """
 
 import dataclasses
@@ -75,6 +79,14 @@ class ChannelNoise:
     #: the within estimate is only a lower bound (windows too short against the correlation)
     within_lower_bound: bool = False
     within_n_eff: float = math.nan  #: effective sample count of a row (within-posture)
+    #: the measurement noise of a row: the within estimate where it is usable, else ``row``
+    noise: float | None = None
+    #: the excess of the between-posture residuals over the noise (a row std; 0: none shown)
+    unmodelled: float = 0.0
+
+    def __post_init__(self):
+        if self.noise is None:
+            object.__setattr__(self, 'noise', self.row)
 
 
 #: The channels of :func:`posture_lag_sums`, in order.
@@ -167,7 +179,8 @@ def _combine(between, redundancy, within, significance):
         return ChannelNoise(between, 'between', *parts, math.nan, *flags)
     p_value = float(special.fdtrc(redundancy, within.dof, (between / within.row) ** 2))
     if p_value < significance:
-        return ChannelNoise(between, 'between', *parts, p_value, *flags)
+        excess = math.sqrt(max(between**2 - within.row**2, 0.0))
+        return ChannelNoise(between, 'between', *parts, p_value, *flags, within.row, excess)
     pooled = (redundancy * between**2 + within.dof * within.row**2) / (redundancy + within.dof)
     return ChannelNoise(math.sqrt(pooled), 'pooled', *parts, p_value, *flags)
 
@@ -251,21 +264,42 @@ def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within,
 def identify_with_noise(source, nominal, leg_lengths, readings, row_sigmas, within, **options):
     """``(result, {channel: ChannelNoise}, SensorNoise of the rows used)`` with the weights of
     ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``) or
-    ``configured`` (``row_sigmas``; the estimate is made from the fit and only reported)."""
+    ``configured`` (``row_sigmas``; the estimate is made from the fit and only reported).
+    When the goodness of fit rejects the model, only the outliers that stand out from a smooth
+    field of model error are kept (:func:`goodness.outliers_beside_model_error`)."""
     check_noise_source(source)
     if source == 'estimated':
-        return identify_with_estimated_noise(
+        result, estimates, used = identify_with_estimated_noise(
             nominal, leg_lengths, readings, row_sigmas, within, **options
         )
-    result = identify(nominal, leg_lengths, readings, row_sigmas, **options)
-    estimates = estimate_row_noise(result, row_sigmas, within) if result.converged else {}
-    return result, estimates, row_sigmas
+    else:
+        result = identify(nominal, leg_lengths, readings, row_sigmas, **options)
+        estimates = estimate_row_noise(result, row_sigmas, within) if result.converged else {}
+        used = row_sigmas
+    fit = result.goodness_of_fit
+    if fit is not None and fit.test != 'none' and not fit.accepted and result.outliers:
+        threshold = options.get('options')
+        threshold = None if threshold is None else threshold.outlier_threshold
+        count = int(np.count_nonzero(np.isfinite(result.residuals)))
+        result.outliers = goodness.outliers_beside_model_error(result.outliers, count, threshold)
+    return result, estimates, used
+
+
+def unmodelled_error(estimates):
+    """What the model leaves unexplained, per row (a ``SensorNoise`` of standard deviations, m
+    and rad: legs, inclinations, phi, d_m; 0 where a channel shows none) from
+    ``{channel: ChannelNoise}``; None when no channel shows any (the model explains the data)."""
+    excess = {channel: entry.unmodelled for channel, entry in estimates.items()}
+    if not any(value > 0.0 for value in excess.values()):
+        return None
+    return SensorNoise.from_channels(excess, default=SensorNoise(0.0, 0.0, 0.0, 0.0))
 
 
 def noise_record(estimates, configured, n_samples):
     """``{channel: {...}}`` for result.json: per-sample equivalents (SI: the row std times
-    ``sqrt(n)``, comparable with the configured ``sigma_<field>``) of the estimate, its
-    within-posture and between-posture parts, the row std, the source, the redundancy and the
+    ``sqrt(n)``, comparable with the configured ``sigma_<field>``) of the noise estimate, its
+    within-posture and between-posture parts, the row std the weights used and the
+    ``unmodelled`` part (a row std, SI: averaging does not reduce it), the source, the redundancy and the
     within-posture degrees of freedom and effective sample count of a row, whether the
     within-posture estimate is only a lower bound, the F test's p-value, and the ratio to the configured
     sigma with its warning (beyond 2x either way)."""
@@ -274,7 +308,7 @@ def noise_record(estimates, configured, n_samples):
     record = {}
     for channel, entry in estimates.items():
         sigma = float(getattr(configured, channel))
-        estimated = entry.row * root
+        estimated = entry.noise * root
         ratio, warning = goodness.noise_warning(estimated, sigma)
         record[channel] = {
             'configured': sigma,
@@ -282,6 +316,7 @@ def noise_record(estimates, configured, n_samples):
             'within_posture': None if entry.within is None else entry.within * root,
             'between_postures': None if entry.between is None else entry.between * root,
             'row_std': entry.row,
+            'unmodelled': entry.unmodelled,
             'source': entry.source,
             'redundancy': entry.redundancy,
             'within_dof': entry.within_dof,

@@ -9,6 +9,12 @@ so they compare with :func:`gsp_kinematics.validation.pose_errors`.
 
 Per pose the prediction is the expected error magnitude ``E|dp|`` (mm) and ``E|dw|`` (deg) of a
 zero-mean Gaussian with that covariance: what a validation's mean error estimates.
+
+A real platform is not exactly the model: what the model leaves unexplained (``unmodelled``, the
+excess of the residuals between postures over the noise within them, per channel:
+:func:`gsp_kinematics.noise_from_data.unmodelled_error`) puts the legs and the device at odds
+at every pose, fitted or not. Its pose covariance (:func:`reading_pose_covariance`: the legs'
+part through FK, the device's through eq 9) is added to the covariance term.
 """
 
 import dataclasses
@@ -16,6 +22,7 @@ import math
 
 import numpy as np
 
+from .device import device_readings, link_direction_derivatives
 from .geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX
 from .kinematics import (
     Workspace,
@@ -75,11 +82,40 @@ def expected_norm(covariances):
     return norms.mean(axis=1).reshape(eigenvalues.shape[:-1])
 
 
-def predicted_errors(geometry, covariance, poses, free=None):
+def reading_pose_covariance(geometry, poses, readings, stds):
+    """``(position (M, 3, 3) m^2, euler (M, 3, 3) rad^2)``: the covariance of the pose the legs
+    give (FK) against the pose the device gives, at ``poses`` (M, 6) with device ``readings``
+    (M, 4), from independent errors of standard deviation ``stds`` (a ``SensorNoise``: per leg,
+    per inclination, phi and d_m) on each reading. The legs' part goes through FK
+    (``(dq/dX)^-1 (1 + kq)``: position and the Euler angles psi, theta, phi), the device's
+    through eq 9 (position) and the encoder (phi)."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
+    gains = np.broadcast_to(np.diag(1.0 + geometry.sensors.leg_gain_errors), d_q_d_pose.shape)
+    d_pose_d_legs = np.linalg.solve(d_q_d_pose, gains)
+    legs = stds.leg_lengths**2 * d_pose_d_legs @ np.swapaxes(d_pose_d_legs, 1, 2)
+    ideal = geometry.sensors.ideal_device_readings(np.atleast_2d(readings))
+    d_alpha, d_beta, _ = link_direction_derivatives(
+        ideal[:, 0], ideal[:, 1], geometry.inclinometer_axes_angle
+    )
+    length = geometry.device_length + ideal[:, 3]
+    direction = poses[:, :3] / np.linalg.norm(poses[:, :3], axis=1)[:, None]
+    slope = (1.0 + geometry.sensors.lvdt_gain_error) * stds.lvdt
+    outer = np.einsum('mi,mj->mij', d_alpha, d_alpha) + np.einsum('mi,mj->mij', d_beta, d_beta)
+    position = legs[:, :3, :3] + (length**2 * stds.inclinometer**2)[:, None, None] * outer
+    position = position + slope**2 * np.einsum('mi,mj->mij', direction, direction)
+    euler = legs[:, 3:, 3:].copy()
+    euler[:, 2, 2] += stds.encoder**2
+    return position, euler
+
+
+def predicted_errors(geometry, covariance, poses, free=None, unmodelled=None):
     """Predicted error magnitudes at ``poses`` (M, 6): ``(position_mm, orientation_deg)``, each (M,).
 
     ``covariance``: (n_free, n_free) of the free parameters (m, rad), e.g. an
     ``IdentificationResult.covariance``; ``free`` its mask (None: all parameters free).
+    ``unmodelled``: what the model leaves unexplained (a ``SensorNoise`` of standard deviations;
+    None: the platform is exactly the model), added to the covariance term.
     """
     sensitivity = pose_sensitivities(geometry, poses, free)
     covariance = np.asarray(covariance, dtype=float)
@@ -89,9 +125,16 @@ def predicted_errors(geometry, covariance, poses, free=None):
             f'parameters), got {covariance.shape}'
         )
     pose_covariance = sensitivity @ covariance @ np.swapaxes(sensitivity, 1, 2)
-    position_mm = 1000.0 * expected_norm(pose_covariance[:, :3, :3])
-    orientation_deg = np.degrees(expected_norm(pose_covariance[:, 3:, 3:]))
-    return position_mm, orientation_deg
+    position, rotation = pose_covariance[:, :3, :3], pose_covariance[:, 3:, 3:]
+    if unmodelled is not None:
+        poses = np.atleast_2d(np.asarray(poses, dtype=float))
+        extra_position, euler = reading_pose_covariance(
+            geometry, poses, device_readings(geometry, poses), unmodelled
+        )
+        angular = body_angular_jacobian(poses[:, 3:])
+        position = position + extra_position
+        rotation = rotation + angular @ euler @ np.swapaxes(angular, 1, 2)
+    return 1000.0 * expected_norm(position), np.degrees(expected_norm(rotation))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,8 +187,12 @@ def predict_accuracy(
     postures=500,
     seed=0,
     layout=MapLayout(),
+    unmodelled=None,
 ):
     """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
+
+    ``unmodelled``: what the model leaves unexplained (:func:`predicted_errors`; None: nothing,
+    the platform is exactly the model), added at every pose and said in ``assumes``.
 
     ``random``: ``{position_mm: {mean, p95, max}, orientation_deg: {...}, postures}`` over
     ``postures`` seeded random reachable postures; ``worst_cell``: the grid cell with the largest
@@ -155,7 +202,7 @@ def predict_accuracy(
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )
-    position, orientation = predicted_errors(geometry, covariance, random_poses, free)
+    position, orientation = predicted_errors(geometry, covariance, random_poses, free, unmodelled)
     maps = []
     worst = None
     for title, poses in map_panels(workspace, layout):
@@ -163,7 +210,7 @@ def predict_accuracy(
         cell_position = np.full(poses.shape[0], np.nan)
         cell_orientation = np.full(poses.shape[0], np.nan)
         if reachable.any():
-            found = predicted_errors(geometry, covariance, poses[reachable], free)
+            found = predicted_errors(geometry, covariance, poses[reachable], free, unmodelled)
             cell_position[reachable], cell_orientation[reachable] = found
             index = int(np.nanargmax(cell_position))
             if worst is None or cell_position[index] > worst['position_mm']:
@@ -186,7 +233,9 @@ def predict_accuracy(
             }
         )
     return {
-        'statistic': 'expected error magnitude E|dX| from the parameter covariance (1 sigma)',
+        'statistic': 'expected error magnitude E|dX| from the parameter covariance (1 sigma)'
+        + ('' if unmodelled is None else ' and the unmodelled error'),
+        'assumes': assumption(unmodelled),
         'units': {'position': 'mm', 'orientation': 'deg', 'pose': 'm, rad'},
         'random': {
             'position_mm': _statistics(position),
@@ -197,6 +246,21 @@ def predict_accuracy(
         'worst_cell': worst,
         'maps': maps,
     }
+
+
+def assumption(unmodelled):
+    """What a prediction assumes about the model error (plain text)."""
+    if unmodelled is None or not any(unmodelled.channels().values()):
+        return (
+            'the platform is exactly the model (no unmodelled error): on a real platform the '
+            "accuracy is worse by the model's unexplained part (docs/verdict.md)"
+        )
+    return (
+        f'the model leaves {1e6 * unmodelled.leg_lengths:.3g} um rms unexplained in the legs, '
+        f'{1e6 * unmodelled.inclinometer:.3g} urad in the inclinations, '
+        f'{1e6 * unmodelled.encoder:.3g} urad in phi and {1e6 * unmodelled.lvdt:.3g} um in d_m '
+        '(estimated from the run), added at every pose'
+    )
 
 
 def accuracy_summary(prediction):

@@ -58,6 +58,31 @@ _GEOMETRY_DESCRIPTIONS = {
         'Controller model: LVDT gain error kDm (unused by the platform)',
         '1',
     ),
+    # Identified effects, compensated by the controller (docs/platform_effects.md).
+    'geometry.effects.compliance': ('Identified effect: axial compliance of legs 1..6', 'm/N'),
+    'geometry.effects.backlash': (
+        'Identified effect: backlash of legs 1..6 (a leg arriving extending is driven half of '
+        'it further)',
+        'm',
+    ),
+    'geometry.effects.strain_rate': (
+        'Identified effect: thermal growth rate of legs 1..6 during the run (reported, not '
+        'compensated)',
+        '1/s',
+    ),
+    'geometry.effects.joint_offset': (
+        'Identified effect: distance between the two axes of base U joints 1..6',
+        'm',
+    ),
+    'geometry.effects.payload_mass': (
+        'The mass the compliance was identified for (the platform and its payload)',
+        'kg',
+    ),
+    'geometry.effects.centre_of_mass': ('Its centre, platform frame', 'm'),
+    'geometry.effects.reference_time': (
+        'Instant the geometry refers to (thermal growth), on the run clock',
+        's',
+    ),
 }
 
 #: The specs, nominal defaults; the whole set must stay a valid geometry.

@@ -63,6 +63,8 @@ TOPIC_LVDT = '/gsp/device/lvdt'
 # Calibrator interfaces.
 SERVICE_CALIBRATE = '/gsp/calibrator/calibrate'
 SERVICE_RESUME = '/gsp/calibrator/resume'
+#: The one-minute check of the platform against its latest calibration (docs/upkeep.md).
+SERVICE_CHECK = '/gsp/calibrator/check'
 TOPIC_CALIBRATION_RESULT = '/gsp/calibrator/result'
 TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
 
@@ -133,6 +135,7 @@ TOPIC_TYPES = {
 SERVICE_TYPES = {
     SERVICE_CALIBRATE: 'std_srvs/srv/Trigger',
     SERVICE_RESUME: 'std_srvs/srv/Trigger',
+    SERVICE_CHECK: 'std_srvs/srv/Trigger',
 }
 
 

@@ -15,12 +15,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from gsp_kinematics.kinematics import (
-    check_reachable,
-    forward_kinematics_masked,
-    home_pose,
-    inverse_kinematics,
-)
+from gsp_kinematics.effects.groups import commanded_leg_readings
+from gsp_kinematics.kinematics import check_reachable, forward_kinematics_masked, home_pose
 from gsp_kinematics.travel.motion import REALISTIC_MAX_SPEED, MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
@@ -208,8 +204,9 @@ class PlatformBridgeNode(Node):
         path, reason = self._path_to(pose)
         if reason:
             return reason
-        # The joints are the leg sensors: command what they must read (their gain errors applied).
-        waypoints = self._geometry.sensors.leg_readings(inverse_kinematics(self._geometry, path))
+        # The joints are the leg sensors: command what they must read (their gain errors applied,
+        # the identified effects compensated along the path from where the legs are).
+        waypoints = commanded_leg_readings(self._geometry, path, self._monitor.positions)
         limits = MotionLimits.from_parameters(
             self._values['max_leg_speed'], self._values['max_leg_acceleration']
         )

@@ -30,6 +30,7 @@ from gsp_msgs_py.geometry_parameters import (
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
+from .effect_specs import EFFECT_SPECS, effects_from_values, effects_summary
 from .markers import make_marker_array
 from .simulator import DEFAULT_MAX_CONDITION, PlatformSimulator
 
@@ -71,6 +72,7 @@ PARAMETERS = (
         'Base frame: of the published messages, and required of pose commands'
     ),
     parameter_specs.diagnostics_period_spec(),
+    *EFFECT_SPECS,
 )
 
 
@@ -94,6 +96,7 @@ class PlatformSimNode(Node):
         )
         seed = parameter_specs.resolve_seed(values['seed'])
         try:
+            effects = effects_from_values(values)
             self._simulator = PlatformSimulator(
                 true_geometry,
                 controller_geometry,
@@ -103,6 +106,8 @@ class PlatformSimNode(Node):
                 limits=MotionLimits.from_parameters(
                     values['max_leg_speed'], values['max_leg_acceleration']
                 ),
+                effects=effects,
+                start_s=self._now_s(),
             )
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
@@ -142,7 +147,7 @@ class PlatformSimNode(Node):
             f'settle time {values["settle_time"]:g} s, leg limits '
             f'{values["max_leg_speed"]:g} m/s and {values["max_leg_acceleration"]:g} m/s^2 '
             f'(0: none), seed {seed}, '
-            f'home pose {self._simulator.true_pose.round(6).tolist()}'
+            f'home pose {self._simulator.true_pose.round(6).tolist()}; {effects_summary(effects)}'
         )
 
     def _apply_parameters(self, changes):

@@ -15,24 +15,33 @@ starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.t
 between the start and the end poses at the legs' common fraction (FK of the legs at every tick
 would cost more than the readings are worth: the collection uses none taken before the settle).
 Without limits the platform jumps.
+
+Effects (:class:`gsp_kinematics.effects.model.PlatformEffects`, docs/platform_effects.md): the
+real platform may bend under its load, have backlash, grow with temperature and have offset
+joint axes. Its real pose then comes from :func:`gsp_kinematics.effects.real_pose.real_poses`
+with each leg's approach direction (from its previous reading) and the time since ``start_s``;
+at rest the pose follows the thermal growth (:meth:`PlatformSimulator.update`). The leg readings
+stay what the actuators read. A controller geometry with identified effects compensates them
+(:func:`gsp_kinematics.effects.groups.commanded_leg_readings`).
 """
 
 import dataclasses
 
 import numpy as np
 
-from gsp_kinematics.kinematics import (
-    check_reachable,
-    forward_kinematics_masked,
-    home_pose,
-    inverse_kinematics,
-)
+from gsp_kinematics.effects.groups import commanded_leg_readings
+from gsp_kinematics.effects.model import PlatformEffects, approach_directions, thermal_strains
+from gsp_kinematics.effects.real_pose import real_poses
+from gsp_kinematics.kinematics import check_reachable, home_pose
 from gsp_kinematics.travel.motion import LegMove
 
 #: Largest condition number of dq/dX a command may have (singularity guard). Above the
 #: ``Workspace().max_condition`` (60) used to sample postures, so sampled postures stay accepted
 #: after the controller geometry changes slightly.
 DEFAULT_MAX_CONDITION = 100.0
+#: Thermal growth (m, of a 1 m leg) since the resting pose was solved above which
+#: :meth:`PlatformSimulator.update` solves it again.
+THERMAL_RESOLVE_M = 1e-10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,6 +74,8 @@ class PlatformSimulator:
     sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
     through :meth:`command`; ValueError if the home pose is not reachable. ``limits``: the legs'
     :class:`gsp_kinematics.travel.motion.MotionLimits` (None: the platform jumps to each command).
+    ``effects``: the real platform's :class:`PlatformEffects` (None: none); ``start_s`` the time
+    (s, the clock of :meth:`command`) at which its legs start warming up.
     """
 
     def __init__(
@@ -76,8 +87,14 @@ class PlatformSimulator:
         max_condition=DEFAULT_MAX_CONDITION,
         initial_pose=None,
         limits=None,
+        effects=None,
+        start_s=0.0,
     ):
         self.limits = limits
+        self._effects = PlatformEffects() if effects is None else effects
+        self._start_s = float(start_s)
+        self._directions = None  # each leg's approach direction (+1 extending)
+        self._pose_time_s = self._start_s  # time of the thermal growth in the resting pose
         self._move = None  # the LegMove under way, with the real poses at its ends
         self._true_geometry = true_geometry
         self._controller_geometry = controller_geometry
@@ -88,7 +105,7 @@ class PlatformSimulator:
         self._true_pose = None
         self._commanded_pose = None
         start = home_pose() if initial_pose is None else initial_pose
-        outcome = self.command(start)
+        outcome = self.command(start, self._start_s)
         if not outcome.accepted:
             raise ValueError(
                 f'cannot reach the initial pose {np.asarray(start).tolist()}: {outcome.reason}'
@@ -99,6 +116,11 @@ class PlatformSimulator:
     @property
     def true_geometry(self):
         return self._true_geometry
+
+    @property
+    def effects(self):
+        """The real platform's :class:`PlatformEffects`."""
+        return self._effects
 
     @property
     def controller_geometry(self):
@@ -137,16 +159,41 @@ class PlatformSimulator:
         return self._move is not None
 
     def update(self, now_s):
-        """Advance the move under way to ``now_s`` (s, the clock of :meth:`command`)."""
+        """Advance the move under way to ``now_s`` (s, the clock of :meth:`command`); at rest,
+        follow the legs' thermal growth."""
         if self._move is None:
+            self._follow_thermal_growth(now_s)
             return
         move, start_pose, end_pose = self._move
         fraction = move.fraction(now_s)
         if fraction >= 1.0:
             self._leg_lengths, self._true_pose, self._move = move.end.copy(), end_pose, None
+            self._follow_thermal_growth(now_s)
             return
         self._leg_lengths = move.start + fraction * (move.end - move.start)
         self._true_pose = start_pose + fraction * (end_pose - start_pose)
+
+    def _real_pose(self, leg_lengths, directions, now_s, guess):
+        """Real pose (6,) for the readings, or None when the platform has none near ``guess``."""
+        pose, converged = real_poses(
+            self._true_geometry,
+            self._effects,
+            leg_lengths[None],
+            guess[None],
+            directions[None],
+            [now_s - self._start_s],
+        )
+        return pose[0] if converged[0] and np.all(np.isfinite(pose[0])) else None
+
+    def _follow_thermal_growth(self, now_s):
+        if not self._effects.thermal:
+            return
+        times = np.array([self._pose_time_s, now_s]) - self._start_s
+        growth = np.abs(np.diff(thermal_strains(self._effects, times), axis=0))
+        if np.max(growth) > THERMAL_RESOLVE_M:
+            pose = self._real_pose(self._leg_lengths, self._directions, now_s, self._true_pose)
+            if pose is not None:
+                self._true_pose, self._pose_time_s = pose, now_s
 
     @property
     def leg_lengths(self):
@@ -192,27 +239,29 @@ class PlatformSimulator:
         )
         if not ok[0]:
             return self._reject(f'unreachable: {reasons[0]}')
-        controller = self._controller_geometry
-        leg_lengths = controller.sensors.leg_readings(inverse_kinematics(controller, pose[None]))[0]
-        true_pose, converged = forward_kinematics_masked(
-            self._true_geometry,
-            self._true_geometry.sensors.true_leg_lengths(leg_lengths)[None],
-            pose[None],
-        )
-        if not (converged[0] and np.all(np.isfinite(true_pose[0]))):
+        if self._leg_lengths is not None and self.limits is not None and self._move is not None:
+            self.update(now_s)  # a command may supersede a move: from where the legs are now
+        # The controller's IK, compensating the effects it knows (geometry.effects).
+        leg_lengths = commanded_leg_readings(
+            self._controller_geometry, pose[None], self._leg_lengths
+        )[0]
+        directions = approach_directions(leg_lengths[None], self._leg_lengths, self._directions)[0]
+        true_pose = self._real_pose(leg_lengths, directions, now_s, pose)
+        if true_pose is None:
             return self._reject(
                 'forward kinematics of the real platform found no pose near the command for '
                 f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)'
             )
         self._commanded_pose = pose.copy()
+        self._directions, self._pose_time_s = directions, now_s
         travel_s = 0.0
         if self._leg_lengths is None or self.limits is None or self.limits.instantaneous:
-            self._leg_lengths, self._true_pose, self._move = leg_lengths, true_pose[0], None
+            self._leg_lengths, self._true_pose, self._move = leg_lengths, true_pose, None
         else:
             # From where the legs are now: a command may supersede a move under way.
             self.update(now_s)
             move = LegMove(self._leg_lengths, leg_lengths, self.limits, now_s)
             travel_s = move.duration_s
-            self._move = (move, self._true_pose.copy(), true_pose[0])
+            self._move = (move, self._true_pose.copy(), true_pose)
             self.update(now_s)
-        return CommandOutcome(True, '', leg_lengths.copy(), true_pose[0].copy(), travel_s)
+        return CommandOutcome(True, '', leg_lengths.copy(), true_pose.copy(), travel_s)

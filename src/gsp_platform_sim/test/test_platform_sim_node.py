@@ -9,13 +9,16 @@ import pytest
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from rclpy.parameter import Parameter
 
+from gsp_kinematics.effects.groups import IdentifiedEffects, commanded_leg_readings
+from gsp_kinematics.effects.model import PlatformEffects
+from gsp_kinematics.effects.real_pose import real_poses
 from gsp_kinematics.geometry import (
     Limits,
     SensorErrors,
     default_geometry,
     geometry_to_parameters,
 )
-from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics
+from gsp_kinematics.kinematics import forward_kinematics, home_pose, inverse_kinematics
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import OK, WARN
 from gsp_msgs_py.parameter_specs import ConfigurationError
@@ -268,12 +271,22 @@ def _calibrated_geometry():
             encoder_offset=2e-3,
             lvdt_gain_error=-1e-3,
         ),
+        # Identified effects (docs/platform_effects.md): micrometres at the legs.
+        effects=IdentifiedEffects(
+            np.concatenate(
+                [np.full(6, 3e-8), np.full(6, 4e-6), np.full(6, 1e-8), np.full(6, 2e-5)]
+            ),
+            40.0,
+            (0.0, 0.01, 0.05),
+            100.0,
+        ),
     )
 
 
 def _legs(geometry, pose):
-    """Leg sensor readings (6,) the controller drives to for ``pose`` (m)."""
-    return geometry.sensors.leg_readings(inverse_kinematics(geometry, pose[None]))[0]
+    """Leg sensor readings (6,) the controller drives to for ``pose`` (m), its identified
+    effects compensated (as arrived extending: the direction moves them by the backlash)."""
+    return commanded_leg_readings(geometry, pose[None])[0]
 
 
 @pytest.mark.parametrize('service', ['set_parameters', 'set_parameters_atomically'])
@@ -353,6 +366,10 @@ def test_markers_show_the_platform(harness):
             'true_geometry_file',
         ),
         ([Parameter('geometry.leg_offsets', value=[0.6, 0.6])], 'geometry.leg_offsets'),
+        ([Parameter('effects.leg_stiffness', value=[-3e7] * 6)], 'effects.leg_stiffness'),
+        ([Parameter('effects.backlash', value=[4e-6] * 5)], 'effects.backlash'),
+        ([Parameter('effects.payload_mass', value=math.nan)], 'effects.payload_mass'),
+        ([Parameter('effects.thermal_time_constant', value=0.0)], 'thermal_time_constant'),
     ],
 )
 def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words):
@@ -392,3 +409,35 @@ def test_with_leg_limits_the_legs_follow_a_synchronised_profile_until_settled(ha
     # No leg faster than its limit (0.5 m/s, 1 mm/s of slack).
     speeds = np.abs(np.diff(legs, axis=0)) / np.maximum(np.diff(stamps), 1e-9)[:, None]
     assert np.max(speeds) <= 0.5 + 1e-3
+
+
+#: A real platform with every effect but the thermal growth (whose pose moves with the clock).
+EFFECTS = PlatformEffects(
+    payload_mass=40.0,
+    centre_of_mass=(0.01, 0.0, 0.05),
+    leg_stiffness=np.full(6, 30e6),
+    backlash=np.full(6, 4e-6),
+    base_joint_offsets=np.full(6, 20e-6),
+)
+
+
+@pytest.mark.parametrize(
+    'harness',
+    [
+        [Parameter(name, value=value) for name, value in EFFECTS.to_parameters('effects.').items()]
+        + [Parameter('leg_lengths_noise_std', value=0.0)]
+    ],
+    indirect=True,
+)
+def test_the_true_pose_includes_the_effects_and_the_legs_read_the_command(harness):
+    command_id = harness.command(POSE)
+    assert harness.wait_final(command_id)[-1].settled
+    q = inverse_kinematics(NOMINAL, POSE[None])[0]
+    np.testing.assert_allclose(harness.leg_lengths_after(1)[0], q, atol=1e-12)
+    home = inverse_kinematics(NOMINAL, home_pose()[None])[0]
+    directions = np.where(q > home, 1.0, -1.0)[None]
+    expected, ok = real_poses(TRUE, EFFECTS, q[None], POSE[None], directions)
+    rigid = forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], POSE[None])[0]
+    true_pose = conversions.pose_stamped_to_pose(harness.true_poses[-1])
+    assert ok[0] and np.linalg.norm(expected[0, :3] - rigid[:3]) > 5e-6
+    np.testing.assert_allclose(true_pose, expected[0], atol=1e-12)

@@ -24,11 +24,15 @@ def _validation_poses(validation):
     return None if poses is None else np.asarray(poses, dtype=float).reshape(-1, 6)
 
 
-def prediction_for(result, validation_after=None, workspace=Workspace(), analysis=None):
+def prediction_for(
+    result, validation_after=None, workspace=Workspace(), analysis=None, unmodelled=None
+):
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
     covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
     the unidentifiable directions). ``analysis``: the result's identifiability analysis
-    (``gsp_kinematics.identifiability.analyse_result``), computed here when None."""
+    (``gsp_kinematics.identifiability.analyse_result``), computed here when None.
+    ``unmodelled``: what the model leaves unexplained (``noise_from_data.unmodelled_error``),
+    added at every pose (None: the platform is taken to be exactly the model)."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
@@ -36,7 +40,9 @@ def prediction_for(result, validation_after=None, workspace=Workspace(), analysi
         analysis = analyse_result(result)
     if analysis['rank'] < analysis['parameters']:
         return None
-    prediction = predict_accuracy(result.geometry, covariance, result.free, workspace)
+    prediction = predict_accuracy(
+        result.geometry, covariance, result.free, workspace, unmodelled=unmodelled
+    )
     poses = _validation_poses(validation_after)
     measured_position = (validation_after or {}).get('position_mm')
     measured_orientation = (validation_after or {}).get('orientation_deg')
@@ -47,7 +53,9 @@ def prediction_for(result, validation_after=None, workspace=Workspace(), analysi
         and len(poses) == len(measured_position)
         and len(poses)
     ):
-        position, orientation = predicted_errors(result.geometry, covariance, poses, result.free)
+        position, orientation = predicted_errors(
+            result.geometry, covariance, poses, result.free, unmodelled
+        )
         measured_position = np.asarray(measured_position, dtype=float)
         measured_orientation = np.asarray(measured_orientation, dtype=float)
         prediction['validation'] = {
@@ -69,6 +77,7 @@ def result_json_entry(prediction):
         return None
     entry = {
         'statistic': prediction['statistic'],
+        'assumes': prediction.get('assumes'),
         'units': prediction['units'],
         **accuracy_summary(prediction),
         'random': prediction['random'],
@@ -212,3 +221,43 @@ def plot_accuracy_map(path, prediction):
 def _height_step(maps):
     heights = sorted({panel['z_m'] for panel in maps})
     return min(np.diff(heights)) if len(heights) > 1 else math.inf
+
+
+HELD_OUT_PNG = 'held_out_accuracy.png'
+
+
+def plot_held_out(path, accuracy, predicted=None, required_mm=None):
+    """Each posture's position error measured by the device with the geometry fitted without
+    it, beside the nominal geometry's and the posture's own noise (log scale), with the
+    cross-validated mean (noise removed), the predicted mean and the requirement as lines."""
+    from gsp_calibrator.report.plots import new_figure, save_figure
+
+    per_posture = accuracy['per_posture']
+    figure = new_figure(11, 4.4, left=0.07, right=0.98, top=0.88, bottom=0.12)
+    axes = figure.add_subplot(1, 1, 1)
+    postures = np.arange(1, len(per_posture['position_mm']) + 1)
+    for key, label, style in (
+        ('nominal_position_mm', 'nominal geometry', 'x'),
+        ('position_mm', 'calibrated, held out', 'o'),
+        ('noise_position_mm', "the posture's own noise (1 sigma)", '_'),
+    ):
+        values = np.array(per_posture[key], dtype=float)
+        axes.plot(postures, np.maximum(values, 1e-6), style, ms=4, label=label)
+    lines = (
+        (accuracy['calibrated']['position_mm']['mean'], 'k', 'held-out mean, noise removed'),
+        (predicted, 'tab:green', 'predicted mean (workspace)'),
+        (required_mm, 'tab:red', 'required'),
+    )
+    for value, colour, label in lines:
+        if value is not None and np.isfinite(value) and value > 0:
+            axes.axhline(value, color=colour, lw=1.2, ls='--', label=f'{label}: {value:.3g} mm')
+    axes.set_yscale('log')
+    axes.set_xlabel('posture (in the order collected)')
+    axes.set_ylabel('position error (mm)')
+    axes.grid(True, which='both', axis='y', alpha=0.3)
+    axes.legend(fontsize=8, ncol=2)
+    figure.suptitle(
+        'Accuracy measured by the device on postures the fit did not use '
+        f'({accuracy["folds"]}-fold cross-validation)'
+    )
+    return save_figure(figure, path)

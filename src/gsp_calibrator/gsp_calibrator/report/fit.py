@@ -1,5 +1,11 @@
-"""The sensor errors, goodness of fit, outliers and noise estimates of ``result.json`` and
-``report.md`` (docs/sensor_errors.md)."""
+"""The verdict, the accuracy measured by cross-validation, the sensor errors, the goodness of fit,
+outliers and noise estimates of ``result.json``, ``report.md`` and the service's response
+(docs/verdict.md, docs/sensor_errors.md).
+
+The fit summary is built once (:func:`fit_summary`: lines and tables from the ``result.json``
+keys) and rendered as plain text (:func:`as_text`, the response and the log) or as markdown
+(:func:`as_markdown`, ``report.md``).
+"""
 
 import math
 
@@ -34,6 +40,34 @@ def _free_text(name, free):
     return 'no (datum)' if name in DATUM_SENSOR_PARAMETERS else 'no'
 
 
+def outcome_data(outcome):
+    """The ``result.json`` keys of a ``run.identify.CalibrationOutcome`` beside the fit's: the
+    verdict (``accepted``, ``acceptance``), the cross-validated ``accuracy``, the ``unmodelled``
+    error, the noise and the goodness-of-fit verdict (``fit_accepted``, ``verdict``)."""
+    judgement, requirement = outcome.judgement, outcome.requirement
+    acceptance = None
+    if judgement is not None:
+        acceptance = {**judgement.as_dict(), 'requirement': requirement.as_dict()}
+    return {
+        'accepted': outcome.accepted,
+        'acceptance': acceptance,
+        'accuracy': outcome.accuracy,
+        'unmodelled': unmodelled_record(outcome.unmodelled),
+        'noise_source': outcome.noise_source,
+        'noise_estimates': outcome.noise_estimates,
+        'fit_accepted': outcome.fit_accepted,
+        'verdict': outcome.verdict or None,
+    }
+
+
+def unmodelled_record(unmodelled):
+    """``{leg_lengths_um, inclinometer_urad, encoder_urad, lvdt_um}`` (rms per row) or None."""
+    if unmodelled is None:
+        return None
+    units = {'leg_lengths': 'um', 'inclinometer': 'urad', 'encoder': 'urad', 'lvdt': 'um'}
+    return {f'{name}_{units[name]}': 1e6 * value for name, value in unmodelled.channels().items()}
+
+
 def fit_data(result, truth=None, nominal=None):
     """``sensor_errors``, ``goodness_of_fit``, ``loss``, ``outliers`` and ``down_weighted`` keys
     of ``result.json`` (docs/sensor_errors.md)."""
@@ -63,76 +97,217 @@ def fit_data(result, truth=None, nominal=None):
     }
 
 
-def fit_markdown(data):
-    """The sensor errors, goodness of fit, outliers and noise estimates of ``report.md``."""
-    lines = ['## Sensor errors', '', '| parameter | unit | free | nominal | estimate | 1σ |']
-    lines.append('|---|---|---|---|---|---|')
+def _sensor_error_table(data):
+    rows = []
     for name, entry in (data.get('sensor_errors') or {}).items():
         degrees = entry['unit'] == 'rad'
         factor, unit = (math.degrees(1.0), 'deg') if degrees else (1.0, '1')
         nominal = entry.get('nominal')
         deviation = entry.get('standard_deviation')
-        lines.append(
-            f'| {name} | {unit} | {_free_text(name, entry["free"])} | '
-            f'{_fmt(None if nominal is None else nominal * factor)} | '
-            f'{_fmt(entry["estimate"] * factor)} | '
-            f'{_fmt(None if deviation is None else deviation * factor, 3)} |'
+        rows.append(
+            [
+                name,
+                unit,
+                _free_text(name, entry['free']),
+                _fmt(None if nominal is None else nominal * factor),
+                _fmt(entry['estimate'] * factor),
+                _fmt(None if deviation is None else deviation * factor, 3),
+            ]
         )
-    lines += ['', '## Goodness of fit', '']
+    return ('table', ['parameter', 'unit', 'free', 'nominal', 'estimate', '1σ'], rows)
+
+
+def _accuracy_table(data):
+    """Cross-validated accuracy of the calibrated and nominal geometries, and the prediction."""
+    accuracy = data.get('accuracy')
+    if not accuracy:
+        return None
+    rows = []
+    for label, key in (('calibrated (held out)', 'calibrated'), ('nominal geometry', 'nominal')):
+        position, phi = accuracy[key]['position_mm'], accuracy[key]['phi_deg']
+        rows.append(
+            [
+                label,
+                _fmt(position['mean'], 3),
+                _fmt(position['p95'], 3),
+                _fmt(phi['mean'], 3),
+                _fmt(phi['p95'], 3),
+                _fmt(position['measured_mean'], 3),
+            ]
+        )
+    predicted = data.get('predicted_accuracy') or {}
+    if predicted.get('position_mm_mean') is not None:
+        rows.append(
+            [
+                'predicted (workspace)',
+                _fmt(predicted['position_mm_mean'], 3),
+                _fmt(predicted['position_mm_p95'], 3),
+                '–',
+                '–',
+                '–',
+            ]
+        )
+    header = [
+        'accuracy',
+        'position mean (mm)',
+        'position p95 (mm)',
+        'phi mean (deg)',
+        'phi p95 (deg)',
+        'measured position mean, noise included (mm)',
+    ]
+    return ('table', header, rows)
+
+
+def _goodness_lines(data):
     fit = data.get('goodness_of_fit')
+    blocks = [('heading', 'Goodness of fit (a diagnostic)')]
     if fit:
         loss = data.get('loss', 'linear')
         if fit.get('test') == 'lack_of_fit':
-            lines.append(
-                f'Lack-of-fit F test (noise estimated from the run): F '
-                f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
-                f'{_fmt(fit["pure_error_dof"])}) degrees of freedom, p = '
-                f'{_fmt(fit["p_value"], 3)} (loss: {loss}).'
+            blocks.append(
+                (
+                    'line',
+                    f'lack-of-fit F test (noise estimated from the run): F '
+                    f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
+                    f'{_fmt(fit["pure_error_dof"])}) degrees of freedom, p = '
+                    f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
+                )
             )
         else:
-            lines.append(
-                f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])} degrees of freedom, p = '
-                f'{_fmt(fit["p_value"], 3)} (loss: {loss}).'
+            blocks.append(
+                (
+                    'line',
+                    f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])} degrees of freedom, p = '
+                    f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
+                )
             )
     if data.get('verdict'):
-        lines += ['', f'**{data["verdict"]}**']
-    if data.get('fit_accepted') is False:
-        lines += ['', 'The result is written but marked REJECTED and not applied.']
-    if data.get('outliers'):
-        lines += [
-            '',
-            '| outlier posture | largest studentised residual | sensor |',
-            '|---|---|---|',
-        ]
-        for entry in data['outliers']:
-            lines.append(
-                f'| {entry["posture"]} | {_fmt(entry["max_studentised_residual"], 3)} | '
-                f'{entry["sensor"]} |'
-            )
-    if data.get('down_weighted'):
-        lines += ['', '| down-weighted posture | weight |', '|---|---|']
-        lines += [f'| {e["posture"]} | {_fmt(e["weight"], 3)} |' for e in data['down_weighted']]
+        blocks.append(('line', data['verdict']))
+    return blocks
+
+
+def _noise_table(data):
     noise = data.get('noise_estimates') or {}
-    if noise:
-        used = data.get('noise_source', 'configured')
-        lines += [
-            '',
-            f'Weights from the {used} noise. Per-sample equivalents (the noise of an averaged row '
-            'times sqrt(samples)):',
-            '',
-            '| sensor noise | configured | estimated | within postures | between postures | '
-            'source | unit |',
-            '|---|---|---|---|---|---|---|',
-        ]
-        for channel, entry in noise.items():
-            angular = NOISE_UNITS[channel] == 'rad'
-            factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
-            values = [entry.get(key) for key in ('configured', 'estimated', 'within_posture')] + [
-                entry.get('between_postures')
+    if not noise:
+        return []
+    used = data.get('noise_source', 'configured')
+    rows = []
+    for channel, entry in noise.items():
+        angular = NOISE_UNITS[channel] == 'rad'
+        factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
+        keys = ('configured', 'estimated', 'within_posture', 'between_postures')
+        shown = [_fmt(None if entry.get(k) is None else entry[k] * factor, 3) for k in keys]
+        unmodelled = entry.get('unmodelled') or 0.0
+        source = entry.get('source', '') + (
+            ' (within: lower bound)' if entry.get('within_lower_bound') else ''
+        )
+        warning = ' WARNING: differs by more than 2x' if entry.get('warning') else ''
+        rows.append(
+            [channel, *shown, _fmt(unmodelled * 1e6, 3), ('urad' if angular else 'um'), source]
+            + ([warning.strip()] if warning else [''])
+        )
+    return [
+        (
+            'line',
+            f'weights from the {used} noise (noise_source); per-sample noise (an averaged row '
+            "times sqrt(samples)); 'unmodelled' per row, which averaging does not reduce",
+        ),
+        (
+            'table',
+            [
+                'sensor noise',
+                'configured',
+                'estimated (the noise)',
+                'within postures',
+                'between postures',
+                'unmodelled',
+                'unit of unmodelled',
+                'source',
+                '',
+            ],
+            rows,
+        ),
+    ]
+
+
+def fit_summary(data):
+    """The fit summary of ``data`` (``result.json`` keys: ``acceptance``, ``accuracy``,
+    ``predicted_accuracy``, ``goodness_of_fit``, ``verdict``, ``outliers``, ``down_weighted``,
+    ``noise_estimates``, ...): ``[('heading', text) | ('line', text) | ('table', header,
+    rows)]``, for :func:`as_text` and :func:`as_markdown`."""
+    blocks = [('heading', 'Verdict')]
+    acceptance = data.get('acceptance')
+    if acceptance:
+        blocks += [('line', line) for line in acceptance['text'].splitlines()]
+    accuracy = _accuracy_table(data)
+    if accuracy:
+        blocks.append(accuracy)
+    blocks += _goodness_lines(data)
+    if data.get('outliers'):
+        rows = [
+            [
+                entry['posture'],
+                _fmt(entry['max_studentised_residual'], 3),
+                entry['sensor'],
+                _fmt(entry.get('neighbour_deviation'), 3),
             ]
-            shown = ' | '.join(_fmt(None if v is None else v * factor, 3) for v in values)
-            source = entry.get('source', '') + (
-                ' (within: lower bound)' if entry.get('within_lower_bound') else ''
-            )
-            lines.append(f'| {channel} | {shown} | {source} | {unit} |')
-    return lines + ['']
+            for entry in data['outliers']
+        ]
+        header = [
+            'outlier posture',
+            'largest studentised residual',
+            'sensor',
+            'deviation from its neighbours',
+        ]
+        blocks.append(('table', header, rows))
+    if data.get('down_weighted'):
+        rows = [[e['posture'], _fmt(e['weight'], 3)] for e in data['down_weighted']]
+        blocks.append(('table', [f'{data.get("loss")} loss down-weighted posture', 'weight'], rows))
+    return blocks + _noise_table(data)
+
+
+def as_markdown(blocks):
+    """``report.md`` lines of :func:`fit_summary` blocks (the first line of a section in bold)."""
+    lines = []
+    bold = False
+    for block in blocks:
+        if block[0] == 'heading':
+            lines += ['', f'## {block[1]}', '']
+            bold = True
+        elif block[0] == 'line':
+            lines += [f'**{block[1]}**' if bold else block[1], '']
+            bold = False
+        else:
+            _, header, rows = block
+            lines += ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+            lines += ['| ' + ' | '.join(str(v) for v in row) + ' |' for row in rows]
+            lines.append('')
+    return lines
+
+
+def as_text(blocks):
+    """Plain-text lines of :func:`fit_summary` blocks (headings left out; a table row is
+    ``first column: header value, ...``)."""
+    lines = []
+    for block in blocks:
+        if block[0] == 'line':
+            lines.append(block[1])
+        elif block[0] == 'table':
+            _, header, rows = block
+            for row in rows:
+                pairs = ', '.join(
+                    f'{name} {value}'.strip()
+                    for name, value in zip(header[1:], row[1:], strict=True)
+                    if value not in ('', '–')
+                )
+                lines.append(f'{header[0]} {row[0]}: {pairs}')
+    return lines
+
+
+def fit_markdown(data):
+    """The sensor errors and the fit summary of ``report.md``."""
+    return (
+        ['## Sensor errors', '']
+        + as_markdown([_sensor_error_table(data)])
+        + as_markdown(fit_summary(data))
+    )

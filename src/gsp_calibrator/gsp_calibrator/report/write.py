@@ -35,7 +35,7 @@ from gsp_calibrator.report.data import (
     si_unit,
     validation_summary,
 )
-from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number
+from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number, outcome_data
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
@@ -88,6 +88,8 @@ class ReportInputs:
     sigmas: object = None  #: the ``SensorNoise`` weights used
     extra: dict | None = None  #: more top-level keys of result.json
     prediction: dict | None = None  #: :func:`.accuracy.prediction_for` of the result
+    #: what the model leaves unexplained (``noise_from_data.unmodelled_error``), in the prediction
+    unmodelled: object = None
 
     def completed(self, result):
         """These inputs with the analysis and the prediction of ``result`` computed where None
@@ -96,8 +98,11 @@ class ReportInputs:
 
         analysis = analyse_result(result) if self.analysis is None else self.analysis
         prediction = self.prediction
-        if prediction is None:
-            prediction = prediction_for(result, self.validation_after, analysis=analysis)
+        compare = self.validation_after is not None and 'validation' not in (prediction or {})
+        if prediction is None or compare:
+            prediction = prediction_for(
+                result, self.validation_after, analysis=analysis, unmodelled=self.unmodelled
+            )
         return dataclasses.replace(self, analysis=analysis, prediction=prediction)
 
 
@@ -157,6 +162,7 @@ def result_data(result, inputs=ReportInputs()):
             'before': by_name(before),
             'after': by_name(after),
         },
+        'covariance': {'parameters': list(result.free_names), 'si': result.covariance},
         'correlation_threshold': CORRELATION_THRESHOLD,
         'correlations': correlations,
         'identifiability': identifiability_record(analysis),
@@ -179,21 +185,21 @@ def result_data(result, inputs=ReportInputs()):
 
 
 def outcome_inputs(outcome, nominal, options, **extra):
-    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis and
-    sigmas, and ``extra`` keys ``success``, ``failure``, ``options`` and ``extra`` (e.g. the
-    calibrator's ``collection``)."""
+    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis, sigmas,
+    prediction and unmodelled error, and ``extra`` keys ``success``, ``failure``, ``options``,
+    the verdict (:func:`.fit.outcome_data`) and ``extra`` (e.g. the calibrator's
+    ``collection``)."""
     return ReportInputs(
         analysis=outcome.identifiability or None,
         nominal=nominal,
         sigmas=outcome.sigmas,
+        prediction=outcome.prediction,
+        unmodelled=outcome.unmodelled,
         extra={
             'success': outcome.success,
             'failure': outcome.message or None,
             'options': options,
-            'noise_source': outcome.noise_source,
-            'noise_estimates': outcome.noise_estimates,
-            'fit_accepted': outcome.fit_accepted,
-            'verdict': outcome.verdict or None,
+            **outcome_data(outcome),
             **extra,
         },
     )
@@ -320,6 +326,8 @@ def report_markdown(data, images, title='Calibration report', plots=True):
     lines += _validation_lines(data, images)
     lines += _parameter_lines(data, images)
     lines += fit_markdown(data)
+    if 'held_out' in images:
+        lines += [f'![accuracy measured on held-out postures]({images["held_out"]})', '']
     lines += [f'## Correlations above {data["correlation_threshold"]}', '']
     if data['correlations']:
         lines += ['| a | b | correlation |', '|---|---|---|']
@@ -361,7 +369,12 @@ def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration repo
 
 def _write_plots(run_dir, result, inputs):
     """The PNGs of :func:`write_report` (``inputs`` completed); returns ``{kind: path}``."""
-    from gsp_calibrator.report.accuracy import ACCURACY_MAP_PNG, plot_accuracy_map
+    from gsp_calibrator.report.accuracy import (
+        ACCURACY_MAP_PNG,
+        HELD_OUT_PNG,
+        plot_accuracy_map,
+        plot_held_out,
+    )
     from gsp_calibrator.report.plots import (
         plot_chain_errors,
         plot_parameter_errors,
@@ -381,6 +394,16 @@ def _write_plots(run_dir, result, inputs):
     if validation_before is not None or validation_after is not None:
         written['validation'] = plot_validation(
             _path(run_dir, VALIDATION_PNG), validation_before, validation_after
+        )
+    extra = inputs.extra or {}
+    if extra.get('accuracy'):
+        acceptance = extra.get('acceptance') or {}
+        predicted = (inputs.prediction or {}).get('random', {}).get('position_mm', {})
+        written['held_out'] = plot_held_out(
+            _path(run_dir, HELD_OUT_PNG),
+            extra['accuracy'],
+            predicted.get('mean'),
+            (acceptance.get('requirement') or {}).get('position_mm'),
         )
     if inputs.prediction is not None:
         written['accuracy_map'] = plot_accuracy_map(

@@ -278,8 +278,8 @@ class CalibrationRun:
             return False, summary
         self.save_state(PHASE_DONE)
         geometry = outcome.geometry
-        # A result the goodness of fit rejects is written and latched, but applied only on demand.
-        success, note = await host.deliver_result(settings, geometry, outcome.fit_accepted)
+        # A result that misses the required accuracy is written and latched, never applied.
+        success, note = await host.deliver_result(settings, geometry, outcome.accepted)
         if note:
             summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'

@@ -4,6 +4,10 @@
    (``run.directory.Samples``), then checks: converged, and every free parameter identifiable
    (full rank of the column-scaled information matrix). A failed check gives
    ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
+   A result that passes is cross-validated (the accuracy the device measures on postures the
+   fit did not use), and judged against the required accuracy
+   (:func:`gsp_kinematics.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
+   is applied.
 2. :func:`finish_run`: identification of a collected run, and its result files.
 
 The postures are chosen by :mod:`.postures`; the texts are :mod:`.response`.
@@ -16,15 +20,22 @@ import numpy as np
 
 from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
 from gsp_calibrator.run.response import outcome_summary
-from gsp_kinematics import identifiability, noise_from_data
+from gsp_kinematics import acceptance, identifiability, noise_from_data
+from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.goodness import verdict
 from gsp_kinematics.identification import FORMULATIONS, IdentificationError, resolve_free
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'
-#: Added to the result's comment when the goodness of fit rejects the model.
-REJECTED_COMMENT = 'REJECTED by the goodness-of-fit check (p < 0.01): see result.json'
+#: Said when the device readings do not fit the device model at all.
+DEVICE_MODEL_HINT = (
+    ': the device readings do not fit the device model (swapped, mis-signed or mis-scaled '
+    'device channels? check the inclinometer, encoder and LVDT wiring and units)'
+)
+#: Added to the result's comment when the calibration is not accepted (not applied).
+NOT_ACCEPTED_COMMENT = 'NOT ACCEPTED (not applied): see the verdict in result.json'
 
 
 @dataclasses.dataclass
@@ -42,7 +53,21 @@ class CalibrationOutcome:
     #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
     noise_estimates: dict = dataclasses.field(default_factory=dict)
     noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
-    verdict: str = ''  #: the goodness-of-fit verdict (plain text)
+    verdict: str = ''  #: the goodness-of-fit verdict (plain text): a diagnostic
+    #: the cross-validated accuracy (``CrossValidation.summary``; None: not measured)
+    accuracy: dict | None = None
+    #: what the model leaves unexplained (SensorNoise of row stds; None: nothing shown)
+    unmodelled: object = None
+    #: the predicted accuracy, unmodelled part included (``report.accuracy.prediction_for``)
+    prediction: dict | None = None
+    #: ``acceptance.Verdict``: applied or not, and why (None: no result to judge)
+    judgement: object = None
+    requirement: object = None  #: the ``acceptance.Requirement`` judged against
+
+    @property
+    def accepted(self):
+        """The calibration meets the requirement and beats the nominal geometry: apply it."""
+        return bool(self.success and self.judgement is not None and self.judgement.accepted)
 
     @property
     def fit_accepted(self):
@@ -79,6 +104,8 @@ def identify_from_samples(
     free=DEFAULT_FREE,
     formulation='implicit',
     noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
+    requirement=acceptance.Requirement(),
+    folds=DEFAULT_FOLDS,
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
@@ -89,8 +116,9 @@ def identify_from_samples(
     converge, or leaves free parameters unidentifiable. The rows' window lag sums
     (``samples.lag_sums``) give the within-posture noise estimate (rows without: none).
     ``noise_source``: ``estimated`` or ``configured``
-    (:func:`noise_from_data.identify_with_noise`). A successful outcome carries the verdict;
-    :attr:`CalibrationOutcome.fit_accepted` says whether the model explains the data.
+    (:func:`noise_from_data.identify_with_noise`). A successful outcome is cross-validated
+    over ``folds`` folds and judged against ``requirement`` (:attr:`CalibrationOutcome.accepted`;
+    the goodness of fit, :attr:`CalibrationOutcome.fit_accepted`, is a diagnostic).
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
@@ -120,9 +148,10 @@ def identify_from_samples(
             pose_guesses=samples.commanded_poses,
             **identify_options,
         )
-    except (IdentificationError, np.linalg.LinAlgError, ValueError) as error:
+    except (IdentificationError, DeviceModelError, np.linalg.LinAlgError, ValueError) as error:
         outcome.duration_s = time.perf_counter() - started
-        outcome.message = f'identification failed: {error}'
+        hint = DEVICE_MODEL_HINT if isinstance(error, DeviceModelError) else ''
+        outcome.message = f'identification failed: {error}{hint}'
         return outcome
     outcome.duration_s = time.perf_counter() - started
     outcome.result = result
@@ -146,7 +175,45 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
+    _judge(outcome, nominal, samples, estimates, row_sigmas, requirement, folds, identify_options)
     return outcome
+
+
+def _judge(outcome, nominal, samples, estimates, row_sigmas, requirement, folds, identify_options):
+    """Cross-validate ``outcome``'s result, estimate what the model leaves unexplained, predict
+    the accuracy with it, and judge against ``requirement`` (fills the outcome)."""
+    from gsp_calibrator.report.accuracy import prediction_for
+
+    result = outcome.result
+    noise = SensorNoise.from_channels(
+        {channel: entry.noise for channel, entry in estimates.items()}, default=row_sigmas
+    )
+    options = identify_options.get('options')
+    extra = {} if options is None else {'options': options}
+    validation = cross_validate(
+        result,
+        nominal,
+        samples.leg_lengths,
+        samples.readings,
+        outcome.sigmas,
+        folds=folds,
+        noise=noise,
+        **extra,
+    )
+    outcome.accuracy = validation.summary()
+    outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
+    outcome.prediction = prediction_for(
+        result, analysis=outcome.identifiability, unmodelled=outcome.unmodelled
+    )
+    headline = None
+    if outcome.prediction is not None:
+        from gsp_kinematics.prediction import accuracy_summary
+
+        headline = accuracy_summary(outcome.prediction)
+    outcome.requirement = requirement
+    outcome.judgement = acceptance.judge(
+        outcome.accuracy, requirement, outcome.unmodelled, headline
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,6 +247,8 @@ def finish_run(run, settings, samples, collection, options):
         list(settings.free_parameters),
         settings.formulation,
         settings.noise_source,
+        settings.requirement,
+        settings.cross_validation_folds,
         options=settings.identify_options(),
     )
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
@@ -198,6 +267,6 @@ def finish_run(run, settings, samples, collection, options):
         except Exception as error:
             report_error = f'{error}\n{traceback.format_exc()}'
     if outcome.success:
-        comment = RESULT_COMMENT + ('' if outcome.fit_accepted else f'\n{REJECTED_COMMENT}')
+        comment = RESULT_COMMENT + ('' if outcome.accepted else f'\n{NOT_ACCEPTED_COMMENT}')
         run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     return FinishedRun(outcome, summary, report_error)

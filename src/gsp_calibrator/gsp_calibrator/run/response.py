@@ -23,7 +23,6 @@ from gsp_kinematics.geometry import (
 )
 from gsp_kinematics.kinematics import inverse_kinematics
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.sensors.noise import NOISE_UNITS
 
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
@@ -48,47 +47,22 @@ def sensor_error_text(result):
     return ', '.join(parts)
 
 
-def _angle_or_length(channel, value):
-    if NOISE_UNITS[channel] == 'rad':
-        return f'{math.degrees(value):.3g} deg'
-    return f'{value * 1e3:.3g} mm'
-
-
 def fit_lines(outcome):
-    """Summary lines of the goodness of fit, outliers, down-weighted postures and noise."""
+    """The fit summary of ``outcome`` as text lines (:func:`gsp_calibrator.report.fit.fit_summary`,
+    the same summary ``report.md`` renders as markdown): the verdict, the cross-validated
+    accuracy, the goodness of fit, outliers, down-weighted postures and noise."""
+    from gsp_calibrator.report.accuracy import result_json_entry
+    from gsp_calibrator.report.fit import as_text, fit_data, fit_summary, outcome_data
+
     result = outcome.result
-    lines = [outcome.verdict] if outcome.verdict else []
     if result is None:
-        return lines
-    if result.outliers:
-        shown = ', '.join(
-            f'{entry["posture"]} ({entry["sensor"]} {entry["max_studentised_residual"]:.1f} sigma)'
-            for entry in result.outliers[:10]
-        )
-        lines.append(f'outlier postures (studentised residual > threshold): {shown}')
-    if result.down_weighted:
-        shown = ', '.join(
-            f'{entry["posture"]} (weight {entry["weight"]:.3g})'
-            for entry in result.down_weighted[:10]
-        )
-        lines.append(f'{result.loss} loss down-weighted postures: {shown}')
-    for channel, entry in outcome.noise_estimates.items():
-        lines.append(
-            f'noise {channel}: estimated {_angle_or_length(channel, entry["estimated"])} '
-            f'({entry["source"]}), configured {_angle_or_length(channel, entry["configured"])}'
-            + (LOWER_BOUND_NOTE if entry.get('within_lower_bound') else '')
-            + (' -- WARNING: differs by more than 2x' if entry['warning'] else '')
-        )
-    if outcome.noise_estimates:
-        lines.append(f'weights from the {outcome.noise_source} noise (noise_source)')
-    return lines
-
-
-#: Said of a channel whose within-posture estimate is only a lower bound (not used, not tested).
-LOWER_BOUND_NOTE = (
-    '; within postures only a lower bound (windows short against the noise correlation time): '
-    'not used, nor in the F test'
-)
+        return [outcome.verdict] if outcome.verdict else []
+    data = {
+        **fit_data(result),
+        **outcome_data(outcome),
+        'predicted_accuracy': result_json_entry(outcome.prediction),
+    }
+    return as_text(fit_summary(data))
 
 
 def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
@@ -160,8 +134,8 @@ def residual_summary(residual_rms):
     return ', '.join(parts)
 
 
-#: Head of the summary of a converged fit the goodness of fit rejects.
-REJECTED_HEAD = 'calibration REJECTED by the goodness of fit'
+#: Head of the summary of a calibration that does not meet the requirement (not applied).
+NOT_ACCEPTED_HEAD = 'calibration NOT ACCEPTED'
 
 
 def final_progress_message(summary, success, note):
@@ -170,6 +144,21 @@ def final_progress_message(summary, success, note):
     agrees with the phase (done when ``success``, else failed)."""
     head = summary.splitlines()[0] if summary else ''
     return head if success or not note else note
+
+
+def accuracy_headline(outcome):
+    """``'; accuracy 0.048 mm held out (nominal 13.6 mm, predicted 0.045 mm)'`` of an outcome's
+    cross-validation, '' without one: the head of the summary and the last progress line."""
+    accuracy = outcome.accuracy
+    if not accuracy:
+        return ''
+    calibrated = accuracy['calibrated']['position_mm']['mean']
+    nominal = accuracy['nominal']['position_mm']['mean']
+    text = f'; accuracy {calibrated:.3g} mm held out (nominal {nominal:.3g} mm'
+    prediction = (outcome.prediction or {}).get('random')
+    if prediction:
+        text += f', predicted {prediction["position_mm"]["mean"]:.3g} mm'
+    return text + ')'
 
 
 def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, reference=None):
@@ -181,11 +170,11 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
     lines = []
     head = 'calibration FAILED'
     if outcome.success:
-        # A converged fit the goodness of fit rejects is not applied: the head must not say
-        # 'succeeded' above a failed phase (the client's last progress line is this head).
-        head = 'calibration succeeded' if outcome.fit_accepted else REJECTED_HEAD
+        # A calibration that does not meet the requirement is not applied: the head must not
+        # say 'succeeded' above a failed phase (the client's last progress line is this head).
+        head = 'calibration succeeded' if outcome.accepted else NOT_ACCEPTED_HEAD
     used = f'{outcome.postures} posture(s)' + (f' of {selected} commanded' if selected else '')
-    lines.append(f'{head}: {used}')
+    lines.append(f'{head}: {used}{accuracy_headline(outcome)}')
     if not outcome.success:
         lines.append(f'reason: {outcome.message}')
     for k, reason in skipped:
@@ -220,11 +209,6 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
             lines.append(f'sensor errors: {sensor_text}')
     if outcome.success:
         lines.extend(fit_lines(outcome))
-        if not outcome.fit_accepted:
-            lines.append(
-                'result REJECTED by the goodness-of-fit check: written but not applied '
-                '(apply_rejected_fit applies it anyway)'
-            )
     if outcome.success and reference is not None:
         errors = parameter_errors(outcome.geometry, reference)
         lines.append(

@@ -11,8 +11,10 @@ from gsp_calibrator.tools import (
     bench_end_to_end,
     bench_platform_time,
     bench_sensor_dynamics,
+    bench_upkeep_realistic,
+    bench_verdict,
 )
-from gsp_experiments import bench, bench_noise, bench_sensor_errors
+from gsp_experiments import bench, bench_noise, bench_sensor_errors, bench_upkeep
 
 #: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
 EXTRA_SECTIONS = {
@@ -22,6 +24,9 @@ EXTRA_SECTIONS = {
     'platform_time': bench_platform_time.run,  # docs/planning.md
     'sensor_dynamics': bench_sensor_dynamics.run,  # docs/sensor_errors.md
     'collection_rate': bench_collection_rate.run,  # docs/architecture.md#synchronisation
+    'verdict': bench_verdict.run,  # docs/verdict.md
+    'upkeep': bench_upkeep.run,  # docs/upkeep.md
+    'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md
 }
 
 

@@ -1,4 +1,5 @@
-"""``gsp_calibrate_client``: run a calibration without the ``ros2`` CLI.
+"""``gsp_calibrate_client``: run a calibration (or, with ``--check``, the one-minute check of
+docs/upkeep.md: exit code 0 within tolerance, 3 recalibrate) without the ``ros2`` CLI.
 
 Waits for ``/gsp/calibrator/calibrate`` (std_srvs/Trigger), calls it asynchronously, shows a live
 progress bar on stderr from ``/gsp/calibrator/progress`` (posture k of M, phase, latest residuals),
@@ -30,7 +31,11 @@ from gsp_msgs_py.qos import PROGRESS_QOS
 
 EXIT_OK = 0
 EXIT_FAILED = 1
+#: ``--check``: the check ran and says recalibrate.
+EXIT_RECALIBRATE = 3
 EXIT_INTERRUPTED = 130
+#: How a check's response starts when it says recalibrate (upkeep.check_run.check_summary).
+RECALIBRATE_PREFIX = 'check: RECALIBRATE'
 
 NODE_NAME = 'gsp_calibrate_client'
 BAR_WIDTH = 30
@@ -188,6 +193,12 @@ def build_parser():
         help='Trigger service to call (default %(default)s)',
     )
     parser.add_argument(
+        '--check',
+        action='store_true',
+        help=f'run the one-minute check ({names.SERVICE_CHECK}) instead of a calibration: exit '
+        f'status 0 within tolerance, {EXIT_RECALIBRATE} recalibrate (docs/upkeep.md)',
+    )
+    parser.add_argument(
         '--wait-timeout',
         type=float,
         default=10.0,
@@ -227,6 +238,8 @@ def run(args, context=None, out=None, err=None):
     out = sys.stdout if out is None else out
     err = sys.stderr if err is None else err
     progress = None if args.no_progress else ProgressBar(err)
+    if args.check and args.service == names.SERVICE_CALIBRATE:
+        args.service = names.SERVICE_CHECK
     node = CalibrateClient(service=args.service, progress=progress, context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
@@ -265,8 +278,13 @@ def run(args, context=None, out=None, err=None):
                 end='' if parsed.geometry_yaml.endswith('\n') else '\n',
             )
         if not response.success:
-            print('gsp_calibrate_client: calibration failed', file=err)
-        return EXIT_OK if response.success else EXIT_FAILED
+            print(
+                f'gsp_calibrate_client: {"check" if args.check else "calibration"} failed', file=err
+            )
+            return EXIT_FAILED
+        if args.check and response.message.startswith(RECALIBRATE_PREFIX):
+            return EXIT_RECALIBRATE
+        return EXIT_OK
     finally:
         if progress is not None:
             progress.finish()

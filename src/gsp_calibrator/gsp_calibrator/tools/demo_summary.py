@@ -82,7 +82,18 @@ class DemoSummary:
 
 
 #: Keys of the calibrator's ``result.json`` that ``summary.json`` repeats.
-FIT_KEYS = ('goodness_of_fit', 'noise_source', 'noise_estimates', 'verdict', 'fit_accepted')
+FIT_KEYS = (
+    'accepted',
+    'acceptance',
+    'accuracy',
+    'predicted_accuracy',
+    'unmodelled',
+    'goodness_of_fit',
+    'noise_source',
+    'noise_estimates',
+    'verdict',
+    'fit_accepted',
+)
 
 
 def fit_record(run_directory):
@@ -120,6 +131,8 @@ def summary_text(summary, validated, rejected):
         f'identification time: {summary["identification_ms"]:.0f} ms; calibration '
         f'{summary["calibration_s"]:.1f} s; total {summary["total_s"]:.1f} s',
     ]
+    if summary.get('acceptance'):
+        lines += summary['acceptance']['text'].splitlines()
     if summary.get('verdict'):
         lines.append(summary['verdict'])
     return '\n'.join(lines)

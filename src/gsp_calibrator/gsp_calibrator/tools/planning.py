@@ -193,6 +193,7 @@ def _summary_text(entry):
             f'({predicted["position_mm_p95"]:.3g} p95), orientation '
             f'{predicted["orientation_deg_mean"]:.3g} deg mean'
         )
+        lines.append(f'the prediction assumes {predicted["assumes"]}')
     for entry_ in entry['unidentifiable']:
         lines.append(f'not identifiable: {entry_["combination"]}')
     lines.append(_platform_time_text(entry['platform_time']))

@@ -64,6 +64,7 @@ def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formula
             **accuracy_summary(prediction),
             'worst_cell': prediction['worst_cell'],
             'statistic': prediction['statistic'],
+            'assumes': prediction['assumes'],
         }
     return plan
 

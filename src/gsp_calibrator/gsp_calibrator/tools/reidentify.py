@@ -41,6 +41,7 @@ from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: 
     result_json,
     stored_options,
 )
+from gsp_kinematics.acceptance import Requirement
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
     default_geometry_path,
@@ -206,6 +207,8 @@ def reidentify(args, out=None):
             free,
             options['formulation'],
             noise_source=options['noise_source'],
+            requirement=Requirement.from_parameters(options),
+            folds=int(options['cross_validation_folds']),
             options=_options(options),
         )
     except (IdentificationError, postures.CalibrationError) as error:
@@ -315,6 +318,8 @@ def refresh_report(
         options['free_parameters'],
         options['formulation'],
         noise_source=source,
+        requirement=Requirement.from_parameters(options),
+        folds=int(options['cross_validation_folds']),
         options=_options(options),
     )
     if outcome.result is None:

@@ -274,8 +274,14 @@ class _ImplicitModel(_Model):
     #: steps from the first (cf. Madsen, Nielsen & Tingleff: tau = 1e-6 for a good start).
     initial_damping = 1e-6
 
-    def __init__(self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors):
+    def __init__(
+        self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors, effects=None
+    ):
         super().__init__(nominal, free)
+        #: :class:`gsp_kinematics.effects.groups.EffectTerms` of the free effect parameters
+        #: (None: none); their values follow the free parameters' in a point's values.
+        self.effects = effects
+        self.effect_count = 0 if effects is None else effects.count
         self.pose_guesses = pose_guesses
         self.leg_lengths = leg_lengths
         self.readings = readings
@@ -291,7 +297,8 @@ class _ImplicitModel(_Model):
         )
         self.measured = np.concatenate([leg_lengths, readings], axis=1)[:, self.rows]
         self.phi_row = self.rows.index(PHI_ROW) if PHI_ROW in self.rows else None
-        self.readings_model = ReadingsModel(free, extra_columns=1)  # the residual's column
+        # The effect parameters' columns, then the residual's.
+        self.readings_model = ReadingsModel(free, extra_columns=self.effect_count + 1)
 
     def evaluate(self, free_values, poses, linearize):
         """``(residuals (M, k), jac_pose (M, k, 6), jac_u (M, k, n))``; Jacobians None unless
@@ -305,8 +312,14 @@ class _ImplicitModel(_Model):
     def _evaluate(self, free_values, poses):
         """``(residuals, _LazyJacobian)`` at the free parameters and poses."""
         vector = self.nominal_vector.copy()
-        vector[self.free] = free_values
+        count = len(free_values) - self.effect_count
+        vector[self.free] = free_values[:count]
         prediction = self.readings_model.predict(vector, poses)
+        if self.effect_count:
+            # q_i (1 + kq_i) gains sum theta h (effects.groups); d/d theta = h / (1 + kq_i).
+            columns = self.effects.regressors(poses) * prediction.leg_scale[None, :, None]
+            prediction.readings[:, :6] += columns @ free_values[count:]
+            prediction.effect_columns = columns
         predicted = prediction.readings
         if len(self.rows) < predicted.shape[1]:
             predicted = predicted[:, self.rows]
@@ -321,6 +334,9 @@ class _ImplicitModel(_Model):
     def _augmented(self, prediction, residuals):
         """The weighted ``[J_X | J_u | r]`` (M, k, 6 + n + 1) of a prediction."""
         augmented = prediction.jacobian()
+        if self.effect_count:
+            end = augmented.shape[2] - 1
+            augmented[:, :6, end - self.effect_count : end] = prediction.effect_columns
         if len(self.rows) < augmented.shape[1]:
             augmented = augmented[:, self.rows]
         augmented *= self.row_weights[:, None]
@@ -341,12 +357,13 @@ class _ImplicitModel(_Model):
 
     def unknowns(self):
         """Unknowns the residuals estimate: the free parameters and six a pose."""
-        return int(self.free.sum()) + 6 * self.leg_lengths.shape[0]
+        return int(self.free.sum()) + self.effect_count + 6 * self.leg_lengths.shape[0]
 
     def start(self):
         """The point at the nominal with the pose guesses. The poses are unknowns: the first
         steps (each a damped Newton step on the poses too) do the work of an FK beforehand."""
-        return self._point(self.nominal_vector[self.free], self.pose_guesses.copy())
+        start = np.concatenate([self.nominal_vector[self.free], np.zeros(self.effect_count)])
+        return self._point(start, self.pose_guesses.copy())
 
     def too_few_residuals(self):
         return False  # the poses are unknowns too: the design, not FK, decides identifiability

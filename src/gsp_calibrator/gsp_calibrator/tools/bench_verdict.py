@@ -1,0 +1,239 @@
+"""The ``verdict`` section of ``make bench`` (docs/verdict.md): on the simulated realistic
+platform (each effect alone, then all four) and on the ideal one, the accuracy the calibrator
+measures by cross-validation, predicts and achieves, and how often it applies the result.
+
+A run is the calibrator's default: its 60 postures selected from 600 (seed 0), commanded in
+route order from the home pose over ``RUN_S`` seconds, 10 samples per posture with the default
+noise, the pipeline of ``run.identify.identify_from_samples`` (``extended``, noise estimated
+from the run, 10 folds) judged against the default requirement. The truth is the simulation's:
+the real pose of the platform with its effects when the calibrated controller commands 50
+random postures over the workspace (``validation.validate(..., effects, times)``), spread over
+the same span of time as the run. The best 42-parameter geometry (:func:`best_geometry`) is the
+least-squares fit of the controller's pose error on noise-free data of 400 random postures,
+spread over the same time.
+"""
+
+import dataclasses
+import math
+import statistics
+
+import numpy as np
+
+from gsp_calibrator.run import postures
+from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.settings import CalibratorSettings
+from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
+from gsp_kinematics.geometry import PARAMETER_INDEX, Geometry, default_geometry
+from gsp_kinematics.kinematics import (
+    expand_leg_parameters,
+    home_pose,
+    inverse_kinematics_jacobians,
+    sample_valid_postures,
+)
+from gsp_kinematics.noise_from_data import posture_lag_sums
+from gsp_kinematics.prediction import LEG_PARAMETERS
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.validation import simulate_commands, validate
+
+SAMPLES = 10
+SEEDS = 20
+#: The span of a run (s): 60 postures of a real platform in about 15 minutes (issue 23).
+RUN_S = 900.0
+VALIDATION_POSTURES = 50
+BEST_POSTURES = 400
+
+
+def effect_cases():
+    """``{name: PlatformEffects}``: each of the four realistic effects alone, all four, none."""
+    off = PlatformEffects()
+    alone = {
+        'compliance': off.replace(
+            payload_mass=REALISTIC.payload_mass,
+            centre_of_mass=REALISTIC.centre_of_mass,
+            leg_stiffness=REALISTIC.leg_stiffness,
+        ),
+        'backlash': off.replace(backlash=REALISTIC.backlash),
+        'thermal': off.replace(
+            temperature_rise=REALISTIC.temperature_rise,
+            thermal_time_constant=REALISTIC.thermal_time_constant,
+        ),
+        'joint_offsets': off.replace(base_joint_offsets=REALISTIC.base_joint_offsets),
+    }
+    return {**alone, 'all_four': REALISTIC, 'ideal': off}
+
+
+@dataclasses.dataclass(frozen=True)
+class Design:
+    """The shipped pair, the calibrator's default plan in route order, validation postures."""
+
+    true: object
+    settings: object
+    poses: np.ndarray  #: (60, 6) in the order commanded
+    validation: np.ndarray  #: (50, 6)
+    dense: np.ndarray  #: (400, 6): the best geometry's postures
+
+
+def default_design():
+    settings = CalibratorSettings.from_values({})
+    nominal = settings.nominal
+    selection = postures.choose_postures(
+        nominal, settings.posture_count, settings.pool_size, seed=settings.seed
+    )
+    route = postures.posture_route(settings, selection.poses, home_pose())
+    rng = np.random.default_rng(1)
+    return Design(
+        true=default_geometry('true'),
+        settings=settings,
+        poses=selection.poses[route.order],
+        validation=sample_valid_postures(nominal, VALIDATION_POSTURES, rng),
+        dense=sample_valid_postures(nominal, BEST_POSTURES, np.random.default_rng(2)),
+    )
+
+
+def simulated_samples(design, effects, seed, noise=DEFAULT_SENSOR_NOISE):
+    """The rows the calibrator collects on the platform with ``effects`` (windows of
+    ``SAMPLES`` noisy samples each, their lag sums kept), over ``RUN_S`` seconds."""
+    times = np.linspace(0.0, RUN_S, len(design.poses))
+    run = simulate_commands(design.true, design.settings.nominal, design.poses, effects, times)
+    rng = np.random.default_rng(seed)
+    scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
+    samples = Samples.empty()
+    for k in np.flatnonzero(run.reachable):
+        exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
+        window = exact + rng.normal(size=(SAMPLES, 10)) * scale
+        mean = window.mean(axis=0)
+        samples.append(
+            k + 1, design.poses[k], mean[:6], mean[6:], SAMPLES, 1.7e9 + k, posture_lag_sums(window)
+        )
+    return samples
+
+
+def true_accuracy(design, effects, geometry):
+    """Mean position (mm) and orientation (deg) error of ``geometry`` as the controller, over the
+    validation postures on the real platform, spread over the run's span."""
+    times = np.linspace(0.0, RUN_S, len(design.validation))
+    summary = validate(design.true, geometry, design.validation, effects, times)
+    return summary['position_mm_mean'], summary['orientation_deg_mean']
+
+
+def best_geometry(design, effects, iterations=6):
+    """The best 42-parameter geometry (and leg gains) for this platform: least squares, on
+    noise-free data of the dense postures, of the pose error the controller would make, to first
+    order ``(dq/dX)^-1 ((1 + kq) q - IK(u, X_real))`` (position m, rotation at 0.5 m/rad), by
+    Gauss-Newton from the nominal geometry. Only the controller's parameters (A, B, L_off, kq)
+    matter; the minimum-norm step leaves the directions the poses do not see."""
+    times = np.linspace(0.0, RUN_S, len(design.dense))
+    nominal = design.settings.nominal
+    run = simulate_commands(design.true, nominal, design.dense, effects, times)
+    real, readings = run.real_poses[run.reachable], run.leg_readings[run.reachable]
+    vector = nominal.to_full_vector()
+    gain = PARAMETER_INDEX['kq1']
+    columns = np.r_[0:LEG_PARAMETERS, gain : gain + 6]
+    for _ in range(iterations):
+        geometry = Geometry.from_full_vector(vector, nominal.limits)
+        articular, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, real)
+        error = geometry.sensors.true_leg_lengths(readings) - articular
+        d_error = np.concatenate(
+            [-expand_leg_parameters(d_q_d_leg), readings[:, :, None] * np.eye(6)[None]], axis=2
+        )
+        to_pose = np.linalg.inv(d_q_d_pose)
+        to_pose[:, 3:] *= 0.5  # m per rad
+        residual = (to_pose @ error[..., None]).reshape(-1)
+        jacobian = (to_pose @ d_error).reshape(-1, len(columns))
+        step = np.linalg.lstsq(jacobian, -residual, rcond=1e-10)[0]
+        vector[columns] += step
+    return Geometry.from_full_vector(vector, nominal.limits)
+
+
+def one_run(design, effects, seed):
+    """The figures of one seeded run: measured (cross-validated), predicted and true accuracy,
+    the unmodelled leg error (um) and whether the result is applied."""
+    settings = design.settings
+    outcome = identify_from_samples(
+        settings.nominal,
+        simulated_samples(design, effects, seed),
+        settings.sigmas,
+        list(settings.free_parameters),
+        settings.formulation,
+        settings.noise_source,
+        settings.requirement,
+        settings.cross_validation_folds,
+        options=settings.identify_options(),
+    )
+    if not outcome.success:
+        return {'applied': False, 'failure': outcome.message}
+    true_position, _ = true_accuracy(design, effects, outcome.geometry)
+    accuracy = outcome.accuracy['calibrated']
+    predicted = (outcome.prediction or {}).get('random', {}).get('position_mm', {})
+    return {
+        'applied': outcome.accepted,
+        'true_mm': true_position,
+        'cv_mm': accuracy['position_mm']['mean'],
+        'cv_measured_mm': accuracy['position_mm']['measured_mean'],
+        'nominal_cv_mm': outcome.accuracy['nominal']['position_mm']['mean'],
+        'predicted_mm': predicted.get('mean', math.nan),
+        'unmodelled_legs_um': 0.0
+        if outcome.unmodelled is None
+        else 1e6 * outcome.unmodelled.leg_lengths,
+        'failures': list(outcome.judgement.failures),
+    }
+
+
+def _median(values):
+    values = [v for v in values if math.isfinite(v)]
+    return statistics.median(values) if values else math.nan
+
+
+def case_figures(design, effects, seeds):
+    """The figures of one platform over ``seeds`` runs (medians over seeds of the per-run
+    ratios; the targets of issue 23 beside them)."""
+    runs = [one_run(design, effects, seed) for seed in range(seeds)]
+    done = [run for run in runs if 'true_mm' in run]
+    best_mm, _ = true_accuracy(design, effects, best_geometry(design, effects))
+    cv_ratio = [run['cv_mm'] / run['true_mm'] for run in done]
+    predicted_ratio = [run['predicted_mm'] / run['true_mm'] for run in done]
+    # On the ideal platform the best geometry is the truth (0 mm): no ratio.
+    best_ratio = [run['true_mm'] / best_mm for run in done] if best_mm > 1e-9 else []
+    return {
+        'true_mm': _median([run['true_mm'] for run in done]),
+        'cv_mm': _median([run['cv_mm'] for run in done]),
+        'cv_measured_mm': _median([run['cv_measured_mm'] for run in done]),
+        'predicted_mm': _median([run['predicted_mm'] for run in done]),
+        'nominal_cv_mm': _median([run['nominal_cv_mm'] for run in done]),
+        'best_mm': best_mm,
+        'unmodelled_legs_um': _median([run['unmodelled_legs_um'] for run in done]),
+        'cv_over_true': _median(cv_ratio),
+        'cv_within_25_percent': sum(abs(r - 1.0) <= 0.25 for r in cv_ratio) / max(len(done), 1),
+        'predicted_over_true': _median(predicted_ratio),
+        'predicted_within_1.3x': sum(1 / 1.3 <= r <= 1.3 for r in predicted_ratio)
+        / max(len(done), 1),
+        'calibrated_over_best': _median(best_ratio),
+        'applied_fraction': sum(run['applied'] for run in runs) / len(runs),
+        'not_applied_reasons': sorted(
+            {reason for run in runs if not run['applied'] for reason in run.get('failures', [])}
+        )[:5],
+        'seeds': seeds,
+    }
+
+
+def run(quick=False):
+    """The ``verdict`` section (``quick``: 3 seeds)."""
+    design = default_design()
+    seeds = 3 if quick else SEEDS
+    cases = {name: case_figures(design, effects, seeds) for name, effects in effect_cases().items()}
+    return {
+        'description': (
+            'shipped pair, the calibrator default plan (60 of 600, route order over 900 s), 10 '
+            'samples per posture at the default noise, the calibrator pipeline (extended, noise '
+            'estimated, 10-fold cross-validation, default requirement); truth: validation over 50 '
+            'random postures on the simulated platform with its effects; medians over seeds'
+        ),
+        'targets': {
+            'cv_over_true': 'within 25 %',
+            'predicted_over_true': 'within 1.3x',
+            'calibrated_over_best': '<= 1.3',
+            'applied_fraction': '>= 0.95 (realistic cases)',
+        },
+        'cases': cases,
+    }

@@ -1,0 +1,262 @@
+"""The one-minute check of a calibrated platform (pure numpy/scipy; docs/upkeep.md).
+
+A few postures, chosen to be sensitive to the leg offsets (:func:`choose_check_postures`), are
+measured with the controller's current geometry. Then:
+
+* **the accuracy now**: the controller geometry's error in predicting where the platform is, from
+  the measured leg lengths through forward kinematics, against what the device measures
+  (position mm, phi deg; :func:`gsp_kinematics.cross_validation.prediction_errors`, the measured
+  accuracy of a calibration), with the rows' noise removed in quadrature; its uncertainty is the
+  standard error of the mean over the postures.
+* **has the platform changed?** A small identification of the leg offsets alone (the rest held at
+  the controller's values) estimates their change since the calibration. Its uncertainty is the
+  check's own (its covariance) plus what the calibration's uncertainty does to it (``K C K^T``,
+  ``K`` the regression of the check's leg offsets on the calibration's parameter errors, from the
+  check postures' information factors). :func:`gsp_kinematics.drift.compare` then tests the
+  change (global chi-square, iterated w-tests, family-wise ``level``) and names the legs.
+* **the verdict**: ``recalibrate`` when the accuracy now misses the requirement, or when the
+  platform has changed significantly since its calibration (a changed platform no longer matches
+  its calibration, and its accuracy away from the checked postures is unknown); else
+  ``within tolerance``. If recalibrate, the legs that moved most are named.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from . import cross_validation, drift
+from .geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
+from .identification import IdentificationError, identify, resolve_free
+from .selection import posture_factors
+from .travel.motion import MotionLimits, move_time, posture_leg_lengths
+
+#: The parameters the check identifies: the leg offsets (what a leg's re-homing, a replaced
+#: encoder or a knock changes; a joint's change shows mostly in its leg's offset too).
+CHECK_PARAMETERS = tuple(f'Loff{leg}' for leg in range(1, 7))
+#: Platform time a check may take (s) at the realistic leg speeds of gsp_kinematics.travel.
+CHECK_BUDGET_S = 60.0
+#: Postures of a check at most (fewer when their route and dwell exceed the budget).
+CHECK_POSTURES = 10
+#: Time at each posture besides the samples (s): the settle rule's wait.
+SETTLE_ALLOWANCE_S = 0.5
+#: Leg distance (m) within which the platform already holds a posture: its readings would not
+#: change, and the collection would skip it (the calibrator's ``run.postures.HELD_TOLERANCE``).
+HELD_TOLERANCE_M = 1e-4
+VERDICTS = ('within tolerance', 'recalibrate')
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckPlan:
+    """The postures of a check in route order and the platform time they take."""
+
+    poses: np.ndarray  #: (N, 6) in visiting order
+    travel_s: float  #: the route from the start pose
+    dwell_s: float  #: settle allowance and samples, all postures
+    pool_indices: np.ndarray  #: the postures' indices in the pool, visiting order
+
+    @property
+    def platform_time_s(self):
+        return self.travel_s + self.dwell_s
+
+
+def choose_check_postures(
+    controller,
+    pool,
+    start_pose,
+    sigmas,
+    samples_per_posture=10,
+    rate_hz=200.0,
+    limits=MotionLimits(),
+    count=CHECK_POSTURES,
+    budget_s=CHECK_BUDGET_S,
+    free=CHECK_PARAMETERS,
+):
+    """The postures of a check from ``pool`` (N, 6), greedily by information per second: from
+    ``start_pose``, each next posture is the one whose gain in ``log det`` of the information on
+    ``free`` (regularised) per second of platform time (the move to it, the settle allowance and
+    ``samples_per_posture`` at ``rate_hz``) is largest, until ``count`` postures or until no
+    posture fits in ``budget_s`` (:class:`CheckPlan`)."""
+    pool = np.atleast_2d(np.asarray(pool, dtype=float))
+    per_posture = SETTLE_ALLOWANCE_S + samples_per_posture / rate_hz
+    factors = posture_factors(controller, pool, sigmas, list(free))
+    candidate_information = np.einsum('mri,mrj->mij', factors, factors)
+    scale = 1.0 / np.sqrt(np.maximum(np.einsum('mii->i', candidate_information), 1e-300))
+    candidate_information *= np.outer(scale, scale)[None] * len(pool)
+    legs = posture_leg_lengths(controller, np.vstack([np.asarray(start_pose, float), pool]))
+    information = 1e-6 * np.eye(len(free))
+    current, chosen, travel = 0, [], 0.0
+    available = np.max(np.abs(legs[1:] - legs[0]), axis=1) > HELD_TOLERANCE_M
+    while len(chosen) < count:
+        moves = np.asarray(move_time(legs[current], legs[1:], limits), dtype=float)
+        fits = available & (travel + moves + per_posture * (len(chosen) + 1) <= budget_s)
+        if not fits.any():
+            break
+        _, base = np.linalg.slogdet(information)
+        _, logdet = np.linalg.slogdet(information[None] + candidate_information)
+        score = np.where(fits, (logdet - base) / (moves + per_posture), -np.inf)
+        best = int(np.argmax(score))
+        chosen.append(best)
+        travel += float(moves[best])
+        information = information + candidate_information[best]
+        available[best] = False
+        current = best + 1
+    if len(chosen) < 2:
+        raise ValueError(f'no check fits in {budget_s} s from the start pose')
+    order = np.array(chosen)
+    return CheckPlan(pool[order], travel, len(chosen) * per_posture, order)
+
+
+def calibration_share(controller, poses, sigmas, calibration, free=CHECK_PARAMETERS):
+    """``K C K^T``: the covariance the calibration's own uncertainty (``calibration``, a
+    ``drift.Calibration`` of the controller) gives the check's estimate of ``free`` at ``poses``.
+
+    The check fits ``free`` with the other parameters at the controller's values; a calibration
+    error ``e`` then shifts its estimate by ``K e``, ``K = -(G_f^T G_f)^-1 G_f^T G_c`` (``G``: the
+    postures' information factors of :func:`gsp_kinematics.selection.posture_factors` over the
+    check's parameters ``f`` and the calibration's ``c``)."""
+    mask = resolve_free(list(dict.fromkeys(list(calibration.names) + list(free))))
+    names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, mask, strict=True) if is_free]
+    factors = posture_factors(controller, poses, sigmas, mask).reshape(-1, len(names))
+    check_columns = factors[:, [names.index(name) for name in free]]
+    calibration_columns = factors[:, [names.index(name) for name in calibration.names]]
+    gain = -np.linalg.lstsq(check_columns, calibration_columns, rcond=None)[0]
+    return gain @ calibration.covariance @ gain.T
+
+
+def accuracy_now(controller, leg_lengths, readings, guesses, row_sigmas):
+    """The controller's accuracy at the checked postures: ``{position_mm, phi_deg}`` each as
+    ``cross_validation``'s statistics (noise removed) with ``sigma_of_mean``, and the
+    per-posture errors (mm, deg)."""
+    position, phi, converged = cross_validation.prediction_errors(
+        controller, leg_lengths, readings, guesses
+    )
+    position_noise, phi_noise = cross_validation.noise_variances(
+        controller, guesses, readings, row_sigmas
+    )
+    magnitudes = np.linalg.norm(position, axis=1)
+    summary = {'postures': int(converged.sum())}
+    for key, values, variances, scale in (
+        ('position_mm', magnitudes, position_noise, 1e3),
+        ('phi_deg', np.abs(phi), phi_noise, math.degrees(1.0)),
+    ):
+        entry = cross_validation._statistics(values, variances, scale)  # the verdict's statistics
+        finite = values[np.isfinite(values)]
+        spread = np.std(finite, ddof=1) if finite.size > 1 else math.nan
+        entry['sigma_of_mean'] = float(scale * spread / math.sqrt(max(finite.size, 1)))
+        entry['per_posture'] = (scale * values).tolist()
+        summary[key] = entry
+    return summary
+
+
+def _small_identification(controller, leg_lengths, readings, guesses, row_sigmas, free):
+    try:
+        result = identify(
+            controller, leg_lengths, readings, row_sigmas, free=list(free), pose_guesses=guesses
+        )
+    except IdentificationError:
+        return None
+    return result if result.converged else None
+
+
+def check_platform(
+    controller,
+    leg_lengths,
+    readings,
+    commanded,
+    row_sigmas,
+    required,
+    calibration=None,
+    level=drift.DEFAULT_LEVEL,
+    free=CHECK_PARAMETERS,
+):
+    """The check of ``controller`` (the geometry it runs) from the measured rows ``leg_lengths``
+    (M, 6) and ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise
+    ``row_sigmas`` (a ``SensorNoise``; add any unmodelled error the calibration found) and the
+    :class:`gsp_kinematics.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
+    came from (its covariance; None: taken as exact). A JSON-ready dict: ``verdict``,
+    ``reasons``, ``accuracy``, ``change`` (the drift test of the leg offsets), ``moved``,
+    ``identification`` (names, SI estimates and covariance) and ``geometry_si``."""
+    commanded = np.atleast_2d(np.asarray(commanded, dtype=float))
+    accuracy = accuracy_now(controller, leg_lengths, readings, commanded, row_sigmas)
+    reasons = []
+    position, phi = accuracy['position_mm']['mean'], accuracy['phi_deg']['mean']
+    if not position <= required.position_mm:
+        reasons.append(f'position error {position:.4f} mm > required {required.position_mm} mm')
+    if not phi <= required.orientation_deg:
+        reasons.append(f'phi error {phi:.5f} deg > required {required.orientation_deg} deg')
+    data = {
+        'kind': 'check',
+        'required': {
+            'position_mm': required.position_mm,
+            'orientation_deg': required.orientation_deg,
+        },
+        'accuracy': _accuracy_record(accuracy),
+        'accuracy_detail': accuracy,
+        'level': level,
+        'geometry_si': dict(
+            zip(ALL_PARAMETER_NAMES, controller.to_full_vector().tolist(), strict=True)
+        ),
+    }
+    fitted = _small_identification(controller, leg_lengths, readings, commanded, row_sigmas, free)
+    moved = []
+    if fitted is None:
+        reasons.append('the leg offsets could not be identified from the check (did not converge)')
+    else:
+        index = [PARAMETER_INDEX[name] for name in free]
+        before = controller.to_full_vector()[index]
+        share = np.zeros((len(free), len(free)))
+        if calibration is not None:
+            share = calibration_share(controller, commanded, row_sigmas, calibration, free)
+        comparison = drift.compare(
+            drift.Calibration(free, before, share, controller, 'controller'),
+            drift.Calibration(free, fitted.parameters[index], fitted.covariance, fitted.geometry),
+            level,
+        )
+        moved = comparison['significant']
+        if comparison['global_test']['changed']:
+            names = ', '.join(entry['parameter'] for entry in moved) or 'no single leg offset'
+            reasons.append(f'the platform has changed since its calibration ({names})')
+        data['change'] = comparison
+        data['identification'] = {
+            'parameters': list(free),
+            'estimates_si': fitted.parameters[index].tolist(),
+            'covariance_si': (fitted.covariance + share).tolist(),
+        }
+        if reasons and not moved:  # name the largest w all the same
+            name, entry = max(comparison['parameters'].items(), key=lambda item: abs(item[1]['w']))
+            moved = [{'parameter': name, 'likely': True} | _change_entry(entry)]
+    data['verdict'] = VERDICTS[1] if reasons else VERDICTS[0]
+    data['reasons'] = reasons
+    data['moved'] = moved
+    data['moved_legs'] = sorted({_leg(entry['parameter']) for entry in moved} - {None})
+    return data
+
+
+def _change_entry(entry):
+    return {
+        'change_report': entry['change_report'],
+        'sigma_report': entry['conditional_sigma_report'],
+        'unit': entry['unit'],
+        'w': entry['w'],
+    }
+
+
+def _leg(name):
+    """The leg (1..6) a parameter belongs to (``Loff3``, ``A3x``, ``kq3``), else None."""
+    digits = [character for character in name if character.isdigit()]
+    return int(digits[0]) if digits and name[0] in 'ABLk' else None
+
+
+def _accuracy_record(accuracy):
+    position, phi = accuracy['position_mm'], accuracy['phi_deg']
+    return {
+        'postures': accuracy['postures'],
+        'position_mm_mean': position['mean'],
+        'position_mm_sigma': position['sigma_of_mean'],
+        'position_mm_p95': position['p95'],
+        'orientation_deg_mean': phi['mean'],
+        'orientation_deg_sigma': phi['sigma_of_mean'],
+        'orientation_deg_p95': phi['p95'],
+        'statistic': 'phi only (the device measures one rotation); noise removed in quadrature',
+    }

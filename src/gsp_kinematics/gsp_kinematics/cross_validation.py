@@ -1,0 +1,253 @@
+"""The accuracy a calibration achieved, measured by the device on postures the fit did not use.
+
+The device measures the platform's position exactly (``alpha``, ``beta`` and ``D = D0 + Dm``,
+eq 7 and 9) and its rotation ``phi``. So a geometry's error in predicting where the platform
+is, from its measured leg lengths through forward kinematics, is a real accuracy (mm, deg),
+available on any platform, ideal or not. :func:`cross_validate` splits the postures into folds,
+fits the geometry without each fold and predicts the fold's postures from their leg lengths;
+the nominal geometry predicts the same postures (the no-calibration baseline).
+
+The measured error holds the measurement noise of the held-out posture too (the legs' noise
+through FK, the device's through eq 9): independent of the fit, it adds in quadrature. Its
+propagated variance is subtracted from the mean squared error (:func:`noise_removed`), and
+the mean and p95 are scaled by the same factor. To first order, the error of FK(calibrated, q)
+against the true pose at the real leg lengths q is the error of the pose the platform reaches
+when the calibrated controller commands a pose (``validation.pose_errors``), with the sign
+reversed: the same accuracy.
+"""
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from .device import DeviceModelError, device_position
+from .effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
+from .geometry import ALL_PARAMETER_NAMES
+from .identification import IdentificationError, Options, identify
+from .kinematics import forward_kinematics_masked
+from .prediction import reading_pose_covariance
+from .rotation import wrap_angle
+
+#: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
+DEFAULT_FOLDS = 10
+
+
+def device_pose(geometry, readings):
+    """What the device measures under ``geometry``'s device parameters and sensor errors:
+    ``(position (M, 3) m, phi (M,) rad)`` from readings ``[alpha, beta, phi, d_m]`` (M, 4)."""
+    ideal = geometry.sensors.ideal_device_readings(np.atleast_2d(readings))
+    position = device_position(
+        ideal[:, 0],
+        ideal[:, 1],
+        geometry.device_length + ideal[:, 3],
+        geometry.inclinometer_axes_angle,
+    )
+    return position, ideal[:, 2]
+
+
+def prediction_errors(geometry, leg_lengths, readings, guesses):
+    """Forward kinematics of the measured ``leg_lengths`` (M, 6) under ``geometry`` minus what
+    the device measures (``readings`` (M, 4)) under the same ``geometry``:
+    ``(position (M, 3) m, phi (M,) rad, converged (M,))``; NaN where FK failed."""
+    return _errors(geometry, geometry, leg_lengths, readings, guesses)
+
+
+def _errors(legs_geometry, device_geometry, leg_lengths, readings, guesses, design=None):
+    if legs_geometry.effects.none:
+        articular = legs_geometry.sensors.true_leg_lengths(leg_lengths)
+        poses, converged = forward_kinematics_masked(legs_geometry, articular, guesses)
+    else:  # the identified effects (docs/platform_effects.md), with the rows' design
+        poses, converged = model_poses(legs_geometry, leg_lengths, guesses, design)
+    position, phi = device_pose(device_geometry, readings)
+    position_error = np.where(converged[:, None], poses[:, :3] - position, np.nan)
+    phi_error = np.where(converged, wrap_angle(poses[:, 5] - phi), np.nan)
+    return position_error, phi_error, converged
+
+
+def noise_variances(geometry, poses, readings, row_sigmas):
+    """The variance the rows' noise (``row_sigmas``, a SensorNoise of the averaged rows) adds to
+    the prediction errors at ``poses`` (M, 6) with ``readings`` (M, 4): ``(position (M,) m^2,
+    the trace of its 3x3 covariance; phi (M,) rad^2)``
+    (:func:`~gsp_kinematics.prediction.reading_pose_covariance`)."""
+    position, euler = reading_pose_covariance(geometry, poses, readings, row_sigmas)
+    return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
+
+
+def noise_removed(errors, variances):
+    """``(mean, p95, rms, factor)`` of error magnitudes ``errors`` (K,) with the noise's
+    ``variances`` (K,) removed: ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0))``
+    scales the mean, the p95 and the rms (the noise's share of the mean squared error is taken
+    out in quadrature; the error's distribution is assumed to keep its shape)."""
+    errors = np.asarray(errors, dtype=float)
+    variances = np.asarray(variances, dtype=float)
+    finite = np.isfinite(errors) & np.isfinite(variances)
+    if not finite.any():
+        return math.nan, math.nan, math.nan, math.nan
+    errors, variances = errors[finite], variances[finite]
+    squared = float(np.sum(errors**2))
+    factor = math.sqrt(max(1.0 - float(np.sum(variances)) / squared, 0.0)) if squared > 0 else 0.0
+    mean, p95 = float(np.mean(errors)), float(np.percentile(errors, 95))
+    rms = math.sqrt(squared / errors.size)
+    return factor * mean, factor * p95, factor * rms, factor
+
+
+def _statistics(errors, variances, scale):
+    mean, p95, rms, factor = noise_removed(errors, variances)
+    finite = np.isfinite(errors)
+    raw = np.asarray(errors, dtype=float)[finite]
+    return {
+        'mean': scale * mean,
+        'p95': scale * p95,
+        'rms': scale * rms,
+        'measured_mean': scale * float(np.mean(raw)) if raw.size else math.nan,
+        'measured_p95': scale * float(np.percentile(raw, 95)) if raw.size else math.nan,
+        'noise_rms': scale * math.sqrt(float(np.mean(np.asarray(variances)[finite])))
+        if raw.size
+        else math.nan,
+        'noise_factor': factor,
+    }
+
+
+@dataclasses.dataclass(frozen=True)
+class CrossValidation:
+    """Held-out prediction errors of a calibrated and of the nominal geometry (SI units).
+
+    Per posture (M rows; NaN where it was not predicted): the errors of FK(geometry, legs)
+    against the device, position (M, 3) m and phi (M,) rad, and the variance the posture's own
+    noise adds to each (m^2, rad^2)."""
+
+    folds: int
+    fold_of_posture: np.ndarray  #: (M,) the fold that held each posture out
+    position_error: np.ndarray  #: (M, 3) m, calibrated without the posture's fold
+    phi_error: np.ndarray  #: (M,) rad
+    position_noise: np.ndarray  #: (M,) m^2
+    phi_noise: np.ndarray  #: (M,) rad^2
+    nominal_position_error: np.ndarray  #: (M, 3) m
+    nominal_phi_error: np.ndarray  #: (M,) rad
+    failed_folds: tuple  #: folds whose fit did not converge (their postures are NaN)
+    duration_s: float
+
+    @property
+    def predicted(self):
+        """Postures predicted by the calibrated geometry of their fold."""
+        return int(np.count_nonzero(np.isfinite(self.phi_error)))
+
+    def summary(self):
+        """JSON-ready: the calibrated and nominal accuracy, position (mm) and phi (deg), each
+        ``{mean, p95, rms}`` with the noise removed, beside the measured ``measured_mean``,
+        ``measured_p95``, the noise's own ``noise_rms`` and the ``noise_factor`` applied;
+        ``per_posture``: each posture's measured position errors (mm, NaN: not predicted) and
+        its noise's standard deviation (mm), for plots."""
+        position = np.linalg.norm(self.position_error, axis=1)
+        nominal = np.linalg.norm(self.nominal_position_error, axis=1)
+        degrees = math.degrees(1.0)
+        return {
+            'folds': self.folds,
+            'postures': self.predicted,
+            'failed_folds': list(self.failed_folds),
+            'duration_s': self.duration_s,
+            'calibrated': {
+                'position_mm': _statistics(position, self.position_noise, 1e3),
+                'phi_deg': _statistics(np.abs(self.phi_error), self.phi_noise, degrees),
+            },
+            'nominal': {
+                'position_mm': _statistics(nominal, self.position_noise, 1e3),
+                'phi_deg': _statistics(np.abs(self.nominal_phi_error), self.phi_noise, degrees),
+            },
+            'per_posture': {
+                'position_mm': (1e3 * position).tolist(),
+                'nominal_position_mm': (1e3 * nominal).tolist(),
+                'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
+            },
+        }
+
+
+def fold_assignment(count, folds=DEFAULT_FOLDS):
+    """The fold (0..k-1) of each of ``count`` postures, interleaved (posture m in fold m mod k,
+    so each fold spreads over the run); ``k = min(folds, count)`` (k = count: leave one out)."""
+    if folds < 2:
+        raise ValueError(f'cross-validation needs at least 2 folds, got {folds}')
+    return np.arange(count) % min(int(folds), count)
+
+
+def cross_validate(
+    result,
+    nominal,
+    leg_lengths,
+    readings,
+    row_sigmas,
+    folds=DEFAULT_FOLDS,
+    options=Options(),
+    noise=None,
+    effects=None,
+):
+    """Cross-validate the identification ``result`` (an ``IdentificationResult`` of the rows
+    ``leg_lengths`` (M, 6) and ``readings`` (M, 4) with the row weights ``row_sigmas``): for
+    each fold, identify without it (the same formulation and free parameters, from ``result``'s
+    estimate and poses) and predict its postures; the ``nominal`` geometry predicts every
+    posture. Returns a :class:`CrossValidation`.
+
+    The device's reference of a held-out posture uses the device parameters of the fit that did
+    not see it, the nominal baseline those of the full fit (its best estimate of the device).
+    ``noise``: the rows' measurement noise removed from the errors (a SensorNoise of the rows;
+    None: ``row_sigmas``). Weights that hold a model error (estimated between postures) are not
+    the noise: pass the within-posture noise here. ``effects``: the rows'
+    :class:`~gsp_kinematics.effects.groups.EffectDesign` when ``result`` freed effect groups
+    (each fold is fitted with them and predicts its postures with what it identified)."""
+    started = time.perf_counter()
+    leg_lengths = np.asarray(leg_lengths, dtype=float)
+    readings = np.asarray(readings, dtype=float)
+    count = leg_lengths.shape[0]
+    assignment = fold_assignment(count, folds)
+    guesses = np.asarray(result.poses, dtype=float)
+    position = np.full((count, 3), np.nan)
+    phi = np.full(count, np.nan)
+    failed = []
+    free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
+    free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
+    for fold in range(int(assignment.max()) + 1):
+        held, kept = assignment == fold, assignment != fold
+        try:
+            fitted = identify(
+                result.geometry,
+                leg_lengths[kept],
+                readings[kept],
+                row_sigmas,
+                result.formulation,
+                free,
+                guesses[kept],
+                options=options,
+                effects=design_rows(effects, kept),
+            )
+        except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
+            fitted = None
+        if fitted is None or not fitted.converged:
+            failed.append(fold)
+            continue
+        position[held], phi[held], _ = _errors(
+            fitted.geometry,
+            fitted.geometry,
+            leg_lengths[held],
+            readings[held],
+            guesses[held],
+            design_rows(effects, held),
+        )
+    noise = row_sigmas if noise is None else noise
+    position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)
+    nominal_position, nominal_phi, _ = _errors(
+        nominal, result.geometry, leg_lengths, readings, guesses
+    )
+    return CrossValidation(
+        folds=int(assignment.max()) + 1,
+        fold_of_posture=assignment,
+        position_error=position,
+        phi_error=phi,
+        position_noise=position_noise,
+        phi_noise=phi_noise,
+        nominal_position_error=nominal_position,
+        nominal_phi_error=nominal_phi,
+        failed_folds=tuple(failed),
+        duration_s=time.perf_counter() - started,
+    )

@@ -1,0 +1,290 @@
+"""The effects as parameter groups of the identification (docs/platform_effects.md).
+
+Each group adds one parameter per leg to the leg sensors' model (``'implicit'`` formulation):
+
+    q_i (1 + kq_i) = |R B_i + t - A_i| - L_off_i + sum_g theta_g,i h_g,i(posture)
+
+with the regressors ``h``:
+
+- ``compliance`` (``compliance1..6``, m/N): ``h = f_i``, the leg's axial force (N, compression
+  positive) under the user's ``payload_mass`` at ``centre_of_mass`` (:func:`.model.leg_forces` of
+  the nominal geometry at the posture). The device sees only the deflection ``c_i f_i``: so it
+  identifies ``c_i m``, the compliance times the mass the user gives.
+- ``backlash`` (``backlash1..6``, m): ``h = d_i / 2``, ``d_i`` the leg's approach direction (+1
+  extending) from the commanded sequence. Without both directions in the run it is the leg
+  offset.
+- ``thermal`` (``strain_rate1..6``, 1/s): ``h = -(t - t_ref) L_i``, a leg growth proportional
+  to the leg's length ``L_i`` (nominal, at the posture) and linear in the time since the
+  reference instant ``t_ref``; the geometry is the one at ``t_ref``. A steady growth is a leg
+  gain (``kq_i``): only the growth during the run is the group's.
+- ``joint_offsets`` (``joint_offset1..6``, m): ``h = -|u_i - (a_i . u_i) a_i|``, the base U
+  joint's axis offset seen along the leg (``a_i`` its first axis, :func:`.model.
+  base_joint_first_axes`); its constant part is the leg offset, only its variation with the
+  leg's direction is the joint's.
+
+The regressors are taken at the estimated poses; the derivatives of the model with respect to
+the pose leave out ``theta dh/dX`` (relative size ``theta |dh/dX|``, about 1e-4 for 40 kg on
+30 N/um legs).
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..kinematics import (
+    forward_kinematics_masked,
+    inverse_kinematics,
+    inverse_kinematics_jacobians,
+    leg_vectors,
+)
+from .model import (
+    NUM_LEGS,
+    PlatformEffects,
+    approach_directions,
+    base_joint_first_axes,
+    leg_forces,
+)
+
+#: Group -> its per-leg parameter name stem, unit and what it is.
+EFFECT_GROUPS = {
+    'compliance': ('compliance', 'm/N', 'axial compliance of each leg (1 / stiffness)'),
+    'backlash': ('backlash', 'm', 'lost motion between the approach directions'),
+    'thermal': ('strain_rate', '1/s', 'relative growth rate of each leg'),
+    'joint_offsets': ('joint_offset', 'm', 'distance between the base U joint axes'),
+}
+#: The effect parameters, group by group, leg by leg.
+EFFECT_PARAMETER_NAMES = tuple(
+    f'{stem}{leg}' for stem, _, _ in EFFECT_GROUPS.values() for leg in range(1, NUM_LEGS + 1)
+)
+NUM_EFFECT_PARAMETERS = len(EFFECT_PARAMETER_NAMES)
+
+
+class EffectDesignError(ValueError):
+    """An effect group lacks what it needs (times, directions, a mass); the message says which."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectDesign:
+    """What the effect groups need besides the readings, posture by posture (M in the run's
+    order): ``times_s`` (M,) s, ``directions`` (M, 6) approach directions
+    (:func:`.model.approach_directions` of the commanded leg lengths in the order visited), the
+    user's ``payload_mass`` (kg) and ``centre_of_mass`` (platform frame, m), and the thermal
+    reference instant ``reference_time_s`` (s, on the clock of ``times_s``)."""
+
+    times_s: np.ndarray | None = None
+    directions: np.ndarray | None = None
+    payload_mass: float = 0.0
+    centre_of_mass: tuple = (0.0, 0.0, 0.0)
+    reference_time_s: float = 0.0
+
+    def check(self, groups, count):
+        """EffectDesignError naming what ``groups`` need and this design lacks for M = count."""
+        if 'compliance' in groups and not self.payload_mass > 0.0:
+            raise EffectDesignError('compliance needs the payload_mass (kg) the legs carry')
+        if 'thermal' in groups and (self.times_s is None or np.shape(self.times_s) != (count,)):
+            raise EffectDesignError(f'thermal needs times_s, one time (s) per posture ({count})')
+        if 'backlash' in groups:
+            if self.directions is None or np.shape(self.directions) != (count, NUM_LEGS):
+                raise EffectDesignError(
+                    f'backlash needs directions ({count}, 6), each leg +1 or -1 per posture'
+                )
+            if not np.all(np.isin(self.directions, (-1.0, 1.0))):
+                raise EffectDesignError('backlash: directions must each be +1 or -1')
+
+
+def effect_groups_of(names):
+    """The effect groups among ``names`` (groups or effect parameter names)."""
+    names = [names] if isinstance(names, str) else list(names)
+    return [group for group in EFFECT_GROUPS if group in names]
+
+
+def resolve_effects(free):
+    """A mask (24,) over :data:`EFFECT_PARAMETER_NAMES` of the effect groups and effect
+    parameter names in ``free`` (other names are ignored: they are the geometry's)."""
+    names = [free] if isinstance(free, str) else list(free or ())
+    mask = np.zeros(NUM_EFFECT_PARAMETERS, dtype=bool)
+    for index, (group, (stem, _, _)) in enumerate(EFFECT_GROUPS.items()):
+        block = slice(NUM_LEGS * index, NUM_LEGS * (index + 1))
+        if group in names:
+            mask[block] = True
+        for leg in range(NUM_LEGS):
+            if f'{stem}{leg + 1}' in names:
+                mask[block.start + leg] = True
+    return mask
+
+
+def is_effect_name(name):
+    return name in EFFECT_GROUPS or name in EFFECT_PARAMETER_NAMES
+
+
+class EffectTerms:
+    """The regressors of the free effect parameters (``mask`` (24,)) for a run."""
+
+    def __init__(self, nominal, design, mask, count):
+        self.mask = np.asarray(mask, dtype=bool)
+        self.count = int(self.mask.sum())
+        groups = [g for i, g in enumerate(EFFECT_GROUPS) if self.mask[6 * i : 6 * i + 6].any()]
+        design.check(groups, count)
+        self.nominal = nominal
+        self.design = design
+        self._load = PlatformEffects(
+            payload_mass=design.payload_mass, centre_of_mass=design.centre_of_mass
+        )
+        self._axes = base_joint_first_axes(nominal)
+        self._legs = np.flatnonzero(self.mask) % NUM_LEGS  # the leg of each free parameter
+
+    def regressors(self, poses):
+        """``h`` (M, 6, count): column j is nonzero only in the row of its leg."""
+        poses = np.atleast_2d(poses)
+        full = np.zeros((poses.shape[0], NUM_LEGS, NUM_EFFECT_PARAMETERS))
+        legs = np.arange(NUM_LEGS)
+        blocks = self.mask.reshape(len(EFFECT_GROUPS), NUM_LEGS).any(axis=1)
+        if blocks[0]:
+            full[:, legs, legs] = leg_forces(self.nominal, self._load, poses)
+        if blocks[1]:
+            full[:, legs, 6 + legs] = 0.5 * np.asarray(self.design.directions, dtype=float)
+        vectors, _ = leg_vectors(self.nominal, poses)
+        lengths = np.linalg.norm(vectors, axis=2)
+        if blocks[2]:
+            elapsed = np.asarray(self.design.times_s, float) - self.design.reference_time_s
+            full[:, legs, 12 + legs] = -elapsed[:, None] * lengths
+        if blocks[3]:
+            along = np.einsum('mik,ik->mi', vectors / lengths[..., None], self._axes)
+            full[:, legs, 18 + legs] = -np.sqrt(np.maximum(1.0 - along**2, 0.0))
+        return full[:, :, self.mask]
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentifiedEffects:
+    """Effect parameters a calibration identified (what a controller compensates): ``values``
+    (24,) in :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), the ``payload_mass`` (kg)
+    and ``centre_of_mass`` (platform frame, m) the compliance was identified for, and the
+    thermal ``reference_time_s`` (s) the geometry refers to."""
+
+    values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS))
+    payload_mass: float = 0.0
+    centre_of_mass: tuple = (0.0, 0.0, 0.0)
+    reference_time_s: float = 0.0
+
+    def __post_init__(self):
+        values = np.array(self.values, dtype=float).reshape(NUM_EFFECT_PARAMETERS)
+        if not np.all(np.isfinite(values)):
+            raise EffectDesignError(f'identified effects are not finite: {values.tolist()}')
+        values.setflags(write=False)
+        object.__setattr__(self, 'values', values)
+
+    @classmethod
+    def from_result_values(cls, values, design):
+        """The effects of identified ``values`` (24,) of a run with the :class:`EffectDesign`."""
+        return cls(values, design.payload_mass, design.centre_of_mass, design.reference_time_s)
+
+    @property
+    def none(self):
+        return not np.any(self.values)
+
+    def groups(self):
+        """The groups with a nonzero parameter."""
+        blocks = self.values.reshape(len(EFFECT_GROUPS), NUM_LEGS)
+        return [group for group, block in zip(EFFECT_GROUPS, blocks, strict=True) if block.any()]
+
+
+def compensated_leg_readings(
+    geometry, identified, poses, directions=None, times_s=None, thermal=False
+):
+    """Leg readings (M, 6) that bring a platform with the ``identified`` effects to ``poses``
+    (M, 6): the identification's model read backwards, ``q_i = (IK_i + sum theta h) / (1 +
+    kq_i)``. ``directions`` (M, 6): each leg's approach direction (default +1); ``times_s``
+    (M,) s. The thermal drift is left out unless ``thermal`` (a linear drift does not
+    extrapolate past the run: it is reported, docs/platform_effects.md)."""
+    poses = np.atleast_2d(poses)
+    rigid = inverse_kinematics(geometry, poses)
+    values = np.array(identified.values)
+    if not thermal:
+        values[12:18] = 0.0
+    mask = values != 0.0
+    if mask.any():
+        count = poses.shape[0]
+        design = EffectDesign(
+            np.zeros(count) if times_s is None else np.asarray(times_s, float),
+            np.ones((count, NUM_LEGS)) if directions is None else np.asarray(directions, float),
+            identified.payload_mass,
+            identified.centre_of_mass,
+            identified.reference_time_s,
+        )
+        terms = EffectTerms(geometry, design, mask, count)
+        rigid = rigid + terms.regressors(poses) @ values[mask]
+    return geometry.sensors.leg_readings(rigid)
+
+
+def commanded_leg_readings(geometry, poses, previous_readings=None):
+    """The leg readings (M, 6) a controller with ``geometry`` drives to for ``poses`` (M, 6)
+    visited in order from legs reading ``previous_readings`` (6,; None: the first is the
+    start): its IK through its sensor model, and the compensation of its identified effects
+    (``geometry.effects``) with each leg's direction of travel. Every consumer that commands
+    the platform (platform_sim, platform_bridge, the simulations) uses this."""
+    poses = np.atleast_2d(poses)
+    readings = geometry.sensors.leg_readings(inverse_kinematics(geometry, poses))
+    if geometry.effects.none:
+        return readings
+    directions = approach_directions(readings, previous_readings)
+    return compensated_leg_readings(geometry, geometry.effects, poses, directions)
+
+
+def model_poses(geometry, leg_readings, guesses, design, tolerance=1e-12, iterations=12):
+    """Poses (M, 6) where the identification's model, with the effects ``geometry.effects``,
+    predicts the leg readings (M, 6) of a run with the :class:`EffectDesign` rows ``design``
+    (forward kinematics with the effects), and ``converged`` (M,). Newton's method on the rigid
+    Jacobian from rigid FK: the effects are micrometres."""
+    target = geometry.sensors.true_leg_lengths(np.atleast_2d(leg_readings))
+    poses, converged = forward_kinematics_masked(geometry, target, guesses)
+    values = geometry.effects.values
+    if geometry.effects.none:
+        return poses, converged
+    terms = EffectTerms(geometry, design, values != 0.0, len(poses))
+    for _ in range(iterations):
+        rigid, jacobian, _ = inverse_kinematics_jacobians(geometry, poses)
+        residual = rigid + terms.regressors(poses) @ values[values != 0.0] - target
+        residual[~converged] = 0.0
+        if not np.max(np.abs(residual), initial=0.0) > tolerance:
+            break
+        jacobian[~converged] = np.eye(6)
+        poses = poses - np.linalg.solve(jacobian, residual[..., None])[..., 0]
+    return poses, converged & (np.max(np.abs(residual), axis=1) < 1e-9)
+
+
+def design_rows(design, rows):
+    """The :class:`EffectDesign` of the postures ``rows`` (a mask or indices) of a run."""
+    if design is None:
+        return None
+    return dataclasses.replace(
+        design,
+        times_s=None if design.times_s is None else np.asarray(design.times_s)[rows],
+        directions=None if design.directions is None else np.asarray(design.directions)[rows],
+    )
+
+
+def effect_estimates(model, point, status, all_deviations):
+    """Of an identification's ``model`` at ``point``: ``(free (24,), estimates (24,), standard deviations (24,))`` of the effect parameters;
+    ``all_deviations``: of the free parameters, then of the free effects."""
+    count = NUM_EFFECT_PARAMETERS
+    free, values, deviations = np.zeros(count, bool), np.zeros(count), np.full(count, np.nan)
+    if effect_terms_of(model) is not None:
+        first = int(model.free.sum())
+        free = model.effects.mask.copy()
+        deviations[free] = all_deviations[first:]
+        if status >= 0:
+            values[free] = point.values[first:]
+    return free, values, deviations
+
+
+def geometry_with_effects(geometry, model, effect_values):
+    """``geometry`` carrying the identified effects (what its controller compensates)."""
+    if effect_terms_of(model) is None:
+        return geometry
+    design = model.effects.design
+    return geometry.replace(effects=IdentifiedEffects.from_result_values(effect_values, design))
+
+
+def effect_terms_of(model):
+    """The model's :class:`EffectTerms` (None: no effect parameter free)."""
+    return getattr(model, 'effects', None)

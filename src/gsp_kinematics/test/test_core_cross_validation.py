@@ -1,0 +1,198 @@
+"""Cross-validated accuracy: the noise it removes against Monte-Carlo, and the held-out error
+against the truth on a platform with an error the 44-parameter model does not contain."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsp_kinematics import noise_from_data
+from gsp_kinematics.cross_validation import (
+    cross_validate,
+    device_pose,
+    fold_assignment,
+    noise_removed,
+    noise_variances,
+)
+from gsp_kinematics.identification import identify
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.validation import sensor_measurements
+
+SAMPLES = 10
+ROWS = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
+
+
+def smooth_leg_error(poses, amplitude=5e-6):
+    """A leg-length error (M, 6) m that is a smooth function of the pose and no geometry: a
+    sag that grows with the platform's offset from the centre, different on each leg."""
+    legs = np.arange(6)
+    x, y = poses[:, 0:1], poses[:, 1:2]
+    return amplitude * np.sin(8.0 * x + 3.0 * legs) * np.cos(6.0 * y - legs)
+
+
+def rows(truth, poses, rng, leg_error=None):
+    """Averaged rows of ``poses`` (noise of ``SAMPLES`` samples; None rng: noise-free)."""
+    legs, readings = sensor_measurements(truth, poses)
+    if leg_error is not None:
+        legs = legs + leg_error(poses)
+    if rng is not None:
+        legs = legs + rng.normal(0.0, ROWS.leg_lengths, legs.shape)
+        readings = readings + rng.normal(0.0, 1.0, readings.shape) * ROWS.readings()
+    return legs, readings
+
+
+def test_folds_interleave_and_leave_one_out_when_few():
+    assert fold_assignment(25, 10).tolist()[:12] == [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, 1]
+    assert fold_assignment(7, 10).tolist() == list(range(7))
+    with pytest.raises(ValueError):
+        fold_assignment(10, 1)
+
+
+def test_the_device_pose_is_the_true_position_and_phi(exact, moderate_postures):
+    _, readings = sensor_measurements(exact, moderate_postures)
+    position, phi = device_pose(exact, readings)
+    assert np.abs(position - moderate_postures[:, :3]).max() < 1e-12  # m
+    assert np.abs(phi - moderate_postures[:, 5]).max() < 1e-12  # rad
+
+
+def test_noise_variances_match_monte_carlo(exact, moderate_postures):
+    """The propagated noise of a prediction error against the scatter of the errors of many
+    noisy copies of the same rows (legs through FK, device through eq 9)."""
+    poses = moderate_postures[:8]
+    legs, readings = sensor_measurements(exact, poses)
+    rng = np.random.default_rng(3)
+    draws = 3000
+    position = np.zeros((draws, len(poses), 3))
+    phi = np.zeros((draws, len(poses)))
+    from gsp_kinematics.cross_validation import prediction_errors
+
+    for k in range(draws):
+        noisy_legs = legs + rng.normal(0.0, ROWS.leg_lengths, legs.shape)
+        noisy = readings + rng.normal(0.0, 1.0, readings.shape) * ROWS.readings()
+        position[k], phi[k], _ = prediction_errors(exact, noisy_legs, noisy, poses)
+    expected_position, expected_phi = noise_variances(exact, poses, readings, ROWS)
+    measured_position = np.sum(position.var(axis=0), axis=1)
+    # 3000 draws: the variance is known to about 2.6 % (sqrt(2 / 3000)); 10 % per posture.
+    assert np.allclose(measured_position, expected_position, rtol=0.1)
+    assert np.allclose(phi.var(axis=0), expected_phi, rtol=0.1)
+
+
+def test_noise_removed_takes_the_noise_out_in_quadrature():
+    rng = np.random.default_rng(5)
+    model = np.full(20000, 3.0)
+    noise = rng.normal(0.0, 4.0, model.shape)
+    mean, p95, rms, factor = noise_removed(np.abs(model + noise), np.full(model.shape, 16.0))
+    assert rms == pytest.approx(3.0, rel=0.05)
+    assert factor == pytest.approx(3.0 / 5.0, rel=0.05)
+    assert noise_removed(np.ones(3), np.full(3, 4.0))[0] == 0.0  # never negative
+
+
+@pytest.fixture(scope='module')
+def smooth_platform(exact, nominal_sets, moderate_postures):
+    """The exact platform with a smooth leg error; 60 postures fitted from nominal set 1."""
+    nominal = nominal_sets[1]
+    clean = rows(exact, moderate_postures, None, smooth_leg_error)
+    noisy = rows(exact, moderate_postures, np.random.default_rng(11), smooth_leg_error)
+    fits = [
+        identify(nominal, legs, readings, ROWS, free='paper', pose_guesses=moderate_postures)
+        for legs, readings in (clean, noisy)
+    ]
+    assert all(fit.converged for fit in fits)
+    return nominal, clean, noisy, fits
+
+
+def test_cross_validation_on_clean_data_sees_the_unmodelled_error(
+    moderate_postures, smooth_platform
+):
+    """Noise-free rows of a platform the model does not contain: the cross-validated error is
+    what the fitted geometry cannot explain (tens of um), the nominal baseline 100x more."""
+    nominal, (legs, readings), _, (fit, _) = smooth_platform
+    cv = cross_validate(fit, nominal, legs, readings, ROWS)
+    summary = cv.summary()
+    assert cv.folds == 10 and cv.predicted == len(moderate_postures) and not cv.failed_folds
+    calibrated = summary['calibrated']['position_mm']
+    nominal_mm = summary['nominal']['position_mm']
+    assert 1e-3 < calibrated['measured_mean'] < 0.05  # um: the smooth error
+    assert nominal_mm['measured_mean'] > 100 * calibrated['measured_mean']
+    # Every posture was predicted by a fit that did not see it: its fold's.
+    assert set(cv.fold_of_posture.tolist()) == set(range(10))
+    assert np.all(np.isfinite(cv.position_error)) and np.all(np.isfinite(cv.phi_error))
+
+
+def test_noise_removed_cross_validation_agrees_with_the_clean_one(smooth_platform):
+    """Noisy rows: with the propagated noise taken out, the cross-validated accuracy is within
+    25 % of the noise-free one (the held-out error against the truth), the raw figure is not."""
+    nominal, clean, noisy, (clean_fit, noisy_fit) = smooth_platform
+    truth = cross_validate(clean_fit, nominal, *clean, ROWS).summary()['calibrated']
+    measured = cross_validate(noisy_fit, nominal, *noisy, ROWS).summary()['calibrated']
+    true_rms = truth['position_mm']['measured_mean']
+    assert measured['position_mm']['measured_mean'] > 1.25 * true_rms  # the noise's share
+    assert measured['position_mm']['mean'] == pytest.approx(true_rms, rel=0.25)
+    assert math.isfinite(measured['phi_deg']['mean'])
+
+
+def _within(rows, dof=5000.0):
+    """The within-posture estimate a run of well-sampled windows gives (the rows' true noise)."""
+    return {
+        channel: noise_from_data.WithinNoise(value, dof, SAMPLES, False)
+        for channel, value in rows.channels().items()
+    }
+
+
+@pytest.fixture(scope='module')
+def strong_smooth(exact, nominal_sets, moderate_postures):
+    """Noisy rows of the exact platform with a 30 um smooth leg error, fitted with the noise
+    estimated from the run (the calibrator's default)."""
+    rng = np.random.default_rng(21)
+    legs, readings = rows(exact, moderate_postures, rng, lambda p: smooth_leg_error(p, 30e-6))
+    return legs, readings
+
+
+def test_the_unmodelled_error_is_kept_apart_from_the_noise(
+    nominal_sets, moderate_postures, strong_smooth
+):
+    """The legs' noise stays their noise (the within estimate); the excess of the residuals
+    between postures is the unmodelled part, of the order of the smooth error;
+    and a smooth field names no outlier."""
+    legs, readings = strong_smooth
+    result, estimates, _ = noise_from_data.identify_with_noise(
+        'estimated', nominal_sets[1], legs, readings, ROWS, _within(ROWS),
+        free='paper', pose_guesses=moderate_postures,
+    )  # fmt: skip
+    assert not result.goodness_of_fit.accepted
+    assert estimates['leg_lengths'].noise == pytest.approx(ROWS.leg_lengths)
+    unmodelled = noise_from_data.unmodelled_error(estimates)
+    # The weights put the 30 um leg error where it is cheapest: in the legs and, through the
+    # estimated poses, in the inclinations (about 1 m of link: 1 urad is 1 um).
+    assert 10e-6 < unmodelled.leg_lengths + 1.0 * unmodelled.inclinometer < 60e-6
+    assert result.outliers == []
+    record = noise_from_data.noise_record(estimates, DEFAULT_SENSOR_NOISE, [SAMPLES])
+    assert record['leg_lengths']['estimated'] == pytest.approx(DEFAULT_SENSOR_NOISE.leg_lengths)
+    assert not record['leg_lengths']['warning']
+
+
+def test_a_bad_row_in_a_smooth_field_is_still_named(nominal_sets, moderate_postures, strong_smooth):
+    legs, readings = strong_smooth
+    legs = legs.copy()
+    legs[17, 2] += 0.5e-3  # a glitch on leg 3
+    result, _, _ = noise_from_data.identify_with_noise(
+        'estimated', nominal_sets[1], legs, readings, ROWS, _within(ROWS),
+        free='paper', pose_guesses=moderate_postures,
+    )  # fmt: skip
+    assert [entry['posture'] for entry in result.outliers] == [17]
+
+
+def test_the_prediction_adds_the_unmodelled_part(exact, moderate_postures):
+    from gsp_kinematics.geometry import NUM_PARAMETERS
+    from gsp_kinematics.prediction import assumption, predicted_errors
+    from gsp_kinematics.sensors.noise import SensorNoise
+
+    covariance = np.eye(NUM_PARAMETERS) * 1e-12
+    alone, _ = predicted_errors(exact, covariance, moderate_postures[:5])
+    unmodelled = SensorNoise(10e-6, 0.0, 0.0, 0.0)
+    added, _ = predicted_errors(exact, covariance, moderate_postures[:5], unmodelled=unmodelled)
+    only, _ = predicted_errors(exact, covariance * 0.0, moderate_postures[:5], None, unmodelled)
+    # Independent parts add in quadrature (E|v| of a 3-D Gaussian: to within a few %).
+    assert np.allclose(added, np.hypot(alone, only), rtol=0.1)
+    assert np.all(only > 5e-3)  # 10 um in each leg moves the platform by several um (mm here)
+    assert 'exactly the model' in assumption(None) and '10 um rms' in assumption(unmodelled)

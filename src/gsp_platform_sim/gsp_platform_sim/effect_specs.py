@@ -1,0 +1,79 @@
+"""``platform_sim``'s truth parameters of the real platform's effects (``effects.*``,
+docs/platform_effects.md): one :class:`ParameterSpec` per field of
+:class:`gsp_kinematics.effects.model.PlatformEffects`, read once at start-up. Their defaults
+switch every effect off (the rigid 44-parameter platform).
+"""
+
+from gsp_kinematics.effects.model import FIELDS, EffectsError, PlatformEffects
+from gsp_msgs_py.parameter_specs import ParameterSpec, is_finite_number
+
+PREFIX = 'effects.'
+
+
+def _check(shape, unit, signed):
+    size = 1 if shape is None else shape
+    what = 'a finite number' if shape is None else f'{shape} finite numbers'
+    bound = '' if signed else f' >= 0 {unit}'
+
+    def check(value):
+        values = [value] if shape is None else list(value)
+        if len(values) != size or not all(is_finite_number(v) for v in values):
+            return f'must be {what}{bound}'
+        if not signed and any(v < 0.0 for v in values):
+            return f'must be {what}{bound}'
+        return ''
+
+    return check
+
+
+def _spec(name, shape, unit, description, default):
+    signed = name == 'centre_of_mass'
+    value = float(default) if shape is None else [float(v) for v in default]
+    return ParameterSpec(
+        PREFIX + name,
+        value,
+        f'Real platform: {description} (docs/platform_effects.md)',
+        unit=unit,
+        read_only=True,
+        constraints=('' if signed else '>= 0') + ('' if shape is None else f', {shape} values'),
+        check=_check(shape, unit, signed),
+    )
+
+
+_DEFAULTS = PlatformEffects()
+EFFECT_SPECS = tuple(
+    _spec(name, shape, unit, description, getattr(_DEFAULTS, name))
+    for name, shape, unit, description in FIELDS
+)
+
+
+def effects_from_values(values):
+    """:class:`PlatformEffects` of the checked ``{'effects.<field>': value}``; ValueError naming
+    the parameter if they do not make one (a zero time constant)."""
+    try:
+        return PlatformEffects.from_parameters(values, PREFIX)
+    except EffectsError as error:
+        raise ValueError(f'{PREFIX}{error}') from None
+
+
+def effects_summary(effects):
+    """One line for the start-up log: the effects that are on."""
+    if effects.ideal:
+        return 'no platform effects (rigid, ideal)'
+    parts = []
+    if effects.compliant:
+        stiffness = effects.leg_stiffness
+        parts.append(
+            f'{effects.payload_mass:g} kg on legs of {stiffness.min() * 1e-6:g}-'
+            f'{stiffness.max() * 1e-6:g} N/um'
+        )
+    if any(effects.backlash):
+        parts.append(f'backlash up to {effects.backlash.max() * 1e6:g} um')
+    if effects.thermal:
+        parts.append(
+            f'legs warming up to {effects.temperature_rise.max():g} K '
+            f'(time constant {effects.thermal_time_constant:g} s)'
+        )
+    if any(effects.base_joint_offsets):
+        parts.append(f'base joint axes up to {effects.base_joint_offsets.max() * 1e6:g} um apart')
+    return 'platform effects: ' + ', '.join(parts)
