@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+from gsp_testing import marked_environment
 from scipy import stats
 from test_end_to_end import run_demo
 
@@ -16,7 +17,6 @@ from gsp_calibrator.tools import bench_sensor_dynamics
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import forward_kinematics_masked
 from gsp_kinematics.validation import commanded_articular, sensor_measurements
-from gsp_msgs_py.testing import marked_environment
 
 POSTURES = 20
 #: The rows' chi-square may exceed its 1 - this quantile only by chance.
