@@ -2,6 +2,7 @@
 source path and module name the README and docs/ give exists."""
 
 import ast
+import builtins
 import importlib.machinery
 import importlib.util
 import re
@@ -35,7 +36,7 @@ PACKAGES = sorted(path.name for path in SRC.glob('*/gsp_*') if (path / '__init__
 
 
 def _expand(path):
-    """``a/{b,c}.py`` -> ``a/b.py``, ``a/c.py`` (one brace group)."""
+    """``a/{b,c}`` -> ``a/b``, ``a/c`` (one brace group)."""
     head, brace, rest = path.partition('{')
     if not brace:
         return [path]
@@ -94,7 +95,13 @@ def dangling_names(text):
 
 @pytest.mark.parametrize('doc', DOCS, ids=lambda path: path.name)
 def test_the_docs_name_only_modules_and_files_that_exist(doc):
-    missing = dangling_names(doc.read_text(encoding='utf-8'))
+    text = doc.read_text(encoding='utf-8')
+    missing = dangling_names(text) + [
+        name
+        for pair in _FILE.findall(text)
+        for name in _expand(pair[0] or pair[1])
+        if Path(name).name not in _FILE_NAMES
+    ]
     assert not missing, f'{doc.name} names what src/ does not hold: {missing}'
 
 
@@ -105,4 +112,172 @@ def test_the_name_check_sees_a_moved_module_and_a_missing_file():
     ]
     assert dangling_names('`src/gsp_calibrator/gsp_calibrator/{calibration,settings}.py`') == [
         'src/gsp_calibrator/gsp_calibrator/calibration.py'
+    ]
+
+
+# --- names in docstrings -------------------------------------------------------------------------
+
+#: Every Python file of the project whose docstrings are checked: the packages and their tests,
+#: the cross-package tests and the scripts.
+PYTHON_FILES = sorted(
+    [
+        *SRC.glob('*/gsp_*/**/*.py'),
+        *SRC.glob('*/test/**/*.py'),
+        *(WS / 'test').glob('*.py'),
+        *(WS / 'test_support').glob('*.py'),
+    ]
+)
+#: The tests' shared support module (test_support/, not installed).
+TEST_SUPPORT_MODULE = 'gsp_testing'
+TEST_SUPPORT_FILE = WS / 'test_support' / 'gsp_testing.py'
+_ROLE = re.compile(r':(?:mod|class|func|meth|data|attr|exc|obj):`~?([^`<>]+?)`')
+#: A backticked dotted name in a docstring: ``module.name`` or ``object.attribute``.
+_DOTTED = re.compile(r'``([a-z_]\w*(?:\.[A-Za-z_]\w*)+)(?:\(\))?``')
+_FILE = re.compile(r'``([A-Za-z_][\w/]*\.py)``|`([A-Za-z_][\w/]*\.py)`')
+
+
+def _module_name(path):
+    """``gsp_calibrator.run.flow`` of ``src/gsp_calibrator/gsp_calibrator/run/flow.py``; None for
+    a test file."""
+    parts = path.relative_to(SRC).with_suffix('').parts if path.is_relative_to(SRC) else ()
+    if len(parts) < 2 or parts[1] != parts[0]:
+        return None
+    parts = parts[1:]
+    return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
+
+
+def _docstrings(tree):
+    """The docstrings of a module's tree: its own, its classes' and its functions'."""
+    nodes = [tree, *ast.walk(tree)]
+    kinds = (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)
+    return [ast.get_docstring(node) or '' for node in nodes if isinstance(node, kinds)]
+
+
+def _top_level_names(tree):
+    names = set()
+    for node in tree.body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign):
+            names.update(getattr(t, 'id', None) for t in node.targets)
+            for target in node.targets:
+                if isinstance(target, ast.Tuple):
+                    names.update(getattr(e, 'id', None) for e in target.elts)
+        elif isinstance(node, ast.AnnAssign):
+            names.add(getattr(node.target, 'id', None))
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names.update((a.asname or a.name.split('.')[0]) for a in node.names)
+        elif isinstance(node, ast.If):  # e.g. TYPE_CHECKING imports
+            names.update(_top_level_names(ast.Module(body=node.body, type_ignores=[])))
+    return names - {None}
+
+
+def _members(tree, class_name):
+    """Names defined in class ``class_name`` of ``tree`` (methods, attributes, fields)."""
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef) and node.name == class_name:
+            inner = _top_level_names(ast.Module(body=node.body, type_ignores=[]))
+            return inner | {b.id for b in node.bases if isinstance(b, ast.Name)}
+    return None
+
+
+def _bound_names(tree):
+    """Every name the module binds anywhere: definitions, assignments, attributes set
+    (``self.x = ...``), arguments and imports."""
+    names = set(dir(builtins))
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            names.add(node.attr)
+        elif isinstance(node, ast.arg):
+            names.add(node.arg)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names.update((a.asname or a.name.split('.')[0]) for a in node.names)
+    return names
+
+
+def _resolves(target, module, tree):
+    """Whether a docstring's reference ``target`` resolves from ``module`` (whose ``tree`` is
+    given): a dotted project name, a name relative to the module's package (``.x``), a sibling
+    module (``conversions.make_status``) or a name the module binds (``name``, ``Class.member``)."""
+    package = module.split('.')[:-1] if module else []
+    if module and _module_path(module.split('.')).name == '__init__.py':
+        package = module.split('.')
+    if target.startswith('.'):
+        if module is None or target.lstrip('.') in _bound_names(tree):
+            return True  # a name of the module itself (Sphinx's ``.name``)
+        dots = len(target) - len(target.lstrip('.'))
+        base = package[: len(package) - dots + 1]
+        return not dangling_names('.'.join(base) + '.' + target.lstrip('.'))
+    head = target.split('.')[0]
+    if head == TEST_SUPPORT_MODULE:
+        name = target.split('.')[1] if '.' in target else ''
+        return not name or name in _bound_names(ast.parse(TEST_SUPPORT_FILE.read_text()))
+    if head.startswith('gsp_'):
+        return head in PACKAGES and not dangling_names(target)
+    if package and _module_path([*package, head]) is not None:
+        return not dangling_names('.'.join([*package, target]))
+    if head not in _bound_names(tree):
+        return False
+    if '.' in target:
+        members = _members(tree, head)
+        if members is not None and target.split('.')[1] not in members | _bound_names(tree):
+            return False
+    return True
+
+
+#: Every project module's last name and package (``flow``, ``run``...), and the standard and
+#: third-party modules docstrings may name (``np.linalg``, ``scipy.optimize``...).
+_MODULE_NAMES = {
+    part for path in SRC.glob('*/gsp_*/**/*.py') for part in path.with_suffix('').parts[-2:]
+} | {'np', 'numpy', 'scipy', 'rclpy', 'os', 'sys', 'math', 'time', 'json', 'yaml', 'mcap'}
+_MODULE_NAMES |= {'concurrent', 'builtin_interfaces', 'header'}  # a ROS message's header
+_FILE_SUFFIXES = {'py', 'csv', 'json', 'yaml', 'png', 'mcap', 'md', 'tmp', 'msg', 'txt'}
+_FILE_NAMES = {path.name for path in WS.glob('**/*.py') if '.venv' not in path.parts}
+
+
+def dangling_docstring_names(path):
+    """The names a file's docstrings give that do not resolve (see :func:`_resolves`), and the
+    ``*.py`` files they name that the repository does not hold."""
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    module = _module_name(path)
+    missing = []
+    for text in _docstrings(tree):
+        missing += dangling_names(text)
+        for target in _ROLE.findall(text):
+            if not _resolves(target.strip().rstrip('()'), module, tree):
+                missing.append(target)
+        for target in _DOTTED.findall(text):
+            head, last = target.split('.')[0], target.rpartition('.')[2]
+            if last in _FILE_SUFFIXES or head in _MODULE_NAMES:
+                continue  # a file name, or a module of the project or a library
+            if not _resolves(target, module, tree):
+                missing.append(target)
+        for pair in _FILE.findall(text):
+            name = Path(pair[0] or pair[1]).name
+            if name not in _FILE_NAMES:
+                missing.append(pair[0] or pair[1])
+    return sorted(set(missing))
+
+
+@pytest.mark.parametrize('path', PYTHON_FILES, ids=lambda path: str(path.relative_to(WS)))
+def test_docstrings_name_only_what_exists(path):
+    missing = dangling_docstring_names(path)
+    assert not missing, f'{path.relative_to(WS)} docstrings name what does not exist: {missing}'
+
+
+def test_the_docstring_check_sees_a_missing_module_function_and_file(tmp_path):
+    stale = tmp_path / 'stale.py'
+    stale.write_text(
+        '"""See :mod:`gsp_calibrator.run_flow`, ``node_waiting.py``, :func:`absent`,\n'
+        '``run_directory.Samples`` and :class:`gsp_calibrator.run.session.RunSession`."""\n'
+    )
+    assert dangling_docstring_names(stale) == [
+        'absent',
+        'gsp_calibrator.run_flow',
+        'node_waiting.py',
+        'run_directory.Samples',
     ]

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gsp_testing import marked_environment, marked_processes, wait_until
 
-from gsp_calibrator.tools import demo
+from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_kinematics.geometry import load_geometry, parameter_errors
-from gsp_msgs_py.testing import marked_environment, marked_processes, wait_until
 
 DEMO_TIMEOUT_S = 300.0  # generous: the machine may be loaded (the target is < 60 s)
 #: Keys every summary.json has (the demo writes more: the run directory, the fit, ...).
@@ -23,7 +23,6 @@ SUMMARY_KEYS = {'validation', 'max_param_error_mm', 'max_param_error_deg'} | {
     'calibration_s',
     'total_s',
 }
-VALIDATION_KEYS = set(demo.VALIDATION_KEYS)
 
 
 def demo_command():
@@ -98,7 +97,7 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
         'lvdt',
     }
     before, after = summary['validation']['before'], summary['validation']['after']
-    assert set(before) == set(after) == VALIDATION_KEYS
+    assert set(before) == set(after) == set(VALIDATION_KEYS)
     # Accuracy improves by orders of magnitude (nominal: mm; calibrated: micrometres).
     assert after['position_mm_mean'] < 0.1 * before['position_mm_mean']
     assert after['position_mm_max'] < 0.05

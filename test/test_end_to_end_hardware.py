@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from gsp_msgs_py.testing import marked_environment, marked_processes, wait_until
+from gsp_testing import marked_environment, marked_processes, wait_until
 
 DEMO_TIMEOUT_S = 400.0  # generous: bounds a failure only
 

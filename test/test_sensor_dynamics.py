@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+from gsp_testing import marked_environment
 from scipy import stats
 from test_end_to_end import run_demo
 
@@ -16,7 +17,6 @@ from gsp_calibrator.tools import bench_sensor_dynamics
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import forward_kinematics_masked
 from gsp_kinematics.validation import commanded_articular, sensor_measurements
-from gsp_msgs_py.testing import marked_environment
 
 POSTURES = 20
 #: The rows' chi-square may exceed its 1 - this quantile only by chance.
@@ -30,7 +30,10 @@ def test_realistic_device_rows_have_no_bias_beyond_their_noise(tmp_path):
         + ['--postures', str(POSTURES), '--validation-postures', '5'],
         env,
     )
-    assert completed.returncode == 0, output
+    # What is tested here is the rows, not the verdict: with 20 postures and this device's
+    # correlated noise the calibration may fall short of the default required accuracy, and
+    # then gsp_demo reports it NOT ACCEPTED (exit 1) after a complete collection.
+    assert completed.returncode == 0 or 'calibration NOT ACCEPTED' in output, output
     run = Path(re.findall(r'^run directory: (.+)$', completed.stdout, re.MULTILINE)[-1])
     samples = read_samples(run / 'samples.csv')
     assert len(samples) == POSTURES, output

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from gsp_testing import marked_environment
 
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
@@ -20,7 +21,6 @@ from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.geometry import default_geometry, load_geometry
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.validation import validate
-from gsp_msgs_py.testing import marked_environment
 
 CLIENT_TIMEOUT_S = 600.0  # generous: the machine may be loaded
 POSTURES = 30

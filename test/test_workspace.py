@@ -81,11 +81,17 @@ def test_pose_command_and_status_round_trip(ros_context):
     import rclpy
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
+    from gsp_testing import spin_until
     from rclpy.executors import SingleThreadedExecutor
 
-    from gsp_msgs_py import conversions as conv
     from gsp_msgs_py import names, qos
-    from gsp_msgs_py.testing import spin_until
+    from gsp_msgs_py.conversions import (
+        command_id_from_stamp,
+        make_status,
+        parse_status,
+        pose_stamped_to_pose,
+        pose_to_pose_stamped,
+    )
 
     node = rclpy.create_node('gsp_workspace_test', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
@@ -96,14 +102,14 @@ def test_pose_command_and_status_round_trip(ros_context):
             PoseStamped,
             names.TOPIC_POSE_COMMAND,
             lambda m: poses.append(
-                (conv.command_id_from_stamp(m.header.stamp), conv.pose_stamped_to_pose(m))
+                (command_id_from_stamp(m.header.stamp), pose_stamped_to_pose(m))
             ),
             qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND],
         )
         node.create_subscription(
             DiagnosticStatus,
             names.TOPIC_PLATFORM_STATUS,
-            lambda m: statuses.append(conv.parse_status(m)),
+            lambda m: statuses.append(parse_status(m)),
             qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
         )
         command_pub = node.create_publisher(
@@ -125,9 +131,9 @@ def test_pose_command_and_status_round_trip(ros_context):
 
         x = np.array([0.01, -0.02, 0.95, 0.05, -0.03, 0.2])
         stamp = node.get_clock().now().to_msg()
-        command_pub.publish(conv.pose_to_pose_stamped(x, stamp))
-        command_id = conv.command_id_from_stamp(stamp)
-        status_pub.publish(conv.make_status(command_id, 'settled'))
+        command_pub.publish(pose_to_pose_stamped(x, stamp))
+        command_id = command_id_from_stamp(stamp)
+        status_pub.publish(make_status(command_id, 'settled'))
         assert spin_until(executor, lambda: poses and statuses, TIMEOUT_S)
 
         assert poses and poses[0][0] == command_id

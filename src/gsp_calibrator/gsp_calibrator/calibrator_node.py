@@ -41,7 +41,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.collection.single_source import SingleSourceGuard
 from gsp_calibrator.collection.topics import sensor_message
 from gsp_calibrator.node_threads import (
@@ -52,7 +52,7 @@ from gsp_calibrator.node_threads import (
     new_future,
     run_in_thread,
 )
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.recorder import RunRecorder
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
@@ -113,8 +113,8 @@ class CalibratorNode(Node):
 
         # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
         # run or not, and the latest progress published.
-        self._heard_ns = dict.fromkeys(protocol.SENSOR_TOPICS)
-        self._lags = ProcessingLags(protocol.SENSOR_TOPICS)
+        self._heard_ns = dict.fromkeys(topics.SENSOR_TOPICS)
+        self._lags = ProcessingLags(topics.SENSOR_TOPICS)
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -127,7 +127,7 @@ class CalibratorNode(Node):
             self,
             'recorder',
             {},
-            setup=lambda node: recording.RunRecorder(node, persistent=True),
+            setup=lambda node: RunRecorder(node, persistent=True),
             on_error=self._on_recording_error,
         )
         self.recorder = self._recorder_listener.extra
@@ -139,7 +139,7 @@ class CalibratorNode(Node):
         self._sensors = SensorListener.beside(
             self,
             'sensors',
-            {t: self._sensor_callback(t) for t in protocol.SENSOR_TOPICS},
+            {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS},
             raw=True,  # decoded here, cheaply (collection.joint_state_cdr)
         )
         self.create_subscription(
@@ -244,7 +244,7 @@ class CalibratorNode(Node):
 
     def _on_event(self, event):
         """Act on the protocol's events that do not end a posture (any thread)."""
-        if isinstance(event, protocol.CollectionStarted):
+        if isinstance(event, events.CollectionStarted):
             try:
                 self.recorder.note_collection_start(
                     event.command_id, event.start_ns, posture=event.posture
@@ -256,11 +256,11 @@ class CalibratorNode(Node):
                 names.PHASE_COLLECTING,
                 f'posture {event.posture} of {self._posture_count()}: collecting',
             )
-        elif isinstance(event, protocol.SampleDropped):
+        elif isinstance(event, events.SampleDropped):
             self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
 
     def _new_command(self, pose):
-        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.PostureLink`)."""
+        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.run.host.PostureLink`)."""
         stamp = self.get_clock().now()
         msg = conversions.pose_to_pose_stamped(pose, stamp.to_msg())
         return (

@@ -67,7 +67,8 @@ class ParameterSetter:
 async def set_parameters_atomically(client, service, values, timeout_s, wait_for):
     """Set ``values`` ({name: value}) through ``client`` (``SetParametersAtomically`` of
     ``service``); ``(True, '')`` or ``(False, why)``. ``wait_for(predicate, timeout_s)``: a
-    future of :data:`WAIT_OK` or :data:`WAIT_TIMEOUT` (e.g. :meth:`Waits.add`)."""
+    future of :data:`.run.host.WAIT_OK` or :data:`.run.host.WAIT_TIMEOUT` (e.g.
+    :meth:`.node_threads.Waits.add`)."""
     if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
         return False, f'parameter service {service} unavailable within {timeout_s:g} s'
     request = SetParametersAtomically.Request()

@@ -1,13 +1,19 @@
 """Parameters of the ``calibrator`` node: names, defaults, units, checks (pure, no rclpy).
 
-:data:`PARAMETERS` is the single source of the declarations (the node declares them with
-:func:`gsp_msgs_py.parameter_specs.declare_parameters`; docs/parameters.md is generated from it);
+:data:`PARAMETERS` is the single declaration of each parameter (the node declares them with
+:func:`gsp_msgs_py.parameter_specs.declare_parameters`; docs/parameters.md is generated from it).
+Everything else is derived from it: :class:`CalibratorSettings` has one field per parameter; the
+subsets marked in the table (``subsets=``) give the options stored with a run (:data:`STORED`),
+those that decide the posture selection (:data:`SELECTION`) and those accepted on the command
+lines of ``gsp_demo``/``gsp_plan`` (:data:`RUN_COMMAND_LINE`) and ``gsp_reidentify``
+(:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_value`).
 :func:`check_parameters` gives the reason a set of values is rejected, at start-up and in the
 set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
 settings of one run.
 """
 
 import dataclasses
+import functools
 import os
 import re
 
@@ -19,21 +25,22 @@ from gsp_kinematics.acceptance import (
     Requirement,
 )
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS
-from gsp_kinematics.geometry import (
-    ALL_PARAMETER_NAMES,
-    GeometryError,
-    default_geometry_path,
-    load_geometry,
-)
+from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import (
     FORMULATIONS,
-    PARAMETER_GROUPS,
     Options,
+    free_parameters_error,
     resolve_free,
 )
-from gsp_kinematics.noise_from_data import DEFAULT_NOISE_SOURCE, NOISE_SOURCES
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.noise_from_data import DEFAULT_NOISE_SOURCE, NOISE_SOURCES, noise_source_error
+from gsp_kinematics.sensors.noise import (
+    ASSUMED_NOISE_PARAMETER,
+    DEFAULT_SENSOR_NOISE,
+    NOISE_FIELDS,
+    NOISE_UNITS,
+    SensorNoise,
+)
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import parameter_specs
@@ -42,26 +49,20 @@ from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, check_values, g
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
 
-def check_free_parameters(value):
-    """Reason ('' if none) why ``value`` (names and groups) is not a set of free parameters."""
-    return _check_free(value)
-
-
-def _check_free(value):
-    names = list(value)
-    if not names:
-        return 'must name at least one parameter'
-    unknown = [n for n in names if n not in ALL_PARAMETER_NAMES and n not in PARAMETER_GROUPS]
-    if unknown:
-        return (
-            f'unknown parameter name(s) {unknown}; expected groups ({", ".join(PARAMETER_GROUPS)}) '
-            'or names among A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma, kq1..kq6, alpha0, '
-            'beta0, phi0, kDm'
-        )
-    duplicated = sorted({n for n in names if names.count(n) > 1})
-    if duplicated:
-        return f'duplicated name(s) {duplicated}'
-    return ''
+#: The subsets of :data:`PARAMETERS` (a spec's ``subsets``).
+#: Stored with a run (the recording's options): the rebuild and ``gsp_reidentify`` read them back.
+STORED = 'stored'
+#: Decide the posture selection (``state.json``; a resume refuses a change of one).
+SELECTION = 'selection'
+#: Options of ``gsp_demo`` and ``gsp_plan`` (:func:`add_run_options`).
+RUN_COMMAND_LINE = 'run_command_line'
+#: Options of ``gsp_reidentify`` (default: as stored with the run).
+REIDENTIFY_COMMAND_LINE = 'reidentify_command_line'
+#: The command-line option of a parameter whose option is not ``--<name with dashes>``.
+_OPTION_NAMES = {'posture_count': '--postures', 'free_parameters': '--free'}
+_RUN = frozenset((STORED, SELECTION, RUN_COMMAND_LINE))
+#: The acceptance options: stored with the run, and a re-identification may judge it again.
+_JUDGED = frozenset((STORED, REIDENTIFY_COMMAND_LINE))
 
 
 def _check_geometry_file(value):
@@ -81,12 +82,14 @@ _POSITIVE = greater_than(0.0, reason='must be a finite number > 0')
 POSTURE_ORDERS = ('route', 'selection')
 
 
-def _positive(name, default, description, unit=''):
+def _positive(name, default, description, unit='', subsets=frozenset()):
     """A parameter that must be a finite number > 0."""
-    return ParameterSpec(name, default, description, unit=unit, constraints='> 0', check=_POSITIVE)
+    return ParameterSpec(
+        name, default, description, unit=unit, constraints='> 0', check=_POSITIVE, subsets=subsets
+    )
 
 
-def _seconds(name, default, description):
+def _seconds(name, default, description, subsets=frozenset()):
     """A time in s that must be finite and >= 0."""
     return ParameterSpec(
         name,
@@ -95,28 +98,29 @@ def _seconds(name, default, description):
         unit='s',
         constraints='>= 0',
         check=at_least(0.0, reason='must be finite and >= 0 s'),
+        subsets=subsets,
     )
 
 
-def _one_of(name, default, description, options):
-    """A parameter that must be one of ``options``."""
+def _one_of(name, default, description, options, subsets=frozenset(), check=None):
+    """A parameter that must be one of ``options`` (``check``: the check that says so)."""
     return ParameterSpec(
         name,
         default,
         description,
         constraints='one of ' + ', '.join(options),
-        check=one_of(options),
+        check=check or one_of(options),
+        subsets=subsets,
     )
 
 
-#: The per-sample noise of each sensor (a ``SensorNoise`` field and its parameter ``sigma_<field>``):
-#: field, unit, what the sigma weighs.
-_SIGMA_TABLE = (
-    ('leg_lengths', 'm', 'Noise std of one leg-length sample (weight of the leg residuals)'),
-    ('inclinometer', 'rad', 'Noise std of one inclinometer sample (alpha, beta)'),
-    ('encoder', 'rad', 'Noise std of one encoder sample (phi)'),
-    ('lvdt', 'm', 'Noise std of one LVDT sample (d_m)'),
-)
+#: What each sensor's assumed noise ``sigma_<sensor>`` weighs (its unit is the sensor's).
+_SIGMA_TEXT = {
+    'leg_lengths': 'Noise std of one leg-length sample (weight of the leg residuals)',
+    'inclinometer': 'Noise std of one inclinometer sample (alpha, beta)',
+    'encoder': 'Noise std of one encoder sample (phi)',
+    'lvdt': 'Noise std of one LVDT sample (d_m)',
+}
 
 PARAMETERS = (
     ParameterSpec(
@@ -127,6 +131,7 @@ PARAMETERS = (
         constraints='a readable geometry params file',
         check=_check_geometry_file,
         default_text='gsp_kinematics/data/nominal_geometry.yaml (shipped)',
+        subsets=frozenset((STORED,)),
     ),
     ParameterSpec(
         'posture_count',
@@ -134,6 +139,7 @@ PARAMETERS = (
         'Postures selected and commanded per calibration',
         constraints='>= 1 and <= pool_size',
         check=at_least(1),
+        subsets=_RUN,
     ),
     ParameterSpec(
         'pool_size',
@@ -141,6 +147,7 @@ PARAMETERS = (
         'Random reachable postures the selection (condition-number criterion) chooses from',
         constraints='>= posture_count',
         check=at_least(1),
+        subsets=_RUN,
     ),
     ParameterSpec(
         'samples_per_posture',
@@ -148,12 +155,14 @@ PARAMETERS = (
         'Synchronised (leg lengths, device) samples averaged per posture',
         constraints='>= 1',
         check=at_least(1),
+        subsets=frozenset((STORED, RUN_COMMAND_LINE, REIDENTIFY_COMMAND_LINE)),
     ),
     _seconds(
         'sync_tolerance',
         0.0025,
         'Largest stamp difference of a leg-length sample and the device sample it is '
         'paired with (about half the sensor period)',
+        subsets=frozenset((STORED, REIDENTIFY_COMMAND_LINE)),
     ),
     _positive(
         'settle_timeout',
@@ -168,13 +177,15 @@ PARAMETERS = (
         'Span the settle rule judges each channel over, ending with the averaged window (at '
         "least that window): about 5 times the slowest sensor's response time; the "
         'readings are waited for until at rest over it (docs/sensor_errors.md)',
+        subsets=frozenset((STORED,)),
     ),
     _positive(
         'settle_sigmas',
-        3.0,
+        DEFAULT_SETTLE_SIGMAS,
         "Trend over the settle look-back, in stds of a settled span's trend, above which a "
         'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
         'spans)',
+        subsets=frozenset((STORED,)),
     ),
     _positive(
         'topic_timeout',
@@ -184,7 +195,12 @@ PARAMETERS = (
         unit='s',
     ),
     ParameterSpec(
-        'seed', 0, 'Seed of the random posture pool', constraints='>= 0', check=at_least(0)
+        'seed',
+        0,
+        'Seed of the random posture pool',
+        constraints='>= 0',
+        check=at_least(0),
+        subsets=_RUN,
     ),
     ParameterSpec(
         'free_parameters',
@@ -193,7 +209,8 @@ PARAMETERS = (
         'extended (the 44 and the identifiable sensor errors kq1..kq6, alpha0), and/or names '
         '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md)',
         constraints='non-empty, known names or groups, no duplicates',
-        check=_check_free,
+        check=functools.partial(free_parameters_error, effects=False),
+        subsets=_RUN | {REIDENTIFY_COMMAND_LINE},
     ),
     _one_of(
         'loss',
@@ -201,6 +218,7 @@ PARAMETERS = (
         'Loss of the fit: linear (least squares), huber or cauchy (robust to outlier postures; '
         'down-weighted postures are reported)',
         LOSSES,
+        subsets=frozenset((STORED, REIDENTIFY_COMMAND_LINE)),
     ),
     _positive(
         'loss_scale',
@@ -224,6 +242,8 @@ PARAMETERS = (
         'between-posture residuals; the sigma_* only start the estimate) or configured (the '
         'sigma_* parameters); docs/sensor_errors.md',
         NOISE_SOURCES,
+        frozenset((STORED, REIDENTIFY_COMMAND_LINE)),
+        check=noise_source_error,
     ),
     _positive(
         'required_position_accuracy_mm',
@@ -232,6 +252,7 @@ PARAMETERS = (
         'device on postures the fit did not use (cross-validation, measurement noise removed), '
         'is at most this (docs/verdict.md)',
         'mm',
+        _JUDGED,
     ),
     _positive(
         'required_orientation_accuracy_deg',
@@ -239,6 +260,7 @@ PARAMETERS = (
         'The result is applied only if its cross-validated mean error of the platform rotation '
         'phi (the rotation the device measures) is at most this',
         'deg',
+        _JUDGED,
     ),
     ParameterSpec(
         'required_improvement_over_nominal',
@@ -247,6 +269,7 @@ PARAMETERS = (
         "this many times smaller than the nominal geometry's on the same postures",
         constraints='>= 1',
         check=at_least(1.0, reason='must be finite and >= 1'),
+        subsets=_JUDGED,
     ),
     ParameterSpec(
         'cross_validation_folds',
@@ -255,6 +278,7 @@ PARAMETERS = (
         'predicted by a fit without it); with fewer postures, each is left out alone',
         constraints='>= 2',
         check=at_least(2),
+        subsets=_JUDGED,
     ),
     _one_of(
         'formulation',
@@ -262,10 +286,17 @@ PARAMETERS = (
         'Identification formulation: implicit (all sensors, poses as unknowns), fk '
         "(device residuals through FK) or paper (the paper's eq 11)",
         FORMULATIONS,
+        subsets=_RUN | {REIDENTIFY_COMMAND_LINE},
     ),
     *(
-        _positive(f'sigma_{field}', getattr(DEFAULT_SENSOR_NOISE, field), text, unit)
-        for field, unit, text in _SIGMA_TABLE
+        _positive(
+            ASSUMED_NOISE_PARAMETER.format(sensor),
+            getattr(DEFAULT_SENSOR_NOISE, sensor),
+            _SIGMA_TEXT[sensor],
+            NOISE_UNITS[sensor],
+            frozenset((STORED, SELECTION, REIDENTIFY_COMMAND_LINE)),
+        )
+        for sensor in NOISE_FIELDS
     ),
     _one_of(
         'posture_order',
@@ -326,42 +357,81 @@ PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
 
 
+def names_in(subset):
+    """The names of the parameters in ``subset`` (:data:`STORED`...), in table order."""
+    return tuple(spec.name for spec in PARAMETERS if subset in spec.subsets)
+
+
+STORED_PARAMETERS = names_in(STORED)
+SELECTION_PARAMETERS = names_in(SELECTION)
+#: The assumed noise parameters ``sigma_<sensor>`` (together, the settings' ``sigmas``).
+SIGMA_PARAMETERS = SensorNoise.parameter_names(ASSUMED_NOISE_PARAMETER)
+
+
+def option_name(name):
+    """The command-line option of parameter ``name`` (``--pool-size``, ``--free``...)."""
+    return _OPTION_NAMES.get(name, '--' + name.replace('_', '-'))
+
+
+def option_value(name, value):
+    """``value`` of parameter ``name`` given on a command line or stored with a run, checked by
+    the parameter's own check and converted to the parameter's type; ValueError naming the option
+    otherwise. ``free_parameters`` also takes comma-separated names."""
+    default = DEFAULTS[name]
+    try:
+        if isinstance(default, list):
+            value = [n.strip() for item in value for n in str(item).split(',') if n.strip()]
+        elif not isinstance(default, str):
+            value = type(default)(value)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f'{option_name(name)}: {value!r} rejected, not a {type(default).__name__}'
+        ) from None
+    reason = PARAMETER_SPECS[name].check(value) if PARAMETER_SPECS[name].check else ''
+    if reason:
+        raise ValueError(f'{option_name(name)}: {value!r} rejected, {reason}')
+    return value
+
+
 # --- command-line options of a run (gsp_demo, gsp_plan) ------------------------------------------
 
 
 def add_run_options(parser, seed_help='seed of the posture pool'):
-    """Add to ``parser`` the options of a run that mirror the parameters above, with their
-    defaults: ``--postures``, ``--pool-size``, ``--samples-per-posture``, ``--seed``, ``--free``
-    and ``--formulation``. Check the parsed values with :func:`run_options_error`."""
-    add = parser.add_argument
-    for option, name, help_text in (
-        ('--postures', 'posture_count', 'postures commanded'),
-        ('--pool-size', 'pool_size', 'random postures the selection picks from'),
-        ('--samples-per-posture', 'samples_per_posture', 'samples averaged per posture'),
-        ('--seed', 'seed', seed_help),
-    ):
-        add(option, type=int, default=DEFAULTS[name], help=f'{help_text} ({DEFAULTS[name]})')
-    add(
-        '--free',
-        nargs='+',
-        default=list(DEFAULTS['free_parameters']),
-        metavar='NAME',
-        help='free parameters: groups paper or extended, and/or names (default: extended)',
-    )
-    add('--formulation', choices=FORMULATIONS, default=DEFAULTS['formulation'])
+    """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`: ``--postures``,
+    ``--pool-size``, ``--samples-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
+    the parameters' defaults. Check the parsed values with :func:`run_options_error`."""
+    for name in names_in(RUN_COMMAND_LINE):
+        spec, default = PARAMETER_SPECS[name], DEFAULTS[name]
+        help_text = seed_help if name == 'seed' else spec.description
+        if isinstance(default, list):
+            parser.add_argument(
+                option_name(name),
+                dest=name,
+                nargs='+',
+                default=list(default),
+                metavar='NAME',
+                help=f'{help_text} (default: {" ".join(default)})',
+            )
+        else:
+            parser.add_argument(
+                option_name(name),
+                dest=name,
+                type=type(default),
+                default=default,
+                help=f'{help_text} ({default})',
+            )
 
 
 def run_options_error(args):
-    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid.
-
-    ``args.free`` also takes comma-separated names: it is split in place first.
-    """
-    for name in ('postures', 'pool_size', 'samples_per_posture'):
-        if getattr(args, name) < 1:
-            return f'--{name.replace("_", "-")} must be >= 1'
-    args.free = [n.strip() for value in args.free for n in value.split(',') if n.strip()]
-    reason = check_free_parameters(args.free)
-    return f'--free: {reason}' if reason else ''
+    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid
+    (each parameter's own check); each value is converted in place (``free_parameters`` split
+    at commas)."""
+    try:
+        for name in names_in(RUN_COMMAND_LINE):
+            setattr(args, name, option_value(name, getattr(args, name)))
+    except ValueError as error:
+        return str(error)
+    return ''
 
 
 def check_combination(values):
@@ -386,42 +456,13 @@ def check_parameters(changes, current=None):
     )
 
 
-@dataclasses.dataclass(frozen=True)
-class CalibratorSettings:
-    """The settings of one calibration run (a snapshot of the parameters)."""
+class _RunSettings:
+    """What :class:`CalibratorSettings` adds to its fields (one per parameter)."""
 
-    nominal_geometry_file: str
-    nominal: object  #: the loaded nominal Geometry
-    posture_count: int
-    pool_size: int
-    samples_per_posture: int
-    sync_tolerance: float  #: s
-    settle_timeout: float  #: s
-    topic_timeout: float  #: s
-    seed: int
-    free_parameters: tuple
-    formulation: str
-    sigmas: SensorNoise  #: per-sample noise std (m, rad)
-    output_root: str
-    resume_run_directory: str
-    apply_result: bool
-    platform_node_name: str
-    loss: str = 'linear'
-    loss_scale: float = Options().loss_scale  #: sigmas
-    outlier_threshold: float = 0.0  #: studentised; 0: Bonferroni at 1 %
-    noise_source: str = DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
-    required_position_accuracy_mm: float = DEFAULT_REQUIRED_POSITION_MM
-    required_orientation_accuracy_deg: float = DEFAULT_REQUIRED_ORIENTATION_DEG
-    required_improvement_over_nominal: float = DEFAULT_REQUIRED_IMPROVEMENT
-    cross_validation_folds: int = DEFAULT_FOLDS
-    posture_order: str = 'route'
-    max_leg_speed: float = MotionLimits().max_speed  #: m/s
-    max_leg_acceleration: float = MotionLimits().max_acceleration  #: m/s^2
-    settle_lookback: float = 0.0  #: s
-    settle_sigmas: float = DEFAULT_SETTLE_SIGMAS
-    write_report_plots: bool = True
-    platform_id: str = 'default'  #: the history's platform (docs/upkeep.md)
-    check_geometry_file: str = ''  #: what a check checks ('': the latest calibration)
+    @functools.cached_property
+    def sigmas(self):
+        """The assumed per-sample noise (``SensorNoise`` of the ``sigma_<sensor>``, m and rad)."""
+        return SensorNoise.from_parameters(self.options(SIGMA_PARAMETERS))
 
     @property
     def motion_limits(self):
@@ -432,6 +473,14 @@ class CalibratorSettings:
     def free_count(self):
         """Number of free parameters (the groups expanded)."""
         return int(resolve_free(self.free_parameters).sum())
+
+    def options(self, names):
+        """``{name: value}`` of the parameters ``names`` (e.g. :data:`STORED_PARAMETERS`), as
+        JSON gives them (lists, not tuples)."""
+        return {
+            name: list(value) if isinstance(value, tuple) else value
+            for name, value in ((name, getattr(self, name)) for name in names)
+        }
 
     @property
     def requirement(self):
@@ -458,42 +507,31 @@ class CalibratorSettings:
     @classmethod
     def from_values(cls, values):
         """Settings from ``{name: value}`` (defaults for missing names); ValueError if invalid."""
-        merged = dict(DEFAULTS)
-        merged.update(values)
+        merged = {**DEFAULTS, **values}
         reason = check_parameters(merged, merged)
         if reason:
             raise ValueError(reason)
-        return cls(
-            nominal_geometry_file=str(merged['nominal_geometry_file']),
-            nominal=load_geometry(merged['nominal_geometry_file']),
-            posture_count=int(merged['posture_count']),
-            pool_size=int(merged['pool_size']),
-            samples_per_posture=int(merged['samples_per_posture']),
-            sync_tolerance=float(merged['sync_tolerance']),
-            settle_timeout=float(merged['settle_timeout']),
-            topic_timeout=float(merged['topic_timeout']),
-            seed=int(merged['seed']),
-            free_parameters=tuple(merged['free_parameters']),
-            formulation=str(merged['formulation']),
-            sigmas=SensorNoise.from_parameters(merged),
-            output_root=str(merged['output_root']),
-            resume_run_directory=str(merged['resume_run_directory']),
-            apply_result=bool(merged['apply_result']),
-            platform_node_name=str(merged['platform_node_name']).lstrip('/'),
-            loss=str(merged['loss']),
-            loss_scale=float(merged['loss_scale']),
-            outlier_threshold=float(merged['outlier_threshold']),
-            noise_source=str(merged['noise_source']),
-            required_position_accuracy_mm=float(merged['required_position_accuracy_mm']),
-            required_orientation_accuracy_deg=float(merged['required_orientation_accuracy_deg']),
-            required_improvement_over_nominal=float(merged['required_improvement_over_nominal']),
-            cross_validation_folds=int(merged['cross_validation_folds']),
-            posture_order=str(merged['posture_order']),
-            max_leg_speed=float(merged['max_leg_speed']),
-            max_leg_acceleration=float(merged['max_leg_acceleration']),
-            settle_lookback=float(merged['settle_lookback']),
-            settle_sigmas=float(merged['settle_sigmas']),
-            write_report_plots=bool(merged['write_report_plots']),
-            platform_id=str(merged['platform_id']),
-            check_geometry_file=str(merged['check_geometry_file']),
-        )
+        fields = {}
+        for spec in PARAMETERS:
+            value = merged[spec.name]
+            fields[spec.name] = (
+                tuple(value) if isinstance(spec.default, list) else type(spec.default)(value)
+            )
+        fields['platform_node_name'] = fields['platform_node_name'].lstrip('/')
+        return cls(nominal=load_geometry(fields['nominal_geometry_file']), **fields)
+
+
+def _field_type(default):
+    return tuple if isinstance(default, list) else type(default)
+
+
+#: The settings of one calibration run: one field per parameter of :data:`PARAMETERS` (lists
+#: as tuples) and ``nominal``, the loaded nominal ``Geometry``; built by ``from_values``.
+CalibratorSettings = dataclasses.make_dataclass(
+    'CalibratorSettings',
+    [('nominal', object)] + [(spec.name, _field_type(spec.default)) for spec in PARAMETERS],
+    bases=(_RunSettings,),
+    frozen=True,
+)
+CalibratorSettings.__module__ = __name__
+CalibratorSettings.__doc__ = 'The settings of one calibration run (a snapshot of the parameters).'

@@ -1,6 +1,6 @@
 """Test helper shared by test_recording.py and test_replay.py: a recorded pose command."""
 
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000
@@ -24,7 +24,7 @@ def write_command(recorder, t, pose, rejected=False, note=None, posture=None):
         )
     if note is not None:
         recorder.add_metadata(
-            recording.POSTURE_METADATA_NAME,
+            POSTURE_METADATA_NAME,
             {'command_id': command_id, 'start_ns': str(note), 'posture': str(posture)},
         )
     return command_id

@@ -4,12 +4,12 @@ import numpy as np
 
 from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.identification import Sigmas
 from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.validation import sensor_measurements
 
 
-def synthetic_samples(count=30, seed=1, sigmas=Sigmas(), n_samples=1, first_stamp=0.0):
+def synthetic_samples(count=30, seed=1, sigmas=SensorNoise(), n_samples=1, first_stamp=0.0):
     """Noisy measurements of the true platform at ``count`` postures valid for the nominal:
     ``n_samples`` per row, stamps ``first_stamp``, ``first_stamp + 1``, ... (s)."""
     nominal, truth = default_geometry('nominal'), default_geometry('true')

@@ -5,7 +5,7 @@ import random
 
 import pytest
 
-from gsp_calibrator.tools import bench_end_to_end as bench
+from gsp_calibrator.tools import bench_end_to_end
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 
 PLATFORM_REJECTION = {
@@ -33,28 +33,33 @@ def _run(samples, collection=None, exit_code=0, where='result'):
 
 def test_environment_is_loopback_with_a_fresh_domain(tmp_path, monkeypatch):
     monkeypatch.setenv(LOCK_DIRECTORY_VARIABLE, str(tmp_path))  # private domain locks
-    env = bench.demo_environment({'ROS_DOMAIN_ID': '7'}, rng=random.Random(0), used=range(1, 101))
+    env = bench_end_to_end.demo_environment(
+        {'ROS_DOMAIN_ID': '7'}, rng=random.Random(0), used=range(1, 101)
+    )
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert env['ROS_DOMAIN_ID'] == '101'
     assert env['PYTHONUNBUFFERED'] == '1' and env['OPENBLAS_NUM_THREADS'] == '1'
-    assert bench.demo_environment({'OPENBLAS_NUM_THREADS': '2'})['OPENBLAS_NUM_THREADS'] == '2'
+    assert (
+        bench_end_to_end.demo_environment({'OPENBLAS_NUM_THREADS': '2'})['OPENBLAS_NUM_THREADS']
+        == '2'
+    )
 
 
 def test_command_passes_rate_and_postures():
-    argv = bench.demo_command('/tmp/x', 12, 400.0)
+    argv = bench_end_to_end.demo_command('/tmp/x', 12, 400.0)
     assert argv[argv.index('--sensor-rate') + 1] == '400.0'
     assert argv[argv.index('--postures') + 1] == '12'
     assert argv[argv.index('--output-root') + 1] == '/tmp/x'
 
 
 def test_the_run_directory_is_found_under_the_output_root_and_read(tmp_path):
-    assert bench.find_run_directory(tmp_path / 'absent') is None
-    assert bench.find_run_directory(tmp_path) is None
+    assert bench_end_to_end.find_run_directory(tmp_path / 'absent') is None
+    assert bench_end_to_end.find_run_directory(tmp_path) is None
     run_directory = tmp_path / '20250101T120000Z'
     run_directory.mkdir()
     (tmp_path / 'stray.txt').write_text('not a run')
-    assert bench.find_run_directory(tmp_path) == run_directory
-    assert bench.read_run_directory(run_directory) == {
+    assert bench_end_to_end.find_run_directory(tmp_path) == run_directory
+    assert bench_end_to_end.read_run_directory(run_directory) == {
         'summary': None,
         'samples': None,
         'result': None,
@@ -63,7 +68,7 @@ def test_the_run_directory_is_found_under_the_output_root_and_read(tmp_path):
     (run_directory / 'samples.csv').write_text('posture,n_samples,stamp\n1,10,0.5\n3,9,0.7\n')
     (run_directory / 'summary.json').write_text(json.dumps({'calibration_s': 12.5}))
     (run_directory / 'result.json').write_text(json.dumps({'collection': _collection()}))
-    read = bench.read_run_directory(run_directory)
+    read = bench_end_to_end.read_run_directory(run_directory)
     assert read['samples'] == [(1, 10), (3, 9)] and read['summary'] == {'calibration_s': 12.5}
     assert read['sample_stamps'] == [(1, 0.5), (3, 0.7)]
     assert read['result']['collection'] == _collection()
@@ -72,73 +77,78 @@ def test_the_run_directory_is_found_under_the_output_root_and_read(tmp_path):
 def test_collection_overhead_from_the_sample_stamps():
     # Postures 1..5 (4 rejected by the platform) one 0.0875 s cycle apart; minimum 0.02 + 10/200.
     stamps = [(p, 100.0 + 0.0875 * (p - 1)) for p in (1, 2, 3, 5)]
-    overhead = bench.collection_overhead(stamps, 0.02, 10, 200.0)
+    overhead = bench_end_to_end.collection_overhead(stamps, 0.02, 10, 200.0)
     assert overhead['posture_cycle_s'] == pytest.approx(0.0875)
     assert overhead['overhead_ratio'] == pytest.approx(1.25)
     assert overhead['physical_minimum_s'] == pytest.approx(4 * 0.07)
-    assert bench.collection_overhead([(1, 3.0)], 0.02) is None
-    assert bench.collection_overhead(None, 0.02) is None
-    argv = bench.demo_command('/tmp/x', 12, 400.0)
-    assert argv[argv.index('--settle-time') + 1] == repr(bench.SETTLE_TIME_S)
+    assert bench_end_to_end.collection_overhead([(1, 3.0)], 0.02) is None
+    assert bench_end_to_end.collection_overhead(None, 0.02) is None
+    argv = bench_end_to_end.demo_command('/tmp/x', 12, 400.0)
+    assert argv[argv.index('--settle-time') + 1] == repr(bench_end_to_end.SETTLE_TIME_S)
 
 
 def test_sync_check_passes_with_full_samples_and_platform_rejections():
     for where in ('result', 'summary'):  # the demo keeps a copy of the record in summary.json
-        check = bench.sync_check(_run([(1, 10), (3, 10)], _collection(), where=where), 3)
+        check = bench_end_to_end.sync_check(_run([(1, 10), (3, 10)], _collection(), where=where), 3)
         assert check['passed'] is True and check['postures_rejected_by_platform'] == 1
         assert check['dropped_samples'] == 0 and check['non_finite_dropped'] == 0
 
 
 def test_sync_check_fails_on_drops_skips_short_rows_missing_postures_or_failure():
     full = [(1, 10), (3, 10)]
-    dropped = bench.sync_check(_run(full, _collection(inconsistent=2)), 3)
+    dropped = bench_end_to_end.sync_check(_run(full, _collection(inconsistent=2)), 3)
     assert dropped['dropped_samples'] == 2 and dropped['passed'] is False
-    non_finite = bench.sync_check(_run(full, _collection(non_finite={'encoder': 1})), 3)
+    non_finite = bench_end_to_end.sync_check(_run(full, _collection(non_finite={'encoder': 1})), 3)
     assert non_finite['non_finite_dropped'] == 1 and non_finite['passed'] is False
     other = dict(PLATFORM_REJECTION, reason='no synchronised sample', rejected_by_platform=False)
-    skipped = bench.sync_check(_run(full, _collection(skipped=[other])), 3)
+    skipped = bench_end_to_end.sync_check(_run(full, _collection(skipped=[other])), 3)
     assert skipped['postures_skipped_other'] == 1 and skipped['passed'] is False
-    assert bench.sync_check(_run([(1, 9), (3, 10)], _collection()), 3)['passed'] is False
-    missing = bench.sync_check(_run([(1, 10)], _collection()), 3)
+    assert bench_end_to_end.sync_check(_run([(1, 9), (3, 10)], _collection()), 3)['passed'] is False
+    missing = bench_end_to_end.sync_check(_run([(1, 10)], _collection()), 3)
     assert missing['postures_missing'] == 1 and missing['passed'] is False
-    assert bench.sync_check(_run(full, _collection(), exit_code=1), 3)['passed'] is False
+    assert bench_end_to_end.sync_check(_run(full, _collection(), exit_code=1), 3)['passed'] is False
 
 
 def test_sync_check_without_a_collection_record_is_unknown_not_a_crash():
-    check = bench.sync_check(_run([(1, 10), (3, 10)]), 3)
+    check = bench_end_to_end.sync_check(_run([(1, 10), (3, 10)]), 3)
     assert check['passed'] is None and check['dropped_samples'] is None
     assert check['postures_collected'] == 2 and check['postures_short'] == 0
-    assert bench.sync_check(_run([(1, 10), (3, 10)], exit_code=1), 3)['passed'] is False
+    assert bench_end_to_end.sync_check(_run([(1, 10), (3, 10)], exit_code=1), 3)['passed'] is False
 
 
 def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
     # Imported here: gsp_calibrator.tools.bench needs gsp_experiments, the pure checks above do not.
-    from gsp_calibrator.tools import bench as calibrator_bench
+    from gsp_calibrator.tools import bench
 
     calls = []
     monkeypatch.setattr(
-        calibrator_bench.bench,
+        bench.bench,
         'main',
         lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
     )
-    assert calibrator_bench.main(['--skip-end-to-end']) == 0
+    assert bench.main(['--skip-end-to-end']) == 0
     from gsp_calibrator.tools import (
         bench_collection_rate,
         bench_platform_time,
         bench_sensor_dynamics,
+        bench_upkeep_realistic,
+        bench_verdict,
     )
-    from gsp_experiments import bench_noise, bench_sensor_errors
+    from gsp_experiments import bench_noise, bench_sensor_errors, bench_upkeep
 
     assert calls == [
         (
             ['--skip-end-to-end'],
             {
-                'end_to_end': bench.run,
+                'end_to_end': bench_end_to_end.run,
                 'sensor_errors': bench_sensor_errors.run,
                 'noise_unknown': bench_noise.run,
                 'platform_time': bench_platform_time.run,
                 'sensor_dynamics': bench_sensor_dynamics.run,
                 'collection_rate': bench_collection_rate.run,
+                'verdict': bench_verdict.run,
+                'upkeep': bench_upkeep.run,
+                'upkeep_realistic': bench_upkeep_realistic.run,
             },
         )
     ]
@@ -147,6 +157,6 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
 def test_the_core_alone_simulates_the_truth_as_the_node_suite_does():
     # The shipped truth has sensor errors (leg gains, inclinometer zero); a simulation that left
     # them out while validating against them reported 0.45 mm instead of a few micrometres.
-    core = bench.core_alone_validation(60, 20, seeds=1)
+    core = bench_end_to_end.core_alone_validation(60, 20, seeds=1)
     assert core['postures'] == 60
     assert core['position_mm_mean'] < 0.02 and core['orientation_deg_mean'] < 0.002, core

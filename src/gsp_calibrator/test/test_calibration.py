@@ -5,19 +5,27 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.response import (
+    NOT_ACCEPTED_HEAD,
+    final_progress_message,
+    format_response,
+    outcome_summary,
+    parse_response,
+    posture_residuals,
+)
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry, geometry_from_yaml, parameter_errors
-from gsp_kinematics.identification import Options, Sigmas
+from gsp_kinematics.identification import Options
 from gsp_kinematics.kinematics import check_reachable, forward_kinematics_masked, inverse_kinematics
 from gsp_kinematics.noise_from_data import posture_lag_sums
+from gsp_kinematics.sensors.noise import SensorNoise
 
 NOMINAL = default_geometry('nominal')
 TRUE = default_geometry('true')
-SIGMAS = Sigmas()  # Table 3, first level
+SIGMAS = SensorNoise()  # Table 3, first level
 
 
 def synthetic_samples(
@@ -86,7 +94,7 @@ def test_selection_key_changes_with_its_inputs():
 @pytest.mark.parametrize('formulation', ['implicit', 'fk'])
 def test_identification_recovers_the_true_geometry(selection, formulation):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         NOMINAL, samples, SIGMAS, formulation=formulation, noise_source='configured'
     )
     assert outcome.success, outcome.message
@@ -102,7 +110,7 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
 
 def test_a_subset_of_free_parameters_keeps_the_others_nominal(selection):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         NOMINAL, samples, SIGMAS, free=['Loff1', 'Loff2', 'D0', 'gamma']
     )
     assert outcome.success, outcome.message
@@ -113,7 +121,7 @@ def test_a_subset_of_free_parameters_keeps_the_others_nominal(selection):
 
 def test_too_few_postures_name_the_unidentifiable_parameters(selection):
     samples = synthetic_samples(selection.poses[:6])
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
     assert not outcome.success and outcome.geometry is None
     assert 'non-identifiable parameters' in outcome.message
     assert outcome.unidentifiable and all(
@@ -125,43 +133,41 @@ def test_too_few_postures_name_the_unidentifiable_parameters(selection):
 
 def test_no_convergence_is_a_failure(selection):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(
-        NOMINAL, samples, SIGMAS, options=Options(max_iterations=1)
-    )
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS, options=Options(max_iterations=1))
     assert not outcome.success and outcome.geometry is None
     assert 'did not converge' in outcome.message
 
 
 def test_no_samples_is_a_failure():
-    outcome = calibration.identify_from_samples(NOMINAL, Samples.empty(), SIGMAS)
+    outcome = identify_from_samples(NOMINAL, Samples.empty(), SIGMAS)
     assert not outcome.success and 'no posture' in outcome.message
 
 
 def test_bad_inputs_are_a_failure_not_an_exception(selection):
     samples = synthetic_samples(selection.poses[:12])
     samples.readings[3, 1] = np.nan
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
     assert not outcome.success and 'identification failed' in outcome.message
     with pytest.raises(postures.CalibrationError, match='formulation'):
-        calibration.identify_from_samples(NOMINAL, samples, SIGMAS, formulation='magic')
+        identify_from_samples(NOMINAL, samples, SIGMAS, formulation='magic')
 
 
 def test_response_round_trip(selection, tmp_path):
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
-    summary = run_response.outcome_summary(
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
+    summary = outcome_summary(
         outcome, selected=40, skipped=[(7, 'rejected: far')], run_directory=tmp_path, reference=TRUE
     )
     assert summary.splitlines()[0].startswith('calibration succeeded')
     assert 'skipped posture 7: rejected: far' in summary
-    message = run_response.format_response(summary, outcome.geometry)
-    parsed = run_response.parse_response(message)
+    message = format_response(summary, outcome.geometry)
+    parsed = parse_response(message)
     assert parsed.summary == summary and parsed.run_directory == str(tmp_path)
     assert parsed.identification_ms == pytest.approx(outcome.duration_s * 1000.0, abs=0.1)
     np.testing.assert_array_equal(
         geometry_from_yaml(parsed.geometry_yaml).to_vector(), outcome.geometry.to_vector()
     )
-    failed = run_response.parse_response('calibration FAILED: no posture')
+    failed = parse_response('calibration FAILED: no posture')
     assert failed.geometry_yaml == '' and failed.run_directory == ''
     assert math.isnan(failed.identification_ms)
 
@@ -170,10 +176,10 @@ def test_posture_residuals_against_the_nominal_model(selection):
     pose = selection.poses[0]
     q = inverse_kinematics(NOMINAL, pose[None])[0]
     readings = device_readings(NOMINAL, pose[None])[0]
-    residuals = run_response.posture_residuals(NOMINAL, pose, q, readings)
+    residuals = posture_residuals(NOMINAL, pose, q, readings)
     assert set(residuals) == {'leg_lengths', 'alpha', 'beta', 'phi', 'd_m'}
     assert max(abs(v) for v in residuals.values()) < 1e-12
-    residuals = run_response.posture_residuals(NOMINAL, pose, q + 1e-3, readings + [0, 0, 0, 2e-3])
+    residuals = posture_residuals(NOMINAL, pose, q + 1e-3, readings + [0, 0, 0, 2e-3])
     assert residuals['leg_lengths'] == pytest.approx(1e-3) and residuals['d_m'] == pytest.approx(
         2e-3
     )
@@ -184,73 +190,65 @@ def test_paper_model_on_sensor_errors_is_not_accepted_with_a_verdict(selection):
     postures misses the required 0.1 mm, so the result is not accepted, and the summary says by
     how much; the goodness of fit names the likely cause as a diagnostic."""
     samples = synthetic_samples(selection.poses)
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         NOMINAL, samples, SIGMAS, free=['paper'], noise_source='configured'
     )
     assert outcome.success and not outcome.fit_accepted and not outcome.accepted
     assert 'does NOT explain the data' in outcome.verdict
     assert 'try free_parameters: extended' in outcome.verdict
-    summary = run_response.outcome_summary(outcome)
-    assert summary.startswith(run_response.NOT_ACCEPTED_HEAD)
+    summary = outcome_summary(outcome)
+    assert summary.startswith(NOT_ACCEPTED_HEAD)
     assert 'exceeds the required 0.1 mm' in summary
-    extended = calibration.identify_from_samples(
-        NOMINAL, samples, SIGMAS, noise_source='configured'
-    )
+    extended = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
     assert extended.fit_accepted and 'explains the data' in extended.verdict
     assert extended.accepted
-    assert 'sensor errors: kq1 ' in run_response.outcome_summary(extended)
+    assert 'sensor errors: kq1 ' in outcome_summary(extended)
 
 
 def test_noise_estimates_warn_when_the_configured_sigma_is_wrong(selection):
     # The LVDT is three times noisier than configured.
-    device = Sigmas(SIGMAS.leg_lengths, SIGMAS.inclinometer, SIGMAS.encoder, 3 * SIGMAS.lvdt)
+    device = SensorNoise(SIGMAS.leg_lengths, SIGMAS.inclinometer, SIGMAS.encoder, 3 * SIGMAS.lvdt)
     samples = synthetic_samples(selection.poses, sigmas=device, windows=True)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
     estimates = outcome.noise_estimates
     assert estimates['leg_lengths']['estimated'] == pytest.approx(SIGMAS.leg_lengths, rel=0.1)
     assert estimates['lvdt']['warning'] and not estimates['inclinometer']['warning']
-    assert 'sensor noise lvdt: configured' in run_response.outcome_summary(outcome)
-    assert 'WARNING: differs by more than 2x' in run_response.outcome_summary(outcome)
+    assert 'sensor noise lvdt: configured' in outcome_summary(outcome)
+    assert 'WARNING: differs by more than 2x' in outcome_summary(outcome)
 
 
 def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
     """The issue's scenario in the pure pipeline: every sensor 3x noisier than configured."""
-    noisy = Sigmas(*(3.0 * value for value in SIGMAS.channels().values()))
+    noisy = SensorNoise(*(3.0 * value for value in SIGMAS.channels().values()))
     samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5, windows=True)
-    outcome = calibration.identify_from_samples(NOMINAL, samples, SIGMAS)
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
     assert outcome.success and outcome.fit_accepted, outcome.verdict
     assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.verdict
     assert outcome.sigmas.leg_lengths == pytest.approx(noisy.leg_lengths / math.sqrt(10), rel=0.1)
     for channel, entry in outcome.noise_estimates.items():
         assert entry['source'] == 'pooled'
         assert entry['estimated'] == pytest.approx(getattr(noisy, channel), rel=0.1), channel
-    configured = calibration.identify_from_samples(
-        NOMINAL, samples, SIGMAS, noise_source='configured'
-    )
+    configured = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
     assert configured.success and not configured.fit_accepted
     assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict
     # The goodness of fit is a diagnostic: the accuracy measured on held-out postures decides.
     assert configured.accepted
-    summary = run_response.outcome_summary(configured)
+    summary = outcome_summary(configured)
     assert summary.splitlines()[0].startswith('calibration succeeded:')
     assert 'does NOT explain the data' in summary
     assert 'weights from the configured noise' in summary
     with pytest.raises(postures.CalibrationError, match='noise_source'):
-        calibration.identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='guessed')
+        identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='guessed')
 
 
 def test_last_progress_message_agrees_with_the_phase():
-    rejected = f'{run_response.NOT_ACCEPTED_HEAD}: 60 posture(s) of 60 commanded\nmore'
-    assert run_response.final_progress_message(rejected, False, '').startswith(
-        'calibration NOT ACCEPTED'
-    )
+    rejected = f'{NOT_ACCEPTED_HEAD}: 60 posture(s) of 60 commanded\nmore'
+    assert final_progress_message(rejected, False, '').startswith('calibration NOT ACCEPTED')
     assert (
-        run_response.final_progress_message(
-            'calibration succeeded: 60\nx', False, 'NOT applied: why'
-        )
+        final_progress_message('calibration succeeded: 60\nx', False, 'NOT applied: why')
         == 'NOT applied: why'
     )
     assert (
-        run_response.final_progress_message('calibration succeeded: 60\nx', True, 'applied')
+        final_progress_message('calibration succeeded: 60\nx', True, 'applied')
         == 'calibration succeeded: 60'
     )

@@ -9,6 +9,7 @@ import json
 import sys
 import threading
 
+import gsp_testing
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -20,9 +21,10 @@ from std_srvs.srv import Trigger
 
 from gsp_calibrator import calibrator_node
 from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import topics
 from gsp_calibrator.recording import rebuild
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, recording_info
+from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
@@ -32,7 +34,7 @@ from gsp_kinematics.geometry import (
     parameter_errors,
     save_geometry,
 )
-from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.parameter_specs import ConfigurationError
 
 RATE_HZ = 100.0
@@ -75,9 +77,9 @@ def perturbed_truth(path):
 
 
 def spin_as_in_use(context, nodes, client_node, num_threads=4):
-    """``testing.SpinningNodes``: the calibrators with the test's client, every other node apart."""
+    """``gsp_testing.SpinningNodes``: the calibrators with the test's client, every other node apart."""
     calibrators = [node for node in nodes if isinstance(node, CalibratorNode)]
-    return testing.SpinningNodes(
+    return gsp_testing.SpinningNodes(
         context,
         together=calibrators + [client_node],
         apart=[node for node in nodes if node not in calibrators],
@@ -86,7 +88,7 @@ def spin_as_in_use(context, nodes, client_node, num_threads=4):
 
 
 class Suite:
-    """In-process nodes spun as in use (``testing.SpinningNodes``) plus a test client."""
+    """In-process nodes spun as in use (``gsp_testing.SpinningNodes``) plus a test client."""
 
     def __init__(self, context, nodes):
         import rclpy
@@ -112,7 +114,7 @@ class Suite:
     @staticmethod
     def wait_until(predicate, timeout=CALL_TIMEOUT_S):
         """Wait for an event (``predicate()``); False if it has not come within ``timeout``."""
-        return testing.wait_until(predicate, timeout)
+        return gsp_testing.wait_until(predicate, timeout)
 
     def wait(self, future, timeout=CALL_TIMEOUT_S):
         assert self.wait_until(future.done, timeout), 'no calibrate response'
@@ -242,7 +244,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert isinstance(collection['inconsistent_dropped'], int)
         # Every sensor message's processing lag of the run, per topic (docs/data.md).
         lags = collection['processing_lag']
-        assert set(lags) == set(protocol.SENSOR_TOPICS)
+        assert set(lags) == set(topics.SENSOR_TOPICS)
         for topic, lag in lags.items():
             assert lag['count'] > 0, topic
             assert 0 <= lag['p50_s'] <= lag['p99_s'] <= lag['max_s'], topic
@@ -268,7 +270,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         assert PLOTS_SKIPPED_NOTE in report_text and '| Loff1 | mm |' in report_text
         assert not list(run.path.glob('*.png'))
         assert not list(run.path.glob('*.tmp'))
-        info = recording.recording_info(run.path / 'recording.mcap')
+        info = recording_info(run.path / 'recording.mcap')
         for topic in (
             names.TOPIC_LEG_LENGTHS,
             names.TOPIC_ENCODER,
@@ -277,14 +279,14 @@ def test_calibration_in_process(ros_context, tmp_path):
             names.TOPIC_CALIBRATION_PROGRESS,
         ):
             assert info['topics'][topic]['count'] > 0, topic
-        assert len(info['metadata'][recording.POSTURE_METADATA_NAME]) >= len(samples)
+        assert len(info['metadata'][POSTURE_METADATA_NAME]) >= len(samples)
         # Each posture's samples count from the instant the platform published settled (not
         # from the status's receipt): the noted starts are the statuses' source timestamps.
         starts = rebuild.collection_notes(info)
         assert starts and {c: start for c, (_, start) in starts.items()} == {
             c: settled_published[c] for c in starts
         }
-        assert info['metadata'][recording.RUN_METADATA_NAME]
+        assert info['metadata'][RUN_METADATA_NAME]
         assert json.loads((run.path / 'result.json').read_text())
 
         # Applied to the platform controller through its parameter service.
@@ -616,7 +618,8 @@ def test_the_calibrator_process_hands_the_gil_over_promptly(monkeypatch):
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     from rclpy.task import Future
 
-    from gsp_calibrator.node_threads import WAIT_OK, WAIT_TIMEOUT, Waits
+    from gsp_calibrator.node_threads import Waits
+    from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 
     now = [100.0]
     flag = []
@@ -718,7 +721,7 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
 
     publishers = {
         topic: suite.client_node.create_publisher(JointState, topic, qos.TOPIC_QOS[topic])
-        for topic in protocol.SENSOR_TOPICS
+        for topic in topics.SENSOR_TOPICS
     }
     streaming = threading.Event()
 
@@ -733,28 +736,28 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
         report = health(lambda h: True)
         assert report.level == WARN and 'silent for more than 0.5 s' in report.message
         assert report.values['state'] == 'idle' and report.values['posture'] == '0 of 0'
-        assert all(report.values[topic_age_key(t)] == 'never' for t in protocol.SENSOR_TOPICS)
+        assert all(report.values[topic_age_key(t)] == 'never' for t in topics.SENSOR_TOPICS)
         assert listener.hardware_ids[name] == names.PROGRESS_NAME
 
         streaming.set()
         report = health(lambda h: h.level == OK)
-        ages = [float(report.values[topic_age_key(t)]) for t in protocol.SENSOR_TOPICS]
+        ages = [float(report.values[topic_age_key(t)]) for t in topics.SENSOR_TOPICS]
         assert max(ages) <= 0.5
         # The processing lag of each topic, from the middleware's receive time on.
         report = health(
             lambda h: (
                 h.level == OK
                 and all(
-                    h.values.get(topic_lag_key(t), 'none') != 'none' for t in protocol.SENSOR_TOPICS
+                    h.values.get(topic_lag_key(t), 'none') != 'none' for t in topics.SENSOR_TOPICS
                 )
             )
         )
-        lags = [float(report.values[topic_lag_key(t)]) for t in protocol.SENSOR_TOPICS]
+        lags = [float(report.values[topic_lag_key(t)]) for t in topics.SENSOR_TOPICS]
         assert 0.0 <= min(lags) and max(lags) <= LAG_WARN_S
 
         streaming.clear()  # every sensor falls silent
         report = health(lambda h: h.level == WARN)
-        assert all(topic in report.message for topic in protocol.SENSOR_TOPICS), report
+        assert all(topic in report.message for topic in topics.SENSOR_TOPICS), report
 
         # A run with no platform: it fails, and the status says so until the next run.
         response = suite.wait(suite.call())

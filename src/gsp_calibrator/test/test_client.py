@@ -3,13 +3,13 @@
 import io
 
 import pytest
+from gsp_testing import SpinThread, wait_until
 
-from gsp_calibrator.run import response as run_response
+from gsp_calibrator.run.response import RESPONSE_SEPARATOR, RUN_DIRECTORY_LABEL, format_response
 from gsp_calibrator.tools import client
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
-from gsp_msgs_py.testing import SpinThread, wait_until
 
 RUN_DIRECTORY = '/tmp/runs/20260101T000000Z'
 WAIT_S = 30.0  # bounds a failure only
@@ -58,10 +58,9 @@ class FakeCalibrator:
         if self.success:
             self.publisher.publish(conversions.make_progress(count, count, names.PHASE_DONE))
             summary = (
-                f'calibration succeeded: {count} posture(s)\n'
-                f'{run_response.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}'
+                f'calibration succeeded: {count} posture(s)\n{RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}'
             )
-            response.message = run_response.format_response(summary, default_geometry('true'))
+            response.message = format_response(summary, default_geometry('true'))
         else:
             self.publisher.publish(
                 conversions.make_progress(
@@ -70,7 +69,7 @@ class FakeCalibrator:
             )
             response.message = (
                 f'calibration FAILED: {count} posture(s)\nreason: no luck\n'
-                f'{run_response.RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}'
+                f'{RUN_DIRECTORY_LABEL}{RUN_DIRECTORY}'
             )
         if self.shown is not None:
             wait_until(self.shown, WAIT_S)
@@ -111,7 +110,7 @@ def test_client_success_prints_summary_progress_and_run_directory(ros_context):
     assert 'calibration succeeded: 3 posture(s)' in out
     assert f'run directory: {RUN_DIRECTORY}' in out
     assert 'ros__parameters' in out  # --geometry: the calibrated params file
-    assert run_response.RESPONSE_SEPARATOR not in out
+    assert RESPONSE_SEPARATOR not in out
     assert '] 1/3 collecting' in err and '] 3/3 collecting' in err
     assert done in err
     assert 'alpha' in err and 'deg' in err  # latest residuals

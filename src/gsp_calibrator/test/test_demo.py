@@ -8,12 +8,14 @@ import sys
 
 import numpy as np
 import pytest
+from gsp_testing import wait_until
 
+from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.tools import demo, demo_commands, demo_summary
-from gsp_calibrator.tools import processes as processes_module
+from gsp_calibrator.tools.processes import NodeProcesses
+from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.geometry import default_geometry
 from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
-from gsp_msgs_py.testing import wait_until
 
 
 def test_ros_environment_is_loopback_with_a_domain(tmp_path, monkeypatch):
@@ -76,7 +78,7 @@ def test_the_realistic_device_preset_sets_the_device_and_the_settle_look_back(tm
 
 
 def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):
-    preset = demo_commands.PLATFORM_EFFECTS['realistic'].to_parameters('effects.')
+    preset = PRESETS['realistic'].to_parameters('effects.')
     args = demo.parse_arguments(['--platform-effects', 'realistic'])
     platform = demo_commands.node_commands(args, str(tmp_path), lambda n: n)['platform_sim']
     given = dict(arg.split(':=', 1) for arg in platform if arg.startswith('effects.'))
@@ -125,7 +127,7 @@ def test_validation_summary_ignores_rejected_postures():
 
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     summary = demo.DemoSummary(before, before, nominal, true, 600.0, 12.0, 40.0).document()
     assert set(summary) == {
         'validation',
@@ -140,7 +142,7 @@ def test_summary_has_the_keys_of_the_issue():
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}
-    assert set(summary['validation']['after']) == set(demo.VALIDATION_KEYS)
+    assert set(summary['validation']['after']) == set(VALIDATION_KEYS)
     assert summary['max_param_error_mm'] > 0.1 and summary['max_param_error_deg'] > 0.0
     text = demo.summary_text(summary, 49, 1)
     assert 'before (nominal)' in text and '1 rejected' in text
@@ -154,15 +156,19 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     )
     record = demo.fit_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     summary = demo.DemoSummary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record).document()
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
     assert demo.summary_text(summary, 1, 0).endswith('ok')
 
 
 def test_demo_free_accepts_groups_and_names_and_rejects_unknown(capsys):
-    assert demo.parse_arguments([]).free == ['extended']
-    assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free == ['paper', 'kq1', 'kq2']
+    assert demo.parse_arguments([]).free_parameters == ['extended']
+    assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free_parameters == [
+        'paper',
+        'kq1',
+        'kq2',
+    ]
     with pytest.raises(SystemExit):
         demo.parse_arguments(['--free', 'kq9'])
     assert 'unknown parameter name' in capsys.readouterr().err
@@ -186,7 +192,7 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
     (tmp_path / 'result.json').write_text(json.dumps({'collection': record}))
     assert demo.collection_record(tmp_path) == record
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    before = dict.fromkeys(demo.VALIDATION_KEYS, 1.0)
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     summary = demo.DemoSummary(
         before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, demo.collection_record(tmp_path)
     ).document()
@@ -223,7 +229,7 @@ def _wait_for_output(processes, names, timeout=60.0):
 
 
 def test_children_are_stopped_sigint_then_sigterm_then_sigkill(tmp_path):
-    processes = processes_module.NodeProcesses(
+    processes = NodeProcesses(
         {'polite': _child(POLITE), 'stubborn': _child(IGNORES_SIGINT), 'deaf': _child(IGNORES_ALL)},
         env=None,
         log_directory=tmp_path,
@@ -239,7 +245,7 @@ def test_children_are_stopped_sigint_then_sigterm_then_sigkill(tmp_path):
 
 
 def test_a_child_that_exits_is_reported_with_its_log(tmp_path):
-    processes = processes_module.NodeProcesses(
+    processes = NodeProcesses(
         {'broken': _child('import sys; print("cannot start: bad parameter"); sys.exit(3)')},
         env=None,
         log_directory=tmp_path,

@@ -19,10 +19,17 @@ from synthetic import synthetic_samples
 from test_calibrator_node import make_suite, perturbed_truth
 
 from gsp_calibrator.recording import mcap_io
-from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import session as run_session
-from gsp_calibrator.run import state as run_state
+from gsp_calibrator.recording.mcap_io import read_recording, recording_info
+from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.run.directory import SamplesAppender, read_samples, write_samples
+from gsp_calibrator.run.session import RunSession, RunWriteError
+from gsp_calibrator.run.state import (
+    PHASE_COLLECTING,
+    PHASE_DONE,
+    PHASE_FAILED,
+    RunState,
+    read_state,
+)
 from gsp_msgs_py import conversions, names
 
 PAGE = 4096  # bytes: tmpfs allocates pages; a write within the file's last page needs none
@@ -69,20 +76,20 @@ def test_a_row_cut_by_a_crash_is_dropped_when_the_file_is_appended_again(tmp_pat
 
 
 def test_a_state_json_that_cannot_be_written_keeps_the_previous_one(small_disk):
-    session = run_session.RunSession.create(small_disk.path)
-    session.state = run_state.RunState({'seed': 1}, np.zeros((2, 6)).tolist())
-    session.save(run_state.PHASE_COLLECTING)
+    session = RunSession.create(small_disk.path)
+    session.state = RunState({'seed': 1}, np.zeros((2, 6)).tolist())
+    session.save(PHASE_COLLECTING)
     files = sorted(os.listdir(session.run.path))
     small_disk.fill()
     reason = 'x' * 2 * PAGE  # more than the old file's page: a rewrite in place would be torn
-    with pytest.raises(run_session.RunWriteError) as raised:
-        session.save(run_state.PHASE_FAILED, reason)
+    with pytest.raises(RunWriteError) as raised:
+        session.save(PHASE_FAILED, reason)
     assert str(raised.value) == f'cannot write {session.run.path / "state.json"}: {NO_SPACE}'
-    assert run_state.read_state(session.run.path).phase == run_state.PHASE_COLLECTING
+    assert read_state(session.run.path).phase == PHASE_COLLECTING
     assert sorted(os.listdir(session.run.path)) == files  # no temporary file left behind
     small_disk.free()
-    session.save(run_state.PHASE_FAILED, reason)
-    assert run_state.read_state(session.run.path).stop_reason == reason
+    session.save(PHASE_FAILED, reason)
+    assert read_state(session.run.path).stop_reason == reason
 
 
 def test_a_recording_on_a_full_disk_keeps_every_message_written(small_disk):
@@ -102,7 +109,7 @@ def test_a_recording_on_a_full_disk_keeps_every_message_written(small_disk):
     small_disk.free()
     recovered = mcap_io.recover_recording(f'{path}.tmp')
     assert recovered['message_count'] == written > 0
-    values = [m.position[0] for _, _, _, m, _ in recording.read_recording(path)]
+    values = [m.position[0] for _, _, _, m, _ in read_recording(path)]
     np.testing.assert_allclose(values, 1e-3 * np.arange(written), rtol=0, atol=1e-15)
 
 
@@ -140,8 +147,8 @@ def test_a_full_disk_mid_run_ends_it_keeps_the_rows_and_resume_continues(
         run = _run_failed_on(suite, tmp_path, 'samples.csv')
         kept = read_samples(run / 'samples.csv')
         assert len(kept) == 3  # every complete row, no half row
-        state = run_state.read_state(run)
-        assert state.phase == run_state.PHASE_FAILED and NO_SPACE in state.stop_reason
+        state = read_state(run)
+        assert state.phase == PHASE_FAILED and NO_SPACE in state.stop_reason
         assert sorted(state.done) == sorted(kept.posture.tolist())
 
         disk['full'] = False  # space freed: the same node resumes the run
@@ -151,8 +158,8 @@ def test_a_full_disk_mid_run_ends_it_keeps_the_rows_and_resume_continues(
         assert response.success, response.message
         rows = read_samples(run / 'samples.csv')
         np.testing.assert_array_equal(rows.leg_lengths[:3], kept.leg_lengths)
-        assert len(rows) + len(run_state.read_state(run).skipped) == 12
-        assert run_state.read_state(run).phase == run_state.PHASE_DONE
+        assert len(rows) + len(read_state(run).skipped) == 12
+        assert read_state(run).phase == PHASE_DONE
     finally:
         suite.close()
 
@@ -177,7 +184,7 @@ def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
             disk['bytes'] = files[0].written + 1024
 
     def open_recording(file, mode='r', *args, **kwargs):
-        if mode == 'wb' and str(file).endswith(f'{recording.RECORDING_FILE}.tmp'):
+        if mode == 'wb' and str(file).endswith(f'{RECORDING_FILE}.tmp'):
             files.append(WriteLimit(io.FileIO(file, 'w'), disk))
             return io.BufferedWriter(files[-1])
         return open(file, mode, *args, **kwargs)
@@ -187,15 +194,15 @@ def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
     suite, calibrator, _, _ = make_suite(ros_context, tmp_path, truth_file)
     try:
         run = _run_failed_on(suite, tmp_path, 'recording.mcap.tmp')
-        assert run_state.read_state(run).phase == run_state.PHASE_FAILED
+        assert read_state(run).phase == PHASE_FAILED
         rows = read_samples(run / 'samples.csv')
         assert rows_before_full <= len(rows) < 12  # mid-run
-        part = run / f'{recording.RECORDING_FILE}.tmp'
+        part = run / f'{RECORDING_FILE}.tmp'
         # The disk is still full when the run ends: the recording cannot be finished, so its
         # .tmp is kept with every byte written, and nothing poses as a finished recording.
         suite.wait_until(lambda: not calibrator.recorder.recording)
         assert part.stat().st_size == files[0].written == disk['bytes']
-        assert not (run / recording.RECORDING_FILE).exists()
+        assert not (run / RECORDING_FILE).exists()
         copy = tmp_path / 'copy.mcap'
         shutil.copy(part, f'{copy}.tmp')
         before = mcap_io.recover_recording(f'{copy}.tmp')['message_count']
@@ -207,9 +214,9 @@ def test_a_recording_that_cannot_be_written_ends_the_run_and_keeps_its_messages(
         response = suite.wait(client.call_async(Trigger.Request()))
         assert response.success, response.message
         assert not part.exists()
-        assert recording.recording_info(run / recording.RECORDING_FILE)['message_count'] == before
+        assert recording_info(run / RECORDING_FILE)['message_count'] == before
         again = read_samples(run / 'samples.csv')
         np.testing.assert_array_equal(again.leg_lengths[: len(rows)], rows.leg_lengths)
-        assert run_state.read_state(run).phase == run_state.PHASE_DONE
+        assert read_state(run).phase == PHASE_DONE
     finally:
         suite.close()

@@ -13,24 +13,31 @@ import time
 
 import numpy as np
 import pytest
+from gsp_testing import SpinThread
 from scipy import stats
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import topics
 from gsp_calibrator.recording import mcap_io, rebuild
-from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import identify as calibration
-from gsp_calibrator.run import state as run_state
+from gsp_calibrator.recording.mcap_io import recording_info, recover_recording
+from gsp_calibrator.recording.recorder import recording_parts
 from gsp_calibrator.run.directory import read_samples
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.state import (
+    PHASE_COLLECTING,
+    PHASE_DONE,
+    PHASE_FAILED,
+    PHASE_INTERRUPTED,
+    STATE_FILE,
+)
 from gsp_calibrator.tools import demo, demo_commands
-from gsp_calibrator.tools import reidentify as offline
 from gsp_calibrator.tools.processes import NodeProcesses
+from gsp_calibrator.tools.reidentify import stored_weights
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.identification import ALL_PARAMETER_NAMES
 from gsp_msgs_py import conversions, names, qos
-from gsp_msgs_py.testing import SpinThread
 
 #: Postures of the run resumed after a killed device driver, which is compared with an
 #: uninterrupted run (a statistic of the two results: as many postures as the demo's).
@@ -58,7 +65,7 @@ def runs_under(root):
 
 def state_of(run):
     try:
-        return json.loads((run / run_state.STATE_FILE).read_text())
+        return json.loads((run / STATE_FILE).read_text())
     except (OSError, ValueError):
         return None
 
@@ -82,7 +89,7 @@ class Client:
             for service in (names.SERVICE_CALIBRATE, names.SERVICE_RESUME)
         }
         self.heard = {}  # topic -> messages received
-        for topic in protocol.SENSOR_TOPICS:
+        for topic in topics.SENSOR_TOPICS:
             self.node.create_subscription(
                 JointState, topic, lambda _, t=topic: self._count(t), qos.TOPIC_QOS[topic]
             )
@@ -107,7 +114,7 @@ class Client:
                 names.TOPIC_CALIBRATION_PROGRESS
             )
         }
-        for topic in protocol.SENSOR_TOPICS:
+        for topic in topics.SENSOR_TOPICS:
             endpoints[topic] = [
                 info
                 for info in self.node.get_subscriptions_info_by_topic(topic)
@@ -195,7 +202,7 @@ def assert_recorded(parts, samples):
     """
     notes = {}
     for part in parts:
-        notes.update(rebuild.collection_notes(recording.recording_info(part), part))
+        notes.update(rebuild.collection_notes(recording_info(part), part))
     noted = {posture for posture, _ in notes.values()}
     assert set(int(k) for k in samples.posture) <= noted
     rebuilt = rebuild.samples_from_recording(parts)
@@ -210,8 +217,8 @@ def identification(run):
     data = json.loads((run / 'result.json').read_text())
     options = data['options']
     samples = read_samples(run / 'samples.csv')
-    sigmas, noise_source, _ = offline.stored_weights(data, options, samples)
-    result = calibration.identify_from_samples(
+    sigmas, noise_source, _ = stored_weights(data, options, samples)
+    result = identify_from_samples(
         load_geometry(options['nominal_geometry_file']),
         samples,
         sigmas,
@@ -239,7 +246,7 @@ def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(compared_
     assert '/gsp/device/' in response.message, response.message
     run = runs_under(root)[-1]
     state = state_of(run)
-    assert state['phase'] == run_state.PHASE_FAILED
+    assert state['phase'] == PHASE_FAILED
     assert '/gsp/device/' in state['stop_reason']
     kept = read_samples(run / 'samples.csv')
     assert len(kept) == len(state['done']) >= KILL_AT
@@ -249,13 +256,13 @@ def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(compared_
     resumed = client.call(names.SERVICE_RESUME)
     assert resumed.success, resumed.message
     state = state_of(run)
-    assert state['phase'] == run_state.PHASE_DONE and state['sessions'] == 2
+    assert state['phase'] == PHASE_DONE and state['sessions'] == 2
     samples = read_samples(run / 'samples.csv')
     assert all_accounted_for(run, COMPARED_POSTURES)
     # The first rows are untouched; the recording has a second part, and offline rebuild reads
     # both parts into the same postures.
     assert (samples.leg_lengths[: len(kept)] == kept.leg_lengths).all()
-    parts = recording.recording_parts(run)
+    parts = recording_parts(run)
     assert [os.path.basename(p) for p in parts] == ['recording.mcap', 'recording-2.mcap']
     assert state['recordings'] == ['recording.mcap', 'recording-2.mcap']
     assert_recorded(parts, samples)
@@ -330,7 +337,7 @@ def test_killed_platform_sim_names_the_status_and_resume_completes(suite):
         names.TOPIC_LEG_LENGTHS in response.message
     ), response.message
     run = runs_under(root)[-1]
-    assert state_of(run)['phase'] == run_state.PHASE_FAILED
+    assert state_of(run)['phase'] == PHASE_FAILED
     client.restart(processes, 'platform_sim', [names.TOPIC_LEG_LENGTHS])
     resumed = client.call(names.SERVICE_RESUME)
     assert resumed.success, resumed.message
@@ -358,12 +365,12 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
         assert len(kept) == len(done)
         assert code == 0, processes.log_tail('calibrator')
         assert 'Traceback' not in (processes.log_directory / 'calibrator.log').read_text()
-        assert state['phase'] == run_state.PHASE_INTERRUPTED
+        assert state['phase'] == PHASE_INTERRUPTED
         assert (run / 'recording.mcap').is_file() and not (run / 'recording.mcap.tmp').exists()
         parts = [run / 'recording.mcap']
     else:
-        assert state['phase'] == run_state.PHASE_COLLECTING  # as the kill left it
-        recovered = recording.recover_recording(run / 'recording.mcap.tmp')
+        assert state['phase'] == PHASE_COLLECTING  # as the kill left it
+        recovered = recover_recording(run / 'recording.mcap.tmp')
         parts = [recovered['path']]
     assert_recorded(parts, kept)
 
@@ -393,7 +400,7 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
             break
     wait_until(
         lambda: (
-            state_of(run)['phase'] in (run_state.PHASE_DONE, run_state.PHASE_FAILED)
+            state_of(run)['phase'] in (PHASE_DONE, PHASE_FAILED)
             and state_of(run)['sessions'] > sessions
         ),
         what='the resumed run',
@@ -402,7 +409,7 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
         if pending.done():
             message = pending.result().message
             assert pending.result().success or message == 'calibration already running', message
-    assert state_of(run)['phase'] == run_state.PHASE_DONE, state_of(run)['stop_reason']
+    assert state_of(run)['phase'] == PHASE_DONE, state_of(run)['stop_reason']
     assert all_accounted_for(run)
     # Each kept row once, first; its posture counted done even if state.json had not listed it.
     samples = read_samples(run / 'samples.csv')

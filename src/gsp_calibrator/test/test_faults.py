@@ -16,10 +16,32 @@ from std_srvs.srv import Trigger
 from test_calibrator_node import make_suite, perturbed_truth
 
 from gsp_calibrator.collection.single_source import SingleSourceGuard
-from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import session as run_session
-from gsp_calibrator.run import state as run_state
+from gsp_calibrator.recording.mcap_format import RecordingError
+from gsp_calibrator.recording.mcap_io import (
+    McapRecorder,
+    read_recording,
+    recording_info,
+    recover_recording,
+    recover_recordings,
+)
+from gsp_calibrator.recording.recorder import next_recording_file, recording_parts
 from gsp_calibrator.run.directory import SAMPLES_FILE, Samples, read_samples, write_samples
+from gsp_calibrator.run.session import RunSession
+from gsp_calibrator.run.state import (
+    PHASE_COLLECTING,
+    PHASE_DONE,
+    PHASE_FAILED,
+    ResumeRefused,
+    RunState,
+    check_resume,
+    latest_unfinished_run,
+    postures_to_collect,
+    read_state,
+    resumable,
+    selection_options,
+    settle_statistics,
+    write_state,
+)
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_msgs_py import conversions, names, qos
 
@@ -48,18 +70,18 @@ def test_a_recording_killed_by_sigkill_yields_every_message_up_to_the_kill(tmp_p
     child.kill()
     child.wait()
     assert not path.exists() and (tmp_path / 'recording.mcap.tmp').stat().st_size > 0
-    recovered = recording.recover_recording(tmp_path / 'recording.mcap.tmp')
+    recovered = recover_recording(tmp_path / 'recording.mcap.tmp')
     assert recovered['path'] == str(path) and not (tmp_path / 'recording.mcap.tmp').exists()
-    messages = list(recording.read_recording(path))
+    messages = list(read_recording(path))
     assert recovered['message_count'] == len(messages) >= written
     # In order and complete: message n carries n.
     assert [m.log_time_ns for m in messages] == list(range(1, len(messages) + 1))
-    assert recording.recording_info(path)['message_count'] == len(messages)
+    assert recording_info(path)['message_count'] == len(messages)
 
 
 def test_recovery_keeps_every_complete_record_of_a_truncated_file(tmp_path):
     path = tmp_path / 'r.mcap'
-    recorder = recording.McapRecorder(path, crash_safe=True)
+    recorder = McapRecorder(path, crash_safe=True)
     for n in range(1, 21):
         recorder.write('/gsp/device/lvdt', JointState(name=['d_m'], position=[0.1]), n)
     data = (tmp_path / 'r.mcap.tmp').read_bytes()
@@ -69,24 +91,24 @@ def test_recovery_keeps_every_complete_record_of_a_truncated_file(tmp_path):
         target = tmp_path / f'cut{cut}'
         target.mkdir()
         (target / 'recording.mcap.tmp').write_bytes(data[:cut])
-        counts.append(recording.recover_recordings(target)[0]['message_count'])
-        assert len(list(recording.read_recording(target / 'recording.mcap'))) == counts[-1]
+        counts.append(recover_recordings(target)[0]['message_count'])
+        assert len(list(read_recording(target / 'recording.mcap'))) == counts[-1]
     assert counts[0] == 20 and counts[1] == 19 and 10 < counts[2] < 19 and counts[3] == 0
-    with pytest.raises(recording.RecordingError, match='exists already'):
+    with pytest.raises(RecordingError, match='exists already'):
         (target / 'recording.mcap.tmp').write_bytes(data)
-        recording.recover_recording(target / 'recording.mcap.tmp')
+        recover_recording(target / 'recording.mcap.tmp')
 
 
 def test_recording_parts_are_read_in_order(tmp_path):
     for name in ('recording-10.mcap', 'recording.mcap', 'recording-2.mcap', 'other.mcap'):
         (tmp_path / name).write_bytes(b'')
-    assert [os.path.basename(p) for p in recording.recording_parts(tmp_path)] == [
+    assert [os.path.basename(p) for p in recording_parts(tmp_path)] == [
         'recording.mcap',
         'recording-2.mcap',
         'recording-10.mcap',
     ]
     (tmp_path / 'recording-3.mcap.tmp').write_bytes(b'')
-    assert os.path.basename(recording.next_recording_file(tmp_path)) == 'recording-4.mcap'
+    assert os.path.basename(next_recording_file(tmp_path)) == 'recording-4.mcap'
 
 
 # --- state.json ------------------------------------------------------------------------------
@@ -98,8 +120,8 @@ def _settings(**values):
 
 def _state(settings):
     poses = np.arange(24, dtype=float).reshape(4, 6) * 1e-3
-    state = run_state.RunState(run_state.selection_options(settings), poses.tolist())
-    state.phase = run_state.PHASE_FAILED
+    state = RunState(selection_options(settings), poses.tolist())
+    state.phase = PHASE_FAILED
     return state, poses
 
 
@@ -110,14 +132,14 @@ def test_state_round_trips_and_lists_what_is_left(tmp_path):
     state.record_done(1)
     run = tmp_path / 'runs' / 'a_run'
     run.mkdir(parents=True)
-    run_state.write_state(run, state)
-    again = run_state.read_state(run)
+    write_state(run, state)
+    again = read_state(run)
     assert again == state
     samples = Samples.empty()
     samples.append(1, poses[0], np.ones(6), np.ones(4), 5, 0.0)
-    run_state.check_resume(again, settings, samples)
-    assert run_state.postures_to_collect(again, samples) == [2, 3, 4]
-    assert run_state.latest_unfinished_run(tmp_path / 'runs') == run
+    check_resume(again, settings, samples)
+    assert postures_to_collect(again, samples) == [2, 3, 4]
+    assert latest_unfinished_run(tmp_path / 'runs') == run
 
 
 def test_settle_waits_survive_a_resume_and_give_the_statistics(tmp_path):
@@ -132,12 +154,12 @@ def test_settle_waits_survive_a_resume_and_give_the_statistics(tmp_path):
         )
     run = tmp_path / 'a_run'
     run.mkdir()
-    run_state.write_state(run, state)
-    again = run_state.read_state(run)
+    write_state(run, state)
+    again = read_state(run)
     assert again.settle_waits == state.settle_waits
-    statistics = run_state.settle_statistics(again.settle_waits)
+    statistics = settle_statistics(again.settle_waits)
     assert statistics == {'rows': 3, 'median_s': 0.2, 'max_s': 0.6, 'mean_s': 0.268, 'waited': 2}
-    assert run_state.settle_statistics({})['rows'] == 0
+    assert settle_statistics({})['rows'] == 0
 
 
 def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
@@ -149,14 +171,14 @@ def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
     state.replacements.append({'rejected': 2, 'replacement': 5, 'reason': 'stroke'})
     run = tmp_path / 'a_run'
     run.mkdir()
-    run_state.write_state(run, state)
-    again = run_state.read_state(run)
+    write_state(run, state)
+    again = read_state(run)
     assert again.replacements == state.replacements and again.poses == state.poses
     samples = Samples.empty()
     samples.append(1, poses[0], np.ones(6), np.ones(4), 5, 0.0)
     samples.append(3, poses[2], np.ones(6), np.ones(4), 5, 0.0)
     # In the recorded order, without the replaced posture.
-    assert run_state.postures_to_collect(again, samples) == [4, 5]
+    assert postures_to_collect(again, samples) == [4, 5]
 
 
 def test_a_row_state_json_does_not_list_yet_is_kept_once_by_a_resume(tmp_path):
@@ -165,19 +187,19 @@ def test_a_row_state_json_does_not_list_yet_is_kept_once_by_a_resume(tmp_path):
     posture again, and counts it done."""
     settings = _settings(resume_run_directory=str(tmp_path))
     state, poses = _state(settings)
-    state.phase, state.pid = run_state.PHASE_COLLECTING, 0  # as a SIGKILL leaves it
+    state.phase, state.pid = PHASE_COLLECTING, 0  # as a SIGKILL leaves it
     state.record_done(1)
     state.record_skip(3, 'not settled')
-    run_state.write_state(tmp_path, state)
+    write_state(tmp_path, state)
     samples = Samples.empty()
     for posture in (1, 2):  # posture 2's row is not in state.json
         samples.append(posture, poses[posture - 1], np.ones(6), np.ones(4), 5, 0.0)
     write_samples(tmp_path / SAMPLES_FILE, samples)
-    session = run_session.RunSession.resume(settings, os.getpid())
+    session = RunSession.resume(settings, os.getpid())
     try:
         session.begin(settings, None, os.getpid())
         assert session.remaining == [3, 4]
-        assert run_state.read_state(tmp_path).done == [1, 2]
+        assert read_state(tmp_path).done == [1, 2]
     finally:
         session.close()
     assert list(read_samples(tmp_path / SAMPLES_FILE).posture) == [1, 2]
@@ -207,28 +229,28 @@ def test_the_replacement_is_the_best_remaining_pool_posture():
 )
 def test_a_resume_that_would_change_the_selection_is_refused_naming_the_option(change, named):
     state, _ = _state(_settings())
-    with pytest.raises(run_state.ResumeRefused, match=named):
-        run_state.check_resume(state, _settings(**change), Samples.empty())
+    with pytest.raises(ResumeRefused, match=named):
+        check_resume(state, _settings(**change), Samples.empty())
 
 
 def test_a_resume_with_another_nominal_device_or_rows_is_refused(tmp_path):
     settings = _settings()
     state, poses = _state(settings)
     other = settings.nominal.replace(device_length=settings.nominal.device_length + 1e-3)
-    with pytest.raises(run_state.ResumeRefused, match='different device'):
-        run_state.check_resume(state, _with_nominal(settings, other), Samples.empty())
+    with pytest.raises(ResumeRefused, match='different device'):
+        check_resume(state, _with_nominal(settings, other), Samples.empty())
     other = settings.nominal.replace(leg_offsets=settings.nominal.leg_offsets + 1e-3)
-    with pytest.raises(run_state.ResumeRefused, match='nominal geometry changed'):
-        run_state.check_resume(state, _with_nominal(settings, other), Samples.empty())
+    with pytest.raises(ResumeRefused, match='nominal geometry changed'):
+        check_resume(state, _with_nominal(settings, other), Samples.empty())
     samples = Samples.empty()
     samples.append(2, poses[0], np.ones(6), np.ones(4), 5, 0.0)  # posture 2 at pose 1
-    with pytest.raises(run_state.ResumeRefused, match='different selection or nominal'):
-        run_state.check_resume(state, settings, samples)
-    state.phase = run_state.PHASE_DONE
-    with pytest.raises(run_state.ResumeRefused, match='finished'):
-        run_state.check_resume(state, settings, Samples.empty())
-    with pytest.raises(run_state.ResumeRefused, match='no unfinished run'):
-        run_state.latest_unfinished_run(tmp_path)
+    with pytest.raises(ResumeRefused, match='different selection or nominal'):
+        check_resume(state, settings, samples)
+    state.phase = PHASE_DONE
+    with pytest.raises(ResumeRefused, match='finished'):
+        check_resume(state, settings, Samples.empty())
+    with pytest.raises(ResumeRefused, match='no unfinished run'):
+        latest_unfinished_run(tmp_path)
 
 
 def _with_nominal(settings, nominal):
@@ -239,14 +261,14 @@ def _with_nominal(settings, nominal):
 
 def test_a_live_run_is_not_resumed_but_a_killed_one_is():
     state, _ = _state(_settings())
-    state.phase = run_state.PHASE_COLLECTING
+    state.phase = PHASE_COLLECTING
     state.pid = os.getpid()  # alive, and not ours
-    assert not run_state.resumable(state)
-    assert run_state.resumable(state, own_pid=os.getpid())
+    assert not resumable(state)
+    assert resumable(state, own_pid=os.getpid())
     child = subprocess.Popen([sys.executable, '-c', 'pass'])
     child.wait()
     state.pid = child.pid  # gone
-    assert run_state.resumable(state)
+    assert resumable(state)
 
 
 # --- sources -----------------------------------------------------------------------------------
@@ -333,7 +355,7 @@ def test_a_flood_from_a_second_publisher_ends_the_run_naming_the_topic(
         assert not response.success
         assert re.search(f'topic {names.TOPIC_ENCODER} has [2-9] publishers', response.message)
         runs = list((tmp_path / 'runs').iterdir())
-        assert run_state.read_state(runs[0]).phase == run_state.PHASE_FAILED
+        assert read_state(runs[0]).phase == PHASE_FAILED
     finally:
         stop.set()
         thread.join(timeout=5.0)

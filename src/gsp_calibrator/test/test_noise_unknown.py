@@ -16,13 +16,12 @@ from test_calibrator_node import CALL_TIMEOUT_S, make_suite, perturbed_truth
 from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
-from gsp_calibrator.run import identify as calibration
-from gsp_calibrator.run import postures as run_postures
-from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import RunDirectory, Samples
-from gsp_calibrator.run.response import parse_response
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.postures import choose_postures
+from gsp_calibrator.run.response import outcome_summary, parse_response
 from gsp_calibrator.tools import client
-from gsp_calibrator.tools import reidentify as offline
+from gsp_calibrator.tools.reidentify import refresh_report
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS
@@ -46,7 +45,7 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
         # model is still rejected 1 run in 100 (the F test's level): that is the test's risk.
         {'posture_count': 24, 'pool_size': 240, 'apply_result': True},
         platform_overrides=[
-            Parameter('leg_noise_std', value=FACTOR * DEFAULT_SENSOR_NOISE.leg_lengths)
+            Parameter('leg_lengths_noise_std', value=FACTOR * DEFAULT_SENSOR_NOISE.leg_lengths)
         ],
         device_overrides=device_noise,
     )
@@ -80,7 +79,7 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
         suite.close()
     # Validation against the truth, as gsp_demo does it: measured over predicted accuracy.
     poses = sample_valid_postures(truth, 50, np.random.default_rng(11))
-    offline.refresh_report(
+    refresh_report(
         run.path,
         truth=truth,
         validation_after=validation_errors(truth, calibrated, poses),
@@ -127,7 +126,7 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
     # keeps each row's lag sums), and so has the rebuild of its recording.
     rows = run.read_samples()
     assert np.isfinite(rows.lag_sums[:, :, : samples // 2 + 1]).all()
-    again = offline.refresh_report(run.path, plots=False)
+    again = refresh_report(run.path, plots=False)
     assert again.noise_estimates['inclinometer']['row_std'] == pytest.approx(
         inclinometer['row_std'], rel=1e-9
     )
@@ -152,9 +151,7 @@ def offline_run(poses, samples, rate_hz, correlation_time, seed):
     device = SimDeviceBackend(
         true.device_length,
         true.inclinometer_axes_angle,
-        DEFAULT_SENSOR_NOISE.inclinometer,
-        DEFAULT_SENSOR_NOISE.encoder,
-        DEFAULT_SENSOR_NOISE.lvdt,
+        DEFAULT_SENSOR_NOISE,
         rng=rng,
         sensors=true.sensors,
         correlation_times=(correlation_time, 0.0, 0.0),
@@ -195,16 +192,16 @@ def test_correlated_device_noise_offline_is_estimated_and_accepted(postures, sam
     model is accepted and the row noise is the AR(1) truth within 15 %."""
     rate_hz, correlation_time = 200.0, 0.05
     nominal = default_geometry('nominal')
-    poses = run_postures.choose_postures(nominal, postures, 10 * postures, seed=5).poses
+    poses = choose_postures(nominal, postures, 10 * postures, seed=5).poses
     rows = offline_run(poses, samples, rate_hz, correlation_time, seed=postures)
-    outcome = calibration.identify_from_samples(nominal, rows, DEFAULT_SENSOR_NOISE)
+    outcome = identify_from_samples(nominal, rows, DEFAULT_SENSOR_NOISE)
     assert outcome.success and outcome.fit_accepted, outcome.verdict
     assert outcome.result.goodness_of_fit.test == 'lack_of_fit'
     inclinometer = outcome.noise_estimates['inclinometer']
     assert inclinometer['within_lower_bound'] is lower_bound
     assert inclinometer['source'] == ('between' if lower_bound else 'pooled')
     # The summary says so on the inclinometer's line.
-    lines = run_response.outcome_summary(outcome).splitlines()
+    lines = outcome_summary(outcome).splitlines()
     noted = [line for line in lines if 'within: lower bound' in line]
     assert noted == (
         [next(x for x in lines if x.startswith('sensor noise inclinometer'))] if lower_bound else []

@@ -7,21 +7,21 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples as make_samples
 
-from gsp_calibrator.recording import rebuild
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording import mcap_io, rebuild
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
-from gsp_calibrator.run import identify as calibration
-from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import read_samples, write_samples
-from gsp_calibrator.tools import reidentify as offline
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL
+from gsp_calibrator.tools.reidentify import main, refresh_report
+from gsp_calibrator.tools.reidentify_inputs import free_parameters
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
     default_geometry,
     default_geometry_path,
     load_geometry,
 )
-from gsp_kinematics.identification import Sigmas
 from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000
@@ -33,11 +33,9 @@ def synthetic_samples(count=30, seed=11, n_samples=4):
 
 
 def _run_directory(output):
-    lines = [
-        line for line in output.splitlines() if line.startswith(run_response.RUN_DIRECTORY_LABEL)
-    ]
+    lines = [line for line in output.splitlines() if line.startswith(RUN_DIRECTORY_LABEL)]
     assert lines, output
-    return lines[-1][len(run_response.RUN_DIRECTORY_LABEL) :].strip()
+    return lines[-1][len(RUN_DIRECTORY_LABEL) :].strip()
 
 
 def _json_parameters(run_dir):
@@ -52,12 +50,12 @@ def test_offline_equals_the_pipeline(tmp_path, capsys):
     write_samples(csv_path, samples)
     free = ['A1x', 'A1y', 'B2z', 'Loff3', 'D0', 'gamma']
     # What the calibrator node runs on its collected samples (nominal, sigmas, free, formulation).
-    direct = calibration.identify_from_samples(
-        load_geometry(default_geometry_path('nominal')), samples, Sigmas(), free, 'implicit'
+    direct = identify_from_samples(
+        load_geometry(default_geometry_path('nominal')), samples, SensorNoise(), free, 'implicit'
     )
     assert direct.success, direct.message
 
-    code = offline.main(
+    code = main(
         [
             str(csv_path),
             '--output-root',
@@ -99,7 +97,7 @@ def test_offline_from_run_directory_with_truth_and_report(tmp_path, capsys):
     (source / 'true_geometry.yaml').write_text(
         open(default_geometry_path('true'), encoding='utf-8').read(), encoding='utf-8'
     )
-    code = offline.main(
+    code = main(
         [str(source), '--output-root', str(tmp_path / 'runs'), '--validation-postures', '10']
     )
     out = capsys.readouterr().out
@@ -118,7 +116,7 @@ def test_offline_from_run_directory_with_truth_and_report(tmp_path, capsys):
     ):
         assert (tmp_path / 'runs').joinpath(run_dir, name).exists(), name
     assert 'validation after' in out and 'parameter errors vs reference' in out
-    direct = calibration.identify_from_samples(default_geometry('nominal'), samples, Sigmas())
+    direct = identify_from_samples(default_geometry('nominal'), samples, SensorNoise())
     np.testing.assert_allclose(
         _json_parameters(run_dir), direct.result.parameters[:44], rtol=0, atol=1e-12
     )
@@ -126,9 +124,9 @@ def test_offline_from_run_directory_with_truth_and_report(tmp_path, capsys):
 
 def _write_recording(path, samples, per_posture):
     """A recorded run that gives ``samples`` (each row repeated ``per_posture`` times)."""
-    with recording.McapRecorder(path) as recorder:
-        recorder.add_metadata(
-            recording.RUN_METADATA_NAME,
+    with mcap_io.McapRecorder(path) as writer:
+        writer.add_metadata(
+            mcap_io.RUN_METADATA_NAME,
             {
                 'sync_tolerance': '0.0025',
                 'samples_per_posture': str(per_posture),
@@ -140,8 +138,8 @@ def _write_recording(path, samples, per_posture):
         for m in range(len(samples)):
             command = conversions.pose_to_pose_stamped(samples.commanded_poses[m], t / 1e9)
             command_id = conversions.command_id_from_stamp(command.header.stamp)
-            recorder.write(names.TOPIC_POSE_COMMAND, command, t)
-            recorder.write(
+            writer.write(names.TOPIC_POSE_COMMAND, command, t)
+            writer.write(
                 names.TOPIC_PLATFORM_STATUS,
                 conversions.make_status(command_id, names.STATE_SETTLED),
                 t + MS,
@@ -149,7 +147,7 @@ def _write_recording(path, samples, per_posture):
             r = samples.readings[m]
             for j in range(per_posture + 1):
                 stamp = t + 2 * MS + 5 * MS * j
-                recorder.write(
+                writer.write(
                     names.TOPIC_LEG_LENGTHS,
                     conversions.leg_lengths_to_msg(samples.leg_lengths[m], stamp / 1e9),
                     stamp + 100,
@@ -160,7 +158,7 @@ def _write_recording(path, samples, per_posture):
                     (names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3])),
                 ):
                     msg.header.stamp = conversions.seconds_to_stamp(stamp / 1e9)
-                    recorder.write(topic, msg, stamp + 200)
+                    writer.write(topic, msg, stamp + 200)
             t += 100 * MS
 
 
@@ -172,15 +170,13 @@ def test_offline_from_recording(tmp_path, capsys):
     assert len(rebuilt) == len(samples)
     np.testing.assert_allclose(rebuilt.leg_lengths, samples.leg_lengths, rtol=0, atol=1e-15)
     np.testing.assert_allclose(rebuilt.readings, samples.readings, rtol=0, atol=1e-15)
-    code = offline.main([str(mcap), '--output-root', str(tmp_path / 'runs'), '--no-report'])
+    code = main([str(mcap), '--output-root', str(tmp_path / 'runs'), '--no-report'])
     out = capsys.readouterr().out
     assert code == 0, out
     run_dir = _run_directory(out)
     assert (tmp_path / 'runs').joinpath(run_dir, 'recording.mcap').exists()
     # The options stored in the recording (here sigma_lvdt) are the run's: used when not given.
-    direct = calibration.identify_from_samples(
-        default_geometry('nominal'), rebuilt, Sigmas(lvdt=2e-6)
-    )
+    direct = identify_from_samples(default_geometry('nominal'), rebuilt, SensorNoise(lvdt=2e-6))
     np.testing.assert_allclose(
         _json_parameters(run_dir), direct.result.parameters[:44], rtol=0, atol=1e-12
     )
@@ -190,7 +186,7 @@ def test_offline_from_recording(tmp_path, capsys):
     assert options['sigma_lvdt'] == 2e-6 and options['source_kind'] == 'mcap'
     # ... and the new run directory re-identifies to the same result with the same options;
     # --no-plots: its report.md without PNGs.
-    code = offline.main([run_dir, '--output-root', str(tmp_path / 'runs'), '--no-plots'])
+    code = main([run_dir, '--output-root', str(tmp_path / 'runs'), '--no-plots'])
     out = capsys.readouterr().out
     assert code == 0, out
     again = Path(_run_directory(out))
@@ -223,7 +219,7 @@ def test_bad_csv_exits_2_naming_the_fault(tmp_path, capsys, mutate, expected):
     csv_path = tmp_path / 'samples.csv'
     write_samples(csv_path, synthetic_samples(count=3))
     csv_path.write_text(mutate(csv_path.read_text(encoding='utf-8')), encoding='utf-8')
-    code = offline.main([str(csv_path), '--output-root', str(tmp_path / 'runs')])
+    code = main([str(csv_path), '--output-root', str(tmp_path / 'runs')])
     err = capsys.readouterr().err
     assert code == 2
     assert 'samples.csv' in err and expected in err, err
@@ -242,26 +238,26 @@ def test_bad_csv_exits_2_naming_the_fault(tmp_path, capsys, mutate, expected):
 def test_bad_options_exit_2(tmp_path, capsys, arguments, expected):
     csv_path = tmp_path / 'samples.csv'
     write_samples(csv_path, synthetic_samples(count=3))
-    code = offline.main([str(csv_path), *arguments, '--output-root', str(tmp_path / 'runs')])
+    code = main([str(csv_path), *arguments, '--output-root', str(tmp_path / 'runs')])
     assert code == 2
     assert expected in capsys.readouterr().err
 
 
 def test_free_accepts_groups_and_sensor_error_names():
-    assert offline.free_parameters(['paper,kq1', 'alpha0']) == ['paper', 'kq1', 'alpha0']
-    assert offline.free_parameters(['extended']) == ['extended']
+    assert free_parameters(['paper,kq1', 'alpha0']) == ['paper', 'kq1', 'alpha0']
+    assert free_parameters(['extended']) == ['extended']
 
 
 def test_missing_input_and_failed_identification(tmp_path, capsys):
-    assert offline.main([str(tmp_path / 'nothing.csv')]) == 2
+    assert main([str(tmp_path / 'nothing.csv')]) == 2
     assert 'nothing.csv' in capsys.readouterr().err
     (tmp_path / 'empty_run').mkdir()
-    assert offline.main([str(tmp_path / 'empty_run')]) == 2
+    assert main([str(tmp_path / 'empty_run')]) == 2
     assert 'empty_run' in capsys.readouterr().err
     # Two postures cannot identify 44 parameters: exit 1, the reason printed, no result.yaml.
     csv_path = tmp_path / 'samples.csv'
     write_samples(csv_path, synthetic_samples(count=2))
-    code = offline.main([str(csv_path), '--output-root', str(tmp_path / 'runs'), '--no-report'])
+    code = main([str(csv_path), '--output-root', str(tmp_path / 'runs'), '--no-report'])
     out = capsys.readouterr().out
     assert code == 1
     assert 'calibration FAILED' in out
@@ -287,7 +283,7 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
         'non_finite_dropped': {'leg_lengths': 1},
     }
     (run_dir / 'result.json').write_text(json.dumps({'collection': collection}))
-    outcome = offline.refresh_report(run_dir, truth=truth, validation_before=before, plots=False)
+    outcome = refresh_report(run_dir, truth=truth, validation_before=before, plots=False)
     assert outcome.success
     with open(run_dir / 'result.json', encoding='utf-8') as stream:
         data = json.load(stream)
@@ -297,7 +293,7 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
     assert data['parameter_errors']['reference'] == 'truth'
     validated = data['validation']['before']
     assert validated['postures'] + validated['unreachable'] == 10 and validated['postures'] >= 9
-    direct = calibration.identify_from_samples(nominal, samples, Sigmas())
+    direct = identify_from_samples(nominal, samples, SensorNoise())
     np.testing.assert_allclose(
         _json_parameters(run_dir), direct.result.parameters[:44], rtol=0, atol=1e-12
     )
@@ -307,7 +303,7 @@ def test_refresh_report_adds_truth_and_validation(tmp_path):
 def test_reidentify_takes_either_noise_source(tmp_path, capsys, source, test):
     csv_path = tmp_path / 'samples.csv'
     write_samples(csv_path, make_samples(count=30, seed=4))
-    code = offline.main(
+    code = main(
         [str(csv_path), '--output-root', str(tmp_path / 'runs'), '--noise-source', source]
         + ['--no-report']
     )

@@ -99,8 +99,8 @@ def test_sweep_writes_table_plot_and_json(tmp_path, capsys):
 
 def test_bad_input_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
-        planning.main(['--sigma-leg-um', '0'])
-    assert '--sigma-leg-um' in capsys.readouterr().err
+        planning.main(['--sigma-leg-lengths-um', '0'])
+    assert '--sigma-leg-lengths-um' in capsys.readouterr().err
     assert planning.main(['--geometry', str(tmp_path / 'missing.yaml')]) == 2
     assert 'gsp_plan: error' in capsys.readouterr().err
     assert planning.main(['--postures', '700', '--pool-size', '600']) == 2
@@ -108,8 +108,8 @@ def test_bad_input_is_named(tmp_path, capsys):
 
 def test_run_options_are_the_calibrators_and_checked_as_gsp_demo_checks_them(capsys):
     args = planning.parse_arguments(['--free', 'paper', 'kq1,kq2'])
-    assert args.free == ['paper', 'kq1', 'kq2']
-    assert (args.postures, args.pool_size, args.samples_per_posture) == (60, 600, 10)
+    assert args.free_parameters == ['paper', 'kq1', 'kq2']
+    assert (args.posture_count, args.pool_size, args.samples_per_posture) == (60, 600, 10)
     for argv, named in ((['--free', 'kq9'], '--free'), (['--postures', '0'], '--postures')):
         with pytest.raises(SystemExit):
             planning.parse_arguments(argv)

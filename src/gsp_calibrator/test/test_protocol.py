@@ -5,8 +5,17 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator.collection import events as event_types
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import protocol, topics
+from gsp_calibrator.collection.events import (
+    FINAL_EVENTS,
+    CollectionStarted,
+    NoSynchronisedSample,
+    PairsCollected,
+    PostureSkipped,
+    RowReady,
+    SampleDropped,
+    TopicSilent,
+)
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
 from gsp_msgs_py import conversions, names
@@ -60,11 +69,11 @@ def test_a_row_from_the_samples_after_the_settle():
     # While moving: received before the settle, stamped before it: never averaged.
     events += instant(collection, T0 + 2 * MS, q=Q + 1.0, readings=R + 1.0)
     events += collection.status(status('c1', names.STATE_SETTLED, ''), T0 + 10 * MS)
-    assert events == [event_types.CollectionStarted(1, 'c1', T0 + 10 * MS)]
+    assert events == [CollectionStarted(1, 'c1', T0 + 10 * MS)]
     for j in range(3):
         events = instant(collection, T0 + 11 * MS + 5 * MS * j, q=Q + j * 1e-7)
     (row,) = events
-    assert isinstance(row, event_types.RowReady) and row.posture == 1 and row.dropped == 0
+    assert isinstance(row, RowReady) and row.posture == 1 and row.dropped == 0
     np.testing.assert_allclose(row.pose, POSE)
     np.testing.assert_allclose(row.sample.leg_lengths, Q + 1e-7, rtol=0, atol=1e-15)
     np.testing.assert_allclose(row.sample.readings, R, rtol=0, atol=1e-15)
@@ -78,9 +87,9 @@ def test_samples_received_before_the_settle_count_when_stamped_after_the_start()
     events = collection.status(
         status('c1', names.STATE_SETTLED, ''), T0 + 10 * MS, start_ns=T0 + 4 * MS
     )  # a noted start
-    assert events[0] == event_types.CollectionStarted(1, 'c1', T0 + 4 * MS)
+    assert events[0] == CollectionStarted(1, 'c1', T0 + 4 * MS)
     events = instant(collection, T0 + 10 * MS)
-    assert isinstance(events[0], event_types.RowReady) and events[0].sample.n_samples == 2
+    assert isinstance(events[0], RowReady) and events[0].sample.n_samples == 2
 
 
 def test_the_collection_starts_at_the_settled_status_publish_instant_when_plausible():
@@ -99,9 +108,9 @@ def test_the_collection_starts_at_the_settled_status_publish_instant_when_plausi
     instant(collection, T0 + 7 * MS, q=Q + 1e-7, now=T0 + 9 * MS)
     start = protocol.settle_start_ns(T0 + 7 * MS, received, 1.0)
     events = collection.status(status('c1', names.STATE_SETTLED, ''), received, start)
-    assert events == [event_types.CollectionStarted(1, 'c1', T0 + 7 * MS)]
+    assert events == [CollectionStarted(1, 'c1', T0 + 7 * MS)]
     (row,) = instant(collection, T0 + 12 * MS, q=Q + 3e-7)
-    assert isinstance(row, event_types.RowReady) and row.sample.n_samples == 2
+    assert isinstance(row, RowReady) and row.sample.n_samples == 2
     np.testing.assert_allclose(row.sample.leg_lengths, Q + 2e-7, rtol=0, atol=1e-15)
 
 
@@ -113,9 +122,7 @@ def test_a_rejected_posture_is_skipped_and_reported():
     )  # another command's status: ignored
     events += collection.status(status('c1', names.STATE_REJECTED, 'out of reach'), T0 + 2 * MS)
     assert events == [
-        event_types.PostureSkipped(
-            1, 'rejected by the platform: out of reach', True, 'out of reach'
-        )
+        PostureSkipped(1, 'rejected by the platform: out of reach', True, 'out of reach')
     ]
     assert collection.summary()['skipped'] == [
         {
@@ -139,9 +146,7 @@ def test_timeouts_of_the_status_and_the_settle():
     collection.command(1, POSE, 'c1', T0)
     assert poll_until(collection, T0 + 900 * MS, T0) == []
     (silent,) = poll_until(collection, T0 + S, T0 + 900 * MS)
-    assert (
-        isinstance(silent, event_types.TopicSilent) and silent.topic == names.TOPIC_PLATFORM_STATUS
-    )
+    assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_PLATFORM_STATUS
     assert 'no status for posture 1 (command c1) within 1 s' in silent.message
 
     collection.command(2, POSE, 'c2', T0 + 2 * S)
@@ -149,7 +154,7 @@ def test_timeouts_of_the_status_and_the_settle():
     # settle_timeout 2 s from the first status
     assert poll_until(collection, T0 + 4 * S, T0 + 2 * S + 10 * MS) == []
     assert poll_until(collection, T0 + 4 * S + 100 * MS, T0 + 4 * S) == [
-        event_types.PostureSkipped(2, 'not settled within 2 s')
+        PostureSkipped(2, 'not settled within 2 s')
     ]
 
 
@@ -163,12 +168,12 @@ def test_a_stall_of_the_caller_is_not_a_silence():
     events = []
     for j in range(3):
         events += instant(collection, T0 + 3 * S + 5 * MS * j)
-    assert isinstance(events[0], event_types.RowReady)
+    assert isinstance(events[0], RowReady)
     # ... but a topic that stays silent after the stall is named one timeout later.
     settle(collection, 2, T0 + 4 * S, 'c2')
     assert collection.poll(T0 + 7 * S) == []  # another stall
     (silent,) = poll_until(collection, T0 + 8 * S, T0 + 7 * S)
-    assert isinstance(silent, event_types.TopicSilent) and silent.doing == 'collecting posture 2'
+    assert isinstance(silent, TopicSilent) and silent.doing == 'collecting posture 2'
 
 
 def test_a_backlog_of_the_caller_is_not_a_lack_of_progress():
@@ -183,7 +188,7 @@ def test_a_backlog_of_the_caller_is_not_a_lack_of_progress():
     events = []
     for j in range(3):
         events += instant(collection, start + 5 * MS * j, now=start + 1550 * MS + MS * j)
-    assert isinstance(events[0], event_types.RowReady)
+    assert isinstance(events[0], RowReady)
 
 
 def late_instants(collection, lag, until, skip=(), step=20 * MS):
@@ -191,7 +196,7 @@ def late_instants(collection, lag, until, skip=(), step=20 * MS):
     T0 + 10 ms), each handled ``lag`` ns after its stamp, until one is stamped ``until``; the
     events."""
     events, stamp = [], T0
-    while stamp <= until and not any(isinstance(e, event_types.FINAL_EVENTS) for e in events):
+    while stamp <= until and not any(isinstance(e, FINAL_EVENTS) for e in events):
         events += instant(collection, stamp, now=stamp + lag, skip=skip)
         if skip:
             events += collection.poll(stamp + lag + MS)
@@ -213,7 +218,7 @@ def test_a_posture_whose_samples_are_handled_30_s_late_gives_its_row():
     assert events == []
     events = late_instants(collection, 30 * S, T0 + 100 * MS)
     (row,) = events
-    assert isinstance(row, event_types.RowReady) and row.posture == 1
+    assert isinstance(row, RowReady) and row.posture == 1
     assert row.sample.stamp_ns >= T0 + 10 * MS
     np.testing.assert_allclose(row.sample.readings, R, rtol=0, atol=1e-12)
 
@@ -223,7 +228,7 @@ def test_a_silent_topic_is_named_also_when_the_others_are_handled_late():
     settle(collection)
     events = late_instants(collection, 30 * S, T0 + 40 * S, skip=(ENCODER,))
     (silent,) = events
-    assert isinstance(silent, event_types.TopicSilent) and silent.topic == names.TOPIC_ENCODER
+    assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_ENCODER
 
 
 def test_samples_stamped_before_the_start_but_off_the_wire_after_it_are_no_backlog():
@@ -241,7 +246,7 @@ def test_samples_stamped_before_the_start_but_off_the_wire_after_it_are_no_backl
         if events:
             break
     (failed,) = events
-    assert isinstance(failed, event_types.NoSynchronisedSample)
+    assert isinstance(failed, NoSynchronisedSample)
     assert '0 leg-length and 0 complete device samples since settling' in failed.message
 
 
@@ -262,7 +267,7 @@ def test_a_silent_topic_is_named_while_the_others_are_handled_after_a_late_settl
         if events:
             break
     (silent,) = events
-    assert isinstance(silent, event_types.TopicSilent), silent
+    assert isinstance(silent, TopicSilent), silent
     assert silent.topic == names.TOPIC_LEG_LENGTHS
 
 
@@ -287,7 +292,7 @@ def test_a_resumed_run_compares_its_first_posture_with_the_last_kept_row():
     settle(collection)
     for j in range(3):
         events = instant(collection, T0 + 11 * MS + 5 * MS * j)
-    assert isinstance(events[0], event_types.RowReady)
+    assert isinstance(events[0], RowReady)
 
 
 def test_a_silent_sensor_topic_ends_the_collection():
@@ -302,7 +307,7 @@ def test_a_silent_sensor_topic_ends_the_collection():
         if events:
             break
     (silent,) = events
-    assert isinstance(silent, event_types.TopicSilent) and silent.topic == names.TOPIC_ENCODER
+    assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_ENCODER
     assert silent.doing == 'collecting posture 1'
     assert silent.message == (
         'topic /gsp/device/encoder is silent: no message for 1 s while collecting posture 1'
@@ -322,7 +327,7 @@ def test_no_synchronised_sample_ends_the_run_with_the_counts():
         if events:
             break
     (failed,) = events
-    assert isinstance(failed, event_types.NoSynchronisedSample) and failed.posture == 1
+    assert isinstance(failed, NoSynchronisedSample) and failed.posture == 1
     assert 'no synchronised sample for 1 s at posture 1' in failed.message
     assert '0 within sync_tolerance' in failed.message
 
@@ -339,7 +344,7 @@ def test_the_collection_ends_at_its_deadline_even_while_pairs_keep_coming():
         if events:
             break
     (skipped,) = events
-    assert isinstance(skipped, event_types.PostureSkipped) and not skipped.rejected_by_platform
+    assert isinstance(skipped, PostureSkipped) and not skipped.rejected_by_platform
     assert skipped.reason.startswith(
         'no 3 consistent synchronised samples within 3 s '
         '(settle_timeout + topic_timeout) of settling'
@@ -354,7 +359,7 @@ def test_too_many_pairs_without_a_consistent_window_skip_the_posture():
     for j in range(10):
         events += instant(collection, T0 + 11 * MS + 5 * MS * j)
     assert events == [
-        event_types.PostureSkipped(
+        PostureSkipped(
             1,
             'no 3 consistent samples among 6 synchronised ones (too noisy, or the device '
             'readings did not change from the previous posture)',
@@ -367,14 +372,14 @@ def test_the_previous_row_is_the_reference_of_the_next_posture():
     settle(collection)
     for j in range(3):
         events = instant(collection, T0 + 11 * MS + 5 * MS * j)
-    assert isinstance(events[0], event_types.RowReady)
+    assert isinstance(events[0], RowReady)
     settle(collection, 2, T0 + S, 'c2')
     for j in range(10):  # the device still reports posture 1: not usable
         events = instant(collection, T0 + S + 11 * MS + 5 * MS * j)
         assert not events
     for j in range(3):
         events = instant(collection, T0 + S + 80 * MS + 5 * MS * j, readings=R + 0.01)
-    assert isinstance(events[0], event_types.RowReady) and events[0].posture == 2
+    assert isinstance(events[0], RowReady) and events[0].posture == 2
     np.testing.assert_allclose(events[0].sample.readings, R + 0.01)
 
 
@@ -384,9 +389,7 @@ def test_malformed_and_non_finite_messages_are_dropped_and_counted():
     legs = conversions.leg_lengths_to_msg(Q, (T0 + 20 * MS) / 1e9)
     legs.position = [math.nan] * 6
     (dropped,) = collection.sensor(names.TOPIC_LEG_LENGTHS, legs, T0 + 21 * MS)
-    assert (
-        isinstance(dropped, event_types.SampleDropped) and dropped.non_finite and dropped.count == 1
-    )
+    assert isinstance(dropped, SampleDropped) and dropped.non_finite and dropped.count == 1
     bad = conversions.leg_lengths_to_msg(Q)
     bad.name = ['leg_1']
     bad.position = [0.5]
@@ -407,7 +410,7 @@ def test_keep_pairs_hands_over_every_pair_of_each_segment():
         instant(collection, T0 - 100 * MS + 5 * MS * j, q=Q + j)
     events = settle(collection)
     idle = events[0]
-    assert isinstance(idle, event_types.PairsCollected) and idle.posture is None
+    assert isinstance(idle, PairsCollected) and idle.posture is None
     np.testing.assert_array_equal(idle.leg_lengths[:, 0], Q[0] + np.arange(3))
     for j in range(50):  # never ends a posture by itself
         assert not instant(collection, T0 + 11 * MS + 5 * MS * j, q=Q + j)
@@ -419,26 +422,26 @@ def test_keep_pairs_hands_over_every_pair_of_each_segment():
     np.testing.assert_array_equal(pairs.readings, np.tile(R, (50, 1)))
     assert skipped.rejected_by_platform and skipped.platform_reason == 'no'
     collection.command(3, POSE, 'c3', T0 + 2 * S)
-    assert collection.finish() == [event_types.PostureSkipped(3, 'never settled')]
+    assert collection.finish() == [PostureSkipped(3, 'never settled')]
 
 
 def test_the_topic_table_and_the_noise_vector():
-    assert protocol.SENSOR_TOPICS == (
+    assert topics.SENSOR_TOPICS == (
         names.TOPIC_LEG_LENGTHS,
         names.TOPIC_INCLINOMETER,
         names.TOPIC_ENCODER,
         names.TOPIC_LVDT,
     )
-    stream, stamp, values = protocol.read_sensor(
+    stream, stamp, values = topics.read_sensor(
         names.TOPIC_INCLINOMETER, conversions.inclinometer_to_msg(0.1, 0.2, 1.5)
     )
     assert (stream, stamp, values) == (INCLINOMETER, 1_500_000_000, (0.1, 0.2))
-    from gsp_kinematics.identification import Sigmas
+    from gsp_kinematics.sensors.noise import SensorNoise
 
-    sigmas = Sigmas(leg_lengths=1.0, inclinometer=2.0, encoder=3.0, lvdt=4.0)
+    sigmas = SensorNoise(leg_lengths=1.0, inclinometer=2.0, encoder=3.0, lvdt=4.0)
     assert sigmas.channel_std().tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]
     with pytest.raises(KeyError):
-        protocol.read_sensor('/not/a/sensor', None)
+        topics.read_sensor('/not/a/sensor', None)
 
 
 def settling_readings(rng, t, tau=0.1, step=2e-3):
@@ -459,7 +462,7 @@ def collect_settling(collection, rng, seconds, tau=0.1, step=2e-3):
         t = (stamp - (T0 + 10 * MS)) * 1e-9
         q = Q + rng.normal(size=6) * 1e-6
         events += instant(collection, stamp, q=q, readings=settling_readings(rng, t, tau, step))
-        if any(isinstance(e, event_types.FINAL_EVENTS) for e in events):
+        if any(isinstance(e, FINAL_EVENTS) for e in events):
             break
     return events
 
@@ -469,7 +472,7 @@ def test_a_posture_waits_for_a_settling_sensor_and_its_wait_is_recorded():
     rng = np.random.default_rng(3)
     collection = make(samples=10, settle_lookback=0.2)
     (*_, row) = collect_settling(collection, rng, 2.0)
-    assert isinstance(row, event_types.RowReady)
+    assert isinstance(row, RowReady)
     # The remaining lag at the averaged window is within the noise of the row's mean.
     wait = row.sample.settle_wait
     left = 2e-3 * math.exp(-wait / 0.1)
@@ -483,7 +486,7 @@ def test_settle_timeout_bounds_the_wait_with_a_reason_naming_the_channel():
     rng = np.random.default_rng(4)
     collection = make(samples=10, settle_lookback=0.2, settle_timeout=0.5)
     (*_, skip) = collect_settling(collection, rng, 2.0, tau=30.0, step=0.1)  # a slow drift
-    assert isinstance(skip, event_types.PostureSkipped) and skip.posture == 1
+    assert isinstance(skip, PostureSkipped) and skip.posture == 1
     assert 'not settled within settle_timeout 0.5 s' in skip.reason
     assert 'alpha still moving' in skip.reason
 

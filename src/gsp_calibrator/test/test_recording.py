@@ -12,7 +12,26 @@ from recorded_runs import write_command
 from gsp_calibrator.collection.synchroniser import SampleCollector
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_calibrator.recording import rebuild
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.mcap_format import (
+    MessageDefinitionError,
+    RecordingError,
+    message_definition,
+    msg_file,
+)
+from gsp_calibrator.recording.mcap_io import (
+    RUN_METADATA_NAME,
+    McapRecorder,
+    read_recording,
+    recording_info,
+    recording_options,
+)
+from gsp_calibrator.recording.recorder import (
+    POSTURE_METADATA_NAME,
+    SUITE_TOPICS,
+    RunRecorder,
+    note_outcomes,
+    note_posture_end,
+)
 from gsp_calibrator.replay.recorded_run import RecordedRun
 from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
@@ -24,7 +43,7 @@ SEPARATOR = '=' * 80 + '\n'
 
 
 def _msg_text(package, name):
-    with open(recording.msg_file(f'{package}/msg/{name}'), encoding='utf-8') as stream:
+    with open(msg_file(f'{package}/msg/{name}'), encoding='utf-8') as stream:
         return stream.read()
 
 
@@ -32,7 +51,7 @@ def _msg_text(package, name):
 
 
 def test_definition_is_rosbag2_concatenation():
-    text = recording.message_definition('sensor_msgs/msg/JointState')
+    text = message_definition('sensor_msgs/msg/JointState')
     assert text.startswith(_msg_text('sensor_msgs', 'JointState'))
     header = '\n' + SEPARATOR + 'MSG: std_msgs/Header\n' + _msg_text('std_msgs', 'Header')
     time_part = (
@@ -43,11 +62,11 @@ def test_definition_is_rosbag2_concatenation():
     )
     assert text == _msg_text('sensor_msgs', 'JointState') + header + time_part
     # pkg/Type and pkg/msg/Type name the same type
-    assert recording.message_definition('sensor_msgs/JointState') == text
+    assert message_definition('sensor_msgs/JointState') == text
 
 
 def test_definition_nested_types_once():
-    text = recording.message_definition('visualization_msgs/msg/MarkerArray')
+    text = message_definition('visualization_msgs/msg/MarkerArray')
     headers = [line for line in text.splitlines() if line.startswith('MSG: ')]
     assert len(headers) == len(set(headers))
     for nested in (
@@ -66,12 +85,12 @@ def test_definition_nested_types_once():
 
 
 def test_definition_errors_name_the_type():
-    with pytest.raises(recording.MessageDefinitionError, match='no_such_pkg/msg/Thing'):
-        recording.message_definition('no_such_pkg/msg/Thing')
-    with pytest.raises(recording.MessageDefinitionError, match='std_msgs/msg/NoSuchType'):
-        recording.message_definition('std_msgs/msg/NoSuchType')
-    with pytest.raises(recording.MessageDefinitionError, match='not of the form'):
-        recording.message_definition('JointState')
+    with pytest.raises(MessageDefinitionError, match='no_such_pkg/msg/Thing'):
+        message_definition('no_such_pkg/msg/Thing')
+    with pytest.raises(MessageDefinitionError, match='std_msgs/msg/NoSuchType'):
+        message_definition('std_msgs/msg/NoSuchType')
+    with pytest.raises(MessageDefinitionError, match='not of the form'):
+        message_definition('JointState')
 
 
 # --- writing and reading -------------------------------------------------------------------------
@@ -85,7 +104,7 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
     path = tmp_path / 'recording.mcap'
     legs = conversions.leg_lengths_to_msg(np.arange(6) * 0.1, T0 / 1e9)
     status = conversions.make_status('42', names.STATE_SETTLED)
-    recorder = recording.McapRecorder(path)
+    recorder = McapRecorder(path)
     for topic, type_name in names.TOPIC_TYPES.items():
         recorder.add_topic(topic, type_name)
     recorder.write(names.TOPIC_LEG_LENGTHS, legs, T0 + 1, T0)
@@ -95,7 +114,7 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
     assert recorder.close() == str(path)
     assert path.exists() and not os.path.exists(str(path) + '.tmp')
 
-    read = list(recording.read_recording(path))
+    read = list(read_recording(path))
     assert [m.topic for m in read] == [
         names.TOPIC_LEG_LENGTHS,
         names.TOPIC_PLATFORM_STATUS,
@@ -127,13 +146,13 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
     assert list(decoded[0].position) == pytest.approx(list(legs.position))
     assert decoded[1].values[0].value == '42'
 
-    info = recording.recording_info(path)
+    info = recording_info(path)
     assert info['message_count'] == 3 and info['profile'] == 'ros2'
     assert info['topics'][names.TOPIC_LEG_LENGTHS] == {
         'type': 'sensor_msgs/msg/JointState',
         'count': 1,
     }
-    raw = list(recording.read_recording(path, topics=names.TOPIC_PLATFORM_STATUS, raw=True))
+    raw = list(read_recording(path, topics=names.TOPIC_PLATFORM_STATUS, raw=True))
     # (CDR padding bytes are not initialised by the serialiser: compare decoded messages)
     from rclpy.serialization import deserialize_message
 
@@ -143,20 +162,20 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
 
 def test_abort_and_errors(tmp_path):
     path = tmp_path / 'recording.mcap'
-    recorder = recording.McapRecorder(path)
-    with pytest.raises(recording.RecordingError, match='add_topic'):
+    recorder = McapRecorder(path)
+    with pytest.raises(RecordingError, match='add_topic'):
         recorder.write('/unknown', b'\x00\x01\x00\x00', 1)
     recorder.add_topic('/a', 'std_msgs/msg/String')
-    with pytest.raises(recording.RecordingError, match='already recorded'):
+    with pytest.raises(RecordingError, match='already recorded'):
         recorder.add_topic('/a', 'sensor_msgs/msg/JointState')
     recorder.abort()
     assert not path.exists() and not os.path.exists(str(path) + '.tmp')
     bad = tmp_path / 'bad.mcap'
     bad.write_bytes(b'not an mcap file at all')
-    with pytest.raises(recording.RecordingError, match='bad.mcap'):
-        list(recording.read_recording(bad))
-    with pytest.raises(recording.RecordingError, match='missing.mcap'):
-        list(recording.read_recording(tmp_path / 'missing.mcap'))
+    with pytest.raises(RecordingError, match='bad.mcap'):
+        list(read_recording(bad))
+    with pytest.raises(RecordingError, match='missing.mcap'):
+        list(read_recording(tmp_path / 'missing.mcap'))
 
 
 # --- samples from a recording --------------------------------------------------------------------
@@ -193,11 +212,9 @@ def write_session(path, postures, per_posture, rejected=(), nan_at=None, notes=N
     Returns ``[(k, pose, leg samples, reading samples), ...]`` of the values sent after settling.
     """
     sent = []
-    with recording.McapRecorder(path) as recorder:
+    with McapRecorder(path) as recorder:
         if options:
-            recorder.add_metadata(
-                recording.RUN_METADATA_NAME, {k: str(v) for k, v in options.items()}
-            )
+            recorder.add_metadata(RUN_METADATA_NAME, {k: str(v) for k, v in options.items()})
         t = T0
         for k, (pose, q, r) in enumerate(postures, start=1):
             command_id = write_command(
@@ -299,7 +316,7 @@ def test_noted_collection_start_is_used(tmp_path):
     write_session(plain, postures, 2)
     # The calibrator noted a start before the moving samples (stamped t + 2 ms): they count.
     write_session(noted, postures, 2, notes=lambda t: t + MS)
-    with pytest.raises(recording.RecordingError, match='sync_tolerance'):
+    with pytest.raises(RecordingError, match='sync_tolerance'):
         rebuild.samples_from_recording(plain)
     a = rebuild.samples_from_recording(plain, 0.0025, 2)
     b = rebuild.samples_from_recording(noted, 0.0025, 2)
@@ -317,7 +334,7 @@ def test_a_settle_and_samples_logged_after_the_next_command_stay_with_their_post
     path = tmp_path / 'late.mcap'
     legs = {1: [q1 + j * 1e-7 for j in range(3)], 2: [q2 + j * 1e-7 for j in range(3)]}
     readings = {1: [r1 + j * 1e-8 for j in range(3)], 2: [r2 + j * 1e-8 for j in range(3)]}
-    with recording.McapRecorder(path) as recorder:
+    with McapRecorder(path) as recorder:
         first = write_command(recorder, T0, pose1, note=T0 + 10 * MS, posture=1)
         # Posture 1 settled at 10 ms and its 3 samples, stamped from 11 ms, made the calibrator
         # command posture 2 at 30 ms (moving at 31 ms); the recorder logs them from 32 ms.
@@ -374,7 +391,7 @@ def _write_stalled_session(path, postures, per_posture, stall_ns=0):
     ``stall_ns`` late (commands and ``moving`` statuses on time). Returns ``{k: (legs,
     readings)}`` of the samples after settling."""
     sent = {}
-    with recording.McapRecorder(path) as recorder:
+    with McapRecorder(path) as recorder:
 
         def lag(topic, message, log_time):
             late = topic in SENSOR_TOPICS or (
@@ -413,7 +430,7 @@ def test_a_settle_and_samples_logged_after_two_later_commands_stay_with_their_po
     assert _write_stalled_session(stalled, postures, 3, stall_ns=60 * MS).keys() == sent.keys()
     # The stalled log order: posture 2's settled status after posture 4's command and moving.
     logged = []  # (command id, state or 'command'), in log order
-    for m in recording.read_recording(
+    for m in read_recording(
         stalled, topics=(names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
     ):
         if m.topic == names.TOPIC_POSE_COMMAND:
@@ -468,7 +485,7 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
         String, names.TOPIC_CALIBRATION_RESULT, TOPIC_QOS[names.TOPIC_CALIBRATION_RESULT]
     )
     result_pub.publish(String(data='latched geometry'))  # before recording: latched
-    recorder = recording.RunRecorder(sink)
+    recorder = RunRecorder(sink)
     path = tmp_path / 'recording.mcap'
     try:
         recorder.start(path, options={'sync_tolerance': 0.0025, 'samples_per_posture': 10})
@@ -493,18 +510,18 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
         executor.shutdown()
         source.destroy_node()
         sink.destroy_node()
-    info = recording.recording_info(path)
-    assert set(info['topics']) == set(recording.SUITE_TOPICS)
+    info = recording_info(path)
+    assert set(info['topics']) == set(SUITE_TOPICS)
     assert info['topics'][names.TOPIC_LEG_LENGTHS]['count'] >= 3
     assert info['topics'][names.TOPIC_CALIBRATION_RESULT]['count'] == 1
-    assert recording.recording_options(path) == {
+    assert recording_options(path) == {
         'sync_tolerance': 0.0025,
         'samples_per_posture': 10,
     }
-    assert info['metadata'][recording.POSTURE_METADATA_NAME] == [
+    assert info['metadata'][POSTURE_METADATA_NAME] == [
         {'posture': '1', 'command_id': '123', 'start_ns': str(T0)}
     ]
-    messages = list(recording.read_recording(path))
+    messages = list(read_recording(path))
     result = [m.message.data for m in messages if m.topic == names.TOPIC_CALIBRATION_RESULT]
     assert result == ['latched geometry']
     legs = [m for m in messages if m.topic == names.TOPIC_LEG_LENGTHS]
@@ -527,9 +544,9 @@ class _OnlineCalibrator:
 
         class Notes:
             def note_posture_end(_, command_id, posture, outcome, reason=''):
-                recording.note_posture_end(mcap, command_id, posture, outcome, reason)
+                note_posture_end(mcap, command_id, posture, outcome, reason)
 
-        recording.note_outcomes(mcap)
+        note_outcomes(mcap)
         self.link = PostureLink(
             lambda: _Done(self.ends),
             lambda pose: (*self.commanded, lambda: None),
@@ -590,9 +607,9 @@ def test_the_rebuild_of_a_run_with_skipped_postures_gives_the_rows_of_samples_cs
     per_posture = 3
     postures = _postures(3, np.random.default_rng(7))
     path = tmp_path / 'recording.mcap'
-    with recording.McapRecorder(path) as mcap:
+    with McapRecorder(path) as mcap:
         mcap.add_metadata(
-            recording.RUN_METADATA_NAME, {'sync_tolerance': '0.0025', 'samples_per_posture': '3'}
+            RUN_METADATA_NAME, {'sync_tolerance': '0.0025', 'samples_per_posture': '3'}
         )
         online = _OnlineCalibrator(mcap, per_posture, settle_timeout=0.05)
         for k, (pose, q, r) in enumerate(postures, start=1):
@@ -619,6 +636,6 @@ def test_the_rebuild_of_a_run_with_skipped_postures_gives_the_rows_of_samples_cs
         np.testing.assert_allclose(
             getattr(rebuilt, field), getattr(online.rows, field), rtol=0, atol=1e-15
         )
-    outcomes = rebuild.posture_outcomes(recording.recording_info(path))
+    outcomes = rebuild.posture_outcomes(recording_info(path))
     assert outcomes[1] == ('kept', '') and outcomes[2][0] == 'skipped'
     assert 'settle' in outcomes[2][1]

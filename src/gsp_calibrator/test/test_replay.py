@@ -2,6 +2,7 @@
 
 import math
 
+import gsp_testing
 import numpy as np
 import pytest
 import rclpy
@@ -13,7 +14,8 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from test_calibrator_node import spin_as_in_use
 
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
+from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
     SOURCE_SAMPLES,
@@ -23,7 +25,7 @@ from gsp_calibrator.replay.recorded_run import (
 from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
 from gsp_calibrator.run.directory import RunDirectory, Samples, write_samples
 from gsp_calibrator.run.response import parse_response
-from gsp_msgs_py import conversions, names, qos, testing
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.diagnostics import DiagnosticsListener
 from gsp_msgs_py.health import OK, Health
 from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
@@ -99,8 +101,8 @@ def write_recording(
     settling."""
     sent = {}
     numbers = numbers or range(1, len(poses) + 1)
-    with recording.McapRecorder(path) as recorder:
-        recorder.add_metadata(recording.RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
+    with McapRecorder(path) as recorder:
+        recorder.add_metadata(RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
         for j in range(3):  # idle at home before the first command
             _write_instant(
                 recorder,
@@ -302,7 +304,7 @@ class NodeHarness:
         ), 'no discovery'
 
     def spin_until(self, predicate, timeout=TIMEOUT_S):
-        return testing.spin_until(self.executor, predicate, timeout)
+        return gsp_testing.spin_until(self.executor, predicate, timeout)
 
     def command(self, pose, frame_id=names.FRAME_BASE):
         return self.commands.send(pose, frame_id)
@@ -504,7 +506,7 @@ class Suite:
     def calibrate(self, timeout=120.0):
         assert self.client.wait_for_service(timeout_sec=TIMEOUT_S), 'calibrate service missing'
         future = self.client.call_async(Trigger.Request())
-        assert testing.wait_until(future.done, timeout), 'no calibrate response'
+        assert gsp_testing.wait_until(future.done, timeout), 'no calibrate response'
         response = future.result()
         assert response.success, response.message
         return RunDirectory(parse_response(response.message).run_directory)
@@ -609,7 +611,7 @@ def test_replay_from_the_recording_collects_the_original_raw_samples(
     one averaged row per posture has none.
     """
     node, replayed = _replay(
-        ros_context, str(original_run.path / recording.RECORDING_FILE), tmp_path / 'replay'
+        ros_context, str(original_run.path / RECORDING_FILE), tmp_path / 'replay'
     )
     assert node.run.kind == SOURCE_RECORDING
     assert all(len(p.stream) >= CALIBRATION['samples_per_posture'] for p in node.run.postures)

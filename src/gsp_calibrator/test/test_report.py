@@ -8,27 +8,31 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples
 
-from gsp_calibrator.report import data as report_data
-from gsp_calibrator.report import write as report
-from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.report.data import VALIDATION_KEYS, residuals_by_sensor, validation_errors
+from gsp_calibrator.report.write import (
+    PLOTS_SKIPPED_NOTE,
+    ReportInputs,
+    write_all,
+    write_result_json,
+)
+from gsp_calibrator.run.identify import finish_run, identify_from_samples
 from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
 from gsp_kinematics.identifiability import analyse_identifiability
-from gsp_kinematics.identification import Options, Sigmas
+from gsp_kinematics.identification import Options
 from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 
-SIGMAS = Sigmas()
+SIGMAS = SensorNoise()
 
 
 @pytest.fixture(scope='module')
 def calibrated():
     nominal, truth = default_geometry('nominal'), default_geometry('true')
-    outcome = calibration.identify_from_samples(
-        nominal, synthetic_samples(), SIGMAS, noise_source='configured'
-    )
+    outcome = identify_from_samples(nominal, synthetic_samples(), SIGMAS, noise_source='configured')
     assert outcome.success, outcome.message
     poses = sample_valid_postures(truth, 20, np.random.default_rng(7))
-    before = report_data.validation_errors(truth, nominal, poses)
-    after = report_data.validation_errors(truth, outcome.geometry, poses)
+    before = validation_errors(truth, nominal, poses)
+    after = validation_errors(truth, outcome.geometry, poses)
     return outcome, nominal, truth, before, after
 
 
@@ -58,7 +62,7 @@ def _check_png(path, min_width=500, min_height=250):
 def _inputs(calibrated):
     """The report inputs of the calibrated fixture: its analysis, validations and geometries."""
     outcome, nominal, truth, before, after = calibrated
-    return report.ReportInputs(
+    return ReportInputs(
         analysis=outcome.identifiability,
         validation_before=before,
         validation_after=after,
@@ -70,7 +74,7 @@ def _inputs(calibrated):
 def test_result_json(tmp_path, calibrated):
     outcome, nominal, truth, before, after = calibrated
     result = outcome.result
-    path = report.write_result_json(
+    path = write_result_json(
         tmp_path,
         result,
         dataclasses.replace(_inputs(calibrated), sigmas=outcome.sigmas, extra={'run': 'test'}),
@@ -116,7 +120,7 @@ def test_result_json(tmp_path, calibrated):
     assert data['residual_rms']['alpha']['si_unit'] == 'rad'
     assert data['iterations'] == result.iterations and data['status'] == result.status
     for when in ('before', 'after'):
-        for key in report_data.VALIDATION_KEYS:
+        for key in VALIDATION_KEYS:
             assert data['validation'][when][key] >= 0.0
     assert (
         data['validation']['after']['position_mm_mean']
@@ -150,7 +154,7 @@ def test_result_json(tmp_path, calibrated):
 
 def test_report_with_truth(tmp_path, calibrated):
     outcome, nominal, truth, before, after = calibrated
-    written = report.write_all(
+    written = write_all(
         tmp_path,
         outcome.result,
         _inputs(calibrated),
@@ -171,7 +175,7 @@ def test_report_with_truth(tmp_path, calibrated):
 def test_report_without_truth_and_failed_identification(tmp_path):
     nominal = default_geometry('nominal')
     samples = synthetic_samples(count=12, seed=2)
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         nominal,
         samples,
         SIGMAS,
@@ -182,9 +186,7 @@ def test_report_without_truth_and_failed_identification(tmp_path):
     assert result is not None and not result.converged
     singular = np.diag([1.0, 1.0, 1.0, 1.0, 0.0])
     analysis = analyse_identifiability(singular, result.free)
-    written = report.write_all(
-        tmp_path, result, report.ReportInputs(analysis=analysis, nominal=nominal)
-    )
+    written = write_all(tmp_path, result, ReportInputs(analysis=analysis, nominal=nominal))
     assert 'validation' not in written
     for kind in ('parameter_errors', 'chain_errors', 'residuals'):
         _check_png(written[kind])
@@ -203,7 +205,7 @@ def test_report_without_truth_and_failed_identification(tmp_path):
 
 def test_residuals_by_sensor_recovers_si_units(calibrated):
     result = calibrated[0].result
-    by_sensor = report_data.residuals_by_sensor(result)
+    by_sensor = residuals_by_sensor(result)
     assert set(by_sensor) == set(result.residual_rms)
     for sensor, values in by_sensor.items():
         assert math.sqrt(np.mean(values**2)) == pytest.approx(result.residual_rms[sensor])
@@ -213,15 +215,15 @@ def test_residuals_by_sensor_recovers_si_units(calibrated):
 def test_no_prediction_without_a_full_rank_covariance(calibrated):
     import dataclasses
 
-    from gsp_calibrator.report import accuracy as report_accuracy
+    from gsp_calibrator.report.accuracy import prediction_for, result_json_entry
 
     result = calibrated[0].result
-    assert report_accuracy.prediction_for(result) is not None
+    assert prediction_for(result) is not None
     singular = result.information.copy()
     singular[:, 0] = singular[0, :] = 0.0  # A1x carries no information
-    assert report_accuracy.prediction_for(dataclasses.replace(result, information=singular)) is None
+    assert prediction_for(dataclasses.replace(result, information=singular)) is None
     unconverged = dataclasses.replace(result, status=0)
-    assert report_accuracy.result_json_entry(report_accuracy.prediction_for(unconverged)) is None
+    assert result_json_entry(prediction_for(unconverged)) is None
 
 
 def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
@@ -242,7 +244,7 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
             assert default.write_report_plots is True
         run = RunDirectory(tmp_path / str(plots))
         run.path.mkdir()
-        finished = calibration.finish_run(run, settings, samples, collection, {'plots': plots})
+        finished = finish_run(run, settings, samples, collection, {'plots': plots})
         assert finished.outcome.success and finished.report_error == ''
         written[plots] = run.path
     with_plots, without_plots = written[True], written[False]
@@ -265,8 +267,8 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     drawn['accuracy'].pop('duration_s'), skipped['accuracy'].pop('duration_s')
     assert {**skipped, 'options': None} == {**drawn, 'options': None}
     text = (without_plots / 'report.md').read_text(encoding='utf-8')
-    assert report.PLOTS_SKIPPED_NOTE in text and '.png' not in text
-    assert report.PLOTS_SKIPPED_NOTE not in (with_plots / 'report.md').read_text(encoding='utf-8')
+    assert PLOTS_SKIPPED_NOTE in text and '.png' not in text
+    assert PLOTS_SKIPPED_NOTE not in (with_plots / 'report.md').read_text(encoding='utf-8')
     assert '](held_out_accuracy.png)' in (with_plots / 'report.md').read_text(encoding='utf-8')
     tables = [
         line

@@ -9,9 +9,6 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.run.directory import (
-    LEGACY_SAMPLES_COLUMNS as LEGACY,
-)
-from gsp_calibrator.run.directory import (
     SAMPLES_COLUMNS,
     RunDirectory,
     RunDirectoryError,
@@ -21,7 +18,6 @@ from gsp_calibrator.run.directory import (
     read_samples,
     samples_from_csv,
     samples_to_csv,
-    upgrade_samples_file,
     write_samples,
 )
 from gsp_kinematics.fileio import atomic_write_text
@@ -105,9 +101,14 @@ def test_empty_samples_round_trip(tmp_path):
         ('', 'empty'),
         ('a,b\n', 'columns'),
         (','.join(SAMPLES_COLUMNS) + '\n1,2\n', ':2: 2 values'),
-        (','.join(LEGACY) + '\n' + ','.join(['1'] * 18 + ['x']) + '\n', 'column stamp'),
         (
-            ','.join(LEGACY) + '\n' + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8) + '\n',
+            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x'] + [''] * 4),
+            'column stamp',
+        ),
+        (
+            ','.join(SAMPLES_COLUMNS)
+            + '\n'
+            + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8 + [''] * 4),
             'column leg_4 is not finite',
         ),
         (
@@ -121,17 +122,13 @@ def test_malformed_samples_are_reported(text, match):
         samples_from_csv(text)
 
 
-def test_a_samples_file_without_lag_sums_is_read_and_upgraded(tmp_path):
+def test_a_samples_file_of_other_columns_is_refused(tmp_path):
     samples = make_samples()
     path = tmp_path / 'samples.csv'
-    legacy = [line.split(',')[: len(LEGACY)] for line in samples_to_csv(samples).splitlines()]
-    path.write_text('\n'.join(','.join(row) for row in legacy) + '\n')
-    back = read_samples(path)
-    np.testing.assert_array_equal(back.leg_lengths, samples.leg_lengths)
-    assert back.lag_sums.shape == (4, 4, 0)
-    upgrade_samples_file(path, back)  # a resumed older run appends rows with lag sums
-    assert path.read_text().splitlines()[0] == ','.join(SAMPLES_COLUMNS)
-    np.testing.assert_array_equal(read_samples(path).readings, samples.readings)
+    cut = [line.split(',')[:-4] for line in samples_to_csv(samples).splitlines()]  # no lag sums
+    path.write_text('\n'.join(','.join(row) for row in cut) + '\n')
+    with pytest.raises(RunDirectoryError, match='differ from the expected'):
+        read_samples(path)
 
 
 def test_missing_samples_file_is_reported(tmp_path):

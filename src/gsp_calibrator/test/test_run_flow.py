@@ -8,13 +8,14 @@ import threading
 
 import numpy as np
 
-from gsp_calibrator.collection.protocol import SENSOR_TOPICS, PostureSkipped, RowReady, TopicSilent
+from gsp_calibrator.collection.events import PostureSkipped, RowReady, TopicSilent
 from gsp_calibrator.collection.synchroniser import PostureSample
+from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import response as run_response
-from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, PostureLink, RunHost
+from gsp_calibrator.run.response import parse_response
+from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.geometry import default_geometry, parameter_errors
 from gsp_kinematics.kinematics import home_pose
@@ -171,7 +172,7 @@ def _settings(tmp_path, **values):
 
 
 def _state(run_directory):
-    return json.loads((run_directory / run_state.STATE_FILE).read_text())
+    return json.loads((run_directory / STATE_FILE).read_text())
 
 
 def test_a_plain_python_host_drives_a_whole_run(tmp_path):
@@ -179,7 +180,7 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     success, message = host.serve(_settings(tmp_path))
 
     assert success, message
-    parsed = run_response.parse_response(message)
+    parsed = parse_response(message)
     assert 'applied to the fake platform' in parsed.summary
     ((geometry, accepted),) = host.delivered
     assert accepted  # the verdict: what the delivery applies
@@ -188,7 +189,7 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     assert np.max(np.abs(parameter_errors(geometry, host.truth))) < 0.05
     assert np.max(np.abs(parameter_errors(default_geometry('nominal'), host.truth))) > 0.5
     run_directory = tmp_path / parsed.run_directory.rstrip('/').rsplit('/', 1)[-1]
-    assert _state(run_directory)['phase'] == run_state.PHASE_DONE
+    assert _state(run_directory)['phase'] == PHASE_DONE
     assert len((run_directory / 'samples.csv').read_text().splitlines()) == 1 + 30
     assert host.progress_log[-1][1] == names.PHASE_DONE
     calls = host.recorder.calls
@@ -240,7 +241,7 @@ def test_a_failure_event_ends_the_run_without_delivering(tmp_path):
     assert host.delivered == []
     (run_directory,) = [path for path in tmp_path.iterdir() if path.is_dir()]
     state = _state(run_directory)
-    assert state['phase'] == run_state.PHASE_FAILED and names.TOPIC_LVDT in state['stop_reason']
+    assert state['phase'] == PHASE_FAILED and names.TOPIC_LVDT in state['stop_reason']
     assert host.progress_log[-1][1] == names.PHASE_FAILED
     # The posture the failure ended gave no row: in progress, as the recording says.
     assert ('end', 6, 'in_progress') in host.recorder.calls

@@ -9,7 +9,7 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
-from gsp_calibrator.collection import events as event_types
+from gsp_calibrator.collection.events import SampleDropped
 from gsp_calibrator.collection.joint_state_cdr import read_joint_state
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.topics import read_sensor
@@ -69,7 +69,7 @@ def test_truncated_or_foreign_bytes_are_dropped_with_a_reason_and_non_finite_one
             read_sensor(names.TOPIC_ENCODER, bad)
     collection = CollectionProtocol(0.0025, 3)
     (dropped,) = collection.sensor(names.TOPIC_ENCODER, good[:40], T0)
-    assert isinstance(dropped, event_types.SampleDropped) and not dropped.non_finite
+    assert isinstance(dropped, SampleDropped) and not dropped.non_finite
     nan = serialize_message(joint_state(['phi'], [math.nan]))
     (dropped,) = collection.sensor(names.TOPIC_ENCODER, nan, T0)
     assert dropped.non_finite and collection.summary()['non_finite_dropped']['encoder'] == 1

@@ -2,6 +2,7 @@
 (serial backend) -> calibrator, in one process. A silence of the device (until the run ends) is
 reported as a silent topic; an unplug and replug mid-stream resumes publishing without a restart."""
 
+import gsp_testing
 import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -11,7 +12,7 @@ from gsp_calibrator.calibrator_node import CalibratorNode
 from gsp_calibrator.run.response import parse_response
 from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_device_driver.fake_device_node import FakeDeviceNode, parse_arguments
-from gsp_msgs_py import names, qos, testing
+from gsp_msgs_py import names, qos
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
 RATE_HZ = 100.0
@@ -19,7 +20,7 @@ TIMEOUT_S = 120.0
 
 
 def wait_until(predicate, timeout=TIMEOUT_S):
-    return testing.wait_until(predicate, timeout)
+    return gsp_testing.wait_until(predicate, timeout)
 
 
 def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
@@ -69,7 +70,7 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
     )
     client = client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
     nodes = [platform, fake, driver, calibrator, client_node]
-    spinning = testing.SpinningNodes(
+    spinning = gsp_testing.SpinningNodes(
         ros_context, together=[calibrator, client_node], apart=[platform, fake, driver]
     )
     try:

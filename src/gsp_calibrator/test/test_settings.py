@@ -1,19 +1,31 @@
 """Calibrator parameters: defaults, checks and settings (pure, no ROS)."""
 
+import argparse
+import dataclasses
 import math
 import subprocess
 import sys
 
 import pytest
 
+from gsp_calibrator.recording.recorder import settings_options
+from gsp_calibrator.run.state import selection_options
 from gsp_calibrator.settings import (
     DEFAULTS,
     PARAMETER_SPECS,
     PARAMETERS,
+    REIDENTIFY_COMMAND_LINE,
+    SELECTION_PARAMETERS,
+    STORED_PARAMETERS,
     CalibratorSettings,
+    add_run_options,
     check_parameters,
+    names_in,
+    option_value,
+    run_options_error,
 )
 from gsp_kinematics.geometry import default_geometry_path
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 
 def test_defaults():
@@ -92,3 +104,49 @@ def test_settings_from_values(tmp_path):
 def test_settings_import_without_loading_rclpy():
     code = 'import sys, gsp_calibrator.settings; assert "rclpy" not in sys.modules'
     subprocess.run([sys.executable, '-c', code], check=True)
+
+
+def test_the_settings_and_their_subsets_are_derived_from_the_one_table():
+    settings = CalibratorSettings.from_values({'sigma_lvdt': 5e-6, 'free_parameters': ['paper']})
+    assert {field.name for field in dataclasses.fields(settings)} == set(PARAMETER_SPECS) | {
+        'nominal'
+    }
+    assert settings.sigmas == SensorNoise(
+        DEFAULT_SENSOR_NOISE.leg_lengths,
+        DEFAULT_SENSOR_NOISE.inclinometer,
+        DEFAULT_SENSOR_NOISE.encoder,
+        5e-6,
+    )
+    assert settings.free_parameters == ('paper',)
+    stored = settings_options(settings)
+    assert tuple(stored) == STORED_PARAMETERS and stored['free_parameters'] == ['paper']
+    assert set(SELECTION_PARAMETERS) <= set(STORED_PARAMETERS)
+    assert set(SELECTION_PARAMETERS) <= set(selection_options(settings))
+    assert 'sigma_lvdt' in SELECTION_PARAMETERS  # the assumed noise weighs the selection
+
+
+@pytest.mark.parametrize(
+    'name, value, expected',
+    [
+        ('noise_source', 'guessed', "--noise-source: 'guessed' rejected, must be one of"),
+        ('free_parameters', ['paper,Q9'], "unknown parameter name(s) ['Q9']"),
+        ('sigma_lvdt', -1.0, '--sigma-lvdt: -1.0 rejected, must be a finite number > 0'),
+        ('samples_per_posture', 0, '--samples-per-posture: 0 rejected'),
+    ],
+)
+def test_command_lines_check_options_with_the_parameters_checks(name, value, expected):
+    assert name in names_in(REIDENTIFY_COMMAND_LINE)
+    with pytest.raises(ValueError) as raised:
+        option_value(name, value)
+    assert expected in str(raised.value)
+    assert check_parameters({name: value})  # the node refuses the same value
+
+
+def test_run_options_are_the_marked_parameters_with_their_defaults():
+    parser = argparse.ArgumentParser()
+    add_run_options(parser)
+    args = parser.parse_args(['--postures', '7', '--free', 'paper,kq1'])
+    assert run_options_error(args) == ''
+    assert (args.posture_count, args.pool_size, args.free_parameters) == (7, 600, ['paper', 'kq1'])
+    bad = parser.parse_args(['--formulation', 'nonsense'])
+    assert run_options_error(bad).startswith("--formulation: 'nonsense' rejected")

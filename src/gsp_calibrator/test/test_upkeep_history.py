@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from upkeep_runs import RUNS, write_runs
 
-from gsp_calibrator.tools import history as history_tool
+import gsp_calibrator.tools.history
 from gsp_calibrator.upkeep import history
 
 
@@ -53,16 +53,24 @@ def test_indexing_a_run_again_replaces_it(root, tmp_path):
 
 def test_gsp_history_lists_plots_and_refuses_a_missing_database(root, tmp_path, capsys):
     database = str(tmp_path / 'history.sqlite')
-    assert history_tool.main(['rebuild', '--database', database, '--root', str(root)]) == 0
-    assert history_tool.main(['list', '--database', database, '--platform', 'hexapod-7']) == 0
+    assert (
+        gsp_calibrator.tools.history.main(['rebuild', '--database', database, '--root', str(root)])
+        == 0
+    )
+    assert (
+        gsp_calibrator.tools.history.main(
+            ['list', '--database', database, '--platform', 'hexapod-7']
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert 'moved: Loff3 +0.0' in text and text.count('calibration') == 3
     output = tmp_path / 'history.png'
     command = ['plot', '--database', database, '--platform', 'hexapod-7', '--output', str(output)]
-    assert history_tool.main(command) == 0
+    assert gsp_calibrator.tools.history.main(command) == 0
     assert output.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     missing = ['list', '--database', str(tmp_path / 'none.sqlite')]
-    assert history_tool.main(missing) == history_tool.EXIT_BAD_INPUT
+    assert gsp_calibrator.tools.history.main(missing) == gsp_calibrator.tools.history.EXIT_BAD_INPUT
     assert 'no history at' in capsys.readouterr().err
 
 

@@ -9,8 +9,8 @@ from pathlib import Path
 from std_srvs.srv import Trigger
 from test_calibrator_node import make_suite, perturbed_truth
 
+import gsp_calibrator.tools.history
 from gsp_calibrator.tools import compare
-from gsp_calibrator.tools import history as history_tool
 from gsp_calibrator.upkeep import history
 from gsp_experiments.bench_upkeep import changed_truth
 from gsp_msgs_py import names
@@ -81,5 +81,8 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
     calibrations = [entry['run_dir'] for entry in found if entry['kind'] == 'calibration']
     assert compare.main(calibrations) == compare.EXIT_CHANGED
     assert 'significant: Loff3 +0.0' in capsys.readouterr().out
-    assert history_tool.main(['list', '--root', str(runs), '--platform', PLATFORM]) == 0
+    assert (
+        gsp_calibrator.tools.history.main(['list', '--root', str(runs), '--platform', PLATFORM])
+        == 0
+    )
     assert 'moved: Loff3' in capsys.readouterr().out

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from gsp_calibrator.run import identify as calibration
-from gsp_calibrator.run import response as run_response
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.response import NOT_ACCEPTED_HEAD, outcome_summary
 from gsp_calibrator.tools import bench_verdict
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.identification import PARAMETER_GROUPS
@@ -21,7 +21,7 @@ def design():
 
 def calibrate(design, samples, nominal=None, free=None):
     settings = design.settings
-    return calibration.identify_from_samples(
+    return identify_from_samples(
         settings.nominal if nominal is None else nominal,
         samples,
         settings.sigmas,
@@ -60,7 +60,7 @@ def test_a_realistic_platform_is_applied_with_its_unmodelled_error_named(design)
     assert true_mm / 2 < measured < 2 * true_mm
     assert true_mm / 1.5 < predicted < 1.5 * true_mm
     assert accuracy['nominal']['position_mm']['mean'] == pytest.approx(nominal_mm, rel=0.3)
-    summary = run_response.outcome_summary(outcome)
+    summary = outcome_summary(outcome)
     assert summary.startswith('calibration succeeded') and 'held out' in summary.splitlines()[0]
 
 
@@ -85,8 +85,8 @@ def test_a_wrong_datum_is_refused_by_its_measured_accuracy(design):
     assert 'exceeds the required 0.1 mm' in failure
     measured = outcome.accuracy['calibrated']['position_mm']['mean']
     assert measured > 0.1 and math.isfinite(measured)
-    summary = run_response.outcome_summary(outcome)
-    assert summary.startswith(run_response.NOT_ACCEPTED_HEAD) and 'exceeds the required' in summary
+    summary = outcome_summary(outcome)
+    assert summary.startswith(NOT_ACCEPTED_HEAD) and 'exceeds the required' in summary
 
 
 def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):

@@ -7,8 +7,8 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
   :mod:`.serial_protocol` and docs/hardware.md).
 
 Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
-``from_config(**config)`` classmethod. It receives ``true_geometry_file``,
-``inclinometer_noise_std``, ``encoder_noise_std``, ``lvdt_noise_std``, the ``<sensor>_response_time``
+``from_config(**config)`` classmethod. It receives ``true_geometry_file``, the true noise
+``<sensor>_noise_std`` of each device sensor, the ``<sensor>_response_time``
 and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.device.SENSORS``), ``rng``, ``stamp_clock``
 (the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.parameter_specs.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics import channels
 from gsp_kinematics.device import (
     READING_NAMES,
     SENSORS,
@@ -29,17 +30,22 @@ from gsp_kinematics.device import (
 )
 from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
 from gsp_kinematics.sensors.dynamics import SensorDynamics
+from gsp_kinematics.sensors.noise import NO_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER, SensorNoise
 from gsp_msgs_py.health import OK, WARN, Health
 
 from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
 from .serial_backend import SerialDeviceBackend
+
+#: The device sensors' true noise parameters (``inclinometer_noise_std``...).
+NOISE_PARAMETER_NAMES = SensorNoise.parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
 
 
 class SimDeviceBackend(DeviceBackend):
     """Simulated device: readings of the latest true pose through each sensor's dynamics, + noise.
 
     ``device_length`` D0 (m) and ``inclinometer_axes_angle`` gamma (rad) are the real device's;
-    noise stds in rad (inclinometer: alpha and beta, encoder: phi) and m (LVDT: d_m).
+    ``noise``: the true noise of each device sensor, a ``SensorNoise`` (its ``leg_lengths`` is
+    unused).
     ``sensors``: the real device's ``SensorErrors`` (inclinometer and encoder offsets, LVDT gain
     error; docs/sensor_errors.md); None: ideal sensors. ``response_times`` and
     ``correlation_times``: ``(inclinometer, encoder, lvdt)`` in s, the first-order response and
@@ -56,9 +62,7 @@ class SimDeviceBackend(DeviceBackend):
         self,
         device_length,
         inclinometer_axes_angle,
-        inclinometer_std=0.0,
-        encoder_std=0.0,
-        lvdt_std=0.0,
+        noise=NO_NOISE,
         rng=None,
         sensors=None,
         response_times=(0.0, 0.0, 0.0),
@@ -79,14 +83,14 @@ class SimDeviceBackend(DeviceBackend):
             inclinometer_axes_angle=gamma,
             sensors=sensors if sensors is not None else SensorErrors(),
         )
-        self._stds = np.zeros(4)
-        self.update_noise(inclinometer_std, encoder_std, lvdt_std)
+        self._noise = NO_NOISE
+        self.update_noise(noise)
         try:
             self._dynamics = SensorDynamics(
                 per_reading(*response_times),
                 per_reading(*correlation_times),
                 len(READING_NAMES),
-                circular=[name == 'phi' for name in READING_NAMES],
+                circular=[channel.circular for channel in channels.DEVICE_CHANNELS],
             )
         except ValueError as error:
             raise BackendError(str(error)) from None
@@ -106,10 +110,7 @@ class SimDeviceBackend(DeviceBackend):
         return cls(
             geometry.device_length,
             geometry.inclinometer_axes_angle,
-            *(
-                config.get(f'{sensor}_noise_std', 0.0)
-                for sensor in ('inclinometer', 'encoder', 'lvdt')
-            ),
+            SensorNoise.from_parameters(config, TRUE_NOISE_PARAMETER, NO_NOISE),
             rng=rng,
             sensors=geometry.sensors,
             response_times=[config.get(f'{sensor}_response_time', 0.0) for sensor in SENSORS],
@@ -127,18 +128,14 @@ class SimDeviceBackend(DeviceBackend):
         return self._device.inclinometer_axes_angle
 
     @property
-    def noise_stds(self):
-        """Stds of ``[alpha, beta, phi, d_m]`` (rad, rad, rad, m)."""
-        return self._stds.copy()
+    def noise(self):
+        """The true noise drawn (a ``SensorNoise``, rad and m)."""
+        return self._noise
 
-    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
-        stds = self._stds.copy()
-        for (sensor, columns), std in zip(
-            SENSORS.items(), (inclinometer_std, encoder_std, lvdt_std), strict=True
-        ):
-            if std is not None:
-                stds[list(columns)] = check_std(std, f'{sensor} noise std')
-        self._stds = stds
+    def update_noise(self, noise):
+        for sensor in channels.DEVICE_SENSORS:
+            check_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
+        self._noise = noise
 
     def observe_true_pose(self, pose):
         pose = np.asarray(pose, dtype=float)
@@ -157,9 +154,9 @@ class SimDeviceBackend(DeviceBackend):
         self._counts['true_poses'] += 1
 
     def describe(self):
-        inclinometer, encoder, _, lvdt = self._stds
-        line = (
-            f'noise std inclinometer {inclinometer:g} rad, encoder {encoder:g} rad, lvdt {lvdt:g} m'
+        line = 'noise std ' + ', '.join(
+            f'{sensor} {getattr(self._noise, sensor):g} {NOISE_UNITS[sensor]}'
+            for sensor in channels.DEVICE_SENSORS
         )
         if self._dynamics.is_white_and_instant:
             return line
@@ -176,7 +173,7 @@ class SimDeviceBackend(DeviceBackend):
     def read(self, now_s):
         if self._exact is None:
             return None
-        values = self._dynamics.step(now_s, self._exact, self._stds, self._rng)
+        values = self._dynamics.step(now_s, self._exact, self._noise.readings(), self._rng)
         self._counts['readings'] += 1
         if self._latest_s is None:  # the first reading opens the first window of the rate
             self._reported[0]['readings'] = self._counts['readings']
@@ -193,13 +190,13 @@ class SimDeviceBackend(DeviceBackend):
         new = {key: counts[key] - before[key] for key in counts}
         span_s = self._latest_s - before_s if before_s is not None else 0.0
         rate = (new['readings'] / span_s) if span_s > 0 else 0.0
-        stds = self._stds
         values = {
             **counts,
             'reading_rate_hz': f'{rate:.1f}',
-            'inclinometer_noise_std_rad': f'{stds[0]:.6g}',
-            'encoder_noise_std_rad': f'{stds[2]:.6g}',
-            'lvdt_noise_std_m': f'{stds[3]:.6g}',
+            **{
+                f'{name}_{NOISE_UNITS[sensor]}': f'{getattr(self._noise, sensor):.6g}'
+                for sensor, name in zip(channels.DEVICE_SENSORS, NOISE_PARAMETER_NAMES, strict=True)
+            },
         }
         if self._exact is None:
             return Health(WARN, 'waiting for the first true pose', values)

@@ -86,8 +86,8 @@ class DeviceBackend(abc.ABC):
         """
         return None
 
-    def update_noise(self, inclinometer_std=None, encoder_std=None, lvdt_std=None):
-        """Change the simulated noise std (rad, rad, m); None keeps a value.
+    def update_noise(self, noise):
+        """Change the simulated true noise to ``noise`` (a ``SensorNoise``; its device sensors).
 
         Raises BackendError for backends whose noise is not simulated.
         """

@@ -13,9 +13,10 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
+from gsp_kinematics.channels import DEVICE_SENSORS, sensor_channel_names
 from gsp_kinematics.device import SENSORS
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import TRUE_NOISE_PARAMETER, SensorNoise
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank
@@ -26,12 +27,8 @@ from .backends import BackendError, backend_class, backend_names
 RNG_STREAM = 2
 WARN_THROTTLE_S = 1.0
 
-#: Noise parameter -> keyword of DeviceBackend.update_noise.
-NOISE_PARAMETERS = {
-    'inclinometer_noise_std': 'inclinometer_std',
-    'encoder_noise_std': 'encoder_std',
-    'lvdt_noise_std': 'lvdt_std',
-}
+#: The sim backend's true noise parameters, ``<sensor>_noise_std`` of each device sensor.
+NOISE_PARAMETERS = SensorNoise.parameter_names(TRUE_NOISE_PARAMETER, DEVICE_SENSORS)
 
 #: sim backend: each sensor's dynamics (docs/sensor_errors.md), s; 0 = instant / white.
 DYNAMICS_PARAMETERS = tuple(
@@ -76,17 +73,12 @@ PARAMETERS = (
     ),
     parameter_specs.publish_rate_spec('the readings'),
     parameter_specs.seed_spec(),
-    parameter_specs.noise_std_spec(
-        'inclinometer_noise_std',
-        DEFAULT_SENSOR_NOISE.inclinometer,
-        'Std of the Gaussian noise on alpha and beta',
-        'rad',
-    ),
-    parameter_specs.noise_std_spec(
-        'encoder_noise_std', DEFAULT_SENSOR_NOISE.encoder, 'Std of the Gaussian noise on phi', 'rad'
-    ),
-    parameter_specs.noise_std_spec(
-        'lvdt_noise_std', DEFAULT_SENSOR_NOISE.lvdt, 'Std of the Gaussian noise on d_m', 'm'
+    *(
+        parameter_specs.true_noise_spec(
+            sensor,
+            f'sim backend: std of the Gaussian noise on {" and ".join(sensor_channel_names(sensor))}',
+        )
+        for sensor in DEVICE_SENSORS
     ),
     *(_dynamics_spec(name) for name in DYNAMICS_PARAMETERS),
     parameter_specs.frame_id_spec('Frame of the published readings, and required of true_pose'),
@@ -179,14 +171,10 @@ class DeviceDriverNode(Node):
 
     def _apply_noise(self, changes):
         """Apply accepted noise levels (checked by parameter_specs.watch_parameters)."""
-        noise = {
-            NOISE_PARAMETERS[name]: value
-            for name, value in changes.items()
-            if name in NOISE_PARAMETERS
-        }
-        if noise:
-            self._backend.update_noise(**noise)
-            self.get_logger().info(f'noise std updated: {noise}')
+        if any(name in NOISE_PARAMETERS for name in changes):
+            noise = SensorNoise.from_parameters(changes, TRUE_NOISE_PARAMETER, self._backend.noise)
+            self._backend.update_noise(noise)
+            self.get_logger().info(f'noise std updated: {self._backend.describe()}')
 
     # -------------------------------------------------------------------------- callbacks
 

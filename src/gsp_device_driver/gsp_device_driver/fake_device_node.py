@@ -20,12 +20,13 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
+from gsp_kinematics.channels import DEVICE_SENSORS
 from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 
 from .backends import SimDeviceBackend
-from .device_driver_node import DYNAMICS_PARAMETERS, RNG_STREAM
+from .device_driver_node import DYNAMICS_PARAMETERS, NOISE_PARAMETERS, RNG_STREAM
 from .fake_device import HELLO_PERIOD_S, FakeDevice, TruthFeed
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS
 
@@ -42,14 +43,13 @@ def parse_arguments(argv=None):
     add('--rate', type=float, default=200.0, help='reading lines per second (200)')
     add('--true-geometry', default=default_geometry_path('true'), help='device D0 and gamma')
     add('--seed', type=int, default=-1, help='noise seed (default -1: a fresh one at each start)')
-    add(
-        '--inclinometer-noise-std',
-        type=float,
-        default=DEFAULT_SENSOR_NOISE.inclinometer,
-        help='rad',
-    )
-    add('--encoder-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.encoder, help='rad')
-    add('--lvdt-noise-std', type=float, default=DEFAULT_SENSOR_NOISE.lvdt, help='m')
+    for sensor, name in zip(DEVICE_SENSORS, NOISE_PARAMETERS, strict=True):  # device_driver's
+        add(
+            f'--{name.replace("_", "-")}',
+            type=float,
+            default=getattr(DEFAULT_SENSOR_NOISE, sensor),
+            help=NOISE_UNITS[sensor],
+        )
     for name in DYNAMICS_PARAMETERS:  # as device_driver's parameters (docs/sensor_errors.md)
         add(f'--{name.replace("_", "-")}', type=float, default=0.0, help='s (0: instant / white)')
     add('--angle-unit', default='rad', choices=tuple(ANGLE_UNITS))
@@ -89,10 +89,7 @@ class FakeDeviceNode(Node):
         try:
             self._model = SimDeviceBackend.from_config(
                 args.true_geometry,
-                inclinometer_noise_std=args.inclinometer_noise_std,
-                encoder_noise_std=args.encoder_noise_std,
-                lvdt_noise_std=args.lvdt_noise_std,
-                **{name: getattr(args, name) for name in DYNAMICS_PARAMETERS},
+                **{name: getattr(args, name) for name in (*NOISE_PARAMETERS, *DYNAMICS_PARAMETERS)},
                 rng=np.random.default_rng([seed, RNG_STREAM]),
             )
         except ValueError as error:

@@ -21,6 +21,8 @@ import sys
 import threading
 import time
 
+from gsp_kinematics.channels import READING_NAMES
+
 from . import backends  # noqa: F401  (first: it imports serial_backend, which needs it)
 from .serial_backend import SerialDeviceBackend
 from .serial_gate import BACKEND_DROP_REASONS
@@ -61,10 +63,7 @@ def line_outcome(case):
     return 'reading', {
         'seq': parsed.seq,
         't_us': parsed.device_time_us,
-        'alpha': parsed.alpha,
-        'beta': parsed.beta,
-        'phi': parsed.phi,
-        'd_m': parsed.d_m,
+        **{name: getattr(parsed, name) for name in READING_NAMES},
     }
 
 

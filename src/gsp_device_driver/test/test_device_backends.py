@@ -1,5 +1,6 @@
 """Pure tests of the device backends (no ROS)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,17 +15,23 @@ from gsp_device_driver.backends import (
 )
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry, default_geometry_path
+from gsp_kinematics.sensors.noise import SensorNoise
 
 TRUE = default_geometry('true')
 POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
 STDS = np.array([1e-4, 1e-4, 2e-4, 3e-6])  # alpha, beta, phi (rad), d_m (m)
 
 
+def device_noise(inclinometer, encoder, lvdt):
+    """A true noise of the device sensors (rad, rad, m); no leg noise."""
+    return SensorNoise(0.0, inclinometer, encoder, lvdt)
+
+
 def make_sim(stds=(0.0, 0.0, 0.0), seed=0):
     return SimDeviceBackend(
         TRUE.device_length,
         TRUE.inclinometer_axes_angle,
-        *stds,
+        device_noise(*stds),
         rng=np.random.default_rng(seed),
         sensors=TRUE.sensors,
     )
@@ -65,12 +72,12 @@ def test_noise_stds_are_honoured():
 
 def test_update_noise_changes_only_given_values_and_refuses_bad_ones():
     sim = make_sim((1e-5, 2e-5, 3e-6))
-    sim.update_noise(encoder_std=5e-5)
-    np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 5e-5, 3e-6])
+    sim.update_noise(dataclasses.replace(sim.noise, encoder=5e-5))
+    np.testing.assert_array_equal(sim.noise.readings(), [1e-5, 1e-5, 5e-5, 3e-6])
     for bad in (-1e-6, math.nan, math.inf):
-        with pytest.raises(BackendError, match='lvdt'):
-            sim.update_noise(lvdt_std=bad)
-    np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 5e-5, 3e-6])
+        with pytest.raises(BackendError, match='lvdt_noise_std'):
+            sim.update_noise(dataclasses.replace(sim.noise, lvdt=bad))
+    np.testing.assert_array_equal(sim.noise.readings(), [1e-5, 1e-5, 5e-5, 3e-6])
     with pytest.raises(BackendError):
         make_sim((-1.0, 0.0, 0.0))
 
@@ -97,7 +104,7 @@ def test_sim_from_config_reads_the_device_from_the_true_geometry_file():
     )
     assert sim.device_length == TRUE.device_length
     assert sim.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
-    np.testing.assert_array_equal(sim.noise_stds, [1e-5, 1e-5, 2e-5, 3e-6])
+    np.testing.assert_array_equal(sim.noise.readings(), [1e-5, 1e-5, 2e-5, 3e-6])
 
 
 def test_unknown_backend_names_the_valid_ones():
@@ -119,7 +126,7 @@ def test_a_backend_without_simulated_noise_refuses_noise_changes():
     backend = ConstantBackend.from_config(true_geometry_file='unused')
     assert backend.read(3.0) == DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)
     with pytest.raises(BackendError, match='no simulated noise'):
-        backend.update_noise(lvdt_std=1e-6)
+        backend.update_noise(device_noise(0.0, 0.0, 1e-6))
     backend.close()  # nothing to release
 
 
@@ -131,7 +138,7 @@ def test_the_start_up_line_reports_noise_only_for_a_backend_that_simulates_it(tm
     serial = SerialDeviceBackend(str(tmp_path / 'absent'), angle_unit='urad', length_unit='um')
     line = startup_line(values, 0, serial)
     assert 'noise' not in line and 'urad/um' in line and str(tmp_path / 'absent') in line
-    sim = SimDeviceBackend(0.5, 1.0, inclinometer_std=1e-5)
+    sim = SimDeviceBackend(0.5, 1.0, device_noise(1e-5, 0.0, 0.0))
     assert 'noise std inclinometer 1e-05 rad' in startup_line(dict(values, backend='sim'), 0, sim)
 
 

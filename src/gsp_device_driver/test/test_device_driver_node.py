@@ -3,6 +3,7 @@
 import math
 from collections import defaultdict
 
+import gsp_testing
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -10,7 +11,7 @@ from rclpy.parameter import Parameter
 from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
-from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import ERROR, OK, WARN
 from gsp_msgs_py.parameter_specs import ConfigurationError
 
@@ -20,7 +21,7 @@ TIMEOUT_S = 10.0
 TOPICS = (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
 
 
-class Harness(testing.NodeHarness):
+class Harness(gsp_testing.NodeHarness):
     """device_driver plus a test node publishing true poses and recording readings."""
 
     def __init__(self, context, overrides=()):
@@ -85,7 +86,7 @@ class Harness(testing.NodeHarness):
         return readings, stamps
 
 
-harness = testing.harness_fixture(Harness)
+harness = gsp_testing.harness_fixture(Harness)
 
 
 NOISE_FREE = [
@@ -139,7 +140,7 @@ def test_sim_readings_are_stamped_exactly_at_the_timer_ticks(harness):
     # instants the callbacks ran at are not.
     harness.true_pose_msg = conversions.pose_to_pose_stamped(POSE, None, names.FRAME_BASE)
     _, stamps = harness.readings_after(6)
-    assert len(testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
+    assert len(gsp_testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
 
 
 def test_bad_true_poses_are_ignored_and_the_driver_keeps_going(harness):
@@ -182,7 +183,7 @@ def test_noise_parameters_change_at_run_time_and_refuse_negative_values(harness)
     assert result.successful
     assert driver.get_parameter('inclinometer_noise_std').value == 8.7e-5
     np.testing.assert_allclose(
-        driver._backend.noise_stds, [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6]
+        driver._backend.noise.readings(), [8.7e-5, 8.7e-5, math.radians(0.001), 1e-6]
     )
     assert 'read-only' in driver.set_parameters([Parameter('backend', value='replay')])[0].reason
 

@@ -8,6 +8,7 @@ import sys
 import threading
 import time
 
+import gsp_testing
 import numpy as np
 import pytest
 
@@ -15,14 +16,14 @@ from gsp_device_driver.backends import backend_class
 from gsp_device_driver.fake_device import FakeDevice, TruthFeed
 from gsp_device_driver.serial_backend import SerialDeviceBackend
 from gsp_device_driver.serial_protocol import MIN_STAMP_STEP_S
-from gsp_msgs_py import health, testing
+from gsp_msgs_py import health
 
 TIMEOUT_S = 20.0
 VALUES = np.array([0.01, -0.02, 0.3, 0.25])
 
 
 def wait_until(predicate, timeout=TIMEOUT_S):
-    return testing.wait_until(predicate, timeout)
+    return gsp_testing.wait_until(predicate, timeout)
 
 
 @pytest.fixture

@@ -8,9 +8,26 @@ import numpy as np
 import pytest
 
 from gsp_device_driver import serial_check
-from gsp_device_driver import serial_protocol as sp
+from gsp_device_driver.serial_protocol import (
+    ANGLE_UNITS,
+    LENGTH_UNITS,
+    MIN_STAMP_STEP_S,
+    PROTOCOL_VERSION,
+    REQUEST_LINE,
+    DeviceClock,
+    Hello,
+    LineError,
+    Reading,
+    checksum,
+    format_hello,
+    format_number,
+    format_reading,
+    frame,
+    is_request,
+    parse_line,
+)
 
-READING = sp.Reading(7, 123456, 0.01, -0.02, 0.3, 0.25)
+READING = Reading(7, 123456, 0.01, -0.02, 0.3, 0.25)
 #: The spec's test vectors, read where firmware writers find them (the repository's docs/).
 VECTORS_PATH = pathlib.Path(__file__).resolve().parents[3] / 'docs' / 'serial_test_vectors.json'
 VECTORS = serial_check.load_vectors(VECTORS_PATH)
@@ -27,8 +44,8 @@ def test_each_sequence_vector_publishes_drops_and_counts_as_specified(case):
 
 
 def test_the_vectors_request_line_is_the_drivers():
-    assert serial_check.line_bytes(VECTORS['request_line']) == sp.REQUEST_LINE
-    assert sp.is_request(sp.REQUEST_LINE) and VECTORS['protocol_version'] == sp.PROTOCOL_VERSION
+    assert serial_check.line_bytes(VECTORS['request_line']) == REQUEST_LINE
+    assert is_request(REQUEST_LINE) and VECTORS['protocol_version'] == PROTOCOL_VERSION
 
 
 def test_the_vector_check_reports_a_driver_that_disagrees(tmp_path):
@@ -43,15 +60,15 @@ def test_the_vector_check_reports_a_driver_that_disagrees(tmp_path):
 
 def test_the_request_is_sent_when_the_port_opens():
     _, _, port = serial_check.read_through_backend(b'', 'rad', 'm')
-    assert port.written[0] == sp.REQUEST_LINE
+    assert port.written[0] == REQUEST_LINE
 
 
-@pytest.mark.parametrize('angle_unit', list(sp.ANGLE_UNITS))
-@pytest.mark.parametrize('length_unit', list(sp.LENGTH_UNITS))
+@pytest.mark.parametrize('angle_unit', list(ANGLE_UNITS))
+@pytest.mark.parametrize('length_unit', list(LENGTH_UNITS))
 def test_a_formatted_reading_parses_back_in_every_unit(angle_unit, length_unit):
-    line = sp.format_reading(READING, angle_unit, length_unit)
+    line = format_reading(READING, angle_unit, length_unit)
     assert line.endswith(b'\r\n') and line.startswith(b'$GSP,7,123456,')
-    parsed = sp.parse_line(line, angle_unit, length_unit)
+    parsed = parse_line(line, angle_unit, length_unit)
     assert (parsed.seq, parsed.device_time_us) == (7, 123456)
     for name in ('alpha', 'beta', 'phi', 'd_m'):
         assert getattr(parsed, name) == pytest.approx(getattr(READING, name), rel=1e-8)
@@ -59,18 +76,18 @@ def test_a_formatted_reading_parses_back_in_every_unit(angle_unit, length_unit):
 
 def test_the_checksum_is_the_xor_of_the_body_like_nmea():
     # Worked example of docs/hardware.md.
-    line = b'$GSP,0,0,0,0,0,0.25,0*' + f'{sp.checksum("GSP,0,0,0,0,0,0.25,0"):02X}\r\n'.encode()
-    assert sp.parse_line(line).d_m == 0.25
-    assert sp.checksum('GSP') == ord('G') ^ ord('S') ^ ord('P')
+    line = b'$GSP,0,0,0,0,0,0.25,0*' + f'{checksum("GSP,0,0,0,0,0,0.25,0"):02X}\r\n'.encode()
+    assert parse_line(line).d_m == 0.25
+    assert checksum('GSP') == ord('G') ^ ord('S') ^ ord('P')
 
 
 def test_hello_line_round_trip():
-    hello = sp.parse_line(sp.format_hello('board-3', 'urad', 'um', 500.0))
-    assert hello == sp.Hello(sp.PROTOCOL_VERSION, 'board-3', 'urad', 'um', 500.0)
+    hello = parse_line(format_hello('board-3', 'urad', 'um', 500.0))
+    assert hello == Hello(PROTOCOL_VERSION, 'board-3', 'urad', 'um', 500.0)
 
 
 def _body_line(body):
-    return sp.frame(body)
+    return frame(body)
 
 
 @pytest.mark.parametrize(
@@ -93,35 +110,35 @@ def _body_line(body):
     ],
 )
 def test_bad_lines_raise_with_their_reason(line, reason):
-    with pytest.raises(sp.LineError) as caught:
-        sp.parse_line(line)
+    with pytest.raises(LineError) as caught:
+        parse_line(line)
     assert caught.value.reason == reason
 
 
 def test_status_names_the_faulty_sensor():
-    with pytest.raises(sp.LineError, match='LVDT fault'):
-        sp.parse_line(_body_line('GSP,1,2,0,0,0,0.2,4'))
+    with pytest.raises(LineError, match='LVDT fault'):
+        parse_line(_body_line('GSP,1,2,0,0,0,0.2,4'))
 
 
 def test_an_unknown_unit_in_a_hello_is_reported_not_refused_by_the_parser():
     # The backend decides (drops the readings, counted as 'units'): the parser keeps what it said.
-    hello = sp.parse_line(_body_line('GSPHELLO,1,dev,furlong,m,200'))
+    hello = parse_line(_body_line('GSPHELLO,1,dev,furlong,m,200'))
     assert hello.angle_unit == 'furlong' and not hello.units_known
 
 
 @pytest.mark.parametrize('value', [1e-5, -3.25e-7, 123456.789, 0.1, 2.0**-30])
 def test_format_number_prints_no_exponent_and_reads_back_exactly(value):
-    text = sp.format_number(value)
+    text = format_number(value)
     assert 'e' not in text.lower() and float(text) == value
 
 
 def test_degrees_are_converted_to_radians():
-    parsed = sp.parse_line(_body_line('GSP,1,2,1,-1,90,200,0'), 'deg', 'mm')
+    parsed = parse_line(_body_line('GSP,1,2,1,-1,90,200,0'), 'deg', 'mm')
     assert parsed.alpha == pytest.approx(math.radians(1)) and parsed.d_m == pytest.approx(0.2)
 
 
 def test_device_clock_keeps_the_least_delayed_offset():
-    clock = sp.DeviceClock(latency=0.001)
+    clock = DeviceClock(latency=0.001)
     # The device ticks every 5 ms; the host receives each line 2 ms + jitter later, from 100 s.
     delays = [0.004, 0.002, 0.009, 0.003, 0.002]
     stamps = [clock.stamp(k * 5000, 100.0 + k * 0.005 + d) for k, d in enumerate(delays)]
@@ -132,7 +149,7 @@ def test_device_clock_keeps_the_least_delayed_offset():
 
 
 def test_device_clock_stamps_keep_device_order_after_a_backlog():
-    clock = sp.DeviceClock()
+    clock = DeviceClock()
     # The first lines wait 30 ms in a backlog (a loaded host), then arrive 1 ms late: the lower
     # offset is slewed in by half a device step per line instead of stepping the stamps back.
     delays = [0.030, 0.0255, 0.021] + [0.001] * 17
@@ -143,7 +160,7 @@ def test_device_clock_stamps_keep_device_order_after_a_backlog():
 
 
 def test_device_clock_restarts_after_a_reboot_or_a_gap():
-    clock = sp.DeviceClock()
+    clock = DeviceClock()
     clock.stamp(1_000_000, 50.0)
     assert clock.stamp(10, 60.0) == pytest.approx(60.0)  # device time went back: reboot
     assert clock.stamp(5_000_010, 70.0) == pytest.approx(70.0)  # 5 s gap > max_gap_s
@@ -153,7 +170,7 @@ def test_device_clock_stamps_a_backlog_in_device_order():
     # A reader late at start-up takes 4 queued lines (5 ms apart) at once, then the next on time:
     # each backlog line's own offset is the least so far, which alone would give all four the
     # receive time, and the on-time line one earlier than theirs.
-    clock = sp.DeviceClock()
+    clock = DeviceClock()
     stamps = [clock.stamp(k * 5000, 10.0) for k in range(4)] + [clock.stamp(20_000, 10.0001)]
-    assert np.all(np.diff(stamps) >= sp.MIN_STAMP_STEP_S - 1e-12)
+    assert np.all(np.diff(stamps) >= MIN_STAMP_STEP_S - 1e-12)
     assert stamps[0] == pytest.approx(10.0)

@@ -15,7 +15,7 @@
 
 Other packages add sections by calling the benchmark: ``main(extra_sections={key: run})``, each
 ``run(quick=bool) -> dict`` giving the ``bench.json`` section ``key`` (``gsp_bench`` itself is
-``gsp_calibrator.bench``, which adds ``end_to_end``); each gets a ``--skip-<key>`` option. The core's
+``gsp_calibrator.tools.bench``, which adds ``end_to_end``); each gets a ``--skip-<key>`` option. The core's
 sections alone: ``python -m gsp_experiments.bench``. With ``--merge`` (the default) keys already in
 ``bench.json`` that this run does not produce are kept, so ``--only`` reruns some sections.
 """
@@ -34,6 +34,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
 from gsp_kinematics._solver.readings import readings_jacobians
+from gsp_kinematics.channels import PHI_READING_COLUMN
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.fileio import to_json, write_json
 from gsp_kinematics.geometry import Geometry, parameter_errors
@@ -104,7 +105,7 @@ def fk_residual_function(nominal, leg_lengths, readings, sigmas, pose_guesses, c
         geometry = Geometry.from_vector(u, limits)
         poses, converged = forward_kinematics_masked(geometry, leg_lengths, pose_guesses)
         difference = readings - device_readings(geometry, poses)
-        difference[:, 2] = wrap_angle(difference[:, 2])
+        difference[:, PHI_READING_COLUMN] = wrap_angle(difference[:, PHI_READING_COLUMN])
         difference[~converged] = 0.0
         counters['calls'] += 1
         counters['calls_with_fk_failures'] += int(not converged.all())

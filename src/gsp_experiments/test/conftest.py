@@ -1,5 +1,10 @@
 """Fixtures of the experiments' tests: the paper's exact geometry and its nominal sets."""
 
+import sys
+from pathlib import Path
+
+# The tests' shared support (test_support/, never installed with the nodes) on the path.
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'test_support'))
 import numpy as np
 import pytest
 

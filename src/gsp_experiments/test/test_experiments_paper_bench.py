@@ -9,8 +9,8 @@ import pytest
 
 from gsp_experiments import bench, paper, paper_cli, tables
 from gsp_kinematics.device import device_readings
-from gsp_kinematics.identification import Sigmas
 from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 
 
 def test_tables_are_the_shipped_file_or_an_explicit_one(tmp_path):
@@ -109,7 +109,7 @@ def test_scipy_baseline_residuals_vanish_at_the_exact_geometry(exact, nominal_se
     workspace = Workspace(rotation_range=math.radians(25.0))
     poses = sample_valid_postures(exact, 20, np.random.default_rng(8), workspace)
     legs, readings = inverse_kinematics(exact, poses), device_readings(exact, poses)
-    residuals = bench.fk_residual_function(nominal_sets[2], legs, readings, Sigmas(), poses)
+    residuals = bench.fk_residual_function(nominal_sets[2], legs, readings, SensorNoise(), poses)
     assert residuals(exact.to_vector()).shape == (80,)
     assert np.max(np.abs(residuals(exact.to_vector()))) < 1e-6
     assert np.max(np.abs(residuals(nominal_sets[2].to_vector()))) > 10.0

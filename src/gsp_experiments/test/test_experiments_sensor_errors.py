@@ -4,17 +4,18 @@ prediction that matches the measured errors, and where the excess comes from."""
 import numpy as np
 import pytest
 
-from gsp_experiments import bench_sensor_errors as bench
+from gsp_experiments.bench_sensor_errors import POSTURES, SAMPLES, SIGMAS, model_section
 from gsp_experiments.nominal_sets import default_true_and_nominal
 from gsp_kinematics.kinematics import Workspace, sample_valid_postures
+from gsp_kinematics.selection import select_postures
 
 
 @pytest.fixture(scope='module')
 def design():
     true, nominal = default_true_and_nominal()
     pool = sample_valid_postures(nominal, 300, np.random.default_rng(0), Workspace())
-    chosen, _ = bench.select_postures(
-        nominal, pool, bench.POSTURES, bench.SIGMAS.averaged([bench.SAMPLES]), free='extended'
+    chosen, _ = select_postures(
+        nominal, pool, POSTURES, SIGMAS.averaged([SAMPLES]), free='extended'
     )
     validation = sample_valid_postures(nominal, 30, np.random.default_rng(1), Workspace())
     return true, nominal, pool, chosen, validation
@@ -22,7 +23,7 @@ def design():
 
 def test_model_figure_is_variance_not_bias(design):
     true, nominal, pool, chosen, validation = design
-    model = bench.model_section(true, nominal, pool, chosen, validation, quick=True)
+    model = model_section(true, nominal, pool, chosen, validation, quick=True)
     # The sensor errors are fully modelled: the extended fit on them gives the same validation
     # error as on the same noise with ideal sensors, to a small fraction of the error itself.
     assert model['sensor_error_bias_mm_max'] < 0.05 * model['extended_validation_mm']

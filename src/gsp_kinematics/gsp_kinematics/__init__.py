@@ -14,7 +14,7 @@ _EXPORTS = {
         'ALL_PARAMETER_NAMES PARAMETER_NAMES Geometry GeometryError Limits default_geometry default_geometry_path '
         'SensorErrors load_geometry save_geometry'
     ).split(),
-    'identification': ('IdentificationResult', 'Sigmas', 'identify'),
+    'identification': ('IdentificationResult', 'identify'),
     'noise': ('DEFAULT_SENSOR_NOISE', 'SensorNoise'),
     'kinematics': (
         'ForwardKinematicsError Workspace check_reachable forward_kinematics inverse_kinematics '

@@ -93,7 +93,7 @@ def unmodelled_text(unmodelled):
 
 
 def accuracy_line(accuracy, predicted=None):
-    """One line of the cross-validated accuracy (:meth:`CrossValidation.summary`), the nominal
+    """One line of the cross-validated accuracy (:meth:`gsp_kinematics.cross_validation.CrossValidation.summary`), the nominal
     baseline and the prediction (``{position_mm_mean, ...}`` or None)."""
     calibrated, nominal = accuracy['calibrated'], accuracy['nominal']
     line = (
@@ -147,7 +147,7 @@ def _failures(accuracy, requirement, improvement, predicted):
 
 def judge(accuracy, requirement=Requirement(), unmodelled=None, predicted=None):
     """The :class:`Verdict` of a calibration whose cross-validated ``accuracy`` is
-    :meth:`CrossValidation.summary`, with the model's ``unmodelled`` part (SensorNoise of row
+    :meth:`gsp_kinematics.cross_validation.CrossValidation.summary`, with the model's ``unmodelled`` part (SensorNoise of row
     stds or None) and the ``predicted`` headline (or None)."""
     position = accuracy['calibrated']['position_mm']['mean']
     nominal = accuracy['nominal']['position_mm']['mean']

@@ -61,6 +61,11 @@ def sensor_slice(sensor):
     return slice(columns[0], columns[-1] + 1)
 
 
+def sensor_channel_names(sensor):
+    """Names of ``sensor``'s channels, in column order (a tuple of str)."""
+    return tuple(CHANNEL_NAMES[column] for column in sensor_columns(sensor))
+
+
 def reading_columns(sensor):
     """Columns of a device ``sensor``'s channels among the four readings (a tuple of ints)."""
     return tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
@@ -72,3 +77,5 @@ DEVICE_READING_COLUMNS = {sensor: reading_columns(sensor) for sensor in DEVICE_S
 SENSOR_SLICES = {sensor: sensor_slice(sensor) for sensor in SENSORS}
 #: Column among the four readings of phi (the encoder).
 PHI_READING_COLUMN = CHANNEL_NAMES.index('phi') - FIRST_READING_COLUMN
+#: The legs' joint names: in the leg lengths' JointState and as ``samples.csv`` columns.
+LEG_JOINT_NAMES = tuple(f'leg_{column + 1}' for column in sensor_columns(LEG_LENGTHS))

@@ -173,7 +173,7 @@ def check_platform(
     """The check of ``controller`` (the geometry it runs) from the measured rows ``leg_lengths``
     (M, 6) and ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise
     ``row_sigmas`` (a ``SensorNoise``; add any unmodelled error the calibration found) and the
-    :class:`Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
+    :class:`gsp_kinematics.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
     came from (its covariance; None: taken as exact). A JSON-ready dict: ``verdict``,
     ``reasons``, ``accuracy``, ``change`` (the drift test of the leg offsets), ``moved``,
     ``identification`` (names, SI estimates and covariance) and ``geometry_si``."""

@@ -125,11 +125,12 @@ def lack_of_fit(between, redundancy, pure_error_dof, excluded=()):
     )
 
 
+_SENSOR_OF_CHANNEL = {channel.name: channel.sensor for channel in channels.CHANNELS}
+
+
 def channel_of_column(name):
-    """The noise channel (:data:`NOISE_CHANNELS`) of a residual column (``leg3``, ``alpha``...)."""
-    if name.startswith('leg'):
-        return 'leg_lengths'
-    return {'alpha': 'inclinometer', 'beta': 'inclinometer', 'phi': 'encoder', 'd_m': 'lvdt'}[name]
+    """The noise channel (:data:`NOISE_CHANNELS`) of a residual column (``q3``, ``alpha``...)."""
+    return _SENSOR_OF_CHANNEL[name]
 
 
 def channel_columns(columns):

@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from . import goodness
+from . import channels, goodness
 from ._solver.formulations import _FkModel, _ImplicitModel
 from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
@@ -34,7 +34,9 @@ from .effects.groups import (
     EffectDesign,
     EffectDesignError,
     EffectTerms,
-    IdentifiedEffects,
+    effect_estimates,
+    effect_terms_of,
+    geometry_with_effects,
     is_effect_name,
     resolve_effects,
 )
@@ -48,12 +50,13 @@ from .geometry import (
     Geometry,
 )
 from .kinematics import forward_kinematics_masked
-from .sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
+from .sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoiseError
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 DEFAULT_FORMULATION = 'implicit'
 
-SENSOR_NAMES = ('leg_lengths',) + READING_NAMES
+#: The residual groups: the leg lengths, then each device reading (:mod:`gsp_kinematics.channels`).
+SENSOR_NAMES = (channels.LEG_LENGTHS,) + READING_NAMES
 
 #: Sensor-error parameters left out of ``extended``: each is confounded with the 44 and the other
 #: sensor errors, so its nominal value is a datum (docs/sensor_errors.md): ``phi0`` with a yaw of
@@ -73,10 +76,6 @@ MAX_ROBUST_ROUNDS = 20
 
 class IdentificationError(ValueError):
     """Inputs to the identification are unusable; the message says which."""
-
-
-#: The former name of :class:`~gsp_kinematics.sensors.noise.SensorNoise`, kept for existing callers.
-Sigmas = SensorNoise
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,6 +197,39 @@ class IdentificationResult:
         return pairs
 
 
+def free_parameters_error(names, effects=True):
+    """Reason ('' if none) why ``names`` (parameter and group names, :data:`PARAMETER_GROUPS`;
+    with ``effects``, also the effect groups and their parameters, ``effects.groups``) is not a
+    set of free parameters: empty, unknown or duplicated names. The one check of a free-parameter
+    list, for the calibrator's ``free_parameters`` (``effects=False``: the calibrator has no
+    effect design) and every command line."""
+    names = list(names)
+    if not names:
+        return 'must name at least one parameter'
+    unknown = [
+        n
+        for n in names
+        if n not in PARAMETER_INDEX
+        and n not in PARAMETER_GROUPS
+        and not (effects and is_effect_name(n))
+    ]
+    if unknown:
+        effect_names = (
+            ", or effect groups 'compliance', 'backlash', 'thermal', 'joint_offsets'"
+            if effects
+            else ''
+        )
+        return (
+            f'unknown parameter name(s) {unknown}; expected groups ({", ".join(PARAMETER_GROUPS)}) '
+            'or names among A1x..A6z, B1x..B6z, Loff1..Loff6, D0, gamma, kq1..kq6, alpha0, '
+            f'beta0, phi0, kDm{effect_names}'
+        )
+    duplicated = sorted({n for n in names if names.count(n) > 1})
+    if duplicated:
+        return f'duplicated name(s) {duplicated}'
+    return ''
+
+
 def resolve_free(free):
     """A 54-bool mask (:data:`ALL_PARAMETER_NAMES`) from None (the paper's 44), a mask (44 or
     54 entries), or an iterable of parameter names and group names (:data:`PARAMETER_GROUPS`)."""
@@ -213,24 +245,16 @@ def resolve_free(free):
                 f'free mask must have {NUM_PARAMETERS} or {NUM_ALL_PARAMETERS} entries'
             )
         return free.copy()
+    free = list(free)
+    reason = free_parameters_error(free)
+    if reason:
+        raise IdentificationError(f'free parameters: {reason}')
     mask = np.zeros(NUM_ALL_PARAMETERS, dtype=bool)
-    effects = False
     for name in free:
-        if is_effect_name(name):  # the effect groups: resolve_effects
-            effects = True
+        if is_effect_name(name):  # the effect groups and their parameters: resolve_effects
             continue
-        if name in PARAMETER_GROUPS:
-            mask[[PARAMETER_INDEX[member] for member in PARAMETER_GROUPS[name]]] = True
-            continue
-        if name not in PARAMETER_INDEX:
-            raise IdentificationError(
-                f'unknown parameter name {name!r} (expected a group {sorted(PARAMETER_GROUPS)} '
-                "or names such as 'A1x', 'Loff3', 'D0', 'gamma', 'kq2', 'alpha0', 'kDm', or an "
-                "effect group 'compliance', 'backlash', 'thermal', 'joint_offsets')"
-            )
-        mask[PARAMETER_INDEX[name]] = True
-    if not mask.any() and not effects:
-        raise IdentificationError('no free parameters')
+        members = PARAMETER_GROUPS.get(name, (name,))
+        mask[[PARAMETER_INDEX[member] for member in members]] = True
     return mask
 
 
@@ -406,7 +430,7 @@ def _result(model, point, formulation, status, iterations, options):
         fit = goodness.goodness_of_fit(residuals, unknowns, excluded)
     if status < 0:
         cost = float('nan')
-        size = int(free.sum()) + (model_effects(model).count if model_effects(model) else 0)
+        size = int(free.sum()) + (effect_terms_of(model).count if effect_terms_of(model) else 0)
         information = covariance = np.eye(size) * np.nan
     else:
         vector[free] = point.values[: int(free.sum())]
@@ -420,11 +444,11 @@ def _result(model, point, formulation, status, iterations, options):
     all_deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     deviations = np.full(NUM_ALL_PARAMETERS, np.nan)
     deviations[free] = all_deviations[: int(free.sum())]
-    effect_free, effect_values, effect_deviations = _effect_estimates(
+    effect_free, effect_values, effect_deviations = effect_estimates(
         model, point, status, all_deviations
     )
     return IdentificationResult(
-        geometry=_geometry_with_effects(
+        geometry=geometry_with_effects(
             Geometry.from_full_vector(vector, model.limits), model, effect_values
         ),
         parameters=vector,
@@ -453,33 +477,6 @@ def _result(model, point, formulation, status, iterations, options):
         effect_values=effect_values,
         effect_standard_deviations=effect_deviations,
     )
-
-
-def _effect_estimates(model, point, status, all_deviations):
-    """``(free (24,), estimates (24,), standard deviations (24,))`` of the effect parameters;
-    ``all_deviations``: of the free parameters, then of the free effects."""
-    count = NUM_EFFECT_PARAMETERS
-    free, values, deviations = np.zeros(count, bool), np.zeros(count), np.full(count, np.nan)
-    if model_effects(model) is not None:
-        first = int(model.free.sum())
-        free = model.effects.mask.copy()
-        deviations[free] = all_deviations[first:]
-        if status >= 0:
-            values[free] = point.values[first:]
-    return free, values, deviations
-
-
-def _geometry_with_effects(geometry, model, effect_values):
-    """``geometry`` carrying the identified effects (what its controller compensates)."""
-    if model_effects(model) is None:
-        return geometry
-    design = model.effects.design
-    return geometry.replace(effects=IdentifiedEffects.from_result_values(effect_values, design))
-
-
-def model_effects(model):
-    """The model's :class:`EffectTerms` (None: no effect parameter free)."""
-    return getattr(model, 'effects', None)
 
 
 def _safe_inverse(matrix):

@@ -49,9 +49,19 @@ class NoiseSourceError(ValueError):
     """An unknown noise source; the message names the choices."""
 
 
+def noise_source_error(source):
+    """Reason ('' if none) why ``source`` is not a noise source: the one check of
+    ``noise_source``, for the calibrator's parameter, the identification and every command line."""
+    return (
+        '' if source in NOISE_SOURCES else f'must be one of {list(NOISE_SOURCES)}, got {source!r}'
+    )
+
+
 def check_noise_source(source):
-    if source not in NOISE_SOURCES:
-        raise NoiseSourceError(f'noise_source must be one of {NOISE_SOURCES}, got {source!r}')
+    """``source``, or NoiseSourceError (:func:`noise_source_error`)."""
+    reason = noise_source_error(source)
+    if reason:
+        raise NoiseSourceError(f'noise_source {reason}')
     return source
 
 

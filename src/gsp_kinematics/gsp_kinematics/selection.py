@@ -3,6 +3,7 @@
 import numpy as np
 
 from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
+from .channels import READING_NAMES
 from .identification import SENSOR_NAMES, resolve_free
 from .prediction import pose_sensitivities
 from .sensors.noise import DEFAULT_SENSOR_NOISE
@@ -27,7 +28,7 @@ def posture_factors(
     """
     sigmas = DEFAULT_SENSOR_NOISE if sigmas is None else sigmas
     free = resolve_free(free)
-    columns = [c for c, name in enumerate(('alpha', 'beta', 'phi', 'd_m')) if name in sensors]
+    columns = [c for c, name in enumerate(READING_NAMES) if name in sensors]
     # Derivatives of the sensor readings (the sensor errors included) over the extended vector.
     _, d_q_d_pose, d_q_d_u = leg_readings_jacobians(geometry, poses)
     _, d_h_d_pose, d_h_d_u = sensor_readings_jacobians(geometry, poses)

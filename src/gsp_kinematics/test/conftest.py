@@ -4,6 +4,11 @@ The geometries are files in ``test/data`` (written by ``gsp_experiments.nominal_
 file keeps every float exactly), so the core's tests do not depend on the experiments package.
 """
 
+import sys
+from pathlib import Path
+
+# The tests' shared support (test_support/, never installed with the nodes) on the path.
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'test_support'))
 import math
 from pathlib import Path
 

@@ -27,11 +27,11 @@ from gsp_kinematics.geometry import (
 from gsp_kinematics.identification import (
     SENSOR_NAMES,
     IdentificationError,
-    Sigmas,
     identify,
     resolve_free,
 )
 from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.validation import simulate_commands, validate
 
 TRUE = default_geometry('true')
@@ -81,7 +81,14 @@ def test_effect_columns_and_the_rest_match_finite_differences(sequence, fd):
     mask = resolve_effects(list(EFFECT_GROUPS))
     terms = EffectTerms(NOMINAL, design_of(run), mask, len(poses))
     model = _ImplicitModel(
-        NOMINAL, run.leg_readings, run.device_readings, Sigmas(), free, poses, SENSOR_NAMES, terms
+        NOMINAL,
+        run.leg_readings,
+        run.device_readings,
+        SensorNoise(),
+        free,
+        poses,
+        SENSOR_NAMES,
+        terms,
     )
     theta = np.repeat([3e-8, 4e-6, 1e-8, 2e-5], 6)  # realistic values: a general point
     values = np.concatenate([NOMINAL.to_full_vector()[free], theta])

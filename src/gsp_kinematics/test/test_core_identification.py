@@ -11,7 +11,6 @@ from gsp_kinematics.geometry import PARAMETER_INDEX, PARAMETER_NAMES, Geometry, 
 from gsp_kinematics.identification import (
     SENSOR_NAMES,
     IdentificationError,
-    Sigmas,
     identify,
     resolve_free,
 )
@@ -20,6 +19,7 @@ from gsp_kinematics.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
+from gsp_kinematics.sensors.noise import SensorNoise
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 
@@ -58,7 +58,7 @@ def test_fk_model_jacobian_matches_finite_differences(data, paper, free_names, f
         nominal,
         data['leg_lengths'],
         data['readings'],
-        Sigmas(),
+        SensorNoise(),
         free,
         data['poses'],
         paper,
@@ -85,7 +85,7 @@ def test_implicit_model_jacobians_match_finite_differences(data, rng, fd, pose_f
     free = resolve_free(None)
     poses = data['poses'] + rng.normal(0.0, 1e-3, data['poses'].shape)
     model = _ImplicitModel(
-        nominal, data['leg_lengths'], data['readings'], Sigmas(), free, poses, SENSOR_NAMES
+        nominal, data['leg_lengths'], data['readings'], SensorNoise(), free, poses, SENSOR_NAMES
     )
     values = nominal.to_full_vector()[free]
     residuals, jac_pose, jac_u = model.evaluate(values, poses, linearize=True)
@@ -110,7 +110,7 @@ def test_noise_free_identification_recovers_all_44_parameters(exact, data, formu
         data['nominal'],
         data['leg_lengths'],
         data['readings'],
-        Sigmas(),
+        SensorNoise(),
         formulation=formulation,
         pose_guesses=data['poses'],
     )
@@ -207,7 +207,7 @@ def test_a_posture_that_never_solves_is_excluded_and_reported(exact, data):
 
 
 def test_identification_with_noise_is_close_and_reports_statistics(exact, data, rng):
-    sigmas = Sigmas.from_levels(0.001, 0.001)
+    sigmas = SensorNoise.from_levels(0.001, 0.001)
     leg_lengths = data['leg_lengths'] + rng.normal(0.0, sigmas.leg_lengths, (60, 6))
     readings = data['readings'] + rng.normal(0.0, 1.0, (60, 4)) * sigmas.readings()
     result = identify(data['nominal'], leg_lengths, readings, sigmas, pose_guesses=data['poses'])
@@ -240,6 +240,6 @@ def test_bad_inputs_raise_identification_errors(data):
     with pytest.raises(IdentificationError, match='Azz'):
         identify(nominal, q, r, free=['A1x', 'Azz'])
     with pytest.raises(IdentificationError, match='sigma'):
-        identify(nominal, q, r, Sigmas(leg_lengths=0.0))
+        identify(nominal, q, r, SensorNoise(leg_lengths=0.0))
     with pytest.raises(IdentificationError, match='sensors'):
         identify(nominal, q, r, sensors=('alpha', 'laser'))

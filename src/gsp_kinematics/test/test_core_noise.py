@@ -1,11 +1,17 @@
 """SensorNoise: one noise type and its conversions (channels, averaged rows, parameters, files)."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise, SensorNoiseError
+from gsp_kinematics.sensors.noise import (
+    DEFAULT_SENSOR_NOISE,
+    TRUE_NOISE_PARAMETER,
+    SensorNoise,
+    SensorNoiseError,
+)
 
 NOISE = SensorNoise(leg_lengths=1e-6, inclinometer=2e-5, encoder=3e-5, lvdt=4e-6)
 
@@ -41,7 +47,7 @@ def test_averaged_rows_have_sigma_over_root_n_of_the_median_count():
     assert NOISE.averaged([0, 4]) == NOISE  # a count below one: rows are not averages
 
 
-def test_parameters_and_records_round_trip_with_the_names_users_type():
+def test_parameters_round_trip_with_the_names_users_type():
     assert NOISE.to_parameters() == {
         'sigma_leg_lengths': 1e-6,
         'sigma_inclinometer': 2e-5,
@@ -50,19 +56,12 @@ def test_parameters_and_records_round_trip_with_the_names_users_type():
     }
     assert SensorNoise.from_parameters(NOISE.to_parameters()) == NOISE
     assert SensorNoise.from_parameters({'sigma_lvdt': 5e-6}) == SensorNoise(lvdt=5e-6)
-    device = NOISE.to_parameters(prefix='', suffix='_noise_std')
+    device = NOISE.to_parameters(TRUE_NOISE_PARAMETER)
     assert device['inclinometer_noise_std'] == 2e-5
-    assert SensorNoise.from_parameters(device, prefix='', suffix='_noise_std') == NOISE
-    record = NOISE.to_record()
-    assert record == {
-        'leg_lengths_m': 1e-6,
-        'inclinometer_rad': 2e-5,
-        'encoder_rad': 3e-5,
-        'lvdt_m': 4e-6,
-    }
-    assert SensorNoise.from_record(record) == NOISE
-    with pytest.raises(SensorNoiseError, match='not a sensor noise record'):
-        SensorNoise.from_record({'leg_lengths_m': 1e-6})
+    assert SensorNoise.from_parameters(device, TRUE_NOISE_PARAMETER) == NOISE
+    changed = SensorNoise.from_parameters({'encoder_noise_std': 7e-5}, TRUE_NOISE_PARAMETER, NOISE)
+    assert changed == dataclasses.replace(NOISE, encoder=7e-5)
+    assert SensorNoise.parameter_names(TRUE_NOISE_PARAMETER, ('lvdt',)) == ('lvdt_noise_std',)
 
 
 @pytest.mark.parametrize('value', [0.0, -1e-6, math.nan, math.inf])

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics import goodness, noise_from_data
+from gsp_kinematics import channels, goodness, noise_from_data
 from gsp_kinematics._solver.redundancy import redundancy_flat, redundancy_with_poses
 from gsp_kinematics.geometry import SensorErrors
 from gsp_kinematics.identification import identify
@@ -222,7 +222,7 @@ def test_lack_of_fit_holds_its_level_and_rejects_an_unmodelled_error(rng):
     dense = arrow_jacobian(jac_pose, jac_u)
     projector = np.eye(count * rows) - dense @ np.linalg.pinv(dense)
     redundancy = np.diag(projector).reshape(count, rows)
-    columns = [f'leg{i}' for i in range(1, 7)] + ['alpha', 'beta', 'phi', 'd_m']
+    columns = list(channels.CHANNEL_NAMES)
     within_dof = {'leg_lengths': 6 * count * 9, 'inclinometer': 2 * count * 9}
     within_dof.update(encoder=count * 9, lvdt=count * 9)
     # A fixed systematic error of one noise sigma per residual that the model cannot follow.

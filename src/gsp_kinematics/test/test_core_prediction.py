@@ -6,7 +6,7 @@ import pytest
 
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX, Geometry
-from gsp_kinematics.identification import Sigmas, identify
+from gsp_kinematics.identification import identify
 from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
 from gsp_kinematics.prediction import (
     accuracy_summary,
@@ -17,6 +17,7 @@ from gsp_kinematics.prediction import (
 )
 from gsp_kinematics.rotation import euler_to_matrix
 from gsp_kinematics.selection import select_postures
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.validation import reached_poses, validate
 
 
@@ -98,7 +99,7 @@ def test_expected_norm_of_isotropic_gaussian():
 
 
 def test_prediction_agrees_with_monte_carlo(exact, nominal_sets, postures):
-    nominal, sigmas = nominal_sets[1], Sigmas()
+    nominal, sigmas = nominal_sets[1], SensorNoise()
     chosen, _ = select_postures(nominal, postures[:200], 40, sigmas)
     poses = postures[chosen]
     legs = inverse_kinematics(nominal, poses)

@@ -128,11 +128,11 @@ def test_validation_commands_with_the_controller_and_moves_the_true_platform(
 def test_posture_factors_give_the_schur_complement(nominal_sets, postures):
     from gsp_kinematics._solver.lm import schur_information
     from gsp_kinematics.device import device_readings_jacobians
-    from gsp_kinematics.identification import Sigmas
     from gsp_kinematics.kinematics import expand_leg_parameters, inverse_kinematics_jacobians
     from gsp_kinematics.selection import posture_factors
+    from gsp_kinematics.sensors.noise import SensorNoise
 
-    nominal, sigmas, poses = nominal_sets[2], Sigmas(), postures[:30]
+    nominal, sigmas, poses = nominal_sets[2], SensorNoise(), postures[:30]
     factors = posture_factors(nominal, poses, sigmas)
     assert factors.shape == (30, 4, 44)
     # The pose eliminated by the normal equations' Schur complement, built independently.
@@ -158,16 +158,16 @@ def test_selection_is_not_worse_than_scoring_every_candidate(nominal_sets):
 
 
 def test_best_addition_picks_the_posture_that_lowers_the_condition_number_most():
-    from gsp_kinematics.geometry import default_geometry as _default
-    from gsp_kinematics.kinematics import sample_valid_postures as _sample
+    from gsp_kinematics.geometry import default_geometry
+    from gsp_kinematics.kinematics import sample_valid_postures
     from gsp_kinematics.selection import (
         best_addition,
         posture_information,
         scaled_condition_number,
     )
 
-    nominal = _default('nominal')
-    pool = _sample(nominal, 80, np.random.default_rng(5))
+    nominal = default_geometry('nominal')
+    pool = sample_valid_postures(nominal, 80, np.random.default_rng(5))
     chosen = list(range(20))
     excluded = [20, 21]
     information = posture_information(nominal, pool)

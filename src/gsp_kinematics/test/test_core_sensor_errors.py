@@ -23,10 +23,10 @@ from gsp_kinematics.identification import (
     SENSOR_NAMES,
     IdentificationError,
     Options,
-    Sigmas,
     identify,
     resolve_free,
 )
+from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.validation import sensor_measurements
 
 SENSORS = SensorErrors(
@@ -104,7 +104,7 @@ def test_fk_model_sensor_columns_match_finite_differences(with_sensors, measured
         with_sensors,
         measured['leg_lengths'],
         measured['readings'],
-        Sigmas(),
+        SensorNoise(),
         ALL_FREE,
         measured['poses'],
         paper,
@@ -130,7 +130,7 @@ def test_implicit_model_sensor_columns_match_finite_differences(
         with_sensors,
         measured['leg_lengths'],
         measured['readings'],
-        Sigmas(),
+        SensorNoise(),
         ALL_FREE,
         poses,
         SENSOR_NAMES,
@@ -170,7 +170,7 @@ def test_groups_and_names_resolve(exact):
     assert resolve_free(None).sum() == 44 and resolve_free('paper').sum() == 44
     mask = resolve_free(['paper', 'kDm'])
     assert mask[PARAMETER_INDEX['kDm']] and mask.sum() == 45
-    with pytest.raises(IdentificationError, match="unknown parameter name 'kq9'"):
+    with pytest.raises(IdentificationError, match=r"unknown parameter name\(s\) \['kq9'\]"):
         resolve_free(['kq9'])
 
 
@@ -185,7 +185,7 @@ def noisy(measured, sigmas, rng):
 
 def test_extended_fit_recovers_sensor_errors_and_paper_fit_is_rejected(with_sensors, measured):
     # The datum (beta0, phi0, kDm) is known: the nominal carries it; the 44 and the rest start off.
-    sigmas = Sigmas.from_levels(0.001, 0.001)
+    sigmas = SensorNoise.from_levels(0.001, 0.001)
     legs, readings = noisy(measured, sigmas, np.random.default_rng(5))
     datum = SensorErrors(
         inclinometer_offsets=[0.0, SENSORS.inclinometer_offsets[1]],
@@ -216,7 +216,7 @@ def test_extended_fit_recovers_sensor_errors_and_paper_fit_is_rejected(with_sens
 
 
 def test_huber_names_and_down_weights_a_corrupted_posture(exact, moderate_postures):
-    sigmas = Sigmas.from_levels(0.001, 0.001)
+    sigmas = SensorNoise.from_levels(0.001, 0.001)
     legs, readings = sensor_measurements(exact, moderate_postures)
     rng = np.random.default_rng(3)
     legs = legs + rng.normal(0.0, sigmas.leg_lengths, legs.shape)

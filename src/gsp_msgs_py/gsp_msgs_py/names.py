@@ -27,6 +27,8 @@ The ``command_id`` of a pose command is, by convention, :func:`conversions.comma
 of its ``header.stamp`` (the integer nanoseconds as a decimal string).
 """
 
+from gsp_kinematics import channels
+
 # Frames.
 FRAME_BASE = 'gsp_base'
 FRAME_PLATFORM = 'gsp_platform'
@@ -72,11 +74,12 @@ TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
 TOPIC_DIAGNOSTICS = '/diagnostics'
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
-# Joint names carried by the JointState topics (values in JointState.position).
-LEG_JOINT_NAMES = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
-INCLINOMETER_JOINT_NAMES = ('alpha', 'beta')
-ENCODER_JOINT_NAMES = ('phi',)
-LVDT_JOINT_NAMES = ('d_m',)
+# Joint names carried by the JointState topics (values in JointState.position): the channels of
+# gsp_kinematics.channels.
+LEG_JOINT_NAMES = channels.LEG_JOINT_NAMES
+INCLINOMETER_JOINT_NAMES = channels.sensor_channel_names(channels.INCLINOMETER)
+ENCODER_JOINT_NAMES = channels.sensor_channel_names(channels.ENCODER)
+LVDT_JOINT_NAMES = channels.sensor_channel_names(channels.LVDT)
 
 # Platform status.
 STATE_MOVING = 'moving'

@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER
+
 from . import names
 
 # rclpy is imported inside the functions that need a node, so that pure modules (the
@@ -89,6 +91,8 @@ class ParameterSpec:
     ``check`` is a function ``value -> reason`` ('' if accepted) applied at start-up and to every
     run-time change; ``constraints`` is the descriptor's human-readable summary of both.
     ``default_text`` is how the docs show a default that depends on the installation (a path).
+    ``subsets``: names of the node's subsets of its parameters this one belongs to (the
+    calibrator's: stored with a run, deciding the selection, accepted on a command line).
     """
 
     name: str
@@ -101,6 +105,7 @@ class ParameterSpec:
     constraints: str = ''
     check: object = None
     default_text: str = ''
+    subsets: frozenset = frozenset()
 
     @property
     def type_name(self):
@@ -247,10 +252,18 @@ def motion_limit_specs(speed, acceleration, read_only=False):
     )
 
 
-def noise_std_spec(name, default, description, unit):
-    """A simulated noise standard deviation (``unit``), changeable at run time."""
+def true_noise_spec(sensor, description):
+    """A simulated ``sensor``'s true noise std, ``<sensor>_noise_std``
+    (:data:`gsp_kinematics.sensors.noise.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
+    at run time; the default is the suite's default noise."""
+    unit = NOISE_UNITS[sensor]
     return ParameterSpec(
-        name, default, description, unit=unit, float_range=(0.0, 1.0), check=at_least(0.0, unit)
+        TRUE_NOISE_PARAMETER.format(sensor),
+        getattr(DEFAULT_SENSOR_NOISE, sensor),
+        description,
+        unit=unit,
+        float_range=(0.0, 1.0),
+        check=at_least(0.0, unit),
     )
 
 

@@ -3,6 +3,7 @@
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
+from gsp_testing import spin_until
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
@@ -18,7 +19,6 @@ from gsp_msgs_py.diagnostics import (
 )
 from gsp_msgs_py.health import ERROR, OK, WARN, Health
 from gsp_msgs_py.parameter_specs import diagnostics_period_spec
-from gsp_msgs_py.testing import spin_until
 
 TIMEOUT_S = 10.0
 

@@ -4,10 +4,10 @@ is resumed (rclpy 7.1's list grows by one entry a wake-up, docs/architecture.md)
 import threading
 
 import rclpy
+from gsp_testing import wait_until
 from rclpy.task import Future
 
 from gsp_msgs_py.executors import MultiThreadedExecutor
-from gsp_msgs_py.testing import wait_until
 
 WAKE_UPS = 300  # timer callbacks while the coroutine waits: each wakes the executor
 

@@ -5,6 +5,7 @@ import math
 import pytest
 import rclpy
 import rclpy.executors
+from gsp_testing import SIM_CLOCK_STEP_NS, drive_sim_clock, grid_offsets
 from rclpy.parameter import Parameter
 
 from gsp_msgs_py.node_tools import scheduled_tick_ns, spin_until, timer_tick_time
@@ -23,7 +24,6 @@ from gsp_msgs_py.parameter_specs import (
     seed_spec,
     watch_parameters,
 )
-from gsp_msgs_py.testing import SIM_CLOCK_STEP_NS, drive_sim_clock, grid_offsets
 
 SPECS = (
     ParameterSpec(
@@ -211,9 +211,8 @@ def test_shutdown_executor_runs_the_queued_callbacks_before_the_guard_goes(ros_c
     rclpy's own shutdown destroys the guard condition under it (InvalidHandle, never retrieved)."""
     import threading
 
+    from gsp_testing import shutdown_executor, wait_until
     from rclpy.callback_groups import ReentrantCallbackGroup
-
-    from gsp_msgs_py.testing import shutdown_executor, wait_until
 
     node = rclpy.create_node('shutdown_executor_test', context=ros_context)
     executor = rclpy.executors.MultiThreadedExecutor(num_threads=1, context=ros_context)

@@ -1,13 +1,13 @@
 """The profiles work end to end over loopback DDS: sensor data flows, results are latched."""
 
 import numpy as np
+from gsp_testing import spin_until
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from gsp_msgs_py import conversions as conv
 from gsp_msgs_py import names, qos
-from gsp_msgs_py.testing import spin_until
+from gsp_msgs_py.conversions import leg_lengths_to_msg, msg_to_leg_lengths
 
 TIMEOUT_S = 10.0
 
@@ -27,14 +27,14 @@ def test_leg_lengths_and_latched_result(ros_context):
         node.create_subscription(
             JointState,
             names.TOPIC_LEG_LENGTHS,
-            lambda msg: received.append(conv.msg_to_leg_lengths(msg)),
+            lambda msg: received.append(msg_to_leg_lengths(msg)),
             qos.SENSOR_QOS,
         )
         pub = node.create_publisher(JointState, names.TOPIC_LEG_LENGTHS, qos.SENSOR_QOS)
         q = np.linspace(0.0, 0.05, 6)
         assert spin_until(executor, lambda: pub.get_subscription_count() > 0, TIMEOUT_S)
         assert spin_until(
-            executor, lambda: (pub.publish(conv.leg_lengths_to_msg(q)), received)[1], TIMEOUT_S
+            executor, lambda: (pub.publish(leg_lengths_to_msg(q)), received)[1], TIMEOUT_S
         )
         np.testing.assert_array_equal(received[0], q)
 

@@ -15,10 +15,21 @@ from pathlib import Path
 
 import pytest
 
-from gsp_msgs_py import ros_environment as domains
+from gsp_msgs_py import ros_environment
+from gsp_msgs_py.ros_environment import (
+    DOMAIN_IDS,
+    LOCK_DIRECTORY_VARIABLE,
+    DomainInUseError,
+    claim_domain_id,
+    domain_holder,
+    enter_private_domain,
+    foreign_nodes,
+    hold_domain_id,
+    loopback_environment,
+)
 
 TIMEOUT_S = 30.0  #: bounds a failure only
-SOURCE = str(Path(domains.__file__).resolve().parents[1])  #: for the children's sys.path
+SOURCE = str(Path(ros_environment.__file__).resolve().parents[1])  #: for the children's sys.path
 #: A child that claims a domain (same rng seed as the others: the same first candidate), prints
 #: it and holds it until its stdin closes.
 CLAIMER = (
@@ -33,7 +44,7 @@ CLAIMER = (
 @pytest.fixture
 def lock_dir(tmp_path, monkeypatch):
     directory = tmp_path / 'locks'
-    monkeypatch.setenv(domains.LOCK_DIRECTORY_VARIABLE, str(directory))
+    monkeypatch.setenv(LOCK_DIRECTORY_VARIABLE, str(directory))
     return directory
 
 
@@ -57,20 +68,20 @@ def test_concurrent_claims_get_distinct_domains_and_release_on_exit(lock_dir):
     second, second_domain = start_claimer()
     try:
         assert first_domain != second_domain
-        assert second_domain == first_domain % max(domains.DOMAIN_IDS) + 1
-        assert domains.domain_holder(first_domain)[0] == first.pid
-        assert domains.domain_holder(second_domain)[0] == second.pid
+        assert second_domain == first_domain % max(DOMAIN_IDS) + 1
+        assert domain_holder(first_domain)[0] == first.pid
+        assert domain_holder(second_domain)[0] == second.pid
     finally:
         for child in (first, second):
             child.stdin.close()
             child.wait(timeout=TIMEOUT_S)
     # The kernel released the locks with the processes: the domains are free again.
-    assert domains.domain_holder(first_domain) is None
-    assert domains.domain_holder(second_domain) is None
+    assert domain_holder(first_domain) is None
+    assert domain_holder(second_domain) is None
     killed, killed_domain = start_claimer()
     killed.kill()
     killed.wait(timeout=TIMEOUT_S)
-    assert domains.domain_holder(killed_domain) is None  # even after a SIGKILL
+    assert domain_holder(killed_domain) is None  # even after a SIGKILL
 
 
 def test_concurrent_claims_in_threads_get_distinct_domains(lock_dir):
@@ -79,7 +90,7 @@ def test_concurrent_claims_in_threads_get_distinct_domains(lock_dir):
 
     def claim():
         barrier.wait()
-        locks.append(domains.claim_domain_id(random.Random(0)))
+        locks.append(claim_domain_id(random.Random(0)))
 
     threads = [threading.Thread(target=claim) for _ in range(8)]
     for thread in threads:
@@ -94,28 +105,28 @@ def test_concurrent_claims_in_threads_get_distinct_domains(lock_dir):
 
 
 def test_a_held_domain_is_skipped_and_exclusions_respected(lock_dir):
-    with domains.claim_domain_id(random.Random(3)) as held:
-        with domains.claim_domain_id(random.Random(3)) as next_one:
+    with claim_domain_id(random.Random(3)) as held:
+        with claim_domain_id(random.Random(3)) as next_one:
             assert next_one.domain_id != held.domain_id
-        only = domains.claim_domain_id(exclude=[d for d in domains.DOMAIN_IDS if d != 50])
+        only = claim_domain_id(exclude=[d for d in DOMAIN_IDS if d != 50])
         assert only.domain_id == 50
-        with pytest.raises(domains.DomainInUseError, match='no free ROS domain'):
-            domains.claim_domain_id(exclude=[d for d in domains.DOMAIN_IDS if d != 50])
+        with pytest.raises(DomainInUseError, match='no free ROS domain'):
+            claim_domain_id(exclude=[d for d in DOMAIN_IDS if d != 50])
         only.release()
-    assert domains.domain_holder(held.domain_id) is None and not held.held
+    assert domain_holder(held.domain_id) is None and not held.held
 
 
 def test_a_given_domain_is_checked_against_other_runs(lock_dir):
     other, domain_id = start_claimer()
     try:
-        with pytest.raises(domains.DomainInUseError, match=rf'ROS_DOMAIN_ID={domain_id} .*pid'):
-            domains.hold_domain_id(domain_id)
+        with pytest.raises(DomainInUseError, match=rf'ROS_DOMAIN_ID={domain_id} .*pid'):
+            hold_domain_id(domain_id)
     finally:
         other.stdin.close()
         other.wait(timeout=TIMEOUT_S)
-    lock = domains.hold_domain_id(domain_id)  # free now: held by this process
+    lock = hold_domain_id(domain_id)  # free now: held by this process
     try:
-        assert lock.domain_id == domain_id and domains.hold_domain_id(domain_id) is None
+        assert lock.domain_id == domain_id and hold_domain_id(domain_id) is None
         # A child of the holder shares the domain (it is the same run).
         code = (
             f'import sys; sys.path.insert(0, {SOURCE!r})\n'
@@ -136,7 +147,7 @@ def test_claim_for_a_shell_holds_until_the_owner_exits(lock_dir):
     )
     try:
         claimed = subprocess.run(
-            [sys.executable, domains.__file__, 'claim', '--owner', str(owner.pid)],
+            [sys.executable, ros_environment.__file__, 'claim', '--owner', str(owner.pid)],
             capture_output=True,
             text=True,
             timeout=TIMEOUT_S,
@@ -144,13 +155,13 @@ def test_claim_for_a_shell_holds_until_the_owner_exits(lock_dir):
         assert claimed.returncode == 0, claimed.stderr
         domain_id = int(claimed.stdout)
         # The claiming process has exited; its holder keeps the lock for the owner.
-        assert domains.domain_holder(domain_id)[0] == owner.pid
+        assert domain_holder(domain_id)[0] == owner.pid
     finally:
         owner.stdin.close()
         owner.wait(timeout=TIMEOUT_S)
-    wait_until(lambda: domains.domain_holder(domain_id) is None, 'the holder to let go')
+    wait_until(lambda: domain_holder(domain_id) is None, 'the holder to let go')
     usage = subprocess.run(
-        [sys.executable, domains.__file__, 'claim'], capture_output=True, text=True
+        [sys.executable, ros_environment.__file__, 'claim'], capture_output=True, text=True
     )
     assert usage.returncode == 2 and 'usage' in usage.stderr
 
@@ -164,28 +175,28 @@ def test_enter_private_domain_leaves_domains_with_nodes(lock_dir, monkeypatch):
         probed.append(domain_id)
         return ['/somebody_else'] if len(probed) == 1 else []
 
-    domain_id = domains.enter_private_domain(probe=probe, rng=random.Random(5))
+    domain_id = enter_private_domain(probe=probe, rng=random.Random(5))
     assert probed[-1] == domain_id != probed[0]
     assert os.environ['ROS_DOMAIN_ID'] == str(domain_id)
     assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
-    assert domains.domain_holder(probed[0])[0] == os.getpid()  # kept, so nobody else draws it
+    assert domain_holder(probed[0])[0] == os.getpid()  # kept, so nobody else draws it
 
     # A given domain with nodes in it is refused, naming them; an empty one is kept.
     monkeypatch.setenv('ROS_DOMAIN_ID', '77')
-    with pytest.raises(domains.DomainInUseError, match='/somebody_else'):
-        domains.enter_private_domain(probe=lambda d: ['/somebody_else'])
-    assert domains.enter_private_domain(probe=lambda d: []) == 77
+    with pytest.raises(DomainInUseError, match='/somebody_else'):
+        enter_private_domain(probe=lambda d: ['/somebody_else'])
+    assert enter_private_domain(probe=lambda d: []) == 77
     monkeypatch.setenv('ROS_DOMAIN_ID', 'x')
-    with pytest.raises(domains.DomainInUseError, match='not a domain id'):
-        domains.enter_private_domain(probe=None)
+    with pytest.raises(DomainInUseError, match='not a domain id'):
+        enter_private_domain(probe=None)
 
 
 def test_loopback_environment_claims_a_domain_unless_given(lock_dir):
-    env = domains.loopback_environment({'PATH': '/bin'}, rng=random.Random(1))
+    env = loopback_environment({'PATH': '/bin'}, rng=random.Random(1))
     domain_id = int(env['ROS_DOMAIN_ID'])
-    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST' and domain_id in domains.DOMAIN_IDS
-    assert domains.domain_holder(domain_id)[0] == os.getpid()
-    assert domains.loopback_environment({'ROS_DOMAIN_ID': '9'})['ROS_DOMAIN_ID'] == '9'
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST' and domain_id in DOMAIN_IDS
+    assert domain_holder(domain_id)[0] == os.getpid()
+    assert loopback_environment({'ROS_DOMAIN_ID': '9'})['ROS_DOMAIN_ID'] == '9'
 
 
 def test_foreign_nodes_sees_a_node_of_the_domain(ros_context):
@@ -195,7 +206,7 @@ def test_foreign_nodes_sees_a_node_of_the_domain(ros_context):
     node = rclpy.create_node('someone_else', namespace='/lab', context=ros_context)
     try:
         found = []
-        wait_until(lambda: found.extend(domains.foreign_nodes(domain_id)) or found, 'the node')
+        wait_until(lambda: found.extend(foreign_nodes(domain_id)) or found, 'the node')
         assert found == ['/lab/someone_else']
     finally:
         node.destroy_node()

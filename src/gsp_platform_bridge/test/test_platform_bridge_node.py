@@ -1,5 +1,6 @@
 """platform_bridge with the emulated controller (controller_sim), in one process."""
 
+import gsp_testing
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -10,7 +11,7 @@ from gsp_kinematics.geometry import (
     geometry_to_parameters,
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
-from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import ERROR, OK, WARN
 from gsp_platform_bridge.platform_bridge_node import PlatformBridgeNode
 from gsp_platform_sim.controller_sim_node import ControllerSimNode
@@ -20,7 +21,7 @@ NOMINAL, TRUE = default_geometry('nominal'), default_geometry('true')
 POSE = home_pose() + np.array([0.02, -0.01, 0.01, 0.03, -0.02, 0.05])
 
 
-class Harness(testing.NodeHarness):
+class Harness(gsp_testing.NodeHarness):
     """The bridge, (optionally) the emulated controller, and a test node commanding poses."""
 
     def __init__(self, context, overrides=()):
@@ -69,7 +70,7 @@ class Harness(testing.NodeHarness):
         super().close()
 
 
-harness = testing.harness_fixture(Harness)
+harness = gsp_testing.harness_fixture(Harness)
 
 
 def test_a_command_settles_where_the_true_hexapod_puts_the_legs(harness):

@@ -12,6 +12,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from gsp_kinematics.channels import LEG_LENGTHS
 from gsp_kinematics.geometry import (
     GeometryError,
     default_geometry,
@@ -19,7 +20,6 @@ from gsp_kinematics.geometry import (
     load_geometry,
 )
 from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 
@@ -45,11 +45,8 @@ PARAMETERS = (
     # A speed limit alone by default (0: no acceleration limit), as before the motion model.
     *parameter_specs.motion_limit_specs(0.1, 0.0, read_only=True),
     parameter_specs.publish_rate_spec('/joint_states and true_pose'),
-    parameter_specs.noise_std_spec(
-        'leg_noise_std',
-        DEFAULT_SENSOR_NOISE.leg_lengths,
-        'Standard deviation of the leg position noise on /joint_states',
-        'm',
+    parameter_specs.true_noise_spec(
+        LEG_LENGTHS, 'Standard deviation of the leg position noise on /joint_states'
     ),
     parameter_specs.seed_spec(),
     parameter_specs.frame_id_spec('Frame of the published true pose'),
@@ -68,7 +65,7 @@ class ControllerSimNode(Node):
             raise parameter_specs.ConfigurationError(f'true_geometry_file: {error}') from None
         self._joint_names = list(values['joint_names'])
         self._frame_id = values['frame_id']
-        self._noise_std = values['leg_noise_std']
+        self._noise_std = values['leg_lengths_noise_std']
         seed = parameter_specs.resolve_seed(values['seed'])
         self._rng = np.random.default_rng([seed, RNG_STREAM])
         # Powered up where a nominal controller put the home pose.
@@ -97,8 +94,8 @@ class ControllerSimNode(Node):
         self.get_logger().info(f'controller_sim ready: goals on {topic}, seed {seed}')
 
     def _apply(self, changes):
-        if 'leg_noise_std' in changes:
-            self._noise_std = changes['leg_noise_std']
+        if 'leg_lengths_noise_std' in changes:
+            self._noise_std = changes['leg_lengths_noise_std']
 
     def _now_s(self):
         return self.get_clock().now().nanoseconds * 1e-9

@@ -11,13 +11,13 @@ geometry is read once from ``true_geometry_file`` and never published. The logic
 import numpy as np
 from rclpy.node import Node
 
+from gsp_kinematics.channels import LEG_LENGTHS
 from gsp_kinematics.geometry import (
     GeometryError,
     default_geometry_path,
     geometry_from_parameters,
     load_geometry,
 )
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
@@ -47,11 +47,8 @@ PARAMETERS = (
     ),
     *CONTROLLER_GEOMETRY_SPECS,
     parameter_specs.publish_rate_spec('leg_lengths and true_pose'),
-    parameter_specs.noise_std_spec(
-        'leg_noise_std',
-        DEFAULT_SENSOR_NOISE.leg_lengths,
-        'Standard deviation of the Gaussian leg length sensor noise',
-        'm',
+    parameter_specs.true_noise_spec(
+        LEG_LENGTHS, 'Standard deviation of the Gaussian leg length sensor noise'
     ),
     parameter_specs.seed_spec(),
     parameter_specs.settle_time_spec('an accepted command'),
@@ -103,7 +100,7 @@ class PlatformSimNode(Node):
             self._simulator = PlatformSimulator(
                 true_geometry,
                 controller_geometry,
-                leg_noise_std=values['leg_noise_std'],
+                leg_lengths_noise_std=values['leg_lengths_noise_std'],
                 rng=np.random.default_rng([seed, RNG_STREAM]),
                 max_condition=values['max_condition'],
                 limits=MotionLimits.from_parameters(
@@ -146,7 +143,7 @@ class PlatformSimNode(Node):
         self.get_logger().info(
             f'platform_sim ready: true geometry from {values["true_geometry_file"]}, '
             f'publishing at {values["publish_rate"]:g} Hz, '
-            f'leg noise {values["leg_noise_std"]:g} m, '
+            f'leg noise {values["leg_lengths_noise_std"]:g} m, '
             f'settle time {values["settle_time"]:g} s, leg limits '
             f'{values["max_leg_speed"]:g} m/s and {values["max_leg_acceleration"]:g} m/s^2 '
             f'(0: none), seed {seed}, '
@@ -155,8 +152,8 @@ class PlatformSimNode(Node):
 
     def _apply_parameters(self, changes):
         """Apply accepted run-time changes (checked by parameter_specs.watch_parameters)."""
-        if 'leg_noise_std' in changes:
-            self._simulator.leg_noise_std = changes['leg_noise_std']
+        if 'leg_lengths_noise_std' in changes:
+            self._simulator.leg_lengths_noise_std = changes['leg_lengths_noise_std']
         if 'max_condition' in changes:
             self._simulator.max_condition = changes['max_condition']
         if 'settle_time' in changes:

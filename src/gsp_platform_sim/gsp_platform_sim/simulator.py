@@ -70,7 +70,7 @@ def _check_noise_std(value, name):
 class PlatformSimulator:
     """A platform whose controller uses ``controller_geometry`` and whose hardware is ``true_geometry``.
 
-    ``leg_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
+    ``leg_lengths_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
     sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
     through :meth:`command`; ValueError if the home pose is not reachable. ``limits``: the legs'
     :class:`gsp_kinematics.travel.motion.MotionLimits` (None: the platform jumps to each command).
@@ -82,7 +82,7 @@ class PlatformSimulator:
         self,
         true_geometry,
         controller_geometry,
-        leg_noise_std=0.0,
+        leg_lengths_noise_std=0.0,
         rng=None,
         max_condition=DEFAULT_MAX_CONDITION,
         initial_pose=None,
@@ -98,7 +98,7 @@ class PlatformSimulator:
         self._move = None  # the LegMove under way, with the real poses at its ends
         self._true_geometry = true_geometry
         self._controller_geometry = controller_geometry
-        self.leg_noise_std = leg_noise_std
+        self.leg_lengths_noise_std = leg_lengths_noise_std
         self.max_condition = max_condition
         self._rng = rng if rng is not None else np.random.default_rng()
         self._leg_lengths = None
@@ -131,13 +131,13 @@ class PlatformSimulator:
         self._controller_geometry = geometry
 
     @property
-    def leg_noise_std(self):
+    def leg_lengths_noise_std(self):
         """Standard deviation of the leg length noise (m)."""
-        return self._leg_noise_std
+        return self._leg_lengths_noise_std
 
-    @leg_noise_std.setter
-    def leg_noise_std(self, value):
-        self._leg_noise_std = _check_noise_std(value, 'leg_noise_std')
+    @leg_lengths_noise_std.setter
+    def leg_lengths_noise_std(self, value):
+        self._leg_lengths_noise_std = _check_noise_std(value, 'leg_lengths_noise_std')
 
     @property
     def max_condition(self):
@@ -212,8 +212,8 @@ class PlatformSimulator:
         return self._commanded_pose.copy()
 
     def measured_leg_lengths(self):
-        """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_noise_std`` (m)."""
-        return self._leg_lengths + self._rng.normal(0.0, self._leg_noise_std, size=6)
+        """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_lengths_noise_std`` (m)."""
+        return self._leg_lengths + self._rng.normal(0.0, self._leg_lengths_noise_std, size=6)
 
     # ----------------------------------------------------------------------------- command
 

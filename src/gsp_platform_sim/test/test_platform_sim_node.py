@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import gsp_testing
 import numpy as np
 import pytest
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
@@ -18,7 +19,7 @@ from gsp_kinematics.geometry import (
     geometry_to_parameters,
 )
 from gsp_kinematics.kinematics import forward_kinematics, home_pose, inverse_kinematics
-from gsp_msgs_py import conversions, names, testing
+from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import OK, WARN
 from gsp_msgs_py.parameter_specs import ConfigurationError
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
@@ -29,7 +30,7 @@ POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
 TIMEOUT_S = 10.0  # generous: the machine may be loaded; tests finish as soon as they can
 
 
-class Harness(testing.NodeHarness):
+class Harness(gsp_testing.NodeHarness):
     """platform_sim plus a test node that commands poses and records what comes back."""
 
     def __init__(self, context, overrides=()):
@@ -92,7 +93,7 @@ class Harness(testing.NodeHarness):
         return future.result()
 
 
-harness = testing.harness_fixture(Harness)
+harness = gsp_testing.harness_fixture(Harness)
 
 
 def test_command_moves_then_settles_and_streams_the_new_posture(harness):
@@ -139,7 +140,7 @@ def test_leg_lengths_are_stamped_exactly_at_the_timer_ticks(harness):
     assert harness.spin_until(lambda: len(harness.leg_lengths) >= 6)
     stamps = [conversions.stamp_to_nanoseconds(m.header.stamp) for m in harness.leg_lengths]
     assert len(set(stamps)) == len(stamps), stamps
-    assert len(testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
+    assert len(gsp_testing.grid_offsets(stamps, 50_000_000)) == 1, stamps
 
 
 @pytest.mark.parametrize('harness', [[Parameter('settle_time', value=0.0)]], indirect=True)
@@ -229,7 +230,7 @@ def test_a_new_command_supersedes_one_still_moving(harness):
 def test_bad_parameter_values_are_rejected_with_a_reason(harness):
     sim = harness.sim
     for name, value in [
-        ('leg_noise_std', -1e-6),
+        ('leg_lengths_noise_std', -1e-6),
         ('settle_time', -0.1),
         ('geometry.leg_offsets', [0.6] * 5),
         ('geometry.device_length', -0.85),
@@ -244,8 +245,8 @@ def test_bad_parameter_values_are_rejected_with_a_reason(harness):
         in sim.set_parameters([Parameter('geometry.leg_offsets', value=[0.6] * 5)])[0].reason
     )
     assert 'read-only' in sim.set_parameters([Parameter('publish_rate', value=100.0)])[0].reason
-    assert sim.get_parameter('leg_noise_std').value == 1e-6
-    assert sim.set_parameters([Parameter('leg_noise_std', value=0.0)])[0].successful
+    assert sim.get_parameter('leg_lengths_noise_std').value == 1e-6
+    assert sim.set_parameters([Parameter('leg_lengths_noise_std', value=0.0)])[0].successful
     measured = harness.leg_lengths_after(3)
     np.testing.assert_array_equal(measured, np.broadcast_to(measured[0], measured.shape))
 
@@ -359,7 +360,7 @@ def test_markers_show_the_platform(harness):
     'overrides, words',
     [
         ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
-        ([Parameter('leg_noise_std', value=-1.0)], 'leg_noise_std'),
+        ([Parameter('leg_lengths_noise_std', value=-1.0)], 'leg_lengths_noise_std'),
         (
             [Parameter('true_geometry_file', value='/nonexistent/geometry.yaml')],
             'true_geometry_file',
@@ -379,7 +380,7 @@ def test_bad_start_up_parameters_are_a_clear_error(ros_context, overrides, words
 LIMITED = [
     Parameter('max_leg_speed', value=0.5),
     Parameter('max_leg_acceleration', value=2.0),
-    Parameter('leg_noise_std', value=0.0),
+    Parameter('leg_lengths_noise_std', value=0.0),
     Parameter('settle_time', value=0.0),
 ]
 
@@ -424,7 +425,7 @@ EFFECTS = PlatformEffects(
     'harness',
     [
         [Parameter(name, value=value) for name, value in EFFECTS.to_parameters('effects.').items()]
-        + [Parameter('leg_noise_std', value=0.0)]
+        + [Parameter('leg_lengths_noise_std', value=0.0)]
     ],
     indirect=True,
 )

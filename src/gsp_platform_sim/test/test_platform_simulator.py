@@ -14,8 +14,10 @@ NOMINAL = default_geometry('nominal')
 POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])
 
 
-def make_simulator(leg_noise_std=0.0, seed=0, **kwargs):
-    return PlatformSimulator(TRUE, NOMINAL, leg_noise_std, np.random.default_rng(seed), **kwargs)
+def make_simulator(leg_lengths_noise_std=0.0, seed=0, **kwargs):
+    return PlatformSimulator(
+        TRUE, NOMINAL, leg_lengths_noise_std, np.random.default_rng(seed), **kwargs
+    )
 
 
 def test_starts_at_home_through_the_controller():
@@ -90,12 +92,12 @@ def test_forward_kinematics_failure_is_a_rejection():
     assert not outcome.accepted and 'forward kinematics' in outcome.reason
 
 
-def test_leg_noise_std_is_honoured():
-    sim = make_simulator(leg_noise_std=2e-6, seed=42)
+def test_leg_lengths_noise_std_is_honoured():
+    sim = make_simulator(leg_lengths_noise_std=2e-6, seed=42)
     errors = np.stack([sim.measured_leg_lengths() for _ in range(20000)]) - sim.leg_lengths
     assert abs(errors.mean()) < 3 * 2e-6 / np.sqrt(errors.size)
     np.testing.assert_allclose(errors.std(axis=0), 2e-6, rtol=0.03)
-    sim.leg_noise_std = 0.0
+    sim.leg_lengths_noise_std = 0.0
     np.testing.assert_array_equal(sim.measured_leg_lengths(), sim.leg_lengths)
 
 
@@ -107,8 +109,8 @@ def test_noise_is_reproducible_with_a_seed():
 @pytest.mark.parametrize('value', [-1e-6, np.nan, np.inf])
 def test_bad_noise_std_is_refused(value):
     sim = make_simulator()
-    with pytest.raises(ValueError, match='leg_noise_std'):
-        sim.leg_noise_std = value
+    with pytest.raises(ValueError, match='leg_lengths_noise_std'):
+        sim.leg_lengths_noise_std = value
 
 
 def test_new_controller_geometry_applies_from_the_next_command():

@@ -7,7 +7,7 @@ platform statuses and sensor messages with their receive times (integer ns, the 
 recording's log time) and acts on the events it returns.
 
 Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first status must come
-within ``topic_timeout`` (else :class:`TopicSilent`); ``rejected`` skips it; ``settled`` must
+within ``topic_timeout`` (else :class:`.events.TopicSilent`); ``rejected`` skips it; ``settled`` must
 come within ``settle_timeout`` of that first status (else skipped) and starts the collection
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
 the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
@@ -20,7 +20,7 @@ after the start (the reason names the channel and its trend), when
 when no window comes within ``settle_timeout + topic_timeout`` of the start. These two bounds
 count in the data's time, the samples' stamps since the start (as far as every stream that has
 given any has reached): a caller that handles the samples late decides late, not otherwise. The run fails
-(:class:`TopicSilent`, :class:`NoSynchronisedSample`) when a sensor topic says nothing, or the
+(:class:`.events.TopicSilent`, :class:`.events.NoSynchronisedSample`) when a sensor topic says nothing, or the
 pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
 is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
 with the current time), so the protocol runs offline.
@@ -54,15 +54,12 @@ import math
 
 import numpy as np
 
-from gsp_calibrator.collection.events import (  # noqa: F401 (callers take the events from here)
-    FINAL_EVENTS,
+from gsp_calibrator.collection.events import (
     CollectionStarted,
-    NoSynchronisedSample,
     PairsCollected,
     PostureSkipped,
     RowReady,
     SampleDropped,
-    TopicSilent,
 )
 from gsp_calibrator.collection.synchroniser import (
     ENCODER,
@@ -73,7 +70,7 @@ from gsp_calibrator.collection.synchroniser import (
     segment_pairs,
 )
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
-from gsp_calibrator.collection.topics import (  # noqa: F401 (the topic table, used with the protocol)
+from gsp_calibrator.collection.topics import (
     DEVICE_STREAMS,
     SENSOR_TOPICS,
     TOPIC_STREAMS,

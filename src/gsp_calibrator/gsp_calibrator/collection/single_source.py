@@ -12,7 +12,7 @@ A second calibrator is the same fault one level up: :func:`other_calibrators` na
 nodes called ``calibrator`` that publish pose commands, and a run is refused while there is one.
 """
 
-from gsp_calibrator.collection.protocol import read_sensor
+from gsp_calibrator.collection.topics import read_sensor
 from gsp_msgs_py import names
 
 

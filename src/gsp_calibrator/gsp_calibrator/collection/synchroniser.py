@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from gsp_calibrator.collection import settling
+from gsp_calibrator.collection import at_rest
 from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs  # noqa: F401
 from gsp_kinematics import channels
 from gsp_kinematics.noise_from_data import posture_lag_sums
@@ -181,8 +181,8 @@ class SampleCollector:
         sync_tolerance, noise_std = _checked_options(
             sync_tolerance, samples_per_posture, max_buffer, noise_std, consistency_threshold
         )
-        self.settle_rule = settling.SettleRule(settle_lookback, settle_sigmas)
-        #: Why the latest window judged waits for settling (``settling.Unsettled``), or None.
+        self.settle_rule = at_rest.SettleRule(settle_lookback, settle_sigmas)
+        #: Why the latest window judged waits for settling (``at_rest.Unsettled``), or None.
         self.unsettled = None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)

@@ -4,7 +4,7 @@
 shared collection protocol (:func:`feed_recording`), in causal order (each topic in log order),
 so the rows are the ones the calibrator collected online; ``gsp_reidentify`` and replay use it.
 
-A recording notes how each posture ended (:meth:`RunRecorder.note_posture_end`: kept, skipped
+A recording notes how each posture ended (:meth:`.recorder.RunRecorder.note_posture_end`: kept, skipped
 and why, in progress at the stop). The rebuild keeps exactly the rows noted ``kept``: a posture
 the calibrator skipped on a timeout, or was collecting when it stopped, gives no row even when
 the recording holds enough samples for one, so the rebuild equals samples.csv. A recording made
@@ -14,7 +14,7 @@ before these notes keeps every row its messages give, as before.
 import collections
 import os
 
-from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
 from gsp_calibrator.recording.recorder import (
@@ -56,10 +56,10 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     """Feed every recorded command, status and sensor message to ``collection`` (a
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`), receive time = log time; yields its
     events. ``path``: one recording, or the parts of a resumed run in order
-    (:func:`recording_parts`).
+    (:func:`.recorder.recording_parts`).
 
     Each ``pose_command`` starts the next posture: its number is the one noted with it
-    (:meth:`RunRecorder.note_collection_start`), else its rank among the commands; the noted
+    (:meth:`.recorder.RunRecorder.note_collection_start`), else its rank among the commands; the noted
     start is the collection start of its ``settled`` status (else the status's receive time).
     ``on_message(topic, log_time_ns, message)``, if given, sees every message read first
     (``extra_topics`` are read for it alone). Malformed messages are dropped, as the calibrator
@@ -78,7 +78,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     notes = _notes_of(paths) if notes is None else notes
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
-        + protocol.SENSOR_TOPICS
+        + topics.SENSOR_TOPICS
         + tuple(extra_topics)
     )
     order = _CausalOrder(collection, notes)
@@ -123,7 +123,7 @@ class _CausalOrder:
                 msg = conversions.parse_status(msg)
             except ValueError:
                 return []
-        elif topic not in protocol.TOPIC_STREAMS:
+        elif topic not in topics.TOPIC_STREAMS:
             return []
         return self._route(topic, log_time, msg) + self.advance()
 
@@ -131,7 +131,7 @@ class _CausalOrder:
         """Put the waiting commands into effect while they may (``final``: all of them)."""
         events = []
         while self.pending and (
-            final or (self.final_status and self.reached.issuperset(protocol.SENSOR_TOPICS))
+            final or (self.final_status and self.reached.issuperset(topics.SENSOR_TOPICS))
         ):
             number, pose, command_id, log_time = self.pending.popleft()
             events += self.collection.command(number, pose, command_id, log_time)
@@ -144,7 +144,7 @@ class _CausalOrder:
 
     def _route(self, topic, log_time, item):
         """Feed a sensor message or parsed status to the posture in effect, or hold it."""
-        if topic in protocol.TOPIC_STREAMS:
+        if topic in topics.TOPIC_STREAMS:
             stamp_ns = _stamp_ns(item)
             if stamp_ns is not None:
                 if self.pending and (topic in self.reached or stamp_ns >= int(self.pending[0][2])):
@@ -190,7 +190,7 @@ def _stamp_ns(msg):
 
 def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
     """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run.directory.Samples`) of one
-    recording or of the parts of a resumed run (a list, see :func:`recording_parts`).
+    recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
@@ -199,7 +199,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     (:func:`posture_outcomes`) decide which rows were kept.
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
-    :func:`noise_std_from_options`) default to the options stored by :meth:`RunRecorder.start`;
+    :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
     samples = Samples.empty()
@@ -218,7 +218,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
 
 
 def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
-    """The :class:`~gsp_calibrator.collection.protocol.RowReady` events of
+    """The :class:`~gsp_calibrator.collection.events.RowReady` events of
     :func:`samples_from_recording` (with each row's ``settle_wait``), in row order."""
     first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
     stored = recording_options(first)
@@ -246,9 +246,9 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
         kept = kept_postures(recording_info(part), part)
         previous = {}  # posture -> the readings its row was compared to
         for event in feed_recording(part, collection):
-            if isinstance(event, protocol.CollectionStarted):
+            if isinstance(event, events.CollectionStarted):
                 previous[event.posture] = collection.collector.previous_readings
-            elif isinstance(event, protocol.RowReady):
+            elif isinstance(event, events.RowReady):
                 if kept is not None and event.posture not in kept:
                     # Not kept online (skipped, or in progress at the stop): the next row is
                     # compared to the readings this one was, as online.
@@ -261,7 +261,7 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
 
 
 def posture_outcomes(info, path='<recording>'):
-    """``{posture: (outcome, reason)}`` noted by :meth:`RunRecorder.note_posture_end` (the last
+    """``{posture: (outcome, reason)}`` noted by :meth:`.recorder.RunRecorder.note_posture_end` (the last
     note of a posture wins), or None for a recording made before these notes."""
     metadata = info['metadata']
     if OUTCOMES_METADATA_NAME not in metadata:
@@ -287,7 +287,7 @@ def kept_postures(info, path='<recording>'):
 
 
 def collection_notes(info, path='<recording>'):
-    """``{command_id: (posture or None, start_ns)}`` noted by :meth:`RunRecorder.note_collection_start`."""
+    """``{command_id: (posture or None, start_ns)}`` noted by :meth:`.recorder.RunRecorder.note_collection_start`."""
     notes = {}
     for entry in info['metadata'].get(POSTURE_METADATA_NAME, []):
         try:

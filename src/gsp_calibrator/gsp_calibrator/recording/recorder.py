@@ -7,7 +7,7 @@ metadata), ``log_time`` = receive time and ``publish_time`` in nanoseconds. ``ro
 recording.mcap``, ``ros2 bag play recording.mcap`` (storage ``mcap``) and Foxglove read it.
 
 * :class:`McapRecorder` writes one file atomically (``<path>.tmp``, then ``os.replace`` on close).
-* :func:`read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
+* :func:`.mcap_io.read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
 * :mod:`.rebuild` rebuilds the ``samples.csv`` rows of a run from its recording.
 * :class:`RunRecorder` records the suite's topics from inside a node (raw CDR subscriptions).
 
@@ -22,30 +22,15 @@ import re
 import threading
 import time
 
-from gsp_calibrator.recording.mcap_format import (  # noqa: F401 (the recording API, re-exported)
-    DEFINITION_SEPARATOR,
-    MessageDefinitionError,
+from gsp_calibrator.recording.mcap_format import (
     RecordingError,
     message_class,
-    message_definition,
-    message_type_name,
-    msg_file,
-    normalise_type_name,
-    qos_profiles_yaml,
-    split_type_name,
 )
-from gsp_calibrator.recording.mcap_io import (  # noqa: F401 (the recording API, re-exported)
-    MESSAGE_ENCODING,
-    PROFILE,
+from gsp_calibrator.recording.mcap_io import (
     RUN_METADATA_NAME,
-    SCHEMA_ENCODING,
     McapRecorder,
-    read_recording,
-    recording_info,
-    recording_options,
-    recover_recording,
-    recover_recordings,
 )
+from gsp_calibrator.settings import STORED_PARAMETERS
 from gsp_kinematics.fileio import json_safe
 from gsp_msgs_py import names
 
@@ -179,7 +164,7 @@ class RunRecorder:
         """Note that the samples of command ``command_id`` count from ``start_ns`` (node clock).
 
         Optional (an MCAP metadata record, ignored by rosbag2): with it,
-        :func:`samples_from_recording` starts each posture exactly where the calibrator's
+        :func:`.rebuild.samples_from_recording` starts each posture exactly where the calibrator's
         collector did, instead of at the receive time of the ``settled`` status.
         """
         with self._lock:
@@ -196,7 +181,7 @@ class RunRecorder:
     def note_posture_end(self, command_id, posture, outcome, reason=''):
         """Note how the posture of command ``command_id`` ended: ``outcome`` is ``kept`` (its
         row is in samples.csv), ``skipped`` (``reason`` says why) or ``in_progress`` (the run
-        stopped during its collection). :func:`samples_from_recording` keeps exactly the rows
+        stopped during its collection). :func:`.rebuild.samples_from_recording` keeps exactly the rows
         noted ``kept``, so the rebuild gives the rows of samples.csv."""
         with self._lock:
             if self._recorder is not None:
@@ -244,16 +229,6 @@ class RunRecorder:
         return on_message
 
 
-#: The options that decide whether a result is applied (stored, so a re-identification judges
-#: it alike).
-ACCEPTANCE_OPTIONS = (
-    'required_position_accuracy_mm',
-    'required_orientation_accuracy_deg',
-    'required_improvement_over_nominal',
-    'cross_validation_folds',
-)
-
-
 def note_outcomes(recorder):
     """Say in ``recorder`` (a :class:`McapRecorder`) that its postures' outcomes are noted."""
     recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
@@ -274,32 +249,8 @@ def note_posture_end(recorder, command_id, posture, outcome, reason=''):
 
 
 def settings_options(settings):
-    """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`).
-
-    ``settings``: a :class:`gsp_calibrator.settings.CalibratorSettings` (or anything with the same
-    attributes); :func:`samples_from_recording` and ``gsp_reidentify`` read them back.
-    """
-    options = {}
-    for name in (
-        'sync_tolerance',
-        'samples_per_posture',
-        'settle_lookback',
-        'settle_sigmas',
-        'formulation',
-        'noise_source',
-        'loss',
-        'posture_count',
-        'pool_size',
-        'seed',
-        'nominal_geometry_file',
-        'platform_id',
-        *ACCEPTANCE_OPTIONS,
-    ):
-        if hasattr(settings, name):
-            options[name] = getattr(settings, name)
-    if hasattr(settings, 'free_parameters'):
-        options['free_parameters'] = list(settings.free_parameters)
-    sigmas = getattr(settings, 'sigmas', None)
-    if sigmas is not None:
-        options.update(sigmas.to_parameters())
-    return options
+    """Options of a calibrator run worth storing in its recording (see :meth:`RunRecorder.start`):
+    those of ``settings`` (a :class:`gsp_calibrator.settings.CalibratorSettings`) marked
+    :data:`gsp_calibrator.settings.STORED`; :func:`.rebuild.samples_from_recording` and ``gsp_reidentify``
+    read them back."""
+    return settings.options(STORED_PARAMETERS)

@@ -30,9 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_calibrator.collection.protocol import CollectionProtocol, PairsCollected, PostureSkipped
+from gsp_calibrator.collection.events import PairsCollected, PostureSkipped
+from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.recording import rebuild
-from gsp_calibrator.recording import recorder as recording
+from gsp_calibrator.recording.mcap_format import RecordingError
+from gsp_calibrator.recording.mcap_io import recording_options
+from gsp_calibrator.recording.recorder import RECORDING_FILE, recording_parts
 from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_quaternion
@@ -153,17 +156,15 @@ class RecordedRun:
             samples = path / SAMPLES_FILE
             if samples.is_file():
                 return cls.from_samples(samples)
-            parts = recording.recording_parts(path)
+            parts = recording_parts(path)
             if parts:
                 return cls.from_recording(parts, sync_tolerance)
-            raise ReplayError(
-                f'{path}: run directory without {SAMPLES_FILE} or {recording.RECORDING_FILE}'
-            )
+            raise ReplayError(f'{path}: run directory without {SAMPLES_FILE} or {RECORDING_FILE}')
         if not path.exists():
             raise ReplayError(f'{path}: no such file or directory')
         if path.suffix.lower() == '.mcap':
-            if path.name == recording.RECORDING_FILE:  # with the later parts of a resumed run
-                return cls.from_recording(recording.recording_parts(path.parent), sync_tolerance)
+            if path.name == RECORDING_FILE:  # with the later parts of a resumed run
+                return cls.from_recording(recording_parts(path.parent), sync_tolerance)
             return cls.from_recording(path, sync_tolerance)
         return cls.from_samples(path)
 
@@ -211,7 +212,7 @@ class RecordedRun:
             raise ReplayError('no recording part to replay')
         try:
             return cls._from_recording(parts, sync_tolerance)
-        except recording.RecordingError as error:
+        except RecordingError as error:
             raise ReplayError(str(error)) from None
 
     @classmethod
@@ -219,7 +220,7 @@ class RecordedRun:
         from gsp_msgs_py import conversions
 
         path = parts[0]
-        options = recording.recording_options(path)
+        options = recording_options(path)
         sync_tolerance = _sync_tolerance(path, options, sync_tolerance)
 
         # Every pair after each settle, paired by the calibrator's own protocol; the true poses

@@ -6,23 +6,24 @@ import math
 
 import numpy as np
 
+from gsp_kinematics import channels
 from gsp_kinematics.fileio import json_safe
 from gsp_kinematics.geometry import ANGULAR_PARAMETERS, PARAMETER_NAMES, to_report_units
 
 ANGULAR = set(ANGULAR_PARAMETERS)
+#: Each residual group (``identification.SENSOR_NAMES``) -> 'angle' or 'length', by unit.
 SENSOR_KIND = {
-    'leg_lengths': 'length',
-    'alpha': 'angle',
-    'beta': 'angle',
-    'phi': 'angle',
-    'd_m': 'length',
+    channels.LEG_LENGTHS: 'length',
+    **{
+        channel.name: 'angle' if channel.unit == 'rad' else 'length'
+        for channel in channels.DEVICE_CHANNELS
+    },
 }
+#: Each residual group -> its label in the report.
 SENSOR_LABEL = {
-    'leg_lengths': 'leg lengths q1..q6',
-    'alpha': 'inclinometer alpha',
-    'beta': 'inclinometer beta',
-    'phi': 'encoder phi',
-    'd_m': 'LVDT d_m',
+    channels.LEG_LENGTHS: 'leg lengths '
+    + '..'.join(channels.CHANNEL_NAMES[0 : channels.LEG_COUNT : 5]),
+    **{channel.name: f'{channel.sensor} {channel.name}' for channel in channels.DEVICE_CHANNELS},
 }
 
 VALIDATION_KEYS = (
@@ -114,7 +115,7 @@ def validation_errors(true, controller, poses):
     """Per-posture validation of ``controller`` against the real platform ``true`` (simulation).
 
     ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
-    'unreachable'}``: the arrays that :func:`write_report` plots as distributions.
+    'unreachable'}``: the arrays that :func:`.write.write_report` plots as distributions.
     """
     from gsp_kinematics.kinematics import forward_kinematics_masked
     from gsp_kinematics.validation import commanded_articular, pose_errors, summarise
@@ -166,7 +167,7 @@ def residual_columns(result):
         return []
     layout, column = [], 0
     for sensor in result.residual_rms:
-        width = 6 if sensor == 'leg_lengths' else 1
+        width = channels.LEG_COUNT if sensor == channels.LEG_LENGTHS else 1
         layout.append((sensor, list(range(column, column + width))))
         column += width
     if column != residuals.shape[1]:

@@ -15,6 +15,7 @@ from gsp_kinematics.geometry import (
     SENSOR_PARAMETER_NAMES,
 )
 from gsp_kinematics.identification import DATUM_SENSOR_PARAMETERS
+from gsp_kinematics.sensors.noise import NOISE_UNITS
 
 
 def format_number(value, digits=4):
@@ -192,7 +193,7 @@ def _noise_table(data):
     used = data.get('noise_source', 'configured')
     rows = []
     for channel, entry in noise.items():
-        angular = channel in ('inclinometer', 'encoder')
+        angular = NOISE_UNITS[channel] == 'rad'
         factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
         keys = ('configured', 'estimated', 'within_posture', 'between_postures')
         shown = [_fmt(None if entry.get(k) is None else entry[k] * factor, 3) for k in keys]

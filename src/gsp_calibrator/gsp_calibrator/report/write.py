@@ -3,7 +3,7 @@
 * :func:`write_result_json`: estimates (SI and report units), standard deviations, correlations
   above 0.9, identifiability (rank, condition number, unidentifiable combinations), residual RMS
   per sensor, iterations, status, validation errors before and after, and the predicted accuracy
-  (:mod:`.report_accuracy`).
+  (:mod:`.accuracy`).
 * :func:`write_report`: ``report.md`` and its plots: ``parameter_errors.png`` (the paper's
   Figs. 6-8), ``chain_errors.png`` (Figs. 9-12), ``residuals.png`` (histograms per sensor) and
   ``validation.png`` (error distributions before and after, when a validation is given) and
@@ -35,8 +35,7 @@ from gsp_calibrator.report.data import (
     si_unit,
     validation_summary,
 )
-from gsp_calibrator.report.fit import fit_data, fit_markdown, outcome_data
-from gsp_calibrator.report.fit import format_number as _fmt
+from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number, outcome_data
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
     PARAMETER_NAMES,
@@ -95,13 +94,13 @@ class ReportInputs:
     def completed(self, result):
         """These inputs with the analysis and the prediction of ``result`` computed where None
         (once, for result.json and report.md alike)."""
-        from gsp_calibrator.report import accuracy as report_accuracy
+        from gsp_calibrator.report.accuracy import prediction_for
 
         analysis = analyse_result(result) if self.analysis is None else self.analysis
         prediction = self.prediction
         compare = self.validation_after is not None and 'validation' not in (prediction or {})
         if prediction is None or compare:
-            prediction = report_accuracy.prediction_for(
+            prediction = prediction_for(
                 result, self.validation_after, analysis=analysis, unmodelled=self.unmodelled
             )
         return dataclasses.replace(self, analysis=analysis, prediction=prediction)
@@ -110,7 +109,9 @@ class ReportInputs:
 def result_data(result, inputs=ReportInputs()):
     """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
     ``result`` with :class:`ReportInputs` ``inputs``."""
-    from gsp_calibrator.report import accuracy as report_accuracy
+    from gsp_calibrator.report.accuracy import (
+        result_json_entry,
+    )
 
     inputs = inputs.completed(result)
     analysis, truth = inputs.analysis, inputs.truth
@@ -170,14 +171,14 @@ def result_data(result, inputs=ReportInputs()):
             'before': validation_summary(inputs.validation_before),
             'after': validation_summary(inputs.validation_after),
         },
-        'predicted_accuracy': report_accuracy.result_json_entry(inputs.prediction),
+        'predicted_accuracy': result_json_entry(inputs.prediction),
     }
     lengths = np.array([i not in ANGULAR for i in range(len(PARAMETER_NAMES))])
     data['max_param_error_mm'] = float(np.max(np.abs(after[lengths])))
     data['max_param_error_deg'] = float(np.max(np.abs(after[~lengths])))
     data.update(fit_data(result, truth, nominal))
     if inputs.sigmas is not None:
-        data['sigmas'] = inputs.sigmas.to_record()
+        data['sigmas'] = inputs.sigmas.channels()
     if inputs.extra:
         data.update(inputs.extra)
     return json_safe(data)
@@ -232,7 +233,7 @@ def _validation_lines(data, images):
             if summary:
                 lines.append(
                     f'| {when} | '
-                    + ' | '.join(_fmt(summary.get(k)) for k in VALIDATION_KEYS)
+                    + ' | '.join(format_number(summary.get(k)) for k in VALIDATION_KEYS)
                     + f' | {summary.get("postures", "–")} |'
                 )
         lines.append('')
@@ -250,8 +251,8 @@ def _parameter_lines(data, images):
     if against_truth:
         lines.append(
             f'Errors against the true geometry. Largest after calibration: '
-            f'{_fmt(data["max_param_error_mm"])} mm, gamma '
-            f'{_fmt(data["max_param_error_deg"])} deg.'
+            f'{format_number(data["max_param_error_mm"])} mm, gamma '
+            f'{format_number(data["max_param_error_deg"])} deg.'
         )
     else:
         lines.append('No true geometry is known: the corrections (estimate − nominal) are shown.')
@@ -269,14 +270,17 @@ def _parameter_lines(data, images):
         row = [
             name,
             units[name],
-            _fmt(data['nominal']['report'][name], 7),
-            _fmt(data['estimates']['report'][name], 7),
-            _fmt(data['standard_deviations']['report'][name], 3),
+            format_number(data['nominal']['report'][name], 7),
+            format_number(data['estimates']['report'][name], 7),
+            format_number(data['standard_deviations']['report'][name], 3),
         ]
         if against_truth:
-            row += [_fmt(errors['before'][name], 3), _fmt(errors['after'][name], 3)]
+            row += [
+                format_number(errors['before'][name], 3),
+                format_number(errors['after'][name], 3),
+            ]
         else:
-            row.append(_fmt(errors['after'][name], 3))
+            row.append(format_number(errors['after'][name], 3))
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
     return lines
@@ -292,7 +296,7 @@ PLOTS_SKIPPED_NOTE = (
 def report_markdown(data, images, title='Calibration report', plots=True):
     """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots;
     ``plots=False``: the report says its plots were not drawn."""
-    from gsp_calibrator.report import accuracy as report_accuracy
+    from gsp_calibrator.report.accuracy import markdown_lines
 
     lines = [f'# {title}', '']
     lines.append(
@@ -303,7 +307,7 @@ def report_markdown(data, images, title='Calibration report', plots=True):
         f'- formulation: {data["formulation"]}; postures: {data["postures"]}; '
         f'free parameters: {len(data["free_parameters"])}; iterations: '
         f'{data["iterations"]}; identification time: '
-        f'{_fmt((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
+        f'{format_number((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
     )
     if data.get('excluded_postures'):
         lines.append(f'- excluded postures (FK failed): {data["excluded_postures"]}')
@@ -312,7 +316,7 @@ def report_markdown(data, images, title='Calibration report', plots=True):
         lines.append(
             f'- identifiability: rank {identifiability["rank"]} of '
             f'{identifiability["parameters"]}, scaled condition number '
-            f'{_fmt(identifiability["condition_number"])}'
+            f'{format_number(identifiability["condition_number"])}'
         )
         for entry in identifiability['unidentifiable']:
             lines.append(f'  - not identifiable: `{entry["combination"]}`')
@@ -328,18 +332,17 @@ def report_markdown(data, images, title='Calibration report', plots=True):
     if data['correlations']:
         lines += ['| a | b | correlation |', '|---|---|---|']
         lines += [
-            f'| {c["a"]} | {c["b"]} | {_fmt(c["correlation"], 4)} |' for c in data['correlations']
+            f'| {c["a"]} | {c["b"]} | {format_number(c["correlation"], 4)} |'
+            for c in data['correlations']
         ]
     else:
         lines.append('None.')
     lines.append('')
-    lines += report_accuracy.markdown_lines(
-        data.get('predicted_accuracy'), images.get('accuracy_map')
-    )
+    lines += markdown_lines(data.get('predicted_accuracy'), images.get('accuracy_map'))
     lines += ['## Residuals', '', '| sensor | RMS | unit |', '|---|---|---|']
     for sensor, rms in data['residual_rms'].items():
         lines.append(
-            f'| {SENSOR_LABEL.get(sensor, sensor)} | {_fmt(rms["report"])} | {rms["report_unit"]} |'
+            f'| {SENSOR_LABEL.get(sensor, sensor)} | {format_number(rms["report"])} | {rms["report_unit"]} |'
         )
     lines.append('')
     if 'residuals' in images:
@@ -366,7 +369,12 @@ def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration repo
 
 def _write_plots(run_dir, result, inputs):
     """The PNGs of :func:`write_report` (``inputs`` completed); returns ``{kind: path}``."""
-    from gsp_calibrator.report import accuracy as report_accuracy
+    from gsp_calibrator.report.accuracy import (
+        ACCURACY_MAP_PNG,
+        HELD_OUT_PNG,
+        plot_accuracy_map,
+        plot_held_out,
+    )
     from gsp_calibrator.report.plots import (
         plot_chain_errors,
         plot_parameter_errors,
@@ -391,15 +399,15 @@ def _write_plots(run_dir, result, inputs):
     if extra.get('accuracy'):
         acceptance = extra.get('acceptance') or {}
         predicted = (inputs.prediction or {}).get('random', {}).get('position_mm', {})
-        written['held_out'] = report_accuracy.plot_held_out(
-            _path(run_dir, report_accuracy.HELD_OUT_PNG),
+        written['held_out'] = plot_held_out(
+            _path(run_dir, HELD_OUT_PNG),
             extra['accuracy'],
             predicted.get('mean'),
             (acceptance.get('requirement') or {}).get('position_mm'),
         )
     if inputs.prediction is not None:
-        written['accuracy_map'] = report_accuracy.plot_accuracy_map(
-            _path(run_dir, report_accuracy.ACCURACY_MAP_PNG), inputs.prediction
+        written['accuracy_map'] = plot_accuracy_map(
+            _path(run_dir, ACCURACY_MAP_PNG), inputs.prediction
         )
     return written
 

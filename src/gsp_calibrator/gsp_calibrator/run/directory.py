@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_kinematics import channels
 from gsp_kinematics.fileio import atomic_write_bytes, atomic_write_text, to_json
 from gsp_kinematics.geometry import load_geometry, save_geometry
 from gsp_kinematics.noise_from_data import LAG_SUMS_CHANNELS
@@ -29,17 +30,15 @@ SUMMARY_FILE = 'summary.json'
 TRUE_GEOMETRY_FILE = 'true_geometry.yaml'
 
 POSE_COLUMNS = ('x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd')
-LEG_COLUMNS = ('leg_1', 'leg_2', 'leg_3', 'leg_4', 'leg_5', 'leg_6')
-READING_COLUMNS = ('alpha', 'beta', 'phi', 'd_m')
+LEG_COLUMNS = channels.LEG_JOINT_NAMES
+READING_COLUMNS = channels.READING_NAMES
 #: The lag sums of each row's window per noise channel (``noise_from_data.posture_lag_sums``,
 #: m^2 and rad^2): lags 0..n // 2, space-separated, empty when the row has none.
 LAG_SUM_COLUMNS = tuple(f'lag_sums_{channel}' for channel in LAG_SUMS_CHANNELS)
-#: Columns of a ``samples.csv`` written before the lag sums (still read: no within estimate).
-LEGACY_SAMPLES_COLUMNS = (
-    ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_samples', 'stamp')
-)
-#: Columns of ``samples.csv``, exactly (m, rad, s).
-SAMPLES_COLUMNS = LEGACY_SAMPLES_COLUMNS + LAG_SUM_COLUMNS
+#: The columns of a row's numbers (m, rad, s), before its lag sums.
+ROW_COLUMNS = ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_samples', 'stamp')
+#: Columns of ``samples.csv``, exactly.
+SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS
 
 TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
 
@@ -176,7 +175,7 @@ def samples_from_csv(text, source='<string>'):
         header = next(reader)
     except StopIteration:
         raise RunDirectoryError(f'{source}: empty file (expected a header)') from None
-    if tuple(header) not in (SAMPLES_COLUMNS, LEGACY_SAMPLES_COLUMNS):
+    if tuple(header) != SAMPLES_COLUMNS:
         raise RunDirectoryError(
             f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
         )
@@ -189,11 +188,11 @@ def samples_from_csv(text, source='<string>'):
             raise RunDirectoryError(f'{source}:{line}: {len(row)} values, expected {columns}')
         sums = [
             _lag_sums_values(text, source, line, name)
-            for name, text in zip(LAG_SUM_COLUMNS, row[len(LEGACY_SAMPLES_COLUMNS) :], strict=False)
+            for name, text in zip(LAG_SUM_COLUMNS, row[len(ROW_COLUMNS) :], strict=True)
         ]
-        lag_rows.append(sums or [[]] * len(LAG_SUM_COLUMNS))
+        lag_rows.append(sums)
         values = []
-        for name, text_value in zip(LEGACY_SAMPLES_COLUMNS, row, strict=False):
+        for name, text_value in zip(ROW_COLUMNS, row[: len(ROW_COLUMNS)], strict=True):
             try:
                 value = int(text_value) if name in ('posture', 'n_samples') else float(text_value)
             except ValueError:
@@ -270,15 +269,6 @@ class SamplesAppender:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
-
-
-def upgrade_samples_file(path, samples):
-    """Rewrite ``samples.csv`` (``samples``: its rows) with the current columns if it has the
-    legacy ones, so rows with lag sums can be appended to it (a resumed older run)."""
-    with open(path, encoding='utf-8') as stream:
-        header = stream.readline().strip()
-    if header != ','.join(SAMPLES_COLUMNS):
-        write_samples(path, samples)
 
 
 def read_samples(path):

@@ -12,14 +12,26 @@ import os
 import time
 import traceback
 
-from gsp_calibrator.collection import protocol
-from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import identify as calibration
+from gsp_calibrator.collection import protocol, topics
+from gsp_calibrator.recording.recorder import next_recording_file, settings_options
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import response as run_response
-from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.host import POSTURE_ENDS, RunHost, first_timeout
+from gsp_calibrator.run.identify import finish_run
+from gsp_calibrator.run.response import (
+    failure_message,
+    final_progress_message,
+    format_response,
+    posture_report,
+)
 from gsp_calibrator.run.session import RunRefused, RunWriteError, open_session
+from gsp_calibrator.run.state import (
+    PHASE_DONE,
+    PHASE_FAILED,
+    PHASE_IDENTIFYING,
+    PHASE_INTERRUPTED,
+    STATE_FILE,
+    settle_statistics,
+)
 from gsp_msgs_py import names
 
 
@@ -43,7 +55,7 @@ def system_checks(host, heard, timeout):
             '(is platform_sim running?)',
         ),
     ]
-    for topic in protocol.SENSOR_TOPICS:
+    for topic in topics.SENSOR_TOPICS:
         message = f'topic {topic} is silent: no message within {timeout:g} s'
         checks.append((lambda t=topic: heard(t), message))
     return checks
@@ -91,8 +103,8 @@ class CalibrationRun:
     def interrupted(self):
         """The node goes down during the run: mark state.json ``interrupted``."""
         state = self.session.state if self.session is not None else None
-        if state is not None and state.phase != run_state.PHASE_DONE:
-            self.save_state(run_state.PHASE_INTERRUPTED, 'the calibrator shut down during the run')
+        if state is not None and state.phase != PHASE_DONE:
+            self.save_state(PHASE_INTERRUPTED, 'the calibrator shut down during the run')
 
     async def run(self):
         """The whole run: ``(success, message)``."""
@@ -114,8 +126,8 @@ class CalibrationRun:
             f'calibration {"resumed" if self.resume else "started"}: run directory {session.run}'
         )
         try:
-            part = recording.next_recording_file(session.run.path)
-            host.recorder.start(part, options=recording.settings_options(settings))
+            part = next_recording_file(session.run.path)
+            host.recorder.start(part, options=settings_options(settings))
         except (OSError, ValueError, ImportError) as error:  # the run goes on without it
             part = None
             log.error(f'not recording the run: {error}')
@@ -126,8 +138,8 @@ class CalibrationRun:
             await self._wait_for_system()
             await self._collect()
         except (RunFailed, RunWriteError) as error:
-            self.save_state(run_state.PHASE_FAILED, str(error))
-            message = run_response.failure_message(error, len(session.samples), session.run)
+            self.save_state(PHASE_FAILED, str(error))
+            message = failure_message(error, len(session.samples), session.run)
             log.error(message)
             host.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
@@ -140,7 +152,7 @@ class CalibrationRun:
             if self.session is not None:
                 self.session.save(phase, stop_reason)
         except RunWriteError as error:
-            self.log.error(f'{run_state.STATE_FILE} not written: {error}')
+            self.log.error(f'{STATE_FILE} not written: {error}')
 
     async def _choose_postures(self, part):
         """Select the postures of a new run (a resumed one keeps its own) and order them from
@@ -223,9 +235,7 @@ class CalibrationRun:
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
-        report = run_response.posture_report(
-            event, self.settings.posture_count, self.settings.nominal
-        )
+        report = posture_report(event, self.settings.posture_count, self.settings.nominal)
         for level, line in report.log:  # one call site per severity (rclpy requires it)
             if level == 'warning':
                 self.log.warning(line)
@@ -240,24 +250,24 @@ class CalibrationRun:
         """Identify over every row, write the results, publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
-        self.save_state(run_state.PHASE_IDENTIFYING)
+        self.save_state(PHASE_IDENTIFYING)
         host.progress(
             count,
             names.PHASE_IDENTIFYING,
             f'identifying {settings.free_count} parameters from {len(session.samples)} postures',
         )
         finished = await host.in_thread(
-            calibration.finish_run,
+            finish_run,
             session.run,
             settings,
             session.samples,
             {
                 **self.collection.summary(),
                 'replacements': session.state.replacements,
-                'settle': run_state.settle_statistics(session.state.settle_waits),
+                'settle': settle_statistics(session.state.settle_waits),
                 'processing_lag': host.processing_lags.summary(),
             },
-            recording.settings_options(settings),
+            settings_options(settings),
         )
         if finished.report_error:
             log.error(f'report not written: {finished.report_error}')
@@ -265,10 +275,10 @@ class CalibrationRun:
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)
-            self.save_state(run_state.PHASE_FAILED, outcome.message)
+            self.save_state(PHASE_FAILED, outcome.message)
             host.progress(count, names.PHASE_FAILED, outcome.message, residuals)
             return False, summary
-        self.save_state(run_state.PHASE_DONE)
+        self.save_state(PHASE_DONE)
         geometry = outcome.geometry
         # A result that misses the required accuracy is written and latched, never applied.
         success, note = await host.deliver_result(settings, geometry, outcome.accepted)
@@ -280,8 +290,8 @@ class CalibrationRun:
         host.progress(
             count,
             phase,
-            run_response.final_progress_message(summary, success, note),
+            final_progress_message(summary, success, note),
             residuals,
             run_directory=session.run.path,
         )
-        return success, run_response.format_response(summary, geometry)
+        return success, format_response(summary, geometry)

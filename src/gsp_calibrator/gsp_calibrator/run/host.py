@@ -16,8 +16,9 @@ import threading
 import typing
 from collections.abc import Awaitable, Callable
 
-from gsp_calibrator.collection.protocol import FINAL_EVENTS, PostureSkipped, RowReady
-from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED, RecordingError
+from gsp_calibrator.collection.events import FINAL_EVENTS, PostureSkipped, RowReady
+from gsp_calibrator.recording.mcap_format import RecordingError
+from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED
 from gsp_calibrator.run.health import RunLags
 
 #: Results of :attr:`RunHost.wait_for`.

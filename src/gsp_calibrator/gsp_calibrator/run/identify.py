@@ -122,8 +122,8 @@ def identify_from_samples(
     """
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
-    if noise_source not in noise_from_data.NOISE_SOURCES:
-        raise CalibrationError(f'noise_source must be one of {noise_from_data.NOISE_SOURCES}')
+    if noise_from_data.noise_source_error(noise_source):
+        raise CalibrationError(f'noise_source {noise_from_data.noise_source_error(noise_source)}')
     free_mask = resolve_free(free)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -237,7 +237,7 @@ def finish_run(run, settings, samples, collection, options):
     """
     import traceback
 
-    from gsp_calibrator.report import write as report
+    from gsp_calibrator.report.write import outcome_inputs, write_all
     from gsp_calibrator.run.directory import RESULT_FILE
 
     outcome = identify_from_samples(
@@ -258,10 +258,10 @@ def finish_run(run, settings, samples, collection, options):
     report_error = ''
     if outcome.result is not None:
         try:
-            report.write_all(
+            write_all(
                 run.path,
                 outcome.result,
-                report.outcome_inputs(outcome, settings.nominal, options, collection=collection),
+                outcome_inputs(outcome, settings.nominal, options, collection=collection),
                 plots=settings.write_report_plots,
             )
         except Exception as error:

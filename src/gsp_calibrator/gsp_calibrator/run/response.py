@@ -7,6 +7,12 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.channels import (
+    DEVICE_CHANNELS,
+    LEG_LENGTHS,
+    PHI_READING_COLUMN,
+    READING_NAMES,
+)
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import (
     ALL_PARAMETER_NAMES,
@@ -68,11 +74,9 @@ def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
     pose = np.reshape(np.asarray(commanded_pose, dtype=float), (1, 6))
     legs = np.asarray(leg_lengths, dtype=float) - inverse_kinematics(nominal, pose)[0]
     device = np.asarray(readings, dtype=float) - device_readings(nominal, pose)[0]
-    device[2] = wrap_angle(device[2])
-    residuals = {'leg_lengths': float(np.max(np.abs(legs)))}
-    residuals.update(
-        {name: float(v) for name, v in zip(('alpha', 'beta', 'phi', 'd_m'), device, strict=True)}
-    )
+    device[PHI_READING_COLUMN] = wrap_angle(device[PHI_READING_COLUMN])
+    residuals = {LEG_LENGTHS: float(np.max(np.abs(legs)))}
+    residuals.update({name: float(v) for name, v in zip(READING_NAMES, device, strict=True)})
     return residuals
 
 
@@ -115,14 +119,18 @@ def posture_report(event, count, nominal):
     return PostureReport(log, PHASE_COLLECTING, text, residuals)
 
 
+#: The device readings that are angles (rad), summarised in degrees.
+ANGLE_READINGS = tuple(channel.name for channel in DEVICE_CHANNELS if channel.unit == 'rad')
+
+
 def residual_summary(residual_rms):
     """``'legs 0.06 um, alpha 0.0003 deg, ...'`` of per-sensor residual RMS (m, rad)."""
     parts = []
     for name, value in residual_rms.items():
-        if name in ('alpha', 'beta', 'phi'):
+        if name in ANGLE_READINGS:
             parts.append(f'{name} {math.degrees(value):.2g} deg')
         else:
-            parts.append(f'{"legs" if name == "leg_lengths" else name} {value * 1e6:.3g} um')
+            parts.append(f'{"legs" if name == LEG_LENGTHS else name} {value * 1e6:.3g} um')
     return ', '.join(parts)
 
 

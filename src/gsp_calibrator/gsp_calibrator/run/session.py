@@ -20,15 +20,24 @@ import threading
 import numpy as np
 
 from gsp_calibrator.collection.single_source import other_calibrators
-from gsp_calibrator.recording import recorder as recording
-from gsp_calibrator.run import state as run_state
+from gsp_calibrator.recording.mcap_io import recover_recordings
 from gsp_calibrator.run.directory import (
     SAMPLES_FILE,
     RunDirectory,
     RunDirectoryError,
     Samples,
     SamplesAppender,
-    upgrade_samples_file,
+)
+from gsp_calibrator.run.state import (
+    PHASE_COLLECTING,
+    STATE_FILE,
+    ResumeRefused,
+    RunState,
+    check_resume,
+    latest_unfinished_run,
+    postures_to_collect,
+    read_state,
+    selection_options,
 )
 from gsp_kinematics.fileio import atomic_write_text, to_json
 from gsp_msgs_py import names
@@ -86,19 +95,18 @@ class RunSession:
             if settings.resume_run_directory:
                 path = settings.resume_run_directory
             else:
-                path = run_state.latest_unfinished_run(settings.output_root, pid)
+                path = latest_unfinished_run(settings.output_root, pid)
             run = RunDirectory(path)
-            state = run_state.read_state(run.path)
+            state = read_state(run.path)
             samples = run.read_samples()
-            run_state.check_resume(state, settings, samples, pid)
-            upgrade_samples_file(run.file(SAMPLES_FILE), samples)
-        except (run_state.ResumeRefused, RunDirectoryError) as error:
+            check_resume(state, settings, samples, pid)
+        except (ResumeRefused, RunDirectoryError) as error:
             raise RunRefused(f'resume refused: {error}') from None
         # samples.csv decides what was collected: state.json lags it by the rows appended after
         # its last write (a killed calibrator), so those rows count as done from here on.
         for posture in samples.posture:
             state.record_done(int(posture))
-        recovered = recording.recover_recordings(run.path)
+        recovered = recover_recordings(run.path)
         state.sessions += 1
         return cls(run, samples, state, recovered)
 
@@ -111,12 +119,12 @@ class RunSession:
         ``recording_file``: this session's recording, if any. Writes state.json."""
         if self.state is None:
             poses = np.asarray(poses, dtype=float).reshape(-1, 6)
-            self.state = run_state.RunState(run_state.selection_options(settings), poses.tolist())
+            self.state = RunState(selection_options(settings), poses.tolist())
             self.remaining = list(range(1, len(poses) + 1))
         else:
-            self.remaining = run_state.postures_to_collect(self.state, self.samples)
+            self.remaining = postures_to_collect(self.state, self.samples)
         self.state.pid = int(pid)
-        self.state.phase, self.state.stop_reason = run_state.PHASE_COLLECTING, ''
+        self.state.phase, self.state.stop_reason = PHASE_COLLECTING, ''
         if recording_file is not None:
             self.state.recordings.append(os.path.basename(recording_file))
         path = self.run.file(SAMPLES_FILE)
@@ -196,7 +204,7 @@ class RunSession:
     def save(self, phase=None, stop_reason=None):
         """Rewrite state.json (atomic) with ``phase`` / ``stop_reason`` if given;
         :class:`RunWriteError` if it cannot be written (the previous one is then intact)."""
-        path = self.run.file(run_state.STATE_FILE)
+        path = self.run.file(STATE_FILE)
         with self._save_lock:
             with self._lock:
                 if self.state is None:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_calibrator.settings import SELECTION_PARAMETERS
 from gsp_kinematics.fileio import atomic_write_text, to_json
 from gsp_kinematics.identification import resolve_free
 
@@ -29,8 +30,8 @@ PHASE_DONE = 'done'
 #: Phases a run can be resumed from (``collecting`` only when its process is gone).
 RESUMABLE_PHASES = (PHASE_COLLECTING, PHASE_IDENTIFYING, PHASE_FAILED, PHASE_INTERRUPTED)
 
-#: Options of the selection, in the order a refusal names them.
-SELECTION_OPTIONS = ('posture_count', 'pool_size', 'seed', 'free_parameters', 'formulation')
+#: Options of the selection (the parameters marked so), in the order a refusal names them.
+SELECTION_OPTIONS = SELECTION_PARAMETERS
 DEVICE_PARAMETERS = ('device_length', 'inclinometer_axes_angle')
 POSE_TOLERANCE = 1e-9  #: m or rad: a samples.csv row and its selected posture agree to this
 
@@ -60,12 +61,11 @@ def nominal_digests(nominal):
 def selection_options(settings):
     """The options that decide the selection of ``settings`` (``CalibratorSettings``)."""
     platform, device = nominal_digests(settings.nominal)
+    options = settings.options(SELECTION_OPTIONS)
+    # Compared as the mask: 'paper' and its 44 names are the same selection.
+    options['free_parameters'] = list(resolve_free(list(settings.free_parameters)))
     return {
-        'posture_count': int(settings.posture_count),
-        'pool_size': int(settings.pool_size),
-        'seed': int(settings.seed),
-        'free_parameters': list(resolve_free(list(settings.free_parameters))),
-        'formulation': str(settings.formulation),
+        **options,
         'nominal_geometry_file': str(settings.nominal_geometry_file),
         'nominal_digest': platform,
         'device_digest': device,

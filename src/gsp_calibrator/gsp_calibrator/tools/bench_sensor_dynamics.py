@@ -26,9 +26,11 @@ from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LE
 from gsp_calibrator.tools.demo_commands import SENSOR_DYNAMICS
 from gsp_experiments.bench_sensor_errors import POSTURES, SAMPLES, SIGMAS
 from gsp_experiments.nominal_sets import default_true_and_nominal
+from gsp_kinematics.channels import DEVICE_CHANNELS, PHI_READING_COLUMN
 from gsp_kinematics.identification import Options, identify
 from gsp_kinematics.kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
 from gsp_kinematics.prediction import predicted_errors
+from gsp_kinematics.rotation import wrap_angle
 from gsp_kinematics.selection import select_postures
 from gsp_kinematics.sensors.dynamics import SensorDynamics
 from gsp_kinematics.sensors.noise import SensorNoise
@@ -56,9 +58,7 @@ def device_times():
     device = SENSOR_DYNAMICS['realistic']['device']
 
     def per_reading(kind):
-        return np.array(
-            [device[f'{sensor}_{kind}'] for sensor in ('inclinometer',) * 2 + ('encoder', 'lvdt')]
-        )
+        return np.array([device[f'{channel.sensor}_{kind}'] for channel in DEVICE_CHANNELS])
 
     return per_reading('response_time'), per_reading('noise_correlation_time')
 
@@ -153,7 +153,7 @@ def run_rule(rule, seeds, setting=None):
         )
         # The rows' device readings against the truth, in the rows' own noise.
         error = rows_readings - readings[index]
-        error[:, 2] = (error[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        error[:, PHI_READING_COLUMN] = wrap_angle(error[:, PHI_READING_COLUMN])
         z = error / weights.readings()
         result = identify(
             nominal,

@@ -19,9 +19,9 @@ import statistics
 
 import numpy as np
 
-from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
 from gsp_kinematics.geometry import PARAMETER_INDEX, Geometry, default_geometry
@@ -150,7 +150,7 @@ def one_run(design, effects, seed):
     """The figures of one seeded run: measured (cross-validated), predicted and true accuracy,
     the unmodelled leg error (um) and whether the result is applied."""
     settings = design.settings
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         settings.nominal,
         simulated_samples(design, effects, seed),
         settings.sigmas,

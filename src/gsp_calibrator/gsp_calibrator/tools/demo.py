@@ -13,7 +13,7 @@
    prints its path, stops every node (SIGINT, then SIGTERM, then SIGKILL) and
    exits 0 on success, 1 on failure.
 
-The orchestration (commands, process handling, summary) is plain Python; :class:`DemoNode` is the
+The orchestration (commands, process handling, summary) is plain Python; :class:`.demo_node.DemoNode` is the
 thin ROS part (a client of the suite's topics and service), driven from the main thread.
 """
 
@@ -36,23 +36,20 @@ from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
 from gsp_calibrator.tools.demo_commands import (
     MOVING_SETTLE_TIMEOUT_S,
     NODES,
-    PLATFORM_EFFECTS,
     SENSOR_DYNAMICS,
     node_commands,
     ros_environment,
 )
-from gsp_calibrator.tools.demo_summary import (  # noqa: F401 (the demo's figures)
-    FIT_KEYS,
-    VALIDATION_KEYS,
+from gsp_calibrator.tools.demo_summary import (
     DemoSummary,
     collection_record,
     fit_record,
-    parameter_error_maxima,
     summary_text,
     validation_details,
     validation_summary,
 )
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
+from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.noise_from_data import NOISE_SOURCES
@@ -124,7 +121,7 @@ def parse_arguments(argv=None):
     add(
         '--platform-effects',
         default='none',
-        choices=tuple(PLATFORM_EFFECTS),
+        choices=tuple(PRESETS),
         help="platform_sim's real platform: none, rigid and ideal; realistic: 40 kg on 30 N/um "
         'legs, 4 um backlash, legs warming 1.5 K within 15 min, base joint axes 20 um apart '
         '(docs/platform_effects.md) (none)',
@@ -317,9 +314,9 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
     try:  # the calibrator's report, now against the truth and with the validation distributions
-        from gsp_calibrator.tools import reidentify as offline
+        from gsp_calibrator.tools.reidentify import refresh_report
 
-        offline.refresh_report(
+        refresh_report(
             run_directory.path,
             truth=true_geometry,
             validation_before=measured.details_before,

@@ -8,7 +8,7 @@ fed by gsp_fake_device) and the calibrator.
 import shutil
 import sys
 
-from gsp_kinematics.effects.model import PRESETS as PLATFORM_EFFECTS
+from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.fileio import yaml_float
 from gsp_msgs_py.ros_environment import loopback_environment
 
@@ -101,7 +101,7 @@ def platform_effect_parameters(args):
     name = getattr(args, 'platform_effects', 'none')
     if name == 'none':
         return []
-    values = PLATFORM_EFFECTS[name].to_parameters('effects.')
+    values = PRESETS[name].to_parameters('effects.')
     return [a for key, value in values.items() for a in ('-p', f'{key}:={_parameter_text(value)}')]
 
 
@@ -176,9 +176,9 @@ def _calibrator_parameters(args, output_root, rate):
         '-p',
         f'output_root:={output_root}',
         '-p',
-        f'posture_count:={int(args.postures)}',
+        f'posture_count:={int(args.posture_count)}',
         '-p',
-        f'pool_size:={max(int(args.pool_size), int(args.postures))}',
+        f'pool_size:={max(int(args.pool_size), int(args.posture_count))}',
         '-p',
         f'samples_per_posture:={int(args.samples_per_posture)}',
         '-p',
@@ -190,7 +190,7 @@ def _calibrator_parameters(args, output_root, rate):
         '-p',
         f'noise_source:={args.noise_source}',
         '-p',
-        f'free_parameters:=[{",".join(args.free)}]',
+        f'free_parameters:=[{",".join(args.free_parameters)}]',
         '-p',
         'apply_result:=true',
         '-p',

@@ -96,7 +96,12 @@ def parse_arguments(argv=None):
     add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
     add_run_options(parser, seed_help="the calibrator's seed of the posture pool")
     defaults = DEFAULT_SENSOR_NOISE
-    add('--sigma-leg-um', type=float, default=defaults.leg_lengths * 1e6, help='leg sensor, µm')
+    add(
+        '--sigma-leg-lengths-um',
+        type=float,
+        default=defaults.leg_lengths * 1e6,
+        help='leg sensor, µm',
+    )
     add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
     add('--sigma-encoder-deg', type=float, default=math.degrees(defaults.encoder))
     add('--sigma-lvdt-um', type=float, default=defaults.lvdt * 1e6, help='LVDT, µm')
@@ -135,7 +140,7 @@ def parse_arguments(argv=None):
     if reason:
         parser.error(reason)
     for name in (
-        'sigma_leg_um',
+        'sigma_leg_lengths_um',
         'sigma_inclinometer_deg',
         'sigma_encoder_deg',
         'sigma_lvdt_um',
@@ -155,7 +160,7 @@ def parse_arguments(argv=None):
 def design_from(args):
     """The :class:`Design` of the command line."""
     sigmas = SensorNoise(
-        leg_lengths=args.sigma_leg_um * 1e-6,
+        leg_lengths=args.sigma_leg_lengths_um * 1e-6,
         inclinometer=math.radians(args.sigma_inclinometer_deg),
         encoder=math.radians(args.sigma_encoder_deg),
         lvdt=args.sigma_lvdt_um * 1e-6,
@@ -168,7 +173,7 @@ def design_from(args):
     )
     return Design(
         sigmas=sigmas,
-        free=tuple(args.free),
+        free=tuple(args.free_parameters),
         formulation=args.formulation,
         workspace=workspace,
         pool_size=args.pool_size,
@@ -233,7 +238,7 @@ def _inputs(args, design, limits):
     """The plan's inputs, as written beside it (SI units)."""
     inputs = {
         'geometry': str(args.geometry),
-        'sigmas': design.sigmas.to_record(),
+        'sigmas': design.sigmas.channels(),
         'workspace': {
             'xy_range_m': design.workspace.xy_range,
             'z_min_m': design.workspace.z_min,
@@ -245,7 +250,7 @@ def _inputs(args, design, limits):
         'pool_size': args.pool_size,
         'seed': args.seed,
         'formulation': args.formulation,
-        'free': args.free,
+        'free': args.free_parameters,
         'max_leg_speed_m_s': limits.max_speed,
         'max_leg_acceleration_m_s2': limits.max_acceleration,
     }
@@ -312,7 +317,7 @@ def main(argv=None):
                 'inputs': inputs,
                 **plan(
                     nominal,
-                    args.postures,
+                    args.posture_count,
                     args.samples_per_posture,
                     design,
                     limits=limits,

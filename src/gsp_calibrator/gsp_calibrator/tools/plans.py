@@ -123,7 +123,7 @@ def plan(
     selection=None,
     limits=MotionLimits(),
 ):
-    """One plan (a JSON-ready dict); ``selection``: a :class:`.calibration.PostureSelection` of
+    """One plan (a JSON-ready dict); ``selection``: a :class:`gsp_calibrator.run.postures.PostureSelection` of
     these settings to reuse (the sweep shares one per posture count); ``limits``: the legs'
     motion limits of the platform time."""
     if samples_per_posture < 1:

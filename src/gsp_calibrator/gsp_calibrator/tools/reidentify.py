@@ -20,17 +20,17 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_calibrator.run import identify as calibration
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import response as run_response
 from gsp_calibrator.run.directory import (
     RESULT_FILE,
     TRUE_GEOMETRY_FILE,
     RunDirectory,
 )
-from gsp_calibrator.settings import DEFAULTS
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL, outcome_summary
+from gsp_calibrator.settings import DEFAULTS, PARAMETER_SPECS, option_name
 from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
-    _SIGMA_OPTIONS,
+    OPTION_PARAMETERS,
     InputError,
     free_parameters,
     geometry_option,
@@ -46,9 +46,7 @@ from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
     default_geometry_path,
 )
-from gsp_kinematics.goodness import LOSSES
-from gsp_kinematics.identification import FORMULATIONS, IdentificationError, Options
-from gsp_kinematics.noise_from_data import NOISE_SOURCES
+from gsp_kinematics.identification import IdentificationError, Options
 from gsp_kinematics.sensors.noise import SensorNoise
 
 EXIT_OK = 0
@@ -73,59 +71,26 @@ def build_parser():
         'if that file exists, else the shipped nominal, '
         f'{default_geometry_path("nominal")})',
     )
-    parser.add_argument(
-        '--formulation',
-        choices=FORMULATIONS,
-        default=None,
-        help=f'identification formulation ({stored} {DEFAULTS["formulation"]})',
-    )
-    parser.add_argument(
-        '--noise-source',
-        choices=NOISE_SOURCES,
-        default=None,
-        help="noise of the weights: estimated from the data (the rows' within-posture lag "
-        'sums and the between-posture residuals) or configured (the --sigma-* options) '
-        f'({stored} {DEFAULTS["noise_source"]})',
-    )
-    parser.add_argument(
-        '--loss',
-        choices=LOSSES,
-        default=None,
-        help=f'loss of the fit: linear, or robust huber/cauchy ({stored} {DEFAULTS["loss"]})',
-    )
-    parser.add_argument(
-        '--free',
-        nargs='+',
-        metavar='NAME',
-        default=None,
-        help='parameters identified: groups paper (the 44) or extended (the 44 and the '
-        'identifiable sensor errors), and/or names (comma-separated lists allowed, e.g. '
-        f'paper kq1 or A1x B1x,B1y Loff1 D0 gamma; {stored} extended)',
-    )
-    for name, option, metavar, what in _SIGMA_OPTIONS:
+    for name in OPTION_PARAMETERS:
+        default = DEFAULTS[name]
+        if isinstance(default, list):
+            parser.add_argument(
+                option_name(name),
+                dest=name,
+                nargs='+',
+                metavar='NAME',
+                default=None,
+                help=f'{PARAMETER_SPECS[name].description}; comma-separated lists allowed '
+                f'({stored} {" ".join(default)})',
+            )
+            continue
         parser.add_argument(
-            option,
-            type=float,
+            option_name(name),
+            dest=name,
+            type=type(default),
             default=None,
-            metavar=metavar,
-            help=f'noise std of one {what} ({stored} {DEFAULTS[name]:g})',
+            help=f'{PARAMETER_SPECS[name].description} ({stored} {default})',
         )
-    parser.add_argument(
-        '--samples-per-posture',
-        type=int,
-        default=None,
-        metavar='N',
-        help='recording input: synchronised samples averaged per posture '
-        f'({stored} {DEFAULTS["samples_per_posture"]})',
-    )
-    parser.add_argument(
-        '--sync-tolerance',
-        type=float,
-        default=None,
-        metavar='S',
-        help='recording input: largest stamp difference of a pair, s '
-        f'({stored} {DEFAULTS["sync_tolerance"]:g})',
-    )
     parser.add_argument(
         '--output-root',
         default=DEFAULTS['output_root'],
@@ -221,8 +186,8 @@ def _validation_line(when, validation):
 def reidentify(args, out=None):
     """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
     out = sys.stdout if out is None else out
-    if args.free is not None:
-        free_parameters(args.free)  # a bad name is reported before anything is read
+    if args.free_parameters is not None:
+        free_parameters(args.free_parameters)  # a bad name is reported before anything is read
     kind, path, source_dir = resolve_input(args.input)
     options = resolve_options(args, stored_options(kind, path, source_dir))
     sigmas = SensorNoise.from_parameters(options)
@@ -235,7 +200,7 @@ def reidentify(args, out=None):
     samples = load_input(kind, path, options)
 
     try:
-        outcome = calibration.identify_from_samples(
+        outcome = identify_from_samples(
             nominal,
             samples,
             sigmas,
@@ -286,11 +251,11 @@ def reidentify(args, out=None):
                 run, outcome.result, inputs, 'Offline re-identification', not args.no_plots
             )
 
-    print(run_response.outcome_summary(outcome, reference=truth), file=out)
+    print(outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
         if validation is not None:
             print(_validation_line(when, validation), file=out)
-    print(f'{run_response.RUN_DIRECTORY_LABEL}{run.path}', file=out)
+    print(f'{RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
 
@@ -299,7 +264,7 @@ def stored_weights(stored, options, samples):
     its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
 
     A ``samples.csv`` with the rows' lag sums holds what an ``estimated`` run's noise came from.
-    One written before them keeps only the averages: the row noise the run used
+    Rows without any (single samples) keep only the averages: the row noise the run used
     (``result.json`` ``sigmas``) is given as configured per-sample sigmas, and its noise
     estimates and goodness of fit are kept as written."""
     source = options.get('noise_source', DEFAULTS['noise_source'])
@@ -307,7 +272,7 @@ def stored_weights(stored, options, samples):
     if np.isfinite(samples.lag_sums).any():
         return sigmas, source, ('collection',)
     if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
-        rows = SensorNoise.from_record(stored['sigmas'])
+        rows = SensorNoise.from_channels(stored['sigmas'])
         root = float(np.sqrt(np.median(samples.n_samples))) if len(samples) else 1.0
         sigmas = SensorNoise.from_channels({k: v * root for k, v in rows.channels().items()})
         return (
@@ -346,7 +311,7 @@ def refresh_report(
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
     sigmas, source, kept_keys = stored_weights(stored, options, samples)
-    outcome = calibration.identify_from_samples(
+    outcome = identify_from_samples(
         nominal,
         samples,
         sigmas,

@@ -11,8 +11,8 @@ import dataclasses
 import os
 
 from gsp_calibrator.run import postures
-from gsp_calibrator.run import state as run_state
 from gsp_calibrator.run.flow import CalibrationRun, RunFailed
+from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, PHASE_IDENTIFYING
 from gsp_calibrator.upkeep import check_run, history
 from gsp_calibrator.upkeep.calibration_files import RESULT_JSON
 from gsp_kinematics import check
@@ -75,7 +75,7 @@ class CheckRun(CalibrationRun):
         """Judge the collected rows, write check.json, index the check; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
-        self.save_state(run_state.PHASE_IDENTIFYING)
+        self.save_state(PHASE_IDENTIFYING)
         host.progress(count, PHASE_CHECKING, f'checking from {len(session.samples)} postures')
         try:
             data = await host.in_thread(
@@ -89,11 +89,11 @@ class CheckRun(CalibrationRun):
             )
             await host.in_thread(check_run.write_check, session.run.path, data)
         except (check_run.CheckError, OSError, ValueError) as error:
-            self.save_state(run_state.PHASE_FAILED, str(error))
+            self.save_state(PHASE_FAILED, str(error))
             host.progress(count, names.PHASE_FAILED, f'check failed: {error}')
             log.error(f'check failed: {error}')
             return False, f'check failed: {error}\nrun directory: {session.run.path}'
-        self.save_state(run_state.PHASE_DONE)
+        self.save_state(PHASE_DONE)
         await record_in_history(host, settings, session.run.path)
         summary = check_run.check_summary(data) + f'\nrun directory: {session.run.path}'
         if data['verdict'] == check.VERDICTS[0]:  # one call site per severity (rclpy)

@@ -31,8 +31,6 @@ from gsp_kinematics.geometry import GeometryError, load_geometry
 from gsp_kinematics.sensors.noise import NOISE_FIELDS, SensorNoise
 
 RESULT_YAML = 'result.yaml'
-#: result.json's noise_estimates channels are the SensorNoise fields.
-_CHANNELS = NOISE_FIELDS
 
 
 class CheckError(RuntimeError):
@@ -54,7 +52,7 @@ class CheckReference:
 def _noise_of(data, key):
     """A SensorNoise of result.json's ``noise_estimates[channel][key]`` (None if absent)."""
     estimates = data.get('noise_estimates') or {}
-    values = {channel: (estimates.get(channel) or {}).get(key) for channel in _CHANNELS}
+    values = {channel: (estimates.get(channel) or {}).get(key) for channel in NOISE_FIELDS}
     if any(value is None for value in values.values()):
         return None
     return SensorNoise(**{channel: float(value) for channel, value in values.items()})
@@ -166,7 +164,7 @@ def evaluate_check(reference, samples, sigmas, required, platform, planned_s=Non
         'calibration_run': reference.run_dir,
         'postures': len(samples),
         'planned_platform_time_s': planned_s,
-        'row_noise': rows.to_record(),
+        'row_noise': rows.channels(),
         'noise_from': 'the calibration' if reference.noise is not None else 'configured sigmas',
         'unmodelled_included': reference.unmodelled is not None,
     }

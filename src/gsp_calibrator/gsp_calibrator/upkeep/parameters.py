@@ -17,6 +17,7 @@ UPKEEP_PARAMETERS = (
         'latest accepted calibration',
         constraints="1-64 of letters, digits, '-', '_', '.'",
         check=lambda v: '' if _PLATFORM_ID.match(str(v)) else 'must be 1-64 of [A-Za-z0-9_.-]',
+        subsets=frozenset(('stored',)),  # settings.STORED (settings imports this table)
     ),
     ParameterSpec(
         'check_geometry_file',

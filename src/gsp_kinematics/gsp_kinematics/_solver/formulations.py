@@ -14,6 +14,7 @@ solve, and what the result reports (information, residuals per sensor, poses, no
 
 import numpy as np
 
+from .. import channels
 from ..device import READING_NAMES, paper_inclinations_jacobians
 from ..geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX, Geometry
 from ..kinematics import (
@@ -27,7 +28,7 @@ from .readings import PHI_ROW, ReadingsModel, readings_jacobians
 from .redundancy import redundancy_flat, redundancy_with_poses
 
 #: Column of the yaw reading ``phi`` in ``READING_NAMES`` (an angle: its residual is wrapped).
-_PHI = READING_NAMES.index('phi')
+_PHI = channels.PHI_READING_COLUMN
 _KQ = slice(PARAMETER_INDEX['kq1'], PARAMETER_INDEX['kq6'] + 1)
 _D0, _GAMMA, _KDM = PARAMETER_INDEX['D0'], PARAMETER_INDEX['gamma'], PARAMETER_INDEX['kDm']
 #: Columns of the offsets alpha0, beta0, phi0: each adds to the reading of its row (0, 1, 2).
@@ -287,7 +288,7 @@ class _ImplicitModel(_Model):
         self.columns = [c for c in range(4) if READING_NAMES[c] in sensors]
         self.leg_weight = 1.0 / sigmas.leg_lengths
         self.reading_weights = 1.0 / sigmas.readings()[self.columns]
-        self.use_legs = 'leg_lengths' in sensors
+        self.use_legs = channels.LEG_LENGTHS in sensors
         self.root_weights = None  #: (M, k) square roots of the robust weights (None: all 1)
         # The residual's rows among the ten readings of a posture (_readings.ROW_NAMES).
         self.rows = (list(range(6)) if self.use_legs else []) + [6 + c for c in self.columns]
@@ -427,7 +428,7 @@ class _ImplicitModel(_Model):
 
     def column_names(self):
         """Name of each residual column."""
-        legs = [f'leg{leg}' for leg in range(1, 7)] if self.use_legs else []
+        legs = list(channels.sensor_channel_names(channels.LEG_LENGTHS)) if self.use_legs else []
         return legs + [READING_NAMES[c] for c in self.columns]
 
     def sensor_columns(self):
@@ -435,8 +436,11 @@ class _ImplicitModel(_Model):
         columns = {}
         first = 0
         if self.use_legs:
-            columns['leg_lengths'] = (slice(0, 6), self.leg_weight)
-            first = 6
+            columns[channels.LEG_LENGTHS] = (
+                channels.SENSOR_SLICES[channels.LEG_LENGTHS],
+                self.leg_weight,
+            )
+            first = channels.LEG_COUNT
         for i, c in enumerate(self.columns):
             columns[READING_NAMES[c]] = (first + i, self.reading_weights[i])
         return columns

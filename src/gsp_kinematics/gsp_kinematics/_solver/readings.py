@@ -14,14 +14,15 @@ Levenberg-Marquardt driver rejects never pays for its Jacobian.
 
 import numpy as np
 
-from ..device import READING_NAMES, position_to_inclinations
+from .. import channels
+from ..device import position_to_inclinations
 from ..geometry import NUM_ALL_PARAMETERS, PARAMETER_INDEX
 from ..rotation import euler_to_matrix
 
 #: The ten readings of a posture, in row order.
-ROW_NAMES = tuple(f'leg{leg}' for leg in range(1, 7)) + READING_NAMES
+ROW_NAMES = channels.CHANNEL_NAMES
 #: Row of the yaw reading ``phi`` (an angle: a difference of it is wrapped).
-PHI_ROW = ROW_NAMES.index('phi')
+PHI_ROW = channels.CIRCULAR_COLUMNS[0]
 #: Extended-vector columns each leg row depends on: ``A_i (3), B_i (3), L_off_i, kq_i``.
 _LEG_COLUMNS = np.array(
     [

@@ -261,3 +261,30 @@ def design_rows(design, rows):
         times_s=None if design.times_s is None else np.asarray(design.times_s)[rows],
         directions=None if design.directions is None else np.asarray(design.directions)[rows],
     )
+
+
+def effect_estimates(model, point, status, all_deviations):
+    """Of an identification's ``model`` at ``point``: ``(free (24,), estimates (24,), standard deviations (24,))`` of the effect parameters;
+    ``all_deviations``: of the free parameters, then of the free effects."""
+    count = NUM_EFFECT_PARAMETERS
+    free, values, deviations = np.zeros(count, bool), np.zeros(count), np.full(count, np.nan)
+    if effect_terms_of(model) is not None:
+        first = int(model.free.sum())
+        free = model.effects.mask.copy()
+        deviations[free] = all_deviations[first:]
+        if status >= 0:
+            values[free] = point.values[first:]
+    return free, values, deviations
+
+
+def geometry_with_effects(geometry, model, effect_values):
+    """``geometry`` carrying the identified effects (what its controller compensates)."""
+    if effect_terms_of(model) is None:
+        return geometry
+    design = model.effects.design
+    return geometry.replace(effects=IdentifiedEffects.from_result_values(effect_values, design))
+
+
+def effect_terms_of(model):
+    """The model's :class:`EffectTerms` (None: no effect parameter free)."""
+    return getattr(model, 'effects', None)

@@ -1,10 +1,18 @@
 """The noise of the measuring sensors: one type, :class:`SensorNoise`, and its conversions.
 
-A :class:`SensorNoise` holds the standard deviation of one sample of each sensor: the six leg
-lengths (m, one value for all legs), the inclinometer (rad, alpha and beta), the encoder (rad,
-phi) and the LVDT (m, d_m). It weighs the identification's residuals, sets the collector's
-consistency window and is written into ``result.json``, the run options and the recording's
-metadata. Each of those views is one method here, so no caller unpacks the fields itself:
+A :class:`SensorNoise` holds the standard deviation of one sample of each sensor of
+:mod:`gsp_kinematics.channels`: the six leg lengths (m, one value for all legs), the
+inclinometer (rad, alpha and beta), the encoder (rad, phi) and the LVDT (m, d_m). It serves on
+both sides, under two names (the same in parameters, files and code):
+
+- the **true noise** a simulated sensor draws (platform_sim, device_driver's ``sim`` backend,
+  gsp_fake_device): parameters ``<sensor>_noise_std`` (:data:`TRUE_NOISE_PARAMETER`);
+- the **assumed noise** ``sigma`` the calibrator weighs the residuals with and sets its
+  consistency window from: parameters and run options ``sigma_<sensor>``
+  (:data:`ASSUMED_NOISE_PARAMETER`), ``result.json`` ``sigmas`` (per sensor) and code
+  ``sigmas.<sensor>``.
+
+Each view is one method here, so no caller unpacks the fields itself:
 
 - :meth:`SensorNoise.readings`: the four device readings ``[alpha, beta, phi, d_m]``;
 - :meth:`SensorNoise.channel_std` / :meth:`SensorNoise.from_channel_std`: the collector's ten
@@ -13,9 +21,7 @@ metadata. Each of those views is one method here, so no caller unpacks the field
   name, as :func:`gsp_kinematics.goodness.estimate_noise` gives a data estimate;
 - :meth:`SensorNoise.averaged`: the noise of a row that averages ``n`` samples;
 - :meth:`SensorNoise.to_parameters` / :meth:`SensorNoise.from_parameters`: node parameters and
-  run options (``sigma_<field>`` on the calibrator, ``<field>_noise_std`` on the simulated nodes);
-- :meth:`SensorNoise.to_record` / :meth:`SensorNoise.from_record`: the JSON record of
-  ``result.json`` and ``gsp_plan`` (``leg_lengths_m``, ``inclinometer_rad``...).
+  run options, named by one of the two patterns.
 
 :data:`DEFAULT_SENSOR_NOISE` is the one default noise level of the suite (Table 3's first level,
 0.001 deg and 0.001 mm): the simulated platform and device, the fake serial device and the
@@ -27,13 +33,17 @@ import math
 
 import numpy as np
 
-#: The fields of :class:`SensorNoise`, in order, with their SI unit.
-NOISE_FIELDS = ('leg_lengths', 'inclinometer', 'encoder', 'lvdt')
-NOISE_UNITS = {'leg_lengths': 'm', 'inclinometer': 'rad', 'encoder': 'rad', 'lvdt': 'm'}
-#: Prefix of the calibrator's noise parameters and run options (``sigma_leg_lengths``...).
-CALIBRATOR_PARAMETER_PREFIX = 'sigma_'
-#: Number of legs, hence leg-length channels.
-_LEGS = 6
+from gsp_kinematics import channels
+
+#: The fields of :class:`SensorNoise`: the sensors of :data:`gsp_kinematics.channels.CHANNELS`.
+NOISE_FIELDS = channels.SENSORS
+#: Each field's SI unit (its channels' unit).
+NOISE_UNITS = {channel.sensor: channel.unit for channel in channels.CHANNELS}
+#: Name of a sensor's true noise std on the simulated nodes (``inclinometer_noise_std``).
+TRUE_NOISE_PARAMETER = '{}_noise_std'
+#: Name of a sensor's assumed noise std on the calibrator and in its run options
+#: (``sigma_inclinometer``).
+ASSUMED_NOISE_PARAMETER = 'sigma_{}'
 
 
 class SensorNoiseError(ValueError):
@@ -69,19 +79,23 @@ class SensorNoise:
 
     def readings(self):
         """Standard deviations of the device readings ``[alpha, beta, phi, d_m]`` (4,)."""
-        return np.array([self.inclinometer, self.inclinometer, self.encoder, self.lvdt])
+        return np.array([getattr(self, channel.sensor) for channel in channels.DEVICE_CHANNELS])
 
     def channel_std(self):
         """The collector's ten channel standard deviations ``[q_1..q_6, alpha, beta, phi, d_m]``."""
-        return np.concatenate([np.full(_LEGS, self.leg_lengths), self.readings()])
+        return np.array([getattr(self, channel.sensor) for channel in channels.CHANNELS])
 
     @classmethod
     def from_channel_std(cls, values):
         """Inverse of :meth:`channel_std` (ten values; each sensor's first channel is used)."""
         values = np.asarray(values, dtype=float).reshape(-1)
-        if values.shape != (_LEGS + 4,):
-            raise SensorNoiseError(f'noise_std must hold 10 values, got {values.tolist()}')
-        return cls(float(values[0]), float(values[6]), float(values[8]), float(values[9]))
+        if values.shape != (channels.CHANNEL_COUNT,):
+            raise SensorNoiseError(
+                f'noise_std must hold {channels.CHANNEL_COUNT} values, got {values.tolist()}'
+            )
+        return cls(
+            **{name: float(values[channels.sensor_columns(name)[0]]) for name in NOISE_FIELDS}
+        )
 
     def channels(self):
         """``{field: std}`` in :data:`NOISE_FIELDS` order."""
@@ -112,33 +126,28 @@ class SensorNoise:
 
     # --- parameters and files -----------------------------------------------------------------
 
-    def to_parameters(self, prefix=CALIBRATOR_PARAMETER_PREFIX, suffix=''):
-        """``{prefix + field + suffix: std}``: the calibrator's ``sigma_<field>`` by default."""
-        return {f'{prefix}{name}{suffix}': value for name, value in self.channels().items()}
+    def to_parameters(self, pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
+        """``{pattern.format(sensor): std}`` of ``sensors``: the calibrator's ``sigma_<sensor>``
+        by default, :data:`TRUE_NOISE_PARAMETER` for a simulated sensor's."""
+        return {pattern.format(name): float(getattr(self, name)) for name in sensors}
 
     @classmethod
-    def from_parameters(cls, values, prefix=CALIBRATOR_PARAMETER_PREFIX, suffix='', default=None):
+    def from_parameters(cls, values, pattern=ASSUMED_NOISE_PARAMETER, default=None):
         """Inverse of :meth:`to_parameters`; a missing key is taken from ``default`` (a
-        :class:`SensorNoise`, :data:`DEFAULT_SENSOR_NOISE` when None)."""
+        :class:`SensorNoise`, :data:`DEFAULT_SENSOR_NOISE` when None): with the current noise
+        as ``default``, this applies changed parameters."""
         default = DEFAULT_SENSOR_NOISE if default is None else default
         return cls.from_channels(
-            {name: values.get(f'{prefix}{name}{suffix}') for name in NOISE_FIELDS}, default
+            {name: values.get(pattern.format(name)) for name in NOISE_FIELDS}, default
         )
 
-    def to_record(self):
-        """The JSON record of ``result.json`` and ``gsp_plan``: ``{field_unit: std}``."""
-        return {f'{name}_{NOISE_UNITS[name]}': value for name, value in self.channels().items()}
-
-    @classmethod
-    def from_record(cls, record):
-        """Inverse of :meth:`to_record`."""
-        try:
-            return cls(
-                **{name: float(record[f'{name}_{NOISE_UNITS[name]}']) for name in NOISE_FIELDS}
-            )
-        except (KeyError, TypeError, ValueError) as error:
-            raise SensorNoiseError(f'not a sensor noise record: {record!r} ({error})') from None
+    @staticmethod
+    def parameter_names(pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
+        """The parameter names of ``sensors`` under ``pattern``."""
+        return tuple(pattern.format(name) for name in sensors)
 
 
 #: The suite's default noise: Table 3's first level (0.001 deg, 0.001 mm) on every sensor.
 DEFAULT_SENSOR_NOISE = SensorNoise()
+#: No noise at all (a simulated sensor's default when no noise is given).
+NO_NOISE = SensorNoise(0.0, 0.0, 0.0, 0.0)

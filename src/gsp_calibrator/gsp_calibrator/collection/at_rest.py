@@ -1,5 +1,6 @@
-"""The settle verdict of a span of synchronised pairs (pure, no rclpy): is every channel at
-rest? The rule and its parameters are in :mod:`gsp_calibrator.collection.synchroniser` and
+"""Is every channel at rest? The verdict on a span of synchronised pairs (pure, no rclpy).
+
+The rule and its parameters are in :mod:`gsp_calibrator.collection.synchroniser` and
 docs/sensor_errors.md; the test itself is
 :func:`gsp_kinematics.sensors.noise_estimate.settle_test`.
 """

@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from .node_tools import spin_until
-from .ros_environment import DomainInUseError, enter_private_domain
+from gsp_msgs_py.node_tools import spin_until
+from gsp_msgs_py.ros_environment import DomainInUseError, enter_private_domain
 
 
 def wait_until(predicate, timeout):
@@ -225,13 +225,13 @@ class NodeHarness:
         self.executor.add_node(self.node)
         if node_under_test.get_parameter('use_sim_time').value:
             drive_sim_clock(self.node)
-        from .diagnostics import DiagnosticsListener
+        from gsp_msgs_py.diagnostics import DiagnosticsListener
 
         self.diagnostics = DiagnosticsListener(self.node)  #: what /diagnostics said
 
     def subscribe(self, topic, callback):
         """Subscribe the test node to ``topic`` with its interface type and QoS."""
-        from . import names, qos
+        from gsp_msgs_py import names, qos
 
         return self.node.create_subscription(
             names.interface_type(names.TOPIC_TYPES[topic]), topic, callback, qos.TOPIC_QOS[topic]
@@ -239,7 +239,7 @@ class NodeHarness:
 
     def publisher(self, topic):
         """A publisher of the test node on ``topic`` with its interface type and QoS."""
-        from . import names, qos
+        from gsp_msgs_py import names, qos
 
         return self.node.create_publisher(
             names.interface_type(names.TOPIC_TYPES[topic]), topic, qos.TOPIC_QOS[topic]
