@@ -225,6 +225,22 @@ class FinishedRun:
     report_error: str = ''  #: '' when result.json and report.md were written (or not due)
 
 
+def identify_with_settings(settings, samples):
+    """:func:`identify_from_samples` of ``samples`` as a calibrator with ``settings`` (its
+    ``CalibratorSettings``) identifies them."""
+    return identify_from_samples(
+        settings.nominal,
+        samples,
+        settings.sigmas,
+        list(settings.free_parameters),
+        settings.formulation,
+        settings.noise_source,
+        settings.requirement,
+        settings.cross_validation_folds,
+        options=settings.identify_options(),
+    )
+
+
 def finish_run(run, settings, samples, collection, options):
     """Identify a collected run and write its files (pure; the node runs it in a worker thread).
 
@@ -240,17 +256,7 @@ def finish_run(run, settings, samples, collection, options):
     from gsp_calibrator.report.write import outcome_inputs, write_all
     from gsp_calibrator.run.directory import RESULT_FILE
 
-    outcome = identify_from_samples(
-        settings.nominal,
-        samples,
-        settings.sigmas,
-        list(settings.free_parameters),
-        settings.formulation,
-        settings.noise_source,
-        settings.requirement,
-        settings.cross_validation_folds,
-        options=settings.identify_options(),
-    )
+    outcome = identify_with_settings(settings, samples)
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
     summary = outcome_summary(
         outcome, selected=settings.posture_count, skipped=skipped, run_directory=run.path

@@ -11,7 +11,7 @@ of a platform started cold, whose legs are shorter than during most of the calib
 import numpy as np
 
 from gsp_calibrator.run.directory import Samples
-from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.tools import bench_verdict
 from gsp_calibrator.upkeep import check_run
 from gsp_experiments.bench_upkeep import CHANGE_M, changed_truth
@@ -30,16 +30,8 @@ CHECK_STARTS_S = {'same_thermal_state': 0.5 * bench_verdict.RUN_S, 'cold_start':
 
 def _reference(design, seed):
     settings = design.settings
-    outcome = identify_from_samples(
-        settings.nominal,
-        bench_verdict.simulated_samples(design, REALISTIC, seed),
-        settings.sigmas,
-        list(settings.free_parameters),
-        settings.formulation,
-        settings.noise_source,
-        settings.requirement,
-        settings.cross_validation_folds,
-        options=settings.identify_options(),
+    outcome = identify_with_settings(
+        settings, bench_verdict.simulated_samples(design, REALISTIC, seed)
     )
     if not outcome.success:
         return None

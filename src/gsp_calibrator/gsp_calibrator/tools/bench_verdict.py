@@ -21,7 +21,7 @@ import numpy as np
 
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
-from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
 from gsp_kinematics.geometry import PARAMETER_INDEX, Geometry, default_geometry
@@ -150,17 +150,7 @@ def one_run(design, effects, seed):
     """The figures of one seeded run: measured (cross-validated), predicted and true accuracy,
     the unmodelled leg error (um) and whether the result is applied."""
     settings = design.settings
-    outcome = identify_from_samples(
-        settings.nominal,
-        simulated_samples(design, effects, seed),
-        settings.sigmas,
-        list(settings.free_parameters),
-        settings.formulation,
-        settings.noise_source,
-        settings.requirement,
-        settings.cross_validation_folds,
-        options=settings.identify_options(),
-    )
+    outcome = identify_with_settings(settings, simulated_samples(design, effects, seed))
     if not outcome.success:
         return {'applied': False, 'failure': outcome.message}
     true_position, _ = true_accuracy(design, effects, outcome.geometry)
