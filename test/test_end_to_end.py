@@ -85,6 +85,7 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
         'non_finite_dropped',
         'replacements',
         'settle',
+        'processing_lag',
     }
     assert collection['settle']['rows'] >= 1 and collection['settle']['max_s'] >= 0.0
     # Each posture the platform rejected was replaced (the pool of 600 has plenty left).
