@@ -15,7 +15,13 @@ FOCUS = 6.0
 
 
 def posture_factors(
-    geometry, poses, sigmas=None, free=None, formulation='implicit', sensors=SENSOR_NAMES
+    geometry,
+    poses,
+    sigmas=None,
+    free=None,
+    formulation='implicit',
+    sensors=SENSOR_NAMES,
+    leg_columns=None,
 ):
     """Per-posture information factors ``G`` (N, r, n): posture k's information is ``G_k^T G_k``.
 
@@ -25,6 +31,8 @@ def posture_factors(
     ``J_u^T J_u - J_u^T J_X (J_X^T J_X)^-1 J_X^T J_u`` as a product of small factors; for ``'fk'``
     it is the FK-based residual Jacobian itself (r = the device readings used). ``sigmas``: the
     ``SensorNoise`` weights (default :data:`~gsp_kinematics.sensors.noise.DEFAULT_SENSOR_NOISE`).
+    ``leg_columns`` (N, 6, e): derivatives of the leg readings (m per unit) with respect to e more
+    parameters only the legs see (the effect groups' regressors; ``'implicit'`` only), last.
     """
     sigmas = DEFAULT_SENSOR_NOISE if sigmas is None else sigmas
     free = resolve_free(free)
@@ -39,20 +47,32 @@ def posture_factors(
     if formulation == 'implicit':
         jac_pose = np.concatenate([d_q_d_pose / sigmas.leg_lengths, d_h_d_pose], axis=1)
         jac_u = np.concatenate([d_q_d_u / sigmas.leg_lengths, d_h_d_u], axis=1)
+        if leg_columns is not None:
+            leg_columns = np.asarray(leg_columns, dtype=float) / sigmas.leg_lengths
+            device_rows = np.zeros((len(jac_u), d_h_d_u.shape[1], leg_columns.shape[2]))
+            jac_u = np.concatenate(
+                [jac_u, np.concatenate([leg_columns, device_rows], axis=1)], axis=2
+            )
         complement = np.linalg.qr(jac_pose, mode='complete')[0][:, :, 6:]
         return np.swapaxes(complement, 1, 2) @ jac_u
     return d_h_d_u - d_h_d_pose @ np.linalg.solve(d_q_d_pose, d_q_d_u)
 
 
 def posture_information(
-    geometry, poses, sigmas=None, free=None, formulation='implicit', sensors=SENSOR_NAMES
+    geometry,
+    poses,
+    sigmas=None,
+    free=None,
+    formulation='implicit',
+    sensors=SENSOR_NAMES,
+    leg_columns=None,
 ):
     """Per-posture information matrices (N, n, n) of the free parameters.
 
     For ``'implicit'`` each posture's pose is eliminated (Schur complement), which is additive over
     postures; for ``'fk'`` it is ``J_k^T J_k`` of the FK-based residuals. Both are weighted.
     """
-    factors = posture_factors(geometry, poses, sigmas, free, formulation, sensors)
+    factors = posture_factors(geometry, poses, sigmas, free, formulation, sensors, leg_columns)
     return np.einsum('mri,mrj->mij', factors, factors)
 
 
