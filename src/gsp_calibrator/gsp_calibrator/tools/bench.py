@@ -8,6 +8,7 @@ import sys
 
 from gsp_calibrator.tools import (
     bench_collection_rate,
+    bench_effects,
     bench_end_to_end,
     bench_platform_time,
     bench_sensor_dynamics,
@@ -27,6 +28,7 @@ EXTRA_SECTIONS = {
     'verdict': bench_verdict.run,  # docs/verdict.md
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
     'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md
+    'effects': bench_effects.run,  # docs/platform_effects.md
 }
 
 
