@@ -44,11 +44,16 @@ class ModelChoice:
     result: object
     candidates: tuple
     reason: str
+    #: The thermal time constant (s) used (0: linear growth) and each one tried: {tau: cost}.
+    thermal_time_constant_s: float = 0.0
+    thermal_costs: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self):
         return {
             'groups': list(self.groups),
             'reason': self.reason,
+            'thermal_time_constant_s': self.thermal_time_constant_s,
+            'thermal_costs': {str(tau): cost for tau, cost in self.thermal_costs.items()},
             'candidates': [
                 {'groups': list(c.groups), 'cv_position_mm': c.position_mm, 'chosen': c.chosen}
                 for c in self.candidates
@@ -101,6 +106,33 @@ def _score(nominal, data, base, groups, folds, options):
     return result, Candidate(tuple(groups), float(position), summary)
 
 
+def thermal_time_constant(nominal, data, base, groups, candidates, options):
+    """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
+    one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
+    candidates share the parameters and the data, so their costs compare directly."""
+    leg_lengths, readings, sigmas, guesses, design, _ = data
+    costs = {}
+    for tau in candidates:
+        try:
+            result = identify(
+                nominal,
+                leg_lengths,
+                readings,
+                sigmas,
+                free=list(base) + list(groups),
+                pose_guesses=guesses,
+                options=options,
+                effects=dataclasses.replace(design, thermal_time_constant_s=float(tau)),
+            )
+        except IdentificationError:
+            continue
+        if result.converged:
+            costs[float(tau)] = float(result.cost)
+    if not costs:
+        return design.thermal_time_constant_s, costs
+    return min(costs, key=costs.get), costs
+
+
 def choose_model(
     nominal,
     leg_lengths,
@@ -113,17 +145,29 @@ def choose_model(
     min_gain=DEFAULT_MIN_GAIN,
     options=Options(),
     noise=None,
+    thermal_time_constants=(),
 ):
     """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
     row weights ``sigmas`` and the run's :class:`EffectDesign` ``design`` (None: no times,
-    directions or mass: only the joint offsets can be tried)."""
+    directions or mass: only the joint offsets can be tried). ``thermal_time_constants`` (s;
+    0: linear): when the thermal group can be tried, its time constant is first chosen among
+    these by the cost of the fit with every available group (:func:`thermal_time_constant`);
+    empty: the design's."""
     design = design or EffectDesign()
+    tau, costs = design.thermal_time_constant_s, {}
+    available = available_groups(design, len(leg_lengths))
+    if 'thermal' in available and len(thermal_time_constants):
+        data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
+        tau, costs = thermal_time_constant(
+            nominal, data, base, available, thermal_time_constants, options
+        )
+        design = dataclasses.replace(design, thermal_time_constant_s=tau)
     data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
     result, best = _score(nominal, data, base, (), folds, options)
     if result is None:
         raise IdentificationError('the plain model did not converge: no model to choose from')
     tried, chosen = [best], ()
-    remaining = available_groups(design, len(leg_lengths))
+    remaining = list(available)
     while remaining:
         trials = [
             (group, *_score(nominal, data, base, chosen + (group,), folds, options))
@@ -152,4 +196,7 @@ def choose_model(
         f'groups {names}: held-out position error {best.position_mm:.4f} mm; each kept group '
         f'lowered it by more than {100 * min_gain:.0f} %, no other group did'
     )
-    return ModelChoice(chosen, result, tuple(tried), reason)
+    if 'thermal' in chosen and costs:
+        shape = f'a first-order warming, {tau:g} s' if tau > 0 else 'a linear growth'
+        reason += f'; thermal as {shape} (least fit cost of {sorted(costs)} s, 0: linear)'
+    return ModelChoice(chosen, result, tuple(tried), reason, tau, costs)

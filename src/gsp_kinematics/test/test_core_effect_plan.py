@@ -8,11 +8,12 @@ import pytest
 from gsp_kinematics.effects.model import PlatformEffects, approach_directions
 from gsp_kinematics.effects.plan import augment_route, group_identifiability
 from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.identification import identify
+from gsp_kinematics.identification import Options, identify
 from gsp_kinematics.kinematics import Workspace, sample_valid_postures
+from gsp_kinematics.model_choice import thermal_time_constant
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits, posture_leg_lengths
-from gsp_kinematics.validation import simulate_commands
+from gsp_kinematics.validation import simulate_commands, validate
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')
@@ -126,3 +127,58 @@ def test_the_backlash_bound_matches_a_monte_carlo():
     # three of those. The mean is the truth within 4 standard errors.
     assert np.allclose(spread, entry['crb_std'], rtol=0.35), (spread, entry['crb_std'])
     assert np.all(np.abs(np.mean(estimates, axis=0) - 4e-6) < 4 * spread / np.sqrt(40))
+
+
+def _exact_run(effects, count=50):
+    poses = POSES[simulate_commands(TRUE, NOMINAL, POSES, effects).reachable][:count]
+    route = augment_route(NOMINAL, poses, ['thermal', 'backlash'], dwell_s=15.0)
+    run = simulate_commands(TRUE, NOMINAL, route.poses, effects, route.times_s)
+    return route, run
+
+
+def test_compliance_is_recovered_at_the_geometry_being_estimated():
+    # The legs' forces at the extreme postures are sensitive to the geometry: taken at the
+    # nominal geometry (mm from the truth) they put the compliance 5-30 % off.
+    effects = PlatformEffects(
+        payload_mass=40.0, centre_of_mass=(0.0, 0.0, 0.05), leg_stiffness=np.full(6, 30e6)
+    )
+    route, run = _exact_run(effects)
+    result = identify(
+        NOMINAL,
+        run.leg_readings,
+        run.device_readings,
+        SIGMAS,
+        free=['extended', 'compliance'],
+        pose_guesses=route.poses,
+        effects=route.design(40.0, (0.0, 0.0, 0.05)),
+    )
+    values = [result.effects[f'compliance{leg}'][0] for leg in range(1, 7)]
+    np.testing.assert_allclose(values, 1.0 / 30e6, rtol=1e-3)
+
+
+def test_a_first_order_warming_is_identified_with_its_time_constant():
+    effects = PlatformEffects(temperature_rise=np.full(6, 1.5), thermal_time_constant=300.0)
+    route, run = _exact_run(effects)
+    data = (run.leg_readings, run.device_readings, SIGMAS, route.poses, route.design(), None)
+    tau, costs = thermal_time_constant(
+        NOMINAL, data, ['extended'], ['thermal'], (0.0, 150.0, 300.0, 600.0), Options()
+    )
+    assert tau == 300.0 and costs[300.0] < 1e-6 * min(costs[0.0], costs[600.0]), costs
+    design = route.design(thermal_time_constant_s=300.0)
+    result = identify(
+        NOMINAL,
+        run.leg_readings,
+        run.device_readings,
+        SIGMAS,
+        free=['extended', 'thermal'],
+        pose_guesses=route.poses,
+        effects=design,
+    )
+    values = [result.effects[f'strain_rate{leg}'][0] for leg in range(1, 7)]
+    # The initial strain rate of a 1.5 K rise in 300 s of steel (12e-6 /K).
+    np.testing.assert_allclose(values, 12e-6 * 1.5 / 300.0, rtol=1e-3)
+    # The geometry is the one at the reference instant: the platform there, uncompensated.
+    later = validate(
+        TRUE, result.geometry, POSES[-10:], effects, np.full(10, design.reference_time_s)
+    )
+    assert later['position_mm_mean'] < 1e-4, later

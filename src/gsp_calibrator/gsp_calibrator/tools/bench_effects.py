@@ -44,6 +44,8 @@ from gsp_kinematics.validation import pose_errors, simulate_commands
 POSTURE_S = RUN_S / 60
 #: Cross-validation folds of ``auto`` here (the calibrator's default is 10; 5 halves the cost).
 FOLDS = 5
+#: Thermal time constants (s; 0: linear) ``auto`` chooses among by the fit's cost.
+THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 #: ``gsp_plan``'s timing of a posture on the motion model: settle, then the samples at 200 Hz.
 PLAN_DWELL_S = 0.02 + SAMPLES / 200.0
 
@@ -128,7 +130,14 @@ def one_run(design, route, effects, seed):
     sigmas = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
     try:
         choice = choose_model(
-            nominal, legs, readings, sigmas, rows, pose_guesses=poses, folds=FOLDS
+            nominal,
+            legs,
+            readings,
+            sigmas,
+            rows,
+            pose_guesses=poses,
+            folds=FOLDS,
+            thermal_time_constants=THERMAL_TIME_CONSTANTS,
         )
         plain = identify(nominal, legs, readings, sigmas, free=['extended'], pose_guesses=poses)
     except IdentificationError as error:
@@ -138,6 +147,7 @@ def one_run(design, route, effects, seed):
         return {'failure': 'the plain model did not converge'}
     return {
         'groups': list(choice.groups),
+        'thermal_time_constant_s': choice.thermal_time_constant_s,
         'auto': _figures(design, effects, choice.result, chosen.summary, rows.reference_time_s),
         'plain': _figures(
             design, effects, plain, choice.candidates[0].summary, rows.reference_time_s
@@ -192,6 +202,7 @@ def case_figures(design, route, name, effects, seeds):
         'per_seed_true_mm': [run['auto']['true_mm'] for run in done],
         'per_seed_true_at_reference_mm': [run['auto']['true_at_reference_mm'] for run in done],
         'per_seed_groups': chose,
+        'per_seed_thermal_time_constant_s': [run['thermal_time_constant_s'] for run in done],
         'failures': sorted({run['failure'] for run in runs if 'failure' in run})[:3],
         'seeds': seeds,
     }

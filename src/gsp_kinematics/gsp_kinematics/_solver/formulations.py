@@ -317,7 +317,9 @@ class _ImplicitModel(_Model):
         prediction = self.readings_model.predict(vector, poses)
         if self.effect_count:
             # q_i (1 + kq_i) gains sum theta h (effects.groups); d/d theta = h / (1 + kq_i).
-            columns = self.effects.regressors(poses) * prediction.leg_scale[None, :, None]
+            # The regressors at the current estimate (d h / d geometry left out of the Jacobian).
+            estimate = Geometry.from_full_vector(vector, self.limits)
+            columns = self.effects.regressors(poses, estimate) * prediction.leg_scale[None, :, None]
             prediction.readings[:, :6] += columns @ free_values[count:]
             prediction.effect_columns = columns
         predicted = prediction.readings

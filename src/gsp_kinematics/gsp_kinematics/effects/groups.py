@@ -13,9 +13,10 @@ with the regressors ``h``:
 - ``backlash`` (``backlash1..6``, m): ``h = d_i / 2``, ``d_i`` the leg's approach direction (+1
   extending) from the commanded sequence. Without both directions in the run it is the leg
   offset.
-- ``thermal`` (``strain_rate1..6``, 1/s): ``h = -(t - t_ref) L_i``, a leg growth proportional
-  to the leg's length ``L_i`` (nominal, at the posture) and linear in the time since the
-  reference instant ``t_ref``; the geometry is the one at ``t_ref``. A steady growth is a leg
+- ``thermal`` (``strain_rate1..6``, 1/s): ``h = -(w(t) - w(t_ref)) L_i``, a leg growth
+  proportional to the leg's length ``L_i`` (at the posture) and to the warming since the
+  reference instant ``t_ref`` on the clock ``w`` (``EffectDesign.thermal_clock``: ``t`` itself,
+  or a first-order rise ``tau (1 - exp(-t / tau))``); the geometry is the one at ``t_ref``. A steady growth is a leg
   gain (``kq_i``): only the growth during the run is the group's.
 - ``joint_offsets`` (``joint_offset1..6``, m): ``h = -|u_i - (a_i . u_i) a_i|``, the base U
   joint's axis offset seen along the leg (``a_i`` its first axis, :func:`.model.
@@ -76,6 +77,15 @@ class EffectDesign:
     payload_mass: float = 0.0
     centre_of_mass: tuple = (0.0, 0.0, 0.0)
     reference_time_s: float = 0.0
+    #: Time constant (s) of the legs' warming (first order, from ``times_s`` 0); 0: a linear
+    #: growth. The strain rate is then the initial one.
+    thermal_time_constant_s: float = 0.0
+
+    def thermal_clock(self, times_s):
+        """The thermal regressor's clock (s): ``tau (1 - exp(-t / tau))``, or ``t`` when linear."""
+        times = np.asarray(times_s, dtype=float)
+        tau = self.thermal_time_constant_s
+        return tau * -np.expm1(-np.maximum(times, 0.0) / tau) if tau > 0 else times
 
     def check(self, groups, count):
         """EffectDesignError naming what ``groups`` need and this design lacks for M = count."""
@@ -133,20 +143,25 @@ class EffectTerms:
         self._axes = base_joint_first_axes(nominal)
         self._legs = np.flatnonzero(self.mask) % NUM_LEGS  # the leg of each free parameter
 
-    def regressors(self, poses):
-        """``h`` (M, 6, count): column j is nonzero only in the row of its leg."""
+    def regressors(self, poses, geometry=None):
+        """``h`` (M, 6, count): column j is nonzero only in the row of its leg. ``geometry``: the
+        geometry to take the forces and leg directions of (default the one given at
+        construction); the identification passes its current estimate: at the extreme postures
+        the forces are sensitive enough to the geometry that the nominal's are percents off."""
         poses = np.atleast_2d(poses)
+        geometry = self.nominal if geometry is None else geometry
         full = np.zeros((poses.shape[0], NUM_LEGS, NUM_EFFECT_PARAMETERS))
         legs = np.arange(NUM_LEGS)
         blocks = self.mask.reshape(len(EFFECT_GROUPS), NUM_LEGS).any(axis=1)
         if blocks[0]:
-            full[:, legs, legs] = leg_forces(self.nominal, self._load, poses)
+            full[:, legs, legs] = leg_forces(geometry, self._load, poses)
         if blocks[1]:
             full[:, legs, 6 + legs] = 0.5 * np.asarray(self.design.directions, dtype=float)
-        vectors, _ = leg_vectors(self.nominal, poses)
+        vectors, _ = leg_vectors(geometry, poses)
         lengths = np.linalg.norm(vectors, axis=2)
         if blocks[2]:
-            elapsed = np.asarray(self.design.times_s, float) - self.design.reference_time_s
+            clock = self.design.thermal_clock
+            elapsed = clock(self.design.times_s) - clock(self.design.reference_time_s)
             full[:, legs, 12 + legs] = -elapsed[:, None] * lengths
         if blocks[3]:
             along = np.einsum('mik,ik->mi', vectors / lengths[..., None], self._axes)

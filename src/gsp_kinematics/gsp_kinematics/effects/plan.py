@@ -61,12 +61,23 @@ class AugmentedRoute:
     def added_postures(self):
         return int(sum(kind != 'plan' for kind in self.kind))
 
-    def design(self, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), reference_time_s=None):
+    def design(
+        self,
+        payload_mass=0.0,
+        centre_of_mass=(0.0, 0.0, 0.0),
+        reference_time_s=None,
+        thermal_time_constant_s=0.0,
+    ):
         """The :class:`EffectDesign` of measuring this route at its predicted times
         (``reference_time_s`` default: the last measurement)."""
         reference = self.times_s[-1] if reference_time_s is None else reference_time_s
         return EffectDesign(
-            self.times_s, self.directions, payload_mass, tuple(centre_of_mass), float(reference)
+            self.times_s,
+            self.directions,
+            payload_mass,
+            tuple(centre_of_mass),
+            float(reference),
+            float(thermal_time_constant_s),
         )
 
     def to_dict(self):
