@@ -34,12 +34,14 @@ from gsp_calibrator.tools.plans import (
     DEFAULT_TARGET_POSTURES,
     MAX_SAMPLES_PER_POSTURE,
     Design,
+    EffectPlan,
     cheapest_meeting,
     plan,
     sweep,
     sweep_table,
     target_plan,
 )
+from gsp_kinematics.effects.groups import EFFECT_GROUPS
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.identification import IdentificationError
@@ -135,6 +137,7 @@ def parse_arguments(argv=None):
         help='posture counts a target plan considers',
     )
     add('--max-samples-per-posture', type=int, default=MAX_SAMPLES_PER_POSTURE)
+    _add_effect_options(add)
     args = parser.parse_args(argv)
     reason = run_options_error(args)
     if reason:
@@ -155,6 +158,74 @@ def parse_arguments(argv=None):
             '--rotation-range-deg >= 0'
         )
     return args
+
+
+def _add_effect_options(add):
+    """The options of the effect groups' plan (docs/platform_effects.md)."""
+    add(
+        '--effects',
+        nargs='+',
+        default=[],
+        choices=list(EFFECT_GROUPS),
+        metavar='GROUP',
+        help='effect groups the calibration will free: the plan adds what they need and gives '
+        f'their identifiability and Cramér-Rao bound ({", ".join(EFFECT_GROUPS)})',
+    )
+    add('--revisit-every', type=int, default=None, help='thermal: postures between revisits (10)')
+    add('--revisit-interval-s', type=float, default=None, help='thermal: seconds between revisits')
+    add('--min-arrivals', type=int, default=1, help='backlash: arrivals each way per leg (1)')
+    add('--payload-mass-kg', type=float, default=0.0, help='compliance: the payload (kg)')
+    add(
+        '--centre-of-mass-mm',
+        type=float,
+        nargs=3,
+        default=[0.0, 0.0, 0.0],
+        metavar=('X', 'Y', 'Z'),
+        help='compliance: the payload centre of mass, platform frame (mm)',
+    )
+    add('--thermal-time-constant-s', type=float, default=0.0, help='thermal: warming (0: linear)')
+
+
+def effect_plan_from(args):
+    """The :class:`EffectPlan` of the command line (None without ``--effects``)."""
+    if not args.effects:
+        return None
+    return EffectPlan(
+        groups=tuple(args.effects),
+        revisit_every=args.revisit_every,
+        revisit_interval_s=args.revisit_interval_s,
+        min_arrivals=args.min_arrivals,
+        payload_mass=args.payload_mass_kg,
+        centre_of_mass=tuple(v / 1e3 for v in args.centre_of_mass_mm),
+        thermal_time_constant_s=args.thermal_time_constant_s,
+    )
+
+
+def _effects_text(entry):
+    route = entry['route']
+    lines = [
+        f'effects {" ".join(entry["groups"])}: {route["added_postures"]} postures added '
+        f'({route["reference_revisits"]} reference revisits, {route["approach_insertions"]} for '
+        f'the approach directions), platform time +{route["added_s"]:.1f} s'
+    ]
+    if route['one_way_legs']:
+        legs = ' '.join(str(leg) for leg in route['one_way_legs'])
+        lines.append(f'legs arriving from one direction only: {legs}')
+    for group, found in entry['identifiability'].items():
+        if 'error' in found:
+            lines.append(f'{group}: {found["error"]}')
+        elif not found['identifiable']:
+            lines.append(
+                f'{group}: NOT identifiable (rank {found["rank"]} of {found["parameters"]})'
+            )
+        else:
+            worst = max(found['worst_correlations'], key=lambda w: abs(w['correlation']))
+            lines.append(
+                f'{group}: rank {found["rank"]} of {found["parameters"]}, Cramér-Rao '
+                f'{max(found["crb_leg_um"]):.2g} um of leg at most, worst correlation '
+                f'{worst["parameter"]}-{worst["with"]} {worst["correlation"]:+.2f}'
+            )
+    return '\n'.join(lines)
 
 
 def design_from(args):
@@ -197,6 +268,8 @@ def _summary_text(entry):
     for entry_ in entry['unidentifiable']:
         lines.append(f'not identifiable: {entry_["combination"]}')
     lines.append(_platform_time_text(entry['platform_time']))
+    if entry.get('effects'):
+        lines.append(_effects_text(entry['effects']))
     return '\n'.join(lines)
 
 
@@ -253,6 +326,7 @@ def _inputs(args, design, limits):
         'free': args.free_parameters,
         'max_leg_speed_m_s': limits.max_speed,
         'max_leg_acceleration_m_s2': limits.max_acceleration,
+        'effects': args.effects,
     }
     return inputs
 
@@ -321,6 +395,7 @@ def main(argv=None):
                     args.samples_per_posture,
                     design,
                     limits=limits,
+                    effects=effect_plan_from(args),
                     **timing,
                 ),
             }

@@ -18,6 +18,7 @@ from gsp_calibrator.run.postures import (
     choose_postures,
     selection_formulation,
 )
+from gsp_kinematics.effects.plan import augment_route, effect_identifiability
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import Workspace, home_pose
@@ -99,6 +100,51 @@ class Design:
     seed: int = 0
 
 
+@dataclasses.dataclass(frozen=True)
+class EffectPlan:
+    """The effect groups a calibration will free and what their plan needs
+    (:func:`gsp_kinematics.effects.plan.augment_route`; docs/platform_effects.md)."""
+
+    groups: tuple = ()
+    revisit_every: int | None = None  #: thermal: postures between reference revisits
+    revisit_interval_s: float | None = None  #: thermal: platform time between revisits (s)
+    min_arrivals: int = 1  #: backlash: arrivals each way per leg
+    payload_mass: float = 0.0  #: compliance: the payload (kg) the user gives
+    centre_of_mass: tuple = (0.0, 0.0, 0.0)  #: its centre of mass, platform frame (m)
+    thermal_time_constant_s: float = 0.0  #: thermal: first-order warming (s; 0: linear)
+
+
+def effect_plan(nominal, poses, samples_per_posture, design, effects, dwell_s, limits):
+    """The route through ``poses`` (route order) augmented for ``effects`` (an
+    :class:`EffectPlan`): what it adds and costs, and per group its identifiability and
+    Cramér-Rao bound at the design's noise averaged over the samples."""
+    route = augment_route(
+        nominal,
+        poses,
+        effects.groups,
+        start_pose=home_pose(),
+        revisit_every=effects.revisit_every,
+        revisit_interval_s=effects.revisit_interval_s,
+        dwell_s=dwell_s,
+        limits=limits,
+        min_arrivals=effects.min_arrivals,
+    )
+    run = route.design(
+        effects.payload_mass,
+        effects.centre_of_mass,
+        thermal_time_constant_s=effects.thermal_time_constant_s,
+    )
+    groups = effect_identifiability(
+        nominal,
+        route.poses,
+        run,
+        effects.groups,
+        design.sigmas.averaged([samples_per_posture]),
+        design.free,
+    )
+    return {'groups': list(effects.groups), 'route': route.to_dict(), 'identifiability': groups}
+
+
 def select(nominal, postures, samples_per_posture, design=Design()):
     """The calibrator's posture selection for these settings (``choose_postures``)."""
     return choose_postures(
@@ -122,10 +168,12 @@ def plan(
     sensor_rate_hz=200.0,
     selection=None,
     limits=MotionLimits(),
+    effects=None,
 ):
     """One plan (a JSON-ready dict); ``selection``: a :class:`gsp_calibrator.run.postures.PostureSelection` of
     these settings to reuse (the sweep shares one per posture count); ``limits``: the legs'
-    motion limits of the platform time."""
+    motion limits of the platform time; ``effects``: an :class:`EffectPlan` whose groups add
+    the plan's ``effects`` entry (:func:`effect_plan`)."""
     if samples_per_posture < 1:
         raise CalibrationError(f'samples per posture must be >= 1, got {samples_per_posture}')
     if not (sensor_rate_hz > 0 and settle_s >= 0):
@@ -141,6 +189,16 @@ def plan(
         design.formulation,
         design.workspace,
     )
+    timing = platform_time(
+        nominal, selection.poses, samples_per_posture, settle_s, sensor_rate_hz, limits
+    )
+    extra = {}
+    if effects is not None and effects.groups:
+        ordered = selection.poses[timing['order']]
+        dwell_s = settle_s + samples_per_posture / sensor_rate_hz
+        extra['effects'] = effect_plan(
+            nominal, ordered, samples_per_posture, design, effects, dwell_s, limits
+        )
     return {
         'postures': int(postures),
         'samples_per_posture': int(samples_per_posture),
@@ -148,9 +206,7 @@ def plan(
         'calibration_s': calibration_seconds(
             postures, samples_per_posture, settle_s, sensor_rate_hz
         ),
-        'platform_time': platform_time(
-            nominal, selection.poses, samples_per_posture, settle_s, sensor_rate_hz, limits
-        ),
+        'platform_time': timing,
         'selection': {
             'pool_size': selection.pool_size,
             'seed': selection.seed,
@@ -158,6 +214,7 @@ def plan(
             'duration_s': selection.duration_s,
             'poses': selection.poses.tolist(),
         },
+        **extra,
     }
 
 
