@@ -155,3 +155,29 @@ def test_the_target_plan_is_the_quickest_candidate_reaching_the_target(tmp_path,
     assert 'no plan within the pool reaches position 1e-05 mm; the best reaches' in (
         capsys.readouterr().out
     )
+
+
+def test_a_plan_for_the_effects_adds_revisits_and_bounds_each_group(tmp_path, capsys):
+    output = tmp_path / 'plan.json'
+    argv = ['--postures', '30', '--samples-per-posture', '4', '--output', str(output), *QUICK]
+    effects = ['--effects', 'thermal', 'backlash', 'compliance', '--revisit-every', '8']
+    assert planning.main(argv + effects) == 0
+    plan = _read(output)
+    entry, timing = plan['effects'], plan['platform_time']
+    route = entry['route']
+    # The plain route is the plan's own; the reference is revisited after every 8 postures
+    # (30 postures: after 8, 16, 24, and at the end) and the legs arrive both ways.
+    assert route['plain_s'] == pytest.approx(timing['total_s'])
+    assert route['reference_revisits'] == 4 and route['one_way_legs'] == []
+    assert route['added_s'] > 0 and route['total_s'] == pytest.approx(
+        route['plain_s'] + route['added_s']
+    )
+    plan_rows = [k for k, kind in zip(route['order'], route['kind'], strict=True) if kind == 'plan']
+    assert plan_rows == list(range(30)) and route['postures'] == 34
+    found = entry['identifiability']
+    assert found['thermal']['identifiable'] and found['backlash']['identifiable']
+    assert len(found['thermal']['crb_std']) == 6 and all(s > 0 for s in found['thermal']['crb_std'])
+    # Compliance needs the payload the user gives.
+    assert 'payload_mass' in found['compliance']['error']
+    out = capsys.readouterr().out
+    assert 'effects thermal backlash compliance: 4 postures added' in out
