@@ -184,8 +184,11 @@ def _model_figures(runs, model, best_mm):
     }
 
 
-def case_figures(design, route, name, effects, seeds):
-    runs = [one_run(design, route, effects, seed) for seed in range(seeds)]
+def case_figures(design, route, name, effects, seeds, runs=None):
+    """The figures of one platform over ``seeds`` runs (``runs``: the :func:`one_run` results
+    if already made)."""
+    if runs is None:
+        runs = [one_run(design, route, effects, seed) for seed in range(seeds)]
     best_mm = float(np.mean(workspace_errors(design, effects, best_geometry(design, effects))))
     expected = [] if name == 'ideal' else list(EFFECT_GROUPS) if name == 'all_four' else [name]
     done = [run for run in runs if 'groups' in run]
