@@ -129,6 +129,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
     assert bench.main(['--skip-end-to-end']) == 0
     from gsp_calibrator.tools import (
         bench_collection_rate,
+        bench_effects,
         bench_platform_time,
         bench_sensor_dynamics,
         bench_upkeep_realistic,
@@ -149,6 +150,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'verdict': bench_verdict.run,
                 'upkeep': bench_upkeep.run,
                 'upkeep_realistic': bench_upkeep_realistic.run,
+                'effects': bench_effects.run,
             },
         )
     ]
