@@ -32,6 +32,7 @@ from gsp_calibrator.run.state import (
     STATE_FILE,
     settle_statistics,
 )
+from gsp_calibrator.upkeep import run_to_requirement
 from gsp_msgs_py import names
 
 
@@ -136,7 +137,7 @@ class CalibrationRun:
         try:
             await self._choose_postures(part)
             await self._wait_for_system()
-            await self._collect()
+            stopping = await self._collect()
         except (RunFailed, RunWriteError) as error:
             self.save_state(PHASE_FAILED, str(error))
             message = failure_message(error, len(session.samples), session.run)
@@ -144,7 +145,7 @@ class CalibrationRun:
             host.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
         host.postures.stop()
-        return await self._identify(started)
+        return await self._identify(started, stopping)
 
     def save_state(self, phase=None, stop_reason=None):
         """Rewrite state.json; an error is logged (the run is ending)."""
@@ -219,19 +220,91 @@ class CalibrationRun:
 
     async def _collect(self):
         """For each posture left (a rejected one's replacement joins the end): command it,
-        await its end, record it. RunFailed when an end is a failure of the run."""
-        host, session, count = self.host, self.session, self.settings.posture_count
-        while (posture := session.next_posture()) is not None:
-            k, pose = posture
-            host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
-            # The row (samples.csv) or the skip is kept, and the outcome noted in the
-            # recording, by the thread of the message that ended the posture, before this
-            # await returns: a SIGTERM meanwhile loses nothing.
-            event = await host.postures.command(k, pose)
-            if not isinstance(event, POSTURE_ENDS):
-                raise RunFailed(event.message)
-            self._report(event)
-            session.save()
+        await its end, record it. RunFailed when an end is a failure of the run.
+
+        With ``stop_when_accurate`` the rows so far are judged as they come, in a worker thread
+        while the next posture is collected (:meth:`_judged_enough`): the loop stops once a
+        judgement meets the requirement, and when the plan is not enough it adds pool postures
+        (:meth:`_posture_to_add`). Returns that run's record (None without it)."""
+        host, session, settings = self.host, self.session, self.settings
+        count = settings.posture_count
+        stop = None
+        if settings.stop_when_accurate:
+            plan = [session.state.poses[k - 1] for k in session.remaining]
+            stop = run_to_requirement.StoppingState.start(
+                settings, plan, self.collection.latest_leg_lengths()
+            )
+        try:
+            while True:
+                posture = session.next_posture()
+                if posture is None and stop is not None:
+                    posture = await self._posture_to_add(stop)
+                if posture is None:
+                    break
+                k, pose = posture
+                host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
+                # The row (samples.csv) or the skip is kept, and the outcome noted in the
+                # recording, by the thread of the message that ended the posture, before this
+                # await returns: a SIGTERM meanwhile loses nothing.
+                event = await host.postures.command(k, pose)
+                if not isinstance(event, POSTURE_ENDS):
+                    raise RunFailed(event.message)
+                self._report(event)
+                session.save()
+                if stop is not None and self._judged_enough(stop):
+                    break
+        finally:
+            if stop is not None:
+                stop.close()
+        if stop is None:
+            return None
+        commanded = len(session.state.poses) - len(session.remaining)
+        return stop.record(settings, session.state.poses[:commanded], plan)
+
+    def _judged_enough(self, stop):
+        """Whether the latest finished judgement meets the requirement; else start judging the
+        rows so far when due and no judgement is under way (never waits)."""
+        judgement = stop.finished()
+        if judgement is not None:
+            self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
+            if stop.met:
+                return True
+        rows = len(self.session.samples)
+        judged = stop.latest.postures if stop.latest is not None else 0
+        if stop.in_flight is None and rows > judged and stop.rule.due(rows):
+            stop.submit(self.settings, self.session.rows_so_far())
+        return False
+
+    async def _posture_to_add(self, stop):
+        """After the plan: ``(k, pose)`` of a pool posture to add (the most information per
+        second of travel), or None when the rows meet the requirement or no more may be added.
+        At the plan's end the rows are judged whole (awaited)."""
+        host, session, settings, rule = self.host, self.session, self.settings, stop.rule
+        if stop.in_flight is not None and (stop.latest is None or stop.added == 0):
+            stop.note(await host.await_thread(stop.in_flight))
+            stop.in_flight = None
+        rows = len(session.samples)
+        if stop.added == 0 and (stop.latest is None or stop.latest.postures < rows):
+            judgement = await host.in_thread(
+                run_to_requirement.judge_rows, settings, session.rows_so_far(), rule
+            )
+            self.log.info(run_to_requirement.judgement_line(stop.note(judgement), rule))
+        if stop.met or stop.added >= rule.max_added or stop.latest is None:
+            return None
+        if stop.additions is None:
+            stop.additions = await host.in_thread(run_to_requirement.PoolAdditions, settings)
+        pose = await host.in_thread(
+            stop.additions.next_pose,
+            stop.latest,
+            session.state.poses,
+            self.collection.latest_leg_lengths(),
+            rule,
+        )
+        if pose is None:
+            return None
+        stop.added += 1
+        self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
+        return session.add_posture(pose)
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
@@ -246,8 +319,9 @@ class CalibrationRun:
             event.posture, report.phase, report.message, report.residuals, report.warning, **extra
         )
 
-    async def _identify(self, started):
-        """Identify over every row, write the results, publish and apply; ``(success, text)``."""
+    async def _identify(self, started, stopping=None):
+        """Identify over every row, write the results, publish and apply; ``(success, text)``.
+        ``stopping``: the record of a run that stopped when it was good enough."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
         self.save_state(PHASE_IDENTIFYING)
@@ -266,12 +340,15 @@ class CalibrationRun:
                 'replacements': session.state.replacements,
                 'settle': settle_statistics(session.state.settle_waits),
                 'processing_lag': host.processing_lags.summary(),
+                **({} if stopping is None else {'run_to_requirement': stopping}),
             },
             settings_options(settings),
         )
         if finished.report_error:
             log.error(f'report not written: {finished.report_error}')
         outcome, summary = finished.outcome, finished.summary
+        if stopping is not None:
+            summary += '\n' + run_to_requirement.summary_line(stopping)
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)

@@ -64,14 +64,17 @@ class CheckRun(CalibrationRun):
             )
         except (ValueError, RuntimeError) as error:
             raise RunFailed(f'check postures: {error}') from None
-        self.settings = dataclasses.replace(settings, posture_count=len(self.plan.poses))
+        # A check measures its whole plan (it never stops early, nor adds postures).
+        self.settings = dataclasses.replace(
+            settings, posture_count=len(self.plan.poses), stop_when_accurate=False
+        )
         self.log.info(
             f'check of {self.reference.source}: {len(self.plan.poses)} postures, planned '
             f'platform time {self.plan.platform_time_s:.1f} s'
         )
         session.begin(self.settings, self.plan.poses, os.getpid(), part)
 
-    async def _identify(self, started):
+    async def _identify(self, started, stopping=None):
         """Judge the collected rows, write check.json, index the check; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count

@@ -1,0 +1,230 @@
+"""What a calibration that stops when it is good enough needs besides the run loop (pure, no
+rclpy; docs/upkeep.md): its rule from the calibrator's settings, the judgement of the rows so far
+(the calibrator's own identification and cross-validation, run in a worker thread), the pool
+postures it may add, and the record it leaves in ``result.json``. The decisions are
+:mod:`gsp_kinematics.stopping`; the loop is ``gsp_calibrator.run.flow.CalibrationRun._collect``.
+"""
+
+import concurrent.futures
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from gsp_calibrator.run.identify import identify_with_settings
+from gsp_calibrator.run.postures import posture_pool, selection_formulation
+from gsp_kinematics import stopping
+from gsp_kinematics.identification import resolve_free
+from gsp_kinematics.kinematics import pose_from_leg_readings
+from gsp_kinematics.prediction import accuracy_summary
+from gsp_kinematics.selection import posture_information
+from gsp_kinematics.travel.motion import posture_leg_lengths
+
+
+def rule_for(settings):
+    """The :class:`gsp_kinematics.stopping.StoppingRule` of a run's ``CalibratorSettings``:
+    the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
+    ``stop_every`` and ``stop_max_added``; the dwell of ``samples_per_posture`` at 200 Hz and a
+    0.5 s settle allowance."""
+    return stopping.StoppingRule(
+        required_position_mm=settings.required_position_accuracy_mm,
+        required_orientation_deg=settings.required_orientation_accuracy_deg,
+        confidence=settings.stop_confidence,
+        minimum_postures=settings.stop_minimum_postures,
+        every=settings.stop_every,
+        max_added=settings.stop_max_added,
+        dwell_s=0.5 + settings.samples_per_posture / 200.0,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Judgement:
+    """The rows of ``postures`` postures, identified and cross-validated."""
+
+    postures: int
+    bounds: stopping.Bounds
+    result: object  #: the core's IdentificationResult, None when it failed
+    duration_s: float  #: wall time of the judgement
+
+    def record(self):
+        return {
+            'postures': self.postures,
+            **self.bounds.record(),
+            'duration_s': self.duration_s,
+        }
+
+
+def judge_rows(settings, samples, rule):
+    """Identify ``samples`` (the rows so far, ``run.directory.Samples``) as the calibrator does
+    (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
+    (:class:`Judgement`). Runs in a worker thread."""
+    started = time.perf_counter()
+    outcome = identify_with_settings(settings, samples)
+    if not outcome.success or outcome.accuracy is None:
+        return Judgement(len(samples), stopping.UNKNOWN, None, time.perf_counter() - started)
+    predicted = None
+    if outcome.prediction is not None:
+        predicted = accuracy_summary(outcome.prediction)['position_mm_mean']
+    bounds = stopping.accuracy_bounds(outcome.accuracy, rule.confidence, predicted)
+    return Judgement(len(samples), bounds, outcome.result, time.perf_counter() - started)
+
+
+class PoolAdditions:
+    """The calibrator's posture pool (``pool_size``, ``seed``), for the postures a run adds when
+    its plan is not enough: each the one of largest information gain per second of platform
+    time (:func:`gsp_kinematics.stopping.best_addition`). Built in a worker thread."""
+
+    def __init__(self, settings):
+        self.settings = settings
+        self.pool = posture_pool(settings.nominal, settings.pool_size, settings.seed)
+        self.legs = posture_leg_lengths(settings.nominal, self.pool)
+
+    def next_pose(self, judgement, poses, latest_legs, rule):
+        """The pose (6,) to add after ``judgement`` (its result's information), the run's
+        ``poses`` so far (M, 6) and the platform's ``latest_legs`` (6,); None when the pool has
+        none left or nothing was identified."""
+        if judgement.result is None:
+            return None
+        settings = self.settings
+        information = posture_information(
+            judgement.result.geometry,
+            self.pool,
+            settings.sigmas.averaged([settings.samples_per_posture]),
+            resolve_free(list(settings.free_parameters)),
+            selection_formulation(settings.formulation),
+        )
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        distance = np.max(np.abs(poses[:, None, :] - self.pool[None]), axis=2)
+        used = np.flatnonzero(np.min(distance, axis=0) < 1e-9)
+        try:
+            index = stopping.best_addition(
+                judgement.result.information,
+                information,
+                self.legs,
+                latest_legs,
+                used,
+                self.settings.motion_limits,
+                rule.dwell_s,
+            )
+        except ValueError:
+            return None
+        return self.pool[index].copy()
+
+
+def platform_time_s(settings, start_pose, poses, rule):
+    """Platform time (s) of ``poses`` in order from ``start_pose`` at the leg limits, with the
+    rule's dwell per posture (the same count for the run and for its fixed plan)."""
+    return stopping.plan_time_s(
+        settings.nominal, start_pose, np.asarray(poses).reshape(-1, 6), settings.motion_limits,
+        rule.dwell_s,
+    )  # fmt: skip
+
+
+def start_pose_of(settings, leg_readings, fallback):
+    """The pose of the platform whose legs read ``leg_readings``, else ``fallback``."""
+    try:
+        return pose_from_leg_readings(settings.nominal, leg_readings)
+    except Exception:  # no FK there: the fixed plan's time is counted from the fallback
+        return np.asarray(fallback, dtype=float)
+
+
+def judgement_line(judgement, rule):
+    """One log line of a judgement of the rows so far."""
+    bounds = judgement.bounds
+    verdict = 'meets' if bounds.meets(rule) else 'does not meet'
+    return (
+        f'{judgement.postures} postures judged in {judgement.duration_s:.2f} s: cross-validated '
+        f'position {bounds.position_mm:.4g} mm ({rule.confidence:.0%} bound '
+        f'{bounds.position_bound_mm:.4g} mm), predicted {bounds.predicted_mm:.4g} mm, phi '
+        f'{bounds.orientation_deg:.4g} deg: {verdict} the required {rule.required_position_mm:g} '
+        f'mm, {rule.required_orientation_deg:g} deg'
+    )
+
+
+def summary_line(record):
+    """One line of the run's summary and response: stopped or not, time spent and the plan's."""
+    spent, fixed = record['platform_time_s'], record['fixed_plan_time_s']
+    ratio = spent / fixed if fixed > 0 else math.nan
+    bounds = record['bounds']
+    head = (
+        f'stopped when accurate: {record["postures"]} postures'
+        if record['met']
+        else f'could not meet the required accuracy in {record["postures"]} postures '
+        f'({record["added"]} added from the pool)'
+    )
+    return (
+        f'{head}; platform time {spent:.1f} s, the fixed plan {fixed:.1f} s '
+        f'({record["fixed_plan_postures"]} postures; {ratio:.2f}x); cross-validated position '
+        f'{bounds["position_mm"]:.4g} mm, {record["confidence"]:.0%} bound '
+        f'{bounds["position_bound_mm"]:.4g} mm, predicted {bounds["predicted_mm"]:.4g} mm '
+        f'(required {record["required_position_mm"]:g} mm)'
+    )
+
+
+@dataclasses.dataclass
+class StoppingState:
+    """Where a run that stops when it is good enough stands (held by the run loop)."""
+
+    rule: stopping.StoppingRule
+    start_pose: np.ndarray  #: (6,) where the platform stood before the first posture
+    planned: int  #: postures of the fixed plan (the first of the run's poses)
+    #: the one worker thread of the judgements (one at a time, the newest rows)
+    worker: concurrent.futures.ThreadPoolExecutor
+    in_flight: concurrent.futures.Future | None = None  #: the judgement under way
+    latest: Judgement | None = None  #: the newest finished judgement
+    history: list = dataclasses.field(default_factory=list)  #: ``Judgement.record`` of each
+    additions: PoolAdditions | None = None  #: the pool, once the plan was not enough
+    added: int = 0  #: postures added from the pool
+
+    @classmethod
+    def start(cls, settings, poses, latest_legs):
+        """Before the first posture of a run with ``poses`` (its plan, (P, 6))."""
+        start = start_pose_of(settings, latest_legs, np.asarray(poses, dtype=float)[0])
+        worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
+        return cls(rule_for(settings), start, len(poses), worker)
+
+    def submit(self, settings, rows):
+        """Judge ``rows`` (the rows so far) in the worker thread."""
+        self.in_flight = self.worker.submit(judge_rows, settings, rows, self.rule)
+
+    def finished(self):
+        """The in-flight judgement if it has finished (then noted), else None."""
+        if self.in_flight is None or not self.in_flight.done():
+            return None
+        judgement, self.in_flight = self.in_flight.result(), None
+        return self.note(judgement)
+
+    def note(self, judgement):
+        self.latest = judgement
+        self.history.append(judgement.record())
+        return judgement
+
+    @property
+    def met(self):
+        return self.latest is not None and self.latest.bounds.meets(self.rule)
+
+    def close(self):
+        self.worker.shutdown(wait=False, cancel_futures=True)
+
+    def record(self, settings, commanded_poses, plan_poses):
+        """``result.json`` ``collection.run_to_requirement``: met or not, postures, added, the
+        platform time spent (``commanded_poses`` in order from the start, at the leg limits with
+        the dwell) and the fixed plan's (``plan_poses``), the latest bounds and the judgements."""
+        rule = self.rule
+        spent = platform_time_s(settings, self.start_pose, commanded_poses, rule)
+        fixed = platform_time_s(settings, self.start_pose, plan_poses, rule)
+        bounds = (self.latest.bounds if self.latest is not None else stopping.UNKNOWN).record()
+        return {
+            'met': self.met,
+            'required_position_mm': rule.required_position_mm,
+            'required_orientation_deg': rule.required_orientation_deg,
+            'confidence': rule.confidence,
+            'postures': len(commanded_poses),
+            'added': self.added,
+            'platform_time_s': spent,
+            'fixed_plan_time_s': fixed,
+            'fixed_plan_postures': len(plan_poses),
+            'bounds': bounds,
+            'judgements': self.history,
+        }
