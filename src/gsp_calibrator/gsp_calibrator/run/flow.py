@@ -362,7 +362,10 @@ class CalibrationRun:
         if note:
             summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'
-        (log.info if success else log.error)(summary)
+        if success:  # one call site per severity (rclpy requires it)
+            log.info(summary)
+        else:
+            log.error(summary)
         phase = names.PHASE_DONE if success else names.PHASE_FAILED
         host.progress(
             count,
