@@ -34,6 +34,8 @@ def call(suite, service):
 
 def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_path, capsys):
     truth = perturbed_truth(tmp_path / 'true.yaml')
+    from rclpy.parameter import Parameter
+
     suite, calibrator, platform, _ = make_suite(
         ros_context, tmp_path, tmp_path / 'true.yaml', CALIBRATOR
     )
@@ -63,8 +65,13 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
         data = json.loads((Path(check_dir) / 'check.json').read_text())
         assert data['moved_legs'] == [3] and data['verdict'] == 'recalibrate'
 
+        # The recalibration identifies the check's rows with its own (reuse_rows_from).
+        check_rows = len((Path(check_dir) / 'samples.csv').read_text().strip().splitlines()) - 1
+        reuse = Parameter('reuse_rows_from', value=check_dir)
+        assert calibrator.set_parameters([reuse])[0].successful
         second = suite.wait(suite.call(), CALL_TIMEOUT_S)
         assert second.success, second.message
+        assert f'{16 + check_rows} posture(s)' in second.message.splitlines()[0], second.message
     finally:
         suite.close()
 
@@ -78,6 +85,10 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
     assert [change['parameter'] for change in found[2]['changes']] == ['Loff3']
     assert [change['parameter'] for change in found[3]['changes']] == ['Loff3']
     assert 0.015 < found[3]['changes'][0]['change_report'] < 0.025  # mm
+    reused = json.loads((Path(found[3]['run_dir']) / 'result.json').read_text())['collection'][
+        'reused_rows'
+    ]
+    assert reused['run_directory'] == found[2]['run_dir'] and reused['rows'] == check_rows
     calibrations = [entry['run_dir'] for entry in found if entry['kind'] == 'calibration']
     assert compare.main(calibrations) == compare.EXIT_CHANGED
     assert 'significant: Loff3 +0.0' in capsys.readouterr().out

@@ -32,7 +32,7 @@ from gsp_calibrator.run.state import (
     STATE_FILE,
     settle_statistics,
 )
-from gsp_calibrator.upkeep import run_to_requirement
+from gsp_calibrator.upkeep import reused_rows, run_to_requirement
 from gsp_msgs_py import names
 
 
@@ -111,6 +111,11 @@ class CalibrationRun:
         """The whole run: ``(success, message)``."""
         settings, log, host = self.settings, self.log, self.host
         started = time.monotonic()
+        try:  # the rows of an earlier run (a check's) this calibration identifies with its own
+            reused = await host.in_thread(reused_rows.load, settings)
+        except reused_rows.ReusedRowsError as error:
+            log.error(str(error))
+            return False, str(error)
         try:
             session = self.session = open_session(
                 settings, self.resume, os.getpid(), host.command_publishers(), host.name
@@ -137,7 +142,7 @@ class CalibrationRun:
         try:
             await self._choose_postures(part)
             await self._wait_for_system()
-            stopping = await self._collect()
+            stopping = await self._collect(reused)
         except (RunFailed, RunWriteError) as error:
             self.save_state(PHASE_FAILED, str(error))
             message = failure_message(error, len(session.samples), session.run)
@@ -145,7 +150,7 @@ class CalibrationRun:
             host.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
         host.postures.stop()
-        return await self._identify(started, stopping)
+        return await self._identify(started, stopping, reused)
 
     def save_state(self, phase=None, stop_reason=None):
         """Rewrite state.json; an error is logged (the run is ending)."""
@@ -218,21 +223,22 @@ class CalibrationRun:
         if self.host.postures.failure is not None:
             raise RunFailed(self.host.postures.failure.message)
 
-    async def _collect(self):
+    async def _collect(self, reused=None):
         """For each posture left (a rejected one's replacement joins the end): command it,
         await its end, record it. RunFailed when an end is a failure of the run.
 
         With ``stop_when_accurate`` the rows so far are judged as they come, in a worker thread
         while the next posture is collected (:meth:`_judged_enough`): the loop stops once a
         judgement meets the requirement, and when the plan is not enough it adds pool postures
-        (:meth:`_posture_to_add`). Returns that run's record (None without it)."""
+        (:meth:`_posture_to_add`); ``reused`` rows are judged with the run's. Returns that
+        run's record (None without it)."""
         host, session, settings = self.host, self.session, self.settings
         count = settings.posture_count
         stop = None
         if settings.stop_when_accurate:
             plan = [session.state.poses[k - 1] for k in session.remaining]
             stop = run_to_requirement.StoppingState.start(
-                settings, plan, self.collection.latest_leg_lengths()
+                settings, plan, self.collection.latest_leg_lengths(), reused
             )
         try:
             while True:
@@ -261,6 +267,10 @@ class CalibrationRun:
         commanded = len(session.state.poses) - len(session.remaining)
         return stop.record(settings, session.state.poses[:commanded], plan)
 
+    def _rows(self, stop):
+        """The rows so far and the reused ones (numbered after the run's postures)."""
+        return stop.rows(self.session.rows_so_far(), len(self.session.state.poses) + 1)
+
     def _judged_enough(self, stop):
         """Whether the latest finished judgement meets the requirement; else start judging the
         rows so far when due and no judgement is under way (never waits)."""
@@ -272,7 +282,7 @@ class CalibrationRun:
         rows = len(self.session.samples)
         judged = stop.latest.postures if stop.latest is not None else 0
         if stop.in_flight is None and rows > judged and stop.rule.due(rows):
-            stop.submit(self.settings, self.session.rows_so_far())
+            stop.submit(self.settings, self._rows(stop))
         return False
 
     async def _posture_to_add(self, stop):
@@ -286,7 +296,7 @@ class CalibrationRun:
         rows = len(session.samples)
         if stop.added == 0 and (stop.latest is None or stop.latest.postures < rows):
             judgement = await host.in_thread(
-                run_to_requirement.judge_rows, settings, session.rows_so_far(), rule
+                run_to_requirement.judge_rows, settings, self._rows(stop), rule
             )
             self.log.info(run_to_requirement.judgement_line(stop.note(judgement), rule))
         if stop.met or stop.added >= rule.max_added or stop.latest is None:
@@ -319,28 +329,34 @@ class CalibrationRun:
             event.posture, report.phase, report.message, report.residuals, report.warning, **extra
         )
 
-    async def _identify(self, started, stopping=None):
+    async def _identify(self, started, stopping=None, reused=None):
         """Identify over every row, write the results, publish and apply; ``(success, text)``.
-        ``stopping``: the record of a run that stopped when it was good enough."""
+        ``stopping``: the record of a run that stopped when it was good enough; ``reused``: rows
+        of an earlier run identified with the run's own (numbered after its postures)."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
         self.save_state(PHASE_IDENTIFYING)
+        first = len(session.state.poses) + 1
+        samples = reused_rows.joined(session.samples, reused, first)
+        extra = {} if stopping is None else {'run_to_requirement': stopping}
+        if reused is not None:
+            extra['reused_rows'] = reused.record(first)
         host.progress(
             count,
             names.PHASE_IDENTIFYING,
-            f'identifying {settings.free_count} parameters from {len(session.samples)} postures',
+            f'identifying {settings.free_count} parameters from {len(samples)} postures',
         )
         finished = await host.in_thread(
             finish_run,
             session.run,
             settings,
-            session.samples,
+            samples,
             {
                 **self.collection.summary(),
                 'replacements': session.state.replacements,
                 'settle': settle_statistics(session.state.settle_waits),
                 'processing_lag': host.processing_lags.summary(),
-                **({} if stopping is None else {'run_to_requirement': stopping}),
+                **extra,
             },
             settings_options(settings),
         )

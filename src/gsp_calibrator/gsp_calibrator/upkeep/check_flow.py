@@ -25,6 +25,9 @@ class CheckRun(CalibrationRun):
     """One check with ``settings``, hosted by ``host`` (a ``run.host.RunHost``)."""
 
     def __init__(self, host, settings, resume=False):
+        # A check measures its whole plan (it never stops early nor adds postures) and judges
+        # its own rows only.
+        settings = dataclasses.replace(settings, stop_when_accurate=False, reuse_rows_from='')
         super().__init__(host, settings, resume=False)
         self.reference = None
         self.plan = None
@@ -64,17 +67,14 @@ class CheckRun(CalibrationRun):
             )
         except (ValueError, RuntimeError) as error:
             raise RunFailed(f'check postures: {error}') from None
-        # A check measures its whole plan (it never stops early, nor adds postures).
-        self.settings = dataclasses.replace(
-            settings, posture_count=len(self.plan.poses), stop_when_accurate=False
-        )
+        self.settings = dataclasses.replace(settings, posture_count=len(self.plan.poses))
         self.log.info(
             f'check of {self.reference.source}: {len(self.plan.poses)} postures, planned '
             f'platform time {self.plan.platform_time_s:.1f} s'
         )
         session.begin(self.settings, self.plan.poses, os.getpid(), part)
 
-    async def _identify(self, started, stopping=None):
+    async def _identify(self, started, stopping=None, reused=None):
         """Judge the collected rows, write check.json, index the check; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count

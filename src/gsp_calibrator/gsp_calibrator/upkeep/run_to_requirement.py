@@ -14,6 +14,7 @@ import numpy as np
 
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.postures import posture_pool, selection_formulation
+from gsp_calibrator.upkeep import reused_rows
 from gsp_kinematics import stopping
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import pose_from_leg_readings
@@ -176,16 +177,23 @@ class StoppingState:
     history: list = dataclasses.field(default_factory=list)  #: ``Judgement.record`` of each
     additions: PoolAdditions | None = None  #: the pool, once the plan was not enough
     added: int = 0  #: postures added from the pool
+    #: rows of another run judged with the run's own (``upkeep.reused_rows.ReusedRows``)
+    reused: object = None
 
     @classmethod
-    def start(cls, settings, poses, latest_legs):
-        """Before the first posture of a run with ``poses`` (its plan, (P, 6))."""
+    def start(cls, settings, poses, latest_legs, reused=None):
+        """Before the first posture of a run with ``poses`` (its plan, (P, 6)) and ``reused``
+        rows (None: none)."""
         start = start_pose_of(settings, latest_legs, np.asarray(poses, dtype=float)[0])
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
-        return cls(rule_for(settings), start, len(poses), worker)
+        return cls(rule_for(settings), start, len(poses), worker, reused=reused)
+
+    def rows(self, rows, first):
+        """The run's ``rows`` so far and the reused ones (numbered from ``first``)."""
+        return reused_rows.joined(rows, self.reused, first)
 
     def submit(self, settings, rows):
-        """Judge ``rows`` (the rows so far) in the worker thread."""
+        """Judge ``rows`` (:meth:`rows`) in the worker thread."""
         self.in_flight = self.worker.submit(judge_rows, settings, rows, self.rule)
 
     def finished(self):
