@@ -218,13 +218,8 @@ def check_platform(
         common = common_change(change, fitted.covariance + share, level)
         data['common_change'] = common
         if comparison['global_test']['changed'] and common['alike']:
-            # Heat grows every leg alike: no leg moved, and naming one would mislead.
-            moved = []
-            reasons.append(
-                f'all six leg offsets changed alike, by {common["change_um"]:+.1f} +- '
-                f'{common["sigma_um"]:.1f} um, since the calibration: a thermal state unlike '
-                "the calibration's (check after the same warm-up) or a common re-homing"
-            )
+            moved = []  # heat grows every leg alike: no leg moved, naming one would mislead
+            reasons.append(_alike_reason(common))
         elif comparison['global_test']['changed']:
             names = ', '.join(entry['parameter'] for entry in moved) or 'no single leg offset'
             reasons.append(f'the platform has changed since its calibration ({names})')
@@ -242,6 +237,14 @@ def check_platform(
     data['moved'] = moved
     data['moved_legs'] = sorted({_leg(entry['parameter']) for entry in moved} - {None})
     return data
+
+
+def _alike_reason(common):
+    return (
+        f'all six leg offsets changed alike, by {common["change_um"]:+.1f} +- '
+        f'{common["sigma_um"]:.1f} um, since the calibration: a thermal state unlike '
+        "the calibration's (check after the same warm-up) or a common re-homing"
+    )
 
 
 def common_change(change, covariance, level=drift.DEFAULT_LEVEL):

@@ -227,19 +227,14 @@ class CalibrationRun:
         """For each posture left (a rejected one's replacement joins the end): command it,
         await its end, record it. RunFailed when an end is a failure of the run.
 
-        With ``stop_when_accurate`` the rows so far are judged as they come, in a worker thread
-        while the next posture is collected (:meth:`_judged_enough`): the loop stops once a
-        judgement meets the requirement, and when the plan is not enough it adds pool postures
-        (:meth:`_posture_to_add`); ``reused`` rows are judged with the run's. Returns that
-        run's record (None without it)."""
+        With ``stop_when_accurate`` the rows so far (and ``reused``) are judged as they come, in
+        a worker thread while the next posture is collected (:meth:`_judged_enough`): the loop
+        stops once a judgement meets the requirement, and adds pool postures when the plan is
+        not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
         count = settings.posture_count
-        stop = None
-        if settings.stop_when_accurate:
-            plan = [session.state.poses[k - 1] for k in session.remaining]
-            stop = run_to_requirement.StoppingState.start(
-                settings, plan, self.collection.latest_leg_lengths(), reused
-            )
+        legs = self.collection.latest_leg_lengths()
+        stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
                 posture = session.next_posture()
@@ -262,14 +257,7 @@ class CalibrationRun:
         finally:
             if stop is not None:
                 stop.close()
-        if stop is None:
-            return None
-        commanded = len(session.state.poses) - len(session.remaining)
-        return stop.record(settings, session.state.poses[:commanded], plan)
-
-    def _rows(self, stop):
-        """The rows so far and the reused ones (numbered after the run's postures)."""
-        return stop.rows(self.session.rows_so_far(), len(self.session.state.poses) + 1)
+        return None if stop is None else stop.record(settings, session)
 
     def _judged_enough(self, stop):
         """Whether the latest finished judgement meets the requirement; else start judging the
@@ -277,42 +265,29 @@ class CalibrationRun:
         judgement = stop.finished()
         if judgement is not None:
             self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
-            if stop.met:
-                return True
-        rows = len(self.session.samples)
-        judged = stop.latest.postures if stop.latest is not None else 0
-        if stop.in_flight is None and rows > judged and stop.rule.due(rows):
-            stop.submit(self.settings, self._rows(stop))
+        if stop.met:
+            return True
+        if stop.judge_now(len(self.session.samples)):
+            stop.submit(self.settings, stop.rows(self.session))
         return False
 
     async def _posture_to_add(self, stop):
-        """After the plan: ``(k, pose)`` of a pool posture to add (the most information per
-        second of travel), or None when the rows meet the requirement or no more may be added.
-        At the plan's end the rows are judged whole (awaited)."""
-        host, session, settings, rule = self.host, self.session, self.settings, stop.rule
-        if stop.in_flight is not None and (stop.latest is None or stop.added == 0):
-            stop.note(await host.await_thread(stop.in_flight))
-            stop.in_flight = None
-        rows = len(session.samples)
-        if stop.added == 0 and (stop.latest is None or stop.latest.postures < rows):
-            judgement = await host.in_thread(
-                run_to_requirement.judge_rows, settings, self._rows(stop), rule
-            )
-            self.log.info(run_to_requirement.judgement_line(stop.note(judgement), rule))
-        if stop.met or stop.added >= rule.max_added or stop.latest is None:
+        """After the plan (whose rows are then judged whole): ``(k, pose)`` of the pool posture
+        to add, or None when the rows meet the requirement or no more may be added."""
+        host, session, settings = self.host, self.session, self.settings
+        if stop.added == 0:
+            if stop.in_flight is not None:
+                stop.note(await host.await_thread(stop.in_flight))
+            if stop.judge_now(len(session.samples), last=True):
+                stop.submit(settings, stop.rows(session))
+                judgement = stop.note(await host.await_thread(stop.in_flight))
+                self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
+        if not stop.may_add():
             return None
-        if stop.additions is None:
-            stop.additions = await host.in_thread(run_to_requirement.PoolAdditions, settings)
-        pose = await host.in_thread(
-            stop.additions.next_pose,
-            stop.latest,
-            session.state.poses,
-            self.collection.latest_leg_lengths(),
-            rule,
-        )
+        legs = self.collection.latest_leg_lengths()
+        pose = await host.in_thread(stop.next_pose, settings, session.state.poses, legs)
         if pose is None:
             return None
-        stop.added += 1
         self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
         return session.add_posture(pose)
 
@@ -330,17 +305,13 @@ class CalibrationRun:
         )
 
     async def _identify(self, started, stopping=None, reused=None):
-        """Identify over every row, write the results, publish and apply; ``(success, text)``.
-        ``stopping``: the record of a run that stopped when it was good enough; ``reused``: rows
-        of an earlier run identified with the run's own (numbered after its postures)."""
+        """Identify over every row (and ``reused``), write the results (``stopping``: the record
+        of a run that stops when good enough), publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
         self.save_state(PHASE_IDENTIFYING)
-        first = len(session.state.poses) + 1
-        samples = reused_rows.joined(session.samples, reused, first)
-        extra = {} if stopping is None else {'run_to_requirement': stopping}
-        if reused is not None:
-            extra['reused_rows'] = reused.record(first)
+        samples, extra = reused_rows.for_identification(session, reused)
+        extra |= {} if stopping is None else {'run_to_requirement': stopping}
         host.progress(
             count,
             names.PHASE_IDENTIFYING,

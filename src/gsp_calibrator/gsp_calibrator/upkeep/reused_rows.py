@@ -77,3 +77,11 @@ def joined(rows, reused, first):
             other.lag_sums[m],
         )
     return together
+
+
+def for_identification(session, reused):
+    """``(samples, record)``: a run ``session``'s rows and the ``reused`` ones (None: none),
+    numbered after its postures, and ``{'reused_rows': ...}`` for ``result.json`` (else {})."""
+    first = len(session.state.poses) + 1
+    samples = joined(session.samples, reused, first)
+    return samples, ({} if reused is None else {'reused_rows': reused.record(first)})

@@ -169,7 +169,7 @@ class StoppingState:
 
     rule: stopping.StoppingRule
     start_pose: np.ndarray  #: (6,) where the platform stood before the first posture
-    planned: int  #: postures of the fixed plan (the first of the run's poses)
+    plan: list  #: the fixed plan's poses (M, 6), in order
     #: the one worker thread of the judgements (one at a time, the newest rows)
     worker: concurrent.futures.ThreadPoolExecutor
     in_flight: concurrent.futures.Future | None = None  #: the judgement under way
@@ -181,16 +181,20 @@ class StoppingState:
     reused: object = None
 
     @classmethod
-    def start(cls, settings, poses, latest_legs, reused=None):
-        """Before the first posture of a run with ``poses`` (its plan, (P, 6)) and ``reused``
-        rows (None: none)."""
-        start = start_pose_of(settings, latest_legs, np.asarray(poses, dtype=float)[0])
+    def start(cls, settings, session, latest_legs, reused=None):
+        """Before the first posture of a run (``session``, its plan the postures left) with
+        ``reused`` rows (None: none); None unless ``settings.stop_when_accurate``."""
+        if not settings.stop_when_accurate:
+            return None
+        plan = [session.state.poses[k - 1] for k in session.remaining]
+        start = start_pose_of(settings, latest_legs, np.asarray(plan, dtype=float)[0])
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
-        return cls(rule_for(settings), start, len(poses), worker, reused=reused)
+        return cls(rule_for(settings), start, plan, worker, reused=reused)
 
-    def rows(self, rows, first):
-        """The run's ``rows`` so far and the reused ones (numbered from ``first``)."""
-        return reused_rows.joined(rows, self.reused, first)
+    def rows(self, session):
+        """The rows of ``session`` so far and the reused ones (numbered after its postures)."""
+        rows = session.rows_so_far()
+        return reused_rows.joined(rows, self.reused, len(session.state.poses) + 1)
 
     def submit(self, settings, rows):
         """Judge ``rows`` (:meth:`rows`) in the worker thread."""
@@ -200,13 +204,32 @@ class StoppingState:
         """The in-flight judgement if it has finished (then noted), else None."""
         if self.in_flight is None or not self.in_flight.done():
             return None
-        judgement, self.in_flight = self.in_flight.result(), None
-        return self.note(judgement)
+        return self.note(self.in_flight.result())
 
     def note(self, judgement):
-        self.latest = judgement
+        """Keep ``judgement`` (the in-flight one's result) as the latest."""
+        self.in_flight, self.latest = None, judgement
         self.history.append(judgement.record())
         return judgement
+
+    def judge_now(self, rows, last=False):
+        """Whether to judge ``rows`` collected rows now: none under way, rows not yet judged,
+        and due by the rule (``last``: the plan has ended)."""
+        judged = self.latest.postures if self.latest is not None else 0
+        return self.in_flight is None and rows > judged and self.rule.due(rows, last)
+
+    def may_add(self):
+        """Whether a pool posture may be added: not met, under ``max_added``, and judged."""
+        return not self.met and self.added < self.rule.max_added and self.latest is not None
+
+    def next_pose(self, settings, poses, latest_legs):
+        """The pool pose to add (worker thread; the pool is built at the first call), counted
+        as added; None when the pool has none left."""
+        if self.additions is None:
+            self.additions = PoolAdditions(settings)
+        pose = self.additions.next_pose(self.latest, poses, latest_legs, self.rule)
+        self.added += pose is not None
+        return pose
 
     @property
     def met(self):
@@ -215,11 +238,12 @@ class StoppingState:
     def close(self):
         self.worker.shutdown(wait=False, cancel_futures=True)
 
-    def record(self, settings, commanded_poses, plan_poses):
+    def record(self, settings, session):
         """``result.json`` ``collection.run_to_requirement``: met or not, postures, added, the
-        platform time spent (``commanded_poses`` in order from the start, at the leg limits with
-        the dwell) and the fixed plan's (``plan_poses``), the latest bounds and the judgements."""
-        rule = self.rule
+        platform time spent (the postures ``session`` commanded, in order from the start, at the
+        leg limits with the dwell) and the fixed plan's, the latest bounds and the judgements."""
+        rule, plan_poses = self.rule, self.plan
+        commanded_poses = session.state.poses[: len(session.state.poses) - len(session.remaining)]
         spent = platform_time_s(settings, self.start_pose, commanded_poses, rule)
         fixed = platform_time_s(settings, self.start_pose, plan_poses, rule)
         bounds = (self.latest.bounds if self.latest is not None else stopping.UNKNOWN).record()
