@@ -208,19 +208,21 @@ def check_platform(
         share = np.zeros((len(free), len(free)))
         if calibration is not None:
             share = calibration_share(controller, commanded, row_sigmas, calibration, free)
-        comparison = drift.compare(
-            drift.Calibration(free, before, share, controller, 'controller'),
-            drift.Calibration(free, fitted.parameters[index], fitted.covariance, fitted.geometry),
-            level,
+        after = drift.Calibration(
+            free, fitted.parameters[index], fitted.covariance, fitted.geometry
         )
-        moved = comparison['significant']
-        change = fitted.parameters[index] - before
-        common = common_change(change, fitted.covariance + share, level)
+        comparison = drift.compare(
+            drift.Calibration(free, before, share, controller, 'controller'), after, level
+        )
+        common = common_change(after.estimates - before, fitted.covariance + share, level)
         data['common_change'] = common
-        if comparison['global_test']['changed'] and common['alike']:
+        moved = comparison['significant']
+        if (changed := comparison['global_test']['changed']) and common['median_significant']:
+            moved = _moved_beyond_common(before, share, controller, after, level)
+        if changed and common['alike']:
             moved = []  # heat grows every leg alike: no leg moved, naming one would mislead
             reasons.append(_alike_reason(common))
-        elif comparison['global_test']['changed']:
+        elif changed:
             names = ', '.join(entry['parameter'] for entry in moved) or 'no single leg offset'
             reasons.append(f'the platform has changed since its calibration ({names})')
         data['change'] = comparison
@@ -237,6 +239,16 @@ def check_platform(
     data['moved'] = moved
     data['moved_legs'] = sorted({_leg(entry['parameter']) for entry in moved} - {None})
     return data
+
+
+def _moved_beyond_common(before, share, controller, after, level):
+    """The leg offsets that moved beyond a common change of all six (a thermal state unlike the
+    calibration's): the w-tests after the common part, the median change (robust to the leg
+    that moved), is taken out. The leg that moved is named first; another may follow (the
+    median is not the common part exactly)."""
+    shifted = before + float(np.median(after.estimates - before))
+    reference = drift.Calibration(after.names, shifted, share, controller, 'controller')
+    return drift.compare(reference, after, level)['significant']
 
 
 def _alike_reason(common):
@@ -261,6 +273,7 @@ def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
     rest = change - delta * ones
     chi2 = float(rest @ inverse @ rest)
     sigma = 1.0 / math.sqrt(weight)
+    marginal = float(np.median(np.sqrt(np.diag(covariance))))
     bound = float(stats.chi2.ppf(1.0 - level, len(change) - 1))
     z = float(stats.norm.ppf(1.0 - level / 2.0))
     return {
@@ -268,6 +281,9 @@ def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
         'sigma_um': 1e6 * sigma,
         'rest_chi2': chi2,
         'rest_chi2_bound': bound,
+        'significant': bool(abs(delta) > z * sigma),
+        # most legs changed (the median change beyond z of the legs' median marginal sigma)
+        'median_significant': bool(abs(float(np.median(change))) > z * marginal),
         'alike': bool(abs(delta) > z * sigma and chi2 <= bound),
     }
 
