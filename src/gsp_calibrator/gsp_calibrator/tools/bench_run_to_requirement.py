@@ -38,7 +38,7 @@ from gsp_kinematics.validation import simulate_commands
 
 SEEDS = 20
 QUICK_SEEDS = 1
-MINIMUM = 20  #: postures of the first judgement
+MINIMUM = 30  #: postures of the first judgement (the calibrator's default)
 EVERY = 4  #: postures between judgements
 MAX_ADDED = 24  #: pool postures added at most (the bench's cap)
 

@@ -51,8 +51,9 @@ UPKEEP_PARAMETERS = (
     ),
     ParameterSpec(
         'stop_minimum_postures',
-        20,
-        'With stop_when_accurate: the rows are first judged after this many postures',
+        30,
+        'With stop_when_accurate: the rows are first judged after this many postures (fewer '
+        'give an optimistic cross-validation on a real platform: docs/upkeep.md)',
         constraints='>= 2',
         check=at_least(2),
         subsets=frozenset(('stored',)),
