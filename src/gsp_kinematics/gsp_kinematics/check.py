@@ -208,17 +208,14 @@ def check_platform(
         share = np.zeros((len(free), len(free)))
         if calibration is not None:
             share = calibration_share(controller, commanded, row_sigmas, calibration, free)
-        after = drift.Calibration(
-            free, fitted.parameters[index], fitted.covariance, fitted.geometry
-        )
-        comparison = drift.compare(
-            drift.Calibration(free, before, share, controller, 'controller'), after, level
-        )
-        common = common_change(after.estimates - before, fitted.covariance + share, level)
-        data['common_change'] = common
+        after = drift.Calibration(free, fitted.parameters[index], fitted.covariance)
+        reference = drift.Calibration(free, before, share, controller, 'controller')
+        comparison = drift.compare(reference, after, level)
+        change, covariance = after.estimates - before, fitted.covariance + share
+        data['common_change'] = common = common_change(change, covariance, level)
         moved = comparison['significant']
-        if (changed := comparison['global_test']['changed']) and common['median_significant']:
-            moved = _moved_beyond_common(before, share, controller, after, level)
+        if (changed := comparison['global_test']['changed']) and common['significant']:
+            moved = _moved_beyond_common(change, covariance, free, level)
         if changed and common['alike']:
             moved = []  # heat grows every leg alike: no leg moved, naming one would mislead
             reasons.append(_alike_reason(common))
@@ -241,14 +238,19 @@ def check_platform(
     return data
 
 
-def _moved_beyond_common(before, share, controller, after, level):
+def _moved_beyond_common(change, covariance, names, level):
     """The leg offsets that moved beyond a common change of all six (a thermal state unlike the
-    calibration's): the w-tests after the common part, the median change (robust to the leg
-    that moved), is taken out. The leg that moved is named first; another may follow (the
-    median is not the common part exactly)."""
-    shifted = before + float(np.median(after.estimates - before))
-    reference = drift.Calibration(after.names, shifted, share, controller, 'controller')
-    return drift.compare(reference, after, level)['significant']
+    calibration's): the iterated w-tests (``drift.localise``) with the common change as a
+    nuisance parameter (its direction taken out of the weight)."""
+    inverse = np.linalg.pinv(np.asarray(covariance, dtype=float))
+    column = inverse @ np.ones(len(change))
+    weight = inverse - np.outer(column, column) / float(column.sum())
+    named, _ = drift.localise(np.asarray(change), weight, level, dof=len(change) - 1)
+    return [
+        {'parameter': names[i], 'change_report': 1e3 * value, 'sigma_report': 1e3 * sigma}
+        | {'unit': 'mm', 'w': w}
+        for i, value, sigma, w in named
+    ]
 
 
 def _alike_reason(common):
@@ -273,7 +275,6 @@ def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
     rest = change - delta * ones
     chi2 = float(rest @ inverse @ rest)
     sigma = 1.0 / math.sqrt(weight)
-    marginal = float(np.median(np.sqrt(np.diag(covariance))))
     bound = float(stats.chi2.ppf(1.0 - level, len(change) - 1))
     z = float(stats.norm.ppf(1.0 - level / 2.0))
     return {
@@ -282,8 +283,6 @@ def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
         'rest_chi2': chi2,
         'rest_chi2_bound': bound,
         'significant': bool(abs(delta) > z * sigma),
-        # most legs changed (the median change beyond z of the legs' median marginal sigma)
-        'median_significant': bool(abs(float(np.median(change))) > z * marginal),
         'alike': bool(abs(delta) > z * sigma and chi2 <= bound),
     }
 
