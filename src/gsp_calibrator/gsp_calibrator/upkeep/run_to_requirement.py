@@ -17,7 +17,7 @@ from gsp_calibrator.run.postures import posture_pool, selection_formulation
 from gsp_calibrator.upkeep import reused_rows
 from gsp_kinematics import stopping
 from gsp_kinematics.identification import resolve_free
-from gsp_kinematics.kinematics import pose_from_leg_readings
+from gsp_kinematics.kinematics import ForwardKinematicsError, home_pose, pose_from_leg_readings
 from gsp_kinematics.prediction import accuracy_summary
 from gsp_kinematics.selection import posture_information
 from gsp_kinematics.travel.motion import posture_leg_lengths
@@ -116,18 +116,23 @@ class PoolAdditions:
 def platform_time_s(settings, start_pose, poses, rule):
     """Platform time (s) of ``poses`` in order from ``start_pose`` at the leg limits, with the
     rule's dwell per posture (the same count for the run and for its fixed plan)."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+    if not len(poses):
+        return 0.0
     return stopping.plan_time_s(
-        settings.nominal, start_pose, np.asarray(poses).reshape(-1, 6), settings.motion_limits,
-        rule.dwell_s,
-    )  # fmt: skip
+        settings.nominal, start_pose, poses, settings.motion_limits, rule.dwell_s
+    )
 
 
 def start_pose_of(settings, leg_readings, fallback):
-    """The pose of the platform whose legs read ``leg_readings``, else ``fallback``."""
-    try:
-        return pose_from_leg_readings(settings.nominal, leg_readings)
-    except Exception:  # no FK there: the fixed plan's time is counted from the fallback
-        return np.asarray(fallback, dtype=float)
+    """The pose of the platform whose legs read ``leg_readings`` (None: unknown), else
+    ``fallback`` (the times are then counted from there)."""
+    if leg_readings is not None:
+        try:
+            return pose_from_leg_readings(settings.nominal, leg_readings)
+        except (ForwardKinematicsError, ValueError):
+            pass
+    return np.asarray(fallback, dtype=float)
 
 
 def judgement_line(judgement, rule):
@@ -187,7 +192,7 @@ class StoppingState:
         if not settings.stop_when_accurate:
             return None
         plan = [session.state.poses[k - 1] for k in session.remaining]
-        start = start_pose_of(settings, latest_legs, np.asarray(plan, dtype=float)[0])
+        start = start_pose_of(settings, latest_legs, plan[0] if plan else home_pose())
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
         return cls(rule_for(settings), start, plan, worker, reused=reused)
 
