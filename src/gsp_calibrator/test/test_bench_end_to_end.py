@@ -131,6 +131,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         bench_collection_rate,
         bench_effects,
         bench_platform_time,
+        bench_run_to_requirement,
         bench_sensor_dynamics,
         bench_upkeep_realistic,
         bench_verdict,
@@ -151,6 +152,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'upkeep': bench_upkeep.run,
                 'upkeep_realistic': bench_upkeep_realistic.run,
                 'effects': bench_effects.run,
+                'run_to_requirement': bench_run_to_requirement.run,
             },
         )
     ]

@@ -11,6 +11,7 @@ from gsp_calibrator.tools import (
     bench_effects,
     bench_end_to_end,
     bench_platform_time,
+    bench_run_to_requirement,
     bench_sensor_dynamics,
     bench_upkeep_realistic,
     bench_verdict,
@@ -29,6 +30,7 @@ EXTRA_SECTIONS = {
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
     'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md
     'effects': bench_effects.run,  # docs/platform_effects.md
+    'run_to_requirement': bench_run_to_requirement.run,  # docs/upkeep.md
 }
 
 
