@@ -1,4 +1,4 @@
-"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md)."""
+"""Keep DDS on loopback in a ROS domain of this session's own, claimed through domain_coordinator (docs/faults.md)."""
 
 import sys
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md);
+"""Keep DDS on loopback in a ROS domain of this session's own, claimed through domain_coordinator (docs/faults.md);
 ``small_disk``: a small tmpfs that the disk-full tests really fill (full_disk.py)."""
 
 import sys
