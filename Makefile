@@ -12,7 +12,7 @@
 #   make clean   remove build/ install/ log/ and caches (distclean: also .venv)
 #
 # Every run keeps DDS on loopback in a ROS domain of its own: each test session, demo and bench
-# claims a free one by lock (docs/faults.md), unless given: make test ROS_DOMAIN_ID=7.
+# claims a free one through domain_coordinator (docs/faults.md), unless given: make test ROS_DOMAIN_ID=7.
 
 SHELL := /bin/bash
 .SHELLFLAGS := -eo pipefail -c

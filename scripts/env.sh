@@ -2,7 +2,7 @@
 # Environment of the workspace: `source scripts/env.sh` (bash, zsh or sh) from anywhere.
 # Gives: the .venv python (ROS 2 Jazzy wheels), the colcon install/ packages (PYTHONPATH,
 # AMENT_PREFIX_PATH), every console script on PATH (platform_sim, calibrator, gsp_demo, ...),
-# and DDS kept on loopback in a free domain, locked for this shell, unless ROS_DOMAIN_ID is set.
+# and DDS kept on loopback in a free domain, claimed for this shell, unless ROS_DOMAIN_ID is set.
 # Run `make build` first (`make venv` alone gives the core and ROS wheels, not the nodes).
 
 if [ -n "${BASH_SOURCE:-}" ]; then
@@ -57,19 +57,23 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE
 # Small matrices: BLAS threads only contend with the nodes on a 2-core machine.
 OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
 export OPENBLAS_NUM_THREADS
-# A free domain, locked until this shell exits (a small holder process waits for it), so that
-# no concurrent run claims it; the shell's children share it (docs/faults.md, ROS domains).
+# A free domain, claimed until this shell exits (a small holder process keeps the claim), so
+# that no concurrent run draws it; the shell's children share it (docs/faults.md, ROS domains).
 if [ -z "${ROS_DOMAIN_ID:-}" ]; then
   # The owner is the shell that sources this file: in bash, $BASHPID is that (sub)shell, so
   # `( . scripts/env.sh; cmd )` frees its domain when the subshell ends ($$ would be the parent
   # shell, which may live for hours). Taken here: inside $(...) it would name the substitution.
   _gsp_owner=${BASHPID:-$$}
-  ROS_DOMAIN_ID=$("$GSP_WS/.venv/bin/python" \
-    "$GSP_WS/src/gsp_msgs_py/gsp_msgs_py/ros_environment.py" claim --owner "$_gsp_owner") || ROS_DOMAIN_ID=''
+  ROS_DOMAIN_ID=$("$GSP_WS/.venv/bin/python" "$GSP_WS/scripts/claim-ros-domain" \
+    --owner "$_gsp_owner") || ROS_DOMAIN_ID=''
   unset _gsp_owner
-  if [ -z "$ROS_DOMAIN_ID" ]; then
+  if [ -n "$ROS_DOMAIN_ID" ]; then
+    # This run's claim: a process started from this shell that checks the domain accepts it.
+    GSP_ROS_DOMAIN_CLAIMED=$ROS_DOMAIN_ID
+    export GSP_ROS_DOMAIN_CLAIMED
+  else
     ROS_DOMAIN_ID=$(( $(od -An -N2 -tu2 /dev/urandom | tr -d ' ') % 101 + 1 ))
-    echo "scripts/env.sh: no domain lock; ROS_DOMAIN_ID=$ROS_DOMAIN_ID drawn at random" >&2
+    echo "scripts/env.sh: no domain claimed; ROS_DOMAIN_ID=$ROS_DOMAIN_ID drawn at random" >&2
   fi
 fi
 export ROS_DOMAIN_ID

@@ -3,44 +3,22 @@ applies, validates, and leaves nothing running."""
 
 import json
 import re
-import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from gsp_testing import marked_environment, marked_processes, wait_until
+from gsp_testing import marked_environment, marked_processes, run_demo, wait_until
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_kinematics.geometry import load_geometry, parameter_errors
 
-DEMO_TIMEOUT_S = 300.0  # generous: the machine may be loaded (the target is < 60 s)
 #: Keys every summary.json has (the demo writes more: the run directory, the fit, ...).
 SUMMARY_KEYS = {'validation', 'max_param_error_mm', 'max_param_error_deg'} | {
     'identification_ms',
     'calibration_s',
     'total_s',
 }
-
-
-def demo_command():
-    """``gsp_demo`` from PATH (``make test``), else the module with this interpreter."""
-    executable = shutil.which('gsp_demo')
-    return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
-
-
-def run_demo(arguments, env):
-    """Run ``gsp_demo arguments`` in ``env``; ``(completed process, stdout + stderr)``."""
-    completed = subprocess.run(
-        demo_command() + list(arguments),
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=DEMO_TIMEOUT_S,
-    )
-    return completed, completed.stdout + completed.stderr
 
 
 def test_main_job_calibrates_and_improves_accuracy(tmp_path):

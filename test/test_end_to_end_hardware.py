@@ -4,24 +4,16 @@ serial backend. Calibrates, applies to the bridge, validates."""
 
 import json
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
-from gsp_testing import marked_environment, marked_processes, wait_until
-
-DEMO_TIMEOUT_S = 400.0  # generous: bounds a failure only
+from gsp_testing import marked_environment, marked_processes, run_demo, wait_until
 
 
 def test_main_job_through_ros2_control_and_the_serial_device(tmp_path):
-    executable = shutil.which('gsp_demo')
-    command = [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
     env, marker = marked_environment()
     env.pop('ROS_DOMAIN_ID', None)  # the demo chooses a private one
-    completed = subprocess.run(
-        command
-        + [
+    completed, output = run_demo(
+        [
             '--output-root',
             str(tmp_path / 'runs'),
             '--postures',
@@ -33,12 +25,8 @@ def test_main_job_through_ros2_control_and_the_serial_device(tmp_path):
             '--device',
             'serial',
         ],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=DEMO_TIMEOUT_S,
+        env,
     )
-    output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output
     # Nothing the demo started is left (each node has a session of its own, so look for the
     # environment they inherited; the wait only bounds a failure while they are reaped).

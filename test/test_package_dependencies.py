@@ -61,3 +61,30 @@ def test_package_xml_lists_every_runtime_import(package):
 def test_the_check_sees_the_calibrators_plots_and_recordings():
     assert {'matplotlib', 'mcap', 'rclpy', 'gsp_kinematics'} <= imported_modules('gsp_calibrator')
     assert 'python3-matplotlib' in runtime_dependencies('gsp_experiments')
+
+
+def modules_importing_tests(directory):
+    """``{test module: [test_* modules it imports]}`` in ``directory`` (tests' own imports)."""
+    found = {}
+    for path in sorted(directory.rglob('*.py')):
+        for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            else:
+                continue
+            tests = [name for name in names if name.split('.')[0].startswith('test_')]
+            if tests:
+                found.setdefault(str(path.relative_to(WS)), []).extend(tests)
+    return found
+
+
+@pytest.mark.parametrize('directory', [*(f'src/{p}/test' for p in PACKAGES), 'test'])
+def test_no_test_module_imports_another(directory):
+    """What tests share lives in test_support/, so that each test module stands alone (pytest
+    collects an imported test module's tests twice, and its fixtures leak into the importer)."""
+    importing = modules_importing_tests(WS / directory)
+    assert not importing, (
+        f'test modules import other test modules (move it to test_support/): {importing}'
+    )

@@ -7,9 +7,8 @@ import re
 from pathlib import Path
 
 import numpy as np
-from gsp_testing import marked_environment
+from gsp_testing import marked_environment, run_demo
 from scipy import stats
-from test_end_to_end import run_demo
 
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.run.directory import read_samples

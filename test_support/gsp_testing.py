@@ -97,6 +97,30 @@ def marked_processes(marker):
     return found
 
 
+#: Bound on one ``gsp_demo`` run of a test (s): generous, the machine may be loaded (a demo
+#: takes about a minute); it only bounds a failure.
+DEMO_TIMEOUT_S = 400.0
+
+
+def demo_command():
+    """``gsp_demo`` from PATH (``make test``), else the module with this interpreter."""
+    import shutil
+    import sys
+
+    executable = shutil.which('gsp_demo')
+    return [executable] if executable else [sys.executable, '-m', 'gsp_calibrator.tools.demo']
+
+
+def run_demo(arguments, env, timeout=DEMO_TIMEOUT_S):
+    """Run ``gsp_demo arguments`` in ``env``; ``(completed process, stdout + stderr)``."""
+    import subprocess
+
+    completed = subprocess.run(
+        demo_command() + list(arguments), env=env, capture_output=True, text=True, timeout=timeout
+    )
+    return completed, completed.stdout + completed.stderr
+
+
 class SpinThread:
     """Spins ``executor`` in a daemon thread until :meth:`stop` (then shut it down yourself).
 
@@ -182,10 +206,11 @@ def shutdown_executor(executor, timeout_sec=5.0):
 
 
 def use_loopback_domain():
-    """Keep DDS on loopback, in a ROS domain of this test session's own: a free one claimed by
-    lock unless ``ROS_DOMAIN_ID`` is set (then checked: no other run holds it, no nodes in it
-    yet); see :func:`~gsp_msgs_py.ros_environment.enter_private_domain`. A collision fails the
-    session at once with the reason, rather than letting two runs hear each other."""
+    """Keep DDS on loopback, in a ROS domain of this test session's own: a free one claimed
+    (through domain_coordinator) unless ``ROS_DOMAIN_ID`` is set (then checked: no other run
+    holds it, no nodes in it yet); see :func:`~gsp_msgs_py.ros_environment.enter_private_domain`.
+    A collision fails the session at once with the reason, rather than letting two runs hear
+    each other."""
     try:
         return enter_private_domain()
     except DomainInUseError as error:

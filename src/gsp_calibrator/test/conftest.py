@@ -1,5 +1,5 @@
-"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md);
-``small_disk``: a small tmpfs that the disk-full tests really fill (full_disk.py)."""
+"""Keep DDS on loopback in a ROS domain of this session's own, claimed (docs/faults.md,
+"ROS domains"); ``small_disk``: a small tmpfs the disk-full tests really fill (full_disk.py)."""
 
 import sys
 from pathlib import Path

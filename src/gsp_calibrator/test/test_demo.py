@@ -15,11 +15,9 @@ from gsp_calibrator.tools import demo, demo_commands, demo_summary
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.geometry import default_geometry
-from gsp_msgs_py.ros_environment import LOCK_DIRECTORY_VARIABLE
 
 
-def test_ros_environment_is_loopback_with_a_domain(tmp_path, monkeypatch):
-    monkeypatch.setenv(LOCK_DIRECTORY_VARIABLE, str(tmp_path))  # private domain locks
+def test_ros_environment_is_loopback_with_a_domain():
     env = demo_commands.ros_environment({'PATH': '/bin'}, rng=random.Random(1))
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert 1 <= int(env['ROS_DOMAIN_ID']) <= 101 and env['PATH'] == '/bin'

@@ -13,10 +13,10 @@ import shutil
 
 import numpy as np
 import pytest
+from calibrator_suite import make_suite, perturbed_truth
 from full_disk import NO_SPACE, WriteLimit
 from std_srvs.srv import Trigger
 from synthetic import synthetic_samples
-from test_calibrator_node import make_suite, perturbed_truth
 
 from gsp_calibrator.recording import mcap_io
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info

@@ -10,10 +10,10 @@ import threading
 
 import numpy as np
 import pytest
+from calibrator_suite import make_suite, perturbed_truth
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from test_calibrator_node import make_suite, perturbed_truth
 
 from gsp_calibrator.collection.single_source import SingleSourceGuard
 from gsp_calibrator.recording.mcap_format import RecordingError

@@ -10,8 +10,8 @@ import json
 
 import numpy as np
 import pytest
+from calibrator_suite import CALL_TIMEOUT_S, make_suite, perturbed_truth
 from rclpy.parameter import Parameter
-from test_calibrator_node import CALL_TIMEOUT_S, make_suite, perturbed_truth
 
 from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
 from gsp_calibrator.recording import rebuild

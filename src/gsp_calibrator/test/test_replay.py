@@ -6,13 +6,13 @@ import gsp_testing
 import numpy as np
 import pytest
 import rclpy
+from calibrator_suite import spin_as_in_use
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from recorded_runs import write_command
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from test_calibrator_node import spin_as_in_use
 
 from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
 from gsp_calibrator.recording.recorder import RECORDING_FILE

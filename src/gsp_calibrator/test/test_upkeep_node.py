@@ -6,8 +6,8 @@ as test_calibrator_node runs them."""
 import json
 from pathlib import Path
 
+from calibrator_suite import make_suite, perturbed_truth
 from std_srvs.srv import Trigger
-from test_calibrator_node import make_suite, perturbed_truth
 
 import gsp_calibrator.tools.history
 from gsp_calibrator.tools import compare

@@ -1,4 +1,5 @@
-"""Keep DDS on loopback in a ROS domain of this session's own, claimed by lock (docs/faults.md)."""
+"""Keep DDS on loopback in a ROS domain of this session's own, claimed (docs/faults.md,
+"ROS domains")."""
 
 import sys
 from pathlib import Path

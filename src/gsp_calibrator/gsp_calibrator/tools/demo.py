@@ -335,7 +335,7 @@ def run(args):
     nominal = load_geometry(args.nominal_geometry)
     output_root = os.path.abspath(args.output_root)
     try:
-        # A domain of the demo's own (claimed by lock, or the given one checked), probed for
+        # A domain of the demo's own (claimed, or the given one checked), probed for
         # nodes by a child: this process forks its nodes before it starts DDS threads itself.
         enter_private_domain(probe=foreign_nodes_in_child)
     except DomainInUseError as error:
