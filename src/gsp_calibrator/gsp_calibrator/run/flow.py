@@ -224,6 +224,7 @@ class CalibrationRun:
         while (posture := session.next_posture()) is not None:
             k, pose = posture
             host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
+            session.note_command(k, pose, self.collection.latest_leg_lengths())
             # The row (samples.csv) or the skip is kept, and the outcome noted in the
             # recording, by the thread of the message that ended the posture, before this
             # await returns: a SIGTERM meanwhile loses nothing.
