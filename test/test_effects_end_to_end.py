@@ -93,6 +93,9 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     )
     commands = demo_commands.node_commands(args, str(tmp_path / 'runs'))
     assert 'payload_mass:=40.0' in commands['calibrator']  # the user knows the load
+    # A loaded machine (2 cores, other suites) starves a stream for seconds at times: the run
+    # waits that out instead of failing (a run failed at 2 s with no device sample).
+    commands['calibrator'] += ['-p', 'topic_timeout:=10.0']
     nominal, true = default_geometry('nominal'), default_geometry('true')
     checks = sample_valid_postures(nominal, CHECK_POSTURES, np.random.default_rng(7))
     nodes = NodeProcesses(commands, env, tmp_path)
@@ -150,5 +153,9 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     true_plain = validate(true, plain, checks, REALISTIC, times)['position_mm_mean']
     print(f'through platform_sim: auto {auto_mm:.4f} mm, plain {plain_mm:.4f} mm')
     print(f'truth: auto {true_auto:.4f} mm, plain {true_plain:.4f} mm; groups {choice["groups"]}')
+    # Measured in two runs: through platform_sim 0.0084 and 0.0098 mm against 0.0325 and
+    # 0.0363 mm (3.7-3.9x); the truth 0.0077 and 0.0101 mm against 0.0336 and 0.0374 mm
+    # (3.7-4.4x). Bound at 1.5x: a run that loses postures to a loaded machine keeps a margin,
+    # and the plain model (the compliance pushed into the geometry) stays well above it.
     assert auto_mm < plain_mm / 1.5, (auto_mm, plain_mm)
     assert true_auto < true_plain / 1.5, (true_auto, true_plain)
