@@ -470,11 +470,18 @@ def run_options_error(args):
 
 def check_combination(values):
     """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
-    (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
+    (``posture_count <= pool_size``, a ``payload_mass`` for the compliance); the
+    ``validate`` of ``declare_parameters``."""
     if values['posture_count'] > values['pool_size']:
         return (
             f'posture_count ({values["posture_count"]}) must not exceed pool_size '
             f'({values["pool_size"]})'
+        )
+    compliance = [n for n in values['free_parameters'] if n.startswith('compliance')]
+    if compliance and not values['payload_mass'] > 0.0:
+        return (
+            f'free_parameters {compliance} need the payload_mass (kg) the legs carry '
+            '(0: unknown; docs/platform_effects.md)'
         )
     return ''
 

@@ -179,3 +179,9 @@ def test_free_parameters_take_effect_groups_and_auto():
     assert 'auto' in check_parameters({'free_parameters': ['auto', 'backlash']})
     assert 'unknown' in check_parameters({'free_parameters': ['extended', 'friction']})
     assert 'payload_mass' in check_parameters({'payload_mass': -1.0})
+    # Refused before any posture is collected, not after.
+    assert 'payload_mass' in check_parameters({'free_parameters': ['extended', 'compliance']})
+    assert (
+        check_parameters({'free_parameters': ['extended', 'compliance'], 'payload_mass': 40.0})
+        == ''
+    )
