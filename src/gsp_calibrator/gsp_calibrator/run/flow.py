@@ -232,8 +232,7 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count = settings.posture_count
-        legs = self.collection.latest_leg_lengths()
+        count, legs = settings.posture_count, self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
