@@ -44,7 +44,14 @@ from gsp_kinematics.sensors.noise import (
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_msgs_py import parameter_specs
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, check_values, greater_than, one_of
+from gsp_msgs_py.parameter_specs import (
+    ParameterSpec,
+    at_least,
+    check_values,
+    greater_than,
+    is_finite_number,
+    one_of,
+)
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
@@ -207,10 +214,37 @@ PARAMETERS = (
         ['extended'],
         'Parameters identified: groups paper (the 44: A1x..B6z, Loff1..Loff6, D0, gamma) and '
         'extended (the 44 and the identifiable sensor errors kq1..kq6, alpha0), and/or names '
-        '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md)',
-        constraints='non-empty, known names or groups, no duplicates',
-        check=functools.partial(free_parameters_error, effects=False),
+        '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md). '
+        'Effect groups compliance, backlash, thermal, joint_offsets (implicit formulation), or '
+        'auto: the groups chosen by cross-validated accuracy, the other names the plain model '
+        '(default extended) (docs/platform_effects.md)',
+        constraints='non-empty, known names or groups, no duplicates, auto without effect groups',
+        check=free_parameters_error,
         subsets=_RUN | {REIDENTIFY_COMMAND_LINE},
+    ),
+    ParameterSpec(
+        'payload_mass',
+        0.0,
+        'Mass the legs carry (moving platform and payload) for the compliance group: the device '
+        'identifies the compliance times this mass; 0: unknown, compliance cannot be freed and '
+        'auto does not try it (docs/platform_effects.md)',
+        unit='kg',
+        constraints='>= 0',
+        check=at_least(0.0, reason='must be finite and >= 0 kg'),
+        subsets=_JUDGED,
+    ),
+    ParameterSpec(
+        'payload_centre_of_mass',
+        [0.0, 0.0, 0.0],
+        "Centre of mass of payload_mass in the platform frame (x, y, z), for the legs' forces",
+        unit='m',
+        constraints='3 finite numbers',
+        check=lambda v: (
+            ''
+            if len(list(v)) == 3 and all(is_finite_number(x) for x in v)
+            else 'must be 3 finite numbers (m)'
+        ),
+        subsets=frozenset((STORED,)),
     ),
     _one_of(
         'loss',
@@ -436,11 +470,18 @@ def run_options_error(args):
 
 def check_combination(values):
     """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
-    (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
+    (``posture_count <= pool_size``, a ``payload_mass`` for the compliance); the
+    ``validate`` of ``declare_parameters``."""
     if values['posture_count'] > values['pool_size']:
         return (
             f'posture_count ({values["posture_count"]}) must not exceed pool_size '
             f'({values["pool_size"]})'
+        )
+    compliance = [n for n in values['free_parameters'] if n.startswith('compliance')]
+    if compliance and not values['payload_mass'] > 0.0:
+        return (
+            f'free_parameters {compliance} need the payload_mass (kg) the legs carry '
+            '(0: unknown; docs/platform_effects.md)'
         )
     return ''
 

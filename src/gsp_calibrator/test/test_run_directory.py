@@ -38,6 +38,7 @@ def make_samples(count=4, seed=0):
             10 - k,
             1.7e9 + rng.uniform(),
             None if k == 1 else rng.uniform(size=(4, (10 - k) // 2 + 1)),  # row 2: none
+            None if k == 2 else rng.choice([-1.0, 1.0], size=6),  # row 3: unknown
         )
     return samples
 
@@ -67,6 +68,12 @@ def test_columns_are_exactly_the_contract():
         'lag_sums_inclinometer',
         'lag_sums_encoder',
         'lag_sums_lvdt',
+        'approach_leg_1',
+        'approach_leg_2',
+        'approach_leg_3',
+        'approach_leg_4',
+        'approach_leg_5',
+        'approach_leg_6',
     )
 
 
@@ -82,6 +89,8 @@ def test_samples_round_trip_at_full_precision(tmp_path):
     np.testing.assert_array_equal(back.n_samples, samples.n_samples)
     np.testing.assert_array_equal(back.stamps, samples.stamps)
     np.testing.assert_array_equal(back.lag_sums, samples.lag_sums)  # NaN where none
+    np.testing.assert_array_equal(back.directions, samples.directions)  # 0 where unknown
+    assert np.all(back.directions[2] == 0) and np.all(np.abs(back.directions[[0, 1, 3]]) == 1)
     assert back.lag_sums.shape == (4, 4, 6) and np.isnan(back.lag_sums[1]).all()
     assert np.isnan(back.lag_sums[3, :, 4:]).all()  # 7 samples: lags 0..3
     commanded, legs, readings, n_samples, stamps = load_samples(path)
@@ -102,18 +111,26 @@ def test_empty_samples_round_trip(tmp_path):
         ('a,b\n', 'columns'),
         (','.join(SAMPLES_COLUMNS) + '\n1,2\n', ':2: 2 values'),
         (
-            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x'] + [''] * 4),
+            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 18 + ['x'] + [''] * 10),
             'column stamp',
         ),
         (
             ','.join(SAMPLES_COLUMNS)
             + '\n'
-            + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8 + [''] * 4),
+            + ','.join(['1'] * 10 + ['nan'] + ['1'] * 8 + [''] * 10),
             'column leg_4 is not finite',
         ),
         (
-            ','.join(SAMPLES_COLUMNS) + '\n' + ','.join(['1'] * 19 + ['1 2', '3 x', '', '']),
+            ','.join(SAMPLES_COLUMNS)
+            + '\n'
+            + ','.join(['1'] * 19 + ['1 2', '3 x', '', ''] + [''] * 6),
             'column lag_sums_inclinometer',
+        ),
+        (
+            ','.join(SAMPLES_COLUMNS)
+            + '\n'
+            + ','.join(['1'] * 19 + [''] * 4 + ['1', '0.5'] + [''] * 4),
+            'column approach_leg_2',
         ),
     ],
 )
@@ -122,10 +139,20 @@ def test_malformed_samples_are_reported(text, match):
         samples_from_csv(text)
 
 
+def test_a_samples_file_without_approach_directions_is_read_with_them_unknown(tmp_path):
+    samples = make_samples()
+    path = tmp_path / 'samples.csv'
+    cut = [line.split(',')[:-6] for line in samples_to_csv(samples).splitlines()]
+    path.write_text('\n'.join(','.join(row) for row in cut) + '\n')
+    back = read_samples(path)
+    np.testing.assert_array_equal(back.leg_lengths, samples.leg_lengths)
+    assert back.directions.shape == (4, 6) and not back.directions.any()
+
+
 def test_a_samples_file_of_other_columns_is_refused(tmp_path):
     samples = make_samples()
     path = tmp_path / 'samples.csv'
-    cut = [line.split(',')[:-4] for line in samples_to_csv(samples).splitlines()]  # no lag sums
+    cut = [line.split(',')[:-10] for line in samples_to_csv(samples).splitlines()]  # no lag sums
     path.write_text('\n'.join(','.join(row) for row in cut) + '\n')
     with pytest.raises(RunDirectoryError, match='differ from the expected'):
         read_samples(path)
@@ -196,4 +223,4 @@ def test_csv_text_uses_repr_floats():
     samples.append(1, [0.1] * 6, [1 / 3] * 6, [2 / 3] * 4, 10, 1.7e9 + 0.123456789)
     row = samples_to_csv(samples).splitlines()[1].split(',')
     assert row[7] == repr(1 / 3) and row[18] == repr(1.7e9 + 0.123456789) and row[17] == '10'
-    assert row[19:] == [''] * 4
+    assert row[19:] == [''] * 10

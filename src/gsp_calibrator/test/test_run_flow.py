@@ -17,8 +17,9 @@ from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, PostureLink, RunHost
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.settings import CalibratorSettings
+from gsp_kinematics.effects.model import approach_directions
 from gsp_kinematics.geometry import default_geometry, parameter_errors
-from gsp_kinematics.kinematics import home_pose
+from gsp_kinematics.kinematics import home_pose, inverse_kinematics
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import posture_leg_lengths
 from gsp_kinematics.validation import sensor_measurements
@@ -195,6 +196,27 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     calls = host.recorder.calls
     assert calls[0][0] == 'start' and calls[-1][0] == 'stop'
     assert calls[1:-1] == [('end', k, 'kept') for k in range(1, 31)]
+
+
+def test_each_row_records_its_approach_directions_and_auto_keeps_the_plain_model(tmp_path):
+    """The rows carry each leg's approach direction over the sequence the run commanded (from
+    the legs heard before it); ``auto`` on a platform the plain model describes keeps it."""
+    host = FakeHost()
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    success, message = host.serve(settings)
+    assert success, message
+    assert 'model (auto): groups none' in message
+    samples = host.session.run.read_samples()
+    commanded = np.asarray(host.session.state.poses)
+    heard, _ = sensor_measurements(host.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
+    legs = inverse_kinematics(settings.nominal, commanded)
+    expected = approach_directions(legs, heard[0])
+    np.testing.assert_array_equal(samples.directions, expected[samples.posture - 1])
+    assert (samples.directions < 0).any() and (samples.directions > 0).any()
+    result = json.loads(host.session.run.file('result.json').read_text())
+    assert result['effects']['model_choice']['groups'] == []
+    ((geometry, _),) = host.delivered
+    assert geometry.effects.none
 
 
 def test_the_route_starts_from_the_platforms_current_posture(tmp_path):

@@ -17,15 +17,20 @@ from .sensors.noise import DEFAULT_SENSOR_NOISE
 DEFAULT_RELATIVE_TOLERANCE = 1e-6
 
 
-def analyse_identifiability(information, free=None, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE):
+def analyse_identifiability(
+    information, free=None, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE, names=None
+):
     """``{rank, parameters, condition_number, singular_values, unidentifiable}``.
 
+    ``names``: of the information's rows (default those of ``free``; a result that freed
+    effect parameters: ``IdentificationResult.free_names``).
     ``unidentifiable`` lists one entry per null direction: ``{"combination": "0.71*B1x - 0.71*B2y",
     "parameters": [...], "coefficients": [...]}`` (coefficients in scaled units, largest first).
     A parameter that no residual depends on shows up alone.
     """
-    free = resolve_free(free)
-    names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, free, strict=True) if is_free]
+    if names is None:
+        free = resolve_free(free)
+        names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, free, strict=True) if is_free]
     information = np.asarray(information, dtype=float)
     if information.shape != (len(names), len(names)):
         raise ValueError(f'information must be {len(names)}x{len(names)}, got {information.shape}')
@@ -88,7 +93,7 @@ def analyse_result(result):
             'unidentifiable': [],
             'names': names,
         }
-    analysis = analyse_identifiability(information, result.free)
+    analysis = analyse_identifiability(information, names=list(result.free_names))
     analysis['names'] = unidentifiable_parameters(analysis)
     return analysis
 

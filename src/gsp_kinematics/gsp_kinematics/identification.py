@@ -29,6 +29,7 @@ from ._solver.formulations import _FkModel, _ImplicitModel
 from ._solver.lm import TERMINATION_MESSAGES, levenberg_marquardt
 from .device import READING_NAMES, device_position
 from .effects.groups import (
+    AUTO,
     EFFECT_PARAMETER_NAMES,
     NUM_EFFECT_PARAMETERS,
     EffectDesign,
@@ -39,6 +40,7 @@ from .effects.groups import (
     geometry_with_effects,
     is_effect_name,
     resolve_effects,
+    split_auto,
 )
 from .geometry import (
     ALL_PARAMETER_NAMES,
@@ -199,10 +201,10 @@ class IdentificationResult:
 
 def free_parameters_error(names, effects=True):
     """Reason ('' if none) why ``names`` (parameter and group names, :data:`PARAMETER_GROUPS`;
-    with ``effects``, also the effect groups and their parameters, ``effects.groups``) is not a
-    set of free parameters: empty, unknown or duplicated names. The one check of a free-parameter
-    list, for the calibrator's ``free_parameters`` (``effects=False``: the calibrator has no
-    effect design) and every command line."""
+    with ``effects``, also the effect groups and their parameters, ``effects.groups``, and
+    :data:`AUTO`) is not a set of free parameters: empty, unknown or duplicated names, or
+    :data:`AUTO` beside named effects. The one check of a free-parameter list, for the
+    calibrator's ``free_parameters`` and every command line."""
     names = list(names)
     if not names:
         return 'must name at least one parameter'
@@ -211,11 +213,12 @@ def free_parameters_error(names, effects=True):
         for n in names
         if n not in PARAMETER_INDEX
         and n not in PARAMETER_GROUPS
-        and not (effects and is_effect_name(n))
+        and not (effects and (is_effect_name(n) or n == AUTO))
     ]
     if unknown:
         effect_names = (
-            ", or effect groups 'compliance', 'backlash', 'thermal', 'joint_offsets'"
+            ", effect groups 'compliance', 'backlash', 'thermal', 'joint_offsets' or "
+            f"'{AUTO}' (choose them from the data)"
             if effects
             else ''
         )
@@ -227,6 +230,8 @@ def free_parameters_error(names, effects=True):
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
         return f'duplicated name(s) {duplicated}'
+    if AUTO in names and any(is_effect_name(n) for n in names):
+        return f"'{AUTO}' chooses the effect groups: name no effect group or parameter beside it"
     return ''
 
 
@@ -249,6 +254,7 @@ def resolve_free(free):
     reason = free_parameters_error(free)
     if reason:
         raise IdentificationError(f'free parameters: {reason}')
+    free, _ = split_auto(free)  # the plain model of a choice
     mask = np.zeros(NUM_ALL_PARAMETERS, dtype=bool)
     for name in free:
         if is_effect_name(name):  # the effect groups and their parameters: resolve_effects
@@ -336,6 +342,8 @@ def identify(
         goodness.check_loss(options.loss, options.loss_scale)
     except ValueError as error:
         raise IdentificationError(str(error)) from None
+    if free is not None and not isinstance(free, np.ndarray) and AUTO in list(free):
+        raise IdentificationError(f"'{AUTO}' is a choice of model: model_choice.choose_model")
     effect_mask = resolve_effects([] if free is None or isinstance(free, np.ndarray) else free)
     free = resolve_free(free)
     leg_lengths, readings, pose_guesses = _check_inputs(

@@ -13,6 +13,7 @@ before these notes keeps every row its messages give, as before.
 
 import collections
 import os
+from pathlib import Path
 
 from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.recording.mcap_format import RecordingError
@@ -23,7 +24,9 @@ from gsp_calibrator.recording.recorder import (
     POSTURE_END_METADATA_NAME,
     POSTURE_METADATA_NAME,
 )
+from gsp_calibrator.run.approach import ApproachTracker
 from gsp_calibrator.run.directory import Samples
+from gsp_kinematics.geometry import GeometryError, default_geometry, load_geometry
 from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_msgs_py import names
@@ -188,7 +191,9 @@ def _stamp_ns(msg):
         return None
 
 
-def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
+def samples_from_recording(
+    path, sync_tolerance=None, samples_per_posture=None, noise_std=None, nominal=None
+):
     """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run.directory.Samples`) of one
     recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
@@ -196,14 +201,16 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
     rows are the ones the calibrator collected online, by the same settle rule (its stored
     options). The rebuild has no timeouts: the postures' noted outcomes
-    (:func:`posture_outcomes`) decide which rows were kept.
+    (:func:`posture_outcomes`) decide which rows were kept. Each row's approach directions come
+    from the recorded commands as online (:class:`gsp_calibrator.run.approach.ApproachTracker`,
+    through ``nominal``: default the stored nominal geometry file, else the shipped one).
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
     :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
     samples = Samples.empty()
-    for event in rows_from_recording(path, sync_tolerance, samples_per_posture, noise_std):
+    for event, directions in _rows(path, sync_tolerance, samples_per_posture, noise_std, nominal):
         sample = event.sample
         samples.append(
             event.posture,
@@ -213,6 +220,7 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
             sample.n_samples,
             sample.stamp,
             sample.lag_sums,
+            directions,
         )
     return samples
 
@@ -220,6 +228,54 @@ def samples_from_recording(path, sync_tolerance=None, samples_per_posture=None, 
 def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
     """The :class:`~gsp_calibrator.collection.events.RowReady` events of
     :func:`samples_from_recording` (with each row's ``settle_wait``), in row order."""
+    return [event for event, _ in _rows(path, sync_tolerance, samples_per_posture, noise_std)]
+
+
+def _stored_nominal(stored):
+    """The geometry the run commanded through: its stored nominal file, else the shipped one."""
+    name = stored.get('nominal_geometry_file')
+    if name and Path(name).is_file():
+        try:
+            return load_geometry(name)
+        except (GeometryError, OSError):
+            pass
+    return default_geometry('nominal')
+
+
+class _ApproachTap:
+    """A collection protocol that tells an :class:`ApproachTracker` each command as it takes
+    effect (with the legs heard before it) and each posture the platform rejected, as the
+    calibrator's session does online."""
+
+    def __init__(self, collection, tracker):
+        self._collection, self.tracker = collection, tracker
+
+    def __getattr__(self, name):
+        return getattr(self._collection, name)
+
+    def command(self, posture, pose, command_id, now_ns):
+        self.tracker.command(posture, pose, self._collection.latest_leg_lengths())
+        return self._seen(self._collection.command(posture, pose, command_id, now_ns))
+
+    def sensor(self, *args, **kwargs):
+        return self._seen(self._collection.sensor(*args, **kwargs))
+
+    def status(self, *args, **kwargs):
+        return self._seen(self._collection.status(*args, **kwargs))
+
+    def finish(self):
+        return self._seen(self._collection.finish())
+
+    def _seen(self, found):
+        found = list(found)
+        for event in found:
+            if isinstance(event, events.PostureSkipped) and event.rejected_by_platform:
+                self.tracker.rejected(event.posture)
+        return found
+
+
+def _rows(path, sync_tolerance=None, samples_per_posture=None, noise_std=None, nominal=None):
+    """``[(RowReady, approach directions (6,))]`` of :func:`samples_from_recording`."""
     first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
     stored = recording_options(first)
     if sync_tolerance is None:
@@ -233,6 +289,7 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
         )
     if noise_std is None:
         noise_std = noise_std_from_options(stored)
+    nominal = _stored_nominal(stored) if nominal is None else nominal
     # Each part is one session of the run, fed to a protocol of its own that continues after
     # the last row so far, as the resumed calibrator did; a posture collected again by a later
     # session (its earlier collection was cut short) keeps its later row.
@@ -241,11 +298,14 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
         collection = protocol.CollectionProtocol(
             sync_tolerance, samples_per_posture, noise_std, **settle_options(stored)
         )
+        last = None
         if rows:
-            collection.continue_after(next(reversed(rows.values())).sample.readings)
+            last_event, last = next(reversed(rows.values()))
+            collection.continue_after(last_event.sample.readings)
+        tracker = ApproachTracker(nominal, last)
         kept = kept_postures(recording_info(part), part)
         previous = {}  # posture -> the readings its row was compared to
-        for event in feed_recording(part, collection):
+        for event in feed_recording(part, _ApproachTap(collection, tracker)):
             if isinstance(event, events.CollectionStarted):
                 previous[event.posture] = collection.collector.previous_readings
             elif isinstance(event, events.RowReady):
@@ -256,7 +316,7 @@ def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noi
                         collection.continue_after(previous[event.posture])
                     continue
                 rows.pop(event.posture, None)
-                rows[event.posture] = event
+                rows[event.posture] = (event, tracker.directions(event.posture))
     return list(rows.values())
 
 

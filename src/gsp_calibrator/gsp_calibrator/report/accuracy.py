@@ -36,6 +36,10 @@ def prediction_for(
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
+    # Freed effects: the geometry's marginal covariance (the effects' own spread through the
+    # controller's compensation is left out: docs/platform_effects.md).
+    count = int(np.sum(result.free))
+    covariance = covariance[:count, :count]
     if analysis is None:
         analysis = analyse_result(result)
     if analysis['rank'] < analysis['parameters']:

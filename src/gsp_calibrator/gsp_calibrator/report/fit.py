@@ -57,6 +57,7 @@ def outcome_data(outcome):
         'noise_estimates': outcome.noise_estimates,
         'fit_accepted': outcome.fit_accepted,
         'verdict': outcome.verdict or None,
+        'effects': outcome.effects,  # report.effects.effects_record
     }
 
 

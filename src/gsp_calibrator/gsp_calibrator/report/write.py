@@ -35,6 +35,7 @@ from gsp_calibrator.report.data import (
     si_unit,
     validation_summary,
 )
+from gsp_calibrator.report.effects import effects_markdown
 from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number, outcome_data
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.geometry import (
@@ -326,6 +327,7 @@ def report_markdown(data, images, title='Calibration report', plots=True):
     lines += _validation_lines(data, images)
     lines += _parameter_lines(data, images)
     lines += fit_markdown(data)
+    lines += effects_markdown(data.get('effects'))
     if 'held_out' in images:
         lines += [f'![accuracy measured on held-out postures]({images["held_out"]})', '']
     lines += [f'## Correlations above {data["correlation_threshold"]}', '']

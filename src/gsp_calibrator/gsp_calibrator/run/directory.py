@@ -37,8 +37,13 @@ READING_COLUMNS = channels.READING_NAMES
 LAG_SUM_COLUMNS = tuple(f'lag_sums_{channel}' for channel in LAG_SUMS_CHANNELS)
 #: The columns of a row's numbers (m, rad, s), before its lag sums.
 ROW_COLUMNS = ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_samples', 'stamp')
+#: Each leg's approach direction at the row's posture: 1 (the leg arrived extending), -1
+#: (retracting), empty when unknown (``run.approach``: from the commanded sequence).
+APPROACH_COLUMNS = tuple(f'approach_{leg}' for leg in LEG_COLUMNS)
 #: Columns of ``samples.csv``, exactly.
-SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS
+SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS + APPROACH_COLUMNS
+#: The columns of a ``samples.csv`` written before the approach directions (still read).
+LEGACY_SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS
 
 TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
 
@@ -63,6 +68,9 @@ class Samples:
     #: (M, 4, L) each row's window lag sums per noise channel (``LAG_SUM_COLUMNS``), NaN where a
     #: row has none or fewer lags; None: no row has them
     lag_sums: np.ndarray | None = None
+    #: (M, 6) each leg's approach direction (+1 extending, -1 retracting, 0 unknown); None: all
+    #: unknown
+    directions: np.ndarray | None = None
 
     def __post_init__(self):
         self.posture = np.asarray(self.posture, dtype=int).reshape(-1)
@@ -77,6 +85,8 @@ class Samples:
         if lag_sums.ndim != 3 or lag_sums.shape[:2] != (count, len(LAG_SUM_COLUMNS)):
             raise ValueError(f'lag_sums must be ({count}, 4, lags), got shape {lag_sums.shape}')
         self.lag_sums = lag_sums
+        directions = np.zeros((count, 6)) if self.directions is None else self.directions
+        self.directions = np.asarray(directions, dtype=float).reshape(count, 6)
 
     def __len__(self):
         return int(self.posture.shape[0])
@@ -93,9 +103,18 @@ class Samples:
         )
 
     def append(
-        self, posture, commanded_pose, leg_lengths, readings, n_samples, stamp, lag_sums=None
+        self,
+        posture,
+        commanded_pose,
+        leg_lengths,
+        readings,
+        n_samples,
+        stamp,
+        lag_sums=None,
+        directions=None,
     ):
-        """Add one row (in place); ``lag_sums`` (4, L) or None: its window's lag sums."""
+        """Add one row (in place); ``lag_sums`` (4, L) or None: its window's lag sums;
+        ``directions`` (6,) or None (unknown): the legs' approach directions."""
         self.posture = np.append(self.posture, int(posture))
         self.commanded_poses = np.vstack([self.commanded_poses, np.reshape(commanded_pose, (1, 6))])
         self.leg_lengths = np.vstack([self.leg_lengths, np.reshape(leg_lengths, (1, 6))])
@@ -106,6 +125,8 @@ class Samples:
         if lag_sums is not None:
             row = np.asarray(lag_sums, dtype=float)[None].reshape(1, len(LAG_SUM_COLUMNS), -1)
         self.lag_sums = np.concatenate(_padded([self.lag_sums, row], row.shape[2]), axis=0)
+        approach = np.zeros(6) if directions is None else np.reshape(directions, 6)
+        self.directions = np.vstack([self.directions, approach[None]])
 
     def rows(self, keep):
         """The rows ``keep`` (a slice or an index array) as a new :class:`Samples`."""
@@ -117,6 +138,7 @@ class Samples:
             self.n_samples[keep],
             self.stamps[keep],
             self.lag_sums[keep],
+            self.directions[keep],
         )
 
     def as_tuple(self):
@@ -149,6 +171,15 @@ def _lag_sums_values(text, source, line, name):
     return values
 
 
+def _direction_value(text, source, line, name):
+    """An approach direction of ``samples.csv``: 1, -1, or empty (unknown: 0)."""
+    if not text.strip():
+        return 0
+    if text.strip() not in ('1', '-1'):
+        raise RunDirectoryError(f'{source}:{line}: column {name}: {text!r} is not 1, -1 or empty')
+    return int(text)
+
+
 def samples_to_csv(samples, header=True, rows=None):
     """CSV text of ``samples`` (full float precision, ``repr``): the header (``header``) and the
     rows ``rows`` (a range of row indices; default all)."""
@@ -164,6 +195,7 @@ def samples_to_csv(samples, header=True, rows=None):
             + [repr(float(v)) for v in samples.readings[m]]
             + [str(int(samples.n_samples[m])), repr(float(samples.stamps[m]))]
             + [_lag_sums_text(values) for values in samples.lag_sums[m]]
+            + [str(int(d)) if d else '' for d in samples.directions[m]]
         )
     return buffer.getvalue()
 
@@ -175,22 +207,30 @@ def samples_from_csv(text, source='<string>'):
         header = next(reader)
     except StopIteration:
         raise RunDirectoryError(f'{source}: empty file (expected a header)') from None
-    if tuple(header) != SAMPLES_COLUMNS:
+    if tuple(header) not in (SAMPLES_COLUMNS, LEGACY_SAMPLES_COLUMNS):
         raise RunDirectoryError(
             f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
         )
     columns = len(header)
-    rows, lag_rows = [], []
+    rows, lag_rows, direction_rows = [], [], []
     for line, row in enumerate(reader, start=2):
         if not row:
             continue
         if len(row) != columns:
             raise RunDirectoryError(f'{source}:{line}: {len(row)} values, expected {columns}')
+        lag_texts = row[len(ROW_COLUMNS) : len(ROW_COLUMNS) + len(LAG_SUM_COLUMNS)]
         sums = [
             _lag_sums_values(text, source, line, name)
-            for name, text in zip(LAG_SUM_COLUMNS, row[len(ROW_COLUMNS) :], strict=True)
+            for name, text in zip(LAG_SUM_COLUMNS, lag_texts, strict=True)
         ]
         lag_rows.append(sums)
+        direction_texts = row[len(LEGACY_SAMPLES_COLUMNS) :] or [''] * len(APPROACH_COLUMNS)
+        direction_rows.append(
+            [
+                _direction_value(text, source, line, name)
+                for name, text in zip(APPROACH_COLUMNS, direction_texts, strict=True)
+            ]
+        )
         values = []
         for name, text_value in zip(ROW_COLUMNS, row[: len(ROW_COLUMNS)], strict=True):
             try:
@@ -219,6 +259,7 @@ def samples_from_csv(text, source='<string>'):
         n_samples=table[:, 17].astype(int),
         stamps=table[:, 18],
         lag_sums=lag_sums,
+        directions=np.array(direction_rows, dtype=float),
     )
 
 

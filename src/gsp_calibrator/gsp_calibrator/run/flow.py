@@ -232,8 +232,7 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count = settings.posture_count
-        legs = self.collection.latest_leg_lengths()
+        count, legs = settings.posture_count, self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
@@ -244,6 +243,7 @@ class CalibrationRun:
                     break
                 k, pose = posture
                 host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
+                session.note_command(k, pose, self.collection.latest_leg_lengths())
                 # The row (samples.csv) or the skip is kept, and the outcome noted in the
                 # recording, by the thread of the message that ended the posture, before this
                 # await returns: a SIGTERM meanwhile loses nothing.

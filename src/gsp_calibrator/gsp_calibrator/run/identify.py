@@ -7,7 +7,9 @@
    A result that passes is cross-validated (the accuracy the device measures on postures the
    fit did not use), and judged against the required accuracy
    (:func:`gsp_kinematics.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
-   is applied.
+   is applied. With :data:`gsp_kinematics.identification.AUTO` among the free parameters, the
+   effect groups are chosen first (:func:`gsp_kinematics.model_choice.choose_model`, on the
+   run's ``EffectDesign`` from :mod:`.approach`); the outcome's ``effects`` says what and why.
 2. :func:`finish_run`: identification of a collected run, and its result files.
 
 The postures are chosen by :mod:`.postures`; the texts are :mod:`.response`.
@@ -18,13 +20,19 @@ import time
 
 import numpy as np
 
+from gsp_calibrator.run.approach import effect_design, reference_instant
 from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import acceptance, identifiability, noise_from_data
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
 from gsp_kinematics.device import DeviceModelError
+from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.goodness import verdict
-from gsp_kinematics.identification import FORMULATIONS, IdentificationError, resolve_free
+from gsp_kinematics.identification import (
+    FORMULATIONS,
+    IdentificationError,
+    resolve_free,
+)
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 #: Comment of the calibrated geometry file and the latched result.
@@ -63,6 +71,9 @@ class CalibrationOutcome:
     #: ``acceptance.Verdict``: applied or not, and why (None: no result to judge)
     judgement: object = None
     requirement: object = None  #: the ``acceptance.Requirement`` judged against
+    #: the platform effects (``report.effects.effects_record``: the choice of model, the
+    #: identified effects, the thermal drift); None when none was chosen or freed
+    effects: dict | None = None
 
     @property
     def accepted(self):
@@ -106,6 +117,8 @@ def identify_from_samples(
     noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
     requirement=acceptance.Requirement(),
     folds=DEFAULT_FOLDS,
+    payload_mass=0.0,
+    centre_of_mass=(0.0, 0.0, 0.0),
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
@@ -119,12 +132,10 @@ def identify_from_samples(
     (:func:`noise_from_data.identify_with_noise`). A successful outcome is cross-validated
     over ``folds`` folds and judged against ``requirement`` (:attr:`CalibrationOutcome.accepted`;
     the goodness of fit, :attr:`CalibrationOutcome.fit_accepted`, is a diagnostic).
+    Effect groups (or ``auto``) in ``free`` use the rows' times and approach directions and the
+    user's ``payload_mass`` (kg) at ``centre_of_mass`` (platform frame, m).
     """
-    if formulation not in FORMULATIONS:
-        raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
-    if noise_from_data.noise_source_error(noise_source):
-        raise CalibrationError(f'noise_source {noise_from_data.noise_source_error(noise_source)}')
-    free_mask = resolve_free(free)
+    free = _checked_free(free, formulation, noise_source)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
     outcome = CalibrationOutcome(
@@ -134,19 +145,17 @@ def identify_from_samples(
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
     within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
+    design = effect_design(samples, payload_mass, centre_of_mass)
     started = time.perf_counter()
     try:
-        result, estimates, outcome.sigmas = noise_from_data.identify_with_noise(
-            noise_source,
+        result, estimates, outcome.sigmas, effects, choice, untried = _fit(
             nominal,
-            samples.leg_lengths,
-            samples.readings,
-            row_sigmas,
-            within,
-            formulation=formulation,
-            free=free_mask,
-            pose_guesses=samples.commanded_poses,
-            **identify_options,
+            samples,
+            (row_sigmas, within, design),
+            free,
+            formulation,
+            noise_source,
+            identify_options,
         )
     except (IdentificationError, DeviceModelError, np.linalg.LinAlgError, ValueError) as error:
         outcome.duration_s = time.perf_counter() - started
@@ -155,6 +164,7 @@ def identify_from_samples(
         return outcome
     outcome.duration_s = time.perf_counter() - started
     outcome.result = result
+    outcome.effects = _effects_record(result, design, nominal, choice, untried, samples)
     if not result.converged:
         outcome.message = (
             f'identification did not converge after {result.iterations} iteration(s) '
@@ -175,15 +185,92 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    _judge(outcome, nominal, samples, estimates, row_sigmas, requirement, folds, identify_options)
+    judged = (requirement, folds, identify_options, effects)
+    _judge(outcome, nominal, samples, estimates, row_sigmas, judged)
     return outcome
 
 
-def _judge(outcome, nominal, samples, estimates, row_sigmas, requirement, folds, identify_options):
-    """Cross-validate ``outcome``'s result, estimate what the model leaves unexplained, predict
+def _checked_free(free, formulation, noise_source):
+    """``free`` as a list; CalibrationError for an unknown formulation or noise source, or
+    effects (or ``auto``) freed in a formulation other than ``implicit``; IdentificationError
+    when a name is wrong."""
+    if formulation not in FORMULATIONS:
+        raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
+    if noise_from_data.noise_source_error(noise_source):
+        raise CalibrationError(f'noise_source {noise_from_data.noise_source_error(noise_source)}')
+    free = [free] if isinstance(free, str) else list(free)
+    if any(is_effect_name(n) or n == AUTO for n in free) and formulation != 'implicit':
+        raise CalibrationError(
+            f"the effect groups and auto need formulation 'implicit', got {formulation!r}"
+        )
+    resolve_free(free)
+    return free
+
+
+def _fit(nominal, samples, weights, free, formulation, noise_source, identify_options):
+    """The identification of the rows with the weights and design ``weights`` (row sigmas,
+    within-posture noise, ``EffectDesign``), ``auto`` chosen first: ``(result, estimates,
+    sigmas used, the design if effects were freed else None, ModelChoice or None, untried)``."""
+    row_sigmas, within, design = weights
+    plain, auto = split_auto(free)
+    choice = untried = None
+    if auto:
+        choice, untried = _choose(nominal, samples, row_sigmas, design, plain, identify_options)
+        free = plain + list(choice.groups)
+    effects = design if any(is_effect_name(n) for n in free) else None
+    result, estimates, used = noise_from_data.identify_with_noise(
+        noise_source,
+        nominal,
+        samples.leg_lengths,
+        samples.readings,
+        row_sigmas,
+        within,
+        formulation=formulation,
+        free=resolve_free(free) if effects is None else free,
+        pose_guesses=samples.commanded_poses,
+        effects=effects,
+        **identify_options,
+    )
+    return result, estimates, used, effects, choice, untried
+
+
+def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
+    """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
+    the effect groups the run's ``design`` allows beside the ``plain`` model, by
+    cross-validated accuracy with the core's over-fitting guard (weights: ``row_sigmas``)."""
+    from gsp_calibrator.report.effects import untried_groups
+    from gsp_kinematics.model_choice import choose_model
+
+    options = identify_options.get('options')
+    extra = {} if options is None else {'options': options}
+    choice = choose_model(
+        nominal,
+        samples.leg_lengths,
+        samples.readings,
+        row_sigmas,
+        design,
+        base=tuple(plain),
+        pose_guesses=samples.commanded_poses,
+        **extra,
+    )
+    return choice, untried_groups(design, len(samples), effect_groups_of(plain))
+
+
+def _effects_record(result, design, nominal, choice, untried, samples):
+    from gsp_calibrator.report.effects import effects_record
+
+    if not result.converged:
+        return None
+    _, stamp = reference_instant(samples)
+    return effects_record(result, design, nominal, choice, untried, stamp)
+
+
+def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
+    """``judged``: ``(requirement, folds, identify_options, effects)``. Cross-validate ``outcome``'s result, estimate what the model leaves unexplained, predict
     the accuracy with it, and judge against ``requirement`` (fills the outcome)."""
     from gsp_calibrator.report.accuracy import prediction_for
 
+    requirement, folds, identify_options, effects = judged
     result = outcome.result
     noise = SensorNoise.from_channels(
         {channel: entry.noise for channel, entry in estimates.items()}, default=row_sigmas
@@ -198,6 +285,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, requirement, folds,
         outcome.sigmas,
         folds=folds,
         noise=noise,
+        effects=effects,
         **extra,
     )
     outcome.accuracy = validation.summary()
@@ -237,6 +325,8 @@ def identify_with_settings(settings, samples):
         settings.noise_source,
         settings.requirement,
         settings.cross_validation_folds,
+        payload_mass=settings.payload_mass,
+        centre_of_mass=settings.payload_centre_of_mass,
         options=settings.identify_options(),
     )
 

@@ -209,6 +209,10 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
             lines.append(f'sensor errors: {sensor_text}')
     if outcome.success:
         lines.extend(fit_lines(outcome))
+    if outcome.result is not None:
+        from gsp_calibrator.report.effects import effects_lines
+
+        lines.extend(effects_lines(outcome.effects))
     if outcome.success and reference is not None:
         errors = parameter_errors(outcome.geometry, reference)
         lines.append(

@@ -21,6 +21,7 @@ import numpy as np
 
 from gsp_calibrator.collection.single_source import other_calibrators
 from gsp_calibrator.recording.mcap_io import recover_recordings
+from gsp_calibrator.run.approach import ApproachTracker
 from gsp_calibrator.run.directory import (
     SAMPLES_FILE,
     RunDirectory,
@@ -76,6 +77,7 @@ class RunSession:
         #: ``replace(poses, rejected)``: the pose (6,) to add for a rejected posture, or None
         self.replace = None
         self._appender = None
+        self.approach = None  #: the ApproachTracker of the postures commanded (from begin)
         self._lock = threading.Lock()  # guards samples, state and remaining
         self._save_lock = threading.Lock()  # orders the state.json writes
 
@@ -124,6 +126,9 @@ class RunSession:
         else:
             self.remaining = postures_to_collect(self.state, self.samples)
         self.state.pid = int(pid)
+        # The legs arrived last as the last row says (a new run: homed extending).
+        last = self.samples.directions[-1] if len(self.samples) else None
+        self.approach = ApproachTracker(settings.nominal, last)
         self.state.phase, self.state.stop_reason = PHASE_COLLECTING, ''
         if recording_file is not None:
             self.state.recordings.append(os.path.basename(recording_file))
@@ -141,6 +146,13 @@ class RunSession:
                 return None
             k = self.remaining.pop(0)
             return k, np.asarray(self.state.poses[k - 1], dtype=float)
+
+    def note_command(self, posture, pose, standing_legs=None):
+        """``posture`` (``pose``) is about to be commanded; ``standing_legs`` (6,) m: the leg
+        lengths heard last (where the first command starts from). Its row gets the approach
+        directions (``run.approach``)."""
+        with self._lock:
+            self.approach.command(posture, pose, standing_legs)
 
     def rows_so_far(self):
         """A copy of the rows collected so far (:class:`.directory.Samples`)."""
@@ -172,6 +184,7 @@ class RunSession:
                 row.n_samples,
                 row.stamp,
                 row.lag_sums,
+                self.approach.directions(event.posture) if self.approach else None,
             )
             try:
                 self._appender.append(self.samples)
@@ -197,6 +210,8 @@ class RunSession:
         (``replace``), appended to the postures to command and recorded."""
         with self._lock:
             self.state.record_skip(event.posture, event.reason)
+            if event.rejected_by_platform and self.approach is not None:
+                self.approach.rejected(event.posture)
             if not (event.rejected_by_platform and self.replace is not None):
                 return
             rejected = [event.posture] + [r['rejected'] for r in self.state.replacements]

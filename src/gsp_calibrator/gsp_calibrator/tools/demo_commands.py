@@ -105,6 +105,23 @@ def platform_effect_parameters(args):
     return [a for key, value in values.items() for a in ('-p', f'{key}:={_parameter_text(value)}')]
 
 
+def calibrator_payload_parameters(args):
+    """With ``--platform-effects``, the calibrator is told the payload the simulated legs carry
+    (its ``payload_mass`` and ``payload_centre_of_mass``: what a user knows of the load), so
+    that ``--free auto`` can try the compliance; without, its defaults (unknown)."""
+    name = getattr(args, 'platform_effects', 'none')
+    if name == 'none' or not PRESETS[name].payload_mass > 0:
+        return []
+    effects = PRESETS[name]
+    centre = ','.join(repr(float(v)) for v in effects.centre_of_mass)
+    return [
+        '-p',
+        f'payload_mass:={float(effects.payload_mass)!r}',
+        '-p',
+        f'payload_centre_of_mass:=[{centre}]',
+    ]
+
+
 def calibrator_motion_parameters(args):
     """With leg limits, the calibrator plans its route with them and waits long enough for a
     move (``settle_timeout``); without, its defaults."""
@@ -200,6 +217,7 @@ def _calibrator_parameters(args, output_root, rate):
         '-p',
         'write_report_plots:=false',
         *calibrator_motion_parameters(args),
+        *calibrator_payload_parameters(args),
     ]
 
 

@@ -209,6 +209,8 @@ def reidentify(args, out=None):
             noise_source=options['noise_source'],
             requirement=Requirement.from_parameters(options),
             folds=int(options['cross_validation_folds']),
+            payload_mass=options['payload_mass'],
+            centre_of_mass=options['payload_centre_of_mass'],
             options=_options(options),
         )
     except (IdentificationError, postures.CalibrationError) as error:
@@ -320,6 +322,8 @@ def refresh_report(
         noise_source=source,
         requirement=Requirement.from_parameters(options),
         folds=int(options['cross_validation_folds']),
+        payload_mass=options['payload_mass'],
+        centre_of_mass=options['payload_centre_of_mass'],
         options=_options(options),
     )
     if outcome.result is None:

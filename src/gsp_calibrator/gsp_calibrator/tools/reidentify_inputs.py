@@ -88,6 +88,12 @@ def resolve_options(args, stored):
                 )
             nominal = default_geometry_path('nominal')
     options['nominal_geometry_file'] = str(nominal)
+    # Stored only (not an option): where the payload's mass sits, for the compliance.
+    centre = stored.get('payload_centre_of_mass') or DEFAULTS['payload_centre_of_mass']
+    try:
+        options['payload_centre_of_mass'] = [float(v) for v in centre]
+    except (TypeError, ValueError):
+        raise InputError(f'payload_centre_of_mass: {centre!r} (stored) is not 3 numbers') from None
     return options
 
 
@@ -163,7 +169,11 @@ def load_input(kind, path, options):
         noise_std = SensorNoise.from_parameters(options).channel_std()
         try:
             samples = samples_from_recording(
-                parts or path, options['sync_tolerance'], options['samples_per_posture'], noise_std
+                parts or path,
+                options['sync_tolerance'],
+                options['samples_per_posture'],
+                noise_std,
+                nominal=geometry_option(options['nominal_geometry_file'], '--nominal'),
             )
         except RecordingError as error:
             raise InputError(str(error)) from error

@@ -75,6 +75,7 @@ def joined(rows, reused, first):
             other.n_samples[m],
             other.stamps[m],
             other.lag_sums[m],
+            other.directions[m],  # as the legs arrived in their own run
         )
     return together
 

@@ -60,6 +60,23 @@ EFFECT_PARAMETER_NAMES = tuple(
 NUM_EFFECT_PARAMETERS = len(EFFECT_PARAMETER_NAMES)
 
 
+#: Among free parameter names: choose the effect groups from the data
+#: (:func:`gsp_kinematics.model_choice.choose_model`); the other names are the plain model.
+AUTO = 'auto'
+#: The plain model of ``auto`` when no other name is given.
+DEFAULT_AUTO_BASE = ('extended',)
+
+
+def split_auto(names):
+    """``(plain names, auto)``: ``names`` without :data:`AUTO` (:data:`DEFAULT_AUTO_BASE` when
+    nothing else is named) and whether it was among them."""
+    names = [names] if isinstance(names, str) else list(names)
+    if AUTO not in names:
+        return names, False
+    base = [n for n in names if n != AUTO]
+    return (base or list(DEFAULT_AUTO_BASE)), True
+
+
 class EffectDesignError(ValueError):
     """An effect group lacks what it needs (times, directions, a mass); the message says which."""
 

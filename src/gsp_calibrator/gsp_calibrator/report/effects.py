@@ -1,0 +1,163 @@
+"""The platform effects of a calibration in its result: the choice of model (``auto``), the
+identified effect parameters and the thermal drift (pure; docs/platform_effects.md).
+
+:func:`effects_record` is the ``effects`` key of ``result.json`` (SI, and the drift in um/min);
+:func:`effects_lines` and :func:`effects_markdown` render it for the summary and ``report.md``.
+"""
+
+import datetime
+import math
+
+import numpy as np
+
+from gsp_kinematics.effects.groups import EFFECT_GROUPS, EFFECT_PARAMETER_NAMES
+from gsp_kinematics.kinematics import inverse_kinematics
+from gsp_kinematics.model_choice import available_groups
+
+#: A leg's drift counts as resolved when it exceeds this many standard deviations.
+RESOLVED_SIGMAS = 2.0
+_UNITS = {stem: unit for stem, unit, _ in EFFECT_GROUPS.values()}
+
+
+def untried_groups(design, count, plain):
+    """``{group: why}`` of the effect groups ``auto`` cannot try with the run's ``design``
+    (``count`` postures) beside the ``plain`` names."""
+    available = available_groups(design, count)
+    reasons = {
+        'compliance': 'payload_mass is 0 (unknown): give the mass the legs carry',
+        'thermal': 'the rows have no times',
+        'backlash': 'some leg arrives from one direction only (or the rows have no directions)',
+        'joint_offsets': '',
+    }
+    return {g: reasons[g] for g in EFFECT_GROUPS if g not in available and g not in plain}
+
+
+def _instant(stamp_s):
+    """UTC ISO text of a stamp (s since the epoch), or None when it is not a wall-clock time."""
+    if not stamp_s > 1e9:  # a simulated clock from 0: no date
+        return None
+    return datetime.datetime.fromtimestamp(stamp_s, datetime.UTC).isoformat(timespec='seconds')
+
+
+def _thermal(result, design, nominal, reference_stamp_s):
+    """The thermal drift of each leg (um/min, its standard deviation, resolved or not) and the
+    instant the geometry refers to."""
+    rates = np.array(
+        [result.effects.get(f'strain_rate{leg}', (0.0, math.nan)) for leg in range(1, 7)]
+    )
+    lengths = np.mean(inverse_kinematics(nominal, np.asarray(result.poses)), axis=0)
+    scale = lengths * 60.0 * 1e6  # 1/s -> um/min
+    drift, deviation = rates[:, 0] * scale, rates[:, 1] * scale
+    resolved = np.abs(drift) > RESOLVED_SIGMAS * deviation
+    return {
+        'drift_um_per_min': drift.tolist(),
+        'drift_sd_um_per_min': deviation.tolist(),
+        'resolved': resolved.tolist(),
+        'mean_drift_um_per_min': float(np.mean(drift)),
+        'reference_time_s': float(design.reference_time_s),
+        'reference_stamp_s': float(reference_stamp_s),
+        'reference_utc': _instant(reference_stamp_s),
+        'compensated': False,
+    }
+
+
+def effects_record(result, design, nominal, choice=None, untried=None, reference_stamp_s=0.0):
+    """The ``effects`` entry of ``result.json``: ``model_choice`` (the chosen groups, the reason,
+    each candidate's cross-validated position error and the groups not tried, and why), the
+    identified ``parameters`` (estimate and standard deviation, SI), ``payload_mass`` and
+    ``centre_of_mass`` they hold for, and ``thermal`` (the drift and the reference instant);
+    None when neither a choice was made nor an effect freed."""
+    identified = result.effects if result is not None else {}
+    if choice is None and not identified:
+        return None
+    record = {'model_choice': None, 'groups': [], 'parameters': {}, 'thermal': None}
+    if choice is not None:
+        record['model_choice'] = {**choice.to_dict(), 'not_tried': dict(untried or {})}
+    stems = {stem: group for group, (stem, _, _) in EFFECT_GROUPS.items()}
+    for name in EFFECT_PARAMETER_NAMES:
+        if name in identified:
+            value, deviation = identified[name]
+            stem = name.rstrip('0123456789')
+            record['parameters'][name] = {
+                'estimate': value,
+                'standard_deviation': deviation,
+                'unit': _UNITS[stem],
+            }
+            if stems[stem] not in record['groups']:
+                record['groups'].append(stems[stem])
+    record['payload_mass'] = float(design.payload_mass)
+    record['centre_of_mass'] = [float(v) for v in design.centre_of_mass]
+    if 'thermal' in record['groups']:
+        record['thermal'] = _thermal(result, design, nominal, reference_stamp_s)
+    return record
+
+
+def _thermal_text(thermal):
+    drifts = ', '.join(
+        f'{d:+.2f}' + ('' if resolved else '?')
+        for d, resolved in zip(thermal['drift_um_per_min'], thermal['resolved'], strict=True)
+    )
+    when = thermal['reference_utc'] or f'stamp {thermal["reference_stamp_s"]:.1f} s'
+    return (
+        f'thermal drift: {thermal["mean_drift_um_per_min"]:+.2f} um/min mean, per leg {drifts} '
+        f'um/min (? within {RESOLVED_SIGMAS:g} sd); not compensated: the geometry refers to '
+        f'{when}, {thermal["reference_time_s"]:.1f} s after the first posture (the last)'
+    )
+
+
+def effects_lines(record):
+    """Text lines of an :func:`effects_record` (none without one)."""
+    if not record:
+        return []
+    lines = []
+    choice = record.get('model_choice')
+    if choice is not None:
+        lines.append(f'model (auto): {choice["reason"]}')
+        for candidate in choice['candidates']:
+            groups = '+'.join(candidate['groups']) or 'plain'
+            mark = ' (chosen)' if candidate['chosen'] else ''
+            lines.append(
+                f'  candidate {groups}: held-out position {candidate["cv_position_mm"]:.4f} mm'
+                f'{mark}'
+            )
+        for group, why in choice['not_tried'].items():
+            lines.append(f'  not tried: {group}' + (f' ({why})' if why else ''))
+    if record['groups']:
+        lines.append(
+            f'effects identified: {", ".join(record["groups"])} (payload '
+            f'{record["payload_mass"]:g} kg); compensated by the controller except the thermal '
+            'drift'
+        )
+    if record.get('thermal'):
+        lines.append(_thermal_text(record['thermal']))
+    return lines
+
+
+def effects_markdown(record):
+    """The ``## Platform effects`` section of ``report.md`` (none without a record)."""
+    if not record:
+        return []
+    lines = ['## Platform effects', '']
+    choice = record.get('model_choice')
+    if choice is not None:
+        lines += [f'Model chosen by `auto`: {choice["reason"]}.', '']
+        lines += ['| candidate groups | held-out position (mm) | chosen |', '|---|---|---|']
+        for candidate in choice['candidates']:
+            groups = ', '.join(candidate['groups']) or 'plain'
+            chosen = 'yes' if candidate['chosen'] else ''
+            lines.append(f'| {groups} | {candidate["cv_position_mm"]:.4f} | {chosen} |')
+        lines.append('')
+        for group, why in choice['not_tried'].items():
+            lines.append(f'- not tried: {group}' + (f' ({why})' if why else ''))
+        lines.append('')
+    if record['parameters']:
+        lines += ['| parameter | estimate | standard deviation | unit |', '|---|---|---|---|']
+        for name, entry in record['parameters'].items():
+            lines.append(
+                f'| {name} | {entry["estimate"]:.4g} | {entry["standard_deviation"]:.2g} '
+                f'| {entry["unit"]} |'
+            )
+        lines.append('')
+    if record.get('thermal'):
+        lines += [_thermal_text(record['thermal']), '']
+    return lines

@@ -1,0 +1,187 @@
+"""The calibrator's side of the platform effects (issue 24, pure, through ``run.identify``):
+each row's approach directions from the commanded sequence, the run's ``EffectDesign``,
+``free_parameters: [auto]`` and its account in the result. The platform is the simulation's
+(``validation.simulate_commands``): its backlash takes each leg's direction from the commanded
+leg readings, independently of the calibrator's tracker."""
+
+import json
+
+import numpy as np
+import pytest
+
+from gsp_calibrator.report.write import outcome_inputs, write_all
+from gsp_calibrator.run.approach import ApproachTracker, effect_design
+from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.response import outcome_summary
+from gsp_calibrator.settings import check_parameters
+from gsp_calibrator.tools import bench_verdict
+from gsp_kinematics.effects.model import REALISTIC, PlatformEffects, temperature_rises
+from gsp_kinematics.kinematics import inverse_kinematics
+from gsp_kinematics.noise_from_data import posture_lag_sums
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.validation import simulate_commands, validate
+
+
+@pytest.fixture(scope='module')
+def design():
+    """The calibrator's default plan (60 postures in route order) on the shipped pair."""
+    return bench_verdict.default_design()
+
+
+def run_rows(design, effects, seed=3):
+    """The rows a calibrator collects on the platform with ``effects`` over ``RUN_S``, with the
+    approach directions of its own tracker; and the simulated run."""
+    nominal = design.settings.nominal
+    times = np.linspace(0.0, bench_verdict.RUN_S, len(design.poses))
+    run = simulate_commands(design.true, nominal, design.poses, effects, times)
+    tracker = ApproachTracker(nominal)
+    directions = [tracker.command(k + 1, pose) for k, pose in enumerate(design.poses)]
+    rng = np.random.default_rng(seed)
+    noise = DEFAULT_SENSOR_NOISE
+    scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
+    samples = Samples.empty()
+    for k in np.flatnonzero(run.reachable):
+        exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
+        window = exact + rng.normal(size=(10, 10)) * scale
+        mean = window.mean(axis=0)
+        samples.append(
+            k + 1,
+            design.poses[k],
+            mean[:6],
+            mean[6:],
+            10,
+            1.7e9 + times[k],
+            posture_lag_sums(window),
+            directions[k],
+        )
+    return samples, run
+
+
+def calibrate(design, samples, free, payload_mass=REALISTIC.payload_mass):
+    settings = design.settings
+    return identify_from_samples(
+        settings.nominal,
+        samples,
+        settings.sigmas,
+        free,
+        settings.formulation,
+        settings.noise_source,
+        settings.requirement,
+        settings.cross_validation_folds,
+        payload_mass=payload_mass,
+        centre_of_mass=REALISTIC.centre_of_mass,
+        options=settings.identify_options(),
+    )
+
+
+def true_error_mm(design, effects, geometry):
+    """Mean position error of ``geometry`` as the (compensating) controller over 50 postures
+    commanded after the run (the geometry refers to the run's end)."""
+    span = bench_verdict.RUN_S
+    times = np.linspace(span, span + 300.0, len(design.validation))
+    return validate(design.true, geometry, design.validation, effects, times)['position_mm_mean']
+
+
+def test_the_tracker_gives_the_directions_the_platform_arrived_from(design):
+    samples, run = run_rows(design, REALISTIC)
+    np.testing.assert_array_equal(samples.directions, run.directions[samples.posture - 1])
+    # Every leg arrives from both directions in the route: the backlash can be identified.
+    assert np.all((samples.directions > 0).any(axis=0) & (samples.directions < 0).any(axis=0))
+    built = effect_design(samples, 40.0)
+    assert built.times_s[0] == 0.0 and built.reference_time_s == pytest.approx(900.0)
+    np.testing.assert_array_equal(built.directions, samples.directions)
+
+
+def test_a_rejected_posture_moves_no_leg(design):
+    nominal = design.settings.nominal
+    first, second, third = design.poses[:3]
+    plain = ApproachTracker(nominal)
+    plain.command(1, first)
+    expected = plain.command(3, third)
+    tracker = ApproachTracker(nominal)
+    tracker.command(1, first)
+    tracker.command(2, second)
+    tracker.rejected(2)
+    np.testing.assert_array_equal(tracker.command(3, third), expected)
+    # The run's first command starts from the legs heard before it.
+    legs = inverse_kinematics(nominal, first[None])[0]
+    started = ApproachTracker(nominal)
+    np.testing.assert_array_equal(
+        started.command(1, first, legs - 1e-3), np.ones(6)
+    )  # every leg extends to it
+    np.testing.assert_array_equal(
+        ApproachTracker(nominal).command(1, first, legs + 1e-3), -np.ones(6)
+    )
+
+
+def test_auto_keeps_the_plain_model_on_an_ideal_platform(design, tmp_path):
+    samples, _ = run_rows(design, PlatformEffects())
+    outcome = calibrate(design, samples, ['auto'])
+    assert outcome.success and outcome.accepted
+    choice = outcome.effects['model_choice']
+    assert choice['groups'] == [] and not outcome.result.effect_free.any()
+    assert outcome.geometry.effects.none
+    tried = {tuple(c['groups']) for c in choice['candidates']}
+    assert {('compliance',), ('backlash',), ('thermal',), ('joint_offsets',)} <= tried
+    assert 'model (auto): groups none' in outcome_summary(outcome)
+    write_all(tmp_path, outcome.result, outcome_inputs(outcome, design.settings.nominal, {}))
+    data = json.loads((tmp_path / 'result.json').read_text())
+    assert data['effects']['model_choice']['groups'] == []
+    assert '## Platform effects' in (tmp_path / 'report.md').read_text()
+
+
+def test_auto_chooses_the_effects_of_a_realistic_platform_and_compensates_them(design):
+    """All four effects: auto frees the compliance (the dominant one) among others; the
+    compensating controller with the chosen model places the platform better than the plain
+    model's on the same rows (measured 0.012 against 0.032 mm: 2.7x; asserted 2x). The thermal
+    drift is stated per leg, with the instant the geometry refers to (the run's end)."""
+    samples, _ = run_rows(design, REALISTIC)
+    plain = calibrate(design, samples, ['extended'])
+    chosen = calibrate(design, samples, ['auto'])
+    assert chosen.success and chosen.accepted and plain.success
+    groups = chosen.effects['model_choice']['groups']
+    assert 'compliance' in groups and 'thermal' in groups
+    assert set(chosen.geometry.effects.groups()) == set(groups)  # the file carries them
+    assert chosen.geometry.effects.payload_mass == REALISTIC.payload_mass
+    auto_mm = true_error_mm(design, REALISTIC, chosen.geometry)
+    plain_mm = true_error_mm(design, REALISTIC, plain.geometry)
+    assert auto_mm < plain_mm / 2.0, (auto_mm, plain_mm)
+    thermal = chosen.effects['thermal']
+    assert thermal['reference_time_s'] == pytest.approx(900.0)
+    assert thermal['reference_utc'].startswith('2023-11-14T22:28:20')
+    # The true growth over the run, as a mean rate: 0.78 um/min (the fitted line: 0.70).
+    times = np.linspace(0.0, bench_verdict.RUN_S, len(design.poses))
+    lengths = inverse_kinematics(design.true, design.poses)
+    growth = REALISTIC.thermal_expansion * temperature_rises(REALISTIC, times) * lengths
+    true_rate = np.mean(growth[-1] - growth[0]) / (times[-1] / 60.0) * 1e6
+    assert thermal['mean_drift_um_per_min'] == pytest.approx(true_rate, rel=0.3)
+    text = outcome_summary(chosen)
+    assert 'thermal drift:' in text and 'um/min' in text and 'the geometry refers to' in text
+
+
+def test_without_the_payload_mass_auto_does_not_try_the_compliance_and_says_why(design):
+    samples, _ = run_rows(design, PlatformEffects())
+    outcome = calibrate(design, samples, ['auto'], payload_mass=0.0)
+    choice = outcome.effects['model_choice']
+    assert (
+        'compliance' in choice['not_tried'] and 'payload_mass' in choice['not_tried']['compliance']
+    )
+    assert 'not tried: compliance (payload_mass is 0' in outcome_summary(outcome)
+    named = calibrate(design, samples, ['extended', 'compliance'], payload_mass=0.0)
+    assert not named.success and 'payload_mass' in named.message
+
+
+def test_free_parameters_take_effect_groups_and_auto():
+    assert check_parameters({'free_parameters': ['auto']}) == ''
+    assert check_parameters({'free_parameters': ['paper', 'auto']}) == ''
+    assert check_parameters({'free_parameters': ['extended', 'backlash', 'thermal']}) == ''
+    assert 'auto' in check_parameters({'free_parameters': ['auto', 'backlash']})
+    assert 'unknown' in check_parameters({'free_parameters': ['extended', 'friction']})
+    assert 'payload_mass' in check_parameters({'payload_mass': -1.0})
+    # Refused before any posture is collected, not after.
+    assert 'payload_mass' in check_parameters({'free_parameters': ['extended', 'compliance']})
+    assert (
+        check_parameters({'free_parameters': ['extended', 'compliance'], 'payload_mass': 40.0})
+        == ''
+    )

@@ -1,0 +1,160 @@
+"""Issue 24's 'done when' through the nodes: ``platform_sim`` with the realistic effects (40 kg
+on 30 N/um legs, 4 um backlash, legs warming, base joint axes 20 um apart), ``device_driver``
+and the ``calibrator`` with ``free_parameters: [auto]`` and the payload given, as processes. The
+run chooses the effect groups, is applied, and platform_sim's controller compensates them: the
+platform lands closer to commanded postures than with the plain model identified from the same
+rows, measured on platform_sim's true pose, and the simulation's truth agrees."""
+
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from gsp_testing import marked_environment
+
+from gsp_calibrator.recording import rebuild
+from gsp_calibrator.recording.recorder import recording_parts
+from gsp_calibrator.run.directory import read_samples
+from gsp_calibrator.run.response import parse_response
+from gsp_calibrator.tools import demo, demo_commands, reidentify
+from gsp_calibrator.tools.processes import NodeProcesses
+from gsp_kinematics.effects.model import REALISTIC
+from gsp_kinematics.geometry import default_geometry, geometry_to_parameters, load_geometry
+from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.validation import validate
+
+CALIBRATION_TIMEOUT_S = 600.0  # generous: the machine may be loaded
+WAIT_S = 60.0
+POSTURES = 30
+#: Streams at 50 Hz: a loaded machine keeps up with them (at 200 Hz the device's starve).
+SENSOR_RATE_HZ = 50
+CHECK_POSTURES = 20
+
+
+def _apply(session, geometry):
+    """Set ``geometry``'s ``geometry.*`` parameters on platform_sim (its controller)."""
+    from rcl_interfaces.srv import SetParametersAtomically
+    from rclpy.parameter import Parameter
+
+    client = session.node.create_client(
+        SetParametersAtomically, '/platform_sim/set_parameters_atomically'
+    )
+    session.spin_until(client.service_is_ready, WAIT_S, 'the parameter service of platform_sim')
+    request = SetParametersAtomically.Request()
+    request.parameters = [
+        Parameter(name, value=value).to_parameter_msg()
+        for name, value in geometry_to_parameters(geometry).items()
+    ]
+    future = client.call_async(request)
+    session.spin_until(future.done, WAIT_S, 'platform_sim to take the geometry')
+    assert future.result().result.successful, future.result().result.reason
+
+
+def _position_errors_mm(commanded, reached):
+    both = np.all(np.isfinite(reached), axis=1)
+    return 1e3 * np.linalg.norm(reached[both, :3] - commanded[both, :3], axis=1)
+
+
+def _reidentified(run, free, output):
+    """``gsp_reidentify`` of the run directory with ``--free free``: its run directory."""
+    code, path = reidentify.reidentify(
+        reidentify.build_parser().parse_args(
+            [str(run), '--free', free, '--output-root', str(output), '--no-report']
+        ),
+        out=io.StringIO(),
+    )
+    assert code == 0
+    return Path(path)
+
+
+def _calibrate_and_check(session, checks):
+    """Calibrate through the service (applied), then command ``checks`` with the applied
+    geometry: ``(run directory, reached poses, when the calibration ended)``."""
+    session.wait_for_system(WAIT_S)
+    response = session.calibrate(CALIBRATION_TIMEOUT_S)
+    parsed = parse_response(response.message)
+    assert response.success, response.message
+    assert 'applied to /platform_sim' in response.message, response.message
+    ended = time.monotonic()
+    reached = session.run_postures(checks, 30.0, WAIT_S)
+    return Path(parsed.run_directory), reached, ended
+
+
+def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, ros_context):
+    from rclpy.executors import SingleThreadedExecutor
+
+    from gsp_calibrator.tools import demo_node
+
+    env, _ = marked_environment()
+    args = demo.parse_arguments(
+        ['--platform-effects', 'realistic', '--postures', str(POSTURES), '--free', 'auto']
+        + ['--sensor-rate', str(SENSOR_RATE_HZ), '--output-root', str(tmp_path / 'runs')]
+    )
+    commands = demo_commands.node_commands(args, str(tmp_path / 'runs'))
+    assert 'payload_mass:=40.0' in commands['calibrator']  # the user knows the load
+    # A loaded machine (2 cores, other suites) starves a stream for seconds at times: the run
+    # waits that out instead of failing (a run failed at 2 s with no device sample).
+    commands['calibrator'] += ['-p', 'topic_timeout:=10.0']
+    nominal, true = default_geometry('nominal'), default_geometry('true')
+    checks = sample_valid_postures(nominal, CHECK_POSTURES, np.random.default_rng(7))
+    nodes = NodeProcesses(commands, env, tmp_path)
+    node = demo_node.DemoNode(context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    session = demo_node.Demo(node, executor, nodes)
+    started = time.monotonic()
+    nodes.start()
+    try:
+        run, reached_auto, ended = _calibrate_and_check(session, checks)
+        # The plain model from the same rows, by the same code (gsp_reidentify), applied.
+        plain_run = _reidentified(run, 'extended', tmp_path / 'plain')
+        plain = load_geometry(plain_run / 'result.yaml')
+        _apply(session, plain)
+        reached_plain = session.run_postures(checks, 30.0, WAIT_S)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        nodes.stop()
+
+    data = json.loads((run / 'result.json').read_text())
+    assert data['accepted'] is True
+    choice = data['effects']['model_choice']
+    # The compliance dominates the realistic platform; with the thermal growth it is chosen
+    # in every run (docs/platform_effects.md); the backlash and the joint offsets are smaller
+    # than the noise resolves in 30 postures in some runs.
+    assert 'compliance' in choice['groups'], choice
+    calibrated = load_geometry(run / 'result.yaml')
+    assert set(calibrated.effects.groups()) == set(choice['groups'])
+    assert calibrated.effects.payload_mass == REALISTIC.payload_mass
+    assert data['effects']['thermal'] is None or data['effects']['thermal']['drift_um_per_min']
+
+    # gsp_reidentify on the run directory: the same choice, by the same code path.
+    again = json.loads((_reidentified(run, 'auto', tmp_path / 'again') / 'result.json').read_text())
+    assert again['effects']['model_choice']['groups'] == choice['groups']
+
+    # samples.csv and the rebuild from the recording give each row the same approach directions.
+    samples = read_samples(run / 'samples.csv')
+    rebuilt = rebuild.samples_from_recording(recording_parts(run))
+    common = sorted(set(samples.posture) & set(rebuilt.posture))
+    assert len(common) >= 0.8 * len(samples)
+    online = {int(k): d for k, d in zip(samples.posture, samples.directions, strict=True)}
+    offline = {int(k): d for k, d in zip(rebuilt.posture, rebuilt.directions, strict=True)}
+    for k in common:
+        np.testing.assert_array_equal(online[k], offline[k])
+    assert np.all(np.abs(samples.directions) == 1.0)
+
+    # Through platform_sim: the compensating controller lands closer to the commanded postures.
+    auto_mm = float(np.mean(_position_errors_mm(checks, reached_auto)))
+    plain_mm = float(np.mean(_position_errors_mm(checks, reached_plain)))
+    # The simulation's truth over the workspace, after the run (the legs warming further).
+    times = np.linspace(ended - started, ended - started + 60.0, len(checks))
+    true_auto = validate(true, calibrated, checks, REALISTIC, times)['position_mm_mean']
+    true_plain = validate(true, plain, checks, REALISTIC, times)['position_mm_mean']
+    print(f'through platform_sim: auto {auto_mm:.4f} mm, plain {plain_mm:.4f} mm')
+    print(f'truth: auto {true_auto:.4f} mm, plain {true_plain:.4f} mm; groups {choice["groups"]}')
+    # Measured in three runs: through platform_sim 0.0084-0.0125 mm against 0.0325-0.0379 mm
+    # (3.0-3.9x); the truth 0.0077-0.0112 mm against 0.0336-0.0390 mm (3.5-4.4x). Bound at 1.5x: a run that loses postures to a loaded machine keeps a margin,
+    # and the plain model (the compliance pushed into the geometry) stays well above it.
+    assert auto_mm < plain_mm / 1.5, (auto_mm, plain_mm)
+    assert true_auto < true_plain / 1.5, (true_auto, true_plain)
