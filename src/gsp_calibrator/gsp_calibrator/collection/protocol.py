@@ -283,7 +283,7 @@ class CollectionProtocol:
     def command(self, posture, pose, command_id, now_ns):
         """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
         self._attend(now_ns)
-        events = self._end_segment() if self.keep_pairs else []
+        events = self._end_segment() if self.keep_pairs else self._close()
         if self._previous is None:
             # What the device reports before the platform moves (stale readings would match).
             self._previous = self.latest_device_readings()
@@ -387,7 +387,16 @@ class CollectionProtocol:
 
     def finish(self, now_ns=None):
         """End of input (recordings): ``keep_pairs`` hands over the last segment."""
-        return self._end_segment() if self.keep_pairs else []
+        return self._end_segment() if self.keep_pairs else self._close()
+
+    def _close(self):
+        """The row of the posture being collected when its data end (the next command, the end
+        of a recording: a rebuild's order has given every sample stamped before them), judged
+        on all its pairs, which are final; [] if none."""
+        if not self.collecting:
+            return []
+        self.collector.set_horizon(None)
+        return self._row() if self.collector.ready() else []
 
     # --- collection --------------------------------------------------------------------------
 
@@ -410,9 +419,12 @@ class CollectionProtocol:
         if self.keep_pairs:
             return []
         collector = self.collector
-        # ready() is a function of the pairs: only ask again when they changed.
-        if collector.pair_revision != self._checked_pairs:
-            self._checked_pairs = collector.pair_revision
+        # Windows are judged once their pairs are final in the data's time (set_horizon).
+        collector.set_horizon(self._horizon_ns(self._posture))
+        # ready() is a function of the pairs and the horizon: only ask again when they changed.
+        checked = (collector.pair_revision, collector.horizon_ns)
+        if checked != self._checked_pairs:
+            self._checked_pairs = checked
             if collector.ready():
                 return self._row()
             # (while the readings still move, settle_timeout bounds the wait: the timeouts)
@@ -424,6 +436,13 @@ class CollectionProtocol:
                     'the previous posture)'
                 )
         return self._collection_timeouts(now_ns)
+
+    @staticmethod
+    def _horizon_ns(posture):
+        """The data's horizon of ``posture`` (the collector's ``set_horizon``): the stamp every
+        stream has reached since the start; before each has given one, the start."""
+        data_ns = posture.data_ns()
+        return posture.start_ns if data_ns is None else data_ns
 
     def _collection_timeouts(self, now_ns):
         failure, reason = self.timeouts.collection_overdue(self._posture, self.collector, now_ns)

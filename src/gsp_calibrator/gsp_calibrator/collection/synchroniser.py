@@ -198,6 +198,9 @@ class SampleCollector:
         self._verdicts = []  # of the windows starting at pairs 0, 1, ..., none usable
         self._window_start = None  # start of the usable window, or None
         self._window_revision = None  # pairing revision of _verdicts and _window_start
+        #: None, or the data's horizon (ns): every stream has delivered its samples stamped up
+        #: to it (see :meth:`set_horizon`); only windows whose pairs are final by it are judged.
+        self.horizon_ns = None
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
         self.non_finite = dict.fromkeys(STREAMS, 0)
         #: Finite samples received, per stream (over the collector's lifetime).
@@ -240,6 +243,28 @@ class SampleCollector:
         self._pairing.clear()
         self._verdicts.clear()
         self._window_revision = None
+        self.horizon_ns = None
+
+    def set_horizon(self, horizon_ns):
+        """Judge only the windows whose pairs are final once every stream has delivered its
+        samples stamped up to ``horizon_ns`` (None: judge every window, as the pairs stand).
+
+        Each stream arrives in stamp order, but the streams interleave in no fixed order (a
+        listener behind its queues, a recorder's log): a leg stamp's pair is final only when the
+        device stamps within the tolerance after it are in. Judging a window before then makes
+        the row depend on the order the streams were handled in, so the calibrator and the
+        rebuild of its recording could average different pairs, and a settle look-back judged
+        with pairs still missing could pass a sensor not yet at rest.
+        """
+        horizon_ns = None if horizon_ns is None else int(horizon_ns)
+        if horizon_ns != self.horizon_ns:
+            self.horizon_ns = horizon_ns
+            self._window_revision = None
+
+    def _final(self, pairs, end):
+        """Whether the pairs up to index ``end`` are final by :attr:`horizon_ns`."""
+        horizon = self.horizon_ns
+        return horizon is None or pairs[end][0] + self._pairing.tolerance_ns <= horizon
 
     @property
     def tolerance_ns(self):
@@ -376,7 +401,7 @@ class SampleCollector:
         pairs = pairing.pairs
         self._window_start = None
         start = len(self._verdicts)
-        while start + count <= len(pairs):
+        while start + count <= len(pairs) and self._final(pairs, start + count - 1):
             verdict = self._verdict(pairs, start)
             if verdict == _USABLE:
                 self._window_start = start

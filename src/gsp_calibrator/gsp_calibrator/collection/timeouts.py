@@ -114,8 +114,10 @@ class CollectionTimeouts:
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
         # The bounds below count in the data's time (the samples' stamps since the start), so a
-        # posture whose samples were sent is never skipped because they were handled late.
-        data_s = posture.data_elapsed()
+        # posture whose samples were sent is never skipped because they were handled late; a
+        # tolerance later, so the windows ending at the bound have been judged on final pairs
+        # (the collector's set_horizon).
+        data_s = posture.data_elapsed() - self.sync_tolerance
         if collector.unsettled is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '
