@@ -140,7 +140,8 @@ class CalibratorNode(Node):
             self,
             'sensors',
             {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS},
-            raw=True,  # decoded here, cheaply (collection.joint_state_cdr)
+            raw=True,
+            batch=True,  # every waiting message per wake-up (node_threads.SensorListener)
         )
         self.create_subscription(
             DiagnosticStatus,
@@ -185,30 +186,40 @@ class CalibratorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _sensor_callback(self, topic):
-        def callback(raw, info):
+        """The callback of ``topic``'s batches (``[(CDR bytes, info), ...]``, in order): decoded
+        here, cheaply (collection.joint_state_cdr), and judged once per batch."""
+        lags = self._lags
+
+        def callback(batch):
             self._heard_ns[topic] = time.monotonic_ns()
-            received_ns = info.get('received_timestamp')
             if not self.postures.active:  # no run: drop at once
-                self._lags.note(topic, received_ns, time.time_ns())
+                decided_ns = time.time_ns()
+                for _, info in batch:
+                    lags.note(topic, info.get('received_timestamp'), decided_ns)
                 return
-            msg = sensor_message(raw)
+            messages = [(sensor_message(raw), info) for raw, info in batch]
 
             def step(collection):
-                failure = self._sources.check_reading(
-                    topic,
-                    msg,
-                    info.get('publication_sequence_number'),
-                    lambda: self._sensors.node.count_publishers(topic),
-                )
-                if failure is not None:  # a second source: the run ends, naming the topic
-                    self.postures.fail(failure)
-                    return []
+                taken = []
+                for msg, info in messages:
+                    failure = self._sources.check_reading(
+                        topic,
+                        msg,
+                        info.get('publication_sequence_number'),
+                        lambda: self._sensors.node.count_publishers(topic),
+                    )
+                    if failure is not None:  # a second source: the run ends, naming the topic
+                        self.postures.fail(failure)
+                        return []
+                    taken.append((topic, msg, info.get('received_timestamp')))
                 now_ns = self._now_ns()
-                wire_ns = protocol.wire_receipt_ns(received_ns, now_ns)
-                return collection.sensor(topic, msg, now_ns, wire_ns)
+                taken = [(t, m, protocol.wire_receipt_ns(r, now_ns)) for t, m, r in taken]
+                return collection.sensors(taken, now_ns)
 
             self.postures.feed(step)
-            self._lags.note(topic, received_ns, time.time_ns(), in_run=True)
+            decided_ns = time.time_ns()
+            for _, info in batch:
+                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=True)
 
         return callback
 

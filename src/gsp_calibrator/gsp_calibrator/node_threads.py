@@ -20,6 +20,7 @@ import concurrent.futures
 import dataclasses
 import threading
 
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
@@ -27,6 +28,10 @@ from sensor_msgs.msg import JointState
 
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 from gsp_msgs_py import qos
+
+#: Most messages a batched callback takes at one wake-up (a bound on the work between two
+#: looks at the other subscriptions).
+MAX_BATCH = 1000
 
 
 def new_future(executor):
@@ -157,14 +162,17 @@ class SensorListener:
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
     :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
     kept until :meth:`close`; ``raw=True``: the callbacks get the messages' CDR bytes (as the
-    recorder takes them: no message object is built). ``setup``: None or a function of the node called before the thread
+    recorder takes them: no message object is built); ``batch=True`` (with ``raw``): a callback
+    gets ``[(CDR bytes, message info), ...]``, every message its subscription holds when the
+    thread wakes up for it (at most :data:`MAX_BATCH`), in order: the executor's per-message
+    round (a wait set built and waited on) is paid once per batch, and the caller judges once. ``setup``: None or a function of the node called before the thread
     starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
     None, or a function given any exception a callback raises (e.g. a recording's full disk);
     the thread then goes on. :meth:`close` stops the thread and destroys the node.
     """
 
     @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False, batch=False):
         """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
         ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
         return cls(
@@ -175,9 +183,12 @@ class SensorListener:
             setup=setup,
             on_error=on_error,
             raw=raw,
+            batch=batch,
         )
 
-    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False):
+    def __init__(
+        self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False, batch=False
+    ):
         self.on_error = on_error
         self.node = Node(
             name,
@@ -188,12 +199,15 @@ class SensorListener:
         )
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self._subscriptions = [
-            self.node.create_subscription(
-                JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
+        self._subscriptions = []
+        for topic, callback in callbacks.items():
+            taken = _Batched(callback) if batch else callback
+            subscription = self.node.create_subscription(
+                JointState, topic, taken, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
             )
-            for topic, callback in callbacks.items()
-        ]
+            if batch:
+                taken.subscription = subscription
+            self._subscriptions.append(subscription)
         self.extra = setup(self.node) if setup is not None else None
         self._thread = threading.Thread(target=self._spin, name=f'{name}-executor', daemon=True)
         self._thread.start()
@@ -222,3 +236,26 @@ class SensorListener:
         self.executor.shutdown(timeout_sec=2.0)
         self._thread.join(timeout=2.0)
         self.node.destroy_node()
+
+
+class _Batched:
+    """A subscription callback that takes, with the message the executor took, every further
+    one waiting (:data:`MAX_BATCH` at most) and hands them to ``callback`` as one list."""
+
+    def __init__(self, callback):
+        self.callback = callback
+        self.subscription = None
+
+    def __call__(self, raw, info):
+        messages = [(raw, info)]
+        subscription = self.subscription
+        try:
+            with subscription.handle:
+                while len(messages) < MAX_BATCH:
+                    taken = subscription.handle.take_message(subscription.msg_type, True)
+                    if taken is None:
+                        break
+                    messages.append(taken)
+        except InvalidHandle:  # destroyed meanwhile (the node is going down)
+            pass
+        self.callback(messages)

@@ -320,19 +320,30 @@ class CollectionProtocol:
         """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) handled at ``now_ns``;
         ``received_ns``: when it came off the wire (the middleware's receive time on the same
         clock), None if unknown."""
+        return self.sensors([(topic, msg, received_ns)], now_ns)
+
+    def sensors(self, messages, now_ns):
+        """Sensor messages ``[(topic, msg, received_ns), ...]`` (as for :meth:`sensor`) handled
+        together at ``now_ns``, in order (a listener's batch): the posture is judged once, after
+        the last of them (its row depends on the samples alone, not on when it is judged)."""
         self._attend(now_ns)
-        self.timeouts.hear(topic, now_ns)
-        try:
-            stream, stamp_ns, values = read_sensor(topic, msg)
-        except (ValueError, TypeError) as error:
-            if has_non_finite(msg):
-                stream = TOPIC_STREAMS[topic]
-                self.collector.record_non_finite(stream)
-                return [
-                    SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
-                ] + self.poll(now_ns)
-            return [SampleDropped(topic, str(error), False)] + self.poll(now_ns)
-        return self.sample(stream, stamp_ns, values, now_ns, heard=False, received_ns=received_ns)
+        events = []
+        for topic, msg, received_ns in messages:
+            self.timeouts.hear(topic, now_ns)
+            try:
+                stream, stamp_ns, values = read_sensor(topic, msg)
+            except (ValueError, TypeError) as error:
+                events.append(self._dropped(topic, msg, error))
+                continue
+            self._take(stream, stamp_ns, values, now_ns, received_ns)
+        return events + self._judge(now_ns)
+
+    def _dropped(self, topic, msg, error):
+        if has_non_finite(msg):
+            stream = TOPIC_STREAMS[topic]
+            self.collector.record_non_finite(stream)
+            return SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
+        return SampleDropped(topic, str(error), False)
 
     def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
@@ -341,15 +352,25 @@ class CollectionProtocol:
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self.timeouts.hear(topic, now_ns)
+        self._take(stream, stamp_ns, values, now_ns, received_ns)
+        return self._judge(now_ns)
+
+    def _judge(self, now_ns):
+        if self.collecting:
+            return self._check_collection(now_ns)
+        return self.poll(now_ns)
+
+    def _take(self, stream, stamp_ns, values, now_ns, received_ns):
+        """Take one parsed sample (not judged yet)."""
         self._latest[stream] = (int(stamp_ns), values)
         posture = self._posture
         if posture is None:
             if self._idle is not None:
                 _ADDERS[stream](self._idle, stamp_ns, *values)
-            return self.poll(now_ns)
+            return
         if posture.state != _COLLECTING:
             self._recent.append((stream, stamp_ns, values))
-            return self.poll(now_ns)
+            return
         received = int(now_ns if received_ns is None else received_ns)
         posture.received_ns = max(posture.received_ns, received)
         if stamp_ns < posture.start_ns and received_ns is None:
@@ -359,7 +380,6 @@ class CollectionProtocol:
             # the settle.)
             posture.progress_ns = max(posture.progress_ns, received)
         self._add(posture, stream, stamp_ns, values)
-        return self._check_collection(now_ns)
 
     def _add(self, posture, stream, stamp_ns, values):
         if _ADDERS[stream](self.collector, stamp_ns, *values):
