@@ -20,18 +20,14 @@ import concurrent.futures
 import dataclasses
 import threading
 
-from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
+from gsp_calibrator.batched_subscription import BatchedCallback
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 from gsp_msgs_py import qos
-
-#: Most messages a batched callback takes at one wake-up (a bound on the work between two
-#: looks at the other subscriptions).
-MAX_BATCH = 1000
 
 
 def new_future(executor):
@@ -164,8 +160,8 @@ class SensorListener:
     kept until :meth:`close`; ``raw=True``: the callbacks get the messages' CDR bytes (as the
     recorder takes them: no message object is built); ``batch=True`` (with ``raw``): a callback
     gets ``[(CDR bytes, message info), ...]``, every message its subscription holds when the
-    thread wakes up for it (at most :data:`MAX_BATCH`), in order: the executor's per-message
-    round (a wait set built and waited on) is paid once per batch, and the caller judges once. ``setup``: None or a function of the node called before the thread
+    thread wakes up for it, in order (:class:`.batched_subscription.BatchedCallback`): the
+    executor's per-message round is paid once per batch, and the caller judges once. ``setup``: None or a function of the node called before the thread
     starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
     None, or a function given any exception a callback raises (e.g. a recording's full disk);
     the thread then goes on. :meth:`close` stops the thread and destroys the node.
@@ -201,7 +197,7 @@ class SensorListener:
         self.executor.add_node(self.node)
         self._subscriptions = []
         for topic, callback in callbacks.items():
-            taken = _Batched(callback) if batch else callback
+            taken = BatchedCallback(callback) if batch else callback
             subscription = self.node.create_subscription(
                 JointState, topic, taken, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
             )
@@ -236,26 +232,3 @@ class SensorListener:
         self.executor.shutdown(timeout_sec=2.0)
         self._thread.join(timeout=2.0)
         self.node.destroy_node()
-
-
-class _Batched:
-    """A subscription callback that takes, with the message the executor took, every further
-    one waiting (:data:`MAX_BATCH` at most) and hands them to ``callback`` as one list."""
-
-    def __init__(self, callback):
-        self.callback = callback
-        self.subscription = None
-
-    def __call__(self, raw, info):
-        messages = [(raw, info)]
-        subscription = self.subscription
-        try:
-            with subscription.handle:
-                while len(messages) < MAX_BATCH:
-                    taken = subscription.handle.take_message(subscription.msg_type, True)
-                    if taken is None:
-                        break
-                    messages.append(taken)
-        except InvalidHandle:  # destroyed meanwhile (the node is going down)
-            pass
-        self.callback(messages)

@@ -22,6 +22,7 @@ import re
 import threading
 import time
 
+from gsp_calibrator.batched_subscription import BatchedCallback
 from gsp_calibrator.recording.mcap_format import (
     RecordingError,
     message_class,
@@ -108,16 +109,16 @@ class RunRecorder:
             profile = TOPIC_QOS.get(topic, SENSOR_QOS)
             if profile == SENSOR_QOS:  # the collector's deep queue: record what it may use
                 profile = SENSOR_SUBSCRIPTION_QOS
-            self._subscriptions.append(
-                self.node.create_subscription(
-                    message_class(type_name),
-                    topic,
-                    self._callback(topic),
-                    profile,
-                    callback_group=self.callback_group,
-                    raw=True,
-                )
+            callback = BatchedCallback(self._callback(topic))
+            callback.subscription = self.node.create_subscription(
+                message_class(type_name),
+                topic,
+                callback,
+                profile,
+                callback_group=self.callback_group,
+                raw=True,
             )
+            self._subscriptions.append(callback.subscription)
 
     @property
     def recording(self):
@@ -213,7 +214,7 @@ class RunRecorder:
     def _callback(self, topic):
         clock = self.node.get_clock()
 
-        def on_message(data):
+        def on_messages(batch):  # [(CDR bytes, info), ...] taken at once (BatchedCallback)
             if self._recorder is None:  # not recording: drop at once
                 return
             now = clock.now().nanoseconds
@@ -221,12 +222,13 @@ class RunRecorder:
                 recorder = self._recorder
                 if recorder is None:
                     return
-                try:
-                    recorder.write(topic, data, now)
-                except RecordingError:
-                    return
+                for data, _ in batch:
+                    try:
+                        recorder.write(topic, data, now)
+                    except RecordingError:
+                        continue
 
-        return on_message
+        return on_messages
 
 
 def note_outcomes(recorder):
