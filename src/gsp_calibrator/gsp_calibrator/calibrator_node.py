@@ -31,6 +31,7 @@ second one (``<name>_recorder``). The protocol and the posture in collection are
 the posture link's lock.
 """
 
+import collections
 import os
 import sys
 import threading
@@ -67,6 +68,7 @@ from gsp_msgs_py.executors import MultiThreadedExecutor
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
+LISTENER_TICK_S = 0.1  #: the sensor listener's tick (silence on the wire, _on_listener_tick)
 #: Longest time (s) a busy thread keeps the GIL while another waits for it (Python's default:
 #: 0.005). The node's threads (executor, sensor listener, recorder) share one GIL: the message
 #: that completes a posture, and the next command, would otherwise wait up to 5 ms for the
@@ -115,6 +117,7 @@ class CalibratorNode(Node):
         # run or not, and the latest progress published.
         self._heard_ns = dict.fromkeys(topics.SENSOR_TOPICS)
         self._lags = ProcessingLags(topics.SENSOR_TOPICS)
+        self._listener_ticks = collections.deque(maxlen=3)  # node clock, ns
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -142,6 +145,7 @@ class CalibratorNode(Node):
             {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS},
             raw=True,
             batch=True,  # every waiting message per wake-up (node_threads.SensorListener)
+            setup=lambda node: node.create_timer(LISTENER_TICK_S, self._on_listener_tick),
         )
         self.create_subscription(
             DiagnosticStatus,
@@ -240,6 +244,16 @@ class CalibratorNode(Node):
             return collection.status(status, now_ns, start_ns)
 
         self.postures.feed(step)
+
+    def _on_listener_tick(self):
+        """The sensor listener's own tick (its thread). Between a tick and the next but one, its
+        executor has waited on its subscriptions and taken what was ready: every message
+        received off the wire before the tick two back has been taken, so silence is judged up
+        to then (a listener starved of the CPU is no silent topic)."""
+        self._listener_ticks.append(self._now_ns())
+        if len(self._listener_ticks) == self._listener_ticks.maxlen:
+            checked_ns = self._listener_ticks[0]
+            self.postures.feed(lambda c: c.checked_until(checked_ns, self._now_ns()))
 
     def _on_watchdog(self):
         self._waits.poll()

@@ -85,6 +85,9 @@ from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 MAX_PAIRS_PER_SAMPLE = 20
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
 MIN_BUFFER = 2000
+#: Device instants kept for the latest complete one (the previous posture's readings): more
+#: than a listener's batch of one device topic can lead the others by.
+MAX_RECENT_INSTANTS = 4000
 #: Pairs handed over per posture with ``keep_pairs`` (the first ones after the settle), and
 #: before the first command (the last ones), so a long idle recording stays cheap.
 MAX_STREAM_SAMPLES = 2000
@@ -163,7 +166,12 @@ class _Posture:
     progress_ns: int = None  # receive time of the last change of the pairs
     #: data time (data_ns) of the last change of the pairs (or of the first sample)
     progress_data_ns: int = None
-    received_ns: int = None  # latest receive time of a sample since the start
+    #: the receive time every stream has reached with the samples handled since the start
+    #: (the settle's until each has given one): the streams come in batches, one stream's
+    #: ahead of the others', which is no lack of progress of the pairs
+    received_ns: int = None
+    #: stream -> latest receive time of its samples handled since the start
+    received_by_stream: dict = dataclasses.field(default_factory=dict)
     #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
     latest_ns: dict = dataclasses.field(default_factory=dict)
 
@@ -231,6 +239,9 @@ class CollectionProtocol:
         self._posture = None  # the awaited posture (_Posture) or None
         self._previous = None  # device readings of the previous row
         self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
+        #: stamp -> {device stream: values} of the latest device instants (the device topics
+        #: come in batches of their own: their latest messages need not share a stamp)
+        self._instants = collections.OrderedDict()
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None  # the collector's pair revision last checked
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
@@ -257,10 +268,12 @@ class CollectionProtocol:
 
     def latest_device_readings(self):
         """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
-        items = [self._latest.get(stream) for stream in DEVICE_STREAMS]
-        if any(item is None for item in items) or len({item[0] for item in items}) != 1:
-            return None
-        return np.concatenate([np.asarray(item[1], dtype=float) for item in items])
+        for instant in reversed(self._instants.values()):
+            if len(instant) == len(DEVICE_STREAMS):
+                return np.concatenate(
+                    [np.asarray(instant[stream], dtype=float) for stream in DEVICE_STREAMS]
+                )
+        return None
 
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
@@ -329,7 +342,7 @@ class CollectionProtocol:
         self._attend(now_ns)
         events = []
         for topic, msg, received_ns in messages:
-            self.timeouts.hear(topic, now_ns)
+            self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
             try:
                 stream, stamp_ns, values = read_sensor(topic, msg)
             except (ValueError, TypeError) as error:
@@ -351,7 +364,7 @@ class CollectionProtocol:
         self._attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
-            self.timeouts.hear(topic, now_ns)
+            self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
         self._take(stream, stamp_ns, values, now_ns, received_ns)
         return self._judge(now_ns)
 
@@ -363,6 +376,10 @@ class CollectionProtocol:
     def _take(self, stream, stamp_ns, values, now_ns, received_ns):
         """Take one parsed sample (not judged yet)."""
         self._latest[stream] = (int(stamp_ns), values)
+        if stream != LEG_LENGTHS:
+            self._instants.setdefault(int(stamp_ns), {})[stream] = values
+            if len(self._instants) > MAX_RECENT_INSTANTS:
+                self._instants.popitem(last=False)
         posture = self._posture
         if posture is None:
             if self._idle is not None:
@@ -372,7 +389,10 @@ class CollectionProtocol:
             self._recent.append((stream, stamp_ns, values))
             return
         received = int(now_ns if received_ns is None else received_ns)
-        posture.received_ns = max(posture.received_ns, received)
+        by_stream = posture.received_by_stream
+        by_stream[stream] = max(by_stream.get(stream, received), received)
+        if len(by_stream) == len(SENSOR_TOPICS):
+            posture.received_ns = max(posture.received_ns, min(by_stream.values()))
         if stamp_ns < posture.start_ns and received_ns is None:
             # Stamped before the start, handled now: the caller may still be working through a
             # backlog (its listener fell behind), which is no lack of progress of the pairs.
@@ -404,6 +424,12 @@ class CollectionProtocol:
         elif posture.state == _COLLECTING and not self.keep_pairs:
             return self._collection_timeouts(now_ns)
         return []
+
+    def checked_until(self, checked_ns, now_ns):
+        """The caller has taken every sensor message received before ``checked_ns``
+        (:meth:`.timeouts.CollectionTimeouts.checked_until`); the events due at ``now_ns``."""
+        self.timeouts.checked_until(checked_ns)
+        return self.poll(now_ns)
 
     def finish(self, now_ns=None):
         """End of input (recordings): ``keep_pairs`` hands over the last segment."""

@@ -1,10 +1,11 @@
-"""The row of a posture depends on its samples, not on the order the streams were handled in
-(issue 26: under a backlog the calibrator and the rebuild of its recording averaged different
-pairs)."""
+"""The collection of a calibrator that falls behind its streams (issue 26): the row depends
+on the samples, not on the order or the time they were handled in; a listener starved of the
+CPU, or a stream handled in a batch ahead of the others, is no silence and no lack of progress.
+Replayed with controlled receive and handling times."""
 
 import numpy as np
 
-from gsp_calibrator.collection.events import RowReady
+from gsp_calibrator.collection.events import FINAL_EVENTS, RowReady
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
 from gsp_msgs_py import conversions, names
@@ -103,3 +104,71 @@ def test_a_look_back_missing_its_first_pairs_is_not_covered():
     row = settling_posture(np.random.default_rng(5), 0.55)
     assert row.settle_wait > 0.55 + 0.6 * 0.8
     assert abs(row.readings[0] - R[0]) < 4 * sigma_of_mean
+
+
+def settled_collection():
+    collection = CollectionProtocol(0.0025, 5, NOISE, topic_timeout=1.0, settle_timeout=2.0)
+    collection.command(1, POSE, 'c1', T0)
+    status = conversions.parse_status(conversions.make_status('c1', names.STATE_SETTLED, ''))
+    collection.status(status, START)
+    return collection
+
+
+def instants(rng, first_ns, count):
+    """``count`` instants at 200 Hz from ``first_ns``: ``[(stream, stamp, values), ...]`` per
+    instant, the device 1 ms after the legs."""
+    out = []
+    for j in range(count):
+        stamp = first_ns + 5 * MS * j
+        r = R + rng.normal(size=4) * np.asarray(NOISE[6:])
+        out.append(
+            [
+                (LEG_LENGTHS, stamp, (Q + rng.normal(size=6) * 1e-6,)),
+                (INCLINOMETER, stamp + MS, (r[0], r[1])),
+                (ENCODER, stamp + MS, (r[2],)),
+                (LVDT, stamp + MS, (r[3],)),
+            ]
+        )
+    return out
+
+
+def test_a_listener_starved_longer_than_topic_timeout_reports_no_silent_topic():
+    """The listener has taken every message received up to 15 ms after the settle, then gets
+    no CPU for 3 s while the streams go on (topic_timeout 1 s); the watchdog polls meanwhile.
+    Silence is judged on the wire, up to where the listener has looked: none."""
+    collection = settled_collection()
+    feed = instants(np.random.default_rng(1), START + MS, 700)
+    events = []
+    for instant in feed[:3]:  # fewer than the window
+        for stream, stamp, values in instant:
+            events += collection.sample(stream, stamp, values, stamp + MS, received_ns=stamp)
+    collection.checked_until(START + 15 * MS, START + 16 * MS)
+    for k in range(1, 31):  # the watchdog, every 0.1 s of the 3 s
+        events += collection.poll(START + 15 * MS + k * 100 * MS)
+    assert not [event for event in events if isinstance(event, FINAL_EVENTS)]
+    for instant in feed[3:]:  # then the backlog, received on time, handled 3 s late
+        for stream, stamp, values in instant:
+            events += collection.sample(stream, stamp, values, stamp + 3 * S, received_ns=stamp)
+        if any(isinstance(event, FINAL_EVENTS) for event in events):
+            break
+    (row,) = [event for event in events if isinstance(event, FINAL_EVENTS)]
+    assert isinstance(row, RowReady)
+
+
+def test_a_stream_handled_in_a_batch_ahead_of_the_others_is_no_lack_of_progress():
+    """One wake-up of a listener 2.5 s behind takes the leg lengths' whole batch (2.5 s of
+    receipts, no device sample yet, so no pair), then the device topics' batches: no
+    'no synchronised sample' failure, the row (3b: '0 leg-length samples since settling')."""
+    collection = settled_collection()
+    collection.checked_until(START, START)
+    feed = instants(np.random.default_rng(2), START + MS, 500)
+    handled = START + 2600 * MS
+    events = []
+    for k in range(1, 26):  # the watchdog, every 0.1 s, while the listener waits for the CPU
+        events += collection.poll(START + k * 100 * MS)
+    for stream in (LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT):
+        batch = [sample for instant in feed for sample in instant if sample[0] == stream]
+        for _, stamp, values in batch:
+            events += collection.sample(stream, stamp, values, handled, received_ns=stamp)
+    (row,) = [event for event in events if isinstance(event, FINAL_EVENTS)]
+    assert isinstance(row, RowReady)
