@@ -25,9 +25,9 @@ Concurrency: the Trigger callback is a coroutine in its own reentrant group, so 
 answered at once while a run awaits. The status subscription and the parameter client sit in a
 reentrant group; the watchdog timer in a mutually exclusive group of its own (one executor thread
 at most: a reentrant timer is dispatched again while it waits for the lock, and its piled-up
-calls would take every thread of the executor). The sensor topics are taken by a
-:class:`.node_threads.SensorListener` (node ``<name>_sensors``, own thread), the recording by a
-second one (``<name>_recorder``). The protocol and the posture in collection are guarded by
+calls would take every thread of the executor). The suite's topics are taken by a
+:class:`.node_threads.SensorListener` (node ``<name>_recorder``, own thread): its recorder writes
+each batch of a sensor topic, then hands it to the collection. The protocol and the posture in collection are guarded by
 the posture link's lock.
 """
 
@@ -126,26 +126,18 @@ class CalibratorNode(Node):
             self, OUTPUTS
         ).values()
         self._results = ResultDelivery(self, result_publisher, self._data_group)
+        # One subscription per topic: the recorder writes each sensor batch, then hands it to
+        # the collection (the rebuild sees exactly the messages the collector saw).
         self._recorder_listener = SensorListener.beside(
             self,
             'recorder',
             {},
-            setup=lambda node: RunRecorder(node, persistent=True),
+            setup=self._setup_recorder,
             on_error=self._on_recording_error,
         )
         self.recorder = self._recorder_listener.extra
         self.postures = PostureLink(
             lambda: new_future(self.executor), self._new_command, self.recorder, self._on_event
-        )
-        # After the link: the listener's thread calls back at once, and a callback that raised
-        # would end that thread for the node's lifetime.
-        self._sensors = SensorListener.beside(
-            self,
-            'sensors',
-            {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS},
-            raw=True,
-            batch=True,  # every waiting message per wake-up (node_threads.SensorListener)
-            setup=lambda node: node.create_timer(LISTENER_TICK_S, self._on_listener_tick),
         )
         self.create_subscription(
             DiagnosticStatus,
@@ -189,6 +181,14 @@ class CalibratorNode(Node):
     def _now_ns(self):
         return self.get_clock().now().nanoseconds
 
+    def _setup_recorder(self, node):
+        """The recorder on the listener ``node`` (its thread), forwarding the sensor batches to
+        the collection, and the listener's tick (silence on the wire)."""
+        callbacks = {topic: self._sensor_callback(topic) for topic in topics.SENSOR_TOPICS}
+        recorder = RunRecorder(node, persistent=True, forward=callbacks)
+        node.create_timer(LISTENER_TICK_S, self._on_listener_tick)
+        return recorder
+
     def _sensor_callback(self, topic):
         """The callback of ``topic``'s batches (``[(CDR bytes, info), ...]``, in order): decoded
         here, cheaply (collection.joint_state_cdr), and judged once per batch."""
@@ -196,7 +196,8 @@ class CalibratorNode(Node):
 
         def callback(batch):
             self._heard_ns[topic] = time.monotonic_ns()
-            if not self.postures.active:  # no run: drop at once
+            postures = getattr(self, 'postures', None)  # (set after the recorder starts)
+            if postures is None or not postures.active:  # no run: drop at once
                 decided_ns = time.time_ns()
                 for _, info in batch:
                     lags.note(topic, info.get('received_timestamp'), decided_ns)
@@ -210,7 +211,7 @@ class CalibratorNode(Node):
                         topic,
                         msg,
                         info.get('publication_sequence_number'),
-                        lambda: self._sensors.node.count_publishers(topic),
+                        lambda: self._recorder_listener.node.count_publishers(topic),
                     )
                     if failure is not None:  # a second source: the run ends, naming the topic
                         self.postures.fail(failure)
@@ -251,9 +252,10 @@ class CalibratorNode(Node):
         received off the wire before the tick two back has been taken, so silence is judged up
         to then (a listener starved of the CPU is no silent topic)."""
         self._listener_ticks.append(self._now_ns())
-        if len(self._listener_ticks) == self._listener_ticks.maxlen:
+        postures = getattr(self, 'postures', None)  # (set after the recorder starts)
+        if postures is not None and len(self._listener_ticks) == self._listener_ticks.maxlen:
             checked_ns = self._listener_ticks[0]
-            self.postures.feed(lambda c: c.checked_until(checked_ns, self._now_ns()))
+            postures.feed(lambda c: c.checked_until(checked_ns, self._now_ns()))
 
     def _on_watchdog(self):
         self._waits.poll()
@@ -408,7 +410,7 @@ class CalibratorNode(Node):
                 recorder.stop()
             except Exception as error:  # never keep the node from going down
                 self.get_logger().error(f'recording not closed: {error}')
-        for name in ('_recorder_listener', '_sensors'):
+        for name in ('_recorder_listener',):
             listener = getattr(self, name, None)
             if listener is not None:
                 listener.close()

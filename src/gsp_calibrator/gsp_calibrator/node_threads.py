@@ -25,7 +25,6 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-from gsp_calibrator.batched_subscription import BatchedCallback
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 from gsp_msgs_py import qos
 
@@ -158,17 +157,14 @@ class SensorListener:
     ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
     :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
     kept until :meth:`close`; ``raw=True``: the callbacks get the messages' CDR bytes (as the
-    recorder takes them: no message object is built); ``batch=True`` (with ``raw``): a callback
-    gets ``[(CDR bytes, message info), ...]``, every message its subscription holds when the
-    thread wakes up for it, in order (:class:`.batched_subscription.BatchedCallback`): the
-    executor's per-message round is paid once per batch, and the caller judges once. ``setup``: None or a function of the node called before the thread
+    recorder takes them: no message object is built). ``setup``: None or a function of the node called before the thread
     starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
     None, or a function given any exception a callback raises (e.g. a recording's full disk);
     the thread then goes on. :meth:`close` stops the thread and destroys the node.
     """
 
     @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False, batch=False):
+    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):
         """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
         ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
         return cls(
@@ -179,12 +175,9 @@ class SensorListener:
             setup=setup,
             on_error=on_error,
             raw=raw,
-            batch=batch,
         )
 
-    def __init__(
-        self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False, batch=False
-    ):
+    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False):
         self.on_error = on_error
         self.node = Node(
             name,
@@ -195,15 +188,12 @@ class SensorListener:
         )
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self._subscriptions = []
-        for topic, callback in callbacks.items():
-            taken = BatchedCallback(callback) if batch else callback
-            subscription = self.node.create_subscription(
-                JointState, topic, taken, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
+        self._subscriptions = [
+            self.node.create_subscription(
+                JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
             )
-            if batch:
-                taken.subscription = subscription
-            self._subscriptions.append(subscription)
+            for topic, callback in callbacks.items()
+        ]
         self.extra = setup(self.node) if setup is not None else None
         self._thread = threading.Thread(target=self._spin, name=f'{name}-executor', daemon=True)
         self._thread.start()
