@@ -31,7 +31,6 @@ each batch of a sensor topic, then hands it to the collection. The protocol and 
 the posture link's lock.
 """
 
-import collections
 import os
 import sys
 import threading
@@ -42,9 +41,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.collection import events, protocol, topics
-from gsp_calibrator.collection.single_source import SingleSourceGuard
-from gsp_calibrator.collection.topics import sensor_message
+from gsp_calibrator.collection import events, protocol
 from gsp_calibrator.node_threads import (
     SensorListener,
     ThreadResults,
@@ -57,9 +54,10 @@ from gsp_calibrator.recording.recorder import RunRecorder
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
-from gsp_calibrator.run.health import ProcessingLags, calibrator_health
+from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.host import PostureLink, RunHost
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
+from gsp_calibrator.sensor_intake import LISTENER_TICK_S, SensorIntake
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
 from gsp_calibrator.upkeep.check_flow import CheckRun, record_calibration
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
@@ -68,7 +66,6 @@ from gsp_msgs_py.executors import MultiThreadedExecutor
 
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
-LISTENER_TICK_S = 0.1  #: the sensor listener's tick (silence on the wire, _on_listener_tick)
 #: Longest time (s) a busy thread keeps the GIL while another waits for it (Python's default:
 #: 0.005). The node's threads (executor, sensor listener, recorder) share one GIL: the message
 #: that completes a posture, and the next command, would otherwise wait up to 5 ms for the
@@ -109,15 +106,12 @@ class CalibratorNode(Node):
         self._lock = threading.Lock()  # guards _running and _run
         self._running = False
         self._run = None  # CalibrationRun of the current (or last) run
-        self._sources = SingleSourceGuard()  # reset at each run's first reading
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
-        # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
-        # run or not, and the latest progress published.
-        self._heard_ns = dict.fromkeys(topics.SENSOR_TOPICS)
-        self._lags = ProcessingLags(topics.SENSOR_TOPICS)
-        self._listener_ticks = collections.deque(maxlen=3)  # node clock, ns
+        self._intake = SensorIntake(
+            self._now_ns, lambda topic: self._recorder_listener.node.count_publishers(topic)
+        )
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -139,6 +133,7 @@ class CalibratorNode(Node):
         self.postures = PostureLink(
             lambda: new_future(self.executor), self._new_command, self.recorder, self._on_event
         )
+        self._intake.postures = self.postures
         self.create_subscription(
             DiagnosticStatus,
             names.TOPIC_PLATFORM_STATUS,
@@ -184,49 +179,9 @@ class CalibratorNode(Node):
     def _setup_recorder(self, node):
         """The recorder on the listener ``node`` (its thread), forwarding the sensor batches to
         the collection, and the listener's tick (silence on the wire)."""
-        callbacks = {topic: self._sensor_callback(topic) for topic in topics.SENSOR_TOPICS}
-        recorder = RunRecorder(node, persistent=True, forward=callbacks)
-        node.create_timer(LISTENER_TICK_S, self._on_listener_tick)
+        recorder = RunRecorder(node, persistent=True, forward=self._intake.callbacks())
+        node.create_timer(LISTENER_TICK_S, self._intake.tick)
         return recorder
-
-    def _sensor_callback(self, topic):
-        """The callback of ``topic``'s batches (``[(CDR bytes, info), ...]``, in order): decoded
-        here, cheaply (collection.joint_state_cdr), and judged once per batch."""
-        lags = self._lags
-
-        def callback(batch):
-            self._heard_ns[topic] = time.monotonic_ns()
-            postures = getattr(self, 'postures', None)  # (set after the recorder starts)
-            if postures is None or not postures.active:  # no run: drop at once
-                decided_ns = time.time_ns()
-                for _, info in batch:
-                    lags.note(topic, info.get('received_timestamp'), decided_ns)
-                return
-            messages = [(sensor_message(raw), info) for raw, info in batch]
-
-            def step(collection):
-                taken = []
-                for msg, info in messages:
-                    failure = self._sources.check_reading(
-                        topic,
-                        msg,
-                        info.get('publication_sequence_number'),
-                        lambda: self._recorder_listener.node.count_publishers(topic),
-                    )
-                    if failure is not None:  # a second source: the run ends, naming the topic
-                        self.postures.fail(failure)
-                        return []
-                    taken.append((topic, msg, info.get('received_timestamp')))
-                now_ns = self._now_ns()
-                taken = [(t, m, protocol.wire_receipt_ns(r, now_ns)) for t, m, r in taken]
-                return collection.sensors(taken, now_ns)
-
-            self.postures.feed(step)
-            decided_ns = time.time_ns()
-            for _, info in batch:
-                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=True)
-
-        return callback
 
     def _on_status(self, msg, info):
         try:
@@ -245,17 +200,6 @@ class CalibratorNode(Node):
             return collection.status(status, now_ns, start_ns)
 
         self.postures.feed(step)
-
-    def _on_listener_tick(self):
-        """The sensor listener's own tick (its thread). Between a tick and the next but one, its
-        executor has waited on its subscriptions and taken what was ready: every message
-        received off the wire before the tick two back has been taken, so silence is judged up
-        to then (a listener starved of the CPU is no silent topic)."""
-        self._listener_ticks.append(self._now_ns())
-        postures = getattr(self, 'postures', None)  # (set after the recorder starts)
-        if postures is not None and len(self._listener_ticks) == self._listener_ticks.maxlen:
-            checked_ns = self._listener_ticks[0]
-            postures.feed(lambda c: c.checked_until(checked_ns, self._now_ns()))
 
     def _on_watchdog(self):
         self._waits.poll()
@@ -303,10 +247,10 @@ class CalibratorNode(Node):
             self._running,
             self._last_progress,
             session.run.path if session is not None else '',
-            dict(self._heard_ns),
+            dict(self._intake.heard_ns),
             time.monotonic_ns(),
             self._settings.topic_timeout,
-            lags=self._lags.take(),
+            lags=self._intake.lags.take(),
         )
 
     # --------------------------------------------------------------------- the run's host
@@ -332,7 +276,7 @@ class CalibratorNode(Node):
             progress=self._progress,
             deliver_result=lambda *args: self._results.deliver(*args, self._wait_for),
             shutting_down=lambda: not self.context.ok(),
-            processing_lags=self._lags.run,
+            processing_lags=self._intake.lags.run,
         )
 
     def _wait_for(self, predicate, timeout_s):
@@ -386,7 +330,7 @@ class CalibratorNode(Node):
             self._running = True
             self._run = run_class(self._run_host(), self._settings, resume)
         with self.postures.lock:
-            self._sources.reset()
+            self._intake.sources.reset()
         response.success, response.message = await self._run.serve()
         if self.context.ok():  # else going down: destroy_node() marks the run interrupted
             if run_class is CalibrationRun and (run := self._run).session is not None:

@@ -142,7 +142,7 @@ def test_a_listener_starved_longer_than_topic_timeout_reports_no_silent_topic():
     for instant in feed[:3]:  # fewer than the window
         for stream, stamp, values in instant:
             events += collection.sample(stream, stamp, values, stamp + MS, received_ns=stamp)
-    collection.checked_until(START + 15 * MS, START + 16 * MS)
+    collection.timeouts.checked_until(START + 15 * MS)
     for k in range(1, 31):  # the watchdog, every 0.1 s of the 3 s
         events += collection.poll(START + 15 * MS + k * 100 * MS)
     assert not [event for event in events if isinstance(event, FINAL_EVENTS)]
@@ -160,7 +160,7 @@ def test_a_stream_handled_in_a_batch_ahead_of_the_others_is_no_lack_of_progress(
     receipts, no device sample yet, so no pair), then the device topics' batches: no
     'no synchronised sample' failure, the row (3b: '0 leg-length samples since settling')."""
     collection = settled_collection()
-    collection.checked_until(START, START)
+    collection.timeouts.checked_until(START)
     feed = instants(np.random.default_rng(2), START + MS, 500)
     handled = START + 2600 * MS
     events = []

@@ -49,7 +49,6 @@ first command, ``posture=None``) at the next command and at :meth:`~CollectionPr
 """
 
 import collections
-import dataclasses
 import math
 
 import numpy as np
@@ -61,6 +60,13 @@ from gsp_calibrator.collection.events import (
     RowReady,
     SampleDropped,
 )
+from gsp_calibrator.collection.posture_state import (
+    AWAIT_SETTLE,
+    AWAIT_STATUS,
+    COLLECTING,
+    LatestReadings,
+    Posture,
+)
 from gsp_calibrator.collection.synchroniser import (
     ENCODER,
     INCLINOMETER,
@@ -71,7 +77,6 @@ from gsp_calibrator.collection.synchroniser import (
 )
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
 from gsp_calibrator.collection.topics import (
-    DEVICE_STREAMS,
     SENSOR_TOPICS,
     TOPIC_STREAMS,
     has_non_finite,
@@ -85,9 +90,6 @@ from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 MAX_PAIRS_PER_SAMPLE = 20
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
 MIN_BUFFER = 2000
-#: Device instants kept for the latest complete one (the previous posture's readings): more
-#: than a listener's batch of one device topic can lead the others by.
-MAX_RECENT_INSTANTS = 4000
 #: Pairs handed over per posture with ``keep_pairs`` (the first ones after the settle), and
 #: before the first command (the last ones), so a long idle recording stays cheap.
 MAX_STREAM_SAMPLES = 2000
@@ -129,6 +131,16 @@ def wire_receipt_ns(received_ns, now_ns):
     return int(received_ns)
 
 
+def dropped_event(collector, topic, msg, error):
+    """The :class:`SampleDropped` of an unusable message ``msg`` of ``topic`` (``error``: why);
+    a non-finite reading is counted by ``collector``."""
+    if has_non_finite(msg):
+        stream = TOPIC_STREAMS[topic]
+        collector.record_non_finite(stream)
+        return SampleDropped(topic, str(error), True, collector.non_finite[stream])
+    return SampleDropped(topic, str(error), False)
+
+
 def collection_summary(skipped, collector):
     """The collection data of a run: its ``skipped`` (``[PostureSkipped, ...]``) and what its
     ``collector`` dropped (the ``collection`` of ``result.json``)."""
@@ -149,54 +161,11 @@ def collection_summary(skipped, collector):
     }
 
 
-_IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
-
-
-@dataclasses.dataclass
-class _Posture:
-    number: int
-    pose: np.ndarray
-    command_id: str
-    commanded_ns: int
-    state: str = _AWAIT_STATUS
-    first_status_ns: int = None
-    start_ns: int = None  # collection start (stamps), set when settled
-    started_ns: int = None  # receive time of the settle (time base of the timeouts)
-    progress: int = 0  # pairs at the last change
-    progress_ns: int = None  # receive time of the last change of the pairs
-    #: data time (data_ns) of the last change of the pairs (or of the first sample)
-    progress_data_ns: int = None
-    #: the receive time every stream has reached with the samples handled since the start
-    #: (the settle's until each has given one): the streams come in batches, one stream's
-    #: ahead of the others', which is no lack of progress of the pairs
-    received_ns: int = None
-    #: stream -> latest receive time of its samples handled since the start
-    received_by_stream: dict = dataclasses.field(default_factory=dict)
-    #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
-    latest_ns: dict = dataclasses.field(default_factory=dict)
-
-    def data_ns(self):
-        """The data's time: the stamp every stream has reached with its samples from the start;
-        None until each has given one (a stream that gives none is silent, or stamped in
-        another time base: the receive times judge it)."""
-        if len(self.latest_ns) < len(SENSOR_TOPICS):
-            return None
-        return min(self.latest_ns.values())
-
-    def data_elapsed(self):
-        """s of the data since the start (0 while :meth:`data_ns` is None)."""
-        data_ns = self.data_ns()
-        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
-
-
 class CollectionProtocol:
-    """The collection protocol (see the module docstring); every input returns a list of events.
-
+    """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
-    ``settle_lookback`` (s) and ``settle_sigmas`` configure the collector; ``topic_timeout`` /
-    ``settle_timeout`` (s, default: none) the timeouts. Times are integer ns of one clock
-    (receive times).
-    """
+    ``settle_lookback`` (s), ``settle_sigmas``: the collector; ``topic_timeout``,
+    ``settle_timeout`` (s, default: none): the timeouts. Times: integer ns of one clock."""
 
     @classmethod
     def for_settings(cls, settings):
@@ -236,12 +205,9 @@ class CollectionProtocol:
         self.collector = SampleCollector(
             sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std, **settle
         )
-        self._posture = None  # the awaited posture (_Posture) or None
+        self._posture = None  # the awaited posture (Posture) or None
         self._previous = None  # device readings of the previous row
-        self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
-        #: stamp -> {device stream: values} of the latest device instants (the device topics
-        #: come in batches of their own: their latest messages need not share a stamp)
-        self._instants = collections.OrderedDict()
+        self._latest = LatestReadings()
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None  # the collector's pair revision last checked
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
@@ -250,8 +216,6 @@ class CollectionProtocol:
         if self.keep_pairs:
             self._idle = SampleCollector(sync_tolerance, 1, max_buffer=2 * MAX_STREAM_SAMPLES)
             self._idle.start(-(2**62))
-
-    # --- state -------------------------------------------------------------------------------
 
     def heard(self, topic):
         """Whether ``topic`` has said anything yet."""
@@ -264,23 +228,15 @@ class CollectionProtocol:
 
     @property
     def collecting(self):
-        return self._posture is not None and self._posture.state == _COLLECTING
+        return self._posture is not None and self._posture.state == COLLECTING
 
     def latest_device_readings(self):
         """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
-        for instant in reversed(self._instants.values()):
-            if len(instant) == len(DEVICE_STREAMS):
-                return np.concatenate(
-                    [np.asarray(instant[stream], dtype=float) for stream in DEVICE_STREAMS]
-                )
-        return None
+        return self._latest.device_readings()
 
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
-        item = self._latest.get(LEG_LENGTHS)
-        return (
-            None if item is None else np.asarray(item[1], dtype=float).reshape(channels.LEG_COUNT)
-        )
+        return self._latest.leg_lengths()
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
@@ -290,8 +246,6 @@ class CollectionProtocol:
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
         d_m]`` (rad, m): they are the previous posture's for the next row."""
         self._previous = np.asarray(readings, dtype=float).reshape(len(channels.READING_NAMES))
-
-    # --- inputs ------------------------------------------------------------------------------
 
     def command(self, posture, pose, command_id, now_ns):
         """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
@@ -303,25 +257,22 @@ class CollectionProtocol:
         self.collector.stop()
         self._recent.clear()
         self._checked_pairs = None
-        self._posture = _Posture(
+        self._posture = Posture(
             int(posture), np.asarray(pose, dtype=float).reshape(6), str(command_id), int(now_ns)
         )
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):
-        """A platform status (``conversions.PlatformStatus``) received at ``now_ns``.
-
-        ``start_ns``: the collection start to use if this status settles the posture (default
-        ``now_ns``).
-        """
+        """A platform status (``conversions.PlatformStatus``) received at ``now_ns``;
+        ``start_ns``: the collection start if it settles the posture (default ``now_ns``)."""
         self._attend(now_ns)
         posture = self._posture
         if posture is None or status.command_id != posture.command_id:
             return self.poll(now_ns)
-        if posture.state in (_AWAIT_STATUS, _AWAIT_SETTLE):
+        if posture.state in (AWAIT_STATUS, AWAIT_SETTLE):
             if posture.first_status_ns is None:
                 posture.first_status_ns = int(now_ns)
-                posture.state = _AWAIT_SETTLE
+                posture.state = AWAIT_SETTLE
             if status.rejected:
                 reason = status.reason or 'rejected'
                 return self._skip(f'rejected by the platform: {reason}', True, reason)
@@ -337,8 +288,7 @@ class CollectionProtocol:
 
     def sensors(self, messages, now_ns):
         """Sensor messages ``[(topic, msg, received_ns), ...]`` (as for :meth:`sensor`) handled
-        together at ``now_ns``, in order (a listener's batch): the posture is judged once, after
-        the last of them (its row depends on the samples alone, not on when it is judged)."""
+        at ``now_ns``, in order (a listener's batch), the posture judged once, after them."""
         self._attend(now_ns)
         events = []
         for topic, msg, received_ns in messages:
@@ -346,17 +296,10 @@ class CollectionProtocol:
             try:
                 stream, stamp_ns, values = read_sensor(topic, msg)
             except (ValueError, TypeError) as error:
-                events.append(self._dropped(topic, msg, error))
+                events.append(dropped_event(self.collector, topic, msg, error))
                 continue
             self._take(stream, stamp_ns, values, now_ns, received_ns)
-        return events + self._judge(now_ns)
-
-    def _dropped(self, topic, msg, error):
-        if has_non_finite(msg):
-            stream = TOPIC_STREAMS[topic]
-            self.collector.record_non_finite(stream)
-            return SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
-        return SampleDropped(topic, str(error), False)
+        return events + self._judged(now_ns)
 
     def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
@@ -366,26 +309,17 @@ class CollectionProtocol:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
         self._take(stream, stamp_ns, values, now_ns, received_ns)
-        return self._judge(now_ns)
-
-    def _judge(self, now_ns):
-        if self.collecting:
-            return self._check_collection(now_ns)
-        return self.poll(now_ns)
+        return self._judged(now_ns)
 
     def _take(self, stream, stamp_ns, values, now_ns, received_ns):
         """Take one parsed sample (not judged yet)."""
-        self._latest[stream] = (int(stamp_ns), values)
-        if stream != LEG_LENGTHS:
-            self._instants.setdefault(int(stamp_ns), {})[stream] = values
-            if len(self._instants) > MAX_RECENT_INSTANTS:
-                self._instants.popitem(last=False)
+        self._latest.note(stream, stamp_ns, values)
         posture = self._posture
         if posture is None:
             if self._idle is not None:
                 _ADDERS[stream](self._idle, stamp_ns, *values)
             return
-        if posture.state != _COLLECTING:
+        if posture.state != COLLECTING:
             self._recent.append((stream, stamp_ns, values))
             return
         received = int(now_ns if received_ns is None else received_ns)
@@ -413,42 +347,33 @@ class CollectionProtocol:
         if posture is None:
             return []
         now_ns = int(now_ns)
-        if posture.state == _AWAIT_STATUS:
+        if posture.state == AWAIT_STATUS:
             silent = self.timeouts.status_overdue(posture, now_ns)
             if silent is not None:
                 return self._fail(silent)
-        elif posture.state == _AWAIT_SETTLE:
+        elif posture.state == AWAIT_SETTLE:
             reason = self.timeouts.settle_overdue(posture, now_ns)
             if reason:
                 return self._skip(reason)
-        elif posture.state == _COLLECTING and not self.keep_pairs:
+        elif posture.state == COLLECTING and not self.keep_pairs:
             return self._collection_timeouts(now_ns)
         return []
-
-    def checked_until(self, checked_ns, now_ns):
-        """The caller has taken every sensor message received before ``checked_ns``
-        (:meth:`.timeouts.CollectionTimeouts.checked_until`); the events due at ``now_ns``."""
-        self.timeouts.checked_until(checked_ns)
-        return self.poll(now_ns)
 
     def finish(self, now_ns=None):
         """End of input (recordings): ``keep_pairs`` hands over the last segment."""
         return self._end_segment() if self.keep_pairs else self._close()
 
     def _close(self):
-        """The row of the posture being collected when its data end (the next command, the end
-        of a recording: a rebuild's order has given every sample stamped before them), judged
-        on all its pairs, which are final; [] if none."""
+        """The row of the posture in collection when its data end (the next command, the end of
+        a recording: every sample stamped before them given), on all its pairs; [] if none."""
         if not self.collecting:
             return []
         self.collector.set_horizon(None)
         return self._row() if self.collector.ready() else []
 
-    # --- collection --------------------------------------------------------------------------
-
     def _start(self, now_ns, start_ns):
         posture = self._posture
-        posture.state = _COLLECTING
+        posture.state = COLLECTING
         posture.start_ns, posture.started_ns = int(start_ns), int(now_ns)
         posture.progress, posture.progress_ns = 0, int(now_ns)
         posture.progress_data_ns, posture.received_ns = None, int(now_ns)
@@ -461,12 +386,15 @@ class CollectionProtocol:
             return events
         return events + self._check_collection(now_ns)
 
+    def _judged(self, now_ns):
+        return self._check_collection(now_ns) if self.collecting else self.poll(now_ns)
+
     def _check_collection(self, now_ns):
         if self.keep_pairs:
             return []
         collector = self.collector
         # Windows are judged once their pairs are final in the data's time (set_horizon).
-        collector.set_horizon(self._horizon_ns(self._posture))
+        collector.set_horizon(self._posture.horizon_ns())
         # ready() is a function of the pairs and the horizon: only ask again when they changed.
         checked = (collector.pair_revision, collector.horizon_ns)
         if checked != self._checked_pairs:
@@ -482,13 +410,6 @@ class CollectionProtocol:
                     'the previous posture)'
                 )
         return self._collection_timeouts(now_ns)
-
-    @staticmethod
-    def _horizon_ns(posture):
-        """The data's horizon of ``posture`` (the collector's ``set_horizon``): the stamp every
-        stream has reached since the start; before each has given one, the start."""
-        data_ns = posture.data_ns()
-        return posture.start_ns if data_ns is None else data_ns
 
     def _collection_timeouts(self, now_ns):
         failure, reason = self.timeouts.collection_overdue(self._posture, self.collector, now_ns)
@@ -530,18 +451,13 @@ class CollectionProtocol:
             idle, self._idle = self._idle, None
             stamps, legs, readings = segment_pairs(idle, MAX_STREAM_SAMPLES, last=True)
             return [PairsCollected(None, '', None, stamps, legs, readings)]
-        if posture.state != _COLLECTING:
+        if posture.state != COLLECTING:
             return self._skip('never settled')
         stamps, legs, readings = segment_pairs(self.collector, MAX_STREAM_SAMPLES)
+        if len(stamps) == 0:
+            return self._skip('no synchronised sample after settling')
         self.collector.stop()
         self._posture = None
-        if len(stamps) == 0:
-            return self._skip_closed(posture, 'no synchronised sample after settling')
         return [
             PairsCollected(posture.number, posture.command_id, posture.pose, stamps, legs, readings)
         ]
-
-    def _skip_closed(self, posture, reason):
-        event = PostureSkipped(posture.number, reason)
-        self.skipped.append(event)
-        return [event]
