@@ -34,6 +34,8 @@ def call(suite, service):
 
 def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_path, capsys):
     truth = perturbed_truth(tmp_path / 'true.yaml')
+    from rclpy.parameter import Parameter
+
     suite, calibrator, platform, _ = make_suite(
         ros_context, tmp_path, tmp_path / 'true.yaml', CALIBRATOR
     )
@@ -63,8 +65,13 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
         data = json.loads((Path(check_dir) / 'check.json').read_text())
         assert data['moved_legs'] == [3] and data['verdict'] == 'recalibrate'
 
+        # The recalibration identifies the check's rows with its own (reuse_rows_from).
+        check_rows = len((Path(check_dir) / 'samples.csv').read_text().strip().splitlines()) - 1
+        reuse = Parameter('reuse_rows_from', value=check_dir)
+        assert calibrator.set_parameters([reuse])[0].successful
         second = suite.wait(suite.call(), CALL_TIMEOUT_S)
         assert second.success, second.message
+        assert f'{16 + check_rows} posture(s)' in second.message.splitlines()[0], second.message
     finally:
         suite.close()
 
@@ -78,6 +85,10 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
     assert [change['parameter'] for change in found[2]['changes']] == ['Loff3']
     assert [change['parameter'] for change in found[3]['changes']] == ['Loff3']
     assert 0.015 < found[3]['changes'][0]['change_report'] < 0.025  # mm
+    reused = json.loads((Path(found[3]['run_dir']) / 'result.json').read_text())['collection'][
+        'reused_rows'
+    ]
+    assert reused['run_directory'] == found[2]['run_dir'] and reused['rows'] == check_rows
     calibrations = [entry['run_dir'] for entry in found if entry['kind'] == 'calibration']
     assert compare.main(calibrations) == compare.EXIT_CHANGED
     assert 'significant: Loff3 +0.0' in capsys.readouterr().out
@@ -86,3 +97,62 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
         == 0
     )
     assert 'moved: Loff3' in capsys.readouterr().out
+
+
+def _run_directory(runs):
+    """The newest calibration run directory under ``runs``."""
+    return sorted(path for path in runs.iterdir() if (path / 'result.json').is_file())[-1]
+
+
+def test_a_run_stops_when_good_enough_or_adds_pool_postures(ros_context, tmp_path):
+    from rclpy.parameter import Parameter
+
+    perturbed_truth(tmp_path / 'true.yaml')
+    overrides = {
+        'posture_count': 16,
+        'stop_when_accurate': True,
+        'stop_minimum_postures': 6,
+        'stop_every': 2,
+        'stop_max_added': 2,
+    }
+    suite, calibrator, _, _ = make_suite(ros_context, tmp_path, tmp_path / 'true.yaml', overrides)
+    runs = tmp_path / 'runs'
+    try:
+        # A loose requirement (the default 0.1 mm): met by the first judgements, long before
+        # the plan's 16 postures.
+        loose = suite.wait(suite.call(), CALL_TIMEOUT_S)
+        assert loose.success, loose.message
+        assert 'stopped when accurate: ' in loose.message, loose.message
+        loose_dir = _run_directory(runs)
+        record = json.loads((loose_dir / 'result.json').read_text())['collection'][
+            'run_to_requirement'
+        ]
+        assert record['met'] and record['added'] == 0 and record['fixed_plan_postures'] == 16
+        assert 6 <= record['postures'] < 16
+        assert record['platform_time_s'] < record['fixed_plan_time_s']
+        assert record['bounds']['position_bound_mm'] <= 0.1
+        rows = (loose_dir / 'samples.csv').read_text().strip().splitlines()[1:]
+        assert len(rows) == record['postures']
+
+        # A requirement no run can meet: the whole plan of 8, then 2 pool postures, and it
+        # says it could not (the result is written, not applied).
+        for name, value in (('required_position_accuracy_mm', 1e-6), ('posture_count', 8)):
+            assert calibrator.set_parameters([Parameter(name, value=value)])[0].successful
+        strict = suite.wait(suite.call(), CALL_TIMEOUT_S)
+        assert not strict.success
+        assert 'could not meet the required accuracy in 10 postures (2 added from the pool)' in (
+            strict.message
+        )
+    finally:
+        suite.close()
+    strict_dir = _run_directory(runs)
+    assert strict_dir != loose_dir
+    record = json.loads((strict_dir / 'result.json').read_text())['collection'][
+        'run_to_requirement'
+    ]
+    assert not record['met'] and record['added'] == 2 and record['postures'] == 10
+    assert record['fixed_plan_postures'] == 8
+    assert record['platform_time_s'] > record['fixed_plan_time_s']
+    state = json.loads((strict_dir / 'state.json').read_text())
+    assert state['added'] == 2 and len(state['poses']) == 10
+    assert len((strict_dir / 'samples.csv').read_text().strip().splitlines()) == 1 + 10

@@ -132,7 +132,6 @@ def run(quick=False):
     seeds = range(QUICK_SEEDS if quick else SEEDS)
     checks = [_check_seed(design, seed, required) for seed in seeds]
     drifts = [_drift_seed(design, seed) for seed in seeds]
-    requirement = requirement_section(design, range(1 if quick else REQUIREMENT_SEEDS))
     times = [row['platform_time_s'] for row in checks]
     return {
         'description': (
@@ -166,12 +165,7 @@ def run(quick=False):
                 drifts, 'changed_only_that_parameter'
             ),
         },
-        'run_to_requirement': requirement,
     }
-
-
-#: Seeds of the run-to-a-requirement figures (each seed cross-validates a run many times).
-REQUIREMENT_SEEDS = 10
 
 
 def _pool_measurements(design, true, seed):
@@ -185,62 +179,3 @@ def _pool_measurements(design, true, seed):
     full_readings = np.full((len(design.pool), 4), np.nan)
     full_legs[reached], full_readings[reached] = legs, readings
     return full_legs, full_readings, reached
-
-
-def requirement_section(design, seeds):
-    """The run that stops when it is good enough, against the default plan: the requirement is
-    the default plan's verified accuracy (the median over seeds of its mean position error
-    against the truth, over 50 validation postures)."""
-    from gsp_kinematics import stopping
-    from gsp_kinematics.kinematics import home_pose
-    from gsp_kinematics.travel.motion import MotionLimits
-    from gsp_kinematics.travel.route import plan_route
-
-    from .bench_sensor_errors import SAMPLES, SIGMAS, calibrator_design, position_error_mm
-
-    _, _, _, chosen, validation_poses = calibrator_design()
-    rows = SIGMAS.averaged([SAMPLES])
-    limits = MotionLimits()
-    route = plan_route(design.nominal, home_pose(), design.pool[chosen], limits)
-    planned = np.asarray(chosen)[route.order]
-    default_errors = [
-        position_error_mm(design.true, design.identify(design.true, 40_000 + s), validation_poses)
-        for s in seeds
-    ]
-    required = float(np.median(default_errors))
-    rule = stopping.StoppingRule(required_position_mm=required, every=4)
-    runs = []
-    for seed in seeds:
-        legs, readings, reached = _pool_measurements(design, design.true, 40_000 + seed)
-        run = stopping.run_to_requirement(
-            design.nominal,
-            design.pool[reached],
-            [int(np.sum(reached[:i])) for i in planned if reached[i]],
-            lambda i, legs=legs[reached], readings=readings[reached]: (legs[i], readings[i]),
-            rows,
-            rule,
-            limits,
-            home_pose(),
-            free=FREE,
-        )
-        true_mm = (
-            position_error_mm(design.true, run['result'], validation_poses)
-            if run['result'] is not None
-            else float('nan')
-        )
-        runs.append(run | {'true_mm': true_mm})
-    ratios = [run['platform_time_s'] / run['fixed_plan_time_s'] for run in runs]
-    return {
-        'required_position_mm': required,
-        'confidence': rule.confidence,
-        'default_plan_verified_mm_median': required,
-        'met_fraction': _fraction(runs, 'met'),
-        'true_meets_requirement_fraction': sum(run['true_mm'] <= required for run in runs)
-        / len(runs),
-        'time_ratio_median': float(np.median(ratios)),
-        'time_ratio_max': float(np.max(ratios)),
-        'postures_median': float(np.median([run['postures'] for run in runs])),
-        'added_median': float(np.median([run['added'] for run in runs])),
-        'fixed_plan_time_s': runs[0]['fixed_plan_time_s'],
-        'platform_time_s_median': float(np.median([run['platform_time_s'] for run in runs])),
-    }

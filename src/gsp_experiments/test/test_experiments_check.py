@@ -93,3 +93,31 @@ def test_a_posture_the_platform_already_holds_is_not_chosen(calibrated):
     held = plan.pool_indices[0]
     again = check.choose_check_postures(controller, design.pool, design.pool[held], ROWS)
     assert held not in again.pool_indices
+
+
+def test_legs_grown_alike_say_so_and_name_no_leg(calibrated):
+    # Thermal growth: every leg offset +10 um (the legs of a platform warmer than at its
+    # calibration). The check sees the change, and names no leg.
+    true = calibrated[0].true
+    for leg in range(1, 7):
+        true = changed_truth(true, f'Loff{leg}', 10e-6)
+    data = run_check(calibrated, true, seed=41)
+    assert data['verdict'] == 'recalibrate' and data['moved_legs'] == [], data['moved']
+    common = data['common_change']
+    assert common['alike'] and abs(common['change_um'] - 10.0) < 4 * common['sigma_um']
+    assert 'all six leg offsets changed alike' in data['reasons'][0]
+    # One leg moved is not a common change.
+    moved = run_check(calibrated, changed_truth(calibrated[0].true, 'Loff3', 20e-6), seed=41)
+    assert not moved['common_change']['alike'] and moved['moved_legs'] == [3]
+
+
+def test_a_leg_moved_on_legs_grown_alike_is_named(calibrated):
+    # Every leg +10 um (warmer) and leg 3 another +20 um: the common change is taken out before
+    # the legs are named, so leg 3 is named alone (without: legs 2, 4 and 5 were named).
+    true = changed_truth(calibrated[0].true, 'Loff3', 20e-6)
+    for leg in range(1, 7):
+        true = changed_truth(true, f'Loff{leg}', 10e-6)
+    data = run_check(calibrated, true, seed=41)
+    common = data['common_change']
+    assert common['significant'] and not common['alike']
+    assert data['verdict'] == 'recalibrate' and data['moved_legs'] == [3], data['moved']

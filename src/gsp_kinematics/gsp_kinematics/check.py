@@ -208,13 +208,18 @@ def check_platform(
         share = np.zeros((len(free), len(free)))
         if calibration is not None:
             share = calibration_share(controller, commanded, row_sigmas, calibration, free)
-        comparison = drift.compare(
-            drift.Calibration(free, before, share, controller, 'controller'),
-            drift.Calibration(free, fitted.parameters[index], fitted.covariance, fitted.geometry),
-            level,
-        )
+        after = drift.Calibration(free, fitted.parameters[index], fitted.covariance)
+        reference = drift.Calibration(free, before, share, controller, 'controller')
+        comparison = drift.compare(reference, after, level)
+        change, covariance = after.estimates - before, fitted.covariance + share
+        data['common_change'] = common = common_change(change, covariance, level)
         moved = comparison['significant']
-        if comparison['global_test']['changed']:
+        if (changed := comparison['global_test']['changed']) and common['significant']:
+            moved = _moved_beyond_common(change, covariance, free, level)
+        if changed and common['alike']:
+            moved = []  # heat grows every leg alike: no leg moved, naming one would mislead
+            reasons.append(_alike_reason(common))
+        elif changed:
             names = ', '.join(entry['parameter'] for entry in moved) or 'no single leg offset'
             reasons.append(f'the platform has changed since its calibration ({names})')
         data['change'] = comparison
@@ -223,7 +228,7 @@ def check_platform(
             'estimates_si': fitted.parameters[index].tolist(),
             'covariance_si': (fitted.covariance + share).tolist(),
         }
-        if reasons and not moved:  # name the largest w all the same
+        if reasons and not moved and not common['alike']:  # name the largest w all the same
             name, entry = max(comparison['parameters'].items(), key=lambda item: abs(item[1]['w']))
             moved = [{'parameter': name, 'likely': True} | _change_entry(entry)]
     data['verdict'] = VERDICTS[1] if reasons else VERDICTS[0]
@@ -231,6 +236,55 @@ def check_platform(
     data['moved'] = moved
     data['moved_legs'] = sorted({_leg(entry['parameter']) for entry in moved} - {None})
     return data
+
+
+def _moved_beyond_common(change, covariance, names, level):
+    """The leg offsets that moved beyond a common change of all six (a thermal state unlike the
+    calibration's): the iterated w-tests (``drift.localise``) with the common change as a
+    nuisance parameter (its direction taken out of the weight)."""
+    inverse = np.linalg.pinv(np.asarray(covariance, dtype=float))
+    column = inverse @ np.ones(len(change))
+    weight = inverse - np.outer(column, column) / float(column.sum())
+    named, _ = drift.localise(np.asarray(change), weight, level, dof=len(change) - 1)
+    return [
+        {'parameter': names[i], 'change_report': 1e3 * value, 'sigma_report': 1e3 * sigma}
+        | {'unit': 'mm', 'w': w}
+        for i, value, sigma, w in named
+    ]
+
+
+def _alike_reason(common):
+    return (
+        f'all six leg offsets changed alike, by {common["change_um"]:+.1f} +- '
+        f'{common["sigma_um"]:.1f} um, since the calibration: a thermal state unlike '
+        "the calibration's (check after the same warm-up) or a common re-homing"
+    )
+
+
+def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
+    """Whether the six leg offsets' ``change`` (m, covariance (6, 6) m^2) is one common change
+    (what thermal growth does): the common part ``delta`` (weighted least squares) with its
+    sigma, and the chi-square of what is left against its ``1 - level`` quantile (5 degrees of
+    freedom). ``alike``: the common part is significant and the rest is not."""
+    from scipy import stats
+
+    inverse = np.linalg.pinv(np.asarray(covariance, dtype=float))
+    ones = np.ones(len(change))
+    weight = float(ones @ inverse @ ones)
+    delta = float(ones @ inverse @ change) / weight
+    rest = change - delta * ones
+    chi2 = float(rest @ inverse @ rest)
+    sigma = 1.0 / math.sqrt(weight)
+    bound = float(stats.chi2.ppf(1.0 - level, len(change) - 1))
+    z = float(stats.norm.ppf(1.0 - level / 2.0))
+    return {
+        'change_um': 1e6 * delta,
+        'sigma_um': 1e6 * sigma,
+        'rest_chi2': chi2,
+        'rest_chi2_bound': bound,
+        'significant': bool(abs(delta) > z * sigma),
+        'alike': bool(abs(delta) > z * sigma and chi2 <= bound),
+    }
 
 
 def _change_entry(entry):

@@ -32,6 +32,7 @@ from gsp_calibrator.run.state import (
     STATE_FILE,
     settle_statistics,
 )
+from gsp_calibrator.upkeep import reused_rows, run_to_requirement
 from gsp_msgs_py import names
 
 
@@ -110,6 +111,11 @@ class CalibrationRun:
         """The whole run: ``(success, message)``."""
         settings, log, host = self.settings, self.log, self.host
         started = time.monotonic()
+        try:  # the rows of an earlier run (a check's) this calibration identifies with its own
+            reused = await host.in_thread(reused_rows.load, settings)
+        except reused_rows.ReusedRowsError as error:
+            log.error(str(error))
+            return False, str(error)
         try:
             session = self.session = open_session(
                 settings, self.resume, os.getpid(), host.command_publishers(), host.name
@@ -136,7 +142,7 @@ class CalibrationRun:
         try:
             await self._choose_postures(part)
             await self._wait_for_system()
-            await self._collect()
+            stopping = await self._collect(reused)
         except (RunFailed, RunWriteError) as error:
             self.save_state(PHASE_FAILED, str(error))
             message = failure_message(error, len(session.samples), session.run)
@@ -144,7 +150,7 @@ class CalibrationRun:
             host.progress(len(session.samples), names.PHASE_FAILED, str(error))
             return False, message
         host.postures.stop()
-        return await self._identify(started)
+        return await self._identify(started, stopping, reused)
 
     def save_state(self, phase=None, stop_reason=None):
         """Rewrite state.json; an error is logged (the run is ending)."""
@@ -217,21 +223,73 @@ class CalibrationRun:
         if self.host.postures.failure is not None:
             raise RunFailed(self.host.postures.failure.message)
 
-    async def _collect(self):
+    async def _collect(self, reused=None):
         """For each posture left (a rejected one's replacement joins the end): command it,
-        await its end, record it. RunFailed when an end is a failure of the run."""
-        host, session, count = self.host, self.session, self.settings.posture_count
-        while (posture := session.next_posture()) is not None:
-            k, pose = posture
-            host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
-            # The row (samples.csv) or the skip is kept, and the outcome noted in the
-            # recording, by the thread of the message that ended the posture, before this
-            # await returns: a SIGTERM meanwhile loses nothing.
-            event = await host.postures.command(k, pose)
-            if not isinstance(event, POSTURE_ENDS):
-                raise RunFailed(event.message)
-            self._report(event)
-            session.save()
+        await its end, record it. RunFailed when an end is a failure of the run.
+
+        With ``stop_when_accurate`` the rows so far (and ``reused``) are judged as they come, in
+        a worker thread while the next posture is collected (:meth:`_judged_enough`): the loop
+        stops once a judgement meets the requirement, and adds pool postures when the plan is
+        not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
+        host, session, settings = self.host, self.session, self.settings
+        count = settings.posture_count
+        legs = self.collection.latest_leg_lengths()
+        stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
+        try:
+            while True:
+                posture = session.next_posture()
+                if posture is None and stop is not None:
+                    posture = await self._posture_to_add(stop)
+                if posture is None:
+                    break
+                k, pose = posture
+                host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
+                # The row (samples.csv) or the skip is kept, and the outcome noted in the
+                # recording, by the thread of the message that ended the posture, before this
+                # await returns: a SIGTERM meanwhile loses nothing.
+                event = await host.postures.command(k, pose)
+                if not isinstance(event, POSTURE_ENDS):
+                    raise RunFailed(event.message)
+                self._report(event)
+                session.save()
+                if stop is not None and self._judged_enough(stop):
+                    break
+        finally:
+            if stop is not None:
+                stop.close()
+        return None if stop is None else stop.record(settings, session)
+
+    def _judged_enough(self, stop):
+        """Whether the latest finished judgement meets the requirement; else start judging the
+        rows so far when due and no judgement is under way (never waits)."""
+        judgement = stop.finished()
+        if judgement is not None:
+            self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
+        if stop.met:
+            return True
+        if stop.judge_now(len(self.session.samples)):
+            stop.submit(self.settings, stop.rows(self.session))
+        return False
+
+    async def _posture_to_add(self, stop):
+        """After the plan (whose rows are then judged whole): ``(k, pose)`` of the pool posture
+        to add, or None when the rows meet the requirement or no more may be added."""
+        host, session, settings = self.host, self.session, self.settings
+        if stop.added == 0:
+            if stop.in_flight is not None:
+                stop.note(await host.await_thread(stop.in_flight))
+            if stop.judge_now(len(session.samples), last=True):
+                stop.submit(settings, stop.rows(session))
+                judgement = stop.note(await host.await_thread(stop.in_flight))
+                self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
+        if not stop.may_add():
+            return None
+        legs = self.collection.latest_leg_lengths()
+        pose = await host.in_thread(stop.next_pose, settings, session.state.poses, legs)
+        if pose is None:
+            return None
+        self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
+        return session.add_posture(pose)
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
@@ -246,32 +304,38 @@ class CalibrationRun:
             event.posture, report.phase, report.message, report.residuals, report.warning, **extra
         )
 
-    async def _identify(self, started):
-        """Identify over every row, write the results, publish and apply; ``(success, text)``."""
+    async def _identify(self, started, stopping=None, reused=None):
+        """Identify over every row (and ``reused``), write the results (``stopping``: the record
+        of a run that stops when good enough), publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count
         self.save_state(PHASE_IDENTIFYING)
+        samples, extra = reused_rows.for_identification(session, reused)
+        extra |= {} if stopping is None else {'run_to_requirement': stopping}
         host.progress(
             count,
             names.PHASE_IDENTIFYING,
-            f'identifying {settings.free_count} parameters from {len(session.samples)} postures',
+            f'identifying {settings.free_count} parameters from {len(samples)} postures',
         )
         finished = await host.in_thread(
             finish_run,
             session.run,
             settings,
-            session.samples,
+            samples,
             {
                 **self.collection.summary(),
                 'replacements': session.state.replacements,
                 'settle': settle_statistics(session.state.settle_waits),
                 'processing_lag': host.processing_lags.summary(),
+                **extra,
             },
             settings_options(settings),
         )
         if finished.report_error:
             log.error(f'report not written: {finished.report_error}')
         outcome, summary = finished.outcome, finished.summary
+        if stopping is not None:
+            summary += '\n' + run_to_requirement.summary_line(stopping)
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)
@@ -285,7 +349,10 @@ class CalibrationRun:
         if note:
             summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'
-        (log.info if success else log.error)(summary)
+        if success:  # one call site per severity (rclpy requires it)
+            log.info(summary)
+        else:
+            log.error(summary)
         phase = names.PHASE_DONE if success else names.PHASE_FAILED
         host.progress(
             count,

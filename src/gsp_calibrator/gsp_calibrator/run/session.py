@@ -142,6 +142,19 @@ class RunSession:
             k = self.remaining.pop(0)
             return k, np.asarray(self.state.poses[k - 1], dtype=float)
 
+    def rows_so_far(self):
+        """A copy of the rows collected so far (:class:`.directory.Samples`)."""
+        with self._lock:
+            return self.samples.rows(slice(0, len(self.samples)))
+
+    def add_posture(self, pose):
+        """Append ``pose`` (6,) to the postures to command (a run that stops when it is good
+        enough adds pool postures); ``(k, pose)`` of it, recorded in state.json's poses."""
+        with self._lock:
+            self.state.poses.append(np.asarray(pose, dtype=float).tolist())
+            self.state.added += 1
+            return len(self.state.poses), np.asarray(pose, dtype=float)
+
     @property
     def commanded_all(self):
         with self._lock:

@@ -92,6 +92,9 @@ class RunState:
     #: platform's settled status to the first averaged sample, and the pairs waited out as still
     #: settling (:mod:`gsp_calibrator.collection.synchroniser`)
     settle_waits: dict = dataclasses.field(default_factory=dict)
+    #: postures added from the pool by a run that stops when it is good enough (the last of
+    #: ``poses``)
+    added: int = 0
 
     def to_dict(self):
         data = dataclasses.asdict(self)

@@ -10,6 +10,7 @@ from gsp_calibrator.tools import (
     bench_collection_rate,
     bench_end_to_end,
     bench_platform_time,
+    bench_run_to_requirement,
     bench_sensor_dynamics,
     bench_upkeep_realistic,
     bench_verdict,
@@ -27,6 +28,7 @@ EXTRA_SECTIONS = {
     'verdict': bench_verdict.run,  # docs/verdict.md
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
     'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md
+    'run_to_requirement': bench_run_to_requirement.run,  # docs/upkeep.md
 }
 
 

@@ -68,7 +68,8 @@ def run(quick=False):
     name the changed leg first."""
     design = bench_verdict.default_design()
     settings = design.settings
-    counts = {name: {'unchanged': 0, 'changed': 0, 'named': 0} for name in CHECK_STARTS_S}
+    keys = ('unchanged', 'changed', 'named', 'unchanged_alike', 'unchanged_named_a_leg')
+    counts = {name: dict.fromkeys(keys, 0) for name in CHECK_STARTS_S}
     used = 0
     for seed in range(QUICK_SEEDS if quick else SEEDS):
         reference = _reference(design, seed)
@@ -92,6 +93,8 @@ def run(quick=False):
             counts[name]['unchanged'] += same['verdict'] == 'recalibrate'
             counts[name]['changed'] += changed['verdict'] == 'recalibrate'
             counts[name]['named'] += changed['moved_legs'][:1] == [leg]
+            counts[name]['unchanged_alike'] += same.get('common_change', {}).get('alike', False)
+            counts[name]['unchanged_named_a_leg'] += bool(same['moved_legs'])
     return {
         'description': (
             'realistic platform (all four effects), calibrated over 15 min of warming by the '
@@ -104,6 +107,9 @@ def run(quick=False):
                 'unchanged_recalibrate_fraction': entry['unchanged'] / max(used, 1),
                 'changed_recalibrate_fraction': entry['changed'] / max(used, 1),
                 'changed_names_leg_fraction': entry['named'] / max(used, 1),
+                # the six leg offsets changed alike (thermal growth), and no leg named
+                'unchanged_alike_fraction': entry['unchanged_alike'] / max(used, 1),
+                'unchanged_names_a_leg_fraction': entry['unchanged_named_a_leg'] / max(used, 1),
             }
             for name, entry in counts.items()
         },

@@ -25,6 +25,9 @@ class CheckRun(CalibrationRun):
     """One check with ``settings``, hosted by ``host`` (a ``run.host.RunHost``)."""
 
     def __init__(self, host, settings, resume=False):
+        # A check measures its whole plan (it never stops early nor adds postures) and judges
+        # its own rows only.
+        settings = dataclasses.replace(settings, stop_when_accurate=False, reuse_rows_from='')
         super().__init__(host, settings, resume=False)
         self.reference = None
         self.plan = None
@@ -71,7 +74,7 @@ class CheckRun(CalibrationRun):
         )
         session.begin(self.settings, self.plan.poses, os.getpid(), part)
 
-    async def _identify(self, started):
+    async def _identify(self, started, stopping=None, reused=None):
         """Judge the collected rows, write check.json, index the check; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
         count = settings.posture_count

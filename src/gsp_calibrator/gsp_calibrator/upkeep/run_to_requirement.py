@@ -1,0 +1,267 @@
+"""What a calibration that stops when it is good enough needs besides the run loop (pure, no
+rclpy; docs/upkeep.md): its rule from the calibrator's settings, the judgement of the rows so far
+(the calibrator's own identification and cross-validation, run in a worker thread), the pool
+postures it may add, and the record it leaves in ``result.json``. The decisions are
+:mod:`gsp_kinematics.stopping`; the loop is ``gsp_calibrator.run.flow.CalibrationRun._collect``.
+"""
+
+import concurrent.futures
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from gsp_calibrator.run.identify import identify_with_settings
+from gsp_calibrator.run.postures import posture_pool, selection_formulation
+from gsp_calibrator.upkeep import reused_rows
+from gsp_kinematics import stopping
+from gsp_kinematics.identification import resolve_free
+from gsp_kinematics.kinematics import ForwardKinematicsError, home_pose, pose_from_leg_readings
+from gsp_kinematics.prediction import accuracy_summary
+from gsp_kinematics.selection import posture_information
+from gsp_kinematics.travel.motion import posture_leg_lengths
+
+
+def rule_for(settings):
+    """The :class:`gsp_kinematics.stopping.StoppingRule` of a run's ``CalibratorSettings``:
+    the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
+    ``stop_every`` and ``stop_max_added``; the dwell of ``samples_per_posture`` at 200 Hz and a
+    0.5 s settle allowance."""
+    return stopping.StoppingRule(
+        required_position_mm=settings.required_position_accuracy_mm,
+        required_orientation_deg=settings.required_orientation_accuracy_deg,
+        confidence=settings.stop_confidence,
+        minimum_postures=settings.stop_minimum_postures,
+        every=settings.stop_every,
+        max_added=settings.stop_max_added,
+        dwell_s=0.5 + settings.samples_per_posture / 200.0,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Judgement:
+    """The rows of ``postures`` postures, identified and cross-validated."""
+
+    postures: int
+    bounds: stopping.Bounds
+    result: object  #: the core's IdentificationResult, None when it failed
+    duration_s: float  #: wall time of the judgement
+
+    def record(self):
+        return {
+            'postures': self.postures,
+            **self.bounds.record(),
+            'duration_s': self.duration_s,
+        }
+
+
+def judge_rows(settings, samples, rule):
+    """Identify ``samples`` (the rows so far, ``run.directory.Samples``) as the calibrator does
+    (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
+    (:class:`Judgement`). Runs in a worker thread."""
+    started = time.perf_counter()
+    outcome = identify_with_settings(settings, samples)
+    if not outcome.success or outcome.accuracy is None:
+        return Judgement(len(samples), stopping.UNKNOWN, None, time.perf_counter() - started)
+    predicted = None
+    if outcome.prediction is not None:
+        predicted = accuracy_summary(outcome.prediction)['position_mm_mean']
+    bounds = stopping.accuracy_bounds(outcome.accuracy, rule.confidence, predicted)
+    return Judgement(len(samples), bounds, outcome.result, time.perf_counter() - started)
+
+
+class PoolAdditions:
+    """The calibrator's posture pool (``pool_size``, ``seed``), for the postures a run adds when
+    its plan is not enough: each the one of largest information gain per second of platform
+    time (:func:`gsp_kinematics.stopping.best_addition`). Built in a worker thread."""
+
+    def __init__(self, settings):
+        self.settings = settings
+        self.pool = posture_pool(settings.nominal, settings.pool_size, settings.seed)
+        self.legs = posture_leg_lengths(settings.nominal, self.pool)
+
+    def next_pose(self, judgement, poses, latest_legs, rule):
+        """The pose (6,) to add after ``judgement`` (its result's information), the run's
+        ``poses`` so far (M, 6) and the platform's ``latest_legs`` (6,); None when the pool has
+        none left or nothing was identified."""
+        if judgement.result is None:
+            return None
+        settings = self.settings
+        information = posture_information(
+            judgement.result.geometry,
+            self.pool,
+            settings.sigmas.averaged([settings.samples_per_posture]),
+            resolve_free(list(settings.free_parameters)),
+            selection_formulation(settings.formulation),
+        )
+        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+        distance = np.max(np.abs(poses[:, None, :] - self.pool[None]), axis=2)
+        used = np.flatnonzero(np.min(distance, axis=0) < 1e-9)
+        try:
+            index = stopping.best_addition(
+                judgement.result.information,
+                information,
+                self.legs,
+                latest_legs,
+                used,
+                self.settings.motion_limits,
+                rule.dwell_s,
+            )
+        except ValueError:
+            return None
+        return self.pool[index].copy()
+
+
+def platform_time_s(settings, start_pose, poses, rule):
+    """Platform time (s) of ``poses`` in order from ``start_pose`` at the leg limits, with the
+    rule's dwell per posture (the same count for the run and for its fixed plan)."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+    if not len(poses):
+        return 0.0
+    return stopping.plan_time_s(
+        settings.nominal, start_pose, poses, settings.motion_limits, rule.dwell_s
+    )
+
+
+def start_pose_of(settings, leg_readings, fallback):
+    """The pose of the platform whose legs read ``leg_readings`` (None: unknown), else
+    ``fallback`` (the times are then counted from there)."""
+    if leg_readings is not None:
+        try:
+            return pose_from_leg_readings(settings.nominal, leg_readings)
+        except (ForwardKinematicsError, ValueError):
+            pass
+    return np.asarray(fallback, dtype=float)
+
+
+def judgement_line(judgement, rule):
+    """One log line of a judgement of the rows so far."""
+    bounds = judgement.bounds
+    verdict = 'meets' if bounds.meets(rule) else 'does not meet'
+    return (
+        f'{judgement.postures} postures judged in {judgement.duration_s:.2f} s: cross-validated '
+        f'position {bounds.position_mm:.4g} mm ({rule.confidence:.0%} bound '
+        f'{bounds.position_bound_mm:.4g} mm), predicted {bounds.predicted_mm:.4g} mm, phi '
+        f'{bounds.orientation_deg:.4g} deg: {verdict} the required {rule.required_position_mm:g} '
+        f'mm, {rule.required_orientation_deg:g} deg'
+    )
+
+
+def summary_line(record):
+    """One line of the run's summary and response: stopped or not, time spent and the plan's."""
+    spent, fixed = record['platform_time_s'], record['fixed_plan_time_s']
+    ratio = spent / fixed if fixed > 0 else math.nan
+    bounds = record['bounds']
+    head = (
+        f'stopped when accurate: {record["postures"]} postures'
+        if record['met']
+        else f'could not meet the required accuracy in {record["postures"]} postures '
+        f'({record["added"]} added from the pool)'
+    )
+    return (
+        f'{head}; platform time {spent:.1f} s, the fixed plan {fixed:.1f} s '
+        f'({record["fixed_plan_postures"]} postures; {ratio:.2f}x); cross-validated position '
+        f'{bounds["position_mm"]:.4g} mm, {record["confidence"]:.0%} bound '
+        f'{bounds["position_bound_mm"]:.4g} mm, predicted {bounds["predicted_mm"]:.4g} mm '
+        f'(required {record["required_position_mm"]:g} mm)'
+    )
+
+
+@dataclasses.dataclass
+class StoppingState:
+    """Where a run that stops when it is good enough stands (held by the run loop)."""
+
+    rule: stopping.StoppingRule
+    start_pose: np.ndarray  #: (6,) where the platform stood before the first posture
+    plan: list  #: the fixed plan's poses (M, 6), in order
+    #: the one worker thread of the judgements (one at a time, the newest rows)
+    worker: concurrent.futures.ThreadPoolExecutor
+    in_flight: concurrent.futures.Future | None = None  #: the judgement under way
+    latest: Judgement | None = None  #: the newest finished judgement
+    history: list = dataclasses.field(default_factory=list)  #: ``Judgement.record`` of each
+    additions: PoolAdditions | None = None  #: the pool, once the plan was not enough
+    added: int = 0  #: postures added from the pool
+    #: rows of another run judged with the run's own (``upkeep.reused_rows.ReusedRows``)
+    reused: object = None
+
+    @classmethod
+    def start(cls, settings, session, latest_legs, reused=None):
+        """Before the first posture of a run (``session``, its plan the postures left) with
+        ``reused`` rows (None: none); None unless ``settings.stop_when_accurate``."""
+        if not settings.stop_when_accurate:
+            return None
+        plan = [session.state.poses[k - 1] for k in session.remaining]
+        start = start_pose_of(settings, latest_legs, plan[0] if plan else home_pose())
+        worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
+        return cls(rule_for(settings), start, plan, worker, reused=reused)
+
+    def rows(self, session):
+        """The rows of ``session`` so far and the reused ones (numbered after its postures)."""
+        rows = session.rows_so_far()
+        return reused_rows.joined(rows, self.reused, len(session.state.poses) + 1)
+
+    def submit(self, settings, rows):
+        """Judge ``rows`` (:meth:`rows`) in the worker thread."""
+        self.in_flight = self.worker.submit(judge_rows, settings, rows, self.rule)
+
+    def finished(self):
+        """The in-flight judgement if it has finished (then noted), else None."""
+        if self.in_flight is None or not self.in_flight.done():
+            return None
+        return self.note(self.in_flight.result())
+
+    def note(self, judgement):
+        """Keep ``judgement`` (the in-flight one's result) as the latest."""
+        self.in_flight, self.latest = None, judgement
+        self.history.append(judgement.record())
+        return judgement
+
+    def judge_now(self, rows, last=False):
+        """Whether to judge ``rows`` collected rows now: none under way, rows not yet judged,
+        and due by the rule (``last``: the plan has ended)."""
+        judged = self.latest.postures if self.latest is not None else 0
+        return self.in_flight is None and rows > judged and self.rule.due(rows, last)
+
+    def may_add(self):
+        """Whether a pool posture may be added: not met, under ``max_added``, and judged."""
+        return not self.met and self.added < self.rule.max_added and self.latest is not None
+
+    def next_pose(self, settings, poses, latest_legs):
+        """The pool pose to add (worker thread; the pool is built at the first call), counted
+        as added; None when the pool has none left."""
+        if self.additions is None:
+            self.additions = PoolAdditions(settings)
+        pose = self.additions.next_pose(self.latest, poses, latest_legs, self.rule)
+        self.added += pose is not None
+        return pose
+
+    @property
+    def met(self):
+        return self.latest is not None and self.latest.bounds.meets(self.rule)
+
+    def close(self):
+        self.worker.shutdown(wait=False, cancel_futures=True)
+
+    def record(self, settings, session):
+        """``result.json`` ``collection.run_to_requirement``: met or not, postures, added, the
+        platform time spent (the postures ``session`` commanded, in order from the start, at the
+        leg limits with the dwell) and the fixed plan's, the latest bounds and the judgements."""
+        rule, plan_poses = self.rule, self.plan
+        commanded_poses = session.state.poses[: len(session.state.poses) - len(session.remaining)]
+        spent = platform_time_s(settings, self.start_pose, commanded_poses, rule)
+        fixed = platform_time_s(settings, self.start_pose, plan_poses, rule)
+        bounds = (self.latest.bounds if self.latest is not None else stopping.UNKNOWN).record()
+        return {
+            'met': self.met,
+            'required_position_mm': rule.required_position_mm,
+            'required_orientation_deg': rule.required_orientation_deg,
+            'confidence': rule.confidence,
+            'postures': len(commanded_poses),
+            'added': self.added,
+            'platform_time_s': spent,
+            'fixed_plan_time_s': fixed,
+            'fixed_plan_postures': len(plan_poses),
+            'bounds': bounds,
+            'judgements': self.history,
+        }
