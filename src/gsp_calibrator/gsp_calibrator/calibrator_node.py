@@ -25,9 +25,9 @@ Concurrency: the Trigger callback is a coroutine in its own reentrant group, so 
 answered at once while a run awaits. The status subscription and the parameter client sit in a
 reentrant group; the watchdog timer in a mutually exclusive group of its own (one executor thread
 at most: a reentrant timer is dispatched again while it waits for the lock, and its piled-up
-calls would take every thread of the executor). The sensor topics are taken by a
-:class:`.node_threads.SensorListener` (node ``<name>_sensors``, own thread), the recording by a
-second one (``<name>_recorder``). The protocol and the posture in collection are guarded by
+calls would take every thread of the executor). The suite's topics are taken by a
+:class:`.node_threads.SensorListener` (node ``<name>_recorder``, own thread): its recorder writes
+each batch of a sensor topic, then hands it to the collection. The protocol and the posture in collection are guarded by
 the posture link's lock.
 """
 
@@ -41,9 +41,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.collection import events, protocol, topics
-from gsp_calibrator.collection.single_source import SingleSourceGuard
-from gsp_calibrator.collection.topics import sensor_message
+from gsp_calibrator.collection import events, protocol
 from gsp_calibrator.node_threads import (
     SensorListener,
     ThreadResults,
@@ -56,9 +54,10 @@ from gsp_calibrator.recording.recorder import RunRecorder
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
-from gsp_calibrator.run.health import ProcessingLags, calibrator_health
+from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.host import PostureLink, RunHost
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
+from gsp_calibrator.sensor_intake import LISTENER_TICK_S, SensorIntake
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
 from gsp_calibrator.upkeep.check_flow import CheckRun, record_calibration
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
@@ -107,14 +106,12 @@ class CalibratorNode(Node):
         self._lock = threading.Lock()  # guards _running and _run
         self._running = False
         self._run = None  # CalibrationRun of the current (or last) run
-        self._sources = SingleSourceGuard()  # reset at each run's first reading
         self._waits = Waits(time.monotonic)
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
-        # For /diagnostics: receive time (monotonic ns) of each sensor topic's latest message,
-        # run or not, and the latest progress published.
-        self._heard_ns = dict.fromkeys(topics.SENSOR_TOPICS)
-        self._lags = ProcessingLags(topics.SENSOR_TOPICS)
+        self._intake = SensorIntake(
+            self._now_ns, lambda topic: self._recorder_listener.node.count_publishers(topic)
+        )
         self._last_progress = None
 
         self._service_group = ReentrantCallbackGroup()
@@ -123,25 +120,20 @@ class CalibratorNode(Node):
             self, OUTPUTS
         ).values()
         self._results = ResultDelivery(self, result_publisher, self._data_group)
+        # One subscription per topic: the recorder writes each sensor batch, then hands it to
+        # the collection (the rebuild sees exactly the messages the collector saw).
         self._recorder_listener = SensorListener.beside(
             self,
             'recorder',
             {},
-            setup=lambda node: RunRecorder(node, persistent=True),
+            setup=self._setup_recorder,
             on_error=self._on_recording_error,
         )
         self.recorder = self._recorder_listener.extra
         self.postures = PostureLink(
             lambda: new_future(self.executor), self._new_command, self.recorder, self._on_event
         )
-        # After the link: the listener's thread calls back at once, and a callback that raised
-        # would end that thread for the node's lifetime.
-        self._sensors = SensorListener.beside(
-            self,
-            'sensors',
-            {t: self._sensor_callback(t) for t in topics.SENSOR_TOPICS},
-            raw=True,  # decoded here, cheaply (collection.joint_state_cdr)
-        )
+        self._intake.postures = self.postures
         self.create_subscription(
             DiagnosticStatus,
             names.TOPIC_PLATFORM_STATUS,
@@ -184,33 +176,12 @@ class CalibratorNode(Node):
     def _now_ns(self):
         return self.get_clock().now().nanoseconds
 
-    def _sensor_callback(self, topic):
-        def callback(raw, info):
-            self._heard_ns[topic] = time.monotonic_ns()
-            received_ns = info.get('received_timestamp')
-            if not self.postures.active:  # no run: drop at once
-                self._lags.note(topic, received_ns, time.time_ns())
-                return
-            msg = sensor_message(raw)
-
-            def step(collection):
-                failure = self._sources.check_reading(
-                    topic,
-                    msg,
-                    info.get('publication_sequence_number'),
-                    lambda: self._sensors.node.count_publishers(topic),
-                )
-                if failure is not None:  # a second source: the run ends, naming the topic
-                    self.postures.fail(failure)
-                    return []
-                now_ns = self._now_ns()
-                wire_ns = protocol.wire_receipt_ns(received_ns, now_ns)
-                return collection.sensor(topic, msg, now_ns, wire_ns)
-
-            self.postures.feed(step)
-            self._lags.note(topic, received_ns, time.time_ns(), in_run=True)
-
-        return callback
+    def _setup_recorder(self, node):
+        """The recorder on the listener ``node`` (its thread), forwarding the sensor batches to
+        the collection, and the listener's tick (silence on the wire)."""
+        recorder = RunRecorder(node, persistent=True, forward=self._intake.callbacks())
+        node.create_timer(LISTENER_TICK_S, self._intake.tick)
+        return recorder
 
     def _on_status(self, msg, info):
         try:
@@ -276,10 +247,10 @@ class CalibratorNode(Node):
             self._running,
             self._last_progress,
             session.run.path if session is not None else '',
-            dict(self._heard_ns),
+            dict(self._intake.heard_ns),
             time.monotonic_ns(),
             self._settings.topic_timeout,
-            lags=self._lags.take(),
+            lags=self._intake.lags.take(),
         )
 
     # --------------------------------------------------------------------- the run's host
@@ -305,7 +276,7 @@ class CalibratorNode(Node):
             progress=self._progress,
             deliver_result=lambda *args: self._results.deliver(*args, self._wait_for),
             shutting_down=lambda: not self.context.ok(),
-            processing_lags=self._lags.run,
+            processing_lags=self._intake.lags.run,
         )
 
     def _wait_for(self, predicate, timeout_s):
@@ -359,7 +330,7 @@ class CalibratorNode(Node):
             self._running = True
             self._run = run_class(self._run_host(), self._settings, resume)
         with self.postures.lock:
-            self._sources.reset()
+            self._intake.sources.reset()
         response.success, response.message = await self._run.serve()
         if self.context.ok():  # else going down: destroy_node() marks the run interrupted
             if run_class is CalibrationRun and (run := self._run).session is not None:
@@ -383,7 +354,7 @@ class CalibratorNode(Node):
                 recorder.stop()
             except Exception as error:  # never keep the node from going down
                 self.get_logger().error(f'recording not closed: {error}')
-        for name in ('_recorder_listener', '_sensors'):
+        for name in ('_recorder_listener',):
             listener = getattr(self, name, None)
             if listener is not None:
                 listener.close()

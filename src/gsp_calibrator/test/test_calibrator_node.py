@@ -142,7 +142,7 @@ def test_calibration_in_process(ros_context, tmp_path):
         )
 
         # The sensor subscriptions outlive the run (ros2/rclpy#1206); messages are dropped now.
-        assert calibrator._sensors.subscribed and not calibrator.postures.active
+        assert calibrator.recorder.forward and not calibrator.postures.active
 
         # Issue 4: the run directory holds the recording and the report, here without its plots
         # (write_report_plots false).

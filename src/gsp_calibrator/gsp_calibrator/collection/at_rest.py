@@ -21,6 +21,9 @@ from gsp_kinematics.sensors.noise_estimate import settle_test
 
 #: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
 MIN_SETTLE_SAMPLES = 4
+#: Largest part of the look-back, at its start, that may hold no pair: a look-back whose start
+#: lacks its pairs (messages lost, a device instant incomplete) is not yet covered.
+MAX_UNCOVERED_FRACTION = 0.125
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,5 +91,11 @@ class SettleRule:
         if pair_legs is None:
             pair_legs = [leg for leg, _ in pairs]
         first = bisect.bisect_left(pair_legs, end_stamp - self.lookback_ns)
+        # Judged over the pairs it holds, a look-back missing its start is a shorter one that
+        # may miss a slow trend (seen under load: a listener that lost messages took a window
+        # 0.007 rad before the inclinometer was at rest).
+        uncovered = pair_legs[first] - (end_stamp - self.lookback_ns)
+        if uncovered > MAX_UNCOVERED_FRACTION * self.lookback_ns:
+            return Unsettled(pending=True)
         span = pairs[min(first, end - window + 1) : end + 1]
         return span_verdict(values_of(span), [leg for leg, _ in span], self.sigmas, noise_std)

@@ -49,7 +49,6 @@ first command, ``posture=None``) at the next command and at :meth:`~CollectionPr
 """
 
 import collections
-import dataclasses
 import math
 
 import numpy as np
@@ -61,6 +60,13 @@ from gsp_calibrator.collection.events import (
     RowReady,
     SampleDropped,
 )
+from gsp_calibrator.collection.posture_state import (
+    AWAIT_SETTLE,
+    AWAIT_STATUS,
+    COLLECTING,
+    LatestReadings,
+    Posture,
+)
 from gsp_calibrator.collection.synchroniser import (
     ENCODER,
     INCLINOMETER,
@@ -71,7 +77,6 @@ from gsp_calibrator.collection.synchroniser import (
 )
 from gsp_calibrator.collection.timeouts import CollectionTimeouts
 from gsp_calibrator.collection.topics import (
-    DEVICE_STREAMS,
     SENSOR_TOPICS,
     TOPIC_STREAMS,
     has_non_finite,
@@ -126,6 +131,16 @@ def wire_receipt_ns(received_ns, now_ns):
     return int(received_ns)
 
 
+def dropped_event(collector, topic, msg, error):
+    """The :class:`SampleDropped` of an unusable message ``msg`` of ``topic`` (``error``: why);
+    a non-finite reading is counted by ``collector``."""
+    if has_non_finite(msg):
+        stream = TOPIC_STREAMS[topic]
+        collector.record_non_finite(stream)
+        return SampleDropped(topic, str(error), True, collector.non_finite[stream])
+    return SampleDropped(topic, str(error), False)
+
+
 def collection_summary(skipped, collector):
     """The collection data of a run: its ``skipped`` (``[PostureSkipped, ...]``) and what its
     ``collector`` dropped (the ``collection`` of ``result.json``)."""
@@ -146,49 +161,11 @@ def collection_summary(skipped, collector):
     }
 
 
-_IDLE, _AWAIT_STATUS, _AWAIT_SETTLE, _COLLECTING = 'idle', 'status', 'settle', 'collecting'
-
-
-@dataclasses.dataclass
-class _Posture:
-    number: int
-    pose: np.ndarray
-    command_id: str
-    commanded_ns: int
-    state: str = _AWAIT_STATUS
-    first_status_ns: int = None
-    start_ns: int = None  # collection start (stamps), set when settled
-    started_ns: int = None  # receive time of the settle (time base of the timeouts)
-    progress: int = 0  # pairs at the last change
-    progress_ns: int = None  # receive time of the last change of the pairs
-    #: data time (data_ns) of the last change of the pairs (or of the first sample)
-    progress_data_ns: int = None
-    received_ns: int = None  # latest receive time of a sample since the start
-    #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
-    latest_ns: dict = dataclasses.field(default_factory=dict)
-
-    def data_ns(self):
-        """The data's time: the stamp every stream has reached with its samples from the start;
-        None until each has given one (a stream that gives none is silent, or stamped in
-        another time base: the receive times judge it)."""
-        if len(self.latest_ns) < len(SENSOR_TOPICS):
-            return None
-        return min(self.latest_ns.values())
-
-    def data_elapsed(self):
-        """s of the data since the start (0 while :meth:`data_ns` is None)."""
-        data_ns = self.data_ns()
-        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
-
-
 class CollectionProtocol:
-    """The collection protocol (see the module docstring); every input returns a list of events.
-
+    """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
-    ``settle_lookback`` (s) and ``settle_sigmas`` configure the collector; ``topic_timeout`` /
-    ``settle_timeout`` (s, default: none) the timeouts. Times are integer ns of one clock
-    (receive times).
-    """
+    ``settle_lookback`` (s), ``settle_sigmas``: the collector; ``topic_timeout``,
+    ``settle_timeout`` (s, default: none): the timeouts. Times: integer ns of one clock."""
 
     @classmethod
     def for_settings(cls, settings):
@@ -228,9 +205,9 @@ class CollectionProtocol:
         self.collector = SampleCollector(
             sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std, **settle
         )
-        self._posture = None  # the awaited posture (_Posture) or None
+        self._posture = None  # the awaited posture (Posture) or None
         self._previous = None  # device readings of the previous row
-        self._latest = {}  # stream -> (stamp_ns, values) of its latest usable message
+        self._latest = LatestReadings()
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None  # the collector's pair revision last checked
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
@@ -239,8 +216,6 @@ class CollectionProtocol:
         if self.keep_pairs:
             self._idle = SampleCollector(sync_tolerance, 1, max_buffer=2 * MAX_STREAM_SAMPLES)
             self._idle.start(-(2**62))
-
-    # --- state -------------------------------------------------------------------------------
 
     def heard(self, topic):
         """Whether ``topic`` has said anything yet."""
@@ -253,21 +228,15 @@ class CollectionProtocol:
 
     @property
     def collecting(self):
-        return self._posture is not None and self._posture.state == _COLLECTING
+        return self._posture is not None and self._posture.state == COLLECTING
 
     def latest_device_readings(self):
         """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
-        items = [self._latest.get(stream) for stream in DEVICE_STREAMS]
-        if any(item is None for item in items) or len({item[0] for item in items}) != 1:
-            return None
-        return np.concatenate([np.asarray(item[1], dtype=float) for item in items])
+        return self._latest.device_readings()
 
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
-        item = self._latest.get(LEG_LENGTHS)
-        return (
-            None if item is None else np.asarray(item[1], dtype=float).reshape(channels.LEG_COUNT)
-        )
+        return self._latest.leg_lengths()
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
@@ -278,37 +247,32 @@ class CollectionProtocol:
         d_m]`` (rad, m): they are the previous posture's for the next row."""
         self._previous = np.asarray(readings, dtype=float).reshape(len(channels.READING_NAMES))
 
-    # --- inputs ------------------------------------------------------------------------------
-
     def command(self, posture, pose, command_id, now_ns):
         """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
         self._attend(now_ns)
-        events = self._end_segment() if self.keep_pairs else []
+        events = self._end_segment() if self.keep_pairs else self._close()
         if self._previous is None:
             # What the device reports before the platform moves (stale readings would match).
             self._previous = self.latest_device_readings()
         self.collector.stop()
         self._recent.clear()
         self._checked_pairs = None
-        self._posture = _Posture(
+        self._posture = Posture(
             int(posture), np.asarray(pose, dtype=float).reshape(6), str(command_id), int(now_ns)
         )
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):
-        """A platform status (``conversions.PlatformStatus``) received at ``now_ns``.
-
-        ``start_ns``: the collection start to use if this status settles the posture (default
-        ``now_ns``).
-        """
+        """A platform status (``conversions.PlatformStatus``) received at ``now_ns``;
+        ``start_ns``: the collection start if it settles the posture (default ``now_ns``)."""
         self._attend(now_ns)
         posture = self._posture
         if posture is None or status.command_id != posture.command_id:
             return self.poll(now_ns)
-        if posture.state in (_AWAIT_STATUS, _AWAIT_SETTLE):
+        if posture.state in (AWAIT_STATUS, AWAIT_SETTLE):
             if posture.first_status_ns is None:
                 posture.first_status_ns = int(now_ns)
-                posture.state = _AWAIT_SETTLE
+                posture.state = AWAIT_SETTLE
             if status.rejected:
                 reason = status.reason or 'rejected'
                 return self._skip(f'rejected by the platform: {reason}', True, reason)
@@ -320,19 +284,22 @@ class CollectionProtocol:
         """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) handled at ``now_ns``;
         ``received_ns``: when it came off the wire (the middleware's receive time on the same
         clock), None if unknown."""
+        return self.sensors([(topic, msg, received_ns)], now_ns)
+
+    def sensors(self, messages, now_ns):
+        """Sensor messages ``[(topic, msg, received_ns), ...]`` (as for :meth:`sensor`) handled
+        at ``now_ns``, in order (a listener's batch), the posture judged once, after them."""
         self._attend(now_ns)
-        self.timeouts.hear(topic, now_ns)
-        try:
-            stream, stamp_ns, values = read_sensor(topic, msg)
-        except (ValueError, TypeError) as error:
-            if has_non_finite(msg):
-                stream = TOPIC_STREAMS[topic]
-                self.collector.record_non_finite(stream)
-                return [
-                    SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
-                ] + self.poll(now_ns)
-            return [SampleDropped(topic, str(error), False)] + self.poll(now_ns)
-        return self.sample(stream, stamp_ns, values, now_ns, heard=False, received_ns=received_ns)
+        events = []
+        for topic, msg, received_ns in messages:
+            self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
+            try:
+                stream, stamp_ns, values = read_sensor(topic, msg)
+            except (ValueError, TypeError) as error:
+                events.append(dropped_event(self.collector, topic, msg, error))
+                continue
+            self._take(stream, stamp_ns, values, now_ns, received_ns)
+        return events + self._judged(now_ns)
 
     def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
@@ -340,18 +307,26 @@ class CollectionProtocol:
         self._attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
-            self.timeouts.hear(topic, now_ns)
-        self._latest[stream] = (int(stamp_ns), values)
+            self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
+        self._take(stream, stamp_ns, values, now_ns, received_ns)
+        return self._judged(now_ns)
+
+    def _take(self, stream, stamp_ns, values, now_ns, received_ns):
+        """Take one parsed sample (not judged yet)."""
+        self._latest.note(stream, stamp_ns, values)
         posture = self._posture
         if posture is None:
             if self._idle is not None:
                 _ADDERS[stream](self._idle, stamp_ns, *values)
-            return self.poll(now_ns)
-        if posture.state != _COLLECTING:
+            return
+        if posture.state != COLLECTING:
             self._recent.append((stream, stamp_ns, values))
-            return self.poll(now_ns)
+            return
         received = int(now_ns if received_ns is None else received_ns)
-        posture.received_ns = max(posture.received_ns, received)
+        by_stream = posture.received_by_stream
+        by_stream[stream] = max(by_stream.get(stream, received), received)
+        if len(by_stream) == len(SENSOR_TOPICS):
+            posture.received_ns = max(posture.received_ns, min(by_stream.values()))
         if stamp_ns < posture.start_ns and received_ns is None:
             # Stamped before the start, handled now: the caller may still be working through a
             # backlog (its listener fell behind), which is no lack of progress of the pairs.
@@ -359,7 +334,6 @@ class CollectionProtocol:
             # the settle.)
             posture.progress_ns = max(posture.progress_ns, received)
         self._add(posture, stream, stamp_ns, values)
-        return self._check_collection(now_ns)
 
     def _add(self, posture, stream, stamp_ns, values):
         if _ADDERS[stream](self.collector, stamp_ns, *values):
@@ -373,27 +347,33 @@ class CollectionProtocol:
         if posture is None:
             return []
         now_ns = int(now_ns)
-        if posture.state == _AWAIT_STATUS:
+        if posture.state == AWAIT_STATUS:
             silent = self.timeouts.status_overdue(posture, now_ns)
             if silent is not None:
                 return self._fail(silent)
-        elif posture.state == _AWAIT_SETTLE:
+        elif posture.state == AWAIT_SETTLE:
             reason = self.timeouts.settle_overdue(posture, now_ns)
             if reason:
                 return self._skip(reason)
-        elif posture.state == _COLLECTING and not self.keep_pairs:
+        elif posture.state == COLLECTING and not self.keep_pairs:
             return self._collection_timeouts(now_ns)
         return []
 
     def finish(self, now_ns=None):
         """End of input (recordings): ``keep_pairs`` hands over the last segment."""
-        return self._end_segment() if self.keep_pairs else []
+        return self._end_segment() if self.keep_pairs else self._close()
 
-    # --- collection --------------------------------------------------------------------------
+    def _close(self):
+        """The row of the posture in collection when its data end (the next command, the end of
+        a recording: every sample stamped before them given), on all its pairs; [] if none."""
+        if not self.collecting:
+            return []
+        self.collector.set_horizon(None)
+        return self._row() if self.collector.ready() else []
 
     def _start(self, now_ns, start_ns):
         posture = self._posture
-        posture.state = _COLLECTING
+        posture.state = COLLECTING
         posture.start_ns, posture.started_ns = int(start_ns), int(now_ns)
         posture.progress, posture.progress_ns = 0, int(now_ns)
         posture.progress_data_ns, posture.received_ns = None, int(now_ns)
@@ -406,13 +386,19 @@ class CollectionProtocol:
             return events
         return events + self._check_collection(now_ns)
 
+    def _judged(self, now_ns):
+        return self._check_collection(now_ns) if self.collecting else self.poll(now_ns)
+
     def _check_collection(self, now_ns):
         if self.keep_pairs:
             return []
         collector = self.collector
-        # ready() is a function of the pairs: only ask again when they changed.
-        if collector.pair_revision != self._checked_pairs:
-            self._checked_pairs = collector.pair_revision
+        # Windows are judged once their pairs are final in the data's time (set_horizon).
+        collector.set_horizon(self._posture.horizon_ns())
+        # ready() is a function of the pairs and the horizon: only ask again when they changed.
+        checked = (collector.pair_revision, collector.horizon_ns)
+        if checked != self._checked_pairs:
+            self._checked_pairs = checked
             if collector.ready():
                 return self._row()
             # (while the readings still move, settle_timeout bounds the wait: the timeouts)
@@ -465,18 +451,13 @@ class CollectionProtocol:
             idle, self._idle = self._idle, None
             stamps, legs, readings = segment_pairs(idle, MAX_STREAM_SAMPLES, last=True)
             return [PairsCollected(None, '', None, stamps, legs, readings)]
-        if posture.state != _COLLECTING:
+        if posture.state != COLLECTING:
             return self._skip('never settled')
         stamps, legs, readings = segment_pairs(self.collector, MAX_STREAM_SAMPLES)
+        if len(stamps) == 0:
+            return self._skip('no synchronised sample after settling')
         self.collector.stop()
         self._posture = None
-        if len(stamps) == 0:
-            return self._skip_closed(posture, 'no synchronised sample after settling')
         return [
             PairsCollected(posture.number, posture.command_id, posture.pose, stamps, legs, readings)
         ]
-
-    def _skip_closed(self, posture, reason):
-        event = PostureSkipped(posture.number, reason)
-        self.skipped.append(event)
-        return [event]

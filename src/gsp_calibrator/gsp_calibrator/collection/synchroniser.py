@@ -31,7 +31,13 @@ window's first sample) is kept with the row (``settle_wait``).
 Stamps are integer nanoseconds. Messages may arrive out of order or go missing: the pairs are
 kept up to date at each sample (:class:`~gsp_calibrator.collection.pairing.StampPairing`, the
 same pairs as pairing the buffers afresh), and an incomplete device instant (one of its three
-topics missing) is never used.
+topics missing) is never used. Each stream arrives in stamp order, but the streams interleave
+in no fixed order (a listener's batches, a recorder's log): a leg stamp's pair is final only once
+the device stamps within the tolerance after it are in. With a horizon
+(:meth:`SampleCollector.set_horizon`: every stream has delivered its samples up to it) only the
+windows final by it are judged, so the row does not depend on the order the streams were handled
+in (the calibrator and the rebuild of its recording average the same pairs), and a settle
+look-back is never judged with pairs still missing.
 
 The work per sample does not grow with the buffered samples: the pairs change only near the new
 sample's stamp, and a window once judged keeps its verdict (the candidate windows are judged in
@@ -158,7 +164,6 @@ def _checked_options(sync_tolerance, samples_per_posture, max_buffer, noise_std,
 
 class SampleCollector:
     """Buffers both streams and pairs them by nearest stamp (see the module docstring).
-
     ``sync_tolerance`` (s): largest stamp difference of a pair. ``samples_per_posture``: pairs
     averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
     all, for a caller that wants every pair, see :func:`segment_pairs`).
@@ -198,6 +203,7 @@ class SampleCollector:
         self._verdicts = []  # of the windows starting at pairs 0, 1, ..., none usable
         self._window_start = None  # start of the usable window, or None
         self._window_revision = None  # pairing revision of _verdicts and _window_start
+        self.horizon_ns = None  # ns, or None (set_horizon)
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
         self.non_finite = dict.fromkeys(STREAMS, 0)
         #: Finite samples received, per stream (over the collector's lifetime).
@@ -212,11 +218,8 @@ class SampleCollector:
     # --- input -------------------------------------------------------------------------------
 
     def start(self, start_ns, previous_readings=None):
-        """Begin a new posture: forget buffered samples, keep only stamps >= ``start_ns``.
-
-        ``previous_readings``: the previous posture's ``[alpha, beta, phi, d_m]``, if any (see
-        the module docstring).
-        """
+        """Begin a new posture: forget buffered samples, keep only stamps >= ``start_ns``;
+        ``previous_readings``: the previous posture's ``[alpha, beta, phi, d_m]``, if any."""
         self.start_ns = int(start_ns)
         self.previous_readings = (
             None
@@ -240,6 +243,15 @@ class SampleCollector:
         self._pairing.clear()
         self._verdicts.clear()
         self._window_revision = None
+        self.horizon_ns = None
+
+    def set_horizon(self, horizon_ns):
+        """Judge only windows whose pairs are final once every stream has delivered its samples
+        stamped up to ``horizon_ns`` (None: every window, as the pairs stand); see the module
+        docstring."""
+        horizon_ns = None if horizon_ns is None else int(horizon_ns)
+        if horizon_ns != self.horizon_ns:
+            self.horizon_ns, self._window_revision = horizon_ns, None
 
     @property
     def tolerance_ns(self):
@@ -311,19 +323,13 @@ class SampleCollector:
         """Add an LVDT sample ``d_m`` (m). Returns False if dropped."""
         return self._add_device(LVDT, stamp_ns, [d_m])
 
-    # --- pairing -----------------------------------------------------------------------------
-
     def complete_device_stamps(self):
         """Sorted stamps (ns) of device instants with all three topics received."""
         return list(self._pairing.devices)
 
     def pairs(self):
-        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order (a copy).
-
-        Each leg-length sample takes the nearest unused complete device sample within the
-        tolerance (one-to-one); a leg sample with none is left unpaired
-        (:func:`~gsp_calibrator.collection.pairing.nearest_pairs`).
-        """
+        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order (a copy), by the rule
+        of :func:`~gsp_calibrator.collection.pairing.nearest_pairs`."""
         return list(self._pairing.pairs)
 
     def pair_count(self):
@@ -376,7 +382,8 @@ class SampleCollector:
         pairs = pairing.pairs
         self._window_start = None
         start = len(self._verdicts)
-        while start + count <= len(pairs):
+        horizon = math.inf if self.horizon_ns is None else self.horizon_ns - self.tolerance_ns
+        while start + count <= len(pairs) and pairs[start + count - 1][0] <= horizon:
             verdict = self._verdict(pairs, start)
             if verdict == _USABLE:
                 self._window_start = start
@@ -423,10 +430,8 @@ class SampleCollector:
         }
 
     def average(self, pairs=None):
-        """Average :meth:`window` (or ``pairs``) into a posture row.
-
-        Raises ``ValueError`` if there are no pairs. ``phi`` is averaged on the circle.
-        """
+        """Average :meth:`window` (or ``pairs``) into a posture row (``phi`` on the circle);
+        ValueError if there are no pairs."""
         if pairs is None:
             pairs = self.window() or self.pairs()[: self.samples_per_posture]
         if not pairs:

@@ -27,6 +27,9 @@ class CollectionTimeouts:
         self._last_heard = {}  # topic -> receive time (ns) of its latest message
         self._attended_ns = None  # receive time of the latest call
         self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
+        #: None, or the time up to which the caller has taken every sensor message received
+        #: off the wire (:meth:`checked_until`): silence is judged up to it, not up to now.
+        self.checked_ns = None
 
     def attend(self, now_ns):
         """Note a call at ``now_ns``; a long gap since the previous one is a stall."""
@@ -37,8 +40,18 @@ class CollectionTimeouts:
         self._attended_ns = now_ns if self._attended_ns is None else max(self._attended_ns, now_ns)
 
     def hear(self, topic, now_ns):
-        """``topic`` said something at ``now_ns``."""
-        self._last_heard[topic] = int(now_ns)
+        """``topic`` said something at ``now_ns`` (off the wire, when known)."""
+        self._last_heard[topic] = max(self._last_heard.get(topic, int(now_ns)), int(now_ns))
+
+    def checked_until(self, checked_ns):
+        """The caller has taken every sensor message received off the wire before
+        ``checked_ns`` (ns): a topic is silent when nothing of it was received for
+        ``topic_timeout`` up to then. A listener starved of the CPU knows of no message received
+        since it last looked; its silence is not the topic's."""
+        checked_ns = int(checked_ns)
+        self.checked_ns = (
+            checked_ns if self.checked_ns is None else max(self.checked_ns, checked_ns)
+        )
 
     def heard(self, topic):
         """Whether ``topic`` has said anything yet."""
@@ -72,8 +85,10 @@ class CollectionTimeouts:
         Updates ``posture.progress``, ``progress_ns`` and ``progress_data_ns`` from the
         collector's pair count.
         """
+        # Silence on the wire: up to when the caller has looked at its queues, if it says so.
+        heard_ns = now_ns if self.checked_ns is None else min(int(now_ns), self.checked_ns)
         silences = {  # s, since the topic's latest message (or the settle, or a stall)
-            topic: self.since(max(self._last_heard.get(topic, 0), posture.started_ns), now_ns)
+            topic: self.since(max(self._last_heard.get(topic, 0), posture.started_ns), heard_ns)
             for topic in SENSOR_TOPICS
         }
         topic = max(silences, key=silences.get)  # the first to fall silent is the cause
@@ -114,8 +129,10 @@ class CollectionTimeouts:
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
         # The bounds below count in the data's time (the samples' stamps since the start), so a
-        # posture whose samples were sent is never skipped because they were handled late.
-        data_s = posture.data_elapsed()
+        # posture whose samples were sent is never skipped because they were handled late; a
+        # tolerance later, so the windows ending at the bound have been judged on final pairs
+        # (the collector's set_horizon).
+        data_s = posture.data_elapsed() - self.sync_tolerance
         if collector.unsettled is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '

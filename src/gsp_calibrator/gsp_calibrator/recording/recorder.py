@@ -22,6 +22,7 @@ import re
 import threading
 import time
 
+from gsp_calibrator.batched_subscription import BatchedCallback
 from gsp_calibrator.recording.mcap_format import (
     RecordingError,
     message_class,
@@ -88,9 +89,13 @@ class RunRecorder:
     another thread's executor builds its wait set can raise ``InvalidHandle`` (ros2/rclpy#1206).
     """
 
-    def __init__(self, node, topics=None, callback_group=None, persistent=False):
+    def __init__(self, node, topics=None, callback_group=None, persistent=False, forward=None):
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
+        #: ``{topic: callback([(CDR bytes, info), ...])}``: after its batch is recorded (or
+        #: dropped, not recording), a topic's batch goes on to its callback, so the calibrator
+        #: collects from the very messages its recording holds (one subscription each)
+        self.forward = dict(forward or {})
         self.node = node
         self.topics = dict(SUITE_TOPICS if topics is None else topics)
         self.callback_group = callback_group or MutuallyExclusiveCallbackGroup()
@@ -108,16 +113,16 @@ class RunRecorder:
             profile = TOPIC_QOS.get(topic, SENSOR_QOS)
             if profile == SENSOR_QOS:  # the collector's deep queue: record what it may use
                 profile = SENSOR_SUBSCRIPTION_QOS
-            self._subscriptions.append(
-                self.node.create_subscription(
-                    message_class(type_name),
-                    topic,
-                    self._callback(topic),
-                    profile,
-                    callback_group=self.callback_group,
-                    raw=True,
-                )
+            callback = BatchedCallback(self._callback(topic))
+            callback.subscription = self.node.create_subscription(
+                message_class(type_name),
+                topic,
+                callback,
+                profile,
+                callback_group=self.callback_group,
+                raw=True,
             )
+            self._subscriptions.append(callback.subscription)
 
     @property
     def recording(self):
@@ -213,20 +218,26 @@ class RunRecorder:
     def _callback(self, topic):
         clock = self.node.get_clock()
 
-        def on_message(data):
-            if self._recorder is None:  # not recording: drop at once
+        forward = self.forward.get(topic)
+
+        def on_messages(batch):  # [(CDR bytes, info), ...] taken at once (BatchedCallback)
+            if self._recorder is not None:  # else not recording: nothing to write
+                self._write(topic, batch, clock.now().nanoseconds)
+            if forward is not None:
+                forward(batch)
+
+        return on_messages
+
+    def _write(self, topic, batch, now):
+        with self._lock:
+            recorder = self._recorder
+            if recorder is None:
                 return
-            now = clock.now().nanoseconds
-            with self._lock:
-                recorder = self._recorder
-                if recorder is None:
-                    return
+            for data, _ in batch:
                 try:
                     recorder.write(topic, data, now)
                 except RecordingError:
-                    return
-
-        return on_message
+                    continue
 
 
 def note_outcomes(recorder):

@@ -1,0 +1,94 @@
+"""The state of the posture a collection awaits, and the latest readings received (pure, no
+rclpy): parts of :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`."""
+
+import collections
+import dataclasses
+
+import numpy as np
+
+from gsp_calibrator.collection.synchroniser import LEG_LENGTHS
+from gsp_calibrator.collection.topics import DEVICE_STREAMS, SENSOR_TOPICS
+from gsp_kinematics import channels
+
+#: Device instants kept for the latest complete one (the previous posture's readings): more
+#: than a listener's batch of one device topic can lead the others by.
+MAX_RECENT_INSTANTS = 4000
+
+
+IDLE, AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'idle', 'status', 'settle', 'collecting'
+
+
+@dataclasses.dataclass
+class Posture:
+    number: int
+    pose: np.ndarray
+    command_id: str
+    commanded_ns: int
+    state: str = AWAIT_STATUS
+    first_status_ns: int = None
+    start_ns: int = None  # collection start (stamps), set when settled
+    started_ns: int = None  # receive time of the settle (time base of the timeouts)
+    progress: int = 0  # pairs at the last change
+    progress_ns: int = None  # receive time of the last change of the pairs
+    #: data time (data_ns) of the last change of the pairs (or of the first sample)
+    progress_data_ns: int = None
+    #: the receive time every stream has reached with the samples handled since the start
+    #: (the settle's until each has given one): the streams come in batches, one stream's
+    #: ahead of the others', which is no lack of progress of the pairs
+    received_ns: int = None
+    #: stream -> latest receive time of its samples handled since the start
+    received_by_stream: dict = dataclasses.field(default_factory=dict)
+    #: stream -> latest stamp (ns) of its samples stamped from the start (the data's time)
+    latest_ns: dict = dataclasses.field(default_factory=dict)
+
+    def data_ns(self):
+        """The data's time: the stamp every stream has reached with its samples from the start;
+        None until each has given one (a stream that gives none is silent, or stamped in
+        another time base: the receive times judge it)."""
+        if len(self.latest_ns) < len(SENSOR_TOPICS):
+            return None
+        return min(self.latest_ns.values())
+
+    def data_elapsed(self):
+        """s of the data since the start (0 while :meth:`data_ns` is None)."""
+        data_ns = self.data_ns()
+        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
+
+    def horizon_ns(self):
+        """The data's horizon (the collector's ``set_horizon``): the stamp every stream has
+        reached since the start; before each has given one, the start."""
+        data_ns = self.data_ns()
+        return self.start_ns if data_ns is None else data_ns
+
+
+class LatestReadings:
+    """The latest leg lengths and the latest complete device instant received."""
+
+    def __init__(self):
+        self._legs = None  # (6,) m
+        #: stamp -> {device stream: values} of the latest device instants (the device topics
+        #: come in batches of their own: their latest messages need not share a stamp)
+        self._instants = collections.OrderedDict()
+
+    def note(self, stream, stamp_ns, values):
+        """A usable sample (``values`` as for the collector's ``add_<stream>``)."""
+        if stream == LEG_LENGTHS:
+            self._legs = values[0]
+            return
+        self._instants.setdefault(int(stamp_ns), {})[stream] = values
+        if len(self._instants) > MAX_RECENT_INSTANTS:
+            self._instants.popitem(last=False)
+
+    def device_readings(self):
+        """Latest complete device instant ``[alpha, beta, phi, d_m]``, or None."""
+        for instant in reversed(self._instants.values()):
+            if len(instant) == len(DEVICE_STREAMS):
+                return np.concatenate(
+                    [np.asarray(instant[stream], dtype=float) for stream in DEVICE_STREAMS]
+                )
+        return None
+
+    def leg_lengths(self):
+        """Latest leg lengths (6,) m, or None."""
+        legs = self._legs
+        return None if legs is None else np.asarray(legs, dtype=float).reshape(channels.LEG_COUNT)

@@ -1,0 +1,93 @@
+"""The calibrator's intake of its sensor topics: batches of raw messages, from the recorder's
+listener thread, to the run's collection protocol.
+
+Each batch (``[(CDR bytes, message info), ...]``, one topic, in order) is decoded cheaply
+(:mod:`.collection.joint_state_cdr`), checked for a second source, and judged once
+(:meth:`.collection.protocol.CollectionProtocol.sensors`). The listener's own tick says up to
+when every message received off the wire has been taken, so silence is judged on the wire.
+"""
+
+import collections
+import time
+
+from gsp_calibrator.collection import protocol
+from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.collection.topics import SENSOR_TOPICS, sensor_message
+from gsp_calibrator.run.health import ProcessingLags
+
+LISTENER_TICK_S = 0.1  #: the listener's tick (silence on the wire, :meth:`SensorIntake.tick`)
+
+
+def checked_until(collection, checked_ns, now_ns):
+    """Tell ``collection`` that every sensor message received before ``checked_ns`` was taken
+    (``CollectionTimeouts.checked_until``); its events due at ``now_ns``."""
+    collection.timeouts.checked_until(checked_ns)
+    return collection.poll(now_ns)
+
+
+class SensorIntake:
+    """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns), ``count_publishers
+    (topic)`` the publishers of a topic. Set :attr:`postures` (the node's ``PostureLink``) before
+    a run starts."""
+
+    def __init__(self, now_ns, count_publishers):
+        self.now_ns = now_ns
+        self.count_publishers = count_publishers
+        self.postures = None
+        self.sources = SingleSourceGuard()  # reset at each run's first reading
+        #: For /diagnostics: monotonic ns of each sensor topic's latest batch, run or not.
+        self.heard_ns = dict.fromkeys(SENSOR_TOPICS)
+        self.lags = ProcessingLags(SENSOR_TOPICS)
+        self._ticks = collections.deque(maxlen=3)  # node clock, ns
+
+    def callbacks(self):
+        """``{topic: callback(batch)}`` of the sensor topics."""
+        return {topic: self._callback(topic) for topic in SENSOR_TOPICS}
+
+    def _callback(self, topic):
+        lags = self.lags
+
+        def callback(batch):
+            self.heard_ns[topic] = time.monotonic_ns()
+            postures = self.postures
+            if postures is None or not postures.active:  # no run: drop at once
+                decided_ns = time.time_ns()
+                for _, info in batch:
+                    lags.note(topic, info.get('received_timestamp'), decided_ns)
+                return
+            messages = [(sensor_message(raw), info) for raw, info in batch]
+            postures.feed(lambda collection: self._step(collection, topic, messages))
+            decided_ns = time.time_ns()
+            for _, info in batch:
+                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=True)
+
+        return callback
+
+    def _step(self, collection, topic, messages):
+        """Feed ``messages`` of ``topic`` to ``collection`` (the posture link's lock held)."""
+        taken = []
+        for msg, info in messages:
+            failure = self.sources.check_reading(
+                topic,
+                msg,
+                info.get('publication_sequence_number'),
+                lambda: self.count_publishers(topic),
+            )
+            if failure is not None:  # a second source: the run ends, naming the topic
+                self.postures.fail(failure)
+                return []
+            taken.append((topic, msg, info.get('received_timestamp')))
+        now_ns = self.now_ns()
+        taken = [(t, m, protocol.wire_receipt_ns(r, now_ns)) for t, m, r in taken]
+        return collection.sensors(taken, now_ns)
+
+    def tick(self):
+        """The listener's own tick (its thread). Between a tick and the next but one, its
+        executor has waited on its subscriptions and taken what was ready: every message
+        received off the wire before the tick two back has been taken, so silence is judged up
+        to then (a listener starved of the CPU is no silent topic)."""
+        self._ticks.append(self.now_ns())
+        postures = self.postures
+        if postures is not None and len(self._ticks) == self._ticks.maxlen:
+            checked_ns = self._ticks[0]
+            postures.feed(lambda c: checked_until(c, checked_ns, self.now_ns()))
