@@ -80,23 +80,31 @@ def available_groups(design, count):
     return groups
 
 
-def _score(nominal, data, base, groups, folds, options):
-    """``(result, Candidate)`` of the model ``base`` + ``groups``."""
-    leg_lengths, readings, sigmas, guesses, design, noise = data
+def _fit(nominal, data, free, options, design):
+    """The converged identification of ``data``'s rows with ``free`` and the effect ``design``,
+    or None (no convergence, or an identification error)."""
+    leg_lengths, readings, sigmas, guesses, _, _ = data
     try:
         result = identify(
             nominal,
             leg_lengths,
             readings,
             sigmas,
-            free=list(base) + list(groups),
+            free=free,
             pose_guesses=guesses,
             options=options,
             effects=design,
         )
     except IdentificationError:
-        return None, Candidate(tuple(groups), float('nan'), None)
-    if not result.converged:
+        return None
+    return result if result.converged else None
+
+
+def _score(nominal, data, base, groups, folds, options):
+    """``(result, Candidate)`` of the model ``base`` + ``groups``."""
+    leg_lengths, readings, sigmas, _, design, noise = data
+    result = _fit(nominal, data, list(base) + list(groups), options, design)
+    if result is None:
         return None, Candidate(tuple(groups), float('nan'), None)
     validation = cross_validate(
         result, nominal, leg_lengths, readings, sigmas, folds, options, noise, design
@@ -110,23 +118,12 @@ def thermal_time_constant(nominal, data, base, groups, candidates, options):
     """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
     one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
     candidates share the parameters and the data, so their costs compare directly."""
-    leg_lengths, readings, sigmas, guesses, design, _ = data
+    design = data[4]
     costs = {}
     for tau in candidates:
-        try:
-            result = identify(
-                nominal,
-                leg_lengths,
-                readings,
-                sigmas,
-                free=list(base) + list(groups),
-                pose_guesses=guesses,
-                options=options,
-                effects=dataclasses.replace(design, thermal_time_constant_s=float(tau)),
-            )
-        except IdentificationError:
-            continue
-        if result.converged:
+        timed = dataclasses.replace(design, thermal_time_constant_s=float(tau))
+        result = _fit(nominal, data, list(base) + list(groups), options, timed)
+        if result is not None:
             costs[float(tau)] = float(result.cost)
     if not costs:
         return design.thermal_time_constant_s, costs
