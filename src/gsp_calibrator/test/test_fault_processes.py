@@ -386,18 +386,20 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
     # is judged by state.json, and sent again only if no session started on it.
     # A request sent again while the first one's session is starting (slowly, on a loaded
     # machine) is answered 'calibration already running': harmless, and accepted below.
+    # Asked again every 10 s until a session starts (bounded by TIMEOUT_S only): beside busy
+    # loops, discovery of the new calibrator's service took longer than three tries of 10 s.
     sessions = state_of(run)['sessions']
     pendings = []
-    for _ in range(3):
+    asked_until = time.monotonic() + TIMEOUT_S
+    started = threading.Event()
+    while not started.is_set():
+        assert time.monotonic() < asked_until, 'no resumed session started'
         pendings.append(client.call_async(names.SERVICE_RESUME))
-        started = threading.Event()
         for _ in range(200):  # up to 10 s for the session to start, then ask again
             if any(p.done() for p in pendings) or state_of(run)['sessions'] > sessions:
                 started.set()
                 break
             started.wait(0.05)
-        if started.is_set():
-            break
     wait_until(
         lambda: (
             state_of(run)['phase'] in (PHASE_DONE, PHASE_FAILED)
