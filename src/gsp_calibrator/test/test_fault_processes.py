@@ -197,8 +197,9 @@ def all_accounted_for(run, postures=POSTURES):
 
 def assert_recorded(parts, samples):
     """Every collected posture is in the recording (its collection start, noted by the calibrator
-    itself), and rebuilding the recording gives (nearly) the same rows. Not exactly: the recorder
-    is a subscription of its own on best-effort topics and may miss a message the collector got.
+    itself), and rebuilding the recording gives (nearly) the same rows. Not exactly: a SIGKILL
+    loses the recording's unwritten tail (recovery keeps what reached the file), so its last
+    rows can be missing from the rebuild.
     """
     notes = {}
     for part in parts:
