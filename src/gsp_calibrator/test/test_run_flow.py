@@ -303,3 +303,53 @@ def test_a_posture_s_end_is_kept_before_the_run_sees_it():
     failure = TopicSilent(names.TOPIC_LVDT, 'waiting', 'silent')
     link.fail(failure)  # between two postures (a second source, a failed write)
     assert link.command(2, pose).result() is failure
+
+
+def test_the_route_has_what_the_effect_groups_to_identify_need():
+    """Reference revisits for thermal (and auto, which may choose it), none for the groups a
+    route does not serve; each revisit is at the reference's pose."""
+    settings = CalibratorSettings.from_values({'posture_count': 30, 'pool_size': 120})
+    poses = postures.choose_postures(*postures.selection_arguments(settings)).poses
+    for free in (['extended'], ['extended', 'joint_offsets']):
+        settings = CalibratorSettings.from_values({'free_parameters': free})
+        assert postures.effect_route(settings, poses, home_pose()) is None
+    settings = CalibratorSettings.from_values({'free_parameters': ['auto'], 'payload_mass': 40.0})
+    assert postures.route_effect_groups(settings.free_parameters) == ['backlash', 'thermal']
+    route = postures.effect_route(settings, poses, home_pose())
+    revisits = [m for m, kind in enumerate(route.kind) if kind == 'reference']
+    # 30 postures: the reference first, revisited after every 10 and at the end.
+    assert len(revisits) == 3 and route.added_postures >= 3
+    np.testing.assert_array_equal(route.poses[revisits], np.repeat(poses[:1], 3, axis=0))
+    assert not route.one_way_legs and route.added_s > 0.0
+    additions = postures.route_additions(route, ['backlash', 'thermal'])
+    assert additions['added_postures'] == route.added_postures
+    assert '3 reference revisits' in postures.route_additions_line(additions)
+
+
+def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp_path):
+    """With ``auto`` the run commands the route with the effects' additions: each revisit of
+    the reference is a posture of its own (state.json, samples.csv), and the progress, the
+    response and result.json say what the additions cost."""
+    host = FakeHost()
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    success, message = host.serve(settings)
+    assert success, message
+    selection = postures.choose_postures(*postures.selection_arguments(settings))
+    heard, _ = sensor_measurements(host.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
+    start, _ = postures.route_start(settings.nominal, heard[0])
+    ordered = selection.poses[postures.posture_route(settings, selection.poses, start).order]
+    route = postures.effect_route(settings, ordered, start)
+    commanded = np.asarray(host.session.state.poses)
+    np.testing.assert_allclose(commanded, route.poses, atol=1e-12)  # m, rad
+    samples = host.session.run.read_samples()
+    assert len(samples) == len(route.poses) == 30 + route.added_postures
+    revisits = [m + 1 for m, kind in enumerate(route.kind) if kind == 'reference']
+    assert len(revisits) == 3 and set(revisits) <= set(samples.posture.tolist())
+    np.testing.assert_allclose(commanded[np.array(revisits) - 1], commanded[[0, 0, 0]], atol=0)
+    result = json.loads(host.session.run.file('result.json').read_text())
+    additions = result['collection']['route_additions']
+    assert additions['reference_revisits'] == 3
+    assert additions['added_postures'] == route.added_postures
+    line = postures.route_additions_line(additions)
+    assert any(line == text for _, _, text in host.progress_log)
+    assert line in message

@@ -181,11 +181,14 @@ class CalibrationRun:
             poses = selection.poses
         if poses is not None and settings.posture_order == 'route':
             poses = await self._route(poses)
+        additions = None
+        if poses is not None:
+            poses, additions = await self._effect_route(poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)
         except (postures.CalibrationError, RuntimeError, ValueError) as error:
             self.log.warning(f'rejected postures will not be replaced: {error}')
-        session.begin(settings, poses, os.getpid(), part)
+        session.begin(settings, poses, os.getpid(), part, additions)
         if session.resumed:
             self.log.info(
                 f'resuming: {len(session.samples)} rows kept, '
@@ -213,6 +216,22 @@ class CalibrationRun:
         )
         return poses[route.order]
 
+    async def _effect_route(self, poses):
+        """``(poses, record)``: ``poses`` with the additions the effect groups to identify need
+        (:func:`.postures.effect_route`: reference revisits, approach directions) and what they
+        add (:func:`.postures.route_additions`; None: nothing), said in the progress."""
+        settings = self.settings
+        start, _ = postures.route_start(settings.nominal, self.collection.latest_leg_lengths())
+        route = await self.host.in_thread(postures.effect_route, settings, poses, start)
+        if route is None:
+            return poses, None
+        groups = postures.route_effect_groups(settings.free_parameters)
+        additions = postures.route_additions(route, groups)
+        line = postures.route_additions_line(additions)
+        self.log.info(line)
+        self.host.progress(0, names.PHASE_SELECTING, line)
+        return route.poses, additions
+
     async def _wait_for_system(self):
         """Wait until platform_sim listens to commands and every sensor topic has spoken."""
         timeout = self.settings.topic_timeout
@@ -232,7 +251,7 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count, legs = settings.posture_count, self.collection.latest_leg_lengths()
+        count, legs = len(session.state.poses), self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
@@ -327,6 +346,7 @@ class CalibrationRun:
                 'replacements': session.state.replacements,
                 'settle': settle_statistics(session.state.settle_waits),
                 'processing_lag': host.processing_lags.summary(),
+                'route_additions': session.state.route_additions or None,
                 **extra,
             },
             settings_options(settings),
@@ -336,6 +356,8 @@ class CalibrationRun:
         outcome, summary = finished.outcome, finished.summary
         if stopping is not None:
             summary += '\n' + run_to_requirement.summary_line(stopping)
+        if session.state.route_additions:
+            summary += '\n' + postures.route_additions_line(session.state.route_additions)
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)

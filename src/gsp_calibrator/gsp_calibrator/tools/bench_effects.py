@@ -29,7 +29,7 @@ from gsp_calibrator.tools.bench_verdict import (
     effect_cases,
 )
 from gsp_kinematics import acceptance
-from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
+from gsp_kinematics.effects.groups import EFFECT_GROUPS, commanded_leg_readings, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route, effect_identifiability
 from gsp_kinematics.identification import IdentificationError, identify
@@ -89,9 +89,10 @@ def workspace_errors(design, effects, geometry, at_s=None):
 
 def noisy_rows(design, route, effects, seed):
     """The averaged rows the calibrator collects along ``route`` (reachable postures)."""
-    run = simulate_commands(
-        design.true, design.settings.nominal, route.poses, effects, route.times_s
-    )
+    nominal = design.settings.nominal
+    # The route starts from the home pose (augment_route's directions count from there).
+    start = commanded_leg_readings(nominal, home_pose())[0]
+    run = simulate_commands(design.true, nominal, route.poses, effects, route.times_s, start)
     sigmas = DEFAULT_SENSOR_NOISE
     scale = np.concatenate([np.full(6, sigmas.leg_lengths), sigmas.readings()])
     noise = np.random.default_rng(seed).normal(size=(len(route.poses), 10)) * scale
