@@ -19,7 +19,10 @@ whose fit lowers the chi-square most, only if
 
 When no group alone is kept, all the remaining groups together are tried once the same way
 (``k`` their parameters; effects that mask each other). The test needs the rows weighted by
-their real noise: the calibrator weighs them by the within-posture estimate where it has one.
+their real noise: the calibrator weighs them by the within-posture estimate where it has one,
+and every chi-square is divided by the chi2/dof of the fit with all the groups when above 1
+(:func:`variance_factor`: what no group explains, or noise above the weights, does not make
+the groups significant).
 """
 
 import dataclasses
@@ -35,7 +38,7 @@ from .identification import IdentificationError, Options, identify
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
 DEFAULT_SIGNIFICANCE = 0.01
 #: Largest relative growth of the held-out position error for which a significant group is kept.
-DEFAULT_MAX_CV_LOSS = 0.05
+DEFAULT_MAX_CV_LOSS = 0.25
 DEFAULT_FOLDS = 5
 
 
@@ -66,6 +69,8 @@ class ModelChoice:
     #: The thermal time constant (s) used (0: linear growth) and each one tried: {tau: cost}.
     thermal_time_constant_s: float = 0.0
     thermal_costs: dict = dataclasses.field(default_factory=dict)
+    #: The tests' chi-squares were divided by this (:func:`variance_factor`; 1: the weights).
+    variance_factor: float = 1.0
 
     def to_dict(self):
         return {
@@ -73,6 +78,7 @@ class ModelChoice:
             'reason': self.reason,
             'thermal_time_constant_s': self.thermal_time_constant_s,
             'thermal_costs': {str(tau): cost for tau, cost in self.thermal_costs.items()},
+            'variance_factor': self.variance_factor,
             'candidates': [
                 {
                     'groups': list(c.groups),
@@ -134,19 +140,32 @@ def _chi2(result, rows=None):
     return float(np.sum(residuals[used] ** 2))
 
 
-def likelihood_ratio(reference, extended, added):
+def likelihood_ratio(reference, extended, added, variance_factor=1.0):
     """``(delta chi2, p value)`` of ``extended`` (a fit with ``added`` more parameters than
     ``reference``, on the same rows and weights) against ``reference``: the chi-square drop over
-    the rows both fits used, and its probability under ``chi2(added)`` (no effect)."""
+    the rows both fits used, and the probability under ``chi2(added)`` (no effect) of that drop
+    over ``variance_factor`` (the rows' variance in units of the weights, 1: the weights are
+    the noise)."""
     rows = np.all(np.isfinite(reference.residuals), axis=1)
     rows &= np.all(np.isfinite(extended.residuals), axis=1)
     delta = _chi2(reference, rows) - _chi2(extended, rows)
-    return delta, float(special.chdtrc(added, max(delta, 0.0)))
+    return delta, float(special.chdtrc(added, max(delta / variance_factor, 0.0)))
 
 
-def _score(nominal, data, base, groups, folds, options, reference=None):
+def variance_factor(result):
+    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: what its
+    residuals leave unexplained scales the tests' chi-squares (an F test), so a platform with
+    more than the groups describe, or noise above the weights, does not make every group look
+    significant; 1 when the groups describe the rows (the weights are then the noise)."""
+    fit = None if result is None else result.goodness_of_fit
+    if fit is None or not fit.dof > 0:
+        return 1.0
+    return max(1.0, _chi2(result) / fit.dof)
+
+
+def _score(nominal, data, base, groups, folds, options, reference=None, factor=1.0):
     """``(result, Candidate)`` of the model ``base`` + ``groups``, tested against the fit
-    ``reference`` = ``(result, its groups)`` when given."""
+    ``reference`` = ``(result, its groups)`` when given (``factor``: :func:`variance_factor`)."""
     leg_lengths, readings, sigmas, _, design, noise = data
     result = _fit(nominal, data, list(base) + list(groups), options, design)
     if result is None:
@@ -159,7 +178,7 @@ def _score(nominal, data, base, groups, folds, options, reference=None):
     test = {}
     if reference is not None:
         added = NUM_LEGS * (len(groups) - len(reference[1]))
-        delta, p_value = likelihood_ratio(reference[0], result, added)
+        delta, p_value = likelihood_ratio(reference[0], result, added, factor)
         test = {'delta_chi2': delta, 'added': added, 'p_value': p_value}
     return result, Candidate(tuple(groups), position, summary, chi2=_chi2(result), **test)
 
@@ -189,7 +208,7 @@ def _keeps(trial, best, threshold, max_cv_loss):
 
 def _forward(nominal, data, base, available, settings):
     """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``."""
-    folds, options, significance, max_cv_loss = settings
+    folds, options, significance, max_cv_loss, factor = settings
     result, best = _score(nominal, data, base, (), folds, options)
     if result is None:
         raise IdentificationError('the plain model did not converge: no model to choose from')
@@ -197,7 +216,7 @@ def _forward(nominal, data, base, available, settings):
     while remaining:
         reference = (result, chosen)
         trials = [
-            _score(nominal, data, base, chosen + (group,), folds, options, reference)
+            _score(nominal, data, base, chosen + (group,), folds, options, reference, factor)
             for group in remaining
         ]
         tried += [candidate for _, candidate in trials]
@@ -212,8 +231,9 @@ def _forward(nominal, data, base, available, settings):
         remaining = [group for group in remaining if group not in chosen]
     if len(remaining) > 1:
         # Effects that mask each other: no one group alone is kept, together they may be.
+        groups = chosen + tuple(remaining)
         trial_result, together = _score(
-            nominal, data, base, chosen + tuple(remaining), folds, options, (result, chosen)
+            nominal, data, base, groups, folds, options, (result, chosen), factor
         )
         tried.append(together)
         if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
@@ -253,7 +273,10 @@ def choose_model(
         )
         design = dataclasses.replace(design, thermal_time_constant_s=tau)
     data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
-    settings = (folds, options, significance, max_cv_loss)
+    factor = 1.0
+    if available:
+        factor = variance_factor(_fit(nominal, data, list(base) + available, options, design))
+    settings = (folds, options, significance, max_cv_loss, factor)
     result, best, chosen, tried = _forward(nominal, data, base, available, settings)
     tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
     names = ', '.join(chosen) if chosen else 'none'
@@ -266,4 +289,6 @@ def choose_model(
     if 'thermal' in chosen and costs:
         shape = f'a first-order warming, {tau:g} s' if tau > 0 else 'a linear growth'
         reason += f'; thermal as {shape} (least fit cost of {sorted(costs)} s, 0: linear)'
-    return ModelChoice(chosen, result, tuple(tried), reason, tau, costs)
+    if factor > 1.0:
+        reason += f'; chi-squares over {factor:.2f}, the chi2/dof that every group together leaves'
+    return ModelChoice(chosen, result, tuple(tried), reason, tau, costs, factor)

@@ -215,7 +215,10 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
     plain, auto = split_auto(free)
     choice = untried = None
     if auto:
-        choice, untried = _choose(nominal, samples, row_sigmas, design, plain, identify_options)
+        # The choice's test needs the rows' real noise: the within-posture estimate where the
+        # run gives one (not only a lower bound), else the configured sigmas.
+        known = noise_from_data.within_sigmas(within, row_sigmas)
+        choice, untried = _choose(nominal, samples, known, design, plain, identify_options)
         free = plain + list(choice.groups)
     effects = design if any(is_effect_name(n) for n in free) else None
     result, estimates, used = noise_from_data.identify_with_noise(
@@ -236,8 +239,8 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
 
 def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
-    the effect groups the run's ``design`` allows beside the ``plain`` model, by
-    cross-validated accuracy with the core's over-fitting guard (weights: ``row_sigmas``)."""
+    the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
+    significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
     from gsp_calibrator.report.effects import untried_groups
     from gsp_kinematics.model_choice import choose_model
 
