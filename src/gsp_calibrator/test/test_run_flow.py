@@ -353,3 +353,7 @@ def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp
     line = postures.route_additions_line(additions)
     assert any(line == text for _, _, text in host.progress_log)
     assert line in message
+    # The additions count among the postures commanded.
+    total = len(route.poses)
+    assert any(text.startswith(f'posture {total} of {total}') for _, _, text in host.progress_log)
+    assert f'{total} posture(s) of {total} commanded' in message

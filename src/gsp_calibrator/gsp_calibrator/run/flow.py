@@ -251,7 +251,8 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count, legs = len(session.state.poses), self.collection.latest_leg_lengths()
+        count = postures.commanded_count(settings, session.state)
+        legs = self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
@@ -312,7 +313,8 @@ class CalibrationRun:
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
-        report = posture_report(event, self.settings.posture_count, self.settings.nominal)
+        count = postures.commanded_count(self.settings, self.session.state)
+        report = posture_report(event, count, self.settings.nominal)
         for level, line in report.log:  # one call site per severity (rclpy requires it)
             if level == 'warning':
                 self.log.warning(line)

@@ -351,8 +351,9 @@ def finish_run(run, settings, samples, collection, options):
 
     outcome = identify_with_settings(settings, samples)
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
+    added = (collection.get('route_additions') or {}).get('added_postures', 0)
     summary = outcome_summary(
-        outcome, selected=settings.posture_count, skipped=skipped, run_directory=run.path
+        outcome, selected=settings.posture_count + added, skipped=skipped, run_directory=run.path
     )
     report_error = ''
     if outcome.result is not None:

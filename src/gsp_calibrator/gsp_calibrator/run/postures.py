@@ -179,6 +179,13 @@ def route_additions_line(additions):
     )
 
 
+def commanded_count(settings, state):
+    """The postures a run plans to command: its ``posture_count`` and the route's additions
+    for the effects (``state``: its ``RunState``, None before it has one)."""
+    additions = {} if state is None else state.route_additions or {}
+    return settings.posture_count + int(additions.get('added_postures', 0))
+
+
 class PostureReplacer:
     """The replacement of a posture the platform rejected: the best remaining posture of the
     run's pool (:func:`gsp_kinematics.selection.best_addition`, the selection's criterion).
