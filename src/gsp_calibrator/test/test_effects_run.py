@@ -15,7 +15,7 @@ from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.settings import check_parameters
-from gsp_calibrator.tools import bench_verdict
+from gsp_calibrator.tools import bench_effects, bench_verdict
 from gsp_kinematics.effects.model import REALISTIC, PlatformEffects, temperature_rises
 from gsp_kinematics.kinematics import inverse_kinematics
 from gsp_kinematics.noise_from_data import posture_lag_sums
@@ -91,6 +91,15 @@ def test_the_tracker_gives_the_directions_the_platform_arrived_from(design):
     built = effect_design(samples, 40.0)
     assert built.times_s[0] == 0.0 and built.reference_time_s == pytest.approx(900.0)
     np.testing.assert_array_equal(built.directions, samples.directions)
+
+
+def test_the_bench_commands_its_route_as_the_design_says_the_legs_arrive(design):
+    """The ``effects`` bench simulates the augmented route from where its directions count
+    (the home pose): every posture's legs arrive as the identification's design says."""
+    route = bench_effects.augmented_plan(design)
+    run = bench_effects.route_run(design, route, REALISTIC)
+    assert run.reachable.all()
+    np.testing.assert_array_equal(run.directions, route.directions)
 
 
 def test_a_rejected_posture_moves_no_leg(design):

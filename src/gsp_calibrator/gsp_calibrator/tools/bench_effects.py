@@ -87,12 +87,19 @@ def workspace_errors(design, effects, geometry, at_s=None):
     return position
 
 
+def route_run(design, route, effects):
+    """The simulated run (``SimulatedRun``) of commanding ``route`` from the home pose, where
+    ``augment_route`` counts its approach directions from: started anywhere else, the first
+    posture's legs would arrive otherwise than the design says (a backlash the model cannot
+    fit, which the thermal group then half absorbed)."""
+    nominal = design.settings.nominal
+    start = commanded_leg_readings(nominal, home_pose())[0]
+    return simulate_commands(design.true, nominal, route.poses, effects, route.times_s, start)
+
+
 def noisy_rows(design, route, effects, seed):
     """The averaged rows the calibrator collects along ``route`` (reachable postures)."""
-    nominal = design.settings.nominal
-    # The route starts from the home pose (augment_route's directions count from there).
-    start = commanded_leg_readings(nominal, home_pose())[0]
-    run = simulate_commands(design.true, nominal, route.poses, effects, route.times_s, start)
+    run = route_run(design, route, effects)
     sigmas = DEFAULT_SENSOR_NOISE
     scale = np.concatenate([np.full(6, sigmas.leg_lengths), sigmas.readings()])
     noise = np.random.default_rng(seed).normal(size=(len(route.poses), 10)) * scale
