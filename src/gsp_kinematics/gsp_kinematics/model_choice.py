@@ -38,7 +38,7 @@ from .identification import IdentificationError, Options, identify
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
 DEFAULT_SIGNIFICANCE = 0.01
 #: Largest relative growth of the held-out position error for which a significant group is kept.
-DEFAULT_MAX_CV_LOSS = 0.25
+DEFAULT_MAX_CV_LOSS = 0.5
 DEFAULT_FOLDS = 5
 
 

@@ -329,7 +329,7 @@ class CalibrationRun:
         """Identify over every row (and ``reused``), write the results (``stopping``: the record
         of a run that stops when good enough), publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
-        count = settings.posture_count
+        count = postures.commanded_count(settings, session.state)
         self.save_state(PHASE_IDENTIFYING)
         samples, extra = reused_rows.for_identification(session, reused)
         extra |= {} if stopping is None else {'run_to_requirement': stopping}
