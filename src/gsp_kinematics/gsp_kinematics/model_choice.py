@@ -40,6 +40,9 @@ DEFAULT_SIGNIFICANCE = 0.01
 #: Largest relative growth of the held-out position error for which a significant group is kept.
 DEFAULT_MAX_CV_LOSS = 0.5
 DEFAULT_FOLDS = 5
+#: Thermal time constants (s; 0: a linear growth) the calibrator chooses among: a leg warms
+#: with a time constant of minutes to tens of minutes (docs/platform_effects.md).
+DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -164,7 +164,7 @@ def identify_from_samples(
         return outcome
     outcome.duration_s = time.perf_counter() - started
     outcome.result = result
-    outcome.effects = _effects_record(result, design, nominal, choice, untried, samples)
+    outcome.effects = _effects_record(result, effects or design, nominal, choice, untried, samples)
     if not result.converged:
         outcome.message = (
             f'identification did not converge after {result.iterations} iteration(s) '
@@ -220,6 +220,7 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
         known = noise_from_data.within_sigmas(within, row_sigmas)
         choice, untried = _choose(nominal, samples, known, design, plain, identify_options)
         free = plain + list(choice.groups)
+        design = dataclasses.replace(design, thermal_time_constant_s=choice.thermal_time_constant_s)
     effects = design if any(is_effect_name(n) for n in free) else None
     result, estimates, used = noise_from_data.identify_with_noise(
         noise_source,
@@ -242,7 +243,7 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
     significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
     from gsp_calibrator.report.effects import untried_groups
-    from gsp_kinematics.model_choice import choose_model
+    from gsp_kinematics.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
 
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
@@ -254,6 +255,7 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
         design,
         base=tuple(plain),
         pose_guesses=samples.commanded_poses,
+        thermal_time_constants=DEFAULT_THERMAL_TIME_CONSTANTS,
         **extra,
     )
     return choice, untried_groups(design, len(samples), effect_groups_of(plain))

@@ -34,7 +34,7 @@ from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route, effect_identifiability
 from gsp_kinematics.identification import IdentificationError, identify
 from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.model_choice import choose_model
+from gsp_kinematics.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
@@ -44,8 +44,9 @@ from gsp_kinematics.validation import pose_errors, simulate_commands
 POSTURE_S = RUN_S / 60
 #: Cross-validation folds of ``auto`` here (the calibrator's default is 10; 5 halves the cost).
 FOLDS = 5
-#: Thermal time constants (s; 0: linear) ``auto`` chooses among by the fit's cost.
-THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
+#: Thermal time constants (s; 0: linear) ``auto`` chooses among by the fit's cost: the
+#: calibrator's.
+THERMAL_TIME_CONSTANTS = DEFAULT_THERMAL_TIME_CONSTANTS
 #: ``gsp_plan``'s timing of a posture on the motion model: settle, then the samples at 200 Hz.
 PLAN_DWELL_S = 0.02 + SAMPLES / 200.0
 
