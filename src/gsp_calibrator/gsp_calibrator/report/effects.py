@@ -126,7 +126,7 @@ def effects_lines(record):
             mark = ' (chosen)' if candidate['chosen'] else ''
             lines.append(
                 f'  candidate {groups}: held-out position {candidate["cv_position_mm"]:.4f} mm'
-                f'{mark}'
+                f'{_test_text(candidate)}{mark}'
             )
         for group, why in choice['not_tried'].items():
             lines.append(f'  not tried: {group}' + (f' ({why})' if why else ''))
@@ -141,6 +141,16 @@ def effects_lines(record):
     return lines
 
 
+def _test_text(candidate):
+    """', chi-square drop D (k parameters, p P)' of a candidate tested against the model it
+    extends ('' for the plain model or a failed fit)."""
+    delta, p_value = candidate.get('delta_chi2'), candidate.get('p_value')
+    if delta is None or p_value is None or not math.isfinite(p_value):
+        return ''
+    added = candidate.get('added_parameters', 0)
+    return f', chi-square drop {delta:.1f} ({added} parameters, p {p_value:.2g})'
+
+
 def effects_markdown(record):
     """The ``## Platform effects`` section of ``report.md`` (none without a record)."""
     if not record:
@@ -149,11 +159,15 @@ def effects_markdown(record):
     choice = record.get('model_choice')
     if choice is not None:
         lines += [f'Model chosen by `auto`: {choice["reason"]}.', '']
-        lines += ['| candidate groups | held-out position (mm) | chosen |', '|---|---|---|']
+        lines += [
+            '| candidate groups | held-out position (mm) | chi-square drop, p | chosen |',
+            '|---|---|---|---|',
+        ]
         for candidate in choice['candidates']:
             groups = ', '.join(candidate['groups']) or 'plain'
             chosen = 'yes' if candidate['chosen'] else ''
-            lines.append(f'| {groups} | {candidate["cv_position_mm"]:.4f} | {chosen} |')
+            test = _test_text(candidate).removeprefix(', chi-square drop ') or '-'
+            lines.append(f'| {groups} | {candidate["cv_position_mm"]:.4f} | {test} | {chosen} |')
         lines.append('')
         for group, why in choice['not_tried'].items():
             lines.append(f'- not tried: {group}' + (f' ({why})' if why else ''))
