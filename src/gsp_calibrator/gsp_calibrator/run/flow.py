@@ -179,11 +179,7 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = selection.poses
-        if poses is not None and settings.posture_order == 'route':
-            poses = await self._route(poses)
-        additions = None
-        if poses is not None:
-            poses, additions = await self._effect_route(poses)
+        poses, additions = await _ordered(self, poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)
         except (postures.CalibrationError, RuntimeError, ValueError) as error:
@@ -216,22 +212,6 @@ class CalibrationRun:
         )
         return poses[route.order]
 
-    async def _effect_route(self, poses):
-        """``(poses, record)``: ``poses`` with the additions the effect groups to identify need
-        (:func:`.postures.effect_route`: reference revisits, approach directions) and what they
-        add (:func:`.postures.route_additions`; None: nothing), said in the progress."""
-        settings = self.settings
-        start, _ = postures.route_start(settings.nominal, self.collection.latest_leg_lengths())
-        route = await self.host.in_thread(postures.effect_route, settings, poses, start)
-        if route is None:
-            return poses, None
-        groups = postures.route_effect_groups(settings.free_parameters)
-        additions = postures.route_additions(route, groups)
-        line = postures.route_additions_line(additions)
-        self.log.info(line)
-        self.host.progress(0, names.PHASE_SELECTING, line)
-        return route.poses, additions
-
     async def _wait_for_system(self):
         """Wait until platform_sim listens to commands and every sensor topic has spoken."""
         timeout = self.settings.topic_timeout
@@ -251,8 +231,7 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count = postures.commanded_count(settings, session.state)
-        legs = self.collection.latest_leg_lengths()
+        count, legs = _planned(self), self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
@@ -313,8 +292,7 @@ class CalibrationRun:
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
-        count = postures.commanded_count(self.settings, self.session.state)
-        report = posture_report(event, count, self.settings.nominal)
+        report = posture_report(event, _planned(self), self.settings.nominal)
         for level, line in report.log:  # one call site per severity (rclpy requires it)
             if level == 'warning':
                 self.log.warning(line)
@@ -329,7 +307,7 @@ class CalibrationRun:
         """Identify over every row (and ``reused``), write the results (``stopping``: the record
         of a run that stops when good enough), publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
-        count = postures.commanded_count(settings, session.state)
+        count = _planned(self)
         self.save_state(PHASE_IDENTIFYING)
         samples, extra = reused_rows.for_identification(session, reused)
         extra |= {} if stopping is None else {'run_to_requirement': stopping}
@@ -358,8 +336,6 @@ class CalibrationRun:
         outcome, summary = finished.outcome, finished.summary
         if stopping is not None:
             summary += '\n' + run_to_requirement.summary_line(stopping)
-        if session.state.route_additions:
-            summary += '\n' + postures.route_additions_line(session.state.route_additions)
         residuals = outcome.result.residual_rms if outcome.result is not None else None
         if not outcome.success:
             log.error(summary)
@@ -386,3 +362,30 @@ class CalibrationRun:
             run_directory=session.run.path,
         )
         return success, format_response(summary, geometry)
+
+
+def _planned(run):
+    """The postures ``run`` (a :class:`CalibrationRun`) plans to command, additions included."""
+    return postures.commanded_count(run.settings, run.session.state)
+
+
+async def _ordered(run, poses):
+    """``(poses, record)``: a new run's selected ``poses`` (None: a resumed run keeps its own)
+    in route order (``posture_order: route``), with the additions the effect groups to identify
+    need (:func:`.postures.effect_route`: reference revisits, approach directions) and their
+    record (:func:`.postures.route_additions`; None: nothing added), said in the progress."""
+    if poses is None:
+        return None, None
+    settings = run.settings
+    if settings.posture_order == 'route':
+        poses = await run._route(poses)
+    start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
+    route = await run.host.in_thread(postures.effect_route, settings, poses, start)
+    if route is None:
+        return poses, None
+    groups = postures.route_effect_groups(settings.free_parameters)
+    additions = postures.route_additions(route, groups)
+    line = postures.route_additions_line(additions)
+    run.log.info(line)
+    run.host.progress(0, names.PHASE_SELECTING, line)
+    return route.poses, additions

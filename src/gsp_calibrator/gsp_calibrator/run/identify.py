@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from gsp_calibrator.run.approach import effect_design, reference_instant
-from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError
+from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError, route_additions_line
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import acceptance, identifiability, noise_from_data
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
@@ -353,10 +353,15 @@ def finish_run(run, settings, samples, collection, options):
 
     outcome = identify_with_settings(settings, samples)
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
-    added = (collection.get('route_additions') or {}).get('added_postures', 0)
+    additions = collection.get('route_additions') or {}
     summary = outcome_summary(
-        outcome, selected=settings.posture_count + added, skipped=skipped, run_directory=run.path
+        outcome,
+        selected=settings.posture_count + additions.get('added_postures', 0),
+        skipped=skipped,
+        run_directory=run.path,
     )
+    if additions:
+        summary += '\n' + route_additions_line(additions)
     report_error = ''
     if outcome.result is not None:
         try:
