@@ -169,13 +169,15 @@ def route_additions(route, groups):
 
 
 def route_additions_line(additions):
-    """One line saying what the route additions cost."""
+    """One line saying what the route additions cost (and the legs still arriving one way)."""
+    one_way = additions['one_way_legs']
     return (
         f'route for the effects ({", ".join(additions["groups"])}): {additions["added_postures"]} '
         f'postures added ({additions["reference_revisits"]} reference revisits, '
         f'{additions["approach_insertions"]} for the approach directions), '
         f'+{additions["added_s"]:.1f} s predicted ({additions["plain_s"]:.1f} -> '
         f'{additions["total_s"]:.1f} s)'
+        + (f'; legs {one_way} still arrive from one direction only' if one_way else '')
     )
 
 
