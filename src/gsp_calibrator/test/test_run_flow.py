@@ -54,6 +54,7 @@ class FakePlatform:
         self.failure_after = failure_after
         self.link = None
         self.commands = 0
+        self.commanded = []  #: the poses commanded, in order
 
     def hear_every_topic(self, collection):
         """Every sensor topic speaks once, at its current reading (the system check awaits it)."""
@@ -70,6 +71,7 @@ class FakePlatform:
             collection.sensor(topic, messages[topic], 0)
 
     def commander(self, pose):
+        self.commanded.append(np.array(pose, dtype=float))
         self.commands += 1
         k = self.commands
         return str(k), k * 1_000_000_000, lambda: self.link.feed(lambda _: self.end(k, pose))
@@ -357,3 +359,25 @@ def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp
     total = len(route.poses)
     assert any(text.startswith(f'posture {total} of {total}') for _, _, text in host.progress_log)
     assert f'{total} posture(s) of {total} commanded' in message
+
+
+def test_a_resumed_auto_run_keeps_its_route_with_the_revisits(tmp_path):
+    """A run that failed after 12 postures, resumed: it commands the rest of the augmented
+    route it started (the revisits among them), not a new one, and keeps its record."""
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    failed = FakeHost(failure_after=12)
+    success, _ = failed.serve(settings)
+    assert not success
+    started = _state(failed.session.run.path)
+    assert started['route_additions']['reference_revisits'] == 3
+    host = FakeHost(seed=1)
+    run = CalibrationRun(host.host, settings, True)
+    host.platform.hear_every_topic(run.collection)
+    host.run = run
+    success, message = asyncio.run(run.serve())
+    assert success, message
+    state = _state(host.session.run.path)
+    assert state['poses'] == started['poses'] and len(state['poses']) == 33
+    assert state['route_additions'] == started['route_additions']
+    # Rows 1-12 were kept; the resumed run commands postures 13-33 of the augmented route.
+    np.testing.assert_allclose(host.platform.commanded, started['poses'][12:], atol=1e-12)
