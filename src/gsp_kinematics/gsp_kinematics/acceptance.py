@@ -96,9 +96,12 @@ def accuracy_line(accuracy, predicted=None):
     """One line of the cross-validated accuracy (:meth:`gsp_kinematics.cross_validation.CrossValidation.summary`), the nominal
     baseline and the prediction (``{position_mm_mean, ...}`` or None)."""
     calibrated, nominal = accuracy['calibrated'], accuracy['nominal']
+    where = f'{accuracy["postures"]} postures'
+    if accuracy.get('measured_on') == 'workspace':
+        where = f'{accuracy["postures"]} workspace postures drawn at random'
     line = (
         f'accuracy measured by the device on held-out postures ({accuracy["folds"]}-fold '
-        f'cross-validation, {accuracy["postures"]} postures, measurement noise removed): '
+        f'cross-validation, {where}, measurement noise removed): '
         f'position {_mm(calibrated["position_mm"]["mean"])} mean, '
         f'{_mm(calibrated["position_mm"]["p95"])} p95; phi '
         f'{calibrated["phi_deg"]["mean"]:.2g} deg mean; nominal geometry '
@@ -106,6 +109,12 @@ def accuracy_line(accuracy, predicted=None):
     )
     if predicted and predicted.get('position_mm_mean') is not None:
         line += f'; predicted {_mm(predicted["position_mm_mean"])}'
+    selected = accuracy.get('selected')
+    if selected:
+        line += (
+            f"; on the {selected['postures']} selected postures (the workspace's extremes) "
+            f'{_mm(selected["calibrated"]["position_mm"]["mean"])}'
+        )
     return line
 
 

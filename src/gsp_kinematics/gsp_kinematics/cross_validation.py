@@ -134,32 +134,56 @@ class CrossValidation:
         """Postures predicted by the calibrated geometry of their fold."""
         return int(np.count_nonzero(np.isfinite(self.phi_error)))
 
-    def summary(self):
+    def summary(self, workspace=None):
         """JSON-ready: the calibrated and nominal accuracy, position (mm) and phi (deg), each
         ``{mean, p95, rms}`` with the noise removed, beside the measured ``measured_mean``,
         ``measured_p95``, the noise's own ``noise_rms`` and the ``noise_factor`` applied;
         ``per_posture``: each posture's measured position errors (mm, NaN: not predicted) and
-        its noise's standard deviation (mm), for plots."""
+        its noise's standard deviation (mm), for plots.
+
+        ``workspace`` (M,) bool: the rows of the run's workspace (validation) postures, drawn
+        at random from the workspace: the headline (``calibrated``, ``nominal``, ``postures``)
+        is then their held-out errors, an estimate of the mean over the workspace, and
+        ``selected`` holds the same figures over the other (selected) postures;
+        ``workspace_rows`` lists the rows (0-based). None or no row: every posture."""
         position = np.linalg.norm(self.position_error, axis=1)
         nominal = np.linalg.norm(self.nominal_position_error, axis=1)
-        degrees = math.degrees(1.0)
-        return {
+        count = position.shape[0]
+        rows = np.zeros(count, bool) if workspace is None else np.asarray(workspace, bool)
+        headline = rows if rows.any() else np.ones(count, bool)
+        summary = {
             'folds': self.folds,
-            'postures': self.predicted,
+            'postures': int(np.count_nonzero(np.isfinite(self.phi_error[headline]))),
+            'measured_on': 'workspace' if rows.any() else 'selected',
+            'workspace_rows': np.flatnonzero(rows).tolist(),
             'failed_folds': list(self.failed_folds),
             'duration_s': self.duration_s,
-            'calibrated': {
-                'position_mm': _statistics(position, self.position_noise, 1e3),
-                'phi_deg': _statistics(np.abs(self.phi_error), self.phi_noise, degrees),
-            },
-            'nominal': {
-                'position_mm': _statistics(nominal, self.position_noise, 1e3),
-                'phi_deg': _statistics(np.abs(self.nominal_phi_error), self.phi_noise, degrees),
-            },
+            **self._figures(position, nominal, headline),
             'per_posture': {
                 'position_mm': (1e3 * position).tolist(),
                 'nominal_position_mm': (1e3 * nominal).tolist(),
                 'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
+            },
+        }
+        if rows.any() and not rows.all():
+            summary['selected'] = {
+                'postures': int(np.count_nonzero(np.isfinite(self.phi_error[~rows]))),
+                **self._figures(position, nominal, ~rows),
+            }
+        return summary
+
+    def _figures(self, position, nominal, rows):
+        """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask)."""
+        degrees = math.degrees(1.0)
+        position_noise, phi_noise = self.position_noise[rows], self.phi_noise[rows]
+        return {
+            'calibrated': {
+                'position_mm': _statistics(position[rows], position_noise, 1e3),
+                'phi_deg': _statistics(np.abs(self.phi_error[rows]), phi_noise, degrees),
+            },
+            'nominal': {
+                'position_mm': _statistics(nominal[rows], position_noise, 1e3),
+                'phi_deg': _statistics(np.abs(self.nominal_phi_error[rows]), phi_noise, degrees),
             },
         }
 

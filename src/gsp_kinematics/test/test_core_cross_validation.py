@@ -8,6 +8,7 @@ import pytest
 
 from gsp_kinematics import noise_from_data
 from gsp_kinematics.cross_validation import (
+    CrossValidation,
     cross_validate,
     device_pose,
     fold_assignment,
@@ -85,6 +86,37 @@ def test_noise_removed_takes_the_noise_out_in_quadrature():
     assert rms == pytest.approx(3.0, rel=0.05)
     assert factor == pytest.approx(3.0 / 5.0, rel=0.05)
     assert noise_removed(np.ones(3), np.full(3, 4.0))[0] == 0.0  # never negative
+
+
+def test_the_headline_is_the_workspace_postures_held_out_error():
+    """With workspace rows, the measured accuracy is theirs (the selected postures, the
+    workspace's extremes, are a figure apart); without, every posture's."""
+    count = 8
+    workspace = np.arange(count) >= 5
+    position = np.zeros((count, 3))
+    position[:, 0] = np.where(workspace, 1e-3, 5e-3)  # m: 1 mm on the workspace postures
+    validation = CrossValidation(
+        folds=4,
+        fold_of_posture=np.arange(count) % 4,
+        position_error=position,
+        phi_error=np.zeros(count),
+        position_noise=np.zeros(count),
+        phi_noise=np.zeros(count),
+        nominal_position_error=10 * position,
+        nominal_phi_error=np.zeros(count),
+        failed_folds=(),
+        duration_s=0.0,
+    )
+    summary = validation.summary(workspace)
+    assert summary['measured_on'] == 'workspace' and summary['workspace_rows'] == [5, 6, 7]
+    assert summary['postures'] == 3
+    assert summary['calibrated']['position_mm']['mean'] == pytest.approx(1.0)
+    assert summary['nominal']['position_mm']['mean'] == pytest.approx(10.0)
+    assert summary['selected']['postures'] == 5
+    assert summary['selected']['calibrated']['position_mm']['mean'] == pytest.approx(5.0)
+    everything = validation.summary()
+    assert everything['measured_on'] == 'selected' and 'selected' not in everything
+    assert everything['calibrated']['position_mm']['mean'] == pytest.approx(3.5)
 
 
 @pytest.fixture(scope='module')

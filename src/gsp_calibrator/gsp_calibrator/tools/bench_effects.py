@@ -15,11 +15,14 @@ figures with ``auto`` and with the plain model: cross-validated / true, predicte
 calibrated / best 42-parameter geometry, applied fraction.
 """
 
+import dataclasses
 import math
 import statistics
 
 import numpy as np
 
+from gsp_calibrator.run.identify import uncompensated_thermal_strain, workspace_rows
+from gsp_calibrator.run.postures import workspace_postures
 from gsp_calibrator.tools.bench_verdict import (
     RUN_S,
     SAMPLES,
@@ -29,12 +32,15 @@ from gsp_calibrator.tools.bench_verdict import (
     effect_cases,
 )
 from gsp_kinematics import acceptance
+from gsp_kinematics.cross_validation import noise_removed
 from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route, effect_identifiability
+from gsp_kinematics.goodness import NOISE_CHANNELS
 from gsp_kinematics.identification import IdentificationError, identify
 from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.model_choice import choose_model
+from gsp_kinematics.noise_from_data import WithinNoise, estimate_row_noise, unmodelled_error
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
@@ -100,14 +106,44 @@ def noisy_rows(design, route, effects, seed):
     return run.leg_readings[ok] + noise[ok, :6], run.device_readings[ok] + noise[ok, 6:], ok
 
 
-def _figures(design, effects, result, cv_summary, reference_s):
+def known_noise_unmodelled(result, sigmas, rows):
+    """What ``result`` leaves unexplained (``noise_from_data.unmodelled_error``) with the
+    within-posture noise known (the configured ``sigmas`` of the ``rows`` averaged rows): as
+    the calibrator estimates it from the windows' scatter."""
+    within = {
+        channel: WithinNoise(getattr(sigmas, channel), rows * (SAMPLES - 1) * len(range(10)[c]))
+        for channel, c in NOISE_CHANNELS.items()
+    }
+    return unmodelled_error(estimate_row_noise(result, sigmas, within))
+
+
+def workspace_summary(summary, workspace):
+    """``summary`` (a ``CrossValidation.summary``) with its headline position over the
+    ``workspace`` rows (bool (M,)) from its per-posture errors and noise (noise removed)."""
+    if not np.any(workspace):
+        return summary
+    per = summary['per_posture']
+    errors = np.asarray(per['position_mm'])[workspace]
+    noise = np.asarray(per['noise_position_mm'])[workspace] ** 2
+    mean, p95, rms, _ = noise_removed(errors, noise)
+    position = {**summary['calibrated']['position_mm'], 'mean': mean, 'p95': p95, 'rms': rms}
+    return {**summary, 'calibrated': {**summary['calibrated'], 'position_mm': position}}
+
+
+def _figures(design, effects, result, cv_summary, rows):
     """True (mean, p90; over the run and at the geometry's reference instant), cross-validated
-    and predicted mean position errors (mm), applied."""
+    (held out on the workspace postures) and predicted mean position errors (mm, the unmodelled
+    error and the uncompensated thermal growth included as in the calibrator), applied."""
     errors = workspace_errors(design, effects, result.geometry)
-    at_reference = workspace_errors(design, effects, result.geometry, reference_s)
+    at_reference = workspace_errors(design, effects, result.geometry, rows.reference_time_s)
     geometric = int(result.free.sum())
+    sigmas = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
     prediction = predict_accuracy(
-        result.geometry, result.covariance[:geometric, :geometric], result.free
+        result.geometry,
+        result.covariance[:geometric, :geometric],
+        result.free,
+        unmodelled=known_noise_unmodelled(result, sigmas, len(result.poses)),
+        thermal_strain=uncompensated_thermal_strain(result, rows),
     )
     headline = accuracy_summary(prediction)
     verdict = acceptance.judge(cv_summary, design.settings.requirement, None, headline)
@@ -145,12 +181,17 @@ def one_run(design, route, effects, seed):
     chosen = next(c for c in choice.candidates if c.chosen)
     if plain.status <= 0:
         return {'failure': 'the plain model did not converge'}
+    workspace = workspace_rows(poses, workspace_postures(design.settings))
+    timed = dataclasses.replace(rows, thermal_time_constant_s=choice.thermal_time_constant_s)
+    plain_summary = choice.candidates[0].summary
     return {
         'groups': list(choice.groups),
         'thermal_time_constant_s': choice.thermal_time_constant_s,
-        'auto': _figures(design, effects, choice.result, chosen.summary, rows.reference_time_s),
+        'auto': _figures(
+            design, effects, choice.result, workspace_summary(chosen.summary, workspace), timed
+        ),
         'plain': _figures(
-            design, effects, plain, choice.candidates[0].summary, rows.reference_time_s
+            design, effects, plain, workspace_summary(plain_summary, workspace), rows
         ),
     }
 
