@@ -54,7 +54,7 @@ from gsp_msgs_py.parameter_specs import (
 )
 
 #: Workspace (validation) postures of a run by default (docs/verdict.md: chosen by the bench).
-DEFAULT_VALIDATION_POSTURES = 20
+DEFAULT_WORKSPACE_POSTURES = 20
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
@@ -160,8 +160,8 @@ PARAMETERS = (
         subsets=_RUN,
     ),
     ParameterSpec(
-        'validation_postures',
-        DEFAULT_VALIDATION_POSTURES,
+        'workspace_postures',
+        DEFAULT_WORKSPACE_POSTURES,
         'Workspace postures drawn at random (seeded by seed) and commanded with the selected '
         'ones: the measured accuracy is their cross-validated error, an estimate of the mean '
         'over the workspace (docs/verdict.md); 0: measured on the selected postures',
@@ -526,7 +526,7 @@ class _RunSettings:
     @property
     def commanded_posture_count(self):
         """Postures a new run commands: the selected and the workspace (validation) ones."""
-        return int(self.posture_count) + int(self.validation_postures)
+        return int(self.posture_count) + int(self.workspace_postures)
 
     @property
     def free_count(self):

@@ -24,7 +24,7 @@ import numpy as np
 
 from .device import DeviceModelError, device_position
 from .effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
-from .geometry import ALL_PARAMETER_NAMES
+from .geometry import ALL_PARAMETER_NAMES, Geometry
 from .identification import IdentificationError, Options, identify
 from .kinematics import forward_kinematics_masked
 from .prediction import reading_pose_covariance
@@ -75,26 +75,69 @@ def noise_variances(geometry, poses, readings, row_sigmas):
     return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
 
 
-def noise_removed(errors, variances):
+#: The device's own parameters: its errors move where the device says the platform is.
+DEVICE_PARAMETERS = ('D0', 'gamma', 'alpha0', 'beta0', 'phi0', 'kDm')
+
+
+def device_variances(result, readings, step=1e-7):
+    """The variance (position (M,) m^2, the trace; phi (M,) rad^2) of what the device measures
+    at ``readings`` (M, 4) under ``result``'s geometry from the uncertainty of its own free
+    parameters (:data:`DEVICE_PARAMETERS`, ``result.covariance``): an error the legs share (the
+    fit makes them agree with the device), which no held-out posture can see."""
+    readings = np.atleast_2d(np.asarray(readings, dtype=float))
+    free = [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
+    columns = [free.index(name) for name in DEVICE_PARAMETERS if name in free]
+    covariance = np.asarray(result.covariance, dtype=float)
+    if not columns or not np.all(np.isfinite(covariance[np.ix_(columns, columns)])):
+        return np.zeros(len(readings)), np.zeros(len(readings))
+    vector = result.geometry.to_full_vector()
+    limits = result.geometry.limits
+    base_position, base_phi = device_pose(result.geometry, readings)
+    position, phi = [], []
+    for column in columns:
+        moved = vector.copy()
+        moved[ALL_PARAMETER_NAMES.index(free[column])] += step
+        shifted, shifted_phi = device_pose(Geometry.from_full_vector(moved, limits), readings)
+        position.append((shifted - base_position) / step)
+        phi.append(wrap_angle(shifted_phi - base_phi) / step)
+    position, phi = np.stack(position, axis=2), np.stack(phi, axis=1)  # (M, 3, p), (M, p)
+    block = covariance[np.ix_(columns, columns)]
+    return (
+        np.einsum('mip,pq,miq->m', position, block, position),
+        np.einsum('mp,pq,mq->m', phi, block, phi),
+    )
+
+
+def noise_removed(errors, variances, shared=None):
     """``(mean, p95, rms, factor)`` of error magnitudes ``errors`` (K,) with the noise's
     ``variances`` (K,) removed: ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0))``
     scales the mean, the p95 and the rms (the noise's share of the mean squared error is taken
-    out in quadrature; the error's distribution is assumed to keep its shape)."""
+    out in quadrature; the error's distribution is assumed to keep its shape). ``shared`` (K,):
+    the variance of an error the held-out errors cannot see (the device's own, which the fit
+    gives the legs too: :func:`device_variances`), added in quadrature:
+    ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0) + sum(shared) / sum(errors^2))``."""
     errors = np.asarray(errors, dtype=float)
     variances = np.asarray(variances, dtype=float)
-    finite = np.isfinite(errors) & np.isfinite(variances)
+    shared = np.zeros_like(variances) if shared is None else np.asarray(shared, dtype=float)
+    finite = np.isfinite(errors) & np.isfinite(variances) & np.isfinite(shared)
     if not finite.any():
         return math.nan, math.nan, math.nan, math.nan
-    errors, variances = errors[finite], variances[finite]
+    errors, variances, shared = errors[finite], variances[finite], shared[finite]
     squared = float(np.sum(errors**2))
-    factor = math.sqrt(max(1.0 - float(np.sum(variances)) / squared, 0.0)) if squared > 0 else 0.0
+    factor = (
+        math.sqrt(
+            max(1.0 - float(np.sum(variances)) / squared, 0.0) + float(np.sum(shared)) / squared
+        )
+        if squared > 0
+        else 0.0
+    )
     mean, p95 = float(np.mean(errors)), float(np.percentile(errors, 95))
     rms = math.sqrt(squared / errors.size)
     return factor * mean, factor * p95, factor * rms, factor
 
 
-def _statistics(errors, variances, scale):
-    mean, p95, rms, factor = noise_removed(errors, variances)
+def _statistics(errors, variances, scale, shared=None):
+    mean, p95, rms, factor = noise_removed(errors, variances, shared)
     finite = np.isfinite(errors)
     raw = np.asarray(errors, dtype=float)[finite]
     return {
@@ -107,6 +150,9 @@ def _statistics(errors, variances, scale):
         if raw.size
         else math.nan,
         'noise_factor': factor,
+        'device_rms': scale * math.sqrt(float(np.mean(np.asarray(shared)[finite])))
+        if shared is not None and raw.size
+        else 0.0,
     }
 
 
@@ -128,6 +174,10 @@ class CrossValidation:
     nominal_phi_error: np.ndarray  #: (M,) rad
     failed_folds: tuple  #: folds whose fit did not converge (their postures are NaN)
     duration_s: float
+    #: (M,) m^2 and rad^2: the device's own uncertainty there (:func:`device_variances`), added
+    #: to the calibrated figures; None: not added
+    position_device: np.ndarray | None = None
+    phi_device: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -158,11 +208,17 @@ class CrossValidation:
             'workspace_rows': np.flatnonzero(rows).tolist(),
             'failed_folds': list(self.failed_folds),
             'duration_s': self.duration_s,
-            **self._figures(position, nominal, headline),
+            **self._figures(position, nominal, headline, device=bool(rows.any())),
             'per_posture': {
                 'position_mm': (1e3 * position).tolist(),
                 'nominal_position_mm': (1e3 * nominal).tolist(),
                 'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
+                'device_position_mm': (
+                    1e3
+                    * np.sqrt(
+                        np.zeros(count) if self.position_device is None else self.position_device
+                    )
+                ).tolist(),
             },
         }
         if rows.any() and not rows.all():
@@ -172,14 +228,21 @@ class CrossValidation:
             }
         return summary
 
-    def _figures(self, position, nominal, rows):
-        """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask)."""
+    def _figures(self, position, nominal, rows, device=False):
+        """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask); ``device``: the
+        device's own uncertainty added to the calibrated figures (the workspace postures': the
+        selected postures' larger errors already exceed it, docs/verdict.md)."""
         degrees = math.degrees(1.0)
         position_noise, phi_noise = self.position_noise[rows], self.phi_noise[rows]
+        device = device and self.position_device is not None
+        position_device = self.position_device[rows] if device else None
+        phi_device = self.phi_device[rows] if device else None
         return {
             'calibrated': {
-                'position_mm': _statistics(position[rows], position_noise, 1e3),
-                'phi_deg': _statistics(np.abs(self.phi_error[rows]), phi_noise, degrees),
+                'position_mm': _statistics(position[rows], position_noise, 1e3, position_device),
+                'phi_deg': _statistics(
+                    np.abs(self.phi_error[rows]), phi_noise, degrees, phi_device
+                ),
             },
             'nominal': {
                 'position_mm': _statistics(nominal[rows], position_noise, 1e3),
@@ -206,6 +269,7 @@ def cross_validate(
     options=Options(),
     noise=None,
     effects=None,
+    device_uncertainty=True,
 ):
     """Cross-validate the identification ``result`` (an ``IdentificationResult`` of the rows
     ``leg_lengths`` (M, 6) and ``readings`` (M, 4) with the row weights ``row_sigmas``): for
@@ -219,7 +283,9 @@ def cross_validate(
     None: ``row_sigmas``). Weights that hold a model error (estimated between postures) are not
     the noise: pass the within-posture noise here. ``effects``: the rows'
     :class:`~gsp_kinematics.effects.groups.EffectDesign` when ``result`` freed effect groups
-    (each fold is fitted with them and predicts its postures with what it identified)."""
+    (each fold is fitted with them and predicts its postures with what it identified).
+    ``device_uncertainty``: add the device's own uncertainty (:func:`device_variances`) to the
+    calibrated figures (False: the held-out errors alone)."""
     started = time.perf_counter()
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     readings = np.asarray(readings, dtype=float)
@@ -263,7 +329,10 @@ def cross_validate(
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
+    device = device_variances(result, readings) if device_uncertainty else (None, None)
     return CrossValidation(
+        position_device=device[0],
+        phi_device=device[1],
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
         position_error=position,

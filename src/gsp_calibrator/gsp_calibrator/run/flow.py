@@ -180,7 +180,7 @@ class CalibrationRun:
             )
             # The workspace postures join the selected ones (docs/verdict.md: the accuracy is
             # measured on them); the route orders them all.
-            poses = postures.with_workspace_postures(settings, selection.poses)
+            poses = postures.with_workspace_poses(settings, selection.poses)
         if poses is not None and settings.posture_order == 'route':
             poses = await self._route(poses)
         try:

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from gsp_calibrator.run.approach import effect_design, reference_instant
-from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError, workspace_postures
+from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError, workspace_poses
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import acceptance, identifiability, noise_from_data
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
@@ -119,7 +119,7 @@ def identify_from_samples(
     folds=DEFAULT_FOLDS,
     payload_mass=0.0,
     centre_of_mass=(0.0, 0.0, 0.0),
-    validation_poses=None,
+    workspace_poses=None,
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
@@ -135,7 +135,7 @@ def identify_from_samples(
     the goodness of fit, :attr:`CalibrationOutcome.fit_accepted`, is a diagnostic).
     Effect groups (or ``auto``) in ``free`` use the rows' times and approach directions and the
     user's ``payload_mass`` (kg) at ``centre_of_mass`` (platform frame, m).
-    ``validation_poses`` (K, 6): the run's workspace postures (``run.postures.workspace_postures``;
+    ``workspace_poses`` (K, 6): the run's workspace postures (``run.postures.workspace_poses``;
     None: none): the rows commanded at them are fitted like the others, and the measured
     accuracy is their held-out error (:func:`workspace_rows`).
     """
@@ -189,19 +189,19 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    workspace = workspace_rows(samples.commanded_poses, validation_poses)
+    workspace = workspace_rows(samples.commanded_poses, workspace_poses)
     judged = (requirement, folds, identify_options, effects, workspace)
     _judge(outcome, nominal, samples, estimates, row_sigmas, judged)
     return outcome
 
 
-def workspace_rows(commanded_poses, validation_poses, tolerance=1e-9):
-    """(M,) bool: the rows commanded (``commanded_poses`` (M, 6)) at one of ``validation_poses``
+def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
+    """(M,) bool: the rows commanded (``commanded_poses`` (M, 6)) at one of ``workspace_poses``
     (K, 6; None: none), the run's workspace postures (m, rad; same pose within ``tolerance``)."""
     commanded = np.asarray(commanded_poses, dtype=float).reshape(-1, 6)
-    if validation_poses is None or not len(validation_poses) or not len(commanded):
+    if workspace_poses is None or not len(workspace_poses) or not len(commanded):
         return np.zeros(len(commanded), bool)
-    poses = np.asarray(validation_poses, dtype=float).reshape(-1, 6)
+    poses = np.asarray(workspace_poses, dtype=float).reshape(-1, 6)
     distance = np.max(np.abs(commanded[:, None, :] - poses[None, :, :]), axis=2)
     return distance.min(axis=1) < tolerance
 
@@ -319,6 +319,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
         **extra,
     )
     outcome.accuracy = validation.summary(workspace)
+    outcome.accuracy['workspace_postures'] = [int(k) for k in samples.posture[workspace]]
     outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
     outcome.prediction = prediction_for(
         result,
@@ -360,7 +361,7 @@ def identify_with_settings(settings, samples):
         settings.cross_validation_folds,
         payload_mass=settings.payload_mass,
         centre_of_mass=settings.payload_centre_of_mass,
-        validation_poses=workspace_postures(settings),
+        workspace_poses=workspace_poses(settings),
         options=settings.identify_options(),
     )
 

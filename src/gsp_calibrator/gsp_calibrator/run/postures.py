@@ -98,24 +98,24 @@ def choose_postures(
 WORKSPACE_STREAM = 23
 
 
-def workspace_postures(settings):
-    """The run's workspace postures (K, 6), K = ``settings.validation_postures``: reachable
+def workspace_poses(settings):
+    """The run's workspace postures (K, 6), K = ``settings.workspace_postures``: reachable
     postures drawn at random over the workspace (seeded by ``settings.seed``, a stream apart
     from the pool's), commanded with the selected ones. Drawn at random, not selected, their
     held-out errors estimate the accuracy over the workspace (the selection's postures are its
     extremes). Any calibrator of the same settings (a resumed run, a rebuild from the
     recording, a re-identification) draws the same, so the rows are recognised by their
     commanded pose (``run.identify.workspace_rows``)."""
-    count = int(getattr(settings, 'validation_postures', 0))
+    count = int(getattr(settings, 'workspace_postures', 0))
     if count <= 0:
         return np.zeros((0, 6))
     rng = np.random.default_rng([int(settings.seed), WORKSPACE_STREAM])
     return sample_valid_postures(settings.nominal, count, rng)
 
 
-def with_workspace_postures(settings, poses):
-    """The selected ``poses`` (N, 6) and the run's :func:`workspace_postures` after them."""
-    return np.vstack([np.asarray(poses, dtype=float).reshape(-1, 6), workspace_postures(settings)])
+def with_workspace_poses(settings, poses):
+    """The selected ``poses`` (N, 6) and the run's :func:`workspace_poses` after them."""
+    return np.vstack([np.asarray(poses, dtype=float).reshape(-1, 6), workspace_poses(settings)])
 
 
 def route_start(nominal, leg_readings):

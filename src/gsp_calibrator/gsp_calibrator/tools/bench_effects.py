@@ -22,7 +22,7 @@ import statistics
 import numpy as np
 
 from gsp_calibrator.run.identify import uncompensated_thermal_strain, workspace_rows
-from gsp_calibrator.run.postures import workspace_postures
+from gsp_calibrator.run.postures import workspace_poses
 from gsp_calibrator.tools.bench_verdict import (
     RUN_S,
     SAMPLES,
@@ -125,7 +125,8 @@ def workspace_summary(summary, workspace):
     per = summary['per_posture']
     errors = np.asarray(per['position_mm'])[workspace]
     noise = np.asarray(per['noise_position_mm'])[workspace] ** 2
-    mean, p95, rms, _ = noise_removed(errors, noise)
+    device = np.asarray(per['device_position_mm'])[workspace] ** 2
+    mean, p95, rms, _ = noise_removed(errors, noise, device)
     position = {**summary['calibrated']['position_mm'], 'mean': mean, 'p95': p95, 'rms': rms}
     return {**summary, 'calibrated': {**summary['calibrated'], 'position_mm': position}}
 
@@ -181,7 +182,7 @@ def one_run(design, route, effects, seed):
     chosen = next(c for c in choice.candidates if c.chosen)
     if plain.status <= 0:
         return {'failure': 'the plain model did not converge'}
-    workspace = workspace_rows(poses, workspace_postures(design.settings))
+    workspace = workspace_rows(poses, workspace_poses(design.settings))
     timed = dataclasses.replace(rows, thermal_time_constant_s=choice.thermal_time_constant_s)
     plain_summary = choice.candidates[0].summary
     return {
@@ -221,8 +222,30 @@ def _model_figures(runs, model, best_mm):
         'predicted_over_true': _median(predicted),
         'predicted_within_1.3x': sum(1 / 1.3 <= r <= 1.3 for r in predicted) / max(len(done), 1),
         'calibrated_over_best': _median(ratio),
+        'calibrated_within_1.3x_of_best': sum(r <= 1.3 for r in ratio) / max(len(done), 1)
+        if ratio
+        else math.nan,
         'applied_fraction': sum(run['applied'] for run in done) / max(len(runs), 1),
+        'per_seed_true_mm': [run['true_mm'] for run in done],
     }
+
+
+def _against_ideal_floor(cases):
+    """Per case and model: calibrated / max(best, the ideal platform's median true accuracy of
+    the same model and plan), median and fraction of seeds within 1.3x: below the ideal's, the
+    best geometry is under the plan's noise floor (docs/verdict.md)."""
+    for model in ('auto', 'plain'):
+        floor = cases['ideal'][model]['true_mm_median']
+        for case in cases.values():
+            best = case['best_mm']
+            if not best > 1e-9:
+                continue
+            ratios = [t / max(best, floor) for t in case[model]['per_seed_true_mm']]
+            figures = case[model]
+            figures['calibrated_over_best_or_ideal'] = _median(ratios)
+            figures['calibrated_within_1.3x_of_best_or_ideal'] = sum(
+                r <= 1.3 for r in ratios
+            ) / max(len(ratios), 1)
 
 
 def case_figures(design, route, name, effects, seeds, runs=None):
@@ -276,6 +299,7 @@ def run(quick=False):
         for name, effects in effect_cases().items()
     }
     _against_ideal(cases)
+    _against_ideal_floor(cases)
     sigmas = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
     plan_design = route.design(REALISTIC.payload_mass, REALISTIC.centre_of_mass)
     identifiability = effect_identifiability(
@@ -287,8 +311,10 @@ def run(quick=False):
             'default noise) augmented for all four groups (thermal reference revisits every 10 '
             'postures, both approach directions); auto: forward selection by 5-fold '
             'cross-validation (min_gain 15 %, configured noise), plain: extended on the same '
-            'rows; truth: 50 random postures on the simulated platform over the run; medians '
-            'over seeds'
+            'rows; measured: held out on the workspace postures (workspace_postures), the '
+            "device's own uncertainty added; predicted: with the unmodelled error and the "
+            'uncompensated thermal growth; truth: 50 random postures on the simulated platform '
+            'over the run; medians over seeds'
         ),
         'targets': {
             'over_ideal': '<= 1.5 (auto, each case)',
@@ -297,6 +323,7 @@ def run(quick=False):
             'cv_over_true': 'within 25 %',
             'predicted_over_true': 'within 1.3x',
             'calibrated_over_best': '<= 1.3',
+            'calibrated_over_best_or_ideal': '<= 1.3 (max(best, ideal): the noise floor)',
         },
         'plan': {'route': route.to_dict(), 'costs': plan_costs(design)},
         'identifiability': identifiability,

@@ -81,7 +81,7 @@ def default_design(values=None):
     selection = postures.choose_postures(
         nominal, settings.posture_count, settings.pool_size, seed=settings.seed
     )
-    commanded = postures.with_workspace_postures(settings, selection.poses)
+    commanded = postures.with_workspace_poses(settings, selection.poses)
     route = postures.posture_route(settings, commanded, home_pose())
     rng = np.random.default_rng(1)
     return Design(
@@ -275,7 +275,7 @@ def run(quick=False):
             'shipped pair, the calibrator default plan (60 of 600, route order over 900 s), 10 '
             'samples per posture at the default noise, the calibrator pipeline (extended, noise '
             'estimated, 10-fold cross-validation, default requirement); the measured accuracy held '
-            'out on the workspace postures (validation_postures, drawn at random, commanded with '
+            'out on the workspace postures (workspace_postures, drawn at random, commanded with '
             'the selected ones; cv_selected: on the selected postures); truth: validation over 50 '
             'random postures on the simulated platform with its effects; medians over seeds'
         ),
