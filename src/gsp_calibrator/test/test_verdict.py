@@ -22,7 +22,14 @@ from gsp_kinematics.identification import PARAMETER_GROUPS
 
 @pytest.fixture(scope='module')
 def design():
-    """The calibrator's default plan on the shipped pair (bench_verdict.default_design)."""
+    """The calibrator's selected postures on the shipped pair, without workspace postures
+    (bench_verdict.default_design)."""
+    return bench_verdict.default_design({'workspace_postures': 0})
+
+
+@pytest.fixture(scope='module')
+def workspace_design():
+    """The calibrator's default plan: the selected and the workspace postures."""
     return bench_verdict.default_design()
 
 
@@ -115,10 +122,11 @@ def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):
     assert true_mm > 0.1  # and over the workspace it is indeed worse than required
 
 
-def test_the_accuracy_is_measured_on_the_workspace_poses(design):
+def test_the_accuracy_is_measured_on_the_workspace_postures(workspace_design):
     """The run commands the workspace postures (drawn at random, not selected) with the selected
     ones; the identification recognises their rows by the commanded pose and measures the
     accuracy on them (the selected postures' figure beside it), naming their posture numbers."""
+    design = workspace_design
     settings = design.settings
     workspace = postures.workspace_poses(settings)
     assert len(workspace) == settings.workspace_postures > 0
@@ -138,10 +146,11 @@ def test_the_accuracy_is_measured_on_the_workspace_poses(design):
     assert plain.accuracy['measured_on'] == 'selected' and 'selected' not in plain.accuracy
 
 
-def test_the_prediction_adds_the_uncompensated_thermal_growth(design):
+def test_the_prediction_adds_the_uncompensated_thermal_growth(workspace_design):
     """Thermal growth identified (the thermal group freed) is not compensated by the
     controllers: the prediction adds its cost over the run's span and says so; with it the
     prediction meets the truth within 1.3x, without it it is too optimistic."""
+    design = workspace_design
     settings = design.settings
     thermal = bench_verdict.effect_cases()['thermal']
     samples = bench_verdict.simulated_samples(design, thermal, seed=0)
