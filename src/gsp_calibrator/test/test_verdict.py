@@ -22,15 +22,14 @@ from gsp_kinematics.identification import PARAMETER_GROUPS
 
 @pytest.fixture(scope='module')
 def design():
-    """The calibrator's selected postures on the shipped pair, without workspace postures
-    (bench_verdict.default_design)."""
-    return bench_verdict.default_design({'workspace_postures': 0})
+    """The calibrator's default plan on the shipped pair (bench_verdict.default_design)."""
+    return bench_verdict.default_design()
 
 
 @pytest.fixture(scope='module')
 def workspace_design():
-    """The calibrator's default plan: the selected and the workspace postures."""
-    return bench_verdict.default_design()
+    """The default plan with 20 workspace postures commanded with the selected ones."""
+    return bench_verdict.default_design({'workspace_postures': bench_verdict.WORKSPACE_POSTURES})
 
 
 def calibrate(design, samples, nominal=None, free=None):
