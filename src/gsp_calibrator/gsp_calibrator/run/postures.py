@@ -106,11 +106,17 @@ def workspace_poses(settings):
     extremes). Any calibrator of the same settings (a resumed run, a rebuild from the
     recording, a re-identification) draws the same, so the rows are recognised by their
     commanded pose (``run.identify.workspace_rows``)."""
-    count = int(getattr(settings, 'workspace_postures', 0))
+    return workspace_poses_of(settings.nominal, settings.workspace_postures, settings.seed)
+
+
+def workspace_poses_of(nominal, count, seed):
+    """:func:`workspace_poses` of a run's ``nominal`` geometry, ``workspace_postures`` (count)
+    and ``seed`` (e.g. from its stored options: a run stored before them has none)."""
+    count = int(count or 0)
     if count <= 0:
         return np.zeros((0, 6))
-    rng = np.random.default_rng([int(settings.seed), WORKSPACE_STREAM])
-    return sample_valid_postures(settings.nominal, count, rng)
+    rng = np.random.default_rng([int(seed), WORKSPACE_STREAM])
+    return sample_valid_postures(nominal, count, rng)
 
 
 def with_workspace_poses(settings, poses):
