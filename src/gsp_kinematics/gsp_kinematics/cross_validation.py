@@ -269,23 +269,18 @@ def cross_validate(
     options=Options(),
     noise=None,
     effects=None,
-    device_uncertainty=True,
 ):
-    """Cross-validate the identification ``result`` (an ``IdentificationResult`` of the rows
-    ``leg_lengths`` (M, 6) and ``readings`` (M, 4) with the row weights ``row_sigmas``): for
-    each fold, identify without it (the same formulation and free parameters, from ``result``'s
-    estimate and poses) and predict its postures; the ``nominal`` geometry predicts every
-    posture. Returns a :class:`CrossValidation`.
+    """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
+    (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
+    (same formulation and free parameters, from ``result``'s estimate and poses) and predicts
+    its postures; the ``nominal`` geometry predicts every posture.
 
-    The device's reference of a held-out posture uses the device parameters of the fit that did
-    not see it, the nominal baseline those of the full fit (its best estimate of the device).
-    ``noise``: the rows' measurement noise removed from the errors (a SensorNoise of the rows;
-    None: ``row_sigmas``). Weights that hold a model error (estimated between postures) are not
-    the noise: pass the within-posture noise here. ``effects``: the rows'
-    :class:`~gsp_kinematics.effects.groups.EffectDesign` when ``result`` freed effect groups
-    (each fold is fitted with them and predicts its postures with what it identified).
-    ``device_uncertainty``: add the device's own uncertainty (:func:`device_variances`) to the
-    calibrated figures (False: the held-out errors alone)."""
+    A held-out posture's device reference uses the device parameters of the fit without it, the
+    nominal baseline the full fit's. ``noise``: the rows' measurement noise removed from the
+    errors (a SensorNoise; None: ``row_sigmas``); weights that hold a model error are not the
+    noise: pass the within-posture noise. ``effects``: the rows' ``EffectDesign`` when
+    ``result`` freed effect groups (each fold fits them and predicts with what it identified).
+    The device's own uncertainty (:func:`device_variances`) is kept for the summary."""
     started = time.perf_counter()
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     readings = np.asarray(readings, dtype=float)
@@ -329,10 +324,10 @@ def cross_validate(
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
-    device = device_variances(result, readings) if device_uncertainty else (None, None)
+    position_device, phi_device = device_variances(result, readings)
     return CrossValidation(
-        position_device=device[0],
-        phi_device=device[1],
+        position_device=position_device,
+        phi_device=phi_device,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
         position_error=position,

@@ -178,8 +178,6 @@ class CalibrationRun:
                 f'{len(selection.poses)} postures selected (scaled condition number '
                 f'{selection.condition_number:.4g})'
             )
-            # The workspace postures join the selected ones (docs/verdict.md: the accuracy is
-            # measured on them); the route orders them all.
             poses = postures.with_workspace_poses(settings, selection.poses)
         if poses is not None and settings.posture_order == 'route':
             poses = await self._route(poses)

@@ -124,21 +124,16 @@ def identify_from_samples(
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
-    ``samples`` is a :class:`.directory.Samples`; ``sigmas`` are per-sample noise levels (m, rad),
-    scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
+    ``samples``: a :class:`.directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
+    ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
-    converge, or leaves free parameters unidentifiable. The rows' window lag sums
-    (``samples.lag_sums``) give the within-posture noise estimate (rows without: none).
-    ``noise_source``: ``estimated`` or ``configured``
-    (:func:`noise_from_data.identify_with_noise`). A successful outcome is cross-validated
-    over ``folds`` folds and judged against ``requirement`` (:attr:`CalibrationOutcome.accepted`;
-    the goodness of fit, :attr:`CalibrationOutcome.fit_accepted`, is a diagnostic).
-    Effect groups (or ``auto``) in ``free`` use the rows' times and approach directions and the
-    user's ``payload_mass`` (kg) at ``centre_of_mass`` (platform frame, m).
-    ``workspace_poses`` (K, 6): the run's workspace postures (``run.postures.workspace_poses``;
-    None: none): the rows commanded at them are fitted like the others, and the measured
-    accuracy is their held-out error (:func:`workspace_rows`).
-    """
+    converge, or leaves free parameters unidentifiable. The rows' lag sums give the
+    within-posture noise; ``noise_source``: ``estimated`` or ``configured``
+    (:func:`noise_from_data.identify_with_noise`). A success is cross-validated over ``folds``
+    folds and judged against ``requirement`` (``accepted``; ``fit_accepted`` is a diagnostic),
+    its measured accuracy the held-out error of the rows commanded at ``workspace_poses`` (K, 6;
+    None: of every row; :func:`workspace_rows`). Effects (or ``auto``) in ``free`` use the rows'
+    times and directions and ``payload_mass`` (kg) at ``centre_of_mass`` (platform, m)."""
     free = _checked_free(free, formulation, noise_source)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -189,8 +184,8 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    workspace = workspace_rows(samples.commanded_poses, workspace_poses)
-    judged = (requirement, folds, identify_options, effects, workspace)
+    judged = (requirement, folds, identify_options, effects)
+    judged += (workspace_rows(samples.commanded_poses, workspace_poses),)
     _judge(outcome, nominal, samples, estimates, row_sigmas, judged)
     return outcome
 
