@@ -27,7 +27,7 @@ from .effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
 from .geometry import ALL_PARAMETER_NAMES, Geometry
 from .identification import IdentificationError, Options, identify
 from .kinematics import forward_kinematics_masked
-from .prediction import reading_pose_covariance
+from .prediction import reading_pose_covariance, thermal_pose_covariance
 from .rotation import wrap_angle
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
@@ -150,10 +150,15 @@ def _statistics(errors, variances, scale, shared=None):
         if raw.size
         else math.nan,
         'noise_factor': factor,
-        'device_rms': scale * math.sqrt(float(np.mean(np.asarray(shared)[finite])))
-        if shared is not None and raw.size
-        else 0.0,
     }
+
+
+def _rms(variances, errors, scale):
+    """``scale`` x the rms of ``variances`` over the finite ``errors`` (0 without them)."""
+    finite = np.isfinite(errors)
+    if variances is None or not finite.any():
+        return 0.0
+    return scale * math.sqrt(float(np.mean(np.asarray(variances)[finite])))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,6 +183,9 @@ class CrossValidation:
     #: to the calibrated figures; None: not added
     position_device: np.ndarray | None = None
     phi_device: np.ndarray | None = None
+    #: (M,) m^2: the pose error a controller leaves uncompensated there (the identified thermal
+    #: growth over the run), added to every calibrated position figure; None: none
+    position_uncompensated: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -213,6 +221,11 @@ class CrossValidation:
                 'position_mm': (1e3 * position).tolist(),
                 'nominal_position_mm': (1e3 * nominal).tolist(),
                 'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
+                'uncompensated_position_mm': (
+                    1e3 * np.sqrt(self.position_uncompensated)
+                    if self.position_uncompensated is not None
+                    else np.zeros(count)
+                ).tolist(),
                 'device_position_mm': (
                     1e3
                     * np.sqrt(
@@ -237,9 +250,17 @@ class CrossValidation:
         device = device and self.position_device is not None
         position_device = self.position_device[rows] if device else None
         phi_device = self.phi_device[rows] if device else None
+        uncompensated = self.position_uncompensated
+        uncompensated = None if uncompensated is None else uncompensated[rows]
+        shared = [v for v in (position_device, uncompensated) if v is not None]
+        calibrated = _statistics(
+            position[rows], position_noise, 1e3, sum(shared) if shared else None
+        )
+        calibrated['device_rms'] = _rms(position_device, position[rows], 1e3)
+        calibrated['uncompensated_rms'] = _rms(uncompensated, position[rows], 1e3)
         return {
             'calibrated': {
-                'position_mm': _statistics(position[rows], position_noise, 1e3, position_device),
+                'position_mm': calibrated,
                 'phi_deg': _statistics(
                     np.abs(self.phi_error[rows]), phi_noise, degrees, phi_device
                 ),
@@ -269,6 +290,7 @@ def cross_validate(
     options=Options(),
     noise=None,
     effects=None,
+    uncompensated_strain=None,
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
     (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
@@ -280,7 +302,8 @@ def cross_validate(
     errors (a SensorNoise; None: ``row_sigmas``); weights that hold a model error are not the
     noise: pass the within-posture noise. ``effects``: the rows' ``EffectDesign`` when
     ``result`` freed effect groups (each fold fits them and predicts with what it identified).
-    The device's own uncertainty (:func:`device_variances`) is kept for the summary."""
+    Kept for the summary: the device's own uncertainty (:func:`device_variances`) and the pose
+    error of ``uncompensated_strain`` (6,), the thermal growth the controllers leave."""
     started = time.perf_counter()
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     readings = np.asarray(readings, dtype=float)
@@ -325,7 +348,12 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     position_device, phi_device = device_variances(result, readings)
+    uncompensated = None
+    if uncompensated_strain is not None:
+        thermal, _ = thermal_pose_covariance(result.geometry, guesses, uncompensated_strain)
+        uncompensated = np.trace(thermal, axis1=1, axis2=2)
     return CrossValidation(
+        position_uncompensated=uncompensated,
         position_device=position_device,
         phi_device=phi_device,
         folds=int(assignment.max()) + 1,

@@ -302,6 +302,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
     )
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
+    thermal = uncompensated_thermal_strain(result, effects)
     validation = cross_validate(
         result,
         nominal,
@@ -311,6 +312,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
         folds=folds,
         noise=noise,
         effects=effects,
+        uncompensated_strain=thermal,
         **extra,
     )
     outcome.accuracy = validation.summary(workspace)
@@ -320,7 +322,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
         result,
         analysis=outcome.identifiability,
         unmodelled=outcome.unmodelled,
-        thermal_strain=uncompensated_thermal_strain(result, effects),
+        thermal_strain=thermal,
     )
     headline = None
     if outcome.prediction is not None:

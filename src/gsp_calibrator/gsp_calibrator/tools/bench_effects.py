@@ -41,7 +41,11 @@ from gsp_kinematics.identification import IdentificationError, identify
 from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.model_choice import choose_model
 from gsp_kinematics.noise_from_data import WithinNoise, estimate_row_noise, unmodelled_error
-from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
+from gsp_kinematics.prediction import (
+    accuracy_summary,
+    predict_accuracy,
+    thermal_pose_covariance,
+)
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_kinematics.validation import pose_errors, simulate_commands
@@ -117,18 +121,33 @@ def known_noise_unmodelled(result, sigmas, rows):
     return unmodelled_error(estimate_row_noise(result, sigmas, within))
 
 
-def workspace_summary(summary, workspace):
-    """``summary`` (a ``CrossValidation.summary``) with its headline position over the
-    ``workspace`` rows (bool (M,)) from its per-posture errors and noise (noise removed)."""
-    if not np.any(workspace):
-        return summary
+def workspace_summary(summary, workspace, uncompensated=None):
+    """``summary`` (a ``CrossValidation.summary`` over every row) as the calibrator gives it:
+    the headline over the ``workspace`` rows (bool (M,); none: every row) with the device's own
+    uncertainty added there, and ``uncompensated`` (M,) m^2 (the thermal growth's pose error the
+    controllers leave; None: none) added (noise removed)."""
     per = summary['per_posture']
-    errors = np.asarray(per['position_mm'])[workspace]
-    noise = np.asarray(per['noise_position_mm'])[workspace] ** 2
-    device = np.asarray(per['device_position_mm'])[workspace] ** 2
-    mean, p95, rms, _ = noise_removed(errors, noise, device)
+    rows = workspace if np.any(workspace) else np.ones(len(per['position_mm']), bool)
+    errors = np.asarray(per['position_mm'])[rows]
+    noise = np.asarray(per['noise_position_mm'])[rows] ** 2
+    shared = np.zeros(errors.shape)
+    if np.any(workspace):
+        shared += np.asarray(per['device_position_mm'])[rows] ** 2
+    if uncompensated is not None:
+        shared += 1e6 * np.asarray(uncompensated)[rows]
+    mean, p95, rms, _ = noise_removed(errors, noise, shared)
     position = {**summary['calibrated']['position_mm'], 'mean': mean, 'p95': p95, 'rms': rms}
     return {**summary, 'calibrated': {**summary['calibrated'], 'position_mm': position}}
+
+
+def uncompensated_variances(result, rows):
+    """(M,) m^2 at ``result``'s poses: the pose error of the thermal growth it identified on the
+    run's ``rows`` (``EffectDesign``) that the controllers leave; None without it."""
+    strain = uncompensated_thermal_strain(result, rows)
+    if strain is None:
+        return None
+    position, _ = thermal_pose_covariance(result.geometry, result.poses, strain)
+    return np.trace(position, axis1=1, axis2=2)
 
 
 def _figures(design, effects, result, cv_summary, rows):
@@ -189,7 +208,13 @@ def one_run(design, route, effects, seed):
         'groups': list(choice.groups),
         'thermal_time_constant_s': choice.thermal_time_constant_s,
         'auto': _figures(
-            design, effects, choice.result, workspace_summary(chosen.summary, workspace), timed
+            design,
+            effects,
+            choice.result,
+            workspace_summary(
+                chosen.summary, workspace, uncompensated_variances(choice.result, timed)
+            ),
+            timed,
         ),
         'plain': _figures(
             design, effects, plain, workspace_summary(plain_summary, workspace), rows
