@@ -280,6 +280,15 @@ def fold_assignment(count, folds=DEFAULT_FOLDS):
     return np.arange(count) % min(int(folds), count)
 
 
+def _uncompensated(geometry, poses, strain):
+    """(M,) m^2: the position error the thermal ``strain`` (6,) leaves at ``poses`` (None:
+    none)."""
+    if strain is None:
+        return None
+    position, _ = thermal_pose_covariance(geometry, poses, strain)
+    return np.trace(position, axis1=1, axis2=2)
+
+
 def cross_validate(
     result,
     nominal,
@@ -302,17 +311,13 @@ def cross_validate(
     errors (a SensorNoise; None: ``row_sigmas``); weights that hold a model error are not the
     noise: pass the within-posture noise. ``effects``: the rows' ``EffectDesign`` when
     ``result`` freed effect groups (each fold fits them and predicts with what it identified).
-    Kept for the summary: the device's own uncertainty (:func:`device_variances`) and the pose
-    error of ``uncompensated_strain`` (6,), the thermal growth the controllers leave."""
+    ``uncompensated_strain`` (6,): the thermal growth the controllers leave (its error kept)."""
     started = time.perf_counter()
-    leg_lengths = np.asarray(leg_lengths, dtype=float)
-    readings = np.asarray(readings, dtype=float)
+    leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
-    position = np.full((count, 3), np.nan)
-    phi = np.full(count, np.nan)
-    failed = []
+    position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
     free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
     free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
     for fold in range(int(assignment.max()) + 1):
@@ -348,12 +353,8 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     position_device, phi_device = device_variances(result, readings)
-    uncompensated = None
-    if uncompensated_strain is not None:
-        thermal, _ = thermal_pose_covariance(result.geometry, guesses, uncompensated_strain)
-        uncompensated = np.trace(thermal, axis1=1, axis2=2)
     return CrossValidation(
-        position_uncompensated=uncompensated,
+        position_uncompensated=_uncompensated(result.geometry, guesses, uncompensated_strain),
         position_device=position_device,
         phi_device=phi_device,
         folds=int(assignment.max()) + 1,
