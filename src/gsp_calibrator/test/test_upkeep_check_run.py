@@ -79,6 +79,24 @@ def test_a_check_of_the_calibrated_platform_then_of_a_moved_leg(root, tmp_path):
     assert [change['parameter'] for change in last['changes']] == ['Loff5']
 
 
+def test_legs_grown_alike_within_the_requirement_are_a_note(root):
+    # Every leg +10 um since the calibration (a warmer platform): about 0.011 mm on the pose,
+    # within 0.05 mm. Within tolerance, no leg named, and the summary says why in a note.
+    design = UpkeepDesign.default()
+    reference = check_run.check_reference(root, 'hexapod-7')
+    plan = check_run.check_plan(reference, home_pose(), 600, 0, SIGMAS, SAMPLES, MotionLimits())
+    platform = changed_truth(design.true, 'Loff3', 20e-6)  # what the last calibration saw
+    for leg in range(1, 7):
+        platform = changed_truth(platform, f'Loff{leg}', 10e-6)
+    data = check_run.evaluate_check(
+        reference, collected(platform, reference, plan, 9), SIGMAS, REQUIRED, 'hexapod-7', 55.0
+    )
+    assert (data['verdict'], data['moved_legs']) == ('within tolerance', []), data['reasons']
+    text = check_run.check_summary(data)
+    assert text.startswith('check: WITHIN TOLERANCE')
+    assert '\n  note: warm up / common growth: all six leg offsets changed alike' in text
+
+
 def test_too_few_rows_are_refused(root):
     reference = check_run.check_reference(root, 'hexapod-7')
     with pytest.raises(check_run.CheckError, match='at least 2 postures, 1 collected'):

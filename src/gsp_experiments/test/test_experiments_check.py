@@ -95,28 +95,44 @@ def test_a_posture_the_platform_already_holds_is_not_chosen(calibrated):
     assert held not in again.pool_indices
 
 
-def test_legs_grown_alike_say_so_and_name_no_leg(calibrated):
-    # Thermal growth: every leg offset +10 um (the legs of a platform warmer than at its
-    # calibration). The check sees the change, and names no leg.
-    true = calibrated[0].true
+def grown_alike(true, change_m):
     for leg in range(1, 7):
-        true = changed_truth(true, f'Loff{leg}', 10e-6)
-    data = run_check(calibrated, true, seed=41)
-    assert data['verdict'] == 'recalibrate' and data['moved_legs'] == [], data['moved']
+        true = changed_truth(true, f'Loff{leg}', change_m)
+    return true
+
+
+def test_legs_grown_alike_within_the_requirement_are_within_tolerance(calibrated):
+    # Thermal growth: every leg offset +10 um (the legs of a platform warmer than at its
+    # calibration). The check sees the change and names no leg; it moves the platform by about
+    # 0.01 mm, within the 0.05 mm required: within tolerance, with a note (before: recalibrate).
+    data = run_check(calibrated, grown_alike(calibrated[0].true, 10e-6), seed=41)
+    assert data['verdict'] == 'within tolerance', data['reasons']
+    assert data['moved_legs'] == [] and data['reasons'] == [], data['moved']
     common = data['common_change']
     assert common['alike'] and abs(common['change_um'] - 10.0) < 4 * common['sigma_um']
-    assert 'all six leg offsets changed alike' in data['reasons'][0]
+    assert common['effect']['position_mm_bound'] < REQUIRED.position_mm
+    assert data['notes'][0].startswith('warm up / common growth: all six leg offsets')
     # One leg moved is not a common change.
     moved = run_check(calibrated, changed_truth(calibrated[0].true, 'Loff3', 20e-6), seed=41)
     assert not moved['common_change']['alike'] and moved['moved_legs'] == [3]
 
 
+def test_legs_grown_alike_beyond_the_requirement_say_warm_up_and_name_no_leg(calibrated):
+    # Every leg offset +10 um against a requirement of 0.005 mm, which their common change
+    # exceeds: recalibrate, the reason is the common growth, and no leg is named.
+    tight = acceptance.Requirement(position_mm=0.005, orientation_deg=0.01)
+    data = run_check(calibrated, grown_alike(calibrated[0].true, 10e-6), seed=41, required=tight)
+    assert data['verdict'] == 'recalibrate' and data['moved_legs'] == [], data['moved']
+    common = data['common_change']
+    assert common['alike'] and common['effect']['position_mm_bound'] > tight.position_mm
+    assert any(reason.startswith('warm up / common growth') for reason in data['reasons'])
+    assert 'beyond the required accuracy' in data['reasons'][-1]
+
+
 def test_a_leg_moved_on_legs_grown_alike_is_named(calibrated):
     # Every leg +10 um (warmer) and leg 3 another +20 um: the common change is taken out before
     # the legs are named, so leg 3 is named alone (without: legs 2, 4 and 5 were named).
-    true = changed_truth(calibrated[0].true, 'Loff3', 20e-6)
-    for leg in range(1, 7):
-        true = changed_truth(true, f'Loff{leg}', 10e-6)
+    true = grown_alike(changed_truth(calibrated[0].true, 'Loff3', 20e-6), 10e-6)
     data = run_check(calibrated, true, seed=41)
     common = data['common_change']
     assert common['significant'] and not common['alike']

@@ -137,7 +137,7 @@ def localise(change, weight, level=DEFAULT_LEVEL, dof=None):
     return [tuple(entry) for entry in named], (statistic, rest_dof, p_value)
 
 
-def _pose_effect(geometry, names, vector, covariance, poses):
+def pose_effect(geometry, names, vector, covariance, poses):
     """Effect of parameter changes ``vector`` (over ``names``) at ``poses``: mean, p95, max of
     the position (mm) and orientation (deg) change, and the 1-sigma expected magnitude of the
     change's uncertainty ``covariance``."""
@@ -251,9 +251,9 @@ def compare(first, second, level=DEFAULT_LEVEL, poses=None):
     geometry = second.geometry if second.geometry is not None else first.geometry
     if geometry is not None:
         poses = effect_poses(geometry) if poses is None else poses
-        data['effect'] = {'all': _pose_effect(geometry, names, change, covariance, poses)}
+        data['effect'] = {'all': pose_effect(geometry, names, change, covariance, poses)}
         if named:
             chosen = [names[index] for index, *_ in named]
             values = [value for _, value, *_ in named]
-            data['effect']['significant'] = _pose_effect(geometry, chosen, values, None, poses)
+            data['effect']['significant'] = pose_effect(geometry, chosen, values, None, poses)
     return data

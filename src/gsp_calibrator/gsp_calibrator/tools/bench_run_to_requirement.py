@@ -12,7 +12,10 @@ the requirement, else adds pool postures by information per second (at most ``MA
 of the bench: the calibrator's default is 60). Each posture is simulated on the real platform at
 its platform time (scaled so the plan spans the default run's 15 min of warming), after the
 previous one (backlash), with the default noise. Also given, from the same judgements: where the
-run would stop with the default plan's own 95 % bound as the requirement.
+run would stop with the default plan's own 95 % bound as the requirement; at half the plan's
+platform time (the target's budget), the run's last judgement (its cross-validated mean, bound and
+true error); and what more samples per posture buy (``DWELL_SAMPLES``): the plan, and its first
+half, measured with them.
 """
 
 import dataclasses
@@ -33,7 +36,7 @@ from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.prediction import accuracy_summary
 from gsp_kinematics.selection import posture_information
-from gsp_kinematics.travel.motion import posture_leg_lengths
+from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
 from gsp_kinematics.validation import simulate_commands
 
 SEEDS = 20
@@ -41,6 +44,8 @@ QUICK_SEEDS = 1
 MINIMUM = 30  #: postures of the first judgement (the calibrator's default)
 EVERY = 4  #: postures between judgements
 MAX_ADDED = 24  #: pool postures added at most (the bench's cap)
+#: Samples per posture of the dwell comparison (4x the default: half the noise's std)
+DWELL_SAMPLES = 40
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,8 +79,9 @@ class Plan:
 class _SimulatedRun:
     """One seed's measurements, posture by posture, on the realistic platform."""
 
-    def __init__(self, design, plan, seed, time_scale):
+    def __init__(self, design, plan, seed, time_scale, samples=bench_verdict.SAMPLES):
         self.design, self.plan, self.time_scale = design, plan, time_scale
+        self.samples_per_posture = samples
         self.rng = np.random.default_rng(seed)
         self.samples = Samples.empty()
         self.previous = None
@@ -98,12 +104,11 @@ class _SimulatedRun:
         noise = settings.sigmas
         scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
         exact = np.concatenate([run.leg_readings[0], run.device_readings[0]])
-        window = exact + self.rng.normal(size=(bench_verdict.SAMPLES, 10)) * scale
+        count = self.samples_per_posture
+        window = exact + self.rng.normal(size=(count, 10)) * scale
         mean = window.mean(axis=0)
         k = len(self.samples) + 1
-        self.samples.append(
-            k, pose, mean[:6], mean[6:], bench_verdict.SAMPLES, 1.7e9 + k, posture_lag_sums(window)
-        )
+        self.samples.append(k, pose, mean[:6], mean[6:], count, 1.7e9 + k, posture_lag_sums(window))
 
     def judge(self, settings, rule):
         def judged(indices):
@@ -175,7 +180,9 @@ def _seed(design, plan, seed, required_mm, looser_mm):
     if looser is not None and looser['postures'] in simulated.geometries:
         geometry = simulated.geometries[looser['postures']]
         looser_true, _ = bench_verdict.true_accuracy(design, REALISTIC, geometry)
+    half = _at_half_time(design, found['history'], simulated.geometries, fixed_s, required_mm)
     return {
+        'half': half,
         'met': found['met'],
         'cv_meets': found['bounds']['position_mm'] <= required_mm,
         'ratio': found['platform_time_s'] / found['fixed_plan_time_s'],
@@ -190,6 +197,117 @@ def _seed(design, plan, seed, required_mm, looser_mm):
         'looser_postures': looser['postures'] if looser is not None else math.nan,
         'looser_true_mm': looser_true,
         'history': [(step['postures'], step['position_bound_mm']) for step in found['history']],
+    }
+
+
+def _at_half_time(design, history, geometries, fixed_s, required_mm):
+    """The run's last judgement within half the plan's platform time: its cross-validated mean,
+    95 % bound and predicted error, whether each meets ``required_mm``, and the true error."""
+    within = [step for step in history if step['platform_time_s'] <= 0.5 * fixed_s]
+    if not within:
+        return None
+    step = within[-1]
+    true_mm = math.nan
+    if step['postures'] in geometries:
+        true_mm, _ = bench_verdict.true_accuracy(design, REALISTIC, geometries[step['postures']])
+    return {
+        'postures': step['postures'],
+        'cv_mm': step['position_mm'],
+        'bound_mm': step['position_bound_mm'],
+        'predicted_mm': step['predicted_mm'],
+        'true_mm': true_mm,
+        'cv_meets': step['position_mm'] <= required_mm,
+        'bound_meets': step['position_bound_mm'] <= required_mm,
+    }
+
+
+def _prefix(design, plan, seed, order, samples, budget=math.inf):
+    """The postures ``order`` (pool indices) measured in that order with ``samples`` per
+    posture, as many as fit in ``budget`` times the plan's platform time (10 samples), judged
+    once: its postures, cross-validated mean, bound and true error (mm) and its platform time /
+    the plan's."""
+    settings = plan.settings
+    rule = run_to_requirement.rule_for(settings)
+    limits, home = settings.motion_limits, home_pose()
+    fixed_s = stopping.plan_time_s(
+        settings.nominal, home, plan.pool[plan.planned], limits, rule.dwell_s
+    )
+    dwell_s = 0.5 + samples / 200.0
+    simulated = _SimulatedRun(design, plan, 70_000 + seed, bench_verdict.RUN_S / fixed_s, samples)
+    position, elapsed = plan.start_legs, 0.0
+    for index in order:
+        step = float(move_time(position, plan.legs[index], limits)) + dwell_s
+        if elapsed + step > budget * fixed_s:
+            break
+        elapsed += step
+        position = plan.legs[index]
+        simulated.measure(index, elapsed)
+    judgement = run_to_requirement.judge_rows(settings, simulated.samples, rule)
+    true_mm = math.nan
+    if judgement.result is not None:
+        true_mm, _ = bench_verdict.true_accuracy(design, REALISTIC, judgement.result.geometry)
+    return {
+        'postures': len(simulated.samples),
+        'cv_mm': judgement.bounds.position_mm,
+        'bound_mm': judgement.bounds.position_bound_mm,
+        'true_mm': true_mm,
+        'ratio': elapsed / fixed_s,
+    }
+
+
+def informative_plan(plan):
+    """The plan's postures in :func:`gsp_kinematics.stopping.informative_order` (information
+    per second at the nominal geometry, from the start pose)."""
+    settings = plan.settings
+    rows = settings.sigmas.averaged([bench_verdict.SAMPLES])
+    free = resolve_free(list(settings.free_parameters))
+    information = posture_information(settings.nominal, plan.pool[plan.planned], rows, free)
+    order = stopping.informative_order(
+        information,
+        plan.legs[plan.planned],
+        plan.start_legs,
+        settings.motion_limits,
+        run_to_requirement.rule_for(settings).dwell_s,
+    )
+    return [plan.planned[i] for i in order]
+
+
+def _prefix_figures(design, plan, seeds):
+    """Medians over ``seeds`` of :func:`_prefix`: the route's first half and whole with 10 and
+    ``DWELL_SAMPLES`` samples per posture, and the plan in informative order within 0.5x and
+    1x the plan's platform time."""
+    half = len(plan.planned) // 2
+    cases = {
+        f'route_{count}_postures_{samples}_samples': (plan.planned[:count], samples, math.inf)
+        for count in (half, len(plan.planned))
+        for samples in (bench_verdict.SAMPLES, DWELL_SAMPLES)
+    }
+    informative = informative_plan(plan)
+    for budget in (0.5, 1.0):
+        cases[f'informative_order_within_{budget}x'] = (
+            informative,
+            bench_verdict.SAMPLES,
+            budget,
+        )
+    figures = {}
+    for name, (order, samples, budget) in cases.items():
+        runs = [_prefix(design, plan, seed, order, samples, budget) for seed in seeds]
+        figures[name] = {f'{key}_median': _median([run[key] for run in runs]) for key in runs[0]}
+    return figures
+
+
+def _half_figures(runs, required_mm):
+    halves = [run['half'] for run in runs if run['half'] is not None]
+    return {
+        'required_position_mm': required_mm,
+        'seeds': len(halves),
+        'postures_median': _median([half['postures'] for half in halves]),
+        'cross_validated_mm_median': _median([half['cv_mm'] for half in halves]),
+        'bound_95_mm_median': _median([half['bound_mm'] for half in halves]),
+        'predicted_mm_median': _median([half['predicted_mm'] for half in halves]),
+        'true_mm_median': _median([half['true_mm'] for half in halves]),
+        'cross_validated_meets_fraction': _fraction(halves, 'cv_meets'),
+        'bound_meets_fraction': _fraction(halves, 'bound_meets'),
     }
 
 
@@ -250,5 +368,10 @@ def run(quick=False):
             'postures_median': _median([r['looser_postures'] for r in runs]),
             'true_mm_median': _median([r['looser_true_mm'] for r in runs]),
         },
+        # the run's last judgement within 0.5x the plan's platform time (the target's budget)
+        'at_half_the_plan_time': _half_figures(runs, required),
+        # what 4x the samples per posture buy (the route's first half and whole, 10 and 40
+        # samples), and the plan in informative order within 0.5x and 1x its platform time
+        'prefixes': _prefix_figures(design, plan, seeds),
         'bounds_per_seed': [r['history'] for r in runs],
     }

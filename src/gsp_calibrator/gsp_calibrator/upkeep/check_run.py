@@ -196,6 +196,8 @@ def check_summary(data):
         )
     for reason in data['reasons']:
         lines.append(f'  why: {reason}')
+    for note in data.get('notes', []):
+        lines.append(f'  note: {note}')
     for entry in data['moved']:
         likely = ' (the likeliest; not significant alone)' if entry.get('likely') else ''
         lines.append(
