@@ -293,7 +293,7 @@ class CalibratorNode(Node):
 
     def _posture_count(self):
         run = self._run
-        return run.settings.posture_count if run is not None else 0
+        return run.settings.commanded_posture_count if run is not None else 0
 
     def _progress(self, index, phase, message='', residuals=None, warning=False, **extra):
         """Publish the run's progress at posture ``index`` (0 before the first)."""

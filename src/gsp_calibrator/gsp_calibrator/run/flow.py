@@ -178,7 +178,7 @@ class CalibrationRun:
                 f'{len(selection.poses)} postures selected (scaled condition number '
                 f'{selection.condition_number:.4g})'
             )
-            poses = selection.poses
+            poses = postures.with_workspace_poses(settings, selection.poses)
         if poses is not None and settings.posture_order == 'route':
             poses = await self._route(poses)
         try:
@@ -232,7 +232,7 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count, legs = settings.posture_count, self.collection.latest_leg_lengths()
+        count, legs = settings.commanded_posture_count, self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
@@ -293,7 +293,7 @@ class CalibrationRun:
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
-        report = posture_report(event, self.settings.posture_count, self.settings.nominal)
+        report = posture_report(event, self.settings.commanded_posture_count, self.settings.nominal)
         for level, line in report.log:  # one call site per severity (rclpy requires it)
             if level == 'warning':
                 self.log.warning(line)
@@ -308,7 +308,7 @@ class CalibrationRun:
         """Identify over every row (and ``reused``), write the results (``stopping``: the record
         of a run that stops when good enough), publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
-        count = settings.posture_count
+        count = settings.commanded_posture_count
         self.save_state(PHASE_IDENTIFYING)
         samples, extra = reused_rows.for_identification(session, reused)
         extra |= {} if stopping is None else {'run_to_requirement': stopping}
