@@ -89,16 +89,13 @@ def test_noise_removed_takes_the_noise_out_in_quadrature():
     assert noise_removed(np.ones(3), np.full(3, 4.0))[0] == 0.0  # never negative
 
 
-def test_the_headline_is_the_workspace_postures_held_out_error():
-    """With workspace rows, the measured accuracy is theirs (the selected postures, the
-    workspace's extremes, are a figure apart); without, every posture's."""
-    count = 8
-    workspace = np.arange(count) >= 5
-    position = np.zeros((count, 3))
-    position[:, 0] = np.where(workspace, 1e-3, 5e-3)  # m: 1 mm on the workspace postures
-    validation = CrossValidation(
-        folds=4,
-        fold_of_posture=np.arange(count) % 4,
+def _validation(position, folds, **device):
+    """A CrossValidation of position errors ``position`` (M, 3) m, no phi error or noise, the
+    nominal geometry 10 times worse; ``device``: its position_device / phi_device."""
+    count = len(position)
+    return CrossValidation(
+        folds=folds,
+        fold_of_posture=np.arange(count) % folds,
         position_error=position,
         phi_error=np.zeros(count),
         position_noise=np.zeros(count),
@@ -107,7 +104,18 @@ def test_the_headline_is_the_workspace_postures_held_out_error():
         nominal_phi_error=np.zeros(count),
         failed_folds=(),
         duration_s=0.0,
+        **device,
     )
+
+
+def test_the_headline_is_the_workspace_postures_held_out_error():
+    """With workspace rows, the measured accuracy is theirs (the selected postures, the
+    workspace's extremes, are a figure apart); without, every posture's."""
+    count = 8
+    workspace = np.arange(count) >= 5
+    position = np.zeros((count, 3))
+    position[:, 0] = np.where(workspace, 1e-3, 5e-3)  # m: 1 mm on the workspace postures
+    validation = _validation(position, 4)
     summary = validation.summary(workspace)
     assert summary['measured_on'] == 'workspace' and summary['workspace_rows'] == [5, 6, 7]
     assert summary['postures'] == 3
@@ -142,19 +150,8 @@ def test_the_workspace_figure_adds_the_device_uncertainty_the_selected_does_not(
     workspace = np.array([False, False, True, True])
     position = np.zeros((count, 3))
     position[:, 0] = 3e-3
-    validation = CrossValidation(
-        folds=2,
-        fold_of_posture=np.arange(count) % 2,
-        position_error=position,
-        phi_error=np.zeros(count),
-        position_noise=np.zeros(count),
-        phi_noise=np.zeros(count),
-        nominal_position_error=10 * position,
-        nominal_phi_error=np.zeros(count),
-        failed_folds=(),
-        duration_s=0.0,
-        position_device=np.full(count, (4e-3) ** 2),
-        phi_device=np.zeros(count),
+    validation = _validation(
+        position, 2, position_device=np.full(count, (4e-3) ** 2), phi_device=np.zeros(count)
     )
     summary = validation.summary(workspace)
     assert summary['calibrated']['position_mm']['mean'] == pytest.approx(5.0)  # 3 (+) 4 mm
