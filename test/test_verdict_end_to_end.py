@@ -25,6 +25,8 @@ from gsp_kinematics.validation import validate
 
 CLIENT_TIMEOUT_S = 600.0  # generous: the machine may be loaded
 POSTURES = 30
+#: Workspace postures drawn at random, commanded with the selected ones (docs/verdict.md).
+WORKSPACE_POSTURES = 10
 #: Streams at 50 Hz: a loaded machine keeps up with them (at 200 Hz the device's starve).
 SENSOR_RATE_HZ = 50
 
@@ -38,6 +40,7 @@ def test_a_realistic_platform_is_calibrated_and_applied_through_the_nodes(tmp_pa
     env, _ = marked_environment()
     args = demo.parse_arguments(
         ['--platform-effects', 'realistic', '--postures', str(POSTURES)]
+        + ['--workspace-postures', str(WORKSPACE_POSTURES)]
         + ['--sensor-rate', str(SENSOR_RATE_HZ), '--output-root', str(tmp_path / 'runs')]
     )
     commands = demo_commands.node_commands(args, str(tmp_path / 'runs'))
@@ -78,7 +81,14 @@ def test_a_realistic_platform_is_calibrated_and_applied_through_the_nodes(tmp_pa
     nominal_mm = validate(true, nominal, poses, REALISTIC, times)['position_mm_mean']
 
     accuracy = data['accuracy']
-    measured = accuracy['calibrated']['position_mm']['mean']
+    # The workspace postures' rows are recognised: the headline is their held-out error, the
+    # selected postures' beside it, and the verdict says so.
+    assert accuracy['measured_on'] == 'workspace', accuracy['measured_on']
+    assert 0 < len(accuracy['workspace_postures']) <= WORKSPACE_POSTURES
+    assert accuracy['postures'] == len(accuracy['workspace_postures'])
+    assert 'held out on workspace postures' in output
+    workspace = accuracy['calibrated']['position_mm']['mean']
+    measured = accuracy['selected']['calibrated']['position_mm']['mean']
     predicted = data['predicted_accuracy']['position_mm_mean']
     baseline = accuracy['nominal']['position_mm']['mean']
     # Issue 23's figures (cross-validated within 25 %, predicted within 1.3x) are not met on
@@ -91,6 +101,10 @@ def test_a_realistic_platform_is_calibrated_and_applied_through_the_nodes(tmp_pa
     # run's postures) within 50 % (a run that lost half its postures to a loaded machine
     # measured 1.37x).
     assert true_mm / 3.0 < measured < 3.0 * true_mm, (measured, true_mm)
+    # The workspace figure misses the datum error the device shares with the legs under the
+    # load (docs/verdict.md: 0.39x of the truth on the bench's realistic platform): issue 23's
+    # 25 % is not met by it, and only its upper side is bounded here.
+    assert 0.0 < workspace < 3.0 * true_mm, (workspace, true_mm)
     assert true_mm / 3.5 < predicted < 1.5 * true_mm, (predicted, true_mm)
     assert abs(baseline / nominal_mm - 1.0) < 0.5, (baseline, nominal_mm)
     # Named in um / urad; where it shows depends on the weights (legs, inclinations, d_m).

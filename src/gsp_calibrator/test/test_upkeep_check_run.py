@@ -123,3 +123,18 @@ def test_the_rows_noise_is_the_calibrations_estimate_with_its_unmodelled_error(r
     rows = check_run.row_noise(reference, SIGMAS, [16])
     for channel, value in SIGMAS.channels().items():  # (4 s / 4)^2 + (0.5 s)^2
         assert np.isclose(getattr(rows, channel), value * np.hypot(1.0, 0.5), rtol=1e-12)
+
+
+def test_a_check_commands_its_own_plan_without_the_runs_workspace_postures():
+    """A calibrator set for workspace postures (a calibration's verdict) still checks with its
+    plan alone: the posture count the progress and the result give is the plan's."""
+    import logging
+    import types
+
+    from gsp_calibrator.settings import CalibratorSettings
+    from gsp_calibrator.upkeep.check_flow import CheckRun
+
+    settings = CalibratorSettings.from_values({'workspace_postures': 5, 'stop_when_accurate': True})
+    run = CheckRun(types.SimpleNamespace(log=logging.getLogger('check')), settings)
+    assert run.settings.workspace_postures == 0 and not run.settings.stop_when_accurate
+    assert run.settings.commanded_posture_count == settings.posture_count

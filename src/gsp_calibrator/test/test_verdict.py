@@ -4,9 +4,16 @@ reason naming what is wrong. The platform is the simulation's (``gsp_kinematics.
 
 import math
 
+import numpy as np
 import pytest
 
-from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.report.accuracy import prediction_for
+from gsp_calibrator.run import postures
+from gsp_calibrator.run.identify import (
+    identify_from_samples,
+    identify_with_settings,
+    workspace_rows,
+)
 from gsp_calibrator.run.response import NOT_ACCEPTED_HEAD, outcome_summary
 from gsp_calibrator.tools import bench_verdict
 from gsp_kinematics.effects.model import REALISTIC
@@ -17,6 +24,12 @@ from gsp_kinematics.identification import PARAMETER_GROUPS
 def design():
     """The calibrator's default plan on the shipped pair (bench_verdict.default_design)."""
     return bench_verdict.default_design()
+
+
+@pytest.fixture(scope='module')
+def workspace_design():
+    """The default plan with 20 workspace postures commanded with the selected ones."""
+    return bench_verdict.default_design({'workspace_postures': bench_verdict.WORKSPACE_POSTURES})
 
 
 def calibrate(design, samples, nominal=None, free=None):
@@ -106,3 +119,49 @@ def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):
     assert failure.startswith('the postures do not identify the model over the workspace')
     true_mm, _ = bench_verdict.true_accuracy(design, None, outcome.geometry)
     assert true_mm > 0.1  # and over the workspace it is indeed worse than required
+
+
+def test_the_accuracy_is_measured_on_the_workspace_postures(workspace_design):
+    """The run commands the workspace postures (drawn at random, not selected) with the selected
+    ones; the identification recognises their rows by the commanded pose and measures the
+    accuracy on them (the selected postures' figure beside it), naming their posture numbers."""
+    design = workspace_design
+    settings = design.settings
+    workspace = postures.workspace_poses(settings)
+    assert len(workspace) == settings.workspace_postures > 0
+    np.testing.assert_array_equal(workspace, postures.workspace_poses(settings))  # seeded
+    samples = bench_verdict.simulated_samples(design, None, seed=0)
+    rows = workspace_rows(samples.commanded_poses, workspace)
+    assert rows.sum() == len(workspace) == len(samples) - settings.posture_count
+    outcome = identify_with_settings(settings, samples)
+    accuracy = outcome.accuracy
+    assert accuracy['measured_on'] == 'workspace' and accuracy['postures'] == len(workspace)
+    assert accuracy['workspace_postures'] == samples.posture[rows].tolist()
+    assert accuracy['selected']['postures'] == settings.posture_count
+    assert 'workspace postures drawn at random' in outcome.judgement.text
+    assert 'held out on workspace postures' in outcome_summary(outcome).splitlines()[0]
+    # Without them (workspace_postures 0) the accuracy is measured on every posture.
+    plain = calibrate(design, samples)
+    assert plain.accuracy['measured_on'] == 'selected' and 'selected' not in plain.accuracy
+
+
+def test_the_prediction_adds_the_uncompensated_thermal_growth(design):
+    """Thermal growth identified (the thermal group freed) is not compensated by the
+    controllers: the prediction and the measured accuracy add its cost over the run's span and
+    say so; with it they meet the truth (1.3x, 25 %), the prediction without it is too
+    optimistic."""
+    thermal = bench_verdict.effect_cases()['thermal']
+    samples = bench_verdict.simulated_samples(design, thermal, seed=0)
+    outcome = calibrate(design, samples, free=['extended', 'thermal'])
+    assert outcome.success
+    assert 'uncompensated thermal growth' in outcome.prediction['assumes']
+    true_mm, _ = bench_verdict.true_accuracy(design, thermal, outcome.geometry)
+    predicted = outcome.prediction['random']['position_mm']['mean']
+    assert true_mm / 1.3 < predicted < 1.3 * true_mm
+    without = prediction_for(outcome.result, unmodelled=outcome.unmodelled)
+    assert without['random']['position_mm']['mean'] < true_mm / 1.3
+    # The measured accuracy adds the same cost: the held-out postures are predicted with the
+    # growth identified, which the controllers do not apply.
+    measured = outcome.accuracy['calibrated']['position_mm']
+    assert measured['uncompensated_rms'] > 0.5 * measured['mean']
+    assert abs(measured['mean'] / true_mm - 1.0) < 0.25

@@ -96,9 +96,12 @@ def accuracy_line(accuracy, predicted=None):
     """One line of the cross-validated accuracy (:meth:`gsp_kinematics.cross_validation.CrossValidation.summary`), the nominal
     baseline and the prediction (``{position_mm_mean, ...}`` or None)."""
     calibrated, nominal = accuracy['calibrated'], accuracy['nominal']
+    where = f'{accuracy["postures"]} postures'
+    if accuracy.get('measured_on') == 'workspace':
+        where = f'{accuracy["postures"]} workspace postures drawn at random'
     line = (
         f'accuracy measured by the device on held-out postures ({accuracy["folds"]}-fold '
-        f'cross-validation, {accuracy["postures"]} postures, measurement noise removed): '
+        f'cross-validation, {where}, measurement noise removed): '
         f'position {_mm(calibrated["position_mm"]["mean"])} mean, '
         f'{_mm(calibrated["position_mm"]["p95"])} p95; phi '
         f'{calibrated["phi_deg"]["mean"]:.2g} deg mean; nominal geometry '
@@ -106,14 +109,33 @@ def accuracy_line(accuracy, predicted=None):
     )
     if predicted and predicted.get('position_mm_mean') is not None:
         line += f'; predicted {_mm(predicted["position_mm_mean"])}'
+    selected = accuracy.get('selected')
+    if selected:
+        line += (
+            f"; on the {selected['postures']} selected postures (the workspace's extremes) "
+            f'{_mm(selected["calibrated"]["position_mm"]["mean"])}'
+        )
     return line
+
+
+def judged_accuracy(accuracy):
+    """``(position mm, phi deg)`` the requirement is checked against: the held-out means, and
+    with workspace postures the larger of theirs and the selected postures' (docs/verdict.md:
+    the workspace postures do not see an error the device's own parameters share with the legs,
+    which the selected postures' larger errors bound on the bench's platforms)."""
+    position = accuracy['calibrated']['position_mm']['mean']
+    phi = accuracy['calibrated']['phi_deg']['mean']
+    selected = (accuracy.get('selected') or {}).get('calibrated')
+    if selected:
+        position = max(position, selected['position_mm']['mean'])
+        phi = max(phi, selected['phi_deg']['mean'])
+    return position, phi
 
 
 def _failures(accuracy, requirement, improvement, predicted):
     """The conditions ``accuracy`` (and the ``predicted`` headline) fail, each saying by how
     much."""
-    position = accuracy['calibrated']['position_mm']['mean']
-    phi = accuracy['calibrated']['phi_deg']['mean']
+    position, phi = judged_accuracy(accuracy)
     failures = []
     if not accuracy['postures'] or not math.isfinite(position):
         return ['the accuracy could not be measured: no held-out posture was predicted']

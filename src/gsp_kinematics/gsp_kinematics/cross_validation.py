@@ -24,10 +24,10 @@ import numpy as np
 
 from .device import DeviceModelError, device_position
 from .effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
-from .geometry import ALL_PARAMETER_NAMES
+from .geometry import ALL_PARAMETER_NAMES, Geometry
 from .identification import IdentificationError, Options, identify
 from .kinematics import forward_kinematics_masked
-from .prediction import reading_pose_covariance
+from .prediction import reading_pose_covariance, thermal_pose_covariance
 from .rotation import wrap_angle
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
@@ -75,26 +75,69 @@ def noise_variances(geometry, poses, readings, row_sigmas):
     return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
 
 
-def noise_removed(errors, variances):
+#: The device's own parameters: its errors move where the device says the platform is.
+DEVICE_PARAMETERS = ('D0', 'gamma', 'alpha0', 'beta0', 'phi0', 'kDm')
+
+
+def device_variances(result, readings, step=1e-7):
+    """The variance (position (M,) m^2, the trace; phi (M,) rad^2) of what the device measures
+    at ``readings`` (M, 4) under ``result``'s geometry from the uncertainty of its own free
+    parameters (:data:`DEVICE_PARAMETERS`, ``result.covariance``): an error the legs share (the
+    fit makes them agree with the device), which no held-out posture can see."""
+    readings = np.atleast_2d(np.asarray(readings, dtype=float))
+    free = [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
+    columns = [free.index(name) for name in DEVICE_PARAMETERS if name in free]
+    covariance = np.asarray(result.covariance, dtype=float)
+    if not columns or not np.all(np.isfinite(covariance[np.ix_(columns, columns)])):
+        return np.zeros(len(readings)), np.zeros(len(readings))
+    vector = result.geometry.to_full_vector()
+    limits = result.geometry.limits
+    base_position, base_phi = device_pose(result.geometry, readings)
+    position, phi = [], []
+    for column in columns:
+        moved = vector.copy()
+        moved[ALL_PARAMETER_NAMES.index(free[column])] += step
+        shifted, shifted_phi = device_pose(Geometry.from_full_vector(moved, limits), readings)
+        position.append((shifted - base_position) / step)
+        phi.append(wrap_angle(shifted_phi - base_phi) / step)
+    position, phi = np.stack(position, axis=2), np.stack(phi, axis=1)  # (M, 3, p), (M, p)
+    block = covariance[np.ix_(columns, columns)]
+    return (
+        np.einsum('mip,pq,miq->m', position, block, position),
+        np.einsum('mp,pq,mq->m', phi, block, phi),
+    )
+
+
+def noise_removed(errors, variances, shared=None):
     """``(mean, p95, rms, factor)`` of error magnitudes ``errors`` (K,) with the noise's
     ``variances`` (K,) removed: ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0))``
     scales the mean, the p95 and the rms (the noise's share of the mean squared error is taken
-    out in quadrature; the error's distribution is assumed to keep its shape)."""
+    out in quadrature; the error's distribution is assumed to keep its shape). ``shared`` (K,):
+    the variance of an error the held-out errors cannot see (the device's own, which the fit
+    gives the legs too: :func:`device_variances`), added in quadrature:
+    ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0) + sum(shared) / sum(errors^2))``."""
     errors = np.asarray(errors, dtype=float)
     variances = np.asarray(variances, dtype=float)
-    finite = np.isfinite(errors) & np.isfinite(variances)
+    shared = np.zeros_like(variances) if shared is None else np.asarray(shared, dtype=float)
+    finite = np.isfinite(errors) & np.isfinite(variances) & np.isfinite(shared)
     if not finite.any():
         return math.nan, math.nan, math.nan, math.nan
-    errors, variances = errors[finite], variances[finite]
+    errors, variances, shared = errors[finite], variances[finite], shared[finite]
     squared = float(np.sum(errors**2))
-    factor = math.sqrt(max(1.0 - float(np.sum(variances)) / squared, 0.0)) if squared > 0 else 0.0
+    factor = (
+        math.sqrt(
+            max(1.0 - float(np.sum(variances)) / squared, 0.0) + float(np.sum(shared)) / squared
+        )
+        if squared > 0
+        else 0.0
+    )
     mean, p95 = float(np.mean(errors)), float(np.percentile(errors, 95))
     rms = math.sqrt(squared / errors.size)
     return factor * mean, factor * p95, factor * rms, factor
 
 
-def _statistics(errors, variances, scale):
-    mean, p95, rms, factor = noise_removed(errors, variances)
+def _statistics(errors, variances, scale, shared=None):
+    mean, p95, rms, factor = noise_removed(errors, variances, shared)
     finite = np.isfinite(errors)
     raw = np.asarray(errors, dtype=float)[finite]
     return {
@@ -108,6 +151,14 @@ def _statistics(errors, variances, scale):
         else math.nan,
         'noise_factor': factor,
     }
+
+
+def _rms(variances, errors, scale):
+    """``scale`` x the rms of ``variances`` over the finite ``errors`` (0 without them)."""
+    finite = np.isfinite(errors)
+    if variances is None or not finite.any():
+        return 0.0
+    return scale * math.sqrt(float(np.mean(np.asarray(variances)[finite])))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,38 +179,95 @@ class CrossValidation:
     nominal_phi_error: np.ndarray  #: (M,) rad
     failed_folds: tuple  #: folds whose fit did not converge (their postures are NaN)
     duration_s: float
+    #: (M,) m^2 and rad^2: the device's own uncertainty there (:func:`device_variances`), added
+    #: to the calibrated figures; None: not added
+    position_device: np.ndarray | None = None
+    phi_device: np.ndarray | None = None
+    #: (M,) m^2: the pose error a controller leaves uncompensated there (the identified thermal
+    #: growth over the run), added to every calibrated position figure; None: none
+    position_uncompensated: np.ndarray | None = None
 
     @property
     def predicted(self):
         """Postures predicted by the calibrated geometry of their fold."""
         return int(np.count_nonzero(np.isfinite(self.phi_error)))
 
-    def summary(self):
+    def summary(self, workspace=None):
         """JSON-ready: the calibrated and nominal accuracy, position (mm) and phi (deg), each
         ``{mean, p95, rms}`` with the noise removed, beside the measured ``measured_mean``,
         ``measured_p95``, the noise's own ``noise_rms`` and the ``noise_factor`` applied;
         ``per_posture``: each posture's measured position errors (mm, NaN: not predicted) and
-        its noise's standard deviation (mm), for plots."""
+        its noise's standard deviation (mm), for plots.
+
+        ``workspace`` (M,) bool: the rows of the run's workspace (validation) postures, drawn
+        at random from the workspace: the headline (``calibrated``, ``nominal``, ``postures``)
+        is then their held-out errors, an estimate of the mean over the workspace, and
+        ``selected`` holds the same figures over the other (selected) postures;
+        ``workspace_rows`` lists the rows (0-based). None or no row: every posture."""
         position = np.linalg.norm(self.position_error, axis=1)
         nominal = np.linalg.norm(self.nominal_position_error, axis=1)
-        degrees = math.degrees(1.0)
-        return {
+        count = position.shape[0]
+        rows = np.zeros(count, bool) if workspace is None else np.asarray(workspace, bool)
+        headline = rows if rows.any() else np.ones(count, bool)
+        summary = {
             'folds': self.folds,
-            'postures': self.predicted,
+            'postures': int(np.count_nonzero(np.isfinite(self.phi_error[headline]))),
+            'measured_on': 'workspace' if rows.any() else 'selected',
+            'workspace_rows': np.flatnonzero(rows).tolist(),
             'failed_folds': list(self.failed_folds),
             'duration_s': self.duration_s,
-            'calibrated': {
-                'position_mm': _statistics(position, self.position_noise, 1e3),
-                'phi_deg': _statistics(np.abs(self.phi_error), self.phi_noise, degrees),
-            },
-            'nominal': {
-                'position_mm': _statistics(nominal, self.position_noise, 1e3),
-                'phi_deg': _statistics(np.abs(self.nominal_phi_error), self.phi_noise, degrees),
-            },
+            **self._figures(position, nominal, headline, device=bool(rows.any())),
             'per_posture': {
                 'position_mm': (1e3 * position).tolist(),
                 'nominal_position_mm': (1e3 * nominal).tolist(),
                 'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
+                'uncompensated_position_mm': (
+                    1e3 * np.sqrt(self.position_uncompensated)
+                    if self.position_uncompensated is not None
+                    else np.zeros(count)
+                ).tolist(),
+                'device_position_mm': (
+                    1e3
+                    * np.sqrt(
+                        np.zeros(count) if self.position_device is None else self.position_device
+                    )
+                ).tolist(),
+            },
+        }
+        if rows.any() and not rows.all():
+            summary['selected'] = {
+                'postures': int(np.count_nonzero(np.isfinite(self.phi_error[~rows]))),
+                **self._figures(position, nominal, ~rows),
+            }
+        return summary
+
+    def _figures(self, position, nominal, rows, device=False):
+        """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask); ``device``: the
+        device's own uncertainty added to the calibrated figures (the workspace postures': the
+        selected postures' larger errors already exceed it, docs/verdict.md)."""
+        degrees = math.degrees(1.0)
+        position_noise, phi_noise = self.position_noise[rows], self.phi_noise[rows]
+        device = device and self.position_device is not None
+        position_device = self.position_device[rows] if device else None
+        phi_device = self.phi_device[rows] if device else None
+        uncompensated = self.position_uncompensated
+        uncompensated = None if uncompensated is None else uncompensated[rows]
+        shared = [v for v in (position_device, uncompensated) if v is not None]
+        calibrated = _statistics(
+            position[rows], position_noise, 1e3, sum(shared) if shared else None
+        )
+        calibrated['device_rms'] = _rms(position_device, position[rows], 1e3)
+        calibrated['uncompensated_rms'] = _rms(uncompensated, position[rows], 1e3)
+        return {
+            'calibrated': {
+                'position_mm': calibrated,
+                'phi_deg': _statistics(
+                    np.abs(self.phi_error[rows]), phi_noise, degrees, phi_device
+                ),
+            },
+            'nominal': {
+                'position_mm': _statistics(nominal[rows], position_noise, 1e3),
+                'phi_deg': _statistics(np.abs(self.nominal_phi_error[rows]), phi_noise, degrees),
             },
         }
 
@@ -172,6 +280,15 @@ def fold_assignment(count, folds=DEFAULT_FOLDS):
     return np.arange(count) % min(int(folds), count)
 
 
+def _uncompensated(geometry, poses, strain):
+    """(M,) m^2: the position error the thermal ``strain`` (6,) leaves at ``poses`` (None:
+    none)."""
+    if strain is None:
+        return None
+    position, _ = thermal_pose_covariance(geometry, poses, strain)
+    return np.trace(position, axis1=1, axis2=2)
+
+
 def cross_validate(
     result,
     nominal,
@@ -182,29 +299,25 @@ def cross_validate(
     options=Options(),
     noise=None,
     effects=None,
+    uncompensated_strain=None,
 ):
-    """Cross-validate the identification ``result`` (an ``IdentificationResult`` of the rows
-    ``leg_lengths`` (M, 6) and ``readings`` (M, 4) with the row weights ``row_sigmas``): for
-    each fold, identify without it (the same formulation and free parameters, from ``result``'s
-    estimate and poses) and predict its postures; the ``nominal`` geometry predicts every
-    posture. Returns a :class:`CrossValidation`.
+    """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
+    (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
+    (same formulation and free parameters, from ``result``'s estimate and poses) and predicts
+    its postures; the ``nominal`` geometry predicts every posture.
 
-    The device's reference of a held-out posture uses the device parameters of the fit that did
-    not see it, the nominal baseline those of the full fit (its best estimate of the device).
-    ``noise``: the rows' measurement noise removed from the errors (a SensorNoise of the rows;
-    None: ``row_sigmas``). Weights that hold a model error (estimated between postures) are not
-    the noise: pass the within-posture noise here. ``effects``: the rows'
-    :class:`~gsp_kinematics.effects.groups.EffectDesign` when ``result`` freed effect groups
-    (each fold is fitted with them and predicts its postures with what it identified)."""
+    A held-out posture's device reference uses the device parameters of the fit without it, the
+    nominal baseline the full fit's. ``noise``: the rows' measurement noise removed from the
+    errors (a SensorNoise; None: ``row_sigmas``); weights that hold a model error are not the
+    noise: pass the within-posture noise. ``effects``: the rows' ``EffectDesign`` when
+    ``result`` freed effect groups (each fold fits them and predicts with what it identified).
+    ``uncompensated_strain`` (6,): the thermal growth the controllers leave (its error kept)."""
     started = time.perf_counter()
-    leg_lengths = np.asarray(leg_lengths, dtype=float)
-    readings = np.asarray(readings, dtype=float)
+    leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
-    position = np.full((count, 3), np.nan)
-    phi = np.full(count, np.nan)
-    failed = []
+    position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
     free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
     free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
     for fold in range(int(assignment.max()) + 1):
@@ -239,7 +352,11 @@ def cross_validate(
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
+    position_device, phi_device = device_variances(result, readings)
     return CrossValidation(
+        position_uncompensated=_uncompensated(result.geometry, guesses, uncompensated_strain),
+        position_device=position_device,
+        phi_device=phi_device,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
         position_error=position,

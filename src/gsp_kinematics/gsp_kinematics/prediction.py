@@ -15,6 +15,13 @@ excess of the residuals between postures over the noise within them, per channel
 :func:`gsp_kinematics.noise_from_data.unmodelled_error`) puts the legs and the device at odds
 at every pose, fitted or not. Its pose covariance (:func:`reading_pose_covariance`: the legs'
 part through FK, the device's through eq 9) is added to the covariance term.
+
+Thermal growth the model identified is not compensated by the controllers (they hold the geometry
+of the reference instant): over the run's span the legs are longer or shorter than at that
+instant by ``strain_rate_i (w(t) - w(t_ref)) L_i``. Its rms over the run's times
+(:func:`thermal_strain_rms`) gives a pose covariance through ``(dq/dX)^-1``
+(:func:`thermal_pose_covariance`), added like the unmodelled part: the cost of leaving it
+uncompensated over a span like the run's.
 """
 
 import dataclasses
@@ -28,6 +35,7 @@ from .kinematics import (
     Workspace,
     expand_leg_parameters,
     inverse_kinematics_jacobians,
+    leg_vectors,
     reachable_mask,
     sample_valid_postures,
 )
@@ -109,13 +117,40 @@ def reading_pose_covariance(geometry, poses, readings, stds):
     return position, euler
 
 
-def predicted_errors(geometry, covariance, poses, free=None, unmodelled=None):
+def thermal_strain_rms(strain_rates, design):
+    """Per leg (6,): the rms over the run's rows of the thermal strain relative to the reference
+    instant, ``|strain_rate_i| rms_t(w(t) - w(t_ref))`` (dimensionless), from the identified
+    ``strain_rates`` (6,) 1/s and the run's ``EffectDesign`` (its times, clock and reference)."""
+    times = np.asarray(design.times_s, dtype=float)
+    elapsed = design.thermal_clock(times) - design.thermal_clock(design.reference_time_s)
+    spread = math.sqrt(float(np.mean(elapsed**2))) if elapsed.size else 0.0
+    return np.abs(np.asarray(strain_rates, dtype=float)) * spread
+
+
+def thermal_pose_covariance(geometry, poses, strain_rms):
+    """``(position (M, 3, 3) m^2, rotation (M, 3, 3) rad^2)``: the second moment of the pose
+    error at ``poses`` (M, 6) of leg growths ``strain_rms`` (6,) x each leg's length (all legs
+    grow together, in one time: a rank-one covariance per pose)."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
+    vectors, _ = leg_vectors(geometry, poses)
+    growth = np.linalg.norm(vectors, axis=2) * np.asarray(strain_rms, dtype=float)[None]
+    d_pose = np.linalg.solve(d_q_d_pose, growth[..., None])[..., 0]  # (M, 6)
+    angular = body_angular_jacobian(poses[:, 3:])
+    rotation = np.einsum('mij,mj->mi', angular, d_pose[:, 3:])
+    outer = np.einsum('mi,mj->mij', d_pose[:, :3], d_pose[:, :3])
+    return outer, np.einsum('mi,mj->mij', rotation, rotation)
+
+
+def predicted_errors(geometry, covariance, poses, free=None, unmodelled=None, thermal_strain=None):
     """Predicted error magnitudes at ``poses`` (M, 6): ``(position_mm, orientation_deg)``, each (M,).
 
     ``covariance``: (n_free, n_free) of the free parameters (m, rad), e.g. an
     ``IdentificationResult.covariance``; ``free`` its mask (None: all parameters free).
     ``unmodelled``: what the model leaves unexplained (a ``SensorNoise`` of standard deviations;
     None: the platform is exactly the model), added to the covariance term.
+    ``thermal_strain``: (6,) the uncompensated thermal strain rms of each leg over the run
+    (:func:`thermal_strain_rms`; None: none), added likewise (:func:`thermal_pose_covariance`).
     """
     sensitivity = pose_sensitivities(geometry, poses, free)
     covariance = np.asarray(covariance, dtype=float)
@@ -134,6 +169,9 @@ def predicted_errors(geometry, covariance, poses, free=None, unmodelled=None):
         angular = body_angular_jacobian(poses[:, 3:])
         position = position + extra_position
         rotation = rotation + angular @ euler @ np.swapaxes(angular, 1, 2)
+    if thermal_strain is not None:
+        extra_position, extra_rotation = thermal_pose_covariance(geometry, poses, thermal_strain)
+        position, rotation = position + extra_position, rotation + extra_rotation
     return 1000.0 * expected_norm(position), np.degrees(expected_norm(rotation))
 
 
@@ -188,11 +226,14 @@ def predict_accuracy(
     seed=0,
     layout=MapLayout(),
     unmodelled=None,
+    thermal_strain=None,
 ):
     """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
 
     ``unmodelled``: what the model leaves unexplained (:func:`predicted_errors`; None: nothing,
-    the platform is exactly the model), added at every pose and said in ``assumes``.
+    the platform is exactly the model), added at every pose and said in ``assumes``;
+    ``thermal_strain`` (6,) likewise: the cost of the uncompensated thermal growth
+    (:func:`predicted_errors`).
 
     ``random``: ``{position_mm: {mean, p95, max}, orientation_deg: {...}, postures}`` over
     ``postures`` seeded random reachable postures; ``worst_cell``: the grid cell with the largest
@@ -202,7 +243,9 @@ def predict_accuracy(
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )
-    position, orientation = predicted_errors(geometry, covariance, random_poses, free, unmodelled)
+    position, orientation = predicted_errors(
+        geometry, covariance, random_poses, free, unmodelled, thermal_strain
+    )
     maps = []
     worst = None
     for title, poses in map_panels(workspace, layout):
@@ -210,7 +253,9 @@ def predict_accuracy(
         cell_position = np.full(poses.shape[0], np.nan)
         cell_orientation = np.full(poses.shape[0], np.nan)
         if reachable.any():
-            found = predicted_errors(geometry, covariance, poses[reachable], free, unmodelled)
+            found = predicted_errors(
+                geometry, covariance, poses[reachable], free, unmodelled, thermal_strain
+            )
             cell_position[reachable], cell_orientation[reachable] = found
             index = int(np.nanargmax(cell_position))
             if worst is None or cell_position[index] > worst['position_mm']:
@@ -234,8 +279,9 @@ def predict_accuracy(
         )
     return {
         'statistic': 'expected error magnitude E|dX| from the parameter covariance (1 sigma)'
-        + ('' if unmodelled is None else ' and the unmodelled error'),
-        'assumes': assumption(unmodelled),
+        + ('' if unmodelled is None else ' and the unmodelled error')
+        + ('' if thermal_strain is None else ' and the uncompensated thermal growth'),
+        'assumes': assumption(unmodelled, thermal_strain),
         'units': {'position': 'mm', 'orientation': 'deg', 'pose': 'm, rad'},
         'random': {
             'position_mm': _statistics(position),
@@ -248,18 +294,25 @@ def predict_accuracy(
     }
 
 
-def assumption(unmodelled):
+def assumption(unmodelled, thermal_strain=None):
     """What a prediction assumes about the model error (plain text)."""
+    thermal = ''
+    if thermal_strain is not None and np.any(np.asarray(thermal_strain) > 0.0):
+        thermal = (
+            f'; the uncompensated thermal growth ({1e6 * float(np.mean(thermal_strain)):.3g} '
+            'ppm rms of the leg lengths over the run, relative to the reference instant) is '
+            'added: the controllers do not compensate it'
+        )
     if unmodelled is None or not any(unmodelled.channels().values()):
         return (
             'the platform is exactly the model (no unmodelled error): on a real platform the '
-            "accuracy is worse by the model's unexplained part (docs/verdict.md)"
+            "accuracy is worse by the model's unexplained part (docs/verdict.md)" + thermal
         )
     return (
         f'the model leaves {1e6 * unmodelled.leg_lengths:.3g} um rms unexplained in the legs, '
         f'{1e6 * unmodelled.inclinometer:.3g} urad in the inclinations, '
         f'{1e6 * unmodelled.encoder:.3g} urad in phi and {1e6 * unmodelled.lvdt:.3g} um in d_m '
-        '(estimated from the run), added at every pose'
+        '(estimated from the run), added at every pose' + thermal
     )
 
 

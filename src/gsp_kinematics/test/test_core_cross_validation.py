@@ -8,8 +8,10 @@ import pytest
 
 from gsp_kinematics import noise_from_data
 from gsp_kinematics.cross_validation import (
+    CrossValidation,
     cross_validate,
     device_pose,
+    device_variances,
     fold_assignment,
     noise_removed,
     noise_variances,
@@ -85,6 +87,103 @@ def test_noise_removed_takes_the_noise_out_in_quadrature():
     assert rms == pytest.approx(3.0, rel=0.05)
     assert factor == pytest.approx(3.0 / 5.0, rel=0.05)
     assert noise_removed(np.ones(3), np.full(3, 4.0))[0] == 0.0  # never negative
+
+
+def _validation(position, folds, **device):
+    """A CrossValidation of position errors ``position`` (M, 3) m, no phi error or noise, the
+    nominal geometry 10 times worse; ``device``: its position_device / phi_device."""
+    count = len(position)
+    return CrossValidation(
+        folds=folds,
+        fold_of_posture=np.arange(count) % folds,
+        position_error=position,
+        phi_error=np.zeros(count),
+        position_noise=np.zeros(count),
+        phi_noise=np.zeros(count),
+        nominal_position_error=10 * position,
+        nominal_phi_error=np.zeros(count),
+        failed_folds=(),
+        duration_s=0.0,
+        **device,
+    )
+
+
+def test_the_headline_is_the_workspace_postures_held_out_error():
+    """With workspace rows, the measured accuracy is theirs (the selected postures, the
+    workspace's extremes, are a figure apart); without, every posture's."""
+    count = 8
+    workspace = np.arange(count) >= 5
+    position = np.zeros((count, 3))
+    position[:, 0] = np.where(workspace, 1e-3, 5e-3)  # m: 1 mm on the workspace postures
+    validation = _validation(position, 4)
+    summary = validation.summary(workspace)
+    assert summary['measured_on'] == 'workspace' and summary['workspace_rows'] == [5, 6, 7]
+    assert summary['postures'] == 3
+    assert summary['calibrated']['position_mm']['mean'] == pytest.approx(1.0)
+    assert summary['nominal']['position_mm']['mean'] == pytest.approx(10.0)
+    assert summary['selected']['postures'] == 5
+    assert summary['selected']['calibrated']['position_mm']['mean'] == pytest.approx(5.0)
+    everything = validation.summary()
+    assert everything['measured_on'] == 'selected' and 'selected' not in everything
+    assert everything['calibrated']['position_mm']['mean'] == pytest.approx(3.5)
+
+
+def test_the_device_uncertainty_is_its_parameters_covariance_at_the_pose(exact, moderate_postures):
+    """An uncertainty of D0 alone (sigma) moves what the device measures along the link by
+    sigma, at every posture: the position variance is sigma^2; phi does not move."""
+    import types
+
+    from gsp_kinematics.geometry import ALL_PARAMETER_NAMES
+
+    free = np.zeros(len(ALL_PARAMETER_NAMES), bool)
+    free[[ALL_PARAMETER_NAMES.index('Loff1'), ALL_PARAMETER_NAMES.index('D0')]] = True
+    sigma = 5e-6
+    result = types.SimpleNamespace(free=free, covariance=np.diag([1e-10, sigma**2]), geometry=exact)
+    _, readings = sensor_measurements(exact, moderate_postures[:10])
+    position, phi = device_variances(result, readings)
+    np.testing.assert_allclose(position, sigma**2, rtol=1e-3)
+    assert np.all(np.abs(phi) < 1e-20)
+
+
+def test_the_workspace_figure_adds_the_device_uncertainty_the_selected_does_not():
+    count = 4
+    workspace = np.array([False, False, True, True])
+    position = np.zeros((count, 3))
+    position[:, 0] = 3e-3
+    validation = _validation(
+        position, 2, position_device=np.full(count, (4e-3) ** 2), phi_device=np.zeros(count)
+    )
+    summary = validation.summary(workspace)
+    assert summary['calibrated']['position_mm']['mean'] == pytest.approx(5.0)  # 3 (+) 4 mm
+    assert summary['calibrated']['position_mm']['device_rms'] == pytest.approx(4.0)
+    assert summary['selected']['calibrated']['position_mm']['mean'] == pytest.approx(3.0)
+    assert validation.summary()['calibrated']['position_mm']['mean'] == pytest.approx(3.0)
+
+
+def test_the_requirement_is_judged_on_the_larger_of_the_workspace_and_selected_figures():
+    """The workspace postures cannot see an error the device's own parameters share with the
+    legs; the selected postures' larger errors bound it: a run is judged on the larger."""
+    from gsp_kinematics.acceptance import Requirement, judge
+
+    def figures(position_mm):
+        return {
+            'position_mm': {'mean': position_mm, 'p95': position_mm},
+            'phi_deg': {'mean': 0.001, 'p95': 0.001},
+        }
+
+    accuracy = {
+        'folds': 10,
+        'postures': 20,
+        'measured_on': 'workspace',
+        'calibrated': figures(0.05),
+        'nominal': figures(5.0),
+        'selected': {'postures': 60, 'calibrated': figures(0.15), 'nominal': figures(5.0)},
+    }
+    verdict = judge(accuracy, Requirement())
+    assert not verdict.accepted
+    assert any(f.startswith('position 0.15 mm exceeds') for f in verdict.failures), verdict.failures
+    accuracy['selected']['calibrated'] = figures(0.08)
+    assert judge(accuracy, Requirement()).accepted
 
 
 @pytest.fixture(scope='module')

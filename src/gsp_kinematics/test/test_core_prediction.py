@@ -5,15 +5,17 @@ import numpy as np
 import pytest
 
 from gsp_kinematics.device import device_readings
+from gsp_kinematics.effects.groups import EffectDesign
 from gsp_kinematics.geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX, Geometry
 from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
+from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics, leg_vectors
 from gsp_kinematics.prediction import (
     accuracy_summary,
     expected_norm,
     pose_sensitivities,
     predict_accuracy,
     predicted_errors,
+    thermal_strain_rms,
 )
 from gsp_kinematics.rotation import euler_to_matrix
 from gsp_kinematics.selection import select_postures
@@ -139,3 +141,33 @@ def test_predict_accuracy_maps_and_summary(exact):
     assert np.asarray(panel['position_mm']).shape == (len(panel['y_m']), len(panel['x_m']))
     with pytest.raises(ValueError, match='covariance must be'):
         predicted_errors(exact, np.eye(3), prediction['worst_cell']['pose'])
+
+
+def test_the_uncompensated_thermal_growth_adds_its_pose_error(exact, postures):
+    """Legs longer by a strain s (of their whole length) than the controller assumes put the
+    platform where FK of the
+    grown legs does: with no other error, the prediction is that pose error, as the expected
+    magnitude of a Gaussian of that rms (about sqrt(2 / pi) of it)."""
+    poses = postures[:20]
+    strain = np.array([20e-6, 18e-6, 22e-6, 20e-6, 19e-6, 21e-6])
+    lengths = np.linalg.norm(leg_vectors(exact, poses)[0], axis=2)  # the whole leg grows
+    grown = inverse_kinematics(exact, poses) + strain * lengths
+    reached, converged = forward_kinematics_masked(exact, grown, poses)
+    assert converged.all()
+    shift_mm = 1e3 * np.linalg.norm(reached[:, :3] - poses[:, :3], axis=1)
+    zero = np.zeros((NUM_PARAMETERS, NUM_PARAMETERS))
+    position, _ = predicted_errors(exact, zero, poses, thermal_strain=strain)
+    # E|z| of one normal as expected_norm integrates it (its fixed draws: within 3 % of sqrt(2/pi))
+    one_dimensional = expected_norm(np.diag([1.0, 0.0, 0.0]))
+    assert one_dimensional == pytest.approx(np.sqrt(2 / np.pi), rel=0.03)
+    np.testing.assert_allclose(position, one_dimensional * shift_mm, rtol=0.01)
+    assert np.all(predicted_errors(exact, zero, poses)[0] < 1e-9)
+
+
+def test_the_thermal_strain_rms_is_over_the_runs_times_from_the_reference():
+    """A linear growth over 0..T referred to T: rms (T - t) over the rows is T / sqrt(3)."""
+    times = np.linspace(0.0, 900.0, 10001)
+    design = EffectDesign(times_s=times, reference_time_s=900.0)
+    rates = np.array([1e-8, -2e-8, 1e-8, 1e-8, 1e-8, 1e-8])
+    expected = np.abs(rates) * 900.0 / np.sqrt(3.0)
+    np.testing.assert_allclose(thermal_strain_rms(rates, design), expected, rtol=1e-3)

@@ -25,14 +25,21 @@ def _validation_poses(validation):
 
 
 def prediction_for(
-    result, validation_after=None, workspace=Workspace(), analysis=None, unmodelled=None
+    result,
+    validation_after=None,
+    workspace=Workspace(),
+    analysis=None,
+    unmodelled=None,
+    thermal_strain=None,
 ):
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
     covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
     the unidentifiable directions). ``analysis``: the result's identifiability analysis
     (``gsp_kinematics.identifiability.analyse_result``), computed here when None.
     ``unmodelled``: what the model leaves unexplained (``noise_from_data.unmodelled_error``),
-    added at every pose (None: the platform is taken to be exactly the model)."""
+    added at every pose (None: the platform is taken to be exactly the model).
+    ``thermal_strain`` (6,): the uncompensated thermal growth over the run
+    (``gsp_kinematics.prediction.thermal_strain_rms``; None: none), added likewise."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
@@ -45,7 +52,12 @@ def prediction_for(
     if analysis['rank'] < analysis['parameters']:
         return None
     prediction = predict_accuracy(
-        result.geometry, covariance, result.free, workspace, unmodelled=unmodelled
+        result.geometry,
+        covariance,
+        result.free,
+        workspace,
+        unmodelled=unmodelled,
+        thermal_strain=thermal_strain,
     )
     poses = _validation_poses(validation_after)
     measured_position = (validation_after or {}).get('position_mm')
@@ -58,7 +70,7 @@ def prediction_for(
         and len(poses)
     ):
         position, orientation = predicted_errors(
-            result.geometry, covariance, poses, result.free, unmodelled
+            result.geometry, covariance, poses, result.free, unmodelled, thermal_strain
         )
         measured_position = np.asarray(measured_position, dtype=float)
         measured_orientation = np.asarray(measured_orientation, dtype=float)

@@ -124,8 +124,18 @@ def _accuracy_table(data):
     if not accuracy:
         return None
     rows = []
-    for label, key in (('calibrated (held out)', 'calibrated'), ('nominal geometry', 'nominal')):
-        position, phi = accuracy[key]['position_mm'], accuracy[key]['phi_deg']
+    labelled = [
+        (accuracy, 'calibrated (held out)', 'calibrated'),
+        (accuracy, 'nominal geometry', 'nominal'),
+    ]
+    if accuracy.get('measured_on') == 'workspace':
+        labelled[0] = (accuracy, 'calibrated (held out, workspace postures)', 'calibrated')
+    if accuracy.get('selected'):
+        labelled.append(
+            (accuracy['selected'], 'calibrated (held out, selected postures)', 'calibrated')
+        )
+    for entry, label, key in labelled:
+        position, phi = entry[key]['position_mm'], entry[key]['phi_deg']
         rows.append(
             [
                 label,

@@ -178,7 +178,7 @@ class CalibrationRun:
                 f'{len(selection.poses)} postures selected (scaled condition number '
                 f'{selection.condition_number:.4g})'
             )
-            poses = selection.poses
+            poses = postures.with_workspace_poses(settings, selection.poses)
         poses, additions = await _ordered(self, poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)

@@ -21,7 +21,12 @@ import time
 import numpy as np
 
 from gsp_calibrator.run.approach import effect_design, reference_instant
-from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError, route_additions_line
+from gsp_calibrator.run.postures import (
+    DEFAULT_FREE,
+    CalibrationError,
+    route_additions_line,
+    workspace_poses,
+)
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import acceptance, identifiability, noise_from_data
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
@@ -119,22 +124,21 @@ def identify_from_samples(
     folds=DEFAULT_FOLDS,
     payload_mass=0.0,
     centre_of_mass=(0.0, 0.0, 0.0),
+    workspace_poses=None,
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
 
-    ``samples`` is a :class:`.directory.Samples`; ``sigmas`` are per-sample noise levels (m, rad),
-    scaled by ``SensorNoise.averaged``. The commanded postures start the pose estimates. Fails
+    ``samples``: a :class:`.directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
+    ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
-    converge, or leaves free parameters unidentifiable. The rows' window lag sums
-    (``samples.lag_sums``) give the within-posture noise estimate (rows without: none).
-    ``noise_source``: ``estimated`` or ``configured``
-    (:func:`noise_from_data.identify_with_noise`). A successful outcome is cross-validated
-    over ``folds`` folds and judged against ``requirement`` (:attr:`CalibrationOutcome.accepted`;
-    the goodness of fit, :attr:`CalibrationOutcome.fit_accepted`, is a diagnostic).
-    Effect groups (or ``auto``) in ``free`` use the rows' times and approach directions and the
-    user's ``payload_mass`` (kg) at ``centre_of_mass`` (platform frame, m).
-    """
+    converge, or leaves free parameters unidentifiable. The rows' lag sums give the
+    within-posture noise; ``noise_source``: ``estimated`` or ``configured``
+    (:func:`noise_from_data.identify_with_noise`). A success is cross-validated over ``folds``
+    folds and judged against ``requirement`` (``accepted``; ``fit_accepted`` is a diagnostic),
+    its measured accuracy the held-out error of the rows commanded at ``workspace_poses`` (K, 6;
+    None: of every row; :func:`workspace_rows`). Effects (or ``auto``) in ``free`` use the rows'
+    times and directions and ``payload_mass`` (kg) at ``centre_of_mass`` (platform, m)."""
     free = _checked_free(free, formulation, noise_source)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -186,8 +190,20 @@ def identify_from_samples(
         free_sensor_errors=result.sensor_errors_free,
     )
     judged = (requirement, folds, identify_options, effects)
+    judged += (workspace_rows(samples.commanded_poses, workspace_poses),)
     _judge(outcome, nominal, samples, estimates, row_sigmas, judged)
     return outcome
+
+
+def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
+    """(M,) bool: the rows commanded (``commanded_poses`` (M, 6)) at one of ``workspace_poses``
+    (K, 6; None: none), the run's workspace postures (m, rad; same pose within ``tolerance``)."""
+    commanded = np.asarray(commanded_poses, dtype=float).reshape(-1, 6)
+    if workspace_poses is None or not len(workspace_poses) or not len(commanded):
+        return np.zeros(len(commanded), bool)
+    poses = np.asarray(workspace_poses, dtype=float).reshape(-1, 6)
+    distance = np.max(np.abs(commanded[:, None, :] - poses[None, :, :]), axis=2)
+    return distance.min(axis=1) < tolerance
 
 
 def _checked_free(free, formulation, noise_source):
@@ -270,18 +286,33 @@ def _effects_record(result, design, nominal, choice, untried, samples):
     return effects_record(result, design, nominal, choice, untried, stamp)
 
 
+def uncompensated_thermal_strain(result, design):
+    """(6,) the rms thermal strain of each leg over the run relative to the reference instant,
+    which the controllers do not compensate (``prediction.thermal_strain_rms``), when ``result``
+    identified the thermal growth on the run's ``design``; else None."""
+    from gsp_kinematics.prediction import thermal_strain_rms
+
+    rates = [result.effects.get(f'strain_rate{leg}') for leg in range(1, 7)]
+    if design is None or design.times_s is None or any(rate is None for rate in rates):
+        return None
+    return thermal_strain_rms([rate[0] for rate in rates], design)
+
+
 def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
-    """``judged``: ``(requirement, folds, identify_options, effects)``. Cross-validate ``outcome``'s result, estimate what the model leaves unexplained, predict
-    the accuracy with it, and judge against ``requirement`` (fills the outcome)."""
+    """``judged``: ``(requirement, folds, identify_options, effects, workspace rows)``.
+    Cross-validate ``outcome``'s result (the headline over the workspace rows, when the run
+    has them), estimate what the model leaves unexplained, predict the accuracy with it (and
+    the uncompensated thermal growth), and judge against ``requirement`` (fills the outcome)."""
     from gsp_calibrator.report.accuracy import prediction_for
 
-    requirement, folds, identify_options, effects = judged
+    requirement, folds, identify_options, effects, workspace = judged
     result = outcome.result
     noise = SensorNoise.from_channels(
         {channel: entry.noise for channel, entry in estimates.items()}, default=row_sigmas
     )
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
+    thermal = uncompensated_thermal_strain(result, effects)
     validation = cross_validate(
         result,
         nominal,
@@ -291,12 +322,17 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
         folds=folds,
         noise=noise,
         effects=effects,
+        uncompensated_strain=thermal,
         **extra,
     )
-    outcome.accuracy = validation.summary()
+    outcome.accuracy = validation.summary(workspace)
+    outcome.accuracy['workspace_postures'] = [int(k) for k in samples.posture[workspace]]
     outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
     outcome.prediction = prediction_for(
-        result, analysis=outcome.identifiability, unmodelled=outcome.unmodelled
+        result,
+        analysis=outcome.identifiability,
+        unmodelled=outcome.unmodelled,
+        thermal_strain=thermal,
     )
     headline = None
     if outcome.prediction is not None:
@@ -332,6 +368,7 @@ def identify_with_settings(settings, samples):
         settings.cross_validation_folds,
         payload_mass=settings.payload_mass,
         centre_of_mass=settings.payload_centre_of_mass,
+        workspace_poses=workspace_poses(settings),
         options=settings.identify_options(),
     )
 
@@ -356,7 +393,7 @@ def finish_run(run, settings, samples, collection, options):
     additions = collection.get('route_additions') or {}
     summary = outcome_summary(
         outcome,
-        selected=settings.posture_count + additions.get('added_postures', 0),
+        selected=settings.commanded_posture_count + additions.get('added_postures', 0),
         skipped=skipped,
         run_directory=run.path,
     )

@@ -103,6 +103,36 @@ def choose_postures(
     )
 
 
+#: The random stream of the workspace postures beside the pool's (one seed gives both).
+WORKSPACE_STREAM = 23
+
+
+def workspace_poses(settings):
+    """The run's workspace postures (K, 6), K = ``settings.workspace_postures``: reachable
+    postures drawn at random over the workspace (seeded by ``settings.seed``, a stream apart
+    from the pool's), commanded with the selected ones. Drawn at random, not selected, their
+    held-out errors estimate the accuracy over the workspace (the selection's postures are its
+    extremes). Any calibrator of the same settings (a resumed run, a rebuild from the
+    recording, a re-identification) draws the same, so the rows are recognised by their
+    commanded pose (``run.identify.workspace_rows``)."""
+    return workspace_poses_of(settings.nominal, settings.workspace_postures, settings.seed)
+
+
+def workspace_poses_of(nominal, count, seed):
+    """:func:`workspace_poses` of a run's ``nominal`` geometry, ``workspace_postures`` (count)
+    and ``seed`` (e.g. from its stored options: a run stored before them has none)."""
+    count = int(count or 0)
+    if count <= 0:
+        return np.zeros((0, 6))
+    rng = np.random.default_rng([int(seed), WORKSPACE_STREAM])
+    return sample_valid_postures(nominal, count, rng)
+
+
+def with_workspace_poses(settings, poses):
+    """The selected ``poses`` (N, 6) and the run's :func:`workspace_poses` after them."""
+    return np.vstack([np.asarray(poses, dtype=float).reshape(-1, 6), workspace_poses(settings)])
+
+
 def route_start(nominal, leg_readings):
     """``(pose (6,) m and rad, reason)``: where the route starts, the current posture of a
     platform whose leg sensors read ``leg_readings`` (6,) m or None (FK of ``nominal``); the home
@@ -182,10 +212,11 @@ def route_additions_line(additions):
 
 
 def commanded_count(settings, state):
-    """The postures a run plans to command: its ``posture_count`` and the route's additions
-    for the effects (``state``: its ``RunState``, None before it has one)."""
+    """The postures a run plans to command: its ``commanded_posture_count`` (the selection and
+    the workspace postures) and the route's additions for the effects (``state``: its
+    ``RunState``, None before it has one)."""
     additions = {} if state is None else state.route_additions or {}
-    return settings.posture_count + int(additions.get('added_postures', 0))
+    return settings.commanded_posture_count + int(additions.get('added_postures', 0))
 
 
 class PostureReplacer:

@@ -154,7 +154,8 @@ def accuracy_headline(outcome):
         return ''
     calibrated = accuracy['calibrated']['position_mm']['mean']
     nominal = accuracy['nominal']['position_mm']['mean']
-    text = f'; accuracy {calibrated:.3g} mm held out (nominal {nominal:.3g} mm'
+    where = ' on workspace postures' if accuracy.get('measured_on') == 'workspace' else ''
+    text = f'; accuracy {calibrated:.3g} mm held out{where} (nominal {nominal:.3g} mm'
     prediction = (outcome.prediction or {}).get('random')
     if prediction:
         text += f', predicted {prediction["position_mm"]["mean"]:.3g} mm'

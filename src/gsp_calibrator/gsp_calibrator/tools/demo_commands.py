@@ -197,6 +197,8 @@ def _calibrator_parameters(args, output_root, rate):
         '-p',
         f'pool_size:={max(int(args.pool_size), int(args.posture_count))}',
         '-p',
+        f'workspace_postures:={int(getattr(args, "workspace_postures", 0))}',
+        '-p',
         f'samples_per_posture:={int(args.samples_per_posture)}',
         '-p',
         f'sync_tolerance:={0.5 / rate!r}',

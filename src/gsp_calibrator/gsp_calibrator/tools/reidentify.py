@@ -56,6 +56,13 @@ EXIT_BAD_INPUT = 2
 VALIDATION_POSTURES = 50
 
 
+def _workspace_poses(nominal, options):
+    """The run's workspace postures (``run.postures.workspace_poses_of``) from its options."""
+    from gsp_calibrator.run.postures import workspace_poses_of
+
+    return workspace_poses_of(nominal, options.get('workspace_postures', 0), options.get('seed', 0))
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog='gsp_reidentify',
@@ -211,6 +218,7 @@ def reidentify(args, out=None):
             folds=int(options['cross_validation_folds']),
             payload_mass=options['payload_mass'],
             centre_of_mass=options['payload_centre_of_mass'],
+            workspace_poses=_workspace_poses(nominal, options),
             options=_options(options),
         )
     except (IdentificationError, postures.CalibrationError) as error:
@@ -324,6 +332,7 @@ def refresh_report(
         folds=int(options['cross_validation_folds']),
         payload_mass=options['payload_mass'],
         centre_of_mass=options['payload_centre_of_mass'],
+        workspace_poses=_workspace_poses(nominal, options),
         options=_options(options),
     )
     if outcome.result is None:

@@ -25,9 +25,11 @@ class CheckRun(CalibrationRun):
     """One check with ``settings``, hosted by ``host`` (a ``run.host.RunHost``)."""
 
     def __init__(self, host, settings, resume=False):
-        # A check measures its whole plan (it never stops early nor adds postures) and judges
-        # its own rows only.
-        settings = dataclasses.replace(settings, stop_when_accurate=False, reuse_rows_from='')
+        # A check measures its whole plan (it never stops early nor adds postures, workspace
+        # postures included: its plan is its own) and judges its own rows only.
+        settings = dataclasses.replace(
+            settings, stop_when_accurate=False, reuse_rows_from='', workspace_postures=0
+        )
         super().__init__(host, settings, resume=False)
         self.reference = None
         self.plan = None
