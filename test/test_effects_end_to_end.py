@@ -21,8 +21,10 @@ from gsp_calibrator.tools import demo, demo_commands, reidentify
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.geometry import default_geometry, geometry_to_parameters, load_geometry
+from gsp_kinematics.identification import identify
 from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.validation import validate
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.validation import simulate_commands, validate
 
 CALIBRATION_TIMEOUT_S = 600.0  # generous: the machine may be loaded
 WAIT_S = 60.0
@@ -66,6 +68,30 @@ def _reidentified(run, free, output):
     )
     assert code == 0
     return Path(path)
+
+
+def _ideal_accuracy_mm(samples, checks, draws=5):
+    """The mean position error (mm) over ``checks`` of the same run's postures (``samples``'
+    commanded poses, in their order) calibrated on the ideal platform (``extended``, the
+    default noise averaged as the rows were): the median over ``draws`` noise draws."""
+    nominal, true = default_geometry('nominal'), default_geometry('true')
+    poses = samples.commanded_poses
+    ideal = simulate_commands(true, nominal, poses)
+    sigmas = DEFAULT_SENSOR_NOISE.averaged(samples.n_samples)
+    scale = np.concatenate([np.full(6, sigmas.leg_lengths), sigmas.readings()])
+    errors = []
+    for seed in range(draws):
+        noise = np.random.default_rng(seed).normal(size=(len(poses), 10)) * scale
+        result = identify(
+            nominal,
+            ideal.leg_readings + noise[:, :6],
+            ideal.device_readings + noise[:, 6:],
+            sigmas,
+            free=['extended'],
+            pose_guesses=poses,
+        )
+        errors.append(validate(true, result.geometry, checks)['position_mm_mean'])
+    return float(np.median(errors))
 
 
 def _calibrate_and_check(session, checks):
@@ -120,10 +146,15 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     data = json.loads((run / 'result.json').read_text())
     assert data['accepted'] is True
     choice = data['effects']['model_choice']
-    # The compliance dominates the realistic platform; with the thermal growth it is chosen
-    # in every run (docs/platform_effects.md); the backlash and the joint offsets are smaller
-    # than the noise resolves in 30 postures in some runs.
-    assert 'compliance' in choice['groups'], choice
+    # What a 30-posture run identifies (docs/platform_effects.md#through-the-calibrator): the
+    # compliance (tens of um) and the backlash (4 um, 0.3-0.5 um Cramer-Rao per leg, every leg
+    # arriving both ways), always. The joint offsets (20 um against about 8-12 um Cramer-Rao per leg)
+    # and the growth during a run of about a minute (a few um, the legs barely warm) are within
+    # what it resolves: chosen in some runs, not asserted.
+    assert {'compliance', 'backlash'} <= set(choice['groups']), choice
+    # The run commanded the route's additions: reference revisits, each its own posture.
+    additions = data['collection']['route_additions']
+    assert additions['groups'] == ['backlash', 'thermal'] and additions['reference_revisits'] >= 3
     calibrated = load_geometry(run / 'result.yaml')
     assert set(calibrated.effects.groups()) == set(choice['groups'])
     assert calibrated.effects.payload_mass == REALISTIC.payload_mass
@@ -135,6 +166,9 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
 
     # samples.csv and the rebuild from the recording give each row the same approach directions.
     samples = read_samples(run / 'samples.csv')
+    revisits = [m + 1 for m, kind in enumerate(additions['kind']) if kind == 'reference']
+    kept = set(samples.posture.tolist())
+    assert sum(k in kept for k in revisits) >= 2  # a loaded machine may lose one
     rebuilt = rebuild.samples_from_recording(recording_parts(run))
     common = sorted(set(samples.posture) & set(rebuilt.posture))
     assert len(common) >= 0.8 * len(samples)
@@ -151,10 +185,19 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     times = np.linspace(ended - started, ended - started + 60.0, len(checks))
     true_auto = validate(true, calibrated, checks, REALISTIC, times)['position_mm_mean']
     true_plain = validate(true, plain, checks, REALISTIC, times)['position_mm_mean']
+    ideal_mm = _ideal_accuracy_mm(samples, checks)
     print(f'through platform_sim: auto {auto_mm:.4f} mm, plain {plain_mm:.4f} mm')
     print(f'truth: auto {true_auto:.4f} mm, plain {true_plain:.4f} mm; groups {choice["groups"]}')
-    # Measured in three runs: through platform_sim 0.0084-0.0125 mm against 0.0325-0.0379 mm
-    # (3.0-3.9x); the truth 0.0077-0.0112 mm against 0.0336-0.0390 mm (3.5-4.4x). Bound at 1.5x: a run that loses postures to a loaded machine keeps a margin,
-    # and the plain model (the compliance pushed into the geometry) stays well above it.
+    print(f'the same postures on the ideal platform: {ideal_mm:.4f} mm (median of 5 noise draws)')
+    # The issue's target is 1.5x of the ideal platform's accuracy over 20 seeds (the bench);
+    # one run's noise draw moves either side by tens of percent: measured 0.6-1.5x in five
+    # runs, and 2.1x in one that also took the joint offsets (significant at p 5e-4, yet 16-49
+    # um standard deviations per leg in 33 postures: docs/platform_effects.md). 2.5x here.
+    assert true_auto < 2.5 * ideal_mm, (true_auto, ideal_mm)
+    # Measured in six runs with the route's revisits (docs/platform_effects.md): through
+    # platform_sim 0.0044-0.0140 mm against 0.0327-0.0427 mm (2.6-9.7x); the truth 0.0046-0.0154
+    # mm against 0.0344-0.0444 mm (2.9-8.9x); the same postures on the ideal platform 0.0072 mm.
+    # Bound at 1.5x: a run that loses postures to a loaded machine keeps a margin, and the
+    # plain model (the compliance pushed into the geometry) stays well above it.
     assert auto_mm < plain_mm / 1.5, (auto_mm, plain_mm)
     assert true_auto < true_plain / 1.5, (true_auto, true_plain)

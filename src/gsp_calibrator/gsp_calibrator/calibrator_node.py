@@ -293,7 +293,10 @@ class CalibratorNode(Node):
 
     def _posture_count(self):
         run = self._run
-        return run.settings.commanded_posture_count if run is not None else 0
+        if run is None:
+            return 0
+        state = run.session.state if run.session is not None else None
+        return postures.commanded_count(run.settings, state)
 
     def _progress(self, index, phase, message='', residuals=None, warning=False, **extra):
         """Publish the run's progress at posture ``index`` (0 before the first)."""

@@ -231,8 +231,9 @@ PARAMETERS = (
         'extended (the 44 and the identifiable sensor errors kq1..kq6, alpha0), and/or names '
         '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md). '
         'Effect groups compliance, backlash, thermal, joint_offsets (implicit formulation), or '
-        'auto: the groups chosen by cross-validated accuracy, the other names the plain model '
-        '(default extended) (docs/platform_effects.md)',
+        'auto: the groups chosen from the data (a significance test with a held-out guard), the '
+        'other names the plain model (default extended); thermal, backlash and auto add to the '
+        'route what they need: reference revisits, approach postures (docs/platform_effects.md)',
         constraints='non-empty, known names or groups, no duplicates, auto without effect groups',
         check=free_parameters_error,
         subsets=_RUN | {REIDENTIFY_COMMAND_LINE},

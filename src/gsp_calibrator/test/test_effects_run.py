@@ -15,8 +15,8 @@ from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.settings import check_parameters
-from gsp_calibrator.tools import bench_verdict
-from gsp_kinematics.effects.model import REALISTIC, PlatformEffects, temperature_rises
+from gsp_calibrator.tools import bench_effects, bench_verdict
+from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
 from gsp_kinematics.kinematics import inverse_kinematics
 from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
@@ -93,6 +93,15 @@ def test_the_tracker_gives_the_directions_the_platform_arrived_from(design):
     np.testing.assert_array_equal(built.directions, samples.directions)
 
 
+def test_the_bench_commands_its_route_as_the_design_says_the_legs_arrive(design):
+    """The ``effects`` bench simulates the augmented route from where its directions count
+    (the home pose): every posture's legs arrive as the identification's design says."""
+    route = bench_effects.augmented_plan(design)
+    run = bench_effects.route_run(design, route, REALISTIC)
+    assert run.reachable.all()
+    np.testing.assert_array_equal(run.directions, route.directions)
+
+
 def test_a_rejected_posture_moves_no_leg(design):
     nominal = design.settings.nominal
     first, second, third = design.poses[:3]
@@ -150,14 +159,18 @@ def test_auto_chooses_the_effects_of_a_realistic_platform_and_compensates_them(d
     thermal = chosen.effects['thermal']
     assert thermal['reference_time_s'] == pytest.approx(900.0)
     assert thermal['reference_utc'].startswith('2023-11-14T22:28:20')
-    # The true growth over the run, as a mean rate: 0.78 um/min (the fitted line: 0.70).
-    times = np.linspace(0.0, bench_verdict.RUN_S, len(design.poses))
-    lengths = inverse_kinematics(design.true, design.poses)
-    growth = REALISTIC.thermal_expansion * temperature_rises(REALISTIC, times) * lengths
-    true_rate = np.mean(growth[-1] - growth[0]) / (times[-1] / 60.0) * 1e6
+    # The warming's time constant, chosen among the calibrator's by the fit's cost: the true.
+    tau = REALISTIC.thermal_time_constant
+    assert thermal['thermal_time_constant_s'] == tau
+    # The true drift at the reference instant (the run's end, three time constants in): about
+    # 0.13 um/min, the initial rate slowed by exp(-3).
+    lengths = np.mean(inverse_kinematics(design.true, design.poses), axis=0)
+    rise = REALISTIC.thermal_expansion * REALISTIC.temperature_rise * lengths
+    true_rate = np.mean(rise / tau * np.exp(-bench_verdict.RUN_S / tau)) * 60.0 * 1e6
     assert thermal['mean_drift_um_per_min'] == pytest.approx(true_rate, rel=0.3)
     text = outcome_summary(chosen)
-    assert 'thermal drift:' in text and 'um/min' in text and 'the geometry refers to' in text
+    assert 'thermal drift (a first-order warming, 300 s, at the reference instant)' in text
+    assert 'um/min' in text and 'the geometry refers to' in text
 
 
 def test_without_the_payload_mass_auto_does_not_try_the_compliance_and_says_why(design):

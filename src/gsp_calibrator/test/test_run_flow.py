@@ -54,6 +54,7 @@ class FakePlatform:
         self.failure_after = failure_after
         self.link = None
         self.commands = 0
+        self.commanded = []  #: the poses commanded, in order
 
     def hear_every_topic(self, collection):
         """Every sensor topic speaks once, at its current reading (the system check awaits it)."""
@@ -70,6 +71,7 @@ class FakePlatform:
             collection.sensor(topic, messages[topic], 0)
 
     def commander(self, pose):
+        self.commanded.append(np.array(pose, dtype=float))
         self.commands += 1
         k = self.commands
         return str(k), k * 1_000_000_000, lambda: self.link.feed(lambda _: self.end(k, pose))
@@ -303,3 +305,79 @@ def test_a_posture_s_end_is_kept_before_the_run_sees_it():
     failure = TopicSilent(names.TOPIC_LVDT, 'waiting', 'silent')
     link.fail(failure)  # between two postures (a second source, a failed write)
     assert link.command(2, pose).result() is failure
+
+
+def test_the_route_has_what_the_effect_groups_to_identify_need():
+    """Reference revisits for thermal (and auto, which may choose it), none for the groups a
+    route does not serve; each revisit is at the reference's pose."""
+    settings = CalibratorSettings.from_values({'posture_count': 30, 'pool_size': 120})
+    poses = postures.choose_postures(*postures.selection_arguments(settings)).poses
+    for free in (['extended'], ['extended', 'joint_offsets']):
+        settings = CalibratorSettings.from_values({'free_parameters': free})
+        assert postures.effect_route(settings, poses, home_pose()) is None
+    settings = CalibratorSettings.from_values({'free_parameters': ['auto'], 'payload_mass': 40.0})
+    assert postures.route_effect_groups(settings.free_parameters) == ['backlash', 'thermal']
+    route = postures.effect_route(settings, poses, home_pose())
+    revisits = [m for m, kind in enumerate(route.kind) if kind == 'reference']
+    # 30 postures: the reference first, revisited after every 10 and at the end.
+    assert len(revisits) == 3 and route.added_postures >= 3
+    np.testing.assert_array_equal(route.poses[revisits], np.repeat(poses[:1], 3, axis=0))
+    assert not route.one_way_legs and route.added_s > 0.0
+    additions = postures.route_additions(route, ['backlash', 'thermal'])
+    assert additions['added_postures'] == route.added_postures
+    assert '3 reference revisits' in postures.route_additions_line(additions)
+
+
+def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp_path):
+    """With ``auto`` the run commands the route with the effects' additions: each revisit of
+    the reference is a posture of its own (state.json, samples.csv), and the progress, the
+    response and result.json say what the additions cost."""
+    host = FakeHost()
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    success, message = host.serve(settings)
+    assert success, message
+    selection = postures.choose_postures(*postures.selection_arguments(settings))
+    heard, _ = sensor_measurements(host.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
+    start, _ = postures.route_start(settings.nominal, heard[0])
+    ordered = selection.poses[postures.posture_route(settings, selection.poses, start).order]
+    route = postures.effect_route(settings, ordered, start)
+    commanded = np.asarray(host.session.state.poses)
+    np.testing.assert_allclose(commanded, route.poses, atol=1e-12)  # m, rad
+    samples = host.session.run.read_samples()
+    assert len(samples) == len(route.poses) == 30 + route.added_postures
+    revisits = [m + 1 for m, kind in enumerate(route.kind) if kind == 'reference']
+    assert len(revisits) == 3 and set(revisits) <= set(samples.posture.tolist())
+    np.testing.assert_allclose(commanded[np.array(revisits) - 1], commanded[[0, 0, 0]], atol=0)
+    result = json.loads(host.session.run.file('result.json').read_text())
+    additions = result['collection']['route_additions']
+    assert additions['reference_revisits'] == 3
+    assert additions['added_postures'] == route.added_postures
+    line = postures.route_additions_line(additions)
+    assert any(line == text for _, _, text in host.progress_log)
+    assert line in message
+    # The additions count among the postures commanded.
+    total = len(route.poses)
+    assert any(text.startswith(f'posture {total} of {total}') for _, _, text in host.progress_log)
+    assert f'{total} posture(s) of {total} commanded' in message
+
+
+def test_a_resumed_auto_run_keeps_its_route_with_the_revisits(tmp_path):
+    """A run that failed after 12 postures, resumed: it commands the rest of the augmented
+    route it started (the revisits among them), not a new one, and keeps its record."""
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    failed = FakeHost(failure_after=12)
+    success, _ = failed.serve(settings)
+    assert not success
+    started = _state(failed.session.run.path)
+    assert started['route_additions']['reference_revisits'] == 3
+    host = FakeHost(seed=1)
+    run = CalibrationRun(host.host, settings, True)
+    host.platform.hear_every_topic(run.collection)
+    host.run = run
+    success, message = asyncio.run(run.serve())
+    assert success, message
+    state = _state(host.session.run.path)
+    assert state['poses'] == started['poses'] and len(state['poses']) == 33
+    assert state['route_additions'] == started['route_additions']
+    # Rows 1-12 were kept; the resumed run commands postures 13-33 of the augmented route.
+    np.testing.assert_allclose(host.platform.commanded, started['poses'][12:], atol=1e-12)

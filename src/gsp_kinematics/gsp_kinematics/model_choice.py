@@ -1,39 +1,64 @@
-"""Choose the model from the data (``auto``): which effect groups to free, by cross-validated
-accuracy (docs/platform_effects.md#choosing-the-model).
+"""Choose the model from the data (``auto``): which effect groups to free, by a significance
+test of the fit with the known noise, guarded by cross-validated accuracy
+(docs/platform_effects.md#choosing-the-model).
 
 Forward selection from the plain model (``base``, e.g. ``extended``): each round fits the
-current set plus each remaining effect group whose run design allows it, cross-validates each
-(:func:`gsp_kinematics.cross_validation.cross_validate`), and keeps the best group only if it
-lowers the held-out position error by more than ``min_gain`` (relative): the guard against
-over-fitting, so that on a platform the plain model describes, the plain model stays. When
-no group alone gains enough, all the remaining groups together are tried once (effects that
-mask each other). The
-score is the measured mean held-out position error: every candidate predicts the same postures
-with the same noise, so the noise does not bias the comparison.
+current set plus each remaining effect group whose run design allows it, and keeps the group
+whose fit lowers the chi-square most, only if
+
+- the drop is significant: a likelihood-ratio test, ``delta chi2`` (the fits' squared residuals
+  in units of the row noise, over the rows both used) against ``chi2(k)``, ``k`` the parameters
+  added (6 a group), at ``significance`` divided by the groups tried in the round
+  (Bonferroni). With the known noise, a group the platform does not have lowers the chi-square
+  by ``chi2(k)`` on average; one it has by that plus its parameters' squared signal-to-noise
+  ratios: a small effect that the plan resolves (the joint offsets: 2-3 Cramér-Rao standard
+  deviations per leg) is significant long before it moves the accuracy by tens of percent;
+- and the held-out position error (:func:`gsp_kinematics.cross_validation.cross_validate`) does
+  not grow by more than ``max_cv_loss`` (relative): the guard against a model that fits the
+  rows better and predicts the platform worse.
+
+When no group alone is kept, all the remaining groups together are tried once the same way
+(``k`` their parameters; effects that mask each other). The test needs the rows weighted by
+their real noise: the calibrator weighs them by the within-posture estimate where it has one,
+and every chi-square is divided by the chi2/dof of the fit with all the groups when above 1
+(:func:`variance_factor`: what no group explains, or noise above the weights, does not make
+the groups significant).
 """
 
 import dataclasses
 
 import numpy as np
+from scipy import special
 
 from .cross_validation import cross_validate
 from .effects.groups import EFFECT_GROUPS, EffectDesign
+from .effects.model import NUM_LEGS
 from .identification import IdentificationError, Options, identify
 
-#: Smallest relative drop of the held-out position error for which a group is kept.
-DEFAULT_MIN_GAIN = 0.15
+#: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
+DEFAULT_SIGNIFICANCE = 0.01
+#: Largest relative growth of the held-out position error for which a significant group is kept.
+DEFAULT_MAX_CV_LOSS = 0.5
 DEFAULT_FOLDS = 5
+#: Thermal time constants (s; 0: a linear growth) the calibrator chooses among: a leg warms
+#: with a time constant of minutes to tens of minutes (docs/platform_effects.md).
+DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:
     """One model tried: its effect groups, held-out position error (mm, measured mean; NaN if
-    the fit failed), its cross-validation summary and whether it was kept."""
+    the fit failed), its cross-validation summary, whether it was kept, the fit's ``chi2`` and
+    the test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
 
     groups: tuple
     position_mm: float
     summary: dict | None
     chosen: bool = False
+    chi2: float = float('nan')
+    delta_chi2: float = float('nan')
+    added: int = 0
+    p_value: float = float('nan')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,6 +72,8 @@ class ModelChoice:
     #: The thermal time constant (s) used (0: linear growth) and each one tried: {tau: cost}.
     thermal_time_constant_s: float = 0.0
     thermal_costs: dict = dataclasses.field(default_factory=dict)
+    #: The tests' chi-squares were divided by this (:func:`variance_factor`; 1: the weights).
+    variance_factor: float = 1.0
 
     def to_dict(self):
         return {
@@ -54,8 +81,17 @@ class ModelChoice:
             'reason': self.reason,
             'thermal_time_constant_s': self.thermal_time_constant_s,
             'thermal_costs': {str(tau): cost for tau, cost in self.thermal_costs.items()},
+            'variance_factor': self.variance_factor,
             'candidates': [
-                {'groups': list(c.groups), 'cv_position_mm': c.position_mm, 'chosen': c.chosen}
+                {
+                    'groups': list(c.groups),
+                    'cv_position_mm': c.position_mm,
+                    'chi2': c.chi2,
+                    'delta_chi2': c.delta_chi2,
+                    'added_parameters': c.added,
+                    'p_value': c.p_value,
+                    'chosen': c.chosen,
+                }
                 for c in self.candidates
             ],
         }
@@ -100,8 +136,39 @@ def _fit(nominal, data, free, options, design):
     return result if result.converged else None
 
 
-def _score(nominal, data, base, groups, folds, options):
-    """``(result, Candidate)`` of the model ``base`` + ``groups``."""
+def _chi2(result, rows=None):
+    """The fit's sum of squared weighted residuals over ``rows`` (M,) (default: those it used)."""
+    residuals = np.asarray(result.residuals, dtype=float)
+    used = np.all(np.isfinite(residuals), axis=1) if rows is None else rows
+    return float(np.sum(residuals[used] ** 2))
+
+
+def likelihood_ratio(reference, extended, added, variance_factor=1.0):
+    """``(delta chi2, p value)`` of ``extended`` (a fit with ``added`` more parameters than
+    ``reference``, on the same rows and weights) against ``reference``: the chi-square drop over
+    the rows both fits used, and the probability under ``chi2(added)`` (no effect) of that drop
+    over ``variance_factor`` (the rows' variance in units of the weights, 1: the weights are
+    the noise)."""
+    rows = np.all(np.isfinite(reference.residuals), axis=1)
+    rows &= np.all(np.isfinite(extended.residuals), axis=1)
+    delta = _chi2(reference, rows) - _chi2(extended, rows)
+    return delta, float(special.chdtrc(added, max(delta / variance_factor, 0.0)))
+
+
+def variance_factor(result):
+    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: what its
+    residuals leave unexplained scales the tests' chi-squares (an F test), so a platform with
+    more than the groups describe, or noise above the weights, does not make every group look
+    significant; 1 when the groups describe the rows (the weights are then the noise)."""
+    fit = None if result is None else result.goodness_of_fit
+    if fit is None or not fit.dof > 0:
+        return 1.0
+    return max(1.0, _chi2(result) / fit.dof)
+
+
+def _score(nominal, data, base, groups, folds, options, reference=None, factor=1.0):
+    """``(result, Candidate)`` of the model ``base`` + ``groups``, tested against the fit
+    ``reference`` = ``(result, its groups)`` when given (``factor``: :func:`variance_factor`)."""
     leg_lengths, readings, sigmas, _, design, noise = data
     result = _fit(nominal, data, list(base) + list(groups), options, design)
     if result is None:
@@ -110,8 +177,13 @@ def _score(nominal, data, base, groups, folds, options):
         result, nominal, leg_lengths, readings, sigmas, folds, options, noise, design
     )
     summary = validation.summary()
-    position = summary['calibrated']['position_mm']['measured_mean']
-    return result, Candidate(tuple(groups), float(position), summary)
+    position = float(summary['calibrated']['position_mm']['measured_mean'])
+    test = {}
+    if reference is not None:
+        added = NUM_LEGS * (len(groups) - len(reference[1]))
+        delta, p_value = likelihood_ratio(reference[0], result, added, factor)
+        test = {'delta_chi2': delta, 'added': added, 'p_value': p_value}
+    return result, Candidate(tuple(groups), position, summary, chi2=_chi2(result), **test)
 
 
 def thermal_time_constant(nominal, data, base, groups, candidates, options):
@@ -130,6 +202,48 @@ def thermal_time_constant(nominal, data, base, groups, candidates, options):
     return min(costs, key=costs.get), costs
 
 
+def _keeps(trial, best, threshold, max_cv_loss):
+    """Whether ``trial`` passes the test at ``threshold`` and the held-out guard over ``best``."""
+    return bool(
+        trial.p_value < threshold and trial.position_mm <= (1.0 + max_cv_loss) * best.position_mm
+    )
+
+
+def _forward(nominal, data, base, available, settings):
+    """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``."""
+    folds, options, significance, max_cv_loss, factor = settings
+    result, best = _score(nominal, data, base, (), folds, options)
+    if result is None:
+        raise IdentificationError('the plain model did not converge: no model to choose from')
+    tried, chosen, remaining = [best], (), list(available)
+    while remaining:
+        reference = (result, chosen)
+        trials = [
+            _score(nominal, data, base, chosen + (group,), folds, options, reference, factor)
+            for group in remaining
+        ]
+        tried += [candidate for _, candidate in trials]
+        threshold = significance / len(trials)
+        kept = [
+            t for t in trials if t[0] is not None and _keeps(t[1], best, threshold, max_cv_loss)
+        ]
+        if not kept:
+            break
+        result, best = max(kept, key=lambda item: item[1].delta_chi2)
+        chosen = best.groups
+        remaining = [group for group in remaining if group not in chosen]
+    if len(remaining) > 1:
+        # Effects that mask each other: no one group alone is kept, together they may be.
+        groups = chosen + tuple(remaining)
+        trial_result, together = _score(
+            nominal, data, base, groups, folds, options, (result, chosen), factor
+        )
+        tried.append(together)
+        if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
+            result, best, chosen = trial_result, together, together.groups
+    return result, best, chosen, tried
+
+
 def choose_model(
     nominal,
     leg_lengths,
@@ -139,17 +253,19 @@ def choose_model(
     base=('extended',),
     pose_guesses=None,
     folds=DEFAULT_FOLDS,
-    min_gain=DEFAULT_MIN_GAIN,
+    significance=DEFAULT_SIGNIFICANCE,
+    max_cv_loss=DEFAULT_MAX_CV_LOSS,
     options=Options(),
     noise=None,
     thermal_time_constants=(),
 ):
     """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
-    row weights ``sigmas`` and the run's :class:`EffectDesign` ``design`` (None: no times,
-    directions or mass: only the joint offsets can be tried). ``thermal_time_constants`` (s;
-    0: linear): when the thermal group can be tried, its time constant is first chosen among
-    these by the cost of the fit with every available group (:func:`thermal_time_constant`);
-    empty: the design's."""
+    row weights ``sigmas`` (their real noise: the test's chi-squares are in its units) and the
+    run's :class:`EffectDesign` ``design`` (None: no times, directions or mass: only the joint
+    offsets can be tried). ``significance``, ``max_cv_loss``: the rule of the module docstring.
+    ``thermal_time_constants`` (s; 0: linear): when the thermal group can be tried, its time
+    constant is first chosen among these by the cost of the fit with every available group
+    (:func:`thermal_time_constant`); empty: the design's."""
     design = design or EffectDesign()
     tau, costs = design.thermal_time_constant_s, {}
     available = available_groups(design, len(leg_lengths))
@@ -160,40 +276,22 @@ def choose_model(
         )
         design = dataclasses.replace(design, thermal_time_constant_s=tau)
     data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
-    result, best = _score(nominal, data, base, (), folds, options)
-    if result is None:
-        raise IdentificationError('the plain model did not converge: no model to choose from')
-    tried, chosen = [best], ()
-    remaining = list(available)
-    while remaining:
-        trials = [
-            (group, *_score(nominal, data, base, chosen + (group,), folds, options))
-            for group in remaining
-        ]
-        tried += [candidate for _, _, candidate in trials]
-        group, trial_result, trial = min(
-            trials,
-            key=lambda item: np.inf if np.isnan(item[2].position_mm) else item[2].position_mm,
-        )
-        if not trial.position_mm < (1.0 - min_gain) * best.position_mm:
-            break
-        result, best, chosen = trial_result, trial, chosen + (group,)
-        remaining.remove(group)
-    if len(remaining) > 1:
-        # Effects that mask each other: no one group alone gains enough, together they may.
-        together_result, together = _score(
-            nominal, data, base, chosen + tuple(remaining), folds, options
-        )
-        tried.append(together)
-        if together.position_mm < (1.0 - min_gain) * best.position_mm:
-            result, best, chosen = together_result, together, together.groups
+    factor = 1.0
+    if available:
+        factor = variance_factor(_fit(nominal, data, list(base) + available, options, design))
+    settings = (folds, options, significance, max_cv_loss, factor)
+    result, best, chosen, tried = _forward(nominal, data, base, available, settings)
     tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
     names = ', '.join(chosen) if chosen else 'none'
     reason = (
         f'groups {names}: held-out position error {best.position_mm:.4f} mm; each kept group '
-        f'lowered it by more than {100 * min_gain:.0f} %, no other group did'
+        f'lowered the chi-square significantly (likelihood ratio, p < {significance:g} over the '
+        f'groups of its round) without raising the held-out error by more than '
+        f'{100 * max_cv_loss:.0f} %; no other group did'
     )
     if 'thermal' in chosen and costs:
         shape = f'a first-order warming, {tau:g} s' if tau > 0 else 'a linear growth'
         reason += f'; thermal as {shape} (least fit cost of {sorted(costs)} s, 0: linear)'
-    return ModelChoice(chosen, result, tuple(tried), reason, tau, costs)
+    if factor > 1.0:
+        reason += f'; chi-squares over {factor:.2f}, the chi2/dof that every group together leaves'
+    return ModelChoice(chosen, result, tuple(tried), reason, tau, costs, factor)

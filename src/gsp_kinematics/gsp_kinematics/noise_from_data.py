@@ -227,6 +227,15 @@ def fit_test(result, row_sigmas, within):
     return goodness.lack_of_fit(between, redundancy, redundancy**2 / spread, excluded)
 
 
+def within_sigmas(within, default):
+    """The row sigmas (``SensorNoise``) of the within-posture estimates ``within`` that are not
+    only a lower bound; ``default``'s for the other channels."""
+    return SensorNoise.from_channels(
+        {channel: entry.row for channel, entry in within.items() if not entry.lower_bound},
+        default=default,
+    )
+
+
 def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within, **options):
     """Identify with the row noise estimated from the run: ``(result, {channel: ChannelNoise},
     SensorNoise of the rows used)``.
@@ -237,10 +246,7 @@ def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within,
     (at most :data:`MAX_ROUNDS` fits). ``options`` go to :func:`identify`. The result's goodness
     of fit is :func:`fit_test`.
     """
-    sigmas = SensorNoise.from_channels(
-        {channel: entry.row for channel, entry in within.items() if not entry.lower_bound},
-        default=start,
-    )
+    sigmas = within_sigmas(within, start)
     estimates = {}
     for _ in range(MAX_ROUNDS):
         result = identify(nominal, leg_lengths, readings, sigmas, **options)

@@ -40,13 +40,17 @@ def _instant(stamp_s):
 
 
 def _thermal(result, design, nominal, reference_stamp_s):
-    """The thermal drift of each leg (um/min, its standard deviation, resolved or not) and the
-    instant the geometry refers to."""
+    """The thermal drift of each leg at the reference instant (um/min, its standard deviation,
+    resolved or not), the warming's time constant and the instant the geometry refers to."""
     rates = np.array(
         [result.effects.get(f'strain_rate{leg}', (0.0, math.nan)) for leg in range(1, 7)]
     )
     lengths = np.mean(inverse_kinematics(nominal, np.asarray(result.poses)), axis=0)
-    scale = lengths * 60.0 * 1e6  # 1/s -> um/min
+    # The strain rate is the initial one of a first-order warming: at the reference instant
+    # it has slowed by exp(-t / tau) (1: a linear growth).
+    tau = design.thermal_time_constant_s
+    slowed = math.exp(-design.reference_time_s / tau) if tau > 0 else 1.0
+    scale = lengths * 60.0 * 1e6 * slowed  # 1/s -> um/min
     drift, deviation = rates[:, 0] * scale, rates[:, 1] * scale
     resolved = np.abs(drift) > RESOLVED_SIGMAS * deviation
     return {
@@ -54,6 +58,7 @@ def _thermal(result, design, nominal, reference_stamp_s):
         'drift_sd_um_per_min': deviation.tolist(),
         'resolved': resolved.tolist(),
         'mean_drift_um_per_min': float(np.mean(drift)),
+        'thermal_time_constant_s': float(tau),
         'reference_time_s': float(design.reference_time_s),
         'reference_stamp_s': float(reference_stamp_s),
         'reference_utc': _instant(reference_stamp_s),
@@ -98,8 +103,11 @@ def _thermal_text(thermal):
         for d, resolved in zip(thermal['drift_um_per_min'], thermal['resolved'], strict=True)
     )
     when = thermal['reference_utc'] or f'stamp {thermal["reference_stamp_s"]:.1f} s'
+    tau = thermal.get('thermal_time_constant_s', 0.0)
+    shape = f'a first-order warming, {tau:g} s, ' if tau > 0 else ''
     return (
-        f'thermal drift: {thermal["mean_drift_um_per_min"]:+.2f} um/min mean, per leg {drifts} '
+        f'thermal drift ({shape}at the reference instant): '
+        f'{thermal["mean_drift_um_per_min"]:+.2f} um/min mean, per leg {drifts} '
         f'um/min (? within {RESOLVED_SIGMAS:g} sd); not compensated: the geometry refers to '
         f'{when}, {thermal["reference_time_s"]:.1f} s after the first posture (the last)'
     )
@@ -118,7 +126,7 @@ def effects_lines(record):
             mark = ' (chosen)' if candidate['chosen'] else ''
             lines.append(
                 f'  candidate {groups}: held-out position {candidate["cv_position_mm"]:.4f} mm'
-                f'{mark}'
+                f'{_test_text(candidate)}{mark}'
             )
         for group, why in choice['not_tried'].items():
             lines.append(f'  not tried: {group}' + (f' ({why})' if why else ''))
@@ -133,6 +141,16 @@ def effects_lines(record):
     return lines
 
 
+def _test_text(candidate):
+    """', chi-square drop D (k parameters, p P)' of a candidate tested against the model it
+    extends ('' for the plain model or a failed fit)."""
+    delta, p_value = candidate.get('delta_chi2'), candidate.get('p_value')
+    if delta is None or p_value is None or not math.isfinite(p_value):
+        return ''
+    added = candidate.get('added_parameters', 0)
+    return f', chi-square drop {delta:.1f} ({added} parameters, p {p_value:.2g})'
+
+
 def effects_markdown(record):
     """The ``## Platform effects`` section of ``report.md`` (none without a record)."""
     if not record:
@@ -141,11 +159,15 @@ def effects_markdown(record):
     choice = record.get('model_choice')
     if choice is not None:
         lines += [f'Model chosen by `auto`: {choice["reason"]}.', '']
-        lines += ['| candidate groups | held-out position (mm) | chosen |', '|---|---|---|']
+        lines += [
+            '| candidate groups | held-out position (mm) | chi-square drop, p | chosen |',
+            '|---|---|---|---|',
+        ]
         for candidate in choice['candidates']:
             groups = ', '.join(candidate['groups']) or 'plain'
             chosen = 'yes' if candidate['chosen'] else ''
-            lines.append(f'| {groups} | {candidate["cv_position_mm"]:.4f} | {chosen} |')
+            test = _test_text(candidate).removeprefix(', chi-square drop ') or '-'
+            lines.append(f'| {groups} | {candidate["cv_position_mm"]:.4f} | {test} | {chosen} |')
         lines.append('')
         for group, why in choice['not_tried'].items():
             lines.append(f'- not tried: {group}' + (f' ({why})' if why else ''))

@@ -179,13 +179,12 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = postures.with_workspace_poses(settings, selection.poses)
-        if poses is not None and settings.posture_order == 'route':
-            poses = await self._route(poses)
+        poses, additions = await _ordered(self, poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)
         except (postures.CalibrationError, RuntimeError, ValueError) as error:
             self.log.warning(f'rejected postures will not be replaced: {error}')
-        session.begin(settings, poses, os.getpid(), part)
+        session.begin(settings, poses, os.getpid(), part, additions)
         if session.resumed:
             self.log.info(
                 f'resuming: {len(session.samples)} rows kept, '
@@ -232,7 +231,7 @@ class CalibrationRun:
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
         host, session, settings = self.host, self.session, self.settings
-        count, legs = settings.commanded_posture_count, self.collection.latest_leg_lengths()
+        count, legs = _planned(self), self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
         try:
             while True:
@@ -293,7 +292,7 @@ class CalibrationRun:
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
-        report = posture_report(event, self.settings.commanded_posture_count, self.settings.nominal)
+        report = posture_report(event, _planned(self), self.settings.nominal)
         for level, line in report.log:  # one call site per severity (rclpy requires it)
             if level == 'warning':
                 self.log.warning(line)
@@ -308,7 +307,7 @@ class CalibrationRun:
         """Identify over every row (and ``reused``), write the results (``stopping``: the record
         of a run that stops when good enough), publish and apply; ``(success, text)``."""
         settings, session, host, log = self.settings, self.session, self.host, self.log
-        count = settings.commanded_posture_count
+        count = _planned(self)
         self.save_state(PHASE_IDENTIFYING)
         samples, extra = reused_rows.for_identification(session, reused)
         extra |= {} if stopping is None else {'run_to_requirement': stopping}
@@ -327,6 +326,7 @@ class CalibrationRun:
                 'replacements': session.state.replacements,
                 'settle': settle_statistics(session.state.settle_waits),
                 'processing_lag': host.processing_lags.summary(),
+                'route_additions': session.state.route_additions or None,
                 **extra,
             },
             settings_options(settings),
@@ -362,3 +362,30 @@ class CalibrationRun:
             run_directory=session.run.path,
         )
         return success, format_response(summary, geometry)
+
+
+def _planned(run):
+    """The postures ``run`` (a :class:`CalibrationRun`) plans to command, additions included."""
+    return postures.commanded_count(run.settings, run.session.state)
+
+
+async def _ordered(run, poses):
+    """``(poses, record)``: a new run's selected ``poses`` (None: a resumed run keeps its own)
+    in route order (``posture_order: route``), with the additions the effect groups to identify
+    need (:func:`.postures.effect_route`: reference revisits, approach directions) and their
+    record (:func:`.postures.route_additions`; None: nothing added), said in the progress."""
+    if poses is None:
+        return None, None
+    settings = run.settings
+    if settings.posture_order == 'route':
+        poses = await run._route(poses)
+    start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
+    route = await run.host.in_thread(postures.effect_route, settings, poses, start)
+    if route is None:
+        return poses, None
+    groups = postures.route_effect_groups(settings.free_parameters)
+    additions = postures.route_additions(route, groups)
+    line = postures.route_additions_line(additions)
+    run.log.info(line)
+    run.host.progress(0, names.PHASE_SELECTING, line)
+    return route.poses, additions

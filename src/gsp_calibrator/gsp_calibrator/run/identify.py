@@ -21,7 +21,12 @@ import time
 import numpy as np
 
 from gsp_calibrator.run.approach import effect_design, reference_instant
-from gsp_calibrator.run.postures import DEFAULT_FREE, CalibrationError, workspace_poses
+from gsp_calibrator.run.postures import (
+    DEFAULT_FREE,
+    CalibrationError,
+    route_additions_line,
+    workspace_poses,
+)
 from gsp_calibrator.run.response import outcome_summary
 from gsp_kinematics import acceptance, identifiability, noise_from_data
 from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
@@ -163,7 +168,7 @@ def identify_from_samples(
         return outcome
     outcome.duration_s = time.perf_counter() - started
     outcome.result = result
-    outcome.effects = _effects_record(result, design, nominal, choice, untried, samples)
+    outcome.effects = _effects_record(result, effects or design, nominal, choice, untried, samples)
     if not result.converged:
         outcome.message = (
             f'identification did not converge after {result.iterations} iteration(s) '
@@ -226,8 +231,12 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
     plain, auto = split_auto(free)
     choice = untried = None
     if auto:
-        choice, untried = _choose(nominal, samples, row_sigmas, design, plain, identify_options)
+        # The choice's test needs the rows' real noise: the within-posture estimate where the
+        # run gives one (not only a lower bound), else the configured sigmas.
+        known = noise_from_data.within_sigmas(within, row_sigmas)
+        choice, untried = _choose(nominal, samples, known, design, plain, identify_options)
         free = plain + list(choice.groups)
+        design = dataclasses.replace(design, thermal_time_constant_s=choice.thermal_time_constant_s)
     effects = design if any(is_effect_name(n) for n in free) else None
     result, estimates, used = noise_from_data.identify_with_noise(
         noise_source,
@@ -247,10 +256,10 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
 
 def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
-    the effect groups the run's ``design`` allows beside the ``plain`` model, by
-    cross-validated accuracy with the core's over-fitting guard (weights: ``row_sigmas``)."""
+    the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
+    significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
     from gsp_calibrator.report.effects import untried_groups
-    from gsp_kinematics.model_choice import choose_model
+    from gsp_kinematics.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
 
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
@@ -262,6 +271,7 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
         design,
         base=tuple(plain),
         pose_guesses=samples.commanded_poses,
+        thermal_time_constants=DEFAULT_THERMAL_TIME_CONSTANTS,
         **extra,
     )
     return choice, untried_groups(design, len(samples), effect_groups_of(plain))
@@ -380,9 +390,15 @@ def finish_run(run, settings, samples, collection, options):
 
     outcome = identify_with_settings(settings, samples)
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
+    additions = collection.get('route_additions') or {}
     summary = outcome_summary(
-        outcome, selected=settings.commanded_posture_count, skipped=skipped, run_directory=run.path
+        outcome,
+        selected=settings.commanded_posture_count + additions.get('added_postures', 0),
+        skipped=skipped,
+        run_directory=run.path,
     )
+    if additions:
+        summary += '\n' + route_additions_line(additions)
     report_error = ''
     if outcome.result is not None:
         try:

@@ -7,6 +7,8 @@ import time
 
 import numpy as np
 
+from gsp_kinematics.effects.groups import EFFECT_GROUPS, effect_groups_of, split_auto
+from gsp_kinematics.effects.plan import augment_route
 from gsp_kinematics.identification import (
     resolve_free,
 )
@@ -29,6 +31,13 @@ HELD_TOLERANCE = 1e-4
 
 #: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
 DEFAULT_FREE = ('extended',)
+#: The effect groups whose identification needs more of the route than the selection: thermal
+#: (reference revisits) and backlash (both approach directions).
+ROUTE_GROUPS = ('thermal', 'backlash')
+#: gsp_plan's timing of a posture (its defaults): the settle time (s) and the rate (Hz) of the
+#: synchronised samples; the calibrator predicts the time its route additions cost with them.
+PLAN_SETTLE_S = 0.02
+PLAN_SENSOR_RATE_HZ = 200.0
 
 
 class CalibrationError(RuntimeError):
@@ -151,6 +160,63 @@ def posture_route(settings, poses, start_pose):
             route, order=order, travel_s=path_time(times, np.r_[0, order + 1])
         )
     return route
+
+
+def route_effect_groups(free):
+    """The effect groups among ``free`` (names, groups or ``auto``: every group it may try)
+    whose identification needs route additions (:data:`ROUTE_GROUPS`)."""
+    plain, auto = split_auto(free)
+    groups = list(EFFECT_GROUPS) if auto else effect_groups_of(plain)
+    return [group for group in groups if group in ROUTE_GROUPS]
+
+
+def effect_route(settings, poses, start_pose):
+    """The route a run with ``settings`` commands through ``poses`` (N, 6, in commanded order)
+    from ``start_pose``: :func:`gsp_kinematics.effects.plan.augment_route` for the effect groups
+    its ``free_parameters`` free or ``auto`` may choose (thermal: reference revisits; backlash:
+    both approach directions), timed with the run's leg limits and gsp_plan's posture timing;
+    None when they need nothing (no such group). A revisit is a posture of its own (its own
+    1-based number in state.json) at the same pose."""
+    groups = route_effect_groups(settings.free_parameters)
+    if not groups:
+        return None
+    dwell_s = PLAN_SETTLE_S + settings.samples_per_posture / PLAN_SENSOR_RATE_HZ
+    return augment_route(
+        settings.nominal,
+        poses,
+        groups,
+        start_pose=start_pose,
+        dwell_s=dwell_s,
+        limits=settings.motion_limits,
+    )
+
+
+def route_additions(route, groups):
+    """``state.json``'s and ``result.json``'s record of what ``route`` (an ``AugmentedRoute``)
+    added for ``groups``: the postures and predicted seconds, and what each commanded one is."""
+    summary = route.to_dict()
+    return {'groups': list(groups), **{k: summary[k] for k in summary if k != 'order'}}
+
+
+def route_additions_line(additions):
+    """One line saying what the route additions cost (and the legs still arriving one way)."""
+    one_way = additions['one_way_legs']
+    return (
+        f'route for the effects ({", ".join(additions["groups"])}): {additions["added_postures"]} '
+        f'postures added ({additions["reference_revisits"]} reference revisits, '
+        f'{additions["approach_insertions"]} for the approach directions), '
+        f'+{additions["added_s"]:.1f} s predicted ({additions["plain_s"]:.1f} -> '
+        f'{additions["total_s"]:.1f} s)'
+        + (f'; legs {one_way} still arrive from one direction only' if one_way else '')
+    )
+
+
+def commanded_count(settings, state):
+    """The postures a run plans to command: its ``commanded_posture_count`` (the selection and
+    the workspace postures) and the route's additions for the effects (``state``: its
+    ``RunState``, None before it has one)."""
+    additions = {} if state is None else state.route_additions or {}
+    return settings.commanded_posture_count + int(additions.get('added_postures', 0))
 
 
 class PostureReplacer:

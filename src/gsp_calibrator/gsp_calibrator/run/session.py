@@ -116,12 +116,15 @@ class RunSession:
     def resumed(self):
         return self.state is not None and self.state.sessions > 1
 
-    def begin(self, settings, poses, pid, recording_file=None):
+    def begin(self, settings, poses, pid, recording_file=None, route_additions=None):
         """Start collecting: ``poses`` is a new run's selection (a resumed run keeps its own);
-        ``recording_file``: this session's recording, if any. Writes state.json."""
+        ``recording_file``: this session's recording, if any; ``route_additions``: what the
+        effect groups added to a new run's route (``postures.route_additions``). Writes
+        state.json."""
         if self.state is None:
             poses = np.asarray(poses, dtype=float).reshape(-1, 6)
             self.state = RunState(selection_options(settings), poses.tolist())
+            self.state.route_additions = dict(route_additions or {})
             self.remaining = list(range(1, len(poses) + 1))
         else:
             self.remaining = postures_to_collect(self.state, self.samples)

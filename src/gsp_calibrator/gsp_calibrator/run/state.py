@@ -95,6 +95,9 @@ class RunState:
     #: postures added from the pool by a run that stops when it is good enough (the last of
     #: ``poses``)
     added: int = 0
+    #: what the effect groups added to the route (``postures.route_additions``; {}: nothing):
+    #: reference revisits and approach postures, each its own posture at a pose of the plan
+    route_additions: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self):
         data = dataclasses.asdict(self)

@@ -25,6 +25,8 @@ import math
 import sys
 
 from gsp_calibrator.run.postures import (
+    PLAN_SENSOR_RATE_HZ,
+    PLAN_SETTLE_S,
     CalibrationError,
 )
 from gsp_calibrator.settings import add_run_options, run_options_error
@@ -112,8 +114,13 @@ def parse_arguments(argv=None):
     add('--z-min-mm', type=float, default=workspace.z_min * 1e3)
     add('--z-max-mm', type=float, default=workspace.z_max * 1e3)
     add('--rotation-range-deg', type=float, default=math.degrees(workspace.rotation_range))
-    add('--settle-s', type=float, default=0.02, help='settle time per posture, s (0.02)')
-    add('--sensor-rate-hz', type=float, default=200.0, help='synchronised sample rate, Hz (200)')
+    add('--settle-s', type=float, default=PLAN_SETTLE_S, help='settle time per posture, s (0.02)')
+    add(
+        '--sensor-rate-hz',
+        type=float,
+        default=PLAN_SENSOR_RATE_HZ,
+        help='synchronised sample rate, Hz (200)',
+    )
     add('--output', default=None, help='write the plan (or the sweep) as JSON here')
     add('--sweep', action='store_true', help='sweep posture counts and samples per posture')
     add('--sweep-postures', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_POSTURES)
