@@ -3,7 +3,7 @@ accuracy (docs/platform_effects.md#choosing-the-model).
 
 Forward selection from the plain model (``base``, e.g. ``extended``): each round fits the
 current set plus each remaining effect group whose run design allows it, cross-validates each
-(:func:`gsp_kinematics.cross_validation.cross_validate`), and keeps the best group only if it
+(:func:`gsp_kinematics.verdict.cross_validation.cross_validate`), and keeps the best group only if it
 lowers the held-out position error by more than ``min_gain`` (relative): the guard against
 over-fitting, so that on a platform the plain model describes, the plain model stays. When
 no group alone gains enough, all the remaining groups together are tried once (effects that
@@ -16,9 +16,9 @@ import dataclasses
 
 import numpy as np
 
+from ..effects.groups import EFFECT_GROUPS, EffectDesign
+from ..identification import IdentificationError, Options, identify
 from .cross_validation import cross_validate
-from .effects.groups import EFFECT_GROUPS, EffectDesign
-from .identification import IdentificationError, Options, identify
 
 #: Smallest relative drop of the held-out position error for which a group is kept.
 DEFAULT_MIN_GAIN = 0.15
