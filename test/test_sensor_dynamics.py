@@ -12,7 +12,7 @@ from scipy import stats
 
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.run.directory import read_samples
-from gsp_calibrator.tools import bench_sensor_dynamics
+from gsp_calibrator.tools.bench import sensor_dynamics as bench_sensor_dynamics
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import forward_kinematics_masked
 from gsp_kinematics.validation import commanded_articular, sensor_measurements

@@ -18,13 +18,6 @@ import os
 import re
 
 from gsp_calibrator.upkeep.parameters import UPKEEP_PARAMETERS
-from gsp_kinematics.acceptance import (
-    DEFAULT_REQUIRED_IMPROVEMENT,
-    DEFAULT_REQUIRED_ORIENTATION_DEG,
-    DEFAULT_REQUIRED_POSITION_MM,
-    Requirement,
-)
-from gsp_kinematics.cross_validation import DEFAULT_FOLDS
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import (
@@ -43,6 +36,13 @@ from gsp_kinematics.sensors.noise import (
 )
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.verdict.acceptance import (
+    DEFAULT_REQUIRED_IMPROVEMENT,
+    DEFAULT_REQUIRED_ORIENTATION_DEG,
+    DEFAULT_REQUIRED_POSITION_MM,
+    Requirement,
+)
+from gsp_kinematics.verdict.cross_validation import DEFAULT_FOLDS
 from gsp_msgs_py import parameter_specs
 from gsp_msgs_py.parameter_specs import (
     ParameterSpec,

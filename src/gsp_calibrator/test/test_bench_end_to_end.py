@@ -1,11 +1,11 @@
-"""Pure parts of gsp_calibrator.tools.bench_end_to_end (no processes started) and gsp_bench's wiring."""
+"""Pure parts of gsp_calibrator.tools.bench.end_to_end (no processes started) and gsp_bench's wiring."""
 
 import json
 import random
 
 import pytest
 
-from gsp_calibrator.tools import bench_end_to_end
+from gsp_calibrator.tools.bench import end_to_end as bench_end_to_end
 
 PLATFORM_REJECTION = {
     'posture': 2,
@@ -115,8 +115,8 @@ def test_sync_check_without_a_collection_record_is_unknown_not_a_crash():
 
 
 def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
-    # Imported here: gsp_calibrator.tools.bench needs gsp_experiments, the pure checks above do not.
-    from gsp_calibrator.tools import bench
+    # Imported here: gsp_calibrator.tools.bench.main needs gsp_experiments, the pure checks above do not.
+    from gsp_calibrator.tools.bench import main as bench
 
     calls = []
     monkeypatch.setattr(
@@ -125,14 +125,14 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         lambda argv, extra_sections: calls.append((argv, extra_sections)) or 0,
     )
     assert bench.main(['--skip-end-to-end']) == 0
-    from gsp_calibrator.tools import (
-        bench_collection_rate,
-        bench_effects,
-        bench_platform_time,
-        bench_run_to_requirement,
-        bench_sensor_dynamics,
-        bench_upkeep_realistic,
-        bench_verdict,
+    from gsp_calibrator.tools.bench import (
+        collection_rate,
+        effects,
+        platform_time,
+        run_to_requirement,
+        sensor_dynamics,
+        upkeep_realistic,
+        verdict,
     )
     from gsp_experiments import bench_noise, bench_sensor_errors, bench_upkeep
 
@@ -143,14 +143,14 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'end_to_end': bench_end_to_end.run,
                 'sensor_errors': bench_sensor_errors.run,
                 'noise_unknown': bench_noise.run,
-                'platform_time': bench_platform_time.run,
-                'sensor_dynamics': bench_sensor_dynamics.run,
-                'collection_rate': bench_collection_rate.run,
-                'verdict': bench_verdict.run,
+                'platform_time': platform_time.run,
+                'sensor_dynamics': sensor_dynamics.run,
+                'collection_rate': collection_rate.run,
+                'verdict': verdict.run,
                 'upkeep': bench_upkeep.run,
-                'upkeep_realistic': bench_upkeep_realistic.run,
-                'effects': bench_effects.run,
-                'run_to_requirement': bench_run_to_requirement.run,
+                'upkeep_realistic': upkeep_realistic.run,
+                'effects': effects.run,
+                'run_to_requirement': run_to_requirement.run,
             },
         )
     ]

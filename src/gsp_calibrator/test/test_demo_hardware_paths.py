@@ -2,7 +2,8 @@
 
 import sys
 
-from gsp_calibrator.tools import bench_end_to_end, demo, demo_commands
+from gsp_calibrator.tools import demo, demo_commands
+from gsp_calibrator.tools.bench import end_to_end as bench_end_to_end
 
 
 def test_ros2_control_replaces_platform_sim_by_the_bridge_and_the_emulated_controller(tmp_path):

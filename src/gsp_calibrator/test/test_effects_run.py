@@ -15,7 +15,8 @@ from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.settings import check_parameters
-from gsp_calibrator.tools import bench_effects, bench_verdict
+from gsp_calibrator.tools.bench import effects as bench_effects
+from gsp_calibrator.tools.bench import verdict as bench_verdict
 from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
 from gsp_kinematics.kinematics import inverse_kinematics
 from gsp_kinematics.noise_from_data import posture_lag_sums

@@ -169,7 +169,7 @@ def test_a_lag_above_one_second_warns_with_its_number():
 def test_the_collection_rate_bench_collects_each_posture_from_cdr_bytes():
     """gsp_bench's collection_rate section feeds the collection as the node does; every posture
     it plans gives its row (its figure is a rate, not a test)."""
-    from gsp_calibrator.tools import bench_collection_rate
+    from gsp_calibrator.tools.bench import collection_rate as bench_collection_rate
 
     assert bench_collection_rate.INTAKE == 'cdr'
     rows = []

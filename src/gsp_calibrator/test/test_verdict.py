@@ -15,7 +15,7 @@ from gsp_calibrator.run.identify import (
     workspace_rows,
 )
 from gsp_calibrator.run.response import NOT_ACCEPTED_HEAD, outcome_summary
-from gsp_calibrator.tools import bench_verdict
+from gsp_calibrator.tools.bench import verdict as bench_verdict
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.identification import PARAMETER_GROUPS
 

@@ -15,7 +15,7 @@
 
 Other packages add sections by calling the benchmark: ``main(extra_sections={key: run})``, each
 ``run(quick=bool) -> dict`` giving the ``bench.json`` section ``key`` (``gsp_bench`` itself is
-``gsp_calibrator.tools.bench``, which adds ``end_to_end``); each gets a ``--skip-<key>`` option. The core's
+``gsp_calibrator.tools.bench.main``, which adds ``end_to_end``); each gets a ``--skip-<key>`` option. The core's
 sections alone: ``python -m gsp_experiments.bench``. With ``--merge`` (the default) keys already in
 ``bench.json`` that this run does not produce are kept, so ``--only`` reruns some sections.
 """

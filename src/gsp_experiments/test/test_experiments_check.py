@@ -1,4 +1,4 @@
-"""The one-minute check (gsp_kinematics.check) on the benches' simulation path: a calibrated
+"""The one-minute check (gsp_kinematics.upkeep.check) on the benches' simulation path: a calibrated
 controller, the shipped real platform (unchanged, or with one leg offset moved), noisy rows."""
 
 import numpy as np
@@ -6,10 +6,11 @@ import pytest
 
 from gsp_experiments.bench_sensor_errors import SAMPLES, SIGMAS, collect
 from gsp_experiments.bench_upkeep import UpkeepDesign, changed_truth
-from gsp_kinematics import acceptance, check, drift
 from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.sensors.noise import SensorNoise
 from gsp_kinematics.travel.motion import MotionLimits, move_time, posture_leg_lengths
+from gsp_kinematics.upkeep import check, drift
+from gsp_kinematics.verdict import acceptance
 
 ROWS = SIGMAS.averaged([SAMPLES])
 REQUIRED = acceptance.Requirement(position_mm=0.05, orientation_deg=0.01)

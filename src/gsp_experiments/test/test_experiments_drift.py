@@ -1,10 +1,10 @@
-"""Drift between two simulated calibrations (gsp_kinematics.drift on the benches' pure path)."""
+"""Drift between two simulated calibrations (gsp_kinematics.upkeep.drift on the benches' pure path)."""
 
 import numpy as np
 import pytest
 
 from gsp_experiments.bench_upkeep import UpkeepDesign, changed_truth
-from gsp_kinematics import drift
+from gsp_kinematics.upkeep import drift
 
 
 @pytest.fixture(scope='module')

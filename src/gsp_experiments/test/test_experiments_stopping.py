@@ -1,4 +1,4 @@
-"""A run that stops when it is good enough (gsp_kinematics.stopping) on the benches' path."""
+"""A run that stops when it is good enough (gsp_kinematics.upkeep.stopping) on the benches' path."""
 
 import math
 
@@ -7,11 +7,11 @@ import pytest
 
 from gsp_experiments.bench_sensor_errors import SAMPLES, SIGMAS
 from gsp_experiments.bench_upkeep import UpkeepDesign, _pool_measurements
-from gsp_kinematics import stopping
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import home_pose
 from gsp_kinematics.selection import posture_information
 from gsp_kinematics.travel.motion import MotionLimits, move_time, posture_leg_lengths
+from gsp_kinematics.upkeep import stopping
 
 ROWS = SIGMAS.averaged([SAMPLES])
 

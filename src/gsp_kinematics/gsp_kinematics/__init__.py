@@ -15,7 +15,7 @@ _EXPORTS = {
         'SensorErrors load_geometry save_geometry'
     ).split(),
     'identification': ('IdentificationResult', 'identify'),
-    'noise': ('DEFAULT_SENSOR_NOISE', 'SensorNoise'),
+    'sensors.noise': ('DEFAULT_SENSOR_NOISE', 'SensorNoise'),
     'kinematics': (
         'ForwardKinematicsError Workspace check_reachable forward_kinematics inverse_kinematics '
         'sample_valid_postures'

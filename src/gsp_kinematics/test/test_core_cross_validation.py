@@ -7,7 +7,10 @@ import numpy as np
 import pytest
 
 from gsp_kinematics import noise_from_data
-from gsp_kinematics.cross_validation import (
+from gsp_kinematics.identification import identify
+from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.validation import sensor_measurements
+from gsp_kinematics.verdict.cross_validation import (
     CrossValidation,
     cross_validate,
     device_pose,
@@ -16,9 +19,6 @@ from gsp_kinematics.cross_validation import (
     noise_removed,
     noise_variances,
 )
-from gsp_kinematics.identification import identify
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.validation import sensor_measurements
 
 SAMPLES = 10
 ROWS = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
@@ -66,7 +66,7 @@ def test_noise_variances_match_monte_carlo(exact, moderate_postures):
     draws = 3000
     position = np.zeros((draws, len(poses), 3))
     phi = np.zeros((draws, len(poses)))
-    from gsp_kinematics.cross_validation import prediction_errors
+    from gsp_kinematics.verdict.cross_validation import prediction_errors
 
     for k in range(draws):
         noisy_legs = legs + rng.normal(0.0, ROWS.leg_lengths, legs.shape)
@@ -163,7 +163,7 @@ def test_the_workspace_figure_adds_the_device_uncertainty_the_selected_does_not(
 def test_the_requirement_is_judged_on_the_larger_of_the_workspace_and_selected_figures():
     """The workspace postures cannot see an error the device's own parameters share with the
     legs; the selected postures' larger errors bound it: a run is judged on the larger."""
-    from gsp_kinematics.acceptance import Requirement, judge
+    from gsp_kinematics.verdict.acceptance import Requirement, judge
 
     def figures(position_mm):
         return {

@@ -1,10 +1,10 @@
-"""gsp_kinematics.drift on synthetic changes with a known covariance (no simulation)."""
+"""gsp_kinematics.upkeep.drift on synthetic changes with a known covariance (no simulation)."""
 
 import numpy as np
 import pytest
 
-from gsp_kinematics import drift
 from gsp_kinematics.geometry import ALL_PARAMETER_NAMES
+from gsp_kinematics.upkeep import drift
 
 NAMES = ALL_PARAMETER_NAMES[36:42] + ('D0', 'gamma')  # Loff1..6, D0, gamma
 

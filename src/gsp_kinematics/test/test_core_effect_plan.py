@@ -10,10 +10,10 @@ from gsp_kinematics.effects.plan import augment_route, group_identifiability
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.identification import Options, identify
 from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.model_choice import thermal_time_constant
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits, posture_leg_lengths
 from gsp_kinematics.validation import simulate_commands, validate
+from gsp_kinematics.verdict.model_choice import thermal_time_constant
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')

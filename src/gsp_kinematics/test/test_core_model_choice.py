@@ -1,4 +1,4 @@
-"""Choosing the model from the data (gsp_kinematics.model_choice): the plain model on a platform
+"""Choosing the model from the data (gsp_kinematics.verdict.model_choice): the plain model on a platform
 it describes, the effect's group on a platform that has it; which groups a run can try."""
 
 import numpy as np
@@ -8,9 +8,9 @@ from gsp_kinematics.effects.groups import EffectDesign
 from gsp_kinematics.effects.model import PlatformEffects
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.model_choice import available_groups, choose_model
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
 from gsp_kinematics.validation import simulate_commands
+from gsp_kinematics.verdict.model_choice import available_groups, choose_model
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')

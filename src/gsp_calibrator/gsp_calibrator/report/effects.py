@@ -12,7 +12,7 @@ import numpy as np
 
 from gsp_kinematics.effects.groups import EFFECT_GROUPS, EFFECT_PARAMETER_NAMES
 from gsp_kinematics.kinematics import inverse_kinematics
-from gsp_kinematics.model_choice import available_groups
+from gsp_kinematics.verdict.model_choice import available_groups
 
 #: A leg's drift counts as resolved when it exceeds this many standard deviations.
 RESOLVED_SIGMAS = 2.0

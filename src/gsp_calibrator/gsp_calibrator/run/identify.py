@@ -6,9 +6,9 @@
    ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
    A result that passes is cross-validated (the accuracy the device measures on postures the
    fit did not use), and judged against the required accuracy
-   (:func:`gsp_kinematics.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
+   (:func:`gsp_kinematics.verdict.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
    is applied. With :data:`gsp_kinematics.identification.AUTO` among the free parameters, the
-   effect groups are chosen first (:func:`gsp_kinematics.model_choice.choose_model`, on the
+   effect groups are chosen first (:func:`gsp_kinematics.verdict.model_choice.choose_model`, on the
    run's ``EffectDesign`` from :mod:`.approach`); the outcome's ``effects`` says what and why.
 2. :func:`finish_run`: identification of a collected run, and its result files.
 
@@ -28,8 +28,7 @@ from gsp_calibrator.run.postures import (
     workspace_poses,
 )
 from gsp_calibrator.run.response import outcome_summary
-from gsp_kinematics import acceptance, identifiability, noise_from_data
-from gsp_kinematics.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics import identifiability, noise_from_data
 from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.goodness import verdict
@@ -39,6 +38,8 @@ from gsp_kinematics.identification import (
     resolve_free,
 )
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.verdict import acceptance
+from gsp_kinematics.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
 
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'
@@ -259,7 +260,7 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
     significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
     from gsp_calibrator.report.effects import untried_groups
-    from gsp_kinematics.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
+    from gsp_kinematics.verdict.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
 
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}

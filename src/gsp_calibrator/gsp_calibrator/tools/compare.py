@@ -1,7 +1,7 @@
 """``gsp_compare``: the drift between two calibrations of a platform (or a calibration and a check).
 
 ``gsp_compare runs/<older> runs/<newer>`` reads each run directory's ``result.json`` (or a
-check's ``check.json``), compares the parameters both estimated (:func:`gsp_kinematics.drift.compare`:
+check's ``check.json``), compares the parameters both estimated (:func:`gsp_kinematics.upkeep.drift.compare`:
 the change, its 1 sigma from both covariances, a global chi-square test and iterated w-tests at a
 family-wise level, 1 % by default) and prints the significant changes and their effect on the pose
 (mm, deg over the workspace). ``--json FILE`` writes the whole comparison.
@@ -13,8 +13,8 @@ import argparse
 import sys
 
 from gsp_calibrator.upkeep.calibration_files import CalibrationFileError, load_calibration
-from gsp_kinematics import drift
 from gsp_kinematics.fileio import write_json
+from gsp_kinematics.upkeep import drift
 
 EXIT_UNCHANGED = 0
 EXIT_CHANGED = 1

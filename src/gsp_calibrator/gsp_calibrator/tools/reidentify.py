@@ -41,13 +41,13 @@ from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: 
     result_json,
     stored_options,
 )
-from gsp_kinematics.acceptance import Requirement
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.geometry import (
     default_geometry_path,
 )
 from gsp_kinematics.identification import IdentificationError, Options
 from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.verdict.acceptance import Requirement
 
 EXIT_OK = 0
 EXIT_FAILED = 1

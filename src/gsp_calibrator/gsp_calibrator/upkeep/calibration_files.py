@@ -4,7 +4,7 @@ A calibration's ``result.json`` holds the free parameters, their estimates (``es
 ``sensor_errors``) and, since the covariance was added, ``covariance`` (``{parameters, si}``).
 An older file without it gives a diagonal covariance from ``standard_deviations``: the drift test
 is then less powerful (it cannot use the correlations), never wrong in level. A check's
-``check.json`` holds its small identification (:mod:`gsp_kinematics.check`).
+``check.json`` holds its small identification (:mod:`gsp_kinematics.upkeep.check`).
 """
 
 import json
@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_kinematics.drift import Calibration
 from gsp_kinematics.geometry import (
     ALL_PARAMETER_NAMES,
     PARAMETER_NAMES,
     SENSOR_PARAMETER_NAMES,
     Geometry,
 )
+from gsp_kinematics.upkeep.drift import Calibration
 
 RESULT_JSON = 'result.json'
 CHECK_JSON = 'check.json'

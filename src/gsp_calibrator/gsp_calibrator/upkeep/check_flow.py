@@ -15,7 +15,7 @@ from gsp_calibrator.run.flow import CalibrationRun, RunFailed
 from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, PHASE_IDENTIFYING
 from gsp_calibrator.upkeep import check_run, history
 from gsp_calibrator.upkeep.calibration_files import RESULT_JSON
-from gsp_kinematics import check
+from gsp_kinematics.upkeep import check
 from gsp_msgs_py import names
 
 PHASE_CHECKING = 'checking'

@@ -3,7 +3,7 @@
 * :func:`check_reference`: what is checked: the geometry the controller runs (the platform's
   latest applied calibration in the history, or a given ``result.yaml``), the calibration's
   covariance and the noise and unmodelled error it found (from its ``result.json``).
-* :func:`check_plan`: the check's postures (:func:`gsp_kinematics.check.choose_check_postures`
+* :func:`check_plan`: the check's postures (:func:`gsp_kinematics.upkeep.check.choose_check_postures`
   from the calibrator's pool, from where the platform is).
 * :func:`evaluate_check`: the verdict from the collected rows (``samples.csv``), written to
   ``check.json`` beside them (:func:`write_check`), with :func:`check_summary` as the text.
@@ -25,10 +25,10 @@ from gsp_calibrator.upkeep.calibration_files import (
     calibration_from_result,
     read_json,
 )
-from gsp_kinematics import check
 from gsp_kinematics.fileio import write_json
 from gsp_kinematics.geometry import GeometryError, load_geometry
 from gsp_kinematics.sensors.noise import NOISE_FIELDS, SensorNoise
+from gsp_kinematics.upkeep import check
 
 RESULT_YAML = 'result.yaml'
 
@@ -122,7 +122,7 @@ def check_reference(output_root, platform, geometry_file=''):
 
 
 def check_plan(reference, start_pose, pool_size, seed, sigmas, samples, limits):
-    """The check's postures (``gsp_kinematics.check.CheckPlan``) from a pool of ``pool_size``
+    """The check's postures (``gsp_kinematics.upkeep.check.CheckPlan``) from a pool of ``pool_size``
     postures (``seed``) reachable under the checked geometry, from ``start_pose``."""
     pool = posture_pool(reference.geometry, pool_size, seed)
     return check.choose_check_postures(

@@ -4,7 +4,7 @@ The run directories stay the data; the database (default ``<output_root>/history
 index of them, rebuilt from them at any time (:func:`rebuild`). A row per run gives its platform,
 kind (``calibration`` or ``check``), UTC time, verdict, accuracy (position mm, orientation deg,
 and where the figure comes from), and per run the significant changes (a calibration against the
-platform's previous calibration, :func:`gsp_kinematics.drift.compare`; a check against the
+platform's previous calibration, :func:`gsp_kinematics.upkeep.drift.compare`; a check against the
 geometry it checked) and the estimates of its free parameters (the plot of what moved).
 
 Crash safety: SQLite's write-ahead log (``journal_mode=WAL``, ``synchronous=FULL``) and one
@@ -27,7 +27,7 @@ from gsp_calibrator.upkeep.calibration_files import (
     read_json,
     run_file,
 )
-from gsp_kinematics import drift
+from gsp_kinematics.upkeep import drift
 
 DATABASE_NAME = 'history.sqlite'
 SCHEMA_VERSION = 1

@@ -6,7 +6,7 @@ import datetime
 
 from gsp_calibrator.report.plots import new_figure, save_figure
 from gsp_calibrator.upkeep import history
-from gsp_kinematics.drift import report_scale
+from gsp_kinematics.upkeep.drift import report_scale
 
 _MARKERS = {'calibration': ('o', '#1f77b4'), 'check': ('s', '#ff7f0e')}
 _RECALIBRATE_COLOUR = '#d62728'

@@ -2,7 +2,7 @@
 rclpy; docs/upkeep.md): its rule from the calibrator's settings, the judgement of the rows so far
 (the calibrator's own identification and cross-validation, run in a worker thread), the pool
 postures it may add, and the record it leaves in ``result.json``. The decisions are
-:mod:`gsp_kinematics.stopping`; the loop is ``gsp_calibrator.run.flow.CalibrationRun._collect``.
+:mod:`gsp_kinematics.upkeep.stopping`; the loop is ``gsp_calibrator.run.flow.CalibrationRun._collect``.
 """
 
 import concurrent.futures
@@ -15,16 +15,16 @@ import numpy as np
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.postures import posture_pool, selection_formulation
 from gsp_calibrator.upkeep import reused_rows
-from gsp_kinematics import stopping
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import ForwardKinematicsError, home_pose, pose_from_leg_readings
 from gsp_kinematics.prediction import accuracy_summary
 from gsp_kinematics.selection import posture_information
 from gsp_kinematics.travel.motion import posture_leg_lengths
+from gsp_kinematics.upkeep import stopping
 
 
 def rule_for(settings):
-    """The :class:`gsp_kinematics.stopping.StoppingRule` of a run's ``CalibratorSettings``:
+    """The :class:`gsp_kinematics.upkeep.stopping.StoppingRule` of a run's ``CalibratorSettings``:
     the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
     ``stop_every`` and ``stop_max_added``; the dwell of ``samples_per_posture`` at 200 Hz and a
     0.5 s settle allowance."""
@@ -74,7 +74,7 @@ def judge_rows(settings, samples, rule):
 class PoolAdditions:
     """The calibrator's posture pool (``pool_size``, ``seed``), for the postures a run adds when
     its plan is not enough: each the one of largest information gain per second of platform
-    time (:func:`gsp_kinematics.stopping.best_addition`). Built in a worker thread."""
+    time (:func:`gsp_kinematics.upkeep.stopping.best_addition`). Built in a worker thread."""
 
     def __init__(self, settings):
         self.settings = settings

@@ -61,7 +61,7 @@ NUM_EFFECT_PARAMETERS = len(EFFECT_PARAMETER_NAMES)
 
 
 #: Among free parameter names: choose the effect groups from the data
-#: (:func:`gsp_kinematics.model_choice.choose_model`); the other names are the plain model.
+#: (:func:`gsp_kinematics.verdict.model_choice.choose_model`); the other names are the plain model.
 AUTO = 'auto'
 #: The plain model of ``auto`` when no other name is given.
 DEFAULT_AUTO_BASE = ('extended',)

@@ -1,4 +1,4 @@
-"""End-to-end section of ``gsp_bench`` (``bench.json`` key ``end_to_end``; see :mod:`.bench`).
+"""End-to-end section of ``gsp_bench`` (``bench.json`` key ``end_to_end``; see :mod:`.main`).
 
 :func:`run` drives ``gsp_demo`` (the three nodes as separate processes, loopback discovery, a
 private random ``ROS_DOMAIN_ID`` per run) in child processes, each with a temporary

@@ -5,14 +5,14 @@ measured with the controller's current geometry. Then:
 
 * **the accuracy now**: the controller geometry's error in predicting where the platform is, from
   the measured leg lengths through forward kinematics, against what the device measures
-  (position mm, phi deg; :func:`gsp_kinematics.cross_validation.prediction_errors`, the measured
+  (position mm, phi deg; :func:`gsp_kinematics.verdict.cross_validation.prediction_errors`, the measured
   accuracy of a calibration), with the rows' noise removed in quadrature; its uncertainty is the
   standard error of the mean over the postures.
 * **has the platform changed?** A small identification of the leg offsets alone (the rest held at
   the controller's values) estimates their change since the calibration. Its uncertainty is the
   check's own (its covariance) plus what the calibration's uncertainty does to it (``K C K^T``,
   ``K`` the regression of the check's leg offsets on the calibration's parameter errors, from the
-  check postures' information factors). :func:`gsp_kinematics.drift.compare` then tests the
+  check postures' information factors). :func:`gsp_kinematics.upkeep.drift.compare` then tests the
   change (global chi-square, iterated w-tests, family-wise ``level``) and names the legs.
 * **the verdict**: ``recalibrate`` when the accuracy now misses the requirement, or when the
   platform has changed significantly since its calibration (a changed platform no longer matches
@@ -25,11 +25,12 @@ import math
 
 import numpy as np
 
-from . import cross_validation, drift
-from .geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
-from .identification import IdentificationError, identify, resolve_free
-from .selection import posture_factors
-from .travel.motion import MotionLimits, move_time, posture_leg_lengths
+from ..geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
+from ..identification import IdentificationError, identify, resolve_free
+from ..selection import posture_factors
+from ..travel.motion import MotionLimits, move_time, posture_leg_lengths
+from ..verdict import cross_validation
+from . import drift
 
 #: The parameters the check identifies: the leg offsets (what a leg's re-homing, a replaced
 #: encoder or a knock changes; a joint's change shows mostly in its leg's offset too).
@@ -173,7 +174,7 @@ def check_platform(
     """The check of ``controller`` (the geometry it runs) from the measured rows ``leg_lengths``
     (M, 6) and ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise
     ``row_sigmas`` (a ``SensorNoise``; add any unmodelled error the calibration found) and the
-    :class:`gsp_kinematics.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
+    :class:`gsp_kinematics.verdict.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
     came from (its covariance; None: taken as exact). A JSON-ready dict: ``verdict``,
     ``reasons``, ``notes`` (what changed within the requirement), ``accuracy``, ``change`` (the drift test of the leg offsets), ``moved``,
     ``identification`` (names, SI estimates and covariance) and ``geometry_si``."""

@@ -30,15 +30,15 @@ import math
 import numpy as np
 from scipy import stats
 
-from .geometry import (
+from ..geometry import (
     ALL_PARAMETER_NAMES,
     ANGULAR_SENSOR_PARAMETERS,
     NUM_ALL_PARAMETERS,
     PARAMETER_INDEX,
     SENSOR_PARAMETER_NAMES,
 )
-from .kinematics import Workspace, sample_valid_postures
-from .prediction import expected_norm, pose_sensitivities
+from ..kinematics import Workspace, sample_valid_postures
+from ..prediction import expected_norm, pose_sensitivities
 
 #: Family-wise level of the drift and check tests (two calibrations of an unchanged platform
 #: are called changed in about this fraction of cases).

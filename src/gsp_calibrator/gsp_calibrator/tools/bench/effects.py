@@ -1,10 +1,10 @@
 """The ``effects`` section of ``make bench`` (docs/platform_effects.md#the-bench): the plan
 augmented for the effect groups (:func:`gsp_kinematics.effects.plan.augment_route`: reference
 revisits, both approach directions) and the model chosen from the data (``auto``,
-:func:`gsp_kinematics.model_choice.choose_model`) on the realistic platform (all four effects),
+:func:`gsp_kinematics.verdict.model_choice.choose_model`) on the realistic platform (all four effects),
 each effect alone and the ideal platform, 20 seeds each.
 
-A run is the verdict section's (:mod:`.bench_verdict`): the calibrator's 60 postures in route
+A run is the verdict section's (:mod:`.verdict`): the calibrator's 60 postures in route
 order, 10 samples per posture at the default noise, ``POSTURE_S`` per posture; here the route is
 augmented for all four groups (the user does not know which the platform has) and the user gives
 the payload (the realistic 40 kg and its centre of mass). ``auto`` chooses among the groups with
@@ -23,7 +23,7 @@ import numpy as np
 
 from gsp_calibrator.run.identify import uncompensated_thermal_strain, workspace_rows
 from gsp_calibrator.run.postures import workspace_poses
-from gsp_calibrator.tools.bench_verdict import (
+from gsp_calibrator.tools.bench.verdict import (
     RUN_S,
     SAMPLES,
     SEEDS,
@@ -31,15 +31,12 @@ from gsp_calibrator.tools.bench_verdict import (
     default_design,
     effect_cases,
 )
-from gsp_kinematics import acceptance
-from gsp_kinematics.cross_validation import noise_removed
 from gsp_kinematics.effects.groups import EFFECT_GROUPS, commanded_leg_readings, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route, effect_identifiability
 from gsp_kinematics.goodness import NOISE_CHANNELS
 from gsp_kinematics.identification import IdentificationError, identify
 from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
 from gsp_kinematics.noise_from_data import WithinNoise, estimate_row_noise, unmodelled_error
 from gsp_kinematics.prediction import (
     accuracy_summary,
@@ -49,6 +46,9 @@ from gsp_kinematics.prediction import (
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_kinematics.validation import pose_errors, simulate_commands
+from gsp_kinematics.verdict import acceptance
+from gsp_kinematics.verdict.cross_validation import noise_removed
+from gsp_kinematics.verdict.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
 
 #: Seconds per posture of the verdict's run (60 postures over RUN_S).
 POSTURE_S = RUN_S / 60

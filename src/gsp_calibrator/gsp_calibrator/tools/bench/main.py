@@ -6,31 +6,31 @@ by calling it (``--skip-end-to-end`` leaves the section out). Output: ``results/
 
 import sys
 
-from gsp_calibrator.tools import (
-    bench_collection_rate,
-    bench_effects,
-    bench_end_to_end,
-    bench_platform_time,
-    bench_run_to_requirement,
-    bench_sensor_dynamics,
-    bench_upkeep_realistic,
-    bench_verdict,
+from gsp_calibrator.tools.bench import (
+    collection_rate,
+    effects,
+    end_to_end,
+    platform_time,
+    run_to_requirement,
+    sensor_dynamics,
+    upkeep_realistic,
+    verdict,
 )
 from gsp_experiments import bench, bench_noise, bench_sensor_errors, bench_upkeep
 
 #: ``bench.json`` key -> ``run(quick=bool) -> dict`` of the sections this package adds.
 EXTRA_SECTIONS = {
-    'end_to_end': bench_end_to_end.run,
+    'end_to_end': end_to_end.run,
     'sensor_errors': bench_sensor_errors.run,  # docs/sensor_errors.md
     'noise_unknown': bench_noise.run,  # docs/sensor_errors.md
-    'platform_time': bench_platform_time.run,  # docs/planning.md
-    'sensor_dynamics': bench_sensor_dynamics.run,  # docs/sensor_errors.md
-    'collection_rate': bench_collection_rate.run,  # docs/architecture.md#synchronisation
-    'verdict': bench_verdict.run,  # docs/verdict.md
+    'platform_time': platform_time.run,  # docs/planning.md
+    'sensor_dynamics': sensor_dynamics.run,  # docs/sensor_errors.md
+    'collection_rate': collection_rate.run,  # docs/architecture.md#synchronisation
+    'verdict': verdict.run,  # docs/verdict.md
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
-    'upkeep_realistic': bench_upkeep_realistic.run,  # docs/upkeep.md
-    'effects': bench_effects.run,  # docs/platform_effects.md
-    'run_to_requirement': bench_run_to_requirement.run,  # docs/upkeep.md
+    'upkeep_realistic': upkeep_realistic.run,  # docs/upkeep.md
+    'effects': effects.run,  # docs/platform_effects.md
+    'run_to_requirement': run_to_requirement.run,  # docs/upkeep.md
 }
 
 

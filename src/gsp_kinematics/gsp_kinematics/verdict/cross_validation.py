@@ -22,13 +22,13 @@ import time
 
 import numpy as np
 
-from .device import DeviceModelError, device_position
-from .effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
-from .geometry import ALL_PARAMETER_NAMES, Geometry
-from .identification import IdentificationError, Options, identify
-from .kinematics import forward_kinematics_masked
-from .prediction import reading_pose_covariance, thermal_pose_covariance
-from .rotation import wrap_angle
+from ..device import DeviceModelError, device_position
+from ..effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
+from ..geometry import ALL_PARAMETER_NAMES, Geometry
+from ..identification import IdentificationError, Options, identify
+from ..kinematics import forward_kinematics_masked
+from ..prediction import reading_pose_covariance, thermal_pose_covariance
+from ..rotation import wrap_angle
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10

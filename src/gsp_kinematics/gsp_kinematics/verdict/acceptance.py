@@ -1,7 +1,7 @@
 """Whether a calibration is good enough to apply: against what the user needs (pure).
 
 A calibration is applied when its accuracy measured by the device on postures the fit did not
-use (:mod:`gsp_kinematics.cross_validation`) meets the :class:`Requirement` and clearly beats the
+use (:mod:`gsp_kinematics.verdict.cross_validation`) meets the :class:`Requirement` and clearly beats the
 nominal geometry on the same postures, and its predicted accuracy over the workspace meets the
 requirement too (held-out postures test only where the run went; the covariance, with the
 unmodelled error, says whether the postures identify the model elsewhere). The goodness-of-fit test is a diagnostic beside it, not a
@@ -93,7 +93,7 @@ def unmodelled_text(unmodelled):
 
 
 def accuracy_line(accuracy, predicted=None):
-    """One line of the cross-validated accuracy (:meth:`gsp_kinematics.cross_validation.CrossValidation.summary`), the nominal
+    """One line of the cross-validated accuracy (:meth:`gsp_kinematics.verdict.cross_validation.CrossValidation.summary`), the nominal
     baseline and the prediction (``{position_mm_mean, ...}`` or None)."""
     calibrated, nominal = accuracy['calibrated'], accuracy['nominal']
     where = f'{accuracy["postures"]} postures'
@@ -169,7 +169,7 @@ def _failures(accuracy, requirement, improvement, predicted):
 
 def judge(accuracy, requirement=Requirement(), unmodelled=None, predicted=None):
     """The :class:`Verdict` of a calibration whose cross-validated ``accuracy`` is
-    :meth:`gsp_kinematics.cross_validation.CrossValidation.summary`, with the model's ``unmodelled`` part (SensorNoise of row
+    :meth:`gsp_kinematics.verdict.cross_validation.CrossValidation.summary`, with the model's ``unmodelled`` part (SensorNoise of row
     stds or None) and the ``predicted`` headline (or None)."""
     position = accuracy['calibrated']['position_mm']['mean']
     nominal = accuracy['nominal']['position_mm']['mean']

@@ -10,13 +10,13 @@
   (``summary.json`` ``calibration_s``, which also holds the start-up checks, the identification
   and the report).
 * ``target_plan``: for a target of 1.5x the default plan's predicted mean position error, the
-  plan of least platform time (:func:`.plans.target_plan`) against the default plan.
+  plan of least platform time (:func:`gsp_calibrator.tools.plans.target_plan`) against the default plan.
 """
 
 import sys
 
 from gsp_calibrator.tools import plans
-from gsp_calibrator.tools.bench_end_to_end import SETTLE_TIME_S, run_demo
+from gsp_calibrator.tools.bench.end_to_end import SETTLE_TIME_S, run_demo
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.travel.motion import MotionLimits
 

@@ -13,7 +13,7 @@ whose fit lowers the chi-square most, only if
   by ``chi2(k)`` on average; one it has by that plus its parameters' squared signal-to-noise
   ratios: a small effect that the plan resolves (the joint offsets: 2-3 Cramér-Rao standard
   deviations per leg) is significant long before it moves the accuracy by tens of percent;
-- and the held-out position error (:func:`gsp_kinematics.cross_validation.cross_validate`) does
+- and the held-out position error (:func:`gsp_kinematics.verdict.cross_validation.cross_validate`) does
   not grow by more than ``max_cv_loss`` (relative): the guard against a model that fits the
   rows better and predicts the platform worse.
 
@@ -30,10 +30,10 @@ import dataclasses
 import numpy as np
 from scipy import special
 
+from ..effects.groups import EFFECT_GROUPS, EffectDesign
+from ..effects.model import NUM_LEGS
+from ..identification import IdentificationError, Options, identify
 from .cross_validation import cross_validate
-from .effects.groups import EFFECT_GROUPS, EffectDesign
-from .effects.model import NUM_LEGS
-from .identification import IdentificationError, Options, identify
 
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
 DEFAULT_SIGNIFICANCE = 0.01

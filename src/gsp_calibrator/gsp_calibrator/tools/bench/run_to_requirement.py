@@ -27,9 +27,8 @@ import numpy as np
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings
-from gsp_calibrator.tools import bench_verdict
+from gsp_calibrator.tools.bench import verdict as bench_verdict
 from gsp_calibrator.upkeep import run_to_requirement
-from gsp_kinematics import stopping
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import home_pose
@@ -37,6 +36,7 @@ from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.prediction import accuracy_summary
 from gsp_kinematics.selection import posture_information
 from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
+from gsp_kinematics.upkeep import stopping
 from gsp_kinematics.validation import simulate_commands
 
 SEEDS = 20
@@ -256,7 +256,7 @@ def _prefix(design, plan, seed, order, samples, budget=math.inf):
 
 
 def informative_plan(plan):
-    """The plan's postures in :func:`gsp_kinematics.stopping.informative_order` (information
+    """The plan's postures in :func:`gsp_kinematics.upkeep.stopping.informative_order` (information
     per second at the nominal geometry, from the start pose)."""
     settings = plan.settings
     rows = settings.sigmas.averaged([bench_verdict.SAMPLES])
