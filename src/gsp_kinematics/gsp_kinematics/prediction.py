@@ -294,9 +294,13 @@ def predict_accuracy(
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )
-    position, orientation = predicted_errors(
-        geometry, covariance, random_poses, free, unmodelled, thermal_strain, effect_free
-    )
+
+    def errors(poses):
+        return predicted_errors(
+            geometry, covariance, poses, free, unmodelled, thermal_strain, effect_free
+        )
+
+    position, orientation = errors(random_poses)
     maps = []
     worst = None
     for title, poses in map_panels(workspace, layout):
@@ -304,15 +308,7 @@ def predict_accuracy(
         cell_position = np.full(poses.shape[0], np.nan)
         cell_orientation = np.full(poses.shape[0], np.nan)
         if reachable.any():
-            found = predicted_errors(
-                geometry,
-                covariance,
-                poses[reachable],
-                free,
-                unmodelled,
-                thermal_strain,
-                effect_free,
-            )
+            found = errors(poses[reachable])
             cell_position[reachable], cell_orientation[reachable] = found
             index = int(np.nanargmax(cell_position))
             if worst is None or cell_position[index] > worst['position_mm']:
