@@ -10,14 +10,12 @@ of a platform started cold, whose legs are shorter than during most of the calib
 
 import numpy as np
 
-from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.tools.bench import verdict as bench_verdict
 from gsp_calibrator.upkeep import check_run
 from gsp_experiments.bench_upkeep import CHANGE_M, changed_truth
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.sensors.noise import NOISE_FIELDS, SensorNoise
 from gsp_kinematics.upkeep import drift
 from gsp_kinematics.validation import simulate_commands
@@ -47,17 +45,9 @@ def _check(design, reference, plan, true, start_s, seed):
     settings = design.settings
     times = start_s + np.linspace(0.0, plan.platform_time_s, len(plan.poses))
     run = simulate_commands(true, reference.geometry, plan.poses, REALISTIC, times)
-    rng = np.random.default_rng(seed)
-    scale = np.concatenate([np.full(6, settings.sigmas.leg_lengths), settings.sigmas.readings()])
-    samples = Samples.empty()
-    count = settings.samples_per_posture
-    for k in np.flatnonzero(run.reachable):
-        exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
-        window = exact + rng.normal(size=(count, 10)) * scale
-        mean = window.mean(axis=0)
-        samples.append(
-            k + 1, plan.poses[k], mean[:6], mean[6:], count, 1.7e9 + k, posture_lag_sums(window)
-        )
+    samples = bench_verdict.rows_of_run(
+        run, plan.poses, settings.samples_per_posture, settings.sigmas, np.random.default_rng(seed)
+    )
     return check_run.evaluate_check(
         reference, samples, settings.sigmas, settings.requirement, 'bench'
     )

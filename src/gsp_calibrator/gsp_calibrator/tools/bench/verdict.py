@@ -100,15 +100,26 @@ def simulated_samples(design, effects, seed, noise=DEFAULT_SENSOR_NOISE):
     ``SAMPLES`` noisy samples each, their lag sums kept), over ``RUN_S`` seconds."""
     times = np.linspace(0.0, RUN_S, len(design.poses))
     run = simulate_commands(design.true, design.settings.nominal, design.poses, effects, times)
-    rng = np.random.default_rng(seed)
+    return rows_of_run(run, design.poses, SAMPLES, noise, np.random.default_rng(seed))
+
+
+def rows_of_run(run, poses, samples_per_posture, noise, rng):
+    """The averaged rows (``Samples``, lag sums kept) of a simulated ``run`` of ``poses``: per
+    reachable posture a window of ``samples_per_posture`` readings with ``noise`` from ``rng``."""
     scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
     samples = Samples.empty()
     for k in np.flatnonzero(run.reachable):
         exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
-        window = exact + rng.normal(size=(SAMPLES, 10)) * scale
+        window = exact + rng.normal(size=(samples_per_posture, 10)) * scale
         mean = window.mean(axis=0)
         samples.append(
-            k + 1, design.poses[k], mean[:6], mean[6:], SAMPLES, 1.7e9 + k, posture_lag_sums(window)
+            k + 1,
+            poses[k],
+            mean[:6],
+            mean[6:],
+            samples_per_posture,
+            1.7e9 + k,
+            posture_lag_sums(window),
         )
     return samples
 
