@@ -7,6 +7,14 @@ move the platform; the device's parameters and its sensors' errors do not). With
 errors are taken as the rotation vector of ``R_cmd^T R_real`` (body angular Jacobian of eq (2)),
 so they compare with :func:`gsp_kinematics.validation.pose_errors`.
 
+Identified effects the controller compensates (``q_i (1 + kq_i) = IK_i + sum theta h_i``) move
+the platform likewise: ``dq/dX dX = h (theta_hat - theta)`` (:func:`effect_pose_sensitivities`).
+Their errors are correlated with the geometry's (a joint offset's regressor is nearly the leg
+offset's), and the controller uses both together, so their errors largely cancel at the pose:
+the prediction takes the full covariance, geometry and effects jointly. Only the groups whose
+regressor depends on the posture alone (:data:`POSTURE_EFFECT_GROUPS`) get columns; backlash
+(direction of travel) and thermal growth (time; not compensated, see below) have zero columns.
+
 Per pose the prediction is the expected error magnitude ``E|dp|`` (mm) and ``E|dw|`` (deg) of a
 zero-mean Gaussian with that covariance: what a validation's mean error estimates.
 
@@ -30,6 +38,7 @@ import math
 import numpy as np
 
 from .device import device_readings, link_direction_derivatives
+from .effects.groups import EFFECT_GROUPS, NUM_EFFECT_PARAMETERS, EffectDesign, EffectTerms
 from .geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX
 from .kinematics import (
     Workspace,
@@ -45,6 +54,9 @@ from .rotation import euler_to_matrix, euler_to_matrix_derivatives
 LEG_PARAMETERS = 42
 #: Standard normal draws that integrate E|v| over a 3-D Gaussian (fixed: the result is repeatable).
 _NORMAL_DRAWS = np.random.default_rng(20240611).standard_normal((2048, 3))
+#: Effect groups whose regressor depends on the posture only: their estimates' errors move the
+#: compensated pose through :func:`effect_pose_sensitivities`.
+POSTURE_EFFECT_GROUPS = ('compliance', 'joint_offsets')
 
 
 def body_angular_jacobian(euler):
@@ -80,6 +92,29 @@ def pose_sensitivities(geometry, poses, free=None):
     full[:, :, first_gain : first_gain + 6] = sensitivity[:, :, LEG_PARAMETERS:]
     full = full[:, :, :size]
     return full if free is None else full[:, :, np.asarray(free, dtype=bool)]
+
+
+def effect_pose_sensitivities(geometry, poses, effect_free):
+    """``S`` (M, 6, count): ``[dp (m); dw (rad)]`` of the reached pose per error of each free
+    effect parameter (``effect_free`` (24,) over ``EFFECT_PARAMETER_NAMES``) the controller
+    compensates: ``dX = (dq/dX)^-1 h (theta_hat - theta)``, ``h`` the group's regressor at the
+    pose (compliance under ``geometry.effects``' payload). Columns of groups outside
+    :data:`POSTURE_EFFECT_GROUPS` are zero."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    free = np.asarray(effect_free, dtype=bool).reshape(NUM_EFFECT_PARAMETERS)
+    posture = free & np.repeat([g in POSTURE_EFFECT_GROUPS for g in EFFECT_GROUPS], 6)
+    columns = np.zeros((poses.shape[0], 6, NUM_EFFECT_PARAMETERS))
+    if posture.any():
+        effects = geometry.effects
+        design = EffectDesign(
+            payload_mass=effects.payload_mass, centre_of_mass=effects.centre_of_mass
+        )
+        regressors = EffectTerms(geometry, design, posture, poses.shape[0]).regressors(poses)
+        _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
+        d_pose = np.linalg.solve(d_q_d_pose, regressors)
+        angular = body_angular_jacobian(poses[:, 3:])
+        columns[:, :, posture] = np.concatenate([d_pose[:, :3], angular @ d_pose[:, 3:]], axis=1)
+    return columns[:, :, free]
 
 
 def expected_norm(covariances):
@@ -142,22 +177,35 @@ def thermal_pose_covariance(geometry, poses, strain_rms):
     return outer, np.einsum('mi,mj->mij', rotation, rotation)
 
 
-def predicted_errors(geometry, covariance, poses, free=None, unmodelled=None, thermal_strain=None):
+def predicted_errors(
+    geometry,
+    covariance,
+    poses,
+    free=None,
+    unmodelled=None,
+    thermal_strain=None,
+    effect_free=None,
+):
     """Predicted error magnitudes at ``poses`` (M, 6): ``(position_mm, orientation_deg)``, each (M,).
 
-    ``covariance``: (n_free, n_free) of the free parameters (m, rad), e.g. an
-    ``IdentificationResult.covariance``; ``free`` its mask (None: all parameters free).
+    ``covariance``: (n_free, n_free) of the free parameters (m, rad), then of the free effect
+    parameters, e.g. an ``IdentificationResult.covariance``; ``free`` the parameters' mask (None:
+    all parameters free), ``effect_free`` the effects' (24,; None: none free), e.g. the result's
+    ``effect_free`` (:func:`effect_pose_sensitivities`).
     ``unmodelled``: what the model leaves unexplained (a ``SensorNoise`` of standard deviations;
     None: the platform is exactly the model), added to the covariance term.
     ``thermal_strain``: (6,) the uncompensated thermal strain rms of each leg over the run
     (:func:`thermal_strain_rms`; None: none), added likewise (:func:`thermal_pose_covariance`).
     """
     sensitivity = pose_sensitivities(geometry, poses, free)
+    if effect_free is not None and np.any(effect_free):
+        effects = effect_pose_sensitivities(geometry, poses, effect_free)
+        sensitivity = np.concatenate([sensitivity, effects], axis=2)
     covariance = np.asarray(covariance, dtype=float)
     if covariance.shape != (sensitivity.shape[2],) * 2:
         raise ValueError(
             f'covariance must be {sensitivity.shape[2]}x{sensitivity.shape[2]} (the free '
-            f'parameters), got {covariance.shape}'
+            f'parameters, then the free effects), got {covariance.shape}'
         )
     pose_covariance = sensitivity @ covariance @ np.swapaxes(sensitivity, 1, 2)
     position, rotation = pose_covariance[:, :3, :3], pose_covariance[:, 3:, 3:]
@@ -227,8 +275,11 @@ def predict_accuracy(
     layout=MapLayout(),
     unmodelled=None,
     thermal_strain=None,
+    effect_free=None,
 ):
     """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
+
+    ``covariance``, ``free`` and ``effect_free`` as in :func:`predicted_errors`.
 
     ``unmodelled``: what the model leaves unexplained (:func:`predicted_errors`; None: nothing,
     the platform is exactly the model), added at every pose and said in ``assumes``;
@@ -243,9 +294,13 @@ def predict_accuracy(
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )
-    position, orientation = predicted_errors(
-        geometry, covariance, random_poses, free, unmodelled, thermal_strain
-    )
+
+    def errors(poses):
+        return predicted_errors(
+            geometry, covariance, poses, free, unmodelled, thermal_strain, effect_free
+        )
+
+    position, orientation = errors(random_poses)
     maps = []
     worst = None
     for title, poses in map_panels(workspace, layout):
@@ -253,9 +308,7 @@ def predict_accuracy(
         cell_position = np.full(poses.shape[0], np.nan)
         cell_orientation = np.full(poses.shape[0], np.nan)
         if reachable.any():
-            found = predicted_errors(
-                geometry, covariance, poses[reachable], free, unmodelled, thermal_strain
-            )
+            found = errors(poses[reachable])
             cell_position[reachable], cell_orientation[reachable] = found
             index = int(np.nanargmax(cell_position))
             if worst is None or cell_position[index] > worst['position_mm']:

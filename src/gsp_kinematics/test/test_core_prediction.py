@@ -5,12 +5,24 @@ import numpy as np
 import pytest
 
 from gsp_kinematics.device import device_readings
-from gsp_kinematics.effects.groups import EffectDesign
+from gsp_kinematics.effects.groups import (
+    NUM_EFFECT_PARAMETERS,
+    EffectDesign,
+    EffectTerms,
+    IdentifiedEffects,
+    commanded_leg_readings,
+)
 from gsp_kinematics.geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX, Geometry
 from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics, leg_vectors
+from gsp_kinematics.kinematics import (
+    forward_kinematics,
+    forward_kinematics_masked,
+    inverse_kinematics,
+    leg_vectors,
+)
 from gsp_kinematics.prediction import (
     accuracy_summary,
+    effect_pose_sensitivities,
     expected_norm,
     pose_sensitivities,
     predict_accuracy,
@@ -29,16 +41,19 @@ def _rotation_vector(commanded, reached):
     return np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], axis=1)
 
 
-def _assert_columns_match_finite_differences(exact, poses, sensitivity, vector, columns, build):
+def _assert_columns_match_finite_differences(
+    exact, poses, sensitivity, vector, columns, build, reach=reached_poses
+):
     """Each column of ``sensitivity`` against a central difference of the reached pose when the
-    controller's parameter ``vector[column]`` moves (``build``: vector -> controller geometry)."""
+    controller's parameter ``vector[column]`` moves (``build``: vector -> controller geometry;
+    ``reach(true, controller, poses)``: where the real platform goes)."""
     step = 1e-7
     for column in columns:
         moves = []
         for sign in (1.0, -1.0):
             moved = vector.copy()
             moved[column] += sign * step
-            reached = reached_poses(exact, build(moved), poses)
+            reached = reach(exact, build(moved), poses)
             moves.append(
                 np.concatenate(
                     [reached[:, :3] - poses[:, :3], _rotation_vector(poses[:, 3:], reached[:, 3:])],
@@ -171,3 +186,73 @@ def test_the_thermal_strain_rms_is_over_the_runs_times_from_the_reference():
     rates = np.array([1e-8, -2e-8, 1e-8, 1e-8, 1e-8, 1e-8])
     expected = np.abs(rates) * 900.0 / np.sqrt(3.0)
     np.testing.assert_allclose(thermal_strain_rms(rates, design), expected, rtol=1e-3)
+
+
+def _with_effects(geometry, values):
+    """``geometry`` whose controller compensates the effect ``values`` (24,) under 40 kg."""
+    return geometry.replace(
+        effects=IdentifiedEffects(values, payload_mass=40.0, centre_of_mass=(0.0, 0.0, 0.05))
+    )
+
+
+def _compensated_reached(true, controller, poses):
+    """Where the rigid real platform goes when ``controller`` drives ``poses`` compensating its
+    identified effects (the identification's model read backwards)."""
+    readings = commanded_leg_readings(controller, poses)
+    return forward_kinematics(true, true.sensors.true_leg_lengths(readings), poses)
+
+
+def test_effect_columns_match_finite_differences(exact, postures):
+    """A controller's compliance and joint offset errors move the platform as its compensation
+    says (backlash and thermal: no column)."""
+    poses = postures[:5]
+    free = np.ones(NUM_EFFECT_PARAMETERS, dtype=bool)
+    sensitivity = effect_pose_sensitivities(_with_effects(exact, np.zeros(24)), poses, free)
+    assert sensitivity.shape == (5, 6, NUM_EFFECT_PARAMETERS)
+    assert np.all(sensitivity[:, :, 6:18] == 0.0)
+    assert np.abs(sensitivity[:, :, 18:]).max() > 0.1  # a joint offset error moves the pose
+    truth = _with_effects(exact, np.zeros(24))
+    _assert_columns_match_finite_differences(
+        truth,
+        poses,
+        sensitivity,
+        np.zeros(NUM_EFFECT_PARAMETERS),
+        [*range(6), *range(18, 24)],
+        lambda moved: _with_effects(exact, moved),
+        _compensated_reached,
+    )
+
+
+def test_prediction_with_freed_joint_offsets_agrees_with_monte_carlo(exact, postures):
+    """Leg and joint offset errors strongly correlated (a joint offset's regressor is nearly a
+    leg offset's): the compensating controller's pose errors, drawn over that covariance, are
+    what the joint prediction says; the geometry's marginal block alone overstates them."""
+    poses, rng = postures[:40], np.random.default_rng(3)
+    free = np.zeros(NUM_PARAMETERS, dtype=bool)
+    free[PARAMETER_INDEX['Loff1'] : PARAMETER_INDEX['Loff6'] + 1] = True
+    effect_free = np.zeros(NUM_EFFECT_PARAMETERS, dtype=bool)
+    effect_free[18:] = True  # joint_offset1..6
+    truth = _with_effects(exact, np.zeros(NUM_EFFECT_PARAMETERS))
+    # Per leg: the leg offset's error is the joint offset's times its mean regressor (what the
+    # offset absorbs of it) plus a small independent part.
+    mean_regressor = np.mean(
+        EffectTerms(exact, EffectDesign(), effect_free, 200).regressors(postures[:200]), axis=0
+    ).diagonal()
+    mixing = np.zeros((12, 12))
+    mixing[range(6), range(6)] = 2e-6
+    mixing[range(6), range(6, 12)] = 50e-6 * mean_regressor
+    mixing[range(6, 12), range(6, 12)] = 50e-6
+    covariance = mixing @ mixing.T
+    joint, _ = predicted_errors(truth, covariance, poses, free, effect_free=effect_free)
+    marginal, _ = predicted_errors(truth, covariance[:6, :6], poses, free)
+    errors = []
+    for draw in rng.standard_normal((200, 12)) @ mixing.T:
+        vector = exact.to_vector()
+        vector[free] += draw[:6]
+        values = np.zeros(NUM_EFFECT_PARAMETERS)
+        values[effect_free] = draw[6:]
+        controller = _with_effects(Geometry.from_vector(vector, exact.limits), values)
+        reached = _compensated_reached(truth, controller, poses)
+        errors.append(1000.0 * np.linalg.norm(reached[:, :3] - poses[:, :3], axis=1))
+    assert np.mean(errors) / np.mean(joint) == pytest.approx(1.0, abs=0.15)
+    assert np.mean(marginal) > 3.0 * np.mean(joint)

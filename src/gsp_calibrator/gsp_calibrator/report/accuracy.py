@@ -43,10 +43,8 @@ def prediction_for(
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
-    # Freed effects: the geometry's marginal covariance (the effects' own spread through the
-    # controller's compensation is left out: docs/platform_effects.md).
-    count = int(np.sum(result.free))
-    covariance = covariance[:count, :count]
+    # Freed effects: the full covariance, geometry and effects jointly (the controller compensates
+    # with both, their correlated errors cancel at the pose: docs/platform_effects.md).
     if analysis is None:
         analysis = analyse_result(result)
     if analysis['rank'] < analysis['parameters']:
@@ -58,6 +56,7 @@ def prediction_for(
         workspace,
         unmodelled=unmodelled,
         thermal_strain=thermal_strain,
+        effect_free=result.effect_free,
     )
     poses = _validation_poses(validation_after)
     measured_position = (validation_after or {}).get('position_mm')
@@ -70,7 +69,13 @@ def prediction_for(
         and len(poses)
     ):
         position, orientation = predicted_errors(
-            result.geometry, covariance, poses, result.free, unmodelled, thermal_strain
+            result.geometry,
+            covariance,
+            poses,
+            result.free,
+            unmodelled,
+            thermal_strain,
+            result.effect_free,
         )
         measured_position = np.asarray(measured_position, dtype=float)
         measured_orientation = np.asarray(measured_orientation, dtype=float)

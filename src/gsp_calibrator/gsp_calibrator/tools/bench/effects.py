@@ -165,14 +165,14 @@ def _figures(design, effects, result, cv_summary, rows):
     error and the uncompensated thermal growth included as in the calibrator), applied."""
     errors = workspace_errors(design, effects, result.geometry)
     at_reference = workspace_errors(design, effects, result.geometry, rows.reference_time_s)
-    geometric = int(result.free.sum())
     sigmas = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
     prediction = predict_accuracy(
         result.geometry,
-        result.covariance[:geometric, :geometric],
+        result.covariance,
         result.free,
         unmodelled=known_noise_unmodelled(result, sigmas, len(result.poses)),
         thermal_strain=uncompensated_thermal_strain(result, rows),
+        effect_free=result.effect_free,
     )
     headline = accuracy_summary(prediction)
     verdict = acceptance.judge(cv_summary, design.settings.requirement, None, headline)
