@@ -64,7 +64,9 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
         'replacements',
         'settle',
         'processing_lag',
+        'route_additions',
     }
+    assert collection['route_additions'] is None  # the plain model: no effect group's additions
     assert collection['settle']['rows'] >= 1 and collection['settle']['max_s'] >= 0.0
     # Each posture the platform rejected was replaced (the pool of 600 has plenty left).
     rejected = {s['posture'] for s in collection['skipped'] if s['rejected_by_platform']}
