@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from gsp_msgs_py.node_tools import spin_until
+from gsp_msgs_py.node_tools import shutdown_executor, spin_until  # noqa: F401 (re-exported)
 from gsp_msgs_py.ros_environment import DomainInUseError, enter_private_domain
 
 
@@ -188,21 +188,6 @@ class SpinningNodes:
             for node in executor.get_nodes():
                 executor.remove_node(node)
             shutdown_executor(executor)  # after the callbacks in progress
-
-
-def shutdown_executor(executor, timeout_sec=5.0):
-    """Shut ``executor`` down once the callbacks it has handed to its thread pool (a
-    ``MultiThreadedExecutor``) have run; stop spinning it first (:meth:`SpinThread.stop`).
-
-    rclpy 7.1's ``Executor.shutdown`` does not wait for them (its wait is skipped) and destroys
-    the executor's guard condition: a queued callback that starts after that fails with
-    ``InvalidHandle`` inside a task nobody retrieves ("The following exception was never
-    retrieved: cannot use Destroyable because destruction was requested" at garbage collection).
-    """
-    pool = getattr(executor, '_executor', None)  # the MultiThreadedExecutor's ThreadPoolExecutor
-    if pool is not None:
-        pool.shutdown(wait=True)
-    return executor.shutdown(timeout_sec=timeout_sec)
 
 
 def use_loopback_domain():

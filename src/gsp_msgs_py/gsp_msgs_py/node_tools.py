@@ -133,6 +133,22 @@ def spin_until(executor, predicate, timeout):
     return True
 
 
+def shutdown_executor(executor, timeout_sec=5.0):
+    """Shut ``executor`` down once the callbacks it has handed to its thread pool (a
+    ``MultiThreadedExecutor``) have run; call it once the spin has returned.
+
+    rclpy 7.1's ``Executor.shutdown`` does not wait for them (its wait is skipped) and destroys
+    the executor's guard condition: a queued callback that starts after that fails with
+    ``InvalidHandle`` inside a task nobody retrieves ("The following exception was never
+    retrieved: cannot use Destroyable because destruction was requested" at garbage collection),
+    and a node destroyed under a callback still running can crash the process.
+    """
+    pool = getattr(executor, '_executor', None)  # the MultiThreadedExecutor's ThreadPoolExecutor
+    if pool is not None:
+        pool.shutdown(wait=True)
+    return executor.shutdown(timeout_sec=timeout_sec)
+
+
 def run_node(make_node, args=None, executor=None, *, logger_name):
     """Initialise rclpy, build a node with ``make_node()`` and spin it until shutdown.
 
@@ -172,7 +188,9 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
             raise
     finally:
         if active_executor is not None:
-            active_executor.shutdown(timeout_sec=1.0)
+            # Not executor.shutdown() alone: it returns with callbacks still running in the
+            # pool, and destroying the node under them can crash the process (SIGSEGV).
+            shutdown_executor(active_executor, timeout_sec=1.0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

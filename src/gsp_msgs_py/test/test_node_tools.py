@@ -276,3 +276,49 @@ def test_a_signal_after_the_cleanup_is_ignored_and_the_exit_code_stays_0(late):
         timeout=120,
     )
     assert process.returncode == 0, process.stderr
+
+
+#: A node process whose pool callback is still running when a SIGTERM ends the spin: the
+#: callback signals its own process, then takes a while; destroy_node says whether it ran first.
+SIGNAL_IN_CALLBACK_CHILD = """
+import os, signal, sys, threading
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from gsp_msgs_py import node_tools
+
+class Busy(Node):
+    def __init__(self):
+        super().__init__('signal_in_callback_child')
+        self.in_callback = False
+        self.timer = self.create_timer(0.01, self.work)
+
+    def work(self):
+        self.timer.cancel()
+        self.in_callback = True
+        os.kill(os.getpid(), signal.SIGTERM)
+        threading.Event().wait(0.5)  # the rest of a callback's work after the signal
+        self.in_callback = False
+
+    def destroy_node(self):
+        print('destroyed during a callback' if self.in_callback else 'destroyed after it')
+        super().destroy_node()
+
+sys.exit(node_tools.run_node(Busy, executor=lambda: MultiThreadedExecutor(num_threads=2),
+                             logger_name='signal_in_callback_child'))
+"""
+
+
+def test_the_node_is_destroyed_only_after_the_callbacks_running_in_the_pool():
+    # rclpy 7.1's executor.shutdown() returns with pool callbacks still running: run_node once
+    # destroyed the node under them (a calibrator stopped by SIGTERM then died of SIGSEGV).
+    import subprocess
+    import sys
+
+    process = subprocess.run(
+        [sys.executable, '-c', SIGNAL_IN_CALLBACK_CHILD],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert process.returncode == 0, process.stderr
+    assert 'destroyed after it' in process.stdout, process.stdout + process.stderr
