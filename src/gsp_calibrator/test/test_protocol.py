@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from collection_streams import MS, NOISE, POSE, T0, Q, R, S
 
 from gsp_calibrator.collection import protocol, topics
 from gsp_calibrator.collection.events import (
@@ -19,14 +20,6 @@ from gsp_calibrator.collection.events import (
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
 from gsp_msgs_py import conversions, names
-
-MS = 1_000_000
-S = 1000 * MS
-T0 = 1_700_000_000 * S
-Q = np.array([0.5, 0.51, 0.52, 0.53, 0.54, 0.55])
-R = np.array([0.01, -0.02, 0.3, 0.004])
-POSE = np.array([0.01, -0.01, 1.0, 0.01, -0.02, 0.03])
-NOISE = [1e-6] * 6 + [1.7e-5, 1.7e-5, 1.7e-5, 1e-6]
 
 
 def status(command_id, state, reason):
