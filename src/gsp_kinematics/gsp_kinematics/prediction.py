@@ -177,6 +177,24 @@ def thermal_pose_covariance(geometry, poses, strain_rms):
     return outer, np.einsum('mi,mj->mij', rotation, rotation)
 
 
+def parameter_pose_covariance(geometry, covariance, poses, free=None, effect_free=None):
+    """``(position (M, 3, 3) m^2, rotation (M, 3, 3) rad^2)``: the parameters' ``covariance``
+    (the free parameters, then the free effects; ``free``, ``effect_free`` as in
+    :func:`predicted_errors`) propagated to the reached pose at ``poses`` (M, 6)."""
+    sensitivity = pose_sensitivities(geometry, poses, free)
+    if effect_free is not None and np.any(effect_free):
+        effects = effect_pose_sensitivities(geometry, poses, effect_free)
+        sensitivity = np.concatenate([sensitivity, effects], axis=2)
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape != (sensitivity.shape[2],) * 2:
+        raise ValueError(
+            f'covariance must be {sensitivity.shape[2]}x{sensitivity.shape[2]} (the free '
+            f'parameters, then the free effects), got {covariance.shape}'
+        )
+    pose_covariance = sensitivity @ covariance @ np.swapaxes(sensitivity, 1, 2)
+    return pose_covariance[:, :3, :3], pose_covariance[:, 3:, 3:]
+
+
 def predicted_errors(
     geometry,
     covariance,
@@ -197,18 +215,7 @@ def predicted_errors(
     ``thermal_strain``: (6,) the uncompensated thermal strain rms of each leg over the run
     (:func:`thermal_strain_rms`; None: none), added likewise (:func:`thermal_pose_covariance`).
     """
-    sensitivity = pose_sensitivities(geometry, poses, free)
-    if effect_free is not None and np.any(effect_free):
-        effects = effect_pose_sensitivities(geometry, poses, effect_free)
-        sensitivity = np.concatenate([sensitivity, effects], axis=2)
-    covariance = np.asarray(covariance, dtype=float)
-    if covariance.shape != (sensitivity.shape[2],) * 2:
-        raise ValueError(
-            f'covariance must be {sensitivity.shape[2]}x{sensitivity.shape[2]} (the free '
-            f'parameters, then the free effects), got {covariance.shape}'
-        )
-    pose_covariance = sensitivity @ covariance @ np.swapaxes(sensitivity, 1, 2)
-    position, rotation = pose_covariance[:, :3, :3], pose_covariance[:, 3:, 3:]
+    position, rotation = parameter_pose_covariance(geometry, covariance, poses, free, effect_free)
     if unmodelled is not None:
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
         extra_position, euler = reading_pose_covariance(

@@ -314,6 +314,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
     thermal = uncompensated_thermal_strain(result, effects)
+    outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
     validation = cross_validate(
         result,
         nominal,
@@ -324,11 +325,11 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
         noise=noise,
         effects=effects,
         uncompensated_strain=thermal,
+        unmodelled=outcome.unmodelled,
         **extra,
     )
     outcome.accuracy = validation.summary(workspace)
     outcome.accuracy['workspace_postures'] = [int(k) for k in samples.posture[workspace]]
-    outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
     outcome.prediction = prediction_for(
         result,
         analysis=outcome.identifiability,

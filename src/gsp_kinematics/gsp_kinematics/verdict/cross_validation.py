@@ -14,6 +14,12 @@ the mean and p95 are scaled by the same factor. To first order, the error of FK(
 against the true pose at the real leg lengths q is the error of the pose the platform reaches
 when the calibrated controller commands a pose (``validation.pose_errors``), with the sign
 reversed: the same accuracy.
+
+A held-out posture is predicted by a fit that did not see it: at a posture that alone determines
+a parameter (an extreme of the workspace, which the selection prefers) that fit knows far less
+than the full one. Each held-out error's excess over the noise is scaled by the full fit's over
+the held-out fit's predicted variance there (:func:`leverage_ratios`), and the device's own
+uncertainty, which no held-out posture sees, is added (:func:`device_variances`).
 """
 
 import dataclasses
@@ -27,7 +33,11 @@ from ..effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
 from ..geometry import ALL_PARAMETER_NAMES, Geometry
 from ..identification import IdentificationError, Options, identify
 from ..kinematics import forward_kinematics_masked
-from ..prediction import reading_pose_covariance, thermal_pose_covariance
+from ..prediction import (
+    parameter_pose_covariance,
+    reading_pose_covariance,
+    thermal_pose_covariance,
+)
 from ..rotation import wrap_angle
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
@@ -108,6 +118,43 @@ def device_variances(result, readings, step=1e-7):
     )
 
 
+def parameter_variances(result, poses):
+    """(M,) m^2: the trace of the position covariance that ``result``'s parameter covariance
+    (geometry and effects) gives the reached pose at ``poses`` (M, 6); NaN where unknown."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    effect_free = getattr(result, 'effect_free', None)
+    try:
+        position, _ = parameter_pose_covariance(
+            result.geometry, result.covariance, poses, result.free, effect_free
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return np.full(poses.shape[0], np.nan)
+    return np.trace(position, axis1=1, axis2=2)
+
+
+def leverage_ratios(full, held_out, unmodelled=0.0):
+    """(M,) in [0, 1]: at each posture, the predicted error variance of the full fit
+    (``full`` (M,) m^2) over that of the fold's fit that did not see it (``held_out``), each
+    with the ``unmodelled`` variance (M,) added, which no fit removes. A posture that alone
+    determines a parameter (an extreme the selection chose) is predicted far worse by the fit
+    without it than the full fit places it: the ratio takes that leverage out of its held-out
+    error (docs/verdict.md). 1 where a variance is unknown (no correction)."""
+    full = np.asarray(full, dtype=float) + unmodelled
+    held_out = np.asarray(held_out, dtype=float) + unmodelled
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ratio = full / held_out
+    return np.where(np.isfinite(ratio) & (held_out > 0), np.clip(ratio, 0.0, 1.0), 1.0)
+
+
+def without_leverage(errors, noise, ratios):
+    """Held-out error magnitudes ``errors`` (M,) with the excess of their square over the
+    posture's ``noise`` variance (M,) scaled by the leverage ``ratios`` (M,,
+    :func:`leverage_ratios`): ``sqrt(r e^2 + (1 - r) n)``, the error the full fit makes there
+    plus the posture's own noise (removed later, :func:`noise_removed`)."""
+    errors, noise, ratios = (np.asarray(v, dtype=float) for v in (errors, noise, ratios))
+    return np.sqrt(np.maximum(ratios * errors**2 + (1.0 - ratios) * noise, 0.0))
+
+
 def noise_removed(errors, variances, shared=None):
     """``(mean, p95, rms, factor)`` of error magnitudes ``errors`` (K,) with the noise's
     ``variances`` (K,) removed: ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0))``
@@ -186,6 +233,9 @@ class CrossValidation:
     #: (M,) m^2: the pose error a controller leaves uncompensated there (the identified thermal
     #: growth over the run), added to every calibrated position figure; None: none
     position_uncompensated: np.ndarray | None = None
+    #: (M,) the leverage ratios (:func:`leverage_ratios`) that scale each held-out position
+    #: error's excess over the noise to the full fit's; None: the raw held-out errors
+    position_leverage: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -226,6 +276,9 @@ class CrossValidation:
                     if self.position_uncompensated is not None
                     else np.zeros(count)
                 ).tolist(),
+                'leverage': (
+                    np.ones(count) if self.position_leverage is None else self.position_leverage
+                ).tolist(),
                 'device_position_mm': (
                     1e3
                     * np.sqrt(
@@ -243,10 +296,17 @@ class CrossValidation:
 
     def _figures(self, position, nominal, rows, device=False):
         """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask); ``device``: the
-        device's own uncertainty added to the calibrated figures (the workspace postures': the
-        selected postures' larger errors already exceed it, docs/verdict.md)."""
+        device's own uncertainty added to the calibrated figures (the workspace postures'; with
+        the leverage taken out, every posture's: the raw held-out errors of the selected
+        postures, the workspace's extremes, already exceed it, docs/verdict.md)."""
         degrees = math.degrees(1.0)
         position_noise, phi_noise = self.position_noise[rows], self.phi_noise[rows]
+        calibrated_position = position[rows]
+        if self.position_leverage is not None:
+            calibrated_position = without_leverage(
+                calibrated_position, position_noise, self.position_leverage[rows]
+            )
+            device = True
         device = device and self.position_device is not None
         position_device = self.position_device[rows] if device else None
         phi_device = self.phi_device[rows] if device else None
@@ -254,8 +314,12 @@ class CrossValidation:
         uncompensated = None if uncompensated is None else uncompensated[rows]
         shared = [v for v in (position_device, uncompensated) if v is not None]
         calibrated = _statistics(
-            position[rows], position_noise, 1e3, sum(shared) if shared else None
+            calibrated_position, position_noise, 1e3, sum(shared) if shared else None
         )
+        raw = _statistics(position[rows], position_noise, 1e3)  # as measured, for the record
+        calibrated['measured_mean'] = raw['measured_mean']
+        calibrated['measured_p95'] = raw['measured_p95']
+        calibrated['leverage_removed'] = self.position_leverage is not None
         calibrated['device_rms'] = _rms(position_device, position[rows], 1e3)
         calibrated['uncompensated_rms'] = _rms(uncompensated, position[rows], 1e3)
         return {
@@ -300,6 +364,7 @@ def cross_validate(
     noise=None,
     effects=None,
     uncompensated_strain=None,
+    unmodelled=None,
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
     (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
@@ -311,13 +376,18 @@ def cross_validate(
     errors (a SensorNoise; None: ``row_sigmas``); weights that hold a model error are not the
     noise: pass the within-posture noise. ``effects``: the rows' ``EffectDesign`` when
     ``result`` freed effect groups (each fold fits them and predicts with what it identified).
-    ``uncompensated_strain`` (6,): the thermal growth the controllers leave (its error kept)."""
+    ``uncompensated_strain`` (6,): the thermal growth the controllers leave (its error kept).
+    ``unmodelled``: what the model leaves unexplained (a SensorNoise of row stds, or None:
+    nothing), part of every posture's error that no fit removes: the leverage ratios
+    (:func:`leverage_ratios`, ``CrossValidation.position_leverage``) add it to both fits'
+    predicted variances, so a held-out error that is model error keeps its size."""
     started = time.perf_counter()
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
     position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
+    held_out_variance = np.full(count, np.nan)
     free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
     free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
     for fold in range(int(assignment.max()) + 1):
@@ -347,13 +417,24 @@ def cross_validate(
             guesses[held],
             design_rows(effects, held),
         )
+        held_out_variance[held] = parameter_variances(fitted, guesses[held])
     noise = row_sigmas if noise is None else noise
     position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     position_device, phi_device = device_variances(result, readings)
+    unmodelled_variance = 0.0
+    if unmodelled is not None:
+        unmodelled_position, _ = reading_pose_covariance(
+            result.geometry, guesses, readings, unmodelled
+        )
+        unmodelled_variance = np.trace(unmodelled_position, axis1=1, axis2=2)
+    leverage = leverage_ratios(
+        parameter_variances(result, guesses), held_out_variance, unmodelled_variance
+    )
     return CrossValidation(
+        position_leverage=leverage,
         position_uncompensated=_uncompensated(result.geometry, guesses, uncompensated_strain),
         position_device=position_device,
         phi_device=phi_device,

@@ -132,13 +132,16 @@ def true_accuracy(design, effects, geometry):
     return summary['position_mm_mean'], summary['orientation_deg_mean']
 
 
-def best_geometry(design, effects, iterations=6):
+def best_geometry(design, effects, iterations=6, at_s=None):
     """The best 42-parameter geometry (and leg gains) for this platform: least squares, on
     noise-free data of the dense postures, of the pose error the controller would make, to first
     order ``(dq/dX)^-1 ((1 + kq) q - IK(u, X_real))`` (position m, rotation at 0.5 m/rad), by
     Gauss-Newton from the nominal geometry. Only the controller's parameters (A, B, L_off, kq)
-    matter; the minimum-norm step leaves the directions the poses do not see."""
+    matter; the minimum-norm step leaves the directions the poses do not see. The postures are
+    spread over the run's span, or all at the instant ``at_s`` (s; the thermal growth's)."""
     times = np.linspace(0.0, RUN_S, len(design.dense))
+    if at_s is not None:
+        times = np.full(len(design.dense), float(at_s))
     nominal = design.settings.nominal
     run = simulate_commands(design.true, nominal, design.dense, effects, times)
     real, readings = run.real_poses[run.reachable], run.leg_readings[run.reachable]
