@@ -16,8 +16,10 @@ from gsp_kinematics.verdict.cross_validation import (
     device_pose,
     device_variances,
     fold_assignment,
+    leverage_ratios,
     noise_removed,
     noise_variances,
+    without_leverage,
 )
 
 SAMPLES = 10
@@ -158,6 +160,36 @@ def test_the_workspace_figure_adds_the_device_uncertainty_the_selected_does_not(
     assert summary['calibrated']['position_mm']['device_rms'] == pytest.approx(4.0)
     assert summary['selected']['calibrated']['position_mm']['mean'] == pytest.approx(3.0)
     assert validation.summary()['calibrated']['position_mm']['mean'] == pytest.approx(3.0)
+
+
+def test_the_leverage_scales_a_held_out_error_to_the_full_fit_but_not_a_model_error():
+    """A posture the fit without it predicts with 100x the full fit's variance keeps 1 % of its
+    excess over the noise; a model error (the unmodelled part) is in both fits and keeps its
+    size; an unknown variance corrects nothing."""
+    ratios = leverage_ratios([1.0, 1.0, 1.0, 2.0], [100.0, 100.0, np.nan, 1.0], [0.0, 1e4, 0, 0])
+    np.testing.assert_allclose(ratios, [0.01, 10001.0 / 10100.0, 1.0, 1.0], rtol=1e-6)
+    errors = without_leverage([10.0, 3.0], [4.0, 16.0], [0.01, 0.5])
+    np.testing.assert_allclose(errors**2, [0.01 * 96.0 + 4.0, 0.5 * 9.0 + 0.5 * 16.0])
+
+
+def test_with_the_leverage_taken_out_every_figure_adds_the_device_uncertainty():
+    """The selected postures' raw held-out errors are inflated by their leverage; once it is
+    taken out (ratios 1 here), their figure adds the device's share as the workspace's does."""
+    count = 4
+    workspace = np.array([False, False, True, True])
+    position = np.zeros((count, 3))
+    position[:, 0] = 3e-3
+    validation = _validation(
+        position,
+        2,
+        position_device=np.full(count, (4e-3) ** 2),
+        phi_device=np.zeros(count),
+        position_leverage=np.ones(count),
+    )
+    summary = validation.summary(workspace)
+    assert summary['selected']['calibrated']['position_mm']['mean'] == pytest.approx(5.0)
+    assert summary['calibrated']['position_mm']['leverage_removed']
+    assert summary['calibrated']['position_mm']['measured_mean'] == pytest.approx(3.0)
 
 
 def test_the_requirement_is_judged_on_the_larger_of_the_workspace_and_selected_figures():
