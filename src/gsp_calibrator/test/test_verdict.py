@@ -113,8 +113,11 @@ def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):
     )
     outcome = calibrate(design, bench_verdict.simulated_samples(level, None, seed=0))
     assert outcome.success and not outcome.accepted
-    measured = outcome.accuracy['calibrated']['position_mm']['mean']
-    assert measured < 0.02  # the held-out level postures are predicted well
+    calibrated = outcome.accuracy['calibrated']['position_mm']
+    assert calibrated['measured_mean'] < 0.02  # the held-out level postures are predicted well
+    # The device's own uncertainty (D0 and the zeros are ill-determined by level postures) is
+    # added to the headline: larger, still under the requirement.
+    assert calibrated['measured_mean'] < calibrated['mean'] < 0.1
     (failure,) = outcome.judgement.failures
     assert failure.startswith('the postures do not identify the model over the workspace')
     true_mm, _ = bench_verdict.true_accuracy(design, None, outcome.geometry)
