@@ -353,6 +353,40 @@ def _uncompensated(geometry, poses, strain):
     return np.trace(position, axis1=1, axis2=2)
 
 
+def _fold_fit(result, free, rows, options, effects):
+    """``result``'s identification (same formulation and ``free`` parameters, from its
+    estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
+    kept postures with their ``EffectDesign``; None when it fails or does not converge."""
+    legs, readings, row_sigmas, guesses = rows
+    try:
+        fitted = identify(
+            result.geometry,
+            legs,
+            readings,
+            row_sigmas,
+            result.formulation,
+            free,
+            guesses,
+            options=options,
+            effects=effects,
+        )
+    except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
+        return None
+    return fitted if fitted.converged else None
+
+
+def _leverage(result, readings, held_out_variance, unmodelled):
+    """(M,) :func:`leverage_ratios` at ``result``'s poses: its predicted variance over each
+    posture's ``held_out_variance``, with the ``unmodelled`` part (SensorNoise or None)."""
+    poses = np.asarray(result.poses, dtype=float)
+    unmodelled_variance = 0.0
+    if unmodelled is not None:
+        position, _ = reading_pose_covariance(result.geometry, poses, readings, unmodelled)
+        unmodelled_variance = np.trace(position, axis1=1, axis2=2)
+    full = parameter_variances(result, poses)
+    return leverage_ratios(full, held_out_variance, unmodelled_variance)
+
+
 def cross_validate(
     result,
     nominal,
@@ -392,21 +426,9 @@ def cross_validate(
     free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
     for fold in range(int(assignment.max()) + 1):
         held, kept = assignment == fold, assignment != fold
-        try:
-            fitted = identify(
-                result.geometry,
-                leg_lengths[kept],
-                readings[kept],
-                row_sigmas,
-                result.formulation,
-                free,
-                guesses[kept],
-                options=options,
-                effects=design_rows(effects, kept),
-            )
-        except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
-            fitted = None
-        if fitted is None or not fitted.converged:
+        rows = (leg_lengths[kept], readings[kept], row_sigmas, guesses[kept])
+        fitted = _fold_fit(result, free, rows, options, design_rows(effects, kept))
+        if fitted is None:
             failed.append(fold)
             continue
         position[held], phi[held], _ = _errors(
@@ -424,17 +446,8 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     position_device, phi_device = device_variances(result, readings)
-    unmodelled_variance = 0.0
-    if unmodelled is not None:
-        unmodelled_position, _ = reading_pose_covariance(
-            result.geometry, guesses, readings, unmodelled
-        )
-        unmodelled_variance = np.trace(unmodelled_position, axis1=1, axis2=2)
-    leverage = leverage_ratios(
-        parameter_variances(result, guesses), held_out_variance, unmodelled_variance
-    )
     return CrossValidation(
-        position_leverage=leverage,
+        position_leverage=_leverage(result, readings, held_out_variance, unmodelled),
         position_uncompensated=_uncompensated(result.geometry, guesses, uncompensated_strain),
         position_device=position_device,
         phi_device=phi_device,
