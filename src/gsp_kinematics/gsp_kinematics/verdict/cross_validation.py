@@ -146,13 +146,28 @@ def leverage_ratios(full, held_out, unmodelled=0.0):
     return np.where(np.isfinite(ratio) & (held_out > 0), np.clip(ratio, 0.0, 1.0), 1.0)
 
 
-def without_leverage(errors, noise, ratios):
+#: A held-out error's excess over the noise up to this many times the held-out fit's predicted
+#: variance there (3 standard deviations) is the fold's ignorance, which the leverage scales;
+#: beyond it, it is an error no fit's covariance explains (a model error), kept as measured.
+LEVERAGE_EXPLAINS = 9.0
+
+
+def without_leverage(errors, noise, ratios, held_out=None):
     """Held-out error magnitudes ``errors`` (M,) with the excess of their square over the
     posture's ``noise`` variance (M,) scaled by the leverage ``ratios`` (M,,
-    :func:`leverage_ratios`): ``sqrt(r e^2 + (1 - r) n)``, the error the full fit makes there
-    plus the posture's own noise (removed later, :func:`noise_removed`)."""
+    :func:`leverage_ratios`): ``sqrt(r x + n)``, ``x = e^2 - n``, the error the full fit makes
+    there plus the posture's own noise (removed later, :func:`noise_removed`). ``held_out``
+    (M,) m^2: the held-out fit's predicted variance there (with the unmodelled part); the excess
+    beyond :data:`LEVERAGE_EXPLAINS` times it is not scaled (None: all of it is)."""
     errors, noise, ratios = (np.asarray(v, dtype=float) for v in (errors, noise, ratios))
-    return np.sqrt(np.maximum(ratios * errors**2 + (1.0 - ratios) * noise, 0.0))
+    excess = errors**2 - noise
+    kept = np.zeros_like(excess)
+    if held_out is not None:
+        cap = LEVERAGE_EXPLAINS * np.asarray(held_out, dtype=float)
+        beyond = np.isfinite(cap) & (excess > cap)
+        kept = np.where(beyond, excess - cap, 0.0)
+        excess = np.where(beyond, cap, excess)
+    return np.sqrt(np.maximum(ratios * excess + kept + noise, 0.0))
 
 
 def noise_removed(errors, variances, shared=None):
@@ -236,6 +251,9 @@ class CrossValidation:
     #: (M,) the leverage ratios (:func:`leverage_ratios`) that scale each held-out position
     #: error's excess over the noise to the full fit's; None: the raw held-out errors
     position_leverage: np.ndarray | None = None
+    #: (M,) m^2: the held-out fit's predicted variance at each posture, the unmodelled part
+    #: included (:func:`without_leverage`); None: unknown
+    position_held_out_variance: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -303,8 +321,12 @@ class CrossValidation:
         position_noise, phi_noise = self.position_noise[rows], self.phi_noise[rows]
         calibrated_position = position[rows]
         if self.position_leverage is not None:
+            held_out = self.position_held_out_variance
             calibrated_position = without_leverage(
-                calibrated_position, position_noise, self.position_leverage[rows]
+                calibrated_position,
+                position_noise,
+                self.position_leverage[rows],
+                None if held_out is None else held_out[rows],
             )
             device = True
         device = device and self.position_device is not None
@@ -376,15 +398,17 @@ def _fold_fit(result, free, rows, options, effects):
 
 
 def _leverage(result, readings, held_out_variance, unmodelled):
-    """(M,) :func:`leverage_ratios` at ``result``'s poses: its predicted variance over each
-    posture's ``held_out_variance``, with the ``unmodelled`` part (SensorNoise or None)."""
+    """``(ratios, held-out variances)`` (M,) at ``result``'s poses: :func:`leverage_ratios` of
+    its predicted variance over each posture's ``held_out_variance``, and that variance, each
+    with the ``unmodelled`` part (SensorNoise or None)."""
     poses = np.asarray(result.poses, dtype=float)
     unmodelled_variance = 0.0
     if unmodelled is not None:
         position, _ = reading_pose_covariance(result.geometry, poses, readings, unmodelled)
         unmodelled_variance = np.trace(position, axis1=1, axis2=2)
     full = parameter_variances(result, poses)
-    return leverage_ratios(full, held_out_variance, unmodelled_variance)
+    ratios = leverage_ratios(full, held_out_variance, unmodelled_variance)
+    return ratios, held_out_variance + unmodelled_variance
 
 
 def cross_validate(
@@ -446,8 +470,10 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     position_device, phi_device = device_variances(result, readings)
+    leverage, held_out_variance = _leverage(result, readings, held_out_variance, unmodelled)
     return CrossValidation(
-        position_leverage=_leverage(result, readings, held_out_variance, unmodelled),
+        position_leverage=leverage,
+        position_held_out_variance=held_out_variance,
         position_uncompensated=_uncompensated(result.geometry, guesses, uncompensated_strain),
         position_device=position_device,
         phi_device=phi_device,
