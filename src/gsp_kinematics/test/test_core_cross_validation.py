@@ -170,6 +170,9 @@ def test_the_leverage_scales_a_held_out_error_to_the_full_fit_but_not_a_model_er
     np.testing.assert_allclose(ratios, [0.01, 10001.0 / 10100.0, 1.0, 1.0], rtol=1e-6)
     errors = without_leverage([10.0, 3.0], [4.0, 16.0], [0.01, 0.5])
     np.testing.assert_allclose(errors**2, [0.01 * 96.0 + 4.0, 0.5 * 9.0 + 0.5 * 16.0])
+    # An excess beyond 3 standard deviations of the held-out prediction is a model error: kept.
+    errors = without_leverage([10.0, 10.0], [4.0, 4.0], [0.01, 0.01], held_out=[20.0, 1.0])
+    np.testing.assert_allclose(errors**2, [0.01 * 96.0 + 4.0, 0.01 * 9.0 + 87.0 + 4.0])
 
 
 def test_with_the_leverage_taken_out_every_figure_adds_the_device_uncertainty():
