@@ -171,15 +171,16 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     data = json.loads((run / 'result.json').read_text())
     assert data['accepted'] is True
     choice = data['effects']['model_choice']
-    # What a 30-posture run identifies (docs/platform_effects.md#through-the-calibrator): the
-    # compliance (tens of um) and the backlash (4 um, 0.3-0.5 um Cramer-Rao per leg, every leg
-    # arriving both ways), always. The joint offsets (20 um against about 8-12 um Cramer-Rao per leg)
-    # and the growth during a run of about a minute (a few um, the legs barely warm) are within
-    # what it resolves: chosen in some runs, not asserted.
-    assert {'compliance', 'backlash'} <= set(choice['groups']), choice
+    # What this run identifies (docs/platform_effects.md#through-the-calibrator): all four
+    # groups. The compliance (tens of um) and the backlash (4 um against 0.3-0.5 um Cramer-Rao
+    # per leg); the legs' growth during the run (about 3 um a minute at first) against the six
+    # reference revisits; the joint offsets (20 um) once the plan resolves them: with 10 samples
+    # a posture their chi-square drop in the last round was 12-32 (p 0.01 or below in half the
+    # simulated runs), with 30 it is 54-91.
+    assert set(choice['groups']) == {'compliance', 'backlash', 'thermal', 'joint_offsets'}, choice
     # The run commanded the route's additions: reference revisits, each its own posture.
     additions = data['collection']['route_additions']
-    assert additions['groups'] == ['backlash', 'thermal'] and additions['reference_revisits'] >= 3
+    assert additions['groups'] == ['backlash', 'thermal'] and additions['reference_revisits'] >= 6
     calibrated = load_geometry(run / 'result.yaml')
     assert set(calibrated.effects.groups()) == set(choice['groups'])
     assert calibrated.effects.payload_mass == REALISTIC.payload_mass
@@ -218,13 +219,16 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     # draw (one draw of the ideal platform alone spans 0.5-1.5x of its median), and the six
     # thermal rates of a one-minute run double the variance: docs/platform_effects.md.
     assert truth['auto_mm'] < 1.5 * truth['ideal_same_model_mm'], truth
+    # Against the plain model's median on the ideal platform (measured 0.9-2.0x in simulations of
+    # this plan, 1.4x their median): the cost of identifying the effects stays bounded.
+    assert truth['auto_mm'] < 2.5 * truth['ideal_plain_median_mm'], truth
     # Bound at 1.5x: a run that loses postures to a loaded machine keeps a margin, and the
     # plain model (the compliance pushed into the geometry) stays well above it.
     assert auto_mm < plain_mm / 1.5, (auto_mm, plain_mm)
     assert truth['auto_mm'] < truth['plain_mm'] / 1.5, truth
 
 
-def _truth(samples, data, geometries, checks, wall_started, ideal_draws=9):
+def _truth(samples, data, geometries, checks, wall_started, ideal_draws=5):
     """The simulation's truth over ``checks`` at the instant the calibrated geometry refers to
     (``data``: result.json): the mean position error (mm) with the calibrated and the plain
     geometry (``geometries``), and of the same plan on the ideal platform with the same model
@@ -255,5 +259,6 @@ def _truth(samples, data, geometries, checks, wall_started, ideal_draws=9):
         'ideal_same_model_mm': _ideal_accuracy_mm(samples, checks, noise, model, design),
         'ideal_plain_same_noise_mm': _ideal_accuracy_mm(samples, checks, noise),
         'ideal_plain_median_mm': float(np.median(plain_draws)),
-        'noise_rms_over_sigma': float(np.sqrt(np.mean((noise / scale) ** 2))),
+        # Less each channel's mean: a second off platform_sim's clock shifts a leg's growth.
+        'noise_rms_over_sigma': float(np.sqrt(np.mean(((noise - noise.mean(0)) / scale) ** 2))),
     }
