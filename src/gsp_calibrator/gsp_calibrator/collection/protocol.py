@@ -238,6 +238,10 @@ class CollectionProtocol:
         """Latest leg-length readings (6,) m received, or None."""
         return self._latest.leg_lengths()
 
+    def sample_rate_hz(self):
+        """The rate (Hz) the streams were heard at (the slowest's), or None."""
+        return self._latest.sample_rate_hz()
+
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
         return collection_summary(self.skipped, self.collector)
