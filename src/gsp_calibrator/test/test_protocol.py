@@ -508,10 +508,10 @@ def test_the_sample_rate_is_the_slowest_stream_s_as_heard():
     """Legs every 5 ms, the device every 20 ms (the LVDT at 50 Hz too): 50 Hz, the rate pairs
     can come at; unknown until every stream has given two samples."""
     collection = make()
-    assert collection.sample_rate_hz() is None
+    assert collection.latest.sample_rate_hz() is None
     for k in range(40):
         collection.sample(LEG_LENGTHS, T0 + k * 5 * MS, (Q,), T0 + k * 5 * MS)
-    assert collection.sample_rate_hz() is None  # no device sample yet
+    assert collection.latest.sample_rate_hz() is None  # no device sample yet
     for k in range(10):
         instant(collection, T0 + k * 20 * MS)
-    assert collection.sample_rate_hz() == pytest.approx(50.0)
+    assert collection.latest.sample_rate_hz() == pytest.approx(50.0)

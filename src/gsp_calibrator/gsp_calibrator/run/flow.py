@@ -380,7 +380,9 @@ async def _ordered(run, poses):
     if settings.posture_order == 'route':
         poses = await run._route(poses)
     start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
-    rate = run.collection.sample_rate_hz()  # as heard: the route's time at the run's own rate
+    rate = (
+        run.collection.latest.sample_rate_hz()
+    )  # as heard: the route's time at the run's own rate
     route = await run.host.in_thread(postures.effect_route, settings, poses, start, rate)
     if route is None:
         return poses, None
