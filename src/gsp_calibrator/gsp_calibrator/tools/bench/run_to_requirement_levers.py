@@ -156,14 +156,26 @@ def workspace_trajectory(seed, budget=BUDGET):
     return steps
 
 
-def _auto_run(design, route, seed):
+def _noisy_rows(design, route, seed, samples):
+    """``effects.noisy_rows`` with ``samples`` per posture (the same draws: 10 gives its rows)."""
+    run = bench_effects.route_run(design, route, REALISTIC)
+    noise = DEFAULT_SENSOR_NOISE
+    scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
+    draws = np.random.default_rng(seed).normal(size=(len(route.poses), 10)) * scale
+    draws /= math.sqrt(samples)
+    ok = run.reachable
+    return run.leg_readings[ok] + draws[ok, :6], run.device_readings[ok] + draws[ok, 6:], ok
+
+
+def _auto_run(design, route, seed, samples=bench_verdict.SAMPLES):
     """``auto`` (the payload given) on one seeded run of ``route`` (an ``AugmentedRoute`` on the
-    simulation's clock), as the ``effects`` section identifies it: the groups chosen, the
-    cross-validated mean and its 95 % bound, predicted and true errors (mm)."""
-    legs, readings, ok = bench_effects.noisy_rows(design, route, REALISTIC, seed)
+    simulation's clock) with ``samples`` per posture, as the ``effects`` section identifies it:
+    the groups chosen, the cross-validated mean and its 95 % bound, predicted and true errors
+    (mm)."""
+    legs, readings, ok = _noisy_rows(design, route, seed, samples)
     nominal, poses = design.settings.nominal, route.poses[ok]
     rows = design_rows(route.design(REALISTIC.payload_mass, REALISTIC.centre_of_mass), ok)
-    sigmas = DEFAULT_SENSOR_NOISE.averaged([bench_verdict.SAMPLES])
+    sigmas = DEFAULT_SENSOR_NOISE.averaged([samples])
     try:
         choice = choose_model(
             nominal, legs, readings, sigmas, rows, pose_guesses=poses, folds=bench_effects.FOLDS,
@@ -379,3 +391,31 @@ def run(quick=False):
         'workspace': workspace_figures(defaults, trajectories, plain_mm),
         'auto': auto_figures([auto_runs(seed) for seed in seeds], plain_mm),
     }
+
+
+def auto_samples(seed, samples, first=24, every=EVERY, budget=0.5, last=None):
+    """``auto`` on the default plan (route order, augmented) with ``samples`` per posture (a
+    dwell of 0.5 s and the samples at 200 Hz), judged every ``every`` commanded postures from
+    ``first`` as far as ``budget`` times the platform time of the ``auto`` default plan (10
+    samples) goes (and ``last`` commanded postures): per judgement its figures and platform time / the plain default plan's."""
+    plan = bench.Plan.default()
+    design = bench_verdict.default_design({})
+    settings = design.settings
+    fixed_s = _plan_time_s(plan)
+
+    def augmented(count):
+        return augment_route(
+            settings.nominal, design.poses, EFFECT_GROUPS, start_pose=home_pose(),
+            dwell_s=0.5 + count / 200.0, limits=settings.motion_limits,
+        )  # fmt: skip
+
+    auto_plan_s = augmented(bench_verdict.SAMPLES).total_s
+    route = augmented(samples)
+    within = int(np.count_nonzero(route.times_s <= budget * auto_plan_s))
+    within = within if last is None else min(within, last)
+    steps = []
+    for count in range(first, within + 1, every):
+        found = _auto_run(design, _cut(route, count, bench_verdict.RUN_S / fixed_s), seed, samples)
+        ratio = float(route.times_s[count - 1] / fixed_s)
+        steps.append({**found, 'ratio': ratio, 'commanded': count, 'auto_plan_s': auto_plan_s})
+    return steps
