@@ -26,6 +26,7 @@ import numpy as np
 from scipy import stats
 
 from gsp_calibrator.run import postures
+from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
 from gsp_calibrator.tools.bench import effects as bench_effects
 from gsp_calibrator.tools.bench import run_to_requirement as bench
@@ -35,6 +36,7 @@ from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route
 from gsp_kinematics.kinematics import home_pose
+from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.prediction import accuracy_summary
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
@@ -418,4 +420,65 @@ def auto_samples(seed, samples, first=24, every=EVERY, budget=0.5, last=None):
         found = _auto_run(design, _cut(route, count, bench_verdict.RUN_S / fixed_s), seed, samples)
         ratio = float(route.times_s[count - 1] / fixed_s)
         steps.append({**found, 'ratio': ratio, 'commanded': count, 'auto_plan_s': auto_plan_s})
+    return steps
+
+
+def _timed_rows(run, poses, samples, rng):
+    """The calibrator's rows (``Samples``) of a simulated ``run`` of ``poses``: per reachable
+    posture a window of ``samples`` noisy readings (lag sums kept), stamped at the run's times,
+    with the legs' approach directions (``auto`` fits the growth over time and the backlash)."""
+    noise = DEFAULT_SENSOR_NOISE
+    scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
+    rows = Samples.empty()
+    for k in np.flatnonzero(run.reachable):
+        exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
+        window = exact + rng.normal(size=(samples, 10)) * scale
+        mean = window.mean(axis=0)
+        rows.append(
+            k + 1, poses[k], mean[:6], mean[6:], samples, 1.7e9 + run.times_s[k],
+            posture_lag_sums(window), run.directions[k],
+        )  # fmt: skip
+    return rows
+
+
+def calibrator_auto(seed, samples, counts):
+    """``auto`` (the payload given) with ``samples`` per posture judged as the calibrator's
+    stopping run judges (``upkeep.run_to_requirement.judge_rows``: noise from the run, its
+    folds, the predicted error) on the default plan augmented by the calibrator's route for
+    ``auto``, at ``counts`` commanded postures (None: the whole route): per judgement the bounds,
+    the true error and the platform time / the plain default plan's."""
+    plan = bench.Plan.default()
+    values = {
+        'free_parameters': ['auto'],
+        'payload_mass': REALISTIC.payload_mass,
+        'payload_centre_of_mass': list(REALISTIC.centre_of_mass),
+        'samples_per_posture': samples,
+    }
+    design = bench_verdict.default_design(values)
+    settings = design.settings
+    rule = run_to_requirement.rule_for(settings)
+    fixed_s = _plan_time_s(plan)
+    route = augment_route(
+        settings.nominal, design.poses, EFFECT_GROUPS, start_pose=home_pose(),
+        dwell_s=rule.dwell_s, limits=settings.motion_limits,
+    )  # fmt: skip
+    timed = _cut(route, len(route.poses), bench_verdict.RUN_S / fixed_s)
+    run = bench_effects.route_run(design, timed, REALISTIC)
+    rows = _timed_rows(run, timed.poses, samples, np.random.default_rng(80_000 + seed))
+    steps = []
+    for count in counts or [len(route.poses)]:
+        kept = rows.posture <= count
+        judgement = run_to_requirement.judge_rows(settings, rows.rows(kept), rule)
+        true_mm = math.nan
+        if judgement.result is not None:
+            true_mm, _ = bench_verdict.true_accuracy(design, REALISTIC, judgement.result.geometry)
+        steps.append(
+            {
+                'commanded': count,
+                'ratio': float(route.times_s[count - 1] / fixed_s),
+                'plan_s': float(route.total_s),
+                'true_mm': true_mm,
+                **judgement.bounds.record(),
+            }
+        )
     return steps
