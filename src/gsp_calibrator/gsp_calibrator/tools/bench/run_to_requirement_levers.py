@@ -20,7 +20,6 @@ four effects) at realistic leg speeds, against the default plan (60 postures in 
 
 import dataclasses
 import math
-import statistics
 
 import numpy as np
 from scipy import stats
@@ -49,6 +48,9 @@ WORKSPACE = 20  #: workspace postures (the verdict section's variant)
 MINIMUM = 16  #: postures of the first judgement
 EVERY = 2  #: postures between judgements
 BUDGET = 0.56  #: judged within this times the default plan's platform time (0.5x and a step)
+#: samples per posture of ``auto`` judged as the calibrator judges, and its judgements
+CALIBRATOR_SAMPLES = 160
+CALIBRATOR_COUNTS = (18, 20, 22, 24)
 
 
 def interleaved(plan_order, workspace_indices):
@@ -158,26 +160,14 @@ def workspace_trajectory(seed, budget=BUDGET):
     return steps
 
 
-def _noisy_rows(design, route, seed, samples):
-    """``effects.noisy_rows`` with ``samples`` per posture (the same draws: 10 gives its rows)."""
-    run = bench_effects.route_run(design, route, REALISTIC)
-    noise = DEFAULT_SENSOR_NOISE
-    scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
-    draws = np.random.default_rng(seed).normal(size=(len(route.poses), 10)) * scale
-    draws /= math.sqrt(samples)
-    ok = run.reachable
-    return run.leg_readings[ok] + draws[ok, :6], run.device_readings[ok] + draws[ok, 6:], ok
-
-
-def _auto_run(design, route, seed, samples=bench_verdict.SAMPLES):
+def _auto_run(design, route, seed):
     """``auto`` (the payload given) on one seeded run of ``route`` (an ``AugmentedRoute`` on the
-    simulation's clock) with ``samples`` per posture, as the ``effects`` section identifies it:
-    the groups chosen, the cross-validated mean and its 95 % bound, predicted and true errors
-    (mm)."""
-    legs, readings, ok = _noisy_rows(design, route, seed, samples)
+    simulation's clock), as the ``effects`` section identifies it: the groups chosen, the
+    cross-validated mean and its 95 % bound, predicted and true errors (mm)."""
+    legs, readings, ok = bench_effects.noisy_rows(design, route, REALISTIC, seed)
     nominal, poses = design.settings.nominal, route.poses[ok]
     rows = design_rows(route.design(REALISTIC.payload_mass, REALISTIC.centre_of_mass), ok)
-    sigmas = DEFAULT_SENSOR_NOISE.averaged([samples])
+    sigmas = DEFAULT_SENSOR_NOISE.averaged([bench_verdict.SAMPLES])
     try:
         choice = choose_model(
             nominal, legs, readings, sigmas, rows, pose_guesses=poses, folds=bench_effects.FOLDS,
@@ -238,11 +228,6 @@ def auto_runs(seed, budget=BUDGET):
     }
 
 
-def _median(values):
-    values = [v for v in values if math.isfinite(v)]
-    return statistics.median(values) if values else math.nan
-
-
 def _first(steps, meets):
     """The first judgement of ``steps`` that ``meets`` (a predicate), or None."""
     return next((step for step in steps if meets(step)), None)
@@ -255,7 +240,7 @@ def _stops(trajectories, meets, required_mm, true_of):
     within = [stop for stop in stops if stop is not None and stop['ratio'] <= 0.5]
     return {
         'stopped_within_half_fraction': len(within) / max(len(stops), 1),
-        'ratio_median': _median([stop['ratio'] for stop in within]),
+        'ratio_median': bench._median([stop['ratio'] for stop in within]),
         'true_over_required_at_stop': [round(true_of(stop) / required_mm, 3) for stop in within],
         'true_within_required_at_stop_fraction': sum(
             true_of(stop) <= required_mm for stop in within
@@ -271,7 +256,9 @@ def _per_judgement(trajectories, figures, required):
     for count in sorted({step['postures'] for steps in trajectories for step in steps}):
         steps = [step for steps in trajectories for step in steps if step['postures'] == count]
         row = {'postures': count, 'seeds': len(steps)}
-        row.update({key: _median([of(step) for step in steps]) for key, of in figures.items()})
+        row.update(
+            {key: bench._median([of(step) for step in steps]) for key, of in figures.items()}
+        )
         for name, (limit, of) in required.items():
             row[f'{name}_meets'] = sum(of(step) <= limit for step in steps)
         table.append(row)
@@ -282,16 +269,16 @@ def workspace_figures(defaults, trajectories, plain_mm):
     """The workspace lever's figures: the default plan with the workspace postures, per
     judgement, and where stopping rules stop (the workspace bound against the plan's workspace
     figure; the verdict's judged figure against the plain plan's verified ``plain_mm``)."""
-    required = _median([found['workspace_mm'] for found in defaults])
+    required = bench._median([found['workspace_mm'] for found in defaults])
     ratios = [found['workspace_mm'] / found['true_mm'] for found in defaults]
     judged = lambda step: max(step['workspace_mm'], step['selected_mm'])  # noqa: E731
     return {
         'default_plan': {
             'workspace_mm_median': required,
-            'workspace_bound_mm_median': _median([f['workspace_bound_mm'] for f in defaults]),
-            'selected_mm_median': _median([found['selected_mm'] for found in defaults]),
-            'true_mm_median': _median([found['true_mm'] for found in defaults]),
-            'workspace_over_true': [min(ratios), _median(ratios), max(ratios)],
+            'workspace_bound_mm_median': bench._median([f['workspace_bound_mm'] for f in defaults]),
+            'selected_mm_median': bench._median([found['selected_mm'] for found in defaults]),
+            'true_mm_median': bench._median([found['true_mm'] for found in defaults]),
+            'workspace_over_true': [min(ratios), bench._median(ratios), max(ratios)],
             'platform_time_s': defaults[0]['platform_time_s'],
         },
         'per_judgement': _per_judgement(
@@ -329,7 +316,7 @@ def auto_figures(runs, plain_mm):
     where the 95 % bound (and the prediction) meets ``plain_mm`` and the auto plan's verified
     accuracy."""
     plans = [run['plan']['auto'] for run in runs if 'auto' in run['plan']]
-    own_mm = _median([plan['cv_mm'] for plan in plans])
+    own_mm = bench._median([plan['cv_mm'] for plan in plans])
     trajectories = [
         [{'postures': s['commanded'], 'ratio': s['ratio'], **s['auto']} for s in run['route']
          if 'auto' in s]
@@ -340,9 +327,11 @@ def auto_figures(runs, plain_mm):
     return {
         'default_plan': {
             'cv_mm_median': own_mm,
-            'bound_mm_median': _median([plan['bound_mm'] for plan in plans]),
-            'true_mm_median': _median([plan['true_mm'] for plan in plans]),
-            'true_at_reference_mm_median': _median([p['true_at_reference_mm'] for p in plans]),
+            'bound_mm_median': bench._median([plan['bound_mm'] for plan in plans]),
+            'true_mm_median': bench._median([plan['true_mm'] for plan in plans]),
+            'true_at_reference_mm_median': bench._median(
+                [p['true_at_reference_mm'] for p in plans]
+            ),
             'platform_time_over_plain': runs[0]['plan']['ratio'],
         },
         'per_judgement': _per_judgement(
@@ -367,7 +356,7 @@ def auto_figures(runs, plain_mm):
             'ratio': halves[0]['ratio'] if halves else math.nan,
             'postures': halves[0]['commanded'] if halves else 0,
             **{
-                f'{key}_median': _median([h['auto'][key] for h in halves])
+                f'{key}_median': bench._median([h['auto'][key] for h in halves])
                 for key in ('cv_mm', 'bound_mm', 'predicted_mm', 'true_mm')
             },
             'bound_meets_plain_fraction': sum(h['auto']['bound_mm'] <= plain_mm for h in halves)
@@ -377,50 +366,76 @@ def auto_figures(runs, plain_mm):
     }
 
 
+def calibrator_figures(runs, plain_mm, first_counts=(18, 24)):
+    """``auto`` with ``CALIBRATOR_SAMPLES`` per posture judged as the calibrator judges: its own
+    default plan (10 samples), per judgement, and where the 95 % bound (and the prediction)
+    meets ``plain_mm`` or the auto plan's verified accuracy, judged from each of
+    ``first_counts`` (``stop_minimum_postures``) on."""
+    plans = [run['plan'][0] for run in runs if math.isfinite(run['plan'][0]['position_mm'])]
+    own_mm = bench._median([plan['position_mm'] for plan in plans])
+    trajectories = [
+        [{**step, 'postures': step['commanded']} for step in run['run']
+         if math.isfinite(step['position_mm'])]
+        for run in runs
+    ]  # fmt: skip
+    meets = lambda limit: lambda s: s['position_bound_mm'] <= limit and s['predicted_mm'] <= limit  # noqa: E731
+    stops = {}
+    for first in first_counts:
+        later = [[s for s in steps if s['postures'] >= first] for steps in trajectories]
+        for name, limit in (('plain', plain_mm), ('auto', own_mm)):
+            stops[f'from_{first}_at_{name}_requirement'] = _stops(
+                later, meets(limit), limit, lambda s: s['true_mm']
+            )
+    return {
+        'samples_per_posture': CALIBRATOR_SAMPLES,
+        'auto_default_plan': {
+            'cv_mm_median': own_mm,
+            'bound_mm_median': bench._median([plan['position_bound_mm'] for plan in plans]),
+            'true_mm_median': bench._median([plan['true_mm'] for plan in plans]),
+            'platform_time_over_plain': plans[0]['ratio'] if plans else math.nan,
+        },
+        'per_judgement': _per_judgement(
+            trajectories,
+            {
+                key: (lambda k: lambda s: s[k])(key)
+                for key in ('ratio', 'position_mm', 'position_bound_mm', 'predicted_mm', 'true_mm')
+            },
+            {
+                'bound_vs_plain_requirement': (plain_mm, lambda s: s['position_bound_mm']),
+                'bound_vs_auto_requirement': (own_mm, lambda s: s['position_bound_mm']),
+                'cv_vs_auto_requirement': (own_mm, lambda s: s['position_mm']),
+                'true_vs_plain_requirement': (plain_mm, lambda s: s['true_mm']),
+                'true_vs_auto_requirement': (own_mm, lambda s: s['true_mm']),
+            },
+        ),  # fmt: skip
+        'stops': stops,
+    }
+
+
 def run(quick=False):
-    """The section: the plain default plan's verified accuracy (the requirement), then both
+    """The section: the plain default plan's verified accuracy (the requirement), then the
     levers per seed."""
     design = bench_verdict.default_design()
     seeds = range(QUICK_SEEDS if quick else SEEDS)
     plain = [found for found in (bench.default_plan(design, s) for s in seeds) if found]
-    plain_mm = _median([found['cv_mm'] for found in plain])
+    plain_mm = bench._median([found['cv_mm'] for found in plain])
     defaults = [found for found in (workspace_default(s) for s in seeds) if found]
     trajectories = [workspace_trajectory(seed) for seed in seeds]
+    calibrated = [
+        {
+            'plan': calibrator_auto(seed, bench_verdict.SAMPLES, None),
+            'run': calibrator_auto(seed, CALIBRATOR_SAMPLES, CALIBRATOR_COUNTS),
+        }
+        for seed in seeds
+    ]
     return {
         'description': __doc__.split('\n\n')[0],
         'seeds': len(seeds),
         'plain_default_plan_verified_mm': plain_mm,
         'workspace': workspace_figures(defaults, trajectories, plain_mm),
         'auto': auto_figures([auto_runs(seed) for seed in seeds], plain_mm),
+        'auto_calibrator': calibrator_figures(calibrated, plain_mm),
     }
-
-
-def auto_samples(seed, samples, first=24, every=EVERY, budget=0.5, last=None):
-    """``auto`` on the default plan (route order, augmented) with ``samples`` per posture (a
-    dwell of 0.5 s and the samples at 200 Hz), judged every ``every`` commanded postures from
-    ``first`` as far as ``budget`` times the platform time of the ``auto`` default plan (10
-    samples) goes (and ``last`` commanded postures): per judgement its figures and platform time / the plain default plan's."""
-    plan = bench.Plan.default()
-    design = bench_verdict.default_design({})
-    settings = design.settings
-    fixed_s = _plan_time_s(plan)
-
-    def augmented(count):
-        return augment_route(
-            settings.nominal, design.poses, EFFECT_GROUPS, start_pose=home_pose(),
-            dwell_s=0.5 + count / 200.0, limits=settings.motion_limits,
-        )  # fmt: skip
-
-    auto_plan_s = augmented(bench_verdict.SAMPLES).total_s
-    route = augmented(samples)
-    within = int(np.count_nonzero(route.times_s <= budget * auto_plan_s))
-    within = within if last is None else min(within, last)
-    steps = []
-    for count in range(first, within + 1, every):
-        found = _auto_run(design, _cut(route, count, bench_verdict.RUN_S / fixed_s), seed, samples)
-        ratio = float(route.times_s[count - 1] / fixed_s)
-        steps.append({**found, 'ratio': ratio, 'commanded': count, 'auto_plan_s': auto_plan_s})
-    return steps
 
 
 def _timed_rows(run, poses, samples, rng):
