@@ -25,7 +25,6 @@ import numpy as np
 from scipy import stats
 
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
 from gsp_calibrator.tools.bench import effects as bench_effects
 from gsp_calibrator.tools.bench import run_to_requirement as bench
@@ -35,7 +34,6 @@ from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route
 from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.noise_from_data import posture_lag_sums
 from gsp_kinematics.prediction import accuracy_summary
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
@@ -438,24 +436,6 @@ def run(quick=False):
     }
 
 
-def _timed_rows(run, poses, samples, rng):
-    """The calibrator's rows (``Samples``) of a simulated ``run`` of ``poses``: per reachable
-    posture a window of ``samples`` noisy readings (lag sums kept), stamped at the run's times,
-    with the legs' approach directions (``auto`` fits the growth over time and the backlash)."""
-    noise = DEFAULT_SENSOR_NOISE
-    scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
-    rows = Samples.empty()
-    for k in np.flatnonzero(run.reachable):
-        exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
-        window = exact + rng.normal(size=(samples, 10)) * scale
-        mean = window.mean(axis=0)
-        rows.append(
-            k + 1, poses[k], mean[:6], mean[6:], samples, 1.7e9 + run.times_s[k],
-            posture_lag_sums(window), run.directions[k],
-        )  # fmt: skip
-    return rows
-
-
 def calibrator_auto(seed, samples, counts):
     """``auto`` (the payload given) with ``samples`` per posture judged as the calibrator's
     stopping run judges (``upkeep.run_to_requirement.judge_rows``: noise from the run, its
@@ -479,7 +459,8 @@ def calibrator_auto(seed, samples, counts):
     )  # fmt: skip
     timed = _cut(route, len(route.poses), bench_verdict.RUN_S / fixed_s)
     run = bench_effects.route_run(design, timed, REALISTIC)
-    rows = _timed_rows(run, timed.poses, samples, np.random.default_rng(80_000 + seed))
+    rng = np.random.default_rng(80_000 + seed)
+    rows = bench_verdict.rows_of_run(run, timed.poses, samples, DEFAULT_SENSOR_NOISE, rng, True)
     steps = []
     for count in counts or [len(route.poses)]:
         kept = rows.posture <= count
