@@ -502,3 +502,16 @@ def test_the_look_back_sees_a_lag_the_window_alone_cannot():
     assert settled.settle_wait > 0.6 and abs(settled.readings[0] - R[0]) < 4 * sigma_of_mean
     # The pairs waited out are counted as settling, not as inconsistent.
     assert rows[0.6].dropped == 0
+
+
+def test_the_sample_rate_is_the_slowest_stream_s_as_heard():
+    """Legs every 5 ms, the device every 20 ms (the LVDT at 50 Hz too): 50 Hz, the rate pairs
+    can come at; unknown until every stream has given two samples."""
+    collection = make()
+    assert collection.latest.sample_rate_hz() is None
+    for k in range(40):
+        collection.sample(LEG_LENGTHS, T0 + k * 5 * MS, (Q,), T0 + k * 5 * MS)
+    assert collection.latest.sample_rate_hz() is None  # no device sample yet
+    for k in range(10):
+        instant(collection, T0 + k * 20 * MS)
+    assert collection.latest.sample_rate_hz() == pytest.approx(50.0)

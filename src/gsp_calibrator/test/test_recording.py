@@ -384,22 +384,23 @@ class _LaggingRecorder:
             self.recorder.write(topic, message, log_time)
 
 
-def _write_stalled_session(path, postures, per_posture, stall_ns=0):
+def _write_stalled_session(path, postures, per_posture, stall_ns=0, lag=None):
     """Postures commanded every 30 ms, settled 10 ms after their command, ``per_posture``
     samples stamped 5 ms apart from 11 ms (the calibrator commands the next posture at 30 ms).
     From 35 ms on the recorder logs the sensor messages and the ``settled`` statuses
-    ``stall_ns`` late (commands and ``moving`` statuses on time). Returns ``{k: (legs,
-    readings)}`` of the samples after settling."""
+    ``stall_ns`` late (commands and ``moving`` statuses on time); ``lag(topic, message,
+    log_time)`` (ns), if given, is the delay instead. Returns ``{k: (legs, readings)}`` of the
+    samples after settling."""
     sent = {}
     with McapRecorder(path) as recorder:
 
-        def lag(topic, message, log_time):
+        def stalled(topic, message, log_time):
             late = topic in SENSOR_TOPICS or (
                 topic == names.TOPIC_PLATFORM_STATUS and conversions.parse_status(message).settled
             )
             return stall_ns if late and log_time >= T0 + 35 * MS else 0
 
-        lagging = _LaggingRecorder(recorder, lag)
+        lagging = _LaggingRecorder(recorder, stalled if lag is None else lag)
         for k, (pose, q, r) in enumerate(postures, start=1):
             t = T0 + 30 * MS * (k - 1)
             command_id = write_command(lagging, t, pose, note=t + 10 * MS, posture=k)
@@ -461,6 +462,42 @@ def test_a_settle_and_samples_logged_after_two_later_commands_stay_with_their_po
     legs, readings = sent[2]
     np.testing.assert_allclose(run.postures[1].stream.leg_lengths, legs, rtol=0, atol=1e-12)
     np.testing.assert_allclose(run.postures[1].stream.readings, readings, rtol=0, atol=1e-12)
+
+
+def test_a_first_command_logged_after_its_settle_and_samples_keeps_its_row(tmp_path):
+    """The recorder's command subscription 25 ms behind at the first posture logs its command
+    after its ``settled`` status and its samples (a loaded multi-node test's rebuild then had
+    no row for posture 1: the status named no command yet). The rebuild reads the command
+    where its stamp puts it: the same rows as the recording logged in order, and the replay's
+    segments hold the same samples."""
+    postures = _postures(3, np.random.default_rng(7))
+    ordinary, late = tmp_path / 'ordinary.mcap', tmp_path / 'late.mcap'
+    sent = _write_stalled_session(ordinary, postures, 3)
+
+    def first_command_late(topic, message, log_time):
+        return 25 * MS if topic == names.TOPIC_POSE_COMMAND and log_time < T0 + 30 * MS else 0
+
+    assert _write_stalled_session(late, postures, 3, lag=first_command_late).keys() == sent.keys()
+    logged = [
+        m.topic
+        if m.topic != names.TOPIC_PLATFORM_STATUS
+        else conversions.parse_status(m.message).state
+        for m in read_recording(
+            late, topics=(names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
+        )
+    ]
+    assert logged.index(names.STATE_SETTLED) < logged.index(names.TOPIC_POSE_COMMAND), logged
+
+    online = rebuild.samples_from_recording(ordinary, 0.0025, 3)
+    rebuilt = rebuild.samples_from_recording(late, 0.0025, 3)
+    assert list(online.posture) == list(rebuilt.posture) == [1, 2, 3]
+    np.testing.assert_allclose(rebuilt.leg_lengths, online.leg_lengths, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rebuilt.readings, online.readings, rtol=0, atol=1e-12)
+    legs, readings = sent[1]
+    np.testing.assert_allclose(rebuilt.readings[0], np.mean(readings, axis=0), rtol=0, atol=1e-12)
+    run = RecordedRun.from_recording(late, 0.0025)
+    assert [p.posture for p in run.postures] == [1, 2, 3]
+    np.testing.assert_allclose(run.postures[0].stream.leg_lengths, legs, rtol=0, atol=1e-12)
 
 
 # --- RunRecorder ---------------------------------------------------------------------------------

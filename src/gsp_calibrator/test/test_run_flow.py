@@ -7,6 +7,7 @@ import logging
 import threading
 
 import numpy as np
+import pytest
 
 from gsp_calibrator.collection.events import PostureSkipped, RowReady, TopicSilent
 from gsp_calibrator.collection.synchroniser import PostureSample
@@ -326,6 +327,14 @@ def test_the_route_has_what_the_effect_groups_to_identify_need():
     additions = postures.route_additions(route, ['backlash', 'thermal'])
     assert additions['added_postures'] == route.added_postures
     assert '3 reference revisits' in postures.route_additions_line(additions)
+    assert additions['sample_rate_hz'] == postures.PLAN_SENSOR_RATE_HZ  # none heard: gsp_plan's
+    # Timed at the rate the run heard its streams at: each added posture samples longer at 50 Hz.
+    heard = postures.effect_route(settings, poses, home_pose(), 50.0)
+    np.testing.assert_array_equal(heard.poses, route.poses)
+    longer = route.added_postures * settings.samples_per_posture * (1 / 50.0 - 1 / 200.0)
+    assert heard.added_s - route.added_s == pytest.approx(longer, rel=1e-9)
+    additions = postures.route_additions(heard, ['backlash', 'thermal'], 50.0)
+    assert 'samples at 50 Hz' in postures.route_additions_line(additions)
 
 
 def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp_path):

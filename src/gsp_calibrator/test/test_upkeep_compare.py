@@ -63,3 +63,49 @@ def test_bad_input_names_the_file_and_exits_2(tmp_path, capsys):
     (tmp_path / 'result.json').write_text('{"free_parameters": []}')
     assert compare.main([str(tmp_path), str(tmp_path)]) == compare.EXIT_BAD_INPUT
     assert 'no free_parameters' in capsys.readouterr().err
+
+
+def _with_effects(data):
+    """``data`` (a result.json dict) as an ``auto`` run writes it: the free effect parameters
+    after the others in ``free_parameters`` and the covariance, correlated with them."""
+    names = list(data['free_parameters'])
+    effects = ['compliance1', 'compliance2', 'backlash1', 'strain_rate1']
+    n, m = len(names), len(effects)
+    rng = np.random.default_rng(3)
+    square = rng.normal(size=(n + m, n + m)) * 1e-6
+    covariance = np.zeros((n + m, n + m))
+    covariance[:n, :n] = data['covariance']['si']
+    covariance[n:, :n] = square[n:, :n]
+    covariance[:n, n:] = square[n:, :n].T
+    covariance[n:, n:] = square[n:, n:] @ square[n:, n:].T + np.eye(m) * 1e-12
+    return {
+        **data,
+        'free_parameters': names + effects,
+        'covariance': {'parameters': names + effects, 'si': covariance.tolist()},
+    }
+
+
+def test_an_auto_result_is_compared_over_its_geometry_and_sensor_errors(runs, tmp_path):
+    """An ``auto`` calibration's result.json also names the effect parameters it freed (every
+    such run once logged 'history not updated ...: tuple.index(x): x not in tuple', and
+    gsp_compare refused it). The drift is compared over the others, with their covariance."""
+    plain = load_calibration(runs['first'])
+    for key in ('first', 'changed'):
+        data = json.loads((runs[key] / 'result.json').read_text())
+        (tmp_path / key).mkdir()
+        (tmp_path / key / 'result.json').write_text(json.dumps(_with_effects(data)))
+    calibration = load_calibration(tmp_path / 'first')
+    assert calibration.names == plain.names
+    np.testing.assert_allclose(calibration.covariance, plain.covariance, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(calibration.estimates, plain.estimates, rtol=0, atol=1e-15)
+    code = compare.main([str(tmp_path / 'first'), str(tmp_path / 'changed')])
+    assert code == compare.EXIT_CHANGED
+    # ... and indexed in the history, with the change named against the calibration before.
+    from gsp_calibrator.upkeep import history
+
+    database = tmp_path / 'history.sqlite'
+    for key in ('first', 'changed'):
+        history.record(database, tmp_path / key, 'hexapod-auto')
+    found = history.runs(database, 'hexapod-auto')
+    assert len(found) == 2
+    assert [change['parameter'] for change in found[-1]['changes']] == ['Loff3']

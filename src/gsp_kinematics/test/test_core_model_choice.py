@@ -1,5 +1,6 @@
 """Choosing the model from the data (gsp_kinematics.verdict.model_choice): the plain model on a platform
-it describes, the effect's group on a platform that has it; which groups a run can try."""
+it describes, the effect's group on a platform that has it; which groups a run can try; a
+significant group not predicted to help (gsp_kinematics.verdict.choice_accuracy) left out."""
 
 import numpy as np
 import pytest
@@ -7,9 +8,11 @@ import pytest
 from gsp_kinematics.effects.groups import EffectDesign
 from gsp_kinematics.effects.model import PlatformEffects
 from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.identification import identify
 from gsp_kinematics.kinematics import Workspace, sample_valid_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
-from gsp_kinematics.validation import simulate_commands
+from gsp_kinematics.validation import pose_errors, simulate_commands, validate
+from gsp_kinematics.verdict.choice_accuracy import freeing_gain, workspace_postures
 from gsp_kinematics.verdict.model_choice import available_groups, choose_model
 
 TRUE = default_geometry('true')
@@ -57,6 +60,7 @@ def test_auto_keeps_the_plain_model_or_frees_the_effect_the_platform_has(truth, 
         return
     best = next(c for c in choice.candidates if c.chosen)
     assert best.p_value < 0.01 / len(first_round) and best.added == 6
+    assert best.predicted_with_mm <= best.predicted_without_mm  # predicted to help
     assert best.delta_chi2 == max(c.delta_chi2 for c in first_round)
     if truth is COMPLIANT:
         assert best.position_mm < 0.85 * plain.position_mm
@@ -84,3 +88,51 @@ def test_a_run_tries_only_the_groups_its_design_identifies():
     one_way = EffectDesign(np.arange(4.0), np.ones((4, 6)), 0.0)
     assert available_groups(one_way, 4) == ['thermal', 'joint_offsets']
     assert available_groups(None, 4) == ['joint_offsets']
+
+
+def test_a_significant_group_not_predicted_to_help_is_left_out():
+    """The ideal platform at a test level of 90 %: groups pass the significance test by chance,
+    and the held-out guard, but compensating them is predicted to make the platform less
+    accurate (no bias to remove, the spread of their estimates added), so the plain model is
+    kept; without that rule the spurious groups are freed and the platform is less accurate."""
+    legs, readings, design, poses = noisy_run(None)
+    checks = workspace_postures(NOMINAL, 50)
+
+    def chosen(predicted_gain):
+        choice = choose_model(
+            NOMINAL,
+            legs,
+            readings,
+            SIGMAS,
+            design,
+            pose_guesses=poses,
+            folds=4,
+            significance=0.9,
+            predicted_gain=predicted_gain,
+        )
+        return choice, validate(TRUE, choice.result.geometry, checks)['position_mm_mean']
+
+    choice, accuracy_mm = chosen(True)
+    assert choice.groups == (), choice.to_dict()
+    passed = [c for c in choice.candidates[1:] if c.p_value < 0.9 / 4]
+    assert passed and all(c.predicted_with_mm > c.predicted_without_mm for c in passed)
+    spurious, spurious_mm = chosen(False)
+    assert spurious.groups, spurious.to_dict()
+    assert spurious_mm > 1.5 * accuracy_mm, (spurious_mm, accuracy_mm)
+
+
+def test_the_predicted_gain_sees_the_bias_of_leaving_an_effect_out():
+    """Compliance left out: the predicted error without the group (its variance and the bias
+    estimated from the two fits' difference) is the plain fit's true rms error over the
+    workspace; freeing the group helps."""
+    legs, readings, design, poses = noisy_run(COMPLIANT)
+    fits = [
+        identify(NOMINAL, legs, readings, SIGMAS, free=free, pose_guesses=poses, effects=design)
+        for free in (['extended'], ['extended', 'compliance'])
+    ]
+    checks = workspace_postures(NOMINAL, 50)
+    gain = freeing_gain(*fits, checks)
+    run = simulate_commands(TRUE, fits[0].geometry, checks, COMPLIANT)
+    true_rms_mm = float(np.sqrt(np.mean(pose_errors(checks, run.real_poses)[0] ** 2)))
+    assert gain.without_mm == pytest.approx(true_rms_mm, rel=0.15)
+    assert gain.helps and gain.with_mm < 0.2 * gain.without_mm, gain

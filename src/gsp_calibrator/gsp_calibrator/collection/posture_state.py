@@ -13,6 +13,8 @@ from gsp_kinematics import channels
 #: Device instants kept for the latest complete one (the previous posture's readings): more
 #: than a listener's batch of one device topic can lead the others by.
 MAX_RECENT_INSTANTS = 4000
+#: Recent stamps per stream the sample rate is measured over.
+RATE_WINDOW = 64
 
 
 IDLE, AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'idle', 'status', 'settle', 'collecting'
@@ -69,9 +71,11 @@ class LatestReadings:
         #: stamp -> {device stream: values} of the latest device instants (the device topics
         #: come in batches of their own: their latest messages need not share a stamp)
         self._instants = collections.OrderedDict()
+        self._stamps = {}  # stream -> its recent stamps (ns)
 
     def note(self, stream, stamp_ns, values):
         """A usable sample (``values`` as for the collector's ``add_<stream>``)."""
+        self._stamps.setdefault(stream, collections.deque(maxlen=RATE_WINDOW)).append(stamp_ns)
         if stream == LEG_LENGTHS:
             self._legs = values[0]
             return
@@ -92,3 +96,14 @@ class LatestReadings:
         """Latest leg lengths (6,) m, or None."""
         legs = self._legs
         return None if legs is None else np.asarray(legs, dtype=float).reshape(channels.LEG_COUNT)
+
+    def sample_rate_hz(self):
+        """The rate (Hz) synchronised samples can come at: the slowest stream's, from its
+        recent distinct stamps; None until every stream has given two."""
+        rates = []
+        for stream in (LEG_LENGTHS, *DEVICE_STREAMS):
+            stamps = np.unique(np.asarray(self._stamps.get(stream, ()), dtype=np.int64))
+            if stamps.size < 2:
+                return None
+            rates.append((stamps.size - 1) / ((stamps[-1] - stamps[0]) * 1e-9))
+        return float(min(rates))

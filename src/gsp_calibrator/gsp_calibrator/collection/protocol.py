@@ -207,7 +207,7 @@ class CollectionProtocol:
         )
         self._posture = None  # the awaited posture (Posture) or None
         self._previous = None  # device readings of the previous row
-        self._latest = LatestReadings()
+        self.latest = LatestReadings()  # the latest readings, the rate heard
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None  # the collector's pair revision last checked
         #: Posture skips of the run: ``[PostureSkipped, ...]``.
@@ -232,11 +232,11 @@ class CollectionProtocol:
 
     def latest_device_readings(self):
         """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
-        return self._latest.device_readings()
+        return self.latest.device_readings()
 
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
-        return self._latest.leg_lengths()
+        return self.latest.leg_lengths()
 
     def summary(self):
         """The run's collection data: skips, inconsistent and non-finite samples dropped."""
@@ -313,7 +313,7 @@ class CollectionProtocol:
 
     def _take(self, stream, stamp_ns, values, now_ns, received_ns):
         """Take one parsed sample (not judged yet)."""
-        self._latest.note(stream, stamp_ns, values)
+        self.latest.note(stream, stamp_ns, values)
         posture = self._posture
         if posture is None:
             if self._idle is not None:

@@ -75,7 +75,10 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     delivered a message stamped at or after the command and the posture before it has
     its ``settled`` or ``rejected`` status; the messages logged after it wait until then (a
     sensor message stamped before it still goes to the posture before it). At the end of the
-    recording the commands still waiting take effect in turn.
+    recording the commands still waiting take effect in turn. A command logged late (its
+    subscription behind the others) is read where its stamp puts it, so its own statuses and
+    samples, logged before it, are not taken for another posture's
+    (:func:`_commands_in_time`).
     """
     paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
     notes = _notes_of(paths) if notes is None else notes
@@ -85,13 +88,50 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
         + tuple(extra_topics)
     )
     order = _CausalOrder(collection, notes)
-    messages = (m for part in paths for m in read_recording(part, topics=wanted))
+    messages = (m for part in paths for m in _commands_in_time(part, wanted))
     for topic, _, log_time, msg, _ in messages:
         if on_message is not None:
             on_message(topic, log_time, msg)
         yield from order.message(topic, log_time, msg)
     yield from order.advance(final=True)
     yield from collection.finish()
+
+
+def _commands_in_time(path, topics):
+    """The messages of ``topics`` in ``path`` in log order, except that a pose command logged
+    after a message logged later than the command's own stamp comes before that message, with
+    its stamp as its log time.
+
+    The command's stamp is when the calibrator commanded it (the recorder's clock), so nothing
+    logged after the stamp can have come before the command. When the recorder's command
+    subscription fell behind the others, the platform's statuses of that command and the
+    samples after its settle were logged before it: read in log order, the settled status
+    names no command yet and is lost, and the posture gives no row (seen for a first posture
+    in a loaded multi-node test).
+    """
+    if names.TOPIC_POSE_COMMAND not in topics:
+        yield from read_recording(path, topics=topics)
+        return
+    commands = []  # (stamp ns or None, message), in log order
+    for message in read_recording(path, topics=(names.TOPIC_POSE_COMMAND,)):
+        commands.append((_stamp_ns(message.message), message))
+    ahead = 0  # commands given so far (some before their place in the log)
+    seen = 0  # commands met at their place in the log
+    for message in read_recording(path, topics=topics):
+        if message.topic == names.TOPIC_POSE_COMMAND:
+            seen += 1
+            if seen > ahead:  # not given ahead of its place
+                ahead = seen
+                yield message
+            continue
+        log_time = message.log_time_ns
+        while ahead < len(commands):
+            stamp, command = commands[ahead]
+            if stamp is None or not stamp < log_time < command.log_time_ns:
+                break
+            ahead += 1
+            yield command._replace(log_time_ns=stamp)
+        yield message
 
 
 class _CausalOrder:

@@ -143,12 +143,17 @@ def effects_lines(record):
 
 def _test_text(candidate):
     """', chi-square drop D (k parameters, p P)' of a candidate tested against the model it
-    extends ('' for the plain model or a failed fit)."""
+    extends ('' for the plain model or a failed fit), and the predicted rms position error over
+    the workspace without and with the groups it adds where judged."""
     delta, p_value = candidate.get('delta_chi2'), candidate.get('p_value')
     if delta is None or p_value is None or not math.isfinite(p_value):
         return ''
     added = candidate.get('added_parameters', 0)
-    return f', chi-square drop {delta:.1f} ({added} parameters, p {p_value:.2g})'
+    text = f', chi-square drop {delta:.1f} ({added} parameters, p {p_value:.2g})'
+    without, with_ = candidate.get('predicted_without_mm'), candidate.get('predicted_with_mm')
+    if without is not None and with_ is not None and math.isfinite(without * with_):
+        text += f', predicted {without:.4f} -> {with_:.4f} mm over the workspace'
+    return text
 
 
 def effects_markdown(record):

@@ -380,11 +380,14 @@ async def _ordered(run, poses):
     if settings.posture_order == 'route':
         poses = await run._route(poses)
     start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
-    route = await run.host.in_thread(postures.effect_route, settings, poses, start)
+    rate = (
+        run.collection.latest.sample_rate_hz()
+    )  # as heard: the route's time at the run's own rate
+    route = await run.host.in_thread(postures.effect_route, settings, poses, start, rate)
     if route is None:
         return poses, None
     groups = postures.route_effect_groups(settings.free_parameters)
-    additions = postures.route_additions(route, groups)
+    additions = postures.route_additions(route, groups, rate)
     line = postures.route_additions_line(additions)
     run.log.info(line)
     run.host.progress(0, names.PHASE_SELECTING, line)

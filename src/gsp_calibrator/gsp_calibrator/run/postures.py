@@ -35,7 +35,8 @@ DEFAULT_FREE = ('extended',)
 #: (reference revisits) and backlash (both approach directions).
 ROUTE_GROUPS = ('thermal', 'backlash')
 #: gsp_plan's timing of a posture (its defaults): the settle time (s) and the rate (Hz) of the
-#: synchronised samples; the calibrator predicts the time its route additions cost with them.
+#: synchronised samples; the calibrator predicts the time its route additions cost with the
+#: settle and the rate it heard the streams at (this one before it heard them).
 PLAN_SETTLE_S = 0.02
 PLAN_SENSOR_RATE_HZ = 200.0
 
@@ -170,17 +171,24 @@ def route_effect_groups(free):
     return [group for group in groups if group in ROUTE_GROUPS]
 
 
-def effect_route(settings, poses, start_pose):
+def sample_rate(heard_hz):
+    """The sample rate (Hz) a run's timing uses: ``heard_hz``, the rate its streams were heard
+    at, or gsp_plan's (:data:`PLAN_SENSOR_RATE_HZ`) when not known (None, not positive)."""
+    return float(heard_hz) if heard_hz is not None and heard_hz > 0 else PLAN_SENSOR_RATE_HZ
+
+
+def effect_route(settings, poses, start_pose, sample_rate_hz=None):
     """The route a run with ``settings`` commands through ``poses`` (N, 6, in commanded order)
     from ``start_pose``: :func:`gsp_kinematics.effects.plan.augment_route` for the effect groups
     its ``free_parameters`` free or ``auto`` may choose (thermal: reference revisits; backlash:
-    both approach directions), timed with the run's leg limits and gsp_plan's posture timing;
-    None when they need nothing (no such group). A revisit is a posture of its own (its own
-    1-based number in state.json) at the same pose."""
+    both approach directions), timed with the run's leg limits, its samples per posture at
+    ``sample_rate_hz`` (:func:`sample_rate`) and gsp_plan's settle; None when they need nothing
+    (no such group). A revisit is a posture of its own (its own 1-based number in state.json)
+    at the same pose."""
     groups = route_effect_groups(settings.free_parameters)
     if not groups:
         return None
-    dwell_s = PLAN_SETTLE_S + settings.samples_per_posture / PLAN_SENSOR_RATE_HZ
+    dwell_s = PLAN_SETTLE_S + settings.samples_per_posture / sample_rate(sample_rate_hz)
     return augment_route(
         settings.nominal,
         poses,
@@ -191,11 +199,16 @@ def effect_route(settings, poses, start_pose):
     )
 
 
-def route_additions(route, groups):
-    """``state.json``'s and ``result.json``'s record of what ``route`` (an ``AugmentedRoute``)
-    added for ``groups``: the postures and predicted seconds, and what each commanded one is."""
+def route_additions(route, groups, sample_rate_hz=None):
+    """``state.json``'s and ``result.json``'s record of what ``route`` (an ``AugmentedRoute``,
+    timed at ``sample_rate_hz``: :func:`effect_route`) added for ``groups``: the postures and
+    predicted seconds, the sample rate they were predicted at, and what each commanded one is."""
     summary = route.to_dict()
-    return {'groups': list(groups), **{k: summary[k] for k in summary if k != 'order'}}
+    return {
+        'groups': list(groups),
+        **{k: summary[k] for k in summary if k != 'order'},
+        'sample_rate_hz': sample_rate(sample_rate_hz),
+    }
 
 
 def route_additions_line(additions):
@@ -206,7 +219,8 @@ def route_additions_line(additions):
         f'postures added ({additions["reference_revisits"]} reference revisits, '
         f'{additions["approach_insertions"]} for the approach directions), '
         f'+{additions["added_s"]:.1f} s predicted ({additions["plain_s"]:.1f} -> '
-        f'{additions["total_s"]:.1f} s)'
+        f'{additions["total_s"]:.1f} s'
+        + (f', samples at {rate:g} Hz)' if (rate := additions.get('sample_rate_hz')) else ')')
         + (f'; legs {one_way} still arrive from one direction only' if one_way else '')
     )
 

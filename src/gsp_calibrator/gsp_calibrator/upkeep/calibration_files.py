@@ -80,15 +80,29 @@ def _deviations(data, names, path):
 
 def calibration_from_result(data, path='result.json'):
     """A ``drift.Calibration`` of a ``result.json`` dict ``data`` (``path`` names it in errors)."""
-    names = tuple(data.get('free_parameters') or ())
-    if not names:
+    free = tuple(data.get('free_parameters') or ())
+    if not free:
         raise CalibrationFileError(f'{path}: no free_parameters (did the identification run?)')
+    # The drift is compared over the geometry and the sensor errors; the effect parameters an
+    # `auto` run also freed (compliance1, backlash1, ...) follow them in `free_parameters` and
+    # are left out, with their marginal covariance (the block of the others), which is exact.
+    keep = [k for k, name in enumerate(free) if name in ALL_PARAMETER_NAMES]
+    names = tuple(free[k] for k in keep)
+    if not names:
+        raise CalibrationFileError(
+            f'{path}: no geometric or sensor parameter among free_parameters'
+        )
     vector = _full_vector(data, path)
     index = [ALL_PARAMETER_NAMES.index(name) for name in names]
     stored = data.get('covariance') or {}
     matrix = stored.get('si')
-    if stored.get('parameters') == list(names) and matrix is not None:
+    if stored.get('parameters') == list(free) and matrix is not None:
         covariance = np.array(matrix, dtype=float)
+        if covariance.shape != (len(free), len(free)):
+            raise CalibrationFileError(
+                f'{path}: the covariance is {covariance.shape}, not {len(free)}x{len(free)}'
+            )
+        covariance = covariance[np.ix_(keep, keep)]
         if not np.all(np.isfinite(covariance)):
             raise CalibrationFileError(f'{path}: the covariance is not finite')
     else:

@@ -77,23 +77,43 @@ class Bounds:
 UNKNOWN = Bounds(math.nan, math.inf, math.nan, math.inf)
 
 
-def accuracy_bounds(summary, confidence, predicted_mm):
-    """:class:`Bounds` from a cross-validation's ``summary()`` (``CrossValidation.summary``) and
-    the ``predicted_mm`` mean position error over the workspace (None: inf):
-    the position bound is the mean plus ``z(confidence)`` standard errors of the mean over the
-    predicted postures (their spread scaled by the noise factor, as the mean is)."""
-    calibrated = summary['calibrated']
-    position = calibrated['position_mm']
-    magnitudes = np.asarray(summary['per_posture']['position_mm'], dtype=float)
+def _mean_and_bound(figures, magnitudes, z):
+    """``(mean, mean + z standard errors)`` (mm) of one set of held-out postures: ``figures``
+    (``calibrated`` of a ``CrossValidation.summary``), ``magnitudes`` their per-posture position
+    errors (mm); the spread is scaled by the noise factor, as the mean is."""
+    position = figures['position_mm']
     magnitudes = magnitudes[np.isfinite(magnitudes)]
     if magnitudes.size < 2 or not math.isfinite(position['mean']):
-        return UNKNOWN
+        return math.nan, math.inf
     spread = position['noise_factor'] * np.std(magnitudes, ddof=1) / math.sqrt(magnitudes.size)
-    bound = position['mean'] + float(stats.norm.ppf(confidence)) * spread
+    return float(position['mean']), float(position['mean'] + z * spread)
+
+
+def accuracy_bounds(summary, confidence, predicted_mm):
+    """:class:`Bounds` from a cross-validation's ``summary()`` (``CrossValidation.summary``) and
+    the ``predicted_mm`` mean position error over the workspace (None: inf): the position bound
+    is the mean plus ``z(confidence)`` standard errors of the mean over the predicted postures.
+
+    With workspace postures (``workspace_rows``) the figures are the verdict's judged accuracy
+    (``acceptance.judged_accuracy``): the larger of the workspace and the selected postures'
+    means and bounds, each over its own rows, so a run never stops on a figure the verdict then
+    rejects (the workspace postures miss the error the device shares with the legs)."""
+    z = float(stats.norm.ppf(confidence))
+    magnitudes = np.asarray(summary['per_posture']['position_mm'], dtype=float)
+    workspace = np.zeros(magnitudes.size, bool)
+    workspace[list(summary.get('workspace_rows') or [])] = True
+    headline = workspace if workspace.any() else np.ones(magnitudes.size, bool)
+    position, bound = _mean_and_bound(summary['calibrated'], magnitudes[headline], z)
+    phi = summary['calibrated']['phi_deg']['mean']
+    selected = (summary.get('selected') or {}).get('calibrated')
+    if workspace.any() and selected:
+        others = _mean_and_bound(selected, magnitudes[~workspace], z)
+        position, bound = max(position, others[0]), max(bound, others[1])
+        phi = max(phi, selected['phi_deg']['mean'])
+    if not math.isfinite(position):
+        return UNKNOWN
     predicted = math.inf if predicted_mm is None else float(predicted_mm)
-    return Bounds(
-        float(position['mean']), float(bound), float(calibrated['phi_deg']['mean']), predicted
-    )
+    return Bounds(position, bound, float(phi), predicted)
 
 
 def plan_time_s(geometry, start_pose, poses, limits, dwell_s=DWELL_S):

@@ -15,7 +15,11 @@ whose fit lowers the chi-square most, only if
   deviations per leg) is significant long before it moves the accuracy by tens of percent;
 - and the held-out position error (:func:`gsp_kinematics.verdict.cross_validation.cross_validate`) does
   not grow by more than ``max_cv_loss`` (relative): the guard against a model that fits the
-  rows better and predicts the platform worse.
+  rows better and predicts the platform worse;
+- and, for a group the controller compensates, compensating it is not predicted to make the
+  platform less accurate over the workspace (:mod:`.choice_accuracy`: the bias of leaving it
+  out against the spread its estimates add): significant is not the same as resolved well
+  enough to help (joint offsets in a short run).
 
 When no group alone is kept, all the remaining groups together are tried once the same way
 (``k`` their parameters; effects that mask each other). The test needs the rows weighted by
@@ -33,6 +37,7 @@ from scipy import special
 from ..effects.groups import EFFECT_GROUPS, EffectDesign
 from ..effects.model import NUM_LEGS
 from ..identification import IdentificationError, Options, identify
+from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
 from .cross_validation import cross_validate
 
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
@@ -59,6 +64,10 @@ class Candidate:
     delta_chi2: float = float('nan')
     added: int = 0
     p_value: float = float('nan')
+    #: Predicted rms position errors (mm) over the workspace without and with the groups it
+    #: adds (:func:`gsp_kinematics.verdict.choice_accuracy.freeing_gain`; NaN: not judged).
+    predicted_without_mm: float = float('nan')
+    predicted_with_mm: float = float('nan')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +99,8 @@ class ModelChoice:
                     'delta_chi2': c.delta_chi2,
                     'added_parameters': c.added,
                     'p_value': c.p_value,
+                    'predicted_without_mm': c.predicted_without_mm,
+                    'predicted_with_mm': c.predicted_with_mm,
                     'chosen': c.chosen,
                 }
                 for c in self.candidates
@@ -166,9 +177,10 @@ def variance_factor(result):
     return max(1.0, _chi2(result) / fit.dof)
 
 
-def _score(nominal, data, base, groups, folds, options, reference=None, factor=1.0):
+def _score(nominal, data, base, groups, settings, reference=None):
     """``(result, Candidate)`` of the model ``base`` + ``groups``, tested against the fit
-    ``reference`` = ``(result, its groups)`` when given (``factor``: :func:`variance_factor`)."""
+    ``reference`` = ``(result, its groups)`` when given (``settings``: :func:`_forward`'s)."""
+    folds, options, _, _, factor, workspace = settings
     leg_lengths, readings, sigmas, _, design, noise = data
     result = _fit(nominal, data, list(base) + list(groups), options, design)
     if result is None:
@@ -183,6 +195,9 @@ def _score(nominal, data, base, groups, folds, options, reference=None, factor=1
         added = NUM_LEGS * (len(groups) - len(reference[1]))
         delta, p_value = likelihood_ratio(reference[0], result, added, factor)
         test = {'delta_chi2': delta, 'added': added, 'p_value': p_value}
+        if workspace is not None and set(groups) - set(reference[1]) & set(COMPENSATED_GROUPS):
+            gain = freeing_gain(reference[0], result, workspace)
+            test.update(predicted_without_mm=gain.without_mm, predicted_with_mm=gain.with_mm)
     return result, Candidate(tuple(groups), position, summary, chi2=_chi2(result), **test)
 
 
@@ -203,23 +218,27 @@ def thermal_time_constant(nominal, data, base, groups, candidates, options):
 
 
 def _keeps(trial, best, threshold, max_cv_loss):
-    """Whether ``trial`` passes the test at ``threshold`` and the held-out guard over ``best``."""
+    """Whether ``trial`` passes the test at ``threshold``, the held-out guard over ``best`` and
+    is not predicted to make the compensated platform less accurate (when judged)."""
+    worse = trial.predicted_with_mm > trial.predicted_without_mm  # False when not judged (NaN)
     return bool(
-        trial.p_value < threshold and trial.position_mm <= (1.0 + max_cv_loss) * best.position_mm
+        trial.p_value < threshold
+        and trial.position_mm <= (1.0 + max_cv_loss) * best.position_mm
+        and not worse
     )
 
 
 def _forward(nominal, data, base, available, settings):
     """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``."""
-    folds, options, significance, max_cv_loss, factor = settings
-    result, best = _score(nominal, data, base, (), folds, options)
+    significance, max_cv_loss = settings[2:4]
+    result, best = _score(nominal, data, base, (), settings)
     if result is None:
         raise IdentificationError('the plain model did not converge: no model to choose from')
     tried, chosen, remaining = [best], (), list(available)
     while remaining:
         reference = (result, chosen)
         trials = [
-            _score(nominal, data, base, chosen + (group,), folds, options, reference, factor)
+            _score(nominal, data, base, chosen + (group,), settings, reference)
             for group in remaining
         ]
         tried += [candidate for _, candidate in trials]
@@ -235,9 +254,7 @@ def _forward(nominal, data, base, available, settings):
     if len(remaining) > 1:
         # Effects that mask each other: no one group alone is kept, together they may be.
         groups = chosen + tuple(remaining)
-        trial_result, together = _score(
-            nominal, data, base, groups, folds, options, (result, chosen), factor
-        )
+        trial_result, together = _score(nominal, data, base, groups, settings, (result, chosen))
         tried.append(together)
         if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
             result, best, chosen = trial_result, together, together.groups
@@ -258,6 +275,7 @@ def choose_model(
     options=Options(),
     noise=None,
     thermal_time_constants=(),
+    predicted_gain=True,
 ):
     """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
     row weights ``sigmas`` (their real noise: the test's chi-squares are in its units) and the
@@ -265,7 +283,9 @@ def choose_model(
     offsets can be tried). ``significance``, ``max_cv_loss``: the rule of the module docstring.
     ``thermal_time_constants`` (s; 0: linear): when the thermal group can be tried, its time
     constant is first chosen among these by the cost of the fit with every available group
-    (:func:`thermal_time_constant`); empty: the design's."""
+    (:func:`thermal_time_constant`); empty: the design's. ``predicted_gain``: a group the
+    controller compensates is kept only if it is not predicted to make the platform less
+    accurate (:mod:`.choice_accuracy`); False: the test and the held-out guard alone."""
     design = design or EffectDesign()
     tau, costs = design.thermal_time_constant_s, {}
     available = available_groups(design, len(leg_lengths))
@@ -279,7 +299,8 @@ def choose_model(
     factor = 1.0
     if available:
         factor = variance_factor(_fit(nominal, data, list(base) + available, options, design))
-    settings = (folds, options, significance, max_cv_loss, factor)
+    workspace = workspace_postures(nominal) if predicted_gain else None
+    settings = (folds, options, significance, max_cv_loss, factor, workspace)
     result, best, chosen, tried = _forward(nominal, data, base, available, settings)
     tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
     names = ', '.join(chosen) if chosen else 'none'
@@ -287,7 +308,14 @@ def choose_model(
         f'groups {names}: held-out position error {best.position_mm:.4f} mm; each kept group '
         f'lowered the chi-square significantly (likelihood ratio, p < {significance:g} over the '
         f'groups of its round) without raising the held-out error by more than '
-        f'{100 * max_cv_loss:.0f} %; no other group did'
+        f'{100 * max_cv_loss:.0f} %'
+        + (
+            ' or the predicted position error over the workspace (the bias of leaving it out '
+            'against the spread of its estimates)'
+            if predicted_gain
+            else ''
+        )
+        + '; no other group did'
     )
     if 'thermal' in chosen and costs:
         shape = f'a first-order warming, {tau:g} s' if tau > 0 else 'a linear growth'

@@ -12,6 +12,7 @@ from gsp_calibrator.tools.bench import (
     end_to_end,
     platform_time,
     run_to_requirement,
+    run_to_requirement_levers,
     sensor_dynamics,
     upkeep_realistic,
     verdict,
@@ -31,6 +32,7 @@ EXTRA_SECTIONS = {
     'upkeep_realistic': upkeep_realistic.run,  # docs/upkeep.md
     'effects': effects.run,  # docs/platform_effects.md
     'run_to_requirement': run_to_requirement.run,  # docs/upkeep.md
+    'run_to_requirement_levers': run_to_requirement_levers.run,  # docs/upkeep.md
 }
 
 

@@ -76,7 +76,7 @@ class Plan:
         )
 
 
-class _SimulatedRun:
+class SimulatedRun:
     """One seed's measurements, posture by posture, on the realistic platform."""
 
     def __init__(self, design, plan, seed, time_scale, samples=bench_verdict.SAMPLES):
@@ -120,7 +120,7 @@ class _SimulatedRun:
         return judged
 
 
-def _default_plan(design, seed):
+def default_plan(design, seed):
     """The default plan's verified (cross-validated), bound and true accuracy (mm)."""
     outcome = identify_with_settings(
         design.settings, bench_verdict.simulated_samples(design, REALISTIC, seed)
@@ -158,7 +158,7 @@ def _seed(design, plan, seed, required_mm, looser_mm):
     fixed_s = stopping.plan_time_s(
         settings.nominal, home_pose(), plan.pool[plan.planned], settings.motion_limits, rule.dwell_s
     )
-    simulated = _SimulatedRun(design, plan, 70_000 + seed, bench_verdict.RUN_S / fixed_s)
+    simulated = SimulatedRun(design, plan, 70_000 + seed, bench_verdict.RUN_S / fixed_s)
     rows = settings.sigmas.averaged([bench_verdict.SAMPLES])
     free = resolve_free(list(settings.free_parameters))
     found = stopping.run_to_requirement(
@@ -233,7 +233,7 @@ def _prefix(design, plan, seed, order, samples, budget=math.inf):
         settings.nominal, home, plan.pool[plan.planned], limits, rule.dwell_s
     )
     dwell_s = 0.5 + samples / 200.0
-    simulated = _SimulatedRun(design, plan, 70_000 + seed, bench_verdict.RUN_S / fixed_s, samples)
+    simulated = SimulatedRun(design, plan, 70_000 + seed, bench_verdict.RUN_S / fixed_s, samples)
     position, elapsed = plan.start_legs, 0.0
     for index in order:
         step = float(move_time(position, plan.legs[index], limits)) + dwell_s
@@ -331,7 +331,7 @@ def run(quick=False):
     design = bench_verdict.default_design()
     plan = Plan.default()
     seeds = range(QUICK_SEEDS if quick else SEEDS)
-    defaults = [found for found in (_default_plan(design, s) for s in seeds) if found]
+    defaults = [found for found in (default_plan(design, s) for s in seeds) if found]
     required = _median([found['cv_mm'] for found in defaults])
     looser = _median([found['bound_mm'] for found in defaults])
     runs = [_seed(design, plan, seed, required, looser) for seed in seeds]

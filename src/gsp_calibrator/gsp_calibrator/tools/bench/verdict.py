@@ -103,9 +103,12 @@ def simulated_samples(design, effects, seed, noise=DEFAULT_SENSOR_NOISE):
     return rows_of_run(run, design.poses, SAMPLES, noise, np.random.default_rng(seed))
 
 
-def rows_of_run(run, poses, samples_per_posture, noise, rng):
+def rows_of_run(run, poses, samples_per_posture, noise, rng, timed=False):
     """The averaged rows (``Samples``, lag sums kept) of a simulated ``run`` of ``poses``: per
-    reachable posture a window of ``samples_per_posture`` readings with ``noise`` from ``rng``."""
+    reachable posture a window of ``samples_per_posture`` readings with ``noise`` from ``rng``.
+    ``timed``: each row stamped at its posture's time in the run (``run.times_s``) and with the
+    legs' approach directions, as the calibrator's rows (``auto`` fits the growth over time and
+    the backlash); else stamped a second apart, without directions."""
     scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
     samples = Samples.empty()
     for k in np.flatnonzero(run.reachable):
@@ -118,8 +121,9 @@ def rows_of_run(run, poses, samples_per_posture, noise, rng):
             mean[:6],
             mean[6:],
             samples_per_posture,
-            1.7e9 + k,
+            1.7e9 + (run.times_s[k] if timed else k),
             posture_lag_sums(window),
+            *((run.directions[k],) if timed else ()),
         )
     return samples
 
