@@ -5,13 +5,13 @@ import math
 
 import numpy as np
 import pytest
+from cross_validations import validation_of
 
 from gsp_kinematics import noise_from_data
 from gsp_kinematics.identification import identify
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.validation import sensor_measurements
 from gsp_kinematics.verdict.cross_validation import (
-    CrossValidation,
     cross_validate,
     device_pose,
     device_variances,
@@ -91,25 +91,6 @@ def test_noise_removed_takes_the_noise_out_in_quadrature():
     assert noise_removed(np.ones(3), np.full(3, 4.0))[0] == 0.0  # never negative
 
 
-def _validation(position, folds, **device):
-    """A CrossValidation of position errors ``position`` (M, 3) m, no phi error or noise, the
-    nominal geometry 10 times worse; ``device``: its position_device / phi_device."""
-    count = len(position)
-    return CrossValidation(
-        folds=folds,
-        fold_of_posture=np.arange(count) % folds,
-        position_error=position,
-        phi_error=np.zeros(count),
-        position_noise=np.zeros(count),
-        phi_noise=np.zeros(count),
-        nominal_position_error=10 * position,
-        nominal_phi_error=np.zeros(count),
-        failed_folds=(),
-        duration_s=0.0,
-        **device,
-    )
-
-
 def test_the_headline_is_the_workspace_postures_held_out_error():
     """With workspace rows, the measured accuracy is theirs (the selected postures, the
     workspace's extremes, are a figure apart); without, every posture's."""
@@ -117,7 +98,7 @@ def test_the_headline_is_the_workspace_postures_held_out_error():
     workspace = np.arange(count) >= 5
     position = np.zeros((count, 3))
     position[:, 0] = np.where(workspace, 1e-3, 5e-3)  # m: 1 mm on the workspace postures
-    validation = _validation(position, 4)
+    validation = validation_of(position, 4)
     summary = validation.summary(workspace)
     assert summary['measured_on'] == 'workspace' and summary['workspace_rows'] == [5, 6, 7]
     assert summary['postures'] == 3
@@ -152,7 +133,7 @@ def test_the_workspace_figure_adds_the_device_uncertainty_the_selected_does_not(
     workspace = np.array([False, False, True, True])
     position = np.zeros((count, 3))
     position[:, 0] = 3e-3
-    validation = _validation(
+    validation = validation_of(
         position, 2, position_device=np.full(count, (4e-3) ** 2), phi_device=np.zeros(count)
     )
     summary = validation.summary(workspace)
@@ -182,7 +163,7 @@ def test_with_the_leverage_taken_out_every_figure_adds_the_device_uncertainty():
     workspace = np.array([False, False, True, True])
     position = np.zeros((count, 3))
     position[:, 0] = 3e-3
-    validation = _validation(
+    validation = validation_of(
         position,
         2,
         position_device=np.full(count, (4e-3) ** 2),

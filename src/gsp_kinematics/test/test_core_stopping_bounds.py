@@ -5,11 +5,11 @@ import math
 
 import numpy as np
 import pytest
+from cross_validations import validation_of
 from scipy import stats
 
 from gsp_kinematics.upkeep import stopping
 from gsp_kinematics.verdict import acceptance
-from gsp_kinematics.verdict.cross_validation import CrossValidation
 
 Z95 = float(stats.norm.ppf(0.95))
 
@@ -20,18 +20,7 @@ def _summary(errors_mm, workspace=None):
     count = len(errors_mm)
     position = np.zeros((count, 3))
     position[:, 0] = 1e-3 * np.asarray(errors_mm, dtype=float)
-    validation = CrossValidation(
-        folds=4,
-        fold_of_posture=np.arange(count) % 4,
-        position_error=position,
-        phi_error=np.zeros(count),
-        position_noise=np.zeros(count),
-        phi_noise=np.zeros(count),
-        nominal_position_error=10 * position,
-        nominal_phi_error=np.zeros(count),
-        failed_folds=(),
-        duration_s=0.0,
-    )
+    validation = validation_of(position, 4)
     return validation.summary(workspace)
 
 

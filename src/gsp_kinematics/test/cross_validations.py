@@ -1,0 +1,24 @@
+"""Hand-set cross-validations for the core's tests (no identification behind them)."""
+
+import numpy as np
+
+from gsp_kinematics.verdict.cross_validation import CrossValidation
+
+
+def validation_of(position, folds, **device):
+    """A CrossValidation of position errors ``position`` (M, 3) m, no phi error or noise, the
+    nominal geometry 10 times worse; ``device``: its position_device / phi_device."""
+    count = len(position)
+    return CrossValidation(
+        folds=folds,
+        fold_of_posture=np.arange(count) % folds,
+        position_error=position,
+        phi_error=np.zeros(count),
+        position_noise=np.zeros(count),
+        phi_noise=np.zeros(count),
+        nominal_position_error=10 * position,
+        nominal_phi_error=np.zeros(count),
+        failed_folds=(),
+        duration_s=0.0,
+        **device,
+    )
