@@ -130,6 +130,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         effects,
         platform_time,
         run_to_requirement,
+        run_to_requirement_levers,
         sensor_dynamics,
         upkeep_realistic,
         verdict,
@@ -151,6 +152,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'upkeep_realistic': upkeep_realistic.run,
                 'effects': effects.run,
                 'run_to_requirement': run_to_requirement.run,
+                'run_to_requirement_levers': run_to_requirement_levers.run,
             },
         )
     ]
