@@ -164,3 +164,22 @@ def test_the_core_alone_simulates_the_truth_as_the_node_suite_does():
     core = bench_end_to_end.core_alone_validation(60, 20, seeds=1)
     assert core['postures'] == 60
     assert core['position_mm_mean'] < 0.02 and core['orientation_deg_mean'] < 0.002, core
+
+
+def test_the_levers_section_measures_auto_as_the_effects_section_does():
+    """The ``run_to_requirement_levers`` section's ``auto`` lever measures through the
+    ``effects`` section's own ``measured`` (the calibrator's folds and corrections). It called a
+    helper the effects section had since dropped, so ``make bench`` failed in that section
+    while every test passed; one seed of the plan, no prefixes (about 10 s)."""
+    import math
+
+    from gsp_calibrator.tools.bench import run_to_requirement_levers
+
+    runs = run_to_requirement_levers.auto_runs(0, budget=0.0)
+    plan = runs['plan']
+    assert 'failure' not in plan, plan
+    assert set(plan['groups']) == {'compliance', 'backlash', 'thermal', 'joint_offsets'}, plan
+    figures = plan['auto']
+    # The realistic platform's auto plan: cross-validated and true errors of about 0.01 mm.
+    assert 0.001 < figures['cv_mm'] < 0.05 and 0.001 < figures['true_mm'] < 0.05, figures
+    assert math.isfinite(figures['bound_mm']) and figures['bound_mm'] >= figures['cv_mm']

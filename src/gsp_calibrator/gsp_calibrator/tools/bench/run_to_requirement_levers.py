@@ -173,13 +173,10 @@ def _auto_run(design, route, seed):
         )  # fmt: skip
     except (ValueError, np.linalg.LinAlgError, ArithmeticError) as error:
         return {'failure': str(error)}
-    chosen = next(candidate for candidate in choice.candidates if candidate.chosen)
     timed = dataclasses.replace(rows, thermal_time_constant_s=choice.thermal_time_constant_s)
-    summary = bench_effects.workspace_summary(
-        chosen.summary,
-        workspace_rows(poses, postures.workspace_poses(design.settings)),
-        bench_effects.uncompensated_variances(choice.result, timed),
-    )
+    workspace = workspace_rows(poses, postures.workspace_poses(design.settings))
+    # Measured as the effects section measures it (the calibrator's folds and corrections).
+    summary = bench_effects.measured(design, choice.result, legs, readings, timed, workspace)
     figures = bench_effects._figures(design, REALISTIC, choice.result, summary, timed)
     bound = stopping.accuracy_bounds(summary, 0.95, figures['predicted_mm']).position_bound_mm
     return {'groups': list(choice.groups), 'auto': {**figures, 'bound_mm': bound}}
@@ -248,15 +245,13 @@ def _stops(trajectories, meets, required_mm, true_of):
 
 
 def _per_judgement(trajectories, figures, required):
-    """Per judgement (postures): medians of ``figures`` (key -> function of a step) and counts
-    of seeds meeting each of ``required`` (name -> (mm, function of a step))."""
+    """Per judgement (postures): medians of the steps' ``figures`` (keys) and counts of seeds
+    meeting each of ``required`` (name -> (mm, function of a step))."""
     table = []
     for count in sorted({step['postures'] for steps in trajectories for step in steps}):
         steps = [step for steps in trajectories for step in steps if step['postures'] == count]
         row = {'postures': count, 'seeds': len(steps)}
-        row.update(
-            {key: bench._median([of(step) for step in steps]) for key, of in figures.items()}
-        )
+        row.update({key: bench._median([step[key] for step in steps]) for key in figures})
         for name, (limit, of) in required.items():
             row[f'{name}_meets'] = sum(of(step) <= limit for step in steps)
         table.append(row)
@@ -281,10 +276,7 @@ def workspace_figures(defaults, trajectories, plain_mm):
         },
         'per_judgement': _per_judgement(
             trajectories,
-            {
-                key: (lambda k: lambda s: s[k])(key)
-                for key in ('ratio', 'workspace_mm', 'workspace_bound_mm', 'selected_mm', 'true_mm')
-            },
+            ('ratio', 'workspace_mm', 'workspace_bound_mm', 'selected_mm', 'true_mm'),
             {
                 'workspace_bound_vs_workspace_requirement': (
                     required,
@@ -334,10 +326,7 @@ def auto_figures(runs, plain_mm):
         },
         'per_judgement': _per_judgement(
             trajectories,
-            {
-                key: (lambda k: lambda s: s[k])(key)
-                for key in ('ratio', 'cv_mm', 'bound_mm', 'predicted_mm', 'true_mm')
-            },
+            ('ratio', 'cv_mm', 'bound_mm', 'predicted_mm', 'true_mm'),
             {
                 'bound_vs_plain_requirement': (plain_mm, lambda s: s['bound_mm']),
                 'bound_vs_auto_requirement': (own_mm, lambda s: s['bound_mm']),
@@ -394,10 +383,7 @@ def calibrator_figures(runs, plain_mm, first_counts=(18, 24)):
         },
         'per_judgement': _per_judgement(
             trajectories,
-            {
-                key: (lambda k: lambda s: s[k])(key)
-                for key in ('ratio', 'position_mm', 'position_bound_mm', 'predicted_mm', 'true_mm')
-            },
+            ('ratio', 'position_mm', 'position_bound_mm', 'predicted_mm', 'true_mm'),
             {
                 'bound_vs_plain_requirement': (plain_mm, lambda s: s['position_bound_mm']),
                 'bound_vs_auto_requirement': (own_mm, lambda s: s['position_bound_mm']),
