@@ -62,7 +62,9 @@ sys.exit(node_tools.run_node(Quiet, logger_name='stop_child'))
 
 @pytest.mark.parametrize('at', ['start-up', 'spin', 'cleanup'])
 @pytest.mark.parametrize(
-    'signals', [('SIGINT',), ('SIGTERM',), ('SIGINT', 'SIGINT'), ('SIGTERM', 'SIGINT')]
+    'signals',
+    [('SIGINT',), ('SIGTERM',), ('SIGINT', 'SIGINT'), ('SIGTERM', 'SIGINT')],
+    ids='+'.join,
 )
 def test_a_node_nothing_else_wakes_stops_at_any_instant_of_the_signals(at, signals):
     process = subprocess.Popen(
