@@ -18,7 +18,6 @@ from gsp_testing import marked_environment
 
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording.recorder import recording_parts
-from gsp_calibrator.run import postures
 from gsp_calibrator.run.approach import effect_design
 from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.run.response import parse_response
@@ -183,11 +182,10 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     additions = data['collection']['route_additions']
     assert additions['groups'] == ['backlash', 'thermal'] and additions['reference_revisits'] >= 6
     # Their time predicted at the rate the calibrator heard the streams at (at most the 50 Hz
-    # asked; a loaded machine's platform_sim publishes its legs at 20 Hz). The route is planned
-    # before the run waits for its streams: when none was heard yet (one fresh-clone run in
-    # four), it is gsp_plan's rate, as documented (docs/data.md, route_additions).
-    heard = 0.0 < additions['sample_rate_hz'] < 1.2 * SENSOR_RATE_HZ
-    assert heard or additions['sample_rate_hz'] == postures.PLAN_SENSOR_RATE_HZ, additions
+    # asked; a loaded machine's platform_sim publishes its legs at 20 Hz), never gsp_plan's
+    # 200 Hz: the run hears its streams before it plans the route (docs/data.md,
+    # route_additions).
+    assert 0.0 < additions['sample_rate_hz'] < 1.2 * SENSOR_RATE_HZ, additions
     calibrated = load_geometry(run / 'result.yaml')
     assert set(calibrated.effects.groups()) == set(choice['groups'])
     assert calibrated.effects.payload_mass == REALISTIC.payload_mass
