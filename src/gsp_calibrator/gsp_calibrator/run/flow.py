@@ -184,7 +184,8 @@ class CalibrationRun:
         # The streams first: the route's additions are timed at the rate they are heard at
         # (a run that does not hear them still plans its route and writes state.json, then
         # fails naming the silent topic).
-        unheard = await self._hear_streams()
+        timed = poses is not None and bool(postures.route_effect_groups(settings.free_parameters))
+        unheard = await self._hear_streams(rate=timed)
         poses, additions = await _ordered(self, poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)
@@ -219,16 +220,17 @@ class CalibrationRun:
         )
         return poses[route.order]
 
-    async def _hear_streams(self):
+    async def _hear_streams(self, rate):
         """Wait until platform_sim listens to commands and every sensor topic has spoken
-        (``topic_timeout`` each), then until every stream has given
+        (``topic_timeout`` each), then, with ``rate`` (a new route with additions to time),
+        until every stream has given
         :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS` stamps, its rate
         measured (at most ``topic_timeout``; else the route is timed at gsp_plan's rate).
         Returns the message of the first check that timed out ('' when none did)."""
         timeout = self.settings.topic_timeout
         checks = system_checks(self.host, self.collection.heard, timeout)
         failure = await first_timeout(self.host.wait_for, timeout, checks)
-        if not failure:
+        if rate and not failure:
             latest = self.collection.latest
             await self.host.wait_for(
                 lambda: latest.sample_rate_hz(posture_state.RATE_MIN_STAMPS) is not None, timeout
