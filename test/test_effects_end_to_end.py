@@ -176,7 +176,9 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     # per leg); the legs' growth during the run (about 3 um a minute at first) against the six
     # reference revisits; the joint offsets (20 um) once the plan resolves them: with 10 samples
     # a posture their chi-square drop in the last round was 12-32 (p 0.01 or below in half the
-    # simulated runs), with 30 it is 54-91.
+    # simulated runs), with 30 it is 54-91. The held-out guard takes each held-out posture's
+    # leverage out: raw, it left the joint offsets out in 1 node run of 12 (and 1-4 % of
+    # simulated draws; test_effects_run.py's test at this plan).
     assert set(choice['groups']) == {'compliance', 'backlash', 'thermal', 'joint_offsets'}, choice
     # The run commanded the route's additions: reference revisits, each its own posture.
     additions = data['collection']['route_additions']
