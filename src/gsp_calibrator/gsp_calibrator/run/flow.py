@@ -163,7 +163,7 @@ class CalibrationRun:
 
     async def _choose_postures(self, part):
         """Select the postures of a new run (a resumed one keeps its own), hear the streams
-        (:meth:`_hear_streams`), then order the postures from where the platform is; write
+        (:func:`_heard_streams`), then order the postures from where the platform is; write
         state.json. Returns why the system is not ready ('' when it is)."""
         settings, session, host = self.settings, self.session, self.host
         count = settings.posture_count
@@ -181,11 +181,7 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = postures.with_workspace_poses(settings, selection.poses)
-        # The streams first: the route's additions are timed at the rate they are heard at
-        # (a run that does not hear them still plans its route and writes state.json, then
-        # fails naming the silent topic).
-        timed = poses is not None and bool(postures.route_effect_groups(settings.free_parameters))
-        unheard = await self._hear_streams(rate=timed)
+        unheard = await _heard_streams(self, new_route=poses is not None)
         poses, additions = await _ordered(self, poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)
@@ -220,26 +216,8 @@ class CalibrationRun:
         )
         return poses[route.order]
 
-    async def _hear_streams(self, rate):
-        """Wait until platform_sim listens to commands and every sensor topic has spoken
-        (``topic_timeout`` each), then, with ``rate`` (a new route with additions to time),
-        until every stream has given
-        :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS` stamps, its rate
-        measured (at most ``topic_timeout``; else the route is timed at gsp_plan's rate).
-        Returns the message of the first check that timed out ('' when none did)."""
-        timeout = self.settings.topic_timeout
-        checks = system_checks(self.host, self.collection.heard, timeout)
-        failure = await first_timeout(self.host.wait_for, timeout, checks)
-        if rate and not failure:
-            latest = self.collection.latest
-            await self.host.wait_for(
-                lambda: latest.sample_rate_hz(posture_state.RATE_MIN_STAMPS) is not None, timeout
-            )
-        return failure
-
     async def _wait_for_system(self, unheard):
-        """Fail the run when the system was not ready (``unheard``: :meth:`_hear_streams`'s
-        message) or the collection has failed meanwhile."""
+        """Fail the run on ``unheard`` (:func:`_heard_streams`) or a failed collection."""
         if unheard:
             raise RunFailed(unheard)
         if self.host.postures.failure is not None:
@@ -390,6 +368,28 @@ class CalibrationRun:
 def _planned(run):
     """The postures ``run`` (a :class:`CalibrationRun`) plans to command, additions included."""
     return postures.commanded_count(run.settings, run.session.state)
+
+
+async def _heard_streams(run, new_route):
+    """Wait until platform_sim listens to commands and every sensor topic has spoken
+    (``topic_timeout`` each), then, for a ``new_route`` with additions for the effects, until
+    every stream has given :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS`
+    stamps, its rate measured (at most ``topic_timeout``; else the route is timed at gsp_plan's
+    rate). ``run``: the :class:`CalibrationRun`. The message of the first check that timed out
+    ('' when none did). The streams come before the route so that its additions are timed at
+    the rate heard; a run that hears none still plans its route and writes state.json, then
+    fails naming the silent topic."""
+    settings, host, collection = run.settings, run.host, run.collection
+    timeout = settings.topic_timeout
+    failure = await first_timeout(
+        host.wait_for, timeout, system_checks(host, collection.heard, timeout)
+    )
+    if new_route and postures.route_effect_groups(settings.free_parameters) and not failure:
+        latest = collection.latest
+        await host.wait_for(
+            lambda: latest.sample_rate_hz(posture_state.RATE_MIN_STAMPS) is not None, timeout
+        )
+    return failure
 
 
 async def _ordered(run, poses):
