@@ -7,6 +7,8 @@ window is a few microseconds, so each child process makes it certain: all its th
 CPU and the main thread runs at a real-time priority (``SCHED_FIFO``), so that a thread that
 wakes the main thread is preempted by it at once and goes on only once the main thread waits
 again (with rclpy's handling: shuts the context down only then, 8 hangs in 8 runs).
+Real-time scheduling needs root (as CI has); without it the instants are not forced, and the
+test still checks each stop without making the race certain.
 """
 
 import signal
@@ -31,7 +33,10 @@ def main_thread_first():
     cpu = min(os.sched_getaffinity(0))
     for thread_id in map(int, os.listdir('/proc/self/task')):
         os.sched_setaffinity(thread_id, {{cpu}})
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))  # this (the main) thread only
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))  # this (the main) thread only
+    except PermissionError:  # not root: the instants are not forced, the stop is still checked
+        pass
 
 
 def send(names):
