@@ -292,7 +292,7 @@ def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(compared_
 
 
 def inclinometer_noise_draws(path):
-    """The alpha noise draws (rad, rounded to 1e-12) of the inclinometer readings recorded in
+    """The alpha noise draws (rad, rounded to 1e-15) of the inclinometer readings recorded in
     ``path``: reading minus the exact reading of the recorded true pose of the simulated truth."""
     truth = load_geometry(default_geometry_path('true'))
     pose, draws = None, set()
@@ -303,7 +303,7 @@ def inclinometer_noise_draws(path):
             pose = conversions.pose_stamped_to_pose(message.message)[None]
         elif pose is not None:
             exact = truth.sensors.device_readings(device_readings(truth, pose))[0]
-            draws.add(round(message.message.position[0] - exact[0], 12))
+            draws.add(round(message.message.position[0] - exact[0], 15))
     return draws
 
 
