@@ -41,6 +41,12 @@ def device_pose(geometry, readings):
     return position, ideal[:, 2]
 
 
+def _effect_free(result):
+    """(24,) bool: ``result``'s free effect parameters (none when it has no ``effect_free``)."""
+    free = getattr(result, 'effect_free', None)
+    return np.zeros(NUM_EFFECT_PARAMETERS, bool) if free is None else np.asarray(free, bool)
+
+
 def _free_names(result):
     return [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
 
@@ -72,7 +78,7 @@ def _effect_columns(result, poses, design):
     """(M, 6, count): ``[dp; d(psi, theta, phi)]`` of the reached pose per error of each free
     effect, its regressor at the rows' ``design`` (times, directions; None: a design with the
     geometry's payload only, for the groups that need neither)."""
-    free = np.asarray(getattr(result, 'effect_free', np.zeros(NUM_EFFECT_PARAMETERS)), bool)
+    free = _effect_free(result)
     if not free.any():
         return np.zeros((len(poses), 6, 0))
     geometry = result.geometry
@@ -89,7 +95,7 @@ def _effect_columns(result, poses, design):
 def _compensated(result):
     """(p,) bool: the columns the controller's pose moves with (the geometry's, and the effect
     groups it compensates by posture, :data:`~gsp_kinematics.prediction.POSTURE_EFFECT_GROUPS`)."""
-    free = np.asarray(getattr(result, 'effect_free', np.zeros(NUM_EFFECT_PARAMETERS)), bool)
+    free = _effect_free(result)
     groups = np.repeat([g in POSTURE_EFFECT_GROUPS for g in EFFECT_GROUPS], 6)
     return np.concatenate([np.ones(int(np.sum(result.free)), bool), groups[free]])
 
@@ -139,20 +145,23 @@ def leverage_ratios(full, held_out, unmodelled=0.0):
     return np.where(np.isfinite(ratio) & (held_out > 0), np.clip(ratio, 0.0, 1.0), 1.0)
 
 
-#: A held-out error's excess over the noise up to this many times the held-out fit's predicted
-#: variance there (3 standard deviations) is the fold's ignorance, which the leverage scales;
-#: beyond it, it is an error no fit's covariance explains (a model error), kept as measured.
+#: A held-out error whose square is up to this many times its predicted variance (the held-out
+#: fit's there and the noise: 3 standard deviations) is what the model explains: its excess
+#: over the noise is the fold's ignorance, which the leverage scales; beyond it, it is an error
+#: no covariance explains (a model error), kept as measured.
 LEVERAGE_EXPLAINS = 9.0
 
 
 def explained_excess(errors, noise, held_out=None):
     """``(explained, kept)`` (M,): the excess ``e^2 - n`` of held-out error magnitudes
-    ``errors`` over their ``noise`` variance, split at :data:`LEVERAGE_EXPLAINS` times the
-    held-out fit's predicted variance ``held_out`` (M,; None: all of it is explained)."""
+    ``errors`` over their ``noise`` variance, split where ``e^2`` passes
+    :data:`LEVERAGE_EXPLAINS` times its predicted variance, the held-out fit's ``held_out``
+    (M,) plus the noise (the noise scatters ``e^2`` as much as the fold's ignorance does; None:
+    all of it is explained)."""
     errors, noise = np.asarray(errors, dtype=float), np.asarray(noise, dtype=float)
     excess = errors**2 - noise
     if held_out is None:
         return excess, np.zeros_like(excess)
-    cap = LEVERAGE_EXPLAINS * np.asarray(held_out, dtype=float)
+    cap = LEVERAGE_EXPLAINS * (np.asarray(held_out, dtype=float) + noise) - noise
     beyond = np.isfinite(cap) & (excess > cap)
     return np.where(beyond, cap, excess), np.where(beyond, excess - cap, 0.0)
