@@ -12,7 +12,7 @@ share (``S delta = -H delta``, e.g. D0 with the leg offsets following it) is in 
 in the comparison, and an error of the device alone (or of a growth the controller does not
 compensate) is in the comparison and not in the truth. Per posture, over the parameter
 covariance ``C``: ``E|a|^2 - E|v|^2`` is what the comparison misses (positive) or holds beyond the
-truth (negative): :func:`unseen_variances` (docs/verdict.md).
+truth (negative): the unseen part of :func:`comparison_variances` (docs/verdict.md).
 """
 
 import numpy as np
