@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from ..device import DeviceModelError, device_readings
+from ..device import DeviceModelError
 from ..effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
 from ..geometry import ALL_PARAMETER_NAMES
 from ..identification import IdentificationError, Options, identify
@@ -187,12 +187,14 @@ class CrossValidation:
     #: posture, the unmodelled part included (:func:`noise_removed`); None: unknown
     position_held_out_variance: np.ndarray | None = None
     phi_held_out_variance: np.ndarray | None = None
-    #: (M,) m^2: the truth's predicted position variance at each posture (the parameters', the
-    #: unmodelled part's and the uncompensated growth's), and its mean over random workspace
-    #: postures: their ratio carries the figure from the run's postures to the workspace
-    #: (:meth:`_transfer`); None: no transfer
+    #: (M,) m^2: the truth's predicted position variance at each posture that the model
+    #: describes (the parameters' and the uncompensated growth's), and its mean over random
+    #: workspace postures: their ratio carries that share of the figure from the run's postures
+    #: to the workspace (:meth:`_transfer`); None: no transfer
     position_truth_variance: np.ndarray | None = None
     workspace_truth_variance: float | None = None
+    #: (M,) m^2: the unmodelled part's predicted position variance there (its share stays)
+    position_unmodelled_variance: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -286,16 +288,23 @@ class CrossValidation:
         }
 
     def _transfer(self, rows):
-        """The truth's predicted mean position variance over the workspace over its mean at the
-        postures ``rows`` (bool mask): the held-out postures are the run's (the selection's
-        extremes), the accuracy the workspace's; the model gives the shape, the device the size
-        (1: unknown)."""
+        """The scale that carries the signal at the postures ``rows`` (bool mask) to the
+        workspace: the held-out postures are the run's (the selection's extremes), the accuracy
+        the workspace's. The share the model describes (the parameters' and the growth's
+        predicted variance, ``f`` of the truth's there) scales by its predicted mean over the
+        workspace over that at the rows (the model gives the shape, the device the size); the
+        unmodelled share, whose shape over the workspace the model does not know, stays:
+        ``f ratio + 1 - f`` (1: unknown)."""
         truth, workspace = self.position_truth_variance, self.workspace_truth_variance
         if truth is None or workspace is None or not rows.any():
             return 1.0
-        at_rows = float(np.mean(np.asarray(truth)[rows]))
-        ratio = workspace / at_rows if at_rows > 0 else math.nan
-        return ratio if math.isfinite(ratio) and ratio > 0 else 1.0
+        modelled = float(np.mean(np.asarray(truth)[rows]))
+        unmodelled = self.position_unmodelled_variance
+        unmodelled = 0.0 if unmodelled is None else float(np.mean(np.asarray(unmodelled)[rows]))
+        if not (modelled > 0 and math.isfinite(modelled + unmodelled + workspace)):
+            return 1.0
+        share = modelled / (modelled + unmodelled)
+        return share * workspace / modelled + 1.0 - share
 
 
 def fold_assignment(count, folds=DEFAULT_FOLDS):
@@ -355,15 +364,16 @@ def _corrections(result, readings, held_out, unmodelled, effects):
         fields[f'{channel}_leverage'] = leverage_ratios(comparison[k], held_out[k], extra)
         fields[f'{channel}_held_out_variance'] = held_out[k] + extra
         fields[f'{channel}_unseen'] = controller[k] - comparison[k]
-    fields['position_truth_variance'] = controller[0] + unmodelled_variances[0]
+    fields['position_truth_variance'] = controller[0]
+    fields['position_unmodelled_variance'] = unmodelled_variances[0] + np.zeros(len(poses))
     return fields
 
 
-def _workspace_truth_variance(result, workspace, unmodelled, strain):
-    """m^2: the truth's predicted position variance (the parameters', the ``unmodelled``
-    part's, the uncompensated thermal ``strain``'s) averaged over :data:`WORKSPACE_SAMPLE`
-    seeded random postures of ``workspace`` (as the predicted accuracy samples it); None
-    without a ``workspace`` or a usable covariance."""
+def _workspace_truth_variance(result, workspace, strain):
+    """m^2: the truth's predicted position variance that the model describes (the parameters',
+    the uncompensated thermal ``strain``'s) averaged over :data:`WORKSPACE_SAMPLE` seeded random
+    postures of ``workspace`` (as the predicted accuracy samples it); None without a
+    ``workspace`` or a usable covariance."""
     geometry = result.geometry
     covariance = np.asarray(result.covariance, dtype=float)
     if workspace is None or not np.all(np.isfinite(covariance)):
@@ -372,11 +382,6 @@ def _workspace_truth_variance(result, workspace, unmodelled, strain):
     position, _ = parameter_pose_covariance(
         geometry, covariance, poses, result.free, result.effect_free
     )
-    if unmodelled is not None:
-        extra, _ = reading_pose_covariance(
-            geometry, poses, device_readings(geometry, poses), unmodelled
-        )
-        position = position + extra
     variance = np.trace(position, axis1=1, axis2=2)
     thermal = _uncompensated(geometry, poses, strain)
     return float(np.mean(variance if thermal is None else variance + thermal))
@@ -454,9 +459,7 @@ def cross_validate(
         )
     return CrossValidation(
         **corrections,
-        workspace_truth_variance=_workspace_truth_variance(
-            result, workspace, unmodelled, uncompensated_strain
-        ),
+        workspace_truth_variance=_workspace_truth_variance(result, workspace, uncompensated_strain),
         position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
