@@ -48,8 +48,9 @@ class FakePlatform:
     row is ready as soon as it is commanded. ``failure_after``: a silent topic ends the run
     instead at the posture after it."""
 
-    def __init__(self, seed=0, failure_after=None, start_legs=None):
+    def __init__(self, seed=0, failure_after=None, start_legs=None, silent=()):
         self.truth = default_geometry('true')
+        self.silent = tuple(silent)  #: topics that never speak
         self.start_legs = start_legs  #: leg readings (6,) m before the run, else those at z 0.6 m
         self.rng = np.random.default_rng(seed)
         self.failure_after = failure_after
@@ -57,19 +58,21 @@ class FakePlatform:
         self.commands = 0
         self.commanded = []  #: the poses commanded, in order
 
-    def hear_every_topic(self, collection):
-        """Every sensor topic speaks once, at its current reading (the system check awaits it)."""
+    def hear_every_topic(self, collection, stamp_s=None):
+        """Every sensor topic (but the ``silent``) speaks once, at its current reading (the
+        system check awaits it), stamped ``stamp_s`` (s; None: zero)."""
         legs, readings = sensor_measurements(self.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
         if self.start_legs is not None:
             legs = np.asarray(self.start_legs, dtype=float)[None]
         messages = {
-            names.TOPIC_LEG_LENGTHS: conversions.leg_lengths_to_msg(legs[0]),
-            names.TOPIC_INCLINOMETER: conversions.inclinometer_to_msg(*readings[0, :2]),
-            names.TOPIC_ENCODER: conversions.encoder_to_msg(readings[0, 2]),
-            names.TOPIC_LVDT: conversions.lvdt_to_msg(readings[0, 3]),
+            names.TOPIC_LEG_LENGTHS: conversions.leg_lengths_to_msg(legs[0], stamp_s),
+            names.TOPIC_INCLINOMETER: conversions.inclinometer_to_msg(*readings[0, :2], stamp_s),
+            names.TOPIC_ENCODER: conversions.encoder_to_msg(readings[0, 2], stamp_s),
+            names.TOPIC_LVDT: conversions.lvdt_to_msg(readings[0, 3], stamp_s),
         }
         for topic in SENSOR_TOPICS:
-            collection.sensor(topic, messages[topic], 0)
+            if topic not in self.silent:
+                collection.sensor(topic, messages[topic], 0)
 
     def commander(self, pose):
         self.commanded.append(np.array(pose, dtype=float))
@@ -99,7 +102,9 @@ class FakePlatform:
 class FakeHost:
     """A plain Python :class:`RunHost` around a :class:`FakePlatform` (no rclpy)."""
 
-    def __init__(self, **platform):
+    def __init__(self, streams_hz=None, **platform):
+        """``streams_hz``: the streams also speak at this rate while the run waits (a round of
+        messages per period, up to the wait's timeout); None: only once, before the run."""
         self.platform = FakePlatform(**platform)
         self.truth = self.platform.truth
         self.recorder = FakeRecorder()
@@ -112,8 +117,15 @@ class FakeHost:
             lambda event: None,
         )
         self.platform.link = self.postures
+        self.stamp_s = 0.0  # the streams' latest stamp (s)
 
         async def wait_for(predicate, timeout_s):
+            rounds = int(timeout_s * streams_hz) if streams_hz else 0
+            for _ in range(rounds):
+                if predicate():
+                    break
+                self.stamp_s += 1.0 / streams_hz
+                self.platform.hear_every_topic(self.run.collection, self.stamp_s)
             return WAIT_OK if predicate() else WAIT_TIMEOUT
 
         async def await_thread(concurrent_future):
@@ -368,6 +380,37 @@ def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp
     total = len(route.poses)
     assert any(text.startswith(f'posture {total} of {total}') for _, _, text in host.progress_log)
     assert f'{total} posture(s) of {total} commanded' in message
+
+
+def test_the_route_is_timed_at_the_rate_the_streams_are_heard_at(tmp_path):
+    """The run hears its streams (their rate measured) before it plans the route: streams at
+    50 Hz that have spoken once when the run starts time the route's additions at 50 Hz, not
+    gsp_plan's 200 Hz."""
+    host = FakeHost(streams_hz=50.0)
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    success, message = host.serve(settings)
+    assert success, message
+    result = json.loads(host.session.run.file('result.json').read_text())
+    additions = result['collection']['route_additions']
+    assert additions['sample_rate_hz'] == pytest.approx(50.0, rel=1e-6)
+    assert 'samples at 50 Hz' in message
+    assert _state(host.session.run.path)['route_additions'] == additions
+
+
+def test_a_topic_never_heard_fails_the_run_naming_it_with_the_route_kept(tmp_path):
+    """A sensor topic that never speaks: the run fails naming it once ``topic_timeout`` is
+    over, nothing commanded; state.json keeps the planned route (failed, the reason) for a
+    resume."""
+    host = FakeHost(silent=[names.TOPIC_LVDT])
+    settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
+    success, message = host.serve(settings)
+    assert not success
+    assert f'topic {names.TOPIC_LVDT} is silent: no message within' in message
+    assert host.platform.commands == 0
+    state = _state(host.session.run.path)
+    assert state['phase'] == PHASE_FAILED and names.TOPIC_LVDT in state['stop_reason']
+    assert len(state['poses']) == 30 + state['route_additions']['added_postures']
+    assert host.progress_log[-1][1] == names.PHASE_FAILED
 
 
 def test_a_resumed_auto_run_keeps_its_route_with_the_revisits(tmp_path):

@@ -15,6 +15,10 @@ from gsp_kinematics import channels
 MAX_RECENT_INSTANTS = 4000
 #: Recent stamps per stream the sample rate is measured over.
 RATE_WINDOW = 64
+#: Distinct stamps per stream a run awaits before it takes the rate as measured and times its
+#: route with it: two stamps of a stream published late by a loaded machine can be closer than
+#: its period (a fifth of a second at 50 Hz).
+RATE_MIN_STAMPS = 10
 
 
 IDLE, AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'idle', 'status', 'settle', 'collecting'
@@ -97,13 +101,13 @@ class LatestReadings:
         legs = self._legs
         return None if legs is None else np.asarray(legs, dtype=float).reshape(channels.LEG_COUNT)
 
-    def sample_rate_hz(self):
+    def sample_rate_hz(self, min_stamps=2):
         """The rate (Hz) synchronised samples can come at: the slowest stream's, from its
-        recent distinct stamps; None until every stream has given two."""
+        recent distinct stamps; None until every stream has given ``min_stamps`` (>= 2)."""
         rates = []
         for stream in (LEG_LENGTHS, *DEVICE_STREAMS):
             stamps = np.unique(np.asarray(self._stamps.get(stream, ()), dtype=np.int64))
-            if stamps.size < 2:
+            if stamps.size < max(2, int(min_stamps)):
                 return None
             rates.append((stamps.size - 1) / ((stamps[-1] - stamps[0]) * 1e-9))
         return float(min(rates))

@@ -2,7 +2,8 @@
 
 :meth:`CalibrationRun.run` reads as the run: open the run directory
 (:func:`.session.open_session`) and start the recording; choose the postures (or keep a resumed
-run's) and order them from where the platform stands; wait for the system; then for each
+run's); wait for the system (its streams heard, their rate measured); order the postures from
+where the platform stands, with the route's additions timed at that rate; then for each
 posture, command it, await its end and record it (:meth:`CalibrationRun._collect`); then
 identify (:func:`.identify.finish_run`), report, publish and apply the result. What it needs
 from the node is one :class:`.host.RunHost`.
@@ -12,7 +13,7 @@ import os
 import time
 import traceback
 
-from gsp_calibrator.collection import protocol, topics
+from gsp_calibrator.collection import posture_state, protocol, topics
 from gsp_calibrator.recording.recorder import next_recording_file, settings_options
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.host import POSTURE_ENDS, RunHost, first_timeout
@@ -140,8 +141,8 @@ class CalibrationRun:
         host.processing_lags.reset()
         host.postures.start(session, self.collection)
         try:
-            await self._choose_postures(part)
-            await self._wait_for_system()
+            unheard = await self._choose_postures(part)
+            await self._wait_for_system(unheard)
             stopping = await self._collect(reused)
         except (RunFailed, RunWriteError) as error:
             self.save_state(PHASE_FAILED, str(error))
@@ -161,8 +162,9 @@ class CalibrationRun:
             self.log.error(f'{STATE_FILE} not written: {error}')
 
     async def _choose_postures(self, part):
-        """Select the postures of a new run (a resumed one keeps its own) and order them from
-        where the platform is; write state.json."""
+        """Select the postures of a new run (a resumed one keeps its own), hear the streams
+        (:func:`_heard_streams`), then order the postures from where the platform is; write
+        state.json. Returns why the system is not ready ('' when it is)."""
         settings, session, host = self.settings, self.session, self.host
         count = settings.posture_count
         host.progress(
@@ -179,6 +181,7 @@ class CalibrationRun:
                 f'{selection.condition_number:.4g})'
             )
             poses = postures.with_workspace_poses(settings, selection.poses)
+        unheard = await _heard_streams(self, new_route=poses is not None)
         poses, additions = await _ordered(self, poses)
         try:
             session.replace = await host.in_thread(postures.PostureReplacer, settings)
@@ -192,6 +195,7 @@ class CalibrationRun:
             )
             if len(session.samples):
                 self.collection.continue_after(session.samples.readings[-1])
+        return unheard
 
     async def _route(self, poses):
         """``poses`` in route order from the latest leg lengths (state.json keeps this order: a
@@ -212,13 +216,10 @@ class CalibrationRun:
         )
         return poses[route.order]
 
-    async def _wait_for_system(self):
-        """Wait until platform_sim listens to commands and every sensor topic has spoken."""
-        timeout = self.settings.topic_timeout
-        checks = system_checks(self.host, self.collection.heard, timeout)
-        failure = await first_timeout(self.host.wait_for, timeout, checks)
-        if failure:
-            raise RunFailed(failure)
+    async def _wait_for_system(self, unheard):
+        """Fail the run on ``unheard`` (:func:`_heard_streams`) or a failed collection."""
+        if unheard:
+            raise RunFailed(unheard)
         if self.host.postures.failure is not None:
             raise RunFailed(self.host.postures.failure.message)
 
@@ -369,6 +370,28 @@ def _planned(run):
     return postures.commanded_count(run.settings, run.session.state)
 
 
+async def _heard_streams(run, new_route):
+    """Wait until platform_sim listens to commands and every sensor topic has spoken
+    (``topic_timeout`` each), then, for a ``new_route`` with additions for the effects, until
+    every stream has given :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS`
+    stamps, its rate measured (at most ``topic_timeout``; else the route is timed at gsp_plan's
+    rate). ``run``: the :class:`CalibrationRun`. The message of the first check that timed out
+    ('' when none did). The streams come before the route so that its additions are timed at
+    the rate heard; a run that hears none still plans its route and writes state.json, then
+    fails naming the silent topic."""
+    settings, host, collection = run.settings, run.host, run.collection
+    timeout = settings.topic_timeout
+    failure = await first_timeout(
+        host.wait_for, timeout, system_checks(host, collection.heard, timeout)
+    )
+    if new_route and postures.route_effect_groups(settings.free_parameters) and not failure:
+        latest = collection.latest
+        await host.wait_for(
+            lambda: latest.sample_rate_hz(posture_state.RATE_MIN_STAMPS) is not None, timeout
+        )
+    return failure
+
+
 async def _ordered(run, poses):
     """``(poses, record)``: a new run's selected ``poses`` (None: a resumed run keeps its own)
     in route order (``posture_order: route``), with the additions the effect groups to identify
@@ -380,9 +403,8 @@ async def _ordered(run, poses):
     if settings.posture_order == 'route':
         poses = await run._route(poses)
     start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
-    rate = (
-        run.collection.latest.sample_rate_hz()
-    )  # as heard: the route's time at the run's own rate
+    # As heard (the run heard its streams first): the route's time at the run's own rate.
+    rate = run.collection.latest.sample_rate_hz()
     route = await run.host.in_thread(postures.effect_route, settings, poses, start, rate)
     if route is None:
         return poses, None

@@ -13,9 +13,10 @@ whose fit lowers the chi-square most, only if
   by ``chi2(k)`` on average; one it has by that plus its parameters' squared signal-to-noise
   ratios: a small effect that the plan resolves (the joint offsets: 2-3 Cramér-Rao standard
   deviations per leg) is significant long before it moves the accuracy by tens of percent;
-- and the held-out position error (:func:`gsp_kinematics.verdict.cross_validation.cross_validate`) does
-  not grow by more than ``max_cv_loss`` (relative): the guard against a model that fits the
-  rows better and predicts the platform worse;
+- and the held-out position error (:func:`gsp_kinematics.verdict.cross_validation.cross_validate`,
+  each posture's leverage taken out: :func:`held_out_position_mm`) does not grow by more than
+  ``max_cv_loss`` (relative): the guard against a model that fits the rows better and predicts
+  the platform worse;
 - and, for a group the controller compensates, compensating it is not predicted to make the
   platform less accurate over the workspace (:mod:`.choice_accuracy`: the bias of leaving it
   out against the spread its estimates add): significant is not the same as resolved well
@@ -38,7 +39,7 @@ from ..effects.groups import EFFECT_GROUPS, EffectDesign
 from ..effects.model import NUM_LEGS
 from ..identification import IdentificationError, Options, identify
 from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
-from .cross_validation import cross_validate
+from .cross_validation import cross_validate, without_leverage
 
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
 DEFAULT_SIGNIFICANCE = 0.01
@@ -52,8 +53,8 @@ DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:
-    """One model tried: its effect groups, held-out position error (mm, measured mean; NaN if
-    the fit failed), its cross-validation summary, whether it was kept, the fit's ``chi2`` and
+    """One model tried: its effect groups, held-out position error (mm, measured mean with
+    the leverage taken out: :func:`held_out_position_mm`; NaN if the fit failed), its cross-validation summary, whether it was kept, the fit's ``chi2`` and
     the test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
 
     groups: tuple
@@ -189,7 +190,7 @@ def _score(nominal, data, base, groups, settings, reference=None):
         result, nominal, leg_lengths, readings, sigmas, folds, options, noise, design
     )
     summary = validation.summary()
-    position = float(summary['calibrated']['position_mm']['measured_mean'])
+    position = held_out_position_mm(validation)
     test = {}
     if reference is not None:
         added = NUM_LEGS * (len(groups) - len(reference[1]))
@@ -199,6 +200,26 @@ def _score(nominal, data, base, groups, settings, reference=None):
             gain = freeing_gain(reference[0], result, workspace)
             test.update(predicted_without_mm=gain.without_mm, predicted_with_mm=gain.with_mm)
     return result, Candidate(tuple(groups), position, summary, chi2=_chi2(result), **test)
+
+
+def held_out_position_mm(validation):
+    """The mean held-out position error (mm) of ``validation`` (a ``CrossValidation``) as
+    measured, each posture's leverage taken out (:func:`.cross_validation.without_leverage`):
+    the held-out guard's figure. Raw, a held-out error is that of a fit without the posture, far
+    above the full fit's at an extreme posture that alone resolves a group (the joint offsets),
+    so the raw figure penalises such a group by chance of the folds. Nothing is added: the
+    device's own uncertainty, which the accuracy the calibrator reports adds, grows with the
+    model's parameters and would weigh against every group."""
+    errors = np.linalg.norm(validation.position_error, axis=1)
+    if validation.position_leverage is not None:
+        errors = without_leverage(
+            errors,
+            validation.position_noise,
+            validation.position_leverage,
+            validation.position_held_out_variance,
+        )
+    finite = np.isfinite(errors)
+    return 1e3 * float(np.mean(errors[finite])) if finite.any() else float('nan')
 
 
 def thermal_time_constant(nominal, data, base, groups, candidates, options):
