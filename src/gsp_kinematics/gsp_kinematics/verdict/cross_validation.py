@@ -116,6 +116,17 @@ def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, 
     return factor * mean, factor * p95, factor * rms, factor
 
 
+def without_leverage(errors, noise, ratios, held_out=None):
+    """Held-out error magnitudes ``errors`` (M,) with their excess over the ``noise`` variance
+    (M,) scaled by the leverage ``ratios`` (M,), up to the bound of
+    :func:`.comparison.explained_excess` (``held_out``: the held-out fit's predicted variance;
+    None: no bound): ``sqrt(r x + kept + n)``, the posture's noise still in (the model choice's
+    held-out guard compares these as measured)."""
+    explained, kept = explained_excess(errors, noise, held_out)
+    ratios = np.asarray(ratios, dtype=float)
+    return np.sqrt(np.maximum(ratios * explained + kept + np.asarray(noise, dtype=float), 0.0))
+
+
 def _statistics(errors, variances, scale, *correction):
     mean, p95, rms, factor = noise_removed(errors, variances, *correction)
     finite = np.isfinite(errors)
