@@ -19,7 +19,7 @@ def test_the_held_out_accuracy_under_compliance_takes_the_leverage_of_the_extrem
     """Seed 1 of the bench: one selected posture loads a leg with 1.9 kN, the only posture
     that determines its compliance; the fold without it misplaces it by about 0.26 mm, and the
     raw held-out mean is about 4x the true accuracy. Scaled by the full fit's over the held-out
-    fit's predicted variance, with the device's uncertainty added, it is within 50 %."""
+    fit's predicted variance, with the part no held-out posture sees added, it is within 50 %."""
     route = bench_effects.augmented_plan(design)
     run = bench_effects.one_run(design, route, bench_verdict.effect_cases()['compliance'], 1)
     assert run['groups'] == ['compliance']

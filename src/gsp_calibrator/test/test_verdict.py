@@ -105,7 +105,8 @@ def test_a_wrong_datum_is_refused_by_its_measured_accuracy(design):
 def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):
     """Level postures at one height (no tilt, one z): the fit is full rank but ill-conditioned.
     The held-out postures, level too, see nothing wrong; the prediction over the workspace
-    does (and the truth agrees): refused, saying that the postures do not identify the model."""
+    does (and the truth agrees), and so does the measured figure carried to the workspace by
+    the model's shape: refused, saying that the postures do not identify the model."""
     poses = design.poses.copy()
     poses[:, 2:5] = [design.poses[:, 2].mean(), 0.0, 0.0]
     level = bench_verdict.Design(
@@ -115,13 +116,16 @@ def test_a_posture_set_that_does_not_identify_the_model_is_refused(design):
     assert outcome.success and not outcome.accepted
     calibrated = outcome.accuracy['calibrated']['position_mm']
     assert calibrated['measured_mean'] < 0.02  # the held-out level postures are predicted well
-    # The device's own uncertainty (D0 and the zeros are ill-determined by level postures) is
-    # added to the headline: larger, still under the requirement.
-    assert calibrated['measured_mean'] < calibrated['mean'] < 0.1
-    (failure,) = outcome.judgement.failures
-    assert failure.startswith('the postures do not identify the model over the workspace')
+    failures = outcome.judgement.failures
+    assert any(
+        f.startswith('the postures do not identify the model over the workspace') for f in failures
+    )
     true_mm, _ = bench_verdict.true_accuracy(design, None, outcome.geometry)
     assert true_mm > 0.1  # and over the workspace it is indeed worse than required
+    # Carried to the workspace (the truth's predicted variance there over that at the level
+    # postures: hundreds), the measured figure sees it too, within 2x of the truth.
+    assert calibrated['workspace_transfer'] > 10.0
+    assert true_mm / 2 < calibrated['mean'] < 2 * true_mm
 
 
 def test_the_accuracy_is_measured_on_the_workspace_postures(workspace_design):

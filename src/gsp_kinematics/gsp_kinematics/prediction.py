@@ -68,8 +68,9 @@ def body_angular_jacobian(euler):
     return np.stack([skew[:, :, 2, 1], skew[:, :, 0, 2], skew[:, :, 1, 0]], axis=1)
 
 
-def pose_sensitivities(geometry, poses, free=None):
-    """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error.
+def pose_sensitivities(geometry, poses, free=None, euler=False):
+    """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error
+    (``euler``: ``d(psi, theta, phi)`` (rad) in place of the rotation vector ``dw``).
 
     ``free``: a bool mask over the parameter vector (None: the 44). Columns of parameters that do
     not move the platform (the device's and the device sensors' errors) are zero; the 42 leg
@@ -83,8 +84,9 @@ def pose_sensitivities(geometry, poses, free=None):
     # dq/dX dX = ... - q_i (kq_hat_i - kq_i) on leg i.
     d_q_d_gain = -articular[:, :, None] * np.eye(6)[None]
     d_pose = np.linalg.solve(d_q_d_pose, np.concatenate([d_q_d_u, d_q_d_gain], axis=2))
-    angular = body_angular_jacobian(poses[:, 3:])
-    sensitivity = np.concatenate([d_pose[:, :3], angular @ d_pose[:, 3:]], axis=1)
+    if not euler:
+        d_pose[:, 3:] = body_angular_jacobian(poses[:, 3:]) @ d_pose[:, 3:]
+    sensitivity = d_pose
     size = NUM_PARAMETERS if free is None else len(free)
     full = np.zeros((poses.shape[0], 6, max(size, NUM_ALL_PARAMETERS)))
     full[:, :, :LEG_PARAMETERS] = sensitivity[:, :, :LEG_PARAMETERS]

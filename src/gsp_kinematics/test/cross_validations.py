@@ -5,9 +5,9 @@ import numpy as np
 from gsp_kinematics.verdict.cross_validation import CrossValidation
 
 
-def validation_of(position, folds, **device):
+def validation_of(position, folds, **corrections):
     """A CrossValidation of position errors ``position`` (M, 3) m, no phi error or noise, the
-    nominal geometry 10 times worse; ``device``: its position_device / phi_device."""
+    nominal geometry 10 times worse; ``corrections``: e.g. its position_unseen."""
     count = len(position)
     return CrossValidation(
         folds=folds,
@@ -20,5 +20,5 @@ def validation_of(position, folds, **device):
         nominal_phi_error=np.zeros(count),
         failed_folds=(),
         duration_s=0.0,
-        **device,
+        **corrections,
     )

@@ -18,8 +18,11 @@ reversed: the same accuracy.
 A held-out posture is predicted by a fit that did not see it: at a posture that alone determines
 a parameter (an extreme of the workspace, which the selection prefers) that fit knows far less
 than the full one. Each held-out error's excess over the noise is scaled by the full fit's over
-the held-out fit's predicted variance there (:func:`leverage_ratios`), and the device's own
-uncertainty, which no held-out posture sees, is added (:func:`device_variances`).
+the held-out fit's predicted variance of the comparison there (:func:`.comparison.leverage_ratios`).
+The comparison (legs against the device) and the truth (the controller's pose) do not hold the
+same part of a fit's parameter error: an error the legs share with the device is in the truth
+only, an error of the device alone in the comparison only. The difference of their predicted
+variances (:func:`.comparison.comparison_variances`) is added (or, negative, subtracted).
 """
 
 import dataclasses
@@ -28,33 +31,24 @@ import time
 
 import numpy as np
 
-from ..device import DeviceModelError, device_position
+from ..device import DeviceModelError
 from ..effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
-from ..geometry import ALL_PARAMETER_NAMES, Geometry
+from ..geometry import ALL_PARAMETER_NAMES
 from ..identification import IdentificationError, Options, identify
-from ..kinematics import forward_kinematics_masked
+from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
 from ..prediction import (
     parameter_pose_covariance,
     reading_pose_covariance,
     thermal_pose_covariance,
 )
 from ..rotation import wrap_angle
+from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
-
-
-def device_pose(geometry, readings):
-    """What the device measures under ``geometry``'s device parameters and sensor errors:
-    ``(position (M, 3) m, phi (M,) rad)`` from readings ``[alpha, beta, phi, d_m]`` (M, 4)."""
-    ideal = geometry.sensors.ideal_device_readings(np.atleast_2d(readings))
-    position = device_position(
-        ideal[:, 0],
-        ideal[:, 1],
-        geometry.device_length + ideal[:, 3],
-        geometry.inclinometer_axes_angle,
-    )
-    return position, ideal[:, 2]
+#: Random workspace postures (seeded) the truth's predicted variance is averaged over, to carry
+#: the measured figure from the run's postures to the workspace.
+WORKSPACE_SAMPLE = 200
 
 
 def prediction_errors(geometry, leg_lengths, readings, guesses):
@@ -85,121 +79,56 @@ def noise_variances(geometry, poses, readings, row_sigmas):
     return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
 
 
-#: The device's own parameters: its errors move where the device says the platform is.
-DEVICE_PARAMETERS = ('D0', 'gamma', 'alpha0', 'beta0', 'phi0', 'kDm')
-
-
-def device_variances(result, readings, step=1e-7):
-    """The variance (position (M,) m^2, the trace; phi (M,) rad^2) of what the device measures
-    at ``readings`` (M, 4) under ``result``'s geometry from the uncertainty of its own free
-    parameters (:data:`DEVICE_PARAMETERS`, ``result.covariance``): an error the legs share (the
-    fit makes them agree with the device), which no held-out posture can see."""
-    readings = np.atleast_2d(np.asarray(readings, dtype=float))
-    free = [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
-    columns = [free.index(name) for name in DEVICE_PARAMETERS if name in free]
-    covariance = np.asarray(result.covariance, dtype=float)
-    if not columns or not np.all(np.isfinite(covariance[np.ix_(columns, columns)])):
-        return np.zeros(len(readings)), np.zeros(len(readings))
-    vector = result.geometry.to_full_vector()
-    limits = result.geometry.limits
-    base_position, base_phi = device_pose(result.geometry, readings)
-    position, phi = [], []
-    for column in columns:
-        moved = vector.copy()
-        moved[ALL_PARAMETER_NAMES.index(free[column])] += step
-        shifted, shifted_phi = device_pose(Geometry.from_full_vector(moved, limits), readings)
-        position.append((shifted - base_position) / step)
-        phi.append(wrap_angle(shifted_phi - base_phi) / step)
-    position, phi = np.stack(position, axis=2), np.stack(phi, axis=1)  # (M, 3, p), (M, p)
-    block = covariance[np.ix_(columns, columns)]
-    return (
-        np.einsum('mip,pq,miq->m', position, block, position),
-        np.einsum('mp,pq,mq->m', phi, block, phi),
-    )
-
-
-def parameter_variances(result, poses):
-    """(M,) m^2: the trace of the position covariance that ``result``'s parameter covariance
-    (geometry and effects) gives the reached pose at ``poses`` (M, 6); NaN where unknown."""
-    poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    effect_free = getattr(result, 'effect_free', None)
-    try:
-        position, _ = parameter_pose_covariance(
-            result.geometry, result.covariance, poses, result.free, effect_free
-        )
-    except (ValueError, np.linalg.LinAlgError):
-        return np.full(poses.shape[0], np.nan)
-    return np.trace(position, axis1=1, axis2=2)
-
-
-def leverage_ratios(full, held_out, unmodelled=0.0):
-    """(M,) in [0, 1]: at each posture, the predicted error variance of the full fit
-    (``full`` (M,) m^2) over that of the fold's fit that did not see it (``held_out``), each
-    with the ``unmodelled`` variance (M,) added, which no fit removes. A posture that alone
-    determines a parameter (an extreme the selection chose) is predicted far worse by the fit
-    without it than the full fit places it: the ratio takes that leverage out of its held-out
-    error (docs/verdict.md). 1 where a variance is unknown (no correction)."""
-    full = np.asarray(full, dtype=float) + unmodelled
-    held_out = np.asarray(held_out, dtype=float) + unmodelled
-    with np.errstate(divide='ignore', invalid='ignore'):
-        ratio = full / held_out
-    return np.where(np.isfinite(ratio) & (held_out > 0), np.clip(ratio, 0.0, 1.0), 1.0)
-
-
-#: A held-out error's excess over the noise up to this many times the held-out fit's predicted
-#: variance there (3 standard deviations) is the fold's ignorance, which the leverage scales;
-#: beyond it, it is an error no fit's covariance explains (a model error), kept as measured.
-LEVERAGE_EXPLAINS = 9.0
-
-
-def without_leverage(errors, noise, ratios, held_out=None):
-    """Held-out error magnitudes ``errors`` (M,) with the excess of their square over the
-    posture's ``noise`` variance (M,) scaled by the leverage ``ratios`` (M,,
-    :func:`leverage_ratios`): ``sqrt(r x + n)``, ``x = e^2 - n``, the error the full fit makes
-    there plus the posture's own noise (removed later, :func:`noise_removed`). ``held_out``
-    (M,) m^2: the held-out fit's predicted variance there (with the unmodelled part); the excess
-    beyond :data:`LEVERAGE_EXPLAINS` times it is not scaled (None: all of it is)."""
-    errors, noise, ratios = (np.asarray(v, dtype=float) for v in (errors, noise, ratios))
-    excess = errors**2 - noise
-    kept = np.zeros_like(excess)
-    if held_out is not None:
-        cap = LEVERAGE_EXPLAINS * np.asarray(held_out, dtype=float)
-        beyond = np.isfinite(cap) & (excess > cap)
-        kept = np.where(beyond, excess - cap, 0.0)
-        excess = np.where(beyond, cap, excess)
-    return np.sqrt(np.maximum(ratios * excess + kept + noise, 0.0))
-
-
-def noise_removed(errors, variances, shared=None):
-    """``(mean, p95, rms, factor)`` of error magnitudes ``errors`` (K,) with the noise's
-    ``variances`` (K,) removed: ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0))``
-    scales the mean, the p95 and the rms (the noise's share of the mean squared error is taken
-    out in quadrature; the error's distribution is assumed to keep its shape). ``shared`` (K,):
-    the variance of an error the held-out errors cannot see (the device's own, which the fit
-    gives the legs too: :func:`device_variances`), added in quadrature:
-    ``factor = sqrt(max(1 - sum(variances) / sum(errors^2), 0) + sum(shared) / sum(errors^2))``."""
+def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, transfer=1.0):
+    """``(mean, p95, rms, factor)`` of held-out error magnitudes ``errors`` (K,) with the
+    noise's ``variances`` (K,) removed: the mean squared error less the noise's, plus ``unseen``
+    (K,; the variance the truth holds beyond the comparison, negative where the comparison holds
+    more: :func:`.comparison.comparison_variances`), is the signal; ``factor = sqrt(signal /
+    sum(draws^2))`` scales the mean, the p95 and the rms of the draws (the error's distribution
+    is assumed to keep its shape). Without ``leverage`` the draws are the errors. ``leverage``
+    (K,) scales each excess over the noise up to 3 standard deviations of the held-out fit's
+    prediction ``held_out`` (K,) m^2 (:func:`.comparison.explained_excess`) to the full fit's;
+    the draws are then the errors scaled to the full fit's expectation, signal and noise,
+    ``(r h + n) / (h + n)``, on the explained part (a mean of shrunk magnitudes would mix the
+    noise's variance, a constant, into draws of it)."""
     errors = np.asarray(errors, dtype=float)
     variances = np.asarray(variances, dtype=float)
-    shared = np.zeros_like(variances) if shared is None else np.asarray(shared, dtype=float)
-    finite = np.isfinite(errors) & np.isfinite(variances) & np.isfinite(shared)
+    count = errors.shape
+    unseen = np.zeros(count) if unseen is None else np.asarray(unseen, dtype=float)
+    leverage = np.ones(count) if leverage is None else np.asarray(leverage, dtype=float)
+    finite = np.isfinite(errors) & np.isfinite(variances) & np.isfinite(unseen)
     if not finite.any():
         return math.nan, math.nan, math.nan, math.nan
-    errors, variances, shared = errors[finite], variances[finite], shared[finite]
-    squared = float(np.sum(errors**2))
-    factor = (
-        math.sqrt(
-            max(1.0 - float(np.sum(variances)) / squared, 0.0) + float(np.sum(shared)) / squared
-        )
-        if squared > 0
-        else 0.0
-    )
-    mean, p95 = float(np.mean(errors)), float(np.percentile(errors, 95))
+    errors, variances, unseen, leverage = (v[finite] for v in (errors, variances, unseen, leverage))
+    held_out = None if held_out is None else np.asarray(held_out, dtype=float)[finite]
+    explained, kept = explained_excess(errors, variances, held_out)
+    signal = transfer * max(float(np.sum(leverage * explained + kept + unseen)), 0.0)
+    draws = errors
+    if held_out is not None:
+        with np.errstate(divide='ignore', invalid='ignore'):
+            shrink = (leverage * held_out + variances) / (held_out + variances)
+        shrink = np.where(np.isfinite(shrink), np.clip(shrink, 0.0, 1.0), 1.0)
+        draws = np.sqrt(np.maximum(shrink * (errors**2 - kept) + kept, 0.0))
+    squared = float(np.sum(draws**2))
+    factor = math.sqrt(signal / squared) if squared > 0 else 0.0
+    mean, p95 = float(np.mean(draws)), float(np.percentile(draws, 95))
     rms = math.sqrt(squared / errors.size)
     return factor * mean, factor * p95, factor * rms, factor
 
 
-def _statistics(errors, variances, scale, shared=None):
-    mean, p95, rms, factor = noise_removed(errors, variances, shared)
+def without_leverage(errors, noise, ratios, held_out=None):
+    """Held-out error magnitudes ``errors`` (M,) with their excess over the ``noise`` variance
+    (M,) scaled by the leverage ``ratios`` (M,), up to the bound of
+    :func:`.comparison.explained_excess` (``held_out``: the held-out fit's predicted variance;
+    None: no bound): ``sqrt(r x + kept + n)``, the posture's noise still in (the model choice's
+    held-out guard compares these as measured)."""
+    explained, kept = explained_excess(errors, noise, held_out)
+    ratios = np.asarray(ratios, dtype=float)
+    return np.sqrt(np.maximum(ratios * explained + kept + np.asarray(noise, dtype=float), 0.0))
+
+
+def _statistics(errors, variances, scale, *correction):
+    mean, p95, rms, factor = noise_removed(errors, variances, *correction)
     finite = np.isfinite(errors)
     raw = np.asarray(errors, dtype=float)[finite]
     return {
@@ -216,11 +145,23 @@ def _statistics(errors, variances, scale, shared=None):
 
 
 def _rms(variances, errors, scale):
-    """``scale`` x the rms of ``variances`` over the finite ``errors`` (0 without them)."""
+    """``scale`` x the rms of ``variances`` over the finite ``errors`` (0 without them), signed:
+    negative when their mean is (an unseen part the comparison holds beyond the truth)."""
     finite = np.isfinite(errors)
     if variances is None or not finite.any():
         return 0.0
-    return scale * math.sqrt(float(np.mean(np.asarray(variances)[finite])))
+    mean = float(np.mean(np.asarray(variances)[finite]))
+    return math.copysign(scale * math.sqrt(abs(mean)), mean)
+
+
+def _rows(values, rows):
+    """``values[rows]``, or None without values."""
+    return None if values is None else np.asarray(values)[rows]
+
+
+def _signed_sqrt(values, count, scale):
+    values = np.zeros(count) if values is None else np.asarray(values, dtype=float)
+    return (scale * np.sign(values) * np.sqrt(np.abs(values))).tolist()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,19 +182,30 @@ class CrossValidation:
     nominal_phi_error: np.ndarray  #: (M,) rad
     failed_folds: tuple  #: folds whose fit did not converge (their postures are NaN)
     duration_s: float
-    #: (M,) m^2 and rad^2: the device's own uncertainty there (:func:`device_variances`), added
-    #: to the calibrated figures; None: not added
-    position_device: np.ndarray | None = None
-    phi_device: np.ndarray | None = None
+    #: (M,) m^2 and rad^2: the truth's predicted variance there less the comparison's
+    #: (:func:`.comparison.comparison_variances`), added to the calibrated figures (negative:
+    #: subtracted); None: nothing
+    position_unseen: np.ndarray | None = None
+    phi_unseen: np.ndarray | None = None
     #: (M,) m^2: the pose error a controller leaves uncompensated there (the identified thermal
     #: growth over the run), added to every calibrated position figure; None: none
     position_uncompensated: np.ndarray | None = None
-    #: (M,) the leverage ratios (:func:`leverage_ratios`) that scale each held-out position
+    #: (M,) the leverage ratios (:func:`.comparison.leverage_ratios`) that scale each held-out
     #: error's excess over the noise to the full fit's; None: the raw held-out errors
     position_leverage: np.ndarray | None = None
-    #: (M,) m^2: the held-out fit's predicted variance at each posture, the unmodelled part
-    #: included (:func:`without_leverage`); None: unknown
+    phi_leverage: np.ndarray | None = None
+    #: (M,) m^2 and rad^2: the held-out fit's predicted variance of the comparison at each
+    #: posture, the unmodelled part included (:func:`noise_removed`); None: unknown
     position_held_out_variance: np.ndarray | None = None
+    phi_held_out_variance: np.ndarray | None = None
+    #: (M,) m^2: the truth's predicted position variance at each posture that the model
+    #: describes (the parameters' and the uncompensated growth's), and its mean over random
+    #: workspace postures: their ratio carries that share of the figure from the run's postures
+    #: to the workspace (:meth:`_transfer`); None: no transfer
+    position_truth_variance: np.ndarray | None = None
+    workspace_truth_variance: float | None = None
+    #: (M,) m^2: the unmodelled part's predicted position variance there (its share stays)
+    position_unmodelled_variance: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -284,25 +236,16 @@ class CrossValidation:
             'workspace_rows': np.flatnonzero(rows).tolist(),
             'failed_folds': list(self.failed_folds),
             'duration_s': self.duration_s,
-            **self._figures(position, nominal, headline, device=bool(rows.any())),
+            **self._figures(position, nominal, headline),
             'per_posture': {
                 'position_mm': (1e3 * position).tolist(),
                 'nominal_position_mm': (1e3 * nominal).tolist(),
                 'noise_position_mm': (1e3 * np.sqrt(self.position_noise)).tolist(),
-                'uncompensated_position_mm': (
-                    1e3 * np.sqrt(self.position_uncompensated)
-                    if self.position_uncompensated is not None
-                    else np.zeros(count)
-                ).tolist(),
+                'uncompensated_position_mm': _signed_sqrt(self.position_uncompensated, count, 1e3),
                 'leverage': (
                     np.ones(count) if self.position_leverage is None else self.position_leverage
                 ).tolist(),
-                'device_position_mm': (
-                    1e3
-                    * np.sqrt(
-                        np.zeros(count) if self.position_device is None else self.position_device
-                    )
-                ).tolist(),
+                'unseen_position_mm': _signed_sqrt(self.position_unseen, count, 1e3),
             },
         }
         if rows.any() and not rows.all():
@@ -312,50 +255,67 @@ class CrossValidation:
             }
         return summary
 
-    def _figures(self, position, nominal, rows, device=False):
-        """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask); ``device``: the
-        device's own uncertainty added to the calibrated figures (the workspace postures'; with
-        the leverage taken out, every posture's: the raw held-out errors of the selected
-        postures, the workspace's extremes, already exceed it, docs/verdict.md)."""
+    def _figures(self, position, nominal, rows):
+        """``{calibrated, nominal}`` accuracy over ``rows`` (bool mask): the calibrated figures
+        with the leverage taken out and the unseen part (and the uncompensated growth) added
+        (:func:`noise_removed`, docs/verdict.md); the raw held-out figure kept beside them."""
         degrees = math.degrees(1.0)
         position_noise, phi_noise = self.position_noise[rows], self.phi_noise[rows]
-        calibrated_position = position[rows]
-        if self.position_leverage is not None:
-            held_out = self.position_held_out_variance
-            calibrated_position = without_leverage(
-                calibrated_position,
-                position_noise,
-                self.position_leverage[rows],
-                None if held_out is None else held_out[rows],
-            )
-            device = True
-        device = device and self.position_device is not None
-        position_device = self.position_device[rows] if device else None
-        phi_device = self.phi_device[rows] if device else None
-        uncompensated = self.position_uncompensated
-        uncompensated = None if uncompensated is None else uncompensated[rows]
-        shared = [v for v in (position_device, uncompensated) if v is not None]
+        unseen = [v for v in (self.position_unseen, self.position_uncompensated) if v is not None]
+        unseen = _rows(sum(unseen), rows) if unseen else None
+        transfer = self._transfer(rows & np.isfinite(position))
         calibrated = _statistics(
-            calibrated_position, position_noise, 1e3, sum(shared) if shared else None
+            position[rows],
+            position_noise,
+            1e3,
+            unseen,
+            _rows(self.position_leverage, rows),
+            _rows(self.position_held_out_variance, rows),
+            transfer,
         )
-        raw = _statistics(position[rows], position_noise, 1e3)  # as measured, for the record
-        calibrated['measured_mean'] = raw['measured_mean']
-        calibrated['measured_p95'] = raw['measured_p95']
         calibrated['leverage_removed'] = self.position_leverage is not None
-        calibrated['device_rms'] = _rms(position_device, position[rows], 1e3)
-        calibrated['uncompensated_rms'] = _rms(uncompensated, position[rows], 1e3)
+        calibrated['workspace_transfer'] = transfer
+        calibrated['unseen_rms'] = _rms(_rows(self.position_unseen, rows), position[rows], 1e3)
+        calibrated['uncompensated_rms'] = _rms(
+            _rows(self.position_uncompensated, rows), position[rows], 1e3
+        )
+        phi = np.abs(self.phi_error[rows])
+        calibrated_phi = _statistics(
+            phi,
+            phi_noise,
+            degrees,
+            _rows(self.phi_unseen, rows),
+            _rows(self.phi_leverage, rows),
+            _rows(self.phi_held_out_variance, rows),
+        )
+        calibrated_phi['leverage_removed'] = self.phi_leverage is not None
+        calibrated_phi['unseen_rms'] = _rms(_rows(self.phi_unseen, rows), phi, degrees)
         return {
-            'calibrated': {
-                'position_mm': calibrated,
-                'phi_deg': _statistics(
-                    np.abs(self.phi_error[rows]), phi_noise, degrees, phi_device
-                ),
-            },
+            'calibrated': {'position_mm': calibrated, 'phi_deg': calibrated_phi},
             'nominal': {
                 'position_mm': _statistics(nominal[rows], position_noise, 1e3),
                 'phi_deg': _statistics(np.abs(self.nominal_phi_error[rows]), phi_noise, degrees),
             },
         }
+
+    def _transfer(self, rows):
+        """The scale that carries the signal at the postures ``rows`` (bool mask) to the
+        workspace: the held-out postures are the run's (the selection's extremes), the accuracy
+        the workspace's. The share the model describes (the parameters' and the growth's
+        predicted variance, ``f`` of the truth's there) scales by its predicted mean over the
+        workspace over that at the rows (the model gives the shape, the device the size); the
+        unmodelled share, whose shape over the workspace the model does not know, stays:
+        ``f ratio + 1 - f`` (1: unknown)."""
+        truth, workspace = self.position_truth_variance, self.workspace_truth_variance
+        if truth is None or workspace is None or not rows.any():
+            return 1.0
+        modelled = float(np.mean(np.asarray(truth)[rows]))
+        unmodelled = self.position_unmodelled_variance
+        unmodelled = 0.0 if unmodelled is None else float(np.mean(np.asarray(unmodelled)[rows]))
+        if not (modelled > 0 and math.isfinite(modelled + unmodelled + workspace)):
+            return 1.0
+        share = modelled / (modelled + unmodelled)
+        return share * workspace / modelled + 1.0 - share
 
 
 def fold_assignment(count, folds=DEFAULT_FOLDS):
@@ -397,18 +357,45 @@ def _fold_fit(result, free, rows, options, effects):
     return fitted if fitted.converged else None
 
 
-def _leverage(result, readings, held_out_variance, unmodelled):
-    """``(ratios, held-out variances)`` (M,) at ``result``'s poses: :func:`leverage_ratios` of
-    its predicted variance over each posture's ``held_out_variance``, and that variance, each
-    with the ``unmodelled`` part (SensorNoise or None)."""
+def _corrections(result, readings, held_out, unmodelled, effects):
+    """The :class:`CrossValidation` fields that correct ``result``'s held-out errors (position
+    and phi): the leverage ratios of the comparison's predicted variance under the full fit over
+    each posture's ``held_out`` (position (M,) m^2, phi (M,) rad^2: the fold's fit's), those
+    with the ``unmodelled`` part (SensorNoise or None), added to both; and the unseen part, the
+    controller's predicted variance less the comparison's under the full fit."""
     poses = np.asarray(result.poses, dtype=float)
-    unmodelled_variance = 0.0
+    unmodelled_variances = (0.0, 0.0)
     if unmodelled is not None:
-        position, _ = reading_pose_covariance(result.geometry, poses, readings, unmodelled)
-        unmodelled_variance = np.trace(position, axis1=1, axis2=2)
-    full = parameter_variances(result, poses)
-    ratios = leverage_ratios(full, held_out_variance, unmodelled_variance)
-    return ratios, held_out_variance + unmodelled_variance
+        position, euler = reading_pose_covariance(result.geometry, poses, readings, unmodelled)
+        unmodelled_variances = (np.trace(position, axis1=1, axis2=2), euler[:, 2, 2])
+    controller, comparison = comparison_variances(result, poses, readings, effects)
+    fields = {}
+    for k, channel in enumerate(('position', 'phi')):
+        extra = unmodelled_variances[k]
+        fields[f'{channel}_leverage'] = leverage_ratios(comparison[k], held_out[k], extra)
+        fields[f'{channel}_held_out_variance'] = held_out[k] + extra
+        fields[f'{channel}_unseen'] = controller[k] - comparison[k]
+    fields['position_truth_variance'] = controller[0]
+    fields['position_unmodelled_variance'] = unmodelled_variances[0] + np.zeros(len(poses))
+    return fields
+
+
+def _workspace_truth_variance(result, workspace, strain):
+    """m^2: the truth's predicted position variance that the model describes (the parameters',
+    the uncompensated thermal ``strain``'s) averaged over :data:`WORKSPACE_SAMPLE` seeded random
+    postures of ``workspace`` (as the predicted accuracy samples it); None without a
+    ``workspace`` or a usable covariance."""
+    geometry = result.geometry
+    covariance = np.asarray(result.covariance, dtype=float)
+    if workspace is None or not np.all(np.isfinite(covariance)):
+        return None
+    poses = sample_valid_postures(geometry, WORKSPACE_SAMPLE, np.random.default_rng(0), workspace)
+    position, _ = parameter_pose_covariance(
+        geometry, covariance, poses, result.free, result.effect_free
+    )
+    variance = np.trace(position, axis1=1, axis2=2)
+    thermal = _uncompensated(geometry, poses, strain)
+    return float(np.mean(variance if thermal is None else variance + thermal))
 
 
 def cross_validate(
@@ -423,6 +410,7 @@ def cross_validate(
     effects=None,
     uncompensated_strain=None,
     unmodelled=None,
+    workspace=Workspace(),
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
     (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
@@ -437,15 +425,17 @@ def cross_validate(
     ``uncompensated_strain`` (6,): the thermal growth the controllers leave (its error kept).
     ``unmodelled``: what the model leaves unexplained (a SensorNoise of row stds, or None:
     nothing), part of every posture's error that no fit removes: the leverage ratios
-    (:func:`leverage_ratios`, ``CrossValidation.position_leverage``) add it to both fits'
-    predicted variances, so a held-out error that is model error keeps its size."""
+    (:func:`.comparison.leverage_ratios`, ``CrossValidation.position_leverage``) add it to both
+    fits' predicted variances, so a held-out error that is model error keeps its size.
+    ``workspace``: the ``Workspace`` the calibrated position figure is carried to (the truth's
+    predicted variance there over that at the run's postures); None: the run's postures."""
     started = time.perf_counter()
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
     position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
-    held_out_variance = np.full(count, np.nan)
+    held_out = (np.full(count, np.nan), np.full(count, np.nan))  # position, phi
     free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
     free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
     for fold in range(int(assignment.max()) + 1):
@@ -463,20 +453,25 @@ def cross_validate(
             guesses[held],
             design_rows(effects, held),
         )
-        held_out_variance[held] = parameter_variances(fitted, guesses[held])
+        _, comparison = comparison_variances(
+            fitted, guesses[held], readings[held], design_rows(effects, held)
+        )
+        held_out[0][held], held_out[1][held] = comparison
     noise = row_sigmas if noise is None else noise
     position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
-    position_device, phi_device = device_variances(result, readings)
-    leverage, held_out_variance = _leverage(result, readings, held_out_variance, unmodelled)
+    corrections = _corrections(result, readings, held_out, unmodelled, effects)
+    uncompensated = _uncompensated(result.geometry, guesses, uncompensated_strain)
+    if uncompensated is not None:
+        corrections['position_truth_variance'] = (
+            corrections['position_truth_variance'] + uncompensated
+        )
     return CrossValidation(
-        position_leverage=leverage,
-        position_held_out_variance=held_out_variance,
-        position_uncompensated=_uncompensated(result.geometry, guesses, uncompensated_strain),
-        position_device=position_device,
-        phi_device=phi_device,
+        **corrections,
+        workspace_truth_variance=_workspace_truth_variance(result, workspace, uncompensated_strain),
+        position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
         position_error=position,

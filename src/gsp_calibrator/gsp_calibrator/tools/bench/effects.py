@@ -348,7 +348,8 @@ def run(quick=False):
             'by a likelihood-ratio test at 1 % with a 5-fold held-out guard at 50 % (configured '
             'noise), plain: extended on the same '
             'rows; measured: as the calibrator (10-fold cross-validation, the leverage of '
-            "each held-out posture taken out, the device's own uncertainty added; on the "
+            'each held-out posture taken out, the part no held-out posture sees added, carried '
+            'to the workspace; on the '
             'workspace postures when the plan has them); predicted: with the unmodelled error '
             'and the uncompensated thermal growth; truth: 50 random postures on the simulated '
             'platform over the run (and at the reference instant, best geometry likewise); '
