@@ -181,6 +181,47 @@ def test_the_comparison_sensitivities_match_finite_differences(
         assert np.abs(comparison[:, :, column] - expected).max() < 1e-3 * scale, name
 
 
+def test_the_device_sensitivities_match_finite_differences(exact, nominal_sets, moderate_postures):
+    """What the device measures, per device parameter (D0, gamma, alpha0, beta0, phi0, kDm),
+    against central differences of eq 9 with the sensor errors (per column: to 1e-6 of the
+    column's largest), at a geometry with every sensor error nonzero; zero for the others."""
+    import dataclasses
+
+    from gsp_kinematics.geometry import ALL_PARAMETER_NAMES, Geometry
+    from gsp_kinematics.verdict.comparison import DEVICE_PARAMETERS, device_sensitivities
+
+    legs, readings = sensor_measurements(exact, moderate_postures)
+    result = identify(
+        nominal_sets[1], legs, readings, ROWS, free='extended', pose_guesses=moderate_postures
+    )
+    vector = result.geometry.to_full_vector()
+    for name, value in zip(
+        ('alpha0', 'beta0', 'phi0', 'kDm'), (2e-3, -3e-3, 5e-3, 4e-3), strict=True
+    ):
+        vector[ALL_PARAMETER_NAMES.index(name)] = value
+    geometry = Geometry.from_full_vector(vector, result.geometry.limits)
+    result = dataclasses.replace(result, geometry=geometry)
+    readings = readings[:12]
+    position, phi = device_sensitivities(result, readings)
+    names = [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
+    step = 1e-7
+    for column, name in enumerate(names):
+        moved = []
+        for sign in (1.0, -1.0):
+            shifted = vector.copy()
+            shifted[ALL_PARAMETER_NAMES.index(name)] += sign * step
+            moved.append(device_pose(Geometry.from_full_vector(shifted, geometry.limits), readings))
+        expected = np.concatenate(
+            [(moved[0][0] - moved[1][0]), (moved[0][1] - moved[1][1])[:, None]], axis=1
+        ) / (2 * step)
+        got = np.concatenate([position[:, :, column], phi[:, column, None]], axis=1)
+        if name not in DEVICE_PARAMETERS:
+            assert not got.any() and np.abs(expected).max() == 0.0, name
+            continue
+        scale = float(np.abs(expected).max())
+        assert scale > 0.0 and np.abs(got - expected).max() < 1e-6 * scale, name
+
+
 def test_the_unseen_part_is_added_to_every_figure():
     count = 4
     workspace = np.array([False, False, True, True])

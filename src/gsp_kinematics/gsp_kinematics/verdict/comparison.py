@@ -17,12 +17,11 @@ truth (negative): the unseen part of :func:`comparison_variances` (docs/verdict.
 
 import numpy as np
 
-from ..device import device_position
+from ..device import device_position, link_direction, link_direction_derivatives
 from ..effects.groups import EFFECT_GROUPS, NUM_EFFECT_PARAMETERS, EffectDesign, EffectTerms
-from ..geometry import ALL_PARAMETER_NAMES, Geometry
+from ..geometry import ALL_PARAMETER_NAMES
 from ..kinematics import inverse_kinematics_jacobians
 from ..prediction import POSTURE_EFFECT_GROUPS, pose_sensitivities
-from ..rotation import wrap_angle
 
 #: The device's own parameters: their errors move where the device says the platform is.
 DEVICE_PARAMETERS = ('D0', 'gamma', 'alpha0', 'beta0', 'phi0', 'kDm')
@@ -51,26 +50,34 @@ def _free_names(result):
     return [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
 
 
-def device_sensitivities(result, readings, step=1e-7):
+def device_sensitivities(result, readings):
     """``(position (M, 3, p) m, phi (M, p) rad)``: what the device measures at ``readings``
     (M, 4) per unit error of each of ``result``'s free parameters then free effects (``p``, the
-    covariance's order; nonzero only for :data:`DEVICE_PARAMETERS`), by central differences of
-    eq 7 and 9 (closed form, smooth)."""
+    covariance's order; nonzero only for :data:`DEVICE_PARAMETERS`). Analytic, from eq 9 with
+    the sensor errors: ``t = (D0 + (1 + kDm) Dm) u(alpha - alpha0, beta - beta0, gamma)`` and
+    ``phi - phi0``."""
     readings = np.atleast_2d(np.asarray(readings, dtype=float))
+    geometry = result.geometry
     size = np.asarray(result.covariance).shape[0]
     position = np.zeros((len(readings), 3, size))
     phi = np.zeros((len(readings), size))
-    vector, limits = result.geometry.to_full_vector(), result.geometry.limits
+    ideal = geometry.sensors.ideal_device_readings(readings)
+    gamma = geometry.inclinometer_axes_angle
+    length = geometry.device_length + ideal[:, 3]
+    unit = link_direction(ideal[:, 0], ideal[:, 1], gamma)
+    d_alpha, d_beta, d_gamma = link_direction_derivatives(ideal[:, 0], ideal[:, 1], gamma)
+    columns = {
+        'D0': unit,
+        'gamma': length[:, None] * d_gamma,
+        'alpha0': -length[:, None] * d_alpha,  # the model's inclination is reading - alpha0
+        'beta0': -length[:, None] * d_beta,
+        'kDm': readings[:, 3, None] * unit,  # D grows by the raw LVDT reading per unit gain
+    }
     for column, name in enumerate(_free_names(result)):
-        if name not in DEVICE_PARAMETERS:
-            continue
-        moved = []
-        for sign in (1.0, -1.0):
-            shifted = vector.copy()
-            shifted[ALL_PARAMETER_NAMES.index(name)] += sign * step
-            moved.append(device_pose(Geometry.from_full_vector(shifted, limits), readings))
-        position[:, :, column] = (moved[0][0] - moved[1][0]) / (2 * step)
-        phi[:, column] = wrap_angle(moved[0][1] - moved[1][1]) / (2 * step)
+        if name in columns:
+            position[:, :, column] = columns[name]
+        elif name == 'phi0':
+            phi[:, column] = -1.0
     return position, phi
 
 

@@ -398,6 +398,39 @@ def _workspace_truth_variance(result, workspace, strain):
     return float(np.mean(variance if thermal is None else variance + thermal))
 
 
+def _held_out(result, rows, assignment, options, effects):
+    """``(position (M, 3) m, phi (M,) rad, (position, phi) variances, failed folds)``: each
+    posture's error predicted by the fit of the folds without it (``assignment``), and that
+    fit's predicted variance of the comparison there (:func:`.comparison.comparison_variances`).
+    ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)`` of every posture."""
+    leg_lengths, readings, row_sigmas, guesses = rows
+    count = leg_lengths.shape[0]
+    position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
+    held_out = (np.full(count, np.nan), np.full(count, np.nan))  # position, phi
+    free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
+    free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
+    for fold in range(int(assignment.max()) + 1):
+        held, kept = assignment == fold, assignment != fold
+        kept_rows = (leg_lengths[kept], readings[kept], row_sigmas, guesses[kept])
+        fitted = _fold_fit(result, free, kept_rows, options, design_rows(effects, kept))
+        if fitted is None:
+            failed.append(fold)
+            continue
+        position[held], phi[held], _ = _errors(
+            fitted.geometry,
+            fitted.geometry,
+            leg_lengths[held],
+            readings[held],
+            guesses[held],
+            design_rows(effects, held),
+        )
+        _, comparison = comparison_variances(
+            fitted, guesses[held], readings[held], design_rows(effects, held)
+        )
+        held_out[0][held], held_out[1][held] = comparison
+    return position, phi, held_out, failed
+
+
 def cross_validate(
     result,
     nominal,
@@ -434,29 +467,9 @@ def cross_validate(
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
-    position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
-    held_out = (np.full(count, np.nan), np.full(count, np.nan))  # position, phi
-    free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
-    free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
-    for fold in range(int(assignment.max()) + 1):
-        held, kept = assignment == fold, assignment != fold
-        rows = (leg_lengths[kept], readings[kept], row_sigmas, guesses[kept])
-        fitted = _fold_fit(result, free, rows, options, design_rows(effects, kept))
-        if fitted is None:
-            failed.append(fold)
-            continue
-        position[held], phi[held], _ = _errors(
-            fitted.geometry,
-            fitted.geometry,
-            leg_lengths[held],
-            readings[held],
-            guesses[held],
-            design_rows(effects, held),
-        )
-        _, comparison = comparison_variances(
-            fitted, guesses[held], readings[held], design_rows(effects, held)
-        )
-        held_out[0][held], held_out[1][held] = comparison
+    position, phi, held_out, failed = _held_out(
+        result, (leg_lengths, readings, row_sigmas, guesses), assignment, options, effects
+    )
     noise = row_sigmas if noise is None else noise
     position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)
     nominal_position, nominal_phi, _ = _errors(
