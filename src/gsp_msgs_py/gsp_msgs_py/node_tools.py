@@ -15,7 +15,6 @@ Here: publishers and device messages, timer ticks, throttled publishing, closing
 spinning until a predicate holds, and :func:`run_node` with its signal handling.
 """
 
-import os
 import signal
 import threading
 
@@ -150,6 +149,10 @@ def shutdown_executor(executor, timeout_sec=5.0):
     return executor.shutdown(timeout_sec=timeout_sec)
 
 
+#: Longest wait (s) of one turn of :func:`run_node`'s spin: how late a stop signal may be seen.
+STOP_POLL_S = 0.1
+
+
 def run_node(make_node, args=None, executor=None, *, logger_name):
     """Initialise rclpy, build a node with ``make_node()`` and spin it until shutdown.
 
@@ -163,7 +166,7 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    # Before rclpy.init: a signal from now on is recorded and acted on once armed (see StopSignals).
+    # Before rclpy.init: a signal from now on is recorded (see StopSignals).
     stop_signals = StopSignals().install()
     options = SignalHandlerOptions.NO if stop_signals.installed else None
     rclpy.init(args=args, signal_handler_options=options)
@@ -171,29 +174,33 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
     active_executor = None
     exit_code = 0
     try:
-        # The executor exists before the node: a signal during the node's start-up shuts the
-        # context down and wakes this executor, so that its spin ends at once.
         executor = executor or SingleThreadedExecutor
         active_executor = executor() if callable(executor) else executor
-        stop_signals.arm(active_executor)  # a signal received before stops it now
-        if rclpy.ok():
+        if not stop_signals.received and rclpy.ok():
             node = make_node()
             active_executor.add_node(node)
-            active_executor.spin()
+            # Turns of at most STOP_POLL_S: the main thread comes back to Python after each, so
+            # the signal handler runs and the loop sees it. No other thread touches the context
+            # (rclpy's own handling wakes the executor before it shuts the context down, and an
+            # executor woken in between waits again with nothing left to wake it: a node without
+            # a timer, gsp_fake_device, never stopped; docs/faults.md).
+            while not stop_signals.received and rclpy.ok():
+                active_executor.spin_once(timeout_sec=STOP_POLL_S)
     except ConfigurationError as error:
         rclpy.logging.get_logger(logger_name).fatal(f'cannot start: {error}')
         exit_code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
-        # A signal shuts the context down from another thread; spin can then fail to build its
-        # wait set (RCLError) instead of raising ExternalShutdownException.
+        # An external shutdown from another thread can make a spin fail to build its wait set
+        # (RCLError) instead of raising ExternalShutdownException.
         if rclpy.ok():
             raise
     finally:
-        # From here on a signal is only recorded: the cleanup below owns the context.
-        stop_signals.disarm()
         if active_executor is not None:
+            # The context first, as a stop signal did under rclpy's handling: a callback still
+            # waiting on it (an async service's wait) ends before the pool is joined.
+            shut_down_context(active_executor.context)
             # Not executor.shutdown() alone: it returns with callbacks still running in the
             # pool, and destroying the node under them can crash the process (SIGSEGV).
             shutdown_executor(active_executor, timeout_sec=1.0)
@@ -205,115 +212,55 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
     return exit_code
 
 
-def shut_down_and_wake(executor):
-    """Shut ``executor``'s context down, then wake the executor (from any thread).
-
-    In this order: woken, the executor finds the context shut down and its spin ends. rclpy
-    7.1's own signal handling does the reverse (its signal thread triggers the executors' guard
-    conditions, then shuts the contexts down), so an executor woken in between finds the
-    context still up and waits again, with nothing left to wake it: a node without a timer
-    (``gsp_fake_device``) then never stops. ``rcl_shutdown`` alone, as rclpy's handler does:
-    ``Context.try_shutdown`` would also finalise the logging under the node's cleanup.
-    """
+def shut_down_context(context):
+    """Shut ``context`` down with ``rcl_shutdown`` alone, as rclpy's signal handler does:
+    ``Context.try_shutdown`` would also finalise the logging under the node's cleanup."""
     from rclpy.impl.implementation_singleton import rclpy_implementation
 
-    handle = executor.context.handle
+    handle = context.handle
     with handle:
         if handle.ok():
             try:
                 handle.shutdown()
-            except rclpy_implementation.RCLError:  # shut down meanwhile by another thread
+            except rclpy_implementation.RCLError:  # shut down meanwhile (an external shutdown)
                 pass
-    executor.wake()
 
 
 class StopSignals:
-    """SIGINT and SIGTERM of a node process: each is recorded, none ever raises, and the first
-    one while :meth:`arm`-ed stops the spin (:func:`shut_down_and_wake`).
+    """SIGINT and SIGTERM handlers of a node process that record the signal and never raise.
 
-    Python-level handlers (this object, which does nothing) make Python's C handler write each
-    signal's number to a pipe (``signal.set_wakeup_fd``), read by a thread of this object's:
-    the main thread may be blocked in the executor's wait, where no Python handler runs until
-    something wakes it. That thread records the signal in :attr:`received` and, once armed,
-    shuts the executor's context down and then wakes the executor. Python's default SIGINT
-    handler would instead raise ``KeyboardInterrupt`` once per signal wherever the main thread
-    is: a second Ctrl-C (``ros2 launch`` forwards SIGINT on top of the terminal's), or a SIGINT
-    just after a SIGTERM, then lands inside the cleanup (``destroy_node()``, closing the
-    recording) or escapes ``run_node``. Recording instead makes every further signal harmless:
-    the node always finishes its cleanup.
+    :func:`run_node` installs them before ``rclpy.init`` (which then installs none of its own)
+    and spins in short turns until one is recorded. Python's default SIGINT handler would raise
+    ``KeyboardInterrupt`` once per signal wherever the main thread is: a second Ctrl-C (``ros2
+    launch`` forwards SIGINT on top of the terminal's), or a SIGINT just after a SIGTERM, then
+    lands inside the cleanup (``destroy_node()``, closing the recording) or escapes
+    ``run_node``. Recording instead makes every further signal harmless: the node always
+    finishes its cleanup.
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
-    _CLOSE = b'\0'  #: written to the pipe to end the thread (no signal is numbered 0)
 
     def __init__(self):
         self.received = []  #: signal numbers, in order of arrival
-        self.installed = False  #: whether the handlers and the thread are in place
-        self._lock = threading.Lock()  # orders arm, disarm and the thread's stop
-        self._executor = None  # while armed: the executor a signal stops
-        self._pipe = None  # (read end, write end)
-        self._previous_wakeup_fd = -1
-        self._thread = None
+        self.installed = False  #: whether the handlers are in place (main thread only)
 
     def __call__(self, signal_number, frame):
-        """The Python-level handler, run later in the main thread: the thread did the work."""
+        self.received.append(signal_number)
 
     def install(self):
-        """Install for :attr:`SIGNALS` and start the thread (main thread only; elsewhere a no-op,
-        and rclpy's own handlers stay in charge); returns self."""
-        if threading.current_thread() is not threading.main_thread():
-            return self
-        read_end, write_end = os.pipe()
-        os.set_blocking(write_end, False)  # as set_wakeup_fd requires
-        self._pipe = (read_end, write_end)
-        self._thread = threading.Thread(target=self._watch, name='gsp-stop-signals', daemon=True)
-        self._thread.start()
-        self._previous_wakeup_fd = signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
-        self._set(self)
-        self.installed = True
-        return self
-
-    def arm(self, executor):
-        """From now on a signal stops ``executor``; one received before stops it now."""
-        with self._lock:
-            self._executor = executor
-            if self.received:
-                shut_down_and_wake(executor)
-
-    def disarm(self):
-        """Before the cleanup: a signal is only recorded (waits for a stop under way)."""
-        with self._lock:
-            self._executor = None
+        """Install for :attr:`SIGNALS` (main thread only; elsewhere a no-op, and rclpy's own
+        handlers stay in charge); returns self."""
+        self.installed = threading.current_thread() is threading.main_thread()
+        return self._set(self)
 
     def ignore(self):
-        """After the cleanup: ignore :attr:`SIGNALS` (``SIG_IGN``) until the process exits, and
-        end the thread.
+        """After the cleanup: ignore :attr:`SIGNALS` (``SIG_IGN``) until the process exits.
 
         While the interpreter shuts down, Python puts the default action back for every signal
         that has a Python handler (this one), but leaves an ignored signal ignored: a SIGINT or
         SIGTERM then (a second Ctrl-C, ``ros2 launch``'s own SIGINT) would kill the process
         (exit code -2 or -15) after a clean stop."""
-        self._set(signal.SIG_IGN)
-        if self.installed:
-            signal.set_wakeup_fd(self._previous_wakeup_fd)
-            os.write(self._pipe[1], self._CLOSE)
-            self._thread.join()
-            for end in self._pipe:
-                os.close(end)
-            self.installed = False
-        return self
-
-    def _watch(self):
-        while True:
-            numbers = os.read(self._pipe[0], 64)
-            stops = [number for number in numbers if number in self.SIGNALS]
-            if stops:
-                with self._lock:
-                    self.received.extend(stops)
-                    if self._executor is not None:
-                        shut_down_and_wake(self._executor)
-            if self._CLOSE[0] in numbers or not numbers:
-                return
+        return self._set(signal.SIG_IGN)
 
     def _set(self, handler):
         if threading.current_thread() is threading.main_thread():
