@@ -98,6 +98,13 @@ def analyse_result(result):
     return analysis
 
 
+def identifies_all(analysis):
+    """Whether the :func:`analyse_result` ``analysis`` identifies every free parameter: full
+    rank, no parameter in a null direction (a fit that does not is one of many, and its
+    covariance, a pseudo-inverse, is not a covariance)."""
+    return not analysis['names'] and analysis['rank'] >= analysis['parameters']
+
+
 def analyse_design(
     geometry,
     poses,

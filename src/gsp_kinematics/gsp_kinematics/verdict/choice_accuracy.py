@@ -42,7 +42,8 @@ _BACKLASH = list(EFFECT_GROUPS).index('backlash')
 @dataclasses.dataclass(frozen=True)
 class FreeingGain:
     """Predicted rms position errors (mm) over the workspace without the group (its variance
-    plus the estimated bias of leaving it out) and with it (its variance)."""
+    plus the estimated bias of leaving it out) and with it (its variance); NaN: not predicted
+    (a fit's covariance is not a covariance: :func:`freeing_gain`)."""
 
     without_mm: float
     with_mm: float
@@ -107,7 +108,12 @@ def _mean_square(main, backlash, vector=None, covariance=None):
 
 def freeing_gain(reference, extended, poses):
     """:class:`FreeingGain` of the fit ``extended`` (``reference`` plus effect groups, the
-    same rows and weights) at the workspace ``poses`` (M, 6; :func:`workspace_postures`)."""
+    same rows and weights) at the workspace ``poses`` (M, 6; :func:`workspace_postures`).
+
+    Both fits must identify their parameters: the covariance of a rank-deficient fit is the
+    pseudo-inverse of a singular information matrix, not positive semi-definite, and its
+    predicted variance can come out negative. The gain is then NaN (not predicted), never the
+    square root of a negative variance: the caller says the candidate cannot be judged."""
     main, backlash = _columns(extended, poses)
     own = np.concatenate(
         [extended.parameters[extended.free], extended.effect_values[extended.effect_free]]
@@ -116,5 +122,8 @@ def freeing_gain(reference, extended, poses):
     var_b = _mean_square(main, backlash, covariance=np.asarray(extended.covariance, float))
     var_a = _mean_square(main, backlash, covariance=covariance_a)
     difference = _mean_square(main, backlash, vector=own - values)
+    if not (var_a >= 0.0 and var_b >= 0.0):  # not a covariance (also False for NaN)
+        return FreeingGain(float('nan'), float('nan'))
+    # The bias estimate is a difference of noisy terms: below zero it is noise, no bias.
     bias = max(difference - (var_b - var_a), 0.0)
     return FreeingGain(1e3 * np.sqrt(var_a + bias), 1e3 * np.sqrt(var_b))

@@ -34,13 +34,10 @@ import numpy as np
 from ..device import DeviceModelError
 from ..effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
 from ..geometry import ALL_PARAMETER_NAMES
+from ..identifiability import analyse_result, identifies_all
 from ..identification import IdentificationError, Options, identify
 from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
-from ..prediction import (
-    parameter_pose_covariance,
-    reading_pose_covariance,
-    thermal_pose_covariance,
-)
+from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
 
@@ -338,7 +335,7 @@ def _uncompensated(geometry, poses, strain):
 def _fold_fit(result, free, rows, options, effects):
     """``result``'s identification (same formulation and ``free`` parameters, from its
     estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
-    kept postures with their ``EffectDesign``; None when it fails or does not converge."""
+    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit."""
     legs, readings, row_sigmas, guesses = rows
     try:
         fitted = identify(
@@ -354,7 +351,7 @@ def _fold_fit(result, free, rows, options, effects):
         )
     except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
         return None
-    return fitted if fitted.converged else None
+    return fitted if fitted.converged and identifies_all(analyse_result(fitted)) else None
 
 
 def _corrections(result, readings, held_out, unmodelled, effects):
@@ -394,6 +391,8 @@ def _workspace_truth_variance(result, workspace, strain):
         geometry, covariance, poses, result.free, result.effect_free
     )
     variance = np.trace(position, axis1=1, axis2=2)
+    if not float(np.mean(variance)) >= 0.0:  # a rank-deficient fit's pseudo-inverse (or NaN)
+        return None
     thermal = _uncompensated(geometry, poses, strain)
     return float(np.mean(variance if thermal is None else variance + thermal))
 

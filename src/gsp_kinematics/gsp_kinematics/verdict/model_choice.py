@@ -31,12 +31,14 @@ the groups significant).
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from scipy import special
 
 from ..effects.groups import EFFECT_GROUPS, EffectDesign
 from ..effects.model import NUM_LEGS
+from ..identifiability import analyse_result, identifies_all
 from ..identification import IdentificationError, Options, identify
 from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
 from .cross_validation import cross_validate, without_leverage
@@ -54,8 +56,9 @@ DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 @dataclasses.dataclass(frozen=True)
 class Candidate:
     """One model tried: its effect groups, held-out position error (mm, measured mean with
-    the leverage taken out: :func:`held_out_position_mm`; NaN if the fit failed), its cross-validation summary, whether it was kept, the fit's ``chi2`` and
-    the test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
+    the leverage taken out: :func:`held_out_position_mm`; NaN: not measured, ``not_judged``
+    says why), its cross-validation summary, whether it was kept, the fit's ``chi2`` and the
+    test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
 
     groups: tuple
     position_mm: float
@@ -69,6 +72,10 @@ class Candidate:
     #: adds (:func:`gsp_kinematics.verdict.choice_accuracy.freeing_gain`; NaN: not judged).
     predicted_without_mm: float = float('nan')
     predicted_with_mm: float = float('nan')
+    #: Why the candidate could not be judged, so is never kept ('' : judged): its fit did not
+    #: converge or is not identifiable with the run's postures, its held-out error or its
+    #: predicted gain could not be measured (:func:`_not_judged`).
+    not_judged: str = ''
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,6 +110,7 @@ class ModelChoice:
                     'predicted_without_mm': c.predicted_without_mm,
                     'predicted_with_mm': c.predicted_with_mm,
                     'chosen': c.chosen,
+                    'not_judged': c.not_judged,
                 }
                 for c in self.candidates
             ],
@@ -178,20 +186,46 @@ def variance_factor(result):
     return max(1.0, _chi2(result) / fit.dof)
 
 
+def _unidentifiable(result, count):
+    """Why the converged fit ``result`` of ``count`` postures is not identifiable ('' when it
+    is): its information matrix is rank-deficient, so its estimate is one of many and its
+    covariance (a pseudo-inverse) is no covariance: neither its held-out error nor its
+    predicted gain means anything (the calibrator would not apply such a fit either)."""
+    analysis = analyse_result(result)
+    if identifies_all(analysis):
+        return ''
+    names = analysis['names']
+    shown = ', '.join(names[:6]) + (f' and {len(names) - 6} more' if len(names) > 6 else '')
+    return (
+        f'not identifiable with {count} postures (rank {analysis["rank"]} of '
+        f'{analysis["parameters"]}: {shown or "unnamed"})'
+    )
+
+
 def _score(nominal, data, base, groups, settings, reference=None):
     """``(result, Candidate)`` of the model ``base`` + ``groups``, tested against the fit
-    ``reference`` = ``(result, its groups)`` when given (``settings``: :func:`_forward`'s)."""
+    ``reference`` = ``(result, its groups)`` when given (``settings``: :func:`_forward`'s).
+    ``result`` is None when the fit failed; a candidate that cannot be judged says why
+    (``Candidate.not_judged``) and is never kept (:func:`_keeps`)."""
     folds, options, _, _, factor, workspace = settings
     leg_lengths, readings, sigmas, _, design, noise = data
     result = _fit(nominal, data, list(base) + list(groups), options, design)
     if result is None:
-        return None, Candidate(tuple(groups), float('nan'), None)
+        return None, Candidate(tuple(groups), math.nan, None, not_judged='the fit did not converge')
+    unidentifiable = _unidentifiable(result, len(leg_lengths))
+    if unidentifiable:
+        return result, Candidate(tuple(groups), math.nan, None, not_judged=unidentifiable)
     validation = cross_validate(
         result, nominal, leg_lengths, readings, sigmas, folds, options, noise, design
     )
     summary = validation.summary()
     position = held_out_position_mm(validation)
-    test = {}
+    test, why = {}, []
+    if not math.isfinite(position):
+        why.append(
+            'held-out error not measured: no fit without a fold converged to an identifiable '
+            f'fit (failed folds {list(validation.failed_folds)} of {validation.folds})'
+        )
     if reference is not None:
         added = NUM_LEGS * (len(groups) - len(reference[1]))
         delta, p_value = likelihood_ratio(reference[0], result, added, factor)
@@ -199,7 +233,14 @@ def _score(nominal, data, base, groups, settings, reference=None):
         if workspace is not None and set(groups) - set(reference[1]) & set(COMPENSATED_GROUPS):
             gain = freeing_gain(reference[0], result, workspace)
             test.update(predicted_without_mm=gain.without_mm, predicted_with_mm=gain.with_mm)
-    return result, Candidate(tuple(groups), position, summary, chi2=_chi2(result), **test)
+            if not math.isfinite(gain.without_mm + gain.with_mm):
+                why.append(
+                    'predicted gain not computed: a covariance is not positive semi-definite'
+                )
+    candidate = Candidate(
+        tuple(groups), position, summary, chi2=_chi2(result), not_judged='; '.join(why), **test
+    )
+    return result, candidate
 
 
 def held_out_position_mm(validation):
@@ -240,8 +281,13 @@ def thermal_time_constant(nominal, data, base, groups, candidates, options):
 
 def _keeps(trial, best, threshold, max_cv_loss):
     """Whether ``trial`` passes the test at ``threshold``, the held-out guard over ``best`` and
-    is not predicted to make the compensated platform less accurate (when judged)."""
-    worse = trial.predicted_with_mm > trial.predicted_without_mm  # False when not judged (NaN)
+    is not predicted to make the compensated platform less accurate (judged for the
+    compensated groups only). Decided explicitly, never by a NaN comparison: a candidate that
+    cannot be judged (``not_judged``) is not kept, and none is when ``best``'s held-out error
+    was not measured (the guard has nothing to compare with: the model stays as it is)."""
+    if trial.not_judged or best.not_judged or not math.isfinite(best.position_mm):
+        return False
+    worse = trial.predicted_with_mm > trial.predicted_without_mm  # NaN (not judged): False
     return bool(
         trial.p_value < threshold
         and trial.position_mm <= (1.0 + max_cv_loss) * best.position_mm
@@ -255,6 +301,8 @@ def _forward(nominal, data, base, available, settings):
     result, best = _score(nominal, data, base, (), settings)
     if result is None:
         raise IdentificationError('the plain model did not converge: no model to choose from')
+    if best.not_judged:  # e.g. too few postures: no group can be judged beside it
+        return result, best, (), [best]
     tried, chosen, remaining = [best], (), list(available)
     while remaining:
         reference = (result, chosen)
@@ -280,6 +328,36 @@ def _forward(nominal, data, base, available, settings):
         if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
             result, best, chosen = trial_result, together, together.groups
     return result, best, chosen, tried
+
+
+def _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain):
+    """Why ``chosen`` (the groups of the ``best`` candidate) were kept, under the rule's
+    settings, and why each of the ``tried`` candidates that could not be judged was not; when
+    the plain model cannot be judged (too few postures), that no group was tried and why."""
+    if best.not_judged:
+        return f'groups none: no effect group tried, the plain model cannot be judged: {best.not_judged}'
+    names = ', '.join(chosen) if chosen else 'none'
+    unjudged = {}
+    for candidate in tried:
+        if candidate.not_judged:
+            unjudged.setdefault(candidate.not_judged, []).append('+'.join(candidate.groups))
+    return (
+        f'groups {names}: held-out position error {best.position_mm:.4f} mm; each kept group '
+        f'lowered the chi-square significantly (likelihood ratio, p < {significance:g} over the '
+        f'groups of its round) without raising the held-out error by more than '
+        f'{100 * max_cv_loss:.0f} %'
+        + (
+            ' or the predicted position error over the workspace (the bias of leaving it out '
+            'against the spread of its estimates)'
+            if predicted_gain
+            else ''
+        )
+        + '; no other group did'
+        + ''.join(
+            f'; not judged, so not kept: {", ".join(groups)} ({why})'
+            for why, groups in unjudged.items()
+        )
+    )
 
 
 def choose_model(
@@ -324,20 +402,7 @@ def choose_model(
     settings = (folds, options, significance, max_cv_loss, factor, workspace)
     result, best, chosen, tried = _forward(nominal, data, base, available, settings)
     tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
-    names = ', '.join(chosen) if chosen else 'none'
-    reason = (
-        f'groups {names}: held-out position error {best.position_mm:.4f} mm; each kept group '
-        f'lowered the chi-square significantly (likelihood ratio, p < {significance:g} over the '
-        f'groups of its round) without raising the held-out error by more than '
-        f'{100 * max_cv_loss:.0f} %'
-        + (
-            ' or the predicted position error over the workspace (the bias of leaving it out '
-            'against the spread of its estimates)'
-            if predicted_gain
-            else ''
-        )
-        + '; no other group did'
-    )
+    reason = _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain)
     if 'thermal' in chosen and costs:
         shape = f'a first-order warming, {tau:g} s' if tau > 0 else 'a linear growth'
         reason += f'; thermal as {shape} (least fit cost of {sorted(costs)} s, 0: linear)'
