@@ -1,6 +1,11 @@
 """Choosing the model from the data (gsp_kinematics.verdict.model_choice): the plain model on a platform
 it describes, the effect's group on a platform that has it; which groups a run can try; a
-significant group not predicted to help (gsp_kinematics.verdict.choice_accuracy) left out."""
+significant group not predicted to help (gsp_kinematics.verdict.choice_accuracy) left out; a
+candidate that cannot be judged (too few postures) says why and is never kept."""
+
+import dataclasses
+import math
+import warnings
 
 import numpy as np
 import pytest
@@ -13,7 +18,7 @@ from gsp_kinematics.kinematics import Workspace, sample_valid_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
 from gsp_kinematics.validation import pose_errors, simulate_commands, validate
 from gsp_kinematics.verdict.choice_accuracy import freeing_gain, workspace_postures
-from gsp_kinematics.verdict.model_choice import available_groups, choose_model
+from gsp_kinematics.verdict.model_choice import Candidate, _keeps, available_groups, choose_model
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')
@@ -136,3 +141,66 @@ def test_the_predicted_gain_sees_the_bias_of_leaving_an_effect_out():
     true_rms_mm = float(np.sqrt(np.mean(pose_errors(checks, run.real_poses)[0] ** 2)))
     assert gain.without_mm == pytest.approx(true_rms_mm, rel=0.15)
     assert gain.helps and gain.with_mm < 0.2 * gain.without_mm, gain
+
+
+ALL_GROUPS = ['compliance', 'backlash', 'thermal', 'joint_offsets']
+
+
+def test_a_candidate_that_cannot_be_measured_says_why_and_is_not_kept():
+    """16 postures (64 equations beside the poses): the plain model's 51 parameters are
+    identified, one group more (57) too but not by the fits without a fold, all four (75) not
+    at all. Each candidate that cannot be judged says why; none is kept; no NaN comes from the
+    square root of a variance a singular fit's pseudo-inverse made negative."""
+    legs, readings, design, poses = noisy_run(None, count=16)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', RuntimeWarning)
+        choice = choose_model(NOMINAL, legs, readings, SIGMAS, design, pose_guesses=poses)
+    plain, *others = choice.candidates
+    assert choice.groups == () and plain.chosen and not plain.not_judged, choice.to_dict()
+    assert math.isfinite(plain.position_mm)
+    together = others[-1]
+    assert together.groups == tuple(ALL_GROUPS)
+    assert together.not_judged.startswith('not identifiable with 16 postures (rank 64 of 75')
+    for candidate in others:
+        assert not candidate.chosen and candidate.not_judged, choice.to_dict()
+        if len(candidate.groups) == 1:
+            assert math.isnan(candidate.position_mm)
+            assert candidate.not_judged.startswith('held-out error not measured'), candidate
+    assert 'not judged, so not kept' in choice.reason
+
+
+def test_the_gain_of_a_fit_that_does_not_identify_its_parameters_is_not_predicted():
+    """All four groups on 16 postures: the fit's covariance (a pseudo-inverse) is not positive
+    semi-definite; the gain is NaN (not predicted, does not help), without a NaN warning."""
+    legs, readings, design, poses = noisy_run(None, count=16)
+    fits = [
+        identify(NOMINAL, legs, readings, SIGMAS, free=free, pose_guesses=poses, effects=design)
+        for free in (['extended'], ['extended', *ALL_GROUPS])
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', RuntimeWarning)
+        gain = freeing_gain(*fits, workspace_postures(NOMINAL, 50))
+    assert math.isnan(gain.without_mm) and math.isnan(gain.with_mm) and not gain.helps
+
+
+def test_only_a_judged_candidate_is_kept():
+    """The rule decides explicitly, never by comparing a NaN: a significant candidate whose
+    predicted gain could not be computed (NaN) is not kept, nor any candidate when the held-out
+    error of the model it extends was not measured."""
+    best = Candidate((), 0.010, None)
+    trial = Candidate(('backlash',), 0.009, None, p_value=1e-6)
+    assert _keeps(trial, best, 0.01, 0.5)
+    unpredicted = dataclasses.replace(trial, not_judged='predicted gain not computed')
+    assert not _keeps(unpredicted, best, 0.01, 0.5)
+    unmeasured = dataclasses.replace(best, position_mm=math.nan)
+    assert not _keeps(trial, unmeasured, 0.01, 0.5)
+
+
+def test_too_few_postures_try_no_group_and_say_why():
+    """6 postures do not identify the plain model: no group is tried (nothing to judge it
+    against); the choice says why instead of failing on a singular fit's figures."""
+    legs, readings, design, poses = noisy_run(None, count=6)
+    choice = choose_model(NOMINAL, legs, readings, SIGMAS, design, pose_guesses=poses)
+    assert choice.groups == () and len(choice.candidates) == 1
+    assert choice.candidates[0].not_judged.startswith('not identifiable with 6 postures')
+    assert choice.reason.startswith('groups none: no effect group tried'), choice.reason

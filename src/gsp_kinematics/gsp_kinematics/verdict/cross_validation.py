@@ -391,8 +391,6 @@ def _workspace_truth_variance(result, workspace, strain):
         geometry, covariance, poses, result.free, result.effect_free
     )
     variance = np.trace(position, axis1=1, axis2=2)
-    if not float(np.mean(variance)) >= 0.0:  # a rank-deficient fit's pseudo-inverse (or NaN)
-        return None
     thermal = _uncompensated(geometry, poses, strain)
     return float(np.mean(variance if thermal is None else variance + thermal))
 
