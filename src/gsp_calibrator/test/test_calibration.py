@@ -119,9 +119,12 @@ def test_a_subset_of_free_parameters_keeps_the_others_nominal(selection):
     np.testing.assert_array_equal(vector[:36], nominal[:36])
 
 
-def test_too_few_postures_name_the_unidentifiable_parameters(selection):
+@pytest.mark.parametrize('free', [postures.DEFAULT_FREE, ['auto']])
+def test_too_few_postures_name_the_unidentifiable_parameters(selection, free):
+    """With ``auto`` too: the plain model cannot be judged, no group is tried (the choice says
+    why) and the plain model's own message names the parameters."""
     samples = synthetic_samples(selection.poses[:6])
-    outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS, free=free)
     assert not outcome.success and outcome.geometry is None
     assert 'non-identifiable parameters' in outcome.message
     assert outcome.unidentifiable and all(
@@ -129,6 +132,9 @@ def test_too_few_postures_name_the_unidentifiable_parameters(selection):
     )
     assert outcome.identifiability['rank'] < 44
     assert 'nothing applied' in outcome.message
+    if 'auto' in free:
+        choice = outcome.effects['model_choice']
+        assert choice['groups'] == [] and 'no effect group tried' in choice['reason']
 
 
 def test_no_convergence_is_a_failure(selection):

@@ -235,6 +235,29 @@ def node_plan_rows(seed):
     return settings, rows
 
 
+def test_auto_on_a_short_run_writes_the_report_with_the_figures_it_could_not_measure(
+    design, tmp_path
+):
+    """16 postures: every effect group's fit is identified but not the fits without a fold, so
+    no candidate's held-out error is measured; the report is written with 'n/a' and why, and
+    the summary says the same."""
+    samples, _ = run_rows(design, PlatformEffects())
+    outcome = calibrate(design, samples.rows(np.arange(len(samples)) < 16), ['auto'])
+    assert outcome.success, outcome.message
+    choice = outcome.effects['model_choice']
+    assert choice['groups'] == []
+    unmeasured = [c for c in choice['candidates'] if c['not_judged']]
+    assert unmeasured and not any(c['chosen'] for c in unmeasured)
+    write_all(tmp_path, outcome.result, outcome_inputs(outcome, design.settings.nominal, {}))
+    data = json.loads((tmp_path / 'result.json').read_text())
+    assert None in [c['cv_position_mm'] for c in data['effects']['model_choice']['candidates']]
+    report = (tmp_path / 'report.md').read_text()
+    assert '| thermal | n/a (held-out error not measured' in report
+    assert 'candidate thermal: held-out position n/a (held-out error not measured' in (
+        outcome_summary(outcome)
+    )
+
+
 @pytest.mark.parametrize('seed', [12, 19, 29])
 def test_auto_chooses_all_four_effects_at_the_node_test_plan(seed):
     """The node test's plan resolves all four groups: ``auto`` chooses them in each of these

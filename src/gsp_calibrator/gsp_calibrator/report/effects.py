@@ -125,7 +125,7 @@ def effects_lines(record):
             groups = '+'.join(candidate['groups']) or 'plain'
             mark = ' (chosen)' if candidate['chosen'] else ''
             lines.append(
-                f'  candidate {groups}: held-out position {candidate["cv_position_mm"]:.4f} mm'
+                f'  candidate {groups}: held-out position {_held_out_text(candidate)}'
                 f'{_test_text(candidate)}{mark}'
             )
         for group, why in choice['not_tried'].items():
@@ -139,6 +139,21 @@ def effects_lines(record):
     if record.get('thermal'):
         lines.append(_thermal_text(record['thermal']))
     return lines
+
+
+def _number(value, spec):
+    """``value`` formatted by ``spec``, or 'n/a' when there is none: NaN in a record, None once
+    read back from JSON (the report is written whatever figure is missing)."""
+    return format(value, spec) if value is not None and math.isfinite(value) else 'n/a'
+
+
+def _held_out_text(candidate, unit=' mm'):
+    """A candidate's held-out position error (``unit`` after the figure), or 'n/a' and why it
+    was not measured (``not_judged``)."""
+    value = _number(candidate.get('cv_position_mm'), '.4f')
+    if value != 'n/a':
+        return value + unit
+    return f'n/a ({candidate.get("not_judged") or "not measured"})'
 
 
 def _test_text(candidate):
@@ -172,7 +187,8 @@ def effects_markdown(record):
             groups = ', '.join(candidate['groups']) or 'plain'
             chosen = 'yes' if candidate['chosen'] else ''
             test = _test_text(candidate).removeprefix(', chi-square drop ') or '-'
-            lines.append(f'| {groups} | {candidate["cv_position_mm"]:.4f} | {test} | {chosen} |')
+            held_out = _held_out_text(candidate, unit='')
+            lines.append(f'| {groups} | {held_out} | {test} | {chosen} |')
         lines.append('')
         for group, why in choice['not_tried'].items():
             lines.append(f'- not tried: {group}' + (f' ({why})' if why else ''))
@@ -181,8 +197,8 @@ def effects_markdown(record):
         lines += ['| parameter | estimate | standard deviation | unit |', '|---|---|---|---|']
         for name, entry in record['parameters'].items():
             lines.append(
-                f'| {name} | {entry["estimate"]:.4g} | {entry["standard_deviation"]:.2g} '
-                f'| {entry["unit"]} |'
+                f'| {name} | {_number(entry["estimate"], ".4g")} '
+                f'| {_number(entry["standard_deviation"], ".2g")} | {entry["unit"]} |'
             )
         lines.append('')
     if record.get('thermal'):
