@@ -335,7 +335,8 @@ def _uncompensated(geometry, poses, strain):
 def _fold_fit(result, free, rows, options, effects):
     """``result``'s identification (same formulation and ``free`` parameters, from its
     estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
-    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit."""
+    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit
+    (along a null direction it keeps the full fit's values, which saw the held-out postures)."""
     legs, readings, row_sigmas, guesses = rows
     try:
         fitted = identify(

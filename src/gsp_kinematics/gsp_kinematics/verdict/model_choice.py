@@ -22,6 +22,10 @@ whose fit lowers the chi-square most, only if
   out against the spread its estimates add): significant is not the same as resolved well
   enough to help (joint offsets in a short run).
 
+A candidate that cannot be judged (its fit not identifiable with the run's postures, its
+held-out error or predicted gain not measurable) says why and is never kept; when the plain
+model cannot be judged (too few postures), no group is tried.
+
 When no group alone is kept, all the remaining groups together are tried once the same way
 (``k`` their parameters; effects that mask each other). The test needs the rows weighted by
 their real noise: the calibrator weighs them by the within-posture estimate where it has one,
@@ -74,7 +78,7 @@ class Candidate:
     predicted_with_mm: float = float('nan')
     #: Why the candidate could not be judged, so is never kept ('' : judged): its fit did not
     #: converge or is not identifiable with the run's postures, its held-out error or its
-    #: predicted gain could not be measured (:func:`_not_judged`).
+    #: predicted gain could not be measured (:func:`_score`).
     not_judged: str = ''
 
 
