@@ -204,3 +204,15 @@ def test_the_prediction_adds_the_uncompensated_thermal_growth(design):
     measured = outcome.accuracy['calibrated']['position_mm']
     assert measured['uncompensated_rms'] > 0.5 * measured['mean']
     assert abs(measured['mean'] / true_mm - 1.0) < 0.25
+
+
+def test_the_bench_gives_the_ratio_of_the_means_beside_the_median_ratio():
+    """One run's truth is one skewed draw: the bench gives the measured and predicted over the
+    truth as the median of the per-seed ratios and as the ratio of the means over the seeds (mm;
+    a seed whose figure is not finite is left out of both means)."""
+    true = [0.5, 1.0, 4.0, 2.0]
+    measured = [1.0, 1.0, 1.0, math.nan]
+    figures = bench_verdict.ratio_figures(measured, [2.0, 2.0, 2.0, 2.0], true)
+    assert figures['cv_over_true'] == pytest.approx(1.0)  # median of 2, 1, 0.25
+    assert figures['cv_over_true_of_means'] == pytest.approx(3.0 / 5.5)
+    assert figures['predicted_over_true_of_means'] == pytest.approx(8.0 / 7.5)

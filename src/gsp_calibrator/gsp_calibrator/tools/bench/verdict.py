@@ -243,7 +243,14 @@ def ratio_figures(measured, predicted, true, best_mm=math.nan, floor_mm=math.nan
     """Issue 23's figures of per-seed ``measured``, ``predicted`` and ``true`` accuracies (mm):
     per-seed ratios, the fractions within the targets and their medians; the calibrated over the
     best 42-parameter geometry (``best_mm``) and over ``max(best, floor_mm)`` (``floor_mm``: the
-    ideal platform's true accuracy with the same plan, the noise floor), NaN without a best."""
+    ideal platform's true accuracy with the same plan, the noise floor), NaN without a best.
+    Beside the medians of the per-seed ratios, the ratios of the means over the seeds
+    (``..._of_means``): the truth of one run is one draw of a few degrees of freedom, skewed
+    (its median below its mean), which a median of per-seed ratios carries."""
+    of_means = {
+        f'{name}_over_true_of_means': _ratio_of_means(values, true)
+        for name, values in (('cv', measured), ('predicted', predicted))
+    }
     cv = [m / t for m, t in zip(measured, true, strict=True)]
     predicted = [p / t for p, t in zip(predicted, true, strict=True)]
     count = max(len(true), 1)
@@ -264,9 +271,17 @@ def ratio_figures(measured, predicted, true, best_mm=math.nan, floor_mm=math.nan
         'calibrated_within_1.3x_of_best_or_ideal': sum(r <= 1.3 for r in over_floor) / count
         if has_best
         else math.nan,
+        **of_means,
         'per_seed_cv_over_true': cv,
         'per_seed_predicted_over_true': predicted,
     }
+
+
+def _ratio_of_means(values, true):
+    """Mean of ``values`` over mean of ``true`` (the seeds where both are finite), else NaN."""
+    pairs = [(v, t) for v, t in zip(values, true, strict=True) if math.isfinite(v + t)]
+    total = math.fsum(t for _, t in pairs)
+    return math.fsum(v for v, _ in pairs) / total if total > 0 else math.nan
 
 
 def case_figures(design, effects, seeds, runs=None):
