@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from gsp_testing import marked_environment
 
+from gsp_calibrator.report.fit import EFFECTS_HINT
 from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
@@ -66,6 +67,8 @@ def test_a_realistic_platform_is_calibrated_and_applied_through_the_nodes(tmp_pa
     assert data['accepted'] is True and data['acceptance']['failures'] == []
     assert data['fit_accepted'] is False  # the goodness of fit sees the model error
     assert 'the model leaves about' in data['acceptance']['text']
+    # And says how to model it: none of the effects was freed (docs/verdict.md).
+    assert EFFECTS_HINT in output and EFFECTS_HINT in (run / 'report.md').read_text()
 
     # The truth: the simulated realistic platform driven by the applied geometry, over the
     # workspace, at times within the span the run collected (its rows' stamps). Not from the

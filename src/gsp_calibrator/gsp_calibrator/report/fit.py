@@ -17,6 +17,14 @@ from gsp_kinematics.geometry import (
 from gsp_kinematics.identification import DATUM_SENSOR_PARAMETERS
 from gsp_kinematics.sensors.noise import NOISE_UNITS
 
+#: The verdict's next step when the plain model leaves an error unexplained (no effect group
+#: freed, ``auto`` not asked): the platform's effects can be modelled (docs/verdict.md).
+EFFECTS_HINT = (
+    'to model the effects behind it (load, backlash, warming, joint axes): free_parameters '
+    '[auto] chooses them from the data; give payload_mass (kg the legs carry) for the load '
+    '(docs/platform_effects.md)'
+)
+
 
 def format_number(value, digits=4):
     """``value`` with ``digits`` significant digits; a dash for None or NaN."""
@@ -250,6 +258,8 @@ def fit_summary(data):
     acceptance = data.get('acceptance')
     if acceptance:
         blocks += [('line', line) for line in acceptance['text'].splitlines()]
+    if data.get('unmodelled') and not data.get('effects'):
+        blocks.append(('line', EFFECTS_HINT))
     accuracy = _accuracy_table(data)
     if accuracy:
         blocks.append(accuracy)

@@ -30,8 +30,9 @@ from gsp_calibrator.tools.bench.verdict import (
     best_geometry,
     default_design,
     effect_cases,
+    route_run,
 )
-from gsp_kinematics.effects.groups import EFFECT_GROUPS, commanded_leg_readings, design_rows
+from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route, effect_identifiability
 from gsp_kinematics.goodness import NOISE_CHANNELS
@@ -92,16 +93,6 @@ def workspace_errors(design, effects, geometry, at_s=None):
     run = simulate_commands(design.true, geometry, design.validation, effects, times)
     position, _ = pose_errors(design.validation[run.reachable], run.real_poses[run.reachable])
     return position
-
-
-def route_run(design, route, effects):
-    """The simulated run (``SimulatedRun``) of commanding ``route`` from the home pose, where
-    ``augment_route`` counts its approach directions from: started anywhere else, the first
-    posture's legs would arrive otherwise than the design says (a backlash the model cannot
-    fit, which the thermal group then half absorbed)."""
-    nominal = design.settings.nominal
-    start = commanded_leg_readings(nominal, home_pose())[0]
-    return simulate_commands(design.true, nominal, route.poses, effects, route.times_s, start)
 
 
 def noisy_rows(design, route, effects, seed):
