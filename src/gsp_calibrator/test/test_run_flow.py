@@ -259,6 +259,28 @@ def test_the_route_starts_from_the_platforms_current_posture(tmp_path):
     np.testing.assert_allclose(commanded, selection.poses[expected.order], atol=1e-12)  # m, rad
 
 
+def test_a_run_in_selection_order_commands_a_held_posture_last(tmp_path):
+    """An ``auto`` run ends with a revisit of its first posture: a run of the same selection in
+    selection order after it starts where the platform stands. Commanded first, that posture
+    would leave the device readings unchanged and be skipped: it comes last, and the reference
+    revisits are of the new first posture."""
+    settings = _settings(tmp_path, free_parameters=['auto'], posture_order='selection')
+    selection = postures.choose_postures(*postures.selection_arguments(settings))
+    held = selection.poses[0]
+    host = FakeHost(start_legs=posture_leg_lengths(settings.nominal, held[None])[0])
+    success, message = host.serve(settings)
+    assert success, message
+
+    commanded = np.asarray(host.session.state.poses)
+    legs = posture_leg_lengths(settings.nominal, np.vstack([held[None], commanded[:1]]))
+    assert np.max(np.abs(legs[1] - legs[0])) > postures.HELD_TOLERANCE  # m: the readings change
+    order = np.r_[np.arange(1, len(selection.poses)), 0]
+    route = postures.effect_route(settings, selection.poses[order], held)
+    np.testing.assert_allclose(commanded, route.poses, atol=1e-12)  # m, rad
+    assert route.kind[-1] == 'reference'
+    np.testing.assert_allclose(commanded[-1], selection.poses[1], atol=1e-12)
+
+
 def test_the_route_start_is_the_home_pose_without_leg_lengths():
     nominal = default_geometry('nominal')
     pose, reason = postures.route_start(nominal, None)

@@ -20,7 +20,10 @@ recording parts. Give a file to choose: ``recording.mcap`` reads it with the run
 beside it, ``recording-<n>.mcap`` that part alone.
 
 :meth:`RecordedRun.match` finds the recorded posture of a commanded pose (position within
-``tolerance`` m and orientation within ``tolerance`` rad).
+``tolerance`` m and orientation within ``tolerance`` rad); :meth:`RecordedRun.visits` all the
+postures recorded at it (a route with reference revisits commands its first posture again, each
+revisit a posture of its own at the same pose), and :class:`PostureServer` which of them each
+successive command of a replay gets.
 """
 
 import dataclasses
@@ -43,6 +46,8 @@ from gsp_msgs_py import names
 
 SOURCE_SAMPLES = 'samples.csv'
 SOURCE_RECORDING = 'recording.mcap'
+#: Default largest distance (m and rad) of a command to a recorded commanded pose it matches.
+POSE_TOLERANCE = 1e-6
 
 
 class ReplayError(ValueError):
@@ -112,9 +117,8 @@ class RecordedRun:
     source: Path  #: the file read
     kind: str  #: :data:`SOURCE_SAMPLES` or :data:`SOURCE_RECORDING`
     postures: tuple  #: of :class:`RecordedPosture`, in recorded order
-    #: Stream before the first command: the recorded idle samples, else the last posture's
-    #: stream (the platform rests where the recorded run left it; never the first posture, which
-    #: a calibrator would take for a device still reporting the previous posture).
+    #: Stream before the first command: the recorded idle samples, else the stream of the last
+    #: posture away from the first posture's pose (:func:`resting_stream`).
     initial_stream: SampleStream
     #: Commands that gave no posture: ``[(k, reason), ...]`` (rejected, never settled, no samples).
     skipped: tuple = ()
@@ -187,7 +191,10 @@ class RecordedRun:
         if not postures:
             raise ReplayError(f'{path}: no posture rows to replay')
         return cls(
-            source=path, kind=SOURCE_SAMPLES, postures=postures, initial_stream=postures[-1].stream
+            source=path,
+            kind=SOURCE_SAMPLES,
+            postures=postures,
+            initial_stream=resting_stream(postures),
         )
 
     @classmethod
@@ -281,7 +288,7 @@ class RecordedRun:
                 f'({len(commands)} pose command(s) recorded)'
             )
         if initial_stream is None or len(initial_stream) == 0:
-            initial_stream = postures[-1].stream
+            initial_stream = resting_stream(postures)
         return cls(
             source=path,
             kind=SOURCE_RECORDING,
@@ -296,22 +303,9 @@ class RecordedRun:
 
     def distances(self, commanded_pose):
         """``(position (M,) m, orientation (M,) rad)`` of ``commanded_pose`` to each posture."""
-        pose = np.asarray(commanded_pose, dtype=float)
-        if pose.shape != (6,):
-            raise ValueError(f'pose: expected [x, y, z, psi, theta, phi], got shape {pose.shape}')
-        if not np.all(np.isfinite(pose)):
-            raise ValueError(f'pose: non-finite component(s) in {pose.tolist()}')
-        position = np.linalg.norm(self._positions - pose[:3], axis=1)
-        quaternion = _quaternions(pose)[0]
-        chord = np.minimum(
-            np.linalg.norm(self._quaternions - quaternion, axis=1),
-            np.linalg.norm(self._quaternions + quaternion, axis=1),
-        )
-        # Unit quaternions a rotation angle t apart are 2 sin(t / 4) apart (accurate near 0).
-        angle = 4.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0))
-        return position, angle
+        return _pose_distances(self._positions, self._quaternions, commanded_pose)
 
-    def match(self, commanded_pose, tolerance=1e-6):
+    def match(self, commanded_pose, tolerance=POSE_TOLERANCE):
         """The :class:`RecordedPosture` commanded at ``commanded_pose``, or None.
 
         It must lie within ``tolerance`` (m for the position, rad for the rotation angle between
@@ -324,6 +318,92 @@ class RecordedRun:
         if distance[best] <= float(tolerance):
             return self.postures[best]
         return None
+
+    def visits(self, commanded_pose, tolerance=POSE_TOLERANCE):
+        """Indices into :attr:`postures` of the visits of the pose :meth:`match` finds: the
+        postures within ``tolerance`` of both ``commanded_pose`` and that posture's pose (one,
+        or a reference pose and its revisits), in posture order; empty when none matches."""
+        nearest = self.match(commanded_pose, tolerance)
+        if nearest is None:
+            return []
+        tolerance = float(tolerance)
+        near_command = np.maximum(*self.distances(commanded_pose)) <= tolerance
+        near_nearest = np.maximum(*self.distances(nearest.commanded_pose)) <= tolerance
+        indices = np.flatnonzero(near_command & near_nearest)
+        return sorted((int(i) for i in indices), key=lambda i: self.postures[i].posture)
+
+
+class PostureServer:
+    """Which recorded posture each pose command of a replay gets (pure; one per replay).
+
+    A pose recorded at one posture gets it at every command. A pose recorded at several
+    (:meth:`RecordedRun.visits`: a reference posture and its revisits) gets them in posture
+    order, one per command, and again from the first after the last (a second run of the same
+    route gets the same samples). A command of the pose the previous served command had (the
+    same command sent again, a posture commanded again, a resumed calibrator commanding again
+    the posture it was collecting when it stopped) gets the same recorded posture again: a
+    route never commands one pose twice in a row, so it is no next visit. A command that
+    matches nothing moves nothing and changes none of this.
+
+    The replay knows the commands, not the calibrator's posture numbers: a calibrator that
+    commands a revisit out of its route's order (a resumed run that tries a skipped revisit
+    again after later ones) gets the next visit, not that revisit's.
+    """
+
+    def __init__(self, run, tolerance=POSE_TOLERANCE):
+        self.run = run
+        self.tolerance = float(tolerance)  #: m and rad (:meth:`RecordedRun.match`)
+        self._served = {}  # visits (tuple of indices) -> commands served
+        self._last = None  # (visits, index) of the previous served command
+
+    def serve(self, commanded_pose):
+        """The :class:`RecordedPosture` to stream for a command of ``commanded_pose`` (6,), or
+        None (not recorded); ValueError for a pose that is not 6 finite values."""
+        visits = tuple(self.run.visits(commanded_pose, self.tolerance))
+        if not visits:
+            return None
+        if self._last is not None and self._last[0] == visits:
+            return self.run.postures[self._last[1]]
+        served = self._served.get(visits, 0)
+        index = visits[served % len(visits)]
+        self._served[visits] = served + 1
+        self._last = (visits, index)
+        return self.run.postures[index]
+
+
+def resting_stream(postures):
+    """The stream of a run without idle samples before its first command (``postures``: its
+    :class:`RecordedPosture`, in recorded order): the last posture's, where the recorded run
+    left the platform, unless it stands at the first posture's pose (a route with reference
+    revisits ends with one): then the last posture's away from it (the first posture: the
+    lowest number). Never one at the first
+    posture's pose, for the replaying calibrator would take the first posture's samples for a
+    device still reporting the previous posture, and skip it (the collection's "unchanged"
+    check); the replaying route starts from another posture than the original's either way."""
+    poses = np.array([p.commanded_pose for p in postures])
+    first = poses[min(range(len(postures)), key=lambda m: postures[m].posture)]
+    position, angle = _pose_distances(poses[:, :3], _quaternions(poses), first)
+    away = np.flatnonzero(np.maximum(position, angle) > POSE_TOLERANCE)
+    return postures[int(away[-1]) if away.size else -1].stream
+
+
+def _pose_distances(positions, quaternions, pose):
+    """``(position (M,) m, rotation angle (M,) rad)`` of ``pose`` (6,) to the poses of
+    ``positions`` (M, 3) and unit ``quaternions`` (M, 4); ValueError for a bad pose."""
+    pose = np.asarray(pose, dtype=float)
+    if pose.shape != (6,):
+        raise ValueError(f'pose: expected [x, y, z, psi, theta, phi], got shape {pose.shape}')
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f'pose: non-finite component(s) in {pose.tolist()}')
+    position = np.linalg.norm(positions - pose[:3], axis=1)
+    quaternion = _quaternions(pose)[0]
+    chord = np.minimum(
+        np.linalg.norm(quaternions - quaternion, axis=1),
+        np.linalg.norm(quaternions + quaternion, axis=1),
+    )
+    # Unit quaternions a rotation angle t apart are 2 sin(t / 4) apart (accurate near 0).
+    angle = 4.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0))
+    return position, angle
 
 
 def _sync_tolerance(path, options, sync_tolerance):

@@ -7,14 +7,16 @@ recorded run (:class:`gsp_calibrator.replay.recorded_run.RecordedRun`: a run dir
 
 * a pose within ``pose_tolerance`` of a recorded commanded pose: ``moving``, then ``settled``
   ``settle_time`` later on ``/gsp/platform/status``, exactly as platform_sim; then that posture's
-  recorded samples are published in order, cyclically;
+  recorded samples are published in order, cyclically (a pose recorded at several postures, a
+  reference and its revisits, gets them in turn: :class:`~gsp_calibrator.replay.recorded_run.PostureServer`);
 * any other pose: ``rejected`` with the reason ``not in the recording`` (a wrong frame or a bad
   quaternion: ``rejected`` with that reason); the stream does not change.
 
 Each instant of the stream, at ``publish_rate``, publishes ``/gsp/platform/leg_lengths`` and the
 three ``/gsp/device/*`` readings (and ``/gsp/platform/true_pose`` when the recording has it) with
 one shared, fresh stamp. Before the first command it streams the recorded idle samples (from a
-recording), else the last recorded posture (where the recorded run left the platform). After a
+recording), else the last recorded posture away from the first posture's pose
+(:func:`~gsp_calibrator.replay.recorded_run.resting_stream`). After a
 ``settled`` status the stream pauses for :data:`RESTART_PERIODS` periods and restarts at the
 posture's first sample, so that the first sample a calibrator counts is the first one recorded
 after the settle. The command protocol is :class:`gsp_msgs_py.pose_commands.PoseCommandServer`.
@@ -22,7 +24,7 @@ after the settle. The command protocol is :class:`gsp_msgs_py.pose_commands.Pose
 
 from rclpy.node import Node
 
-from gsp_calibrator.replay.recorded_run import RecordedRun, ReplayError
+from gsp_calibrator.replay.recorded_run import PostureServer, RecordedRun, ReplayError
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.parameter_specs import ParameterSpec, greater_than, not_blank
@@ -72,7 +74,7 @@ class ReplayNode(Node):
         except (ReplayError, OSError) as error:
             raise parameter_specs.ConfigurationError(f'run: {error}') from None
         self._frame_id = values['frame_id']
-        self._tolerance = values['pose_tolerance']
+        self._server = PostureServer(self._run, values['pose_tolerance'])
         self._period_ns = int(round(1e9 / values['publish_rate']))
         self._stream = self._run.initial_stream
         self._cursor = 0
@@ -100,7 +102,7 @@ class ReplayNode(Node):
         self.get_logger().info(
             f'replay ready: {len(run)} posture(s), {samples} sample(s) from {run.source}{later} '
             f'({run.kind}), publishing at {values["publish_rate"]:g} Hz, settle time '
-            f'{values["settle_time"]:g} s, pose tolerance {self._tolerance:g}, true pose '
+            f'{values["settle_time"]:g} s, pose tolerance {self._server.tolerance:g}, true pose '
             f'{"replayed" if run.has_true_pose else "not recorded"}'
         )
         for k, why in run.skipped:
@@ -111,11 +113,11 @@ class ReplayNode(Node):
         if 'settle_time' in changes:
             self._commands.settle_time = changes['settle_time']
         if 'pose_tolerance' in changes:
-            self._tolerance = changes['pose_tolerance']
+            self._server.tolerance = changes['pose_tolerance']
 
     def _move(self, command_id, pose):
         """PoseCommandServer callback: stream the recorded posture of ``pose``, or refuse it."""
-        posture = self._run.match(pose, self._tolerance)
+        posture = self._server.serve(pose)
         if posture is None:
             return REASON_NOT_RECORDED
         self._stream, self._cursor, self._resume_ns = posture.stream, 0, None

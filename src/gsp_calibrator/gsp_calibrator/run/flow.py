@@ -403,6 +403,8 @@ async def _ordered(run, poses):
     if settings.posture_order == 'route':
         poses = await run._route(poses)
     start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
+    if settings.posture_order != 'route':  # nor first a posture the platform already holds
+        poses = poses[postures.held_last(settings, poses, start)]
     # As heard (the run heard its streams first): the route's time at the run's own rate.
     rate = run.collection.latest.sample_rate_hz()
     route = await run.host.in_thread(postures.effect_route, settings, poses, start, rate)

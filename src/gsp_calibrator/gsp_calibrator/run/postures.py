@@ -151,16 +151,33 @@ def posture_route(settings, poses, start_pose):
     ``start_pose`` (:func:`route_start`), with the run's nominal geometry and leg limits; a
     posture the platform already holds (:data:`HELD_TOLERANCE`) comes last, not first."""
     route = plan_route(settings.nominal, start_pose, poses, settings.motion_limits)
-    poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    legs = posture_leg_lengths(settings.nominal, np.vstack([np.asarray(start_pose)[None], poses]))
-    first = route.order[0]
-    if len(route.order) > 1 and np.max(np.abs(legs[first + 1] - legs[0])) < HELD_TOLERANCE:
-        order = np.r_[route.order[1:], first]
+    order = held_last(settings, poses, start_pose, route.order)
+    if order is not route.order:
+        poses = np.atleast_2d(np.asarray(poses, dtype=float))
+        legs = posture_leg_lengths(
+            settings.nominal, np.vstack([np.asarray(start_pose)[None], poses])
+        )
         times = travel_time_matrix(legs, settings.motion_limits)
         route = dataclasses.replace(
             route, order=order, travel_s=path_time(times, np.r_[0, order + 1])
         )
     return route
+
+
+def held_last(settings, poses, start_pose, order=None):
+    """``order`` (indices into ``poses`` (N, 6); default the given order) with its first posture
+    moved last when the platform standing at ``start_pose`` already holds it (legs within
+    :data:`HELD_TOLERANCE`: e.g. a run after a run of the same selection, or after an ``auto``
+    run, which ends with a revisit of its first posture); else ``order`` itself."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    order = np.arange(len(poses)) if order is None else np.asarray(order)
+    if len(order) < 2:
+        return order
+    start = np.asarray(start_pose, dtype=float)[None]
+    legs = posture_leg_lengths(settings.nominal, np.vstack([start, poses[order[:1]]]))
+    if np.max(np.abs(legs[1] - legs[0])) < HELD_TOLERANCE:
+        return np.r_[order[1:], order[0]]
+    return order
 
 
 def route_effect_groups(free):
