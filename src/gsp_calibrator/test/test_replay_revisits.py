@@ -87,7 +87,7 @@ def test_a_recording_s_revisits_are_served_in_recorded_order(tmp_path):
 
 #: The replay tests' calibration (14 postures: fewer leave the 51 parameters unidentifiable),
 #: with the route's reference revisits (``auto``): the first posture is commanded again after
-#: the 10th and at the end (postures 11 and 16).
+#: 10 more and at the end (postures 12 and 16).
 REVISITS = dict(CALIBRATION, free_parameters=['auto'])
 
 
@@ -127,7 +127,7 @@ def revisiting_run(tmp_path_factory):
     finally:
         rclpy.try_shutdown(context=context)
     kinds = run.read_json('result.json')['collection']['route_additions']['kind']
-    assert [k for k, kind in enumerate(kinds, start=1) if kind == 'reference'] == [11, 16]
+    assert [k for k, kind in enumerate(kinds, start=1) if kind == 'reference'] == [12, 16]
     return run
 
 
@@ -168,6 +168,10 @@ def test_a_replayed_recording_serves_each_revisit_its_own_samples(
         and len(node.run.visits(node.run.postures[0].commanded_pose)) == 3
     )
     _assert_same_calibration(revisiting_run, replayed)
+    # From the same start as the original (the recorded idle samples): the same directions.
+    np.testing.assert_array_equal(
+        replayed.read_samples().directions, revisiting_run.read_samples().directions
+    )
 
 
 def test_a_replayed_samples_csv_with_revisits_gives_the_original(
