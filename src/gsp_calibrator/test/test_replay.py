@@ -517,10 +517,12 @@ class Suite:
             node.destroy_node()
 
 
-def _calibrator(context, output_root):
+def _calibrator(context, output_root, settings=None):
+    """A calibrator with ``settings`` ({parameter: value}; default :data:`CALIBRATION`)."""
     from gsp_calibrator.calibrator_node import CalibratorNode
 
-    overrides = [Parameter(name, value=value) for name, value in CALIBRATION.items()]
+    settings = CALIBRATION if settings is None else settings
+    overrides = [Parameter(name, value=value) for name, value in settings.items()]
     overrides.append(Parameter('output_root', value=str(output_root)))
     return CalibratorNode(context=context, parameter_overrides=overrides)
 
@@ -529,6 +531,12 @@ def _calibrator(context, output_root):
 def original_run(tmp_path_factory):
     """One live calibration through platform_sim, device_driver and the calibrator: its run
     directory (``samples.csv``, ``recording.mcap``, ``result.json``), shared by the replays."""
+    return live_run(tmp_path_factory)
+
+
+def live_run(tmp_path_factory, settings=None):
+    """The run directory of one live calibration with ``settings`` (default
+    :data:`CALIBRATION`) through platform_sim, device_driver and the calibrator."""
     from gsp_device_driver.device_driver_node import DeviceDriverNode
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
@@ -543,7 +551,7 @@ def original_run(tmp_path_factory):
                     parameter_overrides=FAST + [Parameter('publish_markers', value=False)],
                 ),
                 DeviceDriverNode(context=context),
-                _calibrator(context, tmp_path_factory.mktemp('live')),
+                _calibrator(context, tmp_path_factory.mktemp('live'), settings),
             ],
         )
         try:
@@ -557,10 +565,11 @@ def original_run(tmp_path_factory):
 FAST = [Parameter('settle_time', value=0.02)]
 
 
-def _replay(context, run, output_root):
-    """Replay ``run`` (a path) to a fresh calibrator: the replay node and the replayed run."""
+def replay_run(context, run, output_root, settings=None):
+    """Replay ``run`` (a path) to a fresh calibrator with ``settings`` (default
+    :data:`CALIBRATION`): the replay node and the replayed run."""
     node = ReplayNode(context=context, parameter_overrides=FAST + [Parameter('run', value=run)])
-    suite = Suite(context, [node, _calibrator(context, output_root)])
+    suite = Suite(context, [node, _calibrator(context, output_root, settings)])
     try:
         return node, suite.calibrate()
     finally:
@@ -570,7 +579,7 @@ def _replay(context, run, output_root):
 def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path, original_run):
     """From the run directory, i.e. its samples.csv: the averaged rows, republished as they are,
     are averaged again into the same rows, so the calibration is the same by construction."""
-    node, replayed = _replay(ros_context, str(original_run.path), tmp_path / 'replay')
+    node, replayed = replay_run(ros_context, str(original_run.path), tmp_path / 'replay')
     assert node.run.kind == SOURCE_SAMPLES
     _assert_same_calibration(original_run, replayed)
 
@@ -610,7 +619,7 @@ def test_replay_from_the_recording_collects_the_original_raw_samples(
     estimates each sensor's noise from it (``noise_estimates``), and a stream that republishes
     one averaged row per posture has none.
     """
-    node, replayed = _replay(
+    node, replayed = replay_run(
         ros_context, str(original_run.path / RECORDING_FILE), tmp_path / 'replay'
     )
     assert node.run.kind == SOURCE_RECORDING

@@ -3,9 +3,7 @@ recorded postures share one commanded pose, and the replay serves them in postur
 
 import numpy as np
 import pytest
-import rclpy
-from rclpy.parameter import Parameter
-from test_replay import CALIBRATION, FAST, Suite, write_recording
+from test_replay import CALIBRATION, live_run, replay_run, write_recording
 
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
@@ -14,7 +12,6 @@ from gsp_calibrator.replay.recorded_run import (
     PostureServer,
     RecordedRun,
 )
-from gsp_calibrator.replay.replay_node import ReplayNode
 from gsp_calibrator.run.directory import Samples, write_samples
 from gsp_msgs_py import conversions
 
@@ -91,53 +88,18 @@ def test_a_recording_s_revisits_are_served_in_recorded_order(tmp_path):
 REVISITS = dict(CALIBRATION, free_parameters=['auto'])
 
 
-def _calibrator(context, output_root):
-    from gsp_calibrator.calibrator_node import CalibratorNode
-
-    overrides = [Parameter(name, value=value) for name, value in REVISITS.items()]
-    overrides.append(Parameter('output_root', value=str(output_root)))
-    return CalibratorNode(context=context, parameter_overrides=overrides)
-
-
 @pytest.fixture(scope='module')
 def revisiting_run(tmp_path_factory):
     """One live ``auto`` calibration through platform_sim, device_driver and the calibrator,
     with reference revisits: its run directory."""
-    from gsp_device_driver.device_driver_node import DeviceDriverNode
-    from gsp_platform_sim.platform_sim_node import PlatformSimNode
-
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    try:
-        live = Suite(
-            context,
-            [
-                PlatformSimNode(
-                    context=context,
-                    parameter_overrides=FAST + [Parameter('publish_markers', value=False)],
-                ),
-                DeviceDriverNode(context=context),
-                _calibrator(context, tmp_path_factory.mktemp('live')),
-            ],
-        )
-        try:
-            run = live.calibrate()
-        finally:
-            live.close()
-    finally:
-        rclpy.try_shutdown(context=context)
+    run = live_run(tmp_path_factory, REVISITS)
     kinds = run.read_json('result.json')['collection']['route_additions']['kind']
     assert [k for k, kind in enumerate(kinds, start=1) if kind == 'reference'] == [12, 16]
     return run
 
 
 def _replay(context, run, output_root):
-    node = ReplayNode(context=context, parameter_overrides=FAST + [Parameter('run', value=run)])
-    suite = Suite(context, [node, _calibrator(context, output_root)])
-    try:
-        return node, suite.calibrate()
-    finally:
-        suite.close()
+    return replay_run(context, run, output_root, REVISITS)
 
 
 def _assert_same_calibration(original, replayed):
