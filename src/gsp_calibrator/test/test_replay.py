@@ -6,15 +6,13 @@ import gsp_testing
 import numpy as np
 import pytest
 import rclpy
-from calibrator_suite import spin_as_in_use
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from recorded_runs import write_command
+from recorded_runs import MS, T0, write_recording
+from replay_suite import CALIBRATION, TIMEOUT_S, live_run, replay_run
 from sensor_msgs.msg import JointState
-from std_srvs.srv import Trigger
 
-from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
@@ -23,18 +21,12 @@ from gsp_calibrator.replay.recorded_run import (
     ReplayError,
 )
 from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
-from gsp_calibrator.run.directory import RunDirectory, Samples, write_samples
-from gsp_calibrator.run.response import parse_response
+from gsp_calibrator.run.directory import Samples, write_samples
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.diagnostics import DiagnosticsListener
 from gsp_msgs_py.health import OK, Health
 from gsp_msgs_py.interfaces.check_tool import PoseCommandProbe
 from gsp_msgs_py.parameter_specs import ConfigurationError
-
-MS = 1_000_000
-T0 = 1_700_000_000 * 1_000_000_000
-TIMEOUT_S = 20.0  # generous: the machine may be loaded; waits end as soon as they can
-
 
 # --- recorded runs for the tests -------------------------------------------------------------------
 
@@ -58,89 +50,6 @@ def _poses(count):
         np.array([0.01 * k, -0.01 * k, 1.0 + 0.001 * k, 0.02, -0.01 * k, 0.1 * k])
         for k in range(1, count + 1)
     ]
-
-
-def _write_instant(recorder, stamp, q, r, true_pose=None):
-    """One platform instant (legs + true pose) and one device instant 0.5 ms later."""
-    recorder.write(
-        names.TOPIC_LEG_LENGTHS, conversions.leg_lengths_to_msg(q, stamp / 1e9), stamp + MS // 5
-    )
-    if true_pose is not None:
-        recorder.write(
-            names.TOPIC_TRUE_POSE,
-            conversions.pose_to_pose_stamped(true_pose, stamp / 1e9),
-            stamp + MS // 5,
-        )
-    device = stamp + MS // 2
-    recorder.write(
-        names.TOPIC_INCLINOMETER,
-        conversions.inclinometer_to_msg(r[0], r[1], device / 1e9),
-        device + MS // 5,
-    )
-    recorder.write(
-        names.TOPIC_ENCODER, conversions.encoder_to_msg(r[2], device / 1e9), device + MS // 5
-    )
-    recorder.write(names.TOPIC_LVDT, conversions.lvdt_to_msg(r[3], device / 1e9), device + MS // 5)
-
-
-def write_recording(
-    path,
-    poses,
-    per_posture=4,
-    rejected=(),
-    true_pose=True,
-    notes=False,
-    start_ns=T0,
-    numbers=None,
-    note_after_ns=2 * MS,
-):
-    """A recorded session from ``start_ns``: idle samples, then per pose a command, statuses and
-    sensor samples (wrong values while moving). ``numbers``: the posture numbers of ``poses``
-    (default 1, 2, ...); ``notes``: note each collection start ``note_after_ns`` after its
-    command (the settle is at 10 ms). Returns ``{k: (legs, readings, true poses)}`` after
-    settling."""
-    sent = {}
-    numbers = numbers or range(1, len(poses) + 1)
-    with McapRecorder(path) as recorder:
-        recorder.add_metadata(RUN_METADATA_NAME, {'sync_tolerance': '0.0025'})
-        for j in range(3):  # idle at home before the first command
-            _write_instant(
-                recorder,
-                start_ns + 5 * MS * j,
-                np.full(6, 0.7 + j * 1e-6),
-                np.full(4, 0.07),
-                np.array([0, 0, 1.0, 0, 0, 0]) if true_pose else None,
-            )
-        t = start_ns + 100 * MS
-        for k, pose in zip(numbers, poses, strict=True):
-            note = t + note_after_ns if notes else None
-            command_id = write_command(recorder, t, pose, k in rejected, posture=k, note=note)
-            if k in rejected:
-                t += 100 * MS
-                continue
-            _write_instant(
-                recorder, t + 2 * MS, np.full(6, 9.0), np.full(4, 9.0), pose if true_pose else None
-            )  # moving: never replayed
-            settled = t + 10 * MS
-            recorder.write(
-                names.TOPIC_PLATFORM_STATUS,
-                conversions.make_status(command_id, names.STATE_SETTLED),
-                settled,
-            )
-            legs, readings, truths = [], [], []
-            for j in range(per_posture):
-                q = 0.5 + 0.01 * np.arange(6) + k * 1e-3 + j * 1e-7
-                r = np.array([0.01 * k, -0.02, 0.1 * k, 1e-3]) + j * 1e-8
-                truth = pose + j * 1e-9
-                _write_instant(
-                    recorder, settled + MS + 5 * MS * j, q, r, truth if true_pose else None
-                )
-                legs.append(q)
-                readings.append(r)
-                truths.append(truth)
-            sent[k] = (np.array(legs), np.array(readings), np.array(truths))
-            t += 100 * MS
-    return sent
 
 
 # --- RecordedRun -----------------------------------------------------------------------------------
@@ -473,107 +382,11 @@ def test_node_configuration_errors(ros_context, tmp_path):
 # --- replay == original ----------------------------------------------------------------------------
 
 
-# Generous timeouts: they only bound a failure, and CI machines are loaded.
-CALIBRATION = {
-    'posture_count': 14,
-    'pool_size': 42,
-    'samples_per_posture': 3,
-    'seed': 5,
-    'topic_timeout': 10.0,
-    'settle_timeout': 10.0,
-    # The test is of the replay, not of the verdict: 14 postures for 51 parameters leave each
-    # fold's fit (12 postures) poor, so the held-out accuracy misses the default 0.1 mm.
-    'required_position_accuracy_mm': 10.0,
-    'write_report_plots': False,  # ... nor of the report's plots (slow to draw)
-    # A replayed samples.csv republishes averaged rows, without the within-posture scatter an
-    # estimated noise uses: the replay gives the same calibration with the configured sigmas.
-    'noise_source': 'configured',
-    # The replay rests at the original's last posture, so a route from there would command the
-    # postures in another order than the original's (a route from home).
-    'posture_order': 'selection',
-}
-
-
-class Suite:
-    """Nodes spun as in use (``spin_as_in_use``), plus a client of the calibrate service."""
-
-    def __init__(self, context, nodes):
-        self.nodes = list(nodes)
-        self.client_node = rclpy.create_node('replay_test_client', context=context)
-        self.client = self.client_node.create_client(Trigger, names.SERVICE_CALIBRATE)
-        self.spinning = spin_as_in_use(context, self.nodes, self.client_node, num_threads=3)
-
-    def calibrate(self, timeout=120.0):
-        assert self.client.wait_for_service(timeout_sec=TIMEOUT_S), 'calibrate service missing'
-        future = self.client.call_async(Trigger.Request())
-        assert gsp_testing.wait_until(future.done, timeout), 'no calibrate response'
-        response = future.result()
-        assert response.success, response.message
-        return RunDirectory(parse_response(response.message).run_directory)
-
-    def close(self):
-        self.spinning.close()
-        for node in self.nodes + [self.client_node]:
-            node.destroy_node()
-
-
-def _calibrator(context, output_root, settings=None):
-    """A calibrator with ``settings`` ({parameter: value}; default :data:`CALIBRATION`)."""
-    from gsp_calibrator.calibrator_node import CalibratorNode
-
-    settings = CALIBRATION if settings is None else settings
-    overrides = [Parameter(name, value=value) for name, value in settings.items()]
-    overrides.append(Parameter('output_root', value=str(output_root)))
-    return CalibratorNode(context=context, parameter_overrides=overrides)
-
-
 @pytest.fixture(scope='module')
 def original_run(tmp_path_factory):
     """One live calibration through platform_sim, device_driver and the calibrator: its run
     directory (``samples.csv``, ``recording.mcap``, ``result.json``), shared by the replays."""
     return live_run(tmp_path_factory)
-
-
-def live_run(tmp_path_factory, settings=None):
-    """The run directory of one live calibration with ``settings`` (default
-    :data:`CALIBRATION`) through platform_sim, device_driver and the calibrator."""
-    from gsp_device_driver.device_driver_node import DeviceDriverNode
-    from gsp_platform_sim.platform_sim_node import PlatformSimNode
-
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    try:
-        live = Suite(
-            context,
-            [
-                PlatformSimNode(
-                    context=context,
-                    parameter_overrides=FAST + [Parameter('publish_markers', value=False)],
-                ),
-                DeviceDriverNode(context=context),
-                _calibrator(context, tmp_path_factory.mktemp('live'), settings),
-            ],
-        )
-        try:
-            return live.calibrate()
-        finally:
-            live.close()
-    finally:
-        rclpy.try_shutdown(context=context)
-
-
-FAST = [Parameter('settle_time', value=0.02)]
-
-
-def replay_run(context, run, output_root, settings=None):
-    """Replay ``run`` (a path) to a fresh calibrator with ``settings`` (default
-    :data:`CALIBRATION`): the replay node and the replayed run."""
-    node = ReplayNode(context=context, parameter_overrides=FAST + [Parameter('run', value=run)])
-    suite = Suite(context, [node, _calibrator(context, output_root, settings)])
-    try:
-        return node, suite.calibrate()
-    finally:
-        suite.close()
 
 
 def test_replay_gives_a_calibration_equal_to_the_original(ros_context, tmp_path, original_run):

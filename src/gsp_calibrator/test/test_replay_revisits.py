@@ -3,7 +3,8 @@ recorded postures share one commanded pose, and the replay serves them in postur
 
 import numpy as np
 import pytest
-from test_replay import CALIBRATION, live_run, replay_run, write_recording
+from recorded_runs import write_recording
+from replay_suite import CALIBRATION, live_run, replay_run
 
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
