@@ -178,7 +178,7 @@ def identify_from_samples(
         return outcome
     analysis = identifiability.analyse_result(result)
     outcome.identifiability = analysis
-    if analysis['names'] or analysis['rank'] < analysis['parameters']:
+    if not identifiability.identifies_all(analysis):
         outcome.message = _unidentifiable_message(analysis, count)
         return outcome
     outcome.success = True
