@@ -56,7 +56,7 @@ def _apply(session, geometry):
     request = SetParametersAtomically.Request()
     request.parameters = [
         Parameter(name, value=value).to_parameter_msg()
-        for name, value in geometry_to_parameters(geometry).items()
+        for name, value in geometry_to_parameters(geometry, all_effects=True).items()
     ]
     future = client.call_async(request)
     session.spin_until(future.done, WAIT_S, 'platform_sim to take the geometry')

@@ -246,8 +246,12 @@ EFFECT_KEYS = {
 }
 
 
-def geometry_to_parameters(geometry):
-    """Flat ``{'geometry.base_joints': [...], ...}`` as ROS parameters."""
+def geometry_to_parameters(geometry, all_effects=False):
+    """Flat ``{'geometry.base_joints': [...], ...}`` as ROS parameters. ``geometry.effects.*``:
+    only what was identified (:func:`_effect_parameters`), so that a controller that declares
+    the rigid geometry alone takes a geometry without effects; ``all_effects``: every key of
+    :data:`EFFECT_KEYS` (0: not identified), the table a compensating controller declares and
+    what it is set to (no effect of an earlier geometry stays)."""
     parameters = {
         f'{GEOMETRY_NAMESPACE}.base_joints': geometry.base_joints.ravel().tolist(),
         f'{GEOMETRY_NAMESPACE}.platform_joints': geometry.platform_joints.ravel().tolist(),
@@ -262,21 +266,26 @@ def geometry_to_parameters(geometry):
     parameters[f'{_SENSORS}.inclinometer_offsets'] = sensors.inclinometer_offsets.tolist()
     parameters[f'{_SENSORS}.encoder_offset'] = sensors.encoder_offset
     parameters[f'{_SENSORS}.lvdt_gain_error'] = sensors.lvdt_gain_error
-    parameters.update(_effect_parameters(geometry.effects))
+    parameters.update(_effect_parameters(geometry.effects, all_effects))
     return parameters
 
 
-def _effect_parameters(effects):
-    """``{'geometry.effects.<key>': value}`` of :data:`EFFECT_KEYS`."""
+def _effect_parameters(effects, every=False):
+    """``{'geometry.effects.<key>': value}`` of :data:`EFFECT_KEYS`: the identified groups' (a
+    nonzero parameter), the load with the compliance and the reference instant with the
+    thermal growth; ``every``: all of them."""
+    groups = effects.groups()
     # The mass first: set one at a time (ros2 param load), a compliance needs it.
-    parameters = {
-        f'{_EFFECTS}.payload_mass': float(effects.payload_mass),
-        f'{_EFFECTS}.centre_of_mass': [float(v) for v in effects.centre_of_mass],
-        f'{_EFFECTS}.reference_time': float(effects.reference_time_s),
-    }
+    parameters = {}
+    if every or 'compliance' in groups:
+        parameters[f'{_EFFECTS}.payload_mass'] = float(effects.payload_mass)
+        parameters[f'{_EFFECTS}.centre_of_mass'] = [float(v) for v in effects.centre_of_mass]
+    if every or 'thermal' in groups:
+        parameters[f'{_EFFECTS}.reference_time'] = float(effects.reference_time_s)
     blocks = effects.values.reshape(len(_EFFECT_STEMS), NUM_LEGS)
-    for stem, block in zip(_EFFECT_STEMS, blocks, strict=True):
-        parameters[f'{_EFFECTS}.{stem}'] = block.tolist()
+    for group, stem, block in zip(EFFECT_GROUPS, _EFFECT_STEMS, blocks, strict=True):
+        if every or group in groups:
+            parameters[f'{_EFFECTS}.{stem}'] = block.tolist()
     return parameters
 
 

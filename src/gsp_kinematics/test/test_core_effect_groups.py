@@ -248,6 +248,33 @@ def test_the_geometry_file_carries_the_identified_effects():
         geometry_from_parameters(parameters)
 
 
+def test_only_the_identified_effects_go_into_the_parameters():
+    """A controller that declares the documented rigid geometry alone refuses a set with any
+    ``geometry.effects.*`` key: none without effects, only the identified groups' otherwise
+    (the load with the compliance, the reference instant with the thermal growth)."""
+    effects = [key for key in geometry_to_parameters(NOMINAL) if '.effects.' in key]
+    assert effects == [] and 'effects:' not in geometry_to_yaml(NOMINAL)
+    values = np.zeros(24)
+    values[6:12] = 4e-6
+    backlash = NOMINAL.replace(effects=IdentifiedEffects(values, 40.0, (0, 0, 0.05), 9.0))
+    effects = [key for key in geometry_to_parameters(backlash) if '.effects.' in key]
+    assert effects == ['geometry.effects.backlash']
+    assert 'payload_mass' not in geometry_to_yaml(backlash)
+    assert geometry_from_yaml(geometry_to_yaml(backlash)).effects.groups() == ['backlash']
+    values[0:6] = 1e-8
+    effects = [
+        key
+        for key in geometry_to_parameters(backlash.replace(effects=IdentifiedEffects(values, 40.0)))
+        if '.effects.' in key
+    ]
+    assert sorted(effects) == sorted(
+        f'geometry.effects.{key}'
+        for key in ('payload_mass', 'centre_of_mass', 'compliance', 'backlash')
+    )
+    every = [key for key in geometry_to_parameters(NOMINAL, all_effects=True) if '.effects.' in key]
+    assert len(every) == 7
+
+
 def test_forward_kinematics_with_the_identified_effects_finds_the_real_pose(sequence):
     """A backlash the model holds exactly: the pose model_poses gives for the actuators'
     readings is where the real platform is; the rigid forward kinematics is micrometres off."""

@@ -13,8 +13,11 @@ from gsp_kinematics.geometry import (
 
 from .parameter_specs import ParameterSpec
 
-_NOMINAL_PARAMETERS = geometry_to_parameters(default_geometry('nominal'))
+_NOMINAL_PARAMETERS = geometry_to_parameters(default_geometry('nominal'), all_effects=True)
 GEOMETRY_PARAMETER_NAMES = tuple(_NOMINAL_PARAMETERS)
+#: Prefix of the identified effects' parameters: a controller that declares none of them runs
+#: the rigid geometry only (the calibrator then applies the effects folded in).
+EFFECT_PARAMETER_PREFIX = 'geometry.effects.'
 #: name -> (description, unit) of the controller geometry parameters.
 _GEOMETRY_DESCRIPTIONS = {
     'geometry.base_joints': (

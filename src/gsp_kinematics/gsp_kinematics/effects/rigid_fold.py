@@ -1,0 +1,136 @@
+"""The best rigid geometry for a controller that cannot compensate the identified effects.
+
+A controller that runs the 44 parameters only (it declares no ``geometry.effects.*``) gets the
+identified effects *folded* into its rigid geometry: the base and platform joints and the leg
+offsets (``A_i``, ``B_i``, ``L_off_i``) whose leg lengths best reproduce, by least squares over
+workspace postures, the leg lengths the compensating controller commands there
+(:func:`.groups.compensated_leg_readings`). ``D0``, ``gamma`` and the sensor errors stay as
+identified (the fold is in true leg lengths, so the leg gains keep their meaning).
+
+The effects at the operating state: the backlash at the mean of both approach directions (no
+rigid geometry knows from where a leg arrives: its share is zero) and the thermal growth at the
+reference instant the geometry refers to (zero: the controllers do not compensate it either). So
+the fold takes in the compliance under the identified load and the base joints' axis offsets:
+their mean over the workspace, not their variation with the posture, which is what a rigid
+controller leaves (docs/platform_effects.md).
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..kinematics import (
+    Workspace,
+    expand_leg_parameters,
+    inverse_kinematics,
+    inverse_kinematics_jacobians,
+    sample_valid_postures,
+)
+from ..validation import pose_errors
+from .groups import (
+    EFFECT_GROUPS,
+    EffectDesign,
+    IdentifiedEffects,
+    compensated_leg_readings,
+    model_poses,
+)
+
+#: Workspace postures of the fold (reachable, well-conditioned; seeded: the same fold each time).
+FOLD_POSTURES = 400
+FOLD_SEED = 0
+#: The fold's 42 parameters: A (18), B (18), L_off (6), in ``Geometry.to_vector`` order.
+RIGID_PARAMETERS = 42
+#: Gauss-Newton stops when the largest step is below this (m): the effects are micrometres.
+STEP_TOLERANCE = 1e-13
+#: Groups a rigid geometry can take a share of (the others are zero at the operating state).
+FOLDED_GROUPS = ('compliance', 'joint_offsets')
+_GROUP_INDEX = {group: index for index, group in enumerate(EFFECT_GROUPS)}
+
+
+def fold_postures(geometry, workspace=Workspace(), count=FOLD_POSTURES, seed=FOLD_SEED):
+    """The postures (count, 6) the fold is taken over: reachable ones of ``geometry`` drawn
+    uniformly over ``workspace`` (seeded by ``seed``)."""
+    return sample_valid_postures(geometry, count, np.random.default_rng(seed), workspace)
+
+
+def operating_effects(effects):
+    """``effects`` (IdentifiedEffects) at the operating state a rigid geometry is folded for:
+    the backlash and thermal parameters zero (the mean of both approach directions, the
+    reference instant)."""
+    values = np.array(effects.values)
+    for group in EFFECT_GROUPS:
+        if group not in FOLDED_GROUPS:
+            index = _GROUP_INDEX[group]
+            values[6 * index : 6 * index + 6] = 0.0
+    return dataclasses.replace(effects, values=values)
+
+
+def compensated_leg_lengths(geometry, poses):
+    """True leg lengths (M, 6) m (articular, ``(1 + kq) q``) the compensating controller of
+    ``geometry`` (with its identified effects at the operating state) drives to at ``poses``."""
+    readings = compensated_leg_readings(geometry, operating_effects(geometry.effects), poses)
+    return geometry.sensors.true_leg_lengths(readings)
+
+
+def rigid_leg_jacobian(geometry, poses):
+    """Leg lengths (M, 6) of ``geometry``'s rigid IK at ``poses`` and their derivatives
+    (M, 6, 42) with respect to A, B and L_off (analytic)."""
+    lengths, _, d_leg = inverse_kinematics_jacobians(geometry, poses)
+    return lengths, expand_leg_parameters(d_leg)
+
+
+def fit_rigid_geometry(geometry, poses, leg_lengths, iterations=8):
+    """The rigid geometry (``geometry`` with A, B and L_off refitted, no effects) whose IK best
+    reproduces ``leg_lengths`` (M, 6) m (articular) at ``poses`` (M, 6), by Gauss-Newton from
+    ``geometry`` in leg-length least squares."""
+    rigid = geometry.replace(effects=IdentifiedEffects())
+    target = np.asarray(leg_lengths, dtype=float)
+    vector = rigid.to_vector()
+    for _ in range(iterations):
+        lengths, jacobian = rigid_leg_jacobian(rigid, poses)
+        matrix = jacobian.reshape(-1, RIGID_PARAMETERS)
+        scale = np.linalg.norm(matrix, axis=0)
+        step, *_ = np.linalg.lstsq(matrix / scale, (target - lengths).ravel(), rcond=None)
+        step /= scale
+        vector[:RIGID_PARAMETERS] += step
+        rigid = _with_vector(rigid, vector)
+        if not np.max(np.abs(step)) > STEP_TOLERANCE:
+            break
+    return rigid
+
+
+def fold_effects(geometry, poses=None):
+    """The best rigid geometry (no effects) for ``geometry`` and its identified effects over
+    the workspace ``poses`` (M, 6; None: :func:`fold_postures`); ``geometry`` itself without
+    effects when it has none a rigid geometry can take a share of."""
+    if not np.any(operating_effects(geometry.effects).values):
+        return geometry.replace(effects=IdentifiedEffects())
+    poses = fold_postures(geometry) if poses is None else np.asarray(poses, dtype=float)
+    return fit_rigid_geometry(geometry, poses, compensated_leg_lengths(geometry, poses))
+
+
+def rigid_model_errors(geometry, rigid, poses):
+    """Position errors (2M,) mm where the platform the identified model describes (``geometry``
+    with its effects, at the reference instant) goes when the rigid controller of ``rigid``
+    drives ``poses`` (M, 6): every leg arriving extending, then retracting (the backlash
+    both ways). The systematic error of running ``rigid`` on that platform."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    readings = rigid.sensors.leg_readings(inverse_kinematics(rigid, poses))
+    effects = geometry.effects
+    errors = []
+    for direction in (1.0, -1.0):
+        design = EffectDesign(
+            np.full(len(poses), effects.reference_time_s),
+            np.full((len(poses), 6), direction),
+            effects.payload_mass,
+            effects.centre_of_mass,
+            effects.reference_time_s,
+        )
+        reached, converged = model_poses(geometry, readings, poses, design)
+        errors.append(pose_errors(poses[converged], reached[converged])[0])
+    return np.concatenate(errors)
+
+
+def _with_vector(geometry, vector):
+    rigid = type(geometry).from_vector(vector, geometry.limits)
+    return rigid.replace(sensors=geometry.sensors)
