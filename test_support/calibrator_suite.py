@@ -122,7 +122,11 @@ def make_suite(
     calibrator_overrides=(),
     platform_overrides=(),
     device_overrides=(),
+    extra_nodes=(),
 ):
+    """The calibrator (``calibrator_overrides`` on :func:`calibrator_parameters`), platform_sim
+    of ``truth_file`` and device_driver, and ``extra_nodes`` (the test's, e.g. a stand-in
+    controller), spun in a :class:`Suite`: ``(suite, calibrator, platform, device)``."""
     from gsp_device_driver.device_driver_node import DeviceDriverNode
     from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
@@ -141,4 +145,5 @@ def make_suite(
         context=context,
         parameter_overrides=calibrator_parameters(tmp_path / 'runs', **dict(calibrator_overrides)),
     )
-    return Suite(context, [calibrator, platform, device]), calibrator, platform, device
+    suite = Suite(context, [calibrator, platform, device, *extra_nodes])
+    return suite, calibrator, platform, device

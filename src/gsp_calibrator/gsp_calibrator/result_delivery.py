@@ -1,20 +1,33 @@
 """Publishing and applying a calibration result: one module for both (the ``calibrator`` node).
 
-A run that succeeds hands its calibrated geometry to :class:`ResultDelivery`
-(``RunHost.deliver_result``). It latches the geometry params-file YAML on
-``/gsp/calibrator/result`` and, with ``apply_result``, sets every ``geometry.*`` parameter of
-``platform_node_name`` in one ``SetParametersAtomically`` call. A result that is not accepted
-(its cross-validated accuracy misses the requirement, docs/verdict.md) is published, never
-applied.
+A run that succeeds hands its calibrated geometry, and the rigid one when it identified effects
+(``run.rigid``), to :class:`ResultDelivery` (``RunHost.deliver_result``). It latches the
+geometry params-file YAML on ``/gsp/calibrator/result`` and, with ``apply_result``, sets the
+``geometry.*`` parameters of ``platform_node_name`` in one ``SetParametersAtomically`` call.
+A result that is not accepted (its cross-validated accuracy misses the requirement,
+docs/verdict.md) is published, never applied.
+
+What the controller receives depends on whether it compensates the identified effects
+(``controller_effects``): ``auto`` first asks its ``list_parameters`` service for the
+``geometry.effects`` prefix, as ``ros2 param list`` does. One that declares every
+``geometry.effects.*`` parameter gets the geometry and all of them (0 for an effect not
+identified, so none of an earlier geometry stays); one that declares none (or not all)
+gets the rigid geometry, the effects folded in, and no ``geometry.effects.*`` key, which a
+controller written against the documented rigid geometry would refuse as undeclared.
 """
 
-from rcl_interfaces.srv import SetParametersAtomically
+from rcl_interfaces.srv import ListParameters, SetParametersAtomically
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 from gsp_calibrator.run.host import WAIT_OK
 from gsp_calibrator.run.identify import RESULT_COMMENT
-from gsp_kinematics.geometry import geometry_to_parameters, geometry_to_yaml
+from gsp_kinematics.geometry import EFFECT_KEYS, geometry_to_parameters, geometry_to_yaml
+
+#: The prefix of the identified effects' parameters (``gsp_msgs_py.geometry_parameters``).
+EFFECTS_PREFIX = 'geometry.effects'
+#: Every ``geometry.effects.*`` parameter a compensating controller declares.
+EFFECT_PARAMETERS = frozenset(f'{EFFECTS_PREFIX}.{key}' for key in EFFECT_KEYS)
 
 
 class ResultDelivery:
@@ -26,22 +39,67 @@ class ResultDelivery:
         self.publisher = publisher
         self.parameter_setter = ParameterSetter(node, callback_group)
 
-    async def deliver(self, settings, geometry, accepted, wait_for):
-        """Publish ``geometry``; apply it if ``settings.apply_result`` and it is ``accepted``
-        (it meets the required accuracy). ``(success, note)``: ``note`` says what the apply did
-        ('' when it was not asked for); success is False when the result is not accepted, or
-        when the apply failed."""
+    async def deliver(self, settings, geometry, accepted, rigid, wait_for):
+        """Publish ``geometry``; apply it, or ``rigid`` (the effects folded in; None: the
+        geometry has none) to a controller that does not compensate them, if
+        ``settings.apply_result`` and it is ``accepted`` (it meets the required accuracy).
+        ``(success, note)``: ``note`` says what the apply did ('' when it was not asked for);
+        success is False when the result is not accepted, or when the apply failed."""
         self.publisher.publish(String(data=geometry_to_yaml(geometry, comment=RESULT_COMMENT)))
         if not (settings.apply_result and accepted):
             return accepted, ''
-        node_name = settings.platform_node_name
-        applied, why = await self.parameter_setter.set(
-            node_name, geometry_to_parameters(geometry), settings.topic_timeout, wait_for
-        )
+        node_name, timeout = settings.platform_node_name, settings.topic_timeout
+        compensates, how = await self.compensates(settings, wait_for)
+        if compensates is None:
+            return False, f'NOT applied: {how}'
+        if compensates:
+            values = geometry_to_parameters(geometry, all_effects=True)
+        else:
+            values = geometry_to_parameters(geometry if rigid is None else rigid)
+        applied, why = await self.parameter_setter.set(node_name, values, timeout, wait_for)
         if not applied:
             return False, f'NOT applied: {why}'
-        self.node.get_logger().info(f'calibrated geometry applied to /{node_name}')
-        return True, f'applied to /{node_name} (geometry.* parameters)'
+        note = applied_note(node_name, geometry, compensates, rigid is not None, how)
+        self.node.get_logger().info(note)
+        return True, note
+
+    async def compensates(self, settings, wait_for):
+        """``(True | False, how it was decided)``: whether the controller compensates the
+        identified effects (``controller_effects``; ``auto``: it declares every
+        ``geometry.effects.*``); ``(None, why)`` when its parameters could not be listed."""
+        if settings.controller_effects != 'auto':
+            return settings.controller_effects == 'compensated', 'controller_effects'
+        names, why = await self.parameter_setter.list(
+            settings.platform_node_name, EFFECTS_PREFIX, settings.topic_timeout, wait_for
+        )
+        if names is None:
+            return None, why
+        return EFFECT_PARAMETERS <= set(names), 'auto'
+
+
+def applied_note(node_name, geometry, compensates, folded, decided):
+    """What was applied to ``/node_name``: the geometry with the identified effects the
+    controller compensates, or (``compensates`` False) the rigid geometry, ``folded`` when
+    effects were folded in; ``decided``: 'auto' when the controller's parameters told."""
+    groups = [group for group in geometry.effects.groups() if group != 'thermal']
+    if compensates:
+        what = 'geometry.* parameters'
+        if groups:
+            what += f'; effects compensated by the controller: {", ".join(groups)}'
+        if 'thermal' in geometry.effects.groups():
+            what += '; the thermal drift reported, not compensated'
+        return f'applied to /{node_name} ({what})'
+    why = (
+        'it does not declare the geometry.effects.* parameters'
+        if decided == 'auto'
+        else 'controller_effects: rigid'
+    )
+    if not folded:
+        return f'applied to /{node_name} (geometry.* parameters, rigid: {why})'
+    return (
+        f'applied the rigid geometry to /{node_name} ({why}): the effects folded in '
+        f'(result_rigid.yaml); not compensated: {", ".join(geometry.effects.groups())}'
+    )
 
 
 class ParameterSetter:
@@ -63,23 +121,47 @@ class ParameterSetter:
             self._clients[service], service, values, timeout_s, wait_for
         )
 
+    async def list(self, node_name, prefix, timeout_s, wait_for):
+        """The names of ``/<node_name>``'s parameters under ``prefix`` (its ``list_parameters``
+        service): ``(names, '')`` or ``(None, why)``."""
+        service = f'/{node_name.lstrip("/")}/list_parameters'
+        if service not in self._clients:
+            self._clients[service] = self.node.create_client(
+                ListParameters, service, callback_group=self.callback_group
+            )
+        request = ListParameters.Request(
+            prefixes=[prefix], depth=ListParameters.Request.DEPTH_RECURSIVE
+        )
+        response, why = await call_service(
+            self._clients[service], service, request, timeout_s, wait_for
+        )
+        return (None, why) if response is None else (list(response.result.names), '')
+
+
+async def call_service(client, service, request, timeout_s, wait_for):
+    """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (unavailable
+    or no answer within ``timeout_s``). ``wait_for(predicate, timeout_s)``: a future of
+    :data:`.run.host.WAIT_OK` or :data:`.run.host.WAIT_TIMEOUT` (e.g.
+    :meth:`.node_threads.Waits.add`)."""
+    if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
+        return None, f'parameter service {service} unavailable within {timeout_s:g} s'
+    future = client.call_async(request)
+    if await wait_for(future.done, timeout_s) != WAIT_OK:
+        client.remove_pending_request(future)
+        return None, f'no answer from {service} within {timeout_s:g} s'
+    return future.result(), ''
+
 
 async def set_parameters_atomically(client, service, values, timeout_s, wait_for):
     """Set ``values`` ({name: value}) through ``client`` (``SetParametersAtomically`` of
-    ``service``); ``(True, '')`` or ``(False, why)``. ``wait_for(predicate, timeout_s)``: a
-    future of :data:`.run.host.WAIT_OK` or :data:`.run.host.WAIT_TIMEOUT` (e.g.
-    :meth:`.node_threads.Waits.add`)."""
-    if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
-        return False, f'parameter service {service} unavailable within {timeout_s:g} s'
+    ``service``); ``(True, '')`` or ``(False, why)`` (:func:`call_service`)."""
     request = SetParametersAtomically.Request()
     request.parameters = [
         Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
     ]
-    future = client.call_async(request)
-    if await wait_for(future.done, timeout_s) != WAIT_OK:
-        client.remove_pending_request(future)
-        return False, f'no answer from {service} within {timeout_s:g} s'
-    result = future.result().result
-    if not result.successful:
-        return False, f'{service} refused the geometry: {result.reason}'
+    response, why = await call_service(client, service, request, timeout_s, wait_for)
+    if response is None:
+        return False, why
+    if not response.result.successful:
+        return False, f'{service} refused the geometry: {response.result.reason}'
     return True, ''

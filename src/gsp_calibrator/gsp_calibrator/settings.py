@@ -57,6 +57,9 @@ from gsp_msgs_py.parameter_specs import (
 #: estimate on some platforms and a worse one on others, for a third more platform time).
 DEFAULT_WORKSPACE_POSTURES = 0
 
+#: ``controller_effects``: ask the controller, or say whether it compensates the effects.
+CONTROLLER_EFFECTS = ('auto', 'compensated', 'rigid')
+
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 
 
@@ -399,6 +402,17 @@ PARAMETERS = (
         'Node whose geometry.* parameters apply_result sets',
         constraints='a valid node name',
         check=lambda v: '' if _NODE_NAME.match(str(v)) else 'is not a valid node name',
+    ),
+    ParameterSpec(
+        'controller_effects',
+        'auto',
+        'Whether the controller at platform_node_name compensates the identified effects '
+        '(docs/platform_effects.md): compensated (it receives the geometry and its '
+        'geometry.effects.*), rigid (it runs the geometry alone: it receives the best rigid '
+        'geometry, the effects folded in), auto (compensated when it declares geometry.effects.* '
+        'parameters, asked through its list_parameters service before the apply)',
+        constraints='auto, compensated or rigid',
+        check=one_of(CONTROLLER_EFFECTS),
     ),
     *UPKEEP_PARAMETERS,
     parameter_specs.diagnostics_period_spec(),

@@ -399,8 +399,7 @@ def test_a_failed_apply_is_reported(ros_context, tmp_path):
         response = suite.wait(suite.call())
         assert not response.success
         assert (
-            'NOT applied: parameter service /nobody/set_parameters_atomically unavailable'
-            in response.message
+            'NOT applied: parameter service /nobody/list_parameters unavailable' in response.message
         )
         parsed = parse_response(response.message)
         assert parsed.geometry_yaml  # the calibration itself succeeded and is kept

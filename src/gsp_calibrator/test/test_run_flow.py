@@ -139,7 +139,7 @@ class FakeHost:
             future.set_result(postures.choose_postures(*postures.selection_arguments(settings)))
             return future
 
-        async def deliver_result(settings, geometry, accepted):
+        async def deliver_result(settings, geometry, accepted, rigid):
             self.delivered.append((geometry, accepted))
             return True, 'applied to the fake platform'
 

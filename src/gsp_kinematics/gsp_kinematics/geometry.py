@@ -247,11 +247,8 @@ EFFECT_KEYS = {
 
 
 def geometry_to_parameters(geometry, all_effects=False):
-    """Flat ``{'geometry.base_joints': [...], ...}`` as ROS parameters. ``geometry.effects.*``:
-    only what was identified (:func:`_effect_parameters`), so that a controller that declares
-    the rigid geometry alone takes a geometry without effects; ``all_effects``: every key of
-    :data:`EFFECT_KEYS` (0: not identified), the table a compensating controller declares and
-    what it is set to (no effect of an earlier geometry stays)."""
+    """Flat ``{'geometry.base_joints': [...], ...}`` ROS parameters, only the identified effects;
+    ``all_effects``: all (0: not identified), what a compensating controller is set to."""
     parameters = {
         f'{GEOMETRY_NAMESPACE}.base_joints': geometry.base_joints.ravel().tolist(),
         f'{GEOMETRY_NAMESPACE}.platform_joints': geometry.platform_joints.ravel().tolist(),
@@ -261,32 +258,27 @@ def geometry_to_parameters(geometry, all_effects=False):
     }
     for key in _LIMIT_KEYS:
         parameters[f'{GEOMETRY_NAMESPACE}.limits.{key}'] = float(getattr(geometry.limits, key))
-    sensors = geometry.sensors
-    parameters[f'{_SENSORS}.leg_gain_errors'] = sensors.leg_gain_errors.tolist()
-    parameters[f'{_SENSORS}.inclinometer_offsets'] = sensors.inclinometer_offsets.tolist()
-    parameters[f'{_SENSORS}.encoder_offset'] = sensors.encoder_offset
-    parameters[f'{_SENSORS}.lvdt_gain_error'] = sensors.lvdt_gain_error
+    for key in SENSOR_KEYS:  # the SensorErrors fields
+        value = getattr(geometry.sensors, key)
+        parameters[f'{_SENSORS}.{key}'] = value.tolist() if np.ndim(value) else value
     parameters.update(_effect_parameters(geometry.effects, all_effects))
     return parameters
 
 
 def _effect_parameters(effects, every=False):
-    """``{'geometry.effects.<key>': value}`` of :data:`EFFECT_KEYS`: the identified groups' (a
-    nonzero parameter), the load with the compliance and the reference instant with the
-    thermal growth; ``every``: all of them."""
+    """``{'geometry.effects.<key>': value}`` (the mass first: ros2 param load sets one at a time)
+    of the identified groups, their load and reference instant; ``every``: all, 0 if not."""
     groups = effects.groups()
-    # The mass first: set one at a time (ros2 param load), a compliance needs it.
-    parameters = {}
-    if every or 'compliance' in groups:
-        parameters[f'{_EFFECTS}.payload_mass'] = float(effects.payload_mass)
-        parameters[f'{_EFFECTS}.centre_of_mass'] = [float(v) for v in effects.centre_of_mass]
-    if every or 'thermal' in groups:
-        parameters[f'{_EFFECTS}.reference_time'] = float(effects.reference_time_s)
-    blocks = effects.values.reshape(len(_EFFECT_STEMS), NUM_LEGS)
-    for group, stem, block in zip(EFFECT_GROUPS, _EFFECT_STEMS, blocks, strict=True):
-        if every or group in groups:
-            parameters[f'{_EFFECTS}.{stem}'] = block.tolist()
-    return parameters
+    kept = {stem: g in groups for g, stem in zip(EFFECT_GROUPS, _EFFECT_STEMS, strict=True)}
+    load = kept['payload_mass'] = kept['centre_of_mass'] = 'compliance' in groups
+    thermal = kept['reference_time'] = 'thermal' in groups
+    values = {
+        'payload_mass': float(effects.payload_mass) if load else 0.0,
+        'centre_of_mass': [float(v) if load else 0.0 for v in effects.centre_of_mass],
+        'reference_time': float(effects.reference_time_s) if thermal else 0.0,
+    }
+    values.update(zip(_EFFECT_STEMS, effects.values.reshape(-1, NUM_LEGS).tolist(), strict=True))
+    return {f'{_EFFECTS}.{key}': value for key, value in values.items() if every or kept[key]}
 
 
 def _effects_from_parameters(parameters):

@@ -138,6 +138,8 @@ def effects_lines(record):
         )
     if record.get('thermal'):
         lines.append(_thermal_text(record['thermal']))
+    if record.get('rigid'):
+        lines.append(rigid_text(record['rigid']))
     return lines
 
 
@@ -203,4 +205,20 @@ def effects_markdown(record):
         lines.append('')
     if record.get('thermal'):
         lines += [_thermal_text(record['thermal']), '']
+    if record.get('rigid'):
+        lines += [rigid_text(record['rigid']) + '.', '']
     return lines
+
+
+def rigid_text(record):
+    """One line of the ``rigid`` entry of an :func:`effects_record` (``run.rigid.rigid_result``):
+    what a rigid controller gets, and its predicted accuracy beside the compensated one."""
+    predicted = record['predicted']
+    compensated = record.get('compensated_predicted_position_mm')
+    beside = '' if compensated is None else f' (compensating controller {compensated:.3g} mm)'
+    return (
+        f'rigid controller (no geometry.effects.*): {record["file"]}, the effects folded in: '
+        f'predicted {predicted["position_mm"]["mean"]:.3g} mm over the workspace{beside}; '
+        f'not compensated: {", ".join(record["not_compensated"])} (the fold against the '
+        f'identified model: {predicted["systematic_position_mm"]["mean"]:.3g} mm)'
+    )

@@ -26,6 +26,8 @@ from gsp_kinematics.noise_from_data import LAG_SUMS_CHANNELS
 
 SAMPLES_FILE = 'samples.csv'
 RESULT_FILE = 'result.yaml'
+#: The rigid geometry, the identified effects folded in (a controller that cannot compensate them).
+RIGID_RESULT_FILE = 'result_rigid.yaml'
 SUMMARY_FILE = 'summary.json'
 TRUE_GEOMETRY_FILE = 'true_geometry.yaml'
 

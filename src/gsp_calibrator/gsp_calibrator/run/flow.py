@@ -344,9 +344,9 @@ class CalibrationRun:
             host.progress(count, names.PHASE_FAILED, outcome.message, residuals)
             return False, summary
         self.save_state(PHASE_DONE)
-        geometry = outcome.geometry
+        geometry, rigid = outcome.geometry, outcome.rigid_geometry
         # A result that misses the required accuracy is written and latched, never applied.
-        success, note = await host.deliver_result(settings, geometry, outcome.accepted)
+        success, note = await host.deliver_result(settings, geometry, outcome.accepted, rigid)
         if note:
             summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'

@@ -161,7 +161,8 @@ class RunHost:
     #: ``progress(index, phase, message='', residuals=None, warning=False, **extra)``: publish
     #: the run's progress at posture ``index`` (0 before the first)
     progress: Callable[..., None]
-    #: ``deliver_result(settings, geometry, accepted)``: awaitable of ``(success, note)``
+    #: ``deliver_result(settings, geometry, accepted, rigid geometry or None)``: awaitable of
+    #: ``(success, note)``
     #: (``gsp_calibrator.result_delivery``)
     deliver_result: Callable[..., Awaitable]
     #: whether the process is going down (Ctrl-C, SIGTERM): a failure then is no crash

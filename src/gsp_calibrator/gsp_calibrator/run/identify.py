@@ -28,6 +28,7 @@ from gsp_calibrator.run.postures import (
     workspace_poses,
 )
 from gsp_calibrator.run.response import outcome_summary
+from gsp_calibrator.run.rigid import rigid_result
 from gsp_kinematics import identifiability, noise_from_data
 from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
@@ -43,6 +44,11 @@ from gsp_kinematics.verdict.cross_validation import DEFAULT_FOLDS, cross_validat
 
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'
+#: Added to the rigid geometry's comment (result_rigid.yaml).
+RIGID_COMMENT = (
+    'rigid: the identified effects folded in, for a controller without geometry.effects.* '
+    '(docs/platform_effects.md)'
+)
 #: Said when the device readings do not fit the device model at all.
 DEVICE_MODEL_HINT = (
     ': the device readings do not fit the device model (swapped, mis-signed or mis-scaled '
@@ -80,6 +86,8 @@ class CalibrationOutcome:
     #: the platform effects (``report.effects.effects_record``: the choice of model, the
     #: identified effects, the thermal drift); None when none was chosen or freed
     effects: dict | None = None
+    #: the rigid geometry, the identified effects folded in (``run.rigid``); None without effects
+    rigid_geometry: object = None
 
     @property
     def accepted(self):
@@ -345,6 +353,10 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
     outcome.judgement = acceptance.judge(
         outcome.accuracy, requirement, outcome.unmodelled, headline
     )
+    # A controller that cannot compensate the effects: the rigid geometry and its accuracy.
+    outcome.rigid_geometry, rigid = rigid_result(outcome)
+    if rigid is not None:
+        outcome.effects['rigid'] = rigid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -388,7 +400,6 @@ def finish_run(run, settings, samples, collection, options):
     import traceback
 
     from gsp_calibrator.report.write import outcome_inputs, write_all
-    from gsp_calibrator.run.directory import RESULT_FILE
 
     outcome = identify_with_settings(settings, samples)
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
@@ -414,5 +425,16 @@ def finish_run(run, settings, samples, collection, options):
             report_error = f'{error}\n{traceback.format_exc()}'
     if outcome.success:
         comment = RESULT_COMMENT + ('' if outcome.accepted else f'\n{NOT_ACCEPTED_COMMENT}')
-        run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
+        write_results(run, outcome, comment)
     return FinishedRun(outcome, summary, report_error)
+
+
+def write_results(run, outcome, comment):
+    """Write a successful ``outcome``'s geometry to ``run`` (its ``RunDirectory``) as
+    ``result.yaml`` and, with identified effects, the rigid one as ``result_rigid.yaml``."""
+    from gsp_calibrator.run.directory import RESULT_FILE, RIGID_RESULT_FILE
+
+    run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
+    if outcome.rigid_geometry is not None:
+        rigid_comment = f'{comment}\n{RIGID_COMMENT}'
+        run.write_geometry(outcome.rigid_geometry, RIGID_RESULT_FILE, comment=rigid_comment)

@@ -6,7 +6,8 @@ Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``s
 node's own: :func:`gsp_calibrator.run.identify.identify_from_samples` with the commanded postures
 as pose guesses, so the same samples and options give the same result as the online run.
 
-Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success),
+Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success; and
+``result_rigid.yaml`` with identified effects),
 ``result.json``, ``report.md`` with its PNGs, a copy of the recording (when the input has one) and
 ``true_geometry.yaml`` (when a truth is given). Prints the summary and the run directory.
 
@@ -22,11 +23,10 @@ import numpy as np
 
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import (
-    RESULT_FILE,
     TRUE_GEOMETRY_FILE,
     RunDirectory,
 )
-from gsp_calibrator.run.identify import identify_from_samples
+from gsp_calibrator.run.identify import identify_from_samples, write_results
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL, outcome_summary
 from gsp_calibrator.settings import DEFAULTS, PARAMETER_SPECS, option_name
 from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
@@ -232,11 +232,7 @@ def reidentify(args, out=None):
     if truth is not None:
         run.write_geometry(truth, name=TRUE_GEOMETRY_FILE, comment='true geometry (given)')
     if outcome.success:
-        run.write_geometry(
-            outcome.geometry,
-            name=RESULT_FILE,
-            comment=f'calibrated offline by gsp_reidentify from {path}',
-        )
+        write_results(run, outcome, f'calibrated offline by gsp_reidentify from {path}')
 
     validation_before = validation_after = None
     if outcome.result is not None:

@@ -134,3 +134,24 @@ def rigid_model_errors(geometry, rigid, poses):
 def _with_vector(geometry, vector):
     rigid = type(geometry).from_vector(vector, geometry.limits)
     return rigid.replace(sensors=geometry.sensors)
+
+
+def rigid_accuracy(geometry, rigid, compensated_mm=0.0, poses=None):
+    """The predicted accuracy (mm) over the workspace of a rigid controller running ``rigid``
+    on the platform the identified model describes (``geometry`` with its effects):
+    ``{'position_mm': {mean, max}, 'systematic_position_mm': {mean, max}, 'postures'}``. The
+    systematic part is :func:`rigid_model_errors` over ``poses`` (None: workspace postures
+    apart from the fold's); ``compensated_mm``, the compensating geometry's predicted error
+    (its parameters' uncertainty, which the fold inherits), is added in quadrature at each."""
+    if poses is None:
+        poses = fold_postures(geometry, seed=FOLD_SEED + 1)
+    systematic = rigid_model_errors(geometry, rigid, poses)
+    total = np.hypot(systematic, compensated_mm)
+    return {
+        'position_mm': {'mean': float(total.mean()), 'max': float(total.max())},
+        'systematic_position_mm': {
+            'mean': float(systematic.mean()),
+            'max': float(systematic.max()),
+        },
+        'postures': int(len(poses)),
+    }
