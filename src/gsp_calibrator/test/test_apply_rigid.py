@@ -3,6 +3,8 @@ controller that declares only the documented rigid geometry (``geometry.*`` with
 ``geometry.effects.*``) the calibrator applies the rigid geometry, the effects folded in; to
 platform_sim, which declares the effects, the geometry and the effects it compensates."""
 
+import json
+
 import numpy as np
 import rclpy
 from calibrator_suite import DEVICE_FREE, make_suite, perturbed_truth
@@ -55,6 +57,11 @@ def test_a_rigid_controller_gets_the_folded_geometry_and_platform_sim_the_effect
         run = RunDirectory(parse_response(response.message).run_directory)
         compensating, rigid = run.read_geometry(), run.read_geometry(RIGID_RESULT_FILE)
         assert compensating.effects.groups() == ['compliance'] and rigid.effects.none
+        # The verdict gives the rigid controller's accuracy beside the compensated one.
+        record = json.loads((run.path / 'result.json').read_text())['effects']['rigid']
+        predicted = record['predicted']['position_mm']['mean']
+        assert predicted > record['compensated_predicted_position_mm'] > 0.0
+        assert f'predicted {predicted:.3g} mm' in (run.path / 'report.md').read_text()
         applied = parameter_values(stand_in, RIGID_SPECS)
         for name, value in geometry_to_parameters(rigid).items():
             np.testing.assert_allclose(applied[name], value, rtol=0, atol=1e-12, err_msg=name)
