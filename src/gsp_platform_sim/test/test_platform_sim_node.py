@@ -295,7 +295,7 @@ def test_controller_geometry_applied_through_the_parameter_service(harness, serv
     harness.wait_final(command_id)
     calibrated = _calibrated_geometry()
     sent = geometry_to_parameters(calibrated)
-    nominal = geometry_to_parameters(NOMINAL)
+    nominal = geometry_to_parameters(NOMINAL, all_effects=True)
     assert all(not np.array_equal(sent[name], nominal[name]) for name in sent), 'a group nominal'
     q_new = _legs(calibrated, POSE)
     # Each group the leg lengths depend on moves them by far more than the 10 um tolerance on its
