@@ -22,12 +22,8 @@ from std_msgs.msg import String
 
 from gsp_calibrator.run.host import WAIT_OK
 from gsp_calibrator.run.identify import RESULT_COMMENT
-from gsp_kinematics.geometry import EFFECT_KEYS, geometry_to_parameters, geometry_to_yaml
-
-#: The prefix of the identified effects' parameters (``gsp_msgs_py.geometry_parameters``).
-EFFECTS_PREFIX = 'geometry.effects'
-#: Every ``geometry.effects.*`` parameter a compensating controller declares.
-EFFECT_PARAMETERS = frozenset(f'{EFFECTS_PREFIX}.{key}' for key in EFFECT_KEYS)
+from gsp_kinematics.geometry import geometry_to_parameters, geometry_to_yaml
+from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES, EFFECT_PARAMETER_PREFIX
 
 
 class ResultDelivery:
@@ -69,12 +65,13 @@ class ResultDelivery:
         ``geometry.effects.*``); ``(None, why)`` when its parameters could not be listed."""
         if settings.controller_effects != 'auto':
             return settings.controller_effects == 'compensated', 'controller_effects'
+        prefix = EFFECT_PARAMETER_PREFIX.rstrip('.')
         names, why = await self.parameter_setter.list(
-            settings.platform_node_name, EFFECTS_PREFIX, settings.topic_timeout, wait_for
+            settings.platform_node_name, prefix, settings.topic_timeout, wait_for
         )
         if names is None:
             return None, why
-        return EFFECT_PARAMETERS <= set(names), 'auto'
+        return set(EFFECT_PARAMETER_NAMES) <= set(names), 'auto'
 
 
 def applied_note(node_name, geometry, compensates, folded, decided):

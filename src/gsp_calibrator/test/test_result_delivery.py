@@ -9,10 +9,11 @@ import types
 import numpy as np
 import pytest
 
-from gsp_calibrator.result_delivery import EFFECT_PARAMETERS, ResultDelivery
+from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_kinematics.effects.groups import IdentifiedEffects
 from gsp_kinematics.effects.rigid_fold import fold_effects
 from gsp_kinematics.geometry import default_geometry
+from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES
 
 NOMINAL = default_geometry('nominal')
 VALUES = np.zeros(24)
@@ -75,11 +76,11 @@ RIGID_NAMES += [
 
 
 def test_a_controller_that_declares_the_effects_gets_them_all():
-    services = Services(RIGID_NAMES + sorted(EFFECT_PARAMETERS))
+    services = Services(RIGID_NAMES + sorted(EFFECT_PARAMETER_NAMES))
     success, note = deliver(services)
     assert success and note.startswith('applied to /controller'), note
     assert 'effects compensated by the controller: compliance, backlash' in note
-    assert EFFECT_PARAMETERS <= set(services.sent)
+    assert set(EFFECT_PARAMETER_NAMES) <= set(services.sent)
     assert services.sent['geometry.effects.joint_offset'] == [0.0] * 6  # none of an earlier one
     np.testing.assert_array_equal(services.sent['geometry.leg_offsets'], NOMINAL.leg_offsets)
 
@@ -98,7 +99,7 @@ def test_a_controller_without_the_effects_gets_the_rigid_geometry(declared):
 
 
 def test_controller_effects_decides_without_asking():
-    services = Services(RIGID_NAMES + sorted(EFFECT_PARAMETERS))
+    services = Services(RIGID_NAMES + sorted(EFFECT_PARAMETER_NAMES))
     success, note = deliver(services, controller_effects='rigid')
     assert success and 'controller_effects: rigid' in note and not services.listed
     np.testing.assert_array_equal(services.sent['geometry.leg_offsets'], RIGID.leg_offsets)

@@ -18,6 +18,10 @@ GEOMETRY_PARAMETER_NAMES = tuple(_NOMINAL_PARAMETERS)
 #: Prefix of the identified effects' parameters: a controller that declares none of them runs
 #: the rigid geometry only (the calibrator then applies the effects folded in).
 EFFECT_PARAMETER_PREFIX = 'geometry.effects.'
+#: The ``geometry.effects.*`` parameters a controller that compensates the effects declares.
+EFFECT_PARAMETER_NAMES = tuple(
+    name for name in GEOMETRY_PARAMETER_NAMES if name.startswith(EFFECT_PARAMETER_PREFIX)
+)
 #: name -> (description, unit) of the controller geometry parameters.
 _GEOMETRY_DESCRIPTIONS = {
     'geometry.base_joints': (
