@@ -87,6 +87,7 @@ class PhysicsSimulator:
         self._in_position_since = None
         self._commanded_pose = start.copy()
         self.advance(self.time_s + START_UP_S)
+        self._time_offset = float(start_s) - self._data.time  # at rest at start_s
 
     def _index_model(self, geometry, reference):
         model = self._model
@@ -241,6 +242,11 @@ class PhysicsSimulator:
             )
             mujoco.mj_step(model, data)
             self._track_in_position()
+
+    def slip_to(self, now_s):
+        """If the simulation is behind ``now_s`` (s), move its clock there without simulating the
+        gap: a machine that cannot keep real time loses simulated time, never speeds it up."""
+        self._time_offset += max(0.0, now_s - self.time_s)
 
     def _track_in_position(self):
         if self._move is not None:

@@ -27,6 +27,30 @@ import numpy as np
 GRAVITY = 9.81
 
 
+#: Each field of :class:`PhysicalParameters`: (unit, description).
+FIELD_DOCS = {
+    'platform_mass': ('kg', "the moving platform's structure"),
+    'platform_inertia': ('kg m^2', "the platform's principal moments of inertia (x, y, z)"),
+    'payload_mass': ('kg', 'the payload on the platform'),
+    'payload_center': ('m', "the payload's centre of mass, platform frame"),
+    'leg_housing_mass': ('kg', "a leg's cylinder and motor, turning with the base U joint"),
+    'leg_rod_mass': ('kg', "a leg's rod and nut beyond its spring (keeps the spring stable)"),
+    'leg_stiffness': ('N/m', 'axial stiffness of a leg (.inf: rigid)'),
+    'leg_damping': ('N s/m', 'axial damping of a leg'),
+    'servo_inertia': ('kg', "the screw's and motor's inertia reflected on a leg's slide"),
+    'servo_kp': ('N/m', "the servo's position gain"),
+    'servo_ki': ('N/(m s)', "the servo's integral gain"),
+    'servo_kd': ('N s/m', "the servo's velocity gain"),
+    'joint_damping': ('N m s/rad', "every passive joint's viscous friction"),
+    'device_link_mass': ('kg', "the device's lower link, carrying the inclinometer"),
+    'device_slide_mass': ('kg', "the LVDT's moving part"),
+    'device_top_mass': ('kg', "the encoder's body welded to the platform"),
+    'inclinometer_height': ('m', 'the inclinometer on the link, from the base origin'),
+    'timestep': ('s', 'simulation step (sqrt(leg_stiffness / leg_rod_mass) * timestep < 0.9)'),
+    'gravity': ('', 'gravity on (false: no load on the legs)'),
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class PhysicalParameters:
     """Masses (kg), stiffness (N/m), servo gains and damping of the simulated platform.
@@ -35,25 +59,24 @@ class PhysicalParameters:
     ``math.inf`` makes the legs rigid (no spring joint); ``gravity`` False removes the load.
     """
 
-    platform_mass: float = 40.0  #: the moving platform's structure, kg
-    #: its principal moments of inertia (kg m^2): a 0.8 m radius plate of 40 kg
-    platform_inertia: tuple = (6.4, 6.4, 12.8)
-    payload_mass: float = 0.0  #: kg
-    payload_center: tuple = (0.0, 0.0, 0.1)  #: payload's centre of mass, platform frame, m
-    leg_housing_mass: float = 5.0  #: cylinder and motor, turning with the base U joint, kg
-    leg_rod_mass: float = 7.0  #: rod and nut beyond the spring, kg (keeps the spring stable)
-    leg_stiffness: float = 3.0e7  #: axial stiffness of a leg, N/m (30 N/um)
-    leg_damping: float = 2.0e3  #: axial damping of a leg, N s/m
-    servo_inertia: float = 150.0  #: the screw and motor's inertia reflected on the slide, kg
-    servo_kp: float = 2.4e6  #: position gain, N/m
-    servo_ki: float = 2.4e7  #: integral gain, N/(m s)
-    servo_kd: float = 2.6e4  #: velocity gain, N s/m (applied as the slide's damping)
-    joint_damping: float = 1.0  #: every passive joint's friction, N m s/rad (N s/m on slides)
-    device_link_mass: float = 1.0  #: the device's lower link (with the inclinometer), kg
-    device_slide_mass: float = 0.5  #: the LVDT's moving part, kg
-    device_top_mass: float = 0.3  #: the encoder's body welded to the platform, kg
-    inclinometer_height: float = 0.3  #: inclinometer on the link, from the base origin, m
-    timestep: float = 5e-4  #: s
+    platform_mass: float = 40.0
+    platform_inertia: tuple = (6.4, 6.4, 12.8)  # a 0.8 m radius plate of 40 kg
+    payload_mass: float = 0.0
+    payload_center: tuple = (0.0, 0.0, 0.1)
+    leg_housing_mass: float = 5.0
+    leg_rod_mass: float = 7.0
+    leg_stiffness: float = 3.0e7
+    leg_damping: float = 2.0e3
+    servo_inertia: float = 150.0
+    servo_kp: float = 2.4e6
+    servo_ki: float = 2.4e7
+    servo_kd: float = 2.6e4
+    joint_damping: float = 1.0
+    device_link_mass: float = 1.0
+    device_slide_mass: float = 0.5
+    device_top_mass: float = 0.3
+    inclinometer_height: float = 0.3
+    timestep: float = 5e-4
     gravity: bool = True
 
     def __post_init__(self):
