@@ -46,7 +46,7 @@ FIELD_DOCS = {
     'device_slide_mass': ('kg', "the LVDT's moving part"),
     'device_top_mass': ('kg', "the encoder's body welded to the platform"),
     'inclinometer_height': ('m', 'the inclinometer on the link, from the base origin'),
-    'timestep': ('s', 'simulation step (sqrt(leg_stiffness / leg_rod_mass) * timestep < 0.9)'),
+    'timestep': ('s', 'simulation step: keep sqrt(leg_stiffness / leg_rod_mass) * timestep near 1 or below (springs are explicit)'),
     'gravity': ('', 'gravity on (false: no load on the legs)'),
 }
 
