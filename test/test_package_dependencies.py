@@ -25,6 +25,7 @@ ROSDEP_KEYS = {
     'serial': 'python3-serial',
     'mcap': 'python3-mcap',
     'mcap_ros2': 'python3-mcap-ros2-support',
+    'mujoco': 'python3-mujoco-pip',
 }
 
 

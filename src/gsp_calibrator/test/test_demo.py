@@ -253,3 +253,21 @@ def test_a_child_that_exits_is_reported_with_its_log(tmp_path):
     assert processes.exited() == ('broken', 3)
     assert 'bad parameter' in processes.log_tail('broken')
     processes.stop()
+
+
+def test_the_physics_backend_runs_platform_sim_on_its_preset_with_the_device_on_the_physics(
+    tmp_path,
+):
+    args = demo.parse_arguments(['--backend', 'physics'])
+    found = demo_commands.node_commands(args, str(tmp_path), which=lambda name: f'/opt/bin/{name}')
+    platform = found['platform_sim']
+    files = [platform[i + 1] for i, arg in enumerate(platform) if arg == '--params-file']
+    # The preset after the nominal geometry (the controller's), which it does not touch.
+    assert files[0] == args.nominal_geometry
+    assert files[1].endswith('gsp_platform_sim/config/physics_realistic.yaml')
+    assert 'backend:=physics' in found['device_driver']
+    # A servo does not jump: the legs' realistic limits, known to the calibrator's plan.
+    assert 'max_leg_speed:=0.05' in platform and 'max_leg_speed:=0.05' in found['calibrator']
+    for bad in (['--platform', 'ros2_control'], ['--platform-effects', 'realistic']):
+        with pytest.raises(SystemExit):
+            demo.parse_arguments(['--backend', 'physics', *bad])

@@ -3,6 +3,8 @@
 The ``device_driver`` node only talks to the backend :func:`backend_class` names. Built in:
 
 * ``sim``: readings of the simulated platform's true pose (core ``device_readings``) + noise;
+* ``physics``: the physics backend's noise-free readings (``/gsp/platform/device_truth``, from
+  ``platform_sim`` on MuJoCo: the inclinometer feels the ringing) + the sensor errors and noise;
 * ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
   :mod:`.serial_protocol` and docs/hardware.md).
 
@@ -16,6 +18,7 @@ ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node de
 to the node is needed.
 """
 
+import collections
 import math
 
 import numpy as np
@@ -207,7 +210,52 @@ class SimDeviceBackend(DeviceBackend):
         return Health(OK, f'simulating readings at {rate:.1f} Hz', values)
 
 
-_BACKENDS = {backend.name: backend for backend in (SimDeviceBackend, SerialDeviceBackend)}
+class PhysicsDeviceBackend(SimDeviceBackend):
+    """The ``sim`` backend fed the physics' own readings of the device (each with its stamp)
+    instead of the true pose: every reading received is published once, through the real
+    device's sensor errors, dynamics and noise."""
+
+    name = 'physics'
+    needs_true_pose = False
+    needs_device_truth = True
+    samples_at_tick = False
+    #: Readings kept between two ticks (s of readings at 1 kHz); older ones are dropped.
+    MAX_PENDING = 1000
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._pending = collections.deque(maxlen=self.MAX_PENDING)
+
+    def observe_device_truth(self, stamp_s, readings):
+        readings = np.asarray(readings, dtype=float)
+        if readings.shape != (len(READING_NAMES),) or not np.all(np.isfinite(readings)):
+            self._counts['true_poses_refused'] += 1
+            raise ValueError(f'device readings must be 4 finite values, got {readings.tolist()}')
+        self._pending.append((float(stamp_s), self._device.sensors.device_readings(readings)))
+        self._counts['true_poses'] += 1
+        self._exact = self._pending[-1][1]
+
+    def read_available(self, now_s):
+        samples = []
+        while self._pending:
+            stamp_s, exact = self._pending.popleft()
+            values = self._dynamics.step(stamp_s, exact, self._noise.readings(), self._rng)
+            self._counts['readings'] += 1
+            if self._latest_s is None:
+                self._reported = (dict(self._counts), stamp_s)
+            self._latest_s = stamp_s
+            samples.append(DeviceSample(stamp_s, *(float(v) for v in values)))
+        return samples
+
+    def read(self, now_s):
+        samples = self.read_available(now_s)
+        return samples[-1] if samples else None
+
+
+_BACKENDS = {
+    backend.name: backend
+    for backend in (SimDeviceBackend, PhysicsDeviceBackend, SerialDeviceBackend)
+}
 
 
 def backend_names():
@@ -230,6 +278,7 @@ __all__ = [
     'BackendError',
     'DeviceBackend',
     'DeviceSample',
+    'PhysicsDeviceBackend',
     'SimDeviceBackend',
     'backend_class',
     'backend_names',

@@ -46,6 +46,9 @@ class DeviceBackend(abc.ABC):
     name = ''
     #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
     needs_true_pose = False
+    #: Whether the node must feed it ``/gsp/platform/device_truth`` via
+    #: :meth:`observe_device_truth`.
+    needs_device_truth = False
     #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
     simulates_noise = False
     #: Whether a reading is taken at the node's publish timer (``now_s`` is then the timer's
@@ -84,6 +87,11 @@ class DeviceBackend(abc.ABC):
 
         ValueError if the pose is unusable (the previous one is kept). Default: ignored.
         """
+        return None
+
+    def observe_device_truth(self, stamp_s, readings):
+        """Noise-free readings (4,) of the simulated device at ``stamp_s`` (s); physics
+        simulators only. ValueError if unusable. Default: ignored."""
         return None
 
     def update_noise(self, noise):

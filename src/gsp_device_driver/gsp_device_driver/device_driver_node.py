@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 
 from gsp_kinematics.channels import DEVICE_SENSORS, sensor_channel_names
 from gsp_kinematics.device import SENSORS
@@ -148,6 +149,13 @@ class DeviceDriverNode(Node):
             self.create_subscription(
                 PoseStamped, names.TOPIC_TRUE_POSE, self._on_true_pose, qos.LATEST_STATE_QOS
             )
+        if self._backend.needs_device_truth:
+            self.create_subscription(
+                JointState,
+                names.TOPIC_DEVICE_TRUTH,
+                self._on_device_truth,
+                qos.SENSOR_SUBSCRIPTION_QOS,
+            )
         self._timer = self.create_timer(1.0 / values['publish_rate'], self._publish_readings)
         self._diagnostics = DiagnosticsPublisher(
             self,
@@ -184,6 +192,19 @@ class DeviceDriverNode(Node):
         except ValueError as error:
             self.get_logger().warning(
                 f'ignoring true pose: {error}', throttle_duration_sec=WARN_THROTTLE_S
+            )
+
+    def _on_device_truth(self, msg):
+        try:
+            if msg.header.frame_id != self._frame_id:
+                raise ValueError(f"frame '{msg.header.frame_id}' is not '{self._frame_id}'")
+            self._backend.observe_device_truth(
+                conversions.stamp_to_seconds(msg.header.stamp),
+                conversions.msg_to_device_truth(msg),
+            )
+        except ValueError as error:
+            self.get_logger().warning(
+                f'ignoring device truth: {error}', throttle_duration_sec=WARN_THROTTLE_S
             )
 
     def _publish_readings(self):

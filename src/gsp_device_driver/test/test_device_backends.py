@@ -182,3 +182,26 @@ def test_sim_dynamics_come_from_the_node_parameters_per_sensor():
 def test_negative_response_time_is_a_backend_error():
     with pytest.raises(BackendError, match='response time must be finite and >= 0 s'):
         SimDeviceBackend(1.0, 1.5, response_times=(-1.0, 0.0, 0.0))
+
+
+def test_the_physics_backend_publishes_each_reading_once_with_its_stamp_and_sensor_errors():
+    from gsp_device_driver.backends import PhysicsDeviceBackend
+
+    backend = PhysicsDeviceBackend.from_config(
+        true_geometry_file=default_geometry_path('true'), rng=np.random.default_rng(0)
+    )
+    assert backend_class('physics') is PhysicsDeviceBackend
+    assert backend.read_available(1.0) == []
+    truth = device_readings(TRUE, np.stack([POSE, POSE + 0.001]))
+    backend.observe_device_truth(0.5, truth[0])
+    backend.observe_device_truth(0.51, truth[1])
+    samples = backend.read_available(1.0)
+    assert [sample.stamp_s for sample in samples] == [0.5, 0.51]
+    for sample, ideal in zip(samples, truth, strict=True):
+        # rad, rad, rad, m: the true device's offsets and LVDT gain error, no noise configured
+        np.testing.assert_allclose(
+            sample.readings(), TRUE.sensors.device_readings(ideal), rtol=0.0, atol=1e-12
+        )
+    assert backend.read_available(1.1) == []
+    with pytest.raises(ValueError, match='4 finite values'):
+        backend.observe_device_truth(0.6, [0.0, math.nan, 0.0, 0.0])

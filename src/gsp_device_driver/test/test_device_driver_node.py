@@ -218,7 +218,7 @@ def test_diagnostics_say_whether_the_sim_device_follows_a_live_true_pose(harness
     [
         (
             [Parameter('backend', value='replay')],
-            "unknown device backend 'replay'; valid backends: serial, sim",
+            "unknown device backend 'replay'; valid backends: physics, serial, sim",
         ),
         ([Parameter('publish_rate', value=0.0)], 'publish_rate'),
         ([Parameter('lvdt_noise_std', value=-1e-6)], 'lvdt_noise_std'),

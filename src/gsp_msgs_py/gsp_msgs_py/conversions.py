@@ -131,6 +131,18 @@ def msg_to_leg_lengths(msg):
     return _read_joint_state(msg, names.LEG_JOINT_NAMES, 'leg lengths')
 
 
+def device_truth_to_msg(readings, stamp=None, frame_id=names.FRAME_BASE):
+    """JointState ``alpha, beta, phi, d_m`` (rad, rad, rad, m) for ``/gsp/platform/device_truth``."""
+    return _make_joint_state(
+        names.DEVICE_READING_NAMES, readings, stamp, frame_id, 'device readings'
+    )
+
+
+def msg_to_device_truth(msg):
+    """``[alpha, beta, phi, d_m]`` as ``np.ndarray(4)`` from a device_truth JointState."""
+    return _read_joint_state(msg, names.DEVICE_READING_NAMES, 'device readings')
+
+
 def inclinometer_to_msg(alpha, beta, stamp=None, frame_id=names.FRAME_BASE):
     """JointState ``alpha``, ``beta`` (rad) for ``/gsp/device/inclinometer``."""
     return _make_joint_state(

@@ -13,6 +13,8 @@ name                            type                              content
 ``/gsp/platform/true_pose``     geometry_msgs/PoseStamped         simulator ground truth
 ``/gsp/platform/status``        diagnostic_msgs/DiagnosticStatus  ``conversions.make_status``
 ``/gsp/platform/markers``       visualization_msgs/MarkerArray    RViz view of the platform
+``/gsp/platform/device_truth``  sensor_msgs/JointState            physics backend: noise-free
+                                                                  ``alpha, beta, phi, d_m``
 ``/gsp/device/inclinometer``    sensor_msgs/JointState            ``alpha``, ``beta`` (rad)
 ``/gsp/device/encoder``         sensor_msgs/JointState            ``phi`` (rad)
 ``/gsp/device/lvdt``            sensor_msgs/JointState            ``d_m`` (m)
@@ -54,6 +56,9 @@ TOPIC_LEG_LENGTHS = '/gsp/platform/leg_lengths'
 TOPIC_TRUE_POSE = '/gsp/platform/true_pose'
 TOPIC_PLATFORM_STATUS = '/gsp/platform/status'
 TOPIC_MARKERS = '/gsp/platform/markers'
+#: The physics backend's noise-free device readings (the device_driver ``physics`` backend adds
+#: the sensors' errors and noise): ``alpha, beta, phi, d_m`` (rad, rad, rad, m).
+TOPIC_DEVICE_TRUTH = '/gsp/platform/device_truth'
 
 # Device topics.
 TOPIC_INCLINOMETER = '/gsp/device/inclinometer'
@@ -80,6 +85,8 @@ LEG_JOINT_NAMES = channels.LEG_JOINT_NAMES
 INCLINOMETER_JOINT_NAMES = channels.sensor_channel_names(channels.INCLINOMETER)
 ENCODER_JOINT_NAMES = channels.sensor_channel_names(channels.ENCODER)
 LVDT_JOINT_NAMES = channels.sensor_channel_names(channels.LVDT)
+#: The joint names of ``/gsp/platform/device_truth``: every device reading.
+DEVICE_READING_NAMES = channels.READING_NAMES
 
 # Platform status.
 STATE_MOVING = 'moving'
@@ -126,6 +133,7 @@ TOPIC_TYPES = {
     TOPIC_TRUE_POSE: 'geometry_msgs/msg/PoseStamped',
     TOPIC_PLATFORM_STATUS: 'diagnostic_msgs/msg/DiagnosticStatus',
     TOPIC_MARKERS: 'visualization_msgs/msg/MarkerArray',
+    TOPIC_DEVICE_TRUTH: 'sensor_msgs/msg/JointState',
     TOPIC_INCLINOMETER: 'sensor_msgs/msg/JointState',
     TOPIC_ENCODER: 'sensor_msgs/msg/JointState',
     TOPIC_LVDT: 'sensor_msgs/msg/JointState',

@@ -5,7 +5,9 @@ Subscribes ``/gsp/platform/pose_command``; publishes ``/gsp/platform/leg_lengths
 or rejected with the reason: :mod:`gsp_msgs_py.pose_commands`) and ``/gsp/platform/markers``.
 The controller geometry is the ``geometry.*`` parameters (changeable at run time); the true
 geometry is read once from ``true_geometry_file`` and never published. The logic is in
-:mod:`gsp_platform_sim.simulator`.
+:mod:`gsp_platform_sim.simulator` (``backend`` ``kinematic``) or :mod:`gsp_platform_sim.physics`
+(``physics``: MuJoCo, docs/physics.md; it also publishes ``/gsp/platform/device_truth``, and a
+command settles when the servo encoders are in position).
 """
 
 import numpy as np
@@ -27,18 +29,31 @@ from gsp_msgs_py.geometry_parameters import (
     check_geometry_change,
     controller_geometry_error,
 )
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, one_of
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .effect_specs import EFFECT_SPECS, effects_from_values, effects_summary
 from .markers import make_marker_array
+from .physics import PhysicsSimulator
+from .physics_specs import BACKENDS, PHYSICS_SPECS, physics_from_values
 from .simulator import DEFAULT_MAX_CONDITION, PlatformSimulator
 
 MARKER_RATE_HZ = 10.0
 #: Random stream of this node: the device driver with the same ``seed`` draws independent noise.
 RNG_STREAM = 1
+#: Physics backend: the most simulated time (s) one publish tick catches up; beyond it the
+#: simulation's clock slips behind the node's (a machine that cannot keep real time).
+MAX_CATCH_UP_S = 0.05
 
 PARAMETERS = (
+    ParameterSpec(
+        'backend',
+        'kinematic',
+        'kinematic: the rigid model with the effects as formulas (fast); physics: MuJoCo, '
+        'servo-driven compliant legs, a ringing platform (docs/physics.md)',
+        read_only=True,
+        check=one_of(BACKENDS),
+    ),
     parameter_specs.geometry_file_spec(
         'true_geometry_file',
         default_geometry_path('true'),
@@ -73,6 +88,7 @@ PARAMETERS = (
     ),
     parameter_specs.diagnostics_period_spec(),
     *EFFECT_SPECS,
+    *PHYSICS_SPECS,
 )
 
 
@@ -95,19 +111,11 @@ class PlatformSimNode(Node):
             {name: values[name] for name in GEOMETRY_PARAMETER_NAMES}
         )
         seed = parameter_specs.resolve_seed(values['seed'])
+        self._physics = values['backend'] == 'physics'
         try:
             effects = effects_from_values(values)
-            self._simulator = PlatformSimulator(
-                true_geometry,
-                controller_geometry,
-                leg_lengths_noise_std=values['leg_lengths_noise_std'],
-                rng=np.random.default_rng([seed, RNG_STREAM]),
-                max_condition=values['max_condition'],
-                limits=MotionLimits.from_parameters(
-                    values['max_leg_speed'], values['max_leg_acceleration']
-                ),
-                effects=effects,
-                start_s=self._now_s(),
+            self._simulator = self._make_simulator(
+                values, true_geometry, controller_geometry, effects, seed
             )
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
@@ -118,13 +126,16 @@ class PlatformSimNode(Node):
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.
         self._pubs = node_tools.create_publishers(
-            self, (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
+            self,
+            (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
+            + ((names.TOPIC_DEVICE_TRUTH,) if self._physics else ()),
         )
         self._travel_s = 0.0  # of the command just accepted
         self._commands = PoseCommandServer(
             self,
             self._frame_id,
-            values['settle_time'],
+            # physics: the controller reports "in position" itself (report mode)
+            None if self._physics else values['settle_time'],
             self._move,
             travel_s=lambda: self._travel_s,
         )
@@ -141,7 +152,7 @@ class PlatformSimNode(Node):
             self.create_timer(1.0 / MARKER_RATE_HZ, self._publish_markers)
 
         self.get_logger().info(
-            f'platform_sim ready: true geometry from {values["true_geometry_file"]}, '
+            f'platform_sim ready ({values["backend"]} backend): true geometry from {values["true_geometry_file"]}, '
             f'publishing at {values["publish_rate"]:g} Hz, '
             f'leg noise {values["leg_lengths_noise_std"]:g} m, '
             f'settle time {values["settle_time"]:g} s, leg limits '
@@ -150,13 +161,37 @@ class PlatformSimNode(Node):
             f'home pose {self._simulator.true_pose.round(6).tolist()}; {effects_summary(effects)}'
         )
 
+    def _make_simulator(self, values, true_geometry, controller_geometry, effects, seed):
+        common = dict(
+            leg_lengths_noise_std=values['leg_lengths_noise_std'],
+            rng=np.random.default_rng([seed, RNG_STREAM]),
+            max_condition=values['max_condition'],
+            limits=MotionLimits.from_parameters(
+                values['max_leg_speed'], values['max_leg_acceleration']
+            ),
+            start_s=self._now_s(),
+        )
+        if not self._physics:
+            return PlatformSimulator(true_geometry, controller_geometry, effects=effects, **common)
+        if not effects.ideal:
+            raise ValueError('effects.* are for the kinematic backend: the physics makes its own')
+        params, window, hold = physics_from_values(values)
+        return PhysicsSimulator(
+            true_geometry,
+            controller_geometry,
+            params,
+            in_position_window=window,
+            in_position_time=hold,
+            **common,
+        )
+
     def _apply_parameters(self, changes):
         """Apply accepted run-time changes (checked by parameter_specs.watch_parameters)."""
         if 'leg_lengths_noise_std' in changes:
             self._simulator.leg_lengths_noise_std = changes['leg_lengths_noise_std']
         if 'max_condition' in changes:
             self._simulator.max_condition = changes['max_condition']
-        if 'settle_time' in changes:
+        if 'settle_time' in changes and not self._physics:
             self._commands.settle_time = changes['settle_time']
         if {'max_leg_speed', 'max_leg_acceleration'} & set(changes):
             # From the next command (a move under way keeps its profile).
@@ -193,8 +228,28 @@ class PlatformSimNode(Node):
         # Stamped at the timer's scheduled tick, as a sensor sampling on its own clock: the
         # callback's delay would jitter the leg-length stamps against the device's.
         tick = node_tools.timer_tick_time(self, self._state_timer)
+        if self._physics:
+            self._publish_physics(tick.nanoseconds * 1e-9)
+            return
         self._simulator.update(tick.nanoseconds * 1e-9)
-        stamp = tick.to_msg()
+        self._publish_samples(tick.to_msg())
+
+    def _publish_physics(self, tick_s):
+        """Simulate up to the tick (at most ``MAX_CATCH_UP_S``, then the simulation's clock
+        slips), publish the state stamped at the simulated instant, report "in position"."""
+        simulator = self._simulator
+        simulator.advance(min(tick_s, simulator.time_s + MAX_CATCH_UP_S))
+        simulator.slip_to(tick_s)
+        stamp = conversions.seconds_to_stamp(simulator.time_s)
+        self._publish_samples(stamp)
+        self._pubs[names.TOPIC_DEVICE_TRUTH].publish(
+            conversions.device_truth_to_msg(simulator.device_readings(), stamp, self._frame_id)
+        )
+        moving = self._commands.moving
+        if moving is not None and simulator.in_position:
+            self._commands.settled(moving)
+
+    def _publish_samples(self, stamp):
         self._pubs[names.TOPIC_LEG_LENGTHS].publish(
             conversions.leg_lengths_to_msg(
                 self._simulator.measured_leg_lengths(), stamp, self._frame_id

@@ -36,6 +36,7 @@ from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
 from gsp_calibrator.tools.demo_commands import (
     MOVING_SETTLE_TIMEOUT_S,
     NODES,
+    PHYSICS_PRESET,
     SENSOR_DYNAMICS,
     node_commands,
     ros_environment,
@@ -53,6 +54,7 @@ from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.kinematics import sample_valid_postures
 from gsp_kinematics.noise_from_data import NOISE_SOURCES
+from gsp_kinematics.travel.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
 from gsp_msgs_py.ros_environment import (
     DomainInUseError,
     enter_private_domain,
@@ -134,6 +136,14 @@ def parse_arguments(argv=None):
         help='sim: platform_sim; ros2_control: platform_bridge + emulated controller (sim)',
     )
     add(
+        '--backend',
+        default='kinematic',
+        choices=('kinematic', 'physics'),
+        help="platform_sim's backend: kinematic (fast) or physics (MuJoCo, the realistic preset "
+        f"{PHYSICS_PRESET}, with device_driver's physics backend; the legs' realistic limits "
+        'unless given) (docs/physics.md) (kinematic)',
+    )
+    add(
         '--device',
         default='sim',
         choices=('sim', 'serial'),
@@ -157,6 +167,14 @@ def _check_arguments(parser, args):
         parser.error('--platform-effects needs --platform sim (controller_sim has no effects)')
     if not (args.max_leg_speed >= 0 and args.max_leg_acceleration >= 0):
         parser.error('--max-leg-speed and --max-leg-acceleration must be >= 0 (0: no limit)')
+    if args.backend == 'physics':
+        if args.platform != 'sim' or args.device != 'sim' or args.platform_effects != 'none':
+            parser.error(
+                '--backend physics needs --platform sim, --device sim and no --platform-effects'
+            )
+        # A servo does not jump: the realistic leg limits, known to the calibrator's plan.
+        args.max_leg_speed = args.max_leg_speed or REALISTIC_MAX_SPEED
+        args.max_leg_acceleration = args.max_leg_acceleration or REALISTIC_MAX_ACCELERATION
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 

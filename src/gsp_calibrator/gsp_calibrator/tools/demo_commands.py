@@ -5,6 +5,7 @@ the emulated ros2_control controller and platform_bridge), device_driver (or its
 fed by gsp_fake_device) and the calibrator.
 """
 
+import os
 import shutil
 import sys
 
@@ -43,6 +44,28 @@ def executable_command(name, which=shutil.which):
     if path:
         return [path]
     return [sys.executable, '-m', NODES[name]]
+
+
+#: ``--backend physics``: platform_sim's realistic preset (gsp_platform_sim/config).
+PHYSICS_PRESET = 'physics_realistic.yaml'
+
+
+def physics_preset_path():
+    """The installed :data:`PHYSICS_PRESET` (gsp_platform_sim's share directory)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        share = get_package_share_directory('gsp_platform_sim')
+    except (ImportError, LookupError, ValueError, OSError):  # not in an ament index
+        share = os.path.join(sys.prefix, 'share', 'gsp_platform_sim')
+    return os.path.join(share, 'config', PHYSICS_PRESET)
+
+
+def backend_parameters(args):
+    """platform_sim's and device_driver's arguments of ``--backend`` (kinematic: none)."""
+    if getattr(args, 'backend', 'kinematic') != 'physics':
+        return [], []
+    return ['--params-file', physics_preset_path()], ['-p', 'backend:=physics']
 
 
 #: The calibrator's settle_timeout when the legs move at their limits: longer than any move.
@@ -146,6 +169,7 @@ def node_commands(args, output_root, which=shutil.which):
     ``--device serial``, its serial backend on ``args.device_port`` fed by gsp_fake_device) and
     the calibrator."""
     rate = float(args.sensor_rate)
+    platform_backend, device_backend = backend_parameters(args)
     # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
     # noise (parameter_specs.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
     common = ['-p', f'publish_rate:={rate!r}']
@@ -155,6 +179,7 @@ def node_commands(args, output_root, which=shutil.which):
             '--ros-args',
             '--params-file',
             str(args.nominal_geometry),
+            *platform_backend,
             '-p',
             f'true_geometry_file:={args.true_geometry}',
             '-p',
@@ -170,6 +195,7 @@ def node_commands(args, output_root, which=shutil.which):
             '--ros-args',
             '-p',
             f'true_geometry_file:={args.true_geometry}',
+            *device_backend,
             *device_dynamics_parameters(args),
             *common,
         ],

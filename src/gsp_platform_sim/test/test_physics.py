@@ -1,0 +1,117 @@
+"""The platform on MuJoCo (gsp_platform_sim.physics, docs/physics.md): it stands where the
+kinematics says, its device reads eq 9 at rest, it sags under its load as the compliance model
+predicts, and it rings after a move while the encoders are in position (pure, no ROS)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from gsp_kinematics.device import device_readings
+from gsp_kinematics.effects.model import PlatformEffects
+from gsp_kinematics.effects.real_pose import real_poses
+from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.kinematics import home_pose
+from gsp_platform_sim.physics import PhysicsSimulator
+from gsp_platform_sim.physics_model import PhysicalParameters
+
+TRUE = default_geometry('true')
+NOMINAL = default_geometry('nominal')
+POSE = home_pose() + [0.004, -0.003, 0.005, 0.004, -0.003, 0.006]
+RIGID_NO_LOAD = PhysicalParameters(leg_stiffness=math.inf, gravity=False)
+
+
+def rest_at(sim, pose, extra_s=1.0):
+    """Command ``pose``, wait for the encoders in position, then ``extra_s`` more (s)."""
+    outcome = sim.command(pose)
+    assert outcome.accepted, outcome.reason
+    while not sim.in_position:
+        sim.advance(sim.time_s + 0.005)
+    sim.advance(sim.time_s + extra_s)
+    return outcome
+
+
+def test_with_the_true_geometry_rigid_and_unloaded_it_stands_at_the_command():
+    sim = PhysicsSimulator(TRUE, TRUE, RIGID_NO_LOAD)
+    rest_at(sim, POSE)
+    error = sim.true_pose - POSE
+    assert np.max(np.abs(error[:3])) < 1e-6  # m
+    assert np.max(np.abs(error[3:])) < 1e-6  # rad
+
+
+def test_with_another_controller_it_stands_at_the_true_forward_kinematics():
+    sim = PhysicsSimulator(TRUE, NOMINAL, RIGID_NO_LOAD)
+    outcome = rest_at(sim, POSE)
+    assert np.max(np.abs(outcome.true_pose - POSE)[:3]) > 1e-4  # the geometries differ
+    assert np.max(np.abs(sim.true_pose - outcome.true_pose)[:3]) < 1e-6
+
+
+def test_at_rest_the_device_reads_eq_9_at_the_simulated_pose():
+    sim = PhysicsSimulator(TRUE, NOMINAL)
+    rest_at(sim, POSE + [0.03, 0.02, 0.0, 0.0, 0.0, 0.1])
+    expected = device_readings(TRUE, sim.true_pose[None])[0]
+    # rad, rad, rad, m
+    np.testing.assert_allclose(sim.device_readings(), expected, rtol=0.0, atol=1e-6)
+
+
+def test_under_its_load_it_sags_about_as_the_compliance_model_predicts():
+    load = PhysicalParameters(payload_mass=40.0)
+    sims = [
+        PhysicsSimulator(TRUE, TRUE, dataclasses.replace(load, gravity=gravity))
+        for gravity in (False, True)
+    ]
+    for sim in sims:
+        rest_at(sim, POSE)
+    sag = sims[0].true_pose[2] - sims[1].true_pose[2]
+    carried = load.platform_mass + load.payload_mass
+    effects = PlatformEffects(
+        payload_mass=carried,
+        centre_of_mass=np.array(load.payload_center) * load.payload_mass / carried,
+        leg_stiffness=np.full(6, load.leg_stiffness),
+    )
+    readings = sims[0].leg_lengths[None]
+    model, converged = real_poses(TRUE, effects, readings, POSE[None])
+    rigid, _ = real_poses(TRUE, None, readings, POSE[None])
+    predicted = rigid[0, 2] - model[0, 2]
+    assert converged[0] and predicted > 1e-6
+    # The legs' own weight adds to the load the massless-leg model knows.
+    assert 1.0 < sag / predicted < 2.5, (sag, predicted)
+
+
+def test_after_a_move_the_encoders_are_in_position_while_the_platform_still_rings():
+    sim = PhysicsSimulator(TRUE, NOMINAL)
+    outcome = sim.command(POSE + [0.03, -0.02, 0.03, 0.0, 0.0, 0.02])
+    sim.advance(sim.time_s + outcome.travel_s)
+    while not sim.in_position:
+        sim.advance(sim.time_s + 0.0005)
+    pose, readings = sim.true_pose, []
+    for _ in range(10):
+        sim.advance(sim.time_s + 0.005)
+        readings.append(sim.device_readings())
+    moved = np.linalg.norm(sim.true_pose[:3] - pose[:3])
+    assert moved > 1e-6  # m in the 50 ms after "in position": > 0.02 mm/s
+    spread = np.ptp(np.array(readings)[:, :2], axis=0)
+    assert np.max(spread) > 1e-5  # rad: the inclinometer feels the ringing
+    sim.advance(sim.time_s + 2.0)
+    rest = sim.device_readings()
+    sim.advance(sim.time_s + 0.1)
+    np.testing.assert_allclose(sim.device_readings(), rest, rtol=0.0, atol=1e-7)
+
+
+def test_an_unreachable_command_is_refused_and_nothing_moves():
+    sim = PhysicsSimulator(TRUE, NOMINAL)
+    before = sim.true_pose
+    outcome = sim.command(home_pose() + [0.0, 0.0, 2.0, 0.0, 0.0, 0.0])
+    assert not outcome.accepted
+    assert 'unreachable' in outcome.reason and 'stroke' in outcome.reason
+    assert sim.in_position
+    sim.advance(sim.time_s + 0.1)
+    np.testing.assert_allclose(sim.true_pose, before, rtol=0.0, atol=1e-8)
+
+
+def test_bad_physical_parameters_are_named():
+    with pytest.raises(ValueError, match='leg_rod_mass'):
+        PhysicalParameters(leg_rod_mass=0.0)
+    with pytest.raises(ValueError, match='payload_mass'):
+        PhysicalParameters(payload_mass=-1.0)
