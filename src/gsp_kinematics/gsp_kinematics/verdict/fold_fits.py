@@ -28,19 +28,19 @@ from ..identifiability import analyse_result, identifies_all
 from ..identification import SENSOR_NAMES, IdentificationError, identify
 
 
-def _linearised_model(result, leg_lengths, readings, row_sigmas, effects):
+def _linearised_model(result, leg_lengths, readings, row_sigmas, effects, nominal=None):
     """``(model, values, augmented [J_X | J_u | r] (M, k, 6 + n + 1))`` of ``result``'s
-    implicit model on its rows at its estimate (the geometry the refits start from)."""
+    implicit model on its rows at its estimate (the geometry the refits start from; the effects'
+    joint axes those of ``nominal``, default that geometry, as a refit's)."""
     terms = None
     if np.any(result.effect_free):
         design = effects or EffectDesign()
-        terms = EffectTerms(result.geometry, design, result.effect_free, len(leg_lengths))
+        axes = result.geometry if nominal is None else nominal
+        terms = EffectTerms(axes, design, result.effect_free, len(leg_lengths))
     poses = np.asarray(result.poses, dtype=float)
     model = _ImplicitModel(
         result.geometry, leg_lengths, readings, row_sigmas, result.free, poses, SENSOR_NAMES, terms
     )
-    if result.robust_weights is not None:
-        model.root_weights = np.sqrt(result.robust_weights)
     values = np.concatenate(
         [result.parameters[result.free], result.effect_values[result.effect_free]]
     )
@@ -106,8 +106,9 @@ def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
     docstring): a result like ``result`` with the step's parameters, effects, geometry and the
     kept postures' information and covariance (its poses, residuals and fit statistics are the
     full fit's), or None where the kept postures do not identify every parameter. None instead
-    of the list when ``result`` is not a converged implicit fit (refit those)."""
-    if result.formulation != 'implicit' or not result.converged:
+    of the list when ``result`` is not a converged implicit least-squares fit (refit those: a
+    robust fit's weights move with the fold)."""
+    if result.formulation != 'implicit' or not result.converged or result.loss != 'linear':
         return None
     return _refits(result, (leg_lengths, readings, row_sigmas), effects, kept)[0]
 
@@ -133,3 +134,19 @@ def refit_fold(result, free, rows, options, effects):
     except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
         return None
     return fitted if fitted.converged and identifies_all(analyse_result(fitted)) else None
+
+
+def linearised_cost(result, nominal, leg_lengths, readings, row_sigmas, effects):
+    """The least cost (half the chi-square) of ``result``'s model (its free parameters and
+    effects, fitted from ``nominal``) on its rows with the effect design ``effects`` instead of
+    its own (e.g. another thermal time constant), to second order: the cost at ``result``'s
+    estimate less the decrease of one Gauss-Newton step, poses and parameters (the model is
+    linear in the effects' values, nearly so in the rest)."""
+    _, _, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects, nominal)
+    pose_rows, total = block_normal_equations(augmented)
+    reduced, solved = eliminate_poses(pose_rows, total)
+    size = reduced.shape[0]
+    gradient = reduced[:, size]
+    decrease = float(np.sum(pose_rows[:, :, -1] * solved[:, :, -1]))
+    decrease += float(gradient @ np.linalg.solve(reduced[:, :size], gradient))
+    return 0.5 * float(np.sum(augmented[:, :, -1] ** 2)) - 0.5 * decrease

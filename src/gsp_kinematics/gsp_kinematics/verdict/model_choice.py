@@ -46,6 +46,7 @@ from ..identifiability import analyse_result, identifies_all
 from ..identification import IdentificationError, Options, identify
 from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
 from .cross_validation import cross_validate, without_leverage
+from .fold_fits import linearised_cost
 
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
 DEFAULT_SIGNIFICANCE = 0.01
@@ -284,19 +285,30 @@ def held_out_position_mm(validation):
 def thermal_time_constant(nominal, data, base, groups, candidates, options, fits=None):
     """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
     one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
-    candidates share the parameters and the data, so their costs compare directly (each fit
-    starts from the poses of the first). ``fits``: a dict that receives ``{tau: fit}``."""
-    design = data[4]
-    costs, fits, start = {}, {} if fits is None else fits, None
-    for tau in candidates:
-        timed = dataclasses.replace(design, thermal_time_constant_s=float(tau))
-        result = _fit(nominal, data, list(base) + list(groups), options, timed, start)
+    candidates share the parameters and the data, so their costs compare directly. The first
+    is fitted; the others' least costs are one Gauss-Newton step from its fit
+    (:func:`.fold_fits.linearised_cost`: the model is linear in the growth's values), and the
+    least of them is fitted (its cost replaces the step's; a robust ``options.loss``: every
+    one is fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted ones."""
+    design, free = data[4], list(base) + list(groups)
+    costs, fits, first = {}, {} if fits is None else fits, None
+    for tau in map(float, candidates):
+        timed = dataclasses.replace(design, thermal_time_constant_s=tau)
+        if first is not None and options.loss == 'linear':
+            costs[tau] = linearised_cost(first, nominal, *data[:3], timed)
+            continue
+        result = _fit(nominal, data, free, options, timed, first)
         if result is not None:
-            costs[float(tau)] = float(result.cost)
-            fits[float(tau)], start = result, start or result
+            costs[tau], fits[tau], first = float(result.cost), result, first or result
     if not costs:
         return design.thermal_time_constant_s, costs
-    return min(costs, key=costs.get), costs
+    tau = min(costs, key=costs.get)
+    if tau not in fits:
+        timed = dataclasses.replace(design, thermal_time_constant_s=tau)
+        result = _fit(nominal, data, free, options, timed, first)
+        if result is not None:
+            costs[tau], fits[tau] = float(result.cost), result
+    return tau, costs
 
 
 def _keeps(trial, best, threshold, max_cv_loss):
