@@ -236,20 +236,26 @@ def within_sigmas(within, default):
     )
 
 
-def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within, **options):
+def identify_with_estimated_noise(
+    nominal, leg_lengths, readings, start, within, first=None, **options
+):
     """Identify with the row noise estimated from the run: ``(result, {channel: ChannelNoise},
     SensorNoise of the rows used)``.
 
     ``start``: the row sigmas to begin with (the configured ones, averaged); a channel with a
     within-posture estimate (not a lower bound) starts from it. Each round fits, estimates (:func:`estimate_row_noise`)
     and refits with the estimate, until no row sigma changes by more than :data:`TOLERANCE`
-    (at most :data:`MAX_ROUNDS` fits). ``options`` go to :func:`identify`. The result's goodness
-    of fit is :func:`fit_test`.
+    (at most :data:`MAX_ROUNDS` fits). ``options`` go to :func:`identify`; ``first``: the first
+    round's fit when made already (the same rows, weights and ``options``: the model choice's).
+    The result's goodness of fit is :func:`fit_test`.
     """
     sigmas = within_sigmas(within, start)
     estimates = {}
-    for _ in range(MAX_ROUNDS):
-        result = identify(nominal, leg_lengths, readings, sigmas, **options)
+    for round_ in range(MAX_ROUNDS):
+        if round_ == 0 and first is not None:
+            result = dataclasses.replace(first)  # a copy: its goodness of fit is replaced
+        else:
+            result = identify(nominal, leg_lengths, readings, sigmas, **options)
         if not result.converged:
             return result, {}, sigmas
         estimates = estimate_row_noise(result, sigmas, within)
@@ -267,16 +273,19 @@ def identify_with_estimated_noise(nominal, leg_lengths, readings, start, within,
     return result, estimates, sigmas
 
 
-def identify_with_noise(source, nominal, leg_lengths, readings, row_sigmas, within, **options):
+def identify_with_noise(
+    source, nominal, leg_lengths, readings, row_sigmas, within, first=None, **options
+):
     """``(result, {channel: ChannelNoise}, SensorNoise of the rows used)`` with the weights of
-    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``) or
-    ``configured`` (``row_sigmas``; the estimate is made from the fit and only reported).
+    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``; its
+    ``first`` fit, when given) or ``configured`` (``row_sigmas``; the estimate is made from the
+    fit and only reported).
     When the goodness of fit rejects the model, only the outliers that stand out from a smooth
     field of model error are kept (:func:`goodness.outliers_beside_model_error`)."""
     check_noise_source(source)
     if source == 'estimated':
         result, estimates, used = identify_with_estimated_noise(
-            nominal, leg_lengths, readings, row_sigmas, within, **options
+            nominal, leg_lengths, readings, row_sigmas, within, first, **options
         )
     else:
         result = identify(nominal, leg_lengths, readings, row_sigmas, **options)

@@ -287,3 +287,41 @@ def test_a_channel_without_scatter_has_no_within_posture_estimate(exact_readings
         noise_from_data.posture_lag_sums(drawn), np.full(20, SAMPLES)
     )
     assert set(within) == {'leg_lengths', 'inclinometer', 'lvdt'}
+
+
+def test_a_first_fit_given_is_the_first_round_and_left_as_it_was(
+    nominal_sets, moderate_postures, exact_readings, monkeypatch
+):
+    """The model choice hands its fit of the chosen model to the estimated-noise rounds: it is
+    not fitted again (one identification fewer), the result is that of fitting it again, and
+    the given fit keeps its own goodness of fit."""
+    legs, readings, lag_sums = run(exact_readings, seed=2)
+    within = noise_from_data.within_row_noise(lag_sums, np.full(len(legs), SAMPLES))
+    start = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
+    weights = noise_from_data.within_sigmas(within, start)
+    first = identify(
+        nominal_sets[1], legs, readings, weights, free='extended', pose_guesses=moderate_postures
+    )
+    own_fit = first.goodness_of_fit
+    options = {'free': 'extended', 'pose_guesses': moderate_postures}
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return identify(*args, **kwargs)
+
+    monkeypatch.setattr(noise_from_data, 'identify', counted)
+    reused, _, rows = noise_from_data.identify_with_estimated_noise(
+        nominal_sets[1], legs, readings, start, within, first, **options
+    )
+    reused_calls = len(calls)
+    fitted, _, fitted_rows = noise_from_data.identify_with_estimated_noise(
+        nominal_sets[1], legs, readings, start, within, **options
+    )
+    assert reused_calls == len(calls) - reused_calls - 1
+    deviations = fitted.standard_deviations[fitted.free]
+    difference = reused.parameters[fitted.free] - fitted.parameters[fitted.free]
+    assert np.all(np.abs(difference) <= 1e-3 * deviations), difference / deviations
+    for channel in NOISE_FIELDS:
+        assert getattr(rows, channel) == pytest.approx(getattr(fitted_rows, channel), rel=1e-6)
+    assert first.goodness_of_fit is own_fit

@@ -258,6 +258,8 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
         free=resolve_free(free) if effects is None else free,
         pose_guesses=samples.commanded_poses,
         effects=effects,
+        # The choice's fit of the chosen model has the start weights: the first round's.
+        first=None if choice is None else choice.result,
         **identify_options,
     )
     return result, estimates, used, effects, choice, untried
@@ -334,6 +336,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
         effects=effects,
         uncompensated_strain=thermal,
         unmodelled=outcome.unmodelled,
+        linearised=True,  # each fold's fit one Gauss-Newton step from the full fit
         **extra,
     )
     outcome.accuracy = validation.summary(workspace)

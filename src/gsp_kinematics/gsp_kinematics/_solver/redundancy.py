@@ -16,7 +16,7 @@ def redundancy_flat(jacobian, active=None):
     count, k, n = jacobian.shape
     flat = jacobian.reshape(-1, n)
     covariance = np.linalg.pinv(flat.T @ flat)
-    leverage = np.einsum('ij,jk,ik->i', flat, covariance, flat).reshape(count, k)
+    leverage = np.einsum('ik,ik->i', flat @ covariance, flat).reshape(count, k)
     redundancy = 1.0 - leverage
     if active is not None:
         redundancy[~np.asarray(active, dtype=bool)] = np.nan
@@ -39,5 +39,5 @@ def redundancy_with_poses(jac_pose, jac_u, information):
         w = np.matmul(np.swapaxes(jac_pose, 1, 2), jac_u)  # (M, 6, n)
         e = jac_u - pose_part @ w
         covariance = np.linalg.pinv(information)
-        leverage += np.einsum('mki,ij,mkj->mk', e, covariance, e)
+        leverage += np.einsum('mkj,mkj->mk', e @ covariance, e)  # a matmul, not a 3-way loop
     return 1.0 - leverage

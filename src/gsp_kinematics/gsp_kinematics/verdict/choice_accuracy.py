@@ -101,7 +101,7 @@ def _mean_square(main, backlash, vector=None, covariance=None):
                 np.sum((main @ vector) ** 2, axis=1) + np.sum((backlash * vector) ** 2, axis=(1, 2))
             )
         )
-    spread = np.einsum('mij,jk,mik->m', main, covariance, main)
+    spread = np.einsum('mik,mik->m', main @ covariance, main)  # two operands: one matmul
     spread += np.einsum('mij,j,mij->m', backlash, np.diag(covariance), backlash)
     return float(np.mean(spread))
 

@@ -133,7 +133,7 @@ def comparison_variances(result, poses, readings, design=None):
         return (unknown, unknown), (unknown, unknown)
     out = []
     for sensitivity in comparison_sensitivities(result, poses, readings, design):
-        moments = np.einsum('mip,pq,miq->mi', sensitivity, covariance, sensitivity)
+        moments = np.einsum('miq,miq->mi', sensitivity @ covariance, sensitivity)
         out.append((moments[:, :3].sum(axis=1), moments[:, 3]))
     return tuple(out)
 

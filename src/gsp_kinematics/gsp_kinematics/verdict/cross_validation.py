@@ -31,15 +31,14 @@ import time
 
 import numpy as np
 
-from ..device import DeviceModelError
 from ..effects.groups import EFFECT_PARAMETER_NAMES, design_rows, model_poses
 from ..geometry import ALL_PARAMETER_NAMES
-from ..identifiability import analyse_result, identifies_all
-from ..identification import IdentificationError, Options, identify
+from ..identification import Options
 from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
 from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
+from .fold_fits import linearised_refits, refit_fold
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -332,29 +331,6 @@ def _uncompensated(geometry, poses, strain):
     return np.trace(position, axis1=1, axis2=2)
 
 
-def _fold_fit(result, free, rows, options, effects):
-    """``result``'s identification (same formulation and ``free`` parameters, from its
-    estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
-    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit
-    (along a null direction it keeps the full fit's values, which saw the held-out postures)."""
-    legs, readings, row_sigmas, guesses = rows
-    try:
-        fitted = identify(
-            result.geometry,
-            legs,
-            readings,
-            row_sigmas,
-            result.formulation,
-            free,
-            guesses,
-            options=options,
-            effects=effects,
-        )
-    except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
-        return None
-    return fitted if fitted.converged and identifies_all(analyse_result(fitted)) else None
-
-
 def _corrections(result, readings, held_out, unmodelled, effects):
     """The :class:`CrossValidation` fields that correct ``result``'s held-out errors (position
     and phi): the leverage ratios of the comparison's predicted variance under the full fit over
@@ -396,21 +372,29 @@ def _workspace_truth_variance(result, workspace, strain):
     return float(np.mean(variance if thermal is None else variance + thermal))
 
 
-def _held_out(result, rows, assignment, options, effects):
+def _held_out(result, rows, assignment, options, effects, linearised=False):
     """``(position (M, 3) m, phi (M,) rad, (position, phi) variances, failed folds)``: each
     posture's error predicted by the fit of the folds without it (``assignment``), and that
     fit's predicted variance of the comparison there (:func:`.comparison.comparison_variances`).
-    ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)`` of every posture."""
+    ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)`` of every posture;
+    ``linearised``: each fold's fit by :func:`.fold_fits.linearised_refits`."""
     leg_lengths, readings, row_sigmas, guesses = rows
+    folds = range(int(assignment.max()) + 1)
+    steps = linearised and linearised_refits(
+        result, leg_lengths, readings, row_sigmas, effects, [assignment != f for f in folds]
+    )
     count = leg_lengths.shape[0]
     position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
     held_out = (np.full(count, np.nan), np.full(count, np.nan))  # position, phi
     free = [name for name, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
     free += [n for n, on in zip(EFFECT_PARAMETER_NAMES, result.effect_free, strict=True) if on]
-    for fold in range(int(assignment.max()) + 1):
+    for fold in folds:
         held, kept = assignment == fold, assignment != fold
         kept_rows = (leg_lengths[kept], readings[kept], row_sigmas, guesses[kept])
-        fitted = _fold_fit(result, free, kept_rows, options, design_rows(effects, kept))
+        if steps:
+            fitted = steps[fold]
+        else:
+            fitted = refit_fold(result, free, kept_rows, options, design_rows(effects, kept))
         if fitted is None:
             failed.append(fold)
             continue
@@ -442,11 +426,13 @@ def cross_validate(
     uncompensated_strain=None,
     unmodelled=None,
     workspace=Workspace(),
+    linearised=False,
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
     (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
-    (same formulation and free parameters, from ``result``'s estimate and poses) and predicts
-    its postures; the ``nominal`` geometry predicts every posture.
+    (same formulation and free parameters, from ``result``'s estimate and poses; ``linearised``:
+    to first order, :mod:`.fold_fits`) and predicts its postures; the ``nominal``
+    geometry predicts every posture.
 
     A held-out posture's device reference uses the device parameters of the fit without it, the
     nominal baseline the full fit's. ``noise``: the rows' measurement noise removed from the
@@ -465,8 +451,9 @@ def cross_validate(
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
+    rows = (leg_lengths, readings, row_sigmas, guesses)
     position, phi, held_out, failed = _held_out(
-        result, (leg_lengths, readings, row_sigmas, guesses), assignment, options, effects
+        result, rows, assignment, options, effects, linearised
     )
     noise = row_sigmas if noise is None else noise
     position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)

@@ -46,6 +46,7 @@ from ..identifiability import analyse_result, identifies_all
 from ..identification import IdentificationError, Options, identify
 from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
 from .cross_validation import cross_validate, without_leverage
+from .fold_fits import linearised_cost
 
 #: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
 DEFAULT_SIGNIFICANCE = 0.01
@@ -140,10 +141,12 @@ def available_groups(design, count):
     return groups
 
 
-def _fit(nominal, data, free, options, design):
+def _fit(nominal, data, free, options, design, start=None):
     """The converged identification of ``data``'s rows with ``free`` and the effect ``design``,
-    or None (no convergence, or an identification error)."""
+    or None (no convergence, or an identification error). ``start``: a fit of the same rows
+    whose poses start this one's (they are most of the unknowns: fewer iterations)."""
     leg_lengths, readings, sigmas, guesses, _, _ = data
+    guesses = guesses if start is None else start.poses
     try:
         result = identify(
             nominal,
@@ -206,21 +209,33 @@ def _unidentifiable(result, count):
     )
 
 
-def _score(nominal, data, base, groups, settings, reference=None):
-    """``(result, Candidate)`` of the model ``base`` + ``groups``, tested against the fit
-    ``reference`` = ``(result, its groups)`` when given (``settings``: :func:`_forward`'s).
+def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
+    """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, when
+    made already), tested against the fit ``reference`` = ``(result, its groups)`` when given
+    (``settings``: :func:`_forward`'s; its fit starts from the reference's poses).
     ``result`` is None when the fit failed; a candidate that cannot be judged says why
     (``Candidate.not_judged``) and is never kept (:func:`_keeps`)."""
-    folds, options, _, _, factor, workspace = settings
+    folds, options, _, _, factor, workspace, linearised = settings
     leg_lengths, readings, sigmas, _, design, noise = data
-    result = _fit(nominal, data, list(base) + list(groups), options, design)
+    start = None if reference is None else reference[0]
+    result = fitted or _fit(nominal, data, list(base) + list(groups), options, design, start)
     if result is None:
         return None, Candidate(tuple(groups), math.nan, None, not_judged='the fit did not converge')
     unidentifiable = _unidentifiable(result, len(leg_lengths))
     if unidentifiable:
         return result, Candidate(tuple(groups), math.nan, None, not_judged=unidentifiable)
     validation = cross_validate(
-        result, nominal, leg_lengths, readings, sigmas, folds, options, noise, design
+        result,
+        nominal,
+        leg_lengths,
+        readings,
+        sigmas,
+        folds,
+        options,
+        noise,
+        design,
+        workspace=None,
+        linearised=linearised,
     )
     summary = validation.summary()
     position = held_out_position_mm(validation)
@@ -267,20 +282,33 @@ def held_out_position_mm(validation):
     return 1e3 * float(np.mean(errors[finite])) if finite.any() else float('nan')
 
 
-def thermal_time_constant(nominal, data, base, groups, candidates, options):
+def thermal_time_constant(nominal, data, base, groups, candidates, options, fits=None):
     """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
     one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
-    candidates share the parameters and the data, so their costs compare directly."""
-    design = data[4]
-    costs = {}
-    for tau in candidates:
-        timed = dataclasses.replace(design, thermal_time_constant_s=float(tau))
-        result = _fit(nominal, data, list(base) + list(groups), options, timed)
+    candidates share the parameters and the data, so their costs compare directly. The first
+    is fitted; the others' least costs are one Gauss-Newton step from its fit
+    (:func:`.fold_fits.linearised_cost`: the model is linear in the growth's values), and the
+    least of them is fitted (its cost replaces the step's; a robust ``options.loss``: every
+    one is fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted ones."""
+    design, free = data[4], list(base) + list(groups)
+    costs, fits, first = {}, {} if fits is None else fits, None
+    for tau in map(float, candidates):
+        timed = dataclasses.replace(design, thermal_time_constant_s=tau)
+        if first is not None and options.loss == 'linear':
+            costs[tau] = linearised_cost(first, nominal, *data[:3], timed)
+            continue
+        result = _fit(nominal, data, free, options, timed, first)
         if result is not None:
-            costs[float(tau)] = float(result.cost)
+            costs[tau], fits[tau], first = float(result.cost), result, first or result
     if not costs:
         return design.thermal_time_constant_s, costs
-    return min(costs, key=costs.get), costs
+    tau = min(costs, key=costs.get)
+    if tau not in fits:
+        timed = dataclasses.replace(design, thermal_time_constant_s=tau)
+        result = _fit(nominal, data, free, options, timed, first)
+        if result is not None:
+            costs[tau], fits[tau] = float(result.cost), result
+    return tau, costs
 
 
 def _keeps(trial, best, threshold, max_cv_loss):
@@ -299,9 +327,15 @@ def _keeps(trial, best, threshold, max_cv_loss):
     )
 
 
-def _forward(nominal, data, base, available, settings):
-    """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``."""
+def _forward(nominal, data, base, available, settings, every=None):
+    """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``.
+    ``every``: the fit with every available group, which a candidate with all of them reuses."""
     significance, max_cv_loss = settings[2:4]
+
+    def score(groups, reference):
+        fitted = every if set(groups) == set(available) else None
+        return _score(nominal, data, base, groups, settings, reference, fitted)
+
     result, best = _score(nominal, data, base, (), settings)
     if result is None:
         raise IdentificationError('the plain model did not converge: no model to choose from')
@@ -310,10 +344,7 @@ def _forward(nominal, data, base, available, settings):
     tried, chosen, remaining = [best], (), list(available)
     while remaining:
         reference = (result, chosen)
-        trials = [
-            _score(nominal, data, base, chosen + (group,), settings, reference)
-            for group in remaining
-        ]
+        trials = [score(chosen + (group,), reference) for group in remaining]
         tried += [candidate for _, candidate in trials]
         threshold = significance / len(trials)
         kept = [
@@ -327,7 +358,7 @@ def _forward(nominal, data, base, available, settings):
     if len(remaining) > 1:
         # Effects that mask each other: no one group alone is kept, together they may be.
         groups = chosen + tuple(remaining)
-        trial_result, together = _score(nominal, data, base, groups, settings, (result, chosen))
+        trial_result, together = score(groups, (result, chosen))
         tried.append(together)
         if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
             result, best, chosen = trial_result, together, together.groups
@@ -379,6 +410,7 @@ def choose_model(
     noise=None,
     thermal_time_constants=(),
     predicted_gain=True,
+    linearised=True,
 ):
     """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
     row weights ``sigmas`` (their real noise: the test's chi-squares are in its units) and the
@@ -388,23 +420,27 @@ def choose_model(
     constant is first chosen among these by the cost of the fit with every available group
     (:func:`thermal_time_constant`); empty: the design's. ``predicted_gain``: a group the
     controller compensates is kept only if it is not predicted to make the platform less
-    accurate (:mod:`.choice_accuracy`); False: the test and the held-out guard alone."""
+    accurate (:mod:`.choice_accuracy`); False: the test and the held-out guard alone.
+    ``linearised``: each candidate's held-out error from linearised refits of its folds
+    (:func:`.fold_fits.linearised_refits`); False: from refits."""
     design = design or EffectDesign()
     tau, costs = design.thermal_time_constant_s, {}
     available = available_groups(design, len(leg_lengths))
+    fits = {}  # the fits with every available group, by thermal time constant
     if 'thermal' in available and len(thermal_time_constants):
         data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
         tau, costs = thermal_time_constant(
-            nominal, data, base, available, thermal_time_constants, options
+            nominal, data, base, available, thermal_time_constants, options, fits
         )
         design = dataclasses.replace(design, thermal_time_constant_s=tau)
     data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
-    factor = 1.0
-    if available:
-        factor = variance_factor(_fit(nominal, data, list(base) + available, options, design))
+    every = fits.get(tau)
+    if available and every is None:
+        every = _fit(nominal, data, list(base) + available, options, design)
+    factor = variance_factor(every) if available else 1.0
     workspace = workspace_postures(nominal) if predicted_gain else None
-    settings = (folds, options, significance, max_cv_loss, factor, workspace)
-    result, best, chosen, tried = _forward(nominal, data, base, available, settings)
+    settings = (folds, options, significance, max_cv_loss, factor, workspace, linearised)
+    result, best, chosen, tried = _forward(nominal, data, base, available, settings, every)
     tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
     reason = _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain)
     if 'thermal' in chosen and costs:

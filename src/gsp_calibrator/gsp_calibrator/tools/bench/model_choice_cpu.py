@@ -1,0 +1,94 @@
+"""``model_choice_cpu`` section of ``gsp_bench`` (docs/platform_effects.md#choosing-the-model-auto):
+the CPU time of the calibrator's identification with the model chosen from the data (``auto``:
+the choice, the fit and the verdict's cross-validation, ``run.identify.identify_from_samples``)
+against the plain fit's (``extended``: the fit and the verdict) on the same rows.
+
+The rows are those of :mod:`.verdict`'s runs (the calibrator's default plan on the route ``auto``
+augments, 10 samples a posture over ``RUN_S``): per case, the realistic platform with all four
+effects (``auto`` with the payload, and without it) and the ideal platform (``auto`` without the
+payload). The time is the process's CPU time (``time.process_time``) of each identification,
+the fastest of ``REPEATS`` (the machine is shared: CPU time is the steadier figure, and the
+least is the cost without interference); per case the median over the seeds of the per-seed
+ratio ``auto / extended`` (the issue-33 target: at most 5).
+"""
+
+import math
+import statistics
+import time
+
+from gsp_calibrator.run.identify import identify_with_settings
+from gsp_calibrator.settings import CalibratorSettings
+from gsp_calibrator.tools.bench import verdict
+
+SEEDS = 5
+QUICK_SEEDS = 2
+REPEATS = 2
+TARGET_RATIO = 5.0
+#: ``{case: (platform in verdict.effect_cases(), calibrator values of the auto run)}``.
+CASES = {
+    'realistic_with_payload': ('all_four', verdict.REAL_PLATFORM),
+    'realistic_no_payload': ('all_four', {'free_parameters': ['auto']}),
+    'ideal_no_payload': ('ideal', {'free_parameters': ['auto']}),
+}
+
+
+def cpu_s(settings, samples, repeats=REPEATS):
+    """``(least CPU seconds of identifying samples with settings over repeats, outcome)``."""
+    best, outcome = math.inf, None
+    for _ in range(repeats):
+        started = time.process_time()
+        outcome = identify_with_settings(settings, samples)
+        best = min(best, time.process_time() - started)
+    return best, outcome
+
+
+def case_figures(platform, values, seeds):
+    """The CPU figures of one case over ``seeds`` seeded runs."""
+    design = verdict.default_design(values)
+    plain = CalibratorSettings.from_values({**values, 'free_parameters': ['extended']})
+    effects = verdict.effect_cases()[platform]
+    runs = []
+    for seed in range(seeds):
+        samples = verdict.simulated_samples(design, effects, seed)
+        auto_s, outcome = cpu_s(design.settings, samples)
+        plain_s, _ = cpu_s(plain, samples)
+        runs.append(
+            {
+                'seed': seed,
+                'auto_cpu_s': auto_s,
+                'extended_cpu_s': plain_s,
+                'ratio': auto_s / plain_s,
+                'groups': list((outcome.effects or {}).get('groups', [])),
+            }
+        )
+    ratios = [run['ratio'] for run in runs]
+    return {
+        'platform': platform,
+        'settings': values,
+        'auto_cpu_s': statistics.median(run['auto_cpu_s'] for run in runs),
+        'extended_cpu_s': statistics.median(run['extended_cpu_s'] for run in runs),
+        'ratio': statistics.median(ratios),
+        'ratio_max': max(ratios),
+        'within_target': statistics.median(ratios) <= TARGET_RATIO,
+        'per_seed': runs,
+    }
+
+
+def run(quick=False):
+    """The ``model_choice_cpu`` section (``quick``: 2 seeds)."""
+    seeds = QUICK_SEEDS if quick else SEEDS
+    cases = {
+        name: case_figures(platform, values, seeds) for name, (platform, values) in CASES.items()
+    }
+    return {
+        'description': (
+            'CPU time (time.process_time, least of 2 repeats) of the calibrator identification '
+            '(run.identify.identify_from_samples: fit, model choice, verdict cross-validation and '
+            'prediction) with free_parameters [auto] against [extended] on the same rows '
+            '(tools.bench.verdict runs: default plan on the auto route, 10 samples a posture), '
+            'medians over seeds of the per-seed ratio'
+        ),
+        'target': {'ratio': f'<= {TARGET_RATIO:g}'},
+        'seeds': seeds,
+        'cases': cases,
+    }
