@@ -40,6 +40,7 @@ from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_post
 from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
+from .interval import held_out_interval, posture_terms, workspace_truth_draws
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -88,28 +89,14 @@ def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, 
     the draws are then the errors scaled to the full fit's expectation, signal and noise,
     ``(r h + n) / (h + n)``, on the explained part (a mean of shrunk magnitudes would mix the
     noise's variance, a constant, into draws of it)."""
-    errors = np.asarray(errors, dtype=float)
-    variances = np.asarray(variances, dtype=float)
-    count = errors.shape
-    unseen = np.zeros(count) if unseen is None else np.asarray(unseen, dtype=float)
-    leverage = np.ones(count) if leverage is None else np.asarray(leverage, dtype=float)
-    finite = np.isfinite(errors) & np.isfinite(variances) & np.isfinite(unseen)
-    if not finite.any():
+    signal, draws = posture_terms(errors, variances, unseen, leverage, held_out)
+    if not draws.size:
         return math.nan, math.nan, math.nan, math.nan
-    errors, variances, unseen, leverage = (v[finite] for v in (errors, variances, unseen, leverage))
-    held_out = None if held_out is None else np.asarray(held_out, dtype=float)[finite]
-    explained, kept = explained_excess(errors, variances, held_out)
-    signal = transfer * max(float(np.sum(leverage * explained + kept + unseen)), 0.0)
-    draws = errors
-    if held_out is not None:
-        with np.errstate(divide='ignore', invalid='ignore'):
-            shrink = (leverage * held_out + variances) / (held_out + variances)
-        shrink = np.where(np.isfinite(shrink), np.clip(shrink, 0.0, 1.0), 1.0)
-        draws = np.sqrt(np.maximum(shrink * (errors**2 - kept) + kept, 0.0))
+    signal = transfer * max(float(np.sum(signal)), 0.0)
     squared = float(np.sum(draws**2))
     factor = math.sqrt(signal / squared) if squared > 0 else 0.0
     mean, p95 = float(np.mean(draws)), float(np.percentile(draws, 95))
-    rms = math.sqrt(squared / errors.size)
+    rms = math.sqrt(squared / draws.size)
     return factor * mean, factor * p95, factor * rms, factor
 
 
@@ -139,6 +126,17 @@ def _statistics(errors, variances, scale, *correction):
         else math.nan,
         'noise_factor': factor,
     }
+
+
+def _interval(errors, variances, scale, correction, truth_ratios, parameter_share=1.0):
+    """``[low, high]`` (x ``scale``): the 95 % interval of the true mean error of which
+    :func:`noise_removed` of the same arguments is the estimate (:mod:`.interval`)."""
+    unseen, leverage, held_out, *transfer = correction
+    signal, draws = posture_terms(errors, variances, unseen, leverage, held_out)
+    low, high = held_out_interval(
+        signal, draws, *(transfer or [1.0]), truth_ratios, parameter_share
+    )
+    return [scale * low, scale * high]
 
 
 def _rms(variances, errors, scale):
@@ -203,6 +201,11 @@ class CrossValidation:
     workspace_truth_variance: float | None = None
     #: (M,) m^2: the unmodelled part's predicted position variance there (its share stays)
     position_unmodelled_variance: np.ndarray | None = None
+    #: (R,): draws of the truth's mean squared position (phi) error over the workspace under the
+    #: fit's covariance, over its expectation (:func:`.interval.truth_draw_ratios`), for the
+    #: interval of the calibrated figures; None: the truth taken at its expectation
+    position_truth_draws: np.ndarray | None = None
+    phi_truth_draws: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -261,14 +264,20 @@ class CrossValidation:
         unseen = [v for v in (self.position_unseen, self.position_uncompensated) if v is not None]
         unseen = _rows(sum(unseen), rows) if unseen else None
         transfer = self._transfer(rows & np.isfinite(position))
-        calibrated = _statistics(
-            position[rows],
-            position_noise,
-            1e3,
+        correction = (
             unseen,
             _rows(self.position_leverage, rows),
             _rows(self.position_held_out_variance, rows),
             transfer,
+        )
+        calibrated = _statistics(position[rows], position_noise, 1e3, *correction)
+        calibrated['mean_interval_95'] = _interval(
+            position[rows],
+            position_noise,
+            1e3,
+            correction,
+            self.position_truth_draws,
+            self._parameter_share(rows & np.isfinite(position)),
         )
         calibrated['leverage_removed'] = self.position_leverage is not None
         calibrated['workspace_transfer'] = transfer
@@ -277,13 +286,14 @@ class CrossValidation:
             _rows(self.position_uncompensated, rows), position[rows], 1e3
         )
         phi = np.abs(self.phi_error[rows])
-        calibrated_phi = _statistics(
-            phi,
-            phi_noise,
-            degrees,
+        correction = (
             _rows(self.phi_unseen, rows),
             _rows(self.phi_leverage, rows),
             _rows(self.phi_held_out_variance, rows),
+        )
+        calibrated_phi = _statistics(phi, phi_noise, degrees, *correction)
+        calibrated_phi['mean_interval_95'] = _interval(
+            phi, phi_noise, degrees, correction, self.phi_truth_draws
         )
         calibrated_phi['leverage_removed'] = self.phi_leverage is not None
         calibrated_phi['unseen_rms'] = _rms(_rows(self.phi_unseen, rows), phi, degrees)
@@ -294,6 +304,20 @@ class CrossValidation:
                 'phi_deg': _statistics(np.abs(self.nominal_phi_error[rows]), phi_noise, degrees),
             },
         }
+
+    def _parameter_share(self, rows):
+        """The share of the truth's predicted position variance at the postures ``rows`` (bool
+        mask) that is a draw of the fit's parameter error (the rest, the unmodelled error and
+        the uncompensated growth, is what it is): 1 when unknown."""
+        truth = self.position_truth_variance
+        if truth is None or not rows.any():
+            return 1.0
+        total = float(np.mean(np.asarray(truth)[rows]))
+        growth = self.position_uncompensated
+        parameters = total - (0.0 if growth is None else float(np.mean(growth[rows])))
+        unmodelled = self.position_unmodelled_variance
+        total += 0.0 if unmodelled is None else float(np.mean(np.asarray(unmodelled)[rows]))
+        return parameters / total if total > 0 and math.isfinite(total) else 1.0
 
     def _transfer(self, rows):
         """The scale that carries the signal at the postures ``rows`` (bool mask) to the
@@ -378,22 +402,37 @@ def _corrections(result, readings, held_out, unmodelled, effects):
     return fields
 
 
-def _workspace_truth_variance(result, workspace, strain):
+def _workspace_poses(result, workspace):
+    """:data:`WORKSPACE_SAMPLE` seeded random postures of ``workspace`` (as the predicted
+    accuracy samples it); None without a ``workspace``."""
+    if workspace is None:
+        return None
+    rng = np.random.default_rng(0)
+    return sample_valid_postures(result.geometry, WORKSPACE_SAMPLE, rng, workspace)
+
+
+def _workspace_truth_variance(result, poses, strain):
     """m^2: the truth's predicted position variance that the model describes (the parameters',
-    the uncompensated thermal ``strain``'s) averaged over :data:`WORKSPACE_SAMPLE` seeded random
-    postures of ``workspace`` (as the predicted accuracy samples it); None without a
-    ``workspace`` or a usable covariance."""
+    the uncompensated thermal ``strain``'s) averaged over the workspace ``poses``
+    (:func:`_workspace_poses`); None without them or a usable covariance."""
     geometry = result.geometry
     covariance = np.asarray(result.covariance, dtype=float)
-    if workspace is None or not np.all(np.isfinite(covariance)):
+    if poses is None or not np.all(np.isfinite(covariance)):
         return None
-    poses = sample_valid_postures(geometry, WORKSPACE_SAMPLE, np.random.default_rng(0), workspace)
     position, _ = parameter_pose_covariance(
         geometry, covariance, poses, result.free, result.effect_free
     )
     variance = np.trace(position, axis1=1, axis2=2)
     thermal = _uncompensated(geometry, poses, strain)
     return float(np.mean(variance if thermal is None else variance + thermal))
+
+
+def _truth_draws(result, poses):
+    """``{position_truth_draws, phi_truth_draws}``: :func:`.interval.workspace_truth_draws` of
+    ``result`` over the workspace ``poses`` (None: the run's postures)."""
+    poses = np.asarray(result.poses if poses is None else poses, dtype=float)
+    position, phi = workspace_truth_draws(result, poses)
+    return {'position_truth_draws': position, 'phi_truth_draws': phi}
 
 
 def _held_out(result, rows, assignment, options, effects):
@@ -474,6 +513,7 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     corrections = _corrections(result, readings, held_out, unmodelled, effects)
+    sample = _workspace_poses(result, workspace)
     uncompensated = _uncompensated(result.geometry, guesses, uncompensated_strain)
     if uncompensated is not None:
         corrections['position_truth_variance'] = (
@@ -481,7 +521,8 @@ def cross_validate(
         )
     return CrossValidation(
         **corrections,
-        workspace_truth_variance=_workspace_truth_variance(result, workspace, uncompensated_strain),
+        workspace_truth_variance=_workspace_truth_variance(result, sample, uncompensated_strain),
+        **_truth_draws(result, sample),
         position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
