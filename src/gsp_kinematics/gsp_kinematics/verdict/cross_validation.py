@@ -40,7 +40,7 @@ from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_post
 from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
-from .interval import held_out_interval, posture_terms, workspace_truth_draws
+from .interval import figure_interval, parameter_share, posture_terms, workspace_truth_draws
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -128,17 +128,6 @@ def _statistics(errors, variances, scale, *correction):
     }
 
 
-def _interval(errors, variances, scale, correction, truth_ratios, parameter_share=1.0):
-    """``[low, high]`` (x ``scale``): the 95 % interval of the true mean error of which
-    :func:`noise_removed` of the same arguments is the estimate (:mod:`.interval`)."""
-    unseen, leverage, held_out, *transfer = correction
-    signal, draws = posture_terms(errors, variances, unseen, leverage, held_out)
-    low, high = held_out_interval(
-        signal, draws, *(transfer or [1.0]), truth_ratios, parameter_share
-    )
-    return [scale * low, scale * high]
-
-
 def _rms(variances, errors, scale):
     """``scale`` x the rms of ``variances`` over the finite ``errors`` (0 without them), signed:
     negative when their mean is (an unseen part the comparison holds beyond the truth)."""
@@ -201,9 +190,8 @@ class CrossValidation:
     workspace_truth_variance: float | None = None
     #: (M,) m^2: the unmodelled part's predicted position variance there (its share stays)
     position_unmodelled_variance: np.ndarray | None = None
-    #: (R,): draws of the truth's mean squared position (phi) error over the workspace under the
-    #: fit's covariance, over its expectation (:func:`.interval.truth_draw_ratios`), for the
-    #: interval of the calibrated figures; None: the truth taken at its expectation
+    #: (R,): the truth's draws about its expectation under the fit's covariance, for the
+    #: intervals (:func:`.interval.truth_draw_ratios`); None: the truth at its expectation
     position_truth_draws: np.ndarray | None = None
     phi_truth_draws: np.ndarray | None = None
 
@@ -271,13 +259,9 @@ class CrossValidation:
             transfer,
         )
         calibrated = _statistics(position[rows], position_noise, 1e3, *correction)
-        calibrated['mean_interval_95'] = _interval(
-            position[rows],
-            position_noise,
-            1e3,
-            correction,
-            self.position_truth_draws,
-            self._parameter_share(rows & np.isfinite(position)),
+        share = parameter_share(self, rows & np.isfinite(position))
+        calibrated['mean_interval_95'] = figure_interval(
+            position[rows], position_noise, 1e3, correction, self.position_truth_draws, share
         )
         calibrated['leverage_removed'] = self.position_leverage is not None
         calibrated['workspace_transfer'] = transfer
@@ -292,7 +276,7 @@ class CrossValidation:
             _rows(self.phi_held_out_variance, rows),
         )
         calibrated_phi = _statistics(phi, phi_noise, degrees, *correction)
-        calibrated_phi['mean_interval_95'] = _interval(
+        calibrated_phi['mean_interval_95'] = figure_interval(
             phi, phi_noise, degrees, correction, self.phi_truth_draws
         )
         calibrated_phi['leverage_removed'] = self.phi_leverage is not None
@@ -304,20 +288,6 @@ class CrossValidation:
                 'phi_deg': _statistics(np.abs(self.nominal_phi_error[rows]), phi_noise, degrees),
             },
         }
-
-    def _parameter_share(self, rows):
-        """The share of the truth's predicted position variance at the postures ``rows`` (bool
-        mask) that is a draw of the fit's parameter error (the rest, the unmodelled error and
-        the uncompensated growth, is what it is): 1 when unknown."""
-        truth = self.position_truth_variance
-        if truth is None or not rows.any():
-            return 1.0
-        total = float(np.mean(np.asarray(truth)[rows]))
-        growth = self.position_uncompensated
-        parameters = total - (0.0 if growth is None else float(np.mean(growth[rows])))
-        unmodelled = self.position_unmodelled_variance
-        total += 0.0 if unmodelled is None else float(np.mean(np.asarray(unmodelled)[rows]))
-        return parameters / total if total > 0 and math.isfinite(total) else 1.0
 
     def _transfer(self, rows):
         """The scale that carries the signal at the postures ``rows`` (bool mask) to the
@@ -402,19 +372,10 @@ def _corrections(result, readings, held_out, unmodelled, effects):
     return fields
 
 
-def _workspace_poses(result, workspace):
-    """:data:`WORKSPACE_SAMPLE` seeded random postures of ``workspace`` (as the predicted
-    accuracy samples it); None without a ``workspace``."""
-    if workspace is None:
-        return None
-    rng = np.random.default_rng(0)
-    return sample_valid_postures(result.geometry, WORKSPACE_SAMPLE, rng, workspace)
-
-
 def _workspace_truth_variance(result, poses, strain):
     """m^2: the truth's predicted position variance that the model describes (the parameters',
-    the uncompensated thermal ``strain``'s) averaged over the workspace ``poses``
-    (:func:`_workspace_poses`); None without them or a usable covariance."""
+    the uncompensated thermal ``strain``'s) averaged over the workspace ``poses`` (as the
+    predicted accuracy samples it); None without them or a usable covariance."""
     geometry = result.geometry
     covariance = np.asarray(result.covariance, dtype=float)
     if poses is None or not np.all(np.isfinite(covariance)):
@@ -425,14 +386,6 @@ def _workspace_truth_variance(result, poses, strain):
     variance = np.trace(position, axis1=1, axis2=2)
     thermal = _uncompensated(geometry, poses, strain)
     return float(np.mean(variance if thermal is None else variance + thermal))
-
-
-def _truth_draws(result, poses):
-    """``{position_truth_draws, phi_truth_draws}``: :func:`.interval.workspace_truth_draws` of
-    ``result`` over the workspace ``poses`` (None: the run's postures)."""
-    poses = np.asarray(result.poses if poses is None else poses, dtype=float)
-    position, phi = workspace_truth_draws(result, poses)
-    return {'position_truth_draws': position, 'phi_truth_draws': phi}
 
 
 def _held_out(result, rows, assignment, options, effects):
@@ -513,7 +466,10 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     corrections = _corrections(result, readings, held_out, unmodelled, effects)
-    sample = _workspace_poses(result, workspace)
+    sample = None  # WORKSPACE_SAMPLE seeded random postures of the workspace
+    if workspace is not None:
+        rng = np.random.default_rng(0)
+        sample = sample_valid_postures(result.geometry, WORKSPACE_SAMPLE, rng, workspace)
     uncompensated = _uncompensated(result.geometry, guesses, uncompensated_strain)
     if uncompensated is not None:
         corrections['position_truth_variance'] = (
@@ -522,7 +478,7 @@ def cross_validate(
     return CrossValidation(
         **corrections,
         workspace_truth_variance=_workspace_truth_variance(result, sample, uncompensated_strain),
-        **_truth_draws(result, sample),
+        **workspace_truth_draws(result, guesses if sample is None else sample),
         position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,

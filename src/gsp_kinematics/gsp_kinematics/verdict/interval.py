@@ -102,21 +102,47 @@ def truth_draw_ratios(sensitivities, covariance, validation=VALIDATION_POSTURES,
 
 
 def workspace_truth_draws(result, poses):
-    """``(position, phi)``: :func:`truth_draw_ratios` of ``result``'s covariance (the free
-    parameters, then the free effects) over the position, and over the rotation about the
-    vertical (``phi`` to first order at the workspace's tilts), of the pose its controller
-    reaches at ``poses`` (M, 6)."""
+    """``{position_truth_draws, phi_truth_draws}`` (the ``CrossValidation`` fields):
+    :func:`truth_draw_ratios` of ``result``'s covariance (the free parameters, then the free
+    effects) over the position, and over the rotation about the vertical (``phi`` to first
+    order at the workspace's tilts), of the pose its controller reaches at ``poses`` (M, 6)."""
     geometry = result.geometry
+    poses = np.asarray(poses, dtype=float)
     sensitivities = pose_sensitivities(geometry, poses, result.free)
     effect_free = getattr(result, 'effect_free', None)
     if effect_free is not None and np.any(effect_free):
         effects = effect_pose_sensitivities(geometry, poses, effect_free)
         sensitivities = np.concatenate([sensitivities, effects], axis=2)
-    covariance = result.covariance
-    return (
-        truth_draw_ratios(sensitivities[:, :3], covariance),
-        truth_draw_ratios(sensitivities[:, 5:], covariance),
-    )
+    return {
+        'position_truth_draws': truth_draw_ratios(sensitivities[:, :3], result.covariance),
+        'phi_truth_draws': truth_draw_ratios(sensitivities[:, 5:], result.covariance),
+    }
+
+
+def parameter_share(validation, rows):
+    """The share of the truth's predicted position variance at the postures ``rows`` (bool
+    mask) of a ``CrossValidation`` that is a draw of the fit's parameter error (the rest, the
+    unmodelled error and the uncompensated growth, is what it is): 1 when unknown."""
+    truth = validation.position_truth_variance
+    if truth is None or not rows.any():
+        return 1.0
+    total = float(np.mean(np.asarray(truth)[rows]))
+    growth = validation.position_uncompensated
+    parameters = total - (0.0 if growth is None else float(np.mean(np.asarray(growth)[rows])))
+    unmodelled = validation.position_unmodelled_variance
+    total += 0.0 if unmodelled is None else float(np.mean(np.asarray(unmodelled)[rows]))
+    return parameters / total if total > 0 and math.isfinite(total) else 1.0
+
+
+def figure_interval(errors, variances, scale, correction, truth_ratios, share=1.0):
+    """``[low, high]`` (x ``scale``): :func:`held_out_interval` of the figure
+    ``cross_validation.noise_removed(errors, variances, *correction)`` (``correction``:
+    ``(unseen, leverage, held_out[, transfer])``), with the truth's draws ``truth_ratios`` of
+    which the parameters explain ``share``."""
+    unseen, leverage, held_out, *transfer = correction
+    signal, draws = posture_terms(errors, variances, unseen, leverage, held_out)
+    low, high = held_out_interval(signal, draws, *(transfer or [1.0]), truth_ratios, share)
+    return [scale * low, scale * high]
 
 
 def held_out_interval(
