@@ -160,6 +160,25 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     assert demo.summary_text(summary, 1, 0).endswith('ok')
 
 
+def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
+    """Issue 33: the demo prints the calibrator's held-out accuracy with its 95 % interval next
+    to the validation after calibration, and says whether the validation lies inside."""
+    position = {'mean': 0.0042, 'mean_interval_95': [0.0017, 0.0067]}
+    accuracy = {'calibrated': {'position_mm': position, 'phi_deg': {'mean': 1e-5}}}
+    (tmp_path / 'result.json').write_text(json.dumps({'accuracy': accuracy}))
+    true, nominal = default_geometry('true'), default_geometry('nominal')
+    before = dict.fromkeys(VALIDATION_KEYS, 1.0)
+    fit = demo.fit_record(tmp_path)
+    for validated, where in ((0.0029, 'inside'), (0.0068, 'OUTSIDE')):
+        after = {**before, 'position_mm_mean': validated}
+        summary = demo.DemoSummary(before, after, nominal, true, 1.0, 1.0, 1.0, fit=fit).document()
+        line = [v for v in demo.summary_text(summary, 50, 0).splitlines() if 'held out' in v]
+        assert line == [
+            f"  held out (calibrator) 0.0042 mm, 95 %: 0.0017-0.0067 mm: the validation's "
+            f'{validated:.4f} mm lies {where}'
+        ]
+
+
 def test_demo_free_accepts_groups_and_names_and_rejects_unknown(capsys):
     assert demo.parse_arguments([]).free_parameters == ['extended']
     assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free_parameters == [

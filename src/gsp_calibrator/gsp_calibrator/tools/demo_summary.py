@@ -113,6 +113,23 @@ def collection_record(run_directory):
     return None
 
 
+def held_out_line(summary):
+    """``'  held out (calibrator) 0.0042 mm, 95 %: 0.0017-0.0067 mm: the validation's 0.0029
+    mm lies inside'``: the calibrator's held-out accuracy and its interval (``accuracy`` of
+    ``result.json``) beside the validation after calibration; '' without one."""
+    position = ((summary.get('accuracy') or {}).get('calibrated') or {}).get('position_mm')
+    if not position:
+        return ''
+    line = f'  held out (calibrator) {position["mean"]:.4f} mm'
+    interval = position.get('mean_interval_95')
+    validated = summary['validation']['after']['position_mm_mean']
+    if interval and math.isfinite(validated):
+        low, high = interval
+        where = 'inside' if low <= validated <= high else 'OUTSIDE'
+        line += f", 95 %: {low:.4f}-{high:.4f} mm: the validation's {validated:.4f} mm lies {where}"
+    return line
+
+
 def summary_text(summary, validated, rejected):
     """Human-readable lines of ``summary``."""
     before, after = summary['validation']['before'], summary['validation']['after']
@@ -125,6 +142,8 @@ def summary_text(summary, validated, rejected):
             f'  {label:<18}{values["position_mm_mean"]:>10.4f} / {values["position_mm_max"]:<10.4f}'
             f'{values["orientation_deg_mean"]:>14.5f} / {values["orientation_deg_max"]:.5f}'
         )
+    held_out = held_out_line(summary)
+    lines += [held_out] if held_out else []
     lines += [
         f'parameter errors vs the true geometry: max {summary["max_param_error_mm"]:.4f} mm, '
         f'gamma {summary["max_param_error_deg"]:.5f} deg',

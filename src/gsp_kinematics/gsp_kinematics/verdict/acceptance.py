@@ -75,6 +75,21 @@ def _mm(value):
     return f'{value:.3g} mm' if value >= 0.01 else f'{1000.0 * value:.3g} um'
 
 
+def interval_text(figure, unit='mm'):
+    """``' (95 %: 1.7-6.7 um)'`` of a held-out figure's ``mean_interval_95`` (``figure``: a
+    ``{mean, mean_interval_95, ...}`` of :meth:`~gsp_kinematics.verdict.cross_validation.CrossValidation.summary`,
+    in ``unit``: mm, shown as its mean is, or deg); '' without one."""
+    interval = figure.get('mean_interval_95')
+    if not interval or not all(math.isfinite(v) for v in interval):
+        return ''
+    low, high = interval
+    if unit != 'mm':
+        return f' (95 %: {low:.2g}-{high:.2g} {unit})'
+    if figure['mean'] >= 0.01:
+        return f' (95 %: {low:.3g}-{high:.3g} mm)'
+    return f' (95 %: {1000.0 * low:.2g}-{1000.0 * high:.2g} um)'
+
+
 def unmodelled_text(unmodelled):
     """``'about 16 um rms in the legs, 3 urad in the inclinations'`` of the channels that show
     an unmodelled part (a SensorNoise of row stds, m and rad); '' when none does."""
@@ -102,18 +117,21 @@ def accuracy_line(accuracy, predicted=None):
     line = (
         f'accuracy measured by the device on held-out postures ({accuracy["folds"]}-fold '
         f'cross-validation, {where}, measurement noise removed): '
-        f'position {_mm(calibrated["position_mm"]["mean"])} mean, '
+        f'position {_mm(calibrated["position_mm"]["mean"])} mean'
+        f'{interval_text(calibrated["position_mm"])}, '
         f'{_mm(calibrated["position_mm"]["p95"])} p95; phi '
-        f'{calibrated["phi_deg"]["mean"]:.2g} deg mean; nominal geometry '
+        f'{calibrated["phi_deg"]["mean"]:.2g} deg mean{interval_text(calibrated["phi_deg"], "deg")}; '
+        'nominal geometry '
         f'{_mm(nominal["position_mm"]["mean"])}'
     )
     if predicted and predicted.get('position_mm_mean') is not None:
         line += f'; predicted {_mm(predicted["position_mm_mean"])}'
     selected = accuracy.get('selected')
     if selected:
+        position = selected['calibrated']['position_mm']
         line += (
             f"; on the {selected['postures']} selected postures (the workspace's extremes) "
-            f'{_mm(selected["calibrated"]["position_mm"]["mean"])}'
+            f'{_mm(position["mean"])}{interval_text(position)}'
         )
     return line
 

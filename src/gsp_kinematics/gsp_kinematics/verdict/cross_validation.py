@@ -39,6 +39,7 @@ from ..prediction import parameter_pose_covariance, reading_pose_covariance, the
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
 from .fold_fits import linearised_refits, refit_fold
+from .interval import figure_interval, parameter_share, posture_terms, workspace_truth_draws
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -87,28 +88,14 @@ def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, 
     the draws are then the errors scaled to the full fit's expectation, signal and noise,
     ``(r h + n) / (h + n)``, on the explained part (a mean of shrunk magnitudes would mix the
     noise's variance, a constant, into draws of it)."""
-    errors = np.asarray(errors, dtype=float)
-    variances = np.asarray(variances, dtype=float)
-    count = errors.shape
-    unseen = np.zeros(count) if unseen is None else np.asarray(unseen, dtype=float)
-    leverage = np.ones(count) if leverage is None else np.asarray(leverage, dtype=float)
-    finite = np.isfinite(errors) & np.isfinite(variances) & np.isfinite(unseen)
-    if not finite.any():
+    signal, draws = posture_terms(errors, variances, unseen, leverage, held_out)
+    if not draws.size:
         return math.nan, math.nan, math.nan, math.nan
-    errors, variances, unseen, leverage = (v[finite] for v in (errors, variances, unseen, leverage))
-    held_out = None if held_out is None else np.asarray(held_out, dtype=float)[finite]
-    explained, kept = explained_excess(errors, variances, held_out)
-    signal = transfer * max(float(np.sum(leverage * explained + kept + unseen)), 0.0)
-    draws = errors
-    if held_out is not None:
-        with np.errstate(divide='ignore', invalid='ignore'):
-            shrink = (leverage * held_out + variances) / (held_out + variances)
-        shrink = np.where(np.isfinite(shrink), np.clip(shrink, 0.0, 1.0), 1.0)
-        draws = np.sqrt(np.maximum(shrink * (errors**2 - kept) + kept, 0.0))
+    signal = transfer * max(float(np.sum(signal)), 0.0)
     squared = float(np.sum(draws**2))
     factor = math.sqrt(signal / squared) if squared > 0 else 0.0
     mean, p95 = float(np.mean(draws)), float(np.percentile(draws, 95))
-    rms = math.sqrt(squared / errors.size)
+    rms = math.sqrt(squared / draws.size)
     return factor * mean, factor * p95, factor * rms, factor
 
 
@@ -202,6 +189,10 @@ class CrossValidation:
     workspace_truth_variance: float | None = None
     #: (M,) m^2: the unmodelled part's predicted position variance there (its share stays)
     position_unmodelled_variance: np.ndarray | None = None
+    #: (R,): the truth's draws about its expectation under the fit's covariance, for the
+    #: intervals (:func:`.interval.truth_draw_ratios`); None: the truth at its expectation
+    position_truth_draws: np.ndarray | None = None
+    phi_truth_draws: np.ndarray | None = None
 
     @property
     def predicted(self):
@@ -260,14 +251,16 @@ class CrossValidation:
         unseen = [v for v in (self.position_unseen, self.position_uncompensated) if v is not None]
         unseen = _rows(sum(unseen), rows) if unseen else None
         transfer = self._transfer(rows & np.isfinite(position))
-        calibrated = _statistics(
-            position[rows],
-            position_noise,
-            1e3,
+        correction = (
             unseen,
             _rows(self.position_leverage, rows),
             _rows(self.position_held_out_variance, rows),
             transfer,
+        )
+        calibrated = _statistics(position[rows], position_noise, 1e3, *correction)
+        share = parameter_share(self, rows & np.isfinite(position))
+        calibrated['mean_interval_95'] = figure_interval(
+            position[rows], position_noise, 1e3, correction, self.position_truth_draws, share
         )
         calibrated['leverage_removed'] = self.position_leverage is not None
         calibrated['workspace_transfer'] = transfer
@@ -276,13 +269,14 @@ class CrossValidation:
             _rows(self.position_uncompensated, rows), position[rows], 1e3
         )
         phi = np.abs(self.phi_error[rows])
-        calibrated_phi = _statistics(
-            phi,
-            phi_noise,
-            degrees,
+        correction = (
             _rows(self.phi_unseen, rows),
             _rows(self.phi_leverage, rows),
             _rows(self.phi_held_out_variance, rows),
+        )
+        calibrated_phi = _statistics(phi, phi_noise, degrees, *correction)
+        calibrated_phi['mean_interval_95'] = figure_interval(
+            phi, phi_noise, degrees, correction, self.phi_truth_draws
         )
         calibrated_phi['leverage_removed'] = self.phi_leverage is not None
         calibrated_phi['unseen_rms'] = _rms(_rows(self.phi_unseen, rows), phi, degrees)
@@ -354,16 +348,14 @@ def _corrections(result, readings, held_out, unmodelled, effects):
     return fields
 
 
-def _workspace_truth_variance(result, workspace, strain):
+def _workspace_truth_variance(result, poses, strain):
     """m^2: the truth's predicted position variance that the model describes (the parameters',
-    the uncompensated thermal ``strain``'s) averaged over :data:`WORKSPACE_SAMPLE` seeded random
-    postures of ``workspace`` (as the predicted accuracy samples it); None without a
-    ``workspace`` or a usable covariance."""
+    the uncompensated thermal ``strain``'s) averaged over the workspace ``poses`` (as the
+    predicted accuracy samples it); None without them or a usable covariance."""
     geometry = result.geometry
     covariance = np.asarray(result.covariance, dtype=float)
-    if workspace is None or not np.all(np.isfinite(covariance)):
+    if poses is None or not np.all(np.isfinite(covariance)):
         return None
-    poses = sample_valid_postures(geometry, WORKSPACE_SAMPLE, np.random.default_rng(0), workspace)
     position, _ = parameter_pose_covariance(
         geometry, covariance, poses, result.free, result.effect_free
     )
@@ -461,6 +453,10 @@ def cross_validate(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
     corrections = _corrections(result, readings, held_out, unmodelled, effects)
+    sample = None  # WORKSPACE_SAMPLE seeded random postures of the workspace
+    if workspace is not None:
+        rng = np.random.default_rng(0)
+        sample = sample_valid_postures(result.geometry, WORKSPACE_SAMPLE, rng, workspace)
     uncompensated = _uncompensated(result.geometry, guesses, uncompensated_strain)
     if uncompensated is not None:
         corrections['position_truth_variance'] = (
@@ -468,7 +464,8 @@ def cross_validate(
         )
     return CrossValidation(
         **corrections,
-        workspace_truth_variance=_workspace_truth_variance(result, workspace, uncompensated_strain),
+        workspace_truth_variance=_workspace_truth_variance(result, sample, uncompensated_strain),
+        **workspace_truth_draws(result, guesses if sample is None else sample),
         position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
