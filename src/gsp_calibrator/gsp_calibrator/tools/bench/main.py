@@ -11,6 +11,7 @@ from gsp_calibrator.tools.bench import (
     effects,
     end_to_end,
     platform_time,
+    rigid_fold,
     run_to_requirement,
     run_to_requirement_levers,
     sensor_dynamics,
@@ -31,6 +32,7 @@ EXTRA_SECTIONS = {
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
     'upkeep_realistic': upkeep_realistic.run,  # docs/upkeep.md
     'effects': effects.run,  # docs/platform_effects.md
+    'rigid_fold': rigid_fold.run,  # docs/platform_effects.md
     'run_to_requirement': run_to_requirement.run,  # docs/upkeep.md
     'run_to_requirement_levers': run_to_requirement_levers.run,  # docs/upkeep.md
 }
