@@ -50,8 +50,9 @@ class ResultDelivery:
             return False, f'NOT applied: {how}'
         if compensates:
             values = geometry_to_parameters(geometry, all_effects=True)
-        else:
+        else:  # no rigid geometry (none was identified, or no fold): no effect key at all
             values = geometry_to_parameters(geometry if rigid is None else rigid)
+            values = {k: v for k, v in values.items() if not k.startswith(EFFECT_PARAMETER_PREFIX)}
         applied, why = await self.parameter_setter.set(node_name, values, timeout, wait_for)
         if not applied:
             return False, f'NOT applied: {why}'
@@ -92,7 +93,9 @@ def applied_note(node_name, geometry, compensates, folded, decided):
         else 'controller_effects: rigid'
     )
     if not folded:
-        return f'applied to /{node_name} (geometry.* parameters, rigid: {why})'
+        identified = geometry.effects.groups()
+        dropped = f'; not compensated: {", ".join(identified)}' if identified else ''
+        return f'applied to /{node_name} (geometry.* parameters, rigid: {why}{dropped})'
     return (
         f'applied the rigid geometry to /{node_name} ({why}): the effects folded in '
         f'(result_rigid.yaml); not compensated: {", ".join(geometry.effects.groups())}'

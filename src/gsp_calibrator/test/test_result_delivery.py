@@ -113,6 +113,11 @@ def test_a_rigid_geometry_reaches_a_rigid_controller_and_an_unlisted_one_is_not_
     success, note = deliver(services, geometry=NOMINAL, rigid=None)
     assert success and 'rigid: it does not declare' in note, note
     assert sorted(services.sent) == sorted(RIGID_NAMES)
+    # No fold (it failed): the geometry without its effects, and the note says so.
+    services = Services(RIGID_NAMES)
+    success, note = deliver(services, rigid=None)
+    assert success and 'not compensated: compliance, backlash' in note, note
+    assert sorted(services.sent) == sorted(RIGID_NAMES)
     success, note = deliver(Services(None))
     assert not success
     assert note == 'NOT applied: parameter service /controller/list_parameters unavailable'

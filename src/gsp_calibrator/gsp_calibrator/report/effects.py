@@ -213,6 +213,8 @@ def effects_markdown(record):
 def rigid_text(record):
     """One line of the ``rigid`` entry of an :func:`effects_record` (``run.rigid.rigid_result``):
     what a rigid controller gets, and its predicted accuracy beside the compensated one."""
+    if record.get('failure'):
+        return f'rigid controller (no geometry.effects.*): {record["failure"]}'
     predicted = record['predicted']
     compensated = record.get('compensated_predicted_position_mm')
     beside = '' if compensated is None else f' (compensating controller {compensated:.3g} mm)'

@@ -4,6 +4,8 @@ runs the geometry alone, the identified effects folded into the 44 parameters
 applied instead of ``result.yaml`` to such a controller (:mod:`gsp_calibrator.result_delivery`),
 with its predicted accuracy beside the compensated one (docs/platform_effects.md)."""
 
+import numpy as np
+
 from gsp_calibrator.run.directory import RIGID_RESULT_FILE
 from gsp_kinematics.effects.rigid_fold import fold_effects, rigid_accuracy
 
@@ -17,7 +19,12 @@ def rigid_result(outcome):
     geometry = outcome.geometry
     if not outcome.success or geometry is None or geometry.effects.none:
         return None, None
-    rigid = fold_effects(geometry)
+    try:
+        rigid = fold_effects(geometry)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as error:
+        # No workspace posture of this geometry (its limits), or a singular fit: the rigid
+        # controller then gets the geometry without its effects (result_delivery).
+        return None, {'file': None, 'failure': f'no rigid geometry: {error}'}
     random = ((outcome.prediction or {}).get('random') or {}).get('position_mm') or {}
     compensated = float(random.get('mean', 0.0))
     record = {

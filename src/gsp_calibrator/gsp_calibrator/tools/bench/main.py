@@ -12,6 +12,7 @@ from gsp_calibrator.tools.bench import (
     end_to_end,
     model_choice_cpu,
     platform_time,
+    rigid_fold,
     run_to_requirement,
     run_to_requirement_levers,
     sensor_dynamics,
@@ -33,6 +34,7 @@ EXTRA_SECTIONS = {
     'upkeep_realistic': upkeep_realistic.run,  # docs/upkeep.md
     'effects': effects.run,  # docs/platform_effects.md
     'model_choice_cpu': model_choice_cpu.run,  # docs/platform_effects.md
+    'rigid_fold': rigid_fold.run,  # docs/platform_effects.md
     'run_to_requirement': run_to_requirement.run,  # docs/upkeep.md
     'run_to_requirement_levers': run_to_requirement_levers.run,  # docs/upkeep.md
 }
