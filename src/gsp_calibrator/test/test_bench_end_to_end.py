@@ -128,6 +128,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
     from gsp_calibrator.tools.bench import (
         collection_rate,
         effects,
+        model_choice_cpu,
         platform_time,
         run_to_requirement,
         run_to_requirement_levers,
@@ -151,6 +152,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'upkeep': bench_upkeep.run,
                 'upkeep_realistic': upkeep_realistic.run,
                 'effects': effects.run,
+                'model_choice_cpu': model_choice_cpu.run,
                 'run_to_requirement': run_to_requirement.run,
                 'run_to_requirement_levers': run_to_requirement_levers.run,
             },

@@ -131,11 +131,15 @@ def comparison_variances(result, poses, readings, design=None):
     if not np.all(np.isfinite(covariance)):
         unknown = np.full(count, np.nan)
         return (unknown, unknown), (unknown, unknown)
-    out = []
-    for sensitivity in comparison_sensitivities(result, poses, readings, design):
-        moments = np.einsum('miq,miq->mi', sensitivity @ covariance, sensitivity)
-        out.append((moments[:, :3].sum(axis=1), moments[:, 3]))
-    return tuple(out)
+    sensitivities = comparison_sensitivities(result, poses, readings, design)
+    return tuple(propagated_variances(sensitivity, covariance) for sensitivity in sensitivities)
+
+
+def propagated_variances(sensitivity, covariance):
+    """``(position (M,) m^2, the trace; phi (M,) rad^2)`` of rows ``[dp; d phi]``
+    ``sensitivity`` (M, 4, p) over a parameter ``covariance`` (p, p)."""
+    moments = np.einsum('miq,miq->mi', sensitivity @ covariance, sensitivity)
+    return moments[:, :3].sum(axis=1), moments[:, 3]
 
 
 def leverage_ratios(full, held_out, unmodelled=0.0):

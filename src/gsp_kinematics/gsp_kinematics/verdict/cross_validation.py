@@ -37,7 +37,14 @@ from ..identification import Options
 from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
 from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
-from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
+from .comparison import (
+    comparison_sensitivities,
+    comparison_variances,
+    device_pose,
+    explained_excess,
+    leverage_ratios,
+    propagated_variances,
+)
 from .fold_fits import linearised_refits, refit_fold
 from .interval import figure_interval, parameter_share, posture_terms, workspace_truth_draws
 
@@ -375,6 +382,7 @@ def _held_out(result, rows, assignment, options, effects, linearised=False):
     steps = linearised and linearised_refits(
         result, leg_lengths, readings, row_sigmas, effects, [assignment != f for f in folds]
     )
+    sensitivity = steps and comparison_sensitivities(result, guesses, readings, effects)[1]
     count = leg_lengths.shape[0]
     position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
     held_out = (np.full(count, np.nan), np.full(count, np.nan))  # position, phi
@@ -398,9 +406,12 @@ def _held_out(result, rows, assignment, options, effects, linearised=False):
             guesses[held],
             design_rows(effects, held),
         )
-        _, comparison = comparison_variances(
-            fitted, guesses[held], readings[held], design_rows(effects, held)
-        )
+        if steps:  # the full fit's sensitivities: the step moves them to second order
+            comparison = propagated_variances(sensitivity[held], fitted.covariance)
+        else:
+            _, comparison = comparison_variances(
+                fitted, guesses[held], readings[held], design_rows(effects, held)
+            )
         held_out[0][held], held_out[1][held] = comparison
     return position, phi, held_out, failed
 

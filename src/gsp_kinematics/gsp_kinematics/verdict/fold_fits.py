@@ -70,6 +70,8 @@ def _stepped(result, model, values, system):
     deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     standard_deviations = np.full(vector.shape, np.nan)
     standard_deviations[result.free] = deviations[:first]
+    effect_deviations = result.effect_standard_deviations.copy()
+    effect_deviations[result.effect_free] = deviations[first:]
     return dataclasses.replace(
         stepped,
         geometry=geometry_with_effects(geometry, model, effect_values),
@@ -77,26 +79,8 @@ def _stepped(result, model, values, system):
         effect_values=effect_values,
         covariance=covariance,
         standard_deviations=standard_deviations,
+        effect_standard_deviations=effect_deviations,
     )
-
-
-def _refits(result, rows, effects, kept):
-    """``(refits, augmented)``: :func:`linearised_refits` and the full fit's ``[J_X | J_u | r]``."""
-    leg_lengths, readings, row_sigmas = (
-        np.asarray(rows[0], float),
-        np.asarray(rows[1], float),
-        rows[2],
-    )
-    model, values, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects)
-    pose_rows, total = block_normal_equations(augmented)
-    full, _ = eliminate_poses(pose_rows, total)
-    refits = []
-    for rows_kept in kept:
-        held = ~np.asarray(rows_kept, dtype=bool)
-        flat = augmented[held][:, :, 6:].reshape(-1, augmented.shape[2] - 6)
-        share, _ = eliminate_poses(pose_rows[held], flat.T @ flat)
-        refits.append(_stepped(result, model, values, full - share))
-    return refits, augmented
 
 
 def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
@@ -110,7 +94,17 @@ def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
     robust fit's weights move with the fold)."""
     if result.formulation != 'implicit' or not result.converged or result.loss != 'linear':
         return None
-    return _refits(result, (leg_lengths, readings, row_sigmas), effects, kept)[0]
+    leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
+    model, values, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects)
+    pose_rows, total = block_normal_equations(augmented)
+    full, _ = eliminate_poses(pose_rows, total)
+    refits = []
+    for rows in kept:
+        held = ~np.asarray(rows, dtype=bool)
+        flat = augmented[held][:, :, 6:].reshape(-1, augmented.shape[2] - 6)
+        share, _ = eliminate_poses(pose_rows[held], flat.T @ flat)
+        refits.append(_stepped(result, model, values, full - share))
+    return refits
 
 
 def refit_fold(result, free, rows, options, effects):
