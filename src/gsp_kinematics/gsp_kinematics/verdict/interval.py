@@ -91,7 +91,9 @@ def truth_draw_ratios(sensitivities, covariance, validation=VALIDATION_POSTURES,
     root = vectors * np.sqrt(np.clip(values, 0.0, None))
     rng = np.random.default_rng(seed + 1)
     deltas = rng.standard_normal((TRUTH_DRAWS, root.shape[0])) @ root.T
-    errors = np.linalg.norm(np.einsum('mip,rp->rmi', sensitivities, deltas), axis=2)
+    count, axes, size = sensitivities.shape
+    moved = (sensitivities.reshape(count * axes, size) @ deltas.T).reshape(count, axes, -1)
+    errors = np.linalg.norm(moved, axis=1).T  # (draws, M)
     expected = float(np.mean(errors))
     if not (expected > 0 and math.isfinite(expected)):
         return None
