@@ -40,7 +40,7 @@ from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_post
 from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
-from .interval import figure_interval, parameter_share, posture_terms, workspace_truth_draws
+from .interval import figure_interval, posture_terms, workspace_truth_draws
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -259,9 +259,8 @@ class CrossValidation:
             transfer,
         )
         calibrated = _statistics(position[rows], position_noise, 1e3, *correction)
-        share = parameter_share(self, rows & np.isfinite(position))
         calibrated['mean_interval_95'] = figure_interval(
-            position[rows], position_noise, 1e3, correction, self.position_truth_draws, share
+            position[rows], position_noise, 1e3, correction, self.position_truth_draws
         )
         calibrated['leverage_removed'] = self.position_leverage is not None
         calibrated['workspace_transfer'] = transfer
