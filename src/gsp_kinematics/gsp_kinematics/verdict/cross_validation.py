@@ -40,7 +40,7 @@ from ..kinematics import Workspace, forward_kinematics_masked, sample_valid_post
 from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from ..rotation import wrap_angle
 from .comparison import comparison_variances, device_pose, explained_excess, leverage_ratios
-from .interval import figure_interval, posture_terms, workspace_truth_draws
+from .interval import figure_interval, posture_terms, reach_selected, workspace_truth_draws
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -241,6 +241,7 @@ class CrossValidation:
                 'postures': int(np.count_nonzero(np.isfinite(self.phi_error[~rows]))),
                 **self._figures(position, nominal, ~rows),
             }
+            reach_selected(summary['calibrated'], summary['selected']['calibrated'])
         return summary
 
     def _figures(self, position, nominal, rows):

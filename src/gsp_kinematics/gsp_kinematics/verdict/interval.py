@@ -131,6 +131,18 @@ def figure_interval(errors, variances, scale, correction, truth_ratios):
     return [scale * low, scale * high]
 
 
+def reach_selected(headline, selected):
+    """With workspace postures (the ``headline`` figures, ``{position_mm, phi_deg}``) their
+    intervals reach up to the ``selected`` postures' (in place): the workspace postures do not
+    see an error the device shares with the legs (the datum under the load: their figure 0.3x
+    the truth), which the selected postures' larger errors bound; the requirement is judged on
+    the larger figure likewise (``acceptance.judged_accuracy``, docs/verdict.md)."""
+    for key in ('position_mm', 'phi_deg'):
+        interval, bound = headline[key]['mean_interval_95'], selected[key]['mean_interval_95']
+        if all(math.isfinite(v) for v in interval + bound):
+            interval[1] = max(interval[1], bound[1])
+
+
 def held_out_interval(
     signal, draws, transfer=1.0, truth_ratios=None, level=LEVEL, resamples=RESAMPLES, seed=SEED
 ):
