@@ -240,3 +240,11 @@ def test_the_bench_gives_the_ratio_of_the_means_beside_the_median_ratio():
     assert figures['cv_over_true'] == pytest.approx(1.0)  # median of 2, 1, 0.25
     assert figures['cv_over_true_of_means'] == pytest.approx(3.0 / 5.5)
     assert figures['predicted_over_true_of_means'] == pytest.approx(8.0 / 7.5)
+
+
+def test_the_bench_counts_the_seeds_whose_interval_holds_the_truth():
+    """Issue 33's coverage: the fraction of seeds whose held-out 95 % interval holds the truth
+    (its ends included)."""
+    intervals = [[0.001, 0.003], [0.002, 0.004], [0.0, 0.001]]
+    assert bench_verdict.interval_coverage(intervals, [0.002, 0.005, 0.001]) == pytest.approx(2 / 3)
+    assert math.isnan(bench_verdict.interval_coverage([], []))

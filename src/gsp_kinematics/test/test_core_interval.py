@@ -12,6 +12,7 @@ from gsp_kinematics.verdict.interval import (
     accuracy_statistic,
     held_out_interval,
     posture_terms,
+    reach_selected,
     truth_draw_ratios,
 )
 
@@ -121,3 +122,23 @@ def test_the_interval_holds_a_truth_drawn_from_the_covariance():
             inside[with_draws] += low <= truth <= high
     assert 0.91 <= inside[True] / TRIALS <= 0.99, inside
     assert inside[False] / TRIALS < 0.8, inside
+
+
+def test_the_workspace_postures_interval_reaches_up_to_the_selected_postures():
+    """With workspace postures the headline's interval reaches up to the selected postures'
+    (they see the datum error under the load that the workspace postures do not), never
+    down; a missing interval is left alone."""
+    headline = {
+        'position_mm': {'mean_interval_95': [0.008, 0.02]},
+        'phi_deg': {'mean_interval_95': [0.0, 3e-4]},
+    }
+    selected = {
+        'position_mm': {'mean_interval_95': [0.02, 0.09]},
+        'phi_deg': {'mean_interval_95': [0.0, 1e-4]},
+    }
+    reach_selected(headline, selected)
+    assert headline['position_mm']['mean_interval_95'] == [0.008, 0.09]
+    assert headline['phi_deg']['mean_interval_95'] == [0.0, 3e-4]
+    selected['position_mm']['mean_interval_95'] = [math.nan, math.nan]
+    reach_selected(headline, selected)
+    assert headline['position_mm']['mean_interval_95'] == [0.008, 0.09]

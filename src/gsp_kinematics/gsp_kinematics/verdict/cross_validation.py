@@ -46,7 +46,7 @@ from .comparison import (
     propagated_variances,
 )
 from .fold_fits import linearised_refits, refit_fold
-from .interval import figure_interval, parameter_share, posture_terms, workspace_truth_draws
+from .interval import figure_interval, posture_terms, reach_selected, workspace_truth_draws
 
 #: Folds of a cross-validation (a posture set with fewer postures is left out one at a time).
 DEFAULT_FOLDS = 10
@@ -247,6 +247,7 @@ class CrossValidation:
                 'postures': int(np.count_nonzero(np.isfinite(self.phi_error[~rows]))),
                 **self._figures(position, nominal, ~rows),
             }
+            reach_selected(summary['calibrated'], summary['selected']['calibrated'])
         return summary
 
     def _figures(self, position, nominal, rows):
@@ -265,9 +266,8 @@ class CrossValidation:
             transfer,
         )
         calibrated = _statistics(position[rows], position_noise, 1e3, *correction)
-        share = parameter_share(self, rows & np.isfinite(position))
         calibrated['mean_interval_95'] = figure_interval(
-            position[rows], position_noise, 1e3, correction, self.position_truth_draws, share
+            position[rows], position_noise, 1e3, correction, self.position_truth_draws
         )
         calibrated['leverage_removed'] = self.position_leverage is not None
         calibrated['workspace_transfer'] = transfer
