@@ -10,6 +10,7 @@ from gsp_calibrator.tools.bench import (
     collection_rate,
     effects,
     end_to_end,
+    physics,
     platform_time,
     run_to_requirement,
     run_to_requirement_levers,
@@ -31,6 +32,7 @@ EXTRA_SECTIONS = {
     'upkeep': bench_upkeep.run,  # docs/upkeep.md
     'upkeep_realistic': upkeep_realistic.run,  # docs/upkeep.md
     'effects': effects.run,  # docs/platform_effects.md
+    'physics': physics.run,  # docs/physics.md
     'run_to_requirement': run_to_requirement.run,  # docs/upkeep.md
     'run_to_requirement_levers': run_to_requirement_levers.run,  # docs/upkeep.md
 }
