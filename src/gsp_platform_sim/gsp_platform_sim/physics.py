@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from gsp_kinematics.device import position_to_inclinations
-from gsp_kinematics.kinematics import home_pose
+from gsp_kinematics.kinematics import check_reachable, home_pose
 from gsp_kinematics.rotation import matrix_to_euler
 from gsp_kinematics.travel.motion import LegMove, MotionLimits
 
@@ -35,8 +35,10 @@ from .simulator import DEFAULT_MAX_CONDITION, CommandOutcome, PlatformSimulator
 DEFAULT_IN_POSITION_WINDOW = 1e-6
 #: ... for this long (s) before the controller reports the move done.
 DEFAULT_IN_POSITION_TIME = 0.01
-#: Simulated time (s) the platform is given at start-up to come to rest at the initial pose.
+#: Simulated time (s) the platform is given at start-up to come to rest at the initial pose once
+#: the encoders are in position (at most START_UP_TIMEOUT_S after the move to it).
 START_UP_S = 1.0
+START_UP_TIMEOUT_S = 10.0
 
 
 class PhysicsSimulator:
@@ -83,9 +85,12 @@ class PhysicsSimulator:
         self._index_model(true_geometry, reference)
         self._integral = np.zeros(6)
         self._target = self._checker.leg_lengths  # encoder readings the servos go to (m)
-        self._move = None
+        # From the model's zero to the initial pose as a move, then at rest (START_UP_S more).
+        self._move = LegMove(self.leg_lengths, self._target, self._limits, 0.0)
         self._in_position_since = None
         self._commanded_pose = start.copy()
+        while not self.in_position and self._data.time < self._move_end_s() + START_UP_TIMEOUT_S:
+            self.advance(self.time_s + 0.05)
         self.advance(self.time_s + START_UP_S)
         self._time_offset = float(start_s) - self._data.time  # at rest at start_s
 
@@ -217,46 +222,60 @@ class PhysicsSimulator:
         """Simulate up to ``until_s`` (s, the clock of ``start_s``), one time step at a time."""
         model, data, params = self._model, self._data, self.params
         step = model.opt.timestep
-        end = until_s - self._time_offset
-        while data.time + 0.5 * step <= end:
-            now = data.time
-            if self._move is not None and now >= self._move.end_s:
-                self._move = None
-            if self._move is None:
-                reference, velocity, acceleration = self._slide(self._target), 0.0, 0.0
-            else:
-                before, reference, after = (
-                    self._slide(self._move.legs(now + offset)) for offset in (-step, 0.0, step)
-                )
-                velocity = (after - reference) / step
-                acceleration = (after - 2.0 * reference + before) / step**2
-            error = reference - data.qpos[self._servo_qpos]
+        count = int(math.floor((until_s - self._time_offset - data.time) / step + 0.5))
+        if count <= 0:
+            return
+        references, feedforward = self._servo_references(count)
+        servo_qpos, servo_dof = self._servo_qpos, self._servo_dof
+        kp, ki = params.servo_kp, params.servo_ki
+        arrival = math.inf if self._move is None else self._move.end_s
+        target = self._slide(self._target)
+        window = self.in_position_window * self._leg_gains
+        for index in range(count):
+            error = references[index] - data.qpos[servo_qpos]
             self._integral += error * step
             # PI on the position with velocity and acceleration feedforward; the velocity gain
             # is the slide's damping (integrated implicitly).
-            data.qfrc_applied[self._servo_dof] = (
-                params.servo_kp * error
-                + params.servo_ki * self._integral
-                + params.servo_kd * velocity
-                + self._moved_mass * acceleration
-            )
+            data.qfrc_applied[servo_dof] = kp * error + ki * self._integral + feedforward[index]
             mujoco.mj_step(model, data)
-            self._track_in_position()
+            # The controller's "in position": the move is over, the encoders in the window.
+            if data.time < arrival - 0.5 * step and self._move is not None:
+                self._in_position_since = None
+            elif np.any(np.abs(data.qpos[servo_qpos] - target) > window):
+                self._in_position_since = None
+            elif self._in_position_since is None:
+                self._in_position_since = data.time
+        if self._move is not None and data.time >= arrival - 0.5 * step:
+            self._move = None
+
+    def _move_end_s(self):
+        return 0.0 if self._move is None else self._move.end_s
+
+    def _servo_references(self, count):
+        """The servo slides' references (count, 6) m for the next ``count`` steps and their
+        feedforward forces (count, 6) N (velocity and acceleration)."""
+        step = self._model.opt.timestep
+        if self._move is None:
+            reference = self._slide(self._target)
+            return np.broadcast_to(reference, (count, 6)), np.zeros((count, 6))
+        times = self._data.time + step * np.arange(-1, count + 1)
+        slides = self._slide(np.array([self._move.legs(t) for t in times]))
+        velocity = (slides[2:] - slides[1:-1]) / step
+        acceleration = (slides[2:] - 2.0 * slides[1:-1] + slides[:-2]) / step**2
+        feedforward = self.params.servo_kd * velocity + self._moved_mass * acceleration
+        return slides[1:-1], feedforward
 
     def slip_to(self, now_s):
         """If the simulation is behind ``now_s`` (s), move its clock there without simulating the
         gap: a machine that cannot keep real time loses simulated time, never speeds it up."""
         self._time_offset += max(0.0, now_s - self.time_s)
 
-    def _track_in_position(self):
-        if self._move is not None:
-            self._in_position_since = None
-            return
-        error = np.max(np.abs(self.leg_lengths - self._target))
-        if error > self.in_position_window:
-            self._in_position_since = None
-        elif self._in_position_since is None:
-            self._in_position_since = self._data.time
+    def _real_reason(self, real_pose):
+        """Why the real platform cannot hold ``real_pose`` (6,), where the commanded legs put it
+        ('' if it can): past a joint's stop, or near a singularity, where compliant legs under
+        load sag by centimetres or snap to another assembly."""
+        ok, reasons = check_reachable(self._true_geometry, real_pose[None], self.max_condition)
+        return '' if ok[0] else f'the real platform cannot hold it: {reasons[0]}'
 
     def command(self, pose, now_s=None):
         """Drive the platform to ``pose`` (6,) from the simulation's current time.
@@ -269,6 +288,10 @@ class PhysicsSimulator:
         outcome = self._checker.command(pose, self.time_s)
         if not outcome.accepted:
             return outcome
+        real_reason = self._real_reason(outcome.true_pose)
+        if real_reason:
+            self._checker.command(self._commanded_pose, self.time_s)  # back to the legs' state
+            return CommandOutcome(False, real_reason, None, self.true_pose)
         now = self._data.time
         # From the servos' reference now (a command may supersede a move under way).
         start = self._target if self._move is None else self._move.legs(now)
@@ -279,3 +302,20 @@ class PhysicsSimulator:
         return CommandOutcome(
             True, '', self._target.copy(), outcome.true_pose, float(move.duration_s)
         )
+
+
+def poses_at_rest(simulator, poses, rest_s=0.5, timeout_s=30.0):
+    """Where the platform of ``simulator`` comes to rest for each commanded pose (M, 6): the
+    pose ``rest_s`` (s) after the encoders are in position (NaN rows: refused, or not in
+    position within ``timeout_s`` of simulated time)."""
+    reached = np.full((len(poses), 6), np.nan)
+    for index, pose in enumerate(np.atleast_2d(poses)):
+        if not simulator.command(pose).accepted:
+            continue
+        deadline = simulator.time_s + timeout_s
+        while not simulator.in_position and simulator.time_s < deadline:
+            simulator.advance(simulator.time_s + 0.01)
+        if simulator.in_position:
+            simulator.advance(simulator.time_s + rest_s)
+            reached[index] = simulator.true_pose
+    return reached

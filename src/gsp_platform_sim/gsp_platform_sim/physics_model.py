@@ -1,10 +1,10 @@
 """A MuJoCo closed-chain model of a Gough-Stewart platform and its measuring device (no rclpy).
 
-:func:`build_mjcf` writes the MJCF of the platform built to a :class:`Geometry` (the true one) with
+:func:`build_mjcf` writes the MJCF of the platform built to a :class:`gsp_kinematics.geometry.Geometry` (the true one) with
 the :class:`PhysicalParameters`. The model is built at the reference pose ``[0, 0, z, 0, 0, 0]``
 (each joint's zero); see docs/physics.md for the mechanism and how to describe one's own platform.
 
-* Leg i: base U joint at ``A_i`` (two hinges) on the housing (cylinder and motor), the servo's
+* Leg i: base U joint at ``A_i`` (two hinges, the first in the base plane) on the housing (cylinder and motor), the servo's
   slide (``leg_i_servo``, its position is what the motor encoder reads), the compliant leg as an
   axial spring in series (``leg_i_spring``), the rod, closed on the platform at ``B_i`` by a
   ``connect`` equality (a ball joint).
@@ -22,6 +22,8 @@ import dataclasses
 import math
 
 import numpy as np
+
+from gsp_kinematics.rotation import matrix_to_quaternion
 
 #: Standard gravity (m/s^2).
 GRAVITY = 9.81
@@ -46,7 +48,10 @@ FIELD_DOCS = {
     'device_slide_mass': ('kg', "the LVDT's moving part"),
     'device_top_mass': ('kg', "the encoder's body welded to the platform"),
     'inclinometer_height': ('m', 'the inclinometer on the link, from the base origin'),
-    'timestep': ('s', 'simulation step: keep sqrt(leg_stiffness / leg_rod_mass) * timestep near 1 or below (springs are explicit)'),
+    'timestep': (
+        's',
+        'simulation step: keep sqrt(leg_stiffness / leg_rod_mass) * timestep near 1 or below (springs are explicit)',
+    ),
     'gravity': ('', 'gravity on (false: no load on the legs)'),
 }
 
@@ -69,7 +74,7 @@ class PhysicalParameters:
     leg_damping: float = 2.0e3
     servo_inertia: float = 150.0
     servo_kp: float = 2.4e6
-    servo_ki: float = 2.4e7
+    servo_ki: float = 6.0e6
     servo_kd: float = 2.6e4
     joint_damping: float = 1.0
     device_link_mass: float = 1.0
@@ -117,15 +122,16 @@ def _vec(values):
     return ' '.join(f'{float(v):.12g}' for v in values)
 
 
-def _z_to(direction):
-    """Quaternion (w, x, y, z) turning the z axis onto the unit ``direction``."""
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(z, direction)
-    sin, cos = np.linalg.norm(axis), float(np.dot(z, direction))
-    if sin < 1e-15:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    half = 0.5 * math.atan2(sin, cos)
-    return np.concatenate([[math.cos(half)], math.sin(half) * axis / sin])
+def _leg_frame(direction):
+    """Quaternion (w, x, y, z) of a leg's base frame: z along the unit ``direction``, x in the
+    base plane. The U joint turns about x, then about y: it is singular only for a horizontal
+    leg (along x), outside the joints' limits, as a real base U joint with its outer axis in
+    the base plane."""
+    x = np.cross([0.0, 0.0, 1.0], direction)
+    x /= np.linalg.norm(x)
+    rotation = np.stack([x, np.cross(direction, x), direction], axis=1)
+    quaternion = matrix_to_quaternion(rotation)  # (x, y, z, w)
+    return np.concatenate([quaternion[3:], quaternion[:3]])
 
 
 def _rod_inertia(mass, length):
@@ -153,7 +159,7 @@ def _leg(index, base_joint, platform_point, params):
         )
     )
     return f"""
-    <body name="{name}_housing" pos="{_vec(base_joint)}" quat="{_vec(_z_to(vector / length))}">
+    <body name="{name}_housing" pos="{_vec(base_joint)}" quat="{_vec(_leg_frame(vector / length))}">
       <joint name="{name}_base_x" type="hinge" axis="1 0 0" damping="{damping}"/>
       <joint name="{name}_base_y" type="hinge" axis="0 1 0" damping="{damping}"/>
       {_inertial(params.leg_housing_mass, (0, 0, 0.3 * length), _rod_inertia(params.leg_housing_mass, 0.6 * length))}

@@ -85,12 +85,13 @@ def test_after_a_move_the_encoders_are_in_position_while_the_platform_still_ring
     sim.advance(sim.time_s + outcome.travel_s)
     while not sim.in_position:
         sim.advance(sim.time_s + 0.0005)
-    pose, readings = sim.true_pose, []
+    poses, readings = [sim.true_pose], []
     for _ in range(10):
         sim.advance(sim.time_s + 0.005)
+        poses.append(sim.true_pose)
         readings.append(sim.device_readings())
-    moved = np.linalg.norm(sim.true_pose[:3] - pose[:3])
-    assert moved > 1e-6  # m in the 50 ms after "in position": > 0.02 mm/s
+    path = np.sum(np.linalg.norm(np.diff(np.array(poses)[:, :3], axis=0), axis=1))
+    assert path > 1e-6  # m travelled in the 50 ms after "in position": > 0.02 mm/s
     spread = np.ptp(np.array(readings)[:, :2], axis=0)
     assert np.max(spread) > 1e-5  # rad: the inclinometer feels the ringing
     sim.advance(sim.time_s + 2.0)
@@ -107,7 +108,7 @@ def test_an_unreachable_command_is_refused_and_nothing_moves():
     assert 'unreachable' in outcome.reason and 'stroke' in outcome.reason
     assert sim.in_position
     sim.advance(sim.time_s + 0.1)
-    np.testing.assert_allclose(sim.true_pose, before, rtol=0.0, atol=1e-8)
+    np.testing.assert_allclose(sim.true_pose, before, rtol=0.0, atol=1e-7)  # m, rad: at rest
 
 
 def test_bad_physical_parameters_are_named():
@@ -115,3 +116,29 @@ def test_bad_physical_parameters_are_named():
         PhysicalParameters(leg_rod_mass=0.0)
     with pytest.raises(ValueError, match='payload_mass'):
         PhysicalParameters(payload_mass=-1.0)
+
+
+def test_poses_at_rest_are_the_rest_poses_and_nan_where_refused():
+    from gsp_platform_sim.physics import poses_at_rest
+
+    sim = PhysicsSimulator(TRUE, TRUE, RIGID_NO_LOAD)
+    unreachable = home_pose() + [0.0, 0.0, 2.0, 0.0, 0.0, 0.0]
+    reached = poses_at_rest(sim, np.stack([POSE, unreachable, home_pose()]))
+    assert np.all(np.isnan(reached[1]))
+    np.testing.assert_allclose(reached[[0, 2]], np.stack([POSE, home_pose()]), atol=1e-6)
+
+
+def test_a_command_the_real_platform_cannot_hold_is_refused_though_the_controller_accepts_it():
+    from gsp_platform_sim.simulator import PlatformSimulator
+
+    # The nominal controller's legs put the real platform past two platform joint stops and
+    # near a singularity (condition ~300), where the compliant legs sag by centimetres.
+    edge = np.array([0.376, -0.188, 1.048, 0.363, -0.493, 0.517])
+    assert PlatformSimulator(TRUE, NOMINAL).command(edge).accepted
+    sim = PhysicsSimulator(TRUE, NOMINAL)
+    outcome = sim.command(edge)
+    assert not outcome.accepted
+    assert outcome.reason.startswith('the real platform cannot hold it: platform joint')
+    # The refused command left the controller where it was: the next one moves as usual.
+    rest_at(sim, POSE, extra_s=0.5)
+    assert np.linalg.norm(sim.true_pose[:3] - POSE[:3]) < 0.01  # m (nominal controller)

@@ -135,14 +135,7 @@ def parse_arguments(argv=None):
         choices=('sim', 'ros2_control'),
         help='sim: platform_sim; ros2_control: platform_bridge + emulated controller (sim)',
     )
-    add(
-        '--backend',
-        default='kinematic',
-        choices=('kinematic', 'physics'),
-        help="platform_sim's backend: kinematic (fast) or physics (MuJoCo, the realistic preset "
-        f"{PHYSICS_PRESET}, with device_driver's physics backend; the legs' realistic limits "
-        'unless given) (docs/physics.md) (kinematic)',
-    )
+    _add_backend_option(add)
     add(
         '--device',
         default='sim',
@@ -152,6 +145,17 @@ def parse_arguments(argv=None):
     args = parser.parse_args(argv)
     _check_arguments(parser, args)
     return args
+
+
+def _add_backend_option(add):
+    add(
+        '--backend',
+        default='kinematic',
+        choices=('kinematic', 'physics'),
+        help="platform_sim's backend: kinematic (fast) or physics (MuJoCo, the realistic preset "
+        f"{PHYSICS_PRESET}, with device_driver's physics backend; the legs' realistic limits "
+        'unless given) (docs/physics.md) (kinematic)',
+    )
 
 
 def _check_arguments(parser, args):

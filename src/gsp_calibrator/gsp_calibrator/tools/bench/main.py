@@ -11,6 +11,7 @@ from gsp_calibrator.tools.bench import (
     effects,
     end_to_end,
     model_choice_cpu,
+    physics,
     platform_time,
     rigid_fold,
     run_to_requirement,
@@ -35,6 +36,7 @@ EXTRA_SECTIONS = {
     'effects': effects.run,  # docs/platform_effects.md
     'model_choice_cpu': model_choice_cpu.run,  # docs/platform_effects.md
     'rigid_fold': rigid_fold.run,  # docs/platform_effects.md
+    'physics': physics.run,  # docs/physics.md
     'run_to_requirement': run_to_requirement.run,  # docs/upkeep.md
     'run_to_requirement_levers': run_to_requirement_levers.run,  # docs/upkeep.md
 }
