@@ -11,6 +11,7 @@ from gsp_kinematics.sensors.noise_estimate import (
     lag_sums,
     noise_of_mean,
     noise_of_mean_from_sums,
+    scatter_test,
     settle_test,
     settled,
     trend_std_factor,
@@ -204,6 +205,30 @@ def test_settle_test_calls_settled_white_spans_moving_at_the_nominal_rate(n):
     # Exact (Student-t) for spans too short to count correlation; slightly below the nominal
     # rate where the chance lags the truncation keeps make the noise a little larger.
     assert expected - 5 * standard_error < rate < expected + 5 * standard_error
+
+
+@pytest.mark.parametrize('n', [10, 50])
+def test_scatter_test_calls_white_spans_at_their_noise_moving_at_the_nominal_rate(n):
+    rng = np.random.default_rng(30 + n)
+    spans, sigma = 40000, 3e-6
+    ratio, threshold = scatter_test(rng.normal(size=(spans, n, 1)) * sigma + 0.2, [sigma])
+    rate, expected = np.mean(ratio > threshold), false_unsettled_rate()
+    standard_error = math.sqrt(expected / spans)
+    assert expected - 5 * standard_error < rate < expected + 5 * standard_error
+
+
+def test_a_ringing_span_shows_no_trend_but_scatters_beyond_its_noise():
+    """5 Hz for 0.25 s, 4 sigma peak, on white noise: whole periods have no trend, so the trend
+    test (its noise the span's own) passes it; its scatter is 3 times the noise."""
+    rng = np.random.default_rng(4)
+    sigma, times = 2e-5, np.arange(50) * DT
+    values = (4 * sigma * np.sin(2 * math.pi * 5.0 * times) + rng.normal(size=50) * sigma)[:, None]
+    assert settle_test(values, times, noise_floor=[sigma]).settled.all()
+    ratio, threshold = scatter_test(values, [sigma])
+    assert ratio[0] > 2 * threshold
+    assert scatter_test(values, [3 * sigma])[0][0] < threshold  # a noisier sensor
+    with pytest.raises(NoiseEstimateError, match='noise_std'):
+        scatter_test(values, [0.0])
 
 
 def test_settle_test_noise_floor_keeps_a_noiseless_channel_settled():

@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from gsp_calibrator.report.data import settle_line
 from gsp_calibrator.run.approach import effect_design, reference_instant
 from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
@@ -401,6 +402,8 @@ def finish_run(run, settings, samples, collection, options):
     )
     if additions:
         summary += '\n' + route_additions_line(additions)
+    if settle_line(collection.get('settle')):
+        summary += '\n' + settle_line(collection['settle'])
     report_error = ''
     if outcome.result is not None:
         try:
