@@ -264,6 +264,20 @@ PARAMETERS = (
         ),
         subsets=frozenset((STORED,)),
     ),
+    ParameterSpec(
+        'leg_mass',
+        [0.0] * 6,
+        'Mass of each leg (a uniform bar between its joints) for the compliance group: the '
+        "legs' own weight loads them too (docs/platform_effects.md); 0: massless legs",
+        unit='kg',
+        constraints='6 finite numbers >= 0',
+        check=lambda v: (
+            ''
+            if len(list(v)) == 6 and all(is_finite_number(x) and x >= 0.0 for x in v)
+            else 'must be 6 finite masses >= 0 kg'
+        ),
+        subsets=frozenset((STORED,)),
+    ),
     _one_of(
         'loss',
         'linear',

@@ -19,8 +19,8 @@ POSES = sample_valid_postures(default_geometry('nominal'), 12, np.random.default
 
 
 def test_a_ringing_platform_is_waited_out_by_the_default_rule():
-    """5 Hz, 0.4 mm/s, decaying with 0.1 s: the inclinometer reads 0.8 mrad (47 sigma) of
-    acceleration at the settle. The rows wait until it is gone: their error is noise (RMS
+    """5 Hz, 0.4 mm/s, decaying with 0.1 s: the inclinometer reads up to 1.3 mrad (73 sigma)
+    of acceleration at the settle. The rows wait until it is gone: their error is noise (RMS
     about 1 of their stds; a row averaged while it rings is off by tens)."""
     errors, waits = collect(POSES, RINGS['5 Hz, 0.1 s'], seed=1)
     rms = np.sqrt(np.mean(errors**2, axis=0))

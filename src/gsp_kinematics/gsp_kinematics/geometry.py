@@ -1,8 +1,7 @@
 """Platform and device geometry: the 44 identification parameters, the sensor errors and the
 geometry file format.
 
-The canonical file is a ROS 2 parameters YAML (``/**: ros__parameters: geometry: ...``), so the
-same file configures a node with ``--params-file`` and holds true, nominal or calibrated values.
+The file is a ROS 2 parameters YAML (a node's ``--params-file``): true, nominal or calibrated.
 """
 
 import dataclasses
@@ -242,6 +241,7 @@ EFFECT_KEYS = {
     **dict.fromkeys(_EFFECT_STEMS, NUM_LEGS),
     'payload_mass': None,
     'centre_of_mass': 3,
+    'leg_mass': NUM_LEGS,
     'reference_time': None,
 }
 
@@ -272,6 +272,7 @@ def _effect_parameters(effects):
     parameters = {
         f'{_EFFECTS}.payload_mass': float(effects.payload_mass),
         f'{_EFFECTS}.centre_of_mass': [float(v) for v in effects.centre_of_mass],
+        f'{_EFFECTS}.leg_mass': list(effects.leg_mass),
         f'{_EFFECTS}.reference_time': float(effects.reference_time_s),
     }
     blocks = effects.values.reshape(len(_EFFECT_STEMS), NUM_LEGS)
@@ -301,6 +302,7 @@ def _effects_from_parameters(parameters):
         mass,
         tuple(values.get('centre_of_mass', (0.0, 0.0, 0.0))),
         values.get('reference_time', 0.0),
+        tuple(values.get('leg_mass', (0.0,) * NUM_LEGS)),
     )
 
 
