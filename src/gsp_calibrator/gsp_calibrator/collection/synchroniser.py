@@ -24,7 +24,8 @@ Settling (:mod:`gsp_kinematics.sensors.noise_estimate`, docs/sensor_errors.md): 
 only when every channel is at rest over the ``settle_lookback`` (s) that ends with the window (at
 least the window itself): its least-squares trend over that span is within ``settle_sigmas`` of
 the noise the span itself shows (:func:`~gsp_kinematics.sensors.noise_estimate.settle_test`, the
-per-sample noise at least ``noise_std``). A window is not judged before the look-back is covered
+per-sample noise at least ``noise_std``), and its scatter within what ``noise_std`` allows
+(:func:`~gsp_kinematics.sensors.noise_estimate.scatter_test`: a platform still ringing). A window is not judged before the look-back is covered
 by pairs (from the first after the start, less the pairing tolerance), so a slow sensor is
 waited for, and the wait (start to the window's first sample) is kept with the row
 (``settle_wait``).
