@@ -56,7 +56,9 @@ def test_node_commands(tmp_path):
     assert missing['calibrator'][:3] == [sys.executable, '-m', 'gsp_calibrator.calibrator_node']
 
 
-def test_the_realistic_device_preset_sets_the_device_and_the_default_settle_look_back_fits_it(tmp_path):
+def test_the_realistic_device_preset_sets_the_device_and_the_default_settle_look_back_fits_it(
+    tmp_path,
+):
     preset = demo_commands.SENSOR_DYNAMICS['realistic']
     for device in ('sim', 'serial'):
         args = demo.parse_arguments(['--sensor-dynamics', 'realistic', '--device', device])
