@@ -198,10 +198,12 @@ PARAMETERS = (
     ),
     _seconds(
         'settle_lookback',
-        0.0,
+        0.25,
         'Span the settle rule judges each channel over, ending with the averaged window (at '
-        "least that window): about 5 times the slowest sensor's response time; the "
-        'readings are waited for until at rest over it (docs/sensor_errors.md)',
+        'least that window): the readings are averaged only once at rest over it (no trend, '
+        'no scatter beyond their noise), whatever the platform says; at least 5 times the '
+        "slowest sensor's response time and a few periods of the platform's ringing "
+        '(docs/sensor_errors.md)',
         subsets=frozenset((STORED,)),
     ),
     _positive(
@@ -209,7 +211,7 @@ PARAMETERS = (
         DEFAULT_SETTLE_SIGMAS,
         "Trend over the settle look-back, in stds of a settled span's trend, above which a "
         'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
-        'spans)',
+        'spans); its scatter is judged at the same rate',
         subsets=frozenset((STORED,)),
     ),
     _positive(
@@ -262,6 +264,20 @@ PARAMETERS = (
             ''
             if len(list(v)) == 3 and all(is_finite_number(x) for x in v)
             else 'must be 3 finite numbers (m)'
+        ),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'leg_mass',
+        [0.0] * 6,
+        'Mass of each leg (a uniform bar between its joints) for the compliance group: the '
+        "legs' own weight loads them too (docs/platform_effects.md); 0: massless legs",
+        unit='kg',
+        constraints='6 finite numbers >= 0',
+        check=lambda v: (
+            ''
+            if len(list(v)) == 6 and all(is_finite_number(x) and x >= 0.0 for x in v)
+            else 'must be 6 finite masses >= 0 kg'
         ),
         subsets=frozenset((STORED,)),
     ),

@@ -133,6 +133,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
         run_to_requirement,
         run_to_requirement_levers,
         sensor_dynamics,
+        settle_ringing,
         upkeep_realistic,
         verdict,
     )
@@ -147,6 +148,7 @@ def test_gsp_bench_adds_the_end_to_end_section(monkeypatch):
                 'noise_unknown': bench_noise.run,
                 'platform_time': platform_time.run,
                 'sensor_dynamics': sensor_dynamics.run,
+                'settle_ringing': settle_ringing.run,
                 'collection_rate': collection_rate.run,
                 'verdict': verdict.run,
                 'upkeep': bench_upkeep.run,

@@ -11,6 +11,7 @@ import pytest
 from gsp_testing import wait_until
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
+from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools import demo, demo_commands, demo_summary
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.effects.model import PRESETS
@@ -55,7 +56,9 @@ def test_node_commands(tmp_path):
     assert missing['calibrator'][:3] == [sys.executable, '-m', 'gsp_calibrator.calibrator_node']
 
 
-def test_the_realistic_device_preset_sets_the_device_and_the_settle_look_back(tmp_path):
+def test_the_realistic_device_preset_sets_the_device_and_the_default_settle_look_back_fits_it(
+    tmp_path,
+):
     preset = demo_commands.SENSOR_DYNAMICS['realistic']
     for device in ('sim', 'serial'):
         args = demo.parse_arguments(['--sensor-dynamics', 'realistic', '--device', device])
@@ -69,10 +72,12 @@ def test_the_realistic_device_preset_sets_the_device_and_the_settle_look_back(tm
                 else [f'{name}:={value!r}']
             )
             assert all(arg in source for arg in expected), (name, source)
-        assert f'settle_lookback:={preset["settle_lookback"]!r}' in found['calibrator']
+        # The calibrator's default look-back (5 tau of this inclinometer) is the preset's.
+        assert not any('settle_lookback' in arg for arg in found['calibrator'])
+    assert DEFAULTS['settle_lookback'] >= 5 * preset['device']['inclinometer_response_time']
     plain = demo_commands.node_commands(demo.parse_arguments([]), str(tmp_path), lambda n: n)
     assert not any('response_time' in arg for arg in plain['device_driver'])
-    assert 'settle_lookback:=0.0' in plain['calibrator']
+    assert not any('settle_lookback' in arg for arg in plain['calibrator'])
 
 
 def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):

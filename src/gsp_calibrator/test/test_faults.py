@@ -25,6 +25,7 @@ from gsp_calibrator.recording.mcap_io import (
     recover_recordings,
 )
 from gsp_calibrator.recording.recorder import next_recording_file, recording_parts
+from gsp_calibrator.report.data import settle_line
 from gsp_calibrator.run.directory import SAMPLES_FILE, Samples, read_samples, write_samples
 from gsp_calibrator.run.session import RunSession
 from gsp_calibrator.run.state import (
@@ -158,8 +159,21 @@ def test_settle_waits_survive_a_resume_and_give_the_statistics(tmp_path):
     again = read_state(run)
     assert again.settle_waits == state.settle_waits
     statistics = settle_statistics(again.settle_waits)
-    assert statistics == {'rows': 3, 'median_s': 0.2, 'max_s': 0.6, 'mean_s': 0.268, 'waited': 2}
+    assert statistics == {
+        'rows': 3,
+        'median_s': 0.2,
+        'max_s': 0.6,
+        'mean_s': 0.268,
+        'waited': 2,
+        'per_posture_s': {'1': 0.004, '2': 0.6, '4': 0.2},
+    }
     assert settle_statistics({})['rows'] == 0
+    # The response and report.md say it in one line.
+    assert settle_line(statistics) == (
+        'settle wait (settled to averaged window): median 0.2 s, max 0.6 s over 3 rows; '
+        '2 waited for a moving channel'
+    )
+    assert settle_line(settle_statistics({})) == ''
 
 
 def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):

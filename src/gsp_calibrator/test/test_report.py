@@ -229,11 +229,18 @@ def test_no_prediction_without_a_full_rank_covariance(calibrated):
 def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     """The calibrator's ``write_report_plots``: false skips every PNG and says so in report.md;
     result.json, report.md's tables and result.yaml are as with the plots (the default)."""
+    from gsp_calibrator.report.data import settle_line
     from gsp_calibrator.run.directory import RESULT_FILE, RunDirectory
+    from gsp_calibrator.run.state import settle_statistics
     from gsp_calibrator.settings import CalibratorSettings
 
     samples = synthetic_samples(count=25, seed=5)
-    collection = {'skipped': [], 'inconsistent_dropped': 0}
+    waits = {str(k): {'wait_s': 0.2 + 0.01 * k, 'settling_pairs': k % 2} for k in range(1, 26)}
+    collection = {
+        'skipped': [],
+        'inconsistent_dropped': 0,
+        'settle': settle_statistics(waits),
+    }
     written = {}
     for plots in (True, False):
         settings = CalibratorSettings.from_values(
@@ -268,6 +275,11 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     assert {**skipped, 'options': None} == {**drawn, 'options': None}
     text = (without_plots / 'report.md').read_text(encoding='utf-8')
     assert PLOTS_SKIPPED_NOTE in text and '.png' not in text
+    # How long the rows waited for rest: per posture in result.json, a line in both texts.
+    assert skipped['collection']['settle']['per_posture_s']['7'] == pytest.approx(0.27)
+    line = settle_line(collection['settle'])
+    assert 'median 0.33 s, max 0.45 s over 25 rows; 13 waited' in line
+    assert f'- {line}' in text and line in finished.summary.splitlines()
     assert PLOTS_SKIPPED_NOTE not in (with_plots / 'report.md').read_text(encoding='utf-8')
     assert '](held_out_accuracy.png)' in (with_plots / 'report.md').read_text(encoding='utf-8')
     tables = [

@@ -1,8 +1,7 @@
 """Platform and device geometry: the 44 identification parameters, the sensor errors and the
 geometry file format.
 
-The canonical file is a ROS 2 parameters YAML (``/**: ros__parameters: geometry: ...``), so the
-same file configures a node with ``--params-file`` and holds true, nominal or calibrated values.
+The file is a ROS 2 parameters YAML (a node's ``--params-file``): true, nominal or calibrated.
 """
 
 import dataclasses
@@ -242,6 +241,7 @@ EFFECT_KEYS = {
     **dict.fromkeys(_EFFECT_STEMS, NUM_LEGS),
     'payload_mass': None,
     'centre_of_mass': 3,
+    'leg_mass': NUM_LEGS,
     'reference_time': None,
 }
 
@@ -270,11 +270,13 @@ def _effect_parameters(effects, every=False):
     of the identified groups, their load and reference instant; ``every``: all, 0 if not."""
     groups = effects.groups()
     kept = {stem: g in groups for g, stem in zip(EFFECT_GROUPS, _EFFECT_STEMS, strict=True)}
-    load = kept['payload_mass'] = kept['centre_of_mass'] = 'compliance' in groups
+    load = 'compliance' in groups
+    kept['payload_mass'] = kept['centre_of_mass'] = kept['leg_mass'] = load
     thermal = kept['reference_time'] = 'thermal' in groups
     values = {
         'payload_mass': float(effects.payload_mass) if load else 0.0,
         'centre_of_mass': [float(v) if load else 0.0 for v in effects.centre_of_mass],
+        'leg_mass': [float(v) if load else 0.0 for v in effects.leg_mass],
         'reference_time': float(effects.reference_time_s) if thermal else 0.0,
     }
     values.update(zip(_EFFECT_STEMS, effects.values.reshape(-1, NUM_LEGS).tolist(), strict=True))
@@ -302,6 +304,7 @@ def _effects_from_parameters(parameters):
         mass,
         tuple(values.get('centre_of_mass', (0.0, 0.0, 0.0))),
         values.get('reference_time', 0.0),
+        tuple(values.get('leg_mass', (0.0,) * NUM_LEGS)),
     )
 
 

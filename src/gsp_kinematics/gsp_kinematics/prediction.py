@@ -109,7 +109,9 @@ def effect_pose_sensitivities(geometry, poses, effect_free):
     if posture.any():
         effects = geometry.effects
         design = EffectDesign(
-            payload_mass=effects.payload_mass, centre_of_mass=effects.centre_of_mass
+            payload_mass=effects.payload_mass,
+            centre_of_mass=effects.centre_of_mass,
+            leg_mass=effects.leg_mass,
         )
         regressors = EffectTerms(geometry, design, posture, poses.shape[0]).regressors(poses)
         _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)

@@ -1,6 +1,8 @@
 """The effect groups of the identification (gsp_kinematics.effects.groups): Jacobian columns
 against finite differences, recovery and identifiability on a simulated real platform."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,7 @@ from gsp_kinematics.effects.groups import (
     resolve_effects,
 )
 from gsp_kinematics.effects.model import PlatformEffects
+from gsp_kinematics.effects.real_pose import real_poses
 from gsp_kinematics.geometry import (
     GeometryError,
     default_geometry,
@@ -226,7 +229,7 @@ def test_compensation_reads_the_model_backwards():
 def test_the_geometry_file_carries_the_identified_effects():
     values = np.arange(1, 25) * 1e-7
     values[:6] = np.arange(1, 7) * 1e-8  # compliance, m/N
-    identified = IdentifiedEffects(values, 40.0, (0.01, -0.02, 0.05), 1.7e9)
+    identified = IdentifiedEffects(values, 40.0, (0.01, -0.02, 0.05), 1.7e9, (11.8,) * 6)
     geometry = NOMINAL.replace(effects=identified)
     text = geometry_to_yaml(geometry)
     assert 'effects:' in text and 'effects:' not in geometry_to_yaml(NOMINAL)
@@ -237,6 +240,7 @@ def test_the_geometry_file_carries_the_identified_effects():
         np.testing.assert_array_equal(back.effects.values, identified.values)
         assert back.effects.payload_mass == 40.0 and back.effects.reference_time_s == 1.7e9
         np.testing.assert_array_equal(back.effects.centre_of_mass, identified.centre_of_mass)
+        assert back.effects.leg_mass == (11.8,) * 6
         np.testing.assert_array_equal(back.to_full_vector(), NOMINAL.to_full_vector())
     assert geometry_from_yaml(geometry_to_yaml(NOMINAL)).effects.none
     parameters = geometry_to_parameters(geometry)
@@ -289,3 +293,48 @@ def test_forward_kinematics_with_the_identified_effects_finds_the_real_pose(sequ
     np.testing.assert_allclose(found, run.real_poses, atol=1e-11)
     rigid, _ = model_poses(TRUE, run.leg_readings, poses, design_of(run))
     assert np.max(np.abs(rigid[:, :3] - run.real_poses[:, :3])) > 1e-6
+
+
+def test_heavy_legs_are_identified_to_the_floor_and_compensated_under_a_new_load(sequence):
+    """Legs of 11.8 kg (docs/platform_effects.md): the sag is about twice the massless-leg
+    model's. Told the legs' mass, the compliance is the legs' own and the calibrated platform
+    reaches its commands (noise free: the floor is 0); told nothing, the compliance absorbs the
+    legs' weight (1.9x) and the compensation is wrong once the payload changes."""
+    poses, times = sequence
+    heavy = ALONE['compliance'].replace(leg_mass=np.full(6, 11.8))
+    light = ALONE['compliance']
+    commanded = TRUE.sensors.leg_readings(inverse_kinematics(TRUE, poses))
+    sags = {}
+    for name, effects in (('light', light), ('heavy', heavy)):
+        reached, _ = real_poses(TRUE, effects, commanded, poses)
+        sags[name] = np.linalg.norm(reached[:, :3] - poses[:, :3], axis=1).mean()
+    assert 1.6 < sags['heavy'] / sags['light'] < 2.2, sags
+    run = simulate_commands(TRUE, NOMINAL, poses, heavy, times)
+    validation = sample_valid_postures(NOMINAL, 40, np.random.default_rng(11), WORKSPACE)
+    heavier = heavy.replace(payload_mass=2 * MASS)  # the platform's new load after calibration
+    errors = {}
+    for name, leg_mass in (('told', heavy.leg_mass), ('not told', np.zeros(6))):
+        design = EffectDesign(run.times_s, run.directions, MASS, CENTRE, leg_mass=tuple(leg_mass))
+        result = identify(
+            NOMINAL,
+            run.leg_readings,
+            run.device_readings,
+            free=['extended', 'compliance'],
+            pose_guesses=poses,
+            effects=design,
+        )
+        compliance = np.array([value for value, _ in result.effects.values()])
+        loaded = result.geometry.replace(
+            effects=dataclasses.replace(result.geometry.effects, payload_mass=2 * MASS)
+        )
+        errors[name] = (
+            compliance / heavy.leg_compliance,
+            validate(TRUE, result.geometry, validation, heavy)['position_mm_mean'],
+            validate(TRUE, loaded, validation, heavier)['position_mm_mean'],
+        )
+    ratio, floor, new_load = errors['told']
+    np.testing.assert_allclose(ratio, 1.0, rtol=1e-3)
+    assert floor < 1e-5 and new_load < 1e-5  # mm
+    ratio, _, new_load = errors['not told']
+    assert np.all(ratio > 1.5)
+    assert new_load > 1e-3  # mm: the massless model's compensation overshoots the new load

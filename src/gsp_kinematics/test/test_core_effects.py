@@ -108,6 +108,49 @@ def test_leg_forces_balance_the_weight_at_any_pose(exact, postures):
     assert np.max(np.abs(net_force)) < 1e-9 and np.max(np.abs(net_moment)) < 1e-9
 
 
+def _gravity_potential(geometry, effects, poses):
+    """J (M,): gravity's potential of the platform and of the legs, each leg two equal halves:
+    its body ``d`` from the base joint along it, its rod ``d`` from the platform joint (any
+    ``d``: the halves' moments about the base joint sum to the bar's, centre at mid-length)."""
+    vectors, rotation = leg_vectors(geometry, poses)
+    units = vectors / np.linalg.norm(vectors, axis=2, keepdims=True)
+    tips = np.einsum('mjk,ik->mij', rotation, geometry.platform_joints) + poses[:, None, :3]
+    body = geometry.base_joints[None, :, 2] + 0.1 * units[..., 2]
+    rod = tips[..., 2] - 0.1 * units[..., 2]
+    centre = (rotation @ effects.centre_of_mass)[:, 2] + poses[:, 2]
+    return GRAVITY * (
+        effects.payload_mass * centre + (0.5 * effects.leg_mass * (body + rod)).sum(1)
+    )
+
+
+def test_leg_forces_with_heavy_legs_are_the_virtual_work_of_gravity(exact, postures):
+    """A virtual displacement of the pose does gravity's work in the springs: ``J^T f = dV/dX``
+    (J: the leg lengths' derivatives, V: the gravity potential of the platform and of the
+    legs, the rod's half above the spring moving with the platform joint), by central
+    differences; the massless-leg forces miss the legs' weight by tens of newtons."""
+    effects = PlatformEffects(
+        payload_mass=40.0, centre_of_mass=(0.02, -0.01, 0.05), leg_mass=np.linspace(8, 14, 6)
+    )
+    poses, step = postures[:8], 1e-6
+    jacobian, gradient = np.zeros((len(poses), 6, 6)), np.zeros((len(poses), 6))
+    for k in range(6):
+        shift = np.zeros(6)
+        shift[k] = step
+        up, down = poses + shift, poses - shift
+        jacobian[:, :, k] = (inverse_kinematics(exact, up) - inverse_kinematics(exact, down)) / (
+            2 * step
+        )
+        gradient[:, k] = (
+            _gravity_potential(exact, effects, up) - _gravity_potential(exact, effects, down)
+        ) / (2 * step)
+    # In equilibrium the springs' forces (compression shortens) balance gravity's: J^T f = dV/dX.
+    expected = np.linalg.solve(np.swapaxes(jacobian, 1, 2), gradient[..., None])[..., 0]
+    forces = leg_forces(exact, effects, poses)
+    np.testing.assert_allclose(forces, expected, rtol=0, atol=1e-4)  # N, of about 100-300 N
+    massless = leg_forces(exact, effects.replace(leg_mass=np.zeros(6)), poses)
+    assert np.max(np.abs(forces - massless)) > 20.0
+
+
 def test_approach_directions_follow_the_sign_of_the_last_motion():
     legs = np.array([[1.0, 1.0], [1.1, 0.9], [1.1, 0.9], [1.0, 0.95], [1.0, 0.95]])
     sequence = np.repeat(legs, 3, axis=1)

@@ -11,6 +11,7 @@ from gsp_kinematics.sensors.noise_estimate import (
     lag_sums,
     noise_of_mean,
     noise_of_mean_from_sums,
+    scatter_test,
     settle_test,
     settled,
     trend_std_factor,
@@ -204,6 +205,34 @@ def test_settle_test_calls_settled_white_spans_moving_at_the_nominal_rate(n):
     # Exact (Student-t) for spans too short to count correlation; slightly below the nominal
     # rate where the chance lags the truncation keeps make the noise a little larger.
     assert expected - 5 * standard_error < rate < expected + 5 * standard_error
+
+
+@pytest.mark.parametrize('n', [10, 50])
+def test_scatter_test_calls_white_spans_moving_at_most_at_the_nominal_rate(n):
+    """At the configured noise a white span is called moving at most at the nominal rate; at
+    3 times it (a device noisier than configured: the noise between successive samples is
+    believed, estimated from the span) at most 4 times that (0.76 % measured at 10 samples)."""
+    rng = np.random.default_rng(30 + n)
+    spans, sigma = 40000, 3e-6
+    expected = false_unsettled_rate()
+    for true_sigma, limit in ((sigma, expected), (3 * sigma, 4 * expected)):
+        values = rng.normal(size=(spans, n, 1)) * true_sigma + 0.2
+        ratio, threshold = scatter_test(values, [sigma])
+        assert np.mean(ratio > threshold) < limit + 5 * math.sqrt(expected / spans)
+
+
+def test_a_ringing_span_shows_no_trend_but_scatters_beyond_its_noise():
+    """5 Hz for 0.25 s, 4 sigma peak, on white noise: whole periods have no trend, so the trend
+    test (its noise the span's own) passes it; its scatter is 2.5 times the noise."""
+    rng = np.random.default_rng(4)
+    sigma, times = 2e-5, np.arange(50) * DT
+    values = (4 * sigma * np.sin(2 * math.pi * 5.0 * times) + rng.normal(size=50) * sigma)[:, None]
+    assert settle_test(values, times, noise_floor=[sigma]).settled.all()
+    ratio, threshold = scatter_test(values, [sigma])
+    assert ratio[0] > 1.5 * threshold
+    assert scatter_test(values, [3 * sigma])[0][0] < threshold  # a noisier sensor
+    with pytest.raises(NoiseEstimateError, match='noise_std'):
+        scatter_test(values, [0.0])
 
 
 def test_settle_test_noise_floor_keeps_a_noiseless_channel_settled():

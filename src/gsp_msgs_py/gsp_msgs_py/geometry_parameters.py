@@ -4,6 +4,7 @@
 ``apply_result`` sets a calibrated geometry on either one unchanged.
 """
 
+from gsp_kinematics.effects.groups import EffectDesignError
 from gsp_kinematics.geometry import (
     GeometryError,
     default_geometry,
@@ -86,6 +87,7 @@ _GEOMETRY_DESCRIPTIONS = {
         'kg',
     ),
     'geometry.effects.centre_of_mass': ('Its centre, platform frame', 'm'),
+    'geometry.effects.leg_mass': ("The legs' own masses 1..6, loading the compliance too", 'kg'),
     'geometry.effects.reference_time': (
         'Instant the geometry refers to (thermal growth), on the run clock',
         's',
@@ -110,7 +112,7 @@ def controller_geometry_error(values):
     are)."""
     try:
         geometry_from_parameters({name: values[name] for name in GEOMETRY_PARAMETER_NAMES})
-    except GeometryError as error:
+    except (GeometryError, EffectDesignError) as error:  # the effects' own checks (leg_mass)
         return str(error)
     return ''
 

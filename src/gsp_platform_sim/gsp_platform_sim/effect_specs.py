@@ -66,6 +66,7 @@ def effects_summary(effects):
         parts.append(
             f'{effects.payload_mass:g} kg on legs of {stiffness.min() * 1e-6:g}-'
             f'{stiffness.max() * 1e-6:g} N/um'
+            + (f' of up to {effects.leg_mass.max():g} kg' if any(effects.leg_mass) else '')
         )
     if any(effects.backlash):
         parts.append(f'backlash up to {effects.backlash.max() * 1e6:g} um')

@@ -279,6 +279,7 @@ def _calibrated_geometry():
             40.0,
             (0.0, 0.01, 0.05),
             100.0,
+            (11.8,) * 6,  # heavy legs
         ),
     )
 

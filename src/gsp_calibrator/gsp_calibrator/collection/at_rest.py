@@ -17,7 +17,7 @@ import numpy as np
 import scipy.stats  # noqa: F401
 
 from gsp_kinematics.channels import CHANNEL_NAMES
-from gsp_kinematics.sensors.noise_estimate import settle_test
+from gsp_kinematics.sensors.noise_estimate import scatter_test, settle_test
 
 #: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
 MIN_SETTLE_SAMPLES = 4
@@ -29,19 +29,22 @@ MAX_UNCOVERED_FRACTION = 0.125
 @dataclasses.dataclass(frozen=True)
 class Unsettled:
     """Why the latest window judged is not used yet: the look-back is not yet covered
-    (``pending``), or ``channel`` moved: its trend ``z`` stds over ``span`` s (``threshold``)."""
+    (``pending``), or ``channel`` moved: its trend ``z`` stds over ``span`` s (``threshold``),
+    or (``scatter``) its std over the span ``z`` times its at-rest noise."""
 
     pending: bool
     channel: str = ''
     z: float = 0.0
     threshold: float = 0.0
     span: float = 0.0
+    scatter: bool = False
 
     def describe(self):
         if self.pending:
             return 'the settle look-back is not yet covered'
+        what = 'scatter {:.3g} times its noise std' if self.scatter else 'trend {:.3g} stds'
         return (
-            f'{self.channel} still moving: trend {self.z:.3g} stds over the last '
+            f'{self.channel} still moving: {what.format(self.z)} over the last '
             f'{self.span:.3g} s (at most {self.threshold:.3g})'
         )
 
@@ -49,20 +52,26 @@ class Unsettled:
 def span_verdict(values, stamps_ns, sigmas, noise_std=None):
     """None if every channel of ``values`` (n, 10) (``phi`` unwrapped), stamped ``stamps_ns``
     (n,), is at rest (or the span is too short to judge), else :class:`Unsettled` naming the
-    channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise floor."""
+    channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise at rest,
+    the floor of the trend's noise; with it, a channel scattering more than it allows moves
+    too (an oscillation faster than the span shows no trend: a platform still ringing)."""
     if len(stamps_ns) < MIN_SETTLE_SAMPLES:
         return None
     times = (np.asarray(stamps_ns, dtype=np.int64) - int(stamps_ns[0])) * 1e-9
     verdict = settle_test(values, times, sigmas, noise_std)
-    if verdict.settled.all():
+    if not verdict.settled.all():
+        worst = int(np.argmax(verdict.z / verdict.threshold))
+        z, threshold, scatter = verdict.z[worst], verdict.threshold[worst], False
+    elif noise_std is not None:
+        ratio, threshold = scatter_test(values, noise_std, sigmas)
+        worst = int(np.argmax(ratio))
+        if ratio[worst] <= threshold:
+            return None
+        z, scatter = ratio[worst], True
+    else:
         return None
-    worst = int(np.argmax(verdict.z / verdict.threshold))
     return Unsettled(
-        False,
-        CHANNEL_NAMES[worst],
-        float(verdict.z[worst]),
-        float(verdict.threshold[worst]),
-        float(times[-1]),
+        False, CHANNEL_NAMES[worst], float(z), float(threshold), float(times[-1]), scatter
     )
 
 
@@ -78,15 +87,19 @@ class SettleRule:
         self.lookback_ns = int(round(lookback * 1e9))
         self.sigmas = sigmas
 
-    def verdict(self, pairs, end, start_ns, window, values_of, noise_std=None, pair_legs=None):
+    def verdict(self, pairs, end, window, values_of, noise_std=None, pair_legs=None, slack_ns=0):
         """None if the channels are at rest over the look-back that ends with ``pairs[end]``
-        (``(leg stamp, device stamp)`` ns; at least the ``window`` pairs ending there), else
-        :class:`Unsettled`; pending until the look-back is covered by pairs stamped from
-        ``start_ns``. ``values_of(pairs)``: their (n, 10) channel values (``phi`` unwrapped);
-        ``noise_std`` (10,): the per-sample noise floor; ``pair_legs``: the leg stamps of
-        ``pairs`` if the caller keeps them (else they are listed here)."""
+        (``(leg stamp, device stamp)`` ns, the first stamped after the settle; at least the
+        ``window`` pairs ending there), else :class:`Unsettled`; pending until the look-back,
+        less ``slack_ns``, is covered by pairs. ``values_of(pairs)``: their (n, 10) channel
+        values (``phi`` unwrapped); ``noise_std`` (10,): the per-sample noise floor;
+        ``pair_legs``: the leg stamps of ``pairs`` if the caller keeps them (else they are
+        listed here)."""
         end_stamp = pairs[end][0]
-        if end_stamp - start_ns < self.lookback_ns:
+        # Counted from the first pair, not from the settle: the same pairs cover it wherever
+        # the stream starts after the settle (a replay restarts it at its first pair), and the
+        # slack (the pairing tolerance) keeps a stamp's jitter from moving it by one pair.
+        if end_stamp - pairs[0][0] < self.lookback_ns - slack_ns:
             return Unsettled(pending=True)
         if pair_legs is None:
             pair_legs = [leg for leg, _ in pairs]

@@ -24,9 +24,11 @@ Settling (:mod:`gsp_kinematics.sensors.noise_estimate`, docs/sensor_errors.md): 
 only when every channel is at rest over the ``settle_lookback`` (s) that ends with the window (at
 least the window itself): its least-squares trend over that span is within ``settle_sigmas`` of
 the noise the span itself shows (:func:`~gsp_kinematics.sensors.noise_estimate.settle_test`, the
-per-sample noise at least ``noise_std``). A window is not judged before the look-back is covered
-by samples stamped from the start, so a slow sensor is waited for, and the wait (start to the
-window's first sample) is kept with the row (``settle_wait``).
+per-sample noise at least ``noise_std``), and its scatter within what ``noise_std`` allows
+(:func:`~gsp_kinematics.sensors.noise_estimate.scatter_test`: a platform still ringing). A window is not judged before the look-back is covered
+by pairs (from the first after the start, less the pairing tolerance), so a slow sensor is
+waited for, and the wait (start to the window's first sample) is kept with the row
+(``settle_wait``).
 
 Stamps are integer nanoseconds. Messages may arrive out of order or go missing: the pairs are
 kept up to date at each sample (:class:`~gsp_calibrator.collection.pairing.StampPairing`, the
@@ -73,8 +75,10 @@ _FIRST_READING = channels.FIRST_READING_COLUMN
 #: phi: compared and averaged on the circle (among the ten channels, among the readings).
 (_PHI_CHANNEL,) = channels.CIRCULAR_COLUMNS
 _PHI_READING = channels.PHI_READING_COLUMN
-#: Verdicts of a candidate window (:meth:`SampleCollector.window`).
-_USABLE, _INCONSISTENT, _UNSETTLED = 'usable', 'inconsistent', 'unsettled'
+#: Verdicts of a candidate window (:meth:`SampleCollector.window`); pending: its settle
+#: look-back is not yet covered.
+_USABLE, _INCONSISTENT, _UNSETTLED, _PENDING = 'usable', 'inconsistent', 'unsettled', 'pending'
+_SETTLE_VERDICT = {False: _UNSETTLED, True: _PENDING}  # by ``Unsettled.pending``
 
 
 def seconds_to_ns(seconds):
@@ -93,7 +97,7 @@ class PostureSample:
     leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
     readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
     settle_wait: float = 0.0  #: s from the collection start to the first averaged sample
-    settling_pairs: int = 0  #: pairs before the window waited out as still settling
+    settling_pairs: int = 0  #: pairs before the window waited out as still moving
     #: (4, n // 2 + 1) the window's lag sums per noise channel (the within-posture noise
     #: estimate, ``gsp_kinematics.noise_from_data.posture_lag_sums``); None below 2 samples
     lag_sums: np.ndarray | None = None
@@ -405,13 +409,14 @@ class SampleCollector:
                 self.unsettled = self.settle_rule.verdict(
                     pairs,
                     start + count - 1,
-                    self.start_ns,
                     count,
                     lambda span: unwrap_phi(self._values(span)),
                     self.noise_std,
                     pair_legs=self._pairing.pair_legs,
+                    slack_ns=self.tolerance_ns,
                 )
-                verdict = _USABLE if self.unsettled is None else _UNSETTLED
+                unsettled = self.unsettled
+                verdict = _USABLE if unsettled is None else _SETTLE_VERDICT[unsettled.pending]
             # (A window ending before the look-back is covered never will be.)
             self._window_checks[key] = verdict
         return verdict
@@ -450,10 +455,10 @@ class SampleCollector:
                 f'only {self.pair_count()} synchronised samples, no {self.samples_per_posture} '
                 'consistent ones'
             )
-        before = self._window_start
-        unsettled = sum(verdict == _UNSETTLED for verdict in self._verdicts[:before])
-        self.settling_dropped += unsettled
-        self.inconsistent += before - unsettled
+        verdicts = self._verdicts[: self._window_start]
+        unsettled, inconsistent = verdicts.count(_UNSETTLED), verdicts.count(_INCONSISTENT)
+        self.settling_dropped += len(verdicts) - inconsistent  # moving or look-back pending
+        self.inconsistent += inconsistent
         sample = dataclasses.replace(
             self.average(window),
             settle_wait=(window[0][0] - self.start_ns) * 1e-9,

@@ -61,6 +61,9 @@ class SampleStream:
     leg_lengths: np.ndarray  #: (N, 6) q_i, m
     readings: np.ndarray  #: (N, 4) [alpha, beta, phi, d_m], rad and m
     true_poses: np.ndarray = None  #: (N, 6) true pose of each instant, or None if not recorded
+    #: (N,) ns: each instant's recorded leg stamp after the first (the stream's own timing), or
+    #: None (samples.csv: no timing)
+    offsets_ns: np.ndarray = None
 
     def __post_init__(self):
         legs = np.asarray(self.leg_lengths, dtype=float).reshape(-1, 6)
@@ -73,6 +76,9 @@ class SampleStream:
             object.__setattr__(
                 self, 'true_poses', np.asarray(self.true_poses, dtype=float).reshape(count, 6)
             )
+        if self.offsets_ns is not None:
+            stamps = np.asarray(self.offsets_ns, dtype=np.int64).reshape(count)
+            object.__setattr__(self, 'offsets_ns', stamps - (stamps[0] if count else 0))
 
     def __len__(self):
         return int(self.leg_lengths.shape[0])
@@ -264,6 +270,7 @@ class RecordedRun:
                         event.leg_lengths,
                         event.readings,
                         _true_poses(true_poses.get(event.command_id, {}), event.stamps, margin),
+                        offsets_ns=event.stamps,
                     )
                     if event.posture is None:
                         if initial_stream is None or len(initial_stream) == 0:

@@ -19,9 +19,12 @@ recording), else the last recorded posture away from the first posture's pose
 (:func:`~gsp_calibrator.replay.recorded_run.resting_stream`). After a
 ``settled`` status the stream pauses for :data:`RESTART_PERIODS` periods and restarts at the
 posture's first sample, so that the first sample a calibrator counts is the first one recorded
-after the settle. The command protocol is :class:`gsp_msgs_py.pose_commands.PoseCommandServer`.
+after the settle; from a recording, the samples after it are stamped as recorded relative to
+it (until the stream wraps round), so that a calibrator's settle look-back covers the same
+samples as the original's. The command protocol is :class:`gsp_msgs_py.pose_commands.PoseCommandServer`.
 """
 
+import rclpy.time
 from rclpy.node import Node
 
 from gsp_calibrator.replay.recorded_run import PostureServer, RecordedRun, ReplayError
@@ -79,6 +82,10 @@ class ReplayNode(Node):
         self._stream = self._run.initial_stream
         self._cursor = 0
         self._resume_ns = None  # the stream is silent until then (after a 'settled' status)
+        self._first_stamp_ns = (
+            None  # stamp of the restarted stream's first sample (recorded timing)
+        )
+        self._last_stamp_ns = 0
         parameter_specs.watch_parameters(self, PARAMETERS, apply=self._apply_parameters)
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.
@@ -121,6 +128,7 @@ class ReplayNode(Node):
         if posture is None:
             return REASON_NOT_RECORDED
         self._stream, self._cursor, self._resume_ns = posture.stream, 0, None
+        self._first_stamp_ns = None  # fresh stamps until the settle
         self.get_logger().debug(f'pose command {command_id}: recorded posture {posture.posture}')
         return ''
 
@@ -128,6 +136,7 @@ class ReplayNode(Node):
         """After a 'settled' status: pause, then restart at the posture's first sample."""
         self._cursor = 0
         self._resume_ns = self.get_clock().now().nanoseconds + RESTART_PERIODS * self._period_ns
+        self._first_stamp_ns = None
 
     # ------------------------------------------------------------------------ publishing
 
@@ -137,13 +146,23 @@ class ReplayNode(Node):
             if now.nanoseconds < self._resume_ns:
                 return
             self._resume_ns = None
+            self._first_stamp_ns = now.nanoseconds if self._stream.offsets_ns is not None else None
         stream = self._stream
         if len(stream) == 0:
             return
+        stamp_ns = max(now.nanoseconds, self._last_stamp_ns + 1)
+        if self._first_stamp_ns is not None:  # the recorded timing, until the stream wraps
+            stamp_ns = self._first_stamp_ns + int(stream.offsets_ns[self._cursor])
+            if stamp_ns > now.nanoseconds:
+                return  # a gap in the recording (messages the original never got)
         sample = stream.sample(self._cursor)
+        self._last_stamp_ns = stamp_ns
         self._cursor = (self._cursor + 1) % len(stream)
+        if self._cursor == 0:
+            self._first_stamp_ns = None
+        stamp = rclpy.time.Time(nanoseconds=stamp_ns, clock_type=now.clock_type).to_msg()
         node_tools.publish_messages(
-            self, self._pubs, 'a recorded sample', self._sample_messages, *sample, now.to_msg()
+            self, self._pubs, 'a recorded sample', self._sample_messages, *sample, stamp
         )
 
     def _sample_messages(self, q, readings, true_pose, stamp):

@@ -199,3 +199,16 @@ def residuals_by_sensor(result):
 
 
 #: The optional inputs of a report, by keyword (absent or None: not known); see :func:`result_data`.
+
+
+def settle_line(settle):
+    """The response's line of ``collection.settle`` (:func:`gsp_calibrator.run.state.settle_statistics`): ``'settle
+    wait (settled to averaged window): median 0.205 s, max 0.61 s over 60 rows; 12 waited for
+    a moving channel'``; '' without rows."""
+    if not settle or not settle.get('rows'):
+        return ''
+    return (
+        f'settle wait (settled to averaged window): median {settle["median_s"]:.3g} s, max '
+        f'{settle["max_s"]:.3g} s over {settle["rows"]} rows; {settle["waited"]} waited for a '
+        'moving channel'
+    )

@@ -32,6 +32,7 @@ from gsp_calibrator.report.data import (
     identifiability_record,
     parameter_error_table,
     report_unit,
+    settle_line,
     si_unit,
     validation_summary,
 )
@@ -321,6 +322,9 @@ def report_markdown(data, images, title='Calibration report', plots=True):
         )
         for entry in identifiability['unidentifiable']:
             lines.append(f'  - not identifiable: `{entry["combination"]}`')
+    settle = settle_line((data.get('collection') or {}).get('settle'))
+    if settle:
+        lines.append(f'- {settle}')
     if not plots:
         lines.append(PLOTS_SKIPPED_NOTE)
     lines.append('')

@@ -58,9 +58,9 @@ class ApproachTracker:
         return self.by_posture.get(int(posture))
 
 
-def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0)):
+def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg_mass=None):
     """The ``EffectDesign`` of a run's rows (``run.directory.Samples``) and the payload the user
-    gave (kg; 0: unknown). The directions are left out (None) when a row has none (a
+    gave (kg; 0: unknown), with the legs' masses (6,) kg (None: massless). The directions are left out (None) when a row has none (a
     ``samples.csv`` written before them)."""
     stamps = np.asarray(samples.stamps, dtype=float)
     times = stamps - stamps[0] if stamps.size else stamps
@@ -72,6 +72,7 @@ def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0)):
         payload_mass=float(payload_mass),
         centre_of_mass=tuple(float(v) for v in centre_of_mass),
         reference_time_s=float(times[-1]) if times.size else 0.0,
+        leg_mass=tuple(float(m) for m in (leg_mass if leg_mass is not None else [0.0] * 6)),
     )
 
 

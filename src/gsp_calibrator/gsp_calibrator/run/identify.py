@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from gsp_calibrator.report.data import settle_line
 from gsp_calibrator.run.approach import effect_design, reference_instant
 from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
@@ -134,10 +135,10 @@ def identify_from_samples(
     payload_mass=0.0,
     centre_of_mass=(0.0, 0.0, 0.0),
     workspace_poses=None,
+    leg_mass=(0.0,) * 6,
     **identify_options,
 ):
-    """Identify from averaged rows and check the result (:class:`CalibrationOutcome`).
-
+    """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
     ``samples``: a :class:`.directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
     ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
@@ -147,7 +148,7 @@ def identify_from_samples(
     folds and judged against ``requirement`` (``accepted``; ``fit_accepted`` is a diagnostic),
     its measured accuracy the held-out error of the rows commanded at ``workspace_poses`` (K, 6;
     None: of every row; :func:`workspace_rows`). Effects (or ``auto``) in ``free`` use the rows'
-    times and directions and ``payload_mass`` (kg) at ``centre_of_mass`` (platform, m)."""
+    times, directions, ``payload_mass`` (kg) at ``centre_of_mass`` (m) and ``leg_mass`` (6,)."""
     free = _checked_free(free, formulation, noise_source)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -158,7 +159,8 @@ def identify_from_samples(
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
     within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
-    design = effect_design(samples, payload_mass, centre_of_mass)
+    design = effect_design(samples, payload_mass, centre_of_mass, leg_mass)
+    poses = (samples.commanded_poses, workspace_poses)
     started = time.perf_counter()
     try:
         result, estimates, outcome.sigmas, effects, choice, untried = _fit(
@@ -198,8 +200,7 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    judged = (requirement, folds, identify_options, effects)
-    judged += (workspace_rows(samples.commanded_poses, workspace_poses),)
+    judged = (requirement, folds, identify_options, effects, workspace_rows(*poses))
     _judge(outcome, nominal, samples, estimates, row_sigmas, judged)
     return outcome
 
@@ -386,6 +387,7 @@ def identify_with_settings(settings, samples):
         payload_mass=settings.payload_mass,
         centre_of_mass=settings.payload_centre_of_mass,
         workspace_poses=workspace_poses(settings),
+        leg_mass=settings.leg_mass,
         options=settings.identify_options(),
     )
 
@@ -415,6 +417,8 @@ def finish_run(run, settings, samples, collection, options):
     )
     if additions:
         summary += '\n' + route_additions_line(additions)
+    if settle_line(collection.get('settle')):
+        summary += '\n' + settle_line(collection['settle'])
     report_error = ''
     if outcome.result is not None:
         try:

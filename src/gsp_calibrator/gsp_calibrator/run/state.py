@@ -135,18 +135,29 @@ class RunState:
 
 def settle_statistics(waits):
     """``result.json`` ``collection.settle`` of the kept rows' settle waits (``settle_waits``):
-    ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, and ``waited``: the rows that
-    waited for a channel still moving (not only for their first samples)."""
+    ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
+    waited for a channel still moving (not only for their first samples), and ``per_posture_s``
+    (``{posture: wait_s}``, in posture order)."""
     entries = list(waits.values())
     values = np.array([entry['wait_s'] for entry in entries], dtype=float)
     if values.size == 0:
-        return {'rows': 0, 'median_s': None, 'max_s': None, 'mean_s': None, 'waited': 0}
+        return {
+            'rows': 0,
+            'median_s': None,
+            'max_s': None,
+            'mean_s': None,
+            'waited': 0,
+            'per_posture_s': {},
+        }
     return {
         'rows': int(values.size),
         'median_s': float(np.median(values)),
         'max_s': float(values.max()),
         'mean_s': float(values.mean()),
         'waited': sum(1 for entry in entries if entry['settling_pairs'] > 0),
+        'per_posture_s': {
+            posture: float(waits[posture]['wait_s']) for posture in sorted(waits, key=int)
+        },
     }
 
 

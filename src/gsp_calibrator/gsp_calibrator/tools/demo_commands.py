@@ -73,10 +73,10 @@ MOVING_SETTLE_TIMEOUT_S = 60.0
 
 
 #: ``gsp_demo --sensor-dynamics``: the simulated device's response and noise correlation
-#: times (s) per sensor, and the calibrator's settle look-back (s) that goes with them
-#: (docs/sensor_errors.md: typical values of real parts, and the settle rule).
+#: times (s) per sensor (docs/sensor_errors.md: typical values of real parts). The calibrator
+#: keeps its default settle look-back (0.25 s: five times the realistic inclinometer's 0.05 s).
 SENSOR_DYNAMICS = {
-    'none': {'device': {}, 'settle_lookback': 0.0},
+    'none': {'device': {}},
     'realistic': {
         'device': {
             'inclinometer_response_time': 0.05,
@@ -86,9 +86,6 @@ SENSOR_DYNAMICS = {
             'lvdt_response_time': 0.001,
             'lvdt_noise_correlation_time': 0.001,
         },
-        # Five times the slowest response time: with noise as slow as the lag, a shorter span
-        # lets a lag of about the row's noise through (make bench, sensor_dynamics).
-        'settle_lookback': 0.25,
     },
 }
 
@@ -238,8 +235,6 @@ def _calibrator_parameters(args, output_root, rate):
         f'free_parameters:=[{",".join(args.free_parameters)}]',
         '-p',
         'apply_result:=true',
-        '-p',
-        f'settle_lookback:={_dynamics(args)["settle_lookback"]!r}',
         # The demo redraws the report against the truth once it has validated (its
         # refresh_report): plots drawn by the calibrator would only be overwritten.
         '-p',

@@ -219,6 +219,7 @@ def reidentify(args, out=None):
             payload_mass=options['payload_mass'],
             centre_of_mass=options['payload_centre_of_mass'],
             workspace_poses=_workspace_poses(nominal, options),
+            leg_mass=options['leg_mass'],
             options=_options(options),
         )
     except (IdentificationError, postures.CalibrationError) as error:
@@ -329,6 +330,7 @@ def refresh_report(
         payload_mass=options['payload_mass'],
         centre_of_mass=options['payload_centre_of_mass'],
         workspace_poses=_workspace_poses(nominal, options),
+        leg_mass=options['leg_mass'],
         options=_options(options),
     )
     if outcome.result is None:

@@ -94,6 +94,11 @@ def resolve_options(args, stored):
         options['payload_centre_of_mass'] = [float(v) for v in centre]
     except (TypeError, ValueError):
         raise InputError(f'payload_centre_of_mass: {centre!r} (stored) is not 3 numbers') from None
+    legs = stored.get('leg_mass') or DEFAULTS['leg_mass']  # stored only, as the centre
+    try:
+        options['leg_mass'] = [float(v) for v in legs]
+    except (TypeError, ValueError):
+        raise InputError(f'leg_mass: {legs!r} (stored) is not 6 numbers') from None
     return options
 
 

@@ -7,8 +7,8 @@ Each group adds one parameter per leg to the leg sensors' model (``'implicit'`` 
 with the regressors ``h``:
 
 - ``compliance`` (``compliance1..6``, m/N): ``h = f_i``, the leg's axial force (N, compression
-  positive) under the user's ``payload_mass`` at ``centre_of_mass`` (:func:`.model.leg_forces` of
-  the nominal geometry at the posture). The device sees only the deflection ``c_i f_i``: so it
+  positive) under the user's ``payload_mass`` at ``centre_of_mass`` and the legs' own
+  ``leg_mass`` (:func:`.model.leg_forces` of the nominal geometry at the posture). The device sees only the deflection ``c_i f_i``: so it
   identifies ``c_i m``, the compliance times the mass the user gives.
 - ``backlash`` (``backlash1..6``, m): ``h = d_i / 2``, ``d_i`` the leg's approach direction (+1
   extending) from the commanded sequence. Without both directions in the run it is the leg
@@ -87,7 +87,8 @@ class EffectDesign:
     order): ``times_s`` (M,) s, ``directions`` (M, 6) approach directions
     (:func:`.model.approach_directions` of the commanded leg lengths in the order visited), the
     user's ``payload_mass`` (kg) and ``centre_of_mass`` (platform frame, m), and the thermal
-    reference instant ``reference_time_s`` (s, on the clock of ``times_s``)."""
+    reference instant ``reference_time_s`` (s, on the clock of ``times_s``); ``leg_mass`` (6,)
+    kg: each leg's own mass (:mod:`.model`: it loads the legs too)."""
 
     times_s: np.ndarray | None = None
     directions: np.ndarray | None = None
@@ -97,6 +98,7 @@ class EffectDesign:
     #: Time constant (s) of the legs' warming (first order, from ``times_s`` 0); 0: a linear
     #: growth. The strain rate is then the initial one.
     thermal_time_constant_s: float = 0.0
+    leg_mass: tuple = (0.0,) * NUM_LEGS
 
     def thermal_clock(self, times_s):
         """The thermal regressor's clock (s): ``tau (1 - exp(-t / tau))``, or ``t`` when linear."""
@@ -108,6 +110,8 @@ class EffectDesign:
         """EffectDesignError naming what ``groups`` need and this design lacks for M = count."""
         if 'compliance' in groups and not self.payload_mass > 0.0:
             raise EffectDesignError('compliance needs the payload_mass (kg) the legs carry')
+        if np.shape(self.leg_mass) != (NUM_LEGS,) or not np.all(np.asarray(self.leg_mass) >= 0):
+            raise EffectDesignError(f'leg_mass must be 6 masses >= 0 kg, got {self.leg_mass}')
         if 'thermal' in groups and (self.times_s is None or np.shape(self.times_s) != (count,)):
             raise EffectDesignError(f'thermal needs times_s, one time (s) per posture ({count})')
         if 'backlash' in groups:
@@ -155,7 +159,9 @@ class EffectTerms:
         self.nominal = nominal
         self.design = design
         self._load = PlatformEffects(
-            payload_mass=design.payload_mass, centre_of_mass=design.centre_of_mass
+            payload_mass=design.payload_mass,
+            centre_of_mass=design.centre_of_mass,
+            leg_mass=design.leg_mass,
         )
         self._axes = base_joint_first_axes(nominal)
         self._legs = np.flatnonzero(self.mask) % NUM_LEGS  # the leg of each free parameter
@@ -191,14 +197,19 @@ class IdentifiedEffects:
     """Effect parameters a calibration identified (what a controller compensates): ``values``
     (24,) in :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), the ``payload_mass`` (kg)
     and ``centre_of_mass`` (platform frame, m) the compliance was identified for, and the
-    thermal ``reference_time_s`` (s) the geometry refers to."""
+    thermal ``reference_time_s`` (s) the geometry refers to; ``leg_mass`` (6,) kg: the legs'
+    own, the compliance's load too."""
 
     values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS))
     payload_mass: float = 0.0
     centre_of_mass: tuple = (0.0, 0.0, 0.0)
     reference_time_s: float = 0.0
+    leg_mass: tuple = (0.0,) * NUM_LEGS
 
     def __post_init__(self):
+        object.__setattr__(self, 'leg_mass', tuple(float(m) for m in self.leg_mass))
+        if len(self.leg_mass) != NUM_LEGS or not all(m >= 0.0 for m in self.leg_mass):
+            raise EffectDesignError(f'leg_mass must be 6 masses >= 0 kg, got {self.leg_mass}')
         values = np.array(self.values, dtype=float).reshape(NUM_EFFECT_PARAMETERS)
         if not np.all(np.isfinite(values)):
             raise EffectDesignError(f'identified effects are not finite: {values.tolist()}')
@@ -208,7 +219,13 @@ class IdentifiedEffects:
     @classmethod
     def from_result_values(cls, values, design):
         """The effects of identified ``values`` (24,) of a run with the :class:`EffectDesign`."""
-        return cls(values, design.payload_mass, design.centre_of_mass, design.reference_time_s)
+        return cls(
+            values,
+            design.payload_mass,
+            design.centre_of_mass,
+            design.reference_time_s,
+            design.leg_mass,
+        )
 
     @property
     def none(self):
@@ -242,6 +259,7 @@ def compensated_leg_readings(
             identified.payload_mass,
             identified.centre_of_mass,
             identified.reference_time_s,
+            leg_mass=identified.leg_mass,
         )
         terms = EffectTerms(geometry, design, mask, count)
         rigid = rigid + terms.regressors(poses) @ values[mask]

@@ -2,9 +2,12 @@
 
 Sign conventions (docs/platform_effects.md):
 
-- compliance: ``leg_forces`` are axial, compression positive (N); a leg in compression is shorter
-  by ``force / stiffness``. Gravity acts along -z of the base frame on the platform's mass at
-  ``centre_of_mass`` (platform frame); the legs are massless two-force members.
+- compliance: ``leg_forces`` are axial, compression positive (N), in each leg's spring; a leg
+  in compression is shorter by ``force / stiffness``. Gravity acts along -z of the base frame on
+  the platform's mass at ``centre_of_mass`` (platform frame) and on each leg's ``leg_mass``: a
+  uniform bar from its base U joint to its platform ball joint (centre of mass at mid-length,
+  :data:`LEG_CENTRE_OF_MASS`), its spring at mid-length too (:data:`LEG_SPRING_POSITION`: the
+  actuator's screw and nut between the body and the rod).
 - backlash: a leg that arrived extending (direction +1) is ``backlash / 2`` shorter than its
   reading says, one that arrived retracting (-1) as much longer.
 - thermal growth: leg i is longer by ``thermal_expansion * rise_i(t) * L_i``, with the first-order
@@ -29,12 +32,17 @@ NUM_LEGS = 6
 GRAVITY = 9.80665
 #: Linear expansion coefficient of steel (1/K), the default material of the legs.
 STEEL_EXPANSION = 12e-6
+#: Where a leg's centre of mass and its spring sit, as fractions of the joint-to-joint length
+#: from the base U joint (a uniform bar; the compliance of the actuator's screw and nut).
+LEG_CENTRE_OF_MASS = 0.5
+LEG_SPRING_POSITION = 0.5
 
 # (field, shape (None: scalar), unit, description): the table the node parameters and the
 # docs derive from.
 FIELDS = (
     ('payload_mass', None, 'kg', 'mass the legs carry: moving platform and payload'),
     ('centre_of_mass', 3, 'm', 'centre of that mass, platform frame'),
+    ('leg_mass', NUM_LEGS, 'kg', 'mass of each leg (a uniform bar between its joints)'),
     ('leg_stiffness', NUM_LEGS, 'N/m', 'axial stiffness of each leg (0: rigid)'),
     ('backlash', NUM_LEGS, 'm', 'lost motion of each leg between its two approach directions'),
     ('thermal_expansion', None, '1/K', 'linear expansion coefficient of the legs'),
@@ -54,6 +62,7 @@ class PlatformEffects:
 
     payload_mass: float = 0.0
     centre_of_mass: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    leg_mass: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS))
     leg_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS))
     backlash: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS))
     thermal_expansion: float = STEEL_EXPANSION
@@ -84,7 +93,8 @@ class PlatformEffects:
 
     @property
     def compliant(self):
-        return self.payload_mass > 0.0 and bool(np.any(self.leg_stiffness > 0.0))
+        loaded = self.payload_mass > 0.0 or bool(np.any(self.leg_mass > 0.0))
+        return loaded and bool(np.any(self.leg_stiffness > 0.0))
 
     @property
     def thermal(self):
@@ -226,10 +236,15 @@ def effective_base_joints(geometry, effects, poses, iterations=3):
 
 
 def leg_forces(geometry, effects, poses, base_points=None):
-    """Axial leg forces (M, 6) N, compression positive, holding the platform's weight at
-    ``poses`` (M, 6): ``W f = -w`` with ``W``'s columns the legs' unit wrenches ``[u_i;
-    (R B_i) x u_i]`` about the platform origin and ``w`` gravity's wrench there.
-    ``base_points`` (M, 6, 3): the effective base joints (default: ``A_i``)."""
+    """Axial forces (M, 6) N in the legs' springs, compression positive, holding the platform's
+    and the legs' weight at ``poses`` (M, 6). The platform: ``W f = -w``, ``W``'s columns the
+    legs' unit wrenches ``[u_i; (R B_i) x u_i]`` about the platform origin, ``f`` the axial
+    forces at the platform joints and ``w`` the wrench there of gravity on ``payload_mass`` and
+    of each leg's weight share: a bar pinned at both ends (the base U joint turns it about the
+    base point) puts :data:`LEG_CENTRE_OF_MASS` of its weight's part across ``u_i`` on the
+    platform joint. The spring carries ``f_i`` plus the axial part of the leg's weight above it
+    (``(1 - LEG_SPRING_POSITION) m_i g u_i,z``). ``base_points`` (M, 6, 3): the effective base
+    joints (default: ``A_i``)."""
     poses = np.atleast_2d(poses)
     rotation = euler_to_matrix(poses[:, 3:])
     arms = np.einsum('mjk,ik->mij', rotation, geometry.platform_joints)
@@ -240,4 +255,11 @@ def leg_forces(geometry, effects, poses, base_points=None):
     weight = np.array([0.0, 0.0, -effects.payload_mass * GRAVITY])
     centre = np.einsum('mjk,k->mj', rotation, effects.centre_of_mass)
     load = np.concatenate([np.broadcast_to(weight, centre.shape), np.cross(centre, weight)], axis=1)
-    return np.linalg.solve(np.swapaxes(wrenches, 1, 2), -load[..., None])[..., 0]
+    leg_weights = -GRAVITY * effects.leg_mass  # (6,) N along z
+    axial = leg_weights * directions[..., 2]  # (M, 6): the weight's part along u_i
+    across = LEG_CENTRE_OF_MASS * (
+        leg_weights[:, None] * np.array([0.0, 0.0, 1.0]) - axial[..., None] * directions
+    )  # (M, 6, 3): the force each leg's weight puts on its platform joint
+    load = load + np.concatenate([across.sum(axis=1), np.cross(arms, across).sum(axis=1)], axis=1)
+    at_platform = np.linalg.solve(np.swapaxes(wrenches, 1, 2), -load[..., None])[..., 0]
+    return at_platform - (1.0 - LEG_SPRING_POSITION) * axial

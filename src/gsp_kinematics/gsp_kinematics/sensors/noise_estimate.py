@@ -327,6 +327,32 @@ def settle_test(values, times=None, sigmas=DEFAULT_SETTLE_SIGMAS, noise_floor=No
     return SettleTest(z <= threshold, z, threshold, trend, std_of_mean)
 
 
+def scatter_test(values, noise_std, sigmas=DEFAULT_SETTLE_SIGMAS):
+    """Does each channel of ``values`` (..., n, C) scatter about its mean no more than its
+    at-rest noise allows? ``(ratio, threshold)`` (..., C) and (): the span's sample std over
+    the noise, and the ratio white noise of that std exceeds at :func:`false_unsettled_rate`
+    (``sigmas``): the chi-square quantile. The noise is ``noise_std`` (C,), or the noise the
+    span shows between successive samples if larger (the rms difference over sqrt 2): a
+    device noisier than configured is believed, while a motion of a few Hz barely shows in
+    the differences at 200 Hz. A span may fail it with no trend at all: an oscillation faster
+    than the span (a platform still ringing)."""
+    from scipy import stats
+
+    values = np.asarray(values, dtype=float)
+    if values.ndim < 2 or values.shape[-2] < 2:
+        raise NoiseEstimateError(
+            f'values must be (..., samples >= 2, channels), got shape {values.shape}'
+        )
+    n = values.shape[-2]
+    noise_std = np.asarray(noise_std, dtype=float)
+    if noise_std.shape != values.shape[-1:] or not np.all(noise_std > 0):
+        raise NoiseEstimateError(f'noise_std must be {values.shape[-1]} values > 0')
+    successive = np.sqrt(0.5 * np.mean(np.diff(values, axis=-2) ** 2, axis=-2))
+    ratio = values.std(axis=-2, ddof=1) / np.maximum(noise_std, successive)
+    threshold = math.sqrt(stats.chi2.isf(false_unsettled_rate(sigmas), n - 1) / (n - 1))
+    return ratio, threshold
+
+
 def false_unsettled_rate(sigmas=DEFAULT_SETTLE_SIGMAS):
     """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
     return math.erfc(sigmas / math.sqrt(2.0))
@@ -342,6 +368,7 @@ __all__ = [
     'lag_sums',
     'noise_of_mean',
     'noise_of_mean_from_sums',
+    'scatter_test',
     'settle_test',
     'settled',
     'trend_std_factor',

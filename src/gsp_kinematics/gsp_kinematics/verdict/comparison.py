@@ -92,7 +92,9 @@ def _effect_columns(result, poses, design):
     if design is None:
         effects = geometry.effects
         design = EffectDesign(
-            payload_mass=effects.payload_mass, centre_of_mass=effects.centre_of_mass
+            payload_mass=effects.payload_mass,
+            centre_of_mass=effects.centre_of_mass,
+            leg_mass=effects.leg_mass,
         )
     regressors = EffectTerms(geometry, design, free, len(poses)).regressors(poses, geometry)
     _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)

@@ -77,8 +77,9 @@ def collect(samples_per_posture, postures, seed=0, rows_out=None):
     rng = np.random.default_rng(seed)
     period_ns = int(NS_PER_S / SENSOR_RATE_HZ)
     moving = int(MOVING_S * SENSOR_RATE_HZ)
-    # Enough instants for the window (a few more for the pairs a posture may drop).
-    settled = samples_per_posture + 20
+    # Enough instants for the settle look-back and the window (a few more for the pairs a
+    # posture may drop).
+    settled = int(settings.settle_lookback * SENSOR_RATE_HZ) + samples_per_posture + 20
     plan, now_ns = [], T0_NS
     for k in range(postures):
         command_id = f'c{k}'

@@ -17,6 +17,7 @@ from gsp_calibrator.tools.bench import (
     run_to_requirement,
     run_to_requirement_levers,
     sensor_dynamics,
+    settle_ringing,
     upkeep_realistic,
     verdict,
 )
@@ -29,6 +30,7 @@ EXTRA_SECTIONS = {
     'noise_unknown': bench_noise.run,  # docs/sensor_errors.md
     'platform_time': platform_time.run,  # docs/planning.md
     'sensor_dynamics': sensor_dynamics.run,  # docs/sensor_errors.md
+    'settle_ringing': settle_ringing.run,  # docs/sensor_errors.md
     'collection_rate': collection_rate.run,  # docs/architecture.md#synchronisation
     'verdict': verdict.run,  # docs/verdict.md
     'upkeep': bench_upkeep.run,  # docs/upkeep.md

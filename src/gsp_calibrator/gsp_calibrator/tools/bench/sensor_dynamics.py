@@ -23,6 +23,7 @@ import numpy as np
 from gsp_calibrator.collection import events
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
+from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools.demo_commands import SENSOR_DYNAMICS
 from gsp_experiments.bench_sensor_errors import POSTURES, SAMPLES, SIGMAS
 from gsp_experiments.nominal_sets import default_true_and_nominal
@@ -48,8 +49,8 @@ OLD_RULE = {'settle_lookback': 0.0, 'settle_sigmas': 1e12}
 
 def realistic_rule():
     return {
-        'settle_lookback': SENSOR_DYNAMICS['realistic']['settle_lookback'],
-        'settle_sigmas': 3.0,
+        'settle_lookback': DEFAULTS['settle_lookback'],
+        'settle_sigmas': DEFAULTS['settle_sigmas'],
     }
 
 
