@@ -161,7 +161,7 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
 
 
 def test_demo_free_accepts_groups_and_names_and_rejects_unknown(capsys):
-    assert demo.parse_arguments([]).free_parameters == ['extended']
+    assert demo.parse_arguments([]).free_parameters == ['auto']
     assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free_parameters == [
         'paper',
         'kq1',

@@ -23,14 +23,17 @@ from gsp_kinematics.identification import PARAMETER_GROUPS
 
 @pytest.fixture(scope='module')
 def design():
-    """The calibrator's default plan on the shipped pair (bench_verdict.default_design)."""
-    return bench_verdict.default_design()
+    """The calibrator's default plan on the shipped pair (bench_verdict.default_design), the
+    plain model pinned: the verdict of a model that does not contain the platform's effects."""
+    return bench_verdict.default_design(bench_verdict.PLAIN_MODEL)
 
 
 @pytest.fixture(scope='module')
 def workspace_design():
-    """The default plan with 20 workspace postures commanded with the selected ones."""
-    return bench_verdict.default_design({'workspace_postures': bench_verdict.WORKSPACE_POSTURES})
+    """The same with 20 workspace postures commanded with the selected ones."""
+    return bench_verdict.default_design(
+        {**bench_verdict.PLAIN_MODEL, 'workspace_postures': bench_verdict.WORKSPACE_POSTURES}
+    )
 
 
 def calibrate(design, samples, nominal=None, free=None):
