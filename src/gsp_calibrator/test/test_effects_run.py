@@ -204,6 +204,24 @@ def test_without_the_payload_mass_the_compliance_is_identified_for_a_reference_a
     assert named.success and named.geometry.effects.payload_mass == REFERENCE_PAYLOAD_MASS
 
 
+def test_auto_in_the_fk_formulation_is_the_plain_model(design):
+    """The default ``auto`` with ``formulation: fk`` (the effect groups need the implicit one):
+    the plain model, identified as without ``auto``, not a refusal."""
+    samples, _ = run_rows(design, PlatformEffects())
+    settings = design.settings
+    outcome = identify_from_samples(
+        settings.nominal, samples, settings.sigmas, ['auto'], 'fk', settings.noise_source
+    )
+    assert outcome.success, outcome.message
+    assert outcome.effects is None and outcome.geometry.effects.none
+    assert (
+        outcome.result.free_names
+        == identify_from_samples(
+            settings.nominal, samples, settings.sigmas, ['extended'], 'fk', settings.noise_source
+        ).result.free_names
+    )
+
+
 def test_free_parameters_take_effect_groups_and_auto():
     assert check_parameters({'free_parameters': ['auto']}) == ''
     assert check_parameters({'free_parameters': ['paper', 'auto']}) == ''

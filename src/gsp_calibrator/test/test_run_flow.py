@@ -361,6 +361,9 @@ def test_the_route_has_what_the_effect_groups_to_identify_need():
     # 30 postures: the reference first, revisited at the end (periodic revisits do not pay).
     assert revisits == [len(route.kind) - 1] and route.added_postures >= 1
     np.testing.assert_array_equal(route.poses[revisits], poses[:1])
+    # What the default (auto) adds costs at most a tenth of the plain route's platform time
+    # (here 1.06x; a revisit every 10 postures made it 1.2x, docs/platform_effects.md).
+    assert route.total_s <= 1.1 * route.plain_s, (route.total_s, route.plain_s)
     assert not route.one_way_legs and route.added_s > 0.0
     additions = postures.route_additions(route, ['backlash', 'thermal'])
     assert additions['added_postures'] == route.added_postures
