@@ -219,3 +219,20 @@ def test_the_bench_gives_the_ratio_of_the_means_beside_the_median_ratio():
     assert figures['cv_over_true'] == pytest.approx(1.0)  # median of 2, 1, 0.25
     assert figures['cv_over_true_of_means'] == pytest.approx(3.0 / 5.5)
     assert figures['predicted_over_true_of_means'] == pytest.approx(8.0 / 7.5)
+
+
+def test_the_bench_compares_the_defaults_with_the_plain_model_on_the_same_rows():
+    """The defaults' bench variant: how often the plain model is kept, and the true accuracy
+    over the plain model's from the same rows (median, worst, not worse within 1 %), mm."""
+    runs = [
+        {'true_mm': 1.0, 'plain_true_mm': 1.0, 'groups': []},
+        {'true_mm': 1.0, 'plain_true_mm': 4.0, 'groups': ['compliance']},
+        {'true_mm': 3.0, 'plain_true_mm': 2.0, 'groups': ['joint_offsets']},
+        {'true_mm': 1.0, 'groups': []},  # no plain fit: left out of the ratios
+    ]
+    figures = bench_verdict.plain_figures(runs)
+    assert figures['plain_kept_fraction'] == 0.5
+    assert figures['per_seed_true_over_plain'] == [1.0, 0.25, 1.5]
+    assert figures['true_over_plain'] == 1.0 and figures['true_over_plain_worst'] == 1.5
+    assert figures['not_worse_than_plain_fraction'] == pytest.approx(2 / 3)
+    assert bench_verdict.plain_figures([{'true_mm': 1.0, 'groups': []}]) == {}
