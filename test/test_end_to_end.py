@@ -38,7 +38,8 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert marked_processes(marker) == [], output
 
     assert re.search(r'ROS_DOMAIN_ID=\d+ \(loopback only\)', output)
-    assert '[done] 60/60' in output  # progress shown
+    # Progress shown: the 60 selected postures and the default auto's reference revisit.
+    assert '[done] 61/61' in output
     run = Path(re.findall(r'^run directory: (.+)$', completed.stdout, re.MULTILINE)[-1])
     assert run.parent == tmp_path / 'runs' and run.is_dir()
     for name in (
@@ -66,7 +67,8 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
         'processing_lag',
         'route_additions',
     }
-    assert collection['route_additions'] is None  # the plain model: no effect group's additions
+    # auto (the default): the route revisits its first posture at the end (thermal growth).
+    assert collection['route_additions']['reference_revisits'] == 1
     assert collection['settle']['rows'] >= 1 and collection['settle']['max_s'] >= 0.0
     # Each posture the platform rejected was replaced (the pool of 600 has plenty left).
     rejected = {s['posture'] for s in collection['skipped'] if s['rejected_by_platform']}
@@ -93,7 +95,7 @@ def test_main_job_calibrates_and_improves_accuracy(tmp_path):
     assert np.max(np.abs(errors[:43])) < 0.05 and abs(errors[43]) < 0.005  # mm, deg
     assert summary['max_param_error_mm'] == pytest.approx(np.max(np.abs(errors[:43])))
     rows = (run / 'samples.csv').read_text().strip().splitlines()
-    assert 55 <= len(rows) - 1 <= 60
+    assert 56 <= len(rows) - 1 <= 61
 
     # The report against the truth, with its plots: the demo draws them once it has validated
     # (its calibrator runs with write_report_plots false).

@@ -41,6 +41,7 @@ def test_a_realistic_platform_is_calibrated_and_applied_through_the_nodes(tmp_pa
     env, _ = marked_environment()
     args = demo.parse_arguments(
         ['--platform-effects', 'realistic', '--postures', str(POSTURES)]
+        + ['--free', 'extended']  # the verdict of a model that does not contain the effects
         + ['--workspace-postures', str(WORKSPACE_POSTURES)]
         + ['--sensor-rate', str(SENSOR_RATE_HZ), '--output-root', str(tmp_path / 'runs')]
     )

@@ -231,14 +231,16 @@ PARAMETERS = (
     ),
     ParameterSpec(
         'free_parameters',
-        ['extended'],
+        ['auto'],
         'Parameters identified: groups paper (the 44: A1x..B6z, Loff1..Loff6, D0, gamma) and '
         'extended (the 44 and the identifiable sensor errors kq1..kq6, alpha0), and/or names '
         '(also beta0, phi0, kDm); the others keep their nominal values (docs/sensor_errors.md). '
         'Effect groups compliance, backlash, thermal, joint_offsets (implicit formulation), or '
-        'auto: the groups chosen from the data (a significance test with a held-out guard), the '
-        'other names the plain model (default extended); thermal, backlash and auto add to the '
-        'route what they need: reference revisits, approach postures (docs/platform_effects.md)',
+        'auto: the plain model (the other names, default extended) and the effect groups the '
+        'data show help on postures the fit did not see (a significance test, never a held-out '
+        'error above the plain model; the plain model alone in the fk and paper formulations); '
+        'thermal, backlash and auto add to the route what they need: reference revisits, '
+        'approach postures (docs/platform_effects.md)',
         constraints='non-empty, known names or groups, no duplicates, auto without effect groups',
         check=free_parameters_error,
         subsets=_RUN | {REIDENTIFY_COMMAND_LINE},
@@ -247,8 +249,9 @@ PARAMETERS = (
         'payload_mass',
         0.0,
         'Mass the legs carry (moving platform and payload) for the compliance group: the device '
-        'identifies the compliance times this mass; 0: unknown, compliance cannot be freed and '
-        'auto does not try it (docs/platform_effects.md)',
+        'identifies the compliance times this mass; 0: unknown, the compliance is identified for '
+        'a reference 1 kg at payload_centre_of_mass (the compliance times the load over it, '
+        'which compensates the load of the run; the result says so; docs/platform_effects.md)',
         unit='kg',
         constraints='>= 0',
         check=at_least(0.0, reason='must be finite and >= 0 kg'),
@@ -257,7 +260,8 @@ PARAMETERS = (
     ParameterSpec(
         'payload_centre_of_mass',
         [0.0, 0.0, 0.0],
-        "Centre of mass of payload_mass in the platform frame (x, y, z), for the legs' forces",
+        "Centre of mass of the load in the platform frame (x, y, z), for the legs' forces (also "
+        'where the reference mass sits when payload_mass is 0)',
         unit='m',
         constraints='3 finite numbers',
         check=lambda v: (
@@ -516,18 +520,11 @@ def run_options_error(args):
 
 def check_combination(values):
     """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
-    (``posture_count <= pool_size``, a ``payload_mass`` for the compliance); the
-    ``validate`` of ``declare_parameters``."""
+    (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
     if values['posture_count'] > values['pool_size']:
         return (
             f'posture_count ({values["posture_count"]}) must not exceed pool_size '
             f'({values["pool_size"]})'
-        )
-    compliance = [n for n in values['free_parameters'] if n.startswith('compliance')]
-    if compliance and not values['payload_mass'] > 0.0:
-        return (
-            f'free_parameters {compliance} need the payload_mass (kg) the legs carry '
-            '(0: unknown; docs/platform_effects.md)'
         )
     return ''
 

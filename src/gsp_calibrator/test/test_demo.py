@@ -185,7 +185,7 @@ def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
 
 
 def test_demo_free_accepts_groups_and_names_and_rejects_unknown(capsys):
-    assert demo.parse_arguments([]).free_parameters == ['extended']
+    assert demo.parse_arguments([]).free_parameters == ['auto']
     assert demo.parse_arguments(['--free', 'paper', 'kq1,kq2']).free_parameters == [
         'paper',
         'kq1',

@@ -186,12 +186,14 @@ def compared_suite(tmp_path, ros_context):
 
 
 def all_accounted_for(run, postures=POSTURES):
-    """Every posture of the selection has a row or was skipped (e.g. rejected by the platform)."""
+    """Every posture of the selection, and of what the route added for the effects (the default
+    ``auto``'s reference revisit), has a row or was skipped (e.g. rejected by the platform)."""
     state = state_of(run)
+    added = (state.get('route_additions') or {}).get('added_postures', 0)
     rows = sorted(read_samples(run / 'samples.csv').posture)
     skipped = {s['posture'] for s in state['skipped']}
     return len(set(rows)) == len(rows) and sorted(set(rows) | skipped) == list(
-        range(1, postures + 1)
+        range(1, postures + added + 1)
     )
 
 

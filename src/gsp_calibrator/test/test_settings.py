@@ -32,7 +32,7 @@ def test_defaults():
     assert DEFAULTS['posture_count'] == 60 and DEFAULTS['pool_size'] == 600
     assert DEFAULTS['samples_per_posture'] == 10
     assert DEFAULTS['sync_tolerance'] == pytest.approx(0.0025)
-    assert DEFAULTS['free_parameters'] == ['extended']
+    assert DEFAULTS['free_parameters'] == ['auto']
     assert DEFAULTS['loss'] == 'linear' and DEFAULTS['required_position_accuracy_mm'] == 0.1
     assert DEFAULTS['formulation'] == 'implicit' and DEFAULTS['output_root'] == 'runs'
     assert DEFAULTS['apply_result'] is False and DEFAULTS['platform_node_name'] == 'platform_sim'

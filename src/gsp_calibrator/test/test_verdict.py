@@ -24,14 +24,17 @@ from gsp_kinematics.identification import PARAMETER_GROUPS
 
 @pytest.fixture(scope='module')
 def design():
-    """The calibrator's default plan on the shipped pair (bench_verdict.default_design)."""
-    return bench_verdict.default_design()
+    """The calibrator's default plan on the shipped pair (bench_verdict.default_design), the
+    plain model pinned: the verdict of a model that does not contain the platform's effects."""
+    return bench_verdict.default_design(bench_verdict.PLAIN_MODEL)
 
 
 @pytest.fixture(scope='module')
 def workspace_design():
-    """The default plan with 20 workspace postures commanded with the selected ones."""
-    return bench_verdict.default_design({'workspace_postures': bench_verdict.WORKSPACE_POSTURES})
+    """The same with 20 workspace postures commanded with the selected ones."""
+    return bench_verdict.default_design(
+        {**bench_verdict.PLAIN_MODEL, 'workspace_postures': bench_verdict.WORKSPACE_POSTURES}
+    )
 
 
 def calibrate(design, samples, nominal=None, free=None):
@@ -248,3 +251,20 @@ def test_the_bench_counts_the_seeds_whose_interval_holds_the_truth():
     intervals = [[0.001, 0.003], [0.002, 0.004], [0.0, 0.001]]
     assert bench_verdict.interval_coverage(intervals, [0.002, 0.005, 0.001]) == pytest.approx(2 / 3)
     assert math.isnan(bench_verdict.interval_coverage([], []))
+
+
+def test_the_bench_compares_the_defaults_with_the_plain_model_on_the_same_rows():
+    """The defaults' bench variant: how often the plain model is kept, and the true accuracy
+    over the plain model's from the same rows (median, worst, not worse within 1 %), mm."""
+    runs = [
+        {'true_mm': 1.0, 'plain_true_mm': 1.0, 'groups': []},
+        {'true_mm': 1.0, 'plain_true_mm': 4.0, 'groups': ['compliance']},
+        {'true_mm': 3.0, 'plain_true_mm': 2.0, 'groups': ['joint_offsets']},
+        {'true_mm': 1.0, 'groups': []},  # no plain fit: left out of the ratios
+    ]
+    figures = bench_verdict.plain_figures(runs)
+    assert figures['plain_kept_fraction'] == 0.5
+    assert figures['per_seed_true_over_plain'] == [1.0, 0.25, 1.5]
+    assert figures['true_over_plain'] == 1.0 and figures['true_over_plain_worst'] == 1.5
+    assert figures['not_worse_than_plain_fraction'] == pytest.approx(2 / 3)
+    assert bench_verdict.plain_figures([{'true_mm': 1.0, 'groups': []}]) == {}

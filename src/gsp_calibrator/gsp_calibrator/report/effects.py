@@ -24,7 +24,7 @@ def untried_groups(design, count, plain):
     (``count`` postures) beside the ``plain`` names."""
     available = available_groups(design, count)
     reasons = {
-        'compliance': 'payload_mass is 0 (unknown): give the mass the legs carry',
+        'compliance': 'the design has no payload mass',
         'thermal': 'the rows have no times',
         'backlash': 'some leg arrives from one direction only (or the rows have no directions)',
         'joint_offsets': '',
@@ -92,9 +92,23 @@ def effects_record(result, design, nominal, choice=None, untried=None, reference
                 record['groups'].append(stems[stem])
     record['payload_mass'] = float(design.payload_mass)
     record['centre_of_mass'] = [float(v) for v in design.centre_of_mass]
+    record['payload_assumed'] = payload_assumption(design)
     if 'thermal' in record['groups']:
         record['thermal'] = _thermal(result, design, nominal, reference_stamp_s)
     return record
+
+
+def payload_assumption(design):
+    """What the compliance assumed of the load ('' : the user gave its mass): a reference mass at
+    the stated centre of mass, so the compliance is the legs' times the load over it."""
+    if not getattr(design, 'payload_assumed', False):
+        return ''
+    centre = ', '.join(f'{1e3 * v:g}' for v in design.centre_of_mass)
+    return (
+        f'payload_mass not given: compliance identified for a reference {design.payload_mass:g} '
+        f"kg at ({centre}) mm (payload_centre_of_mass), i.e. each leg's compliance times the "
+        "load over it; the controller's compensation holds for the load carried during the run"
+    )
 
 
 def _thermal_text(thermal):
@@ -136,6 +150,8 @@ def effects_lines(record):
             f'{record["payload_mass"]:g} kg); compensated by the controller except the thermal '
             'drift'
         )
+        if 'compliance' in record['groups'] and record.get('payload_assumed'):
+            lines.append(record['payload_assumed'])
     if record.get('thermal'):
         lines.append(_thermal_text(record['thermal']))
     if record.get('rigid'):
@@ -203,6 +219,8 @@ def effects_markdown(record):
                 f'| {_number(entry["standard_deviation"], ".2g")} | {entry["unit"]} |'
             )
         lines.append('')
+    if 'compliance' in record['groups'] and record.get('payload_assumed'):
+        lines += [record['payload_assumed'] + '.', '']
     if record.get('thermal'):
         lines += [_thermal_text(record['thermal']), '']
     if record.get('rigid'):

@@ -14,7 +14,7 @@ docs/platform_effects.md#through-the-calibrator).
 
 import numpy as np
 
-from gsp_kinematics.effects.groups import EffectDesign
+from gsp_kinematics.effects.groups import REFERENCE_PAYLOAD_MASS, EffectDesign
 from gsp_kinematics.effects.model import approach_directions
 from gsp_kinematics.kinematics import inverse_kinematics
 
@@ -60,7 +60,9 @@ class ApproachTracker:
 
 def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg_mass=None):
     """The ``EffectDesign`` of a run's rows (``run.directory.Samples``) and the payload the user
-    gave (kg; 0: unknown), with the legs' masses (6,) kg (None: massless). The directions are left out (None) when a row has none (a
+    gave (kg; 0: unknown: the reference mass, ``payload_assumed``, so the compliance is still
+    identified, as the legs' compliance times the load over it), with the legs' masses (6,) kg
+    (None: massless). The directions are left out (None) when a row has none (a
     ``samples.csv`` written before them)."""
     stamps = np.asarray(samples.stamps, dtype=float)
     times = stamps - stamps[0] if stamps.size else stamps
@@ -69,10 +71,11 @@ def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg
     return EffectDesign(
         times_s=times,
         directions=directions if known else None,
-        payload_mass=float(payload_mass),
+        payload_mass=float(payload_mass) if payload_mass > 0.0 else REFERENCE_PAYLOAD_MASS,
         centre_of_mass=tuple(float(v) for v in centre_of_mass),
         reference_time_s=float(times[-1]) if times.size else 0.0,
         leg_mass=tuple(float(m) for m in (leg_mass if leg_mass is not None else [0.0] * 6)),
+        payload_assumed=not payload_mass > 0.0,
     )
 
 

@@ -217,18 +217,21 @@ def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
 
 
 def _checked_free(free, formulation, noise_source):
-    """``free`` as a list; CalibrationError for an unknown formulation or noise source, or
-    effects (or ``auto``) freed in a formulation other than ``implicit``; IdentificationError
-    when a name is wrong."""
+    """``free`` as a list (``auto`` in a formulation other than ``implicit``: its plain model,
+    the effect groups need the implicit one); CalibrationError for an unknown formulation or
+    noise source, or effects freed in a formulation other than ``implicit``;
+    IdentificationError when a name is wrong."""
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     if noise_from_data.noise_source_error(noise_source):
         raise CalibrationError(f'noise_source {noise_from_data.noise_source_error(noise_source)}')
     free = [free] if isinstance(free, str) else list(free)
-    if any(is_effect_name(n) or n == AUTO for n in free) and formulation != 'implicit':
+    if any(is_effect_name(n) for n in free) and formulation != 'implicit':
         raise CalibrationError(
-            f"the effect groups and auto need formulation 'implicit', got {formulation!r}"
+            f"the effect groups need formulation 'implicit', got {formulation!r}"
         )
+    if AUTO in free and formulation != 'implicit':
+        free, _ = split_auto(free)  # no effect group to choose: the plain model
     resolve_free(free)
     return free
 

@@ -29,7 +29,8 @@ from gsp_kinematics.travel.route import path_time, plan_route, travel_time_matri
 #: (a run after a run of the same selection starts where that one ended).
 HELD_TOLERANCE = 1e-4
 
-#: Free parameters of the calibrator: the 44 and the identifiable sensor errors.
+#: The plain model: the 44 and the identifiable sensor errors (the selection's and the pure
+#: functions' default; the calibrator's is its parameter table's, ``auto`` beside it).
 DEFAULT_FREE = ('extended',)
 #: The effect groups whose identification needs more of the route than the selection: thermal
 #: (reference revisits) and backlash (both approach directions).
@@ -203,7 +204,7 @@ def effect_route(settings, poses, start_pose, sample_rate_hz=None):
     (no such group). A revisit is a posture of its own (its own 1-based number in state.json)
     at the same pose."""
     groups = route_effect_groups(settings.free_parameters)
-    if not groups:
+    if not groups or settings.formulation != 'implicit':  # auto there: the plain model
         return None
     dwell_s = PLAN_SETTLE_S + settings.samples_per_posture / sample_rate(sample_rate_hz)
     return augment_route(

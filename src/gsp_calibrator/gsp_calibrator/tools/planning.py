@@ -28,6 +28,7 @@ from gsp_calibrator.run.postures import (
     PLAN_SENSOR_RATE_HZ,
     PLAN_SETTLE_S,
     CalibrationError,
+    route_effect_groups,
 )
 from gsp_calibrator.settings import add_run_options, run_options_error
 from gsp_calibrator.tools.plans import (
@@ -178,7 +179,12 @@ def _add_effect_options(add):
         help='effect groups the calibration will free: the plan adds what they need and gives '
         f'their identifiability and Cramér-Rao bound ({", ".join(EFFECT_GROUPS)})',
     )
-    add('--revisit-every', type=int, default=None, help='thermal: postures between revisits (10)')
+    add(
+        '--revisit-every',
+        type=int,
+        default=None,
+        help='thermal: postures between revisits (0: the end only)',
+    )
     add('--revisit-interval-s', type=float, default=None, help='thermal: seconds between revisits')
     add('--min-arrivals', type=int, default=1, help='backlash: arrivals each way per leg (1)')
     add('--payload-mass-kg', type=float, default=0.0, help='compliance: the payload (kg)')
@@ -194,11 +200,16 @@ def _add_effect_options(add):
 
 
 def effect_plan_from(args):
-    """The :class:`EffectPlan` of the command line (None without ``--effects``)."""
-    if not args.effects:
+    """The :class:`EffectPlan` of the command line: the ``--effects`` groups, else those the
+    calibrator's route adds postures for with ``--free`` (``auto``: thermal and backlash,
+    ``postures.effect_route``); None when neither."""
+    groups = tuple(args.effects)
+    if not groups and args.formulation == 'implicit':
+        groups = tuple(route_effect_groups(args.free_parameters))
+    if not groups:
         return None
     return EffectPlan(
-        groups=tuple(args.effects),
+        groups=groups,
         revisit_every=args.revisit_every,
         revisit_interval_s=args.revisit_interval_s,
         min_arrivals=args.min_arrivals,

@@ -65,6 +65,10 @@ NUM_EFFECT_PARAMETERS = len(EFFECT_PARAMETER_NAMES)
 AUTO = 'auto'
 #: The plain model of ``auto`` when no other name is given.
 DEFAULT_AUTO_BASE = ('extended',)
+#: The mass (kg) the compliance is identified for when the user gives none: the device
+#: identifies the compliance times the load, so the per-leg ``c_i m / m_ref`` it finds with this
+#: reference compensates the real load (at the stated centre of mass) exactly.
+REFERENCE_PAYLOAD_MASS = 1.0
 
 
 def split_auto(names):
@@ -99,6 +103,9 @@ class EffectDesign:
     #: growth. The strain rate is then the initial one.
     thermal_time_constant_s: float = 0.0
     leg_mass: tuple = (0.0,) * NUM_LEGS
+    #: ``payload_mass`` is :data:`REFERENCE_PAYLOAD_MASS`, not the load's (the user gave none):
+    #: the compliance identified is the legs' compliance times the load over it.
+    payload_assumed: bool = False
 
     def thermal_clock(self, times_s):
         """The thermal regressor's clock (s): ``tau (1 - exp(-t / tau))``, or ``t`` when linear."""

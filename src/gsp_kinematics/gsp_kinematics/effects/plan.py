@@ -2,8 +2,8 @@
 
 Two things a route needs beyond the postures the selection chose:
 
-- **thermal**: the route revisits a reference posture at intervals (every ``revisit_every``
-  postures or ``revisit_interval_s`` seconds of platform time), and once more at its end, so the
+- **thermal**: the route revisits a reference posture at its end, and at intervals when asked
+  (every ``revisit_every`` postures or ``revisit_interval_s`` seconds of platform time), so the
   drift is observed at one posture against the time;
 - **backlash**: every leg arrives at some postures extending and at others retracting (at least
   ``min_arrivals`` each way); where the route does not, a posture of the plan is measured once
@@ -30,8 +30,13 @@ from ..travel.motion import MotionLimits, move_time, posture_leg_lengths
 from .groups import EFFECT_GROUPS, EFFECT_PARAMETER_NAMES, EffectDesign, EffectTerms
 from .model import NUM_LEGS, approach_directions
 
-#: Postures between reference revisits when thermal is planned and no interval is given.
-DEFAULT_REVISIT_EVERY = 10
+#: Postures between reference revisits when thermal is planned and no interval is given; 0:
+#: none, the reference is revisited at the end only. Periodic revisits do not pay on the
+#: calibrator's plans: on the default plan (60 postures) a revisit every 10 postures costs 29 %
+#: of platform time on gsp_plan's motion model (16 % at 15 s a posture) and lowers the thermal
+#: rates' Cramér-Rao bound by 7-10 %: the plan's other postures, at their own times, hold most
+#: of the drift's information.
+DEFAULT_REVISIT_EVERY = 0
 #: Most postures :func:`augment_route` inserts for the approach directions.
 MAX_APPROACH_INSERTIONS = 24
 #: An instantaneous platform: no travel time (the times are then ``dwell_s`` per posture).
@@ -166,7 +171,7 @@ def augment_route(
 
     ``thermal`` in ``groups``: a reference posture (``reference_pose``, default the route's first
     posture) is revisited every ``revisit_every`` postures and/or every ``revisit_interval_s`` s
-    (default every :data:`DEFAULT_REVISIT_EVERY` postures) and at the end. ``backlash``: each
+    (default :data:`DEFAULT_REVISIT_EVERY`: none) and at the end. ``backlash``: each
     leg arrives at least ``min_arrivals`` times extending and retracting, by measuring plan
     postures once more where needed. Times: each move within ``limits`` (default: none) then
     ``dwell_s`` at the posture (settle and sampling), from ``start_pose`` (default the first).

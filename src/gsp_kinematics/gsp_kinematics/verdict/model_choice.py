@@ -15,8 +15,9 @@ whose fit lowers the chi-square most, only if
   deviations per leg) is significant long before it moves the accuracy by tens of percent;
 - and the held-out position error (:func:`gsp_kinematics.verdict.cross_validation.cross_validate`,
   each posture's leverage taken out: :func:`held_out_position_mm`) does not grow by more than
-  ``max_cv_loss`` (relative): the guard against a model that fits the rows better and predicts
-  the platform worse;
+  ``max_cv_loss`` (relative) over the model it extends, and what is delivered never has a
+  held-out error above the plain model's (:func:`never_worse_held_out`): the guard against a
+  model that fits the rows better and predicts the platform worse;
 - and, for a group the controller compensates, compensating it is not predicted to make the
   platform less accurate over the workspace (:mod:`.choice_accuracy`: the bias of leaving it
   out against the spread its estimates add): significant is not the same as resolved well
@@ -342,6 +343,7 @@ def _forward(nominal, data, base, available, settings, every=None):
     if best.not_judged:  # e.g. too few postures: no group can be judged beside it
         return result, best, (), [best]
     tried, chosen, remaining = [best], (), list(available)
+    path = [(result, best, chosen)]
     while remaining:
         reference = (result, chosen)
         trials = [score(chosen + (group,), reference) for group in remaining]
@@ -354,6 +356,7 @@ def _forward(nominal, data, base, available, settings, every=None):
             break
         result, best = max(kept, key=lambda item: item[1].delta_chi2)
         chosen = best.groups
+        path.append((result, best, chosen))
         remaining = [group for group in remaining if group not in chosen]
     if len(remaining) > 1:
         # Effects that mask each other: no one group alone is kept, together they may be.
@@ -361,8 +364,21 @@ def _forward(nominal, data, base, available, settings, every=None):
         trial_result, together = score(groups, (result, chosen))
         tried.append(together)
         if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
-            result, best, chosen = trial_result, together, together.groups
+            path.append((trial_result, together, together.groups))
+    result, best, chosen = never_worse_held_out(path)
     return result, best, chosen, tried
+
+
+def never_worse_held_out(path):
+    """Of the models the selection kept in turn, ``path`` = ``[(result, Candidate, groups)]``
+    from the plain model on, the last whose held-out position error is not above the plain
+    model's: each step may let it grow a little (``max_cv_loss``), but what ``auto`` delivers is
+    never worse, on postures the fit did not see, than the plain model it was chosen over."""
+    plain = path[0][1].position_mm
+    for step in reversed(path):
+        if step[1].position_mm <= plain:
+            return step
+    return path[0]
 
 
 def _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain):
@@ -388,6 +404,12 @@ def _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain):
             else ''
         )
         + '; no other group did'
+        + (
+            f"; and its held-out error is not above the plain model's "
+            f'({tried[0].position_mm:.4f} mm)'
+            if chosen
+            else ''
+        )
         + ''.join(
             f'; not judged, so not kept: {", ".join(groups)} ({why})'
             for why, groups in unjudged.items()

@@ -49,6 +49,10 @@ from gsp_kinematics.verdict.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, 
 
 #: Seconds per posture of the verdict's run (60 postures over RUN_S).
 POSTURE_S = RUN_S / 60
+#: Postures between the route's reference revisits here: the plan this section's figures were
+#: measured with (docs/platform_effects.md#the-bench-effects-section); the calibrator's route
+#: revisits at the end only (``effects.plan.DEFAULT_REVISIT_EVERY``: more do not pay).
+REVISIT_EVERY = 10
 #: Cross-validation folds of ``auto`` here (the calibrator's default is 10; 5 halves the cost).
 FOLDS = 5
 #: Thermal time constants (s; 0: linear) ``auto`` chooses among by the fit's cost: the
@@ -59,9 +63,15 @@ PLAN_DWELL_S = 0.02 + SAMPLES / 200.0
 
 
 def augmented_plan(design, groups=tuple(EFFECT_GROUPS)):
-    """The verdict's route augmented for ``groups``, ``POSTURE_S`` per posture."""
+    """The verdict's route augmented for ``groups``, ``POSTURE_S`` per posture, the reference
+    revisited every :data:`REVISIT_EVERY` postures."""
     return augment_route(
-        design.settings.nominal, design.poses, groups, start_pose=home_pose(), dwell_s=POSTURE_S
+        design.settings.nominal,
+        design.poses,
+        groups,
+        start_pose=home_pose(),
+        revisit_every=REVISIT_EVERY,
+        dwell_s=POSTURE_S,
     )
 
 
@@ -72,7 +82,13 @@ def plan_costs(design):
     for name, groups in [*((g, [g]) for g in ('thermal', 'backlash')), ('all', EFFECT_GROUPS)]:
         bench = augmented_plan(design, groups)
         motion = augment_route(
-            nominal, design.poses, groups, home_pose(), dwell_s=PLAN_DWELL_S, limits=MotionLimits()
+            nominal,
+            design.poses,
+            groups,
+            home_pose(),
+            revisit_every=REVISIT_EVERY,
+            dwell_s=PLAN_DWELL_S,
+            limits=MotionLimits(),
         )
         costs[name] = {
             'added_postures': bench.added_postures,
