@@ -9,9 +9,12 @@ there (:func:`~gsp_kinematics.effects.rigid_fold.rigid_model_errors`: the effect
 with the posture and the backlash's direction, which no rigid geometry follows). The second is
 known at any posture once the model is: it is taken over random workspace postures, where the
 truth averages, not at the run's postures (the selection's extremes, where it is several times
-larger). The two add in quadrature at each workspace posture (independent: one is the fit's
-error, the other fixed by its estimate); the figure is their mean. The map is increasing in
-the compensating figure, so the ends of its 95 % interval map to the rigid figure's.
+larger). At each workspace posture the fit's error, of the compensating figure's size, is
+taken in a random direction about the fixed one (independent: one is the fit's error, the
+other fixed by its estimate): the mean length of their sum is :func:`mean_sum_length` (for a
+position; for phi, one axis, the larger of the two). The figure is its mean over the postures.
+The map is increasing in the compensating figure, so the ends of its 95 % interval map to the
+rigid figure's.
 """
 
 import math
@@ -19,26 +22,40 @@ import math
 import numpy as np
 
 
-def _mean_hypot(systematic, value):
-    """Mean over the workspace postures of ``hypot(systematic, value)``; NaN without a value."""
+def mean_sum_length(fixed, random):
+    """(K,) the mean length of a vector of length ``fixed`` (K,) plus one of length ``random``
+    in a uniformly random direction (3-D): the larger plus the smaller squared over three
+    times the larger (the mean distance from a point to a sphere's surface)."""
+    fixed = np.asarray(fixed, dtype=float)
+    larger, smaller = np.maximum(fixed, random), np.minimum(fixed, random)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        return np.where(larger > 0, larger + smaller**2 / (3.0 * larger), 0.0)
+
+
+def _combined(systematic, value, axes):
+    """Mean over the workspace postures of the error of ``systematic`` (K,) and a random one
+    of size ``value`` (``axes`` 3: :func:`mean_sum_length`; 1: the larger); NaN without one."""
     if value is None or not math.isfinite(value):
         return math.nan
-    return float(np.mean(np.hypot(systematic, value)))
+    if axes == 1:
+        return float(np.mean(np.maximum(systematic, value)))
+    return float(np.mean(mean_sum_length(systematic, value)))
 
 
-def _rigid_figure(figure, systematic):
+def _rigid_figure(figure, systematic, axes):
     """A held-out figure (``{mean, p95, rms, mean_interval_95, ...}``) of the compensating
-    geometry as the rigid geometry's, with its ``systematic`` errors (K,) over the workspace."""
+    geometry as the rigid geometry's, with its ``systematic`` errors (K,) over the workspace
+    (``axes``: 3 for the position, 1 for phi). The p95 and rms combine in quadrature."""
     interval = figure.get('mean_interval_95') or [math.nan, math.nan]
     mean = figure['mean']
     return {
-        'mean': _mean_hypot(systematic, mean),
-        'p95': float(np.percentile(np.hypot(systematic, mean), 95))
-        if math.isfinite(mean)
+        'mean': _combined(systematic, mean, axes),
+        'p95': float(np.percentile(np.hypot(systematic, figure['p95']), 95))
+        if math.isfinite(figure['p95'])
         else math.nan,
-        'rms': _mean_hypot(systematic, figure.get('rms')),
-        'mean_interval_95': [_mean_hypot(systematic, value) for value in interval],
-        'measured_mean': _mean_hypot(systematic, figure.get('measured_mean')),
+        'rms': math.sqrt(float(np.mean(systematic**2)) + figure.get('rms', math.nan) ** 2),
+        'mean_interval_95': [_combined(systematic, value, axes) for value in interval],
+        'measured_mean': _combined(systematic, figure.get('measured_mean'), axes),
         'compensating_mean': mean,
         'systematic_mean': float(np.mean(systematic)),
     }
@@ -46,8 +63,8 @@ def _rigid_figure(figure, systematic):
 
 def _calibrated(calibrated, position, phi):
     return {
-        'position_mm': _rigid_figure(calibrated['position_mm'], position),
-        'phi_deg': _rigid_figure(calibrated['phi_deg'], phi),
+        'position_mm': _rigid_figure(calibrated['position_mm'], position, 3),
+        'phi_deg': _rigid_figure(calibrated['phi_deg'], phi, 1),
     }
 
 
