@@ -12,6 +12,7 @@ import pytest
 
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run.identify import identify_with_settings
+from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.tools.bench.verdict import RUN_S, default_design, simulated_samples
 from gsp_kinematics.effects.groups import IdentifiedEffects
 from gsp_kinematics.effects.model import REALISTIC
@@ -120,8 +121,11 @@ def test_a_rigid_controller_is_judged_on_the_rigid_figure(design, outcomes):
     settings = default_design({**VALUES, 'required_position_accuracy_mm': required}).settings
     outcome = identify_with_settings(settings, simulated_samples(design, REALISTIC, SEEDS[0]))
     assert outcome.accepted and not outcome.rigid_judgement.accepted
-    text = outcome.rigid_judgement.text
-    assert text.startswith('rigid controller (result_rigid.yaml): calibration NOT accepted')
+    # Both verdicts in the summary (the response without apply_result, the log, report.md).
+    summary = outcome_summary(outcome)
+    assert '\ncalibration accepted: meets the required accuracy' in summary
+    assert '\nrigid controller (result_rigid.yaml): calibration NOT accepted' in summary
+    assert 'accuracy rigid geometry (held out): position mean (mm) ' in summary
 
     controller = Controller(compensating=True)
     success, note = deliver(outcome, controller)
