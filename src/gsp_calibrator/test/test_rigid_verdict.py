@@ -58,13 +58,15 @@ def true_mm(design, controller):
 
 
 def test_the_rigid_held_out_figure_tracks_the_rigid_geometrys_true_accuracy(design, outcomes):
-    folded, unfolded = [], []
+    folded, unfolded, inside = [], [], 0
     for outcome in outcomes:
         assert outcome.success and outcome.rigid_geometry is not None, outcome.message
         figure = outcome.rigid_accuracy['calibrated']['position_mm']
-        folded.append(figure['mean'] / true_mm(design, outcome.rigid_geometry))
+        true = true_mm(design, outcome.rigid_geometry)
+        folded.append(figure['mean'] / true)
         low, high = figure['mean_interval_95']
         assert low < figure['mean'] < high
+        inside += low <= true <= high
         # The same figure for a rigid geometry the fold did not make (the geometry run without
         # its effects, 2-3x worse): it follows what the controller runs, not the fit.
         geometry = outcome.geometry
@@ -75,6 +77,9 @@ def test_the_rigid_held_out_figure_tracks_the_rigid_geometrys_true_accuracy(desi
     # The brief's figure (issue 33): within 25 % of the truth, median over the seeds (measured
     # 1.21: the model's systematic part runs ~10 % above the truth's, and its tail is sampled).
     assert abs(statistics.median(folded) - 1.0) <= 0.25, folded
+    # The 95 % interval holds the truth (seed 1 by 0.1 um; without the workspace mean's
+    # sampling error in it, only seed 0).
+    assert inside >= len(SEEDS) - 1, (inside, folded)
     # Without the systematic part the figure would be 0.3x the truth here.
     assert 0.67 <= statistics.median(unfolded) <= 1.5, unfolded
 

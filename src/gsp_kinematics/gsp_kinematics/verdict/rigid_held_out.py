@@ -14,7 +14,9 @@ taken in a random direction about the fixed one (independent: one is the fit's e
 other fixed by its estimate): the mean length of their sum is :func:`mean_sum_length` (for a
 position; for phi, one axis, the larger of the two). The figure is its mean over the postures.
 The map is increasing in the compensating figure, so the ends of its 95 % interval map to the
-rigid figure's.
+rigid figure's, each widened by 1.96 standard errors of its mean over the postures (the
+error's tail, a few postures in a thousand at 50x the mean, makes that sampling error
+matter).
 """
 
 import math
@@ -32,14 +34,29 @@ def mean_sum_length(fixed, random):
         return np.where(larger > 0, larger + smaller**2 / (3.0 * larger), 0.0)
 
 
-def _combined(systematic, value, axes):
-    """Mean over the workspace postures of the error of ``systematic`` (K,) and a random one
-    of size ``value`` (``axes`` 3: :func:`mean_sum_length`; 1: the larger); NaN without one."""
+#: Standard errors of a mean over the workspace postures each end of the interval is widened by.
+INTERVAL_STANDARD_ERRORS = 1.96
+
+
+def _lengths(systematic, value, axes):
+    """(K,) the error at each workspace posture of ``systematic`` (K,) and a random one of size
+    ``value`` (``axes`` 3: :func:`mean_sum_length`; 1: the larger); None without a value."""
     if value is None or not math.isfinite(value):
-        return math.nan
+        return None
     if axes == 1:
-        return float(np.mean(np.maximum(systematic, value)))
-    return float(np.mean(mean_sum_length(systematic, value)))
+        return np.maximum(systematic, value)
+    return mean_sum_length(systematic, value)
+
+
+def _combined(systematic, value, axes, spread=0.0):
+    """Mean over the workspace postures of :func:`_lengths`, plus ``spread`` standard errors
+    of that mean (the errors at both approach directions of a posture counted as one); NaN
+    without a value."""
+    lengths = _lengths(systematic, value, axes)
+    if lengths is None:
+        return math.nan
+    error = float(np.std(lengths)) / math.sqrt(max(lengths.size / 2.0, 1.0))
+    return max(float(np.mean(lengths)) + spread * error, 0.0)
 
 
 def _rigid_figure(figure, systematic, axes):
@@ -54,7 +71,12 @@ def _rigid_figure(figure, systematic, axes):
         if math.isfinite(figure['p95'])
         else math.nan,
         'rms': math.sqrt(float(np.mean(systematic**2)) + figure.get('rms', math.nan) ** 2),
-        'mean_interval_95': [_combined(systematic, value, axes) for value in interval],
+        'mean_interval_95': [
+            _combined(systematic, value, axes, spread)
+            for value, spread in zip(
+                interval, (-INTERVAL_STANDARD_ERRORS, INTERVAL_STANDARD_ERRORS), strict=True
+            )
+        ],
         'measured_mean': _combined(systematic, figure.get('measured_mean'), axes),
         'compensating_mean': mean,
         'systematic_mean': float(np.mean(systematic)),
