@@ -5,7 +5,9 @@ A run that succeeds hands its calibrated geometry, and the rigid one when it ide
 geometry params-file YAML on ``/gsp/calibrator/result`` and, with ``apply_result``, sets the
 ``geometry.*`` parameters of ``platform_node_name`` in one ``SetParametersAtomically`` call.
 A result that is not accepted (its cross-validated accuracy misses the requirement,
-docs/verdict.md) is published, never applied.
+docs/verdict.md) is published, never applied: the verdict judged is that of the geometry the
+controller runs (the compensating one, or the rigid one, ``run.rigid.Verdicts``), known once
+the controller is.
 
 What the controller receives depends on whether it compensates the identified effects
 (``controller_effects``): ``auto`` first asks its ``list_parameters`` service for the
@@ -35,19 +37,24 @@ class ResultDelivery:
         self.publisher = publisher
         self.parameter_setter = ParameterSetter(node, callback_group)
 
-    async def deliver(self, settings, geometry, accepted, rigid, wait_for):
+    async def deliver(self, settings, geometry, verdicts, rigid, wait_for):
         """Publish ``geometry``; apply it, or ``rigid`` (the effects folded in; None: the
         geometry has none) to a controller that does not compensate them, if
-        ``settings.apply_result`` and it is ``accepted`` (it meets the required accuracy).
-        ``(success, note)``: ``note`` says what the apply did ('' when it was not asked for);
-        success is False when the result is not accepted, or when the apply failed."""
+        ``settings.apply_result`` and the verdict of what the controller runs accepts it
+        (``verdicts``: ``run.rigid.Verdicts``). ``(success, note)``: ``note`` says what the
+        apply did and which geometry the verdict describes ('' when it was not asked for, or
+        no verdict accepts); success is False when the result is not accepted (without
+        ``apply_result``: the compensating verdict), or when the apply failed."""
         self.publisher.publish(String(data=geometry_to_yaml(geometry, comment=RESULT_COMMENT)))
-        if not (settings.apply_result and accepted):
-            return accepted, ''
+        if not (settings.apply_result and verdicts.any_accepted):
+            return verdicts.compensating.accepted, ''
         node_name, timeout = settings.platform_node_name, settings.topic_timeout
         compensates, how = await self.compensates(settings, wait_for)
         if compensates is None:
             return False, f'NOT applied: {how}'
+        verdict, which = verdicts.of(compensates)
+        if not verdict.accepted:
+            return False, not_accepted_note(node_name, which, verdict, how)
         if compensates:
             values = geometry_to_parameters(geometry, all_effects=True)
         else:  # no rigid geometry (none was identified, or no fold): no effect key at all
@@ -57,6 +64,7 @@ class ResultDelivery:
         if not applied:
             return False, f'NOT applied: {why}'
         note = applied_note(node_name, geometry, compensates, rigid is not None, how)
+        note += f'; the verdict describes the {which} geometry'
         self.node.get_logger().info(note)
         return True, note
 
@@ -99,6 +107,24 @@ def applied_note(node_name, geometry, compensates, folded, decided):
     return (
         f'applied the rigid geometry to /{node_name} ({why}): the effects folded in '
         f'(result_rigid.yaml); not compensated: {", ".join(geometry.effects.groups())}'
+    )
+
+
+def not_accepted_note(node_name, which, verdict, decided):
+    """Why nothing was applied to ``/node_name``: the ``verdict`` (``acceptance.Verdict``) of
+    the ``which`` geometry ('rigid' or 'compensating') it runs does not accept it; ``decided``:
+    'auto' when the controller's parameters told."""
+    runs = 'the geometry with its effects (result.yaml)'
+    if which == 'rigid':
+        runs = 'the rigid geometry (result_rigid.yaml)'
+        runs += (
+            ': it does not declare the geometry.effects.* parameters'
+            if decided == 'auto'
+            else ': controller_effects: rigid'
+        )
+    return (
+        f'NOT applied to /{node_name}: it runs {runs}, and the verdict of the {which} '
+        f'geometry does not accept it: {"; ".join(verdict.failures)}'
     )
 
 

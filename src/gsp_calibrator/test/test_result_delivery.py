@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.result_delivery import ResultDelivery
+from gsp_calibrator.run.rigid import Verdicts
 from gsp_kinematics.effects.groups import IdentifiedEffects
 from gsp_kinematics.effects.rigid_fold import fold_effects
 from gsp_kinematics.geometry import default_geometry
@@ -20,6 +21,8 @@ VALUES = np.zeros(24)
 VALUES[0:6], VALUES[6:12] = 2e-8, 4e-6  # compliance (m/N), backlash (m)
 WITH_EFFECTS = NOMINAL.replace(effects=IdentifiedEffects(VALUES, 40.0, (0.0, 0.0, 0.05)))
 RIGID = fold_effects(WITH_EFFECTS)
+#: Both geometries accepted (the verdicts are test_rigid_verdict's).
+ACCEPTED = Verdicts(types.SimpleNamespace(accepted=True), types.SimpleNamespace(accepted=True))
 
 
 class Services:
@@ -54,7 +57,7 @@ def deliver(services, geometry=WITH_EFFECTS, rigid=RIGID, controller_effects='au
         topic_timeout=1.0,
         controller_effects=controller_effects,
     )
-    return asyncio.run(delivery.deliver(settings, geometry, True, rigid, None))
+    return asyncio.run(delivery.deliver(settings, geometry, ACCEPTED, rigid, None))
 
 
 RIGID_NAMES = [f'geometry.{key}' for key in ('base_joints', 'platform_joints', 'leg_offsets')]

@@ -56,10 +56,13 @@ def outcome_data(outcome):
     acceptance = None
     if judgement is not None:
         acceptance = {**judgement.as_dict(), 'requirement': requirement.as_dict()}
+    rigid = outcome.rigid_judgement  # the rigid geometry's (run.rigid.judge_rigid)
     return {
         'accepted': outcome.accepted,
         'acceptance': acceptance,
         'accuracy': outcome.accuracy,
+        'rigid_acceptance': None if rigid is None else rigid.as_dict(),
+        'rigid_accuracy': outcome.rigid_accuracy,
         'unmodelled': unmodelled_record(outcome.unmodelled),
         'noise_source': outcome.noise_source,
         'noise_estimates': outcome.noise_estimates,
@@ -149,6 +152,8 @@ def _accuracy_table(data):
         labelled.append(
             (accuracy['selected'], 'calibrated (held out, selected postures)', 'calibrated')
         )
+    if data.get('rigid_accuracy'):
+        labelled.append((data['rigid_accuracy'], 'rigid geometry (held out)', 'calibrated'))
     for entry, label, key in labelled:
         position, phi = entry[key]['position_mm'], entry[key]['phi_deg']
         rows.append(
@@ -268,6 +273,8 @@ def fit_summary(data):
     acceptance = data.get('acceptance')
     if acceptance:
         blocks += [('line', line) for line in acceptance['text'].splitlines()]
+    if data.get('rigid_acceptance'):
+        blocks += [('line', line) for line in data['rigid_acceptance']['text'].splitlines()]
     if data.get('unmodelled') and not data.get('effects'):
         blocks.append(('line', EFFECTS_HINT))
     accuracy = _accuracy_table(data)

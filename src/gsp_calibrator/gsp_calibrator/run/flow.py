@@ -346,7 +346,7 @@ class CalibrationRun:
         self.save_state(PHASE_DONE)
         geometry, rigid = outcome.geometry, outcome.rigid_geometry
         # A result that misses the required accuracy is written and latched, never applied.
-        success, note = await host.deliver_result(settings, geometry, outcome.accepted, rigid)
+        success, note = await host.deliver_result(settings, geometry, outcome.verdicts, rigid)
         if note:
             summary += '\n' + note
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'

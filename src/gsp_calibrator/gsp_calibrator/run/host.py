@@ -161,7 +161,7 @@ class RunHost:
     #: ``progress(index, phase, message='', residuals=None, warning=False, **extra)``: publish
     #: the run's progress at posture ``index`` (0 before the first)
     progress: Callable[..., None]
-    #: ``deliver_result(settings, geometry, accepted, rigid geometry or None)``: awaitable of
+    #: ``deliver_result(settings, geometry, run.rigid.Verdicts, rigid geometry or None)``: awaitable of
     #: ``(success, note)``
     #: (``gsp_calibrator.result_delivery``)
     deliver_result: Callable[..., Awaitable]

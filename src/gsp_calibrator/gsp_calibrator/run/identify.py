@@ -29,7 +29,7 @@ from gsp_calibrator.run.postures import (
     workspace_poses,
 )
 from gsp_calibrator.run.response import outcome_summary
-from gsp_calibrator.run.rigid import rigid_result
+from gsp_calibrator.run.rigid import Verdicts, rigid_result
 from gsp_kinematics import identifiability, noise_from_data
 from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
@@ -89,11 +89,21 @@ class CalibrationOutcome:
     effects: dict | None = None
     #: the rigid geometry, the identified effects folded in (``run.rigid``); None without effects
     rigid_geometry: object = None
+    #: the rigid geometry's held-out accuracy and verdict (``run.rigid.judge_rigid``); None
+    #: without a rigid geometry
+    rigid_accuracy: dict | None = None
+    rigid_judgement: object = None
 
     @property
     def accepted(self):
         """The calibration meets the requirement and beats the nominal geometry: apply it."""
         return bool(self.success and self.judgement is not None and self.judgement.accepted)
+
+    @property
+    def verdicts(self):
+        """``run.rigid.Verdicts``: the compensating and the rigid geometry's verdicts, for the
+        delivery to pick the one of what the controller runs."""
+        return Verdicts(self.judgement if self.success else None, self.rigid_judgement)
 
     @property
     def fit_accepted(self):
@@ -446,5 +456,9 @@ def write_results(run, outcome, comment):
 
     run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     if outcome.rigid_geometry is not None:
-        rigid_comment = f'{comment}\n{RIGID_COMMENT}'
+        # The rigid file carries its own verdict's mark (docs/verdict.md).
+        kept = comment.replace(f'\n{NOT_ACCEPTED_COMMENT}', '')
+        rigid_comment = f'{kept}\n{RIGID_COMMENT}'
+        if not outcome.verdicts.of(compensates=False)[0].accepted:
+            rigid_comment += f'\n{NOT_ACCEPTED_COMMENT}'
         run.write_geometry(outcome.rigid_geometry, RIGID_RESULT_FILE, comment=rigid_comment)

@@ -2,12 +2,47 @@
 runs the geometry alone, the identified effects folded into the 44 parameters
 (:func:`gsp_kinematics.effects.rigid_fold.fold_effects`), written to ``result_rigid.yaml`` and
 applied instead of ``result.yaml`` to such a controller (:mod:`gsp_calibrator.result_delivery`),
-with its predicted accuracy beside the compensated one (docs/platform_effects.md)."""
+with its predicted and held-out accuracy and its own verdict beside the compensated one's
+(docs/platform_effects.md, docs/verdict.md)."""
+
+import dataclasses
 
 import numpy as np
 
 from gsp_calibrator.run.directory import RIGID_RESULT_FILE
-from gsp_kinematics.effects.rigid_fold import fold_effects, rigid_accuracy
+from gsp_kinematics.effects.rigid_fold import (
+    fold_effects,
+    held_out_postures,
+    rigid_accuracy,
+    rigid_model_errors,
+)
+from gsp_kinematics.verdict import acceptance
+from gsp_kinematics.verdict.rigid_held_out import rigid_held_out
+
+#: Prefixed to the rigid geometry's verdict lines.
+RIGID_VERDICT_PREFIX = 'rigid controller (result_rigid.yaml): '
+
+
+@dataclasses.dataclass(frozen=True)
+class Verdicts:
+    """The verdicts the delivery picks from once it knows the controller
+    (``result_delivery``): the compensating geometry's and the rigid one's (``acceptance.Verdict``;
+    ``rigid`` None: no rigid figure, the compensating verdict stands for both)."""
+
+    compensating: object
+    rigid: object = None
+
+    def of(self, compensates):
+        """``(Verdict, 'compensating' | 'rigid')``: the verdict of what a controller that
+        ``compensates`` the effects (or not) runs, and which geometry it describes."""
+        if compensates or self.rigid is None:
+            return self.compensating, 'compensating'
+        return self.rigid, 'rigid'
+
+    @property
+    def any_accepted(self):
+        """Some controller would get an accepted geometry."""
+        return any(v is not None and v.accepted for v in (self.compensating, self.rigid))
 
 
 def rigid_result(outcome):
@@ -15,22 +50,43 @@ def rigid_result(outcome):
     geometry carries identified effects, else ``(None, None)``. The record (the ``rigid`` entry
     of ``result.json``'s ``effects``): the predicted accuracy of a rigid controller running it
     (:func:`rigid_accuracy`, the compensated prediction's mean as its random part), the file,
-    and the groups such a controller does not compensate."""
+    and the groups such a controller does not compensate. Fills the outcome's
+    ``rigid_accuracy`` and ``rigid_judgement`` (:func:`judge_rigid`)."""
     geometry = outcome.geometry
     if not outcome.success or geometry is None or geometry.effects.none:
         return None, None
     try:
         rigid = fold_effects(geometry)
+        poses = held_out_postures(geometry)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as error:
         # No workspace posture of this geometry (its limits), or a singular fit: the rigid
         # controller then gets the geometry without its effects (result_delivery).
         return None, {'file': None, 'failure': f'no rigid geometry: {error}'}
+    systematic = rigid_model_errors(geometry, rigid, poses, phi=True)
     random = ((outcome.prediction or {}).get('random') or {}).get('position_mm') or {}
     compensated = float(random.get('mean', 0.0))
     record = {
         'file': RIGID_RESULT_FILE,
-        'predicted': rigid_accuracy(geometry, rigid, compensated),
+        'predicted': rigid_accuracy(geometry, rigid, compensated, poses, systematic[0]),
         'compensated_predicted_position_mm': compensated if random else None,
         'not_compensated': geometry.effects.groups(),
     }
+    judge_rigid(outcome, systematic, record['predicted'])
     return rigid, record
+
+
+def judge_rigid(outcome, systematic, predicted):
+    """The rigid geometry's held-out accuracy (``outcome.rigid_accuracy``:
+    :func:`~gsp_kinematics.verdict.rigid_held_out.rigid_held_out` of the compensating one with
+    its ``systematic`` ``(position mm, phi deg)`` errors over the workspace) and its verdict
+    (``outcome.rigid_judgement``, against the same requirement, its ``predicted`` accuracy
+    (:func:`rigid_accuracy`) as the headline)."""
+    if not outcome.accuracy or outcome.requirement is None:
+        return
+    outcome.rigid_accuracy = rigid_held_out(outcome.accuracy, *systematic)
+    headline = {'position_mm_mean': predicted['position_mm']['mean']}
+    verdict = acceptance.judge(
+        outcome.rigid_accuracy, outcome.requirement, outcome.unmodelled, headline
+    )
+    lines = (RIGID_VERDICT_PREFIX + verdict.lines[0],) + verdict.lines[1:2]
+    outcome.rigid_judgement = dataclasses.replace(verdict, lines=lines)
