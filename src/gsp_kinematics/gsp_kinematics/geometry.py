@@ -271,7 +271,8 @@ def _effect_parameters(effects, every=False):
     groups = effects.groups()
     kept = {stem: g in groups for g, stem in zip(EFFECT_GROUPS, _EFFECT_STEMS, strict=True)}
     load = 'compliance' in groups
-    kept['payload_mass'] = kept['centre_of_mass'] = kept['leg_mass'] = load
+    kept['payload_mass'] = kept['centre_of_mass'] = load
+    kept['leg_mass'] = load and any(effects.leg_mass)  # the legs' masses only when known
     thermal = kept['reference_time'] = 'thermal' in groups
     values = {
         'payload_mass': float(effects.payload_mass) if load else 0.0,

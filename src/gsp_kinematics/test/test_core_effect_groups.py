@@ -276,7 +276,7 @@ def test_only_the_identified_effects_go_into_the_parameters():
         for key in ('payload_mass', 'centre_of_mass', 'compliance', 'backlash')
     )
     every = [key for key in geometry_to_parameters(NOMINAL, all_effects=True) if '.effects.' in key]
-    assert len(every) == 7
+    assert len(every) == 8
 
 
 def test_forward_kinematics_with_the_identified_effects_finds_the_real_pose(sequence):
