@@ -40,8 +40,8 @@ from .groups import (
 FOLD_POSTURES = 400
 FOLD_SEED = 0
 #: Workspace postures a rigid geometry's accuracy is taken over: its error has a tail (a few
-#: postures in a thousand near the workspace's edge, 50x the mean) that 400 sample poorly.
-ACCURACY_POSTURES = 1000
+#: postures in a thousand near the workspace's edge, 50x the mean) that 1000 sample to 20 %.
+ACCURACY_POSTURES = 4000
 #: The fold's 42 parameters: A (18), B (18), L_off (6), in ``Geometry.to_vector`` order.
 RIGID_PARAMETERS = 42
 #: Gauss-Newton stops when the largest step is below this (m): the effects are micrometres.
