@@ -64,7 +64,7 @@ class ResultDelivery:
         if not applied:
             return False, f'NOT applied: {why}'
         note = applied_note(node_name, geometry, compensates, rigid is not None, how)
-        note += f'; the verdict describes the {which} geometry'
+        note += verdict_note(geometry, which, compensates)
         self.node.get_logger().info(note)
         return True, note
 
@@ -108,6 +108,16 @@ def applied_note(node_name, geometry, compensates, folded, decided):
         f'applied the rigid geometry to /{node_name} ({why}): the effects folded in '
         f'(result_rigid.yaml); not compensated: {", ".join(geometry.effects.groups())}'
     )
+
+
+def verdict_note(geometry, which, compensates):
+    """Which geometry the verdict that let ``geometry`` be applied describes ('' when it has no
+    effects: there is one geometry); ``which``: ``run.rigid.Verdicts.of``'s."""
+    if geometry.effects.none:
+        return ''
+    if which == 'compensating' and not compensates:  # no fold: no rigid figure either
+        return '; the verdict describes the geometry with its effects (no rigid geometry)'
+    return f'; the verdict describes the {which} geometry'
 
 
 def not_accepted_note(node_name, which, verdict, decided):

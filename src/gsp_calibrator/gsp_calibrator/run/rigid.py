@@ -13,8 +13,8 @@ from gsp_calibrator.run.directory import RIGID_RESULT_FILE
 from gsp_kinematics.effects.rigid_fold import (
     fold_effects,
     held_out_postures,
+    linearised_model_errors,
     rigid_accuracy,
-    rigid_model_errors,
 )
 from gsp_kinematics.verdict import acceptance
 from gsp_kinematics.verdict.rigid_held_out import rigid_held_out
@@ -62,7 +62,7 @@ def rigid_result(outcome):
         # No workspace posture of this geometry (its limits), or a singular fit: the rigid
         # controller then gets the geometry without its effects (result_delivery).
         return None, {'file': None, 'failure': f'no rigid geometry: {error}'}
-    systematic = rigid_model_errors(geometry, rigid, poses, phi=True)
+    systematic = linearised_model_errors(geometry, rigid, poses)
     random = ((outcome.prediction or {}).get('random') or {}).get('position_mm') or {}
     compensated = float(random.get('mean', 0.0))
     record = {

@@ -5,7 +5,7 @@ or a fold (docs/verdict.md).
 A rigid controller's error at a posture has two parts: the error of the fit's parameters, which
 the fold inherits (what the compensating geometry's held-out figure measures, noise removed and
 carried to the workspace), and the fold's deterministic difference from the identified model
-there (:func:`~gsp_kinematics.effects.rigid_fold.rigid_model_errors`: the effects' variation
+there (:func:`~gsp_kinematics.effects.rigid_fold.linearised_model_errors`: the effects' variation
 with the posture and the backlash's direction, which no rigid geometry follows). The second is
 known at any posture once the model is: it is taken over random workspace postures, where the
 truth averages, not at the run's postures (the selection's extremes, where it is several times

@@ -24,8 +24,8 @@ from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.rigid_fold import (
     fold_effects,
     held_out_postures,
+    linearised_model_errors,
     rigid_accuracy,
-    rigid_model_errors,
 )
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.verdict.cross_validation import cross_validate
@@ -96,7 +96,7 @@ def _held_out(design, choice, fold, run_rows):
     )
     accuracy = validation.summary(workspace_rows(poses, workspace_poses(design.settings)))
     geometry = result.geometry
-    systematic = rigid_model_errors(geometry, fold, held_out_postures(geometry), phi=True)
+    systematic = linearised_model_errors(geometry, fold, held_out_postures(geometry))
     return rigid_held_out(accuracy, *systematic)['calibrated']['position_mm']
 
 
