@@ -97,13 +97,8 @@ class SensorErrors:
 
     def to_vector(self):
         """``[kq1..kq6, alpha0, beta0, phi0, kDm]``."""
-        return np.concatenate(
-            [
-                self.leg_gain_errors,
-                self.inclinometer_offsets,
-                [self.encoder_offset, self.lvdt_gain_error],
-            ]
-        )
+        scalars = [self.encoder_offset, self.lvdt_gain_error]
+        return np.concatenate([self.leg_gain_errors, self.inclinometer_offsets, scalars])
 
     @classmethod
     def from_vector(cls, values):
@@ -270,8 +265,7 @@ def _effect_parameters(effects, every=False):
     of the identified groups, their load and reference instant; ``every``: all, 0 if not."""
     groups = effects.groups()
     kept = {stem: g in groups for g, stem in zip(EFFECT_GROUPS, _EFFECT_STEMS, strict=True)}
-    load = 'compliance' in groups
-    kept['payload_mass'] = kept['centre_of_mass'] = load
+    load = kept['payload_mass'] = kept['centre_of_mass'] = 'compliance' in groups
     kept['leg_mass'] = load and any(effects.leg_mass)  # the legs' masses only when known
     thermal = kept['reference_time'] = 'thermal' in groups
     values = {
@@ -487,8 +481,7 @@ def geometry_to_yaml(geometry, node_name='/**', comment=None, extra_parameters=N
 
 
 def save_geometry(geometry, path, **kwargs):
-    """Write the params file atomically (:func:`gsp_kinematics.fileio.atomic_write_text`);
-    ``kwargs`` go to :func:`geometry_to_yaml`."""
+    """Write the params file atomically; ``kwargs`` go to :func:`geometry_to_yaml`."""
     atomic_write_text(path, geometry_to_yaml(geometry, **kwargs))
 
 
