@@ -8,7 +8,8 @@ recording's log time) and acts on the events it returns.
 
 Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first status must come
 within ``topic_timeout`` (else :class:`.events.TopicSilent`); ``rejected`` skips it; ``settled`` must
-come within ``settle_timeout`` of that first status (else skipped) and starts the collection
+come within the planned move time (``planned_move``: from the latest leg lengths at the leg
+limits) plus ``settle_timeout`` of that first status (else skipped) and starts the collection
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
 the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
@@ -75,7 +76,7 @@ from gsp_calibrator.collection.synchroniser import (
     SampleCollector,
     segment_pairs,
 )
-from gsp_calibrator.collection.timeouts import CollectionTimeouts
+from gsp_calibrator.collection.timeouts import CollectionTimeouts, planned_move
 from gsp_calibrator.collection.topics import (
     SENSOR_TOPICS,
     TOPIC_STREAMS,
@@ -165,7 +166,9 @@ class CollectionProtocol:
     """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
     ``settle_lookback`` (s), ``settle_sigmas``: the collector; ``topic_timeout``,
-    ``settle_timeout`` (s, default: none): the timeouts. Times: integer ns of one clock."""
+    ``settle_timeout`` (s, default: none): the timeouts; ``planned_move``: ``move_s(start_legs,
+    pose)`` (:func:`.timeouts.planned_move`), the move the settle waits for besides
+    ``settle_timeout``. Times: integer ns of one clock."""
 
     @classmethod
     def for_settings(cls, settings):
@@ -178,6 +181,7 @@ class CollectionProtocol:
             settle_timeout=settings.settle_timeout,
             settle_lookback=settings.settle_lookback,
             settle_sigmas=settings.settle_sigmas,
+            planned_move=planned_move(settings.nominal, settings.motion_limits),
         )
 
     def __init__(
@@ -192,8 +196,10 @@ class CollectionProtocol:
         keep_pairs=False,
         settle_lookback=0.0,
         settle_sigmas=DEFAULT_SETTLE_SIGMAS,
+        planned_move=None,
     ):
         self.samples_per_posture = int(samples_per_posture)
+        self._planned_move = planned_move  # move_s(start_legs, pose), or None: no move time
         self.timeouts = CollectionTimeouts(
             topic_timeout, settle_timeout, sync_tolerance, samples_per_posture
         )
@@ -257,9 +263,11 @@ class CollectionProtocol:
         self.collector.stop()
         self._recent.clear()
         self._checked_pairs = None
-        self._posture = Posture(
-            int(posture), np.asarray(pose, dtype=float).reshape(6), str(command_id), int(now_ns)
-        )
+        pose = np.asarray(pose, dtype=float).reshape(6)
+        self._posture = Posture(int(posture), pose, str(command_id), int(now_ns))
+        legs = self.latest_leg_lengths()
+        if self._planned_move is not None and legs is not None:
+            self._posture.move_s = self._planned_move(legs, pose)
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):

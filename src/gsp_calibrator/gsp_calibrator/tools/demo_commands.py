@@ -68,7 +68,7 @@ def backend_parameters(args):
     return ['--params-file', physics_preset_path()], ['-p', 'backend:=physics']
 
 
-#: The calibrator's settle_timeout when the legs move at their limits: longer than any move.
+#: The demo's wait for a validation posture when the legs move at their limits (s).
 MOVING_SETTLE_TIMEOUT_S = 60.0
 
 
@@ -143,8 +143,8 @@ def calibrator_payload_parameters(args):
 
 
 def calibrator_motion_parameters(args):
-    """With leg limits, the calibrator plans its route with them and waits long enough for a
-    move (``settle_timeout``); without, its defaults."""
+    """With leg limits, the calibrator plans its route with them (and waits for each move as
+    planned with them); without, its defaults."""
     speed = float(getattr(args, 'max_leg_speed', 0.0))
     acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
     if not speed > 0:
@@ -152,8 +152,6 @@ def calibrator_motion_parameters(args):
     extra = [
         '-p',
         f'max_leg_speed:={speed!r}',
-        '-p',
-        f'settle_timeout:={MOVING_SETTLE_TIMEOUT_S!r}',
     ]
     if acceleration > 0:
         extra += ['-p', f'max_leg_acceleration:={acceleration!r}']
