@@ -165,10 +165,7 @@ def collection_summary(skipped, collector):
 class CollectionProtocol:
     """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
-    ``settle_lookback`` (s), ``settle_sigmas``: the collector; ``topic_timeout``,
-    ``settle_timeout`` (s, default: none): the timeouts; ``planned_move``: ``move_s(start_legs,
-    pose)`` (:func:`.timeouts.planned_move`), the move the settle waits for besides
-    ``settle_timeout``. Times: integer ns of one clock."""
+    ``settle_lookback`` (s), ``settle_sigmas``: the collector; the rest: the timeouts (s)."""
 
     @classmethod
     def for_settings(cls, settings):
@@ -199,9 +196,8 @@ class CollectionProtocol:
         planned_move=None,
     ):
         self.samples_per_posture = int(samples_per_posture)
-        self._planned_move = planned_move  # move_s(start_legs, pose), or None: no move time
         self.timeouts = CollectionTimeouts(
-            topic_timeout, settle_timeout, sync_tolerance, samples_per_posture
+            topic_timeout, settle_timeout, sync_tolerance, samples_per_posture, planned_move
         )
         self.topic_timeout = self.timeouts.topic_timeout  # s
         self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
@@ -216,8 +212,7 @@ class CollectionProtocol:
         self.latest = LatestReadings()  # the latest readings, the rate heard
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None  # the collector's pair revision last checked
-        #: Posture skips of the run: ``[PostureSkipped, ...]``.
-        self.skipped = []
+        self.skipped = []  #: posture skips of the run: ``[PostureSkipped, ...]``
         self._idle = None  # keep_pairs: the samples before the first command
         if self.keep_pairs:
             self._idle = SampleCollector(sync_tolerance, 1, max_buffer=2 * MAX_STREAM_SAMPLES)
@@ -265,9 +260,7 @@ class CollectionProtocol:
         self._checked_pairs = None
         pose = np.asarray(pose, dtype=float).reshape(6)
         self._posture = Posture(int(posture), pose, str(command_id), int(now_ns))
-        legs = self.latest_leg_lengths()
-        if self._planned_move is not None and legs is not None:
-            self._posture.move_s = self._planned_move(legs, pose)
+        self.timeouts.plan_move(self._posture, self.latest_leg_lengths())
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):

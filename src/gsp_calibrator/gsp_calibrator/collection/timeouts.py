@@ -25,8 +25,11 @@ class CollectionTimeouts:
     posture's planned move, ``Posture.move_s``); the collector's
     ``sync_tolerance`` (s) and ``samples_per_posture`` only appear in the messages."""
 
-    def __init__(self, topic_timeout, settle_timeout, sync_tolerance, samples_per_posture):
+    def __init__(
+        self, topic_timeout, settle_timeout, sync_tolerance, samples_per_posture, planned_move=None
+    ):
         self.topic_timeout = float(topic_timeout)
+        self.planned_move = planned_move  # move_s(start_legs, pose) (s), or None: no move time
         self.settle_timeout = float(settle_timeout)
         self.sync_tolerance = float(sync_tolerance)
         self.samples_per_posture = int(samples_per_posture)
@@ -78,6 +81,11 @@ class CollectionTimeouts:
             f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no status for posture '
             f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
         )
+
+    def plan_move(self, posture, start_legs):
+        """Note ``posture``'s planned move time from ``start_legs`` (6,) m (None: unknown)."""
+        if self.planned_move is not None and start_legs is not None:
+            posture.move_s = self.planned_move(start_legs, posture.pose)
 
     def settle_overdue(self, posture, now_ns):
         """The skip reason if the settle is overdue, else ''."""

@@ -62,10 +62,24 @@ def physics_preset_path():
 
 
 def backend_parameters(args):
-    """platform_sim's and device_driver's arguments of ``--backend`` (kinematic: none)."""
+    """platform_sim's and device_driver's arguments of ``--backend`` (kinematic: none) and
+    ``--real-time-factor``."""
     if getattr(args, 'backend', 'kinematic') != 'physics':
         return [], []
-    return ['--params-file', physics_preset_path()], ['-p', 'backend:=physics']
+    factor = float(getattr(args, 'real_time_factor', 1.0))
+    return (
+        ['--params-file', physics_preset_path(), '-p', f'real_time_factor:={factor!r}'],
+        ['-p', 'backend:=physics', *sim_time_parameters(args)],
+    )
+
+
+def sim_time_parameters(args):
+    """``use_sim_time`` for the nodes other than platform_sim when its physics is the clock
+    (``--real-time-factor`` other than 1, docs/physics.md); else none."""
+    physics = getattr(args, 'backend', 'kinematic') == 'physics'
+    if physics and float(getattr(args, 'real_time_factor', 1.0)) != 1.0:
+        return ['-p', 'use_sim_time:=true']
+    return []
 
 
 #: The demo's wait for a validation posture when the legs move at their limits (s).
@@ -239,6 +253,7 @@ def _calibrator_parameters(args, output_root, rate):
         'write_report_plots:=false',
         *calibrator_motion_parameters(args),
         *calibrator_payload_parameters(args),
+        *sim_time_parameters(args),
     ]
 
 
