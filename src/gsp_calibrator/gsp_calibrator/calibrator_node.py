@@ -110,7 +110,9 @@ class CalibratorNode(Node):
         self._selections = ThreadResults(MAX_CACHED_SELECTIONS)  # posture selections
 
         self._intake = SensorIntake(
-            self._now_ns, lambda topic: self._recorder_listener.node.count_publishers(topic)
+            self._now_ns,
+            lambda topic: self._recorder_listener.node.count_publishers(topic),
+            self._wire_times_on_clock,
         )
         self._last_progress = None
 
@@ -176,6 +178,11 @@ class CalibratorNode(Node):
     def _now_ns(self):
         return self.get_clock().now().nanoseconds
 
+    def _wire_times_on_clock(self):
+        """Whether the middleware's timestamps (system time) are on the node's clock: not under
+        use_sim_time (e.g. platform_sim's physics faster than real time, docs/physics.md)."""
+        return not self.get_clock().ros_time_is_active
+
     def _setup_recorder(self, node):
         """The recorder on the listener ``node`` (its thread), forwarding the sensor batches to
         the collection, and the listener's tick (silence on the wire)."""
@@ -194,9 +201,8 @@ class CalibratorNode(Node):
 
         def step(collection):
             now_ns = self._now_ns()
-            start_ns = protocol.settle_start_ns(
-                info.get('source_timestamp'), now_ns, collection.topic_timeout
-            )
+            published_ns = info.get('source_timestamp') if self._wire_times_on_clock() else None
+            start_ns = protocol.settle_start_ns(published_ns, now_ns, collection.topic_timeout)
             return collection.status(status, now_ns, start_ns)
 
         self.postures.feed(step)

@@ -27,11 +27,13 @@ def checked_until(collection, checked_ns, now_ns):
 
 class SensorIntake:
     """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns), ``count_publishers
-    (topic)`` the publishers of a topic. Set :attr:`postures` (the node's ``PostureLink``) before
+    (topic)`` the publishers of a topic, ``wire_times_on_clock()`` whether the middleware's
+    receive times are on that clock (not under use_sim_time). Set :attr:`postures` (the node's ``PostureLink``) before
     a run starts."""
 
-    def __init__(self, now_ns, count_publishers):
+    def __init__(self, now_ns, count_publishers, wire_times_on_clock=lambda: True):
         self.now_ns = now_ns
+        self.wire_times_on_clock = wire_times_on_clock
         self.count_publishers = count_publishers
         self.postures = None
         self.sources = SingleSourceGuard()  # reset at each run's first reading
@@ -78,6 +80,8 @@ class SensorIntake:
                 return []
             taken.append((topic, msg, info.get('received_timestamp')))
         now_ns = self.now_ns()
+        if not self.wire_times_on_clock():  # system time against a simulated clock
+            taken = [(t, m, None) for t, m, _ in taken]
         taken = [(t, m, protocol.wire_receipt_ns(r, now_ns)) for t, m, r in taken]
         return collection.sensors(taken, now_ns)
 

@@ -193,7 +193,8 @@ PARAMETERS = (
         'settle_timeout',
         5.0,
         "Longest wait for a commanded posture's 'settled' status after its first "
-        'status; a posture that does not settle is skipped',
+        'status, besides its planned move (the travel time at max_leg_speed and '
+        'max_leg_acceleration); a posture that does not settle is skipped',
         unit='s',
     ),
     _seconds(

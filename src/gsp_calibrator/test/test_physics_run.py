@@ -1,12 +1,15 @@
 """A calibration of the physics backend (docs/physics.md) through the three nodes, in one
-process: platform_sim on MuJoCo with the realistic preset's leg limits, device_driver's physics
-backend, the calibrator at its defaults but for the number of postures (the fewest its model
-needs, to keep the test short) and the settle timeout (its default, 5 s, is shorter than a move
-at its own default leg limits). The result, applied as the controller of the physics platform,
-lands it much closer to commanded workspace postures than the nominal geometry did. The legs
-move five times faster than the realistic preset's (the physics is the same; the test is
-shorter). Whether the result meets the requirement is the ``physics`` bench's figure
-(docs/physics.md): the calibrator's defaults do not model the sag of legs that have a mass."""
+process, at the calibrator's DEFAULTS (issue 34): platform_sim on MuJoCo with the realistic
+preset's leg limits (the calibrator's own defaults), faster than real time (``real_time_factor``,
+the nodes on its /clock), device_driver's physics backend. Only the number of postures is the
+test's (few, to keep it short). Checked in one seed: the run succeeds through the physics, the
+verdict does not accept a result whose truth (the result as the controller of the physics
+platform, commanded against reached) misses the requirement, and the inclinometer's estimated
+noise is within 1.5x its configured value (the settle rule waits out the ringing). Not checked,
+as the defaults do not reach them at 16 postures (issue 34 stays open, docs/physics.md): the
+truth within 1.3x the physics floor and the held-out accuracy within 25 % of the truth."""
+
+import math
 
 import numpy as np
 from calibrator_suite import make_suite
@@ -15,62 +18,76 @@ from rclpy.parameter import Parameter
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import DEFAULTS
-from gsp_calibrator.tools.demo_commands import MOVING_SETTLE_TIMEOUT_S
+from gsp_calibrator.tools.bench.end_to_end import read_run_directory
+from gsp_calibrator.tools.bench.physics import true_position_mm
 from gsp_kinematics.geometry import default_geometry, default_geometry_path
 from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.travel.motion import (
-    REALISTIC_MAX_ACCELERATION,
-    REALISTIC_MAX_SPEED,
-    MotionLimits,
-)
-from gsp_platform_sim.physics import PhysicsSimulator, poses_at_rest
 
 POSTURES = 16
 CHECK_POSTURES = 8
+#: The physics this many times faster than wall time (2 cores, shared).
+REAL_TIME_FACTOR = 4.0
+#: The calibrator's defaults the test suite's helpers change, back to the product's.
+DEFAULT_NAMES = (
+    'pool_size',
+    'samples_per_posture',
+    'sync_tolerance',
+    'topic_timeout',
+    'settle_timeout',
+    'free_parameters',
+)
 
 
-def position_errors_mm(true, controller, poses):
-    reached = poses_at_rest(PhysicsSimulator(true, controller), poses)
-    return 1e3 * np.linalg.norm(reached[:, :3] - poses[:, :3], axis=1)
-
-
-def test_the_calibrator_at_its_defaults_calibrates_the_physics_platform(ros_context, tmp_path):
-    limits = MotionLimits(5 * REALISTIC_MAX_SPEED, 5 * REALISTIC_MAX_ACCELERATION)
-    physics = [
-        Parameter('backend', value='physics'),
-    ]
+def run_figures(ros_context, tmp_path, settle_lookback):
+    """The issue's figures of one calibration of the physics platform."""
+    sim_time = [Parameter('use_sim_time', value=True)]
+    physics = [Parameter('backend', value='physics')]
     suite, *_ = make_suite(
         ros_context,
         tmp_path,
         default_geometry_path('true'),
         calibrator_overrides={
+            **{name: DEFAULTS[name] for name in DEFAULT_NAMES},
             'posture_count': POSTURES,
-            'pool_size': 10 * POSTURES,
-            'free_parameters': DEFAULTS['free_parameters'],
-            'samples_per_posture': DEFAULTS['samples_per_posture'],
-            # A move at the legs' limits takes seconds: the wait the demo gives moving legs.
-            'settle_timeout': MOVING_SETTLE_TIMEOUT_S,
-            'apply_result': True,
+            'settle_lookback': settle_lookback,
+            'use_sim_time': True,
         },
         platform_overrides=physics
         + [
-            Parameter('max_leg_speed', value=limits.max_speed),
-            Parameter('max_leg_acceleration', value=limits.max_acceleration),
+            Parameter('real_time_factor', value=REAL_TIME_FACTOR),
+            Parameter('max_leg_speed', value=DEFAULTS['max_leg_speed']),
+            Parameter('max_leg_acceleration', value=DEFAULTS['max_leg_acceleration']),
         ],
-        device_overrides=physics,
+        device_overrides=physics + sim_time,
     )
     try:
         response = suite.wait(suite.call())
     finally:
         suite.close()
     assert response.success, response.message
-    run = RunDirectory(parse_response(response.message).run_directory)
-    assert len(run.read_samples()) >= POSTURES - 1
-    true, nominal = default_geometry('true'), default_geometry('nominal')
-    check = sample_valid_postures(nominal, CHECK_POSTURES, np.random.default_rng(5))
-    before = position_errors_mm(true, nominal, check)
-    after = position_errors_mm(true, run.read_geometry(), check)
-    assert np.all(np.isfinite(after))
-    # mm: the nominal is millimetres off; the calibrated geometry 0.1 mm (seed 0: 0.103 mm,
-    # the held-out accuracy said 0.016 mm: the unmodelled sag)
-    assert np.mean(after) < 0.2 and np.mean(after) < np.mean(before) / 20.0
+    directory = parse_response(response.message).run_directory
+    result = read_run_directory(directory)['result']
+    check = sample_valid_postures(
+        default_geometry('nominal'), CHECK_POSTURES, np.random.default_rng(5)
+    )
+    true_mm = true_position_mm(RunDirectory(directory).read_geometry(), check)
+    held_out = result['accuracy']['calibrated']['position_mm']
+    low, high = held_out.get('mean_interval_95') or (math.nan, math.nan)
+    acceptance = result.get('acceptance') or {}
+    requirement = (acceptance.get('requirement') or {}).get('position_mm', math.nan)
+    return {
+        'true_mm': true_mm,
+        'floor_mm': true_position_mm(default_geometry('true'), check),
+        'cv_mm': held_out['mean'],
+        'interval_mm': (low, high),
+        'accepted_while_truth_misses': bool(acceptance.get('accepted')) and true_mm > requirement,
+        'inclinometer_noise_ratio': result['noise_estimates']['inclinometer']['ratio'],
+    }
+
+
+def test_the_calibrator_at_its_defaults_on_the_physics_platform(ros_context, tmp_path):
+    figures = run_figures(ros_context, tmp_path, DEFAULTS['settle_lookback'])
+    assert not figures['accepted_while_truth_misses'], figures
+    assert figures['inclinometer_noise_ratio'] <= 1.5, figures
+    # Far better than the nominal geometry through the physics (tens of um against mm).
+    assert figures['true_mm'] < 0.2, figures

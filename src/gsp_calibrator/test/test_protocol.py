@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from collection_streams import MS, NOISE, POSE, T0, Q, R, S
 
-from gsp_calibrator.collection import protocol, topics
+from gsp_calibrator.collection import protocol, timeouts, topics
 from gsp_calibrator.collection.events import (
     FINAL_EVENTS,
     CollectionStarted,
@@ -19,6 +19,9 @@ from gsp_calibrator.collection.events import (
 )
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
+from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.kinematics import home_pose
+from gsp_kinematics.travel.motion import MotionLimits, move_time, posture_leg_lengths
 from gsp_msgs_py import conversions, names
 
 
@@ -149,8 +152,30 @@ def test_timeouts_of_the_status_and_the_settle():
     # settle_timeout 2 s from the first status
     assert poll_until(collection, T0 + 4 * S, T0 + 2 * S + 10 * MS) == []
     assert poll_until(collection, T0 + 4 * S + 100 * MS, T0 + 4 * S) == [
-        PostureSkipped(2, 'not settled within 2 s')
+        PostureSkipped(2, 'not settled within 2 s (the planned move 0 s + settle_timeout 2 s)')
     ]
+
+
+def test_the_settle_waits_for_the_planned_move_besides_settle_timeout():
+    """A move at the legs' limits takes longer than settle_timeout: the posture is skipped
+    only once the planned move (from the latest leg lengths, at the limits) and settle_timeout
+    are over."""
+    nominal, limits = default_geometry('nominal'), MotionLimits()
+    pose = home_pose() + [0.05, 0.0, 0.05, 0.0, 0.0, 0.0]
+    start = posture_leg_lengths(nominal, home_pose())[0]
+    move_s = float(move_time(start, posture_leg_lengths(nominal, pose)[0], limits))
+    assert move_s > 1.0  # s: the case the rule is for
+    collection = make(planned_move=timeouts.planned_move(nominal, limits))
+    collection.sample(LEG_LENGTHS, T0 - 100 * MS, (start,), T0 - 99 * MS)
+    collection.command(1, pose, 'c1', T0)
+    collection.status(status('c1', names.STATE_MOVING, ''), T0 + 10 * MS)
+    last_quiet = T0 + 10 * MS + int((2.0 + move_s - 0.1) * S)
+    assert poll_until(collection, last_quiet, T0 + 10 * MS, step=10 * MS) == []
+    (skip,) = poll_until(collection, last_quiet + 200 * MS, last_quiet, step=10 * MS)
+    assert skip.reason == (
+        f'not settled within {2.0 + move_s:g} s (the planned move {move_s:g} s '
+        '+ settle_timeout 2 s)'
+    )
 
 
 def test_a_stall_of_the_caller_is_not_a_silence():

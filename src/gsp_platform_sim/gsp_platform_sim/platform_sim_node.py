@@ -11,7 +11,10 @@ command settles when the servo encoders are in position).
 """
 
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock as ClockMessage
 
 from gsp_kinematics.channels import LEG_LENGTHS
 from gsp_kinematics.geometry import (
@@ -29,7 +32,7 @@ from gsp_msgs_py.geometry_parameters import (
     check_geometry_change,
     controller_geometry_error,
 )
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, one_of
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, one_of
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .effect_specs import EFFECT_SPECS, effects_from_values, effects_summary
@@ -87,6 +90,15 @@ PARAMETERS = (
         'Base frame: of the published messages, and required of pose commands'
     ),
     parameter_specs.diagnostics_period_spec(),
+    ParameterSpec(
+        'real_time_factor',
+        1.0,
+        'physics backend: 1 runs the simulation in real time on the node clock; any other value '
+        'makes the simulation the clock: it runs this many times faster than wall time and '
+        'publishes /clock (the other nodes need use_sim_time true; docs/physics.md)',
+        read_only=True,
+        check=greater_than(0.0),
+    ),
     *EFFECT_SPECS,
     *PHYSICS_SPECS,
 )
@@ -94,7 +106,11 @@ PARAMETERS = (
 
 def _check_start_up(values):
     reason = controller_geometry_error(values)
-    return f'controller geometry: {reason}' if reason else ''
+    if reason:
+        return f'controller geometry: {reason}'
+    if values['real_time_factor'] != 1.0 and values['backend'] != 'physics':
+        return 'real_time_factor is for the physics backend (the kinematic one is not timed)'
+    return ''
 
 
 class PlatformSimNode(Node):
@@ -144,7 +160,18 @@ class PlatformSimNode(Node):
             values['diagnostics_period'],
             [Component('commands', names.STATUS_HARDWARE_ID, self._commands.health)],
         )
-        self._state_timer = self.create_timer(1.0 / values['publish_rate'], self._publish_state)
+        self._tick_s = 1.0 / values['publish_rate']
+        self._clock_pub = None  # the simulation as the clock (real_time_factor != 1)
+        if self._physics and values['real_time_factor'] != 1.0:
+            self._clock_pub = self.create_publisher(ClockMessage, '/clock', 10)
+            self.set_parameters([Parameter('use_sim_time', value=True)])
+            self._state_timer = self.create_timer(
+                self._tick_s / values['real_time_factor'],
+                self._publish_simulated,
+                clock=Clock(clock_type=ClockType.STEADY_TIME),
+            )
+        else:
+            self._state_timer = self.create_timer(self._tick_s, self._publish_state)
         if values['publish_markers']:
             self._markers_pub = node_tools.create_publishers(self, (names.TOPIC_MARKERS,))[
                 names.TOPIC_MARKERS
@@ -213,7 +240,8 @@ class PlatformSimNode(Node):
 
     def _move(self, command_id, pose):
         """PoseCommandServer callback: move to ``pose`` (m, rad); '' or the rejection reason."""
-        outcome = self._simulator.command(pose, self._now_s())
+        now_s = self._simulator.time_s if self._clock_pub else self._now_s()
+        outcome = self._simulator.command(pose, now_s)
         self._travel_s = outcome.travel_s
         if outcome.accepted:
             self.get_logger().debug(f'pose command {command_id} accepted: {pose.tolist()}')
@@ -233,6 +261,14 @@ class PlatformSimNode(Node):
             return
         self._simulator.update(tick.nanoseconds * 1e-9)
         self._publish_samples(tick.to_msg())
+
+    def _publish_simulated(self):
+        """The simulation as the clock: one publish period simulated per (scaled) wall tick,
+        whatever it takes; /clock says the simulated instant."""
+        tick_s = self._simulator.time_s + self._tick_s
+        self._simulator.advance(tick_s)
+        self._clock_pub.publish(ClockMessage(clock=conversions.seconds_to_stamp(tick_s)))
+        self._publish_physics(tick_s)
 
     def _publish_physics(self, tick_s):
         """Simulate up to the tick (at most ``MAX_CATCH_UP_S``, then the simulation's clock

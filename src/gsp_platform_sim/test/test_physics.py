@@ -142,3 +142,17 @@ def test_a_command_the_real_platform_cannot_hold_is_refused_though_the_controlle
     # The refused command left the controller where it was: the next one moves as usual.
     rest_at(sim, POSE, extra_s=0.5)
     assert np.linalg.norm(sim.true_pose[:3] - POSE[:3]) < 0.01  # m (nominal controller)
+
+
+def test_a_simulation_behind_the_clock_slips_without_simulating_the_gap():
+    sim = PhysicsSimulator(TRUE, NOMINAL, start_s=100.0)
+    assert sim.time_s == pytest.approx(100.0, abs=1e-9)
+    outcome = sim.command(POSE + [0.03, -0.02, 0.03, 0.0, 0.0, 0.02])
+    sim.advance(100.3)
+    moved = sim.true_pose
+    sim.slip_to(110.0)  # 9.7 s the machine could not simulate: the clock jumps, the legs do not
+    assert sim.time_s == pytest.approx(110.0, abs=1e-9)
+    np.testing.assert_array_equal(sim.true_pose, moved)
+    sim.slip_to(105.0)  # never back
+    assert sim.time_s == pytest.approx(110.0, abs=1e-9)
+    assert outcome.travel_s > 0.3 and not sim.in_position  # the move goes on from where it was

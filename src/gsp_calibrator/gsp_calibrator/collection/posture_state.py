@@ -32,6 +32,7 @@ class Posture:
     commanded_ns: int
     state: str = AWAIT_STATUS
     first_status_ns: int = None
+    move_s: float = 0.0  # the planned move time: the settle may take that much longer
     start_ns: int = None  # collection start (stamps), set when settled
     started_ns: int = None  # receive time of the settle (time base of the timeouts)
     progress: int = 0  # pairs at the last change

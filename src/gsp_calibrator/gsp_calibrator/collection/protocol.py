@@ -8,7 +8,8 @@ recording's log time) and acts on the events it returns.
 
 Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first status must come
 within ``topic_timeout`` (else :class:`.events.TopicSilent`); ``rejected`` skips it; ``settled`` must
-come within ``settle_timeout`` of that first status (else skipped) and starts the collection
+come within the planned move time (``planned_move``: from the latest leg lengths at the leg
+limits) plus ``settle_timeout`` of that first status (else skipped) and starts the collection
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
 the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
@@ -75,7 +76,7 @@ from gsp_calibrator.collection.synchroniser import (
     SampleCollector,
     segment_pairs,
 )
-from gsp_calibrator.collection.timeouts import CollectionTimeouts
+from gsp_calibrator.collection.timeouts import CollectionTimeouts, planned_move
 from gsp_calibrator.collection.topics import (
     SENSOR_TOPICS,
     TOPIC_STREAMS,
@@ -164,8 +165,7 @@ def collection_summary(skipped, collector):
 class CollectionProtocol:
     """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
-    ``settle_lookback`` (s), ``settle_sigmas``: the collector; ``topic_timeout``,
-    ``settle_timeout`` (s, default: none): the timeouts. Times: integer ns of one clock."""
+    ``settle_lookback`` (s), ``settle_sigmas``: the collector; the rest: the timeouts (s)."""
 
     @classmethod
     def for_settings(cls, settings):
@@ -178,6 +178,7 @@ class CollectionProtocol:
             settle_timeout=settings.settle_timeout,
             settle_lookback=settings.settle_lookback,
             settle_sigmas=settings.settle_sigmas,
+            planned_move=planned_move(settings.nominal, settings.motion_limits),
         )
 
     def __init__(
@@ -192,10 +193,11 @@ class CollectionProtocol:
         keep_pairs=False,
         settle_lookback=0.0,
         settle_sigmas=DEFAULT_SETTLE_SIGMAS,
+        planned_move=None,
     ):
         self.samples_per_posture = int(samples_per_posture)
         self.timeouts = CollectionTimeouts(
-            topic_timeout, settle_timeout, sync_tolerance, samples_per_posture
+            topic_timeout, settle_timeout, sync_tolerance, samples_per_posture, planned_move
         )
         self.topic_timeout = self.timeouts.topic_timeout  # s
         self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
@@ -210,8 +212,7 @@ class CollectionProtocol:
         self.latest = LatestReadings()  # the latest readings, the rate heard
         self._recent = collections.deque(maxlen=4 * MIN_BUFFER)  # samples since the command
         self._checked_pairs = None  # the collector's pair revision last checked
-        #: Posture skips of the run: ``[PostureSkipped, ...]``.
-        self.skipped = []
+        self.skipped = []  #: posture skips of the run: ``[PostureSkipped, ...]``
         self._idle = None  # keep_pairs: the samples before the first command
         if self.keep_pairs:
             self._idle = SampleCollector(sync_tolerance, 1, max_buffer=2 * MAX_STREAM_SAMPLES)
@@ -257,9 +258,9 @@ class CollectionProtocol:
         self.collector.stop()
         self._recent.clear()
         self._checked_pairs = None
-        self._posture = Posture(
-            int(posture), np.asarray(pose, dtype=float).reshape(6), str(command_id), int(now_ns)
-        )
+        pose = np.asarray(pose, dtype=float).reshape(6)
+        self._posture = Posture(int(posture), pose, str(command_id), int(now_ns))
+        self.timeouts.plan_move(self._posture, self.latest_leg_lengths())
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):

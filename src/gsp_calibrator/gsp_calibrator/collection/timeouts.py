@@ -6,9 +6,14 @@ the skip reason that says so. :class:`~gsp_calibrator.collection.protocol.Collec
 keeps the posture's state and acts on the verdict; the stall rule is in its module docstring.
 """
 
+import math
+
+import numpy as np
+
 from gsp_calibrator.collection.events import NoSynchronisedSample, TopicSilent
 from gsp_calibrator.collection.synchroniser import LEG_LENGTHS
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
+from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
 from gsp_msgs_py import names
 
 #: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
@@ -16,11 +21,15 @@ STALL_FRACTION = 0.5
 
 
 class CollectionTimeouts:
-    """The timeouts of one run: ``topic_timeout`` and ``settle_timeout`` (s); the collector's
+    """The timeouts of one run: ``topic_timeout`` and ``settle_timeout`` (s, counted after the
+    posture's planned move, ``Posture.move_s``); the collector's
     ``sync_tolerance`` (s) and ``samples_per_posture`` only appear in the messages."""
 
-    def __init__(self, topic_timeout, settle_timeout, sync_tolerance, samples_per_posture):
+    def __init__(
+        self, topic_timeout, settle_timeout, sync_tolerance, samples_per_posture, planned_move=None
+    ):
         self.topic_timeout = float(topic_timeout)
+        self.planned_move = planned_move  # move_s(start_legs, pose) (s), or None: no move time
         self.settle_timeout = float(settle_timeout)
         self.sync_tolerance = float(sync_tolerance)
         self.samples_per_posture = int(samples_per_posture)
@@ -73,10 +82,19 @@ class CollectionTimeouts:
             f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
         )
 
+    def plan_move(self, posture, start_legs):
+        """Note ``posture``'s planned move time from ``start_legs`` (6,) m (None: unknown)."""
+        if self.planned_move is not None and start_legs is not None:
+            posture.move_s = self.planned_move(start_legs, posture.pose)
+
     def settle_overdue(self, posture, now_ns):
         """The skip reason if the settle is overdue, else ''."""
-        if self.since(posture.first_status_ns, now_ns) >= self.settle_timeout:
-            return f'not settled within {self.settle_timeout:g} s'
+        limit = self.settle_timeout + posture.move_s
+        if self.since(posture.first_status_ns, now_ns) >= limit:
+            return (
+                f'not settled within {limit:g} s (the planned move {posture.move_s:g} s '
+                f'+ settle_timeout {self.settle_timeout:g} s)'
+            )
         return ''
 
     def collection_overdue(self, posture, collector, now_ns):
@@ -151,6 +169,18 @@ class CollectionTimeouts:
                 f'samples, {counts["pairs"]} within sync_tolerance {self.sync_tolerance:g} s'
             )
         return None, ''
+
+
+def planned_move(nominal, limits):
+    """``move_s(start_legs, pose)``: the time (s) a controller with geometry ``nominal`` takes
+    to move its legs from ``start_legs`` (6,) m to ``pose`` at the leg ``limits``."""
+
+    def move_s(start_legs, pose):
+        end_legs = posture_leg_lengths(nominal, pose)[0]
+        seconds = float(move_time(np.asarray(start_legs, dtype=float), end_legs, limits))
+        return seconds if math.isfinite(seconds) else 0.0  # an unreachable pose: refused
+
+    return move_s
 
 
 def elapsed(since_ns, now_ns):

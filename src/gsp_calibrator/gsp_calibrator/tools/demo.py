@@ -156,6 +156,13 @@ def _add_backend_option(add):
         f"{PHYSICS_PRESET}, with device_driver's physics backend; the legs' realistic limits "
         'unless given) (docs/physics.md) (kinematic)',
     )
+    add(
+        '--real-time-factor',
+        type=float,
+        default=1.0,
+        help="--backend physics: platform_sim's real_time_factor (the simulation as the clock, "
+        'this many times faster than wall time; the other nodes on its /clock) (1)',
+    )
 
 
 def _check_arguments(parser, args):
@@ -176,6 +183,8 @@ def _check_arguments(parser, args):
             parser.error(
                 '--backend physics needs --platform sim, --device sim and no --platform-effects'
             )
+        if not args.real_time_factor > 0:
+            parser.error('--real-time-factor must be > 0')
         # A servo does not jump: the realistic leg limits, known to the calibrator's plan.
         args.max_leg_speed = args.max_leg_speed or REALISTIC_MAX_SPEED
         args.max_leg_acceleration = args.max_leg_acceleration or REALISTIC_MAX_ACCELERATION

@@ -62,13 +62,27 @@ def physics_preset_path():
 
 
 def backend_parameters(args):
-    """platform_sim's and device_driver's arguments of ``--backend`` (kinematic: none)."""
+    """platform_sim's and device_driver's arguments of ``--backend`` (kinematic: none) and
+    ``--real-time-factor``."""
     if getattr(args, 'backend', 'kinematic') != 'physics':
         return [], []
-    return ['--params-file', physics_preset_path()], ['-p', 'backend:=physics']
+    factor = float(getattr(args, 'real_time_factor', 1.0))
+    return (
+        ['--params-file', physics_preset_path(), '-p', f'real_time_factor:={factor!r}'],
+        ['-p', 'backend:=physics', *sim_time_parameters(args)],
+    )
 
 
-#: The calibrator's settle_timeout when the legs move at their limits: longer than any move.
+def sim_time_parameters(args):
+    """``use_sim_time`` for the nodes other than platform_sim when its physics is the clock
+    (``--real-time-factor`` other than 1, docs/physics.md); else none."""
+    physics = getattr(args, 'backend', 'kinematic') == 'physics'
+    if physics and float(getattr(args, 'real_time_factor', 1.0)) != 1.0:
+        return ['-p', 'use_sim_time:=true']
+    return []
+
+
+#: The demo's wait for a validation posture when the legs move at their limits (s).
 MOVING_SETTLE_TIMEOUT_S = 60.0
 
 
@@ -143,8 +157,8 @@ def calibrator_payload_parameters(args):
 
 
 def calibrator_motion_parameters(args):
-    """With leg limits, the calibrator plans its route with them and waits long enough for a
-    move (``settle_timeout``); without, its defaults."""
+    """With leg limits, the calibrator plans its route with them (and waits for each move as
+    planned with them); without, its defaults."""
     speed = float(getattr(args, 'max_leg_speed', 0.0))
     acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
     if not speed > 0:
@@ -152,8 +166,6 @@ def calibrator_motion_parameters(args):
     extra = [
         '-p',
         f'max_leg_speed:={speed!r}',
-        '-p',
-        f'settle_timeout:={MOVING_SETTLE_TIMEOUT_S!r}',
     ]
     if acceleration > 0:
         extra += ['-p', f'max_leg_acceleration:={acceleration!r}']
@@ -241,6 +253,7 @@ def _calibrator_parameters(args, output_root, rate):
         'write_report_plots:=false',
         *calibrator_motion_parameters(args),
         *calibrator_payload_parameters(args),
+        *sim_time_parameters(args),
     ]
 
 

@@ -59,9 +59,11 @@ DEMO_TIMEOUT_S = 3600.0
 LEG_LIMITS = (REALISTIC_MAX_SPEED, REALISTIC_MAX_ACCELERATION)
 
 
-def run_kept_demo(postures, seed, backend, limits=LEG_LIMITS, timeout=DEMO_TIMEOUT_S):
+def run_kept_demo(
+    postures, seed, backend, limits=LEG_LIMITS, timeout=DEMO_TIMEOUT_S, real_time_factor=1.0
+):
     """One ``gsp_demo --backend backend`` run in a child process at the leg ``limits`` (m/s,
-    m/s^2): ``read_run_directory`` of its run directory plus ``geometry`` (the calibrated
+    m/s^2), the physics at ``real_time_factor``: ``read_run_directory`` of its run directory plus ``geometry`` (the calibrated
     ``Geometry``, None if none), ``exit_code`` and ``output`` (its tail)."""
     env = demo_environment()
     output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_physics_'))
@@ -77,6 +79,11 @@ def run_kept_demo(postures, seed, backend, limits=LEG_LIMITS, timeout=DEMO_TIMEO
             *('--backend', backend, '--noise-source', DEFAULTS['noise_source']),
             *('--max-leg-speed', repr(float(limits[0]))),
             *('--max-leg-acceleration', repr(float(limits[1]))),
+            *(
+                ('--real-time-factor', repr(float(real_time_factor)))
+                if backend == 'physics'
+                else ()
+            ),
         ],
     )
     process = subprocess.Popen(
@@ -115,9 +122,11 @@ def row_span_s(run):
     return max(stamps) - min(stamps) if len(stamps) > 1 else None
 
 
-def seed_figures(seed, postures, poses, floor_mm, kinematic=True, limits=LEG_LIMITS):
+def seed_figures(
+    seed, postures, poses, floor_mm, kinematic=True, limits=LEG_LIMITS, real_time_factor=1.0
+):
     """The figures of one seed (see the module docstring)."""
-    physics = run_kept_demo(postures, seed, 'physics', limits)
+    physics = run_kept_demo(postures, seed, 'physics', limits, real_time_factor=real_time_factor)
     result = physics['result'] or {}
     figures = {'seed': seed, 'exit_code': physics['exit_code']}
     if physics['geometry'] is None or not result.get('success'):
@@ -163,6 +172,7 @@ def run(
     kinematic=True,
     limits=LEG_LIMITS,
     log=None,
+    real_time_factor=1.0,
 ):
     """The section (``quick``: 1 seed, 14 postures, 5 validation postures); ``limits``: the
     legs' (m/s, m/s^2), the realistic ones by default."""
@@ -180,7 +190,9 @@ def run(
     runs = []
     for seed in range(seeds):
         log(f'gsp_bench: physics: seed {seed}, {postures} postures ...')
-        runs.append(seed_figures(seed, postures, poses, floor_mm, kinematic, limits))
+        runs.append(
+            seed_figures(seed, postures, poses, floor_mm, kinematic, limits, real_time_factor)
+        )
     done = [run for run in runs if 'true_mm' in run]
     return {
         'description': (
@@ -198,6 +210,7 @@ def run(
         'seeds': seeds,
         'postures': postures,
         'leg_limits': list(limits),
+        'real_time_factor': real_time_factor,
         'validation_postures': count,
         'floor_mm': floor_mm,
         **{
@@ -229,8 +242,17 @@ def main(argv=None):
     parser.add_argument(
         '--no-kinematic', action='store_true', help='skip the kinematic backend runs'
     )
+    parser.add_argument(
+        '--real-time-factor', type=float, default=1.0, help="platform_sim's real_time_factor (1)"
+    )
     args = parser.parse_args(argv)
-    section = run(args.quick, args.seeds, args.postures, kinematic=not args.no_kinematic)
+    section = run(
+        args.quick,
+        args.seeds,
+        args.postures,
+        kinematic=not args.no_kinematic,
+        real_time_factor=args.real_time_factor,
+    )
     print(json.dumps(section, indent=1))
     return 0
 

@@ -11,7 +11,7 @@ from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_kinematics.device import device_readings
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import home_pose
-from gsp_msgs_py import conversions, names
+from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.parameter_specs import ConfigurationError
 from gsp_platform_sim.platform_sim_node import PlatformSimNode
 
@@ -104,4 +104,53 @@ def test_effects_are_refused_on_the_physics_backend(ros_context):
                 Parameter('backend', value='physics'),
                 Parameter('effects.backlash', value=[4e-6] * 6),
             ],
+        )
+
+
+def test_faster_than_real_time_the_simulation_is_the_clock(ros_context):
+    """real_time_factor 4: platform_sim publishes the simulated instant on /clock, runs on it
+    and stamps its samples with it, one publish period apart: a loaded machine slows the
+    simulation (and every clock on it), it leaves no gap."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+
+    sim = PlatformSimNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter('backend', value='physics'),
+            Parameter('publish_rate', value=100.0),
+            Parameter('publish_markers', value=False),
+            Parameter('real_time_factor', value=4.0),
+        ],
+    )
+    node = rclpy.create_node('real_time_factor_test', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(sim)
+    executor.add_node(node)
+    clocks, stamps = [], []
+    node.create_subscription(
+        Clock, '/clock', lambda m: clocks.append(conversions.stamp_to_nanoseconds(m.clock)), 10
+    )
+    node.create_subscription(
+        names.interface_type(names.TOPIC_TYPES[names.TOPIC_LEG_LENGTHS]),
+        names.TOPIC_LEG_LENGTHS,
+        lambda m: stamps.append(conversions.stamp_to_nanoseconds(m.header.stamp)),
+        qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS],
+    )
+    try:
+        assert gsp_testing.spin_until(executor, lambda: len(stamps) >= 60, TIMEOUT_S)
+        assert sim.get_clock().ros_time_is_active  # platform_sim runs on its own /clock
+        assert len(set(stamps) & set(clocks)) >= 50  # ns: each sample at a /clock instant
+        np.testing.assert_allclose(np.diff(sorted(stamps[5:])), 1e7, rtol=0.0, atol=1e3)  # ns
+    finally:
+        gsp_testing.shutdown_executor(executor)
+        node.destroy_node()
+        sim.destroy_node()
+
+
+def test_real_time_factor_is_refused_on_the_kinematic_backend(ros_context):
+    with pytest.raises(ConfigurationError, match='real_time_factor is for the physics'):
+        PlatformSimNode(
+            context=ros_context, parameter_overrides=[Parameter('real_time_factor', value=2.0)]
         )
