@@ -25,7 +25,7 @@ from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.settings import CalibratorSettings
-from gsp_kinematics.effects.groups import commanded_leg_readings
+from gsp_kinematics.effects.groups import IdentifiedEffects, commanded_leg_readings
 from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
 from gsp_kinematics.effects.plan import augment_route
 from gsp_kinematics.geometry import PARAMETER_INDEX, Geometry, default_geometry
@@ -229,6 +229,7 @@ def one_run(design, effects, seed, plain=None):
         extra['plain_true_mm'] = (
             true_accuracy(design, effects, other.geometry)[0] if other.success else math.nan
         )
+    extra.update(rigid_run(design, effects, outcome))
     accuracy = outcome.accuracy['calibrated']
     selected = outcome.accuracy.get('selected', outcome.accuracy)['calibrated']
     predicted = (outcome.prediction or {}).get('random', {}).get('position_mm', {})
@@ -248,6 +249,21 @@ def one_run(design, effects, seed, plain=None):
         'failures': list(outcome.judgement.failures),
         'groups': list((outcome.effects or {}).get('groups', [])),
         **extra,
+    }
+
+
+def rigid_run(design, effects, outcome):
+    """A rigid controller's figures of one run: the truth (over the run, at its end) of what it
+    gets (result_rigid.yaml, else result.yaml) and its held-out accuracy and 95 % interval."""
+    rigid = outcome.rigid_geometry
+    if rigid is None:
+        rigid = outcome.geometry.replace(effects=IdentifiedEffects())
+    held = (outcome.rigid_accuracy or outcome.accuracy)['calibrated']['position_mm']
+    return {
+        'rigid_true_mm': true_accuracy(design, effects, rigid)[0],
+        'rigid_true_at_end_mm': true_accuracy(design, effects, rigid, RUN_S)[0],
+        'rigid_cv_mm': held['mean'],
+        'rigid_cv_interval_mm': held.get('mean_interval_95') or [math.nan] * 2,
     }
 
 
@@ -350,6 +366,10 @@ def case_figures(design, effects, seeds, runs=None, plain=None):
         'per_seed_groups': [run['groups'] for run in done],
         'seeds': seeds,
         **plain_figures(done),
+        # a rigid controller's runs (tools.bench.rigid_fold)
+        'per_seed_rigid': [
+            {k: v for k, v in run.items() if k.startswith('rigid_')} for run in done
+        ],
     }
 
 
