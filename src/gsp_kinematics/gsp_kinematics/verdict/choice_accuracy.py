@@ -29,6 +29,7 @@ import numpy as np
 
 from ..effects.groups import EFFECT_GROUPS
 from ..effects.model import NUM_LEGS
+from ..identifiability import analyse_result, identifies_all
 from ..kinematics import Workspace, inverse_kinematics_jacobians, sample_valid_postures
 from ..prediction import effect_pose_sensitivities, pose_sensitivities
 
@@ -113,7 +114,10 @@ def freeing_gain(reference, extended, poses):
     Both fits must identify their parameters: the covariance of a rank-deficient fit is the
     pseudo-inverse of a singular information matrix, not positive semi-definite, and its
     predicted variance can come out negative. The gain is then NaN (not predicted), never the
-    square root of a negative variance: the caller says the candidate cannot be judged."""
+    square root of a negative variance: the caller says the candidate cannot be judged. Checked
+    on the rank, not only on the sign: rounding decides the sign of a pseudo-inverse's variance."""
+    if not all(identifies_all(analyse_result(fit)) for fit in (reference, extended)):
+        return FreeingGain(float('nan'), float('nan'))
     main, backlash = _columns(extended, poses)
     own = np.concatenate(
         [extended.parameters[extended.free], extended.effect_values[extended.effect_free]]
