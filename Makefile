@@ -3,12 +3,12 @@
 #   make venv    create/refresh .venv from requirements.txt (+ editable gsp_kinematics)
 #   make build   colcon build into install/
 #   make test    ruff check and format check, the kernel variants (test-kernels), colcon test
-#                (every package), colcon test-result, pytest test/
+#                (every package), colcon test-result, pytest test/ and bench/test
 #   make test-kernels  the numeric packages' tests under other CPUs' BLAS and SIMD kernels
 #   make format  ruff format (the formatter owns line breaks and quotes) and ruff check --fix
 #   make demo    end-to-end calibration demo (gsp_demo; DEMO_ARGS=... passes arguments)
-#   make paper   paper reproduction (gsp_paper; ARGS=...)
-#   make bench   benchmark (gsp_bench; ARGS=...)
+#   make paper   paper reproduction (bench/gsp_bench/paper_cli.py; ARGS=...)
+#   make bench   benchmark (bench/gsp_bench, one module a section; ARGS=...)
 #   make clean   remove build/ install/ log/ and caches (distclean: also .venv)
 #
 # Every run keeps DDS on loopback in a ROS domain of its own: each test session, demo and bench
@@ -66,7 +66,7 @@ test: build
 	$(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
 	  --event-handlers console_direct+
 	$(COLCON) test-result --test-result-base build --verbose
-	$(ENV_SH) && python -m pytest test
+	$(ENV_SH) && python -m pytest test bench/test
 
 # OpenBLAS and numpy pick their kernels by CPU, and the kernels round differently: the numeric
 # packages' tests once more under forced OpenBLAS cores (SkylakeX, Haswell) and without numpy's
@@ -83,15 +83,19 @@ format: venv
 demo: build
 	$(ENV_SH) && gsp_demo $(DEMO_ARGS)
 
+# The benchmark and the paper's reproduction live in bench/, outside the packages (no node
+# package depends on them): run from the workspace with bench/ on the path.
+BENCH_ENV = $(ENV_SH) && export PYTHONPATH=$(CURDIR)/bench:$$PYTHONPATH
+
 paper: build
-	$(ENV_SH) && gsp_paper $(ARGS)
+	$(BENCH_ENV) && python -m gsp_bench.paper_cli $(ARGS)
 
 bench: build
-	$(ENV_SH) && gsp_bench $(ARGS)
+	$(BENCH_ENV) && python -m gsp_bench $(ARGS)
 
 clean:
 	rm -rf build install log .pytest_cache .ruff_cache src/*/.pytest_cache src/*/*.egg-info
-	find src test scripts -name __pycache__ -type d -prune -exec rm -rf {} +
+	find src test bench scripts -name __pycache__ -type d -prune -exec rm -rf {} +
 
 distclean: clean
 	rm -rf $(VENV)

@@ -32,7 +32,13 @@ def test_parameter_docs_match_the_spec_tables():
 
 DOCS = [WS / 'README.md', *sorted((WS / 'docs').glob('*.md'))]
 SRC = WS / 'src'
-PACKAGES = sorted(path.name for path in SRC.glob('*/gsp_*') if (path / '__init__.py').is_file())
+#: The benchmark and the paper reproduction (bench/gsp_bench: not a package under src/).
+BENCH = WS / 'bench'
+PACKAGES = sorted(
+    path.name
+    for path in [*SRC.glob('*/gsp_*'), *BENCH.glob('gsp_*')]
+    if (path / '__init__.py').is_file()
+)
 
 
 def _expand(path):
@@ -45,8 +51,8 @@ def _expand(path):
 
 
 def _module_path(parts):
-    """The source file (or package folder) of module ``parts`` under src/, or None."""
-    base = SRC / parts[0] / parts[0]
+    """The source file (or package folder) of module ``parts`` under src/ or bench/, or None."""
+    base = BENCH / parts[0] if parts[0] == 'gsp_bench' else SRC / parts[0] / parts[0]
     path = base.joinpath(*parts[1:])
     if path.with_suffix('.py').is_file():
         return path.with_suffix('.py')
@@ -75,9 +81,9 @@ def _defines(source, name):
 
 
 def dangling_names(text):
-    """Source paths and dotted module names in ``text`` that do not exist in src/."""
+    """Source paths and dotted module names in ``text`` that do not exist in src/ or bench/."""
     missing = []
-    for path in re.findall(r'`(src/[^`\s]+)`', text):
+    for path in re.findall(r'`((?:src|bench)/[^`\s]+)`', text):
         missing += [p for p in _expand(path) if not (WS / p.rstrip('/')).exists()]
     for dotted in re.findall(r'\b(gsp_[a-z_]+(?:\.[A-Za-z_]\w*)+)', text):
         parts = dotted.split('.')
@@ -125,6 +131,7 @@ PYTHON_FILES = sorted(
         *SRC.glob('*/test/**/*.py'),
         *(WS / 'test').glob('*.py'),
         *(WS / 'test_support').glob('*.py'),
+        *BENCH.glob('**/*.py'),
     ]
 )
 #: The tests' shared support module (test_support/, not installed).
@@ -139,10 +146,13 @@ _FILE = re.compile(r'``([A-Za-z_][\w/]*\.py)``|`([A-Za-z_][\w/]*\.py)`')
 def _module_name(path):
     """``gsp_calibrator.run.flow`` of ``src/gsp_calibrator/gsp_calibrator/run/flow.py``; None for
     a test file."""
-    parts = path.relative_to(SRC).with_suffix('').parts if path.is_relative_to(SRC) else ()
-    if len(parts) < 2 or parts[1] != parts[0]:
-        return None
-    parts = parts[1:]
+    if path.is_relative_to(BENCH / 'gsp_bench'):
+        parts = path.relative_to(BENCH).with_suffix('').parts
+    else:
+        parts = path.relative_to(SRC).with_suffix('').parts if path.is_relative_to(SRC) else ()
+        if len(parts) < 2 or parts[1] != parts[0]:
+            return None
+        parts = parts[1:]
     return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
 
 

@@ -1,9 +1,11 @@
-"""The import graph of src/: no cycles between modules, and no import upwards across layers.
+"""The import graph of src/ and bench/: no cycles between modules, and no import upwards across
+layers.
 
-Layers, lowest first (docs/architecture.md): the core (gsp_kinematics, gsp_experiments), the
-message layer (gsp_msgs_py), the nodes (gsp_platform_sim, gsp_platform_bridge,
-gsp_device_driver, and gsp_calibrator's node side), the user tools (gsp_calibrator.tools). A
-module may import its own layer or lower ones, never a higher one.
+Layers, lowest first (docs/architecture.md): the core (gsp_kinematics), the message layer
+(gsp_msgs_py), the nodes (gsp_platform_sim, gsp_platform_bridge, gsp_device_driver, and
+gsp_calibrator's node side), the user tools (gsp_calibrator.tools), the benchmark and paper
+reproduction (bench/gsp_bench, no package). A module may import its own layer or lower ones,
+never a higher one.
 """
 
 import ast
@@ -13,25 +15,26 @@ import pytest
 
 WS = Path(__file__).resolve().parents[1]
 SRC = WS / 'src'
+BENCH = WS / 'bench'
 
 #: Layer of each top-level package or subpackage; the longest matching prefix wins.
 LAYERS = {
     'gsp_kinematics': 0,
-    'gsp_experiments': 0,
     'gsp_msgs_py': 1,
     'gsp_platform_sim': 2,
     'gsp_platform_bridge': 2,
     'gsp_device_driver': 2,
     'gsp_calibrator': 2,
     'gsp_calibrator.tools': 3,
+    'gsp_bench': 4,
 }
-LAYER_NAMES = ('core', 'message layer', 'nodes', 'tools')
+LAYER_NAMES = ('core', 'message layer', 'nodes', 'tools', 'bench')
 
 
-def module_files(src=SRC):
+def module_files(src=SRC, pattern='*/gsp_*'):
     """Module name -> source file of every package module under `src` (tests excluded)."""
     modules = {}
-    for package_dir in sorted(src.glob('*/gsp_*')):
+    for package_dir in sorted(src.glob(pattern)):
         if not (package_dir / '__init__.py').is_file():
             continue
         for path in sorted(package_dir.rglob('*.py')):
@@ -137,7 +140,7 @@ def upward_imports(graph):
 
 @pytest.fixture(scope='module')
 def graph():
-    return import_graph(module_files())
+    return import_graph({**module_files(), **module_files(BENCH, 'gsp_*')})
 
 
 def test_the_graph_sees_every_package(graph):
@@ -179,7 +182,13 @@ def test_the_checks_catch_an_injected_cycle_and_an_upward_import(tmp_path):
             'gsp_calibrator/gsp_calibrator/tools/__init__.py': '',
             'gsp_calibrator/gsp_calibrator/tools/demo.py': 'import gsp_msgs_py.names\n',
             'gsp_calibrator/gsp_calibrator/node.py': 'from .tools.demo import main\n',
+            'gsp_calibrator/gsp_calibrator/report.py': 'from gsp_bench.verdict import run\n',
+            'gsp_bench/gsp_bench/__init__.py': '',
+            'gsp_bench/gsp_bench/verdict.py': 'import gsp_calibrator.tools.demo\n',
         },
     )
     assert cycles(graph) == [['gsp_kinematics.a', 'gsp_kinematics.b']]
-    assert upward_imports(graph) == [('gsp_calibrator.node', 'gsp_calibrator.tools.demo')]
+    assert upward_imports(graph) == [
+        ('gsp_calibrator.node', 'gsp_calibrator.tools.demo'),
+        ('gsp_calibrator.report', 'gsp_bench.verdict'),
+    ]

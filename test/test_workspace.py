@@ -13,7 +13,6 @@ WS = Path(__file__).resolve().parents[1]
 INSTALL = WS / 'install'
 PACKAGES = (
     'gsp_kinematics',
-    'gsp_experiments',
     'gsp_msgs_py',
     'gsp_platform_sim',
     'gsp_device_driver',
@@ -21,7 +20,6 @@ PACKAGES = (
     'gsp_calibrator',
 )
 EXECUTABLES = {
-    'gsp_experiments': ('gsp_paper',),
     'gsp_msgs_py': ('gsp_check_interfaces',),
     'gsp_platform_sim': ('platform_sim', 'controller_sim'),
     'gsp_device_driver': ('device_driver', 'gsp_fake_device'),
@@ -31,7 +29,6 @@ EXECUTABLES = {
         'gsp_demo',
         'gsp_calibrate_client',
         'gsp_reidentify',
-        'gsp_bench',
         'replay',
     ),
 }

@@ -3,7 +3,6 @@
 import sys
 
 from gsp_calibrator.tools import demo, demo_commands
-from gsp_calibrator.tools.bench import end_to_end as bench_end_to_end
 
 
 def test_ros2_control_replaces_platform_sim_by_the_bridge_and_the_emulated_controller(tmp_path):
@@ -28,12 +27,3 @@ def test_serial_runs_the_emulated_device_into_the_serial_backend(tmp_path):
     assert fake[fake.index('--port') + 1] == args.device_port and '100.0' in fake
     driver = found['device_driver']
     assert 'backend:=serial' in driver and f'serial.port:={args.device_port}' in driver
-
-
-def test_the_bench_runs_each_hardware_path_with_its_demo_options(tmp_path):
-    assert bench_end_to_end.HARDWARE_PATHS == {
-        'serial': ('--device', 'serial'),
-        'ros2_control': ('--platform', 'ros2_control'),
-    }
-    argv = bench_end_to_end.demo_command(tmp_path, 30, 200.0, extra_args=('--device', 'serial'))
-    assert argv[-2:] == ['--device', 'serial']

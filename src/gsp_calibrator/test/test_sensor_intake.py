@@ -164,15 +164,3 @@ def test_a_lag_above_one_second_warns_with_its_number():
     assert 'behind its streams by more than 1 s: /b 2.5 s' in behind.message
     assert '/a' not in behind.message.split('behind')[1]
     assert health(None).values[topic_lag_key('/b')] == 'none'
-
-
-def test_the_collection_rate_bench_collects_each_posture_from_cdr_bytes():
-    """gsp_bench's collection_rate section feeds the collection as the node does; every posture
-    it plans gives its row (its figure is a rate, not a test)."""
-    from gsp_calibrator.tools.bench import collection_rate as bench_collection_rate
-
-    assert bench_collection_rate.INTAKE == 'cdr'
-    rows = []
-    handled, _, count = bench_collection_rate.collect(10, 3, rows_out=rows)
-    assert count == 3 and [row.posture for row in rows] == [1, 2, 3]
-    assert handled > 3 * 4 * 10

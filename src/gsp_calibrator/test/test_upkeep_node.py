@@ -6,13 +6,13 @@ as test_calibrator_node runs them."""
 import json
 from pathlib import Path
 
+import numpy as np
 from calibrator_suite import make_suite, perturbed_truth
 from std_srvs.srv import Trigger
 
 import gsp_calibrator.tools.history
 from gsp_calibrator.tools import compare
 from gsp_calibrator.upkeep import history
-from gsp_experiments.bench_upkeep import changed_truth
 from gsp_msgs_py import names
 
 PLATFORM = 'hexapod-test'
@@ -55,7 +55,7 @@ def test_check_after_a_leg_moved_then_recalibrate_and_compare(ros_context, tmp_p
         )
 
         # Leg 3's offset moves by 20 um (the hardware; the controller keeps its geometry).
-        moved = changed_truth(truth, 'Loff3', 20e-6)
+        moved = truth.replace(leg_offsets=truth.leg_offsets + np.array([0, 0, 20e-6, 0, 0, 0]))
         platform._simulator._true_geometry = moved  # the test reaches into the simulation
         response = call(suite, names.SERVICE_CHECK)
         assert response.success, response.message

@@ -1,6 +1,6 @@
 """Shared fixtures of the core's tests: the paper's exact geometry, nominal sets, random postures.
 
-The geometries are files in ``test/data`` (written by ``gsp_experiments.nominal_sets``; the params
+The geometries are files in ``test/data`` (written by ``gsp_bench.nominal_sets``; the params
 file keeps every float exactly), so the core's tests do not depend on the experiments package.
 """
 

@@ -1,0 +1,261 @@
+"""``physics`` section of ``gsp_bench`` (docs/physics.md): the calibrator at its defaults on
+``platform_sim``'s physics backend (its realistic preset: 40 kg, compliant legs, ringing after
+each move), through the nodes (``gsp_demo --backend physics``), ``SEEDS`` seeds.
+
+Per seed, from the run directory the demo leaves (``result.yaml``, ``result.json``,
+``samples.csv``):
+
+* ``true_mm``: the result as the controller of the physics platform, mean position error over
+  ``VALIDATION_POSTURES`` random workspace postures at rest (commanded against reached,
+  :func:`gsp_platform_sim.physics.poses_at_rest`, simulated here without ROS); ``floor_mm``: the
+  same with the true geometry as the controller (the physics floor: what the rigid model cannot
+  compensate, the sag);
+* ``cv_mm`` (held out) and ``predicted_mm`` against ``true_mm``; ``verdict_met_truth_misses``:
+  the calibrator accepted the result as meeting its requirement while the truth misses it;
+* ``inclinometer_noise_ratio``: its noise estimated from the run over its configured value;
+* ``platform_s``: the span of the run's rows (first to last row stamp), against the same plan on
+  the kinematic backend (the same demo, seed and leg limits, ``--backend kinematic``).
+"""
+
+import argparse
+import contextlib
+import json
+import math
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gsp_bench.end_to_end import (
+    _stop,
+    demo_command,
+    demo_environment,
+    find_run_directory,
+    read_run_directory,
+)
+from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.settings import DEFAULTS
+from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.travel.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
+from gsp_platform_sim.physics import PhysicsSimulator, poses_at_rest
+
+SEEDS = 10
+QUICK_SEEDS = 1
+VALIDATION_POSTURES = 30
+QUICK_VALIDATION_POSTURES = 5
+QUICK_POSTURES = 14  #: the fewest the default model (extended) needs, plus one
+SENSOR_RATE_HZ = 200.0
+#: Longest wall time of one demo (s): 60 postures at the realistic leg speed take ~15 min.
+DEMO_TIMEOUT_S = 3600.0
+
+
+#: The legs' limits of both backends' runs (the physics backend's preset): the same plan.
+LEG_LIMITS = (REALISTIC_MAX_SPEED, REALISTIC_MAX_ACCELERATION)
+
+
+def run_kept_demo(
+    postures, seed, backend, limits=LEG_LIMITS, timeout=DEMO_TIMEOUT_S, real_time_factor=1.0
+):
+    """One ``gsp_demo --backend backend`` run in a child process at the leg ``limits`` (m/s,
+    m/s^2), the physics at ``real_time_factor``: ``read_run_directory`` of its run directory plus ``geometry`` (the calibrated
+    ``Geometry``, None if none), ``exit_code`` and ``output`` (its tail)."""
+    env = demo_environment()
+    output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_physics_'))
+    argv = demo_command(
+        output_root,
+        postures,
+        SENSOR_RATE_HZ,
+        samples_per_posture=DEFAULTS['samples_per_posture'],
+        validation_postures=1,
+        seed=seed,
+        timeout=timeout,
+        extra_args=[
+            *('--backend', backend, '--noise-source', DEFAULTS['noise_source']),
+            *('--max-leg-speed', repr(float(limits[0]))),
+            *('--max-leg-acceleration', repr(float(limits[1]))),
+            *(
+                ('--real-time-factor', repr(float(real_time_factor)))
+                if backend == 'physics'
+                else ()
+            ),
+        ],
+    )
+    process = subprocess.Popen(
+        argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True
+    )
+    try:
+        try:
+            output, _ = process.communicate(timeout=timeout + 120.0)
+        except subprocess.TimeoutExpired:
+            _stop(process)
+            output, _ = process.communicate()
+        run = {'exit_code': process.returncode, 'output': output.decode(errors='replace')[-800:]}
+        run.update({'summary': None, 'samples': None, 'result': None, 'sample_stamps': None})
+        run['geometry'] = None
+        directory = find_run_directory(output_root)
+        if directory is not None:
+            run.update(read_run_directory(directory))
+            with contextlib.suppress(OSError, ValueError):
+                run['geometry'] = RunDirectory(directory).read_geometry()
+        return run
+    finally:
+        shutil.rmtree(output_root, ignore_errors=True)
+
+
+def true_position_mm(controller, poses):
+    """Mean position error (mm) of the physics platform with ``controller`` over ``poses`` at
+    rest (the rows it refuses left out)."""
+    reached = poses_at_rest(PhysicsSimulator(default_geometry('true'), controller), poses)
+    errors = 1e3 * np.linalg.norm(reached[:, :3] - poses[:, :3], axis=1)
+    return float(np.nanmean(errors)) if np.any(np.isfinite(errors)) else math.nan
+
+
+def row_span_s(run):
+    """First to last row stamp of a run (s), None without rows."""
+    stamps = [stamp for _, stamp in (run.get('sample_stamps') or [])]
+    return max(stamps) - min(stamps) if len(stamps) > 1 else None
+
+
+def seed_figures(
+    seed, postures, poses, floor_mm, kinematic=True, limits=LEG_LIMITS, real_time_factor=1.0
+):
+    """The figures of one seed (see the module docstring)."""
+    physics = run_kept_demo(postures, seed, 'physics', limits, real_time_factor=real_time_factor)
+    result = physics['result'] or {}
+    figures = {'seed': seed, 'exit_code': physics['exit_code']}
+    if physics['geometry'] is None or not result.get('success'):
+        return {**figures, 'failure': result.get('failure') or physics['output']}
+    acceptance = result.get('acceptance') or {}
+    requirement = (acceptance.get('requirement') or {}).get('position_mm', math.nan)
+    true_mm = true_position_mm(physics['geometry'], poses)
+    cv_mm = result['accuracy']['calibrated']['position_mm']['mean']
+    figures.update(
+        {
+            'true_mm': true_mm,
+            'true_over_floor': true_mm / floor_mm,
+            'cv_mm': cv_mm,
+            'cv_over_true': cv_mm / true_mm,
+            'predicted_mm': (result.get('predicted_accuracy') or {}).get('position_mm_mean'),
+            'accepted': bool(acceptance.get('accepted')),
+            'requirement_mm': requirement,
+            'verdict_met_truth_misses': bool(acceptance.get('accepted')) and true_mm > requirement,
+            'inclinometer_noise_ratio': result['noise_estimates']['inclinometer']['ratio'],
+            'platform_s': row_span_s(physics),
+            'postures_collected': len(physics['samples'] or []),
+        }
+    )
+    if kinematic:
+        span = row_span_s(run_kept_demo(postures, seed, 'kinematic', limits))
+        figures['kinematic_platform_s'] = span
+        if span and figures['platform_s']:
+            figures['platform_time_ratio'] = figures['platform_s'] / span
+    return figures
+
+
+def _median(runs, key):
+    values = [run[key] for run in runs if isinstance(run.get(key), int | float)]
+    values = [v for v in values if math.isfinite(v)]
+    return statistics.median(values) if values else None
+
+
+def run(
+    quick=False,
+    seeds=None,
+    postures=None,
+    validation_postures=None,
+    kinematic=True,
+    limits=LEG_LIMITS,
+    log=None,
+    real_time_factor=1.0,
+):
+    """The section (``quick``: 1 seed, 14 postures, 5 validation postures); ``limits``: the
+    legs' (m/s, m/s^2), the realistic ones by default."""
+    if log is None:
+
+        def log(message):
+            print(message, file=sys.stderr, flush=True)
+
+    seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
+    postures = postures or (QUICK_POSTURES if quick else DEFAULTS['posture_count'])
+    count = validation_postures or (QUICK_VALIDATION_POSTURES if quick else VALIDATION_POSTURES)
+    poses = sample_valid_postures(default_geometry('nominal'), count, np.random.default_rng(12345))
+    started = time.monotonic()
+    floor_mm = true_position_mm(default_geometry('true'), poses)
+    runs = []
+    for seed in range(seeds):
+        log(f'gsp_bench: physics: seed {seed}, {postures} postures ...')
+        runs.append(
+            seed_figures(seed, postures, poses, floor_mm, kinematic, limits, real_time_factor)
+        )
+    done = [run for run in runs if 'true_mm' in run]
+    return {
+        'description': (
+            'the calibrator at its defaults on platform_sim physics (realistic preset) through '
+            'gsp_demo; truth: the result as the physics platform controller over random '
+            'workspace postures at rest; floor: the true geometry as the controller; medians'
+        ),
+        'targets': {
+            'true_over_floor': '<= 1.3',
+            'cv_over_true': 'within 25 %',
+            'verdict_met_truth_misses': 'no seed',
+            'inclinometer_noise_ratio': '<= 1.5',
+            'platform_time_ratio': '<= 1.3',
+        },
+        'seeds': seeds,
+        'postures': postures,
+        'leg_limits': list(limits),
+        'real_time_factor': real_time_factor,
+        'validation_postures': count,
+        'floor_mm': floor_mm,
+        **{
+            key: _median(done, key)
+            for key in (
+                'true_mm',
+                'true_over_floor',
+                'cv_mm',
+                'cv_over_true',
+                'predicted_mm',
+                'inclinometer_noise_ratio',
+                'platform_time_ratio',
+            )
+        },
+        'verdict_met_truth_misses_seeds': sum(run['verdict_met_truth_misses'] for run in done),
+        'failed_seeds': len(runs) - len(done),
+        'per_seed': runs,
+        'wall_s': time.monotonic() - started,
+    }
+
+
+def main(argv=None):
+    """``python -m gsp_bench.physics [--seeds N] [--quick]``: the section as
+    JSON on stdout."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seeds', type=int, default=None, help=f'seeds ({SEEDS})')
+    parser.add_argument('--postures', type=int, default=None, help='postures per run')
+    parser.add_argument('--quick', action='store_true', help='1 seed, 14 postures')
+    parser.add_argument(
+        '--no-kinematic', action='store_true', help='skip the kinematic backend runs'
+    )
+    parser.add_argument(
+        '--real-time-factor', type=float, default=1.0, help="platform_sim's real_time_factor (1)"
+    )
+    args = parser.parse_args(argv)
+    section = run(
+        args.quick,
+        args.seeds,
+        args.postures,
+        kinematic=not args.no_kinematic,
+        real_time_factor=args.real_time_factor,
+    )
+    print(json.dumps(section, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

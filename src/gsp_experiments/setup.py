@@ -1,5 +1,0 @@
-"""gsp_experiments: the package metadata is in setup.cfg (ament_python needs this file)."""
-
-from setuptools import setup
-
-setup()
