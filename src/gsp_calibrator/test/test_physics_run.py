@@ -20,8 +20,8 @@ from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools.bench.end_to_end import read_run_directory
 from gsp_calibrator.tools.bench.physics import true_position_mm
-from gsp_kinematics.geometry import default_geometry, default_geometry_path
-from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.model.geometry import default_geometry, default_geometry_path
+from gsp_kinematics.model.kinematics import sample_valid_postures
 
 POSTURES = 16
 CHECK_POSTURES = 8

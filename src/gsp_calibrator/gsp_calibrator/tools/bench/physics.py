@@ -40,9 +40,9 @@ from gsp_calibrator.tools.bench.end_to_end import (
     find_run_directory,
     read_run_directory,
 )
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.travel.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
 from gsp_platform_sim.physics import PhysicsSimulator, poses_at_rest
 
 SEEDS = 10
