@@ -9,9 +9,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from gsp_device_driver.device_driver_node import DeviceDriverNode
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import inverse_kinematics
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import inverse_kinematics
 from gsp_msgs_py import conversions, names, node_tools
 from gsp_msgs_py.interfaces.check_tool import run_check
 from gsp_platform_sim.platform_sim_node import PlatformSimNode

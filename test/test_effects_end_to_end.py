@@ -23,15 +23,15 @@ from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.tools import demo, demo_commands, reidentify
 from gsp_calibrator.tools.processes import NodeProcesses
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.effects.groups import commanded_leg_readings
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.geometry import default_geometry, geometry_to_parameters, load_geometry
-from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.validation import simulate_commands, validate
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.effect_groups import commanded_leg_readings
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.model.geometry import default_geometry, geometry_to_parameters, load_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.real_pose import real_poses
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import simulate_commands, validate
 
 CALIBRATION_TIMEOUT_S = 600.0  # generous: the machine may be loaded
 WAIT_S = 60.0

@@ -11,7 +11,7 @@ import pytest
 from gsp_testing import marked_environment, marked_processes, run_demo, wait_until
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
-from gsp_kinematics.geometry import load_geometry, parameter_errors
+from gsp_kinematics.model.geometry import load_geometry, parameter_errors
 
 #: Keys every summary.json has (the demo writes more: the run directory, the fit, ...).
 SUMMARY_KEYS = {'validation', 'max_param_error_mm', 'max_param_error_deg'} | {

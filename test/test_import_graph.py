@@ -30,6 +30,18 @@ LAYERS = {
 }
 LAYER_NAMES = ('core', 'message layer', 'nodes', 'tools', 'bench')
 
+#: Floors inside the core (docs/architecture.md), lowest first: the leaves at the package's top
+#: (channels, rotation, fileio), the physics, the estimation, the planning, the upkeep. A core
+#: module may import its own floor or lower ones, never a higher one.
+CORE_FLOORS = {
+    'gsp_kinematics': 0,
+    'gsp_kinematics.model': 1,
+    'gsp_kinematics.estimation': 2,
+    'gsp_kinematics.planning': 3,
+    'gsp_kinematics.upkeep': 4,
+}
+CORE_FLOOR_NAMES = ('leaves', 'model', 'estimation', 'planning', 'upkeep')
+
 
 def module_files(src=SRC, pattern='*/gsp_*'):
     """Module name -> source file of every package module under `src` (tests excluded)."""
@@ -121,20 +133,20 @@ def cycles(graph):
     return sorted(found)
 
 
-def layer_of(module):
-    matches = [prefix for prefix in LAYERS if module == prefix or module.startswith(prefix + '.')]
-    return LAYERS[max(matches, key=len)] if matches else None
+def layer_of(module, layers=LAYERS):
+    matches = [prefix for prefix in layers if module == prefix or module.startswith(prefix + '.')]
+    return layers[max(matches, key=len)] if matches else None
 
 
-def upward_imports(graph):
+def upward_imports(graph, layers=LAYERS):
     """(importer, imported) pairs where the imported module sits in a higher layer."""
     return sorted(
         (module, target)
         for module, targets in graph.items()
         for target in targets
-        if layer_of(target) is not None
-        and layer_of(module) is not None
-        and layer_of(target) > layer_of(module)
+        if layer_of(target, layers) is not None
+        and layer_of(module, layers) is not None
+        and layer_of(target, layers) > layer_of(module, layers)
     )
 
 
@@ -159,6 +171,25 @@ def test_no_upward_imports(graph):
         f'{a} ({LAYER_NAMES[layer_of(a)]}) imports {b} ({LAYER_NAMES[layer_of(b)]})'
         for a, b in found
     )
+
+
+def test_the_core_has_no_import_back_up_its_floors(graph):
+    found = upward_imports(graph, CORE_FLOORS)
+    assert not found, 'core imports into a higher floor: ' + '; '.join(
+        f'{a} ({CORE_FLOOR_NAMES[layer_of(a, CORE_FLOORS)]}) imports {b} '
+        f'({CORE_FLOOR_NAMES[layer_of(b, CORE_FLOORS)]})'
+        for a, b in found
+    )
+
+
+def test_every_core_subpackage_has_its_floor(graph):
+    """A new folder in the core is given a floor here; the top holds only the leaves."""
+    core = [m for m in graph if m.startswith('gsp_kinematics.')]
+    folders = {'.'.join(m.split('.')[:2]) for m in core if m.count('.') >= 2}
+    assert folders <= set(CORE_FLOORS), sorted(folders - set(CORE_FLOORS))
+    top = {m for m in core if m.count('.') == 1 and m not in CORE_FLOORS}
+    assert top == {'gsp_kinematics.channels', 'gsp_kinematics.rotation', 'gsp_kinematics.fileio'}
+    assert not any(graph[m] for m in top), 'the leaves import nothing of the core'
 
 
 def _tree(tmp_path, files):
@@ -191,4 +222,24 @@ def test_the_checks_catch_an_injected_cycle_and_an_upward_import(tmp_path):
     assert upward_imports(graph) == [
         ('gsp_calibrator.node', 'gsp_calibrator.tools.demo'),
         ('gsp_calibrator.report', 'gsp_bench.verdict'),
+    ]
+
+
+def test_the_floor_check_catches_a_core_import_back_up(tmp_path):
+    graph = _tree(
+        tmp_path,
+        {
+            'gsp_kinematics/gsp_kinematics/__init__.py': '',
+            'gsp_kinematics/gsp_kinematics/model/__init__.py': '',
+            'gsp_kinematics/gsp_kinematics/model/geometry.py': (
+                'from gsp_kinematics.planning.selection import f\n'
+            ),
+            'gsp_kinematics/gsp_kinematics/planning/__init__.py': '',
+            'gsp_kinematics/gsp_kinematics/planning/selection.py': (
+                'from ..model import geometry\ndef f():\n    pass\n'
+            ),
+        },
+    )
+    assert upward_imports(graph, CORE_FLOORS) == [
+        ('gsp_kinematics.model.geometry', 'gsp_kinematics.planning.selection')
     ]

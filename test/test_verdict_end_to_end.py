@@ -19,10 +19,10 @@ from gsp_calibrator.report.fit import EFFECTS_HINT
 from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.geometry import default_geometry, load_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.validation import validate
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.model.geometry import default_geometry, load_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.validation import validate
 
 CLIENT_TIMEOUT_S = 600.0  # generous: the machine may be loaded
 POSTURES = 30

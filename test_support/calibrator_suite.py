@@ -14,7 +14,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.calibrator_node import CalibratorNode
-from gsp_kinematics.geometry import default_geometry, save_geometry
+from gsp_kinematics.model.geometry import default_geometry, save_geometry
 from gsp_msgs_py import conversions, names, qos
 
 RATE_HZ = 100.0

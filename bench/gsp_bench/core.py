@@ -33,20 +33,20 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
-from gsp_kinematics._solver.readings import readings_jacobians
 from gsp_kinematics.channels import PHI_READING_COLUMN
-from gsp_kinematics.device import device_readings
+from gsp_kinematics.estimation._solver.readings import readings_jacobians
+from gsp_kinematics.estimation.identification import DEFAULT_FORMULATION, identify, resolve_free
 from gsp_kinematics.fileio import to_json, write_json
-from gsp_kinematics.geometry import Geometry, parameter_errors
-from gsp_kinematics.identification import DEFAULT_FORMULATION, identify, resolve_free
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import Geometry, parameter_errors
+from gsp_kinematics.model.kinematics import (
     forward_kinematics_masked,
     inverse_kinematics,
     sample_valid_postures,
 )
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.planning.selection import select_postures
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.selection import select_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 from .cli import experiment_parser, reexec_with_single_threaded_blas
 from .nominal_sets import drawing_geometry, nominal_set

@@ -1,7 +1,7 @@
 """The ``effects`` section of ``make bench`` (docs/platform_effects.md#the-bench): the plan
-augmented for the effect groups (:func:`gsp_kinematics.effects.plan.augment_route`: reference
+augmented for the effect groups (:func:`gsp_kinematics.planning.effect_plan.augment_route`: reference
 revisits, both approach directions) and the model chosen from the data (``auto``,
-:func:`gsp_kinematics.verdict.model_choice.choose_model`) on the realistic platform (all four effects),
+:func:`gsp_kinematics.estimation.verdict.model_choice.choose_model`) on the realistic platform (all four effects),
 each effect alone and the ideal platform, 20 seeds each.
 
 A run is the verdict section's (:mod:`.verdict`): the calibrator's 60 postures in route
@@ -32,20 +32,28 @@ from gsp_bench.verdict import (
 )
 from gsp_calibrator.run.identify import uncompensated_thermal_strain, workspace_rows
 from gsp_calibrator.run.postures import workspace_poses
-from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.effects.plan import augment_route, effect_identifiability
-from gsp_kinematics.goodness import NOISE_CHANNELS
-from gsp_kinematics.identification import IdentificationError, identify
-from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.noise_from_data import WithinNoise, estimate_row_noise, unmodelled_error
-from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.motion import MotionLimits
-from gsp_kinematics.validation import pose_errors, simulate_commands
-from gsp_kinematics.verdict import acceptance
-from gsp_kinematics.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
-from gsp_kinematics.verdict.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
+from gsp_kinematics.model.effects import EFFECT_GROUPS
+from gsp_kinematics.model.effect_groups import design_rows
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.planning.effect_plan import augment_route, effect_identifiability
+from gsp_kinematics.estimation.goodness import NOISE_CHANNELS
+from gsp_kinematics.estimation.identification import IdentificationError, identify
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.estimation.noise_from_data import (
+    WithinNoise,
+    estimate_row_noise,
+    unmodelled_error,
+)
+from gsp_kinematics.estimation.prediction import accuracy_summary, predict_accuracy
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.validation import pose_errors, simulate_commands
+from gsp_kinematics.estimation.verdict import acceptance
+from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics.estimation.verdict.model_choice import (
+    DEFAULT_THERMAL_TIME_CONSTANTS,
+    choose_model,
+)
 
 #: Seconds per posture of the verdict's run (60 postures over RUN_S).
 POSTURE_S = RUN_S / 60

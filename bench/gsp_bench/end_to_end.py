@@ -31,7 +31,7 @@ from pathlib import Path
 
 from gsp_calibrator.report.write import RESULT_JSON
 from gsp_calibrator.run.directory import SAMPLES_FILE, SUMMARY_FILE
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py.ros_environment import loopback_environment
 
 DEMO_MODULE = 'gsp_calibrator.tools.demo'
@@ -283,15 +283,15 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     import numpy as np
 
     from gsp_calibrator.run.postures import DEFAULT_FREE, choose_postures
-    from gsp_kinematics.device import device_readings
-    from gsp_kinematics.geometry import default_geometry
-    from gsp_kinematics.identification import identify, resolve_free
-    from gsp_kinematics.kinematics import (
+    from gsp_kinematics.estimation.identification import identify, resolve_free
+    from gsp_kinematics.model.device import device_readings
+    from gsp_kinematics.model.geometry import default_geometry
+    from gsp_kinematics.model.kinematics import (
         forward_kinematics_masked,
         inverse_kinematics,
         sample_valid_postures,
     )
-    from gsp_kinematics.validation import validate
+    from gsp_kinematics.model.validation import validate
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
     averaged = DEFAULT_SENSOR_NOISE.averaged(np.full(postures, SAMPLES_PER_POSTURE))

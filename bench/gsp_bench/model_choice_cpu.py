@@ -22,8 +22,8 @@ import time
 from gsp_bench import verdict
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.settings import CalibratorSettings
-from gsp_kinematics import noise_from_data
-from gsp_kinematics.identification import resolve_free
+from gsp_kinematics.estimation import noise_from_data
+from gsp_kinematics.estimation.identification import resolve_free
 
 SEEDS = 20
 QUICK_SEEDS = 2

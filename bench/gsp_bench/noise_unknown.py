@@ -17,11 +17,11 @@ import time
 
 import numpy as np
 
-from gsp_kinematics import noise_from_data
-from gsp_kinematics.identification import identify
-from gsp_kinematics.prediction import predicted_errors
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
-from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
+from gsp_kinematics.estimation import noise_from_data
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.noise_estimate import ar1_std_of_mean
+from gsp_kinematics.estimation.prediction import predicted_errors
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
 
 from .sensor_errors import SAMPLES, calibrator_design, collect, position_error_mm
 

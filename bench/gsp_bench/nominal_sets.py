@@ -8,7 +8,7 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
-from gsp_kinematics.geometry import Geometry, Limits, SensorErrors
+from gsp_kinematics.model.geometry import Geometry, Limits, SensorErrors
 
 from .tables import load_tables, table1, table2
 

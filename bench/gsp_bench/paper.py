@@ -5,7 +5,7 @@
 * the paper's tables: the copy shipped in this package (:mod:`gsp_bench.tables`), or ``--tables``;
 * exact geometry: :func:`~gsp_bench.nominal_sets.drawing_geometry` (D0 = 850 mm, gamma = 90 deg);
   nominal sets 1-3 from :func:`~gsp_bench.nominal_sets.nominal_set` (Tables 1 and 2);
-* per nominal set, 60 postures selected (:func:`~gsp_kinematics.selection.select_postures`) from a
+* per nominal set, 60 postures selected (:func:`~gsp_kinematics.planning.selection.select_postures`) from a
   pool of random valid postures sampled under the nominal geometry, with the sigmas of the
   identification that uses them (the noise study selects once per noise level unless
   ``--select-once``: the best design depends on how angle and length noise compare). As in the
@@ -16,7 +16,7 @@
 * noise study (nominal set 1): Gaussian noise at Table 3's four levels (angle noise on the
   inclinometer and the encoder, length noise on the legs and the LVDT), ``--seeds`` draws each,
   identified with every formulation from the same noisy data; accuracy is the mean position and
-  orientation error over 50 random valid validation postures (:func:`~gsp_kinematics.validation.validate`
+  orientation error over 50 random valid validation postures (:func:`~gsp_kinematics.model.validation.validate`
   with the calibrated geometry as the controller's), beside Table 3.
 
 Each noise row carries the Cramér-Rao prediction beside the Monte-Carlo figure (the mean error
@@ -35,14 +35,14 @@ import time
 
 import numpy as np
 
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import PARAMETER_NAMES, parameter_errors
-from gsp_kinematics.identification import DEFAULT_FORMULATION, identify
-from gsp_kinematics.kinematics import inverse_kinematics, sample_valid_postures
-from gsp_kinematics.prediction import predicted_errors
-from gsp_kinematics.selection import select_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
-from gsp_kinematics.validation import validate
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import PARAMETER_NAMES, parameter_errors
+from gsp_kinematics.estimation.identification import DEFAULT_FORMULATION, identify
+from gsp_kinematics.model.kinematics import inverse_kinematics, sample_valid_postures
+from gsp_kinematics.estimation.prediction import predicted_errors
+from gsp_kinematics.planning.selection import select_postures
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.model.validation import validate
 
 from .nominal_sets import drawing_geometry, nominal_set
 from .tables import load_tables, table3

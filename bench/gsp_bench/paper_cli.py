@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_kinematics.estimation.identification import FORMULATIONS
 from gsp_kinematics.fileio import write_json
-from gsp_kinematics.identification import FORMULATIONS
 
 from . import paper
 from .cli import experiment_parser, reexec_with_single_threaded_blas

@@ -26,13 +26,13 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.model.kinematics import (
     Workspace,
     inverse_kinematics,
     reachable_mask,
     sample_postures,
 )
-from gsp_kinematics.validation import validate
+from gsp_kinematics.model.validation import validate
 
 from .nominal_sets import drawing_geometry, nominal_set
 

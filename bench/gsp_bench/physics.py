@@ -40,9 +40,9 @@ from gsp_bench.end_to_end import (
 )
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.settings import DEFAULTS
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.travel.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
 from gsp_platform_sim.physics import PhysicsSimulator, poses_at_rest
 
 SEEDS = 10

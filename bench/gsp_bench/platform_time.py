@@ -3,7 +3,7 @@
 * ``selection_order_s``, ``route_s``, ``lower_bound_s``: the travel time of the default plan's
   60 selected postures from the home pose in selection order, in route order, and the route's
   lower bound (minimum spanning tree), with the realistic leg limits
-  (:class:`gsp_kinematics.travel.motion.MotionLimits`); ``route_ratio`` = route / selection order.
+  (:class:`gsp_kinematics.model.motion.MotionLimits`); ``route_ratio`` = route / selection order.
 * ``predicted_s`` against ``measured_s``: a calibration through the nodes (``gsp_demo``,
   ``platform_sim`` moving at the realistic limits, the calibrator commanding the route):
   predicted travel + settle + sampling, against the wall time of the calibrate call
@@ -17,8 +17,8 @@ import sys
 
 from gsp_bench.end_to_end import SETTLE_TIME_S, run_demo
 from gsp_calibrator.tools import plans
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.motion import MotionLimits
 
 MEASURED_POSTURES = 20
 QUICK_MEASURED_POSTURES = 12

@@ -29,15 +29,15 @@ from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.upkeep import run_to_requirement
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.identification import resolve_free
-from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.noise_from_data import posture_lag_sums
-from gsp_kinematics.prediction import accuracy_summary
-from gsp_kinematics.selection import posture_information
-from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
+from gsp_kinematics.estimation.identifiability import posture_information
+from gsp_kinematics.estimation.identification import resolve_free
+from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
+from gsp_kinematics.estimation.prediction import accuracy_summary
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.motion import move_time, posture_leg_lengths
+from gsp_kinematics.model.validation import simulate_commands
 from gsp_kinematics.upkeep import stopping
-from gsp_kinematics.validation import simulate_commands
 
 SEEDS = 20
 QUICK_SEEDS = 1

@@ -30,15 +30,15 @@ import gsp_bench.verdict
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
 from gsp_calibrator.upkeep import run_to_requirement
-from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.effects.plan import augment_route
-from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.prediction import accuracy_summary
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
+from gsp_kinematics.estimation.prediction import accuracy_summary
+from gsp_kinematics.estimation.verdict.model_choice import choose_model
+from gsp_kinematics.model.effect_groups import design_rows
+from gsp_kinematics.model.effects import EFFECT_GROUPS, REALISTIC
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.motion import move_time, posture_leg_lengths
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.planning.effect_plan import augment_route
 from gsp_kinematics.upkeep import stopping
-from gsp_kinematics.verdict.model_choice import choose_model
 
 SEEDS = 20
 QUICK_SEEDS = 1

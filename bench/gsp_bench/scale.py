@@ -18,18 +18,18 @@ import time
 
 import numpy as np
 
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.prediction import predicted_errors
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import (
     forward_kinematics_masked,
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.prediction import predicted_errors
-from gsp_kinematics.selection import select_postures
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.validation import commanded_articular, sensor_measurements, validate
+from gsp_kinematics.planning.selection import select_postures
 
 from .nominal_sets import drawing_geometry, nominal_set
 from .paper import add_noise

@@ -5,7 +5,7 @@ settle rule and with the old fixed settle and consistency rule.
 Offline, on the pure core: the shipped real platform is driven by the nominal controller to the
 60 postures the ``sensor_errors`` section selects; at each the platform jumps and reports
 ``settled`` after :data:`PLATFORM_SETTLE_S`. The device is
-:class:`gsp_kinematics.sensors.dynamics.SensorDynamics` (its lag carried over from the previous
+:class:`gsp_kinematics.model.sensor_dynamics.SensorDynamics` (its lag carried over from the previous
 posture, its noise coloured), the legs are white, all at 200 Hz; every sample goes to a
 :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` with its stamp (receive time 1 ms
 later), as the calibrator's node feeds it. The rows are identified (extended set) with weights
@@ -28,15 +28,19 @@ from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LE
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools.demo_commands import SENSOR_DYNAMICS
 from gsp_kinematics.channels import DEVICE_CHANNELS, PHI_READING_COLUMN
-from gsp_kinematics.identification import Options, identify
-from gsp_kinematics.kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
-from gsp_kinematics.prediction import predicted_errors
+from gsp_kinematics.estimation.identification import Options, identify
+from gsp_kinematics.estimation.noise_estimate import ar1_std_of_mean
+from gsp_kinematics.estimation.prediction import predicted_errors
+from gsp_kinematics.model.kinematics import (
+    Workspace,
+    forward_kinematics_masked,
+    sample_valid_postures,
+)
+from gsp_kinematics.model.sensor_dynamics import SensorDynamics
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.validation import commanded_articular, sensor_measurements, validate
+from gsp_kinematics.planning.selection import select_postures
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.selection import select_postures
-from gsp_kinematics.sensors.dynamics import SensorDynamics
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
-from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
 from gsp_msgs_py import conversions, names
 
 RATE_HZ = 200.0

@@ -6,7 +6,7 @@ by the nominal controller to 60 selected postures, ``samples`` noisy samples per
 (their scatter kept for the noise estimates), then identified. Validation drives 50 other postures
 with the calibrated controller and compares the reached poses with the commands (mean position
 error, mm). Every figure below compares runs of the same postures and noise. The model figure
-comes with its Cramer-Rao prediction (``gsp_kinematics.prediction``) and the spread over seeds.
+comes with its Cramer-Rao prediction (``gsp_kinematics.estimation.prediction``) and the spread over seeds.
 """
 
 import math
@@ -14,21 +14,18 @@ import statistics
 
 import numpy as np
 
-from gsp_kinematics import goodness
-from gsp_kinematics.identification import Options, identify, resolve_free
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.estimation import goodness
+from gsp_kinematics.estimation.identifiability import posture_information
+from gsp_kinematics.estimation.identification import Options, identify, resolve_free
+from gsp_kinematics.estimation.prediction import predicted_errors
+from gsp_kinematics.model.kinematics import (
     Workspace,
     forward_kinematics_masked,
     sample_valid_postures,
 )
-from gsp_kinematics.prediction import predicted_errors
-from gsp_kinematics.selection import (
-    exchange_for_pose_error,
-    posture_information,
-    select_postures,
-)
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.validation import commanded_articular, sensor_measurements, validate
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import commanded_articular, sensor_measurements, validate
+from gsp_kinematics.planning.selection import exchange_for_pose_error, select_postures
 
 from .nominal_sets import default_true_and_nominal
 

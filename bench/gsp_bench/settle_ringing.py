@@ -20,11 +20,11 @@ import numpy as np
 
 from gsp_calibrator.collection.synchroniser import SampleCollector
 from gsp_calibrator.settings import DEFAULTS
-from gsp_kinematics.device import device_readings, position_to_inclinations
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
+from gsp_kinematics.model.device import device_readings, position_to_inclinations
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
 
 GRAVITY = 9.80665  #: m/s^2
 

@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 
-from gsp_kinematics.geometry import PARAMETER_INDEX, Geometry
+from gsp_kinematics.model.geometry import PARAMETER_INDEX, Geometry
 from gsp_kinematics.upkeep import drift
 
 from .sensor_errors import calibrator_design, collect, fit
@@ -69,7 +69,7 @@ def _leg_of(seed):
 def _check_seed(design, seed, required):
     """One seed of the check figures: a calibration, its check plan, a check of the unchanged
     platform and one after a 20 um change of leg ``_leg_of(seed)``'s offset."""
-    from gsp_kinematics.kinematics import home_pose
+    from gsp_kinematics.model.kinematics import home_pose
     from gsp_kinematics.upkeep import check
 
     from .sensor_errors import SAMPLES, SIGMAS
@@ -125,7 +125,7 @@ def _fraction(rows, key):
 def run(quick=False):
     """The ``upkeep`` section: the check's platform time and verdicts, and the drift test's, over
     seeds (``quick``: :data:`QUICK_SEEDS`)."""
-    from gsp_kinematics.verdict import acceptance
+    from gsp_kinematics.estimation.verdict import acceptance
 
     design = UpkeepDesign.default()
     required = acceptance.Requirement()  # the calibrator's default

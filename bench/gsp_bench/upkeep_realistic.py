@@ -14,11 +14,11 @@ import gsp_bench.verdict
 from gsp_bench.upkeep import CHANGE_M, changed_truth
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.upkeep import check_run
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.sensors.noise import NOISE_FIELDS, SensorNoise
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
 from gsp_kinematics.upkeep import drift
-from gsp_kinematics.validation import simulate_commands
+from gsp_kinematics.model.validation import simulate_commands
 
 SEEDS = 20
 QUICK_SEEDS = 2

@@ -25,20 +25,20 @@ from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.settings import CalibratorSettings
-from gsp_kinematics.effects.groups import IdentifiedEffects, commanded_leg_readings
-from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
-from gsp_kinematics.effects.plan import augment_route
-from gsp_kinematics.geometry import PARAMETER_INDEX, Geometry, default_geometry
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
+from gsp_kinematics.estimation.prediction import LEG_PARAMETERS
+from gsp_kinematics.model.effect_groups import commanded_leg_readings
+from gsp_kinematics.model.effects import REALISTIC, IdentifiedEffects, PlatformEffects
+from gsp_kinematics.model.geometry import PARAMETER_INDEX, Geometry, default_geometry
+from gsp_kinematics.model.kinematics import (
     expand_leg_parameters,
     home_pose,
     inverse_kinematics_jacobians,
     sample_valid_postures,
 )
-from gsp_kinematics.noise_from_data import posture_lag_sums
-from gsp_kinematics.prediction import LEG_PARAMETERS
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.validation import simulate_commands, validate
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import simulate_commands, validate
+from gsp_kinematics.planning.effect_plan import augment_route
 
 SAMPLES = 10
 SEEDS = 20

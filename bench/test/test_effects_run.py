@@ -18,13 +18,13 @@ from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples, identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.settings import CalibratorSettings, check_parameters
-from gsp_kinematics.effects.groups import REFERENCE_PAYLOAD_MASS, commanded_leg_readings
-from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import home_pose, inverse_kinematics
-from gsp_kinematics.noise_from_data import posture_lag_sums
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.validation import simulate_commands, validate
+from gsp_kinematics.model.effect_groups import REFERENCE_PAYLOAD_MASS, commanded_leg_readings
+from gsp_kinematics.model.effects import REALISTIC, PlatformEffects
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import home_pose, inverse_kinematics
+from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import simulate_commands, validate
 
 
 @pytest.fixture(scope='module')

@@ -1,5 +1,5 @@
 """The model choice's held-out errors from linearised fold fits
-(``gsp_kinematics.verdict.fold_fits.linearised_refits``) on seeded runs of the realistic platform
+(``gsp_kinematics.estimation.verdict.fold_fits.linearised_refits``) on seeded runs of the realistic platform
 (``tools.bench.verdict``'s, the bench's rows): the same groups as with refits of every fold, each
 candidate's held-out error and chi-square as the refits give them, and per fold a linearised
 refit predicts the held-out postures as the real refit does; the thermal time constant chosen
@@ -15,13 +15,17 @@ import gsp_bench.verdict
 from gsp_calibrator.run import identify as run_identify
 from gsp_calibrator.run.approach import effect_design
 from gsp_calibrator.run.identify import identify_with_settings
-from gsp_kinematics import noise_from_data
-from gsp_kinematics.effects.groups import design_rows
-from gsp_kinematics.identification import Options
-from gsp_kinematics.verdict.comparison import comparison_variances
-from gsp_kinematics.verdict.cross_validation import _errors, cross_validate, fold_assignment
-from gsp_kinematics.verdict.fold_fits import linearised_refits, refit_fold
-from gsp_kinematics.verdict.model_choice import (
+from gsp_kinematics.estimation import noise_from_data
+from gsp_kinematics.model.effect_groups import design_rows
+from gsp_kinematics.estimation.identification import Options
+from gsp_kinematics.estimation.verdict.comparison import comparison_variances
+from gsp_kinematics.estimation.verdict.cross_validation import (
+    _errors,
+    cross_validate,
+    fold_assignment,
+)
+from gsp_kinematics.estimation.verdict.fold_fits import linearised_refits, refit_fold
+from gsp_kinematics.estimation.verdict.model_choice import (
     DEFAULT_THERMAL_TIME_CONSTANTS,
     _fit,
     available_groups,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gsp_bench.nominal_sets import TABLE1_ERRORS_MM, TABLE2_DEVICE
-from gsp_kinematics.geometry import load_geometry
+from gsp_kinematics.model.geometry import load_geometry
 
 #: The core's tests read the paper geometries from files (the core does not import this package).
 CORE_FIXTURES = Path(__file__).resolve().parents[2] / 'src' / 'gsp_kinematics' / 'test' / 'data'

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from gsp_bench import core, paper, paper_cli, tables
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 
 def test_tables_are_the_shipped_file_or_an_explicit_one(tmp_path):

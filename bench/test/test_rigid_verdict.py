@@ -1,5 +1,5 @@
 """The verdict describes what the controller runs (issue 33): the rigid geometry's held-out
-accuracy (``gsp_kinematics.verdict.rigid_held_out``) against the realistic platform's physics,
+accuracy (``gsp_kinematics.estimation.verdict.rigid_held_out``) against the realistic platform's physics,
 a truth the model does not contain, and a rigid controller's acceptance judged on it
 (``run.rigid.Verdicts`` picked by ``result_delivery`` once it knows the controller)."""
 
@@ -14,12 +14,12 @@ from gsp_bench.verdict import RUN_S, default_design, simulated_samples
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
-from gsp_kinematics.effects.groups import IdentifiedEffects
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.effects.rigid_fold import held_out_postures, linearised_model_errors
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.validation import pose_errors, simulate_commands
-from gsp_kinematics.verdict.rigid_held_out import rigid_held_out
+from gsp_kinematics.model.effects import IdentifiedEffects
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.estimation.rigid_fold import held_out_postures, linearised_model_errors
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.validation import pose_errors, simulate_commands
+from gsp_kinematics.estimation.verdict.rigid_held_out import rigid_held_out
 from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES
 
 SEEDS = range(3)

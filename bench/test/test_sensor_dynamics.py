@@ -13,9 +13,9 @@ from scipy import stats
 import gsp_bench.sensor_dynamics
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.run.directory import read_samples
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import forward_kinematics_masked
-from gsp_kinematics.validation import commanded_articular, sensor_measurements
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import forward_kinematics_masked
+from gsp_kinematics.model.validation import commanded_articular, sensor_measurements
 
 POSTURES = 20
 #: The rows' chi-square may exceed its 1 - this quantile only by chance.

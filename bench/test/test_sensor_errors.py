@@ -6,8 +6,8 @@ import pytest
 
 from gsp_bench.nominal_sets import default_true_and_nominal
 from gsp_bench.sensor_errors import POSTURES, SAMPLES, SIGMAS, model_section
-from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.selection import select_postures
+from gsp_kinematics.model.kinematics import Workspace, sample_valid_postures
+from gsp_kinematics.planning.selection import select_postures
 
 
 @pytest.fixture(scope='module')

@@ -13,9 +13,9 @@ import pytest
 from gsp_bench.settle_ringing import RATE_HZ, RINGS, collect
 from gsp_calibrator.collection.synchroniser import SampleCollector
 from gsp_calibrator.settings import DEFAULTS
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 
 POSES = sample_valid_postures(default_geometry('nominal'), 12, np.random.default_rng(7))
 

@@ -13,10 +13,10 @@ from gsp_bench.upkeep import UpkeepDesign, changed_truth
 from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.upkeep import check_run, history
 from gsp_calibrator.upkeep.calibration_files import load_calibration
-from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.motion import MotionLimits
 from gsp_kinematics.upkeep import check
-from gsp_kinematics.verdict import acceptance
+from gsp_kinematics.estimation.verdict import acceptance
 
 REQUIRED = acceptance.Requirement(position_mm=0.05, orientation_deg=0.01)
 

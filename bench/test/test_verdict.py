@@ -1,6 +1,6 @@
 """The verdict of a run (pure, through ``run.identify``): a realistic platform, which the
 44-parameter model does not contain, is applied with its warning; garbage is refused with a
-reason naming what is wrong. The platform is the simulation's (``gsp_kinematics.effects``)."""
+reason naming what is wrong. The platform is the simulation's (``gsp_kinematics.model``)."""
 
 import json
 import math
@@ -18,8 +18,8 @@ from gsp_calibrator.run.identify import (
     workspace_rows,
 )
 from gsp_calibrator.run.response import NOT_ACCEPTED_HEAD, outcome_summary
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.identification import PARAMETER_GROUPS
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.estimation.identification import PARAMETER_GROUPS
 
 
 @pytest.fixture(scope='module')

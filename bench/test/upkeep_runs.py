@@ -3,7 +3,7 @@ calibrator writes them (``result.json``), for the upkeep tests."""
 
 from gsp_bench.upkeep import UpkeepDesign, changed_truth
 from gsp_calibrator.report.write import ReportInputs, write_result_json
-from gsp_kinematics.geometry import save_geometry
+from gsp_kinematics.model.geometry import save_geometry
 
 #: (directory name, truth changed?, noise seed): two calibrations of the unchanged platform,
 #: then one after Loff3 moved by 20 um.

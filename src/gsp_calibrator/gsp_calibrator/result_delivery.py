@@ -24,7 +24,7 @@ from std_msgs.msg import String
 
 from gsp_calibrator.run.host import WAIT_OK
 from gsp_calibrator.run.identify import RESULT_COMMENT
-from gsp_kinematics.geometry import geometry_to_parameters, geometry_to_yaml
+from gsp_kinematics.model.geometry import geometry_to_parameters, geometry_to_yaml
 from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES, EFFECT_PARAMETER_PREFIX
 
 

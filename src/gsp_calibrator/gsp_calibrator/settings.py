@@ -18,31 +18,35 @@ import os
 import re
 
 from gsp_calibrator.upkeep.parameters import UPKEEP_PARAMETERS
-from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
-from gsp_kinematics.goodness import LOSSES
-from gsp_kinematics.identification import (
+from gsp_kinematics.estimation.goodness import LOSSES
+from gsp_kinematics.estimation.identification import (
     FORMULATIONS,
     Options,
     free_parameters_error,
     resolve_free,
 )
-from gsp_kinematics.noise_from_data import DEFAULT_NOISE_SOURCE, NOISE_SOURCES, noise_source_error
-from gsp_kinematics.sensors.noise import (
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_from_data import (
+    DEFAULT_NOISE_SOURCE,
+    NOISE_SOURCES,
+    noise_source_error,
+)
+from gsp_kinematics.estimation.verdict.acceptance import (
+    DEFAULT_REQUIRED_IMPROVEMENT,
+    DEFAULT_REQUIRED_ORIENTATION_DEG,
+    DEFAULT_REQUIRED_POSITION_MM,
+    Requirement,
+)
+from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS
+from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
+from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.sensor_noise import (
     ASSUMED_NOISE_PARAMETER,
     DEFAULT_SENSOR_NOISE,
     NOISE_FIELDS,
     NOISE_UNITS,
     SensorNoise,
 )
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
-from gsp_kinematics.travel.motion import MotionLimits
-from gsp_kinematics.verdict.acceptance import (
-    DEFAULT_REQUIRED_IMPROVEMENT,
-    DEFAULT_REQUIRED_ORIENTATION_DEG,
-    DEFAULT_REQUIRED_POSITION_MM,
-    Requirement,
-)
-from gsp_kinematics.verdict.cross_validation import DEFAULT_FOLDS
 from gsp_msgs_py import parameter_specs
 from gsp_msgs_py.parameter_specs import (
     ParameterSpec,

@@ -3,10 +3,10 @@
 import numpy as np
 
 from gsp_calibrator.run.directory import Samples
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.validation import sensor_measurements
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.validation import sensor_measurements
 
 
 def synthetic_samples(count=30, seed=1, sigmas=SensorNoise(), n_samples=1, first_stamp=0.0):

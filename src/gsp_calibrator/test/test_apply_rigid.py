@@ -12,8 +12,8 @@ from rclpy.parameter import Parameter
 
 from gsp_calibrator.run.directory import RIGID_RESULT_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
-from gsp_kinematics.effects.model import PlatformEffects
-from gsp_kinematics.geometry import geometry_to_parameters
+from gsp_kinematics.model.effects import PlatformEffects
+from gsp_kinematics.model.geometry import geometry_to_parameters
 from gsp_msgs_py.geometry_parameters import CONTROLLER_GEOMETRY_SPECS, EFFECT_PARAMETER_PREFIX
 from gsp_msgs_py.parameter_specs import declare_parameters, parameter_values
 

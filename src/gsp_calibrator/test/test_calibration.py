@@ -16,12 +16,16 @@ from gsp_calibrator.run.response import (
     parse_response,
     posture_residuals,
 )
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import default_geometry, geometry_from_yaml, parameter_errors
-from gsp_kinematics.identification import Options
-from gsp_kinematics.kinematics import check_reachable, forward_kinematics_masked, inverse_kinematics
-from gsp_kinematics.noise_from_data import posture_lag_sums
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.estimation.identification import Options
+from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import default_geometry, geometry_from_yaml, parameter_errors
+from gsp_kinematics.model.kinematics import (
+    check_reachable,
+    forward_kinematics_masked,
+    inverse_kinematics,
+)
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 NOMINAL = default_geometry('nominal')
 TRUE = default_geometry('true')

@@ -35,11 +35,7 @@ from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
 from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
-from gsp_kinematics.geometry import (
-    default_geometry,
-    geometry_from_yaml,
-    parameter_errors,
-)
+from gsp_kinematics.model.geometry import default_geometry, geometry_from_yaml, parameter_errors
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.parameter_specs import ConfigurationError
 
@@ -538,9 +534,9 @@ def _moving_run(suite, calibrator, order, truth):
 def test_a_route_ordered_run_with_motion_calibrates_as_well_as_selection_order(
     ros_context, tmp_path
 ):
-    from gsp_kinematics.kinematics import home_pose
-    from gsp_kinematics.travel.motion import MotionLimits
-    from gsp_kinematics.travel.route import plan_route
+    from gsp_kinematics.model.kinematics import home_pose
+    from gsp_kinematics.model.motion import MotionLimits
+    from gsp_kinematics.planning.route import plan_route
 
     truth = perturbed_truth(tmp_path / 'true.yaml')
     platform = [Parameter(name, value=value) for name, value in FAST_MOTION.items()]

@@ -7,7 +7,7 @@ from gsp_testing import SpinThread, wait_until
 
 from gsp_calibrator.run.response import RESPONSE_SEPARATOR, RUN_DIRECTORY_LABEL, format_response
 from gsp_calibrator.tools import client
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.model.geometry import default_geometry
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
 

@@ -16,8 +16,8 @@ from gsp_calibrator.calibrator_node import CalibratorNode
 from gsp_calibrator.run.directory import RIGID_RESULT_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.run.rigid import RIGID_VERDICT_PREFIX
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.geometry import geometry_to_parameters
+from gsp_kinematics.model.effects import REALISTIC
+from gsp_kinematics.model.geometry import geometry_to_parameters
 from gsp_msgs_py.geometry_parameters import CONTROLLER_GEOMETRY_SPECS, EFFECT_PARAMETER_PREFIX
 from gsp_msgs_py.parameter_specs import declare_parameters, parameter_values
 

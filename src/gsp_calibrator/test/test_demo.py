@@ -14,8 +14,8 @@ from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools import demo, demo_commands, demo_summary
 from gsp_calibrator.tools.processes import NodeProcesses
-from gsp_kinematics.effects.model import PRESETS
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.model.effects import PRESETS
+from gsp_kinematics.model.geometry import default_geometry
 
 
 def test_ros_environment_is_loopback_with_a_domain():

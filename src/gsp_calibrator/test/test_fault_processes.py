@@ -34,9 +34,9 @@ from gsp_calibrator.run.state import (
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_calibrator.tools.reidentify import stored_weights
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import default_geometry_path, load_geometry
-from gsp_kinematics.identification import ALL_PARAMETER_NAMES
+from gsp_kinematics.estimation.identification import ALL_PARAMETER_NAMES
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import default_geometry_path, load_geometry
 from gsp_msgs_py import conversions, names, qos
 
 #: Postures of the run resumed after a killed device driver, which is compared with an

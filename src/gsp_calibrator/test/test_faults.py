@@ -221,7 +221,7 @@ def test_a_row_state_json_does_not_list_yet_is_kept_once_by_a_resume(tmp_path):
 
 def test_the_replacement_is_the_best_remaining_pool_posture():
     from gsp_calibrator.run.postures import PostureReplacer
-    from gsp_kinematics.selection import best_addition
+    from gsp_kinematics.planning.selection import best_addition
 
     settings = _settings(posture_count=12, pool_size=60, free_parameters=['paper'])
     replacer = PostureReplacer(settings)

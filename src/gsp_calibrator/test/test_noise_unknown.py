@@ -22,10 +22,10 @@ from gsp_calibrator.run.postures import choose_postures
 from gsp_calibrator.run.response import outcome_summary, parse_response
 from gsp_calibrator.tools import client
 from gsp_calibrator.tools.reidentify import refresh_report
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS
-from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
+from gsp_kinematics.estimation.noise_estimate import ar1_std_of_mean
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS
 from gsp_msgs_py import names
 
 FACTOR = 3.0

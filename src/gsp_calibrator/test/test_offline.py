@@ -14,14 +14,14 @@ from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL
 from gsp_calibrator.tools.reidentify import main, refresh_report
 from gsp_calibrator.tools.reidentify_inputs import free_parameters
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.geometry import (
     PARAMETER_NAMES,
     default_geometry,
     default_geometry_path,
     load_geometry,
 )
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.sensor_noise import SensorNoise
 from gsp_msgs_py import conversions, names
 
 MS = 1_000_000

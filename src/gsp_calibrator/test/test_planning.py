@@ -7,8 +7,8 @@ import pytest
 
 from gsp_calibrator.run import postures
 from gsp_calibrator.tools import planning, plans
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 QUICK = ['--pool-size', '120']
 

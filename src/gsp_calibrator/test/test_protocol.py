@@ -19,9 +19,9 @@ from gsp_calibrator.collection.events import (
 )
 from gsp_calibrator.collection.protocol import CollectionProtocol
 from gsp_calibrator.collection.synchroniser import ENCODER, INCLINOMETER, LEG_LENGTHS, LVDT
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import home_pose
-from gsp_kinematics.travel.motion import MotionLimits, move_time, posture_leg_lengths
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.motion import MotionLimits, move_time, posture_leg_lengths
 from gsp_msgs_py import conversions, names
 
 
@@ -456,7 +456,7 @@ def test_the_topic_table_and_the_noise_vector():
         names.TOPIC_INCLINOMETER, conversions.inclinometer_to_msg(0.1, 0.2, 1.5)
     )
     assert (stream, stamp, values) == (INCLINOMETER, 1_500_000_000, (0.1, 0.2))
-    from gsp_kinematics.sensors.noise import SensorNoise
+    from gsp_kinematics.model.sensor_noise import SensorNoise
 
     sigmas = SensorNoise(leg_lengths=1.0, inclinometer=2.0, encoder=3.0, lvdt=4.0)
     assert sigmas.channel_std().tolist() == [1.0] * 6 + [2.0, 2.0, 3.0, 4.0]

@@ -16,11 +16,11 @@ from gsp_calibrator.report.write import (
     write_result_json,
 )
 from gsp_calibrator.run.identify import finish_run, identify_from_samples
-from gsp_kinematics.geometry import PARAMETER_NAMES, default_geometry
-from gsp_kinematics.identifiability import analyse_identifiability
-from gsp_kinematics.identification import Options
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.estimation.identifiability import analyse_identifiability
+from gsp_kinematics.estimation.identification import Options
+from gsp_kinematics.model.geometry import PARAMETER_NAMES, default_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 SIGMAS = SensorNoise()
 

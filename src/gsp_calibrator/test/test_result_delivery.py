@@ -11,9 +11,9 @@ import pytest
 
 from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run.rigid import Verdicts
-from gsp_kinematics.effects.groups import IdentifiedEffects
-from gsp_kinematics.effects.rigid_fold import fold_effects
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.estimation.rigid_fold import fold_effects
+from gsp_kinematics.model.effects import IdentifiedEffects
+from gsp_kinematics.model.geometry import default_geometry
 from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES
 
 NOMINAL = default_geometry('nominal')

@@ -21,7 +21,7 @@ from gsp_calibrator.run.directory import (
     write_samples,
 )
 from gsp_kinematics.fileio import atomic_write_text
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.model.geometry import default_geometry
 
 NOW = datetime.datetime(2025, 11, 22, 3, 54, 1, tzinfo=datetime.UTC)
 

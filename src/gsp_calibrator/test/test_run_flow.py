@@ -18,12 +18,12 @@ from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, PostureLink, RunHost
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.settings import CalibratorSettings
-from gsp_kinematics.effects.model import approach_directions
-from gsp_kinematics.geometry import default_geometry, parameter_errors
-from gsp_kinematics.kinematics import home_pose, inverse_kinematics
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.motion import posture_leg_lengths
-from gsp_kinematics.validation import sensor_measurements
+from gsp_kinematics.model.effects import approach_directions
+from gsp_kinematics.model.geometry import default_geometry, parameter_errors
+from gsp_kinematics.model.kinematics import home_pose, inverse_kinematics
+from gsp_kinematics.model.motion import posture_leg_lengths
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import sensor_measurements
 from gsp_msgs_py import conversions, names
 
 SAMPLES_PER_POSTURE = 10

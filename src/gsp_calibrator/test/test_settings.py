@@ -24,8 +24,8 @@ from gsp_calibrator.settings import (
     option_value,
     run_options_error,
 )
-from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.model.geometry import default_geometry_path
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 
 def test_defaults():

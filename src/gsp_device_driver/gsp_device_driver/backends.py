@@ -11,7 +11,7 @@ The ``device_driver`` node only talks to the backend :func:`backend_class` names
 Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
 ``from_config(**config)`` classmethod. It receives ``true_geometry_file``, the true noise
 ``<sensor>_noise_std`` of each device sensor, the ``<sensor>_response_time``
-and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.device.SENSORS``), ``rng``, ``stamp_clock``
+and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.model.device.SENSORS``), ``rng``, ``stamp_clock``
 (the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.parameter_specs.ParameterSpec` in ``PARAMETERS``; it should
 ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
 ``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
@@ -24,16 +24,21 @@ import math
 import numpy as np
 
 from gsp_kinematics import channels
-from gsp_kinematics.device import (
+from gsp_kinematics.model.device import (
     READING_NAMES,
     SENSORS,
     DeviceModelError,
     device_readings,
     per_reading,
 )
-from gsp_kinematics.geometry import Geometry, SensorErrors, load_geometry
-from gsp_kinematics.sensors.dynamics import SensorDynamics
-from gsp_kinematics.sensors.noise import NO_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER, SensorNoise
+from gsp_kinematics.model.geometry import Geometry, SensorErrors, load_geometry
+from gsp_kinematics.model.sensor_dynamics import SensorDynamics
+from gsp_kinematics.model.sensor_noise import (
+    NO_NOISE,
+    NOISE_UNITS,
+    TRUE_NOISE_PARAMETER,
+    SensorNoise,
+)
 from gsp_msgs_py.health import OK, WARN, Health
 
 from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
@@ -52,7 +57,7 @@ class SimDeviceBackend(DeviceBackend):
     ``sensors``: the real device's ``SensorErrors`` (inclinometer and encoder offsets, LVDT gain
     error; docs/sensor_errors.md); None: ideal sensors. ``response_times`` and
     ``correlation_times``: ``(inclinometer, encoder, lvdt)`` in s, the first-order response and
-    the noise correlation time of each sensor (:mod:`gsp_kinematics.sensors.dynamics`); 0 (the
+    the noise correlation time of each sensor (:mod:`gsp_kinematics.model.sensor_dynamics`); 0 (the
     default): instant readings and white noise.
     """
 

@@ -27,7 +27,7 @@ class DeviceSample:
     d_m: float
 
     def readings(self):
-        """``[alpha, beta, phi, d_m]`` (4,) in ``gsp_kinematics.device.READING_NAMES`` order."""
+        """``[alpha, beta, phi, d_m]`` (4,) in ``gsp_kinematics.model.device.READING_NAMES`` order."""
         return np.array([self.alpha, self.beta, self.phi, self.d_m])
 
 

@@ -15,9 +15,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from gsp_kinematics.channels import DEVICE_SENSORS, sensor_channel_names
-from gsp_kinematics.device import SENSORS
-from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.sensors.noise import TRUE_NOISE_PARAMETER, SensorNoise
+from gsp_kinematics.model.device import SENSORS
+from gsp_kinematics.model.geometry import default_geometry_path
+from gsp_kinematics.model.sensor_noise import TRUE_NOISE_PARAMETER, SensorNoise
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank

@@ -21,8 +21,8 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
 from gsp_kinematics.channels import DEVICE_SENSORS
-from gsp_kinematics.geometry import default_geometry_path
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
+from gsp_kinematics.model.geometry import default_geometry_path
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 
 from .backends import SimDeviceBackend

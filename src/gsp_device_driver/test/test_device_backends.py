@@ -13,9 +13,9 @@ from gsp_device_driver.backends import (
     SimDeviceBackend,
     backend_class,
 )
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import default_geometry, default_geometry_path
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import default_geometry, default_geometry_path
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 TRUE = default_geometry('true')
 POSE = np.array([0.05, -0.03, 0.97, 0.08, -0.05, 0.2])

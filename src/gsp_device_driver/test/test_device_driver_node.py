@@ -9,8 +9,8 @@ import pytest
 from rclpy.parameter import Parameter
 
 from gsp_device_driver.device_driver_node import DeviceDriverNode
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import default_geometry
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import default_geometry
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import ERROR, OK, WARN
 from gsp_msgs_py.parameter_specs import ConfigurationError

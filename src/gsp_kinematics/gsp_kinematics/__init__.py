@@ -9,14 +9,14 @@ import importlib
 
 #: Module -> the names it lends to the package.
 _EXPORTS = {
-    'device': ('device_position', 'device_readings', 'position_to_inclinations'),
-    'geometry': (
+    'model.device': ('device_position', 'device_readings', 'position_to_inclinations'),
+    'model.geometry': (
         'ALL_PARAMETER_NAMES PARAMETER_NAMES Geometry GeometryError Limits default_geometry default_geometry_path '
         'SensorErrors load_geometry save_geometry'
     ).split(),
-    'identification': ('IdentificationResult', 'identify'),
-    'sensors.noise': ('DEFAULT_SENSOR_NOISE', 'SensorNoise'),
-    'kinematics': (
+    'estimation.identification': ('IdentificationResult', 'identify'),
+    'model.sensor_noise': ('DEFAULT_SENSOR_NOISE', 'SensorNoise'),
+    'model.kinematics': (
         'ForwardKinematicsError Workspace check_reachable forward_kinematics inverse_kinematics '
         'sample_valid_postures'
     ).split(),

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gsp_kinematics.geometry import load_geometry
-from gsp_kinematics.kinematics import Workspace, sample_valid_postures
+from gsp_kinematics.model.geometry import load_geometry
+from gsp_kinematics.model.kinematics import Workspace, sample_valid_postures
 
 DATA = Path(__file__).resolve().parent / 'data'
 

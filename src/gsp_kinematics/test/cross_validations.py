@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from gsp_kinematics.verdict.cross_validation import CrossValidation
+from gsp_kinematics.estimation.verdict.cross_validation import CrossValidation
 
 
 def validation_of(position, folds, **corrections):

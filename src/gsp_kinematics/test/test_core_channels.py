@@ -2,8 +2,10 @@
 
 import numpy as np
 
-from gsp_kinematics import channels, device, goodness
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics import channels
+from gsp_kinematics.estimation import goodness
+from gsp_kinematics.model import device
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 
 def test_the_ten_columns_are_the_legs_then_the_device_readings():

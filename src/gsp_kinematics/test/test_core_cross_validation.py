@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 from cross_validations import validation_of
 
-from gsp_kinematics import noise_from_data
-from gsp_kinematics.identification import identify
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.validation import sensor_measurements
-from gsp_kinematics.verdict.comparison import leverage_ratios
-from gsp_kinematics.verdict.cross_validation import (
+from gsp_kinematics.estimation import noise_from_data
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.verdict.comparison import leverage_ratios
+from gsp_kinematics.estimation.verdict.cross_validation import (
     cross_validate,
     device_pose,
     fold_assignment,
     noise_removed,
     noise_variances,
 )
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import sensor_measurements
 
 SAMPLES = 10
 ROWS = DEFAULT_SENSOR_NOISE.averaged([SAMPLES])
@@ -66,7 +66,7 @@ def test_noise_variances_match_monte_carlo(exact, moderate_postures):
     draws = 3000
     position = np.zeros((draws, len(poses), 3))
     phi = np.zeros((draws, len(poses)))
-    from gsp_kinematics.verdict.cross_validation import prediction_errors
+    from gsp_kinematics.estimation.verdict.cross_validation import prediction_errors
 
     for k in range(draws):
         noisy_legs = legs + rng.normal(0.0, ROWS.leg_lengths, legs.shape)
@@ -114,7 +114,7 @@ def _device_only(geometry, sigma):
     device's own error, which the legs do not share."""
     import types
 
-    from gsp_kinematics.geometry import ALL_PARAMETER_NAMES
+    from gsp_kinematics.model.geometry import ALL_PARAMETER_NAMES
 
     free = np.zeros(len(ALL_PARAMETER_NAMES), bool)
     free[[ALL_PARAMETER_NAMES.index('Loff1'), ALL_PARAMETER_NAMES.index('D0')]] = True
@@ -127,7 +127,7 @@ def test_the_device_own_error_is_in_the_comparison_not_in_the_truth(exact, moder
     """An uncertainty of D0 alone (sigma) moves what the device measures along the link by sigma
     at every posture and leaves the controller's pose alone: the held-out comparison holds
     sigma^2 the truth does not, so it is subtracted (an unseen part of -sigma^2), not added."""
-    from gsp_kinematics.verdict.comparison import comparison_variances
+    from gsp_kinematics.estimation.verdict.comparison import comparison_variances
 
     sigma = 4e-6
     poses = moderate_postures[:10]
@@ -153,9 +153,9 @@ def test_the_comparison_sensitivities_match_finite_differences(
 ):
     """Forward kinematics minus the device, per free parameter, against finite differences of
     the prediction errors (per column: to 1e-3 of the column's largest, position and phi)."""
-    from gsp_kinematics.geometry import ALL_PARAMETER_NAMES, Geometry
-    from gsp_kinematics.verdict.comparison import comparison_sensitivities
-    from gsp_kinematics.verdict.cross_validation import prediction_errors
+    from gsp_kinematics.estimation.verdict.comparison import comparison_sensitivities
+    from gsp_kinematics.estimation.verdict.cross_validation import prediction_errors
+    from gsp_kinematics.model.geometry import ALL_PARAMETER_NAMES, Geometry
 
     legs, readings = sensor_measurements(exact, moderate_postures)
     result = identify(
@@ -187,8 +187,8 @@ def test_the_device_sensitivities_match_finite_differences(exact, nominal_sets, 
     column's largest), at a geometry with every sensor error nonzero; zero for the others."""
     import dataclasses
 
-    from gsp_kinematics.geometry import ALL_PARAMETER_NAMES, Geometry
-    from gsp_kinematics.verdict.comparison import DEVICE_PARAMETERS, device_sensitivities
+    from gsp_kinematics.estimation.verdict.comparison import DEVICE_PARAMETERS, device_sensitivities
+    from gsp_kinematics.model.geometry import ALL_PARAMETER_NAMES, Geometry
 
     legs, readings = sensor_measurements(exact, moderate_postures)
     result = identify(
@@ -277,7 +277,7 @@ def test_the_leverage_corrected_mean_keeps_the_shape_of_the_errors():
 def test_the_requirement_is_judged_on_the_larger_of_the_workspace_and_selected_figures():
     """The workspace postures cannot see an error the device's own parameters share with the
     legs; the selected postures' larger errors bound it: a run is judged on the larger."""
-    from gsp_kinematics.verdict.acceptance import Requirement, judge
+    from gsp_kinematics.estimation.verdict.acceptance import Requirement, judge
 
     def figures(position_mm):
         return {
@@ -398,9 +398,9 @@ def test_a_bad_row_in_a_smooth_field_is_still_named(nominal_sets, moderate_postu
 
 
 def test_the_prediction_adds_the_unmodelled_part(exact, moderate_postures):
-    from gsp_kinematics.geometry import NUM_PARAMETERS
-    from gsp_kinematics.prediction import assumption, predicted_errors
-    from gsp_kinematics.sensors.noise import SensorNoise
+    from gsp_kinematics.estimation.prediction import assumption, predicted_errors
+    from gsp_kinematics.model.geometry import NUM_PARAMETERS
+    from gsp_kinematics.model.sensor_noise import SensorNoise
 
     covariance = np.eye(NUM_PARAMETERS) * 1e-12
     alone, _ = predicted_errors(exact, covariance, moderate_postures[:5])
@@ -422,10 +422,10 @@ def test_on_an_ideal_platform_the_measured_accuracy_is_the_true_one(exact, nomin
     truth holds a draw of the error the legs share with the device); the estimator that added
     the device's own variance, took the leverage of the controller's variance and the shape of
     magnitudes shrunk towards the noise read 1.17x here."""
-    from gsp_kinematics.identification import resolve_free
-    from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-    from gsp_kinematics.selection import select_postures
-    from gsp_kinematics.validation import validate
+    from gsp_kinematics.estimation.identification import resolve_free
+    from gsp_kinematics.model.kinematics import Workspace, sample_valid_postures
+    from gsp_kinematics.model.validation import validate
+    from gsp_kinematics.planning.selection import select_postures
 
     nominal = nominal_sets[1]
     pool = sample_valid_postures(nominal, 600, np.random.default_rng(0), Workspace())

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.device import (
+from gsp_kinematics.model.device import (
     DeviceModelError,
     device_position,
     device_readings,

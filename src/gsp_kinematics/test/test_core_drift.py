@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gsp_kinematics.geometry import ALL_PARAMETER_NAMES
+from gsp_kinematics.model.geometry import ALL_PARAMETER_NAMES
 from gsp_kinematics.upkeep import drift
 
 NAMES = ALL_PARAMETER_NAMES[36:42] + ('D0', 'gamma')  # Loff1..6, D0, gamma

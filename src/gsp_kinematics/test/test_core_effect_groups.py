@@ -1,4 +1,4 @@
-"""The effect groups of the identification (gsp_kinematics.effects.groups): Jacobian columns
+"""The effect groups of the identification (gsp_kinematics.model.effect_groups): Jacobian columns
 against finite differences, recovery and identifiability on a simulated real platform."""
 
 import dataclasses
@@ -6,20 +6,27 @@ import dataclasses
 import numpy as np
 import pytest
 
-from gsp_kinematics._solver.formulations import _ImplicitModel
-from gsp_kinematics.effects.groups import (
-    EFFECT_GROUPS,
-    EFFECT_PARAMETER_NAMES,
+from gsp_kinematics.estimation._solver.formulations import _ImplicitModel
+from gsp_kinematics.estimation.identification import (
+    SENSOR_NAMES,
+    IdentificationError,
+    identify,
+    resolve_free,
+)
+from gsp_kinematics.model.effect_groups import (
     EffectDesign,
     EffectTerms,
-    IdentifiedEffects,
     compensated_leg_readings,
     model_poses,
     resolve_effects,
 )
-from gsp_kinematics.effects.model import PlatformEffects
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.effects import (
+    EFFECT_GROUPS,
+    EFFECT_PARAMETER_NAMES,
+    IdentifiedEffects,
+    PlatformEffects,
+)
+from gsp_kinematics.model.geometry import (
     GeometryError,
     default_geometry,
     geometry_from_parameters,
@@ -27,15 +34,10 @@ from gsp_kinematics.geometry import (
     geometry_to_parameters,
     geometry_to_yaml,
 )
-from gsp_kinematics.identification import (
-    SENSOR_NAMES,
-    IdentificationError,
-    identify,
-    resolve_free,
-)
-from gsp_kinematics.kinematics import Workspace, inverse_kinematics, sample_valid_postures
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.validation import simulate_commands, validate
+from gsp_kinematics.model.kinematics import Workspace, inverse_kinematics, sample_valid_postures
+from gsp_kinematics.model.real_pose import real_poses
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.validation import simulate_commands, validate
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')

@@ -1,19 +1,19 @@
-"""Plans that can identify the effects (gsp_kinematics.effects.plan): the reference revisits of
+"""Plans that can identify the effects (gsp_kinematics.planning.effect_plan): the reference revisits of
 the thermal group, both approach directions of every leg for the backlash, and the Cramér-Rao
 bound of each group against the identification's own covariance and a Monte Carlo."""
 
 import numpy as np
 import pytest
 
-from gsp_kinematics.effects.model import PlatformEffects, approach_directions
-from gsp_kinematics.effects.plan import augment_route, group_identifiability
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.identification import Options, identify
-from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.motion import MotionLimits, posture_leg_lengths
-from gsp_kinematics.validation import simulate_commands, validate
-from gsp_kinematics.verdict.model_choice import thermal_time_constant
+from gsp_kinematics.estimation.identification import Options, identify
+from gsp_kinematics.estimation.verdict.model_choice import thermal_time_constant
+from gsp_kinematics.model.effects import PlatformEffects, approach_directions
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import Workspace, sample_valid_postures
+from gsp_kinematics.model.motion import MotionLimits, posture_leg_lengths
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import simulate_commands, validate
+from gsp_kinematics.planning.effect_plan import augment_route, group_identifiability
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')

@@ -1,4 +1,4 @@
-"""The platform effects' physics (gsp_kinematics.effects), each against a hand calculation."""
+"""The platform effects' physics (gsp_kinematics.model), each against a hand calculation."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from gsp_kinematics.effects.model import (
+from gsp_kinematics.model.effects import (
     GRAVITY,
     REALISTIC,
     EffectsError,
@@ -16,11 +16,15 @@ from gsp_kinematics.effects.model import (
     effective_base_joints,
     leg_forces,
 )
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.geometry import Geometry
-from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics, leg_vectors
+from gsp_kinematics.model.geometry import Geometry
+from gsp_kinematics.model.kinematics import (
+    forward_kinematics_masked,
+    inverse_kinematics,
+    leg_vectors,
+)
+from gsp_kinematics.model.real_pose import real_poses
+from gsp_kinematics.model.validation import simulate_commands, validate
 from gsp_kinematics.rotation import euler_to_matrix
-from gsp_kinematics.validation import simulate_commands, validate
 
 HEIGHT = 1.0  # m, of the symmetric platform's home pose
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.geometry import (
     PARAMETER_CHAIN,
     PARAMETER_NAMES,
     Geometry,

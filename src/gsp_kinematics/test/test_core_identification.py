@@ -5,21 +5,26 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics._solver.formulations import _FkModel, _ImplicitModel
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import PARAMETER_INDEX, PARAMETER_NAMES, Geometry, parameter_errors
-from gsp_kinematics.identification import (
+from gsp_kinematics.estimation._solver.formulations import _FkModel, _ImplicitModel
+from gsp_kinematics.estimation.identification import (
     SENSOR_NAMES,
     IdentificationError,
     identify,
     resolve_free,
 )
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import (
+    PARAMETER_INDEX,
+    PARAMETER_NAMES,
+    Geometry,
+    parameter_errors,
+)
+from gsp_kinematics.model.kinematics import (
     forward_kinematics_masked,
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.sensors.noise import SensorNoise
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.verdict.cross_validation import noise_removed
-from gsp_kinematics.verdict.interval import (
+from gsp_kinematics.estimation.verdict.cross_validation import noise_removed
+from gsp_kinematics.estimation.verdict.interval import (
     accuracy_statistic,
     held_out_interval,
     posture_terms,

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.geometry import Geometry, default_geometry
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.model.geometry import Geometry, default_geometry
+from gsp_kinematics.model.kinematics import (
     ForwardKinematicsError,
     check_reachable,
     expand_leg_parameters,
@@ -71,7 +71,7 @@ def test_fk_accepts_one_guess_for_all_postures(exact, rng):
 def test_the_pose_from_leg_readings_anywhere_in_the_workspace(rng):
     """FK from the home pose of the readings IK gives: the posture, even far from home (the
     calibrator's route starts there)."""
-    from gsp_kinematics.travel.motion import posture_leg_lengths
+    from gsp_kinematics.model.motion import posture_leg_lengths
 
     geometry = default_geometry('true')  # leg gain errors: readings are not articular values
     poses = sample_valid_postures(geometry, 40, rng)

@@ -1,6 +1,6 @@
-"""Choosing the model from the data (gsp_kinematics.verdict.model_choice): the plain model on a platform
+"""Choosing the model from the data (gsp_kinematics.estimation.verdict.model_choice): the plain model on a platform
 it describes, the effect's group on a platform that has it; which groups a run can try; a
-significant group not predicted to help (gsp_kinematics.verdict.choice_accuracy) left out; a
+significant group not predicted to help (gsp_kinematics.estimation.verdict.choice_accuracy) left out; a
 candidate that cannot be judged (too few postures) says why and is never kept."""
 
 import dataclasses
@@ -11,15 +11,20 @@ import warnings
 import numpy as np
 import pytest
 
-from gsp_kinematics.effects.groups import EffectDesign
-from gsp_kinematics.effects.model import PlatformEffects
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import Workspace, sample_valid_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
-from gsp_kinematics.validation import pose_errors, simulate_commands, validate
-from gsp_kinematics.verdict.choice_accuracy import freeing_gain, workspace_postures
-from gsp_kinematics.verdict.model_choice import Candidate, _keeps, available_groups, choose_model
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.verdict.choice_accuracy import freeing_gain, workspace_postures
+from gsp_kinematics.estimation.verdict.model_choice import (
+    Candidate,
+    _keeps,
+    available_groups,
+    choose_model,
+)
+from gsp_kinematics.model.effect_groups import EffectDesign
+from gsp_kinematics.model.effects import PlatformEffects
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import Workspace, sample_valid_postures
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
+from gsp_kinematics.model.validation import pose_errors, simulate_commands, validate
 
 TRUE = default_geometry('true')
 NOMINAL = default_geometry('nominal')

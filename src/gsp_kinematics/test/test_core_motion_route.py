@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import Workspace, home_pose, sample_valid_postures
-from gsp_kinematics.travel.motion import (
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import Workspace, home_pose, sample_valid_postures
+from gsp_kinematics.model.motion import (
     LegMove,
     MotionLimits,
     leg_travel_time,
     move_time,
     posture_leg_lengths,
 )
-from gsp_kinematics.travel.route import (
+from gsp_kinematics.planning.route import (
     path_time,
     plan_route,
     shortest_path_order,

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.sensors.noise import (
+from gsp_kinematics.model.sensor_noise import (
     DEFAULT_SENSOR_NOISE,
     TRUE_NOISE_PARAMETER,
     SensorNoise,

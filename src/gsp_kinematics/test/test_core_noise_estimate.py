@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.sensors.noise_estimate import (
+from gsp_kinematics.estimation.noise_estimate import (
     NoiseEstimateError,
     false_unsettled_rate,
     lag_sums,

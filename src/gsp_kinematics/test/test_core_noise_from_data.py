@@ -6,13 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics import channels, goodness, noise_from_data
-from gsp_kinematics._solver.redundancy import redundancy_flat, redundancy_with_poses
-from gsp_kinematics.geometry import SensorErrors
-from gsp_kinematics.identification import identify
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
-from gsp_kinematics.sensors.noise_estimate import ar1_std_of_mean
-from gsp_kinematics.validation import sensor_measurements
+from gsp_kinematics import channels
+from gsp_kinematics.estimation import goodness, noise_from_data
+from gsp_kinematics.estimation._solver.redundancy import redundancy_flat, redundancy_with_poses
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.noise_estimate import ar1_std_of_mean
+from gsp_kinematics.model.geometry import SensorErrors
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_FIELDS, SensorNoise
+from gsp_kinematics.model.validation import sensor_measurements
 
 SAMPLES = 10
 SENSORS = SensorErrors(

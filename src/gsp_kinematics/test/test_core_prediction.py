@@ -4,23 +4,8 @@ Monte-Carlo identifications."""
 import numpy as np
 import pytest
 
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.effects.groups import (
-    NUM_EFFECT_PARAMETERS,
-    EffectDesign,
-    EffectTerms,
-    IdentifiedEffects,
-    commanded_leg_readings,
-)
-from gsp_kinematics.geometry import NUM_ALL_PARAMETERS, NUM_PARAMETERS, PARAMETER_INDEX, Geometry
-from gsp_kinematics.identification import identify
-from gsp_kinematics.kinematics import (
-    forward_kinematics,
-    forward_kinematics_masked,
-    inverse_kinematics,
-    leg_vectors,
-)
-from gsp_kinematics.prediction import (
+from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.prediction import (
     accuracy_summary,
     effect_pose_sensitivities,
     expected_norm,
@@ -29,10 +14,25 @@ from gsp_kinematics.prediction import (
     predicted_errors,
     thermal_strain_rms,
 )
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.effect_groups import EffectDesign, EffectTerms, commanded_leg_readings
+from gsp_kinematics.model.effects import NUM_EFFECT_PARAMETERS, IdentifiedEffects
+from gsp_kinematics.model.geometry import (
+    NUM_ALL_PARAMETERS,
+    NUM_PARAMETERS,
+    PARAMETER_INDEX,
+    Geometry,
+)
+from gsp_kinematics.model.kinematics import (
+    forward_kinematics,
+    forward_kinematics_masked,
+    inverse_kinematics,
+    leg_vectors,
+)
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.validation import reached_poses, validate
+from gsp_kinematics.planning.selection import select_postures
 from gsp_kinematics.rotation import euler_to_matrix
-from gsp_kinematics.selection import select_postures
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.validation import reached_poses, validate
 
 
 def _rotation_vector(commanded, reached):

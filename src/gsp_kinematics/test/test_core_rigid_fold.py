@@ -1,14 +1,11 @@
-"""The identified effects folded into a rigid geometry (gsp_kinematics.effects.rigid_fold), for a
+"""The identified effects folded into a rigid geometry (gsp_kinematics.estimation.rigid_fold), for a
 controller that cannot compensate them: its Jacobian, and its accuracy on the realistic
 platform against a truth the model does not contain."""
 
 import numpy as np
 import pytest
 
-from gsp_kinematics.effects.groups import IdentifiedEffects
-from gsp_kinematics.effects.model import REALISTIC
-from gsp_kinematics.effects.real_pose import loaded_leg_state
-from gsp_kinematics.effects.rigid_fold import (
+from gsp_kinematics.estimation.rigid_fold import (
     fit_rigid_geometry,
     fold_effects,
     fold_postures,
@@ -16,8 +13,10 @@ from gsp_kinematics.effects.rigid_fold import (
     rigid_leg_jacobian,
     rigid_model_errors,
 )
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.validation import validate
+from gsp_kinematics.model.effects import REALISTIC, IdentifiedEffects
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.real_pose import loaded_leg_state
+from gsp_kinematics.model.validation import validate
 
 TRUE = default_geometry('true')
 RIGID = TRUE.replace(effects=IdentifiedEffects())

@@ -5,16 +5,19 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.kinematics import forward_kinematics, inverse_kinematics, sample_valid_postures
-from gsp_kinematics.rotation import euler_to_matrix, matrix_to_euler
-from gsp_kinematics.selection import (
+from gsp_kinematics.estimation.identifiability import posture_information, scaled_condition_number
+from gsp_kinematics.model.kinematics import (
+    forward_kinematics,
+    inverse_kinematics,
+    sample_valid_postures,
+)
+from gsp_kinematics.model.validation import pose_errors, reached_poses, validate
+from gsp_kinematics.planning.selection import (
     exchange_for_pose_error,
     position_weight,
-    posture_information,
-    scaled_condition_number,
     select_postures,
 )
-from gsp_kinematics.validation import pose_errors, reached_poses, validate
+from gsp_kinematics.rotation import euler_to_matrix, matrix_to_euler
 
 
 @pytest.fixture(scope='module')
@@ -126,11 +129,11 @@ def test_validation_commands_with_the_controller_and_moves_the_true_platform(
 
 
 def test_posture_factors_give_the_schur_complement(nominal_sets, postures):
-    from gsp_kinematics._solver.lm import schur_information
-    from gsp_kinematics.device import device_readings_jacobians
-    from gsp_kinematics.kinematics import expand_leg_parameters, inverse_kinematics_jacobians
-    from gsp_kinematics.selection import posture_factors
-    from gsp_kinematics.sensors.noise import SensorNoise
+    from gsp_kinematics.estimation._solver.lm import schur_information
+    from gsp_kinematics.estimation.identifiability import posture_factors
+    from gsp_kinematics.model.device import device_readings_jacobians
+    from gsp_kinematics.model.kinematics import expand_leg_parameters, inverse_kinematics_jacobians
+    from gsp_kinematics.model.sensor_noise import SensorNoise
 
     nominal, sigmas, poses = nominal_sets[2], SensorNoise(), postures[:30]
     factors = posture_factors(nominal, poses, sigmas)
@@ -158,13 +161,13 @@ def test_selection_is_not_worse_than_scoring_every_candidate(nominal_sets):
 
 
 def test_best_addition_picks_the_posture_that_lowers_the_condition_number_most():
-    from gsp_kinematics.geometry import default_geometry
-    from gsp_kinematics.kinematics import sample_valid_postures
-    from gsp_kinematics.selection import (
-        best_addition,
+    from gsp_kinematics.estimation.identifiability import (
         posture_information,
         scaled_condition_number,
     )
+    from gsp_kinematics.model.geometry import default_geometry
+    from gsp_kinematics.model.kinematics import sample_valid_postures
+    from gsp_kinematics.planning.selection import best_addition
 
     nominal = default_geometry('nominal')
     pool = sample_valid_postures(nominal, 80, np.random.default_rng(5))

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.sensors.dynamics import SensorDynamics, SensorDynamicsError
+from gsp_kinematics.model.sensor_dynamics import SensorDynamics, SensorDynamicsError
 
 DT = 0.005  # s, the device's 200 Hz
 

@@ -6,9 +6,18 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics import goodness
-from gsp_kinematics._solver.formulations import _FkModel, _ImplicitModel
-from gsp_kinematics.geometry import (
+from gsp_kinematics.estimation import goodness
+from gsp_kinematics.estimation._solver.formulations import _FkModel, _ImplicitModel
+from gsp_kinematics.estimation.identifiability import analyse_design, unidentifiable_parameters
+from gsp_kinematics.estimation.identification import (
+    PARAMETER_GROUPS,
+    SENSOR_NAMES,
+    IdentificationError,
+    Options,
+    identify,
+    resolve_free,
+)
+from gsp_kinematics.model.geometry import (
     NUM_PARAMETERS,
     PARAMETER_INDEX,
     SENSOR_PARAMETER_NAMES,
@@ -17,17 +26,8 @@ from gsp_kinematics.geometry import (
     geometry_from_yaml,
     geometry_to_yaml,
 )
-from gsp_kinematics.identifiability import analyse_design, unidentifiable_parameters
-from gsp_kinematics.identification import (
-    PARAMETER_GROUPS,
-    SENSOR_NAMES,
-    IdentificationError,
-    Options,
-    identify,
-    resolve_free,
-)
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.validation import sensor_measurements
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.validation import sensor_measurements
 
 SENSORS = SensorErrors(
     leg_gain_errors=[3e-4, -2e-4, 4e-4, -3e-4, 1e-4, 2e-4],

@@ -8,8 +8,8 @@ import pytest
 from cross_validations import validation_of
 from scipy import stats
 
+from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.upkeep import stopping
-from gsp_kinematics.verdict import acceptance
 
 Z95 = float(stats.norm.ppf(0.95))
 

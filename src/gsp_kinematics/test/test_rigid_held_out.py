@@ -1,9 +1,9 @@
-"""The rigid geometry's held-out figure (gsp_kinematics.verdict.rigid_held_out): the mean length
+"""The rigid geometry's held-out figure (gsp_kinematics.estimation.verdict.rigid_held_out): the mean length
 of a fixed error plus a random one, against a Monte Carlo mean."""
 
 import numpy as np
 
-from gsp_kinematics.verdict.rigid_held_out import mean_sum_length
+from gsp_kinematics.estimation.verdict.rigid_held_out import mean_sum_length
 
 
 def test_the_mean_length_of_a_fixed_plus_a_random_error_matches_sampling():

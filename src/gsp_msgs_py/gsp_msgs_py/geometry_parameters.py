@@ -4,8 +4,8 @@
 ``apply_result`` sets a calibrated geometry on either one unchanged.
 """
 
-from gsp_kinematics.effects.groups import EffectDesignError
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.effects import EffectDesignError
+from gsp_kinematics.model.geometry import (
     GeometryError,
     default_geometry,
     geometry_from_parameters,

@@ -27,7 +27,11 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER
+from gsp_kinematics.model.sensor_noise import (
+    DEFAULT_SENSOR_NOISE,
+    NOISE_UNITS,
+    TRUE_NOISE_PARAMETER,
+)
 
 from . import names
 
@@ -233,7 +237,7 @@ def diagnostics_period_spec():
 
 def motion_limit_specs(speed, acceleration, read_only=False):
     """``max_leg_speed`` (m/s) and ``max_leg_acceleration`` (m/s^2) of the simulated legs, with
-    these defaults; 0 removes a limit (:class:`gsp_kinematics.travel.motion.MotionLimits`)."""
+    these defaults; 0 removes a limit (:class:`gsp_kinematics.model.motion.MotionLimits`)."""
     return tuple(
         ParameterSpec(
             name,
@@ -254,7 +258,7 @@ def motion_limit_specs(speed, acceleration, read_only=False):
 
 def true_noise_spec(sensor, description):
     """A simulated ``sensor``'s true noise std, ``<sensor>_noise_std``
-    (:data:`gsp_kinematics.sensors.noise.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
+    (:data:`gsp_kinematics.model.sensor_noise.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
     at run time; the default is the suite's default noise."""
     unit = NOISE_UNITS[sensor]
     return ParameterSpec(

@@ -8,7 +8,7 @@ the joint states, or when they are stale (none for ``state_timeout`` s). Times i
 
 import numpy as np
 
-from gsp_kinematics.travel.motion import move_time
+from gsp_kinematics.model.motion import move_time
 from gsp_msgs_py.health import ERROR, OK, Health
 
 SETTLED = 'settled'
@@ -141,7 +141,7 @@ def pose_path(start, goal, position_step, angle_step):
 
 def waypoint_times(current, waypoints, limits, min_duration):
     """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): each segment a
-    synchronised rest-to-rest move at the legs' ``limits`` (a :class:`gsp_kinematics.travel.
+    synchronised rest-to-rest move at the legs' ``limits`` (a :class:`gsp_kinematics.planning.
     motion.MotionLimits`: the model controller_sim follows the points with), the whole at least
     ``min_duration`` (s)."""
     legs = np.vstack([np.asarray(current, dtype=float)[None], np.asarray(waypoints, dtype=float)])

@@ -15,9 +15,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from gsp_kinematics.effects.groups import commanded_leg_readings
-from gsp_kinematics.kinematics import check_reachable, forward_kinematics_masked, home_pose
-from gsp_kinematics.travel.motion import REALISTIC_MAX_SPEED, MotionLimits
+from gsp_kinematics.model.effect_groups import commanded_leg_readings
+from gsp_kinematics.model.kinematics import check_reachable, forward_kinematics_masked, home_pose
+from gsp_kinematics.model.motion import REALISTIC_MAX_SPEED, MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.motion import MotionLimits
 from gsp_platform_bridge.goal_monitor import (
     REJECTED,
     SETTLED,

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.geometry import (
     default_geometry,
     geometry_from_parameters,
     geometry_to_parameters,
 )
-from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
+from gsp_kinematics.model.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import ERROR, OK, WARN
 from gsp_platform_bridge.platform_bridge_node import PlatformBridgeNode

@@ -13,14 +13,14 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from gsp_kinematics.channels import LEG_LENGTHS
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.geometry import (
     GeometryError,
     default_geometry,
     default_geometry_path,
     load_geometry,
 )
-from gsp_kinematics.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
+from gsp_kinematics.model.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 
 from .trajectory_follower import TrajectoryFollower

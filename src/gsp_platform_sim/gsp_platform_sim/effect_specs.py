@@ -1,10 +1,10 @@
 """``platform_sim``'s truth parameters of the real platform's effects (``effects.*``,
 docs/platform_effects.md): one :class:`ParameterSpec` per field of
-:class:`gsp_kinematics.effects.model.PlatformEffects`, read once at start-up. Their defaults
+:class:`gsp_kinematics.model.effects.PlatformEffects`, read once at start-up. Their defaults
 switch every effect off (the rigid 44-parameter platform).
 """
 
-from gsp_kinematics.effects.model import FIELDS, EffectsError, PlatformEffects
+from gsp_kinematics.model.effects import FIELDS, EffectsError, PlatformEffects
 from gsp_msgs_py.parameter_specs import ParameterSpec, is_finite_number
 
 PREFIX = 'effects.'

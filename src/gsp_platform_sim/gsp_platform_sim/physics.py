@@ -6,7 +6,7 @@ that ``platform_sim`` uses, on the simulation clock (s) :meth:`PhysicsSimulator.
 
 * a command is vetted and turned into leg readings by a kinematic ``PlatformSimulator`` of the
   same geometries (the same refusals: stroke, joint angles, singularity, no assembly); the servos
-  then follow a synchronised leg move (:class:`gsp_kinematics.travel.motion.LegMove`) to them;
+  then follow a synchronised leg move (:class:`gsp_kinematics.model.motion.LegMove`) to them;
 * the leg readings are the servo encoders (the motor side: the legs' compression is not seen),
   with the true leg gain errors ``(1 + kq) q``;
 * :attr:`PhysicsSimulator.in_position` is a real controller's "in position": the move is over
@@ -23,10 +23,10 @@ import math
 import mujoco
 import numpy as np
 
-from gsp_kinematics.device import position_to_inclinations
-from gsp_kinematics.kinematics import check_reachable, home_pose
+from gsp_kinematics.model.device import position_to_inclinations
+from gsp_kinematics.model.kinematics import check_reachable, home_pose
+from gsp_kinematics.model.motion import LegMove, MotionLimits
 from gsp_kinematics.rotation import matrix_to_euler
-from gsp_kinematics.travel.motion import LegMove, MotionLimits
 
 from .physics_model import PhysicalParameters, build_mjcf
 from .simulator import DEFAULT_MAX_CONDITION, CommandOutcome, PlatformSimulator

@@ -1,6 +1,6 @@
 """A MuJoCo closed-chain model of a Gough-Stewart platform and its measuring device (no rclpy).
 
-:func:`build_mjcf` writes the MJCF of the platform built to a :class:`gsp_kinematics.geometry.Geometry` (the true one) with
+:func:`build_mjcf` writes the MJCF of the platform built to a :class:`gsp_kinematics.model.geometry.Geometry` (the true one) with
 the :class:`PhysicalParameters`. The model is built at the reference pose ``[0, 0, z, 0, 0, 0]``
 (each joint's zero); see docs/physics.md for the mechanism and how to describe one's own platform.
 

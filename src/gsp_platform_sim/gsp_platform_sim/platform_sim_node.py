@@ -17,13 +17,13 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMessage
 
 from gsp_kinematics.channels import LEG_LENGTHS
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.geometry import (
     GeometryError,
     default_geometry_path,
     geometry_from_parameters,
     load_geometry,
 )
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
@@ -71,7 +71,7 @@ PARAMETERS = (
     parameter_specs.seed_spec(),
     parameter_specs.settle_time_spec('an accepted command'),
     # Defaults: no limits, the platform jumps (quick demos and tests); the realistic limits are
-    # gsp_kinematics.travel.motion.MotionLimits() (docs/planning.md).
+    # gsp_kinematics.model.motion.MotionLimits() (docs/planning.md).
     *parameter_specs.motion_limit_specs(0.0, 0.0),
     ParameterSpec(
         'max_condition',

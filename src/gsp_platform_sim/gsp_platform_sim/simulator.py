@@ -9,31 +9,31 @@ Leg sensors with gain errors (``geometry.sensors.leg_gain_errors``, docs/sensor_
 controller drives each leg until its sensor reads ``q = IK(controller, pose) / (1 + kq_controller)``;
 the real articular variable is then ``(1 + kq_true) q``, and the published reading is ``q``.
 
-Motion (docs/planning.md): with :class:`gsp_kinematics.travel.motion.MotionLimits`, an accepted command
-starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.travel.motion.LegMove`);
+Motion (docs/planning.md): with :class:`gsp_kinematics.model.motion.MotionLimits`, an accepted command
+starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.model.motion.LegMove`);
 :meth:`PlatformSimulator.update` advances it. While it moves, the real pose is interpolated
 between the start and the end poses at the legs' common fraction (FK of the legs at every tick
 would cost more than the readings are worth: the collection uses none taken before the settle).
 Without limits the platform jumps.
 
-Effects (:class:`gsp_kinematics.effects.model.PlatformEffects`, docs/platform_effects.md): the
+Effects (:class:`gsp_kinematics.model.effects.PlatformEffects`, docs/platform_effects.md): the
 real platform may bend under its load, have backlash, grow with temperature and have offset
-joint axes. Its real pose then comes from :func:`gsp_kinematics.effects.real_pose.real_poses`
+joint axes. Its real pose then comes from :func:`gsp_kinematics.model.real_pose.real_poses`
 with each leg's approach direction (from its previous reading) and the time since ``start_s``;
 at rest the pose follows the thermal growth (:meth:`PlatformSimulator.update`). The leg readings
 stay what the actuators read. A controller geometry with identified effects compensates them
-(:func:`gsp_kinematics.effects.groups.commanded_leg_readings`).
+(:func:`gsp_kinematics.model.effect_groups.commanded_leg_readings`).
 """
 
 import dataclasses
 
 import numpy as np
 
-from gsp_kinematics.effects.groups import commanded_leg_readings
-from gsp_kinematics.effects.model import PlatformEffects, approach_directions, thermal_strains
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.kinematics import check_reachable, home_pose
-from gsp_kinematics.travel.motion import LegMove
+from gsp_kinematics.model.effect_groups import commanded_leg_readings
+from gsp_kinematics.model.effects import PlatformEffects, approach_directions, thermal_strains
+from gsp_kinematics.model.kinematics import check_reachable, home_pose
+from gsp_kinematics.model.motion import LegMove
+from gsp_kinematics.model.real_pose import real_poses
 
 #: Largest condition number of dq/dX a command may have (singularity guard). Above the
 #: ``Workspace().max_condition`` (60) used to sample postures, so sampled postures stay accepted
@@ -73,7 +73,7 @@ class PlatformSimulator:
     ``leg_lengths_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
     sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
     through :meth:`command`; ValueError if the home pose is not reachable. ``limits``: the legs'
-    :class:`gsp_kinematics.travel.motion.MotionLimits` (None: the platform jumps to each command).
+    :class:`gsp_kinematics.model.motion.MotionLimits` (None: the platform jumps to each command).
     ``effects``: the real platform's :class:`PlatformEffects` (None: none); ``start_s`` the time
     (s, the clock of :meth:`command`) at which its legs start warming up.
     """

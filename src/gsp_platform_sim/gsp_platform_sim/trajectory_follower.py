@@ -2,19 +2,19 @@
 
 A trajectory is a list of points ``(time_from_start s, positions (6,) m)``. From the positions
 it holds when the trajectory arrives, :class:`TrajectoryFollower` moves to each point in turn,
-arriving at its time, by synchronised leg moves of :mod:`gsp_kinematics.travel.motion` (the model
+arriving at its time, by synchronised leg moves of :mod:`gsp_kinematics.model.motion` (the model
 ``platform_sim`` uses): a point asked for sooner than the legs' speed and acceleration limits
 allow is reached late, as a real axis at its limits would.
 """
 
 import numpy as np
 
-from gsp_kinematics.travel.motion import LegMove
+from gsp_kinematics.model.motion import LegMove
 
 
 class TrajectoryFollower:
     """Leg positions following the latest trajectory; times are s on one clock; ``limits`` a
-    :class:`gsp_kinematics.travel.motion.MotionLimits`."""
+    :class:`gsp_kinematics.model.motion.MotionLimits`."""
 
     def __init__(self, initial_positions, limits):
         self.positions = np.asarray(initial_positions, dtype=float).copy()

@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.effects.model import PlatformEffects
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import home_pose
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.effects import PlatformEffects
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.real_pose import real_poses
 from gsp_platform_sim.physics import PhysicsSimulator
 from gsp_platform_sim.physics_model import PhysicalParameters
 

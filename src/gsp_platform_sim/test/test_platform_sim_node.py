@@ -9,16 +9,16 @@ import pytest
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from rclpy.parameter import Parameter
 
-from gsp_kinematics.effects.groups import IdentifiedEffects, commanded_leg_readings
-from gsp_kinematics.effects.model import PlatformEffects
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.effect_groups import commanded_leg_readings
+from gsp_kinematics.model.effects import IdentifiedEffects, PlatformEffects
+from gsp_kinematics.model.geometry import (
     Limits,
     SensorErrors,
     default_geometry,
     geometry_to_parameters,
 )
-from gsp_kinematics.kinematics import forward_kinematics, home_pose, inverse_kinematics
+from gsp_kinematics.model.kinematics import forward_kinematics, home_pose, inverse_kinematics
+from gsp_kinematics.model.real_pose import real_poses
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.health import OK, WARN
 from gsp_msgs_py.parameter_specs import ConfigurationError

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import forward_kinematics, home_pose, inverse_kinematics
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import forward_kinematics, home_pose, inverse_kinematics
 from gsp_platform_sim.markers import make_marker_array, platform_lines
 from gsp_platform_sim.simulator import PlatformSimulator
 
@@ -150,7 +150,7 @@ def test_marker_lines():
 
 
 def test_with_motion_limits_the_legs_move_from_where_they_are():
-    from gsp_kinematics.travel.motion import MotionLimits, move_time
+    from gsp_kinematics.model.motion import MotionLimits, move_time
 
     limits = MotionLimits(0.05, 0.2)
     sim = make_simulator(limits=limits)

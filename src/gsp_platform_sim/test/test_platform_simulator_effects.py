@@ -5,12 +5,11 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.effects.groups import IdentifiedEffects
-from gsp_kinematics.effects.model import REALISTIC, PlatformEffects
-from gsp_kinematics.effects.real_pose import real_poses
-from gsp_kinematics.geometry import default_geometry
-from gsp_kinematics.kinematics import forward_kinematics_masked, inverse_kinematics
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.effects import REALISTIC, IdentifiedEffects, PlatformEffects
+from gsp_kinematics.model.geometry import default_geometry
+from gsp_kinematics.model.kinematics import forward_kinematics_masked, inverse_kinematics
+from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.real_pose import real_poses
 from gsp_platform_sim.simulator import PlatformSimulator
 
 TRUE = default_geometry('true')

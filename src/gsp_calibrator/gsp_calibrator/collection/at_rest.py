@@ -2,7 +2,7 @@
 
 The rule and its parameters are in :mod:`gsp_calibrator.collection.synchroniser` and
 docs/sensor_errors.md; the test itself is
-:func:`gsp_kinematics.sensors.noise_estimate.settle_test`.
+:func:`gsp_kinematics.estimation.noise_estimate.settle_test`.
 """
 
 import bisect
@@ -17,7 +17,7 @@ import numpy as np
 import scipy.stats  # noqa: F401
 
 from gsp_kinematics.channels import CHANNEL_NAMES
-from gsp_kinematics.sensors.noise_estimate import scatter_test, settle_test
+from gsp_kinematics.estimation.noise_estimate import scatter_test, settle_test
 
 #: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
 MIN_SETTLE_SAMPLES = 4

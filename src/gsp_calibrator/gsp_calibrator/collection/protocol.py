@@ -84,7 +84,7 @@ from gsp_calibrator.collection.topics import (
     read_sensor,
 )
 from gsp_kinematics import channels
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 #: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collection.synchroniser).

@@ -20,12 +20,12 @@ same values is reporting the previous posture. (Postures that differ only by a t
 platform about its centre, with the same device position and phi, would look alike; posture
 pools sampled at random never hold such pairs.)
 
-Settling (:mod:`gsp_kinematics.sensors.noise_estimate`, docs/sensor_errors.md): a window is used
+Settling (:mod:`gsp_kinematics.estimation.noise_estimate`, docs/sensor_errors.md): a window is used
 only when every channel is at rest over the ``settle_lookback`` (s) that ends with the window (at
 least the window itself): its least-squares trend over that span is within ``settle_sigmas`` of
-the noise the span itself shows (:func:`~gsp_kinematics.sensors.noise_estimate.settle_test`, the
+the noise the span itself shows (:func:`~gsp_kinematics.estimation.noise_estimate.settle_test`, the
 per-sample noise at least ``noise_std``), and its scatter within what ``noise_std`` allows
-(:func:`~gsp_kinematics.sensors.noise_estimate.scatter_test`: a platform still ringing). A window is not judged before the look-back is covered
+(:func:`~gsp_kinematics.estimation.noise_estimate.scatter_test`: a platform still ringing). A window is not judged before the look-back is covered
 by pairs (from the first after the start, less the pairing tolerance), so a slow sensor is
 waited for, and the wait (start to the window's first sample) is kept with the row
 (``settle_wait``).
@@ -55,9 +55,9 @@ import numpy as np
 from gsp_calibrator.collection import at_rest
 from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs  # noqa: F401
 from gsp_kinematics import channels
-from gsp_kinematics.noise_from_data import posture_lag_sums
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
 from gsp_kinematics.rotation import wrap_angle
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
 
 NS_PER_S = 1_000_000_000
 
@@ -99,7 +99,7 @@ class PostureSample:
     settle_wait: float = 0.0  #: s from the collection start to the first averaged sample
     settling_pairs: int = 0  #: pairs before the window waited out as still moving
     #: (4, n // 2 + 1) the window's lag sums per noise channel (the within-posture noise
-    #: estimate, ``gsp_kinematics.noise_from_data.posture_lag_sums``); None below 2 samples
+    #: estimate, ``gsp_kinematics.estimation.noise_from_data.posture_lag_sums``); None below 2 samples
     lag_sums: np.ndarray | None = None
 
     @property

@@ -13,7 +13,7 @@ import numpy as np
 from gsp_calibrator.collection.events import NoSynchronisedSample, TopicSilent
 from gsp_calibrator.collection.synchroniser import LEG_LENGTHS
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
-from gsp_kinematics.travel.motion import move_time, posture_leg_lengths
+from gsp_kinematics.model.motion import move_time, posture_leg_lengths
 from gsp_msgs_py import names
 
 #: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.

@@ -26,9 +26,9 @@ from gsp_calibrator.recording.recorder import (
 )
 from gsp_calibrator.run.approach import ApproachTracker
 from gsp_calibrator.run.directory import Samples
-from gsp_kinematics.geometry import GeometryError, default_geometry, load_geometry
-from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.model.geometry import GeometryError, default_geometry, load_geometry
+from gsp_kinematics.model.sensor_noise import SensorNoise, SensorNoiseError
 from gsp_msgs_py import names
 
 

@@ -1,7 +1,7 @@
 """Predicted accuracy of a calibration in its report: ``result.json`` ``predicted_accuracy`` and
 ``accuracy_map.png`` (pure, no rclpy).
 
-The prediction is the core's :func:`gsp_kinematics.prediction.predict_accuracy`: the parameter
+The prediction is the core's :func:`gsp_kinematics.estimation.prediction.predict_accuracy`: the parameter
 covariance of the identification propagated to the pose error of the calibrated platform, over
 random reachable postures and x-y maps at several heights and tilts. When the run has a
 validation against a known truth (simulation), the predicted error at each validation posture is
@@ -12,9 +12,13 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.identifiability import analyse_result
-from gsp_kinematics.kinematics import Workspace
-from gsp_kinematics.prediction import accuracy_summary, predict_accuracy, predicted_errors
+from gsp_kinematics.estimation.identifiability import analyse_result
+from gsp_kinematics.estimation.prediction import (
+    accuracy_summary,
+    predict_accuracy,
+    predicted_errors,
+)
+from gsp_kinematics.model.kinematics import Workspace
 
 ACCURACY_MAP_PNG = 'accuracy_map.png'
 
@@ -35,11 +39,11 @@ def prediction_for(
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
     covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
     the unidentifiable directions). ``analysis``: the result's identifiability analysis
-    (``gsp_kinematics.identifiability.analyse_result``), computed here when None.
+    (``gsp_kinematics.estimation.identifiability.analyse_result``), computed here when None.
     ``unmodelled``: what the model leaves unexplained (``noise_from_data.unmodelled_error``),
     added at every pose (None: the platform is taken to be exactly the model).
     ``thermal_strain`` (6,): the uncompensated thermal growth over the run
-    (``gsp_kinematics.prediction.thermal_strain_rms``; None: none), added likewise."""
+    (``gsp_kinematics.estimation.prediction.thermal_strain_rms``; None: none), added likewise."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None

@@ -8,7 +8,7 @@ import numpy as np
 
 from gsp_kinematics import channels
 from gsp_kinematics.fileio import json_safe
-from gsp_kinematics.geometry import ANGULAR_PARAMETERS, PARAMETER_NAMES, to_report_units
+from gsp_kinematics.model.geometry import ANGULAR_PARAMETERS, PARAMETER_NAMES, to_report_units
 
 ANGULAR = set(ANGULAR_PARAMETERS)
 #: Each residual group (``identification.SENSOR_NAMES``) -> 'angle' or 'length', by unit.
@@ -117,8 +117,8 @@ def validation_errors(true, controller, poses):
     ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
     'unreachable'}``: the arrays that :func:`.write.write_report` plots as distributions.
     """
-    from gsp_kinematics.kinematics import forward_kinematics_masked
-    from gsp_kinematics.validation import commanded_articular, pose_errors, summarise
+    from gsp_kinematics.model.kinematics import forward_kinematics_masked
+    from gsp_kinematics.model.validation import commanded_articular, pose_errors, summarise
 
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     reached, converged = forward_kinematics_masked(

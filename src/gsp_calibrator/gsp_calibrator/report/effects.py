@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
-from gsp_kinematics.effects.groups import EFFECT_GROUPS, EFFECT_PARAMETER_NAMES
-from gsp_kinematics.kinematics import inverse_kinematics
-from gsp_kinematics.verdict.model_choice import available_groups
+from gsp_kinematics.estimation.verdict.model_choice import available_groups
+from gsp_kinematics.model.effects import EFFECT_GROUPS, EFFECT_PARAMETER_NAMES
+from gsp_kinematics.model.kinematics import inverse_kinematics
 
 #: A leg's drift counts as resolved when it exceeds this many standard deviations.
 RESOLVED_SIGMAS = 2.0

@@ -9,13 +9,13 @@ keys) and rendered as plain text (:func:`as_text`, the response and the log) or 
 
 import math
 
-from gsp_kinematics.geometry import (
+from gsp_kinematics.estimation.identification import DATUM_SENSOR_PARAMETERS
+from gsp_kinematics.model.geometry import (
     ANGULAR_SENSOR_PARAMETERS,
     PARAMETER_NAMES,
     SENSOR_PARAMETER_NAMES,
 )
-from gsp_kinematics.identification import DATUM_SENSOR_PARAMETERS
-from gsp_kinematics.sensors.noise import NOISE_UNITS
+from gsp_kinematics.model.sensor_noise import NOISE_UNITS
 
 #: The verdict's next step when the plain model leaves an error unexplained (no effect group
 #: freed, ``auto`` not asked): the platform's effects can be modelled (docs/verdict.md).

@@ -20,7 +20,12 @@ from gsp_calibrator.report.data import (
     validation_summary,
 )
 from gsp_kinematics.fileio import atomic_write_bytes
-from gsp_kinematics.geometry import NUM_LEGS, PARAMETER_CHAIN, PARAMETER_NAMES, default_geometry
+from gsp_kinematics.model.geometry import (
+    NUM_LEGS,
+    PARAMETER_CHAIN,
+    PARAMETER_NAMES,
+    default_geometry,
+)
 
 _BEFORE_COLOUR = '#d62728'
 _AFTER_COLOUR = '#1f77b4'

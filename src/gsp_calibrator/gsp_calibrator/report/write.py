@@ -38,13 +38,9 @@ from gsp_calibrator.report.data import (
 )
 from gsp_calibrator.report.effects import effects_markdown
 from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number, outcome_data
+from gsp_kinematics.estimation.identifiability import analyse_result
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
-from gsp_kinematics.geometry import (
-    PARAMETER_NAMES,
-    default_geometry,
-    to_report_units,
-)
-from gsp_kinematics.identifiability import analyse_result
+from gsp_kinematics.model.geometry import PARAMETER_NAMES, default_geometry, to_report_units
 
 RESULT_JSON = 'result.json'
 REPORT_MD = 'report.md'
@@ -78,9 +74,9 @@ _RESULT_FIELDS = (
 class ReportInputs:
     """What a report shows besides the core's ``IdentificationResult`` (each optional)."""
 
-    #: The result's identifiability (``gsp_kinematics.identifiability.analyse_result``).
+    #: The result's identifiability (``gsp_kinematics.estimation.identifiability.analyse_result``).
     analysis: dict | None = None
-    #: ``gsp_kinematics.validation.validate`` summaries, or :func:`.data.validation_errors` dicts
+    #: ``gsp_kinematics.model.validation.validate`` summaries, or :func:`.data.validation_errors` dicts
     #: (per-posture arrays).
     validation_before: dict | None = None
     validation_after: dict | None = None
@@ -111,9 +107,7 @@ class ReportInputs:
 def result_data(result, inputs=ReportInputs()):
     """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
     ``result`` with :class:`ReportInputs` ``inputs``."""
-    from gsp_calibrator.report.accuracy import (
-        result_json_entry,
-    )
+    from gsp_calibrator.report.accuracy import result_json_entry
 
     inputs = inputs.completed(result)
     analysis, truth = inputs.analysis, inputs.truth

@@ -14,9 +14,9 @@ docs/platform_effects.md#through-the-calibrator).
 
 import numpy as np
 
-from gsp_kinematics.effects.groups import REFERENCE_PAYLOAD_MASS, EffectDesign
-from gsp_kinematics.effects.model import approach_directions
-from gsp_kinematics.kinematics import inverse_kinematics
+from gsp_kinematics.model.effect_groups import REFERENCE_PAYLOAD_MASS, EffectDesign
+from gsp_kinematics.model.effects import approach_directions
+from gsp_kinematics.model.kinematics import inverse_kinematics
 
 
 class ApproachTracker:

@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from gsp_kinematics import channels
+from gsp_kinematics.estimation.noise_from_data import LAG_SUMS_CHANNELS
 from gsp_kinematics.fileio import atomic_write_bytes, atomic_write_text, to_json
-from gsp_kinematics.geometry import load_geometry, save_geometry
-from gsp_kinematics.noise_from_data import LAG_SUMS_CHANNELS
+from gsp_kinematics.model.geometry import load_geometry, save_geometry
 
 SAMPLES_FILE = 'samples.csv'
 RESULT_FILE = 'result.yaml'

@@ -6,9 +6,9 @@
    ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
    A result that passes is cross-validated (the accuracy the device measures on postures the
    fit did not use), and judged against the required accuracy
-   (:func:`gsp_kinematics.verdict.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
-   is applied. With :data:`gsp_kinematics.identification.AUTO` among the free parameters, the
-   effect groups are chosen first (:func:`gsp_kinematics.verdict.model_choice.choose_model`, on the
+   (:func:`gsp_kinematics.estimation.verdict.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
+   is applied. With :data:`gsp_kinematics.estimation.identification.AUTO` among the free parameters, the
+   effect groups are chosen first (:func:`gsp_kinematics.estimation.verdict.model_choice.choose_model`, on the
    run's ``EffectDesign`` from :mod:`.approach`); the outcome's ``effects`` says what and why.
 2. :func:`finish_run`: identification of a collected run, and its result files.
 
@@ -30,18 +30,14 @@ from gsp_calibrator.run.postures import (
 )
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.run.rigid import Verdicts, rigid_result
-from gsp_kinematics import identifiability, noise_from_data
-from gsp_kinematics.device import DeviceModelError
-from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
-from gsp_kinematics.goodness import verdict
-from gsp_kinematics.identification import (
-    FORMULATIONS,
-    IdentificationError,
-    resolve_free,
-)
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
-from gsp_kinematics.verdict import acceptance
-from gsp_kinematics.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics.estimation import identifiability, noise_from_data
+from gsp_kinematics.estimation.goodness import verdict
+from gsp_kinematics.estimation.identification import FORMULATIONS, IdentificationError, resolve_free
+from gsp_kinematics.estimation.verdict import acceptance
+from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics.model.device import DeviceModelError
+from gsp_kinematics.model.effect_groups import AUTO, effect_groups_of, is_effect_name, split_auto
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 #: Comment of the calibrated geometry file and the latched result.
 RESULT_COMMENT = 'calibrated by gsp_calibrator'
@@ -284,7 +280,10 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
     significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
     from gsp_calibrator.report.effects import untried_groups
-    from gsp_kinematics.verdict.model_choice import DEFAULT_THERMAL_TIME_CONSTANTS, choose_model
+    from gsp_kinematics.estimation.verdict.model_choice import (
+        DEFAULT_THERMAL_TIME_CONSTANTS,
+        choose_model,
+    )
 
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
@@ -315,7 +314,7 @@ def uncompensated_thermal_strain(result, design):
     """(6,) the rms thermal strain of each leg over the run relative to the reference instant,
     which the controllers do not compensate (``prediction.thermal_strain_rms``), when ``result``
     identified the thermal growth on the run's ``design``; else None."""
-    from gsp_kinematics.prediction import thermal_strain_rms
+    from gsp_kinematics.estimation.prediction import thermal_strain_rms
 
     rates = [result.effects.get(f'strain_rate{leg}') for leg in range(1, 7)]
     if design is None or design.times_s is None or any(rate is None for rate in rates):
@@ -363,7 +362,7 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
     )
     headline = None
     if outcome.prediction is not None:
-        from gsp_kinematics.prediction import accuracy_summary
+        from gsp_kinematics.estimation.prediction import accuracy_summary
 
         headline = accuracy_summary(outcome.prediction)
     outcome.requirement = requirement

@@ -7,22 +7,22 @@ import time
 
 import numpy as np
 
-from gsp_kinematics.effects.groups import EFFECT_GROUPS, effect_groups_of, split_auto
-from gsp_kinematics.effects.plan import augment_route
-from gsp_kinematics.identification import (
-    resolve_free,
-)
-from gsp_kinematics.kinematics import (
+from gsp_kinematics.estimation.identifiability import posture_information
+from gsp_kinematics.estimation.identification import resolve_free
+from gsp_kinematics.model.effect_groups import effect_groups_of, split_auto
+from gsp_kinematics.model.effects import EFFECT_GROUPS
+from gsp_kinematics.model.kinematics import (
     ForwardKinematicsError,
     Workspace,
     home_pose,
     pose_from_leg_readings,
     sample_valid_postures,
 )
-from gsp_kinematics.selection import best_addition, posture_information, select_postures
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.motion import posture_leg_lengths
-from gsp_kinematics.travel.route import path_time, plan_route, travel_time_matrix
+from gsp_kinematics.model.motion import posture_leg_lengths
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.planning.effect_plan import augment_route
+from gsp_kinematics.planning.route import path_time, plan_route, travel_time_matrix
+from gsp_kinematics.planning.selection import best_addition, select_postures
 
 #: Leg distance (m) within which the platform already holds a posture: commanded first, it would
 #: leave the device readings unchanged, and the collection's previous-posture check would skip it
@@ -148,7 +148,7 @@ def route_start(nominal, leg_readings):
 
 
 def posture_route(settings, poses, start_pose):
-    """The route (:func:`gsp_kinematics.travel.route.plan_route`) through ``poses`` from
+    """The route (:func:`gsp_kinematics.planning.route.plan_route`) through ``poses`` from
     ``start_pose`` (:func:`route_start`), with the run's nominal geometry and leg limits; a
     posture the platform already holds (:data:`HELD_TOLERANCE`) comes last, not first."""
     route = plan_route(settings.nominal, start_pose, poses, settings.motion_limits)
@@ -197,7 +197,7 @@ def sample_rate(heard_hz):
 
 def effect_route(settings, poses, start_pose, sample_rate_hz=None):
     """The route a run with ``settings`` commands through ``poses`` (N, 6, in commanded order)
-    from ``start_pose``: :func:`gsp_kinematics.effects.plan.augment_route` for the effect groups
+    from ``start_pose``: :func:`gsp_kinematics.planning.effect_plan.augment_route` for the effect groups
     its ``free_parameters`` free or ``auto`` may choose (thermal: reference revisits; backlash:
     both approach directions), timed with the run's leg limits, its samples per posture at
     ``sample_rate_hz`` (:func:`sample_rate`) and gsp_plan's settle; None when they need nothing
@@ -253,7 +253,7 @@ def commanded_count(settings, state):
 
 class PostureReplacer:
     """The replacement of a posture the platform rejected: the best remaining posture of the
-    run's pool (:func:`gsp_kinematics.selection.best_addition`, the selection's criterion).
+    run's pool (:func:`gsp_kinematics.planning.selection.best_addition`, the selection's criterion).
 
     Built once per run (the pool and its information); called with the run's poses (M, 6) and
     the 1-based postures rejected, it returns the pose (6,) to add, or None when the pool has

@@ -13,15 +13,15 @@ from gsp_kinematics.channels import (
     PHI_READING_COLUMN,
     READING_NAMES,
 )
-from gsp_kinematics.device import device_readings
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.device import device_readings
+from gsp_kinematics.model.geometry import (
     ALL_PARAMETER_NAMES,
     ANGULAR_SENSOR_PARAMETERS,
     NUM_PARAMETERS,
     geometry_to_yaml,
     parameter_errors,
 )
-from gsp_kinematics.kinematics import inverse_kinematics
+from gsp_kinematics.model.kinematics import inverse_kinematics
 from gsp_kinematics.rotation import wrap_angle
 
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'

@@ -1,6 +1,6 @@
 """The rigid geometry of a calibration that identified effects (pure): for a controller that
 runs the geometry alone, the identified effects folded into the 44 parameters
-(:func:`gsp_kinematics.effects.rigid_fold.fold_effects`), written to ``result_rigid.yaml`` and
+(:func:`gsp_kinematics.estimation.rigid_fold.fold_effects`), written to ``result_rigid.yaml`` and
 applied instead of ``result.yaml`` to such a controller (:mod:`gsp_calibrator.result_delivery`),
 with its predicted and held-out accuracy and its own verdict beside the compensated one's
 (docs/platform_effects.md, docs/verdict.md)."""
@@ -10,14 +10,14 @@ import dataclasses
 import numpy as np
 
 from gsp_calibrator.run.directory import RIGID_RESULT_FILE
-from gsp_kinematics.effects.rigid_fold import (
+from gsp_kinematics.estimation.rigid_fold import (
     fold_effects,
     held_out_postures,
     linearised_model_errors,
     rigid_accuracy,
 )
-from gsp_kinematics.verdict import acceptance
-from gsp_kinematics.verdict.rigid_held_out import rigid_held_out
+from gsp_kinematics.estimation.verdict import acceptance
+from gsp_kinematics.estimation.verdict.rigid_held_out import rigid_held_out
 
 #: Prefixed to the rigid geometry's verdict lines.
 RIGID_VERDICT_PREFIX = 'rigid controller (result_rigid.yaml): '
@@ -77,7 +77,7 @@ def rigid_result(outcome):
 
 def judge_rigid(outcome, systematic, predicted):
     """The rigid geometry's held-out accuracy (``outcome.rigid_accuracy``:
-    :func:`~gsp_kinematics.verdict.rigid_held_out.rigid_held_out` of the compensating one with
+    :func:`~gsp_kinematics.estimation.verdict.rigid_held_out.rigid_held_out` of the compensating one with
     its ``systematic`` ``(position mm, phi deg)`` errors over the workspace) and its verdict
     (``outcome.rigid_judgement``, against the same requirement, its ``predicted`` accuracy
     (:func:`rigid_accuracy`) as the headline)."""

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from gsp_calibrator.settings import SELECTION_PARAMETERS
+from gsp_kinematics.estimation.identification import resolve_free
 from gsp_kinematics.fileio import atomic_write_text, to_json
-from gsp_kinematics.identification import resolve_free
 
 STATE_FILE = 'state.json'
 STATE_VERSION = 1

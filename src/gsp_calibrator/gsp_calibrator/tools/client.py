@@ -25,7 +25,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.run.response import parse_response, residual_summary
-from gsp_kinematics.noise_from_data import NOISE_SOURCES
+from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import PROGRESS_QOS
 

@@ -50,11 +50,11 @@ from gsp_calibrator.tools.demo_summary import (
     validation_summary,
 )
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
-from gsp_kinematics.effects.model import PRESETS
-from gsp_kinematics.geometry import default_geometry_path, load_geometry
-from gsp_kinematics.kinematics import sample_valid_postures
-from gsp_kinematics.noise_from_data import NOISE_SOURCES
-from gsp_kinematics.travel.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
+from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
+from gsp_kinematics.model.effects import PRESETS
+from gsp_kinematics.model.geometry import default_geometry_path, load_geometry
+from gsp_kinematics.model.kinematics import sample_valid_postures
+from gsp_kinematics.model.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
 from gsp_msgs_py.ros_environment import (
     DomainInUseError,
     enter_private_domain,
@@ -212,7 +212,7 @@ class Measured:
 def _calibrate_and_validate(demo, args, validation_poses, measured):
     """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
     :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
-    from gsp_kinematics.geometry import geometry_from_yaml
+    from gsp_kinematics.model.geometry import geometry_from_yaml
 
     try:
         demo.wait_for_system(args.startup_timeout)

@@ -9,8 +9,8 @@ import os
 import shutil
 import sys
 
-from gsp_kinematics.effects.model import PRESETS
 from gsp_kinematics.fileio import yaml_float
+from gsp_kinematics.model.effects import PRESETS
 from gsp_msgs_py.ros_environment import loopback_environment
 
 #: The three nodes: executable (console script) and module (fallback: ``python -m``).

@@ -12,8 +12,8 @@ import numpy as np
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.report.write import RESULT_JSON
-from gsp_kinematics.geometry import parameter_errors
-from gsp_kinematics.validation import pose_errors, summarise
+from gsp_kinematics.model.geometry import parameter_errors
+from gsp_kinematics.model.validation import pose_errors, summarise
 
 
 def validation_summary(commanded, reached):

@@ -3,12 +3,12 @@
 From a nominal geometry, the sensors' noise, a posture count, samples per posture, the workspace
 limits, a settle time and a sensor rate, predict what the calibrator would reach:
 
-* the accuracy of the calibrated platform (:func:`gsp_kinematics.prediction.predict_accuracy` on
+* the accuracy of the calibrated platform (:func:`gsp_kinematics.estimation.prediction.predict_accuracy` on
   the Cramér-Rao covariance of the selected design);
 * the rank of the design and its unidentifiable parameter combinations;
 * the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum without
   the moves), and the platform time: the travel of the route through the postures
-  (:func:`gsp_kinematics.travel.route.plan_route`, legs within :class:`gsp_kinematics.travel.motion.MotionLimits`)
+  (:func:`gsp_kinematics.planning.route.plan_route`, legs within :class:`gsp_kinematics.model.motion.MotionLimits`)
   plus that settling and sampling.
 
 The postures are those the calibrator would command: :func:`gsp_calibrator.run.postures.choose_postures` with the
@@ -44,13 +44,13 @@ from gsp_calibrator.tools.plans import (
     sweep_table,
     target_plan,
 )
-from gsp_kinematics.effects.groups import EFFECT_GROUPS
+from gsp_kinematics.estimation.identification import IdentificationError
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
-from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
-from gsp_kinematics.identification import IdentificationError
-from gsp_kinematics.kinematics import Workspace
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.model.effects import EFFECT_GROUPS
+from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
+from gsp_kinematics.model.kinematics import Workspace
+from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 
 def plot_sweep(path, result):

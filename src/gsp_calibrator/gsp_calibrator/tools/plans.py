@@ -18,15 +18,18 @@ from gsp_calibrator.run.postures import (
     choose_postures,
     selection_formulation,
 )
-from gsp_kinematics.effects.plan import augment_route, effect_identifiability
-from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
-from gsp_kinematics.identification import resolve_free
-from gsp_kinematics.kinematics import Workspace, home_pose
-from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
-from gsp_kinematics.selection import posture_information
-from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, SensorNoise
-from gsp_kinematics.travel.motion import MotionLimits
-from gsp_kinematics.travel.route import plan_route
+from gsp_kinematics.estimation.identifiability import (
+    analyse_identifiability,
+    posture_information,
+    unidentifiable_parameters,
+)
+from gsp_kinematics.estimation.identification import resolve_free
+from gsp_kinematics.estimation.prediction import accuracy_summary, predict_accuracy
+from gsp_kinematics.model.kinematics import Workspace, home_pose
+from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.planning.effect_plan import augment_route, effect_identifiability
+from gsp_kinematics.planning.route import plan_route
 
 DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
@@ -103,7 +106,7 @@ class Design:
 @dataclasses.dataclass(frozen=True)
 class EffectPlan:
     """The effect groups a calibration will free and what their plan needs
-    (:func:`gsp_kinematics.effects.plan.augment_route`; docs/platform_effects.md)."""
+    (:func:`gsp_kinematics.planning.effect_plan.augment_route`; docs/platform_effects.md)."""
 
     groups: tuple = ()
     revisit_every: int | None = None  #: thermal: postures between reference revisits

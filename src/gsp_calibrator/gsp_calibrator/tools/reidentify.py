@@ -22,10 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import (
-    TRUE_GEOMETRY_FILE,
-    RunDirectory,
-)
+from gsp_calibrator.run.directory import TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.identify import identify_from_samples, write_results
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL, outcome_summary
 from gsp_calibrator.settings import DEFAULTS, PARAMETER_SPECS, option_name
@@ -41,13 +38,11 @@ from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: 
     result_json,
     stored_options,
 )
+from gsp_kinematics.estimation.identification import IdentificationError, Options
+from gsp_kinematics.estimation.verdict.acceptance import Requirement
 from gsp_kinematics.fileio import atomic_copy
-from gsp_kinematics.geometry import (
-    default_geometry_path,
-)
-from gsp_kinematics.identification import IdentificationError, Options
-from gsp_kinematics.sensors.noise import SensorNoise
-from gsp_kinematics.verdict.acceptance import Requirement
+from gsp_kinematics.model.geometry import default_geometry_path
+from gsp_kinematics.model.sensor_noise import SensorNoise
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -142,7 +137,7 @@ def _options(options):
 
 
 def validation_postures(truth, count, seed):
-    from gsp_kinematics.kinematics import sample_valid_postures
+    from gsp_kinematics.model.kinematics import sample_valid_postures
 
     return sample_valid_postures(truth, int(count), np.random.default_rng(int(seed)))
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_kinematics.geometry import (
+from gsp_kinematics.model.geometry import (
     ALL_PARAMETER_NAMES,
     PARAMETER_NAMES,
     SENSOR_PARAMETER_NAMES,

@@ -26,8 +26,8 @@ from gsp_calibrator.upkeep.calibration_files import (
     read_json,
 )
 from gsp_kinematics.fileio import write_json
-from gsp_kinematics.geometry import GeometryError, load_geometry
-from gsp_kinematics.sensors.noise import NOISE_FIELDS, SensorNoise
+from gsp_kinematics.model.geometry import GeometryError, load_geometry
+from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
 from gsp_kinematics.upkeep import check
 
 RESULT_YAML = 'result.yaml'

@@ -15,11 +15,15 @@ import numpy as np
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.postures import posture_pool, selection_formulation
 from gsp_calibrator.upkeep import reused_rows
-from gsp_kinematics.identification import resolve_free
-from gsp_kinematics.kinematics import ForwardKinematicsError, home_pose, pose_from_leg_readings
-from gsp_kinematics.prediction import accuracy_summary
-from gsp_kinematics.selection import posture_information
-from gsp_kinematics.travel.motion import posture_leg_lengths
+from gsp_kinematics.estimation.identifiability import posture_information
+from gsp_kinematics.estimation.identification import resolve_free
+from gsp_kinematics.estimation.prediction import accuracy_summary
+from gsp_kinematics.model.kinematics import (
+    ForwardKinematicsError,
+    home_pose,
+    pose_from_leg_readings,
+)
+from gsp_kinematics.model.motion import posture_leg_lengths
 from gsp_kinematics.upkeep import stopping
 
 

@@ -5,7 +5,7 @@ measured with the controller's current geometry. Then:
 
 * **the accuracy now**: the controller geometry's error in predicting where the platform is, from
   the measured leg lengths through forward kinematics, against what the device measures
-  (position mm, phi deg; :func:`gsp_kinematics.verdict.cross_validation.prediction_errors`, the measured
+  (position mm, phi deg; :func:`gsp_kinematics.estimation.verdict.cross_validation.prediction_errors`, the measured
   accuracy of a calibration), with the rows' noise removed in quadrature; its uncertainty is the
   standard error of the mean over the postures.
 * **has the platform changed?** A small identification of the leg offsets alone (the rest held at
@@ -25,17 +25,17 @@ import math
 
 import numpy as np
 
-from ..geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
-from ..identification import IdentificationError, identify, resolve_free
-from ..selection import posture_factors
-from ..travel.motion import MotionLimits, move_time, posture_leg_lengths
-from ..verdict import cross_validation
+from ..estimation.identifiability import posture_factors
+from ..estimation.identification import IdentificationError, identify, resolve_free
+from ..estimation.verdict import cross_validation
+from ..model.geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
+from ..model.motion import MotionLimits, move_time, posture_leg_lengths
 from . import drift
 
 #: The parameters the check identifies: the leg offsets (what a leg's re-homing, a replaced
 #: encoder or a knock changes; a joint's change shows mostly in its leg's offset too).
 CHECK_PARAMETERS = tuple(f'Loff{leg}' for leg in range(1, 7))
-#: Platform time a check may take (s) at the realistic leg speeds of gsp_kinematics.travel.
+#: Platform time a check may take (s) at the realistic leg speeds of gsp_kinematics.planning.
 CHECK_BUDGET_S = 60.0
 #: Postures of a check at most (fewer when their route and dwell exceed the budget).
 CHECK_POSTURES = 10
@@ -114,7 +114,7 @@ def calibration_share(controller, poses, sigmas, calibration, free=CHECK_PARAMET
 
     The check fits ``free`` with the other parameters at the controller's values; a calibration
     error ``e`` then shifts its estimate by ``K e``, ``K = -(G_f^T G_f)^-1 G_f^T G_c`` (``G``: the
-    postures' information factors of :func:`gsp_kinematics.selection.posture_factors` over the
+    postures' information factors of :func:`gsp_kinematics.estimation.identifiability.posture_factors` over the
     check's parameters ``f`` and the calibration's ``c``)."""
     mask = resolve_free(list(dict.fromkeys(list(calibration.names) + list(free))))
     names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, mask, strict=True) if is_free]
@@ -174,7 +174,7 @@ def check_platform(
     """The check of ``controller`` (the geometry it runs) from the measured rows ``leg_lengths``
     (M, 6) and ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise
     ``row_sigmas`` (a ``SensorNoise``; add any unmodelled error the calibration found) and the
-    :class:`gsp_kinematics.verdict.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
+    :class:`gsp_kinematics.estimation.verdict.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
     came from (its covariance; None: taken as exact). A JSON-ready dict: ``verdict``,
     ``reasons``, ``notes`` (what changed within the requirement), ``accuracy``, ``change`` (the drift test of the leg offsets), ``moved``,
     ``identification`` (names, SI estimates and covariance) and ``geometry_si``."""

@@ -20,7 +20,7 @@ is 3-4 marginal sigmas of a 60-posture calibration but about 80 conditional ones
 ``z_j = d_j / sqrt(C_jj)`` is reported beside it.
 
 The effect on the pose: ``dX = S d`` with the pose sensitivities ``S`` of
-:mod:`gsp_kinematics.prediction` (what the platform does differently when its controller swaps
+:mod:`gsp_kinematics.estimation.prediction` (what the platform does differently when its controller swaps
 the first geometry for the second), over seeded random reachable postures; mm and deg.
 """
 
@@ -30,15 +30,15 @@ import math
 import numpy as np
 from scipy import stats
 
-from ..geometry import (
+from ..estimation.prediction import expected_norm, pose_sensitivities
+from ..model.geometry import (
     ALL_PARAMETER_NAMES,
     ANGULAR_SENSOR_PARAMETERS,
     NUM_ALL_PARAMETERS,
     PARAMETER_INDEX,
     SENSOR_PARAMETER_NAMES,
 )
-from ..kinematics import Workspace, sample_valid_postures
-from ..prediction import expected_norm, pose_sensitivities
+from ..model.kinematics import Workspace, sample_valid_postures
 
 #: Family-wise level of the drift and check tests (two calibrations of an unchanged platform
 #: are called changed in about this fraction of cases).

@@ -4,7 +4,7 @@ docs/upkeep.md).
 With a required accuracy, the postures are measured in order and identified as they come (an
 identification costs milliseconds). From ``minimum_postures`` on, every ``every`` postures
 (:meth:`StoppingRule.due`), the rows so far are identified and cross-validated (the verdict's
-measured accuracy, :func:`gsp_kinematics.verdict.cross_validation.cross_validate`); the run stops as soon
+measured accuracy, :func:`gsp_kinematics.estimation.verdict.cross_validation.cross_validate`); the run stops as soon
 as the upper ``confidence`` bound of the cross-validated mean position error (noise removed; the
 mean plus ``z`` standard errors over the postures) and the mean phi error meet the requirement
 and the predicted error over the workspace (:func:`accuracy_bounds`, :meth:`Bounds.meets`). If the planned postures are not enough,
@@ -21,9 +21,9 @@ import math
 import numpy as np
 from scipy import stats
 
-from ..identification import IdentificationError, identify, resolve_free
-from ..travel.motion import move_time, posture_leg_lengths
-from ..verdict.cross_validation import cross_validate
+from ..estimation.identification import IdentificationError, identify, resolve_free
+from ..estimation.verdict.cross_validation import cross_validate
+from ..model.motion import move_time, posture_leg_lengths
 
 #: Per posture besides its move (s): the settle allowance and 10 samples at 200 Hz.
 DWELL_S = 0.55

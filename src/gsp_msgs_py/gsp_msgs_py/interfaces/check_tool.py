@@ -265,7 +265,7 @@ def run_check(node, executor, args):
     problems += check_diagnostics(diagnostics.reports, seen_for_s, grace_s)
     problems += [f'{names.TOPIC_DIAGNOSTICS}: {why}' for why in diagnostics.malformed[:1]]
     if args.send_test_command:
-        from gsp_kinematics.kinematics import home_pose
+        from gsp_kinematics.model.kinematics import home_pose
 
         spin_until(executor, checker.command_listened, args.command_timeout)
         if checker.command_listened():

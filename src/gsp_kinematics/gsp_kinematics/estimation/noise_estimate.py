@@ -1,0 +1,378 @@
+"""Noise of an averaged row from correlated samples, and a settle test for a window (pure numpy).
+
+A posture's row is the mean of ``n`` samples. With correlated samples its std is not ``s/sqrt(n)``:
+``var(mean) = (1/n) [g0 + 2 sum_k (1 - k/n) g_k]``, with ``g_k`` the lag-k autocovariance, and
+the effective sample count is ``n_eff = g0 / var(mean)``. :func:`noise_of_mean` estimates both per
+channel from the scatter within each posture (the posture's own level is removed), pooled over
+postures. docs/sensor_errors.md explains the choices (truncation, the bias of removing each
+posture's mean, and the windows too short to tell).
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import special
+
+#: Default of :func:`settled`: a channel is still moving when its trend exceeds this many
+#: standard deviations of the trend of a settled window.
+DEFAULT_SETTLE_SIGMAS = 3.0
+
+
+#: Below this effective sample count a window is too short against the correlation time: the
+#: estimate of the std of the mean is then biased low (about 6 % at n_eff 6, 15 % at n_eff 4;
+#: docs/sensor_errors.md).
+MIN_N_EFF = 10.0
+
+#: Fewest samples over which :func:`settle_test` counts the correlation of the noise.
+MIN_CORRELATED_SPAN = 16
+
+#: Rounds of :func:`noise_of_mean`'s truncation and bias correction (they settle in 2 to 4).
+MAX_ROUNDS = 20
+
+
+class NoiseEstimateError(ValueError):
+    """The samples cannot give an estimate; the message says why."""
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseOfMean:
+    """Per channel (C,): ``sample_std`` (the std of one sample, the channel's unit),
+    ``std_of_mean`` (of the mean of ``n_samples`` samples), ``n_eff`` (``(sample_std /
+    std_of_mean)^2``), ``lags`` (autocovariance lags summed), and ``window_too_short`` (the
+    autocorrelation was still positive at the largest usable lag (always so below 4 samples),
+    or ``n_eff`` < :data:`MIN_N_EFF` and < n/2: the windows are not long against the
+    correlation time, and ``std_of_mean`` is biased low, a lower bound)."""
+
+    n_samples: int
+    sample_std: np.ndarray
+    std_of_mean: np.ndarray
+    n_eff: np.ndarray
+    lags: np.ndarray
+    window_too_short: np.ndarray
+
+
+def _check_windows(samples):
+    samples = np.asarray(samples, dtype=float)
+    if samples.ndim != 3:
+        raise NoiseEstimateError(
+            f'samples must be (postures, samples, channels), got shape {samples.shape}'
+        )
+    if samples.shape[0] < 1 or samples.shape[1] < 2:
+        raise NoiseEstimateError(
+            f'need at least 1 posture of at least 2 samples, got shape {samples.shape}'
+        )
+    if not np.all(np.isfinite(samples)):
+        raise NoiseEstimateError('samples must be finite (drop non-finite readings first)')
+    return samples
+
+
+def _initial_positive_lags(autocovariance):
+    """Per channel, the number of lags K to sum: Geyer's initial positive sequence. The pair sums
+    ``g_{2m-1} + g_{2m}`` (m >= 1) are summed while they stay positive; returns K (C,) and whether
+    the sequence was still positive at the last full pair (C,)."""
+    max_lag = autocovariance.shape[0] - 1
+    pairs = max_lag // 2
+    if pairs == 0:
+        return np.zeros(autocovariance.shape[1], dtype=int), np.ones(
+            autocovariance.shape[1], dtype=bool
+        )
+    pair_sums = autocovariance[1 : 2 * pairs : 2] + autocovariance[2 : 2 * pairs + 1 : 2]
+    positive = pair_sums > 0.0
+    # Number of leading positive pairs per channel.
+    leading = np.where(positive.all(axis=0), pairs, np.argmin(positive, axis=0))
+    return 2 * leading, leading == pairs
+
+
+def window_lag_sums(samples, max_lag=None):
+    """Per window of ``samples`` (P, n, C), the sums of the lag-k products of the window centred
+    on its own mean, ``sum_i x_i x_(i+k)`` for k = 0..``max_lag`` (default ``n // 2``):
+    (P, max_lag + 1, C), the channel's unit squared. What a posture contributes to
+    :func:`noise_of_mean_from_sums`: additive over windows of the same n."""
+    samples = _check_windows(samples)
+    n = samples.shape[1]
+    max_lag = n // 2 if max_lag is None else int(max_lag)
+    if not 0 <= max_lag < n:
+        raise NoiseEstimateError(f'max_lag must be in [0, {n - 1}] for {n} samples, got {max_lag}')
+    centred = samples - samples.mean(axis=1, keepdims=True)
+    return np.stack(
+        [np.einsum('pic,pic->pc', centred[:, : n - k], centred[:, k:]) for k in range(max_lag + 1)],
+        axis=1,
+    )
+
+
+def lag_sums(samples, max_lag=None):
+    """:func:`window_lag_sums` summed over the windows: (max_lag + 1, C)."""
+    return window_lag_sums(samples, max_lag).sum(axis=0)
+
+
+def noise_of_mean(samples, max_lag=None, white_level=None, fitted=1):
+    """Estimate, per channel, the std of one sample and of the mean of a posture's window.
+
+    ``samples`` (P, n, C): P postures' windows of n consecutive samples (equally spaced in time)
+    of C channels. ``max_lag``: the largest autocovariance lag considered (default ``n // 2``;
+    beyond it too few pairs remain in each window). ``white_level`` and ``fitted``: see
+    :func:`noise_of_mean_from_sums`, of the windows' :func:`lag_sums`.
+    """
+    samples = _check_windows(samples)
+    return noise_of_mean_from_sums(
+        lag_sums(samples, max_lag), samples.shape[1], samples.shape[0], white_level, fitted
+    )
+
+
+def white_statistic(autocovariance, n, windows):
+    """Per channel (C,): the pooled lag-1 autocorrelation of ``windows`` centred windows of
+    ``n`` samples (``autocovariance`` (>= 2, C), averaged over pairs), corrected for the
+    centring (``+ 1 / (n - 1)``: its mean for white samples), in units of its standard error
+    for white samples ``1 / sqrt(windows (n - 1))``: about N(0, 1) for white samples."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        rho = np.where(autocovariance[0] > 0, autocovariance[1] / autocovariance[0], 0.0)
+    return (rho + 1.0 / (n - 1)) * math.sqrt(windows * (n - 1))
+
+
+def noise_of_mean_from_sums(sums, n, windows, white_level=None, fitted=1):
+    """:class:`NoiseOfMean` from the pooled :func:`lag_sums` ``sums`` (K + 1, C) of ``windows``
+    windows of ``n`` samples each.
+
+    The autocovariance ``c_k`` is the sums averaged over the ``windows (n - k)`` pairs. Centring
+    each window biases every ``c_k`` low by about ``var(mean)`` (the windows' own means
+    scatter), which is corrected in closed form: with ``g_k = c_k + V`` in
+    ``V = (1/n) [g0 + 2 sum_{k<=K} (1 - k/n) g_k]``, ``V = [c0 + 2 sum (1 - k/n) c_k] / (n - S)``,
+    ``S = 1 + 2 sum_{k<=K} (1 - k/n)``. For white noise (K = 0) this is the usual ``s^2 / n``
+    with ddof 1. ``fitted``: terms fitted to each window before (1: its mean; 3: a line and a
+    parabola, see :func:`settle_test`): ddof ``fitted`` (each fitted term absorbs about one
+    ``V`` more).
+
+    ``white_level``: None, or the significance of a test of whiteness first: a channel whose
+    lag-1 autocorrelation is not significantly positive at that level (:func:`white_statistic`,
+    one-sided) is taken as white (K = 0, exactly the pooled ``s^2 / n``), so white samples are
+    not given a noisier lag sum (nor called too short) by chance.
+    """
+    sums = np.asarray(sums, dtype=float)
+    if sums.ndim != 2 or sums.shape[0] < 1:
+        raise NoiseEstimateError(f'sums must be (lags, channels), got shape {sums.shape}')
+    n, windows, fitted = int(n), int(windows), int(fitted)
+    max_lag = sums.shape[0] - 1
+    if not 1 <= fitted < n:
+        raise NoiseEstimateError(f'fitted must be in [1, {n - 1}] for {n} samples, got {fitted}')
+    if n < 2 or windows < 1 or max_lag >= n:
+        raise NoiseEstimateError(
+            f'need windows >= 1 of n >= 2 samples and fewer than n lags, got {windows} windows '
+            f'of {n} samples and {max_lag + 1} lags'
+        )
+    if not np.all(np.isfinite(sums)):
+        raise NoiseEstimateError('lag sums must be finite')
+    n_channels = sums.shape[1]
+    # c_k (max_lag + 1, C): products of pairs k apart, averaged over pairs and windows.
+    autocovariance = sums / (windows * (n - np.arange(max_lag + 1)))[:, None]
+    weights = 1.0 - np.arange(max_lag + 1) / n  # (1 - k/n)
+    doubled = np.where(np.arange(max_lag + 1) == 0, 1.0, 2.0)[:, None] * weights[:, None]
+    white = np.zeros(n_channels, dtype=bool)
+    if white_level is not None and max_lag >= 1:
+        white = white_statistic(autocovariance, n, windows) < special.ndtri(1.0 - white_level)
+    # Truncate on the corrected autocovariance c_k + V: the centred c_k cross 0 early. V and
+    # the truncation depend on each other; a few rounds settle them.
+    variance_of_mean = np.zeros(n_channels)
+    lags = None
+    for _ in range(MAX_ROUNDS):
+        previous = lags
+        lags, window_too_short = _initial_positive_lags(autocovariance + variance_of_mean)
+        lags, window_too_short = np.where(white, 0, lags), window_too_short & ~white
+        included = np.arange(max_lag + 1)[:, None] <= lags[None, :]  # (max_lag + 1, C)
+        weighted = np.sum(np.where(included, doubled * autocovariance, 0.0), axis=0)
+        weight_sum = np.sum(np.where(included, doubled, 0.0), axis=0)
+        variance_of_mean = np.clip(weighted / (n - weight_sum - (fitted - 1)), 0.0, None)
+        if previous is not None and np.array_equal(lags, previous):
+            break
+    sample_variance = autocovariance[0] + variance_of_mean
+    with np.errstate(divide='ignore', invalid='ignore'):
+        n_eff = np.where(variance_of_mean > 0.0, sample_variance / variance_of_mean, float(n))
+    return NoiseOfMean(
+        n_samples=n,
+        sample_std=np.sqrt(sample_variance),
+        std_of_mean=np.sqrt(variance_of_mean),
+        n_eff=n_eff,
+        lags=lags,
+        # White windows of few samples are not short: n_eff < MIN_N_EFF only counts when the
+        # samples are correlated (n_eff well below n).
+        window_too_short=window_too_short | ((n_eff < MIN_N_EFF) & (n_eff < 0.5 * n)),
+    )
+
+
+def ar1_std_of_mean(sigma, rho, n_samples):
+    """Std of the mean of ``n`` consecutive samples of a stationary AR(1) noise of std ``sigma``
+    and lag-1 correlation ``rho`` (``exp(-dt / correlation time)``, see
+    :mod:`gsp_kinematics.model.sensor_dynamics`): ``(sigma / n) sqrt(sum_ij rho^|i - j|)``."""
+    n = int(n_samples)
+    lags = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    return float(sigma) * math.sqrt(float(np.sum(float(rho) ** lags))) / n
+
+
+def trend_std_factor(n_samples):
+    """Std of the least-squares trend (slope x window length) of ``n`` equally spaced white
+    samples over the std of their mean: ``sqrt(12 (n - 1) / (n + 1))``."""
+    n = int(n_samples)
+    if n < 2:
+        raise NoiseEstimateError(f'a trend needs at least 2 samples, got {n}')
+    return math.sqrt(12.0 * (n - 1) / (n + 1))
+
+
+def window_trend(window, times=None):
+    """Per channel, the least-squares slope of ``window`` (n, C) against ``times`` (n,) s
+    (default: 0..n-1) times the window's length (last - first time): the change the trend
+    makes across the window, in the channel's unit (C,)."""
+    window = np.asarray(window, dtype=float)
+    if window.ndim != 2 or window.shape[0] < 2:
+        raise NoiseEstimateError(f'window must be (samples >= 2, channels), got {window.shape}')
+    times = np.arange(window.shape[0], dtype=float) if times is None else np.asarray(times, float)
+    if times.shape != (window.shape[0],) or not np.all(np.diff(times) > 0):
+        raise NoiseEstimateError('times must be (samples,) and strictly increasing')
+    centred_t = times - times.mean()
+    slope = centred_t @ (window - window.mean(axis=0)) / (centred_t @ centred_t)
+    return slope * (times[-1] - times[0])
+
+
+def settled(window, std_of_mean, times=None, sigmas=DEFAULT_SETTLE_SIGMAS):
+    """Per channel (C,) bools: is the window's trend within ``sigmas`` stds of the trend a
+    settled window's noise gives? Also returns the trend in those stds (C,).
+
+    ``std_of_mean`` (C,): the std of the window's mean (from :func:`noise_of_mean`). The trend's
+    std is ``std_of_mean`` x :func:`trend_std_factor` (exact for white noise; for correlated
+    noise an approximation that scales with the same effective sample count). A channel whose
+    ``std_of_mean`` is 0 is settled only when it does not move at all.
+    """
+    window = np.asarray(window, dtype=float)
+    trend = window_trend(window, times)
+    scale = np.asarray(std_of_mean, dtype=float) * trend_std_factor(window.shape[0])
+    if scale.shape != trend.shape or np.any(~np.isfinite(scale) | (scale < 0)):
+        raise NoiseEstimateError(
+            f'std_of_mean must be {trend.shape[0]} finite values >= 0, got {scale.shape}'
+        )
+    with np.errstate(divide='ignore', invalid='ignore'):
+        z = np.where(scale > 0, np.abs(trend) / np.where(scale > 0, scale, 1.0), np.inf)
+    z = np.where((scale == 0) & (trend == 0), 0.0, z)
+    return z <= sigmas, z
+
+
+@dataclasses.dataclass(frozen=True)
+class SettleTest:
+    """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled
+    span's trend), ``threshold`` (the ``z`` a channel may reach: ``sigmas`` turned into the
+    Student-t quantile of the same two-sided rate, ``n_eff - 2`` degrees of freedom),
+    ``trend`` (the change across the span, the channel's unit) and ``std_of_mean``."""
+
+    settled: np.ndarray
+    z: np.ndarray
+    threshold: np.ndarray
+    trend: np.ndarray
+    std_of_mean: np.ndarray
+
+
+def settle_test(values, times=None, sigmas=DEFAULT_SETTLE_SIGMAS, noise_floor=None):
+    """Is each channel of ``values`` (..., n, C) at rest over its span? Noise from the span.
+
+    The least-squares trend of each channel (:func:`window_trend` against ``times`` (n,) s,
+    default 0..n-1) is judged against the noise of the span itself: the residuals about the
+    straight line and a parabola, through :func:`noise_of_mean` (``fitted=3``; correlation
+    counted over lags up to n // 4 from :data:`MIN_CORRELATED_SPAN` samples on; each
+    channel and leading index on its own). The trend's std is ``std_of_mean`` x
+    :func:`trend_std_factor`; a channel is settled when ``|trend|`` is within ``threshold`` of
+    those stds: for white noise ``z`` is then Student-t with ``n - 3`` degrees of freedom, so a
+    settled channel is called moving at exactly :func:`false_unsettled_rate` (``sigmas``).
+    ``noise_floor`` (C,): the least per-sample std believed (the channel's unit), so a
+    quantised or noiseless channel whose samples barely differ is not called moving over a
+    rounding error. Returns :class:`SettleTest`.
+    """
+    from scipy import stats
+
+    values = np.asarray(values, dtype=float)
+    if values.ndim < 2 or values.shape[-2] < 4:
+        raise NoiseEstimateError(
+            f'values must be (..., samples >= 4, channels), got shape {values.shape}'
+        )
+    n, n_channels = values.shape[-2:]
+    times = np.arange(n, dtype=float) if times is None else np.asarray(times, dtype=float)
+    if times.shape != (n,) or not np.all(np.diff(times) > 0):
+        raise NoiseEstimateError('times must be (samples,) and strictly increasing')
+    centred_t = times - times.mean()
+    centred = values - values.mean(axis=-2, keepdims=True)
+    slope = np.einsum('i,...ic->...c', centred_t, centred) / (centred_t @ centred_t)
+    # The noise is the scatter about a parabola: an exponential approach bends, and its bend
+    # would otherwise count as noise and hide the trend (orthogonal to the line's slope, so
+    # for white noise the slope and this scatter are independent).
+    bend = centred_t**2 - np.mean(centred_t**2)
+    bend = bend - centred_t * (centred_t @ bend) / (centred_t @ centred_t)
+    curvature = np.einsum('i,...ic->...c', bend, centred) / (bend @ bend)
+    residuals = (
+        centred - centred_t[:, None] * slope[..., None, :] - bend[:, None] * curvature[..., None, :]
+    )
+    lead = values.shape[:-2]
+    # Every (leading index, channel) is a channel of its own for noise_of_mean.
+    columns = np.moveaxis(residuals, -2, 0).reshape(1, n, -1)
+    # Short spans cannot show their correlation (and its lags would eat the few degrees of
+    # freedom left): white below MIN_CORRELATED_SPAN samples.
+    max_lag = n // 4 if n >= MIN_CORRELATED_SPAN else 0
+    noise = noise_of_mean(columns, max_lag=max_lag, fitted=3)
+    std_of_mean = noise.std_of_mean.reshape(lead + (n_channels,))
+    n_eff = noise.n_eff.reshape(lead + (n_channels,))
+    if noise_floor is not None:
+        floor = np.broadcast_to(np.asarray(noise_floor, dtype=float), (n_channels,))
+        std_of_mean = np.maximum(std_of_mean, floor / np.sqrt(n_eff))
+    trend = slope * (times[-1] - times[0])
+    scale = std_of_mean * trend_std_factor(n)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        z = np.where(scale > 0, np.abs(trend) / np.where(scale > 0, scale, 1.0), np.inf)
+    z = np.where((scale == 0) & (trend == 0), 0.0, z)
+    threshold = stats.t.isf(0.5 * false_unsettled_rate(sigmas), np.maximum(n_eff - 1.0, 1.0))
+    return SettleTest(z <= threshold, z, threshold, trend, std_of_mean)
+
+
+def scatter_test(values, noise_std, sigmas=DEFAULT_SETTLE_SIGMAS):
+    """Does each channel of ``values`` (..., n, C) scatter about its mean no more than its
+    at-rest noise allows? ``(ratio, threshold)`` (..., C) and (): the span's sample std over
+    the noise, and the ratio white noise of that std exceeds at :func:`false_unsettled_rate`
+    (``sigmas``): the chi-square quantile. The noise is ``noise_std`` (C,), or the noise the
+    span shows between successive samples if larger (the rms difference over sqrt 2): a
+    device noisier than configured is believed, while a motion of a few Hz barely shows in
+    the differences at 200 Hz. A span may fail it with no trend at all: an oscillation faster
+    than the span (a platform still ringing)."""
+    from scipy import stats
+
+    values = np.asarray(values, dtype=float)
+    if values.ndim < 2 or values.shape[-2] < 2:
+        raise NoiseEstimateError(
+            f'values must be (..., samples >= 2, channels), got shape {values.shape}'
+        )
+    n = values.shape[-2]
+    noise_std = np.asarray(noise_std, dtype=float)
+    if noise_std.shape != values.shape[-1:] or not np.all(noise_std > 0):
+        raise NoiseEstimateError(f'noise_std must be {values.shape[-1]} values > 0')
+    successive = np.sqrt(0.5 * np.mean(np.diff(values, axis=-2) ** 2, axis=-2))
+    ratio = values.std(axis=-2, ddof=1) / np.maximum(noise_std, successive)
+    threshold = math.sqrt(stats.chi2.isf(false_unsettled_rate(sigmas), n - 1) / (n - 1))
+    return ratio, threshold
+
+
+def false_unsettled_rate(sigmas=DEFAULT_SETTLE_SIGMAS):
+    """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
+    return math.erfc(sigmas / math.sqrt(2.0))
+
+
+__all__ = [
+    'DEFAULT_SETTLE_SIGMAS',
+    'NoiseEstimateError',
+    'NoiseOfMean',
+    'SettleTest',
+    'ar1_std_of_mean',
+    'false_unsettled_rate',
+    'lag_sums',
+    'noise_of_mean',
+    'noise_of_mean_from_sums',
+    'scatter_test',
+    'settle_test',
+    'settled',
+    'trend_std_factor',
+    'white_statistic',
+    'window_lag_sums',
+    'window_trend',
+]

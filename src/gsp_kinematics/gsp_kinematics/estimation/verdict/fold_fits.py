@@ -1,0 +1,146 @@
+"""The fits of a cross-validation's folds: a fit's refit without some postures
+(:func:`refit_fold`), or that refit to first order, one Gauss-Newton step from the full fit
+(:func:`linearised_refits`; docs/platform_effects.md#choosing-the-model-auto).
+
+The implicit formulation's normal equations are sums over the postures, each posture's pose an
+unknown of its own rows only (:mod:`gsp_kinematics.estimation._solver.lm`). Eliminating the poses (the
+Schur complement) leaves each posture's share ``[S_m | g_m]`` of the parameters' reduced system.
+At the full fit's estimate ``sum_m g_m = 0``; without the postures ``F`` the system is
+``S - S_F`` and the gradient ``-g_F``, and the step ``du = (S - S_F)^-1 g_F`` is the refit's
+first Gauss-Newton step from the full fit, its poses of the kept postures re-estimated through
+the complement. The model is nearly linear over a few standard deviations of the parameters, so
+the step lands where the refit converges, to second order in it (one Jacobian for every fold,
+against several iterations of each refit). The held-out postures are then predicted by
+forward kinematics under the stepped geometry, as under a refit's: the step moves a prediction
+by far more than the held-out error, so a first-order prediction would not do.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ...model.device import DeviceModelError
+from ...model.effect_groups import EffectDesign, EffectTerms, geometry_with_effects
+from ...model.geometry import Geometry
+from .._solver.formulations import _ImplicitModel
+from .._solver.lm import block_normal_equations, eliminate_poses
+from ..identifiability import analyse_result, identifies_all
+from ..identification import SENSOR_NAMES, IdentificationError, identify
+
+
+def _linearised_model(result, leg_lengths, readings, row_sigmas, effects, nominal=None):
+    """``(model, values, augmented [J_X | J_u | r] (M, k, 6 + n + 1))`` of ``result``'s
+    implicit model on its rows at its estimate (the geometry the refits start from; the effects'
+    joint axes those of ``nominal``, default that geometry, as a refit's)."""
+    terms = None
+    if np.any(result.effect_free):
+        design = effects or EffectDesign()
+        axes = result.geometry if nominal is None else nominal
+        terms = EffectTerms(axes, design, result.effect_free, len(leg_lengths))
+    poses = np.asarray(result.poses, dtype=float)
+    model = _ImplicitModel(
+        result.geometry, leg_lengths, readings, row_sigmas, result.free, poses, SENSOR_NAMES, terms
+    )
+    values = np.concatenate(
+        [result.parameters[result.free], result.effect_values[result.effect_free]]
+    )
+    _, jacobian = model._evaluate(values, poses)
+    return model, values, jacobian()
+
+
+def _stepped(result, model, values, system):
+    """``result`` moved by the Gauss-Newton step of the reduced ``system`` ``[S | g]``, with
+    ``S`` as its information; None when ``S`` does not identify every parameter."""
+    size = system.shape[0]
+    information = system[:, :size]
+    stepped = dataclasses.replace(result, information=information)
+    if not identifies_all(analyse_result(stepped)):
+        return None
+    try:
+        covariance = np.linalg.inv(information)
+        values = values + np.linalg.solve(information, -system[:, size])
+    except np.linalg.LinAlgError:
+        return None
+    first = int(np.sum(result.free))
+    vector = result.parameters.copy()
+    vector[result.free] = values[:first]
+    effect_values = result.effect_values.copy()
+    effect_values[result.effect_free] = values[first:]
+    geometry = Geometry.from_full_vector(vector, result.geometry.limits)
+    deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    standard_deviations = np.full(vector.shape, np.nan)
+    standard_deviations[result.free] = deviations[:first]
+    effect_deviations = result.effect_standard_deviations.copy()
+    effect_deviations[result.effect_free] = deviations[first:]
+    return dataclasses.replace(
+        stepped,
+        geometry=geometry_with_effects(geometry, model, effect_values),
+        parameters=vector,
+        effect_values=effect_values,
+        covariance=covariance,
+        standard_deviations=standard_deviations,
+        effect_standard_deviations=effect_deviations,
+    )
+
+
+def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
+    """``result``'s refit of each posture subset ``kept`` (a list of (M,) bool masks of the rows
+    ``leg_lengths`` (M, 6), ``readings`` (M, 4) it was fitted to with the weights
+    ``row_sigmas`` and the effect design ``effects``) as one Gauss-Newton step from it (module
+    docstring): a result like ``result`` with the step's parameters, effects, geometry and the
+    kept postures' information and covariance (its poses, residuals and fit statistics are the
+    full fit's), or None where the kept postures do not identify every parameter. None instead
+    of the list when ``result`` is not a converged implicit least-squares fit (refit those: a
+    robust fit's weights move with the fold)."""
+    if result.formulation != 'implicit' or not result.converged or result.loss != 'linear':
+        return None
+    leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
+    model, values, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects)
+    pose_rows, total = block_normal_equations(augmented)
+    full, _ = eliminate_poses(pose_rows, total)
+    refits = []
+    for rows in kept:
+        held = ~np.asarray(rows, dtype=bool)
+        flat = augmented[held][:, :, 6:].reshape(-1, augmented.shape[2] - 6)
+        share, _ = eliminate_poses(pose_rows[held], flat.T @ flat)
+        refits.append(_stepped(result, model, values, full - share))
+    return refits
+
+
+def refit_fold(result, free, rows, options, effects):
+    """``result``'s identification (same formulation and ``free`` parameters, from its
+    estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
+    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit
+    (along a null direction it keeps the full fit's values, which saw the held-out postures)."""
+    legs, readings, row_sigmas, guesses = rows
+    try:
+        fitted = identify(
+            result.geometry,
+            legs,
+            readings,
+            row_sigmas,
+            result.formulation,
+            free,
+            guesses,
+            options=options,
+            effects=effects,
+        )
+    except (IdentificationError, DeviceModelError, np.linalg.LinAlgError):
+        return None
+    return fitted if fitted.converged and identifies_all(analyse_result(fitted)) else None
+
+
+def linearised_cost(result, nominal, leg_lengths, readings, row_sigmas, effects):
+    """The least cost (half the chi-square) of ``result``'s model (its free parameters and
+    effects, fitted from ``nominal``) on its rows with the effect design ``effects`` instead of
+    its own (e.g. another thermal time constant), to second order: the cost at ``result``'s
+    estimate less the decrease of one Gauss-Newton step, poses and parameters (the model is
+    linear in the effects' values, nearly so in the rest)."""
+    _, _, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects, nominal)
+    pose_rows, total = block_normal_equations(augmented)
+    reduced, solved = eliminate_poses(pose_rows, total)
+    size = reduced.shape[0]
+    gradient = reduced[:, size]
+    decrease = float(np.sum(pose_rows[:, :, -1] * solved[:, :, -1]))
+    decrease += float(gradient @ np.linalg.solve(reduced[:, :size], gradient))
+    return 0.5 * float(np.sum(augmented[:, :, -1] ** 2)) - 0.5 * decrease

@@ -1,0 +1,473 @@
+"""Choose the model from the data (``auto``): which effect groups to free, by a significance
+test of the fit with the known noise, guarded by cross-validated accuracy
+(docs/platform_effects.md#choosing-the-model).
+
+Forward selection from the plain model (``base``, e.g. ``extended``): each round fits the
+current set plus each remaining effect group whose run design allows it, and keeps the group
+whose fit lowers the chi-square most, only if
+
+- the drop is significant: a likelihood-ratio test, ``delta chi2`` (the fits' squared residuals
+  in units of the row noise, over the rows both used) against ``chi2(k)``, ``k`` the parameters
+  added (6 a group), at ``significance`` divided by the groups tried in the round
+  (Bonferroni). With the known noise, a group the platform does not have lowers the chi-square
+  by ``chi2(k)`` on average; one it has by that plus its parameters' squared signal-to-noise
+  ratios: a small effect that the plan resolves (the joint offsets: 2-3 Cramér-Rao standard
+  deviations per leg) is significant long before it moves the accuracy by tens of percent;
+- and the held-out position error (:func:`gsp_kinematics.estimation.verdict.cross_validation.cross_validate`,
+  each posture's leverage taken out: :func:`held_out_position_mm`) does not grow by more than
+  ``max_cv_loss`` (relative) over the model it extends, and what is delivered never has a
+  held-out error above the plain model's (:func:`never_worse_held_out`): the guard against a
+  model that fits the rows better and predicts the platform worse;
+- and, for a group the controller compensates, compensating it is not predicted to make the
+  platform less accurate over the workspace (:mod:`.choice_accuracy`: the bias of leaving it
+  out against the spread its estimates add): significant is not the same as resolved well
+  enough to help (joint offsets in a short run).
+
+A candidate that cannot be judged (its fit not identifiable with the run's postures, its
+held-out error or predicted gain not measurable) says why and is never kept; when the plain
+model cannot be judged (too few postures), no group is tried.
+
+When no group alone is kept, all the remaining groups together are tried once the same way
+(``k`` their parameters; effects that mask each other). The test needs the rows weighted by
+their real noise: the calibrator weighs them by the within-posture estimate where it has one,
+and every chi-square is divided by the chi2/dof of the fit with all the groups when above 1
+(:func:`variance_factor`: what no group explains, or noise above the weights, does not make
+the groups significant).
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import special
+
+from ...model.effect_groups import EffectDesign
+from ...model.effects import EFFECT_GROUPS, NUM_LEGS
+from ..identifiability import analyse_result, identifies_all
+from ..identification import IdentificationError, Options, identify
+from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
+from .cross_validation import cross_validate, without_leverage
+from .fold_fits import linearised_cost
+
+#: Significance of the likelihood-ratio test of a round (Bonferroni over its groups).
+DEFAULT_SIGNIFICANCE = 0.01
+#: Largest relative growth of the held-out position error for which a significant group is kept.
+DEFAULT_MAX_CV_LOSS = 0.5
+DEFAULT_FOLDS = 5
+#: Thermal time constants (s; 0: a linear growth) the calibrator chooses among: a leg warms
+#: with a time constant of minutes to tens of minutes (docs/platform_effects.md).
+DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """One model tried: its effect groups, held-out position error (mm, measured mean with
+    the leverage taken out: :func:`held_out_position_mm`; NaN: not measured, ``not_judged``
+    says why), its cross-validation summary, whether it was kept, the fit's ``chi2`` and the
+    test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
+
+    groups: tuple
+    position_mm: float
+    summary: dict | None
+    chosen: bool = False
+    chi2: float = float('nan')
+    delta_chi2: float = float('nan')
+    added: int = 0
+    p_value: float = float('nan')
+    #: Predicted rms position errors (mm) over the workspace without and with the groups it
+    #: adds (:func:`gsp_kinematics.estimation.verdict.choice_accuracy.freeing_gain`; NaN: not judged).
+    predicted_without_mm: float = float('nan')
+    predicted_with_mm: float = float('nan')
+    #: Why the candidate could not be judged, so is never kept ('' : judged): its fit did not
+    #: converge or is not identifiable with the run's postures, its held-out error or its
+    #: predicted gain could not be measured (:func:`_score`).
+    not_judged: str = ''
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelChoice:
+    """The chosen groups, the identification with them, every candidate and why."""
+
+    groups: tuple
+    result: object
+    candidates: tuple
+    reason: str
+    #: The thermal time constant (s) used (0: linear growth) and each one tried: {tau: cost}.
+    thermal_time_constant_s: float = 0.0
+    thermal_costs: dict = dataclasses.field(default_factory=dict)
+    #: The tests' chi-squares were divided by this (:func:`variance_factor`; 1: the weights).
+    variance_factor: float = 1.0
+
+    def to_dict(self):
+        return {
+            'groups': list(self.groups),
+            'reason': self.reason,
+            'thermal_time_constant_s': self.thermal_time_constant_s,
+            'thermal_costs': {str(tau): cost for tau, cost in self.thermal_costs.items()},
+            'variance_factor': self.variance_factor,
+            'candidates': [
+                {
+                    'groups': list(c.groups),
+                    'cv_position_mm': c.position_mm,
+                    'chi2': c.chi2,
+                    'delta_chi2': c.delta_chi2,
+                    'added_parameters': c.added,
+                    'p_value': c.p_value,
+                    'predicted_without_mm': c.predicted_without_mm,
+                    'predicted_with_mm': c.predicted_with_mm,
+                    'chosen': c.chosen,
+                    'not_judged': c.not_judged,
+                }
+                for c in self.candidates
+            ],
+        }
+
+
+def available_groups(design, count):
+    """The effect groups the run's ``design`` (M = ``count`` postures) can identify: a mass for
+    the compliance, times for the thermal growth, both approach directions for the backlash."""
+    if design is None:
+        return ['joint_offsets']
+    groups = []
+    for group in EFFECT_GROUPS:
+        try:
+            design.check([group], count)
+        except ValueError:
+            continue
+        if group == 'backlash':
+            directions = np.asarray(design.directions)
+            if not np.all((directions > 0).any(axis=0) & (directions < 0).any(axis=0)):
+                continue  # some leg arrives from one direction only
+        groups.append(group)
+    return groups
+
+
+def _fit(nominal, data, free, options, design, start=None):
+    """The converged identification of ``data``'s rows with ``free`` and the effect ``design``,
+    or None (no convergence, or an identification error). ``start``: a fit of the same rows
+    whose poses start this one's (they are most of the unknowns: fewer iterations)."""
+    leg_lengths, readings, sigmas, guesses, _, _ = data
+    guesses = guesses if start is None else start.poses
+    try:
+        result = identify(
+            nominal,
+            leg_lengths,
+            readings,
+            sigmas,
+            free=free,
+            pose_guesses=guesses,
+            options=options,
+            effects=design,
+        )
+    except IdentificationError:
+        return None
+    return result if result.converged else None
+
+
+def _chi2(result, rows=None):
+    """The fit's sum of squared weighted residuals over ``rows`` (M,) (default: those it used)."""
+    residuals = np.asarray(result.residuals, dtype=float)
+    used = np.all(np.isfinite(residuals), axis=1) if rows is None else rows
+    return float(np.sum(residuals[used] ** 2))
+
+
+def likelihood_ratio(reference, extended, added, variance_factor=1.0):
+    """``(delta chi2, p value)`` of ``extended`` (a fit with ``added`` more parameters than
+    ``reference``, on the same rows and weights) against ``reference``: the chi-square drop over
+    the rows both fits used, and the probability under ``chi2(added)`` (no effect) of that drop
+    over ``variance_factor`` (the rows' variance in units of the weights, 1: the weights are
+    the noise)."""
+    rows = np.all(np.isfinite(reference.residuals), axis=1)
+    rows &= np.all(np.isfinite(extended.residuals), axis=1)
+    delta = _chi2(reference, rows) - _chi2(extended, rows)
+    return delta, float(special.chdtrc(added, max(delta / variance_factor, 0.0)))
+
+
+def variance_factor(result):
+    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: what its
+    residuals leave unexplained scales the tests' chi-squares (an F test), so a platform with
+    more than the groups describe, or noise above the weights, does not make every group look
+    significant; 1 when the groups describe the rows (the weights are then the noise)."""
+    fit = None if result is None else result.goodness_of_fit
+    if fit is None or not fit.dof > 0:
+        return 1.0
+    return max(1.0, _chi2(result) / fit.dof)
+
+
+def _unidentifiable(result, count):
+    """Why the converged fit ``result`` of ``count`` postures is not identifiable ('' when it
+    is): its information matrix is rank-deficient, so its estimate is one of many and its
+    covariance (a pseudo-inverse) is no covariance: neither its held-out error nor its
+    predicted gain means anything (the calibrator would not apply such a fit either)."""
+    analysis = analyse_result(result)
+    if identifies_all(analysis):
+        return ''
+    names = analysis['names']
+    shown = ', '.join(names[:6]) + (f' and {len(names) - 6} more' if len(names) > 6 else '')
+    return (
+        f'not identifiable with {count} postures (rank {analysis["rank"]} of '
+        f'{analysis["parameters"]}: {shown or "unnamed"})'
+    )
+
+
+def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
+    """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, when
+    made already), tested against the fit ``reference`` = ``(result, its groups)`` when given
+    (``settings``: :func:`_forward`'s; its fit starts from the reference's poses).
+    ``result`` is None when the fit failed; a candidate that cannot be judged says why
+    (``Candidate.not_judged``) and is never kept (:func:`_keeps`)."""
+    folds, options, _, _, factor, workspace, linearised = settings
+    leg_lengths, readings, sigmas, _, design, noise = data
+    start = None if reference is None else reference[0]
+    result = fitted or _fit(nominal, data, list(base) + list(groups), options, design, start)
+    if result is None:
+        return None, Candidate(tuple(groups), math.nan, None, not_judged='the fit did not converge')
+    unidentifiable = _unidentifiable(result, len(leg_lengths))
+    if unidentifiable:
+        return result, Candidate(tuple(groups), math.nan, None, not_judged=unidentifiable)
+    validation = cross_validate(
+        result,
+        nominal,
+        leg_lengths,
+        readings,
+        sigmas,
+        folds,
+        options,
+        noise,
+        design,
+        workspace=None,
+        linearised=linearised,
+    )
+    summary = validation.summary()
+    position = held_out_position_mm(validation)
+    test, why = {}, []
+    if not math.isfinite(position):
+        why.append(
+            'held-out error not measured: no fit without a fold converged to an identifiable '
+            f'fit (failed folds {list(validation.failed_folds)} of {validation.folds})'
+        )
+    if reference is not None:
+        added = NUM_LEGS * (len(groups) - len(reference[1]))
+        delta, p_value = likelihood_ratio(reference[0], result, added, factor)
+        test = {'delta_chi2': delta, 'added': added, 'p_value': p_value}
+        if workspace is not None and set(groups) - set(reference[1]) & set(COMPENSATED_GROUPS):
+            gain = freeing_gain(reference[0], result, workspace)
+            test.update(predicted_without_mm=gain.without_mm, predicted_with_mm=gain.with_mm)
+            if not math.isfinite(gain.without_mm + gain.with_mm):
+                why.append(
+                    'predicted gain not computed: a covariance is not positive semi-definite'
+                )
+    candidate = Candidate(
+        tuple(groups), position, summary, chi2=_chi2(result), not_judged='; '.join(why), **test
+    )
+    return result, candidate
+
+
+def held_out_position_mm(validation):
+    """The mean held-out position error (mm) of ``validation`` (a ``CrossValidation``) as
+    measured, each posture's leverage taken out (:func:`.cross_validation.without_leverage`):
+    the held-out guard's figure. Raw, a held-out error is that of a fit without the posture, far
+    above the full fit's at an extreme posture that alone resolves a group (the joint offsets),
+    so the raw figure penalises such a group by chance of the folds. Nothing is added: the
+    device's own uncertainty, which the accuracy the calibrator reports adds, grows with the
+    model's parameters and would weigh against every group."""
+    errors = np.linalg.norm(validation.position_error, axis=1)
+    if validation.position_leverage is not None:
+        errors = without_leverage(
+            errors,
+            validation.position_noise,
+            validation.position_leverage,
+            validation.position_held_out_variance,
+        )
+    finite = np.isfinite(errors)
+    return 1e3 * float(np.mean(errors[finite])) if finite.any() else float('nan')
+
+
+def thermal_time_constant(nominal, data, base, groups, candidates, options, fits=None):
+    """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
+    one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
+    candidates share the parameters and the data, so their costs compare directly. The first
+    is fitted; the others' least costs are one Gauss-Newton step from its fit
+    (:func:`.fold_fits.linearised_cost`: the model is linear in the growth's values), and the
+    least of them is fitted (its cost replaces the step's; a robust ``options.loss``: every
+    one is fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted ones."""
+    design, free = data[4], list(base) + list(groups)
+    costs, fits, first = {}, {} if fits is None else fits, None
+    for tau in map(float, candidates):
+        timed = dataclasses.replace(design, thermal_time_constant_s=tau)
+        if first is not None and options.loss == 'linear':
+            costs[tau] = linearised_cost(first, nominal, *data[:3], timed)
+            continue
+        result = _fit(nominal, data, free, options, timed, first)
+        if result is not None:
+            costs[tau], fits[tau], first = float(result.cost), result, first or result
+    if not costs:
+        return design.thermal_time_constant_s, costs
+    tau = min(costs, key=costs.get)
+    if tau not in fits:
+        timed = dataclasses.replace(design, thermal_time_constant_s=tau)
+        result = _fit(nominal, data, free, options, timed, first)
+        if result is not None:
+            costs[tau], fits[tau] = float(result.cost), result
+    return tau, costs
+
+
+def _keeps(trial, best, threshold, max_cv_loss):
+    """Whether ``trial`` passes the test at ``threshold``, the held-out guard over ``best`` and
+    is not predicted to make the compensated platform less accurate (judged for the
+    compensated groups only). Decided explicitly, never by a NaN comparison: a candidate that
+    cannot be judged (``not_judged``) is not kept, and none is when ``best``'s held-out error
+    was not measured (the guard has nothing to compare with: the model stays as it is)."""
+    if trial.not_judged or best.not_judged or not math.isfinite(best.position_mm):
+        return False
+    worse = trial.predicted_with_mm > trial.predicted_without_mm  # NaN (not judged): False
+    return bool(
+        trial.p_value < threshold
+        and trial.position_mm <= (1.0 + max_cv_loss) * best.position_mm
+        and not worse
+    )
+
+
+def _forward(nominal, data, base, available, settings, every=None):
+    """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``.
+    ``every``: the fit with every available group, which a candidate with all of them reuses."""
+    significance, max_cv_loss = settings[2:4]
+
+    def score(groups, reference):
+        fitted = every if set(groups) == set(available) else None
+        return _score(nominal, data, base, groups, settings, reference, fitted)
+
+    result, best = _score(nominal, data, base, (), settings)
+    if result is None:
+        raise IdentificationError('the plain model did not converge: no model to choose from')
+    if best.not_judged:  # e.g. too few postures: no group can be judged beside it
+        return result, best, (), [best]
+    tried, chosen, remaining = [best], (), list(available)
+    path = [(result, best, chosen)]
+    while remaining:
+        reference = (result, chosen)
+        trials = [score(chosen + (group,), reference) for group in remaining]
+        tried += [candidate for _, candidate in trials]
+        threshold = significance / len(trials)
+        kept = [
+            t for t in trials if t[0] is not None and _keeps(t[1], best, threshold, max_cv_loss)
+        ]
+        if not kept:
+            break
+        result, best = max(kept, key=lambda item: item[1].delta_chi2)
+        chosen = best.groups
+        path.append((result, best, chosen))
+        remaining = [group for group in remaining if group not in chosen]
+    if len(remaining) > 1:
+        # Effects that mask each other: no one group alone is kept, together they may be.
+        groups = chosen + tuple(remaining)
+        trial_result, together = score(groups, (result, chosen))
+        tried.append(together)
+        if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
+            path.append((trial_result, together, together.groups))
+    result, best, chosen = never_worse_held_out(path)
+    return result, best, chosen, tried
+
+
+def never_worse_held_out(path):
+    """Of the models the selection kept in turn, ``path`` = ``[(result, Candidate, groups)]``
+    from the plain model on, the last whose held-out position error is not above the plain
+    model's: each step may let it grow a little (``max_cv_loss``), but what ``auto`` delivers is
+    never worse, on postures the fit did not see, than the plain model it was chosen over."""
+    plain = path[0][1].position_mm
+    for step in reversed(path):
+        if step[1].position_mm <= plain:
+            return step
+    return path[0]
+
+
+def _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain):
+    """Why ``chosen`` (the groups of the ``best`` candidate) were kept, under the rule's
+    settings, and why each of the ``tried`` candidates that could not be judged was not; when
+    the plain model cannot be judged (too few postures), that no group was tried and why."""
+    if best.not_judged:
+        return f'groups none: no effect group tried, the plain model cannot be judged: {best.not_judged}'
+    names = ', '.join(chosen) if chosen else 'none'
+    unjudged = {}
+    for candidate in tried:
+        if candidate.not_judged:
+            unjudged.setdefault(candidate.not_judged, []).append('+'.join(candidate.groups))
+    return (
+        f'groups {names}: held-out position error {best.position_mm:.4f} mm; each kept group '
+        f'lowered the chi-square significantly (likelihood ratio, p < {significance:g} over the '
+        f'groups of its round) without raising the held-out error by more than '
+        f'{100 * max_cv_loss:.0f} %'
+        + (
+            ' or the predicted position error over the workspace (the bias of leaving it out '
+            'against the spread of its estimates)'
+            if predicted_gain
+            else ''
+        )
+        + '; no other group did'
+        + (
+            f"; and its held-out error is not above the plain model's "
+            f'({tried[0].position_mm:.4f} mm)'
+            if chosen
+            else ''
+        )
+        + ''.join(
+            f'; not judged, so not kept: {", ".join(groups)} ({why})'
+            for why, groups in unjudged.items()
+        )
+    )
+
+
+def choose_model(
+    nominal,
+    leg_lengths,
+    readings,
+    sigmas,
+    design=None,
+    base=('extended',),
+    pose_guesses=None,
+    folds=DEFAULT_FOLDS,
+    significance=DEFAULT_SIGNIFICANCE,
+    max_cv_loss=DEFAULT_MAX_CV_LOSS,
+    options=Options(),
+    noise=None,
+    thermal_time_constants=(),
+    predicted_gain=True,
+    linearised=True,
+):
+    """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
+    row weights ``sigmas`` (their real noise: the test's chi-squares are in its units) and the
+    run's :class:`EffectDesign` ``design`` (None: no times, directions or mass: only the joint
+    offsets can be tried). ``significance``, ``max_cv_loss``: the rule of the module docstring.
+    ``thermal_time_constants`` (s; 0: linear): when the thermal group can be tried, its time
+    constant is first chosen among these by the cost of the fit with every available group
+    (:func:`thermal_time_constant`); empty: the design's. ``predicted_gain``: a group the
+    controller compensates is kept only if it is not predicted to make the platform less
+    accurate (:mod:`.choice_accuracy`); False: the test and the held-out guard alone.
+    ``linearised``: each candidate's held-out error from linearised refits of its folds
+    (:func:`.fold_fits.linearised_refits`); False: from refits."""
+    design = design or EffectDesign()
+    tau, costs = design.thermal_time_constant_s, {}
+    available = available_groups(design, len(leg_lengths))
+    fits = {}  # the fits with every available group, by thermal time constant
+    if 'thermal' in available and len(thermal_time_constants):
+        data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
+        tau, costs = thermal_time_constant(
+            nominal, data, base, available, thermal_time_constants, options, fits
+        )
+        design = dataclasses.replace(design, thermal_time_constant_s=tau)
+    data = (leg_lengths, readings, sigmas, pose_guesses, design, noise)
+    every = fits.get(tau)
+    if available and every is None:
+        every = _fit(nominal, data, list(base) + available, options, design)
+    factor = variance_factor(every) if available else 1.0
+    workspace = workspace_postures(nominal) if predicted_gain else None
+    settings = (folds, options, significance, max_cv_loss, factor, workspace, linearised)
+    result, best, chosen, tried = _forward(nominal, data, base, available, settings, every)
+    tried = [dataclasses.replace(c, chosen=c.groups == chosen) for c in tried]
+    reason = _reason(chosen, best, tried, significance, max_cv_loss, predicted_gain)
+    if 'thermal' in chosen and costs:
+        shape = f'a first-order warming, {tau:g} s' if tau > 0 else 'a linear growth'
+        reason += f'; thermal as {shape} (least fit cost of {sorted(costs)} s, 0: linear)'
+    if factor > 1.0:
+        reason += f'; chi-squares over {factor:.2f}, the chi2/dof that every group together leaves'
+    return ModelChoice(chosen, result, tuple(tried), reason, tau, costs, factor)

@@ -1,0 +1,153 @@
+"""The noise of the measuring sensors: one type, :class:`SensorNoise`, and its conversions.
+
+A :class:`SensorNoise` holds the standard deviation of one sample of each sensor of
+:mod:`gsp_kinematics.channels`: the six leg lengths (m, one value for all legs), the
+inclinometer (rad, alpha and beta), the encoder (rad, phi) and the LVDT (m, d_m). It serves on
+both sides, under two names (the same in parameters, files and code):
+
+- the **true noise** a simulated sensor draws (platform_sim, device_driver's ``sim`` backend,
+  gsp_fake_device): parameters ``<sensor>_noise_std`` (:data:`TRUE_NOISE_PARAMETER`);
+- the **assumed noise** ``sigma`` the calibrator weighs the residuals with and sets its
+  consistency window from: parameters and run options ``sigma_<sensor>``
+  (:data:`ASSUMED_NOISE_PARAMETER`), ``result.json`` ``sigmas`` (per sensor) and code
+  ``sigmas.<sensor>``.
+
+Each view is one method here, so no caller unpacks the fields itself:
+
+- :meth:`SensorNoise.readings`: the four device readings ``[alpha, beta, phi, d_m]``;
+- :meth:`SensorNoise.channel_std` / :meth:`SensorNoise.from_channel_std`: the collector's ten
+  channels ``[q_1..q_6, alpha, beta, phi, d_m]``;
+- :meth:`SensorNoise.channels` / :meth:`SensorNoise.from_channels`: ``{channel: std}`` by field
+  name, as :func:`gsp_kinematics.estimation.goodness.estimate_noise` gives a data estimate;
+- :meth:`SensorNoise.averaged`: the noise of a row that averages ``n`` samples;
+- :meth:`SensorNoise.to_parameters` / :meth:`SensorNoise.from_parameters`: node parameters and
+  run options, named by one of the two patterns.
+
+:data:`DEFAULT_SENSOR_NOISE` is the one default noise level of the suite (Table 3's first level,
+0.001 deg and 0.001 mm): the simulated platform and device, the fake serial device and the
+calibrator all start from it.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from gsp_kinematics import channels
+
+#: The fields of :class:`SensorNoise`: the sensors of :data:`gsp_kinematics.channels.CHANNELS`.
+NOISE_FIELDS = channels.SENSORS
+#: Each field's SI unit (its channels' unit).
+NOISE_UNITS = {channel.sensor: channel.unit for channel in channels.CHANNELS}
+#: Name of a sensor's true noise std on the simulated nodes (``inclinometer_noise_std``).
+TRUE_NOISE_PARAMETER = '{}_noise_std'
+#: Name of a sensor's assumed noise std on the calibrator and in its run options
+#: (``sigma_inclinometer``).
+ASSUMED_NOISE_PARAMETER = 'sigma_{}'
+
+
+class SensorNoiseError(ValueError):
+    """A noise value or record is unusable; the message names it."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorNoise:
+    """Standard deviation of one sample of each sensor (m, rad); also the residual weights."""
+
+    leg_lengths: float = 1e-6
+    inclinometer: float = math.radians(0.001)
+    encoder: float = math.radians(0.001)
+    lvdt: float = 1e-6
+
+    @classmethod
+    def from_levels(cls, angle_noise_deg, length_noise_mm):
+        """Table 3's convention: one angular level (deg) and one length level (mm)."""
+        return cls(
+            leg_lengths=length_noise_mm / 1000.0,
+            inclinometer=math.radians(angle_noise_deg),
+            encoder=math.radians(angle_noise_deg),
+            lvdt=length_noise_mm / 1000.0,
+        )
+
+    def validate(self):
+        """SensorNoiseError unless every standard deviation is positive and finite."""
+        for name, value in self.channels().items():
+            if not (math.isfinite(value) and value > 0.0):
+                raise SensorNoiseError(f'sigma for {name} must be positive and finite, got {value}')
+
+    # --- channels ------------------------------------------------------------------------------
+
+    def readings(self):
+        """Standard deviations of the device readings ``[alpha, beta, phi, d_m]`` (4,)."""
+        return np.array([getattr(self, channel.sensor) for channel in channels.DEVICE_CHANNELS])
+
+    def channel_std(self):
+        """The collector's ten channel standard deviations ``[q_1..q_6, alpha, beta, phi, d_m]``."""
+        return np.array([getattr(self, channel.sensor) for channel in channels.CHANNELS])
+
+    @classmethod
+    def from_channel_std(cls, values):
+        """Inverse of :meth:`channel_std` (ten values; each sensor's first channel is used)."""
+        values = np.asarray(values, dtype=float).reshape(-1)
+        if values.shape != (channels.CHANNEL_COUNT,):
+            raise SensorNoiseError(
+                f'noise_std must hold {channels.CHANNEL_COUNT} values, got {values.tolist()}'
+            )
+        return cls(
+            **{name: float(values[channels.sensor_columns(name)[0]]) for name in NOISE_FIELDS}
+        )
+
+    def channels(self):
+        """``{field: std}`` in :data:`NOISE_FIELDS` order."""
+        return {name: float(getattr(self, name)) for name in NOISE_FIELDS}
+
+    @classmethod
+    def from_channels(cls, values, default=None):
+        """From ``{field: std}`` (e.g. a noise estimate); a missing or None field is taken from
+        ``default`` (a :class:`SensorNoise`; SensorNoiseError if there is none)."""
+        fields = {}
+        for name in NOISE_FIELDS:
+            value = values.get(name)
+            if value is None:
+                if default is None:
+                    raise SensorNoiseError(f'no noise value for {name}')
+                value = getattr(default, name)
+            fields[name] = float(value)
+        return cls(**fields)
+
+    def averaged(self, n_samples):
+        """The noise of rows that average ``n_samples`` samples each: ``sigma / sqrt(n)`` with
+        the median ``n`` (unchanged when ``n_samples`` is empty or holds a count below 1)."""
+        n_samples = np.asarray(n_samples, dtype=float)
+        if n_samples.size == 0 or not np.all(n_samples >= 1):
+            return self
+        factor = 1.0 / math.sqrt(float(np.median(n_samples)))
+        return SensorNoise(**{name: value * factor for name, value in self.channels().items()})
+
+    # --- parameters and files -----------------------------------------------------------------
+
+    def to_parameters(self, pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
+        """``{pattern.format(sensor): std}`` of ``sensors``: the calibrator's ``sigma_<sensor>``
+        by default, :data:`TRUE_NOISE_PARAMETER` for a simulated sensor's."""
+        return {pattern.format(name): float(getattr(self, name)) for name in sensors}
+
+    @classmethod
+    def from_parameters(cls, values, pattern=ASSUMED_NOISE_PARAMETER, default=None):
+        """Inverse of :meth:`to_parameters`; a missing key is taken from ``default`` (a
+        :class:`SensorNoise`, :data:`DEFAULT_SENSOR_NOISE` when None): with the current noise
+        as ``default``, this applies changed parameters."""
+        default = DEFAULT_SENSOR_NOISE if default is None else default
+        return cls.from_channels(
+            {name: values.get(pattern.format(name)) for name in NOISE_FIELDS}, default
+        )
+
+    @staticmethod
+    def parameter_names(pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
+        """The parameter names of ``sensors`` under ``pattern``."""
+        return tuple(pattern.format(name) for name in sensors)
+
+
+#: The suite's default noise: Table 3's first level (0.001 deg, 0.001 mm) on every sensor.
+DEFAULT_SENSOR_NOISE = SensorNoise()
+#: No noise at all (a simulated sensor's default when no noise is given).
+NO_NOISE = SensorNoise(0.0, 0.0, 0.0, 0.0)
