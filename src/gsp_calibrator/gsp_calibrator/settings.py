@@ -41,13 +41,16 @@ from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS
 from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.model.motion import MotionLimits
 from gsp_kinematics.model.sensor_noise import (
-    ASSUMED_NOISE_PARAMETER,
     DEFAULT_SENSOR_NOISE,
     NOISE_FIELDS,
     NOISE_UNITS,
-    SensorNoise,
 )
 from gsp_msgs_py import parameter_specs
+from gsp_msgs_py.noise_parameters import (
+    ASSUMED_NOISE_PARAMETER,
+    noise_from_parameters,
+    noise_parameter_names,
+)
 from gsp_msgs_py.parameter_specs import (
     ParameterSpec,
     at_least,
@@ -453,8 +456,23 @@ def names_in(subset):
 
 STORED_PARAMETERS = names_in(STORED)
 SELECTION_PARAMETERS = names_in(SELECTION)
+#: The calibrator's parameter of each ``acceptance.Requirement`` field.
+REQUIREMENT_PARAMETERS = {
+    'position_mm': 'required_position_accuracy_mm',
+    'orientation_deg': 'required_orientation_accuracy_deg',
+    'improvement': 'required_improvement_over_nominal',
+}
+
+
+def requirement_from_parameters(values):
+    """The ``Requirement`` of the parameters ``values`` (a missing one: the core's default)."""
+    return Requirement(
+        **{f: float(values[name]) for f, name in REQUIREMENT_PARAMETERS.items() if name in values}
+    )
+
+
 #: The assumed noise parameters ``sigma_<sensor>`` (together, the settings' ``sigmas``).
-SIGMA_PARAMETERS = SensorNoise.parameter_names(ASSUMED_NOISE_PARAMETER)
+SIGMA_PARAMETERS = noise_parameter_names(ASSUMED_NOISE_PARAMETER)
 
 
 def option_name(name):
@@ -551,7 +569,7 @@ class _RunSettings:
     @functools.cached_property
     def sigmas(self):
         """The assumed per-sample noise (``SensorNoise`` of the ``sigma_<sensor>``, m and rad)."""
-        return SensorNoise.from_parameters(self.options(SIGMA_PARAMETERS))
+        return noise_from_parameters(self.options(SIGMA_PARAMETERS))
 
     @property
     def motion_limits(self):
@@ -579,7 +597,7 @@ class _RunSettings:
     @property
     def requirement(self):
         """What the result must achieve to be applied (``acceptance.Requirement``)."""
-        return Requirement.from_parameters(vars(self))
+        return requirement_from_parameters(vars(self))
 
     def identify_options(self):
         """The core's ``Options`` for this run's loss and outlier threshold."""

@@ -36,16 +36,19 @@ from gsp_kinematics.model.sensor_dynamics import SensorDynamics
 from gsp_kinematics.model.sensor_noise import (
     NO_NOISE,
     NOISE_UNITS,
-    TRUE_NOISE_PARAMETER,
-    SensorNoise,
 )
 from gsp_msgs_py.health import OK, WARN, Health
+from gsp_msgs_py.noise_parameters import (
+    TRUE_NOISE_PARAMETER,
+    noise_from_parameters,
+    noise_parameter_names,
+)
 
 from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
 from .serial_backend import SerialDeviceBackend
 
 #: The device sensors' true noise parameters (``inclinometer_noise_std``...).
-NOISE_PARAMETER_NAMES = SensorNoise.parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
+NOISE_PARAMETER_NAMES = noise_parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
 
 
 class SimDeviceBackend(DeviceBackend):
@@ -118,7 +121,7 @@ class SimDeviceBackend(DeviceBackend):
         return cls(
             geometry.device_length,
             geometry.inclinometer_axes_angle,
-            SensorNoise.from_parameters(config, TRUE_NOISE_PARAMETER, NO_NOISE),
+            noise_from_parameters(config, TRUE_NOISE_PARAMETER, NO_NOISE),
             rng=rng,
             sensors=geometry.sensors,
             response_times=[config.get(f'{sensor}_response_time', 0.0) for sensor in SENSORS],

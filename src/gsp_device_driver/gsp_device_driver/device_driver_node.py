@@ -17,9 +17,13 @@ from sensor_msgs.msg import JointState
 from gsp_kinematics.channels import DEVICE_SENSORS, sensor_channel_names
 from gsp_kinematics.model.device import SENSORS
 from gsp_kinematics.model.geometry import default_geometry_path
-from gsp_kinematics.model.sensor_noise import TRUE_NOISE_PARAMETER, SensorNoise
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
+from gsp_msgs_py.noise_parameters import (
+    TRUE_NOISE_PARAMETER,
+    noise_from_parameters,
+    noise_parameter_names,
+)
 from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank
 
 from .backends import BackendError, backend_class, backend_names
@@ -29,7 +33,7 @@ RNG_STREAM = 2
 WARN_THROTTLE_S = 1.0
 
 #: The sim backend's true noise parameters, ``<sensor>_noise_std`` of each device sensor.
-NOISE_PARAMETERS = SensorNoise.parameter_names(TRUE_NOISE_PARAMETER, DEVICE_SENSORS)
+NOISE_PARAMETERS = noise_parameter_names(TRUE_NOISE_PARAMETER, DEVICE_SENSORS)
 
 #: sim backend: each sensor's dynamics (docs/sensor_errors.md), s; 0 = instant / white.
 DYNAMICS_PARAMETERS = tuple(
@@ -180,7 +184,7 @@ class DeviceDriverNode(Node):
     def _apply_noise(self, changes):
         """Apply accepted noise levels (checked by parameter_specs.watch_parameters)."""
         if any(name in NOISE_PARAMETERS for name in changes):
-            noise = SensorNoise.from_parameters(changes, TRUE_NOISE_PARAMETER, self._backend.noise)
+            noise = noise_from_parameters(changes, TRUE_NOISE_PARAMETER, self._backend.noise)
             self._backend.update_noise(noise)
             self.get_logger().info(f'noise std updated: {self._backend.describe()}')
 

@@ -1,6 +1,5 @@
 """SensorNoise: one noise type and its conversions (channels, averaged rows, parameters, files)."""
 
-import dataclasses
 import math
 
 import numpy as np
@@ -8,7 +7,6 @@ import pytest
 
 from gsp_kinematics.model.sensor_noise import (
     DEFAULT_SENSOR_NOISE,
-    TRUE_NOISE_PARAMETER,
     SensorNoise,
     SensorNoiseError,
 )
@@ -45,23 +43,6 @@ def test_averaged_rows_have_sigma_over_root_n_of_the_median_count():
     np.testing.assert_allclose(averaged.channel_std(), NOISE.channel_std() / 3.0, rtol=1e-15)
     assert NOISE.averaged([]) == NOISE
     assert NOISE.averaged([0, 4]) == NOISE  # a count below one: rows are not averages
-
-
-def test_parameters_round_trip_with_the_names_users_type():
-    assert NOISE.to_parameters() == {
-        'sigma_leg_lengths': 1e-6,
-        'sigma_inclinometer': 2e-5,
-        'sigma_encoder': 3e-5,
-        'sigma_lvdt': 4e-6,
-    }
-    assert SensorNoise.from_parameters(NOISE.to_parameters()) == NOISE
-    assert SensorNoise.from_parameters({'sigma_lvdt': 5e-6}) == SensorNoise(lvdt=5e-6)
-    device = NOISE.to_parameters(TRUE_NOISE_PARAMETER)
-    assert device['inclinometer_noise_std'] == 2e-5
-    assert SensorNoise.from_parameters(device, TRUE_NOISE_PARAMETER) == NOISE
-    changed = SensorNoise.from_parameters({'encoder_noise_std': 7e-5}, TRUE_NOISE_PARAMETER, NOISE)
-    assert changed == dataclasses.replace(NOISE, encoder=7e-5)
-    assert SensorNoise.parameter_names(TRUE_NOISE_PARAMETER, ('lvdt',)) == ('lvdt_noise_std',)
 
 
 @pytest.mark.parametrize('value', [0.0, -1e-6, math.nan, math.inf])

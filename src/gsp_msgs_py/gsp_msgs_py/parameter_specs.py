@@ -30,10 +30,10 @@ import numpy as np
 from gsp_kinematics.model.sensor_noise import (
     DEFAULT_SENSOR_NOISE,
     NOISE_UNITS,
-    TRUE_NOISE_PARAMETER,
 )
 
 from . import names
+from .noise_parameters import TRUE_NOISE_PARAMETER
 
 # rclpy is imported inside the functions that need a node, so that pure modules (the
 # calibrator's settings table, the docs generator) can import specs and checks without loading it.
@@ -258,7 +258,7 @@ def motion_limit_specs(speed, acceleration, read_only=False):
 
 def true_noise_spec(sensor, description):
     """A simulated ``sensor``'s true noise std, ``<sensor>_noise_std``
-    (:data:`gsp_kinematics.model.sensor_noise.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
+    (:data:`gsp_msgs_py.noise_parameters.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
     at run time; the default is the suite's default noise."""
     unit = NOISE_UNITS[sensor]
     return ParameterSpec(

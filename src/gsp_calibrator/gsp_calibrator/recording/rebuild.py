@@ -30,6 +30,7 @@ from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.model.geometry import GeometryError, default_geometry, load_geometry
 from gsp_kinematics.model.sensor_noise import SensorNoise, SensorNoiseError
 from gsp_msgs_py import names
+from gsp_msgs_py.noise_parameters import noise_from_parameters
 
 
 def noise_std_from_options(options):
@@ -41,7 +42,7 @@ def noise_std_from_options(options):
     try:
         if options.get('noise_std') is not None:
             return SensorNoise.from_channel_std(options['noise_std']).channel_std()
-        return SensorNoise.from_parameters(options).channel_std()
+        return noise_from_parameters(options).channel_std()
     except SensorNoiseError as error:
         raise RecordingError(str(error)) from None
 

@@ -25,7 +25,12 @@ from gsp_calibrator.run import postures
 from gsp_calibrator.run.directory import TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.identify import identify_from_samples, write_results
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL, outcome_summary
-from gsp_calibrator.settings import DEFAULTS, PARAMETER_SPECS, option_name
+from gsp_calibrator.settings import (
+    DEFAULTS,
+    PARAMETER_SPECS,
+    option_name,
+    requirement_from_parameters,
+)
 from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
     OPTION_PARAMETERS,
     InputError,
@@ -39,10 +44,10 @@ from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: 
     stored_options,
 )
 from gsp_kinematics.estimation.identification import IdentificationError, Options
-from gsp_kinematics.estimation.verdict.acceptance import Requirement
 from gsp_kinematics.fileio import atomic_copy
 from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_msgs_py.noise_parameters import noise_from_parameters
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -192,7 +197,7 @@ def reidentify(args, out=None):
         free_parameters(args.free_parameters)  # a bad name is reported before anything is read
     kind, path, source_dir = resolve_input(args.input)
     options = resolve_options(args, stored_options(kind, path, source_dir))
-    sigmas = SensorNoise.from_parameters(options)
+    sigmas = noise_from_parameters(options)
     free = options['free_parameters']
     nominal_path = options['nominal_geometry_file']
     nominal = geometry_option(nominal_path, '--nominal')
@@ -209,7 +214,7 @@ def reidentify(args, out=None):
             free,
             options['formulation'],
             noise_source=options['noise_source'],
-            requirement=Requirement.from_parameters(options),
+            requirement=requirement_from_parameters(options),
             folds=int(options['cross_validation_folds']),
             payload_mass=options['payload_mass'],
             centre_of_mass=options['payload_centre_of_mass'],
@@ -270,7 +275,7 @@ def stored_weights(stored, options, samples):
     (``result.json`` ``sigmas``) is given as configured per-sample sigmas, and its noise
     estimates and goodness of fit are kept as written."""
     source = options.get('noise_source', DEFAULTS['noise_source'])
-    sigmas, kept = SensorNoise.from_parameters(options), ('collection', 'noise_estimates')
+    sigmas, kept = noise_from_parameters(options), ('collection', 'noise_estimates')
     if np.isfinite(samples.lag_sums).any():
         return sigmas, source, ('collection',)
     if source == stored.get('noise_source') == 'estimated' and stored.get('sigmas'):
@@ -320,7 +325,7 @@ def refresh_report(
         options['free_parameters'],
         options['formulation'],
         noise_source=source,
-        requirement=Requirement.from_parameters(options),
+        requirement=requirement_from_parameters(options),
         folds=int(options['cross_validation_folds']),
         payload_mass=options['payload_mass'],
         centre_of_mass=options['payload_centre_of_mass'],

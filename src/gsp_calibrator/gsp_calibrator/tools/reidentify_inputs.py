@@ -9,7 +9,7 @@ from pathlib import Path
 from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.settings import DEFAULTS, REIDENTIFY_COMMAND_LINE, names_in, option_value
 from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
-from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_msgs_py.noise_parameters import noise_from_parameters
 
 
 class InputError(ValueError):
@@ -171,7 +171,7 @@ def load_input(kind, path, options):
         # A resumed run recorded into recording.mcap, recording-2.mcap ...: read every part.
         parts = recording_parts(Path(path).parent) if Path(path).name == RECORDING_FILE else []
 
-        noise_std = SensorNoise.from_parameters(options).channel_std()
+        noise_std = noise_from_parameters(options).channel_std()
         try:
             samples = samples_from_recording(
                 parts or path,

@@ -204,7 +204,7 @@ def free_parameters_error(names, effects=True):
     with ``effects``, also the effect groups and their parameters, ``effects.groups``, and
     :data:`AUTO`) is not a set of free parameters: empty, unknown or duplicated names, or
     :data:`AUTO` beside named effects. The one check of a free-parameter list, for the
-    calibrator's ``free_parameters`` and every command line."""
+    calibrator and every command line."""
     names = list(names)
     if not names:
         return 'must name at least one parameter'

@@ -50,7 +50,7 @@ class NoiseSourceError(ValueError):
 
 def noise_source_error(source):
     """Reason ('' if none) why ``source`` is not a noise source: the one check of
-    ``noise_source``, for the calibrator's parameter, the identification and every command line."""
+    the noise source, for the calibrator, the identification and every command line."""
     return (
         '' if source in NOISE_SOURCES else f'must be one of {list(NOISE_SOURCES)}, got {source!r}'
     )

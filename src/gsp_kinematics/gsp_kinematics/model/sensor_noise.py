@@ -2,15 +2,10 @@
 
 A :class:`SensorNoise` holds the standard deviation of one sample of each sensor of
 :mod:`gsp_kinematics.channels`: the six leg lengths (m, one value for all legs), the
-inclinometer (rad, alpha and beta), the encoder (rad, phi) and the LVDT (m, d_m). It serves on
-both sides, under two names (the same in parameters, files and code):
-
-- the **true noise** a simulated sensor draws (platform_sim, device_driver's ``sim`` backend,
-  gsp_fake_device): parameters ``<sensor>_noise_std`` (:data:`TRUE_NOISE_PARAMETER`);
-- the **assumed noise** ``sigma`` the calibrator weighs the residuals with and sets its
-  consistency window from: parameters and run options ``sigma_<sensor>``
-  (:data:`ASSUMED_NOISE_PARAMETER`), ``result.json`` ``sigmas`` (per sensor) and code
-  ``sigmas.<sensor>``.
+inclinometer (rad, alpha and beta), the encoder (rad, phi) and the LVDT (m, d_m). It serves as the
+**true noise** a simulated sensor draws and as the **assumed noise** ``sigma`` the calibrator
+weighs the residuals with; the nodes name it in their parameters
+(:mod:`gsp_msgs_py.noise_parameters`).
 
 Each view is one method here, so no caller unpacks the fields itself:
 
@@ -19,9 +14,7 @@ Each view is one method here, so no caller unpacks the fields itself:
   channels ``[q_1..q_6, alpha, beta, phi, d_m]``;
 - :meth:`SensorNoise.channels` / :meth:`SensorNoise.from_channels`: ``{channel: std}`` by field
   name, as :func:`gsp_kinematics.estimation.goodness.estimate_noise` gives a data estimate;
-- :meth:`SensorNoise.averaged`: the noise of a row that averages ``n`` samples;
-- :meth:`SensorNoise.to_parameters` / :meth:`SensorNoise.from_parameters`: node parameters and
-  run options, named by one of the two patterns.
+- :meth:`SensorNoise.averaged`: the noise of a row that averages ``n`` samples.
 
 :data:`DEFAULT_SENSOR_NOISE` is the one default noise level of the suite (Table 3's first level,
 0.001 deg and 0.001 mm): the simulated platform and device, the fake serial device and the
@@ -39,11 +32,6 @@ from gsp_kinematics import channels
 NOISE_FIELDS = channels.SENSORS
 #: Each field's SI unit (its channels' unit).
 NOISE_UNITS = {channel.sensor: channel.unit for channel in channels.CHANNELS}
-#: Name of a sensor's true noise std on the simulated nodes (``inclinometer_noise_std``).
-TRUE_NOISE_PARAMETER = '{}_noise_std'
-#: Name of a sensor's assumed noise std on the calibrator and in its run options
-#: (``sigma_inclinometer``).
-ASSUMED_NOISE_PARAMETER = 'sigma_{}'
 
 
 class SensorNoiseError(ValueError):
@@ -91,7 +79,7 @@ class SensorNoise:
         values = np.asarray(values, dtype=float).reshape(-1)
         if values.shape != (channels.CHANNEL_COUNT,):
             raise SensorNoiseError(
-                f'noise_std must hold {channels.CHANNEL_COUNT} values, got {values.tolist()}'
+                f'the channel noise must hold {channels.CHANNEL_COUNT} values, got {values.tolist()}'
             )
         return cls(
             **{name: float(values[channels.sensor_columns(name)[0]]) for name in NOISE_FIELDS}
@@ -123,28 +111,6 @@ class SensorNoise:
             return self
         factor = 1.0 / math.sqrt(float(np.median(n_samples)))
         return SensorNoise(**{name: value * factor for name, value in self.channels().items()})
-
-    # --- parameters and files -----------------------------------------------------------------
-
-    def to_parameters(self, pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
-        """``{pattern.format(sensor): std}`` of ``sensors``: the calibrator's ``sigma_<sensor>``
-        by default, :data:`TRUE_NOISE_PARAMETER` for a simulated sensor's."""
-        return {pattern.format(name): float(getattr(self, name)) for name in sensors}
-
-    @classmethod
-    def from_parameters(cls, values, pattern=ASSUMED_NOISE_PARAMETER, default=None):
-        """Inverse of :meth:`to_parameters`; a missing key is taken from ``default`` (a
-        :class:`SensorNoise`, :data:`DEFAULT_SENSOR_NOISE` when None): with the current noise
-        as ``default``, this applies changed parameters."""
-        default = DEFAULT_SENSOR_NOISE if default is None else default
-        return cls.from_channels(
-            {name: values.get(pattern.format(name)) for name in NOISE_FIELDS}, default
-        )
-
-    @staticmethod
-    def parameter_names(pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
-        """The parameter names of ``sensors`` under ``pattern``."""
-        return tuple(pattern.format(name) for name in sensors)
 
 
 #: The suite's default noise: Table 3's first level (0.001 deg, 0.001 mm) on every sensor.

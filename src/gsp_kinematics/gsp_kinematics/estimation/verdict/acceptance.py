@@ -32,21 +32,6 @@ class Requirement:
     def as_dict(self):
         return dataclasses.asdict(self)
 
-    @classmethod
-    def from_parameters(cls, values):
-        """From the calibrator's parameters (:data:`PARAMETERS`; a missing one: its default)."""
-        return cls(
-            **{field: float(values[name]) for field, name in PARAMETERS.items() if name in values}
-        )
-
-
-#: The calibrator's parameter of each :class:`Requirement` field.
-PARAMETERS = {
-    'position_mm': 'required_position_accuracy_mm',
-    'orientation_deg': 'required_orientation_accuracy_deg',
-    'improvement': 'required_improvement_over_nominal',
-}
-
 
 @dataclasses.dataclass(frozen=True)
 class Verdict:
