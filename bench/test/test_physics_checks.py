@@ -39,7 +39,7 @@ def test_the_quick_mode_runs_a_seed_whose_postures_the_physics_platform_holds():
     cannot hold, which failed the quick run; the quick mode takes the first seed without one."""
     from gsp_calibrator.run.postures import choose_postures, selection_arguments
     from gsp_calibrator.settings import CalibratorSettings
-    from gsp_kinematics.geometry import default_geometry
+    from gsp_kinematics.model.geometry import default_geometry
     from gsp_platform_sim.physics import PhysicsSimulator
 
     def refused(seed):
