@@ -11,7 +11,7 @@ from gsp_testing import marked_environment, run_demo
 from scipy import stats
 
 from gsp_calibrator.recording import rebuild
-from gsp_calibrator.run.directory import read_samples
+from gsp_calibrator.files.run_directory import read_samples
 from gsp_calibrator.tools.bench import sensor_dynamics as bench_sensor_dynamics
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import forward_kinematics_masked

@@ -21,7 +21,7 @@ from synthetic import synthetic_samples
 from gsp_calibrator.recording import mcap_io
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info
 from gsp_calibrator.recording.recorder import RECORDING_FILE
-from gsp_calibrator.run.directory import SamplesAppender, read_samples, write_samples
+from gsp_calibrator.files.run_directory import SamplesAppender, read_samples, write_samples
 from gsp_calibrator.run.session import RunSession, RunWriteError
 from gsp_calibrator.run.state import (
     PHASE_COLLECTING,

@@ -26,7 +26,7 @@ from gsp_calibrator.recording.mcap_io import (
 )
 from gsp_calibrator.recording.recorder import next_recording_file, recording_parts
 from gsp_calibrator.report.data import settle_line
-from gsp_calibrator.run.directory import SAMPLES_FILE, Samples, read_samples, write_samples
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, Samples, read_samples, write_samples
 from gsp_calibrator.run.session import RunSession
 from gsp_calibrator.run.state import (
     PHASE_COLLECTING,

@@ -11,8 +11,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from gsp_calibrator.collection.approach import effect_design
 from gsp_calibrator.run import identify as run_identify
-from gsp_calibrator.run.approach import effect_design
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.tools.bench import verdict as bench_verdict
 from gsp_kinematics import noise_from_data

@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
-from gsp_calibrator.run.directory import RunDirectory, Samples
+from gsp_calibrator.files.run_directory import RunDirectory, Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.postures import choose_postures
 from gsp_calibrator.run.response import outcome_summary, parse_response

@@ -15,7 +15,7 @@ import numpy as np
 from calibrator_suite import make_suite
 from rclpy.parameter import Parameter
 
-from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools.bench.end_to_end import read_run_directory

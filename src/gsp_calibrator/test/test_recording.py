@@ -33,7 +33,7 @@ from gsp_calibrator.recording.recorder import (
     note_posture_end,
 )
 from gsp_calibrator.replay.recorded_run import RecordedRun
-from gsp_calibrator.run.directory import read_samples, write_samples
+from gsp_calibrator.files.run_directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import TOPIC_QOS
 
@@ -573,8 +573,8 @@ class _OnlineCalibrator:
 
     def __init__(self, mcap, per_posture, settle_timeout):
         from gsp_calibrator.collection.protocol import CollectionProtocol
-        from gsp_calibrator.run.directory import Samples
-        from gsp_calibrator.run.host import PostureLink
+        from gsp_calibrator.node.posture_link import PostureLink
+        from gsp_calibrator.files.run_directory import Samples
 
         self.mcap, self.rows, self.commanded = mcap, Samples.empty(), None
         self.ends = []

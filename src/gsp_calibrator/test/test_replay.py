@@ -21,7 +21,7 @@ from gsp_calibrator.replay.recorded_run import (
     ReplayError,
 )
 from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
-from gsp_calibrator.run.directory import Samples, write_samples
+from gsp_calibrator.files.run_directory import Samples, write_samples
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.diagnostics import DiagnosticsListener
 from gsp_msgs_py.health import OK, Health

@@ -13,7 +13,7 @@ from gsp_calibrator.replay.recorded_run import (
     PostureServer,
     RecordedRun,
 )
-from gsp_calibrator.run.directory import Samples, write_samples
+from gsp_calibrator.files.run_directory import Samples, write_samples
 from gsp_msgs_py import conversions
 
 # --- RecordedRun and PostureServer (pure) ----------------------------------------------------------

@@ -230,7 +230,7 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     """The calibrator's ``write_report_plots``: false skips every PNG and says so in report.md;
     result.json, report.md's tables and result.yaml are as with the plots (the default)."""
     from gsp_calibrator.report.data import settle_line
-    from gsp_calibrator.run.directory import RESULT_FILE, RunDirectory
+    from gsp_calibrator.files.run_directory import RESULT_FILE, RunDirectory
     from gsp_calibrator.run.state import settle_statistics
     from gsp_calibrator.settings import CalibratorSettings
 

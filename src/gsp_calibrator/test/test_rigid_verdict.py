@@ -10,7 +10,7 @@ import types
 import numpy as np
 import pytest
 
-from gsp_calibrator.result_delivery import ResultDelivery
+from gsp_calibrator.node.result_delivery import ResultDelivery
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.tools.bench.verdict import RUN_S, default_design, simulated_samples

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from gsp_calibrator.run.directory import (
+from gsp_calibrator.files.run_directory import (
     SAMPLES_COLUMNS,
     RunDirectory,
     RunDirectoryError,

@@ -12,9 +12,10 @@ import pytest
 from gsp_calibrator.collection.events import PostureSkipped, RowReady, TopicSilent
 from gsp_calibrator.collection.synchroniser import PostureSample
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
+from gsp_calibrator.node.posture_link import PostureLink
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
-from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, PostureLink, RunHost
+from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, RunHost
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.settings import CalibratorSettings

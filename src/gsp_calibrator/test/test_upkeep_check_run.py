@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from upkeep_runs import RUNS, write_runs
 
-from gsp_calibrator.run.directory import Samples
-from gsp_calibrator.upkeep import check_run, history
-from gsp_calibrator.upkeep.calibration_files import load_calibration
+from gsp_calibrator.files import history
+from gsp_calibrator.files.calibration_files import load_calibration
+from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.upkeep import check_run
 from gsp_experiments.bench_sensor_errors import SAMPLES, SIGMAS, collect
 from gsp_experiments.bench_upkeep import UpkeepDesign, changed_truth
 from gsp_kinematics.kinematics import home_pose

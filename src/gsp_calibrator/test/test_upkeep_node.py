@@ -10,8 +10,8 @@ from calibrator_suite import make_suite, perturbed_truth
 from std_srvs.srv import Trigger
 
 import gsp_calibrator.tools.history
+from gsp_calibrator.files import history
 from gsp_calibrator.tools import compare
-from gsp_calibrator.upkeep import history
 from gsp_experiments.bench_upkeep import changed_truth
 from gsp_msgs_py import names
 

@@ -15,7 +15,7 @@ import traceback
 
 from gsp_calibrator.collection import posture_state, protocol, topics
 from gsp_calibrator.recording.recorder import next_recording_file, settings_options
-from gsp_calibrator.run import postures
+from gsp_calibrator.run import postures, reused_rows, run_to_requirement
 from gsp_calibrator.run.host import POSTURE_ENDS, RunHost, first_timeout
 from gsp_calibrator.run.identify import finish_run
 from gsp_calibrator.run.response import (
@@ -33,7 +33,6 @@ from gsp_calibrator.run.state import (
     STATE_FILE,
     settle_statistics,
 )
-from gsp_calibrator.upkeep import reused_rows, run_to_requirement
 from gsp_msgs_py import names
 
 

@@ -1,7 +1,7 @@
 """Identification of a collected run, without ROS (pure).
 
 1. :func:`identify_from_samples`: the core's ``identify`` on the averaged posture rows
-   (``run.directory.Samples``), then checks: converged, and every free parameter identifiable
+   (``files.run_directory.Samples``), then checks: converged, and every free parameter identifiable
    (full rank of the column-scaled information matrix). A failed check gives
    ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
    A result that passes is cross-validated (the accuracy the device measures on postures the
@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
+from gsp_calibrator.collection.approach import effect_design, reference_instant
 from gsp_calibrator.report.data import settle_line
-from gsp_calibrator.run.approach import effect_design, reference_instant
 from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
     CalibrationError,
@@ -149,7 +149,7 @@ def identify_from_samples(
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
-    ``samples``: a :class:`.directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
+    ``samples``: a :class:`gsp_calibrator.files.run_directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
     ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. The rows' lag sums give the
@@ -452,7 +452,7 @@ def finish_run(run, settings, samples, collection, options):
 def write_results(run, outcome, comment):
     """Write a successful ``outcome``'s geometry to ``run`` (its ``RunDirectory``) as
     ``result.yaml`` and, with identified effects, the rigid one as ``result_rigid.yaml``."""
-    from gsp_calibrator.run.directory import RESULT_FILE, RIGID_RESULT_FILE
+    from gsp_calibrator.files.run_directory import RESULT_FILE, RIGID_RESULT_FILE
 
     run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     if outcome.rigid_geometry is not None:

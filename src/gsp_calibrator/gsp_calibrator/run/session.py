@@ -2,10 +2,10 @@
 
 A :class:`RunSession` is a new run (:meth:`RunSession.create`) or the rest of an unfinished one
 (:meth:`RunSession.resume`). It holds the run's ``state.json`` (:mod:`.state`), its rows
-(:class:`.directory.Samples`, each appended to ``samples.csv`` as it is collected by a
-:class:`.directory.SamplesAppender`) and the postures still to command. It is thread-safe:
+(:class:`gsp_calibrator.files.run_directory.Samples`, each appended to ``samples.csv`` as it is collected by a
+:class:`gsp_calibrator.files.run_directory.SamplesAppender`) and the postures still to command. It is thread-safe:
 a row is added by the node's thread whose message ended the posture
-(:class:`.host.PostureLink`) while the run coroutine writes ``state.json``.
+(:class:`gsp_calibrator.node.posture_link.PostureLink`) while the run coroutine writes ``state.json``.
 
 A file that cannot be written (a full disk: ENOSPC, or any ``OSError``) raises
 :class:`RunWriteError`, whose message names the file and the cause. Nothing written before is
@@ -19,10 +19,10 @@ import threading
 
 import numpy as np
 
+from gsp_calibrator.collection.approach import ApproachTracker
 from gsp_calibrator.collection.single_source import other_calibrators
 from gsp_calibrator.recording.mcap_io import recover_recordings
-from gsp_calibrator.run.approach import ApproachTracker
-from gsp_calibrator.run.directory import (
+from gsp_calibrator.files.run_directory import (
     SAMPLES_FILE,
     RunDirectory,
     RunDirectoryError,
@@ -158,7 +158,7 @@ class RunSession:
             self.approach.command(posture, pose, standing_legs)
 
     def rows_so_far(self):
-        """A copy of the rows collected so far (:class:`.directory.Samples`)."""
+        """A copy of the rows collected so far (:class:`gsp_calibrator.files.run_directory.Samples`)."""
         with self._lock:
             return self.samples.rows(slice(0, len(self.samples)))
 

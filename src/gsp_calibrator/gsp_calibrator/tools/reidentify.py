@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import (
+from gsp_calibrator.files.run_directory import (
     TRUE_GEOMETRY_FILE,
     RunDirectory,
 )

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.settings import DEFAULTS, REIDENTIFY_COMMAND_LINE, names_in, option_value
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.sensors.noise import SensorNoise

@@ -10,11 +10,12 @@ geometry the controller runs), and instead of an identification the collected ro
 import dataclasses
 import os
 
+from gsp_calibrator.files import history
+from gsp_calibrator.files.calibration_files import RESULT_JSON
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun, RunFailed
 from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, PHASE_IDENTIFYING
-from gsp_calibrator.upkeep import check_run, history
-from gsp_calibrator.upkeep.calibration_files import RESULT_JSON
+from gsp_calibrator.upkeep import check_run
 from gsp_kinematics.upkeep import check
 from gsp_msgs_py import names
 

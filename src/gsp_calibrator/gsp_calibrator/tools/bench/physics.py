@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools.bench.end_to_end import (
     _stop,

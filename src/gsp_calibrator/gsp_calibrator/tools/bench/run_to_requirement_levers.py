@@ -24,12 +24,11 @@ import math
 import numpy as np
 from scipy import stats
 
-from gsp_calibrator.run import postures
+from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
 from gsp_calibrator.tools.bench import effects as bench_effects
 from gsp_calibrator.tools.bench import run_to_requirement as bench
 from gsp_calibrator.tools.bench import verdict as bench_verdict
-from gsp_calibrator.upkeep import run_to_requirement
 from gsp_kinematics.effects.groups import EFFECT_GROUPS, design_rows
 from gsp_kinematics.effects.model import REALISTIC
 from gsp_kinematics.effects.plan import augment_route

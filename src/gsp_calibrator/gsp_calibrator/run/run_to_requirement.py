@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
+from gsp_calibrator.run import reused_rows
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.postures import posture_pool, selection_formulation
-from gsp_calibrator.upkeep import reused_rows
 from gsp_kinematics.identification import resolve_free
 from gsp_kinematics.kinematics import ForwardKinematicsError, home_pose, pose_from_leg_readings
 from gsp_kinematics.prediction import accuracy_summary
@@ -57,7 +57,7 @@ class Judgement:
 
 
 def judge_rows(settings, samples, rule):
-    """Identify ``samples`` (the rows so far, ``run.directory.Samples``) as the calibrator does
+    """Identify ``samples`` (the rows so far, ``files.run_directory.Samples``) as the calibrator does
     (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
     (:class:`Judgement`). Runs in a worker thread."""
     started = time.perf_counter()

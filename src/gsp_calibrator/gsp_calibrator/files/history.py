@@ -19,14 +19,14 @@ import math
 import sqlite3
 from pathlib import Path
 
-from gsp_calibrator.run.directory import TIMESTAMP_FORMAT
-from gsp_calibrator.upkeep.calibration_files import (
+from gsp_calibrator.files.calibration_files import (
     CalibrationFileError,
     calibration_from_check,
     calibration_from_result,
     read_json,
     run_file,
 )
+from gsp_calibrator.files.run_directory import TIMESTAMP_FORMAT
 from gsp_kinematics.upkeep import drift
 
 DATABASE_NAME = 'history.sqlite'

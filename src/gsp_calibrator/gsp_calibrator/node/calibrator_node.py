@@ -13,7 +13,7 @@ concurrency).
 This wrapper only moves messages and waits. The course of a run is
 :class:`.run.flow.CalibrationRun` (a coroutine), its files :class:`.run.session.RunSession`.
 The node gives the run one :class:`.run.host.RunHost` (:meth:`CalibratorNode._run_host`) whose
-:class:`.run.host.PostureLink` joins the node's threads to the run: every status and sensor
+:class:`.posture_link.PostureLink` joins the node's threads to the run: every status and sensor
 message goes through it to the :class:`.collection.protocol.CollectionProtocol` with its receive
 time (a status also with its publish instant: a posture's samples count from the publication of
 its ``settled``, :func:`.collection.protocol.settle_start_ns`), a watchdog timer polls it for
@@ -42,7 +42,10 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.collection import events, protocol
-from gsp_calibrator.node_threads import (
+from gsp_calibrator.node.posture_link import PostureLink
+from gsp_calibrator.node.result_delivery import ResultDelivery
+from gsp_calibrator.node.sensor_intake import LISTENER_TICK_S, SensorIntake
+from gsp_calibrator.node.threads import (
     SensorListener,
     ThreadResults,
     Waits,
@@ -51,13 +54,11 @@ from gsp_calibrator.node_threads import (
     run_in_thread,
 )
 from gsp_calibrator.recording.recorder import RunRecorder
-from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
-from gsp_calibrator.run.host import PostureLink, RunHost
+from gsp_calibrator.run.host import RunHost
 from gsp_calibrator.run.session import RunWriteError, WriteFailed
-from gsp_calibrator.sensor_intake import LISTENER_TICK_S, SensorIntake
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
 from gsp_calibrator.upkeep.check_flow import CheckRun, record_calibration
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
@@ -237,7 +238,7 @@ class CalibratorNode(Node):
             self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
 
     def _new_command(self, pose):
-        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.run.host.PostureLink`)."""
+        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.posture_link.PostureLink`)."""
         stamp = self.get_clock().now()
         msg = conversions.pose_to_pose_stamped(pose, stamp.to_msg())
         return (

@@ -10,7 +10,7 @@ geometry and device (the digests in the run's ``state.json``), like a resumed ru
 import dataclasses
 from pathlib import Path
 
-from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, Samples, read_samples
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, RunDirectoryError, Samples, read_samples
 from gsp_calibrator.run.state import STATE_FILE, ResumeRefused, read_state, selection_options
 
 
