@@ -10,8 +10,8 @@ import numpy as np
 from gsp_testing import marked_environment, run_demo
 from scipy import stats
 
-from gsp_calibrator.recording import rebuild
 from gsp_calibrator.files.run_directory import read_samples
+from gsp_calibrator.recording import rebuild
 from gsp_calibrator.tools.bench import sensor_dynamics as bench_sensor_dynamics
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.kinematics import forward_kinematics_masked

@@ -7,8 +7,8 @@ from calibrator_suite import spin_as_in_use
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.replay.replay_node import ReplayNode
 from gsp_calibrator.files.run_directory import RunDirectory
+from gsp_calibrator.replay.replay_node import ReplayNode
 from gsp_calibrator.run.response import parse_response
 from gsp_msgs_py import names
 

@@ -27,13 +27,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from gsp_calibrator.collection import topics
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.node import calibrator_node
 from gsp_calibrator.node.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, recording_info
 from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
-from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_kinematics.geometry import (
     default_geometry,

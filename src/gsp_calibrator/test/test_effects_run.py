@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.collection.approach import ApproachTracker, effect_design
+from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.report.write import outcome_inputs, write_all
 from gsp_calibrator.run import postures
-from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples, identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.settings import CalibratorSettings, check_parameters

@@ -134,9 +134,9 @@ def test_a_check_commands_its_own_plan_without_the_runs_workspace_postures():
     import types
 
     from gsp_calibrator.settings import CalibratorSettings
-    from gsp_calibrator.upkeep.check_flow import CheckRun
+    from gsp_calibrator.upkeep.check_flow import new_check
 
     settings = CalibratorSettings.from_values({'workspace_postures': 5, 'stop_when_accurate': True})
-    run = CheckRun(types.SimpleNamespace(log=logging.getLogger('check')), settings)
+    run = new_check(types.SimpleNamespace(log=logging.getLogger('check')), settings)
     assert run.settings.workspace_postures == 0 and not run.settings.stop_when_accurate
     assert run.settings.commanded_posture_count == settings.posture_count

@@ -5,7 +5,7 @@ docs/platform_effects.md#through-the-calibrator).
   commanded sequence the calibrator sends: the sign of the change of the commanded leg length
   (the nominal geometry's inverse kinematics) from the posture the platform stood at. A leg
   that does not move keeps its direction; a posture the platform rejected moved nothing. The
-  calibrator (``run.session``) and the rebuild from a recording (``recording.rebuild``) feed
+  calibrator (``run.record``) and the rebuild from a recording (``recording.rebuild``) feed
   it the same commands in the same order, so ``samples.csv`` and the rebuild agree.
 - :func:`effect_design`: the run's ``EffectDesign`` from its rows: the times (s since the first
   row's mean stamp), the approach directions, the payload the user gave and the thermal

@@ -30,16 +30,16 @@ class PostureLink:
         self._on_event = on_event
         self.lock = threading.RLock()  # guards every member below and the protocol
         self.protocol = None  #: the run's CollectionProtocol (kept after the run: summary)
-        self.session = None  #: the run's RunSession while collecting
+        self.record = None  #: the run's RunRecord while collecting
         self.active = False  #: whether messages go to the protocol
         self.failure = None  #: the event that ended the run early, else None
         self.current = None  #: ``(posture, command_id)`` commanded and not yet ended
         self._end = None  # the future of the current posture's end
 
-    def start(self, session, protocol):
-        """Feed messages to ``protocol`` and keep each posture's outcome in ``session``."""
+    def start(self, record, protocol):
+        """Feed messages to ``protocol`` and keep each posture's outcome in ``record``."""
         with self.lock:
-            self.protocol, self.session = protocol, session
+            self.protocol, self.record = protocol, record
             self.failure = self.current = self._end = None
             self.active = True
 
@@ -100,7 +100,7 @@ class PostureLink:
             return
         self._end = self.current = None
         if isinstance(event, POSTURE_ENDS):
-            event = self.session.end_posture(event)
+            event = self.record.end_posture(event)
         if isinstance(event, RowReady):
             self._note(current, KEPT)
         elif isinstance(event, PostureSkipped):

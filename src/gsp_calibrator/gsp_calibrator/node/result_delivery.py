@@ -177,8 +177,8 @@ class ParameterSetter:
 async def call_service(client, service, request, timeout_s, wait_for):
     """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (unavailable
     or no answer within ``timeout_s``). ``wait_for(predicate, timeout_s)``: a future of
-    :data:`.run.host.WAIT_OK` or :data:`.run.host.WAIT_TIMEOUT` (e.g.
-    :meth:`.node_threads.Waits.add`)."""
+    :data:`gsp_calibrator.run.host.WAIT_OK` or :data:`gsp_calibrator.run.host.WAIT_TIMEOUT` (e.g.
+    :meth:`gsp_calibrator.node.threads.Waits.add`)."""
     if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
         return None, f'parameter service {service} unavailable within {timeout_s:g} s'
     future = client.call_async(request)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.collection.approach import ApproachTracker
+from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
 from gsp_calibrator.recording.recorder import (
@@ -25,7 +26,6 @@ from gsp_calibrator.recording.recorder import (
     POSTURE_END_METADATA_NAME,
     POSTURE_METADATA_NAME,
 )
-from gsp_calibrator.files.run_directory import Samples
 from gsp_kinematics.geometry import GeometryError, default_geometry, load_geometry
 from gsp_kinematics.sensors.noise import SensorNoise, SensorNoiseError
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS

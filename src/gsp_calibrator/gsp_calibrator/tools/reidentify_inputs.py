@@ -114,7 +114,7 @@ def recover_unfinished_recordings(run_path):
     live calibrator is still writing: see its ``state.json``)."""
     from gsp_calibrator.recording.mcap_format import RecordingError
     from gsp_calibrator.recording.mcap_io import recover_recordings
-    from gsp_calibrator.run.state import ResumeRefused, read_state, resumable
+    from gsp_calibrator.run.record import ResumeRefused, read_state, resumable
 
     if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
         return

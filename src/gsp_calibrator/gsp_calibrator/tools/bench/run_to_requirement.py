@@ -24,8 +24,8 @@ import statistics
 
 import numpy as np
 
-from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.tools.bench import verdict as bench_verdict
 from gsp_kinematics.effects.model import REALISTIC
