@@ -1,34 +1,11 @@
-"""``calibrator`` node: runs a whole calibration on ``/gsp/calibrator/calibrate`` (std_srvs/Trigger).
+"""``calibrator`` node: a whole calibration on ``/gsp/calibrator/calibrate`` (std_srvs/Trigger),
+the rest of an unfinished one on ``/gsp/calibrator/resume``, the check on ``/gsp/calibrator/check``.
 
-A run selects postures (core, condition-number criterion), commands each on
-``/gsp/platform/pose_command`` and collects its averaged row from ``/gsp/platform/status``,
-``/gsp/platform/leg_lengths`` and the three ``/gsp/device/*`` topics, then identifies the
-parameters. It reports on ``/gsp/calibrator/progress``, writes the run directory (``samples.csv``
-a row per posture, ``state.json``, ``result.yaml``, ``recording.mcap``, ``result.json``,
-``report.md``), latches the calibrated geometry YAML on ``/gsp/calibrator/result`` and, with
-``apply_result``, sets the ``geometry.*`` parameters of the platform controller through its
-parameter service. See docs/nodes.md (parameters, topics) and docs/architecture.md (protocol,
-concurrency).
-
-This wrapper only moves messages and waits. The course of a run is
-:class:`gsp_calibrator.run.flow.CalibrationRun` (a coroutine), its record :class:`gsp_calibrator.run.record.RunRecord`.
-The node gives the run one :class:`gsp_calibrator.run.host.RunHost` (:meth:`CalibratorNode._run_host`) whose
-:class:`.posture_link.PostureLink` joins the node's threads to the run: every status and sensor
-message goes through it to the :class:`gsp_calibrator.collection.protocol.CollectionProtocol` with its receive
-time (a status also with its publish instant: a posture's samples count from the publication of
-its ``settled``, :func:`gsp_calibrator.collection.protocol.settle_start_ns`), a watchdog timer polls it for
-timeouts, and the event that ends a posture (row ready, posture skipped, topic silent) keeps its
-row and completes the future the run awaits. The waiting machinery is :mod:`gsp_calibrator.node.threads`, the
-second-source guard :mod:`gsp_calibrator.collection.single_source`.
-
-Concurrency: the Trigger callback is a coroutine in its own reentrant group, so a second call is
-answered at once while a run awaits. The status subscription and the parameter client sit in a
-reentrant group; the watchdog timer in a mutually exclusive group of its own (one executor thread
-at most: a reentrant timer is dispatched again while it waits for the lock, and its piled-up
-calls would take every thread of the executor). The suite's topics are taken by a
-:class:`gsp_calibrator.node.threads.SensorListener` (node ``<name>_recorder``, own thread): its recorder writes
-each batch of a sensor topic, then hands it to the collection. The protocol and the posture in collection are guarded by
-the posture link's lock.
+This wrapper only moves messages and waits: the course of a run is
+:class:`gsp_calibrator.run.flow.CalibrationRun`, to which the node gives one
+:class:`gsp_calibrator.run.host.RunHost` (:meth:`CalibratorNode._run_host`); its
+:class:`.posture_link.PostureLink` joins the node's threads to the run. Topics, parameters and
+files: docs/nodes.md; the protocol, threads and callback groups: docs/architecture.md.
 """
 
 import os

@@ -1,18 +1,9 @@
-"""Identification of a collected run, without ROS (pure).
+"""Identification of a collected run and its result files (pure, no rclpy).
 
-1. :func:`identify_from_samples`: the core's ``identify`` on the averaged posture rows
-   (``files.run_directory.Samples``), then checks: converged, and every free parameter identifiable
-   (full rank of the column-scaled information matrix). A failed check gives
-   ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
-   A result that passes is cross-validated (the accuracy the device measures on postures the
-   fit did not use), and judged against the required accuracy
-   (:func:`gsp_kinematics.verdict.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
-   is applied. With :data:`gsp_kinematics.identification.AUTO` among the free parameters, the
-   effect groups are chosen first (:func:`gsp_kinematics.verdict.model_choice.choose_model`, on the
-   run's ``EffectDesign`` from :mod:`gsp_calibrator.collection.approach`); the outcome's ``effects`` says what and why.
-2. :func:`write_run_files`: the result files of an identified run.
-
-The postures are chosen by :mod:`.postures`; the texts are :mod:`.response`.
+:func:`identify_from_samples` identifies the averaged rows, checks the result (converged,
+every free parameter identifiable), measures its accuracy on held-out postures and judges it
+against the required accuracy (docs/verdict.md); ``auto`` chooses the effect groups first.
+:func:`write_run_files` writes ``result.json``, ``report.md`` and the geometry files.
 """
 
 import dataclasses
