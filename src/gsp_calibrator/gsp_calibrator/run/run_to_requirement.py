@@ -1,8 +1,7 @@
-"""What a calibration that stops when it is good enough needs besides the run loop (pure, no
-rclpy; docs/upkeep.md): its rule from the calibrator's settings, the judgement of the rows so far
-(the calibrator's own identification and cross-validation, run in a worker thread), the pool
-postures it may add, and the record it leaves in ``result.json``. The decisions are
-:mod:`gsp_kinematics.upkeep.stopping`; the loop is ``gsp_calibrator.run.flow.CalibrationRun._collect``.
+"""A calibration that stops when it is good enough (``stop_when_accurate``, docs/upkeep.md;
+pure): its rule, the judgement of the rows so far (in a worker thread), the pool postures it
+may add and its record in ``result.json``. The decisions are
+:mod:`gsp_kinematics.upkeep.stopping`; the loop is the run's collection (``run.flow``).
 """
 
 import concurrent.futures
