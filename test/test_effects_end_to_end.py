@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 from gsp_testing import marked_environment
 
+from gsp_calibrator.collection.approach import effect_design
+from gsp_calibrator.files.run_directory import read_samples
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording.recorder import recording_parts
-from gsp_calibrator.run.approach import effect_design
-from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.tools import demo, demo_commands, reidentify
 from gsp_calibrator.tools.processes import NodeProcesses

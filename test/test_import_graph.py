@@ -243,3 +243,73 @@ def test_the_floor_check_catches_a_core_import_back_up(tmp_path):
     assert upward_imports(graph, CORE_FLOORS) == [
         ('gsp_kinematics.model.geometry', 'gsp_kinematics.planning.selection')
     ]
+
+
+#: Floors inside gsp_calibrator, lowest first; a module imports its own floor or lower ones.
+#: The upkeep parameters are part of the one parameter table that ``settings`` reads.
+CALIBRATOR_FLOORS = {
+    'gsp_calibrator.settings': 0,
+    'gsp_calibrator.launch_arguments': 0,
+    'gsp_calibrator.upkeep.parameters': 0,
+    'gsp_calibrator.collection': 1,
+    'gsp_calibrator.recording': 1,
+    'gsp_calibrator.report': 1,
+    'gsp_calibrator.files': 1,
+    'gsp_calibrator.run': 2,
+    'gsp_calibrator.upkeep': 3,
+    'gsp_calibrator.replay': 3,
+    'gsp_calibrator.node': 4,
+    'gsp_calibrator.tools': 5,
+}
+CALIBRATOR_FLOOR_NAMES = ('settings', 'leaves', 'run', 'upkeep, replay', 'node', 'tools')
+
+
+def calibrator_floor(module):
+    """The floor of a gsp_calibrator module (longest prefix wins), None outside the table."""
+    matches = [p for p in CALIBRATOR_FLOORS if module == p or module.startswith(p + '.')]
+    return CALIBRATOR_FLOORS[max(matches, key=len)] if matches else None
+
+
+def calibrator_back_arrows(graph):
+    """(importer, imported) pairs inside gsp_calibrator where the imported sits on a higher floor."""
+    return sorted(
+        (module, target)
+        for module, targets in graph.items()
+        for target in targets
+        if calibrator_floor(module) is not None
+        and calibrator_floor(target) is not None
+        and calibrator_floor(target) > calibrator_floor(module)
+    )
+
+
+def test_every_calibrator_module_has_a_floor(graph):
+    unplaced = [m for m in graph if m.startswith('gsp_calibrator.') and calibrator_floor(m) is None]
+    assert not unplaced, f'gsp_calibrator modules without a floor: {unplaced}'
+
+
+def test_no_arrow_back_up_in_the_calibrator(graph):
+    found = calibrator_back_arrows(graph)
+    assert not found, 'gsp_calibrator imports into a higher floor: ' + '; '.join(
+        f'{a} ({CALIBRATOR_FLOOR_NAMES[calibrator_floor(a)]}) imports {b} '
+        f'({CALIBRATOR_FLOOR_NAMES[calibrator_floor(b)]})'
+        for a, b in found
+    )
+
+
+def test_the_floors_catch_a_run_that_imports_upkeep(tmp_path):
+    graph = _tree(
+        tmp_path,
+        {
+            'gsp_calibrator/gsp_calibrator/__init__.py': '',
+            'gsp_calibrator/gsp_calibrator/run/__init__.py': '',
+            'gsp_calibrator/gsp_calibrator/run/flow.py': 'from ..upkeep.check_flow import f\n',
+            'gsp_calibrator/gsp_calibrator/upkeep/__init__.py': '',
+            'gsp_calibrator/gsp_calibrator/upkeep/check_flow.py': 'import gsp_calibrator.run\n',
+            'gsp_calibrator/gsp_calibrator/files/__init__.py': '',
+            'gsp_calibrator/gsp_calibrator/files/history.py': 'import gsp_calibrator.run.flow\n',
+        },
+    )
+    assert calibrator_back_arrows(graph) == [
+        ('gsp_calibrator.files.history', 'gsp_calibrator.run.flow'),
+        ('gsp_calibrator.run.flow', 'gsp_calibrator.upkeep.check_flow'),
+    ]

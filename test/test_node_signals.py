@@ -20,7 +20,7 @@ import threading
 import numpy as np
 import pytest
 
-from gsp_calibrator.run.directory import Samples, write_samples
+from gsp_calibrator.files.run_directory import Samples, write_samples
 
 TIMEOUT_S = 60.0  #: bounds a failure only (start-up on a loaded machine)
 PAIRS = {
@@ -54,7 +54,7 @@ def node_commands(tmp_path):
         'platform_bridge': python + ['gsp_platform_bridge.platform_bridge_node'],
         'calibrator': python
         + [
-            'gsp_calibrator.calibrator_node',
+            'gsp_calibrator.node.calibrator_node',
             '--ros-args',
             '-p',
             f'output_root:={tmp_path / "runs"}',

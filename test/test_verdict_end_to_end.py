@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 from gsp_testing import marked_environment
 
+from gsp_calibrator.files.run_directory import read_samples
 from gsp_calibrator.report.fit import EFFECTS_HINT
-from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.tools import demo, demo_commands
 from gsp_calibrator.tools.processes import NodeProcesses
 from gsp_kinematics.model.effects import REALISTIC

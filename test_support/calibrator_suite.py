@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.calibrator_node import CalibratorNode
+from gsp_calibrator.node.calibrator_node import CalibratorNode
 from gsp_kinematics.model.geometry import default_geometry, save_geometry
 from gsp_msgs_py import conversions, names, qos
 

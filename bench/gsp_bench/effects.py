@@ -32,28 +32,27 @@ from gsp_bench.verdict import (
 )
 from gsp_calibrator.run.identify import uncompensated_thermal_strain, workspace_rows
 from gsp_calibrator.run.postures import workspace_poses
-from gsp_kinematics.model.effects import EFFECT_GROUPS
-from gsp_kinematics.model.effect_groups import design_rows
-from gsp_kinematics.model.effects import REALISTIC
-from gsp_kinematics.planning.effect_plan import augment_route, effect_identifiability
 from gsp_kinematics.estimation.goodness import NOISE_CHANNELS
 from gsp_kinematics.estimation.identification import IdentificationError, identify
-from gsp_kinematics.model.kinematics import home_pose
 from gsp_kinematics.estimation.noise_from_data import (
     WithinNoise,
     estimate_row_noise,
     unmodelled_error,
 )
 from gsp_kinematics.estimation.prediction import accuracy_summary, predict_accuracy
-from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.model.motion import MotionLimits
-from gsp_kinematics.model.validation import pose_errors, simulate_commands
 from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
 from gsp_kinematics.estimation.verdict.model_choice import (
     DEFAULT_THERMAL_TIME_CONSTANTS,
     choose_model,
 )
+from gsp_kinematics.model.effect_groups import design_rows
+from gsp_kinematics.model.effects import EFFECT_GROUPS, REALISTIC
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
+from gsp_kinematics.model.validation import pose_errors, simulate_commands
+from gsp_kinematics.planning.effect_plan import augment_route, effect_identifiability
 
 #: Seconds per posture of the verdict's run (60 postures over RUN_S).
 POSTURE_S = RUN_S / 60

@@ -29,8 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, SUMMARY_FILE
 from gsp_calibrator.report.write import RESULT_JSON
-from gsp_calibrator.run.directory import SAMPLES_FILE, SUMMARY_FILE
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py.ros_environment import loopback_environment
 

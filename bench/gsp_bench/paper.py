@@ -35,14 +35,14 @@ import time
 
 import numpy as np
 
+from gsp_kinematics.estimation.identification import DEFAULT_FORMULATION, identify
+from gsp_kinematics.estimation.prediction import predicted_errors
 from gsp_kinematics.model.device import device_readings
 from gsp_kinematics.model.geometry import PARAMETER_NAMES, parameter_errors
-from gsp_kinematics.estimation.identification import DEFAULT_FORMULATION, identify
 from gsp_kinematics.model.kinematics import inverse_kinematics, sample_valid_postures
-from gsp_kinematics.estimation.prediction import predicted_errors
-from gsp_kinematics.planning.selection import select_postures
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.model.validation import validate
+from gsp_kinematics.planning.selection import select_postures
 
 from .nominal_sets import drawing_geometry, nominal_set
 from .tables import load_tables, table3

@@ -43,7 +43,7 @@ from gsp_bench.end_to_end import (
     find_run_directory,
     read_run_directory,
 )
-from gsp_calibrator.run.directory import RunDirectory
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.run.postures import choose_postures, selection_arguments
 from gsp_calibrator.settings import DEFAULTS, CalibratorSettings
 from gsp_kinematics.model.geometry import default_geometry

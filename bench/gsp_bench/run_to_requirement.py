@@ -25,10 +25,9 @@ import statistics
 import numpy as np
 
 import gsp_bench.verdict
-from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings
-from gsp_calibrator.upkeep import run_to_requirement
 from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.estimation.identification import resolve_free
 from gsp_kinematics.estimation.noise_from_data import posture_lag_sums

@@ -27,9 +27,8 @@ from scipy import stats
 import gsp_bench.effects
 import gsp_bench.run_to_requirement
 import gsp_bench.verdict
-from gsp_calibrator.run import postures
+from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
-from gsp_calibrator.upkeep import run_to_requirement
 from gsp_kinematics.estimation.prediction import accuracy_summary
 from gsp_kinematics.estimation.verdict.model_choice import choose_model
 from gsp_kinematics.model.effect_groups import design_rows

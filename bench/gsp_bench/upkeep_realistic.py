@@ -17,8 +17,8 @@ from gsp_calibrator.upkeep import check_run
 from gsp_kinematics.model.effects import REALISTIC
 from gsp_kinematics.model.kinematics import home_pose
 from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
-from gsp_kinematics.upkeep import drift
 from gsp_kinematics.model.validation import simulate_commands
+from gsp_kinematics.upkeep import drift
 
 SEEDS = 20
 QUICK_SEEDS = 2

@@ -21,8 +21,8 @@ import statistics
 
 import numpy as np
 
+from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.estimation.noise_from_data import posture_lag_sums

@@ -6,11 +6,11 @@ import pytest
 
 from gsp_bench.sensor_errors import SAMPLES, SIGMAS, collect
 from gsp_bench.upkeep import UpkeepDesign, changed_truth
-from gsp_kinematics.model.kinematics import home_pose
-from gsp_kinematics.model.sensor_noise import SensorNoise
-from gsp_kinematics.model.motion import MotionLimits, move_time, posture_leg_lengths
-from gsp_kinematics.upkeep import check, drift
 from gsp_kinematics.estimation.verdict import acceptance
+from gsp_kinematics.model.kinematics import home_pose
+from gsp_kinematics.model.motion import MotionLimits, move_time, posture_leg_lengths
+from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.upkeep import check, drift
 
 ROWS = SIGMAS.averaged([SAMPLES])
 REQUIRED = acceptance.Requirement(position_mm=0.05, orientation_deg=0.01)

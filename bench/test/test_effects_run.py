@@ -11,18 +11,18 @@ import pytest
 
 import gsp_bench.effects
 import gsp_bench.verdict
+from gsp_calibrator.collection.approach import ApproachTracker, effect_design
+from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.report.write import outcome_inputs, write_all
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.approach import ApproachTracker, effect_design
-from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples, identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.settings import CalibratorSettings, check_parameters
+from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
 from gsp_kinematics.model.effect_groups import REFERENCE_PAYLOAD_MASS, commanded_leg_readings
 from gsp_kinematics.model.effects import REALISTIC, PlatformEffects
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import home_pose, inverse_kinematics
-from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.model.validation import simulate_commands, validate
 

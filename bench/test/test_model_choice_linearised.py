@@ -12,11 +12,10 @@ import numpy as np
 import pytest
 
 import gsp_bench.verdict
+from gsp_calibrator.collection.approach import effect_design
 from gsp_calibrator.run import identify as run_identify
-from gsp_calibrator.run.approach import effect_design
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_kinematics.estimation import noise_from_data
-from gsp_kinematics.model.effect_groups import design_rows
 from gsp_kinematics.estimation.identification import Options
 from gsp_kinematics.estimation.verdict.comparison import comparison_variances
 from gsp_kinematics.estimation.verdict.cross_validation import (
@@ -32,6 +31,7 @@ from gsp_kinematics.estimation.verdict.model_choice import (
     choose_model,
     thermal_time_constant,
 )
+from gsp_kinematics.model.effect_groups import design_rows
 
 #: Held-out errors of the linearised and the refitted folds agree within the larger of these.
 RELATIVE = 0.05

@@ -11,15 +11,14 @@ import numpy as np
 import pytest
 
 from gsp_bench.verdict import RUN_S, default_design, simulated_samples
-from gsp_calibrator.result_delivery import ResultDelivery
+from gsp_calibrator.node.result_delivery import ResultDelivery
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
-from gsp_kinematics.model.effects import IdentifiedEffects
-from gsp_kinematics.model.effects import REALISTIC
 from gsp_kinematics.estimation.rigid_fold import held_out_postures, linearised_model_errors
+from gsp_kinematics.estimation.verdict.rigid_held_out import rigid_held_out
+from gsp_kinematics.model.effects import REALISTIC, IdentifiedEffects
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_kinematics.model.validation import pose_errors, simulate_commands
-from gsp_kinematics.estimation.verdict.rigid_held_out import rigid_held_out
 from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES
 
 SEEDS = range(3)

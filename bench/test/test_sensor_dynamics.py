@@ -11,8 +11,8 @@ from gsp_testing import marked_environment, run_demo
 from scipy import stats
 
 import gsp_bench.sensor_dynamics
+from gsp_calibrator.files.run_directory import read_samples
 from gsp_calibrator.recording import rebuild
-from gsp_calibrator.run.directory import read_samples
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import forward_kinematics_masked
 from gsp_kinematics.model.validation import commanded_articular, sensor_measurements

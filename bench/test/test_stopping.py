@@ -7,9 +7,9 @@ import pytest
 
 from gsp_bench.sensor_errors import SAMPLES, SIGMAS
 from gsp_bench.upkeep import UpkeepDesign, _pool_measurements
+from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.estimation.identification import resolve_free
 from gsp_kinematics.model.kinematics import home_pose
-from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.model.motion import MotionLimits, move_time, posture_leg_lengths
 from gsp_kinematics.upkeep import stopping
 

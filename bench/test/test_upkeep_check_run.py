@@ -10,13 +10,14 @@ from upkeep_runs import RUNS, write_runs
 
 from gsp_bench.sensor_errors import SAMPLES, SIGMAS, collect
 from gsp_bench.upkeep import UpkeepDesign, changed_truth
-from gsp_calibrator.run.directory import Samples
-from gsp_calibrator.upkeep import check_run, history
-from gsp_calibrator.upkeep.calibration_files import load_calibration
+from gsp_calibrator.files import history
+from gsp_calibrator.files.calibration_files import load_calibration
+from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.upkeep import check_run
+from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.model.kinematics import home_pose
 from gsp_kinematics.model.motion import MotionLimits
 from gsp_kinematics.upkeep import check
-from gsp_kinematics.estimation.verdict import acceptance
 
 REQUIRED = acceptance.Requirement(position_mm=0.05, orientation_deg=0.01)
 
@@ -133,9 +134,9 @@ def test_a_check_commands_its_own_plan_without_the_runs_workspace_postures():
     import types
 
     from gsp_calibrator.settings import CalibratorSettings
-    from gsp_calibrator.upkeep.check_flow import CheckRun
+    from gsp_calibrator.upkeep.check_flow import new_check
 
     settings = CalibratorSettings.from_values({'workspace_postures': 5, 'stop_when_accurate': True})
-    run = CheckRun(types.SimpleNamespace(log=logging.getLogger('check')), settings)
+    run = new_check(types.SimpleNamespace(log=logging.getLogger('check')), settings)
     assert run.settings.workspace_postures == 0 and not run.settings.stop_when_accurate
     assert run.settings.commanded_posture_count == settings.posture_count

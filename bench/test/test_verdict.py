@@ -18,8 +18,8 @@ from gsp_calibrator.run.identify import (
     workspace_rows,
 )
 from gsp_calibrator.run.response import NOT_ACCEPTED_HEAD, outcome_summary
-from gsp_kinematics.model.effects import REALISTIC
 from gsp_kinematics.estimation.identification import PARAMETER_GROUPS
+from gsp_kinematics.model.effects import REALISTIC
 
 
 @pytest.fixture(scope='module')

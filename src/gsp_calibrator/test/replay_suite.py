@@ -7,8 +7,8 @@ from calibrator_suite import spin_as_in_use
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.replay.replay_node import ReplayNode
-from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_msgs_py import names
 
@@ -62,7 +62,7 @@ class Suite:
 
 def calibrator_node(context, output_root, settings=None):
     """A calibrator with ``settings`` ({parameter: value}; default :data:`CALIBRATION`)."""
-    from gsp_calibrator.calibrator_node import CalibratorNode
+    from gsp_calibrator.node.calibrator_node import CalibratorNode
 
     settings = CALIBRATION if settings is None else settings
     overrides = [Parameter(name, value=value) for name, value in settings.items()]

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.files.run_directory import Samples
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_kinematics.model.sensor_noise import SensorNoise

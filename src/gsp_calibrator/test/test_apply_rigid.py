@@ -10,7 +10,7 @@ import rclpy
 from calibrator_suite import DEVICE_FREE, make_suite, perturbed_truth
 from rclpy.parameter import Parameter
 
-from gsp_calibrator.run.directory import RIGID_RESULT_FILE, RunDirectory
+from gsp_calibrator.files.run_directory import RIGID_RESULT_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_kinematics.model.effects import PlatformEffects
 from gsp_kinematics.model.geometry import geometry_to_parameters

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import (
     NOT_ACCEPTED_HEAD,

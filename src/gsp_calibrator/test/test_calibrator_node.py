@@ -26,14 +26,14 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from gsp_calibrator import calibrator_node
-from gsp_calibrator.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
 from gsp_calibrator.collection import topics
+from gsp_calibrator.files.run_directory import RunDirectory
+from gsp_calibrator.node import calibrator_node
+from gsp_calibrator.node.calibrator_node import GIL_SWITCH_INTERVAL_S, CalibratorNode
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, recording_info
 from gsp_calibrator.recording.recorder import POSTURE_METADATA_NAME
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
-from gsp_calibrator.run.directory import RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_kinematics.model.geometry import default_geometry, geometry_from_yaml, parameter_errors
 from gsp_msgs_py import conversions, names, qos
@@ -495,7 +495,7 @@ def test_the_calibrator_process_hands_the_gil_over_promptly(monkeypatch):
 def test_waits_end_when_their_predicate_holds_or_at_their_timeout():
     from rclpy.task import Future
 
-    from gsp_calibrator.node_threads import Waits
+    from gsp_calibrator.node.threads import Waits
     from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
 
     now = [100.0]

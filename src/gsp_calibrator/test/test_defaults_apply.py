@@ -12,8 +12,8 @@ import rclpy
 from calibrator_suite import Suite
 from rclpy.parameter import Parameter
 
-from gsp_calibrator.calibrator_node import CalibratorNode
-from gsp_calibrator.run.directory import RIGID_RESULT_FILE, RunDirectory
+from gsp_calibrator.files.run_directory import RIGID_RESULT_FILE, RunDirectory
+from gsp_calibrator.node.calibrator_node import CalibratorNode
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.run.rigid import RIGID_VERDICT_PREFIX
 from gsp_kinematics.model.effects import REALISTIC

@@ -53,7 +53,11 @@ def test_node_commands(tmp_path):
     ):
         assert value in calibrator
     missing = demo_commands.node_commands(args, str(tmp_path), which=lambda name: None)
-    assert missing['calibrator'][:3] == [sys.executable, '-m', 'gsp_calibrator.calibrator_node']
+    assert missing['calibrator'][:3] == [
+        sys.executable,
+        '-m',
+        'gsp_calibrator.node.calibrator_node',
+    ]
 
 
 def test_the_realistic_device_preset_sets_the_device_and_the_default_settle_look_back_fits_it(

@@ -18,16 +18,17 @@ from full_disk import NO_SPACE, WriteLimit
 from std_srvs.srv import Trigger
 from synthetic import synthetic_samples
 
+from gsp_calibrator.files.run_directory import SamplesAppender, read_samples, write_samples
 from gsp_calibrator.recording import mcap_io
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info
 from gsp_calibrator.recording.recorder import RECORDING_FILE
-from gsp_calibrator.run.directory import SamplesAppender, read_samples, write_samples
-from gsp_calibrator.run.session import RunSession, RunWriteError
-from gsp_calibrator.run.state import (
+from gsp_calibrator.run.record import (
     PHASE_COLLECTING,
     PHASE_DONE,
     PHASE_FAILED,
+    RunRecord,
     RunState,
+    RunWriteError,
     read_state,
 )
 from gsp_msgs_py import conversions, names
@@ -76,20 +77,20 @@ def test_a_row_cut_by_a_crash_is_dropped_when_the_file_is_appended_again(tmp_pat
 
 
 def test_a_state_json_that_cannot_be_written_keeps_the_previous_one(small_disk):
-    session = RunSession.create(small_disk.path)
-    session.state = RunState({'seed': 1}, np.zeros((2, 6)).tolist())
-    session.save(PHASE_COLLECTING)
-    files = sorted(os.listdir(session.run.path))
+    record = RunRecord.create(small_disk.path)
+    record.state = RunState({'seed': 1}, np.zeros((2, 6)).tolist())
+    record.save(PHASE_COLLECTING)
+    files = sorted(os.listdir(record.directory.path))
     small_disk.fill()
     reason = 'x' * 2 * PAGE  # more than the old file's page: a rewrite in place would be torn
     with pytest.raises(RunWriteError) as raised:
-        session.save(PHASE_FAILED, reason)
-    assert str(raised.value) == f'cannot write {session.run.path / "state.json"}: {NO_SPACE}'
-    assert read_state(session.run.path).phase == PHASE_COLLECTING
-    assert sorted(os.listdir(session.run.path)) == files  # no temporary file left behind
+        record.save(PHASE_FAILED, reason)
+    assert str(raised.value) == f'cannot write {record.directory.path / "state.json"}: {NO_SPACE}'
+    assert read_state(record.directory.path).phase == PHASE_COLLECTING
+    assert sorted(os.listdir(record.directory.path)) == files  # no temporary file left behind
     small_disk.free()
-    session.save(PHASE_FAILED, reason)
-    assert read_state(session.run.path).stop_reason == reason
+    record.save(PHASE_FAILED, reason)
+    assert read_state(record.directory.path).stop_reason == reason
 
 
 def test_a_recording_on_a_full_disk_keeps_every_message_written(small_disk):

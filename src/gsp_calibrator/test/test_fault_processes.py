@@ -19,12 +19,12 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.collection import topics
+from gsp_calibrator.files.run_directory import read_samples
 from gsp_calibrator.recording import mcap_io, rebuild
 from gsp_calibrator.recording.mcap_io import recording_info, recover_recording
 from gsp_calibrator.recording.recorder import recording_parts
-from gsp_calibrator.run.directory import read_samples
 from gsp_calibrator.run.identify import identify_from_samples
-from gsp_calibrator.run.state import (
+from gsp_calibrator.run.record import (
     PHASE_COLLECTING,
     PHASE_DONE,
     PHASE_FAILED,

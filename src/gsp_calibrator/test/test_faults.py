@@ -16,6 +16,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.collection.single_source import SingleSourceGuard
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, Samples, read_samples, write_samples
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import (
     McapRecorder,
@@ -25,14 +26,13 @@ from gsp_calibrator.recording.mcap_io import (
     recover_recordings,
 )
 from gsp_calibrator.recording.recorder import next_recording_file, recording_parts
-from gsp_calibrator.report.data import settle_line
-from gsp_calibrator.run.directory import SAMPLES_FILE, Samples, read_samples, write_samples
-from gsp_calibrator.run.session import RunSession
-from gsp_calibrator.run.state import (
+from gsp_calibrator.report.data import settle_line, settle_statistics
+from gsp_calibrator.run.record import (
     PHASE_COLLECTING,
     PHASE_DONE,
     PHASE_FAILED,
     ResumeRefused,
+    RunRecord,
     RunState,
     check_resume,
     latest_unfinished_run,
@@ -40,7 +40,6 @@ from gsp_calibrator.run.state import (
     read_state,
     resumable,
     selection_options,
-    settle_statistics,
     write_state,
 )
 from gsp_calibrator.settings import CalibratorSettings
@@ -209,13 +208,13 @@ def test_a_row_state_json_does_not_list_yet_is_kept_once_by_a_resume(tmp_path):
     for posture in (1, 2):  # posture 2's row is not in state.json
         samples.append(posture, poses[posture - 1], np.ones(6), np.ones(4), 5, 0.0)
     write_samples(tmp_path / SAMPLES_FILE, samples)
-    session = RunSession.resume(settings, os.getpid())
+    record = RunRecord.resume(settings, os.getpid())
     try:
-        session.begin(settings, None, os.getpid())
-        assert session.remaining == [3, 4]
+        record.begin(settings, None, os.getpid())
+        assert record.remaining == [3, 4]
         assert read_state(tmp_path).done == [1, 2]
     finally:
-        session.close()
+        record.close()
     assert list(read_samples(tmp_path / SAMPLES_FILE).posture) == [1, 2]
 
 

@@ -14,9 +14,9 @@ from calibrator_suite import CALL_TIMEOUT_S, make_suite, perturbed_truth
 from rclpy.parameter import Parameter
 
 from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
+from gsp_calibrator.files.run_directory import RunDirectory, Samples
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
-from gsp_calibrator.run.directory import RunDirectory, Samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.postures import choose_postures
 from gsp_calibrator.run.response import outcome_summary, parse_response

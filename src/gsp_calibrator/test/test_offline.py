@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from synthetic import synthetic_samples as make_samples
 
+from gsp_calibrator.files.run_directory import read_samples, write_samples
 from gsp_calibrator.recording import mcap_io, rebuild
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
-from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL
 from gsp_calibrator.tools.reidentify import main, refresh_report

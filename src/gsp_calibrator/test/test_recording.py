@@ -11,6 +11,7 @@ from recorded_runs import write_command
 
 from gsp_calibrator.collection.synchroniser import SampleCollector
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
+from gsp_calibrator.files.run_directory import read_samples, write_samples
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording.mcap_format import (
     MessageDefinitionError,
@@ -33,7 +34,6 @@ from gsp_calibrator.recording.recorder import (
     note_posture_end,
 )
 from gsp_calibrator.replay.recorded_run import RecordedRun
-from gsp_calibrator.run.directory import read_samples, write_samples
 from gsp_msgs_py import conversions, names
 from gsp_msgs_py.qos import TOPIC_QOS
 
@@ -573,8 +573,8 @@ class _OnlineCalibrator:
 
     def __init__(self, mcap, per_posture, settle_timeout):
         from gsp_calibrator.collection.protocol import CollectionProtocol
-        from gsp_calibrator.run.directory import Samples
-        from gsp_calibrator.run.host import PostureLink
+        from gsp_calibrator.files.run_directory import Samples
+        from gsp_calibrator.node.posture_link import PostureLink
 
         self.mcap, self.rows, self.commanded = mcap, Samples.empty(), None
         self.ends = []
@@ -596,7 +596,7 @@ class _OnlineCalibrator:
         self.link.start(self, protocol)
         self.count = 0
 
-    def end_posture(self, event):  # the RunSession's part: keep the row
+    def end_posture(self, event):  # the RunRecord's part: keep the row
         if hasattr(event, 'sample'):
             s = event.sample
             self.rows.append(

@@ -13,6 +13,7 @@ from recorded_runs import MS, T0, write_recording
 from replay_suite import CALIBRATION, TIMEOUT_S, live_run, replay_run
 from sensor_msgs.msg import JointState
 
+from gsp_calibrator.files.run_directory import Samples, write_samples
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
@@ -21,7 +22,6 @@ from gsp_calibrator.replay.recorded_run import (
     ReplayError,
 )
 from gsp_calibrator.replay.replay_node import REASON_NOT_RECORDED, ReplayNode
-from gsp_calibrator.run.directory import Samples, write_samples
 from gsp_msgs_py import conversions, names, qos
 from gsp_msgs_py.diagnostics import DiagnosticsListener
 from gsp_msgs_py.health import OK, Health

@@ -6,6 +6,7 @@ import pytest
 from recorded_runs import write_recording
 from replay_suite import CALIBRATION, live_run, replay_run
 
+from gsp_calibrator.files.run_directory import Samples, write_samples
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
@@ -13,7 +14,6 @@ from gsp_calibrator.replay.recorded_run import (
     PostureServer,
     RecordedRun,
 )
-from gsp_calibrator.run.directory import Samples, write_samples
 from gsp_msgs_py import conversions
 
 # --- RecordedRun and PostureServer (pure) ----------------------------------------------------------

@@ -15,7 +15,11 @@ from gsp_calibrator.report.write import (
     write_all,
     write_result_json,
 )
-from gsp_calibrator.run.identify import finish_run, identify_from_samples
+from gsp_calibrator.run.identify import (
+    identify_from_samples,
+    identify_with_settings,
+    write_run_files,
+)
 from gsp_kinematics.estimation.identifiability import analyse_identifiability
 from gsp_kinematics.estimation.identification import Options
 from gsp_kinematics.model.geometry import PARAMETER_NAMES, default_geometry
@@ -229,9 +233,8 @@ def test_no_prediction_without_a_full_rank_covariance(calibrated):
 def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     """The calibrator's ``write_report_plots``: false skips every PNG and says so in report.md;
     result.json, report.md's tables and result.yaml are as with the plots (the default)."""
-    from gsp_calibrator.report.data import settle_line
-    from gsp_calibrator.run.directory import RESULT_FILE, RunDirectory
-    from gsp_calibrator.run.state import settle_statistics
+    from gsp_calibrator.files.run_directory import RESULT_FILE, RunDirectory
+    from gsp_calibrator.report.data import settle_line, settle_statistics
     from gsp_calibrator.settings import CalibratorSettings
 
     samples = synthetic_samples(count=25, seed=5)
@@ -251,8 +254,9 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
             assert default.write_report_plots is True
         run = RunDirectory(tmp_path / str(plots))
         run.path.mkdir()
-        finished = finish_run(run, settings, samples, collection, {'plots': plots})
-        assert finished.outcome.success and finished.report_error == ''
+        outcome = identify_with_settings(settings, samples)
+        finished = write_run_files(run, settings, outcome, collection, {'plots': plots})
+        assert outcome.success and finished.report_error == ''
         written[plots] = run.path
     with_plots, without_plots = written[True], written[False]
     pngs = sorted(p.name for p in with_plots.glob('*.png'))

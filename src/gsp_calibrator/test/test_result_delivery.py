@@ -9,7 +9,7 @@ import types
 import numpy as np
 import pytest
 
-from gsp_calibrator.result_delivery import ResultDelivery
+from gsp_calibrator.node.result_delivery import ResultDelivery
 from gsp_calibrator.run.rigid import Verdicts
 from gsp_kinematics.estimation.rigid_fold import fold_effects
 from gsp_kinematics.model.effects import IdentifiedEffects

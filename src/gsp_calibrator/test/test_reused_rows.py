@@ -5,10 +5,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from gsp_calibrator.run.directory import RunDirectory, Samples
-from gsp_calibrator.run.state import STATE_FILE, RunState, selection_options
+from gsp_calibrator.files.run_directory import RunDirectory, Samples
+from gsp_calibrator.run import reused_rows
+from gsp_calibrator.run.record import STATE_FILE, RunState, selection_options
 from gsp_calibrator.settings import CalibratorSettings
-from gsp_calibrator.upkeep import reused_rows
 from gsp_kinematics.fileio import atomic_write_text, to_json
 
 

@@ -8,13 +8,12 @@ import os
 import numpy as np
 import pytest
 
-from gsp_calibrator.run.directory import (
+from gsp_calibrator.files.run_directory import (
     SAMPLES_COLUMNS,
     RunDirectory,
     RunDirectoryError,
     Samples,
     create_run_directory,
-    load_samples,
     read_samples,
     samples_from_csv,
     samples_to_csv,
@@ -93,15 +92,17 @@ def test_samples_round_trip_at_full_precision(tmp_path):
     assert np.all(back.directions[2] == 0) and np.all(np.abs(back.directions[[0, 1, 3]]) == 1)
     assert back.lag_sums.shape == (4, 4, 6) and np.isnan(back.lag_sums[1]).all()
     assert np.isnan(back.lag_sums[3, :, 4:]).all()  # 7 samples: lags 0..3
-    commanded, legs, readings, n_samples, stamps = load_samples(path)
-    assert commanded.shape == (4, 6) and legs.shape == (4, 6) and readings.shape == (4, 4)
-    assert n_samples.tolist() == [10, 9, 8, 7] and stamps.shape == (4,)
+    read = read_samples(path)
+    assert read.commanded_poses.shape == (4, 6) and read.leg_lengths.shape == (4, 6)
+    assert read.readings.shape == (4, 4)
+    assert read.n_samples.tolist() == [10, 9, 8, 7] and read.stamps.shape == (4,)
 
 
 def test_empty_samples_round_trip(tmp_path):
     path = write_samples(tmp_path / 'samples.csv', Samples.empty())
-    commanded, legs, readings, n_samples, stamps = load_samples(path)
-    assert commanded.shape == (0, 6) and readings.shape == (0, 4) and n_samples.size == 0
+    read = read_samples(path)
+    assert read.commanded_poses.shape == (0, 6) and read.readings.shape == (0, 4)
+    assert read.n_samples.size == 0
 
 
 @pytest.mark.parametrize(

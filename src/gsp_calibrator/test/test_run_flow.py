@@ -12,11 +12,13 @@ import pytest
 from gsp_calibrator.collection.events import PostureSkipped, RowReady, TopicSilent
 from gsp_calibrator.collection.synchroniser import PostureSample
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
+from gsp_calibrator.files import history
+from gsp_calibrator.node.posture_link import PostureLink
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
-from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, PostureLink, RunHost
+from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT, RunHost
+from gsp_calibrator.run.record import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.run.response import parse_response
-from gsp_calibrator.run.state import PHASE_DONE, PHASE_FAILED, STATE_FILE
 from gsp_calibrator.settings import CalibratorSettings
 from gsp_kinematics.model.effects import approach_directions
 from gsp_kinematics.model.geometry import default_geometry, parameter_errors
@@ -170,8 +172,8 @@ class FakeHost:
         return asyncio.run(run.serve())
 
     @property
-    def session(self):
-        return self.run.session
+    def record(self):
+        return self.run.record
 
 
 def _settings(tmp_path, **values):
@@ -214,6 +216,9 @@ def test_a_plain_python_host_drives_a_whole_run(tmp_path):
     calls = host.recorder.calls
     assert calls[0][0] == 'start' and calls[-1][0] == 'stop'
     assert calls[1:-1] == [('end', k, 'kept') for k in range(1, commanded + 1)]
+    # The run ends recorded in the platform's history (a step of the run, not of the node).
+    (indexed,) = history.runs(history.database_path(tmp_path))
+    assert indexed['run_dir'] == str(run_directory) and indexed['kind'] == 'calibration'
 
 
 def test_each_row_records_its_approach_directions_and_auto_keeps_the_plain_model(tmp_path):
@@ -224,14 +229,14 @@ def test_each_row_records_its_approach_directions_and_auto_keeps_the_plain_model
     success, message = host.serve(settings)
     assert success, message
     assert 'model (auto): groups none' in message
-    samples = host.session.run.read_samples()
-    commanded = np.asarray(host.session.state.poses)
+    samples = host.record.directory.read_samples()
+    commanded = np.asarray(host.record.state.poses)
     heard, _ = sensor_measurements(host.truth, np.array([[0.0, 0.0, 0.6, 0, 0, 0]]))
     legs = inverse_kinematics(settings.nominal, commanded)
     expected = approach_directions(legs, heard[0])
     np.testing.assert_array_equal(samples.directions, expected[samples.posture - 1])
     assert (samples.directions < 0).any() and (samples.directions > 0).any()
-    result = json.loads(host.session.run.file('result.json').read_text())
+    result = json.loads(host.record.directory.file('result.json').read_text())
     assert result['effects']['model_choice']['groups'] == []
     ((geometry, _),) = host.delivered
     assert geometry.effects.none
@@ -256,7 +261,7 @@ def test_the_route_starts_from_the_platforms_current_posture(tmp_path):
     expected = postures.posture_route(settings, selection.poses, current)
     from_home = postures.posture_route(settings, selection.poses, home_pose())
     assert not np.array_equal(expected.order, from_home.order)
-    commanded = np.asarray(host.session.state.poses)
+    commanded = np.asarray(host.record.state.poses)
     # The platform stands at a selected posture: commanded first, the device would not change
     # and the posture would be skipped, so it comes last.
     np.testing.assert_allclose(commanded[-1], start, atol=1e-12)
@@ -275,7 +280,7 @@ def test_a_run_in_selection_order_commands_a_held_posture_last(tmp_path):
     success, message = host.serve(settings)
     assert success, message
 
-    commanded = np.asarray(host.session.state.poses)
+    commanded = np.asarray(host.record.state.poses)
     legs = posture_leg_lengths(settings.nominal, np.vstack([held[None], commanded[:1]]))
     assert np.max(np.abs(legs[1] - legs[0])) > postures.HELD_TOLERANCE  # m: the readings change
     order = np.r_[np.arange(1, len(selection.poses)), 0]
@@ -391,14 +396,14 @@ def test_an_auto_run_commands_the_reference_revisits_each_as_its_own_posture(tmp
     start, _ = postures.route_start(settings.nominal, heard[0])
     ordered = selection.poses[postures.posture_route(settings, selection.poses, start).order]
     route = postures.effect_route(settings, ordered, start)
-    commanded = np.asarray(host.session.state.poses)
+    commanded = np.asarray(host.record.state.poses)
     np.testing.assert_allclose(commanded, route.poses, atol=1e-12)  # m, rad
-    samples = host.session.run.read_samples()
+    samples = host.record.directory.read_samples()
     assert len(samples) == len(route.poses) == 30 + route.added_postures
     revisits = [m + 1 for m, kind in enumerate(route.kind) if kind == 'reference']
     assert len(revisits) == 1 and set(revisits) <= set(samples.posture.tolist())
     np.testing.assert_allclose(commanded[np.array(revisits) - 1], commanded[[0]], atol=0)
-    result = json.loads(host.session.run.file('result.json').read_text())
+    result = json.loads(host.record.directory.file('result.json').read_text())
     additions = result['collection']['route_additions']
     assert additions['reference_revisits'] == 1
     assert additions['added_postures'] == route.added_postures
@@ -419,11 +424,11 @@ def test_the_route_is_timed_at_the_rate_the_streams_are_heard_at(tmp_path):
     settings = _settings(tmp_path, free_parameters=['auto'], payload_mass=40.0)
     success, message = host.serve(settings)
     assert success, message
-    result = json.loads(host.session.run.file('result.json').read_text())
+    result = json.loads(host.record.directory.file('result.json').read_text())
     additions = result['collection']['route_additions']
     assert additions['sample_rate_hz'] == pytest.approx(50.0, rel=1e-6)
     assert 'samples at 50 Hz' in message
-    assert _state(host.session.run.path)['route_additions'] == additions
+    assert _state(host.record.directory.path)['route_additions'] == additions
 
 
 def test_a_topic_never_heard_fails_the_run_naming_it_with_the_route_kept(tmp_path):
@@ -436,7 +441,7 @@ def test_a_topic_never_heard_fails_the_run_naming_it_with_the_route_kept(tmp_pat
     assert not success
     assert f'topic {names.TOPIC_LVDT} is silent: no message within' in message
     assert host.platform.commands == 0
-    state = _state(host.session.run.path)
+    state = _state(host.record.directory.path)
     assert state['phase'] == PHASE_FAILED and names.TOPIC_LVDT in state['stop_reason']
     assert len(state['poses']) == 30 + state['route_additions']['added_postures']
     assert host.progress_log[-1][1] == names.PHASE_FAILED
@@ -449,7 +454,7 @@ def test_a_resumed_auto_run_keeps_its_route_with_the_revisits(tmp_path):
     failed = FakeHost(failure_after=12)
     success, _ = failed.serve(settings)
     assert not success
-    started = _state(failed.session.run.path)
+    started = _state(failed.record.directory.path)
     assert started['route_additions']['reference_revisits'] == 1
     host = FakeHost(seed=1)
     run = CalibrationRun(host.host, settings, True)
@@ -457,7 +462,7 @@ def test_a_resumed_auto_run_keeps_its_route_with_the_revisits(tmp_path):
     host.run = run
     success, message = asyncio.run(run.serve())
     assert success, message
-    state = _state(host.session.run.path)
+    state = _state(host.record.directory.path)
     assert state['poses'] == started['poses'] and len(state['poses']) == 31
     assert state['route_additions'] == started['route_additions']
     # Rows 1-12 were kept; the resumed run commands postures 13-31 of the augmented route.

@@ -8,7 +8,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from gsp_calibrator.calibrator_node import CalibratorNode
+from gsp_calibrator.node.calibrator_node import CalibratorNode
 from gsp_calibrator.run.response import parse_response
 from gsp_device_driver.device_driver_node import DeviceDriverNode
 from gsp_device_driver.fake_device_node import FakeDeviceNode, parse_arguments

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from gsp_calibrator.recording.recorder import settings_options
-from gsp_calibrator.run.state import selection_options
+from gsp_calibrator.run.record import selection_options
 from gsp_calibrator.settings import (
     DEFAULTS,
     PARAMETER_SPECS,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from upkeep_runs import RUNS, write_runs
 
+from gsp_calibrator.files.calibration_files import CalibrationFileError, load_calibration
 from gsp_calibrator.tools import compare
-from gsp_calibrator.upkeep.calibration_files import CalibrationFileError, load_calibration
 
 
 @pytest.fixture(scope='module')
@@ -101,7 +101,7 @@ def test_an_auto_result_is_compared_over_its_geometry_and_sensor_errors(runs, tm
     code = compare.main([str(tmp_path / 'first'), str(tmp_path / 'changed')])
     assert code == compare.EXIT_CHANGED
     # ... and indexed in the history, with the change named against the calibration before.
-    from gsp_calibrator.upkeep import history
+    from gsp_calibrator.files import history
 
     database = tmp_path / 'history.sqlite'
     for key in ('first', 'changed'):

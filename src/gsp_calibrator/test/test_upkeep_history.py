@@ -1,4 +1,4 @@
-"""The platform history (gsp_calibrator.upkeep.history, gsp_history): indexing, queries, the plot,
+"""The platform history (gsp_calibrator.files.history, gsp_history): indexing, queries, the plot,
 the schema version, and a writer killed in the middle of a transaction."""
 
 import json
@@ -13,7 +13,7 @@ import pytest
 from upkeep_runs import RUNS, write_runs
 
 import gsp_calibrator.tools.history
-from gsp_calibrator.upkeep import history
+from gsp_calibrator.files import history
 
 
 @pytest.fixture(scope='module')
@@ -87,7 +87,7 @@ def test_a_newer_schema_is_refused(tmp_path):
 _WRITER = textwrap.dedent(
     """
     import sys
-    from gsp_calibrator.upkeep import history
+    from gsp_calibrator.files import history
 
     database, first, second = sys.argv[1:]
     history.record(database, first)

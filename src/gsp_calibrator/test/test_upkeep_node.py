@@ -11,8 +11,8 @@ from calibrator_suite import make_suite, perturbed_truth
 from std_srvs.srv import Trigger
 
 import gsp_calibrator.tools.history
+from gsp_calibrator.files import history
 from gsp_calibrator.tools import compare
-from gsp_calibrator.upkeep import history
 from gsp_msgs_py import names
 
 PLATFORM = 'hexapod-test'

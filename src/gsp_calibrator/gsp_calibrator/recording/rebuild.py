@@ -16,6 +16,8 @@ import os
 from pathlib import Path
 
 from gsp_calibrator.collection import events, protocol, topics
+from gsp_calibrator.collection.approach import ApproachTracker
+from gsp_calibrator.files.run_directory import Samples
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
 from gsp_calibrator.recording.recorder import (
@@ -24,8 +26,6 @@ from gsp_calibrator.recording.recorder import (
     POSTURE_END_METADATA_NAME,
     POSTURE_METADATA_NAME,
 )
-from gsp_calibrator.run.approach import ApproachTracker
-from gsp_calibrator.run.directory import Samples
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
 from gsp_kinematics.model.geometry import GeometryError, default_geometry, load_geometry
 from gsp_kinematics.model.sensor_noise import SensorNoise, SensorNoiseError
@@ -235,7 +235,7 @@ def _stamp_ns(msg):
 def samples_from_recording(
     path, sync_tolerance=None, samples_per_posture=None, noise_std=None, nominal=None
 ):
-    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.run.directory.Samples`) of one
+    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.files.run_directory.Samples`) of one
     recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
     Feeds every recorded message to the calibrator's own
@@ -243,7 +243,7 @@ def samples_from_recording(
     rows are the ones the calibrator collected online, by the same settle rule (its stored
     options). The rebuild has no timeouts: the postures' noted outcomes
     (:func:`posture_outcomes`) decide which rows were kept. Each row's approach directions come
-    from the recorded commands as online (:class:`gsp_calibrator.run.approach.ApproachTracker`,
+    from the recorded commands as online (:class:`gsp_calibrator.collection.approach.ApproachTracker`,
     through ``nominal``: default the stored nominal geometry file, else the shipped one).
 
     ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see

@@ -22,7 +22,7 @@ import re
 import threading
 import time
 
-from gsp_calibrator.batched_subscription import BatchedCallback
+from gsp_calibrator.recording.batched_subscription import BatchedCallback
 from gsp_calibrator.recording.mcap_format import RecordingError, message_class
 from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
 from gsp_calibrator.settings import STORED_PARAMETERS

@@ -35,11 +35,11 @@ import numpy as np
 
 from gsp_calibrator.collection.events import PairsCollected, PostureSkipped
 from gsp_calibrator.collection.protocol import CollectionProtocol
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import recording_options
 from gsp_calibrator.recording.recorder import RECORDING_FILE, recording_parts
-from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_quaternion
 from gsp_msgs_py import names

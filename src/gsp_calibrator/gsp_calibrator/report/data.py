@@ -202,7 +202,7 @@ def residuals_by_sensor(result):
 
 
 def settle_line(settle):
-    """The response's line of ``collection.settle`` (:func:`gsp_calibrator.run.state.settle_statistics`): ``'settle
+    """The response's line of ``collection.settle`` (:func:`settle_statistics`): ``'settle
     wait (settled to averaged window): median 0.205 s, max 0.61 s over 60 rows; 12 waited for
     a moving channel'``; '' without rows."""
     if not settle or not settle.get('rows'):
@@ -212,3 +212,31 @@ def settle_line(settle):
         f'{settle["max_s"]:.3g} s over {settle["rows"]} rows; {settle["waited"]} waited for a '
         'moving channel'
     )
+
+
+def settle_statistics(waits):
+    """``result.json`` ``collection.settle`` of the kept rows' settle waits (``settle_waits``):
+    ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
+    waited for a channel still moving (not only for their first samples), and ``per_posture_s``
+    (``{posture: wait_s}``, in posture order)."""
+    entries = list(waits.values())
+    values = np.array([entry['wait_s'] for entry in entries], dtype=float)
+    if values.size == 0:
+        return {
+            'rows': 0,
+            'median_s': None,
+            'max_s': None,
+            'mean_s': None,
+            'waited': 0,
+            'per_posture_s': {},
+        }
+    return {
+        'rows': int(values.size),
+        'median_s': float(np.median(values)),
+        'max_s': float(values.max()),
+        'mean_s': float(values.mean()),
+        'waited': sum(1 for entry in entries if entry['settling_pairs'] > 0),
+        'per_posture_s': {
+            posture: float(waits[posture]['wait_s']) for posture in sorted(waits, key=int)
+        },
+    }

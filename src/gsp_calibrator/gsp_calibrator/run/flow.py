@@ -1,44 +1,75 @@
-"""The course of one calibration run, as the calibrator node drives it (no rclpy).
+"""The course of one run, as the calibrator node drives it (no rclpy).
 
-:meth:`CalibrationRun.run` reads as the run: open the run directory
-(:func:`.session.open_session`) and start the recording; choose the postures (or keep a resumed
-run's); wait for the system (its streams heard, their rate measured); order the postures from
-where the platform stands, with the route's additions timed at that rate; then for each
-posture, command it, await its end and record it (:meth:`CalibrationRun._collect`); then
-identify (:func:`.identify.finish_run`), report, publish and apply the result. What it needs
-from the node is one :class:`.host.RunHost`.
+:meth:`CalibrationRun.run` reads as the run, and its steps follow it in their order: open the
+run's record and recording; wait for the system; choose the postures; collect them; judge the
+rows; write the results; record the run in the history; deliver. What it needs from the node is
+one :class:`.host.RunHost`. What a run is for is its :class:`Course`: the plan (which postures)
+and the judge (what the rows say), with what it writes and delivers. A calibration's course is
+:class:`Calibration` (below); a check's is :class:`gsp_calibrator.upkeep.check_flow.Check`.
 """
 
+import dataclasses
 import os
 import time
 import traceback
+import typing
 
 from gsp_calibrator.collection import posture_state, protocol, topics
+from gsp_calibrator.files import history
+from gsp_calibrator.files.calibration_files import CalibrationFileError
 from gsp_calibrator.recording.recorder import next_recording_file, settings_options
-from gsp_calibrator.run import postures
+from gsp_calibrator.report.data import settle_statistics
+from gsp_calibrator.run import postures, reused_rows, run_to_requirement
 from gsp_calibrator.run.host import POSTURE_ENDS, RunHost, first_timeout
-from gsp_calibrator.run.identify import finish_run
+from gsp_calibrator.run.identify import identify_with_settings, write_run_files
+from gsp_calibrator.run.record import (
+    PHASE_DONE,
+    PHASE_FAILED,
+    PHASE_IDENTIFYING,
+    PHASE_INTERRUPTED,
+    STATE_FILE,
+    RunRefused,
+    RunWriteError,
+    open_record,
+)
 from gsp_calibrator.run.response import (
     failure_message,
     final_progress_message,
     format_response,
     posture_report,
 )
-from gsp_calibrator.run.session import RunRefused, RunWriteError, open_session
-from gsp_calibrator.run.state import (
-    PHASE_DONE,
-    PHASE_FAILED,
-    PHASE_IDENTIFYING,
-    PHASE_INTERRUPTED,
-    STATE_FILE,
-    settle_statistics,
-)
-from gsp_calibrator.upkeep import reused_rows, run_to_requirement
 from gsp_msgs_py import names
 
 
 class RunFailed(Exception):
     """Ends a run early; the message says why (e.g. names the silent topic)."""
+
+
+@dataclasses.dataclass
+class Judged:
+    """What a run's judge found (then its writer's summary)."""
+
+    success: bool
+    failure: str = ''  #: why it failed: state.json's stop reason ('' on success)
+    progress: str = ''  #: the progress message of a failure
+    summary: str = ''  #: the human summary, the run's answer
+    residuals: dict | None = None  #: the fit's residuals (progress), None without a fit
+    outcome: typing.Any = None  #: a calibration's ``identify.CalibrationOutcome``
+    #: a calibration's ``result.json`` collection record; a check's ``check.json``
+    data: dict | None = None
+
+
+class Course(typing.Protocol):
+    """What a run is for. ``plan``: ``(poses, route additions or None)`` to command in order
+    (None: a resumed run keeps its own; :class:`RunFailed`); ``judge`` the collected rows
+    (``reused``: an earlier run's; ``stopping``: the record of a run that stops when accurate);
+    ``write`` what was judged, with its summary; ``deliver``: ``(success, answer)``."""
+
+    def settings_of(self, settings): ...  # the settings the run uses, from the node's
+    async def plan(self, run): ...
+    async def judge(self, run, reused, stopping) -> Judged: ...
+    async def write(self, run, judged) -> Judged: ...
+    async def deliver(self, run, judged, started) -> tuple: ...
 
 
 def system_checks(host, heard, timeout):
@@ -65,13 +96,15 @@ def system_checks(host, heard, timeout):
 
 class CalibrationRun:
     """One run (``resume``: the rest of an unfinished one) with ``settings``, hosted by ``host``
-    (a :class:`.host.RunHost`)."""
+    (a :class:`.host.RunHost`), for its ``course`` (default: a :class:`Calibration`)."""
 
-    def __init__(self, host: RunHost, settings, resume):
-        self.host, self.settings, self.resume = host, settings, resume
+    def __init__(self, host: RunHost, settings, resume, course: Course | None = None):
+        self.course = Calibration() if course is None else course
+        self.host, self.resume = host, resume
+        self.settings = self.course.settings_of(settings)
         self.log = host.log
-        self.session = None
-        self.collection = protocol.CollectionProtocol.for_settings(settings)
+        self.record = None  #: the run's ``record.RunRecord`` once opened
+        self.collection = protocol.CollectionProtocol.for_settings(self.settings)
 
     async def serve(self):
         """:meth:`run`, answered whatever happens: ``(success, message)``; then the recording is
@@ -98,126 +131,116 @@ class CalibrationRun:
         except Exception as error:
             self.log.error(f'recording not closed: {error}')
         finally:
-            if self.session is not None:
-                self.session.close()
+            if self.record is not None:
+                self.record.close()
         return result
 
     def interrupted(self):
         """The node goes down during the run: mark state.json ``interrupted``."""
-        state = self.session.state if self.session is not None else None
+        state = self.record.state if self.record is not None else None
         if state is not None and state.phase != PHASE_DONE:
             self.save_state(PHASE_INTERRUPTED, 'the calibrator shut down during the run')
 
     async def run(self):
-        """The whole run: ``(success, message)``."""
-        settings, log, host = self.settings, self.log, self.host
+        """The whole run, step by step: ``(success, message)``."""
         started = time.monotonic()
-        try:  # the rows of an earlier run (a check's) this calibration identifies with its own
-            reused = await host.in_thread(reused_rows.load, settings)
-        except reused_rows.ReusedRowsError as error:
-            log.error(str(error))
+        try:
+            reused, part = await self._open()
+        except (reused_rows.ReusedRowsError, RunRefused) as error:
+            self.log.error(str(error))
             return False, str(error)
         try:
-            session = self.session = open_session(
-                settings, self.resume, os.getpid(), host.command_publishers(), host.name
-            )
-        except RunRefused as error:
-            log.error(str(error))
-            return False, str(error)
-        for recovered in session.recovered:
+            unheard = await self._wait_for_system()
+            await self._choose_postures(part)
+            # After the plan is in state.json: a resume of a run that heard nothing keeps it.
+            self._fail_unless_ready(unheard)
+            stopping = await self._collect(reused)
+        except (RunFailed, RunWriteError) as error:
+            return self._failed(error)
+        self.host.postures.stop()
+        judged = await self._judge(reused, stopping)
+        judged = await self.course.write(self, judged)
+        await self._record_in_history()
+        if not judged.success:
+            return self._not_judged(judged)
+        self.save_state(PHASE_DONE)
+        return await self.course.deliver(self, judged, started)
+
+    def save_state(self, phase=None, stop_reason=None):
+        """Rewrite state.json; an error is logged (the run is ending)."""
+        try:
+            if self.record is not None:
+                self.record.save(phase, stop_reason)
+        except RunWriteError as error:
+            self.log.error(f'{STATE_FILE} not written: {error}')
+
+    @property
+    def planned(self):
+        """The postures the run plans to command, additions included."""
+        return postures.commanded_count(self.settings, self.record.state)
+
+    async def _open(self):
+        """``(reused rows, recording file)``: the rows of an earlier run (a check's) that this
+        calibration identifies with its own, the run's record (:func:`.record.open_record`)
+        and its recording (None: the run goes on without it)."""
+        settings, host, log = self.settings, self.host, self.log
+        reused = await host.in_thread(reused_rows.load, settings)
+        record = self.record = open_record(
+            settings, self.resume, os.getpid(), host.command_publishers(), host.name
+        )
+        for recovered in record.recovered:
             log.warning(
                 f'recovered {recovered["message_count"]} messages of a recording left '
                 f'unfinished into {recovered["path"]}'
             )
         log.info(
-            f'calibration {"resumed" if self.resume else "started"}: run directory {session.run}'
+            f'calibration {"resumed" if self.resume else "started"}: '
+            f'run directory {record.directory}'
         )
         try:
-            part = next_recording_file(session.run.path)
+            part = next_recording_file(record.directory.path)
             host.recorder.start(part, options=settings_options(settings))
-        except (OSError, ValueError, ImportError) as error:  # the run goes on without it
+        except (OSError, ValueError, ImportError) as error:
             part = None
             log.error(f'not recording the run: {error}')
         host.processing_lags.reset()
-        host.postures.start(session, self.collection)
-        try:
-            unheard = await self._choose_postures(part)
-            await self._wait_for_system(unheard)
-            stopping = await self._collect(reused)
-        except (RunFailed, RunWriteError) as error:
-            self.save_state(PHASE_FAILED, str(error))
-            message = failure_message(error, len(session.samples), session.run)
-            log.error(message)
-            host.progress(len(session.samples), names.PHASE_FAILED, str(error))
-            return False, message
-        host.postures.stop()
-        return await self._identify(started, stopping, reused)
+        host.postures.start(record, self.collection)
+        return reused, part
 
-    def save_state(self, phase=None, stop_reason=None):
-        """Rewrite state.json; an error is logged (the run is ending)."""
-        try:
-            if self.session is not None:
-                self.session.save(phase, stop_reason)
-        except RunWriteError as error:
-            self.log.error(f'{STATE_FILE} not written: {error}')
+    async def _wait_for_system(self):
+        """Wait until platform_sim listens to commands and every sensor topic has spoken
+        (``topic_timeout`` each), then, for a new run with additions for the effects, until
+        every stream has given :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS`
+        stamps, its rate measured (at most ``topic_timeout``; else the route is timed at
+        gsp_plan's rate). The message of the first check that timed out ('' when none did)."""
+        settings, host, collection = self.settings, self.host, self.collection
+        timeout = settings.topic_timeout
+        failure = await first_timeout(
+            host.wait_for, timeout, system_checks(host, collection.heard, timeout)
+        )
+        new_route = self.record.state is None
+        if new_route and postures.route_effect_groups(settings.free_parameters) and not failure:
+            latest = collection.latest
+            await host.wait_for(
+                lambda: latest.sample_rate_hz(posture_state.RATE_MIN_STAMPS) is not None, timeout
+            )
+        return failure
 
     async def _choose_postures(self, part):
-        """Select the postures of a new run (a resumed one keeps its own), hear the streams
-        (:func:`_heard_streams`), then order the postures from where the platform is; write
-        state.json. Returns why the system is not ready ('' when it is)."""
-        settings, session, host = self.settings, self.session, self.host
-        count = settings.posture_count
-        host.progress(
-            0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
-        )
-        poses = None
-        if session.state is None:
-            try:
-                selection = await host.await_thread(host.selection(settings))
-            except (postures.CalibrationError, RuntimeError, ValueError) as error:
-                raise RunFailed(f'posture selection failed: {error}') from None
+        """The course's plan (a resumed run keeps its own), written to state.json."""
+        record = self.record
+        planned = await self.course.plan(self)
+        poses, additions = (None, None) if planned is None else planned
+        record.begin(self.settings, poses, os.getpid(), part, additions)
+        if record.resumed:
             self.log.info(
-                f'{len(selection.poses)} postures selected (scaled condition number '
-                f'{selection.condition_number:.4g})'
+                f'resuming: {len(record.samples)} rows kept, {len(record.remaining)} postures to go'
             )
-            poses = postures.with_workspace_poses(settings, selection.poses)
-        unheard = await _heard_streams(self, new_route=poses is not None)
-        poses, additions = await _ordered(self, poses)
-        try:
-            session.replace = await host.in_thread(postures.PostureReplacer, settings)
-        except (postures.CalibrationError, RuntimeError, ValueError) as error:
-            self.log.warning(f'rejected postures will not be replaced: {error}')
-        session.begin(settings, poses, os.getpid(), part, additions)
-        if session.resumed:
-            self.log.info(
-                f'resuming: {len(session.samples)} rows kept, '
-                f'{len(session.remaining)} postures to go'
-            )
-            if len(session.samples):
-                self.collection.continue_after(session.samples.readings[-1])
-        return unheard
+            if len(record.samples):
+                self.collection.continue_after(record.samples.readings[-1])
 
-    async def _route(self, poses):
-        """``poses`` in route order from the latest leg lengths (state.json keeps this order: a
-        resumed run keeps it); if none come, the system check fails the run next."""
-        settings, collection = self.settings, self.collection
-        await self.host.wait_for(
-            lambda: collection.latest_leg_lengths() is not None, settings.topic_timeout
-        )
-        start, reason = postures.route_start(settings.nominal, collection.latest_leg_lengths())
-        if reason:
-            self.log.warning(f'route from the home pose: {reason}')
-        route = postures.posture_route(settings, poses, start)
-        x, y, z = start[:3] * 1e3
-        self.log.info(
-            f'route order from ({x:.1f}, {y:.1f}, {z:.1f}) mm: predicted travel '
-            f'{route.travel_s:.1f} s (selection order {route.selection_order_s:.1f} s, '
-            f'lower bound {route.lower_bound_s:.1f} s)'
-        )
-        return poses[route.order]
-
-    async def _wait_for_system(self, unheard):
-        """Fail the run on ``unheard`` (:func:`_heard_streams`) or a failed collection."""
+    def _fail_unless_ready(self, unheard):
+        """Fail the run on ``unheard`` (:meth:`_wait_for_system`) or a failed collection."""
         if unheard:
             raise RunFailed(unheard)
         if self.host.postures.failure is not None:
@@ -231,19 +254,19 @@ class CalibrationRun:
         a worker thread while the next posture is collected (:meth:`_judged_enough`): the loop
         stops once a judgement meets the requirement, and adds pool postures when the plan is
         not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
-        host, session, settings = self.host, self.session, self.settings
-        count, legs = _planned(self), self.collection.latest_leg_lengths()
-        stop = run_to_requirement.StoppingState.start(settings, session, legs, reused)
+        host, record, settings = self.host, self.record, self.settings
+        legs = self.collection.latest_leg_lengths()
+        stop = run_to_requirement.StoppingState.start(settings, record, legs, reused)
         try:
             while True:
-                posture = session.next_posture()
+                posture = record.next_posture()
                 if posture is None and stop is not None:
                     posture = await self._posture_to_add(stop)
                 if posture is None:
                     break
                 k, pose = posture
-                host.progress(k, names.PHASE_MOVING, f'posture {k} of {count}: moving')
-                session.note_command(k, pose, self.collection.latest_leg_lengths())
+                host.progress(k, names.PHASE_MOVING, f'posture {k} of {self.planned}: moving')
+                record.note_command(k, pose, self.collection.latest_leg_lengths())
                 # The row (samples.csv) or the skip is kept, and the outcome noted in the
                 # recording, by the thread of the message that ended the posture, before this
                 # await returns: a SIGTERM meanwhile loses nothing.
@@ -251,13 +274,13 @@ class CalibrationRun:
                 if not isinstance(event, POSTURE_ENDS):
                     raise RunFailed(event.message)
                 self._report(event)
-                session.save()
+                record.save()
                 if stop is not None and self._judged_enough(stop):
                     break
         finally:
             if stop is not None:
                 stop.close()
-        return None if stop is None else stop.record(settings, session)
+        return None if stop is None else stop.record(settings, record)
 
     def _judged_enough(self, stop):
         """Whether the latest finished judgement meets the requirement; else start judging the
@@ -267,33 +290,33 @@ class CalibrationRun:
             self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
         if stop.met:
             return True
-        if stop.judge_now(len(self.session.samples)):
-            stop.submit(self.settings, stop.rows(self.session))
+        if stop.judge_now(len(self.record.samples)):
+            stop.submit(self.settings, stop.rows(self.record))
         return False
 
     async def _posture_to_add(self, stop):
         """After the plan (whose rows are then judged whole): ``(k, pose)`` of the pool posture
         to add, or None when the rows meet the requirement or no more may be added."""
-        host, session, settings = self.host, self.session, self.settings
+        host, record, settings = self.host, self.record, self.settings
         if stop.added == 0:
             if stop.in_flight is not None:
                 stop.note(await host.await_thread(stop.in_flight))
-            if stop.judge_now(len(session.samples), last=True):
-                stop.submit(settings, stop.rows(session))
+            if stop.judge_now(len(record.samples), last=True):
+                stop.submit(settings, stop.rows(record))
                 judgement = stop.note(await host.await_thread(stop.in_flight))
                 self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
         if not stop.may_add():
             return None
         legs = self.collection.latest_leg_lengths()
-        pose = await host.in_thread(stop.next_pose, settings, session.state.poses, legs)
+        pose = await host.in_thread(stop.next_pose, settings, record.state.poses, legs)
         if pose is None:
             return None
         self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
-        return session.add_posture(pose)
+        return record.add_posture(pose)
 
     def _report(self, event):
         """Log and publish the end of a posture (a row or a skip)."""
-        report = posture_report(event, _planned(self), self.settings.nominal)
+        report = posture_report(event, self.planned, self.settings.nominal)
         for level, line in report.log:  # one call site per severity (rclpy requires it)
             if level == 'warning':
                 self.log.warning(line)
@@ -304,115 +327,172 @@ class CalibrationRun:
             event.posture, report.phase, report.message, report.residuals, report.warning, **extra
         )
 
-    async def _identify(self, started, stopping=None, reused=None):
-        """Identify over every row (and ``reused``), write the results (``stopping``: the record
-        of a run that stops when good enough), publish and apply; ``(success, text)``."""
-        settings, session, host, log = self.settings, self.session, self.host, self.log
-        count = _planned(self)
+    async def _judge(self, reused, stopping):
+        """The course's judgement of the collected rows (state.json: identifying)."""
         self.save_state(PHASE_IDENTIFYING)
-        samples, extra = reused_rows.for_identification(session, reused)
+        return await self.course.judge(self, reused, stopping)
+
+    async def _record_in_history(self):
+        """Index the run in the history of ``output_root`` once it has its result.json or
+        check.json (a failure is logged: the history never fails a run)."""
+        settings, directory = self.settings, self.record.directory.path
+        try:
+            await self.host.in_thread(
+                history.record,
+                history.database_path(settings.output_root),
+                directory,
+                settings.platform_id,
+            )
+        except CalibrationFileError:
+            pass  # nothing to index: the run has no result
+        except Exception as error:
+            self.log.error(f'history not updated with {directory}: {error}')
+
+    def _failed(self, error):
+        """End a run whose collection failed: state.json, the log, the progress, the answer."""
+        record = self.record
+        self.save_state(PHASE_FAILED, str(error))
+        message = failure_message(error, len(record.samples), record.directory)
+        self.log.error(message)
+        self.host.progress(len(record.samples), names.PHASE_FAILED, str(error))
+        return False, message
+
+    def _not_judged(self, judged):
+        """End a run whose judge found no result: state.json, the log, the progress."""
+        self.save_state(PHASE_FAILED, judged.failure)
+        self.log.error(judged.summary)
+        self.host.progress(self.planned, names.PHASE_FAILED, judged.progress, judged.residuals)
+        return False, judged.summary
+
+
+class Calibration:
+    """A calibration's course: the posture selection in route order from where the platform
+    stands, then the identification of every row, judged against the required accuracy;
+    result.json, report.md and result.yaml written; the result latched and, when it meets the
+    requirement, applied."""
+
+    def settings_of(self, settings):
+        return settings
+
+    async def plan(self, run):
+        """A new run's selected postures in route order, with what the effect groups need."""
+        settings, host = run.settings, run.host
+        count = settings.posture_count
+        host.progress(
+            0, names.PHASE_SELECTING, f'selecting {count} postures from {settings.pool_size}'
+        )
+        try:
+            run.record.replace = await host.in_thread(postures.PostureReplacer, settings)
+        except (postures.CalibrationError, RuntimeError, ValueError) as error:
+            run.log.warning(f'rejected postures will not be replaced: {error}')
+        if run.record.state is not None:
+            return None
+        try:
+            selection = await host.await_thread(host.selection(settings))
+        except (postures.CalibrationError, RuntimeError, ValueError) as error:
+            raise RunFailed(f'posture selection failed: {error}') from None
+        run.log.info(
+            f'{len(selection.poses)} postures selected (scaled condition number '
+            f'{selection.condition_number:.4g})'
+        )
+        poses = postures.with_workspace_poses(settings, selection.poses)
+        return await self._ordered(run, poses)
+
+    async def _ordered(self, run, poses):
+        """``(poses, record)``: ``poses`` in route order (``posture_order: route``) with the
+        additions the effect groups to identify need (:func:`.postures.effect_route`) and
+        their record (:func:`.postures.route_additions`; None: nothing added)."""
+        settings, collection = run.settings, run.collection
+        await run.host.wait_for(
+            lambda: collection.latest_leg_lengths() is not None, settings.topic_timeout
+        )
+        start, reason = postures.route_start(settings.nominal, collection.latest_leg_lengths())
+        if settings.posture_order == 'route':
+            if reason:
+                run.log.warning(f'route from the home pose: {reason}')
+            route = postures.posture_route(settings, poses, start)
+            x, y, z = start[:3] * 1e3
+            run.log.info(
+                f'route order from ({x:.1f}, {y:.1f}, {z:.1f}) mm: predicted travel '
+                f'{route.travel_s:.1f} s (selection order {route.selection_order_s:.1f} s, '
+                f'lower bound {route.lower_bound_s:.1f} s)'
+            )
+            poses = poses[route.order]
+        else:  # nor first a posture the platform already holds
+            poses = poses[postures.held_last(settings, poses, start)]
+        # As heard (the run waited for its streams first): timed at the run's own rate.
+        rate = collection.latest.sample_rate_hz()
+        route = await run.host.in_thread(postures.effect_route, settings, poses, start, rate)
+        if route is None:
+            return poses, None
+        groups = postures.route_effect_groups(settings.free_parameters)
+        additions = postures.route_additions(route, groups, rate)
+        line = postures.route_additions_line(additions)
+        run.log.info(line)
+        run.host.progress(0, names.PHASE_SELECTING, line)
+        return route.poses, additions
+
+    async def judge(self, run, reused, stopping):
+        """Identify every row (and ``reused``) and judge the result (in a worker thread)."""
+        settings, record, host = run.settings, run.record, run.host
+        rows, extra = reused_rows.for_identification(record, reused)
         extra |= {} if stopping is None else {'run_to_requirement': stopping}
         host.progress(
-            count,
+            run.planned,
             names.PHASE_IDENTIFYING,
-            f'identifying {settings.free_count} parameters from {len(samples)} postures',
+            f'identifying {settings.free_count} parameters from {len(rows)} postures',
         )
-        finished = await host.in_thread(
-            finish_run,
-            session.run,
+        outcome = await host.in_thread(identify_with_settings, settings, rows)
+        residuals = outcome.result.residual_rms if outcome.result is not None else None
+        collection = {
+            **run.collection.summary(),
+            'replacements': record.state.replacements,
+            'settle': settle_statistics(record.state.settle_waits),
+            'processing_lag': host.processing_lags.summary(),
+            'route_additions': record.state.route_additions or None,
+            **extra,
+        }
+        message = outcome.message
+        return Judged(outcome.success, message, message, '', residuals, outcome, collection)
+
+    async def write(self, run, judged):
+        """result.json, report.md and its plots, and result.yaml of a successful result."""
+        settings = run.settings
+        written = await run.host.in_thread(
+            write_run_files,
+            run.record.directory,
             settings,
-            samples,
-            {
-                **self.collection.summary(),
-                'replacements': session.state.replacements,
-                'settle': settle_statistics(session.state.settle_waits),
-                'processing_lag': host.processing_lags.summary(),
-                'route_additions': session.state.route_additions or None,
-                **extra,
-            },
+            judged.outcome,
+            judged.data,
             settings_options(settings),
         )
-        if finished.report_error:
-            log.error(f'report not written: {finished.report_error}')
-        outcome, summary = finished.outcome, finished.summary
+        if written.report_error:
+            run.log.error(f'report not written: {written.report_error}')
+        summary = written.summary
+        stopping = judged.data.get('run_to_requirement')
         if stopping is not None:
             summary += '\n' + run_to_requirement.summary_line(stopping)
-        residuals = outcome.result.residual_rms if outcome.result is not None else None
-        if not outcome.success:
-            log.error(summary)
-            self.save_state(PHASE_FAILED, outcome.message)
-            host.progress(count, names.PHASE_FAILED, outcome.message, residuals)
-            return False, summary
-        self.save_state(PHASE_DONE)
-        geometry, rigid = outcome.geometry, outcome.rigid_geometry
-        # A result that misses the required accuracy is written and latched, never applied.
-        success, note = await host.deliver_result(settings, geometry, outcome.verdicts, rigid)
-        if note:
-            summary += '\n' + note
+        return dataclasses.replace(judged, summary=summary)
+
+    async def deliver(self, run, judged, started):
+        """Latch the result and apply it when it meets the requirement (else written and
+        latched, never applied)."""
+        host, outcome = run.host, judged.outcome
+        geometry = outcome.geometry
+        success, note = await host.deliver_result(
+            run.settings, geometry, outcome.verdicts, outcome.rigid_geometry
+        )
+        summary = judged.summary + ('\n' + note if note else '')
         summary += f'\ncalibration time: {time.monotonic() - started:.2f} s'
         if success:  # one call site per severity (rclpy requires it)
-            log.info(summary)
+            run.log.info(summary)
         else:
-            log.error(summary)
-        phase = names.PHASE_DONE if success else names.PHASE_FAILED
+            run.log.error(summary)
         host.progress(
-            count,
-            phase,
+            run.planned,
+            names.PHASE_DONE if success else names.PHASE_FAILED,
             final_progress_message(summary, success, note),
-            residuals,
-            run_directory=session.run.path,
+            judged.residuals,
+            run_directory=run.record.directory.path,
         )
         return success, format_response(summary, geometry)
-
-
-def _planned(run):
-    """The postures ``run`` (a :class:`CalibrationRun`) plans to command, additions included."""
-    return postures.commanded_count(run.settings, run.session.state)
-
-
-async def _heard_streams(run, new_route):
-    """Wait until platform_sim listens to commands and every sensor topic has spoken
-    (``topic_timeout`` each), then, for a ``new_route`` with additions for the effects, until
-    every stream has given :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS`
-    stamps, its rate measured (at most ``topic_timeout``; else the route is timed at gsp_plan's
-    rate). ``run``: the :class:`CalibrationRun`. The message of the first check that timed out
-    ('' when none did). The streams come before the route so that its additions are timed at
-    the rate heard; a run that hears none still plans its route and writes state.json, then
-    fails naming the silent topic."""
-    settings, host, collection = run.settings, run.host, run.collection
-    timeout = settings.topic_timeout
-    failure = await first_timeout(
-        host.wait_for, timeout, system_checks(host, collection.heard, timeout)
-    )
-    if new_route and postures.route_effect_groups(settings.free_parameters) and not failure:
-        latest = collection.latest
-        await host.wait_for(
-            lambda: latest.sample_rate_hz(posture_state.RATE_MIN_STAMPS) is not None, timeout
-        )
-    return failure
-
-
-async def _ordered(run, poses):
-    """``(poses, record)``: a new run's selected ``poses`` (None: a resumed run keeps its own)
-    in route order (``posture_order: route``), with the additions the effect groups to identify
-    need (:func:`.postures.effect_route`: reference revisits, approach directions) and their
-    record (:func:`.postures.route_additions`; None: nothing added), said in the progress."""
-    if poses is None:
-        return None, None
-    settings = run.settings
-    if settings.posture_order == 'route':
-        poses = await run._route(poses)
-    start, _ = postures.route_start(settings.nominal, run.collection.latest_leg_lengths())
-    if settings.posture_order != 'route':  # nor first a posture the platform already holds
-        poses = poses[postures.held_last(settings, poses, start)]
-    # As heard (the run heard its streams first): the route's time at the run's own rate.
-    rate = run.collection.latest.sample_rate_hz()
-    route = await run.host.in_thread(postures.effect_route, settings, poses, start, rate)
-    if route is None:
-        return poses, None
-    groups = postures.route_effect_groups(settings.free_parameters)
-    additions = postures.route_additions(route, groups, rate)
-    line = postures.route_additions_line(additions)
-    run.log.info(line)
-    run.host.progress(0, names.PHASE_SELECTING, line)
-    return route.poses, additions

@@ -1,27 +1,24 @@
-"""Identification of a collected run, without ROS (pure).
+"""Identification of a collected run and its result files (pure, no rclpy).
 
-1. :func:`identify_from_samples`: the core's ``identify`` on the averaged posture rows
-   (``run.directory.Samples``), then checks: converged, and every free parameter identifiable
-   (full rank of the column-scaled information matrix). A failed check gives
-   ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
-   A result that passes is cross-validated (the accuracy the device measures on postures the
-   fit did not use), and judged against the required accuracy
-   (:func:`gsp_kinematics.estimation.verdict.acceptance.judge`): ``CalibrationOutcome.accepted`` says whether it
-   is applied. With :data:`gsp_kinematics.estimation.identification.AUTO` among the free parameters, the
-   effect groups are chosen first (:func:`gsp_kinematics.estimation.verdict.model_choice.choose_model`, on the
-   run's ``EffectDesign`` from :mod:`.approach`); the outcome's ``effects`` says what and why.
-2. :func:`finish_run`: identification of a collected run, and its result files.
-
-The postures are chosen by :mod:`.postures`; the texts are :mod:`.response`.
+:func:`identify_from_samples` identifies the averaged rows, checks the result (converged,
+every free parameter identifiable), measures its accuracy on held-out postures and judges it
+against the required accuracy (docs/verdict.md); ``auto`` chooses the effect groups first.
+:func:`write_run_files` writes ``result.json``, ``report.md`` and the geometry files.
 """
 
 import dataclasses
 import time
+import traceback
+import typing
 
 import numpy as np
 
+from gsp_calibrator.collection.approach import effect_design, reference_instant
+from gsp_calibrator.files.run_directory import RESULT_FILE, RIGID_RESULT_FILE
+from gsp_calibrator.report.accuracy import prediction_for
 from gsp_calibrator.report.data import settle_line
-from gsp_calibrator.run.approach import effect_design, reference_instant
+from gsp_calibrator.report.effects import effects_record, untried_groups
+from gsp_calibrator.report.write import outcome_inputs, write_all
 from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
     CalibrationError,
@@ -33,8 +30,13 @@ from gsp_calibrator.run.rigid import Verdicts, rigid_result
 from gsp_kinematics.estimation import identifiability, noise_from_data
 from gsp_kinematics.estimation.goodness import verdict
 from gsp_kinematics.estimation.identification import FORMULATIONS, IdentificationError, resolve_free
+from gsp_kinematics.estimation.prediction import accuracy_summary, thermal_strain_rms
 from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
+from gsp_kinematics.estimation.verdict.model_choice import (
+    DEFAULT_THERMAL_TIME_CONSTANTS,
+    choose_model,
+)
 from gsp_kinematics.model.device import DeviceModelError
 from gsp_kinematics.model.effect_groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
@@ -53,6 +55,34 @@ DEVICE_MODEL_HINT = (
 )
 #: Added to the result's comment when the calibration is not accepted (not applied).
 NOT_ACCEPTED_COMMENT = 'NOT ACCEPTED (not applied): see the verdict in result.json'
+
+
+class RowWeights(typing.NamedTuple):
+    """What weighs the averaged rows in the fit."""
+
+    sigmas: SensorNoise  #: each row's noise (the configured noise averaged over its samples)
+    within: object  #: the within-posture noise estimated from the rows' lag sums
+    design: object  #: the run's ``EffectDesign`` (times, approach directions, payload)
+
+
+class Fit(typing.NamedTuple):
+    """What :func:`_fit` found."""
+
+    result: object  #: the core's IdentificationResult
+    estimates: dict  #: the noise estimates per channel (``noise_from_data``)
+    sigmas: SensorNoise  #: the row weights used
+    effects: object  #: the ``EffectDesign`` when effects were freed, else None
+    choice: object  #: the ``ModelChoice`` of ``auto``, else None
+    untried: dict | None  #: ``{effect group not tried: why}`` of ``auto``, else None
+
+
+class Judging(typing.NamedTuple):
+    """What a result is judged with."""
+
+    requirement: acceptance.Requirement
+    folds: int  #: cross-validation folds
+    identify_options: dict  #: the core's options (``options``: LM options)
+    workspace: np.ndarray  #: (M,) bool: the rows commanded at the workspace postures
 
 
 @dataclasses.dataclass
@@ -145,7 +175,7 @@ def identify_from_samples(
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
-    ``samples``: a :class:`.directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
+    ``samples``: a :class:`gsp_calibrator.files.run_directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
     ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. The rows' lag sums give the
@@ -169,23 +199,17 @@ def identify_from_samples(
     poses = (samples.commanded_poses, workspace_poses)
     started = time.perf_counter()
     try:
-        result, estimates, outcome.sigmas, effects, choice, untried = _fit(
-            nominal,
-            samples,
-            (row_sigmas, within, design),
-            free,
-            formulation,
-            noise_source,
-            identify_options,
-        )
+        weights = RowWeights(row_sigmas, within, design)
+        fit = _fit(nominal, samples, weights, free, formulation, noise_source, identify_options)
     except (IdentificationError, DeviceModelError, np.linalg.LinAlgError, ValueError) as error:
         outcome.duration_s = time.perf_counter() - started
         hint = DEVICE_MODEL_HINT if isinstance(error, DeviceModelError) else ''
         outcome.message = f'identification failed: {error}{hint}'
         return outcome
     outcome.duration_s = time.perf_counter() - started
-    outcome.result = result
-    outcome.effects = _effects_record(result, effects or design, nominal, choice, untried, samples)
+    outcome.result = result = fit.result
+    outcome.sigmas = fit.sigmas
+    outcome.effects = _effects_record(fit, design, nominal, samples)
     if not result.converged:
         outcome.message = (
             f'identification did not converge after {result.iterations} iteration(s) '
@@ -199,15 +223,15 @@ def identify_from_samples(
         return outcome
     outcome.success = True
     outcome.geometry = result.geometry
-    outcome.noise_estimates = noise_from_data.noise_record(estimates, sigmas, samples.n_samples)
+    outcome.noise_estimates = noise_from_data.noise_record(fit.estimates, sigmas, samples.n_samples)
     outcome.verdict = verdict(
         result.goodness_of_fit,
         result.outliers,
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    judged = (requirement, folds, identify_options, effects, workspace_rows(*poses))
-    _judge(outcome, nominal, samples, estimates, row_sigmas, judged)
+    judging = Judging(requirement, folds, identify_options, workspace_rows(*poses))
+    _judge(outcome, nominal, samples, fit, row_sigmas, judging)
     return outcome
 
 
@@ -243,10 +267,9 @@ def _checked_free(free, formulation, noise_source):
 
 
 def _fit(nominal, samples, weights, free, formulation, noise_source, identify_options):
-    """The identification of the rows with the weights and design ``weights`` (row sigmas,
-    within-posture noise, ``EffectDesign``), ``auto`` chosen first: ``(result, estimates,
-    sigmas used, the design if effects were freed else None, ModelChoice or None, untried)``."""
-    row_sigmas, within, design = weights
+    """The :class:`Fit` of the rows with their ``weights`` (:class:`RowWeights`), ``auto``
+    chosen first."""
+    row_sigmas, within, design = weights.sigmas, weights.within, weights.design
     plain, auto = split_auto(free)
     choice = untried = None
     if auto:
@@ -272,19 +295,13 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
         first=None if choice is None else choice.result,
         **identify_options,
     )
-    return result, estimates, used, effects, choice, untried
+    return Fit(result, estimates, used, effects, choice, untried)
 
 
 def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
     the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
     significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
-    from gsp_calibrator.report.effects import untried_groups
-    from gsp_kinematics.estimation.verdict.model_choice import (
-        DEFAULT_THERMAL_TIME_CONSTANTS,
-        choose_model,
-    )
-
     options = identify_options.get('options')
     extra = {} if options is None else {'options': options}
     choice = choose_model(
@@ -301,36 +318,30 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     return choice, untried_groups(design, len(samples), effect_groups_of(plain))
 
 
-def _effects_record(result, design, nominal, choice, untried, samples):
-    from gsp_calibrator.report.effects import effects_record
-
-    if not result.converged:
+def _effects_record(fit, design, nominal, samples):
+    if not fit.result.converged:
         return None
     _, stamp = reference_instant(samples)
-    return effects_record(result, design, nominal, choice, untried, stamp)
+    design = fit.effects or design
+    return effects_record(fit.result, design, nominal, fit.choice, fit.untried, stamp)
 
 
 def uncompensated_thermal_strain(result, design):
     """(6,) the rms thermal strain of each leg over the run relative to the reference instant,
     which the controllers do not compensate (``prediction.thermal_strain_rms``), when ``result``
     identified the thermal growth on the run's ``design``; else None."""
-    from gsp_kinematics.estimation.prediction import thermal_strain_rms
-
     rates = [result.effects.get(f'strain_rate{leg}') for leg in range(1, 7)]
     if design is None or design.times_s is None or any(rate is None for rate in rates):
         return None
     return thermal_strain_rms([rate[0] for rate in rates], design)
 
 
-def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
-    """``judged``: ``(requirement, folds, identify_options, effects, workspace rows)``.
-    Cross-validate ``outcome``'s result (the headline over the workspace rows, when the run
+def _judge(outcome, nominal, samples, fit, row_sigmas, judging):
+    """Cross-validate ``outcome``'s result (the headline over the workspace rows, when the run
     has them), estimate what the model leaves unexplained, predict the accuracy with it (and
-    the uncompensated thermal growth), and judge against ``requirement`` (fills the outcome)."""
-    from gsp_calibrator.report.accuracy import prediction_for
-
-    requirement, folds, identify_options, effects, workspace = judged
-    result = outcome.result
+    the uncompensated thermal growth), and judge it (:class:`Judging`; fills the outcome)."""
+    requirement, folds, identify_options, workspace = judging
+    result, estimates, effects = fit.result, fit.estimates, fit.effects
     noise = SensorNoise.from_channels(
         {channel: entry.noise for channel, entry in estimates.items()}, default=row_sigmas
     )
@@ -362,8 +373,6 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
     )
     headline = None
     if outcome.prediction is not None:
-        from gsp_kinematics.estimation.prediction import accuracy_summary
-
         headline = accuracy_summary(outcome.prediction)
     outcome.requirement = requirement
     outcome.judgement = acceptance.judge(
@@ -376,10 +385,9 @@ def _judge(outcome, nominal, samples, estimates, row_sigmas, judged):
 
 
 @dataclasses.dataclass(frozen=True)
-class FinishedRun:
-    """What :func:`finish_run` did: the outcome, its human summary, and a report failure."""
+class WrittenRun:
+    """What :func:`write_run_files` wrote: the run's human summary, and a report failure."""
 
-    outcome: CalibrationOutcome
     summary: str
     report_error: str = ''  #: '' when result.json and report.md were written (or not due)
 
@@ -404,21 +412,17 @@ def identify_with_settings(settings, samples):
     )
 
 
-def finish_run(run, settings, samples, collection, options):
-    """Identify a collected run and write its files (pure; the node runs it in a worker thread).
+def write_run_files(run, settings, outcome, collection, options):
+    """Write the files of an identified run (pure; the node runs it in a worker thread).
 
-    ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``samples``:
-    the collected rows; ``collection``: the protocol's ``summary()`` (skipped postures, drops);
-    ``options``: the run options stored with the results. Writes ``result.json``, ``report.md``
-    and its PNGs (unless ``settings.write_report_plots`` is false) when identification gives a
-    result (a failure there is returned, never raised:
-    the report must not fail the run) and ``result.yaml`` when the calibration succeeded.
+    ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``outcome``:
+    its :class:`CalibrationOutcome`; ``collection``: result.json's collection record (the
+    protocol's summary, skipped postures, settle waits); ``options``: the run options stored
+    with the results. Writes ``result.json``, ``report.md`` and its PNGs (unless
+    ``settings.write_report_plots`` is false) when the identification gives a result (a failure
+    there is returned, never raised: the report must not fail the run) and ``result.yaml`` when
+    the calibration succeeded.
     """
-    import traceback
-
-    from gsp_calibrator.report.write import outcome_inputs, write_all
-
-    outcome = identify_with_settings(settings, samples)
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
     additions = collection.get('route_additions') or {}
     summary = outcome_summary(
@@ -445,13 +449,12 @@ def finish_run(run, settings, samples, collection, options):
     if outcome.success:
         comment = RESULT_COMMENT + ('' if outcome.accepted else f'\n{NOT_ACCEPTED_COMMENT}')
         write_results(run, outcome, comment)
-    return FinishedRun(outcome, summary, report_error)
+    return WrittenRun(summary, report_error)
 
 
 def write_results(run, outcome, comment):
     """Write a successful ``outcome``'s geometry to ``run`` (its ``RunDirectory``) as
     ``result.yaml`` and, with identified effects, the rigid one as ``result_rigid.yaml``."""
-    from gsp_calibrator.run.directory import RESULT_FILE, RIGID_RESULT_FILE
 
     run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     if outcome.rigid_geometry is not None:

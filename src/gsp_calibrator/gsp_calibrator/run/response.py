@@ -234,7 +234,7 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
 def failure_message(error, collected, run):
     """The response text of a run that ended early with ``error`` after ``collected`` postures;
     ``run``: its ``RunDirectory`` (the rows are in its ``samples.csv``)."""
-    from gsp_calibrator.run.directory import SAMPLES_FILE
+    from gsp_calibrator.files.run_directory import SAMPLES_FILE
 
     return (
         f'calibration FAILED after {collected} collected posture(s): {error}\n'

@@ -1,7 +1,7 @@
 """The rigid geometry of a calibration that identified effects (pure): for a controller that
 runs the geometry alone, the identified effects folded into the 44 parameters
 (:func:`gsp_kinematics.estimation.rigid_fold.fold_effects`), written to ``result_rigid.yaml`` and
-applied instead of ``result.yaml`` to such a controller (:mod:`gsp_calibrator.result_delivery`),
+applied instead of ``result.yaml`` to such a controller (:mod:`gsp_calibrator.node.result_delivery`),
 with its predicted and held-out accuracy and its own verdict beside the compensated one's
 (docs/platform_effects.md, docs/verdict.md)."""
 
@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 
-from gsp_calibrator.run.directory import RIGID_RESULT_FILE
+from gsp_calibrator.files.run_directory import RIGID_RESULT_FILE
 from gsp_kinematics.estimation.rigid_fold import (
     fold_effects,
     held_out_postures,

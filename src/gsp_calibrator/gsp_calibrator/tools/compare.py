@@ -12,7 +12,7 @@ Exit code (as ``diff``): 0 no significant change, 1 a significant change, 2 bad 
 import argparse
 import sys
 
-from gsp_calibrator.upkeep.calibration_files import CalibrationFileError, load_calibration
+from gsp_calibrator.files.calibration_files import CalibrationFileError, load_calibration
 from gsp_kinematics.fileio import write_json
 from gsp_kinematics.upkeep import drift
 

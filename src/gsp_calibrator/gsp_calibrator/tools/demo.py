@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsp_calibrator.run.directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
+from gsp_calibrator.files.run_directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
 from gsp_calibrator.tools.demo_commands import (

@@ -17,7 +17,7 @@ from gsp_msgs_py.ros_environment import loopback_environment
 NODES = {
     'platform_sim': 'gsp_platform_sim.platform_sim_node',
     'device_driver': 'gsp_device_driver.device_driver_node',
-    'calibrator': 'gsp_calibrator.calibrator_node',
+    'calibrator': 'gsp_calibrator.node.calibrator_node',
     # --platform ros2_control: the bridge and the emulated controller replace platform_sim.
     'controller_sim': 'gsp_platform_sim.controller_sim_node',
     'platform_bridge': 'gsp_platform_bridge.platform_bridge_node',

@@ -17,8 +17,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from gsp_calibrator.upkeep import history
-from gsp_calibrator.upkeep.calibration_files import CalibrationFileError
+from gsp_calibrator.files import history
+from gsp_calibrator.files.calibration_files import CalibrationFileError
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2

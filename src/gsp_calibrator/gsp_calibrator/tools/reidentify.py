@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gsp_calibrator.files.run_directory import TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.identify import identify_from_samples, write_results
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL, outcome_summary
 from gsp_calibrator.settings import (

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, read_samples
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
 from gsp_calibrator.settings import DEFAULTS, REIDENTIFY_COMMAND_LINE, names_in, option_value
 from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_msgs_py.noise_parameters import noise_from_parameters
@@ -114,7 +114,7 @@ def recover_unfinished_recordings(run_path):
     live calibrator is still writing: see its ``state.json``)."""
     from gsp_calibrator.recording.mcap_format import RecordingError
     from gsp_calibrator.recording.mcap_io import recover_recordings
-    from gsp_calibrator.run.state import ResumeRefused, read_state, resumable
+    from gsp_calibrator.run.record import ResumeRefused, read_state, resumable
 
     if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
         return

@@ -16,15 +16,15 @@ import dataclasses
 import math
 from pathlib import Path
 
-from gsp_calibrator.run.postures import posture_pool
-from gsp_calibrator.upkeep import history
-from gsp_calibrator.upkeep.calibration_files import (
+from gsp_calibrator.files import history
+from gsp_calibrator.files.calibration_files import (
     CHECK_JSON,
     RESULT_JSON,
     CalibrationFileError,
     calibration_from_result,
     read_json,
 )
+from gsp_calibrator.run.postures import posture_pool
 from gsp_kinematics.fileio import write_json
 from gsp_kinematics.model.geometry import GeometryError, load_geometry
 from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
@@ -144,7 +144,7 @@ def row_noise(reference, sigmas, n_samples):
 
 def evaluate_check(reference, samples, sigmas, required, platform, planned_s=None):
     """The check's verdict (a JSON-ready dict, ``check.json``) from the collected ``samples``
-    (``run.directory.Samples``) with the per-sample noise ``sigmas`` and the
+    (``files.run_directory.Samples``) with the per-sample noise ``sigmas`` and the
     ``check.Requirement`` ``required``."""
     if len(samples) < 2:
         raise CheckError(f'a check needs at least 2 postures, {len(samples)} collected')

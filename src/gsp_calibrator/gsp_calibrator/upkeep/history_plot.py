@@ -4,8 +4,8 @@ each as its change from its first calibration with 1-sigma bars. matplotlib's Ag
 
 import datetime
 
+from gsp_calibrator.files import history
 from gsp_calibrator.report.plots import new_figure, save_figure
-from gsp_calibrator.upkeep import history
 from gsp_kinematics.upkeep.drift import report_scale
 
 _MARKERS = {'calibration': ('o', '#1f77b4'), 'check': ('s', '#ff7f0e')}

@@ -7,13 +7,10 @@ finds its predicate true or its timeout passed; :func:`run_in_thread` and :func:
 turn CPU-heavy work (selection, identification, report) into a future; nothing blocks inside a
 callback.
 
-:class:`SensorListener` takes high-rate topics in a thread of its own. Measured on the 2-core
-machine under load, a ``MultiThreadedExecutor`` took the four sensor streams (800 messages/s at
-200 Hz) at ~560 messages/s with ~300 ms of lag (GIL hand-offs to its pool), so samples piled up
-behind the settled status; a ``SingleThreadedExecutor`` in a dedicated thread kept up (~2 ms
-median lag) at a third less CPU. Its subscriptions live as long as the node: destroying a
-subscription while that thread builds its wait set can raise ``InvalidHandle``
-(ros2/rclpy#1206).
+:class:`SensorListener` takes high-rate topics in a thread of its own (a
+``SingleThreadedExecutor``: a ``MultiThreadedExecutor`` fell behind the sensor streams,
+docs/architecture.md). Its subscriptions live as long as the node: destroying a subscription
+while that thread builds its wait set can raise ``InvalidHandle`` (ros2/rclpy#1206).
 """
 
 import concurrent.futures
@@ -213,10 +210,6 @@ class SensorListener:
                 if self.on_error is None:
                     raise
                 self.on_error(error)  # a callback failed: report it and keep listening
-
-    @property
-    def subscribed(self):
-        return bool(self._subscriptions)
 
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)

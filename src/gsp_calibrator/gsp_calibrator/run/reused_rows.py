@@ -10,8 +10,13 @@ geometry and device (the digests in the run's ``state.json``), like a resumed ru
 import dataclasses
 from pathlib import Path
 
-from gsp_calibrator.run.directory import SAMPLES_FILE, RunDirectoryError, Samples, read_samples
-from gsp_calibrator.run.state import STATE_FILE, ResumeRefused, read_state, selection_options
+from gsp_calibrator.files.run_directory import (
+    SAMPLES_FILE,
+    RunDirectoryError,
+    Samples,
+    read_samples,
+)
+from gsp_calibrator.run.record import STATE_FILE, ResumeRefused, read_state, selection_options
 
 
 class ReusedRowsError(ValueError):
@@ -80,9 +85,9 @@ def joined(rows, reused, first):
     return together
 
 
-def for_identification(session, reused):
-    """``(samples, record)``: a run ``session``'s rows and the ``reused`` ones (None: none),
+def for_identification(record, reused):
+    """``(samples, record)``: a run ``record``'s rows and the ``reused`` ones (None: none),
     numbered after its postures, and ``{'reused_rows': ...}`` for ``result.json`` (else {})."""
-    first = len(session.state.poses) + 1
-    samples = joined(session.samples, reused, first)
+    first = len(record.state.poses) + 1
+    samples = joined(record.samples, reused, first)
     return samples, ({} if reused is None else {'reused_rows': reused.record(first)})

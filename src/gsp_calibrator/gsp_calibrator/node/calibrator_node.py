@@ -1,34 +1,11 @@
-"""``calibrator`` node: runs a whole calibration on ``/gsp/calibrator/calibrate`` (std_srvs/Trigger).
+"""``calibrator`` node: a whole calibration on ``/gsp/calibrator/calibrate`` (std_srvs/Trigger),
+the rest of an unfinished one on ``/gsp/calibrator/resume``, the check on ``/gsp/calibrator/check``.
 
-A run selects postures (core, condition-number criterion), commands each on
-``/gsp/platform/pose_command`` and collects its averaged row from ``/gsp/platform/status``,
-``/gsp/platform/leg_lengths`` and the three ``/gsp/device/*`` topics, then identifies the
-parameters. It reports on ``/gsp/calibrator/progress``, writes the run directory (``samples.csv``
-a row per posture, ``state.json``, ``result.yaml``, ``recording.mcap``, ``result.json``,
-``report.md``), latches the calibrated geometry YAML on ``/gsp/calibrator/result`` and, with
-``apply_result``, sets the ``geometry.*`` parameters of the platform controller through its
-parameter service. See docs/nodes.md (parameters, topics) and docs/architecture.md (protocol,
-concurrency).
-
-This wrapper only moves messages and waits. The course of a run is
-:class:`.run.flow.CalibrationRun` (a coroutine), its files :class:`.run.session.RunSession`.
-The node gives the run one :class:`.run.host.RunHost` (:meth:`CalibratorNode._run_host`) whose
-:class:`.run.host.PostureLink` joins the node's threads to the run: every status and sensor
-message goes through it to the :class:`.collection.protocol.CollectionProtocol` with its receive
-time (a status also with its publish instant: a posture's samples count from the publication of
-its ``settled``, :func:`.collection.protocol.settle_start_ns`), a watchdog timer polls it for
-timeouts, and the event that ends a posture (row ready, posture skipped, topic silent) keeps its
-row and completes the future the run awaits. The waiting machinery is :mod:`.node_threads`, the
-second-source guard :mod:`.collection.single_source`.
-
-Concurrency: the Trigger callback is a coroutine in its own reentrant group, so a second call is
-answered at once while a run awaits. The status subscription and the parameter client sit in a
-reentrant group; the watchdog timer in a mutually exclusive group of its own (one executor thread
-at most: a reentrant timer is dispatched again while it waits for the lock, and its piled-up
-calls would take every thread of the executor). The suite's topics are taken by a
-:class:`.node_threads.SensorListener` (node ``<name>_recorder``, own thread): its recorder writes
-each batch of a sensor topic, then hands it to the collection. The protocol and the posture in collection are guarded by
-the posture link's lock.
+This wrapper only moves messages and waits: the course of a run is
+:class:`gsp_calibrator.run.flow.CalibrationRun`, to which the node gives one
+:class:`gsp_calibrator.run.host.RunHost` (:meth:`CalibratorNode._run_host`); its
+:class:`.posture_link.PostureLink` joins the node's threads to the run. Topics, parameters and
+files: docs/nodes.md; the protocol, threads and callback groups: docs/architecture.md.
 """
 
 import os
@@ -42,7 +19,10 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.collection import events, protocol
-from gsp_calibrator.node_threads import (
+from gsp_calibrator.node.posture_link import PostureLink
+from gsp_calibrator.node.result_delivery import ResultDelivery
+from gsp_calibrator.node.sensor_intake import LISTENER_TICK_S, SensorIntake
+from gsp_calibrator.node.threads import (
     SensorListener,
     ThreadResults,
     Waits,
@@ -51,15 +31,13 @@ from gsp_calibrator.node_threads import (
     run_in_thread,
 )
 from gsp_calibrator.recording.recorder import RunRecorder
-from gsp_calibrator.result_delivery import ResultDelivery
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
-from gsp_calibrator.run.host import PostureLink, RunHost
-from gsp_calibrator.run.session import RunWriteError, WriteFailed
-from gsp_calibrator.sensor_intake import LISTENER_TICK_S, SensorIntake
+from gsp_calibrator.run.host import RunHost
+from gsp_calibrator.run.record import RunWriteError, WriteFailed
 from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
-from gsp_calibrator.upkeep.check_flow import CheckRun, record_calibration
+from gsp_calibrator.upkeep.check_flow import new_check
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.executors import MultiThreadedExecutor
@@ -72,12 +50,12 @@ WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeou
 #: recorder's thread at each hand-over.
 GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
-#: The Trigger services: (name, resume an unfinished run, the run: a calibration or the check
-#: of docs/upkeep.md).
+#: The Trigger services: (name, resume an unfinished run, ``new_run(host, settings, resume)``:
+#: a calibration or the check of docs/upkeep.md).
 SERVICES = (
     (names.SERVICE_CALIBRATE, False, CalibrationRun),
     (names.SERVICE_RESUME, True, CalibrationRun),
-    (names.SERVICE_CHECK, False, CheckRun),
+    (names.SERVICE_CHECK, False, new_check),
 )
 #: Topics the node publishes, in the order of its publisher attributes.
 OUTPUTS = (
@@ -146,8 +124,8 @@ class CalibratorNode(Node):
         self.create_timer(
             WATCHDOG_PERIOD_S, self._on_watchdog, callback_group=MutuallyExclusiveCallbackGroup()
         )
-        for service, resume, run_class in SERVICES:
-            callback = self._service(resume, run_class)
+        for service, resume, new_run in SERVICES:
+            callback = self._service(resume, new_run)
             self.create_service(Trigger, service, callback, callback_group=self._service_group)
 
         self._diagnostics = DiagnosticsPublisher(
@@ -237,7 +215,7 @@ class CalibratorNode(Node):
             self.get_logger().warning(event.message, throttle_duration_sec=WARN_THROTTLE_S)
 
     def _new_command(self, pose):
-        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.run.host.PostureLink`)."""
+        """``(command_id, now_ns, publish)`` of a command of ``pose`` (:class:`.posture_link.PostureLink`)."""
         stamp = self.get_clock().now()
         msg = conversions.pose_to_pose_stamped(pose, stamp.to_msg())
         return (
@@ -247,12 +225,12 @@ class CalibratorNode(Node):
         )
 
     def _health(self):
-        """The calibrator's health on /diagnostics (:func:`.run.health.calibrator_health`)."""
-        session = self._run.session if self._run is not None else None
+        """The calibrator's health on /diagnostics (:func:`gsp_calibrator.run.health.calibrator_health`)."""
+        record = self._run.record if self._run is not None else None
         return calibrator_health(
             self._running,
             self._last_progress,
-            session.run.path if session is not None else '',
+            record.directory.path if record is not None else '',
             dict(self._intake.heard_ns),
             time.monotonic_ns(),
             self._settings.topic_timeout,
@@ -262,7 +240,7 @@ class CalibratorNode(Node):
     # --------------------------------------------------------------------- the run's host
 
     def _run_host(self):
-        """The :class:`.run.host.RunHost` of a run: this node's graph, waits and threads."""
+        """The :class:`gsp_calibrator.run.host.RunHost` of a run: this node's graph, waits and threads."""
 
         def in_thread(function, *args, **kwargs):
             return self._await_thread(run_in_thread(function, *args, **kwargs))
@@ -301,7 +279,7 @@ class CalibratorNode(Node):
         run = self._run
         if run is None:
             return 0
-        state = run.session.state if run.session is not None else None
+        state = run.record.state if run.record is not None else None
         return postures.commanded_count(run.settings, state)
 
     def _progress(self, index, phase, message='', residuals=None, warning=False, **extra):
@@ -321,15 +299,15 @@ class CalibratorNode(Node):
 
     # --------------------------------------------------------------------------- the run
 
-    def _service(self, resume, run_class):
+    def _service(self, resume, new_run):
         async def callback(request, response):
             """Trigger: one whole calibration, or (``resume``) the rest of an unfinished run:
             ``resume_run_directory`` or the latest; or the check of docs/upkeep.md."""
-            return await self._serve(response, resume, run_class)
+            return await self._serve(response, resume, new_run)
 
         return callback
 
-    async def _serve(self, response, resume, run_class):
+    async def _serve(self, response, resume, new_run):
         with self._lock:
             if self._running:
                 response.success = False
@@ -337,13 +315,11 @@ class CalibratorNode(Node):
                 self.get_logger().warning('calibrate: refused, a calibration is already running')
                 return response
             self._running = True
-            self._run = run_class(self._run_host(), self._settings, resume)
+            self._run = new_run(self._run_host(), self._settings, resume)
         with self.postures.lock:
             self._intake.sources.reset()
         response.success, response.message = await self._run.serve()
         if self.context.ok():  # else going down: destroy_node() marks the run interrupted
-            if run_class is CalibrationRun and (run := self._run).session is not None:
-                await record_calibration(run.host, run.settings, run.session.run.path)
             self._waits.cancel()
             with self._lock:
                 self._running = False

@@ -1,21 +1,10 @@
-"""Publishing and applying a calibration result: one module for both (the ``calibrator`` node).
+"""Publishing and applying a calibration result (the ``calibrator`` node; docs/verdict.md).
 
-A run that succeeds hands its calibrated geometry, and the rigid one when it identified effects
-(``run.rigid``), to :class:`ResultDelivery` (``RunHost.deliver_result``). It latches the
-geometry params-file YAML on ``/gsp/calibrator/result`` and, with ``apply_result``, sets the
-``geometry.*`` parameters of ``platform_node_name`` in one ``SetParametersAtomically`` call.
-A result that is not accepted (its cross-validated accuracy misses the requirement,
-docs/verdict.md) is published, never applied: the verdict judged is that of the geometry the
-controller runs (the compensating one, or the rigid one, ``run.rigid.Verdicts``), known once
-the controller is.
-
-What the controller receives depends on whether it compensates the identified effects
-(``controller_effects``): ``auto`` first asks its ``list_parameters`` service for the
-``geometry.effects`` prefix, as ``ros2 param list`` does. One that declares every
-``geometry.effects.*`` parameter gets the geometry and all of them (0 for an effect not
-identified, so none of an earlier geometry stays); one that declares none (or not all)
-gets the rigid geometry, the effects folded in, and no ``geometry.effects.*`` key, which a
-controller written against the documented rigid geometry would refuse as undeclared.
+:class:`ResultDelivery` (``RunHost.deliver_result``) latches the geometry YAML on
+``/gsp/calibrator/result`` and, with ``apply_result`` and a result that meets the requirement,
+sets the ``geometry.*`` parameters of ``platform_node_name`` in one ``SetParametersAtomically``
+call: the geometry and its effects to a controller that declares every ``geometry.effects.*``
+parameter, else the rigid geometry (``run.rigid``), whose verdict is then the one judged.
 """
 
 from rcl_interfaces.srv import ListParameters, SetParametersAtomically
@@ -177,8 +166,8 @@ class ParameterSetter:
 async def call_service(client, service, request, timeout_s, wait_for):
     """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (unavailable
     or no answer within ``timeout_s``). ``wait_for(predicate, timeout_s)``: a future of
-    :data:`.run.host.WAIT_OK` or :data:`.run.host.WAIT_TIMEOUT` (e.g.
-    :meth:`.node_threads.Waits.add`)."""
+    :data:`gsp_calibrator.run.host.WAIT_OK` or :data:`gsp_calibrator.run.host.WAIT_TIMEOUT` (e.g.
+    :meth:`gsp_calibrator.node.threads.Waits.add`)."""
     if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
         return None, f'parameter service {service} unavailable within {timeout_s:g} s'
     future = client.call_async(request)

@@ -1,16 +1,10 @@
-"""The history of each platform: every calibration and check, indexed by platform id in SQLite.
+"""The history of each platform: every calibration and check, indexed by platform id in SQLite
+(docs/upkeep.md).
 
 The run directories stay the data; the database (default ``<output_root>/history.sqlite``) is an
-index of them, rebuilt from them at any time (:func:`rebuild`). A row per run gives its platform,
-kind (``calibration`` or ``check``), UTC time, verdict, accuracy (position mm, orientation deg,
-and where the figure comes from), and per run the significant changes (a calibration against the
-platform's previous calibration, :func:`gsp_kinematics.upkeep.drift.compare`; a check against the
-geometry it checked) and the estimates of its free parameters (the plot of what moved).
-
-Crash safety: SQLite's write-ahead log (``journal_mode=WAL``, ``synchronous=FULL``) and one
-transaction per run, so a writer killed at any point leaves either the whole run or none of it.
-The schema version is ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); an unknown newer version is
-refused rather than written.
+index of them, rebuilt from them at any time (:func:`rebuild`). One transaction per run (WAL,
+``synchronous=FULL``): a writer killed at any point leaves the whole run or none of it. The
+schema version is ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); a newer one is refused.
 """
 
 import contextlib
@@ -19,14 +13,14 @@ import math
 import sqlite3
 from pathlib import Path
 
-from gsp_calibrator.run.directory import TIMESTAMP_FORMAT
-from gsp_calibrator.upkeep.calibration_files import (
+from gsp_calibrator.files.calibration_files import (
     CalibrationFileError,
     calibration_from_check,
     calibration_from_result,
     read_json,
     run_file,
 )
+from gsp_calibrator.files.run_directory import TIMESTAMP_FORMAT
 from gsp_kinematics.upkeep import drift
 
 DATABASE_NAME = 'history.sqlite'

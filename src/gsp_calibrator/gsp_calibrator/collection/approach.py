@@ -5,7 +5,7 @@ docs/platform_effects.md#through-the-calibrator).
   commanded sequence the calibrator sends: the sign of the change of the commanded leg length
   (the nominal geometry's inverse kinematics) from the posture the platform stood at. A leg
   that does not move keeps its direction; a posture the platform rejected moved nothing. The
-  calibrator (``run.session``) and the rebuild from a recording (``recording.rebuild``) feed
+  calibrator (``run.record``) and the rebuild from a recording (``recording.rebuild``) feed
   it the same commands in the same order, so ``samples.csv`` and the rebuild agree.
 - :func:`effect_design`: the run's ``EffectDesign`` from its rows: the times (s since the first
   row's mean stamp), the approach directions, the payload the user gave and the thermal
@@ -59,7 +59,7 @@ class ApproachTracker:
 
 
 def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg_mass=None):
-    """The ``EffectDesign`` of a run's rows (``run.directory.Samples``) and the payload the user
+    """The ``EffectDesign`` of a run's rows (``files.run_directory.Samples``) and the payload the user
     gave (kg; 0: unknown: the reference mass, ``payload_assumed``, so the compliance is still
     identified, as the legs' compliance times the load over it), with the legs' masses (6,) kg
     (None: massless). The directions are left out (None) when a row has none (a

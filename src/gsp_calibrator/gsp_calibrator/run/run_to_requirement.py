@@ -1,8 +1,7 @@
-"""What a calibration that stops when it is good enough needs besides the run loop (pure, no
-rclpy; docs/upkeep.md): its rule from the calibrator's settings, the judgement of the rows so far
-(the calibrator's own identification and cross-validation, run in a worker thread), the pool
-postures it may add, and the record it leaves in ``result.json``. The decisions are
-:mod:`gsp_kinematics.upkeep.stopping`; the loop is ``gsp_calibrator.run.flow.CalibrationRun._collect``.
+"""A calibration that stops when it is good enough (``stop_when_accurate``, docs/upkeep.md;
+pure): its rule, the judgement of the rows so far (in a worker thread), the pool postures it
+may add and its record in ``result.json``. The decisions are
+:mod:`gsp_kinematics.upkeep.stopping`; the loop is the run's collection (``run.flow``).
 """
 
 import concurrent.futures
@@ -12,9 +11,9 @@ import time
 
 import numpy as np
 
+from gsp_calibrator.run import reused_rows
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.postures import posture_pool, selection_formulation
-from gsp_calibrator.upkeep import reused_rows
 from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.estimation.identification import resolve_free
 from gsp_kinematics.estimation.prediction import accuracy_summary
@@ -61,7 +60,7 @@ class Judgement:
 
 
 def judge_rows(settings, samples, rule):
-    """Identify ``samples`` (the rows so far, ``run.directory.Samples``) as the calibrator does
+    """Identify ``samples`` (the rows so far, ``files.run_directory.Samples``) as the calibrator does
     (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
     (:class:`Judgement`). Runs in a worker thread."""
     started = time.perf_counter()
@@ -190,20 +189,20 @@ class StoppingState:
     reused: object = None
 
     @classmethod
-    def start(cls, settings, session, latest_legs, reused=None):
-        """Before the first posture of a run (``session``, its plan the postures left) with
+    def start(cls, settings, run_record, latest_legs, reused=None):
+        """Before the first posture of a run (``run_record``, its plan the postures left) with
         ``reused`` rows (None: none); None unless ``settings.stop_when_accurate``."""
         if not settings.stop_when_accurate:
             return None
-        plan = [session.state.poses[k - 1] for k in session.remaining]
+        plan = [run_record.state.poses[k - 1] for k in run_record.remaining]
         start = start_pose_of(settings, latest_legs, plan[0] if plan else home_pose())
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
         return cls(rule_for(settings), start, plan, worker, reused=reused)
 
-    def rows(self, session):
-        """The rows of ``session`` so far and the reused ones (numbered after its postures)."""
-        rows = session.rows_so_far()
-        return reused_rows.joined(rows, self.reused, len(session.state.poses) + 1)
+    def rows(self, run_record):
+        """The rows of ``run_record`` so far and the reused ones (numbered after its postures)."""
+        rows = run_record.rows_so_far()
+        return reused_rows.joined(rows, self.reused, len(run_record.state.poses) + 1)
 
     def submit(self, settings, rows):
         """Judge ``rows`` (:meth:`rows`) in the worker thread."""
@@ -247,12 +246,14 @@ class StoppingState:
     def close(self):
         self.worker.shutdown(wait=False, cancel_futures=True)
 
-    def record(self, settings, session):
+    def record(self, settings, run_record):
         """``result.json`` ``collection.run_to_requirement``: met or not, postures, added, the
-        platform time spent (the postures ``session`` commanded, in order from the start, at the
+        platform time spent (the postures ``run_record`` commanded, in order from the start, at the
         leg limits with the dwell) and the fixed plan's, the latest bounds and the judgements."""
         rule, plan_poses = self.rule, self.plan
-        commanded_poses = session.state.poses[: len(session.state.poses) - len(session.remaining)]
+        commanded_poses = run_record.state.poses[
+            : len(run_record.state.poses) - len(run_record.remaining)
+        ]
         spent = platform_time_s(settings, self.start_pose, commanded_poses, rule)
         fixed = platform_time_s(settings, self.start_pose, plan_poses, rule)
         bounds = (self.latest.bounds if self.latest is not None else stopping.UNKNOWN).record()

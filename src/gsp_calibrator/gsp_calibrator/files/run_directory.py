@@ -143,10 +143,6 @@ class Samples:
             self.directions[keep],
         )
 
-    def as_tuple(self):
-        """``(commanded_poses, leg_lengths, readings, n_samples, stamps)``."""
-        return self.commanded_poses, self.leg_lengths, self.readings, self.n_samples, self.stamps
-
 
 def _padded(tables, lags):
     """``tables`` (M, 4, L) padded with NaN to at least ``lags`` lags, all the same width."""
@@ -324,11 +320,6 @@ def read_samples(path):
     return samples_from_csv(text, source=str(path))
 
 
-def load_samples(path):
-    """``(commanded_poses (M, 6), leg_lengths (M, 6), readings (M, 4), n_samples, stamps)``."""
-    return read_samples(path).as_tuple()
-
-
 # --- the directory -------------------------------------------------------------------------------
 
 
@@ -393,9 +384,6 @@ class RunDirectory:
 
     def read_samples(self, name=SAMPLES_FILE):
         return read_samples(self.file(name))
-
-    def load_samples(self, name=SAMPLES_FILE):
-        return load_samples(self.file(name))
 
     def write_geometry(self, geometry, name=RESULT_FILE, comment=None):
         """The canonical params file of ``geometry`` (the core's atomic ``save_geometry``)."""
