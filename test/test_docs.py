@@ -40,13 +40,20 @@ def test_the_figures_page_renders_every_number_of_the_json():
     generator = _generator('gen-figures')
     document = {'section': {'description': 'what', 'a': {'b': 0.000123456, 'c': [1, 2]}}}
     text = generator.render_document('bench', document)
-    assert '0.0001235' in text and 'what' in text and '`a.c`' in text
+    assert '| `a` | `b` 0.0001235; `c` [1, 2] |' in text and 'Description: what' in text
 
 
 # --- names in the docs ---------------------------------------------------------------------------
 
 DOCS = [WS / 'README.md', *sorted((WS / 'docs').glob('*.md'))]
 SRC = WS / 'src'
+#: Every Python file of the project (this file's own examples aside).
+PYTHON_FILES_FOR_REFERENCES = sorted(
+    path
+    for folder in ('src', 'test', 'test_support', 'bench')
+    for path in (WS / folder).glob('**/*.py')
+    if path != Path(__file__).resolve()
+)
 PACKAGES = sorted(path.name for path in SRC.glob('*/gsp_*') if (path / '__init__.py').is_file())
 
 
@@ -118,6 +125,29 @@ def test_the_docs_name_only_modules_and_files_that_exist(doc):
         if Path(name).name not in _FILE_NAMES
     ]
     assert not missing, f'{doc.name} names what src/ does not hold: {missing}'
+
+
+# --- the README's map -----------------------------------------------------------------------------
+
+#: Every package's direct subpackages (``gsp_calibrator/upkeep``...) and the console scripts
+#: (the benchmarks' entry points are documented as ``make bench`` and ``make paper``).
+SUBPACKAGES = sorted(
+    path.parent.relative_to(SRC / path.parts[-4]).as_posix()
+    for path in SRC.glob('*/gsp_*/*/__init__.py')
+)
+CONSOLE_SCRIPTS = sorted(
+    name.strip()
+    for setup in SRC.glob('*/setup.cfg')
+    for name, _, target in (line.partition('=') for line in setup.read_text().splitlines())
+    if ':main' in target and 'bench' not in target and 'gsp_experiments' not in target
+)
+
+
+def test_the_readme_names_every_subpackage_and_tool():
+    text = (WS / 'README.md').read_text(encoding='utf-8')
+    missing = [name for name in SUBPACKAGES if f'`{name.split("/")[1]}/`' not in text]
+    missing += [name for name in CONSOLE_SCRIPTS if f'`{name}`' not in text]
+    assert not missing, f'README.md does not name: {missing}'
 
 
 # --- a package's list of its modules --------------------------------------------------------------
@@ -192,12 +222,44 @@ def test_every_link_reaches_a_file_and_a_heading(doc):
     assert not broken, f'{doc.name} links to what does not exist: {broken}'
 
 
+#: ``docs/<page>.md`` or ``docs/<page>.md#<anchor>`` named in code, tests, scripts or the Makefile.
+_DOCS_REFERENCE = re.compile(r'docs/([a-z_]+\.md)(?:#([a-z0-9_-]+))?')
+CODE_FILES = [
+    *PYTHON_FILES_FOR_REFERENCES,
+    *(path for path in (WS / 'scripts').iterdir() if path.is_file()),
+    WS / 'Makefile',
+]
+
+
+def dangling_docs_references(text):
+    """The ``docs/...md#anchor`` references of ``text`` whose page or heading does not exist."""
+    missing = []
+    for page, anchor in _DOCS_REFERENCE.findall(text):
+        path = WS / 'docs' / page
+        if not path.is_file() or (anchor and anchor not in set(anchors(path.read_text()))):
+            missing.append(f'docs/{page}' + (f'#{anchor}' if anchor else ''))
+    return missing
+
+
+def test_code_names_only_docs_pages_and_headings_that_exist():
+    missing = {
+        str(path.relative_to(WS)): found
+        for path in CODE_FILES
+        if (found := dangling_docs_references(path.read_text(encoding='utf-8', errors='ignore')))
+    }
+    assert not missing, f'docs pages or headings named in code do not exist: {missing}'
+
+
 def test_the_link_check_sees_a_missing_file_and_a_missing_heading():
     doc = WS / 'docs' / 'nodes.md'
     assert broken_links(doc, '[a](nodes.md) [b](#interfaces) [c](https://x.org/y)') == []
     assert broken_links(doc, '[a](gone.md) [b](nodes.md#no-such-heading)') == [
         'gone.md',
         'nodes.md#no-such-heading',
+    ]
+    assert dangling_docs_references('docs/nodes.md#diagnostics, docs/gone.md, docs/nodes.md#x') == [
+        'docs/gone.md',
+        'docs/nodes.md#x',
     ]
     assert list(anchors('## The `run` (a), b.json\n## The `run` (a), b.json\n')) == [
         'the-run-a-bjson',
