@@ -40,7 +40,8 @@ def test_the_figures_page_renders_every_number_of_the_json():
     generator = _generator('gen-figures')
     document = {'section': {'description': 'what', 'a': {'b': 0.000123456, 'c': [1, 2]}}}
     text = generator.render_document('bench', document)
-    assert '| `a` | `b` 0.0001235; `c` [1, 2] |' in text and 'Description: what' in text
+    assert '| **section** `a` | `b` 0.0001235; `c` [1, 2] |' in text
+    assert '| **section** description | what |' in text
 
 
 # --- names in the docs ---------------------------------------------------------------------------
