@@ -9,6 +9,7 @@
 #   make demo    end-to-end calibration demo (gsp_demo; DEMO_ARGS=... passes arguments)
 #   make paper   paper reproduction (bench/gsp_bench/paper_cli.py; ARGS=...)
 #   make bench   benchmark (bench/gsp_bench, one module a section; ARGS=...)
+#   make figures docs/figures.md from the bench and paper JSON (copied from results/ first)
 #   make clean   remove build/ install/ log/ and caches (distclean: also .venv)
 #
 # Every run keeps DDS on loopback in a ROS domain of its own: each test session, demo and bench
@@ -92,6 +93,11 @@ paper: build
 
 bench: build
 	$(BENCH_ENV) && python -m gsp_bench $(ARGS)
+
+# docs/figures.md from the committed JSON; results/*.json (make paper, make bench) taken in first.
+.PHONY: figures
+figures:
+	$(VPY) scripts/gen-figures --update
 
 clean:
 	rm -rf build install log .pytest_cache .ruff_cache src/*/.pytest_cache src/*/*.egg-info

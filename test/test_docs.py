@@ -1,5 +1,6 @@
-"""The docs match the code: docs/parameters.md is rendered from the nodes' spec tables, and every
-source path and module name the README and docs/ give exists."""
+"""The docs match the code: docs/parameters.md and docs/figures.md are generated (from the nodes'
+spec tables, from the committed bench and paper JSON), every relative link of the README and
+docs/ reaches a file and a heading, and every source path and module name they give exists."""
 
 import ast
 import builtins
@@ -11,11 +12,11 @@ from pathlib import Path
 import pytest
 
 WS = Path(__file__).resolve().parents[1]
-SCRIPT = WS / 'scripts' / 'gen-parameter-docs'
 
 
-def _generator():
-    loader = importlib.machinery.SourceFileLoader('gen_parameter_docs', str(SCRIPT))
+def _generator(name='gen-parameter-docs'):
+    path = WS / 'scripts' / name
+    loader = importlib.machinery.SourceFileLoader(name.replace('-', '_'), str(path))
     module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
     loader.exec_module(module)
     return module
@@ -28,10 +29,44 @@ def test_parameter_docs_match_the_spec_tables():
     )
 
 
+#: docs/ is reference, not history: at most this many lines (issue 35), the generated pages too.
+DOCS_LINE_BUDGET = 3000
+
+
+def test_the_docs_stay_within_their_line_budget():
+    lines = sum(len(path.read_text(encoding='utf-8').splitlines()) for path in DOCS[1:])
+    assert lines <= DOCS_LINE_BUDGET, (
+        f'docs/*.md hold {lines} lines, over {DOCS_LINE_BUDGET}: say what the code does today, '
+        'once; history goes to CHANGELOG.md'
+    )
+
+
+def test_figures_match_the_committed_json():
+    generator = _generator('gen-figures')
+    assert generator.OUTPUT.read_text() == generator.render(), (
+        f'docs/figures.md is out of date: run `{generator.COMMAND}` and commit the result'
+    )
+
+
+def test_the_figures_page_renders_every_number_of_the_json():
+    generator = _generator('gen-figures')
+    document = {'section': {'description': 'what', 'a': {'b': 0.000123456, 'c': [1, 2]}}}
+    text = generator.render_document('bench', document)
+    assert '| **section** `a` | `b` 0.0001235; `c` [1, 2] |' in text
+    assert '| **section** description | what |' in text
+
+
 # --- names in the docs ---------------------------------------------------------------------------
 
 DOCS = [WS / 'README.md', *sorted((WS / 'docs').glob('*.md'))]
 SRC = WS / 'src'
+#: Every Python file of the project (this file's own examples aside).
+PYTHON_FILES_FOR_REFERENCES = sorted(
+    path
+    for folder in ('src', 'test', 'test_support', 'bench')
+    for path in (WS / folder).glob('**/*.py')
+    if path != Path(__file__).resolve()
+)
 #: The benchmark and the paper reproduction (bench/gsp_bench: not a package under src/).
 BENCH = WS / 'bench'
 PACKAGES = sorted(
@@ -109,6 +144,146 @@ def test_the_docs_name_only_modules_and_files_that_exist(doc):
         if Path(name).name not in _FILE_NAMES
     ]
     assert not missing, f'{doc.name} names what src/ does not hold: {missing}'
+
+
+# --- the README's map -----------------------------------------------------------------------------
+
+#: Every package's direct subpackages (``gsp_calibrator/upkeep``...) and the console scripts
+#: (the benchmarks' entry points are documented as ``make bench`` and ``make paper``).
+SUBPACKAGES = sorted(
+    path.parent.relative_to(SRC / path.parts[-4]).as_posix()
+    for path in SRC.glob('*/gsp_*/*/__init__.py')
+)
+CONSOLE_SCRIPTS = sorted(
+    name.strip()
+    for setup in SRC.glob('*/setup.cfg')
+    for name, _, target in (line.partition('=') for line in setup.read_text().splitlines())
+    if ':main' in target and 'bench' not in target and 'gsp_experiments' not in target
+)
+
+
+def test_the_readme_names_every_subpackage_and_tool():
+    text = (WS / 'README.md').read_text(encoding='utf-8')
+    missing = [name for name in SUBPACKAGES if f'`{name.split("/")[1]}/`' not in text]
+    missing += [name for name in CONSOLE_SCRIPTS if f'`{name}`' not in text]
+    assert not missing, f'README.md does not name: {missing}'
+
+
+# --- a package's list of its modules --------------------------------------------------------------
+
+#: ```name`` (what it is)` or `(``name``)` in a package's docstring: one of its modules.
+_LISTED_MODULE = re.compile(r'``(\w+)`` \(|\(``(\w+)``')
+PACKAGE_INITS = sorted(SRC.glob('*/gsp_*/**/__init__.py'))
+
+
+def unknown_listed_modules(init):
+    """The modules a package's docstring lists (see ``_LISTED_MODULE``) that it does not hold."""
+    folder = init.parent
+    tree = ast.parse(init.read_text(encoding='utf-8'))
+    listed = [a or b for a, b in _LISTED_MODULE.findall(ast.get_docstring(tree) or '')]
+    return [
+        name
+        for name in listed
+        if not name.startswith('gsp_')  # a console script or a package
+        and not (folder / f'{name}.py').is_file()
+        and not (folder / name / '__init__.py').is_file()
+        and name not in _top_level_names(tree)
+    ]
+
+
+@pytest.mark.parametrize('init', PACKAGE_INITS, ids=lambda path: str(path.relative_to(SRC)))
+def test_a_package_lists_only_modules_it_holds(init):
+    unknown = unknown_listed_modules(init)
+    assert not unknown, f'{init.relative_to(WS)} lists modules it does not hold: {unknown}'
+
+
+def test_the_module_list_check_sees_a_missing_module(tmp_path):
+    (tmp_path / 'names.py').write_text('')
+    init = tmp_path / '__init__.py'
+    init.write_text('"""``names`` (topics), ``checks`` (poses), the rule (``names``)."""\n')
+    assert unknown_listed_modules(init) == ['checks']
+
+
+# --- links in the docs ---------------------------------------------------------------------------
+
+_LINK = re.compile(r'\[[^\]]*\]\(([^)\s]+)\)')
+_FENCE = re.compile(r'^```.*?^```', re.M | re.S)
+
+
+def anchors(text):
+    """The #anchors GitHub gives the headings of Markdown ``text`` (duplicates get -1, -2...)."""
+    seen = {}
+    for heading in re.findall(r'^#{1,6} +(.+?) *$', _FENCE.sub('', text), re.M):
+        slug = re.sub(r'[^\w\- ]', '', heading.lower()).replace(' ', '-')
+        count = seen.get(slug, 0)
+        seen[slug] = count + 1
+        yield slug if count == 0 else f'{slug}-{count}'
+
+
+def broken_links(doc, text):
+    """The relative links of ``text`` (a file at ``doc``) whose file or #anchor does not exist."""
+    broken = []
+    for target in _LINK.findall(_FENCE.sub('', text)):
+        if re.match(r'[a-z]+:', target):
+            continue  # http:, https:, mailto:
+        path, _, anchor = target.partition('#')
+        file = (doc.parent / path).resolve() if path else doc
+        if not file.exists():
+            broken.append(target)
+        elif anchor and file.suffix == '.md' and anchor not in set(anchors(file.read_text())):
+            broken.append(target)
+    return broken
+
+
+@pytest.mark.parametrize('doc', DOCS, ids=lambda path: path.name)
+def test_every_link_reaches_a_file_and_a_heading(doc):
+    broken = broken_links(doc, doc.read_text(encoding='utf-8'))
+    assert not broken, f'{doc.name} links to what does not exist: {broken}'
+
+
+#: ``docs/<page>.md`` or ``docs/<page>.md#<anchor>`` named in code, tests, scripts or the Makefile.
+_DOCS_REFERENCE = re.compile(r'docs/([a-z_]+\.md)(?:#([a-z0-9_-]+))?')
+CODE_FILES = [
+    *PYTHON_FILES_FOR_REFERENCES,
+    *(path for path in (WS / 'scripts').iterdir() if path.is_file()),
+    WS / 'Makefile',
+]
+
+
+def dangling_docs_references(text):
+    """The ``docs/...md#anchor`` references of ``text`` whose page or heading does not exist."""
+    missing = []
+    for page, anchor in _DOCS_REFERENCE.findall(text):
+        path = WS / 'docs' / page
+        if not path.is_file() or (anchor and anchor not in set(anchors(path.read_text()))):
+            missing.append(f'docs/{page}' + (f'#{anchor}' if anchor else ''))
+    return missing
+
+
+def test_code_names_only_docs_pages_and_headings_that_exist():
+    missing = {
+        str(path.relative_to(WS)): found
+        for path in CODE_FILES
+        if (found := dangling_docs_references(path.read_text(encoding='utf-8', errors='ignore')))
+    }
+    assert not missing, f'docs pages or headings named in code do not exist: {missing}'
+
+
+def test_the_link_check_sees_a_missing_file_and_a_missing_heading():
+    doc = WS / 'docs' / 'nodes.md'
+    assert broken_links(doc, '[a](nodes.md) [b](#interfaces) [c](https://x.org/y)') == []
+    assert broken_links(doc, '[a](gone.md) [b](nodes.md#no-such-heading)') == [
+        'gone.md',
+        'nodes.md#no-such-heading',
+    ]
+    assert dangling_docs_references('docs/nodes.md#diagnostics, docs/gone.md, docs/nodes.md#x') == [
+        'docs/gone.md',
+        'docs/nodes.md#x',
+    ]
+    assert list(anchors('## The `run` (a), b.json\n## The `run` (a), b.json\n')) == [
+        'the-run-a-bjson',
+        'the-run-a-bjson-1',
+    ]
 
 
 def test_the_name_check_sees_a_moved_module_and_a_missing_file():

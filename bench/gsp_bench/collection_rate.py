@@ -1,5 +1,5 @@
 """``collection_rate`` section of ``gsp_bench``: the sensor-message rate the calibrator's
-collection sustains on one core (docs/results.md, docs/architecture.md#synchronisation).
+collection sustains on one core (docs/figures.md, docs/architecture.md#synchronisation).
 
 Postures of the calibrator's default settings (and of a 300-sample window) are collected as the
 node collects them, in one thread and as fast as it goes: a command, the platform's ``moving``

@@ -1,4 +1,4 @@
-"""The ``effects`` section of ``make bench`` (docs/platform_effects.md#the-bench): the plan
+"""The ``effects`` section of ``make bench`` (docs/platform_effects.md#the-bench-effects-section): the plan
 augmented for the effect groups (:func:`gsp_kinematics.planning.effect_plan.augment_route`: reference
 revisits, both approach directions) and the model chosen from the data (``auto``,
 :func:`gsp_kinematics.estimation.verdict.model_choice.choose_model`) on the realistic platform (all four effects),

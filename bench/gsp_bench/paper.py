@@ -24,7 +24,7 @@ the identification's covariance predicts at the validation postures). ``paper_ma
 (:mod:`.paper_matched`, ``--skip-matched``): the search for a platform that reproduces the paper's
 initial error, and Table 3 rerun on it.
 
-Writes ``results/paper.json`` (its keys: docs/results.md) and one PNG per nominal set.
+Writes ``results/paper.json`` (its keys: docs/figures.md) and one PNG per nominal set.
 """
 
 import concurrent.futures

@@ -1,4 +1,4 @@
-"""``platform_time`` section of ``gsp_bench`` (docs/planning.md, docs/results.md).
+"""``platform_time`` section of ``gsp_bench`` (docs/planning.md, docs/figures.md).
 
 * ``selection_order_s``, ``route_s``, ``lower_bound_s``: the travel time of the default plan's
   60 selected postures from the home pose in selection order, in route order, and the route's

@@ -1,6 +1,6 @@
 """Choose the model from the data (``auto``): which effect groups to free, by a significance
 test of the fit with the known noise, guarded by cross-validated accuracy
-(docs/platform_effects.md#choosing-the-model).
+(docs/platform_effects.md#choosing-the-model-auto).
 
 Forward selection from the plain model (``base``, e.g. ``extended``): each round fits the
 current set plus each remaining effect group whose run design allows it, and keeps the group
