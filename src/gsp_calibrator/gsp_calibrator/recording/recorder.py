@@ -23,8 +23,14 @@ import threading
 import time
 
 from gsp_calibrator.batched_subscription import BatchedCallback
-from gsp_calibrator.recording.mcap_format import RecordingError, message_class
-from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
+from gsp_calibrator.recording.mcap_format import (
+    RecordingError,
+    message_class,
+)
+from gsp_calibrator.recording.mcap_io import (
+    RUN_METADATA_NAME,
+    McapRecorder,
+)
 from gsp_calibrator.settings import STORED_PARAMETERS
 from gsp_kinematics.fileio import json_safe
 from gsp_msgs_py import names
