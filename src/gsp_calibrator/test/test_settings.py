@@ -125,6 +125,17 @@ def test_the_settings_and_their_subsets_are_derived_from_the_one_table():
     assert 'sigma_lvdt' in SELECTION_PARAMETERS  # the assumed noise weighs the selection
 
 
+def test_the_requirement_is_the_three_required_parameters():
+    values = {
+        'required_position_accuracy_mm': 0.05,
+        'required_orientation_accuracy_deg': 0.02,
+        'required_improvement_over_nominal': 4.0,
+    }
+    requirement = CalibratorSettings.from_values(values).requirement
+    assert (requirement.position_mm, requirement.orientation_deg) == (0.05, 0.02)
+    assert requirement.improvement == 4.0
+
+
 @pytest.mark.parametrize(
     'name, value, expected',
     [

@@ -93,19 +93,6 @@ def quaternion_to_matrix(quaternion):
     return matrices.reshape(quaternion.shape[:-1] + (3, 3))
 
 
-def pose_to_position_quaternion(poses):
-    """Split pose vectors ``[..., 6]`` into positions ``[..., 3]`` and quaternions ``[..., 4]``."""
-    poses = np.asarray(poses, dtype=float)
-    return poses[..., :3].copy(), matrix_to_quaternion(euler_to_matrix(poses[..., 3:]))
-
-
-def position_quaternion_to_pose(position, quaternion):
-    """Pose vectors ``[..., 6]`` from positions and ``(x, y, z, w)`` quaternions."""
-    position = np.asarray(position, dtype=float)
-    euler = matrix_to_euler(quaternion_to_matrix(quaternion))
-    return np.concatenate([position, euler], axis=-1)
-
-
 def rotation_angle_between(rotation_a, rotation_b):
     """Angle (rad) of the relative rotation ``R_a^T R_b``."""
     relative = np.swapaxes(rotation_a, -1, -2) @ rotation_b

@@ -10,8 +10,6 @@ from gsp_kinematics.rotation import (
     euler_to_matrix_derivatives,
     matrix_to_euler,
     matrix_to_quaternion,
-    pose_to_position_quaternion,
-    position_quaternion_to_pose,
     quaternion_to_matrix,
     rotation_angle_between,
 )
@@ -132,13 +130,6 @@ def test_degenerate_quaternion_is_rejected():
         quaternion_to_matrix([0.0, 0.0, 0.0, 0.0])
     with pytest.raises(ValueError):
         quaternion_to_matrix([np.nan, 0.0, 0.0, 1.0])
-
-
-def test_pose_position_quaternion_round_trip(rng):
-    poses = np.column_stack([rng.normal(size=(200, 3)), random_euler(rng, 200)])
-    position, quaternion = pose_to_position_quaternion(poses)
-    np.testing.assert_array_equal(position, poses[:, :3])
-    np.testing.assert_allclose(position_quaternion_to_pose(position, quaternion), poses, atol=1e-12)
 
 
 def test_euler_derivatives_match_finite_differences(rng, fd):

@@ -4,7 +4,12 @@ Publishers and subscribers of a topic both use the profile in :data:`TOPIC_QOS` 
 subscriber would not match a best-effort publisher).
 """
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
 
 from . import names
 

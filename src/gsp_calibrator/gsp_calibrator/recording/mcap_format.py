@@ -69,7 +69,10 @@ def normalise_type_name(type_name):
 def _share_directories(package):
     directories = []
     try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+        from ament_index_python.packages import (
+            PackageNotFoundError,
+            get_package_share_directory,
+        )
 
         try:
             directories.append(get_package_share_directory(package))

@@ -107,7 +107,9 @@ class ReportInputs:
 def result_data(result, inputs=ReportInputs()):
     """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
     ``result`` with :class:`ReportInputs` ``inputs``."""
-    from gsp_calibrator.report.accuracy import result_json_entry
+    from gsp_calibrator.report.accuracy import (
+        result_json_entry,
+    )
 
     inputs = inputs.completed(result)
     analysis, truth = inputs.analysis, inputs.truth

@@ -1,13 +1,5 @@
 """Does the model explain the data? Robust weights, studentised outliers, noise estimates and the
-goodness of fit of an identification (docs/sensor_errors.md says how to read the verdict).
-
-Everything works on *normalised* residuals ``z = (measured - model) / sigma``: under the model and
-the right sigmas, ``z_i`` has variance ``r_i``, its redundancy number (``_solver.redundancy``).
-Two goodness-of-fit tests: ``chi2`` when the sigmas are given (configured), and the lack-of-fit
-``F`` test when they are estimated from the run (the between-posture residuals against the
-independent within-posture scatter; a chi-square against the sigmas estimated from the same
-residuals would be circular).
-"""
+goodness of fit of an identification (docs/sensor_errors.md says how to read the verdict)."""
 
 import dataclasses
 import math

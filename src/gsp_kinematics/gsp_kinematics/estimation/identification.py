@@ -1,22 +1,4 @@
-"""Parameter identification (paper section 4.1) and an errors-in-variables alternative.
-
-Formulations:
-
-* ``'fk'``: per posture, forward kinematics of the measured leg lengths under the current
-  parameters predicts the device readings ``[alpha, beta, phi, d_m]``; residuals are measured minus
-  predicted, each divided by its sensor's sigma. The Jacobian comes from the implicit function
-  theorem through FK (no finite differences).
-* ``'paper'``: eq (11): residuals ``alpha, beta, phi`` only, with ``D = D0 + Dm`` as an input.
-* ``'implicit'``: maximum likelihood with the M poses as unknowns beside the parameters (implicit
-  loop / errors in variables). Every sensor, the six legs included, is a residual over its sigma;
-  there is no inner FK loop, and the block-sparse normal equations are solved through a Schur
-  complement on the 6x6 pose blocks.
-
-All three are minimised by the same Levenberg-Marquardt driver (:mod:`gsp_kinematics.estimation._solver.lm`,
-Marquardt's diagonal scaling), which stops on the step ``du`` or on the change of the residual
-``dX``, as in the paper's Fig. 5; the formulations are its models
-(:mod:`gsp_kinematics.estimation._solver.formulations`). :data:`TERMINATION_MESSAGES` names every status.
-"""
+"""Parameter identification (paper section 4.1) and an errors-in-variables alternative."""
 
 import dataclasses
 import math

@@ -1,12 +1,5 @@
-"""Noise of an averaged row from correlated samples, and a settle test for a window (pure numpy).
-
-A posture's row is the mean of ``n`` samples. With correlated samples its std is not ``s/sqrt(n)``:
-``var(mean) = (1/n) [g0 + 2 sum_k (1 - k/n) g_k]``, with ``g_k`` the lag-k autocovariance, and
-the effective sample count is ``n_eff = g0 / var(mean)``. :func:`noise_of_mean` estimates both per
-channel from the scatter within each posture (the posture's own level is removed), pooled over
-postures. docs/sensor_errors.md explains the choices (truncation, the bias of removing each
-posture's mean, and the windows too short to tell).
-"""
+"""Noise of an averaged row from correlated samples, and a settle test for a window (pure numpy)
+(docs/sensor_errors.md)."""
 
 import dataclasses
 import math

@@ -1,27 +1,4 @@
-"""The noise of the averaged posture rows, estimated from the run itself (docs/sensor_errors.md).
-
-Two independent estimates of each channel's row noise (legs, inclinometer, encoder, LVDT):
-
-* **within** a posture: the std of a window's mean from the autocovariance within the windows,
-  pooled over postures (:func:`within_row_noise`: ``s / sqrt(n_eff)``, ``n_eff`` the effective
-  sample count, ``n`` for white samples); many degrees of freedom, but only a lower bound when
-  the windows are short against the noise's correlation time (``WithinNoise.lower_bound``);
-* **between** postures: the fit's residuals, ``sigma_g^2 = sigma_used^2 q_g / r_g`` with ``q_g``
-  the channel's sum of squared normalised residuals and ``r_g`` the sum of its redundancy numbers
-  (Förstner's variance-component estimate, iterated with the weights it gives). It measures the
-  noise of the averaged row itself, correlated or not, but has only the fit's redundancy.
-
-Where both exist and agree (the between/within F test of the channel accepts at 1 %, Bonferroni
-over the channels), the pooled variance ``(r_g v_between + d_g v_within) / (r_g + d_g)`` is used;
-where the between-posture residuals are significantly larger, the weights take the between
-estimate (the rows do scatter that much about the model) but the *noise* stays the within
-estimate, and the excess is the **unmodelled** part, ``sqrt(between^2 - within^2)``: what the
-model leaves unexplained, a property of the platform that averaging does not reduce
-(:func:`unmodelled_error`, docs/verdict.md). Where the within estimate is only a lower bound,
-the between estimate is both weight and noise (nothing tells the two apart); where only one
-exists, that one. The goodness of fit is then the lack-of-fit F test (:func:`fit_test`) over the
-channels whose within estimate is not a lower bound.
-"""
+"""The noise of the averaged posture rows, estimated from the run itself (docs/sensor_errors.md)."""
 
 import dataclasses
 import math

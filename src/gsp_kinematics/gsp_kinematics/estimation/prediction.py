@@ -1,36 +1,4 @@
-"""Predicted accuracy of a calibrated platform from the parameter covariance (Cramér-Rao).
-
-The controller commands ``q = IK(u_hat, X_c)``; the real platform (parameters ``u``) settles at the
-pose ``X`` with ``IK(u, X) = q``. To first order the pose error is ``dX = S (u_hat - u)`` with the
-pose sensitivity ``S = (dq/dX)^-1 dq/du`` (only the 42 leg parameters and the leg gain errors
-move the platform; the device's parameters and its sensors' errors do not). With ``Cov(u_hat)`` from the identification, ``Cov(dX) = S C S^T``; orientation
-errors are taken as the rotation vector of ``R_cmd^T R_real`` (body angular Jacobian of eq (2)),
-so they compare with :func:`gsp_kinematics.model.validation.pose_errors`.
-
-Identified effects the controller compensates (``q_i (1 + kq_i) = IK_i + sum theta h_i``) move
-the platform likewise: ``dq/dX dX = h (theta_hat - theta)`` (:func:`effect_pose_sensitivities`).
-Their errors are correlated with the geometry's (a joint offset's regressor is nearly the leg
-offset's), and the controller uses both together, so their errors largely cancel at the pose:
-the prediction takes the full covariance, geometry and effects jointly. Only the groups whose
-regressor depends on the posture alone (:data:`POSTURE_EFFECT_GROUPS`) get columns; backlash
-(direction of travel) and thermal growth (time; not compensated, see below) have zero columns.
-
-Per pose the prediction is the expected error magnitude ``E|dp|`` (mm) and ``E|dw|`` (deg) of a
-zero-mean Gaussian with that covariance: what a validation's mean error estimates.
-
-A real platform is not exactly the model: what the model leaves unexplained (``unmodelled``, the
-excess of the residuals between postures over the noise within them, per channel:
-:func:`gsp_kinematics.estimation.noise_from_data.unmodelled_error`) puts the legs and the device at odds
-at every pose, fitted or not. Its pose covariance (:func:`reading_pose_covariance`: the legs'
-part through FK, the device's through eq 9) is added to the covariance term.
-
-Thermal growth the model identified is not compensated by the controllers (they hold the geometry
-of the reference instant): over the run's span the legs are longer or shorter than at that
-instant by ``strain_rate_i (w(t) - w(t_ref)) L_i``. Its rms over the run's times
-(:func:`thermal_strain_rms`) gives a pose covariance through ``(dq/dX)^-1``
-(:func:`thermal_pose_covariance`), added like the unmodelled part: the cost of leaving it
-uncompensated over a span like the run's.
-"""
+"""Predicted accuracy of a calibrated platform from the parameter covariance (Cramér-Rao)."""
 
 import dataclasses
 import math

@@ -1,19 +1,5 @@
-"""The best rigid geometry for a controller that cannot compensate the identified effects.
-
-A controller that runs the 44 parameters only (it declares no ``geometry.effects.*``) gets the
-identified effects *folded* into its rigid geometry: the base and platform joints and the leg
-offsets (``A_i``, ``B_i``, ``L_off_i``) whose leg lengths best reproduce, by least squares over
-workspace postures, the leg lengths the compensating controller commands there
-(:func:`gsp_kinematics.model.effect_groups.compensated_leg_readings`). ``D0``, ``gamma`` and the sensor errors stay as
-identified (the fold is in true leg lengths, so the leg gains keep their meaning).
-
-The effects at the operating state: the backlash at the mean of both approach directions (no
-rigid geometry knows from where a leg arrives: its share is zero) and the thermal growth at the
-reference instant the geometry refers to (zero: the controllers do not compensate it either). So
-the fold takes in the compliance under the identified load and the base joints' axis offsets:
-their mean over the workspace, not their variation with the posture, which is what a rigid
-controller leaves (docs/platform_effects.md).
-"""
+"""The best rigid geometry for a controller that cannot compensate the identified effects
+(docs/platform_effects.md)."""
 
 import dataclasses
 

@@ -1,32 +1,4 @@
-"""The effects as parameter groups of the identification (docs/platform_effects.md).
-
-Each group adds one parameter per leg to the leg sensors' model (``'implicit'`` formulation):
-
-    q_i (1 + kq_i) = |R B_i + t - A_i| - L_off_i + sum_g theta_g,i h_g,i(posture)
-
-with the regressors ``h``:
-
-- ``compliance`` (``compliance1..6``, m/N): ``h = f_i``, the leg's axial force (N, compression
-  positive) under the user's ``payload_mass`` at ``centre_of_mass`` and the legs' own
-  ``leg_mass`` (:func:`.effects.leg_forces` of the nominal geometry at the posture). The device sees only the deflection ``c_i f_i``: so it
-  identifies ``c_i m``, the compliance times the mass the user gives.
-- ``backlash`` (``backlash1..6``, m): ``h = d_i / 2``, ``d_i`` the leg's approach direction (+1
-  extending) from the commanded sequence. Without both directions in the run it is the leg
-  offset.
-- ``thermal`` (``strain_rate1..6``, 1/s): ``h = -(w(t) - w(t_ref)) L_i``, a leg growth
-  proportional to the leg's length ``L_i`` (at the posture) and to the warming since the
-  reference instant ``t_ref`` on the clock ``w`` (``EffectDesign.thermal_clock``: ``t`` itself,
-  or a first-order rise ``tau (1 - exp(-t / tau))``); the geometry is the one at ``t_ref``. A steady growth is a leg
-  gain (``kq_i``): only the growth during the run is the group's.
-- ``joint_offsets`` (``joint_offset1..6``, m): ``h = -|u_i - (a_i . u_i) a_i|``, the base U
-  joint's axis offset seen along the leg (``a_i`` its first axis,
-  :func:`.effects.base_joint_first_axes`); its constant part is the leg offset, only its
-  variation with the leg's direction is the joint's.
-
-The regressors are taken at the estimated poses; the derivatives of the model with respect to
-the pose leave out ``theta dh/dX`` (relative size ``theta |dh/dX|``, about 1e-4 for 40 kg on
-30 N/um legs).
-"""
+"""The effects as parameter groups of the identification (docs/platform_effects.md)."""
 
 import dataclasses
 

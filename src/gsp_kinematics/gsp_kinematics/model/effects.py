@@ -1,24 +1,5 @@
-"""The effects' parameters and each effect's physics, vectorised over postures (M).
-
-Sign conventions (docs/platform_effects.md):
-
-- compliance: ``leg_forces`` are axial, compression positive (N), in each leg's spring; a leg
-  in compression is shorter by ``force / stiffness``. Gravity acts along -z of the base frame on
-  the platform's mass at ``centre_of_mass`` (platform frame) and on each leg's ``leg_mass``: a
-  uniform bar from its base U joint to its platform ball joint (centre of mass at mid-length,
-  :data:`LEG_CENTRE_OF_MASS`), its spring at mid-length too (:data:`LEG_SPRING_POSITION`: the
-  actuator's screw and nut between the body and the rod).
-- backlash: a leg that arrived extending (direction +1) is ``backlash / 2`` shorter than its
-  reading says, one that arrived retracting (-1) as much longer.
-- thermal growth: leg i is longer by ``thermal_expansion * rise_i(t) * L_i``, with the first-order
-  rise ``rise_i(t) = temperature_rise_i * (1 - exp(-t / thermal_time_constant))``, t the time
-  since the platform started (s).
-- joint offsets: base U joint i has its first axis fixed in the base (horizontal, perpendicular
-  to the leg at the home pose: :func:`base_joint_first_axes`) and its second axis perpendicular to
-  the first and to the leg; the second axis lies ``base_joint_offsets[i]`` from the first along
-  their common normal, on the leg's side. The leg's line passes through the second axis, so its
-  effective base point moves with the leg's direction (:func:`effective_base_joints`).
-"""
+"""The effects' parameters and each effect's physics, vectorised over postures (M)
+(docs/platform_effects.md)."""
 
 import dataclasses
 

@@ -1,19 +1,5 @@
-"""How long the platform takes to move between postures, and how its legs move (pure numpy).
-
-Each leg is an axis with a speed limit ``v`` (m/s) and an acceleration limit ``a`` (m/s^2). A leg
-that travels ``d`` m at its limits follows a trapezoidal speed profile (accelerate at ``a``,
-cruise at ``v``, brake at ``a``), or a triangular one when it is too short to reach ``v``:
-
-* ``d >= v^2 / a``: ``t = d / v + v / a``;
-* ``d < v^2 / a``: ``t = 2 sqrt(d / a)``.
-
-The legs are synchronised, as a hexapod controller interpolates in joint space: every leg
-follows the same normalised profile ``s(t)`` in [0, 1], that of the slowest leg (the longest
-travel), so all arrive together and the move takes the slowest leg's time. The other legs run
-at ``d_i / d_max`` of its speed and acceleration, within their limits. The move time between two
-postures is therefore a metric on leg-length vectors (it depends only on ``max_i |dq_i|``),
-the one :mod:`gsp_kinematics.planning.route` orders postures with. See docs/planning.md.
-"""
+"""How long the platform takes to move between postures, and how its legs move (pure numpy)
+(docs/planning.md)."""
 
 import dataclasses
 import math

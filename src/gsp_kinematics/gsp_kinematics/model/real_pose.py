@@ -1,12 +1,4 @@
-"""Where a platform with effects really is, for the readings of its legs (vectorised over M).
-
-The legs' free lengths (joint to joint, unloaded) follow from the readings, the sensors' gain
-errors, the backlash of each leg's approach direction and the thermal growth at each posture's
-time. The platform then sits where the distances between its effective joint points equal the
-free lengths shortened by the leg forces its weight causes there: the forces and the joint
-points depend on the pose, so the pose is solved to consistency by Newton's method on the rigid
-Jacobian (the effects change it by about 1e-5 relative, so each step gains five digits).
-"""
+"""Where a platform with effects really is, for the readings of its legs (vectorised over M)."""
 
 import numpy as np
 

@@ -1,20 +1,5 @@
-"""Sensor dynamics of a simulated device: first-order response and coloured noise (pure numpy).
-
-Each channel's reading is ``y + sigma * z``:
-
-* ``y`` follows the true value ``x`` with a first-order lag of time constant ``tau`` (s),
-  ``dy/dt = (x - y) / tau``, discretised exactly for a held ``x``:
-  ``y <- x + exp(-dt/tau) (y - x)``. ``tau = 0``: ``y = x`` (an instant sensor).
-* ``z`` is a unit-variance Gauss-Markov (AR(1)) process of correlation time ``tc`` (s):
-  ``z <- a z + sqrt(1 - a^2) w``, ``a = exp(-dt/tc)``, ``w ~ N(0, 1)``. Its stationary std is 1,
-  so ``sigma`` is the stationary std of the noise and the lag-k autocorrelation at a constant
-  step is ``exp(-k dt/tc)``. ``tc = 0``: ``z = w`` at every step (white noise).
-
-The state starts settled (``y = x``) and stationary (``z`` drawn from N(0, 1)) at the first
-step. One ``N(0, 1)`` draw per channel per step, so with ``tau = tc = 0`` the readings are
-``x + sigma * w`` bit for bit: the same sequence as a white, instant device with the same
-generator. docs/sensor_errors.md gives typical values of real parts.
-"""
+"""Sensor dynamics of a simulated device: first-order response and coloured noise (pure numpy)
+(docs/sensor_errors.md)."""
 
 import numpy as np
 

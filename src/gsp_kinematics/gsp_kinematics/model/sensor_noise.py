@@ -1,25 +1,4 @@
-"""The noise of the measuring sensors: one type, :class:`SensorNoise`, and its conversions.
-
-A :class:`SensorNoise` holds the standard deviation of one sample of each sensor of
-:mod:`gsp_kinematics.channels`: the six leg lengths (m, one value for all legs), the
-inclinometer (rad, alpha and beta), the encoder (rad, phi) and the LVDT (m, d_m). It serves as the
-**true noise** a simulated sensor draws and as the **assumed noise** ``sigma`` the calibrator
-weighs the residuals with; the nodes name it in their parameters
-(:mod:`gsp_msgs_py.noise_parameters`).
-
-Each view is one method here, so no caller unpacks the fields itself:
-
-- :meth:`SensorNoise.readings`: the four device readings ``[alpha, beta, phi, d_m]``;
-- :meth:`SensorNoise.channel_std` / :meth:`SensorNoise.from_channel_std`: the collector's ten
-  channels ``[q_1..q_6, alpha, beta, phi, d_m]``;
-- :meth:`SensorNoise.channels` / :meth:`SensorNoise.from_channels`: ``{channel: std}`` by field
-  name, as :func:`gsp_kinematics.estimation.goodness.estimate_noise` gives a data estimate;
-- :meth:`SensorNoise.averaged`: the noise of a row that averages ``n`` samples.
-
-:data:`DEFAULT_SENSOR_NOISE` is the one default noise level of the suite (Table 3's first level,
-0.001 deg and 0.001 mm): the simulated platform and device, the fake serial device and the
-calibrator all start from it.
-"""
+"""The noise of the measuring sensors: one type, :class:`SensorNoise`, and its conversions."""
 
 import dataclasses
 import math

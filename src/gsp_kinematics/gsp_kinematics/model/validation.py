@@ -1,14 +1,4 @@
-"""Accuracy of a controller geometry against the real (true) platform.
-
-The controller drives each leg until its sensor reads ``IK(controller, pose) / (1 + kq)`` under
-its own sensor model; the real leg is then ``(1 + kq_true)`` times that reading. Poses are
-compared in the frames the sensors define (docs/sensor_errors.md: the datum).
-
-A real platform with effects (:mod:`gsp_kinematics.model`, docs/platform_effects.md) takes
-``effects``; its real pose then depends on the order of the commands (backlash) and their times
-(thermal growth): :func:`simulate_commands` is the one simulation of a commanded sequence, for
-the benches and the tests, as ``platform_sim`` does it through the nodes.
-"""
+"""Accuracy of a controller geometry against the real (true) platform (docs/sensor_errors.md)."""
 
 import dataclasses
 

@@ -1,21 +1,4 @@
-"""Plans that can identify the effects (docs/platform_effects.md#plans-that-identify-the-effects).
-
-Two things a route needs beyond the postures the selection chose:
-
-- **thermal**: the route revisits a reference posture at its end, and at intervals when asked
-  (every ``revisit_every`` postures or ``revisit_interval_s`` seconds of platform time), so the
-  drift is observed at one posture against the time;
-- **backlash**: every leg arrives at some postures extending and at others retracting (at least
-  ``min_arrivals`` each way); where the route does not, a posture of the plan is measured once
-  more just before a posture it approaches from the missing side (the cheapest such insertion
-  in travel time). The result names the legs that still arrive one way only.
-
-:func:`augment_route` does both for the chosen groups: a pure function the calibrator and
-``gsp_plan`` call on the route they selected. :func:`effect_identifiability` gives, group by
-group, the rank of the identification with the group freed beside the geometry, its worst
-correlations with the geometric parameters and its Cramér-Rao bound (the standard deviation of
-each effect parameter at the assumed noise).
-"""
+"""Plans that can identify the effects (docs/platform_effects.md#plans-that-identify-the-effects)."""
 
 import dataclasses
 

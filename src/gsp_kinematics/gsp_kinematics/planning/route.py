@@ -1,18 +1,5 @@
-"""The order to visit a set of postures in: the shortest route in platform time (pure numpy/scipy).
-
-The postures of a calibration are a set; their order is free. The travel time between two
-postures is the synchronised move time of :mod:`gsp_kinematics.model.motion` (the slowest leg's), a
-metric on the commanded leg lengths. The route is an open path from the platform's current
-posture through every posture (no return):
-
-1. nearest neighbour from the current posture;
-2. improved by 2-opt (reverse a stretch) and Or-opt (move a run of 1 to 3 postures elsewhere,
-   either way round), each pass taking the best move over all of them (vectorised), until none
-   shortens the route.
-
-Its lower bound is the minimum spanning tree of the current posture and the postures: an open
-path through them is a spanning tree, so no route is shorter. See docs/planning.md.
-"""
+"""The order to visit a set of postures in: the shortest route in platform time (pure numpy/scipy)
+(docs/planning.md)."""
 
 import dataclasses
 

@@ -1,24 +1,4 @@
-"""The one-minute check of a calibrated platform (pure numpy/scipy; docs/upkeep.md).
-
-A few postures, chosen to be sensitive to the leg offsets (:func:`choose_check_postures`), are
-measured with the controller's current geometry. Then:
-
-* **the accuracy now**: the controller geometry's error in predicting where the platform is, from
-  the measured leg lengths through forward kinematics, against what the device measures
-  (position mm, phi deg; :func:`gsp_kinematics.estimation.verdict.cross_validation.prediction_errors`, the measured
-  accuracy of a calibration), with the rows' noise removed in quadrature; its uncertainty is the
-  standard error of the mean over the postures.
-* **has the platform changed?** A small identification of the leg offsets alone (the rest held at
-  the controller's values) estimates their change since the calibration. Its uncertainty is the
-  check's own (its covariance) plus what the calibration's uncertainty does to it (``K C K^T``,
-  ``K`` the regression of the check's leg offsets on the calibration's parameter errors, from the
-  check postures' information factors). :func:`gsp_kinematics.upkeep.drift.compare` then tests the
-  change (global chi-square, iterated w-tests, family-wise ``level``) and names the legs.
-* **the verdict**: ``recalibrate`` when the accuracy now misses the requirement, or when the
-  platform has changed significantly since its calibration (a changed platform no longer matches
-  its calibration, and its accuracy away from the checked postures is unknown); else
-  ``within tolerance``. If recalibrate, the legs that moved most are named.
-"""
+"""The one-minute check of a calibrated platform (pure numpy/scipy; docs/upkeep.md)."""
 
 import dataclasses
 import math

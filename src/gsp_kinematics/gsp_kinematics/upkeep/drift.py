@@ -1,28 +1,5 @@
 """Drift between two calibrations of one platform: what changed, whether it is significant, and
-what it does to the pose (pure numpy/scipy).
-
-Each calibration is its free parameters' estimates and covariance (:class:`Calibration`). Over
-the parameters both estimated, the change is ``d = u2 - u1`` with covariance ``C = C1 + C2``
-(two independent calibrations). The test is the deformation analysis of geodesy, at a
-family-wise level ``level`` (default 1 %):
-
-* **global (congruence) test**: ``T = d^T C^-1 d`` against chi-square with ``n`` degrees of
-  freedom. Not rejected: no significant change, whatever the single parameters say.
-* **localisation (Baarda's w-test, iterated)**: for each parameter j the hypothesis "only j
-  moved" gives ``w_j = (W d)_j / sqrt(W_jj)`` (``W = C^-1``; standard normal without a
-  change). The largest ``|w_j|`` above the two-sided Bonferroni bound ``z(level / (2 n))``
-  names j; its change ``(W d)_j / W_jj`` (1 sigma ``1 / sqrt(W_jj)``) is taken out, and the
-  test repeats on what is left until the rest passes the global test.
-
-``w_j`` uses the conditional uncertainty of j given all the others, much smaller than its
-marginal sigma when parameters correlate (a leg offset with its joints): a 20 um leg offset change
-is 3-4 marginal sigmas of a 60-posture calibration but about 80 conditional ones. The marginal
-``z_j = d_j / sqrt(C_jj)`` is reported beside it.
-
-The effect on the pose: ``dX = S d`` with the pose sensitivities ``S`` of
-:mod:`gsp_kinematics.estimation.prediction` (what the platform does differently when its controller swaps
-the first geometry for the second), over seeded random reachable postures; mm and deg.
-"""
+what it does to the pose (pure numpy/scipy)."""
 
 import dataclasses
 import math

@@ -1,19 +1,5 @@
 """A calibration that stops when it is good enough: the decisions (pure numpy/scipy;
-docs/upkeep.md).
-
-With a required accuracy, the postures are measured in order and identified as they come (an
-identification costs milliseconds). From ``minimum_postures`` on, every ``every`` postures
-(:meth:`StoppingRule.due`), the rows so far are identified and cross-validated (the verdict's
-measured accuracy, :func:`gsp_kinematics.estimation.verdict.cross_validation.cross_validate`); the run stops as soon
-as the upper ``confidence`` bound of the cross-validated mean position error (noise removed; the
-mean plus ``z`` standard errors over the postures) and the mean phi error meet the requirement
-and the predicted error over the workspace (:func:`accuracy_bounds`, :meth:`Bounds.meets`). If the planned postures are not enough,
-postures are added from the pool, each the one with the largest gain in ``log det`` of the
-information on the free parameters per second of platform time (:func:`best_addition`). The
-planned postures can be put in an order whose every prefix is informative
-(:func:`informative_order`). :func:`run_to_requirement` is the whole loop on measurements and
-judgements given by functions (the benches); the calibrator's loop is ``gsp_calibrator.run.flow``.
-"""
+docs/upkeep.md)."""
 
 import dataclasses
 import math

@@ -1,16 +1,5 @@
-"""The identification's formulations as models of :func:`gsp_kinematics.estimation._solver.lm.levenberg_marquardt`.
-
-* :class:`_FkModel` (``'fk'``, and ``'paper'``: eq (11)): per posture, FK of the measured leg
-  lengths under the parameters predicts the device readings; the Jacobian comes from the implicit
-  function theorem through FK. A posture whose FK fails is left out, and readmitted once a better
-  estimate brings it back within FK's reach.
-* :class:`_ImplicitModel` (``'implicit'``): the M poses are unknowns beside the parameters and
-  every sensor is a residual; the damped normal equations are solved through the Schur complement
-  on the 6x6 pose blocks.
-
-Each supplies its residuals and Jacobians (``evaluate``), the normal equations and their damped
-solve, and what the result reports (information, residuals per sensor, poses, notes).
-"""
+"""The identification's formulations as models of
+:func:`gsp_kinematics.estimation._solver.lm.levenberg_marquardt`."""
 
 import numpy as np
 

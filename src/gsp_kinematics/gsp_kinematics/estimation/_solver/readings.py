@@ -1,16 +1,5 @@
-"""What every sensor reads at given poses, and its analytic Jacobian, in one batched pass (private).
-
-A posture has ten readings (:data:`ROW_NAMES`): the six leg sensors ``q_i / (1 + kq_i)`` with
-``q_i = |R B_i + t - A_i| - L_off_i``, then the device's ``[alpha, beta, phi, d_m]`` with the sensor
-errors (docs/sensor_errors.md). Each row depends on its own pose and on a few entries of the
-extended parameter vector (:data:`gsp_kinematics.model.geometry.ALL_PARAMETER_NAMES`): leg i on
-``A_i, B_i, L_off_i, kq_i``, the device rows on ``D0, gamma, alpha0, beta0, phi0, kDm``. The
-Jacobian is written straight into the columns of the free parameters, without the full 54 columns.
-
-:class:`ReadingsModel` splits the work in two: :meth:`ReadingsModel.predict` (the readings, and
-what the derivatives reuse) and :meth:`Prediction.jacobian`, so that a trial step the
-Levenberg-Marquardt driver rejects never pays for its Jacobian.
-"""
+"""What every sensor reads at given poses, and its analytic Jacobian, in one batched pass (private)
+(docs/sensor_errors.md)."""
 
 import numpy as np
 

@@ -1,11 +1,4 @@
-"""Redundancy numbers of a weighted least-squares fit (private).
-
-The redundancy number of a residual is ``r_i = 1 - h_ii``, ``h_ii`` the diagonal of the hat matrix
-``J (J^T J)^-1 J^T`` of the weighted Jacobian: the share of the residual's variance that the fit
-leaves in the residual. They sum to the degrees of freedom. A residual's expected square is
-``r_i sigma_i^2``, which is what the variance-component estimate and the studentised residuals
-use (Förstner 1979; Koch, Parameter Estimation and Hypothesis Testing in Linear Models, 4.2.2).
-"""
+"""Redundancy numbers of a weighted least-squares fit (private)."""
 
 import numpy as np
 

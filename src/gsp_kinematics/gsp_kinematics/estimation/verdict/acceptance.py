@@ -1,14 +1,5 @@
-"""Whether a calibration is good enough to apply: against what the user needs (pure).
-
-A calibration is applied when its accuracy measured by the device on postures the fit did not
-use (:mod:`gsp_kinematics.estimation.verdict.cross_validation`) meets the :class:`Requirement` and clearly beats the
-nominal geometry on the same postures, and its predicted accuracy over the workspace meets the
-requirement too (held-out postures test only where the run went; the covariance, with the
-unmodelled error, says whether the postures identify the model elsewhere). The goodness-of-fit test is a diagnostic beside it, not a
-condition: no real platform is exactly the model. What the model leaves unexplained
-(:func:`gsp_kinematics.estimation.noise_from_data.unmodelled_error`) is named in the verdict, in um and
-urad (docs/verdict.md).
-"""
+"""Whether a calibration is good enough to apply: against what the user needs (pure)
+(docs/verdict.md)."""
 
 import dataclasses
 import math

@@ -1,27 +1,6 @@
-"""Does freeing an effect group make the compensated platform more accurate? The predicted
-mean squared position error over the workspace with the group and without it
-(docs/platform_effects.md#choosing-the-model-auto).
-
-A group can be significant (its chi-square drop) and still be resolved too weakly to help: its
-estimates' spread, compensated by the controller, moves the platform more than the effect left
-out would. With the nested fits ``A`` (without the group) and ``B`` (with it), to first order
-at a workspace pose:
-
-- ``B``'s error has the variance ``var_B = tr(S C_B S^T)`` (position rows of the pose
-  sensitivities :func:`gsp_kinematics.estimation.prediction.pose_sensitivities` and
-  :func:`gsp_kinematics.estimation.prediction.effect_pose_sensitivities`, ``C_B`` its covariance);
-- ``A``'s error is its variance ``var_A`` (``C_A`` in ``B``'s parameters, zero for the group)
-  plus the bias of leaving the group out. That bias is what separates the two compensated
-  platforms, ``d = S (p_B - p_A)``, less the noise in it: ``E|d|^2 = bias^2 + var_B - var_A``
-  (the difference of nested efficient estimates has the difference of their covariances).
-
-So the group lowers the predicted mean squared error over the workspace when
-``mean |d|^2 > 2 mean (var_B - var_A)``: Akaike's criterion (a drop of twice the parameters),
-counted in the platform's position instead of the readings. Backlash compensation depends on
-the direction each leg travels: with independent, equally likely directions its columns
-(``(dq/dX)^-1 e_i / 2`` per leg) add in quadrature. Thermal growth is not compensated by the
-controllers (the geometry refers to an instant): no column, so this rule does not judge it.
-"""
+"""Does freeing an effect group make the compensated platform more accurate? The predicted mean
+squared position error over the workspace with the group and without it
+(docs/platform_effects.md#choosing-the-model-auto)."""
 
 import dataclasses
 

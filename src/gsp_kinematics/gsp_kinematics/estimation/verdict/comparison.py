@@ -1,19 +1,5 @@
-"""What a held-out posture's comparison sees of a fit's parameter error, and what it cannot.
-
-A held-out posture compares the pose the legs give (forward kinematics of the measured leg
-lengths under a geometry) with the pose the device gives (eq 7 and 9 under the same geometry's
-device parameters). To first order a parameter error ``delta`` (the free parameters, then the
-free effects: the covariance's order) moves the controller's pose by ``a = S_c delta`` (what the
-truth measures: :func:`gsp_kinematics.estimation.prediction.parameter_pose_covariance`), the legs' forward
-kinematics by ``-S delta`` (every leg-side column, the effects at the rows' times and approach
-directions included) and the device's pose by ``H delta`` (its own parameters). The comparison
-holds ``v = -(S + H) delta``: the fit makes the legs agree with the device, so an error the two
-share (``S delta = -H delta``, e.g. D0 with the leg offsets following it) is in the truth and not
-in the comparison, and an error of the device alone (or of a growth the controller does not
-compensate) is in the comparison and not in the truth. Per posture, over the parameter
-covariance ``C``: ``E|a|^2 - E|v|^2`` is what the comparison misses (positive) or holds beyond the
-truth (negative): the unseen part of :func:`comparison_variances` (docs/verdict.md).
-"""
+"""What a held-out posture's comparison sees of a fit's parameter error, and what it cannot
+(docs/verdict.md)."""
 
 import numpy as np
 

@@ -1,29 +1,4 @@
-"""The accuracy a calibration achieved, measured by the device on postures the fit did not use.
-
-The device measures the platform's position exactly (``alpha``, ``beta`` and ``D = D0 + Dm``,
-eq 7 and 9) and its rotation ``phi``. So a geometry's error in predicting where the platform
-is, from its measured leg lengths through forward kinematics, is a real accuracy (mm, deg),
-available on any platform, ideal or not. :func:`cross_validate` splits the postures into folds,
-fits the geometry without each fold and predicts the fold's postures from their leg lengths;
-the nominal geometry predicts the same postures (the no-calibration baseline).
-
-The measured error holds the measurement noise of the held-out posture too (the legs' noise
-through FK, the device's through eq 9): independent of the fit, it adds in quadrature. Its
-propagated variance is subtracted from the mean squared error (:func:`noise_removed`), and
-the mean and p95 are scaled by the same factor. To first order, the error of FK(calibrated, q)
-against the true pose at the real leg lengths q is the error of the pose the platform reaches
-when the calibrated controller commands a pose (``validation.pose_errors``), with the sign
-reversed: the same accuracy.
-
-A held-out posture is predicted by a fit that did not see it: at a posture that alone determines
-a parameter (an extreme of the workspace, which the selection prefers) that fit knows far less
-than the full one. Each held-out error's excess over the noise is scaled by the full fit's over
-the held-out fit's predicted variance of the comparison there (:func:`.comparison.leverage_ratios`).
-The comparison (legs against the device) and the truth (the controller's pose) do not hold the
-same part of a fit's parameter error: an error the legs share with the device is in the truth
-only, an error of the device alone in the comparison only. The difference of their predicted
-variances (:func:`.comparison.comparison_variances`) is added (or, negative, subtracted).
-"""
+"""The accuracy a calibration achieved, measured by the device on postures the fit did not use."""
 
 import dataclasses
 import math

@@ -1,19 +1,6 @@
 """The fits of a cross-validation's folds: a fit's refit without some postures
 (:func:`refit_fold`), or that refit to first order, one Gauss-Newton step from the full fit
-(:func:`linearised_refits`; docs/platform_effects.md#choosing-the-model-auto).
-
-The implicit formulation's normal equations are sums over the postures, each posture's pose an
-unknown of its own rows only (:mod:`gsp_kinematics.estimation._solver.lm`). Eliminating the poses (the
-Schur complement) leaves each posture's share ``[S_m | g_m]`` of the parameters' reduced system.
-At the full fit's estimate ``sum_m g_m = 0``; without the postures ``F`` the system is
-``S - S_F`` and the gradient ``-g_F``, and the step ``du = (S - S_F)^-1 g_F`` is the refit's
-first Gauss-Newton step from the full fit, its poses of the kept postures re-estimated through
-the complement. The model is nearly linear over a few standard deviations of the parameters, so
-the step lands where the refit converges, to second order in it (one Jacobian for every fold,
-against several iterations of each refit). The held-out postures are then predicted by
-forward kinematics under the stepped geometry, as under a refit's: the step moves a prediction
-by far more than the held-out error, so a first-order prediction would not do.
-"""
+(:func:`linearised_refits`; docs/platform_effects.md#choosing-the-model-auto)."""
 
 import dataclasses
 

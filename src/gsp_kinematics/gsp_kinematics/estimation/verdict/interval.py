@@ -1,22 +1,5 @@
-"""A 95 % interval on a held-out accuracy: where the true accuracy over the workspace lies (pure).
-
-The held-out figure (:func:`.cross_validation.noise_removed`) is a statistic of few, skewed
-per-posture errors from which a noise variance as large as the signal is subtracted, and the
-truth is one draw of the calibration's parameter error, of a few degrees of freedom, which the
-held-out postures see only in part (docs/verdict.md). The interval holds both:
-
-- **the held-out statistic's spread**: the postures are resampled (bootstrap) and the figure
-  recomputed from their terms (:func:`posture_terms`: each posture's share of the signal, its
-  leverage and unseen part included, and its draw);
-- **the truth's draw about its expectation**: ``delta ~ N(0, C)`` (the fit's covariance) gives
-  the mean pose error ``|S_c delta|`` over random workspace postures, 50 of them as a
-  validation measures it (:func:`truth_draw_ratios`: its draws over its expectation, of few
-  degrees of freedom); the whole figure scales by such a draw, its unmodelled share too (that
-  error, known only through the run's residuals, spreads over the workspace as unknowingly).
-
-Each bootstrap figure is multiplied by one such draw; the interval is their 2.5 and 97.5
-percentiles. Seeded draws: a run's interval is repeatable.
-"""
+"""A 95 % interval on a held-out accuracy: where the true accuracy over the workspace lies (pure)
+(docs/verdict.md)."""
 
 import math
 

@@ -1,39 +1,6 @@
-"""Choose the model from the data (``auto``): which effect groups to free, by a significance
-test of the fit with the known noise, guarded by cross-validated accuracy
-(docs/platform_effects.md#choosing-the-model-auto).
-
-Forward selection from the plain model (``base``, e.g. ``extended``): each round fits the
-current set plus each remaining effect group whose run design allows it, and keeps the group
-whose fit lowers the chi-square most, only if
-
-- the drop is significant: a likelihood-ratio test, ``delta chi2`` (the fits' squared residuals
-  in units of the row noise, over the rows both used) against ``chi2(k)``, ``k`` the parameters
-  added (6 a group), at ``significance`` divided by the groups tried in the round
-  (Bonferroni). With the known noise, a group the platform does not have lowers the chi-square
-  by ``chi2(k)`` on average; one it has by that plus its parameters' squared signal-to-noise
-  ratios: a small effect that the plan resolves (the joint offsets: 2-3 Cramér-Rao standard
-  deviations per leg) is significant long before it moves the accuracy by tens of percent;
-- and the held-out position error (:func:`gsp_kinematics.estimation.verdict.cross_validation.cross_validate`,
-  each posture's leverage taken out: :func:`held_out_position_mm`) does not grow by more than
-  ``max_cv_loss`` (relative) over the model it extends, and what is delivered never has a
-  held-out error above the plain model's (:func:`never_worse_held_out`): the guard against a
-  model that fits the rows better and predicts the platform worse;
-- and, for a group the controller compensates, compensating it is not predicted to make the
-  platform less accurate over the workspace (:mod:`.choice_accuracy`: the bias of leaving it
-  out against the spread its estimates add): significant is not the same as resolved well
-  enough to help (joint offsets in a short run).
-
-A candidate that cannot be judged (its fit not identifiable with the run's postures, its
-held-out error or predicted gain not measurable) says why and is never kept; when the plain
-model cannot be judged (too few postures), no group is tried.
-
-When no group alone is kept, all the remaining groups together are tried once the same way
-(``k`` their parameters; effects that mask each other). The test needs the rows weighted by
-their real noise: the calibrator weighs them by the within-posture estimate where it has one,
-and every chi-square is divided by the chi2/dof of the fit with all the groups when above 1
-(:func:`variance_factor`: what no group explains, or noise above the weights, does not make
-the groups significant).
-"""
+"""Choose the model from the data (``auto``): which effect groups to free, by a significance test
+of the fit with the known noise, guarded by cross-validated accuracy
+(docs/platform_effects.md#choosing-the-model-auto)."""
 
 import dataclasses
 import math

@@ -1,23 +1,6 @@
 """The held-out accuracy of the rigid geometry a controller without ``geometry.effects.*`` runs
-(:mod:`gsp_kinematics.estimation.rigid_fold`), from the compensating geometry's, without a refit
-or a fold (docs/verdict.md).
-
-A rigid controller's error at a posture has two parts: the error of the fit's parameters, which
-the fold inherits (what the compensating geometry's held-out figure measures, noise removed and
-carried to the workspace), and the fold's deterministic difference from the identified model
-there (:func:`~gsp_kinematics.estimation.rigid_fold.linearised_model_errors`: the effects' variation
-with the posture and the backlash's direction, which no rigid geometry follows). The second is
-known at any posture once the model is: it is taken over random workspace postures, where the
-truth averages, not at the run's postures (the selection's extremes, where it is several times
-larger). At each workspace posture the fit's error, of the compensating figure's size, is
-taken in a random direction about the fixed one (independent: one is the fit's error, the
-other fixed by its estimate): the mean length of their sum is :func:`mean_sum_length` (for a
-position; for phi, one axis, the larger of the two). The figure is its mean over the postures.
-The map is increasing in the compensating figure, so the ends of its 95 % interval map to the
-rigid figure's, each widened by 1.96 standard errors of its mean over the postures (the
-error's tail, a few postures in a thousand at 50x the mean, makes that sampling error
-matter).
-"""
+(:mod:`gsp_kinematics.estimation.rigid_fold`), from the compensating geometry's, without a refit or
+a fold (docs/verdict.md)."""
 
 import math
 
