@@ -1,4 +1,5 @@
-"""Size limits of the package sources under src/ (tests excluded): a file a newcomer can read.
+"""Size limits of the package sources under src/ and of the bench (bench/gsp_bench), tests
+excluded: a file a newcomer can read.
 
 No file over MAX_FILE_LINES lines, no class over MAX_CLASS_LINES, no function or method over
 MAX_FUNCTION_LINES, unless it is listed in EXCEPTIONS with the reason: a flat table (an argument
@@ -27,10 +28,10 @@ EXCEPTIONS = {
 }
 
 
-def source_files(src=SRC):
+def source_files(src=SRC, pattern='*/gsp_*'):
     """``{'package/path.py': Path}`` of every package module under ``src`` (tests excluded)."""
     files = {}
-    for package_dir in sorted(src.glob('*/gsp_*')):
+    for package_dir in sorted(src.glob(pattern)):
         if (package_dir / '__init__.py').is_file():
             for path in sorted(package_dir.rglob('*.py')):
                 files[path.relative_to(package_dir.parent).as_posix()] = path
@@ -72,12 +73,18 @@ def oversized(files, exceptions=EXCEPTIONS):
 
 @pytest.fixture(scope='module')
 def files():
-    return source_files()
+    return {**source_files(), **source_files(WS / 'bench', 'gsp_*')}
 
 
 def test_the_check_sees_every_package(files):
     packages = {relative.split('/')[0] for relative in files}
-    assert {'gsp_kinematics', 'gsp_msgs_py', 'gsp_calibrator', 'gsp_device_driver'} <= packages
+    assert {
+        'gsp_kinematics',
+        'gsp_msgs_py',
+        'gsp_calibrator',
+        'gsp_device_driver',
+        'gsp_bench',
+    } <= packages
     assert len(files) > 50
 
 

@@ -25,8 +25,8 @@ import numpy as np
 from scipy import stats
 
 import gsp_bench.effects
-import gsp_bench.run_to_requirement
 import gsp_bench.verdict
+from gsp_bench.run_to_requirement import Plan, SimulatedRun, _median, default_plan, informative_plan
 from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
 from gsp_kinematics.estimation.prediction import accuracy_summary
@@ -127,7 +127,7 @@ def workspace_default(seed):
 def workspace_trajectory(seed, budget=BUDGET):
     """One seed's run in informative order with the workspace postures interleaved: per
     judgement its postures, platform time / the default plan's, figures and true error."""
-    plan = gsp_bench.run_to_requirement.Plan.default()
+    plan = Plan.default()
     design = gsp_bench.verdict.default_design({'workspace_postures': WORKSPACE})
     settings = design.settings
     workspace = postures.workspace_poses(settings)
@@ -135,14 +135,10 @@ def workspace_trajectory(seed, budget=BUDGET):
     extended = dataclasses.replace(
         plan, settings=settings, pool=pool, legs=posture_leg_lengths(settings.nominal, pool)
     )
-    order = interleaved(
-        gsp_bench.run_to_requirement.informative_plan(plan), range(len(plan.pool), len(pool))
-    )
+    order = interleaved(informative_plan(plan), range(len(plan.pool), len(pool)))
     dwell_s, limits = run_to_requirement.rule_for(settings).dwell_s, settings.motion_limits
     fixed_s = _plan_time_s(plan)
-    simulated = gsp_bench.run_to_requirement.SimulatedRun(
-        design, extended, 70_000 + seed, gsp_bench.verdict.RUN_S / fixed_s
-    )
+    simulated = SimulatedRun(design, extended, 70_000 + seed, gsp_bench.verdict.RUN_S / fixed_s)
     position, elapsed, steps = extended.start_legs, 0.0, []
     for count, index in enumerate(order, start=1):
         step = float(move_time(position, extended.legs[index], limits)) + dwell_s
@@ -198,7 +194,7 @@ def auto_runs(seed, budget=BUDGET):
     route order (``route``: every ``EVERY`` commanded postures from ``MINIMUM`` within
     ``budget``) and on the plan in informative order within 0.5x (``informative_half``), each
     with its platform time / the plain default plan's (``ratio``)."""
-    plan = gsp_bench.run_to_requirement.Plan.default()
+    plan = Plan.default()
     design = gsp_bench.verdict.default_design({})
     settings = design.settings
     dwell_s, limits = run_to_requirement.rule_for(settings).dwell_s, settings.motion_limits
@@ -216,7 +212,7 @@ def auto_runs(seed, budget=BUDGET):
         return {**found, 'ratio': float(route.times_s[count - 1] / fixed_s), 'commanded': count}
 
     route = augmented(design.poses)
-    informative = augmented(plan.pool[gsp_bench.run_to_requirement.informative_plan(plan)])
+    informative = augmented(plan.pool[informative_plan(plan)])
     half = int(np.count_nonzero(informative.times_s <= 0.5 * fixed_s))
     within = int(np.count_nonzero(route.times_s <= budget * fixed_s))
     return {
@@ -238,7 +234,7 @@ def _stops(trajectories, meets, required_mm, true_of):
     within = [stop for stop in stops if stop is not None and stop['ratio'] <= 0.5]
     return {
         'stopped_within_half_fraction': len(within) / max(len(stops), 1),
-        'ratio_median': gsp_bench.run_to_requirement._median([stop['ratio'] for stop in within]),
+        'ratio_median': _median([stop['ratio'] for stop in within]),
         'true_over_required_at_stop': [round(true_of(stop) / required_mm, 3) for stop in within],
         'true_within_required_at_stop_fraction': sum(
             true_of(stop) <= required_mm for stop in within
@@ -254,12 +250,7 @@ def _per_judgement(trajectories, figures, required):
     for count in sorted({step['postures'] for steps in trajectories for step in steps}):
         steps = [step for steps in trajectories for step in steps if step['postures'] == count]
         row = {'postures': count, 'seeds': len(steps)}
-        row.update(
-            {
-                key: gsp_bench.run_to_requirement._median([step[key] for step in steps])
-                for key in figures
-            }
-        )
+        row.update({key: _median([step[key] for step in steps]) for key in figures})
         for name, (limit, of) in required.items():
             row[f'{name}_meets'] = sum(of(step) <= limit for step in steps)
         table.append(row)
@@ -270,24 +261,18 @@ def workspace_figures(defaults, trajectories, plain_mm):
     """The workspace lever's figures: the default plan with the workspace postures, per
     judgement, and where stopping rules stop (the workspace bound against the plan's workspace
     figure; the verdict's judged figure against the plain plan's verified ``plain_mm``)."""
-    required = gsp_bench.run_to_requirement._median([found['workspace_mm'] for found in defaults])
+    required = _median([found['workspace_mm'] for found in defaults])
     ratios = [found['workspace_mm'] / found['true_mm'] for found in defaults]
     judged = lambda step: max(step['workspace_mm'], step['selected_mm'])  # noqa: E731
     return {
         'default_plan': {
             'workspace_mm_median': required,
-            'workspace_bound_mm_median': gsp_bench.run_to_requirement._median(
-                [f['workspace_bound_mm'] for f in defaults]
-            ),
-            'selected_mm_median': gsp_bench.run_to_requirement._median(
-                [found['selected_mm'] for found in defaults]
-            ),
-            'true_mm_median': gsp_bench.run_to_requirement._median(
-                [found['true_mm'] for found in defaults]
-            ),
+            'workspace_bound_mm_median': _median([f['workspace_bound_mm'] for f in defaults]),
+            'selected_mm_median': _median([found['selected_mm'] for found in defaults]),
+            'true_mm_median': _median([found['true_mm'] for found in defaults]),
             'workspace_over_true': [
                 min(ratios),
-                gsp_bench.run_to_requirement._median(ratios),
+                _median(ratios),
                 max(ratios),
             ],
             'platform_time_s': defaults[0]['platform_time_s'],
@@ -324,7 +309,7 @@ def auto_figures(runs, plain_mm):
     where the 95 % bound (and the prediction) meets ``plain_mm`` and the auto plan's verified
     accuracy."""
     plans = [run['plan']['auto'] for run in runs if 'auto' in run['plan']]
-    own_mm = gsp_bench.run_to_requirement._median([plan['cv_mm'] for plan in plans])
+    own_mm = _median([plan['cv_mm'] for plan in plans])
     trajectories = [
         [{'postures': s['commanded'], 'ratio': s['ratio'], **s['auto']} for s in run['route']
          if 'auto' in s]
@@ -335,15 +320,9 @@ def auto_figures(runs, plain_mm):
     return {
         'default_plan': {
             'cv_mm_median': own_mm,
-            'bound_mm_median': gsp_bench.run_to_requirement._median(
-                [plan['bound_mm'] for plan in plans]
-            ),
-            'true_mm_median': gsp_bench.run_to_requirement._median(
-                [plan['true_mm'] for plan in plans]
-            ),
-            'true_at_reference_mm_median': gsp_bench.run_to_requirement._median(
-                [p['true_at_reference_mm'] for p in plans]
-            ),
+            'bound_mm_median': _median([plan['bound_mm'] for plan in plans]),
+            'true_mm_median': _median([plan['true_mm'] for plan in plans]),
+            'true_at_reference_mm_median': _median([p['true_at_reference_mm'] for p in plans]),
             'platform_time_over_plain': runs[0]['plan']['ratio'],
         },
         'per_judgement': _per_judgement(
@@ -365,9 +344,7 @@ def auto_figures(runs, plain_mm):
             'ratio': halves[0]['ratio'] if halves else math.nan,
             'postures': halves[0]['commanded'] if halves else 0,
             **{
-                f'{key}_median': gsp_bench.run_to_requirement._median(
-                    [h['auto'][key] for h in halves]
-                )
+                f'{key}_median': _median([h['auto'][key] for h in halves])
                 for key in ('cv_mm', 'bound_mm', 'predicted_mm', 'true_mm')
             },
             'bound_meets_plain_fraction': sum(h['auto']['bound_mm'] <= plain_mm for h in halves)
@@ -383,7 +360,7 @@ def calibrator_figures(runs, plain_mm, first_counts=(18, 24)):
     meets ``plain_mm`` or the auto plan's verified accuracy, judged from each of
     ``first_counts`` (``stop_minimum_postures``) on."""
     plans = [run['plan'][0] for run in runs if math.isfinite(run['plan'][0]['position_mm'])]
-    own_mm = gsp_bench.run_to_requirement._median([plan['position_mm'] for plan in plans])
+    own_mm = _median([plan['position_mm'] for plan in plans])
     trajectories = [
         [{**step, 'postures': step['commanded']} for step in run['run']
          if math.isfinite(step['position_mm'])]
@@ -401,12 +378,8 @@ def calibrator_figures(runs, plain_mm, first_counts=(18, 24)):
         'samples_per_posture': CALIBRATOR_SAMPLES,
         'auto_default_plan': {
             'cv_mm_median': own_mm,
-            'bound_mm_median': gsp_bench.run_to_requirement._median(
-                [plan['position_bound_mm'] for plan in plans]
-            ),
-            'true_mm_median': gsp_bench.run_to_requirement._median(
-                [plan['true_mm'] for plan in plans]
-            ),
+            'bound_mm_median': _median([plan['position_bound_mm'] for plan in plans]),
+            'true_mm_median': _median([plan['true_mm'] for plan in plans]),
             'platform_time_over_plain': plans[0]['ratio'] if plans else math.nan,
         },
         'per_judgement': _per_judgement(
@@ -429,12 +402,8 @@ def run(quick=False):
     levers per seed."""
     design = gsp_bench.verdict.default_design()
     seeds = range(QUICK_SEEDS if quick else SEEDS)
-    plain = [
-        found
-        for found in (gsp_bench.run_to_requirement.default_plan(design, s) for s in seeds)
-        if found
-    ]
-    plain_mm = gsp_bench.run_to_requirement._median([found['cv_mm'] for found in plain])
+    plain = [found for found in (default_plan(design, s) for s in seeds) if found]
+    plain_mm = _median([found['cv_mm'] for found in plain])
     defaults = [found for found in (workspace_default(s) for s in seeds) if found]
     trajectories = [workspace_trajectory(seed) for seed in seeds]
     calibrated = [
@@ -460,7 +429,7 @@ def calibrator_auto(seed, samples, counts):
     folds, the predicted error) on the default plan augmented by the calibrator's route for
     ``auto``, at ``counts`` commanded postures (None: the whole route): per judgement the bounds,
     the true error and the platform time / the plain default plan's."""
-    plan = gsp_bench.run_to_requirement.Plan.default()
+    plan = Plan.default()
     values = {
         'free_parameters': ['auto'],
         'payload_mass': REALISTIC.payload_mass,
