@@ -2,8 +2,9 @@
 #
 #   make venv    create/refresh .venv from requirements.txt (+ editable gsp_kinematics)
 #   make build   colcon build into install/
-#   make test    ruff check and format check, the kernel variants (test-kernels), colcon test
-#                (every package), colcon test-result, pytest test/ and bench/test
+#   make test    ruff check and format check, then side by side: the kernel variants
+#                (test-kernels), colcon test (every package; gsp_calibrator in two halves),
+#                pytest test/ and bench/test; colcon test-result
 #   make test-kernels  the numeric packages' tests under other CPUs' BLAS and SIMD kernels
 #   make format  ruff format (the formatter owns line breaks and quotes) and ruff check --fix
 #   make demo    end-to-end calibration demo (gsp_demo; DEMO_ARGS=... passes arguments)
@@ -57,17 +58,44 @@ build: venv
 	$(COLCON) build --base-paths src $(COLCON_EVENTS)
 
 # colcon test runs `python -m pytest` in each package folder (a package without tests exits 5,
-# which colcon accepts); packages run one at a time since they share this run's ROS domain.
-# colcon test-result fails on any failed or errored test; pytest test/ gives the closing line.
+# which colcon accepts); colcon test-result fails on any failed or errored test (it reads every
+# junit file under build/); pytest test/ gives its own closing line.
+# The test sessions run side by side, each in a ROS domain of its own (claimed through
+# domain_coordinator): the kernel variants, pytest test/, gsp_calibrator's full-length system
+# tests (GSP_TEST_SHARD=systems, src/gsp_calibrator/test/conftest.py) and colcon test of every
+# package with the rest of gsp_calibrator's. Their tests mostly wait on the nodes' streams, so
+# on 2 cores they overlap; each stage's output is printed whole when it ends. With a given
+# ROS_DOMAIN_ID the sessions would share it, so they run one after the other.
+COLCON_TEST = $(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
+  --event-handlers console_direct+
+ifeq ($(strip $(ROS_DOMAIN_ID)),)
+test: build
+	$(VENV)/bin/ruff check --output-format concise $(RUFF_ARGS) .
+	$(VENV)/bin/ruff format --check . || \
+	  { echo "not formatted: run 'make format'" >&2; exit 1; }
+	rm -rf log/stages build/systems && mkdir -p log/stages
+	status=0; \
+	{ $(TEST_KERNELS); } > log/stages/test-kernels.log 2>&1 & kernels=$$!; \
+	{ $(ENV_SH) && python -m pytest test bench/test; } > log/stages/pytest-test.log 2>&1 & root=$$!; \
+	GSP_TEST_SHARD=systems $(COLCON) --log-base log/stages/systems test --base-paths src \
+	  --packages-select gsp_calibrator --test-result-base build/systems $(COLCON_EVENTS) \
+	  --event-handlers console_direct+ > log/stages/systems.log 2>&1 & systems=$$!; \
+	GSP_TEST_SHARD=rest $(COLCON_TEST) || status=1; \
+	wait $$systems || status=1; cat log/stages/systems.log; \
+	$(COLCON) test-result --test-result-base build --verbose || status=1; \
+	wait $$kernels || status=1; cat log/stages/test-kernels.log; \
+	wait $$root || status=1; cat log/stages/pytest-test.log; \
+	exit $$status
+else
 test: build
 	$(VENV)/bin/ruff check --output-format concise $(RUFF_ARGS) .
 	$(VENV)/bin/ruff format --check . || \
 	  { echo "not formatted: run 'make format'" >&2; exit 1; }
 	$(TEST_KERNELS)
-	$(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
-	  --event-handlers console_direct+
+	$(COLCON_TEST)
 	$(COLCON) test-result --test-result-base build --verbose
 	$(ENV_SH) && python -m pytest test bench/test
+endif
 
 # OpenBLAS and numpy pick their kernels by CPU, and the kernels round differently: the numeric
 # packages' tests once more under forced OpenBLAS cores (SkylakeX, Haswell) and without numpy's

@@ -12,6 +12,7 @@ from rclpy.parameter import Parameter
 
 from gsp_calibrator.files.run_directory import RIGID_RESULT_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
+from gsp_calibrator.run.rigid import RIGID_VERDICT_PREFIX
 from gsp_kinematics.model.effects import PlatformEffects
 from gsp_kinematics.model.geometry import geometry_to_parameters
 from gsp_msgs_py.geometry_parameters import CONTROLLER_GEOMETRY_SPECS, EFFECT_PARAMETER_PREFIX
@@ -54,11 +55,14 @@ def test_a_rigid_controller_gets_the_folded_geometry_and_platform_sim_the_effect
         assert 'applied the rigid geometry to /rigid_controller' in response.message
         assert 'not compensated: compliance' in response.message
         assert 'rigid controller (no geometry.effects.*): result_rigid.yaml' in response.message
+        assert RIGID_VERDICT_PREFIX in response.message, response.message
         run = RunDirectory(parse_response(response.message).run_directory)
         compensating, rigid = run.read_geometry(), run.read_geometry(RIGID_RESULT_FILE)
         assert compensating.effects.groups() == ['compliance'] and rigid.effects.none
         # The verdict gives the rigid controller's accuracy beside the compensated one.
-        record = json.loads((run.path / 'result.json').read_text())['effects']['rigid']
+        summary = json.loads((run.path / 'result.json').read_text())
+        assert summary['rigid_accuracy']['calibrated']['position_mm']['mean'] > 0.0
+        record = summary['effects']['rigid']
         predicted = record['predicted']['position_mm']['mean']
         assert predicted > record['compensated_predicted_position_mm'] > 0.0
         assert f'predicted {predicted:.3g} mm' in (run.path / 'report.md').read_text()
