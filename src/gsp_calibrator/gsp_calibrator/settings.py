@@ -14,10 +14,11 @@ settings of one run.
 
 import dataclasses
 import functools
+import math
 import os
 import re
 
-from gsp_calibrator.upkeep.parameters import UPKEEP_PARAMETERS
+from gsp_calibrator.settings_fields import ParameterFields
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import (
@@ -61,6 +62,8 @@ DEFAULT_WORKSPACE_POSTURES = 0
 CONTROLLER_EFFECTS = ('auto', 'compensated', 'rigid')
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
+#: A platform id: letters, digits, '-', '_', '.' (it names the platform in the history).
+_PLATFORM_ID = re.compile(r'^[A-Za-z0-9_.-]{1,64}$')
 
 
 #: The subsets of :data:`PARAMETERS` (a spec's ``subsets``).
@@ -435,7 +438,78 @@ PARAMETERS = (
         constraints='auto, compensated or rigid',
         check=one_of(CONTROLLER_EFFECTS),
     ),
-    *UPKEEP_PARAMETERS,
+    # keeping a platform calibrated (docs/upkeep.md)
+    ParameterSpec(
+        'platform_id',
+        'default',
+        'Which platform this calibrator calibrates and checks: every calibration and check is '
+        'indexed under it in <output_root>/history.sqlite (gsp_history), and a check checks its '
+        'latest accepted calibration',
+        constraints="1-64 of letters, digits, '-', '_', '.'",
+        check=lambda v: '' if _PLATFORM_ID.match(str(v)) else 'must be 1-64 of [A-Za-z0-9_.-]',
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'check_geometry_file',
+        '',
+        'The geometry /gsp/calibrator/check checks (a result.yaml; its run directory gives the '
+        "covariance and noise); empty: platform_id's latest accepted calibration under "
+        'output_root',
+    ),
+    ParameterSpec(
+        'stop_when_accurate',
+        False,
+        'A calibration stops as soon as its cross-validated accuracy meets the required '
+        'accuracy (required_position_accuracy_mm, required_orientation_accuracy_deg) with '
+        'stop_confidence; if the planned postures are not enough, it adds pool postures by '
+        'information per second of travel (docs/upkeep.md)',
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_confidence',
+        0.95,
+        'With stop_when_accurate: the one-sided confidence of the bound on the cross-validated '
+        'mean position error that must meet the requirement',
+        constraints='0.5 <= c < 1',
+        check=lambda v: (
+            ''
+            if isinstance(v, float) and 0.5 <= v < 1 and math.isfinite(v)
+            else 'must be in [0.5, 1)'
+        ),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_minimum_postures',
+        30,
+        'With stop_when_accurate: the rows are first judged after this many postures (fewer '
+        'give an optimistic cross-validation on a real platform: docs/upkeep.md)',
+        constraints='>= 2',
+        check=at_least(2),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_every',
+        2,
+        'With stop_when_accurate: postures between two judgements (each identifies and '
+        'cross-validates the rows so far in a worker thread while the next posture is collected)',
+        constraints='>= 1',
+        check=at_least(1),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_max_added',
+        60,
+        'With stop_when_accurate: pool postures added at most after the planned ones',
+        constraints='>= 0',
+        check=at_least(0),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'reuse_rows_from',
+        '',
+        "A run directory (a check's, or another run's) whose samples.csv rows a new calibration "
+        'identifies with its own (rows of the same platform and device); empty: none',
+    ),
     parameter_specs.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
@@ -541,8 +615,11 @@ def check_parameters(changes, current=None):
     )
 
 
-class _RunSettings:
-    """What :class:`CalibratorSettings` adds to its fields (one per parameter)."""
+@dataclasses.dataclass(frozen=True)
+class CalibratorSettings(ParameterFields):
+    """The settings of one calibration run (a snapshot of the parameters): one typed field per
+    parameter of :data:`PARAMETERS` (lists as tuples, ``settings_fields.py``) and ``nominal``,
+    the loaded nominal ``Geometry``; built by :meth:`from_values`."""
 
     @functools.cached_property
     def sigmas(self):
@@ -609,19 +686,3 @@ class _RunSettings:
             )
         fields['platform_node_name'] = fields['platform_node_name'].lstrip('/')
         return cls(nominal=load_geometry(fields['nominal_geometry_file']), **fields)
-
-
-def _field_type(default):
-    return tuple if isinstance(default, list) else type(default)
-
-
-#: The settings of one calibration run: one field per parameter of :data:`PARAMETERS` (lists
-#: as tuples) and ``nominal``, the loaded nominal ``Geometry``; built by ``from_values``.
-CalibratorSettings = dataclasses.make_dataclass(
-    'CalibratorSettings',
-    [('nominal', object)] + [(spec.name, _field_type(spec.default)) for spec in PARAMETERS],
-    bases=(_RunSettings,),
-    frozen=True,
-)
-CalibratorSettings.__module__ = __name__
-CalibratorSettings.__doc__ = 'The settings of one calibration run (a snapshot of the parameters).'

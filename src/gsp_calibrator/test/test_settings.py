@@ -5,9 +5,11 @@ import dataclasses
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+from gsp_calibrator import settings_fields
 from gsp_calibrator.recording.recorder import settings_options
 from gsp_calibrator.run.state import selection_options
 from gsp_calibrator.settings import (
@@ -123,6 +125,28 @@ def test_the_settings_and_their_subsets_are_derived_from_the_one_table():
     assert set(SELECTION_PARAMETERS) <= set(STORED_PARAMETERS)
     assert set(SELECTION_PARAMETERS) <= set(selection_options(settings))
     assert 'sigma_lvdt' in SELECTION_PARAMETERS  # the assumed noise weighs the selection
+
+
+def _fields_source():
+    """The text of settings_fields.py the table gives."""
+    path = Path(settings_fields.__file__)
+    text = path.read_text()
+    head = text[: text.index('    nominal: Geometry\n') + len('    nominal: Geometry\n')]
+    lines = []
+    for spec in PARAMETERS:
+        default = spec.default
+        if isinstance(default, list):
+            lines.append(f'    {spec.name}: tuple[{type(default[0]).__name__}, ...]\n')
+        else:
+            lines.append(f'    {spec.name}: {type(default).__name__}\n')
+    return head + ''.join(lines)
+
+
+def test_the_typed_settings_fields_are_the_tables():
+    expected = _fields_source()
+    assert Path(settings_fields.__file__).read_text() == expected, (
+        'settings_fields.py differs from settings.PARAMETERS; its text should be:\n' + expected
+    )
 
 
 @pytest.mark.parametrize(
