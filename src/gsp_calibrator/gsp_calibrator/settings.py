@@ -7,7 +7,7 @@ subsets marked in the table (``subsets=``) give the options stored with a run (:
 those that decide the posture selection (:data:`SELECTION`) and those accepted on the command
 lines of ``gsp_demo``/``gsp_plan`` (:data:`RUN_COMMAND_LINE`) and ``gsp_reidentify``
 (:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_value`).
-:func:`check_parameters` gives the reason a set of values is rejected, at start-up and in the
+:func:`validate_parameters` gives the reason a set of values is rejected, at start-up and in the
 set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
 settings of one run.
 """
@@ -35,7 +35,7 @@ from gsp_kinematics.sensors.noise import (
     NOISE_UNITS,
     SensorNoise,
 )
-from gsp_kinematics.sensors.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.sensors.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.travel.motion import MotionLimits
 from gsp_kinematics.verdict.acceptance import (
     DEFAULT_REQUIRED_IMPROVEMENT,
@@ -48,10 +48,10 @@ from gsp_msgs_py import parameter_specs
 from gsp_msgs_py.parameter_specs import (
     ParameterSpec,
     at_least,
-    check_values,
     greater_than,
     is_finite_number,
     one_of,
+    validate_values,
 )
 
 #: Workspace postures of a run by default: none (docs/verdict.md: on the bench they are a better
@@ -82,7 +82,7 @@ _RUN = frozenset((STORED, SELECTION, RUN_COMMAND_LINE))
 _JUDGED = frozenset((STORED, REIDENTIFY_COMMAND_LINE))
 
 
-def _check_geometry_file(value):
+def _validate_geometry_file(value):
     if not str(value).strip():
         return 'must name a geometry file'
     try:
@@ -146,7 +146,7 @@ PARAMETERS = (
         'Geometry params file of the nominal (design) geometry the identification '
         'starts from; also used to choose reachable postures',
         constraints='a readable geometry params file',
-        check=_check_geometry_file,
+        check=_validate_geometry_file,
         default_text='gsp_kinematics/data/nominal_geometry.yaml (shipped)',
         subsets=frozenset((STORED,)),
     ),
@@ -178,7 +178,7 @@ PARAMETERS = (
         subsets=_RUN,
     ),
     ParameterSpec(
-        'samples_per_posture',
+        'pairs_per_posture',
         10,
         'Synchronised (leg lengths, device) samples averaged per posture',
         constraints='>= 1',
@@ -201,9 +201,9 @@ PARAMETERS = (
         unit='s',
     ),
     _seconds(
-        'settle_lookback',
+        'rest_lookback',
         0.25,
-        'Span the settle rule judges each channel over, ending with the averaged window (at '
+        'Span the rest rule judges each channel over, ending with the averaged window (at '
         'least that window): the readings are averaged only once at rest over it (no trend, '
         'no scatter beyond their noise), whatever the platform says; at least 5 times the '
         "slowest sensor's response time and a few periods of the platform's ringing "
@@ -211,9 +211,9 @@ PARAMETERS = (
         subsets=frozenset((STORED,)),
     ),
     _positive(
-        'settle_sigmas',
-        DEFAULT_SETTLE_SIGMAS,
-        "Trend over the settle look-back, in stds of a settled span's trend, above which a "
+        'rest_sigmas',
+        DEFAULT_REST_SIGMAS,
+        "Trend over the rest look-back, in stds of a settled span's trend, above which a "
         'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
         'spans); its scatter is judged at the same rate',
         subsets=frozenset((STORED,)),
@@ -557,7 +557,7 @@ def option_value(name, value):
 
 def add_run_options(parser, seed_help='seed of the posture pool'):
     """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`: ``--postures``,
-    ``--pool-size``, ``--samples-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
+    ``--pool-size``, ``--pairs-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
     the parameters' defaults. Check the parsed values with :func:`run_options_error`."""
     for name in names_in(RUN_COMMAND_LINE):
         spec, default = PARAMETER_SPECS[name], DEFAULTS[name]
@@ -593,7 +593,7 @@ def run_options_error(args):
     return ''
 
 
-def check_combination(values):
+def validate_combination(values):
     """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
     (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
     if values['posture_count'] > values['pool_size']:
@@ -604,13 +604,13 @@ def check_combination(values):
     return ''
 
 
-def check_parameters(changes, current=None):
+def validate_parameters(changes, current=None):
     """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid.
 
     Each changed value is checked alone, then the combination (``posture_count <= pool_size``);
     the ``validate`` of ``watch_parameters``.
     """
-    return check_values(PARAMETER_SPECS, changes) or check_combination(
+    return validate_values(PARAMETER_SPECS, changes) or validate_combination(
         {**(DEFAULTS if current is None else current), **changes}
     )
 
@@ -666,7 +666,7 @@ class CalibratorSettings(ParameterFields):
         """One line for the log: the nominal file, counts, formulation and output root."""
         return (
             f'nominal {self.nominal_geometry_file}, {self.posture_count} postures from a pool of '
-            f'{self.pool_size}, {self.samples_per_posture} samples each, {self.formulation} '
+            f'{self.pool_size}, {self.pairs_per_posture} samples each, {self.formulation} '
             f'formulation, {self.free_count} free parameters, output under '
             f'{os.path.abspath(self.output_root)}'
         )
@@ -675,7 +675,7 @@ class CalibratorSettings(ParameterFields):
     def from_values(cls, values):
         """Settings from ``{name: value}`` (defaults for missing names); ValueError if invalid."""
         merged = {**DEFAULTS, **values}
-        reason = check_parameters(merged, merged)
+        reason = validate_parameters(merged, merged)
         if reason:
             raise ValueError(reason)
         fields = {}

@@ -19,11 +19,11 @@ class ParameterFields:
     posture_count: int
     pool_size: int
     workspace_postures: int
-    samples_per_posture: int
+    pairs_per_posture: int
     sync_tolerance: float
     settle_timeout: float
-    settle_lookback: float
-    settle_sigmas: float
+    rest_lookback: float
+    rest_sigmas: float
     topic_timeout: float
     seed: int
     free_parameters: tuple[str, ...]

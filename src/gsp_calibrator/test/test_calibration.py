@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.run import postures
-from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.directory import Rows
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import (
     NOT_ACCEPTED_HEAD,
@@ -40,7 +40,7 @@ def synthetic_samples(
     real, ok = forward_kinematics_masked(true, true.sensors.true_leg_lengths(q), poses)
     readings = true.sensors.device_readings(device_readings(true, real[ok]))
     scale = 1.0 / math.sqrt(n_samples)
-    samples = Samples.empty()
+    samples = Rows.empty()
     for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
         lag_sums = None
         if windows:
@@ -145,7 +145,7 @@ def test_no_convergence_is_a_failure(selection):
 
 
 def test_no_samples_is_a_failure():
-    outcome = identify_from_samples(NOMINAL, Samples.empty(), SIGMAS)
+    outcome = identify_from_samples(NOMINAL, Rows.empty(), SIGMAS)
     assert not outcome.success and 'no posture' in outcome.message
 
 

@@ -73,11 +73,11 @@ def test_the_realistic_device_preset_sets_the_device_and_the_default_settle_look
             )
             assert all(arg in source for arg in expected), (name, source)
         # The calibrator's default look-back (5 tau of this inclinometer) is the preset's.
-        assert not any('settle_lookback' in arg for arg in found['calibrator'])
-    assert DEFAULTS['settle_lookback'] >= 5 * preset['device']['inclinometer_response_time']
+        assert not any('rest_lookback' in arg for arg in found['calibrator'])
+    assert DEFAULTS['rest_lookback'] >= 5 * preset['device']['inclinometer_response_time']
     plain = demo_commands.node_commands(demo.parse_arguments([]), str(tmp_path), lambda n: n)
     assert not any('response_time' in arg for arg in plain['device_driver'])
-    assert not any('settle_lookback' in arg for arg in plain['calibrator'])
+    assert not any('rest_lookback' in arg for arg in plain['calibrator'])
 
 
 def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):

@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
-from gsp_calibrator.run.directory import RunDirectory, Samples
+from gsp_calibrator.run.directory import Rows, RunDirectory
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.postures import choose_postures
 from gsp_calibrator.run.response import outcome_summary, parse_response
@@ -106,7 +106,7 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
         ros_context,
         tmp_path,
         tmp_path / 'true.yaml',
-        {'posture_count': 16, 'pool_size': 160, 'samples_per_posture': samples},
+        {'posture_count': 16, 'pool_size': 160, 'pairs_per_posture': samples},
         device_overrides=[Parameter('inclinometer_noise_correlation_time', value=0.05)],
     )
     try:
@@ -159,7 +159,7 @@ def offline_run(poses, samples, rate_hz, correlation_time, seed):
     collector = SampleCollector(
         0.25 / rate_hz, samples, noise_std=DEFAULT_SENSOR_NOISE.channel_std()
     )
-    rows, step = Samples.empty(), 0
+    rows, step = Rows.empty(), 0
     for posture, pose in enumerate(poses, 1):
         assert platform.command(pose).accepted
         device.observe_true_pose(platform.true_pose)

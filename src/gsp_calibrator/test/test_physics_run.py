@@ -5,7 +5,7 @@ the nodes on its /clock), device_driver's physics backend. Only the number of po
 test's (few, to keep it short). Checked in one seed: the run succeeds through the physics, the
 verdict does not accept a result whose truth (the result as the controller of the physics
 platform, commanded against reached) misses the requirement, and the inclinometer's estimated
-noise is within 1.5x its configured value (the settle rule waits out the ringing). Not checked,
+noise is within 1.5x its configured value (the rest rule waits out the ringing). Not checked,
 as the defaults do not reach them at 16 postures (issue 34 stays open, docs/physics.md): the
 truth within 1.3x the physics floor and the held-out accuracy within 25 % of the truth."""
 
@@ -30,7 +30,7 @@ REAL_TIME_FACTOR = 4.0
 #: The calibrator's defaults the test suite's helpers change, back to the product's.
 DEFAULT_NAMES = (
     'pool_size',
-    'samples_per_posture',
+    'pairs_per_posture',
     'sync_tolerance',
     'topic_timeout',
     'settle_timeout',
@@ -38,7 +38,7 @@ DEFAULT_NAMES = (
 )
 
 
-def run_figures(ros_context, tmp_path, settle_lookback):
+def run_figures(ros_context, tmp_path, rest_lookback):
     """The issue's figures of one calibration of the physics platform."""
     sim_time = [Parameter('use_sim_time', value=True)]
     physics = [Parameter('backend', value='physics')]
@@ -49,7 +49,7 @@ def run_figures(ros_context, tmp_path, settle_lookback):
         calibrator_overrides={
             **{name: DEFAULTS[name] for name in DEFAULT_NAMES},
             'posture_count': POSTURES,
-            'settle_lookback': settle_lookback,
+            'rest_lookback': rest_lookback,
             'use_sim_time': True,
         },
         platform_overrides=physics
@@ -86,7 +86,7 @@ def run_figures(ros_context, tmp_path, settle_lookback):
 
 
 def test_the_calibrator_at_its_defaults_on_the_physics_platform(ros_context, tmp_path):
-    figures = run_figures(ros_context, tmp_path, DEFAULTS['settle_lookback'])
+    figures = run_figures(ros_context, tmp_path, DEFAULTS['rest_lookback'])
     assert not figures['accepted_while_truth_misses'], figures
     assert figures['inclinometer_noise_ratio'] <= 1.5, figures
     # Far better than the nominal geometry through the physics (tens of um against mm).

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from upkeep_runs import RUNS, write_runs
 
-from gsp_calibrator.run.directory import Samples
+from gsp_calibrator.run.directory import Rows
 from gsp_calibrator.upkeep import check_run, history
 from gsp_calibrator.upkeep.calibration_files import load_calibration
 from gsp_experiments.bench_sensor_errors import SAMPLES, SIGMAS, collect
@@ -32,7 +32,7 @@ def root(tmp_path_factory):
 def collected(true, reference, plan, seed):
     legs, readings, _, commanded = collect(true, reference.geometry, plan.poses, seed)
     count = len(commanded)
-    return Samples(
+    return Rows(
         np.arange(1, count + 1), commanded, legs, readings, np.full(count, SAMPLES), np.zeros(count)
     )
 
@@ -103,7 +103,7 @@ def test_too_few_rows_are_refused(root):
     with pytest.raises(check_run.CheckError, match='at least 2 postures, 1 collected'):
         check_run.evaluate_check(
             reference,
-            Samples([1], np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 4)), [10], [0.0]),
+            Rows([1], np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 4)), [10], [0.0]),
             SIGMAS,
             REQUIRED,
             'hexapod-7',

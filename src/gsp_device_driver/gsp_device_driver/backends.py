@@ -36,7 +36,7 @@ from gsp_kinematics.sensors.dynamics import SensorDynamics
 from gsp_kinematics.sensors.noise import NO_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER, SensorNoise
 from gsp_msgs_py.health import OK, WARN, Health
 
-from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
+from .device_backend import BackendError, DeviceBackend, DeviceSample, validate_std
 from .serial_backend import SerialDeviceBackend
 
 #: The device sensors' true noise parameters (``inclinometer_noise_std``...).
@@ -137,7 +137,7 @@ class SimDeviceBackend(DeviceBackend):
 
     def update_noise(self, noise):
         for sensor in channels.DEVICE_SENSORS:
-            check_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
+            validate_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
         self._noise = noise
 
     def observe_true_pose(self, pose):

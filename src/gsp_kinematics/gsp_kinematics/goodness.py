@@ -48,7 +48,7 @@ def robust_weights(normalised, loss, scale):
     raise ValueError(f'loss must be one of {LOSSES}, got {loss!r}')
 
 
-def check_loss(loss, scale):
+def validate_loss(loss, scale):
     if loss not in LOSSES:
         raise ValueError(f'loss must be one of {LOSSES}, got {loss!r}')
     if not (math.isfinite(scale) and scale > 0.0):

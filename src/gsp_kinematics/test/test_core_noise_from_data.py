@@ -277,7 +277,7 @@ def test_bonferroni_threshold():
 
 def test_unknown_noise_source_is_named():
     with pytest.raises(noise_from_data.NoiseSourceError, match="'guessed'"):
-        noise_from_data.check_noise_source('guessed')
+        noise_from_data.validate_noise_source('guessed')
 
 
 def test_a_channel_without_scatter_has_no_within_posture_estimate(exact_readings):

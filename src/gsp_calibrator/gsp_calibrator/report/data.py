@@ -208,7 +208,7 @@ def settle_line(settle):
     if not settle or not settle.get('rows'):
         return ''
     return (
-        f'settle wait (settled to averaged window): median {settle["median_s"]:.3g} s, max '
+        f'rest wait (settled to averaged window): median {settle["median_s"]:.3g} s, max '
         f'{settle["max_s"]:.3g} s over {settle["rows"]} rows; {settle["waited"]} waited for a '
         'moving channel'
     )

@@ -325,7 +325,7 @@ class CalibrationRun:
             {
                 **self.collection.summary(),
                 'replacements': session.state.replacements,
-                'settle': settle_statistics(session.state.settle_waits),
+                'settle': settle_statistics(session.state.rest_waits),
                 'processing_lag': host.processing_lags.summary(),
                 'route_additions': session.state.route_additions or None,
                 **extra,

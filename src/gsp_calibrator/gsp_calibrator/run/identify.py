@@ -1,7 +1,7 @@
 """Identification of a collected run, without ROS (pure).
 
 1. :func:`identify_from_samples`: the core's ``identify`` on the averaged posture rows
-   (``run.directory.Samples``), then checks: converged, and every free parameter identifiable
+   (``run.directory.Rows``), then checks: converged, and every free parameter identifiable
    (full rank of the column-scaled information matrix). A failed check gives
    ``CalibrationOutcome.success = False`` and a message naming the parameters; no geometry.
    A result that passes is cross-validated (the accuracy the device measures on postures the
@@ -149,7 +149,7 @@ def identify_from_samples(
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
-    ``samples``: a :class:`.directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
+    ``samples``: a :class:`.directory.Rows`; ``sigmas``: per-sample noise (m, rad), scaled by
     ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. The rows' lag sums give the

@@ -199,14 +199,14 @@ def effect_route(settings, poses, start_pose, sample_rate_hz=None):
     """The route a run with ``settings`` commands through ``poses`` (N, 6, in commanded order)
     from ``start_pose``: :func:`gsp_kinematics.effects.plan.augment_route` for the effect groups
     its ``free_parameters`` free or ``auto`` may choose (thermal: reference revisits; backlash:
-    both approach directions), timed with the run's leg limits, its samples per posture at
+    both approach directions), timed with the run's leg limits, its pairs per posture at
     ``sample_rate_hz`` (:func:`sample_rate`) and gsp_plan's settle; None when they need nothing
     (no such group). A revisit is a posture of its own (its own 1-based number in state.json)
     at the same pose."""
     groups = route_effect_groups(settings.free_parameters)
     if not groups or settings.formulation != 'implicit':  # auto there: the plain model
         return None
-    dwell_s = PLAN_SETTLE_S + settings.samples_per_posture / sample_rate(sample_rate_hz)
+    dwell_s = PLAN_SETTLE_S + settings.pairs_per_posture / sample_rate(sample_rate_hz)
     return augment_route(
         settings.nominal,
         poses,

@@ -2,7 +2,7 @@
 
 A :class:`RunSession` is a new run (:meth:`RunSession.create`) or the rest of an unfinished one
 (:meth:`RunSession.resume`). It holds the run's ``state.json`` (:mod:`.state`), its rows
-(:class:`.directory.Samples`, each appended to ``samples.csv`` as it is collected by a
+(:class:`.directory.Rows`, each appended to ``samples.csv`` as it is collected by a
 :class:`.directory.SamplesAppender`) and the postures still to command. It is thread-safe:
 a row is added by the node's thread whose message ended the posture
 (:class:`.host.PostureLink`) while the run coroutine writes ``state.json``.
@@ -24,9 +24,9 @@ from gsp_calibrator.recording.mcap_io import recover_recordings
 from gsp_calibrator.run.approach import ApproachTracker
 from gsp_calibrator.run.directory import (
     SAMPLES_FILE,
+    Rows,
     RunDirectory,
     RunDirectoryError,
-    Samples,
     SamplesAppender,
 )
 from gsp_calibrator.run.state import (
@@ -34,11 +34,11 @@ from gsp_calibrator.run.state import (
     STATE_FILE,
     ResumeRefused,
     RunState,
-    check_resume,
     latest_unfinished_run,
     postures_to_collect,
     read_state,
     selection_options,
+    validate_resume,
 )
 from gsp_kinematics.fileio import atomic_write_text, to_json
 from gsp_msgs_py import names
@@ -85,7 +85,7 @@ class RunSession:
     def create(cls, output_root):
         """A new run directory with an empty ``samples.csv`` (OSError if unwritable)."""
         run = RunDirectory.create(output_root)
-        samples = Samples.empty()
+        samples = Rows.empty()
         run.write_samples(samples)
         return cls(run, samples)
 
@@ -101,7 +101,7 @@ class RunSession:
             run = RunDirectory(path)
             state = read_state(run.path)
             samples = run.read_samples()
-            check_resume(state, settings, samples, pid)
+            validate_resume(state, settings, samples, pid)
         except (ResumeRefused, RunDirectoryError) as error:
             raise RunRefused(f'resume refused: {error}') from None
         # samples.csv decides what was collected: state.json lags it by the rows appended after
@@ -158,7 +158,7 @@ class RunSession:
             self.approach.command(posture, pose, standing_legs)
 
     def rows_so_far(self):
-        """A copy of the rows collected so far (:class:`.directory.Samples`)."""
+        """A copy of the rows collected so far (:class:`.directory.Rows`)."""
         with self._lock:
             return self.samples.rows(slice(0, len(self.samples)))
 

@@ -2,7 +2,7 @@
 
 The calibrator rewrites it atomically (:mod:`gsp_kinematics.fileio`) at every step, so after any
 fault (a dead sensor, a killed process, a full disk) the run directory says where to carry on.
-``/gsp/calibrator/resume`` reads it back: :func:`check_resume` refuses a resume whose options
+``/gsp/calibrator/resume`` reads it back: :func:`validate_resume` refuses a resume whose options
 would change the selection, or whose rows came from another nominal geometry or device, and
 :func:`postures_to_collect` lists what is left. See docs/faults.md and docs/data.md.
 """
@@ -88,10 +88,10 @@ class RunState:
     #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
     #: (1-based) in their place
     replacements: list = dataclasses.field(default_factory=list)
-    #: {posture (str): {wait_s, settling_pairs}}: each kept row's settle wait, from the
+    #: {posture (str): {wait_s, moving_pairs}}: each kept row's rest wait, from the
     #: platform's settled status to the first averaged sample, and the pairs waited out as still
     #: settling (:mod:`gsp_calibrator.collection.synchroniser`)
-    settle_waits: dict = dataclasses.field(default_factory=dict)
+    rest_waits: dict = dataclasses.field(default_factory=dict)
     #: postures added from the pool by a run that stops when it is good enough (the last of
     #: ``poses``)
     added: int = 0
@@ -122,19 +122,19 @@ class RunState:
         self.skipped.append({'posture': int(posture), 'reason': str(reason)})
 
     def record_done(self, posture, sample=None):
-        """``posture`` has its row; ``sample`` (its ``PostureSample``) gives its settle wait."""
+        """``posture`` has its row; ``sample`` (its ``PostureRow``) gives its rest wait."""
         self.skipped = [s for s in self.skipped if s['posture'] != posture]
         if posture not in self.done:
             self.done.append(int(posture))
         if sample is not None:
-            self.settle_waits[str(int(posture))] = {
-                'wait_s': float(sample.settle_wait),
-                'settling_pairs': int(sample.settling_pairs),
+            self.rest_waits[str(int(posture))] = {
+                'wait_s': float(sample.rest_wait),
+                'moving_pairs': int(sample.moving_pairs),
             }
 
 
 def settle_statistics(waits):
-    """``result.json`` ``collection.settle`` of the kept rows' settle waits (``settle_waits``):
+    """``result.json`` ``collection.settle`` of the kept rows' rest waits (``rest_waits``):
     ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
     waited for a channel still moving (not only for their first samples), and ``per_posture_s``
     (``{posture: wait_s}``, in posture order)."""
@@ -154,7 +154,7 @@ def settle_statistics(waits):
         'median_s': float(np.median(values)),
         'max_s': float(values.max()),
         'mean_s': float(values.mean()),
-        'waited': sum(1 for entry in entries if entry['settling_pairs'] > 0),
+        'waited': sum(1 for entry in entries if entry['moving_pairs'] > 0),
         'per_posture_s': {
             posture: float(waits[posture]['wait_s']) for posture in sorted(waits, key=int)
         },
@@ -214,9 +214,9 @@ def latest_unfinished_run(output_root, own_pid=None):
     raise ResumeRefused(f'no unfinished run to resume under {root.resolve()}')
 
 
-def check_resume(state, settings, samples, own_pid=None):
+def validate_resume(state, settings, samples, own_pid=None):
     """Refuse (:class:`ResumeRefused`) a resume of ``state`` with ``settings`` and the run's
-    ``samples`` (``Samples`` of its samples.csv) when they do not belong together. ``own_pid``:
+    ``samples`` (``Rows`` of its samples.csv) when they do not belong together. ``own_pid``:
     the resuming calibrator's process (a run it left unfinished, e.g. on a full disk whose
     state.json kept ``collecting``, is resumable)."""
     current = selection_options(settings)

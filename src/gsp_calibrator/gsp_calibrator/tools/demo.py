@@ -117,7 +117,7 @@ def parse_arguments(argv=None):
         default='none',
         choices=tuple(SENSOR_DYNAMICS),
         help='none: an instant device with white noise; realistic: response and noise '
-        "correlation times of typical parts, and the calibrator's settle look-back to match "
+        "correlation times of typical parts, and the calibrator's rest look-back to match "
         '(docs/sensor_errors.md) (none)',
     )
     add(

@@ -64,7 +64,7 @@ class CheckRun(CalibrationRun):
                 settings.pool_size,
                 settings.seed,
                 settings.sigmas,
-                settings.samples_per_posture,
+                settings.pairs_per_posture,
                 settings.motion_limits,
             )
         except (ValueError, RuntimeError) as error:
