@@ -103,7 +103,7 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
     assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
     assert abs(errors[43]) < 0.01  # deg
     assert outcome.identifiability['rank'] == 51 and outcome.unidentifiable == []  # extended
-    assert outcome.fit_accepted, outcome.verdict
+    assert outcome.fit_accepted, outcome.fit_diagnosis
     # Averaged rows weigh as sigma / sqrt(n).
     assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
 
@@ -200,13 +200,13 @@ def test_paper_model_on_sensor_errors_is_not_accepted_with_a_verdict(selection):
         NOMINAL, samples, SIGMAS, free=['paper'], noise_source='configured'
     )
     assert outcome.success and not outcome.fit_accepted and not outcome.accepted
-    assert 'does NOT explain the data' in outcome.verdict
-    assert 'try free_parameters: extended' in outcome.verdict
+    assert 'does NOT explain the data' in outcome.fit_diagnosis
+    assert 'try free_parameters: extended' in outcome.fit_diagnosis
     summary = outcome_summary(outcome)
     assert summary.startswith(NOT_ACCEPTED_HEAD)
     assert 'exceeds the required 0.1 mm' in summary
     extended = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
-    assert extended.fit_accepted and 'explains the data' in extended.verdict
+    assert extended.fit_accepted and 'explains the data' in extended.fit_diagnosis
     assert extended.accepted
     assert 'sensor errors: kq1 ' in outcome_summary(extended)
 
@@ -228,15 +228,15 @@ def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
     noisy = SensorNoise(*(3.0 * value for value in SIGMAS.channels().values()))
     samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5, windows=True)
     outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
-    assert outcome.success and outcome.fit_accepted, outcome.verdict
-    assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.verdict
+    assert outcome.success and outcome.fit_accepted, outcome.fit_diagnosis
+    assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.fit_diagnosis
     assert outcome.sigmas.leg_lengths == pytest.approx(noisy.leg_lengths / math.sqrt(10), rel=0.1)
     for channel, entry in outcome.noise_estimates.items():
         assert entry['source'] == 'pooled'
         assert entry['estimated'] == pytest.approx(getattr(noisy, channel), rel=0.1), channel
     configured = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
     assert configured.success and not configured.fit_accepted
-    assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict
+    assert configured.result.outliers == [] and 'wrong sigmas' in configured.fit_diagnosis
     # The goodness of fit is a diagnostic: the accuracy measured on held-out postures decides.
     assert configured.accepted
     summary = outcome_summary(configured)

@@ -155,7 +155,7 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     fit = {'chi2': 190.5, 'dof': 185, 'p_value': 0.38}
     noise = {'lvdt': {'configured': 1e-6, 'estimated': 0.96e-6}}
     (tmp_path / 'result.json').write_text(
-        json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'verdict': 'ok'})
+        json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'fit_diagnosis': 'ok'})
     )
     record = demo.fit_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')

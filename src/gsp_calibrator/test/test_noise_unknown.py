@@ -116,7 +116,9 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
     assert response.success, response.message
     run = RunDirectory(parse_response(response.message).run_directory)
     data = json.loads((run.path / 'result.json').read_text())
-    assert data['noise_source'] == 'estimated' and data['fit_accepted'] is True, data['verdict']
+    assert data['noise_source'] == 'estimated' and data['fit_accepted'] is True, data[
+        'fit_diagnosis'
+    ]
     assert data['goodness_of_fit']['test'] == 'lack_of_fit'
     inclinometer = data['noise_estimates']['inclinometer']
     assert not inclinometer['within_lower_bound'] and inclinometer['source'] == 'pooled'
@@ -195,7 +197,7 @@ def test_correlated_device_noise_offline_is_estimated_and_accepted(postures, sam
     poses = choose_postures(nominal, postures, 10 * postures, seed=5).poses
     rows = offline_run(poses, samples, rate_hz, correlation_time, seed=postures)
     outcome = identify_from_samples(nominal, rows, DEFAULT_SENSOR_NOISE)
-    assert outcome.success and outcome.fit_accepted, outcome.verdict
+    assert outcome.success and outcome.fit_accepted, outcome.fit_diagnosis
     assert outcome.result.goodness_of_fit.test == 'lack_of_fit'
     inclinometer = outcome.noise_estimates['inclinometer']
     assert inclinometer['within_lower_bound'] is lower_bound

@@ -316,4 +316,4 @@ def test_reidentify_takes_either_noise_source(tmp_path, capsys, source, test):
     if source == 'estimated':
         # A samples.csv has no within-posture scatter: between postures only, and said so.
         assert {entry['source'] for entry in data['noise_estimates'].values()} == {'between'}
-        assert 'not testable' in data['verdict']
+        assert 'not testable' in data['fit_diagnosis']

@@ -33,7 +33,7 @@ from gsp_calibrator.run.rigid import Verdicts, rigid_result
 from gsp_kinematics import identifiability, noise_from_data
 from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
-from gsp_kinematics.goodness import verdict
+from gsp_kinematics.goodness import fit_diagnosis
 from gsp_kinematics.identification import (
     FORMULATIONS,
     IdentificationError,
@@ -74,7 +74,7 @@ class CalibrationOutcome:
     #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
     noise_estimates: dict = dataclasses.field(default_factory=dict)
     noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
-    verdict: str = ''  #: the goodness-of-fit verdict (plain text): a diagnostic
+    fit_diagnosis: str = ''  #: the goodness-of-fit diagnosis (plain text): a diagnostic
     #: the cross-validated accuracy (``CrossValidation.summary``; None: not measured)
     accuracy: dict | None = None
     #: what the model leaves unexplained (SensorNoise of row stds; None: nothing shown)
@@ -204,7 +204,7 @@ def identify_from_samples(
     outcome.success = True
     outcome.geometry = result.geometry
     outcome.noise_estimates = noise_from_data.noise_record(estimates, sigmas, samples.n_samples)
-    outcome.verdict = verdict(
+    outcome.fit_diagnosis = fit_diagnosis(
         result.goodness_of_fit,
         result.outliers,
         outcome.noise_estimates,
