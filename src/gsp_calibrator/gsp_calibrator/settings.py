@@ -22,6 +22,7 @@ from gsp_calibrator.settings_fields import ParameterFields
 from gsp_kinematics.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.goodness import LOSSES
 from gsp_kinematics.identification import (
+    DEFAULT_FORMULATION,
     FORMULATIONS,
     Options,
     free_parameters_error,
@@ -36,7 +37,7 @@ from gsp_kinematics.sensors.noise import (
     SensorNoise,
 )
 from gsp_kinematics.sensors.noise_estimate import DEFAULT_REST_SIGMAS
-from gsp_kinematics.travel.motion import MotionLimits
+from gsp_kinematics.travel.motion import DEFAULT_PAIRS_PER_POSTURE, MotionLimits
 from gsp_kinematics.verdict.acceptance import (
     DEFAULT_REQUIRED_IMPROVEMENT,
     DEFAULT_REQUIRED_ORIENTATION_DEG,
@@ -179,7 +180,7 @@ PARAMETERS = (
     ),
     ParameterSpec(
         'pairs_per_posture',
-        10,
+        DEFAULT_PAIRS_PER_POSTURE,
         'Synchronised (leg lengths, device) samples averaged per posture',
         constraints='>= 1',
         check=at_least(1),
@@ -359,7 +360,7 @@ PARAMETERS = (
     ),
     _one_of(
         'formulation',
-        'implicit',
+        DEFAULT_FORMULATION,
         'Identification formulation: implicit (all sensors, poses as unknowns), fk '
         "(device residuals through FK) or paper (the paper's eq 11)",
         FORMULATIONS,

@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from .geometry import ALL_PARAMETER_NAMES
-from .identification import SENSOR_NAMES, resolve_free
+from .identification import DEFAULT_FORMULATION, SENSOR_NAMES, resolve_free
 from .sensors.noise import DEFAULT_SENSOR_NOISE
 
 #: A scaled singular value below this fraction of the largest counts as zero.
@@ -110,7 +110,7 @@ def analyse_design(
     poses,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     sensors=SENSOR_NAMES,
     relative_tolerance=DEFAULT_RELATIVE_TOLERANCE,
 ):

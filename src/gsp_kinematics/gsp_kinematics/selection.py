@@ -4,7 +4,7 @@ import numpy as np
 
 from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
 from .channels import READING_NAMES
-from .identification import SENSOR_NAMES, resolve_free
+from .identification import DEFAULT_FORMULATION, SENSOR_NAMES, resolve_free
 from .prediction import pose_sensitivities
 from .sensors.noise import DEFAULT_SENSOR_NOISE
 
@@ -19,7 +19,7 @@ def posture_factors(
     poses,
     sigmas=None,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     sensors=SENSOR_NAMES,
     leg_columns=None,
 ):
@@ -63,7 +63,7 @@ def posture_information(
     poses,
     sigmas=None,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     sensors=SENSOR_NAMES,
     leg_columns=None,
 ):
@@ -92,7 +92,7 @@ def select_postures(
     count=60,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     exchange_passes=1,
     shortlist=SHORTLIST,
 ):
@@ -236,7 +236,7 @@ def exchange_for_pose_error(
     targets,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     passes=1,
 ):
     """Indices of ``pool`` from ``chosen`` by exchange, minimising the predicted position error at

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS, TRUE_NOISE_PARAMETER
+from gsp_kinematics.travel.motion import DEFAULT_SENSOR_RATE_HZ
 
 from . import names
 
@@ -155,7 +156,7 @@ class ParameterSpec:
 # --- parameters several nodes share (same name, type and checks everywhere) -----------------
 
 
-def publish_rate_spec(what, default=200.0):
+def publish_rate_spec(what, default=DEFAULT_SENSOR_RATE_HZ):
     """``publish_rate`` (Hz, read-only): the rate of ``what``."""
     return ParameterSpec(
         'publish_rate',

@@ -35,6 +35,7 @@ from gsp_kinematics.device import DeviceModelError
 from gsp_kinematics.effects.groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.goodness import fit_diagnosis
 from gsp_kinematics.identification import (
+    DEFAULT_FORMULATION,
     FORMULATIONS,
     IdentificationError,
     resolve_free,
@@ -138,7 +139,7 @@ def identify_from_samples(
     samples,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
     requirement=acceptance.Requirement(),
     folds=DEFAULT_FOLDS,

@@ -9,9 +9,7 @@ import numpy as np
 
 from gsp_kinematics.effects.groups import EFFECT_GROUPS, effect_groups_of, split_auto
 from gsp_kinematics.effects.plan import augment_route
-from gsp_kinematics.identification import (
-    resolve_free,
-)
+from gsp_kinematics.identification import DEFAULT_FORMULATION, resolve_free
 from gsp_kinematics.kinematics import (
     ForwardKinematicsError,
     Workspace,
@@ -21,7 +19,7 @@ from gsp_kinematics.kinematics import (
 )
 from gsp_kinematics.selection import best_addition, posture_information, select_postures
 from gsp_kinematics.sensors.noise import DEFAULT_SENSOR_NOISE
-from gsp_kinematics.travel.motion import posture_leg_lengths
+from gsp_kinematics.travel.motion import DEFAULT_SENSOR_RATE_HZ, posture_leg_lengths
 from gsp_kinematics.travel.route import path_time, plan_route, travel_time_matrix
 
 #: Leg distance (m) within which the platform already holds a posture: commanded first, it would
@@ -39,7 +37,7 @@ ROUTE_GROUPS = ('thermal', 'backlash')
 #: synchronised samples; the calibrator predicts the time its route additions cost with the
 #: settle and the rate it heard the streams at (this one before it heard them).
 PLAN_SETTLE_S = 0.02
-PLAN_SENSOR_RATE_HZ = 200.0
+PLAN_SENSOR_RATE_HZ = DEFAULT_SENSOR_RATE_HZ
 
 
 class CalibrationError(RuntimeError):
@@ -76,7 +74,7 @@ def choose_postures(
     seed,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     workspace=Workspace(),
 ):
     """Select ``count`` postures from a seeded pool of ``pool_size`` (:class:`PostureSelection`)."""

@@ -120,7 +120,7 @@ def parse_arguments(argv=None):
         '--sensor-rate-hz',
         type=float,
         default=PLAN_SENSOR_RATE_HZ,
-        help='synchronised sample rate, Hz (200)',
+        help=f'synchronised pair rate, Hz ({PLAN_SENSOR_RATE_HZ:g})',
     )
     add('--output', default=None, help='write the plan (or the sweep) as JSON here')
     add('--sweep', action='store_true', help='sweep posture counts and pairs per posture')

@@ -14,13 +14,16 @@ import numpy as np
 
 from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
+    PLAN_SENSOR_RATE_HZ,
+    PLAN_SETTLE_S,
     CalibrationError,
     choose_postures,
     selection_formulation,
 )
+from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.effects.plan import augment_route, effect_identifiability
 from gsp_kinematics.identifiability import analyse_identifiability, unidentifiable_parameters
-from gsp_kinematics.identification import resolve_free
+from gsp_kinematics.identification import DEFAULT_FORMULATION, resolve_free
 from gsp_kinematics.kinematics import Workspace, home_pose
 from gsp_kinematics.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.selection import posture_information
@@ -94,9 +97,9 @@ class Design:
 
     sigmas: SensorNoise = DEFAULT_SENSOR_NOISE  #: per-sample sensor noise (m, rad)
     free: tuple = DEFAULT_FREE  #: free parameter and group names (the calibrator's default)
-    formulation: str = 'implicit'
+    formulation: str = DEFAULT_FORMULATION
     workspace: Workspace = Workspace()
-    pool_size: int = 600
+    pool_size: int = DEFAULTS['pool_size']
     seed: int = 0
 
 
@@ -161,11 +164,11 @@ def select(nominal, postures, pairs_per_posture, design=Design()):
 
 def plan(
     nominal,
-    postures=60,
-    pairs_per_posture=10,
+    postures=DEFAULTS['posture_count'],
+    pairs_per_posture=DEFAULTS['pairs_per_posture'],
     design=Design(),
-    settle_s=0.02,
-    sensor_rate_hz=200.0,
+    settle_s=PLAN_SETTLE_S,
+    sensor_rate_hz=PLAN_SENSOR_RATE_HZ,
     selection=None,
     limits=MotionLimits(),
     effects=None,
@@ -249,8 +252,8 @@ def target_plan(
     design=Design(),
     posture_counts=DEFAULT_TARGET_POSTURES,
     max_samples=MAX_PAIRS_PER_POSTURE,
-    settle_s=0.02,
-    sensor_rate_hz=200.0,
+    settle_s=PLAN_SETTLE_S,
+    sensor_rate_hz=PLAN_SENSOR_RATE_HZ,
     limits=MotionLimits(),
 ):
     """The plan of least predicted platform time whose predicted mean errors reach the targets

@@ -28,7 +28,13 @@ import numpy as np
 from ..geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
 from ..identification import IdentificationError, identify, resolve_free
 from ..selection import posture_factors
-from ..travel.motion import MotionLimits, move_time, posture_leg_lengths
+from ..travel.motion import (
+    DEFAULT_PAIRS_PER_POSTURE,
+    DEFAULT_SENSOR_RATE_HZ,
+    MotionLimits,
+    move_time,
+    posture_leg_lengths,
+)
 from ..verdict import cross_validation
 from . import drift
 
@@ -66,8 +72,8 @@ def choose_check_postures(
     pool,
     start_pose,
     sigmas,
-    pairs_per_posture=10,
-    rate_hz=200.0,
+    pairs_per_posture=DEFAULT_PAIRS_PER_POSTURE,
+    rate_hz=DEFAULT_SENSOR_RATE_HZ,
     limits=MotionLimits(),
     count=CHECK_POSTURES,
     budget_s=CHECK_BUDGET_S,
