@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.run import postures
+from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools import planning, plans
 from gsp_kinematics.geometry import default_geometry
 from gsp_kinematics.sensors.noise import SensorNoise
@@ -109,7 +110,8 @@ def test_bad_input_is_named(tmp_path, capsys):
 def test_run_options_are_the_calibrators_and_checked_as_gsp_demo_checks_them(capsys):
     args = planning.parse_arguments(['--free', 'paper', 'kq1,kq2'])
     assert args.free_parameters == ['paper', 'kq1', 'kq2']
-    assert (args.posture_count, args.pool_size, args.pairs_per_posture) == (60, 600, 10)
+    names = ('posture_count', 'pool_size', 'pairs_per_posture')
+    assert [getattr(args, name) for name in names] == [DEFAULTS[name] for name in names]
     for argv, named in ((['--free', 'kq9'], '--free'), (['--postures', '0'], '--postures')):
         with pytest.raises(SystemExit):
             planning.parse_arguments(argv)
