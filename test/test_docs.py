@@ -458,11 +458,11 @@ def test_the_docstring_check_sees_a_missing_module_function_and_file(tmp_path):
     stale = tmp_path / 'stale.py'
     stale.write_text(
         '"""See :mod:`gsp_calibrator.run_flow`, ``node_waiting.py``, :func:`absent`,\n'
-        '``run_folder.Samples`` and :class:`gsp_calibrator.run.record.RunRecord`."""\n'
+        '``run_folder.Rows`` and :class:`gsp_calibrator.run.record.RunRecord`."""\n'
     )
     assert dangling_docstring_names(stale) == [
         'absent',
         'gsp_calibrator.run_flow',
         'node_waiting.py',
-        'run_folder.Samples',
+        'run_folder.Rows',
     ]

@@ -38,7 +38,7 @@ WAIT_S = 60.0
 #: 60 postures (61 commanded with the reference revisit at the end), 30 samples each: about a minute of
 #: platform time, enough to resolve all four groups (docs/platform_effects.md).
 POSTURES = 60
-SAMPLES_PER_POSTURE = 30
+PAIRS_PER_POSTURE = 30
 #: Streams at 50 Hz: a loaded machine keeps up with them (at 200 Hz the device's starve).
 SENSOR_RATE_HZ = 50
 CHECK_POSTURES = 20
@@ -140,7 +140,7 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     args = demo.parse_arguments(
         ['--platform-effects', 'realistic', '--postures', str(POSTURES), '--free', 'auto']
         + ['--sensor-rate', str(SENSOR_RATE_HZ), '--output-root', str(tmp_path / 'runs')]
-        + ['--samples-per-posture', str(SAMPLES_PER_POSTURE)]
+        + ['--pairs-per-posture', str(PAIRS_PER_POSTURE)]
     )
     commands = demo_commands.node_commands(args, str(tmp_path / 'runs'))
     assert 'payload_mass:=40.0' in commands['calibrator']  # the user knows the load

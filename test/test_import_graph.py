@@ -246,11 +246,11 @@ def test_the_floor_check_catches_a_core_import_back_up(tmp_path):
 
 
 #: Floors inside gsp_calibrator, lowest first; a module imports its own floor or lower ones.
-#: The upkeep parameters are part of the one parameter table that ``settings`` reads.
+#: `settings_fields` holds the typed fields of the one parameter table that `settings` reads.
 CALIBRATOR_FLOORS = {
     'gsp_calibrator.settings': 0,
     'gsp_calibrator.launch_arguments': 0,
-    'gsp_calibrator.upkeep.parameters': 0,
+    'gsp_calibrator.settings_fields': 0,
     'gsp_calibrator.collection': 1,
     'gsp_calibrator.recording': 1,
     'gsp_calibrator.report': 1,

@@ -20,7 +20,7 @@ import threading
 import numpy as np
 import pytest
 
-from gsp_calibrator.files.run_directory import Samples, write_samples
+from gsp_calibrator.files.run_directory import Rows, write_samples
 
 TIMEOUT_S = 60.0  #: bounds a failure only (start-up on a loaded machine)
 PAIRS = {
@@ -35,7 +35,7 @@ UNCLEAN = ('Traceback', 'Exception ignored', 'terminate called', 'KeyboardInterr
 
 def replayable_run(directory):
     """A run directory with a one-posture samples.csv (what the replay node needs)."""
-    samples = Samples.empty()
+    samples = Rows.empty()
     samples.append(1, [0.0, 0.0, 1.0, 0.0, 0.0, 0.0], np.full(6, 1.2), np.zeros(4), 5, 0.0)
     directory.mkdir()
     write_samples(directory / 'samples.csv', samples)

@@ -28,7 +28,7 @@ def calibrator_parameters(output_root, **overrides):
     values = {
         'posture_count': 12,
         'pool_size': 120,
-        'samples_per_posture': 5,
+        'pairs_per_posture': 5,
         'sync_tolerance': 0.5 / RATE_HZ,
         'topic_timeout': 10.0,
         'settle_timeout': 10.0,

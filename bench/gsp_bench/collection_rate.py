@@ -67,19 +67,19 @@ def posture_messages(rng, first_ns, count, noise_std, offset):
     return messages
 
 
-def collect(samples_per_posture, postures, seed=0, rows_out=None):
-    """Collect ``postures`` postures of ``samples_per_posture`` samples (see the module
+def collect(pairs_per_posture, postures, seed=0, rows_out=None):
+    """Collect ``postures`` postures of ``pairs_per_posture`` samples (see the module
     docstring); ``(messages handled, thread CPU s, rows)``. ``rows_out``: None or a list that
     gets each ``RowReady``."""
-    settings = CalibratorSettings.from_values({'samples_per_posture': samples_per_posture})
+    settings = CalibratorSettings.from_values({'pairs_per_posture': pairs_per_posture})
     collection = protocol.CollectionProtocol.for_settings(settings)
     noise_std = np.asarray(settings.sigmas.channel_std(), dtype=float)
     rng = np.random.default_rng(seed)
     period_ns = int(NS_PER_S / SENSOR_RATE_HZ)
     moving = int(MOVING_S * SENSOR_RATE_HZ)
-    # Enough instants for the settle look-back and the window (a few more for the pairs a
+    # Enough instants for the rest look-back and the window (a few more for the pairs a
     # posture may drop).
-    settled = int(settings.settle_lookback * SENSOR_RATE_HZ) + samples_per_posture + 20
+    settled = int(settings.rest_lookback * SENSOR_RATE_HZ) + pairs_per_posture + 20
     plan, now_ns = [], T0_NS
     for k in range(postures):
         command_id = f'c{k}'
@@ -120,14 +120,14 @@ def _with_id(status, command_id, state=None):
     return dataclasses.replace(status, **changes)
 
 
-def measure(samples_per_posture, postures, repeats):
+def measure(pairs_per_posture, postures, repeats):
     """The sustained rate of ``repeats`` runs: median messages/s and the runs' figures."""
-    collect(samples_per_posture, 2)  # warm-up: lazy imports (scipy.stats) of the first row
-    runs = [collect(samples_per_posture, postures, seed) for seed in range(repeats)]
+    collect(pairs_per_posture, 2)  # warm-up: lazy imports (scipy.stats) of the first row
+    runs = [collect(pairs_per_posture, postures, seed) for seed in range(repeats)]
     rates = [handled / seconds for handled, seconds, _ in runs]
     rate = statistics.median(rates)
     return {
-        'samples_per_posture': samples_per_posture,
+        'pairs_per_posture': pairs_per_posture,
         'postures': postures,
         'rows': [rows for _, _, rows in runs],
         'messages': [handled for handled, _, _ in runs],
@@ -144,7 +144,7 @@ def run(quick=False, log=None):
         def log(message):
             print(message, file=sys.stderr, flush=True)
 
-    default_window = CalibratorSettings.from_values({}).samples_per_posture
+    default_window = CalibratorSettings.from_values({}).pairs_per_posture
     repeats = 3 if quick else 5
     section = {
         'default_load_msg_s': DEFAULT_LOAD_MSG_S,

@@ -5,7 +5,7 @@ revisits, both approach directions) and the model chosen from the data (``auto``
 each effect alone and the ideal platform, 20 seeds each.
 
 A run is the verdict section's (:mod:`.verdict`): the calibrator's 60 postures in route
-order, 10 samples per posture at the default noise, ``POSTURE_S`` per posture; here the route is
+order, 10 pairs per posture at the default noise, ``POSTURE_S`` per posture; here the route is
 augmented for all four groups (the user does not know which the platform has) and the user gives
 the payload (the realistic 40 kg and its centre of mass). ``auto`` chooses among the groups with
 ``FOLDS``-fold cross-validation (configured noise); the plain model (``extended``) is fitted on

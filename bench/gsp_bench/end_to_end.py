@@ -10,7 +10,7 @@ text):
 * ``max_sync_rate_hz``: the highest ``publish_rate`` of ``platform_sim`` and ``device_driver``
   (``--sensor-rate``) at which a short calibration still gets every synchronised sample: the
   demo succeeds, every posture not rejected by the platform has a ``samples.csv`` row with
-  ``n_samples == samples_per_posture``, and the calibrator's ``collection`` record (in
+  ``n_samples == pairs_per_posture``, and the calibrator's ``collection`` record (in
   ``result.json``, or copied by the demo into ``summary.json``) shows no dropped (inconsistent or
   non-finite) sample and no posture skipped for another reason than a platform rejection. Without
   that record (an older calibrator) the counts are unknown (None) and so is ``passed``.
@@ -41,7 +41,7 @@ SYNC_RATES_HZ = (100.0, 200.0, 400.0, 800.0, 1600.0)
 QUICK_SYNC_RATES_HZ = (200.0, 800.0)
 SYNC_POSTURES = 15
 QUICK_SYNC_POSTURES = 12  #: 44 parameters need >= 11 postures (4 readings each)
-SAMPLES_PER_POSTURE = 10
+PAIRS_PER_POSTURE = 10
 DEMO_TIMEOUT_S = 90.0  #: longest wall time of one demo run before it is stopped
 SETTLE_TIME_S = 0.02  #: platform_sim's settle time in every demo run (the demo's default)
 
@@ -64,7 +64,7 @@ def demo_command(
     output_root,
     postures,
     sensor_rate,
-    samples_per_posture=SAMPLES_PER_POSTURE,
+    pairs_per_posture=PAIRS_PER_POSTURE,
     validation_postures=1,
     seed=0,
     timeout=DEMO_TIMEOUT_S,
@@ -80,8 +80,8 @@ def demo_command(
         str(output_root),
         '--postures',
         str(int(postures)),
-        '--samples-per-posture',
-        str(int(samples_per_posture)),
+        '--pairs-per-posture',
+        str(int(pairs_per_posture)),
         '--validation-postures',
         str(int(validation_postures)),
         '--sensor-rate',
@@ -195,7 +195,7 @@ def collection_record(run):
 
 
 def collection_overhead(
-    sample_stamps, settle_s, samples_per_posture=SAMPLES_PER_POSTURE, sensor_rate_hz=200.0
+    sample_stamps, settle_s, pairs_per_posture=PAIRS_PER_POSTURE, sensor_rate_hz=200.0
 ):
     """The collection's time per posture against its physical minimum, from ``samples.csv``.
 
@@ -212,7 +212,7 @@ def collection_overhead(
     if span <= 0:
         return None
     cycle_s = (stamps[-1] - stamps[0]) / span
-    minimum_s = settle_s + samples_per_posture / sensor_rate_hz
+    minimum_s = settle_s + pairs_per_posture / sensor_rate_hz
     return {
         'posture_cycle_s': cycle_s,
         'physical_minimum_per_posture_s': minimum_s,
@@ -223,14 +223,14 @@ def collection_overhead(
     }
 
 
-def sync_check(run, postures, samples_per_posture=SAMPLES_PER_POSTURE):
+def sync_check(run, postures, pairs_per_posture=PAIRS_PER_POSTURE):
     """Whether ``run`` (of :func:`run_demo`) got every synchronised sample, and its counts.
 
     ``passed`` is None (and so are the counts from the ``collection`` record) when the run
     succeeded but says nothing about skipped postures and dropped samples.
     """
     samples = run.get('samples') or []
-    short = [p for p, n in samples if n != samples_per_posture]
+    short = [p for p, n in samples if n != pairs_per_posture]
     collected = {p for p, _ in samples}
     check = {
         'passed': False,
@@ -276,8 +276,8 @@ VALIDATION_POSTURES = {False: 50, True: 10}
 
 def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     """What the core alone reaches on the node suite's noise: same geometry files, same posture
-    selection, same free parameters, Table 3's first level averaged over ``SAMPLES_PER_POSTURE``
-    samples per posture (as the calibrator does), then validated like the demo. The truth is
+    selection, same free parameters, Table 3's first level averaged over ``PAIRS_PER_POSTURE``
+    pairs per posture (as the calibrator does), then validated like the demo. The truth is
     simulated as ``platform_sim`` and the ``sim`` device do, its sensor errors included. Means
     over ``seeds`` noise draws."""
     import numpy as np
@@ -294,7 +294,7 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
     from gsp_kinematics.model.validation import validate
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    averaged = DEFAULT_SENSOR_NOISE.averaged(np.full(postures, SAMPLES_PER_POSTURE))
+    averaged = DEFAULT_SENSOR_NOISE.averaged(np.full(postures, PAIRS_PER_POSTURE))
     poses = choose_postures(nominal, postures, 600, seed, averaged).poses
     # As in the node suite: the controller drives the legs to the nominal IK's sensor readings,
     # the real platform settles at FK of its true articular variables (postures it cannot reach
@@ -383,14 +383,14 @@ def run(quick=False, log=None):
         'calibration_s': summary.get('calibration_s'),
         'postures': postures,
         'postures_collected': len(calibration['samples'] or []),
-        'samples_per_posture': SAMPLES_PER_POSTURE,
+        'pairs_per_posture': PAIRS_PER_POSTURE,
         'sensor_rate_hz': 200.0,
         'identification_ms': summary.get('identification_ms'),
         'demo_total_s': summary.get('total_s'),
         'max_param_error_mm': summary.get('max_param_error_mm'),
     }
     overhead = collection_overhead(
-        calibration.get('sample_stamps'), SETTLE_TIME_S, SAMPLES_PER_POSTURE, 200.0
+        calibration.get('sample_stamps'), SETTLE_TIME_S, PAIRS_PER_POSTURE, 200.0
     )
     if overhead is not None:
         section['overhead_ratio'] = overhead['overhead_ratio']

@@ -162,7 +162,7 @@ def correlated_case(true, nominal, poses, truth, samples):
     return {
         'inclinometer_correlation_time_s': CORRELATION_TIME,
         'rate_hz': RATE_HZ,
-        'samples_per_posture': samples,
+        'pairs_per_posture': samples,
         'accepted_fraction': accepted / SEEDS,
         'estimated_over_true_row_noise': {
             name: {

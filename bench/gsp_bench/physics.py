@@ -79,7 +79,7 @@ def run_kept_demo(
         output_root,
         postures,
         SENSOR_RATE_HZ,
-        samples_per_posture=DEFAULTS['samples_per_posture'],
+        pairs_per_posture=DEFAULTS['pairs_per_posture'],
         validation_postures=1,
         seed=seed,
         timeout=timeout,

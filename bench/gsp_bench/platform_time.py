@@ -22,7 +22,7 @@ from gsp_kinematics.model.motion import MotionLimits
 
 MEASURED_POSTURES = 20
 QUICK_MEASURED_POSTURES = 12
-SAMPLES_PER_POSTURE = 10
+PAIRS_PER_POSTURE = 10
 SENSOR_RATE_HZ = 200.0
 TARGET_FACTOR = 1.5
 
@@ -30,7 +30,7 @@ TARGET_FACTOR = 1.5
 def _plan_record(entry):
     return {
         'postures': entry['postures'],
-        'samples_per_posture': entry['samples_per_posture'],
+        'pairs_per_posture': entry['pairs_per_posture'],
         'position_mm_mean': entry['predicted']['position_mm_mean'],
         'orientation_deg_mean': entry['predicted']['orientation_deg_mean'],
         'platform_s': entry['platform_time']['total_s'],
@@ -52,7 +52,7 @@ def measured_run(postures, limits, log):
     predicted = plans.plan(
         nominal,
         postures,
-        SAMPLES_PER_POSTURE,
+        PAIRS_PER_POSTURE,
         settle_s=SETTLE_TIME_S,
         sensor_rate_hz=SENSOR_RATE_HZ,
         limits=limits,
@@ -72,7 +72,7 @@ def measured_run(postures, limits, log):
     measured = summary.get('calibration_s')
     record = {
         'postures': postures,
-        'samples_per_posture': SAMPLES_PER_POSTURE,
+        'pairs_per_posture': PAIRS_PER_POSTURE,
         'predicted_s': predicted['total_s'],
         'predicted_parts_s': {
             key: predicted[key] for key in ('travel_s', 'settle_s', 'sampling_s')
@@ -98,7 +98,7 @@ def run(quick=False, log=None):
     nominal = default_geometry('nominal')
     limits = MotionLimits()
     log('gsp_bench: platform_time: the default plan and its route ...')
-    default = plans.plan(nominal, 60, SAMPLES_PER_POSTURE, limits=limits)
+    default = plans.plan(nominal, 60, PAIRS_PER_POSTURE, limits=limits)
     timing = default['platform_time']
     section = {
         'max_leg_speed_m_s': limits.max_speed,

@@ -14,7 +14,7 @@ its platform time (scaled so the plan spans the default run's 15 min of warming)
 previous one (backlash), with the default noise. Also given, from the same judgements: where the
 run would stop with the default plan's own 95 % bound as the requirement; at half the plan's
 platform time (the target's budget), the run's last judgement (its cross-validated mean, bound and
-true error); and what more samples per posture buy (``DWELL_SAMPLES``): the plan, and its first
+true error); and what more pairs per posture buy (``DWELL_SAMPLES``): the plan, and its first
 half, measured with them.
 """
 
@@ -25,7 +25,7 @@ import statistics
 import numpy as np
 
 import gsp_bench.verdict
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_kinematics.estimation.identifiability import posture_information
@@ -43,7 +43,7 @@ QUICK_SEEDS = 1
 MINIMUM = 30  #: postures of the first judgement (the calibrator's default)
 EVERY = 4  #: postures between judgements
 MAX_ADDED = 24  #: pool postures added at most (the bench's cap)
-#: Samples per posture of the dwell comparison (4x the default: half the noise's std)
+#: Pairs per posture of the dwell comparison (4x the default: half the noise's std)
 DWELL_SAMPLES = 40
 
 
@@ -80,9 +80,9 @@ class SimulatedRun:
 
     def __init__(self, design, plan, seed, time_scale, samples=gsp_bench.verdict.SAMPLES):
         self.design, self.plan, self.time_scale = design, plan, time_scale
-        self.samples_per_posture = samples
+        self.pairs_per_posture = samples
         self.rng = np.random.default_rng(seed)
-        self.samples = Samples.empty()
+        self.samples = Rows.empty()
         self.previous = None
         self.geometries = {}  #: postures -> the judged geometry (for the truth)
 
@@ -103,7 +103,7 @@ class SimulatedRun:
         noise = settings.sigmas
         scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
         exact = np.concatenate([run.leg_readings[0], run.device_readings[0]])
-        count = self.samples_per_posture
+        count = self.pairs_per_posture
         window = exact + self.rng.normal(size=(count, 10)) * scale
         mean = window.mean(axis=0)
         k = len(self.samples) + 1
@@ -277,7 +277,7 @@ def informative_plan(plan):
 
 def _prefix_figures(design, plan, seeds):
     """Medians over ``seeds`` of :func:`_prefix`: the route's first half and whole with 10 and
-    ``DWELL_SAMPLES`` samples per posture, and the plan in informative order within 0.5x and
+    ``DWELL_SAMPLES`` pairs per posture, and the plan in informative order within 0.5x and
     1x the plan's platform time."""
     half = len(plan.planned) // 2
     cases = {
@@ -373,7 +373,7 @@ def run(quick=False):
         },
         # the run's last judgement within 0.5x the plan's platform time (the target's budget)
         'at_half_the_plan_time': _half_figures(runs, required),
-        # what 4x the samples per posture buy (the route's first half and whole, 10 and 40
+        # what 4x the pairs per posture buy (the route's first half and whole, 10 and 40
         # samples), and the plan in informative order within 0.5x and 1x its platform time
         'prefixes': _prefix_figures(design, plan, seeds),
         'bounds_per_seed': [r['history'] for r in runs],

@@ -45,7 +45,7 @@ WORKSPACE = 20  #: workspace postures (the verdict section's variant)
 MINIMUM = 16  #: postures of the first judgement
 EVERY = 2  #: postures between judgements
 BUDGET = 0.56  #: judged within this times the default plan's platform time (0.5x and a step)
-#: samples per posture of ``auto`` judged as the calibrator judges, and its judgements
+#: pairs per posture of ``auto`` judged as the calibrator judges, and its judgements
 CALIBRATOR_SAMPLES = 160
 CALIBRATOR_COUNTS = (18, 20, 22, 24)
 
@@ -375,7 +375,7 @@ def calibrator_figures(runs, plain_mm, first_counts=(18, 24)):
                 later, meets(limit), limit, lambda s: s['true_mm']
             )
     return {
-        'samples_per_posture': CALIBRATOR_SAMPLES,
+        'pairs_per_posture': CALIBRATOR_SAMPLES,
         'auto_default_plan': {
             'cv_mm_median': own_mm,
             'bound_mm_median': _median([plan['position_bound_mm'] for plan in plans]),
@@ -434,7 +434,7 @@ def calibrator_auto(seed, samples, counts):
         'free_parameters': ['auto'],
         'payload_mass': REALISTIC.payload_mass,
         'payload_centre_of_mass': list(REALISTIC.centre_of_mass),
-        'samples_per_posture': samples,
+        'pairs_per_posture': samples,
     }
     design = gsp_bench.verdict.default_design(values)
     settings = design.settings

@@ -122,13 +122,13 @@ def bench_selection(pools=(600, 6000), count=60, repeats=3, seed=0):
     return section
 
 
-def bench_prediction(seeds=20, postures=60, samples_per_posture=10, validation_postures=200):
+def bench_prediction(seeds=20, postures=60, pairs_per_posture=10, validation_postures=200):
     """Measured over predicted mean validation errors of the shipped platform (true and nominal
     geometry files, sensor errors included), as the calibrator runs it: 60 selected postures,
     each row the mean of 10 samples at Table 3's first level, commanded with the nominal
     geometry, the calibrator's default ``extended`` parameters identified."""
     true, nominal = default_geometry('true'), default_geometry('nominal')
-    factor = 1.0 / math.sqrt(samples_per_posture)
+    factor = 1.0 / math.sqrt(pairs_per_posture)
     sigmas = SensorNoise.from_levels(0.001 * factor, 0.001 * factor)
     pool = sample_valid_postures(nominal, 600, np.random.default_rng(0))
     indices, _ = select_postures(nominal, pool, postures, sigmas, free=FREE)
@@ -170,6 +170,6 @@ def bench_prediction(seeds=20, postures=60, samples_per_posture=10, validation_p
         'position_ratio_per_seed_p5_p95': np.percentile(per_seed[:, 0], [5, 95]).tolist(),
         'orientation_ratio_per_seed_p5_p95': np.percentile(per_seed[:, 1], [5, 95]).tolist(),
         'postures': int(len(legs)),
-        'samples_per_posture': samples_per_posture,
+        'pairs_per_posture': pairs_per_posture,
         'validation_postures': validation_postures,
     }

@@ -1,6 +1,6 @@
 """The ``sensor_dynamics`` section of ``make bench`` (docs/sensor_errors.md): the realistic device
 (``gsp_demo --sensor-dynamics realistic``), collected by the calibrator's own protocol, with the
-settle rule and with the old fixed settle and consistency rule.
+rest rule and with the old fixed settle and consistency rule.
 
 Offline, on the pure core: the shipped real platform is driven by the nominal controller to the
 60 postures the ``sensor_errors`` section selects; at each the platform jumps and reports
@@ -9,7 +9,7 @@ Offline, on the pure core: the shipped real platform is driven by the nominal co
 posture, its noise coloured), the legs are white, all at 200 Hz; every sample goes to a
 :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` with its stamp (receive time 1 ms
 later), as the calibrator's node feeds it. The rows are identified (extended set) with weights
-that are the rows' true noise (the std of a mean of ``samples_per_posture`` AR(1) samples), so
+that are the rows' true noise (the std of a mean of ``pairs_per_posture`` AR(1) samples), so
 the predicted accuracy (from the covariance) is what the noise alone allows: a ratio of
 validation error to prediction above 1 is the bias the collection left. Validation: 50 other
 postures, mean position error (mm).
@@ -48,13 +48,13 @@ PLATFORM_SETTLE_S = 0.02  #: the demo's platform_sim settle time
 SETTLE_TIMEOUT_S = 5.0
 NS = 1_000_000_000
 #: The old rule: no look-back, and a trend never large enough to wait for.
-OLD_RULE = {'settle_lookback': 0.0, 'settle_sigmas': 1e12}
+OLD_RULE = {'rest_lookback': 0.0, 'rest_sigmas': 1e12}
 
 
 def realistic_rule():
     return {
-        'settle_lookback': DEFAULTS['settle_lookback'],
-        'settle_sigmas': DEFAULTS['settle_sigmas'],
+        'rest_lookback': DEFAULTS['rest_lookback'],
+        'rest_sigmas': DEFAULTS['rest_sigmas'],
     }
 
 
@@ -85,7 +85,7 @@ def row_noise(correlation, n=SAMPLES, sigmas=SIGMAS):
 
 def collect_run(legs, readings, poses, rule, seed):
     """Feed the streams of every posture to a protocol with ``rule``; ``(rows legs (M, 6),
-    readings (M, 4), commanded (M, 6), settle waits (M,) s, skipped, posture index (M,))``."""
+    readings (M, 4), commanded (M, 6), rest waits (M,) s, skipped, posture index (M,))``."""
     response, correlation = device_times()
     dynamics = SensorDynamics(response, correlation, 4, circular=[False, False, True, False])
     rng = np.random.default_rng(seed)
@@ -126,7 +126,7 @@ def collect_run(legs, readings, poses, rule, seed):
             done = next((e for e in out if isinstance(e, events.FINAL_EVENTS)), None)
         if isinstance(done, events.RowReady):
             rows.append((done.sample.leg_lengths, done.sample.readings, done.pose, m))
-            waits.append(done.sample.settle_wait)
+            waits.append(done.sample.rest_wait)
         else:
             skipped += 1
     legs_rows, readings_rows, commanded, index = (np.array(x) for x in zip(*rows, strict=True))
@@ -148,7 +148,7 @@ def _setting():
 
 
 def run_rule(rule, seeds, setting=None):
-    """Per seed: validation error (mm), predicted (mm), their ratio, mean settle wait (s)."""
+    """Per seed: validation error (mm), predicted (mm), their ratio, mean rest wait (s)."""
     true, nominal, poses, legs, readings, validation_poses = setting or _setting()
     weights = row_noise(device_times()[1])
     runs = []

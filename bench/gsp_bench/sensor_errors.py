@@ -2,7 +2,7 @@
 goodness of fit, noise estimates and robust fitting, on simulated calibrator runs.
 
 A run is what the calibrator collects: the shipped real platform (with its sensor errors) driven
-by the nominal controller to 60 selected postures, ``samples`` noisy samples per posture averaged
+by the nominal controller to 60 selected postures, ``samples`` noisy pairs per posture averaged
 (their scatter kept for the noise estimates), then identified. Validation drives 50 other postures
 with the calibrated controller and compares the reached poses with the commands (mean position
 error, mm). Every figure below compares runs of the same postures and noise. The model figure
@@ -247,7 +247,7 @@ def _noise_section(std):
     }
     estimates = goodness.estimate_noise(std, np.full(len(std), SAMPLES), channels)
     noise = {
-        'samples_per_posture': SAMPLES,
+        'pairs_per_posture': SAMPLES,
         'ratios': {name: entry['ratio'] for name, entry in estimates.items()},
         'worst_relative_error': max(abs(entry['ratio'] - 1.0) for entry in estimates.values()),
     }

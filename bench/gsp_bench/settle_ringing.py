@@ -1,4 +1,4 @@
-"""The ``settle_ringing`` section of ``make bench`` (docs/sensor_errors.md): the settle rule on a
+"""The ``settle_ringing`` section of ``make bench`` (docs/sensor_errors.md): the rest rule on a
 platform that rings after each move, offline through the collector (pure, no ROS).
 
 After ``settled`` the platform still oscillates about its pose: a translation
@@ -81,8 +81,8 @@ RINGS = {
 
 
 def default_rule():
-    """The calibrator's settle rule: ``{settle_lookback, settle_sigmas}``."""
-    return {key: DEFAULTS[key] for key in ('settle_lookback', 'settle_sigmas')}
+    """The calibrator's rest rule: ``{rest_lookback, rest_sigmas}``."""
+    return {key: DEFAULTS[key] for key in ('rest_lookback', 'rest_sigmas')}
 
 
 def collect(poses, ring, seed, rule=None, noise_std=True, seconds=3.0):
@@ -93,7 +93,7 @@ def collect(poses, ring, seed, rule=None, noise_std=True, seconds=3.0):
     row within ``seconds`` gives NaN."""
     rng = np.random.default_rng(seed)
     noise = DEFAULT_SENSOR_NOISE
-    samples = DEFAULTS['samples_per_posture']
+    samples = DEFAULTS['pairs_per_posture']
     collector = SampleCollector(
         0.5 / RATE_HZ,
         samples,
@@ -122,7 +122,7 @@ def collect(poses, ring, seed, rule=None, noise_std=True, seconds=3.0):
                 error = row.readings - truth
                 error[2] = wrap_angle(error[2])
                 errors[m] = error / (noise.readings() / math.sqrt(samples))
-                waits[m] = row.settle_wait
+                waits[m] = row.rest_wait
                 break
         collector.stop()
         start += (len(times) + 10) * period
@@ -148,7 +148,7 @@ def case(ring, seeds, postures, **options):
 
 RULES = {
     'default': {},
-    'window_alone': {'rule': {'settle_lookback': 0.0, 'settle_sigmas': 3.0}},
+    'window_alone': {'rule': {'rest_lookback': 0.0, 'rest_sigmas': 3.0}},
     'trend_test_alone': {'noise_std': False},
 }
 
@@ -163,7 +163,7 @@ def run(quick=False):
             "sensors; offline through the collector; row error: the rows' device readings "
             "against the truth, RMS of the worst channel in the rows' own std (1: noise "
             'alone); wait: settled to the averaged window. Rules: the default '
-            f'{default_rule()}, the window alone (settle_lookback 0), the trend test alone '
+            f'{default_rule()}, the window alone (rest_lookback 0), the trend test alone '
             '(no configured noise: no scatter test)'
         ),
         'seeds': list(seeds),

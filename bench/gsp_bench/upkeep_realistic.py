@@ -46,7 +46,7 @@ def _check(design, reference, plan, true, start_s, seed):
     times = start_s + np.linspace(0.0, plan.platform_time_s, len(plan.poses))
     run = simulate_commands(true, reference.geometry, plan.poses, REALISTIC, times)
     samples = gsp_bench.verdict.rows_of_run(
-        run, plan.poses, settings.samples_per_posture, settings.sigmas, np.random.default_rng(seed)
+        run, plan.poses, settings.pairs_per_posture, settings.sigmas, np.random.default_rng(seed)
     )
     return check_run.evaluate_check(
         reference, samples, settings.sigmas, settings.requirement, 'bench'
@@ -72,7 +72,7 @@ def run(quick=False):
             settings.pool_size,
             settings.seed,
             settings.sigmas,
-            settings.samples_per_posture,
+            settings.pairs_per_posture,
             settings.motion_limits,
         )
         leg = 1 + seed % 6

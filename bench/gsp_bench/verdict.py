@@ -4,7 +4,7 @@ measures by cross-validation, predicts and achieves, and how often it applies th
 
 A run is the calibrator's default: its 60 postures selected from 600 (seed 0), commanded in
 route order from the home pose over ``RUN_S`` seconds (with the route additions of its
-``free_parameters``), 10 samples per posture with the default noise, the pipeline of
+``free_parameters``), 10 pairs per posture with the default noise, the pipeline of
 ``run.identify.identify_from_samples`` (no parameter given: ``auto`` without a payload mass,
 noise estimated from the run, 10 folds) judged against the default requirement, the plain
 model (:data:`PLAIN_MODEL`) identified from the same rows beside it. The truth is the simulation's:
@@ -21,7 +21,7 @@ import statistics
 
 import numpy as np
 
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.settings import CalibratorSettings
@@ -144,24 +144,24 @@ def route_run(design, route, effects):
     return simulate_commands(design.true, nominal, route.poses, effects, route.times_s, start)
 
 
-def rows_of_run(run, poses, samples_per_posture, noise, rng, timed=False):
-    """The averaged rows (``Samples``, lag sums kept) of a simulated ``run`` of ``poses``: per
-    reachable posture a window of ``samples_per_posture`` readings with ``noise`` from ``rng``.
+def rows_of_run(run, poses, pairs_per_posture, noise, rng, timed=False):
+    """The averaged rows (``Rows``, lag sums kept) of a simulated ``run`` of ``poses``: per
+    reachable posture a window of ``pairs_per_posture`` readings with ``noise`` from ``rng``.
     ``timed``: each row stamped at its posture's time in the run (``run.times_s``) and with the
     legs' approach directions, as the calibrator's rows (``auto`` fits the growth over time and
     the backlash); else stamped a second apart, without directions."""
     scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
-    samples = Samples.empty()
+    samples = Rows.empty()
     for k in np.flatnonzero(run.reachable):
         exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
-        window = exact + rng.normal(size=(samples_per_posture, 10)) * scale
+        window = exact + rng.normal(size=(pairs_per_posture, 10)) * scale
         mean = window.mean(axis=0)
         samples.append(
             k + 1,
             poses[k],
             mean[:6],
             mean[6:],
-            samples_per_posture,
+            pairs_per_posture,
             1.7e9 + (run.times_s[k] if timed else k),
             posture_lag_sums(window),
             *((run.directions[k],) if timed else ()),
@@ -444,7 +444,7 @@ def run(quick=False):
     return {
         'description': (
             'shipped pair, the calibrator default plan (60 of 600, route order over 900 s, its '
-            'route additions), 10 samples per posture at the default noise, the calibrator '
+            'route additions), 10 pairs per posture at the default noise, the calibrator '
             'pipeline with no parameter given (auto, no payload mass, noise estimated, 10-fold '
             'cross-validation, default requirement; cases: the plain model, extended, identified '
             'from the same rows beside it: plain_*, true_over_plain); the measured accuracy held '

@@ -12,12 +12,12 @@ import pytest
 import gsp_bench.effects
 import gsp_bench.verdict
 from gsp_calibrator.collection.approach import ApproachTracker, effect_design
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.report.write import outcome_inputs, write_all
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.identify import identify_from_samples, identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
-from gsp_calibrator.settings import CalibratorSettings, check_parameters
+from gsp_calibrator.settings import CalibratorSettings, validate_parameters
 from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
 from gsp_kinematics.model.effect_groups import REFERENCE_PAYLOAD_MASS, commanded_leg_readings
 from gsp_kinematics.model.effects import REALISTIC, PlatformEffects
@@ -44,7 +44,7 @@ def run_rows(design, effects, seed=3):
     rng = np.random.default_rng(seed)
     noise = DEFAULT_SENSOR_NOISE
     scale = np.concatenate([np.full(6, noise.leg_lengths), noise.readings()])
-    samples = Samples.empty()
+    samples = Rows.empty()
     for k in np.flatnonzero(run.reachable):
         exact = np.concatenate([run.leg_readings[k], run.device_readings[k]])
         window = exact + rng.normal(size=(10, 10)) * scale
@@ -223,14 +223,14 @@ def test_auto_in_the_fk_formulation_is_the_plain_model(design):
 
 
 def test_free_parameters_take_effect_groups_and_auto():
-    assert check_parameters({'free_parameters': ['auto']}) == ''
-    assert check_parameters({'free_parameters': ['paper', 'auto']}) == ''
-    assert check_parameters({'free_parameters': ['extended', 'backlash', 'thermal']}) == ''
-    assert 'auto' in check_parameters({'free_parameters': ['auto', 'backlash']})
-    assert 'unknown' in check_parameters({'free_parameters': ['extended', 'friction']})
-    assert 'payload_mass' in check_parameters({'payload_mass': -1.0})
+    assert validate_parameters({'free_parameters': ['auto']}) == ''
+    assert validate_parameters({'free_parameters': ['paper', 'auto']}) == ''
+    assert validate_parameters({'free_parameters': ['extended', 'backlash', 'thermal']}) == ''
+    assert 'auto' in validate_parameters({'free_parameters': ['auto', 'backlash']})
+    assert 'unknown' in validate_parameters({'free_parameters': ['extended', 'friction']})
+    assert 'payload_mass' in validate_parameters({'payload_mass': -1.0})
     # Without a payload mass the compliance is identified for a reference mass.
-    assert check_parameters({'free_parameters': ['extended', 'compliance']}) == ''
+    assert validate_parameters({'free_parameters': ['extended', 'compliance']}) == ''
 
 
 #: The node test's plan (test/test_effects_end_to_end.py): 60 postures of the calibrator's
@@ -239,7 +239,7 @@ def test_free_parameters_take_effect_groups_and_auto():
 #: platform started warming.
 NODE_PLAN = {
     'posture_count': 60,
-    'samples_per_posture': 30,
+    'pairs_per_posture': 30,
     'workspace_postures': 0,
     'free_parameters': ['auto'],
     'payload_mass': REALISTIC.payload_mass,

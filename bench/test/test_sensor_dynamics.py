@@ -62,7 +62,7 @@ def test_realistic_device_rows_have_no_bias_beyond_their_noise(tmp_path):
 
     # Each row waited for the inclinometer, and the run data says how long.
     state = json.loads((run / 'state.json').read_text())
-    waits = state['settle_waits']
+    waits = state['rest_waits']
     assert set(waits) == {str(int(p)) for p in samples.posture}
     collection = json.loads((run / 'result.json').read_text())['collection']
     assert collection['settle']['rows'] == len(samples)
@@ -77,5 +77,5 @@ def test_realistic_device_rows_have_no_bias_beyond_their_noise(tmp_path):
     )
     for event in rebuilt:
         recorded = waits[str(event.posture)]
-        assert event.sample.settle_wait == recorded['wait_s']
-        assert event.sample.settling_pairs == recorded['settling_pairs']
+        assert event.sample.rest_wait == recorded['wait_s']
+        assert event.sample.moving_pairs == recorded['moving_pairs']

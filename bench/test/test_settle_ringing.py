@@ -1,8 +1,8 @@
-"""The default settle rule on a platform that rings after each move (pure, no ROS).
+"""The default rest rule on a platform that rings after each move (pure, no ROS).
 
 The platform reports ``settled`` while it still oscillates (0.4 mm/s peak, decaying); the
 inclinometer, an accelerometer, sees the oscillation's acceleration
-(:mod:`gsp_bench.settle_ringing`). At the calibrator's default settle rule the
+(:mod:`gsp_bench.settle_ringing`). At the calibrator's default rest rule the
 rows are averaged only once the readings are at rest: their error is the noise's, not the
 ringing's.
 """
@@ -27,14 +27,14 @@ def test_a_ringing_platform_is_waited_out_by_the_default_rule():
     errors, waits = collect(POSES, RINGS['5 Hz, 0.1 s'], seed=1)
     rms = np.sqrt(np.mean(errors**2, axis=0))
     assert rms.max() < 2.0, rms  # chi-square 99.9 % bound of 12 unit normals: RMS 1.62
-    assert np.all(waits > DEFAULTS['settle_lookback'])
+    assert np.all(waits > DEFAULTS['rest_lookback'])
 
 
 def test_a_still_platform_waits_only_for_the_look_back():
     """The kinematic backend (no ringing, instant white sensors): each row is the first whose
     look-back is covered (the look-back less the window), rarely a few samples more."""
     errors, waits = collect(POSES, RINGS['still'], seed=2)
-    first = DEFAULTS['settle_lookback'] - (DEFAULTS['samples_per_posture'] - 1) / RATE_HZ
+    first = DEFAULTS['rest_lookback'] - (DEFAULTS['pairs_per_posture'] - 1) / RATE_HZ
     assert np.median(waits) == pytest.approx(first, abs=0.5 / RATE_HZ)
     assert waits.max() < first + 0.05
     assert np.sqrt(np.mean(errors**2)) < 1.6
@@ -51,9 +51,9 @@ def test_the_look_back_counts_from_the_first_pair_wherever_the_stream_starts():
     for lead_ns in (500_000, 10_500_000):
         collector = SampleCollector(
             0.5 / RATE_HZ,
-            DEFAULTS['samples_per_posture'],
+            DEFAULTS['pairs_per_posture'],
             noise_std=noise.channel_std(),
-            settle_lookback=DEFAULTS['settle_lookback'],
+            rest_lookback=DEFAULTS['rest_lookback'],
         )
         collector.start(0)
         for i in range(80):

@@ -12,7 +12,7 @@ from gsp_bench.sensor_errors import SAMPLES, SIGMAS, collect
 from gsp_bench.upkeep import UpkeepDesign, changed_truth
 from gsp_calibrator.files import history
 from gsp_calibrator.files.calibration_files import load_calibration
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.upkeep import check_run
 from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.model.kinematics import home_pose
@@ -33,7 +33,7 @@ def root(tmp_path_factory):
 def collected(true, reference, plan, seed):
     legs, readings, _, commanded = collect(true, reference.geometry, plan.poses, seed)
     count = len(commanded)
-    return Samples(
+    return Rows(
         np.arange(1, count + 1), commanded, legs, readings, np.full(count, SAMPLES), np.zeros(count)
     )
 
@@ -104,7 +104,7 @@ def test_too_few_rows_are_refused(root):
     with pytest.raises(check_run.CheckError, match='at least 2 postures, 1 collected'):
         check_run.evaluate_check(
             reference,
-            Samples([1], np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 4)), [10], [0.0]),
+            Rows([1], np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 4)), [10], [0.0]),
             SIGMAS,
             REQUIRED,
             'hexapod-7',

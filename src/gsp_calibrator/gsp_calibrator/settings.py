@@ -7,25 +7,27 @@ subsets marked in the table (``subsets=``) give the options stored with a run (:
 those that decide the posture selection (:data:`SELECTION`) and those accepted on the command
 lines of ``gsp_demo``/``gsp_plan`` (:data:`RUN_COMMAND_LINE`) and ``gsp_reidentify``
 (:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_value`).
-:func:`check_parameters` gives the reason a set of values is rejected, at start-up and in the
+:func:`validate_parameters` gives the reason a set of values is rejected, at start-up and in the
 set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
 settings of one run.
 """
 
 import dataclasses
 import functools
+import math
 import os
 import re
 
-from gsp_calibrator.upkeep.parameters import UPKEEP_PARAMETERS
+from gsp_calibrator.settings_fields import ParameterFields
 from gsp_kinematics.estimation.goodness import LOSSES
 from gsp_kinematics.estimation.identification import (
+    DEFAULT_FORMULATION,
     FORMULATIONS,
     Options,
     free_parameters_error,
     resolve_free,
 )
-from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.estimation.noise_from_data import (
     DEFAULT_NOISE_SOURCE,
     NOISE_SOURCES,
@@ -39,7 +41,7 @@ from gsp_kinematics.estimation.verdict.acceptance import (
 )
 from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS
 from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
-from gsp_kinematics.model.motion import MotionLimits
+from gsp_kinematics.model.motion import DEFAULT_PAIRS_PER_POSTURE, MotionLimits
 from gsp_kinematics.model.sensor_noise import (
     DEFAULT_SENSOR_NOISE,
     NOISE_FIELDS,
@@ -54,10 +56,10 @@ from gsp_msgs_py.noise_parameters import (
 from gsp_msgs_py.parameter_specs import (
     ParameterSpec,
     at_least,
-    check_values,
     greater_than,
     is_finite_number,
     one_of,
+    validate_values,
 )
 
 #: Workspace postures of a run by default: none (docs/verdict.md: on the bench they are a better
@@ -68,6 +70,8 @@ DEFAULT_WORKSPACE_POSTURES = 0
 CONTROLLER_EFFECTS = ('auto', 'compensated', 'rigid')
 
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
+#: A platform id: letters, digits, '-', '_', '.' (it names the platform in the history).
+_PLATFORM_ID = re.compile(r'^[A-Za-z0-9_.-]{1,64}$')
 
 
 #: The subsets of :data:`PARAMETERS` (a spec's ``subsets``).
@@ -86,7 +90,7 @@ _RUN = frozenset((STORED, SELECTION, RUN_COMMAND_LINE))
 _JUDGED = frozenset((STORED, REIDENTIFY_COMMAND_LINE))
 
 
-def _check_geometry_file(value):
+def _validate_geometry_file(value):
     if not str(value).strip():
         return 'must name a geometry file'
     try:
@@ -150,7 +154,7 @@ PARAMETERS = (
         'Geometry params file of the nominal (design) geometry the identification '
         'starts from; also used to choose reachable postures',
         constraints='a readable geometry params file',
-        check=_check_geometry_file,
+        check=_validate_geometry_file,
         default_text='gsp_kinematics/data/nominal_geometry.yaml (shipped)',
         subsets=frozenset((STORED,)),
     ),
@@ -182,8 +186,8 @@ PARAMETERS = (
         subsets=_RUN,
     ),
     ParameterSpec(
-        'samples_per_posture',
-        10,
+        'pairs_per_posture',
+        DEFAULT_PAIRS_PER_POSTURE,
         'Synchronised (leg lengths, device) samples averaged per posture',
         constraints='>= 1',
         check=at_least(1),
@@ -205,9 +209,9 @@ PARAMETERS = (
         unit='s',
     ),
     _seconds(
-        'settle_lookback',
+        'rest_lookback',
         0.25,
-        'Span the settle rule judges each channel over, ending with the averaged window (at '
+        'Span the rest rule judges each channel over, ending with the averaged window (at '
         'least that window): the readings are averaged only once at rest over it (no trend, '
         'no scatter beyond their noise), whatever the platform says; at least 5 times the '
         "slowest sensor's response time and a few periods of the platform's ringing "
@@ -215,9 +219,9 @@ PARAMETERS = (
         subsets=frozenset((STORED,)),
     ),
     _positive(
-        'settle_sigmas',
-        DEFAULT_SETTLE_SIGMAS,
-        "Trend over the settle look-back, in stds of a settled span's trend, above which a "
+        'rest_sigmas',
+        DEFAULT_REST_SIGMAS,
+        "Trend over the rest look-back, in stds of a settled span's trend, above which a "
         'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
         'spans); its scatter is judged at the same rate',
         subsets=frozenset((STORED,)),
@@ -363,7 +367,7 @@ PARAMETERS = (
     ),
     _one_of(
         'formulation',
-        'implicit',
+        DEFAULT_FORMULATION,
         'Identification formulation: implicit (all sensors, poses as unknowns), fk '
         "(device residuals through FK) or paper (the paper's eq 11)",
         FORMULATIONS,
@@ -442,7 +446,78 @@ PARAMETERS = (
         constraints='auto, compensated or rigid',
         check=one_of(CONTROLLER_EFFECTS),
     ),
-    *UPKEEP_PARAMETERS,
+    # keeping a platform calibrated (docs/upkeep.md)
+    ParameterSpec(
+        'platform_id',
+        'default',
+        'Which platform this calibrator calibrates and checks: every calibration and check is '
+        'indexed under it in <output_root>/history.sqlite (gsp_history), and a check checks its '
+        'latest accepted calibration',
+        constraints="1-64 of letters, digits, '-', '_', '.'",
+        check=lambda v: '' if _PLATFORM_ID.match(str(v)) else 'must be 1-64 of [A-Za-z0-9_.-]',
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'check_geometry_file',
+        '',
+        'The geometry /gsp/calibrator/check checks (a result.yaml; its run directory gives the '
+        "covariance and noise); empty: platform_id's latest accepted calibration under "
+        'output_root',
+    ),
+    ParameterSpec(
+        'stop_when_accurate',
+        False,
+        'A calibration stops as soon as its cross-validated accuracy meets the required '
+        'accuracy (required_position_accuracy_mm, required_orientation_accuracy_deg) with '
+        'stop_confidence; if the planned postures are not enough, it adds pool postures by '
+        'information per second of travel (docs/upkeep.md)',
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_confidence',
+        0.95,
+        'With stop_when_accurate: the one-sided confidence of the bound on the cross-validated '
+        'mean position error that must meet the requirement',
+        constraints='0.5 <= c < 1',
+        check=lambda v: (
+            ''
+            if isinstance(v, float) and 0.5 <= v < 1 and math.isfinite(v)
+            else 'must be in [0.5, 1)'
+        ),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_minimum_postures',
+        30,
+        'With stop_when_accurate: the rows are first judged after this many postures (fewer '
+        'give an optimistic cross-validation on a real platform: docs/upkeep.md)',
+        constraints='>= 2',
+        check=at_least(2),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_every',
+        2,
+        'With stop_when_accurate: postures between two judgements (each identifies and '
+        'cross-validates the rows so far in a worker thread while the next posture is collected)',
+        constraints='>= 1',
+        check=at_least(1),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'stop_max_added',
+        60,
+        'With stop_when_accurate: pool postures added at most after the planned ones',
+        constraints='>= 0',
+        check=at_least(0),
+        subsets=frozenset((STORED,)),
+    ),
+    ParameterSpec(
+        'reuse_rows_from',
+        '',
+        "A run directory (a check's, or another run's) whose samples.csv rows a new calibration "
+        'identifies with its own (rows of the same platform and device); empty: none',
+    ),
     parameter_specs.diagnostics_period_spec(),
 )
 PARAMETER_SPECS = {spec.name: spec for spec in PARAMETERS}
@@ -505,7 +580,7 @@ def option_value(name, value):
 
 def add_run_options(parser, seed_help='seed of the posture pool'):
     """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`: ``--postures``,
-    ``--pool-size``, ``--samples-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
+    ``--pool-size``, ``--pairs-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
     the parameters' defaults. Check the parsed values with :func:`run_options_error`."""
     for name in names_in(RUN_COMMAND_LINE):
         spec, default = PARAMETER_SPECS[name], DEFAULTS[name]
@@ -541,7 +616,7 @@ def run_options_error(args):
     return ''
 
 
-def check_combination(values):
+def validate_combination(values):
     """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
     (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
     if values['posture_count'] > values['pool_size']:
@@ -552,19 +627,22 @@ def check_combination(values):
     return ''
 
 
-def check_parameters(changes, current=None):
+def validate_parameters(changes, current=None):
     """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid.
 
     Each changed value is checked alone, then the combination (``posture_count <= pool_size``);
     the ``validate`` of ``watch_parameters``.
     """
-    return check_values(PARAMETER_SPECS, changes) or check_combination(
+    return validate_values(PARAMETER_SPECS, changes) or validate_combination(
         {**(DEFAULTS if current is None else current), **changes}
     )
 
 
-class _RunSettings:
-    """What :class:`CalibratorSettings` adds to its fields (one per parameter)."""
+@dataclasses.dataclass(frozen=True)
+class CalibratorSettings(ParameterFields):
+    """The settings of one calibration run (a snapshot of the parameters): one typed field per
+    parameter of :data:`PARAMETERS` (lists as tuples, ``settings_fields.py``) and ``nominal``,
+    the loaded nominal ``Geometry``; built by :meth:`from_values`."""
 
     @functools.cached_property
     def sigmas(self):
@@ -611,7 +689,7 @@ class _RunSettings:
         """One line for the log: the nominal file, counts, formulation and output root."""
         return (
             f'nominal {self.nominal_geometry_file}, {self.posture_count} postures from a pool of '
-            f'{self.pool_size}, {self.samples_per_posture} samples each, {self.formulation} '
+            f'{self.pool_size}, {self.pairs_per_posture} samples each, {self.formulation} '
             f'formulation, {self.free_count} free parameters, output under '
             f'{os.path.abspath(self.output_root)}'
         )
@@ -620,7 +698,7 @@ class _RunSettings:
     def from_values(cls, values):
         """Settings from ``{name: value}`` (defaults for missing names); ValueError if invalid."""
         merged = {**DEFAULTS, **values}
-        reason = check_parameters(merged, merged)
+        reason = validate_parameters(merged, merged)
         if reason:
             raise ValueError(reason)
         fields = {}
@@ -631,19 +709,3 @@ class _RunSettings:
             )
         fields['platform_node_name'] = fields['platform_node_name'].lstrip('/')
         return cls(nominal=load_geometry(fields['nominal_geometry_file']), **fields)
-
-
-def _field_type(default):
-    return tuple if isinstance(default, list) else type(default)
-
-
-#: The settings of one calibration run: one field per parameter of :data:`PARAMETERS` (lists
-#: as tuples) and ``nominal``, the loaded nominal ``Geometry``; built by ``from_values``.
-CalibratorSettings = dataclasses.make_dataclass(
-    'CalibratorSettings',
-    [('nominal', object)] + [(spec.name, _field_type(spec.default)) for spec in PARAMETERS],
-    bases=(_RunSettings,),
-    frozen=True,
-)
-CalibratorSettings.__module__ = __name__
-CalibratorSettings.__doc__ = 'The settings of one calibration run (a snapshot of the parameters).'

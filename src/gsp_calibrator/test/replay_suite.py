@@ -20,7 +20,7 @@ FAST = [Parameter('settle_time', value=0.02)]
 CALIBRATION = {
     'posture_count': 14,
     'pool_size': 42,
-    'samples_per_posture': 3,
+    'pairs_per_posture': 3,
     'seed': 5,
     'topic_timeout': 10.0,
     'settle_timeout': 10.0,

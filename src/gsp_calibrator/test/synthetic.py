@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_kinematics.model.sensor_noise import SensorNoise
@@ -18,7 +18,7 @@ def synthetic_samples(count=30, seed=1, sigmas=SensorNoise(), n_samples=1, first
     legs, readings = sensor_measurements(truth, poses)
     legs = legs + rng.normal(0.0, sigmas.leg_lengths, (count, 6))
     readings = readings + rng.normal(0.0, 1.0, (count, 4)) * sigmas.readings()
-    return Samples(
+    return Rows(
         np.arange(1, count + 1),
         poses,
         legs,

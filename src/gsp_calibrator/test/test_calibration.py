@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import (
@@ -44,7 +44,7 @@ def synthetic_samples(
     real, ok = forward_kinematics_masked(true, true.sensors.true_leg_lengths(q), poses)
     readings = true.sensors.device_readings(device_readings(true, real[ok]))
     scale = 1.0 / math.sqrt(n_samples)
-    samples = Samples.empty()
+    samples = Rows.empty()
     for k, (pose, legs, reading) in enumerate(zip(poses[ok], q[ok], readings, strict=True), 1):
         lag_sums = None
         if windows:
@@ -107,7 +107,7 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
     assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
     assert abs(errors[43]) < 0.01  # deg
     assert outcome.identifiability['rank'] == 51 and outcome.unidentifiable == []  # extended
-    assert outcome.fit_accepted, outcome.verdict
+    assert outcome.fit_accepted, outcome.fit_diagnosis
     # Averaged rows weigh as sigma / sqrt(n).
     assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
 
@@ -149,7 +149,7 @@ def test_no_convergence_is_a_failure(selection):
 
 
 def test_no_samples_is_a_failure():
-    outcome = identify_from_samples(NOMINAL, Samples.empty(), SIGMAS)
+    outcome = identify_from_samples(NOMINAL, Rows.empty(), SIGMAS)
     assert not outcome.success and 'no posture' in outcome.message
 
 
@@ -204,13 +204,13 @@ def test_paper_model_on_sensor_errors_is_not_accepted_with_a_verdict(selection):
         NOMINAL, samples, SIGMAS, free=['paper'], noise_source='configured'
     )
     assert outcome.success and not outcome.fit_accepted and not outcome.accepted
-    assert 'does NOT explain the data' in outcome.verdict
-    assert 'try free_parameters: extended' in outcome.verdict
+    assert 'does NOT explain the data' in outcome.fit_diagnosis
+    assert 'try free_parameters: extended' in outcome.fit_diagnosis
     summary = outcome_summary(outcome)
     assert summary.startswith(NOT_ACCEPTED_HEAD)
     assert 'exceeds the required 0.1 mm' in summary
     extended = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
-    assert extended.fit_accepted and 'explains the data' in extended.verdict
+    assert extended.fit_accepted and 'explains the data' in extended.fit_diagnosis
     assert extended.accepted
     assert 'sensor errors: kq1 ' in outcome_summary(extended)
 
@@ -232,15 +232,15 @@ def test_noise_3x_is_estimated_accepted_and_weighs_the_fit(selection):
     noisy = SensorNoise(*(3.0 * value for value in SIGMAS.channels().values()))
     samples = synthetic_samples(selection.poses, sigmas=noisy, seed=5, windows=True)
     outcome = identify_from_samples(NOMINAL, samples, SIGMAS)
-    assert outcome.success and outcome.fit_accepted, outcome.verdict
-    assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.verdict
+    assert outcome.success and outcome.fit_accepted, outcome.fit_diagnosis
+    assert outcome.noise_source == 'estimated' and 'lack-of-fit F test' in outcome.fit_diagnosis
     assert outcome.sigmas.leg_lengths == pytest.approx(noisy.leg_lengths / math.sqrt(10), rel=0.1)
     for channel, entry in outcome.noise_estimates.items():
         assert entry['source'] == 'pooled'
         assert entry['estimated'] == pytest.approx(getattr(noisy, channel), rel=0.1), channel
     configured = identify_from_samples(NOMINAL, samples, SIGMAS, noise_source='configured')
     assert configured.success and not configured.fit_accepted
-    assert configured.result.outliers == [] and 'wrong sigmas' in configured.verdict
+    assert configured.result.outliers == [] and 'wrong sigmas' in configured.fit_diagnosis
     # The goodness of fit is a diagnostic: the accuracy measured on held-out postures decides.
     assert configured.accepted
     summary = outcome_summary(configured)

@@ -35,7 +35,7 @@ def collect(streams, leads):
     """Feed ``streams`` to a settled posture, each stream handled ``leads[stream]`` ns ahead of
     its stamps (a stream the listener served first), ties in stream order; the row."""
     collection = CollectionProtocol(
-        0.004, 5, NOISE, topic_timeout=1.0, settle_timeout=2.0, settle_lookback=0.05
+        0.004, 5, NOISE, topic_timeout=1.0, settle_timeout=2.0, rest_lookback=0.05
     )
     collection.command(1, POSE, 'c1', T0)
     status = conversions.parse_status(conversions.make_status('c1', names.STATE_SETTLED, ''))
@@ -69,7 +69,7 @@ def settling_posture(rng, lost_until_s, lookback=0.6, tau=0.3, seconds=3.0):
     ``tau``), 200 Hz streams; the LVDT's messages stamped in the first ``lost_until_s`` after the
     settle are lost (a listener's queue that overflowed). The row."""
     collection = CollectionProtocol(
-        0.0025, 10, NOISE, topic_timeout=1.0, settle_timeout=5.0, settle_lookback=lookback
+        0.0025, 10, NOISE, topic_timeout=1.0, settle_timeout=5.0, rest_lookback=lookback
     )
     collection.command(1, POSE, 'c1', T0)
     status = conversions.parse_status(conversions.make_status('c1', names.STATE_SETTLED, ''))
@@ -96,7 +96,7 @@ def test_a_look_back_missing_its_first_pairs_is_not_covered():
     biased (test_sensor_dynamics under load). It waits until a whole look-back has pairs."""
     sigma_of_mean = NOISE[6] / np.sqrt(10)
     row = settling_posture(np.random.default_rng(5), 0.55)
-    assert row.settle_wait > 0.55 + 0.6 * 0.8
+    assert row.rest_wait > 0.55 + 0.6 * 0.8
     assert abs(row.readings[0] - R[0]) < 4 * sigma_of_mean
 
 

@@ -39,7 +39,7 @@ def feed(collector, count, leg_offset_ms=1.0, period_ms=5.0, start=T0, q=Q, read
 
 
 def test_pairs_are_nearest_stamps_within_the_tolerance():
-    collector = SampleCollector(sync_tolerance=0.0025, samples_per_posture=3)
+    collector = SampleCollector(sync_tolerance=0.0025, pairs_per_posture=3)
     collector.start(T0)
     feed(collector, 3, leg_offset_ms=2.0)
     assert collector.pairs() == [(T0 + i * 5 * MS, T0 + i * 5 * MS + 2 * MS) for i in range(3)]
@@ -47,7 +47,7 @@ def test_pairs_are_nearest_stamps_within_the_tolerance():
 
 
 def test_device_farther_than_the_tolerance_is_not_paired():
-    collector = SampleCollector(sync_tolerance=0.001, samples_per_posture=1)
+    collector = SampleCollector(sync_tolerance=0.001, pairs_per_posture=1)
     collector.start(T0)
     collector.add_leg_lengths(T0, Q)
     add_device(collector, T0 + 2 * MS)
@@ -57,7 +57,7 @@ def test_device_farther_than_the_tolerance_is_not_paired():
 
 
 def test_pairing_is_one_to_one():
-    collector = SampleCollector(sync_tolerance=0.003, samples_per_posture=2)
+    collector = SampleCollector(sync_tolerance=0.003, pairs_per_posture=2)
     collector.start(T0)
     collector.add_leg_lengths(T0, Q)
     collector.add_leg_lengths(T0 + 2 * MS, Q)
@@ -216,11 +216,11 @@ def test_buffers_are_bounded():
 @pytest.mark.parametrize(
     'kwargs, match',
     [
-        ({'sync_tolerance': -1.0, 'samples_per_posture': 1}, 'sync_tolerance'),
-        ({'sync_tolerance': math.nan, 'samples_per_posture': 1}, 'sync_tolerance'),
-        ({'sync_tolerance': 0.001, 'samples_per_posture': 0}, 'samples_per_posture'),
-        ({'sync_tolerance': 0.001, 'samples_per_posture': 5, 'max_buffer': 2}, 'max_buffer'),
-        ({'sync_tolerance': 0.001, 'samples_per_posture': 5, 'noise_std': [0.0] * 10}, 'noise_std'),
+        ({'sync_tolerance': -1.0, 'pairs_per_posture': 1}, 'sync_tolerance'),
+        ({'sync_tolerance': math.nan, 'pairs_per_posture': 1}, 'sync_tolerance'),
+        ({'sync_tolerance': 0.001, 'pairs_per_posture': 0}, 'pairs_per_posture'),
+        ({'sync_tolerance': 0.001, 'pairs_per_posture': 5, 'max_buffer': 2}, 'max_buffer'),
+        ({'sync_tolerance': 0.001, 'pairs_per_posture': 5, 'noise_std': [0.0] * 10}, 'noise_std'),
     ],
 )
 def test_invalid_settings_are_rejected(kwargs, match):

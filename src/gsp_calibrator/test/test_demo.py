@@ -77,11 +77,11 @@ def test_the_realistic_device_preset_sets_the_device_and_the_default_settle_look
             )
             assert all(arg in source for arg in expected), (name, source)
         # The calibrator's default look-back (5 tau of this inclinometer) is the preset's.
-        assert not any('settle_lookback' in arg for arg in found['calibrator'])
-    assert DEFAULTS['settle_lookback'] >= 5 * preset['device']['inclinometer_response_time']
+        assert not any('rest_lookback' in arg for arg in found['calibrator'])
+    assert DEFAULTS['rest_lookback'] >= 5 * preset['device']['inclinometer_response_time']
     plain = demo_commands.node_commands(demo.parse_arguments([]), str(tmp_path), lambda n: n)
     assert not any('response_time' in arg for arg in plain['device_driver'])
-    assert not any('settle_lookback' in arg for arg in plain['calibrator'])
+    assert not any('rest_lookback' in arg for arg in plain['calibrator'])
 
 
 def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):
@@ -159,7 +159,7 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     fit = {'chi2': 190.5, 'dof': 185, 'p_value': 0.38}
     noise = {'lvdt': {'configured': 1e-6, 'estimated': 0.96e-6}}
     (tmp_path / 'result.json').write_text(
-        json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'verdict': 'ok'})
+        json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'fit_diagnosis': 'ok'})
     )
     record = demo.fit_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')

@@ -151,7 +151,7 @@ def node_suite(tmp_path, ros_context, postures):
     # one process and so pause together, run with 5 s too.
     args = demo.parse_arguments(
         ['--postures', str(postures), '--pool-size', str(4 * postures)]
-        + ['--samples-per-posture', '5']
+        + ['--pairs-per-posture', '5']
         + ['--sensor-rate', '100']
     )
     commands = demo_commands.node_commands(args, tmp_path / 'runs')

@@ -16,7 +16,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from gsp_calibrator.collection.single_source import SingleSourceGuard
-from gsp_calibrator.files.run_directory import SAMPLES_FILE, Samples, read_samples, write_samples
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, Rows, read_samples, write_samples
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import (
     McapRecorder,
@@ -34,12 +34,12 @@ from gsp_calibrator.run.record import (
     ResumeRefused,
     RunRecord,
     RunState,
-    check_resume,
     latest_unfinished_run,
     postures_to_collect,
     read_state,
     resumable,
     selection_options,
+    validate_resume,
     write_state,
 )
 from gsp_calibrator.settings import CalibratorSettings
@@ -135,29 +135,29 @@ def test_state_round_trips_and_lists_what_is_left(tmp_path):
     write_state(run, state)
     again = read_state(run)
     assert again == state
-    samples = Samples.empty()
+    samples = Rows.empty()
     samples.append(1, poses[0], np.ones(6), np.ones(4), 5, 0.0)
-    check_resume(again, settings, samples)
+    validate_resume(again, settings, samples)
     assert postures_to_collect(again, samples) == [2, 3, 4]
     assert latest_unfinished_run(tmp_path / 'runs') == run
 
 
 def test_settle_waits_survive_a_resume_and_give_the_statistics(tmp_path):
-    from gsp_calibrator.collection.synchroniser import PostureSample
+    from gsp_calibrator.collection.synchroniser import PostureRow
 
     state, _ = _state(_settings())
     rows = {1: (0.004, 0), 2: (0.6, 110), 4: (0.2, 30)}
     for posture, (wait, pairs) in rows.items():
         zeros = np.zeros(6)
         state.record_done(
-            posture, PostureSample(zeros, zeros[:4], 10, 0, zeros, zeros[:4], wait, pairs)
+            posture, PostureRow(zeros, zeros[:4], 10, 0, zeros, zeros[:4], wait, pairs)
         )
     run = tmp_path / 'a_run'
     run.mkdir()
     write_state(run, state)
     again = read_state(run)
-    assert again.settle_waits == state.settle_waits
-    statistics = settle_statistics(again.settle_waits)
+    assert again.rest_waits == state.rest_waits
+    statistics = settle_statistics(again.rest_waits)
     assert statistics == {
         'rows': 3,
         'median_s': 0.2,
@@ -169,7 +169,7 @@ def test_settle_waits_survive_a_resume_and_give_the_statistics(tmp_path):
     assert settle_statistics({})['rows'] == 0
     # The response and report.md say it in one line.
     assert settle_line(statistics) == (
-        'settle wait (settled to averaged window): median 0.2 s, max 0.6 s over 3 rows; '
+        'rest wait (settled to averaged window): median 0.2 s, max 0.6 s over 3 rows; '
         '2 waited for a moving channel'
     )
     assert settle_line(settle_statistics({})) == ''
@@ -187,7 +187,7 @@ def test_a_resume_keeps_the_order_and_the_replacements(tmp_path):
     write_state(run, state)
     again = read_state(run)
     assert again.replacements == state.replacements and again.poses == state.poses
-    samples = Samples.empty()
+    samples = Rows.empty()
     samples.append(1, poses[0], np.ones(6), np.ones(4), 5, 0.0)
     samples.append(3, poses[2], np.ones(6), np.ones(4), 5, 0.0)
     # In the recorded order, without the replaced posture.
@@ -204,7 +204,7 @@ def test_a_row_state_json_does_not_list_yet_is_kept_once_by_a_resume(tmp_path):
     state.record_done(1)
     state.record_skip(3, 'not settled')
     write_state(tmp_path, state)
-    samples = Samples.empty()
+    samples = Rows.empty()
     for posture in (1, 2):  # posture 2's row is not in state.json
         samples.append(posture, poses[posture - 1], np.ones(6), np.ones(4), 5, 0.0)
     write_samples(tmp_path / SAMPLES_FILE, samples)
@@ -243,7 +243,7 @@ def test_the_replacement_is_the_best_remaining_pool_posture():
 def test_a_resume_that_would_change_the_selection_is_refused_naming_the_option(change, named):
     state, _ = _state(_settings())
     with pytest.raises(ResumeRefused, match=named):
-        check_resume(state, _settings(**change), Samples.empty())
+        validate_resume(state, _settings(**change), Rows.empty())
 
 
 def test_a_resume_with_another_nominal_device_or_rows_is_refused(tmp_path):
@@ -251,17 +251,17 @@ def test_a_resume_with_another_nominal_device_or_rows_is_refused(tmp_path):
     state, poses = _state(settings)
     other = settings.nominal.replace(device_length=settings.nominal.device_length + 1e-3)
     with pytest.raises(ResumeRefused, match='different device'):
-        check_resume(state, _with_nominal(settings, other), Samples.empty())
+        validate_resume(state, _with_nominal(settings, other), Rows.empty())
     other = settings.nominal.replace(leg_offsets=settings.nominal.leg_offsets + 1e-3)
     with pytest.raises(ResumeRefused, match='nominal geometry changed'):
-        check_resume(state, _with_nominal(settings, other), Samples.empty())
-    samples = Samples.empty()
+        validate_resume(state, _with_nominal(settings, other), Rows.empty())
+    samples = Rows.empty()
     samples.append(2, poses[0], np.ones(6), np.ones(4), 5, 0.0)  # posture 2 at pose 1
     with pytest.raises(ResumeRefused, match='different selection or nominal'):
-        check_resume(state, settings, samples)
+        validate_resume(state, settings, samples)
     state.phase = PHASE_DONE
     with pytest.raises(ResumeRefused, match='finished'):
-        check_resume(state, settings, Samples.empty())
+        validate_resume(state, settings, Rows.empty())
     with pytest.raises(ResumeRefused, match='no unfinished run'):
         latest_unfinished_run(tmp_path)
 

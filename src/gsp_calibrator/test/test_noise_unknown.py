@@ -14,7 +14,7 @@ from calibrator_suite import CALL_TIMEOUT_S, make_suite, perturbed_truth
 from rclpy.parameter import Parameter
 
 from gsp_calibrator.collection.synchroniser import SampleCollector, seconds_to_ns
-from gsp_calibrator.files.run_directory import RunDirectory, Samples
+from gsp_calibrator.files.run_directory import Rows, RunDirectory
 from gsp_calibrator.recording import rebuild
 from gsp_calibrator.report.data import validation_errors
 from gsp_calibrator.run.identify import identify_from_samples
@@ -106,7 +106,7 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
         ros_context,
         tmp_path,
         tmp_path / 'true.yaml',
-        {'posture_count': 16, 'pool_size': 160, 'samples_per_posture': samples},
+        {'posture_count': 16, 'pool_size': 160, 'pairs_per_posture': samples},
         device_overrides=[Parameter('inclinometer_noise_correlation_time', value=0.05)],
     )
     try:
@@ -116,7 +116,9 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
     assert response.success, response.message
     run = RunDirectory(parse_response(response.message).run_directory)
     data = json.loads((run.path / 'result.json').read_text())
-    assert data['noise_source'] == 'estimated' and data['fit_accepted'] is True, data['verdict']
+    assert data['noise_source'] == 'estimated' and data['fit_accepted'] is True, data[
+        'fit_diagnosis'
+    ]
     assert data['goodness_of_fit']['test'] == 'lack_of_fit'
     inclinometer = data['noise_estimates']['inclinometer']
     assert not inclinometer['within_lower_bound'] and inclinometer['source'] == 'pooled'
@@ -159,7 +161,7 @@ def offline_run(poses, samples, rate_hz, correlation_time, seed):
     collector = SampleCollector(
         0.25 / rate_hz, samples, noise_std=DEFAULT_SENSOR_NOISE.channel_std()
     )
-    rows, step = Samples.empty(), 0
+    rows, step = Rows.empty(), 0
     for posture, pose in enumerate(poses, 1):
         assert platform.command(pose).accepted
         device.observe_true_pose(platform.true_pose)
@@ -195,7 +197,7 @@ def test_correlated_device_noise_offline_is_estimated_and_accepted(postures, sam
     poses = choose_postures(nominal, postures, 10 * postures, seed=5).poses
     rows = offline_run(poses, samples, rate_hz, correlation_time, seed=postures)
     outcome = identify_from_samples(nominal, rows, DEFAULT_SENSOR_NOISE)
-    assert outcome.success and outcome.fit_accepted, outcome.verdict
+    assert outcome.success and outcome.fit_accepted, outcome.fit_diagnosis
     assert outcome.result.goodness_of_fit.test == 'lack_of_fit'
     inclinometer = outcome.noise_estimates['inclinometer']
     assert inclinometer['within_lower_bound'] is lower_bound

@@ -129,7 +129,7 @@ def _write_recording(path, samples, per_posture):
             mcap_io.RUN_METADATA_NAME,
             {
                 'sync_tolerance': '0.0025',
-                'samples_per_posture': str(per_posture),
+                'pairs_per_posture': str(per_posture),
                 'sigma_lvdt': '2e-06',
                 'formulation': '"implicit"',
             },
@@ -182,7 +182,7 @@ def test_offline_from_recording(tmp_path, capsys):
     )
     with open(f'{run_dir}/result.json', encoding='utf-8') as stream:
         options = json.load(stream)['options']
-    assert options['samples_per_posture'] == 2 and options['sync_tolerance'] == 0.0025
+    assert options['pairs_per_posture'] == 2 and options['sync_tolerance'] == 0.0025
     assert options['sigma_lvdt'] == 2e-6 and options['source_kind'] == 'mcap'
     # ... and the new run directory re-identifies to the same result with the same options;
     # --no-plots: its report.md without PNGs.
@@ -316,4 +316,4 @@ def test_reidentify_takes_either_noise_source(tmp_path, capsys, source, test):
     if source == 'estimated':
         # A samples.csv has no within-posture scatter: between postures only, and said so.
         assert {entry['source'] for entry in data['noise_estimates'].values()} == {'between'}
-        assert 'not testable' in data['verdict']
+        assert 'not testable' in data['fit_diagnosis']

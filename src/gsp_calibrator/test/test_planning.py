@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.run import postures
+from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools import planning, plans
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.sensor_noise import SensorNoise
@@ -22,7 +23,7 @@ def _read(path):
 
 def test_plan_json(tmp_path, capsys):
     output = tmp_path / 'plan.json'
-    argv = ['--postures', '30', '--samples-per-posture', '4', '--output', str(output), *QUICK]
+    argv = ['--postures', '30', '--pairs-per-posture', '4', '--output', str(output), *QUICK]
     assert planning.main(argv) == 0
     plan = _read(output)
     # The calibrator's default: the 44 and the identifiable sensor errors (group 'extended').
@@ -78,14 +79,14 @@ def test_sweep_writes_table_plot_and_json(tmp_path, capsys):
     assert planning.main(argv) == 0
     document = _read(output)
     rows = document['sweep']['rows']
-    assert [(r['postures'], r['samples_per_posture']) for r in rows] == [
+    assert [(r['postures'], r['pairs_per_posture']) for r in rows] == [
         (20, 1),
         (20, 10),
         (40, 1),
         (40, 10),
     ]
     errors = {
-        (r['postures'], r['samples_per_posture']): r['predicted']['position_mm_mean'] for r in rows
+        (r['postures'], r['pairs_per_posture']): r['predicted']['position_mm_mean'] for r in rows
     }
     assert errors[(40, 10)] < errors[(20, 10)] < errors[(20, 1)]
     assert errors[(40, 10)] < errors[(40, 1)]
@@ -109,7 +110,8 @@ def test_bad_input_is_named(tmp_path, capsys):
 def test_run_options_are_the_calibrators_and_checked_as_gsp_demo_checks_them(capsys):
     args = planning.parse_arguments(['--free', 'paper', 'kq1,kq2'])
     assert args.free_parameters == ['paper', 'kq1', 'kq2']
-    assert (args.posture_count, args.pool_size, args.samples_per_posture) == (60, 600, 10)
+    names = ('posture_count', 'pool_size', 'pairs_per_posture')
+    assert [getattr(args, name) for name in names] == [DEFAULTS[name] for name in names]
     for argv, named in ((['--free', 'kq9'], '--free'), (['--postures', '0'], '--postures')):
         with pytest.raises(SystemExit):
             planning.parse_arguments(argv)
@@ -118,7 +120,7 @@ def test_run_options_are_the_calibrators_and_checked_as_gsp_demo_checks_them(cap
 
 def test_plan_reports_the_route_and_its_platform_time(tmp_path, capsys):
     output = tmp_path / 'plan.json'
-    argv = ['--postures', '20', '--samples-per-posture', '4', '--output', str(output), *QUICK]
+    argv = ['--postures', '20', '--pairs-per-posture', '4', '--output', str(output), *QUICK]
     assert planning.main(argv) == 0
     timing = _read(output)['platform_time']
     assert sorted(timing['order']) == list(range(20))
@@ -145,7 +147,7 @@ def test_the_target_plan_is_the_quickest_candidate_reaching_the_target(tmp_path,
     assert best['platform_time']['total_s'] == min(c['platform_s'] for c in result['candidates'])
     assert best['platform_time']['total_s'] < reference['platform_time']['total_s']
     # The fewest samples that reach it: one less would not.
-    fewer = plans.plan(nominal, best['postures'], best['samples_per_posture'] - 1, design)
+    fewer = plans.plan(nominal, best['postures'], best['pairs_per_posture'] - 1, design)
     assert fewer['predicted']['position_mm_mean'] > target_mm
     # Out of reach: says what the best reaches.
     output = tmp_path / 'target.json'
@@ -159,7 +161,7 @@ def test_the_target_plan_is_the_quickest_candidate_reaching_the_target(tmp_path,
 
 def test_a_plan_for_the_effects_adds_revisits_and_bounds_each_group(tmp_path, capsys):
     output = tmp_path / 'plan.json'
-    argv = ['--postures', '30', '--samples-per-posture', '4', '--output', str(output), *QUICK]
+    argv = ['--postures', '30', '--pairs-per-posture', '4', '--output', str(output), *QUICK]
     effects = ['--effects', 'thermal', 'backlash', 'compliance', '--revisit-every', '8']
     assert planning.main(argv + effects) == 0
     plan = _read(output)

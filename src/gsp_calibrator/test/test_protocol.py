@@ -10,7 +10,7 @@ from gsp_calibrator.collection import protocol, timeouts, topics
 from gsp_calibrator.collection.events import (
     FINAL_EVENTS,
     CollectionStarted,
-    NoSynchronisedSample,
+    NoSynchronisedPair,
     PairsCollected,
     PostureSkipped,
     RowReady,
@@ -266,7 +266,7 @@ def test_samples_stamped_before_the_start_but_off_the_wire_after_it_are_no_backl
         if events:
             break
     (failed,) = events
-    assert isinstance(failed, NoSynchronisedSample)
+    assert isinstance(failed, NoSynchronisedPair)
     assert '0 leg-length and 0 complete device samples since settling' in failed.message
 
 
@@ -347,7 +347,7 @@ def test_no_synchronised_sample_ends_the_run_with_the_counts():
         if events:
             break
     (failed,) = events
-    assert isinstance(failed, NoSynchronisedSample) and failed.posture == 1
+    assert isinstance(failed, NoSynchronisedPair) and failed.posture == 1
     assert 'no synchronised sample for 1 s at posture 1' in failed.message
     assert '0 within sync_tolerance' in failed.message
 
@@ -490,11 +490,11 @@ def collect_settling(collection, rng, seconds, tau=0.1, step=2e-3):
 def test_a_posture_waits_for_a_settling_sensor_and_its_wait_is_recorded():
     """alpha lags 2e-3 rad (118 sigma) with tau 0.1 s: the row waits until it is at rest."""
     rng = np.random.default_rng(3)
-    collection = make(samples=10, settle_lookback=0.2)
+    collection = make(samples=10, rest_lookback=0.2)
     (*_, row) = collect_settling(collection, rng, 2.0)
     assert isinstance(row, RowReady)
     # The remaining lag at the averaged window is within the noise of the row's mean.
-    wait = row.sample.settle_wait
+    wait = row.sample.rest_wait
     left = 2e-3 * math.exp(-wait / 0.1)
     assert left < 3 * NOISE[6] / math.sqrt(10)
     assert abs(row.sample.readings[0] - R[0]) < 5 * NOISE[6] / math.sqrt(10)
@@ -504,7 +504,7 @@ def test_a_posture_waits_for_a_settling_sensor_and_its_wait_is_recorded():
 
 def test_settle_timeout_bounds_the_wait_with_a_reason_naming_the_channel():
     rng = np.random.default_rng(4)
-    collection = make(samples=10, settle_lookback=0.2, settle_timeout=0.5)
+    collection = make(samples=10, rest_lookback=0.2, settle_timeout=0.5)
     (*_, skip) = collect_settling(collection, rng, 2.0, tau=30.0, step=0.1)  # a slow drift
     assert isinstance(skip, PostureSkipped) and skip.posture == 1
     assert 'not settled within settle_timeout 0.5 s' in skip.reason
@@ -513,18 +513,18 @@ def test_settle_timeout_bounds_the_wait_with_a_reason_naming_the_channel():
 
 def test_the_look_back_sees_a_lag_the_window_alone_cannot():
     """The issue's case: tau 0.3 s, alpha 25 sigma off at the settle. Over the 50 ms window
-    alone (settle_lookback 0) the trend is within the noise and the row comes at once,
+    alone (rest_lookback 0) the trend is within the noise and the row comes at once,
     biased; judged over 0.6 s (2 tau) the row waits until the lag is within its noise."""
     sigma_of_mean = NOISE[6] / math.sqrt(10)
     step = 25 * NOISE[6]
     rows = {}
     for lookback in (0.0, 0.6):
         rng = np.random.default_rng(5)
-        collection = make(samples=10, settle_lookback=lookback, settle_timeout=5.0)
+        collection = make(samples=10, rest_lookback=lookback, settle_timeout=5.0)
         (*_, rows[lookback]) = collect_settling(collection, rng, 5.0, tau=0.3, step=step)
     biased, settled = rows[0.0].sample, rows[0.6].sample
-    assert biased.settle_wait < 0.02 and biased.readings[0] - R[0] > 10 * sigma_of_mean
-    assert settled.settle_wait > 0.6 and abs(settled.readings[0] - R[0]) < 4 * sigma_of_mean
+    assert biased.rest_wait < 0.02 and biased.readings[0] - R[0] > 10 * sigma_of_mean
+    assert settled.rest_wait > 0.6 and abs(settled.readings[0] - R[0]) < 4 * sigma_of_mean
     # The pairs waited out are counted as settling, not as inconsistent.
     assert rows[0.6].dropped == 0
 

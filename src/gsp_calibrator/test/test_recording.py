@@ -273,7 +273,7 @@ def test_samples_from_recording_pairs_and_averages_like_the_calibrator(tmp_path)
         per_posture,
         rejected={2},
         nan_at=(1, 1),
-        options={'sync_tolerance': 0.0025, 'samples_per_posture': per_posture},
+        options={'sync_tolerance': 0.0025, 'pairs_per_posture': per_posture},
     )
     samples = rebuild.samples_from_recording(path)  # options as stored
     assert list(samples.posture) == [1, 3, 4]  # posture 2 rejected, numbers kept
@@ -525,7 +525,7 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
     recorder = RunRecorder(sink)
     path = tmp_path / 'recording.mcap'
     try:
-        recorder.start(path, options={'sync_tolerance': 0.0025, 'samples_per_posture': 10})
+        recorder.start(path, options={'sync_tolerance': 0.0025, 'pairs_per_posture': 10})
         assert recorder.recording
         deadline = time.monotonic() + 10.0
         sent = 0
@@ -553,7 +553,7 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
     assert info['topics'][names.TOPIC_CALIBRATION_RESULT]['count'] == 1
     assert recording_options(path) == {
         'sync_tolerance': 0.0025,
-        'samples_per_posture': 10,
+        'pairs_per_posture': 10,
     }
     assert info['metadata'][POSTURE_METADATA_NAME] == [
         {'posture': '1', 'command_id': '123', 'start_ns': str(T0)}
@@ -568,15 +568,15 @@ def test_run_recorder_records_suite_topics(ros_context, tmp_path):
 
 class _OnlineCalibrator:
     """The calibrator's collection as it runs online (a protocol with timeouts behind a
-    :class:`PostureLink`, rows kept in a :class:`Samples`), fed each message as it is recorded;
+    :class:`PostureLink`, rows kept in a :class:`Rows`), fed each message as it is recorded;
     the link notes each posture's outcome in the same recording, as the node does."""
 
     def __init__(self, mcap, per_posture, settle_timeout):
         from gsp_calibrator.collection.protocol import CollectionProtocol
-        from gsp_calibrator.files.run_directory import Samples
+        from gsp_calibrator.files.run_directory import Rows
         from gsp_calibrator.node.posture_link import PostureLink
 
-        self.mcap, self.rows, self.commanded = mcap, Samples.empty(), None
+        self.mcap, self.rows, self.commanded = mcap, Rows.empty(), None
         self.ends = []
 
         class Notes:
@@ -645,9 +645,7 @@ def test_the_rebuild_of_a_run_with_skipped_postures_gives_the_rows_of_samples_cs
     postures = _postures(3, np.random.default_rng(7))
     path = tmp_path / 'recording.mcap'
     with McapRecorder(path) as mcap:
-        mcap.add_metadata(
-            RUN_METADATA_NAME, {'sync_tolerance': '0.0025', 'samples_per_posture': '3'}
-        )
+        mcap.add_metadata(RUN_METADATA_NAME, {'sync_tolerance': '0.0025', 'pairs_per_posture': '3'})
         online = _OnlineCalibrator(mcap, per_posture, settle_timeout=0.05)
         for k, (pose, q, r) in enumerate(postures, start=1):
             t = T0 + 200 * MS * (k - 1)

@@ -13,7 +13,7 @@ from recorded_runs import MS, T0, write_recording
 from replay_suite import CALIBRATION, TIMEOUT_S, live_run, replay_run
 from sensor_msgs.msg import JointState
 
-from gsp_calibrator.files.run_directory import Samples, write_samples
+from gsp_calibrator.files.run_directory import Rows, write_samples
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
@@ -32,7 +32,7 @@ from gsp_msgs_py.parameter_specs import ConfigurationError
 
 
 def _samples(count=3):
-    rows = Samples.empty()
+    rows = Rows.empty()
     for k in range(1, count + 1):
         rows.append(
             k,
@@ -95,7 +95,7 @@ def test_load_errors_name_the_file(tmp_path):
         RecordedRun.load(tmp_path / 'missing')
     with pytest.raises(ReplayError, match='without samples.csv or recording.mcap'):
         RecordedRun.load(tmp_path)
-    write_samples(tmp_path / 'samples.csv', Samples.empty())
+    write_samples(tmp_path / 'samples.csv', Rows.empty())
     with pytest.raises(ReplayError, match='no posture rows'):
         RecordedRun.load(tmp_path / 'samples.csv')
     (tmp_path / 'bad.csv').write_text('a,b\n1,2\n')
@@ -424,7 +424,7 @@ def test_replay_from_the_recording_collects_the_original_raw_samples(
     By design this reproduces the original exactly, not merely within its standard deviations:
     after ``settled`` the replay restarts the posture's stream at the first sample the original
     calibrator counted (replay_node.RESTART_PERIODS), in recorded order, and the calibrator takes
-    the first ``samples_per_posture`` pairs, so it averages the very samples the original
+    the first ``pairs_per_posture`` pairs, so it averages the very samples the original
     averaged (measured: identical rows and geometry). A replay that collected other samples
     (another window, a dropped or shifted sample, another pairing) would differ by the sensor
     noise (1 um, 1 mdeg), far above the 1e-12 tolerances. What tells a replay of the raw samples
@@ -436,7 +436,7 @@ def test_replay_from_the_recording_collects_the_original_raw_samples(
         ros_context, str(original_run.path / RECORDING_FILE), tmp_path / 'replay'
     )
     assert node.run.kind == SOURCE_RECORDING
-    assert all(len(p.stream) >= CALIBRATION['samples_per_posture'] for p in node.run.postures)
+    assert all(len(p.stream) >= CALIBRATION['pairs_per_posture'] for p in node.run.postures)
     _assert_same_calibration(original_run, replayed)
 
     noise_before = original_run.read_json('result.json')['noise_estimates']

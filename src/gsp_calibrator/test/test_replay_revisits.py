@@ -6,7 +6,7 @@ import pytest
 from recorded_runs import write_recording
 from replay_suite import CALIBRATION, live_run, replay_run
 
-from gsp_calibrator.files.run_directory import Samples, write_samples
+from gsp_calibrator.files.run_directory import Rows, write_samples
 from gsp_calibrator.recording.recorder import RECORDING_FILE
 from gsp_calibrator.replay.recorded_run import (
     SOURCE_RECORDING,
@@ -25,7 +25,7 @@ C = np.array([-0.02, 0.02, 0.98, 0.02, 0.01, 0.5])
 
 def _revisiting_samples(poses):
     """``samples.csv`` rows of postures 1, 2, ... at ``poses``, each with readings of its own."""
-    rows = Samples.empty()
+    rows = Rows.empty()
     for k, pose in enumerate(poses, start=1):
         rows.append(k, pose, 0.5 + 1e-3 * k + 0.01 * np.arange(6), [0.01 * k, 0, 0, 0], 3, k)
     return rows

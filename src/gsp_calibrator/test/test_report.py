@@ -238,7 +238,7 @@ def test_write_report_plots_false_writes_the_report_without_its_pngs(tmp_path):
     from gsp_calibrator.settings import CalibratorSettings
 
     samples = synthetic_samples(count=25, seed=5)
-    waits = {str(k): {'wait_s': 0.2 + 0.01 * k, 'settling_pairs': k % 2} for k in range(1, 26)}
+    waits = {str(k): {'wait_s': 0.2 + 0.01 * k, 'moving_pairs': k % 2} for k in range(1, 26)}
     collection = {
         'skipped': [],
         'inconsistent_dropped': 0,

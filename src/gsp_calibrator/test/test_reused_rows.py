@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from gsp_calibrator.files.run_directory import RunDirectory, Samples
+from gsp_calibrator.files.run_directory import Rows, RunDirectory
 from gsp_calibrator.run import reused_rows
 from gsp_calibrator.run.record import STATE_FILE, RunState, selection_options
 from gsp_calibrator.settings import CalibratorSettings
@@ -13,7 +13,7 @@ from gsp_kinematics.fileio import atomic_write_text, to_json
 
 
 def _rows(count, first=1):
-    samples = Samples.empty()
+    samples = Rows.empty()
     for k in range(first, first + count):
         samples.append(k, np.full(6, 0.01 * k), np.full(6, 0.7), np.zeros(4), 10, 1.7e9 + k)
     return samples

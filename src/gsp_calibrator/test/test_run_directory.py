@@ -10,9 +10,9 @@ import pytest
 
 from gsp_calibrator.files.run_directory import (
     SAMPLES_COLUMNS,
+    Rows,
     RunDirectory,
     RunDirectoryError,
-    Samples,
     create_run_directory,
     read_samples,
     samples_from_csv,
@@ -27,7 +27,7 @@ NOW = datetime.datetime(2025, 11, 22, 3, 54, 1, tzinfo=datetime.UTC)
 
 def make_samples(count=4, seed=0):
     rng = np.random.default_rng(seed)
-    samples = Samples.empty()
+    samples = Rows.empty()
     for k in range(count):
         samples.append(
             k + 1 if k < 2 else k + 2,  # a skipped posture leaves a gap
@@ -99,7 +99,7 @@ def test_samples_round_trip_at_full_precision(tmp_path):
 
 
 def test_empty_samples_round_trip(tmp_path):
-    path = write_samples(tmp_path / 'samples.csv', Samples.empty())
+    path = write_samples(tmp_path / 'samples.csv', Rows.empty())
     read = read_samples(path)
     assert read.commanded_poses.shape == (0, 6) and read.readings.shape == (0, 4)
     assert read.n_samples.size == 0
@@ -220,7 +220,7 @@ def test_atomic_write_leaves_no_temporary_file_and_keeps_the_old_file_on_error(s
 
 
 def test_csv_text_uses_repr_floats():
-    samples = Samples.empty()
+    samples = Rows.empty()
     samples.append(1, [0.1] * 6, [1 / 3] * 6, [2 / 3] * 4, 10, 1.7e9 + 0.123456789)
     row = samples_to_csv(samples).splitlines()[1].split(',')
     assert row[7] == repr(1 / 3) and row[18] == repr(1.7e9 + 0.123456789) and row[17] == '10'

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gsp_calibrator.collection.events import PostureSkipped, RowReady, TopicSilent
-from gsp_calibrator.collection.synchroniser import PostureSample
+from gsp_calibrator.collection.synchroniser import PostureRow
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_calibrator.files import history
 from gsp_calibrator.node.posture_link import PostureLink
@@ -28,7 +28,7 @@ from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.model.validation import sensor_measurements
 from gsp_msgs_py import conversions, names
 
-SAMPLES_PER_POSTURE = 10
+PAIRS_PER_POSTURE = 10
 
 
 class FakeRecorder:
@@ -88,12 +88,12 @@ class FakePlatform:
             return [
                 TopicSilent(names.TOPIC_LVDT, 'collecting', f'topic {names.TOPIC_LVDT} is silent')
             ]
-        sigma = DEFAULT_SENSOR_NOISE.averaged([SAMPLES_PER_POSTURE])
+        sigma = DEFAULT_SENSOR_NOISE.averaged([PAIRS_PER_POSTURE])
         legs, readings = sensor_measurements(self.truth, pose[None])
-        sample = PostureSample(
+        sample = PostureRow(
             legs[0] + self.rng.normal(0.0, sigma.leg_lengths, 6),
             readings[0] + self.rng.normal(0.0, 1.0, 4) * sigma.readings(),
-            SAMPLES_PER_POSTURE,
+            PAIRS_PER_POSTURE,
             k * 1_000_000_000,
             np.full(6, DEFAULT_SENSOR_NOISE.leg_lengths),
             DEFAULT_SENSOR_NOISE.readings(),
@@ -182,7 +182,7 @@ def _settings(tmp_path, **values):
             'output_root': str(tmp_path),
             'posture_count': 30,
             'pool_size': 120,
-            'samples_per_posture': SAMPLES_PER_POSTURE,
+            'pairs_per_posture': PAIRS_PER_POSTURE,
             'write_report_plots': False,  # the tests are of the flow, not of the report
             **values,
         }
@@ -377,7 +377,7 @@ def test_the_route_has_what_the_effect_groups_to_identify_need():
     # Timed at the rate the run heard its streams at: each added posture samples longer at 50 Hz.
     heard = postures.effect_route(settings, poses, home_pose(), 50.0)
     np.testing.assert_array_equal(heard.poses, route.poses)
-    longer = route.added_postures * settings.samples_per_posture * (1 / 50.0 - 1 / 200.0)
+    longer = route.added_postures * settings.pairs_per_posture * (1 / 50.0 - 1 / 200.0)
     assert heard.added_s - route.added_s == pytest.approx(longer, rel=1e-9)
     additions = postures.route_additions(heard, ['backlash', 'thermal'], 50.0)
     assert 'samples at 50 Hz' in postures.route_additions_line(additions)

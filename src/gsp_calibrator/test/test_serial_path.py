@@ -47,7 +47,7 @@ def test_silence_and_unplug_on_the_serial_path(ros_context, tmp_path):
         parameter_overrides=[
             Parameter('posture_count', value=20),
             Parameter('pool_size', value=80),
-            Parameter('samples_per_posture', value=5),
+            Parameter('pairs_per_posture', value=5),
             Parameter('sync_tolerance', value=0.5 / RATE_HZ),
             # The silence below lasts until the run fails: the timeout needs no margin to it, only
             # enough not to take a loaded machine's pause of the simulator for a silence.

@@ -5,9 +5,11 @@ import dataclasses
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+from gsp_calibrator import settings_fields
 from gsp_calibrator.recording.recorder import settings_options
 from gsp_calibrator.run.record import selection_options
 from gsp_calibrator.settings import (
@@ -19,10 +21,10 @@ from gsp_calibrator.settings import (
     STORED_PARAMETERS,
     CalibratorSettings,
     add_run_options,
-    check_parameters,
     names_in,
     option_value,
     run_options_error,
+    validate_parameters,
 )
 from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
@@ -30,7 +32,7 @@ from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 def test_defaults():
     assert DEFAULTS['posture_count'] == 60 and DEFAULTS['pool_size'] == 600
-    assert DEFAULTS['samples_per_posture'] == 10
+    assert DEFAULTS['pairs_per_posture'] == 10
     assert DEFAULTS['sync_tolerance'] == pytest.approx(0.0025)
     assert DEFAULTS['free_parameters'] == ['auto']
     assert DEFAULTS['loss'] == 'linear' and DEFAULTS['required_position_accuracy_mm'] == 0.1
@@ -40,7 +42,7 @@ def test_defaults():
     assert DEFAULTS['sigma_inclinometer'] == pytest.approx(math.radians(0.001))
     assert DEFAULTS['sigma_leg_lengths'] == DEFAULTS['sigma_lvdt'] == 1e-6
     assert all(spec.description for spec in PARAMETERS)
-    assert check_parameters(DEFAULTS) == ''
+    assert validate_parameters(DEFAULTS) == ''
 
 
 @pytest.mark.parametrize(
@@ -49,7 +51,7 @@ def test_defaults():
         ('posture_count', 0, 'must be >= 1'),
         ('pool_size', 0, 'must be >= 1'),
         ('pool_size', 59, 'must not exceed pool_size'),
-        ('samples_per_posture', 0, 'must be >= 1'),
+        ('pairs_per_posture', 0, 'must be >= 1'),
         ('sync_tolerance', -0.001, '>= 0'),
         ('sync_tolerance', math.inf, '>= 0'),
         ('settle_timeout', 0.0, '> 0'),
@@ -71,15 +73,15 @@ def test_defaults():
     ],
 )
 def test_bad_values_are_rejected_with_the_reason(name, value, match):
-    reason = check_parameters({name: value}, DEFAULTS)
+    reason = validate_parameters({name: value}, DEFAULTS)
     assert match in reason
     assert reason.startswith(name) or 'pool_size' in reason
 
 
 def test_changes_are_checked_against_the_current_values():
     current = dict(DEFAULTS, pool_size=100, posture_count=50)
-    assert check_parameters({'posture_count': 100}, current) == ''
-    assert 'must not exceed' in check_parameters({'posture_count': 101}, current)
+    assert validate_parameters({'posture_count': 100}, current) == ''
+    assert 'must not exceed' in validate_parameters({'posture_count': 101}, current)
 
 
 def test_settings_from_values(tmp_path):
@@ -136,13 +138,35 @@ def test_the_requirement_is_the_three_required_parameters():
     assert requirement.improvement == 4.0
 
 
+def _fields_source():
+    """The text of settings_fields.py the table gives."""
+    path = Path(settings_fields.__file__)
+    text = path.read_text()
+    head = text[: text.index('    nominal: Geometry\n') + len('    nominal: Geometry\n')]
+    lines = []
+    for spec in PARAMETERS:
+        default = spec.default
+        if isinstance(default, list):
+            lines.append(f'    {spec.name}: tuple[{type(default[0]).__name__}, ...]\n')
+        else:
+            lines.append(f'    {spec.name}: {type(default).__name__}\n')
+    return head + ''.join(lines)
+
+
+def test_the_typed_settings_fields_are_the_tables():
+    expected = _fields_source()
+    assert Path(settings_fields.__file__).read_text() == expected, (
+        'settings_fields.py differs from settings.PARAMETERS; its text should be:\n' + expected
+    )
+
+
 @pytest.mark.parametrize(
     'name, value, expected',
     [
         ('noise_source', 'guessed', "--noise-source: 'guessed' rejected, must be one of"),
         ('free_parameters', ['paper,Q9'], "unknown parameter name(s) ['Q9']"),
         ('sigma_lvdt', -1.0, '--sigma-lvdt: -1.0 rejected, must be a finite number > 0'),
-        ('samples_per_posture', 0, '--samples-per-posture: 0 rejected'),
+        ('pairs_per_posture', 0, '--pairs-per-posture: 0 rejected'),
     ],
 )
 def test_command_lines_check_options_with_the_parameters_checks(name, value, expected):
@@ -150,7 +174,7 @@ def test_command_lines_check_options_with_the_parameters_checks(name, value, exp
     with pytest.raises(ValueError) as raised:
         option_value(name, value)
     assert expected in str(raised.value)
-    assert check_parameters({name: value})  # the node refuses the same value
+    assert validate_parameters({name: value})  # the node refuses the same value
 
 
 def test_run_options_are_the_marked_parameters_with_their_defaults():

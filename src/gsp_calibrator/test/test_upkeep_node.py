@@ -21,7 +21,7 @@ CALL_TIMEOUT_S = 600.0
 CALIBRATOR = {
     'apply_result': True,
     'platform_id': PLATFORM,
-    'samples_per_posture': 10,
+    'pairs_per_posture': 10,
     'posture_count': 16,
 }
 

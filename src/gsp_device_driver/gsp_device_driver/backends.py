@@ -44,7 +44,7 @@ from gsp_msgs_py.noise_parameters import (
     noise_parameter_names,
 )
 
-from .device_backend import BackendError, DeviceBackend, DeviceSample, check_std
+from .device_backend import BackendError, DeviceBackend, DeviceSample, validate_std
 from .serial_backend import SerialDeviceBackend
 
 #: The device sensors' true noise parameters (``inclinometer_noise_std``...).
@@ -145,7 +145,7 @@ class SimDeviceBackend(DeviceBackend):
 
     def update_noise(self, noise):
         for sensor in channels.DEVICE_SENSORS:
-            check_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
+            validate_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
         self._noise = noise
 
     def observe_true_pose(self, pose):

@@ -31,7 +31,7 @@ class DeviceSample:
         return np.array([self.alpha, self.beta, self.phi, self.d_m])
 
 
-def check_std(value, name):
+def validate_std(value, name):
     """``value`` as a float noise standard deviation (finite, >= 0); BackendError otherwise."""
     value = float(value)
     if not (math.isfinite(value) and value >= 0.0):

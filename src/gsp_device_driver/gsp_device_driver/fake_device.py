@@ -19,6 +19,8 @@ import tty
 
 import numpy as np
 
+from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
+
 from .serial_protocol import U32, Reading, format_hello, format_reading, is_request
 
 HELLO_PERIOD_S = 1.0
@@ -64,7 +66,7 @@ class FakeDevice:
         self,
         link,
         readings,
-        rate_hz=200.0,
+        rate_hz=DEFAULT_SENSOR_RATE_HZ,
         angle_unit='rad',
         length_unit='m',
         garbage_fraction=0.0,

@@ -22,6 +22,7 @@ from rclpy.node import Node
 
 from gsp_kinematics.channels import DEVICE_SENSORS
 from gsp_kinematics.model.geometry import default_geometry_path
+from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 
@@ -40,7 +41,12 @@ def parse_arguments(argv=None):
     )
     add = parser.add_argument
     add('--port', required=True, help='path of the symlink to the pty the driver opens')
-    add('--rate', type=float, default=200.0, help='reading lines per second (200)')
+    add(
+        '--rate',
+        type=float,
+        default=DEFAULT_SENSOR_RATE_HZ,
+        help=f'reading lines per second ({DEFAULT_SENSOR_RATE_HZ:g})',
+    )
     add('--true-geometry', default=default_geometry_path('true'), help='device D0 and gamma')
     add('--seed', type=int, default=-1, help='noise seed (default -1: a fresh one at each start)')
     for sensor, name in zip(DEVICE_SENSORS, NOISE_PARAMETERS, strict=True):  # device_driver's

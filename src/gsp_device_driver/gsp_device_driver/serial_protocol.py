@@ -146,7 +146,7 @@ def format_reading(reading, angle_unit='rad', length_unit='m', status=0):
     return frame(','.join(fields))
 
 
-def format_hello(device_id, angle_unit='rad', length_unit='m', rate_hz=200.0):
+def format_hello(device_id, angle_unit, length_unit, rate_hz):
     """The hello line (bytes)."""
     body = ','.join(
         [

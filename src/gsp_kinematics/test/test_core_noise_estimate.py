@@ -1,4 +1,4 @@
-"""Noise of the averaged row from correlated samples, and the settle test, on known answers."""
+"""Noise of the averaged row from correlated samples, and the rest test, on known answers."""
 
 import math
 
@@ -11,8 +11,8 @@ from gsp_kinematics.estimation.noise_estimate import (
     lag_sums,
     noise_of_mean,
     noise_of_mean_from_sums,
+    rest_test,
     scatter_test,
-    settle_test,
     settled,
     trend_std_factor,
     window_lag_sums,
@@ -165,12 +165,12 @@ def test_the_whiteness_test_gives_white_samples_exactly_the_pooled_scatter():
 
 def first_settled_windows(signal, times, lookback, window):
     """Per seed, the start index of the first ``window``-sample window judged settled over the
-    ``lookback`` samples ending with it (settle_test vectorised over seeds), or -1."""
+    ``lookback`` samples ending with it (rest_test vectorised over seeds), or -1."""
     seeds, n = signal.shape[:2]
     first = np.full(seeds, -1)
     for end in range(lookback - 1, n):
         span = slice(end - lookback + 1, end + 1)
-        verdict = settle_test(signal[:, span], times[span])
+        verdict = rest_test(signal[:, span], times[span])
         newly = (first < 0) & verdict.settled[:, 0]
         first[newly] = end - window + 1
     return first
@@ -199,7 +199,7 @@ def test_settle_rule_waits_out_an_exponential_approach_until_the_offset_is_below
 def test_settle_test_calls_settled_white_spans_moving_at_the_nominal_rate(n):
     rng = np.random.default_rng(12 + n)
     spans, sigma = 40000, 3e-6
-    verdict = settle_test(rng.normal(size=(spans, n, 1)) * sigma + 0.2, np.arange(n) * DT)
+    verdict = rest_test(rng.normal(size=(spans, n, 1)) * sigma + 0.2, np.arange(n) * DT)
     rate, expected = 1 - verdict.settled.mean(), false_unsettled_rate()
     standard_error = math.sqrt(expected / spans)
     # Exact (Student-t) for spans too short to count correlation; slightly below the nominal
@@ -227,7 +227,7 @@ def test_a_ringing_span_shows_no_trend_but_scatters_beyond_its_noise():
     rng = np.random.default_rng(4)
     sigma, times = 2e-5, np.arange(50) * DT
     values = (4 * sigma * np.sin(2 * math.pi * 5.0 * times) + rng.normal(size=50) * sigma)[:, None]
-    assert settle_test(values, times, noise_floor=[sigma]).settled.all()
+    assert rest_test(values, times, noise_floor=[sigma]).settled.all()
     ratio, threshold = scatter_test(values, [sigma])
     assert ratio[0] > 1.5 * threshold
     assert scatter_test(values, [3 * sigma])[0][0] < threshold  # a noisier sensor
@@ -237,5 +237,5 @@ def test_a_ringing_span_shows_no_trend_but_scatters_beyond_its_noise():
 
 def test_settle_test_noise_floor_keeps_a_noiseless_channel_settled():
     flat = np.full((12, 2), 0.3) + np.arange(12)[:, None] * np.array([1e-15, 0.0])
-    assert not settle_test(flat).settled[0]  # a ramp of a few ulps on no noise
-    assert settle_test(flat, noise_floor=[1e-9, 1e-9]).settled.all()
+    assert not rest_test(flat).settled[0]  # a ramp of a few ulps on no noise
+    assert rest_test(flat, noise_floor=[1e-9, 1e-9]).settled.all()

@@ -145,7 +145,7 @@ def test_white_noise_3x_and_half_is_estimated_per_channel(
         np.full(len(legs), SAMPLES),
     )
     assert record['leg_lengths']['estimated'] == pytest.approx(TRUTH.leg_lengths, rel=0.1)
-    text = goodness.verdict(configured.goodness_of_fit, configured.outliers, record, True)
+    text = goodness.fit_diagnosis(configured.goodness_of_fit, configured.outliers, record, True)
     assert 'wrong sigmas' in text and 'outlier' not in text
     assert 'leg_lengths' in text and 'encoder' in text
 
@@ -268,7 +268,7 @@ def test_a_real_outlier_is_named_and_noise_is_not(nominal_sets, moderate_posture
     result, _, _ = estimated(nominal_sets[1], moderate_postures, legs, readings, lag_sums)
     assert [entry['posture'] for entry in result.outliers] == [17]
     assert not result.goodness_of_fit.accepted
-    assert 'outlier postures 17' in goodness.verdict(result.goodness_of_fit, result.outliers)
+    assert 'outlier postures 17' in goodness.fit_diagnosis(result.goodness_of_fit, result.outliers)
 
 
 def test_bonferroni_threshold():
@@ -278,7 +278,7 @@ def test_bonferroni_threshold():
 
 def test_unknown_noise_source_is_named():
     with pytest.raises(noise_from_data.NoiseSourceError, match="'guessed'"):
-        noise_from_data.check_noise_source('guessed')
+        noise_from_data.validate_noise_source('guessed')
 
 
 def test_a_channel_without_scatter_has_no_within_posture_estimate(exact_readings):

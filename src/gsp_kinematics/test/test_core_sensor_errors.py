@@ -211,7 +211,9 @@ def test_extended_fit_recovers_sensor_errors_and_paper_fit_is_rejected(with_sens
     paper = identify(nominal, legs, readings, sigmas, free='paper', pose_guesses=measured['poses'])
     assert paper.goodness_of_fit.p_value < 0.01
     assert not paper.goodness_of_fit.accepted
-    text = goodness.verdict(paper.goodness_of_fit, free_sensor_errors=paper.sensor_errors_free)
+    text = goodness.fit_diagnosis(
+        paper.goodness_of_fit, free_sensor_errors=paper.sensor_errors_free
+    )
     assert 'try free_parameters: extended' in text
 
 
@@ -260,8 +262,8 @@ def test_goodness_of_fit_and_verdict_text():
     rng = np.random.default_rng(2)
     fit = goodness.goodness_of_fit(rng.normal(size=(100, 10)), 44)
     assert fit.dof == 956 and fit.accepted
-    assert 'explains the data' in goodness.verdict(fit)
+    assert 'explains the data' in goodness.fit_diagnosis(fit)
     bad = goodness.goodness_of_fit(3.0 * rng.normal(size=(100, 10)), 44)
-    text = goodness.verdict(bad, free_sensor_errors=True)
+    text = goodness.fit_diagnosis(bad, free_sensor_errors=True)
     assert not bad.accepted and 'does NOT explain' in text and 'unmodelled error' in text
     assert 'extended' not in text

@@ -117,7 +117,7 @@ def controller_geometry_error(values):
     return ''
 
 
-def check_geometry_change(changes, current):
+def validate_geometry_change(changes, current):
     """Run-time check: the geometry after ``changes`` must be valid as a whole."""
     if not any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
         return ''

@@ -3,25 +3,7 @@
 Only standard common_interfaces messages are used (no custom .msg). ``TOPIC_TYPES`` maps each
 name to its interface type (``pkg/msg/Type``); :mod:`gsp_msgs_py.qos` gives the QoS of each topic.
 
-Topic payloads (SI units, see docs/nodes.md):
-
-=============================== ================================= ==================================
-name                            type                              content
-=============================== ================================= ==================================
-``/gsp/platform/pose_command``  geometry_msgs/PoseStamped         commanded pose in ``gsp_base``
-``/gsp/platform/leg_lengths``   sensor_msgs/JointState            ``leg_1``..``leg_6`` q_i (m)
-``/gsp/platform/true_pose``     geometry_msgs/PoseStamped         simulator ground truth
-``/gsp/platform/status``        diagnostic_msgs/DiagnosticStatus  ``conversions.make_status``
-``/gsp/platform/markers``       visualization_msgs/MarkerArray    RViz view of the platform
-``/gsp/platform/device_truth``  sensor_msgs/JointState            physics backend: noise-free
-                                                                  ``alpha, beta, phi, d_m``
-``/gsp/device/inclinometer``    sensor_msgs/JointState            ``alpha``, ``beta`` (rad)
-``/gsp/device/encoder``         sensor_msgs/JointState            ``phi`` (rad)
-``/gsp/device/lvdt``            sensor_msgs/JointState            ``d_m`` (m)
-``/gsp/calibrator/calibrate``   std_srvs/Trigger (service)        runs one calibration
-``/gsp/calibrator/result``      std_msgs/String                   calibrated geometry YAML
-``/gsp/calibrator/progress``    diagnostic_msgs/DiagnosticStatus  ``conversions.make_progress``
-=============================== ================================= ==================================
+Each topic's payload, publishers and subscribers: docs/nodes.md.
 
 Status (``/gsp/platform/status``): level OK = settled, WARN = moving, ERROR = rejected;
 ``message`` is the human-readable reason; key/values ``command_id``, ``state``, ``reason``.

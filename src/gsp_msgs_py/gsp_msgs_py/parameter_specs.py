@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
 from gsp_kinematics.model.sensor_noise import (
     DEFAULT_SENSOR_NOISE,
     NOISE_UNITS,
@@ -159,7 +160,7 @@ class ParameterSpec:
 # --- parameters several nodes share (same name, type and checks everywhere) -----------------
 
 
-def publish_rate_spec(what, default=200.0):
+def publish_rate_spec(what, default=DEFAULT_SENSOR_RATE_HZ):
     """``publish_rate`` (Hz, read-only): the rate of ``what``."""
     return ParameterSpec(
         'publish_rate',
@@ -309,7 +310,7 @@ def _spec_table(specs):
     return specs if isinstance(specs, dict) else {spec.name: spec for spec in specs}
 
 
-def check_values(specs, values):
+def validate_values(specs, values):
     """Reason ('' if none) why ``{name: value}`` fails the checks of ``specs``.
 
     Names without a spec are not checked (another part of the node owns them).
@@ -340,7 +341,7 @@ def declare_parameters(node, specs, validate=None):
     except (InvalidParameterValueException, InvalidParameterTypeException) as error:
         raise ConfigurationError(str(error)) from None
     values = {spec.name: node.get_parameter(spec.name).value for spec in specs}
-    reason = check_values(specs, values) or (validate(values) if validate is not None else '')
+    reason = validate_values(specs, values) or (validate(values) if validate is not None else '')
     if reason:
         raise ConfigurationError(reason)
     return values
@@ -366,7 +367,7 @@ def watch_parameters(node, specs, apply=None, validate=None):
 
     def on_set(parameters):
         changes = {p.name: p.value for p in parameters}
-        reason = check_values(table, changes)
+        reason = validate_values(table, changes)
         if not reason and validate is not None:
             reason = validate(changes, parameter_values(node, table))
         return SetParametersResult(successful=not reason, reason=reason)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_msgs_py import names
-from gsp_msgs_py.interfaces.rules import Received, check_topics, stamp_sharing, topic_summary
+from gsp_msgs_py.interfaces.rules import Received, stamp_sharing, topic_summary, validate_topics
 
 RATE = 200.0
 LEGS = np.array([0.1, 0.2, 0.3, 0.25, 0.15, 0.05])
@@ -57,7 +57,7 @@ def recording(fault=None, count=100, seed=0):
 
 def test_a_conforming_recording_has_no_problem():
     topics = recording()
-    assert check_topics(topics) == []
+    assert validate_topics(topics) == []
     summary = topic_summary(topics[names.TOPIC_LEG_LENGTHS])
     assert summary['rate_hz'] == pytest.approx(RATE) and summary['delay_s'] == pytest.approx(0.001)
     assert stamp_sharing(topics) == 1.0
@@ -75,7 +75,7 @@ def test_a_conforming_recording_has_no_problem():
     ],
 )
 def test_each_fault_is_named(fault, words):
-    problems = '\n'.join(check_topics(recording(fault)))
+    problems = '\n'.join(validate_topics(recording(fault)))
     for word in words:
         assert word in problems, problems
 
@@ -84,14 +84,14 @@ def test_a_missing_topic_and_a_low_rate_are_named():
     topics = recording()
     topics[names.TOPIC_ENCODER] = []
     topics[names.TOPIC_LVDT] = topics[names.TOPIC_LVDT][::10]  # 20 Hz
-    problems = '\n'.join(check_topics(topics))
+    problems = '\n'.join(validate_topics(topics))
     assert '/gsp/device/encoder: no message received' in problems
     assert '/gsp/device/lvdt: 20.0 Hz is below the 50 Hz needed' in problems
 
 
 def test_diagnostics_problems_name_a_silent_suite_node_and_a_status_at_error():
     from gsp_msgs_py.health import ERROR, OK, WARN, Health
-    from gsp_msgs_py.interfaces.rules import check_diagnostics, diagnostics_summary
+    from gsp_msgs_py.interfaces.rules import diagnostics_summary, validate_diagnostics
 
     reports = {
         'platform_sim: commands': Health(OK, 'no command yet', {'commands': '0'}),
@@ -100,7 +100,7 @@ def test_diagnostics_problems_name_a_silent_suite_node_and_a_status_at_error():
     }
     # Seconds each node has been in the graph: the replay started too recently to be judged.
     seen = {'platform_sim': 5, 'device_driver': 3.0, 'calibrator': 5, 'replay': 0.5, 'rviz2': 5}
-    problems = check_diagnostics(reports, seen, 2.0)
+    problems = validate_diagnostics(reports, seen, 2.0)
     assert problems == [
         '/diagnostics: device_driver is running but published no status in 3.0 s',
         '/diagnostics: platform_bridge: controller is ERROR: stale /joint_states',
@@ -109,4 +109,4 @@ def test_diagnostics_problems_name_a_silent_suite_node_and_a_status_at_error():
     assert '    platform_sim: commands: OK no command yet (1 keys)' in lines
     assert any('calibrator: calibration: WARN silent' in line for line in lines)
     assert '    replay: no status yet, started 0.5 s ago (not judged)' in lines
-    assert check_diagnostics({}, {'rviz2': 9, 'controller_sim': 9}, 2.0) == []
+    assert validate_diagnostics({}, {'rviz2': 9, 'controller_sim': 9}, 2.0) == []

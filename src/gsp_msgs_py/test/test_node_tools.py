@@ -13,7 +13,6 @@ from gsp_msgs_py.parameter_specs import (
     ConfigurationError,
     ParameterSpec,
     at_least,
-    check_values,
     declare_parameters,
     greater_than,
     is_finite_number,
@@ -22,6 +21,7 @@ from gsp_msgs_py.parameter_specs import (
     parameter_table_markdown,
     resolve_seed,
     seed_spec,
+    validate_values,
     watch_parameters,
 )
 
@@ -57,12 +57,12 @@ def test_is_finite_number():
 
 
 def test_checks_give_the_reason_with_name_and_value():
-    assert check_values(SPECS, {'rate': 10.0, 'seed': -1, 'unknown': 'ignored'}) == ''
-    assert check_values(SPECS, {'rate': 0.0}) == 'rate: 0.0 rejected, must be > 0 Hz'
-    assert check_values(SPECS, {'noise': math.nan}) == 'noise: nan rejected, must be >= 0 m'
-    assert 'or -1 for a random seed' in check_values(SPECS, {'seed': -2})
-    assert check_values(SPECS, {'mode': 'c'}) == "mode: 'c' rejected, must be one of ['a', 'b']"
-    assert check_values(SPECS, {'frame': ' '}) == "frame: ' ' rejected, must not be empty"
+    assert validate_values(SPECS, {'rate': 10.0, 'seed': -1, 'unknown': 'ignored'}) == ''
+    assert validate_values(SPECS, {'rate': 0.0}) == 'rate: 0.0 rejected, must be > 0 Hz'
+    assert validate_values(SPECS, {'noise': math.nan}) == 'noise: nan rejected, must be >= 0 m'
+    assert 'or -1 for a random seed' in validate_values(SPECS, {'seed': -2})
+    assert validate_values(SPECS, {'mode': 'c'}) == "mode: 'c' rejected, must be one of ['a', 'b']"
+    assert validate_values(SPECS, {'frame': ' '}) == "frame: ' ' rejected, must not be empty"
     assert not_blank('a file')('') == 'must name a file'
 
 

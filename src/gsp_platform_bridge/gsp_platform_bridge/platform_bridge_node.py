@@ -23,9 +23,9 @@ from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
     GEOMETRY_PARAMETER_NAMES,
-    check_geometry_change,
     controller_geometry,
     controller_geometry_error,
+    validate_geometry_change,
 )
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
@@ -135,7 +135,7 @@ class PlatformBridgeNode(Node):
             values['state_timeout'],
         )
         parameter_specs.watch_parameters(
-            self, PARAMETERS, apply=self._apply_parameters, validate=check_geometry_change
+            self, PARAMETERS, apply=self._apply_parameters, validate=validate_geometry_change
         )
         self._trajectory_topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self._trajectory_pub = self.create_publisher(JointTrajectory, self._trajectory_topic, 10)

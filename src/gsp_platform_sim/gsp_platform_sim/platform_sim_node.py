@@ -29,8 +29,8 @@ from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
     GEOMETRY_PARAMETER_NAMES,
-    check_geometry_change,
     controller_geometry_error,
+    validate_geometry_change,
 )
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, one_of
 from gsp_msgs_py.pose_commands import PoseCommandServer
@@ -137,7 +137,7 @@ class PlatformSimNode(Node):
             raise parameter_specs.ConfigurationError(str(error)) from None
         self._frame_id = values['frame_id']
         parameter_specs.watch_parameters(
-            self, PARAMETERS, apply=self._apply_parameters, validate=check_geometry_change
+            self, PARAMETERS, apply=self._apply_parameters, validate=validate_geometry_change
         )
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.

@@ -59,7 +59,7 @@ class ApproachTracker:
 
 
 def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg_mass=None):
-    """The ``EffectDesign`` of a run's rows (``files.run_directory.Samples``) and the payload the user
+    """The ``EffectDesign`` of a run's rows (``files.run_directory.Rows``) and the payload the user
     gave (kg; 0: unknown: the reference mass, ``payload_assumed``, so the compliance is still
     identified, as the legs' compliance times the load over it), with the legs' masses (6,) kg
     (None: massless). The directions are left out (None) when a row has none (a

@@ -2,7 +2,7 @@
 
 The rule and its parameters are in :mod:`gsp_calibrator.collection.synchroniser` and
 docs/sensor_errors.md; the test itself is
-:func:`gsp_kinematics.estimation.noise_estimate.settle_test`.
+:func:`gsp_kinematics.estimation.noise_estimate.rest_test`.
 """
 
 import bisect
@@ -11,15 +11,15 @@ import math
 
 import numpy as np
 
-# The settle test takes scipy.stats, which imports lazily and slowly (about 6 s on a busy
-# machine): loaded with the collection, at the calibrator's start, not by the first settle test
+# The rest test takes scipy.stats, which imports lazily and slowly (about 6 s on a busy
+# machine): loaded with the collection, at the calibrator's start, not by the first rest test
 # in the sensor listener in the middle of a run's first posture.
 import scipy.stats  # noqa: F401
 
 from gsp_kinematics.channels import CHANNEL_NAMES
-from gsp_kinematics.estimation.noise_estimate import scatter_test, settle_test
+from gsp_kinematics.estimation.noise_estimate import rest_test, scatter_test
 
-#: Fewest samples the settle test judges (a trend and a bend need some scatter left over).
+#: Fewest samples the rest test judges (a trend and a bend need some scatter left over).
 MIN_SETTLE_SAMPLES = 4
 #: Largest part of the look-back, at its start, that may hold no pair: a look-back whose start
 #: lacks its pairs (messages lost, a device instant incomplete) is not yet covered.
@@ -27,7 +27,7 @@ MAX_UNCOVERED_FRACTION = 0.125
 
 
 @dataclasses.dataclass(frozen=True)
-class Unsettled:
+class NotAtRest:
     """Why the latest window judged is not used yet: the look-back is not yet covered
     (``pending``), or ``channel`` moved: its trend ``z`` stds over ``span`` s (``threshold``),
     or (``scatter``) its std over the span ``z`` times its at-rest noise."""
@@ -41,7 +41,7 @@ class Unsettled:
 
     def describe(self):
         if self.pending:
-            return 'the settle look-back is not yet covered'
+            return 'the rest look-back is not yet covered'
         what = 'scatter {:.3g} times its noise std' if self.scatter else 'trend {:.3g} stds'
         return (
             f'{self.channel} still moving: {what.format(self.z)} over the last '
@@ -51,14 +51,14 @@ class Unsettled:
 
 def span_verdict(values, stamps_ns, sigmas, noise_std=None):
     """None if every channel of ``values`` (n, 10) (``phi`` unwrapped), stamped ``stamps_ns``
-    (n,), is at rest (or the span is too short to judge), else :class:`Unsettled` naming the
+    (n,), is at rest (or the span is too short to judge), else :class:`NotAtRest` naming the
     channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise at rest,
     the floor of the trend's noise; with it, a channel scattering more than it allows moves
     too (an oscillation faster than the span shows no trend: a platform still ringing)."""
     if len(stamps_ns) < MIN_SETTLE_SAMPLES:
         return None
     times = (np.asarray(stamps_ns, dtype=np.int64) - int(stamps_ns[0])) * 1e-9
-    verdict = settle_test(values, times, sigmas, noise_std)
+    verdict = rest_test(values, times, sigmas, noise_std)
     if not verdict.settled.all():
         worst = int(np.argmax(verdict.z / verdict.threshold))
         z, threshold, scatter = verdict.z[worst], verdict.threshold[worst], False
@@ -70,27 +70,27 @@ def span_verdict(values, stamps_ns, sigmas, noise_std=None):
         z, scatter = ratio[worst], True
     else:
         return None
-    return Unsettled(
+    return NotAtRest(
         False, CHANNEL_NAMES[worst], float(z), float(threshold), float(times[-1]), scatter
     )
 
 
-class SettleRule:
-    """The settle rule of a collector: ``lookback`` (s, >= 0) and ``sigmas`` (> 0)."""
+class RestRule:
+    """The rest rule of a collector: ``lookback`` (s, >= 0) and ``sigmas`` (> 0)."""
 
     def __init__(self, lookback, sigmas):
         lookback, sigmas = float(lookback), float(sigmas)
         if not (math.isfinite(lookback) and lookback >= 0.0):
-            raise ValueError(f'settle_lookback must be a finite time >= 0 s, got {lookback}')
+            raise ValueError(f'rest_lookback must be a finite time >= 0 s, got {lookback}')
         if not sigmas > 0.0:
-            raise ValueError(f'settle_sigmas must be > 0, got {sigmas}')
+            raise ValueError(f'rest_sigmas must be > 0, got {sigmas}')
         self.lookback_ns = int(round(lookback * 1e9))
         self.sigmas = sigmas
 
-    def verdict(self, pairs, end, window, values_of, noise_std=None, pair_legs=None, slack_ns=0):
+    def judge(self, pairs, end, window, values_of, noise_std=None, pair_legs=None, slack_ns=0):
         """None if the channels are at rest over the look-back that ends with ``pairs[end]``
         (``(leg stamp, device stamp)`` ns, the first stamped after the settle; at least the
-        ``window`` pairs ending there), else :class:`Unsettled`; pending until the look-back,
+        ``window`` pairs ending there), else :class:`NotAtRest`; pending until the look-back,
         less ``slack_ns``, is covered by pairs. ``values_of(pairs)``: their (n, 10) channel
         values (``phi`` unwrapped); ``noise_std`` (10,): the per-sample noise floor;
         ``pair_legs``: the leg stamps of ``pairs`` if the caller keeps them (else they are
@@ -100,7 +100,7 @@ class SettleRule:
         # the stream starts after the settle (a replay restarts it at its first pair), and the
         # slack (the pairing tolerance) keeps a stamp's jitter from moving it by one pair.
         if end_stamp - pairs[0][0] < self.lookback_ns - slack_ns:
-            return Unsettled(pending=True)
+            return NotAtRest(pending=True)
         if pair_legs is None:
             pair_legs = [leg for leg, _ in pairs]
         first = bisect.bisect_left(pair_legs, end_stamp - self.lookback_ns)
@@ -109,6 +109,6 @@ class SettleRule:
         # 0.007 rad before the inclinometer was at rest).
         uncovered = pair_legs[first] - (end_stamp - self.lookback_ns)
         if uncovered > MAX_UNCOVERED_FRACTION * self.lookback_ns:
-            return Unsettled(pending=True)
+            return NotAtRest(pending=True)
         span = pairs[min(first, end - window + 1) : end + 1]
         return span_verdict(values_of(span), [leg for leg, _ in span], self.sigmas, noise_std)

@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 
-from gsp_calibrator.collection.synchroniser import PostureSample
+from gsp_calibrator.collection.synchroniser import PostureRow
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,7 +22,7 @@ class RowReady:
 
     posture: int
     pose: np.ndarray  #: (6,) commanded [x, y, z, psi, theta, phi], m and rad
-    sample: PostureSample
+    sample: PostureRow
     dropped: int = 0
 
 
@@ -46,7 +46,7 @@ class TopicSilent:
 
 
 @dataclasses.dataclass(frozen=True)
-class NoSynchronisedSample:
+class NoSynchronisedPair:
     """Messages come but no synchronised pair did for ``topic_timeout``: the run cannot go on."""
 
     posture: int
@@ -82,4 +82,4 @@ class PairsCollected:
 
 
 #: Events after which the posture (or the run) is over.
-FINAL_EVENTS = (RowReady, PostureSkipped, TopicSilent, NoSynchronisedSample)
+FINAL_EVENTS = (RowReady, PostureSkipped, TopicSilent, NoSynchronisedPair)

@@ -13,15 +13,15 @@ limits) plus ``settle_timeout`` of that first status (else skipped) and starts t
 (:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
 the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
 sensor samples stamped from the start (including samples received since the command) and the
-earliest consistent window whose channels are at rest over the ``settle_lookback`` ending with
+earliest consistent window whose channels are at rest over the ``rest_lookback`` ending with
 it (see :mod:`~gsp_calibrator.collection.synchroniser`) gives the row (:class:`RowReady`, with
-its ``settle_wait``). The posture is skipped when the readings still move ``settle_timeout``
+its ``rest_wait``). The posture is skipped when the readings still move ``settle_timeout``
 after the start (the reason names the channel and its trend), when
-``max_pairs_per_sample * samples_per_posture`` settled pairs hold no consistent window, or
+``max_pairs_per_sample * pairs_per_posture`` settled pairs hold no consistent window, or
 when no window comes within ``settle_timeout + topic_timeout`` of the start. These two bounds
 count in the data's time, the samples' stamps since the start (as far as every stream that has
 given any has reached): a caller that handles the samples late decides late, not otherwise. The run fails
-(:class:`.events.TopicSilent`, :class:`.events.NoSynchronisedSample`) when a sensor topic says nothing, or the
+(:class:`.events.TopicSilent`, :class:`.events.NoSynchronisedPair`) when a sensor topic says nothing, or the
 pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
 is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
 with the current time), so the protocol runs offline.
@@ -84,9 +84,9 @@ from gsp_calibrator.collection.topics import (
     read_sensor,
 )
 from gsp_kinematics import channels
-from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 
-#: A posture is skipped when this many times samples_per_posture synchronised pairs hold no
+#: A posture is skipped when this many times pairs_per_posture synchronised pairs hold no
 #: consistent window (see gsp_calibrator.collection.synchroniser).
 MAX_PAIRS_PER_SAMPLE = 20
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
@@ -164,48 +164,48 @@ def collection_summary(skipped, collector):
 
 class CollectionProtocol:
     """The collection protocol (module docstring); every input returns a list of events.
-    ``sync_tolerance`` (s), ``samples_per_posture``, ``noise_std`` (10 channel stds or None),
-    ``settle_lookback`` (s), ``settle_sigmas``: the collector; the rest: the timeouts (s)."""
+    ``sync_tolerance`` (s), ``pairs_per_posture``, ``noise_std`` (10 channel stds or None),
+    ``rest_lookback`` (s), ``rest_sigmas``: the collector; the rest: the timeouts (s)."""
 
     @classmethod
     def for_settings(cls, settings):
         """The protocol of a calibrator run with ``settings`` (a ``CalibratorSettings``)."""
         return cls(
             settings.sync_tolerance,
-            settings.samples_per_posture,
+            settings.pairs_per_posture,
             settings.sigmas.channel_std(),
             topic_timeout=settings.topic_timeout,
             settle_timeout=settings.settle_timeout,
-            settle_lookback=settings.settle_lookback,
-            settle_sigmas=settings.settle_sigmas,
+            rest_lookback=settings.rest_lookback,
+            rest_sigmas=settings.rest_sigmas,
             planned_move=planned_move(settings.nominal, settings.motion_limits),
         )
 
     def __init__(
         self,
         sync_tolerance,
-        samples_per_posture,
+        pairs_per_posture,
         noise_std=None,
         *,
         topic_timeout=math.inf,
         settle_timeout=math.inf,
         max_pairs_per_sample=MAX_PAIRS_PER_SAMPLE,
         keep_pairs=False,
-        settle_lookback=0.0,
-        settle_sigmas=DEFAULT_SETTLE_SIGMAS,
+        rest_lookback=0.0,
+        rest_sigmas=DEFAULT_REST_SIGMAS,
         planned_move=None,
     ):
-        self.samples_per_posture = int(samples_per_posture)
+        self.pairs_per_posture = int(pairs_per_posture)
         self.timeouts = CollectionTimeouts(
-            topic_timeout, settle_timeout, sync_tolerance, samples_per_posture, planned_move
+            topic_timeout, settle_timeout, sync_tolerance, pairs_per_posture, planned_move
         )
         self.topic_timeout = self.timeouts.topic_timeout  # s
-        self.pair_limit = int(max_pairs_per_sample) * self.samples_per_posture
+        self.pair_limit = int(max_pairs_per_sample) * self.pairs_per_posture
         self.keep_pairs = bool(keep_pairs)
         buffer = None if keep_pairs else max(MIN_BUFFER, 2 * self.pair_limit)
-        settle = {'settle_lookback': settle_lookback, 'settle_sigmas': settle_sigmas}
+        settle = {'rest_lookback': rest_lookback, 'rest_sigmas': rest_sigmas}
         self.collector = SampleCollector(
-            sync_tolerance, samples_per_posture, max_buffer=buffer, noise_std=noise_std, **settle
+            sync_tolerance, pairs_per_posture, max_buffer=buffer, noise_std=noise_std, **settle
         )
         self._posture = None  # the awaited posture (Posture) or None
         self._previous = None  # device readings of the previous row
@@ -404,9 +404,9 @@ class CollectionProtocol:
                 return self._row()
             # (while the readings still move, settle_timeout bounds the wait: the timeouts)
             count = collector.pair_count()
-            if count >= self.pair_limit and collector.unsettled is None:
+            if count >= self.pair_limit and collector.not_at_rest is None:
                 return self._skip(
-                    f'no {self.samples_per_posture} consistent samples among {count} '
+                    f'no {self.pairs_per_posture} consistent samples among {count} '
                     'synchronised ones (too noisy, or the device readings did not change from '
                     'the previous posture)'
                 )

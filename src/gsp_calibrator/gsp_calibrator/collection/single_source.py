@@ -65,7 +65,7 @@ class SingleSourceGuard:
         count = publisher_count()
         return SecondSource(topic, count) if count > 1 else None
 
-    def check_reading(self, topic, msg, sequence, publisher_count):
+    def validate_reading(self, topic, msg, sequence, publisher_count):
         """:meth:`check` for a sensor message ``msg``; None for an unusable one (the collection
         protocol drops it anyway)."""
         try:

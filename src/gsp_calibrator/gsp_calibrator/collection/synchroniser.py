@@ -6,10 +6,10 @@ another timer, the three messages of one instant sharing a stamp. :class:`Sample
 buffers both streams, drops (and counts) non-finite readings, pairs each leg-length sample with
 the complete device sample of nearest stamp within ``sync_tolerance`` (s), keeps only pairs
 stamped at or after the current start time (the platform has settled), and averages
-``samples_per_posture`` pairs into one posture row.
+``pairs_per_posture`` pairs into one posture row.
 
 Consistency (optional, ``noise_std``): the averaged pairs must agree with each other. A window of
-``samples_per_posture`` consecutive pairs is used only if every value lies within
+``pairs_per_posture`` consecutive pairs is used only if every value lies within
 ``consistency_threshold`` robust standard deviations (``max(1.4826 * MAD, noise_std)`` per
 channel) of the window's median; the earliest consistent window is taken, and the pairs before it
 are dropped and counted. This discards glitches and readings that still describe the previous
@@ -21,14 +21,14 @@ platform about its centre, with the same device position and phi, would look ali
 pools sampled at random never hold such pairs.)
 
 Settling (:mod:`gsp_kinematics.estimation.noise_estimate`, docs/sensor_errors.md): a window is used
-only when every channel is at rest over the ``settle_lookback`` (s) that ends with the window (at
-least the window itself): its least-squares trend over that span is within ``settle_sigmas`` of
-the noise the span itself shows (:func:`~gsp_kinematics.estimation.noise_estimate.settle_test`, the
+only when every channel is at rest over the ``rest_lookback`` (s) that ends with the window (at
+least the window itself): its least-squares trend over that span is within ``rest_sigmas`` of
+the noise the span itself shows (:func:`~gsp_kinematics.estimation.noise_estimate.rest_test`, the
 per-sample noise at least ``noise_std``), and its scatter within what ``noise_std`` allows
 (:func:`~gsp_kinematics.estimation.noise_estimate.scatter_test`: a platform still ringing). A window is not judged before the look-back is covered
 by pairs (from the first after the start, less the pairing tolerance), so a slow sensor is
 waited for, and the wait (start to the window's first sample) is kept with the row
-(``settle_wait``).
+(``rest_wait``).
 
 Stamps are integer nanoseconds. Messages may arrive out of order or go missing: the pairs are
 kept up to date at each sample (:class:`~gsp_calibrator.collection.pairing.StampPairing`, the
@@ -55,7 +55,7 @@ import numpy as np
 from gsp_calibrator.collection import at_rest
 from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs  # noqa: F401
 from gsp_kinematics import channels
-from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
 from gsp_kinematics.rotation import wrap_angle
 
@@ -78,7 +78,7 @@ _PHI_READING = channels.PHI_READING_COLUMN
 #: Verdicts of a candidate window (:meth:`SampleCollector.window`); pending: its settle
 #: look-back is not yet covered.
 _USABLE, _INCONSISTENT, _UNSETTLED, _PENDING = 'usable', 'inconsistent', 'unsettled', 'pending'
-_SETTLE_VERDICT = {False: _UNSETTLED, True: _PENDING}  # by ``Unsettled.pending``
+_SETTLE_VERDICT = {False: _UNSETTLED, True: _PENDING}  # by ``NotAtRest.pending``
 
 
 def seconds_to_ns(seconds):
@@ -87,7 +87,7 @@ def seconds_to_ns(seconds):
 
 
 @dataclasses.dataclass(frozen=True)
-class PostureSample:
+class PostureRow:
     """One averaged posture row: ``n_samples`` synchronised pairs, SI units."""
 
     leg_lengths: np.ndarray  #: (6,) mean q_i, m
@@ -96,8 +96,8 @@ class PostureSample:
     stamp_ns: int  #: mean stamp of the averaged leg-length samples, ns
     leg_lengths_std: np.ndarray  #: (6,) sample standard deviation of q_i, m
     readings_std: np.ndarray  #: (4,) sample standard deviation of the readings
-    settle_wait: float = 0.0  #: s from the collection start to the first averaged sample
-    settling_pairs: int = 0  #: pairs before the window waited out as still moving
+    rest_wait: float = 0.0  #: s from the collection start to the first averaged sample
+    moving_pairs: int = 0  #: pairs before the window waited out as still moving
     #: (4, n // 2 + 1) the window's lag sums per noise channel (the within-posture noise
     #: estimate, ``gsp_kinematics.estimation.noise_from_data.posture_lag_sums``); None below 2 samples
     lag_sums: np.ndarray | None = None
@@ -128,7 +128,7 @@ def median_and_spread(values, noise_std):
 
 
 def average_row(legs, readings, stamps):
-    """The :class:`PostureSample` of ``legs`` (n, 6) m, ``readings`` (n, 4) and their leg
+    """The :class:`PostureRow` of ``legs`` (n, 6) m, ``readings`` (n, 4) and their leg
     stamps (n,) ns: means, sample stds and lag sums; ``phi`` averaged on the circle."""
     readings = np.array(readings, dtype=float)
     phi0 = readings[0, _PHI_READING]
@@ -137,7 +137,7 @@ def average_row(legs, readings, stamps):
     mean_readings[_PHI_READING] = float(wrap_angle(mean_readings[_PHI_READING]))
     ddof = 1 if len(legs) > 1 else 0
     mean_stamp = int(stamps[0] + int(round(float(np.mean(stamps - stamps[0])))))
-    return PostureSample(
+    return PostureRow(
         leg_lengths=legs.mean(axis=0),
         readings=mean_readings,
         n_samples=len(legs),
@@ -148,15 +148,15 @@ def average_row(legs, readings, stamps):
     )
 
 
-def _checked_options(sync_tolerance, samples_per_posture, max_buffer, noise_std, threshold):
+def _checked_options(sync_tolerance, pairs_per_posture, max_buffer, noise_std, threshold):
     """``(sync_tolerance, noise_std)`` of a :class:`SampleCollector`; ValueError if invalid."""
     sync_tolerance = float(sync_tolerance)
     if not (math.isfinite(sync_tolerance) and sync_tolerance >= 0.0):
         raise ValueError(f'sync_tolerance must be a finite time >= 0 s, got {sync_tolerance}')
-    if int(samples_per_posture) < 1:
-        raise ValueError(f'samples_per_posture must be >= 1, got {samples_per_posture}')
-    if max_buffer is not None and int(max_buffer) < int(samples_per_posture):
-        raise ValueError('max_buffer must hold at least samples_per_posture samples')
+    if int(pairs_per_posture) < 1:
+        raise ValueError(f'pairs_per_posture must be >= 1, got {pairs_per_posture}')
+    if max_buffer is not None and int(max_buffer) < int(pairs_per_posture):
+        raise ValueError('max_buffer must hold at least pairs_per_posture samples')
     if noise_std is not None:
         noise_std = np.asarray(noise_std, dtype=float).reshape(_CHANNELS)
         if not np.all(np.isfinite(noise_std) & (noise_std > 0.0)):
@@ -168,35 +168,35 @@ def _checked_options(sync_tolerance, samples_per_posture, max_buffer, noise_std,
 
 class SampleCollector:
     """Buffers both streams and pairs them by nearest stamp (see the module docstring).
-    ``sync_tolerance`` (s): largest stamp difference of a pair. ``samples_per_posture``: pairs
+    ``sync_tolerance`` (s): largest stamp difference of a pair. ``pairs_per_posture``: pairs
     averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
     all, for a caller that wants every pair, see :func:`segment_pairs`).
     ``noise_std``: None (no consistency check) or the noise std of the 10 channels
     ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
-    settle test's noise. ``settle_lookback`` (s, >= 0) and ``settle_sigmas`` (> 0, ``inf``: no
-    settle test): the settle rule (see the module docstring).
+    rest test's noise. ``rest_lookback`` (s, >= 0) and ``rest_sigmas`` (> 0, ``inf``: no
+    rest test): the rest rule (see the module docstring).
     """
 
     def __init__(
         self,
         sync_tolerance,
-        samples_per_posture,
+        pairs_per_posture,
         max_buffer=2000,
         noise_std=None,
         consistency_threshold=DEFAULT_CONSISTENCY_THRESHOLD,
-        settle_lookback=0.0,
-        settle_sigmas=DEFAULT_SETTLE_SIGMAS,
+        rest_lookback=0.0,
+        rest_sigmas=DEFAULT_REST_SIGMAS,
     ):
         sync_tolerance, noise_std = _checked_options(
-            sync_tolerance, samples_per_posture, max_buffer, noise_std, consistency_threshold
+            sync_tolerance, pairs_per_posture, max_buffer, noise_std, consistency_threshold
         )
-        self.settle_rule = at_rest.SettleRule(settle_lookback, settle_sigmas)
-        #: Why the latest window judged waits for settling (``at_rest.Unsettled``), or None.
-        self.unsettled = None
+        self.rest_rule = at_rest.RestRule(rest_lookback, rest_sigmas)
+        #: Why the latest window judged waits for settling (``at_rest.NotAtRest``), or None.
+        self.not_at_rest = None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
         self._pairing = StampPairing(seconds_to_ns(sync_tolerance))
-        self.samples_per_posture = int(samples_per_posture)
+        self.pairs_per_posture = int(pairs_per_posture)
         self.max_buffer = None if max_buffer is None else int(max_buffer)
         self.start_ns = None  # None: not collecting, every sample is ignored
         self.previous_readings = None  # device readings (4,) of the previous posture
@@ -216,7 +216,7 @@ class SampleCollector:
         self.too_early = dict.fromkeys(STREAMS, 0)
         #: Pairs dropped because inconsistent with the window averaged after them.
         self.inconsistent = 0
-        #: Pairs dropped because the readings were still settling (the settle waits).
+        #: Pairs dropped because the readings were still settling (the rest waits).
         self.settling_dropped = 0
 
     # --- input -------------------------------------------------------------------------------
@@ -231,7 +231,7 @@ class SampleCollector:
             else np.asarray(previous_readings, dtype=float).reshape(_READINGS)
         )
         self._clear()
-        self.unsettled = None
+        self.not_at_rest = None
 
     def stop(self):
         """Stop collecting: ignore samples until the next :meth:`start`."""
@@ -366,11 +366,11 @@ class SampleCollector:
         return bool(np.all(np.abs(difference) <= threshold))
 
     def window(self):
-        """The pairs to average: the earliest run of ``samples_per_posture`` consecutive pairs
+        """The pairs to average: the earliest run of ``pairs_per_posture`` consecutive pairs
         that is consistent, changed from the previous posture and settled, or None if there is
         none yet (:attr:`unsettled` then says why the latest run judged waits, if it does)."""
         start = self._window_start_now()
-        count = self.samples_per_posture
+        count = self.pairs_per_posture
         return None if start is None else self._pairing.pairs[start : start + count]
 
     def _window_start_now(self):
@@ -379,7 +379,7 @@ class SampleCollector:
         pairing = self._pairing
         if self._window_revision == pairing.revision:
             return self._window_start
-        count = self.samples_per_posture
+        count = self.pairs_per_posture
         changed = pairing.take_changed()
         if changed is not None:  # the windows holding a changed pair are judged again
             del self._verdicts[max(0, changed - count + 1) :]
@@ -399,14 +399,14 @@ class SampleCollector:
 
     def _verdict(self, pairs, start):
         """The verdict of the window of ``pairs`` starting at ``start`` (judged once)."""
-        count = self.samples_per_posture
+        count = self.pairs_per_posture
         candidate = pairs[start : start + count]
         key = tuple(candidate)
         verdict = self._window_checks.get(key)
         if verdict is None:
             verdict = _INCONSISTENT
             if self.consistent(candidate) and not self.unchanged(candidate):
-                self.unsettled = self.settle_rule.verdict(
+                self.not_at_rest = self.rest_rule.judge(
                     pairs,
                     start + count - 1,
                     count,
@@ -415,15 +415,15 @@ class SampleCollector:
                     pair_legs=self._pairing.pair_legs,
                     slack_ns=self.tolerance_ns,
                 )
-                unsettled = self.unsettled
+                unsettled = self.not_at_rest
                 verdict = _USABLE if unsettled is None else _SETTLE_VERDICT[unsettled.pending]
             # (A window ending before the look-back is covered never will be.)
             self._window_checks[key] = verdict
         return verdict
 
     def ready(self):
-        """True once ``samples_per_posture`` consistent pairs are available."""
-        return self.pair_count() >= self.samples_per_posture and self.window() is not None
+        """True once ``pairs_per_posture`` consistent pairs are available."""
+        return self.pair_count() >= self.pairs_per_posture and self.window() is not None
 
     def counts(self):
         """Buffered samples per stream since the start time (device: complete instants)."""
@@ -438,7 +438,7 @@ class SampleCollector:
         """Average :meth:`window` (or ``pairs``) into a posture row (``phi`` on the circle);
         ValueError if there are no pairs."""
         if pairs is None:
-            pairs = self.window() or self.pairs()[: self.samples_per_posture]
+            pairs = self.window() or self.pairs()[: self.pairs_per_posture]
         if not pairs:
             raise ValueError('no synchronised samples to average')
         return average_row(
@@ -449,10 +449,10 @@ class SampleCollector:
 
     def take_posture(self):
         """Average the consistent window and stop collecting; ValueError if not ready."""
-        window = self.window() if self.pair_count() >= self.samples_per_posture else None
+        window = self.window() if self.pair_count() >= self.pairs_per_posture else None
         if window is None:
             raise ValueError(
-                f'only {self.pair_count()} synchronised samples, no {self.samples_per_posture} '
+                f'only {self.pair_count()} synchronised samples, no {self.pairs_per_posture} '
                 'consistent ones'
             )
         verdicts = self._verdicts[: self._window_start]
@@ -461,8 +461,8 @@ class SampleCollector:
         self.inconsistent += inconsistent
         sample = dataclasses.replace(
             self.average(window),
-            settle_wait=(window[0][0] - self.start_ns) * 1e-9,
-            settling_pairs=int(unsettled),
+            rest_wait=(window[0][0] - self.start_ns) * 1e-9,
+            moving_pairs=int(unsettled),
         )
         self.stop()
         return sample

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from gsp_calibrator.collection.events import NoSynchronisedSample, TopicSilent
+from gsp_calibrator.collection.events import NoSynchronisedPair, TopicSilent
 from gsp_calibrator.collection.synchroniser import LEG_LENGTHS
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_kinematics.model.motion import move_time, posture_leg_lengths
@@ -23,16 +23,16 @@ STALL_FRACTION = 0.5
 class CollectionTimeouts:
     """The timeouts of one run: ``topic_timeout`` and ``settle_timeout`` (s, counted after the
     posture's planned move, ``Posture.move_s``); the collector's
-    ``sync_tolerance`` (s) and ``samples_per_posture`` only appear in the messages."""
+    ``sync_tolerance`` (s) and ``pairs_per_posture`` only appear in the messages."""
 
     def __init__(
-        self, topic_timeout, settle_timeout, sync_tolerance, samples_per_posture, planned_move=None
+        self, topic_timeout, settle_timeout, sync_tolerance, pairs_per_posture, planned_move=None
     ):
         self.topic_timeout = float(topic_timeout)
         self.planned_move = planned_move  # move_s(start_legs, pose) (s), or None: no move time
         self.settle_timeout = float(settle_timeout)
         self.sync_tolerance = float(sync_tolerance)
-        self.samples_per_posture = int(samples_per_posture)
+        self.pairs_per_posture = int(pairs_per_posture)
         self._last_heard = {}  # topic -> receive time (ns) of its latest message
         self._attended_ns = None  # receive time of the latest call
         self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
@@ -138,7 +138,7 @@ class CollectionTimeouts:
                 )
                 return TopicSilent(topic, doing, text), ''
             counts = collector.counts()
-            return NoSynchronisedSample(
+            return NoSynchronisedPair(
                 posture.number,
                 f'no synchronised sample for {self.topic_timeout:g} s at posture '
                 f'{posture.number}: {counts[LEG_LENGTHS]} leg-length and {counts["device"]} '
@@ -151,10 +151,10 @@ class CollectionTimeouts:
         # tolerance later, so the windows ending at the bound have been judged on final pairs
         # (the collector's set_horizon).
         data_s = posture.data_elapsed() - self.sync_tolerance
-        if collector.unsettled is not None and data_s >= self.settle_timeout:
+        if collector.not_at_rest is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '
-                f"platform's settled status: {collector.unsettled.describe()}"
+                f"platform's settled status: {collector.not_at_rest.describe()}"
             )
         # The collection is bounded as a whole: pairs that keep coming without a consistent
         # window would otherwise restart the progress timeout for ever.
@@ -162,7 +162,7 @@ class CollectionTimeouts:
         if data_s >= limit:
             counts = collector.counts()
             return None, (
-                f'no {self.samples_per_posture} consistent synchronised samples within '
+                f'no {self.pairs_per_posture} consistent synchronised samples within '
                 f"{limit:g} s (settle_timeout + topic_timeout) of settling, in the samples' "
                 'stamps: '
                 f'{counts[LEG_LENGTHS]} leg-length and {counts["device"]} complete device '

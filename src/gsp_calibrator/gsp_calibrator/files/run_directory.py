@@ -58,7 +58,7 @@ class RunDirectoryError(ValueError):
 
 
 @dataclasses.dataclass
-class Samples:
+class Rows:
     """The rows of ``samples.csv``: M averaged postures, SI units."""
 
     posture: np.ndarray  #: (M,) int, posture number k (1-based, in commanded order)
@@ -131,8 +131,8 @@ class Samples:
         self.directions = np.vstack([self.directions, approach[None]])
 
     def rows(self, keep):
-        """The rows ``keep`` (a slice or an index array) as a new :class:`Samples`."""
-        return Samples(
+        """The rows ``keep`` (a slice or an index array) as a new :class:`Rows`."""
+        return Rows(
             self.posture[keep],
             self.commanded_poses[keep],
             self.leg_lengths[keep],
@@ -242,14 +242,14 @@ def samples_from_csv(text, source='<string>'):
             values.append(value)
         rows.append(values)
     if not rows:
-        return Samples.empty()
+        return Rows.empty()
     table = np.array(rows, dtype=float)
     width = max(len(values) for sums in lag_rows for values in sums)
     lag_sums = np.full((len(rows), len(LAG_SUM_COLUMNS), width), np.nan)
     for m, sums in enumerate(lag_rows):
         for channel, values in enumerate(sums):
             lag_sums[m, channel, : len(values)] = values
-    return Samples(
+    return Rows(
         posture=table[:, 0].astype(int),
         commanded_poses=table[:, 1:7],
         leg_lengths=table[:, 7:13],
@@ -311,7 +311,7 @@ class SamplesAppender:
 
 
 def read_samples(path):
-    """:class:`Samples` of a ``samples.csv`` file."""
+    """:class:`Rows` of a ``samples.csv`` file."""
     path = Path(path)
     try:
         text = path.read_text(encoding='utf-8')

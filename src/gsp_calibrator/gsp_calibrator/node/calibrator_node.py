@@ -36,7 +36,7 @@ from gsp_calibrator.run.flow import CalibrationRun
 from gsp_calibrator.run.health import calibrator_health
 from gsp_calibrator.run.host import RunHost
 from gsp_calibrator.run.record import RunWriteError, WriteFailed
-from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, check_parameters
+from gsp_calibrator.settings import PARAMETERS, CalibratorSettings, validate_parameters
 from gsp_calibrator.upkeep.check_flow import new_check
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
@@ -71,14 +71,14 @@ class CalibratorNode(Node):
     def __init__(self, **kwargs):
         super().__init__(names.NODE_CALIBRATOR, **kwargs)
         values = parameter_specs.declare_parameters(
-            self, PARAMETERS, validate=lambda values: check_parameters({}, values)
+            self, PARAMETERS, validate=lambda values: validate_parameters({}, values)
         )
         try:
             self._settings = CalibratorSettings.from_values(values)
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
         parameter_specs.watch_parameters(
-            self, PARAMETERS, apply=self._apply_parameters, validate=check_parameters
+            self, PARAMETERS, apply=self._apply_parameters, validate=validate_parameters
         )
 
         self._lock = threading.Lock()  # guards _running and _run

@@ -69,7 +69,7 @@ class SensorIntake:
         """Feed ``messages`` of ``topic`` to ``collection`` (the posture link's lock held)."""
         taken = []
         for msg, info in messages:
-            failure = self.sources.check_reading(
+            failure = self.sources.validate_reading(
                 topic,
                 msg,
                 info.get('publication_sequence_number'),

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from gsp_calibrator.collection import events, protocol, topics
 from gsp_calibrator.collection.approach import ApproachTracker
-from gsp_calibrator.files.run_directory import Samples
+from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.mcap_io import read_recording, recording_info, recording_options
 from gsp_calibrator.recording.recorder import (
@@ -26,7 +26,7 @@ from gsp_calibrator.recording.recorder import (
     POSTURE_END_METADATA_NAME,
     POSTURE_METADATA_NAME,
 )
-from gsp_kinematics.estimation.noise_estimate import DEFAULT_SETTLE_SIGMAS
+from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.model.geometry import GeometryError, default_geometry, load_geometry
 from gsp_kinematics.model.sensor_noise import SensorNoise, SensorNoiseError
 from gsp_msgs_py import names
@@ -48,11 +48,11 @@ def noise_std_from_options(options):
 
 
 def settle_options(options):
-    """The settle rule's ``{settle_lookback, settle_sigmas}`` of a recording's stored
+    """The rest rule's ``{rest_lookback, rest_sigmas}`` of a recording's stored
     ``options`` (a recording made before the rule: the window alone, the default sigmas)."""
     return {
-        'settle_lookback': float(options.get('settle_lookback', 0.0)),
-        'settle_sigmas': float(options.get('settle_sigmas', DEFAULT_SETTLE_SIGMAS)),
+        'rest_lookback': float(options.get('rest_lookback', 0.0)),
+        'rest_sigmas': float(options.get('rest_sigmas', DEFAULT_REST_SIGMAS)),
     }
 
 
@@ -233,25 +233,25 @@ def _stamp_ns(msg):
 
 
 def samples_from_recording(
-    path, sync_tolerance=None, samples_per_posture=None, noise_std=None, nominal=None
+    path, sync_tolerance=None, pairs_per_posture=None, noise_std=None, nominal=None
 ):
-    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.files.run_directory.Samples`) of one
+    """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.files.run_directory.Rows`) of one
     recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
     Feeds every recorded message to the calibrator's own
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
-    rows are the ones the calibrator collected online, by the same settle rule (its stored
+    rows are the ones the calibrator collected online, by the same rest rule (its stored
     options). The rebuild has no timeouts: the postures' noted outcomes
     (:func:`posture_outcomes`) decide which rows were kept. Each row's approach directions come
     from the recorded commands as online (:class:`gsp_calibrator.collection.approach.ApproachTracker`,
     through ``nominal``: default the stored nominal geometry file, else the shipped one).
 
-    ``sync_tolerance`` (s), ``samples_per_posture`` and ``noise_std`` (10 channel stds, see
+    ``sync_tolerance`` (s), ``pairs_per_posture`` and ``noise_std`` (10 channel stds, see
     :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
     :class:`RecordingError` if the first two are not known.
     """
-    samples = Samples.empty()
-    for event, directions in _rows(path, sync_tolerance, samples_per_posture, noise_std, nominal):
+    samples = Rows.empty()
+    for event, directions in _rows(path, sync_tolerance, pairs_per_posture, noise_std, nominal):
         sample = event.sample
         samples.append(
             event.posture,
@@ -266,10 +266,10 @@ def samples_from_recording(
     return samples
 
 
-def rows_from_recording(path, sync_tolerance=None, samples_per_posture=None, noise_std=None):
+def rows_from_recording(path, sync_tolerance=None, pairs_per_posture=None, noise_std=None):
     """The :class:`~gsp_calibrator.collection.events.RowReady` events of
-    :func:`samples_from_recording` (with each row's ``settle_wait``), in row order."""
-    return [event for event, _ in _rows(path, sync_tolerance, samples_per_posture, noise_std)]
+    :func:`samples_from_recording` (with each row's ``rest_wait``), in row order."""
+    return [event for event, _ in _rows(path, sync_tolerance, pairs_per_posture, noise_std)]
 
 
 def _stored_nominal(stored):
@@ -315,17 +315,17 @@ class _ApproachTap:
         return found
 
 
-def _rows(path, sync_tolerance=None, samples_per_posture=None, noise_std=None, nominal=None):
+def _rows(path, sync_tolerance=None, pairs_per_posture=None, noise_std=None, nominal=None):
     """``[(RowReady, approach directions (6,))]`` of :func:`samples_from_recording`."""
     first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
     stored = recording_options(first)
     if sync_tolerance is None:
         sync_tolerance = stored.get('sync_tolerance')
-    if samples_per_posture is None:
-        samples_per_posture = stored.get('samples_per_posture')
-    if sync_tolerance is None or samples_per_posture is None:
+    if pairs_per_posture is None:
+        pairs_per_posture = stored.get('pairs_per_posture')
+    if sync_tolerance is None or pairs_per_posture is None:
         raise RecordingError(
-            f'{path}: sync_tolerance and samples_per_posture are not stored in the recording; '
+            f'{path}: sync_tolerance and pairs_per_posture are not stored in the recording; '
             'give them explicitly'
         )
     if noise_std is None:
@@ -337,7 +337,7 @@ def _rows(path, sync_tolerance=None, samples_per_posture=None, noise_std=None, n
     rows = {}
     for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
         collection = protocol.CollectionProtocol(
-            sync_tolerance, samples_per_posture, noise_std, **settle_options(stored)
+            sync_tolerance, pairs_per_posture, noise_std, **settle_options(stored)
         )
         last = None
         if rows:

@@ -135,7 +135,7 @@ class RunRecorder:
     def start(self, path, options=None):
         """Start recording to ``path`` (e.g. ``run_dir / 'recording.mcap'``).
 
-        ``options`` (e.g. ``{'sync_tolerance': 0.002, 'samples_per_posture': 5}``) are stored in
+        ``options`` (e.g. ``{'sync_tolerance': 0.002, 'pairs_per_posture': 5}``) are stored in
         the file so that offline re-identification uses the same ones by default.
         """
         from gsp_msgs_py.qos import SENSOR_QOS, TOPIC_QOS

@@ -20,7 +20,7 @@ recording), else the last recorded posture away from the first posture's pose
 ``settled`` status the stream pauses for :data:`RESTART_PERIODS` periods and restarts at the
 posture's first sample, so that the first sample a calibrator counts is the first one recorded
 after the settle; from a recording, the samples after it are stamped as recorded relative to
-it (until the stream wraps round), so that a calibrator's settle look-back covers the same
+it (until the stream wraps round), so that a calibrator's rest look-back covers the same
 samples as the original's. The command protocol is :class:`gsp_msgs_py.pose_commands.PoseCommandServer`.
 """
 

@@ -208,14 +208,14 @@ def settle_line(settle):
     if not settle or not settle.get('rows'):
         return ''
     return (
-        f'settle wait (settled to averaged window): median {settle["median_s"]:.3g} s, max '
+        f'rest wait (settled to averaged window): median {settle["median_s"]:.3g} s, max '
         f'{settle["max_s"]:.3g} s over {settle["rows"]} rows; {settle["waited"]} waited for a '
         'moving channel'
     )
 
 
 def settle_statistics(waits):
-    """``result.json`` ``collection.settle`` of the kept rows' settle waits (``settle_waits``):
+    """``result.json`` ``collection.settle`` of the kept rows' rest waits (``rest_waits``):
     ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
     waited for a channel still moving (not only for their first samples), and ``per_posture_s``
     (``{posture: wait_s}``, in posture order)."""
@@ -235,7 +235,7 @@ def settle_statistics(waits):
         'median_s': float(np.median(values)),
         'max_s': float(values.max()),
         'mean_s': float(values.mean()),
-        'waited': sum(1 for entry in entries if entry['settling_pairs'] > 0),
+        'waited': sum(1 for entry in entries if entry['moving_pairs'] > 0),
         'per_posture_s': {
             posture: float(waits[posture]['wait_s']) for posture in sorted(waits, key=int)
         },

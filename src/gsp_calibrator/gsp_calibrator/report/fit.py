@@ -51,7 +51,7 @@ def _free_text(name, free):
 def outcome_data(outcome):
     """The ``result.json`` keys of a ``run.identify.CalibrationOutcome`` beside the fit's: the
     verdict (``accepted``, ``acceptance``), the cross-validated ``accuracy``, the ``unmodelled``
-    error, the noise and the goodness-of-fit verdict (``fit_accepted``, ``verdict``)."""
+    error, the noise and the goodness-of-fit verdict (``fit_accepted``, ``fit_diagnosis``)."""
     judgement, requirement = outcome.judgement, outcome.requirement
     acceptance = None
     if judgement is not None:
@@ -67,7 +67,7 @@ def outcome_data(outcome):
         'noise_source': outcome.noise_source,
         'noise_estimates': outcome.noise_estimates,
         'fit_accepted': outcome.fit_accepted,
-        'verdict': outcome.verdict or None,
+        'fit_diagnosis': outcome.fit_diagnosis or None,
         'effects': outcome.effects,  # report.effects.effects_record
     }
 
@@ -215,8 +215,8 @@ def _goodness_lines(data):
                     f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
                 )
             )
-    if data.get('verdict'):
-        blocks.append(('line', data['verdict']))
+    if data.get('fit_diagnosis'):
+        blocks.append(('line', data['fit_diagnosis']))
     return blocks
 
 
@@ -266,7 +266,7 @@ def _noise_table(data):
 
 def fit_summary(data):
     """The fit summary of ``data`` (``result.json`` keys: ``acceptance``, ``accuracy``,
-    ``predicted_accuracy``, ``goodness_of_fit``, ``verdict``, ``outliers``, ``down_weighted``,
+    ``predicted_accuracy``, ``goodness_of_fit``, ``fit_diagnosis``, ``outliers``, ``down_weighted``,
     ``noise_estimates``, ...): ``[('heading', text) | ('line', text) | ('table', header,
     rows)]``, for :func:`as_text` and :func:`as_markdown`."""
     blocks = [('heading', 'Verdict')]

@@ -447,7 +447,7 @@ class Calibration:
         collection = {
             **run.collection.summary(),
             'replacements': record.state.replacements,
-            'settle': settle_statistics(record.state.settle_waits),
+            'settle': settle_statistics(record.state.rest_waits),
             'processing_lag': host.processing_lags.summary(),
             'route_additions': record.state.route_additions or None,
             **extra,

@@ -28,8 +28,13 @@ from gsp_calibrator.run.postures import (
 from gsp_calibrator.run.response import outcome_summary
 from gsp_calibrator.run.rigid import Verdicts, rigid_result
 from gsp_kinematics.estimation import identifiability, noise_from_data
-from gsp_kinematics.estimation.goodness import verdict
-from gsp_kinematics.estimation.identification import FORMULATIONS, IdentificationError, resolve_free
+from gsp_kinematics.estimation.goodness import fit_diagnosis
+from gsp_kinematics.estimation.identification import (
+    DEFAULT_FORMULATION,
+    FORMULATIONS,
+    IdentificationError,
+    resolve_free,
+)
 from gsp_kinematics.estimation.prediction import accuracy_summary, thermal_strain_rms
 from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.estimation.verdict.cross_validation import DEFAULT_FOLDS, cross_validate
@@ -100,7 +105,7 @@ class CalibrationOutcome:
     #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
     noise_estimates: dict = dataclasses.field(default_factory=dict)
     noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
-    verdict: str = ''  #: the goodness-of-fit verdict (plain text): a diagnostic
+    fit_diagnosis: str = ''  #: the goodness-of-fit diagnosis (plain text): a diagnostic
     #: the cross-validated accuracy (``CrossValidation.summary``; None: not measured)
     accuracy: dict | None = None
     #: what the model leaves unexplained (SensorNoise of row stds; None: nothing shown)
@@ -164,7 +169,7 @@ def identify_from_samples(
     samples,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     noise_source=noise_from_data.DEFAULT_NOISE_SOURCE,
     requirement=acceptance.Requirement(),
     folds=DEFAULT_FOLDS,
@@ -175,7 +180,7 @@ def identify_from_samples(
     **identify_options,
 ):
     """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
-    ``samples``: a :class:`gsp_calibrator.files.run_directory.Samples`; ``sigmas``: per-sample noise (m, rad), scaled by
+    ``samples``: a :class:`gsp_calibrator.files.run_directory.Rows`; ``sigmas``: per-sample noise (m, rad), scaled by
     ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
     (``success=False``, message naming the parameters) when the identification raises, does not
     converge, or leaves free parameters unidentifiable. The rows' lag sums give the
@@ -224,7 +229,7 @@ def identify_from_samples(
     outcome.success = True
     outcome.geometry = result.geometry
     outcome.noise_estimates = noise_from_data.noise_record(fit.estimates, sigmas, samples.n_samples)
-    outcome.verdict = verdict(
+    outcome.fit_diagnosis = fit_diagnosis(
         result.goodness_of_fit,
         result.outliers,
         outcome.noise_estimates,
@@ -417,7 +422,7 @@ def write_run_files(run, settings, outcome, collection, options):
 
     ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``outcome``:
     its :class:`CalibrationOutcome`; ``collection``: result.json's collection record (the
-    protocol's summary, skipped postures, settle waits); ``options``: the run options stored
+    protocol's summary, skipped postures, rest waits); ``options``: the run options stored
     with the results. Writes ``result.json``, ``report.md`` and its PNGs (unless
     ``settings.write_report_plots`` is false) when the identification gives a result (a failure
     there is returned, never raised: the report must not fail the run) and ``result.yaml`` when

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from gsp_kinematics.estimation.identifiability import posture_information
-from gsp_kinematics.estimation.identification import resolve_free
+from gsp_kinematics.estimation.identification import DEFAULT_FORMULATION, resolve_free
 from gsp_kinematics.model.effect_groups import effect_groups_of, split_auto
 from gsp_kinematics.model.effects import EFFECT_GROUPS
 from gsp_kinematics.model.kinematics import (
@@ -18,7 +18,7 @@ from gsp_kinematics.model.kinematics import (
     pose_from_leg_readings,
     sample_valid_postures,
 )
-from gsp_kinematics.model.motion import posture_leg_lengths
+from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ, posture_leg_lengths
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.planning.effect_plan import augment_route
 from gsp_kinematics.planning.route import path_time, plan_route, travel_time_matrix
@@ -39,7 +39,7 @@ ROUTE_GROUPS = ('thermal', 'backlash')
 #: synchronised samples; the calibrator predicts the time its route additions cost with the
 #: settle and the rate it heard the streams at (this one before it heard them).
 PLAN_SETTLE_S = 0.02
-PLAN_SENSOR_RATE_HZ = 200.0
+PLAN_SENSOR_RATE_HZ = DEFAULT_SENSOR_RATE_HZ
 
 
 class CalibrationError(RuntimeError):
@@ -76,7 +76,7 @@ def choose_postures(
     seed,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=DEFAULT_FREE,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     workspace=Workspace(),
 ):
     """Select ``count`` postures from a seeded pool of ``pool_size`` (:class:`PostureSelection`)."""
@@ -199,14 +199,14 @@ def effect_route(settings, poses, start_pose, sample_rate_hz=None):
     """The route a run with ``settings`` commands through ``poses`` (N, 6, in commanded order)
     from ``start_pose``: :func:`gsp_kinematics.planning.effect_plan.augment_route` for the effect groups
     its ``free_parameters`` free or ``auto`` may choose (thermal: reference revisits; backlash:
-    both approach directions), timed with the run's leg limits, its samples per posture at
+    both approach directions), timed with the run's leg limits, its pairs per posture at
     ``sample_rate_hz`` (:func:`sample_rate`) and gsp_plan's settle; None when they need nothing
     (no such group). A revisit is a posture of its own (its own 1-based number in state.json)
     at the same pose."""
     groups = route_effect_groups(settings.free_parameters)
     if not groups or settings.formulation != 'implicit':  # auto there: the plain model
         return None
-    dwell_s = PLAN_SETTLE_S + settings.samples_per_posture / sample_rate(sample_rate_hz)
+    dwell_s = PLAN_SETTLE_S + settings.pairs_per_posture / sample_rate(sample_rate_hz)
     return augment_route(
         settings.nominal,
         poses,

@@ -6,7 +6,7 @@ A :class:`RunRecord` is a new run (:meth:`RunRecord.create`) or the rest of an u
 collected), its :class:`RunState` (``state.json``, rewritten atomically at every step, so after
 any fault the run directory says where to carry on) and the postures still to command. It is
 thread-safe: a row is added by the node's thread whose message ended the posture while the run
-coroutine writes ``state.json``. A resume is refused (:func:`check_resume`) when its options
+coroutine writes ``state.json``. A resume is refused (:func:`validate_resume`) when its options
 would change the selection or its rows came from another nominal geometry or device.
 
 A file that cannot be written (a full disk: ENOSPC, or any ``OSError``) raises
@@ -27,9 +27,9 @@ from gsp_calibrator.collection.approach import ApproachTracker
 from gsp_calibrator.collection.single_source import other_calibrators
 from gsp_calibrator.files.run_directory import (
     SAMPLES_FILE,
+    Rows,
     RunDirectory,
     RunDirectoryError,
-    Samples,
     SamplesAppender,
 )
 from gsp_calibrator.recording.mcap_io import recover_recordings
@@ -105,10 +105,10 @@ class RunState:
     #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
     #: (1-based) in their place
     replacements: list = dataclasses.field(default_factory=list)
-    #: {posture (str): {wait_s, settling_pairs}}: each kept row's settle wait, from the
+    #: {posture (str): {wait_s, moving_pairs}}: each kept row's rest wait, from the
     #: platform's settled status to the first averaged sample, and the pairs waited out as still
     #: settling (:mod:`gsp_calibrator.collection.synchroniser`)
-    settle_waits: dict = dataclasses.field(default_factory=dict)
+    rest_waits: dict = dataclasses.field(default_factory=dict)
     #: postures added from the pool by a run that stops when it is good enough (the last of
     #: ``poses``)
     added: int = 0
@@ -139,14 +139,14 @@ class RunState:
         self.skipped.append({'posture': int(posture), 'reason': str(reason)})
 
     def record_done(self, posture, sample=None):
-        """``posture`` has its row; ``sample`` (its ``PostureSample``) gives its settle wait."""
+        """``posture`` has its row; ``sample`` (its ``PostureRow``) gives its rest wait."""
         self.skipped = [s for s in self.skipped if s['posture'] != posture]
         if posture not in self.done:
             self.done.append(int(posture))
         if sample is not None:
-            self.settle_waits[str(int(posture))] = {
-                'wait_s': float(sample.settle_wait),
-                'settling_pairs': int(sample.settling_pairs),
+            self.rest_waits[str(int(posture))] = {
+                'wait_s': float(sample.rest_wait),
+                'moving_pairs': int(sample.moving_pairs),
             }
 
 
@@ -201,9 +201,9 @@ def latest_unfinished_run(output_root, own_pid=None):
     raise ResumeRefused(f'no unfinished run to resume under {root.resolve()}')
 
 
-def check_resume(state, settings, samples, own_pid=None):
+def validate_resume(state, settings, samples, own_pid=None):
     """Refuse (:class:`ResumeRefused`) a resume of ``state`` with ``settings`` and the run's
-    ``samples`` (``Samples`` of its samples.csv) when they do not belong together. ``own_pid``:
+    ``samples`` (``Rows`` of its samples.csv) when they do not belong together. ``own_pid``:
     the resuming calibrator's process (a run it left unfinished, e.g. on a full disk whose
     state.json kept ``collecting``, is resumable)."""
     current = selection_options(settings)
@@ -294,7 +294,7 @@ class RunRecord:
     def create(cls, output_root):
         """A new run directory with an empty ``samples.csv`` (OSError if unwritable)."""
         directory = RunDirectory.create(output_root)
-        samples = Samples.empty()
+        samples = Rows.empty()
         directory.write_samples(samples)
         return cls(directory, samples)
 
@@ -310,7 +310,7 @@ class RunRecord:
             directory = RunDirectory(path)
             state = read_state(directory.path)
             samples = directory.read_samples()
-            check_resume(state, settings, samples, pid)
+            validate_resume(state, settings, samples, pid)
         except (ResumeRefused, RunDirectoryError) as error:
             raise RunRefused(f'resume refused: {error}') from None
         # samples.csv decides what was collected: state.json lags it by the rows appended after
@@ -367,7 +367,7 @@ class RunRecord:
             self.approach.command(posture, pose, standing_legs)
 
     def rows_so_far(self):
-        """A copy of the rows collected so far (:class:`gsp_calibrator.files.run_directory.Samples`)."""
+        """A copy of the rows collected so far (:class:`gsp_calibrator.files.run_directory.Rows`)."""
         with self._lock:
             return self.samples.rows(slice(0, len(self.samples)))
 

@@ -56,7 +56,7 @@ def fit_lines(outcome):
 
     result = outcome.result
     if result is None:
-        return [outcome.verdict] if outcome.verdict else []
+        return [outcome.fit_diagnosis] if outcome.fit_diagnosis else []
     data = {
         **fit_data(result),
         **outcome_data(outcome),

@@ -10,12 +10,7 @@ geometry and device (the digests in the run's ``state.json``), like a resumed ru
 import dataclasses
 from pathlib import Path
 
-from gsp_calibrator.files.run_directory import (
-    SAMPLES_FILE,
-    RunDirectoryError,
-    Samples,
-    read_samples,
-)
+from gsp_calibrator.files.run_directory import SAMPLES_FILE, Rows, RunDirectoryError, read_samples
 from gsp_calibrator.run.record import STATE_FILE, ResumeRefused, read_state, selection_options
 
 
@@ -28,7 +23,7 @@ class ReusedRows:
     """Rows of another run directory."""
 
     source: str  #: the run directory
-    samples: Samples
+    samples: Rows
 
     def record(self, first_posture):
         """``result.json`` ``collection.reused_rows``: where from, how many, and the posture
@@ -65,7 +60,7 @@ def load(settings):
 
 
 def joined(rows, reused, first):
-    """``rows`` (this run's ``Samples``) followed by ``reused``'s (None: ``rows`` alone),
+    """``rows`` (this run's ``Rows``) followed by ``reused``'s (None: ``rows`` alone),
     numbered from ``first`` on (after this run's postures)."""
     if reused is None:
         return rows

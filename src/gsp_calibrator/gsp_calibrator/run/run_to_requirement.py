@@ -29,7 +29,7 @@ from gsp_kinematics.upkeep import stopping
 def rule_for(settings):
     """The :class:`gsp_kinematics.upkeep.stopping.StoppingRule` of a run's ``CalibratorSettings``:
     the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
-    ``stop_every`` and ``stop_max_added``; the dwell of ``samples_per_posture`` at 200 Hz and a
+    ``stop_every`` and ``stop_max_added``; the dwell of ``pairs_per_posture`` at 200 Hz and a
     0.5 s settle allowance."""
     return stopping.StoppingRule(
         required_position_mm=settings.required_position_accuracy_mm,
@@ -38,7 +38,7 @@ def rule_for(settings):
         minimum_postures=settings.stop_minimum_postures,
         every=settings.stop_every,
         max_added=settings.stop_max_added,
-        dwell_s=0.5 + settings.samples_per_posture / 200.0,
+        dwell_s=0.5 + settings.pairs_per_posture / 200.0,
     )
 
 
@@ -60,7 +60,7 @@ class Judgement:
 
 
 def judge_rows(settings, samples, rule):
-    """Identify ``samples`` (the rows so far, ``files.run_directory.Samples``) as the calibrator does
+    """Identify ``samples`` (the rows so far, ``files.run_directory.Rows``) as the calibrator does
     (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
     (:class:`Judgement`). Runs in a worker thread."""
     started = time.perf_counter()
@@ -94,7 +94,7 @@ class PoolAdditions:
         information = posture_information(
             judgement.result.geometry,
             self.pool,
-            settings.sigmas.averaged([settings.samples_per_posture]),
+            settings.sigmas.averaged([settings.pairs_per_posture]),
             resolve_free(list(settings.free_parameters)),
             selection_formulation(settings.formulation),
         )

@@ -54,7 +54,11 @@ from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
 from gsp_kinematics.model.effects import PRESETS
 from gsp_kinematics.model.geometry import default_geometry_path, load_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
-from gsp_kinematics.model.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
+from gsp_kinematics.model.motion import (
+    DEFAULT_SENSOR_RATE_HZ,
+    REALISTIC_MAX_ACCELERATION,
+    REALISTIC_MAX_SPEED,
+)
 from gsp_msgs_py.ros_environment import (
     DomainInUseError,
     enter_private_domain,
@@ -97,7 +101,12 @@ def parse_arguments(argv=None):
         help="the calibrator's noise_source: the weights from the noise estimated from the run "
         f'or from its configured sigma_* ({DEFAULTS["noise_source"]})',
     )
-    add('--sensor-rate', type=float, default=200.0, help='leg-length and device rate, Hz (200)')
+    add(
+        '--sensor-rate',
+        type=float,
+        default=DEFAULT_SENSOR_RATE_HZ,
+        help=f'leg-length and device rate, Hz ({DEFAULT_SENSOR_RATE_HZ:g})',
+    )
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
     add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
     add(
@@ -117,7 +126,7 @@ def parse_arguments(argv=None):
         default='none',
         choices=tuple(SENSOR_DYNAMICS),
         help='none: an instant device with white noise; realistic: response and noise '
-        "correlation times of typical parts, and the calibrator's settle look-back to match "
+        "correlation times of typical parts, and the calibrator's rest look-back to match "
         '(docs/sensor_errors.md) (none)',
     )
     add(

@@ -88,7 +88,7 @@ MOVING_SETTLE_TIMEOUT_S = 60.0
 
 #: ``gsp_demo --sensor-dynamics``: the simulated device's response and noise correlation
 #: times (s) per sensor (docs/sensor_errors.md: typical values of real parts). The calibrator
-#: keeps its default settle look-back (0.25 s: five times the realistic inclinometer's 0.05 s).
+#: keeps its default rest look-back (0.25 s: five times the realistic inclinometer's 0.05 s).
 SENSOR_DYNAMICS = {
     'none': {'device': {}},
     'realistic': {
@@ -234,7 +234,7 @@ def _calibrator_parameters(args, output_root, rate):
         '-p',
         f'workspace_postures:={int(getattr(args, "workspace_postures", 0))}',
         '-p',
-        f'samples_per_posture:={int(args.samples_per_posture)}',
+        f'pairs_per_posture:={int(args.pairs_per_posture)}',
         '-p',
         f'sync_tolerance:={0.5 / rate!r}',
         '-p',

@@ -91,7 +91,7 @@ FIT_KEYS = (
     'goodness_of_fit',
     'noise_source',
     'noise_estimates',
-    'verdict',
+    'fit_diagnosis',
     'fit_accepted',
 )
 
@@ -152,8 +152,8 @@ def summary_text(summary, validated, rejected):
     ]
     if summary.get('acceptance'):
         lines += summary['acceptance']['text'].splitlines()
-    if summary.get('verdict'):
-        lines.append(summary['verdict'])
+    if summary.get('fit_diagnosis'):
+        lines.append(summary['fit_diagnosis'])
     return '\n'.join(lines)
 
 

@@ -1,6 +1,6 @@
 """``gsp_plan``: plan a calibration before moving the platform (pure, no ROS).
 
-From a nominal geometry, the sensors' noise, a posture count, samples per posture, the workspace
+From a nominal geometry, the sensors' noise, a posture count, pairs per posture, the workspace
 limits, a settle time and a sensor rate, predict what the calibrator would reach:
 
 * the accuracy of the calibrated platform (:func:`gsp_kinematics.estimation.prediction.predict_accuracy` on
@@ -35,7 +35,7 @@ from gsp_calibrator.tools.plans import (
     DEFAULT_SWEEP_POSTURES,
     DEFAULT_SWEEP_SAMPLES,
     DEFAULT_TARGET_POSTURES,
-    MAX_SAMPLES_PER_POSTURE,
+    MAX_PAIRS_PER_POSTURE,
     Design,
     EffectPlan,
     cheapest_meeting,
@@ -55,7 +55,7 @@ from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 def plot_sweep(path, result):
     """Predicted mean position and orientation error against posture count, one curve per
-    samples-per-posture (log scale)."""
+    pairs-per-posture (log scale)."""
     from gsp_calibrator.report.plots import new_figure, save_figure
 
     figure = new_figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
@@ -66,8 +66,8 @@ def plot_sweep(path, result):
         )
     ):
         axes = figure.add_subplot(1, 2, column + 1)
-        for samples in result['samples_per_posture']:
-            rows = [r for r in result['rows'] if r['samples_per_posture'] == samples]
+        for samples in result['pairs_per_posture']:
+            rows = [r for r in result['rows'] if r['pairs_per_posture'] == samples]
             points = [(r['postures'], r['predicted'][key]) for r in rows if r['predicted']]
             if points:
                 x, y = zip(*points, strict=True)
@@ -120,10 +120,10 @@ def parse_arguments(argv=None):
         '--sensor-rate-hz',
         type=float,
         default=PLAN_SENSOR_RATE_HZ,
-        help='synchronised sample rate, Hz (200)',
+        help=f'synchronised pair rate, Hz ({PLAN_SENSOR_RATE_HZ:g})',
     )
     add('--output', default=None, help='write the plan (or the sweep) as JSON here')
-    add('--sweep', action='store_true', help='sweep posture counts and samples per posture')
+    add('--sweep', action='store_true', help='sweep posture counts and pairs per posture')
     add('--sweep-postures', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_POSTURES)
     add('--sweep-samples', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_SAMPLES)
     add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
@@ -144,7 +144,7 @@ def parse_arguments(argv=None):
         default=DEFAULT_TARGET_POSTURES,
         help='posture counts a target plan considers',
     )
-    add('--max-samples-per-posture', type=int, default=MAX_SAMPLES_PER_POSTURE)
+    add('--max-pairs-per-posture', type=int, default=MAX_PAIRS_PER_POSTURE)
     _add_effect_options(add)
     args = parser.parse_args(argv)
     reason = run_options_error(args)
@@ -273,7 +273,7 @@ def design_from(args):
 def _summary_text(entry):
     predicted = entry['predicted']
     lines = [
-        f'{entry["postures"]} postures x {entry["samples_per_posture"]} samples: rank '
+        f'{entry["postures"]} postures x {entry["pairs_per_posture"]} samples: rank '
         f'{entry["rank"]} of {entry["parameters"]}, calibration {entry["calibration_s"]:.1f} s'
     ]
     if predicted:
@@ -320,7 +320,7 @@ def _target_text(result):
         return (
             f'no plan within the pool reaches {wanted}; the best reaches position '
             f'{reach["position_mm_mean"]:.3g} mm, orientation {reach["orientation_deg_mean"]:.3g} '
-            f'deg mean ({reach["postures"]} postures x {reach["samples_per_posture"]} samples)'
+            f'deg mean ({reach["postures"]} postures x {reach["pairs_per_posture"]} samples)'
         )
     return f'least platform time reaching {wanted}:\n' + _summary_text(best)
 
@@ -365,7 +365,7 @@ def _sweep_document(args, nominal, design, timing):
             'no swept design meets the target'
             if best is None
             else f'cheapest design meeting the target: {best["postures"]} postures x '
-            f'{best["samples_per_posture"]} samples ({best["calibration_s"]:.1f} s)'
+            f'{best["pairs_per_posture"]} samples ({best["calibration_s"]:.1f} s)'
         )
     plot_path = args.plot or (
         f'{args.output.rsplit(".", 1)[0]}.png' if args.output else 'gsp_plan.png'
@@ -395,7 +395,7 @@ def main(argv=None):
                 args.target_orientation_deg,
                 design,
                 args.target_postures,
-                args.max_samples_per_posture,
+                args.max_pairs_per_posture,
                 limits=limits,
                 **timing,
             )
@@ -410,7 +410,7 @@ def main(argv=None):
                 **plan(
                     nominal,
                     args.posture_count,
-                    args.samples_per_posture,
+                    args.pairs_per_posture,
                     design,
                     limits=limits,
                     effects=effect_plan_from(args),

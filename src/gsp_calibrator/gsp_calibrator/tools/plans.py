@@ -1,5 +1,5 @@
 """Calibration plans (pure, no ROS): the predicted accuracy and platform time of a plan, a sweep
-over posture counts and samples per posture, and the plan of least platform time that reaches a
+over posture counts and pairs per posture, and the plan of least platform time that reaches a
 target accuracy. ``gsp_plan`` (:mod:`.planning`) is their command line; docs/planning.md.
 
 The postures are those the calibrator would command: :func:`gsp_calibrator.run.postures.choose_postures`
@@ -14,16 +14,19 @@ import numpy as np
 
 from gsp_calibrator.run.postures import (
     DEFAULT_FREE,
+    PLAN_SENSOR_RATE_HZ,
+    PLAN_SETTLE_S,
     CalibrationError,
     choose_postures,
     selection_formulation,
 )
+from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.estimation.identifiability import (
     analyse_identifiability,
     posture_information,
     unidentifiable_parameters,
 )
-from gsp_kinematics.estimation.identification import resolve_free
+from gsp_kinematics.estimation.identification import DEFAULT_FORMULATION, resolve_free
 from gsp_kinematics.estimation.prediction import accuracy_summary, predict_accuracy
 from gsp_kinematics.model.kinematics import Workspace, home_pose
 from gsp_kinematics.model.motion import MotionLimits
@@ -35,19 +38,19 @@ DEFAULT_SWEEP_POSTURES = (15, 20, 30, 45, 60, 90, 120)
 DEFAULT_SWEEP_SAMPLES = (1, 5, 10, 20)
 #: Posture counts :func:`target_plan` considers (the 44 parameters need at least 11).
 DEFAULT_TARGET_POSTURES = (12, 15, 20, 25, 30, 40, 50, 60, 75, 90, 120)
-#: Most samples per posture a target plan averages: 0.5 s at 200 Hz. Averaging more assumes white
+#: Most pairs per posture a target plan averages: 0.5 s at 200 Hz. Averaging more assumes white
 #: sensor noise for longer than a real sensor's drift allows.
-MAX_SAMPLES_PER_POSTURE = 100
+MAX_PAIRS_PER_POSTURE = 100
 
 
-def calibration_seconds(postures, samples_per_posture, settle_s, sensor_rate_hz):
+def calibration_seconds(postures, pairs_per_posture, settle_s, sensor_rate_hz):
     """The physical minimum of the collection: ``postures x (settle + samples / rate)`` (s)."""
-    return postures * (settle_s + samples_per_posture / sensor_rate_hz)
+    return postures * (settle_s + pairs_per_posture / sensor_rate_hz)
 
 
-def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formulation, workspace):
+def design_prediction(nominal, poses, sigmas, pairs_per_posture, free, formulation, workspace):
     """Rank, unidentifiable combinations and predicted accuracy of commanding ``poses``."""
-    row_sigmas = sigmas.averaged([samples_per_posture])
+    row_sigmas = sigmas.averaged([pairs_per_posture])
     free_mask = resolve_free(free)
     information = posture_information(
         nominal, poses, row_sigmas, free_mask, selection_formulation(formulation)
@@ -73,13 +76,13 @@ def design_prediction(nominal, poses, sigmas, samples_per_posture, free, formula
     return plan
 
 
-def platform_time(nominal, poses, samples_per_posture, settle_s, sensor_rate_hz, limits):
+def platform_time(nominal, poses, pairs_per_posture, settle_s, sensor_rate_hz, limits):
     """Predicted platform time (s) of commanding ``poses`` in route order from the home pose:
     ``{'total_s', 'travel_s', 'settle_s', 'sampling_s', 'selection_order_travel_s',
     'lower_bound_travel_s', 'order'}``."""
     route = plan_route(nominal, home_pose(), poses, limits)
     count = len(poses)
-    settle, sampling = count * settle_s, count * samples_per_posture / sensor_rate_hz
+    settle, sampling = count * settle_s, count * pairs_per_posture / sensor_rate_hz
     return {
         'total_s': route.travel_s + settle + sampling,
         'travel_s': route.travel_s,
@@ -97,9 +100,9 @@ class Design:
 
     sigmas: SensorNoise = DEFAULT_SENSOR_NOISE  #: per-sample sensor noise (m, rad)
     free: tuple = DEFAULT_FREE  #: free parameter and group names (the calibrator's default)
-    formulation: str = 'implicit'
+    formulation: str = DEFAULT_FORMULATION
     workspace: Workspace = Workspace()
-    pool_size: int = 600
+    pool_size: int = DEFAULTS['pool_size']
     seed: int = 0
 
 
@@ -117,7 +120,7 @@ class EffectPlan:
     thermal_time_constant_s: float = 0.0  #: thermal: first-order warming (s; 0: linear)
 
 
-def effect_plan(nominal, poses, samples_per_posture, design, effects, dwell_s, limits):
+def effect_plan(nominal, poses, pairs_per_posture, design, effects, dwell_s, limits):
     """The route through ``poses`` (route order) augmented for ``effects`` (an
     :class:`EffectPlan`): what it adds and costs, and per group its identifiability and
     Cramér-Rao bound at the design's noise averaged over the samples."""
@@ -142,20 +145,20 @@ def effect_plan(nominal, poses, samples_per_posture, design, effects, dwell_s, l
         route.poses,
         run,
         effects.groups,
-        design.sigmas.averaged([samples_per_posture]),
+        design.sigmas.averaged([pairs_per_posture]),
         design.free,
     )
     return {'groups': list(effects.groups), 'route': route.to_dict(), 'identifiability': groups}
 
 
-def select(nominal, postures, samples_per_posture, design=Design()):
+def select(nominal, postures, pairs_per_posture, design=Design()):
     """The calibrator's posture selection for these settings (``choose_postures``)."""
     return choose_postures(
         nominal,
         postures,
         design.pool_size,
         design.seed,
-        design.sigmas.averaged([samples_per_posture]),
+        design.sigmas.averaged([pairs_per_posture]),
         design.free,
         design.formulation,
         design.workspace,
@@ -164,11 +167,11 @@ def select(nominal, postures, samples_per_posture, design=Design()):
 
 def plan(
     nominal,
-    postures=60,
-    samples_per_posture=10,
+    postures=DEFAULTS['posture_count'],
+    pairs_per_posture=DEFAULTS['pairs_per_posture'],
     design=Design(),
-    settle_s=0.02,
-    sensor_rate_hz=200.0,
+    settle_s=PLAN_SETTLE_S,
+    sensor_rate_hz=PLAN_SENSOR_RATE_HZ,
     selection=None,
     limits=MotionLimits(),
     effects=None,
@@ -177,38 +180,36 @@ def plan(
     these settings to reuse (the sweep shares one per posture count); ``limits``: the legs'
     motion limits of the platform time; ``effects``: an :class:`EffectPlan` whose groups add
     the plan's ``effects`` entry (:func:`effect_plan`)."""
-    if samples_per_posture < 1:
-        raise CalibrationError(f'samples per posture must be >= 1, got {samples_per_posture}')
+    if pairs_per_posture < 1:
+        raise CalibrationError(f'pairs per posture must be >= 1, got {pairs_per_posture}')
     if not (sensor_rate_hz > 0 and settle_s >= 0):
         raise CalibrationError('the sensor rate must be > 0 Hz and the settle time >= 0 s')
     if selection is None:
-        selection = select(nominal, postures, samples_per_posture, design)
+        selection = select(nominal, postures, pairs_per_posture, design)
     prediction = design_prediction(
         nominal,
         selection.poses,
         design.sigmas,
-        samples_per_posture,
+        pairs_per_posture,
         design.free,
         design.formulation,
         design.workspace,
     )
     timing = platform_time(
-        nominal, selection.poses, samples_per_posture, settle_s, sensor_rate_hz, limits
+        nominal, selection.poses, pairs_per_posture, settle_s, sensor_rate_hz, limits
     )
     extra = {}
     if effects is not None and effects.groups:
         ordered = selection.poses[timing['order']]
-        dwell_s = settle_s + samples_per_posture / sensor_rate_hz
+        dwell_s = settle_s + pairs_per_posture / sensor_rate_hz
         extra['effects'] = effect_plan(
-            nominal, ordered, samples_per_posture, design, effects, dwell_s, limits
+            nominal, ordered, pairs_per_posture, design, effects, dwell_s, limits
         )
     return {
         'postures': int(postures),
-        'samples_per_posture': int(samples_per_posture),
+        'pairs_per_posture': int(pairs_per_posture),
         **prediction,
-        'calibration_s': calibration_seconds(
-            postures, samples_per_posture, settle_s, sensor_rate_hz
-        ),
+        'calibration_s': calibration_seconds(postures, pairs_per_posture, settle_s, sensor_rate_hz),
         'platform_time': timing,
         'selection': {
             'pool_size': selection.pool_size,
@@ -228,14 +229,14 @@ def sweep(nominal, posture_counts, samples, design=Design(), **timing):
     for count in posture_counts:
         # Averaging scales every sigma alike: the selection does not depend on the samples.
         selection = select(nominal, count, samples[0], design)
-        for samples_per_posture in samples:
-            entry = plan(nominal, count, samples_per_posture, design, selection=selection, **timing)
+        for pairs_per_posture in samples:
+            entry = plan(nominal, count, pairs_per_posture, design, selection=selection, **timing)
             entry.pop('selection')
             entry['platform_time'].pop('order')
             rows.append(entry)
     return {
         'posture_counts': list(posture_counts),
-        'samples_per_posture': list(samples),
+        'pairs_per_posture': list(samples),
         'rows': rows,
     }
 
@@ -253,15 +254,15 @@ def target_plan(
     orientation_deg=None,
     design=Design(),
     posture_counts=DEFAULT_TARGET_POSTURES,
-    max_samples=MAX_SAMPLES_PER_POSTURE,
-    settle_s=0.02,
-    sensor_rate_hz=200.0,
+    max_samples=MAX_PAIRS_PER_POSTURE,
+    settle_s=PLAN_SETTLE_S,
+    sensor_rate_hz=PLAN_SENSOR_RATE_HZ,
     limits=MotionLimits(),
 ):
     """The plan of least predicted platform time whose predicted mean errors reach the targets
     (mm, deg): ``{'plan': plan or None, 'candidates': [...], 'best_reachable': {...}}``.
 
-    For each posture count (one selection and one route), the samples per posture are the fewest
+    For each posture count (one selection and one route), the pairs per posture are the fewest
     that reach the target: averaging n samples divides every sigma by sqrt(n), so the predicted
     errors scale exactly as 1/sqrt(n) (up to ``max_samples``). ``best_reachable``: the smallest
     predicted errors any count reaches with ``max_samples``.
@@ -299,7 +300,7 @@ def target_plan(
             best_reachable is None
             or reachable['position_mm_mean'] < best_reachable['position_mm_mean']
         ):
-            best_reachable = {'postures': count, 'samples_per_posture': max_samples, **reachable}
+            best_reachable = {'postures': count, 'pairs_per_posture': max_samples, **reachable}
         samples = max(1, math.ceil(max(ratios) * (1.0 - 1e-12)))
         if samples > max_samples:
             continue
@@ -309,7 +310,7 @@ def target_plan(
         candidates.append(
             {
                 'postures': count,
-                'samples_per_posture': entry['samples_per_posture'],
+                'pairs_per_posture': entry['pairs_per_posture'],
                 'platform_s': entry['platform_time']['total_s'],
                 'position_mm_mean': entry['predicted']['position_mm_mean'],
                 'orientation_deg_mean': entry['predicted']['orientation_deg_mean'],
@@ -322,7 +323,7 @@ def target_plan(
         'plan': best,
         'candidates': candidates,
         'best_reachable': best_reachable,
-        'max_samples_per_posture': max_samples,
+        'max_pairs_per_posture': max_samples,
     }
 
 
@@ -353,7 +354,7 @@ def sweep_table(result):
             return '-' if value is None else f'{value:.3g}'
 
         lines.append(
-            f'{row["postures"]:>8} {row["samples_per_posture"]:>7} '
+            f'{row["postures"]:>8} {row["pairs_per_posture"]:>7} '
             f'{row["rank"]:>4}/{row["parameters"]:<4} {number("position_mm_mean"):>12} '
             f'{number("position_mm_p95"):>10} {number("orientation_deg_mean"):>12} '
             f'{row["calibration_s"]:>8.1f}'

@@ -285,7 +285,7 @@ def stored_weights(stored, options, samples):
         return (
             sigmas,
             'configured',
-            kept + ('noise_source', 'goodness_of_fit', 'verdict', 'fit_accepted'),
+            kept + ('noise_source', 'goodness_of_fit', 'fit_diagnosis', 'fit_accepted'),
         )
     return sigmas, source, kept
 

@@ -157,7 +157,7 @@ def resolve_input(path):
 
 
 def load_input(kind, path, options):
-    """The posture rows (``Samples``) of a samples.csv, or rebuilt from a recording.mcap."""
+    """The posture rows (``Rows``) of a samples.csv, or rebuilt from a recording.mcap."""
     if kind == 'csv':
         try:
             samples = read_samples(path)
@@ -176,7 +176,7 @@ def load_input(kind, path, options):
             samples = samples_from_recording(
                 parts or path,
                 options['sync_tolerance'],
-                options['samples_per_posture'],
+                options['pairs_per_posture'],
                 noise_std,
                 nominal=geometry_option(options['nominal_geometry_file'], '--nominal'),
             )

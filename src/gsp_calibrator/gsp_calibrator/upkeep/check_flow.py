@@ -62,7 +62,7 @@ class Check:
                 settings.pool_size,
                 settings.seed,
                 settings.sigmas,
-                settings.samples_per_posture,
+                settings.pairs_per_posture,
                 settings.motion_limits,
             )
         except (ValueError, RuntimeError) as error:

@@ -144,7 +144,7 @@ def row_noise(reference, sigmas, n_samples):
 
 def evaluate_check(reference, samples, sigmas, required, platform, planned_s=None):
     """The check's verdict (a JSON-ready dict, ``check.json``) from the collected ``samples``
-    (``files.run_directory.Samples``) with the per-sample noise ``sigmas`` and the
+    (``files.run_directory.Rows``) with the per-sample noise ``sigmas`` and the
     ``check.Requirement`` ``required``."""
     if len(samples) < 2:
         raise CheckError(f'a check needs at least 2 postures, {len(samples)} collected')

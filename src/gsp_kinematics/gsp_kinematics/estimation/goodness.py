@@ -40,7 +40,7 @@ def robust_weights(normalised, loss, scale):
     raise ValueError(f'loss must be one of {LOSSES}, got {loss!r}')
 
 
-def check_loss(loss, scale):
+def validate_loss(loss, scale):
     if loss not in LOSSES:
         raise ValueError(f'loss must be one of {LOSSES}, got {loss!r}')
     if not (math.isfinite(scale) and scale > 0.0):
@@ -331,7 +331,7 @@ def _head(fit):
     return f'goodness of fit: chi2 {fit.chi2:.1f} for {fit.dof:.0f} dof, p = {fit.p_value:.3g}'
 
 
-def verdict(fit, outliers=(), noise=None, free_sensor_errors=False):
+def fit_diagnosis(fit, outliers=(), noise=None, free_sensor_errors=False):
     """Plain text: does the model explain the data, and if not, the likely causes.
 
     ``outliers``: :func:`outlier_postures` of the studentised residuals; ``noise``:

@@ -13,7 +13,7 @@ from ..channels import READING_NAMES
 from ..model.geometry import ALL_PARAMETER_NAMES
 from ..model.sensor_noise import DEFAULT_SENSOR_NOISE
 from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
-from .identification import SENSOR_NAMES, resolve_free
+from .identification import DEFAULT_FORMULATION, SENSOR_NAMES, resolve_free
 
 #: A scaled singular value below this fraction of the largest counts as zero.
 DEFAULT_RELATIVE_TOLERANCE = 1e-6
@@ -112,7 +112,7 @@ def analyse_design(
     poses,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     sensors=SENSOR_NAMES,
     relative_tolerance=DEFAULT_RELATIVE_TOLERANCE,
 ):
@@ -128,7 +128,7 @@ def posture_factors(
     poses,
     sigmas=None,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     sensors=SENSOR_NAMES,
     leg_columns=None,
 ):

@@ -321,7 +321,7 @@ def identify(
     except SensorNoiseError as error:
         raise IdentificationError(str(error)) from None
     try:
-        goodness.check_loss(options.loss, options.loss_scale)
+        goodness.validate_loss(options.loss, options.loss_scale)
     except ValueError as error:
         raise IdentificationError(str(error)) from None
     if free is not None and not isinstance(free, np.ndarray) and AUTO in list(free):

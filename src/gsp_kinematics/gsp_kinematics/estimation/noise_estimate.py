@@ -1,4 +1,4 @@
-"""Noise of an averaged row from correlated samples, and a settle test for a window (pure numpy)
+"""Noise of an averaged row from correlated samples, and a rest test for a window (pure numpy)
 (docs/sensor_errors.md)."""
 
 import dataclasses
@@ -9,7 +9,7 @@ from scipy import special
 
 #: Default of :func:`settled`: a channel is still moving when its trend exceeds this many
 #: standard deviations of the trend of a settled window.
-DEFAULT_SETTLE_SIGMAS = 3.0
+DEFAULT_REST_SIGMAS = 3.0
 
 
 #: Below this effective sample count a window is too short against the correlation time: the
@@ -17,7 +17,7 @@ DEFAULT_SETTLE_SIGMAS = 3.0
 #: docs/sensor_errors.md).
 MIN_N_EFF = 10.0
 
-#: Fewest samples over which :func:`settle_test` counts the correlation of the noise.
+#: Fewest samples over which :func:`rest_test` counts the correlation of the noise.
 MIN_CORRELATED_SPAN = 16
 
 #: Rounds of :func:`noise_of_mean`'s truncation and bias correction (they settle in 2 to 4).
@@ -133,7 +133,7 @@ def noise_of_mean_from_sums(sums, n, windows, white_level=None, fitted=1):
     ``V = (1/n) [g0 + 2 sum_{k<=K} (1 - k/n) g_k]``, ``V = [c0 + 2 sum (1 - k/n) c_k] / (n - S)``,
     ``S = 1 + 2 sum_{k<=K} (1 - k/n)``. For white noise (K = 0) this is the usual ``s^2 / n``
     with ddof 1. ``fitted``: terms fitted to each window before (1: its mean; 3: a line and a
-    parabola, see :func:`settle_test`): ddof ``fitted`` (each fitted term absorbs about one
+    parabola, see :func:`rest_test`): ddof ``fitted`` (each fitted term absorbs about one
     ``V`` more).
 
     ``white_level``: None, or the significance of a test of whiteness first: a channel whose
@@ -225,7 +225,7 @@ def window_trend(window, times=None):
     return slope * (times[-1] - times[0])
 
 
-def settled(window, std_of_mean, times=None, sigmas=DEFAULT_SETTLE_SIGMAS):
+def settled(window, std_of_mean, times=None, sigmas=DEFAULT_REST_SIGMAS):
     """Per channel (C,) bools: is the window's trend within ``sigmas`` stds of the trend a
     settled window's noise gives? Also returns the trend in those stds (C,).
 
@@ -261,7 +261,7 @@ class SettleTest:
     std_of_mean: np.ndarray
 
 
-def settle_test(values, times=None, sigmas=DEFAULT_SETTLE_SIGMAS, noise_floor=None):
+def rest_test(values, times=None, sigmas=DEFAULT_REST_SIGMAS, noise_floor=None):
     """Is each channel of ``values`` (..., n, C) at rest over its span? Noise from the span.
 
     The least-squares trend of each channel (:func:`window_trend` against ``times`` (n,) s,
@@ -320,7 +320,7 @@ def settle_test(values, times=None, sigmas=DEFAULT_SETTLE_SIGMAS, noise_floor=No
     return SettleTest(z <= threshold, z, threshold, trend, std_of_mean)
 
 
-def scatter_test(values, noise_std, sigmas=DEFAULT_SETTLE_SIGMAS):
+def scatter_test(values, noise_std, sigmas=DEFAULT_REST_SIGMAS):
     """Does each channel of ``values`` (..., n, C) scatter about its mean no more than its
     at-rest noise allows? ``(ratio, threshold)`` (..., C) and (): the span's sample std over
     the noise, and the ratio white noise of that std exceeds at :func:`false_unsettled_rate`
@@ -346,13 +346,13 @@ def scatter_test(values, noise_std, sigmas=DEFAULT_SETTLE_SIGMAS):
     return ratio, threshold
 
 
-def false_unsettled_rate(sigmas=DEFAULT_SETTLE_SIGMAS):
+def false_unsettled_rate(sigmas=DEFAULT_REST_SIGMAS):
     """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
     return math.erfc(sigmas / math.sqrt(2.0))
 
 
 __all__ = [
-    'DEFAULT_SETTLE_SIGMAS',
+    'DEFAULT_REST_SIGMAS',
     'NoiseEstimateError',
     'NoiseOfMean',
     'SettleTest',
@@ -362,7 +362,7 @@ __all__ = [
     'noise_of_mean',
     'noise_of_mean_from_sums',
     'scatter_test',
-    'settle_test',
+    'rest_test',
     'settled',
     'trend_std_factor',
     'white_statistic',

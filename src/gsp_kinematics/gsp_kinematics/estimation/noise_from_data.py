@@ -33,7 +33,7 @@ def noise_source_error(source):
     )
 
 
-def check_noise_source(source):
+def validate_noise_source(source):
     """``source``, or NoiseSourceError (:func:`noise_source_error`)."""
     reason = noise_source_error(source)
     if reason:
@@ -258,7 +258,7 @@ def identify_with_noise(
     fit and only reported).
     When the goodness of fit rejects the model, only the outliers that stand out from a smooth
     field of model error are kept (:func:`goodness.outliers_beside_model_error`)."""
-    check_noise_source(source)
+    validate_noise_source(source)
     if source == 'estimated':
         result, estimates, used = identify_with_estimated_noise(
             nominal, leg_lengths, readings, row_sigmas, within, first, **options

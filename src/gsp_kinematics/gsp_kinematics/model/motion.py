@@ -8,6 +8,12 @@ import numpy as np
 
 from .kinematics import inverse_kinematics
 
+#: The sensors' default publish rate (Hz): the simulated nodes' ``publish_rate`` and the rate a
+#: plan's dwell at a posture assumes when none was measured.
+DEFAULT_SENSOR_RATE_HZ = 200.0
+#: Synchronised pairs averaged per posture by default (the calibrator's ``pairs_per_posture``).
+DEFAULT_PAIRS_PER_POSTURE = 10
+
 #: Leg speed limit (m/s) of a positioning hexapod: the order of magnitude of the maximum
 #: platform speeds in PI (Physik Instrumente) and Symetrie hexapod datasheets, tens of mm/s
 #: (docs/planning.md); not the figure of one particular model.

@@ -3,7 +3,7 @@
 import numpy as np
 
 from ..estimation.identifiability import posture_factors, scaled_condition_number
-from ..estimation.identification import resolve_free
+from ..estimation.identification import DEFAULT_FORMULATION, resolve_free
 from ..estimation.prediction import pose_sensitivities
 from ..model.sensor_noise import DEFAULT_SENSOR_NOISE
 
@@ -19,7 +19,7 @@ def select_postures(
     count=60,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     exchange_passes=1,
     shortlist=SHORTLIST,
 ):
@@ -163,7 +163,7 @@ def exchange_for_pose_error(
     targets,
     sigmas=DEFAULT_SENSOR_NOISE,
     free=None,
-    formulation='implicit',
+    formulation=DEFAULT_FORMULATION,
     passes=1,
 ):
     """Indices of ``pool`` from ``chosen`` by exchange, minimising the predicted position error at

@@ -9,7 +9,13 @@ from ..estimation.identifiability import posture_factors
 from ..estimation.identification import IdentificationError, identify, resolve_free
 from ..estimation.verdict import cross_validation
 from ..model.geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
-from ..model.motion import MotionLimits, move_time, posture_leg_lengths
+from ..model.motion import (
+    DEFAULT_PAIRS_PER_POSTURE,
+    DEFAULT_SENSOR_RATE_HZ,
+    MotionLimits,
+    move_time,
+    posture_leg_lengths,
+)
 from . import drift
 
 #: The parameters the check identifies: the leg offsets (what a leg's re-homing, a replaced
@@ -19,7 +25,7 @@ CHECK_PARAMETERS = tuple(f'Loff{leg}' for leg in range(1, 7))
 CHECK_BUDGET_S = 60.0
 #: Postures of a check at most (fewer when their route and dwell exceed the budget).
 CHECK_POSTURES = 10
-#: Time at each posture besides the samples (s): the settle rule's wait.
+#: Time at each posture besides the samples (s): the rest rule's wait.
 SETTLE_ALLOWANCE_S = 0.5
 #: Leg distance (m) within which the platform already holds a posture: its readings would not
 #: change, and the collection would skip it (the calibrator's ``run.postures.HELD_TOLERANCE``).
@@ -46,8 +52,8 @@ def choose_check_postures(
     pool,
     start_pose,
     sigmas,
-    samples_per_posture=10,
-    rate_hz=200.0,
+    pairs_per_posture=DEFAULT_PAIRS_PER_POSTURE,
+    rate_hz=DEFAULT_SENSOR_RATE_HZ,
     limits=MotionLimits(),
     count=CHECK_POSTURES,
     budget_s=CHECK_BUDGET_S,
@@ -56,10 +62,10 @@ def choose_check_postures(
     """The postures of a check from ``pool`` (N, 6), greedily by information per second: from
     ``start_pose``, each next posture is the one whose gain in ``log det`` of the information on
     ``free`` (regularised) per second of platform time (the move to it, the settle allowance and
-    ``samples_per_posture`` at ``rate_hz``) is largest, until ``count`` postures or until no
+    ``pairs_per_posture`` at ``rate_hz``) is largest, until ``count`` postures or until no
     posture fits in ``budget_s`` (:class:`CheckPlan`)."""
     pool = np.atleast_2d(np.asarray(pool, dtype=float))
-    per_posture = SETTLE_ALLOWANCE_S + samples_per_posture / rate_hz
+    per_posture = SETTLE_ALLOWANCE_S + pairs_per_posture / rate_hz
     factors = posture_factors(controller, pool, sigmas, list(free))
     candidate_information = np.einsum('mri,mrj->mij', factors, factors)
     scale = 1.0 / np.sqrt(np.maximum(np.einsum('mii->i', candidate_information), 1e-300))

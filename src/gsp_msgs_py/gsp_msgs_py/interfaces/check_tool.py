@@ -23,10 +23,10 @@ from .rules import (
     SENSOR_TOPICS,
     Limits,
     Received,
-    check_diagnostics,
-    check_topics,
     diagnostics_summary,
     topic_summary,
+    validate_diagnostics,
+    validate_topics,
 )
 
 NODE_NAME = 'gsp_check_interfaces'
@@ -199,7 +199,7 @@ class InterfaceChecker:
         return problems
 
     def problems(self):
-        return self.qos_problems() + check_topics(self.received, self.limits)
+        return self.qos_problems() + validate_topics(self.received, self.limits)
 
     def summary_lines(self):
         lines = []
@@ -262,7 +262,7 @@ def run_check(node, executor, args):
     checker.recording = False
     problems = checker.problems()
     seen_for_s, grace_s = nodes.seen_for(time.monotonic()), 2.0 * args.diagnostics_period
-    problems += check_diagnostics(diagnostics.reports, seen_for_s, grace_s)
+    problems += validate_diagnostics(diagnostics.reports, seen_for_s, grace_s)
     problems += [f'{names.TOPIC_DIAGNOSTICS}: {why}' for why in diagnostics.malformed[:1]]
     if args.send_test_command:
         from gsp_kinematics.model.kinematics import home_pose

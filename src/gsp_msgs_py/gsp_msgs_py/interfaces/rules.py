@@ -2,9 +2,9 @@
 
 ``gsp_check_interfaces`` records what a driver publishes and hands it here: each JointState
 topic as a list of :class:`Received` (receive time and stamp in s of one clock, names, values).
-:func:`check_topics` returns the problems, each a sentence naming the topic and what is wrong,
+:func:`validate_topics` returns the problems, each a sentence naming the topic and what is wrong,
 and :func:`topic_summary` the figures shown for each topic. Rules: docs/hardware.md. The
-statuses heard on ``/diagnostics`` are judged by :func:`check_diagnostics`.
+statuses heard on ``/diagnostics`` are judged by :func:`validate_diagnostics`.
 """
 
 import dataclasses
@@ -87,7 +87,7 @@ def topic_summary(received):
     return summary
 
 
-def check_topic(topic, received, limits=Limits()):
+def validate_topic(topic, received, limits=Limits()):
     """The problems of one sensor topic's messages (a list of sentences)."""
     expected = tuple(SENSOR_TOPICS[topic])
     if not received:
@@ -158,11 +158,11 @@ def stamp_sharing(device_received):
     return len(shared) / len(inclinometer)
 
 
-def check_topics(received_by_topic, limits=Limits()):
+def validate_topics(received_by_topic, limits=Limits()):
     """Every problem of the recorded sensor topics ``{topic: [Received]}``."""
     problems = []
     for topic in SENSOR_TOPICS:
-        problems += check_topic(topic, received_by_topic.get(topic, []), limits)
+        problems += validate_topic(topic, received_by_topic.get(topic, []), limits)
     device = {t: received_by_topic.get(t, []) for t in SENSOR_TOPICS if t.startswith('/gsp/device')}
     if all(device.values()):
         share = stamp_sharing(device)
@@ -175,7 +175,7 @@ def check_topics(received_by_topic, limits=Limits()):
     return problems
 
 
-def check_diagnostics(reports, seen_for_s, grace_s):
+def validate_diagnostics(reports, seen_for_s, grace_s):
     """The problems of the latest status of each name heard on ``/diagnostics``
     (``{name: Health}``): a node of :data:`names.DIAGNOSED_NODES` in the graph for at least
     ``grace_s`` (``seen_for_s``: ``{node name: s}``) without a status, and every status at ERROR
