@@ -1,9 +1,5 @@
 """Is every channel at rest? The verdict on a span of synchronised pairs (pure, no rclpy).
-
-The rule and its parameters are in :mod:`gsp_calibrator.collection.synchroniser` and
-docs/sensor_errors.md; the test itself is
-:func:`gsp_kinematics.estimation.noise_estimate.settle_test`.
-"""
+See docs/sensor_errors.md."""
 
 import bisect
 import dataclasses

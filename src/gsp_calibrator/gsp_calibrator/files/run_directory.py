@@ -1,12 +1,5 @@
 """The run directory of a calibration: ``<root>/<UTC timestamp>/`` (pure, no rclpy).
-
-Every file is written atomically (:mod:`gsp_kinematics.fileio`), JSON strictly (NaN as null).
-
-Files (see docs/data.md): ``samples.csv`` (:data:`SAMPLES_COLUMNS`, SI, one row per posture),
-``result.yaml`` (canonical geometry params file), ``summary.json`` and any other file added
-through :meth:`RunDirectory.write_text`, :meth:`~RunDirectory.write_bytes` or
-:meth:`~RunDirectory.write_json`.
-"""
+See docs/data.md."""
 
 import csv
 import dataclasses
@@ -272,8 +265,7 @@ class SamplesAppender:
     Each row is one ``write`` to a file opened for appending, so it reaches the operating system
     at once (it survives a killed process, not a power cut) without rewriting the file. A row is
     either complete or absent: when a write fails (a full disk) the file is cut back to its
-    previous length and the error (an ``OSError`` naming the file) is raised.
-    """
+    previous length and the error (an ``OSError`` naming the file) is raised."""
 
     def __init__(self, path):
         self.path = Path(path)

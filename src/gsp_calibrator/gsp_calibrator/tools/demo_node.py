@@ -1,9 +1,4 @@
-"""The ROS part of ``gsp_demo``: a client node of the suite, driven from the main thread.
-
-:class:`DemoNode` is the node (progress printing, the calibrate call, validation postures);
-:class:`Demo` spins it until each awaited event, stopping at once when one of the node processes
-exits. Imported by :mod:`.demo` only after the ROS environment is set (it imports rclpy).
-"""
+"""The ROS part of ``gsp_demo``: a client node of the suite, driven from the main thread."""
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus

@@ -1,18 +1,5 @@
 """``gsp_reidentify``: re-identify a calibration offline, into a new run directory (no ROS graph).
-
-Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``, or a
-``recording.mcap`` (the posture rows are rebuilt with the calibrator's own synchroniser, see
-:func:`gsp_calibrator.recording.rebuild.samples_from_recording`). The identification is the calibrator
-node's own: :func:`gsp_calibrator.run.identify.identify_from_samples` with the commanded postures
-as pose guesses, so the same samples and options give the same result as the online run.
-
-Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success; and
-``result_rigid.yaml`` with identified effects),
-``result.json``, ``report.md`` with its PNGs, a copy of the recording (when the input has one) and
-``true_geometry.yaml`` (when a truth is given). Prints the summary and the run directory.
-
-Exit code: 0 success, 1 identification failed (or non-identifiable), 2 bad input.
-"""
+See docs/data.md#offline-re-identification-gsp_reidentify."""
 
 import argparse
 import dataclasses
@@ -268,12 +255,7 @@ def reidentify(args, out=None):
 
 def stored_weights(stored, options, samples):
     """``(sigmas, noise_source, keys of result.json to keep)`` that identify a run again from
-    its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
-
-    A ``samples.csv`` with the rows' lag sums holds what an ``estimated`` run's noise came from.
-    Rows without any (single samples) keep only the averages: the row noise the run used
-    (``result.json`` ``sigmas``) is given as configured per-sample sigmas, and its noise
-    estimates and goodness of fit are kept as written."""
+    its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options."""
     source = options.get('noise_source', DEFAULTS['noise_source'])
     sigmas, kept = noise_from_parameters(options), ('collection', 'noise_estimates')
     if np.isfinite(samples.lag_sums).any():
