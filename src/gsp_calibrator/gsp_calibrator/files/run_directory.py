@@ -37,8 +37,6 @@ ROW_COLUMNS = ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_
 APPROACH_COLUMNS = tuple(f'approach_{leg}' for leg in LEG_COLUMNS)
 #: Columns of ``samples.csv``, exactly.
 SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS + APPROACH_COLUMNS
-#: The columns of a ``samples.csv`` written before the approach directions (still read).
-LEGACY_SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS
 
 TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
 
@@ -198,7 +196,7 @@ def samples_from_csv(text, source='<string>'):
         header = next(reader)
     except StopIteration:
         raise RunDirectoryError(f'{source}: empty file (expected a header)') from None
-    if tuple(header) not in (SAMPLES_COLUMNS, LEGACY_SAMPLES_COLUMNS):
+    if tuple(header) != SAMPLES_COLUMNS:
         raise RunDirectoryError(
             f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
         )
@@ -215,7 +213,7 @@ def samples_from_csv(text, source='<string>'):
             for name, text in zip(LAG_SUM_COLUMNS, lag_texts, strict=True)
         ]
         lag_rows.append(sums)
-        direction_texts = row[len(LEGACY_SAMPLES_COLUMNS) :] or [''] * len(APPROACH_COLUMNS)
+        direction_texts = row[len(ROW_COLUMNS) + len(LAG_SUM_COLUMNS) :]
         direction_rows.append(
             [
                 _direction_value(text, source, line, name)
