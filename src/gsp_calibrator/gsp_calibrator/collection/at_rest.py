@@ -101,8 +101,7 @@ class SettleRule:
             pair_legs = [leg for leg, _ in pairs]
         first = bisect.bisect_left(pair_legs, end_stamp - self.lookback_ns)
         # Judged over the pairs it holds, a look-back missing its start is a shorter one that
-        # may miss a slow trend (seen under load: a listener that lost messages took a window
-        # 0.007 rad before the inclinometer was at rest).
+        # may miss a slow trend.
         uncovered = pair_legs[first] - (end_stamp - self.lookback_ns)
         if uncovered > MAX_UNCOVERED_FRACTION * self.lookback_ns:
             return Unsettled(pending=True)

@@ -342,10 +342,9 @@ def resting_stream(postures):
     :class:`RecordedPosture`, in recorded order): the last posture's, where the recorded run
     left the platform, unless it stands at the first posture's pose (a route with reference
     revisits ends with one): then the last posture's away from it (the first posture: the
-    lowest number). Never one at the first
-    posture's pose, for the replaying calibrator would take the first posture's samples for a
-    device still reporting the previous posture, and skip it (the collection's "unchanged"
-    check); the replaying route starts from another posture than the original's either way."""
+    lowest number). Never one at the first posture's pose: the replaying calibrator would take
+    the first posture's samples for a device still reporting the previous posture, and skip it
+    (the collection's "unchanged" check)."""
     poses = np.array([p.commanded_pose for p in postures])
     first = poses[min(range(len(postures)), key=lambda m: postures[m].posture)]
     position, angle = _pose_distances(poses[:, :3], _quaternions(poses), first)

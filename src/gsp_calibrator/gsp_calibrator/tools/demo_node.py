@@ -167,8 +167,7 @@ class Demo:
         )
         # The platform takes commands only once it knows where the legs are: platform_bridge
         # rejects every command until the controller's first /joint_states reached it, and it
-        # publishes leg lengths from them. Without this wait the validation postures were all
-        # rejected on a loaded host ('no /joint_states received from the controller').
+        # publishes leg lengths from them.
         node.watch_leg_lengths(True)
         try:
             self.spin_until(

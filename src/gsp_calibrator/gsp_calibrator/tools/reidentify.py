@@ -43,11 +43,28 @@ EXIT_BAD_INPUT = 2
 VALIDATION_POSTURES = 50
 
 
-def _workspace_poses(nominal, options):
-    """The run's workspace postures (``run.postures.workspace_poses_of``) from its options."""
+def _identify(nominal, samples, sigmas, free, options, noise_source):
+    """``identify_from_samples`` with the run's resolved ``options`` (its workspace postures,
+    ``run.postures.workspace_poses_of``, and the core's ``Options``: the loss)."""
     from gsp_calibrator.run.postures import workspace_poses_of
 
-    return workspace_poses_of(nominal, options.get('workspace_postures', 0), options.get('seed', 0))
+    return identify_from_samples(
+        nominal,
+        samples,
+        sigmas,
+        free,
+        options['formulation'],
+        noise_source=noise_source,
+        requirement=requirement_from_parameters(options),
+        folds=int(options['cross_validation_folds']),
+        payload_mass=options['payload_mass'],
+        centre_of_mass=options['payload_centre_of_mass'],
+        workspace_poses=workspace_poses_of(
+            nominal, options.get('workspace_postures', 0), options.get('seed', 0)
+        ),
+        leg_mass=options['leg_mass'],
+        options=Options(loss=options.get('loss', DEFAULTS['loss'])),
+    )
 
 
 def build_parser():
@@ -123,11 +140,6 @@ def build_parser():
 # --- inputs ------------------------------------------------------------------------------------
 
 
-def _options(options):
-    """The core's identification ``Options`` of the resolved ``options`` (the loss)."""
-    return Options(loss=options.get('loss', DEFAULTS['loss']))
-
-
 def validation_postures(truth, count, seed):
     from gsp_kinematics.model.kinematics import sample_valid_postures
 
@@ -194,21 +206,7 @@ def reidentify(args, out=None):
     samples = load_input(kind, path, options)
 
     try:
-        outcome = identify_from_samples(
-            nominal,
-            samples,
-            sigmas,
-            free,
-            options['formulation'],
-            noise_source=options['noise_source'],
-            requirement=requirement_from_parameters(options),
-            folds=int(options['cross_validation_folds']),
-            payload_mass=options['payload_mass'],
-            centre_of_mass=options['payload_centre_of_mass'],
-            workspace_poses=_workspace_poses(nominal, options),
-            leg_mass=options['leg_mass'],
-            options=_options(options),
-        )
+        outcome = _identify(nominal, samples, sigmas, free, options, options['noise_source'])
     except (IdentificationError, postures.CalibrationError) as error:
         raise InputError(str(error)) from error
 
@@ -300,21 +298,7 @@ def refresh_report(
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
     sigmas, source, kept_keys = stored_weights(stored, options, samples)
-    outcome = identify_from_samples(
-        nominal,
-        samples,
-        sigmas,
-        options['free_parameters'],
-        options['formulation'],
-        noise_source=source,
-        requirement=requirement_from_parameters(options),
-        folds=int(options['cross_validation_folds']),
-        payload_mass=options['payload_mass'],
-        centre_of_mass=options['payload_centre_of_mass'],
-        workspace_poses=_workspace_poses(nominal, options),
-        leg_mass=options['leg_mass'],
-        options=_options(options),
-    )
+    outcome = _identify(nominal, samples, sigmas, options['free_parameters'], options, source)
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.
