@@ -31,38 +31,21 @@ RUN_METADATA_NAME = 'gsp_calibration'
 class McapRecorder:
     """Writes ``path`` (an MCAP file rosbag2 and Foxglove read) atomically."""
 
-    def __init__(
-        self, path, compression='zstd', chunk_size=1024 * 1024, library=None, crash_safe=False
-    ):
+    def __init__(self, path, crash_safe=False):
         from mcap.writer import CompressionType, Writer
 
         self.path = os.fspath(path)
         self.temporary_path = self.path + '.tmp'
-        types = {
-            'zstd': CompressionType.ZSTD,
-            'lz4': CompressionType.LZ4,
-            None: CompressionType.NONE,
-            'none': CompressionType.NONE,
-        }
-        if compression not in types:
-            raise RecordingError(f'unknown compression {compression!r}: zstd, lz4 or none')
         directory = os.path.dirname(os.path.abspath(self.path))
         os.makedirs(directory, exist_ok=True)
         self._stream = open(self.temporary_path, 'wb')  # noqa: SIM115 (closed in close/abort)
         self.crash_safe = bool(crash_safe)
         try:
             try:
-                self._writer = Writer(
-                    self._stream,
-                    chunk_size=chunk_size,
-                    compression=types[compression],
-                    use_chunking=not self.crash_safe,
-                )
-            except Exception:  # compression library missing: write uncompressed chunks
-                self._writer = Writer(
-                    self._stream, chunk_size=chunk_size, compression=CompressionType.NONE
-                )
-            self._writer.start(profile=PROFILE, library=library or _library_identifier())
+                self._writer = Writer(self._stream, use_chunking=not self.crash_safe)
+            except Exception:  # zstd missing: write uncompressed chunks
+                self._writer = Writer(self._stream, compression=CompressionType.NONE)
+            self._writer.start(profile=PROFILE, library=_library_identifier())
             self._flush_if_crash_safe()
         except BaseException:
             self._stream.close()
