@@ -1,9 +1,4 @@
-"""Launch arguments and node actions shared by the package's launch files (``launch/``).
-
-Installed with the package, so ``ros2 launch gsp_calibrator <file>.launch.py`` imports it from
-the sourced workspace. It uses only the stable launch/launch_ros API (test/test_launch_files.py
-checks it) and imports ``launch``, so only launch files import it.
-"""
+"""Launch arguments and node actions shared by the package's launch files (``launch/``)."""
 
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
@@ -42,11 +37,7 @@ def standard_arguments(config_file, params_description, geometry_description):
 
 
 def screen_node(package, executable, parameters):
-    """The node ``executable`` of ``package``, named after it, logging to the screen.
-
-    ``parameters``: params files and dicts, in order; ``use_sim_time`` (the launch argument, as a
-    bool) comes last.
-    """
+    """The node ``executable`` of ``package``, named after it, logging to the screen."""
     use_sim_time = ParameterValue(LaunchConfiguration('use_sim_time'), value_type=bool)
     return Node(
         package=package,

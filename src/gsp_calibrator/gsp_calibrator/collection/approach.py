@@ -1,16 +1,5 @@
 """What the effect groups need of a run, from its own record (pure, no rclpy;
-docs/platform_effects.md#through-the-calibrator).
-
-- :class:`ApproachTracker`: each leg's approach direction at each commanded posture, from the
-  commanded sequence the calibrator sends: the sign of the change of the commanded leg length
-  (the nominal geometry's inverse kinematics) from the posture the platform stood at. A leg
-  that does not move keeps its direction; a posture the platform rejected moved nothing. The
-  calibrator (``run.record``) and the rebuild from a recording (``recording.rebuild``) feed
-  it the same commands in the same order, so ``samples.csv`` and the rebuild agree.
-- :func:`effect_design`: the run's ``EffectDesign`` from its rows: the times (s since the first
-  row's mean stamp), the approach directions, the payload the user gave and the thermal
-  reference instant (the last row's time: the geometry is the platform's at the run's end).
-"""
+docs/platform_effects.md#through-the-calibrator)."""
 
 import numpy as np
 
@@ -20,10 +9,7 @@ from gsp_kinematics.model.kinematics import inverse_kinematics
 
 
 class ApproachTracker:
-    """Approach directions of the postures commanded through ``nominal`` (a ``Geometry``).
-
-    ``initial`` (6,): the legs' directions before the first command (None: +1, homed
-    extending; a resumed run: its last row's)."""
+    """Approach directions of the postures commanded through ``nominal`` (a ``Geometry``)."""
 
     def __init__(self, nominal, initial=None):
         self.nominal = nominal
@@ -62,8 +48,7 @@ def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg
     """The ``EffectDesign`` of a run's rows (``files.run_directory.Rows``) and the payload the user
     gave (kg; 0: unknown: the reference mass, ``payload_assumed``, so the compliance is still
     identified, as the legs' compliance times the load over it), with the legs' masses (6,) kg
-    (None: massless). The directions are left out (None) when a row has none (a
-    ``samples.csv`` written before them)."""
+    (None: massless). The directions are left out (None) when a row has none."""
     stamps = np.asarray(samples.stamps, dtype=float)
     times = stamps - stamps[0] if stamps.size else stamps
     directions = np.asarray(samples.directions, dtype=float)

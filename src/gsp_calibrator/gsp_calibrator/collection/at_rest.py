@@ -1,9 +1,5 @@
 """Is every channel at rest? The verdict on a span of synchronised pairs (pure, no rclpy).
-
-The rule and its parameters are in :mod:`gsp_calibrator.collection.synchroniser` and
-docs/sensor_errors.md; the test itself is
-:func:`gsp_kinematics.estimation.noise_estimate.rest_test`.
-"""
+See docs/sensor_errors.md."""
 
 import bisect
 import dataclasses
@@ -105,8 +101,7 @@ class RestRule:
             pair_legs = [leg for leg, _ in pairs]
         first = bisect.bisect_left(pair_legs, end_stamp - self.lookback_ns)
         # Judged over the pairs it holds, a look-back missing its start is a shorter one that
-        # may miss a slow trend (seen under load: a listener that lost messages took a window
-        # 0.007 rad before the inclinometer was at rest).
+        # may miss a slow trend.
         uncovered = pair_legs[first] - (end_stamp - self.lookback_ns)
         if uncovered > MAX_UNCOVERED_FRACTION * self.lookback_ns:
             return NotAtRest(pending=True)

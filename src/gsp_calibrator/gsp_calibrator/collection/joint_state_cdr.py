@@ -1,17 +1,5 @@
 """A ``sensor_msgs/JointState`` read straight from its CDR bytes (pure, no rclpy).
-
-The calibrator takes its sensor streams raw, as its recorder does: decoding the few fields the
-collection reads with ``struct`` costs a fraction of building the ROS message object
-(docs/architecture.md#synchronisation). :func:`read_joint_state` gives an object with the
-fields a sensor reader uses (``header.stamp.sec/nanosec``, ``header.frame_id``, ``name``,
-``position``, ``velocity``, ``effort``), so the readers of ``gsp_msgs_py.conversions`` take it
-as they take the message.
-
-Layout (XCDR1, as every ROS 2 middleware sends it): a 4-byte encapsulation header (its second
-byte: 1 little-endian, 0 big-endian), then the fields, each aligned to its size counted from
-after that header: ``int32 sec, uint32 nanosec, string frame_id, string[] name, float64[]
-position, float64[] velocity, float64[] effort`` (a string: uint32 length with its NUL, bytes).
-"""
+See docs/architecture.md#synchronisation."""
 
 import struct
 from types import SimpleNamespace

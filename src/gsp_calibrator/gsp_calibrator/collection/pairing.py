@@ -1,14 +1,5 @@
 """Nearest-stamp pairing of leg-length and device stamps, kept up to date message by message
-(pure, no rclpy).
-
-THE pairing rule (:func:`nearest_pairs`): the leg stamps, in order, each take the nearest device
-stamp within the tolerance that no earlier leg stamp took (ties: the earlier device stamp).
-:class:`StampPairing` keeps the result of that rule while stamps come and go, at a cost per
-change that does not grow with the number of stamps held: a leg stamp only sees the device
-stamps within the tolerance, so a change at a stamp leaves every leg stamp more than a tolerance
-before it alone, and the legs after it are taken again, in order, only until no later leg can
-see a difference any more (usually one or two legs).
-"""
+(pure, no rclpy). See docs/architecture.md#synchronisation."""
 
 import bisect
 
@@ -22,12 +13,7 @@ def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
 
 
 class StampPairing:
-    """The pairs of the leg stamps and device stamps added so far (see the module docstring).
-
-    ``pairs``: ``[(leg stamp, device stamp), ...]`` in leg-stamp order; ``pair_legs`` their leg
-    stamps; ``revision`` grows at each change of the pairs; :meth:`take_changed` says from which
-    index on they changed since the last call. Read them, never change them.
-    """
+    """The pairs of the leg stamps and device stamps added so far (see the module docstring)."""
 
     def __init__(self, tolerance_ns):
         self.tolerance_ns = int(tolerance_ns)

@@ -1,53 +1,5 @@
 """The posture-collection protocol of a calibration run (pure, no rclpy).
-
-One :class:`CollectionProtocol` serves the ``calibrator`` node (live messages), the rebuilding
-of ``samples.csv`` from a recording (:func:`gsp_calibrator.recording.rebuild.samples_from_recording`)
-and the replay of a recording (:mod:`gsp_calibrator.replay.recorded_run`): each feeds it the pose commands,
-platform statuses and sensor messages with their receive times (integer ns, the node clock; a
-recording's log time) and acts on the events it returns.
-
-Per posture: :meth:`~CollectionProtocol.command` starts it; the command's first status must come
-within ``topic_timeout`` (else :class:`.events.TopicSilent`); ``rejected`` skips it; ``settled`` must
-come within the planned move time (``planned_move``: from the latest leg lengths at the leg
-limits) plus ``settle_timeout`` of that first status (else skipped) and starts the collection
-(:class:`CollectionStarted`) at its receive time, or at a start given with it (the calibrator:
-the status's publish instant, :func:`settle_start_ns`; a recording: its noted start). From then on the :class:`~gsp_calibrator.collection.synchroniser.SampleCollector` pairs the
-sensor samples stamped from the start (including samples received since the command) and the
-earliest consistent window whose channels are at rest over the ``rest_lookback`` ending with
-it (see :mod:`~gsp_calibrator.collection.synchroniser`) gives the row (:class:`RowReady`, with
-its ``rest_wait``). The posture is skipped when the readings still move ``settle_timeout``
-after the start (the reason names the channel and its trend), when
-``max_pairs_per_sample * pairs_per_posture`` settled pairs hold no consistent window, or
-when no window comes within ``settle_timeout + topic_timeout`` of the start. These two bounds
-count in the data's time, the samples' stamps since the start (as far as every stream that has
-given any has reached): a caller that handles the samples late decides late, not otherwise. The run fails
-(:class:`.events.TopicSilent`, :class:`.events.NoSynchronisedPair`) when a sensor topic says nothing, or the
-pairs stop growing, for ``topic_timeout``. When several topics are silent, the one silent longest
-is named. Timeouts are decided from the times given to each call (:meth:`~CollectionProtocol.poll`
-with the current time), so the protocol runs offline.
-
-A gap of half a ``topic_timeout`` or more between two calls means the caller itself did not run
-(an overloaded machine, a paused process): messages sent meanwhile may still be queued, so no
-silence is judged over the gap; every timeout counts again from the end of the gap. Likewise a
-sample stamped before the collection start but received after it shows a caller still working
-through a backlog: the pairs' progress timeout counts again from its receipt. That timeout
-counts in the receive times of the samples handled (the middleware's, ``received_ns``, when
-the caller gives them; else the times of the calls), not in the watchdog's polls: a listener
-that falls behind delays it, a backlog (samples received before the settle) does not count,
-and samples stamped before the start but received after it (a sensor clock behind) do. It also
-counts in the data's time: samples whose stamps move on by ``topic_timeout`` without a new pair
-end the run as well.
-
-The previous posture's device readings (the collector's "unchanged" check) are the last row's,
-and before the first row the latest complete device instant received before the command. A
-resumed run starts from its last kept row (:meth:`~CollectionProtocol.continue_after`): the
-platform may still stand at the posture that was being collected when the run stopped, so the
-readings before the command would equal that posture's.
-
-With ``keep_pairs=True`` (replay) no row is taken: every pair after the settle, up to the next
-command, is kept and handed over in :class:`PairsCollected` (also for the samples before the
-first command, ``posture=None``) at the next command and at :meth:`~CollectionProtocol.finish`.
-"""
+See docs/architecture.md#one-collection-protocol."""
 
 import collections
 import math
@@ -112,8 +64,7 @@ def settle_start_ns(published_ns, received_ns, topic_timeout):
     also those received before the status itself (the status latency would otherwise cost the
     samples stamped meanwhile). The receive time when the publish instant is unknown or
     implausible on this clock: after the receipt (a publisher clock ahead, a stamp in another
-    time base) or more than ``topic_timeout`` (s) before it.
-    """
+    time base) or more than ``topic_timeout`` (s) before it."""
     received_ns = int(received_ns)
     if not published_ns:
         return received_ns

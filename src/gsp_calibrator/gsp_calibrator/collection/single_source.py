@@ -1,16 +1,5 @@
 """One source per sensor topic: readings from two publishers are never paired (pure, no rclpy).
-
-DDS gives each publisher its own publication sequence numbers (1, 2, 3 ...); a subscriber sees
-them in every message's ``MessageInfo``. While one publisher speaks on a topic the numbers only
-grow. A valid reading whose number does not grow, while the topic has more than one publisher,
-means two sources interleave (a second device driver, a simulator left running, a replay): the
-calibrator then ends the run naming the topic instead of averaging or pairing readings of
-different sources. A number that falls back while there is one publisher is a restarted
-publisher, which is accepted. See docs/faults.md.
-
-A second calibrator is the same fault one level up: :func:`other_calibrators` names the other
-nodes called ``calibrator`` that publish pose commands, and a run is refused while there is one.
-"""
+See docs/faults.md."""
 
 from gsp_calibrator.collection.topics import read_sensor
 from gsp_msgs_py import names
@@ -51,11 +40,7 @@ class SingleSourceGuard:
         self._last.clear()
 
     def check(self, topic, sequence, publisher_count):
-        """None, or a :class:`SecondSource` for a reading with ``sequence`` on ``topic``.
-
-        ``sequence``: its publication sequence number (None if the middleware gives none);
-        ``publisher_count()``: the topic's publishers now (asked only when the number falls back).
-        """
+        """None, or a :class:`SecondSource` for a reading with ``sequence`` on ``topic``."""
         if sequence is None:
             return None
         last = self._last.get(topic)

@@ -1,50 +1,5 @@
 """Stamp-matching synchroniser of leg-length and device samples (pure, no rclpy).
-
-The platform publishes leg lengths ``q`` (6, m) on its own timer; the device driver publishes its
-three topics (inclinometer ``alpha, beta`` (rad), encoder ``phi`` (rad), LVDT ``d_m`` (m)) on
-another timer, the three messages of one instant sharing a stamp. :class:`SampleCollector`
-buffers both streams, drops (and counts) non-finite readings, pairs each leg-length sample with
-the complete device sample of nearest stamp within ``sync_tolerance`` (s), keeps only pairs
-stamped at or after the current start time (the platform has settled), and averages
-``pairs_per_posture`` pairs into one posture row.
-
-Consistency (optional, ``noise_std``): the averaged pairs must agree with each other. A window of
-``pairs_per_posture`` consecutive pairs is used only if every value lies within
-``consistency_threshold`` robust standard deviations (``max(1.4826 * MAD, noise_std)`` per
-channel) of the window's median; the earliest consistent window is taken, and the pairs before it
-are dropped and counted. This discards glitches and readings that still describe the previous
-posture (a sensor stream lagging behind the settled status). Likewise, when :meth:`start` is given
-the previous posture's device readings, a window whose device readings have not changed from
-them (within the same threshold) is not used: the platform moved, so a device that reports the
-same values is reporting the previous posture. (Postures that differ only by a tilt of the
-platform about its centre, with the same device position and phi, would look alike; posture
-pools sampled at random never hold such pairs.)
-
-Settling (:mod:`gsp_kinematics.estimation.noise_estimate`, docs/sensor_errors.md): a window is used
-only when every channel is at rest over the ``rest_lookback`` (s) that ends with the window (at
-least the window itself): its least-squares trend over that span is within ``rest_sigmas`` of
-the noise the span itself shows (:func:`~gsp_kinematics.estimation.noise_estimate.rest_test`, the
-per-sample noise at least ``noise_std``), and its scatter within what ``noise_std`` allows
-(:func:`~gsp_kinematics.estimation.noise_estimate.scatter_test`: a platform still ringing). A window is not judged before the look-back is covered
-by pairs (from the first after the start, less the pairing tolerance), so a slow sensor is
-waited for, and the wait (start to the window's first sample) is kept with the row
-(``rest_wait``).
-
-Stamps are integer nanoseconds. Messages may arrive out of order or go missing: the pairs are
-kept up to date at each sample (:class:`~gsp_calibrator.collection.pairing.StampPairing`, the
-same pairs as pairing the buffers afresh), and an incomplete device instant (one of its three
-topics missing) is never used. Each stream arrives in stamp order, but the streams interleave
-in no fixed order (a listener's batches, a recorder's log): a leg stamp's pair is final only once
-the device stamps within the tolerance after it are in. With a horizon
-(:meth:`SampleCollector.set_horizon`: every stream has delivered its samples up to it) only the
-windows final by it are judged, so the row does not depend on the order the streams were handled
-in (the calibrator and the rebuild of its recording average the same pairs), and a settle
-look-back is never judged with pairs still missing.
-
-The work per sample does not grow with the buffered samples: the pairs change only near the new
-sample's stamp, and a window once judged keeps its verdict (the candidate windows are judged in
-order, each once, and only a change of its pairs judges it again).
-"""
+See docs/sensor_errors.md."""
 
 import bisect
 import dataclasses
@@ -174,8 +129,7 @@ class SampleCollector:
     ``noise_std``: None (no consistency check) or the noise std of the 10 channels
     ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
     rest test's noise. ``rest_lookback`` (s, >= 0) and ``rest_sigmas`` (> 0, ``inf``: no
-    rest test): the rest rule (see the module docstring).
-    """
+    rest test): the rest rule (see the module docstring)."""
 
     def __init__(
         self,
@@ -471,11 +425,7 @@ class SampleCollector:
 def segment_pairs(collector, limit=None, last=False):
     """Every pair of ``collector`` (a :class:`SampleCollector`) of its first (``last``: the
     last) ``limit`` leg-length samples, as it pairs them: ``(leg stamps (N,) ns, q (N, 6) m,
-    readings (N, 4))`` in stamp order.
-
-    Only the device instants within the tolerance of those samples take part, so a long
-    buffer pairs its first (or last) samples exactly as a collector holding only them.
-    """
+    readings (N, 4))`` in stamp order."""
     legs = sorted(collector._legs)
     if limit is not None:
         legs = legs[-int(limit) :] if last else legs[: int(limit)]

@@ -1,10 +1,5 @@
 """The collection protocol's timeouts: who spoke when, the caller's stalls (pure, no rclpy).
-
-:class:`CollectionTimeouts` notes every call and every sensor topic's latest message, and judges
-from them (and from the awaited posture's times) which timeout has expired, with the event or
-the skip reason that says so. :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`
-keeps the posture's state and acts on the verdict; the stall rule is in its module docstring.
-"""
+See docs/architecture.md#synchronisation."""
 
 import math
 
@@ -98,11 +93,7 @@ class CollectionTimeouts:
         return ''
 
     def collection_overdue(self, posture, collector, now_ns):
-        """The collection's verdict at ``now_ns``: ``(failure event or None, skip reason or '')``.
-
-        Updates ``posture.progress``, ``progress_ns`` and ``progress_data_ns`` from the
-        collector's pair count.
-        """
+        """The collection's verdict at ``now_ns``: ``(failure event or None, skip reason or '')``."""
         # Silence on the wire: up to when the caller has looked at its queues, if it says so.
         heard_ns = now_ns if self.checked_ns is None else min(int(now_ns), self.checked_ns)
         silences = {  # s, since the topic's latest message (or the settle, or a stall)

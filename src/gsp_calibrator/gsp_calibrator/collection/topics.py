@@ -42,10 +42,7 @@ def sensor_message(msg):
 
 def read_sensor(topic, msg):
     """``(stream, stamp_ns, values)`` of a sensor message (or its CDR bytes); ValueError (or
-    TypeError) if unusable.
-
-    ``values`` are the arguments after the stamp of the collector's ``add_<stream>``.
-    """
+    TypeError) if unusable."""
     stream = TOPIC_STREAMS[topic]
     msg = sensor_message(msg)
     if isinstance(msg, (bytes, bytearray, memoryview)):

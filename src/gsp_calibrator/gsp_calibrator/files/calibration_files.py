@@ -1,11 +1,4 @@
-"""A calibration or a check read back from its run directory as a ``drift.Calibration``.
-
-A calibration's ``result.json`` holds the free parameters, their estimates (``estimates``,
-``sensor_errors``) and, since the covariance was added, ``covariance`` (``{parameters, si}``).
-An older file without it gives a diagonal covariance from ``standard_deviations``: the drift test
-is then less powerful (it cannot use the correlations), never wrong in level. A check's
-``check.json`` holds its small identification (:mod:`gsp_kinematics.upkeep.check`).
-"""
+"""A calibration or a check read back from its run directory as a ``drift.Calibration``."""
 
 import json
 from pathlib import Path

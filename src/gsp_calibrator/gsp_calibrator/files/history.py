@@ -1,11 +1,5 @@
 """The history of each platform: every calibration and check, indexed by platform id in SQLite
-(docs/upkeep.md).
-
-The run directories stay the data; the database (default ``<output_root>/history.sqlite``) is an
-index of them, rebuilt from them at any time (:func:`rebuild`). One transaction per run (WAL,
-``synchronous=FULL``): a writer killed at any point leaves the whole run or none of it. The
-schema version is ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); a newer one is refused.
-"""
+(docs/upkeep.md)."""
 
 import contextlib
 import datetime

@@ -1,12 +1,5 @@
 """The run directory of a calibration: ``<root>/<UTC timestamp>/`` (pure, no rclpy).
-
-Every file is written atomically (:mod:`gsp_kinematics.fileio`), JSON strictly (NaN as null).
-
-Files (see docs/data.md): ``samples.csv`` (:data:`SAMPLES_COLUMNS`, SI, one row per posture),
-``result.yaml`` (canonical geometry params file), ``summary.json`` and any other file added
-through :meth:`RunDirectory.write_text`, :meth:`~RunDirectory.write_bytes` or
-:meth:`~RunDirectory.write_json`.
-"""
+See docs/data.md."""
 
 import csv
 import dataclasses
@@ -44,8 +37,6 @@ ROW_COLUMNS = ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_
 APPROACH_COLUMNS = tuple(f'approach_{leg}' for leg in LEG_COLUMNS)
 #: Columns of ``samples.csv``, exactly.
 SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS + APPROACH_COLUMNS
-#: The columns of a ``samples.csv`` written before the approach directions (still read).
-LEGACY_SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS
 
 TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
 
@@ -205,7 +196,7 @@ def samples_from_csv(text, source='<string>'):
         header = next(reader)
     except StopIteration:
         raise RunDirectoryError(f'{source}: empty file (expected a header)') from None
-    if tuple(header) not in (SAMPLES_COLUMNS, LEGACY_SAMPLES_COLUMNS):
+    if tuple(header) != SAMPLES_COLUMNS:
         raise RunDirectoryError(
             f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
         )
@@ -222,7 +213,7 @@ def samples_from_csv(text, source='<string>'):
             for name, text in zip(LAG_SUM_COLUMNS, lag_texts, strict=True)
         ]
         lag_rows.append(sums)
-        direction_texts = row[len(LEGACY_SAMPLES_COLUMNS) :] or [''] * len(APPROACH_COLUMNS)
+        direction_texts = row[len(ROW_COLUMNS) + len(LAG_SUM_COLUMNS) :]
         direction_rows.append(
             [
                 _direction_value(text, source, line, name)
@@ -272,8 +263,7 @@ class SamplesAppender:
     Each row is one ``write`` to a file opened for appending, so it reaches the operating system
     at once (it survives a killed process, not a power cut) without rewriting the file. A row is
     either complete or absent: when a write fails (a full disk) the file is cut back to its
-    previous length and the error (an ``OSError`` naming the file) is raised.
-    """
+    previous length and the error (an ``OSError`` naming the file) is raised."""
 
     def __init__(self, path):
         self.path = Path(path)

@@ -1,12 +1,6 @@
 """``calibrator`` node: a whole calibration on ``/gsp/calibrator/calibrate`` (std_srvs/Trigger),
 the rest of an unfinished one on ``/gsp/calibrator/resume``, the check on ``/gsp/calibrator/check``.
-
-This wrapper only moves messages and waits: the course of a run is
-:class:`gsp_calibrator.run.flow.CalibrationRun`, to which the node gives one
-:class:`gsp_calibrator.run.host.RunHost` (:meth:`CalibratorNode._run_host`); its
-:class:`.posture_link.PostureLink` joins the node's threads to the run. Topics, parameters and
-files: docs/nodes.md; the protocol, threads and callback groups: docs/architecture.md.
-"""
+See docs/nodes.md, docs/architecture.md."""
 
 import os
 import sys

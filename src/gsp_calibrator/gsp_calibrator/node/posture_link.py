@@ -1,9 +1,4 @@
-"""The posture in collection, where the node's message threads and the run meet (no rclpy).
-
-The run commands a posture through it and awaits that posture's end; the node feeds every
-status, sensor message and watchdog tick to the collection protocol through it, and the event
-that ends the posture (a row, a skip, or a failure of the run) completes the awaited future.
-"""
+"""The posture in collection, where the node's message threads and the run meet (no rclpy)."""
 
 import threading
 
@@ -14,14 +9,7 @@ from gsp_calibrator.run.host import POSTURE_ENDS
 
 
 class PostureLink:
-    """The posture in collection, shared by the node's message threads and the run (thread-safe).
-
-    ``new_future()``: an awaitable future that a thread may complete (the node: an rclpy Future
-    that wakes its executor); ``commander(pose)``: ``(command_id, now_ns, publish)`` of a new pose
-    command, ``publish()`` sending it; ``recorder``: notes each posture's outcome
-    (:meth:`~gsp_calibrator.recording.recorder.RunRecorder.note_posture_end`); ``on_event(event)``:
-    the node's reaction to the protocol's other events (collection started, sample dropped).
-    """
+    """The posture in collection, shared by the node's message threads and the run (thread-safe)."""
 
     def __init__(self, new_future, commander, recorder, on_event):
         self._new_future = new_future

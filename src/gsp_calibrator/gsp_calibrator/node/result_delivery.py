@@ -1,11 +1,4 @@
-"""Publishing and applying a calibration result (the ``calibrator`` node; docs/verdict.md).
-
-:class:`ResultDelivery` (``RunHost.deliver_result``) latches the geometry YAML on
-``/gsp/calibrator/result`` and, with ``apply_result`` and a result that meets the requirement,
-sets the ``geometry.*`` parameters of ``platform_node_name`` in one ``SetParametersAtomically``
-call: the geometry and its effects to a controller that declares every ``geometry.effects.*``
-parameter, else the rigid geometry (``run.rigid``), whose verdict is then the one judged.
-"""
+"""Publishing and applying a calibration result (the ``calibrator`` node; docs/verdict.md)."""
 
 from rcl_interfaces.srv import ListParameters, SetParametersAtomically
 from rclpy.parameter import Parameter

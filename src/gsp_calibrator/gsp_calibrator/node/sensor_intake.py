@@ -1,11 +1,5 @@
 """The calibrator's intake of its sensor topics: batches of raw messages, from the recorder's
-listener thread, to the run's collection protocol.
-
-Each batch (``[(CDR bytes, message info), ...]``, one topic, in order) is decoded cheaply
-(:mod:`gsp_calibrator.collection.joint_state_cdr`), checked for a second source, and judged once
-(:meth:`gsp_calibrator.collection.protocol.CollectionProtocol.sensors`). The listener's own tick says up to
-when every message received off the wire has been taken, so silence is judged on the wire.
-"""
+listener thread, to the run's collection protocol."""
 
 import collections
 import time

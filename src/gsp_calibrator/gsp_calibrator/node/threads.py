@@ -1,17 +1,6 @@
 """Waiting without blocking, for the calibrator node: predicate waits, worker threads and the
 sensor listener thread.
-
-The node's run is a coroutine. It awaits ``rclpy.task.Future`` objects that callbacks complete:
-:class:`Waits` completes a predicate wait when :meth:`Waits.poll` (the node's watchdog timer)
-finds its predicate true or its timeout passed; :func:`run_in_thread` and :func:`await_thread`
-turn CPU-heavy work (selection, identification, report) into a future; nothing blocks inside a
-callback.
-
-:class:`SensorListener` takes high-rate topics in a thread of its own (a
-``SingleThreadedExecutor``: a ``MultiThreadedExecutor`` fell behind the sensor streams,
-docs/architecture.md). Its subscriptions live as long as the node: destroying a subscription
-while that thread builds its wait set can raise ``InvalidHandle`` (ros2/rclpy#1206).
-"""
+See docs/architecture.md."""
 
 import concurrent.futures
 import dataclasses
@@ -99,10 +88,7 @@ class _Wait:
 
 
 class Waits:
-    """Predicate waits completed by :meth:`poll` (thread-safe).
-
-    ``clock``: a function giving the time in s (e.g. ``time.monotonic``).
-    """
+    """Predicate waits completed by :meth:`poll` (thread-safe)."""
 
     def __init__(self, clock):
         self._clock = clock
@@ -149,16 +135,7 @@ class Waits:
 
 
 class SensorListener:
-    """Takes topics in a thread of its own (see the module docstring).
-
-    ``callbacks`` maps each resolved topic name to its callback (``JointState`` messages,
-    :data:`qos.SENSOR_SUBSCRIPTION_QOS`); the subscriptions are created before the thread starts and
-    kept until :meth:`close`; ``raw=True``: the callbacks get the messages' CDR bytes (as the
-    recorder takes them: no message object is built). ``setup``: None or a function of the node called before the thread
-    starts (its result is :attr:`extra`), to create further entities on the node. ``on_error``:
-    None, or a function given any exception a callback raises (e.g. a recording's full disk);
-    the thread then goes on. :meth:`close` stops the thread and destroys the node.
-    """
+    """Takes topics in a thread of its own (see the module docstring)."""
 
     @classmethod
     def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):

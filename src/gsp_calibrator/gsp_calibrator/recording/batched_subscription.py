@@ -1,11 +1,4 @@
-"""A raw subscription's callback that takes every waiting message at once (rclpy, no node).
-
-rclpy's executor takes one message of a ready subscription per round (a wait set built and
-waited on, in Python): at several hundred messages/s on a busy machine that round costs more
-than the work on the message. :class:`BatchedCallback` takes, with the message the executor
-took, every further one the subscription holds, and hands them over as one list, so a thread
-that fell behind catches up in a few rounds instead of one round per message.
-"""
+"""A raw subscription's callback that takes every waiting message at once (rclpy, no node)."""
 
 from rclpy.exceptions import InvalidHandle
 

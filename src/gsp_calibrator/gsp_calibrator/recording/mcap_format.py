@@ -1,9 +1,4 @@
-"""ROS 2 message definitions and QoS metadata as rosbag2 stores them in MCAP (no ROS context).
-
-Message definitions are looked up through the ament index (``AMENT_PREFIX_PATH``) and, failing
-that, ``<sys.prefix>/share``; :func:`message_definition` concatenates them as rosbag2's
-``LocalMessageDefinitionSource`` does. Used by :mod:`gsp_calibrator.recording.recorder`.
-"""
+"""ROS 2 message definitions and QoS metadata as rosbag2 stores them in MCAP (no ROS context)."""
 
 import importlib
 import os
@@ -116,12 +111,7 @@ _DEFINITION_CACHE = {}
 
 
 def message_definition(type_name):
-    """The complete ``ros2msg`` definition of ``type_name``, as rosbag2 stores it.
-
-    The type's own ``.msg`` text comes first; every type it depends on, recursively and once,
-    follows as ``"\\n" + "=" * 80 + "\\nMSG: pkg/Type\\n" + text`` (depth first, dependencies of
-    each definition in sorted order: rosbag2's ``LocalMessageDefinitionSource``).
-    """
+    """The complete ``ros2msg`` definition of ``type_name``, as rosbag2 stores it."""
     root = normalise_type_name(type_name)
     if root in _DEFINITION_CACHE:
         return _DEFINITION_CACHE[root]

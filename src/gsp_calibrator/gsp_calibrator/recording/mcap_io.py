@@ -1,12 +1,5 @@
 """Writing and reading ``recording.mcap`` files (MCAP, profile ``ros2``; no ROS context needed).
-
-:class:`McapRecorder` writes one file atomically (``<path>.tmp``, then ``os.replace`` on close);
-with ``crash_safe=True`` every message reaches the file at once, and :func:`recover_recording`
-finalises the ``.tmp`` a killed process left behind (every complete record up to the kill);
-:func:`read_recording` iterates over its messages; :func:`recording_info` and
-:func:`recording_options` read its summary and the run options stored in it. The file format is
-described in :mod:`gsp_calibrator.recording.recorder` and docs/data.md.
-"""
+See docs/data.md."""
 
 import collections
 import json
@@ -36,49 +29,23 @@ RUN_METADATA_NAME = 'gsp_calibration'
 
 
 class McapRecorder:
-    """Writes ``path`` (an MCAP file rosbag2 and Foxglove read) atomically.
+    """Writes ``path`` (an MCAP file rosbag2 and Foxglove read) atomically."""
 
-    Messages go to ``<path>.tmp``; :meth:`close` finishes the file (summary, indexes) and renames
-    it over ``path``. :meth:`abort` removes the temporary file. Thread-safe. As a context manager
-    the file is closed (kept) even when the block raises: recorded data is never thrown away.
-
-    ``crash_safe=True``: no chunks (each message is one record, uncompressed) and every record is
-    flushed to the operating system at once, so a SIGKILL loses nothing that was written:
-    :func:`recover_recording` turns the ``.tmp`` into a finalised file.
-    """
-
-    def __init__(
-        self, path, compression='zstd', chunk_size=1024 * 1024, library=None, crash_safe=False
-    ):
+    def __init__(self, path, crash_safe=False):
         from mcap.writer import CompressionType, Writer
 
         self.path = os.fspath(path)
         self.temporary_path = self.path + '.tmp'
-        types = {
-            'zstd': CompressionType.ZSTD,
-            'lz4': CompressionType.LZ4,
-            None: CompressionType.NONE,
-            'none': CompressionType.NONE,
-        }
-        if compression not in types:
-            raise RecordingError(f'unknown compression {compression!r}: zstd, lz4 or none')
         directory = os.path.dirname(os.path.abspath(self.path))
         os.makedirs(directory, exist_ok=True)
         self._stream = open(self.temporary_path, 'wb')  # noqa: SIM115 (closed in close/abort)
         self.crash_safe = bool(crash_safe)
         try:
             try:
-                self._writer = Writer(
-                    self._stream,
-                    chunk_size=chunk_size,
-                    compression=types[compression],
-                    use_chunking=not self.crash_safe,
-                )
-            except Exception:  # compression library missing: write uncompressed chunks
-                self._writer = Writer(
-                    self._stream, chunk_size=chunk_size, compression=CompressionType.NONE
-                )
-            self._writer.start(profile=PROFILE, library=library or _library_identifier())
+                self._writer = Writer(self._stream, use_chunking=not self.crash_safe)
+            except Exception:  # zstd missing: write uncompressed chunks
+                self._writer = Writer(self._stream, compression=CompressionType.NONE)
+            self._writer.start(profile=PROFILE, library=_library_identifier())
             self._flush_if_crash_safe()
         except BaseException:
             self._stream.close()
@@ -134,11 +101,7 @@ class McapRecorder:
             return channel_id
 
     def write(self, topic, message, log_time_ns=None, publish_time_ns=None):
-        """Write one message: a ROS 2 message object or its CDR bytes (``raw=True``).
-
-        ``log_time_ns``: receive time (default now); ``publish_time_ns`` defaults to it. A topic
-        not yet added is added from the message's type (raw bytes need :meth:`add_topic` first).
-        """
+        """Write one message: a ROS 2 message object or its CDR bytes (``raw=True``)."""
         if isinstance(message, (bytes, bytearray, memoryview)):
             data = bytes(message)
             if topic not in self._channels:
@@ -222,8 +185,7 @@ def recover_recording(temporary_path, path=None):
     incomplete record, writes every complete schema, channel, message and metadata record to a
     finalised MCAP file ``path`` (default: ``temporary_path`` without ``.tmp``; atomic) and
     removes ``temporary_path``. An existing ``path`` is never overwritten (:class:`RecordingError`).
-    Returns ``{'path', 'message_count', 'truncated'}`` (``truncated``: bytes were cut off).
-    """
+    Returns ``{'path', 'message_count', 'truncated'}`` (``truncated``: bytes were cut off)."""
     from mcap.exceptions import McapError
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
@@ -330,13 +292,7 @@ def _dynamic_decoder(schema):
 
 
 def read_recording(path, topics=None, raw=False):
-    """Iterate over the messages of an MCAP recording in log-time order.
-
-    Yields :class:`RecordedMessage` ``(topic, type_name, log_time_ns, message, publish_time_ns)``;
-    ``message`` is the ROS 2 message object (``rclpy.serialization.deserialize_message`` of the
-    generated class; a dynamically decoded object from the schema when the class is not
-    importable), or the CDR bytes with ``raw=True``. ``topics`` restricts the topics read.
-    """
+    """Iterate over the messages of an MCAP recording in log-time order."""
     from mcap.exceptions import McapError
 
     stream, reader = _open_reader(path)

@@ -1,15 +1,5 @@
 """Rebuilding a run from its recording, offline (pure, no rclpy node or context).
-
-:func:`samples_from_recording` feeds every recorded command, status and sensor message to the
-shared collection protocol (:func:`feed_recording`), in causal order (each topic in log order),
-so the rows are the ones the calibrator collected online; ``gsp_reidentify`` and replay use it.
-
-A recording notes how each posture ended (:meth:`.recorder.RunRecorder.note_posture_end`: kept, skipped
-and why, in progress at the stop). The rebuild keeps exactly the rows noted ``kept``: a posture
-the calibrator skipped on a timeout, or was collecting when it stopped, gives no row even when
-the recording holds enough samples for one, so the rebuild equals samples.csv. A recording made
-before these notes keeps every row its messages give, as before.
-"""
+See docs/data.md#offline-re-identification-gsp_reidentify."""
 
 import collections
 import os
@@ -34,11 +24,7 @@ from gsp_msgs_py.noise_parameters import noise_from_parameters
 
 
 def noise_std_from_options(options):
-    """The collector's 10 channel noise stds ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad).
-
-    From ``options['noise_std']`` (10 values), else the ``sigma_*`` options, else the calibrator's
-    default sigmas (the calibrator builds its collector from its sigma parameters).
-    """
+    """The collector's 10 channel noise stds ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad)."""
     try:
         if options.get('noise_std') is not None:
             return SensorNoise.from_channel_std(options['noise_std']).channel_std()
@@ -60,27 +46,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
     """Feed every recorded command, status and sensor message to ``collection`` (a
     :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`), receive time = log time; yields its
     events. ``path``: one recording, or the parts of a resumed run in order
-    (:func:`.recorder.recording_parts`).
-
-    Each ``pose_command`` starts the next posture: its number is the one noted with it
-    (:meth:`.recorder.RunRecorder.note_collection_start`), else its rank among the commands; the noted
-    start is the collection start of its ``settled`` status (else the status's receive time).
-    ``on_message(topic, log_time_ns, message)``, if given, sees every message read first
-    (``extra_topics`` are read for it alone). Malformed messages are dropped, as the calibrator
-    drops them.
-
-    The log order is not causal across topics: the recorder serves its subscriptions in no
-    order, and a stalled recorder may log a posture's ``settled`` status and last samples after
-    the next commands and their statuses. Within one topic the stamps arrive in order. So a
-    command takes effect (the posture before it closes) only once every sensor topic has
-    delivered a message stamped at or after the command and the posture before it has
-    its ``settled`` or ``rejected`` status; the messages logged after it wait until then (a
-    sensor message stamped before it still goes to the posture before it). At the end of the
-    recording the commands still waiting take effect in turn. A command logged late (its
-    subscription behind the others) is read where its stamp puts it, so its own statuses and
-    samples, logged before it, are not taken for another posture's
-    (:func:`_commands_in_time`).
-    """
+    (:func:`.recorder.recording_parts`)."""
     paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
     notes = _notes_of(paths) if notes is None else notes
     wanted = (
@@ -101,15 +67,7 @@ def feed_recording(path, collection, notes=None, extra_topics=(), on_message=Non
 def _commands_in_time(path, topics):
     """The messages of ``topics`` in ``path`` in log order, except that a pose command logged
     after a message logged later than the command's own stamp comes before that message, with
-    its stamp as its log time.
-
-    The command's stamp is when the calibrator commanded it (the recorder's clock), so nothing
-    logged after the stamp can have come before the command. When the recorder's command
-    subscription fell behind the others, the platform's statuses of that command and the
-    samples after its settle were logged before it: read in log order, the settled status
-    names no command yet and is lost, and the posture gives no row (seen for a first posture
-    in a loaded multi-node test).
-    """
+    its stamp as its log time."""
     if names.TOPIC_POSE_COMMAND not in topics:
         yield from read_recording(path, topics=topics)
         return
@@ -238,18 +196,9 @@ def samples_from_recording(
     """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.files.run_directory.Rows`) of one
     recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
-    Feeds every recorded message to the calibrator's own
-    :class:`~gsp_calibrator.collection.protocol.CollectionProtocol` (see :func:`feed_recording`), so the
-    rows are the ones the calibrator collected online, by the same rest rule (its stored
-    options). The rebuild has no timeouts: the postures' noted outcomes
-    (:func:`posture_outcomes`) decide which rows were kept. Each row's approach directions come
-    from the recorded commands as online (:class:`gsp_calibrator.collection.approach.ApproachTracker`,
-    through ``nominal``: default the stored nominal geometry file, else the shipped one).
-
     ``sync_tolerance`` (s), ``pairs_per_posture`` and ``noise_std`` (10 channel stds, see
     :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
-    :class:`RecordingError` if the first two are not known.
-    """
+    :class:`RecordingError` if the first two are not known."""
     samples = Rows.empty()
     for event, directions in _rows(path, sync_tolerance, pairs_per_posture, noise_std, nominal):
         sample = event.sample

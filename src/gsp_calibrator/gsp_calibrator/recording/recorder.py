@@ -1,20 +1,5 @@
 """``recording.mcap``: every message on the suite's topics during a run, as rosbag2 writes it.
-
-The file is an MCAP file with profile ``ros2``: one schema per message type (encoding ``ros2msg``,
-the complete concatenated ``.msg`` definition exactly as rosbag2's local definition source builds
-it), one channel per topic (message encoding ``cdr``, rosbag2's ``offered_qos_profiles`` channel
-metadata), ``log_time`` = receive time and ``publish_time`` in nanoseconds. ``ros2 bag info
-recording.mcap``, ``ros2 bag play recording.mcap`` (storage ``mcap``) and Foxglove read it.
-
-* :class:`McapRecorder` writes one file atomically (``<path>.tmp``, then ``os.replace`` on close).
-* :func:`.mcap_io.read_recording` iterates over ``(topic, type_name, log_time_ns, message)``.
-* :mod:`.rebuild` rebuilds the ``samples.csv`` rows of a run from its recording.
-* :class:`RunRecorder` records the suite's topics from inside a node (raw CDR subscriptions).
-
-Nothing here needs a ROS context except :class:`RunRecorder`. The MCAP writer and reader are
-:mod:`gsp_calibrator.recording.mcap_io`; message definitions and QoS metadata are in
-:mod:`gsp_calibrator.recording.mcap_format` (both re-exported here).
-"""
+See docs/data.md#recordingmcap."""
 
 import json
 import os
@@ -70,18 +55,7 @@ SUITE_TOPICS = dict(names.TOPIC_TYPES)
 
 
 class RunRecorder:
-    """Records the suite's topics from inside a node into ``recording.mcap``.
-
-    Subscriptions (``raw=True``: CDR bytes, no deserialisation) are created by :meth:`start` with
-    each topic's profile of :data:`gsp_msgs_py.qos.TOPIC_QOS` (sensor QoS for the streams, the
-    publishers' QoS for the others) and destroyed by :meth:`stop`. Each message is written with
-    its receive time on the node's clock, the time base of the calibrator's collector. Callbacks
-    run in the recorder's own callback group, so they never wait for the node's other callbacks.
-
-    ``persistent=True``: the subscriptions are created once, here, and kept for the node's
-    lifetime (messages outside a recording are dropped at once). Destroying a subscription while
-    another thread's executor builds its wait set can raise ``InvalidHandle`` (ros2/rclpy#1206).
-    """
+    """Records the suite's topics from inside a node into ``recording.mcap``."""
 
     def __init__(self, node, topics=None, callback_group=None, persistent=False, forward=None):
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -133,11 +107,7 @@ class RunRecorder:
         return dict(recorder.counts) if recorder is not None else {}
 
     def start(self, path, options=None):
-        """Start recording to ``path`` (e.g. ``run_dir / 'recording.mcap'``).
-
-        ``options`` (e.g. ``{'sync_tolerance': 0.002, 'pairs_per_posture': 5}``) are stored in
-        the file so that offline re-identification uses the same ones by default.
-        """
+        """Start recording to ``path`` (e.g. ``run_dir / 'recording.mcap'``)."""
         from gsp_msgs_py.qos import SENSOR_QOS, TOPIC_QOS
 
         self.stop()
@@ -160,12 +130,7 @@ class RunRecorder:
         return recorder.path
 
     def note_collection_start(self, command_id, start_ns, posture=None):
-        """Note that the samples of command ``command_id`` count from ``start_ns`` (node clock).
-
-        Optional (an MCAP metadata record, ignored by rosbag2): with it,
-        :func:`.rebuild.samples_from_recording` starts each posture exactly where the calibrator's
-        collector did, instead of at the receive time of the ``settled`` status.
-        """
+        """Note that the samples of command ``command_id`` count from ``start_ns`` (node clock)."""
         with self._lock:
             if self._recorder is not None:
                 self._recorder.add_metadata(
@@ -191,8 +156,7 @@ class RunRecorder:
 
         ``drain_s``: first wait this long (s) so that messages published just before (the last
         progress, the result) are received; the recorder's callbacks must be able to run
-        meanwhile (a multi-threaded executor: they have their own callback group).
-        """
+        meanwhile (a multi-threaded executor: they have their own callback group)."""
         if drain_s > 0.0 and self._recorder is not None:
             time.sleep(drain_s)
         if not self.persistent:

@@ -1,30 +1,5 @@
 """A recorded calibration run, ready to be published again (pure, no rclpy node or context).
-
-:class:`RecordedRun` loads a run directory, a ``samples.csv`` or a ``recording.mcap`` and gives,
-per recorded posture (:class:`RecordedPosture`), its commanded pose and the sample stream
-(:class:`SampleStream`) the ``replay`` node publishes when that pose is commanded again:
-
-* from ``samples.csv``: one averaged row per posture (republished as it is, again and again);
-* from ``recording.mcap``: the raw synchronised samples recorded after the posture's settle, in
-  order, collected by the calibrator's own protocol
-  (:class:`gsp_calibrator.collection.protocol.CollectionProtocol` with ``keep_pairs``, the recording's
-  ``sync_tolerance``); with the simulator's ``true_pose`` of each sample when it was recorded.
-  A resumed run has one recording part per session (``recording.mcap``, ``recording-2.mcap``
-  ..., see :func:`gsp_calibrator.recording.recorder.recording_parts`): every part is read, in order, and
-  a posture collected again by a later session keeps its later segment (as
-  :func:`gsp_calibrator.recording.rebuild.samples_from_recording` keeps its later row).
-
-A run directory is replayed from its ``samples.csv`` when it has one (the rows the calibration
-was computed from, so a replay reproduces it exactly whatever the timing), else from its
-recording parts. Give a file to choose: ``recording.mcap`` reads it with the run's later parts
-beside it, ``recording-<n>.mcap`` that part alone.
-
-:meth:`RecordedRun.match` finds the recorded posture of a commanded pose (position within
-``tolerance`` m and orientation within ``tolerance`` rad); :meth:`RecordedRun.visits` all the
-postures recorded at it (a route with reference revisits commands its first posture again, each
-revisit a posture of its own at the same pose), and :class:`PostureServer` which of them each
-successive command of a replay gets.
-"""
+See docs/data.md#replaying-a-run."""
 
 import dataclasses
 import math
@@ -215,8 +190,7 @@ class RecordedRun:
         its own that continues after the last posture so far, as the resumed calibrator did; a
         posture collected again keeps its later segment (and a skip is forgotten once the
         posture is collected). ``sync_tolerance`` (s) defaults to the first part's stored
-        option, else the calibrator's default.
-        """
+        option, else the calibrator's default."""
         if isinstance(path, (str, os.PathLike)):
             parts = [Path(path)]
         else:
@@ -317,8 +291,7 @@ class RecordedRun:
 
         It must lie within ``tolerance`` (m for the position, rad for the rotation angle between
         the orientations); the nearest one wins (the first of equals). ValueError for a pose
-        that is not 6 finite values.
-        """
+        that is not 6 finite values."""
         position, angle = self.distances(commanded_pose)
         distance = np.maximum(position, angle)
         best = int(np.argmin(distance))
@@ -341,21 +314,7 @@ class RecordedRun:
 
 
 class PostureServer:
-    """Which recorded posture each pose command of a replay gets (pure; one per replay).
-
-    A pose recorded at one posture gets it at every command. A pose recorded at several
-    (:meth:`RecordedRun.visits`: a reference posture and its revisits) gets them in posture
-    order, one per command, and again from the first after the last (a second run of the same
-    route gets the same samples). A command of the pose the previous served command had (the
-    same command sent again, a posture commanded again, a resumed calibrator commanding again
-    the posture it was collecting when it stopped) gets the same recorded posture again: a
-    route never commands one pose twice in a row, so it is no next visit. A command that
-    matches nothing moves nothing and changes none of this.
-
-    The replay knows the commands, not the calibrator's posture numbers: a calibrator that
-    commands a revisit out of its route's order (a resumed run that tries a skipped revisit
-    again after later ones) gets the next visit, not that revisit's.
-    """
+    """Which recorded posture each pose command of a replay gets (pure; one per replay)."""
 
     def __init__(self, run, tolerance=POSE_TOLERANCE):
         self.run = run
@@ -383,10 +342,9 @@ def resting_stream(postures):
     :class:`RecordedPosture`, in recorded order): the last posture's, where the recorded run
     left the platform, unless it stands at the first posture's pose (a route with reference
     revisits ends with one): then the last posture's away from it (the first posture: the
-    lowest number). Never one at the first
-    posture's pose, for the replaying calibrator would take the first posture's samples for a
-    device still reporting the previous posture, and skip it (the collection's "unchanged"
-    check); the replaying route starts from another posture than the original's either way."""
+    lowest number). Never one at the first posture's pose: the replaying calibrator would take
+    the first posture's samples for a device still reporting the previous posture, and skip it
+    (the collection's "unchanged" check)."""
     poses = np.array([p.commanded_pose for p in postures])
     first = poses[min(range(len(postures)), key=lambda m: postures[m].posture)]
     position, angle = _pose_distances(poses[:, :3], _quaternions(poses), first)

@@ -1,28 +1,5 @@
 """``replay`` node: publishes a recorded calibration run back onto the suite's topics.
-
-It stands in for both ``platform_sim`` and ``device_driver`` (see docs/nodes.md). The
-recorded run (:class:`gsp_calibrator.replay.recorded_run.RecordedRun`: a run directory, ``samples.csv`` or
-``recording.mcap``, with the later recording parts of a resumed run) gives, per recorded posture, its commanded pose and its samples. For each
-``PoseStamped`` on ``/gsp/platform/pose_command`` (``command_id`` = its header stamp in ns):
-
-* a pose within ``pose_tolerance`` of a recorded commanded pose: ``moving``, then ``settled``
-  ``settle_time`` later on ``/gsp/platform/status``, exactly as platform_sim; then that posture's
-  recorded samples are published in order, cyclically (a pose recorded at several postures, a
-  reference and its revisits, gets them in turn: :class:`~gsp_calibrator.replay.recorded_run.PostureServer`);
-* any other pose: ``rejected`` with the reason ``not in the recording`` (a wrong frame or a bad
-  quaternion: ``rejected`` with that reason); the stream does not change.
-
-Each instant of the stream, at ``publish_rate``, publishes ``/gsp/platform/leg_lengths`` and the
-three ``/gsp/device/*`` readings (and ``/gsp/platform/true_pose`` when the recording has it) with
-one shared, fresh stamp. Before the first command it streams the recorded idle samples (from a
-recording), else the last recorded posture away from the first posture's pose
-(:func:`~gsp_calibrator.replay.recorded_run.resting_stream`). After a
-``settled`` status the stream pauses for :data:`RESTART_PERIODS` periods and restarts at the
-posture's first sample, so that the first sample a calibrator counts is the first one recorded
-after the settle; from a recording, the samples after it are stamped as recorded relative to
-it (until the stream wraps round), so that a calibrator's rest look-back covers the same
-samples as the original's. The command protocol is :class:`gsp_msgs_py.pose_commands.PoseCommandServer`.
-"""
+See docs/nodes.md."""
 
 import rclpy.time
 from rclpy.node import Node

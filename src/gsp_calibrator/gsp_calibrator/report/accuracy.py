@@ -1,12 +1,5 @@
 """Predicted accuracy of a calibration in its report: ``result.json`` ``predicted_accuracy`` and
-``accuracy_map.png`` (pure, no rclpy).
-
-The prediction is the core's :func:`gsp_kinematics.estimation.prediction.predict_accuracy`: the parameter
-covariance of the identification propagated to the pose error of the calibrated platform, over
-random reachable postures and x-y maps at several heights and tilts. When the run has a
-validation against a known truth (simulation), the predicted error at each validation posture is
-set beside the measured one.
-"""
+``accuracy_map.png`` (pure, no rclpy)."""
 
 import math
 

@@ -112,11 +112,7 @@ def validation_arrays(validation):
 
 
 def validation_errors(true, controller, poses):
-    """Per-posture validation of ``controller`` against the real platform ``true`` (simulation).
-
-    ``{'position_mm': [...], 'orientation_deg': [...], <the summary keys>, 'postures',
-    'unreachable'}``: the arrays that :func:`.write.write_report` plots as distributions.
-    """
+    """Per-posture validation of ``controller`` against the real platform ``true`` (simulation)."""
     from gsp_kinematics.model.kinematics import forward_kinematics_masked
     from gsp_kinematics.model.validation import commanded_articular, pose_errors, summarise
 
@@ -179,8 +175,7 @@ def residuals_by_sensor(result):
     """``{sensor: residuals in SI (m or rad)}`` (1-D arrays, finite values only).
 
     The core returns residuals weighted by each sensor's sigma and the per-sensor RMS in SI;
-    the sigma is their ratio, so the weights need not be known here.
-    """
+    the sigma is their ratio, so the weights need not be known here."""
     residuals = np.asarray(result.residuals, dtype=float)
     out = {}
     for sensor, columns in residual_columns(result):

@@ -1,9 +1,5 @@
 """The platform effects of a calibration in its result: the choice of model (``auto``), the
-identified effect parameters and the thermal drift (pure; docs/platform_effects.md).
-
-:func:`effects_record` is the ``effects`` key of ``result.json`` (SI, and the drift in um/min);
-:func:`effects_lines` and :func:`effects_markdown` render it for the summary and ``report.md``.
-"""
+identified effect parameters and the thermal drift (pure; docs/platform_effects.md)."""
 
 import datetime
 import math

@@ -1,11 +1,6 @@
 """The verdict, the accuracy measured by cross-validation, the sensor errors, the goodness of fit,
 outliers and noise estimates of ``result.json``, ``report.md`` and the service's response
-(docs/verdict.md, docs/sensor_errors.md).
-
-The fit summary is built once (:func:`fit_summary`: lines and tables from the ``result.json``
-keys) and rendered as plain text (:func:`as_text`, the response and the log) or as markdown
-(:func:`as_markdown`, ``report.md``).
-"""
+(docs/verdict.md, docs/sensor_errors.md)."""
 
 import math
 

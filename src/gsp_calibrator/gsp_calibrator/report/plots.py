@@ -1,9 +1,4 @@
-"""The PNG plots of a calibration report (pure, no rclpy; see :mod:`.write`).
-
-``parameter_errors.png`` (the paper's Figs. 6-8), ``chain_errors.png`` (Figs. 9-12),
-``residuals.png`` (histograms per sensor) and ``validation.png`` (error distributions before and
-after). Plots use matplotlib's Agg canvas directly (headless, no pyplot state).
-"""
+"""The PNG plots of a calibration report (pure, no rclpy; see :mod:`.write`)."""
 
 import io
 import math

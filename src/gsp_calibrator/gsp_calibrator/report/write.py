@@ -1,21 +1,5 @@
 """``result.json`` and ``report.md`` (with PNG plots) of a calibration run (pure, no rclpy).
-
-* :func:`write_result_json`: estimates (SI and report units), standard deviations, correlations
-  above 0.9, identifiability (rank, condition number, unidentifiable combinations), residual RMS
-  per sensor, iterations, status, validation errors before and after, and the predicted accuracy
-  (:mod:`.accuracy`).
-* :func:`write_report`: ``report.md`` and its plots: ``parameter_errors.png`` (the paper's
-  Figs. 6-8), ``chain_errors.png`` (Figs. 9-12), ``residuals.png`` (histograms per sensor) and
-  ``validation.png`` (error distributions before and after, when a validation is given) and
-  ``accuracy_map.png`` (predicted error maps, measured validation overlaid). With
-  ``plots=False`` the PNGs are not drawn (matplotlib is the slow part of a report) and
-  ``report.md`` says so; its tables are the same.
-
-Parameter errors are taken against the true geometry when one is given (simulation), otherwise
-the plots show the correction (estimate - nominal). Report units: mm, and deg for gamma.
-Every file is written atomically; plots use matplotlib's Agg canvas directly (headless, no
-pyplot state), and matplotlib is imported only when a report is written.
-"""
+See docs/data.md#resultjson."""
 
 import dataclasses
 import math
@@ -353,12 +337,7 @@ def report_markdown(data, images, title='Calibration report', plots=True):
 
 
 def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration report', plots=True):
-    """Write ``report.md`` and its PNGs into ``run_dir`` (atomic); returns ``{kind: path}``.
-
-    ``inputs``: :class:`ReportInputs`. The validation plot is drawn when a validation is given
-    (distributions from per-posture arrays, else the mean and max of the summaries).
-    ``plots=False``: ``report.md`` only, saying that its plots were not drawn.
-    """
+    """Write ``report.md`` and its PNGs into ``run_dir`` (atomic); returns ``{kind: path}``."""
     inputs = inputs.completed(result)
     data = result_data(result, inputs)
     written = _write_plots(run_dir, result, inputs) if plots else {}

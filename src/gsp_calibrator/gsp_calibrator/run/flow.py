@@ -1,12 +1,4 @@
-"""The course of one run, as the calibrator node drives it (no rclpy).
-
-:meth:`CalibrationRun.run` reads as the run, and its steps follow it in their order: open the
-run's record and recording; wait for the system; choose the postures; collect them; judge the
-rows; write the results; record the run in the history; deliver. What it needs from the node is
-one :class:`.host.RunHost`. What a run is for is its :class:`Course`: the plan (which postures)
-and the judge (what the rows say), with what it writes and delivers. A calibration's course is
-:class:`Calibration` (below); a check's is :class:`gsp_calibrator.upkeep.check_flow.Check`.
-"""
+"""The course of one run, as the calibrator node drives it (no rclpy)."""
 
 import dataclasses
 import os
@@ -248,12 +240,7 @@ class CalibrationRun:
 
     async def _collect(self, reused=None):
         """For each posture left (a rejected one's replacement joins the end): command it,
-        await its end, record it. RunFailed when an end is a failure of the run.
-
-        With ``stop_when_accurate`` the rows so far (and ``reused``) are judged as they come, in
-        a worker thread while the next posture is collected (:meth:`_judged_enough`): the loop
-        stops once a judgement meets the requirement, and adds pool postures when the plan is
-        not enough (:meth:`_posture_to_add`). Returns that run's record (else None)."""
+        await its end, record it. RunFailed when an end is a failure of the run."""
         host, record, settings = self.host, self.record, self.settings
         legs = self.collection.latest_leg_lengths()
         stop = run_to_requirement.StoppingState.start(settings, record, legs, reused)

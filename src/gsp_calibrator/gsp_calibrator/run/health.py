@@ -141,12 +141,7 @@ def calibrator_health(running, progress, run_directory, heard_ns, now_ns, topic_
     (``conversions.CalibrationProgress``) or None; ``run_directory``: of the current or last run
     ('' before the first); ``heard_ns``: ``{topic: receive time (ns) of its latest message, or
     None}`` of the sensor topics, on the clock of ``now_ns``; ``topic_timeout`` (s); ``lags``:
-    ``{topic: processing lag (s) or None}`` (:meth:`ProcessingLags.take`).
-
-    ERROR while the last run has failed (until the next one starts); WARN while a sensor topic
-    has been silent for more than ``topic_timeout`` (a run would fail, or is failing), or while
-    the calibrator handles a topic more than :data:`LAG_WARN_S` after its receipt; else OK.
-    """
+    ``{topic: processing lag (s) or None}`` (:meth:`ProcessingLags.take`)."""
     phase = progress.phase if progress is not None else names.PHASE_IDLE
     index, count = (progress.posture_index, progress.posture_count) if progress else (0, 0)
     values = {

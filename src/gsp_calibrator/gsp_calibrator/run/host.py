@@ -1,13 +1,4 @@
-"""What a calibration run uses of the node that hosts it (pure, no rclpy).
-
-The run (:class:`gsp_calibrator.run.flow.CalibrationRun`) is a coroutine. Everything it needs
-from the graph, the executor and the threads is one :class:`RunHost`, a plain record of typed
-members that the ``calibrator`` node fills (``CalibratorNode._run_host``) and a test fills with
-plain Python (``test_run_flow.py``). Awaitables may be rclpy futures (the node) or coroutines.
-
-The run commands its postures through ``RunHost.postures``
-(:class:`gsp_calibrator.node.posture_link.PostureLink` in the node).
-"""
+"""What a calibration run uses of the node that hosts it (pure, no rclpy)."""
 
 import dataclasses
 import typing

@@ -1,10 +1,5 @@
 """Identification of a collected run and its result files (pure, no rclpy).
-
-:func:`identify_from_samples` identifies the averaged rows, checks the result (converged,
-every free parameter identifiable), measures its accuracy on held-out postures and judges it
-against the required accuracy (docs/verdict.md); ``auto`` chooses the effect groups first.
-:func:`write_run_files` writes ``result.json``, ``report.md`` and the geometry files.
-"""
+See docs/verdict.md."""
 
 import dataclasses
 import time
@@ -418,16 +413,7 @@ def identify_with_settings(settings, samples):
 
 
 def write_run_files(run, settings, outcome, collection, options):
-    """Write the files of an identified run (pure; the node runs it in a worker thread).
-
-    ``run``: the ``RunDirectory``; ``settings``: the run's ``CalibratorSettings``; ``outcome``:
-    its :class:`CalibrationOutcome`; ``collection``: result.json's collection record (the
-    protocol's summary, skipped postures, rest waits); ``options``: the run options stored
-    with the results. Writes ``result.json``, ``report.md`` and its PNGs (unless
-    ``settings.write_report_plots`` is false) when the identification gives a result (a failure
-    there is returned, never raised: the report must not fail the run) and ``result.yaml`` when
-    the calibration succeeded.
-    """
+    """Write the files of an identified run (pure; the node runs it in a worker thread)."""
     skipped = [(entry['posture'], entry['reason']) for entry in collection['skipped']]
     additions = collection.get('route_additions') or {}
     summary = outcome_summary(

@@ -254,10 +254,6 @@ def commanded_count(settings, state):
 class PostureReplacer:
     """The replacement of a posture the platform rejected: the best remaining posture of the
     run's pool (:func:`gsp_kinematics.planning.selection.best_addition`, the selection's criterion).
-
-    Built once per run (the pool and its information); called with the run's poses (M, 6) and
-    the 1-based postures rejected, it returns the pose (6,) to add, or None when the pool has
-    none left. A pose that is not in the pool (another selection) counts as chosen only if it is.
     """
 
     def __init__(self, settings):

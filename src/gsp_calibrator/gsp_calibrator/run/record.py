@@ -1,18 +1,4 @@
-"""The record of one run: its directory, its rows and its ``state.json`` (pure, no rclpy).
-
-A :class:`RunRecord` is a new run (:meth:`RunRecord.create`) or the rest of an unfinished one
-(:meth:`RunRecord.resume`). It holds the run's directory and rows
-(:mod:`gsp_calibrator.files.run_directory`: each row appended to ``samples.csv`` as it is
-collected), its :class:`RunState` (``state.json``, rewritten atomically at every step, so after
-any fault the run directory says where to carry on) and the postures still to command. It is
-thread-safe: a row is added by the node's thread whose message ended the posture while the run
-coroutine writes ``state.json``. A resume is refused (:func:`validate_resume`) when its options
-would change the selection or its rows came from another nominal geometry or device.
-
-A file that cannot be written (a full disk: ENOSPC, or any ``OSError``) raises
-:class:`RunWriteError`, naming the file and the cause. Nothing written before is lost: rows are
-appended whole (a failed append is cut back), ``state.json`` is replaced atomically.
-"""
+"""The record of one run: its directory, its rows and its ``state.json`` (pure, no rclpy)."""
 
 import dataclasses
 import hashlib
@@ -461,12 +447,7 @@ class RunRecord:
 
 
 def open_record(settings, resume, pid, pose_command_publishers=(), node=('calibrator', '/')):
-    """The :class:`RunRecord` of a run (``resume``: the rest of an unfinished one).
-
-    :class:`RunRefused` when it must not start: another calibrator among
-    ``pose_command_publishers`` (``TopicEndpointInfo``; ``node``: this one's name and namespace),
-    a refused resume, or an unwritable or full ``output_root`` (nothing has moved yet).
-    """
+    """The :class:`RunRecord` of a run (``resume``: the rest of an unfinished one)."""
     others = other_calibrators(pose_command_publishers, *node)
     if others:
         raise RunRefused(

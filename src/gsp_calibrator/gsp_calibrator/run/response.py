@@ -66,11 +66,7 @@ def fit_lines(outcome):
 
 
 def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
-    """Measured minus the nominal model at the commanded pose: ``{sensor: value}`` (m, rad).
-
-    ``leg_lengths`` is the largest |q - IK(nominal, pose)| over the six legs; the device
-    readings are ``alpha, beta, phi, d_m`` minus ``device_readings(nominal, pose)``.
-    """
+    """Measured minus the nominal model at the commanded pose: ``{sensor: value}`` (m, rad)."""
     pose = np.reshape(np.asarray(commanded_pose, dtype=float), (1, 6))
     legs = np.asarray(leg_lengths, dtype=float) - inverse_kinematics(nominal, pose)[0]
     device = np.asarray(readings, dtype=float) - device_readings(nominal, pose)[0]
@@ -169,11 +165,7 @@ def accuracy_headline(outcome):
 
 
 def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, reference=None):
-    """Human summary lines of a calibration (str, no trailing newline).
-
-    ``selected``: postures commanded; ``skipped``: ``[(k, reason), ...]``; ``reference``: a
-    geometry to print parameter errors against (e.g. the truth, in tests and the demo).
-    """
+    """Human summary lines of a calibration (str, no trailing newline)."""
     lines = []
     head = 'calibration FAILED'
     if outcome.success:

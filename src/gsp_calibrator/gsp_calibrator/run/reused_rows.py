@@ -1,11 +1,5 @@
 """The rows of an earlier run (a check's, most often) that a calibration identifies with its own
-(``reuse_rows_from``; pure, no rclpy; docs/upkeep.md).
-
-A check records its rows as a run does (``samples.csv``, ``state.json``), so a calibration that
-follows it can use them: they are measurements of the same platform (leg lengths and device
-readings; the commanded pose only starts the pose estimate). They must come from the same nominal
-geometry and device (the digests in the run's ``state.json``), like a resumed run's.
-"""
+(``reuse_rows_from``; pure, no rclpy; docs/upkeep.md)."""
 
 import dataclasses
 from pathlib import Path

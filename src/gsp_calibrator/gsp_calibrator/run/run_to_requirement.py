@@ -1,8 +1,7 @@
 """A calibration that stops when it is good enough (``stop_when_accurate``, docs/upkeep.md;
 pure): its rule, the judgement of the rows so far (in a worker thread), the pool postures it
 may add and its record in ``result.json``. The decisions are
-:mod:`gsp_kinematics.upkeep.stopping`; the loop is the run's collection (``run.flow``).
-"""
+:mod:`gsp_kinematics.upkeep.stopping`; the loop is the run's collection (``run.flow``)."""
 
 import concurrent.futures
 import dataclasses

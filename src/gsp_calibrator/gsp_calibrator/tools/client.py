@@ -1,16 +1,5 @@
 """``gsp_calibrate_client``: run a calibration (or, with ``--check``, the one-minute check of
-docs/upkeep.md: exit code 0 within tolerance, 3 recalibrate) without the ``ros2`` CLI.
-
-Waits for ``/gsp/calibrator/calibrate`` (std_srvs/Trigger), calls it asynchronously, shows a live
-progress bar on stderr from ``/gsp/calibrator/progress`` (posture k of M, phase, latest residuals),
-then prints the response's summary (and, with ``--geometry``, the calibrated geometry YAML) on
-stdout. Exit code 0 when the calibration succeeded, 1 otherwise (service missing, call timed
-out, calibration failed), 130 on Ctrl-C.
-
-Equivalent to ``ros2 service call /gsp/calibrator/calibrate std_srvs/srv/Trigger`` plus
-``ros2 topic echo /gsp/calibrator/progress``. ``--noise-source`` first sets the calibrator's
-``noise_source`` parameter (``ros2 param set /calibrator noise_source ...``).
-"""
+docs/upkeep.md: exit code 0 within tolerance, 3 recalibrate) without the ``ros2`` CLI."""
 
 import argparse
 import sys

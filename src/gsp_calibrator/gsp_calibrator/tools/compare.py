@@ -1,13 +1,4 @@
-"""``gsp_compare``: the drift between two calibrations of a platform (or a calibration and a check).
-
-``gsp_compare runs/<older> runs/<newer>`` reads each run directory's ``result.json`` (or a
-check's ``check.json``), compares the parameters both estimated (:func:`gsp_kinematics.upkeep.drift.compare`:
-the change, its 1 sigma from both covariances, a global chi-square test and iterated w-tests at a
-family-wise level, 1 % by default) and prints the significant changes and their effect on the pose
-(mm, deg over the workspace). ``--json FILE`` writes the whole comparison.
-
-Exit code (as ``diff``): 0 no significant change, 1 a significant change, 2 bad input.
-"""
+"""``gsp_compare``: the drift between two calibrations of a platform (or a calibration and a check)."""
 
 import argparse
 import sys

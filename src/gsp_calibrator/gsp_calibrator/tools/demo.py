@@ -1,21 +1,5 @@
 """``gsp_demo``: the main job. A whole calibration of the simulated platform, end to end.
-
-1. Starts ``platform_sim`` (true geometry, nominal controller), ``device_driver`` (true device)
-   and ``calibrator`` (nominal geometry, ``apply_result``) as separate processes, with loopback
-   discovery and a private random ``ROS_DOMAIN_ID`` (unless one is set).
-2. Runs random validation postures through the system with the nominal controller (before).
-3. Calls ``/gsp/calibrator/calibrate`` and prints its progress; the calibrator applies the result
-   to the platform controller.
-4. Runs the same validation postures again (after), comparing each commanded pose with
-   ``/gsp/platform/true_pose``.
-5. Prints a summary, writes ``true_geometry.yaml``, ``summary.json`` (with the run directory's
-   path and the calibrator's ``collection`` record) and the nodes' logs into the run directory,
-   prints its path, stops every node (SIGINT, then SIGTERM, then SIGKILL) and
-   exits 0 on success, 1 on failure.
-
-The orchestration (commands, process handling, summary) is plain Python; :class:`.demo_node.DemoNode` is the
-thin ROS part (a client of the suite's topics and service), driven from the main thread.
-"""
+See docs/nodes.md#gsp_demo."""
 
 import argparse
 import dataclasses

@@ -1,9 +1,4 @@
-"""The command lines of ``gsp_demo``'s nodes, and their environment (pure, no rclpy).
-
-:func:`node_commands` gives each node's argv for the demo's parsed arguments: platform_sim (or
-the emulated ros2_control controller and platform_bridge), device_driver (or its serial backend
-fed by gsp_fake_device) and the calibrator.
-"""
+"""The command lines of ``gsp_demo``'s nodes, and their environment (pure, no rclpy)."""
 
 import os
 import shutil

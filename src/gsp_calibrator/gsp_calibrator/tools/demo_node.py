@@ -1,9 +1,4 @@
-"""The ROS part of ``gsp_demo``: a client node of the suite, driven from the main thread.
-
-:class:`DemoNode` is the node (progress printing, the calibrate call, validation postures);
-:class:`Demo` spins it until each awaited event, stopping at once when one of the node processes
-exits. Imported by :mod:`.demo` only after the ROS environment is set (it imports rclpy).
-"""
+"""The ROS part of ``gsp_demo``: a client node of the suite, driven from the main thread."""
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -172,8 +167,7 @@ class Demo:
         )
         # The platform takes commands only once it knows where the legs are: platform_bridge
         # rejects every command until the controller's first /joint_states reached it, and it
-        # publishes leg lengths from them. Without this wait the validation postures were all
-        # rejected on a loaded host ('no /joint_states received from the controller').
+        # publishes leg lengths from them.
         node.watch_leg_lengths(True)
         try:
             self.spin_until(

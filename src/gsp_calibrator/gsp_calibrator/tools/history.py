@@ -1,17 +1,4 @@
-"""``gsp_history``: the history of a platform's calibrations and checks (docs/upkeep.md).
-
-The history is an SQLite index (default ``runs/history.sqlite``) of the run directories; the
-calibrator adds each run and check to it. Commands:
-
-* ``gsp_history list [--platform ID]``: one line per run (time, kind, verdict, accuracy, the
-  significant changes);
-* ``gsp_history platforms``: the platform ids and their number of runs;
-* ``gsp_history add RUN_DIR [--platform ID]``: index one run directory (a calibration or a check);
-* ``gsp_history rebuild [--root runs]``: index every run directory under the root again;
-* ``gsp_history plot --platform ID --output history.png``: accuracy and the parameters that moved.
-
-Exit code 0, 2 on bad input (no such database, run or platform).
-"""
+"""``gsp_history``: the history of a platform's calibrations and checks (docs/upkeep.md)."""
 
 import argparse
 import sys

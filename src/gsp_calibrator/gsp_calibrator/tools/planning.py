@@ -1,24 +1,5 @@
 """``gsp_plan``: plan a calibration before moving the platform (pure, no ROS).
-
-From a nominal geometry, the sensors' noise, a posture count, pairs per posture, the workspace
-limits, a settle time and a sensor rate, predict what the calibrator would reach:
-
-* the accuracy of the calibrated platform (:func:`gsp_kinematics.estimation.prediction.predict_accuracy` on
-  the Cramér-Rao covariance of the selected design);
-* the rank of the design and its unidentifiable parameter combinations;
-* the calibration time, ``postures x (settle + samples / rate)`` (the physical minimum without
-  the moves), and the platform time: the travel of the route through the postures
-  (:func:`gsp_kinematics.planning.route.plan_route`, legs within :class:`gsp_kinematics.model.motion.MotionLimits`)
-  plus that settling and sampling.
-
-The postures are those the calibrator would command: :func:`gsp_calibrator.run.postures.choose_postures` with the
-same pool, seed, sigmas (averaged over the samples, ``SensorNoise.averaged``), free
-parameters and formulation. ``--sweep`` repeats the plan over posture counts and samples per
-posture (one selection per count: averaging scales every sigma alike, which leaves the selection
-unchanged) and writes a table, a plot and the sweep in JSON. ``--target-position-mm`` (or
-``--target-orientation-deg`` alone) finds the plan of least platform time reaching a target
-(:func:`target_plan`).
-"""
+See docs/planning.md#gsp_plan."""
 
 import argparse
 import math

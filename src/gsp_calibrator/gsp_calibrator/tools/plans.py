@@ -1,11 +1,6 @@
 """Calibration plans (pure, no ROS): the predicted accuracy and platform time of a plan, a sweep
 over posture counts and pairs per posture, and the plan of least platform time that reaches a
-target accuracy. ``gsp_plan`` (:mod:`.planning`) is their command line; docs/planning.md.
-
-The postures are those the calibrator would command: :func:`gsp_calibrator.run.postures.choose_postures`
-with the same pool, seed, sigmas (averaged over the samples, ``SensorNoise.averaged``), free
-parameters and formulation.
-"""
+target accuracy. ``gsp_plan`` (:mod:`.planning`) is their command line; docs/planning.md."""
 
 import dataclasses
 import math
@@ -260,13 +255,7 @@ def target_plan(
     limits=MotionLimits(),
 ):
     """The plan of least predicted platform time whose predicted mean errors reach the targets
-    (mm, deg): ``{'plan': plan or None, 'candidates': [...], 'best_reachable': {...}}``.
-
-    For each posture count (one selection and one route), the pairs per posture are the fewest
-    that reach the target: averaging n samples divides every sigma by sqrt(n), so the predicted
-    errors scale exactly as 1/sqrt(n) (up to ``max_samples``). ``best_reachable``: the smallest
-    predicted errors any count reaches with ``max_samples``.
-    """
+    (mm, deg): ``{'plan': plan or None, 'candidates': [...], 'best_reachable': {...}}``."""
     if position_mm is None and orientation_deg is None:
         raise CalibrationError('a target needs a position (mm) or an orientation (deg)')
     timing = {'settle_s': settle_s, 'sensor_rate_hz': sensor_rate_hz, 'limits': limits}

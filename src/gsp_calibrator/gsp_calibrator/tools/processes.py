@@ -1,8 +1,4 @@
-"""The suite's nodes as child processes of a job (``gsp_demo``): start, watch, stop.
-
-Each child gets its own session (a Ctrl-C in the terminal reaches the job, which stops the
-children in order) and, on Linux, SIGTERM when the job dies, even by SIGKILL.
-"""
+"""The suite's nodes as child processes of a job (``gsp_demo``): start, watch, stop."""
 
 import contextlib
 import ctypes

@@ -1,18 +1,5 @@
 """``gsp_reidentify``: re-identify a calibration offline, into a new run directory (no ROS graph).
-
-Input: a run directory (its ``samples.csv``, else its ``recording.mcap``), a ``samples.csv``, or a
-``recording.mcap`` (the posture rows are rebuilt with the calibrator's own synchroniser, see
-:func:`gsp_calibrator.recording.rebuild.samples_from_recording`). The identification is the calibrator
-node's own: :func:`gsp_calibrator.run.identify.identify_from_samples` with the commanded postures
-as pose guesses, so the same samples and options give the same result as the online run.
-
-Writes ``<output-root>/<UTC timestamp>/``: ``samples.csv``, ``result.yaml`` (on success; and
-``result_rigid.yaml`` with identified effects),
-``result.json``, ``report.md`` with its PNGs, a copy of the recording (when the input has one) and
-``true_geometry.yaml`` (when a truth is given). Prints the summary and the run directory.
-
-Exit code: 0 success, 1 identification failed (or non-identifiable), 2 bad input.
-"""
+See docs/data.md#offline-re-identification-gsp_reidentify."""
 
 import argparse
 import dataclasses
@@ -56,11 +43,28 @@ EXIT_BAD_INPUT = 2
 VALIDATION_POSTURES = 50
 
 
-def _workspace_poses(nominal, options):
-    """The run's workspace postures (``run.postures.workspace_poses_of``) from its options."""
+def _identify(nominal, samples, sigmas, free, options, noise_source):
+    """``identify_from_samples`` with the run's resolved ``options`` (its workspace postures,
+    ``run.postures.workspace_poses_of``, and the core's ``Options``: the loss)."""
     from gsp_calibrator.run.postures import workspace_poses_of
 
-    return workspace_poses_of(nominal, options.get('workspace_postures', 0), options.get('seed', 0))
+    return identify_from_samples(
+        nominal,
+        samples,
+        sigmas,
+        free,
+        options['formulation'],
+        noise_source=noise_source,
+        requirement=requirement_from_parameters(options),
+        folds=int(options['cross_validation_folds']),
+        payload_mass=options['payload_mass'],
+        centre_of_mass=options['payload_centre_of_mass'],
+        workspace_poses=workspace_poses_of(
+            nominal, options.get('workspace_postures', 0), options.get('seed', 0)
+        ),
+        leg_mass=options['leg_mass'],
+        options=Options(loss=options.get('loss', DEFAULTS['loss'])),
+    )
 
 
 def build_parser():
@@ -136,11 +140,6 @@ def build_parser():
 # --- inputs ------------------------------------------------------------------------------------
 
 
-def _options(options):
-    """The core's identification ``Options`` of the resolved ``options`` (the loss)."""
-    return Options(loss=options.get('loss', DEFAULTS['loss']))
-
-
 def validation_postures(truth, count, seed):
     from gsp_kinematics.model.kinematics import sample_valid_postures
 
@@ -207,21 +206,7 @@ def reidentify(args, out=None):
     samples = load_input(kind, path, options)
 
     try:
-        outcome = identify_from_samples(
-            nominal,
-            samples,
-            sigmas,
-            free,
-            options['formulation'],
-            noise_source=options['noise_source'],
-            requirement=requirement_from_parameters(options),
-            folds=int(options['cross_validation_folds']),
-            payload_mass=options['payload_mass'],
-            centre_of_mass=options['payload_centre_of_mass'],
-            workspace_poses=_workspace_poses(nominal, options),
-            leg_mass=options['leg_mass'],
-            options=_options(options),
-        )
+        outcome = _identify(nominal, samples, sigmas, free, options, options['noise_source'])
     except (IdentificationError, postures.CalibrationError) as error:
         raise InputError(str(error)) from error
 
@@ -268,12 +253,7 @@ def reidentify(args, out=None):
 
 def stored_weights(stored, options, samples):
     """``(sigmas, noise_source, keys of result.json to keep)`` that identify a run again from
-    its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options.
-
-    A ``samples.csv`` with the rows' lag sums holds what an ``estimated`` run's noise came from.
-    Rows without any (single samples) keep only the averages: the row noise the run used
-    (``result.json`` ``sigmas``) is given as configured per-sample sigmas, and its noise
-    estimates and goodness of fit are kept as written."""
+    its ``samples.csv`` exactly: ``stored`` is its ``result.json``, ``options`` its options."""
     source = options.get('noise_source', DEFAULTS['noise_source'])
     sigmas, kept = noise_from_parameters(options), ('collection', 'noise_estimates')
     if np.isfinite(samples.lag_sums).any():
@@ -318,21 +298,7 @@ def refresh_report(
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
     sigmas, source, kept_keys = stored_weights(stored, options, samples)
-    outcome = identify_from_samples(
-        nominal,
-        samples,
-        sigmas,
-        options['free_parameters'],
-        options['formulation'],
-        noise_source=source,
-        requirement=requirement_from_parameters(options),
-        folds=int(options['cross_validation_folds']),
-        payload_mass=options['payload_mass'],
-        centre_of_mass=options['payload_centre_of_mass'],
-        workspace_poses=_workspace_poses(nominal, options),
-        leg_mass=options['leg_mass'],
-        options=_options(options),
-    )
+    outcome = _identify(nominal, samples, sigmas, options['free_parameters'], options, source)
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.

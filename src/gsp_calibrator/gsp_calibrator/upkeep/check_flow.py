@@ -1,11 +1,4 @@
-"""The course of a check, as the calibrator node drives it on ``/gsp/calibrator/check`` (no rclpy).
-
-A check is a run (:class:`gsp_calibrator.run.flow.CalibrationRun`: its run directory,
-recording, system checks and collection) given the :class:`Check` course: its postures are the
-check's (:func:`.check_run.check_plan`, from where the platform stands, against the geometry the
-controller runs), its judge measures the collected rows against that geometry
-(:func:`.check_run.evaluate_check`) and writes ``check.json``; it delivers a verdict, no geometry.
-"""
+"""The course of a check, as the calibrator node drives it on ``/gsp/calibrator/check`` (no rclpy)."""
 
 import dataclasses
 

@@ -1,16 +1,4 @@
-"""A check of the platform as the calibrator runs it (pure, no rclpy; docs/upkeep.md).
-
-* :func:`check_reference`: what is checked: the geometry the controller runs (the platform's
-  latest applied calibration in the history, or a given ``result.yaml``), the calibration's
-  covariance and the noise and unmodelled error it found (from its ``result.json``).
-* :func:`check_plan`: the check's postures (:func:`gsp_kinematics.upkeep.check.choose_check_postures`
-  from the calibrator's pool, from where the platform is).
-* :func:`evaluate_check`: the verdict from the collected rows (``samples.csv``), written to
-  ``check.json`` beside them (:func:`write_check`), with :func:`check_summary` as the text.
-
-A check's run directory holds ``samples.csv``, ``state.json`` and ``recording.mcap`` as a
-calibration's do (a later calibration or ``gsp_reidentify`` reads them), and ``check.json``.
-"""
+"""A check of the platform as the calibrator runs it (pure, no rclpy; docs/upkeep.md)."""
 
 import dataclasses
 import math
