@@ -13,8 +13,6 @@ from gsp_kinematics.model.kinematics import (
 )
 from gsp_kinematics.model.validation import pose_errors, reached_poses, validate
 from gsp_kinematics.planning.selection import (
-    exchange_for_pose_error,
-    position_weight,
     select_postures,
 )
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_euler
@@ -48,27 +46,6 @@ def test_selection_beats_random_picks(selection):
         for _ in range(20)
     ]
     assert condition < min(random_conditions)
-
-
-def test_exchange_for_pose_error_leaves_no_improving_swap(selection):
-    nominal, pool, indices, _ = selection
-    targets = sample_valid_postures(nominal, 40, np.random.default_rng(6))
-    information = posture_information(nominal, pool)
-    weight = position_weight(nominal, targets)
-
-    def objective(chosen):
-        return np.trace(weight @ np.linalg.inv(information[chosen].sum(axis=0)))
-
-    refined = exchange_for_pose_error(nominal, pool, indices, targets, passes=20)
-    assert len(set(refined.tolist())) == len(indices) and objective(refined) < objective(indices)
-    # Converged: no single swap lowers the objective, scored directly (no Woodbury identity).
-    outside = np.setdiff1d(np.arange(len(pool)), refined)
-    best = objective(refined)
-    for position in range(0, len(refined), 5):
-        for candidate in outside[::4]:
-            swapped = refined.copy()
-            swapped[position] = candidate
-            assert objective(swapped) >= best * (1.0 - 1e-9)
 
 
 def test_selection_needs_a_large_enough_pool(nominal_sets):

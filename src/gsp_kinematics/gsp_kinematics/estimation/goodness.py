@@ -303,23 +303,6 @@ def noise_warning(estimated, configured):
     return ratio, not (1.0 / NOISE_WARNING_RATIO <= ratio <= NOISE_WARNING_RATIO)
 
 
-def estimate_noise(sample_std, n_samples, configured):
-    """Per-sample noise of each sensor from the scatter within each posture
-    (:func:`within_posture_noise`) beside the ``configured`` ``{channel: sigma}``:
-    ``{channel: {'configured', 'estimated', 'ratio', 'warning'}}``."""
-    estimates = {}
-    for channel, (estimated, _) in within_posture_noise(sample_std, n_samples).items():
-        sigma = float(configured[channel])
-        ratio, warning = noise_warning(estimated, sigma)
-        estimates[channel] = {
-            'configured': sigma,
-            'estimated': estimated,
-            'ratio': ratio,
-            'warning': warning,
-        }
-    return estimates
-
-
 def _head(fit):
     """The verdict's first clause: the test, its statistic and p-value."""
     if fit.test == 'lack_of_fit':
