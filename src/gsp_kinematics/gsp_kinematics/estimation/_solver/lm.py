@@ -172,17 +172,3 @@ def eliminate_poses(pose_rows, parameter_block, pose_damping=None, parameter_dam
     if parameter_damping is not None:
         reduced[:, :size] += np.diag(parameter_damping)
     return reduced, solved
-
-
-def schur_information(jac_pose, jac_u, per_posture=False):
-    """Information ``J^T J`` of the parameters with each posture's pose eliminated,
-    ``H_uu - sum_m H_Xu_m^T H_XX_m^-1 H_Xu_m``, from the Jacobians ``(M, k, 6)`` and
-    ``(M, k, n)``; ``per_posture``: ``(M, n, n)``, one complement a posture."""
-    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
-    h_xu = jac_pose_t @ jac_u
-    solved = np.linalg.inv(jac_pose_t @ jac_pose) @ h_xu
-    if per_posture:
-        return np.swapaxes(jac_u, 1, 2) @ jac_u - np.swapaxes(h_xu, 1, 2) @ solved
-    size = jac_u.shape[2]
-    flat_u = jac_u.reshape(-1, size)
-    return flat_u.T @ flat_u - h_xu.reshape(-1, size).T @ solved.reshape(-1, size)
