@@ -39,12 +39,8 @@ def body_angular_jacobian(euler):
 
 def pose_sensitivities(geometry, poses, free=None, euler=False):
     """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error
-    (``euler``: ``d(psi, theta, phi)`` (rad) in place of the rotation vector ``dw``).
-
-    ``free``: a bool mask over the parameter vector (None: the 44). Columns of parameters that do
-    not move the platform (the device's and the device sensors' errors) are zero; the 42 leg
-    parameters and the leg gain errors ``kq1..kq6`` move it.
-    """
+    (``euler``: ``d(psi, theta, phi)`` (rad) in place of ``dw``); ``free``: a bool mask over the
+    parameter vector (None: the 44). The device's parameters' columns are zero."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     articular, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
     d_q_d_u = expand_leg_parameters(d_q_d_leg)
@@ -177,17 +173,12 @@ def predicted_errors(
     thermal_strain=None,
     effect_free=None,
 ):
-    """Predicted error magnitudes at ``poses`` (M, 6): ``(position_mm, orientation_deg)``, each (M,).
+    """Predicted error magnitudes ``(position_mm, orientation_deg)`` (M,) each at ``poses`` (M, 6).
 
-    ``covariance``: (n_free, n_free) of the free parameters (m, rad), then of the free effect
-    parameters, e.g. an ``IdentificationResult.covariance``; ``free`` the parameters' mask (None:
-    all parameters free), ``effect_free`` the effects' (24,; None: none free), e.g. the result's
-    ``effect_free`` (:func:`effect_pose_sensitivities`).
-    ``unmodelled``: what the model leaves unexplained (a ``SensorNoise`` of standard deviations;
-    None: the platform is exactly the model), added to the covariance term.
-    ``thermal_strain``: (6,) the uncompensated thermal strain rms of each leg over the run
-    (:func:`thermal_strain_rms`; None: none), added likewise (:func:`thermal_pose_covariance`).
-    """
+    ``covariance``: (n_free, n_free) of the free parameters (m, rad) then of the free effect
+    parameters; ``free`` their mask (None: all), ``effect_free`` the effects' (24,; None: none).
+    ``unmodelled``: a ``SensorNoise`` of what the model leaves unexplained (None: nothing);
+    ``thermal_strain`` (6,): each leg's uncompensated thermal strain rms (None: none)."""
     position, rotation = parameter_pose_covariance(geometry, covariance, poses, free, effect_free)
     if unmodelled is not None:
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
@@ -259,18 +250,11 @@ def predict_accuracy(
 ):
     """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
 
-    ``covariance``, ``free`` and ``effect_free`` as in :func:`predicted_errors`.
-
-    ``unmodelled``: what the model leaves unexplained (:func:`predicted_errors`; None: nothing,
-    the platform is exactly the model), added at every pose and said in ``assumes``;
-    ``thermal_strain`` (6,) likewise: the cost of the uncompensated thermal growth
-    (:func:`predicted_errors`).
-
-    ``random``: ``{position_mm: {mean, p95, max}, orientation_deg: {...}, postures}`` over
-    ``postures`` seeded random reachable postures; ``worst_cell``: the grid cell with the largest
-    predicted position error (its pose, m and rad, and both errors); ``maps``: per panel the x, y
-    axes (m) and the predicted errors (NaN where the platform cannot reach), for plotting.
-    """
+    ``covariance``, ``free``, ``effect_free``, ``unmodelled`` and ``thermal_strain`` as in
+    :func:`predicted_errors`. ``random``: ``{position_mm: {mean, p95, max}, orientation_deg:
+    {...}, postures}`` over ``postures`` seeded random reachable postures; ``worst_cell``: the
+    grid cell of the largest predicted position error; ``maps``: per panel the x, y axes (m) and
+    the predicted errors (NaN: unreachable), for plotting."""
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )

@@ -21,17 +21,10 @@ def select_postures(
     exchange_passes=1,
     shortlist=SHORTLIST,
 ):
-    """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number.
-
-    Greedy: while the accumulated information ``T`` is rank-deficient, add the posture that most
-    increases log det (regularised; exact for every candidate through the determinant lemma on
-    its low-rank factor, :func:`posture_factors`); afterwards, the one that gives the smallest
-    condition number. Then ``exchange_passes`` sweeps of a swap (exchange) algorithm keep any swap
-    that lowers it. The condition number is scored exactly (eigenvalues) only on a ``shortlist``
-    of candidates (``None``: all), ranked by their gain in the weak directions of ``T``:
-    ``sum_k |G_c v_k|^2 / lambda_k^FOCUS`` over its eigenpairs. Returns
-    ``(indices, condition_number)``.
-    """
+    """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number:
+    ``(indices, condition_number)``. Greedy on log det, then on the condition number scored
+    exactly on a ``shortlist`` of candidates (``None``: all), then ``exchange_passes`` sweeps of
+    swaps (docs/core_api.md)."""
     pool = np.asarray(pool, dtype=float)
     if pool.shape[0] < count:
         raise ValueError(f'the pool has {pool.shape[0]} postures, fewer than the {count} requested')
@@ -127,11 +120,8 @@ def _exchange(factors, chosen, available, total, passes, shortlist):
 
 def best_addition(information, chosen, excluded=()):
     """Index of the posture (not in ``chosen`` nor ``excluded``) that adds most to the design of
-    ``chosen``, from the per-posture information matrices ``information`` (N, n, n) of a pool
-    (:func:`~gsp_kinematics.estimation.identifiability.posture_information`): the smallest scaled condition number of the information with
-    it (the criterion of :func:`select_postures`; the largest log det gain while that stays
-    singular). Replaces a posture the platform rejected. ValueError if none is left.
-    """
+    ``chosen`` (the criterion of :func:`select_postures`) from the pool's per-posture
+    ``information`` (N, n, n). ValueError if none is left."""
     available = np.ones(len(information), dtype=bool)
     available[list(chosen)] = False
     available[list(excluded)] = False

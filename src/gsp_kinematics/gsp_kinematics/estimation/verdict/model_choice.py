@@ -233,11 +233,7 @@ def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
 def held_out_position_mm(validation):
     """The mean held-out position error (mm) of ``validation`` (a ``CrossValidation``) as
     measured, each posture's leverage taken out (:func:`.cross_validation.without_leverage`):
-    the held-out guard's figure. Raw, a held-out error is that of a fit without the posture, far
-    above the full fit's at an extreme posture that alone resolves a group (the joint offsets),
-    so the raw figure penalises such a group by chance of the folds. Nothing is added: the
-    device's own uncertainty, which the accuracy the calibrator reports adds, grows with the
-    model's parameters and would weigh against every group."""
+    the held-out guard's figure (docs/platform_effects.md)."""
     errors = np.linalg.norm(validation.position_error, axis=1)
     if validation.position_leverage is not None:
         errors = without_leverage(
@@ -252,12 +248,9 @@ def held_out_position_mm(validation):
 
 def thermal_time_constant(nominal, data, base, groups, candidates, options, fits=None):
     """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
-    one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
-    candidates share the parameters and the data, so their costs compare directly. The first
-    is fitted; the others' least costs are one Gauss-Newton step from its fit
-    (:func:`.fold_fits.linearised_cost`: the model is linear in the growth's values), and the
-    least of them is fitted (its cost replaces the step's; a robust ``options.loss``: every
-    one is fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted ones."""
+    one whose fit of ``base`` + ``groups`` has the least cost (the first fitted, the others one
+    Gauss-Newton step from it, :func:`.fold_fits.linearised_cost`, the least refitted; a robust
+    ``options.loss``: all fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted."""
     design, free = data[4], list(base) + list(groups)
     costs, fits, first = {}, {} if fits is None else fits, None
     for tau in map(float, candidates):
@@ -281,10 +274,8 @@ def thermal_time_constant(nominal, data, base, groups, candidates, options, fits
 
 def _keeps(trial, best, threshold, max_cv_loss):
     """Whether ``trial`` passes the test at ``threshold``, the held-out guard over ``best`` and
-    is not predicted to make the compensated platform less accurate (judged for the
-    compensated groups only). Decided explicitly, never by a NaN comparison: a candidate that
-    cannot be judged (``not_judged``) is not kept, and none is when ``best``'s held-out error
-    was not measured (the guard has nothing to compare with: the model stays as it is)."""
+    is not predicted to make the compensated platform less accurate. Never by a NaN comparison:
+    a ``not_judged`` candidate is not kept, nor any when ``best``'s held-out error is unknown."""
     if trial.not_judged or best.not_judged or not math.isfinite(best.position_mm):
         return False
     worse = trial.predicted_with_mm > trial.predicted_without_mm  # NaN (not judged): False
@@ -402,16 +393,12 @@ def choose_model(
     linearised=True,
 ):
     """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
-    row weights ``sigmas`` (their real noise: the test's chi-squares are in its units) and the
-    run's :class:`EffectDesign` ``design`` (None: no times, directions or mass: only the joint
-    offsets can be tried). ``significance``, ``max_cv_loss``: the rule of the module docstring.
-    ``thermal_time_constants`` (s; 0: linear): when the thermal group can be tried, its time
-    constant is first chosen among these by the cost of the fit with every available group
-    (:func:`thermal_time_constant`); empty: the design's. ``predicted_gain``: a group the
-    controller compensates is kept only if it is not predicted to make the platform less
-    accurate (:mod:`.choice_accuracy`); False: the test and the held-out guard alone.
-    ``linearised``: each candidate's held-out error from linearised refits of its folds
-    (:func:`.fold_fits.linearised_refits`); False: from refits."""
+    row weights ``sigmas`` (their real noise) and the run's :class:`EffectDesign` ``design``
+    (None: only the joint offsets can be tried); ``significance``, ``max_cv_loss``: the rule
+    (docs/platform_effects.md). ``thermal_time_constants`` (s; 0: linear; empty: the design's):
+    chosen first by :func:`thermal_time_constant`. ``predicted_gain``: a compensated group must
+    not be predicted to lose accuracy (:mod:`.choice_accuracy`). ``linearised``: held-out errors
+    from :func:`.fold_fits.linearised_refits` (False: refits)."""
     design = design or EffectDesign()
     tau, costs = design.thermal_time_constant_s, {}
     available = available_groups(design, len(leg_lengths))
