@@ -49,13 +49,8 @@ def check_loss(loss, scale):
 
 @dataclasses.dataclass(frozen=True)
 class GoodnessOfFit:
-    """A goodness-of-fit test of the residuals (``test`` in :data:`FIT_TESTS`).
-
-    ``chi2``: the squared normalised residuals against ``dof``. ``lack_of_fit``: ``chi2`` is the
-    sum of the squared residuals in within-posture noise units, ``dof`` their redundancy, and
-    ``chi2 / dof`` is F-distributed with ``(dof, pure_error_dof)`` degrees of freedom. ``none``:
-    the noise came from the residuals alone and nothing independent tests it.
-    """
+    """A goodness-of-fit test of the residuals (``test`` in :data:`FIT_TESTS`: ``chi2``,
+    ``lack_of_fit`` (F with ``(dof, pure_error_dof)``) or ``none``; docs/sensor_errors.md)."""
 
     chi2: float
     dof: float
@@ -206,10 +201,8 @@ POSE_SCALE_M_PER_RAD = 0.5
 
 def neighbour_deviations(normalised, poses, neighbours=NEIGHBOURS):
     """Each posture's residuals (M, k) minus the mean of its ``neighbours`` nearest postures' in
-    pose space (``poses`` (M, 6), angles at :data:`POSE_SCALE_M_PER_RAD`), in units of the
-    robust scale (1.4826 MAD) of these differences in each column. A residual field that is a
-    smooth function of the pose (an unmodelled error) gives small deviations everywhere; a
-    posture inconsistent with its neighbours (a bad row) stands out. NaN rows stay NaN."""
+    pose space (``poses`` (M, 6), angles at :data:`POSE_SCALE_M_PER_RAD`), in units of the robust
+    scale (1.4826 MAD) of these differences per column. NaN rows stay NaN."""
     normalised = np.asarray(normalised, dtype=float)
     scaled = np.array(poses, dtype=float)
     scaled[:, 3:] *= POSE_SCALE_M_PER_RAD
@@ -230,11 +223,9 @@ def neighbour_deviations(normalised, poses, neighbours=NEIGHBOURS):
 
 
 def isolated_outliers(outliers, normalised, poses, threshold=DEFAULT_OUTLIER_THRESHOLD):
-    """The entries of ``outliers`` (:func:`outlier_postures`) whose postures are also
-    inconsistent with their neighbours (:func:`neighbour_deviations` of ``normalised`` beyond
-    the threshold below; ``threshold`` None: Bonferroni as there): a large residual in a smooth field of large
-    residuals is the model's error, not the posture's. Each kept entry gets its
-    ``neighbour_deviation``."""
+    """The entries of ``outliers`` (:func:`outlier_postures`) whose postures also stand out from
+    their neighbours (:func:`neighbour_deviations` of ``normalised`` beyond the threshold;
+    ``threshold`` None: Bonferroni), each with its ``neighbour_deviation``."""
     if not outliers:
         return []
     deviations = neighbour_deviations(normalised, poses)
@@ -274,14 +265,9 @@ NOISE_CHANNELS = channels.SENSOR_SLICES
 
 
 def within_posture_noise(sample_std, n_samples):
-    """Per-sample noise of each channel from the scatter within each posture:
-    ``{channel: (sigma, dof)}`` (only channels with data).
-
-    ``sample_std`` (M, 10): per posture, the sample standard deviation (ddof 1) of the 6 legs and
-    the 4 readings over its ``n_samples`` (M,) samples. The pooled estimate
-    ``sqrt(sum (n-1) s^2 / sum (n-1))`` is unbiased in the variance; ``dof = sum (n - 1)`` over the
-    channel's columns.
-    """
+    """Per-sample noise of each channel from the scatter within each posture,
+    ``{channel: (sigma, dof)}`` (channels with data): ``sample_std`` (M, 10) per posture (ddof 1)
+    of the 6 legs and 4 readings over ``n_samples`` (M,), pooled in the variance."""
     sample_std = np.asarray(sample_std, dtype=float).reshape(-1, 10)
     degrees = np.clip(np.asarray(n_samples, dtype=float).reshape(-1) - 1.0, 0.0, None)
     estimates = {}

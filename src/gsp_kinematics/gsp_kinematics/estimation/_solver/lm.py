@@ -1,24 +1,11 @@
 """The identification's Levenberg-Marquardt driver and the Schur complement (private).
 
-One loop serves every formulation (cf. ``scipy.optimize.least_squares``: one table of termination
-messages, the formulation chosen before the solve). A formulation is a *model* that supplies
-only its maths:
-
-* ``normal_equations(point) -> (scaled_gradient, system)``: the Gauss-Newton normal equations at
-  ``point`` and the largest gradient entry scaled by the square root of its diagonal (asked once
-  per point: a rejected step reuses them with more damping);
-* ``solve(point, system, damping) -> Step``: the damped step (Marquardt's diagonal scaling);
-* ``trial(point, step) -> Point``: the model evaluated after the step (``feasible`` False where it
-  cannot be, e.g. FK fails for a posture in use); its Jacobian may wait for ``normal_equations``,
-  so that a rejected step does not pay for it;
-* ``give_up(point, trial) -> Point``: after ``max_fk_rejections`` infeasible trials in a row;
-* ``initial_damping``: the damping to start from unless the options set one;
-* ``accept(trial) -> (point, changed)``: take the step; ``changed`` when the model changed its
-  problem on the way (e.g. a posture readmitted), so that this step says nothing of convergence.
-
-The driver stops on the step ``du`` or on the change of the residual ``dX`` (achieved, or predicted
-by the linear model), as in the paper's Fig. 5, or on a vanishing gradient; :data:`TERMINATION_MESSAGES` names every status.
-"""
+One loop serves every formulation; a formulation is a *model* that supplies
+``normal_equations(point) -> (scaled_gradient, system)``, ``solve(point, system, damping) ->
+Step``, ``trial(point, step) -> Point`` (``feasible`` False where FK fails), ``give_up(point,
+trial)``, ``initial_damping`` and ``accept(trial) -> (point, changed)``. The driver stops on
+the step, the change of the residual (the paper's Fig. 5) or a vanishing gradient
+(:data:`TERMINATION_MESSAGES`)."""
 
 import dataclasses
 import math

@@ -71,14 +71,12 @@ def _stepped(result, model, values, system):
 
 
 def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
-    """``result``'s refit of each posture subset ``kept`` (a list of (M,) bool masks of the rows
-    ``leg_lengths`` (M, 6), ``readings`` (M, 4) it was fitted to with the weights
-    ``row_sigmas`` and the effect design ``effects``) as one Gauss-Newton step from it (module
-    docstring): a result like ``result`` with the step's parameters, effects, geometry and the
-    kept postures' information and covariance (its poses, residuals and fit statistics are the
-    full fit's), or None where the kept postures do not identify every parameter. None instead
-    of the list when ``result`` is not a converged implicit least-squares fit (refit those: a
-    robust fit's weights move with the fold)."""
+    """``result``'s refit of each posture subset ``kept`` (a list of (M,) bool masks of its rows
+    ``leg_lengths`` (M, 6), ``readings`` (M, 4), weights ``row_sigmas``, design ``effects``) as
+    one Gauss-Newton step from it: results with the step's parameters, effects, geometry and the
+    kept postures' information and covariance, or None where the kept postures do not identify
+    every parameter. None instead of the list unless ``result`` is a converged implicit
+    least-squares fit."""
     if result.formulation != 'implicit' or not result.converged or result.loss != 'linear':
         return None
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
@@ -118,11 +116,9 @@ def refit_fold(result, free, rows, options, effects):
 
 
 def linearised_cost(result, nominal, leg_lengths, readings, row_sigmas, effects):
-    """The least cost (half the chi-square) of ``result``'s model (its free parameters and
-    effects, fitted from ``nominal``) on its rows with the effect design ``effects`` instead of
-    its own (e.g. another thermal time constant), to second order: the cost at ``result``'s
-    estimate less the decrease of one Gauss-Newton step, poses and parameters (the model is
-    linear in the effects' values, nearly so in the rest)."""
+    """The least cost (half the chi-square) of ``result``'s model on its rows with the effect
+    design ``effects`` instead of its own, to second order (one Gauss-Newton step from
+    ``result``'s estimate)."""
     _, _, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects, nominal)
     pose_rows, total = block_normal_equations(augmented)
     reduced, solved = eliminate_poses(pose_rows, total)

@@ -139,11 +139,9 @@ def _chi2(result, rows=None):
 
 
 def likelihood_ratio(reference, extended, added, variance_factor=1.0):
-    """``(delta chi2, p value)`` of ``extended`` (a fit with ``added`` more parameters than
-    ``reference``, on the same rows and weights) against ``reference``: the chi-square drop over
-    the rows both fits used, and the probability under ``chi2(added)`` (no effect) of that drop
-    over ``variance_factor`` (the rows' variance in units of the weights, 1: the weights are
-    the noise)."""
+    """``(delta chi2, p value)`` of ``extended`` (``added`` more parameters than ``reference``,
+    same rows and weights): the chi-square drop over the rows both used, and its probability
+    under ``chi2(added)`` after dividing by ``variance_factor``."""
     rows = np.all(np.isfinite(reference.residuals), axis=1)
     rows &= np.all(np.isfinite(extended.residuals), axis=1)
     delta = _chi2(reference, rows) - _chi2(extended, rows)
@@ -151,10 +149,8 @@ def likelihood_ratio(reference, extended, added, variance_factor=1.0):
 
 
 def variance_factor(result):
-    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: what its
-    residuals leave unexplained scales the tests' chi-squares (an F test), so a platform with
-    more than the groups describe, or noise above the weights, does not make every group look
-    significant; 1 when the groups describe the rows (the weights are then the noise)."""
+    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: it scales
+    the tests' chi-squares (an F test)."""
     fit = None if result is None else result.goodness_of_fit
     if fit is None or not fit.dof > 0:
         return 1.0
@@ -162,10 +158,8 @@ def variance_factor(result):
 
 
 def _unidentifiable(result, count):
-    """Why the converged fit ``result`` of ``count`` postures is not identifiable ('' when it
-    is): its information matrix is rank-deficient, so its estimate is one of many and its
-    covariance (a pseudo-inverse) is no covariance: neither its held-out error nor its
-    predicted gain means anything (the calibrator would not apply such a fit either)."""
+    """Why the converged fit ``result`` of ``count`` postures is not identifiable ('' when it is):
+    a rank-deficient information matrix, whose covariance means nothing."""
     analysis = analyse_result(result)
     if identifies_all(analysis):
         return ''
@@ -178,11 +172,9 @@ def _unidentifiable(result, count):
 
 
 def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
-    """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, when
-    made already), tested against the fit ``reference`` = ``(result, its groups)`` when given
-    (``settings``: :func:`_forward`'s; its fit starts from the reference's poses).
-    ``result`` is None when the fit failed; a candidate that cannot be judged says why
-    (``Candidate.not_judged``) and is never kept (:func:`_keeps`)."""
+    """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, if made),
+    tested against ``reference`` = ``(result, its groups)`` when given (``settings``:
+    :func:`_forward`'s). ``result`` None: the fit failed."""
     folds, options, _, _, factor, workspace, linearised = settings
     leg_lengths, readings, sigmas, _, design, noise = data
     start = None if reference is None else reference[0]
@@ -328,10 +320,8 @@ def _forward(nominal, data, base, available, settings, every=None):
 
 
 def never_worse_held_out(path):
-    """Of the models the selection kept in turn, ``path`` = ``[(result, Candidate, groups)]``
-    from the plain model on, the last whose held-out position error is not above the plain
-    model's: each step may let it grow a little (``max_cv_loss``), but what ``auto`` delivers is
-    never worse, on postures the fit did not see, than the plain model it was chosen over."""
+    """Of the models kept in turn, ``path`` = ``[(result, Candidate, groups)]`` from the plain
+    model on, the last whose held-out position error is not above the plain model's."""
     plain = path[0][1].position_mm
     for step in reversed(path):
         if step[1].position_mm <= plain:
