@@ -158,14 +158,11 @@ def _with_vector(geometry, vector):
 
 
 def rigid_accuracy(geometry, rigid, compensated_mm=0.0, poses=None, systematic=None):
-    """The predicted accuracy (mm) over the workspace of a rigid controller running ``rigid``
-    on the platform the identified model describes (``geometry`` with its effects):
-    ``{'position_mm': {mean, max}, 'systematic_position_mm': {mean, max, rms}, 'postures'}``. The
-    systematic part is :func:`rigid_model_errors` over ``poses`` (None: workspace postures
-    apart from the fold's; ``systematic``: those errors, already computed, e.g. by
-    :func:`linearised_model_errors`); ``compensated_mm``,
-    the compensating geometry's predicted error (its parameters' uncertainty, which the fold
-    inherits), is added in quadrature at each."""
+    """The predicted accuracy (mm) over the workspace of a rigid controller running ``rigid`` on
+    the platform ``geometry`` (with its effects) describes: ``{'position_mm': {mean, max},
+    'systematic_position_mm': {mean, max, rms}, 'postures'}``: :func:`rigid_model_errors` over
+    ``poses`` (None: workspace postures; ``systematic``: those errors, already computed) and
+    ``compensated_mm`` added in quadrature at each."""
     if poses is None:
         poses = held_out_postures(geometry)
     if systematic is None:

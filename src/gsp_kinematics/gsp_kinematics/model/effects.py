@@ -218,14 +218,8 @@ def effective_base_joints(geometry, effects, poses, iterations=3):
 
 def leg_forces(geometry, effects, poses, base_points=None):
     """Axial forces (M, 6) N in the legs' springs, compression positive, holding the platform's
-    and the legs' weight at ``poses`` (M, 6). The platform: ``W f = -w``, ``W``'s columns the
-    legs' unit wrenches ``[u_i; (R B_i) x u_i]`` about the platform origin, ``f`` the axial
-    forces at the platform joints and ``w`` the wrench there of gravity on ``payload_mass`` and
-    of each leg's weight share: a bar pinned at both ends (the base U joint turns it about the
-    base point) puts :data:`LEG_CENTRE_OF_MASS` of its weight's part across ``u_i`` on the
-    platform joint. The spring carries ``f_i`` plus the axial part of the leg's weight above it
-    (``(1 - LEG_SPRING_POSITION) m_i g u_i,z``). ``base_points`` (M, 6, 3): the effective base
-    joints (default: ``A_i``)."""
+    and the legs' weight at ``poses`` (M, 6) (the statics: docs/platform_effects.md).
+    ``base_points`` (M, 6, 3): the effective base joints (default: ``A_i``)."""
     poses = np.atleast_2d(poses)
     rotation = euler_to_matrix(poses[:, 3:])
     arms = np.einsum('mjk,ik->mij', rotation, geometry.platform_joints)

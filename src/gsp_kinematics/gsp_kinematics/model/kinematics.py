@@ -94,12 +94,8 @@ def forward_kinematics_masked(
     max_position_jump=0.15,
     max_angle_jump=math.radians(30.0),
 ):
-    """Newton's method from ``guess``; never raises for a posture that fails.
-
-    Returns ``(poses, converged)``: ``converged[m]`` is False if posture m did not converge to
-    ``tolerance`` (m, on the leg residuals) or ended farther than the jump limits from its guess
-    (another assembly mode).
-    """
+    """Newton's method from ``guess``, never raising: ``(poses, converged)``, False where a
+    posture missed ``tolerance`` (m) or jumped beyond the limits (another assembly mode)."""
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     if leg_lengths.ndim == 1:
         leg_lengths = leg_lengths[None, :]
@@ -172,13 +168,9 @@ def forward_kinematics(geometry, leg_lengths, guess, **options):
 
 
 def pose_from_leg_readings(geometry, leg_readings, guess=None):
-    """The pose (6,) [x, y, z, psi, theta, phi] (m, rad) of a platform with ``geometry`` whose
-    leg sensors read ``leg_readings`` (6,) m: FK from ``guess`` (default: the home pose).
-
-    The pose may lie anywhere in the workspace, so it may be far from the guess: the jump limits
-    of :func:`forward_kinematics` are widened to the workspace's extent. Raises
-    :class:`ForwardKinematicsError` when Newton's method finds no pose, ValueError on a shape.
-    """
+    """The pose (6,) (m, rad) of a platform with ``geometry`` whose leg sensors read
+    ``leg_readings`` (6,) m: FK from ``guess`` (default: home) with jump limits as wide as the
+    workspace. :class:`ForwardKinematicsError` when none is found, ValueError on a shape."""
     readings = np.asarray(leg_readings, dtype=float)
     if readings.shape != (6,):
         raise ValueError(f'leg_readings must have shape (6,), got {readings.shape}')

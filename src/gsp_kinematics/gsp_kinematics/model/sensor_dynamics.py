@@ -66,12 +66,9 @@ class SensorDynamics:
         self._noise = None  # z, (..., C), unit variance
 
     def step(self, time_s, true_values, stds, rng):
-        """Readings (..., C) at ``time_s`` (s) of ``true_values`` (..., C), held since the
-        previous step, with noise stds ``stds`` (C,) drawn from ``rng`` (numpy Generator).
-
-        A time at or before the previous one advances nothing (dt = 0): the lag stays, the
-        coloured noise repeats; white channels still draw fresh noise.
-        """
+        """Readings (..., C) at ``time_s`` (s) of ``true_values`` (..., C) held since the previous
+        step, noise stds ``stds`` (C,) drawn from ``rng``; a time not after the last one
+        advances nothing."""
         true_values = np.asarray(true_values, dtype=float)
         draw = rng.normal(0.0, 1.0, size=true_values.shape)
         if self._time is None or self._response.shape != true_values.shape:

@@ -64,12 +64,9 @@ def simulate_commands(
     true, controller, commanded, effects=None, times_s=None, previous_readings=None
 ):
     """What the real platform (``true`` geometry and ``effects``) does when ``controller`` drives
-    it through ``commanded`` (M, 6) in that order, at ``times_s`` (M,) s since the start
-    (default 0): a :class:`SimulatedRun`. ``previous_readings`` (6,): the legs' readings before
-    the first command (None: it is the first; every leg counts as arrived extending).
-    A controller geometry with identified effects (``controller.effects``) compensates them: the
-    legs go to :func:`~gsp_kinematics.model.effect_groups.compensated_leg_readings`, each leg's
-    direction taken from the uncompensated readings."""
+    it through ``commanded`` (M, 6) in order at ``times_s`` (M,) s (default 0): a
+    :class:`SimulatedRun`. ``previous_readings`` (6,): the legs' readings before (None: the
+    first). A controller with identified effects compensates them."""
     commanded = np.atleast_2d(np.asarray(commanded, dtype=float))
     readings = commanded_leg_readings(controller, commanded, previous_readings)
     times = np.zeros(len(commanded)) if times_s is None else np.asarray(times_s, dtype=float)
@@ -94,13 +91,8 @@ def summarise(position_mm, orientation_deg):
 
 
 def validate(true, controller, commanded, effects=None, times_s=None):
-    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6).
-
-    A posture whose commanded legs the real platform cannot assemble near the command (FK fails)
-    is left out of the statistics and counted in ``unreachable``. ``effects``: the real
-    platform's (:func:`simulate_commands`, in the order given, at ``times_s``); a controller
-    with identified effects compensates them.
-    """
+    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6); a posture the real
+    platform cannot assemble is counted in ``unreachable``. ``effects``: the real platform's."""
     commanded = np.atleast_2d(commanded)
     if (effects is None or effects.ideal) and controller.effects.none:
         articular = commanded_articular(true, controller, commanded)

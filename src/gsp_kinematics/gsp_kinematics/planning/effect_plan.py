@@ -149,15 +149,11 @@ def augment_route(
     min_arrivals=1,
 ):
     """The :class:`AugmentedRoute` of commanding ``poses`` (N, 6, in route order) for the effect
-    ``groups`` a calibration will free, by a controller with ``geometry``.
-
-    ``thermal`` in ``groups``: a reference posture (``reference_pose``, default the route's first
-    posture) is revisited every ``revisit_every`` postures and/or every ``revisit_interval_s`` s
-    (default :data:`DEFAULT_REVISIT_EVERY`: none) and at the end. ``backlash``: each
-    leg arrives at least ``min_arrivals`` times extending and retracting, by measuring plan
-    postures once more where needed. Times: each move within ``limits`` (default: none) then
-    ``dwell_s`` at the posture (settle and sampling), from ``start_pose`` (default the first).
-    """
+    ``groups`` a calibration will free, by a controller with ``geometry``: ``thermal``, revisits
+    of ``reference_pose`` (default the first) every ``revisit_every`` postures and/or
+    ``revisit_interval_s`` s and at the end; ``backlash``, ``min_arrivals`` arrivals of each leg
+    both ways. Moves within ``limits``, ``dwell_s`` per posture, from ``start_pose``
+    (docs/platform_effects.md)."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     count = len(poses)
     groups = [groups] if isinstance(groups, str) else list(groups)

@@ -74,14 +74,10 @@ def _mean_and_bound(figures, magnitudes, z):
 
 
 def accuracy_bounds(summary, confidence, predicted_mm):
-    """:class:`Bounds` from a cross-validation's ``summary()`` (``CrossValidation.summary``) and
-    the ``predicted_mm`` mean position error over the workspace (None: inf): the position bound
-    is the mean plus ``z(confidence)`` standard errors of the mean over the predicted postures.
-
-    With workspace postures (``workspace_rows``) the figures are the verdict's judged accuracy
-    (``acceptance.judged_accuracy``): the larger of the workspace and the selected postures'
-    means and bounds, each over its own rows, so a run never stops on a figure the verdict then
-    rejects (the workspace postures miss the error the device shares with the legs)."""
+    """:class:`Bounds` from a cross-validation's ``summary()`` and the ``predicted_mm`` mean
+    position error over the workspace (None: inf): the position bound is the mean plus
+    ``z(confidence)`` standard errors; with workspace postures, the larger of theirs and the
+    selected postures' (docs/upkeep.md)."""
     z = float(stats.norm.ppf(confidence))
     magnitudes = np.asarray(summary['per_posture']['position_mm'], dtype=float)
     workspace = np.zeros(magnitudes.size, bool)
