@@ -78,10 +78,7 @@ class GoodnessOfFit:
 
 def goodness_of_fit(normalised, unknowns, excluded=()):
     """:class:`GoodnessOfFit` of residuals (M, k) (NaN rows: postures not used) with ``unknowns``
-    estimated (free parameters, and the poses in the implicit formulation, 6 a posture used).
-
-    ``excluded``: postures left out (outliers named by a robust fit); ``unknowns`` must already
-    count only the postures kept."""
+    estimated (counting only the postures kept); ``excluded``: postures left out."""
     normalised = np.array(normalised, dtype=float)
     if len(excluded):
         normalised[list(excluded)] = np.nan
@@ -301,10 +298,8 @@ def _head(fit):
 
 
 def verdict(fit, outliers=(), noise=None, free_sensor_errors=False):
-    """Plain text: does the model explain the data, and if not, the likely causes.
-
-    ``outliers``: :func:`outlier_postures` of the studentised residuals; ``noise``:
-    ``{channel: {'warning', ...}}`` (configured sigmas that differ from the data's estimate)."""
+    """Plain text: does the model explain the data, and if not, the likely causes (``outliers``:
+    :func:`outlier_postures`; ``noise``: ``{channel: {'warning', ...}}``)."""
     if fit.dof <= 0:
         return (
             'goodness of fit: not assessable (no degrees of freedom left: add postures or fix '

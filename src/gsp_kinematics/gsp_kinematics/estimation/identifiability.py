@@ -74,10 +74,8 @@ def unidentifiable_parameters(analysis):
 
 
 def analyse_result(result):
-    """The identifiability analysis of an ``IdentificationResult``: :func:`analyse_identifiability`
-    of its information matrix, plus ``names`` (:func:`unidentifiable_parameters`). A non-finite
-    information matrix (a failed fit) gives rank 0 with every free parameter named. Computed once
-    per result; the calibration, its report and its predicted accuracy share it."""
+    """:func:`analyse_identifiability` of an ``IdentificationResult``'s information, plus
+    ``names`` (:func:`unidentifiable_parameters`); a failed fit: rank 0, every parameter named."""
     information = np.asarray(result.information, dtype=float)
     if not np.all(np.isfinite(information)):
         names = list(result.free_names)

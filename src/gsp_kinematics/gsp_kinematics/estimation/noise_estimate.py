@@ -75,10 +75,8 @@ def _initial_positive_lags(autocovariance):
 
 
 def window_lag_sums(samples, max_lag=None):
-    """Per window of ``samples`` (P, n, C), the sums of the lag-k products of the window centred
-    on its own mean, ``sum_i x_i x_(i+k)`` for k = 0..``max_lag`` (default ``n // 2``):
-    (P, max_lag + 1, C), the channel's unit squared. What a posture contributes to
-    :func:`noise_of_mean_from_sums`: additive over windows of the same n."""
+    """Per window of ``samples`` (P, n, C) centred on its mean, ``sum_i x_i x_(i+k)`` for
+    k = 0..``max_lag`` (default ``n // 2``): (P, max_lag + 1, C), the channel's unit squared."""
     samples = _check_windows(samples)
     n = samples.shape[1]
     max_lag = n // 2 if max_lag is None else int(max_lag)
@@ -109,9 +107,8 @@ def noise_of_mean(samples, max_lag=None, white_level=None, fitted=1):
 
 def white_statistic(autocovariance, n, windows):
     """Per channel (C,): the pooled lag-1 autocorrelation of ``windows`` centred windows of
-    ``n`` samples (``autocovariance`` (>= 2, C), averaged over pairs), corrected for the
-    centring (``+ 1 / (n - 1)``: its mean for white samples), in units of its standard error
-    for white samples ``1 / sqrt(windows (n - 1))``: about N(0, 1) for white samples."""
+    ``n`` samples (``autocovariance`` (>= 2, C)), centring-corrected, in units of its standard
+    error for white samples: about N(0, 1) for white samples."""
     with np.errstate(divide='ignore', invalid='ignore'):
         rho = np.where(autocovariance[0] > 0, autocovariance[1] / autocovariance[0], 0.0)
     return (rho + 1.0 / (n - 1)) * math.sqrt(windows * (n - 1))
@@ -226,10 +223,9 @@ def settled(window, std_of_mean, times=None, sigmas=DEFAULT_SETTLE_SIGMAS):
 
 @dataclasses.dataclass(frozen=True)
 class SettleTest:
-    """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled
-    span's trend), ``threshold`` (the ``z`` a channel may reach: ``sigmas`` turned into the
-    Student-t quantile of the same two-sided rate, ``n_eff - 2`` degrees of freedom),
-    ``trend`` (the change across the span, the channel's unit) and ``std_of_mean``."""
+    """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled span's
+    trend), ``threshold`` (the Student-t quantile ``z`` may reach), ``trend`` (across the span,
+    the channel's unit) and ``std_of_mean``."""
 
     settled: np.ndarray
     z: np.ndarray

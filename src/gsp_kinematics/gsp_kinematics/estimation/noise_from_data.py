@@ -71,10 +71,8 @@ LAG_SUMS_CHANNELS = tuple(goodness.NOISE_CHANNELS)
 
 @dataclasses.dataclass(frozen=True)
 class WithinNoise:
-    """One channel's within-posture estimate of its row noise: ``row`` (std of the averaged
-    row, m or rad), ``dof`` (its degrees of freedom, ``windows (n_eff - 1)``), ``n_eff`` (the
-    effective sample count of a row) and ``lower_bound`` (the windows are too short against
-    the correlation time: ``row`` is biased low, only a lower bound)."""
+    """One channel's within-posture estimate of its row noise: ``row`` (std of the averaged row,
+    m or rad), ``dof``, ``n_eff`` (per row) and ``lower_bound`` (``row`` biased low)."""
 
     row: float
     dof: float
@@ -83,12 +81,9 @@ class WithinNoise:
 
 
 def posture_lag_sums(values):
-    """What a posture's window contributes to the within-posture estimate: per channel of
-    :data:`LAG_SUMS_CHANNELS` (legs, inclinometer, encoder, LVDT), the window's lag sums
-    (:func:`~gsp_kinematics.estimation.noise_estimate.window_lag_sums`, lags 0..n // 2) summed over
-    the channel's columns (m^2, rad^2). ``values`` (n, 10) or (P, n, 10) windows of
-    ``[q_1..q_6, alpha, beta, phi, d_m]`` (``phi`` unwrapped), n >= 2: (4, n // 2 + 1) or
-    (P, 4, n // 2 + 1)."""
+    """A posture's window's lag sums (lags 0..n // 2) per channel of :data:`LAG_SUMS_CHANNELS`,
+    summed over the channel's columns (m^2, rad^2): ``values`` (n, 10) or (P, n, 10) of ``[q_1..q_6,
+    alpha, beta, phi, d_m]`` (``phi`` unwrapped) give (4, n // 2 + 1) or (P, 4, n // 2 + 1)."""
     values = np.asarray(values, dtype=float)
     if values.ndim not in (2, 3) or values.shape[-1] != 10:
         raise ValueError(f'windows must be (samples, 10) or (P, samples, 10), got {values.shape}')
@@ -238,11 +233,9 @@ def identify_with_noise(
     source, nominal, leg_lengths, readings, row_sigmas, within, first=None, **options
 ):
     """``(result, {channel: ChannelNoise}, SensorNoise of the rows used)`` with the weights of
-    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``; its
-    ``first`` fit, when given) or ``configured`` (``row_sigmas``; the estimate is made from the
-    fit and only reported).
-    When the goodness of fit rejects the model, only the outliers that stand out from a smooth
-    field of model error are kept (:func:`goodness.outliers_beside_model_error`)."""
+    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``, its
+    ``first`` fit when given) or ``configured`` (``row_sigmas``; the estimate only reported).
+    A rejected model keeps only :func:`goodness.outliers_beside_model_error`."""
     check_noise_source(source)
     if source == 'estimated':
         result, estimates, used = identify_with_estimated_noise(

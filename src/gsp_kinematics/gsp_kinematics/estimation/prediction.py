@@ -63,10 +63,8 @@ def pose_sensitivities(geometry, poses, free=None, euler=False):
 
 def effect_pose_sensitivities(geometry, poses, effect_free):
     """``S`` (M, 6, count): ``[dp (m); dw (rad)]`` of the reached pose per error of each free
-    effect parameter (``effect_free`` (24,) over ``EFFECT_PARAMETER_NAMES``) the controller
-    compensates: ``dX = (dq/dX)^-1 h (theta_hat - theta)``, ``h`` the group's regressor at the
-    pose (compliance under ``geometry.effects``' payload). Columns of groups outside
-    :data:`POSTURE_EFFECT_GROUPS` are zero."""
+    effect parameter (``effect_free`` (24,)) the controller compensates; zero outside
+    :data:`POSTURE_EFFECT_GROUPS`."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     free = np.asarray(effect_free, dtype=bool).reshape(NUM_EFFECT_PARAMETERS)
     posture = free & np.repeat([g in POSTURE_EFFECT_GROUPS for g in EFFECT_GROUPS], 6)
@@ -96,11 +94,8 @@ def expected_norm(covariances):
 
 def reading_pose_covariance(geometry, poses, readings, stds):
     """``(position (M, 3, 3) m^2, euler (M, 3, 3) rad^2)``: the covariance of the pose the legs
-    give (FK) against the pose the device gives, at ``poses`` (M, 6) with device ``readings``
-    (M, 4), from independent errors of standard deviation ``stds`` (a ``SensorNoise``: per leg,
-    per inclination, phi and d_m) on each reading. The legs' part goes through FK
-    (``(dq/dX)^-1 (1 + kq)``: position and the Euler angles psi, theta, phi), the device's
-    through eq 9 (position) and the encoder (phi)."""
+    give (FK) against the pose the device gives at ``poses`` (M, 6) with ``readings`` (M, 4),
+    from independent reading errors of standard deviations ``stds`` (a ``SensorNoise``)."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
     gains = np.broadcast_to(np.diag(1.0 + geometry.sensors.leg_gain_errors), d_q_d_pose.shape)

@@ -189,10 +189,8 @@ def compensated_leg_readings(
 
 def commanded_leg_readings(geometry, poses, previous_readings=None):
     """The leg readings (M, 6) a controller with ``geometry`` drives to for ``poses`` (M, 6)
-    visited in order from legs reading ``previous_readings`` (6,; None: the first is the
-    start): its IK through its sensor model, and the compensation of its identified effects
-    (``geometry.effects``) with each leg's direction of travel. Every consumer that commands
-    the platform (platform_sim, platform_bridge, the simulations) uses this."""
+    visited in order from ``previous_readings`` (6,; None: the first is the start): its IK
+    through its sensor model plus the compensation of ``geometry.effects``."""
     poses = np.atleast_2d(poses)
     readings = geometry.sensors.leg_readings(inverse_kinematics(geometry, poses))
     if geometry.effects.none:
@@ -202,10 +200,8 @@ def commanded_leg_readings(geometry, poses, previous_readings=None):
 
 
 def model_poses(geometry, leg_readings, guesses, design, tolerance=1e-12, iterations=12):
-    """Poses (M, 6) where the identification's model, with the effects ``geometry.effects``,
-    predicts the leg readings (M, 6) of a run with the :class:`EffectDesign` rows ``design``
-    (forward kinematics with the effects), and ``converged`` (M,). Newton's method on the rigid
-    Jacobian from rigid FK: the effects are micrometres."""
+    """Poses (M, 6) where the identification's model with ``geometry.effects`` predicts the leg
+    readings (M, 6) of the :class:`EffectDesign` rows ``design``, and ``converged`` (M,)."""
     target = geometry.sensors.true_leg_lengths(np.atleast_2d(leg_readings))
     poses, converged = forward_kinematics_masked(geometry, target, guesses)
     values = geometry.effects.values

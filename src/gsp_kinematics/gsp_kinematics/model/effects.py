@@ -135,10 +135,9 @@ PRESETS = {'none': PlatformEffects(), 'realistic': REALISTIC}
 
 
 def approach_directions(leg_readings, previous=None, initial=None):
-    """Direction (M, 6) from which each leg arrives at each of the sequence's ``leg_readings``
-    (M, 6): +1 extending, -1 retracting; a leg that does not move keeps its last direction.
-    ``previous`` (6,): the readings before the first row (None: the first row is the start);
-    ``initial`` (6,): the directions before it (default +1: homed extending)."""
+    """Direction (M, 6) from which each leg arrives at each row of ``leg_readings`` (M, 6): +1
+    extending, -1 retracting, a still leg keeping its last. ``previous`` (6,): the readings before
+    (None: the first row is the start); ``initial`` (6,): the directions before (default +1)."""
     readings = np.atleast_2d(np.asarray(leg_readings, dtype=float))
     start = np.broadcast_to(
         1.0 if initial is None else np.asarray(initial, dtype=float), (NUM_LEGS,)

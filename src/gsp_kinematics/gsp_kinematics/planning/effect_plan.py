@@ -250,10 +250,8 @@ def _scaled_rank(information, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE):
 
 def group_identifiability(geometry, poses, design, group, sigmas=DEFAULT_SENSOR_NOISE, free=None):
     """One group freed beside the geometry: ``{rank, parameters, rank_plain, identifiable,
-    crb_std, crb_leg_um, worst_correlations}``. ``crb_std``: the Cramér-Rao standard deviation
-    of each of its parameters (its unit, ``EFFECT_GROUPS``); ``crb_leg_um``: that times the
-    root mean square of its regressor, the leg length it resolves (um); ``worst_correlations``:
-    per parameter, the geometric parameter it is most correlated with."""
+    crb_std, crb_leg_um, worst_correlations}``: Cramér-Rao stds (the parameters' units), the leg
+    length each resolves (um) and per parameter its most correlated geometric parameter."""
     information, names, columns = effect_information(geometry, poses, design, [group], sigmas, free)
     geometric = len(names) - NUM_LEGS
     rank, rank_plain = _scaled_rank(information), _scaled_rank(information[:geometric, :geometric])

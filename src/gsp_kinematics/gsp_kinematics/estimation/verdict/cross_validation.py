@@ -55,10 +55,8 @@ def _errors(legs_geometry, device_geometry, leg_lengths, readings, guesses, desi
 
 
 def noise_variances(geometry, poses, readings, row_sigmas):
-    """The variance the rows' noise (``row_sigmas``, a SensorNoise of the averaged rows) adds to
-    the prediction errors at ``poses`` (M, 6) with ``readings`` (M, 4): ``(position (M,) m^2,
-    the trace of its 3x3 covariance; phi (M,) rad^2)``
-    (:func:`~gsp_kinematics.estimation.prediction.reading_pose_covariance`)."""
+    """The variance the rows' noise (``row_sigmas``) adds to the prediction errors at ``poses``
+    (M, 6) with ``readings`` (M, 4): ``(position (M,) m^2, phi (M,) rad^2)``."""
     position, euler = reading_pose_covariance(geometry, poses, readings, row_sigmas)
     return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
 
@@ -81,10 +79,8 @@ def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, 
 
 def without_leverage(errors, noise, ratios, held_out=None):
     """Held-out error magnitudes ``errors`` (M,) with their excess over the ``noise`` variance
-    (M,) scaled by the leverage ``ratios`` (M,), up to the bound of
-    :func:`.comparison.explained_excess` (``held_out``: the held-out fit's predicted variance;
-    None: no bound): ``sqrt(r x + kept + n)``, the posture's noise still in (the model choice's
-    held-out guard compares these as measured)."""
+    (M,) scaled by the leverage ``ratios`` (M,) up to :func:`.comparison.explained_excess` of
+    ``held_out`` (None: no bound), the noise still in: ``sqrt(r x + kept + n)``."""
     explained, kept = explained_excess(errors, noise, held_out)
     ratios = np.asarray(ratios, dtype=float)
     return np.sqrt(np.maximum(ratios * explained + kept + np.asarray(noise, dtype=float), 0.0))
@@ -296,11 +292,9 @@ def _uncompensated(geometry, poses, strain):
 
 
 def _corrections(result, readings, held_out, unmodelled, effects):
-    """The :class:`CrossValidation` fields that correct ``result``'s held-out errors (position
-    and phi): the leverage ratios of the comparison's predicted variance under the full fit over
-    each posture's ``held_out`` (position (M,) m^2, phi (M,) rad^2: the fold's fit's), those
-    with the ``unmodelled`` part (SensorNoise or None), added to both; and the unseen part, the
-    controller's predicted variance less the comparison's under the full fit."""
+    """The :class:`CrossValidation` fields that correct ``result``'s held-out errors: the
+    leverage ratios against each posture's ``held_out`` variances (position (M,) m^2, phi (M,)
+    rad^2), with ``unmodelled`` (SensorNoise or None) added to both, and the unseen part."""
     poses = np.asarray(result.poses, dtype=float)
     unmodelled_variances = (0.0, 0.0)
     if unmodelled is not None:
@@ -336,10 +330,8 @@ def _workspace_truth_variance(result, poses, strain):
 
 def _held_out(result, rows, assignment, options, effects, linearised=False):
     """``(position (M, 3) m, phi (M,) rad, (position, phi) variances, failed folds)``: each
-    posture's error predicted by the fit of the folds without it (``assignment``), and that
-    fit's predicted variance of the comparison there (:func:`.comparison.comparison_variances`).
-    ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)`` of every posture;
-    ``linearised``: each fold's fit by :func:`.fold_fits.linearised_refits`."""
+    posture's error predicted by the fit without its fold (``assignment``) and that fit's variance
+    of the comparison there. ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)``."""
     leg_lengths, readings, row_sigmas, guesses = rows
     folds = range(int(assignment.max()) + 1)
     steps = linearised and linearised_refits(

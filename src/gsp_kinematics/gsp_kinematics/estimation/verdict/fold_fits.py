@@ -93,10 +93,9 @@ def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
 
 
 def refit_fold(result, free, rows, options, effects):
-    """``result``'s identification (same formulation and ``free`` parameters, from its
-    estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
-    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit
-    (along a null direction it keeps the full fit's values, which saw the held-out postures)."""
+    """``result``'s identification (same formulation and ``free``, from its estimate) of ``rows``
+    = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold with its ``EffectDesign``;
+    None when it fails or does not identify every parameter."""
     legs, readings, row_sigmas, guesses = rows
     try:
         fitted = identify(

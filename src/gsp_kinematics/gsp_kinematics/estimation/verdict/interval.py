@@ -82,10 +82,8 @@ def truth_draw_ratios(sensitivities, covariance, validation=VALIDATION_POSTURES,
 
 
 def workspace_truth_draws(result, poses):
-    """``{position_truth_draws, phi_truth_draws}`` (the ``CrossValidation`` fields):
-    :func:`truth_draw_ratios` of ``result``'s covariance (the free parameters, then the free
-    effects) over the position, and over the rotation about the vertical (``phi`` to first
-    order at the workspace's tilts), of the pose its controller reaches at ``poses`` (M, 6)."""
+    """``{position_truth_draws, phi_truth_draws}``: :func:`truth_draw_ratios` of ``result``'s
+    covariance over the position and phi of the pose its controller reaches at ``poses`` (M, 6)."""
     geometry = result.geometry
     poses = np.asarray(poses, dtype=float)
     sensitivities = pose_sensitivities(geometry, poses, result.free)

@@ -28,10 +28,10 @@ DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:
-    """One model tried: its effect groups, held-out position error (mm, measured mean with
-    the leverage taken out: :func:`held_out_position_mm`; NaN: not measured, ``not_judged``
-    says why), its cross-validation summary, whether it was kept, the fit's ``chi2`` and the
-    test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
+    """One model tried: its effect groups, held-out position error (mm,
+    :func:`held_out_position_mm`; NaN: ``not_judged`` says why), its cross-validation summary,
+    whether kept, ``chi2`` and the test against the model it extends (``delta_chi2``, ``added``,
+    ``p_value``)."""
 
     groups: tuple
     position_mm: float
