@@ -1,9 +1,5 @@
-"""THE table of the ten reading channels a calibration collects at each instant (no rclpy).
-
-Every layout of the readings is derived from :data:`CHANNELS`: the ten columns
-``[q1..q6, alpha, beta, phi, d_m]`` of a synchronised sample, the four device readings
-``[alpha, beta, phi, d_m]`` of the core, the sensors that produce them and their units.
-"""
+"""THE table of the ten reading channels ``[q1..q6, alpha, beta, phi, d_m]`` a calibration
+collects at each instant, from which every layout is derived (no rclpy; docs/core_api.md)."""
 
 import dataclasses
 

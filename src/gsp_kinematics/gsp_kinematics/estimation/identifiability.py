@@ -18,11 +18,9 @@ DEFAULT_RELATIVE_TOLERANCE = 1e-6
 def analyse_identifiability(
     information, free=None, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE, names=None
 ):
-    """``{rank, parameters, condition_number, singular_values, unidentifiable}``.
-
-    ``names``: of the information's rows (default those of ``free``). ``unidentifiable``: one
-    ``{"combination": "0.71*B1x - 0.71*B2y", "parameters": [...], "coefficients": [...]}`` per
-    null direction (scaled units, largest first)."""
+    """``{rank, parameters, condition_number, singular_values, unidentifiable}``; ``names``: of
+    the information's rows (default those of ``free``); ``unidentifiable``: per null direction
+    ``{"combination": "0.71*B1x - 0.71*B2y", "parameters", "coefficients"}`` (scaled units)."""
     if names is None:
         free = resolve_free(free)
         names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, free, strict=True) if is_free]

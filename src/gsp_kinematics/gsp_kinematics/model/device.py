@@ -1,9 +1,5 @@
-"""Measurement device model (paper section 3.3).
-
-The passive link runs from the base origin (lower U joint) to the platform origin (upper U joint),
-so its vector is the platform position ``t`` and its length ``D = |t| = D0 + Dm``. The biaxial
-inclinometer reads ``alpha`` and ``beta`` with axes ``gamma`` apart; the encoder reads ``phi``.
-"""
+"""Measurement device model (paper section 3.3): the passive link from the base origin to the
+platform origin, ``D = |t| = D0 + Dm``, inclinometer axes ``gamma`` apart (docs/physics.md)."""
 
 import numpy as np
 

@@ -1,8 +1,5 @@
-"""Platform and device geometry: the 44 identification parameters, the sensor errors and the
-geometry file format.
-
-The file is a ROS 2 parameters YAML (a node's ``--params-file``): true, nominal or calibrated.
-"""
+"""Platform and device geometry: the identification parameters, the sensor errors and the
+geometry file (a ROS 2 parameters YAML; docs/data.md)."""
 
 import dataclasses
 import math

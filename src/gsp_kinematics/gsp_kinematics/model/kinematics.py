@@ -1,8 +1,5 @@
-"""Inverse and forward kinematics of the Gough-Stewart platform (paper eq 4-5), batched.
-
-Shapes: ``poses`` (M, 6) as ``[x, y, z, psi, theta, phi]`` (m, rad); ``leg_lengths`` (M, 6) are the
-articular variables ``q_i = L_i - L_off_i`` (m).
-"""
+"""Inverse and forward kinematics of the Gough-Stewart platform (paper eq 4-5), batched over
+poses (M, 6) ``[x, y, z, psi, theta, phi]`` (m, rad); ``q_i = L_i - L_off_i`` (m)."""
 
 import dataclasses
 import math

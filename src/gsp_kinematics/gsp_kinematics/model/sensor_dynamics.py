@@ -36,12 +36,8 @@ def decay_factor(dt, time_constant):
 
 
 class SensorDynamics:
-    """First-order response and AR(1) noise of ``C`` channels, vectorised over leading axes.
-
-    ``response_time``, ``correlation_time``: (C,) or scalars, s. ``circular``: (C,) bools, the
-    channels that are angles on the circle (the lag takes the short way round). :meth:`step`
-    takes the true values (..., C) and the stds (C,) and returns the readings (..., C).
-    """
+    """First-order response and AR(1) noise of ``C`` channels, vectorised over leading axes:
+    ``response_time``, ``correlation_time`` (C,) or scalars, s; ``circular`` (C,) bools, angles."""
 
     def __init__(self, response_time, correlation_time, n_channels, circular=None):
         self.n_channels = int(n_channels)

@@ -45,11 +45,9 @@ def reached_poses(true, controller, commanded):
 
 @dataclasses.dataclass(frozen=True)
 class SimulatedRun:
-    """A commanded sequence on a simulated real platform, noise-free, each (M, ...) in order:
-    the commanded poses, the leg readings the actuators report (m), each leg's approach
-    direction (+1 extending), the times (s since the start), the real poses (m, rad), the
-    device readings ``[alpha, beta, phi, d_m]`` there, and ``reachable`` (M,): False where the
-    real platform has no pose near the command (its other rows are NaN)."""
+    """A commanded sequence on a simulated real platform, noise-free, (M, ...) in order: commanded
+    poses, leg readings (m), approach directions, times (s), real poses, device readings and
+    ``reachable`` (M,) (False: no pose near the command, the row NaN)."""
 
     commanded: np.ndarray
     leg_readings: np.ndarray

@@ -254,11 +254,8 @@ class _FkModel(_Model):
 
 
 class _ImplicitModel(_Model):
-    """All sensors as residuals; the parameters and every pose are unknowns.
-
-    A point's ``linearization`` is a :class:`_LazyJacobian`: a trial step's Jacobian is computed
-    only if the driver keeps the step.
-    """
+    """All sensors as residuals; the parameters and every pose are unknowns (a trial step's
+    Jacobian, a :class:`_LazyJacobian`, is computed only if the driver keeps the step)."""
 
     #: The start (nominal, pose guesses) is close and the model nearly linear: Gauss-Newton-like
     #: steps from the first (cf. Madsen, Nielsen & Tingleff: tau = 1e-6 for a good start).

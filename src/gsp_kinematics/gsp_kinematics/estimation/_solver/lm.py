@@ -49,12 +49,8 @@ def cost_of(residuals):
 
 
 def levenberg_marquardt(model, start, options):
-    """Minimise the model's cost from ``start``; returns ``(point, status, iterations)``.
-
-    ``options``: ``max_iterations``, ``step_tolerance``, ``cost_tolerance``,
-    ``gradient_tolerance``, ``initial_damping``, ``max_fk_rejections``
-    (:class:`gsp_kinematics.estimation.identification.Options`).
-    """
+    """Minimise the model's cost from ``start``: ``(point, status, iterations)``; ``options``: an
+    :class:`gsp_kinematics.estimation.identification.Options`."""
     point = start
     damping = options.initial_damping
     damping, nu = model.initial_damping if damping is None else damping, 2.0

@@ -125,11 +125,9 @@ def _signed_sqrt(values, count, scale):
 
 @dataclasses.dataclass(frozen=True)
 class CrossValidation:
-    """Held-out prediction errors of a calibrated and of the nominal geometry (SI units).
-
-    Per posture (M rows; NaN where it was not predicted): the errors of FK(geometry, legs)
-    against the device, position (M, 3) m and phi (M,) rad, and the variance the posture's own
-    noise adds to each (m^2, rad^2)."""
+    """Held-out prediction errors of a calibrated and of the nominal geometry (SI units): per
+    posture (M; NaN: not predicted) FK against the device, position (M, 3) m and phi (M,) rad, and
+    the variance its own noise adds (m^2, rad^2)."""
 
     folds: int
     fold_of_posture: np.ndarray  #: (M,) the fold that held each posture out
