@@ -62,13 +62,11 @@ def sensor_channel_names(sensor):
     return tuple(CHANNEL_NAMES[column] for column in sensor_columns(sensor))
 
 
-def reading_columns(sensor):
-    """Columns of a device ``sensor``'s channels among the four readings (a tuple of ints)."""
-    return tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
-
-
 #: Each device sensor -> its columns among the four readings.
-DEVICE_READING_COLUMNS = {sensor: reading_columns(sensor) for sensor in DEVICE_SENSORS}
+DEVICE_READING_COLUMNS = {
+    sensor: tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
+    for sensor in DEVICE_SENSORS
+}
 #: Each sensor -> the slice of its columns among the ten.
 SENSOR_SLICES = {sensor: sensor_slice(sensor) for sensor in SENSORS}
 #: Column among the four readings of phi (the encoder).

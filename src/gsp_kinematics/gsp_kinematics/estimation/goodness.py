@@ -112,16 +112,11 @@ def lack_of_fit(between, redundancy, pure_error_dof, excluded=()):
 _SENSOR_OF_CHANNEL = {channel.name: channel.sensor for channel in channels.CHANNELS}
 
 
-def channel_of_column(name):
-    """The noise channel (:data:`NOISE_CHANNELS`) of a residual column (``q3``, ``alpha``...)."""
-    return _SENSOR_OF_CHANNEL[name]
-
-
 def channel_columns(columns):
     """``{channel: [column indices]}`` of the residual columns named ``columns``."""
     grouped = {}
     for index, name in enumerate(columns):
-        grouped.setdefault(channel_of_column(name), []).append(index)
+        grouped.setdefault(_SENSOR_OF_CHANNEL[name], []).append(index)
     return grouped
 
 

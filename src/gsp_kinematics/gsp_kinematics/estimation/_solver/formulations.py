@@ -64,11 +64,6 @@ def _wrap_phi(difference, columns):
     return difference
 
 
-def _damped(matrix, diagonal, damping):
-    """``matrix + damping * diag(diagonal)`` (Marquardt's scaling)."""
-    return matrix + damping * np.diag(diagonal)
-
-
 class _FkModel(_Model):
     """Residuals of device readings predicted through FK of the measured legs."""
 
@@ -180,7 +175,7 @@ class _FkModel(_Model):
 
     def solve(self, point, system, damping):
         normal, gradient, diagonal = system
-        step = np.linalg.solve(_damped(normal, diagonal, damping), -gradient)
+        step = np.linalg.solve(normal + damping * np.diag(diagonal), -gradient)
         predicted_reduction = -(gradient @ step) - 0.5 * step @ normal @ step
         return Step(step, None, predicted_reduction)
 

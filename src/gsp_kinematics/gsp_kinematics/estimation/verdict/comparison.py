@@ -33,10 +33,6 @@ def _effect_free(result):
     return np.zeros(NUM_EFFECT_PARAMETERS, bool) if free is None else np.asarray(free, bool)
 
 
-def _free_names(result):
-    return [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
-
-
 def device_sensitivities(result, readings):
     """``(position (M, 3, p) m, phi (M, p) rad)``: what the device measures at ``readings``
     (M, 4) per unit error of each of ``result``'s free parameters then free effects (nonzero only
@@ -58,7 +54,7 @@ def device_sensitivities(result, readings):
         'beta0': -length[:, None] * d_beta,
         'kDm': readings[:, 3, None] * unit,  # D grows by the raw LVDT reading per unit gain
     }
-    for column, name in enumerate(_free_names(result)):
+    for column, name in enumerate(np.asarray(ALL_PARAMETER_NAMES)[result.free]):
         if name in columns:
             position[:, :, column] = columns[name]
         elif name == 'phi0':
