@@ -25,11 +25,8 @@ NOISE_WARNING_RATIO = 2.0
 
 
 def robust_weights(normalised, loss, scale):
-    """IRLS weights ``rho'(z^2)`` of each residual for ``loss`` with ``scale`` in sigmas.
-
-    ``linear``: 1; ``huber``: ``min(1, scale / |z|)``; ``cauchy``: ``1 / (1 + (z / scale)^2)``.
-    NaN residuals (postures left out) get weight 1.
-    """
+    """IRLS weights ``rho'(z^2)`` of each residual for ``loss`` (``linear``: 1; ``huber``,
+    ``cauchy``) with ``scale`` in sigmas; NaN residuals (postures left out) get weight 1."""
     z = np.abs(np.nan_to_num(np.asarray(normalised, dtype=float), nan=0.0)) / scale
     if loss == 'linear':
         return np.ones_like(z)

@@ -95,11 +95,9 @@ def fold_effects(geometry, poses=None):
 
 
 def rigid_model_errors(geometry, rigid, poses, phi=False):
-    """Position errors (2M,) mm where the platform the identified model describes (``geometry``
-    with its effects, at the reference instant) goes when the rigid controller of ``rigid``
-    drives ``poses`` (M, 6): every leg arriving extending, then retracting (the backlash
-    both ways). The systematic error of running ``rigid`` on that platform. ``phi``: also
-    the error of the rotation about the vertical (2M,) deg: ``(position, phi)``."""
+    """``(position (2M,) mm, phi (2M,) deg)`` errors where the platform the identified model
+    describes (``geometry`` with its effects) goes when the rigid controller of ``rigid`` drives
+    ``poses`` (M, 6), every leg arriving extending then retracting."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     readings = rigid.sensors.leg_readings(inverse_kinematics(rigid, poses))
     effects = geometry.effects
@@ -123,11 +121,8 @@ def rigid_model_errors(geometry, rigid, poses, phi=False):
 
 
 def linearised_model_errors(geometry, rigid, poses):
-    """``(position (2M,) mm, phi (2M,) deg)``: :func:`rigid_model_errors` to first order, ten
-    times cheaper (for thousands of postures): the leg lengths the rigid controller of
-    ``rigid`` commands less those the identified model needs at ``poses`` (M, 6) (each
-    approach direction, the reference instant), through the inverse of ``geometry``'s rigid
-    leg Jacobian ``dq/dX``."""
+    """``(position (2M,) mm, phi (2M,) deg)``: :func:`rigid_model_errors` to first order (ten
+    times cheaper), through the inverse of ``geometry``'s rigid leg Jacobian ``dq/dX``."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     sensors = geometry.sensors
     commanded = sensors.true_leg_lengths(

@@ -259,11 +259,9 @@ class EffectDesignError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class IdentifiedEffects:
-    """Effect parameters a calibration identified (what a controller compensates): ``values``
-    (24,) in :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), the ``payload_mass`` (kg)
-    and ``centre_of_mass`` (platform frame, m) the compliance was identified for, and the
-    thermal ``reference_time_s`` (s) the geometry refers to; ``leg_mass`` (6,) kg: the legs'
-    own, the compliance's load too."""
+    """Effect parameters a calibration identified: ``values`` (24,) in
+    :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), ``payload_mass`` (kg),
+    ``centre_of_mass`` (platform frame, m), ``reference_time_s`` (s) and ``leg_mass`` (6,) kg."""
 
     values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS))
     payload_mass: float = 0.0

@@ -72,12 +72,7 @@ class Limits:
 
 @dataclasses.dataclass(frozen=True)
 class SensorErrors:
-    """Systematic sensor errors (all 0: ideal sensors). Sign conventions (docs/sensor_errors.md):
-
-    real leg length ``L_i = L_off_i + (1 + kq_i) q_i`` (q_i the reading); inclinometer reading =
-    model inclination + offset; encoder reading = model yaw + ``phi0``; link length
-    ``D = D0 + (1 + kDm) Dm`` (Dm the LVDT reading).
-    """
+    """Systematic sensor errors (all 0: ideal sensors; sign conventions: docs/sensor_errors.md)."""
 
     leg_gain_errors: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS))
     inclinometer_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))

@@ -45,11 +45,8 @@ def inverse_kinematics(geometry, poses):
 
 
 def inverse_kinematics_jacobians(geometry, poses):
-    """IK and its analytic derivatives.
-
-    Returns ``q`` (M, 6), ``dq/dX`` (M, 6, 6) and ``dq/du_leg`` (M, 6, 7), where ``u_leg`` is each
-    leg's own parameters ``[A_ix, A_iy, A_iz, B_ix, B_iy, B_iz, L_off_i]``.
-    """
+    """IK and its analytic derivatives: ``q`` (M, 6), ``dq/dX`` (M, 6, 6) and ``dq/du_leg``
+    (M, 6, 7), ``u_leg`` = ``[A_ix, A_iy, A_iz, B_ix, B_iy, B_iz, L_off_i]``."""
     poses = _as_poses(poses)
     vectors, rotation = leg_vectors(geometry, poses)
     lengths = np.linalg.norm(vectors, axis=2)

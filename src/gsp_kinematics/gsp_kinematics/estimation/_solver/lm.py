@@ -136,12 +136,8 @@ def block_normal_equations(augmented):
 
 def eliminate_poses(pose_rows, parameter_block, pose_damping=None, parameter_damping=None):
     """``(reduced (n, n+1), solved (M, 6, n+1))``: the reduced system ``[S | g_S]`` and
-    ``H_XX^-1 [H_Xu | g_X]``, where ``S = H_uu - sum_m H_Xu^T H_XX^-1 H_Xu`` and
-    ``g_S = g_u - sum_m H_Xu^T H_XX^-1 g_X``.
-
-    ``pose_damping`` (M, 6) and ``parameter_damping`` (n,), if given, are added to the diagonals
-    of ``H_XX`` and ``H_uu`` (the damped normal equations).
-    """
+    ``H_XX^-1 [H_Xu | g_X]`` (``S = H_uu - sum_m H_Xu^T H_XX^-1 H_Xu``), ``pose_damping`` (M, 6)
+    and ``parameter_damping`` (n,), if given, added to the diagonals of ``H_XX`` and ``H_uu``."""
     size = parameter_block.shape[0] - 1
     h_xx = pose_rows[:, :, :6]
     if pose_damping is not None:

@@ -71,12 +71,10 @@ def _stepped(result, model, values, system):
 
 
 def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
-    """``result``'s refit of each posture subset ``kept`` (a list of (M,) bool masks of its rows
-    ``leg_lengths`` (M, 6), ``readings`` (M, 4), weights ``row_sigmas``, design ``effects``) as
-    one Gauss-Newton step from it: results with the step's parameters, effects, geometry and the
-    kept postures' information and covariance, or None where the kept postures do not identify
-    every parameter. None instead of the list unless ``result`` is a converged implicit
-    least-squares fit."""
+    """``result``'s refit of each posture subset ``kept`` ((M,) bool masks of its rows
+    ``leg_lengths``, ``readings``, ``row_sigmas``, ``effects``) as one Gauss-Newton step: a
+    result per subset (None where it does not identify every parameter), or None unless ``result``
+    is a converged implicit least-squares fit."""
     if result.formulation != 'implicit' or not result.converged or result.loss != 'linear':
         return None
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
