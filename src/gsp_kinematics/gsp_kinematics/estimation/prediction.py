@@ -160,13 +160,7 @@ def parameter_pose_covariance(geometry, covariance, poses, free=None, effect_fre
 
 
 def predicted_errors(
-    geometry,
-    covariance,
-    poses,
-    free=None,
-    unmodelled=None,
-    thermal_strain=None,
-    effect_free=None,
+    geometry, covariance, poses, free=None, unmodelled=None, thermal_strain=None, effect_free=None
 ):
     """Predicted error magnitudes ``(position_mm, orientation_deg)`` (M,) each at ``poses`` (M, 6).
 

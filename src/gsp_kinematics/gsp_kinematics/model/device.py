@@ -56,11 +56,7 @@ def link_direction_derivatives(alpha, beta, gamma):
         axis=-1,
     )
     d_beta = np.stack(
-        [
-            sg * (-sb * cg * sa + ca * cb),
-            cg * ca * cb - sa * cg**2 * sb,
-            -ca * sb - cg * sa * cb,
-        ],
+        [sg * (-sb * cg * sa + ca * cb), cg * ca * cb - sa * cg**2 * sb, -ca * sb - cg * sa * cb],
         axis=-1,
     )
     d_gamma = np.stack(

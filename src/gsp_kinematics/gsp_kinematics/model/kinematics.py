@@ -121,8 +121,7 @@ def forward_kinematics_masked(
         scale = np.maximum(
             1.0,
             np.maximum(
-                np.linalg.norm(step[:, :3], axis=1) / 0.1,
-                np.max(np.abs(step[:, 3:]), axis=1) / 0.2,
+                np.linalg.norm(step[:, :3], axis=1) / 0.1, np.max(np.abs(step[:, 3:]), axis=1) / 0.2
             ),
         )
         poses[index] -= step / scale[:, None]

@@ -12,11 +12,7 @@ from ...model.geometry import ALL_PARAMETER_NAMES
 from ...model.kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
 from ...rotation import wrap_angle
 from ..identification import Options
-from ..prediction import (
-    parameter_pose_covariance,
-    reading_pose_covariance,
-    thermal_pose_covariance,
-)
+from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from .comparison import (
     comparison_sensitivities,
     comparison_variances,
