@@ -326,12 +326,30 @@ def run(quick=False):
     }
 
 
+def within_posture_noise(sample_std, n_samples):
+    """Per-sample noise of each channel from the scatter within each posture,
+    ``{channel: (sigma, dof)}`` (channels with data): ``sample_std`` (M, 10) per posture (ddof 1)
+    of the 6 legs and 4 readings over ``n_samples`` (M,), pooled in the variance."""
+    sample_std = np.asarray(sample_std, dtype=float).reshape(-1, 10)
+    degrees = np.clip(np.asarray(n_samples, dtype=float).reshape(-1) - 1.0, 0.0, None)
+    estimates = {}
+    for channel, columns in goodness.NOISE_CHANNELS.items():
+        values = sample_std[:, columns]
+        usable = np.all(np.isfinite(values), axis=1) & (degrees > 0)
+        if not usable.any():
+            continue
+        dof = float(np.sum(degrees[usable]) * values.shape[1])
+        variance = np.sum(degrees[usable, None] * values[usable] ** 2) / dof
+        estimates[channel] = (math.sqrt(variance), dof)
+    return estimates
+
+
 def estimate_noise(sample_std, n_samples, configured):
     """Per-sample noise of each sensor from the scatter within each posture
-    (:func:`goodness.within_posture_noise`) beside the ``configured`` ``{channel: sigma}``:
+    (:func:`within_posture_noise`) beside the ``configured`` ``{channel: sigma}``:
     ``{channel: {'configured', 'estimated', 'ratio', 'warning'}}``."""
     estimates = {}
-    for channel, (estimated, _) in goodness.within_posture_noise(sample_std, n_samples).items():
+    for channel, (estimated, _) in within_posture_noise(sample_std, n_samples).items():
         sigma = float(configured[channel])
         ratio, warning = goodness.noise_warning(estimated, sigma)
         estimates[channel] = {

@@ -179,9 +179,7 @@ def outlier_postures(normalised, threshold=DEFAULT_OUTLIER_THRESHOLD, columns=No
 NEIGHBOURS = 5
 #: The neighbour test's threshold when the model does not explain the data, in multiples of the
 #: studentised test's: a real platform's residual field changes faster than 60 postures sample
-#: it (compliance at the workspace's extremes reaches 11 robust sigmas from its neighbours on
-#: the realistic platform, docs/verdict.md); a bad row (a glitch, a wrong pose) stands out by
-#: far more.
+#: it (docs/verdict.md); a bad row stands out by far more.
 NEIGHBOUR_THRESHOLD_FACTOR = 3.0
 #: Metres per radian when postures are compared in pose space (a rotation of 1 rad moves the
 #: platform's joints by about half a metre).
@@ -251,24 +249,6 @@ def down_weighted_postures(weights, below=0.999):
 
 #: Channels of the noise estimate -> (columns of the leg/readings std table (M, 10)).
 NOISE_CHANNELS = channels.SENSOR_SLICES
-
-
-def within_posture_noise(sample_std, n_samples):
-    """Per-sample noise of each channel from the scatter within each posture,
-    ``{channel: (sigma, dof)}`` (channels with data): ``sample_std`` (M, 10) per posture (ddof 1)
-    of the 6 legs and 4 readings over ``n_samples`` (M,), pooled in the variance."""
-    sample_std = np.asarray(sample_std, dtype=float).reshape(-1, 10)
-    degrees = np.clip(np.asarray(n_samples, dtype=float).reshape(-1) - 1.0, 0.0, None)
-    estimates = {}
-    for channel, columns in NOISE_CHANNELS.items():
-        values = sample_std[:, columns]
-        usable = np.all(np.isfinite(values), axis=1) & (degrees > 0)
-        if not usable.any():
-            continue
-        dof = float(np.sum(degrees[usable]) * values.shape[1])
-        variance = np.sum(degrees[usable, None] * values[usable] ** 2) / dof
-        estimates[channel] = (math.sqrt(variance), dof)
-    return estimates
 
 
 def noise_warning(estimated, configured):

@@ -13,8 +13,7 @@ DEFAULT_SETTLE_SIGMAS = 3.0
 
 
 #: Below this effective sample count a window is too short against the correlation time: the
-#: estimate of the std of the mean is then biased low (about 6 % at n_eff 6, 15 % at n_eff 4;
-#: docs/sensor_errors.md).
+#: estimate of the std of the mean is then biased low (docs/sensor_errors.md).
 MIN_N_EFF = 10.0
 
 #: Fewest samples over which :func:`settle_test` counts the correlation of the noise.

@@ -13,11 +13,8 @@ from ..model.motion import MotionLimits, move_time, posture_leg_lengths
 from ..model.sensor_noise import DEFAULT_SENSOR_NOISE
 
 #: Postures between reference revisits when thermal is planned and no interval is given; 0:
-#: none, the reference is revisited at the end only. Periodic revisits do not pay on the
-#: calibrator's plans: on the default plan (60 postures) a revisit every 10 postures costs 29 %
-#: of platform time on gsp_plan's motion model (16 % at 15 s a posture) and lowers the thermal
-#: rates' Cramér-Rao bound by 7-10 %: the plan's other postures, at their own times, hold most
-#: of the drift's information.
+#: none, the reference is revisited at the end only (the plan's other postures, at their own
+#: times, hold most of the drift's information).
 DEFAULT_REVISIT_EVERY = 0
 #: Most postures :func:`augment_route` inserts for the approach directions.
 MAX_APPROACH_INSERTIONS = 24
