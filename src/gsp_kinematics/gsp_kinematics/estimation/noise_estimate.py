@@ -309,23 +309,3 @@ def scatter_test(values, noise_std, sigmas=DEFAULT_SETTLE_SIGMAS):
 def false_unsettled_rate(sigmas=DEFAULT_SETTLE_SIGMAS):
     """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
     return math.erfc(sigmas / math.sqrt(2.0))
-
-
-__all__ = [
-    'DEFAULT_SETTLE_SIGMAS',
-    'NoiseEstimateError',
-    'NoiseOfMean',
-    'SettleTest',
-    'ar1_std_of_mean',
-    'false_unsettled_rate',
-    'lag_sums',
-    'noise_of_mean',
-    'noise_of_mean_from_sums',
-    'scatter_test',
-    'settle_test',
-    'settled',
-    'trend_std_factor',
-    'white_statistic',
-    'window_lag_sums',
-    'window_trend',
-]

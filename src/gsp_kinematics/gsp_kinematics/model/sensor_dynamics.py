@@ -81,6 +81,3 @@ class SensorDynamics:
         if self._time is None or float(time_s) > self._time:
             self._time = float(time_s)
         return self._response + self._noise * np.asarray(stds, dtype=float)
-
-
-__all__ = ['SensorDynamics', 'SensorDynamicsError', 'decay_factor']
