@@ -25,6 +25,7 @@ import statistics
 import numpy as np
 
 import gsp_bench.verdict
+from gsp_bench import stopping_run
 from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.run import postures, run_to_requirement
 from gsp_calibrator.run.identify import identify_with_settings
@@ -160,7 +161,7 @@ def _seed(design, plan, seed, required_mm, looser_mm):
     simulated = SimulatedRun(design, plan, 70_000 + seed, gsp_bench.verdict.RUN_S / fixed_s)
     rows = settings.sigmas.averaged([gsp_bench.verdict.SAMPLES])
     free = resolve_free(list(settings.free_parameters))
-    found = stopping.run_to_requirement(
+    found = stopping_run.run_to_requirement(
         plan.legs,
         plan.planned,
         simulated.measure,
@@ -259,13 +260,13 @@ def _prefix(design, plan, seed, order, samples, budget=math.inf):
 
 
 def informative_plan(plan):
-    """The plan's postures in :func:`gsp_kinematics.upkeep.stopping.informative_order` (information
+    """The plan's postures in :func:`gsp_bench.stopping_run.informative_order` (information
     per second at the nominal geometry, from the start pose)."""
     settings = plan.settings
     rows = settings.sigmas.averaged([gsp_bench.verdict.SAMPLES])
     free = resolve_free(list(settings.free_parameters))
     information = posture_information(settings.nominal, plan.pool[plan.planned], rows, free)
-    order = stopping.informative_order(
+    order = stopping_run.informative_order(
         information,
         plan.legs[plan.planned],
         plan.start_legs,

@@ -6,7 +6,7 @@ four effects) at realistic leg speeds, against the default plan (60 postures in 
 - **Workspace postures as the yardstick** (``workspace``): the default plan with ``WORKSPACE``
   workspace postures gives the workspace held-out accuracy (the verdict's headline with them),
   the selected postures' beside it and the true error. A run measures the plan's postures in
-  information-per-second order (``stopping.informative_order``) with the workspace postures
+  information-per-second order (``stopping_run.informative_order``) with the workspace postures
   interleaved (:func:`interleaved`), judged as the calibrator judges (``judge_rows``' pipeline)
   every ``EVERY`` postures from ``MINIMUM`` within ``BUDGET`` times the default plan's platform
   time; per judgement the workspace figure and its 95 % bound over the workspace rows, the

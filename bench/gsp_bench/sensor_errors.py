@@ -15,9 +15,14 @@ import statistics
 import numpy as np
 
 from gsp_kinematics.estimation import goodness
-from gsp_kinematics.estimation.identifiability import posture_information
-from gsp_kinematics.estimation.identification import Options, identify, resolve_free
-from gsp_kinematics.estimation.prediction import predicted_errors
+from gsp_kinematics.estimation.identifiability import posture_factors, posture_information
+from gsp_kinematics.estimation.identification import (
+    DEFAULT_FORMULATION,
+    Options,
+    identify,
+    resolve_free,
+)
+from gsp_kinematics.estimation.prediction import pose_sensitivities, predicted_errors
 from gsp_kinematics.model.kinematics import (
     Workspace,
     forward_kinematics_masked,
@@ -25,7 +30,7 @@ from gsp_kinematics.model.kinematics import (
 )
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.model.validation import commanded_articular, sensor_measurements, validate
-from gsp_kinematics.planning.selection import exchange_for_pose_error, select_postures
+from gsp_kinematics.planning.selection import select_postures
 
 from .nominal_sets import default_true_and_nominal
 
@@ -245,7 +250,7 @@ def _noise_section(std):
         'encoder': SIGMAS.encoder,
         'lvdt': SIGMAS.lvdt,
     }
-    estimates = goodness.estimate_noise(std, np.full(len(std), SAMPLES), channels)
+    estimates = estimate_noise(std, np.full(len(std), SAMPLES), channels)
     noise = {
         'pairs_per_posture': SAMPLES,
         'ratios': {name: entry['ratio'] for name, entry in estimates.items()},
@@ -324,3 +329,94 @@ def run(quick=False):
         'noise_estimates': noise,
         'outliers': outliers,
     }
+
+
+def within_posture_noise(sample_std, n_samples):
+    """Per-sample noise of each channel from the scatter within each posture,
+    ``{channel: (sigma, dof)}`` (channels with data): ``sample_std`` (M, 10) per posture (ddof 1)
+    of the 6 legs and 4 readings over ``n_samples`` (M,), pooled in the variance."""
+    sample_std = np.asarray(sample_std, dtype=float).reshape(-1, 10)
+    degrees = np.clip(np.asarray(n_samples, dtype=float).reshape(-1) - 1.0, 0.0, None)
+    estimates = {}
+    for channel, columns in goodness.NOISE_CHANNELS.items():
+        values = sample_std[:, columns]
+        usable = np.all(np.isfinite(values), axis=1) & (degrees > 0)
+        if not usable.any():
+            continue
+        dof = float(np.sum(degrees[usable]) * values.shape[1])
+        variance = np.sum(degrees[usable, None] * values[usable] ** 2) / dof
+        estimates[channel] = (math.sqrt(variance), dof)
+    return estimates
+
+
+def estimate_noise(sample_std, n_samples, configured):
+    """Per-sample noise of each sensor from the scatter within each posture
+    (:func:`within_posture_noise`) beside the ``configured`` ``{channel: sigma}``:
+    ``{channel: {'configured', 'estimated', 'ratio', 'warning'}}``."""
+    estimates = {}
+    for channel, (estimated, _) in within_posture_noise(sample_std, n_samples).items():
+        sigma = float(configured[channel])
+        ratio, warning = goodness.noise_warning(estimated, sigma)
+        estimates[channel] = {
+            'configured': sigma,
+            'estimated': estimated,
+            'ratio': ratio,
+            'warning': warning,
+        }
+    return estimates
+
+
+def position_weight(geometry, targets, free=None):
+    """``W`` (n, n): the Gram matrix of the position sensitivities at ``targets`` (M, 6), so that
+    ``trace(W C)`` is the summed predicted squared position error (m^2) under a covariance C."""
+    sensitivity = pose_sensitivities(geometry, targets, resolve_free(free))[:, :3]
+    return np.einsum('tai,taj->ij', sensitivity, sensitivity)
+
+
+def exchange_for_pose_error(
+    geometry,
+    pool,
+    chosen,
+    targets,
+    sigmas=DEFAULT_SENSOR_NOISE,
+    free=None,
+    formulation=DEFAULT_FORMULATION,
+    passes=1,
+):
+    """Indices of ``pool`` from ``chosen`` by exchange, minimising the predicted position error at
+    ``targets`` (``trace(W T^-1)``, :func:`position_weight`, T the information of the chosen
+    postures) instead of the condition number: a design for the validation error itself.
+
+    Each sweep replaces each chosen posture by the candidate that lowers the objective most, if
+    any (exact for every candidate through the Woodbury identity on its low-rank factor).
+    """
+    pool = np.asarray(pool, dtype=float)
+    factors = posture_factors(geometry, pool, sigmas, free, formulation)  # (N, r, n)
+    weight = position_weight(geometry, targets, free)
+    information = np.einsum('mri,mrj->mij', factors, factors)
+    chosen = [int(index) for index in chosen]
+    total = information[chosen].sum(axis=0)
+    identity = np.eye(factors.shape[1])
+
+    def decrease(indices, inverse):
+        # trace(W B^-1) - trace(W (B + G^T G)^-1) = trace((I + G B^-1 G^T)^-1 G B^-1 W B^-1 G^T)
+        projected = factors[indices] @ inverse
+        inner = identity + projected @ np.swapaxes(factors[indices], -1, -2)
+        weighted = projected @ weight @ np.swapaxes(projected, -1, -2)
+        return np.einsum('...ij,...ji->...', np.linalg.inv(inner), weighted)
+
+    for _ in range(passes):
+        improved = False
+        for position in range(len(chosen)):
+            base = total - information[chosen[position]]
+            inverse = np.linalg.inv(base)
+            candidates = np.setdiff1d(np.arange(len(pool)), chosen)
+            gains = decrease(candidates, inverse)
+            best = int(np.argmax(gains))
+            if gains[best] > decrease(chosen[position], inverse) * (1.0 + 1e-9):
+                chosen[position] = int(candidates[best])
+                total = base + information[chosen[position]]
+                improved = True
+        if not improved:
+            break
+    return np.array(chosen)

@@ -5,7 +5,16 @@ import numpy as np
 import pytest
 
 from gsp_bench.nominal_sets import default_true_and_nominal
-from gsp_bench.sensor_errors import POSTURES, SAMPLES, SIGMAS, model_section
+from gsp_bench.sensor_errors import (
+    POSTURES,
+    SAMPLES,
+    SIGMAS,
+    estimate_noise,
+    exchange_for_pose_error,
+    model_section,
+    position_weight,
+)
+from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.model.kinematics import Workspace, sample_valid_postures
 from gsp_kinematics.planning.selection import select_postures
 
@@ -43,3 +52,39 @@ def test_model_figure_is_variance_not_bias(design):
     low, high = model['extended_over_ideal_bootstrap_p5_p95']
     assert 1.0 < low <= model['predicted_extended_over_ideal'] <= high
     assert model['paper_p_value_max'] < 0.01 and model['paper_over_extended'] > 5.0
+
+
+def test_exchange_for_pose_error_leaves_no_improving_swap(nominal_sets):
+    nominal = nominal_sets[1]
+    pool = sample_valid_postures(nominal, 150, np.random.default_rng(3))
+    indices, _ = select_postures(nominal, pool, 45)
+    targets = sample_valid_postures(nominal, 40, np.random.default_rng(6))
+    information = posture_information(nominal, pool)
+    weight = position_weight(nominal, targets)
+
+    def objective(chosen):
+        return np.trace(weight @ np.linalg.inv(information[chosen].sum(axis=0)))
+
+    refined = exchange_for_pose_error(nominal, pool, indices, targets, passes=20)
+    assert len(set(refined.tolist())) == len(indices) and objective(refined) < objective(indices)
+    # Converged: no single swap lowers the objective, scored directly (no Woodbury identity).
+    outside = np.setdiff1d(np.arange(len(pool)), refined)
+    best = objective(refined)
+    for position in range(0, len(refined), 5):
+        for candidate in outside[::4]:
+            swapped = refined.copy()
+            swapped[position] = candidate
+            assert objective(swapped) >= best * (1.0 - 1e-9)
+
+
+def test_noise_estimate_pools_within_posture_scatter():
+    rng = np.random.default_rng(1)
+    sigma = np.array([1e-6] * 6 + [2e-5, 2e-5, 3e-5, 4e-6])
+    samples = rng.normal(0.0, 1.0, (60, 10, 10)) * sigma  # 60 postures, 10 samples each
+    std = samples.std(axis=1, ddof=1)
+    configured = {'leg_lengths': 1e-6, 'inclinometer': 2e-5, 'encoder': 3e-5, 'lvdt': 1e-6}
+    estimates = estimate_noise(std, np.full(60, 10), configured)
+    assert estimates['leg_lengths']['estimated'] == pytest.approx(1e-6, rel=0.1)
+    assert not estimates['inclinometer']['warning']
+    assert estimates['lvdt']['ratio'] == pytest.approx(4.0, rel=0.2)
+    assert estimates['lvdt']['warning']

@@ -1,10 +1,11 @@
-"""A run that stops when it is good enough (gsp_kinematics.upkeep.stopping) on the benches' path."""
+"""A run that stops when it is good enough (gsp_bench.stopping_run) on the benches' path."""
 
 import math
 
 import numpy as np
 import pytest
 
+from gsp_bench import stopping_run
 from gsp_bench.sensor_errors import SAMPLES, SIGMAS
 from gsp_bench.upkeep import UpkeepDesign, _pool_measurements
 from gsp_kinematics.estimation.identifiability import posture_information
@@ -31,11 +32,11 @@ def run(setting, rule, planned=range(30)):
     def rows(indices):
         return legs[indices], readings[indices]
 
-    found = stopping.run_to_requirement(
+    found = stopping_run.run_to_requirement(
         posture_leg_lengths(design.nominal, pool),
         list(planned),
         lambda index, elapsed: measured.append((index, elapsed)),
-        stopping.core_judge(design.nominal, pool, rows, ROWS, 'extended'),
+        stopping_run.core_judge(design.nominal, pool, rows, ROWS, 'extended'),
         lambda result: posture_information(result.geometry, pool, ROWS, resolve_free('extended')),
         rule,
         MotionLimits(),
@@ -85,5 +86,5 @@ def test_the_informative_order_starts_with_the_most_information_per_second():
     limits = MotionLimits()
     legs = np.array([[0.80] * 6, [0.71] * 6, [0.72] * 6])
     information = np.array([np.eye(2), np.eye(2), np.diag([1.0, 1e-6])])
-    order = stopping.informative_order(information, legs, np.full(6, 0.70), limits)
+    order = stopping_run.informative_order(information, legs, np.full(6, 0.70), limits)
     assert sorted(order) == [0, 1, 2] and order[0] == 1

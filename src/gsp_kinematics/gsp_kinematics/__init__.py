@@ -1,9 +1,5 @@
-"""Pure numpy/scipy core of gsp-calibration: kinematics, device model and identification.
-
-Never imports rclpy, so it is usable and testable without ROS. The modules are the API; the most
-used names are also available here (``from gsp_kinematics import identify``), imported on first
-use so that importing one module (e.g. :mod:`gsp_kinematics.rotation`) does not load them all.
-"""
+"""Pure numpy/scipy core of gsp-calibration (never imports rclpy); the most used names are lent
+here, imported on first use (docs/core_api.md)."""
 
 import importlib
 

@@ -1,9 +1,5 @@
-"""THE table of the ten reading channels a calibration collects at each instant (no rclpy).
-
-Every layout of the readings is derived from :data:`CHANNELS`: the ten columns
-``[q1..q6, alpha, beta, phi, d_m]`` of a synchronised sample, the four device readings
-``[alpha, beta, phi, d_m]`` of the core, the sensors that produce them and their units.
-"""
+"""THE table of the ten reading channels ``[q1..q6, alpha, beta, phi, d_m]`` a calibration
+collects at each instant, from which every layout is derived (no rclpy; docs/core_api.md)."""
 
 import dataclasses
 
@@ -66,13 +62,11 @@ def sensor_channel_names(sensor):
     return tuple(CHANNEL_NAMES[column] for column in sensor_columns(sensor))
 
 
-def reading_columns(sensor):
-    """Columns of a device ``sensor``'s channels among the four readings (a tuple of ints)."""
-    return tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
-
-
 #: Each device sensor -> its columns among the four readings.
-DEVICE_READING_COLUMNS = {sensor: reading_columns(sensor) for sensor in DEVICE_SENSORS}
+DEVICE_READING_COLUMNS = {
+    sensor: tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
+    for sensor in DEVICE_SENSORS
+}
 #: Each sensor -> the slice of its columns among the ten.
 SENSOR_SLICES = {sensor: sensor_slice(sensor) for sensor in SENSORS}
 #: Column among the four readings of phi (the encoder).

@@ -1,9 +1,5 @@
-"""File helpers shared by every layer: atomic writes and strict JSON (pure, no rclpy).
-
-Every file the suite writes goes through :func:`atomic_write_bytes`: a temporary file in the
-same directory, flushed and fsync'ed, then ``os.replace`` over the target, so a reader (or a
-crash) never sees a half-written file. JSON is strict: NaN and infinities become ``null``.
-"""
+"""File helpers shared by every layer: atomic writes (temporary file, fsync, ``os.replace``) and
+strict JSON (NaN and infinities become ``null``); pure, no rclpy."""
 
 import json
 import math
@@ -46,11 +42,8 @@ def atomic_copy(source, target):
 
 
 def json_safe(value):
-    """A copy of ``value`` that strict JSON accepts.
-
-    numpy arrays and scalars become Python lists and numbers, paths become strings, tuples
-    become lists, and non-finite floats become None (strict JSON has no NaN).
-    """
+    """A copy of ``value`` that strict JSON accepts (numpy to Python, paths to strings, tuples to
+    lists, non-finite floats to None)."""
     if isinstance(value, dict):
         return {str(key): json_safe(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):

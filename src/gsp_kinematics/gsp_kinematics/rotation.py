@@ -1,8 +1,5 @@
-"""Orientation conventions of the paper (eq 1-2) and conversions for geometry_msgs.
-
-Pose vector ``X = [x, y, z, psi, theta, phi]`` (m, rad); ``R = R_Y(theta) R_X(psi) R_z(phi)``.
-All functions broadcast over leading axes.
-"""
+"""Orientation conventions of the paper (eq 1-2), ``R = R_Y(theta) R_X(psi) R_z(phi)``, and
+conversions for geometry_msgs; broadcast over leading axes."""
 
 import numpy as np
 from scipy.spatial.transform import Rotation

@@ -9,7 +9,6 @@ from gsp_kinematics.model.device import (
     DeviceModelError,
     device_position,
     device_readings,
-    device_readings_jacobians,
     paper_inclinations_jacobians,
     position_to_inclinations,
 )
@@ -72,24 +71,6 @@ def test_device_readings(exact, postures):
         readings[:, 0], readings[:, 1], readings[:, 3] + 0.8493, math.radians(91.0)
     )
     np.testing.assert_allclose(position, postures[:, :3], atol=1e-13)
-
-
-@pytest.mark.parametrize('gamma_deg', [90.0, 88.3, 91.7])
-def test_device_readings_jacobians_match_finite_differences(exact, postures, gamma_deg, fd):
-    geometry = exact.replace(inclinometer_axes_angle=math.radians(gamma_deg), device_length=0.8502)
-    poses = postures[:15]
-    readings, d_pose, d_device = device_readings_jacobians(geometry, poses)
-    np.testing.assert_allclose(readings, device_readings(geometry, poses), atol=1e-15)
-    for m, pose in enumerate(poses):
-        numeric = fd(lambda x: device_readings(geometry, x)[0], pose, 1e-7)
-        np.testing.assert_allclose(d_pose[m], numeric, atol=1e-7)
-
-    def of_device(device):
-        changed = geometry.replace(device_length=device[0], inclinometer_axes_angle=device[1])
-        return device_readings(changed, poses)
-
-    numeric = fd(of_device, [geometry.device_length, geometry.inclinometer_axes_angle], 1e-7)
-    np.testing.assert_allclose(d_device, numeric, atol=1e-7)
 
 
 @pytest.mark.parametrize('gamma_deg', [90.0, 89.5, 91.0])

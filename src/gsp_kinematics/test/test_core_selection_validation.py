@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gsp_kinematics.estimation.identifiability import posture_information, scaled_condition_number
+from gsp_kinematics.model.device import link_direction_derivatives, position_to_inclinations
 from gsp_kinematics.model.kinematics import (
     forward_kinematics,
     inverse_kinematics,
@@ -13,8 +14,6 @@ from gsp_kinematics.model.kinematics import (
 )
 from gsp_kinematics.model.validation import pose_errors, reached_poses, validate
 from gsp_kinematics.planning.selection import (
-    exchange_for_pose_error,
-    position_weight,
     select_postures,
 )
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_euler
@@ -48,27 +47,6 @@ def test_selection_beats_random_picks(selection):
         for _ in range(20)
     ]
     assert condition < min(random_conditions)
-
-
-def test_exchange_for_pose_error_leaves_no_improving_swap(selection):
-    nominal, pool, indices, _ = selection
-    targets = sample_valid_postures(nominal, 40, np.random.default_rng(6))
-    information = posture_information(nominal, pool)
-    weight = position_weight(nominal, targets)
-
-    def objective(chosen):
-        return np.trace(weight @ np.linalg.inv(information[chosen].sum(axis=0)))
-
-    refined = exchange_for_pose_error(nominal, pool, indices, targets, passes=20)
-    assert len(set(refined.tolist())) == len(indices) and objective(refined) < objective(indices)
-    # Converged: no single swap lowers the objective, scored directly (no Woodbury identity).
-    outside = np.setdiff1d(np.arange(len(pool)), refined)
-    best = objective(refined)
-    for position in range(0, len(refined), 5):
-        for candidate in outside[::4]:
-            swapped = refined.copy()
-            swapped[position] = candidate
-            assert objective(swapped) >= best * (1.0 - 1e-9)
 
 
 def test_selection_needs_a_large_enough_pool(nominal_sets):
@@ -128,10 +106,53 @@ def test_validation_commands_with_the_controller_and_moves_the_true_platform(
     assert 0.5 < errors['position_mm_mean'] < 50.0 and 0.01 < errors['orientation_deg_mean'] < 5.0
 
 
+def device_readings_jacobians(geometry, poses):
+    """Readings (M, 4), their derivatives w.r.t. the pose (M, 4, 6) and w.r.t. (D0, gamma) (M, 4, 2)."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    position = poses[:, :3]
+    gamma = geometry.inclinometer_axes_angle
+    alpha, beta = position_to_inclinations(position, gamma)
+    length = np.linalg.norm(position, axis=1)
+    direction = position / length[:, None]
+    d_alpha, d_beta, d_gamma = link_direction_derivatives(alpha, beta, gamma)
+    tangent = np.stack([d_alpha, d_beta], axis=-1)  # (M, 3, 2)
+    # The direction moves on the unit sphere; the tangent's pseudo-inverse maps it to the angles.
+    pseudo_inverse = np.linalg.solve(
+        np.swapaxes(tangent, -1, -2) @ tangent, np.swapaxes(tangent, -1, -2)
+    )  # (M, 2, 3)
+    projector = (np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]) / length[
+        :, None, None
+    ]
+    d_angles_d_position = pseudo_inverse @ projector  # (M, 2, 3)
+    d_angles_d_gamma = -(pseudo_inverse @ d_gamma[..., None])[..., 0]  # (M, 2)
+    count = poses.shape[0]
+    d_readings_d_pose = np.zeros((count, 4, 6))
+    d_readings_d_pose[:, 0:2, 0:3] = d_angles_d_position
+    d_readings_d_pose[:, 2, 5] = 1.0
+    d_readings_d_pose[:, 3, 0:3] = direction
+    d_readings_d_device = np.zeros((count, 4, 2))
+    d_readings_d_device[:, 0:2, 1] = d_angles_d_gamma
+    d_readings_d_device[:, 3, 0] = -1.0
+    readings = np.stack([alpha, beta, poses[:, 5], length - geometry.device_length], axis=1)
+    return readings, d_readings_d_pose, d_readings_d_device
+
+
+def schur_information(jac_pose, jac_u, per_posture=False):
+    """Information ``J^T J`` of the parameters with each posture's pose eliminated,
+    ``H_uu - sum_m H_Xu_m^T H_XX_m^-1 H_Xu_m``, from the Jacobians ``(M, k, 6)`` and
+    ``(M, k, n)``; ``per_posture``: ``(M, n, n)``, one complement a posture."""
+    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
+    h_xu = jac_pose_t @ jac_u
+    solved = np.linalg.inv(jac_pose_t @ jac_pose) @ h_xu
+    if per_posture:
+        return np.swapaxes(jac_u, 1, 2) @ jac_u - np.swapaxes(h_xu, 1, 2) @ solved
+    size = jac_u.shape[2]
+    flat_u = jac_u.reshape(-1, size)
+    return flat_u.T @ flat_u - h_xu.reshape(-1, size).T @ solved.reshape(-1, size)
+
+
 def test_posture_factors_give_the_schur_complement(nominal_sets, postures):
-    from gsp_kinematics.estimation._solver.lm import schur_information
     from gsp_kinematics.estimation.identifiability import posture_factors
-    from gsp_kinematics.model.device import device_readings_jacobians
     from gsp_kinematics.model.kinematics import expand_leg_parameters, inverse_kinematics_jacobians
     from gsp_kinematics.model.sensor_noise import SensorNoise
 

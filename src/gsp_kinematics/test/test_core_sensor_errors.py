@@ -245,19 +245,6 @@ def test_huber_names_and_down_weights_a_corrupted_posture(exact, moderate_postur
 # --- noise estimates and the verdict --------------------------------------------------------------
 
 
-def test_noise_estimate_pools_within_posture_scatter():
-    rng = np.random.default_rng(1)
-    sigma = np.array([1e-6] * 6 + [2e-5, 2e-5, 3e-5, 4e-6])
-    samples = rng.normal(0.0, 1.0, (60, 10, 10)) * sigma  # 60 postures, 10 samples each
-    std = samples.std(axis=1, ddof=1)
-    configured = {'leg_lengths': 1e-6, 'inclinometer': 2e-5, 'encoder': 3e-5, 'lvdt': 1e-6}
-    estimates = goodness.estimate_noise(std, np.full(60, 10), configured)
-    assert estimates['leg_lengths']['estimated'] == pytest.approx(1e-6, rel=0.1)
-    assert not estimates['inclinometer']['warning']
-    assert estimates['lvdt']['ratio'] == pytest.approx(4.0, rel=0.2)
-    assert estimates['lvdt']['warning']
-
-
 def test_goodness_of_fit_and_verdict_text():
     rng = np.random.default_rng(2)
     fit = goodness.goodness_of_fit(rng.normal(size=(100, 10)), 44)

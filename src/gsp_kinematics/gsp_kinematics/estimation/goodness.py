@@ -25,11 +25,8 @@ NOISE_WARNING_RATIO = 2.0
 
 
 def robust_weights(normalised, loss, scale):
-    """IRLS weights ``rho'(z^2)`` of each residual for ``loss`` with ``scale`` in sigmas.
-
-    ``linear``: 1; ``huber``: ``min(1, scale / |z|)``; ``cauchy``: ``1 / (1 + (z / scale)^2)``.
-    NaN residuals (postures left out) get weight 1.
-    """
+    """IRLS weights ``rho'(z^2)`` of each residual for ``loss`` (``linear``: 1; ``huber``,
+    ``cauchy``) with ``scale`` in sigmas; NaN residuals (postures left out) get weight 1."""
     z = np.abs(np.nan_to_num(np.asarray(normalised, dtype=float), nan=0.0)) / scale
     if loss == 'linear':
         return np.ones_like(z)
@@ -49,13 +46,8 @@ def validate_loss(loss, scale):
 
 @dataclasses.dataclass(frozen=True)
 class GoodnessOfFit:
-    """A goodness-of-fit test of the residuals (``test`` in :data:`FIT_TESTS`).
-
-    ``chi2``: the squared normalised residuals against ``dof``. ``lack_of_fit``: ``chi2`` is the
-    sum of the squared residuals in within-posture noise units, ``dof`` their redundancy, and
-    ``chi2 / dof`` is F-distributed with ``(dof, pure_error_dof)`` degrees of freedom. ``none``:
-    the noise came from the residuals alone and nothing independent tests it.
-    """
+    """A goodness-of-fit test of the residuals (``test`` in :data:`FIT_TESTS`: ``chi2``,
+    ``lack_of_fit`` (F with ``(dof, pure_error_dof)``) or ``none``; docs/sensor_errors.md)."""
 
     chi2: float
     dof: float
@@ -83,10 +75,7 @@ class GoodnessOfFit:
 
 def goodness_of_fit(normalised, unknowns, excluded=()):
     """:class:`GoodnessOfFit` of residuals (M, k) (NaN rows: postures not used) with ``unknowns``
-    estimated (free parameters, and the poses in the implicit formulation, 6 a posture used).
-
-    ``excluded``: postures left out (outliers named by a robust fit); ``unknowns`` must already
-    count only the postures kept."""
+    estimated (counting only the postures kept); ``excluded``: postures left out."""
     normalised = np.array(normalised, dtype=float)
     if len(excluded):
         normalised[list(excluded)] = np.nan
@@ -120,16 +109,11 @@ def lack_of_fit(between, redundancy, pure_error_dof, excluded=()):
 _SENSOR_OF_CHANNEL = {channel.name: channel.sensor for channel in channels.CHANNELS}
 
 
-def channel_of_column(name):
-    """The noise channel (:data:`NOISE_CHANNELS`) of a residual column (``q3``, ``alpha``...)."""
-    return _SENSOR_OF_CHANNEL[name]
-
-
 def channel_columns(columns):
     """``{channel: [column indices]}`` of the residual columns named ``columns``."""
     grouped = {}
     for index, name in enumerate(columns):
-        grouped.setdefault(channel_of_column(name), []).append(index)
+        grouped.setdefault(_SENSOR_OF_CHANNEL[name], []).append(index)
     return grouped
 
 
@@ -195,9 +179,7 @@ def outlier_postures(normalised, threshold=DEFAULT_OUTLIER_THRESHOLD, columns=No
 NEIGHBOURS = 5
 #: The neighbour test's threshold when the model does not explain the data, in multiples of the
 #: studentised test's: a real platform's residual field changes faster than 60 postures sample
-#: it (compliance at the workspace's extremes reaches 11 robust sigmas from its neighbours on
-#: the realistic platform, docs/verdict.md); a bad row (a glitch, a wrong pose) stands out by
-#: far more.
+#: it (docs/verdict.md); a bad row stands out by far more.
 NEIGHBOUR_THRESHOLD_FACTOR = 3.0
 #: Metres per radian when postures are compared in pose space (a rotation of 1 rad moves the
 #: platform's joints by about half a metre).
@@ -206,10 +188,8 @@ POSE_SCALE_M_PER_RAD = 0.5
 
 def neighbour_deviations(normalised, poses, neighbours=NEIGHBOURS):
     """Each posture's residuals (M, k) minus the mean of its ``neighbours`` nearest postures' in
-    pose space (``poses`` (M, 6), angles at :data:`POSE_SCALE_M_PER_RAD`), in units of the
-    robust scale (1.4826 MAD) of these differences in each column. A residual field that is a
-    smooth function of the pose (an unmodelled error) gives small deviations everywhere; a
-    posture inconsistent with its neighbours (a bad row) stands out. NaN rows stay NaN."""
+    pose space (``poses`` (M, 6), angles at :data:`POSE_SCALE_M_PER_RAD`), in units of the robust
+    scale (1.4826 MAD) of these differences per column. NaN rows stay NaN."""
     normalised = np.asarray(normalised, dtype=float)
     scaled = np.array(poses, dtype=float)
     scaled[:, 3:] *= POSE_SCALE_M_PER_RAD
@@ -230,11 +210,9 @@ def neighbour_deviations(normalised, poses, neighbours=NEIGHBOURS):
 
 
 def isolated_outliers(outliers, normalised, poses, threshold=DEFAULT_OUTLIER_THRESHOLD):
-    """The entries of ``outliers`` (:func:`outlier_postures`) whose postures are also
-    inconsistent with their neighbours (:func:`neighbour_deviations` of ``normalised`` beyond
-    the threshold below; ``threshold`` None: Bonferroni as there): a large residual in a smooth field of large
-    residuals is the model's error, not the posture's. Each kept entry gets its
-    ``neighbour_deviation``."""
+    """The entries of ``outliers`` (:func:`outlier_postures`) whose postures also stand out from
+    their neighbours (:func:`neighbour_deviations` of ``normalised`` beyond the threshold;
+    ``threshold`` None: Bonferroni), each with its ``neighbour_deviation``."""
     if not outliers:
         return []
     deviations = neighbour_deviations(normalised, poses)
@@ -273,51 +251,11 @@ def down_weighted_postures(weights, below=0.999):
 NOISE_CHANNELS = channels.SENSOR_SLICES
 
 
-def within_posture_noise(sample_std, n_samples):
-    """Per-sample noise of each channel from the scatter within each posture:
-    ``{channel: (sigma, dof)}`` (only channels with data).
-
-    ``sample_std`` (M, 10): per posture, the sample standard deviation (ddof 1) of the 6 legs and
-    the 4 readings over its ``n_samples`` (M,) samples. The pooled estimate
-    ``sqrt(sum (n-1) s^2 / sum (n-1))`` is unbiased in the variance; ``dof = sum (n - 1)`` over the
-    channel's columns.
-    """
-    sample_std = np.asarray(sample_std, dtype=float).reshape(-1, 10)
-    degrees = np.clip(np.asarray(n_samples, dtype=float).reshape(-1) - 1.0, 0.0, None)
-    estimates = {}
-    for channel, columns in NOISE_CHANNELS.items():
-        values = sample_std[:, columns]
-        usable = np.all(np.isfinite(values), axis=1) & (degrees > 0)
-        if not usable.any():
-            continue
-        dof = float(np.sum(degrees[usable]) * values.shape[1])
-        variance = np.sum(degrees[usable, None] * values[usable] ** 2) / dof
-        estimates[channel] = (math.sqrt(variance), dof)
-    return estimates
-
-
 def noise_warning(estimated, configured):
     """``(ratio, warning)``: estimated / configured, and whether it is beyond
     :data:`NOISE_WARNING_RATIO` either way."""
     ratio = estimated / configured if configured > 0 else math.inf
     return ratio, not (1.0 / NOISE_WARNING_RATIO <= ratio <= NOISE_WARNING_RATIO)
-
-
-def estimate_noise(sample_std, n_samples, configured):
-    """Per-sample noise of each sensor from the scatter within each posture
-    (:func:`within_posture_noise`) beside the ``configured`` ``{channel: sigma}``:
-    ``{channel: {'configured', 'estimated', 'ratio', 'warning'}}``."""
-    estimates = {}
-    for channel, (estimated, _) in within_posture_noise(sample_std, n_samples).items():
-        sigma = float(configured[channel])
-        ratio, warning = noise_warning(estimated, sigma)
-        estimates[channel] = {
-            'configured': sigma,
-            'estimated': estimated,
-            'ratio': ratio,
-            'warning': warning,
-        }
-    return estimates
 
 
 def _head(fit):
@@ -332,10 +270,8 @@ def _head(fit):
 
 
 def fit_diagnosis(fit, outliers=(), noise=None, free_sensor_errors=False):
-    """Plain text: does the model explain the data, and if not, the likely causes.
-
-    ``outliers``: :func:`outlier_postures` of the studentised residuals; ``noise``:
-    ``{channel: {'warning', ...}}`` (configured sigmas that differ from the data's estimate)."""
+    """Plain text: does the model explain the data, and if not, the likely causes (``outliers``:
+    :func:`outlier_postures`; ``noise``: ``{channel: {'warning', ...}}``)."""
     if fit.dof <= 0:
         return (
             'goodness of fit: not assessable (no degrees of freedom left: add postures or fix '

@@ -1,9 +1,5 @@
-"""Identifiability: rank, condition number and the parameter combinations that cannot be identified.
-
-Works on the information matrix ``J^T J`` of the free parameters (for the implicit formulation,
-the Schur complement after eliminating the poses). Columns are scaled to unit norm first, so the
-condition number is that of the column-scaled identification Jacobian.
-"""
+"""Identifiability: rank, condition number (of the column-scaled Jacobian) and the parameter
+combinations that cannot be identified, from the information ``J^T J`` of the free parameters."""
 
 import math
 
@@ -22,14 +18,9 @@ DEFAULT_RELATIVE_TOLERANCE = 1e-6
 def analyse_identifiability(
     information, free=None, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE, names=None
 ):
-    """``{rank, parameters, condition_number, singular_values, unidentifiable}``.
-
-    ``names``: of the information's rows (default those of ``free``; a result that freed
-    effect parameters: ``IdentificationResult.free_names``).
-    ``unidentifiable`` lists one entry per null direction: ``{"combination": "0.71*B1x - 0.71*B2y",
-    "parameters": [...], "coefficients": [...]}`` (coefficients in scaled units, largest first).
-    A parameter that no residual depends on shows up alone.
-    """
+    """``{rank, parameters, condition_number, singular_values, unidentifiable}``; ``names``: of
+    the information's rows (default those of ``free``); ``unidentifiable``: per null direction
+    ``{"combination": "0.71*B1x - 0.71*B2y", "parameters", "coefficients"}`` (scaled units)."""
     if names is None:
         free = resolve_free(free)
         names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, free, strict=True) if is_free]
@@ -81,10 +72,8 @@ def unidentifiable_parameters(analysis):
 
 
 def analyse_result(result):
-    """The identifiability analysis of an ``IdentificationResult``: :func:`analyse_identifiability`
-    of its information matrix, plus ``names`` (:func:`unidentifiable_parameters`). A non-finite
-    information matrix (a failed fit) gives rank 0 with every free parameter named. Computed once
-    per result; the calibration, its report and its predicted accuracy share it."""
+    """:func:`analyse_identifiability` of an ``IdentificationResult``'s information, plus
+    ``names`` (:func:`unidentifiable_parameters`); a failed fit: rank 0, every parameter named."""
     information = np.asarray(result.information, dtype=float)
     if not np.all(np.isfinite(information)):
         names = list(result.free_names)
@@ -134,15 +123,10 @@ def posture_factors(
 ):
     """Per-posture information factors ``G`` (N, r, n): posture k's information is ``G_k^T G_k``.
 
-    For ``'implicit'`` each posture's pose is eliminated: the weighted residual Jacobian
-    ``[J_X | J_u]`` (k x (6 + n)) is projected on the orthogonal complement of ``J_X``'s columns
-    (``r = k - 6`` rows of a complete QR), which gives the Schur complement
-    ``J_u^T J_u - J_u^T J_X (J_X^T J_X)^-1 J_X^T J_u`` as a product of small factors; for ``'fk'``
-    it is the FK-based residual Jacobian itself (r = the device readings used). ``sigmas``: the
-    ``SensorNoise`` weights (default :data:`~gsp_kinematics.model.sensor_noise.DEFAULT_SENSOR_NOISE`).
-    ``leg_columns`` (N, 6, e): derivatives of the leg readings (m per unit) with respect to e more
-    parameters only the legs see (the effect groups' regressors; ``'implicit'`` only), last.
-    """
+    ``'implicit'``: the weighted residual Jacobian projected on the orthogonal complement of the
+    pose's columns (r = k - 6; the Schur complement); ``'fk'``: the FK-based residual Jacobian.
+    ``sigmas``: the ``SensorNoise`` weights. ``leg_columns`` (N, 6, e): derivatives of the leg
+    readings (m per unit) w.r.t. e more parameters only the legs see (``'implicit'`` only), last."""
     sigmas = DEFAULT_SENSOR_NOISE if sigmas is None else sigmas
     free = resolve_free(free)
     columns = [c for c, name in enumerate(READING_NAMES) if name in sensors]
@@ -176,11 +160,8 @@ def posture_information(
     sensors=SENSOR_NAMES,
     leg_columns=None,
 ):
-    """Per-posture information matrices (N, n, n) of the free parameters.
-
-    For ``'implicit'`` each posture's pose is eliminated (Schur complement), which is additive over
-    postures; for ``'fk'`` it is ``J_k^T J_k`` of the FK-based residuals. Both are weighted.
-    """
+    """Per-posture information matrices (N, n, n) of the free parameters, weighted (the pose
+    eliminated for ``'implicit'``)."""
     factors = posture_factors(geometry, poses, sigmas, free, formulation, sensors, leg_columns)
     return np.einsum('mri,mrj->mij', factors, factors)
 

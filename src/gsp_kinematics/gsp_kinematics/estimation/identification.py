@@ -183,10 +183,8 @@ class IdentificationResult:
 
 def free_parameters_error(names, effects=True):
     """Reason ('' if none) why ``names`` (parameter and group names, :data:`PARAMETER_GROUPS`;
-    with ``effects``, also the effect groups and their parameters, ``effects.groups``, and
-    :data:`AUTO`) is not a set of free parameters: empty, unknown or duplicated names, or
-    :data:`AUTO` beside named effects. The one check of a free-parameter list, for the
-    calibrator and every command line."""
+    with ``effects``, also the effect groups, their parameters and :data:`AUTO`) is not a set of
+    free parameters: the one check of a free-parameter list."""
     names = list(names)
     if not names:
         return 'must name at least one parameter'
@@ -300,15 +298,11 @@ def identify(
 ):
     """Identify the free parameters from M postures.
 
-    ``leg_lengths`` (M, 6): measured articular variables q (m). ``readings`` (M, 4): measured
-    ``[alpha, beta, phi, d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (e.g. the
-    commanded postures); by default built from the device readings. ``sensors`` drops
-    measurements (e.g. without ``'d_m'``) for identifiability studies. ``free``: see
-    :func:`resolve_free` (default the paper's 44); effect groups and parameters among it
-    (:mod:`gsp_kinematics.model.effect_groups`, ``'implicit'`` only) need ``effects``, an
-    :class:`EffectDesign` of the run (times, approach directions, the payload). ``options.loss`` other than ``'linear'``
-    reweights each residual by the loss (IRLS, scale ``options.loss_scale`` sigmas).
-    """
+    ``leg_lengths`` (M, 6): measured q (m). ``readings`` (M, 4): measured ``[alpha, beta, phi,
+    d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (default: from the readings).
+    ``sensors``: the measurements used. ``free``: see :func:`resolve_free` (default the paper's
+    44); effect groups among it need ``effects``, the run's :class:`EffectDesign`.
+    ``options.loss`` other than ``'linear'``: IRLS at ``options.loss_scale`` sigmas."""
     if formulation not in FORMULATIONS:
         raise IdentificationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     unknown = set(sensors) - set(SENSOR_NAMES)

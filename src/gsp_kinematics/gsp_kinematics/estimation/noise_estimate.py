@@ -13,8 +13,7 @@ DEFAULT_REST_SIGMAS = 3.0
 
 
 #: Below this effective sample count a window is too short against the correlation time: the
-#: estimate of the std of the mean is then biased low (about 6 % at n_eff 6, 15 % at n_eff 4;
-#: docs/sensor_errors.md).
+#: estimate of the std of the mean is then biased low (docs/sensor_errors.md).
 MIN_N_EFF = 10.0
 
 #: Fewest samples over which :func:`rest_test` counts the correlation of the noise.
@@ -30,12 +29,9 @@ class NoiseEstimateError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class NoiseOfMean:
-    """Per channel (C,): ``sample_std`` (the std of one sample, the channel's unit),
-    ``std_of_mean`` (of the mean of ``n_samples`` samples), ``n_eff`` (``(sample_std /
-    std_of_mean)^2``), ``lags`` (autocovariance lags summed), and ``window_too_short`` (the
-    autocorrelation was still positive at the largest usable lag (always so below 4 samples),
-    or ``n_eff`` < :data:`MIN_N_EFF` and < n/2: the windows are not long against the
-    correlation time, and ``std_of_mean`` is biased low, a lower bound)."""
+    """Per channel (C,): ``sample_std`` (one sample, the channel's unit), ``std_of_mean`` (of
+    the mean of ``n_samples``), ``n_eff`` (``(sample_std / std_of_mean)^2``), ``lags`` (summed),
+    and ``window_too_short`` (``std_of_mean`` only a lower bound; docs/sensor_errors.md)."""
 
     n_samples: int
     sample_std: np.ndarray
@@ -78,10 +74,8 @@ def _initial_positive_lags(autocovariance):
 
 
 def window_lag_sums(samples, max_lag=None):
-    """Per window of ``samples`` (P, n, C), the sums of the lag-k products of the window centred
-    on its own mean, ``sum_i x_i x_(i+k)`` for k = 0..``max_lag`` (default ``n // 2``):
-    (P, max_lag + 1, C), the channel's unit squared. What a posture contributes to
-    :func:`noise_of_mean_from_sums`: additive over windows of the same n."""
+    """Per window of ``samples`` (P, n, C) centred on its mean, ``sum_i x_i x_(i+k)`` for
+    k = 0..``max_lag`` (default ``n // 2``): (P, max_lag + 1, C), the channel's unit squared."""
     samples = _check_windows(samples)
     n = samples.shape[1]
     max_lag = n // 2 if max_lag is None else int(max_lag)
@@ -100,13 +94,10 @@ def lag_sums(samples, max_lag=None):
 
 
 def noise_of_mean(samples, max_lag=None, white_level=None, fitted=1):
-    """Estimate, per channel, the std of one sample and of the mean of a posture's window.
+    """Per channel, the std of one sample and of the mean of a posture's window.
 
-    ``samples`` (P, n, C): P postures' windows of n consecutive samples (equally spaced in time)
-    of C channels. ``max_lag``: the largest autocovariance lag considered (default ``n // 2``;
-    beyond it too few pairs remain in each window). ``white_level`` and ``fitted``: see
-    :func:`noise_of_mean_from_sums`, of the windows' :func:`lag_sums`.
-    """
+    ``samples`` (P, n, C): P windows of n equally spaced samples of C channels. ``max_lag``:
+    default ``n // 2``. ``white_level``, ``fitted``: see :func:`noise_of_mean_from_sums`."""
     samples = _check_windows(samples)
     return noise_of_mean_from_sums(
         lag_sums(samples, max_lag), samples.shape[1], samples.shape[0], white_level, fitted
@@ -115,9 +106,8 @@ def noise_of_mean(samples, max_lag=None, white_level=None, fitted=1):
 
 def white_statistic(autocovariance, n, windows):
     """Per channel (C,): the pooled lag-1 autocorrelation of ``windows`` centred windows of
-    ``n`` samples (``autocovariance`` (>= 2, C), averaged over pairs), corrected for the
-    centring (``+ 1 / (n - 1)``: its mean for white samples), in units of its standard error
-    for white samples ``1 / sqrt(windows (n - 1))``: about N(0, 1) for white samples."""
+    ``n`` samples (``autocovariance`` (>= 2, C)), centring-corrected, in units of its standard
+    error for white samples: about N(0, 1) for white samples."""
     with np.errstate(divide='ignore', invalid='ignore'):
         rho = np.where(autocovariance[0] > 0, autocovariance[1] / autocovariance[0], 0.0)
     return (rho + 1.0 / (n - 1)) * math.sqrt(windows * (n - 1))
@@ -125,22 +115,10 @@ def white_statistic(autocovariance, n, windows):
 
 def noise_of_mean_from_sums(sums, n, windows, white_level=None, fitted=1):
     """:class:`NoiseOfMean` from the pooled :func:`lag_sums` ``sums`` (K + 1, C) of ``windows``
-    windows of ``n`` samples each.
-
-    The autocovariance ``c_k`` is the sums averaged over the ``windows (n - k)`` pairs. Centring
-    each window biases every ``c_k`` low by about ``var(mean)`` (the windows' own means
-    scatter), which is corrected in closed form: with ``g_k = c_k + V`` in
-    ``V = (1/n) [g0 + 2 sum_{k<=K} (1 - k/n) g_k]``, ``V = [c0 + 2 sum (1 - k/n) c_k] / (n - S)``,
-    ``S = 1 + 2 sum_{k<=K} (1 - k/n)``. For white noise (K = 0) this is the usual ``s^2 / n``
-    with ddof 1. ``fitted``: terms fitted to each window before (1: its mean; 3: a line and a
-    parabola, see :func:`rest_test`): ddof ``fitted`` (each fitted term absorbs about one
-    ``V`` more).
-
-    ``white_level``: None, or the significance of a test of whiteness first: a channel whose
-    lag-1 autocorrelation is not significantly positive at that level (:func:`white_statistic`,
-    one-sided) is taken as white (K = 0, exactly the pooled ``s^2 / n``), so white samples are
-    not given a noisier lag sum (nor called too short) by chance.
-    """
+    windows of ``n`` samples each, the centring bias corrected in closed form
+    (docs/sensor_errors.md). ``fitted``: terms fitted to each window before (1: its mean; 3: a
+    line and a parabola). ``white_level``: None, or the one-sided significance of a whiteness test
+    (:func:`white_statistic`) under which a channel is taken as white (K = 0)."""
     sums = np.asarray(sums, dtype=float)
     if sums.ndim != 2 or sums.shape[0] < 1:
         raise NoiseEstimateError(f'sums must be (lags, channels), got shape {sums.shape}')
@@ -227,13 +205,8 @@ def window_trend(window, times=None):
 
 def settled(window, std_of_mean, times=None, sigmas=DEFAULT_REST_SIGMAS):
     """Per channel (C,) bools: is the window's trend within ``sigmas`` stds of the trend a
-    settled window's noise gives? Also returns the trend in those stds (C,).
-
-    ``std_of_mean`` (C,): the std of the window's mean (from :func:`noise_of_mean`). The trend's
-    std is ``std_of_mean`` x :func:`trend_std_factor` (exact for white noise; for correlated
-    noise an approximation that scales with the same effective sample count). A channel whose
-    ``std_of_mean`` is 0 is settled only when it does not move at all.
-    """
+    settled window's noise gives (``std_of_mean`` (C,) x :func:`trend_std_factor`)? Also returns
+    the trend in those stds (C,)."""
     window = np.asarray(window, dtype=float)
     trend = window_trend(window, times)
     scale = np.asarray(std_of_mean, dtype=float) * trend_std_factor(window.shape[0])
@@ -249,10 +222,9 @@ def settled(window, std_of_mean, times=None, sigmas=DEFAULT_REST_SIGMAS):
 
 @dataclasses.dataclass(frozen=True)
 class SettleTest:
-    """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled
-    span's trend), ``threshold`` (the ``z`` a channel may reach: ``sigmas`` turned into the
-    Student-t quantile of the same two-sided rate, ``n_eff - 2`` degrees of freedom),
-    ``trend`` (the change across the span, the channel's unit) and ``std_of_mean``."""
+    """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled span's
+    trend), ``threshold`` (the Student-t quantile ``z`` may reach), ``trend`` (across the span,
+    the channel's unit) and ``std_of_mean``."""
 
     settled: np.ndarray
     z: np.ndarray
@@ -264,18 +236,10 @@ class SettleTest:
 def rest_test(values, times=None, sigmas=DEFAULT_REST_SIGMAS, noise_floor=None):
     """Is each channel of ``values`` (..., n, C) at rest over its span? Noise from the span.
 
-    The least-squares trend of each channel (:func:`window_trend` against ``times`` (n,) s,
-    default 0..n-1) is judged against the noise of the span itself: the residuals about the
-    straight line and a parabola, through :func:`noise_of_mean` (``fitted=3``; correlation
-    counted over lags up to n // 4 from :data:`MIN_CORRELATED_SPAN` samples on; each
-    channel and leading index on its own). The trend's std is ``std_of_mean`` x
-    :func:`trend_std_factor`; a channel is settled when ``|trend|`` is within ``threshold`` of
-    those stds: for white noise ``z`` is then Student-t with ``n - 3`` degrees of freedom, so a
-    settled channel is called moving at exactly :func:`false_unsettled_rate` (``sigmas``).
-    ``noise_floor`` (C,): the least per-sample std believed (the channel's unit), so a
-    quantised or noiseless channel whose samples barely differ is not called moving over a
-    rounding error. Returns :class:`SettleTest`.
-    """
+    The least-squares trend (:func:`window_trend` against ``times`` (n,) s, default 0..n-1) is
+    judged against the noise of the residuals about a parabola (:func:`noise_of_mean`,
+    ``fitted=3``), ``threshold`` stds of the trend (docs/sensor_errors.md). ``noise_floor`` (C,):
+    the least per-sample std believed (the channel's unit). Returns :class:`SettleTest`."""
     from scipy import stats
 
     values = np.asarray(values, dtype=float)
@@ -322,13 +286,9 @@ def rest_test(values, times=None, sigmas=DEFAULT_REST_SIGMAS, noise_floor=None):
 
 def scatter_test(values, noise_std, sigmas=DEFAULT_REST_SIGMAS):
     """Does each channel of ``values`` (..., n, C) scatter about its mean no more than its
-    at-rest noise allows? ``(ratio, threshold)`` (..., C) and (): the span's sample std over
-    the noise, and the ratio white noise of that std exceeds at :func:`false_unsettled_rate`
-    (``sigmas``): the chi-square quantile. The noise is ``noise_std`` (C,), or the noise the
-    span shows between successive samples if larger (the rms difference over sqrt 2): a
-    device noisier than configured is believed, while a motion of a few Hz barely shows in
-    the differences at 200 Hz. A span may fail it with no trend at all: an oscillation faster
-    than the span (a platform still ringing)."""
+    at-rest noise allows? ``(ratio, threshold)`` (..., C) and (): the span's sample std over the
+    noise (``noise_std`` (C,), or the rms successive difference over sqrt 2 if larger), and the
+    chi-square ratio white noise exceeds at :func:`false_unsettled_rate` (``sigmas``)."""
     from scipy import stats
 
     values = np.asarray(values, dtype=float)
@@ -349,23 +309,3 @@ def scatter_test(values, noise_std, sigmas=DEFAULT_REST_SIGMAS):
 def false_unsettled_rate(sigmas=DEFAULT_REST_SIGMAS):
     """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
     return math.erfc(sigmas / math.sqrt(2.0))
-
-
-__all__ = [
-    'DEFAULT_REST_SIGMAS',
-    'NoiseEstimateError',
-    'NoiseOfMean',
-    'SettleTest',
-    'ar1_std_of_mean',
-    'false_unsettled_rate',
-    'lag_sums',
-    'noise_of_mean',
-    'noise_of_mean_from_sums',
-    'scatter_test',
-    'rest_test',
-    'settled',
-    'trend_std_factor',
-    'white_statistic',
-    'window_lag_sums',
-    'window_trend',
-]

@@ -71,10 +71,8 @@ LAG_SUMS_CHANNELS = tuple(goodness.NOISE_CHANNELS)
 
 @dataclasses.dataclass(frozen=True)
 class WithinNoise:
-    """One channel's within-posture estimate of its row noise: ``row`` (std of the averaged
-    row, m or rad), ``dof`` (its degrees of freedom, ``windows (n_eff - 1)``), ``n_eff`` (the
-    effective sample count of a row) and ``lower_bound`` (the windows are too short against
-    the correlation time: ``row`` is biased low, only a lower bound)."""
+    """One channel's within-posture estimate of its row noise: ``row`` (std of the averaged row,
+    m or rad), ``dof``, ``n_eff`` (per row) and ``lower_bound`` (``row`` biased low)."""
 
     row: float
     dof: float
@@ -83,12 +81,9 @@ class WithinNoise:
 
 
 def posture_lag_sums(values):
-    """What a posture's window contributes to the within-posture estimate: per channel of
-    :data:`LAG_SUMS_CHANNELS` (legs, inclinometer, encoder, LVDT), the window's lag sums
-    (:func:`~gsp_kinematics.estimation.noise_estimate.window_lag_sums`, lags 0..n // 2) summed over
-    the channel's columns (m^2, rad^2). ``values`` (n, 10) or (P, n, 10) windows of
-    ``[q_1..q_6, alpha, beta, phi, d_m]`` (``phi`` unwrapped), n >= 2: (4, n // 2 + 1) or
-    (P, 4, n // 2 + 1)."""
+    """A posture's window's lag sums (lags 0..n // 2) per channel of :data:`LAG_SUMS_CHANNELS`,
+    summed over the channel's columns (m^2, rad^2): ``values`` (n, 10) or (P, n, 10) of ``[q_1..q_6,
+    alpha, beta, phi, d_m]`` (``phi`` unwrapped) give (4, n // 2 + 1) or (P, 4, n // 2 + 1)."""
     values = np.asarray(values, dtype=float)
     if values.ndim not in (2, 3) or values.shape[-1] != 10:
         raise ValueError(f'windows must be (samples, 10) or (P, samples, 10), got {values.shape}')
@@ -101,15 +96,10 @@ def posture_lag_sums(values):
 
 def within_row_noise(lag_sums, n_samples):
     """``{channel: WithinNoise}`` from the rows' :func:`posture_lag_sums` ``lag_sums``
-    (M, 4, L; NaN where a row has none or fewer lags) and their ``n_samples`` (M,).
-
-    The rows of the most common sample count ``n`` (the others are left out) are pooled per
-    channel; :func:`~gsp_kinematics.estimation.noise_estimate.noise_of_mean_from_sums` gives the
-    std of a row's mean from the pooled autocovariance (white samples, tested at
-    :data:`goodness.DEFAULT_SIGNIFICANCE`: exactly the pooled ``s / sqrt(n)``), with ``dof =
-    windows (n_eff - 1)`` (``windows``: rows x the channel's columns; ``windows (n - 1)`` for
-    white samples). A channel that does not scatter within a posture (noise-free data, a
-    quantised encoder at rest) has no within-posture estimate: it is left out."""
+    (M, 4, L; NaN where a row has none) and their ``n_samples`` (M,): the rows of the most common
+    sample count pooled per channel through
+    :func:`~gsp_kinematics.estimation.noise_estimate.noise_of_mean_from_sums`
+    (docs/sensor_errors.md). A channel that does not scatter within a posture is left out."""
     n_samples = np.asarray(n_samples, dtype=int).reshape(-1)
     if n_samples.size == 0 or lag_sums is None:
         return {}
@@ -179,14 +169,9 @@ def estimate_row_noise(result, row_sigmas, within):
 
 
 def fit_test(result, row_sigmas, within):
-    """The goodness of fit of a fit whose weights were estimated: the lack-of-fit F test of the
-    between-posture residuals, in within-posture noise units, against the within-posture
-    (pure error) variance; ``none`` when no channel has a within-posture estimate. A channel
-    whose within estimate is only a lower bound (:attr:`WithinNoise.lower_bound`) is left out:
-    tested against it, a right model would be rejected.
-
-    The pure-error degrees of freedom of several channels are combined by Satterthwaite's
-    ``(sum r_g)^2 / sum (r_g^2 / d_g)``."""
+    """The goodness of fit of a fit whose weights were estimated: the lack-of-fit F test against
+    the within-posture variance (channels whose estimate is a lower bound left out; degrees of
+    freedom combined by Satterthwaite), or ``none`` without a within-posture estimate."""
     excluded = result.goodness_of_fit.excluded_postures if result.goodness_of_fit else ()
     between = redundancy = spread = 0.0
     total_q = total_r = 0.0
@@ -216,15 +201,10 @@ def identify_with_estimated_noise(
     nominal, leg_lengths, readings, start, within, first=None, **options
 ):
     """Identify with the row noise estimated from the run: ``(result, {channel: ChannelNoise},
-    SensorNoise of the rows used)``.
-
-    ``start``: the row sigmas to begin with (the configured ones, averaged); a channel with a
-    within-posture estimate (not a lower bound) starts from it. Each round fits, estimates (:func:`estimate_row_noise`)
-    and refits with the estimate, until no row sigma changes by more than :data:`TOLERANCE`
-    (at most :data:`MAX_ROUNDS` fits). ``options`` go to :func:`identify`; ``first``: the first
-    round's fit when made already (the same rows, weights and ``options``: the model choice's).
-    The result's goodness of fit is :func:`fit_test`.
-    """
+    SensorNoise of the rows used)``, refitting until no row sigma changes by more than
+    :data:`TOLERANCE` (at most :data:`MAX_ROUNDS` fits). ``start``: the row sigmas to begin with;
+    ``options`` go to :func:`identify`; ``first``: the first round's fit when made already. The
+    result's goodness of fit is :func:`fit_test`."""
     sigmas = within_sigmas(within, start)
     estimates = {}
     for round_ in range(MAX_ROUNDS):
@@ -253,11 +233,9 @@ def identify_with_noise(
     source, nominal, leg_lengths, readings, row_sigmas, within, first=None, **options
 ):
     """``(result, {channel: ChannelNoise}, SensorNoise of the rows used)`` with the weights of
-    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``; its
-    ``first`` fit, when given) or ``configured`` (``row_sigmas``; the estimate is made from the
-    fit and only reported).
-    When the goodness of fit rejects the model, only the outliers that stand out from a smooth
-    field of model error are kept (:func:`goodness.outliers_beside_model_error`)."""
+    ``source``: ``estimated`` (:func:`identify_with_estimated_noise` from ``row_sigmas``, its
+    ``first`` fit when given) or ``configured`` (``row_sigmas``; the estimate only reported).
+    A rejected model keeps only :func:`goodness.outliers_beside_model_error`."""
     validate_noise_source(source)
     if source == 'estimated':
         result, estimates, used = identify_with_estimated_noise(
@@ -287,13 +265,10 @@ def unmodelled_error(estimates):
 
 
 def noise_record(estimates, configured, n_samples):
-    """``{channel: {...}}`` for result.json: per-sample equivalents (SI: the row std times
-    ``sqrt(n)``, comparable with the configured ``sigma_<field>``) of the noise estimate, its
-    within-posture and between-posture parts, the row std the weights used and the
-    ``unmodelled`` part (a row std, SI: averaging does not reduce it), the source, the redundancy and the
-    within-posture degrees of freedom and effective sample count of a row, whether the
-    within-posture estimate is only a lower bound, the F test's p-value, and the ratio to the configured
-    sigma with its warning (beyond 2x either way)."""
+    """``{channel: {...}}`` for result.json: the noise estimate as per-sample equivalents (SI)
+    with its within- and between-posture parts, the row std used, the ``unmodelled`` part, the
+    source, redundancy, degrees of freedom, the F test's p-value and the ratio to the configured
+    sigma with its warning (fields: docs/data.md)."""
     n_samples = np.asarray(n_samples, dtype=float).reshape(-1)
     root = math.sqrt(float(np.median(n_samples))) if n_samples.size else 1.0
     record = {}

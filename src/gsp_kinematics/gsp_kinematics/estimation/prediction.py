@@ -39,12 +39,8 @@ def body_angular_jacobian(euler):
 
 def pose_sensitivities(geometry, poses, free=None, euler=False):
     """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error
-    (``euler``: ``d(psi, theta, phi)`` (rad) in place of the rotation vector ``dw``).
-
-    ``free``: a bool mask over the parameter vector (None: the 44). Columns of parameters that do
-    not move the platform (the device's and the device sensors' errors) are zero; the 42 leg
-    parameters and the leg gain errors ``kq1..kq6`` move it.
-    """
+    (``euler``: ``d(psi, theta, phi)`` (rad) in place of ``dw``); ``free``: a bool mask over the
+    parameter vector (None: the 44). The device's parameters' columns are zero."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     articular, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
     d_q_d_u = expand_leg_parameters(d_q_d_leg)
@@ -67,10 +63,8 @@ def pose_sensitivities(geometry, poses, free=None, euler=False):
 
 def effect_pose_sensitivities(geometry, poses, effect_free):
     """``S`` (M, 6, count): ``[dp (m); dw (rad)]`` of the reached pose per error of each free
-    effect parameter (``effect_free`` (24,) over ``EFFECT_PARAMETER_NAMES``) the controller
-    compensates: ``dX = (dq/dX)^-1 h (theta_hat - theta)``, ``h`` the group's regressor at the
-    pose (compliance under ``geometry.effects``' payload). Columns of groups outside
-    :data:`POSTURE_EFFECT_GROUPS` are zero."""
+    effect parameter (``effect_free`` (24,)) the controller compensates; zero outside
+    :data:`POSTURE_EFFECT_GROUPS`."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     free = np.asarray(effect_free, dtype=bool).reshape(NUM_EFFECT_PARAMETERS)
     posture = free & np.repeat([g in POSTURE_EFFECT_GROUPS for g in EFFECT_GROUPS], 6)
@@ -100,11 +94,8 @@ def expected_norm(covariances):
 
 def reading_pose_covariance(geometry, poses, readings, stds):
     """``(position (M, 3, 3) m^2, euler (M, 3, 3) rad^2)``: the covariance of the pose the legs
-    give (FK) against the pose the device gives, at ``poses`` (M, 6) with device ``readings``
-    (M, 4), from independent errors of standard deviation ``stds`` (a ``SensorNoise``: per leg,
-    per inclination, phi and d_m) on each reading. The legs' part goes through FK
-    (``(dq/dX)^-1 (1 + kq)``: position and the Euler angles psi, theta, phi), the device's
-    through eq 9 (position) and the encoder (phi)."""
+    give (FK) against the pose the device gives at ``poses`` (M, 6) with ``readings`` (M, 4),
+    from independent reading errors of standard deviations ``stds`` (a ``SensorNoise``)."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
     gains = np.broadcast_to(np.diag(1.0 + geometry.sensors.leg_gain_errors), d_q_d_pose.shape)
@@ -169,25 +160,14 @@ def parameter_pose_covariance(geometry, covariance, poses, free=None, effect_fre
 
 
 def predicted_errors(
-    geometry,
-    covariance,
-    poses,
-    free=None,
-    unmodelled=None,
-    thermal_strain=None,
-    effect_free=None,
+    geometry, covariance, poses, free=None, unmodelled=None, thermal_strain=None, effect_free=None
 ):
-    """Predicted error magnitudes at ``poses`` (M, 6): ``(position_mm, orientation_deg)``, each (M,).
+    """Predicted error magnitudes ``(position_mm, orientation_deg)`` (M,) each at ``poses`` (M, 6).
 
-    ``covariance``: (n_free, n_free) of the free parameters (m, rad), then of the free effect
-    parameters, e.g. an ``IdentificationResult.covariance``; ``free`` the parameters' mask (None:
-    all parameters free), ``effect_free`` the effects' (24,; None: none free), e.g. the result's
-    ``effect_free`` (:func:`effect_pose_sensitivities`).
-    ``unmodelled``: what the model leaves unexplained (a ``SensorNoise`` of standard deviations;
-    None: the platform is exactly the model), added to the covariance term.
-    ``thermal_strain``: (6,) the uncompensated thermal strain rms of each leg over the run
-    (:func:`thermal_strain_rms`; None: none), added likewise (:func:`thermal_pose_covariance`).
-    """
+    ``covariance``: (n_free, n_free) of the free parameters (m, rad) then of the free effect
+    parameters; ``free`` their mask (None: all), ``effect_free`` the effects' (24,; None: none).
+    ``unmodelled``: a ``SensorNoise`` of what the model leaves unexplained (None: nothing);
+    ``thermal_strain`` (6,): each leg's uncompensated thermal strain rms (None: none)."""
     position, rotation = parameter_pose_covariance(geometry, covariance, poses, free, effect_free)
     if unmodelled is not None:
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
@@ -259,18 +239,11 @@ def predict_accuracy(
 ):
     """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
 
-    ``covariance``, ``free`` and ``effect_free`` as in :func:`predicted_errors`.
-
-    ``unmodelled``: what the model leaves unexplained (:func:`predicted_errors`; None: nothing,
-    the platform is exactly the model), added at every pose and said in ``assumes``;
-    ``thermal_strain`` (6,) likewise: the cost of the uncompensated thermal growth
-    (:func:`predicted_errors`).
-
-    ``random``: ``{position_mm: {mean, p95, max}, orientation_deg: {...}, postures}`` over
-    ``postures`` seeded random reachable postures; ``worst_cell``: the grid cell with the largest
-    predicted position error (its pose, m and rad, and both errors); ``maps``: per panel the x, y
-    axes (m) and the predicted errors (NaN where the platform cannot reach), for plotting.
-    """
+    ``covariance``, ``free``, ``effect_free``, ``unmodelled`` and ``thermal_strain`` as in
+    :func:`predicted_errors`. ``random``: ``{position_mm: {mean, p95, max}, orientation_deg:
+    {...}, postures}`` over ``postures`` seeded random reachable postures; ``worst_cell``: the
+    grid cell of the largest predicted position error; ``maps``: per panel the x, y axes (m) and
+    the predicted errors (NaN: unreachable), for plotting."""
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )

@@ -95,11 +95,9 @@ def fold_effects(geometry, poses=None):
 
 
 def rigid_model_errors(geometry, rigid, poses, phi=False):
-    """Position errors (2M,) mm where the platform the identified model describes (``geometry``
-    with its effects, at the reference instant) goes when the rigid controller of ``rigid``
-    drives ``poses`` (M, 6): every leg arriving extending, then retracting (the backlash
-    both ways). The systematic error of running ``rigid`` on that platform. ``phi``: also
-    the error of the rotation about the vertical (2M,) deg: ``(position, phi)``."""
+    """``(position (2M,) mm, phi (2M,) deg)`` errors where the platform the identified model
+    describes (``geometry`` with its effects) goes when the rigid controller of ``rigid`` drives
+    ``poses`` (M, 6), every leg arriving extending then retracting."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     readings = rigid.sensors.leg_readings(inverse_kinematics(rigid, poses))
     effects = geometry.effects
@@ -123,11 +121,8 @@ def rigid_model_errors(geometry, rigid, poses, phi=False):
 
 
 def linearised_model_errors(geometry, rigid, poses):
-    """``(position (2M,) mm, phi (2M,) deg)``: :func:`rigid_model_errors` to first order, ten
-    times cheaper (for thousands of postures): the leg lengths the rigid controller of
-    ``rigid`` commands less those the identified model needs at ``poses`` (M, 6) (each
-    approach direction, the reference instant), through the inverse of ``geometry``'s rigid
-    leg Jacobian ``dq/dX``."""
+    """``(position (2M,) mm, phi (2M,) deg)``: :func:`rigid_model_errors` to first order (ten
+    times cheaper), through the inverse of ``geometry``'s rigid leg Jacobian ``dq/dX``."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     sensors = geometry.sensors
     commanded = sensors.true_leg_lengths(
@@ -158,14 +153,11 @@ def _with_vector(geometry, vector):
 
 
 def rigid_accuracy(geometry, rigid, compensated_mm=0.0, poses=None, systematic=None):
-    """The predicted accuracy (mm) over the workspace of a rigid controller running ``rigid``
-    on the platform the identified model describes (``geometry`` with its effects):
-    ``{'position_mm': {mean, max}, 'systematic_position_mm': {mean, max, rms}, 'postures'}``. The
-    systematic part is :func:`rigid_model_errors` over ``poses`` (None: workspace postures
-    apart from the fold's; ``systematic``: those errors, already computed, e.g. by
-    :func:`linearised_model_errors`); ``compensated_mm``,
-    the compensating geometry's predicted error (its parameters' uncertainty, which the fold
-    inherits), is added in quadrature at each."""
+    """The predicted accuracy (mm) over the workspace of a rigid controller running ``rigid`` on
+    the platform ``geometry`` (with its effects) describes: ``{'position_mm': {mean, max},
+    'systematic_position_mm': {mean, max, rms}, 'postures'}``: :func:`rigid_model_errors` over
+    ``poses`` (None: workspace postures; ``systematic``: those errors, already computed) and
+    ``compensated_mm`` added in quadrature at each."""
     if poses is None:
         poses = held_out_postures(geometry)
     if systematic is None:

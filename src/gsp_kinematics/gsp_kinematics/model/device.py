@@ -1,9 +1,5 @@
-"""Measurement device model (paper section 3.3).
-
-The passive link runs from the base origin (lower U joint) to the platform origin (upper U joint),
-so its vector is the platform position ``t`` and its length ``D = |t| = D0 + Dm``. The biaxial
-inclinometer reads ``alpha`` and ``beta`` with axes ``gamma`` apart; the encoder reads ``phi``.
-"""
+"""Measurement device model (paper section 3.3): the passive link from the base origin to the
+platform origin, ``D = |t| = D0 + Dm``, inclinometer axes ``gamma`` apart (docs/physics.md)."""
 
 import numpy as np
 
@@ -60,11 +56,7 @@ def link_direction_derivatives(alpha, beta, gamma):
         axis=-1,
     )
     d_beta = np.stack(
-        [
-            sg * (-sb * cg * sa + ca * cb),
-            cg * ca * cb - sa * cg**2 * sb,
-            -ca * sb - cg * sa * cb,
-        ],
+        [sg * (-sb * cg * sa + ca * cb), cg * ca * cb - sa * cg**2 * sb, -ca * sb - cg * sa * cb],
         axis=-1,
     )
     d_gamma = np.stack(
@@ -116,37 +108,6 @@ def device_readings(geometry, poses):
     alpha, beta = position_to_inclinations(poses[:, :3], geometry.inclinometer_axes_angle)
     d_m = np.linalg.norm(poses[:, :3], axis=1) - geometry.device_length
     return np.stack([alpha, beta, poses[:, 5], d_m], axis=1)
-
-
-def device_readings_jacobians(geometry, poses):
-    """Readings (M, 4), their derivatives w.r.t. the pose (M, 4, 6) and w.r.t. (D0, gamma) (M, 4, 2)."""
-    poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    position = poses[:, :3]
-    gamma = geometry.inclinometer_axes_angle
-    alpha, beta = position_to_inclinations(position, gamma)
-    length = np.linalg.norm(position, axis=1)
-    direction = position / length[:, None]
-    d_alpha, d_beta, d_gamma = link_direction_derivatives(alpha, beta, gamma)
-    tangent = np.stack([d_alpha, d_beta], axis=-1)  # (M, 3, 2)
-    # The direction moves on the unit sphere; the tangent's pseudo-inverse maps it to the angles.
-    pseudo_inverse = np.linalg.solve(
-        np.swapaxes(tangent, -1, -2) @ tangent, np.swapaxes(tangent, -1, -2)
-    )  # (M, 2, 3)
-    projector = (np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]) / length[
-        :, None, None
-    ]
-    d_angles_d_position = pseudo_inverse @ projector  # (M, 2, 3)
-    d_angles_d_gamma = -(pseudo_inverse @ d_gamma[..., None])[..., 0]  # (M, 2)
-    count = poses.shape[0]
-    d_readings_d_pose = np.zeros((count, 4, 6))
-    d_readings_d_pose[:, 0:2, 0:3] = d_angles_d_position
-    d_readings_d_pose[:, 2, 5] = 1.0
-    d_readings_d_pose[:, 3, 0:3] = direction
-    d_readings_d_device = np.zeros((count, 4, 2))
-    d_readings_d_device[:, 0:2, 1] = d_angles_d_gamma
-    d_readings_d_device[:, 3, 0] = -1.0
-    readings = np.stack([alpha, beta, poses[:, 5], length - geometry.device_length], axis=1)
-    return readings, d_readings_d_pose, d_readings_d_device
 
 
 def paper_inclinations_jacobians(geometry, poses, d_m):

@@ -46,12 +46,9 @@ def split_auto(names):
 
 @dataclasses.dataclass(frozen=True)
 class EffectDesign:
-    """What the effect groups need besides the readings, posture by posture (M in the run's
-    order): ``times_s`` (M,) s, ``directions`` (M, 6) approach directions
-    (:func:`.effects.approach_directions` of the commanded leg lengths in the order visited), the
-    user's ``payload_mass`` (kg) and ``centre_of_mass`` (platform frame, m), and the thermal
-    reference instant ``reference_time_s`` (s, on the clock of ``times_s``); ``leg_mass`` (6,)
-    kg: each leg's own mass (:mod:`.effects`: it loads the legs too)."""
+    """What the effect groups need besides the readings (M rows in the run's order): ``times_s``
+    (M,) s, approach ``directions`` (M, 6), the ``payload_mass`` (kg) and ``centre_of_mass``
+    (platform frame, m), the thermal ``reference_time_s`` (s) and ``leg_mass`` (6,) kg."""
 
     times_s: np.ndarray | None = None
     directions: np.ndarray | None = None
@@ -162,10 +159,8 @@ def compensated_leg_readings(
     geometry, identified, poses, directions=None, times_s=None, thermal=False
 ):
     """Leg readings (M, 6) that bring a platform with the ``identified`` effects to ``poses``
-    (M, 6): the identification's model read backwards, ``q_i = (IK_i + sum theta h) / (1 +
-    kq_i)``. ``directions`` (M, 6): each leg's approach direction (default +1); ``times_s``
-    (M,) s. The thermal drift is left out unless ``thermal`` (a linear drift does not
-    extrapolate past the run: it is reported, docs/platform_effects.md)."""
+    (M, 6), ``q_i = (IK_i + sum theta h) / (1 + kq_i)``; ``directions`` (M, 6) default +1,
+    ``times_s`` (M,) s; the thermal drift only with ``thermal`` (docs/platform_effects.md)."""
     poses = np.atleast_2d(poses)
     rigid = inverse_kinematics(geometry, poses)
     values = np.array(identified.values)
@@ -189,10 +184,8 @@ def compensated_leg_readings(
 
 def commanded_leg_readings(geometry, poses, previous_readings=None):
     """The leg readings (M, 6) a controller with ``geometry`` drives to for ``poses`` (M, 6)
-    visited in order from legs reading ``previous_readings`` (6,; None: the first is the
-    start): its IK through its sensor model, and the compensation of its identified effects
-    (``geometry.effects``) with each leg's direction of travel. Every consumer that commands
-    the platform (platform_sim, platform_bridge, the simulations) uses this."""
+    visited in order from ``previous_readings`` (6,; None: the first is the start): its IK
+    through its sensor model plus the compensation of ``geometry.effects``."""
     poses = np.atleast_2d(poses)
     readings = geometry.sensors.leg_readings(inverse_kinematics(geometry, poses))
     if geometry.effects.none:
@@ -202,10 +195,8 @@ def commanded_leg_readings(geometry, poses, previous_readings=None):
 
 
 def model_poses(geometry, leg_readings, guesses, design, tolerance=1e-12, iterations=12):
-    """Poses (M, 6) where the identification's model, with the effects ``geometry.effects``,
-    predicts the leg readings (M, 6) of a run with the :class:`EffectDesign` rows ``design``
-    (forward kinematics with the effects), and ``converged`` (M,). Newton's method on the rigid
-    Jacobian from rigid FK: the effects are micrometres."""
+    """Poses (M, 6) where the identification's model with ``geometry.effects`` predicts the leg
+    readings (M, 6) of the :class:`EffectDesign` rows ``design``, and ``converged`` (M,)."""
     target = geometry.sensors.true_leg_lengths(np.atleast_2d(leg_readings))
     poses, converged = forward_kinematics_masked(geometry, target, guesses)
     values = geometry.effects.values

@@ -135,10 +135,9 @@ PRESETS = {'none': PlatformEffects(), 'realistic': REALISTIC}
 
 
 def approach_directions(leg_readings, previous=None, initial=None):
-    """Direction (M, 6) from which each leg arrives at each of the sequence's ``leg_readings``
-    (M, 6): +1 extending, -1 retracting; a leg that does not move keeps its last direction.
-    ``previous`` (6,): the readings before the first row (None: the first row is the start);
-    ``initial`` (6,): the directions before it (default +1: homed extending)."""
+    """Direction (M, 6) from which each leg arrives at each row of ``leg_readings`` (M, 6): +1
+    extending, -1 retracting, a still leg keeping its last. ``previous`` (6,): the readings before
+    (None: the first row is the start); ``initial`` (6,): the directions before (default +1)."""
     readings = np.atleast_2d(np.asarray(leg_readings, dtype=float))
     start = np.broadcast_to(
         1.0 if initial is None else np.asarray(initial, dtype=float), (NUM_LEGS,)
@@ -218,14 +217,8 @@ def effective_base_joints(geometry, effects, poses, iterations=3):
 
 def leg_forces(geometry, effects, poses, base_points=None):
     """Axial forces (M, 6) N in the legs' springs, compression positive, holding the platform's
-    and the legs' weight at ``poses`` (M, 6). The platform: ``W f = -w``, ``W``'s columns the
-    legs' unit wrenches ``[u_i; (R B_i) x u_i]`` about the platform origin, ``f`` the axial
-    forces at the platform joints and ``w`` the wrench there of gravity on ``payload_mass`` and
-    of each leg's weight share: a bar pinned at both ends (the base U joint turns it about the
-    base point) puts :data:`LEG_CENTRE_OF_MASS` of its weight's part across ``u_i`` on the
-    platform joint. The spring carries ``f_i`` plus the axial part of the leg's weight above it
-    (``(1 - LEG_SPRING_POSITION) m_i g u_i,z``). ``base_points`` (M, 6, 3): the effective base
-    joints (default: ``A_i``)."""
+    and the legs' weight at ``poses`` (M, 6) (the statics: docs/platform_effects.md).
+    ``base_points`` (M, 6, 3): the effective base joints (default: ``A_i``)."""
     poses = np.atleast_2d(poses)
     rotation = euler_to_matrix(poses[:, 3:])
     arms = np.einsum('mjk,ik->mij', rotation, geometry.platform_joints)
@@ -266,11 +259,9 @@ class EffectDesignError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class IdentifiedEffects:
-    """Effect parameters a calibration identified (what a controller compensates): ``values``
-    (24,) in :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), the ``payload_mass`` (kg)
-    and ``centre_of_mass`` (platform frame, m) the compliance was identified for, and the
-    thermal ``reference_time_s`` (s) the geometry refers to; ``leg_mass`` (6,) kg: the legs'
-    own, the compliance's load too."""
+    """Effect parameters a calibration identified: ``values`` (24,) in
+    :data:`EFFECT_PARAMETER_NAMES` order (0: not identified), ``payload_mass`` (kg),
+    ``centre_of_mass`` (platform frame, m), ``reference_time_s`` (s) and ``leg_mass`` (6,) kg."""
 
     values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_EFFECT_PARAMETERS))
     payload_mass: float = 0.0

@@ -1,8 +1,5 @@
-"""Platform and device geometry: the 44 identification parameters, the sensor errors and the
-geometry file format.
-
-The file is a ROS 2 parameters YAML (a node's ``--params-file``): true, nominal or calibrated.
-"""
+"""Platform and device geometry: the identification parameters, the sensor errors and the
+geometry file (a ROS 2 parameters YAML; docs/data.md)."""
 
 import dataclasses
 import math
@@ -75,12 +72,7 @@ class Limits:
 
 @dataclasses.dataclass(frozen=True)
 class SensorErrors:
-    """Systematic sensor errors (all 0: ideal sensors). Sign conventions (docs/sensor_errors.md):
-
-    real leg length ``L_i = L_off_i + (1 + kq_i) q_i`` (q_i the reading); inclinometer reading =
-    model inclination + offset; encoder reading = model yaw + ``phi0``; link length
-    ``D = D0 + (1 + kDm) Dm`` (Dm the LVDT reading).
-    """
+    """Systematic sensor errors (all 0: ideal sensors; sign conventions: docs/sensor_errors.md)."""
 
     leg_gain_errors: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS))
     inclinometer_offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
@@ -280,14 +272,7 @@ def _effect_parameters(effects, every=False):
 
 def _effects_from_parameters(parameters):
     """The optional ``geometry.effects`` section (absent keys: 0, nothing compensated)."""
-    values = {}
-    for key, length in EFFECT_KEYS.items():
-        full = f'{_EFFECTS}.{key}'
-        if parameters.get(full) is not None:
-            raw = parameters[full]
-            values[key] = (
-                _finite_float(raw, full) if length is None else _finite_list(raw, length, full)
-            )
+    values = _optional_section(parameters, _EFFECTS, EFFECT_KEYS)
     mass = values.get('payload_mass', 0.0)
     if mass < 0.0 or (np.any(values.get('compliance', 0.0)) and not mass > 0.0):
         raise GeometryError(
@@ -320,17 +305,22 @@ def _finite_list(raw, length, key):
     return [_finite_float(item, f'{key}[{index}]') for index, item in enumerate(raw)]
 
 
+def _optional_section(parameters, section, keys):
+    """``{key: value}`` of the ``keys`` (-> length, None: a scalar) of ``section`` present."""
+    present = {
+        key: f'{section}.{key}' for key in keys if parameters.get(f'{section}.{key}') is not None
+    }
+    return {
+        key: _finite_float(parameters[full], full)
+        if keys[key] is None
+        else _finite_list(parameters[full], keys[key], full)
+        for key, full in present.items()
+    }
+
+
 def _sensor_errors_from_parameters(parameters):
     """The optional ``geometry.sensors`` section (absent keys: ideal sensors)."""
-    values = {}
-    for key, length in SENSOR_KEYS.items():
-        full = f'{_SENSORS}.{key}'
-        if full not in parameters or parameters[full] is None:
-            continue
-        raw = parameters[full]
-        values[key] = (
-            _finite_float(raw, full) if length is None else _finite_list(raw, length, full)
-        )
+    values = _optional_section(parameters, _SENSORS, SENSOR_KEYS)
     for key in ('leg_gain_errors', 'lvdt_gain_error'):
         gains = np.atleast_1d(values.get(key, 0.0))
         if np.any(np.abs(gains) >= 0.5):

@@ -1,8 +1,5 @@
-"""Inverse and forward kinematics of the Gough-Stewart platform (paper eq 4-5), batched.
-
-Shapes: ``poses`` (M, 6) as ``[x, y, z, psi, theta, phi]`` (m, rad); ``leg_lengths`` (M, 6) are the
-articular variables ``q_i = L_i - L_off_i`` (m).
-"""
+"""Inverse and forward kinematics of the Gough-Stewart platform (paper eq 4-5), batched over
+poses (M, 6) ``[x, y, z, psi, theta, phi]`` (m, rad); ``q_i = L_i - L_off_i`` (m)."""
 
 import dataclasses
 import math
@@ -48,11 +45,8 @@ def inverse_kinematics(geometry, poses):
 
 
 def inverse_kinematics_jacobians(geometry, poses):
-    """IK and its analytic derivatives.
-
-    Returns ``q`` (M, 6), ``dq/dX`` (M, 6, 6) and ``dq/du_leg`` (M, 6, 7), where ``u_leg`` is each
-    leg's own parameters ``[A_ix, A_iy, A_iz, B_ix, B_iy, B_iz, L_off_i]``.
-    """
+    """IK and its analytic derivatives: ``q`` (M, 6), ``dq/dX`` (M, 6, 6) and ``dq/du_leg``
+    (M, 6, 7), ``u_leg`` = ``[A_ix, A_iy, A_iz, B_ix, B_iy, B_iz, L_off_i]``."""
     poses = _as_poses(poses)
     vectors, rotation = leg_vectors(geometry, poses)
     lengths = np.linalg.norm(vectors, axis=2)
@@ -94,12 +88,8 @@ def forward_kinematics_masked(
     max_position_jump=0.15,
     max_angle_jump=math.radians(30.0),
 ):
-    """Newton's method from ``guess``; never raises for a posture that fails.
-
-    Returns ``(poses, converged)``: ``converged[m]`` is False if posture m did not converge to
-    ``tolerance`` (m, on the leg residuals) or ended farther than the jump limits from its guess
-    (another assembly mode).
-    """
+    """Newton's method from ``guess``, never raising: ``(poses, converged)``, False where a
+    posture missed ``tolerance`` (m) or jumped beyond the limits (another assembly mode)."""
     leg_lengths = np.asarray(leg_lengths, dtype=float)
     if leg_lengths.ndim == 1:
         leg_lengths = leg_lengths[None, :]
@@ -131,8 +121,7 @@ def forward_kinematics_masked(
         scale = np.maximum(
             1.0,
             np.maximum(
-                np.linalg.norm(step[:, :3], axis=1) / 0.1,
-                np.max(np.abs(step[:, 3:]), axis=1) / 0.2,
+                np.linalg.norm(step[:, :3], axis=1) / 0.1, np.max(np.abs(step[:, 3:]), axis=1) / 0.2
             ),
         )
         poses[index] -= step / scale[:, None]
@@ -172,13 +161,9 @@ def forward_kinematics(geometry, leg_lengths, guess, **options):
 
 
 def pose_from_leg_readings(geometry, leg_readings, guess=None):
-    """The pose (6,) [x, y, z, psi, theta, phi] (m, rad) of a platform with ``geometry`` whose
-    leg sensors read ``leg_readings`` (6,) m: FK from ``guess`` (default: the home pose).
-
-    The pose may lie anywhere in the workspace, so it may be far from the guess: the jump limits
-    of :func:`forward_kinematics` are widened to the workspace's extent. Raises
-    :class:`ForwardKinematicsError` when Newton's method finds no pose, ValueError on a shape.
-    """
+    """The pose (6,) (m, rad) of a platform with ``geometry`` whose leg sensors read
+    ``leg_readings`` (6,) m: FK from ``guess`` (default: home) with jump limits as wide as the
+    workspace. :class:`ForwardKinematicsError` when none is found, ValueError on a shape."""
     readings = np.asarray(leg_readings, dtype=float)
     if readings.shape != (6,):
         raise ValueError(f'leg_readings must have shape (6,), got {readings.shape}')

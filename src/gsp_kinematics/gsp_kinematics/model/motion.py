@@ -61,9 +61,7 @@ def leg_travel_time(distance, limits):
     cruise = distance >= speed * speed / acceleration
     with np.errstate(invalid='ignore'):
         return np.where(
-            cruise,
-            distance / speed + speed / acceleration,
-            2.0 * np.sqrt(distance / acceleration),
+            cruise, distance / speed + speed / acceleration, 2.0 * np.sqrt(distance / acceleration)
         )
 
 

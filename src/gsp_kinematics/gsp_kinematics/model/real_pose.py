@@ -41,13 +41,8 @@ def real_poses(
     geometry, effects, leg_readings, guess, directions=None, times_s=None, max_iterations=12
 ):
     """Real poses (M, 6) of a platform with ``geometry`` and ``effects`` whose legs read
-    ``leg_readings`` (M, 6), and ``converged`` (M,) as :func:`forward_kinematics_masked`.
-
-    ``guess`` (M, 6) or (6,): near each pose (the commanded one); ``directions`` (M, 6): each
-    leg's approach direction (:func:`.effects.approach_directions`; default +1); ``times_s`` (M,):
-    time since the start (default 0). With no effect on (``effects`` None or ideal) this is the
-    rigid forward kinematics, bit for bit.
-    """
+    ``leg_readings`` (M, 6), and ``converged`` (M,). ``guess`` (M, 6) or (6,): near each pose;
+    ``directions`` (M, 6): approach directions (default +1); ``times_s`` (M,) s (default 0)."""
     readings = np.atleast_2d(np.asarray(leg_readings, dtype=float))
     poses, converged = forward_kinematics_masked(
         geometry, geometry.sensors.true_leg_lengths(readings), guess

@@ -36,12 +36,8 @@ def decay_factor(dt, time_constant):
 
 
 class SensorDynamics:
-    """First-order response and AR(1) noise of ``C`` channels, vectorised over leading axes.
-
-    ``response_time``, ``correlation_time``: (C,) or scalars, s. ``circular``: (C,) bools, the
-    channels that are angles on the circle (the lag takes the short way round). :meth:`step`
-    takes the true values (..., C) and the stds (C,) and returns the readings (..., C).
-    """
+    """First-order response and AR(1) noise of ``C`` channels, vectorised over leading axes:
+    ``response_time``, ``correlation_time`` (C,) or scalars, s; ``circular`` (C,) bools, angles."""
 
     def __init__(self, response_time, correlation_time, n_channels, circular=None):
         self.n_channels = int(n_channels)
@@ -66,12 +62,9 @@ class SensorDynamics:
         self._noise = None  # z, (..., C), unit variance
 
     def step(self, time_s, true_values, stds, rng):
-        """Readings (..., C) at ``time_s`` (s) of ``true_values`` (..., C), held since the
-        previous step, with noise stds ``stds`` (C,) drawn from ``rng`` (numpy Generator).
-
-        A time at or before the previous one advances nothing (dt = 0): the lag stays, the
-        coloured noise repeats; white channels still draw fresh noise.
-        """
+        """Readings (..., C) at ``time_s`` (s) of ``true_values`` (..., C) held since the previous
+        step, noise stds ``stds`` (C,) drawn from ``rng``; a time not after the last one
+        advances nothing."""
         true_values = np.asarray(true_values, dtype=float)
         draw = rng.normal(0.0, 1.0, size=true_values.shape)
         if self._time is None or self._response.shape != true_values.shape:
@@ -88,6 +81,3 @@ class SensorDynamics:
         if self._time is None or float(time_s) > self._time:
             self._time = float(time_s)
         return self._response + self._noise * np.asarray(stds, dtype=float)
-
-
-__all__ = ['SensorDynamics', 'SensorDynamicsError', 'decay_factor']

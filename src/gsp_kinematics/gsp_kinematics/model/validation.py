@@ -45,11 +45,9 @@ def reached_poses(true, controller, commanded):
 
 @dataclasses.dataclass(frozen=True)
 class SimulatedRun:
-    """A commanded sequence on a simulated real platform, noise-free, each (M, ...) in order:
-    the commanded poses, the leg readings the actuators report (m), each leg's approach
-    direction (+1 extending), the times (s since the start), the real poses (m, rad), the
-    device readings ``[alpha, beta, phi, d_m]`` there, and ``reachable`` (M,): False where the
-    real platform has no pose near the command (its other rows are NaN)."""
+    """A commanded sequence on a simulated real platform, noise-free, (M, ...) in order: commanded
+    poses, leg readings (m), approach directions, times (s), real poses, device readings and
+    ``reachable`` (M,) (False: no pose near the command, the row NaN)."""
 
     commanded: np.ndarray
     leg_readings: np.ndarray
@@ -64,12 +62,9 @@ def simulate_commands(
     true, controller, commanded, effects=None, times_s=None, previous_readings=None
 ):
     """What the real platform (``true`` geometry and ``effects``) does when ``controller`` drives
-    it through ``commanded`` (M, 6) in that order, at ``times_s`` (M,) s since the start
-    (default 0): a :class:`SimulatedRun`. ``previous_readings`` (6,): the legs' readings before
-    the first command (None: it is the first; every leg counts as arrived extending).
-    A controller geometry with identified effects (``controller.effects``) compensates them: the
-    legs go to :func:`~gsp_kinematics.model.effect_groups.compensated_leg_readings`, each leg's
-    direction taken from the uncompensated readings."""
+    it through ``commanded`` (M, 6) in order at ``times_s`` (M,) s (default 0): a
+    :class:`SimulatedRun`. ``previous_readings`` (6,): the legs' readings before (None: the
+    first). A controller with identified effects compensates them."""
     commanded = np.atleast_2d(np.asarray(commanded, dtype=float))
     readings = commanded_leg_readings(controller, commanded, previous_readings)
     times = np.zeros(len(commanded)) if times_s is None else np.asarray(times_s, dtype=float)
@@ -94,13 +89,8 @@ def summarise(position_mm, orientation_deg):
 
 
 def validate(true, controller, commanded, effects=None, times_s=None):
-    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6).
-
-    A posture whose commanded legs the real platform cannot assemble near the command (FK fails)
-    is left out of the statistics and counted in ``unreachable``. ``effects``: the real
-    platform's (:func:`simulate_commands`, in the order given, at ``times_s``); a controller
-    with identified effects compensates them.
-    """
+    """Mean and max errors (mm, deg) over ``commanded`` postures (M, 6); a posture the real
+    platform cannot assemble is counted in ``unreachable``. ``effects``: the real platform's."""
     commanded = np.atleast_2d(commanded)
     if (effects is None or effects.ideal) and controller.effects.none:
         articular = commanded_articular(true, controller, commanded)

@@ -13,11 +13,8 @@ from ..model.motion import MotionLimits, move_time, posture_leg_lengths
 from ..model.sensor_noise import DEFAULT_SENSOR_NOISE
 
 #: Postures between reference revisits when thermal is planned and no interval is given; 0:
-#: none, the reference is revisited at the end only. Periodic revisits do not pay on the
-#: calibrator's plans: on the default plan (60 postures) a revisit every 10 postures costs 29 %
-#: of platform time on gsp_plan's motion model (16 % at 15 s a posture) and lowers the thermal
-#: rates' Cramér-Rao bound by 7-10 %: the plan's other postures, at their own times, hold most
-#: of the drift's information.
+#: none, the reference is revisited at the end only (the plan's other postures, at their own
+#: times, hold most of the drift's information).
 DEFAULT_REVISIT_EVERY = 0
 #: Most postures :func:`augment_route` inserts for the approach directions.
 MAX_APPROACH_INSERTIONS = 24
@@ -149,15 +146,11 @@ def augment_route(
     min_arrivals=1,
 ):
     """The :class:`AugmentedRoute` of commanding ``poses`` (N, 6, in route order) for the effect
-    ``groups`` a calibration will free, by a controller with ``geometry``.
-
-    ``thermal`` in ``groups``: a reference posture (``reference_pose``, default the route's first
-    posture) is revisited every ``revisit_every`` postures and/or every ``revisit_interval_s`` s
-    (default :data:`DEFAULT_REVISIT_EVERY`: none) and at the end. ``backlash``: each
-    leg arrives at least ``min_arrivals`` times extending and retracting, by measuring plan
-    postures once more where needed. Times: each move within ``limits`` (default: none) then
-    ``dwell_s`` at the posture (settle and sampling), from ``start_pose`` (default the first).
-    """
+    ``groups`` a calibration will free, by a controller with ``geometry``: ``thermal``, revisits
+    of ``reference_pose`` (default the first) every ``revisit_every`` postures and/or
+    ``revisit_interval_s`` s and at the end; ``backlash``, ``min_arrivals`` arrivals of each leg
+    both ways. Moves within ``limits``, ``dwell_s`` per posture, from ``start_pose``
+    (docs/platform_effects.md)."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     count = len(poses)
     groups = [groups] if isinstance(groups, str) else list(groups)
@@ -254,10 +247,8 @@ def _scaled_rank(information, relative_tolerance=DEFAULT_RELATIVE_TOLERANCE):
 
 def group_identifiability(geometry, poses, design, group, sigmas=DEFAULT_SENSOR_NOISE, free=None):
     """One group freed beside the geometry: ``{rank, parameters, rank_plain, identifiable,
-    crb_std, crb_leg_um, worst_correlations}``. ``crb_std``: the Cramér-Rao standard deviation
-    of each of its parameters (its unit, ``EFFECT_GROUPS``); ``crb_leg_um``: that times the
-    root mean square of its regressor, the leg length it resolves (um); ``worst_correlations``:
-    per parameter, the geometric parameter it is most correlated with."""
+    crb_std, crb_leg_um, worst_correlations}``: Cramér-Rao stds (the parameters' units), the leg
+    length each resolves (um) and per parameter its most correlated geometric parameter."""
     information, names, columns = effect_information(geometry, poses, design, [group], sigmas, free)
     geometric = len(names) - NUM_LEGS
     rank, rank_plain = _scaled_rank(information), _scaled_rank(information[:geometric, :geometric])

@@ -3,8 +3,7 @@
 import numpy as np
 
 from ..estimation.identifiability import posture_factors, scaled_condition_number
-from ..estimation.identification import DEFAULT_FORMULATION, resolve_free
-from ..estimation.prediction import pose_sensitivities
+from ..estimation.identification import DEFAULT_FORMULATION
 from ..model.sensor_noise import DEFAULT_SENSOR_NOISE
 
 #: Candidates whose condition number is scored exactly at each step of :func:`select_postures`.
@@ -23,17 +22,10 @@ def select_postures(
     exchange_passes=1,
     shortlist=SHORTLIST,
 ):
-    """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number.
-
-    Greedy: while the accumulated information ``T`` is rank-deficient, add the posture that most
-    increases log det (regularised; exact for every candidate through the determinant lemma on
-    its low-rank factor, :func:`posture_factors`); afterwards, the one that gives the smallest
-    condition number. Then ``exchange_passes`` sweeps of a swap (exchange) algorithm keep any swap
-    that lowers it. The condition number is scored exactly (eigenvalues) only on a ``shortlist``
-    of candidates (``None``: all), ranked by their gain in the weak directions of ``T``:
-    ``sum_k |G_c v_k|^2 / lambda_k^FOCUS`` over its eigenpairs. Returns
-    ``(indices, condition_number)``.
-    """
+    """Indices of ``count`` postures from ``pool`` (N, 6) minimising the condition number:
+    ``(indices, condition_number)``. Greedy on log det, then on the condition number scored
+    exactly on a ``shortlist`` of candidates (``None``: all), then ``exchange_passes`` sweeps of
+    swaps (docs/core_api.md)."""
     pool = np.asarray(pool, dtype=float)
     if pool.shape[0] < count:
         raise ValueError(f'the pool has {pool.shape[0]} postures, fewer than the {count} requested')
@@ -129,11 +121,8 @@ def _exchange(factors, chosen, available, total, passes, shortlist):
 
 def best_addition(information, chosen, excluded=()):
     """Index of the posture (not in ``chosen`` nor ``excluded``) that adds most to the design of
-    ``chosen``, from the per-posture information matrices ``information`` (N, n, n) of a pool
-    (:func:`~gsp_kinematics.estimation.identifiability.posture_information`): the smallest scaled condition number of the information with
-    it (the criterion of :func:`select_postures`; the largest log det gain while that stays
-    singular). Replaces a posture the platform rejected. ValueError if none is left.
-    """
+    ``chosen`` (the criterion of :func:`select_postures`) from the pool's per-posture
+    ``information`` (N, n, n). ValueError if none is left."""
     available = np.ones(len(information), dtype=bool)
     available[list(chosen)] = False
     available[list(excluded)] = False
@@ -147,59 +136,3 @@ def best_addition(information, chosen, excluded=()):
     ridge = 1e-9 * max(np.trace(total), 1e-300) * np.eye(total.shape[0])
     gain = np.linalg.slogdet(total[None] + ridge + information[candidates])[1]
     return int(candidates[int(np.argmax(gain))])
-
-
-def position_weight(geometry, targets, free=None):
-    """``W`` (n, n): the Gram matrix of the position sensitivities at ``targets`` (M, 6), so that
-    ``trace(W C)`` is the summed predicted squared position error (m^2) under a covariance C."""
-    sensitivity = pose_sensitivities(geometry, targets, resolve_free(free))[:, :3]
-    return np.einsum('tai,taj->ij', sensitivity, sensitivity)
-
-
-def exchange_for_pose_error(
-    geometry,
-    pool,
-    chosen,
-    targets,
-    sigmas=DEFAULT_SENSOR_NOISE,
-    free=None,
-    formulation=DEFAULT_FORMULATION,
-    passes=1,
-):
-    """Indices of ``pool`` from ``chosen`` by exchange, minimising the predicted position error at
-    ``targets`` (``trace(W T^-1)``, :func:`position_weight`, T the information of the chosen
-    postures) instead of the condition number: a design for the validation error itself.
-
-    Each sweep replaces each chosen posture by the candidate that lowers the objective most, if
-    any (exact for every candidate through the Woodbury identity on its low-rank factor).
-    """
-    pool = np.asarray(pool, dtype=float)
-    factors = posture_factors(geometry, pool, sigmas, free, formulation)  # (N, r, n)
-    weight = position_weight(geometry, targets, free)
-    information = np.einsum('mri,mrj->mij', factors, factors)
-    chosen = [int(index) for index in chosen]
-    total = information[chosen].sum(axis=0)
-    identity = np.eye(factors.shape[1])
-
-    def decrease(indices, inverse):
-        # trace(W B^-1) - trace(W (B + G^T G)^-1) = trace((I + G B^-1 G^T)^-1 G B^-1 W B^-1 G^T)
-        projected = factors[indices] @ inverse
-        inner = identity + projected @ np.swapaxes(factors[indices], -1, -2)
-        weighted = projected @ weight @ np.swapaxes(projected, -1, -2)
-        return np.einsum('...ij,...ji->...', np.linalg.inv(inner), weighted)
-
-    for _ in range(passes):
-        improved = False
-        for position in range(len(chosen)):
-            base = total - information[chosen[position]]
-            inverse = np.linalg.inv(base)
-            candidates = np.setdiff1d(np.arange(len(pool)), chosen)
-            gains = decrease(candidates, inverse)
-            best = int(np.argmax(gains))
-            if gains[best] > decrease(chosen[position], inverse) * (1.0 + 1e-9):
-                chosen[position] = int(candidates[best])
-                total = base + information[chosen[position]]
-                improved = True
-        if not improved:
-            break
-    return np.array(chosen)

@@ -59,11 +59,9 @@ def choose_check_postures(
     budget_s=CHECK_BUDGET_S,
     free=CHECK_PARAMETERS,
 ):
-    """The postures of a check from ``pool`` (N, 6), greedily by information per second: from
-    ``start_pose``, each next posture is the one whose gain in ``log det`` of the information on
-    ``free`` (regularised) per second of platform time (the move to it, the settle allowance and
-    ``pairs_per_posture`` at ``rate_hz``) is largest, until ``count`` postures or until no
-    posture fits in ``budget_s`` (:class:`CheckPlan`)."""
+    """The postures of a check from ``pool`` (N, 6), greedily by information on ``free`` per
+    second of platform time from ``start_pose``, until ``count`` postures or the ``budget_s``
+    (:class:`CheckPlan`; docs/upkeep.md)."""
     pool = np.atleast_2d(np.asarray(pool, dtype=float))
     per_posture = SETTLE_ALLOWANCE_S + pairs_per_posture / rate_hz
     factors = posture_factors(controller, pool, sigmas, list(free))
@@ -96,12 +94,8 @@ def choose_check_postures(
 
 def calibration_share(controller, poses, sigmas, calibration, free=CHECK_PARAMETERS):
     """``K C K^T``: the covariance the calibration's own uncertainty (``calibration``, a
-    ``drift.Calibration`` of the controller) gives the check's estimate of ``free`` at ``poses``.
-
-    The check fits ``free`` with the other parameters at the controller's values; a calibration
-    error ``e`` then shifts its estimate by ``K e``, ``K = -(G_f^T G_f)^-1 G_f^T G_c`` (``G``: the
-    postures' information factors of :func:`gsp_kinematics.estimation.identifiability.posture_factors` over the
-    check's parameters ``f`` and the calibration's ``c``)."""
+    ``drift.Calibration``) gives the check's estimate of ``free`` at ``poses``, ``K = -(G_f^T
+    G_f)^-1 G_f^T G_c`` over the postures' information factors (docs/upkeep.md)."""
     mask = resolve_free(list(dict.fromkeys(list(calibration.names) + list(free))))
     names = [name for name, is_free in zip(ALL_PARAMETER_NAMES, mask, strict=True) if is_free]
     factors = posture_factors(controller, poses, sigmas, mask).reshape(-1, len(names))
@@ -157,13 +151,12 @@ def check_platform(
     level=drift.DEFAULT_LEVEL,
     free=CHECK_PARAMETERS,
 ):
-    """The check of ``controller`` (the geometry it runs) from the measured rows ``leg_lengths``
-    (M, 6) and ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise
-    ``row_sigmas`` (a ``SensorNoise``; add any unmodelled error the calibration found) and the
-    :class:`gsp_kinematics.estimation.verdict.acceptance.Requirement` ``required``. ``calibration``: the ``drift.Calibration`` the controller
-    came from (its covariance; None: taken as exact). A JSON-ready dict: ``verdict``,
-    ``reasons``, ``notes`` (what changed within the requirement), ``accuracy``, ``change`` (the drift test of the leg offsets), ``moved``,
-    ``identification`` (names, SI estimates and covariance) and ``geometry_si``."""
+    """The check of ``controller`` from the measured rows ``leg_lengths`` (M, 6) and
+    ``readings`` (M, 4) at the ``commanded`` poses (M, 6), with the rows' noise ``row_sigmas`` (a
+    ``SensorNoise``) and the ``Requirement`` ``required``; ``calibration``: the
+    ``drift.Calibration`` the controller came from (None: exact). A JSON-ready dict: ``verdict``,
+    ``reasons``, ``notes``, ``accuracy``, ``change``, ``moved``, ``identification`` and
+    ``geometry_si`` (docs/data.md)."""
     commanded = np.atleast_2d(np.asarray(commanded, dtype=float))
     accuracy = accuracy_now(controller, leg_lengths, readings, commanded, row_sigmas)
     reasons = []
@@ -208,13 +201,10 @@ def check_platform(
 
 def _judge_change(data, controller, fitted, rows, required, level, free):
     """The change of the leg offsets since the calibration (``fitted``: the check's small
-    identification; ``rows``: the commanded poses, the rows' noise and the calibration):
-    fills ``data`` (``change``, ``common_change``, ``identification``) and returns ``(the legs
-    named, the reasons to recalibrate, notes)``.
-
-    All six alike (heat, a common re-homing) is no moved leg. It is a reason to recalibrate
-    only when its effect on the pose could exceed the requirement (:func:`common_effect`);
-    within it, a note: the accuracy now, measured with it, decides."""
+    identification; ``rows``: the commanded poses, the rows' noise and the calibration): fills
+    ``data`` (``change``, ``common_change``, ``identification``) and returns ``(the legs named,
+    the reasons to recalibrate, notes)``; a common change is a reason only when its effect could
+    exceed the requirement (:func:`common_effect`)."""
     commanded, row_sigmas, calibration = rows
     index = [PARAMETER_INDEX[name] for name in free]
     before = controller.to_full_vector()[index]

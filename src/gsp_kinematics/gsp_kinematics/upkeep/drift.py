@@ -157,14 +157,10 @@ def effect_poses(geometry, count=EFFECT_POSTURES, seed=0, workspace=Workspace())
 
 
 def compare(first, second, level=DEFAULT_LEVEL, poses=None):
-    """Drift from calibration ``first`` to ``second`` (:class:`Calibration`): a JSON-ready dict.
-
-    ``parameters``: per common parameter its change, 1 sigma (both covariances), ``z``
-    (marginal) and ``w`` (Baarda), SI and report units; ``global_test``; ``significant``: the
-    named changes (iterated w-tests, see the module doc) with their estimate given each other;
-    ``effect``: the pose effect of the whole change and of the significant part over ``poses``
-    (default :func:`effect_poses` of the second geometry).
-    """
+    """Drift from calibration ``first`` to ``second`` (:class:`Calibration`): a JSON-ready dict of
+    ``parameters`` (per common parameter: change, sigma, ``z``, ``w``), ``global_test``,
+    ``significant`` (iterated w-tests) and ``effect`` on the pose over ``poses`` (default
+    :func:`effect_poses`; docs/upkeep.md)."""
     names = tuple(
         name for name in ALL_PARAMETER_NAMES if name in first.names and name in second.names
     )

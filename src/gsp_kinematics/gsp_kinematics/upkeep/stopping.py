@@ -7,8 +7,6 @@ import math
 import numpy as np
 from scipy import stats
 
-from ..estimation.identification import IdentificationError, identify, resolve_free
-from ..estimation.verdict.cross_validation import cross_validate
 from ..model.motion import move_time, posture_leg_lengths
 
 #: Per posture besides its move (s): the settle allowance and 10 samples at 200 Hz.
@@ -76,14 +74,10 @@ def _mean_and_bound(figures, magnitudes, z):
 
 
 def accuracy_bounds(summary, confidence, predicted_mm):
-    """:class:`Bounds` from a cross-validation's ``summary()`` (``CrossValidation.summary``) and
-    the ``predicted_mm`` mean position error over the workspace (None: inf): the position bound
-    is the mean plus ``z(confidence)`` standard errors of the mean over the predicted postures.
-
-    With workspace postures (``workspace_rows``) the figures are the verdict's judged accuracy
-    (``acceptance.judged_accuracy``): the larger of the workspace and the selected postures'
-    means and bounds, each over its own rows, so a run never stops on a figure the verdict then
-    rejects (the workspace postures miss the error the device shares with the legs)."""
+    """:class:`Bounds` from a cross-validation's ``summary()`` and the ``predicted_mm`` mean
+    position error over the workspace (None: inf): the position bound is the mean plus
+    ``z(confidence)`` standard errors; with workspace postures, the larger of theirs and the
+    selected postures' (docs/upkeep.md)."""
     z = float(stats.norm.ppf(confidence))
     magnitudes = np.asarray(summary['per_posture']['position_mm'], dtype=float)
     workspace = np.zeros(magnitudes.size, bool)
@@ -109,33 +103,6 @@ def plan_time_s(geometry, start_pose, poses, limits, dwell_s=DWELL_S):
     return float(np.sum(move_time(legs[:-1], legs[1:], limits))) + dwell_s * len(poses)
 
 
-def _scaled(information):
-    """Per-posture information (N, n, n) scaled to unit mean diagonal per parameter (log det
-    gains then weigh every parameter alike, whatever its unit)."""
-    scale = 1.0 / np.sqrt(np.maximum(np.einsum('mii->i', information) / len(information), 1e-300))
-    return information * np.outer(scale, scale)[None], scale
-
-
-def informative_order(information, legs, start_legs, limits, dwell_s=DWELL_S, ridge=1e-3):
-    """An order of the postures whose every prefix is informative: greedily, the next posture is
-    the one of largest gain in ``log det`` of the (scaled, ``ridge``-regularised) information per
-    second of platform time (its move from the previous posture and ``dwell_s``).
-
-    ``information`` (N, n, n): per-posture information (``selection.posture_information``);
-    ``legs`` (N, 6): their leg lengths, ``start_legs`` (6,) where the platform starts."""
-    scaled, _ = _scaled(np.asarray(information, dtype=float))
-    total = ridge * np.eye(scaled.shape[1])
-    left, order, position = list(range(len(scaled))), [], np.asarray(start_legs, dtype=float)
-    while left:
-        seconds = np.asarray(move_time(position, legs[left], limits), dtype=float) + dwell_s
-        gains = np.linalg.slogdet(total[None] + scaled[left])[1] - np.linalg.slogdet(total)[1]
-        best = left.pop(int(np.argmax(gains / seconds)))
-        order.append(best)
-        total = total + scaled[best]
-        position = legs[best]
-    return np.array(order, dtype=int)
-
-
 def best_addition(information, pool_information, pool_legs, position_legs, used, limits, dwell_s):
     """The pool posture (index) of largest gain in ``log det`` of ``information`` (n, n: the run's
     so far) per second of platform time from ``position_legs`` (6,); ``pool_information``
@@ -151,76 +118,3 @@ def best_addition(information, pool_information, pool_legs, position_legs, used,
     gains = np.linalg.slogdet(base[None] + pool_information)[1] - np.linalg.slogdet(base)[1]
     score = np.where(available, gains / np.where(available, seconds, 1.0), -np.inf)
     return int(np.argmax(score))
-
-
-def core_judge(nominal, pool, measured, row_sigmas, free=None, folds=10, confidence=0.95):
-    """A judge for :func:`run_to_requirement` by the core alone: ``judge(indices)`` identifies the
-    rows ``measured(indices) -> (legs, readings)`` and cross-validates them: ``(result or None,
-    Bounds)`` (no predicted accuracy over the workspace: ``predicted_mm`` stays 0)."""
-    free = resolve_free(free)
-
-    def judge(indices):
-        legs, readings = measured(indices)
-        try:
-            result = identify(
-                nominal, legs, readings, row_sigmas, free=free, pose_guesses=pool[indices]
-            )
-        except IdentificationError:
-            return None, UNKNOWN
-        if not result.converged:
-            return None, UNKNOWN
-        validation = cross_validate(result, nominal, legs, readings, row_sigmas, folds=folds)
-        return result, accuracy_bounds(validation.summary(), confidence, 0.0)
-
-    return judge
-
-
-def run_to_requirement(pool_legs, planned, measure, judge, information, rule, limits, start_legs):
-    """The run that stops when it is good enough, on measurements given by functions (the
-    benches; the calibrator's loop is ``gsp_calibrator.run.flow``). ``planned``: indices into
-    the pool (``pool_legs`` (N, 6), its postures' leg lengths), in the order measured;
-    ``measure(index, platform_time_s)`` measures one; ``judge(indices)`` identifies and
-    cross-validates those measured so far: ``(result or None, Bounds)``; ``information(result)``
-    is the pool's per-posture information (N, n, n) at ``result``'s geometry, for the additions.
-    A JSON-ready dict: ``met``, ``postures``, ``added``, ``platform_time_s``,
-    ``fixed_plan_time_s``, the last ``bounds``, ``history`` (postures, platform time and bounds
-    per judgement), the ``indices`` measured, and the final ``result`` (not JSON)."""
-    legs_path = np.vstack([np.asarray(start_legs, float)[None], pool_legs[list(planned)]])
-    fixed_s = float(np.sum(move_time(legs_path[:-1], legs_path[1:], limits)))
-    fixed_s += rule.dwell_s * len(planned)
-    position = np.asarray(start_legs, dtype=float)
-    queue, indices, steps = list(planned), [], []
-    result, bounds, added, elapsed = None, UNKNOWN, 0, 0.0
-    while not bounds.meets(rule):
-        if queue:
-            index = queue.pop(0)
-        elif result is not None and added < rule.max_added:
-            index = best_addition(
-                result.information, information(result), pool_legs, position, indices, limits,
-                rule.dwell_s,
-            )  # fmt: skip
-            added += 1
-        else:
-            break
-        elapsed += float(move_time(position, pool_legs[index], limits)) + rule.dwell_s
-        position = pool_legs[index]
-        measure(index, elapsed)
-        indices.append(int(index))
-        last = not queue and (len(indices) == len(planned) or added == rule.max_added)
-        if rule.due(len(indices), last):
-            result, bounds = judge(list(indices))
-            steps.append({'postures': len(indices), 'platform_time_s': elapsed, **bounds.record()})
-    return {
-        'met': bounds.meets(rule),
-        'required_position_mm': rule.required_position_mm,
-        'confidence': rule.confidence,
-        'postures': len(indices),
-        'added': added,
-        'platform_time_s': elapsed,
-        'fixed_plan_time_s': fixed_s,
-        'fixed_plan_postures': len(planned),
-        'bounds': bounds.record(),
-        'history': steps,
-        'indices': indices,
-        'result': result,
-    }

@@ -64,11 +64,6 @@ def _wrap_phi(difference, columns):
     return difference
 
 
-def _damped(matrix, diagonal, damping):
-    """``matrix + damping * diag(diagonal)`` (Marquardt's scaling)."""
-    return matrix + damping * np.diag(diagonal)
-
-
 class _FkModel(_Model):
     """Residuals of device readings predicted through FK of the measured legs."""
 
@@ -180,7 +175,7 @@ class _FkModel(_Model):
 
     def solve(self, point, system, damping):
         normal, gradient, diagonal = system
-        step = np.linalg.solve(_damped(normal, diagonal, damping), -gradient)
+        step = np.linalg.solve(normal + damping * np.diag(diagonal), -gradient)
         predicted_reduction = -(gradient @ step) - 0.5 * step @ normal @ step
         return Step(step, None, predicted_reduction)
 
@@ -254,11 +249,8 @@ class _FkModel(_Model):
 
 
 class _ImplicitModel(_Model):
-    """All sensors as residuals; the parameters and every pose are unknowns.
-
-    A point's ``linearization`` is a :class:`_LazyJacobian`: a trial step's Jacobian is computed
-    only if the driver keeps the step.
-    """
+    """All sensors as residuals; the parameters and every pose are unknowns (a trial step's
+    Jacobian, a :class:`_LazyJacobian`, is computed only if the driver keeps the step)."""
 
     #: The start (nominal, pose guesses) is close and the model nearly linear: Gauss-Newton-like
     #: steps from the first (cf. Madsen, Nielsen & Tingleff: tau = 1e-6 for a good start).

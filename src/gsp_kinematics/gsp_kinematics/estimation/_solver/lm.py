@@ -1,24 +1,11 @@
 """The identification's Levenberg-Marquardt driver and the Schur complement (private).
 
-One loop serves every formulation (cf. ``scipy.optimize.least_squares``: one table of termination
-messages, the formulation chosen before the solve). A formulation is a *model* that supplies
-only its maths:
-
-* ``normal_equations(point) -> (scaled_gradient, system)``: the Gauss-Newton normal equations at
-  ``point`` and the largest gradient entry scaled by the square root of its diagonal (asked once
-  per point: a rejected step reuses them with more damping);
-* ``solve(point, system, damping) -> Step``: the damped step (Marquardt's diagonal scaling);
-* ``trial(point, step) -> Point``: the model evaluated after the step (``feasible`` False where it
-  cannot be, e.g. FK fails for a posture in use); its Jacobian may wait for ``normal_equations``,
-  so that a rejected step does not pay for it;
-* ``give_up(point, trial) -> Point``: after ``max_fk_rejections`` infeasible trials in a row;
-* ``initial_damping``: the damping to start from unless the options set one;
-* ``accept(trial) -> (point, changed)``: take the step; ``changed`` when the model changed its
-  problem on the way (e.g. a posture readmitted), so that this step says nothing of convergence.
-
-The driver stops on the step ``du`` or on the change of the residual ``dX`` (achieved, or predicted
-by the linear model), as in the paper's Fig. 5, or on a vanishing gradient; :data:`TERMINATION_MESSAGES` names every status.
-"""
+One loop serves every formulation; a formulation is a *model* that supplies
+``normal_equations(point) -> (scaled_gradient, system)``, ``solve(point, system, damping) ->
+Step``, ``trial(point, step) -> Point`` (``feasible`` False where FK fails), ``give_up(point,
+trial)``, ``initial_damping`` and ``accept(trial) -> (point, changed)``. The driver stops on
+the step, the change of the residual (the paper's Fig. 5) or a vanishing gradient
+(:data:`TERMINATION_MESSAGES`)."""
 
 import dataclasses
 import math
@@ -62,12 +49,8 @@ def cost_of(residuals):
 
 
 def levenberg_marquardt(model, start, options):
-    """Minimise the model's cost from ``start``; returns ``(point, status, iterations)``.
-
-    ``options``: ``max_iterations``, ``step_tolerance``, ``cost_tolerance``,
-    ``gradient_tolerance``, ``initial_damping``, ``max_fk_rejections``
-    (:class:`gsp_kinematics.estimation.identification.Options`).
-    """
+    """Minimise the model's cost from ``start``: ``(point, status, iterations)``; ``options``: an
+    :class:`gsp_kinematics.estimation.identification.Options`."""
     point = start
     damping = options.initial_damping
     damping, nu = model.initial_damping if damping is None else damping, 2.0
@@ -153,12 +136,8 @@ def block_normal_equations(augmented):
 
 def eliminate_poses(pose_rows, parameter_block, pose_damping=None, parameter_damping=None):
     """``(reduced (n, n+1), solved (M, 6, n+1))``: the reduced system ``[S | g_S]`` and
-    ``H_XX^-1 [H_Xu | g_X]``, where ``S = H_uu - sum_m H_Xu^T H_XX^-1 H_Xu`` and
-    ``g_S = g_u - sum_m H_Xu^T H_XX^-1 g_X``.
-
-    ``pose_damping`` (M, 6) and ``parameter_damping`` (n,), if given, are added to the diagonals
-    of ``H_XX`` and ``H_uu`` (the damped normal equations).
-    """
+    ``H_XX^-1 [H_Xu | g_X]`` (``S = H_uu - sum_m H_Xu^T H_XX^-1 H_Xu``), ``pose_damping`` (M, 6)
+    and ``parameter_damping`` (n,), if given, added to the diagonals of ``H_XX`` and ``H_uu``."""
     size = parameter_block.shape[0] - 1
     h_xx = pose_rows[:, :, :6]
     if pose_damping is not None:
@@ -172,17 +151,3 @@ def eliminate_poses(pose_rows, parameter_block, pose_damping=None, parameter_dam
     if parameter_damping is not None:
         reduced[:, :size] += np.diag(parameter_damping)
     return reduced, solved
-
-
-def schur_information(jac_pose, jac_u, per_posture=False):
-    """Information ``J^T J`` of the parameters with each posture's pose eliminated,
-    ``H_uu - sum_m H_Xu_m^T H_XX_m^-1 H_Xu_m``, from the Jacobians ``(M, k, 6)`` and
-    ``(M, k, n)``; ``per_posture``: ``(M, n, n)``, one complement a posture."""
-    jac_pose_t = np.swapaxes(jac_pose, 1, 2)
-    h_xu = jac_pose_t @ jac_u
-    solved = np.linalg.inv(jac_pose_t @ jac_pose) @ h_xu
-    if per_posture:
-        return np.swapaxes(jac_u, 1, 2) @ jac_u - np.swapaxes(h_xu, 1, 2) @ solved
-    size = jac_u.shape[2]
-    flat_u = jac_u.reshape(-1, size)
-    return flat_u.T @ flat_u - h_xu.reshape(-1, size).T @ solved.reshape(-1, size)

@@ -48,12 +48,9 @@ _DEVICE_DEPENDS_ON = np.array(
 
 
 class ReadingsModel:
-    """The readings and Jacobians of a fixed set of free parameters.
-
-    ``free``: 54 bools over the extended vector; the Jacobian's columns are the pose (6) and then
-    the free parameters in vector order. ``extra_columns`` more (zero) columns are allocated after
-    them, for the caller's use (the identification appends the residual).
-    """
+    """The readings and Jacobians of a fixed set of free parameters (``free``: 54 bools); the
+    Jacobian's columns are the pose (6), the free parameters in vector order, then
+    ``extra_columns`` zero columns for the caller."""
 
     def __init__(self, free, extra_columns=0):
         free = np.asarray(free, dtype=bool)

@@ -17,14 +17,9 @@ def redundancy_flat(jacobian, active=None):
 
 
 def redundancy_with_poses(jac_pose, jac_u, information):
-    """``(M, k)`` redundancy numbers of the implicit formulation: Jacobians w.r.t. each posture's
-    pose ``(M, k, 6)`` and the parameters ``(M, k, n)``, ``information`` the Schur-reduced
-    ``S = J_u^T J_u - sum_m W_m^T U_m^-1 W_m`` (n, n).
-
-    With the block inverse of the arrow-shaped normal equations, the hat matrix's diagonal of the
-    rows of posture m is ``diag(P U^-1 P^T) + diag(E S^-1 E^T)``, ``P, Q`` its pose and parameter
-    Jacobians, ``U = P^T P``, ``W = P^T Q``, ``E = Q - P U^-1 W``: one batched 6x6 inverse.
-    """
+    """``(M, k)`` redundancy numbers of the implicit formulation (the hat matrix's diagonal by
+    the block inverse, docs/sensor_errors.md): Jacobians w.r.t. each posture's pose ``(M, k, 6)``
+    and the parameters ``(M, k, n)``, ``information`` the Schur-reduced ``S`` (n, n)."""
     inverse_u = np.linalg.pinv(np.matmul(np.swapaxes(jac_pose, 1, 2), jac_pose))
     pose_part = jac_pose @ inverse_u  # (M, k, 6)
     leverage = np.einsum('mkj,mkj->mk', pose_part, jac_pose)

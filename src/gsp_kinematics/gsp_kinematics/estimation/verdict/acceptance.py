@@ -114,9 +114,7 @@ def accuracy_line(accuracy, predicted=None):
 
 def judged_accuracy(accuracy):
     """``(position mm, phi deg)`` the requirement is checked against: the held-out means, and
-    with workspace postures the larger of theirs and the selected postures' (docs/verdict.md:
-    the workspace postures do not see an error the device's own parameters share with the legs,
-    which the selected postures' larger errors bound on the bench's platforms)."""
+    with workspace postures the larger of theirs and the selected postures' (docs/verdict.md)."""
     position = accuracy['calibrated']['position_mm']['mean']
     phi = accuracy['calibrated']['phi_deg']['mean']
     selected = (accuracy.get('selected') or {}).get('calibrated')

@@ -87,13 +87,8 @@ def _mean_square(main, backlash, vector=None, covariance=None):
 
 def freeing_gain(reference, extended, poses):
     """:class:`FreeingGain` of the fit ``extended`` (``reference`` plus effect groups, the
-    same rows and weights) at the workspace ``poses`` (M, 6; :func:`workspace_postures`).
-
-    Both fits must identify their parameters: the covariance of a rank-deficient fit is the
-    pseudo-inverse of a singular information matrix, not positive semi-definite, and its
-    predicted variance can come out negative. The gain is then NaN (not predicted), never the
-    square root of a negative variance: the caller says the candidate cannot be judged. Checked
-    on the rank, not only on the sign: rounding decides the sign of a pseudo-inverse's variance."""
+    same rows and weights) at the workspace ``poses`` (M, 6; :func:`workspace_postures`); NaN
+    gain unless both fits identify their parameters (checked on the rank)."""
     if not all(identifies_all(analyse_result(fit)) for fit in (reference, extended)):
         return FreeingGain(float('nan'), float('nan'))
     main, backlash = _columns(extended, poses)

@@ -33,16 +33,10 @@ def _effect_free(result):
     return np.zeros(NUM_EFFECT_PARAMETERS, bool) if free is None else np.asarray(free, bool)
 
 
-def _free_names(result):
-    return [n for n, on in zip(ALL_PARAMETER_NAMES, result.free, strict=True) if on]
-
-
 def device_sensitivities(result, readings):
     """``(position (M, 3, p) m, phi (M, p) rad)``: what the device measures at ``readings``
-    (M, 4) per unit error of each of ``result``'s free parameters then free effects (``p``, the
-    covariance's order; nonzero only for :data:`DEVICE_PARAMETERS`). Analytic, from eq 9 with
-    the sensor errors: ``t = (D0 + (1 + kDm) Dm) u(alpha - alpha0, beta - beta0, gamma)`` and
-    ``phi - phi0``."""
+    (M, 4) per unit error of each of ``result``'s free parameters then free effects (nonzero only
+    for :data:`DEVICE_PARAMETERS`; eq 9 with the sensor errors)."""
     readings = np.atleast_2d(np.asarray(readings, dtype=float))
     geometry = result.geometry
     size = np.asarray(result.covariance).shape[0]
@@ -60,7 +54,7 @@ def device_sensitivities(result, readings):
         'beta0': -length[:, None] * d_beta,
         'kDm': readings[:, 3, None] * unit,  # D grows by the raw LVDT reading per unit gain
     }
-    for column, name in enumerate(_free_names(result)):
+    for column, name in enumerate(np.asarray(ALL_PARAMETER_NAMES)[result.free]):
         if name in columns:
             position[:, :, column] = columns[name]
         elif name == 'phi0':
@@ -99,9 +93,8 @@ def _compensated(result):
 def comparison_sensitivities(result, poses, readings, design=None):
     """``(controller (M, 4, p), comparison (M, 4, p))``: rows ``[dp (m); d phi (rad)]`` per unit
     error of each free parameter then free effect of ``result`` at ``poses`` (M, 6) with device
-    ``readings`` (M, 4): of the pose the controller reaches (``S_c``) and of the held-out
-    comparison, forward kinematics minus the device (``-(S + H)``); ``design``: the rows'
-    ``EffectDesign`` (times and approach directions of the effects' regressors)."""
+    ``readings`` (M, 4): of the pose the controller reaches and of the held-out comparison;
+    ``design``: the rows' ``EffectDesign``."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     geometry_columns = pose_sensitivities(result.geometry, poses, result.free, euler=True)
     legs = np.concatenate([geometry_columns, _effect_columns(result, poses, design)], axis=2)
@@ -132,12 +125,9 @@ def propagated_variances(sensitivity, covariance):
 
 
 def leverage_ratios(full, held_out, unmodelled=0.0):
-    """(M,) in [0, 1]: at each posture, the comparison's predicted variance under the full fit
-    (``full`` (M,) m^2) over that under the fold's fit that did not see it (``held_out``), each
-    with the ``unmodelled`` variance (M,) added, which no fit removes. A posture that alone
-    determines a parameter (an extreme the selection chose) is predicted far worse by the fit
-    without it than the full fit places it: the ratio takes that leverage out of its held-out
-    error (docs/verdict.md). 1 where a variance is unknown (no correction)."""
+    """(M,) in [0, 1]: the comparison's predicted variance under the full fit (``full`` (M,) m^2)
+    over that under the fold's fit (``held_out``), each plus ``unmodelled`` (M,); 1 where a
+    variance is unknown (docs/verdict.md)."""
     full = np.asarray(full, dtype=float) + unmodelled
     held_out = np.asarray(held_out, dtype=float) + unmodelled
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -153,11 +143,9 @@ LEVERAGE_EXPLAINS = 9.0
 
 
 def explained_excess(errors, noise, held_out=None):
-    """``(explained, kept)`` (M,): the excess ``e^2 - n`` of held-out error magnitudes
-    ``errors`` over their ``noise`` variance, split where ``e^2`` passes
-    :data:`LEVERAGE_EXPLAINS` times its predicted variance, the held-out fit's ``held_out``
-    (M,) plus the noise (the noise scatters ``e^2`` as much as the fold's ignorance does; None:
-    all of it is explained)."""
+    """``(explained, kept)`` (M,): the excess ``e^2 - n`` of held-out error magnitudes ``errors``
+    over their ``noise`` variance, split where ``e^2`` passes :data:`LEVERAGE_EXPLAINS` times
+    ``held_out`` (M,) plus the noise (None: all explained)."""
     errors, noise = np.asarray(errors, dtype=float), np.asarray(noise, dtype=float)
     excess = errors**2 - noise
     if held_out is None:

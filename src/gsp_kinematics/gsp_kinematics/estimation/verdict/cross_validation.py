@@ -12,11 +12,7 @@ from ...model.geometry import ALL_PARAMETER_NAMES
 from ...model.kinematics import Workspace, forward_kinematics_masked, sample_valid_postures
 from ...rotation import wrap_angle
 from ..identification import Options
-from ..prediction import (
-    parameter_pose_covariance,
-    reading_pose_covariance,
-    thermal_pose_covariance,
-)
+from ..prediction import parameter_pose_covariance, reading_pose_covariance, thermal_pose_covariance
 from .comparison import (
     comparison_sensitivities,
     comparison_variances,
@@ -55,26 +51,17 @@ def _errors(legs_geometry, device_geometry, leg_lengths, readings, guesses, desi
 
 
 def noise_variances(geometry, poses, readings, row_sigmas):
-    """The variance the rows' noise (``row_sigmas``, a SensorNoise of the averaged rows) adds to
-    the prediction errors at ``poses`` (M, 6) with ``readings`` (M, 4): ``(position (M,) m^2,
-    the trace of its 3x3 covariance; phi (M,) rad^2)``
-    (:func:`~gsp_kinematics.estimation.prediction.reading_pose_covariance`)."""
+    """The variance the rows' noise (``row_sigmas``) adds to the prediction errors at ``poses``
+    (M, 6) with ``readings`` (M, 4): ``(position (M,) m^2, phi (M,) rad^2)``."""
     position, euler = reading_pose_covariance(geometry, poses, readings, row_sigmas)
     return np.trace(position, axis1=1, axis2=2), euler[:, 2, 2]
 
 
 def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, transfer=1.0):
     """``(mean, p95, rms, factor)`` of held-out error magnitudes ``errors`` (K,) with the
-    noise's ``variances`` (K,) removed: the mean squared error less the noise's, plus ``unseen``
-    (K,; the variance the truth holds beyond the comparison, negative where the comparison holds
-    more: :func:`.comparison.comparison_variances`), is the signal; ``factor = sqrt(signal /
-    sum(draws^2))`` scales the mean, the p95 and the rms of the draws (the error's distribution
-    is assumed to keep its shape). Without ``leverage`` the draws are the errors. ``leverage``
-    (K,) scales each excess over the noise up to 3 standard deviations of the held-out fit's
-    prediction ``held_out`` (K,) m^2 (:func:`.comparison.explained_excess`) to the full fit's;
-    the draws are then the errors scaled to the full fit's expectation, signal and noise,
-    ``(r h + n) / (h + n)``, on the explained part (a mean of shrunk magnitudes would mix the
-    noise's variance, a constant, into draws of it)."""
+    noise's ``variances`` (K,) removed, ``unseen`` (K,) added and each excess scaled by its
+    ``leverage`` (K,) up to :func:`.comparison.explained_excess` of ``held_out`` (K,) m^2;
+    ``factor = sqrt(signal / sum(draws^2))`` scales the draws (docs/verdict.md)."""
     signal, draws = posture_terms(errors, variances, unseen, leverage, held_out)
     if not draws.size:
         return math.nan, math.nan, math.nan, math.nan
@@ -88,10 +75,8 @@ def noise_removed(errors, variances, unseen=None, leverage=None, held_out=None, 
 
 def without_leverage(errors, noise, ratios, held_out=None):
     """Held-out error magnitudes ``errors`` (M,) with their excess over the ``noise`` variance
-    (M,) scaled by the leverage ``ratios`` (M,), up to the bound of
-    :func:`.comparison.explained_excess` (``held_out``: the held-out fit's predicted variance;
-    None: no bound): ``sqrt(r x + kept + n)``, the posture's noise still in (the model choice's
-    held-out guard compares these as measured)."""
+    (M,) scaled by the leverage ``ratios`` (M,) up to :func:`.comparison.explained_excess` of
+    ``held_out`` (None: no bound), the noise still in: ``sqrt(r x + kept + n)``."""
     explained, kept = explained_excess(errors, noise, held_out)
     ratios = np.asarray(ratios, dtype=float)
     return np.sqrt(np.maximum(ratios * explained + kept + np.asarray(noise, dtype=float), 0.0))
@@ -136,11 +121,9 @@ def _signed_sqrt(values, count, scale):
 
 @dataclasses.dataclass(frozen=True)
 class CrossValidation:
-    """Held-out prediction errors of a calibrated and of the nominal geometry (SI units).
-
-    Per posture (M rows; NaN where it was not predicted): the errors of FK(geometry, legs)
-    against the device, position (M, 3) m and phi (M,) rad, and the variance the posture's own
-    noise adds to each (m^2, rad^2)."""
+    """Held-out prediction errors of a calibrated and of the nominal geometry (SI units): per
+    posture (M; NaN: not predicted) FK against the device, position (M, 3) m and phi (M,) rad, and
+    the variance its own noise adds (m^2, rad^2)."""
 
     folds: int
     fold_of_posture: np.ndarray  #: (M,) the fold that held each posture out
@@ -188,16 +171,10 @@ class CrossValidation:
 
     def summary(self, workspace=None):
         """JSON-ready: the calibrated and nominal accuracy, position (mm) and phi (deg), each
-        ``{mean, p95, rms}`` with the noise removed, beside the measured ``measured_mean``,
-        ``measured_p95``, the noise's own ``noise_rms`` and the ``noise_factor`` applied;
-        ``per_posture``: each posture's measured position errors (mm, NaN: not predicted) and
-        its noise's standard deviation (mm), for plots.
-
-        ``workspace`` (M,) bool: the rows of the run's workspace (validation) postures, drawn
-        at random from the workspace: the headline (``calibrated``, ``nominal``, ``postures``)
-        is then their held-out errors, an estimate of the mean over the workspace, and
-        ``selected`` holds the same figures over the other (selected) postures;
-        ``workspace_rows`` lists the rows (0-based). None or no row: every posture."""
+        ``{mean, p95, rms}`` with the noise removed, beside ``measured_mean``, ``measured_p95``,
+        ``noise_rms`` and ``noise_factor``; ``per_posture``: measured position errors (mm) and noise
+        stds (mm). ``workspace`` (M,) bool: the rows of workspace postures, then the headline and
+        ``selected`` (the others) and ``workspace_rows`` (docs/data.md); None: every posture."""
         position = np.linalg.norm(self.position_error, axis=1)
         nominal = np.linalg.norm(self.nominal_position_error, axis=1)
         count = position.shape[0]
@@ -277,12 +254,8 @@ class CrossValidation:
 
     def _transfer(self, rows):
         """The scale that carries the signal at the postures ``rows`` (bool mask) to the
-        workspace: the held-out postures are the run's (the selection's extremes), the accuracy
-        the workspace's. The share the model describes (the parameters' and the growth's
-        predicted variance, ``f`` of the truth's there) scales by its predicted mean over the
-        workspace over that at the rows (the model gives the shape, the device the size); the
-        unmodelled share, whose shape over the workspace the model does not know, stays:
-        ``f ratio + 1 - f`` (1: unknown)."""
+        workspace: ``f ratio + 1 - f``, ``f`` the modelled share of the truth's predicted variance,
+        ``ratio`` its workspace mean over that at the rows (1: unknown; docs/verdict.md)."""
         truth, workspace = self.position_truth_variance, self.workspace_truth_variance
         if truth is None or workspace is None or not rows.any():
             return 1.0
@@ -313,11 +286,9 @@ def _uncompensated(geometry, poses, strain):
 
 
 def _corrections(result, readings, held_out, unmodelled, effects):
-    """The :class:`CrossValidation` fields that correct ``result``'s held-out errors (position
-    and phi): the leverage ratios of the comparison's predicted variance under the full fit over
-    each posture's ``held_out`` (position (M,) m^2, phi (M,) rad^2: the fold's fit's), those
-    with the ``unmodelled`` part (SensorNoise or None), added to both; and the unseen part, the
-    controller's predicted variance less the comparison's under the full fit."""
+    """The :class:`CrossValidation` fields that correct ``result``'s held-out errors: the
+    leverage ratios against each posture's ``held_out`` variances (position (M,) m^2, phi (M,)
+    rad^2), with ``unmodelled`` (SensorNoise or None) added to both, and the unseen part."""
     poses = np.asarray(result.poses, dtype=float)
     unmodelled_variances = (0.0, 0.0)
     if unmodelled is not None:
@@ -353,10 +324,8 @@ def _workspace_truth_variance(result, poses, strain):
 
 def _held_out(result, rows, assignment, options, effects, linearised=False):
     """``(position (M, 3) m, phi (M,) rad, (position, phi) variances, failed folds)``: each
-    posture's error predicted by the fit of the folds without it (``assignment``), and that
-    fit's predicted variance of the comparison there (:func:`.comparison.comparison_variances`).
-    ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)`` of every posture;
-    ``linearised``: each fold's fit by :func:`.fold_fits.linearised_refits`."""
+    posture's error predicted by the fit without its fold (``assignment``) and that fit's variance
+    of the comparison there. ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)``."""
     leg_lengths, readings, row_sigmas, guesses = rows
     folds = range(int(assignment.max()) + 1)
     steps = linearised and linearised_refits(
@@ -412,23 +381,15 @@ def cross_validate(
     linearised=False,
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
-    (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without it
-    (same formulation and free parameters, from ``result``'s estimate and poses; ``linearised``:
-    to first order, :mod:`.fold_fits`) and predicts its postures; the ``nominal``
-    geometry predicts every posture.
+    (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without its
+    postures (``linearised``: to first order, :mod:`.fold_fits`) and predicts them; the
+    ``nominal`` geometry predicts every posture (docs/verdict.md).
 
-    A held-out posture's device reference uses the device parameters of the fit without it, the
-    nominal baseline the full fit's. ``noise``: the rows' measurement noise removed from the
-    errors (a SensorNoise; None: ``row_sigmas``); weights that hold a model error are not the
-    noise: pass the within-posture noise. ``effects``: the rows' ``EffectDesign`` when
-    ``result`` freed effect groups (each fold fits them and predicts with what it identified).
-    ``uncompensated_strain`` (6,): the thermal growth the controllers leave (its error kept).
-    ``unmodelled``: what the model leaves unexplained (a SensorNoise of row stds, or None:
-    nothing), part of every posture's error that no fit removes: the leverage ratios
-    (:func:`.comparison.leverage_ratios`, ``CrossValidation.position_leverage``) add it to both
-    fits' predicted variances, so a held-out error that is model error keeps its size.
-    ``workspace``: the ``Workspace`` the calibrated position figure is carried to (the truth's
-    predicted variance there over that at the run's postures); None: the run's postures."""
+    ``noise``: the rows' measurement noise removed from the errors (a SensorNoise; None:
+    ``row_sigmas``). ``effects``: the rows' ``EffectDesign`` when ``result`` freed effect groups.
+    ``uncompensated_strain`` (6,): the thermal growth the controllers leave. ``unmodelled``: a
+    SensorNoise of row stds no fit removes (None: nothing). ``workspace``: the ``Workspace`` the
+    calibrated position figure is carried to (None: the run's postures)."""
     started = time.perf_counter()
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]

@@ -71,14 +71,10 @@ def _stepped(result, model, values, system):
 
 
 def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
-    """``result``'s refit of each posture subset ``kept`` (a list of (M,) bool masks of the rows
-    ``leg_lengths`` (M, 6), ``readings`` (M, 4) it was fitted to with the weights
-    ``row_sigmas`` and the effect design ``effects``) as one Gauss-Newton step from it (module
-    docstring): a result like ``result`` with the step's parameters, effects, geometry and the
-    kept postures' information and covariance (its poses, residuals and fit statistics are the
-    full fit's), or None where the kept postures do not identify every parameter. None instead
-    of the list when ``result`` is not a converged implicit least-squares fit (refit those: a
-    robust fit's weights move with the fold)."""
+    """``result``'s refit of each posture subset ``kept`` ((M,) bool masks of its rows
+    ``leg_lengths``, ``readings``, ``row_sigmas``, ``effects``) as one Gauss-Newton step: a
+    result per subset (None where it does not identify every parameter), or None unless ``result``
+    is a converged implicit least-squares fit."""
     if result.formulation != 'implicit' or not result.converged or result.loss != 'linear':
         return None
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
@@ -95,10 +91,9 @@ def linearised_refits(result, leg_lengths, readings, row_sigmas, effects, kept):
 
 
 def refit_fold(result, free, rows, options, effects):
-    """``result``'s identification (same formulation and ``free`` parameters, from its
-    estimate) of ``rows`` = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold's
-    kept postures with their ``EffectDesign``; None when it fails or gives no identifiable fit
-    (along a null direction it keeps the full fit's values, which saw the held-out postures)."""
+    """``result``'s identification (same formulation and ``free``, from its estimate) of ``rows``
+    = ``(leg_lengths, readings, row_sigmas, pose guesses)`` of a fold with its ``EffectDesign``;
+    None when it fails or does not identify every parameter."""
     legs, readings, row_sigmas, guesses = rows
     try:
         fitted = identify(
@@ -118,11 +113,9 @@ def refit_fold(result, free, rows, options, effects):
 
 
 def linearised_cost(result, nominal, leg_lengths, readings, row_sigmas, effects):
-    """The least cost (half the chi-square) of ``result``'s model (its free parameters and
-    effects, fitted from ``nominal``) on its rows with the effect design ``effects`` instead of
-    its own (e.g. another thermal time constant), to second order: the cost at ``result``'s
-    estimate less the decrease of one Gauss-Newton step, poses and parameters (the model is
-    linear in the effects' values, nearly so in the rest)."""
+    """The least cost (half the chi-square) of ``result``'s model on its rows with the effect
+    design ``effects`` instead of its own, to second order (one Gauss-Newton step from
+    ``result``'s estimate)."""
     _, _, augmented = _linearised_model(result, leg_lengths, readings, row_sigmas, effects, nominal)
     pose_rows, total = block_normal_equations(augmented)
     reduced, solved = eliminate_poses(pose_rows, total)

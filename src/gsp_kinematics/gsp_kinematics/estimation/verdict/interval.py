@@ -24,11 +24,8 @@ SEED = 20261128
 
 def posture_terms(errors, variances, unseen=None, leverage=None, held_out=None):
     """``(signal (K,), draws (K,))`` over the finite postures of held-out error magnitudes
-    ``errors`` (M,) with their noise ``variances`` (M,): each posture's share of the signal (its
-    excess over the noise, scaled by its ``leverage`` up to the bound of
-    :func:`.comparison.explained_excess` with the held-out fit's variance ``held_out``, plus its
-    ``unseen`` variance) and its draw (the error scaled to the full fit's expectation, whose
-    shape the figure keeps): the terms :func:`accuracy_statistic` sums (docs/verdict.md)."""
+    ``errors`` (M,) with their noise ``variances`` (M,), ``leverage``, ``held_out`` and ``unseen``
+    as in :func:`.cross_validation.noise_removed`: the terms :func:`accuracy_statistic` sums."""
     errors = np.asarray(errors, dtype=float)
     variances = np.asarray(variances, dtype=float)
     count = errors.shape
@@ -60,12 +57,10 @@ def accuracy_statistic(signal, draws, transfer=1.0):
 
 
 def truth_draw_ratios(sensitivities, covariance, validation=VALIDATION_POSTURES, seed=SEED):
-    """(:data:`TRUTH_DRAWS`,): the square of the mean error magnitude ``|S delta|`` over
-    postures (``sensitivities`` (M, 3, p) or (M, 1, p) per unit parameter), for ``delta`` drawn
-    from ``covariance`` (p, p), over the square of its expectation: the spread of one run's
-    truth about what the covariance predicts (the mean of the square roots is 1). ``validation``:
-    the truth as a validation over that many random postures (drawn from the M) measures it;
-    None: over the M. None when the covariance is not finite or predicts nothing."""
+    """(:data:`TRUTH_DRAWS`,): the squared mean error magnitude ``|S delta|`` over postures
+    (``sensitivities`` (M, 3, p) or (M, 1, p)) for ``delta`` drawn from ``covariance`` (p, p),
+    over its expectation (``validation``: over that many random postures of the M; None: the M).
+    None when the covariance is not finite or predicts nothing."""
     covariance = np.asarray(covariance, dtype=float)
     sensitivities = np.asarray(sensitivities, dtype=float)
     if not np.all(np.isfinite(covariance)) or not sensitivities.size:
@@ -87,10 +82,8 @@ def truth_draw_ratios(sensitivities, covariance, validation=VALIDATION_POSTURES,
 
 
 def workspace_truth_draws(result, poses):
-    """``{position_truth_draws, phi_truth_draws}`` (the ``CrossValidation`` fields):
-    :func:`truth_draw_ratios` of ``result``'s covariance (the free parameters, then the free
-    effects) over the position, and over the rotation about the vertical (``phi`` to first
-    order at the workspace's tilts), of the pose its controller reaches at ``poses`` (M, 6)."""
+    """``{position_truth_draws, phi_truth_draws}``: :func:`truth_draw_ratios` of ``result``'s
+    covariance over the position and phi of the pose its controller reaches at ``poses`` (M, 6)."""
     geometry = result.geometry
     poses = np.asarray(poses, dtype=float)
     sensitivities = pose_sensitivities(geometry, poses, result.free)
@@ -116,10 +109,7 @@ def figure_interval(errors, variances, scale, correction, truth_ratios):
 
 def reach_selected(headline, selected):
     """With workspace postures (the ``headline`` figures, ``{position_mm, phi_deg}``) their
-    intervals reach up to the ``selected`` postures' (in place): the workspace postures do not
-    see an error the device shares with the legs (the datum under the load: their figure 0.3x
-    the truth), which the selected postures' larger errors bound; the requirement is judged on
-    the larger figure likewise (``acceptance.judged_accuracy``, docs/verdict.md)."""
+    intervals reach up to the ``selected`` postures' (in place; docs/verdict.md)."""
     for key in ('position_mm', 'phi_deg'):
         interval, bound = headline[key]['mean_interval_95'], selected[key]['mean_interval_95']
         if all(math.isfinite(v) for v in interval + bound):
@@ -130,12 +120,9 @@ def held_out_interval(
     signal, draws, transfer=1.0, truth_ratios=None, level=LEVEL, resamples=RESAMPLES, seed=SEED
 ):
     """``(low, high)``: the ``level`` interval of the true mean error of which
-    :func:`accuracy_statistic` of :func:`posture_terms` ``signal``, ``draws`` (K,) is the
-    estimate. The postures are resampled ``resamples`` times (bootstrap); each figure is
-    multiplied by the square root of a draw of ``truth_ratios`` (:func:`truth_draw_ratios`;
-    None: the truth is taken to be its expectation). The whole figure scales, its unmodelled
-    share too: known only through the run's residuals, that error spreads over the workspace
-    as unknowingly as the parameters' (docs/verdict.md). NaN without a posture."""
+    :func:`accuracy_statistic` of ``signal``, ``draws`` (K,) is the estimate: ``resamples``
+    bootstrap resamples of the postures, each figure scaled by the square root of a draw of
+    ``truth_ratios`` (None: the expectation; docs/verdict.md). NaN without a posture."""
     signal, draws = np.asarray(signal, dtype=float), np.asarray(draws, dtype=float)
     if not signal.size:
         return math.nan, math.nan

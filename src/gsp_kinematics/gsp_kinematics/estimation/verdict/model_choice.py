@@ -28,10 +28,10 @@ DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:
-    """One model tried: its effect groups, held-out position error (mm, measured mean with
-    the leverage taken out: :func:`held_out_position_mm`; NaN: not measured, ``not_judged``
-    says why), its cross-validation summary, whether it was kept, the fit's ``chi2`` and the
-    test against the model it extends: ``delta_chi2``, ``added`` parameters, ``p_value``."""
+    """One model tried: its effect groups, held-out position error (mm,
+    :func:`held_out_position_mm`; NaN: ``not_judged`` says why), its cross-validation summary,
+    whether kept, ``chi2`` and the test against the model it extends (``delta_chi2``, ``added``,
+    ``p_value``)."""
 
     groups: tuple
     position_mm: float
@@ -139,11 +139,9 @@ def _chi2(result, rows=None):
 
 
 def likelihood_ratio(reference, extended, added, variance_factor=1.0):
-    """``(delta chi2, p value)`` of ``extended`` (a fit with ``added`` more parameters than
-    ``reference``, on the same rows and weights) against ``reference``: the chi-square drop over
-    the rows both fits used, and the probability under ``chi2(added)`` (no effect) of that drop
-    over ``variance_factor`` (the rows' variance in units of the weights, 1: the weights are
-    the noise)."""
+    """``(delta chi2, p value)`` of ``extended`` (``added`` more parameters than ``reference``,
+    same rows and weights): the chi-square drop over the rows both used, and its probability
+    under ``chi2(added)`` after dividing by ``variance_factor``."""
     rows = np.all(np.isfinite(reference.residuals), axis=1)
     rows &= np.all(np.isfinite(extended.residuals), axis=1)
     delta = _chi2(reference, rows) - _chi2(extended, rows)
@@ -151,10 +149,8 @@ def likelihood_ratio(reference, extended, added, variance_factor=1.0):
 
 
 def variance_factor(result):
-    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: what its
-    residuals leave unexplained scales the tests' chi-squares (an F test), so a platform with
-    more than the groups describe, or noise above the weights, does not make every group look
-    significant; 1 when the groups describe the rows (the weights are then the noise)."""
+    """``max(1, chi2 / dof)`` of the fit ``result`` with every group the run allows: it scales
+    the tests' chi-squares (an F test)."""
     fit = None if result is None else result.goodness_of_fit
     if fit is None or not fit.dof > 0:
         return 1.0
@@ -162,10 +158,8 @@ def variance_factor(result):
 
 
 def _unidentifiable(result, count):
-    """Why the converged fit ``result`` of ``count`` postures is not identifiable ('' when it
-    is): its information matrix is rank-deficient, so its estimate is one of many and its
-    covariance (a pseudo-inverse) is no covariance: neither its held-out error nor its
-    predicted gain means anything (the calibrator would not apply such a fit either)."""
+    """Why the converged fit ``result`` of ``count`` postures is not identifiable ('' when it is):
+    a rank-deficient information matrix, whose covariance means nothing."""
     analysis = analyse_result(result)
     if identifies_all(analysis):
         return ''
@@ -178,11 +172,9 @@ def _unidentifiable(result, count):
 
 
 def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
-    """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, when
-    made already), tested against the fit ``reference`` = ``(result, its groups)`` when given
-    (``settings``: :func:`_forward`'s; its fit starts from the reference's poses).
-    ``result`` is None when the fit failed; a candidate that cannot be judged says why
-    (``Candidate.not_judged``) and is never kept (:func:`_keeps`)."""
+    """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, if made),
+    tested against ``reference`` = ``(result, its groups)`` when given (``settings``:
+    :func:`_forward`'s). ``result`` None: the fit failed."""
     folds, options, _, _, factor, workspace, linearised = settings
     leg_lengths, readings, sigmas, _, design, noise = data
     start = None if reference is None else reference[0]
@@ -233,11 +225,7 @@ def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
 def held_out_position_mm(validation):
     """The mean held-out position error (mm) of ``validation`` (a ``CrossValidation``) as
     measured, each posture's leverage taken out (:func:`.cross_validation.without_leverage`):
-    the held-out guard's figure. Raw, a held-out error is that of a fit without the posture, far
-    above the full fit's at an extreme posture that alone resolves a group (the joint offsets),
-    so the raw figure penalises such a group by chance of the folds. Nothing is added: the
-    device's own uncertainty, which the accuracy the calibrator reports adds, grows with the
-    model's parameters and would weigh against every group."""
+    the held-out guard's figure (docs/platform_effects.md)."""
     errors = np.linalg.norm(validation.position_error, axis=1)
     if validation.position_leverage is not None:
         errors = without_leverage(
@@ -252,12 +240,9 @@ def held_out_position_mm(validation):
 
 def thermal_time_constant(nominal, data, base, groups, candidates, options, fits=None):
     """``(tau, {tau: cost})``: of the thermal time constants ``candidates`` (s; 0: linear), the
-    one whose fit of ``base`` + ``groups`` (thermal among them) has the least cost. The
-    candidates share the parameters and the data, so their costs compare directly. The first
-    is fitted; the others' least costs are one Gauss-Newton step from its fit
-    (:func:`.fold_fits.linearised_cost`: the model is linear in the growth's values), and the
-    least of them is fitted (its cost replaces the step's; a robust ``options.loss``: every
-    one is fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted ones."""
+    one whose fit of ``base`` + ``groups`` has the least cost (the first fitted, the others one
+    Gauss-Newton step from it, :func:`.fold_fits.linearised_cost`, the least refitted; a robust
+    ``options.loss``: all fitted). ``fits``: a dict that receives ``{tau: fit}`` of the fitted."""
     design, free = data[4], list(base) + list(groups)
     costs, fits, first = {}, {} if fits is None else fits, None
     for tau in map(float, candidates):
@@ -281,10 +266,8 @@ def thermal_time_constant(nominal, data, base, groups, candidates, options, fits
 
 def _keeps(trial, best, threshold, max_cv_loss):
     """Whether ``trial`` passes the test at ``threshold``, the held-out guard over ``best`` and
-    is not predicted to make the compensated platform less accurate (judged for the
-    compensated groups only). Decided explicitly, never by a NaN comparison: a candidate that
-    cannot be judged (``not_judged``) is not kept, and none is when ``best``'s held-out error
-    was not measured (the guard has nothing to compare with: the model stays as it is)."""
+    is not predicted to make the compensated platform less accurate. Never by a NaN comparison:
+    a ``not_judged`` candidate is not kept, nor any when ``best``'s held-out error is unknown."""
     if trial.not_judged or best.not_judged or not math.isfinite(best.position_mm):
         return False
     worse = trial.predicted_with_mm > trial.predicted_without_mm  # NaN (not judged): False
@@ -337,10 +320,8 @@ def _forward(nominal, data, base, available, settings, every=None):
 
 
 def never_worse_held_out(path):
-    """Of the models the selection kept in turn, ``path`` = ``[(result, Candidate, groups)]``
-    from the plain model on, the last whose held-out position error is not above the plain
-    model's: each step may let it grow a little (``max_cv_loss``), but what ``auto`` delivers is
-    never worse, on postures the fit did not see, than the plain model it was chosen over."""
+    """Of the models kept in turn, ``path`` = ``[(result, Candidate, groups)]`` from the plain
+    model on, the last whose held-out position error is not above the plain model's."""
     plain = path[0][1].position_mm
     for step in reversed(path):
         if step[1].position_mm <= plain:
@@ -402,16 +383,12 @@ def choose_model(
     linearised=True,
 ):
     """:class:`ModelChoice` for the rows ``leg_lengths`` (M, 6), ``readings`` (M, 4) with the
-    row weights ``sigmas`` (their real noise: the test's chi-squares are in its units) and the
-    run's :class:`EffectDesign` ``design`` (None: no times, directions or mass: only the joint
-    offsets can be tried). ``significance``, ``max_cv_loss``: the rule of the module docstring.
-    ``thermal_time_constants`` (s; 0: linear): when the thermal group can be tried, its time
-    constant is first chosen among these by the cost of the fit with every available group
-    (:func:`thermal_time_constant`); empty: the design's. ``predicted_gain``: a group the
-    controller compensates is kept only if it is not predicted to make the platform less
-    accurate (:mod:`.choice_accuracy`); False: the test and the held-out guard alone.
-    ``linearised``: each candidate's held-out error from linearised refits of its folds
-    (:func:`.fold_fits.linearised_refits`); False: from refits."""
+    row weights ``sigmas`` (their real noise) and the run's :class:`EffectDesign` ``design``
+    (None: only the joint offsets can be tried); ``significance``, ``max_cv_loss``: the rule
+    (docs/platform_effects.md). ``thermal_time_constants`` (s; 0: linear; empty: the design's):
+    chosen first by :func:`thermal_time_constant`. ``predicted_gain``: a compensated group must
+    not be predicted to lose accuracy (:mod:`.choice_accuracy`). ``linearised``: held-out errors
+    from :func:`.fold_fits.linearised_refits` (False: refits)."""
     design = design or EffectDesign()
     tau, costs = design.thermal_time_constant_s, {}
     available = available_groups(design, len(leg_lengths))

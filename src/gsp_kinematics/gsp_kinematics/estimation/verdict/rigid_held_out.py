@@ -75,10 +75,9 @@ def _calibrated(calibrated, position, phi):
 
 def rigid_held_out(accuracy, systematic_position_mm, systematic_phi_deg):
     """The rigid geometry's held-out accuracy, shaped as ``accuracy`` (the compensating
-    geometry's ``CrossValidation.summary``, without its per-posture lists), from the rigid
-    controller's ``systematic_position_mm`` and ``systematic_phi_deg`` (K,) errors over
-    workspace postures; each figure keeps the compensating one (``compensating_mean``) and
-    the systematic mean (``systematic_mean``) beside it. ``nominal`` is unchanged."""
+    geometry's ``CrossValidation.summary``), from the rigid controller's systematic position (mm)
+    and phi (deg) errors (K,) over workspace postures, each figure with ``compensating_mean`` and
+    ``systematic_mean`` beside it."""
     position = np.asarray(systematic_position_mm, dtype=float)
     phi = np.asarray(systematic_phi_deg, dtype=float)
     summary = {k: v for k, v in accuracy.items() if k not in ('per_posture', 'selected')}
