@@ -83,10 +83,7 @@ class DeviceBackend(abc.ABC):
         return ''
 
     def observe_true_pose(self, pose):
-        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
-
-        ValueError if the pose is unusable (the previous one is kept). Default: ignored.
-        """
+        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only."""
         return None
 
     def observe_device_truth(self, stamp_s, readings):
@@ -95,10 +92,7 @@ class DeviceBackend(abc.ABC):
         return None
 
     def update_noise(self, noise):
-        """Change the simulated true noise to ``noise`` (a ``SensorNoise``; its device sensors).
-
-        Raises BackendError for backends whose noise is not simulated.
-        """
+        """Change the simulated true noise to ``noise`` (a ``SensorNoise``; its device sensors)."""
         raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
 
     def close(self):

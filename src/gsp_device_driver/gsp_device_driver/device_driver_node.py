@@ -1,11 +1,4 @@
-"""``device_driver`` node: publishes the measuring device's readings (see docs/nodes.md).
-
-On one timer it reads a :class:`~gsp_device_driver.backends.DeviceBackend` and publishes
-``/gsp/device/inclinometer`` (alpha, beta), ``/gsp/device/encoder`` (phi) and ``/gsp/device/lvdt``
-(d_m) with one shared stamp. The ``sim`` backend is fed ``/gsp/platform/true_pose``; the
-``serial`` backend reads a device on a serial line (docs/hardware.md) and every reading it received
-since the last tick is published.
-"""
+"""``device_driver`` node: publishes the measuring device's readings (see docs/nodes.md)."""
 
 import dataclasses
 

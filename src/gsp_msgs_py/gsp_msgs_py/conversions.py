@@ -1,12 +1,4 @@
-"""Conversions between standard ROS 2 messages and the numpy arrays of ``gsp_kinematics``.
-
-Modelled on ``sensor_msgs_py``: plain functions, no node, no rclpy context needed. All values are
-SI (m, rad). JointState payloads are looked up by joint *name*, never by position; a missing,
-duplicated or non-finite value raises :class:`ValueError` naming the topic payload and joints.
-
-Stamps may be given as ``builtin_interfaces.msg.Time``, ``rclpy.time.Time``, float seconds, or
-``None`` (zero stamp).
-"""
+"""Conversions between standard ROS 2 messages and the numpy arrays of ``gsp_kinematics``."""
 
 import json
 import math
@@ -180,18 +172,13 @@ def msg_to_lvdt(msg):
 
 
 def euler_to_quaternion(psi, theta, phi):
-    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad).
-
-    Eq (2) lives in :mod:`gsp_kinematics.rotation`; this is its message-side spelling.
-    """
+    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad)."""
     return rotation.matrix_to_quaternion(rotation.euler_to_matrix([psi, theta, phi]))
 
 
 def quaternion_to_euler(quat):
-    """``(psi, theta, phi)`` (rad) of a quaternion ``[x, y, z, w]`` (normalised here), |psi| <= pi/2.
-
-    Raises ``ValueError`` naming the quaternion when it is not four finite numbers of non-zero norm.
-    """
+    """``(psi, theta, phi)`` (rad), |psi| <= pi/2, of a quaternion ``[x, y, z, w]`` (normalised
+    here); ValueError if it is not four finite numbers of non-zero norm."""
     quat = np.asarray(quat, dtype=float)
     invalid = ValueError(f'invalid orientation quaternion [x, y, z, w] = {quat.tolist()}')
     if quat.shape != (4,):
@@ -290,12 +277,7 @@ class PlatformStatus:
 def make_status(
     command_id, state, reason='', *, name=names.STATUS_NAME, hardware_id=names.STATUS_HARDWARE_ID
 ):
-    """DiagnosticStatus for ``/gsp/platform/status``.
-
-    ``state`` in ``moving`` (WARN), ``settled`` (OK), ``rejected`` (ERROR); ``message`` is the
-    reason (or the state when no reason is given); key/values ``command_id``, ``state``,
-    ``reason``.
-    """
+    """DiagnosticStatus for ``/gsp/platform/status``."""
     if state not in _LEVEL_OF_STATE:
         raise ValueError(f'status: unknown state {state!r}; expected one of {list(names.STATES)}')
     msg = DiagnosticStatus()
@@ -333,11 +315,7 @@ def parse_status(msg):
 
 @dataclass(frozen=True)
 class CalibrationProgress:
-    """Parsed ``/gsp/calibrator/progress``.
-
-    ``residuals`` is what was sent (mapping name -> float, list of floats, or None);
-    ``extra`` holds any other key/values as strings.
-    """
+    """Parsed ``/gsp/calibrator/progress``."""
 
     posture_index: int
     posture_count: int
@@ -367,12 +345,7 @@ def make_progress(
     extra=None,
     name=names.PROGRESS_NAME,
 ):
-    """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals.
-
-    ``residuals`` (latest residuals, SI units) may be a mapping name -> float or a sequence of
-    floats; it travels as JSON under the ``residuals`` key. ``level`` defaults to ERROR for the
-    ``failed`` phase and OK otherwise. ``extra`` adds string key/values.
-    """
+    """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals."""
     posture_index, posture_count = int(posture_index), int(posture_count)
     if posture_count < 0 or not 0 <= posture_index <= max(posture_count, 0):
         raise ValueError(

@@ -1,8 +1,4 @@
-"""The ``geometry.*`` parameters of a node that plays the platform's controller.
-
-``platform_sim`` and ``platform_bridge`` declare the same table, so the calibrator's
-``apply_result`` sets a calibrated geometry on either one unchanged.
-"""
+"""The ``geometry.*`` parameters of a node that plays the platform's controller."""
 
 from gsp_kinematics.model.effects import EffectDesignError
 from gsp_kinematics.model.geometry import (

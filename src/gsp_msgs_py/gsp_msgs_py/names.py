@@ -1,15 +1,4 @@
-"""Names of every gsp-calibration interface (topics, services, frames, joints, status keys).
-
-Only standard common_interfaces messages are used (no custom .msg). ``TOPIC_TYPES`` maps each
-name to its interface type (``pkg/msg/Type``); :mod:`gsp_msgs_py.qos` gives the QoS of each topic.
-
-Each topic's payload, publishers and subscribers: docs/nodes.md.
-
-Status (``/gsp/platform/status``): level OK = settled, WARN = moving, ERROR = rejected;
-``message`` is the human-readable reason; key/values ``command_id``, ``state``, ``reason``.
-The ``command_id`` of a pose command is, by convention, :func:`conversions.command_id_from_stamp`
-of its ``header.stamp`` (the integer nanoseconds as a decimal string).
-"""
+"""Names of every gsp-calibration interface (topics, services, frames, joints, status keys)."""
 
 from gsp_kinematics import channels
 

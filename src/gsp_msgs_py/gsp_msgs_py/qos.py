@@ -1,8 +1,4 @@
-"""QoS profiles of the gsp-calibration interfaces.
-
-Publishers and subscribers of a topic both use the profile in :data:`TOPIC_QOS` (a reliable
-subscriber would not match a best-effort publisher).
-"""
+"""QoS profiles of the gsp-calibration interfaces."""
 
 from rclpy.qos import (
     DurabilityPolicy,

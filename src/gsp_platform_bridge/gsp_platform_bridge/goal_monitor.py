@@ -1,10 +1,4 @@
-"""When a ros2_control goal is reached, from the controller's joint states (pure, no rclpy).
-
-:class:`GoalMonitor` keeps the latest position of each leg joint and judges the goal in flight:
-settled when every leg is within ``tolerance`` (m) of its target and has stayed there for
-``settle_time`` (s); rejected when the deadline passes first, when a leg joint is missing from
-the joint states, or when they are stale (none for ``state_timeout`` s). Times in s, one clock.
-"""
+"""When a ros2_control goal is reached, from the controller's joint states (pure, no rclpy)."""
 
 import numpy as np
 

@@ -1,14 +1,4 @@
-"""``platform_sim`` node: a simulated Gough-Stewart platform (see docs/nodes.md).
-
-Subscribes ``/gsp/platform/pose_command``; publishes ``/gsp/platform/leg_lengths`` and
-``/gsp/platform/true_pose`` (one timer, one stamp), ``/gsp/platform/status`` (moving -> settled,
-or rejected with the reason: :mod:`gsp_msgs_py.pose_commands`) and ``/gsp/platform/markers``.
-The controller geometry is the ``geometry.*`` parameters (changeable at run time); the true
-geometry is read once from ``true_geometry_file`` and never published. The logic is in
-:mod:`gsp_platform_sim.simulator` (``backend`` ``kinematic``) or :mod:`gsp_platform_sim.physics`
-(``physics``: MuJoCo, docs/physics.md; it also publishes ``/gsp/platform/device_truth``, and a
-command settles when the servo encoders are in position).
-"""
+"""``platform_sim`` node: a simulated Gough-Stewart platform (see docs/nodes.md)."""
 
 import numpy as np
 from rclpy.clock import Clock, ClockType

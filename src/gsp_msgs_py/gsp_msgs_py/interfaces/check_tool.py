@@ -1,17 +1,5 @@
-"""``gsp_check_interfaces``: does a driver honour the suite's interface contract? (docs/hardware.md)
-
-    gsp_check_interfaces [--duration S] [--send-test-command] [--min-rate HZ]
-
-Listens to the sensor topics for ``--duration`` seconds (the platform should stand still) and
-checks rates, joint names, units, non-finite values, the static noise level, the delay from stamp
-to receipt, that the device's three readings of one instant share one stamp, and that every
-publisher's type and QoS match the suite's. It also listens to ``/diagnostics``: it prints each
-status heard (level, message, number of keys), and counts as a problem a suite node in the
-graph for two ``--diagnostics-period`` without a status, and a status at ERROR.
-With ``--send-test-command`` it also commands the home pose (the platform MOVES) and expects
-``/gsp/platform/status`` to answer it. Prints each problem; exits 0 when there is none, 1
-otherwise (2 on bad arguments).
-"""
+"""``gsp_check_interfaces``: does a driver honour the suite's interface contract?
+(docs/hardware.md)"""
 
 import argparse
 import sys
@@ -33,11 +21,7 @@ NODE_NAME = 'gsp_check_interfaces'
 
 
 class PoseCommandProbe:
-    """Commands poses on ``node`` and collects the platform's status answers to them.
-
-    Subscribes ``/gsp/platform/status`` and advertises ``/gsp/platform/pose_command`` with the
-    suite's QoS; :meth:`send` returns the command id the answers carry.
-    """
+    """Commands poses on ``node`` and collects the platform's status answers to them."""
 
     def __init__(self, node):
         from diagnostic_msgs.msg import DiagnosticStatus
