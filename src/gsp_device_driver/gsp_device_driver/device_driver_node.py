@@ -181,8 +181,6 @@ class DeviceDriverNode(Node):
             self._backend.update_noise(noise)
             self.get_logger().info(f'noise std updated: {self._backend.describe()}')
 
-    # -------------------------------------------------------------------------- callbacks
-
     def _on_true_pose(self, msg):
         try:
             self._backend.observe_true_pose(message_checks.pose_in_frame(msg, self._frame_id))

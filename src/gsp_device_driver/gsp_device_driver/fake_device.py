@@ -101,8 +101,6 @@ class FakeDevice:
         self._stop = threading.Event()
         self._thread = None
 
-    # ------------------------------------------------------------------------- control
-
     def start(self):
         self._plug()
         self._thread = threading.Thread(target=self._run, name='gsp-fake-device', daemon=True)
@@ -141,8 +139,6 @@ class FakeDevice:
     def count(self, key):
         with self._lock:
             return self.counters[key]
-
-    # --------------------------------------------------------------------------- pty
 
     def _plug(self):
         master, slave = os.openpty()
@@ -214,8 +210,6 @@ class FakeDevice:
                 self.counters[lost] += 1
                 return False
         return True
-
-    # ------------------------------------------------------------------------- thread
 
     def _line(self, values, now):
         """(line, counter key, Reading) of one reading instant."""

@@ -138,8 +138,6 @@ class SerialDeviceBackend(DeviceBackend):
             f'{trust}, latency {self.device_clock.latency:g} s'
         )
 
-    # ----------------------------------------------------------------------- node side
-
     def start(self):
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name='gsp-serial', daemon=True)
@@ -172,8 +170,6 @@ class SerialDeviceBackend(DeviceBackend):
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0 + self.timeout)
-
-    # ----------------------------------------------------------------------- reader thread
 
     def _open(self):
         if self._serial_factory is not None:

@@ -66,8 +66,6 @@ class SerialLineGate:
         self._summary = (now, self._drop_total())  # last drop summary: time, total
         self._health_snapshot = (now, dict(self.counters))  # the last report: time, counters
 
-    # ----------------------------------------------------------------------- node side
-
     def take_samples(self):
         """Every reading queued since the last call, stamped on the node's clock."""
         with self._lock:
@@ -132,8 +130,6 @@ class SerialLineGate:
         if new['lines'] == 0:
             return Health(WARN, f'no line from {self.port} since the last report', values)
         return Health(OK, f'{rate:.1f} lines/s', values)
-
-    # ----------------------------------------------------------------------- reader side
 
     def say(self, level, text):
         with self._lock:

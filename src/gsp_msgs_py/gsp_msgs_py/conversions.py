@@ -17,8 +17,6 @@ from . import names
 
 _NS_PER_S = 1_000_000_000
 
-# --------------------------------------------------------------------------------------- stamps
-
 
 def seconds_to_stamp(seconds):
     """``builtin_interfaces/Time`` for a time in seconds (rounded to the nanosecond)."""
@@ -32,11 +30,9 @@ def seconds_to_stamp(seconds):
 
 def stamp_to_nanoseconds(stamp):
     """Integer nanoseconds of a stamp (``Time`` message, ``rclpy.time.Time`` or seconds)."""
-    if isinstance(stamp, Time):
-        return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
     if hasattr(stamp, 'nanoseconds'):  # rclpy.time.Time
         return int(stamp.nanoseconds)
-    if hasattr(stamp, 'sec') and hasattr(stamp, 'nanosec'):  # duck-typed Time (e.g. from mcap)
+    if hasattr(stamp, 'sec') and hasattr(stamp, 'nanosec'):  # a Time, or one from mcap
         return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
     if isinstance(stamp, (int, float, np.floating, np.integer)):
         time_msg = seconds_to_stamp(stamp)
@@ -66,9 +62,6 @@ def command_id_from_stamp(stamp):
     return str(stamp_to_nanoseconds(stamp))
 
 
-# --------------------------------------------------------------------------------- joint states
-
-
 def _make_joint_state(joint_names, values, stamp, frame_id, what):
     values = np.asarray(values, dtype=float)
     if values.shape != (len(joint_names),):
@@ -94,13 +87,8 @@ def _read_joint_state(msg, joint_names, what):
         raise ValueError(
             f'{what}: JointState has {len(msg_names)} names but {len(positions)} positions'
         )
-    index = {}
-    duplicated = []
-    for i, name in enumerate(msg_names):
-        if name in index:
-            duplicated.append(name)
-        index[name] = i
-    duplicated = [n for n in joint_names if n in duplicated]
+    index = {name: i for i, name in enumerate(msg_names)}
+    duplicated = [n for n in joint_names if msg_names.count(n) > 1]
     if duplicated:
         raise ValueError(f'{what}: duplicated joint name(s) {duplicated}')
     missing = [n for n in joint_names if n not in index]
@@ -168,9 +156,6 @@ def msg_to_lvdt(msg):
     return float(_read_joint_state(msg, names.LVDT_JOINT_NAMES, 'lvdt')[0])
 
 
-# -------------------------------------------------------------------------------------- poses
-
-
 def euler_to_quaternion(psi, theta, phi):
     """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad)."""
     return rotation.matrix_to_quaternion(rotation.euler_to_matrix([psi, theta, phi]))
@@ -222,8 +207,6 @@ def pose_stamped_to_pose(msg):
     euler = quaternion_to_euler([o.x, o.y, o.z, o.w])
     return np.concatenate([position, euler])
 
-
-# ------------------------------------------------------------------------- diagnostic helpers
 
 _LEVEL_OF_STATE = {
     names.STATE_SETTLED: DiagnosticStatus.OK,

@@ -44,11 +44,8 @@ SERVICE_CHECK = '/gsp/calibrator/check'
 TOPIC_CALIBRATION_RESULT = '/gsp/calibrator/result'
 TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
 
-# Health of every node (the ROS convention that rqt_robot_monitor and Foxglove read): one
-# DiagnosticArray per period, each status named '<node name>: <component>'. Not a suite data topic
-# (not in TOPIC_TYPES: runs do not record it).
+# Health of every node: not a suite data topic (not in TOPIC_TYPES: runs do not record it).
 TOPIC_DIAGNOSTICS = '/diagnostics'
-DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
 # Joint names carried by the JointState topics (values in JointState.position): the channels of
 # gsp_kinematics.channels.
@@ -85,17 +82,6 @@ PHASE_IDENTIFYING = 'identifying'
 PHASE_VALIDATING = 'validating'
 PHASE_DONE = 'done'
 PHASE_FAILED = 'failed'
-PHASES = (
-    PHASE_IDLE,
-    PHASE_SELECTING,
-    PHASE_MOVING,
-    PHASE_SAMPLING,
-    PHASE_COLLECTING,
-    PHASE_IDENTIFYING,
-    PHASE_VALIDATING,
-    PHASE_DONE,
-    PHASE_FAILED,
-)
 
 # Interface types, as ``pkg/msg/Type`` / ``pkg/srv/Type``.
 TOPIC_TYPES = {

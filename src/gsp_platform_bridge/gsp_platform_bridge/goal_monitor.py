@@ -24,8 +24,6 @@ class GoalMonitor:
         self._deadline_s = None
         self._within_since = None
 
-    # ------------------------------------------------------------------------ states
-
     def observe(self, names, positions, now_s):
         """A joint state (names, positions) received at ``now_s``; returns the leg positions
         (6,) in :attr:`joint_names` order, or None when a leg joint is missing (see
@@ -77,8 +75,6 @@ class GoalMonitor:
         if problem:
             return Health(ERROR, problem, values)
         return Health(OK, 'moving to a goal' if self.active else 'joint states fresh', values)
-
-    # ------------------------------------------------------------------------- goals
 
     @property
     def active(self):

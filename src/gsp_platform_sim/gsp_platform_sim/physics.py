@@ -96,8 +96,6 @@ class PhysicsSimulator:
             + (params.platform_mass + params.payload_mass) / 6.0
         )
 
-    # ------------------------------------------------------------------------ state
-
     @property
     def time_s(self):
         """The simulation clock (s), on the clock of ``start_s``."""
@@ -191,8 +189,6 @@ class PhysicsSimulator:
         phi = math.atan2(top[1, 0], top[1, 1])  # eq 2: R[1,0] = cos psi sin phi
         d_m = data.qpos[self._lvdt] + self._device_zero
         return np.array([float(alpha), float(beta), phi, d_m])
-
-    # ------------------------------------------------------------------------ simulation
 
     def _slide(self, readings):
         return readings * self._leg_gains + self._slide_offset

@@ -240,8 +240,6 @@ class PlatformSimNode(Node):
     def _now_s(self):
         return self.get_clock().now().nanoseconds * 1e-9
 
-    # ------------------------------------------------------------------------ publishing
-
     def _publish_state(self):
         # Stamped at the timer's scheduled tick, as a sensor sampling on its own clock: the
         # callback's delay would jitter the leg-length stamps against the device's.

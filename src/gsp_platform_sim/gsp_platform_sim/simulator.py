@@ -77,8 +77,6 @@ class PlatformSimulator:
                 f'cannot reach the initial pose {np.asarray(start).tolist()}: {outcome.reason}'
             )
 
-    # ------------------------------------------------------------------------ configuration
-
     @property
     def true_geometry(self):
         return self._true_geometry
@@ -116,8 +114,6 @@ class PlatformSimulator:
         if not (np.isfinite(value) and value >= 1.0):
             raise ValueError(f'max_condition must be finite and >= 1, got {value}')
         self._max_condition = value
-
-    # ------------------------------------------------------------------------------ state
 
     @property
     def moving(self):
@@ -180,8 +176,6 @@ class PlatformSimulator:
     def measured_leg_lengths(self):
         """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_lengths_noise_std`` (m)."""
         return self._leg_lengths + self._rng.normal(0.0, self._leg_lengths_noise_std, size=6)
-
-    # ----------------------------------------------------------------------------- command
 
     def _reject(self, reason):
         return CommandOutcome(
