@@ -20,10 +20,7 @@ from gsp_kinematics.model.device import (
 )
 from gsp_kinematics.model.geometry import Geometry, SensorErrors, load_geometry
 from gsp_kinematics.model.sensor_dynamics import SensorDynamics
-from gsp_kinematics.model.sensor_noise import (
-    NO_NOISE,
-    NOISE_UNITS,
-)
+from gsp_kinematics.model.sensor_noise import NO_NOISE, NOISE_UNITS
 from gsp_msgs_py.health import OK, WARN, Health
 from gsp_msgs_py.noise_parameters import (
     TRUE_NOISE_PARAMETER,

@@ -194,8 +194,7 @@ class DeviceDriverNode(Node):
             if msg.header.frame_id != self._frame_id:
                 raise ValueError(f"frame '{msg.header.frame_id}' is not '{self._frame_id}'")
             self._backend.observe_device_truth(
-                conversions.stamp_to_seconds(msg.header.stamp),
-                conversions.msg_to_device_truth(msg),
+                conversions.stamp_to_seconds(msg.header.stamp), conversions.msg_to_device_truth(msg)
             )
         except ValueError as error:
             self.get_logger().warning(

@@ -107,7 +107,7 @@ def controller_geometry_error(values):
     """Why the ``geometry.*`` entries of ``{name: value}`` are not a valid geometry ('' if they
     are)."""
     try:
-        geometry_from_parameters({name: values[name] for name in GEOMETRY_PARAMETER_NAMES})
+        controller_geometry(values)
     except (GeometryError, EffectDesignError) as error:  # the effects' own checks (leg_mass)
         return str(error)
     return ''

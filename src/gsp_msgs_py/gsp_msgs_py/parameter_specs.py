@@ -9,10 +9,7 @@ import math
 import numpy as np
 
 from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
-from gsp_kinematics.model.sensor_noise import (
-    DEFAULT_SENSOR_NOISE,
-    NOISE_UNITS,
-)
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 
 from . import names
 from .noise_parameters import TRUE_NOISE_PARAMETER

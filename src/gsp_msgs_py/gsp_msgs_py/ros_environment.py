@@ -88,10 +88,7 @@ def foreign_nodes(domain_id, window_s=PROBE_WINDOW_S):
     found = set()
     try:
         node = rclpy.create_node(
-            PROBE_NODE_NAME,
-            context=context,
-            start_parameter_services=False,
-            enable_rosout=False,
+            PROBE_NODE_NAME, context=context, start_parameter_services=False, enable_rosout=False
         )
         pause = threading.Event()
         deadline = time.monotonic() + window_s

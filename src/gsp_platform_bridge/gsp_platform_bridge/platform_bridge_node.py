@@ -178,9 +178,8 @@ class PlatformBridgeNode(Node):
             if name in changes:
                 setattr(self._monitor, attribute, float(changes[name]))
         if any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
-            self._geometry = controller_geometry(
-                {name: self.get_parameter(name).value for name in GEOMETRY_PARAMETER_NAMES}
-            )
+            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
+            self._geometry = controller_geometry(current)
             self.get_logger().info('controller geometry updated; applies from the next command')
 
     def _move(self, command_id, pose):
