@@ -130,17 +130,11 @@ def read_through_backend(data, angle_unit, length_unit, trust_configured_units=F
     return backend, backend.read_available(0.0), port
 
 
-def run_sequence(case):
-    """:func:`read_through_backend` of one ``sequences`` vector."""
-    data = b''.join(line_bytes(text) for text in case['lines'])
-    return read_through_backend(
-        data, case['angle_unit'], case['length_unit'], case['trust_configured_units']
-    )
-
-
 def sequence_mismatch(case):
     """'' if the backend publishes, drops and counts what ``case`` expects, else what differs."""
-    backend, samples, _ = run_sequence(case)
+    data = b''.join(line_bytes(text) for text in case['lines'])
+    units = case['angle_unit'], case['length_unit'], case['trust_configured_units']
+    backend, samples, _ = read_through_backend(data, *units)
     expect = case['expect']
     problems = []
     published = [sample.readings().tolist() for sample in samples]

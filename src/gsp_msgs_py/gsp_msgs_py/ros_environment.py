@@ -1,4 +1,5 @@
-"""The network rule in one place: DDS on loopback, in a ROS domain of this run's own."""
+"""The network rule in one place: DDS on loopback, in a ROS domain of this run's own, claimed
+through ``domain_coordinator`` (docs/faults.md, "ROS domains")."""
 
 import contextlib
 import itertools
@@ -31,10 +32,10 @@ _HELD_LOCK = threading.Lock()
 
 def _claim(candidates):
     """Bind the port of the first free domain of ``candidates`` (ids, tried in order); its id,
-    or None if every one is taken.
-    """
+    or None if every one is taken."""
     import domain_coordinator
 
+    # domain_coordinator tries a selector at most 100 times: chunks of 100, padded with the last.
     for first in range(0, len(candidates), 100):
         chunk = candidates[first : first + 100]
         order = itertools.chain(chunk, itertools.repeat(chunk[-1]))

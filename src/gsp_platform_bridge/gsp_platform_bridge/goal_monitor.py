@@ -116,8 +116,7 @@ class GoalMonitor:
 def pose_path(start, goal, position_step, angle_step):
     """Poses (N, 6) from ``start`` (excluded) to ``goal`` (included) on the straight line in
     ``[x, y, z, psi, theta, phi]``, no step longer than ``position_step`` (m) or ``angle_step``
-    (rad): the legs then follow the Cartesian path, not a straight line in joint space (which
-    a hexapod may not be able to follow)."""
+    (rad), so the legs follow the Cartesian path."""
     start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
     delta = goal - start
     steps = max(
@@ -130,10 +129,8 @@ def pose_path(start, goal, position_step, angle_step):
 
 
 def waypoint_times(current, waypoints, limits, min_duration):
-    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): each segment a
-    synchronised rest-to-rest move at the legs' ``limits`` (a :class:`gsp_kinematics.planning.
-    motion.MotionLimits`: the model controller_sim follows the points with), the whole at least
-    ``min_duration`` (s)."""
+    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): rest-to-rest
+    moves at the legs' ``limits`` (``MotionLimits``), the whole at least ``min_duration`` (s)."""
     legs = np.vstack([np.asarray(current, dtype=float)[None], np.asarray(waypoints, dtype=float)])
     times = np.cumsum(move_time(legs[:-1], legs[1:], limits))
     if times[-1] < min_duration:
