@@ -187,11 +187,8 @@ def pose_to_pose_stamped(X, stamp=None, frame_id=names.FRAME_BASE):  # noqa: N80
     msg.header.stamp = _to_stamp(stamp)
     msg.header.frame_id = frame_id
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in X[:3])
-    qx, qy, qz, qw = euler_to_quaternion(*X[3:])
-    msg.pose.orientation.x = float(qx)
-    msg.pose.orientation.y = float(qy)
-    msg.pose.orientation.z = float(qz)
-    msg.pose.orientation.w = float(qw)
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in euler_to_quaternion(*X[3:]))
     return msg
 
 
@@ -221,14 +218,8 @@ def _level_to_int(level):
     return int(level)
 
 
-def _int_to_level(value):
-    return bytes([int(value)])
-
-
 def _key_values(msg, what, required):
-    values = {}
-    for kv in msg.values:
-        values[kv.key] = kv.value
+    values = {kv.key: kv.value for kv in msg.values}
     missing = [k for k in required if k not in values]
     if missing:
         raise ValueError(f'{what}: missing key(s) {missing}; message has keys {list(values)}')
@@ -288,12 +279,7 @@ def parse_status(msg):
         raise ValueError(
             f'status: level {level} does not match state {state!r} (expects {expected})'
         )
-    return PlatformStatus(
-        command_id=values[names.KEY_COMMAND_ID],
-        state=state,
-        reason=values[names.KEY_REASON],
-        level=level,
-    )
+    return PlatformStatus(values[names.KEY_COMMAND_ID], state, values[names.KEY_REASON], level)
 
 
 @dataclass(frozen=True)
@@ -339,7 +325,7 @@ def make_progress(
     if level is None:
         level = DiagnosticStatus.ERROR if phase == names.PHASE_FAILED else DiagnosticStatus.OK
     msg = DiagnosticStatus()
-    msg.level = level if isinstance(level, bytes) else _int_to_level(level)
+    msg.level = level if isinstance(level, bytes) else bytes([int(level)])
     msg.name = name
     msg.hardware_id = names.STATUS_HARDWARE_ID
     msg.message = str(message) if message else f'{phase} {posture_index}/{posture_count}'
