@@ -1,21 +1,8 @@
-"""Sources of measuring device readings (pure, no rclpy) behind one interface, :class:`DeviceBackend`.
+"""Sources of measuring device readings (pure, no rclpy): ``sim``, ``physics`` and ``serial``.
 
-The ``device_driver`` node only talks to the backend :func:`backend_class` names. Built in:
-
-* ``sim``: readings of the simulated platform's true pose (core ``device_readings``) + noise;
-* ``physics``: the physics backend's noise-free readings (``/gsp/platform/device_truth``, from
-  ``platform_sim`` on MuJoCo: the inclinometer feels the ringing) + the sensor errors and noise;
-* ``serial``: a real device on a serial line (:mod:`.serial_backend`, protocol in
-  :mod:`.serial_protocol` and docs/hardware.md).
-
-Adding a backend (e.g. ``hardware``): subclass :class:`.device_backend.DeviceBackend` and give it a
-``from_config(**config)`` classmethod. It receives ``true_geometry_file``, the true noise
-``<sensor>_noise_std`` of each device sensor, the ``<sensor>_response_time``
-and ``<sensor>_noise_correlation_time`` of each sensor (``gsp_kinematics.model.device.SENSORS``), ``rng``, ``stamp_clock``
-(the node's clock, s, safe to call from any thread) and its own extra parameters, listed as :class:`gsp_msgs_py.parameter_specs.ParameterSpec` in ``PARAMETERS``; it should
-ignore keys it does not use. Then add it to :data:`_BACKENDS` below. The node declares each
-``PARAMETERS`` entry as the read-only ``<backend>.<name>`` and passes it as ``<name>``; no change
-to the node is needed.
+A new backend subclasses :class:`.device_backend.DeviceBackend` with a ``from_config(**config)``
+classmethod (its extra parameters as ``PARAMETERS``, declared read-only as ``<backend>.<name>``;
+unused keys ignored) and is added to :data:`_BACKENDS`.
 """
 
 import collections
@@ -33,10 +20,7 @@ from gsp_kinematics.model.device import (
 )
 from gsp_kinematics.model.geometry import Geometry, SensorErrors, load_geometry
 from gsp_kinematics.model.sensor_dynamics import SensorDynamics
-from gsp_kinematics.model.sensor_noise import (
-    NO_NOISE,
-    NOISE_UNITS,
-)
+from gsp_kinematics.model.sensor_noise import NO_NOISE, NOISE_UNITS
 from gsp_msgs_py.health import OK, WARN, Health
 from gsp_msgs_py.noise_parameters import (
     TRUE_NOISE_PARAMETER,
@@ -54,14 +38,8 @@ NOISE_PARAMETER_NAMES = noise_parameter_names(TRUE_NOISE_PARAMETER, channels.DEV
 class SimDeviceBackend(DeviceBackend):
     """Simulated device: readings of the latest true pose through each sensor's dynamics, + noise.
 
-    ``device_length`` D0 (m) and ``inclinometer_axes_angle`` gamma (rad) are the real device's;
-    ``noise``: the true noise of each device sensor, a ``SensorNoise`` (its ``leg_lengths`` is
-    unused).
-    ``sensors``: the real device's ``SensorErrors`` (inclinometer and encoder offsets, LVDT gain
-    error; docs/sensor_errors.md); None: ideal sensors. ``response_times`` and
-    ``correlation_times``: ``(inclinometer, encoder, lvdt)`` in s, the first-order response and
-    the noise correlation time of each sensor (:mod:`gsp_kinematics.model.sensor_dynamics`); 0 (the
-    default): instant readings and white noise.
+    ``sensors``: the real device's ``SensorErrors`` (None: ideal); ``response_times`` and
+    ``correlation_times`` (s): ``(inclinometer, encoder, lvdt)``, 0 for instant/white.
     """
 
     name = 'sim'

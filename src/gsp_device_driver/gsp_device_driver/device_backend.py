@@ -1,6 +1,4 @@
-"""The interface of a source of measuring device readings (pure, no rclpy): :class:`DeviceBackend`,
-the sample it gives (:class:`DeviceSample`) and its error (:class:`BackendError`). The backends
-themselves and their registry are in :mod:`.backends`."""
+"""The interface of a source of measuring device readings (pure, no rclpy); backends: :mod:`.backends`."""
 
 import abc
 import dataclasses
@@ -46,16 +44,14 @@ class DeviceBackend(abc.ABC):
     name = ''
     #: Whether the node must feed it ``/gsp/platform/true_pose`` via :meth:`observe_true_pose`.
     needs_true_pose = False
-    #: Whether the node must feed it ``/gsp/platform/device_truth`` via
-    #: :meth:`observe_device_truth`.
+    #: Whether the node must feed it ``/gsp/platform/device_truth`` (:meth:`observe_device_truth`).
     needs_device_truth = False
     #: Whether :meth:`update_noise` is supported (the noise parameters can change at run time).
     simulates_noise = False
-    #: Whether a reading is taken at the node's publish timer (``now_s`` is then the timer's
-    #: scheduled tick, see ``gsp_msgs_py.node_tools.scheduled_tick_ns``), not received at the
-    #: device's own pace.
+    #: Whether a reading is taken at the node's publish timer (``now_s``: the scheduled tick), not
+    #: received at the device's own pace.
     samples_at_tick = False
-    #: Extra parameters of the backend (tuple of :class:`gsp_msgs_py.parameter_specs.ParameterSpec`).
+    #: Extra parameters of the backend (``ParameterSpec``).
     PARAMETERS = ()
 
     @classmethod
@@ -83,10 +79,7 @@ class DeviceBackend(abc.ABC):
         return ''
 
     def observe_true_pose(self, pose):
-        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only.
-
-        ValueError if the pose is unusable (the previous one is kept). Default: ignored.
-        """
+        """Ground-truth platform pose (6,) ``[x, y, z, psi, theta, phi]``; simulators only."""
         return None
 
     def observe_device_truth(self, stamp_s, readings):
@@ -95,10 +88,7 @@ class DeviceBackend(abc.ABC):
         return None
 
     def update_noise(self, noise):
-        """Change the simulated true noise to ``noise`` (a ``SensorNoise``; its device sensors).
-
-        Raises BackendError for backends whose noise is not simulated.
-        """
+        """Change the simulated true noise to ``noise`` (a ``SensorNoise``; its device sensors)."""
         raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
 
     def close(self):

@@ -1,11 +1,4 @@
-"""``device_driver`` node: publishes the measuring device's readings (see docs/nodes.md).
-
-On one timer it reads a :class:`~gsp_device_driver.backends.DeviceBackend` and publishes
-``/gsp/device/inclinometer`` (alpha, beta), ``/gsp/device/encoder`` (phi) and ``/gsp/device/lvdt``
-(d_m) with one shared stamp. The ``sim`` backend is fed ``/gsp/platform/true_pose``; the
-``serial`` backend reads a device on a serial line (docs/hardware.md) and every reading it received
-since the last tick is published.
-"""
+"""``device_driver`` node: publishes the measuring device's readings (see docs/nodes.md)."""
 
 import dataclasses
 
@@ -188,8 +181,6 @@ class DeviceDriverNode(Node):
             self._backend.update_noise(noise)
             self.get_logger().info(f'noise std updated: {self._backend.describe()}')
 
-    # -------------------------------------------------------------------------- callbacks
-
     def _on_true_pose(self, msg):
         try:
             self._backend.observe_true_pose(message_checks.pose_in_frame(msg, self._frame_id))
@@ -203,8 +194,7 @@ class DeviceDriverNode(Node):
             if msg.header.frame_id != self._frame_id:
                 raise ValueError(f"frame '{msg.header.frame_id}' is not '{self._frame_id}'")
             self._backend.observe_device_truth(
-                conversions.stamp_to_seconds(msg.header.stamp),
-                conversions.msg_to_device_truth(msg),
+                conversions.stamp_to_seconds(msg.header.stamp), conversions.msg_to_device_truth(msg)
             )
         except ValueError as error:
             self.get_logger().warning(

@@ -1,14 +1,4 @@
-"""A reference emulator of the measuring device's microcontroller on a pseudo-terminal (no rclpy).
-
-:class:`FakeDevice` opens a pty pair, points the symlink ``link`` at its slave end (the "port" a
-driver opens, like a udev ``/dev/gsp_device`` rule) and writes the serial protocol to it from a
-thread: a hello line at connection, every ``hello_period_s`` and in answer to the host's hello
-request, then one reading line per ``1/rate_hz`` from ``readings()`` (``[alpha, beta, phi, d_m]``
-in SI, or None while there is nothing to report; with ``timed_readings``, ``(values, instant)``:
-the line's ``t_us`` is then the instant the values describe, see :class:`TruthFeed`). Faults: garbage lines and checksum errors (each replacing a reading line, with the
-given probabilities, counted in :attr:`counters`), :meth:`silence` and :meth:`disconnect`
-(closes the pty, as an unplugged USB device; a new one appears after the given time).
-"""
+"""A reference emulator of the measuring device's microcontroller on a pty (no rclpy)."""
 
 import math
 import os
@@ -30,13 +20,8 @@ PARTIAL_WAIT_S = 0.5  #: longest wait to complete a line the buffer took in part
 
 class TruthFeed:
     """What an emulated device measures: the newest item (a true pose) handed over with the
-    instant it describes (s, ``time.monotonic``), each taken at most once.
-
-    A real device samples the platform itself; the emulator only knows the true pose a message
-    brought. When those messages stall (a loaded host), reading the latest pose again would send
-    an old pose under a new ``t_us``: consistent, freshly stamped readings of where the platform
-    was, which the collection cannot tell from a settled posture. Taking each pose once, at its
-    own instant, makes a stalled feed a gap in the device's lines instead.
+    instant it describes (s, ``time.monotonic``), each taken at most once: a stalled feed is a
+    gap in the device's lines, never an old pose under a new ``t_us``.
     """
 
     def __init__(self):
@@ -116,8 +101,6 @@ class FakeDevice:
         self._stop = threading.Event()
         self._thread = None
 
-    # ------------------------------------------------------------------------- control
-
     def start(self):
         self._plug()
         self._thread = threading.Thread(target=self._run, name='gsp-fake-device', daemon=True)
@@ -156,8 +139,6 @@ class FakeDevice:
     def count(self, key):
         with self._lock:
             return self.counters[key]
-
-    # --------------------------------------------------------------------------- pty
 
     def _plug(self):
         master, slave = os.openpty()
@@ -229,8 +210,6 @@ class FakeDevice:
                 self.counters[lost] += 1
                 return False
         return True
-
-    # ------------------------------------------------------------------------- thread
 
     def _line(self, values, now):
         """(line, counter key, Reading) of one reading instant."""

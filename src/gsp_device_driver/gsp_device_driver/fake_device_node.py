@@ -1,17 +1,4 @@
-"""``gsp_fake_device``: the measuring device's microcontroller, emulated on a pty (docs/hardware.md).
-
-Subscribes ``/gsp/platform/true_pose`` (like the ``sim`` backend), computes the device readings
-of the true geometry's device with Gaussian noise and streams them in the serial protocol through
-:class:`~gsp_device_driver.fake_device.FakeDevice` at ``--port`` (a symlink to the pty). Each true
-pose is sent at most once, with its own stamp as the line's sampling instant
-(:class:`~gsp_device_driver.fake_device.TruthFeed`): a stalled pose stream is a gap in the lines,
-never an old pose sent as a new sample. Faults:
-``--garbage-fraction``, ``--checksum-error-fraction``, and periodic silences and disconnects.
-
-    gsp_fake_device --port /tmp/gsp_device [--rate 200] [--seed -1] [--ros-args ...]
-    ros2 run gsp_device_driver device_driver --ros-args -p backend:=serial \\
-        -p serial.port:=/tmp/gsp_device
-"""
+"""``gsp_fake_device``: the device's microcontroller, emulated on a pty (docs/hardware.md)."""
 
 import argparse
 import time

@@ -1,13 +1,4 @@
-"""The ``serial`` device backend: the measuring device on a serial line (pyserial, no rclpy).
-
-A reader thread opens ``port``, asks for the device's hello (``$GSPQ,HELLO``) and feeds what it
-reads to a :class:`~.serial_gate.SerialLineGate`, which drops bad lines and the readings no valid
-hello vouches for (counted by reason in :attr:`SerialDeviceBackend.counters` and
-:meth:`~SerialDeviceBackend.health`) and queues the good ones stamped on the node's clock. The
-node drains the queue with :meth:`read_available`. When the port fails (unplugged) or is absent,
-the thread reports it once and retries every ``reconnect_interval`` until the device is back;
-nothing is raised to the node.
-"""
+"""The ``serial`` device backend: the measuring device on a serial line (pyserial, no rclpy)."""
 
 import threading
 import time
@@ -79,12 +70,7 @@ def _specs():
 
 
 class SerialDeviceBackend(DeviceBackend):
-    """Readings from a device speaking the serial protocol on ``port``.
-
-    ``clock`` (s, monotonic) times silences, warnings and :meth:`health`; ``stamp_clock`` (s, the
-    node's clock; default ``clock``) is read by the reader thread when a line arrives, and the
-    stamps are on it. Start the reader with :meth:`start` (done by :meth:`from_config`).
-    """
+    """Readings from a device speaking the serial protocol on ``port``."""
 
     name = 'serial'
 
@@ -152,8 +138,6 @@ class SerialDeviceBackend(DeviceBackend):
             f'{trust}, latency {self.device_clock.latency:g} s'
         )
 
-    # ----------------------------------------------------------------------- node side
-
     def start(self):
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name='gsp-serial', daemon=True)
@@ -186,8 +170,6 @@ class SerialDeviceBackend(DeviceBackend):
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0 + self.timeout)
-
-    # ----------------------------------------------------------------------- reader thread
 
     def _open(self):
         if self._serial_factory is not None:

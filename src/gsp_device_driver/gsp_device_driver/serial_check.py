@@ -1,18 +1,5 @@
-"""``gsp_serial_check``: check a device's serial output, or the driver, against the protocol spec.
-
-For firmware writers (docs/hardware.md section 1)::
-
-    gsp_serial_check --port /dev/ttyACM0 --angle-unit urad --length-unit um [--duration 5]
-    gsp_serial_check --capture capture.txt --angle-unit urad --length-unit um
-    gsp_serial_check --vectors docs/serial_test_vectors.json
-
-``--port`` asks the device for its hello (``$GSPQ,HELLO``) and reads it for ``--duration``
-seconds; ``--capture`` reads a file of recorded output (e.g. ``cat /dev/ttyACM0 > capture.txt``).
-Both print the hello, the readings, the dropped lines by reason (with the first few, and why) and
-the seq gaps, through the driver's own parser and hello rules; exit 0 only if every line was
-accepted. ``--vectors`` runs the test-vector file through this driver (the driver's tests do the
-same): exit 0 if every vector gives its expected outcome.
-"""
+"""``gsp_serial_check``: check a device's serial output, or the driver, against the protocol
+(docs/hardware.md section 1)."""
 
 import argparse
 import json
@@ -143,17 +130,11 @@ def read_through_backend(data, angle_unit, length_unit, trust_configured_units=F
     return backend, backend.read_available(0.0), port
 
 
-def run_sequence(case):
-    """:func:`read_through_backend` of one ``sequences`` vector."""
-    data = b''.join(line_bytes(text) for text in case['lines'])
-    return read_through_backend(
-        data, case['angle_unit'], case['length_unit'], case['trust_configured_units']
-    )
-
-
 def sequence_mismatch(case):
     """'' if the backend publishes, drops and counts what ``case`` expects, else what differs."""
-    backend, samples, _ = run_sequence(case)
+    data = b''.join(line_bytes(text) for text in case['lines'])
+    units = case['angle_unit'], case['length_unit'], case['trust_configured_units']
+    backend, samples, _ = read_through_backend(data, *units)
     expect = case['expect']
     problems = []
     published = [sample.readings().tolist() for sample in samples]

@@ -1,11 +1,4 @@
-"""The serial device's line gate: what the reader thread does with each line (pure, no port).
-
-:class:`SerialLineGate` parses protocol lines (:mod:`.serial_protocol`), drops bad ones and the
-readings no valid hello vouches for (counted by reason, with seq gaps as lost lines, in
-:attr:`~SerialLineGate.counters` and :meth:`~SerialLineGate.health`), and queues the good ones
-stamped by :class:`~.serial_protocol.DeviceClock` on the node's clock. The port and the thread
-that feeds it are :class:`~.serial_backend.SerialDeviceBackend`'s.
-"""
+"""The serial device's line gate: what the reader thread does with each line (pure, no port)."""
 
 import collections
 import threading
@@ -38,12 +31,7 @@ COUNTER_NAMES = (
 
 
 class SerialLineGate:
-    """Counters, hello and unit gate, seq tracking and the reading queue of one serial device.
-
-    The reader thread calls :meth:`connected`, :meth:`handle`, :meth:`garbage`,
-    :meth:`disconnected` and :meth:`summarise_drops`; the node drains :meth:`take_samples` and
-    :meth:`take_messages` and calls :meth:`health`. ``port`` only names the device in messages.
-    """
+    """Counters, hello and unit gate, seq tracking and the reading queue of one serial device."""
 
     def __init__(
         self,
@@ -77,8 +65,6 @@ class SerialLineGate:
         self._warned_at = {}  # refusal reason -> clock time of its last warning
         self._summary = (now, self._drop_total())  # last drop summary: time, total
         self._health_snapshot = (now, dict(self.counters))  # the last report: time, counters
-
-    # ----------------------------------------------------------------------- node side
 
     def take_samples(self):
         """Every reading queued since the last call, stamped on the node's clock."""
@@ -144,8 +130,6 @@ class SerialLineGate:
         if new['lines'] == 0:
             return Health(WARN, f'no line from {self.port} since the last report', values)
         return Health(OK, f'{rate:.1f} lines/s', values)
-
-    # ----------------------------------------------------------------------- reader side
 
     def say(self, level, text):
         with self._lock:

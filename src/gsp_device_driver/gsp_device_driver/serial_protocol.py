@@ -1,13 +1,6 @@
 """The measuring device's serial line protocol, version 1 (pure: no pyserial, no rclpy).
 
-The grammar (ABNF) and the rules are in docs/hardware.md section 1; the test vectors in
-docs/serial_test_vectors.json. In short, one ASCII line per instant, NMEA-like::
-
-    $GSP,<seq>,<t_us>,<alpha>,<beta>,<phi>,<d>,<status>*<CC><CR><LF>
-    $GSPHELLO,<version>,<device_id>,<angle_unit>,<length_unit>,<rate_hz>*<CC><CR><LF>
-
-and one line from the host, the hello request ``$GSPQ,HELLO*<CC><CR><LF>``, that a device
-answers with its hello line. :func:`parse_line` accepts exactly what the grammar accepts.
+Grammar and rules: docs/hardware.md section 1; test vectors: docs/serial_test_vectors.json.
 """
 
 import dataclasses
@@ -199,8 +192,6 @@ def _counter(text, what):
 def parse_line(line, angle_unit='rad', length_unit='m'):
     """A :class:`Reading` (SI) or :class:`Hello` of one line (bytes or str, with its line end
     ``\\r\\n`` or ``\\n``); None for an empty line; :class:`LineError` otherwise.
-
-    ``angle_unit`` and ``length_unit`` are the units the reading lines are in.
     """
     if isinstance(line, str):
         line = line.encode('latin-1')
@@ -245,19 +236,8 @@ MIN_STAMP_STEP_S = 1e-6
 
 
 class DeviceClock:
-    """Maps device time to host time: the documented stamping rule of the serial backend.
-
-    Each line's host receive time ``t_rx`` is later than the instant it reports by the
-    (unknown, positive, jittery) transmission delay. For ``device_time_us`` ``t_d`` the offset
-    ``t_rx - t_d`` is therefore smallest for the least-delayed lines: the clock keeps the minimum
-    offset over the last ``window`` lines, and stamps ``t_d + min_offset - latency`` (s). A jump
-    back of the device time (wrap, reboot) or a gap longer than ``max_gap_s`` restarts the
-    window. ``latency`` (s) is the remaining fixed delay (sensor filter, USB frame), measured once.
-    A lower offset (a less-delayed line after a backlog, e.g. on a loaded host) is slewed in by
-    at most half the device step per line, so stamps keep the order of the device times. And
-    stamps only grow, by at least :data:`MIN_STAMP_STEP_S`, also across a restarted window: the
-    three readings of different instants must never share a stamp downstream.
-    """
+    """Maps device time to host time: the stamping rule of docs/hardware.md (minimum offset over
+    ``window`` lines, slewed in; stamps grow by at least :data:`MIN_STAMP_STEP_S`)."""
 
     def __init__(self, latency=0.0, window=200, max_gap_s=1.0):
         self.latency = float(latency)

@@ -1,12 +1,4 @@
-"""Conversions between standard ROS 2 messages and the numpy arrays of ``gsp_kinematics``.
-
-Modelled on ``sensor_msgs_py``: plain functions, no node, no rclpy context needed. All values are
-SI (m, rad). JointState payloads are looked up by joint *name*, never by position; a missing,
-duplicated or non-finite value raises :class:`ValueError` naming the topic payload and joints.
-
-Stamps may be given as ``builtin_interfaces.msg.Time``, ``rclpy.time.Time``, float seconds, or
-``None`` (zero stamp).
-"""
+"""Conversions between standard ROS 2 messages and the numpy arrays of ``gsp_kinematics``."""
 
 import json
 import math
@@ -25,8 +17,6 @@ from . import names
 
 _NS_PER_S = 1_000_000_000
 
-# --------------------------------------------------------------------------------------- stamps
-
 
 def seconds_to_stamp(seconds):
     """``builtin_interfaces/Time`` for a time in seconds (rounded to the nanosecond)."""
@@ -40,11 +30,9 @@ def seconds_to_stamp(seconds):
 
 def stamp_to_nanoseconds(stamp):
     """Integer nanoseconds of a stamp (``Time`` message, ``rclpy.time.Time`` or seconds)."""
-    if isinstance(stamp, Time):
-        return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
     if hasattr(stamp, 'nanoseconds'):  # rclpy.time.Time
         return int(stamp.nanoseconds)
-    if hasattr(stamp, 'sec') and hasattr(stamp, 'nanosec'):  # duck-typed Time (e.g. from mcap)
+    if hasattr(stamp, 'sec') and hasattr(stamp, 'nanosec'):  # a Time, or one from mcap
         return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
     if isinstance(stamp, (int, float, np.floating, np.integer)):
         time_msg = seconds_to_stamp(stamp)
@@ -74,9 +62,6 @@ def command_id_from_stamp(stamp):
     return str(stamp_to_nanoseconds(stamp))
 
 
-# --------------------------------------------------------------------------------- joint states
-
-
 def _make_joint_state(joint_names, values, stamp, frame_id, what):
     values = np.asarray(values, dtype=float)
     if values.shape != (len(joint_names),):
@@ -102,13 +87,8 @@ def _read_joint_state(msg, joint_names, what):
         raise ValueError(
             f'{what}: JointState has {len(msg_names)} names but {len(positions)} positions'
         )
-    index = {}
-    duplicated = []
-    for i, name in enumerate(msg_names):
-        if name in index:
-            duplicated.append(name)
-        index[name] = i
-    duplicated = [n for n in joint_names if n in duplicated]
+    index = {name: i for i, name in enumerate(msg_names)}
+    duplicated = [n for n in joint_names if msg_names.count(n) > 1]
     if duplicated:
         raise ValueError(f'{what}: duplicated joint name(s) {duplicated}')
     missing = [n for n in joint_names if n not in index]
@@ -176,22 +156,14 @@ def msg_to_lvdt(msg):
     return float(_read_joint_state(msg, names.LVDT_JOINT_NAMES, 'lvdt')[0])
 
 
-# -------------------------------------------------------------------------------------- poses
-
-
 def euler_to_quaternion(psi, theta, phi):
-    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad).
-
-    Eq (2) lives in :mod:`gsp_kinematics.rotation`; this is its message-side spelling.
-    """
+    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad)."""
     return rotation.matrix_to_quaternion(rotation.euler_to_matrix([psi, theta, phi]))
 
 
 def quaternion_to_euler(quat):
-    """``(psi, theta, phi)`` (rad) of a quaternion ``[x, y, z, w]`` (normalised here), |psi| <= pi/2.
-
-    Raises ``ValueError`` naming the quaternion when it is not four finite numbers of non-zero norm.
-    """
+    """``(psi, theta, phi)`` (rad), |psi| <= pi/2, of a quaternion ``[x, y, z, w]`` (normalised
+    here); ValueError if it is not four finite numbers of non-zero norm."""
     quat = np.asarray(quat, dtype=float)
     invalid = ValueError(f'invalid orientation quaternion [x, y, z, w] = {quat.tolist()}')
     if quat.shape != (4,):
@@ -215,11 +187,8 @@ def pose_to_pose_stamped(X, stamp=None, frame_id=names.FRAME_BASE):  # noqa: N80
     msg.header.stamp = _to_stamp(stamp)
     msg.header.frame_id = frame_id
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in X[:3])
-    qx, qy, qz, qw = euler_to_quaternion(*X[3:])
-    msg.pose.orientation.x = float(qx)
-    msg.pose.orientation.y = float(qy)
-    msg.pose.orientation.z = float(qz)
-    msg.pose.orientation.w = float(qw)
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in euler_to_quaternion(*X[3:]))
     return msg
 
 
@@ -236,8 +205,6 @@ def pose_stamped_to_pose(msg):
     return np.concatenate([position, euler])
 
 
-# ------------------------------------------------------------------------- diagnostic helpers
-
 _LEVEL_OF_STATE = {
     names.STATE_SETTLED: DiagnosticStatus.OK,
     names.STATE_MOVING: DiagnosticStatus.WARN,
@@ -251,14 +218,8 @@ def _level_to_int(level):
     return int(level)
 
 
-def _int_to_level(value):
-    return bytes([int(value)])
-
-
 def _key_values(msg, what, required):
-    values = {}
-    for kv in msg.values:
-        values[kv.key] = kv.value
+    values = {kv.key: kv.value for kv in msg.values}
     missing = [k for k in required if k not in values]
     if missing:
         raise ValueError(f'{what}: missing key(s) {missing}; message has keys {list(values)}')
@@ -290,12 +251,7 @@ class PlatformStatus:
 def make_status(
     command_id, state, reason='', *, name=names.STATUS_NAME, hardware_id=names.STATUS_HARDWARE_ID
 ):
-    """DiagnosticStatus for ``/gsp/platform/status``.
-
-    ``state`` in ``moving`` (WARN), ``settled`` (OK), ``rejected`` (ERROR); ``message`` is the
-    reason (or the state when no reason is given); key/values ``command_id``, ``state``,
-    ``reason``.
-    """
+    """DiagnosticStatus for ``/gsp/platform/status``."""
     if state not in _LEVEL_OF_STATE:
         raise ValueError(f'status: unknown state {state!r}; expected one of {list(names.STATES)}')
     msg = DiagnosticStatus()
@@ -323,21 +279,12 @@ def parse_status(msg):
         raise ValueError(
             f'status: level {level} does not match state {state!r} (expects {expected})'
         )
-    return PlatformStatus(
-        command_id=values[names.KEY_COMMAND_ID],
-        state=state,
-        reason=values[names.KEY_REASON],
-        level=level,
-    )
+    return PlatformStatus(values[names.KEY_COMMAND_ID], state, values[names.KEY_REASON], level)
 
 
 @dataclass(frozen=True)
 class CalibrationProgress:
-    """Parsed ``/gsp/calibrator/progress``.
-
-    ``residuals`` is what was sent (mapping name -> float, list of floats, or None);
-    ``extra`` holds any other key/values as strings.
-    """
+    """Parsed ``/gsp/calibrator/progress``."""
 
     posture_index: int
     posture_count: int
@@ -367,12 +314,7 @@ def make_progress(
     extra=None,
     name=names.PROGRESS_NAME,
 ):
-    """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals.
-
-    ``residuals`` (latest residuals, SI units) may be a mapping name -> float or a sequence of
-    floats; it travels as JSON under the ``residuals`` key. ``level`` defaults to ERROR for the
-    ``failed`` phase and OK otherwise. ``extra`` adds string key/values.
-    """
+    """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals."""
     posture_index, posture_count = int(posture_index), int(posture_count)
     if posture_count < 0 or not 0 <= posture_index <= max(posture_count, 0):
         raise ValueError(
@@ -383,7 +325,7 @@ def make_progress(
     if level is None:
         level = DiagnosticStatus.ERROR if phase == names.PHASE_FAILED else DiagnosticStatus.OK
     msg = DiagnosticStatus()
-    msg.level = level if isinstance(level, bytes) else _int_to_level(level)
+    msg.level = level if isinstance(level, bytes) else bytes([int(level)])
     msg.name = name
     msg.hardware_id = names.STATUS_HARDWARE_ID
     msg.message = str(message) if message else f'{phase} {posture_index}/{posture_count}'

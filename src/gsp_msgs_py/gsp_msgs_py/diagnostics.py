@@ -1,11 +1,6 @@
 """Every node's health on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``), as
 ``diagnostic_updater`` publishes it: the ROS convention rqt_robot_monitor, the diagnostic
 aggregator and Foxglove read.
-
-A node lists its components, each a pure function returning a :class:`~gsp_msgs_py.health.Health`,
-and :class:`DiagnosticsPublisher` publishes them every ``diagnostics_period`` s
-(:func:`gsp_msgs_py.parameter_specs.diagnostics_period_spec`), one status per component named
-``'<node name>: <component>'``. Keys and levels of each node: docs/nodes.md#diagnostics.
 """
 
 import dataclasses
@@ -65,13 +60,8 @@ class DiagnosticsPublisher:
     """Publishes the health of ``components`` (:class:`Component`) of ``node`` on
     ``/diagnostics`` every ``period_s`` s.
 
-    The timer has a mutually exclusive callback group of its own: in a multi-threaded executor
-    it then never holds the node's default group, so it never delays the node's own callbacks
-    (nor makes rclpy 7.1 dispatch one of them in vain, whose unguarded guard-condition trigger
-    fails when the executor shuts down meanwhile: "exception was never retrieved"). So a
-    ``health()`` must only read what other callbacks write (counters, latest values): a report
-    may be one message behind. A ``health()`` that raises is reported as ERROR with its error
-    (and logged, throttled): a node never dies of its own report.
+    The timer has its own callback group, so a ``health()`` only reads what other callbacks
+    write; one that raises is reported as ERROR: a node never dies of its own report.
     """
 
     def __init__(self, node, period_s, components):

@@ -1,15 +1,7 @@
 """rclpy's ``MultiThreadedExecutor`` without its growing list of futures (rclpy 7.1, Jazzy).
 
-rclpy 7.1's executor resumes an ``async`` callback by polling: every time it wakes up (any timer,
-message or guard condition), it yields each pending coroutine task again, and its
-``MultiThreadedExecutor`` appends the task to its list of futures once more. The list keeps every
-copy until the task finishes, and the whole list is scanned on every wake-up. A coroutine that
-awaits for the length of a run (the calibrator's ``calibrate`` service) while the executor wakes
-hundreds of times a second therefore makes each wake-up cost more than the last: the spin thread
-ends up scanning tens of thousands of entries a wake-up, holding the GIL from the callbacks
-(ros2/rclpy#1452; later rclpy versions resume a task only once what it awaits is done).
-
-:class:`MultiThreadedExecutor` keeps one entry a task; everything else is rclpy's.
+rclpy 7.1 re-appends a pending coroutine task at every wake-up, so a long ``async`` callback makes
+each wake-up slower (ros2/rclpy#1452); this one keeps one entry a task.
 """
 
 from rclpy import executors as rclpy_executors

@@ -1,8 +1,4 @@
-"""The ``geometry.*`` parameters of a node that plays the platform's controller.
-
-``platform_sim`` and ``platform_bridge`` declare the same table, so the calibrator's
-``apply_result`` sets a calibrated geometry on either one unchanged.
-"""
+"""The ``geometry.*`` parameters of a node that plays the platform's controller."""
 
 from gsp_kinematics.model.effects import EffectDesignError
 from gsp_kinematics.model.geometry import (
@@ -111,7 +107,7 @@ def controller_geometry_error(values):
     """Why the ``geometry.*`` entries of ``{name: value}`` are not a valid geometry ('' if they
     are)."""
     try:
-        geometry_from_parameters({name: values[name] for name in GEOMETRY_PARAMETER_NAMES})
+        controller_geometry(values)
     except (GeometryError, EffectDesignError) as error:  # the effects' own checks (leg_mass)
         return str(error)
     return ''

@@ -1,10 +1,4 @@
-"""A component's health as plain data: what a node publishes on /diagnostics (pure, no rclpy).
-
-Pure components (a device backend, the collection protocol, a simulator) report a
-:class:`Health`; the node turns it into a ``diagnostic_msgs/DiagnosticStatus`` and publishes it in
-a ``DiagnosticArray`` on ``/diagnostics`` (the ROS convention that rqt_robot_monitor and Foxglove
-read). The levels are those of ``DiagnosticStatus``.
-"""
+"""A component's health as plain data: what a node publishes on /diagnostics (pure, no rclpy)."""
 
 from dataclasses import dataclass, field
 

@@ -1,7 +1,4 @@
-"""Checks of incoming messages before they reach the core (no node, no rclpy context needed).
-
-Subscribers that must never die on a bad message call these and log the ValueError's reason.
-"""
+"""Checks of incoming messages before they reach the core (no node, no rclpy context needed)."""
 
 import math
 
@@ -13,11 +10,7 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 
 
 def pose_in_frame(msg, frame_id, quaternion_tolerance=QUATERNION_NORM_TOLERANCE):
-    """``X = [x, y, z, psi, theta, phi]`` (m, rad) of a PoseStamped expressed in ``frame_id``.
-
-    Raises ValueError naming the problem when ``header.frame_id`` differs from ``frame_id``, a
-    value is not finite, or the quaternion is not of unit length within ``quaternion_tolerance``.
-    """
+    """``X = [x, y, z, psi, theta, phi]`` (m, rad) of a PoseStamped expressed in ``frame_id``."""
     if msg.header.frame_id != frame_id:
         raise ValueError(f"pose: frame_id '{msg.header.frame_id}' is not '{frame_id}'")
     o = msg.pose.orientation

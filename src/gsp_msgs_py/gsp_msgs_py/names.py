@@ -1,15 +1,4 @@
-"""Names of every gsp-calibration interface (topics, services, frames, joints, status keys).
-
-Only standard common_interfaces messages are used (no custom .msg). ``TOPIC_TYPES`` maps each
-name to its interface type (``pkg/msg/Type``); :mod:`gsp_msgs_py.qos` gives the QoS of each topic.
-
-Each topic's payload, publishers and subscribers: docs/nodes.md.
-
-Status (``/gsp/platform/status``): level OK = settled, WARN = moving, ERROR = rejected;
-``message`` is the human-readable reason; key/values ``command_id``, ``state``, ``reason``.
-The ``command_id`` of a pose command is, by convention, :func:`conversions.command_id_from_stamp`
-of its ``header.stamp`` (the integer nanoseconds as a decimal string).
-"""
+"""Names of every gsp-calibration interface (topics, services, frames, joints, status keys)."""
 
 from gsp_kinematics import channels
 
@@ -55,11 +44,8 @@ SERVICE_CHECK = '/gsp/calibrator/check'
 TOPIC_CALIBRATION_RESULT = '/gsp/calibrator/result'
 TOPIC_CALIBRATION_PROGRESS = '/gsp/calibrator/progress'
 
-# Health of every node (the ROS convention that rqt_robot_monitor and Foxglove read): one
-# DiagnosticArray per period, each status named '<node name>: <component>'. Not a suite data topic
-# (not in TOPIC_TYPES: runs do not record it).
+# Health of every node: not a suite data topic (not in TOPIC_TYPES: runs do not record it).
 TOPIC_DIAGNOSTICS = '/diagnostics'
-DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
 # Joint names carried by the JointState topics (values in JointState.position): the channels of
 # gsp_kinematics.channels.
@@ -96,17 +82,6 @@ PHASE_IDENTIFYING = 'identifying'
 PHASE_VALIDATING = 'validating'
 PHASE_DONE = 'done'
 PHASE_FAILED = 'failed'
-PHASES = (
-    PHASE_IDLE,
-    PHASE_SELECTING,
-    PHASE_MOVING,
-    PHASE_SAMPLING,
-    PHASE_COLLECTING,
-    PHASE_IDENTIFYING,
-    PHASE_VALIDATING,
-    PHASE_DONE,
-    PHASE_FAILED,
-)
 
 # Interface types, as ``pkg/msg/Type`` / ``pkg/srv/Type``.
 TOPIC_TYPES = {

@@ -1,19 +1,5 @@
-"""The node skeleton shared by every gsp-calibration node: wiring and ``main``.
-
-A node file is a parameter table (:mod:`gsp_msgs_py.parameter_specs`), its wiring and ``main``::
-
-    class MyNode(Node):
-        def __init__(self, **kwargs):
-            super().__init__('my_node', **kwargs)
-            values = declare_parameters(self, PARAMETERS)   # ConfigurationError if invalid
-            self.publishers = create_publishers(self, (names.TOPIC_LEG_LENGTHS,))
-
-    def main(args=None):
-        return run_node(MyNode, args, logger_name='my_node')
-
-Here: publishers and device messages, timer ticks, throttled publishing, closing what was opened,
-spinning until a predicate holds, and :func:`run_node` with its signal handling.
-"""
+"""The node skeleton shared by every node: publishers, timer ticks, throttled publishing and
+:func:`run_node` with its signal handling (docs/architecture.md)."""
 
 import signal
 import threading
@@ -21,11 +7,7 @@ import threading
 from . import names
 from .parameter_specs import ConfigurationError
 
-# rclpy is imported inside the functions that need a node, so that pure modules can import this
-# one without loading it.
-
-# --- wiring and main ---------------------------------------------------------------------------
-
+# rclpy is imported only where a node is needed: pure modules import this one without it.
 
 #: The measuring device's topics, in the order of its readings ``[alpha, beta, phi, d_m]``.
 DEVICE_TOPICS = (names.TOPIC_INCLINOMETER, names.TOPIC_ENCODER, names.TOPIC_LVDT)
@@ -57,16 +39,11 @@ def device_messages(readings, stamp, frame_id):
 
 
 def scheduled_tick_ns(period_ns, until_next_ns, now_ns):
-    """The scheduled instant (ns) of the tick a periodic timer's callback is running for.
+    """The scheduled instant (ns) of the tick a periodic timer's callback runs for, never after
+    ``now_ns`` (``now_ns`` when ``until_next_ns`` is None or the clock jumped back).
 
-    ``until_next_ns``: the timer's ``time_until_next_call()`` read at (or just after) ``now_ns``
-    in the callback. rcl advances a timer's next call before its callback runs, by whole periods
-    (missed ticks are skipped, the phase kept), so the tick is ``next - period``: the sample a
-    simulated sensor takes in the callback is stamped on the timer's regular grid, free of the
-    callback's scheduling delay (which would otherwise jitter the pairing of two streams). The
-    tick is never after ``now_ns``, so a reading taken now describes the state at its stamp or
-    later, and the ticks of successive calls only grow. ``now_ns`` when the timer says nothing
-    usable (None, or a grid ahead of ``now_ns``: a clock that jumped back).
+    rcl advances the next call by whole periods before the callback, so the tick is ``next -
+    period``: samples are stamped on the timer's grid, free of the scheduling delay.
     """
     if until_next_ns is None or period_ns <= 0:
         return int(now_ns)
@@ -91,12 +68,8 @@ DROP_WARNING_THROTTLE_S = 1.0
 
 
 def publish_messages(node, publishers, what, build, *args):
-    """Publish the ``{topic: message}`` of ``build(*args)``, each on ``publishers[topic]``.
-
-    A ValueError while building (e.g. a value that is not finite) drops them all with a
-    throttled warning ``dropping <what>: <error>``: a node never dies on one bad sample.
-    Returns whether they were published.
-    """
+    """Publish the ``{topic: message}`` of ``build(*args)``; whether it did. A ValueError drops
+    them all with a throttled warning: a node never dies on one bad sample."""
     try:
         messages = build(*args)
     except ValueError as error:
@@ -119,10 +92,7 @@ def close_opened(node, *attributes):
 
 
 def spin_until(executor, predicate, timeout):
-    """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first.
-
-    The timeout only bounds a failure: the wait ends on the event itself.
-    """
+    """Spin ``executor`` until ``predicate()`` holds; False if ``timeout`` (s) passes first."""
     import time
 
     deadline = time.monotonic() + timeout
@@ -134,14 +104,10 @@ def spin_until(executor, predicate, timeout):
 
 
 def shutdown_executor(executor, timeout_sec=5.0):
-    """Shut ``executor`` down once the callbacks it has handed to its thread pool (a
-    ``MultiThreadedExecutor``) have run; call it once the spin has returned.
+    """Shut ``executor`` down once its thread pool's callbacks have run (after the spin).
 
-    rclpy 7.1's ``Executor.shutdown`` does not wait for them (its wait is skipped) and destroys
-    the executor's guard condition: a queued callback that starts after that fails with
-    ``InvalidHandle`` inside a task nobody retrieves ("The following exception was never
-    retrieved: cannot use Destroyable because destruction was requested" at garbage collection),
-    and a node destroyed under a callback still running can crash the process.
+    rclpy 7.1's ``Executor.shutdown`` does not wait for them: a queued callback then fails with
+    ``InvalidHandle``, and a node destroyed under a running one can crash the process.
     """
     pool = getattr(executor, '_executor', None)  # the MultiThreadedExecutor's ThreadPoolExecutor
     if pool is not None:
@@ -154,13 +120,10 @@ STOP_POLL_S = 0.1
 
 
 def run_node(make_node, args=None, executor=None, *, logger_name):
-    """Initialise rclpy, build a node with ``make_node()`` and spin it until shutdown.
+    """Initialise rclpy, build ``make_node()`` and spin it until shutdown; the exit code.
 
-    ``executor`` is an executor instance or a factory (e.g. a class) called after ``rclpy.init``;
-    without one the node is spun by a ``SingleThreadedExecutor``. Returns the process exit code:
-    1 if the node raised :class:`ConfigurationError` (logged as fatal under ``logger_name``),
-    otherwise 0 (including SIGINT, SIGTERM, any number of them at any instant, and external
-    shutdown). The stop signals are :class:`StopSignals`' (rclpy's own handlers are left out).
+    ``executor``: an instance or a factory (default ``SingleThreadedExecutor``). Exit code 1 on
+    :class:`ConfigurationError` (logged fatal under ``logger_name``), else 0, whatever signals.
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -179,11 +142,8 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
         if not stop_signals.received and rclpy.ok():
             node = make_node()
             active_executor.add_node(node)
-            # Turns of at most STOP_POLL_S: the main thread comes back to Python after each, so
-            # the signal handler runs and the loop sees it. No other thread touches the context
-            # (rclpy's own handling wakes the executor before it shuts the context down, and an
-            # executor woken in between waits again with nothing left to wake it: a node without
-            # a timer, gsp_fake_device, never stopped; docs/faults.md).
+            # Short turns so the main thread sees a recorded signal; rclpy's own handling could
+            # leave a node without a timer waiting for ever (docs/faults.md).
             while not stop_signals.received and rclpy.ok():
                 active_executor.spin_once(timeout_sec=STOP_POLL_S)
     except ConfigurationError as error:
@@ -198,11 +158,8 @@ def run_node(make_node, args=None, executor=None, *, logger_name):
             raise
     finally:
         if active_executor is not None:
-            # The context first, as a stop signal did under rclpy's handling: a callback still
-            # waiting on it (an async service's wait) ends before the pool is joined.
+            # The context first, so a callback waiting on it ends before the pool is joined.
             shut_down_context(active_executor.context)
-            # Not executor.shutdown() alone: it returns with callbacks still running in the
-            # pool, and destroying the node under them can crash the process (SIGSEGV).
             shutdown_executor(active_executor, timeout_sec=1.0)
         if node is not None:
             node.destroy_node()
@@ -227,16 +184,8 @@ def shut_down_context(context):
 
 
 class StopSignals:
-    """SIGINT and SIGTERM handlers of a node process that record the signal and never raise.
-
-    :func:`run_node` installs them before ``rclpy.init`` (which then installs none of its own)
-    and spins in short turns until one is recorded. Python's default SIGINT handler would raise
-    ``KeyboardInterrupt`` once per signal wherever the main thread is: a second Ctrl-C (``ros2
-    launch`` forwards SIGINT on top of the terminal's), or a SIGINT just after a SIGTERM, then
-    lands inside the cleanup (``destroy_node()``, closing the recording) or escapes
-    ``run_node``. Recording instead makes every further signal harmless: the node always
-    finishes its cleanup.
-    """
+    """SIGINT and SIGTERM handlers that record the signal and never raise, so a second signal
+    cannot land inside the cleanup (as ``KeyboardInterrupt`` would)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -254,12 +203,8 @@ class StopSignals:
         return self._set(self)
 
     def ignore(self):
-        """After the cleanup: ignore :attr:`SIGNALS` (``SIG_IGN``) until the process exits.
-
-        While the interpreter shuts down, Python puts the default action back for every signal
-        that has a Python handler (this one), but leaves an ignored signal ignored: a SIGINT or
-        SIGTERM then (a second Ctrl-C, ``ros2 launch``'s own SIGINT) would kill the process
-        (exit code -2 or -15) after a clean stop."""
+        """After the cleanup: ignore :attr:`SIGNALS` until exit (at interpreter shutdown Python
+        restores the default action of handled signals, which would kill a clean stop)."""
         return self._set(signal.SIG_IGN)
 
     def _set(self, handler):

@@ -1,25 +1,6 @@
-"""The parameter tables of the gsp-calibration nodes: specs, checks, declaration, docs.
+"""Parameter tables of the nodes: specs, checks, declaration and docs (docs/parameters.md).
 
-A node file is a table of :class:`ParameterSpec`, its wiring and ``main``
-(:mod:`gsp_msgs_py.node_tools`)::
-
-    PARAMETERS = (
-        ParameterSpec('publish_rate', 200.0, 'Rate of the readings', unit='Hz',
-                      read_only=True, check=greater_than(0.0)),
-        ...
-    )
-
-    class MyNode(Node):
-        def __init__(self, **kwargs):
-            super().__init__('my_node', **kwargs)
-            values = declare_parameters(self, PARAMETERS)   # ConfigurationError if invalid
-            watch_parameters(self, PARAMETERS, apply=self._apply)
-
-    def main(args=None):
-        return run_node(MyNode, args, logger_name='my_node')
-
-A check is a function ``value -> reason`` ('' when the value is accepted); the reason completes
-``'<name>: <value> rejected, <reason>'``. The ``check`` factories below cover the usual cases.
+A check is ``value -> reason`` ('' when accepted).
 """
 
 import dataclasses
@@ -28,16 +9,12 @@ import math
 import numpy as np
 
 from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
-from gsp_kinematics.model.sensor_noise import (
-    DEFAULT_SENSOR_NOISE,
-    NOISE_UNITS,
-)
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 
 from . import names
 from .noise_parameters import TRUE_NOISE_PARAMETER
 
-# rclpy is imported inside the functions that need a node, so that pure modules (the
-# calibrator's settings table, the docs generator) can import specs and checks without loading it.
+# rclpy is imported only where a node is needed: pure modules import specs without it.
 
 
 class ConfigurationError(ValueError):
@@ -47,10 +24,6 @@ class ConfigurationError(ValueError):
 def is_finite_number(value):
     """True for an int or float that is finite (bools and strings are not numbers here)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-# --- checks ------------------------------------------------------------------------------------
-# Each factory takes an optional ``reason`` that replaces its default reason.
 
 
 def _unit(unit):
@@ -82,22 +55,16 @@ def one_of(options, reason=None):
     return lambda v: '' if v in options else why
 
 
-# --- parameter specs ---------------------------------------------------------------------------
-
 #: ROS parameter type names by Python type of the default (``ros2 param describe`` wording).
 _TYPE_NAMES = {bool: 'bool', int: 'integer', float: 'double', str: 'string'}
 
 
 @dataclasses.dataclass(frozen=True)
 class ParameterSpec:
-    """One node parameter: its default (which fixes its ROS type), description and checks.
+    """One node parameter: default (fixing its ROS type), description, ROS ranges and check.
 
-    ``float_range`` / ``integer_range`` are ``(from, to)`` pairs that ROS itself enforces;
-    ``check`` is a function ``value -> reason`` ('' if accepted) applied at start-up and to every
-    run-time change; ``constraints`` is the descriptor's human-readable summary of both.
-    ``default_text`` is how the docs show a default that depends on the installation (a path).
-    ``subsets``: names of the node's subsets of its parameters this one belongs to (the
-    calibrator's: stored with a run, deciding the selection, accepted on a command line).
+    ``default_text``: how the docs show an installation-dependent default; ``subsets``: the
+    node's parameter subsets this one belongs to.
     """
 
     name: str
@@ -131,21 +98,11 @@ class ParameterSpec:
             additional_constraints=self.constraints,
         )
         if self.float_range is not None:
-            descriptor.floating_point_range = [
-                FloatingPointRange(
-                    from_value=float(self.float_range[0]),
-                    to_value=float(self.float_range[1]),
-                    step=0.0,
-                )
-            ]
+            low, high = map(float, self.float_range)
+            descriptor.floating_point_range = [FloatingPointRange(from_value=low, to_value=high)]
         if self.integer_range is not None:
-            descriptor.integer_range = [
-                IntegerRange(
-                    from_value=int(self.integer_range[0]),
-                    to_value=int(self.integer_range[1]),
-                    step=1,
-                )
-            ]
+            low, high = map(int, self.integer_range)
+            descriptor.integer_range = [IntegerRange(from_value=low, to_value=high, step=1)]
         return descriptor
 
     def reason(self, value):
@@ -157,7 +114,7 @@ class ParameterSpec:
         return f'{self.name}: {shown!r} rejected, {why}'
 
 
-# --- parameters several nodes share (same name, type and checks everywhere) -----------------
+# Parameters several nodes share (same name, type and checks everywhere).
 
 
 def publish_rate_spec(what, default=DEFAULT_SENSOR_RATE_HZ):
@@ -187,13 +144,7 @@ def seed_spec():
 
 
 def resolve_seed(seed):
-    """The noise seed a node uses: ``seed`` if >= 0, else a fresh one in [0, 2**31) from the OS
-    entropy.
-
-    Fresh by default because a simulated sensor restarted with a fixed seed replays the noise of
-    its previous life: a resumed calibration would then average the same draws twice and its
-    parameters would be less independent than their standard deviations say (docs/faults.md).
-    """
+    """``seed`` if >= 0, else a fresh one in [0, 2**31) from OS entropy (docs/faults.md)."""
     seed = int(seed)
     # Drawn in the parameter's own range, so the logged seed can be passed back to replay a life.
     return seed if seed >= 0 else int(np.random.SeedSequence().generate_state(1)[0] >> 1)
@@ -311,10 +262,7 @@ def _spec_table(specs):
 
 
 def validate_values(specs, values):
-    """Reason ('' if none) why ``{name: value}`` fails the checks of ``specs``.
-
-    Names without a spec are not checked (another part of the node owns them).
-    """
+    """Reason ('' if none) why ``{name: value}`` fails the checks of ``specs`` (others pass)."""
     table = _spec_table(specs)
     for name, value in values.items():
         spec = table.get(name)
@@ -326,11 +274,9 @@ def validate_values(specs, values):
 
 
 def declare_parameters(node, specs, validate=None):
-    """Declare every spec on ``node`` and check the values it starts with.
+    """Declare ``specs`` on ``node``; ``{name: value}``, or :class:`ConfigurationError`.
 
-    ``validate``: optional ``{name: value} -> reason`` check of the whole set (e.g. a value that
-    must not exceed another). Returns ``{name: value}``; raises :class:`ConfigurationError`
-    naming the parameter when a value has the wrong type, is out of range or fails a check.
+    ``validate``: optional ``{name: value} -> reason`` check of the whole set.
     """
     from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 
@@ -353,14 +299,8 @@ def parameter_values(node, specs):
 
 
 def watch_parameters(node, specs, apply=None, validate=None):
-    """Check run-time changes of ``specs`` and hand the accepted ones to ``apply``.
-
-    The on-set callback rejects a change with the reason of the first failed check; then
-    ``validate(changes, current)`` (optional, ``{name: value}`` of the change and of every spec's
-    current value) may reject it too, returning a reason. The post-set callback calls
-    ``apply({name: value})`` with the accepted changes of ``specs`` (names of other parameters
-    are left out; nothing is called when none changed).
-    """
+    """Reject run-time changes failing a check or ``validate(changes, current)``; pass the
+    accepted changes of ``specs`` to ``apply({name: value})``."""
     from rcl_interfaces.msg import SetParametersResult
 
     table = _spec_table(specs)
@@ -379,9 +319,6 @@ def watch_parameters(node, specs, apply=None, validate=None):
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
-
-
-# --- documentation -----------------------------------------------------------------------------
 
 
 def _format_value(value):
@@ -426,20 +363,14 @@ def parameter_table_markdown(specs):
         '| --- | --- | --- | --- | --- | --- | --- |',
     ]
     for spec in _spec_table(specs).values():
-        rows.append(
-            '| '
-            + ' | '.join(
-                cell(text)
-                for text in (
-                    f'`{spec.name}`',
-                    spec.type_name,
-                    f'`{_format_default(spec)}`',
-                    spec.unit,
-                    'yes' if spec.read_only else 'no',
-                    _format_constraints(spec),
-                    spec.description,
-                )
-            )
-            + ' |'
+        texts = (
+            f'`{spec.name}`',
+            spec.type_name,
+            f'`{_format_default(spec)}`',
+            spec.unit,
+            'yes' if spec.read_only else 'no',
+            _format_constraints(spec),
+            spec.description,
         )
+        rows.append('| ' + ' | '.join(cell(text) for text in texts) + ' |')
     return '\n'.join(rows) + '\n'

@@ -1,12 +1,4 @@
-"""The platform side of the pose command protocol, for any node that plays the platform.
-
-:class:`PoseCommandServer` subscribes ``/gsp/platform/pose_command`` and publishes
-``/gsp/platform/status``. The ``command_id`` of a command is its header stamp in ns. A command
-whose pose is not in ``frame_id`` or that the node refuses is ``rejected`` (ERROR, with the
-reason). An accepted one is ``moving`` (WARN), then ``settled`` (OK) ``settle_time`` later, unless
-a newer command supersedes it first: then it is ``rejected`` with the reason
-``superseded by command X before settling`` (see :mod:`gsp_msgs_py.settle`).
-"""
+"""The platform side of the pose command protocol, for any node that plays the platform."""
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -20,17 +12,9 @@ WARN_THROTTLE_S = 1.0
 class PoseCommandServer:
     """Pose commands and their statuses on ``node``.
 
-    ``move(command_id, pose)`` acts on a command whose pose (6,) ``[x, y, z, psi, theta, phi]``
-    (m, rad) is in ``frame_id`` and returns '' when it is accepted, else the reason it is
-    rejected (a ValueError or TypeError it raises counts as a rejection with its message).
-    ``on_settled(command_id)`` (optional) runs right after a ``settled`` status. Every callback
-    runs in the node's default callback group. ``settle_time`` (s) may be changed at any time;
-    it applies from the next accepted command. ``travel_s()`` (optional) gives the time (s) the
-    command just accepted by ``move`` takes to arrive: it settles ``travel + settle_time`` later.
-
-    A node that learns itself when the platform has arrived (``platform_bridge``, from the
-    controller's joint states) passes ``settle_time=None``: an accepted command then stays
-    ``moving`` until it calls :meth:`settled` or :meth:`reject_moving`.
+    ``move(command_id, pose)`` returns '' when accepted, else the reason of the rejection;
+    ``travel_s()`` (optional, s) delays the settle. ``settle_time=None``: commands stay
+    ``moving`` until :meth:`settled` or :meth:`reject_moving`.
     """
 
     def __init__(self, node, frame_id, settle_time, move, on_settled=None, travel_s=None):

@@ -1,19 +1,5 @@
-"""The network rule in one place: DDS on loopback, in a ROS domain of this run's own.
-
-Every demo, benchmark and test process runs with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
-and its own ``ROS_DOMAIN_ID``, so discovery never reaches another interface or another run.
-
-A drawn domain is **claimed** through ``domain_coordinator`` (ROS 2's own tool for this job,
-package ``domain_coordinator``): it binds TCP port ``domain_coordinator.impl.PORT_BASE + id``,
-and only one socket on the machine can hold a port, so two concurrent runs never draw the same
-domain. This module keeps the claim for the life of the process (the kernel frees the port at
-exit, even after a SIGKILL) and exports :data:`CLAIMED_VARIABLE`, so that the children, which
-share the domain, know it is their run's (docs/faults.md, "ROS domains"). A domain given in
-``ROS_DOMAIN_ID`` is claimed the same way (:func:`hold_domain_id`), and :func:`foreign_nodes`
-looks for nodes already present in a domain (rclpy, imported lazily).
-
-``python -m gsp_msgs_py.ros_environment probe <id>`` prints the nodes present in a domain.
-"""
+"""The network rule in one place: DDS on loopback, in a ROS domain of this run's own, claimed
+through ``domain_coordinator`` (docs/faults.md, "ROS domains")."""
 
 import contextlib
 import itertools
@@ -46,13 +32,10 @@ _HELD_LOCK = threading.Lock()
 
 def _claim(candidates):
     """Bind the port of the first free domain of ``candidates`` (ids, tried in order); its id,
-    or None if every one is taken.
-
-    domain_coordinator makes at most 100 attempts, each a fresh call of the selector: hence
-    chunks of 100, each padded with its last id (which only fails again).
-    """
+    or None if every one is taken."""
     import domain_coordinator
 
+    # domain_coordinator tries a selector at most 100 times: chunks of 100, padded with the last.
     for first in range(0, len(candidates), 100):
         chunk = candidates[first : first + 100]
         order = itertools.chain(chunk, itertools.repeat(chunk[-1]))
@@ -68,12 +51,7 @@ def _claim(candidates):
 
 
 def claim_domain_id(rng=None, exclude=()):
-    """Claim a free domain for the life of this process; its id.
-
-    Starts at a random candidate (``rng``: a ``random.Random``) and takes the next free one in
-    :data:`DOMAIN_IDS` order (wrapping), skipping ``exclude`` unless that leaves none.
-    :class:`DomainInUseError` if every candidate is held by another run.
-    """
+    """Claim a free domain for the life of this process; its id."""
     excluded = set(exclude)
     candidates = [d for d in DOMAIN_IDS if d not in excluded] or list(DOMAIN_IDS)
     start = (rng or random.SystemRandom()).randrange(len(candidates))
@@ -87,12 +65,7 @@ def claim_domain_id(rng=None, exclude=()):
 
 
 def hold_domain_id(domain_id):
-    """Claim a domain given in ``ROS_DOMAIN_ID`` for this process; True if newly claimed.
-
-    False if this process or the run that started it (:data:`CLAIMED_VARIABLE`: ``make``, a
-    shell that sourced ``scripts/env.sh``, the demo above its nodes) holds it already.
-    :class:`DomainInUseError` if another run holds it.
-    """
+    """Claim a domain given in ``ROS_DOMAIN_ID`` for this process; True if newly claimed."""
     domain_id = int(domain_id)
     if domain_id in _HELD_IDS or os.environ.get(CLAIMED_VARIABLE) == str(domain_id):
         return False
@@ -116,10 +89,7 @@ def foreign_nodes(domain_id, window_s=PROBE_WINDOW_S):
     found = set()
     try:
         node = rclpy.create_node(
-            PROBE_NODE_NAME,
-            context=context,
-            start_parameter_services=False,
-            enable_rosout=False,
+            PROBE_NODE_NAME, context=context, start_parameter_services=False, enable_rosout=False
         )
         pause = threading.Event()
         deadline = time.monotonic() + window_s
@@ -155,12 +125,7 @@ def foreign_nodes_in_child(domain_id, window_s=PROBE_WINDOW_S):
 
 
 def loopback_environment(environ=None, rng=None, exclude=()):
-    """A copy of ``environ`` (default ``os.environ``) with discovery kept on loopback.
-
-    An existing non-empty ``ROS_DOMAIN_ID`` is kept (not checked: see :func:`enter_private_domain`);
-    otherwise a free one is claimed (:func:`claim_domain_id`, held for this process's life, so
-    that its children share it and no concurrent run draws it).
-    """
+    """A copy of ``environ`` (default ``os.environ``) with discovery kept on loopback."""
     env = dict(os.environ if environ is None else environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     if not env.get('ROS_DOMAIN_ID', '').strip():
@@ -169,14 +134,7 @@ def loopback_environment(environ=None, rng=None, exclude=()):
 
 
 def enter_private_domain(probe=foreign_nodes, rng=None):
-    """Put this process (``os.environ``) on loopback in a ROS domain of its own; its domain id.
-
-    Without ``ROS_DOMAIN_ID`` a free domain is claimed; one where ``probe(domain_id)`` (default
-    :func:`foreign_nodes`; None: no look) sees nodes already (a run that does not claim
-    domains) is left for the next. A given ``ROS_DOMAIN_ID`` is kept, claimed by
-    :func:`hold_domain_id` (:class:`DomainInUseError` if another run holds it) and must have no
-    nodes yet.
-    """
+    """Put this process (``os.environ``) on loopback in a ROS domain of its own; its domain id."""
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     given = os.environ.get('ROS_DOMAIN_ID', '').strip()
     if given:

@@ -1,9 +1,4 @@
-"""The platform side of a pose command's life: moving -> settled, or superseded (pure, no rclpy).
-
-An accepted command is ``moving`` until ``settle_time`` has passed, then ``settled``. A command
-accepted while another is still moving supersedes it: the older one is ``rejected`` with
-:func:`superseded_reason` and never settles. Times are integer nanoseconds of one clock.
-"""
+"""The platform side of a pose command's life: moving -> settled, or superseded (pure, no rclpy)."""
 
 from .health import ERROR, OK, WARN, Health
 
@@ -26,10 +21,7 @@ class SettleTracker:
         return self._moving
 
     def accept(self, command_id, now_ns, settle_time):
-        """Start moving to ``command_id`` at ``now_ns``, to settle ``settle_time`` (s) later.
-
-        Returns the command id it supersedes (still moving), or None.
-        """
+        """Start moving to ``command_id`` at ``now_ns``, to settle ``settle_time`` (s) later."""
         superseded = self._moving
         self._moving = command_id
         self._settles_ns = now_ns + max(0, round(settle_time * 1e9))
@@ -56,10 +48,6 @@ class SettleTracker:
 class CommandStatistics:
     """What became of the pose commands a platform node received, and how long the accepted ones
     took to settle; :meth:`health` reports them on ``/diagnostics`` (``<node>: commands``).
-
-    Rejections are of three kinds: ``refused`` at once (bad pose, limit, no joint states...),
-    ``superseded`` while moving, and ``abandoned`` (accepted, then not reached: the bridge's goal
-    failed). Times are integer nanoseconds of one clock.
     """
 
     def __init__(self):

@@ -1,10 +1,4 @@
-"""When a ros2_control goal is reached, from the controller's joint states (pure, no rclpy).
-
-:class:`GoalMonitor` keeps the latest position of each leg joint and judges the goal in flight:
-settled when every leg is within ``tolerance`` (m) of its target and has stayed there for
-``settle_time`` (s); rejected when the deadline passes first, when a leg joint is missing from
-the joint states, or when they are stale (none for ``state_timeout`` s). Times in s, one clock.
-"""
+"""When a ros2_control goal is reached, from the controller's joint states (pure, no rclpy)."""
 
 import numpy as np
 
@@ -29,8 +23,6 @@ class GoalMonitor:
         self._target = None
         self._deadline_s = None
         self._within_since = None
-
-    # ------------------------------------------------------------------------ states
 
     def observe(self, names, positions, now_s):
         """A joint state (names, positions) received at ``now_s``; returns the leg positions
@@ -84,8 +76,6 @@ class GoalMonitor:
             return Health(ERROR, problem, values)
         return Health(OK, 'moving to a goal' if self.active else 'joint states fresh', values)
 
-    # ------------------------------------------------------------------------- goals
-
     @property
     def active(self):
         return self._target is not None
@@ -126,8 +116,7 @@ class GoalMonitor:
 def pose_path(start, goal, position_step, angle_step):
     """Poses (N, 6) from ``start`` (excluded) to ``goal`` (included) on the straight line in
     ``[x, y, z, psi, theta, phi]``, no step longer than ``position_step`` (m) or ``angle_step``
-    (rad): the legs then follow the Cartesian path, not a straight line in joint space (which
-    a hexapod may not be able to follow)."""
+    (rad), so the legs follow the Cartesian path."""
     start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
     delta = goal - start
     steps = max(
@@ -140,10 +129,8 @@ def pose_path(start, goal, position_step, angle_step):
 
 
 def waypoint_times(current, waypoints, limits, min_duration):
-    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): each segment a
-    synchronised rest-to-rest move at the legs' ``limits`` (a :class:`gsp_kinematics.planning.
-    motion.MotionLimits`: the model controller_sim follows the points with), the whole at least
-    ``min_duration`` (s)."""
+    """``time_from_start`` (N,) s of leg waypoints (N, 6) m from ``current`` (6,): rest-to-rest
+    moves at the legs' ``limits`` (``MotionLimits``), the whole at least ``min_duration`` (s)."""
     legs = np.vstack([np.asarray(current, dtype=float)[None], np.asarray(waypoints, dtype=float)])
     times = np.cumsum(move_time(legs[:-1], legs[1:], limits))
     if times[-1] < min_duration:

@@ -1,13 +1,4 @@
-"""``platform_bridge`` node: the suite's platform protocol over ros2_control (docs/hardware.md).
-
-Suite side (as ``platform_sim``): subscribes ``/gsp/platform/pose_command``, publishes
-``/gsp/platform/status`` (moving -> settled, or rejected with the reason) and
-``/gsp/platform/leg_lengths`` (from the joint states). Controller side: publishes
-``trajectory_msgs/JointTrajectory`` on ``/<controller_name>/joint_trajectory`` and subscribes
-``sensor_msgs/JointState`` on ``/joint_states``. The leg strokes are IK of the controller
-geometry, the ``geometry.*`` parameters shared with ``platform_sim``, so the calibrator's
-``apply_result`` (``platform_node_name: platform_bridge``) works unchanged.
-"""
+"""``platform_bridge`` node: the suite's platform protocol over ros2_control (docs/hardware.md)."""
 
 import numpy as np
 from builtin_interfaces.msg import Duration
@@ -187,9 +178,8 @@ class PlatformBridgeNode(Node):
             if name in changes:
                 setattr(self._monitor, attribute, float(changes[name]))
         if any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
-            self._geometry = controller_geometry(
-                {name: self.get_parameter(name).value for name in GEOMETRY_PARAMETER_NAMES}
-            )
+            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
+            self._geometry = controller_geometry(current)
             self.get_logger().info('controller geometry updated; applies from the next command')
 
     def _move(self, command_id, pose):

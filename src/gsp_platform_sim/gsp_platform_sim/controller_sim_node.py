@@ -1,11 +1,4 @@
-"""``controller_sim`` node: an emulated ros2_control hexapod for the bridge (docs/hardware.md).
-
-Plays what a real install has behind ``platform_bridge``: a ``joint_trajectory_controller``
-subscribing ``/<controller_name>/joint_trajectory`` (followed within ``max_leg_speed`` and
-``max_leg_acceleration``, :mod:`gsp_platform_sim.trajectory_follower`) and a ``joint_state_broadcaster`` publishing
-``/joint_states`` (with leg sensor noise). The hardware is built to ``true_geometry_file``: it
-publishes ``/gsp/platform/true_pose`` = FK(true geometry, legs) for the simulated device.
-"""
+"""``controller_sim`` node: an emulated ros2_control hexapod for the bridge (docs/hardware.md)."""
 
 import numpy as np
 from rclpy.node import Node

@@ -1,8 +1,5 @@
-"""``platform_sim``'s truth parameters of the real platform's effects (``effects.*``,
-docs/platform_effects.md): one :class:`ParameterSpec` per field of
-:class:`gsp_kinematics.model.effects.PlatformEffects`, read once at start-up. Their defaults
-switch every effect off (the rigid 44-parameter platform).
-"""
+"""``platform_sim``'s ``effects.*`` parameters: one per ``PlatformEffects`` field, read once at
+start-up; the defaults switch every effect off (docs/platform_effects.md)."""
 
 from gsp_kinematics.model.effects import FIELDS, EffectsError, PlatformEffects
 from gsp_msgs_py.parameter_specs import ParameterSpec, is_finite_number

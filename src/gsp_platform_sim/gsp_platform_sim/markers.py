@@ -1,8 +1,4 @@
-"""RViz view of the platform: polygon and line points (pure numpy) and the MarkerArray message.
-
-Drawn with the *controller* geometry at the *true* pose, so the markers never reveal the true
-geometry (which the simulator keeps private); the true pose is public on ``true_pose`` anyway.
-"""
+"""RViz view of the platform: polygon and line points (pure numpy) and the MarkerArray message."""
 
 import numpy as np
 from geometry_msgs.msg import Point
@@ -24,11 +20,7 @@ _MARKERS = (
 
 
 def platform_lines(geometry, pose):
-    """Points (m, base frame) of the drawing of ``geometry`` at ``pose`` (6,).
-
-    Returns ``{'base': (7, 3) closed polygon A_1..A_6 A_1, 'platform': (7, 3) closed polygon of
-    the B_i, 'legs': (12, 3) A_i/B_i pairs, 'device_link': (2, 3) base origin to platform origin}``.
-    """
+    """Points (m, base frame) of the drawing of ``geometry`` at ``pose`` (6,)."""
     pose = np.asarray(pose, dtype=float)
     rotation = euler_to_matrix(pose[3:])
     platform_joints = geometry.platform_joints @ rotation.T + pose[:3]

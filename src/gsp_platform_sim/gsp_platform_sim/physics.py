@@ -1,21 +1,5 @@
 """The platform on a physics engine (MuJoCo): servo-driven compliant legs, a ringing platform and a
 device whose inclinometer is an accelerometer (pure, no rclpy; docs/physics.md).
-
-:class:`PhysicsSimulator` has the interface of :class:`gsp_platform_sim.simulator.PlatformSimulator`
-that ``platform_sim`` uses, on the simulation clock (s) :meth:`PhysicsSimulator.advance` moves:
-
-* a command is vetted and turned into leg readings by a kinematic ``PlatformSimulator`` of the
-  same geometries (the same refusals: stroke, joint angles, singularity, no assembly); the servos
-  then follow a synchronised leg move (:class:`gsp_kinematics.model.motion.LegMove`) to them;
-* the leg readings are the servo encoders (the motor side: the legs' compression is not seen),
-  with the true leg gain errors ``(1 + kq) q``;
-* :attr:`PhysicsSimulator.in_position` is a real controller's "in position": the move is over
-  and every encoder has stayed within ``in_position_window`` of its target for
-  ``in_position_time``. The platform may still ring;
-* :meth:`PhysicsSimulator.device_readings` are the device's noise-free readings from the chain:
-  alpha and beta from the specific force the accelerometer on the link feels (gravity plus the
-  link's acceleration), phi the yaw (eq 2) of the encoder's body welded to the platform (the
-  paper's device keeps the encoder's outer yoke level: no Cardan twist), d_m the LVDT slide.
 """
 
 import math
@@ -42,13 +26,8 @@ START_UP_TIMEOUT_S = 10.0
 
 
 class PhysicsSimulator:
-    """The platform built to ``true_geometry`` driven by a controller using ``controller_geometry``.
-
-    ``params``: :class:`PhysicalParameters`; ``limits``: the servo moves'
-    :class:`MotionLimits` (an instantaneous one is replaced by ``MotionLimits()``: a servo does
-    not jump). ``leg_lengths_noise_std`` (m) and ``rng`` as in ``PlatformSimulator``. The
-    platform starts at rest at ``initial_pose`` (default ``home_pose()``) at time ``start_s``.
-    """
+    """The platform built to ``true_geometry`` driven by a controller using
+    ``controller_geometry``; ``leg_lengths_noise_std`` in m, starting at ``start_s`` (s)."""
 
     def __init__(
         self,
@@ -116,8 +95,6 @@ class PhysicsSimulator:
             + params.leg_rod_mass
             + (params.platform_mass + params.payload_mass) / 6.0
         )
-
-    # ------------------------------------------------------------------------ state
 
     @property
     def time_s(self):
@@ -213,8 +190,6 @@ class PhysicsSimulator:
         d_m = data.qpos[self._lvdt] + self._device_zero
         return np.array([float(alpha), float(beta), phi, d_m])
 
-    # ------------------------------------------------------------------------ simulation
-
     def _slide(self, readings):
         return readings * self._leg_gains + self._slide_offset
 
@@ -278,13 +253,7 @@ class PhysicsSimulator:
         return '' if ok[0] else f'the real platform cannot hold it: {reasons[0]}'
 
     def command(self, pose, now_s=None):
-        """Drive the platform to ``pose`` (6,) from the simulation's current time.
-
-        Refused (nothing changes, ``reason`` says why) as by ``PlatformSimulator.command``. The
-        outcome's ``true_pose`` is the rigid platform's pose at the legs' lengths; ``travel_s``
-        the servo move's duration. ``now_s`` is unused: a command starts when it arrives in
-        the simulation.
-        """
+        """Drive the platform to ``pose`` (6,) from the simulation's current time."""
         outcome = self._checker.command(pose, self.time_s)
         if not outcome.accepted:
             return outcome

@@ -1,22 +1,5 @@
-"""A MuJoCo closed-chain model of a Gough-Stewart platform and its measuring device (no rclpy).
-
-:func:`build_mjcf` writes the MJCF of the platform built to a :class:`gsp_kinematics.model.geometry.Geometry` (the true one) with
-the :class:`PhysicalParameters`. The model is built at the reference pose ``[0, 0, z, 0, 0, 0]``
-(each joint's zero); see docs/physics.md for the mechanism and how to describe one's own platform.
-
-* Leg i: base U joint at ``A_i`` (two hinges, the first in the base plane) on the housing (cylinder and motor), the servo's
-  slide (``leg_i_servo``, its position is what the motor encoder reads), the compliant leg as an
-  axial spring in series (``leg_i_spring``), the rod, closed on the platform at ``B_i`` by a
-  ``connect`` equality (a ball joint).
-* Platform: a free body (its mass and the payload's), origin at the pose's origin.
-* Device: the link's U joint at the base origin (hinge about the base y axis then about the link's
-  x axis: the link's frame is ``R_Y(beta) R_X(-alpha)``, eq 9 at gamma = pi/2), the LVDT's slide
-  along the link, a ball joint at the top welded to the platform. The inclinometer is an
-  accelerometer on the link (site ``inclinometer``).
-
-Stiff springs and servos are integrated explicitly: keep ``sqrt(k / m) * timestep`` below ~0.9
-on the bodies a spring joins (the rod's mass against the leg stiffness).
-"""
+"""A MuJoCo closed-chain model of a Gough-Stewart platform and its measuring device (no rclpy;
+docs/physics.md). Explicit integration: keep ``sqrt(k / m) * timestep`` below ~0.9."""
 
 import dataclasses
 import math
@@ -58,11 +41,7 @@ FIELD_DOCS = {
 
 @dataclasses.dataclass(frozen=True)
 class PhysicalParameters:
-    """Masses (kg), stiffness (N/m), servo gains and damping of the simulated platform.
-
-    Defaults describe a 1.5 m hexapod with ball-screw legs (docs/physics.md). ``leg_stiffness``
-    ``math.inf`` makes the legs rigid (no spring joint); ``gravity`` False removes the load.
-    """
+    """Masses (kg), stiffness (N/m), servo gains and damping of the simulated platform."""
 
     platform_mass: float = 40.0
     platform_inertia: tuple = (6.4, 6.4, 12.8)  # a 0.8 m radius plate of 40 kg
@@ -196,11 +175,8 @@ def _device(link_length, params):
 
 
 def build_mjcf(geometry, params, reference_height):
-    """MJCF text of the platform ``geometry`` built at the pose ``[0, 0, reference_height, 0, 0, 0]``.
-
-    Every joint is at its zero there: leg i's servo slide at 0 means the leg is ``|B_i - A_i|``
-    long at that pose (``gsp_platform_sim.physics`` maps the encoders onto q).
-    """
+    """MJCF text of the platform ``geometry`` built at the pose ``[0, 0, reference_height, 0, 0,
+    0]``, where every joint is at its zero."""
     platform_origin = np.array([0.0, 0.0, float(reference_height)])
     points = geometry.platform_joints + platform_origin
     legs = ''.join(_leg(i, geometry.base_joints[i], points[i], params) for i in range(len(points)))

@@ -1,6 +1,5 @@
-"""``platform_sim``'s parameters of the physics backend (``physics.*``, docs/physics.md): one
-:class:`ParameterSpec` per field of :class:`gsp_platform_sim.physics_model.PhysicalParameters`
-and the controller's in-position rule, read once at start-up."""
+"""``platform_sim``'s ``physics.*`` parameters (``PhysicalParameters`` and the in-position rule),
+read once at start-up (docs/physics.md)."""
 
 import dataclasses
 

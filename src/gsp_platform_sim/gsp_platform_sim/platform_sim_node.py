@@ -1,14 +1,4 @@
-"""``platform_sim`` node: a simulated Gough-Stewart platform (see docs/nodes.md).
-
-Subscribes ``/gsp/platform/pose_command``; publishes ``/gsp/platform/leg_lengths`` and
-``/gsp/platform/true_pose`` (one timer, one stamp), ``/gsp/platform/status`` (moving -> settled,
-or rejected with the reason: :mod:`gsp_msgs_py.pose_commands`) and ``/gsp/platform/markers``.
-The controller geometry is the ``geometry.*`` parameters (changeable at run time); the true
-geometry is read once from ``true_geometry_file`` and never published. The logic is in
-:mod:`gsp_platform_sim.simulator` (``backend`` ``kinematic``) or :mod:`gsp_platform_sim.physics`
-(``physics``: MuJoCo, docs/physics.md; it also publishes ``/gsp/platform/device_truth``, and a
-command settles when the servo encoders are in position).
-"""
+"""``platform_sim`` node: a simulated Gough-Stewart platform (see docs/nodes.md)."""
 
 import numpy as np
 from rclpy.clock import Clock, ClockType
@@ -17,18 +7,14 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMessage
 
 from gsp_kinematics.channels import LEG_LENGTHS
-from gsp_kinematics.model.geometry import (
-    GeometryError,
-    default_geometry_path,
-    geometry_from_parameters,
-    load_geometry,
-)
+from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_kinematics.model.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.geometry_parameters import (
     CONTROLLER_GEOMETRY_SPECS,
     GEOMETRY_PARAMETER_NAMES,
+    controller_geometry,
     controller_geometry_error,
     validate_geometry_change,
 )
@@ -123,15 +109,12 @@ class PlatformSimNode(Node):
             true_geometry = load_geometry(values['true_geometry_file'])
         except GeometryError as error:
             raise parameter_specs.ConfigurationError(f'true_geometry_file: {error}') from None
-        controller_geometry = geometry_from_parameters(
-            {name: values[name] for name in GEOMETRY_PARAMETER_NAMES}
-        )
         seed = parameter_specs.resolve_seed(values['seed'])
         self._physics = values['backend'] == 'physics'
         try:
             effects = effects_from_values(values)
             self._simulator = self._make_simulator(
-                values, true_geometry, controller_geometry, effects, seed
+                values, true_geometry, controller_geometry(values), effects, seed
             )
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
@@ -179,7 +162,8 @@ class PlatformSimNode(Node):
             self.create_timer(1.0 / MARKER_RATE_HZ, self._publish_markers)
 
         self.get_logger().info(
-            f'platform_sim ready ({values["backend"]} backend): true geometry from {values["true_geometry_file"]}, '
+            f'platform_sim ready ({values["backend"]} backend): '
+            f'true geometry from {values["true_geometry_file"]}, '
             f'publishing at {values["publish_rate"]:g} Hz, '
             f'leg noise {values["leg_lengths_noise_std"]:g} m, '
             f'settle time {values["settle_time"]:g} s, leg limits '
@@ -188,7 +172,7 @@ class PlatformSimNode(Node):
             f'home pose {self._simulator.true_pose.round(6).tolist()}; {effects_summary(effects)}'
         )
 
-    def _make_simulator(self, values, true_geometry, controller_geometry, effects, seed):
+    def _make_simulator(self, values, true_geometry, controller, effects, seed):
         common = dict(
             leg_lengths_noise_std=values['leg_lengths_noise_std'],
             rng=np.random.default_rng([seed, RNG_STREAM]),
@@ -199,13 +183,13 @@ class PlatformSimNode(Node):
             start_s=self._now_s(),
         )
         if not self._physics:
-            return PlatformSimulator(true_geometry, controller_geometry, effects=effects, **common)
+            return PlatformSimulator(true_geometry, controller, effects=effects, **common)
         if not effects.ideal:
             raise ValueError('effects.* are for the kinematic backend: the physics makes its own')
         params, window, hold = physics_from_values(values)
         return PhysicsSimulator(
             true_geometry,
-            controller_geometry,
+            controller,
             params,
             in_position_window=window,
             in_position_time=hold,
@@ -228,11 +212,8 @@ class PlatformSimNode(Node):
             )
         changed = sorted(name for name in changes if name in GEOMETRY_PARAMETER_NAMES)
         if changed:
-            self._simulator.set_controller_geometry(
-                geometry_from_parameters(
-                    {name: self.get_parameter(name).value for name in GEOMETRY_PARAMETER_NAMES}
-                )
-            )
+            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
+            self._simulator.set_controller_geometry(controller_geometry(current))
             self.get_logger().info(
                 f'controller geometry updated ({", ".join(changed)}); applies from the next '
                 'pose command'
@@ -249,8 +230,6 @@ class PlatformSimNode(Node):
 
     def _now_s(self):
         return self.get_clock().now().nanoseconds * 1e-9
-
-    # ------------------------------------------------------------------------ publishing
 
     def _publish_state(self):
         # Stamped at the timer's scheduled tick, as a sensor sampling on its own clock: the

@@ -1,29 +1,5 @@
-"""Simulated Gough-Stewart platform (pure numpy, no rclpy).
-
-The controller knows only its (nominal or calibrated) *controller geometry*: for a commanded pose it
-computes the articular variables ``q = IK(controller, pose)`` and drives the legs there. The real
-platform, built to the *true geometry*, then sits at ``FK(true, q)``. The difference between the
-commanded and the real pose is what calibration removes.
-
-Leg sensors with gain errors (``geometry.sensors.leg_gain_errors``, docs/sensor_errors.md): the
-controller drives each leg until its sensor reads ``q = IK(controller, pose) / (1 + kq_controller)``;
-the real articular variable is then ``(1 + kq_true) q``, and the published reading is ``q``.
-
-Motion (docs/planning.md): with :class:`gsp_kinematics.model.motion.MotionLimits`, an accepted command
-starts a synchronised leg move from where the legs are (:class:`gsp_kinematics.model.motion.LegMove`);
-:meth:`PlatformSimulator.update` advances it. While it moves, the real pose is interpolated
-between the start and the end poses at the legs' common fraction (FK of the legs at every tick
-would cost more than the readings are worth: the collection uses none taken before the settle).
-Without limits the platform jumps.
-
-Effects (:class:`gsp_kinematics.model.effects.PlatformEffects`, docs/platform_effects.md): the
-real platform may bend under its load, have backlash, grow with temperature and have offset
-joint axes. Its real pose then comes from :func:`gsp_kinematics.model.real_pose.real_poses`
-with each leg's approach direction (from its previous reading) and the time since ``start_s``;
-at rest the pose follows the thermal growth (:meth:`PlatformSimulator.update`). The leg readings
-stay what the actuators read. A controller geometry with identified effects compensates them
-(:func:`gsp_kinematics.model.effect_groups.commanded_leg_readings`).
-"""
+"""Simulated Gough-Stewart platform (pure numpy, no rclpy): the controller drives the legs to
+``IK(controller, pose)``; the real platform sits at ``FK(true, q)`` (docs/platform_effects.md)."""
 
 import dataclasses
 
@@ -46,12 +22,8 @@ THERMAL_RESOLVE_M = 1e-10
 
 @dataclasses.dataclass(frozen=True)
 class CommandOutcome:
-    """Result of :meth:`PlatformSimulator.command`.
-
-    ``commanded_leg_lengths`` is q (6,) in m, or None when rejected; ``true_pose`` (6,) is where the
-    real platform is once the command is carried out (unchanged when rejected); ``travel_s`` the
-    time (s) the legs take to get there (0 without motion limits).
-    """
+    """Result of :meth:`PlatformSimulator.command`: q (6,) m or None when rejected, the real
+    pose once carried out and ``travel_s`` (s)."""
 
     accepted: bool
     reason: str
@@ -68,14 +40,8 @@ def _check_noise_std(value, name):
 
 
 class PlatformSimulator:
-    """A platform whose controller uses ``controller_geometry`` and whose hardware is ``true_geometry``.
-
-    ``leg_lengths_noise_std`` (m) is the standard deviation of the Gaussian noise of the leg length
-    sensors; ``rng`` a ``numpy.random.Generator``. The platform starts at ``home_pose()``, reached
-    through :meth:`command`; ValueError if the home pose is not reachable. ``limits``: the legs'
-    :class:`gsp_kinematics.model.motion.MotionLimits` (None: the platform jumps to each command).
-    ``effects``: the real platform's :class:`PlatformEffects` (None: none); ``start_s`` the time
-    (s, the clock of :meth:`command`) at which its legs start warming up.
+    """A platform whose controller uses ``controller_geometry`` and whose hardware is
+    ``true_geometry``; ``leg_lengths_noise_std`` in m, ``start_s`` when the legs start warming (s).
     """
 
     def __init__(
@@ -110,8 +76,6 @@ class PlatformSimulator:
             raise ValueError(
                 f'cannot reach the initial pose {np.asarray(start).tolist()}: {outcome.reason}'
             )
-
-    # ------------------------------------------------------------------------ configuration
 
     @property
     def true_geometry(self):
@@ -150,8 +114,6 @@ class PlatformSimulator:
         if not (np.isfinite(value) and value >= 1.0):
             raise ValueError(f'max_condition must be finite and >= 1, got {value}')
         self._max_condition = value
-
-    # ------------------------------------------------------------------------------ state
 
     @property
     def moving(self):
@@ -215,20 +177,14 @@ class PlatformSimulator:
         """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_lengths_noise_std`` (m)."""
         return self._leg_lengths + self._rng.normal(0.0, self._leg_lengths_noise_std, size=6)
 
-    # ----------------------------------------------------------------------------- command
-
     def _reject(self, reason):
         return CommandOutcome(
             False, reason, None, None if self._true_pose is None else self._true_pose.copy()
         )
 
     def command(self, pose, now_s=0.0):
-        """Drive the platform to ``pose`` (6,) as the controller understands it, from ``now_s`` (s).
-
-        Rejected (platform unchanged, ``reason`` says why) if the pose is not six finite numbers,
-        is unreachable for the controller geometry (leg stroke, joint angles, singularity), or the
-        real platform has no forward kinematics solution near the pose for those leg lengths.
-        """
+        """Drive the platform to ``pose`` (6,) as the controller understands it, from ``now_s`` (s);
+        a refusal leaves it unchanged, ``reason`` says why."""
         pose = np.asarray(pose, dtype=float)
         if pose.shape != (6,):
             return self._reject(f'pose must be [x, y, z, psi, theta, phi], got shape {pose.shape}')

@@ -1,11 +1,4 @@
-"""An emulated joint_trajectory_controller for six prismatic legs (pure numpy, no rclpy).
-
-A trajectory is a list of points ``(time_from_start s, positions (6,) m)``. From the positions
-it holds when the trajectory arrives, :class:`TrajectoryFollower` moves to each point in turn,
-arriving at its time, by synchronised leg moves of :mod:`gsp_kinematics.model.motion` (the model
-``platform_sim`` uses): a point asked for sooner than the legs' speed and acceleration limits
-allow is reached late, as a real axis at its limits would.
-"""
+"""An emulated joint_trajectory_controller for six prismatic legs (pure numpy, no rclpy)."""
 
 import numpy as np
 
@@ -27,11 +20,7 @@ class TrajectoryFollower:
         return bool(self._points)
 
     def set_trajectory(self, points, now_s):
-        """Replace the trajectory: ``points`` ``[(time_from_start, positions)]`` from ``now_s``.
-
-        ValueError (nothing changes) when a point has not 6 finite positions or the times
-        do not increase.
-        """
+        """Replace the trajectory: ``points`` ``[(time_from_start, positions)]`` from ``now_s``."""
         targets, previous = [], -np.inf
         for time_from_start, positions in points:
             positions = np.asarray(positions, dtype=float)

@@ -1,17 +1,4 @@
-"""``gsp_check_interfaces``: does a driver honour the suite's interface contract? (docs/hardware.md)
-
-    gsp_check_interfaces [--duration S] [--send-test-command] [--min-rate HZ]
-
-Listens to the sensor topics for ``--duration`` seconds (the platform should stand still) and
-checks rates, joint names, units, non-finite values, the static noise level, the delay from stamp
-to receipt, that the device's three readings of one instant share one stamp, and that every
-publisher's type and QoS match the suite's. It also listens to ``/diagnostics``: it prints each
-status heard (level, message, number of keys), and counts as a problem a suite node in the
-graph for two ``--diagnostics-period`` without a status, and a status at ERROR.
-With ``--send-test-command`` it also commands the home pose (the platform MOVES) and expects
-``/gsp/platform/status`` to answer it. Prints each problem; exits 0 when there is none, 1
-otherwise (2 on bad arguments).
-"""
+"""``gsp_check_interfaces``: does a driver honour the suite's interface contract? (docs/hardware.md)"""
 
 import argparse
 import sys
@@ -33,11 +20,7 @@ NODE_NAME = 'gsp_check_interfaces'
 
 
 class PoseCommandProbe:
-    """Commands poses on ``node`` and collects the platform's status answers to them.
-
-    Subscribes ``/gsp/platform/status`` and advertises ``/gsp/platform/pose_command`` with the
-    suite's QoS; :meth:`send` returns the command id the answers carry.
-    """
+    """Commands poses on ``node`` and collects the platform's status answers to them."""
 
     def __init__(self, node):
         from diagnostic_msgs.msg import DiagnosticStatus
@@ -124,7 +107,7 @@ class InterfaceChecker:
                 lambda msg, t=topic: self._on_joint_state(t, msg),
                 qos.TOPIC_QOS[topic],
             )
-        self._probe = None
+        self.probe = None  #: a PoseCommandProbe once the test command is prepared
         self.command_id = None
 
     def _now_s(self):
@@ -141,32 +124,12 @@ class InterfaceChecker:
                 )
             )
 
-    # ---------------------------------------------------------------- test command
-
-    def prepare_test_command(self):
-        """Subscribe the status topic and advertise pose commands (before :meth:`send`)."""
-        self._probe = PoseCommandProbe(self.node)
-
-    def command_listened(self):
-        return self._probe.listened()
-
-    def send_test_command(self, pose):
-        self.command_id = self._probe.send(pose)
-
-    def _answers(self):
-        """The parsed statuses of the test command, in order (unparsable ones skipped)."""
-        return self._probe.answers(self.command_id)
-
-    def final_status(self):
-        """The parsed settled/rejected status of the test command, or None."""
-        return self._probe.final_status(self.command_id)
-
     def status_problems(self):
-        if not self.command_listened():
+        if not self.probe.listened():
             return [f'{names.TOPIC_POSE_COMMAND}: nobody subscribes to pose commands']
-        status = self.final_status()
+        status = self.probe.final_status(self.command_id)
         if status is None:
-            answered = bool(self._answers())
+            answered = bool(self.probe.answers(self.command_id))
             return [
                 f'{names.TOPIC_PLATFORM_STATUS}: the test command {self.command_id} was '
                 + ('never settled or rejected' if answered else 'not answered')
@@ -176,8 +139,6 @@ class InterfaceChecker:
                 f'{names.TOPIC_PLATFORM_STATUS}: the test command was rejected: {status.reason}'
             ]
         return []
-
-    # -------------------------------------------------------------------- verdicts
 
     def qos_problems(self):
         """Publishers of the sensor topics with another type or an incompatible QoS."""
@@ -249,7 +210,7 @@ def run_check(node, executor, args):
     checker = InterfaceChecker(node, Limits(min_rate_hz=args.min_rate))
     diagnostics = DiagnosticsListener(node)
     if args.send_test_command:
-        checker.prepare_test_command()
+        checker.probe = PoseCommandProbe(node)
     nodes = NodesSeen(node)
     deadline = time.monotonic() + args.duration
 
@@ -267,10 +228,12 @@ def run_check(node, executor, args):
     if args.send_test_command:
         from gsp_kinematics.model.kinematics import home_pose
 
-        spin_until(executor, checker.command_listened, args.command_timeout)
-        if checker.command_listened():
-            checker.send_test_command(home_pose())
-            spin_until(executor, lambda: checker.final_status() is not None, args.command_timeout)
+        probe = checker.probe
+        spin_until(executor, probe.listened, args.command_timeout)
+        if probe.listened():
+            checker.command_id = probe.send(home_pose())
+            settled = lambda: probe.final_status(checker.command_id) is not None  # noqa: E731
+            spin_until(executor, settled, args.command_timeout)
         problems += checker.status_problems()
     lines = checker.summary_lines() + [f'  {names.TOPIC_DIAGNOSTICS}:']
     heard = diagnostics_summary(diagnostics.reports, seen_for_s, grace_s)

@@ -1,11 +1,4 @@
-"""The conformance rules of the suite's sensor topics, applied to recorded messages (pure).
-
-``gsp_check_interfaces`` records what a driver publishes and hands it here: each JointState
-topic as a list of :class:`Received` (receive time and stamp in s of one clock, names, values).
-:func:`validate_topics` returns the problems, each a sentence naming the topic and what is wrong,
-and :func:`topic_summary` the figures shown for each topic. Rules: docs/hardware.md. The
-statuses heard on ``/diagnostics`` are judged by :func:`validate_diagnostics`.
-"""
+"""The conformance rules of the suite's sensor topics, applied to recorded messages (pure)."""
 
 import dataclasses
 import math
