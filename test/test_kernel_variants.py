@@ -2,6 +2,8 @@
 
 import importlib.machinery
 import importlib.util
+import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -32,8 +34,32 @@ def test_a_core_the_cpu_executes_is_forced_and_checked(kernels, core):
     if not set(kernels.OPENBLAS_CORES[core]) <= flags:
         pytest.skip(f'this CPU cannot execute the OpenBLAS {core} kernels')
     settings, reason = kernels.openblas_variant(core, flags)
-    # None only for a BLAS that is not OpenBLAS with dynamic kernels: then it says so.
-    assert settings == {'OPENBLAS_CORETYPE': core} or 'no OpenBLAS core' in reason
+    # None for the core OpenBLAS picks here anyway, or for a BLAS that is not OpenBLAS with
+    # dynamic kernels: then it says so.
+    default = kernels._probe(kernels._BLAS_PROBE, os.environ | {'OPENBLAS_VERBOSE': '2'})
+    if f'Core: {core}' in default.stdout + default.stderr:
+        assert settings is None and f'runs {core} here anyway' in reason
+    else:
+        assert settings == {'OPENBLAS_CORETYPE': core} or 'no OpenBLAS core' in reason
+
+
+def test_only_the_kernel_sensitive_tests_run_under_the_variants(kernels, monkeypatch):
+    """Every test not listed as insensitive (with its reason) runs under a variant."""
+    commands = []
+
+    def run(command, **kwargs):
+        commands.append(command)
+        return subprocess.CompletedProcess(command, 0, '', '')
+
+    monkeypatch.setattr(kernels.subprocess, 'run', run)
+    for package, listed in kernels.NOT_KERNEL_SENSITIVE.items():
+        assert kernels.run_package(package, {})[0]
+        assert {f'--deselect={node}' for node in listed} <= set(commands[-1])
+        assert all(reason for reason in listed.values())
+        folder = WS / kernels.PACKAGES[package][0]
+        for node in listed:  # a renamed test would run again: keep the list in step
+            path, _, name = node.partition('::')
+            assert (folder / path).is_file() and f'def {name}' in (folder / path).read_text()
 
 
 def test_the_numpy_variant_disables_every_avx512_loop_or_says_there_is_none(kernels):
