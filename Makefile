@@ -61,10 +61,11 @@ build: venv
 # which colcon accepts); colcon test-result fails on any failed or errored test (it reads every
 # junit file under build/); pytest test/ gives its own closing line.
 # The test sessions run side by side, each in a ROS domain of its own (claimed through
-# domain_coordinator): the kernel variants, pytest test/, gsp_calibrator's full-length system
-# tests (GSP_TEST_SHARD=systems, src/gsp_calibrator/test/conftest.py) and colcon test of every
-# package with the rest of gsp_calibrator's. Their tests mostly wait on the nodes' streams, so
-# on 2 cores they overlap; each stage's output is printed whole when it ends. With a given
+# domain_coordinator): the kernel variants then pytest bench/test, pytest test/,
+# gsp_calibrator's full-length system tests (GSP_TEST_SHARD=systems,
+# src/gsp_calibrator/test/conftest.py) and colcon test of every package, two at a time, with the
+# rest of gsp_calibrator's. Their tests mostly wait on the nodes' streams, so on 2 cores they
+# overlap; each stage's output is printed whole when it ends. With a given
 # ROS_DOMAIN_ID the sessions would share it, so they run one after the other.
 COLCON_TEST = $(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
   --event-handlers console_direct+
@@ -75,12 +76,14 @@ test: build
 	  { echo "not formatted: run 'make format'" >&2; exit 1; }
 	rm -rf log/stages build/systems && mkdir -p log/stages
 	status=0; \
-	{ $(TEST_KERNELS); } > log/stages/test-kernels.log 2>&1 & kernels=$$!; \
-	{ $(ENV_SH) && python -m pytest test bench/test; } > log/stages/pytest-test.log 2>&1 & root=$$!; \
+	{ $(TEST_KERNELS) && $(ENV_SH) && python -m pytest bench/test; } \
+	  > log/stages/test-kernels.log 2>&1 & kernels=$$!; \
+	{ $(ENV_SH) && python -m pytest test; } > log/stages/pytest-test.log 2>&1 & root=$$!; \
 	GSP_TEST_SHARD=systems $(COLCON) --log-base log/stages/systems test --base-paths src \
 	  --packages-select gsp_calibrator --test-result-base build/systems $(COLCON_EVENTS) \
 	  --event-handlers console_direct+ > log/stages/systems.log 2>&1 & systems=$$!; \
-	GSP_TEST_SHARD=rest $(COLCON_TEST) || status=1; \
+	GSP_TEST_SHARD=rest $(COLCON) test --base-paths src --executor parallel --parallel-workers 2 \
+	  $(COLCON_EVENTS) --event-handlers console_cohesion+ || status=1; \
 	wait $$systems || status=1; cat log/stages/systems.log; \
 	$(COLCON) test-result --test-result-base build --verbose || status=1; \
 	wait $$kernels || status=1; cat log/stages/test-kernels.log; \
