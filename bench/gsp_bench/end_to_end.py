@@ -31,6 +31,7 @@ from pathlib import Path
 
 from gsp_calibrator.files.run_directory import SAMPLES_FILE, SUMMARY_FILE
 from gsp_calibrator.report.write import RESULT_JSON
+from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_msgs_py.ros_environment import loopback_environment
 
@@ -295,7 +296,7 @@ def core_alone_validation(postures, validation_postures, seeds=5, seed=0):
 
     true, nominal = default_geometry('true'), default_geometry('nominal')
     averaged = DEFAULT_SENSOR_NOISE.averaged(np.full(postures, PAIRS_PER_POSTURE))
-    poses = choose_postures(nominal, postures, 600, seed, averaged).poses
+    poses = choose_postures(nominal, postures, DEFAULTS['pool_size'], seed, averaged).poses
     # As in the node suite: the controller drives the legs to the nominal IK's sensor readings,
     # the real platform settles at FK of its true articular variables (postures it cannot reach
     # are skipped) and the real device reads it with its own sensor errors.

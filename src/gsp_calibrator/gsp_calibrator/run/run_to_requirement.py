@@ -21,14 +21,14 @@ from gsp_kinematics.model.kinematics import (
     home_pose,
     pose_from_leg_readings,
 )
-from gsp_kinematics.model.motion import posture_leg_lengths
+from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ, posture_leg_lengths
 from gsp_kinematics.upkeep import stopping
 
 
 def rule_for(settings):
     """The :class:`gsp_kinematics.upkeep.stopping.StoppingRule` of a run's ``CalibratorSettings``:
     the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
-    ``stop_every`` and ``stop_max_added``; the dwell of ``pairs_per_posture`` at 200 Hz and a
+    ``stop_every`` and ``stop_max_added``; the dwell of ``pairs_per_posture`` at the default sensor rate and a
     0.5 s settle allowance."""
     return stopping.StoppingRule(
         required_position_mm=settings.required_position_accuracy_mm,
@@ -37,7 +37,7 @@ def rule_for(settings):
         minimum_postures=settings.stop_minimum_postures,
         every=settings.stop_every,
         max_added=settings.stop_max_added,
-        dwell_s=0.5 + settings.pairs_per_posture / 200.0,
+        dwell_s=0.5 + settings.pairs_per_posture / DEFAULT_SENSOR_RATE_HZ,
     )
 
 
