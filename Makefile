@@ -61,12 +61,10 @@ build: venv
 # which colcon accepts); colcon test-result fails on any failed or errored test (it reads every
 # junit file under build/); pytest test/ gives its own closing line.
 # The test sessions run side by side, each in a ROS domain of its own (claimed through
-# domain_coordinator): the kernel variants then pytest bench/test, pytest test/,
-# gsp_calibrator's full-length system tests (GSP_TEST_SHARD=systems,
-# src/gsp_calibrator/test/conftest.py), the rest of gsp_calibrator's, and colcon test of the
-# other packages (colcon would otherwise hold gsp_calibrator back until its dependencies' tests
-# end). Their tests mostly wait on the nodes' streams, so on 2 cores they
-# overlap; each stage's output is printed whole when it ends. With a given
+# domain_coordinator): the kernel variants, pytest test/, gsp_calibrator's full-length system
+# tests (GSP_TEST_SHARD=systems, src/gsp_calibrator/test/conftest.py) and colcon test of every
+# package with the rest of gsp_calibrator's. Their tests mostly wait on the nodes' streams, so
+# on 2 cores they overlap; each stage's output is printed whole when it ends. With a given
 # ROS_DOMAIN_ID the sessions would share it, so they run one after the other.
 COLCON_TEST = $(COLCON) test --base-paths src --executor sequential $(COLCON_EVENTS) \
   --event-handlers console_direct+
@@ -77,17 +75,12 @@ test: build
 	  { echo "not formatted: run 'make format'" >&2; exit 1; }
 	rm -rf log/stages build/systems && mkdir -p log/stages
 	status=0; \
-	{ $(TEST_KERNELS) && $(ENV_SH) && python -m pytest bench/test; } \
-	  > log/stages/test-kernels.log 2>&1 & kernels=$$!; \
-	{ $(ENV_SH) && python -m pytest test; } > log/stages/pytest-test.log 2>&1 & root=$$!; \
+	{ $(TEST_KERNELS); } > log/stages/test-kernels.log 2>&1 & kernels=$$!; \
+	{ $(ENV_SH) && python -m pytest test bench/test; } > log/stages/pytest-test.log 2>&1 & root=$$!; \
 	GSP_TEST_SHARD=systems $(COLCON) --log-base log/stages/systems test --base-paths src \
 	  --packages-select gsp_calibrator --test-result-base build/systems $(COLCON_EVENTS) \
 	  --event-handlers console_direct+ > log/stages/systems.log 2>&1 & systems=$$!; \
-	GSP_TEST_SHARD=rest $(COLCON) --log-base log/stages/calibrator test --base-paths src \
-	  --packages-select gsp_calibrator $(COLCON_EVENTS) --event-handlers console_direct+ \
-	  > log/stages/calibrator.log 2>&1 & calibrator=$$!; \
-	$(COLCON_TEST) --packages-skip gsp_calibrator || status=1; \
-	wait $$calibrator || status=1; cat log/stages/calibrator.log; \
+	GSP_TEST_SHARD=rest $(COLCON_TEST) || status=1; \
 	wait $$systems || status=1; cat log/stages/systems.log; \
 	$(COLCON) test-result --test-result-base build --verbose || status=1; \
 	wait $$kernels || status=1; cat log/stages/test-kernels.log; \
