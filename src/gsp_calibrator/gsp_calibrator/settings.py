@@ -233,6 +233,14 @@ PARAMETERS = (
         'an error naming it',
         unit='s',
     ),
+    _positive(
+        'startup_timeout',
+        10.0,
+        'Longest wait, as a run starts, for platform_sim to listen and publish its status and '
+        'for each sensor topic to speak: nodes started with the calibrator (a launch file) '
+        'may still be discovering each other',
+        unit='s',
+    ),
     ParameterSpec(
         'seed',
         0,

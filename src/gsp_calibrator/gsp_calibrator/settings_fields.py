@@ -25,6 +25,7 @@ class ParameterFields:
     rest_lookback: float
     rest_sigmas: float
     topic_timeout: float
+    startup_timeout: float
     seed: int
     free_parameters: tuple[str, ...]
     payload_mass: float

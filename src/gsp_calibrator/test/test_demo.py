@@ -107,11 +107,22 @@ def test_the_realistic_platform_preset_sets_platform_sim_effects(tmp_path):
         ['--sensor-rate', '0'],
         ['--settle-time', '-1'],
         ['--platform-effects', 'realistic', '--platform', 'ros2_control'],
+        ['--calibrator-param', 'rest_sigmas=inf'],
+        ['--calibrator-param', 'no_such_parameter:=1'],
     ],
 )
 def test_bad_arguments_are_rejected(argv):
     with pytest.raises(SystemExit):
         demo.parse_arguments(argv)
+
+
+def test_calibrator_params_come_last_so_they_win(tmp_path):
+    argv = ['--calibrator-param', 'rest_sigmas:=.inf', '--calibrator-param', 'seed:=7']
+    calibrator = demo_commands.node_commands(demo.parse_arguments(argv), str(tmp_path), str)
+    calibrator = calibrator['calibrator']
+    assert calibrator[-4:] == ['-p', 'rest_sigmas:=.inf', '-p', 'seed:=7']
+    # The demo's own seed is given too, earlier: ROS takes the last '-p' of a name.
+    assert calibrator.index('seed:=0') < calibrator.index('seed:=7')
 
 
 def test_validation_summary_ignores_rejected_postures():

@@ -104,9 +104,10 @@ class FakePlatform:
 class FakeHost:
     """A plain Python :class:`RunHost` around a :class:`FakePlatform` (no rclpy)."""
 
-    def __init__(self, streams_hz=None, **platform):
+    def __init__(self, streams_hz=None, status_after_s=0.0, **platform):
         """``streams_hz``: the streams also speak at this rate while the run waits (a round of
-        messages per period, up to the wait's timeout); None: only once, before the run."""
+        messages per period, up to the wait's timeout); None: only once, before the run.
+        ``status_after_s``: the platform's status publisher appears at this stream time (s)."""
         self.platform = FakePlatform(**platform)
         self.truth = self.platform.truth
         self.recorder = FakeRecorder()
@@ -150,7 +151,7 @@ class FakeHost:
             log=logging.getLogger('test_run_flow'),
             command_publishers=lambda: [],
             command_subscribers=lambda: 1,
-            status_publishers=lambda: 1,
+            status_publishers=lambda: int(self.stamp_s >= status_after_s),
             recorder=self.recorder,
             postures=self.postures,
             wait_for=wait_for,
@@ -429,6 +430,21 @@ def test_the_route_is_timed_at_the_rate_the_streams_are_heard_at(tmp_path):
     assert additions['sample_rate_hz'] == pytest.approx(50.0, rel=1e-6)
     assert 'samples at 50 Hz' in message
     assert _state(host.record.directory.path)['route_additions'] == additions
+
+
+def test_a_platform_still_starting_is_waited_for_up_to_the_startup_timeout(tmp_path):
+    """platform_sim started with the calibrator publishes its status 5 s (stream time) after
+    the run starts, past topic_timeout (2 s) but within startup_timeout (10 s): the run goes on;
+    one that takes 12 s fails naming the topic and the timeout."""
+    settings = _settings(tmp_path, topic_timeout=2.0, startup_timeout=10.0)
+    host = FakeHost(streams_hz=50.0, status_after_s=5.0)
+    success, message = host.serve(settings)
+    assert success, message
+    late = FakeHost(streams_hz=50.0, status_after_s=12.0)
+    success, message = late.serve(_settings(tmp_path / 'late', startup_timeout=10.0))
+    assert not success
+    assert f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no publisher within 10 s' in message
+    assert late.platform.commands == 0
 
 
 def test_a_topic_never_heard_fails_the_run_naming_it_with_the_route_kept(tmp_path):

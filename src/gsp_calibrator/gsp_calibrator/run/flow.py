@@ -201,14 +201,14 @@ class CalibrationRun:
 
     async def _wait_for_system(self):
         """Wait until platform_sim listens to commands and every sensor topic has spoken
-        (``topic_timeout`` each), then, for a new run with additions for the effects, until
+        (``startup_timeout`` each: peers may be starting), then, for a new run with additions for the effects, until
         every stream has given :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS`
         stamps, its rate measured (at most ``topic_timeout``; else the route is timed at
         gsp_plan's rate). The message of the first check that timed out ('' when none did)."""
         settings, host, collection = self.settings, self.host, self.collection
-        timeout = settings.topic_timeout
+        startup, timeout = settings.startup_timeout, settings.topic_timeout
         failure = await first_timeout(
-            host.wait_for, timeout, system_checks(host, collection.heard, timeout)
+            host.wait_for, startup, system_checks(host, collection.heard, startup)
         )
         new_route = self.record.state is None
         if new_route and postures.route_effect_groups(settings.free_parameters) and not failure:

@@ -16,7 +16,12 @@ import numpy as np
 
 from gsp_calibrator.files.run_directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
-from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
+from gsp_calibrator.settings import (
+    DEFAULTS,
+    PARAMETER_SPECS,
+    add_run_options,
+    run_options_error,
+)
 from gsp_calibrator.tools.demo_commands import (
     MOVING_SETTLE_TIMEOUT_S,
     NODES,
@@ -135,6 +140,15 @@ def parse_arguments(argv=None):
         choices=('sim', 'serial'),
         help="sim: device_driver's sim backend; serial: gsp_fake_device on a pty (sim)",
     )
+    add(
+        '--calibrator-param',
+        action='append',
+        default=[],
+        metavar='NAME:=VALUE',
+        help="one of the calibrator's parameters (docs/parameters.md#calibrator), as ros2 run's "
+        "'-p NAME:=VALUE', after the demo's own (repeatable; e.g. rest_sigmas:=.inf turns the "
+        'rest rule off)',
+    )
     args = parser.parse_args(argv)
     _check_arguments(parser, args)
     return args
@@ -181,6 +195,13 @@ def _check_arguments(parser, args):
         # A servo does not jump: the realistic leg limits, known to the calibrator's plan.
         args.max_leg_speed = args.max_leg_speed or REALISTIC_MAX_SPEED
         args.max_leg_acceleration = args.max_leg_acceleration or REALISTIC_MAX_ACCELERATION
+    for assignment in args.calibrator_param:
+        name, separator, _ = assignment.partition(':=')
+        if not separator or name not in PARAMETER_SPECS:
+            parser.error(
+                f'--calibrator-param {assignment!r}: give NAME:=VALUE with NAME one of the '
+                "calibrator's parameters (docs/parameters.md#calibrator)"
+            )
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 

@@ -249,6 +249,8 @@ def _calibrator_parameters(args, output_root, rate):
         *calibrator_motion_parameters(args),
         *calibrator_payload_parameters(args),
         *sim_time_parameters(args),
+        # Last: a later '-p' of the same name wins.
+        *(a for assignment in getattr(args, 'calibrator_param', ()) for a in ('-p', assignment)),
     ]
 
 
