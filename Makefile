@@ -6,6 +6,7 @@
 #                (test-kernels), colcon test (every package; gsp_calibrator in two halves),
 #                pytest test/ and bench/test; colcon test-result
 #   make test-kernels  the numeric packages' tests under other CPUs' BLAS and SIMD kernels
+#   make test-physics  the calibrator at its defaults on the physics backend (minutes of CPU)
 #   make format  ruff format (the formatter owns line breaks and quotes) and ruff check --fix
 #   make demo    end-to-end calibration demo (gsp_demo; DEMO_ARGS=... passes arguments)
 #   make paper   paper reproduction (bench/gsp_bench/paper_cli.py; ARGS=...)
@@ -37,7 +38,7 @@ endif
 # The wheels keep their ament resources in .venv/share.
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)$(if $(AMENT_PREFIX_PATH),:$(AMENT_PREFIX_PATH))
 
-.PHONY: venv build test test-kernels format demo paper bench clean distclean
+.PHONY: venv build test test-kernels test-physics format demo paper bench clean distclean
 
 venv: $(VENV_STAMP)
 
@@ -108,6 +109,11 @@ test-kernels: build
 format: venv
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix --output-format concise .
+
+# The calibrator at its defaults on the physics backend, through the nodes, with the rest rule on
+# and off (bench/test/test_physics_system.py): minutes of CPU, so not part of `make test`.
+test-physics: build
+	$(BENCH_ENV) && GSP_TEST_PHYSICS=1 python -m pytest -s bench/test/test_physics_system.py
 
 demo: build
 	$(ENV_SH) && gsp_demo $(DEMO_ARGS)
