@@ -183,6 +183,8 @@ def seed_figures(
         kinematic_span = row_span_s(kinematic_run.result()) if kinematic else None
     result = physics['result'] or {}
     figures = {'seed': seed, 'exit_code': physics['exit_code']}
+    if physics['exit_code']:
+        figures['output'] = physics['output'][-400:]  # why the demo did not exit 0
     if physics['geometry'] is None or not result.get('success'):
         return {**figures, 'failure': result.get('failure') or physics['output']}
     acceptance = result.get('acceptance') or {}

@@ -50,3 +50,35 @@ def test_the_quick_mode_runs_a_seed_whose_postures_the_physics_platform_holds():
 
     (seed,) = gsp_bench.physics.held_seeds(1, gsp_bench.physics.QUICK_POSTURES)
     assert refused(0) and not refused(seed)
+
+
+MEETS_EVERY_FIGURE = {
+    'true_mm': 0.004,
+    'true_over_floor': 1.2,
+    'cv_over_true': 1.2,
+    'interval_contains_true': True,
+    'verdict_met_truth_misses': False,
+    'inclinometer_noise_ratio': 1.4,
+    'platform_time_ratio': 1.25,
+}
+
+
+def test_figures_missed_names_each_figure_a_seed_misses():
+    assert gsp_bench.physics.figures_missed(MEETS_EVERY_FIGURE) == []
+    defects = {
+        'true_over_floor_1_3': {'true_over_floor': 1.31},
+        'held_out_within_25_percent': {'cv_over_true': 0.74},
+        'interval_contains_true': {'interval_contains_true': False},
+        'not_accepted_while_truth_misses': {'verdict_met_truth_misses': True},
+        'inclinometer_noise_within_1_5x': {'inclinometer_noise_ratio': 1.51},
+        'platform_time_within_1_3x': {'platform_time_ratio': 1.31},
+    }
+    assert set(defects) == set(gsp_bench.physics.FIGURES)
+    for figure, defect in defects.items():
+        missed = gsp_bench.physics.figures_missed(dict(MEETS_EVERY_FIGURE, **defect))
+        assert missed == [figure], (figure, missed)
+    # Without the kinematic run the platform time is not judged; a failed run misses them all.
+    unmeasured = dict(MEETS_EVERY_FIGURE)
+    del unmeasured['platform_time_ratio']
+    assert gsp_bench.physics.figures_missed(unmeasured) == []
+    assert gsp_bench.physics.figures_missed({'seed': 3, 'failure': 'x'}) == ['run_failed']
