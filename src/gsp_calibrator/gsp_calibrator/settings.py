@@ -583,25 +583,15 @@ def add_run_options(parser, seed_help='seed of the posture pool'):
     ``--pool-size``, ``--pairs-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
     the parameters' defaults. Check the parsed values with :func:`run_options_error`."""
     for name in names_in(RUN_COMMAND_LINE):
-        spec, default = PARAMETER_SPECS[name], DEFAULTS[name]
-        help_text = seed_help if name == 'seed' else spec.description
+        default = DEFAULTS[name]
+        help_text = seed_help if name == 'seed' else PARAMETER_SPECS[name].description
         if isinstance(default, list):
-            parser.add_argument(
-                option_name(name),
-                dest=name,
-                nargs='+',
-                default=list(default),
-                metavar='NAME',
-                help=f'{help_text} (default: {" ".join(default)})',
-            )
+            kind = {'nargs': '+', 'default': list(default), 'metavar': 'NAME'}
+            help_text += f' (default: {" ".join(default)})'
         else:
-            parser.add_argument(
-                option_name(name),
-                dest=name,
-                type=type(default),
-                default=default,
-                help=f'{help_text} ({default})',
-            )
+            kind = {'type': type(default), 'default': default}
+            help_text += f' ({default})'
+        parser.add_argument(option_name(name), dest=name, help=help_text, **kind)
 
 
 def run_options_error(args):
@@ -616,26 +606,17 @@ def run_options_error(args):
     return ''
 
 
-def validate_combination(values):
-    """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
-    (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
-    if values['posture_count'] > values['pool_size']:
-        return (
+def validate_parameters(changes, current=None):
+    """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid:
+    each changed value checked alone, then ``posture_count <= pool_size``."""
+    values = {**(DEFAULTS if current is None else current), **changes}
+    reason = validate_values(PARAMETER_SPECS, changes)
+    if not reason and values['posture_count'] > values['pool_size']:
+        reason = (
             f'posture_count ({values["posture_count"]}) must not exceed pool_size '
             f'({values["pool_size"]})'
         )
-    return ''
-
-
-def validate_parameters(changes, current=None):
-    """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid.
-
-    Each changed value is checked alone, then the combination (``posture_count <= pool_size``);
-    the ``validate`` of ``watch_parameters``.
-    """
-    return validate_values(PARAMETER_SPECS, changes) or validate_combination(
-        {**(DEFAULTS if current is None else current), **changes}
-    )
+    return reason
 
 
 @dataclasses.dataclass(frozen=True)

@@ -65,6 +65,13 @@ class ResultDelivery:
         return set(EFFECT_PARAMETER_NAMES) <= set(names), 'auto'
 
 
+def _why_rigid(decided):
+    """Why the controller runs the rigid geometry (``decided``: 'auto' when its parameters told)."""
+    if decided == 'auto':
+        return 'it does not declare the geometry.effects.* parameters'
+    return 'controller_effects: rigid'
+
+
 def applied_note(node_name, geometry, compensates, folded, decided):
     """What was applied to ``/node_name``: the geometry with the identified effects the
     controller compensates, or (``compensates`` False) the rigid geometry, ``folded`` when
@@ -77,11 +84,7 @@ def applied_note(node_name, geometry, compensates, folded, decided):
         if 'thermal' in geometry.effects.groups():
             what += '; the thermal drift reported, not compensated'
         return f'applied to /{node_name} ({what})'
-    why = (
-        'it does not declare the geometry.effects.* parameters'
-        if decided == 'auto'
-        else 'controller_effects: rigid'
-    )
+    why = _why_rigid(decided)
     if not folded:
         identified = geometry.effects.groups()
         dropped = f'; not compensated: {", ".join(identified)}' if identified else ''
@@ -108,12 +111,7 @@ def not_accepted_note(node_name, which, verdict, decided):
     'auto' when the controller's parameters told."""
     runs = 'the geometry with its effects (result.yaml)'
     if which == 'rigid':
-        runs = 'the rigid geometry (result_rigid.yaml)'
-        runs += (
-            ': it does not declare the geometry.effects.* parameters'
-            if decided == 'auto'
-            else ': controller_effects: rigid'
-        )
+        runs = f'the rigid geometry (result_rigid.yaml): {_why_rigid(decided)}'
     return (
         f'NOT applied to /{node_name}: it runs {runs}, and the verdict of the {which} '
         f'geometry does not accept it: {"; ".join(verdict.failures)}'
@@ -128,31 +126,30 @@ class ParameterSetter:
         self.callback_group = callback_group
         self._clients = {}
 
-    async def set(self, node_name, values, timeout_s, wait_for):
-        """Set ``values`` ({name: value}) on ``/<node_name>``; ``(True, '')`` or ``(False, why)``."""
-        service = f'/{node_name.lstrip("/")}/set_parameters_atomically'
+    def _client(self, kind, node_name, name):
+        """``(client, service)`` of ``/<node_name>/<name>`` (a ``kind`` service)."""
+        service = f'/{node_name.lstrip("/")}/{name}'
         if service not in self._clients:
             self._clients[service] = self.node.create_client(
-                SetParametersAtomically, service, callback_group=self.callback_group
+                kind, service, callback_group=self.callback_group
             )
-        return await set_parameters_atomically(
-            self._clients[service], service, values, timeout_s, wait_for
+        return self._clients[service], service
+
+    async def set(self, node_name, values, timeout_s, wait_for):
+        """Set ``values`` ({name: value}) on ``/<node_name>``; ``(True, '')`` or ``(False, why)``."""
+        client, service = self._client(
+            SetParametersAtomically, node_name, 'set_parameters_atomically'
         )
+        return await set_parameters_atomically(client, service, values, timeout_s, wait_for)
 
     async def list(self, node_name, prefix, timeout_s, wait_for):
         """The names of ``/<node_name>``'s parameters under ``prefix`` (its ``list_parameters``
         service): ``(names, '')`` or ``(None, why)``."""
-        service = f'/{node_name.lstrip("/")}/list_parameters'
-        if service not in self._clients:
-            self._clients[service] = self.node.create_client(
-                ListParameters, service, callback_group=self.callback_group
-            )
+        client, service = self._client(ListParameters, node_name, 'list_parameters')
         request = ListParameters.Request(
             prefixes=[prefix], depth=ListParameters.Request.DEPTH_RECURSIVE
         )
-        response, why = await call_service(
-            self._clients[service], service, request, timeout_s, wait_for
-        )
+        response, why = await call_service(client, service, request, timeout_s, wait_for)
         return (None, why) if response is None else (list(response.result.names), '')
 
 

@@ -9,10 +9,8 @@ import threading
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
-from sensor_msgs.msg import JointState
 
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
-from gsp_msgs_py import qos
 
 
 def new_future(executor):
@@ -135,40 +133,23 @@ class Waits:
 
 
 class SensorListener:
-    """Takes topics in a thread of its own (see the module docstring)."""
+    """A node ``<node name>_<suffix>`` in ``node``'s namespace and context, spun in a thread of its
+    own; ``setup(listener node)`` gives :attr:`extra` (the recorder, which subscribes to the
+    sensor topics); ``on_error(error)``: a callback failed (None: raised)."""
 
-    @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):
-        """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
-        ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
-        return cls(
-            f'{node.get_name()}_{suffix}',
-            node.get_namespace(),
-            node.context,
-            {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
-            setup=setup,
-            on_error=on_error,
-            raw=raw,
-        )
-
-    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False):
+    def __init__(self, node, suffix, setup, on_error=None):
+        name = f'{node.get_name()}_{suffix}'
         self.on_error = on_error
         self.node = Node(
             name,
-            namespace=namespace,
-            context=context,
+            namespace=node.get_namespace(),
+            context=node.context,
             use_global_arguments=False,
             start_parameter_services=False,
         )
-        self.executor = SingleThreadedExecutor(context=context)
+        self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(self.node)
-        self._subscriptions = [
-            self.node.create_subscription(
-                JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
-            )
-            for topic, callback in callbacks.items()
-        ]
-        self.extra = setup(self.node) if setup is not None else None
+        self.extra = setup(self.node)
         self._thread = threading.Thread(target=self._spin, name=f'{name}-executor', daemon=True)
         self._thread.start()
 

@@ -28,6 +28,7 @@ from gsp_kinematics.estimation.identification import (
     DEFAULT_FORMULATION,
     FORMULATIONS,
     IdentificationError,
+    Options,
     resolve_free,
 )
 from gsp_kinematics.estimation.prediction import accuracy_summary, thermal_strain_rms
@@ -139,11 +140,6 @@ class CalibrationOutcome:
             result is not None and result.goodness_of_fit and result.goodness_of_fit.accepted
         )
 
-    @property
-    def unidentifiable(self):
-        """Names of the parameters in a null direction (sorted; empty if identifiable)."""
-        return list(self.identifiability.get('names', []))
-
 
 def _unidentifiable_message(analysis, count):
     """Why a rank-deficient result is not applied: the rank, the names, the null directions."""
@@ -209,13 +205,15 @@ def identify_from_samples(
     outcome.duration_s = time.perf_counter() - started
     outcome.result = result = fit.result
     outcome.sigmas = fit.sigmas
-    outcome.effects = _effects_record(fit, design, nominal, samples)
     if not result.converged:
         outcome.message = (
             f'identification did not converge after {result.iterations} iteration(s) '
             f'(status {result.status}: {result.message}); nothing applied'
         )
         return outcome
+    _, stamp = reference_instant(samples)
+    design = fit.effects or design
+    outcome.effects = effects_record(result, design, nominal, fit.choice, fit.untried, stamp)
     analysis = identifiability.analyse_result(result)
     outcome.identifiability = analysis
     if not identifiability.identifies_all(analysis):
@@ -302,8 +300,6 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
     """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
     the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
     significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
-    options = identify_options.get('options')
-    extra = {} if options is None else {'options': options}
     choice = choose_model(
         nominal,
         samples.leg_lengths,
@@ -313,17 +309,9 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
         base=tuple(plain),
         pose_guesses=samples.commanded_poses,
         thermal_time_constants=DEFAULT_THERMAL_TIME_CONSTANTS,
-        **extra,
+        options=identify_options.get('options', Options()),
     )
     return choice, untried_groups(design, len(samples), effect_groups_of(plain))
-
-
-def _effects_record(fit, design, nominal, samples):
-    if not fit.result.converged:
-        return None
-    _, stamp = reference_instant(samples)
-    design = fit.effects or design
-    return effects_record(fit.result, design, nominal, fit.choice, fit.untried, stamp)
 
 
 def uncompensated_thermal_strain(result, design):
@@ -345,8 +333,6 @@ def _judge(outcome, nominal, samples, fit, row_sigmas, judging):
     noise = SensorNoise.from_channels(
         {channel: entry.noise for channel, entry in estimates.items()}, default=row_sigmas
     )
-    options = identify_options.get('options')
-    extra = {} if options is None else {'options': options}
     thermal = uncompensated_thermal_strain(result, effects)
     outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
     validation = cross_validate(
@@ -361,7 +347,7 @@ def _judge(outcome, nominal, samples, fit, row_sigmas, judging):
         uncompensated_strain=thermal,
         unmodelled=outcome.unmodelled,
         linearised=True,  # each fold's fit one Gauss-Newton step from the full fit
-        **extra,
+        options=identify_options.get('options', Options()),
     )
     outcome.accuracy = validation.summary(workspace)
     outcome.accuracy['workspace_postures'] = [int(k) for k in samples.posture[workspace]]
