@@ -12,13 +12,6 @@ from gsp_calibrator.run.health import ProcessingLags
 LISTENER_TICK_S = 0.1  #: the listener's tick (silence on the wire, :meth:`SensorIntake.tick`)
 
 
-def checked_until(collection, checked_ns, now_ns):
-    """Tell ``collection`` that every sensor message received before ``checked_ns`` was taken
-    (``CollectionTimeouts.checked_until``); its events due at ``now_ns``."""
-    collection.timeouts.checked_until(checked_ns)
-    return collection.poll(now_ns)
-
-
 class SensorIntake:
     """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns), ``count_publishers
     (topic)`` the publishers of a topic, ``wire_times_on_clock()`` whether the middleware's
@@ -88,4 +81,9 @@ class SensorIntake:
         postures = self.postures
         if postures is not None and len(self._ticks) == self._ticks.maxlen:
             checked_ns = self._ticks[0]
-            postures.feed(lambda c: checked_until(c, checked_ns, self.now_ns()))
+
+            def step(collection):
+                collection.timeouts.checked_until(checked_ns)
+                return collection.poll(self.now_ns())
+
+            postures.feed(step)

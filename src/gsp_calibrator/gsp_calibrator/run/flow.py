@@ -28,7 +28,7 @@ from gsp_calibrator.run.response import (
     failure_message,
     final_progress_message,
     format_response,
-    posture_report,
+    report_posture_end,
 )
 from gsp_msgs_py import names
 
@@ -260,7 +260,7 @@ class CalibrationRun:
                 event = await host.postures.command(k, pose)
                 if not isinstance(event, POSTURE_ENDS):
                     raise RunFailed(event.message)
-                self._report(event)
+                report_posture_end(event, self.planned, settings.nominal, self.log, host.progress)
                 record.save()
                 if stop is not None and self._judged_enough(stop):
                     break
@@ -300,19 +300,6 @@ class CalibrationRun:
             return None
         self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
         return record.add_posture(pose)
-
-    def _report(self, event):
-        """Log and publish the end of a posture (a row or a skip)."""
-        report = posture_report(event, self.planned, self.settings.nominal)
-        for level, line in report.log:  # one call site per severity (rclpy requires it)
-            if level == 'warning':
-                self.log.warning(line)
-            else:
-                self.log.info(line)
-        extra = {} if report.skipped is None else {'skipped': report.skipped}
-        self.host.progress(
-            event.posture, report.phase, report.message, report.residuals, report.warning, **extra
-        )
 
     async def _judge(self, reused, stopping):
         """The course's judgement of the collected rows (state.json: identifying)."""

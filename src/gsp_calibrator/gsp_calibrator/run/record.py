@@ -48,30 +48,21 @@ def _digest(values):
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def nominal_digests(nominal):
-    """``(platform digest, device digest)`` of a nominal ``Geometry``."""
-    device = [getattr(nominal, name) for name in DEVICE_PARAMETERS]
-    platform = np.concatenate(
-        [
-            np.ravel(nominal.base_joints),
-            np.ravel(nominal.platform_joints),
-            np.ravel(nominal.leg_offsets),
-        ]
-    )
-    return _digest(platform), _digest(device)
-
-
 def selection_options(settings):
-    """The options that decide the selection of ``settings`` (``CalibratorSettings``)."""
-    platform, device = nominal_digests(settings.nominal)
+    """The options that decide the selection of ``settings`` (``CalibratorSettings``), and the
+    digests of its nominal platform and device."""
+    nominal = settings.nominal
+    parts = (nominal.base_joints, nominal.platform_joints, nominal.leg_offsets)
+    platform = np.concatenate([np.ravel(part) for part in parts])
+    device = [getattr(nominal, name) for name in DEVICE_PARAMETERS]
     options = settings.options(SELECTION_PARAMETERS)
     # Compared as the mask: 'paper' and its 44 names are the same selection.
     options['free_parameters'] = list(resolve_free(list(settings.free_parameters)))
     return {
         **options,
         'nominal_geometry_file': str(settings.nominal_geometry_file),
-        'nominal_digest': platform,
-        'device_digest': device,
+        'nominal_digest': _digest(platform),
+        'device_digest': _digest(device),
     }
 
 
@@ -134,11 +125,6 @@ class RunState:
                 'wait_s': float(sample.rest_wait),
                 'moving_pairs': int(sample.moving_pairs),
             }
-
-
-def write_state(directory, state):
-    """Write ``directory/state.json`` atomically; returns its path."""
-    return atomic_write_text(Path(directory) / STATE_FILE, to_json(state.to_dict()))
 
 
 def read_state(directory):
@@ -382,7 +368,7 @@ class RunRecord:
             try:
                 self._appender.append(self.samples)
             except OSError as error:
-                self.samples = _without_last(self.samples)
+                self.samples = self.samples.rows(slice(0, len(self.samples) - 1))
                 raise RunWriteError(self._appender.path, error) from None
             self.state.record_done(event.posture, row)
 
@@ -460,7 +446,3 @@ def open_record(settings, resume, pid, pose_command_publishers=(), node=('calibr
         raise RunRefused(
             f'cannot write the run directory under {settings.output_root}: {error}'
         ) from None
-
-
-def _without_last(samples):
-    return samples.rows(slice(0, len(samples) - 1))

@@ -23,6 +23,7 @@ from gsp_kinematics.model.geometry import (
 )
 from gsp_kinematics.model.kinematics import inverse_kinematics
 from gsp_kinematics.rotation import wrap_angle
+from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
 
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
@@ -76,43 +77,28 @@ def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
     return residuals
 
 
-@dataclasses.dataclass(frozen=True)
-class PostureReport:
-    """How the calibrator reports the end of a posture: log lines and one progress message."""
-
-    log: tuple  #: ``(('info' | 'warning', text), ...)``
-    phase: str  #: progress phase
-    message: str  #: progress message
-    residuals: dict = None  #: :func:`posture_residuals` of a row
-    warning: bool = False  #: progress level WARN
-    skipped: int = None  #: the posture, when skipped
-
-
-def posture_report(event, count, nominal):
-    """The :class:`PostureReport` of a protocol ``RowReady`` or ``PostureSkipped`` ``event`` of a
-    run of ``count`` postures under the ``nominal`` geometry."""
-    from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
-
+def report_posture_end(event, count, nominal, log, progress):
+    """Log (``log``: a logger) and publish (``progress``: :attr:`.host.RunHost.progress`) the end
+    of a posture of a run of ``count`` postures: a protocol ``RowReady`` (its residuals under the
+    ``nominal`` geometry) or ``PostureSkipped``."""
     k = event.posture
     if not hasattr(event, 'sample'):  # skipped
+        log.warning(f'posture {k}/{count} skipped: {event.reason}')
         text = f'posture {k} of {count} skipped: {event.reason}'
-        log = (('warning', f'posture {k}/{count} skipped: {event.reason}'),)
-        return PostureReport(log, PHASE_MOVING, text, warning=True, skipped=k)
+        progress(k, PHASE_MOVING, text, None, True, skipped=k)
+        return
     row = event.sample
-    log = ()
     if event.dropped:
-        log = (
-            (
-                'warning',
-                f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
-                'inconsistent with the rest (glitch, or a stream still reporting the '
-                'previous posture)',
-            ),
+        log.warning(
+            f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
+            'inconsistent with the rest (glitch, or a stream still reporting the '
+            'previous posture)'
         )
-    log += (('info', f'posture {k}/{count}: {row.n_samples} samples averaged'),)
+    log.info(f'posture {k}/{count}: {row.n_samples} samples averaged')
     residuals = posture_residuals(nominal, event.pose, row.leg_lengths, row.readings)
-    text = f'posture {k} of {count}: {row.n_samples} samples averaged'
-    return PostureReport(log, PHASE_COLLECTING, text, residuals)
+    progress(
+        k, PHASE_COLLECTING, f'posture {k} of {count}: {row.n_samples} samples averaged', residuals
+    )
 
 
 #: The device readings that are angles (rad), summarised in degrees.

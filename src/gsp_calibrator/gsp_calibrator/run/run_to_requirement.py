@@ -11,16 +11,11 @@ import time
 import numpy as np
 
 from gsp_calibrator.run import reused_rows
-from gsp_calibrator.run.identify import identify_with_settings
-from gsp_calibrator.run.postures import posture_pool, selection_formulation
+from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
+from gsp_calibrator.run.postures import posture_pool, route_start, selection_formulation
 from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.estimation.identification import resolve_free
 from gsp_kinematics.estimation.prediction import accuracy_summary
-from gsp_kinematics.model.kinematics import (
-    ForwardKinematicsError,
-    home_pose,
-    pose_from_leg_readings,
-)
 from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ, posture_leg_lengths
 from gsp_kinematics.upkeep import stopping
 
@@ -97,9 +92,7 @@ class PoolAdditions:
             resolve_free(list(settings.free_parameters)),
             selection_formulation(settings.formulation),
         )
-        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
-        distance = np.max(np.abs(poses[:, None, :] - self.pool[None]), axis=2)
-        used = np.flatnonzero(np.min(distance, axis=0) < 1e-9)
+        used = np.flatnonzero(workspace_rows(self.pool, poses))  # the pool postures commanded
         try:
             index = stopping.best_addition(
                 judgement.result.information,
@@ -124,17 +117,6 @@ def platform_time_s(settings, start_pose, poses, rule):
     return stopping.plan_time_s(
         settings.nominal, start_pose, poses, settings.motion_limits, rule.dwell_s
     )
-
-
-def start_pose_of(settings, leg_readings, fallback):
-    """The pose of the platform whose legs read ``leg_readings`` (None: unknown), else
-    ``fallback`` (the times are then counted from there)."""
-    if leg_readings is not None:
-        try:
-            return pose_from_leg_readings(settings.nominal, leg_readings)
-        except (ForwardKinematicsError, ValueError):
-            pass
-    return np.asarray(fallback, dtype=float)
 
 
 def judgement_line(judgement, rule):
@@ -194,7 +176,9 @@ class StoppingState:
         if not settings.stop_when_accurate:
             return None
         plan = [run_record.state.poses[k - 1] for k in run_record.remaining]
-        start = start_pose_of(settings, latest_legs, plan[0] if plan else home_pose())
+        start, unknown = route_start(settings.nominal, latest_legs)
+        if unknown and plan:  # the times are then counted from the first posture
+            start = np.asarray(plan[0], dtype=float)
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
         return cls(rule_for(settings), start, plan, worker, reused=reused)
 
