@@ -1,15 +1,7 @@
 """Parameters of the ``calibrator`` node: names, defaults, units, checks (pure, no rclpy).
 
-:data:`PARAMETERS` is the single declaration of each parameter (the node declares them with
-:func:`gsp_msgs_py.parameter_specs.declare_parameters`; docs/parameters.md is generated from it).
-Everything else is derived from it: :class:`CalibratorSettings` has one field per parameter; the
-subsets marked in the table (``subsets=``) give the options stored with a run (:data:`STORED`),
-those that decide the posture selection (:data:`SELECTION`) and those accepted on the command
-lines of ``gsp_demo``/``gsp_plan`` (:data:`RUN_COMMAND_LINE`) and ``gsp_reidentify``
-(:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_value`).
-:func:`validate_parameters` gives the reason a set of values is rejected, at start-up and in the
-set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
-settings of one run.
+:data:`PARAMETERS` declares each parameter once (docs/parameters.md is generated from it); the
+settings (:class:`CalibratorSettings`), subsets and command-line options derive from it.
 """
 
 import dataclasses

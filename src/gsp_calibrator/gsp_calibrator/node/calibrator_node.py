@@ -250,7 +250,7 @@ class CalibratorNode(Node):
             progress=self._progress,
             deliver_result=lambda *args: self._results.deliver(*args, self._wait_for),
             shutting_down=lambda: not self.context.ok(),
-            processing_lags=self._intake.lags.run,
+            processing_lags=self._intake.lags,
         )
 
     def _wait_for(self, predicate, timeout_s):

@@ -76,62 +76,46 @@ class LagHistogram:
         }
 
 
-class RunLags:
-    """Every sensor message's processing lag during a run, per topic, as :class:`LagHistogram`
-    (thread-safe): :meth:`reset` at the run's start, :meth:`add` at each message handled by the
-    run (:meth:`ProcessingLags.note`), :meth:`summary` into its ``result.json``
-    (``collection.processing_lag``)."""
+class ProcessingLags:
+    """Each sensor topic's processing lag: from a message's receipt off the wire (the
+    middleware's receive time) to the calibrator's decision on it, s (thread-safe). :meth:`note`
+    at each message, :meth:`take` at each status: the largest lag since the previous one; the
+    lags noted ``in_run`` also go to the run's :class:`LagHistogram` per topic (:meth:`reset` at
+    the run's start, :meth:`summary` into its ``result.json``: ``collection.processing_lag``)."""
 
     def __init__(self, topics):
-        self._topics = tuple(topics)
+        self._largest = dict.fromkeys(topics)
         self._lock = threading.Lock()
         self.reset()
 
     def reset(self):
         with self._lock:
-            self._histograms = {topic: LagHistogram() for topic in self._topics}
-
-    def add(self, topic, lag_s):
-        """Count ``lag_s`` (s) of ``topic``; None (an unknown receive time) is not counted."""
-        if lag_s is None:
-            return
-        with self._lock:
-            self._histograms[topic].add(lag_s)
-
-    def summary(self):
-        """``{topic: {count, p50_s, p99_s, max_s}}``."""
-        with self._lock:
-            return {topic: h.summary() for topic, h in self._histograms.items()}
-
-
-class ProcessingLags:
-    """Each sensor topic's processing lag: from a message's receipt off the wire (the
-    middleware's receive time) to the calibrator's decision on it, s. :meth:`note` at each
-    message (any thread), :meth:`take` at each status: the largest lag since the previous one;
-    :attr:`run`: every lag noted ``in_run`` (the run's distribution, :class:`RunLags`)."""
-
-    def __init__(self, topics):
-        self._largest = dict.fromkeys(topics)
-        self.run = RunLags(topics)
+            self._histograms = {topic: LagHistogram() for topic in self._largest}
 
     def note(self, topic, received_ns, decided_ns, in_run=False):
         """The lag (s) of a message of ``topic`` received at ``received_ns`` and decided on at
-        ``decided_ns`` (ns, one clock), also counted in :attr:`run` if ``in_run`` (a message
-        the run handled); None (not counted) when the receive time is unknown."""
+        ``decided_ns`` (ns, one clock); None (not counted) when the receive time is unknown."""
         if not received_ns:
             return None
         lag = (int(decided_ns) - int(received_ns)) * 1e-9
-        if in_run:
-            self.run.add(topic, lag)
-        largest = self._largest.get(topic)
-        if largest is None or lag > largest:
-            self._largest[topic] = lag
+        with self._lock:
+            if in_run:
+                self._histograms[topic].add(lag)
+            largest = self._largest.get(topic)
+            if largest is None or lag > largest:
+                self._largest[topic] = lag
         return lag
 
     def take(self):
         """``{topic: largest lag (s) since the previous call, or None}``."""
-        lags, self._largest = self._largest, dict.fromkeys(self._largest)
+        with self._lock:
+            lags, self._largest = self._largest, dict.fromkeys(self._largest)
         return lags
+
+    def summary(self):
+        """The run's ``{topic: {count, p50_s, p99_s, max_s}}``."""
+        with self._lock:
+            return {topic: h.summary() for topic, h in self._histograms.items()}
 
 
 def calibrator_health(running, progress, run_directory, heard_ns, now_ns, topic_timeout, lags=None):

@@ -5,7 +5,7 @@ import typing
 from collections.abc import Awaitable, Callable
 
 from gsp_calibrator.collection.events import PostureSkipped, RowReady
-from gsp_calibrator.run.health import RunLags
+from gsp_calibrator.run.health import ProcessingLags
 
 #: Results of :attr:`RunHost.wait_for`.
 WAIT_OK = 'ok'
@@ -53,7 +53,7 @@ class RunHost:
     shutting_down: Callable[[], bool]
     #: the processing lags of the run's sensor messages (reset at its start, summed up in its
     #: ``result.json``)
-    processing_lags: RunLags = dataclasses.field(default_factory=lambda: RunLags(()))
+    processing_lags: ProcessingLags = dataclasses.field(default_factory=lambda: ProcessingLags(()))
 
 
 async def first_timeout(wait_for, timeout_s, checks):

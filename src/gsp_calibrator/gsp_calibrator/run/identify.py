@@ -98,28 +98,18 @@ class CalibrationOutcome:
     postures: int = 0  #: posture rows given
     sigmas: object = None  #: the weights of the averaged rows
     duration_s: float = 0.0  #: identification wall time, s
-    #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
-    noise_estimates: dict = dataclasses.field(default_factory=dict)
+    noise_estimates: dict = dataclasses.field(default_factory=dict)  #: ``noise_record``, SI
     noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
     fit_diagnosis: str = ''  #: the goodness-of-fit diagnosis (plain text): a diagnostic
-    #: the cross-validated accuracy (``CrossValidation.summary``; None: not measured)
-    accuracy: dict | None = None
-    #: what the model leaves unexplained (SensorNoise of row stds; None: nothing shown)
-    unmodelled: object = None
-    #: the predicted accuracy, unmodelled part included (``report.accuracy.prediction_for``)
-    prediction: dict | None = None
-    #: ``acceptance.Verdict``: applied or not, and why (None: no result to judge)
-    judgement: object = None
+    accuracy: dict | None = None  #: the cross-validated accuracy (None: not measured)
+    unmodelled: object = None  #: SensorNoise the model leaves unexplained (None: none shown)
+    prediction: dict | None = None  #: the predicted accuracy (``report.accuracy``)
+    judgement: object = None  #: ``acceptance.Verdict`` (None: no result to judge)
     requirement: object = None  #: the ``acceptance.Requirement`` judged against
-    #: the platform effects (``report.effects.effects_record``: the choice of model, the
-    #: identified effects, the thermal drift); None when none was chosen or freed
-    effects: dict | None = None
-    #: the rigid geometry, the identified effects folded in (``run.rigid``); None without effects
-    rigid_geometry: object = None
-    #: the rigid geometry's held-out accuracy and verdict (``run.rigid.judge_rigid``); None
-    #: without a rigid geometry
-    rigid_accuracy: dict | None = None
-    rigid_judgement: object = None
+    effects: dict | None = None  #: ``report.effects.effects_record`` (None: none chosen, freed)
+    rigid_geometry: object = None  #: the effects folded in (``run.rigid``; None: no effects)
+    rigid_accuracy: dict | None = None  #: its held-out accuracy (``run.rigid.judge_rigid``)
+    rigid_judgement: object = None  #: and its verdict
 
     @property
     def accepted(self):
@@ -170,17 +160,10 @@ def identify_from_samples(
     leg_mass=(0.0,) * 6,
     **identify_options,
 ):
-    """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
-    ``samples``: a :class:`gsp_calibrator.files.run_directory.Rows`; ``sigmas``: per-sample noise (m, rad), scaled by
-    ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
-    (``success=False``, message naming the parameters) when the identification raises, does not
-    converge, or leaves free parameters unidentifiable. The rows' lag sums give the
-    within-posture noise; ``noise_source``: ``estimated`` or ``configured``
-    (:func:`noise_from_data.identify_with_noise`). A success is cross-validated over ``folds``
-    folds and judged against ``requirement`` (``accepted``; ``fit_accepted`` is a diagnostic),
-    its measured accuracy the held-out error of the rows commanded at ``workspace_poses`` (K, 6;
-    None: of every row; :func:`workspace_rows`). Effects (or ``auto``) in ``free`` use the rows'
-    times, directions, ``payload_mass`` (kg) at ``centre_of_mass`` (m) and ``leg_mass`` (6,)."""
+    """Identify from the averaged rows ``samples`` (``Rows``; ``sigmas``: per-sample noise, m and
+    rad) and judge the result (:class:`CalibrationOutcome`; docs/verdict.md): a failure
+    (``success=False``) names why; a success is cross-validated, its accuracy measured on the
+    rows commanded at ``workspace_poses`` (K, 6; None: every row), and judged."""
     free = _checked_free(free, formulation, noise_source)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -245,10 +228,8 @@ def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
 
 
 def _checked_free(free, formulation, noise_source):
-    """``free`` as a list (``auto`` in a formulation other than ``implicit``: its plain model,
-    the effect groups need the implicit one); CalibrationError for an unknown formulation or
-    noise source, or effects freed in a formulation other than ``implicit``;
-    IdentificationError when a name is wrong."""
+    """``free`` as a list (``auto`` outside the ``implicit`` formulation: its plain model);
+    CalibrationError or IdentificationError naming what is wrong."""
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     if noise_from_data.noise_source_error(noise_source):
@@ -297,9 +278,8 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
 
 
 def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
-    """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
-    the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
-    significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
+    """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows (the core's
+    ``choose_model`` beside the ``plain`` model)."""
     choice = choose_model(
         nominal,
         samples.leg_lengths,
@@ -325,9 +305,8 @@ def uncompensated_thermal_strain(result, design):
 
 
 def _judge(outcome, nominal, samples, fit, row_sigmas, judging):
-    """Cross-validate ``outcome``'s result (the headline over the workspace rows, when the run
-    has them), estimate what the model leaves unexplained, predict the accuracy with it (and
-    the uncompensated thermal growth), and judge it (:class:`Judging`; fills the outcome)."""
+    """Cross-validate, predict and judge ``outcome``'s result (:class:`Judging`; fills the
+    outcome)."""
     requirement, folds, identify_options, workspace = judging
     result, estimates, effects = fit.result, fit.estimates, fit.effects
     noise = SensorNoise.from_channels(
@@ -432,7 +411,6 @@ def write_run_files(run, settings, outcome, collection, options):
 def write_results(run, outcome, comment):
     """Write a successful ``outcome``'s geometry to ``run`` (its ``RunDirectory``) as
     ``result.yaml`` and, with identified effects, the rigid one as ``result_rigid.yaml``."""
-
     run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     if outcome.rigid_geometry is not None:
         # The rigid file carries its own verdict's mark (docs/verdict.md).

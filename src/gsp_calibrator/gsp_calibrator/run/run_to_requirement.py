@@ -1,7 +1,5 @@
 """A calibration that stops when it is good enough (``stop_when_accurate``, docs/upkeep.md;
-pure): its rule, the judgement of the rows so far (in a worker thread), the pool postures it
-may add and its record in ``result.json``. The decisions are
-:mod:`gsp_kinematics.upkeep.stopping`; the loop is the run's collection (``run.flow``)."""
+pure): the decisions are :mod:`gsp_kinematics.upkeep.stopping`'s, the loop ``run.flow``'s."""
 
 import concurrent.futures
 import dataclasses
@@ -21,10 +19,8 @@ from gsp_kinematics.upkeep import stopping
 
 
 def rule_for(settings):
-    """The :class:`gsp_kinematics.upkeep.stopping.StoppingRule` of a run's ``CalibratorSettings``:
-    the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
-    ``stop_every`` and ``stop_max_added``; the dwell of ``pairs_per_posture`` at the default sensor rate and a
-    0.5 s settle allowance."""
+    """The ``StoppingRule`` of a run's settings; the dwell: ``pairs_per_posture`` at the default
+    sensor rate and a 0.5 s settle allowance."""
     return stopping.StoppingRule(
         required_position_mm=settings.required_position_accuracy_mm,
         required_orientation_deg=settings.required_orientation_accuracy_deg,
@@ -54,9 +50,8 @@ class Judgement:
 
 
 def judge_rows(settings, samples, rule):
-    """Identify ``samples`` (the rows so far, ``files.run_directory.Rows``) as the calibrator does
-    (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
-    (:class:`Judgement`). Runs in a worker thread."""
+    """Identify the rows so far as the calibrator does and bound its cross-validated accuracy
+    (:class:`Judgement`; a worker thread)."""
     started = time.perf_counter()
     outcome = identify_with_settings(settings, samples)
     if not outcome.success or outcome.accuracy is None:
@@ -69,9 +64,8 @@ def judge_rows(settings, samples, rule):
 
 
 class PoolAdditions:
-    """The calibrator's posture pool (``pool_size``, ``seed``), for the postures a run adds when
-    its plan is not enough: each the one of largest information gain per second of platform
-    time (:func:`gsp_kinematics.upkeep.stopping.best_addition`). Built in a worker thread."""
+    """The calibrator's posture pool, for the postures a run adds when its plan is not enough
+    (the largest information gain per second: ``stopping.best_addition``)."""
 
     def __init__(self, settings):
         self.settings = settings
@@ -79,9 +73,8 @@ class PoolAdditions:
         self.legs = posture_leg_lengths(settings.nominal, self.pool)
 
     def next_pose(self, judgement, poses, latest_legs, rule):
-        """The pose (6,) to add after ``judgement`` (its result's information), the run's
-        ``poses`` so far (M, 6) and the platform's ``latest_legs`` (6,); None when the pool has
-        none left or nothing was identified."""
+        """The pose (6,) to add after ``judgement``, the run's ``poses`` so far and the
+        platform's ``latest_legs`` (6,); None when the pool has none left or nothing was fit."""
         if judgement.result is None:
             return None
         settings = self.settings
@@ -109,8 +102,7 @@ class PoolAdditions:
 
 
 def platform_time_s(settings, start_pose, poses, rule):
-    """Platform time (s) of ``poses`` in order from ``start_pose`` at the leg limits, with the
-    rule's dwell per posture (the same count for the run and for its fixed plan)."""
+    """Platform time (s) of ``poses`` in order from ``start_pose``, with the rule's dwell."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 6)
     if not len(poses):
         return 0.0
@@ -171,8 +163,8 @@ class StoppingState:
 
     @classmethod
     def start(cls, settings, run_record, latest_legs, reused=None):
-        """Before the first posture of a run (``run_record``, its plan the postures left) with
-        ``reused`` rows (None: none); None unless ``settings.stop_when_accurate``."""
+        """Before the first posture of a run (``run_record``) with ``reused`` rows (None: none);
+        None unless ``settings.stop_when_accurate``."""
         if not settings.stop_when_accurate:
             return None
         plan = [run_record.state.poses[k - 1] for k in run_record.remaining]
@@ -230,9 +222,8 @@ class StoppingState:
         self.worker.shutdown(wait=False, cancel_futures=True)
 
     def record(self, settings, run_record):
-        """``result.json`` ``collection.run_to_requirement``: met or not, postures, added, the
-        platform time spent (the postures ``run_record`` commanded, in order from the start, at the
-        leg limits with the dwell) and the fixed plan's, the latest bounds and the judgements."""
+        """``result.json`` ``collection.run_to_requirement``: met or not, the platform time
+        spent and the fixed plan's, the latest bounds and the judgements."""
         rule, plan_poses = self.rule, self.plan
         commanded_poses = run_record.state.poses[
             : len(run_record.state.poses) - len(run_record.remaining)
