@@ -39,9 +39,7 @@ from gsp_msgs_py.executors import MultiThreadedExecutor
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
 #: Longest time (s) a busy thread keeps the GIL while another waits for it (Python's default:
-#: 0.005). The node's threads (executor, sensor listener, recorder) share one GIL: the message
-#: that completes a posture, and the next command, would otherwise wait up to 5 ms for the
-#: recorder's thread at each hand-over.
+#: 0.005, up to 5 ms at each hand-over between the node's executor and listener threads).
 GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
 #: The Trigger services: (name, resume an unfinished run, ``new_run(host, settings, resume)``:
@@ -147,13 +145,12 @@ class CalibratorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _wire_times_on_clock(self):
-        """Whether the middleware's timestamps (system time) are on the node's clock: not under
-        use_sim_time (e.g. platform_sim's physics faster than real time, docs/physics.md)."""
+        """Whether the middleware's timestamps (system time) are on the node's clock (not under
+        use_sim_time)."""
         return not self.get_clock().ros_time_is_active
 
     def _setup_recorder(self, node):
-        """The recorder on the listener ``node`` (its thread), forwarding the sensor batches to
-        the collection, and the listener's tick (silence on the wire)."""
+        """The recorder on the listener ``node``, handing the sensor batches to the collection."""
         recorder = RunRecorder(node, persistent=True, forward=self._intake.callbacks())
         node.create_timer(LISTENER_TICK_S, self._intake.tick)
         return recorder

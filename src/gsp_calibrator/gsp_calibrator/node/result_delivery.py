@@ -20,13 +20,10 @@ class ResultDelivery:
         self.parameter_setter = ParameterSetter(node, callback_group)
 
     async def deliver(self, settings, geometry, verdicts, rigid, wait_for):
-        """Publish ``geometry``; apply it, or ``rigid`` (the effects folded in; None: the
-        geometry has none) to a controller that does not compensate them, if
-        ``settings.apply_result`` and the verdict of what the controller runs accepts it
-        (``verdicts``: ``run.rigid.Verdicts``). ``(success, note)``: ``note`` says what the
-        apply did and which geometry the verdict describes ('' when it was not asked for, or
-        no verdict accepts); success is False when the result is not accepted (without
-        ``apply_result``: the compensating verdict), or when the apply failed."""
+        """Publish ``geometry``; with ``apply_result``, apply it (or ``rigid``, the effects folded
+        in, to a controller that does not compensate them) when the verdict of what the
+        controller runs accepts it. ``(success, note)``: ``note`` says what the apply did
+        ('' when not asked for or nothing accepted); success: accepted and applied if asked."""
         self.publisher.publish(String(data=geometry_to_yaml(geometry, comment=RESULT_COMMENT)))
         if not (settings.apply_result and verdicts.any_accepted):
             return verdicts.compensating.accepted, ''
@@ -51,9 +48,8 @@ class ResultDelivery:
         return True, note
 
     async def compensates(self, settings, wait_for):
-        """``(True | False, how it was decided)``: whether the controller compensates the
-        identified effects (``controller_effects``; ``auto``: it declares every
-        ``geometry.effects.*``); ``(None, why)`` when its parameters could not be listed."""
+        """``(True | False, how it was decided)``: whether the controller compensates the effects
+        (``controller_effects``); ``(None, why)`` when its parameters could not be listed."""
         if settings.controller_effects != 'auto':
             return settings.controller_effects == 'compensated', 'controller_effects'
         prefix = EFFECT_PARAMETER_PREFIX.rstrip('.')
@@ -73,9 +69,8 @@ def _why_rigid(decided):
 
 
 def applied_note(node_name, geometry, compensates, folded, decided):
-    """What was applied to ``/node_name``: the geometry with the identified effects the
-    controller compensates, or (``compensates`` False) the rigid geometry, ``folded`` when
-    effects were folded in; ``decided``: 'auto' when the controller's parameters told."""
+    """What was applied to ``/node_name``: the geometry with its effects, or the rigid one
+    (``folded``: the effects folded in)."""
     groups = [group for group in geometry.effects.groups() if group != 'thermal']
     if compensates:
         what = 'geometry.* parameters'
@@ -96,8 +91,8 @@ def applied_note(node_name, geometry, compensates, folded, decided):
 
 
 def verdict_note(geometry, which, compensates):
-    """Which geometry the verdict that let ``geometry`` be applied describes ('' when it has no
-    effects: there is one geometry); ``which``: ``run.rigid.Verdicts.of``'s."""
+    """Which geometry the verdict that let ``geometry`` be applied describes ('' without
+    effects)."""
     if geometry.effects.none:
         return ''
     if which == 'compensating' and not compensates:  # no fold: no rigid figure either
@@ -106,9 +101,8 @@ def verdict_note(geometry, which, compensates):
 
 
 def not_accepted_note(node_name, which, verdict, decided):
-    """Why nothing was applied to ``/node_name``: the ``verdict`` (``acceptance.Verdict``) of
-    the ``which`` geometry ('rigid' or 'compensating') it runs does not accept it; ``decided``:
-    'auto' when the controller's parameters told."""
+    """Why nothing was applied to ``/node_name``: the ``verdict`` of the ``which`` geometry it
+    runs does not accept it."""
     runs = 'the geometry with its effects (result.yaml)'
     if which == 'rigid':
         runs = f'the rigid geometry (result_rigid.yaml): {_why_rigid(decided)}'
@@ -154,10 +148,8 @@ class ParameterSetter:
 
 
 async def call_service(client, service, request, timeout_s, wait_for):
-    """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (unavailable
-    or no answer within ``timeout_s``). ``wait_for(predicate, timeout_s)``: a future of
-    :data:`gsp_calibrator.run.host.WAIT_OK` or :data:`gsp_calibrator.run.host.WAIT_TIMEOUT` (e.g.
-    :meth:`gsp_calibrator.node.threads.Waits.add`)."""
+    """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (``wait_for``:
+    :attr:`gsp_calibrator.run.host.RunHost.wait_for`)."""
     if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
         return None, f'parameter service {service} unavailable within {timeout_s:g} s'
     future = client.call_async(request)

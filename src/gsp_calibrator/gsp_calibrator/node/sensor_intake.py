@@ -13,10 +13,9 @@ LISTENER_TICK_S = 0.1  #: the listener's tick (silence on the wire, :meth:`Senso
 
 
 class SensorIntake:
-    """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns), ``count_publishers
-    (topic)`` the publishers of a topic, ``wire_times_on_clock()`` whether the middleware's
-    receive times are on that clock (not under use_sim_time). Set :attr:`postures` (the node's ``PostureLink``) before
-    a run starts."""
+    """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns),
+    ``wire_times_on_clock()``: whether the middleware's receive times are on it. Set
+    :attr:`postures` (the node's ``PostureLink``) before a run starts."""
 
     def __init__(self, now_ns, count_publishers, wire_times_on_clock=lambda: True):
         self.now_ns = now_ns
@@ -73,10 +72,8 @@ class SensorIntake:
         return collection.sensors(taken, now_ns)
 
     def tick(self):
-        """The listener's own tick (its thread). Between a tick and the next but one, its
-        executor has waited on its subscriptions and taken what was ready: every message
-        received off the wire before the tick two back has been taken, so silence is judged up
-        to then (a listener starved of the CPU is no silent topic)."""
+        """The listener's own tick (its thread): every message received before the tick two back
+        has been taken, so silence is judged up to then (a starved listener is no silent topic)."""
         self._ticks.append(self.now_ns())
         postures = self.postures
         if postures is not None and len(self._ticks) == self._ticks.maxlen:

@@ -1,6 +1,4 @@
-"""The calibrator's health on ``/diagnostics`` (status ``calibrator: calibration``), from the
-state of its run, the age of the sensor topics and how far behind them the calibrator is
-(pure, no rclpy; docs/nodes.md#diagnostics)."""
+"""The calibrator's health on ``/diagnostics`` (pure, no rclpy; docs/nodes.md#diagnostics)."""
 
 import math
 import threading
@@ -8,8 +6,7 @@ import threading
 from gsp_msgs_py import names
 from gsp_msgs_py.health import ERROR, OK, WARN, Health, worst
 
-#: Processing lag (s) of a sensor topic above which the status warns: the calibrator is behind
-#: its streams (a busy machine), and its decisions on the postures come that much later.
+#: Processing lag (s) of a sensor topic above which the status warns (behind its streams).
 LAG_WARN_S = 1.0
 
 
@@ -23,10 +20,8 @@ def topic_lag_key(topic):
     return f'{topic} lag_s'
 
 
-#: The lag histogram's bins: geometric, each :data:`LAG_BIN_RATIO` times the previous, from
-#: :data:`LAG_FLOOR_S` (smaller lags share the first bin) to :data:`LAG_CEILING_S` (larger ones
-#: share the last). A percentile is its bin's upper edge (at most the largest lag noted): 1 %
-#: resolution in a few kB per topic however long the run.
+#: The lag histogram's geometric bins, from :data:`LAG_FLOOR_S` to :data:`LAG_CEILING_S` (the
+#: first and last take the smaller and larger lags): 1 % resolution in a few kB per topic.
 LAG_FLOOR_S = 1e-5
 LAG_CEILING_S = 1e3
 LAG_BIN_RATIO = 1.01
@@ -119,13 +114,9 @@ class ProcessingLags:
 
 
 def calibrator_health(running, progress, run_directory, heard_ns, now_ns, topic_timeout, lags=None):
-    """``Health`` of the calibrator.
-
-    ``running``: a run is in progress; ``progress``: the latest published progress
-    (``conversions.CalibrationProgress``) or None; ``run_directory``: of the current or last run
-    ('' before the first); ``heard_ns``: ``{topic: receive time (ns) of its latest message, or
-    None}`` of the sensor topics, on the clock of ``now_ns``; ``topic_timeout`` (s); ``lags``:
-    ``{topic: processing lag (s) or None}`` (:meth:`ProcessingLags.take`)."""
+    """``Health`` of the calibrator: ``progress``, its latest (or None); ``heard_ns``: ``{sensor
+    topic: receive time (ns) of its latest message, or None}`` on the clock of ``now_ns``;
+    ``lags``: :meth:`ProcessingLags.take`."""
     phase = progress.phase if progress is not None else names.PHASE_IDLE
     index, count = (progress.posture_index, progress.posture_count) if progress else (0, 0)
     values = {

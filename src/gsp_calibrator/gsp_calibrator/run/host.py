@@ -11,9 +11,7 @@ from gsp_calibrator.run.health import ProcessingLags
 WAIT_OK = 'ok'
 WAIT_TIMEOUT = 'timeout'
 
-#: The ends of a posture after which the run goes on. Any other end (a silent topic, no
-#: synchronised sample, a second source on a topic, a file that cannot be written) ends the run;
-#: its ``message`` says why.
+#: The ends of a posture after which the run goes on; any other ends the run (its ``message``).
 POSTURE_ENDS = (RowReady, PostureSkipped)
 
 
@@ -45,14 +43,12 @@ class RunHost:
     #: ``progress(index, phase, message='', residuals=None, warning=False, **extra)``: publish
     #: the run's progress at posture ``index`` (0 before the first)
     progress: Callable[..., None]
-    #: ``deliver_result(settings, geometry, run.rigid.Verdicts, rigid geometry or None)``: awaitable of
-    #: ``(success, note)``
-    #: (``gsp_calibrator.node.result_delivery``)
+    #: ``deliver_result(settings, geometry, run.rigid.Verdicts, rigid geometry or None)``:
+    #: awaitable of ``(success, note)`` (``gsp_calibrator.node.result_delivery``)
     deliver_result: Callable[..., Awaitable]
     #: whether the process is going down (Ctrl-C, SIGTERM): a failure then is no crash
     shutting_down: Callable[[], bool]
-    #: the processing lags of the run's sensor messages (reset at its start, summed up in its
-    #: ``result.json``)
+    #: the processing lags of the sensor messages (the run's: reset at its start, in result.json)
     processing_lags: ProcessingLags = dataclasses.field(default_factory=lambda: ProcessingLags(()))
 
 

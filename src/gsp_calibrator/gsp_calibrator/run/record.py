@@ -79,18 +79,12 @@ class RunState:
     sessions: int = 1  #: 1 + the number of resumes
     recordings: list = dataclasses.field(default_factory=list)  #: recording files, in order
     pid: int = 0  #: process of the calibrator of the current session
-    #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
-    #: (1-based) in their place
+    #: [{rejected, replacement, reason}]: postures the platform rejected and their replacements
     replacements: list = dataclasses.field(default_factory=list)
-    #: {posture (str): {wait_s, moving_pairs}}: each kept row's rest wait, from the
-    #: platform's settled status to the first averaged sample, and the pairs waited out as still
-    #: settling (:mod:`gsp_calibrator.collection.synchroniser`)
+    #: {posture (str): {wait_s, moving_pairs}}: each kept row's rest wait after its settled status
     rest_waits: dict = dataclasses.field(default_factory=dict)
-    #: postures added from the pool by a run that stops when it is good enough (the last of
-    #: ``poses``)
-    added: int = 0
-    #: what the effect groups added to the route (``postures.route_additions``; {}: nothing):
-    #: reference revisits and approach postures, each its own posture at a pose of the plan
+    added: int = 0  #: postures added from the pool (``stop_when_accurate``; the last of ``poses``)
+    #: what the effect groups added to the route (``postures.route_additions``; {}: nothing)
     route_additions: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self):
@@ -175,9 +169,7 @@ def latest_unfinished_run(output_root, own_pid=None):
 
 def validate_resume(state, settings, samples, own_pid=None):
     """Refuse (:class:`ResumeRefused`) a resume of ``state`` with ``settings`` and the run's
-    ``samples`` (``Rows`` of its samples.csv) when they do not belong together. ``own_pid``:
-    the resuming calibrator's process (a run it left unfinished, e.g. on a full disk whose
-    state.json kept ``collecting``, is resumable)."""
+    ``samples`` when they do not belong together (``own_pid``: the resuming calibrator's)."""
     current = selection_options(settings)
     stored = state.selection
     if stored.get('device_digest') != current['device_digest']:
@@ -214,8 +206,7 @@ def validate_resume(state, settings, samples, own_pid=None):
 
 
 def postures_to_collect(state, samples):
-    """The 1-based postures without a samples.csv row (skipped ones are tried again, except those
-    a replacement stands in for)."""
+    """The 1-based postures without a row or a replacement (skipped ones are tried again)."""
     collected = set(int(k) for k in samples.posture)
     replaced = {int(r['rejected']) for r in state.replacements}
     return [k for k in range(1, len(state.poses) + 1) if k not in collected and k not in replaced]
@@ -246,8 +237,7 @@ class WriteFailed:
 
 class RunRecord:
     """The run's ``directory`` (a ``RunDirectory``), its rows ``samples`` and ``state`` (None
-    until :meth:`begin` for a new run); ``recovered``: recordings a killed calibrator left,
-    finalised on resume."""
+    until :meth:`begin`); ``recovered``: recordings a killed calibrator left, finalised."""
 
     def __init__(self, directory, samples, state=None, recovered=()):
         self.directory = directory
@@ -272,8 +262,7 @@ class RunRecord:
 
     @classmethod
     def resume(cls, settings, pid):
-        """The unfinished run ``settings.resume_run_directory``, else the latest under
-        ``output_root``; :class:`RunRefused` names why it cannot be resumed."""
+        """The unfinished run ``resume_run_directory``, else the latest under ``output_root``."""
         try:
             if settings.resume_run_directory:
                 path = settings.resume_run_directory
@@ -298,10 +287,8 @@ class RunRecord:
         return self.state is not None and self.state.sessions > 1
 
     def begin(self, settings, poses, pid, recording_file=None, route_additions=None):
-        """Start collecting: ``poses`` is a new run's selection (a resumed run keeps its own);
-        ``recording_file``: this session's recording, if any; ``route_additions``: what the
-        effect groups added to a new run's route (``postures.route_additions``). Writes
-        state.json."""
+        """Start collecting ``poses``, a new run's plan (a resumed run keeps its own), with
+        this session's ``recording_file`` and the plan's ``route_additions``; writes state.json."""
         if self.state is None:
             poses = np.asarray(poses, dtype=float).reshape(-1, 6)
             self.state = RunState(selection_options(settings), poses.tolist())
@@ -332,9 +319,8 @@ class RunRecord:
             return k, np.asarray(self.state.poses[k - 1], dtype=float)
 
     def note_command(self, posture, pose, standing_legs=None):
-        """``posture`` (``pose``) is about to be commanded; ``standing_legs`` (6,) m: the leg
-        lengths heard last (where the first command starts from). Its row gets the approach
-        directions (``run.approach``)."""
+        """``posture`` is about to be commanded from ``standing_legs`` (6,) m, heard last (its
+        row gets the legs' approach directions)."""
         with self._lock:
             self.approach.command(posture, pose, standing_legs)
 
@@ -344,8 +330,7 @@ class RunRecord:
             return self.samples.rows(slice(0, len(self.samples)))
 
     def add_posture(self, pose):
-        """Append ``pose`` (6,) to the postures to command (a run that stops when it is good
-        enough adds pool postures); ``(k, pose)`` of it, recorded in state.json's poses."""
+        """Append ``pose`` (6,), a pool posture, to state.json's poses: its ``(k, pose)``."""
         with self._lock:
             self.state.poses.append(np.asarray(pose, dtype=float).tolist())
             self.state.added += 1
@@ -373,8 +358,8 @@ class RunRecord:
             self.state.record_done(event.posture, row)
 
     def end_posture(self, event):
-        """Keep what ends a posture: a ``RowReady`` (its row) or a ``PostureSkipped``; returns
-        the event, or a :class:`WriteFailed` when the row could not be written."""
+        """Keep a ``RowReady`` (its row) or a ``PostureSkipped``: the event, or a
+        :class:`WriteFailed`."""
         try:
             if hasattr(event, 'sample'):
                 self.add_row(event)
@@ -385,8 +370,7 @@ class RunRecord:
         return event
 
     def skip(self, event):
-        """Note a ``protocol.PostureSkipped``; one the platform rejected gets a replacement
-        (``replace``), appended to the postures to command and recorded."""
+        """Note a ``PostureSkipped``; one the platform rejected gets a replacement (``replace``)."""
         with self._lock:
             self.state.record_skip(event.posture, event.reason)
             if event.rejected_by_platform and self.approach is not None:
@@ -410,7 +394,7 @@ class RunRecord:
 
     def save(self, phase=None, stop_reason=None):
         """Rewrite state.json (atomic) with ``phase`` / ``stop_reason`` if given;
-        :class:`RunWriteError` if it cannot be written (the previous one is then intact)."""
+        :class:`RunWriteError` if it cannot be written."""
         path = self.directory.file(STATE_FILE)
         with self._save_lock:
             with self._lock:

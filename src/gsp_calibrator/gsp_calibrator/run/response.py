@@ -1,6 +1,5 @@
-"""The text of a calibration run (pure): each posture's report line and residuals, the outcome
-summary, the failure message, and the Trigger response (a human summary, then the calibrated
-geometry params-file YAML) with its parser."""
+"""The text of a calibration run (pure): each posture's report, the outcome summary, and the
+Trigger response (a human summary, then the calibrated geometry's params file) and its parser."""
 
 import dataclasses
 import math
@@ -27,8 +26,6 @@ from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
 
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
-
-
 IDENTIFICATION_TIME_LABEL = 'identification time: '
 
 
@@ -49,9 +46,8 @@ def sensor_error_text(result):
 
 
 def fit_lines(outcome):
-    """The fit summary of ``outcome`` as text lines (:func:`gsp_calibrator.report.fit.fit_summary`,
-    the same summary ``report.md`` renders as markdown): the verdict, the cross-validated
-    accuracy, the goodness of fit, outliers, down-weighted postures and noise."""
+    """The fit summary of ``outcome`` as text lines (``report.fit.fit_summary``, as report.md
+    renders it)."""
     from gsp_calibrator.report.accuracy import result_json_entry
     from gsp_calibrator.report.fit import as_text, fit_data, fit_summary, outcome_data
 
@@ -121,18 +117,15 @@ NOT_ACCEPTED_HEAD = 'calibration NOT ACCEPTED'
 
 
 def final_progress_message(summary, success, note):
-    """The last progress message of a run that identified: the summary's head, or, when
-    applying the result failed (``note`` 'NOT applied: ...'), that note, so that the text
-    agrees with the phase (done when ``success``, else failed)."""
+    """The last progress message of a run that identified: the summary's head, or the ``note``
+    of a failed apply (the text agrees with the phase)."""
     head = summary.splitlines()[0] if summary else ''
     return head if success or not note else note
 
 
 def accuracy_headline(outcome):
     """``'; accuracy 0.048 mm held out (95 %: 0.039-0.061 mm; nominal 13.6 mm, predicted
-    0.045 mm)'`` of an outcome's cross-validation (the interval: where the true accuracy over
-    the workspace lies, docs/verdict.md), '' without one: the head of the summary and the last
-    progress line."""
+    0.045 mm)'`` of an outcome's cross-validation ('' without one)."""
     accuracy = outcome.accuracy
     if not accuracy:
         return ''
@@ -210,8 +203,7 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
 
 
 def failure_message(error, collected, run):
-    """The response text of a run that ended early with ``error`` after ``collected`` postures;
-    ``run``: its ``RunDirectory`` (the rows are in its ``samples.csv``)."""
+    """The response of a run (``run``: its ``RunDirectory``) that ended early with ``error``."""
     from gsp_calibrator.files.run_directory import SAMPLES_FILE
 
     return (
