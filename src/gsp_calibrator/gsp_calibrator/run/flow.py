@@ -267,7 +267,7 @@ class CalibrationRun:
         finally:
             if stop is not None:
                 stop.close()
-        return None if stop is None else stop.record(settings, record)
+        return None if stop is None else stop.record()
 
     def _judged_enough(self, stop):
         """Whether the latest finished judgement meets the requirement; else start judging the
@@ -277,29 +277,26 @@ class CalibrationRun:
             self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
         if stop.met:
             return True
-        if stop.judge_now(len(self.record.samples)):
-            stop.submit(self.settings, stop.rows(self.record))
+        stop.judge_if_due()
         return False
 
     async def _posture_to_add(self, stop):
         """After the plan (whose rows are then judged whole): ``(k, pose)`` of the pool posture
         to add, or None when the rows meet the requirement or no more may be added."""
-        host, record, settings = self.host, self.record, self.settings
+        host = self.host
         if stop.added == 0:
             if stop.in_flight is not None:
                 stop.note(await host.await_thread(stop.in_flight))
-            if stop.judge_now(len(record.samples), last=True):
-                stop.submit(settings, stop.rows(record))
+            if stop.judge_if_due(last=True):
                 judgement = stop.note(await host.await_thread(stop.in_flight))
                 self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
         if not stop.may_add():
             return None
-        legs = self.collection.latest_leg_lengths()
-        pose = await host.in_thread(stop.next_pose, settings, record.state.poses, legs)
+        pose = await host.in_thread(stop.next_pose, self.collection.latest_leg_lengths())
         if pose is None:
             return None
         self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
-        return record.add_posture(pose)
+        return self.record.add_posture(pose)
 
     async def _judge(self, reused, stopping):
         """The course's judgement of the collected rows (state.json: identifying)."""

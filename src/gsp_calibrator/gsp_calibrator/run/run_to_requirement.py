@@ -148,6 +148,8 @@ def summary_line(record):
 class StoppingState:
     """Where a run that stops when it is good enough stands (held by the run loop)."""
 
+    settings: object  #: the run's ``CalibratorSettings``
+    run_record: object  #: the run's ``record.RunRecord``
     rule: stopping.StoppingRule
     start_pose: np.ndarray  #: (6,) where the platform stood before the first posture
     plan: list  #: the fixed plan's poses (M, 6), in order
@@ -172,16 +174,20 @@ class StoppingState:
         if unknown and plan:  # the times are then counted from the first posture
             start = np.asarray(plan[0], dtype=float)
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
-        return cls(rule_for(settings), start, plan, worker, reused=reused)
+        return cls(settings, run_record, rule_for(settings), start, plan, worker, reused=reused)
 
-    def rows(self, run_record):
-        """The rows of ``run_record`` so far and the reused ones (numbered after its postures)."""
-        rows = run_record.rows_so_far()
-        return reused_rows.joined(rows, self.reused, len(run_record.state.poses) + 1)
-
-    def submit(self, settings, rows):
-        """Judge ``rows`` (:meth:`rows`) in the worker thread."""
-        self.in_flight = self.worker.submit(judge_rows, settings, rows, self.rule)
+    def judge_if_due(self, last=False):
+        """Start judging the rows so far and the reused ones (numbered after the run's postures)
+        in the worker thread when due: none under way, rows not yet judged, and due by the rule
+        (``last``: the plan has ended); whether it started."""
+        run_record, rows = self.run_record, len(self.run_record.samples)
+        judged = self.latest.postures if self.latest is not None else 0
+        if self.in_flight is not None or rows <= judged or not self.rule.due(rows, last):
+            return False
+        first = len(run_record.state.poses) + 1
+        together = reused_rows.joined(run_record.rows_so_far(), self.reused, first)
+        self.in_flight = self.worker.submit(judge_rows, self.settings, together, self.rule)
+        return True
 
     def finished(self):
         """The in-flight judgement if it has finished (then noted), else None."""
@@ -195,21 +201,16 @@ class StoppingState:
         self.history.append(judgement.record())
         return judgement
 
-    def judge_now(self, rows, last=False):
-        """Whether to judge ``rows`` collected rows now: none under way, rows not yet judged,
-        and due by the rule (``last``: the plan has ended)."""
-        judged = self.latest.postures if self.latest is not None else 0
-        return self.in_flight is None and rows > judged and self.rule.due(rows, last)
-
     def may_add(self):
         """Whether a pool posture may be added: not met, under ``max_added``, and judged."""
         return not self.met and self.added < self.rule.max_added and self.latest is not None
 
-    def next_pose(self, settings, poses, latest_legs):
+    def next_pose(self, latest_legs):
         """The pool pose to add (worker thread; the pool is built at the first call), counted
         as added; None when the pool has none left."""
         if self.additions is None:
-            self.additions = PoolAdditions(settings)
+            self.additions = PoolAdditions(self.settings)
+        poses = self.run_record.state.poses
         pose = self.additions.next_pose(self.latest, poses, latest_legs, self.rule)
         self.added += pose is not None
         return pose
@@ -221,15 +222,13 @@ class StoppingState:
     def close(self):
         self.worker.shutdown(wait=False, cancel_futures=True)
 
-    def record(self, settings, run_record):
+    def record(self):
         """``result.json`` ``collection.run_to_requirement``: met or not, the platform time
         spent and the fixed plan's, the latest bounds and the judgements."""
-        rule, plan_poses = self.rule, self.plan
-        commanded_poses = run_record.state.poses[
-            : len(run_record.state.poses) - len(run_record.remaining)
-        ]
-        spent = platform_time_s(settings, self.start_pose, commanded_poses, rule)
-        fixed = platform_time_s(settings, self.start_pose, plan_poses, rule)
+        rule, poses = self.rule, self.run_record.state.poses
+        commanded_poses = poses[: len(poses) - len(self.run_record.remaining)]
+        spent = platform_time_s(self.settings, self.start_pose, commanded_poses, rule)
+        fixed = platform_time_s(self.settings, self.start_pose, self.plan, rule)
         bounds = (self.latest.bounds if self.latest is not None else stopping.UNKNOWN).record()
         return {
             'met': self.met,
@@ -240,7 +239,7 @@ class StoppingState:
             'added': self.added,
             'platform_time_s': spent,
             'fixed_plan_time_s': fixed,
-            'fixed_plan_postures': len(plan_poses),
+            'fixed_plan_postures': len(self.plan),
             'bounds': bounds,
             'judgements': self.history,
         }
