@@ -38,16 +38,13 @@ class SensorIntake:
         def callback(batch):
             self.heard_ns[topic] = time.monotonic_ns()
             postures = self.postures
-            if postures is None or not postures.active:  # no run: drop at once
-                decided_ns = time.time_ns()
-                for _, info in batch:
-                    lags.note(topic, info.get('received_timestamp'), decided_ns)
-                return
-            messages = [(sensor_message(raw), info) for raw, info in batch]
-            postures.feed(lambda collection: self._step(collection, topic, messages))
+            in_run = postures is not None and postures.active  # else dropped at once
+            if in_run:
+                messages = [(sensor_message(raw), info) for raw, info in batch]
+                postures.feed(lambda collection: self._step(collection, topic, messages))
             decided_ns = time.time_ns()
             for _, info in batch:
-                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=True)
+                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=in_run)
 
         return callback
 

@@ -46,16 +46,12 @@ def sensor_error_text(result):
 
 
 def fit_lines(outcome):
-    """The fit summary of ``outcome`` as text lines (``report.fit.fit_summary``, as report.md
-    renders it)."""
+    """The fit summary of a successful ``outcome`` as text lines (``report.fit.fit_summary``)."""
     from gsp_calibrator.report.accuracy import result_json_entry
     from gsp_calibrator.report.fit import as_text, fit_data, fit_summary, outcome_data
 
-    result = outcome.result
-    if result is None:
-        return [outcome.fit_diagnosis] if outcome.fit_diagnosis else []
     data = {
-        **fit_data(result),
+        **fit_data(outcome.result),
         **outcome_data(outcome),
         'predicted_accuracy': result_json_entry(outcome.prediction),
     }
@@ -173,7 +169,7 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
             f'{outcome.identifiability.get("parameters")}, scaled condition number '
             f'{condition:.4g}'
         )
-    if outcome.success and result is not None:
+    if outcome.success:  # a result, then
         deviations = result.standard_deviations
         free = np.asarray(result.free, dtype=bool)
         lengths = deviations[:43][free[:43]]
@@ -185,7 +181,6 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
         sensor_text = sensor_error_text(result)
         if sensor_text:
             lines.append(f'sensor errors: {sensor_text}')
-    if outcome.success:
         lines.extend(fit_lines(outcome))
     if outcome.result is not None:
         from gsp_calibrator.report.effects import effects_lines
