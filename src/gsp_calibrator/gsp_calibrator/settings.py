@@ -54,13 +54,6 @@ from gsp_msgs_py.parameter_specs import (
     validate_values,
 )
 
-#: Workspace postures of a run by default: none (docs/verdict.md: on the bench they are a better
-#: estimate on some platforms and a worse one on others, for a third more platform time).
-DEFAULT_WORKSPACE_POSTURES = 0
-
-#: ``controller_effects``: ask the controller, or say whether it compensates the effects.
-CONTROLLER_EFFECTS = ('auto', 'compensated', 'rigid')
-
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 #: A platform id: letters, digits, '-', '_', '.' (it names the platform in the history).
 _PLATFORM_ID = re.compile(r'^[A-Za-z0-9_.-]{1,64}$')
@@ -92,17 +85,16 @@ def _validate_geometry_file(value):
     return ''
 
 
-_POSITIVE = greater_than(0.0, reason='must be a finite number > 0')
-
-
-#: Values of the ``posture_order`` parameter.
-POSTURE_ORDERS = ('route', 'selection')
-
-
 def _positive(name, default, description, unit='', subsets=frozenset()):
     """A parameter that must be a finite number > 0."""
     return ParameterSpec(
-        name, default, description, unit=unit, constraints='> 0', check=_POSITIVE, subsets=subsets
+        name,
+        default,
+        description,
+        unit=unit,
+        constraints='> 0',
+        check=greater_than(0.0, reason='must be a finite number > 0'),
+        subsets=subsets,
     )
 
 
@@ -168,7 +160,7 @@ PARAMETERS = (
     ),
     ParameterSpec(
         'workspace_postures',
-        DEFAULT_WORKSPACE_POSTURES,
+        0,  # none by default (docs/verdict.md)
         'Workspace postures drawn at random (seeded by seed) and commanded with the selected '
         'ones: the measured accuracy is their cross-validated error (plus the device uncertainty), '
         'the selected postures figure beside it, the requirement judged on the larger '
@@ -380,7 +372,7 @@ PARAMETERS = (
         'route',
         "Order the postures are commanded in: route (the shortest travel from the platform's "
         'current posture, docs/planning.md) or selection (the order the selection found them)',
-        POSTURE_ORDERS,
+        ('route', 'selection'),
     ),
     _positive(
         'max_leg_speed',
@@ -436,7 +428,7 @@ PARAMETERS = (
         'geometry, the effects folded in), auto (compensated when it declares geometry.effects.* '
         'parameters, asked through its list_parameters service before the apply)',
         constraints='auto, compensated or rigid',
-        check=one_of(CONTROLLER_EFFECTS),
+        check=one_of(('auto', 'compensated', 'rigid')),
     ),
     # keeping a platform calibrated (docs/upkeep.md)
     ParameterSpec(

@@ -245,8 +245,7 @@ class RunRecord:
         self.state = state
         self.recovered = list(recovered)
         self.remaining = []  #: postures (1-based) still to command, in order
-        #: ``replace(poses, rejected)``: the pose (6,) to add for a rejected posture, or None
-        self.replace = None
+        self.replace = None  #: ``replace(poses, rejected)``: a rejected posture's new pose or None
         self._appender = None
         self.approach = None  #: the ApproachTracker of the postures commanded (from begin)
         self._lock = threading.Lock()  # guards samples, state and remaining

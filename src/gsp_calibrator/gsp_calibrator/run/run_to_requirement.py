@@ -153,15 +153,13 @@ class StoppingState:
     rule: stopping.StoppingRule
     start_pose: np.ndarray  #: (6,) where the platform stood before the first posture
     plan: list  #: the fixed plan's poses (M, 6), in order
-    #: the one worker thread of the judgements (one at a time, the newest rows)
-    worker: concurrent.futures.ThreadPoolExecutor
+    worker: concurrent.futures.ThreadPoolExecutor  #: the judgements' thread, one at a time
     in_flight: concurrent.futures.Future | None = None  #: the judgement under way
     latest: Judgement | None = None  #: the newest finished judgement
     history: list = dataclasses.field(default_factory=list)  #: ``Judgement.record`` of each
     additions: PoolAdditions | None = None  #: the pool, once the plan was not enough
     added: int = 0  #: postures added from the pool
-    #: rows of another run judged with the run's own (``upkeep.reused_rows.ReusedRows``)
-    reused: object = None
+    reused: object = None  #: another run's rows judged with its own (``reused_rows.ReusedRows``)
 
     @classmethod
     def start(cls, settings, run_record, latest_legs, reused=None):
