@@ -5,7 +5,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 from gsp_calibrator.run.host import WAIT_OK
-from gsp_calibrator.run.identify import RESULT_COMMENT
+from gsp_calibrator.run.response import RESULT_COMMENT
 from gsp_kinematics.model.geometry import geometry_to_parameters, geometry_to_yaml
 from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES, EFFECT_PARAMETER_PREFIX
 

@@ -1,5 +1,7 @@
 """The calibrator's health on ``/diagnostics`` (pure, no rclpy; docs/nodes.md#diagnostics)."""
 
+import bisect
+import itertools
 import math
 import threading
 
@@ -52,14 +54,10 @@ class LagHistogram:
         if not self.count:
             return None
         rank = max(1, math.ceil(percent / 100.0 * self.count))
-        seen = 0
-        for index, n in enumerate(self.counts):
-            seen += n
-            if seen >= rank:
-                if index == _LAG_BINS - 1:  # the last bin has no upper edge
-                    return self.largest
-                return min(self.largest, LAG_FLOOR_S * LAG_BIN_RATIO**index)
-        return self.largest  # not reached: the counts add up to ``count``
+        index = bisect.bisect_left(list(itertools.accumulate(self.counts)), rank)
+        if index >= _LAG_BINS - 1:  # the last bin has no upper edge
+            return self.largest
+        return min(self.largest, LAG_FLOOR_S * LAG_BIN_RATIO**index)
 
     def summary(self):
         """``{count, p50_s, p99_s, max_s}`` (the figures None before the first lag)."""

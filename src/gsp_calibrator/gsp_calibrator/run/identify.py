@@ -20,7 +20,7 @@ from gsp_calibrator.run.postures import (
     route_additions_line,
     workspace_poses,
 )
-from gsp_calibrator.run.response import outcome_summary
+from gsp_calibrator.run.response import RESULT_COMMENT, outcome_summary
 from gsp_calibrator.run.rigid import Verdicts, rigid_result
 from gsp_kinematics.estimation import identifiability, noise_from_data
 from gsp_kinematics.estimation.goodness import fit_diagnosis
@@ -42,8 +42,6 @@ from gsp_kinematics.model.device import DeviceModelError
 from gsp_kinematics.model.effect_groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
-#: Comment of the calibrated geometry file and the latched result.
-RESULT_COMMENT = 'calibrated by gsp_calibrator'
 #: Added to the rigid geometry's comment (result_rigid.yaml).
 RIGID_COMMENT = (
     'rigid: the identified effects folded in, for a controller without geometry.effects.* '
@@ -175,17 +173,16 @@ def identify_from_samples(
         return outcome
     within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
     design = effect_design(samples, payload_mass, centre_of_mass, leg_mass)
-    poses = (samples.commanded_poses, workspace_poses)
     started = time.perf_counter()
     try:
         weights = RowWeights(row_sigmas, within, design)
         fit = _fit(nominal, samples, weights, free, formulation, noise_source, identify_options)
     except (IdentificationError, DeviceModelError, np.linalg.LinAlgError, ValueError) as error:
-        outcome.duration_s = time.perf_counter() - started
         hint = DEVICE_MODEL_HINT if isinstance(error, DeviceModelError) else ''
         outcome.message = f'identification failed: {error}{hint}'
         return outcome
-    outcome.duration_s = time.perf_counter() - started
+    finally:
+        outcome.duration_s = time.perf_counter() - started
     outcome.result = result = fit.result
     outcome.sigmas = fit.sigmas
     if not result.converged:
@@ -211,7 +208,8 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    judging = Judging(requirement, folds, identify_options, workspace_rows(*poses))
+    workspace = workspace_rows(samples.commanded_poses, workspace_poses)
+    judging = Judging(requirement, folds, identify_options, workspace)
     _judge(outcome, nominal, samples, fit, row_sigmas, judging)
     return outcome
 

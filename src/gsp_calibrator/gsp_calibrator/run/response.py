@@ -24,6 +24,8 @@ from gsp_kinematics.model.kinematics import inverse_kinematics
 from gsp_kinematics.rotation import wrap_angle
 from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
 
+#: Comment of the calibrated geometry: its file, the latched result and the response.
+RESULT_COMMENT = 'calibrated by gsp_calibrator'
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
 IDENTIFICATION_TIME_LABEL = 'identification time: '
@@ -212,9 +214,7 @@ def format_response(summary, geometry=None, node_name='/**'):
     """Trigger response message: the summary, then (on success) the geometry params file."""
     if geometry is None:
         return summary
-    yaml_text = geometry_to_yaml(
-        geometry, node_name=node_name, comment='calibrated by gsp_calibrator'
-    )
+    yaml_text = geometry_to_yaml(geometry, node_name=node_name, comment=RESULT_COMMENT)
     return f'{summary}\n{RESPONSE_SEPARATOR}\n{yaml_text}'
 
 
