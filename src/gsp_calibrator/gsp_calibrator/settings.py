@@ -563,9 +563,8 @@ def option_value(name, value):
 
 
 def add_run_options(parser, seed_help='seed of the posture pool'):
-    """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`: ``--postures``,
-    ``--pool-size``, ``--pairs-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
-    the parameters' defaults. Check the parsed values with :func:`run_options_error`."""
+    """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`) with the parameters'
+    defaults; check the parsed values with :func:`run_options_error`."""
     for name in names_in(RUN_COMMAND_LINE):
         default = DEFAULTS[name]
         help_text = seed_help if name == 'seed' else PARAMETER_SPECS[name].description
@@ -579,9 +578,8 @@ def add_run_options(parser, seed_help='seed of the posture pool'):
 
 
 def run_options_error(args):
-    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid
-    (each parameter's own check); each value is converted in place (``free_parameters`` split
-    at commas)."""
+    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid;
+    each value converted in place (:func:`option_value`)."""
     try:
         for name in names_in(RUN_COMMAND_LINE):
             setattr(args, name, option_value(name, getattr(args, name)))
@@ -605,9 +603,8 @@ def validate_parameters(changes, current=None):
 
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings(ParameterFields):
-    """The settings of one calibration run (a snapshot of the parameters): one typed field per
-    parameter of :data:`PARAMETERS` (lists as tuples, ``settings_fields.py``) and ``nominal``,
-    the loaded nominal ``Geometry``; built by :meth:`from_values`."""
+    """The settings of one run: a typed field per parameter (``settings_fields.py``; lists as
+    tuples) and ``nominal``, the loaded nominal ``Geometry``; built by :meth:`from_values`."""
 
     @functools.cached_property
     def sigmas(self):

@@ -145,8 +145,7 @@ class CalibratorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _wire_times_on_clock(self):
-        """Whether the middleware's timestamps (system time) are on the node's clock (not under
-        use_sim_time)."""
+        """Whether the middleware's timestamps are on the node's clock (not under use_sim_time)."""
         return not self.get_clock().ros_time_is_active
 
     def _setup_recorder(self, node):

@@ -11,8 +11,7 @@ from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES, EFFECT_PARAM
 
 
 class ResultDelivery:
-    """Publishes results on ``publisher`` (the latched result topic) and applies them from
-    ``node`` (its parameter clients in ``callback_group``)."""
+    """Publishes results on ``publisher`` (latched) and applies them from ``node``."""
 
     def __init__(self, node, publisher, callback_group=None):
         self.node = node
@@ -91,8 +90,7 @@ def applied_note(node_name, geometry, compensates, folded, decided):
 
 
 def verdict_note(geometry, which, compensates):
-    """Which geometry the verdict that let ``geometry`` be applied describes ('' without
-    effects)."""
+    """Which geometry the verdict that let ``geometry`` be applied describes ('' if one)."""
     if geometry.effects.none:
         return ''
     if which == 'compensating' and not compensates:  # no fold: no rigid figure either
@@ -137,8 +135,8 @@ class ParameterSetter:
         return await set_parameters_atomically(client, service, values, timeout_s, wait_for)
 
     async def list(self, node_name, prefix, timeout_s, wait_for):
-        """The names of ``/<node_name>``'s parameters under ``prefix`` (its ``list_parameters``
-        service): ``(names, '')`` or ``(None, why)``."""
+        """The names of ``/<node_name>``'s parameters under ``prefix``: ``(names, '')`` or
+        ``(None, why)``."""
         client, service = self._client(ListParameters, node_name, 'list_parameters')
         request = ListParameters.Request(
             prefixes=[prefix], depth=ListParameters.Request.DEPTH_RECURSIVE
@@ -160,8 +158,7 @@ async def call_service(client, service, request, timeout_s, wait_for):
 
 
 async def set_parameters_atomically(client, service, values, timeout_s, wait_for):
-    """Set ``values`` ({name: value}) through ``client`` (``SetParametersAtomically`` of
-    ``service``); ``(True, '')`` or ``(False, why)`` (:func:`call_service`)."""
+    """Set ``values`` ({name: value}) through ``client``: ``(True, '')`` or ``(False, why)``."""
     request = SetParametersAtomically.Request()
     request.parameters = [
         Parameter(name, value=value).to_parameter_msg() for name, value in values.items()

@@ -66,8 +66,7 @@ class ThreadResults:
         self._lock = threading.Lock()
 
     def get(self, key, function, *args):
-        """The (possibly running) concurrent Future of ``function(*args)`` under ``key``; run
-        again when the kept one failed."""
+        """The (maybe running) Future of ``function(*args)`` under ``key`` (again if it failed)."""
         with self._lock:
             future = self._futures.get(key)
             if future is None or (future.done() and future.exception() is not None):

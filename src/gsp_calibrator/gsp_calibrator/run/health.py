@@ -70,11 +70,9 @@ class LagHistogram:
 
 
 class ProcessingLags:
-    """Each sensor topic's processing lag: from a message's receipt off the wire (the
-    middleware's receive time) to the calibrator's decision on it, s (thread-safe). :meth:`note`
-    at each message, :meth:`take` at each status: the largest lag since the previous one; the
-    lags noted ``in_run`` also go to the run's :class:`LagHistogram` per topic (:meth:`reset` at
-    the run's start, :meth:`summary` into its ``result.json``: ``collection.processing_lag``)."""
+    """Each sensor topic's processing lag (s): from a message's receipt off the wire to the
+    calibrator's decision on it (thread-safe); those of the run per topic in a histogram
+    (:meth:`reset` at its start, :meth:`summary` into its ``result.json``)."""
 
     def __init__(self, topics):
         self._largest = dict.fromkeys(topics)
@@ -86,8 +84,7 @@ class ProcessingLags:
             self._histograms = {topic: LagHistogram() for topic in self._largest}
 
     def note(self, topic, received_ns, decided_ns, in_run=False):
-        """The lag (s) of a message of ``topic`` received at ``received_ns`` and decided on at
-        ``decided_ns`` (ns, one clock); None (not counted) when the receive time is unknown."""
+        """The lag (s) of a message of ``topic`` (ns, one clock); None when not received."""
         if not received_ns:
             return None
         lag = (int(decided_ns) - int(received_ns)) * 1e-9

@@ -116,8 +116,7 @@ class CalibrationOutcome:
 
     @property
     def verdicts(self):
-        """``run.rigid.Verdicts``: the compensating and the rigid geometry's verdicts, for the
-        delivery to pick the one of what the controller runs."""
+        """``run.rigid.Verdicts``: the compensating and the rigid geometry's verdicts."""
         return Verdicts(self.judgement if self.success else None, self.rigid_judgement)
 
     @property
@@ -215,8 +214,7 @@ def identify_from_samples(
 
 
 def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
-    """(M,) bool: the rows commanded (``commanded_poses`` (M, 6)) at one of ``workspace_poses``
-    (K, 6; None: none), the run's workspace postures (m, rad; same pose within ``tolerance``)."""
+    """(M,) bool: the rows commanded at one of ``workspace_poses`` (K, 6; None: none)."""
     commanded = np.asarray(commanded_poses, dtype=float).reshape(-1, 6)
     if workspace_poses is None or not len(workspace_poses) or not len(commanded):
         return np.zeros(len(commanded), bool)
@@ -244,8 +242,7 @@ def _checked_free(free, formulation, noise_source):
 
 
 def _fit(nominal, samples, weights, free, formulation, noise_source, identify_options):
-    """The :class:`Fit` of the rows with their ``weights`` (:class:`RowWeights`), ``auto``
-    chosen first."""
+    """The :class:`Fit` of the rows with their ``weights``, ``auto`` chosen first."""
     row_sigmas, within, design = weights.sigmas, weights.within, weights.design
     plain, auto = split_auto(free)
     choice = untried = None
@@ -293,9 +290,8 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
 
 
 def uncompensated_thermal_strain(result, design):
-    """(6,) the rms thermal strain of each leg over the run relative to the reference instant,
-    which the controllers do not compensate (``prediction.thermal_strain_rms``), when ``result``
-    identified the thermal growth on the run's ``design``; else None."""
+    """(6,) each leg's rms thermal strain over the run, which the controllers do not compensate,
+    when ``result`` identified the thermal growth; else None."""
     rates = [result.effects.get(f'strain_rate{leg}') for leg in range(1, 7)]
     if design is None or design.times_s is None or any(rate is None for rate in rates):
         return None
@@ -356,8 +352,7 @@ class WrittenRun:
 
 
 def identify_with_settings(settings, samples):
-    """:func:`identify_from_samples` of ``samples`` as a calibrator with ``settings`` (its
-    ``CalibratorSettings``) identifies them."""
+    """:func:`identify_from_samples` of ``samples`` as a calibrator with ``settings`` does."""
     return identify_from_samples(
         settings.nominal,
         samples,

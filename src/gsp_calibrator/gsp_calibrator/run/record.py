@@ -357,8 +357,7 @@ class RunRecord:
             self.state.record_done(event.posture, row)
 
     def end_posture(self, event):
-        """Keep a ``RowReady`` (its row) or a ``PostureSkipped``: the event, or a
-        :class:`WriteFailed`."""
+        """Keep a ``RowReady`` or a ``PostureSkipped``: the event, or a :class:`WriteFailed`."""
         try:
             if hasattr(event, 'sample'):
                 self.add_row(event)

@@ -29,8 +29,7 @@ class Verdicts:
     rigid: object = None
 
     def of(self, compensates):
-        """``(Verdict, 'compensating' | 'rigid')``: the verdict of what a controller that
-        ``compensates`` the effects (or not) runs, and which geometry it describes."""
+        """``(Verdict, which)`` of what a controller that ``compensates`` (or not) runs."""
         if compensates or self.rigid is None:
             return self.compensating, 'compensating'
         return self.rigid, 'rigid'

@@ -163,8 +163,7 @@ class StoppingState:
 
     @classmethod
     def start(cls, settings, run_record, latest_legs, reused=None):
-        """Before the first posture of a run (``run_record``) with ``reused`` rows (None: none);
-        None unless ``settings.stop_when_accurate``."""
+        """Before the first posture of a run; None unless ``settings.stop_when_accurate``."""
         if not settings.stop_when_accurate:
             return None
         plan = [run_record.state.poses[k - 1] for k in run_record.remaining]
@@ -204,8 +203,7 @@ class StoppingState:
         return not self.met and self.added < self.rule.max_added and self.latest is not None
 
     def next_pose(self, latest_legs):
-        """The pool pose to add (worker thread; the pool is built at the first call), counted
-        as added; None when the pool has none left."""
+        """The pool pose to add, counted as added (worker thread); None when none is left."""
         if self.additions is None:
             self.additions = PoolAdditions(self.settings)
         poses = self.run_record.state.poses
