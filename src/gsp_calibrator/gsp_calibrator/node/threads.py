@@ -1,6 +1,5 @@
 """Waiting without blocking, for the calibrator node: predicate waits, worker threads and the
-sensor listener thread.
-See docs/architecture.md."""
+sensor listener thread (docs/architecture.md)."""
 
 import concurrent.futures
 import dataclasses

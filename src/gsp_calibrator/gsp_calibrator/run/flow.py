@@ -47,8 +47,7 @@ class Judged:
     summary: str = ''  #: the human summary, the run's answer
     residuals: dict | None = None  #: the fit's residuals (progress), None without a fit
     outcome: typing.Any = None  #: a calibration's ``identify.CalibrationOutcome``
-    #: a calibration's ``result.json`` collection record; a check's ``check.json``
-    data: dict | None = None
+    data: dict | None = None  #: a calibration's result.json collection record; a check.json
 
 
 class Course(typing.Protocol):
@@ -66,8 +65,7 @@ class Course(typing.Protocol):
 
 def system_checks(host, heard, timeout):
     """``[(predicate, failure message)]`` a run awaits before its first posture: a subscriber to
-    the pose commands, a status publisher, and a message on each sensor topic (``heard(topic)``);
-    ``host``: the :class:`.host.RunHost`; ``timeout`` (s) is for the messages."""
+    the pose commands, a status publisher, and a message on each sensor topic (``heard``)."""
     checks = [
         (
             lambda: host.command_subscribers() > 0,
@@ -172,9 +170,8 @@ class CalibrationRun:
         return postures.commanded_count(self.settings, self.record.state)
 
     async def _open(self):
-        """``(reused rows, recording file)``: the rows of an earlier run (a check's) that this
-        calibration identifies with its own, the run's record (:func:`.record.open_record`)
-        and its recording (None: the run goes on without it)."""
+        """Open the run's record and recording: ``(reused rows, recording file)`` (the rows of an
+        earlier run identified with its own; None: the run goes on without a recording)."""
         settings, host, log = self.settings, self.host, self.log
         reused = await host.in_thread(reused_rows.load, settings)
         record = self.record = open_record(
@@ -337,10 +334,8 @@ class CalibrationRun:
 
 
 class Calibration:
-    """A calibration's course: the posture selection in route order from where the platform
-    stands, then the identification of every row, judged against the required accuracy;
-    result.json, report.md and result.yaml written; the result latched and, when it meets the
-    requirement, applied."""
+    """A calibration's course: the selection in route order, the identification of every row
+    judged against the requirement, its files, the result latched and, if accepted, applied."""
 
     def settings_of(self, settings):
         return settings
@@ -370,9 +365,8 @@ class Calibration:
         return await self._ordered(run, poses)
 
     async def _ordered(self, run, poses):
-        """``(poses, record)``: ``poses`` in route order (``posture_order: route``) with the
-        additions the effect groups to identify need (:func:`.postures.effect_route`) and
-        their record (:func:`.postures.route_additions`; None: nothing added)."""
+        """``(poses, record)``: ``poses`` in order with what the effect groups need
+        (:func:`.postures.effect_route`) and its record (None: nothing added)."""
         settings, collection = run.settings, run.collection
         await run.host.wait_for(
             lambda: collection.latest_leg_lengths() is not None, settings.topic_timeout
@@ -446,8 +440,7 @@ class Calibration:
         return dataclasses.replace(judged, summary=summary)
 
     async def deliver(self, run, judged, started):
-        """Latch the result and apply it when it meets the requirement (else written and
-        latched, never applied)."""
+        """Latch the result and apply it when it meets the requirement."""
         host, outcome = run.host, judged.outcome
         geometry = outcome.geometry
         success, note = await host.deliver_result(

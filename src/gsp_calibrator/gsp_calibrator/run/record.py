@@ -155,10 +155,8 @@ def resumable(state, own_pid=None):
 def latest_unfinished_run(output_root, own_pid=None):
     """The newest run directory under ``output_root`` that can be resumed (ResumeRefused if none)."""
     root = Path(output_root)
-    candidates = sorted(
-        (p for p in root.glob('*') if (p / STATE_FILE).is_file()), key=lambda p: p.name
-    )
-    for path in reversed(candidates):
+    candidates = [path for path in root.glob('*') if (path / STATE_FILE).is_file()]
+    for path in sorted(candidates, key=lambda p: p.name, reverse=True):
         try:
             if resumable(read_state(path), own_pid):
                 return path
