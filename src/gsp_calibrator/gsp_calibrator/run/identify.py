@@ -122,10 +122,8 @@ class CalibrationOutcome:
     @property
     def fit_accepted(self):
         """The goodness of fit accepts the model (p >= 0.01); False without a fit."""
-        result = self.result
-        return bool(
-            result is not None and result.goodness_of_fit and result.goodness_of_fit.accepted
-        )
+        goodness = self.result.goodness_of_fit if self.result is not None else None
+        return bool(goodness and goodness.accepted)
 
 
 def _unidentifiable_message(analysis, count):
