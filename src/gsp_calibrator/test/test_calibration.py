@@ -106,7 +106,8 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
     errors = parameter_errors(outcome.geometry, TRUE)
     assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
     assert abs(errors[43]) < 0.01  # deg
-    assert outcome.identifiability['rank'] == 51 and outcome.identifiability['names'] == []  # extended
+    assert outcome.identifiability['rank'] == 51  # extended
+    assert outcome.identifiability['names'] == []
     assert outcome.fit_accepted, outcome.fit_diagnosis
     # Averaged rows weigh as sigma / sqrt(n).
     assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
