@@ -132,7 +132,16 @@ class ParameterSetter:
         client, service = self._client(
             SetParametersAtomically, node_name, 'set_parameters_atomically'
         )
-        return await set_parameters_atomically(client, service, values, timeout_s, wait_for)
+        request = SetParametersAtomically.Request()
+        request.parameters = [
+            Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
+        ]
+        response, why = await call_service(client, service, request, timeout_s, wait_for)
+        if response is None:
+            return False, why
+        if not response.result.successful:
+            return False, f'{service} refused the geometry: {response.result.reason}'
+        return True, ''
 
     async def list(self, node_name, prefix, timeout_s, wait_for):
         """The names of ``/<node_name>``'s parameters under ``prefix``: ``(names, '')`` or
@@ -155,17 +164,3 @@ async def call_service(client, service, request, timeout_s, wait_for):
         client.remove_pending_request(future)
         return None, f'no answer from {service} within {timeout_s:g} s'
     return future.result(), ''
-
-
-async def set_parameters_atomically(client, service, values, timeout_s, wait_for):
-    """Set ``values`` ({name: value}) through ``client``: ``(True, '')`` or ``(False, why)``."""
-    request = SetParametersAtomically.Request()
-    request.parameters = [
-        Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
-    ]
-    response, why = await call_service(client, service, request, timeout_s, wait_for)
-    if response is None:
-        return False, why
-    if not response.result.successful:
-        return False, f'{service} refused the geometry: {response.result.reason}'
-    return True, ''
