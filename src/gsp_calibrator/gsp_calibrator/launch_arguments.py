@@ -22,9 +22,8 @@ def geometry_file_argument(description, name='geometry_file', kind='nominal'):
 
 
 def standard_arguments(config_file, params_description, geometry_description):
-    """The arguments every launch file of the package declares: ``params_file`` (default:
-    ``config/<config_file>`` of this package), ``geometry_file`` (default: the nominal geometry)
-    and ``use_sim_time``."""
+    """``params_file`` (default: ``config/<config_file>``), ``geometry_file`` and
+    ``use_sim_time``: the arguments of every launch file of the package."""
     return [
         DeclareLaunchArgument(
             'params_file',

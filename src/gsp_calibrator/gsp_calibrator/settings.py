@@ -1,15 +1,7 @@
 """Parameters of the ``calibrator`` node: names, defaults, units, checks (pure, no rclpy).
 
-:data:`PARAMETERS` is the single declaration of each parameter (the node declares them with
-:func:`gsp_msgs_py.parameter_specs.declare_parameters`; docs/parameters.md is generated from it).
-Everything else is derived from it: :class:`CalibratorSettings` has one field per parameter; the
-subsets marked in the table (``subsets=``) give the options stored with a run (:data:`STORED`),
-those that decide the posture selection (:data:`SELECTION`) and those accepted on the command
-lines of ``gsp_demo``/``gsp_plan`` (:data:`RUN_COMMAND_LINE`) and ``gsp_reidentify``
-(:data:`REIDENTIFY_COMMAND_LINE`), checked there by the same checks (:func:`option_value`).
-:func:`validate_parameters` gives the reason a set of values is rejected, at start-up and in the
-set-parameters callback; :meth:`CalibratorSettings.from_values` turns accepted values into the
-settings of one run.
+:data:`PARAMETERS` declares each parameter once (docs/parameters.md is generated from it); the
+settings (:class:`CalibratorSettings`), subsets and command-line options derive from it.
 """
 
 import dataclasses
@@ -62,13 +54,6 @@ from gsp_msgs_py.parameter_specs import (
     validate_values,
 )
 
-#: Workspace postures of a run by default: none (docs/verdict.md: on the bench they are a better
-#: estimate on some platforms and a worse one on others, for a third more platform time).
-DEFAULT_WORKSPACE_POSTURES = 0
-
-#: ``controller_effects``: ask the controller, or say whether it compensates the effects.
-CONTROLLER_EFFECTS = ('auto', 'compensated', 'rigid')
-
 _NODE_NAME = re.compile(r'^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 #: A platform id: letters, digits, '-', '_', '.' (it names the platform in the history).
 _PLATFORM_ID = re.compile(r'^[A-Za-z0-9_.-]{1,64}$')
@@ -100,17 +85,16 @@ def _validate_geometry_file(value):
     return ''
 
 
-_POSITIVE = greater_than(0.0, reason='must be a finite number > 0')
-
-
-#: Values of the ``posture_order`` parameter.
-POSTURE_ORDERS = ('route', 'selection')
-
-
 def _positive(name, default, description, unit='', subsets=frozenset()):
     """A parameter that must be a finite number > 0."""
     return ParameterSpec(
-        name, default, description, unit=unit, constraints='> 0', check=_POSITIVE, subsets=subsets
+        name,
+        default,
+        description,
+        unit=unit,
+        constraints='> 0',
+        check=greater_than(0.0, reason='must be a finite number > 0'),
+        subsets=subsets,
     )
 
 
@@ -176,7 +160,7 @@ PARAMETERS = (
     ),
     ParameterSpec(
         'workspace_postures',
-        DEFAULT_WORKSPACE_POSTURES,
+        0,  # none by default (docs/verdict.md)
         'Workspace postures drawn at random (seeded by seed) and commanded with the selected '
         'ones: the measured accuracy is their cross-validated error (plus the device uncertainty), '
         'the selected postures figure beside it, the requirement judged on the larger '
@@ -396,7 +380,7 @@ PARAMETERS = (
         'route',
         "Order the postures are commanded in: route (the shortest travel from the platform's "
         'current posture, docs/planning.md) or selection (the order the selection found them)',
-        POSTURE_ORDERS,
+        ('route', 'selection'),
     ),
     _positive(
         'max_leg_speed',
@@ -452,7 +436,7 @@ PARAMETERS = (
         'geometry, the effects folded in), auto (compensated when it declares geometry.effects.* '
         'parameters, asked through its list_parameters service before the apply)',
         constraints='auto, compensated or rigid',
-        check=one_of(CONTROLLER_EFFECTS),
+        check=one_of(('auto', 'compensated', 'rigid')),
     ),
     # keeping a platform calibrated (docs/upkeep.md)
     ParameterSpec(
@@ -587,35 +571,23 @@ def option_value(name, value):
 
 
 def add_run_options(parser, seed_help='seed of the posture pool'):
-    """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`: ``--postures``,
-    ``--pool-size``, ``--pairs-per-posture``, ``--seed``, ``--free``, ``--formulation``) with
-    the parameters' defaults. Check the parsed values with :func:`run_options_error`."""
+    """Add to ``parser`` the options of a run (:data:`RUN_COMMAND_LINE`) with the parameters'
+    defaults; check the parsed values with :func:`run_options_error`."""
     for name in names_in(RUN_COMMAND_LINE):
-        spec, default = PARAMETER_SPECS[name], DEFAULTS[name]
-        help_text = seed_help if name == 'seed' else spec.description
+        default = DEFAULTS[name]
+        help_text = seed_help if name == 'seed' else PARAMETER_SPECS[name].description
         if isinstance(default, list):
-            parser.add_argument(
-                option_name(name),
-                dest=name,
-                nargs='+',
-                default=list(default),
-                metavar='NAME',
-                help=f'{help_text} (default: {" ".join(default)})',
-            )
+            kind = {'nargs': '+', 'default': list(default), 'metavar': 'NAME'}
+            help_text += f' (default: {" ".join(default)})'
         else:
-            parser.add_argument(
-                option_name(name),
-                dest=name,
-                type=type(default),
-                default=default,
-                help=f'{help_text} ({default})',
-            )
+            kind = {'type': type(default), 'default': default}
+            help_text += f' ({default})'
+        parser.add_argument(option_name(name), dest=name, help=help_text, **kind)
 
 
 def run_options_error(args):
-    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid
-    (each parameter's own check); each value is converted in place (``free_parameters`` split
-    at commas)."""
+    """Reason ('' if none) why the options of :func:`add_run_options` in ``args`` are invalid;
+    each value converted in place (:func:`option_value`)."""
     try:
         for name in names_in(RUN_COMMAND_LINE):
             setattr(args, name, option_value(name, getattr(args, name)))
@@ -624,33 +596,23 @@ def run_options_error(args):
     return ''
 
 
-def validate_combination(values):
-    """Reason ('' if none) why a complete ``{name: value}`` set is inconsistent
-    (``posture_count <= pool_size``); the ``validate`` of ``declare_parameters``."""
-    if values['posture_count'] > values['pool_size']:
-        return (
+def validate_parameters(changes, current=None):
+    """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid:
+    each changed value checked alone, then ``posture_count <= pool_size``."""
+    values = {**(DEFAULTS if current is None else current), **changes}
+    reason = validate_values(PARAMETER_SPECS, changes)
+    if not reason and values['posture_count'] > values['pool_size']:
+        reason = (
             f'posture_count ({values["posture_count"]}) must not exceed pool_size '
             f'({values["pool_size"]})'
         )
-    return ''
-
-
-def validate_parameters(changes, current=None):
-    """Reason ('' if none) why ``changes`` ({name: value}) on top of ``current`` are invalid.
-
-    Each changed value is checked alone, then the combination (``posture_count <= pool_size``);
-    the ``validate`` of ``watch_parameters``.
-    """
-    return validate_values(PARAMETER_SPECS, changes) or validate_combination(
-        {**(DEFAULTS if current is None else current), **changes}
-    )
+    return reason
 
 
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings(ParameterFields):
-    """The settings of one calibration run (a snapshot of the parameters): one typed field per
-    parameter of :data:`PARAMETERS` (lists as tuples, ``settings_fields.py``) and ``nominal``,
-    the loaded nominal ``Geometry``; built by :meth:`from_values`."""
+    """The settings of one run: a typed field per parameter (``settings_fields.py``; lists as
+    tuples) and ``nominal``, the loaded nominal ``Geometry``; built by :meth:`from_values`."""
 
     @functools.cached_property
     def sigmas(self):

@@ -1,9 +1,5 @@
-"""The typed fields of ``settings.CalibratorSettings``: one per parameter of ``settings.PARAMETERS``,
-in table order (lists as tuples), and ``nominal``.
-
-Generated from the table (``test_settings.py`` fails, printing the text, when they differ), so a
-type checker and an editor see the fields; the defaults stay in the table.
-"""
+"""The typed fields of ``settings.CalibratorSettings``, one per parameter of the table, for a type
+checker and an editor (``test_settings.py`` fails, printing the text, when they differ)."""
 
 import dataclasses
 

@@ -106,7 +106,8 @@ def test_identification_recovers_the_true_geometry(selection, formulation):
     errors = parameter_errors(outcome.geometry, TRUE)
     assert np.max(np.abs(errors[:43])) < 0.05  # mm (nominal errors are up to ~5 mm)
     assert abs(errors[43]) < 0.01  # deg
-    assert outcome.identifiability['rank'] == 51 and outcome.unidentifiable == []  # extended
+    assert outcome.identifiability['rank'] == 51  # extended
+    assert outcome.identifiability['names'] == []
     assert outcome.fit_accepted, outcome.fit_diagnosis
     # Averaged rows weigh as sigma / sqrt(n).
     assert outcome.sigmas.leg_lengths == pytest.approx(SIGMAS.leg_lengths / math.sqrt(10))
@@ -131,9 +132,8 @@ def test_too_few_postures_name_the_unidentifiable_parameters(selection, free):
     outcome = identify_from_samples(NOMINAL, samples, SIGMAS, free=free)
     assert not outcome.success and outcome.geometry is None
     assert 'non-identifiable parameters' in outcome.message
-    assert outcome.unidentifiable and all(
-        name in outcome.message for name in outcome.unidentifiable
-    )
+    names = outcome.identifiability['names']
+    assert names and all(name in outcome.message for name in names)
     assert outcome.identifiability['rank'] < 44
     assert 'nothing applied' in outcome.message
     if 'auto' in free:

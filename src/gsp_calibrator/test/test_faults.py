@@ -31,6 +31,7 @@ from gsp_calibrator.run.record import (
     PHASE_COLLECTING,
     PHASE_DONE,
     PHASE_FAILED,
+    STATE_FILE,
     ResumeRefused,
     RunRecord,
     RunState,
@@ -40,9 +41,9 @@ from gsp_calibrator.run.record import (
     resumable,
     selection_options,
     validate_resume,
-    write_state,
 )
 from gsp_calibrator.settings import CalibratorSettings
+from gsp_kinematics.fileio import to_json
 from gsp_msgs_py import conversions, names, qos
 
 WRITER = r"""
@@ -123,6 +124,10 @@ def _state(settings):
     state = RunState(selection_options(settings), poses.tolist())
     state.phase = PHASE_FAILED
     return state, poses
+
+
+def write_state(directory, state):
+    (directory / STATE_FILE).write_text(to_json(state.to_dict()))
 
 
 def test_state_round_trips_and_lists_what_is_left(tmp_path):

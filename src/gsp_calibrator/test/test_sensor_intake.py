@@ -19,7 +19,6 @@ from gsp_calibrator.run.health import (
     LAG_WARN_S,
     LagHistogram,
     ProcessingLags,
-    RunLags,
     calibrator_health,
     topic_lag_key,
 )
@@ -140,12 +139,13 @@ def test_the_lag_histogram_keeps_tiny_negative_and_huge_lags():
 
 
 def test_a_runs_lags_are_per_topic_and_start_afresh():
-    run_lags = RunLags(['/a', '/b'])
+    run_lags = ProcessingLags(['/a', '/b'])
     for lag in (0.002, 0.004, 0.3):
-        run_lags.add('/a', lag)
-    run_lags.add('/b', None)  # an unknown receive time: not counted
+        run_lags.note('/a', T0, T0 + int(lag * 1e9), in_run=True)
+    run_lags.note('/a', T0, T0 + 500 * MS)  # not the run's
+    run_lags.note('/b', 0, T0, in_run=True)  # an unknown receive time: not counted
     summary = run_lags.summary()
-    assert summary['/a']['count'] == 3 and summary['/a']['max_s'] == 0.3
+    assert summary['/a']['count'] == 3 and summary['/a']['max_s'] == pytest.approx(0.3)
     assert summary['/b'] == {'count': 0, 'p50_s': None, 'p99_s': None, 'max_s': None}
     run_lags.reset()
     assert run_lags.summary()['/a']['count'] == 0

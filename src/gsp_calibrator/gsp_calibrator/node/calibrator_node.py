@@ -39,9 +39,7 @@ from gsp_msgs_py.executors import MultiThreadedExecutor
 WARN_THROTTLE_S = 1.0
 WATCHDOG_PERIOD_S = 0.05  #: how often waits and the protocol check their timeouts
 #: Longest time (s) a busy thread keeps the GIL while another waits for it (Python's default:
-#: 0.005). The node's threads (executor, sensor listener, recorder) share one GIL: the message
-#: that completes a posture, and the next command, would otherwise wait up to 5 ms for the
-#: recorder's thread at each hand-over.
+#: 0.005, up to 5 ms at each hand-over between the node's executor and listener threads).
 GIL_SWITCH_INTERVAL_S = 0.0005
 MAX_CACHED_SELECTIONS = 4
 #: The Trigger services: (name, resume an unfinished run, ``new_run(host, settings, resume)``:
@@ -96,12 +94,8 @@ class CalibratorNode(Node):
         self._results = ResultDelivery(self, result_publisher, self._data_group)
         # One subscription per topic: the recorder writes each sensor batch, then hands it to
         # the collection (the rebuild sees exactly the messages the collector saw).
-        self._recorder_listener = SensorListener.beside(
-            self,
-            'recorder',
-            {},
-            setup=self._setup_recorder,
-            on_error=self._on_recording_error,
+        self._recorder_listener = SensorListener(
+            self, 'recorder', self._setup_recorder, self._on_recording_error
         )
         self.recorder = self._recorder_listener.extra
         self.postures = PostureLink(
@@ -151,13 +145,11 @@ class CalibratorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _wire_times_on_clock(self):
-        """Whether the middleware's timestamps (system time) are on the node's clock: not under
-        use_sim_time (e.g. platform_sim's physics faster than real time, docs/physics.md)."""
+        """Whether the middleware's timestamps are on the node's clock (not under use_sim_time)."""
         return not self.get_clock().ros_time_is_active
 
     def _setup_recorder(self, node):
-        """The recorder on the listener ``node`` (its thread), forwarding the sensor batches to
-        the collection, and the listener's tick (silence on the wire)."""
+        """The recorder on the listener ``node``, handing the sensor batches to the collection."""
         recorder = RunRecorder(node, persistent=True, forward=self._intake.callbacks())
         node.create_timer(LISTENER_TICK_S, self._intake.tick)
         return recorder
@@ -254,7 +246,7 @@ class CalibratorNode(Node):
             progress=self._progress,
             deliver_result=lambda *args: self._results.deliver(*args, self._wait_for),
             shutting_down=lambda: not self.context.ok(),
-            processing_lags=self._intake.lags.run,
+            processing_lags=self._intake.lags,
         )
 
     def _wait_for(self, predicate, timeout_s):
@@ -294,30 +286,30 @@ class CalibratorNode(Node):
     # --------------------------------------------------------------------------- the run
 
     def _service(self, resume, new_run):
-        async def callback(request, response):
-            """Trigger: one whole calibration, or (``resume``) the rest of an unfinished run:
-            ``resume_run_directory`` or the latest; or the check of docs/upkeep.md."""
-            return await self._serve(response, resume, new_run)
+        """The Trigger callback of one whole calibration, or (``resume``) the rest of an
+        unfinished run (``resume_run_directory`` or the latest), or the check (docs/upkeep.md)."""
 
-        return callback
-
-    async def _serve(self, response, resume, new_run):
-        with self._lock:
-            if self._running:
-                response.success = False
-                response.message = 'calibration already running'
-                self.get_logger().warning('calibrate: refused, a calibration is already running')
-                return response
-            self._running = True
-            self._run = new_run(self._run_host(), self._settings, resume)
-        with self.postures.lock:
-            self._intake.sources.reset()
-        response.success, response.message = await self._run.serve()
-        if self.context.ok():  # else going down: destroy_node() marks the run interrupted
-            self._waits.cancel()
+        async def serve(_request, response):
             with self._lock:
-                self._running = False
-        return response
+                if self._running:
+                    response.success = False
+                    response.message = 'calibration already running'
+                    self.get_logger().warning(
+                        'calibrate: refused, a calibration is already running'
+                    )
+                    return response
+                self._running = True
+                self._run = new_run(self._run_host(), self._settings, resume)
+            with self.postures.lock:
+                self._intake.sources.reset()
+            response.success, response.message = await self._run.serve()
+            if self.context.ok():  # else going down: destroy_node() marks the run interrupted
+                self._waits.cancel()
+                with self._lock:
+                    self._running = False
+            return response
+
+        return serve
 
     def destroy_node(self):
         # Under the link's lock: a row the sensor thread is adding now is complete before the
@@ -333,23 +325,15 @@ class CalibratorNode(Node):
                 recorder.stop()
             except Exception as error:  # never keep the node from going down
                 self.get_logger().error(f'recording not closed: {error}')
-        for name in ('_recorder_listener',):
-            listener = getattr(self, name, None)
-            if listener is not None:
-                listener.close()
+        listener = getattr(self, '_recorder_listener', None)
+        if listener is not None:
+            listener.close()
         return super().destroy_node()
-
-
-def share_the_gil_promptly():
-    """Set the process's GIL switch interval to :data:`GIL_SWITCH_INTERVAL_S`; the previous one."""
-    previous = sys.getswitchinterval()
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    return previous
 
 
 def main(args=None):
     """Console script ``calibrator``; returns 1 if the parameters prevent start-up."""
-    share_the_gil_promptly()
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     return node_tools.run_node(
         CalibratorNode,
         args,

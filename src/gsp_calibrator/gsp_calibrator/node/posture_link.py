@@ -32,8 +32,7 @@ class PostureLink:
             self.active = True
 
     def stop(self):
-        """Stop feeding the protocol; a posture still in collection is noted as in progress
-        in the recording (the rebuild leaves it out, as samples.csv does)."""
+        """Stop feeding the protocol; a posture in collection is noted in progress (left out)."""
         with self.lock:
             current, self.current, self.active = self.current, None, False
             if current is not None:

@@ -5,14 +5,13 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 from gsp_calibrator.run.host import WAIT_OK
-from gsp_calibrator.run.identify import RESULT_COMMENT
+from gsp_calibrator.run.response import RESULT_COMMENT
 from gsp_kinematics.model.geometry import geometry_to_parameters, geometry_to_yaml
 from gsp_msgs_py.geometry_parameters import EFFECT_PARAMETER_NAMES, EFFECT_PARAMETER_PREFIX
 
 
 class ResultDelivery:
-    """Publishes results on ``publisher`` (the latched result topic) and applies them from
-    ``node`` (its parameter clients in ``callback_group``)."""
+    """Publishes results on ``publisher`` (latched) and applies them from ``node``."""
 
     def __init__(self, node, publisher, callback_group=None):
         self.node = node
@@ -20,13 +19,10 @@ class ResultDelivery:
         self.parameter_setter = ParameterSetter(node, callback_group)
 
     async def deliver(self, settings, geometry, verdicts, rigid, wait_for):
-        """Publish ``geometry``; apply it, or ``rigid`` (the effects folded in; None: the
-        geometry has none) to a controller that does not compensate them, if
-        ``settings.apply_result`` and the verdict of what the controller runs accepts it
-        (``verdicts``: ``run.rigid.Verdicts``). ``(success, note)``: ``note`` says what the
-        apply did and which geometry the verdict describes ('' when it was not asked for, or
-        no verdict accepts); success is False when the result is not accepted (without
-        ``apply_result``: the compensating verdict), or when the apply failed."""
+        """Publish ``geometry``; with ``apply_result``, apply it (or ``rigid``, the effects folded
+        in, to a controller that does not compensate them) when the verdict of what the
+        controller runs accepts it. ``(success, note)``: ``note`` says what the apply did
+        ('' when not asked for or nothing accepted); success: accepted and applied if asked."""
         self.publisher.publish(String(data=geometry_to_yaml(geometry, comment=RESULT_COMMENT)))
         if not (settings.apply_result and verdicts.any_accepted):
             return verdicts.compensating.accepted, ''
@@ -51,9 +47,8 @@ class ResultDelivery:
         return True, note
 
     async def compensates(self, settings, wait_for):
-        """``(True | False, how it was decided)``: whether the controller compensates the
-        identified effects (``controller_effects``; ``auto``: it declares every
-        ``geometry.effects.*``); ``(None, why)`` when its parameters could not be listed."""
+        """``(True | False, how it was decided)``: whether the controller compensates the effects
+        (``controller_effects``); ``(None, why)`` when its parameters could not be listed."""
         if settings.controller_effects != 'auto':
             return settings.controller_effects == 'compensated', 'controller_effects'
         prefix = EFFECT_PARAMETER_PREFIX.rstrip('.')
@@ -65,10 +60,16 @@ class ResultDelivery:
         return set(EFFECT_PARAMETER_NAMES) <= set(names), 'auto'
 
 
+def _why_rigid(decided):
+    """Why the controller runs the rigid geometry (``decided``: 'auto' when its parameters told)."""
+    if decided == 'auto':
+        return 'it does not declare the geometry.effects.* parameters'
+    return 'controller_effects: rigid'
+
+
 def applied_note(node_name, geometry, compensates, folded, decided):
-    """What was applied to ``/node_name``: the geometry with the identified effects the
-    controller compensates, or (``compensates`` False) the rigid geometry, ``folded`` when
-    effects were folded in; ``decided``: 'auto' when the controller's parameters told."""
+    """What was applied to ``/node_name``: the geometry with its effects, or the rigid one
+    (``folded``: the effects folded in)."""
     groups = [group for group in geometry.effects.groups() if group != 'thermal']
     if compensates:
         what = 'geometry.* parameters'
@@ -77,11 +78,7 @@ def applied_note(node_name, geometry, compensates, folded, decided):
         if 'thermal' in geometry.effects.groups():
             what += '; the thermal drift reported, not compensated'
         return f'applied to /{node_name} ({what})'
-    why = (
-        'it does not declare the geometry.effects.* parameters'
-        if decided == 'auto'
-        else 'controller_effects: rigid'
-    )
+    why = _why_rigid(decided)
     if not folded:
         identified = geometry.effects.groups()
         dropped = f'; not compensated: {", ".join(identified)}' if identified else ''
@@ -93,8 +90,7 @@ def applied_note(node_name, geometry, compensates, folded, decided):
 
 
 def verdict_note(geometry, which, compensates):
-    """Which geometry the verdict that let ``geometry`` be applied describes ('' when it has no
-    effects: there is one geometry); ``which``: ``run.rigid.Verdicts.of``'s."""
+    """Which geometry the verdict that let ``geometry`` be applied describes ('' if one)."""
     if geometry.effects.none:
         return ''
     if which == 'compensating' and not compensates:  # no fold: no rigid figure either
@@ -103,17 +99,11 @@ def verdict_note(geometry, which, compensates):
 
 
 def not_accepted_note(node_name, which, verdict, decided):
-    """Why nothing was applied to ``/node_name``: the ``verdict`` (``acceptance.Verdict``) of
-    the ``which`` geometry ('rigid' or 'compensating') it runs does not accept it; ``decided``:
-    'auto' when the controller's parameters told."""
+    """Why nothing was applied to ``/node_name``: the ``verdict`` of the ``which`` geometry it
+    runs does not accept it."""
     runs = 'the geometry with its effects (result.yaml)'
     if which == 'rigid':
-        runs = 'the rigid geometry (result_rigid.yaml)'
-        runs += (
-            ': it does not declare the geometry.effects.* parameters'
-            if decided == 'auto'
-            else ': controller_effects: rigid'
-        )
+        runs = f'the rigid geometry (result_rigid.yaml): {_why_rigid(decided)}'
     return (
         f'NOT applied to /{node_name}: it runs {runs}, and the verdict of the {which} '
         f'geometry does not accept it: {"; ".join(verdict.failures)}'
@@ -128,39 +118,45 @@ class ParameterSetter:
         self.callback_group = callback_group
         self._clients = {}
 
+    def _client(self, kind, node_name, name):
+        """``(client, service)`` of ``/<node_name>/<name>`` (a ``kind`` service)."""
+        service = f'/{node_name.lstrip("/")}/{name}'
+        if service not in self._clients:
+            self._clients[service] = self.node.create_client(
+                kind, service, callback_group=self.callback_group
+            )
+        return self._clients[service], service
+
     async def set(self, node_name, values, timeout_s, wait_for):
         """Set ``values`` ({name: value}) on ``/<node_name>``; ``(True, '')`` or ``(False, why)``."""
-        service = f'/{node_name.lstrip("/")}/set_parameters_atomically'
-        if service not in self._clients:
-            self._clients[service] = self.node.create_client(
-                SetParametersAtomically, service, callback_group=self.callback_group
-            )
-        return await set_parameters_atomically(
-            self._clients[service], service, values, timeout_s, wait_for
+        client, service = self._client(
+            SetParametersAtomically, node_name, 'set_parameters_atomically'
         )
+        request = SetParametersAtomically.Request()
+        request.parameters = [
+            Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
+        ]
+        response, why = await call_service(client, service, request, timeout_s, wait_for)
+        if response is None:
+            return False, why
+        if not response.result.successful:
+            return False, f'{service} refused the geometry: {response.result.reason}'
+        return True, ''
 
     async def list(self, node_name, prefix, timeout_s, wait_for):
-        """The names of ``/<node_name>``'s parameters under ``prefix`` (its ``list_parameters``
-        service): ``(names, '')`` or ``(None, why)``."""
-        service = f'/{node_name.lstrip("/")}/list_parameters'
-        if service not in self._clients:
-            self._clients[service] = self.node.create_client(
-                ListParameters, service, callback_group=self.callback_group
-            )
+        """The names of ``/<node_name>``'s parameters under ``prefix``: ``(names, '')`` or
+        ``(None, why)``."""
+        client, service = self._client(ListParameters, node_name, 'list_parameters')
         request = ListParameters.Request(
             prefixes=[prefix], depth=ListParameters.Request.DEPTH_RECURSIVE
         )
-        response, why = await call_service(
-            self._clients[service], service, request, timeout_s, wait_for
-        )
+        response, why = await call_service(client, service, request, timeout_s, wait_for)
         return (None, why) if response is None else (list(response.result.names), '')
 
 
 async def call_service(client, service, request, timeout_s, wait_for):
-    """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (unavailable
-    or no answer within ``timeout_s``). ``wait_for(predicate, timeout_s)``: a future of
-    :data:`gsp_calibrator.run.host.WAIT_OK` or :data:`gsp_calibrator.run.host.WAIT_TIMEOUT` (e.g.
-    :meth:`gsp_calibrator.node.threads.Waits.add`)."""
+    """Call ``service`` through ``client``: ``(response, '')`` or ``(None, why)`` (``wait_for``:
+    :attr:`gsp_calibrator.run.host.RunHost.wait_for`)."""
     if await wait_for(client.service_is_ready, timeout_s) != WAIT_OK:
         return None, f'parameter service {service} unavailable within {timeout_s:g} s'
     future = client.call_async(request)
@@ -168,18 +164,3 @@ async def call_service(client, service, request, timeout_s, wait_for):
         client.remove_pending_request(future)
         return None, f'no answer from {service} within {timeout_s:g} s'
     return future.result(), ''
-
-
-async def set_parameters_atomically(client, service, values, timeout_s, wait_for):
-    """Set ``values`` ({name: value}) through ``client`` (``SetParametersAtomically`` of
-    ``service``); ``(True, '')`` or ``(False, why)`` (:func:`call_service`)."""
-    request = SetParametersAtomically.Request()
-    request.parameters = [
-        Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
-    ]
-    response, why = await call_service(client, service, request, timeout_s, wait_for)
-    if response is None:
-        return False, why
-    if not response.result.successful:
-        return False, f'{service} refused the geometry: {response.result.reason}'
-    return True, ''

@@ -12,18 +12,10 @@ from gsp_calibrator.run.health import ProcessingLags
 LISTENER_TICK_S = 0.1  #: the listener's tick (silence on the wire, :meth:`SensorIntake.tick`)
 
 
-def checked_until(collection, checked_ns, now_ns):
-    """Tell ``collection`` that every sensor message received before ``checked_ns`` was taken
-    (``CollectionTimeouts.checked_until``); its events due at ``now_ns``."""
-    collection.timeouts.checked_until(checked_ns)
-    return collection.poll(now_ns)
-
-
 class SensorIntake:
-    """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns), ``count_publishers
-    (topic)`` the publishers of a topic, ``wire_times_on_clock()`` whether the middleware's
-    receive times are on that clock (not under use_sim_time). Set :attr:`postures` (the node's ``PostureLink``) before
-    a run starts."""
+    """The sensor batches of a calibrator node: ``now_ns()`` its clock (ns),
+    ``wire_times_on_clock()``: whether the middleware's receive times are on it. Set
+    :attr:`postures` (the node's ``PostureLink``) before a run starts."""
 
     def __init__(self, now_ns, count_publishers, wire_times_on_clock=lambda: True):
         self.now_ns = now_ns
@@ -46,16 +38,13 @@ class SensorIntake:
         def callback(batch):
             self.heard_ns[topic] = time.monotonic_ns()
             postures = self.postures
-            if postures is None or not postures.active:  # no run: drop at once
-                decided_ns = time.time_ns()
-                for _, info in batch:
-                    lags.note(topic, info.get('received_timestamp'), decided_ns)
-                return
-            messages = [(sensor_message(raw), info) for raw, info in batch]
-            postures.feed(lambda collection: self._step(collection, topic, messages))
+            in_run = postures is not None and postures.active  # else dropped at once
+            if in_run:
+                messages = [(sensor_message(raw), info) for raw, info in batch]
+                postures.feed(lambda collection: self._step(collection, topic, messages))
             decided_ns = time.time_ns()
             for _, info in batch:
-                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=True)
+                lags.note(topic, info.get('received_timestamp'), decided_ns, in_run=in_run)
 
         return callback
 
@@ -80,12 +69,15 @@ class SensorIntake:
         return collection.sensors(taken, now_ns)
 
     def tick(self):
-        """The listener's own tick (its thread). Between a tick and the next but one, its
-        executor has waited on its subscriptions and taken what was ready: every message
-        received off the wire before the tick two back has been taken, so silence is judged up
-        to then (a listener starved of the CPU is no silent topic)."""
+        """The listener's own tick (its thread): every message received before the tick two back
+        has been taken, so silence is judged up to then (a starved listener is no silent topic)."""
         self._ticks.append(self.now_ns())
         postures = self.postures
         if postures is not None and len(self._ticks) == self._ticks.maxlen:
             checked_ns = self._ticks[0]
-            postures.feed(lambda c: checked_until(c, checked_ns, self.now_ns()))
+
+            def step(collection):
+                collection.timeouts.checked_until(checked_ns)
+                return collection.poll(self.now_ns())
+
+            postures.feed(step)

@@ -1,6 +1,5 @@
 """Waiting without blocking, for the calibrator node: predicate waits, worker threads and the
-sensor listener thread.
-See docs/architecture.md."""
+sensor listener thread (docs/architecture.md)."""
 
 import concurrent.futures
 import dataclasses
@@ -9,10 +8,8 @@ import threading
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
-from sensor_msgs.msg import JointState
 
 from gsp_calibrator.run.host import WAIT_OK, WAIT_TIMEOUT
-from gsp_msgs_py import qos
 
 
 def new_future(executor):
@@ -68,8 +65,7 @@ class ThreadResults:
         self._lock = threading.Lock()
 
     def get(self, key, function, *args):
-        """The (possibly running) concurrent Future of ``function(*args)`` under ``key``; run
-        again when the kept one failed."""
+        """The (maybe running) Future of ``function(*args)`` under ``key`` (again if it failed)."""
         with self._lock:
             future = self._futures.get(key)
             if future is None or (future.done() and future.exception() is not None):
@@ -135,40 +131,23 @@ class Waits:
 
 
 class SensorListener:
-    """Takes topics in a thread of its own (see the module docstring)."""
+    """A node ``<node name>_<suffix>`` in ``node``'s namespace and context, spun in a thread of its
+    own; ``setup(listener node)`` gives :attr:`extra` (the recorder, which subscribes to the
+    sensor topics); ``on_error(error)``: a callback failed (None: raised)."""
 
-    @classmethod
-    def beside(cls, node, suffix, callbacks, setup=None, on_error=None, raw=False):
-        """A listener node ``<node name>_<suffix>`` in ``node``'s namespace and context;
-        ``callbacks`` maps topic names (resolved by ``node``) to callbacks."""
-        return cls(
-            f'{node.get_name()}_{suffix}',
-            node.get_namespace(),
-            node.context,
-            {node.resolve_topic_name(topic): callback for topic, callback in callbacks.items()},
-            setup=setup,
-            on_error=on_error,
-            raw=raw,
-        )
-
-    def __init__(self, name, namespace, context, callbacks, setup=None, on_error=None, raw=False):
+    def __init__(self, node, suffix, setup, on_error=None):
+        name = f'{node.get_name()}_{suffix}'
         self.on_error = on_error
         self.node = Node(
             name,
-            namespace=namespace,
-            context=context,
+            namespace=node.get_namespace(),
+            context=node.context,
             use_global_arguments=False,
             start_parameter_services=False,
         )
-        self.executor = SingleThreadedExecutor(context=context)
+        self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(self.node)
-        self._subscriptions = [
-            self.node.create_subscription(
-                JointState, topic, callback, qos.SENSOR_SUBSCRIPTION_QOS, raw=raw
-            )
-            for topic, callback in callbacks.items()
-        ]
-        self.extra = setup(self.node) if setup is not None else None
+        self.extra = setup(self.node)
         self._thread = threading.Thread(target=self._spin, name=f'{name}-executor', daemon=True)
         self._thread.start()
 

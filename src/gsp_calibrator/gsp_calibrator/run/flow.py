@@ -28,7 +28,7 @@ from gsp_calibrator.run.response import (
     failure_message,
     final_progress_message,
     format_response,
-    posture_report,
+    report_posture_end,
 )
 from gsp_msgs_py import names
 
@@ -47,8 +47,7 @@ class Judged:
     summary: str = ''  #: the human summary, the run's answer
     residuals: dict | None = None  #: the fit's residuals (progress), None without a fit
     outcome: typing.Any = None  #: a calibration's ``identify.CalibrationOutcome``
-    #: a calibration's ``result.json`` collection record; a check's ``check.json``
-    data: dict | None = None
+    data: dict | None = None  #: a calibration's result.json collection record; a check.json
 
 
 class Course(typing.Protocol):
@@ -66,8 +65,7 @@ class Course(typing.Protocol):
 
 def system_checks(host, heard, timeout):
     """``[(predicate, failure message)]`` a run awaits before its first posture: a subscriber to
-    the pose commands, a status publisher, and a message on each sensor topic (``heard(topic)``);
-    ``host``: the :class:`.host.RunHost`; ``timeout`` (s) is for the messages."""
+    the pose commands, a status publisher, and a message on each sensor topic (``heard``)."""
     checks = [
         (
             lambda: host.command_subscribers() > 0,
@@ -172,9 +170,8 @@ class CalibrationRun:
         return postures.commanded_count(self.settings, self.record.state)
 
     async def _open(self):
-        """``(reused rows, recording file)``: the rows of an earlier run (a check's) that this
-        calibration identifies with its own, the run's record (:func:`.record.open_record`)
-        and its recording (None: the run goes on without it)."""
+        """Open the run's record and recording: ``(reused rows, recording file)`` (the rows of an
+        earlier run identified with its own; None: the run goes on without a recording)."""
         settings, host, log = self.settings, self.host, self.log
         reused = await host.in_thread(reused_rows.load, settings)
         record = self.record = open_record(
@@ -260,14 +257,14 @@ class CalibrationRun:
                 event = await host.postures.command(k, pose)
                 if not isinstance(event, POSTURE_ENDS):
                     raise RunFailed(event.message)
-                self._report(event)
+                report_posture_end(event, self.planned, settings.nominal, self.log, host.progress)
                 record.save()
                 if stop is not None and self._judged_enough(stop):
                     break
         finally:
             if stop is not None:
                 stop.close()
-        return None if stop is None else stop.record(settings, record)
+        return None if stop is None else stop.record()
 
     def _judged_enough(self, stop):
         """Whether the latest finished judgement meets the requirement; else start judging the
@@ -277,42 +274,26 @@ class CalibrationRun:
             self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
         if stop.met:
             return True
-        if stop.judge_now(len(self.record.samples)):
-            stop.submit(self.settings, stop.rows(self.record))
+        stop.judge_if_due()
         return False
 
     async def _posture_to_add(self, stop):
         """After the plan (whose rows are then judged whole): ``(k, pose)`` of the pool posture
         to add, or None when the rows meet the requirement or no more may be added."""
-        host, record, settings = self.host, self.record, self.settings
+        host = self.host
         if stop.added == 0:
             if stop.in_flight is not None:
                 stop.note(await host.await_thread(stop.in_flight))
-            if stop.judge_now(len(record.samples), last=True):
-                stop.submit(settings, stop.rows(record))
+            if stop.judge_if_due(last=True):
                 judgement = stop.note(await host.await_thread(stop.in_flight))
                 self.log.info(run_to_requirement.judgement_line(judgement, stop.rule))
         if not stop.may_add():
             return None
-        legs = self.collection.latest_leg_lengths()
-        pose = await host.in_thread(stop.next_pose, settings, record.state.poses, legs)
+        pose = await host.in_thread(stop.next_pose, self.collection.latest_leg_lengths())
         if pose is None:
             return None
         self.log.info(f'the plan is not enough: posture {stop.added} added from the pool')
-        return record.add_posture(pose)
-
-    def _report(self, event):
-        """Log and publish the end of a posture (a row or a skip)."""
-        report = posture_report(event, self.planned, self.settings.nominal)
-        for level, line in report.log:  # one call site per severity (rclpy requires it)
-            if level == 'warning':
-                self.log.warning(line)
-            else:
-                self.log.info(line)
-        extra = {} if report.skipped is None else {'skipped': report.skipped}
-        self.host.progress(
-            event.posture, report.phase, report.message, report.residuals, report.warning, **extra
-        )
+        return self.record.add_posture(pose)
 
     async def _judge(self, reused, stopping):
         """The course's judgement of the collected rows (state.json: identifying)."""
@@ -353,10 +334,8 @@ class CalibrationRun:
 
 
 class Calibration:
-    """A calibration's course: the posture selection in route order from where the platform
-    stands, then the identification of every row, judged against the required accuracy;
-    result.json, report.md and result.yaml written; the result latched and, when it meets the
-    requirement, applied."""
+    """A calibration's course: the selection in route order, the identification of every row
+    judged against the requirement, its files, the result latched and, if accepted, applied."""
 
     def settings_of(self, settings):
         return settings
@@ -386,9 +365,8 @@ class Calibration:
         return await self._ordered(run, poses)
 
     async def _ordered(self, run, poses):
-        """``(poses, record)``: ``poses`` in route order (``posture_order: route``) with the
-        additions the effect groups to identify need (:func:`.postures.effect_route`) and
-        their record (:func:`.postures.route_additions`; None: nothing added)."""
+        """``(poses, record)``: ``poses`` in order with what the effect groups need
+        (:func:`.postures.effect_route`) and its record (None: nothing added)."""
         settings, collection = run.settings, run.collection
         await run.host.wait_for(
             lambda: collection.latest_leg_lengths() is not None, settings.topic_timeout
@@ -462,8 +440,7 @@ class Calibration:
         return dataclasses.replace(judged, summary=summary)
 
     async def deliver(self, run, judged, started):
-        """Latch the result and apply it when it meets the requirement (else written and
-        latched, never applied)."""
+        """Latch the result and apply it when it meets the requirement."""
         host, outcome = run.host, judged.outcome
         geometry = outcome.geometry
         success, note = await host.deliver_result(

@@ -1,15 +1,14 @@
-"""The calibrator's health on ``/diagnostics`` (status ``calibrator: calibration``), from the
-state of its run, the age of the sensor topics and how far behind them the calibrator is
-(pure, no rclpy; docs/nodes.md#diagnostics)."""
+"""The calibrator's health on ``/diagnostics`` (pure, no rclpy; docs/nodes.md#diagnostics)."""
 
+import bisect
+import itertools
 import math
 import threading
 
 from gsp_msgs_py import names
 from gsp_msgs_py.health import ERROR, OK, WARN, Health, worst
 
-#: Processing lag (s) of a sensor topic above which the status warns: the calibrator is behind
-#: its streams (a busy machine), and its decisions on the postures come that much later.
+#: Processing lag (s) of a sensor topic above which the status warns (behind its streams).
 LAG_WARN_S = 1.0
 
 
@@ -23,10 +22,8 @@ def topic_lag_key(topic):
     return f'{topic} lag_s'
 
 
-#: The lag histogram's bins: geometric, each :data:`LAG_BIN_RATIO` times the previous, from
-#: :data:`LAG_FLOOR_S` (smaller lags share the first bin) to :data:`LAG_CEILING_S` (larger ones
-#: share the last). A percentile is its bin's upper edge (at most the largest lag noted): 1 %
-#: resolution in a few kB per topic however long the run.
+#: The lag histogram's geometric bins, from :data:`LAG_FLOOR_S` to :data:`LAG_CEILING_S` (the
+#: first and last take the smaller and larger lags): 1 % resolution in a few kB per topic.
 LAG_FLOOR_S = 1e-5
 LAG_CEILING_S = 1e3
 LAG_BIN_RATIO = 1.01
@@ -57,14 +54,10 @@ class LagHistogram:
         if not self.count:
             return None
         rank = max(1, math.ceil(percent / 100.0 * self.count))
-        seen = 0
-        for index, n in enumerate(self.counts):
-            seen += n
-            if seen >= rank:
-                if index == _LAG_BINS - 1:  # the last bin has no upper edge
-                    return self.largest
-                return min(self.largest, LAG_FLOOR_S * LAG_BIN_RATIO**index)
-        return self.largest  # not reached: the counts add up to ``count``
+        index = bisect.bisect_left(list(itertools.accumulate(self.counts)), rank)
+        if index >= _LAG_BINS - 1:  # the last bin has no upper edge
+            return self.largest
+        return min(self.largest, LAG_FLOOR_S * LAG_BIN_RATIO**index)
 
     def summary(self):
         """``{count, p50_s, p99_s, max_s}`` (the figures None before the first lag)."""
@@ -76,72 +69,49 @@ class LagHistogram:
         }
 
 
-class RunLags:
-    """Every sensor message's processing lag during a run, per topic, as :class:`LagHistogram`
-    (thread-safe): :meth:`reset` at the run's start, :meth:`add` at each message handled by the
-    run (:meth:`ProcessingLags.note`), :meth:`summary` into its ``result.json``
-    (``collection.processing_lag``)."""
+class ProcessingLags:
+    """Each sensor topic's processing lag (s): from a message's receipt off the wire to the
+    calibrator's decision on it (thread-safe); those of the run per topic in a histogram
+    (:meth:`reset` at its start, :meth:`summary` into its ``result.json``)."""
 
     def __init__(self, topics):
-        self._topics = tuple(topics)
+        self._largest = dict.fromkeys(topics)
         self._lock = threading.Lock()
         self.reset()
 
     def reset(self):
         with self._lock:
-            self._histograms = {topic: LagHistogram() for topic in self._topics}
-
-    def add(self, topic, lag_s):
-        """Count ``lag_s`` (s) of ``topic``; None (an unknown receive time) is not counted."""
-        if lag_s is None:
-            return
-        with self._lock:
-            self._histograms[topic].add(lag_s)
-
-    def summary(self):
-        """``{topic: {count, p50_s, p99_s, max_s}}``."""
-        with self._lock:
-            return {topic: h.summary() for topic, h in self._histograms.items()}
-
-
-class ProcessingLags:
-    """Each sensor topic's processing lag: from a message's receipt off the wire (the
-    middleware's receive time) to the calibrator's decision on it, s. :meth:`note` at each
-    message (any thread), :meth:`take` at each status: the largest lag since the previous one;
-    :attr:`run`: every lag noted ``in_run`` (the run's distribution, :class:`RunLags`)."""
-
-    def __init__(self, topics):
-        self._largest = dict.fromkeys(topics)
-        self.run = RunLags(topics)
+            self._histograms = {topic: LagHistogram() for topic in self._largest}
 
     def note(self, topic, received_ns, decided_ns, in_run=False):
-        """The lag (s) of a message of ``topic`` received at ``received_ns`` and decided on at
-        ``decided_ns`` (ns, one clock), also counted in :attr:`run` if ``in_run`` (a message
-        the run handled); None (not counted) when the receive time is unknown."""
+        """The lag (s) of a message of ``topic`` (ns, one clock); None when not received."""
         if not received_ns:
             return None
         lag = (int(decided_ns) - int(received_ns)) * 1e-9
-        if in_run:
-            self.run.add(topic, lag)
-        largest = self._largest.get(topic)
-        if largest is None or lag > largest:
-            self._largest[topic] = lag
+        with self._lock:
+            if in_run:
+                self._histograms[topic].add(lag)
+            largest = self._largest.get(topic)
+            if largest is None or lag > largest:
+                self._largest[topic] = lag
         return lag
 
     def take(self):
         """``{topic: largest lag (s) since the previous call, or None}``."""
-        lags, self._largest = self._largest, dict.fromkeys(self._largest)
+        with self._lock:
+            lags, self._largest = self._largest, dict.fromkeys(self._largest)
         return lags
+
+    def summary(self):
+        """The run's ``{topic: {count, p50_s, p99_s, max_s}}``."""
+        with self._lock:
+            return {topic: h.summary() for topic, h in self._histograms.items()}
 
 
 def calibrator_health(running, progress, run_directory, heard_ns, now_ns, topic_timeout, lags=None):
-    """``Health`` of the calibrator.
-
-    ``running``: a run is in progress; ``progress``: the latest published progress
-    (``conversions.CalibrationProgress``) or None; ``run_directory``: of the current or last run
-    ('' before the first); ``heard_ns``: ``{topic: receive time (ns) of its latest message, or
-    None}`` of the sensor topics, on the clock of ``now_ns``; ``topic_timeout`` (s); ``lags``:
-    ``{topic: processing lag (s) or None}`` (:meth:`ProcessingLags.take`)."""
+    """``Health`` of the calibrator: ``progress``, its latest (or None); ``heard_ns``: ``{sensor
+    topic: receive time (ns) of its latest message, or None}`` on the clock of ``now_ns``;
+    ``lags``: :meth:`ProcessingLags.take`."""
     phase = progress.phase if progress is not None else names.PHASE_IDLE
     index, count = (progress.posture_index, progress.posture_count) if progress else (0, 0)
     values = {

@@ -20,7 +20,7 @@ from gsp_calibrator.run.postures import (
     route_additions_line,
     workspace_poses,
 )
-from gsp_calibrator.run.response import outcome_summary
+from gsp_calibrator.run.response import RESULT_COMMENT, outcome_summary
 from gsp_calibrator.run.rigid import Verdicts, rigid_result
 from gsp_kinematics.estimation import identifiability, noise_from_data
 from gsp_kinematics.estimation.goodness import fit_diagnosis
@@ -28,6 +28,7 @@ from gsp_kinematics.estimation.identification import (
     DEFAULT_FORMULATION,
     FORMULATIONS,
     IdentificationError,
+    Options,
     resolve_free,
 )
 from gsp_kinematics.estimation.prediction import accuracy_summary, thermal_strain_rms
@@ -41,8 +42,6 @@ from gsp_kinematics.model.device import DeviceModelError
 from gsp_kinematics.model.effect_groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
-#: Comment of the calibrated geometry file and the latched result.
-RESULT_COMMENT = 'calibrated by gsp_calibrator'
 #: Added to the rigid geometry's comment (result_rigid.yaml).
 RIGID_COMMENT = (
     'rigid: the identified effects folded in, for a controller without geometry.effects.* '
@@ -97,28 +96,18 @@ class CalibrationOutcome:
     postures: int = 0  #: posture rows given
     sigmas: object = None  #: the weights of the averaged rows
     duration_s: float = 0.0  #: identification wall time, s
-    #: noise_from_data.noise_record: per channel, the estimate and its parts (SI)
-    noise_estimates: dict = dataclasses.field(default_factory=dict)
+    noise_estimates: dict = dataclasses.field(default_factory=dict)  #: ``noise_record``, SI
     noise_source: str = noise_from_data.DEFAULT_NOISE_SOURCE  #: 'estimated' or 'configured'
     fit_diagnosis: str = ''  #: the goodness-of-fit diagnosis (plain text): a diagnostic
-    #: the cross-validated accuracy (``CrossValidation.summary``; None: not measured)
-    accuracy: dict | None = None
-    #: what the model leaves unexplained (SensorNoise of row stds; None: nothing shown)
-    unmodelled: object = None
-    #: the predicted accuracy, unmodelled part included (``report.accuracy.prediction_for``)
-    prediction: dict | None = None
-    #: ``acceptance.Verdict``: applied or not, and why (None: no result to judge)
-    judgement: object = None
+    accuracy: dict | None = None  #: the cross-validated accuracy (None: not measured)
+    unmodelled: object = None  #: SensorNoise the model leaves unexplained (None: none shown)
+    prediction: dict | None = None  #: the predicted accuracy (``report.accuracy``)
+    judgement: object = None  #: ``acceptance.Verdict`` (None: no result to judge)
     requirement: object = None  #: the ``acceptance.Requirement`` judged against
-    #: the platform effects (``report.effects.effects_record``: the choice of model, the
-    #: identified effects, the thermal drift); None when none was chosen or freed
-    effects: dict | None = None
-    #: the rigid geometry, the identified effects folded in (``run.rigid``); None without effects
-    rigid_geometry: object = None
-    #: the rigid geometry's held-out accuracy and verdict (``run.rigid.judge_rigid``); None
-    #: without a rigid geometry
-    rigid_accuracy: dict | None = None
-    rigid_judgement: object = None
+    effects: dict | None = None  #: ``report.effects.effects_record`` (None: none chosen, freed)
+    rigid_geometry: object = None  #: the effects folded in (``run.rigid``; None: no effects)
+    rigid_accuracy: dict | None = None  #: its held-out accuracy (``run.rigid.judge_rigid``)
+    rigid_judgement: object = None  #: and its verdict
 
     @property
     def accepted(self):
@@ -127,22 +116,14 @@ class CalibrationOutcome:
 
     @property
     def verdicts(self):
-        """``run.rigid.Verdicts``: the compensating and the rigid geometry's verdicts, for the
-        delivery to pick the one of what the controller runs."""
+        """``run.rigid.Verdicts``: the compensating and the rigid geometry's verdicts."""
         return Verdicts(self.judgement if self.success else None, self.rigid_judgement)
 
     @property
     def fit_accepted(self):
         """The goodness of fit accepts the model (p >= 0.01); False without a fit."""
-        result = self.result
-        return bool(
-            result is not None and result.goodness_of_fit and result.goodness_of_fit.accepted
-        )
-
-    @property
-    def unidentifiable(self):
-        """Names of the parameters in a null direction (sorted; empty if identifiable)."""
-        return list(self.identifiability.get('names', []))
+        goodness = self.result.goodness_of_fit if self.result is not None else None
+        return bool(goodness and goodness.accepted)
 
 
 def _unidentifiable_message(analysis, count):
@@ -174,17 +155,10 @@ def identify_from_samples(
     leg_mass=(0.0,) * 6,
     **identify_options,
 ):
-    """Identify from averaged rows and check the result (:class:`CalibrationOutcome`):
-    ``samples``: a :class:`gsp_calibrator.files.run_directory.Rows`; ``sigmas``: per-sample noise (m, rad), scaled by
-    ``SensorNoise.averaged``; the commanded postures start the pose estimates. Fails
-    (``success=False``, message naming the parameters) when the identification raises, does not
-    converge, or leaves free parameters unidentifiable. The rows' lag sums give the
-    within-posture noise; ``noise_source``: ``estimated`` or ``configured``
-    (:func:`noise_from_data.identify_with_noise`). A success is cross-validated over ``folds``
-    folds and judged against ``requirement`` (``accepted``; ``fit_accepted`` is a diagnostic),
-    its measured accuracy the held-out error of the rows commanded at ``workspace_poses`` (K, 6;
-    None: of every row; :func:`workspace_rows`). Effects (or ``auto``) in ``free`` use the rows'
-    times, directions, ``payload_mass`` (kg) at ``centre_of_mass`` (m) and ``leg_mass`` (6,)."""
+    """Identify from the averaged rows ``samples`` (``Rows``; ``sigmas``: per-sample noise, m and
+    rad) and judge the result (:class:`CalibrationOutcome`; docs/verdict.md): a failure
+    (``success=False``) names why; a success is cross-validated, its accuracy measured on the
+    rows commanded at ``workspace_poses`` (K, 6; None: every row), and judged."""
     free = _checked_free(free, formulation, noise_source)
     count = len(samples)
     row_sigmas = sigmas.averaged(samples.n_samples)
@@ -196,26 +170,27 @@ def identify_from_samples(
         return outcome
     within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
     design = effect_design(samples, payload_mass, centre_of_mass, leg_mass)
-    poses = (samples.commanded_poses, workspace_poses)
     started = time.perf_counter()
     try:
         weights = RowWeights(row_sigmas, within, design)
         fit = _fit(nominal, samples, weights, free, formulation, noise_source, identify_options)
     except (IdentificationError, DeviceModelError, np.linalg.LinAlgError, ValueError) as error:
-        outcome.duration_s = time.perf_counter() - started
         hint = DEVICE_MODEL_HINT if isinstance(error, DeviceModelError) else ''
         outcome.message = f'identification failed: {error}{hint}'
         return outcome
-    outcome.duration_s = time.perf_counter() - started
+    finally:
+        outcome.duration_s = time.perf_counter() - started
     outcome.result = result = fit.result
     outcome.sigmas = fit.sigmas
-    outcome.effects = _effects_record(fit, design, nominal, samples)
     if not result.converged:
         outcome.message = (
             f'identification did not converge after {result.iterations} iteration(s) '
             f'(status {result.status}: {result.message}); nothing applied'
         )
         return outcome
+    _, stamp = reference_instant(samples)
+    design = fit.effects or design
+    outcome.effects = effects_record(result, design, nominal, fit.choice, fit.untried, stamp)
     analysis = identifiability.analyse_result(result)
     outcome.identifiability = analysis
     if not identifiability.identifies_all(analysis):
@@ -230,14 +205,14 @@ def identify_from_samples(
         outcome.noise_estimates,
         free_sensor_errors=result.sensor_errors_free,
     )
-    judging = Judging(requirement, folds, identify_options, workspace_rows(*poses))
+    workspace = workspace_rows(samples.commanded_poses, workspace_poses)
+    judging = Judging(requirement, folds, identify_options, workspace)
     _judge(outcome, nominal, samples, fit, row_sigmas, judging)
     return outcome
 
 
 def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
-    """(M,) bool: the rows commanded (``commanded_poses`` (M, 6)) at one of ``workspace_poses``
-    (K, 6; None: none), the run's workspace postures (m, rad; same pose within ``tolerance``)."""
+    """(M,) bool: the rows commanded at one of ``workspace_poses`` (K, 6; None: none)."""
     commanded = np.asarray(commanded_poses, dtype=float).reshape(-1, 6)
     if workspace_poses is None or not len(workspace_poses) or not len(commanded):
         return np.zeros(len(commanded), bool)
@@ -247,10 +222,8 @@ def workspace_rows(commanded_poses, workspace_poses, tolerance=1e-9):
 
 
 def _checked_free(free, formulation, noise_source):
-    """``free`` as a list (``auto`` in a formulation other than ``implicit``: its plain model,
-    the effect groups need the implicit one); CalibrationError for an unknown formulation or
-    noise source, or effects freed in a formulation other than ``implicit``;
-    IdentificationError when a name is wrong."""
+    """``free`` as a list (``auto`` outside the ``implicit`` formulation: its plain model);
+    CalibrationError or IdentificationError naming what is wrong."""
     if formulation not in FORMULATIONS:
         raise CalibrationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     if noise_from_data.noise_source_error(noise_source):
@@ -267,8 +240,7 @@ def _checked_free(free, formulation, noise_source):
 
 
 def _fit(nominal, samples, weights, free, formulation, noise_source, identify_options):
-    """The :class:`Fit` of the rows with their ``weights`` (:class:`RowWeights`), ``auto``
-    chosen first."""
+    """The :class:`Fit` of the rows with their ``weights``, ``auto`` chosen first."""
     row_sigmas, within, design = weights.sigmas, weights.within, weights.design
     plain, auto = split_auto(free)
     choice = untried = None
@@ -299,11 +271,8 @@ def _fit(nominal, samples, weights, free, formulation, noise_source, identify_op
 
 
 def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
-    """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows: forward selection of
-    the effect groups the run's ``design`` allows beside the ``plain`` model, by the core's
-    significance test and held-out guard (weights: ``row_sigmas``, the rows' noise)."""
-    options = identify_options.get('options')
-    extra = {} if options is None else {'options': options}
+    """``(ModelChoice, {group not tried: why})`` of ``auto`` on the rows (the core's
+    ``choose_model`` beside the ``plain`` model)."""
     choice = choose_model(
         nominal,
         samples.leg_lengths,
@@ -313,23 +282,14 @@ def _choose(nominal, samples, row_sigmas, design, plain, identify_options):
         base=tuple(plain),
         pose_guesses=samples.commanded_poses,
         thermal_time_constants=DEFAULT_THERMAL_TIME_CONSTANTS,
-        **extra,
+        options=identify_options.get('options', Options()),
     )
     return choice, untried_groups(design, len(samples), effect_groups_of(plain))
 
 
-def _effects_record(fit, design, nominal, samples):
-    if not fit.result.converged:
-        return None
-    _, stamp = reference_instant(samples)
-    design = fit.effects or design
-    return effects_record(fit.result, design, nominal, fit.choice, fit.untried, stamp)
-
-
 def uncompensated_thermal_strain(result, design):
-    """(6,) the rms thermal strain of each leg over the run relative to the reference instant,
-    which the controllers do not compensate (``prediction.thermal_strain_rms``), when ``result``
-    identified the thermal growth on the run's ``design``; else None."""
+    """(6,) each leg's rms thermal strain over the run, which the controllers do not compensate,
+    when ``result`` identified the thermal growth; else None."""
     rates = [result.effects.get(f'strain_rate{leg}') for leg in range(1, 7)]
     if design is None or design.times_s is None or any(rate is None for rate in rates):
         return None
@@ -337,16 +297,13 @@ def uncompensated_thermal_strain(result, design):
 
 
 def _judge(outcome, nominal, samples, fit, row_sigmas, judging):
-    """Cross-validate ``outcome``'s result (the headline over the workspace rows, when the run
-    has them), estimate what the model leaves unexplained, predict the accuracy with it (and
-    the uncompensated thermal growth), and judge it (:class:`Judging`; fills the outcome)."""
+    """Cross-validate, predict and judge ``outcome``'s result (:class:`Judging`; fills the
+    outcome)."""
     requirement, folds, identify_options, workspace = judging
     result, estimates, effects = fit.result, fit.estimates, fit.effects
     noise = SensorNoise.from_channels(
         {channel: entry.noise for channel, entry in estimates.items()}, default=row_sigmas
     )
-    options = identify_options.get('options')
-    extra = {} if options is None else {'options': options}
     thermal = uncompensated_thermal_strain(result, effects)
     outcome.unmodelled = noise_from_data.unmodelled_error(estimates)
     validation = cross_validate(
@@ -361,7 +318,7 @@ def _judge(outcome, nominal, samples, fit, row_sigmas, judging):
         uncompensated_strain=thermal,
         unmodelled=outcome.unmodelled,
         linearised=True,  # each fold's fit one Gauss-Newton step from the full fit
-        **extra,
+        options=identify_options.get('options', Options()),
     )
     outcome.accuracy = validation.summary(workspace)
     outcome.accuracy['workspace_postures'] = [int(k) for k in samples.posture[workspace]]
@@ -393,8 +350,7 @@ class WrittenRun:
 
 
 def identify_with_settings(settings, samples):
-    """:func:`identify_from_samples` of ``samples`` as a calibrator with ``settings`` (its
-    ``CalibratorSettings``) identifies them."""
+    """:func:`identify_from_samples` of ``samples`` as a calibrator with ``settings`` does."""
     return identify_from_samples(
         settings.nominal,
         samples,
@@ -446,7 +402,6 @@ def write_run_files(run, settings, outcome, collection, options):
 def write_results(run, outcome, comment):
     """Write a successful ``outcome``'s geometry to ``run`` (its ``RunDirectory``) as
     ``result.yaml`` and, with identified effects, the rigid one as ``result_rigid.yaml``."""
-
     run.write_geometry(outcome.geometry, RESULT_FILE, comment=comment)
     if outcome.rigid_geometry is not None:
         # The rigid file carries its own verdict's mark (docs/verdict.md).

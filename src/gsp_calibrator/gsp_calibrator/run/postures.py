@@ -24,20 +24,17 @@ from gsp_kinematics.planning.effect_plan import augment_route
 from gsp_kinematics.planning.route import path_time, plan_route, travel_time_matrix
 from gsp_kinematics.planning.selection import best_addition, select_postures
 
-#: Leg distance (m) within which the platform already holds a posture: commanded first, it would
-#: leave the device readings unchanged, and the collection's previous-posture check would skip it
-#: (a run after a run of the same selection starts where that one ended).
+#: Leg distance (m) within which the platform already holds a posture (commanded first, the
+#: collection's previous-posture check would skip it).
 HELD_TOLERANCE = 1e-4
 
-#: The plain model: the 44 and the identifiable sensor errors (the selection's and the pure
-#: functions' default; the calibrator's is its parameter table's, ``auto`` beside it).
+#: The plain model (the pure functions' default; the calibrator's is its parameter table's).
 DEFAULT_FREE = ('extended',)
 #: The effect groups whose identification needs more of the route than the selection: thermal
 #: (reference revisits) and backlash (both approach directions).
 ROUTE_GROUPS = ('thermal', 'backlash')
-#: gsp_plan's timing of a posture (its defaults): the settle time (s) and the rate (Hz) of the
-#: synchronised samples; the calibrator predicts the time its route additions cost with the
-#: settle and the rate it heard the streams at (this one before it heard them).
+#: gsp_plan's timing of a posture: the settle time (s) and the rate (Hz) of the synchronised
+#: samples (the calibrator's: the rate it heard the streams at).
 PLAN_SETTLE_S = 0.02
 PLAN_SENSOR_RATE_HZ = DEFAULT_SENSOR_RATE_HZ
 
@@ -110,19 +107,14 @@ WORKSPACE_STREAM = 23
 
 
 def workspace_poses(settings):
-    """The run's workspace postures (K, 6), K = ``settings.workspace_postures``: reachable
-    postures drawn at random over the workspace (seeded by ``settings.seed``, a stream apart
-    from the pool's), commanded with the selected ones. Drawn at random, not selected, their
-    held-out errors estimate the accuracy over the workspace (the selection's postures are its
-    extremes). Any calibrator of the same settings (a resumed run, a rebuild from the
-    recording, a re-identification) draws the same, so the rows are recognised by their
-    commanded pose (``run.identify.workspace_rows``)."""
+    """The run's ``workspace_postures`` (K, 6): reachable postures drawn at random (seeded by
+    ``seed``, a stream apart from the pool's), the same for any calibrator of the same settings
+    (the rows are recognised by their commanded pose: ``run.identify.workspace_rows``)."""
     return workspace_poses_of(settings.nominal, settings.workspace_postures, settings.seed)
 
 
 def workspace_poses_of(nominal, count, seed):
-    """:func:`workspace_poses` of a run's ``nominal`` geometry, ``workspace_postures`` (count)
-    and ``seed`` (e.g. from its stored options: a run stored before them has none)."""
+    """:func:`workspace_poses` of a run's ``nominal``, ``workspace_postures`` and ``seed``."""
     count = int(count or 0)
     if count <= 0:
         return np.zeros((0, 6))
@@ -136,9 +128,8 @@ def with_workspace_poses(settings, poses):
 
 
 def route_start(nominal, leg_readings):
-    """``(pose (6,) m and rad, reason)``: where the route starts, the current posture of a
-    platform whose leg sensors read ``leg_readings`` (6,) m or None (FK of ``nominal``); the home
-    pose when it is unknown, with ``reason`` saying why (else '')."""
+    """``(pose (6,), reason)``: the posture (FK of ``nominal``) of a platform whose legs read
+    ``leg_readings`` (6,) m; the home pose when unknown, ``reason`` saying why (else '')."""
     if leg_readings is None:
         return home_pose(), 'no leg lengths received'
     try:
@@ -148,9 +139,8 @@ def route_start(nominal, leg_readings):
 
 
 def posture_route(settings, poses, start_pose):
-    """The route (:func:`gsp_kinematics.planning.route.plan_route`) through ``poses`` from
-    ``start_pose`` (:func:`route_start`), with the run's nominal geometry and leg limits; a
-    posture the platform already holds (:data:`HELD_TOLERANCE`) comes last, not first."""
+    """The route (``plan_route``) through ``poses`` from ``start_pose`` at the run's leg limits;
+    a posture the platform already holds (:func:`held_last`) comes last, not first."""
     route = plan_route(settings.nominal, start_pose, poses, settings.motion_limits)
     order = held_last(settings, poses, start_pose, route.order)
     if order is not route.order:
@@ -166,10 +156,8 @@ def posture_route(settings, poses, start_pose):
 
 
 def held_last(settings, poses, start_pose, order=None):
-    """``order`` (indices into ``poses`` (N, 6); default the given order) with its first posture
-    moved last when the platform standing at ``start_pose`` already holds it (legs within
-    :data:`HELD_TOLERANCE`: e.g. a run after a run of the same selection, or after an ``auto``
-    run, which ends with a revisit of its first posture); else ``order`` itself."""
+    """``order`` (indices into ``poses``; default the given order) with its first posture moved
+    last when the platform at ``start_pose`` already holds it (:data:`HELD_TOLERANCE`)."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     order = np.arange(len(poses)) if order is None else np.asarray(order)
     if len(order) < 2:
@@ -182,27 +170,21 @@ def held_last(settings, poses, start_pose, order=None):
 
 
 def route_effect_groups(free):
-    """The effect groups among ``free`` (names, groups or ``auto``: every group it may try)
-    whose identification needs route additions (:data:`ROUTE_GROUPS`)."""
+    """The :data:`ROUTE_GROUPS` among ``free`` (``auto``: every group it may try)."""
     plain, auto = split_auto(free)
     groups = list(EFFECT_GROUPS) if auto else effect_groups_of(plain)
     return [group for group in groups if group in ROUTE_GROUPS]
 
 
 def sample_rate(heard_hz):
-    """The sample rate (Hz) a run's timing uses: ``heard_hz``, the rate its streams were heard
-    at, or gsp_plan's (:data:`PLAN_SENSOR_RATE_HZ`) when not known (None, not positive)."""
+    """``heard_hz`` (Hz), else (None, not positive) :data:`PLAN_SENSOR_RATE_HZ`."""
     return float(heard_hz) if heard_hz is not None and heard_hz > 0 else PLAN_SENSOR_RATE_HZ
 
 
 def effect_route(settings, poses, start_pose, sample_rate_hz=None):
-    """The route a run with ``settings`` commands through ``poses`` (N, 6, in commanded order)
-    from ``start_pose``: :func:`gsp_kinematics.planning.effect_plan.augment_route` for the effect groups
-    its ``free_parameters`` free or ``auto`` may choose (thermal: reference revisits; backlash:
-    both approach directions), timed with the run's leg limits, its pairs per posture at
-    ``sample_rate_hz`` (:func:`sample_rate`) and gsp_plan's settle; None when they need nothing
-    (no such group). A revisit is a posture of its own (its own 1-based number in state.json)
-    at the same pose."""
+    """The route through ``poses`` (in commanded order) from ``start_pose`` with what the
+    :func:`route_effect_groups` need (``augment_route``), timed at ``sample_rate_hz``; None
+    without such a group (docs/platform_effects.md)."""
     groups = route_effect_groups(settings.free_parameters)
     if not groups or settings.formulation != 'implicit':  # auto there: the plain model
         return None
@@ -218,9 +200,8 @@ def effect_route(settings, poses, start_pose, sample_rate_hz=None):
 
 
 def route_additions(route, groups, sample_rate_hz=None):
-    """``state.json``'s and ``result.json``'s record of what ``route`` (an ``AugmentedRoute``,
-    timed at ``sample_rate_hz``: :func:`effect_route`) added for ``groups``: the postures and
-    predicted seconds, the sample rate they were predicted at, and what each commanded one is."""
+    """``state.json``'s and ``result.json``'s record of what ``route`` (:func:`effect_route`)
+    added for ``groups``, and the sample rate (Hz) it was timed at."""
     summary = route.to_dict()
     return {
         'groups': list(groups),
@@ -244,17 +225,15 @@ def route_additions_line(additions):
 
 
 def commanded_count(settings, state):
-    """The postures a run plans to command: its ``commanded_posture_count`` (the selection and
-    the workspace postures) and the route's additions for the effects (``state``: its
-    ``RunState``, None before it has one)."""
+    """The postures a run plans to command: selected, workspace and added to the route
+    (``state``: its ``RunState``, None before it has one)."""
     additions = {} if state is None else state.route_additions or {}
     return settings.commanded_posture_count + int(additions.get('added_postures', 0))
 
 
 class PostureReplacer:
     """The replacement of a posture the platform rejected: the best remaining posture of the
-    run's pool (:func:`gsp_kinematics.planning.selection.best_addition`, the selection's criterion).
-    """
+    run's pool by the selection's criterion (``best_addition``)."""
 
     def __init__(self, settings):
         self.pool = posture_pool(settings.nominal, settings.pool_size, settings.seed)
@@ -290,8 +269,7 @@ class PostureReplacer:
 
 
 def selection_arguments(settings):
-    """The positional arguments of :func:`choose_postures` and :func:`selection_key` for a run's
-    ``CalibratorSettings``."""
+    """The arguments of :func:`choose_postures` and :func:`selection_key` for ``settings``."""
     return (
         settings.nominal,
         settings.posture_count,

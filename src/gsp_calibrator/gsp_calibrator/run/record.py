@@ -48,30 +48,21 @@ def _digest(values):
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def nominal_digests(nominal):
-    """``(platform digest, device digest)`` of a nominal ``Geometry``."""
-    device = [getattr(nominal, name) for name in DEVICE_PARAMETERS]
-    platform = np.concatenate(
-        [
-            np.ravel(nominal.base_joints),
-            np.ravel(nominal.platform_joints),
-            np.ravel(nominal.leg_offsets),
-        ]
-    )
-    return _digest(platform), _digest(device)
-
-
 def selection_options(settings):
-    """The options that decide the selection of ``settings`` (``CalibratorSettings``)."""
-    platform, device = nominal_digests(settings.nominal)
+    """The options that decide the selection of ``settings`` (``CalibratorSettings``), and the
+    digests of its nominal platform and device."""
+    nominal = settings.nominal
+    parts = (nominal.base_joints, nominal.platform_joints, nominal.leg_offsets)
+    platform = np.concatenate([np.ravel(part) for part in parts])
+    device = [getattr(nominal, name) for name in DEVICE_PARAMETERS]
     options = settings.options(SELECTION_PARAMETERS)
     # Compared as the mask: 'paper' and its 44 names are the same selection.
     options['free_parameters'] = list(resolve_free(list(settings.free_parameters)))
     return {
         **options,
         'nominal_geometry_file': str(settings.nominal_geometry_file),
-        'nominal_digest': platform,
-        'device_digest': device,
+        'nominal_digest': _digest(platform),
+        'device_digest': _digest(device),
     }
 
 
@@ -88,18 +79,12 @@ class RunState:
     sessions: int = 1  #: 1 + the number of resumes
     recordings: list = dataclasses.field(default_factory=list)  #: recording files, in order
     pid: int = 0  #: process of the calibrator of the current session
-    #: [{rejected, replacement, reason}]: postures the platform rejected and those appended
-    #: (1-based) in their place
+    #: [{rejected, replacement, reason}]: postures the platform rejected and their replacements
     replacements: list = dataclasses.field(default_factory=list)
-    #: {posture (str): {wait_s, moving_pairs}}: each kept row's rest wait, from the
-    #: platform's settled status to the first averaged sample, and the pairs waited out as still
-    #: settling (:mod:`gsp_calibrator.collection.synchroniser`)
+    #: {posture (str): {wait_s, moving_pairs}}: each kept row's rest wait after its settled status
     rest_waits: dict = dataclasses.field(default_factory=dict)
-    #: postures added from the pool by a run that stops when it is good enough (the last of
-    #: ``poses``)
-    added: int = 0
-    #: what the effect groups added to the route (``postures.route_additions``; {}: nothing):
-    #: reference revisits and approach postures, each its own posture at a pose of the plan
+    added: int = 0  #: postures added from the pool (``stop_when_accurate``; the last of ``poses``)
+    #: what the effect groups added to the route (``postures.route_additions``; {}: nothing)
     route_additions: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self):
@@ -136,11 +121,6 @@ class RunState:
             }
 
 
-def write_state(directory, state):
-    """Write ``directory/state.json`` atomically; returns its path."""
-    return atomic_write_text(Path(directory) / STATE_FILE, to_json(state.to_dict()))
-
-
 def read_state(directory):
     path = Path(directory) / STATE_FILE
     try:
@@ -175,10 +155,8 @@ def resumable(state, own_pid=None):
 def latest_unfinished_run(output_root, own_pid=None):
     """The newest run directory under ``output_root`` that can be resumed (ResumeRefused if none)."""
     root = Path(output_root)
-    candidates = sorted(
-        (p for p in root.glob('*') if (p / STATE_FILE).is_file()), key=lambda p: p.name
-    )
-    for path in reversed(candidates):
+    candidates = [path for path in root.glob('*') if (path / STATE_FILE).is_file()]
+    for path in sorted(candidates, key=lambda p: p.name, reverse=True):
         try:
             if resumable(read_state(path), own_pid):
                 return path
@@ -189,9 +167,7 @@ def latest_unfinished_run(output_root, own_pid=None):
 
 def validate_resume(state, settings, samples, own_pid=None):
     """Refuse (:class:`ResumeRefused`) a resume of ``state`` with ``settings`` and the run's
-    ``samples`` (``Rows`` of its samples.csv) when they do not belong together. ``own_pid``:
-    the resuming calibrator's process (a run it left unfinished, e.g. on a full disk whose
-    state.json kept ``collecting``, is resumable)."""
+    ``samples`` when they do not belong together (``own_pid``: the resuming calibrator's)."""
     current = selection_options(settings)
     stored = state.selection
     if stored.get('device_digest') != current['device_digest']:
@@ -228,8 +204,7 @@ def validate_resume(state, settings, samples, own_pid=None):
 
 
 def postures_to_collect(state, samples):
-    """The 1-based postures without a samples.csv row (skipped ones are tried again, except those
-    a replacement stands in for)."""
+    """The 1-based postures without a row or a replacement (skipped ones are tried again)."""
     collected = set(int(k) for k in samples.posture)
     replaced = {int(r['rejected']) for r in state.replacements}
     return [k for k in range(1, len(state.poses) + 1) if k not in collected and k not in replaced]
@@ -260,8 +235,7 @@ class WriteFailed:
 
 class RunRecord:
     """The run's ``directory`` (a ``RunDirectory``), its rows ``samples`` and ``state`` (None
-    until :meth:`begin` for a new run); ``recovered``: recordings a killed calibrator left,
-    finalised on resume."""
+    until :meth:`begin`); ``recovered``: recordings a killed calibrator left, finalised."""
 
     def __init__(self, directory, samples, state=None, recovered=()):
         self.directory = directory
@@ -269,8 +243,7 @@ class RunRecord:
         self.state = state
         self.recovered = list(recovered)
         self.remaining = []  #: postures (1-based) still to command, in order
-        #: ``replace(poses, rejected)``: the pose (6,) to add for a rejected posture, or None
-        self.replace = None
+        self.replace = None  #: ``replace(poses, rejected)``: a rejected posture's new pose or None
         self._appender = None
         self.approach = None  #: the ApproachTracker of the postures commanded (from begin)
         self._lock = threading.Lock()  # guards samples, state and remaining
@@ -286,8 +259,7 @@ class RunRecord:
 
     @classmethod
     def resume(cls, settings, pid):
-        """The unfinished run ``settings.resume_run_directory``, else the latest under
-        ``output_root``; :class:`RunRefused` names why it cannot be resumed."""
+        """The unfinished run ``resume_run_directory``, else the latest under ``output_root``."""
         try:
             if settings.resume_run_directory:
                 path = settings.resume_run_directory
@@ -312,10 +284,8 @@ class RunRecord:
         return self.state is not None and self.state.sessions > 1
 
     def begin(self, settings, poses, pid, recording_file=None, route_additions=None):
-        """Start collecting: ``poses`` is a new run's selection (a resumed run keeps its own);
-        ``recording_file``: this session's recording, if any; ``route_additions``: what the
-        effect groups added to a new run's route (``postures.route_additions``). Writes
-        state.json."""
+        """Start collecting ``poses``, a new run's plan (a resumed run keeps its own), with
+        this session's ``recording_file`` and the plan's ``route_additions``; writes state.json."""
         if self.state is None:
             poses = np.asarray(poses, dtype=float).reshape(-1, 6)
             self.state = RunState(selection_options(settings), poses.tolist())
@@ -346,9 +316,8 @@ class RunRecord:
             return k, np.asarray(self.state.poses[k - 1], dtype=float)
 
     def note_command(self, posture, pose, standing_legs=None):
-        """``posture`` (``pose``) is about to be commanded; ``standing_legs`` (6,) m: the leg
-        lengths heard last (where the first command starts from). Its row gets the approach
-        directions (``run.approach``)."""
+        """``posture`` is about to be commanded from ``standing_legs`` (6,) m, heard last (its
+        row gets the legs' approach directions)."""
         with self._lock:
             self.approach.command(posture, pose, standing_legs)
 
@@ -358,8 +327,7 @@ class RunRecord:
             return self.samples.rows(slice(0, len(self.samples)))
 
     def add_posture(self, pose):
-        """Append ``pose`` (6,) to the postures to command (a run that stops when it is good
-        enough adds pool postures); ``(k, pose)`` of it, recorded in state.json's poses."""
+        """Append ``pose`` (6,), a pool posture, to state.json's poses: its ``(k, pose)``."""
         with self._lock:
             self.state.poses.append(np.asarray(pose, dtype=float).tolist())
             self.state.added += 1
@@ -382,13 +350,12 @@ class RunRecord:
             try:
                 self._appender.append(self.samples)
             except OSError as error:
-                self.samples = _without_last(self.samples)
+                self.samples = self.samples.rows(slice(0, len(self.samples) - 1))
                 raise RunWriteError(self._appender.path, error) from None
             self.state.record_done(event.posture, row)
 
     def end_posture(self, event):
-        """Keep what ends a posture: a ``RowReady`` (its row) or a ``PostureSkipped``; returns
-        the event, or a :class:`WriteFailed` when the row could not be written."""
+        """Keep a ``RowReady`` or a ``PostureSkipped``: the event, or a :class:`WriteFailed`."""
         try:
             if hasattr(event, 'sample'):
                 self.add_row(event)
@@ -399,8 +366,7 @@ class RunRecord:
         return event
 
     def skip(self, event):
-        """Note a ``protocol.PostureSkipped``; one the platform rejected gets a replacement
-        (``replace``), appended to the postures to command and recorded."""
+        """Note a ``PostureSkipped``; one the platform rejected gets a replacement (``replace``)."""
         with self._lock:
             self.state.record_skip(event.posture, event.reason)
             if event.rejected_by_platform and self.approach is not None:
@@ -424,7 +390,7 @@ class RunRecord:
 
     def save(self, phase=None, stop_reason=None):
         """Rewrite state.json (atomic) with ``phase`` / ``stop_reason`` if given;
-        :class:`RunWriteError` if it cannot be written (the previous one is then intact)."""
+        :class:`RunWriteError` if it cannot be written."""
         path = self.directory.file(STATE_FILE)
         with self._save_lock:
             with self._lock:
@@ -460,7 +426,3 @@ def open_record(settings, resume, pid, pose_command_publishers=(), node=('calibr
         raise RunRefused(
             f'cannot write the run directory under {settings.output_root}: {error}'
         ) from None
-
-
-def _without_last(samples):
-    return samples.rows(slice(0, len(samples) - 1))

@@ -1,6 +1,5 @@
-"""The text of a calibration run (pure): each posture's report line and residuals, the outcome
-summary, the failure message, and the Trigger response (a human summary, then the calibrated
-geometry params-file YAML) with its parser."""
+"""The text of a calibration run (pure): each posture's report, the outcome summary, and the
+Trigger response (a human summary, then the calibrated geometry's params file) and its parser."""
 
 import dataclasses
 import math
@@ -23,11 +22,12 @@ from gsp_kinematics.model.geometry import (
 )
 from gsp_kinematics.model.kinematics import inverse_kinematics
 from gsp_kinematics.rotation import wrap_angle
+from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
 
+#: Comment of the calibrated geometry: its file, the latched result and the response.
+RESULT_COMMENT = 'calibrated by gsp_calibrator'
 RESPONSE_SEPARATOR = '--- calibrated geometry (ROS 2 parameters file) ---'
 RUN_DIRECTORY_LABEL = 'run directory: '
-
-
 IDENTIFICATION_TIME_LABEL = 'identification time: '
 
 
@@ -48,17 +48,12 @@ def sensor_error_text(result):
 
 
 def fit_lines(outcome):
-    """The fit summary of ``outcome`` as text lines (:func:`gsp_calibrator.report.fit.fit_summary`,
-    the same summary ``report.md`` renders as markdown): the verdict, the cross-validated
-    accuracy, the goodness of fit, outliers, down-weighted postures and noise."""
+    """The fit summary of a successful ``outcome`` as text lines (``report.fit.fit_summary``)."""
     from gsp_calibrator.report.accuracy import result_json_entry
     from gsp_calibrator.report.fit import as_text, fit_data, fit_summary, outcome_data
 
-    result = outcome.result
-    if result is None:
-        return [outcome.fit_diagnosis] if outcome.fit_diagnosis else []
     data = {
-        **fit_data(result),
+        **fit_data(outcome.result),
         **outcome_data(outcome),
         'predicted_accuracy': result_json_entry(outcome.prediction),
     }
@@ -76,43 +71,28 @@ def posture_residuals(nominal, commanded_pose, leg_lengths, readings):
     return residuals
 
 
-@dataclasses.dataclass(frozen=True)
-class PostureReport:
-    """How the calibrator reports the end of a posture: log lines and one progress message."""
-
-    log: tuple  #: ``(('info' | 'warning', text), ...)``
-    phase: str  #: progress phase
-    message: str  #: progress message
-    residuals: dict = None  #: :func:`posture_residuals` of a row
-    warning: bool = False  #: progress level WARN
-    skipped: int = None  #: the posture, when skipped
-
-
-def posture_report(event, count, nominal):
-    """The :class:`PostureReport` of a protocol ``RowReady`` or ``PostureSkipped`` ``event`` of a
-    run of ``count`` postures under the ``nominal`` geometry."""
-    from gsp_msgs_py.names import PHASE_COLLECTING, PHASE_MOVING
-
+def report_posture_end(event, count, nominal, log, progress):
+    """Log (``log``: a logger) and publish (``progress``: :attr:`.host.RunHost.progress`) the end
+    of a posture of a run of ``count`` postures: a protocol ``RowReady`` (its residuals under the
+    ``nominal`` geometry) or ``PostureSkipped``."""
     k = event.posture
     if not hasattr(event, 'sample'):  # skipped
+        log.warning(f'posture {k}/{count} skipped: {event.reason}')
         text = f'posture {k} of {count} skipped: {event.reason}'
-        log = (('warning', f'posture {k}/{count} skipped: {event.reason}'),)
-        return PostureReport(log, PHASE_MOVING, text, warning=True, skipped=k)
+        progress(k, PHASE_MOVING, text, None, True, skipped=k)
+        return
     row = event.sample
-    log = ()
     if event.dropped:
-        log = (
-            (
-                'warning',
-                f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
-                'inconsistent with the rest (glitch, or a stream still reporting the '
-                'previous posture)',
-            ),
+        log.warning(
+            f'posture {k}/{count}: dropped {event.dropped} synchronised sample(s) '
+            'inconsistent with the rest (glitch, or a stream still reporting the '
+            'previous posture)'
         )
-    log += (('info', f'posture {k}/{count}: {row.n_samples} samples averaged'),)
+    log.info(f'posture {k}/{count}: {row.n_samples} samples averaged')
     residuals = posture_residuals(nominal, event.pose, row.leg_lengths, row.readings)
-    text = f'posture {k} of {count}: {row.n_samples} samples averaged'
-    return PostureReport(log, PHASE_COLLECTING, text, residuals)
+    progress(
+        k, PHASE_COLLECTING, f'posture {k} of {count}: {row.n_samples} samples averaged', residuals
+    )
 
 
 #: The device readings that are angles (rad), summarised in degrees.
@@ -135,18 +115,15 @@ NOT_ACCEPTED_HEAD = 'calibration NOT ACCEPTED'
 
 
 def final_progress_message(summary, success, note):
-    """The last progress message of a run that identified: the summary's head, or, when
-    applying the result failed (``note`` 'NOT applied: ...'), that note, so that the text
-    agrees with the phase (done when ``success``, else failed)."""
+    """The last progress message of a run that identified: the summary's head, or the ``note``
+    of a failed apply (the text agrees with the phase)."""
     head = summary.splitlines()[0] if summary else ''
     return head if success or not note else note
 
 
 def accuracy_headline(outcome):
     """``'; accuracy 0.048 mm held out (95 %: 0.039-0.061 mm; nominal 13.6 mm, predicted
-    0.045 mm)'`` of an outcome's cross-validation (the interval: where the true accuracy over
-    the workspace lies, docs/verdict.md), '' without one: the head of the summary and the last
-    progress line."""
+    0.045 mm)'`` of an outcome's cross-validation ('' without one)."""
     accuracy = outcome.accuracy
     if not accuracy:
         return ''
@@ -194,7 +171,7 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
             f'{outcome.identifiability.get("parameters")}, scaled condition number '
             f'{condition:.4g}'
         )
-    if outcome.success and result is not None:
+    if outcome.success:  # a result, then
         deviations = result.standard_deviations
         free = np.asarray(result.free, dtype=bool)
         lengths = deviations[:43][free[:43]]
@@ -206,7 +183,6 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
         sensor_text = sensor_error_text(result)
         if sensor_text:
             lines.append(f'sensor errors: {sensor_text}')
-    if outcome.success:
         lines.extend(fit_lines(outcome))
     if outcome.result is not None:
         from gsp_calibrator.report.effects import effects_lines
@@ -224,8 +200,7 @@ def outcome_summary(outcome, selected=None, skipped=(), run_directory=None, refe
 
 
 def failure_message(error, collected, run):
-    """The response text of a run that ended early with ``error`` after ``collected`` postures;
-    ``run``: its ``RunDirectory`` (the rows are in its ``samples.csv``)."""
+    """The response of a run (``run``: its ``RunDirectory``) that ended early with ``error``."""
     from gsp_calibrator.files.run_directory import SAMPLES_FILE
 
     return (
@@ -239,9 +214,7 @@ def format_response(summary, geometry=None, node_name='/**'):
     """Trigger response message: the summary, then (on success) the geometry params file."""
     if geometry is None:
         return summary
-    yaml_text = geometry_to_yaml(
-        geometry, node_name=node_name, comment='calibrated by gsp_calibrator'
-    )
+    yaml_text = geometry_to_yaml(geometry, node_name=node_name, comment=RESULT_COMMENT)
     return f'{summary}\n{RESPONSE_SEPARATOR}\n{yaml_text}'
 
 

@@ -20,8 +20,7 @@ class ReusedRows:
     samples: Rows
 
     def record(self, first_posture):
-        """``result.json`` ``collection.reused_rows``: where from, how many, and the posture
-        numbers they carry in this run's rows (from ``first_posture`` on)."""
+        """``result.json`` ``collection.reused_rows`` (numbered from ``first_posture`` on)."""
         count = len(self.samples)
         return {
             'run_directory': self.source,
@@ -31,8 +30,7 @@ class ReusedRows:
 
 
 def load(settings):
-    """The :class:`ReusedRows` of ``settings.reuse_rows_from`` (None when empty);
-    :class:`ReusedRowsError` names what is wrong."""
+    """The :class:`ReusedRows` of ``settings.reuse_rows_from`` (None when empty)."""
     if not settings.reuse_rows_from:
         return None
     path = Path(settings.reuse_rows_from)
@@ -54,8 +52,7 @@ def load(settings):
 
 
 def joined(rows, reused, first):
-    """``rows`` (this run's ``Rows``) followed by ``reused``'s (None: ``rows`` alone),
-    numbered from ``first`` on (after this run's postures)."""
+    """``rows`` followed by ``reused``'s (None: none), numbered from ``first`` on."""
     if reused is None:
         return rows
     together = rows.rows(slice(0, len(rows)))

@@ -1,9 +1,6 @@
-"""The rigid geometry of a calibration that identified effects (pure): for a controller that
-runs the geometry alone, the identified effects folded into the 44 parameters
-(:func:`gsp_kinematics.estimation.rigid_fold.fold_effects`), written to ``result_rigid.yaml`` and
-applied instead of ``result.yaml`` to such a controller (:mod:`gsp_calibrator.node.result_delivery`),
-with its predicted and held-out accuracy and its own verdict beside the compensated one's
-(docs/platform_effects.md, docs/verdict.md)."""
+"""The rigid geometry of a calibration that identified effects, for a controller that runs the
+geometry alone: the effects folded in, with its accuracy and verdict (pure;
+docs/platform_effects.md, docs/verdict.md)."""
 
 import dataclasses
 
@@ -25,16 +22,14 @@ RIGID_VERDICT_PREFIX = 'rigid controller (result_rigid.yaml): '
 
 @dataclasses.dataclass(frozen=True)
 class Verdicts:
-    """The verdicts the delivery picks from once it knows the controller
-    (``result_delivery``): the compensating geometry's and the rigid one's (``acceptance.Verdict``;
-    ``rigid`` None: no rigid figure, the compensating verdict stands for both)."""
+    """The compensating geometry's and the rigid one's ``acceptance.Verdict`` (``rigid`` None:
+    the compensating verdict stands for both), for the delivery to pick from."""
 
     compensating: object
     rigid: object = None
 
     def of(self, compensates):
-        """``(Verdict, 'compensating' | 'rigid')``: the verdict of what a controller that
-        ``compensates`` the effects (or not) runs, and which geometry it describes."""
+        """``(Verdict, which)`` of what a controller that ``compensates`` (or not) runs."""
         if compensates or self.rigid is None:
             return self.compensating, 'compensating'
         return self.rigid, 'rigid'
@@ -46,12 +41,9 @@ class Verdicts:
 
 
 def rigid_result(outcome):
-    """``(rigid Geometry, record)`` of a successful ``run.identify.CalibrationOutcome`` whose
-    geometry carries identified effects, else ``(None, None)``. The record (the ``rigid`` entry
-    of ``result.json``'s ``effects``): the predicted accuracy of a rigid controller running it
-    (:func:`rigid_accuracy`, the compensated prediction's mean as its random part), the file,
-    and the groups such a controller does not compensate. Fills the outcome's
-    ``rigid_accuracy`` and ``rigid_judgement`` (:func:`judge_rigid`)."""
+    """``(rigid Geometry, record)`` of a successful ``CalibrationOutcome`` whose geometry has
+    identified effects, else ``(None, None)``; the record: ``result.json``'s ``effects.rigid``.
+    Fills the outcome's ``rigid_accuracy`` and ``rigid_judgement`` (:func:`judge_rigid`)."""
     geometry = outcome.geometry
     if not outcome.success or geometry is None or geometry.effects.none:
         return None, None
@@ -76,11 +68,8 @@ def rigid_result(outcome):
 
 
 def judge_rigid(outcome, systematic, predicted):
-    """The rigid geometry's held-out accuracy (``outcome.rigid_accuracy``:
-    :func:`~gsp_kinematics.estimation.verdict.rigid_held_out.rigid_held_out` of the compensating one with
-    its ``systematic`` ``(position mm, phi deg)`` errors over the workspace) and its verdict
-    (``outcome.rigid_judgement``, against the same requirement, its ``predicted`` accuracy
-    (:func:`rigid_accuracy`) as the headline)."""
+    """The rigid geometry's held-out accuracy (the compensating one's with its ``systematic``
+    ``(position mm, phi deg)`` errors) and its verdict against the same requirement."""
     if not outcome.accuracy or outcome.requirement is None:
         return
     outcome.rigid_accuracy = rigid_held_out(outcome.accuracy, *systematic)

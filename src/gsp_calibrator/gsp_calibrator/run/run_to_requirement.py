@@ -1,7 +1,5 @@
 """A calibration that stops when it is good enough (``stop_when_accurate``, docs/upkeep.md;
-pure): its rule, the judgement of the rows so far (in a worker thread), the pool postures it
-may add and its record in ``result.json``. The decisions are
-:mod:`gsp_kinematics.upkeep.stopping`; the loop is the run's collection (``run.flow``)."""
+pure): the decisions are :mod:`gsp_kinematics.upkeep.stopping`'s, the loop ``run.flow``'s."""
 
 import concurrent.futures
 import dataclasses
@@ -11,25 +9,18 @@ import time
 import numpy as np
 
 from gsp_calibrator.run import reused_rows
-from gsp_calibrator.run.identify import identify_with_settings
-from gsp_calibrator.run.postures import posture_pool, selection_formulation
+from gsp_calibrator.run.identify import identify_with_settings, workspace_rows
+from gsp_calibrator.run.postures import posture_pool, route_start, selection_formulation
 from gsp_kinematics.estimation.identifiability import posture_information
 from gsp_kinematics.estimation.identification import resolve_free
 from gsp_kinematics.estimation.prediction import accuracy_summary
-from gsp_kinematics.model.kinematics import (
-    ForwardKinematicsError,
-    home_pose,
-    pose_from_leg_readings,
-)
 from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ, posture_leg_lengths
 from gsp_kinematics.upkeep import stopping
 
 
 def rule_for(settings):
-    """The :class:`gsp_kinematics.upkeep.stopping.StoppingRule` of a run's ``CalibratorSettings``:
-    the verdict's required accuracy, ``stop_confidence``, ``stop_minimum_postures``,
-    ``stop_every`` and ``stop_max_added``; the dwell of ``pairs_per_posture`` at the default sensor rate and a
-    0.5 s settle allowance."""
+    """The ``StoppingRule`` of a run's settings; the dwell: ``pairs_per_posture`` at the default
+    sensor rate and a 0.5 s settle allowance."""
     return stopping.StoppingRule(
         required_position_mm=settings.required_position_accuracy_mm,
         required_orientation_deg=settings.required_orientation_accuracy_deg,
@@ -59,9 +50,8 @@ class Judgement:
 
 
 def judge_rows(settings, samples, rule):
-    """Identify ``samples`` (the rows so far, ``files.run_directory.Rows``) as the calibrator does
-    (``run.identify.identify_with_settings``) and bound its cross-validated accuracy
-    (:class:`Judgement`). Runs in a worker thread."""
+    """Identify the rows so far as the calibrator does and bound its cross-validated accuracy
+    (:class:`Judgement`; a worker thread)."""
     started = time.perf_counter()
     outcome = identify_with_settings(settings, samples)
     if not outcome.success or outcome.accuracy is None:
@@ -74,9 +64,8 @@ def judge_rows(settings, samples, rule):
 
 
 class PoolAdditions:
-    """The calibrator's posture pool (``pool_size``, ``seed``), for the postures a run adds when
-    its plan is not enough: each the one of largest information gain per second of platform
-    time (:func:`gsp_kinematics.upkeep.stopping.best_addition`). Built in a worker thread."""
+    """The calibrator's posture pool, for the postures a run adds when its plan is not enough
+    (the largest information gain per second: ``stopping.best_addition``)."""
 
     def __init__(self, settings):
         self.settings = settings
@@ -84,9 +73,8 @@ class PoolAdditions:
         self.legs = posture_leg_lengths(settings.nominal, self.pool)
 
     def next_pose(self, judgement, poses, latest_legs, rule):
-        """The pose (6,) to add after ``judgement`` (its result's information), the run's
-        ``poses`` so far (M, 6) and the platform's ``latest_legs`` (6,); None when the pool has
-        none left or nothing was identified."""
+        """The pose (6,) to add after ``judgement``, the run's ``poses`` so far and the
+        platform's ``latest_legs`` (6,); None when the pool has none left or nothing was fit."""
         if judgement.result is None:
             return None
         settings = self.settings
@@ -97,9 +85,7 @@ class PoolAdditions:
             resolve_free(list(settings.free_parameters)),
             selection_formulation(settings.formulation),
         )
-        poses = np.asarray(poses, dtype=float).reshape(-1, 6)
-        distance = np.max(np.abs(poses[:, None, :] - self.pool[None]), axis=2)
-        used = np.flatnonzero(np.min(distance, axis=0) < 1e-9)
+        used = np.flatnonzero(workspace_rows(self.pool, poses))  # the pool postures commanded
         try:
             index = stopping.best_addition(
                 judgement.result.information,
@@ -116,25 +102,13 @@ class PoolAdditions:
 
 
 def platform_time_s(settings, start_pose, poses, rule):
-    """Platform time (s) of ``poses`` in order from ``start_pose`` at the leg limits, with the
-    rule's dwell per posture (the same count for the run and for its fixed plan)."""
+    """Platform time (s) of ``poses`` in order from ``start_pose``, with the rule's dwell."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 6)
     if not len(poses):
         return 0.0
     return stopping.plan_time_s(
         settings.nominal, start_pose, poses, settings.motion_limits, rule.dwell_s
     )
-
-
-def start_pose_of(settings, leg_readings, fallback):
-    """The pose of the platform whose legs read ``leg_readings`` (None: unknown), else
-    ``fallback`` (the times are then counted from there)."""
-    if leg_readings is not None:
-        try:
-            return pose_from_leg_readings(settings.nominal, leg_readings)
-        except (ForwardKinematicsError, ValueError):
-            pass
-    return np.asarray(fallback, dtype=float)
 
 
 def judgement_line(judgement, rule):
@@ -174,38 +148,43 @@ def summary_line(record):
 class StoppingState:
     """Where a run that stops when it is good enough stands (held by the run loop)."""
 
+    settings: object  #: the run's ``CalibratorSettings``
+    run_record: object  #: the run's ``record.RunRecord``
     rule: stopping.StoppingRule
     start_pose: np.ndarray  #: (6,) where the platform stood before the first posture
     plan: list  #: the fixed plan's poses (M, 6), in order
-    #: the one worker thread of the judgements (one at a time, the newest rows)
-    worker: concurrent.futures.ThreadPoolExecutor
+    worker: concurrent.futures.ThreadPoolExecutor  #: the judgements' thread, one at a time
     in_flight: concurrent.futures.Future | None = None  #: the judgement under way
     latest: Judgement | None = None  #: the newest finished judgement
     history: list = dataclasses.field(default_factory=list)  #: ``Judgement.record`` of each
     additions: PoolAdditions | None = None  #: the pool, once the plan was not enough
     added: int = 0  #: postures added from the pool
-    #: rows of another run judged with the run's own (``upkeep.reused_rows.ReusedRows``)
-    reused: object = None
+    reused: object = None  #: another run's rows judged with its own (``reused_rows.ReusedRows``)
 
     @classmethod
     def start(cls, settings, run_record, latest_legs, reused=None):
-        """Before the first posture of a run (``run_record``, its plan the postures left) with
-        ``reused`` rows (None: none); None unless ``settings.stop_when_accurate``."""
+        """Before the first posture of a run; None unless ``settings.stop_when_accurate``."""
         if not settings.stop_when_accurate:
             return None
         plan = [run_record.state.poses[k - 1] for k in run_record.remaining]
-        start = start_pose_of(settings, latest_legs, plan[0] if plan else home_pose())
+        start, unknown = route_start(settings.nominal, latest_legs)
+        if unknown and plan:  # the times are then counted from the first posture
+            start = np.asarray(plan[0], dtype=float)
         worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='stop_judge')
-        return cls(rule_for(settings), start, plan, worker, reused=reused)
+        return cls(settings, run_record, rule_for(settings), start, plan, worker, reused=reused)
 
-    def rows(self, run_record):
-        """The rows of ``run_record`` so far and the reused ones (numbered after its postures)."""
-        rows = run_record.rows_so_far()
-        return reused_rows.joined(rows, self.reused, len(run_record.state.poses) + 1)
-
-    def submit(self, settings, rows):
-        """Judge ``rows`` (:meth:`rows`) in the worker thread."""
-        self.in_flight = self.worker.submit(judge_rows, settings, rows, self.rule)
+    def judge_if_due(self, last=False):
+        """Start judging the rows so far and the reused ones (numbered after the run's postures)
+        in the worker thread when due: none under way, rows not yet judged, and due by the rule
+        (``last``: the plan has ended); whether it started."""
+        run_record, rows = self.run_record, len(self.run_record.samples)
+        judged = self.latest.postures if self.latest is not None else 0
+        if self.in_flight is not None or rows <= judged or not self.rule.due(rows, last):
+            return False
+        first = len(run_record.state.poses) + 1
+        together = reused_rows.joined(run_record.rows_so_far(), self.reused, first)
+        self.in_flight = self.worker.submit(judge_rows, self.settings, together, self.rule)
+        return True
 
     def finished(self):
         """The in-flight judgement if it has finished (then noted), else None."""
@@ -219,21 +198,15 @@ class StoppingState:
         self.history.append(judgement.record())
         return judgement
 
-    def judge_now(self, rows, last=False):
-        """Whether to judge ``rows`` collected rows now: none under way, rows not yet judged,
-        and due by the rule (``last``: the plan has ended)."""
-        judged = self.latest.postures if self.latest is not None else 0
-        return self.in_flight is None and rows > judged and self.rule.due(rows, last)
-
     def may_add(self):
         """Whether a pool posture may be added: not met, under ``max_added``, and judged."""
         return not self.met and self.added < self.rule.max_added and self.latest is not None
 
-    def next_pose(self, settings, poses, latest_legs):
-        """The pool pose to add (worker thread; the pool is built at the first call), counted
-        as added; None when the pool has none left."""
+    def next_pose(self, latest_legs):
+        """The pool pose to add, counted as added (worker thread); None when none is left."""
         if self.additions is None:
-            self.additions = PoolAdditions(settings)
+            self.additions = PoolAdditions(self.settings)
+        poses = self.run_record.state.poses
         pose = self.additions.next_pose(self.latest, poses, latest_legs, self.rule)
         self.added += pose is not None
         return pose
@@ -245,16 +218,13 @@ class StoppingState:
     def close(self):
         self.worker.shutdown(wait=False, cancel_futures=True)
 
-    def record(self, settings, run_record):
-        """``result.json`` ``collection.run_to_requirement``: met or not, postures, added, the
-        platform time spent (the postures ``run_record`` commanded, in order from the start, at the
-        leg limits with the dwell) and the fixed plan's, the latest bounds and the judgements."""
-        rule, plan_poses = self.rule, self.plan
-        commanded_poses = run_record.state.poses[
-            : len(run_record.state.poses) - len(run_record.remaining)
-        ]
-        spent = platform_time_s(settings, self.start_pose, commanded_poses, rule)
-        fixed = platform_time_s(settings, self.start_pose, plan_poses, rule)
+    def record(self):
+        """``result.json`` ``collection.run_to_requirement``: met or not, the platform time
+        spent and the fixed plan's, the latest bounds and the judgements."""
+        rule, poses = self.rule, self.run_record.state.poses
+        commanded_poses = poses[: len(poses) - len(self.run_record.remaining)]
+        spent = platform_time_s(self.settings, self.start_pose, commanded_poses, rule)
+        fixed = platform_time_s(self.settings, self.start_pose, self.plan, rule)
         bounds = (self.latest.bounds if self.latest is not None else stopping.UNKNOWN).record()
         return {
             'met': self.met,
@@ -265,7 +235,7 @@ class StoppingState:
             'added': self.added,
             'platform_time_s': spent,
             'fixed_plan_time_s': fixed,
-            'fixed_plan_postures': len(plan_poses),
+            'fixed_plan_postures': len(self.plan),
             'bounds': bounds,
             'judgements': self.history,
         }
