@@ -198,9 +198,9 @@ class CalibrationRun:
 
     async def _wait_for_system(self):
         """Wait until platform_sim listens to commands and every sensor topic has spoken
-        (``startup_timeout`` each: peers may be starting), then, for a new run with additions for the effects, until
-        every stream has given :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS`
-        stamps, its rate measured (at most ``topic_timeout``; else the route is timed at
+        (``startup_timeout`` each: peers may be starting), then, for a new run with additions
+        for the effects, until every stream has given
+        :data:`~gsp_calibrator.collection.posture_state.RATE_MIN_STAMPS` stamps, its rate measured (at most ``topic_timeout``; else the route is timed at
         gsp_plan's rate). The message of the first check that timed out ('' when none did)."""
         settings, host, collection = self.settings, self.host, self.collection
         startup, timeout = settings.startup_timeout, settings.topic_timeout
