@@ -119,14 +119,12 @@ def test_validation_summary_ignores_rejected_postures():
     reached = commanded + np.array(
         [[0.001, 0, 0, 0, 0, 0], [np.nan] * 6, [0, 0.002, 0, 0, 0, math.radians(0.5)]]
     )
-    summary = demo.validation_summary(commanded, reached)
-    assert summary['position_mm_mean'] == pytest.approx(1.5)
-    assert summary['position_mm_max'] == pytest.approx(2.0)
-    assert summary['orientation_deg_max'] == pytest.approx(0.5)
-    assert math.isnan(
-        demo.validation_summary(commanded, np.full((3, 6), np.nan))['position_mm_mean']
-    )
     details = demo.validation_details(commanded, reached)
+    assert details['position_mm_mean'] == pytest.approx(1.5)
+    assert details['orientation_deg_max'] == pytest.approx(0.5)
+    assert math.isnan(
+        demo.validation_details(commanded, np.full((3, 6), np.nan))['position_mm_mean']
+    )
     assert details['position_mm'] == pytest.approx([1.0, 2.0])
     assert details['orientation_deg'] == pytest.approx([0.0, 0.5])
     assert details['postures'] == 2 and details['position_mm_max'] == pytest.approx(2.0)
@@ -135,7 +133,7 @@ def test_validation_summary_ignores_rejected_postures():
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.DemoSummary(before, before, nominal, true, 600.0, 12.0, 40.0).document()
+    summary = demo.summary_document(before, before, nominal, true, 600.0, 12.0, 40.0, None, {})
     assert set(summary) == {
         'validation',
         'max_param_error_mm',
@@ -144,8 +142,7 @@ def test_summary_has_the_keys_of_the_issue():
         'calibration_s',
         'total_s',
         'run_directory',
-        'collection',
-        *demo_summary.FIT_KEYS,
+        *demo_summary.RESULT_KEYS,
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}
@@ -161,10 +158,10 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     (tmp_path / 'result.json').write_text(
         json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'fit_diagnosis': 'ok'})
     )
-    record = demo.fit_record(tmp_path)
+    record = demo.result_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.DemoSummary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record).document()
+    summary = demo.summary_document(before, before, nominal, true, 1.0, 1.0, 1.0, None, record)
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
     assert demo.summary_text(summary, 1, 0).endswith('ok')
 
@@ -177,10 +174,10 @@ def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
     (tmp_path / 'result.json').write_text(json.dumps({'accuracy': accuracy}))
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    fit = demo.fit_record(tmp_path)
+    fit = demo.result_record(tmp_path)
     for validated, where in ((0.0029, 'inside'), (0.0068, 'OUTSIDE')):
         after = {**before, 'position_mm_mean': validated}
-        summary = demo.DemoSummary(before, after, nominal, true, 1.0, 1.0, 1.0, fit=fit).document()
+        summary = demo.summary_document(before, after, nominal, true, 1.0, 1.0, 1.0, None, fit)
         line = [v for v in demo.summary_text(summary, 50, 0).splitlines() if 'held out' in v]
         assert line == [
             f"  held out (calibrator) 0.0042 mm, 95 %: 0.0017-0.0067 mm: the validation's "
@@ -212,16 +209,16 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
         'inconsistent_dropped': 0,
         'non_finite_dropped': {'leg_lengths': 0, 'inclinometer': 1, 'encoder': 0, 'lvdt': 0},
     }
-    assert demo.collection_record(tmp_path) is None  # no result.json
+    assert demo.result_record(tmp_path) == {}  # no result.json
     (tmp_path / 'result.json').write_text(json.dumps({'converged': True}))
-    assert demo.collection_record(tmp_path) is None  # an older calibrator
+    assert demo.result_record(tmp_path)['collection'] is None  # an older calibrator
     (tmp_path / 'result.json').write_text(json.dumps({'collection': record}))
-    assert demo.collection_record(tmp_path) == record
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.DemoSummary(
-        before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, demo.collection_record(tmp_path)
-    ).document()
+    found = demo.result_record(tmp_path)
+    summary = demo.summary_document(
+        before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, found
+    )
     assert summary['run_directory'] == str(tmp_path) and summary['collection'] == record
 
 

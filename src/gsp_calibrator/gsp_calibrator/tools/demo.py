@@ -26,17 +26,15 @@ from gsp_calibrator.tools.demo_commands import (
     ros_environment,
 )
 from gsp_calibrator.tools.demo_summary import (
-    DemoSummary,
-    collection_record,
-    fit_record,
+    result_record,
+    summary_document,
     summary_text,
     validation_details,
-    validation_summary,
 )
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
 from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
 from gsp_kinematics.model.effects import PRESETS
-from gsp_kinematics.model.geometry import default_geometry_path, load_geometry
+from gsp_kinematics.model.geometry import default_geometry_path, geometry_from_yaml, load_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_kinematics.model.motion import (
     DEFAULT_SENSOR_RATE_HZ,
@@ -62,22 +60,20 @@ def parse_arguments(argv=None):
     parser = argparse.ArgumentParser(
         prog='gsp_demo', description='End-to-end calibration demo of the simulated platform.'
     )
-    parser.add_argument(
-        '--output-root', default='runs', help='root of the run directories (default: runs)'
-    )
-    parser.add_argument(
+    add = parser.add_argument
+    add('--output-root', default='runs', help='root of the run directories (default: runs)')
+    add(
         '--true-geometry',
         default=default_geometry_path('true'),
         help='geometry of the simulated real platform (default: shipped true)',
     )
-    parser.add_argument(
+    add(
         '--nominal-geometry',
         default=default_geometry_path('nominal'),
         help='nominal geometry: controller start and identification start',
     )
     add_run_options(parser, seed_help='seed of the posture pool and the validation postures')
-    parser.add_argument('--validation-postures', type=int, default=50, help='(50)')
-    add = parser.add_argument
+    add('--validation-postures', type=int, default=50, help='(50)')
     add(
         '--noise-source',
         choices=NOISE_SOURCES,
@@ -194,10 +190,8 @@ class Measured:
     calibrated: object = None  #: the calibrated Geometry
     identification_ms: float = math.nan
     calibration_s: float = math.nan
-    before: dict | None = None  #: validation summaries before and after
+    before: dict | None = None  #: validation errors before and after (``validation_details``)
     after: dict | None = None
-    details_before: dict | None = None  #: per-posture validation errors before and after
-    details_after: dict | None = None
     validated: int = 0  #: validation postures reached both times
     rejected: int = 0  #: validation postures the platform rejected
 
@@ -205,8 +199,6 @@ class Measured:
 def _calibrate_and_validate(demo, args, validation_poses, measured):
     """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
     :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
-    from gsp_kinematics.model.geometry import geometry_from_yaml
-
     try:
         demo.wait_for_system(args.startup_timeout)
         settle_timeout = 5.0 + 10.0 * args.settle_time
@@ -239,10 +231,8 @@ def _calibrate_and_validate(demo, args, validation_poses, measured):
     if not both.any():
         measured.error = 'every validation posture was rejected by the platform'
         return
-    measured.before = validation_summary(validation_poses[both], reached_before[both])
-    measured.after = validation_summary(validation_poses[both], reached_after[both])
-    measured.details_before = validation_details(validation_poses[both], reached_before[both])
-    measured.details_after = validation_details(validation_poses[both], reached_after[both])
+    measured.before = validation_details(validation_poses[both], reached_before[both])
+    measured.after = validation_details(validation_poses[both], reached_after[both])
     measured.validated, measured.rejected = int(both.sum()), int((~both).sum())
 
 
@@ -323,7 +313,7 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     """Write the truth and ``summary.json`` into the run directory, refresh its report against
     the truth and print the summary; ``elapsed_s``: the demo's duration so far (s)."""
     run_directory = measured.run_directory
-    summary = DemoSummary(
+    summary = summary_document(
         measured.before,
         measured.after,
         measured.calibrated,
@@ -332,9 +322,8 @@ def _write_results(args, measured, true_geometry, elapsed_s):
         measured.calibration_s,
         elapsed_s,
         run_directory.path,
-        collection_record(run_directory.path),
-        fit_record(run_directory.path),
-    ).document()
+        result_record(run_directory.path),
+    )
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
     try:  # the calibrator's report, now against the truth and with the validation distributions
@@ -343,8 +332,8 @@ def _write_results(args, measured, true_geometry, elapsed_s):
         refresh_report(
             run_directory.path,
             truth=true_geometry,
-            validation_before=measured.details_before,
-            validation_after=measured.details_after,
+            validation_before=measured.before,
+            validation_after=measured.after,
         )
     except Exception as error:  # noqa: BLE001 (the demo itself succeeded)
         print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
