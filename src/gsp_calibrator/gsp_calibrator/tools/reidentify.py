@@ -16,15 +16,15 @@ from gsp_calibrator.settings import (
     DEFAULTS,
     PARAMETER_SPECS,
     option_name,
+    option_value,
     requirement_from_parameters,
 )
-from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
+from gsp_calibrator.tools.reidentify_inputs import (
     OPTION_PARAMETERS,
     InputError,
-    free_parameters,
     geometry_option,
     load_input,
-    recover_unfinished_recordings,
+    recording_of,
     resolve_input,
     resolve_options,
     result_json,
@@ -43,7 +43,7 @@ EXIT_BAD_INPUT = 2
 VALIDATION_POSTURES = 50
 
 
-def _identify(nominal, samples, sigmas, free, options, noise_source):
+def _identify(nominal, samples, sigmas, options, noise_source):
     """``identify_from_samples`` with the run's resolved ``options`` (its workspace postures,
     ``run.postures.workspace_poses_of``, and the core's ``Options``: the loss)."""
     from gsp_calibrator.run.postures import workspace_poses_of
@@ -52,7 +52,7 @@ def _identify(nominal, samples, sigmas, free, options, noise_source):
         nominal,
         samples,
         sigmas,
-        free,
+        options['free_parameters'],
         options['formulation'],
         noise_source=noise_source,
         requirement=requirement_from_parameters(options),
@@ -137,18 +137,6 @@ def build_parser():
     return parser
 
 
-# --- inputs ------------------------------------------------------------------------------------
-
-
-def validation_postures(truth, count, seed):
-    from gsp_kinematics.model.kinematics import sample_valid_postures
-
-    return sample_valid_postures(truth, int(count), np.random.default_rng(int(seed)))
-
-
-# --- main --------------------------------------------------------------------------------------
-
-
 def _truth(args, source_dir):
     """``(path, Geometry)`` of ``--truth``, else of the source run's true geometry, else None."""
     truth_path = args.truth
@@ -167,9 +155,11 @@ def _validate(truth, nominal, outcome, args):
     if truth is None or args.validation_postures <= 0:
         return None, None
     from gsp_calibrator.report.data import validation_errors
+    from gsp_kinematics.model.kinematics import sample_valid_postures
 
     before = after = None
-    poses = validation_postures(truth, args.validation_postures, args.seed)
+    rng = np.random.default_rng(args.seed)
+    poses = sample_valid_postures(truth, args.validation_postures, rng)
     try:
         before = validation_errors(truth, nominal, poses)
         if outcome.success:
@@ -192,29 +182,29 @@ def _validation_line(when, validation):
 def reidentify(args, out=None):
     """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
     out = sys.stdout if out is None else out
-    if args.free_parameters is not None:
-        free_parameters(args.free_parameters)  # a bad name is reported before anything is read
+    try:  # a bad name is reported before anything is read
+        option_value('free_parameters', args.free_parameters or DEFAULTS['free_parameters'])
+    except ValueError as error:
+        raise InputError(str(error)) from None
     kind, path, source_dir = resolve_input(args.input)
     options = resolve_options(args, stored_options(kind, path, source_dir))
-    sigmas = noise_from_parameters(options)
-    free = options['free_parameters']
-    nominal_path = options['nominal_geometry_file']
-    nominal = geometry_option(nominal_path, '--nominal')
+    nominal = geometry_option(options['nominal_geometry_file'], '--nominal')
     truth_path, truth = _truth(args, source_dir)
     if args.validation_postures < 0:
         raise InputError('--validation-postures must be >= 0')
     samples = load_input(kind, path, options)
 
     try:
-        outcome = _identify(nominal, samples, sigmas, free, options, options['noise_source'])
+        sigmas = noise_from_parameters(options)
+        outcome = _identify(nominal, samples, sigmas, options, options['noise_source'])
     except (IdentificationError, postures.CalibrationError) as error:
         raise InputError(str(error)) from error
 
     run = RunDirectory.create(args.output_root)
     run.write_samples(samples)
-    if kind == 'mcap' or (source_dir is not None and (source_dir / 'recording.mcap').is_file()):
-        recording_path = path if kind == 'mcap' else source_dir / 'recording.mcap'
-        atomic_copy(recording_path, run.file('recording.mcap'))
+    recording = recording_of(kind, path, source_dir)
+    if recording is not None:
+        atomic_copy(recording, run.file('recording.mcap'))
     if truth is not None:
         run.write_geometry(truth, name=TRUE_GEOMETRY_FILE, comment='true geometry (given)')
     if outcome.success:
@@ -223,25 +213,22 @@ def reidentify(args, out=None):
     validation_before = validation_after = None
     if outcome.result is not None:
         validation_before, validation_after = _validate(truth, nominal, outcome, args)
-        from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
-
         run_options = dict(
             options,
             source=str(path),
             source_kind=kind,
             truth_geometry_file=str(truth_path) if truth_path else None,
         )
-        inputs = dataclasses.replace(
-            outcome_inputs(outcome, nominal, run_options, tool='gsp_reidentify'),
-            validation_before=validation_before,
-            validation_after=validation_after,
-            truth=truth,
-        ).completed(outcome.result)
-        write_result_json(run, outcome.result, inputs)
-        if not args.no_report:
-            write_report(
-                run, outcome.result, inputs, 'Offline re-identification', not args.no_plots
-            )
+        _write_result(
+            run,
+            outcome,
+            nominal,
+            run_options,
+            (validation_before, validation_after, truth),
+            None if args.no_report else 'Offline re-identification',
+            not args.no_plots,
+            tool='gsp_reidentify',
+        )
 
     print(outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
@@ -270,26 +257,30 @@ def stored_weights(stored, options, samples):
     return sigmas, source, kept
 
 
-def refresh_report(
-    run_dir,
-    truth=None,
-    validation_before=None,
-    validation_after=None,
-    plots=True,
-    title='Calibration report',
-):
-    """Rewrite ``result.json`` and ``report.md`` (with its PNGs unless ``plots`` is false) of an
-    existing run directory.
-
-    For a caller that has the run directory but not the identification result, e.g. the main job
-    once it knows the truth and has validated the calibrated geometry through the system. The
-    samples are identified again with the run's stored options (``result.json`` ``options`` or
-    the recording's), which gives the run's result exactly. ``validation_*``: validation
-    summaries or :func:`gsp_calibrator.report.data.validation_errors` dicts (per-posture arrays are
-    plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
-    """
+def _write_result(run, outcome, nominal, options, validation, title, plots, **extra):
+    """Write ``result.json`` of ``outcome`` into ``run`` and, unless ``title`` is None, its report
+    (with its PNGs if ``plots``); ``validation``: ``(before, after, truth)``, ``extra``: more keys
+    of ``result.json``."""
     from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
 
+    before, after, truth = validation
+    inputs = dataclasses.replace(
+        outcome_inputs(outcome, nominal, options, **extra),
+        validation_before=before,
+        validation_after=after,
+        truth=truth,
+    ).completed(outcome.result)
+    write_result_json(run, outcome.result, inputs)
+    if title is not None:
+        write_report(run, outcome.result, inputs, title, plots)
+
+
+def refresh_report(run_dir, truth=None, validation_before=None, validation_after=None, plots=True):
+    """Rewrite ``result.json`` and ``report.md`` (with its PNGs unless ``plots`` is false) of an
+    existing run directory, identifying its samples again with its stored options (which gives
+    its result exactly), e.g. once the truth is known and the calibrated geometry validated.
+    ``validation_*``: :func:`gsp_calibrator.report.data.validation_errors` dicts. Returns the
+    ``CalibrationOutcome``; :class:`InputError` if the directory is unusable."""
     source_dir = Path(run_dir)
     kind, path, _ = resolve_input(source_dir)
     args = build_parser().parse_args([str(source_dir)])
@@ -298,19 +289,16 @@ def refresh_report(
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
     sigmas, source, kept_keys = stored_weights(stored, options, samples)
-    outcome = _identify(nominal, samples, sigmas, options['free_parameters'], options, source)
+    outcome = _identify(nominal, samples, sigmas, options, source)
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.
     kept = {key: value for key, value in stored.items() if key in kept_keys}
-    inputs = dataclasses.replace(
-        outcome_inputs(outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept),
-        validation_before=validation_before,
-        validation_after=validation_after,
-        truth=truth,
-    ).completed(outcome.result)
-    write_result_json(source_dir, outcome.result, inputs)
-    write_report(source_dir, outcome.result, inputs, title, plots)
+    options = dict(options, source=str(path), source_kind=kind)
+    validation = (validation_before, validation_after, truth)
+    _write_result(
+        source_dir, outcome, nominal, options, validation, 'Calibration report', plots, **kept
+    )
     return outcome
 
 

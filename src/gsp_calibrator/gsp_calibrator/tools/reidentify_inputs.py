@@ -2,6 +2,7 @@
 else its ``recording.mcap``), a ``samples.csv`` or a ``recording.mcap``; the run options stored
 with them and the geometries they name (pure, no ROS graph)."""
 
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -20,37 +21,29 @@ class InputError(ValueError):
 OPTION_PARAMETERS = names_in(REIDENTIFY_COMMAND_LINE)
 
 
-def free_parameters(values):
-    """Names from ``--free`` (space or comma separated); InputError naming unknown ones."""
-    if values is None:
-        return None
-    try:
-        return option_value('free_parameters', values)
-    except ValueError as error:
-        raise InputError(str(error)) from None
-
-
 def result_json(source_dir):
     """The run directory's ``result.json`` as a dict ({} if none or unreadable)."""
-    if source_dir is None or not (source_dir / 'result.json').is_file():
-        return {}
-    try:
-        with open(source_dir / 'result.json', encoding='utf-8') as stream:
-            data = json.load(stream)
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
+    if source_dir is not None:
+        with contextlib.suppress(OSError, ValueError):
+            data = json.loads((source_dir / 'result.json').read_text(encoding='utf-8'))
+            return data if isinstance(data, dict) else {}
+    return {}
+
+
+def recording_of(kind, path, source_dir):
+    """The input's recording: ``path`` itself, else its run directory's (None if none)."""
+    if kind == 'mcap':
+        return path
+    if source_dir is not None and (source_dir / 'recording.mcap').is_file():
+        return source_dir / 'recording.mcap'
+    return None
 
 
 def stored_options(kind, path, source_dir):
     """Run options stored with the input: the run directory's ``result.json`` ``options``, then
     (overriding) those of the recording."""
     options = dict(result_json(source_dir).get('options') or {})
-    recording_path = (
-        path
-        if kind == 'mcap'
-        else (source_dir / 'recording.mcap' if source_dir is not None else None)
-    )
+    recording_path = recording_of(kind, path, source_dir)
     if recording_path is not None and Path(recording_path).is_file():
         from gsp_calibrator.recording.mcap_format import RecordingError
         from gsp_calibrator.recording.mcap_io import recording_options
@@ -88,17 +81,13 @@ def resolve_options(args, stored):
                 )
             nominal = default_geometry_path('nominal')
     options['nominal_geometry_file'] = str(nominal)
-    # Stored only (not an option): where the payload's mass sits, for the compliance.
-    centre = stored.get('payload_centre_of_mass') or DEFAULTS['payload_centre_of_mass']
-    try:
-        options['payload_centre_of_mass'] = [float(v) for v in centre]
-    except (TypeError, ValueError):
-        raise InputError(f'payload_centre_of_mass: {centre!r} (stored) is not 3 numbers') from None
-    legs = stored.get('leg_mass') or DEFAULTS['leg_mass']  # stored only, as the centre
-    try:
-        options['leg_mass'] = [float(v) for v in legs]
-    except (TypeError, ValueError):
-        raise InputError(f'leg_mass: {legs!r} (stored) is not 6 numbers') from None
+    # Stored only (not options), for the compliance: where the payload's mass sits, the legs'.
+    for name, count in (('payload_centre_of_mass', 3), ('leg_mass', 6)):
+        value = stored.get(name) or DEFAULTS[name]
+        try:
+            options[name] = [float(v) for v in value]
+        except (TypeError, ValueError):
+            raise InputError(f'{name}: {value!r} (stored) is not {count} numbers') from None
     return options
 
 
