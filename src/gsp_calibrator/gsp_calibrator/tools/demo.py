@@ -183,10 +183,9 @@ def _check_arguments(parser, args):
 
 @dataclasses.dataclass
 class Measured:
-    """What the demo measured through the nodes; ``error`` says why it stopped early ('' if not)."""
+    """What the demo measured through the nodes."""
 
     run_directory: object = None  #: the calibration's RunDirectory once it has answered
-    error: str = ''
     calibrated: object = None  #: the calibrated Geometry
     identification_ms: float = math.nan
     calibration_s: float = math.nan
@@ -199,38 +198,32 @@ class Measured:
 def _calibrate_and_validate(demo, args, validation_poses, measured):
     """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
     :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
-    try:
-        demo.wait_for_system(args.startup_timeout)
-        settle_timeout = 5.0 + 10.0 * args.settle_time
-        if args.max_leg_speed > 0:
-            settle_timeout += MOVING_SETTLE_TIMEOUT_S
-        print(
-            f'validation before calibration: {len(validation_poses)} postures (nominal '
-            'controller) ...',
-            flush=True,
-        )
-        reached_before = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
-        print('calibrating (/gsp/calibrator/calibrate) ...', flush=True)
-        calibration_started = time.monotonic()
-        response = demo.calibrate(args.timeout)
-        measured.calibration_s = time.monotonic() - calibration_started
-        parsed = parse_response(response.message)
-        if parsed.run_directory:
-            measured.run_directory = RunDirectory(parsed.run_directory)
-        if not response.success:
-            raise DemoError(f'calibration failed:\n{parsed.summary}')
-        print(parsed.summary, flush=True)
-        measured.identification_ms = parsed.identification_ms
-        measured.calibrated = geometry_from_yaml(parsed.geometry_yaml, source='calibrate response')
-        print(f'validation after calibration: {len(validation_poses)} postures ...', flush=True)
-        reached_after = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
-    except DemoError as error:
-        measured.error = str(error)
-        return
+    demo.wait_for_system(args.startup_timeout)
+    settle_timeout = 5.0 + 10.0 * args.settle_time
+    if args.max_leg_speed > 0:
+        settle_timeout += MOVING_SETTLE_TIMEOUT_S
+    print(
+        f'validation before calibration: {len(validation_poses)} postures (nominal controller) ...',
+        flush=True,
+    )
+    reached_before = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
+    print('calibrating (/gsp/calibrator/calibrate) ...', flush=True)
+    calibration_started = time.monotonic()
+    response = demo.calibrate(args.timeout)
+    measured.calibration_s = time.monotonic() - calibration_started
+    parsed = parse_response(response.message)
+    if parsed.run_directory:
+        measured.run_directory = RunDirectory(parsed.run_directory)
+    if not response.success:
+        raise DemoError(f'calibration failed:\n{parsed.summary}')
+    print(parsed.summary, flush=True)
+    measured.identification_ms = parsed.identification_ms
+    measured.calibrated = geometry_from_yaml(parsed.geometry_yaml, source='calibrate response')
+    print(f'validation after calibration: {len(validation_poses)} postures ...', flush=True)
+    reached_after = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
     both = np.all(np.isfinite(reached_before), axis=1) & np.all(np.isfinite(reached_after), axis=1)
     if not both.any():
-        measured.error = 'every validation posture was rejected by the platform'
-        return
+        raise DemoError('every validation posture was rejected by the platform')
     measured.before = validation_details(validation_poses[both], reached_before[both])
     measured.after = validation_details(validation_poses[both], reached_after[both])
     measured.validated, measured.rejected = int(both.sum()), int((~both).sum())
@@ -285,14 +278,11 @@ def _run_nodes(args, validation_poses, processes, log_directory, measured):
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
         from gsp_calibrator.tools import demo_node  # rclpy only after the environment is set
 
-        node = demo_node.DemoNode(context=context)
+        node = demo_node.DemoNode(processes, context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        demo = demo_node.Demo(node, executor, processes)
         print(f'starting {", ".join(processes.commands)} ...', flush=True)
-        _calibrate_and_validate(demo, args, validation_poses, measured)
-        if measured.error:
-            raise DemoError(measured.error)
+        _calibrate_and_validate(node, args, validation_poses, measured)
         exit_code = 0
     except DemoError as error:
         print(f'gsp_demo: FAILED: {error}', file=sys.stderr, flush=True)
