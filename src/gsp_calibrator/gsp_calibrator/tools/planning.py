@@ -62,9 +62,9 @@ def plot_sweep(path, result):
     return save_figure(figure, path)
 
 
-def _positive_list(text, kind):
+def _positive_ints(text):
     try:
-        values = [kind(part) for part in text.split(',') if part.strip()]
+        values = [int(part) for part in text.split(',') if part.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f'expected a comma-separated list, got {text!r}') from None
     if not values or any(value < 1 for value in values):
@@ -81,16 +81,13 @@ def parse_arguments(argv=None):
     add = parser.add_argument
     add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
     add_run_options(parser, seed_help="the calibrator's seed of the posture pool")
-    defaults = DEFAULT_SENSOR_NOISE
+    noise = DEFAULT_SENSOR_NOISE
     add(
-        '--sigma-leg-lengths-um',
-        type=float,
-        default=defaults.leg_lengths * 1e6,
-        help='leg sensor, µm',
+        '--sigma-leg-lengths-um', type=float, default=noise.leg_lengths * 1e6, help='leg sensor, µm'
     )
-    add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
-    add('--sigma-encoder-deg', type=float, default=math.degrees(defaults.encoder))
-    add('--sigma-lvdt-um', type=float, default=defaults.lvdt * 1e6, help='LVDT, µm')
+    add('--sigma-inclinometer-deg', type=float, default=math.degrees(noise.inclinometer))
+    add('--sigma-encoder-deg', type=float, default=math.degrees(noise.encoder))
+    add('--sigma-lvdt-um', type=float, default=noise.lvdt * 1e6, help='LVDT, µm')
     workspace = Workspace()
     add('--xy-range-mm', type=float, default=workspace.xy_range * 1e3, help='+- x and y (400)')
     add('--z-min-mm', type=float, default=workspace.z_min * 1e3)
@@ -105,8 +102,8 @@ def parse_arguments(argv=None):
     )
     add('--output', default=None, help='write the plan (or the sweep) as JSON here')
     add('--sweep', action='store_true', help='sweep posture counts and pairs per posture')
-    add('--sweep-postures', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_POSTURES)
-    add('--sweep-samples', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_SAMPLES)
+    add('--sweep-postures', type=_positive_ints, default=DEFAULT_SWEEP_POSTURES)
+    add('--sweep-samples', type=_positive_ints, default=DEFAULT_SWEEP_SAMPLES)
     add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
     add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
     add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
@@ -121,7 +118,7 @@ def parse_arguments(argv=None):
     add('--target-position-mm', type=float, default=None, help='plan for this mean position error')
     add(
         '--target-postures',
-        type=lambda t: _positive_list(t, int),
+        type=_positive_ints,
         default=DEFAULT_TARGET_POSTURES,
         help='posture counts a target plan considers',
     )
@@ -131,14 +128,7 @@ def parse_arguments(argv=None):
     reason = run_options_error(args)
     if reason:
         parser.error(reason)
-    for name in (
-        'sigma_leg_lengths_um',
-        'sigma_inclinometer_deg',
-        'sigma_encoder_deg',
-        'sigma_lvdt_um',
-        'max_leg_speed_mm_s',
-        'max_leg_acceleration_mm_s2',
-    ):
+    for name in [name for name in vars(args) if name.startswith(('sigma_', 'max_leg_'))]:
         if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
             parser.error(f'--{name.replace("_", "-")} must be a finite number > 0')
     if not args.z_min_mm < args.z_max_mm or args.xy_range_mm <= 0 or args.rotation_range_deg < 0:
@@ -266,34 +256,27 @@ def _summary_text(entry):
         lines.append(f'the prediction assumes {predicted["assumes"]}')
     for entry_ in entry['unidentifiable']:
         lines.append(f'not identifiable: {entry_["combination"]}')
-    lines.append(_platform_time_text(entry['platform_time']))
-    if entry.get('effects'):
-        lines.append(_effects_text(entry['effects']))
-    return '\n'.join(lines)
-
-
-def _platform_time_text(timing):
-    return (
+    timing = entry['platform_time']
+    lines.append(
         f'platform time {timing["total_s"]:.1f} s: travel {timing["travel_s"]:.1f} s in route '
         f'order (selection order {timing["selection_order_travel_s"]:.1f} s, lower bound '
         f'{timing["lower_bound_travel_s"]:.1f} s), settle {timing["settle_s"]:.1f} s, sampling '
         f'{timing["sampling_s"]:.1f} s\nroute (selection indices): '
         + ' '.join(str(index) for index in timing['order'])
     )
+    if entry.get('effects'):
+        lines.append(_effects_text(entry['effects']))
+    return '\n'.join(lines)
 
 
 def _target_text(result):
     best, target = result['plan'], result['target']
-    wanted = ', '.join(
-        text
-        for text in (
-            None if target['position_mm'] is None else f'position {target["position_mm"]:g} mm',
-            None
-            if target['orientation_deg'] is None
-            else f'orientation {target["orientation_deg"]:g} deg',
-        )
-        if text
-    )
+    wanted = []
+    if target['position_mm'] is not None:
+        wanted.append(f'position {target["position_mm"]:g} mm')
+    if target['orientation_deg'] is not None:
+        wanted.append(f'orientation {target["orientation_deg"]:g} deg')
+    wanted = ', '.join(wanted)
     if best is None:
         reach = result['best_reachable']
         if reach is None:
@@ -308,7 +291,7 @@ def _target_text(result):
 
 def _inputs(args, design, limits):
     """The plan's inputs, as written beside it (SI units)."""
-    inputs = {
+    return {
         'geometry': str(args.geometry),
         'sigmas': design.sigmas.channels(),
         'workspace': {
@@ -327,7 +310,6 @@ def _inputs(args, design, limits):
         'max_leg_acceleration_m_s2': limits.max_acceleration,
         'effects': args.effects,
     }
-    return inputs
 
 
 def _sweep_document(args, nominal, design, timing):
@@ -363,13 +345,15 @@ def main(argv=None):
     try:
         nominal = load_geometry(args.geometry)
         design = design_from(args)
-        timing = {'settle_s': args.settle_s, 'sensor_rate_hz': args.sensor_rate_hz}
         limits = MotionLimits(args.max_leg_speed_mm_s / 1e3, args.max_leg_acceleration_mm_s2 / 1e3)
-        inputs = _inputs(args, design, limits)
-        targeted = args.target_position_mm is not None or (
+        timing = {
+            'settle_s': args.settle_s,
+            'sensor_rate_hz': args.sensor_rate_hz,
+            'limits': limits,
+        }
+        if args.target_position_mm is not None or (
             not args.sweep and args.target_orientation_deg is not None
-        )
-        if targeted:
+        ):
             result = target_plan(
                 nominal,
                 args.target_position_mm,
@@ -377,28 +361,16 @@ def main(argv=None):
                 design,
                 args.target_postures,
                 args.max_pairs_per_posture,
-                limits=limits,
                 **timing,
             )
-            document = {'inputs': inputs, **result}
             print(_target_text(result))
         elif args.sweep:
-            sweep_document = _sweep_document(args, nominal, design, dict(timing, limits=limits))
-            document = {'inputs': inputs, **sweep_document}
+            result = _sweep_document(args, nominal, design, timing)
         else:
-            document = {
-                'inputs': inputs,
-                **plan(
-                    nominal,
-                    args.posture_count,
-                    args.pairs_per_posture,
-                    design,
-                    limits=limits,
-                    effects=effect_plan_from(args),
-                    **timing,
-                ),
-            }
-            print(_summary_text(document))
+            count, pairs = args.posture_count, args.pairs_per_posture
+            result = plan(nominal, count, pairs, design, effects=effect_plan_from(args), **timing)
+            print(_summary_text(result))
+        document = {'inputs': _inputs(args, design, limits), **result}
     except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:
         print(f'gsp_plan: error: {error}', file=sys.stderr)
         return 2

@@ -166,10 +166,10 @@ def plan(
     limits=MotionLimits(),
     effects=None,
 ):
-    """One plan (a JSON-ready dict); ``selection``: a :class:`gsp_calibrator.run.postures.PostureSelection` of
-    these settings to reuse (the sweep shares one per posture count); ``limits``: the legs'
-    motion limits of the platform time; ``effects``: an :class:`EffectPlan` whose groups add
-    the plan's ``effects`` entry (:func:`effect_plan`)."""
+    """One plan (a JSON-ready dict); ``selection``: a ``run.postures.PostureSelection`` of these
+    settings to reuse (the sweep shares one per posture count); ``limits``: the legs' motion
+    limits of the platform time; ``effects``: an :class:`EffectPlan` whose groups add the plan's
+    ``effects`` entry (:func:`effect_plan`)."""
     if pairs_per_posture < 1:
         raise CalibrationError(f'pairs per posture must be >= 1, got {pairs_per_posture}')
     if not (sensor_rate_hz > 0 and settle_s >= 0):
@@ -247,6 +247,7 @@ def target_plan(
     if position_mm is None and orientation_deg is None:
         raise CalibrationError('a target needs a position (mm) or an orientation (deg)')
     timing = {'settle_s': settle_s, 'sensor_rate_hz': sensor_rate_hz, 'limits': limits}
+    targets = {'position_mm_mean': position_mm, 'orientation_deg_mean': orientation_deg}
     candidates, best, best_reachable = [], None, None
     for count in sorted(c for c in posture_counts if c <= design.pool_size):
         selection = select(nominal, count, 1, design)
@@ -254,17 +255,9 @@ def target_plan(
         if not single:
             continue  # rank-deficient: no count of samples helps
         ratios = [
-            (single[key] / target) ** 2
-            for key, target in (
-                ('position_mm_mean', position_mm),
-                ('orientation_deg_mean', orientation_deg),
-            )
-            if target is not None
+            (single[key] / target) ** 2 for key, target in targets.items() if target is not None
         ]
-        reachable = {
-            key: single[key] / math.sqrt(max_samples)
-            for key in ('position_mm_mean', 'orientation_deg_mean')
-        }
+        reachable = {key: single[key] / math.sqrt(max_samples) for key in targets}
         if (
             best_reachable is None
             or reachable['position_mm_mean'] < best_reachable['position_mm_mean']
