@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from gsp_testing import wait_until
 
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools import demo, demo_commands, demo_summary
@@ -130,10 +131,21 @@ def test_validation_summary_ignores_rejected_postures():
     assert details['postures'] == 2 and details['position_mm_max'] == pytest.approx(2.0)
 
 
+def _measured(before, after, calibrated, **more):
+    return demo.Measured(
+        before=before,
+        after=after,
+        calibrated=calibrated,
+        identification_ms=600.0,
+        calibration_s=12.0,
+        **more,
+    )
+
+
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.summary_document(before, before, nominal, true, 600.0, 12.0, 40.0, None, {})
+    summary = demo.summary_document(_measured(before, before, nominal), true, 40.0, {})
     assert set(summary) == {
         'validation',
         'max_param_error_mm',
@@ -161,7 +173,7 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     record = demo.result_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.summary_document(before, before, nominal, true, 1.0, 1.0, 1.0, None, record)
+    summary = demo.summary_document(_measured(before, before, nominal), true, 1.0, record)
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
     assert demo.summary_text(summary, 1, 0).endswith('ok')
 
@@ -177,7 +189,7 @@ def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
     fit = demo.result_record(tmp_path)
     for validated, where in ((0.0029, 'inside'), (0.0068, 'OUTSIDE')):
         after = {**before, 'position_mm_mean': validated}
-        summary = demo.summary_document(before, after, nominal, true, 1.0, 1.0, 1.0, None, fit)
+        summary = demo.summary_document(_measured(before, after, nominal), true, 1.0, fit)
         line = [v for v in demo.summary_text(summary, 50, 0).splitlines() if 'held out' in v]
         assert line == [
             f"  held out (calibrator) 0.0042 mm, 95 %: 0.0017-0.0067 mm: the validation's "
@@ -216,9 +228,8 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
     found = demo.result_record(tmp_path)
-    summary = demo.summary_document(
-        before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, found
-    )
+    measured = _measured(before, before, nominal, run_directory=RunDirectory(tmp_path))
+    summary = demo.summary_document(measured, true, 40.0, found)
     assert summary['run_directory'] == str(tmp_path) and summary['collection'] == record
 
 

@@ -38,11 +38,10 @@ class ProgressBar:
     """Renders calibration progress on a stream: one redrawn line on a terminal, else a line per
     phase change and about every tenth posture (logs stay short)."""
 
-    def __init__(self, stream=None, width=BAR_WIDTH, interactive=None):
-        self.stream = sys.stderr if stream is None else stream
+    def __init__(self, stream, width=BAR_WIDTH, interactive=None):
+        self.stream = stream
         self.width = int(width)
-        self.interactive = self.stream.isatty() if interactive is None else bool(interactive)
-        self.updates = 0
+        self.interactive = stream.isatty() if interactive is None else bool(interactive)
         self._last = None
         self._drawn = False
 
@@ -67,7 +66,6 @@ class ProgressBar:
         return text
 
     def update(self, progress):
-        self.updates += 1
         text = self.line(progress)
         if self.interactive:
             self.stream.write('\r\x1b[2K' + text)

@@ -2,8 +2,6 @@
 See docs/nodes.md#gsp_demo."""
 
 import argparse
-import dataclasses
-import math
 import os
 import shutil
 import signal
@@ -26,6 +24,7 @@ from gsp_calibrator.tools.demo_commands import (
     ros_environment,
 )
 from gsp_calibrator.tools.demo_summary import (
+    Measured,
     result_record,
     summary_document,
     summary_text,
@@ -181,20 +180,6 @@ def _check_arguments(parser, args):
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 
 
-@dataclasses.dataclass
-class Measured:
-    """What the demo measured through the nodes."""
-
-    run_directory: object = None  #: the calibration's RunDirectory once it has answered
-    calibrated: object = None  #: the calibrated Geometry
-    identification_ms: float = math.nan
-    calibration_s: float = math.nan
-    before: dict | None = None  #: validation errors before and after (``validation_details``)
-    after: dict | None = None
-    validated: int = 0  #: validation postures reached both times
-    rejected: int = 0  #: validation postures the platform rejected
-
-
 def _calibrate_and_validate(demo, args, validation_poses, measured):
     """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
     :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
@@ -304,15 +289,7 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     the truth and print the summary; ``elapsed_s``: the demo's duration so far (s)."""
     run_directory = measured.run_directory
     summary = summary_document(
-        measured.before,
-        measured.after,
-        measured.calibrated,
-        true_geometry,
-        measured.identification_ms,
-        measured.calibration_s,
-        elapsed_s,
-        run_directory.path,
-        result_record(run_directory.path),
+        measured, true_geometry, elapsed_s, result_record(run_directory.path)
     )
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)

@@ -2,6 +2,7 @@
 the truth, the ``summary.json`` document and its text."""
 
 import contextlib
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -12,6 +13,20 @@ from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.report.write import RESULT_JSON
 from gsp_kinematics.model.geometry import parameter_errors
 from gsp_kinematics.model.validation import pose_errors, summarise
+
+
+@dataclasses.dataclass
+class Measured:
+    """What the demo measured through the nodes."""
+
+    run_directory: object = None  #: the calibration's RunDirectory once it has answered
+    calibrated: object = None  #: the calibrated Geometry
+    identification_ms: float = math.nan
+    calibration_s: float = math.nan
+    before: dict | None = None  #: validation errors before and after (``validation_details``)
+    after: dict | None = None
+    validated: int = 0  #: validation postures reached both times
+    rejected: int = 0  #: validation postures the platform rejected
 
 
 def validation_details(commanded, reached):
@@ -58,25 +73,24 @@ def result_record(run_directory):
     return {}
 
 
-def summary_document(
-    before, after, calibrated, true, identification_ms, calibration_s, total_s, run_dir, record
-):
-    """The ``summary.json`` document: the validation ``before`` and ``after`` calibration (their
-    :data:`VALIDATION_KEYS`), the largest errors of the ``calibrated`` geometry's parameters
-    against the ``true`` one, the times (ms, s), the run directory and the ``record`` of its
-    ``result.json`` (:func:`result_record`)."""
-    errors = parameter_errors(calibrated, true)
+def summary_document(measured, true, total_s, record):
+    """The ``summary.json`` document of a :class:`Measured` demo: its validation before and after
+    calibration (their :data:`VALIDATION_KEYS`), the largest errors of its calibrated geometry's
+    parameters against the ``true`` one, its times (ms, s; ``total_s``: the demo's), its run
+    directory and the ``record`` of its ``result.json`` (:func:`result_record`)."""
+    errors = parameter_errors(measured.calibrated, true)
+    run_directory = measured.run_directory
     return {
         'validation': {
-            'before': {key: before[key] for key in VALIDATION_KEYS},
-            'after': {key: after[key] for key in VALIDATION_KEYS},
+            'before': {key: measured.before[key] for key in VALIDATION_KEYS},
+            'after': {key: measured.after[key] for key in VALIDATION_KEYS},
         },
         'max_param_error_mm': float(np.max(np.abs(errors[:43]))),  # the 43 lengths
         'max_param_error_deg': float(abs(errors[43])),  # gamma
-        'identification_ms': float(identification_ms),
-        'calibration_s': float(calibration_s),
+        'identification_ms': float(measured.identification_ms),
+        'calibration_s': float(measured.calibration_s),
         'total_s': float(total_s),
-        'run_directory': None if run_dir is None else str(run_dir),
+        'run_directory': None if run_directory is None else str(run_directory.path),
         **{key: record.get(key) for key in RESULT_KEYS},
     }
 

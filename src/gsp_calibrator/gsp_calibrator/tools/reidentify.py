@@ -73,9 +73,10 @@ def build_parser():
         description='Re-identify a Gough-Stewart platform calibration offline from a run '
         'directory, a samples.csv or a recording.mcap, into a new run directory.',
     )
-    parser.add_argument('input', help='run directory, samples.csv or recording.mcap')
+    add = parser.add_argument
+    add('input', help='run directory, samples.csv or recording.mcap')
     stored = 'default: as stored with the input run, else'
-    parser.add_argument(
+    add(
         '--nominal',
         default=None,
         help='nominal geometry params file (default: as stored with the input run '
@@ -83,53 +84,40 @@ def build_parser():
         f'{default_geometry_path("nominal")})',
     )
     for name in OPTION_PARAMETERS:
-        default = DEFAULTS[name]
+        default, description = DEFAULTS[name], PARAMETER_SPECS[name].description
         if isinstance(default, list):
-            parser.add_argument(
-                option_name(name),
-                dest=name,
-                nargs='+',
-                metavar='NAME',
-                default=None,
-                help=f'{PARAMETER_SPECS[name].description}; comma-separated lists allowed '
-                f'({stored} {" ".join(default)})',
-            )
-            continue
-        parser.add_argument(
-            option_name(name),
-            dest=name,
-            type=type(default),
-            default=None,
-            help=f'{PARAMETER_SPECS[name].description} ({stored} {default})',
-        )
-    parser.add_argument(
+            kind = {'nargs': '+', 'metavar': 'NAME'}
+            description += f'; comma-separated lists allowed ({stored} {" ".join(default)})'
+        else:
+            kind = {'type': type(default)}
+            description += f' ({stored} {default})'
+        add(option_name(name), dest=name, default=None, help=description, **kind)
+    add(
         '--output-root',
         default=DEFAULTS['output_root'],
         help='directory of the new run directory (default %(default)s)',
     )
-    parser.add_argument(
+    add(
         '--truth',
         default=None,
         help='true geometry params file, for errors against the truth and a '
         "validation in the report (default: the input run directory's "
         f'{TRUE_GEOMETRY_FILE}, if any)',
     )
-    parser.add_argument(
+    add(
         '--validation-postures',
         type=int,
         default=VALIDATION_POSTURES,
         metavar='N',
         help='random postures of the validation against the truth (default %(default)s; 0: none)',
     )
-    parser.add_argument(
-        '--seed', type=int, default=0, help='seed of the validation postures (default %(default)s)'
-    )
-    parser.add_argument(
+    add('--seed', type=int, default=0, help='seed of the validation postures (default %(default)s)')
+    add(
         '--no-report',
         action='store_true',
         help='write samples.csv, result.yaml and result.json only',
     )
-    parser.add_argument(
+    add(
         '--no-plots',
         action='store_true',
         help="write report.md without its PNG plots (the calibrator's write_report_plots: false)",
