@@ -211,7 +211,6 @@ def _calibrate_and_validate(demo, args, validation_poses, measured):
         raise DemoError('every validation posture was rejected by the platform')
     measured.before = validation_details(validation_poses[both], reached_before[both])
     measured.after = validation_details(validation_poses[both], reached_after[both])
-    measured.validated, measured.rejected = int(both.sum()), int((~both).sum())
 
 
 def _shut_down(executor, node, context, processes, run_directory, log_directory, exit_code):
@@ -304,7 +303,8 @@ def _write_results(args, measured, true_geometry, elapsed_s):
         )
     except Exception as error:  # noqa: BLE001 (the demo itself succeeded)
         print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
-    print(summary_text(summary, measured.validated, measured.rejected), flush=True)
+    validated = measured.before['postures']  # reached both times; the others were rejected
+    print(summary_text(summary, validated, args.validation_postures - validated), flush=True)
     print(f'run directory: {run_directory.path}', flush=True)
 
 

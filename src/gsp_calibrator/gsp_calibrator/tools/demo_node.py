@@ -1,5 +1,7 @@
 """The ROS part of ``gsp_demo``: a client node of the suite, spun from the main thread."""
 
+import contextlib
+
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -35,9 +37,6 @@ class DemoNode(Node):
             self._on_status,
             qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
         )
-        # Subscriptions held only while needed: the true pose while validating (200 Hz), the
-        # leg lengths while waiting for the platform.
-        self._watched = {}
         self.leg_lengths_seen = False
         self.create_subscription(
             DiagnosticStatus,
@@ -55,27 +54,15 @@ class DemoNode(Node):
         if status.settled:
             self.settled_at[status.command_id] = self.get_clock().now().nanoseconds
 
-    def _watch(self, topic, message_type, callback, on):
-        """Subscribe to ``topic`` (or unsubscribe) while it is needed; True when it starts."""
-        subscription = self._watched.get(topic)
-        if on and subscription is None:
-            self._watched[topic] = self.create_subscription(
-                message_type, topic, callback, qos.TOPIC_QOS[topic]
-            )
-            return True
-        if not on and subscription is not None:
-            self.destroy_subscription(self._watched.pop(topic))
-        return False
-
-    def watch_true_pose(self, on):
-        """Subscribe to (or unsubscribe from) the ground truth."""
-        if self._watch(names.TOPIC_TRUE_POSE, PoseStamped, self._on_true_pose, on):
-            self.true_poses.clear()
-
-    def watch_leg_lengths(self, on):
-        """Subscribe to (or unsubscribe from) the platform's leg lengths."""
-        if self._watch(names.TOPIC_LEG_LENGTHS, JointState, self._on_leg_lengths, on):
-            self.leg_lengths_seen = False
+    @contextlib.contextmanager
+    def _watching(self, topic, message_type, callback):
+        """Subscribed to ``topic`` within the block: a subscription held only while needed (the
+        true pose while validating, 200 Hz; the leg lengths while waiting for the platform)."""
+        subscription = self.create_subscription(message_type, topic, callback, qos.TOPIC_QOS[topic])
+        try:
+            yield
+        finally:
+            self.destroy_subscription(subscription)
 
     def _on_leg_lengths(self, msg):
         self.leg_lengths_seen = True
@@ -156,21 +143,19 @@ class DemoNode(Node):
         # The platform takes commands only once it knows where the legs are: platform_bridge
         # rejects every command until the controller's first /joint_states reached it, and it
         # publishes leg lengths from them.
-        self.watch_leg_lengths(True)
-        try:
+        self.leg_lengths_seen = False
+        with self._watching(names.TOPIC_LEG_LENGTHS, JointState, self._on_leg_lengths):
             self.spin_until(
                 lambda: self.leg_lengths_seen,
                 timeout,
                 f"the platform's first {names.TOPIC_LEG_LENGTHS} (platform_bridge: the "
                 "controller's /joint_states)",
             )
-        finally:
-            self.watch_leg_lengths(False)
 
     def run_postures(self, poses, settle_timeout, startup_timeout):
         """Command each pose, wait until settled; reached poses (NaN rows where rejected)."""
-        self.watch_true_pose(True)
-        try:
+        self.true_poses.clear()
+        with self._watching(names.TOPIC_TRUE_POSE, PoseStamped, self._on_true_pose):
             self.spin_until(
                 lambda: len(self.true_poses) > 0,
                 startup_timeout,
@@ -194,8 +179,6 @@ class DemoNode(Node):
                 )
                 reached[m] = self.reached_pose(command_id)
             return reached
-        finally:
-            self.watch_true_pose(False)
 
     def calibrate(self, timeout):
         future = self.calibrate_client.call_async(Trigger.Request())

@@ -25,8 +25,6 @@ class Measured:
     calibration_s: float = math.nan
     before: dict | None = None  #: validation errors before and after (``validation_details``)
     after: dict | None = None
-    validated: int = 0  #: validation postures reached both times
-    rejected: int = 0  #: validation postures the platform rejected
 
 
 def validation_details(commanded, reached):

@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 from gsp_calibrator.files.run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
+from gsp_calibrator.recording.mcap_format import RecordingError
+from gsp_calibrator.recording.mcap_io import recording_options, recover_recordings
 from gsp_calibrator.settings import DEFAULTS, REIDENTIFY_COMMAND_LINE, names_in, option_value
 from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_msgs_py.noise_parameters import noise_from_parameters
@@ -44,10 +46,7 @@ def stored_options(kind, path, source_dir):
     (overriding) those of the recording."""
     options = dict(result_json(source_dir).get('options') or {})
     recording_path = recording_of(kind, path, source_dir)
-    if recording_path is not None and Path(recording_path).is_file():
-        from gsp_calibrator.recording.mcap_format import RecordingError
-        from gsp_calibrator.recording.mcap_io import recording_options
-
+    if recording_path is not None:
         try:
             options.update(recording_options(recording_path))
         except RecordingError as error:
@@ -101,8 +100,6 @@ def geometry_option(path, option):
 def recover_unfinished_recordings(run_path):
     """Finalise the ``recording*.mcap.tmp`` a killed calibrator left in ``run_path`` (never one a
     live calibrator is still writing: see its ``state.json``)."""
-    from gsp_calibrator.recording.mcap_format import RecordingError
-    from gsp_calibrator.recording.mcap_io import recover_recordings
     from gsp_calibrator.run.record import ResumeRefused, read_state, resumable
 
     if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
@@ -131,10 +128,8 @@ def resolve_input(path):
         recover_unfinished_recordings(path)
         if (path / SAMPLES_FILE).is_file():
             return 'csv', path / SAMPLES_FILE, path
-        from gsp_calibrator.recording.recorder import RECORDING_FILE
-
-        if (path / RECORDING_FILE).is_file():
-            return 'mcap', path / RECORDING_FILE, path
+        if (path / 'recording.mcap').is_file():
+            return 'mcap', path / 'recording.mcap', path
         raise InputError(f'{path}: run directory without {SAMPLES_FILE} or recording.mcap')
     if not path.exists():
         raise InputError(f'{path}: no such file or directory')
@@ -153,7 +148,6 @@ def load_input(kind, path, options):
         except RunDirectoryError as error:
             raise InputError(str(error)) from error
     else:
-        from gsp_calibrator.recording.mcap_format import RecordingError
         from gsp_calibrator.recording.rebuild import samples_from_recording
         from gsp_calibrator.recording.recorder import RECORDING_FILE, recording_parts
 
