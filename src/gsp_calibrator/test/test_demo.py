@@ -120,11 +120,11 @@ def test_validation_summary_ignores_rejected_postures():
     reached = commanded + np.array(
         [[0.001, 0, 0, 0, 0, 0], [np.nan] * 6, [0, 0.002, 0, 0, 0, math.radians(0.5)]]
     )
-    details = demo.validation_details(commanded, reached)
+    details = demo_summary.validation_details(commanded, reached)
     assert details['position_mm_mean'] == pytest.approx(1.5)
     assert details['orientation_deg_max'] == pytest.approx(0.5)
     assert math.isnan(
-        demo.validation_details(commanded, np.full((3, 6), np.nan))['position_mm_mean']
+        demo_summary.validation_details(commanded, np.full((3, 6), np.nan))['position_mm_mean']
     )
     assert details['position_mm'] == pytest.approx([1.0, 2.0])
     assert details['orientation_deg'] == pytest.approx([0.0, 0.5])
@@ -132,7 +132,7 @@ def test_validation_summary_ignores_rejected_postures():
 
 
 def _measured(before, after, calibrated, **more):
-    return demo.Measured(
+    return demo_summary.Measured(
         before=before,
         after=after,
         calibrated=calibrated,
@@ -145,7 +145,7 @@ def _measured(before, after, calibrated, **more):
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.summary_document(_measured(before, before, nominal), true, 40.0, {})
+    summary = demo_summary.summary_document(_measured(before, before, nominal), true, 40.0, {})
     assert set(summary) == {
         'validation',
         'max_param_error_mm',
@@ -160,7 +160,7 @@ def test_summary_has_the_keys_of_the_issue():
     assert set(summary['validation']) == {'before', 'after'}
     assert set(summary['validation']['after']) == set(VALIDATION_KEYS)
     assert summary['max_param_error_mm'] > 0.1 and summary['max_param_error_deg'] > 0.0
-    text = demo.summary_text(summary, 49, 1)
+    text = demo_summary.summary_text(summary, 49, 1)
     assert 'before (nominal)' in text and '1 rejected' in text
 
 
@@ -170,12 +170,12 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     (tmp_path / 'result.json').write_text(
         json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'fit_diagnosis': 'ok'})
     )
-    record = demo.result_record(tmp_path)
+    record = demo_summary.result_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.summary_document(_measured(before, before, nominal), true, 1.0, record)
+    summary = demo_summary.summary_document(_measured(before, before, nominal), true, 1.0, record)
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
-    assert demo.summary_text(summary, 1, 0).endswith('ok')
+    assert demo_summary.summary_text(summary, 1, 0).endswith('ok')
 
 
 def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
@@ -186,11 +186,13 @@ def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
     (tmp_path / 'result.json').write_text(json.dumps({'accuracy': accuracy}))
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    fit = demo.result_record(tmp_path)
+    fit = demo_summary.result_record(tmp_path)
     for validated, where in ((0.0029, 'inside'), (0.0068, 'OUTSIDE')):
         after = {**before, 'position_mm_mean': validated}
-        summary = demo.summary_document(_measured(before, after, nominal), true, 1.0, fit)
-        line = [v for v in demo.summary_text(summary, 50, 0).splitlines() if 'held out' in v]
+        summary = demo_summary.summary_document(_measured(before, after, nominal), true, 1.0, fit)
+        line = [
+            v for v in demo_summary.summary_text(summary, 50, 0).splitlines() if 'held out' in v
+        ]
         assert line == [
             f"  held out (calibrator) 0.0042 mm, 95 %: 0.0017-0.0067 mm: the validation's "
             f'{validated:.4f} mm lies {where}'
@@ -221,15 +223,15 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
         'inconsistent_dropped': 0,
         'non_finite_dropped': {'leg_lengths': 0, 'inclinometer': 1, 'encoder': 0, 'lvdt': 0},
     }
-    assert demo.result_record(tmp_path) == {}  # no result.json
+    assert not any(demo_summary.result_record(tmp_path).values())  # no result.json
     (tmp_path / 'result.json').write_text(json.dumps({'converged': True}))
-    assert demo.result_record(tmp_path)['collection'] is None  # an older calibrator
+    assert demo_summary.result_record(tmp_path)['collection'] is None  # an older calibrator
     (tmp_path / 'result.json').write_text(json.dumps({'collection': record}))
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    found = demo.result_record(tmp_path)
+    found = demo_summary.result_record(tmp_path)
     measured = _measured(before, before, nominal, run_directory=RunDirectory(tmp_path))
-    summary = demo.summary_document(measured, true, 40.0, found)
+    summary = demo_summary.summary_document(measured, true, 40.0, found)
     assert summary['run_directory'] == str(tmp_path) and summary['collection'] == record
 
 

@@ -15,36 +15,14 @@ import numpy as np
 from gsp_calibrator.files.run_directory import SUMMARY_FILE, TRUE_GEOMETRY_FILE, RunDirectory
 from gsp_calibrator.run.response import parse_response
 from gsp_calibrator.settings import DEFAULTS, add_run_options, run_options_error
-from gsp_calibrator.tools.demo_commands import (
-    MOVING_SETTLE_TIMEOUT_S,
-    NODES,
-    PHYSICS_PRESET,
-    SENSOR_DYNAMICS,
-    node_commands,
-    ros_environment,
-)
-from gsp_calibrator.tools.demo_summary import (
-    Measured,
-    result_record,
-    summary_document,
-    summary_text,
-    validation_details,
-)
+from gsp_calibrator.tools import demo_commands, demo_summary
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
 from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
+from gsp_kinematics.model import motion
 from gsp_kinematics.model.effects import PRESETS
 from gsp_kinematics.model.geometry import default_geometry_path, geometry_from_yaml, load_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
-from gsp_kinematics.model.motion import (
-    DEFAULT_SENSOR_RATE_HZ,
-    REALISTIC_MAX_ACCELERATION,
-    REALISTIC_MAX_SPEED,
-)
-from gsp_msgs_py.ros_environment import (
-    DomainInUseError,
-    enter_private_domain,
-    foreign_nodes_in_child,
-)
+from gsp_msgs_py import ros_environment
 
 
 class Terminated(Exception):
@@ -83,8 +61,8 @@ def parse_arguments(argv=None):
     add(
         '--sensor-rate',
         type=float,
-        default=DEFAULT_SENSOR_RATE_HZ,
-        help=f'leg-length and device rate, Hz ({DEFAULT_SENSOR_RATE_HZ:g})',
+        default=motion.DEFAULT_SENSOR_RATE_HZ,
+        help=f'leg-length and device rate, Hz ({motion.DEFAULT_SENSOR_RATE_HZ:g})',
     )
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
     add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
@@ -103,7 +81,7 @@ def parse_arguments(argv=None):
     add(
         '--sensor-dynamics',
         default='none',
-        choices=tuple(SENSOR_DYNAMICS),
+        choices=tuple(demo_commands.SENSOR_DYNAMICS),
         help='none: an instant device with white noise; realistic: response and noise '
         "correlation times of typical parts, and the calibrator's rest look-back to match "
         '(docs/sensor_errors.md) (none)',
@@ -141,8 +119,8 @@ def _add_backend_option(add):
         default='kinematic',
         choices=('kinematic', 'physics'),
         help="platform_sim's backend: kinematic (fast) or physics (MuJoCo, the realistic preset "
-        f"{PHYSICS_PRESET}, with device_driver's physics backend; the legs' realistic limits "
-        'unless given) (docs/physics.md) (kinematic)',
+        f"{demo_commands.PHYSICS_PRESET}, with device_driver's physics backend; the legs' "
+        'realistic limits unless given) (docs/physics.md) (kinematic)',
     )
     add(
         '--real-time-factor',
@@ -174,8 +152,8 @@ def _check_arguments(parser, args):
         if not args.real_time_factor > 0:
             parser.error('--real-time-factor must be > 0')
         # A servo does not jump: the realistic leg limits, known to the calibrator's plan.
-        args.max_leg_speed = args.max_leg_speed or REALISTIC_MAX_SPEED
-        args.max_leg_acceleration = args.max_leg_acceleration or REALISTIC_MAX_ACCELERATION
+        args.max_leg_speed = args.max_leg_speed or motion.REALISTIC_MAX_SPEED
+        args.max_leg_acceleration = args.max_leg_acceleration or motion.REALISTIC_MAX_ACCELERATION
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 
@@ -186,7 +164,7 @@ def _calibrate_and_validate(demo, args, validation_poses, measured):
     demo.wait_for_system(args.startup_timeout)
     settle_timeout = 5.0 + 10.0 * args.settle_time
     if args.max_leg_speed > 0:
-        settle_timeout += MOVING_SETTLE_TIMEOUT_S
+        settle_timeout += demo_commands.MOVING_SETTLE_TIMEOUT_S
     print(
         f'validation before calibration: {len(validation_poses)} postures (nominal controller) ...',
         flush=True,
@@ -209,8 +187,8 @@ def _calibrate_and_validate(demo, args, validation_poses, measured):
     both = np.all(np.isfinite(reached_before), axis=1) & np.all(np.isfinite(reached_after), axis=1)
     if not both.any():
         raise DemoError('every validation posture was rejected by the platform')
-    measured.before = validation_details(validation_poses[both], reached_before[both])
-    measured.after = validation_details(validation_poses[both], reached_after[both])
+    measured.before = demo_summary.validation_details(validation_poses[both], reached_before[both])
+    measured.after = demo_summary.validation_details(validation_poses[both], reached_after[both])
 
 
 def _shut_down(executor, node, context, processes, run_directory, log_directory, exit_code):
@@ -233,7 +211,7 @@ def _shut_down(executor, node, context, processes, run_directory, log_directory,
         print(f'gsp_demo: could not stop {left}', file=sys.stderr)
         exit_code = exit_code or 1
     if run_directory is not None:
-        for name in NODES:
+        for name in demo_commands.NODES:
             log = log_directory / f'{name}.log'
             if log.exists():
                 run_directory.write_bytes(f'{name}.log', log.read_bytes())
@@ -287,8 +265,8 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     """Write the truth and ``summary.json`` into the run directory, refresh its report against
     the truth and print the summary; ``elapsed_s``: the demo's duration so far (s)."""
     run_directory = measured.run_directory
-    summary = summary_document(
-        measured, true_geometry, elapsed_s, result_record(run_directory.path)
+    summary = demo_summary.summary_document(
+        measured, true_geometry, elapsed_s, demo_summary.result_record(run_directory.path)
     )
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
@@ -304,7 +282,8 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     except Exception as error:  # noqa: BLE001 (the demo itself succeeded)
         print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
     validated = measured.before['postures']  # reached both times; the others were rejected
-    print(summary_text(summary, validated, args.validation_postures - validated), flush=True)
+    rejected = args.validation_postures - validated
+    print(demo_summary.summary_text(summary, validated, rejected), flush=True)
     print(f'run directory: {run_directory.path}', flush=True)
 
 
@@ -317,11 +296,11 @@ def run(args):
     try:
         # A domain of the demo's own (claimed, or the given one checked), probed for
         # nodes by a child: this process forks its nodes before it starts DDS threads itself.
-        enter_private_domain(probe=foreign_nodes_in_child)
-    except DomainInUseError as error:
+        ros_environment.enter_private_domain(probe=ros_environment.foreign_nodes_in_child)
+    except ros_environment.DomainInUseError as error:
         print(f'gsp_demo: {error}', file=sys.stderr, flush=True)
         return 1
-    env = ros_environment()
+    env = demo_commands.ros_environment()
     print(
         f'gsp_demo: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} (loopback only), output under '
         f'{output_root}',
@@ -332,8 +311,8 @@ def run(args):
     )
     log_directory = Path(tempfile.mkdtemp(prefix='gsp_demo_logs_'))
     args.device_port = str(log_directory / 'gsp_device')  # the pty link of --device serial
-    processes = NodeProcesses(node_commands(args, output_root), env, log_directory)
-    measured = Measured()
+    processes = NodeProcesses(demo_commands.node_commands(args, output_root), env, log_directory)
+    measured = demo_summary.Measured()
     exit_code = _run_nodes(args, validation_poses, processes, log_directory, measured)
     if exit_code != 0:
         if measured.run_directory is not None:

@@ -1,16 +1,14 @@
 """What ``gsp_demo`` measured and reports (pure): validation errors, parameter errors against
 the truth, the ``summary.json`` document and its text."""
 
-import contextlib
 import dataclasses
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
-from gsp_calibrator.report.write import RESULT_JSON
+from gsp_calibrator.tools.reidentify_inputs import result_json
 from gsp_kinematics.model.geometry import parameter_errors
 from gsp_kinematics.model.validation import pose_errors, summarise
 
@@ -63,12 +61,10 @@ RESULT_KEYS = (
 
 
 def result_record(run_directory):
-    """``{key: value}`` of :data:`RESULT_KEYS` in the calibrator's ``result.json`` ({} if absent).
-    Read before the report is refreshed, which rewrites ``result.json``."""
-    with contextlib.suppress(OSError, ValueError):
-        data = json.loads((Path(run_directory) / RESULT_JSON).read_text())
-        return {key: data.get(key) for key in RESULT_KEYS}
-    return {}
+    """``{key: value}`` of :data:`RESULT_KEYS` in the calibrator's ``result.json`` (None where
+    absent). Read before the report is refreshed, which rewrites ``result.json``."""
+    data = result_json(Path(run_directory))
+    return {key: data.get(key) for key in RESULT_KEYS}
 
 
 def summary_document(measured, true, total_s, record):

@@ -12,19 +12,7 @@ from gsp_calibrator.run.postures import (
     route_effect_groups,
 )
 from gsp_calibrator.settings import add_run_options, run_options_error
-from gsp_calibrator.tools.plans import (
-    DEFAULT_SWEEP_POSTURES,
-    DEFAULT_SWEEP_SAMPLES,
-    DEFAULT_TARGET_POSTURES,
-    MAX_PAIRS_PER_POSTURE,
-    Design,
-    EffectPlan,
-    cheapest_meeting,
-    plan,
-    sweep,
-    sweep_table,
-    target_plan,
-)
+from gsp_calibrator.tools import plans
 from gsp_kinematics.estimation.identification import IdentificationError
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.model.effects import EFFECT_GROUPS
@@ -102,8 +90,8 @@ def parse_arguments(argv=None):
     )
     add('--output', default=None, help='write the plan (or the sweep) as JSON here')
     add('--sweep', action='store_true', help='sweep posture counts and pairs per posture')
-    add('--sweep-postures', type=_positive_ints, default=DEFAULT_SWEEP_POSTURES)
-    add('--sweep-samples', type=_positive_ints, default=DEFAULT_SWEEP_SAMPLES)
+    add('--sweep-postures', type=_positive_ints, default=plans.DEFAULT_SWEEP_POSTURES)
+    add('--sweep-samples', type=_positive_ints, default=plans.DEFAULT_SWEEP_SAMPLES)
     add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
     add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
     add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
@@ -119,10 +107,10 @@ def parse_arguments(argv=None):
     add(
         '--target-postures',
         type=_positive_ints,
-        default=DEFAULT_TARGET_POSTURES,
+        default=plans.DEFAULT_TARGET_POSTURES,
         help='posture counts a target plan considers',
     )
-    add('--max-pairs-per-posture', type=int, default=MAX_PAIRS_PER_POSTURE)
+    add('--max-pairs-per-posture', type=int, default=plans.MAX_PAIRS_PER_POSTURE)
     _add_effect_options(add)
     args = parser.parse_args(argv)
     reason = run_options_error(args)
@@ -171,7 +159,7 @@ def _add_effect_options(add):
 
 
 def effect_plan_from(args):
-    """The :class:`EffectPlan` of the command line: the ``--effects`` groups, else those the
+    """The ``plans.EffectPlan`` of the command line: the ``--effects`` groups, else those the
     calibrator's route adds postures for with ``--free`` (``auto``: thermal and backlash,
     ``postures.effect_route``); None when neither."""
     groups = tuple(args.effects)
@@ -179,7 +167,7 @@ def effect_plan_from(args):
         groups = tuple(route_effect_groups(args.free_parameters))
     if not groups:
         return None
-    return EffectPlan(
+    return plans.EffectPlan(
         groups=groups,
         revisit_every=args.revisit_every,
         revisit_interval_s=args.revisit_interval_s,
@@ -218,7 +206,7 @@ def _effects_text(entry):
 
 
 def design_from(args):
-    """The :class:`Design` of the command line."""
+    """The ``plans.Design`` of the command line."""
     sigmas = SensorNoise(
         leg_lengths=args.sigma_leg_lengths_um * 1e-6,
         inclinometer=math.radians(args.sigma_inclinometer_deg),
@@ -231,7 +219,7 @@ def design_from(args):
         z_max=args.z_max_mm / 1e3,
         rotation_range=math.radians(args.rotation_range_deg),
     )
-    return Design(
+    return plans.Design(
         sigmas=sigmas,
         free=tuple(args.free_parameters),
         formulation=args.formulation,
@@ -314,11 +302,11 @@ def _inputs(args, design, limits):
 
 def _sweep_document(args, nominal, design, timing):
     """``--sweep``: the sweep (printed and plotted), with the cheapest design meeting a target."""
-    result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
+    result = plans.sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
     document = {'sweep': result}
-    print(sweep_table(result))
+    print(plans.sweep_table(result))
     if args.target_position_um is not None or args.target_orientation_deg is not None:
-        best = cheapest_meeting(result, args.target_position_um, args.target_orientation_deg)
+        best = plans.cheapest_meeting(result, args.target_position_um, args.target_orientation_deg)
         document['target'] = {
             'position_um': args.target_position_um,
             'orientation_deg': args.target_orientation_deg,
@@ -354,7 +342,7 @@ def main(argv=None):
         if args.target_position_mm is not None or (
             not args.sweep and args.target_orientation_deg is not None
         ):
-            result = target_plan(
+            result = plans.target_plan(
                 nominal,
                 args.target_position_mm,
                 args.target_orientation_deg,
@@ -367,8 +355,9 @@ def main(argv=None):
         elif args.sweep:
             result = _sweep_document(args, nominal, design, timing)
         else:
+            effects = effect_plan_from(args)
             count, pairs = args.posture_count, args.pairs_per_posture
-            result = plan(nominal, count, pairs, design, effects=effect_plan_from(args), **timing)
+            result = plans.plan(nominal, count, pairs, design, effects=effects, **timing)
             print(_summary_text(result))
         document = {'inputs': _inputs(args, design, limits), **result}
     except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:

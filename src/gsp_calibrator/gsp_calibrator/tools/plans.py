@@ -125,15 +125,14 @@ def effect_plan(nominal, poses, pairs_per_posture, design, effects, dwell_s, lim
         limits=limits,
         min_arrivals=effects.min_arrivals,
     )
-    run = route.design(
-        effects.payload_mass,
-        effects.centre_of_mass,
-        thermal_time_constant_s=effects.thermal_time_constant_s,
-    )
     groups = effect_identifiability(
         nominal,
         route.poses,
-        run,
+        route.design(
+            effects.payload_mass,
+            effects.centre_of_mass,
+            thermal_time_constant_s=effects.thermal_time_constant_s,
+        ),
         effects.groups,
         design.sigmas.averaged([pairs_per_posture]),
         design.free,
