@@ -160,7 +160,7 @@ def _check_arguments(parser, args):
 
 def _calibrate_and_validate(demo, args, validation_poses, measured):
     """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
-    :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
+    ``demo_summary.Measured``, filled as the demo goes: an interrupt leaves what was measured)."""
     demo.wait_for_system(args.startup_timeout)
     settle_timeout = 5.0 + 10.0 * args.settle_time
     if args.max_leg_speed > 0:
