@@ -46,8 +46,6 @@ VALIDATION_POSTURES = 50
 def _identify(nominal, samples, sigmas, options, noise_source):
     """``identify_from_samples`` with the run's resolved ``options`` (its workspace postures,
     ``run.postures.workspace_poses_of``, and the core's ``Options``: the loss)."""
-    from gsp_calibrator.run.postures import workspace_poses_of
-
     return identify_from_samples(
         nominal,
         samples,
@@ -59,7 +57,7 @@ def _identify(nominal, samples, sigmas, options, noise_source):
         folds=int(options['cross_validation_folds']),
         payload_mass=options['payload_mass'],
         centre_of_mass=options['payload_centre_of_mass'],
-        workspace_poses=workspace_poses_of(
+        workspace_poses=postures.workspace_poses_of(
             nominal, options.get('workspace_postures', 0), options.get('seed', 0)
         ),
         leg_mass=options['leg_mass'],
