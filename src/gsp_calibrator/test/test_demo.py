@@ -115,17 +115,12 @@ def test_bad_arguments_are_rejected(argv):
         demo.parse_arguments(argv)
 
 
-def test_validation_summary_ignores_rejected_postures():
-    commanded = np.array([[0, 0, 1, 0, 0, 0], [0.1, 0, 1, 0, 0, 0], [0, 0, 1, 0, 0, 0.1]], float)
-    reached = commanded + np.array(
-        [[0.001, 0, 0, 0, 0, 0], [np.nan] * 6, [0, 0.002, 0, 0, 0, math.radians(0.5)]]
-    )
+def test_validation_details_of_the_postures_reached_both_times():
+    commanded = np.array([[0, 0, 1, 0, 0, 0], [0, 0, 1, 0, 0, 0.1]], float)
+    reached = commanded + np.array([[0.001, 0, 0, 0, 0, 0], [0, 0.002, 0, 0, 0, math.radians(0.5)]])
     details = demo_summary.validation_details(commanded, reached)
     assert details['position_mm_mean'] == pytest.approx(1.5)
     assert details['orientation_deg_max'] == pytest.approx(0.5)
-    assert math.isnan(
-        demo_summary.validation_details(commanded, np.full((3, 6), np.nan))['position_mm_mean']
-    )
     assert details['position_mm'] == pytest.approx([1.0, 2.0])
     assert details['orientation_deg'] == pytest.approx([0.0, 0.5])
     assert details['postures'] == 2 and details['position_mm_max'] == pytest.approx(2.0)

@@ -26,20 +26,16 @@ class Measured:
 
 
 def validation_details(commanded, reached):
-    """Mean and max errors (mm, deg) over the rows of ``reached`` without NaN, with their
-    per-posture errors ``position_mm`` and ``orientation_deg``, their commanded ``poses`` and their
-    count ``postures`` (the run's report overlays them on its accuracy map)."""
-    commanded, reached = np.asarray(commanded), np.asarray(reached)
-    keep = np.all(np.isfinite(reached), axis=1)
-    if not keep.any():
-        return {**dict.fromkeys(VALIDATION_KEYS, math.nan), 'postures': 0}
-    position_mm, orientation_deg = pose_errors(commanded[keep], reached[keep])
+    """Mean and max errors (mm, deg) of the ``reached`` poses (M, 6) against the ``commanded``
+    ones, with the per-posture errors ``position_mm`` and ``orientation_deg``, the commanded
+    ``poses`` and their count ``postures`` (the run's report overlays them on its accuracy map)."""
+    position_mm, orientation_deg = pose_errors(commanded, reached)
     return {
         **summarise(position_mm, orientation_deg),
         'position_mm': np.asarray(position_mm, dtype=float).tolist(),
         'orientation_deg': np.asarray(orientation_deg, dtype=float).tolist(),
-        'poses': commanded[keep].tolist(),
-        'postures': int(keep.sum()),
+        'poses': np.asarray(commanded).tolist(),
+        'postures': len(commanded),
     }
 
 
