@@ -155,16 +155,6 @@ def _validate(truth, nominal, outcome, args):
     return before, after
 
 
-def _validation_line(when, validation):
-    """One line of a validation summary (mm, deg)."""
-    return (
-        f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
-        f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
-        f'{validation["orientation_deg_mean"]:.4g} deg, max '
-        f'{validation["orientation_deg_max"]:.4g} deg'
-    )
-
-
 def reidentify(args, out=None):
     """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
     out = sys.stdout if out is None else out
@@ -218,8 +208,14 @@ def reidentify(args, out=None):
 
     print(outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
-        if validation is not None:
-            print(_validation_line(when, validation), file=out)
+        if validation is not None:  # mm, deg
+            print(
+                f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
+                f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
+                f'{validation["orientation_deg_mean"]:.4g} deg, max '
+                f'{validation["orientation_deg_max"]:.4g} deg',
+                file=out,
+            )
     print(f'{RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
