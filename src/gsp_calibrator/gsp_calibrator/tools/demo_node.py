@@ -27,23 +27,16 @@ class DemoNode(Node):
         self.settled_at = {}  # command_id -> receive time (ns) of its settled status
         self.true_poses = []  # [(stamp_ns, pose)], recent only
         self._last_phase = None
+        self.leg_lengths_seen = False
         self.calibrate_client = self.create_client(Trigger, names.SERVICE_CALIBRATE)
         self.command_pub = self.create_publisher(
             PoseStamped, names.TOPIC_POSE_COMMAND, qos.TOPIC_QOS[names.TOPIC_POSE_COMMAND]
         )
-        self.create_subscription(
-            DiagnosticStatus,
-            names.TOPIC_PLATFORM_STATUS,
-            self._on_status,
-            qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
-        )
-        self.leg_lengths_seen = False
-        self.create_subscription(
-            DiagnosticStatus,
-            names.TOPIC_CALIBRATION_PROGRESS,
-            self._on_progress,
-            qos.TOPIC_QOS[names.TOPIC_CALIBRATION_PROGRESS],
-        )
+        self._subscribe(names.TOPIC_PLATFORM_STATUS, DiagnosticStatus, self._on_status)
+        self._subscribe(names.TOPIC_CALIBRATION_PROGRESS, DiagnosticStatus, self._on_progress)
+
+    def _subscribe(self, topic, message_type, callback):
+        return self.create_subscription(message_type, topic, callback, qos.TOPIC_QOS[topic])
 
     def _on_status(self, msg):
         try:
@@ -58,7 +51,7 @@ class DemoNode(Node):
     def _watching(self, topic, message_type, callback):
         """Subscribed to ``topic`` within the block: a subscription held only while needed (the
         true pose while validating, 200 Hz; the leg lengths while waiting for the platform)."""
-        subscription = self.create_subscription(message_type, topic, callback, qos.TOPIC_QOS[topic])
+        subscription = self._subscribe(topic, message_type, callback)
         try:
             yield
         finally:
