@@ -211,10 +211,8 @@ def _shut_down(executor, node, context, processes, run_directory, log_directory,
         print(f'gsp_demo: could not stop {left}', file=sys.stderr)
         exit_code = exit_code or 1
     if run_directory is not None:
-        for name in demo_commands.NODES:
-            log = log_directory / f'{name}.log'
-            if log.exists():
-                run_directory.write_bytes(f'{name}.log', log.read_bytes())
+        for log in log_directory.glob('*.log'):  # the nodes' (NodeProcesses)
+            run_directory.write_bytes(log.name, log.read_bytes())
         shutil.rmtree(log_directory, ignore_errors=True)
     else:
         print(f"gsp_demo: the nodes' logs are in {log_directory}", file=sys.stderr)

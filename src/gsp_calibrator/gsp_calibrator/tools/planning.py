@@ -28,12 +28,11 @@ def plot_sweep(path, result):
     from gsp_calibrator.report.plots import new_figure, save_figure
 
     figure = new_figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
-    for column, (key, label) in enumerate(
-        (
-            ('position_mm_mean', 'position error (mm)'),
-            ('orientation_deg_mean', 'orientation error (deg)'),
-        )
-    ):
+    panels = {
+        'position_mm_mean': 'position error (mm)',
+        'orientation_deg_mean': 'orientation error (deg)',
+    }
+    for column, (key, label) in enumerate(panels.items()):
         axes = figure.add_subplot(1, 2, column + 1)
         for samples in result['pairs_per_posture']:
             rows = [r for r in result['rows'] if r['pairs_per_posture'] == samples]
