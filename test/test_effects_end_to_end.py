@@ -44,22 +44,20 @@ SENSOR_RATE_HZ = 50
 CHECK_POSTURES = 20
 
 
-def _apply(session, geometry):
+def _apply(node, geometry):
     """Set ``geometry``'s ``geometry.*`` parameters on platform_sim (its controller)."""
     from rcl_interfaces.srv import SetParametersAtomically
     from rclpy.parameter import Parameter
 
-    client = session.node.create_client(
-        SetParametersAtomically, '/platform_sim/set_parameters_atomically'
-    )
-    session.spin_until(client.service_is_ready, WAIT_S, 'the parameter service of platform_sim')
+    client = node.create_client(SetParametersAtomically, '/platform_sim/set_parameters_atomically')
+    node.spin_until(client.service_is_ready, WAIT_S, 'the parameter service of platform_sim')
     request = SetParametersAtomically.Request()
     request.parameters = [
         Parameter(name, value=value).to_parameter_msg()
         for name, value in geometry_to_parameters(geometry, all_effects=True).items()
     ]
     future = client.call_async(request)
-    session.spin_until(future.done, WAIT_S, 'platform_sim to take the geometry')
+    node.spin_until(future.done, WAIT_S, 'platform_sim to take the geometry')
     assert future.result().result.successful, future.result().result.reason
 
 
@@ -119,15 +117,15 @@ def _run_noise(samples, times_s):
     return np.concatenate([samples.leg_lengths - legs, samples.readings - device], axis=1)
 
 
-def _calibrate_and_check(session, checks):
+def _calibrate_and_check(node, checks):
     """Calibrate through the service (applied), then command ``checks`` with the applied
     geometry: ``(run directory, reached poses)``."""
-    session.wait_for_system(WAIT_S)
-    response = session.calibrate(CALIBRATION_TIMEOUT_S)
+    node.wait_for_system(WAIT_S)
+    response = node.calibrate(CALIBRATION_TIMEOUT_S)
     parsed = parse_response(response.message)
     assert response.success, response.message
     assert 'applied to /platform_sim' in response.message, response.message
-    reached = session.run_postures(checks, 30.0, WAIT_S)
+    reached = node.run_postures(checks, 30.0, WAIT_S)
     return Path(parsed.run_directory), reached
 
 
@@ -150,19 +148,18 @@ def test_auto_chooses_the_effects_and_the_controller_compensates_them(tmp_path, 
     nominal = default_geometry('nominal')
     checks = sample_valid_postures(nominal, CHECK_POSTURES, np.random.default_rng(7))
     nodes = NodeProcesses(commands, env, tmp_path)
-    node = demo_node.DemoNode(context=ros_context)
+    node = demo_node.DemoNode(nodes, context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
-    session = demo_node.Demo(node, executor, nodes)
     wall_started = time.time()  # platform_sim's clock (its thermal growth) starts about here
     nodes.start()
     try:
-        run, reached_auto = _calibrate_and_check(session, checks)
+        run, reached_auto = _calibrate_and_check(node, checks)
         # The plain model from the same rows, by the same code (gsp_reidentify), applied.
         plain_run = _reidentified(run, 'extended', tmp_path / 'plain')
         plain = load_geometry(plain_run / 'result.yaml')
-        _apply(session, plain)
-        reached_plain = session.run_postures(checks, 30.0, WAIT_S)
+        _apply(node, plain)
+        reached_plain = node.run_postures(checks, 30.0, WAIT_S)
     finally:
         executor.shutdown()
         node.destroy_node()

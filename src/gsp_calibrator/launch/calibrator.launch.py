@@ -1,8 +1,5 @@
-"""The calibrator alone (e.g. on a workstation, with the drivers on the device PC).
-
-ros2 launch gsp_calibrator calibrator.launch.py [params_file:=...] [geometry_file:=...]
-    [use_sim_time:=false]
-"""
+"""The calibrator alone (e.g. on a workstation, with the drivers on the device PC); its
+arguments: docs/hardware.md."""
 
 from launch import LaunchDescription
 from launch.substitutions import LaunchConfiguration

@@ -1,11 +1,6 @@
-"""Real hardware: device_driver on the serial device and platform_bridge to ros2_control.
-
-The ros2_control side (controller_manager, joint_trajectory_controller, joint_state_broadcaster)
-is the hexapod's own launch. Start the calibrator with calibrator.launch.py (same params file).
-
-    ros2 launch gsp_calibrator hardware.launch.py [params_file:=...] [geometry_file:=...]
-        [port:=/dev/ttyACM0] [controller_name:=joint_trajectory_controller] [use_sim_time:=false]
-"""
+"""Real hardware: device_driver on the serial device and platform_bridge to ros2_control (the
+hexapod's own launch starts ros2_control; calibrator.launch.py the calibrator, same params file).
+Its arguments: docs/hardware.md."""
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument

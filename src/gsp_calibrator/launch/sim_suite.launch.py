@@ -1,8 +1,5 @@
-"""The simulated suite: platform_sim, device_driver (sim backend) and the calibrator.
-
-ros2 launch gsp_calibrator sim_suite.launch.py [params_file:=...] [geometry_file:=...]
-    [true_geometry_file:=...] [use_sim_time:=false]
-"""
+"""The simulated suite: platform_sim, device_driver (sim backend) and the calibrator; its
+arguments: docs/hardware.md."""
 
 from launch import LaunchDescription
 from launch.substitutions import LaunchConfiguration

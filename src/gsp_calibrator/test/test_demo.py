@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from gsp_testing import wait_until
 
+from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.report.data import VALIDATION_KEYS
 from gsp_calibrator.settings import DEFAULTS
 from gsp_calibrator.tools import demo, demo_commands, demo_summary
@@ -125,28 +126,32 @@ def test_calibrator_params_come_last_so_they_win(tmp_path):
     assert calibrator.index('seed:=0') < calibrator.index('seed:=7')
 
 
-def test_validation_summary_ignores_rejected_postures():
-    commanded = np.array([[0, 0, 1, 0, 0, 0], [0.1, 0, 1, 0, 0, 0], [0, 0, 1, 0, 0, 0.1]], float)
-    reached = commanded + np.array(
-        [[0.001, 0, 0, 0, 0, 0], [np.nan] * 6, [0, 0.002, 0, 0, 0, math.radians(0.5)]]
-    )
-    summary = demo.validation_summary(commanded, reached)
-    assert summary['position_mm_mean'] == pytest.approx(1.5)
-    assert summary['position_mm_max'] == pytest.approx(2.0)
-    assert summary['orientation_deg_max'] == pytest.approx(0.5)
-    assert math.isnan(
-        demo.validation_summary(commanded, np.full((3, 6), np.nan))['position_mm_mean']
-    )
-    details = demo.validation_details(commanded, reached)
+def test_validation_details_of_the_postures_reached_both_times():
+    commanded = np.array([[0, 0, 1, 0, 0, 0], [0, 0, 1, 0, 0, 0.1]], float)
+    reached = commanded + np.array([[0.001, 0, 0, 0, 0, 0], [0, 0.002, 0, 0, 0, math.radians(0.5)]])
+    details = demo_summary.validation_details(commanded, reached)
+    assert details['position_mm_mean'] == pytest.approx(1.5)
+    assert details['orientation_deg_max'] == pytest.approx(0.5)
     assert details['position_mm'] == pytest.approx([1.0, 2.0])
     assert details['orientation_deg'] == pytest.approx([0.0, 0.5])
     assert details['postures'] == 2 and details['position_mm_max'] == pytest.approx(2.0)
 
 
+def _measured(before, after, calibrated, **more):
+    return demo_summary.Measured(
+        before=before,
+        after=after,
+        calibrated=calibrated,
+        identification_ms=600.0,
+        calibration_s=12.0,
+        **more,
+    )
+
+
 def test_summary_has_the_keys_of_the_issue():
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.DemoSummary(before, before, nominal, true, 600.0, 12.0, 40.0).document()
+    summary = demo_summary.summary_document(_measured(before, before, nominal), true, 40.0, {})
     assert set(summary) == {
         'validation',
         'max_param_error_mm',
@@ -155,14 +160,13 @@ def test_summary_has_the_keys_of_the_issue():
         'calibration_s',
         'total_s',
         'run_directory',
-        'collection',
-        *demo_summary.FIT_KEYS,
+        *demo_summary.RESULT_KEYS,
     }
     assert summary['run_directory'] is None and summary['collection'] is None
     assert set(summary['validation']) == {'before', 'after'}
     assert set(summary['validation']['after']) == set(VALIDATION_KEYS)
     assert summary['max_param_error_mm'] > 0.1 and summary['max_param_error_deg'] > 0.0
-    text = demo.summary_text(summary, 49, 1)
+    text = demo_summary.summary_text(summary, 49, 1)
     assert 'before (nominal)' in text and '1 rejected' in text
 
 
@@ -172,12 +176,12 @@ def test_summary_repeats_the_goodness_of_fit_of_result_json(tmp_path):
     (tmp_path / 'result.json').write_text(
         json.dumps({'goodness_of_fit': fit, 'noise_estimates': noise, 'fit_diagnosis': 'ok'})
     )
-    record = demo.fit_record(tmp_path)
+    record = demo_summary.result_record(tmp_path)
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.DemoSummary(before, before, nominal, true, 1.0, 1.0, 1.0, fit=record).document()
+    summary = demo_summary.summary_document(_measured(before, before, nominal), true, 1.0, record)
     assert summary['goodness_of_fit'] == fit and summary['noise_estimates'] == noise
-    assert demo.summary_text(summary, 1, 0).endswith('ok')
+    assert demo_summary.summary_text(summary, 1, 0).endswith('ok')
 
 
 def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
@@ -188,11 +192,13 @@ def test_the_summary_sets_the_held_out_interval_beside_the_validation(tmp_path):
     (tmp_path / 'result.json').write_text(json.dumps({'accuracy': accuracy}))
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    fit = demo.fit_record(tmp_path)
+    fit = demo_summary.result_record(tmp_path)
     for validated, where in ((0.0029, 'inside'), (0.0068, 'OUTSIDE')):
         after = {**before, 'position_mm_mean': validated}
-        summary = demo.DemoSummary(before, after, nominal, true, 1.0, 1.0, 1.0, fit=fit).document()
-        line = [v for v in demo.summary_text(summary, 50, 0).splitlines() if 'held out' in v]
+        summary = demo_summary.summary_document(_measured(before, after, nominal), true, 1.0, fit)
+        line = [
+            v for v in demo_summary.summary_text(summary, 50, 0).splitlines() if 'held out' in v
+        ]
         assert line == [
             f"  held out (calibrator) 0.0042 mm, 95 %: 0.0017-0.0067 mm: the validation's "
             f'{validated:.4f} mm lies {where}'
@@ -223,16 +229,15 @@ def test_summary_names_the_run_directory_and_keeps_the_collection_record(tmp_pat
         'inconsistent_dropped': 0,
         'non_finite_dropped': {'leg_lengths': 0, 'inclinometer': 1, 'encoder': 0, 'lvdt': 0},
     }
-    assert demo.collection_record(tmp_path) is None  # no result.json
+    assert not any(demo_summary.result_record(tmp_path).values())  # no result.json
     (tmp_path / 'result.json').write_text(json.dumps({'converged': True}))
-    assert demo.collection_record(tmp_path) is None  # an older calibrator
+    assert demo_summary.result_record(tmp_path)['collection'] is None  # an older calibrator
     (tmp_path / 'result.json').write_text(json.dumps({'collection': record}))
-    assert demo.collection_record(tmp_path) == record
     true, nominal = default_geometry('true'), default_geometry('nominal')
     before = dict.fromkeys(VALIDATION_KEYS, 1.0)
-    summary = demo.DemoSummary(
-        before, before, nominal, true, 600.0, 12.0, 40.0, tmp_path, demo.collection_record(tmp_path)
-    ).document()
+    found = demo_summary.result_record(tmp_path)
+    measured = _measured(before, before, nominal, run_directory=RunDirectory(tmp_path))
+    summary = demo_summary.summary_document(measured, true, 40.0, found)
     assert summary['run_directory'] == str(tmp_path) and summary['collection'] == record
 
 

@@ -25,7 +25,7 @@ def test_the_demo_waits_for_the_platforms_first_leg_lengths(ros_context):
     from gsp_calibrator.tools.processes import DemoError
     from gsp_msgs_py import conversions, names, qos
 
-    node = demo_node.DemoNode(context=ros_context)
+    node = demo_node.DemoNode(_NoProcesses(), context=ros_context)
     platform = rclpy.create_node('fake_platform', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
@@ -47,9 +47,8 @@ def test_the_demo_waits_for_the_platforms_first_leg_lengths(ros_context):
             names.TOPIC_PLATFORM_STATUS,
             qos.TOPIC_QOS[names.TOPIC_PLATFORM_STATUS],
         )
-        demo = demo_node.Demo(node, executor, _NoProcesses())
         with pytest.raises(DemoError, match=names.TOPIC_LEG_LENGTHS):
-            demo.wait_for_system(2.0)
+            node.wait_for_system(2.0)
         legs = platform.create_publisher(
             JointState, names.TOPIC_LEG_LENGTHS, qos.TOPIC_QOS[names.TOPIC_LEG_LENGTHS]
         )
@@ -61,7 +60,7 @@ def test_the_demo_waits_for_the_platforms_first_leg_lengths(ros_context):
                 )
             ),
         )
-        demo.wait_for_system(30.0)  # returns once the leg lengths come (30 s bounds a failure)
+        node.wait_for_system(30.0)  # returns once the leg lengths come (30 s bounds a failure)
     finally:
         executor.shutdown()
         platform.destroy_node()

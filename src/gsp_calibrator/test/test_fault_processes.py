@@ -5,9 +5,11 @@ Every wait is on an event (a file's content, a service response, a process exit)
 generous timeout that only limits a failure.
 """
 
+import contextlib
 import json
 import os
 import signal
+import subprocess
 import threading
 import time
 
@@ -238,11 +240,20 @@ def identification(run):
     return result
 
 
+def _kill(processes, name, sig=signal.SIGKILL):
+    """Send ``sig`` to node ``name`` and wait for its exit; its exit code (None if alive)."""
+    process = processes.processes[name]
+    process.send_signal(sig)
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        process.wait(timeout=20.0)
+    return process.poll()
+
+
 def test_killed_device_driver_then_resume_matches_an_uninterrupted_run(compared_suite):
     processes, client, root = compared_suite
     pending = client.call_async(names.SERVICE_CALIBRATE)
     wait_until(lambda: done_count(root) >= KILL_AT, what=f'{KILL_AT} postures')
-    assert processes.kill('device_driver') == -signal.SIGKILL
+    assert _kill(processes, 'device_driver') == -signal.SIGKILL
     wait_until(pending.done, what='the failed run')
     response = pending.result()
     assert not response.success
@@ -332,7 +343,7 @@ def test_killed_platform_sim_names_the_status_and_resume_completes(suite):
     processes, client, root = suite
     pending = client.call_async(names.SERVICE_CALIBRATE)
     wait_until(lambda: done_count(root) >= 5, what='5 postures')
-    processes.kill('platform_sim')
+    _kill(processes, 'platform_sim')
     wait_until(pending.done, what='the failed run')
     response = pending.result()
     assert not response.success
@@ -354,9 +365,9 @@ def test_killed_calibrator_loses_nothing_and_resumes(suite, sig):
     wait_until(lambda: done_count(root) >= 10, what='10 postures')
     if sig == signal.SIGTERM:  # and a SIGINT right behind it: still a clean stop
         processes.processes['calibrator'].send_signal(signal.SIGTERM)
-        code = processes.kill('calibrator', signal.SIGINT)
+        code = _kill(processes, 'calibrator', signal.SIGINT)
     else:
-        code = processes.kill('calibrator', sig)
+        code = _kill(processes, 'calibrator', sig)
     run = runs_under(root)[-1]
     state = state_of(run)
     kept = read_samples(run / 'samples.csv')

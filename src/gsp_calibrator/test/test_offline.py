@@ -12,8 +12,8 @@ from gsp_calibrator.recording import mcap_io, rebuild
 from gsp_calibrator.report.write import PLOTS_SKIPPED_NOTE
 from gsp_calibrator.run.identify import identify_from_samples
 from gsp_calibrator.run.response import RUN_DIRECTORY_LABEL
+from gsp_calibrator.settings import option_value
 from gsp_calibrator.tools.reidentify import main, refresh_report
-from gsp_calibrator.tools.reidentify_inputs import free_parameters
 from gsp_kinematics.model.geometry import (
     PARAMETER_NAMES,
     default_geometry,
@@ -244,8 +244,9 @@ def test_bad_options_exit_2(tmp_path, capsys, arguments, expected):
 
 
 def test_free_accepts_groups_and_sensor_error_names():
-    assert free_parameters(['paper,kq1', 'alpha0']) == ['paper', 'kq1', 'alpha0']
-    assert free_parameters(['extended']) == ['extended']
+    # gsp_reidentify's --free is checked and split as the calibrator's parameter.
+    assert option_value('free_parameters', ['paper,kq1', 'alpha0']) == ['paper', 'kq1', 'alpha0']
+    assert option_value('free_parameters', ['extended']) == ['extended']
 
 
 def test_missing_input_and_failed_identification(tmp_path, capsys):

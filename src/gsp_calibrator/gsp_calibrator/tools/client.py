@@ -2,6 +2,7 @@
 docs/upkeep.md: exit code 0 within tolerance, 3 recalibrate) without the ``ros2`` CLI."""
 
 import argparse
+import math
 import sys
 import time
 
@@ -16,6 +17,7 @@ from std_srvs.srv import Trigger
 from gsp_calibrator.run.response import parse_response, residual_summary
 from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
 from gsp_msgs_py import conversions, names
+from gsp_msgs_py.node_tools import spin_until
 from gsp_msgs_py.qos import PROGRESS_QOS
 
 EXIT_OK = 0
@@ -36,16 +38,10 @@ class ProgressBar:
     """Renders calibration progress on a stream: one redrawn line on a terminal, else a line per
     phase change and about every tenth posture (logs stay short)."""
 
-    def __init__(self, stream=None, width=BAR_WIDTH, interactive=None):
-        stream = sys.stderr if stream is None else stream
+    def __init__(self, stream, width=BAR_WIDTH, interactive=None):
         self.stream = stream
         self.width = int(width)
-        self.interactive = (
-            (stream.isatty() if hasattr(stream, 'isatty') else False)
-            if interactive is None
-            else bool(interactive)
-        )
-        self.updates = 0
+        self.interactive = stream.isatty() if interactive is None else bool(interactive)
         self._last = None
         self._drawn = False
 
@@ -70,7 +66,6 @@ class ProgressBar:
         return text
 
     def update(self, progress):
-        self.updates += 1
         text = self.line(progress)
         if self.interactive:
             self.stream.write('\r\x1b[2K' + text)
@@ -98,21 +93,14 @@ class ProgressBar:
 class CalibrateClient(Node):
     """Calls the calibrate service and follows the progress topic (keyword arguments go to Node)."""
 
-    def __init__(
-        self,
-        service=names.SERVICE_CALIBRATE,
-        progress_topic=names.TOPIC_CALIBRATION_PROGRESS,
-        progress=None,
-        **kwargs,
-    ):
-        kwargs.setdefault('node_name', NODE_NAME)
-        super().__init__(**kwargs)
-        self.service_name = service
+    def __init__(self, service=names.SERVICE_CALIBRATE, progress=None, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
         self.client = self.create_client(Trigger, service)
         self.progress = progress
-        self.last_progress = None
         self.bad_progress = 0
-        self.create_subscription(DiagnosticStatus, progress_topic, self._on_progress, PROGRESS_QOS)
+        self.create_subscription(
+            DiagnosticStatus, names.TOPIC_CALIBRATION_PROGRESS, self._on_progress, PROGRESS_QOS
+        )
 
     def _on_progress(self, msg):
         try:
@@ -122,51 +110,34 @@ class CalibrateClient(Node):
             if self.bad_progress == 1:
                 self.get_logger().warning(f'ignoring a malformed progress message: {error}')
             return
-        self.last_progress = progress
         if self.progress is not None:
             self.progress.update(progress)
 
-    def wait_for_service(self, executor, timeout):
-        """Spin until the service is available; False after ``timeout`` s (None: forever)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while not self.client.service_is_ready():
-            if deadline is not None and time.monotonic() >= deadline:
-                return False
-            executor.spin_once(timeout_sec=0.05)
-        return True
-
-    def set_parameter(self, executor, node_name, name, value, timeout=None):
+    def set_parameter(self, executor, node_name, name, value, timeout):
         """Set parameter ``name`` of ``/<node_name>``; ``''`` or why it was not set."""
         service = f'/{node_name.lstrip("/")}/set_parameters'
         client = self.create_client(SetParameters, service)
+        deadline = time.monotonic() + timeout
         try:
-            deadline = None if timeout is None else time.monotonic() + timeout
-            while not client.service_is_ready():
-                if deadline is not None and time.monotonic() >= deadline:
-                    return f'{service} not available after {timeout:g} s'
-                executor.spin_once(timeout_sec=0.05)
+            if not spin_until(executor, client.service_is_ready, timeout):
+                return f'{service} not available after {timeout:g} s'
             request = SetParameters.Request()
             request.parameters = [Parameter(name, value=value).to_parameter_msg()]
             future = client.call_async(request)
-            while not future.done():
-                if deadline is not None and time.monotonic() >= deadline:
-                    client.remove_pending_request(future)
-                    return f'{service}: no answer within {timeout:g} s'
-                executor.spin_once(timeout_sec=0.05)
+            if not spin_until(executor, future.done, deadline - time.monotonic()):
+                client.remove_pending_request(future)
+                return f'{service}: no answer within {timeout:g} s'
             result = future.result().results[0]
             return '' if result.successful else f'{name} rejected: {result.reason}'
         finally:
             self.destroy_client(client)
 
-    def call(self, executor, timeout=None):
+    def call(self, executor, timeout):
         """Call the service, spinning (progress updates) until the response; None on timeout."""
         future = self.client.call_async(Trigger.Request())
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while not future.done():
-            if deadline is not None and time.monotonic() >= deadline:
-                self.client.remove_pending_request(future)
-                return None
-            executor.spin_once(timeout_sec=0.1)
+        if not spin_until(executor, future.done, timeout):
+            self.client.remove_pending_request(future)
+            return None
         return future.result()
 
 
@@ -233,8 +204,8 @@ def run(args, context=None, out=None, err=None):
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     try:
-        wait = args.wait_timeout if args.wait_timeout > 0 else None
-        if not node.wait_for_service(executor, wait):
+        wait = args.wait_timeout if args.wait_timeout > 0 else math.inf
+        if not spin_until(executor, node.client.service_is_ready, wait):
             print(
                 f'gsp_calibrate_client: service {args.service} not available after '
                 f'{args.wait_timeout:g} s (is the calibrator running, in this ROS_DOMAIN_ID?)',
@@ -249,7 +220,7 @@ def run(args, context=None, out=None, err=None):
                 print(f'gsp_calibrate_client: noise_source not set: {why}', file=err)
                 return EXIT_FAILED
         print(f'calling {args.service} ...', file=err)
-        response = node.call(executor, args.timeout if args.timeout > 0 else None)
+        response = node.call(executor, args.timeout if args.timeout > 0 else math.inf)
         if progress is not None:
             progress.finish()
         if response is None:

@@ -2,8 +2,6 @@
 See docs/nodes.md#gsp_demo."""
 
 import argparse
-import dataclasses
-import math
 import os
 import shutil
 import signal
@@ -22,37 +20,14 @@ from gsp_calibrator.settings import (
     add_run_options,
     run_options_error,
 )
-from gsp_calibrator.tools.demo_commands import (
-    MOVING_SETTLE_TIMEOUT_S,
-    NODES,
-    PHYSICS_PRESET,
-    SENSOR_DYNAMICS,
-    node_commands,
-    ros_environment,
-)
-from gsp_calibrator.tools.demo_summary import (
-    DemoSummary,
-    collection_record,
-    fit_record,
-    summary_text,
-    validation_details,
-    validation_summary,
-)
+from gsp_calibrator.tools import demo_commands, demo_summary
 from gsp_calibrator.tools.processes import DemoError, NodeProcesses
 from gsp_kinematics.estimation.noise_from_data import NOISE_SOURCES
+from gsp_kinematics.model import motion
 from gsp_kinematics.model.effects import PRESETS
-from gsp_kinematics.model.geometry import default_geometry_path, load_geometry
+from gsp_kinematics.model.geometry import default_geometry_path, geometry_from_yaml, load_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
-from gsp_kinematics.model.motion import (
-    DEFAULT_SENSOR_RATE_HZ,
-    REALISTIC_MAX_ACCELERATION,
-    REALISTIC_MAX_SPEED,
-)
-from gsp_msgs_py.ros_environment import (
-    DomainInUseError,
-    enter_private_domain,
-    foreign_nodes_in_child,
-)
+from gsp_msgs_py import ros_environment
 
 
 class Terminated(Exception):
@@ -67,22 +42,20 @@ def parse_arguments(argv=None):
     parser = argparse.ArgumentParser(
         prog='gsp_demo', description='End-to-end calibration demo of the simulated platform.'
     )
-    parser.add_argument(
-        '--output-root', default='runs', help='root of the run directories (default: runs)'
-    )
-    parser.add_argument(
+    add = parser.add_argument
+    add('--output-root', default='runs', help='root of the run directories (default: runs)')
+    add(
         '--true-geometry',
         default=default_geometry_path('true'),
         help='geometry of the simulated real platform (default: shipped true)',
     )
-    parser.add_argument(
+    add(
         '--nominal-geometry',
         default=default_geometry_path('nominal'),
         help='nominal geometry: controller start and identification start',
     )
     add_run_options(parser, seed_help='seed of the posture pool and the validation postures')
-    parser.add_argument('--validation-postures', type=int, default=50, help='(50)')
-    add = parser.add_argument
+    add('--validation-postures', type=int, default=50, help='(50)')
     add(
         '--noise-source',
         choices=NOISE_SOURCES,
@@ -93,8 +66,8 @@ def parse_arguments(argv=None):
     add(
         '--sensor-rate',
         type=float,
-        default=DEFAULT_SENSOR_RATE_HZ,
-        help=f'leg-length and device rate, Hz ({DEFAULT_SENSOR_RATE_HZ:g})',
+        default=motion.DEFAULT_SENSOR_RATE_HZ,
+        help=f'leg-length and device rate, Hz ({motion.DEFAULT_SENSOR_RATE_HZ:g})',
     )
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
     add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
@@ -113,7 +86,7 @@ def parse_arguments(argv=None):
     add(
         '--sensor-dynamics',
         default='none',
-        choices=tuple(SENSOR_DYNAMICS),
+        choices=tuple(demo_commands.SENSOR_DYNAMICS),
         help='none: an instant device with white noise; realistic: response and noise '
         "correlation times of typical parts, and the calibrator's rest look-back to match "
         '(docs/sensor_errors.md) (none)',
@@ -160,8 +133,8 @@ def _add_backend_option(add):
         default='kinematic',
         choices=('kinematic', 'physics'),
         help="platform_sim's backend: kinematic (fast) or physics (MuJoCo, the realistic preset "
-        f"{PHYSICS_PRESET}, with device_driver's physics backend; the legs' realistic limits "
-        'unless given) (docs/physics.md) (kinematic)',
+        f"{demo_commands.PHYSICS_PRESET}, with device_driver's physics backend; the legs' "
+        'realistic limits unless given) (docs/physics.md) (kinematic)',
     )
     add(
         '--real-time-factor',
@@ -193,8 +166,8 @@ def _check_arguments(parser, args):
         if not args.real_time_factor > 0:
             parser.error('--real-time-factor must be > 0')
         # A servo does not jump: the realistic leg limits, known to the calibrator's plan.
-        args.max_leg_speed = args.max_leg_speed or REALISTIC_MAX_SPEED
-        args.max_leg_acceleration = args.max_leg_acceleration or REALISTIC_MAX_ACCELERATION
+        args.max_leg_speed = args.max_leg_speed or motion.REALISTIC_MAX_SPEED
+        args.max_leg_acceleration = args.max_leg_acceleration or motion.REALISTIC_MAX_ACCELERATION
     for assignment in args.calibrator_param:
         name, separator, _ = assignment.partition(':=')
         if not separator or name not in PARAMETER_SPECS:
@@ -206,65 +179,37 @@ def _check_arguments(parser, args):
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 
 
-@dataclasses.dataclass
-class Measured:
-    """What the demo measured through the nodes; ``error`` says why it stopped early ('' if not)."""
-
-    run_directory: object = None  #: the calibration's RunDirectory once it has answered
-    error: str = ''
-    calibrated: object = None  #: the calibrated Geometry
-    identification_ms: float = math.nan
-    calibration_s: float = math.nan
-    before: dict | None = None  #: validation summaries before and after
-    after: dict | None = None
-    details_before: dict | None = None  #: per-posture validation errors before and after
-    details_after: dict | None = None
-    validated: int = 0  #: validation postures reached both times
-    rejected: int = 0  #: validation postures the platform rejected
-
-
 def _calibrate_and_validate(demo, args, validation_poses, measured):
     """Validate with the nominal controller, calibrate, validate again, into ``measured`` (a
-    :class:`Measured`, filled as the demo goes: an interrupt leaves what was measured)."""
-    from gsp_kinematics.model.geometry import geometry_from_yaml
-
-    try:
-        demo.wait_for_system(args.startup_timeout)
-        settle_timeout = 5.0 + 10.0 * args.settle_time
-        if args.max_leg_speed > 0:
-            settle_timeout += MOVING_SETTLE_TIMEOUT_S
-        print(
-            f'validation before calibration: {len(validation_poses)} postures (nominal '
-            'controller) ...',
-            flush=True,
-        )
-        reached_before = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
-        print('calibrating (/gsp/calibrator/calibrate) ...', flush=True)
-        calibration_started = time.monotonic()
-        response = demo.calibrate(args.timeout)
-        measured.calibration_s = time.monotonic() - calibration_started
-        parsed = parse_response(response.message)
-        if parsed.run_directory:
-            measured.run_directory = RunDirectory(parsed.run_directory)
-        if not response.success:
-            raise DemoError(f'calibration failed:\n{parsed.summary}')
-        print(parsed.summary, flush=True)
-        measured.identification_ms = parsed.identification_ms
-        measured.calibrated = geometry_from_yaml(parsed.geometry_yaml, source='calibrate response')
-        print(f'validation after calibration: {len(validation_poses)} postures ...', flush=True)
-        reached_after = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
-    except DemoError as error:
-        measured.error = str(error)
-        return
+    ``demo_summary.Measured``, filled as the demo goes: an interrupt leaves what was measured)."""
+    demo.wait_for_system(args.startup_timeout)
+    settle_timeout = 5.0 + 10.0 * args.settle_time
+    if args.max_leg_speed > 0:
+        settle_timeout += demo_commands.MOVING_SETTLE_TIMEOUT_S
+    print(
+        f'validation before calibration: {len(validation_poses)} postures (nominal controller) ...',
+        flush=True,
+    )
+    reached_before = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
+    print('calibrating (/gsp/calibrator/calibrate) ...', flush=True)
+    calibration_started = time.monotonic()
+    response = demo.calibrate(args.timeout)
+    measured.calibration_s = time.monotonic() - calibration_started
+    parsed = parse_response(response.message)
+    if parsed.run_directory:
+        measured.run_directory = RunDirectory(parsed.run_directory)
+    if not response.success:
+        raise DemoError(f'calibration failed:\n{parsed.summary}')
+    print(parsed.summary, flush=True)
+    measured.identification_ms = parsed.identification_ms
+    measured.calibrated = geometry_from_yaml(parsed.geometry_yaml, source='calibrate response')
+    print(f'validation after calibration: {len(validation_poses)} postures ...', flush=True)
+    reached_after = demo.run_postures(validation_poses, settle_timeout, args.startup_timeout)
     both = np.all(np.isfinite(reached_before), axis=1) & np.all(np.isfinite(reached_after), axis=1)
     if not both.any():
-        measured.error = 'every validation posture was rejected by the platform'
-        return
-    measured.before = validation_summary(validation_poses[both], reached_before[both])
-    measured.after = validation_summary(validation_poses[both], reached_after[both])
-    measured.details_before = validation_details(validation_poses[both], reached_before[both])
-    measured.details_after = validation_details(validation_poses[both], reached_after[both])
-    measured.validated, measured.rejected = int(both.sum()), int((~both).sum())
+        raise DemoError('every validation posture was rejected by the platform')
+    measured.before = demo_summary.validation_details(validation_poses[both], reached_before[both])
+    measured.after = demo_summary.validation_details(validation_poses[both], reached_after[both])
 
 
 def _shut_down(executor, node, context, processes, run_directory, log_directory, exit_code):
@@ -287,10 +232,8 @@ def _shut_down(executor, node, context, processes, run_directory, log_directory,
         print(f'gsp_demo: could not stop {left}', file=sys.stderr)
         exit_code = exit_code or 1
     if run_directory is not None:
-        for name in NODES:
-            log = log_directory / f'{name}.log'
-            if log.exists():
-                run_directory.write_bytes(f'{name}.log', log.read_bytes())
+        for log in log_directory.glob('*.log'):  # the nodes' (NodeProcesses)
+            run_directory.write_bytes(log.name, log.read_bytes())
         shutil.rmtree(log_directory, ignore_errors=True)
     else:
         print(f"gsp_demo: the nodes' logs are in {log_directory}", file=sys.stderr)
@@ -316,14 +259,11 @@ def _run_nodes(args, validation_poses, processes, log_directory, measured):
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
         from gsp_calibrator.tools import demo_node  # rclpy only after the environment is set
 
-        node = demo_node.DemoNode(context=context)
+        node = demo_node.DemoNode(processes, context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        demo = demo_node.Demo(node, executor, processes)
         print(f'starting {", ".join(processes.commands)} ...', flush=True)
-        _calibrate_and_validate(demo, args, validation_poses, measured)
-        if measured.error:
-            raise DemoError(measured.error)
+        _calibrate_and_validate(node, args, validation_poses, measured)
         exit_code = 0
     except DemoError as error:
         print(f'gsp_demo: FAILED: {error}', file=sys.stderr, flush=True)
@@ -344,18 +284,9 @@ def _write_results(args, measured, true_geometry, elapsed_s):
     """Write the truth and ``summary.json`` into the run directory, refresh its report against
     the truth and print the summary; ``elapsed_s``: the demo's duration so far (s)."""
     run_directory = measured.run_directory
-    summary = DemoSummary(
-        measured.before,
-        measured.after,
-        measured.calibrated,
-        true_geometry,
-        measured.identification_ms,
-        measured.calibration_s,
-        elapsed_s,
-        run_directory.path,
-        collection_record(run_directory.path),
-        fit_record(run_directory.path),
-    ).document()
+    summary = demo_summary.summary_document(
+        measured, true_geometry, elapsed_s, demo_summary.result_record(run_directory.path)
+    )
     run_directory.write_text(TRUE_GEOMETRY_FILE, Path(args.true_geometry).read_text())
     run_directory.write_json(SUMMARY_FILE, summary)
     try:  # the calibrator's report, now against the truth and with the validation distributions
@@ -364,12 +295,14 @@ def _write_results(args, measured, true_geometry, elapsed_s):
         refresh_report(
             run_directory.path,
             truth=true_geometry,
-            validation_before=measured.details_before,
-            validation_after=measured.details_after,
+            validation_before=measured.before,
+            validation_after=measured.after,
         )
     except Exception as error:  # noqa: BLE001 (the demo itself succeeded)
         print(f'gsp_demo: report not refreshed: {error}', file=sys.stderr, flush=True)
-    print(summary_text(summary, measured.validated, measured.rejected), flush=True)
+    validated = measured.before['postures']  # reached both times; the others were rejected
+    rejected = args.validation_postures - validated
+    print(demo_summary.summary_text(summary, validated, rejected), flush=True)
     print(f'run directory: {run_directory.path}', flush=True)
 
 
@@ -382,11 +315,11 @@ def run(args):
     try:
         # A domain of the demo's own (claimed, or the given one checked), probed for
         # nodes by a child: this process forks its nodes before it starts DDS threads itself.
-        enter_private_domain(probe=foreign_nodes_in_child)
-    except DomainInUseError as error:
+        ros_environment.enter_private_domain(probe=ros_environment.foreign_nodes_in_child)
+    except ros_environment.DomainInUseError as error:
         print(f'gsp_demo: {error}', file=sys.stderr, flush=True)
         return 1
-    env = ros_environment()
+    env = demo_commands.ros_environment()
     print(
         f'gsp_demo: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} (loopback only), output under '
         f'{output_root}',
@@ -397,8 +330,8 @@ def run(args):
     )
     log_directory = Path(tempfile.mkdtemp(prefix='gsp_demo_logs_'))
     args.device_port = str(log_directory / 'gsp_device')  # the pty link of --device serial
-    processes = NodeProcesses(node_commands(args, output_root), env, log_directory)
-    measured = Measured()
+    processes = NodeProcesses(demo_commands.node_commands(args, output_root), env, log_directory)
+    measured = demo_summary.Measured()
     exit_code = _run_nodes(args, validation_poses, processes, log_directory, measured)
     if exit_code != 0:
         if measured.run_directory is not None:

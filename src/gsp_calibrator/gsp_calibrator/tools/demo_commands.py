@@ -23,63 +23,10 @@ NODES = {
 #: the ros2_control mode spends its time like the direct one, in settling and sampling.
 EMULATED_LEG_SPEED = 5.0
 BRIDGE_LEG_SPEED = 2.5
-
-
-def ros_environment(environ=None, rng=None):
-    """The nodes' environment: :func:`~gsp_msgs_py.ros_environment.loopback_environment` (a
-    random domain unless one is set) with unbuffered output, so their logs are complete."""
-    env = loopback_environment(environ, rng=rng)
-    env['PYTHONUNBUFFERED'] = '1'
-    return env
-
-
-def executable_command(name, which=shutil.which):
-    """argv prefix of node ``name``: its console script from PATH, else ``python -m <module>``."""
-    path = which(name)
-    if path:
-        return [path]
-    return [sys.executable, '-m', NODES[name]]
-
-
 #: ``--backend physics``: platform_sim's realistic preset (gsp_platform_sim/config).
 PHYSICS_PRESET = 'physics_realistic.yaml'
-
-
-def physics_preset_path():
-    """The installed :data:`PHYSICS_PRESET` (gsp_platform_sim's share directory)."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        share = get_package_share_directory('gsp_platform_sim')
-    except (ImportError, LookupError, ValueError, OSError):  # not in an ament index
-        share = os.path.join(sys.prefix, 'share', 'gsp_platform_sim')
-    return os.path.join(share, 'config', PHYSICS_PRESET)
-
-
-def backend_parameters(args):
-    """platform_sim's and device_driver's arguments of ``--backend`` (kinematic: none) and
-    ``--real-time-factor``."""
-    if getattr(args, 'backend', 'kinematic') != 'physics':
-        return [], []
-    factor = float(getattr(args, 'real_time_factor', 1.0))
-    return (
-        ['--params-file', physics_preset_path(), '-p', f'real_time_factor:={factor!r}'],
-        ['-p', 'backend:=physics', *sim_time_parameters(args)],
-    )
-
-
-def sim_time_parameters(args):
-    """``use_sim_time`` for the nodes other than platform_sim when its physics is the clock
-    (``--real-time-factor`` other than 1, docs/physics.md); else none."""
-    physics = getattr(args, 'backend', 'kinematic') == 'physics'
-    if physics and float(getattr(args, 'real_time_factor', 1.0)) != 1.0:
-        return ['-p', 'use_sim_time:=true']
-    return []
-
-
 #: The demo's wait for a validation posture when the legs move at their limits (s).
 MOVING_SETTLE_TIMEOUT_S = 60.0
-
 
 #: ``gsp_demo --sensor-dynamics``: the simulated device's response and noise correlation
 #: times (s) per sensor (docs/sensor_errors.md: typical values of real parts). The calibrator
@@ -99,72 +46,85 @@ SENSOR_DYNAMICS = {
 }
 
 
-def _dynamics(args):
-    return SENSOR_DYNAMICS[getattr(args, 'sensor_dynamics', 'none')]
+def ros_environment(environ=None, rng=None):
+    """The nodes' environment: :func:`~gsp_msgs_py.ros_environment.loopback_environment` (a
+    random domain unless one is set) with unbuffered output, so their logs are complete."""
+    env = loopback_environment(environ, rng=rng)
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
 
 
-def device_dynamics_parameters(args):
-    """The device's ``-p`` arguments of ``args.sensor_dynamics`` (none: the defaults)."""
-    return [
-        a for name, value in _dynamics(args)['device'].items() for a in ('-p', f'{name}:={value!r}')
-    ]
+def executable_command(name, which=shutil.which):
+    """argv prefix of node ``name``: its console script from PATH, else ``python -m <module>``."""
+    path = which(name)
+    if path:
+        return [path]
+    return [sys.executable, '-m', NODES[name]]
 
 
-def motion_parameters(args):
-    """platform_sim's leg limits of ``--max-leg-speed`` / ``--max-leg-acceleration`` (0: none)."""
-    speed = float(getattr(args, 'max_leg_speed', 0.0))
-    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
-    return ['-p', f'max_leg_speed:={speed!r}', '-p', f'max_leg_acceleration:={acceleration!r}']
+def physics_preset_path():
+    """The installed :data:`PHYSICS_PRESET` (gsp_platform_sim's share directory)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        share = get_package_share_directory('gsp_platform_sim')
+    except (ImportError, LookupError, ValueError, OSError):  # not in an ament index
+        share = os.path.join(sys.prefix, 'share', 'gsp_platform_sim')
+    return os.path.join(share, 'config', PHYSICS_PRESET)
 
 
 def _parameter_text(value):
     """A ``-p`` value: floats with a decimal point (``4e-06`` would not read as a double)."""
     if isinstance(value, list):
         return '[' + ', '.join(_parameter_text(item) for item in value) + ']'
-    return yaml_float(value)
+    if isinstance(value, bool):
+        return str(value).lower()
+    return yaml_float(value) if isinstance(value, float) else str(value)
 
 
-def platform_effect_parameters(args):
-    """platform_sim's ``effects.*`` of ``--platform-effects`` (docs/platform_effects.md; none:
-    the defaults, a rigid ideal platform)."""
-    name = getattr(args, 'platform_effects', 'none')
-    if name == 'none':
-        return []
-    values = PRESETS[name].to_parameters('effects.')
-    return [a for key, value in values.items() for a in ('-p', f'{key}:={_parameter_text(value)}')]
+def ros_command(name, which, parameters, params_files=()):
+    """argv of node ``name``: its :func:`executable_command`, ``--params-file`` of each of
+    ``params_files`` and ``-p name:=value`` of each of ``parameters``."""
+    files = [a for path in params_files for a in ('--params-file', str(path))]
+    values = [a for key, v in parameters.items() for a in ('-p', f'{key}:={_parameter_text(v)}')]
+    return [*executable_command(name, which), '--ros-args', *files, *values]
 
 
-def calibrator_payload_parameters(args):
-    """With ``--platform-effects``, the calibrator is told the payload the simulated legs carry
-    (its ``payload_mass`` and ``payload_centre_of_mass``: what a user knows of the load), so
-    that ``--free auto`` can try the compliance; without, its defaults (unknown)."""
-    name = getattr(args, 'platform_effects', 'none')
-    if name == 'none' or not PRESETS[name].payload_mass > 0:
-        return []
-    effects = PRESETS[name]
-    centre = ','.join(repr(float(v)) for v in effects.centre_of_mass)
-    return [
-        '-p',
-        f'payload_mass:={float(effects.payload_mass)!r}',
-        '-p',
-        f'payload_centre_of_mass:=[{centre}]',
-    ]
-
-
-def calibrator_motion_parameters(args):
-    """With leg limits, the calibrator plans its route with them (and waits for each move as
-    planned with them); without, its defaults."""
-    speed = float(getattr(args, 'max_leg_speed', 0.0))
-    acceleration = float(getattr(args, 'max_leg_acceleration', 0.0))
-    if not speed > 0:
-        return []
-    extra = [
-        '-p',
-        f'max_leg_speed:={speed!r}',
-    ]
-    if acceleration > 0:
-        extra += ['-p', f'max_leg_acceleration:={acceleration!r}']
-    return extra
+def _calibrator_parameters(args, output_root, sim_time):
+    """The calibrator's parameters: the run of ``args``, applied to the platform."""
+    parameters = {
+        'nominal_geometry_file': args.nominal_geometry,
+        'output_root': output_root,
+        'posture_count': args.posture_count,
+        'pool_size': max(args.pool_size, args.posture_count),
+        'workspace_postures': args.workspace_postures,
+        'pairs_per_posture': args.pairs_per_posture,
+        'sync_tolerance': 0.5 / float(args.sensor_rate),
+        'seed': args.seed,
+        'formulation': args.formulation,
+        'noise_source': args.noise_source,
+        'free_parameters': list(args.free_parameters),
+        'apply_result': True,
+        # The demo redraws the report against the truth once it has validated (its
+        # refresh_report): plots drawn by the calibrator would only be overwritten.
+        'write_report_plots': False,
+        **sim_time,
+    }
+    # With leg limits, the calibrator plans its route with them (and waits for each move as
+    # planned with them).
+    if args.max_leg_speed > 0:
+        parameters['max_leg_speed'] = float(args.max_leg_speed)
+        if args.max_leg_acceleration > 0:
+            parameters['max_leg_acceleration'] = float(args.max_leg_acceleration)
+    # With --platform-effects, the payload the simulated legs carry (what a user knows of the
+    # load), so that --free auto can try the compliance.
+    effects = PRESETS[args.platform_effects]
+    if args.platform_effects != 'none' and effects.payload_mass > 0:
+        parameters['payload_mass'] = float(effects.payload_mass)
+        parameters['payload_centre_of_mass'] = [float(v) for v in effects.centre_of_mass]
+    if args.platform == 'ros2_control':
+        parameters['platform_node_name'] = 'platform_bridge'
+    return parameters
 
 
 def node_commands(args, output_root, which=shutil.which):
@@ -173,141 +133,73 @@ def node_commands(args, output_root, which=shutil.which):
     ``--device serial``, its serial backend on ``args.device_port`` fed by gsp_fake_device) and
     the calibrator."""
     rate = float(args.sensor_rate)
-    platform_backend, device_backend = backend_parameters(args)
+    physics = args.backend == 'physics'
+    truth = {'true_geometry_file': args.true_geometry}
+    # The nodes other than platform_sim on its /clock when its physics is the clock
+    # (--real-time-factor other than 1, docs/physics.md).
+    sim_time = {'use_sim_time': True} if physics and args.real_time_factor != 1.0 else {}
     # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
     # noise (parameter_specs.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
-    common = ['-p', f'publish_rate:={rate!r}']
-    commands = {
-        'platform_sim': executable_command('platform_sim', which)
-        + [
-            '--ros-args',
-            '--params-file',
-            str(args.nominal_geometry),
-            *platform_backend,
-            '-p',
-            f'true_geometry_file:={args.true_geometry}',
-            '-p',
-            f'settle_time:={float(args.settle_time)!r}',
-            '-p',
-            'publish_markers:=false',
-            *motion_parameters(args),
-            *platform_effect_parameters(args),
-            *common,
-        ],
-        'device_driver': executable_command('device_driver', which)
-        + [
-            '--ros-args',
-            '-p',
-            f'true_geometry_file:={args.true_geometry}',
-            *device_backend,
-            *device_dynamics_parameters(args),
-            *common,
-        ],
-        'calibrator': executable_command('calibrator', which)
-        + ['--ros-args', *_calibrator_parameters(args, output_root, rate)],
+    platform = {
+        **({'real_time_factor': float(args.real_time_factor)} if physics else {}),
+        **truth,
+        'settle_time': float(args.settle_time),
+        'publish_markers': False,
+        'max_leg_speed': float(args.max_leg_speed),
+        'max_leg_acceleration': float(args.max_leg_acceleration),
     }
-    if getattr(args, 'platform', 'sim') == 'ros2_control':
+    if args.platform_effects != 'none':  # docs/platform_effects.md; none: a rigid ideal platform
+        platform.update(PRESETS[args.platform_effects].to_parameters('effects.'))
+    device = {
+        **truth,
+        **({'backend': 'physics', **sim_time} if physics else {}),
+        **SENSOR_DYNAMICS[args.sensor_dynamics]['device'],
+    }
+    platform_files = [args.nominal_geometry, *([physics_preset_path()] if physics else [])]
+    commands = {
+        'platform_sim': ros_command(
+            'platform_sim', which, {**platform, 'publish_rate': rate}, platform_files
+        ),
+        'device_driver': ros_command('device_driver', which, {**device, 'publish_rate': rate}),
+        'calibrator': ros_command(
+            'calibrator', which, _calibrator_parameters(args, output_root, sim_time)
+        ),
+    }
+    # The user's calibrator parameters last: ROS takes the last '-p' of a name.
+    commands['calibrator'] += [a for given in args.calibrator_param for a in ('-p', given)]
+    if args.platform == 'ros2_control':
         del commands['platform_sim']
-        commands.update(_ros2_control_commands(args, common, which))
-        commands['calibrator'] += ['-p', 'platform_node_name:=platform_bridge']
-    if getattr(args, 'device', 'sim') == 'serial':
+        controller = {**truth, 'max_leg_speed': EMULATED_LEG_SPEED, 'publish_rate': rate}
+        commands['controller_sim'] = ros_command('controller_sim', which, controller)
+        bridge = {
+            'settle_time': float(args.settle_time),
+            'max_leg_speed': BRIDGE_LEG_SPEED,
+            'min_motion_duration': 0.02,
+        }
+        commands['platform_bridge'] = ros_command(
+            'platform_bridge', which, bridge, [args.nominal_geometry]
+        )
+    if args.device == 'serial':
         commands.update(_serial_device_commands(args, rate, which))
     return commands
 
 
-def _calibrator_parameters(args, output_root, rate):
-    """The calibrator's ``-p`` arguments: the run of ``args``, applied to the platform."""
-    return [
-        '-p',
-        f'nominal_geometry_file:={args.nominal_geometry}',
-        '-p',
-        f'output_root:={output_root}',
-        '-p',
-        f'posture_count:={int(args.posture_count)}',
-        '-p',
-        f'pool_size:={max(int(args.pool_size), int(args.posture_count))}',
-        '-p',
-        f'workspace_postures:={int(getattr(args, "workspace_postures", 0))}',
-        '-p',
-        f'pairs_per_posture:={int(args.pairs_per_posture)}',
-        '-p',
-        f'sync_tolerance:={0.5 / rate!r}',
-        '-p',
-        f'seed:={int(args.seed)}',
-        '-p',
-        f'formulation:={args.formulation}',
-        '-p',
-        f'noise_source:={args.noise_source}',
-        '-p',
-        f'free_parameters:=[{",".join(args.free_parameters)}]',
-        '-p',
-        'apply_result:=true',
-        # The demo redraws the report against the truth once it has validated (its
-        # refresh_report): plots drawn by the calibrator would only be overwritten.
-        '-p',
-        'write_report_plots:=false',
-        *calibrator_motion_parameters(args),
-        *calibrator_payload_parameters(args),
-        *sim_time_parameters(args),
-        # Last: a later '-p' of the same name wins.
-        *(a for assignment in getattr(args, 'calibrator_param', ()) for a in ('-p', assignment)),
-    ]
-
-
-def _ros2_control_commands(args, common, which):
-    """``--platform ros2_control``: the emulated controller and the bridge."""
-    return {
-        'controller_sim': executable_command('controller_sim', which)
-        + [
-            '--ros-args',
-            '-p',
-            f'true_geometry_file:={args.true_geometry}',
-            '-p',
-            f'max_leg_speed:={EMULATED_LEG_SPEED!r}',
-            *common,
-        ],
-        'platform_bridge': executable_command('platform_bridge', which)
-        + [
-            '--ros-args',
-            '--params-file',
-            str(args.nominal_geometry),
-            '-p',
-            f'settle_time:={float(args.settle_time)!r}',
-            '-p',
-            f'max_leg_speed:={BRIDGE_LEG_SPEED!r}',
-            '-p',
-            'min_motion_duration:=0.02',
-        ],
-    }
-
-
 def _serial_device_commands(args, rate, which):
     """``--device serial``: gsp_fake_device on the pty, device_driver's serial backend on it."""
+    dynamics = SENSOR_DYNAMICS[args.sensor_dynamics]['device']
     return {
         'gsp_fake_device': executable_command('gsp_fake_device', which)
-        + [
-            '--port',
-            str(args.device_port),
-            '--rate',
-            repr(rate),
-            '--true-geometry',
-            str(args.true_geometry),
-            *[
-                a
-                for name, value in _dynamics(args)['device'].items()
-                for a in (f'--{name.replace("_", "-")}', repr(value))
-            ],
-        ],
-        'device_driver': executable_command('device_driver', which)
-        + [
-            '--ros-args',
-            '-p',
-            'backend:=serial',
-            '-p',
-            f'serial.port:={args.device_port}',
-            '-p',
-            'serial.reconnect_interval:=0.1',
-            '-p',
-            f'publish_rate:={rate!r}',
-        ],
+        + ['--port', str(args.device_port), '--rate', repr(rate)]
+        + ['--true-geometry', str(args.true_geometry)]
+        + [a for name, v in dynamics.items() for a in (f'--{name.replace("_", "-")}', repr(v))],
+        'device_driver': ros_command(
+            'device_driver',
+            which,
+            {
+                'backend': 'serial',
+                'serial.port': args.device_port,
+                'serial.reconnect_interval': 0.1,
+                'publish_rate': rate,
+            },
+        ),
     }

@@ -1,88 +1,48 @@
-"""What ``gsp_demo`` measured and reports (pure): validation summaries and per-posture errors,
-parameter errors against the truth, the ``summary.json`` document (:class:`DemoSummary`) and its
-text."""
+"""What ``gsp_demo`` measured and reports (pure): validation errors, parameter errors against
+the truth, the ``summary.json`` document and its text."""
 
-import contextlib
 import dataclasses
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from gsp_calibrator.report.data import VALIDATION_KEYS
-from gsp_calibrator.report.write import RESULT_JSON
+from gsp_calibrator.tools.reidentify_inputs import result_json
 from gsp_kinematics.model.geometry import parameter_errors
 from gsp_kinematics.model.validation import pose_errors, summarise
 
 
-def validation_summary(commanded, reached):
-    """Mean and max errors (mm, deg) over the rows of ``reached`` without NaN."""
-    commanded, reached = np.asarray(commanded), np.asarray(reached)
-    keep = np.all(np.isfinite(reached), axis=1)
-    if not keep.any():
-        return {key: math.nan for key in VALIDATION_KEYS}
-    position_mm, orientation_deg = pose_errors(commanded[keep], reached[keep])
-    return summarise(position_mm, orientation_deg)
+@dataclasses.dataclass
+class Measured:
+    """What the demo measured through the nodes."""
+
+    run_directory: object = None  #: the calibration's RunDirectory once it has answered
+    calibrated: object = None  #: the calibrated Geometry
+    identification_ms: float = math.nan
+    calibration_s: float = math.nan
+    before: dict | None = None  #: validation errors before and after (``validation_details``)
+    after: dict | None = None
 
 
 def validation_details(commanded, reached):
-    """:func:`validation_summary` plus the per-posture errors ``position_mm`` and
-    ``orientation_deg`` and their commanded ``poses`` (lists, rows of ``reached`` without NaN), for
-    the run's report (the accuracy map overlays them)."""
-    commanded, reached = np.asarray(commanded), np.asarray(reached)
-    details = dict(validation_summary(commanded, reached))
-    keep = np.all(np.isfinite(reached), axis=1)
-    if keep.any():
-        position_mm, orientation_deg = pose_errors(commanded[keep], reached[keep])
-        details['position_mm'] = np.asarray(position_mm, dtype=float).tolist()
-        details['orientation_deg'] = np.asarray(orientation_deg, dtype=float).tolist()
-        details['poses'] = commanded[keep].tolist()
-    details['postures'] = int(keep.sum())
-    return details
+    """Mean and max errors (mm, deg) of the ``reached`` poses (M, 6) against the ``commanded``
+    ones, with the per-posture errors ``position_mm`` and ``orientation_deg``, the commanded
+    ``poses`` and their count ``postures`` (the run's report overlays them on its accuracy map)."""
+    position_mm, orientation_deg = pose_errors(commanded, reached)
+    return {
+        **summarise(position_mm, orientation_deg),
+        'position_mm': np.asarray(position_mm, dtype=float).tolist(),
+        'orientation_deg': np.asarray(orientation_deg, dtype=float).tolist(),
+        'poses': np.asarray(commanded).tolist(),
+        'postures': len(commanded),
+    }
 
 
-def parameter_error_maxima(calibrated, true):
-    """``(max |error| of the 43 lengths in mm, |gamma error| in deg)``."""
-    errors = parameter_errors(calibrated, true)
-    return float(np.max(np.abs(errors[:43]))), float(abs(errors[43]))
-
-
-@dataclasses.dataclass(frozen=True)
-class DemoSummary:
-    """What ``summary.json`` records of a demo run (:meth:`document`)."""
-
-    before: dict  #: validation summary with the nominal controller
-    after: dict  #: validation summary with the calibrated controller
-    calibrated: object  #: the calibrated Geometry
-    true: object  #: the true Geometry
-    identification_ms: float
-    calibration_s: float
-    total_s: float
-    run_directory: object = None  #: its path
-    #: The calibrator's record of skipped postures and dropped samples, or None.
-    collection: dict | None = None
-    fit: dict | None = None  #: :func:`fit_record` (goodness of fit, noise estimates, verdict)
-
-    def document(self):
-        """The ``summary.json`` document (keys as in issue 3, plus ``run_directory``,
-        ``collection`` and the :data:`FIT_KEYS`)."""
-        max_mm, max_deg = parameter_error_maxima(self.calibrated, self.true)
-        return {
-            'validation': {'before': dict(self.before), 'after': dict(self.after)},
-            'max_param_error_mm': max_mm,
-            'max_param_error_deg': max_deg,
-            'identification_ms': float(self.identification_ms),
-            'calibration_s': float(self.calibration_s),
-            'total_s': float(self.total_s),
-            'run_directory': None if self.run_directory is None else str(self.run_directory),
-            'collection': self.collection,
-            **{key: (self.fit or {}).get(key) for key in FIT_KEYS},
-        }
-
-
-#: Keys of the calibrator's ``result.json`` that ``summary.json`` repeats.
-FIT_KEYS = (
+#: Keys of the calibrator's ``result.json`` that ``summary.json`` repeats (``collection``: its
+#: record of skipped postures and dropped samples).
+RESULT_KEYS = (
+    'collection',
     'accepted',
     'acceptance',
     'accuracy',
@@ -96,21 +56,33 @@ FIT_KEYS = (
 )
 
 
-def fit_record(run_directory):
-    """``{key: value}`` of :data:`FIT_KEYS` in the calibrator's ``result.json`` ({} if absent)."""
-    with contextlib.suppress(OSError, ValueError):
-        data = json.loads((Path(run_directory) / RESULT_JSON).read_text())
-        return {key: data.get(key) for key in FIT_KEYS}
-    return {}
-
-
-def collection_record(run_directory):
-    """The ``collection`` record of the calibrator's ``result.json`` in ``run_directory`` (None if
+def result_record(run_directory):
+    """``{key: value}`` of :data:`RESULT_KEYS` in the calibrator's ``result.json`` (None where
     absent). Read before the report is refreshed, which rewrites ``result.json``."""
-    with contextlib.suppress(OSError, ValueError):
-        record = json.loads((Path(run_directory) / RESULT_JSON).read_text()).get('collection')
-        return record if isinstance(record, dict) else None
-    return None
+    data = result_json(Path(run_directory))
+    return {key: data.get(key) for key in RESULT_KEYS}
+
+
+def summary_document(measured, true, total_s, record):
+    """The ``summary.json`` document of a :class:`Measured` demo: its validation before and after
+    calibration (their :data:`VALIDATION_KEYS`), the largest errors of its calibrated geometry's
+    parameters against the ``true`` one, its times (ms, s; ``total_s``: the demo's), its run
+    directory and the ``record`` of its ``result.json`` (:func:`result_record`)."""
+    errors = parameter_errors(measured.calibrated, true)
+    run_directory = measured.run_directory
+    return {
+        'validation': {
+            'before': {key: measured.before[key] for key in VALIDATION_KEYS},
+            'after': {key: measured.after[key] for key in VALIDATION_KEYS},
+        },
+        'max_param_error_mm': float(np.max(np.abs(errors[:43]))),  # the 43 lengths
+        'max_param_error_deg': float(abs(errors[43])),  # gamma
+        'identification_ms': float(measured.identification_ms),
+        'calibration_s': float(measured.calibration_s),
+        'total_s': float(total_s),
+        'run_directory': None if run_directory is None else str(run_directory.path),
+        **{key: record.get(key) for key in RESULT_KEYS},
+    }
 
 
 def held_out_line(summary):
@@ -155,6 +127,3 @@ def summary_text(summary, validated, rejected):
     if summary.get('fit_diagnosis'):
         lines.append(summary['fit_diagnosis'])
     return '\n'.join(lines)
-
-
-# --- main ----------------------------------------------------------------------------------------

@@ -12,19 +12,7 @@ from gsp_calibrator.run.postures import (
     route_effect_groups,
 )
 from gsp_calibrator.settings import add_run_options, run_options_error
-from gsp_calibrator.tools.plans import (
-    DEFAULT_SWEEP_POSTURES,
-    DEFAULT_SWEEP_SAMPLES,
-    DEFAULT_TARGET_POSTURES,
-    MAX_PAIRS_PER_POSTURE,
-    Design,
-    EffectPlan,
-    cheapest_meeting,
-    plan,
-    sweep,
-    sweep_table,
-    target_plan,
-)
+from gsp_calibrator.tools import plans
 from gsp_kinematics.estimation.identification import IdentificationError
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.model.effects import EFFECT_GROUPS
@@ -40,12 +28,11 @@ def plot_sweep(path, result):
     from gsp_calibrator.report.plots import new_figure, save_figure
 
     figure = new_figure(10, 4.2, left=0.1, right=0.98, top=0.88, bottom=0.13, wspace=0.3)
-    for column, (key, label) in enumerate(
-        (
-            ('position_mm_mean', 'position error (mm)'),
-            ('orientation_deg_mean', 'orientation error (deg)'),
-        )
-    ):
+    panels = {
+        'position_mm_mean': 'position error (mm)',
+        'orientation_deg_mean': 'orientation error (deg)',
+    }
+    for column, (key, label) in enumerate(panels.items()):
         axes = figure.add_subplot(1, 2, column + 1)
         for samples in result['pairs_per_posture']:
             rows = [r for r in result['rows'] if r['pairs_per_posture'] == samples]
@@ -62,9 +49,9 @@ def plot_sweep(path, result):
     return save_figure(figure, path)
 
 
-def _positive_list(text, kind):
+def _positive_ints(text):
     try:
-        values = [kind(part) for part in text.split(',') if part.strip()]
+        values = [int(part) for part in text.split(',') if part.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f'expected a comma-separated list, got {text!r}') from None
     if not values or any(value < 1 for value in values):
@@ -81,16 +68,13 @@ def parse_arguments(argv=None):
     add = parser.add_argument
     add('--geometry', default=default_geometry_path('nominal'), help='nominal geometry params file')
     add_run_options(parser, seed_help="the calibrator's seed of the posture pool")
-    defaults = DEFAULT_SENSOR_NOISE
+    noise = DEFAULT_SENSOR_NOISE
     add(
-        '--sigma-leg-lengths-um',
-        type=float,
-        default=defaults.leg_lengths * 1e6,
-        help='leg sensor, µm',
+        '--sigma-leg-lengths-um', type=float, default=noise.leg_lengths * 1e6, help='leg sensor, µm'
     )
-    add('--sigma-inclinometer-deg', type=float, default=math.degrees(defaults.inclinometer))
-    add('--sigma-encoder-deg', type=float, default=math.degrees(defaults.encoder))
-    add('--sigma-lvdt-um', type=float, default=defaults.lvdt * 1e6, help='LVDT, µm')
+    add('--sigma-inclinometer-deg', type=float, default=math.degrees(noise.inclinometer))
+    add('--sigma-encoder-deg', type=float, default=math.degrees(noise.encoder))
+    add('--sigma-lvdt-um', type=float, default=noise.lvdt * 1e6, help='LVDT, µm')
     workspace = Workspace()
     add('--xy-range-mm', type=float, default=workspace.xy_range * 1e3, help='+- x and y (400)')
     add('--z-min-mm', type=float, default=workspace.z_min * 1e3)
@@ -105,8 +89,8 @@ def parse_arguments(argv=None):
     )
     add('--output', default=None, help='write the plan (or the sweep) as JSON here')
     add('--sweep', action='store_true', help='sweep posture counts and pairs per posture')
-    add('--sweep-postures', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_POSTURES)
-    add('--sweep-samples', type=lambda t: _positive_list(t, int), default=DEFAULT_SWEEP_SAMPLES)
+    add('--sweep-postures', type=_positive_ints, default=plans.DEFAULT_SWEEP_POSTURES)
+    add('--sweep-samples', type=_positive_ints, default=plans.DEFAULT_SWEEP_SAMPLES)
     add('--target-position-um', type=float, default=None, help='sweep: wanted mean position error')
     add('--target-orientation-deg', type=float, default=None, help='sweep: wanted mean orientation')
     add('--plot', default=None, help='sweep plot PNG (default: beside --output, else gsp_plan.png)')
@@ -121,24 +105,17 @@ def parse_arguments(argv=None):
     add('--target-position-mm', type=float, default=None, help='plan for this mean position error')
     add(
         '--target-postures',
-        type=lambda t: _positive_list(t, int),
-        default=DEFAULT_TARGET_POSTURES,
+        type=_positive_ints,
+        default=plans.DEFAULT_TARGET_POSTURES,
         help='posture counts a target plan considers',
     )
-    add('--max-pairs-per-posture', type=int, default=MAX_PAIRS_PER_POSTURE)
+    add('--max-pairs-per-posture', type=int, default=plans.MAX_PAIRS_PER_POSTURE)
     _add_effect_options(add)
     args = parser.parse_args(argv)
     reason = run_options_error(args)
     if reason:
         parser.error(reason)
-    for name in (
-        'sigma_leg_lengths_um',
-        'sigma_inclinometer_deg',
-        'sigma_encoder_deg',
-        'sigma_lvdt_um',
-        'max_leg_speed_mm_s',
-        'max_leg_acceleration_mm_s2',
-    ):
+    for name in [name for name in vars(args) if name.startswith(('sigma_', 'max_leg_'))]:
         if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
             parser.error(f'--{name.replace("_", "-")} must be a finite number > 0')
     if not args.z_min_mm < args.z_max_mm or args.xy_range_mm <= 0 or args.rotation_range_deg < 0:
@@ -181,7 +158,7 @@ def _add_effect_options(add):
 
 
 def effect_plan_from(args):
-    """The :class:`EffectPlan` of the command line: the ``--effects`` groups, else those the
+    """The ``plans.EffectPlan`` of the command line: the ``--effects`` groups, else those the
     calibrator's route adds postures for with ``--free`` (``auto``: thermal and backlash,
     ``postures.effect_route``); None when neither."""
     groups = tuple(args.effects)
@@ -189,7 +166,7 @@ def effect_plan_from(args):
         groups = tuple(route_effect_groups(args.free_parameters))
     if not groups:
         return None
-    return EffectPlan(
+    return plans.EffectPlan(
         groups=groups,
         revisit_every=args.revisit_every,
         revisit_interval_s=args.revisit_interval_s,
@@ -228,7 +205,7 @@ def _effects_text(entry):
 
 
 def design_from(args):
-    """The :class:`Design` of the command line."""
+    """The ``plans.Design`` of the command line."""
     sigmas = SensorNoise(
         leg_lengths=args.sigma_leg_lengths_um * 1e-6,
         inclinometer=math.radians(args.sigma_inclinometer_deg),
@@ -241,7 +218,7 @@ def design_from(args):
         z_max=args.z_max_mm / 1e3,
         rotation_range=math.radians(args.rotation_range_deg),
     )
-    return Design(
+    return plans.Design(
         sigmas=sigmas,
         free=tuple(args.free_parameters),
         formulation=args.formulation,
@@ -266,34 +243,27 @@ def _summary_text(entry):
         lines.append(f'the prediction assumes {predicted["assumes"]}')
     for entry_ in entry['unidentifiable']:
         lines.append(f'not identifiable: {entry_["combination"]}')
-    lines.append(_platform_time_text(entry['platform_time']))
-    if entry.get('effects'):
-        lines.append(_effects_text(entry['effects']))
-    return '\n'.join(lines)
-
-
-def _platform_time_text(timing):
-    return (
+    timing = entry['platform_time']
+    lines.append(
         f'platform time {timing["total_s"]:.1f} s: travel {timing["travel_s"]:.1f} s in route '
         f'order (selection order {timing["selection_order_travel_s"]:.1f} s, lower bound '
         f'{timing["lower_bound_travel_s"]:.1f} s), settle {timing["settle_s"]:.1f} s, sampling '
         f'{timing["sampling_s"]:.1f} s\nroute (selection indices): '
         + ' '.join(str(index) for index in timing['order'])
     )
+    if entry.get('effects'):
+        lines.append(_effects_text(entry['effects']))
+    return '\n'.join(lines)
 
 
 def _target_text(result):
     best, target = result['plan'], result['target']
-    wanted = ', '.join(
-        text
-        for text in (
-            None if target['position_mm'] is None else f'position {target["position_mm"]:g} mm',
-            None
-            if target['orientation_deg'] is None
-            else f'orientation {target["orientation_deg"]:g} deg',
-        )
-        if text
-    )
+    wanted = []
+    if target['position_mm'] is not None:
+        wanted.append(f'position {target["position_mm"]:g} mm')
+    if target['orientation_deg'] is not None:
+        wanted.append(f'orientation {target["orientation_deg"]:g} deg')
+    wanted = ', '.join(wanted)
     if best is None:
         reach = result['best_reachable']
         if reach is None:
@@ -308,7 +278,7 @@ def _target_text(result):
 
 def _inputs(args, design, limits):
     """The plan's inputs, as written beside it (SI units)."""
-    inputs = {
+    return {
         'geometry': str(args.geometry),
         'sigmas': design.sigmas.channels(),
         'workspace': {
@@ -327,16 +297,15 @@ def _inputs(args, design, limits):
         'max_leg_acceleration_m_s2': limits.max_acceleration,
         'effects': args.effects,
     }
-    return inputs
 
 
 def _sweep_document(args, nominal, design, timing):
     """``--sweep``: the sweep (printed and plotted), with the cheapest design meeting a target."""
-    result = sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
+    result = plans.sweep(nominal, args.sweep_postures, args.sweep_samples, design, **timing)
     document = {'sweep': result}
-    print(sweep_table(result))
+    print(plans.sweep_table(result))
     if args.target_position_um is not None or args.target_orientation_deg is not None:
-        best = cheapest_meeting(result, args.target_position_um, args.target_orientation_deg)
+        best = plans.cheapest_meeting(result, args.target_position_um, args.target_orientation_deg)
         document['target'] = {
             'position_um': args.target_position_um,
             'orientation_deg': args.target_orientation_deg,
@@ -363,42 +332,33 @@ def main(argv=None):
     try:
         nominal = load_geometry(args.geometry)
         design = design_from(args)
-        timing = {'settle_s': args.settle_s, 'sensor_rate_hz': args.sensor_rate_hz}
         limits = MotionLimits(args.max_leg_speed_mm_s / 1e3, args.max_leg_acceleration_mm_s2 / 1e3)
-        inputs = _inputs(args, design, limits)
-        targeted = args.target_position_mm is not None or (
+        timing = {
+            'settle_s': args.settle_s,
+            'sensor_rate_hz': args.sensor_rate_hz,
+            'limits': limits,
+        }
+        if args.target_position_mm is not None or (
             not args.sweep and args.target_orientation_deg is not None
-        )
-        if targeted:
-            result = target_plan(
+        ):
+            result = plans.target_plan(
                 nominal,
                 args.target_position_mm,
                 args.target_orientation_deg,
                 design,
                 args.target_postures,
                 args.max_pairs_per_posture,
-                limits=limits,
                 **timing,
             )
-            document = {'inputs': inputs, **result}
             print(_target_text(result))
         elif args.sweep:
-            sweep_document = _sweep_document(args, nominal, design, dict(timing, limits=limits))
-            document = {'inputs': inputs, **sweep_document}
+            result = _sweep_document(args, nominal, design, timing)
         else:
-            document = {
-                'inputs': inputs,
-                **plan(
-                    nominal,
-                    args.posture_count,
-                    args.pairs_per_posture,
-                    design,
-                    limits=limits,
-                    effects=effect_plan_from(args),
-                    **timing,
-                ),
-            }
-            print(_summary_text(document))
+            effects = effect_plan_from(args)
+            count, pairs = args.posture_count, args.pairs_per_posture
+            result = plans.plan(nominal, count, pairs, design, effects=effects, **timing)
+            print(_summary_text(result))
+        document = {'inputs': _inputs(args, design, limits), **result}
     except (GeometryError, CalibrationError, IdentificationError, RuntimeError, OSError) as error:
         print(f'gsp_plan: error: {error}', file=sys.stderr)
         return 2

@@ -38,17 +38,12 @@ DEFAULT_TARGET_POSTURES = (12, 15, 20, 25, 30, 40, 50, 60, 75, 90, 120)
 MAX_PAIRS_PER_POSTURE = 100
 
 
-def calibration_seconds(postures, pairs_per_posture, settle_s, sensor_rate_hz):
-    """The physical minimum of the collection: ``postures x (settle + samples / rate)`` (s)."""
-    return postures * (settle_s + pairs_per_posture / sensor_rate_hz)
-
-
-def design_prediction(nominal, poses, sigmas, pairs_per_posture, free, formulation, workspace):
+def design_prediction(nominal, poses, pairs_per_posture, design):
     """Rank, unidentifiable combinations and predicted accuracy of commanding ``poses``."""
-    row_sigmas = sigmas.averaged([pairs_per_posture])
-    free_mask = resolve_free(free)
+    row_sigmas = design.sigmas.averaged([pairs_per_posture])
+    free_mask = resolve_free(design.free)
     information = posture_information(
-        nominal, poses, row_sigmas, free_mask, selection_formulation(formulation)
+        nominal, poses, row_sigmas, free_mask, selection_formulation(design.formulation)
     ).sum(axis=0)
     analysis = analyse_identifiability(information, free_mask)
     plan = {
@@ -61,7 +56,7 @@ def design_prediction(nominal, poses, sigmas, pairs_per_posture, free, formulati
     }
     if analysis['rank'] == analysis['parameters']:
         covariance = np.linalg.inv(information)
-        prediction = predict_accuracy(nominal, covariance, free_mask, workspace)
+        prediction = predict_accuracy(nominal, covariance, free_mask, design.workspace)
         plan['predicted'] = {
             **accuracy_summary(prediction),
             'worst_cell': prediction['worst_cell'],
@@ -130,15 +125,14 @@ def effect_plan(nominal, poses, pairs_per_posture, design, effects, dwell_s, lim
         limits=limits,
         min_arrivals=effects.min_arrivals,
     )
-    run = route.design(
-        effects.payload_mass,
-        effects.centre_of_mass,
-        thermal_time_constant_s=effects.thermal_time_constant_s,
-    )
     groups = effect_identifiability(
         nominal,
         route.poses,
-        run,
+        route.design(
+            effects.payload_mass,
+            effects.centre_of_mass,
+            thermal_time_constant_s=effects.thermal_time_constant_s,
+        ),
         effects.groups,
         design.sigmas.averaged([pairs_per_posture]),
         design.free,
@@ -171,25 +165,17 @@ def plan(
     limits=MotionLimits(),
     effects=None,
 ):
-    """One plan (a JSON-ready dict); ``selection``: a :class:`gsp_calibrator.run.postures.PostureSelection` of
-    these settings to reuse (the sweep shares one per posture count); ``limits``: the legs'
-    motion limits of the platform time; ``effects``: an :class:`EffectPlan` whose groups add
-    the plan's ``effects`` entry (:func:`effect_plan`)."""
+    """One plan (a JSON-ready dict); ``selection``: a ``run.postures.PostureSelection`` of these
+    settings to reuse (the sweep shares one per posture count); ``limits``: the legs' motion
+    limits of the platform time; ``effects``: an :class:`EffectPlan` whose groups add the plan's
+    ``effects`` entry (:func:`effect_plan`)."""
     if pairs_per_posture < 1:
         raise CalibrationError(f'pairs per posture must be >= 1, got {pairs_per_posture}')
     if not (sensor_rate_hz > 0 and settle_s >= 0):
         raise CalibrationError('the sensor rate must be > 0 Hz and the settle time >= 0 s')
     if selection is None:
         selection = select(nominal, postures, pairs_per_posture, design)
-    prediction = design_prediction(
-        nominal,
-        selection.poses,
-        design.sigmas,
-        pairs_per_posture,
-        design.free,
-        design.formulation,
-        design.workspace,
-    )
+    prediction = design_prediction(nominal, selection.poses, pairs_per_posture, design)
     timing = platform_time(
         nominal, selection.poses, pairs_per_posture, settle_s, sensor_rate_hz, limits
     )
@@ -204,7 +190,8 @@ def plan(
         'postures': int(postures),
         'pairs_per_posture': int(pairs_per_posture),
         **prediction,
-        'calibration_s': calibration_seconds(postures, pairs_per_posture, settle_s, sensor_rate_hz),
+        # The physical minimum of the collection.
+        'calibration_s': postures * (settle_s + pairs_per_posture / sensor_rate_hz),
         'platform_time': timing,
         'selection': {
             'pool_size': selection.pool_size,
@@ -259,32 +246,17 @@ def target_plan(
     if position_mm is None and orientation_deg is None:
         raise CalibrationError('a target needs a position (mm) or an orientation (deg)')
     timing = {'settle_s': settle_s, 'sensor_rate_hz': sensor_rate_hz, 'limits': limits}
+    targets = {'position_mm_mean': position_mm, 'orientation_deg_mean': orientation_deg}
     candidates, best, best_reachable = [], None, None
     for count in sorted(c for c in posture_counts if c <= design.pool_size):
         selection = select(nominal, count, 1, design)
-        single = design_prediction(
-            nominal,
-            selection.poses,
-            design.sigmas,
-            1,
-            design.free,
-            design.formulation,
-            design.workspace,
-        )['predicted']
+        single = design_prediction(nominal, selection.poses, 1, design)['predicted']
         if not single:
             continue  # rank-deficient: no count of samples helps
         ratios = [
-            (single[key] / target) ** 2
-            for key, target in (
-                ('position_mm_mean', position_mm),
-                ('orientation_deg_mean', orientation_deg),
-            )
-            if target is not None
+            (single[key] / target) ** 2 for key, target in targets.items() if target is not None
         ]
-        reachable = {
-            key: single[key] / math.sqrt(max_samples)
-            for key in ('position_mm_mean', 'orientation_deg_mean')
-        }
+        reachable = {key: single[key] / math.sqrt(max_samples) for key in targets}
         if (
             best_reachable is None
             or reachable['position_mm_mean'] < best_reachable['position_mm_mean']
@@ -319,13 +291,8 @@ def target_plan(
 def cheapest_meeting(result, position_um=None, orientation_deg=None):
     """The sweep row with the shortest calibration whose predicted means meet the targets
     (position in µm, orientation in deg); None if no row does."""
-    meeting = [
-        row
-        for row in result['rows']
-        if row['predicted']
-        and (position_um is None or 1000.0 * row['predicted']['position_mm_mean'] <= position_um)
-        and (orientation_deg is None or row['predicted']['orientation_deg_mean'] <= orientation_deg)
-    ]
+    position_mm = None if position_um is None else position_um / 1000.0
+    meeting = [r for r in result['rows'] if _meets(r['predicted'], position_mm, orientation_deg)]
     return min(meeting, key=lambda row: (row['calibration_s'], row['postures']), default=None)
 
 

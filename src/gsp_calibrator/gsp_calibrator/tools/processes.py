@@ -11,23 +11,14 @@ from pathlib import Path
 SHUTDOWN_GRACE_S = 5.0  #: wait after SIGINT before SIGTERM, and after SIGTERM before SIGKILL
 
 
-def _load_libc():
-    if not sys.platform.startswith('linux'):
-        return None
-    try:
-        return ctypes.CDLL(None, use_errno=True)
-    except OSError:
-        return None
-
-
-_LIBC = _load_libc()  # loaded in the parent: the child must not dlopen between fork and exec
+# Loaded in the parent: the child must not dlopen between fork and exec.
+_LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith('linux') else None
 _PR_SET_PDEATHSIG = 1
 
 
 def _die_with_parent():
     """In the child before exec: get SIGTERM if the demo dies, even by SIGKILL (Linux)."""
-    if _LIBC is not None:
-        _LIBC.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    _LIBC.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
 
 
 class DemoError(RuntimeError):
@@ -65,15 +56,6 @@ class NodeProcesses:
                 start_new_session=True,
                 preexec_fn=_die_with_parent if _LIBC is not None else None,
             )
-
-    def kill(self, name, sig=signal.SIGKILL, timeout=SHUTDOWN_GRACE_S * 4):
-        """Send ``sig`` to node ``name`` and wait for its exit; its exit code (None if alive)."""
-        process = self.processes[name]
-        with contextlib.suppress(ProcessLookupError):
-            process.send_signal(sig)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            process.wait(timeout=timeout)
-        return process.poll()
 
     def exited(self):
         """``(name, exit code)`` of a process that has exited, or None while all run."""

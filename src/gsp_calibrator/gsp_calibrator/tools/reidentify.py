@@ -16,15 +16,15 @@ from gsp_calibrator.settings import (
     DEFAULTS,
     PARAMETER_SPECS,
     option_name,
+    option_value,
     requirement_from_parameters,
 )
-from gsp_calibrator.tools.reidentify_inputs import (  # noqa: F401 (InputError: the tool's error)
+from gsp_calibrator.tools.reidentify_inputs import (
     OPTION_PARAMETERS,
     InputError,
-    free_parameters,
     geometry_option,
     load_input,
-    recover_unfinished_recordings,
+    recording_of,
     resolve_input,
     resolve_options,
     result_json,
@@ -43,23 +43,21 @@ EXIT_BAD_INPUT = 2
 VALIDATION_POSTURES = 50
 
 
-def _identify(nominal, samples, sigmas, free, options, noise_source):
+def _identify(nominal, samples, sigmas, options, noise_source):
     """``identify_from_samples`` with the run's resolved ``options`` (its workspace postures,
     ``run.postures.workspace_poses_of``, and the core's ``Options``: the loss)."""
-    from gsp_calibrator.run.postures import workspace_poses_of
-
     return identify_from_samples(
         nominal,
         samples,
         sigmas,
-        free,
+        options['free_parameters'],
         options['formulation'],
         noise_source=noise_source,
         requirement=requirement_from_parameters(options),
         folds=int(options['cross_validation_folds']),
         payload_mass=options['payload_mass'],
         centre_of_mass=options['payload_centre_of_mass'],
-        workspace_poses=workspace_poses_of(
+        workspace_poses=postures.workspace_poses_of(
             nominal, options.get('workspace_postures', 0), options.get('seed', 0)
         ),
         leg_mass=options['leg_mass'],
@@ -73,9 +71,10 @@ def build_parser():
         description='Re-identify a Gough-Stewart platform calibration offline from a run '
         'directory, a samples.csv or a recording.mcap, into a new run directory.',
     )
-    parser.add_argument('input', help='run directory, samples.csv or recording.mcap')
+    add = parser.add_argument
+    add('input', help='run directory, samples.csv or recording.mcap')
     stored = 'default: as stored with the input run, else'
-    parser.add_argument(
+    add(
         '--nominal',
         default=None,
         help='nominal geometry params file (default: as stored with the input run '
@@ -83,70 +82,45 @@ def build_parser():
         f'{default_geometry_path("nominal")})',
     )
     for name in OPTION_PARAMETERS:
-        default = DEFAULTS[name]
+        default, description = DEFAULTS[name], PARAMETER_SPECS[name].description
         if isinstance(default, list):
-            parser.add_argument(
-                option_name(name),
-                dest=name,
-                nargs='+',
-                metavar='NAME',
-                default=None,
-                help=f'{PARAMETER_SPECS[name].description}; comma-separated lists allowed '
-                f'({stored} {" ".join(default)})',
-            )
-            continue
-        parser.add_argument(
-            option_name(name),
-            dest=name,
-            type=type(default),
-            default=None,
-            help=f'{PARAMETER_SPECS[name].description} ({stored} {default})',
-        )
-    parser.add_argument(
+            kind = {'nargs': '+', 'metavar': 'NAME'}
+            description += f'; comma-separated lists allowed ({stored} {" ".join(default)})'
+        else:
+            kind = {'type': type(default)}
+            description += f' ({stored} {default})'
+        add(option_name(name), dest=name, default=None, help=description, **kind)
+    add(
         '--output-root',
         default=DEFAULTS['output_root'],
         help='directory of the new run directory (default %(default)s)',
     )
-    parser.add_argument(
+    add(
         '--truth',
         default=None,
         help='true geometry params file, for errors against the truth and a '
         "validation in the report (default: the input run directory's "
         f'{TRUE_GEOMETRY_FILE}, if any)',
     )
-    parser.add_argument(
+    add(
         '--validation-postures',
         type=int,
         default=VALIDATION_POSTURES,
         metavar='N',
         help='random postures of the validation against the truth (default %(default)s; 0: none)',
     )
-    parser.add_argument(
-        '--seed', type=int, default=0, help='seed of the validation postures (default %(default)s)'
-    )
-    parser.add_argument(
+    add('--seed', type=int, default=0, help='seed of the validation postures (default %(default)s)')
+    add(
         '--no-report',
         action='store_true',
         help='write samples.csv, result.yaml and result.json only',
     )
-    parser.add_argument(
+    add(
         '--no-plots',
         action='store_true',
         help="write report.md without its PNG plots (the calibrator's write_report_plots: false)",
     )
     return parser
-
-
-# --- inputs ------------------------------------------------------------------------------------
-
-
-def validation_postures(truth, count, seed):
-    from gsp_kinematics.model.kinematics import sample_valid_postures
-
-    return sample_valid_postures(truth, int(count), np.random.default_rng(int(seed)))
-
-
-# --- main --------------------------------------------------------------------------------------
 
 
 def _truth(args, source_dir):
@@ -167,9 +141,11 @@ def _validate(truth, nominal, outcome, args):
     if truth is None or args.validation_postures <= 0:
         return None, None
     from gsp_calibrator.report.data import validation_errors
+    from gsp_kinematics.model.kinematics import sample_valid_postures
 
     before = after = None
-    poses = validation_postures(truth, args.validation_postures, args.seed)
+    rng = np.random.default_rng(args.seed)
+    poses = sample_valid_postures(truth, args.validation_postures, rng)
     try:
         before = validation_errors(truth, nominal, poses)
         if outcome.success:
@@ -179,42 +155,32 @@ def _validate(truth, nominal, outcome, args):
     return before, after
 
 
-def _validation_line(when, validation):
-    """One line of a validation summary (mm, deg)."""
-    return (
-        f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
-        f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
-        f'{validation["orientation_deg_mean"]:.4g} deg, max '
-        f'{validation["orientation_deg_max"]:.4g} deg'
-    )
-
-
 def reidentify(args, out=None):
     """Run the re-identification for parsed ``args``; returns ``(exit code, run directory)``."""
     out = sys.stdout if out is None else out
-    if args.free_parameters is not None:
-        free_parameters(args.free_parameters)  # a bad name is reported before anything is read
+    try:  # a bad name is reported before anything is read
+        option_value('free_parameters', args.free_parameters or DEFAULTS['free_parameters'])
+    except ValueError as error:
+        raise InputError(str(error)) from None
     kind, path, source_dir = resolve_input(args.input)
     options = resolve_options(args, stored_options(kind, path, source_dir))
-    sigmas = noise_from_parameters(options)
-    free = options['free_parameters']
-    nominal_path = options['nominal_geometry_file']
-    nominal = geometry_option(nominal_path, '--nominal')
+    nominal = geometry_option(options['nominal_geometry_file'], '--nominal')
     truth_path, truth = _truth(args, source_dir)
     if args.validation_postures < 0:
         raise InputError('--validation-postures must be >= 0')
     samples = load_input(kind, path, options)
 
     try:
-        outcome = _identify(nominal, samples, sigmas, free, options, options['noise_source'])
+        sigmas = noise_from_parameters(options)
+        outcome = _identify(nominal, samples, sigmas, options, options['noise_source'])
     except (IdentificationError, postures.CalibrationError) as error:
         raise InputError(str(error)) from error
 
     run = RunDirectory.create(args.output_root)
     run.write_samples(samples)
-    if kind == 'mcap' or (source_dir is not None and (source_dir / 'recording.mcap').is_file()):
-        recording_path = path if kind == 'mcap' else source_dir / 'recording.mcap'
-        atomic_copy(recording_path, run.file('recording.mcap'))
+    recording = recording_of(kind, path, source_dir)
+    if recording is not None:
+        atomic_copy(recording, run.file('recording.mcap'))
     if truth is not None:
         run.write_geometry(truth, name=TRUE_GEOMETRY_FILE, comment='true geometry (given)')
     if outcome.success:
@@ -223,30 +189,33 @@ def reidentify(args, out=None):
     validation_before = validation_after = None
     if outcome.result is not None:
         validation_before, validation_after = _validate(truth, nominal, outcome, args)
-        from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
-
         run_options = dict(
             options,
             source=str(path),
             source_kind=kind,
             truth_geometry_file=str(truth_path) if truth_path else None,
         )
-        inputs = dataclasses.replace(
-            outcome_inputs(outcome, nominal, run_options, tool='gsp_reidentify'),
-            validation_before=validation_before,
-            validation_after=validation_after,
-            truth=truth,
-        ).completed(outcome.result)
-        write_result_json(run, outcome.result, inputs)
-        if not args.no_report:
-            write_report(
-                run, outcome.result, inputs, 'Offline re-identification', not args.no_plots
-            )
+        _write_result(
+            run,
+            outcome,
+            nominal,
+            run_options,
+            (validation_before, validation_after, truth),
+            None if args.no_report else 'Offline re-identification',
+            not args.no_plots,
+            tool='gsp_reidentify',
+        )
 
     print(outcome_summary(outcome, reference=truth), file=out)
     for when, validation in (('before', validation_before), ('after', validation_after)):
-        if validation is not None:
-            print(_validation_line(when, validation), file=out)
+        if validation is not None:  # mm, deg
+            print(
+                f'validation {when}: position mean {validation["position_mm_mean"]:.4g} mm, '
+                f'max {validation["position_mm_max"]:.4g} mm; orientation mean '
+                f'{validation["orientation_deg_mean"]:.4g} deg, max '
+                f'{validation["orientation_deg_max"]:.4g} deg',
+                file=out,
+            )
     print(f'{RUN_DIRECTORY_LABEL}{run.path}', file=out)
     return (EXIT_OK if outcome.success else EXIT_FAILED), run.path
 
@@ -270,26 +239,30 @@ def stored_weights(stored, options, samples):
     return sigmas, source, kept
 
 
-def refresh_report(
-    run_dir,
-    truth=None,
-    validation_before=None,
-    validation_after=None,
-    plots=True,
-    title='Calibration report',
-):
-    """Rewrite ``result.json`` and ``report.md`` (with its PNGs unless ``plots`` is false) of an
-    existing run directory.
-
-    For a caller that has the run directory but not the identification result, e.g. the main job
-    once it knows the truth and has validated the calibrated geometry through the system. The
-    samples are identified again with the run's stored options (``result.json`` ``options`` or
-    the recording's), which gives the run's result exactly. ``validation_*``: validation
-    summaries or :func:`gsp_calibrator.report.data.validation_errors` dicts (per-posture arrays are
-    plotted). Returns the ``CalibrationOutcome``; :class:`InputError` if the directory is unusable.
-    """
+def _write_result(run, outcome, nominal, options, validation, title, plots, **extra):
+    """Write ``result.json`` of ``outcome`` into ``run`` and, unless ``title`` is None, its report
+    (with its PNGs if ``plots``); ``validation``: ``(before, after, truth)``, ``extra``: more keys
+    of ``result.json``."""
     from gsp_calibrator.report.write import outcome_inputs, write_report, write_result_json
 
+    before, after, truth = validation
+    inputs = dataclasses.replace(
+        outcome_inputs(outcome, nominal, options, **extra),
+        validation_before=before,
+        validation_after=after,
+        truth=truth,
+    ).completed(outcome.result)
+    write_result_json(run, outcome.result, inputs)
+    if title is not None:
+        write_report(run, outcome.result, inputs, title, plots)
+
+
+def refresh_report(run_dir, truth=None, validation_before=None, validation_after=None, plots=True):
+    """Rewrite ``result.json`` and ``report.md`` (with its PNGs unless ``plots`` is false) of an
+    existing run directory, identifying its samples again with its stored options (which gives
+    its result exactly), e.g. once the truth is known and the calibrated geometry validated.
+    ``validation_*``: :func:`gsp_calibrator.report.data.validation_errors` dicts. Returns the
+    ``CalibrationOutcome``; :class:`InputError` if the directory is unusable."""
     source_dir = Path(run_dir)
     kind, path, _ = resolve_input(source_dir)
     args = build_parser().parse_args([str(source_dir)])
@@ -298,19 +271,16 @@ def refresh_report(
     samples = load_input(kind, path, options)
     stored = result_json(source_dir)
     sigmas, source, kept_keys = stored_weights(stored, options, samples)
-    outcome = _identify(nominal, samples, sigmas, options['free_parameters'], options, source)
+    outcome = _identify(nominal, samples, sigmas, options, source)
     if outcome.result is None:
         raise InputError(f'{source_dir}: {outcome.message}')
     # The calibrator's own record of the collection (skips, drops) is kept as it was.
     kept = {key: value for key, value in stored.items() if key in kept_keys}
-    inputs = dataclasses.replace(
-        outcome_inputs(outcome, nominal, dict(options, source=str(path), source_kind=kind), **kept),
-        validation_before=validation_before,
-        validation_after=validation_after,
-        truth=truth,
-    ).completed(outcome.result)
-    write_result_json(source_dir, outcome.result, inputs)
-    write_report(source_dir, outcome.result, inputs, title, plots)
+    options = dict(options, source=str(path), source_kind=kind)
+    validation = (validation_before, validation_after, truth)
+    _write_result(
+        source_dir, outcome, nominal, options, validation, 'Calibration report', plots, **kept
+    )
     return outcome
 
 

@@ -2,11 +2,14 @@
 else its ``recording.mcap``), a ``samples.csv`` or a ``recording.mcap``; the run options stored
 with them and the geometries they name (pure, no ROS graph)."""
 
+import contextlib
 import json
 import sys
 from pathlib import Path
 
 from gsp_calibrator.files.run_directory import SAMPLES_FILE, RunDirectoryError, read_samples
+from gsp_calibrator.recording.mcap_format import RecordingError
+from gsp_calibrator.recording.mcap_io import recording_options, recover_recordings
 from gsp_calibrator.settings import DEFAULTS, REIDENTIFY_COMMAND_LINE, names_in, option_value
 from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
 from gsp_msgs_py.noise_parameters import noise_from_parameters
@@ -20,41 +23,30 @@ class InputError(ValueError):
 OPTION_PARAMETERS = names_in(REIDENTIFY_COMMAND_LINE)
 
 
-def free_parameters(values):
-    """Names from ``--free`` (space or comma separated); InputError naming unknown ones."""
-    if values is None:
-        return None
-    try:
-        return option_value('free_parameters', values)
-    except ValueError as error:
-        raise InputError(str(error)) from None
-
-
 def result_json(source_dir):
     """The run directory's ``result.json`` as a dict ({} if none or unreadable)."""
-    if source_dir is None or not (source_dir / 'result.json').is_file():
-        return {}
-    try:
-        with open(source_dir / 'result.json', encoding='utf-8') as stream:
-            data = json.load(stream)
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
+    if source_dir is not None:
+        with contextlib.suppress(OSError, ValueError):
+            data = json.loads((source_dir / 'result.json').read_text(encoding='utf-8'))
+            return data if isinstance(data, dict) else {}
+    return {}
+
+
+def recording_of(kind, path, source_dir):
+    """The input's recording: ``path`` itself, else its run directory's (None if none)."""
+    if kind == 'mcap':
+        return path
+    if source_dir is not None and (source_dir / 'recording.mcap').is_file():
+        return source_dir / 'recording.mcap'
+    return None
 
 
 def stored_options(kind, path, source_dir):
     """Run options stored with the input: the run directory's ``result.json`` ``options``, then
     (overriding) those of the recording."""
     options = dict(result_json(source_dir).get('options') or {})
-    recording_path = (
-        path
-        if kind == 'mcap'
-        else (source_dir / 'recording.mcap' if source_dir is not None else None)
-    )
-    if recording_path is not None and Path(recording_path).is_file():
-        from gsp_calibrator.recording.mcap_format import RecordingError
-        from gsp_calibrator.recording.mcap_io import recording_options
-
+    recording_path = recording_of(kind, path, source_dir)
+    if recording_path is not None:
         try:
             options.update(recording_options(recording_path))
         except RecordingError as error:
@@ -88,17 +80,13 @@ def resolve_options(args, stored):
                 )
             nominal = default_geometry_path('nominal')
     options['nominal_geometry_file'] = str(nominal)
-    # Stored only (not an option): where the payload's mass sits, for the compliance.
-    centre = stored.get('payload_centre_of_mass') or DEFAULTS['payload_centre_of_mass']
-    try:
-        options['payload_centre_of_mass'] = [float(v) for v in centre]
-    except (TypeError, ValueError):
-        raise InputError(f'payload_centre_of_mass: {centre!r} (stored) is not 3 numbers') from None
-    legs = stored.get('leg_mass') or DEFAULTS['leg_mass']  # stored only, as the centre
-    try:
-        options['leg_mass'] = [float(v) for v in legs]
-    except (TypeError, ValueError):
-        raise InputError(f'leg_mass: {legs!r} (stored) is not 6 numbers') from None
+    # Stored only (not options), for the compliance: where the payload's mass sits, the legs'.
+    for name, count in (('payload_centre_of_mass', 3), ('leg_mass', 6)):
+        value = stored.get(name) or DEFAULTS[name]
+        try:
+            options[name] = [float(v) for v in value]
+        except (TypeError, ValueError):
+            raise InputError(f'{name}: {value!r} (stored) is not {count} numbers') from None
     return options
 
 
@@ -112,8 +100,6 @@ def geometry_option(path, option):
 def recover_unfinished_recordings(run_path):
     """Finalise the ``recording*.mcap.tmp`` a killed calibrator left in ``run_path`` (never one a
     live calibrator is still writing: see its ``state.json``)."""
-    from gsp_calibrator.recording.mcap_format import RecordingError
-    from gsp_calibrator.recording.mcap_io import recover_recordings
     from gsp_calibrator.run.record import ResumeRefused, read_state, resumable
 
     if not any(p.name.endswith('.mcap.tmp') for p in run_path.iterdir()):
@@ -142,10 +128,8 @@ def resolve_input(path):
         recover_unfinished_recordings(path)
         if (path / SAMPLES_FILE).is_file():
             return 'csv', path / SAMPLES_FILE, path
-        from gsp_calibrator.recording.recorder import RECORDING_FILE
-
-        if (path / RECORDING_FILE).is_file():
-            return 'mcap', path / RECORDING_FILE, path
+        if (path / 'recording.mcap').is_file():
+            return 'mcap', path / 'recording.mcap', path
         raise InputError(f'{path}: run directory without {SAMPLES_FILE} or recording.mcap')
     if not path.exists():
         raise InputError(f'{path}: no such file or directory')
@@ -164,7 +148,6 @@ def load_input(kind, path, options):
         except RunDirectoryError as error:
             raise InputError(str(error)) from error
     else:
-        from gsp_calibrator.recording.mcap_format import RecordingError
         from gsp_calibrator.recording.rebuild import samples_from_recording
         from gsp_calibrator.recording.recorder import RECORDING_FILE, recording_parts
 
