@@ -152,12 +152,6 @@ def test_mcap_format_atomic_and_round_trip(tmp_path):
         'type': 'sensor_msgs/msg/JointState',
         'count': 1,
     }
-    raw = list(read_recording(path, topics=names.TOPIC_PLATFORM_STATUS, raw=True))
-    # (CDR padding bytes are not initialised by the serialiser: compare decoded messages)
-    from rclpy.serialization import deserialize_message
-
-    assert isinstance(raw[0].message, bytes)
-    assert deserialize_message(raw[0].message, type(status)) == status
 
 
 def test_abort_and_errors(tmp_path):
