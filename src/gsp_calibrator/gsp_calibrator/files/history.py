@@ -91,16 +91,12 @@ def connect(path):
     return connection
 
 
-@contextlib.contextmanager
 def opened(path):
-    connection = connect(path)
-    try:
-        yield connection
-    finally:
-        connection.close()
+    """:func:`connect`, closed at the end of a ``with`` block."""
+    return contextlib.closing(connect(path))
 
 
-def run_time(run_dir, data):
+def run_time(run_dir):
     """The run's UTC time (ISO 8601): its directory's timestamp name (``<stamp>`` or
     ``<stamp>_2`` ... for runs started in the same second), else the file's mtime."""
     stamp_text = Path(run_dir).name.split('_', 1)[0]
@@ -109,8 +105,6 @@ def run_time(run_dir, data):
         return stamp.replace(tzinfo=datetime.UTC).isoformat()
     except ValueError:
         pass
-    if data.get('time_utc'):
-        return str(data['time_utc'])
     modified = run_file(run_dir).stat().st_mtime
     return datetime.datetime.fromtimestamp(modified, datetime.UTC).isoformat()
 
@@ -133,7 +127,7 @@ def calibration_verdict(data):
     """``(usable, verdict)`` of a ``result.json``: identified and, when the run was judged,
     accepted against the required accuracy (``accepted``, ``not accepted``), else
     ``identified`` or ``failed``."""
-    success = bool(data.get('success', data.get('converged')))
+    success = bool(data.get('success'))
     if not success:
         return False, 'failed'
     if 'accepted' in data:
@@ -153,7 +147,7 @@ def _previous_calibration(connection, platform, time_utc, run_dir):
 def _describe(connection, run_dir, data, platform):
     """The row, changes and estimates of a run (read from its files, before any write)."""
     run_file_path = run_file(run_dir)
-    time_utc = run_time(run_dir, data)
+    time_utc = run_time(run_dir)
     if data.get('kind') == 'check':
         calibration = calibration_from_check(data, run_file_path)
         accuracy = data.get('accuracy') or {}
@@ -215,16 +209,13 @@ def record(path, run_dir, platform=None):
                 tuple(row.values()),
             )
             run_id = cursor.lastrowid
-            _insert_estimates(connection, run_id, estimates)
+            connection.executemany(
+                'INSERT INTO estimates (run_id, parameter, estimate_si, sigma_si) '
+                'VALUES (?, ?, ?, ?)',
+                [(run_id, *entry) for entry in estimates],
+            )
             _insert_changes(connection, run_id, changes)
     return run_id
-
-
-def _insert_estimates(connection, run_id, estimates):
-    connection.executemany(
-        'INSERT INTO estimates (run_id, parameter, estimate_si, sigma_si) VALUES (?, ?, ?, ?)',
-        [(run_id, *entry) for entry in estimates],
-    )
 
 
 def _insert_changes(connection, run_id, changes):
