@@ -27,10 +27,10 @@ from gsp_calibrator.recording.mcap_io import (
     recording_options,
 )
 from gsp_calibrator.recording.recorder import (
+    OUTCOMES_METADATA_NAME,
     POSTURE_METADATA_NAME,
     SUITE_TOPICS,
     RunRecorder,
-    note_outcomes,
     note_posture_end,
 )
 from gsp_calibrator.replay.recorded_run import RecordedRun
@@ -577,7 +577,7 @@ class _OnlineCalibrator:
             def note_posture_end(_, command_id, posture, outcome, reason=''):
                 note_posture_end(mcap, command_id, posture, outcome, reason)
 
-        note_outcomes(mcap)
+        mcap.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
         self.link = PostureLink(
             lambda: _Done(self.ends),
             lambda pose: (*self.commanded, lambda: None),

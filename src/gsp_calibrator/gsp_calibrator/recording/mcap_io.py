@@ -52,7 +52,6 @@ class McapRecorder:
         self._schemas = {}  # type name -> schema id
         self._channels = {}  # topic -> (channel id, type name)
         self._sequence = collections.Counter()
-        self.message_count = 0
         #: Messages written per topic.
         self.counts = collections.Counter()
         self.closed = False
@@ -122,7 +121,6 @@ class McapRecorder:
                 sequence=self._sequence[channel_id] & 0xFFFFFFFF,
                 data=data,
             )
-            self.message_count += 1
             self.counts[topic] += 1
             self._flush_if_crash_safe()
 
@@ -304,28 +302,17 @@ def recording_info(path):
     """``{topics: {topic: {type, count}}, start_ns, end_ns, message_count, metadata: {name: [dict]}}``."""
     stream, reader = _open_reader(path)
     try:
-        summary = reader.get_summary()
-        topics, start, end, count = {}, None, None, 0
-        if summary is not None and summary.statistics is not None:
-            stats = summary.statistics
-            for channel_id, channel in summary.channels.items():
-                schema = summary.schemas.get(channel.schema_id)
-                topics[channel.topic] = {
-                    'type': schema.name if schema else '',
-                    'count': int(stats.channel_message_counts.get(channel_id, 0)),
-                }
-            count = int(stats.message_count)
-            if count:
-                start, end = int(stats.message_start_time), int(stats.message_end_time)
-        else:  # no summary: scan
-            for schema, channel, record in reader.iter_messages(log_time_order=False):
-                entry = topics.setdefault(
-                    channel.topic, {'type': schema.name if schema else '', 'count': 0}
-                )
-                entry['count'] += 1
-                count += 1
-                start = record.log_time if start is None else min(start, record.log_time)
-                end = record.log_time if end is None else max(end, record.log_time)
+        summary = reader.get_summary()  # every recording written here has one
+        stats, topics, start, end = summary.statistics, {}, None, None
+        for channel_id, channel in summary.channels.items():
+            schema = summary.schemas.get(channel.schema_id)
+            topics[channel.topic] = {
+                'type': schema.name if schema else '',
+                'count': int(stats.channel_message_counts.get(channel_id, 0)),
+            }
+        count = int(stats.message_count)
+        if count:
+            start, end = int(stats.message_start_time), int(stats.message_end_time)
         metadata = collections.defaultdict(list)
         for record in reader.iter_metadata():
             metadata[record.name].append(dict(record.metadata))

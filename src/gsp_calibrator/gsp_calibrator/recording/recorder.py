@@ -119,7 +119,7 @@ class RunRecorder:
                 recorder.add_metadata(
                     RUN_METADATA_NAME, {k: json.dumps(json_safe(v)) for k, v in options.items()}
                 )
-            note_outcomes(recorder)
+            recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
         except BaseException:
             recorder.abort()
             raise
@@ -160,18 +160,14 @@ class RunRecorder:
         if drain_s > 0.0 and self._recorder is not None:
             time.sleep(drain_s)
         if not self.persistent:
-            self.close_subscriptions()
+            subscriptions, self._subscriptions = self._subscriptions, []
+            for subscription in subscriptions:
+                self.node.destroy_subscription(subscription)
         with self._lock:
             recorder, self._recorder = self._recorder, None
         if recorder is None:
             return None
         return recorder.close()
-
-    def close_subscriptions(self):
-        """Destroy the subscriptions (with ``persistent``: when the node is destroyed)."""
-        subscriptions, self._subscriptions = self._subscriptions, []
-        for subscription in subscriptions:
-            self.node.destroy_subscription(subscription)
 
     def _callback(self, topic):
         clock = self.node.get_clock()
@@ -196,11 +192,6 @@ class RunRecorder:
                     recorder.write(topic, data, now)
                 except RecordingError:
                     continue
-
-
-def note_outcomes(recorder):
-    """Say in ``recorder`` (a :class:`McapRecorder`) that its postures' outcomes are noted."""
-    recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
 
 
 def note_posture_end(recorder, command_id, posture, outcome, reason=''):

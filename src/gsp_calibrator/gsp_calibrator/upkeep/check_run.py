@@ -13,7 +13,6 @@ from gsp_calibrator.files.calibration_files import (
     read_json,
 )
 from gsp_calibrator.run.postures import posture_pool
-from gsp_kinematics.fileio import write_json
 from gsp_kinematics.model.geometry import GeometryError, load_geometry
 from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
 from gsp_kinematics.upkeep import check
@@ -157,11 +156,6 @@ def evaluate_check(reference, samples, sigmas, required, platform, planned_s=Non
         'unmodelled_included': reference.unmodelled is not None,
     }
     return data
-
-
-def write_check(run_dir, data):
-    """Write ``check.json`` atomically into ``run_dir``; returns its path."""
-    return write_json(Path(run_dir) / CHECK_JSON, data)
 
 
 def check_summary(data):
