@@ -221,33 +221,21 @@ def record(path, run_dir, platform=None):
 def _insert_changes(connection, run_id, changes):
     connection.executemany(
         'INSERT INTO changes (run_id, parameter, change_report, sigma_report, unit, w) '
-        'VALUES (?, ?, ?, ?, ?, ?)',
-        [
-            (
-                run_id,
-                entry['parameter'],
-                entry['change_report'],
-                entry.get('sigma_report'),
-                entry['unit'],
-                entry.get('w'),
-            )
-            for entry in changes
-        ],
+        'VALUES (:run_id, :parameter, :change_report, :sigma_report, :unit, :w)',
+        [{'sigma_report': None, 'w': None} | entry | {'run_id': run_id} for entry in changes],
     )
 
 
 def runs(path, platform=None, kind=None):
     """The indexed runs (dicts, oldest first), each with its ``changes``; filtered by
     ``platform`` and ``kind`` when given."""
-    query, arguments = 'SELECT * FROM runs WHERE 1 = 1', []
-    if platform is not None:
-        query, arguments = query + ' AND platform = ?', arguments + [platform]
-    if kind is not None:
-        query, arguments = query + ' AND kind = ?', arguments + [kind]
+    query = (
+        'SELECT * FROM runs WHERE (:platform IS NULL OR platform = :platform) '
+        'AND (:kind IS NULL OR kind = :kind) ORDER BY time_utc, id'
+    )
+    arguments = {'platform': platform, 'kind': kind}
     with opened(path) as connection:
-        found = [
-            dict(row) for row in connection.execute(query + ' ORDER BY time_utc, id', arguments)
-        ]
+        found = [dict(row) for row in connection.execute(query, arguments)]
         for entry in found:
             entry['changes'] = [
                 dict(row)
