@@ -116,26 +116,15 @@ def message_class(type_name):
 
 def qos_profiles_yaml(qos):
     """rosbag2's ``offered_qos_profiles`` channel metadata (Jazzy format) of one QoS profile."""
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
-
-    history = 'keep_all' if qos.history == HistoryPolicy.KEEP_ALL else 'keep_last'
-    reliability = {
-        ReliabilityPolicy.BEST_EFFORT: 'best_effort',
-        ReliabilityPolicy.RELIABLE: 'reliable',
-    }.get(qos.reliability, 'system_default')
-    durability = {
-        DurabilityPolicy.TRANSIENT_LOCAL: 'transient_local',
-        DurabilityPolicy.VOLATILE: 'volatile',
-    }.get(qos.durability, 'system_default')
 
     def duration(key):
         return f'  {key}:\n    sec: {_INFINITE["sec"]}\n    nsec: {_INFINITE["nsec"]}\n'
 
     return (
-        f'- history: {history}\n'
+        f'- history: {qos.history.name.lower()}\n'
         f'  depth: {int(qos.depth)}\n'
-        f'  reliability: {reliability}\n'
-        f'  durability: {durability}\n'
+        f'  reliability: {qos.reliability.name.lower()}\n'
+        f'  durability: {qos.durability.name.lower()}\n'
         + duration('deadline')
         + duration('lifespan')
         + '  liveliness: automatic\n'

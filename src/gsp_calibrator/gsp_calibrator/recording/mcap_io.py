@@ -36,8 +36,7 @@ class McapRecorder:
 
         self.path = os.fspath(path)
         self.temporary_path = self.path + '.tmp'
-        directory = os.path.dirname(os.path.abspath(self.path))
-        os.makedirs(directory, exist_ok=True)
+        os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
         self._stream = open(self.temporary_path, 'wb')  # noqa: SIM115 (closed in close/abort)
         self.crash_safe = bool(crash_safe)
         try:
@@ -51,8 +50,7 @@ class McapRecorder:
         self._lock = threading.Lock()
         self._schemas = {}  # type name -> schema id
         self._channels = {}  # topic -> (channel id, type name)
-        self._sequence = collections.Counter()
-        #: Messages written per topic.
+        #: Messages written per topic (each channel's sequence numbers).
         self.counts = collections.Counter()
         self.closed = False
 
@@ -113,12 +111,11 @@ class McapRecorder:
         with self._lock:
             self._check_open()
             channel_id = self._channels[topic][0]
-            self._sequence[channel_id] += 1
             self._writer.add_message(
                 channel_id=channel_id,
                 log_time=log_time_ns,
                 publish_time=publish_time_ns,
-                sequence=self._sequence[channel_id] & 0xFFFFFFFF,
+                sequence=(self.counts[topic] + 1) & 0xFFFFFFFF,
                 data=data,
             )
             self.counts[topic] += 1
