@@ -74,10 +74,6 @@ def connect(path):
         connection.execute('PRAGMA synchronous=FULL')
         connection.execute('PRAGMA foreign_keys=ON')
         version = connection.execute('PRAGMA user_version').fetchone()[0]
-        if version > SCHEMA_VERSION:
-            raise HistoryError(
-                f'{path}: schema version {version} is newer than this suite ({SCHEMA_VERSION})'
-            )
         if version < SCHEMA_VERSION:
             with connection:
                 connection.executescript(_SCHEMA)
@@ -85,9 +81,11 @@ def connect(path):
     except sqlite3.DatabaseError as error:
         connection.close()
         raise HistoryError(f'{path}: {error}') from None
-    except HistoryError:
+    if version > SCHEMA_VERSION:
         connection.close()
-        raise
+        raise HistoryError(
+            f'{path}: schema version {version} is newer than this suite ({SCHEMA_VERSION})'
+        )
     return connection
 
 

@@ -253,11 +253,8 @@ class RecordedRun:
         return _pose_distances(self._positions, self._quaternions, commanded_pose)
 
     def match(self, commanded_pose, tolerance=POSE_TOLERANCE):
-        """The :class:`RecordedPosture` commanded at ``commanded_pose``, or None.
-
-        It must lie within ``tolerance`` (m for the position, rad for the rotation angle between
-        the orientations); the nearest one wins (the first of equals). ValueError for a pose
-        that is not 6 finite values."""
+        """The nearest :class:`RecordedPosture` (the first of equals) within ``tolerance`` (m, and
+        rad of rotation) of ``commanded_pose``, or None; ValueError for a pose not 6 finite values."""
         position, angle = self.distances(commanded_pose)
         distance = np.maximum(position, angle)
         best = int(np.argmin(distance))
