@@ -171,7 +171,11 @@ def test_run_directory_files(tmp_path):
     assert path.name == 'result.yaml' and path.read_text().startswith('# calibrated')
     np.testing.assert_array_equal(run.read_geometry().to_vector(), geometry.to_vector())
     run.write_json('summary.json', {'a': np.float64(1.5), 'b': np.arange(3), 'c': run.path})
-    assert run.read_json('summary.json') == {'a': 1.5, 'b': [0, 1, 2], 'c': str(run.path)}
+    assert json.loads(run.file('summary.json').read_text()) == {
+        'a': 1.5,
+        'b': [0, 1, 2],
+        'c': str(run.path),
+    }
     run.write_text('report.md', '# report\n')
     run.write_bytes('recording.mcap', b'\x89MCAP')
     assert sorted(p.name for p in run.path.iterdir()) == [

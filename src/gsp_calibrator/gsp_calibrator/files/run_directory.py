@@ -5,7 +5,6 @@ import csv
 import dataclasses
 import datetime
 import io
-import json
 import math
 import os
 from pathlib import Path
@@ -313,9 +312,6 @@ class RunDirectory:
 
     def write_json(self, name, data):
         return self.write_text(name, to_json(data))
-
-    def read_json(self, name):
-        return json.loads(self.file(name).read_text(encoding='utf-8'))
 
     def write_samples(self, samples, name=SAMPLES_FILE):
         return write_samples(self.file(name), samples)

@@ -301,13 +301,9 @@ class PostureServer:
 
 
 def resting_stream(postures):
-    """The stream of a run without idle samples before its first command (``postures``: its
-    :class:`RecordedPosture`, in recorded order): the last posture's, where the recorded run
-    left the platform, unless it stands at the first posture's pose (a route with reference
-    revisits ends with one): then the last posture's away from it (the first posture: the
-    lowest number). Never one at the first posture's pose: the replaying calibrator would take
-    the first posture's samples for a device still reporting the previous posture, and skip it
-    (the collection's "unchanged" check)."""
+    """The stream of a run without idle samples before its first command: the last posture's
+    away from the first posture's pose (a route with reference revisits ends at it): at that
+    pose the replaying calibrator would find the device unchanged and skip the first posture."""
     poses = np.array([p.commanded_pose for p in postures])
     first = poses[min(range(len(postures)), key=lambda m: postures[m].posture)]
     position, angle = _pose_distances(poses[:, :3], _quaternions(poses), first)
