@@ -165,21 +165,17 @@ class McapRecorder:
             raise RecordingError(f'{self.path}: the recording is closed')
 
 
-def recover_recording(temporary_path, path=None):
+def recover_recording(temporary_path):
     """Finalise the ``<path>.tmp`` of a recorder that never closed (its process was killed): its
-    complete records, up to the first incomplete one, into ``path`` (default: without ``.tmp``;
-    never overwritten), atomically. Returns ``{'path', 'message_count', 'truncated'}``."""
+    complete records, up to the first incomplete one, into ``<path>`` (never overwritten),
+    atomically. Returns ``{'path', 'message_count', 'truncated'}``."""
     from mcap.exceptions import McapError
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer
 
     temporary_path = os.fspath(temporary_path)
-    if path is None:
-        if not temporary_path.endswith('.tmp'):
-            raise RecordingError(f'{temporary_path}: expected a <recording>.tmp file')
-        path = temporary_path[: -len('.tmp')]
-    path = os.fspath(path)
+    path = temporary_path.removesuffix('.tmp')
     if os.path.exists(path):
         raise RecordingError(f'{path} exists already: not overwritten by a recovery')
     output_tmp = path + '.recovering'
