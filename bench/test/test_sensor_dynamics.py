@@ -70,7 +70,7 @@ def test_realistic_device_rows_have_no_bias_beyond_their_noise(tmp_path):
     assert collection['settle']['max_s'] >= 0.25  # at least the look-back
 
     # The rebuild from the recording takes the same windows after the same waits.
-    rebuilt = rebuild.rows_from_recording(run / 'recording.mcap')
+    rebuilt = [event for event, _ in rebuild._rows(run / 'recording.mcap')]
     assert [event.posture for event in rebuilt] == samples.posture.tolist()
     np.testing.assert_allclose(
         np.array([event.sample.readings for event in rebuilt]), samples.readings, atol=1e-15

@@ -15,6 +15,7 @@ from gsp_calibrator.files.calibration_files import load_calibration
 from gsp_calibrator.files.run_directory import Rows
 from gsp_calibrator.upkeep import check_run
 from gsp_kinematics.estimation.verdict import acceptance
+from gsp_kinematics.fileio import write_json
 from gsp_kinematics.model.kinematics import home_pose
 from gsp_kinematics.model.motion import MotionLimits
 from gsp_kinematics.upkeep import check
@@ -70,7 +71,7 @@ def test_a_check_of_the_calibrated_platform_then_of_a_moved_leg(root, tmp_path):
     assert text.startswith('check: RECALIBRATE') and 'moved: Loff5 +0.0' in text
     run_dir = tmp_path / '20261120T080000Z'
     run_dir.mkdir()
-    check_run.write_check(run_dir, data)
+    write_json(run_dir / 'check.json', data)
     # A check compares with a calibration, and enters the history with its verdict.
     assert load_calibration(run_dir).names == check.CHECK_PARAMETERS
     database = tmp_path / 'history.sqlite'

@@ -1,5 +1,6 @@
 """Replay of a recorded run: RecordedRun (pure), the replay node, and replay == original."""
 
+import json
 import math
 
 import gsp_testing
@@ -439,8 +440,8 @@ def test_replay_from_the_recording_collects_the_original_raw_samples(
     assert all(len(p.stream) >= CALIBRATION['pairs_per_posture'] for p in node.run.postures)
     _assert_same_calibration(original_run, replayed)
 
-    noise_before = original_run.read_json('result.json')['noise_estimates']
-    noise_after = replayed.read_json('result.json')['noise_estimates']
+    noise_before = json.loads(original_run.file('result.json').read_text())['noise_estimates']
+    noise_after = json.loads(replayed.file('result.json').read_text())['noise_estimates']
     assert set(noise_after) == {'leg_lengths', 'inclinometer', 'encoder', 'lvdt'}
     for sensor, entry in noise_before.items():
         # The same samples, so the same scatter: about the configured 1 um or 1 mdeg.

@@ -1,6 +1,8 @@
 """Replay of a run whose route revisits a reference posture (``free_parameters: [auto]``): several
 recorded postures share one commanded pose, and the replay serves them in posture order."""
 
+import json
+
 import numpy as np
 import pytest
 from recorded_runs import write_recording
@@ -94,7 +96,7 @@ def revisiting_run(tmp_path_factory):
     """One live ``auto`` calibration through platform_sim, device_driver and the calibrator,
     with reference revisits: its run directory."""
     run = live_run(tmp_path_factory, REVISITS)
-    kinds = run.read_json('result.json')['collection']['route_additions']['kind']
+    kinds = json.loads(run.file('result.json').read_text())['collection']['route_additions']['kind']
     assert [k for k, kind in enumerate(kinds, start=1) if kind == 'reference'] == [15]
     return run
 

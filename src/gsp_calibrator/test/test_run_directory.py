@@ -13,7 +13,6 @@ from gsp_calibrator.files.run_directory import (
     Rows,
     RunDirectory,
     RunDirectoryError,
-    create_run_directory,
     read_samples,
     samples_from_csv,
     samples_to_csv,
@@ -156,12 +155,10 @@ def test_missing_samples_file_is_reported(tmp_path):
 
 
 def test_run_directories_are_unique_within_a_second(tmp_path):
-    first = create_run_directory(tmp_path / 'runs', NOW)
-    second = create_run_directory(tmp_path / 'runs', NOW)
-    third = RunDirectory.create(tmp_path / 'runs', NOW)
-    assert first.name == '20251122T035401Z'
-    assert second.name == '20251122T035401Z_2' and third.path.name == '20251122T035401Z_3'
-    assert first.is_dir() and second.is_dir() and third.path.is_dir()
+    first, second, third = (RunDirectory.create(tmp_path / 'runs', NOW) for _ in range(3))
+    assert first.path.name == '20251122T035401Z'
+    assert second.path.name == '20251122T035401Z_2' and third.path.name == '20251122T035401Z_3'
+    assert first.path.is_dir() and second.path.is_dir() and third.path.is_dir()
 
 
 def test_run_directory_files(tmp_path):
@@ -174,7 +171,11 @@ def test_run_directory_files(tmp_path):
     assert path.name == 'result.yaml' and path.read_text().startswith('# calibrated')
     np.testing.assert_array_equal(run.read_geometry().to_vector(), geometry.to_vector())
     run.write_json('summary.json', {'a': np.float64(1.5), 'b': np.arange(3), 'c': run.path})
-    assert run.read_json('summary.json') == {'a': 1.5, 'b': [0, 1, 2], 'c': str(run.path)}
+    assert json.loads(run.file('summary.json').read_text()) == {
+        'a': 1.5,
+        'b': [0, 1, 2],
+        'c': str(run.path),
+    }
     run.write_text('report.md', '# report\n')
     run.write_bytes('recording.mcap', b'\x89MCAP')
     assert sorted(p.name for p in run.path.iterdir()) == [

@@ -44,15 +44,11 @@ def read_json(path):
 def _full_vector(data, path):
     estimates = (data.get('estimates') or {}).get('si') or {}
     sensors = data.get('sensor_errors') or {}
-    values = []
     for name in PARAMETER_NAMES:
         if estimates.get(name) is None:
             raise CalibrationFileError(f'{path}: estimates.si.{name} is missing')
-        values.append(float(estimates[name]))
-    for name in SENSOR_PARAMETER_NAMES:
-        entry = sensors.get(name) or {}
-        values.append(float(entry.get('estimate') or 0.0))
-    return np.array(values)
+    sensor = [(sensors.get(name) or {}).get('estimate') or 0.0 for name in SENSOR_PARAMETER_NAMES]
+    return np.array([estimates[name] for name in PARAMETER_NAMES] + sensor, dtype=float)
 
 
 def _deviations(data, names, path):

@@ -74,10 +74,6 @@ def connect(path):
         connection.execute('PRAGMA synchronous=FULL')
         connection.execute('PRAGMA foreign_keys=ON')
         version = connection.execute('PRAGMA user_version').fetchone()[0]
-        if version > SCHEMA_VERSION:
-            raise HistoryError(
-                f'{path}: schema version {version} is newer than this suite ({SCHEMA_VERSION})'
-            )
         if version < SCHEMA_VERSION:
             with connection:
                 connection.executescript(_SCHEMA)
@@ -85,22 +81,20 @@ def connect(path):
     except sqlite3.DatabaseError as error:
         connection.close()
         raise HistoryError(f'{path}: {error}') from None
-    except HistoryError:
+    if version > SCHEMA_VERSION:
         connection.close()
-        raise
+        raise HistoryError(
+            f'{path}: schema version {version} is newer than this suite ({SCHEMA_VERSION})'
+        )
     return connection
 
 
-@contextlib.contextmanager
 def opened(path):
-    connection = connect(path)
-    try:
-        yield connection
-    finally:
-        connection.close()
+    """:func:`connect`, closed at the end of a ``with`` block."""
+    return contextlib.closing(connect(path))
 
 
-def run_time(run_dir, data):
+def run_time(run_dir):
     """The run's UTC time (ISO 8601): its directory's timestamp name (``<stamp>`` or
     ``<stamp>_2`` ... for runs started in the same second), else the file's mtime."""
     stamp_text = Path(run_dir).name.split('_', 1)[0]
@@ -109,8 +103,6 @@ def run_time(run_dir, data):
         return stamp.replace(tzinfo=datetime.UTC).isoformat()
     except ValueError:
         pass
-    if data.get('time_utc'):
-        return str(data['time_utc'])
     modified = run_file(run_dir).stat().st_mtime
     return datetime.datetime.fromtimestamp(modified, datetime.UTC).isoformat()
 
@@ -133,7 +125,7 @@ def calibration_verdict(data):
     """``(usable, verdict)`` of a ``result.json``: identified and, when the run was judged,
     accepted against the required accuracy (``accepted``, ``not accepted``), else
     ``identified`` or ``failed``."""
-    success = bool(data.get('success', data.get('converged')))
+    success = bool(data.get('success'))
     if not success:
         return False, 'failed'
     if 'accepted' in data:
@@ -153,7 +145,7 @@ def _previous_calibration(connection, platform, time_utc, run_dir):
 def _describe(connection, run_dir, data, platform):
     """The row, changes and estimates of a run (read from its files, before any write)."""
     run_file_path = run_file(run_dir)
-    time_utc = run_time(run_dir, data)
+    time_utc = run_time(run_dir)
     if data.get('kind') == 'check':
         calibration = calibration_from_check(data, run_file_path)
         accuracy = data.get('accuracy') or {}
@@ -215,48 +207,33 @@ def record(path, run_dir, platform=None):
                 tuple(row.values()),
             )
             run_id = cursor.lastrowid
-            _insert_estimates(connection, run_id, estimates)
+            connection.executemany(
+                'INSERT INTO estimates (run_id, parameter, estimate_si, sigma_si) '
+                'VALUES (?, ?, ?, ?)',
+                [(run_id, *entry) for entry in estimates],
+            )
             _insert_changes(connection, run_id, changes)
     return run_id
-
-
-def _insert_estimates(connection, run_id, estimates):
-    connection.executemany(
-        'INSERT INTO estimates (run_id, parameter, estimate_si, sigma_si) VALUES (?, ?, ?, ?)',
-        [(run_id, *entry) for entry in estimates],
-    )
 
 
 def _insert_changes(connection, run_id, changes):
     connection.executemany(
         'INSERT INTO changes (run_id, parameter, change_report, sigma_report, unit, w) '
-        'VALUES (?, ?, ?, ?, ?, ?)',
-        [
-            (
-                run_id,
-                entry['parameter'],
-                entry['change_report'],
-                entry.get('sigma_report'),
-                entry['unit'],
-                entry.get('w'),
-            )
-            for entry in changes
-        ],
+        'VALUES (:run_id, :parameter, :change_report, :sigma_report, :unit, :w)',
+        [{'sigma_report': None, 'w': None} | entry | {'run_id': run_id} for entry in changes],
     )
 
 
 def runs(path, platform=None, kind=None):
     """The indexed runs (dicts, oldest first), each with its ``changes``; filtered by
     ``platform`` and ``kind`` when given."""
-    query, arguments = 'SELECT * FROM runs WHERE 1 = 1', []
-    if platform is not None:
-        query, arguments = query + ' AND platform = ?', arguments + [platform]
-    if kind is not None:
-        query, arguments = query + ' AND kind = ?', arguments + [kind]
+    query = (
+        'SELECT * FROM runs WHERE (:platform IS NULL OR platform = :platform) '
+        'AND (:kind IS NULL OR kind = :kind) ORDER BY time_utc, id'
+    )
+    arguments = {'platform': platform, 'kind': kind}
     with opened(path) as connection:
-        found = [
-            dict(row) for row in connection.execute(query + ' ORDER BY time_utc, id', arguments)
-        ]
+        found = [dict(row) for row in connection.execute(query, arguments)]
         for entry in found:
             entry['changes'] = [
                 dict(row)

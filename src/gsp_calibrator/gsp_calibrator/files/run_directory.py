@@ -5,7 +5,6 @@ import csv
 import dataclasses
 import datetime
 import io
-import json
 import math
 import os
 from pathlib import Path
@@ -27,15 +26,13 @@ TRUE_GEOMETRY_FILE = 'true_geometry.yaml'
 POSE_COLUMNS = ('x_cmd', 'y_cmd', 'z_cmd', 'psi_cmd', 'theta_cmd', 'phi_cmd')
 LEG_COLUMNS = channels.LEG_JOINT_NAMES
 READING_COLUMNS = channels.READING_NAMES
-#: The lag sums of each row's window per noise channel (``noise_from_data.posture_lag_sums``,
-#: m^2 and rad^2): lags 0..n // 2, space-separated, empty when the row has none.
+#: The lag sums of each row's window per noise channel (m^2 and rad^2, space-separated).
 LAG_SUM_COLUMNS = tuple(f'lag_sums_{channel}' for channel in LAG_SUMS_CHANNELS)
 #: The columns of a row's numbers (m, rad, s), before its lag sums.
 ROW_COLUMNS = ('posture',) + POSE_COLUMNS + LEG_COLUMNS + READING_COLUMNS + ('n_samples', 'stamp')
-#: Each leg's approach direction at the row's posture: 1 (the leg arrived extending), -1
-#: (retracting), empty when unknown (``run.approach``: from the commanded sequence).
+#: Each leg's approach direction: 1 extending, -1 retracting, empty when unknown.
 APPROACH_COLUMNS = tuple(f'approach_{leg}' for leg in LEG_COLUMNS)
-#: Columns of ``samples.csv``, exactly.
+#: Columns of ``samples.csv`` (docs/data.md), exactly.
 SAMPLES_COLUMNS = ROW_COLUMNS + LAG_SUM_COLUMNS + APPROACH_COLUMNS
 
 TIMESTAMP_FORMAT = '%Y%m%dT%H%M%SZ'
@@ -86,14 +83,7 @@ class Rows:
 
     @classmethod
     def empty(cls):
-        return cls(
-            np.zeros(0, int),
-            np.zeros((0, 6)),
-            np.zeros((0, 6)),
-            np.zeros((0, 4)),
-            np.zeros(0, int),
-            np.zeros(0),
-        )
+        return cls([], [], [], [], [], [])
 
     def append(
         self,
@@ -108,65 +98,50 @@ class Rows:
     ):
         """Add one row (in place); ``lag_sums`` (4, L) or None: its window's lag sums;
         ``directions`` (6,) or None (unknown): the legs' approach directions."""
-        self.posture = np.append(self.posture, int(posture))
-        self.commanded_poses = np.vstack([self.commanded_poses, np.reshape(commanded_pose, (1, 6))])
-        self.leg_lengths = np.vstack([self.leg_lengths, np.reshape(leg_lengths, (1, 6))])
-        self.readings = np.vstack([self.readings, np.reshape(readings, (1, 4))])
-        self.n_samples = np.append(self.n_samples, int(n_samples))
-        self.stamps = np.append(self.stamps, float(stamp))
-        row = np.full((1, len(LAG_SUM_COLUMNS), 0), np.nan)
-        if lag_sums is not None:
-            row = np.asarray(lag_sums, dtype=float)[None].reshape(1, len(LAG_SUM_COLUMNS), -1)
-        self.lag_sums = np.concatenate(_padded([self.lag_sums, row], row.shape[2]), axis=0)
-        approach = np.zeros(6) if directions is None else np.reshape(directions, 6)
-        self.directions = np.vstack([self.directions, approach[None]])
+        row = Rows(
+            [posture],
+            commanded_pose,
+            leg_lengths,
+            readings,
+            [n_samples],
+            [stamp],
+            None if lag_sums is None else np.asarray(lag_sums, dtype=float)[None],
+            directions,
+        )
+        width = max(self.lag_sums.shape[2], row.lag_sums.shape[2])
+        for table in (self, row):
+            pad = ((0, 0), (0, 0), (0, width - table.lag_sums.shape[2]))
+            table.lag_sums = np.pad(table.lag_sums, pad, constant_values=np.nan)
+        for field in dataclasses.fields(self):
+            joined = [getattr(self, field.name), getattr(row, field.name)]
+            setattr(self, field.name, np.concatenate(joined))
 
     def rows(self, keep):
         """The rows ``keep`` (a slice or an index array) as a new :class:`Rows`."""
-        return Rows(
-            self.posture[keep],
-            self.commanded_poses[keep],
-            self.leg_lengths[keep],
-            self.readings[keep],
-            self.n_samples[keep],
-            self.stamps[keep],
-            self.lag_sums[keep],
-            self.directions[keep],
-        )
-
-
-def _padded(tables, lags):
-    """``tables`` (M, 4, L) padded with NaN to at least ``lags`` lags, all the same width."""
-    width = max([lags] + [table.shape[2] for table in tables])
-    return [
-        np.pad(table, ((0, 0), (0, 0), (0, width - table.shape[2])), constant_values=np.nan)
-        for table in tables
-    ]
+        return Rows(*(getattr(self, field.name)[keep] for field in dataclasses.fields(self)))
 
 
 def _lag_sums_text(values):
     return ' '.join(repr(float(v)) for v in values if math.isfinite(v))
 
 
-def _lag_sums_values(text, source, line, name):
+def _cell(text, name, where):
+    """The value of ``samples.csv``'s column ``name``: a number, a list of lag sums or an
+    approach direction (1, -1, or empty: 0); :class:`RunDirectoryError` names the column."""
+    if name in APPROACH_COLUMNS:
+        if text.strip() not in ('', '1', '-1'):
+            raise RunDirectoryError(f'{where}: column {name}: {text!r} is not 1, -1 or empty')
+        return int(text.strip() or 0)
+    lags = name in LAG_SUM_COLUMNS
+    number = int if name in ('posture', 'n_samples') else float
     try:
-        values = [float(v) for v in text.split()]
+        values = [float(v) for v in text.split()] if lags else [number(text)]
     except ValueError:
-        raise RunDirectoryError(
-            f'{source}:{line}: column {name}: {text!r} is not space-separated numbers'
-        ) from None
+        what = 'space-separated numbers' if lags else 'a number'
+        raise RunDirectoryError(f'{where}: column {name}: {text!r} is not {what}') from None
     if not all(math.isfinite(v) for v in values):
-        raise RunDirectoryError(f'{source}:{line}: column {name} is not finite')
-    return values
-
-
-def _direction_value(text, source, line, name):
-    """An approach direction of ``samples.csv``: 1, -1, or empty (unknown: 0)."""
-    if not text.strip():
-        return 0
-    if text.strip() not in ('1', '-1'):
-        raise RunDirectoryError(f'{source}:{line}: column {name}: {text!r} is not 1, -1 or empty')
-    return int(text)
+        raise RunDirectoryError(f'{where}: column {name} is not finite')
+    return values if lags else values[0]
 
 
 def samples_to_csv(samples, header=True, rows=None):
@@ -200,38 +175,20 @@ def samples_from_csv(text, source='<string>'):
         raise RunDirectoryError(
             f'{source}: columns {header} differ from the expected {list(SAMPLES_COLUMNS)}'
         )
-    columns = len(header)
+    columns, numbers, lags = len(header), len(ROW_COLUMNS), len(ROW_COLUMNS) + len(LAG_SUM_COLUMNS)
     rows, lag_rows, direction_rows = [], [], []
     for line, row in enumerate(reader, start=2):
         if not row:
             continue
         if len(row) != columns:
             raise RunDirectoryError(f'{source}:{line}: {len(row)} values, expected {columns}')
-        lag_texts = row[len(ROW_COLUMNS) : len(ROW_COLUMNS) + len(LAG_SUM_COLUMNS)]
-        sums = [
-            _lag_sums_values(text, source, line, name)
-            for name, text in zip(LAG_SUM_COLUMNS, lag_texts, strict=True)
+        cells = [
+            _cell(text, name, f'{source}:{line}')
+            for name, text in zip(SAMPLES_COLUMNS, row, strict=True)
         ]
-        lag_rows.append(sums)
-        direction_texts = row[len(ROW_COLUMNS) + len(LAG_SUM_COLUMNS) :]
-        direction_rows.append(
-            [
-                _direction_value(text, source, line, name)
-                for name, text in zip(APPROACH_COLUMNS, direction_texts, strict=True)
-            ]
-        )
-        values = []
-        for name, text_value in zip(ROW_COLUMNS, row[: len(ROW_COLUMNS)], strict=True):
-            try:
-                value = int(text_value) if name in ('posture', 'n_samples') else float(text_value)
-            except ValueError:
-                raise RunDirectoryError(
-                    f'{source}:{line}: column {name}: {text_value!r} is not a number'
-                ) from None
-            if isinstance(value, float) and not math.isfinite(value):
-                raise RunDirectoryError(f'{source}:{line}: column {name} is not finite')
-            values.append(value)
-        rows.append(values)
+        rows.append(cells[:numbers])
+        lag_rows.append(cells[numbers:lags])
+        direction_rows.append(cells[lags:])
     if not rows:
         return Rows.empty()
     table = np.array(rows, dtype=float)
@@ -240,16 +197,15 @@ def samples_from_csv(text, source='<string>'):
     for m, sums in enumerate(lag_rows):
         for channel, values in enumerate(sums):
             lag_sums[m, channel, : len(values)] = values
-    return Rows(
-        posture=table[:, 0].astype(int),
-        commanded_poses=table[:, 1:7],
-        leg_lengths=table[:, 7:13],
-        readings=table[:, 13:17],
-        n_samples=table[:, 17].astype(int),
-        stamps=table[:, 18],
-        lag_sums=lag_sums,
-        directions=np.array(direction_rows, dtype=float),
+    columns = (
+        table[:, 0],
+        table[:, 1:7],
+        table[:, 7:13],
+        table[:, 13:17],
+        table[:, 17],
+        table[:, 18],
     )
+    return Rows(*columns, lag_sums, np.array(direction_rows, dtype=float))
 
 
 def write_samples(path, samples):
@@ -313,27 +269,6 @@ def read_samples(path):
 # --- the directory -------------------------------------------------------------------------------
 
 
-def utc_timestamp(now=None):
-    """``YYYYmmddTHHMMSSZ`` of ``now`` (an aware datetime; default: the current UTC time)."""
-    now = now or datetime.datetime.now(datetime.UTC)
-    return now.astimezone(datetime.UTC).strftime(TIMESTAMP_FORMAT)
-
-
-def create_run_directory(root='runs', now=None):
-    """Create and return ``root/<UTC timestamp>`` (``..._2``, ``_3`` ... if it already exists)."""
-    root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
-    stem = utc_timestamp(now)
-    for attempt in range(1, 10_000):
-        path = root / (stem if attempt == 1 else f'{stem}_{attempt}')
-        try:
-            path.mkdir()
-        except FileExistsError:
-            continue
-        return path.resolve()
-    raise RunDirectoryError(f'{root}: cannot create a unique run directory for {stem}')
-
-
 class RunDirectory:
     """One run directory; every ``write_*`` is atomic and returns the file's path."""
 
@@ -342,8 +277,20 @@ class RunDirectory:
 
     @classmethod
     def create(cls, root='runs', now=None):
-        """A new, unique ``root/<UTC timestamp>`` directory."""
-        return cls(create_run_directory(root, now))
+        """A new ``root/<UTC timestamp>`` directory (``..._2``, ``_3`` ... if it already exists);
+        ``now``: an aware datetime, default the current UTC time."""
+        root = Path(root)
+        root.mkdir(parents=True, exist_ok=True)
+        now = now or datetime.datetime.now(datetime.UTC)
+        stem = now.astimezone(datetime.UTC).strftime(TIMESTAMP_FORMAT)
+        for attempt in range(1, 10_000):
+            path = root / (stem if attempt == 1 else f'{stem}_{attempt}')
+            try:
+                path.mkdir()
+            except FileExistsError:
+                continue
+            return cls(path.resolve())
+        raise RunDirectoryError(f'{root}: cannot create a unique run directory for {stem}')
 
     def __fspath__(self):
         return os.fspath(self.path)
@@ -365,9 +312,6 @@ class RunDirectory:
 
     def write_json(self, name, data):
         return self.write_text(name, to_json(data))
-
-    def read_json(self, name):
-        return json.loads(self.file(name).read_text(encoding='utf-8'))
 
     def write_samples(self, samples, name=SAMPLES_FILE):
         return write_samples(self.file(name), samples)

@@ -1,5 +1,6 @@
 """ROS 2 message definitions and QoS metadata as rosbag2 stores them in MCAP (no ROS context)."""
 
+import functools
 import importlib
 import os
 import re
@@ -10,23 +11,8 @@ DEFINITION_SEPARATOR = '=' * 80 + '\n'
 # Field types of a .msg line, as rosbag2's LocalMessageDefinitionSource matches them.
 _MSG_FIELD_TYPE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
 _PRIMITIVE_TYPES = frozenset(
-    {
-        'bool',
-        'byte',
-        'char',
-        'float32',
-        'float64',
-        'int8',
-        'uint8',
-        'int16',
-        'uint16',
-        'int32',
-        'uint32',
-        'int64',
-        'uint64',
-        'string',
-        'wstring',
-    }
+    'bool byte char float32 float64 int8 uint8 int16 uint16 int32 uint32 int64 uint64 string '
+    'wstring'.split()
 )
 _TYPE_NAME = re.compile(r'^([A-Za-z][A-Za-z0-9_]*)/(?:(msg)/)?([A-Za-z][A-Za-z0-9_]*)$')
 
@@ -61,35 +47,20 @@ def normalise_type_name(type_name):
     return f'{package}/msg/{name}'
 
 
-def _share_directories(package):
-    directories = []
-    try:
-        from ament_index_python.packages import (
-            PackageNotFoundError,
-            get_package_share_directory,
-        )
-
-        try:
-            directories.append(get_package_share_directory(package))
-        except (PackageNotFoundError, LookupError, ValueError, OSError):
-            pass
-    except ImportError:  # pragma: no cover - ament_index_python ships with rclpy
-        pass
-    fallback = os.path.join(sys.prefix, 'share', package)
-    if fallback not in directories:
-        directories.append(fallback)
-    return directories
-
-
 def msg_file(type_name):
     """Path of the ``.msg`` file of ``type_name``; :class:`MessageDefinitionError` if none."""
+    from ament_index_python.packages import get_package_share_directory
+
     package, name = split_type_name(type_name)
-    tried = []
-    for share in _share_directories(package):
-        path = os.path.join(share, 'msg', name + '.msg')
+    shares = [os.path.join(sys.prefix, 'share', package)]
+    try:
+        shares.insert(0, get_package_share_directory(package))
+    except (LookupError, ValueError, OSError):  # not in the ament index
+        pass
+    tried = [os.path.join(share, 'msg', name + '.msg') for share in dict.fromkeys(shares)]
+    for path in tried:
         if os.path.isfile(path):
             return path
-        tried.append(path)
     raise MessageDefinitionError(
         f'no .msg definition of {package}/msg/{name}: looked for {", ".join(tried)} '
         f"(is package '{package}' installed and AMENT_PREFIX_PATH set? "
@@ -107,40 +78,22 @@ def _msg_dependencies(text, package):
     return sorted(dependencies)
 
 
-_DEFINITION_CACHE = {}
-
-
+@functools.cache
 def message_definition(type_name):
     """The complete ``ros2msg`` definition of ``type_name``, as rosbag2 stores it."""
-    root = normalise_type_name(type_name)
-    if root in _DEFINITION_CACHE:
-        return _DEFINITION_CACHE[root]
-    texts = {}
-
-    def load(dependency):
-        key = normalise_type_name(dependency)
-        if key not in texts:
-            with open(msg_file(key), encoding='utf-8') as stream:
-                texts[key] = stream.read()
-        return texts[key]
-
     seen = set()
 
-    def append(dependency, depth):
-        if depth <= 0:
-            raise MessageDefinitionError(f'{root}: message definitions nest too deeply')
-        text = load(dependency)
+    def append(dependency):
+        with open(msg_file(dependency), encoding='utf-8') as stream:
+            result = stream.read()
         package, _ = split_type_name(dependency)
-        result = text
-        for child in _msg_dependencies(text, package):
+        for child in _msg_dependencies(result, package):
             if child not in seen:
                 seen.add(child)
-                result += '\n' + DEFINITION_SEPARATOR + f'MSG: {child}\n' + append(child, depth - 1)
+                result += '\n' + DEFINITION_SEPARATOR + f'MSG: {child}\n' + append(child)
         return result
 
-    definition = append(root, 50)
-    _DEFINITION_CACHE[root] = definition
-    return definition
+    return append(normalise_type_name(type_name))
 
 
 def message_type_name(message):
@@ -151,46 +104,27 @@ def message_type_name(message):
 
 
 def message_class(type_name):
-    """The Python class of ``pkg/msg/Type`` (rosidl_runtime_py when present, else importlib)."""
-    type_name = normalise_type_name(type_name)
-    try:
-        from rosidl_runtime_py.utilities import get_message
-    except ImportError:
-        get_message = None
-    if get_message is not None:
-        try:
-            return get_message(type_name)
-        except (AttributeError, ModuleNotFoundError, ValueError) as error:
-            raise RecordingError(f'message type {type_name} is not importable: {error}') from None
+    """The Python class of ``pkg/msg/Type``; :class:`RecordingError` if it is not importable."""
     package, name = split_type_name(type_name)
     try:
         return getattr(importlib.import_module(f'{package}.msg'), name)
     except (ImportError, AttributeError) as error:
-        raise RecordingError(f'message type {type_name} is not importable: {error}') from None
+        raise RecordingError(
+            f'message type {normalise_type_name(type_name)} is not importable: {error}'
+        ) from None
 
 
 def qos_profiles_yaml(qos):
     """rosbag2's ``offered_qos_profiles`` channel metadata (Jazzy format) of one QoS profile."""
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
-
-    history = 'keep_all' if qos.history == HistoryPolicy.KEEP_ALL else 'keep_last'
-    reliability = {
-        ReliabilityPolicy.BEST_EFFORT: 'best_effort',
-        ReliabilityPolicy.RELIABLE: 'reliable',
-    }.get(qos.reliability, 'system_default')
-    durability = {
-        DurabilityPolicy.TRANSIENT_LOCAL: 'transient_local',
-        DurabilityPolicy.VOLATILE: 'volatile',
-    }.get(qos.durability, 'system_default')
 
     def duration(key):
         return f'  {key}:\n    sec: {_INFINITE["sec"]}\n    nsec: {_INFINITE["nsec"]}\n'
 
     return (
-        f'- history: {history}\n'
+        f'- history: {qos.history.name.lower()}\n'
         f'  depth: {int(qos.depth)}\n'
-        f'  reliability: {reliability}\n'
-        f'  durability: {durability}\n'
+        f'  reliability: {qos.reliability.name.lower()}\n'
+        f'  durability: {qos.durability.name.lower()}\n'
         + duration('deadline')
         + duration('lifespan')
         + '  liveliness: automatic\n'

@@ -32,19 +32,15 @@ class McapRecorder:
     """Writes ``path`` (an MCAP file rosbag2 and Foxglove read) atomically."""
 
     def __init__(self, path, crash_safe=False):
-        from mcap.writer import CompressionType, Writer
+        from mcap.writer import Writer
 
         self.path = os.fspath(path)
         self.temporary_path = self.path + '.tmp'
-        directory = os.path.dirname(os.path.abspath(self.path))
-        os.makedirs(directory, exist_ok=True)
+        os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
         self._stream = open(self.temporary_path, 'wb')  # noqa: SIM115 (closed in close/abort)
         self.crash_safe = bool(crash_safe)
         try:
-            try:
-                self._writer = Writer(self._stream, use_chunking=not self.crash_safe)
-            except Exception:  # zstd missing: write uncompressed chunks
-                self._writer = Writer(self._stream, compression=CompressionType.NONE)
+            self._writer = Writer(self._stream, use_chunking=not self.crash_safe)
             self._writer.start(profile=PROFILE, library=_library_identifier())
             self._flush_if_crash_safe()
         except BaseException:
@@ -54,9 +50,7 @@ class McapRecorder:
         self._lock = threading.Lock()
         self._schemas = {}  # type name -> schema id
         self._channels = {}  # topic -> (channel id, type name)
-        self._sequence = collections.Counter()
-        self.message_count = 0
-        #: Messages written per topic.
+        #: Messages written per topic (each channel's sequence numbers).
         self.counts = collections.Counter()
         self.closed = False
 
@@ -117,15 +111,13 @@ class McapRecorder:
         with self._lock:
             self._check_open()
             channel_id = self._channels[topic][0]
-            self._sequence[channel_id] += 1
             self._writer.add_message(
                 channel_id=channel_id,
                 log_time=log_time_ns,
                 publish_time=publish_time_ns,
-                sequence=self._sequence[channel_id] & 0xFFFFFFFF,
+                sequence=(self.counts[topic] + 1) & 0xFFFFFFFF,
                 data=data,
             )
-            self.message_count += 1
             self.counts[topic] += 1
             self._flush_if_crash_safe()
 
@@ -139,11 +131,6 @@ class McapRecorder:
     def _flush_if_crash_safe(self):
         if self.crash_safe:
             self._stream.flush()  # to the OS: survives the process, not a power cut
-
-    @property
-    def topics(self):
-        """``{topic: type_name}`` registered so far."""
-        return {topic: type_name for topic, (_, type_name) in self._channels.items()}
 
     def close(self):
         """Finish the file and move it to :attr:`path` (atomic). Idempotent; returns the path."""
@@ -178,25 +165,17 @@ class McapRecorder:
             raise RecordingError(f'{self.path}: the recording is closed')
 
 
-def recover_recording(temporary_path, path=None):
-    """Finalise the ``<path>.tmp`` of a recorder that never closed (its process was killed).
-
-    Reads the file sequentially (the mcap library's non-seeking reader) up to its first
-    incomplete record, writes every complete schema, channel, message and metadata record to a
-    finalised MCAP file ``path`` (default: ``temporary_path`` without ``.tmp``; atomic) and
-    removes ``temporary_path``. An existing ``path`` is never overwritten (:class:`RecordingError`).
-    Returns ``{'path', 'message_count', 'truncated'}`` (``truncated``: bytes were cut off)."""
+def recover_recording(temporary_path):
+    """Finalise the ``<path>.tmp`` of a recorder that never closed (its process was killed): its
+    complete records, up to the first incomplete one, into ``<path>`` (never overwritten),
+    atomically. Returns ``{'path', 'message_count', 'truncated'}``."""
     from mcap.exceptions import McapError
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer
 
     temporary_path = os.fspath(temporary_path)
-    if path is None:
-        if not temporary_path.endswith('.tmp'):
-            raise RecordingError(f'{temporary_path}: expected a <recording>.tmp file')
-        path = temporary_path[: -len('.tmp')]
-    path = os.fspath(path)
+    path = temporary_path.removesuffix('.tmp')
     if os.path.exists(path):
         raise RecordingError(f'{path} exists already: not overwritten by a recovery')
     output_tmp = path + '.recovering'
@@ -249,13 +228,9 @@ def recover_recordings(directory):
 
 
 def _library_identifier():
-    try:
-        from importlib.metadata import version
+    from importlib.metadata import version
 
-        mcap_version = version('mcap')
-    except Exception:  # pragma: no cover
-        mcap_version = '?'
-    return f'gsp_calibrator recording; mcap-python/{mcap_version}'
+    return f'gsp_calibrator recording; mcap-python/{version("mcap")}'
 
 
 # --- reading ---------------------------------------------------------------------------------
@@ -263,7 +238,6 @@ def _library_identifier():
 RecordedMessage = collections.namedtuple(
     'RecordedMessage', 'topic type_name log_time_ns message publish_time_ns'
 )
-RecordedMessage.__doc__ = 'One recorded message (log and publish time in ns).'
 
 
 def _open_reader(path):
@@ -282,95 +256,56 @@ def _open_reader(path):
         raise RecordingError(f'{path}: not an MCAP file ({error})') from error
 
 
-def _dynamic_decoder(schema):
-    from mcap_ros2.decoder import DecoderFactory
-
-    decoder = DecoderFactory().decoder_for(MESSAGE_ENCODING, schema)
-    if decoder is None:
-        raise RecordingError(f'cannot decode schema {schema.name!r} ({schema.encoding})')
-    return decoder
-
-
-def read_recording(path, topics=None, raw=False):
-    """Iterate over the messages of an MCAP recording in log-time order."""
+def read_recording(path, topics=None):
+    """The messages (:data:`RecordedMessage`, log and publish time in ns) of an MCAP recording
+    in log-time order."""
     from mcap.exceptions import McapError
-
-    stream, reader = _open_reader(path)
-    classes = {}
-    try:
-        if isinstance(topics, str):
-            topics = [topics]
-        try:
-            for schema, channel, record in reader.iter_messages(topics=topics, log_time_order=True):
-                if channel.message_encoding != MESSAGE_ENCODING:
-                    raise RecordingError(
-                        f'{path}: topic {channel.topic} is encoded as '
-                        f'{channel.message_encoding!r}, not cdr'
-                    )
-                type_name = schema.name if schema is not None else ''
-                if raw:
-                    message = bytes(record.data)
-                else:
-                    message = _decode(classes, schema, channel, record, path)
-                yield RecordedMessage(
-                    channel.topic, type_name, record.log_time, message, record.publish_time
-                )
-        except McapError as error:
-            raise RecordingError(f'{path}: corrupt MCAP file ({error})') from error
-    finally:
-        stream.close()
-
-
-def _decode(classes, schema, channel, record, path):
     from rclpy.serialization import deserialize_message
 
-    if schema is None:
-        raise RecordingError(f'{path}: topic {channel.topic} has no schema')
-    decode = classes.get(schema.id)
-    if decode is None:
-        try:
-            cls = message_class(schema.name)
-
-            def decode(data, cls=cls):
-                return deserialize_message(data, cls)
-        except RecordingError:
-            decode = _dynamic_decoder(schema)
-        classes[schema.id] = decode
+    stream, reader = _open_reader(path)
+    classes = {}  # schema id -> message class
     try:
-        return decode(bytes(record.data))
-    except Exception as error:
-        raise RecordingError(
-            f'{path}: cannot decode a {schema.name} message on {channel.topic} '
-            f'at log time {record.log_time} ns ({error})'
-        ) from error
+        for schema, channel, record in reader.iter_messages(topics=topics, log_time_order=True):
+            if channel.message_encoding != MESSAGE_ENCODING:
+                raise RecordingError(
+                    f'{path}: topic {channel.topic} is encoded as '
+                    f'{channel.message_encoding!r}, not cdr'
+                )
+            if schema is None:
+                raise RecordingError(f'{path}: topic {channel.topic} has no schema')
+            if schema.id not in classes:
+                classes[schema.id] = message_class(schema.name)
+            try:
+                message = deserialize_message(bytes(record.data), classes[schema.id])
+            except Exception as error:
+                raise RecordingError(
+                    f'{path}: cannot decode a {schema.name} message on {channel.topic} '
+                    f'at log time {record.log_time} ns ({error})'
+                ) from error
+            yield RecordedMessage(
+                channel.topic, schema.name, record.log_time, message, record.publish_time
+            )
+    except McapError as error:
+        raise RecordingError(f'{path}: corrupt MCAP file ({error})') from error
+    finally:
+        stream.close()
 
 
 def recording_info(path):
     """``{topics: {topic: {type, count}}, start_ns, end_ns, message_count, metadata: {name: [dict]}}``."""
     stream, reader = _open_reader(path)
     try:
-        summary = reader.get_summary()
-        topics, start, end, count = {}, None, None, 0
-        if summary is not None and summary.statistics is not None:
-            stats = summary.statistics
-            for channel_id, channel in summary.channels.items():
-                schema = summary.schemas.get(channel.schema_id)
-                topics[channel.topic] = {
-                    'type': schema.name if schema else '',
-                    'count': int(stats.channel_message_counts.get(channel_id, 0)),
-                }
-            count = int(stats.message_count)
-            if count:
-                start, end = int(stats.message_start_time), int(stats.message_end_time)
-        else:  # no summary: scan
-            for schema, channel, record in reader.iter_messages(log_time_order=False):
-                entry = topics.setdefault(
-                    channel.topic, {'type': schema.name if schema else '', 'count': 0}
-                )
-                entry['count'] += 1
-                count += 1
-                start = record.log_time if start is None else min(start, record.log_time)
-                end = record.log_time if end is None else max(end, record.log_time)
+        summary = reader.get_summary()  # every recording written here has one
+        stats, topics, start, end = summary.statistics, {}, None, None
+        for channel_id, channel in summary.channels.items():
+            schema = summary.schemas.get(channel.schema_id)
+            topics[channel.topic] = {
+                'type': schema.name if schema else '',
+                'count': int(stats.channel_message_counts.get(channel_id, 0)),
+            }
+        count = int(stats.message_count)
+        if count:
+            start, end = int(stats.message_start_time), int(stats.message_end_time)
         metadata = collections.defaultdict(list)
         for record in reader.iter_metadata():
             metadata[record.name].append(dict(record.metadata))

@@ -18,45 +18,22 @@ from gsp_calibrator.recording.recorder import (
 )
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.model.geometry import GeometryError, default_geometry, load_geometry
-from gsp_kinematics.model.sensor_noise import SensorNoise, SensorNoiseError
-from gsp_msgs_py import names
+from gsp_kinematics.model.sensor_noise import SensorNoiseError
+from gsp_msgs_py import conversions, names
 from gsp_msgs_py.noise_parameters import noise_from_parameters
 
 
-def noise_std_from_options(options):
-    """The collector's 10 channel noise stds ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad)."""
-    try:
-        if options.get('noise_std') is not None:
-            return SensorNoise.from_channel_std(options['noise_std']).channel_std()
-        return noise_from_parameters(options).channel_std()
-    except SensorNoiseError as error:
-        raise RecordingError(str(error)) from None
-
-
-def settle_options(options):
-    """The rest rule's ``{rest_lookback, rest_sigmas}`` of a recording's stored
-    ``options`` (a recording made before the rule: the window alone, the default sigmas)."""
-    return {
-        'rest_lookback': float(options.get('rest_lookback', 0.0)),
-        'rest_sigmas': float(options.get('rest_sigmas', DEFAULT_REST_SIGMAS)),
-    }
-
-
-def feed_recording(path, collection, notes=None, extra_topics=(), on_message=None):
-    """Feed every recorded command, status and sensor message to ``collection`` (a
-    :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`), receive time = log time; yields its
-    events. ``path``: one recording, or the parts of a resumed run in order
-    (:func:`.recorder.recording_parts`)."""
-    paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
-    notes = _notes_of(paths) if notes is None else notes
+def feed_recording(path, collection, extra_topics=(), on_message=None):
+    """Feed every command, status and sensor message of the recording ``path`` to ``collection``
+    (a :class:`~gsp_calibrator.collection.protocol.CollectionProtocol`), receive time = log time;
+    yields its events."""
     wanted = (
         (names.TOPIC_POSE_COMMAND, names.TOPIC_PLATFORM_STATUS)
         + topics.SENSOR_TOPICS
         + tuple(extra_topics)
     )
-    order = _CausalOrder(collection, notes)
-    messages = (m for part in paths for m in _commands_in_time(part, wanted))
-    for topic, _, log_time, msg, _ in messages:
+    order = _CausalOrder(collection, collection_notes(recording_info(path), path))
+    for topic, _, log_time, msg, _ in _commands_in_time(path, wanted):
         if on_message is not None:
             on_message(topic, log_time, msg)
         yield from order.message(topic, log_time, msg)
@@ -68,12 +45,10 @@ def _commands_in_time(path, topics):
     """The messages of ``topics`` in ``path`` in log order, except that a pose command logged
     after a message logged later than the command's own stamp comes before that message, with
     its stamp as its log time."""
-    if names.TOPIC_POSE_COMMAND not in topics:
-        yield from read_recording(path, topics=topics)
-        return
-    commands = []  # (stamp ns or None, message), in log order
-    for message in read_recording(path, topics=(names.TOPIC_POSE_COMMAND,)):
-        commands.append((_stamp_ns(message.message), message))
+    commands = [  # (stamp ns or None, message), in log order
+        (_stamp_ns(message.message), message)
+        for message in read_recording(path, topics=(names.TOPIC_POSE_COMMAND,))
+    ]
     ahead = 0  # commands given so far (some before their place in the log)
     seen = 0  # commands met at their place in the log
     for message in read_recording(path, topics=topics):
@@ -109,11 +84,10 @@ class _CausalOrder:
 
     def message(self, topic, log_time, msg):
         """Events of one recorded message (in log order)."""
-        from gsp_msgs_py import conversions
-
         if topic == names.TOPIC_POSE_COMMAND:
             try:
-                command_id, pose = _read_command(msg)
+                command_id = conversions.command_id_from_stamp(msg.header.stamp)
+                pose = conversions.pose_stamped_to_pose(msg)
             except (ValueError, TypeError):
                 return []
             self.count += 1
@@ -163,27 +137,8 @@ class _CausalOrder:
         return self.collection.status(item, log_time, start_ns)
 
 
-def _notes_of(paths):
-    """Command id -> (posture number, collection start) noted in the recordings ``paths``."""
-    notes = {}
-    for part in paths:
-        notes.update(collection_notes(recording_info(part), part))
-    return notes
-
-
-def _read_command(msg):
-    """``(command id, pose)`` of a recorded pose command; ValueError/TypeError if malformed."""
-    from gsp_msgs_py import conversions
-
-    return conversions.command_id_from_stamp(msg.header.stamp), conversions.pose_stamped_to_pose(
-        msg
-    )
-
-
 def _stamp_ns(msg):
     """``msg``'s header stamp (int ns), or None if it has none."""
-    from gsp_msgs_py import conversions
-
     try:
         return conversions.stamp_to_nanoseconds(msg.header.stamp)
     except (AttributeError, ValueError, TypeError):
@@ -196,9 +151,9 @@ def samples_from_recording(
     """Rebuild the ``samples.csv`` rows (:class:`~gsp_calibrator.files.run_directory.Rows`) of one
     recording or of the parts of a resumed run (a list, see :func:`.recorder.recording_parts`).
 
-    ``sync_tolerance`` (s), ``pairs_per_posture`` and ``noise_std`` (10 channel stds, see
-    :func:`noise_std_from_options`) default to the options stored by :meth:`.recorder.RunRecorder.start`;
-    :class:`RecordingError` if the first two are not known."""
+    ``sync_tolerance`` (s), ``pairs_per_posture``, ``noise_std`` (the 10 channel stds, m and
+    rad) and ``nominal`` default to the recording's stored options; :class:`RecordingError` if
+    the first two are not known."""
     samples = Rows.empty()
     for event, directions in _rows(path, sync_tolerance, pairs_per_posture, noise_std, nominal):
         sample = event.sample
@@ -213,12 +168,6 @@ def samples_from_recording(
             directions,
         )
     return samples
-
-
-def rows_from_recording(path, sync_tolerance=None, pairs_per_posture=None, noise_std=None):
-    """The :class:`~gsp_calibrator.collection.events.RowReady` events of
-    :func:`samples_from_recording` (with each row's ``rest_wait``), in row order."""
-    return [event for event, _ in _rows(path, sync_tolerance, pairs_per_posture, noise_std)]
 
 
 def _stored_nominal(stored):
@@ -265,9 +214,10 @@ class _ApproachTap:
 
 
 def _rows(path, sync_tolerance=None, pairs_per_posture=None, noise_std=None, nominal=None):
-    """``[(RowReady, approach directions (6,))]`` of :func:`samples_from_recording`."""
-    first = path if isinstance(path, (str, os.PathLike)) else list(path)[0]
-    stored = recording_options(first)
+    """``[(RowReady, approach directions (6,))]`` of :func:`samples_from_recording`, in row
+    order (each row's ``rest_wait`` with it)."""
+    parts = [path] if isinstance(path, (str, os.PathLike)) else list(path)
+    stored = recording_options(parts[0])
     if sync_tolerance is None:
         sync_tolerance = stored.get('sync_tolerance')
     if pairs_per_posture is None:
@@ -277,23 +227,32 @@ def _rows(path, sync_tolerance=None, pairs_per_posture=None, noise_std=None, nom
             f'{path}: sync_tolerance and pairs_per_posture are not stored in the recording; '
             'give them explicitly'
         )
-    if noise_std is None:
-        noise_std = noise_std_from_options(stored)
+    if noise_std is None:  # the collector's 10 channel stds (m, rad)
+        try:
+            noise_std = noise_from_parameters(stored).channel_std()
+        except SensorNoiseError as error:
+            raise RecordingError(str(error)) from None
     nominal = _stored_nominal(stored) if nominal is None else nominal
     # Each part is one session of the run, fed to a protocol of its own that continues after
     # the last row so far, as the resumed calibrator did; a posture collected again by a later
     # session (its earlier collection was cut short) keeps its later row.
     rows = {}
-    for part in [path] if isinstance(path, (str, os.PathLike)) else list(path):
+    for part in parts:
         collection = protocol.CollectionProtocol(
-            sync_tolerance, pairs_per_posture, noise_std, **settle_options(stored)
+            sync_tolerance,
+            pairs_per_posture,
+            noise_std,
+            # A recording made before the rest rule: the window alone, the default sigmas.
+            rest_lookback=float(stored.get('rest_lookback', 0.0)),
+            rest_sigmas=float(stored.get('rest_sigmas', DEFAULT_REST_SIGMAS)),
         )
         last = None
         if rows:
             last_event, last = next(reversed(rows.values()))
             collection.continue_after(last_event.sample.readings)
         tracker = ApproachTracker(nominal, last)
-        kept = kept_postures(recording_info(part), part)
+        outcomes = posture_outcomes(recording_info(part), part)
+        kept = None if outcomes is None else {p for p, (end, _) in outcomes.items() if end == KEPT}
         previous = {}  # posture -> the readings its row was compared to
         for event in feed_recording(part, _ApproachTap(collection, tracker)):
             if isinstance(event, events.CollectionStarted):
@@ -325,15 +284,6 @@ def posture_outcomes(info, path='<recording>'):
                 f'{path}: malformed {POSTURE_END_METADATA_NAME} metadata {entry}'
             ) from error
     return outcomes
-
-
-def kept_postures(info, path='<recording>'):
-    """The postures whose rows the calibrator kept (in samples.csv), or None for a recording
-    made before the outcomes were noted (then every rebuilt row counts)."""
-    outcomes = posture_outcomes(info, path)
-    if outcomes is None:
-        return None
-    return {posture for posture, (outcome, _) in outcomes.items() if outcome == KEPT}
 
 
 def collection_notes(info, path='<recording>'):

@@ -7,7 +7,8 @@ import re
 import threading
 import time
 
-from gsp_calibrator.recording.batched_subscription import BatchedCallback
+from rclpy.exceptions import InvalidHandle
+
 from gsp_calibrator.recording.mcap_format import RecordingError, message_class
 from gsp_calibrator.recording.mcap_io import RUN_METADATA_NAME, McapRecorder
 from gsp_calibrator.settings import STORED_PARAMETERS
@@ -52,6 +53,35 @@ KEPT, SKIPPED, IN_PROGRESS = 'kept', 'skipped', 'in_progress'
 
 #: Topics :class:`RunRecorder` records by default: every topic of the suite.
 SUITE_TOPICS = dict(names.TOPIC_TYPES)
+
+
+#: Most messages a batched callback takes at one wake-up (a bound on the work between two
+#: looks at the other subscriptions).
+MAX_BATCH = 1000
+
+
+class BatchedCallback:
+    """A raw subscription's callback: ``callback([(CDR bytes, message info), ...])`` with the
+    message the executor took and every further one waiting (:data:`MAX_BATCH` at most), in
+    order. Set :attr:`subscription` to the subscription it serves before it is called."""
+
+    def __init__(self, callback):
+        self.callback = callback
+        self.subscription = None
+
+    def __call__(self, raw, info):
+        messages = [(raw, info)]
+        subscription = self.subscription
+        try:
+            with subscription.handle:
+                while len(messages) < MAX_BATCH:
+                    taken = subscription.handle.take_message(subscription.msg_type, True)
+                    if taken is None:
+                        break
+                    messages.append(taken)
+        except InvalidHandle:  # destroyed meanwhile (the node is going down)
+            pass
+        self.callback(messages)
 
 
 class RunRecorder:
@@ -119,7 +149,7 @@ class RunRecorder:
                 recorder.add_metadata(
                     RUN_METADATA_NAME, {k: json.dumps(json_safe(v)) for k, v in options.items()}
                 )
-            note_outcomes(recorder)
+            recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
         except BaseException:
             recorder.abort()
             raise
@@ -160,47 +190,28 @@ class RunRecorder:
         if drain_s > 0.0 and self._recorder is not None:
             time.sleep(drain_s)
         if not self.persistent:
-            self.close_subscriptions()
+            subscriptions, self._subscriptions = self._subscriptions, []
+            for subscription in subscriptions:
+                self.node.destroy_subscription(subscription)
         with self._lock:
             recorder, self._recorder = self._recorder, None
         if recorder is None:
             return None
         return recorder.close()
 
-    def close_subscriptions(self):
-        """Destroy the subscriptions (with ``persistent``: when the node is destroyed)."""
-        subscriptions, self._subscriptions = self._subscriptions, []
-        for subscription in subscriptions:
-            self.node.destroy_subscription(subscription)
-
     def _callback(self, topic):
-        clock = self.node.get_clock()
-
-        forward = self.forward.get(topic)
+        clock, forward = self.node.get_clock(), self.forward.get(topic)
 
         def on_messages(batch):  # [(CDR bytes, info), ...] taken at once (BatchedCallback)
-            if self._recorder is not None:  # else not recording: nothing to write
-                self._write(topic, batch, clock.now().nanoseconds)
+            with self._lock:
+                if self._recorder is not None:  # else not recording: nothing to write
+                    now = clock.now().nanoseconds
+                    for data, _ in batch:
+                        self._recorder.write(topic, data, now)
             if forward is not None:
                 forward(batch)
 
         return on_messages
-
-    def _write(self, topic, batch, now):
-        with self._lock:
-            recorder = self._recorder
-            if recorder is None:
-                return
-            for data, _ in batch:
-                try:
-                    recorder.write(topic, data, now)
-                except RecordingError:
-                    continue
-
-
-def note_outcomes(recorder):
-    """Say in ``recorder`` (a :class:`McapRecorder`) that its postures' outcomes are noted."""
-    recorder.add_metadata(OUTCOMES_METADATA_NAME, {'noted': 'true'})
 
 
 def note_posture_end(recorder, command_id, posture, outcome, reason=''):

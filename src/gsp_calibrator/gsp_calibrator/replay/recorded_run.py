@@ -17,7 +17,7 @@ from gsp_calibrator.recording.mcap_io import recording_options
 from gsp_calibrator.recording.recorder import RECORDING_FILE, recording_parts
 from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_quaternion
-from gsp_msgs_py import names
+from gsp_msgs_py import conversions, names
 
 SOURCE_SAMPLES = 'samples.csv'
 SOURCE_RECORDING = 'recording.mcap'
@@ -29,7 +29,7 @@ class ReplayError(ValueError):
     """A run cannot be replayed; the message names the file and the problem."""
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@dataclasses.dataclass(eq=False)
 class SampleStream:
     """Samples to publish in turn (cyclically): N instants, SI units."""
 
@@ -41,19 +41,14 @@ class SampleStream:
     offsets_ns: np.ndarray = None
 
     def __post_init__(self):
-        legs = np.asarray(self.leg_lengths, dtype=float).reshape(-1, 6)
-        count = legs.shape[0]
-        object.__setattr__(self, 'leg_lengths', legs)
-        object.__setattr__(
-            self, 'readings', np.asarray(self.readings, dtype=float).reshape(count, 4)
-        )
+        self.leg_lengths = np.asarray(self.leg_lengths, dtype=float).reshape(-1, 6)
+        count = len(self.leg_lengths)
+        self.readings = np.asarray(self.readings, dtype=float).reshape(count, 4)
         if self.true_poses is not None:
-            object.__setattr__(
-                self, 'true_poses', np.asarray(self.true_poses, dtype=float).reshape(count, 6)
-            )
+            self.true_poses = np.asarray(self.true_poses, dtype=float).reshape(count, 6)
         if self.offsets_ns is not None:
             stamps = np.asarray(self.offsets_ns, dtype=np.int64).reshape(count)
-            object.__setattr__(self, 'offsets_ns', stamps - (stamps[0] if count else 0))
+            self.offsets_ns = stamps - (stamps[0] if count else 0)
 
     def __len__(self):
         return int(self.leg_lengths.shape[0])
@@ -64,14 +59,12 @@ class SampleStream:
 
     def sample(self, index):
         """``(q (6,), readings (4,), true_pose (6,) or None)`` of instant ``index`` (cyclic)."""
-        if len(self) == 0:
-            raise IndexError('empty sample stream')
         i = int(index) % len(self)
         true_pose = self.true_poses[i] if self.true_poses is not None else None
         return self.leg_lengths[i], self.readings[i], true_pose
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@dataclasses.dataclass(eq=False)
 class RecordedPosture:
     """One recorded posture: what was commanded and what the sensors said after settling."""
 
@@ -81,9 +74,7 @@ class RecordedPosture:
     command_id: str = ''  #: the recorded command's id ('' from samples.csv)
 
     def __post_init__(self):
-        object.__setattr__(
-            self, 'commanded_pose', np.asarray(self.commanded_pose, dtype=float).reshape(6)
-        )
+        self.commanded_pose = np.asarray(self.commanded_pose, dtype=float).reshape(6)
 
 
 def _quaternions(poses):
@@ -91,9 +82,9 @@ def _quaternions(poses):
     return matrix_to_quaternion(euler_to_matrix(poses[:, 3:]))
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@dataclasses.dataclass(eq=False)
 class RecordedRun:
-    """The postures of a recorded run (see the module docstring)."""
+    """The postures of a recorded run (docs/data.md#replaying-a-run)."""
 
     source: Path  #: the file read
     kind: str  #: :data:`SOURCE_SAMPLES` or :data:`SOURCE_RECORDING`
@@ -110,8 +101,7 @@ class RecordedRun:
         if not self.postures:
             raise ReplayError(f'{self.source}: no recorded posture to replay')
         poses = np.array([p.commanded_pose for p in self.postures])
-        object.__setattr__(self, '_positions', poses[:, :3].copy())
-        object.__setattr__(self, '_quaternions', _quaternions(poses))
+        self._positions, self._quaternions = poses[:, :3], _quaternions(poses)
 
     def __len__(self):
         return len(self.postures)
@@ -122,11 +112,6 @@ class RecordedRun:
         return self.initial_stream.has_true_pose or any(
             p.stream.has_true_pose for p in self.postures
         )
-
-    @property
-    def commanded_poses(self):
-        """(M, 6) recorded commanded poses."""
-        return np.array([p.commanded_pose for p in self.postures])
 
     # --- loading ---------------------------------------------------------------------------
 
@@ -171,32 +156,15 @@ class RecordedRun:
         )
         if not postures:
             raise ReplayError(f'{path}: no posture rows to replay')
-        return cls(
-            source=path,
-            kind=SOURCE_SAMPLES,
-            postures=postures,
-            initial_stream=resting_stream(postures),
-        )
+        return cls(path, SOURCE_SAMPLES, postures, resting_stream(postures))
 
     @classmethod
     def from_recording(cls, path, sync_tolerance=None):
-        """The synchronised samples after each posture's settle, from an MCAP recording or
-        the parts of a resumed run (a list, in order: :func:`~gsp_calibrator.recording.recorder.recording_parts`).
-
-        Each pose command starts a posture; its ``settled`` status (of the same ``command_id``)
-        starts the collection at the start the calibrator noted (MCAP metadata), else at the
-        status's receive time; sensor samples stamped from then on, up to the next command, are
-        paired like the calibrator pairs them. Each part is one session, fed to a protocol of
-        its own that continues after the last posture so far, as the resumed calibrator did; a
-        posture collected again keeps its later segment (and a skip is forgotten once the
-        posture is collected). ``sync_tolerance`` (s) defaults to the first part's stored
-        option, else the calibrator's default."""
-        if isinstance(path, (str, os.PathLike)):
-            parts = [Path(path)]
-        else:
-            parts = [Path(p) for p in path]
-        if not parts:
-            raise ReplayError('no recording part to replay')
+        """The synchronised samples after each posture's settle, paired as the calibrator pairs
+        them, from an MCAP recording or the parts of a resumed run (a list, in order); a posture
+        collected again keeps its later segment. ``sync_tolerance`` (s) defaults to the first
+        part's stored option, else the calibrator's default."""
+        parts = [Path(p) for p in ([path] if isinstance(path, (str, os.PathLike)) else path)]
         try:
             return cls._from_recording(parts, sync_tolerance)
         except RecordingError as error:
@@ -204,8 +172,6 @@ class RecordedRun:
 
     @classmethod
     def _from_recording(cls, parts, sync_tolerance):
-        from gsp_msgs_py import conversions
-
         path = parts[0]
         options = recording_options(path)
         sync_tolerance = _sync_tolerance(path, options, sync_tolerance)
@@ -287,11 +253,8 @@ class RecordedRun:
         return _pose_distances(self._positions, self._quaternions, commanded_pose)
 
     def match(self, commanded_pose, tolerance=POSE_TOLERANCE):
-        """The :class:`RecordedPosture` commanded at ``commanded_pose``, or None.
-
-        It must lie within ``tolerance`` (m for the position, rad for the rotation angle between
-        the orientations); the nearest one wins (the first of equals). ValueError for a pose
-        that is not 6 finite values."""
+        """The nearest :class:`RecordedPosture` (the first of equals) within ``tolerance`` (m, and
+        rad of rotation) of ``commanded_pose``, or None; ValueError for a pose not 6 finite values."""
         position, angle = self.distances(commanded_pose)
         distance = np.maximum(position, angle)
         best = int(np.argmin(distance))
@@ -338,13 +301,9 @@ class PostureServer:
 
 
 def resting_stream(postures):
-    """The stream of a run without idle samples before its first command (``postures``: its
-    :class:`RecordedPosture`, in recorded order): the last posture's, where the recorded run
-    left the platform, unless it stands at the first posture's pose (a route with reference
-    revisits ends with one): then the last posture's away from it (the first posture: the
-    lowest number). Never one at the first posture's pose: the replaying calibrator would take
-    the first posture's samples for a device still reporting the previous posture, and skip it
-    (the collection's "unchanged" check)."""
+    """The stream of a run without idle samples before its first command: the last posture's
+    away from the first posture's pose (a route with reference revisits ends at it): at that
+    pose the replaying calibrator would find the device unchanged and skip the first posture."""
     poses = np.array([p.commanded_pose for p in postures])
     first = poses[min(range(len(postures)), key=lambda m: postures[m].posture)]
     position, angle = _pose_distances(poses[:, :3], _quaternions(poses), first)

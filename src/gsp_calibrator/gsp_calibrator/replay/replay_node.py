@@ -50,24 +50,24 @@ class ReplayNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         values = parameter_specs.declare_parameters(self, PARAMETERS)
         try:
-            self._run = RecordedRun.load(values['run'])
+            #: The :class:`~gsp_calibrator.replay.recorded_run.RecordedRun` being replayed.
+            self.run = RecordedRun.load(values['run'])
         except (ReplayError, OSError) as error:
             raise parameter_specs.ConfigurationError(f'run: {error}') from None
         self._frame_id = values['frame_id']
-        self._server = PostureServer(self._run, values['pose_tolerance'])
+        self._server = PostureServer(self.run, values['pose_tolerance'])
         self._period_ns = int(round(1e9 / values['publish_rate']))
-        self._stream = self._run.initial_stream
+        self._stream = self.run.initial_stream
         self._cursor = 0
         self._resume_ns = None  # the stream is silent until then (after a 'settled' status)
-        self._first_stamp_ns = (
-            None  # stamp of the restarted stream's first sample (recorded timing)
-        )
+        # The stamp of the restarted stream's first sample (the recorded timing).
+        self._first_stamp_ns = None
         self._last_stamp_ns = 0
         parameter_specs.watch_parameters(self, PARAMETERS, apply=self._apply_parameters)
 
         # All callbacks in the node's default (mutually exclusive) group: no locking needed.
         topics = (names.TOPIC_LEG_LENGTHS, *node_tools.DEVICE_TOPICS)
-        if self._run.has_true_pose:
+        if self.run.has_true_pose:
             topics += (names.TOPIC_TRUE_POSE,)
         self._pubs = node_tools.create_publishers(self, topics)
         self._commands = PoseCommandServer(
@@ -80,7 +80,7 @@ class ReplayNode(Node):
             [Component('commands', names.STATUS_HARDWARE_ID, self._commands.health)],
         )
 
-        run = self._run
+        run = self.run
         samples = sum(len(p.stream) for p in run.postures)
         later = f' and {len(run.parts) - 1} later part(s)' if len(run.parts) > 1 else ''
         self.get_logger().info(
@@ -153,11 +153,6 @@ class ReplayNode(Node):
                 true_pose, stamp, self._frame_id
             )
         return messages
-
-    @property
-    def run(self):
-        """The :class:`~gsp_calibrator.replay.recorded_run.RecordedRun` being replayed."""
-        return self._run
 
 
 def main(args=None):

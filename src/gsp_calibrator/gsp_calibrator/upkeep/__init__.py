@@ -1,3 +1,1 @@
-"""Keeping a platform calibrated (docs/upkeep.md): reading calibrations and checks back from their
-run directories, the platform's history (SQLite) and the check's run. Pure except the check's
-node side."""
+"""Keeping a platform calibrated (docs/upkeep.md): the check's run and the history's plot."""

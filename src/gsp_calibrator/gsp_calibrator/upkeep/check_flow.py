@@ -2,9 +2,11 @@
 
 import dataclasses
 
+from gsp_calibrator.files.calibration_files import CHECK_JSON
 from gsp_calibrator.run import postures
 from gsp_calibrator.run.flow import CalibrationRun, Judged, RunFailed
 from gsp_calibrator.upkeep import check_run
+from gsp_kinematics.fileio import write_json
 from gsp_kinematics.upkeep import check
 from gsp_msgs_py import names
 
@@ -94,7 +96,7 @@ class Check:
             return judged
         directory = run.record.directory.path
         try:
-            await run.host.in_thread(check_run.write_check, directory, judged.data)
+            await run.host.in_thread(write_json, directory / CHECK_JSON, judged.data)
         except (check_run.CheckError, OSError, ValueError) as error:
             return _failed(run, error)
         summary = check_run.check_summary(judged.data) + f'\nrun directory: {directory}'

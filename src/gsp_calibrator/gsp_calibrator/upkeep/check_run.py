@@ -12,13 +12,11 @@ from gsp_calibrator.files.calibration_files import (
     calibration_from_result,
     read_json,
 )
+from gsp_calibrator.files.run_directory import RESULT_FILE
 from gsp_calibrator.run.postures import posture_pool
-from gsp_kinematics.fileio import write_json
 from gsp_kinematics.model.geometry import GeometryError, load_geometry
 from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
 from gsp_kinematics.upkeep import check
-
-RESULT_YAML = 'result.yaml'
 
 
 class CheckError(RuntimeError):
@@ -51,9 +49,9 @@ def reference_from_run(run_dir):
     result.json)."""
     run_dir = Path(run_dir)
     try:
-        geometry = load_geometry(run_dir / RESULT_YAML)
+        geometry = load_geometry(run_dir / RESULT_FILE)
     except (OSError, GeometryError) as error:
-        raise CheckError(f'{run_dir}: no usable {RESULT_YAML} to check ({error})') from None
+        raise CheckError(f'{run_dir}: no usable {RESULT_FILE} to check ({error})') from None
     calibration, noise, unmodelled = None, None, None
     if (run_dir / RESULT_JSON).is_file():
         try:
@@ -64,7 +62,7 @@ def reference_from_run(run_dir):
         noise = _noise_of(data, 'estimated')
         unmodelled = _noise_of(data, 'unmodelled')
     return CheckReference(
-        geometry, str(run_dir / RESULT_YAML), calibration, noise, unmodelled, str(run_dir)
+        geometry, str(run_dir / RESULT_FILE), calibration, noise, unmodelled, str(run_dir)
     )
 
 
@@ -84,7 +82,7 @@ def latest_calibration(output_root, platform):
     candidates = [
         path
         for path in sorted(root.iterdir())
-        if (path / RESULT_YAML).is_file() and not (path / CHECK_JSON).exists()
+        if (path / RESULT_FILE).is_file() and not (path / CHECK_JSON).exists()
     ]
     return candidates[-1] if candidates else None
 
@@ -94,7 +92,7 @@ def check_reference(output_root, platform, geometry_file=''):
     result.json gives the covariance and noise) or ``platform``'s latest calibration."""
     if geometry_file:
         path = Path(geometry_file)
-        if path.name == RESULT_YAML and (path.parent / RESULT_JSON).is_file():
+        if path.name == RESULT_FILE and (path.parent / RESULT_JSON).is_file():
             return reference_from_run(path.parent)
         try:
             return CheckReference(load_geometry(path), str(path))
@@ -157,11 +155,6 @@ def evaluate_check(reference, samples, sigmas, required, platform, planned_s=Non
         'unmodelled_included': reference.unmodelled is not None,
     }
     return data
-
-
-def write_check(run_dir, data):
-    """Write ``check.json`` atomically into ``run_dir``; returns its path."""
-    return write_json(Path(run_dir) / CHECK_JSON, data)
 
 
 def check_summary(data):

@@ -2,6 +2,7 @@
 and checks) and the parameters that moved (named significant by a drift comparison or a check),
 each as its change from its first calibration with 1-sigma bars. matplotlib's Agg canvas."""
 
+import collections
 import datetime
 
 from gsp_calibrator.files import history
@@ -16,11 +17,8 @@ MAX_PARAMETERS = 8
 
 def moved_parameters(found):
     """The parameters named in the runs ``found``, the most often named first."""
-    counts = {}
-    for entry in found:
-        for change in entry['changes']:
-            counts[change['parameter']] = counts.get(change['parameter'], 0) + 1
-    return sorted(counts, key=lambda name: -counts[name])[:MAX_PARAMETERS]
+    named = (change['parameter'] for entry in found for change in entry['changes'])
+    return [name for name, _ in collections.Counter(named).most_common(MAX_PARAMETERS)]
 
 
 def _time(text):
