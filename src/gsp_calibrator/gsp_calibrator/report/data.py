@@ -34,9 +34,6 @@ VALIDATION_KEYS = (
 )
 
 
-# --- helpers -----------------------------------------------------------------------------------
-
-
 def report_unit(index):
     return 'deg' if index in ANGULAR else 'mm'
 
@@ -53,29 +50,15 @@ def by_name(values, mask=None):
 
 
 def identifiability_record(analysis):
-    """Normalised identifiability: unidentifiable combinations as text and parameter names."""
+    """The ``identifiability`` of result.json from an ``analyse_result`` analysis (None: none)."""
     if not analysis:
         return None
-    entries = []
-    for entry in analysis.get('unidentifiable', []) or []:
-        if isinstance(entry, dict):
-            entries.append(
-                {
-                    'combination': entry.get('combination', ''),
-                    'parameters': list(entry.get('parameters', [])),
-                    'coefficients': list(entry.get('coefficients', [])),
-                }
-            )
-        else:  # a plain parameter name
-            entries.append(
-                {'combination': str(entry), 'parameters': [str(entry)], 'coefficients': [1.0]}
-            )
-    size = analysis.get('parameters', analysis.get('size'))
+    entries = analysis['unidentifiable']
     return {
-        'rank': analysis.get('rank'),
-        'parameters': size,
-        'condition_number': analysis.get('condition_number'),
-        'singular_values': analysis.get('singular_values'),
+        'rank': analysis['rank'],
+        'parameters': analysis['parameters'],
+        'condition_number': analysis['condition_number'],
+        'singular_values': analysis.get('singular_values'),  # none for a failed fit
         'unidentifiable': entries,
         'unidentifiable_parameters': sorted({p for e in entries for p in e['parameters']}),
     }
@@ -190,12 +173,6 @@ def residuals_by_sensor(result):
     return out
 
 
-# --- result.json -------------------------------------------------------------------------------
-
-
-#: The optional inputs of a report, by keyword (absent or None: not known); see :func:`result_data`.
-
-
 def settle_line(settle):
     """The response's line of ``collection.settle`` (:func:`settle_statistics`): ``'settle
     wait (settled to averaged window): median 0.205 s, max 0.61 s over 60 rows; 12 waited for
@@ -214,23 +191,14 @@ def settle_statistics(waits):
     ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
     waited for a channel still moving (not only for their first samples), and ``per_posture_s``
     (``{posture: wait_s}``, in posture order)."""
-    entries = list(waits.values())
-    values = np.array([entry['wait_s'] for entry in entries], dtype=float)
-    if values.size == 0:
-        return {
-            'rows': 0,
-            'median_s': None,
-            'max_s': None,
-            'mean_s': None,
-            'waited': 0,
-            'per_posture_s': {},
-        }
+    values = np.array([entry['wait_s'] for entry in waits.values()], dtype=float)
+    known = values.size > 0
     return {
         'rows': int(values.size),
-        'median_s': float(np.median(values)),
-        'max_s': float(values.max()),
-        'mean_s': float(values.mean()),
-        'waited': sum(1 for entry in entries if entry['moving_pairs'] > 0),
+        'median_s': float(np.median(values)) if known else None,
+        'max_s': float(values.max()) if known else None,
+        'mean_s': float(values.mean()) if known else None,
+        'waited': sum(1 for entry in waits.values() if entry['moving_pairs'] > 0),
         'per_posture_s': {
             posture: float(waits[posture]['wait_s']) for posture in sorted(waits, key=int)
         },

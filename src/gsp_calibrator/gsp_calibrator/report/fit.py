@@ -137,12 +137,11 @@ def _accuracy_table(data):
     if not accuracy:
         return None
     rows = []
+    where = ', workspace postures' if accuracy.get('measured_on') == 'workspace' else ''
     labelled = [
-        (accuracy, 'calibrated (held out)', 'calibrated'),
+        (accuracy, f'calibrated (held out{where})', 'calibrated'),
         (accuracy, 'nominal geometry', 'nominal'),
     ]
-    if accuracy.get('measured_on') == 'workspace':
-        labelled[0] = (accuracy, 'calibrated (held out, workspace postures)', 'calibrated')
     if accuracy.get('selected'):
         labelled.append(
             (accuracy['selected'], 'calibrated (held out, selected postures)', 'calibrated')
@@ -164,17 +163,8 @@ def _accuracy_table(data):
         )
     predicted = data.get('predicted_accuracy') or {}
     if predicted.get('position_mm_mean') is not None:
-        rows.append(
-            [
-                'predicted (workspace)',
-                _fmt(predicted['position_mm_mean'], 3),
-                '–',
-                _fmt(predicted['position_mm_p95'], 3),
-                '–',
-                '–',
-                '–',
-            ]
-        )
+        mean, p95 = _fmt(predicted['position_mm_mean'], 3), _fmt(predicted['position_mm_p95'], 3)
+        rows.append(['predicted (workspace)', mean, '–', p95, '–', '–', '–'])
     header = [
         'accuracy',
         'position mean (mm)',
@@ -191,25 +181,17 @@ def _goodness_lines(data):
     fit = data.get('goodness_of_fit')
     blocks = [('heading', 'Goodness of fit (a diagnostic)')]
     if fit:
-        loss = data.get('loss', 'linear')
         if fit.get('test') == 'lack_of_fit':
-            blocks.append(
-                (
-                    'line',
-                    f'lack-of-fit F test (noise estimated from the run): F '
-                    f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
-                    f'{_fmt(fit["pure_error_dof"])}) degrees of freedom, p = '
-                    f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
-                )
+            test = (
+                f'lack-of-fit F test (noise estimated from the run): F '
+                f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
+                f'{_fmt(fit["pure_error_dof"])})'
             )
         else:
-            blocks.append(
-                (
-                    'line',
-                    f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])} degrees of freedom, p = '
-                    f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
-                )
-            )
+            test = f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])}'
+        loss = data.get('loss', 'linear')
+        text = f'{test} degrees of freedom, p = {_fmt(fit["p_value"], 3)} (loss: {loss})'
+        blocks.append(('line', text))
     if data.get('fit_diagnosis'):
         blocks.append(('line', data['fit_diagnosis']))
     return blocks
@@ -223,18 +205,16 @@ def _noise_table(data):
     rows = []
     for channel, entry in noise.items():
         angular = NOISE_UNITS[channel] == 'rad'
-        factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
+        factor = math.degrees(1.0) if angular else 1e3
         keys = ('configured', 'estimated', 'within_posture', 'between_postures')
         shown = [_fmt(None if entry.get(k) is None else entry[k] * factor, 3) for k in keys]
         unmodelled = entry.get('unmodelled') or 0.0
         source = entry.get('source', '') + (
             ' (within: lower bound)' if entry.get('within_lower_bound') else ''
         )
-        warning = ' WARNING: differs by more than 2x' if entry.get('warning') else ''
-        rows.append(
-            [channel, *shown, _fmt(unmodelled * 1e6, 3), ('urad' if angular else 'um'), source]
-            + ([warning.strip()] if warning else [''])
-        )
+        warning = 'WARNING: differs by more than 2x' if entry.get('warning') else ''
+        unit = 'urad' if angular else 'um'
+        rows.append([channel, *shown, _fmt(unmodelled * 1e6, 3), unit, source, warning])
     return [
         (
             'line',

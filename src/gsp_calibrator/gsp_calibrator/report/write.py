@@ -2,11 +2,21 @@
 See docs/data.md#resultjson."""
 
 import dataclasses
+import functools
 import math
 import os
 
 import numpy as np
 
+from gsp_calibrator.report.accuracy import (
+    ACCURACY_MAP_PNG,
+    HELD_OUT_PNG,
+    markdown_lines,
+    plot_accuracy_map,
+    plot_held_out,
+    prediction_for,
+    result_json_entry,
+)
 from gsp_calibrator.report.data import (
     ANGULAR,
     SENSOR_KIND,
@@ -22,6 +32,12 @@ from gsp_calibrator.report.data import (
 )
 from gsp_calibrator.report.effects import effects_markdown
 from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number, outcome_data
+from gsp_calibrator.report.plots import (
+    plot_chain_errors,
+    plot_parameter_errors,
+    plot_residuals,
+    plot_validation,
+)
 from gsp_kinematics.estimation.identifiability import analyse_result
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.model.geometry import PARAMETER_NAMES, default_geometry, to_report_units
@@ -34,13 +50,6 @@ RESIDUALS_PNG = 'residuals.png'
 VALIDATION_PNG = 'validation.png'
 
 CORRELATION_THRESHOLD = 0.9
-
-# --- helpers -----------------------------------------------------------------------------------
-
-
-def _path(run_dir, name):
-    return os.path.join(os.fspath(run_dir), name)
-
 
 #: The scalar fields of an ``IdentificationResult`` that ``result.json`` holds as they are.
 _RESULT_FIELDS = (
@@ -76,8 +85,6 @@ class ReportInputs:
     def completed(self, result):
         """These inputs with the analysis and the prediction of ``result`` computed where None
         (once, for result.json and report.md alike)."""
-        from gsp_calibrator.report.accuracy import prediction_for
-
         analysis = analyse_result(result) if self.analysis is None else self.analysis
         prediction = self.prediction
         compare = self.validation_after is not None and 'validation' not in (prediction or {})
@@ -91,10 +98,6 @@ class ReportInputs:
 def result_data(result, inputs=ReportInputs()):
     """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
     ``result`` with :class:`ReportInputs` ``inputs``."""
-    from gsp_calibrator.report.accuracy import (
-        result_json_entry,
-    )
-
     inputs = inputs.completed(result)
     analysis, truth = inputs.analysis, inputs.truth
     nominal = default_geometry('nominal') if inputs.nominal is None else inputs.nominal
@@ -190,7 +193,7 @@ def outcome_inputs(outcome, nominal, options, **extra):
 def write_result_json(run_dir, result, inputs=ReportInputs()):
     """Write ``run_dir/result.json`` atomically (see :func:`result_data`); returns its path.
     Non-finite numbers are written as ``null``."""
-    path = _path(run_dir, RESULT_JSON)
+    path = os.path.join(run_dir, RESULT_JSON)
     atomic_write_text(path, to_json(result_data(result, inputs)))
     return path
 
@@ -278,8 +281,6 @@ PLOTS_SKIPPED_NOTE = (
 def report_markdown(data, images, title='Calibration report', plots=True):
     """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots;
     ``plots=False``: the report says its plots were not drawn."""
-    from gsp_calibrator.report.accuracy import markdown_lines
-
     lines = [f'# {title}', '']
     lines.append(
         f'- status: {"converged" if data["converged"] else "NOT converged"} '
@@ -343,53 +344,34 @@ def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration repo
     written = _write_plots(run_dir, result, inputs) if plots else {}
     images = {kind: os.path.basename(path) for kind, path in written.items()}
     text = report_markdown(data, images, title, plots)
-    written['report'] = _path(run_dir, REPORT_MD)
+    written['report'] = os.path.join(run_dir, REPORT_MD)
     atomic_write_text(written['report'], text)
     return written
 
 
 def _write_plots(run_dir, result, inputs):
     """The PNGs of :func:`write_report` (``inputs`` completed); returns ``{kind: path}``."""
-    from gsp_calibrator.report.accuracy import (
-        ACCURACY_MAP_PNG,
-        HELD_OUT_PNG,
-        plot_accuracy_map,
-        plot_held_out,
-    )
-    from gsp_calibrator.report.plots import (
-        plot_chain_errors,
-        plot_parameter_errors,
-        plot_residuals,
-        plot_validation,
-    )
-
-    validation_before, validation_after = inputs.validation_before, inputs.validation_after
-    truth, nominal = inputs.truth, inputs.nominal
+    truth, nominal, prediction = inputs.truth, inputs.nominal, inputs.prediction
+    before, after = inputs.validation_before, inputs.validation_after
+    path = functools.partial(os.path.join, run_dir)
     written = {
         'parameter_errors': plot_parameter_errors(
-            _path(run_dir, PARAMETER_ERRORS_PNG), result, truth, nominal
+            path(PARAMETER_ERRORS_PNG), result, truth, nominal
         ),
-        'chain_errors': plot_chain_errors(_path(run_dir, CHAIN_ERRORS_PNG), result, truth, nominal),
-        'residuals': plot_residuals(_path(run_dir, RESIDUALS_PNG), result),
+        'chain_errors': plot_chain_errors(path(CHAIN_ERRORS_PNG), result, truth, nominal),
+        'residuals': plot_residuals(path(RESIDUALS_PNG), result),
     }
-    if validation_before is not None or validation_after is not None:
-        written['validation'] = plot_validation(
-            _path(run_dir, VALIDATION_PNG), validation_before, validation_after
-        )
+    if before is not None or after is not None:
+        written['validation'] = plot_validation(path(VALIDATION_PNG), before, after)
     extra = inputs.extra or {}
     if extra.get('accuracy'):
-        acceptance = extra.get('acceptance') or {}
-        predicted = (inputs.prediction or {}).get('random', {}).get('position_mm', {})
+        required = ((extra.get('acceptance') or {}).get('requirement') or {}).get('position_mm')
+        predicted = (prediction or {}).get('random', {}).get('position_mm', {}).get('mean')
         written['held_out'] = plot_held_out(
-            _path(run_dir, HELD_OUT_PNG),
-            extra['accuracy'],
-            predicted.get('mean'),
-            (acceptance.get('requirement') or {}).get('position_mm'),
+            path(HELD_OUT_PNG), extra['accuracy'], predicted, required
         )
-    if inputs.prediction is not None:
-        written['accuracy_map'] = plot_accuracy_map(
-            _path(run_dir, ACCURACY_MAP_PNG), inputs.prediction
-        )
+    if prediction is not None:
+        written['accuracy_map'] = plot_accuracy_map(path(ACCURACY_MAP_PNG), prediction)
     return written
 
 
