@@ -56,15 +56,10 @@ _ADDERS = {
 
 
 def settle_start_ns(published_ns, received_ns, topic_timeout):
-    """The collection start of a ``settled`` status published at ``published_ns`` (the
-    publisher's stamp, e.g. the middleware's source timestamp; None or 0 if unknown) and
-    received at ``received_ns`` (ns, node clock).
-
-    The platform settled when it said so: samples stamped from the publish instant on count,
-    also those received before the status itself (the status latency would otherwise cost the
-    samples stamped meanwhile). The receive time when the publish instant is unknown or
-    implausible on this clock: after the receipt (a publisher clock ahead, a stamp in another
-    time base) or more than ``topic_timeout`` (s) before it."""
+    """The collection start (ns) of a ``settled`` status published at ``published_ns`` (None or
+    0: unknown) and received at ``received_ns``: the publish instant, or the receipt when that
+    is unknown, after the receipt or more than ``topic_timeout`` (s) before it
+    (docs/architecture.md#synchronisation)."""
     received_ns = int(received_ns)
     if not published_ns:
         return received_ns
@@ -81,36 +76,6 @@ def wire_receipt_ns(received_ns, now_ns):
     if not received_ns or int(received_ns) > int(now_ns):
         return None
     return int(received_ns)
-
-
-def dropped_event(collector, topic, msg, error):
-    """The :class:`SampleDropped` of an unusable message ``msg`` of ``topic`` (``error``: why);
-    a non-finite reading is counted by ``collector``."""
-    if has_non_finite(msg):
-        stream = TOPIC_STREAMS[topic]
-        collector.record_non_finite(stream)
-        return SampleDropped(topic, str(error), True, collector.non_finite[stream])
-    return SampleDropped(topic, str(error), False)
-
-
-def collection_summary(skipped, collector):
-    """The collection data of a run: its ``skipped`` (``[PostureSkipped, ...]``) and what its
-    ``collector`` dropped (the ``collection`` of ``result.json``)."""
-    return {
-        'skipped': [
-            {
-                'posture': s.posture,
-                'reason': s.reason,
-                'rejected_by_platform': s.rejected_by_platform,
-            }
-            for s in skipped
-        ],
-        'inconsistent_dropped': int(collector.inconsistent),
-        'settling_dropped': int(collector.settling_dropped),
-        'non_finite_dropped': {
-            stream: int(count) for stream, count in collector.non_finite.items()
-        },
-    }
 
 
 class CollectionProtocol:
@@ -171,28 +136,34 @@ class CollectionProtocol:
 
     def heard(self, topic):
         """Whether ``topic`` has said anything yet."""
-        return self.timeouts.heard(topic)
-
-    @property
-    def posture(self):
-        """Number of the awaited posture, or None."""
-        return None if self._posture is None else self._posture.number
+        return topic in self.timeouts.last_heard
 
     @property
     def collecting(self):
         return self._posture is not None and self._posture.state == COLLECTING
-
-    def latest_device_readings(self):
-        """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
-        return self.latest.device_readings()
 
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
         return self.latest.leg_lengths()
 
     def summary(self):
-        """The run's collection data: skips, inconsistent and non-finite samples dropped."""
-        return collection_summary(self.skipped, self.collector)
+        """The ``collection`` of ``result.json``: the run's skips and the samples dropped."""
+        collector = self.collector
+        return {
+            'skipped': [
+                {
+                    'posture': s.posture,
+                    'reason': s.reason,
+                    'rejected_by_platform': s.rejected_by_platform,
+                }
+                for s in self.skipped
+            ],
+            'inconsistent_dropped': int(collector.inconsistent),
+            'settling_dropped': int(collector.settling_dropped),
+            'non_finite_dropped': {
+                stream: int(count) for stream, count in collector.non_finite.items()
+            },
+        }
 
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
@@ -201,11 +172,11 @@ class CollectionProtocol:
 
     def command(self, posture, pose, command_id, now_ns):
         """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         events = self._end_segment() if self.keep_pairs else self._close()
         if self._previous is None:
             # What the device reports before the platform moves (stale readings would match).
-            self._previous = self.latest_device_readings()
+            self._previous = self.latest.device_readings()
         self.collector.stop()
         self._recent.clear()
         self._checked_pairs = None
@@ -217,7 +188,7 @@ class CollectionProtocol:
     def status(self, status, now_ns, start_ns=None):
         """A platform status (``conversions.PlatformStatus``) received at ``now_ns``;
         ``start_ns``: the collection start if it settles the posture (default ``now_ns``)."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         posture = self._posture
         if posture is None or status.command_id != posture.command_id:
             return self.poll(now_ns)
@@ -241,22 +212,30 @@ class CollectionProtocol:
     def sensors(self, messages, now_ns):
         """Sensor messages ``[(topic, msg, received_ns), ...]`` (as for :meth:`sensor`) handled
         at ``now_ns``, in order (a listener's batch), the posture judged once, after them."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         events = []
         for topic, msg, received_ns in messages:
             self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
             try:
                 stream, stamp_ns, values = read_sensor(topic, msg)
             except (ValueError, TypeError) as error:
-                events.append(dropped_event(self.collector, topic, msg, error))
+                events.append(self._dropped(topic, msg, error))
                 continue
             self._take(stream, stamp_ns, values, now_ns, received_ns)
         return events + self._judged(now_ns)
 
+    def _dropped(self, topic, msg, error):
+        """The :class:`SampleDropped` of an unusable ``msg`` (a non-finite reading counted)."""
+        if has_non_finite(msg):
+            stream = TOPIC_STREAMS[topic]
+            self.collector.record_non_finite(stream)
+            return SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
+        return SampleDropped(topic, str(error), False)
+
     def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
         at ``now_ns``, off the wire at ``received_ns`` (None: unknown)."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         if heard:
             topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
             self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
@@ -294,7 +273,7 @@ class CollectionProtocol:
 
     def poll(self, now_ns):
         """Events due at ``now_ns`` (timeouts)."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         posture = self._posture
         if posture is None:
             return []
@@ -368,9 +347,6 @@ class CollectionProtocol:
         if failure is not None:
             return self._fail(failure)
         return self._skip(reason) if reason else []
-
-    def _attend(self, now_ns):
-        self.timeouts.attend(now_ns)
 
     def _row(self):
         posture, collector = self._posture, self.collector

@@ -122,14 +122,10 @@ def _checked_options(sync_tolerance, pairs_per_posture, max_buffer, noise_std, t
 
 
 class SampleCollector:
-    """Buffers both streams and pairs them by nearest stamp (see the module docstring).
-    ``sync_tolerance`` (s): largest stamp difference of a pair. ``pairs_per_posture``: pairs
-    averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
-    all, for a caller that wants every pair, see :func:`segment_pairs`).
-    ``noise_std``: None (no consistency check) or the noise std of the 10 channels
-    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
-    rest test's noise. ``rest_lookback`` (s, >= 0) and ``rest_sigmas`` (> 0, ``inf``: no
-    rest test): the rest rule (see the module docstring)."""
+    """Buffers both streams, pairs them by nearest stamp and finds the window to average
+    (docs/architecture.md#synchronisation). ``max_buffer``: samples kept per stream (None: all);
+    ``noise_std`` (10,) m, rad: the floor of the robust spread and of the rest test's noise
+    (None: no consistency check)."""
 
     def __init__(
         self,
@@ -164,10 +160,6 @@ class SampleCollector:
         self.horizon_ns = None  # ns, or None (set_horizon)
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
         self.non_finite = dict.fromkeys(STREAMS, 0)
-        #: Finite samples received, per stream (over the collector's lifetime).
-        self.received = dict.fromkeys(STREAMS, 0)
-        #: Samples ignored because stamped before the start time, per stream.
-        self.too_early = dict.fromkeys(STREAMS, 0)
         #: Pairs dropped because inconsistent with the window averaged after them.
         self.inconsistent = 0
         #: Pairs dropped because the readings were still settling (the rest waits).
@@ -228,11 +220,7 @@ class SampleCollector:
         if not np.all(np.isfinite(values)):
             self.non_finite[stream] += 1
             return False
-        self.received[stream] += 1
-        if self.start_ns is None or stamp_ns < self.start_ns:
-            self.too_early[stream] += 1
-            return False
-        return True
+        return self.start_ns is not None and stamp_ns >= self.start_ns
 
     def add_leg_lengths(self, stamp_ns, leg_lengths):
         """Add a leg-length sample ``q`` (6, m). Returns False if dropped."""
@@ -280,10 +268,6 @@ class SampleCollector:
     def add_lvdt(self, stamp_ns, d_m):
         """Add an LVDT sample ``d_m`` (m). Returns False if dropped."""
         return self._add_device(LVDT, stamp_ns, [d_m])
-
-    def complete_device_stamps(self):
-        """Sorted stamps (ns) of device instants with all three topics received."""
-        return list(self._pairing.devices)
 
     def pairs(self):
         """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order (a copy), by the rule
@@ -362,12 +346,12 @@ class SampleCollector:
             if self.consistent(candidate) and not self.unchanged(candidate):
                 self.not_at_rest = self.rest_rule.judge(
                     pairs,
+                    self._pairing.pair_legs,
                     start + count - 1,
                     count,
                     lambda span: unwrap_phi(self._values(span)),
                     self.noise_std,
-                    pair_legs=self._pairing.pair_legs,
-                    slack_ns=self.tolerance_ns,
+                    self.tolerance_ns,
                 )
                 unsettled = self.not_at_rest
                 verdict = _USABLE if unsettled is None else _SETTLE_VERDICT[unsettled.pending]
@@ -388,19 +372,6 @@ class SampleCollector:
             'consistent': self.window() is not None if self.pair_count() else False,
         }
 
-    def average(self, pairs=None):
-        """Average :meth:`window` (or ``pairs``) into a posture row (``phi`` on the circle);
-        ValueError if there are no pairs."""
-        if pairs is None:
-            pairs = self.window() or self.pairs()[: self.pairs_per_posture]
-        if not pairs:
-            raise ValueError('no synchronised samples to average')
-        return average_row(
-            np.array([self._legs[leg] for leg, _ in pairs]),
-            np.array([self._device[dev] for _, dev in pairs]),
-            np.array([leg for leg, _ in pairs], dtype=np.int64),
-        )
-
     def take_posture(self):
         """Average the consistent window and stop collecting; ValueError if not ready."""
         window = self.window() if self.pair_count() >= self.pairs_per_posture else None
@@ -413,8 +384,13 @@ class SampleCollector:
         unsettled, inconsistent = verdicts.count(_UNSETTLED), verdicts.count(_INCONSISTENT)
         self.settling_dropped += len(verdicts) - inconsistent  # moving or look-back pending
         self.inconsistent += inconsistent
+        row = average_row(
+            np.array([self._legs[leg] for leg, _ in window]),
+            np.array([self._device[dev] for _, dev in window]),
+            np.array([leg for leg, _ in window], dtype=np.int64),
+        )
         sample = dataclasses.replace(
-            self.average(window),
+            row,
             rest_wait=(window[0][0] - self.start_ns) * 1e-9,
             moving_pairs=int(unsettled),
         )
@@ -434,7 +410,7 @@ def segment_pairs(collector, limit=None, last=False):
     margin = collector.tolerance_ns
     devices = [
         stamp
-        for stamp in collector.complete_device_stamps()
+        for stamp in collector._pairing.devices
         if legs[0] - margin <= stamp <= legs[-1] + margin
     ]
     pairs = nearest_pairs(legs, devices, margin)
