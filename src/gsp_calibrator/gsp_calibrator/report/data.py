@@ -69,29 +69,23 @@ def validation_summary(validation):
     if validation is None:
         return None
     summary = {k: validation[k] for k in VALIDATION_KEYS if k in validation}
-    position, orientation = validation_arrays(validation)
-    if position is not None and len(position):
-        summary.setdefault('position_mm_mean', float(np.mean(position)))
-        summary.setdefault('position_mm_max', float(np.max(position)))
-    if orientation is not None and len(orientation):
-        summary.setdefault('orientation_deg_mean', float(np.mean(orientation)))
-        summary.setdefault('orientation_deg_max', float(np.max(orientation)))
-    for key in ('postures', 'unreachable'):
-        if key in validation:
-            summary[key] = validation[key]
-    if 'postures' not in summary and position is not None:
-        summary['postures'] = len(position)
+    arrays = validation_arrays(validation)
+    for name, values in zip(('position_mm', 'orientation_deg'), arrays, strict=True):
+        if values is not None and len(values):
+            summary.setdefault(f'{name}_mean', float(np.mean(values)))
+            summary.setdefault(f'{name}_max', float(np.max(values)))
+    summary |= {key: validation[key] for key in ('postures', 'unreachable') if key in validation}
+    if 'postures' not in summary and arrays[0] is not None:
+        summary['postures'] = len(arrays[0])
     return summary
 
 
 def validation_arrays(validation):
-    if validation is None:
-        return None, None
-    position = validation.get('position_mm')
-    orientation = validation.get('orientation_deg')
-    position = None if position is None else np.asarray(position, dtype=float).reshape(-1)
-    orientation = None if orientation is None else np.asarray(orientation, dtype=float).reshape(-1)
-    return position, orientation
+    """``(position mm, orientation deg)`` per posture of a validation (each None if absent)."""
+    return tuple(
+        None if validation.get(key) is None else np.asarray(validation[key], dtype=float).ravel()
+        for key in ('position_mm', 'orientation_deg')
+    )
 
 
 def validation_errors(true, controller, poses):
@@ -123,20 +117,13 @@ def parameter_error_table(result, truth, nominal):
     estimate = np.asarray(result.parameters, dtype=float)[:count]
     sigma = to_report_units(np.nan_to_num(result.standard_deviations[:count], nan=0.0))
     sigma = np.where(np.asarray(result.free, dtype=bool)[:count], sigma, np.nan)
-    if truth is not None:
+    if truth is None:
+        reference, before = nominal.to_vector(), np.zeros(count)
+    else:
         reference = truth.to_vector()
-        return (
-            'truth',
-            to_report_units(nominal.to_vector() - reference),
-            to_report_units(estimate - reference),
-            sigma,
-        )
-    return (
-        'nominal',
-        np.zeros(len(PARAMETER_NAMES)),
-        to_report_units(estimate - nominal.to_vector()),
-        sigma,
-    )
+        before = to_report_units(nominal.to_vector() - reference)
+    kind = 'nominal' if truth is None else 'truth'
+    return kind, before, to_report_units(estimate - reference), sigma
 
 
 def residual_columns(result):
