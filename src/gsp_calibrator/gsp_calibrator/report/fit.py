@@ -37,12 +37,6 @@ def format_number(value, digits=4):
 _fmt = format_number
 
 
-def _free_text(name, free):
-    if free:
-        return 'yes'
-    return 'no (datum)' if name in DATUM_SENSOR_PARAMETERS else 'no'
-
-
 def outcome_data(outcome):
     """The ``result.json`` keys of a ``run.identify.CalibrationOutcome`` beside the fit's: the
     verdict (``accepted``, ``acceptance``), the cross-validated ``accuracy``, the ``unmodelled``
@@ -111,11 +105,12 @@ def _sensor_error_table(data):
         factor, unit = (math.degrees(1.0), 'deg') if degrees else (1.0, '1')
         nominal = entry.get('nominal')
         deviation = entry.get('standard_deviation')
+        fixed = 'no (datum)' if name in DATUM_SENSOR_PARAMETERS else 'no'
         rows.append(
             [
                 name,
                 unit,
-                _free_text(name, entry['free']),
+                'yes' if entry['free'] else fixed,
                 _fmt(None if nominal is None else nominal * factor),
                 _fmt(entry['estimate'] * factor),
                 _fmt(None if deviation is None else deviation * factor, 3),

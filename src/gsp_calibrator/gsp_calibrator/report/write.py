@@ -203,36 +203,32 @@ def write_result_json(run_dir, result, inputs=ReportInputs()):
 
 def _validation_lines(data, images):
     """The ``## Validation`` section of ``report.md`` (none without a validation)."""
-    lines = []
     validation = data.get('validation') or {}
-    if validation.get('before') or validation.get('after'):
-        lines += [
-            '## Validation',
-            '',
-            '| | position mean (mm) | position max (mm) | orientation mean (deg) '
-            '| orientation max (deg) | postures |',
-            '|---|---|---|---|---|---|',
-        ]
-        for when in ('before', 'after'):
-            summary = validation.get(when)
-            if summary:
-                lines.append(
-                    f'| {when} | '
-                    + ' | '.join(format_number(summary.get(k)) for k in VALIDATION_KEYS)
-                    + f' | {summary.get("postures", "–")} |'
-                )
-        lines.append('')
-        if 'validation' in images:
-            lines += [f'![validation errors before and after]({images["validation"]})', '']
+    if not (validation.get('before') or validation.get('after')):
+        return []
+    lines = [
+        '## Validation',
+        '',
+        '| | position mean (mm) | position max (mm) | orientation mean (deg) '
+        '| orientation max (deg) | postures |',
+        '|---|---|---|---|---|---|',
+    ]
+    for when in ('before', 'after'):
+        summary = validation.get(when)
+        if summary:
+            numbers = ' | '.join(format_number(summary.get(k)) for k in VALIDATION_KEYS)
+            lines.append(f'| {when} | {numbers} | {summary.get("postures", "–")} |')
+    lines.append('')
+    if 'validation' in images:
+        lines += [f'![validation errors before and after]({images["validation"]})', '']
     return lines
 
 
 def _parameter_lines(data, images):
     """The ``## Parameters`` section of ``report.md``: errors against the truth, or corrections."""
-    lines = []
     errors = data['parameter_errors']
     against_truth = errors['reference'] == 'truth'
-    lines += ['## Parameters', '']
+    lines = ['## Parameters', '']
     if against_truth:
         lines.append(
             f'Errors against the true geometry. Largest after calibration: '
@@ -251,6 +247,7 @@ def _parameter_lines(data, images):
     )
     lines += [header, '|' + '---|' * (header.count('|') - 1)]
     units = data['units']['report']
+    shown = ('before', 'after') if against_truth else ('after',)
     for name in PARAMETER_NAMES:
         row = [
             name,
@@ -259,13 +256,7 @@ def _parameter_lines(data, images):
             format_number(data['estimates']['report'][name], 7),
             format_number(data['standard_deviations']['report'][name], 3),
         ]
-        if against_truth:
-            row += [
-                format_number(errors['before'][name], 3),
-                format_number(errors['after'][name], 3),
-            ]
-        else:
-            row.append(format_number(errors['after'][name], 3))
+        row += [format_number(errors[when][name], 3) for when in shown]
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
     return lines
