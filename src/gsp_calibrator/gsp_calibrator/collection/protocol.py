@@ -204,9 +204,8 @@ class CollectionProtocol:
         return self.poll(now_ns)
 
     def sensor(self, topic, msg, now_ns, received_ns=None):
-        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) handled at ``now_ns``;
-        ``received_ns``: when it came off the wire (the middleware's receive time on the same
-        clock), None if unknown."""
+        """A sensor message on ``topic`` handled at ``now_ns``, off the wire at ``received_ns``
+        (the middleware's receive time on the same clock; None: unknown)."""
         return self.sensors([(topic, msg, received_ns)], now_ns)
 
     def sensors(self, messages, now_ns):
@@ -232,13 +231,12 @@ class CollectionProtocol:
             return SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
         return SampleDropped(topic, str(error), False)
 
-    def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
+    def sample(self, stream, stamp_ns, values, now_ns, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
         at ``now_ns``, off the wire at ``received_ns`` (None: unknown)."""
         self.timeouts.attend(now_ns)
-        if heard:
-            topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
-            self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
+        topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
+        self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
         self._take(stream, stamp_ns, values, now_ns, received_ns)
         return self._judged(now_ns)
 
@@ -259,10 +257,9 @@ class CollectionProtocol:
         if len(by_stream) == len(SENSOR_TOPICS):
             posture.received_ns = max(posture.received_ns, min(by_stream.values()))
         if stamp_ns < posture.start_ns and received_ns is None:
-            # Stamped before the start, handled now: the caller may still be working through a
-            # backlog (its listener fell behind), which is no lack of progress of the pairs.
-            # (With the receive time off the wire, the backlog shows itself: received before
-            # the settle.)
+            # Stamped before the start, handled now: the caller may be working through a backlog
+            # (its listener fell behind), which is no lack of progress of the pairs (a receive
+            # time off the wire shows the backlog itself: received before the settle).
             posture.progress_ns = max(posture.progress_ns, received)
         self._add(posture, stream, stamp_ns, values)
 

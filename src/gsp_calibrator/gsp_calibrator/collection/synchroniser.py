@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from gsp_calibrator.collection import at_rest
-from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs  # noqa: F401
+from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs
 from gsp_kinematics import channels
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
@@ -16,10 +16,8 @@ from gsp_kinematics.rotation import wrap_angle
 
 NS_PER_S = 1_000_000_000
 
-#: Stream names (the sensors of the channel table), as counted in
-#: :attr:`SampleCollector.non_finite` and ``received``.
+#: Stream names (the sensors of the channel table), as counted in ``non_finite``.
 LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT = channels.SENSORS
-STREAMS = channels.SENSORS
 
 #: Robust standard deviations a value may lie from its window's median (see the module docstring).
 DEFAULT_CONSISTENCY_THRESHOLD = 10.0
@@ -159,23 +157,19 @@ class SampleCollector:
         self._window_revision = None  # pairing revision of _verdicts and _window_start
         self.horizon_ns = None  # ns, or None (set_horizon)
         #: Non-finite readings dropped, per stream (over the collector's lifetime).
-        self.non_finite = dict.fromkeys(STREAMS, 0)
+        self.non_finite = dict.fromkeys(channels.SENSORS, 0)
         #: Pairs dropped because inconsistent with the window averaged after them.
         self.inconsistent = 0
         #: Pairs dropped because the readings were still settling (the rest waits).
         self.settling_dropped = 0
 
-    # --- input -------------------------------------------------------------------------------
-
     def start(self, start_ns, previous_readings=None):
         """Begin a new posture: forget buffered samples, keep only stamps >= ``start_ns``;
         ``previous_readings``: the previous posture's ``[alpha, beta, phi, d_m]``, if any."""
         self.start_ns = int(start_ns)
-        self.previous_readings = (
-            None
-            if previous_readings is None
-            else np.asarray(previous_readings, dtype=float).reshape(_READINGS)
-        )
+        if previous_readings is not None:
+            previous_readings = np.asarray(previous_readings, dtype=float).reshape(_READINGS)
+        self.previous_readings = previous_readings
         self._clear()
         self.not_at_rest = None
 
@@ -269,19 +263,20 @@ class SampleCollector:
         """Add an LVDT sample ``d_m`` (m). Returns False if dropped."""
         return self._add_device(LVDT, stamp_ns, [d_m])
 
-    def pairs(self):
-        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order (a copy), by the rule
-        of :func:`~gsp_calibrator.collection.pairing.nearest_pairs`."""
-        return list(self._pairing.pairs)
-
     def pair_count(self):
         return len(self._pairing.pairs)
 
+    def _arrays(self, pairs):
+        """``(leg stamps (n,) ns, q (n, 6) m, readings (n, 4))`` of ``pairs``."""
+        return (
+            np.array([leg for leg, _ in pairs], dtype=np.int64),
+            np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS),
+            np.array([self._device[dev] for _, dev in pairs]).reshape(-1, _READINGS),
+        )
+
     def _values(self, pairs):
         """(n, 10) ``[q_1..q_6, alpha, beta, phi, d_m]`` of ``pairs``."""
-        legs = np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS)
-        readings = np.array([self._device[dev] for _, dev in pairs]).reshape(-1, _READINGS)
-        return np.hstack([legs, readings])
+        return np.hstack(self._arrays(pairs)[1:])
 
     def _median_and_spread(self, pairs):
         return median_and_spread(self._values(pairs), self.noise_std)
@@ -384,13 +379,9 @@ class SampleCollector:
         unsettled, inconsistent = verdicts.count(_UNSETTLED), verdicts.count(_INCONSISTENT)
         self.settling_dropped += len(verdicts) - inconsistent  # moving or look-back pending
         self.inconsistent += inconsistent
-        row = average_row(
-            np.array([self._legs[leg] for leg, _ in window]),
-            np.array([self._device[dev] for _, dev in window]),
-            np.array([leg for leg, _ in window], dtype=np.int64),
-        )
+        stamps, legs, readings = self._arrays(window)
         sample = dataclasses.replace(
-            row,
+            average_row(legs, readings, stamps),
             rest_wait=(window[0][0] - self.start_ns) * 1e-9,
             moving_pairs=int(unsettled),
         )
@@ -406,16 +397,11 @@ def segment_pairs(collector, limit=None, last=False):
     if limit is not None:
         legs = legs[-int(limit) :] if last else legs[: int(limit)]
     if not legs:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, _LEGS)), np.zeros((0, _READINGS))
+        return collector._arrays([])
     margin = collector.tolerance_ns
     devices = [
         stamp
         for stamp in collector._pairing.devices
         if legs[0] - margin <= stamp <= legs[-1] + margin
     ]
-    pairs = nearest_pairs(legs, devices, margin)
-    return (
-        np.array([leg for leg, _ in pairs], dtype=np.int64),
-        np.array([collector._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS),
-        np.array([collector._device[dev] for _, dev in pairs]).reshape(-1, _READINGS),
-    )
+    return collector._arrays(nearest_pairs(legs, devices, margin))
