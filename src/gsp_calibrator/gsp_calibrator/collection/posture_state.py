@@ -21,7 +21,7 @@ RATE_WINDOW = 64
 RATE_MIN_STAMPS = 10
 
 
-IDLE, AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'idle', 'status', 'settle', 'collecting'
+AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'status', 'settle', 'collecting'
 
 
 @dataclasses.dataclass
@@ -55,17 +55,6 @@ class Posture:
         if len(self.latest_ns) < len(SENSOR_TOPICS):
             return None
         return min(self.latest_ns.values())
-
-    def data_elapsed(self):
-        """s of the data since the start (0 while :meth:`data_ns` is None)."""
-        data_ns = self.data_ns()
-        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
-
-    def horizon_ns(self):
-        """The data's horizon (the collector's ``set_horizon``): the stamp every stream has
-        reached since the start; before each has given one, the start."""
-        data_ns = self.data_ns()
-        return self.start_ns if data_ns is None else data_ns
 
 
 class LatestReadings:

@@ -182,7 +182,9 @@ class CollectionProtocol:
         self._checked_pairs = None
         pose = np.asarray(pose, dtype=float).reshape(6)
         self._posture = Posture(int(posture), pose, str(command_id), int(now_ns))
-        self.timeouts.plan_move(self._posture, self.latest_leg_lengths())
+        legs, planned_move = self.latest_leg_lengths(), self.timeouts.planned_move
+        if planned_move is not None and legs is not None:
+            self._posture.move_s = planned_move(legs, pose)
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):
@@ -322,7 +324,8 @@ class CollectionProtocol:
             return []
         collector = self.collector
         # Windows are judged once their pairs are final in the data's time (set_horizon).
-        collector.set_horizon(self._posture.horizon_ns())
+        data_ns = self._posture.data_ns()
+        collector.set_horizon(self._posture.start_ns if data_ns is None else data_ns)
         # ready() is a function of the pairs and the horizon: only ask again when they changed.
         checked = (collector.pair_revision, collector.horizon_ns)
         if checked != self._checked_pairs:

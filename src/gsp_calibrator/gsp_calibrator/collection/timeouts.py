@@ -69,11 +69,6 @@ class CollectionTimeouts:
             f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
         )
 
-    def plan_move(self, posture, start_legs):
-        """Note ``posture``'s planned move time from ``start_legs`` (6,) m (None: unknown)."""
-        if self.planned_move is not None and start_legs is not None:
-            posture.move_s = self.planned_move(start_legs, posture.pose)
-
     def settle_overdue(self, posture, now_ns):
         """The skip reason if the settle is overdue, else ''."""
         limit = self.settle_timeout + posture.move_s
@@ -129,11 +124,10 @@ class CollectionTimeouts:
                 f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
-        # The bounds below count in the data's time (the samples' stamps since the start), so a
-        # posture whose samples were sent is never skipped because they were handled late; a
-        # tolerance later, so the windows ending at the bound have been judged on final pairs
-        # (the collector's set_horizon).
-        data_s = posture.data_elapsed() - self.sync_tolerance
+        # The bounds below count in the data's time (docs/architecture.md#synchronisation), a
+        # tolerance later: the windows ending at a bound have been judged on final pairs.
+        data_s = 0.0 if data_ns is None else (data_ns - posture.start_ns) * 1e-9
+        data_s -= self.sync_tolerance
         if collector.not_at_rest is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '

@@ -156,6 +156,8 @@ def plot_accuracy_map(path, prediction):
     figure = new_figure(
         3.3 * columns, 6.6, left=0.05, right=0.97, top=0.88, bottom=0.08, wspace=0.35, hspace=0.35
     )
+    heights = sorted({panel['z_m'] for panel in maps})
+    height_step = min(np.diff(heights)) if len(heights) > 1 else math.inf
     rows = (('position_mm', 'position (mm)'), ('orientation_deg', 'orientation (deg)'))
     for row, (key, label) in enumerate(rows):
         values = np.array([panel[key] for panel in maps], dtype=float)
@@ -176,7 +178,7 @@ def plot_accuracy_map(path, prediction):
             image = axes.pcolormesh(x, y, grid, shading='nearest', **scale)
             if measured is not None:
                 poses = np.asarray(validation['poses'])
-                near = np.abs(poses[:, 2] - panel['z_m']) <= 0.5 * _height_step(maps)
+                near = np.abs(poses[:, 2] - panel['z_m']) <= 0.5 * height_step
                 near &= np.all(np.abs(poses[:, 3:5] - np.asarray(panel['tilt_rad'])) < 0.2, axis=1)
                 x_near, y_near = 1000 * poses[near, :2].T
                 axes.scatter(x_near, y_near, c=measured[near], edgecolors='w', s=22, **scale)
@@ -203,11 +205,6 @@ def plot_accuracy_map(path, prediction):
         f'covariance){dots}'
     )
     return save_figure(figure, path)
-
-
-def _height_step(maps):
-    heights = sorted({panel['z_m'] for panel in maps})
-    return min(np.diff(heights)) if len(heights) > 1 else math.inf
 
 
 HELD_OUT_PNG = 'held_out_accuracy.png'

@@ -27,13 +27,6 @@ def untried_groups(design, count, plain):
     return {g: reasons[g] for g in EFFECT_GROUPS if g not in available and g not in plain}
 
 
-def _instant(stamp_s):
-    """UTC ISO text of a stamp (s since the epoch), or None when it is not a wall-clock time."""
-    if not stamp_s > 1e9:  # a simulated clock from 0: no date
-        return None
-    return datetime.datetime.fromtimestamp(stamp_s, datetime.UTC).isoformat(timespec='seconds')
-
-
 def _thermal(result, design, nominal, reference_stamp_s):
     """The thermal drift of each leg at the reference instant (um/min, its standard deviation,
     resolved or not), the warming's time constant and the instant the geometry refers to."""
@@ -48,6 +41,10 @@ def _thermal(result, design, nominal, reference_stamp_s):
     scale = lengths * 60.0 * 1e6 * slowed  # 1/s -> um/min
     drift, deviation = rates[:, 0] * scale, rates[:, 1] * scale
     resolved = np.abs(drift) > RESOLVED_SIGMAS * deviation
+    utc = None  # a simulated clock from 0: no date
+    if reference_stamp_s > 1e9:
+        instant = datetime.datetime.fromtimestamp(reference_stamp_s, datetime.UTC)
+        utc = instant.isoformat(timespec='seconds')
     return {
         'drift_um_per_min': drift.tolist(),
         'drift_sd_um_per_min': deviation.tolist(),
@@ -56,7 +53,7 @@ def _thermal(result, design, nominal, reference_stamp_s):
         'thermal_time_constant_s': float(tau),
         'reference_time_s': float(design.reference_time_s),
         'reference_stamp_s': float(reference_stamp_s),
-        'reference_utc': _instant(reference_stamp_s),
+        'reference_utc': utc,
         'compensated': False,
     }
 

@@ -131,31 +131,22 @@ def _accuracy_table(data):
     accuracy = data.get('accuracy')
     if not accuracy:
         return None
-    rows = []
     where = ', workspace postures' if accuracy.get('measured_on') == 'workspace' else ''
     labelled = [
-        (accuracy, f'calibrated (held out{where})', 'calibrated'),
-        (accuracy, 'nominal geometry', 'nominal'),
+        (f'calibrated (held out{where})', accuracy['calibrated']),
+        ('nominal geometry', accuracy['nominal']),
     ]
     if accuracy.get('selected'):
-        labelled.append(
-            (accuracy['selected'], 'calibrated (held out, selected postures)', 'calibrated')
-        )
+        selected = accuracy['selected']['calibrated']
+        labelled.append(('calibrated (held out, selected postures)', selected))
     if data.get('rigid_accuracy'):
-        labelled.append((data['rigid_accuracy'], 'rigid geometry (held out)', 'calibrated'))
-    for entry, label, key in labelled:
-        position, phi = entry[key]['position_mm'], entry[key]['phi_deg']
-        rows.append(
-            [
-                label,
-                _fmt(position['mean'], 3),
-                _interval(position.get('mean_interval_95')),
-                _fmt(position['p95'], 3),
-                _fmt(phi['mean'], 3),
-                _fmt(phi['p95'], 3),
-                _fmt(position['measured_mean'], 3),
-            ]
-        )
+        labelled.append(('rigid geometry (held out)', data['rigid_accuracy']['calibrated']))
+    rows = []
+    for label, entry in labelled:
+        p, phi = entry['position_mm'], entry['phi_deg']
+        cells = [_fmt(v, 3) for v in (p['mean'], p['p95'], phi['mean'], phi['p95'])]
+        interval = _interval(p.get('mean_interval_95'))
+        rows.append([label, cells[0], interval, *cells[1:], _fmt(p['measured_mean'], 3)])
     predicted = data.get('predicted_accuracy') or {}
     if predicted.get('position_mm_mean') is not None:
         mean, p95 = _fmt(predicted['position_mm_mean'], 3), _fmt(predicted['position_mm_p95'], 3)
