@@ -30,14 +30,10 @@ _CORRECTION_COLOUR = '#2ca02c'
 def _residual_scale(kind, values):
     """``(factor, unit)`` so that the residuals read as numbers between ~0.1 and ~1000."""
     rms = float(np.sqrt(np.mean(np.square(values)))) if len(values) else 0.0
-    if kind == 'length':
-        options = ((1e3, 'mm'), (1e6, 'µm'), (1e9, 'nm'))
-    else:
-        options = (
-            (math.degrees(1.0), 'deg'),
-            (math.degrees(1.0) * 1e3, 'mdeg'),
-            (math.degrees(1.0) * 1e6, 'µdeg'),
-        )
+    deg = math.degrees(1.0)
+    options = ((1e3, 'mm'), (1e6, 'µm'), (1e9, 'nm'))
+    if kind != 'length':
+        options = ((deg, 'deg'), (deg * 1e3, 'mdeg'), (deg * 1e6, 'µdeg'))
     for factor, unit in options:
         if rms * factor >= 0.1:
             return factor, unit
@@ -218,9 +214,8 @@ def plot_residuals(path, result):
         factor, unit = _residual_scale(SENSOR_KIND.get(sensor, 'length'), values)
         scaled = values * factor
         bins = int(np.clip(np.sqrt(scaled.size) * 2, 10, 60))
-        axes.hist(
-            scaled, bins=bins, color=_AFTER_COLOUR, alpha=0.8, label=f'{scaled.size} residuals'
-        )
+        text = f'{scaled.size} residuals'
+        axes.hist(scaled, bins=bins, color=_AFTER_COLOUR, alpha=0.8, label=text)
         rms = float(np.sqrt(np.mean(scaled**2))) if scaled.size else 0.0
         axes.axvline(rms, color=_BEFORE_COLOUR, ls='--', lw=1, label=f'± RMS {rms:.3g} {unit}')
         axes.axvline(-rms, color=_BEFORE_COLOUR, ls='--', lw=1)
@@ -252,24 +247,16 @@ def plot_validation(path, validation_before, validation_after):
                 continue
             values = validation_arrays(validation)[column]  # (position, orientation)
             if values is not None and values.size:
+                clipped = np.maximum(values, 1e-12)
                 parts = axes.violinplot(
-                    np.maximum(values, 1e-12),
-                    positions=[position],
-                    showmeans=False,
-                    showextrema=False,
+                    clipped, positions=[position], showmeans=False, showextrema=False
                 )
                 for body in parts['bodies']:
                     body.set_facecolor(colour)
                     body.set_alpha(0.35)
                 jitter = (np.random.default_rng(0).random(values.size) - 0.5) * 0.2
-                axes.plot(
-                    position + jitter,
-                    np.maximum(values, 1e-12),
-                    '.',
-                    color=colour,
-                    ms=4,
-                    label=f'{when}: {values.size} postures',
-                )
+                text = f'{when}: {values.size} postures'
+                axes.plot(position + jitter, clipped, '.', color=colour, ms=4, label=text)
                 axes.plot(
                     [position - 0.3, position + 0.3], [np.mean(values)] * 2, '-', color='k', lw=1.5
                 )
@@ -280,14 +267,8 @@ def plot_validation(path, validation_before, validation_after):
                 top = summary.get(f'{key}_max')
                 if mean is None:
                     continue
-                axes.bar(
-                    position,
-                    top if top is not None else mean,
-                    0.5,
-                    color=colour,
-                    alpha=0.35,
-                    label=f'{when}: max',
-                )
+                height = mean if top is None else top
+                axes.bar(position, height, 0.5, color=colour, alpha=0.35, label=f'{when}: max')
                 axes.plot([position - 0.25, position + 0.25], [mean] * 2, '-', color='k', lw=1.5)
                 drawn.extend(v for v in (mean, top) if v)
         positive = [v for v in drawn if v > 0]
