@@ -151,15 +151,8 @@ def _accuracy_table(data):
     if predicted.get('position_mm_mean') is not None:
         mean, p95 = _fmt(predicted['position_mm_mean'], 3), _fmt(predicted['position_mm_p95'], 3)
         rows.append(['predicted (workspace)', mean, '–', p95, '–', '–', '–'])
-    header = [
-        'accuracy',
-        'position mean (mm)',
-        'its 95 % interval (mm)',
-        'position p95 (mm)',
-        'phi mean (deg)',
-        'phi p95 (deg)',
-        'measured position mean, noise included (mm)',
-    ]
+    header = ['accuracy', 'position mean (mm)', 'its 95 % interval (mm)', 'position p95 (mm)']
+    header += ['phi mean (deg)', 'phi p95 (deg)', 'measured position mean, noise included (mm)']
     return ('table', header, rows)
 
 
@@ -195,34 +188,18 @@ def _noise_table(data):
         keys = ('configured', 'estimated', 'within_posture', 'between_postures')
         shown = [_fmt(None if entry.get(k) is None else entry[k] * factor, 3) for k in keys]
         unmodelled = entry.get('unmodelled') or 0.0
-        source = entry.get('source', '') + (
-            ' (within: lower bound)' if entry.get('within_lower_bound') else ''
-        )
+        lower = ' (within: lower bound)' if entry.get('within_lower_bound') else ''
+        source = entry.get('source', '') + lower
         warning = 'WARNING: differs by more than 2x' if entry.get('warning') else ''
         unit = 'urad' if angular else 'um'
         rows.append([channel, *shown, _fmt(unmodelled * 1e6, 3), unit, source, warning])
-    return [
-        (
-            'line',
-            f'weights from the {used} noise (noise_source); per-sample noise (an averaged row '
-            "times sqrt(samples)); 'unmodelled' per row, which averaging does not reduce",
-        ),
-        (
-            'table',
-            [
-                'sensor noise',
-                'configured',
-                'estimated (the noise)',
-                'within postures',
-                'between postures',
-                'unmodelled',
-                'unit of unmodelled',
-                'source',
-                '',
-            ],
-            rows,
-        ),
-    ]
+    line = (
+        f'weights from the {used} noise (noise_source); per-sample noise (an averaged row '
+        "times sqrt(samples)); 'unmodelled' per row, which averaging does not reduce"
+    )
+    header = ['sensor noise', 'configured', 'estimated (the noise)', 'within postures']
+    header += ['between postures', 'unmodelled', 'unit of unmodelled', 'source', '']
+    return [('line', line), ('table', header, rows)]
 
 
 def fit_summary(data):

@@ -272,17 +272,16 @@ PLOTS_SKIPPED_NOTE = (
 def report_markdown(data, images, title='Calibration report', plots=True):
     """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots;
     ``plots=False``: the report says its plots were not drawn."""
-    lines = [f'# {title}', '']
-    lines.append(
-        f'- status: {"converged" if data["converged"] else "NOT converged"} '
-        f'(status {data["status"]}: {data["message"]})'
-    )
-    lines.append(
-        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; '
-        f'free parameters: {len(data["free_parameters"])}; iterations: '
-        f'{data["iterations"]}; identification time: '
-        f'{format_number((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
-    )
+    status = 'converged' if data['converged'] else 'NOT converged'
+    milliseconds = format_number((data.get('duration_s') or 0.0) * 1000.0, 3)
+    lines = [
+        f'# {title}',
+        '',
+        f'- status: {status} (status {data["status"]}: {data["message"]})',
+        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; free parameters: '
+        f'{len(data["free_parameters"])}; iterations: {data["iterations"]}; identification '
+        f'time: {milliseconds} ms',
+    ]
     if data.get('excluded_postures'):
         lines.append(f'- excluded postures (FK failed): {data["excluded_postures"]}')
     identifiability = data.get('identifiability')
@@ -319,9 +318,8 @@ def report_markdown(data, images, title='Calibration report', plots=True):
     lines += markdown_lines(data.get('predicted_accuracy'), images.get('accuracy_map'))
     lines += ['## Residuals', '', '| sensor | RMS | unit |', '|---|---|---|']
     for sensor, rms in data['residual_rms'].items():
-        lines.append(
-            f'| {SENSOR_LABEL.get(sensor, sensor)} | {format_number(rms["report"])} | {rms["report_unit"]} |'
-        )
+        label = SENSOR_LABEL.get(sensor, sensor)
+        lines.append(f'| {label} | {format_number(rms["report"])} | {rms["report_unit"]} |')
     lines.append('')
     if 'residuals' in images:
         lines += [f'![residual histograms]({images["residuals"]})', '']
