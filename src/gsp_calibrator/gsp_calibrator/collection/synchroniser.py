@@ -191,8 +191,7 @@ class SampleCollector:
 
     def set_horizon(self, horizon_ns):
         """Judge only windows whose pairs are final once every stream has delivered its samples
-        stamped up to ``horizon_ns`` (None: every window, as the pairs stand); see the module
-        docstring."""
+        stamped up to ``horizon_ns`` (None: every window, as the pairs stand)."""
         horizon_ns = None if horizon_ns is None else int(horizon_ns)
         if horizon_ns != self.horizon_ns:
             self.horizon_ns, self._window_revision = horizon_ns, None
@@ -301,7 +300,7 @@ class SampleCollector:
     def window(self):
         """The pairs to average: the earliest run of ``pairs_per_posture`` consecutive pairs
         that is consistent, changed from the previous posture and settled, or None if there is
-        none yet (:attr:`unsettled` then says why the latest run judged waits, if it does)."""
+        none yet (:attr:`not_at_rest` then says why the latest run judged waits, if it does)."""
         start = self._window_start_now()
         count = self.pairs_per_posture
         return None if start is None else self._pairing.pairs[start : start + count]

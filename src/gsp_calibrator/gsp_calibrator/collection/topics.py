@@ -1,6 +1,5 @@
-"""THE table of the sensor topics a calibration collects, the stream each one feeds, and how a
-sensor message is read (pure, no rclpy): a ``JointState`` message, or its CDR bytes as a raw
-subscription takes them (:mod:`.joint_state_cdr`)."""
+"""THE table of the sensor topics a calibration collects and the stream each one feeds, and how a
+``JointState`` message or its CDR bytes are read (pure, no rclpy)."""
 
 import math
 

@@ -211,9 +211,8 @@ HELD_OUT_PNG = 'held_out_accuracy.png'
 
 
 def plot_held_out(path, accuracy, predicted=None, required_mm=None):
-    """Each posture's position error measured by the device with the geometry fitted without
-    it, beside the nominal geometry's and the posture's own noise (log scale), with the
-    cross-validated mean (noise removed), the predicted mean and the requirement as lines."""
+    """Each posture's held-out position error beside the nominal geometry's and its own noise
+    (log scale), with the cross-validated and predicted means and the requirement as lines."""
     per_posture = accuracy['per_posture']
     figure = new_figure(11, 4.4, left=0.07, right=0.98, top=0.88, bottom=0.12)
     axes = figure.add_subplot(1, 1, 1)

@@ -1,6 +1,5 @@
-"""The numbers of a calibration report, shared by ``result.json``, ``report.md`` and the plots
-(pure, no rclpy): report and SI units, parameter errors, validation summaries, residuals per
-sensor and the identifiability record."""
+"""The numbers of a calibration report shared by ``result.json``, ``report.md`` and the plots
+(pure, no rclpy)."""
 
 import math
 
@@ -142,10 +141,8 @@ def residual_columns(result):
 
 
 def residuals_by_sensor(result):
-    """``{sensor: residuals in SI (m or rad)}`` (1-D arrays, finite values only).
-
-    The core returns residuals weighted by each sensor's sigma and the per-sensor RMS in SI;
-    the sigma is their ratio, so the weights need not be known here."""
+    """``{sensor: residuals in SI (m or rad)}`` (1-D, finite values only): the core's weighted
+    residuals scaled by the sensor's RMS in SI over theirs (the weights need not be known)."""
     residuals = np.asarray(result.residuals, dtype=float)
     out = {}
     for sensor, columns in residual_columns(result):
@@ -161,9 +158,8 @@ def residuals_by_sensor(result):
 
 
 def settle_line(settle):
-    """The response's line of ``collection.settle`` (:func:`settle_statistics`): ``'settle
-    wait (settled to averaged window): median 0.205 s, max 0.61 s over 60 rows; 12 waited for
-    a moving channel'``; '' without rows."""
+    """The response's line of ``collection.settle`` (:func:`settle_statistics`); '' without
+    rows."""
     if not settle or not settle.get('rows'):
         return ''
     return (
@@ -174,10 +170,8 @@ def settle_line(settle):
 
 
 def settle_statistics(waits):
-    """``result.json`` ``collection.settle`` of the kept rows' rest waits (``rest_waits``):
-    ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
-    waited for a channel still moving (not only for their first samples), and ``per_posture_s``
-    (``{posture: wait_s}``, in posture order)."""
+    """``result.json`` ``collection.settle`` (docs/data.md#resultjson) of the kept rows' rest
+    waits ``{posture: {wait_s, moving_pairs}}``."""
     values = np.array([entry['wait_s'] for entry in waits.values()], dtype=float)
     known = values.size > 0
     return {

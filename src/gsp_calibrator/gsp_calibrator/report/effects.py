@@ -59,11 +59,8 @@ def _thermal(result, design, nominal, reference_stamp_s):
 
 
 def effects_record(result, design, nominal, choice=None, untried=None, reference_stamp_s=0.0):
-    """The ``effects`` entry of ``result.json``: ``model_choice`` (the chosen groups, the reason,
-    each candidate's cross-validated position error and the groups not tried, and why), the
-    identified ``parameters`` (estimate and standard deviation, SI), ``payload_mass`` and
-    ``centre_of_mass`` they hold for, and ``thermal`` (the drift and the reference instant);
-    None when neither a choice was made nor an effect freed."""
+    """The ``effects`` entry of ``result.json`` (docs/data.md#resultjson); None when neither a
+    choice was made nor an effect freed."""
     identified = result.effects if result is not None else {}
     if choice is None and not identified:
         return None

@@ -1,6 +1,5 @@
-"""The verdict, the accuracy measured by cross-validation, the sensor errors, the goodness of fit,
-outliers and noise estimates of ``result.json``, ``report.md`` and the service's response
-(docs/verdict.md, docs/sensor_errors.md)."""
+"""The verdict, accuracy, sensor errors, goodness of fit, outliers and noise estimates of
+``result.json``, ``report.md`` and the service's response (docs/verdict.md)."""
 
 import math
 
@@ -39,8 +38,7 @@ _fmt = format_number
 
 def outcome_data(outcome):
     """The ``result.json`` keys of a ``run.identify.CalibrationOutcome`` beside the fit's: the
-    verdict (``accepted``, ``acceptance``), the cross-validated ``accuracy``, the ``unmodelled``
-    error, the noise and the goodness-of-fit verdict (``fit_accepted``, ``fit_diagnosis``)."""
+    verdict, accuracy, unmodelled error, noise and goodness-of-fit verdict."""
     judgement, requirement = outcome.judgement, outcome.requirement
     acceptance = None
     if judgement is not None:
@@ -203,10 +201,8 @@ def _noise_table(data):
 
 
 def fit_summary(data):
-    """The fit summary of ``data`` (``result.json`` keys: ``acceptance``, ``accuracy``,
-    ``predicted_accuracy``, ``goodness_of_fit``, ``fit_diagnosis``, ``outliers``, ``down_weighted``,
-    ``noise_estimates``, ...): ``[('heading', text) | ('line', text) | ('table', header,
-    rows)]``, for :func:`as_text` and :func:`as_markdown`."""
+    """The fit summary of ``result.json`` ``data`` as blocks ``('heading', text)``, ``('line',
+    text)`` and ``('table', header, rows)``, for :func:`as_text` and :func:`as_markdown`."""
     blocks = [('heading', 'Verdict')]
     acceptance = data.get('acceptance')
     if acceptance:

@@ -69,8 +69,7 @@ class ReportInputs:
 
     #: The result's identifiability (``gsp_kinematics.estimation.identifiability.analyse_result``).
     analysis: dict | None = None
-    #: ``gsp_kinematics.model.validation.validate`` summaries, or :func:`.data.validation_errors` dicts
-    #: (per-posture arrays).
+    #: ``validate`` summaries, or :func:`.data.validation_errors` dicts (per-posture arrays)
     validation_before: dict | None = None
     validation_after: dict | None = None
     #: The true geometry, if known: errors are then against it, else corrections against nominal.
@@ -115,14 +114,10 @@ def result_data(result, inputs=ReportInputs()):
         pass
     residual_rms = {}
     for sensor, value in (result.residual_rms or {}).items():
-        kind = SENSOR_KIND.get(sensor, 'length')
-        factor, unit = (1e6, 'um') if kind == 'length' else (math.degrees(1.0), 'deg')
-        residual_rms[sensor] = {
-            'si': value,
-            'si_unit': 'm' if kind == 'length' else 'rad',
-            'report': float(value) * factor,
-            'report_unit': unit,
-        }
+        length = SENSOR_KIND.get(sensor, 'length') == 'length'
+        factor, unit, si = (1e6, 'um', 'm') if length else (math.degrees(1.0), 'deg', 'rad')
+        report = float(value) * factor
+        residual_rms[sensor] = {'si': value, 'si_unit': si, 'report': report, 'report_unit': unit}
     data = {name: getattr(result, name) for name in _RESULT_FIELDS}
     data |= {
         'postures': int(np.asarray(result.poses).shape[0]) if result.poses is not None else None,
@@ -170,10 +165,8 @@ def result_data(result, inputs=ReportInputs()):
 
 
 def outcome_inputs(outcome, nominal, options, **extra):
-    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis, sigmas,
-    prediction and unmodelled error, and ``extra`` keys ``success``, ``failure``, ``options``,
-    the verdict (:func:`.fit.outcome_data`) and ``extra`` (e.g. the calibrator's
-    ``collection``)."""
+    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``, with ``options`` and
+    ``extra`` (e.g. the calibrator's ``collection``) among result.json's keys."""
     return ReportInputs(
         analysis=outcome.identifiability or None,
         nominal=nominal,
