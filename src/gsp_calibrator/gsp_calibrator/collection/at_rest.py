@@ -48,9 +48,8 @@ class NotAtRest:
 def span_verdict(values, stamps_ns, sigmas, noise_std=None):
     """None if every channel of ``values`` (n, 10) (``phi`` unwrapped), stamped ``stamps_ns``
     (n,), is at rest (or the span is too short to judge), else :class:`NotAtRest` naming the
-    channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise at rest,
-    the floor of the trend's noise; with it, a channel scattering more than it allows moves
-    too (an oscillation faster than the span shows no trend: a platform still ringing)."""
+    channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise at rest;
+    with it, a channel scattering more than that also moves (a platform still ringing)."""
     if len(stamps_ns) < MIN_SETTLE_SAMPLES:
         return None
     times = (np.asarray(stamps_ns, dtype=np.int64) - int(stamps_ns[0])) * 1e-9

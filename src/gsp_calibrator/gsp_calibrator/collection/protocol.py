@@ -38,8 +38,7 @@ from gsp_calibrator.collection.topics import (
 from gsp_kinematics import channels
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 
-#: A posture is skipped when this many times pairs_per_posture synchronised pairs hold no
-#: consistent window (see gsp_calibrator.collection.synchroniser).
+#: A posture is skipped when this many times pairs_per_posture pairs hold no consistent window.
 MAX_PAIRS_PER_SAMPLE = 20
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
 MIN_BUFFER = 2000
@@ -58,21 +57,16 @@ _ADDERS = {
 def settle_start_ns(published_ns, received_ns, topic_timeout):
     """The collection start (ns) of a ``settled`` status published at ``published_ns`` (None or
     0: unknown) and received at ``received_ns``: the publish instant, or the receipt when that
-    is unknown, after the receipt or more than ``topic_timeout`` (s) before it
-    (docs/architecture.md#synchronisation)."""
+    is unknown, after the receipt or more than ``topic_timeout`` (s) before it."""
     received_ns = int(received_ns)
-    if not published_ns:
-        return received_ns
-    published_ns = int(published_ns)
-    if received_ns - topic_timeout * 1e9 <= published_ns <= received_ns:
-        return published_ns
+    if published_ns and received_ns - topic_timeout * 1e9 <= int(published_ns) <= received_ns:
+        return int(published_ns)
     return received_ns
 
 
 def wire_receipt_ns(received_ns, now_ns):
-    """The middleware's receive time ``received_ns`` of a message handled at ``now_ns`` (ns, the
-    node clock), or None if unknown (0) or implausible on this clock (after ``now_ns``: another
-    time base)."""
+    """The middleware's receive time ``received_ns`` of a message handled at ``now_ns`` (ns), or
+    None if unknown (0) or after ``now_ns`` (another time base)."""
     if not received_ns or int(received_ns) > int(now_ns):
         return None
     return int(received_ns)
@@ -148,16 +142,9 @@ class CollectionProtocol:
 
     def summary(self):
         """The ``collection`` of ``result.json``: the run's skips and the samples dropped."""
-        collector = self.collector
+        collector, keys = self.collector, ('posture', 'reason', 'rejected_by_platform')
         return {
-            'skipped': [
-                {
-                    'posture': s.posture,
-                    'reason': s.reason,
-                    'rejected_by_platform': s.rejected_by_platform,
-                }
-                for s in self.skipped
-            ],
+            'skipped': [{key: getattr(skip, key) for key in keys} for skip in self.skipped],
             'inconsistent_dropped': int(collector.inconsistent),
             'settling_dropped': int(collector.settling_dropped),
             'non_finite_dropped': {

@@ -139,8 +139,7 @@ class SampleCollector:
             sync_tolerance, pairs_per_posture, max_buffer, noise_std, consistency_threshold
         )
         self.rest_rule = at_rest.RestRule(rest_lookback, rest_sigmas)
-        #: Why the latest window judged waits for settling (``at_rest.NotAtRest``), or None.
-        self.not_at_rest = None
+        self.not_at_rest = None  #: why the latest window judged waits (``NotAtRest``), or None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
         self._pairing = StampPairing(seconds_to_ns(sync_tolerance))
@@ -156,12 +155,9 @@ class SampleCollector:
         self._window_start = None  # start of the usable window, or None
         self._window_revision = None  # pairing revision of _verdicts and _window_start
         self.horizon_ns = None  # ns, or None (set_horizon)
-        #: Non-finite readings dropped, per stream (over the collector's lifetime).
-        self.non_finite = dict.fromkeys(channels.SENSORS, 0)
-        #: Pairs dropped because inconsistent with the window averaged after them.
-        self.inconsistent = 0
-        #: Pairs dropped because the readings were still settling (the rest waits).
-        self.settling_dropped = 0
+        self.non_finite = dict.fromkeys(channels.SENSORS, 0)  #: readings dropped, per stream
+        self.inconsistent = 0  #: pairs dropped, inconsistent with the window averaged after them
+        self.settling_dropped = 0  #: pairs dropped while the readings settled (the rest waits)
 
     def start(self, start_ns, previous_readings=None):
         """Begin a new posture: forget buffered samples, keep only stamps >= ``start_ns``;

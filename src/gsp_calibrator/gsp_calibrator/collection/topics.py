@@ -28,9 +28,8 @@ _READERS = {
 
 
 def sensor_message(msg):
-    """``msg`` as the readers take it: the fields of CDR bytes (:func:`.read_joint_state`;
-    the bytes themselves if they are no ``JointState``, which :func:`read_sensor` then says), or
-    the message itself."""
+    """``msg`` as the readers take it: the fields of CDR bytes (the bytes if they are no
+    ``JointState``, which :func:`read_sensor` then says), or the message itself."""
     if isinstance(msg, (bytes, bytearray, memoryview)):
         try:
             return read_joint_state(msg)

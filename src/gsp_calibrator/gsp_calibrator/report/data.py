@@ -33,14 +33,6 @@ VALIDATION_KEYS = (
 )
 
 
-def report_unit(index):
-    return 'deg' if index in ANGULAR else 'mm'
-
-
-def si_unit(index):
-    return 'rad' if index in ANGULAR else 'm'
-
-
 def by_name(values, mask=None):
     return {
         name: (json_safe(values[i]) if mask is None or mask[i] else None)

@@ -113,23 +113,15 @@ def plot_parameter_errors(path, result, truth=None, nominal=None):
     if reference == 'truth':
         after_label, after_colour = 'after (estimate − true)', _AFTER_COLOUR
         titles = (
-            (
-                'Parameter errors against the true geometry: before and after calibration',
-                'gamma',
-            ),
-            ('After calibration (zoom), error bars: 1σ from the covariance', 'gamma (after)'),
+            'Parameter errors against the true geometry: before and after calibration',
+            'After calibration (zoom), error bars: 1σ from the covariance',
         )
     else:
         after_label, after_colour = 'estimate − nominal', _CORRECTION_COLOUR
-        titles = (
-            (
-                'Parameter corrections against the nominal geometry (no true geometry known)',
-                'gamma',
-            ),
-        )
+        titles = ('Parameter corrections against the nominal geometry (no true geometry known)',)
     figure = rows_figure(15, 4.4, len(titles), margins=(0.06, 0.99, 0.3, 0.9, 1.0), wspace=0.2)
     grid = figure.add_gridspec(len(titles), 2, width_ratios=[len(lengths), 4])
-    for row, (title, side_title) in enumerate(titles):
+    for row, title in enumerate(titles):
         main = figure.add_subplot(grid[row, 0])
         side = figure.add_subplot(grid[row, 1])
         for axes, indices, unit in ((main, lengths, 'mm'), (side, angles, 'deg')):
@@ -138,7 +130,7 @@ def plot_parameter_errors(path, result, truth=None, nominal=None):
                 panel(axes, indices, before, label, _BEFORE_COLOUR, 'o', False, unit)
             panel(axes, indices, after, after_label, after_colour, 'x', True, unit)
         main.set_title(title)
-        side.set_title(side_title)
+        side.set_title('gamma (after)' if row else 'gamma')
         main.legend(loc='upper right', fontsize=8)
     figure.axes[-2].set_xlabel('parameter (grey band: fixed, not identified)')
     return save_figure(figure, path)

@@ -25,9 +25,7 @@ from gsp_calibrator.report.data import (
     by_name,
     identifiability_record,
     parameter_error_table,
-    report_unit,
     settle_line,
-    si_unit,
     validation_summary,
 )
 from gsp_calibrator.report.effects import effects_markdown
@@ -67,19 +65,16 @@ _RESULT_FIELDS = (
 class ReportInputs:
     """What a report shows besides the core's ``IdentificationResult`` (each optional)."""
 
-    #: The result's identifiability (``gsp_kinematics.estimation.identifiability.analyse_result``).
-    analysis: dict | None = None
+    analysis: dict | None = None  #: the result's identifiability (``analyse_result``)
     #: ``validate`` summaries, or :func:`.data.validation_errors` dicts (per-posture arrays)
     validation_before: dict | None = None
     validation_after: dict | None = None
-    #: The true geometry, if known: errors are then against it, else corrections against nominal.
-    truth: object = None
+    truth: object = None  #: the true geometry, if known (else corrections against nominal)
     nominal: object = None  #: default: the shipped nominal geometry
     sigmas: object = None  #: the ``SensorNoise`` weights used
     extra: dict | None = None  #: more top-level keys of result.json
     prediction: dict | None = None  #: :func:`.accuracy.prediction_for` of the result
-    #: what the model leaves unexplained (``noise_from_data.unmodelled_error``), in the prediction
-    unmodelled: object = None
+    unmodelled: object = None  #: the model's ``unmodelled_error``, in the prediction
 
     def completed(self, result):
         """These inputs with the analysis and the prediction of ``result`` computed where None
@@ -124,8 +119,8 @@ def result_data(result, inputs=ReportInputs()):
         'excluded_postures': list(result.excluded_postures or []),
         'free_parameters': list(result.free_names),
         'units': {
-            'si': {n: si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
-            'report': {n: report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
+            'si': {n: 'rad' if i in ANGULAR else 'm' for i, n in enumerate(PARAMETER_NAMES)},
+            'report': {n: 'deg' if i in ANGULAR else 'mm' for i, n in enumerate(PARAMETER_NAMES)},
         },
         'estimates': {'si': by_name(estimate), 'report': by_name(to_report_units(estimate))},
         'standard_deviations': {
