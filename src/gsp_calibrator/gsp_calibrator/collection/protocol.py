@@ -72,6 +72,15 @@ def wire_receipt_ns(received_ns, now_ns):
     return int(received_ns)
 
 
+def dropped_event(collector, topic, msg, error):
+    """The :class:`SampleDropped` of an unusable ``msg`` (a non-finite reading counted)."""
+    if has_non_finite(msg):
+        stream = TOPIC_STREAMS[topic]
+        collector.record_non_finite(stream)
+        return SampleDropped(topic, str(error), True, collector.non_finite[stream])
+    return SampleDropped(topic, str(error), False)
+
+
 class CollectionProtocol:
     """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``pairs_per_posture``, ``noise_std`` (10 channel stds or None),
@@ -207,18 +216,10 @@ class CollectionProtocol:
             try:
                 stream, stamp_ns, values = read_sensor(topic, msg)
             except (ValueError, TypeError) as error:
-                events.append(self._dropped(topic, msg, error))
+                events.append(dropped_event(self.collector, topic, msg, error))
                 continue
             self._take(stream, stamp_ns, values, now_ns, received_ns)
         return events + self._judged(now_ns)
-
-    def _dropped(self, topic, msg, error):
-        """The :class:`SampleDropped` of an unusable ``msg`` (a non-finite reading counted)."""
-        if has_non_finite(msg):
-            stream = TOPIC_STREAMS[topic]
-            self.collector.record_non_finite(stream)
-            return SampleDropped(topic, str(error), True, self.collector.non_finite[stream])
-        return SampleDropped(topic, str(error), False)
 
     def sample(self, stream, stamp_ns, values, now_ns, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
