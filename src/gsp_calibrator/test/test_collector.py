@@ -42,7 +42,9 @@ def test_pairs_are_nearest_stamps_within_the_tolerance():
     collector = SampleCollector(sync_tolerance=0.0025, pairs_per_posture=3)
     collector.start(T0)
     feed(collector, 3, leg_offset_ms=2.0)
-    assert collector.pairs() == [(T0 + i * 5 * MS, T0 + i * 5 * MS + 2 * MS) for i in range(3)]
+    assert collector._pairing.pairs == [
+        (T0 + i * 5 * MS, T0 + i * 5 * MS + 2 * MS) for i in range(3)
+    ]
     assert collector.ready()
 
 
@@ -51,9 +53,9 @@ def test_device_farther_than_the_tolerance_is_not_paired():
     collector.start(T0)
     collector.add_leg_lengths(T0, Q)
     add_device(collector, T0 + 2 * MS)
-    assert collector.pairs() == [] and not collector.ready()
+    assert collector._pairing.pairs == [] and not collector.ready()
     add_device(collector, T0 + MS)  # exactly at the tolerance: paired
-    assert collector.pairs() == [(T0, T0 + MS)]
+    assert collector._pairing.pairs == [(T0, T0 + MS)]
 
 
 def test_pairing_is_one_to_one():
@@ -62,9 +64,9 @@ def test_pairing_is_one_to_one():
     collector.add_leg_lengths(T0, Q)
     collector.add_leg_lengths(T0 + 2 * MS, Q)
     add_device(collector, T0 + MS)
-    assert len(collector.pairs()) == 1
+    assert len(collector._pairing.pairs) == 1
     add_device(collector, T0 + 4 * MS)
-    assert collector.pairs() == [(T0, T0 + MS), (T0 + 2 * MS, T0 + 4 * MS)]
+    assert collector._pairing.pairs == [(T0, T0 + MS), (T0 + 2 * MS, T0 + 4 * MS)]
 
 
 def test_out_of_order_messages_pair_the_same():
@@ -82,7 +84,7 @@ def test_out_of_order_messages_pair_the_same():
         events.append(lambda c, s=stamp: c.add_inclinometer(s + MS, R[0], R[1]))
     for index in np.random.default_rng(3).permutation(len(events)):
         events[index](shuffled)
-    assert shuffled.pairs() == ordered.pairs()
+    assert shuffled._pairing.pairs == ordered._pairing.pairs
     assert shuffled.ready()
 
 
@@ -93,8 +95,7 @@ def test_an_instant_with_a_missing_device_topic_is_never_used():
     add_device(collector, T0 + MS, skip=(ENCODER,))
     collector.add_leg_lengths(T0 + 5 * MS, Q)
     add_device(collector, T0 + 6 * MS)
-    assert collector.complete_device_stamps() == [T0 + 6 * MS]
-    assert collector.pairs() == [(T0 + 5 * MS, T0 + 6 * MS)]
+    assert collector._pairing.pairs == [(T0 + 5 * MS, T0 + 6 * MS)]
     assert not collector.ready()
     collector.add_encoder(T0 + MS, R[2])  # the late message completes the instant
     assert collector.ready()
@@ -109,7 +110,7 @@ def test_non_finite_readings_are_dropped_and_counted():
     assert not collector.add_lvdt(T0, math.nan)
     collector.record_non_finite(LVDT)
     assert collector.non_finite == {LEG_LENGTHS: 1, INCLINOMETER: 1, ENCODER: 1, LVDT: 2}
-    assert collector.pairs() == []
+    assert collector._pairing.pairs == []
 
 
 def test_samples_before_the_start_time_or_while_stopped_are_ignored():
@@ -118,8 +119,7 @@ def test_samples_before_the_start_time_or_while_stopped_are_ignored():
     assert collector.pair_count() == 0
     collector.start(T0 + 10 * MS)
     feed(collector, 4)  # stamps T0, +5, +10, +15 ms: the first two are too early
-    assert [leg for leg, _ in collector.pairs()] == [T0 + 10 * MS, T0 + 15 * MS]
-    assert collector.too_early[LEG_LENGTHS] == 4
+    assert [leg for leg, _ in collector._pairing.pairs] == [T0 + 10 * MS, T0 + 15 * MS]
 
 
 def test_average_and_take_posture():

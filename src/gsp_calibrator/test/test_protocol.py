@@ -73,7 +73,7 @@ def test_a_row_from_the_samples_after_the_settle():
     np.testing.assert_allclose(row.pose, POSE)
     np.testing.assert_allclose(row.sample.leg_lengths, Q + 1e-7, rtol=0, atol=1e-15)
     np.testing.assert_allclose(row.sample.readings, R, rtol=0, atol=1e-15)
-    assert collection.posture is None and collection.poll(T0 + 100 * S) == []
+    assert collection._posture is None and collection.poll(T0 + 100 * S) == []
 
 
 def test_samples_received_before_the_settle_count_when_stamped_after_the_start():

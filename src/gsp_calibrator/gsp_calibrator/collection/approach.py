@@ -45,10 +45,9 @@ class ApproachTracker:
 
 
 def effect_design(samples, payload_mass=0.0, centre_of_mass=(0.0, 0.0, 0.0), leg_mass=None):
-    """The ``EffectDesign`` of a run's rows (``files.run_directory.Rows``) and the payload the user
-    gave (kg; 0: unknown: the reference mass, ``payload_assumed``, so the compliance is still
-    identified, as the legs' compliance times the load over it), with the legs' masses (6,) kg
-    (None: massless). The directions are left out (None) when a row has none."""
+    """The ``EffectDesign`` of a run's rows (``files.run_directory.Rows``), the payload the user
+    gave (kg; 0: unknown, the reference mass) and the legs' masses (6,) kg (None: massless); no
+    directions when a row has none."""
     stamps = np.asarray(samples.stamps, dtype=float)
     times = stamps - stamps[0] if stamps.size else stamps
     directions = np.asarray(samples.directions, dtype=float)

@@ -48,9 +48,8 @@ class NotAtRest:
 def span_verdict(values, stamps_ns, sigmas, noise_std=None):
     """None if every channel of ``values`` (n, 10) (``phi`` unwrapped), stamped ``stamps_ns``
     (n,), is at rest (or the span is too short to judge), else :class:`NotAtRest` naming the
-    channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise at rest,
-    the floor of the trend's noise; with it, a channel scattering more than it allows moves
-    too (an oscillation faster than the span shows no trend: a platform still ringing)."""
+    channel furthest beyond its threshold. ``noise_std`` (10,): the per-sample noise at rest;
+    with it, a channel scattering more than that also moves (a platform still ringing)."""
     if len(stamps_ns) < MIN_SETTLE_SAMPLES:
         return None
     times = (np.asarray(stamps_ns, dtype=np.int64) - int(stamps_ns[0])) * 1e-9
@@ -83,22 +82,18 @@ class RestRule:
         self.lookback_ns = int(round(lookback * 1e9))
         self.sigmas = sigmas
 
-    def judge(self, pairs, end, window, values_of, noise_std=None, pair_legs=None, slack_ns=0):
+    def judge(self, pairs, pair_legs, end, window, values_of, noise_std, slack_ns):
         """None if the channels are at rest over the look-back that ends with ``pairs[end]``
-        (``(leg stamp, device stamp)`` ns, the first stamped after the settle; at least the
-        ``window`` pairs ending there), else :class:`NotAtRest`; pending until the look-back,
-        less ``slack_ns``, is covered by pairs. ``values_of(pairs)``: their (n, 10) channel
-        values (``phi`` unwrapped); ``noise_std`` (10,): the per-sample noise floor;
-        ``pair_legs``: the leg stamps of ``pairs`` if the caller keeps them (else they are
-        listed here)."""
+        (``(leg stamp, device stamp)`` ns from the settle on, ``pair_legs`` their leg stamps; at
+        least the ``window`` pairs ending there), else :class:`NotAtRest`; pending until the
+        look-back, less ``slack_ns``, is covered. ``values_of(pairs)``: their (n, 10) values
+        (``phi`` unwrapped); ``noise_std`` (10,): the per-sample noise floor."""
         end_stamp = pairs[end][0]
         # Counted from the first pair, not from the settle: the same pairs cover it wherever
         # the stream starts after the settle (a replay restarts it at its first pair), and the
         # slack (the pairing tolerance) keeps a stamp's jitter from moving it by one pair.
         if end_stamp - pairs[0][0] < self.lookback_ns - slack_ns:
             return NotAtRest(pending=True)
-        if pair_legs is None:
-            pair_legs = [leg for leg, _ in pairs]
         first = bisect.bisect_left(pair_legs, end_stamp - self.lookback_ns)
         # Judged over the pairs it holds, a look-back missing its start is a shorter one that
         # may miss a slow trend.

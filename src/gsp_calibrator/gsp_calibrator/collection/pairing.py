@@ -5,15 +5,18 @@ import bisect
 
 
 def nearest_pairs(leg_stamps, device_stamps, tolerance_ns):
-    """``[(leg_stamp, device_stamp), ...]``: the pairing rule (module docstring) applied at once
-    to the sorted ``leg_stamps`` and ``device_stamps`` (ns)."""
+    """``[(leg_stamp, device_stamp), ...]``: the pairing rule applied at once to the sorted
+    ``leg_stamps`` and ``device_stamps`` (ns)."""
     pairing = StampPairing(tolerance_ns)
-    pairing.load(leg_stamps, device_stamps)
+    pairing.legs.extend(int(s) for s in leg_stamps)
+    pairing.devices.extend(int(s) for s in device_stamps)
+    for leg in pairing.legs:
+        pairing._retake(leg)
     return list(pairing.pairs)
 
 
 class StampPairing:
-    """The pairs of the leg stamps and device stamps added so far (see the module docstring)."""
+    """The pairs of the leg stamps and device stamps added so far."""
 
     def __init__(self, tolerance_ns):
         self.tolerance_ns = int(tolerance_ns)
@@ -36,20 +39,10 @@ class StampPairing:
         self._changed = 0
         self.revision += 1
 
-    def load(self, leg_stamps, device_stamps):
-        """Pair the sorted ``leg_stamps`` and ``device_stamps`` from scratch."""
-        self.clear()
-        self.legs.extend(int(s) for s in leg_stamps)
-        self.devices.extend(int(s) for s in device_stamps)
-        for leg in self.legs:
-            self._retake(leg)
-
     def take_changed(self):
         """Lowest index of :attr:`pairs` changed since the previous call (None: none)."""
         changed, self._changed = self._changed, None
         return changed
-
-    # --- changes -----------------------------------------------------------------------------
 
     def add_leg(self, stamp):
         """A new leg stamp (not held yet)."""
@@ -78,8 +71,6 @@ class StampPairing:
             return
         self._set(leg, stamp, None)
         self._repair(bisect.bisect_left(self.legs, leg), {stamp}, first_too=True)
-
-    # --- the rule ----------------------------------------------------------------------------
 
     def _repair(self, index, changed, first_too=False):
         """Take the legs from ``index`` on again until none can see a difference: ``changed``

@@ -21,7 +21,7 @@ RATE_WINDOW = 64
 RATE_MIN_STAMPS = 10
 
 
-IDLE, AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'idle', 'status', 'settle', 'collecting'
+AWAIT_STATUS, AWAIT_SETTLE, COLLECTING = 'status', 'settle', 'collecting'
 
 
 @dataclasses.dataclass
@@ -37,11 +37,9 @@ class Posture:
     started_ns: int = None  # receive time of the settle (time base of the timeouts)
     progress: int = 0  # pairs at the last change
     progress_ns: int = None  # receive time of the last change of the pairs
-    #: data time (data_ns) of the last change of the pairs (or of the first sample)
-    progress_data_ns: int = None
-    #: the receive time every stream has reached with the samples handled since the start
-    #: (the settle's until each has given one): the streams come in batches, one stream's
-    #: ahead of the others', which is no lack of progress of the pairs
+    progress_data_ns: int = None  #: data time of the last change of the pairs (or first sample)
+    #: the receive time every stream has reached with the samples handled since the start (the
+    #: settle's until each has given one): one stream's batch ahead is no lack of progress
     received_ns: int = None
     #: stream -> latest receive time of its samples handled since the start
     received_by_stream: dict = dataclasses.field(default_factory=dict)
@@ -50,22 +48,10 @@ class Posture:
 
     def data_ns(self):
         """The data's time: the stamp every stream has reached with its samples from the start;
-        None until each has given one (a stream that gives none is silent, or stamped in
-        another time base: the receive times judge it)."""
+        None until each has given one (the receive times judge a stream that gives none)."""
         if len(self.latest_ns) < len(SENSOR_TOPICS):
             return None
         return min(self.latest_ns.values())
-
-    def data_elapsed(self):
-        """s of the data since the start (0 while :meth:`data_ns` is None)."""
-        data_ns = self.data_ns()
-        return 0.0 if data_ns is None else (data_ns - self.start_ns) * 1e-9
-
-    def horizon_ns(self):
-        """The data's horizon (the collector's ``set_horizon``): the stamp every stream has
-        reached since the start; before each has given one, the start."""
-        data_ns = self.data_ns()
-        return self.start_ns if data_ns is None else data_ns
 
 
 class LatestReadings:

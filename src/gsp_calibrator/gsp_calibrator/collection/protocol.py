@@ -38,8 +38,7 @@ from gsp_calibrator.collection.topics import (
 from gsp_kinematics import channels
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 
-#: A posture is skipped when this many times pairs_per_posture synchronised pairs hold no
-#: consistent window (see gsp_calibrator.collection.synchroniser).
+#: A posture is skipped when this many times pairs_per_posture pairs hold no consistent window.
 MAX_PAIRS_PER_SAMPLE = 20
 #: Samples kept per stream by the collector (at least 2 * MAX_PAIRS_PER_SAMPLE * samples).
 MIN_BUFFER = 2000
@@ -56,61 +55,30 @@ _ADDERS = {
 
 
 def settle_start_ns(published_ns, received_ns, topic_timeout):
-    """The collection start of a ``settled`` status published at ``published_ns`` (the
-    publisher's stamp, e.g. the middleware's source timestamp; None or 0 if unknown) and
-    received at ``received_ns`` (ns, node clock).
-
-    The platform settled when it said so: samples stamped from the publish instant on count,
-    also those received before the status itself (the status latency would otherwise cost the
-    samples stamped meanwhile). The receive time when the publish instant is unknown or
-    implausible on this clock: after the receipt (a publisher clock ahead, a stamp in another
-    time base) or more than ``topic_timeout`` (s) before it."""
+    """The collection start (ns) of a ``settled`` status published at ``published_ns`` (None or
+    0: unknown) and received at ``received_ns``: the publish instant, or the receipt when that
+    is unknown, after the receipt or more than ``topic_timeout`` (s) before it."""
     received_ns = int(received_ns)
-    if not published_ns:
-        return received_ns
-    published_ns = int(published_ns)
-    if received_ns - topic_timeout * 1e9 <= published_ns <= received_ns:
-        return published_ns
+    if published_ns and received_ns - topic_timeout * 1e9 <= int(published_ns) <= received_ns:
+        return int(published_ns)
     return received_ns
 
 
 def wire_receipt_ns(received_ns, now_ns):
-    """The middleware's receive time ``received_ns`` of a message handled at ``now_ns`` (ns, the
-    node clock), or None if unknown (0) or implausible on this clock (after ``now_ns``: another
-    time base)."""
+    """The middleware's receive time ``received_ns`` of a message handled at ``now_ns`` (ns), or
+    None if unknown (0) or after ``now_ns`` (another time base)."""
     if not received_ns or int(received_ns) > int(now_ns):
         return None
     return int(received_ns)
 
 
 def dropped_event(collector, topic, msg, error):
-    """The :class:`SampleDropped` of an unusable message ``msg`` of ``topic`` (``error``: why);
-    a non-finite reading is counted by ``collector``."""
+    """The :class:`SampleDropped` of an unusable ``msg`` (a non-finite reading counted)."""
     if has_non_finite(msg):
         stream = TOPIC_STREAMS[topic]
         collector.record_non_finite(stream)
         return SampleDropped(topic, str(error), True, collector.non_finite[stream])
     return SampleDropped(topic, str(error), False)
-
-
-def collection_summary(skipped, collector):
-    """The collection data of a run: its ``skipped`` (``[PostureSkipped, ...]``) and what its
-    ``collector`` dropped (the ``collection`` of ``result.json``)."""
-    return {
-        'skipped': [
-            {
-                'posture': s.posture,
-                'reason': s.reason,
-                'rejected_by_platform': s.rejected_by_platform,
-            }
-            for s in skipped
-        ],
-        'inconsistent_dropped': int(collector.inconsistent),
-        'settling_dropped': int(collector.settling_dropped),
-        'non_finite_dropped': {
-            stream: int(count) for stream, count in collector.non_finite.items()
-        },
-    }
 
 
 class CollectionProtocol:
@@ -171,28 +139,27 @@ class CollectionProtocol:
 
     def heard(self, topic):
         """Whether ``topic`` has said anything yet."""
-        return self.timeouts.heard(topic)
-
-    @property
-    def posture(self):
-        """Number of the awaited posture, or None."""
-        return None if self._posture is None else self._posture.number
+        return topic in self.timeouts.last_heard
 
     @property
     def collecting(self):
         return self._posture is not None and self._posture.state == COLLECTING
-
-    def latest_device_readings(self):
-        """Latest complete device instant ``[alpha, beta, phi, d_m]`` received, or None."""
-        return self.latest.device_readings()
 
     def latest_leg_lengths(self):
         """Latest leg-length readings (6,) m received, or None."""
         return self.latest.leg_lengths()
 
     def summary(self):
-        """The run's collection data: skips, inconsistent and non-finite samples dropped."""
-        return collection_summary(self.skipped, self.collector)
+        """The ``collection`` of ``result.json``: the run's skips and the samples dropped."""
+        collector, keys = self.collector, ('posture', 'reason', 'rejected_by_platform')
+        return {
+            'skipped': [{key: getattr(skip, key) for key in keys} for skip in self.skipped],
+            'inconsistent_dropped': int(collector.inconsistent),
+            'settling_dropped': int(collector.settling_dropped),
+            'non_finite_dropped': {
+                stream: int(count) for stream, count in collector.non_finite.items()
+            },
+        }
 
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
@@ -201,23 +168,25 @@ class CollectionProtocol:
 
     def command(self, posture, pose, command_id, now_ns):
         """Posture ``posture`` (commanded ``pose``, id ``command_id``) was commanded at ``now_ns``."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         events = self._end_segment() if self.keep_pairs else self._close()
         if self._previous is None:
             # What the device reports before the platform moves (stale readings would match).
-            self._previous = self.latest_device_readings()
+            self._previous = self.latest.device_readings()
         self.collector.stop()
         self._recent.clear()
         self._checked_pairs = None
         pose = np.asarray(pose, dtype=float).reshape(6)
         self._posture = Posture(int(posture), pose, str(command_id), int(now_ns))
-        self.timeouts.plan_move(self._posture, self.latest_leg_lengths())
+        legs, planned_move = self.latest_leg_lengths(), self.timeouts.planned_move
+        if planned_move is not None and legs is not None:
+            self._posture.move_s = planned_move(legs, pose)
         return events + self.poll(now_ns)
 
     def status(self, status, now_ns, start_ns=None):
         """A platform status (``conversions.PlatformStatus``) received at ``now_ns``;
         ``start_ns``: the collection start if it settles the posture (default ``now_ns``)."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         posture = self._posture
         if posture is None or status.command_id != posture.command_id:
             return self.poll(now_ns)
@@ -233,15 +202,14 @@ class CollectionProtocol:
         return self.poll(now_ns)
 
     def sensor(self, topic, msg, now_ns, received_ns=None):
-        """A sensor message on ``topic`` (a key of :data:`TOPIC_STREAMS`) handled at ``now_ns``;
-        ``received_ns``: when it came off the wire (the middleware's receive time on the same
-        clock), None if unknown."""
+        """A sensor message on ``topic`` handled at ``now_ns``, off the wire at ``received_ns``
+        (the middleware's receive time on the same clock; None: unknown)."""
         return self.sensors([(topic, msg, received_ns)], now_ns)
 
     def sensors(self, messages, now_ns):
         """Sensor messages ``[(topic, msg, received_ns), ...]`` (as for :meth:`sensor`) handled
         at ``now_ns``, in order (a listener's batch), the posture judged once, after them."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         events = []
         for topic, msg, received_ns in messages:
             self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
@@ -253,13 +221,12 @@ class CollectionProtocol:
             self._take(stream, stamp_ns, values, now_ns, received_ns)
         return events + self._judged(now_ns)
 
-    def sample(self, stream, stamp_ns, values, now_ns, heard=True, received_ns=None):
+    def sample(self, stream, stamp_ns, values, now_ns, received_ns=None):
         """A parsed sensor sample (``values`` as for the collector's ``add_<stream>``), handled
         at ``now_ns``, off the wire at ``received_ns`` (None: unknown)."""
-        self._attend(now_ns)
-        if heard:
-            topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
-            self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
+        self.timeouts.attend(now_ns)
+        topic = next(t for t, s in TOPIC_STREAMS.items() if s == stream)
+        self.timeouts.hear(topic, now_ns if received_ns is None else received_ns)
         self._take(stream, stamp_ns, values, now_ns, received_ns)
         return self._judged(now_ns)
 
@@ -280,10 +247,9 @@ class CollectionProtocol:
         if len(by_stream) == len(SENSOR_TOPICS):
             posture.received_ns = max(posture.received_ns, min(by_stream.values()))
         if stamp_ns < posture.start_ns and received_ns is None:
-            # Stamped before the start, handled now: the caller may still be working through a
-            # backlog (its listener fell behind), which is no lack of progress of the pairs.
-            # (With the receive time off the wire, the backlog shows itself: received before
-            # the settle.)
+            # Stamped before the start, handled now: the caller may be working through a backlog
+            # (its listener fell behind), which is no lack of progress of the pairs (a receive
+            # time off the wire shows the backlog itself: received before the settle).
             posture.progress_ns = max(posture.progress_ns, received)
         self._add(posture, stream, stamp_ns, values)
 
@@ -294,7 +260,7 @@ class CollectionProtocol:
 
     def poll(self, now_ns):
         """Events due at ``now_ns`` (timeouts)."""
-        self._attend(now_ns)
+        self.timeouts.attend(now_ns)
         posture = self._posture
         if posture is None:
             return []
@@ -346,7 +312,8 @@ class CollectionProtocol:
             return []
         collector = self.collector
         # Windows are judged once their pairs are final in the data's time (set_horizon).
-        collector.set_horizon(self._posture.horizon_ns())
+        data_ns = self._posture.data_ns()
+        collector.set_horizon(self._posture.start_ns if data_ns is None else data_ns)
         # ready() is a function of the pairs and the horizon: only ask again when they changed.
         checked = (collector.pair_revision, collector.horizon_ns)
         if checked != self._checked_pairs:
@@ -368,9 +335,6 @@ class CollectionProtocol:
         if failure is not None:
             return self._fail(failure)
         return self._skip(reason) if reason else []
-
-    def _attend(self, now_ns):
-        self.timeouts.attend(now_ns)
 
     def _row(self):
         posture, collector = self._posture, self.collector

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from gsp_calibrator.collection import at_rest
-from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs  # noqa: F401
+from gsp_calibrator.collection.pairing import StampPairing, nearest_pairs
 from gsp_kinematics import channels
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
 from gsp_kinematics.estimation.noise_from_data import posture_lag_sums
@@ -16,10 +16,8 @@ from gsp_kinematics.rotation import wrap_angle
 
 NS_PER_S = 1_000_000_000
 
-#: Stream names (the sensors of the channel table), as counted in
-#: :attr:`SampleCollector.non_finite` and ``received``.
+#: Stream names (the sensors of the channel table), as counted in ``non_finite``.
 LEG_LENGTHS, INCLINOMETER, ENCODER, LVDT = channels.SENSORS
-STREAMS = channels.SENSORS
 
 #: Robust standard deviations a value may lie from its window's median (see the module docstring).
 DEFAULT_CONSISTENCY_THRESHOLD = 10.0
@@ -122,14 +120,10 @@ def _checked_options(sync_tolerance, pairs_per_posture, max_buffer, noise_std, t
 
 
 class SampleCollector:
-    """Buffers both streams and pairs them by nearest stamp (see the module docstring).
-    ``sync_tolerance`` (s): largest stamp difference of a pair. ``pairs_per_posture``: pairs
-    averaged into one row. ``max_buffer``: samples kept per stream (oldest dropped first; None:
-    all, for a caller that wants every pair, see :func:`segment_pairs`).
-    ``noise_std``: None (no consistency check) or the noise std of the 10 channels
-    ``[q_1..q_6, alpha, beta, phi, d_m]`` (m, rad), the floor of the robust spread and of the
-    rest test's noise. ``rest_lookback`` (s, >= 0) and ``rest_sigmas`` (> 0, ``inf``: no
-    rest test): the rest rule (see the module docstring)."""
+    """Buffers both streams, pairs them by nearest stamp and finds the window to average
+    (docs/architecture.md#synchronisation). ``max_buffer``: samples kept per stream (None: all);
+    ``noise_std`` (10,) m, rad: the floor of the robust spread and of the rest test's noise
+    (None: no consistency check)."""
 
     def __init__(
         self,
@@ -145,8 +139,7 @@ class SampleCollector:
             sync_tolerance, pairs_per_posture, max_buffer, noise_std, consistency_threshold
         )
         self.rest_rule = at_rest.RestRule(rest_lookback, rest_sigmas)
-        #: Why the latest window judged waits for settling (``at_rest.NotAtRest``), or None.
-        self.not_at_rest = None
+        self.not_at_rest = None  #: why the latest window judged waits (``NotAtRest``), or None
         self.noise_std = noise_std
         self.consistency_threshold = float(consistency_threshold)
         self._pairing = StampPairing(seconds_to_ns(sync_tolerance))
@@ -162,28 +155,17 @@ class SampleCollector:
         self._window_start = None  # start of the usable window, or None
         self._window_revision = None  # pairing revision of _verdicts and _window_start
         self.horizon_ns = None  # ns, or None (set_horizon)
-        #: Non-finite readings dropped, per stream (over the collector's lifetime).
-        self.non_finite = dict.fromkeys(STREAMS, 0)
-        #: Finite samples received, per stream (over the collector's lifetime).
-        self.received = dict.fromkeys(STREAMS, 0)
-        #: Samples ignored because stamped before the start time, per stream.
-        self.too_early = dict.fromkeys(STREAMS, 0)
-        #: Pairs dropped because inconsistent with the window averaged after them.
-        self.inconsistent = 0
-        #: Pairs dropped because the readings were still settling (the rest waits).
-        self.settling_dropped = 0
-
-    # --- input -------------------------------------------------------------------------------
+        self.non_finite = dict.fromkeys(channels.SENSORS, 0)  #: readings dropped, per stream
+        self.inconsistent = 0  #: pairs dropped, inconsistent with the window averaged after them
+        self.settling_dropped = 0  #: pairs dropped while the readings settled (the rest waits)
 
     def start(self, start_ns, previous_readings=None):
         """Begin a new posture: forget buffered samples, keep only stamps >= ``start_ns``;
         ``previous_readings``: the previous posture's ``[alpha, beta, phi, d_m]``, if any."""
         self.start_ns = int(start_ns)
-        self.previous_readings = (
-            None
-            if previous_readings is None
-            else np.asarray(previous_readings, dtype=float).reshape(_READINGS)
-        )
+        if previous_readings is not None:
+            previous_readings = np.asarray(previous_readings, dtype=float).reshape(_READINGS)
+        self.previous_readings = previous_readings
         self._clear()
         self.not_at_rest = None
 
@@ -205,8 +187,7 @@ class SampleCollector:
 
     def set_horizon(self, horizon_ns):
         """Judge only windows whose pairs are final once every stream has delivered its samples
-        stamped up to ``horizon_ns`` (None: every window, as the pairs stand); see the module
-        docstring."""
+        stamped up to ``horizon_ns`` (None: every window, as the pairs stand)."""
         horizon_ns = None if horizon_ns is None else int(horizon_ns)
         if horizon_ns != self.horizon_ns:
             self.horizon_ns, self._window_revision = horizon_ns, None
@@ -228,11 +209,7 @@ class SampleCollector:
         if not np.all(np.isfinite(values)):
             self.non_finite[stream] += 1
             return False
-        self.received[stream] += 1
-        if self.start_ns is None or stamp_ns < self.start_ns:
-            self.too_early[stream] += 1
-            return False
-        return True
+        return self.start_ns is not None and stamp_ns >= self.start_ns
 
     def add_leg_lengths(self, stamp_ns, leg_lengths):
         """Add a leg-length sample ``q`` (6, m). Returns False if dropped."""
@@ -281,23 +258,20 @@ class SampleCollector:
         """Add an LVDT sample ``d_m`` (m). Returns False if dropped."""
         return self._add_device(LVDT, stamp_ns, [d_m])
 
-    def complete_device_stamps(self):
-        """Sorted stamps (ns) of device instants with all three topics received."""
-        return list(self._pairing.devices)
-
-    def pairs(self):
-        """``[(leg_stamp_ns, device_stamp_ns), ...]`` in leg-stamp order (a copy), by the rule
-        of :func:`~gsp_calibrator.collection.pairing.nearest_pairs`."""
-        return list(self._pairing.pairs)
-
     def pair_count(self):
         return len(self._pairing.pairs)
 
+    def _arrays(self, pairs):
+        """``(leg stamps (n,) ns, q (n, 6) m, readings (n, 4))`` of ``pairs``."""
+        return (
+            np.array([leg for leg, _ in pairs], dtype=np.int64),
+            np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS),
+            np.array([self._device[dev] for _, dev in pairs]).reshape(-1, _READINGS),
+        )
+
     def _values(self, pairs):
         """(n, 10) ``[q_1..q_6, alpha, beta, phi, d_m]`` of ``pairs``."""
-        legs = np.array([self._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS)
-        readings = np.array([self._device[dev] for _, dev in pairs]).reshape(-1, _READINGS)
-        return np.hstack([legs, readings])
+        return np.hstack(self._arrays(pairs)[1:])
 
     def _median_and_spread(self, pairs):
         return median_and_spread(self._values(pairs), self.noise_std)
@@ -322,7 +296,7 @@ class SampleCollector:
     def window(self):
         """The pairs to average: the earliest run of ``pairs_per_posture`` consecutive pairs
         that is consistent, changed from the previous posture and settled, or None if there is
-        none yet (:attr:`unsettled` then says why the latest run judged waits, if it does)."""
+        none yet (:attr:`not_at_rest` then says why the latest run judged waits, if it does)."""
         start = self._window_start_now()
         count = self.pairs_per_posture
         return None if start is None else self._pairing.pairs[start : start + count]
@@ -362,12 +336,12 @@ class SampleCollector:
             if self.consistent(candidate) and not self.unchanged(candidate):
                 self.not_at_rest = self.rest_rule.judge(
                     pairs,
+                    self._pairing.pair_legs,
                     start + count - 1,
                     count,
                     lambda span: unwrap_phi(self._values(span)),
                     self.noise_std,
-                    pair_legs=self._pairing.pair_legs,
-                    slack_ns=self.tolerance_ns,
+                    self.tolerance_ns,
                 )
                 unsettled = self.not_at_rest
                 verdict = _USABLE if unsettled is None else _SETTLE_VERDICT[unsettled.pending]
@@ -388,19 +362,6 @@ class SampleCollector:
             'consistent': self.window() is not None if self.pair_count() else False,
         }
 
-    def average(self, pairs=None):
-        """Average :meth:`window` (or ``pairs``) into a posture row (``phi`` on the circle);
-        ValueError if there are no pairs."""
-        if pairs is None:
-            pairs = self.window() or self.pairs()[: self.pairs_per_posture]
-        if not pairs:
-            raise ValueError('no synchronised samples to average')
-        return average_row(
-            np.array([self._legs[leg] for leg, _ in pairs]),
-            np.array([self._device[dev] for _, dev in pairs]),
-            np.array([leg for leg, _ in pairs], dtype=np.int64),
-        )
-
     def take_posture(self):
         """Average the consistent window and stop collecting; ValueError if not ready."""
         window = self.window() if self.pair_count() >= self.pairs_per_posture else None
@@ -413,8 +374,9 @@ class SampleCollector:
         unsettled, inconsistent = verdicts.count(_UNSETTLED), verdicts.count(_INCONSISTENT)
         self.settling_dropped += len(verdicts) - inconsistent  # moving or look-back pending
         self.inconsistent += inconsistent
+        stamps, legs, readings = self._arrays(window)
         sample = dataclasses.replace(
-            self.average(window),
+            average_row(legs, readings, stamps),
             rest_wait=(window[0][0] - self.start_ns) * 1e-9,
             moving_pairs=int(unsettled),
         )
@@ -430,16 +392,11 @@ def segment_pairs(collector, limit=None, last=False):
     if limit is not None:
         legs = legs[-int(limit) :] if last else legs[: int(limit)]
     if not legs:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, _LEGS)), np.zeros((0, _READINGS))
+        return collector._arrays([])
     margin = collector.tolerance_ns
     devices = [
         stamp
-        for stamp in collector.complete_device_stamps()
+        for stamp in collector._pairing.devices
         if legs[0] - margin <= stamp <= legs[-1] + margin
     ]
-    pairs = nearest_pairs(legs, devices, margin)
-    return (
-        np.array([leg for leg, _ in pairs], dtype=np.int64),
-        np.array([collector._legs[leg] for leg, _ in pairs]).reshape(-1, _LEGS),
-        np.array([collector._device[dev] for _, dev in pairs]).reshape(-1, _READINGS),
-    )
+    return collector._arrays(nearest_pairs(legs, devices, margin))

@@ -16,24 +16,21 @@ STALL_FRACTION = 0.5
 
 
 class CollectionTimeouts:
-    """The timeouts of one run: ``topic_timeout`` and ``settle_timeout`` (s, counted after the
-    posture's planned move, ``Posture.move_s``); the collector's
-    ``sync_tolerance`` (s) and ``pairs_per_posture`` only appear in the messages."""
+    """The timeouts (s) of one run; ``sync_tolerance`` and ``pairs_per_posture`` appear in the
+    messages only; ``planned_move``: ``move_s(start_legs, pose)`` (s), or None: no move time."""
 
     def __init__(
         self, topic_timeout, settle_timeout, sync_tolerance, pairs_per_posture, planned_move=None
     ):
         self.topic_timeout = float(topic_timeout)
-        self.planned_move = planned_move  # move_s(start_legs, pose) (s), or None: no move time
+        self.planned_move = planned_move
         self.settle_timeout = float(settle_timeout)
         self.sync_tolerance = float(sync_tolerance)
         self.pairs_per_posture = int(pairs_per_posture)
-        self._last_heard = {}  # topic -> receive time (ns) of its latest message
+        self.last_heard = {}  #: topic -> receive time (ns) of its latest message
         self._attended_ns = None  # receive time of the latest call
         self._stall_end_ns = -(2**62)  # end of the latest stall of the caller
-        #: None, or the time up to which the caller has taken every sensor message received
-        #: off the wire (:meth:`checked_until`): silence is judged up to it, not up to now.
-        self.checked_ns = None
+        self.checked_ns = None  #: None, or :meth:`checked_until`'s latest time (ns)
 
     def attend(self, now_ns):
         """Note a call at ``now_ns``; a long gap since the previous one is a stall."""
@@ -45,21 +42,16 @@ class CollectionTimeouts:
 
     def hear(self, topic, now_ns):
         """``topic`` said something at ``now_ns`` (off the wire, when known)."""
-        self._last_heard[topic] = max(self._last_heard.get(topic, int(now_ns)), int(now_ns))
+        self.last_heard[topic] = max(self.last_heard.get(topic, int(now_ns)), int(now_ns))
 
     def checked_until(self, checked_ns):
         """The caller has taken every sensor message received off the wire before
-        ``checked_ns`` (ns): a topic is silent when nothing of it was received for
-        ``topic_timeout`` up to then. A listener starved of the CPU knows of no message received
-        since it last looked; its silence is not the topic's."""
+        ``checked_ns`` (ns): silence is judged up to then (a starved listener's is not the
+        topic's)."""
         checked_ns = int(checked_ns)
         self.checked_ns = (
             checked_ns if self.checked_ns is None else max(self.checked_ns, checked_ns)
         )
-
-    def heard(self, topic):
-        """Whether ``topic`` has said anything yet."""
-        return topic in self._last_heard
 
     def since(self, reference_ns, now_ns):
         """Seconds from ``reference_ns`` to ``now_ns``, counted again from the latest stall."""
@@ -77,11 +69,6 @@ class CollectionTimeouts:
             f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
         )
 
-    def plan_move(self, posture, start_legs):
-        """Note ``posture``'s planned move time from ``start_legs`` (6,) m (None: unknown)."""
-        if self.planned_move is not None and start_legs is not None:
-            posture.move_s = self.planned_move(start_legs, posture.pose)
-
     def settle_overdue(self, posture, now_ns):
         """The skip reason if the settle is overdue, else ''."""
         limit = self.settle_timeout + posture.move_s
@@ -97,7 +84,7 @@ class CollectionTimeouts:
         # Silence on the wire: up to when the caller has looked at its queues, if it says so.
         heard_ns = now_ns if self.checked_ns is None else min(int(now_ns), self.checked_ns)
         silences = {  # s, since the topic's latest message (or the settle, or a stall)
-            topic: self.since(max(self._last_heard.get(topic, 0), posture.started_ns), heard_ns)
+            topic: self.since(max(self.last_heard.get(topic, 0), posture.started_ns), heard_ns)
             for topic in SENSOR_TOPICS
         }
         topic = max(silences, key=silences.get)  # the first to fall silent is the cause
@@ -137,11 +124,10 @@ class CollectionTimeouts:
                 f'sync_tolerance {self.sync_tolerance:g} s, consistent: {counts["consistent"]} '
                 f'(non-finite readings dropped so far: {collector.non_finite})',
             ), ''
-        # The bounds below count in the data's time (the samples' stamps since the start), so a
-        # posture whose samples were sent is never skipped because they were handled late; a
-        # tolerance later, so the windows ending at the bound have been judged on final pairs
-        # (the collector's set_horizon).
-        data_s = posture.data_elapsed() - self.sync_tolerance
+        # The bounds below count in the data's time (docs/architecture.md#synchronisation), a
+        # tolerance later: the windows ending at a bound have been judged on final pairs.
+        data_s = 0.0 if data_ns is None else (data_ns - posture.start_ns) * 1e-9
+        data_s -= self.sync_tolerance
         if collector.not_at_rest is not None and data_s >= self.settle_timeout:
             return None, (
                 f'readings not settled within settle_timeout {self.settle_timeout:g} s of the '

@@ -1,6 +1,5 @@
-"""THE table of the sensor topics a calibration collects, the stream each one feeds, and how a
-sensor message is read (pure, no rclpy): a ``JointState`` message, or its CDR bytes as a raw
-subscription takes them (:mod:`.joint_state_cdr`)."""
+"""THE table of the sensor topics a calibration collects and the stream each one feeds, and how a
+``JointState`` message or its CDR bytes are read (pure, no rclpy)."""
 
 import math
 
@@ -29,9 +28,8 @@ _READERS = {
 
 
 def sensor_message(msg):
-    """``msg`` as the readers take it: the fields of CDR bytes (:func:`.read_joint_state`;
-    the bytes themselves if they are no ``JointState``, which :func:`read_sensor` then says), or
-    the message itself."""
+    """``msg`` as the readers take it: the fields of CDR bytes (the bytes if they are no
+    ``JointState``, which :func:`read_sensor` then says), or the message itself."""
     if isinstance(msg, (bytes, bytearray, memoryview)):
         try:
             return read_joint_state(msg)

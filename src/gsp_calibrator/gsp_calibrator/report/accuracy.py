@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 
+from gsp_calibrator.report.data import validation_arrays
+from gsp_calibrator.report.plots import new_figure, save_figure
 from gsp_kinematics.estimation.identifiability import analyse_result
 from gsp_kinematics.estimation.prediction import (
     accuracy_summary,
@@ -30,13 +32,9 @@ def prediction_for(
     thermal_strain=None,
 ):
     """The full prediction (with maps) of an ``IdentificationResult``; None when it has no usable
-    covariance (not converged, non-finite, or rank-deficient: a pseudo-inverse says nothing about
-    the unidentifiable directions). ``analysis``: the result's identifiability analysis
-    (``gsp_kinematics.estimation.identifiability.analyse_result``), computed here when None.
-    ``unmodelled``: what the model leaves unexplained (``noise_from_data.unmodelled_error``),
-    added at every pose (None: the platform is taken to be exactly the model).
-    ``thermal_strain`` (6,): the uncompensated thermal growth over the run
-    (``gsp_kinematics.estimation.prediction.thermal_strain_rms``; None: none), added likewise."""
+    covariance (not converged, non-finite, or rank-deficient). ``analysis``: its
+    ``analyse_result`` (None: computed here); ``unmodelled`` (``unmodelled_error``) and
+    ``thermal_strain`` (6,): added at every pose (None: none)."""
     covariance = np.asarray(result.covariance, dtype=float)
     if not result.converged or not np.all(np.isfinite(covariance)):
         return None
@@ -56,15 +54,9 @@ def prediction_for(
         effect_free=result.effect_free,
     )
     poses = _validation_poses(validation_after)
-    measured_position = (validation_after or {}).get('position_mm')
-    measured_orientation = (validation_after or {}).get('orientation_deg')
-    if (
-        poses is not None
-        and measured_position is not None
-        and measured_orientation is not None
-        and len(poses) == len(measured_position)
-        and len(poses)
-    ):
+    measured_position, measured_orientation = validation_arrays(validation_after or {})
+    known = measured_position is not None and measured_orientation is not None
+    if poses is not None and known and len(poses) == len(measured_position) and len(poses):
         position, orientation = predicted_errors(
             result.geometry,
             covariance,
@@ -74,8 +66,6 @@ def prediction_for(
             thermal_strain,
             result.effect_free,
         )
-        measured_position = np.asarray(measured_position, dtype=float)
-        measured_orientation = np.asarray(measured_orientation, dtype=float)
         prediction['validation'] = {
             'poses': poses.tolist(),
             'predicted_position_mm': position.tolist(),
@@ -104,14 +94,11 @@ def result_json_entry(prediction):
     }
     validation = prediction.get('validation')
     if validation:
+        means = ('measured_position_mm', 'predicted_position_mm')
+        means += ('measured_orientation_deg', 'predicted_orientation_deg')
         entry['validation'] = {
             'postures': len(validation['poses']),
-            'measured_position_mm_mean': float(np.mean(validation['measured_position_mm'])),
-            'predicted_position_mm_mean': float(np.mean(validation['predicted_position_mm'])),
-            'measured_orientation_deg_mean': float(np.mean(validation['measured_orientation_deg'])),
-            'predicted_orientation_deg_mean': float(
-                np.mean(validation['predicted_orientation_deg'])
-            ),
+            **{f'{key}_mean': float(np.mean(validation[key])) for key in means},
             'position_ratio': validation['position_ratio'],
             'orientation_ratio': validation['orientation_ratio'],
         }
@@ -163,20 +150,21 @@ def markdown_lines(entry, image=None):
 def plot_accuracy_map(path, prediction):
     """``accuracy_map.png``: predicted position (top) and orientation (bottom) error maps, one
     column per panel, with the validation postures (measured error) overlaid when known."""
-    from gsp_calibrator.report.plots import new_figure, save_figure
-
     maps = prediction['maps']
     validation = prediction.get('validation')
     columns = len(maps) + (1 if validation else 0)
     figure = new_figure(
         3.3 * columns, 6.6, left=0.05, right=0.97, top=0.88, bottom=0.08, wspace=0.35, hspace=0.35
     )
+    heights = sorted({panel['z_m'] for panel in maps})
+    height_step = min(np.diff(heights)) if len(heights) > 1 else math.inf
     rows = (('position_mm', 'position (mm)'), ('orientation_deg', 'orientation (deg)'))
     for row, (key, label) in enumerate(rows):
         values = np.array([panel[key] for panel in maps], dtype=float)
         finite = values[np.isfinite(values)]
         low, high = (finite.min(), finite.max()) if finite.size else (0.0, 1.0)
         # The predicted maps set the colour scale; a measured dot beyond it shows saturated.
+        scale = {'vmin': low, 'vmax': high, 'cmap': 'viridis'}
         measured = None
         if validation:
             measured = np.asarray(validation[f'measured_{key}'], dtype=float)
@@ -186,29 +174,14 @@ def plot_accuracy_map(path, prediction):
             row_axes.append(axes)
             x = 1000.0 * np.asarray(panel['x_m'])
             y = 1000.0 * np.asarray(panel['y_m'])
-            image = axes.pcolormesh(
-                x,
-                y,
-                np.asarray(panel[key], dtype=float),
-                shading='nearest',
-                vmin=low,
-                vmax=high,
-                cmap='viridis',
-            )
+            grid = np.asarray(panel[key], dtype=float)
+            image = axes.pcolormesh(x, y, grid, shading='nearest', **scale)
             if measured is not None:
                 poses = np.asarray(validation['poses'])
-                near = np.abs(poses[:, 2] - panel['z_m']) <= 0.5 * _height_step(maps)
+                near = np.abs(poses[:, 2] - panel['z_m']) <= 0.5 * height_step
                 near &= np.all(np.abs(poses[:, 3:5] - np.asarray(panel['tilt_rad'])) < 0.2, axis=1)
-                axes.scatter(
-                    1000 * poses[near, 0],
-                    1000 * poses[near, 1],
-                    c=measured[near],
-                    vmin=low,
-                    vmax=high,
-                    cmap='viridis',
-                    edgecolors='w',
-                    s=22,
-                )
+                x_near, y_near = 1000 * poses[near, :2].T
+                axes.scatter(x_near, y_near, c=measured[near], edgecolors='w', s=22, **scale)
             axes.set_title(panel['title'], fontsize=8)
             axes.set_xlabel('x (mm)', fontsize=8)
             if column == 0:
@@ -226,30 +199,20 @@ def plot_accuracy_map(path, prediction):
             axes.set_ylabel(f'measured {label}', fontsize=8)
             axes.set_title('validation postures', fontsize=8)
             axes.tick_params(labelsize=7)
+    dots = '; dots: measured validation errors' if validation else ''
     figure.suptitle(
         'Predicted error of the calibrated platform (expected magnitude from the parameter '
-        'covariance); dots: measured validation errors'
-        if validation
-        else 'Predicted error of the calibrated platform (expected magnitude from the parameter '
-        'covariance)'
+        f'covariance){dots}'
     )
     return save_figure(figure, path)
-
-
-def _height_step(maps):
-    heights = sorted({panel['z_m'] for panel in maps})
-    return min(np.diff(heights)) if len(heights) > 1 else math.inf
 
 
 HELD_OUT_PNG = 'held_out_accuracy.png'
 
 
 def plot_held_out(path, accuracy, predicted=None, required_mm=None):
-    """Each posture's position error measured by the device with the geometry fitted without
-    it, beside the nominal geometry's and the posture's own noise (log scale), with the
-    cross-validated mean (noise removed), the predicted mean and the requirement as lines."""
-    from gsp_calibrator.report.plots import new_figure, save_figure
-
+    """Each posture's held-out position error beside the nominal geometry's and its own noise
+    (log scale), with the cross-validated and predicted means and the requirement as lines."""
     per_posture = accuracy['per_posture']
     figure = new_figure(11, 4.4, left=0.07, right=0.98, top=0.88, bottom=0.12)
     axes = figure.add_subplot(1, 1, 1)

@@ -1,6 +1,5 @@
-"""The numbers of a calibration report, shared by ``result.json``, ``report.md`` and the plots
-(pure, no rclpy): report and SI units, parameter errors, validation summaries, residuals per
-sensor and the identifiability record."""
+"""The numbers of a calibration report shared by ``result.json``, ``report.md`` and the plots
+(pure, no rclpy)."""
 
 import math
 
@@ -34,17 +33,6 @@ VALIDATION_KEYS = (
 )
 
 
-# --- helpers -----------------------------------------------------------------------------------
-
-
-def report_unit(index):
-    return 'deg' if index in ANGULAR else 'mm'
-
-
-def si_unit(index):
-    return 'rad' if index in ANGULAR else 'm'
-
-
 def by_name(values, mask=None):
     return {
         name: (json_safe(values[i]) if mask is None or mask[i] else None)
@@ -53,29 +41,15 @@ def by_name(values, mask=None):
 
 
 def identifiability_record(analysis):
-    """Normalised identifiability: unidentifiable combinations as text and parameter names."""
+    """The ``identifiability`` of result.json from an ``analyse_result`` analysis (None: none)."""
     if not analysis:
         return None
-    entries = []
-    for entry in analysis.get('unidentifiable', []) or []:
-        if isinstance(entry, dict):
-            entries.append(
-                {
-                    'combination': entry.get('combination', ''),
-                    'parameters': list(entry.get('parameters', [])),
-                    'coefficients': list(entry.get('coefficients', [])),
-                }
-            )
-        else:  # a plain parameter name
-            entries.append(
-                {'combination': str(entry), 'parameters': [str(entry)], 'coefficients': [1.0]}
-            )
-    size = analysis.get('parameters', analysis.get('size'))
+    entries = analysis['unidentifiable']
     return {
-        'rank': analysis.get('rank'),
-        'parameters': size,
-        'condition_number': analysis.get('condition_number'),
-        'singular_values': analysis.get('singular_values'),
+        'rank': analysis['rank'],
+        'parameters': analysis['parameters'],
+        'condition_number': analysis['condition_number'],
+        'singular_values': analysis.get('singular_values'),  # none for a failed fit
         'unidentifiable': entries,
         'unidentifiable_parameters': sorted({p for e in entries for p in e['parameters']}),
     }
@@ -86,29 +60,23 @@ def validation_summary(validation):
     if validation is None:
         return None
     summary = {k: validation[k] for k in VALIDATION_KEYS if k in validation}
-    position, orientation = validation_arrays(validation)
-    if position is not None and len(position):
-        summary.setdefault('position_mm_mean', float(np.mean(position)))
-        summary.setdefault('position_mm_max', float(np.max(position)))
-    if orientation is not None and len(orientation):
-        summary.setdefault('orientation_deg_mean', float(np.mean(orientation)))
-        summary.setdefault('orientation_deg_max', float(np.max(orientation)))
-    for key in ('postures', 'unreachable'):
-        if key in validation:
-            summary[key] = validation[key]
-    if 'postures' not in summary and position is not None:
-        summary['postures'] = len(position)
+    arrays = validation_arrays(validation)
+    for name, values in zip(('position_mm', 'orientation_deg'), arrays, strict=True):
+        if values is not None and len(values):
+            summary.setdefault(f'{name}_mean', float(np.mean(values)))
+            summary.setdefault(f'{name}_max', float(np.max(values)))
+    summary |= {key: validation[key] for key in ('postures', 'unreachable') if key in validation}
+    if 'postures' not in summary and arrays[0] is not None:
+        summary['postures'] = len(arrays[0])
     return summary
 
 
 def validation_arrays(validation):
-    if validation is None:
-        return None, None
-    position = validation.get('position_mm')
-    orientation = validation.get('orientation_deg')
-    position = None if position is None else np.asarray(position, dtype=float).reshape(-1)
-    orientation = None if orientation is None else np.asarray(orientation, dtype=float).reshape(-1)
-    return position, orientation
+    """``(position mm, orientation deg)`` per posture of a validation (each None if absent)."""
+    return tuple(
+        None if validation.get(key) is None else np.asarray(validation[key], dtype=float).ravel()
+        for key in ('position_mm', 'orientation_deg')
+    )
 
 
 def validation_errors(true, controller, poses):
@@ -140,20 +108,13 @@ def parameter_error_table(result, truth, nominal):
     estimate = np.asarray(result.parameters, dtype=float)[:count]
     sigma = to_report_units(np.nan_to_num(result.standard_deviations[:count], nan=0.0))
     sigma = np.where(np.asarray(result.free, dtype=bool)[:count], sigma, np.nan)
-    if truth is not None:
+    if truth is None:
+        reference, before = nominal.to_vector(), np.zeros(count)
+    else:
         reference = truth.to_vector()
-        return (
-            'truth',
-            to_report_units(nominal.to_vector() - reference),
-            to_report_units(estimate - reference),
-            sigma,
-        )
-    return (
-        'nominal',
-        np.zeros(len(PARAMETER_NAMES)),
-        to_report_units(estimate - nominal.to_vector()),
-        sigma,
-    )
+        before = to_report_units(nominal.to_vector() - reference)
+    kind = 'nominal' if truth is None else 'truth'
+    return kind, before, to_report_units(estimate - reference), sigma
 
 
 def residual_columns(result):
@@ -172,10 +133,8 @@ def residual_columns(result):
 
 
 def residuals_by_sensor(result):
-    """``{sensor: residuals in SI (m or rad)}`` (1-D arrays, finite values only).
-
-    The core returns residuals weighted by each sensor's sigma and the per-sensor RMS in SI;
-    the sigma is their ratio, so the weights need not be known here."""
+    """``{sensor: residuals in SI (m or rad)}`` (1-D, finite values only): the core's weighted
+    residuals scaled by the sensor's RMS in SI over theirs (the weights need not be known)."""
     residuals = np.asarray(result.residuals, dtype=float)
     out = {}
     for sensor, columns in residual_columns(result):
@@ -190,16 +149,9 @@ def residuals_by_sensor(result):
     return out
 
 
-# --- result.json -------------------------------------------------------------------------------
-
-
-#: The optional inputs of a report, by keyword (absent or None: not known); see :func:`result_data`.
-
-
 def settle_line(settle):
-    """The response's line of ``collection.settle`` (:func:`settle_statistics`): ``'settle
-    wait (settled to averaged window): median 0.205 s, max 0.61 s over 60 rows; 12 waited for
-    a moving channel'``; '' without rows."""
+    """The response's line of ``collection.settle`` (:func:`settle_statistics`); '' without
+    rows."""
     if not settle or not settle.get('rows'):
         return ''
     return (
@@ -210,27 +162,16 @@ def settle_line(settle):
 
 
 def settle_statistics(waits):
-    """``result.json`` ``collection.settle`` of the kept rows' rest waits (``rest_waits``):
-    ``rows``, ``median_s``, ``max_s``, ``mean_s`` of the waits, ``waited``: the rows that
-    waited for a channel still moving (not only for their first samples), and ``per_posture_s``
-    (``{posture: wait_s}``, in posture order)."""
-    entries = list(waits.values())
-    values = np.array([entry['wait_s'] for entry in entries], dtype=float)
-    if values.size == 0:
-        return {
-            'rows': 0,
-            'median_s': None,
-            'max_s': None,
-            'mean_s': None,
-            'waited': 0,
-            'per_posture_s': {},
-        }
+    """``result.json`` ``collection.settle`` (docs/data.md#resultjson) of the kept rows' rest
+    waits ``{posture: {wait_s, moving_pairs}}``."""
+    values = np.array([entry['wait_s'] for entry in waits.values()], dtype=float)
+    known = values.size > 0
     return {
         'rows': int(values.size),
-        'median_s': float(np.median(values)),
-        'max_s': float(values.max()),
-        'mean_s': float(values.mean()),
-        'waited': sum(1 for entry in entries if entry['moving_pairs'] > 0),
+        'median_s': float(np.median(values)) if known else None,
+        'max_s': float(values.max()) if known else None,
+        'mean_s': float(values.mean()) if known else None,
+        'waited': sum(1 for entry in waits.values() if entry['moving_pairs'] > 0),
         'per_posture_s': {
             posture: float(waits[posture]['wait_s']) for posture in sorted(waits, key=int)
         },

@@ -12,7 +12,6 @@ from gsp_kinematics.model.kinematics import inverse_kinematics
 
 #: A leg's drift counts as resolved when it exceeds this many standard deviations.
 RESOLVED_SIGMAS = 2.0
-_UNITS = {stem: unit for stem, unit, _ in EFFECT_GROUPS.values()}
 
 
 def untried_groups(design, count, plain):
@@ -26,13 +25,6 @@ def untried_groups(design, count, plain):
         'joint_offsets': '',
     }
     return {g: reasons[g] for g in EFFECT_GROUPS if g not in available and g not in plain}
-
-
-def _instant(stamp_s):
-    """UTC ISO text of a stamp (s since the epoch), or None when it is not a wall-clock time."""
-    if not stamp_s > 1e9:  # a simulated clock from 0: no date
-        return None
-    return datetime.datetime.fromtimestamp(stamp_s, datetime.UTC).isoformat(timespec='seconds')
 
 
 def _thermal(result, design, nominal, reference_stamp_s):
@@ -49,6 +41,10 @@ def _thermal(result, design, nominal, reference_stamp_s):
     scale = lengths * 60.0 * 1e6 * slowed  # 1/s -> um/min
     drift, deviation = rates[:, 0] * scale, rates[:, 1] * scale
     resolved = np.abs(drift) > RESOLVED_SIGMAS * deviation
+    utc = None  # a simulated clock from 0: no date
+    if reference_stamp_s > 1e9:
+        instant = datetime.datetime.fromtimestamp(reference_stamp_s, datetime.UTC)
+        utc = instant.isoformat(timespec='seconds')
     return {
         'drift_um_per_min': drift.tolist(),
         'drift_sd_um_per_min': deviation.tolist(),
@@ -57,35 +53,29 @@ def _thermal(result, design, nominal, reference_stamp_s):
         'thermal_time_constant_s': float(tau),
         'reference_time_s': float(design.reference_time_s),
         'reference_stamp_s': float(reference_stamp_s),
-        'reference_utc': _instant(reference_stamp_s),
+        'reference_utc': utc,
         'compensated': False,
     }
 
 
 def effects_record(result, design, nominal, choice=None, untried=None, reference_stamp_s=0.0):
-    """The ``effects`` entry of ``result.json``: ``model_choice`` (the chosen groups, the reason,
-    each candidate's cross-validated position error and the groups not tried, and why), the
-    identified ``parameters`` (estimate and standard deviation, SI), ``payload_mass`` and
-    ``centre_of_mass`` they hold for, and ``thermal`` (the drift and the reference instant);
-    None when neither a choice was made nor an effect freed."""
+    """The ``effects`` entry of ``result.json`` (docs/data.md#resultjson); None when neither a
+    choice was made nor an effect freed."""
     identified = result.effects if result is not None else {}
     if choice is None and not identified:
         return None
     record = {'model_choice': None, 'groups': [], 'parameters': {}, 'thermal': None}
     if choice is not None:
         record['model_choice'] = {**choice.to_dict(), 'not_tried': dict(untried or {})}
-    stems = {stem: group for group, (stem, _, _) in EFFECT_GROUPS.items()}
+    stems = {stem: (group, unit) for group, (stem, unit, _) in EFFECT_GROUPS.items()}
     for name in EFFECT_PARAMETER_NAMES:
         if name in identified:
             value, deviation = identified[name]
-            stem = name.rstrip('0123456789')
-            record['parameters'][name] = {
-                'estimate': value,
-                'standard_deviation': deviation,
-                'unit': _UNITS[stem],
-            }
-            if stems[stem] not in record['groups']:
-                record['groups'].append(stems[stem])
+            group, unit = stems[name.rstrip('0123456789')]
+            entry = {'estimate': value, 'standard_deviation': deviation, 'unit': unit}
+            record['parameters'][name] = entry
+            if group not in record['groups']:
+                record['groups'].append(group)
     record['payload_mass'] = float(design.payload_mass)
     record['centre_of_mass'] = [float(v) for v in design.centre_of_mass]
     record['payload_assumed'] = payload_assumption(design)
@@ -97,7 +87,7 @@ def effects_record(result, design, nominal, choice=None, untried=None, reference
 def payload_assumption(design):
     """What the compliance assumed of the load ('' : the user gave its mass): a reference mass at
     the stated centre of mass, so the compliance is the legs' times the load over it."""
-    if not getattr(design, 'payload_assumed', False):
+    if not design.payload_assumed:
         return ''
     centre = ', '.join(f'{1e3 * v:g}' for v in design.centre_of_mass)
     return (
@@ -156,14 +146,12 @@ def effects_lines(record):
 
 
 def _number(value, spec):
-    """``value`` formatted by ``spec``, or 'n/a' when there is none: NaN in a record, None once
-    read back from JSON (the report is written whatever figure is missing)."""
+    """``value`` formatted by ``spec``; 'n/a' for NaN (in a record) or None (read from JSON)."""
     return format(value, spec) if value is not None and math.isfinite(value) else 'n/a'
 
 
 def _held_out_text(candidate, unit=' mm'):
-    """A candidate's held-out position error (``unit`` after the figure), or 'n/a' and why it
-    was not measured (``not_judged``)."""
+    """A candidate's held-out position error, or 'n/a' and why it was not measured."""
     value = _number(candidate.get('cv_position_mm'), '.4f')
     if value != 'n/a':
         return value + unit
@@ -171,9 +159,9 @@ def _held_out_text(candidate, unit=' mm'):
 
 
 def _test_text(candidate):
-    """', chi-square drop D (k parameters, p P)' of a candidate tested against the model it
-    extends ('' for the plain model or a failed fit), and the predicted rms position error over
-    the workspace without and with the groups it adds where judged."""
+    """', chi-square drop D (k parameters, p P)' of a candidate against the model it extends
+    ('' for the plain model or a failed fit), and the predicted position error without and with
+    the groups it adds."""
     delta, p_value = candidate.get('delta_chi2'), candidate.get('p_value')
     if delta is None or p_value is None or not math.isfinite(p_value):
         return ''

@@ -1,6 +1,5 @@
-"""The verdict, the accuracy measured by cross-validation, the sensor errors, the goodness of fit,
-outliers and noise estimates of ``result.json``, ``report.md`` and the service's response
-(docs/verdict.md, docs/sensor_errors.md)."""
+"""The verdict, accuracy, sensor errors, goodness of fit, outliers and noise estimates of
+``result.json``, ``report.md`` and the service's response (docs/verdict.md)."""
 
 import math
 
@@ -37,16 +36,9 @@ def format_number(value, digits=4):
 _fmt = format_number
 
 
-def _free_text(name, free):
-    if free:
-        return 'yes'
-    return 'no (datum)' if name in DATUM_SENSOR_PARAMETERS else 'no'
-
-
 def outcome_data(outcome):
     """The ``result.json`` keys of a ``run.identify.CalibrationOutcome`` beside the fit's: the
-    verdict (``accepted``, ``acceptance``), the cross-validated ``accuracy``, the ``unmodelled``
-    error, the noise and the goodness-of-fit verdict (``fit_accepted``, ``fit_diagnosis``)."""
+    verdict, accuracy, unmodelled error, noise and goodness-of-fit verdict."""
     judgement, requirement = outcome.judgement, outcome.requirement
     acceptance = None
     if judgement is not None:
@@ -111,11 +103,12 @@ def _sensor_error_table(data):
         factor, unit = (math.degrees(1.0), 'deg') if degrees else (1.0, '1')
         nominal = entry.get('nominal')
         deviation = entry.get('standard_deviation')
+        fixed = 'no (datum)' if name in DATUM_SENSOR_PARAMETERS else 'no'
         rows.append(
             [
                 name,
                 unit,
-                _free_text(name, entry['free']),
+                'yes' if entry['free'] else fixed,
                 _fmt(None if nominal is None else nominal * factor),
                 _fmt(entry['estimate'] * factor),
                 _fmt(None if deviation is None else deviation * factor, 3),
@@ -136,54 +129,28 @@ def _accuracy_table(data):
     accuracy = data.get('accuracy')
     if not accuracy:
         return None
-    rows = []
+    where = ', workspace postures' if accuracy.get('measured_on') == 'workspace' else ''
     labelled = [
-        (accuracy, 'calibrated (held out)', 'calibrated'),
-        (accuracy, 'nominal geometry', 'nominal'),
+        (f'calibrated (held out{where})', accuracy['calibrated']),
+        ('nominal geometry', accuracy['nominal']),
     ]
-    if accuracy.get('measured_on') == 'workspace':
-        labelled[0] = (accuracy, 'calibrated (held out, workspace postures)', 'calibrated')
     if accuracy.get('selected'):
-        labelled.append(
-            (accuracy['selected'], 'calibrated (held out, selected postures)', 'calibrated')
-        )
+        selected = accuracy['selected']['calibrated']
+        labelled.append(('calibrated (held out, selected postures)', selected))
     if data.get('rigid_accuracy'):
-        labelled.append((data['rigid_accuracy'], 'rigid geometry (held out)', 'calibrated'))
-    for entry, label, key in labelled:
-        position, phi = entry[key]['position_mm'], entry[key]['phi_deg']
-        rows.append(
-            [
-                label,
-                _fmt(position['mean'], 3),
-                _interval(position.get('mean_interval_95')),
-                _fmt(position['p95'], 3),
-                _fmt(phi['mean'], 3),
-                _fmt(phi['p95'], 3),
-                _fmt(position['measured_mean'], 3),
-            ]
-        )
+        labelled.append(('rigid geometry (held out)', data['rigid_accuracy']['calibrated']))
+    rows = []
+    for label, entry in labelled:
+        p, phi = entry['position_mm'], entry['phi_deg']
+        cells = [_fmt(v, 3) for v in (p['mean'], p['p95'], phi['mean'], phi['p95'])]
+        interval = _interval(p.get('mean_interval_95'))
+        rows.append([label, cells[0], interval, *cells[1:], _fmt(p['measured_mean'], 3)])
     predicted = data.get('predicted_accuracy') or {}
     if predicted.get('position_mm_mean') is not None:
-        rows.append(
-            [
-                'predicted (workspace)',
-                _fmt(predicted['position_mm_mean'], 3),
-                '–',
-                _fmt(predicted['position_mm_p95'], 3),
-                '–',
-                '–',
-                '–',
-            ]
-        )
-    header = [
-        'accuracy',
-        'position mean (mm)',
-        'its 95 % interval (mm)',
-        'position p95 (mm)',
-        'phi mean (deg)',
-        'phi p95 (deg)',
-        'measured position mean, noise included (mm)',
-    ]
+        mean, p95 = _fmt(predicted['position_mm_mean'], 3), _fmt(predicted['position_mm_p95'], 3)
+        rows.append(['predicted (workspace)', mean, '–', p95, '–', '–', '–'])
+    header = ['accuracy', 'position mean (mm)', 'its 95 % interval (mm)', 'position p95 (mm)']
+    header += ['phi mean (deg)', 'phi p95 (deg)', 'measured position mean, noise included (mm)']
     return ('table', header, rows)
 
 
@@ -191,25 +158,17 @@ def _goodness_lines(data):
     fit = data.get('goodness_of_fit')
     blocks = [('heading', 'Goodness of fit (a diagnostic)')]
     if fit:
-        loss = data.get('loss', 'linear')
         if fit.get('test') == 'lack_of_fit':
-            blocks.append(
-                (
-                    'line',
-                    f'lack-of-fit F test (noise estimated from the run): F '
-                    f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
-                    f'{_fmt(fit["pure_error_dof"])}) degrees of freedom, p = '
-                    f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
-                )
+            test = (
+                f'lack-of-fit F test (noise estimated from the run): F '
+                f'{_fmt(fit["f_statistic"], 4)} for ({_fmt(fit["dof"])}, '
+                f'{_fmt(fit["pure_error_dof"])})'
             )
         else:
-            blocks.append(
-                (
-                    'line',
-                    f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])} degrees of freedom, p = '
-                    f'{_fmt(fit["p_value"], 3)} (loss: {loss})',
-                )
-            )
+            test = f'chi2 {_fmt(fit["chi2"])} for {_fmt(fit["dof"])}'
+        loss = data.get('loss', 'linear')
+        text = f'{test} degrees of freedom, p = {_fmt(fit["p_value"], 3)} (loss: {loss})'
+        blocks.append(('line', text))
     if data.get('fit_diagnosis'):
         blocks.append(('line', data['fit_diagnosis']))
     return blocks
@@ -223,47 +182,27 @@ def _noise_table(data):
     rows = []
     for channel, entry in noise.items():
         angular = NOISE_UNITS[channel] == 'rad'
-        factor, unit = (math.degrees(1.0), 'deg') if angular else (1e3, 'mm')
+        factor = math.degrees(1.0) if angular else 1e3
         keys = ('configured', 'estimated', 'within_posture', 'between_postures')
         shown = [_fmt(None if entry.get(k) is None else entry[k] * factor, 3) for k in keys]
         unmodelled = entry.get('unmodelled') or 0.0
-        source = entry.get('source', '') + (
-            ' (within: lower bound)' if entry.get('within_lower_bound') else ''
-        )
-        warning = ' WARNING: differs by more than 2x' if entry.get('warning') else ''
-        rows.append(
-            [channel, *shown, _fmt(unmodelled * 1e6, 3), ('urad' if angular else 'um'), source]
-            + ([warning.strip()] if warning else [''])
-        )
-    return [
-        (
-            'line',
-            f'weights from the {used} noise (noise_source); per-sample noise (an averaged row '
-            "times sqrt(samples)); 'unmodelled' per row, which averaging does not reduce",
-        ),
-        (
-            'table',
-            [
-                'sensor noise',
-                'configured',
-                'estimated (the noise)',
-                'within postures',
-                'between postures',
-                'unmodelled',
-                'unit of unmodelled',
-                'source',
-                '',
-            ],
-            rows,
-        ),
-    ]
+        lower = ' (within: lower bound)' if entry.get('within_lower_bound') else ''
+        source = entry.get('source', '') + lower
+        warning = 'WARNING: differs by more than 2x' if entry.get('warning') else ''
+        unit = 'urad' if angular else 'um'
+        rows.append([channel, *shown, _fmt(unmodelled * 1e6, 3), unit, source, warning])
+    line = (
+        f'weights from the {used} noise (noise_source); per-sample noise (an averaged row '
+        "times sqrt(samples)); 'unmodelled' per row, which averaging does not reduce"
+    )
+    header = ['sensor noise', 'configured', 'estimated (the noise)', 'within postures']
+    header += ['between postures', 'unmodelled', 'unit of unmodelled', 'source', '']
+    return [('line', line), ('table', header, rows)]
 
 
 def fit_summary(data):
-    """The fit summary of ``data`` (``result.json`` keys: ``acceptance``, ``accuracy``,
-    ``predicted_accuracy``, ``goodness_of_fit``, ``fit_diagnosis``, ``outliers``, ``down_weighted``,
-    ``noise_estimates``, ...): ``[('heading', text) | ('line', text) | ('table', header,
-    rows)]``, for :func:`as_text` and :func:`as_markdown`."""
+    """The fit summary of ``result.json`` ``data`` as blocks ``('heading', text)``, ``('line',
+    text)`` and ``('table', header, rows)``, for :func:`as_text` and :func:`as_markdown`."""
     blocks = [('heading', 'Verdict')]
     acceptance = data.get('acceptance')
     if acceptance:

@@ -30,14 +30,10 @@ _CORRECTION_COLOUR = '#2ca02c'
 def _residual_scale(kind, values):
     """``(factor, unit)`` so that the residuals read as numbers between ~0.1 and ~1000."""
     rms = float(np.sqrt(np.mean(np.square(values)))) if len(values) else 0.0
-    if kind == 'length':
-        options = ((1e3, 'mm'), (1e6, 'µm'), (1e9, 'nm'))
-    else:
-        options = (
-            (math.degrees(1.0), 'deg'),
-            (math.degrees(1.0) * 1e3, 'mdeg'),
-            (math.degrees(1.0) * 1e6, 'µdeg'),
-        )
+    deg = math.degrees(1.0)
+    options = ((1e3, 'mm'), (1e6, 'µm'), (1e9, 'nm'))
+    if kind != 'length':
+        options = ((deg, 'deg'), (deg * 1e3, 'mdeg'), (deg * 1e6, 'µdeg'))
     for factor, unit in options:
         if rms * factor >= 0.1:
             return factor, unit
@@ -87,11 +83,8 @@ def plot_parameter_errors(path, result, truth=None, nominal=None):
     free = np.asarray(result.free, dtype=bool)
     lengths = [i for i in range(len(PARAMETER_NAMES)) if i not in ANGULAR]
     angles = sorted(ANGULAR)
-    rows = 2 if reference == 'truth' else 1
-    figure = rows_figure(15, 4.4, rows, margins=(0.06, 0.99, 0.3, 0.9, 1.0), wspace=0.2)
-    grid = figure.add_gridspec(rows, 2, width_ratios=[len(lengths), 4])
 
-    def panel(axes, indices, values, label, colour, marker, bars, unit, zero_line=True):
+    def panel(axes, indices, values, label, colour, marker, bars, unit):
         x = np.arange(len(indices))
         if bars:
             err = np.where(free[indices], sigma[indices], 0.0)
@@ -108,8 +101,7 @@ def plot_parameter_errors(path, result, truth=None, nominal=None):
             )
         else:
             axes.plot(x, values[indices], marker, color=colour, ms=6, label=label, linestyle='none')
-        if zero_line:
-            axes.axhline(0.0, color='0.4', lw=0.8)
+        axes.axhline(0.0, color='0.4', lw=0.8)
         axes.set_xticks(x)
         axes.set_xticklabels([PARAMETER_NAMES[i] for i in indices], rotation=90, fontsize=8)
         axes.set_ylabel(f'error ({unit})' if reference == 'truth' else f'correction ({unit})')
@@ -119,33 +111,26 @@ def plot_parameter_errors(path, result, truth=None, nominal=None):
                 axes.axvspan(position - 0.5, position + 0.5, color='0.9', zorder=0)
 
     if reference == 'truth':
-        title = 'Parameter errors against the true geometry'
-        main = figure.add_subplot(grid[0, 0])
-        side = figure.add_subplot(grid[0, 1])
-        for axes, indices, unit in ((main, lengths, 'mm'), (side, angles, 'deg')):
-            panel(
-                axes, indices, before, 'before (nominal − true)', _BEFORE_COLOUR, 'o', False, unit
-            )
-            panel(axes, indices, after, 'after (estimate − true)', _AFTER_COLOUR, 'x', True, unit)
-        main.set_title(title + ': before and after calibration')
-        side.set_title('gamma')
-        main.legend(loc='upper right', fontsize=8)
-        zoom = figure.add_subplot(grid[1, 0])
-        zoom_side = figure.add_subplot(grid[1, 1])
-        for axes, indices, unit in ((zoom, lengths, 'mm'), (zoom_side, angles, 'deg')):
-            panel(axes, indices, after, 'after (estimate − true)', _AFTER_COLOUR, 'x', True, unit)
-        zoom.set_title('After calibration (zoom), error bars: 1σ from the covariance')
-        zoom_side.set_title('gamma (after)')
-        zoom.legend(loc='upper right', fontsize=8)
-    else:
-        main = figure.add_subplot(grid[0, 0])
-        side = figure.add_subplot(grid[0, 1])
-        for axes, indices, unit in ((main, lengths, 'mm'), (side, angles, 'deg')):
-            panel(axes, indices, after, 'estimate − nominal', _CORRECTION_COLOUR, 'x', True, unit)
-        main.set_title(
-            'Parameter corrections against the nominal geometry (no true geometry known)'
+        after_label, after_colour = 'after (estimate − true)', _AFTER_COLOUR
+        titles = (
+            'Parameter errors against the true geometry: before and after calibration',
+            'After calibration (zoom), error bars: 1σ from the covariance',
         )
-        side.set_title('gamma')
+    else:
+        after_label, after_colour = 'estimate − nominal', _CORRECTION_COLOUR
+        titles = ('Parameter corrections against the nominal geometry (no true geometry known)',)
+    figure = rows_figure(15, 4.4, len(titles), margins=(0.06, 0.99, 0.3, 0.9, 1.0), wspace=0.2)
+    grid = figure.add_gridspec(len(titles), 2, width_ratios=[len(lengths), 4])
+    for row, title in enumerate(titles):
+        main = figure.add_subplot(grid[row, 0])
+        side = figure.add_subplot(grid[row, 1])
+        for axes, indices, unit in ((main, lengths, 'mm'), (side, angles, 'deg')):
+            if reference == 'truth' and row == 0:
+                label = 'before (nominal − true)'
+                panel(axes, indices, before, label, _BEFORE_COLOUR, 'o', False, unit)
+            panel(axes, indices, after, after_label, after_colour, 'x', True, unit)
+        main.set_title(title)
+        side.set_title('gamma (after)' if row else 'gamma')
         main.legend(loc='upper right', fontsize=8)
     figure.axes[-2].set_xlabel('parameter (grey band: fixed, not identified)')
     return save_figure(figure, path)
@@ -155,22 +140,16 @@ def chain_errors(result, truth=None, nominal=None):
     """``(reference, before, after)``: (3, 6) arrays of |A_i|, |B_i|, |Loff_i| errors in mm."""
     nominal = default_geometry('nominal') if nominal is None else nominal
     reference, before, after, _ = parameter_error_table(result, truth, nominal)
-    chains = np.array([c if c is not None else 0 for c in PARAMETER_CHAIN])
-
-    def norms(values):
-        out = np.zeros((3, NUM_LEGS))
-        for leg in range(1, NUM_LEGS + 1):
-            for row, prefix in enumerate(('A', 'B', 'Loff')):
-                mask = np.array(
-                    [
-                        chains[i] == leg and n.startswith(prefix)
-                        for i, n in enumerate(PARAMETER_NAMES)
-                    ]
-                )
-                out[row, leg - 1] = float(np.linalg.norm(values[mask]))
-        return out
-
-    return reference, norms(before), norms(after)
+    legs = range(1, NUM_LEGS + 1)
+    pairs = list(zip(PARAMETER_CHAIN, PARAMETER_NAMES, strict=True))
+    masks = np.array(  # (3, legs, parameters): the A_i, B_i and Loff_i of each leg
+        [
+            [[chain == leg and name.startswith(prefix) for chain, name in pairs] for leg in legs]
+            for prefix in ('A', 'B', 'Loff')
+        ]
+    )
+    before_norms = np.linalg.norm(np.where(masks, before, 0.0), axis=-1)
+    return reference, before_norms, np.linalg.norm(np.where(masks, after, 0.0), axis=-1)
 
 
 def plot_chain_errors(path, result, truth=None, nominal=None):
@@ -180,47 +159,33 @@ def plot_chain_errors(path, result, truth=None, nominal=None):
     legs = np.arange(1, NUM_LEGS + 1)
     titles = ('base joint |ΔA_i|', 'platform joint |ΔB_i|', 'leg offset |ΔLoff_i|')
     width = 0.38
+    if reference == 'truth':
+        series = (
+            (before, -width / 2, width, _BEFORE_COLOUR, 'before (nominal)'),
+            (after, width / 2, width, _AFTER_COLOUR, 'after (calibrated)'),
+        )
+        ylabel = 'error norm against the truth (mm)'
+        suptitle = 'Errors in the kinematic chains before and after calibration'
+    else:
+        series = ((after, 0.0, 2 * width, _CORRECTION_COLOUR, 'correction (estimate − nominal)'),)
+        ylabel = 'correction norm (mm)'
+        suptitle = 'Errors in the kinematic chains: corrections (no true geometry known)'
     for row, title in enumerate(titles):
         axes = figure.add_subplot(1, 3, row + 1)
-        if reference == 'truth':
-            bars_before = axes.bar(
-                legs - width / 2, before[row], width, color=_BEFORE_COLOUR, label='before (nominal)'
-            )
-            bars_after = axes.bar(
-                legs + width / 2, after[row], width, color=_AFTER_COLOUR, label='after (calibrated)'
-            )
-            values = np.concatenate([before[row], after[row]])
-            axes.set_ylabel('error norm against the truth (mm)')
-        else:
-            bars_before = None
-            bars_after = axes.bar(
-                legs,
-                after[row],
-                2 * width,
-                color=_CORRECTION_COLOUR,
-                label='correction (estimate − nominal)',
-            )
-            values = after[row]
-            axes.set_ylabel('correction norm (mm)')
-        positive = values[values > 0]
+        for values, offset, bar_width, colour, label in series:
+            bars = axes.bar(legs + offset, values[row], bar_width, color=colour, label=label)
+            axes.bar_label(bars, fmt='%.2g', fontsize=6, rotation=90, padding=2)
+        axes.set_ylabel(ylabel)
+        shown = np.concatenate([values[row] for values, *_ in series])
+        positive = shown[shown > 0]
         if positive.size and positive.max() / positive.min() > 30:
             axes.set_yscale('log')
-        for bars in (bars_before, bars_after):
-            if bars is not None:
-                axes.bar_label(bars, fmt='%.2g', fontsize=6, rotation=90, padding=2)
         axes.set_xticks(legs)
         axes.set_xlabel('leg (kinematic chain) i')
         axes.set_title(title)
         axes.grid(True, axis='y', alpha=0.3)
         axes.legend(fontsize=8, loc='best')
-    figure.suptitle(
-        'Errors in the kinematic chains'
-        + (
-            ' before and after calibration'
-            if reference == 'truth'
-            else ': corrections (no true geometry known)'
-        )
-    )
+    figure.suptitle(suptitle)
     return save_figure(figure, path)
 
 
@@ -241,9 +206,8 @@ def plot_residuals(path, result):
         factor, unit = _residual_scale(SENSOR_KIND.get(sensor, 'length'), values)
         scaled = values * factor
         bins = int(np.clip(np.sqrt(scaled.size) * 2, 10, 60))
-        axes.hist(
-            scaled, bins=bins, color=_AFTER_COLOUR, alpha=0.8, label=f'{scaled.size} residuals'
-        )
+        text = f'{scaled.size} residuals'
+        axes.hist(scaled, bins=bins, color=_AFTER_COLOUR, alpha=0.8, label=text)
         rms = float(np.sqrt(np.mean(scaled**2))) if scaled.size else 0.0
         axes.axvline(rms, color=_BEFORE_COLOUR, ls='--', lw=1, label=f'± RMS {rms:.3g} {unit}')
         axes.axvline(-rms, color=_BEFORE_COLOUR, ls='--', lw=1)
@@ -273,29 +237,18 @@ def plot_validation(path, validation_before, validation_after):
         for position, (when, validation, colour) in enumerate(series):
             if validation is None:
                 continue
-            arrays = dict(
-                zip(('position_mm', 'orientation_deg'), validation_arrays(validation), strict=True)
-            )
-            values = arrays[key]
+            values = validation_arrays(validation)[column]  # (position, orientation)
             if values is not None and values.size:
+                clipped = np.maximum(values, 1e-12)
                 parts = axes.violinplot(
-                    np.maximum(values, 1e-12),
-                    positions=[position],
-                    showmeans=False,
-                    showextrema=False,
+                    clipped, positions=[position], showmeans=False, showextrema=False
                 )
                 for body in parts['bodies']:
                     body.set_facecolor(colour)
                     body.set_alpha(0.35)
                 jitter = (np.random.default_rng(0).random(values.size) - 0.5) * 0.2
-                axes.plot(
-                    position + jitter,
-                    np.maximum(values, 1e-12),
-                    '.',
-                    color=colour,
-                    ms=4,
-                    label=f'{when}: {values.size} postures',
-                )
+                text = f'{when}: {values.size} postures'
+                axes.plot(position + jitter, clipped, '.', color=colour, ms=4, label=text)
                 axes.plot(
                     [position - 0.3, position + 0.3], [np.mean(values)] * 2, '-', color='k', lw=1.5
                 )
@@ -306,14 +259,8 @@ def plot_validation(path, validation_before, validation_after):
                 top = summary.get(f'{key}_max')
                 if mean is None:
                     continue
-                axes.bar(
-                    position,
-                    top if top is not None else mean,
-                    0.5,
-                    color=colour,
-                    alpha=0.35,
-                    label=f'{when}: max',
-                )
+                height = mean if top is None else top
+                axes.bar(position, height, 0.5, color=colour, alpha=0.35, label=f'{when}: max')
                 axes.plot([position - 0.25, position + 0.25], [mean] * 2, '-', color='k', lw=1.5)
                 drawn.extend(v for v in (mean, top) if v)
         positive = [v for v in drawn if v > 0]

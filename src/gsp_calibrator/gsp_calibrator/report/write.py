@@ -2,11 +2,21 @@
 See docs/data.md#resultjson."""
 
 import dataclasses
+import functools
 import math
 import os
 
 import numpy as np
 
+from gsp_calibrator.report.accuracy import (
+    ACCURACY_MAP_PNG,
+    HELD_OUT_PNG,
+    markdown_lines,
+    plot_accuracy_map,
+    plot_held_out,
+    prediction_for,
+    result_json_entry,
+)
 from gsp_calibrator.report.data import (
     ANGULAR,
     SENSOR_KIND,
@@ -15,13 +25,17 @@ from gsp_calibrator.report.data import (
     by_name,
     identifiability_record,
     parameter_error_table,
-    report_unit,
     settle_line,
-    si_unit,
     validation_summary,
 )
 from gsp_calibrator.report.effects import effects_markdown
 from gsp_calibrator.report.fit import fit_data, fit_markdown, format_number, outcome_data
+from gsp_calibrator.report.plots import (
+    plot_chain_errors,
+    plot_parameter_errors,
+    plot_residuals,
+    plot_validation,
+)
 from gsp_kinematics.estimation.identifiability import analyse_result
 from gsp_kinematics.fileio import atomic_write_text, json_safe, to_json
 from gsp_kinematics.model.geometry import PARAMETER_NAMES, default_geometry, to_report_units
@@ -34,13 +48,6 @@ RESIDUALS_PNG = 'residuals.png'
 VALIDATION_PNG = 'validation.png'
 
 CORRELATION_THRESHOLD = 0.9
-
-# --- helpers -----------------------------------------------------------------------------------
-
-
-def _path(run_dir, name):
-    return os.path.join(os.fspath(run_dir), name)
-
 
 #: The scalar fields of an ``IdentificationResult`` that ``result.json`` holds as they are.
 _RESULT_FIELDS = (
@@ -58,26 +65,20 @@ _RESULT_FIELDS = (
 class ReportInputs:
     """What a report shows besides the core's ``IdentificationResult`` (each optional)."""
 
-    #: The result's identifiability (``gsp_kinematics.estimation.identifiability.analyse_result``).
-    analysis: dict | None = None
-    #: ``gsp_kinematics.model.validation.validate`` summaries, or :func:`.data.validation_errors` dicts
-    #: (per-posture arrays).
+    analysis: dict | None = None  #: the result's identifiability (``analyse_result``)
+    #: ``validate`` summaries, or :func:`.data.validation_errors` dicts (per-posture arrays)
     validation_before: dict | None = None
     validation_after: dict | None = None
-    #: The true geometry, if known: errors are then against it, else corrections against nominal.
-    truth: object = None
+    truth: object = None  #: the true geometry, if known (else corrections against nominal)
     nominal: object = None  #: default: the shipped nominal geometry
     sigmas: object = None  #: the ``SensorNoise`` weights used
     extra: dict | None = None  #: more top-level keys of result.json
     prediction: dict | None = None  #: :func:`.accuracy.prediction_for` of the result
-    #: what the model leaves unexplained (``noise_from_data.unmodelled_error``), in the prediction
-    unmodelled: object = None
+    unmodelled: object = None  #: the model's ``unmodelled_error``, in the prediction
 
     def completed(self, result):
         """These inputs with the analysis and the prediction of ``result`` computed where None
         (once, for result.json and report.md alike)."""
-        from gsp_calibrator.report.accuracy import prediction_for
-
         analysis = analyse_result(result) if self.analysis is None else self.analysis
         prediction = self.prediction
         compare = self.validation_after is not None and 'validation' not in (prediction or {})
@@ -91,10 +92,6 @@ class ReportInputs:
 def result_data(result, inputs=ReportInputs()):
     """The ``result.json`` content (a JSON-safe dict) of the core's ``IdentificationResult``
     ``result`` with :class:`ReportInputs` ``inputs``."""
-    from gsp_calibrator.report.accuracy import (
-        result_json_entry,
-    )
-
     inputs = inputs.completed(result)
     analysis, truth = inputs.analysis, inputs.truth
     nominal = default_geometry('nominal') if inputs.nominal is None else inputs.nominal
@@ -112,22 +109,18 @@ def result_data(result, inputs=ReportInputs()):
         pass
     residual_rms = {}
     for sensor, value in (result.residual_rms or {}).items():
-        kind = SENSOR_KIND.get(sensor, 'length')
-        factor, unit = (1e6, 'um') if kind == 'length' else (math.degrees(1.0), 'deg')
-        residual_rms[sensor] = {
-            'si': value,
-            'si_unit': 'm' if kind == 'length' else 'rad',
-            'report': float(value) * factor,
-            'report_unit': unit,
-        }
+        length = SENSOR_KIND.get(sensor, 'length') == 'length'
+        factor, unit, si = (1e6, 'um', 'm') if length else (math.degrees(1.0), 'deg', 'rad')
+        report = float(value) * factor
+        residual_rms[sensor] = {'si': value, 'si_unit': si, 'report': report, 'report_unit': unit}
     data = {name: getattr(result, name) for name in _RESULT_FIELDS}
     data |= {
         'postures': int(np.asarray(result.poses).shape[0]) if result.poses is not None else None,
         'excluded_postures': list(result.excluded_postures or []),
         'free_parameters': list(result.free_names),
         'units': {
-            'si': {n: si_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
-            'report': {n: report_unit(i) for i, n in enumerate(PARAMETER_NAMES)},
+            'si': {n: 'rad' if i in ANGULAR else 'm' for i, n in enumerate(PARAMETER_NAMES)},
+            'report': {n: 'deg' if i in ANGULAR else 'mm' for i, n in enumerate(PARAMETER_NAMES)},
         },
         'estimates': {'si': by_name(estimate), 'report': by_name(to_report_units(estimate))},
         'standard_deviations': {
@@ -167,10 +160,8 @@ def result_data(result, inputs=ReportInputs()):
 
 
 def outcome_inputs(outcome, nominal, options, **extra):
-    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``: its analysis, sigmas,
-    prediction and unmodelled error, and ``extra`` keys ``success``, ``failure``, ``options``,
-    the verdict (:func:`.fit.outcome_data`) and ``extra`` (e.g. the calibrator's
-    ``collection``)."""
+    """The :class:`ReportInputs` of a ``run.identify.CalibrationOutcome``, with ``options`` and
+    ``extra`` (e.g. the calibrator's ``collection``) among result.json's keys."""
     return ReportInputs(
         analysis=outcome.identifiability or None,
         nominal=nominal,
@@ -190,7 +181,7 @@ def outcome_inputs(outcome, nominal, options, **extra):
 def write_result_json(run_dir, result, inputs=ReportInputs()):
     """Write ``run_dir/result.json`` atomically (see :func:`result_data`); returns its path.
     Non-finite numbers are written as ``null``."""
-    path = _path(run_dir, RESULT_JSON)
+    path = os.path.join(run_dir, RESULT_JSON)
     atomic_write_text(path, to_json(result_data(result, inputs)))
     return path
 
@@ -200,36 +191,32 @@ def write_result_json(run_dir, result, inputs=ReportInputs()):
 
 def _validation_lines(data, images):
     """The ``## Validation`` section of ``report.md`` (none without a validation)."""
-    lines = []
     validation = data.get('validation') or {}
-    if validation.get('before') or validation.get('after'):
-        lines += [
-            '## Validation',
-            '',
-            '| | position mean (mm) | position max (mm) | orientation mean (deg) '
-            '| orientation max (deg) | postures |',
-            '|---|---|---|---|---|---|',
-        ]
-        for when in ('before', 'after'):
-            summary = validation.get(when)
-            if summary:
-                lines.append(
-                    f'| {when} | '
-                    + ' | '.join(format_number(summary.get(k)) for k in VALIDATION_KEYS)
-                    + f' | {summary.get("postures", "–")} |'
-                )
-        lines.append('')
-        if 'validation' in images:
-            lines += [f'![validation errors before and after]({images["validation"]})', '']
+    if not (validation.get('before') or validation.get('after')):
+        return []
+    lines = [
+        '## Validation',
+        '',
+        '| | position mean (mm) | position max (mm) | orientation mean (deg) '
+        '| orientation max (deg) | postures |',
+        '|---|---|---|---|---|---|',
+    ]
+    for when in ('before', 'after'):
+        summary = validation.get(when)
+        if summary:
+            numbers = ' | '.join(format_number(summary.get(k)) for k in VALIDATION_KEYS)
+            lines.append(f'| {when} | {numbers} | {summary.get("postures", "–")} |')
+    lines.append('')
+    if 'validation' in images:
+        lines += [f'![validation errors before and after]({images["validation"]})', '']
     return lines
 
 
 def _parameter_lines(data, images):
     """The ``## Parameters`` section of ``report.md``: errors against the truth, or corrections."""
-    lines = []
     errors = data['parameter_errors']
     against_truth = errors['reference'] == 'truth'
-    lines += ['## Parameters', '']
+    lines = ['## Parameters', '']
     if against_truth:
         lines.append(
             f'Errors against the true geometry. Largest after calibration: '
@@ -248,6 +235,7 @@ def _parameter_lines(data, images):
     )
     lines += [header, '|' + '---|' * (header.count('|') - 1)]
     units = data['units']['report']
+    shown = ('before', 'after') if against_truth else ('after',)
     for name in PARAMETER_NAMES:
         row = [
             name,
@@ -256,13 +244,7 @@ def _parameter_lines(data, images):
             format_number(data['estimates']['report'][name], 7),
             format_number(data['standard_deviations']['report'][name], 3),
         ]
-        if against_truth:
-            row += [
-                format_number(errors['before'][name], 3),
-                format_number(errors['after'][name], 3),
-            ]
-        else:
-            row.append(format_number(errors['after'][name], 3))
+        row += [format_number(errors[when][name], 3) for when in shown]
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
     return lines
@@ -278,19 +260,16 @@ PLOTS_SKIPPED_NOTE = (
 def report_markdown(data, images, title='Calibration report', plots=True):
     """``report.md`` text from :func:`result_data` output and ``{kind: file name}`` of plots;
     ``plots=False``: the report says its plots were not drawn."""
-    from gsp_calibrator.report.accuracy import markdown_lines
-
-    lines = [f'# {title}', '']
-    lines.append(
-        f'- status: {"converged" if data["converged"] else "NOT converged"} '
-        f'(status {data["status"]}: {data["message"]})'
-    )
-    lines.append(
-        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; '
-        f'free parameters: {len(data["free_parameters"])}; iterations: '
-        f'{data["iterations"]}; identification time: '
-        f'{format_number((data.get("duration_s") or 0.0) * 1000.0, 3)} ms'
-    )
+    status = 'converged' if data['converged'] else 'NOT converged'
+    milliseconds = format_number((data.get('duration_s') or 0.0) * 1000.0, 3)
+    lines = [
+        f'# {title}',
+        '',
+        f'- status: {status} (status {data["status"]}: {data["message"]})',
+        f'- formulation: {data["formulation"]}; postures: {data["postures"]}; free parameters: '
+        f'{len(data["free_parameters"])}; iterations: {data["iterations"]}; identification '
+        f'time: {milliseconds} ms',
+    ]
     if data.get('excluded_postures'):
         lines.append(f'- excluded postures (FK failed): {data["excluded_postures"]}')
     identifiability = data.get('identifiability')
@@ -327,9 +306,8 @@ def report_markdown(data, images, title='Calibration report', plots=True):
     lines += markdown_lines(data.get('predicted_accuracy'), images.get('accuracy_map'))
     lines += ['## Residuals', '', '| sensor | RMS | unit |', '|---|---|---|']
     for sensor, rms in data['residual_rms'].items():
-        lines.append(
-            f'| {SENSOR_LABEL.get(sensor, sensor)} | {format_number(rms["report"])} | {rms["report_unit"]} |'
-        )
+        label = SENSOR_LABEL.get(sensor, sensor)
+        lines.append(f'| {label} | {format_number(rms["report"])} | {rms["report_unit"]} |')
     lines.append('')
     if 'residuals' in images:
         lines += [f'![residual histograms]({images["residuals"]})', '']
@@ -343,53 +321,34 @@ def write_report(run_dir, result, inputs=ReportInputs(), title='Calibration repo
     written = _write_plots(run_dir, result, inputs) if plots else {}
     images = {kind: os.path.basename(path) for kind, path in written.items()}
     text = report_markdown(data, images, title, plots)
-    written['report'] = _path(run_dir, REPORT_MD)
+    written['report'] = os.path.join(run_dir, REPORT_MD)
     atomic_write_text(written['report'], text)
     return written
 
 
 def _write_plots(run_dir, result, inputs):
     """The PNGs of :func:`write_report` (``inputs`` completed); returns ``{kind: path}``."""
-    from gsp_calibrator.report.accuracy import (
-        ACCURACY_MAP_PNG,
-        HELD_OUT_PNG,
-        plot_accuracy_map,
-        plot_held_out,
-    )
-    from gsp_calibrator.report.plots import (
-        plot_chain_errors,
-        plot_parameter_errors,
-        plot_residuals,
-        plot_validation,
-    )
-
-    validation_before, validation_after = inputs.validation_before, inputs.validation_after
-    truth, nominal = inputs.truth, inputs.nominal
+    truth, nominal, prediction = inputs.truth, inputs.nominal, inputs.prediction
+    before, after = inputs.validation_before, inputs.validation_after
+    path = functools.partial(os.path.join, run_dir)
     written = {
         'parameter_errors': plot_parameter_errors(
-            _path(run_dir, PARAMETER_ERRORS_PNG), result, truth, nominal
+            path(PARAMETER_ERRORS_PNG), result, truth, nominal
         ),
-        'chain_errors': plot_chain_errors(_path(run_dir, CHAIN_ERRORS_PNG), result, truth, nominal),
-        'residuals': plot_residuals(_path(run_dir, RESIDUALS_PNG), result),
+        'chain_errors': plot_chain_errors(path(CHAIN_ERRORS_PNG), result, truth, nominal),
+        'residuals': plot_residuals(path(RESIDUALS_PNG), result),
     }
-    if validation_before is not None or validation_after is not None:
-        written['validation'] = plot_validation(
-            _path(run_dir, VALIDATION_PNG), validation_before, validation_after
-        )
+    if before is not None or after is not None:
+        written['validation'] = plot_validation(path(VALIDATION_PNG), before, after)
     extra = inputs.extra or {}
     if extra.get('accuracy'):
-        acceptance = extra.get('acceptance') or {}
-        predicted = (inputs.prediction or {}).get('random', {}).get('position_mm', {})
+        required = ((extra.get('acceptance') or {}).get('requirement') or {}).get('position_mm')
+        predicted = (prediction or {}).get('random', {}).get('position_mm', {}).get('mean')
         written['held_out'] = plot_held_out(
-            _path(run_dir, HELD_OUT_PNG),
-            extra['accuracy'],
-            predicted.get('mean'),
-            (acceptance.get('requirement') or {}).get('position_mm'),
+            path(HELD_OUT_PNG), extra['accuracy'], predicted, required
         )
-    if inputs.prediction is not None:
-        written['accuracy_map'] = plot_accuracy_map(
-            _path(run_dir, ACCURACY_MAP_PNG), inputs.prediction
-        )
+    if prediction is not None:
+        written['accuracy_map'] = plot_accuracy_map(path(ACCURACY_MAP_PNG), prediction)
     return written
 
 
