@@ -16,10 +16,12 @@ Per seed, from the run directory the demo leaves (``result.yaml``, ``result.json
 * ``platform_s``: the span of the run's rows (first to last row stamp), against the same plan on
   the kinematic backend (the same demo, seed and leg limits, ``--backend kinematic``).
 
-``checks`` (:data:`CHECKS`), each true when every seed meets it, and ``passed``: the figures the
-calibrator must reach on the physics platform (no seed failed, none accepted while its truth misses
-the requirement, the inclinometer's estimated noise within 1.5x its configured value, the truth
-under 0.2 mm: far better than the nominal geometry, which misses by millimetres).
+``checks`` (:func:`seed_checks`) and ``passed``: the figures the calibrator must reach on the
+physics platform (:data:`FIGURES`: the truth within 1.3x the floor and under 0.2 mm, the held-out
+interval containing it in >= 90 % of seeds, none accepted while its truth misses the requirement,
+the inclinometer's estimated noise within 1.5x its configured value, the platform time within 1.3x
+the kinematic backend's; the held-out accuracy within 25 % of the truth in the median), and
+``figures_missed`` per seed.
 """
 
 import argparse
@@ -216,24 +218,20 @@ def seed_figures(
     return figures
 
 
-#: ``checks`` key -> whether one seed's figures meet it (a failed seed meets none).
-CHECKS = {
-    'not_accepted_while_truth_misses': lambda seed: not seed['verdict_met_truth_misses'],
-    'inclinometer_noise_within_1_5x': lambda seed: seed['inclinometer_noise_ratio'] <= 1.5,
-    'true_below_0_2_mm': lambda seed: seed['true_mm'] < 0.2,
-}
-
-
-#: The issue's figures for one seed: name -> whether its figures meet it (a figure not measured,
-#: such as the platform time without the kinematic run, is not judged).
+#: The figures one seed's run meets or misses: name -> whether its figures meet it (a figure not
+#: measured, the platform time without the kinematic run, is not judged).
 FIGURES = {
     'true_over_floor_1_3': lambda seed: seed['true_over_floor'] <= 1.3,
-    'held_out_within_25_percent': lambda seed: abs(seed['cv_over_true'] - 1.0) <= 0.25,
+    'true_below_0_2_mm': lambda seed: seed['true_mm'] < 0.2,
     'interval_contains_true': lambda seed: seed['interval_contains_true'],
     'not_accepted_while_truth_misses': lambda seed: not seed['verdict_met_truth_misses'],
     'inclinometer_noise_within_1_5x': lambda seed: seed['inclinometer_noise_ratio'] <= 1.5,
     'platform_time_within_1_3x': lambda seed: seed.get('platform_time_ratio', 1.0) <= 1.3,
 }
+#: The share of seeds that must meet a figure (all unless named): the interval is a 95 % one.
+SEED_SHARE = {'interval_contains_true': 0.9}
+#: The held-out accuracy's target is on the median over the seeds: ``|held out / true - 1|``.
+HELD_OUT_MEDIAN_TOLERANCE = 0.25
 
 
 def figures_missed(seed):
@@ -245,11 +243,16 @@ def figures_missed(seed):
 
 
 def seed_checks(runs):
-    """``{check: every seed meets it}`` of :data:`CHECKS`, plus ``no_failed_seed``."""
+    """``{check: met}``: ``no_failed_seed``; each of :data:`FIGURES`, met by every seed (or the
+    share of :data:`SEED_SHARE`); ``held_out_within_25_percent_median``."""
     done = [run for run in runs if 'true_mm' in run]
     checks = {'no_failed_seed': len(done) == len(runs) > 0}
-    checks.update(
-        {key: bool(done) and all(meets(run) for run in done) for key, meets in CHECKS.items()}
+    for key, meets in FIGURES.items():
+        met = [meets(run) for run in done]
+        checks[key] = bool(met) and sum(met) >= SEED_SHARE.get(key, 1.0) * len(met)
+    median = _median(done, 'cv_over_true')
+    checks['held_out_within_25_percent_median'] = (
+        median is not None and abs(median - 1.0) <= HELD_OUT_MEDIAN_TOLERANCE
     )
     return checks
 
@@ -314,7 +317,8 @@ def run(
         ),
         'targets': {
             'true_over_floor': '<= 1.3',
-            'cv_over_true': 'within 25 %',
+            'cv_over_true': 'within 25 % (median)',
+            'interval_contains_true_fraction': '>= 0.9',
             'verdict_met_truth_misses': 'no seed',
             'inclinometer_noise_ratio': '<= 1.5',
             'platform_time_ratio': '<= 1.3',
