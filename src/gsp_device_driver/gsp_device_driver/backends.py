@@ -28,11 +28,11 @@ from gsp_msgs_py.noise_parameters import (
     noise_parameter_names,
 )
 
-from .device_backend import BackendError, DeviceBackend, DeviceSample, validate_std
+from .device_backend import BackendError, DeviceBackend, DeviceSample
 from .serial_backend import SerialDeviceBackend
 
 #: The device sensors' true noise parameters (``inclinometer_noise_std``...).
-NOISE_PARAMETER_NAMES = noise_parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
+NOISE_PARAMETERS = noise_parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
 
 
 class SimDeviceBackend(DeviceBackend):
@@ -123,7 +123,10 @@ class SimDeviceBackend(DeviceBackend):
 
     def update_noise(self, noise):
         for sensor in channels.DEVICE_SENSORS:
-            validate_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
+            std = float(getattr(noise, sensor))
+            if not (math.isfinite(std) and std >= 0.0):
+                name = TRUE_NOISE_PARAMETER.format(sensor)
+                raise BackendError(f'{name} must be finite and >= 0, got {std}')
         self._noise = noise
 
     def observe_true_pose(self, pose):
@@ -159,7 +162,12 @@ class SimDeviceBackend(DeviceBackend):
             )
         )
 
+    def read_available(self, now_s):
+        sample = self.read(now_s)
+        return [] if sample is None else [sample]
+
     def read(self, now_s):
+        """The sample of the latest true pose at ``now_s`` (s), or None before the first."""
         if self._exact is None:
             return None
         values = self._dynamics.step(now_s, self._exact, self._noise.readings(), self._rng)
@@ -184,7 +192,7 @@ class SimDeviceBackend(DeviceBackend):
             'reading_rate_hz': f'{rate:.1f}',
             **{
                 f'{name}_{NOISE_UNITS[sensor]}': f'{getattr(self._noise, sensor):.6g}'
-                for sensor, name in zip(channels.DEVICE_SENSORS, NOISE_PARAMETER_NAMES, strict=True)
+                for sensor, name in zip(channels.DEVICE_SENSORS, NOISE_PARAMETERS, strict=True)
             },
         }
         if self._exact is None:
@@ -232,10 +240,6 @@ class PhysicsDeviceBackend(SimDeviceBackend):
             self._latest_s = stamp_s
             samples.append(DeviceSample(stamp_s, *(float(v) for v in values)))
         return samples
-
-    def read(self, now_s):
-        samples = self.read_available(now_s)
-        return samples[-1] if samples else None
 
 
 _BACKENDS = {

@@ -12,21 +12,14 @@ from gsp_kinematics.model.device import SENSORS
 from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
-from gsp_msgs_py.noise_parameters import (
-    TRUE_NOISE_PARAMETER,
-    noise_from_parameters,
-    noise_parameter_names,
-)
+from gsp_msgs_py.noise_parameters import TRUE_NOISE_PARAMETER, noise_from_parameters
 from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank
 
-from .backends import BackendError, backend_class, backend_names
+from .backends import NOISE_PARAMETERS, BackendError, backend_class, backend_names
 
 #: Random stream of this node: platform_sim with the same ``seed`` draws independent noise.
 RNG_STREAM = 2
 WARN_THROTTLE_S = 1.0
-
-#: The sim backend's true noise parameters, ``<sensor>_noise_std`` of each device sensor.
-NOISE_PARAMETERS = noise_parameter_names(TRUE_NOISE_PARAMETER, DEVICE_SENSORS)
 
 #: sim backend: each sensor's dynamics (docs/sensor_errors.md), s; 0 = instant / white.
 DYNAMICS_PARAMETERS = tuple(

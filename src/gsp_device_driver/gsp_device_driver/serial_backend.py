@@ -3,6 +3,8 @@
 import threading
 import time
 
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank, one_of
+
 from .device_backend import BackendError, DeviceBackend
 from .serial_gate import DROP_SUMMARY_PERIOD_S, HELLO_REQUEST_INTERVAL_S, SerialLineGate
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS, REQUEST_LINE
@@ -10,10 +12,11 @@ from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS, REQUEST_LINE
 MAX_PENDING_BYTES = 1024  #: a longer run without a line end is dropped as garbage
 
 
-def _specs():
-    from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank, one_of
+class SerialDeviceBackend(DeviceBackend):
+    """Readings from a device speaking the serial protocol on ``port``."""
 
-    return (
+    name = 'serial'
+    PARAMETERS = (
         ParameterSpec(
             'port', '/dev/ttyACM0', 'Serial port of the device', check=not_blank('a port')
         ),
@@ -67,12 +70,6 @@ def _specs():
             check=greater_than(0.0, 's'),
         ),
     )
-
-
-class SerialDeviceBackend(DeviceBackend):
-    """Readings from a device speaking the serial protocol on ``port``."""
-
-    name = 'serial'
 
     def __init__(
         self,
@@ -147,10 +144,6 @@ class SerialDeviceBackend(DeviceBackend):
         """Every reading received since the last call, each with its stamp on the node's clock
         (taken by the reader thread: ``now_s`` is not used, so a late call moves no stamp)."""
         return self.gate.take_samples()
-
-    def read(self, now_s):
-        samples = self.read_available(now_s)
-        return samples[-1] if samples else None
 
     def messages(self):
         """``[(level, text)]`` to log since the last call (``warning`` or ``info``)."""
@@ -257,6 +250,3 @@ class SerialDeviceBackend(DeviceBackend):
             last_line = now
             for line in lines:
                 self.gate.handle(line + b'\n', now, stamp_now)
-
-
-SerialDeviceBackend.PARAMETERS = _specs()

@@ -120,11 +120,11 @@ def test_a_backend_without_simulated_noise_refuses_noise_changes():
         def from_config(cls, **_unused):
             return cls()
 
-        def read(self, now_s):
-            return DeviceSample(now_s, 0.25, 0.25, 0.25, 0.25)
+        def read_available(self, now_s):
+            return [DeviceSample(now_s, 0.25, 0.25, 0.25, 0.25)]
 
     backend = ConstantBackend.from_config(true_geometry_file='unused')
-    assert backend.read(3.0) == DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)
+    assert backend.read_available(3.0) == [DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)]
     with pytest.raises(BackendError, match='no simulated noise'):
         backend.update_noise(device_noise(0.0, 0.0, 1e-6))
     backend.close()  # nothing to release

@@ -3,11 +3,6 @@
 from .health import ERROR, OK, WARN, Health
 
 
-def superseded_reason(command_id):
-    """The reason a moving command is rejected when ``command_id`` supersedes it."""
-    return f'superseded by command {command_id} before settling'
-
-
 class SettleTracker:
     """Which accepted command is moving, and when it settles."""
 

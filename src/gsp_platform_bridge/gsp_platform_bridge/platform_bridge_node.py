@@ -1,7 +1,7 @@
 """``platform_bridge`` node: the suite's platform protocol over ros2_control (docs/hardware.md)."""
 
 import numpy as np
-from builtin_interfaces.msg import Duration
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -99,11 +99,6 @@ PARAMETERS = (
 )
 
 
-def _duration(seconds):
-    whole = int(seconds)
-    return Duration(sec=whole, nanosec=int((seconds - whole) * 1e9))
-
-
 def _check_start_up(values):
     reason = controller_geometry_error(values)
     return f'controller geometry: {reason}' if reason else ''
@@ -159,17 +154,7 @@ class PlatformBridgeNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _apply_parameters(self, changes):
-        for name in (
-            'max_leg_speed',
-            'max_leg_acceleration',
-            'min_motion_duration',
-            'goal_timeout',
-            'max_condition',
-            'path_position_step',
-            'path_angle_step',
-        ):
-            if name in changes:
-                self._values[name] = changes[name]
+        self._values.update(changes)
         for name, attribute in (
             ('position_tolerance', 'tolerance'),
             ('settle_time', 'settle_time'),
@@ -178,8 +163,7 @@ class PlatformBridgeNode(Node):
             if name in changes:
                 setattr(self._monitor, attribute, float(changes[name]))
         if any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
-            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
-            self._geometry = controller_geometry(current)
+            self._geometry = controller_geometry(self._values)
             self.get_logger().info('controller geometry updated; applies from the next command')
 
     def _move(self, command_id, pose):
@@ -203,10 +187,8 @@ class PlatformBridgeNode(Node):
         times = waypoint_times(
             self._monitor.positions, waypoints, limits, self._values['min_motion_duration']
         )
-        if self._monitor.active:  # the server rejects the superseded command
-            self._monitor.clear()
         points = [
-            JointTrajectoryPoint(positions=q.tolist(), time_from_start=_duration(t))
+            JointTrajectoryPoint(positions=q.tolist(), time_from_start=Duration(seconds=t).to_msg())
             for q, t in zip(waypoints, times, strict=True)
         ]
         points[-1].velocities = [0.0] * 6

@@ -48,10 +48,10 @@ class PhysicsSimulator:
         self._checker = PlatformSimulator(
             true_geometry, controller_geometry, 0.0, rng, max_condition, start
         )
-        self._true_geometry = true_geometry
+        self.true_geometry = true_geometry
         self.params = params
         self.limits = limits
-        self.leg_lengths_noise_std = leg_lengths_noise_std
+        self.leg_lengths_noise_std = float(leg_lengths_noise_std)  #: m
         self.in_position_window = float(in_position_window)
         self.in_position_time = float(in_position_time)
         self._rng = rng if rng is not None else np.random.default_rng()
@@ -68,7 +68,8 @@ class PhysicsSimulator:
         self._move = LegMove(self.leg_lengths, self._target, self._limits, 0.0)
         self._in_position_since = None
         self._commanded_pose = start.copy()
-        while not self.in_position and self._data.time < self._move_end_s() + START_UP_TIMEOUT_S:
+        give_up_s = self._move.end_s + START_UP_TIMEOUT_S
+        while not self.in_position and self._data.time < give_up_s:
             self.advance(self.time_s + 0.05)
         self.advance(self.time_s + START_UP_S)
         self._time_offset = float(start_s) - self._data.time  # at rest at start_s
@@ -102,15 +103,13 @@ class PhysicsSimulator:
         return self._time_offset + self._data.time
 
     @property
-    def true_geometry(self):
-        return self._true_geometry
-
-    @property
     def controller_geometry(self):
+        """The controller's geometry, used from the next command (the kinematic checker's)."""
         return self._checker.controller_geometry
 
-    def set_controller_geometry(self, geometry):
-        self._checker.set_controller_geometry(geometry)
+    @controller_geometry.setter
+    def controller_geometry(self, geometry):
+        self._checker.controller_geometry = geometry
 
     @property
     def max_condition(self):
@@ -118,7 +117,7 @@ class PhysicsSimulator:
 
     @max_condition.setter
     def max_condition(self, value):
-        self._checker.max_condition = value
+        self._checker.max_condition = float(value)
 
     @property
     def limits(self):
@@ -127,18 +126,6 @@ class PhysicsSimulator:
     @limits.setter
     def limits(self, limits):
         self._limits = MotionLimits() if limits is None or limits.instantaneous else limits
-
-    @property
-    def leg_lengths_noise_std(self):
-        return self._checker.leg_lengths_noise_std
-
-    @leg_lengths_noise_std.setter
-    def leg_lengths_noise_std(self, value):
-        self._checker.leg_lengths_noise_std = value
-
-    @property
-    def moving(self):
-        return not self.in_position
 
     @property
     def in_position(self):
@@ -183,7 +170,7 @@ class PhysicsSimulator:
             [math.cos(alpha) * math.sin(beta), math.sin(alpha), math.cos(alpha) * math.cos(beta)]
         )
         alpha, beta = position_to_inclinations(
-            direction, self._true_geometry.inclinometer_axes_angle
+            direction, self.true_geometry.inclinometer_axes_angle
         )
         top = data.xmat[self._device_top].reshape(3, 3)
         phi = math.atan2(top[1, 0], top[1, 1])  # eq 2: R[1,0] = cos psi sin phi
@@ -223,9 +210,6 @@ class PhysicsSimulator:
         if self._move is not None and data.time >= arrival - 0.5 * step:
             self._move = None
 
-    def _move_end_s(self):
-        return 0.0 if self._move is None else self._move.end_s
-
     def _servo_references(self, count):
         """The servo slides' references (count, 6) m for the next ``count`` steps and their
         feedforward forces (count, 6) N (velocity and acceleration)."""
@@ -249,7 +233,7 @@ class PhysicsSimulator:
         """Why the real platform cannot hold ``real_pose`` (6,), where the commanded legs put it
         ('' if it can): past a joint's stop, or near a singularity, where compliant legs under
         load sag by centimetres or snap to another assembly."""
-        ok, reasons = check_reachable(self._true_geometry, real_pose[None], self.max_condition)
+        ok, reasons = check_reachable(self.true_geometry, real_pose[None], self.max_condition)
         return '' if ok[0] else f'the real platform cannot hold it: {reasons[0]}'
 
     def command(self, pose, now_s=None):

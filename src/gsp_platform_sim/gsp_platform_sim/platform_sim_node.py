@@ -213,7 +213,7 @@ class PlatformSimNode(Node):
         changed = sorted(name for name in changes if name in GEOMETRY_PARAMETER_NAMES)
         if changed:
             current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
-            self._simulator.set_controller_geometry(controller_geometry(current))
+            self._simulator.controller_geometry = controller_geometry(current)
             self.get_logger().info(
                 f'controller geometry updated ({", ".join(changed)}); applies from the next '
                 'pose command'
