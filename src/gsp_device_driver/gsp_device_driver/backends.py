@@ -72,7 +72,6 @@ class SimDeviceBackend(DeviceBackend):
             inclinometer_axes_angle=gamma,
             sensors=sensors if sensors is not None else SensorErrors(),
         )
-        self._noise = NO_NOISE
         self.update_noise(noise)
         try:
             self._dynamics = SensorDynamics(
@@ -108,26 +107,13 @@ class SimDeviceBackend(DeviceBackend):
             ],
         )
 
-    @property
-    def device_length(self):
-        return self._device.device_length
-
-    @property
-    def inclinometer_axes_angle(self):
-        return self._device.inclinometer_axes_angle
-
-    @property
-    def noise(self):
-        """The true noise drawn (a ``SensorNoise``, rad and m)."""
-        return self._noise
-
     def update_noise(self, noise):
         for sensor in channels.DEVICE_SENSORS:
             std = float(getattr(noise, sensor))
             if not (math.isfinite(std) and std >= 0.0):
                 name = TRUE_NOISE_PARAMETER.format(sensor)
                 raise BackendError(f'{name} must be finite and >= 0, got {std}')
-        self._noise = noise
+        self.noise = noise  #: the true noise drawn (a ``SensorNoise``, rad and m)
 
     def observe_true_pose(self, pose):
         pose = np.asarray(pose, dtype=float)
@@ -147,7 +133,7 @@ class SimDeviceBackend(DeviceBackend):
 
     def describe(self):
         line = 'noise std ' + ', '.join(
-            f'{sensor} {getattr(self._noise, sensor):g} {NOISE_UNITS[sensor]}'
+            f'{sensor} {getattr(self.noise, sensor):g} {NOISE_UNITS[sensor]}'
             for sensor in channels.DEVICE_SENSORS
         )
         if self._dynamics.is_white_and_instant:
@@ -170,7 +156,7 @@ class SimDeviceBackend(DeviceBackend):
         """The sample of the latest true pose at ``now_s`` (s), or None before the first."""
         if self._exact is None:
             return None
-        values = self._dynamics.step(now_s, self._exact, self._noise.readings(), self._rng)
+        values = self._dynamics.step(now_s, self._exact, self.noise.readings(), self._rng)
         self._counts['readings'] += 1
         if self._latest_s is None:  # the first reading opens the first window of the rate
             self._reported[0]['readings'] = self._counts['readings']
@@ -191,7 +177,7 @@ class SimDeviceBackend(DeviceBackend):
             **counts,
             'reading_rate_hz': f'{rate:.1f}',
             **{
-                f'{name}_{NOISE_UNITS[sensor]}': f'{getattr(self._noise, sensor):.6g}'
+                f'{name}_{NOISE_UNITS[sensor]}': f'{getattr(self.noise, sensor):.6g}'
                 for sensor, name in zip(channels.DEVICE_SENSORS, NOISE_PARAMETERS, strict=True)
             },
         }
@@ -233,7 +219,7 @@ class PhysicsDeviceBackend(SimDeviceBackend):
         samples = []
         while self._pending:
             stamp_s, exact = self._pending.popleft()
-            values = self._dynamics.step(stamp_s, exact, self._noise.readings(), self._rng)
+            values = self._dynamics.step(stamp_s, exact, self.noise.readings(), self._rng)
             self._counts['readings'] += 1
             if self._latest_s is None:
                 self._reported = (dict(self._counts), stamp_s)

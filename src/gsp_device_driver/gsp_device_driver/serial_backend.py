@@ -122,17 +122,14 @@ class SerialDeviceBackend(DeviceBackend):
     counters = property(lambda self: self.gate.counters)
     first_drops = property(lambda self: self.gate.first_drops)
     hello = property(lambda self: self.gate.hello)
-    device_clock = property(lambda self: self.gate.device_clock)
-    angle_unit = property(lambda self: self.gate.angle_unit)
-    length_unit = property(lambda self: self.gate.length_unit)
-    trust_configured_units = property(lambda self: self.gate.trust_configured_units)
 
     def describe(self):
         """One line for the node's start-up log."""
-        trust = ', trusting them before a hello' if self.trust_configured_units else ''
+        gate = self.gate
+        trust = ', trusting them before a hello' if gate.trust_configured_units else ''
         return (
-            f'port {self.port} at {self.baud} baud, units {self.angle_unit}/{self.length_unit}'
-            f'{trust}, latency {self.device_clock.latency:g} s'
+            f'port {self.port} at {self.baud} baud, units {gate.angle_unit}/{gate.length_unit}'
+            f'{trust}, latency {gate.device_clock.latency:g} s'
         )
 
     def start(self):

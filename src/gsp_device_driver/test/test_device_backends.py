@@ -102,8 +102,8 @@ def test_sim_from_config_reads_the_device_from_the_true_geometry_file():
         rng=np.random.default_rng(0),
         unrelated_key='ignored',
     )
-    assert sim.device_length == TRUE.device_length
-    assert sim.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
+    assert sim._device.device_length == TRUE.device_length
+    assert sim._device.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
     np.testing.assert_array_equal(sim.noise.readings(), [1e-5, 1e-5, 2e-5, 3e-6])
 
 

@@ -110,21 +110,18 @@ class DiagnosticsPublisher:
 
 class DiagnosticsListener:
     """Keeps the latest status of each name heard on ``/diagnostics`` by ``node``:
-    :attr:`reports` ``{name: Health}``, :attr:`hardware_ids` ``{name: hardware_id}``, and
-    :attr:`arrays`, the number of arrays heard. A status with an unknown level is not kept: its
-    error is in :attr:`malformed`."""
+    :attr:`reports` ``{name: Health}`` and :attr:`hardware_ids` ``{name: hardware_id}``. A status
+    with an unknown level is not kept: its error is in :attr:`malformed`."""
 
     def __init__(self, node):
         self.reports = {}
         self.hardware_ids = {}
-        self.arrays = 0
         self.malformed = []
         node.create_subscription(
             DiagnosticArray, names.TOPIC_DIAGNOSTICS, self._on_array, qos.DIAGNOSTICS_QOS
         )
 
     def _on_array(self, msg):
-        self.arrays += 1
         for status in msg.status:
             try:
                 name, hardware_id, health = status_to_health(status)

@@ -1,4 +1,4 @@
-"""Parameter tables of the nodes: specs, checks, declaration and docs (docs/parameters.md).
+"""Parameter tables of the nodes: specs, checks and declaration (docs/parameters.md).
 
 A check is ``value -> reason`` ('' when accepted).
 """
@@ -26,19 +26,15 @@ def is_finite_number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _unit(unit):
-    return f' {unit}' if unit else ''
-
-
 def greater_than(bound, unit='', reason=None):
     """Check: a finite number > ``bound``."""
-    why = reason or f'must be > {bound:g}{_unit(unit)}'
+    why = reason or f'must be > {bound:g} {unit}'.rstrip()
     return lambda v: '' if is_finite_number(v) and v > bound else why
 
 
 def at_least(bound, unit='', reason=None):
     """Check: a finite number >= ``bound``."""
-    why = reason or f'must be >= {bound:g}{_unit(unit)}'
+    why = reason or f'must be >= {bound:g} {unit}'.rstrip()
     return lambda v: '' if is_finite_number(v) and v >= bound else why
 
 
@@ -319,58 +315,3 @@ def watch_parameters(node, specs, apply=None, validate=None):
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
-
-
-def _format_value(value):
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, float):
-        return f'{value:.6g}'
-    if isinstance(value, str):
-        return repr(value)
-    return str(value)
-
-
-def _format_default(spec):
-    if spec.default_text:
-        return spec.default_text
-    value = spec.default
-    if isinstance(value, (list, tuple)):
-        shown = ', '.join(_format_value(v) for v in value[:6])
-        more = f', ... ({len(value)} values)' if len(value) > 6 else ''
-        return f'[{shown}{more}]'
-    return _format_value(value)
-
-
-def _format_constraints(spec):
-    parts = [spec.constraints] if spec.constraints else []
-    for bounds in (spec.float_range, spec.integer_range):
-        if bounds is not None:
-            parts.append(f'in [{_format_value(bounds[0])}, {_format_value(bounds[1])}]')
-    return '; '.join(parts)
-
-
-def parameter_table_markdown(specs):
-    """A Markdown table of ``specs``: name, type, default, unit, read-only, constraints and
-    description, one row per parameter in declaration order."""
-
-    def cell(text):
-        # '|' would end the cell; '<' would open an HTML tag (e.g. '<UTC timestamp>/').
-        return str(text).replace('|', '\\|').replace('<', '&lt;').replace('\n', ' ')
-
-    rows = [
-        '| name | type | default | unit | read-only | constraints | description |',
-        '| --- | --- | --- | --- | --- | --- | --- |',
-    ]
-    for spec in _spec_table(specs).values():
-        texts = (
-            f'`{spec.name}`',
-            spec.type_name,
-            f'`{_format_default(spec)}`',
-            spec.unit,
-            'yes' if spec.read_only else 'no',
-            _format_constraints(spec),
-            spec.description,
-        )
-        rows.append('| ' + ' | '.join(cell(text) for text in texts) + ' |')
-    return '\n'.join(rows) + '\n'

@@ -86,16 +86,12 @@ class CommandStatistics:
         self.last_rejection = f'{command_id}: {reason}'
         self._latest = (outcome, command_id, reason)
 
-    @property
-    def rejected(self):
-        """Every rejected status: refused + superseded + abandoned."""
-        return sum(self.counts[k] for k in ('refused', 'superseded', 'abandoned'))
-
     def health(self):
         """``Health``: ERROR while the latest command is an abandoned goal, WARN while it was
         refused, OK otherwise (none yet, moving or settled)."""
         times = self._settle_times_s
-        values = {**self.counts, 'rejected': self.rejected, 'last_rejection': self.last_rejection}
+        rejected = sum(self.counts[k] for k in ('refused', 'superseded', 'abandoned'))
+        values = {**self.counts, 'rejected': rejected, 'last_rejection': self.last_rejection}
         values['settle_time_last_s'] = f'{times[-1]:.4f}' if times else ''
         values['settle_time_mean_s'] = f'{sum(times) / len(times):.4f}' if times else ''
         values['settle_time_max_s'] = f'{max(times):.4f}' if times else ''

@@ -153,10 +153,6 @@ class PhysicsSimulator:
         rotation = data.xmat[self._platform].reshape(3, 3)
         return np.concatenate([data.xpos[self._platform], matrix_to_euler(rotation)])
 
-    @property
-    def commanded_pose(self):
-        return self._commanded_pose.copy()
-
     def device_readings(self):
         """Noise-free device readings ``[alpha, beta, phi, d_m]`` (rad, rad, rad, m) of the
         chain now (before the device's sensor errors)."""
@@ -229,22 +225,20 @@ class PhysicsSimulator:
         gap: a machine that cannot keep real time loses simulated time, never speeds it up."""
         self._time_offset += max(0.0, now_s - self.time_s)
 
-    def _real_reason(self, real_pose):
-        """Why the real platform cannot hold ``real_pose`` (6,), where the commanded legs put it
-        ('' if it can): past a joint's stop, or near a singularity, where compliant legs under
-        load sag by centimetres or snap to another assembly."""
-        ok, reasons = check_reachable(self.true_geometry, real_pose[None], self.max_condition)
-        return '' if ok[0] else f'the real platform cannot hold it: {reasons[0]}'
-
     def command(self, pose, now_s=None):
         """Drive the platform to ``pose`` (6,) from the simulation's current time."""
         outcome = self._checker.command(pose, self.time_s)
         if not outcome.accepted:
             return outcome
-        real_reason = self._real_reason(outcome.true_pose)
-        if real_reason:
+        # Past a joint's stop, or near a singularity, compliant legs under load sag by
+        # centimetres or snap to another assembly.
+        ok, reasons = check_reachable(
+            self.true_geometry, outcome.true_pose[None], self.max_condition
+        )
+        if not ok[0]:
             self._checker.command(self._commanded_pose, self.time_s)  # back to the legs' state
-            return CommandOutcome(False, real_reason, None, self.true_pose)
+            reason = f'the real platform cannot hold it: {reasons[0]}'
+            return CommandOutcome(False, reason, None, self.true_pose)
         now = self._data.time
         # From the servos' reference now (a command may supersede a move under way).
         start = self._target if self._move is None else self._move.legs(now)
@@ -255,20 +249,3 @@ class PhysicsSimulator:
         return CommandOutcome(
             True, '', self._target.copy(), outcome.true_pose, float(move.duration_s)
         )
-
-
-def poses_at_rest(simulator, poses, rest_s=0.5, timeout_s=30.0):
-    """Where the platform of ``simulator`` comes to rest for each commanded pose (M, 6): the
-    pose ``rest_s`` (s) after the encoders are in position (NaN rows: refused, or not in
-    position within ``timeout_s`` of simulated time)."""
-    reached = np.full((len(poses), 6), np.nan)
-    for index, pose in enumerate(np.atleast_2d(poses)):
-        if not simulator.command(pose).accepted:
-            continue
-        deadline = simulator.time_s + timeout_s
-        while not simulator.in_position and simulator.time_s < deadline:
-            simulator.advance(simulator.time_s + 0.01)
-        if simulator.in_position:
-            simulator.advance(simulator.time_s + rest_s)
-            reached[index] = simulator.true_pose
-    return reached

@@ -127,7 +127,8 @@ class PlatformSimNode(Node):
         self._pubs = node_tools.create_publishers(
             self,
             (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
-            + ((names.TOPIC_DEVICE_TRUTH,) if self._physics else ()),
+            + ((names.TOPIC_DEVICE_TRUTH,) if self._physics else ())
+            + ((names.TOPIC_MARKERS,) if values['publish_markers'] else ()),
         )
         self._travel_s = 0.0  # of the command just accepted
         self._commands = PoseCommandServer(
@@ -156,9 +157,6 @@ class PlatformSimNode(Node):
         else:
             self._state_timer = self.create_timer(self._tick_s, self._publish_state)
         if values['publish_markers']:
-            self._markers_pub = node_tools.create_publishers(self, (names.TOPIC_MARKERS,))[
-                names.TOPIC_MARKERS
-            ]
             self.create_timer(1.0 / MARKER_RATE_HZ, self._publish_markers)
 
         self.get_logger().info(
@@ -275,7 +273,7 @@ class PlatformSimNode(Node):
         )
 
     def _publish_markers(self):
-        self._markers_pub.publish(
+        self._pubs[names.TOPIC_MARKERS].publish(
             make_marker_array(
                 self._simulator.controller_geometry,
                 self._simulator.true_pose,

@@ -63,7 +63,6 @@ class PlatformSimulator:
         self._rng = rng if rng is not None else np.random.default_rng()
         self._leg_lengths = None
         self._true_pose = None
-        self._commanded_pose = None
         start = home_pose() if initial_pose is None else initial_pose
         outcome = self.command(start, self._start_s)
         if not outcome.accepted:
@@ -124,11 +123,6 @@ class PlatformSimulator:
         """Real pose (6,) ``[x, y, z, psi, theta, phi]`` of the platform (m, rad)."""
         return self._true_pose.copy()
 
-    @property
-    def commanded_pose(self):
-        """Last accepted commanded pose (6,)."""
-        return self._commanded_pose.copy()
-
     def measured_leg_lengths(self):
         """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_lengths_noise_std`` (m)."""
         return self._leg_lengths + self._rng.normal(0.0, self.leg_lengths_noise_std, size=6)
@@ -164,7 +158,6 @@ class PlatformSimulator:
                 'forward kinematics of the real platform found no pose near the command for '
                 f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)'
             )
-        self._commanded_pose = pose.copy()
         self._directions, self._pose_time_s = directions, now_s
         travel_s = 0.0
         if self._leg_lengths is None or self.limits is None or self.limits.instantaneous:
