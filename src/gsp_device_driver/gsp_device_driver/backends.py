@@ -57,19 +57,13 @@ class SimDeviceBackend(DeviceBackend):
         response_times=(0.0, 0.0, 0.0),
         correlation_times=(0.0, 0.0, 0.0),
     ):
-        device_length = float(device_length)
-        gamma = float(inclinometer_axes_angle)
-        if not (math.isfinite(device_length) and device_length > 0.0):
-            raise BackendError(f'device_length must be > 0 m, got {device_length}')
-        if not 0.0 < gamma < math.pi:
-            raise BackendError(f'inclinometer_axes_angle must be in (0, pi) rad, got {gamma}')
-        # device_readings needs only D0 and gamma of a Geometry; the joints are unused here.
+        # device_readings needs only D0 and gamma (checked by load_geometry) of a Geometry.
         self._device = Geometry(
             base_joints=np.zeros((6, 3)),
             platform_joints=np.zeros((6, 3)),
             leg_offsets=np.zeros(6),
-            device_length=device_length,
-            inclinometer_axes_angle=gamma,
+            device_length=float(device_length),
+            inclinometer_axes_angle=float(inclinometer_axes_angle),
             sensors=sensors if sensors is not None else SensorErrors(),
         )
         self.update_noise(noise)
@@ -139,14 +133,9 @@ class SimDeviceBackend(DeviceBackend):
         if self._dynamics.is_white_and_instant:
             return line
         tau, tc = self._dynamics.response_time, self._dynamics.correlation_time
-        return (
-            line
-            + ', '
-            + ', '.join(
-                f'{sensor} response {tau[columns[0]]:g} s, noise correlation {tc[columns[0]]:g} s'
-                for sensor, columns in SENSORS.items()
-            )
-        )
+        for sensor, (column, *_) in SENSORS.items():
+            line += f', {sensor} response {tau[column]:g} s, noise correlation {tc[column]:g} s'
+        return line
 
     def read_available(self, now_s):
         sample = self.read(now_s)

@@ -9,7 +9,6 @@ from sensor_msgs.msg import JointState
 
 from gsp_kinematics.channels import DEVICE_SENSORS, sensor_channel_names
 from gsp_kinematics.model.device import SENSORS
-from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
 from gsp_msgs_py.noise_parameters import TRUE_NOISE_PARAMETER, noise_from_parameters
@@ -55,12 +54,9 @@ PARAMETERS = (
         read_only=True,
         check=not_blank('a backend'),
     ),
-    parameter_specs.geometry_file_spec(
-        'true_geometry_file',
-        default_geometry_path('true'),
+    parameter_specs.true_geometry_file_spec(
         'sim backend: geometry params file of the real platform; its device_length D0 '
-        'and inclinometer_axes_angle gamma are used',
-        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
+        'and inclinometer_axes_angle gamma are used'
     ),
     parameter_specs.publish_rate_spec('the readings'),
     parameter_specs.seed_spec(),

@@ -3,7 +3,7 @@
 aggregator and Foxglove read.
 """
 
-import dataclasses
+import collections
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -46,14 +46,9 @@ def status_to_health(msg):
     return msg.name, msg.hardware_id, Health(level, msg.message, values)
 
 
-@dataclasses.dataclass(frozen=True)
-class Component:
-    """One status a node reports: ``name`` (``'<node name>: <name>'`` on the topic), its
-    ``hardware_id`` and ``health()`` (a :class:`Health`)."""
-
-    name: str
-    hardware_id: str
-    health: object
+#: One status a node reports: ``name`` (``'<node name>: <name>'`` on the topic), its
+#: ``hardware_id`` and ``health()`` (a :class:`Health`).
+Component = collections.namedtuple('Component', 'name hardware_id health')
 
 
 class DiagnosticsPublisher:

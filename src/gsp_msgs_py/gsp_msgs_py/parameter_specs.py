@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 
@@ -219,15 +220,15 @@ def true_noise_spec(sensor, description):
     )
 
 
-def geometry_file_spec(name, default, description, default_text=''):
-    """A read-only geometry params file parameter."""
+def true_geometry_file_spec(description):
+    """``true_geometry_file`` (read-only): the real platform's geometry params file."""
     return ParameterSpec(
-        name,
-        default,
+        'true_geometry_file',
+        default_geometry_path('true'),
         description,
         read_only=True,
         check=not_blank('a geometry file'),
-        default_text=default_text,
+        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     )
 
 

@@ -7,37 +7,32 @@ class SettleTracker:
     """Which accepted command is moving, and when it settles."""
 
     def __init__(self):
-        self._moving = None  # command id of the accepted command not settled yet
+        self.moving = None  #: the id of the accepted command not settled yet, or None
         self._settles_ns = None
-
-    @property
-    def moving(self):
-        """The command id that is moving, or None."""
-        return self._moving
 
     def accept(self, command_id, now_ns, settle_time):
         """Start moving to ``command_id`` at ``now_ns``, to settle ``settle_time`` (s) later."""
-        superseded = self._moving
-        self._moving = command_id
+        superseded = self.moving
+        self.moving = command_id
         self._settles_ns = now_ns + max(0, round(settle_time * 1e9))
         return superseded
 
     def wait_ns(self, now_ns):
         """Nanoseconds until the moving command settles (0 if due), or None if none moves."""
-        if self._moving is None:
+        if self.moving is None:
             return None
         return max(0, self._settles_ns - now_ns)
 
     def due(self, now_ns):
         """The command id that has settled by ``now_ns`` (forgotten from then on), or None."""
-        if self._moving is None or now_ns < self._settles_ns:
+        if self.moving is None or now_ns < self._settles_ns:
             return None
-        settled, self._moving = self._moving, None
+        settled, self.moving = self.moving, None
         return settled
 
     def forget(self):
         """The moving command ends without settling (it was rejected)."""
-        self._moving = None
+        self.moving = None
 
 
 class CommandStatistics:

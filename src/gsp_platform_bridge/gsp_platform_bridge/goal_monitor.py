@@ -4,9 +4,7 @@ import numpy as np
 
 from gsp_kinematics.model.motion import move_time
 from gsp_msgs_py.health import ERROR, OK, Health
-
-SETTLED = 'settled'
-REJECTED = 'rejected'
+from gsp_msgs_py.names import STATE_REJECTED, STATE_SETTLED
 
 
 class GoalMonitor:
@@ -90,22 +88,22 @@ class GoalMonitor:
         self._target = None
 
     def check(self, now_s):
-        """``(SETTLED, '')``, ``(REJECTED, reason)`` or None (still moving) for the goal at
+        """``(STATE_SETTLED, '')``, ``(STATE_REJECTED, reason)`` or None (still moving) for the goal at
         ``now_s``; the goal ends with a verdict."""
         if self._target is None:
             return None
         problem = self.state_problem(now_s)
         if problem:
             self.clear()
-            return REJECTED, problem
+            return STATE_REJECTED, problem
         errors = np.abs(self.positions - self._target)
         if self._within_since is not None and now_s - self._within_since >= self.settle_time:
             self.clear()
-            return SETTLED, ''
+            return STATE_SETTLED, ''
         if now_s > self._deadline_s:
             worst = int(np.argmax(errors))
             self.clear()
-            return REJECTED, (
+            return STATE_REJECTED, (
                 f'goal not reached in time: {self.joint_names[worst]} is '
                 f'{errors[worst] * 1e3:.3f} mm from its target (tolerance '
                 f'{self.tolerance * 1e3:g} mm)'

@@ -21,7 +21,7 @@ from gsp_msgs_py.geometry_parameters import (
 from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
-from .goal_monitor import REJECTED, SETTLED, GoalMonitor, pose_path, waypoint_times
+from .goal_monitor import GoalMonitor, pose_path, waypoint_times
 
 NODE_NAME = names.NODE_PLATFORM_BRIDGE
 CHECK_RATE_HZ = 50.0  #: deadline and staleness checks between joint states
@@ -245,9 +245,9 @@ class PlatformBridgeNode(Node):
             return
         state, reason = verdict
         command_id = self._commands.moving
-        if state == SETTLED and command_id is not None:
+        if state == names.STATE_SETTLED and command_id is not None:
             self._commands.settled(command_id)
-        elif state == REJECTED:
+        elif state == names.STATE_REJECTED:
             self._commands.reject_moving(reason)
 
 

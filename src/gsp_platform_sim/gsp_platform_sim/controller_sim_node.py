@@ -9,7 +9,6 @@ from gsp_kinematics.channels import LEG_LENGTHS
 from gsp_kinematics.model.geometry import (
     GeometryError,
     default_geometry,
-    default_geometry_path,
     load_geometry,
 )
 from gsp_kinematics.model.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
@@ -25,11 +24,8 @@ RNG_STREAM = 3
 FK_CONTINUATION_STEPS = (1, 8, 64)
 
 PARAMETERS = (
-    parameter_specs.geometry_file_spec(
-        'true_geometry_file',
-        default_geometry_path('true'),
-        'Geometry params file of the emulated hexapod (its true pose is FK of this geometry)',
-        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
+    parameter_specs.true_geometry_file_spec(
+        'Geometry params file of the emulated hexapod (its true pose is FK of this geometry)'
     ),
     parameter_specs.controller_name_spec(
         'Emulated controller: goals on /<controller_name>/joint_trajectory'

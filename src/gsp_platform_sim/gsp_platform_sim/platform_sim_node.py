@@ -7,7 +7,7 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMessage
 
 from gsp_kinematics.channels import LEG_LENGTHS
-from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
+from gsp_kinematics.model.geometry import GeometryError, load_geometry
 from gsp_kinematics.model.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
@@ -43,11 +43,8 @@ PARAMETERS = (
         read_only=True,
         check=one_of(BACKENDS),
     ),
-    parameter_specs.geometry_file_spec(
-        'true_geometry_file',
-        default_geometry_path('true'),
-        'Geometry params file of the real (true) platform, read once at start-up; never published',
-        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
+    parameter_specs.true_geometry_file_spec(
+        'Geometry params file of the real (true) platform, read once at start-up; never published'
     ),
     *CONTROLLER_GEOMETRY_SPECS,
     parameter_specs.publish_rate_spec('leg_lengths and true_pose'),
@@ -119,6 +116,7 @@ class PlatformSimNode(Node):
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
         self._frame_id = values['frame_id']
+        self._values = values  # kept current by _apply_parameters
         parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=validate_geometry_change
         )
@@ -196,22 +194,21 @@ class PlatformSimNode(Node):
 
     def _apply_parameters(self, changes):
         """Apply accepted run-time changes (checked by parameter_specs.watch_parameters)."""
-        if 'leg_lengths_noise_std' in changes:
-            self._simulator.leg_lengths_noise_std = changes['leg_lengths_noise_std']
-        if 'max_condition' in changes:
-            self._simulator.max_condition = changes['max_condition']
+        values = self._values
+        values.update(changes)
+        for name in ('leg_lengths_noise_std', 'max_condition'):
+            if name in changes:
+                setattr(self._simulator, name, changes[name])
         if 'settle_time' in changes and not self._physics:
             self._commands.settle_time = changes['settle_time']
         if {'max_leg_speed', 'max_leg_acceleration'} & set(changes):
             # From the next command (a move under way keeps its profile).
             self._simulator.limits = MotionLimits.from_parameters(
-                self.get_parameter('max_leg_speed').value,
-                self.get_parameter('max_leg_acceleration').value,
+                values['max_leg_speed'], values['max_leg_acceleration']
             )
         changed = sorted(name for name in changes if name in GEOMETRY_PARAMETER_NAMES)
         if changed:
-            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
-            self._simulator.controller_geometry = controller_geometry(current)
+            self._simulator.controller_geometry = controller_geometry(values)
             self.get_logger().info(
                 f'controller geometry updated ({", ".join(changed)}); applies from the next '
                 'pose command'
