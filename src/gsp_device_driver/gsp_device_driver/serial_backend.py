@@ -3,9 +3,9 @@
 import threading
 import time
 
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank, one_of
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, not_blank, one_of, positive_spec
 
-from .device_backend import BackendError, DeviceBackend
+from .device_backend import DeviceBackend
 from .serial_gate import DROP_SUMMARY_PERIOD_S, HELLO_REQUEST_INTERVAL_S, SerialLineGate
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS, REQUEST_LINE
 
@@ -21,12 +21,11 @@ class SerialDeviceBackend(DeviceBackend):
             'port', '/dev/ttyACM0', 'Serial port of the device', check=not_blank('a port')
         ),
         ParameterSpec('baud', 115200, 'Baud rate', integer_range=(1, 10_000_000)),
-        ParameterSpec(
+        positive_spec(
             'timeout',
             0.1,
             'Read timeout of the port; bounds how fast a stop or silence is noticed',
-            unit='s',
-            check=greater_than(0.0, 's'),
+            's',
         ),
         ParameterSpec(
             'angle_unit',
@@ -55,19 +54,9 @@ class SerialDeviceBackend(DeviceBackend):
             unit='s',
             check=at_least(0.0, 's'),
         ),
-        ParameterSpec(
-            'reconnect_interval',
-            0.5,
-            'Wait between attempts to (re)open the port',
-            unit='s',
-            check=greater_than(0.0, 's'),
-        ),
-        ParameterSpec(
-            'silence_warning',
-            0.5,
-            'Warn when an open port delivers no line for this long',
-            unit='s',
-            check=greater_than(0.0, 's'),
+        positive_spec('reconnect_interval', 0.5, 'Wait between attempts to (re)open the port', 's'),
+        positive_spec(
+            'silence_warning', 0.5, 'Warn when an open port delivers no line for this long', 's'
         ),
     )
 
@@ -87,8 +76,6 @@ class SerialDeviceBackend(DeviceBackend):
         serial_factory=None,
         drop_summary_period=DROP_SUMMARY_PERIOD_S,
     ):
-        if angle_unit not in ANGLE_UNITS or length_unit not in LENGTH_UNITS:
-            raise BackendError(f'unknown units {angle_unit!r}, {length_unit!r}')
         self.port = str(port)
         self.baud = int(baud)
         self.timeout = float(timeout)

@@ -111,19 +111,18 @@ class ParameterSpec:
         return f'{self.name}: {shown!r} rejected, {why}'
 
 
+def positive_spec(name, default, description, unit='', **fields):
+    """A parameter whose value must be a finite number > 0 (in ``unit``)."""
+    return ParameterSpec(name, default, description, unit, check=greater_than(0.0, unit), **fields)
+
+
 # Parameters several nodes share (same name, type and checks everywhere).
 
 
 def publish_rate_spec(what, default=DEFAULT_SENSOR_RATE_HZ):
     """``publish_rate`` (Hz, read-only): the rate of ``what``."""
-    return ParameterSpec(
-        'publish_rate',
-        default,
-        f'Rate of {what}',
-        unit='Hz',
-        read_only=True,
-        constraints='> 0',
-        check=greater_than(0.0, 'Hz'),
+    return positive_spec(
+        'publish_rate', default, f'Rate of {what}', 'Hz', read_only=True, constraints='> 0'
     )
 
 
@@ -173,14 +172,9 @@ def settle_time_spec(what):
 def diagnostics_period_spec():
     """``diagnostics_period`` (s, read-only): how often the node publishes its health on
     ``/diagnostics`` (:class:`gsp_msgs_py.diagnostics.DiagnosticsPublisher`)."""
-    return ParameterSpec(
-        'diagnostics_period',
-        1.0,
-        f'Period of the health reports on {names.TOPIC_DIAGNOSTICS}',
-        unit='s',
-        read_only=True,
-        float_range=(0.01, 60.0),
-        check=greater_than(0.0, 's'),
+    description = f'Period of the health reports on {names.TOPIC_DIAGNOSTICS}'
+    return positive_spec(
+        'diagnostics_period', 1.0, description, 's', read_only=True, float_range=(0.01, 60.0)
     )
 
 
@@ -261,13 +255,8 @@ def _spec_table(specs):
 def validate_values(specs, values):
     """Reason ('' if none) why ``{name: value}`` fails the checks of ``specs`` (others pass)."""
     table = _spec_table(specs)
-    for name, value in values.items():
-        spec = table.get(name)
-        if spec is not None:
-            reason = spec.reason(value)
-            if reason:
-                return reason
-    return ''
+    reasons = (table[name].reason(value) for name, value in values.items() if name in table)
+    return next((reason for reason in reasons if reason), '')
 
 
 def declare_parameters(node, specs, validate=None):

@@ -18,7 +18,7 @@ from gsp_msgs_py.geometry_parameters import (
     controller_geometry_error,
     validate_geometry_change,
 )
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, not_blank, positive_spec
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .goal_monitor import GoalMonitor, pose_path, waypoint_times
@@ -50,42 +50,28 @@ PARAMETERS = (
         unit='s',
         check=at_least(0.0, 's'),
     ),
-    ParameterSpec(
+    positive_spec(
         'path_position_step',
         0.01,
         'Longest position step between the waypoints of a move (the legs follow the straight '
         'Cartesian path, checked for reachability before anything moves)',
-        unit='m',
-        check=greater_than(0.0, 'm'),
+        'm',
     ),
-    ParameterSpec(
-        'path_angle_step',
-        0.02,
-        'Longest orientation step between the waypoints of a move',
-        unit='rad',
-        check=greater_than(0.0, 'rad'),
+    positive_spec(
+        'path_angle_step', 0.02, 'Longest orientation step between the waypoints of a move', 'rad'
     ),
-    ParameterSpec(
-        'position_tolerance',
-        5e-5,
-        'A leg has arrived within this distance of its target',
-        unit='m',
-        check=greater_than(0.0, 'm'),
+    positive_spec(
+        'position_tolerance', 5e-5, 'A leg has arrived within this distance of its target', 'm'
     ),
     parameter_specs.settle_time_spec('a goal, counted once every leg is within position_tolerance'),
-    ParameterSpec(
+    positive_spec(
         'goal_timeout',
         2.0,
         'Time allowed beyond the trajectory duration before the goal is rejected',
-        unit='s',
-        check=greater_than(0.0, 's'),
+        's',
     ),
-    ParameterSpec(
-        'state_timeout',
-        0.5,
-        'Joint states older than this are stale: commands are rejected',
-        unit='s',
-        check=greater_than(0.0, 's'),
+    positive_spec(
+        'state_timeout', 0.5, 'Joint states older than this are stale: commands are rejected', 's'
     ),
     ParameterSpec(
         'max_condition',
@@ -125,9 +111,7 @@ class PlatformBridgeNode(Node):
         )
         self._trajectory_topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self._trajectory_pub = self.create_publisher(JointTrajectory, self._trajectory_topic, 10)
-        self._legs_pub = node_tools.create_publishers(self, (names.TOPIC_LEG_LENGTHS,))[
-            names.TOPIC_LEG_LENGTHS
-        ]
+        (self._legs_pub,) = node_tools.create_publishers(self, [names.TOPIC_LEG_LENGTHS]).values()
         self.create_subscription(
             JointState, values['joint_states_topic'], self._on_joint_state, qos.SENSOR_QOS
         )
@@ -155,13 +139,9 @@ class PlatformBridgeNode(Node):
 
     def _apply_parameters(self, changes):
         self._values.update(changes)
-        for name, attribute in (
-            ('position_tolerance', 'tolerance'),
-            ('settle_time', 'settle_time'),
-            ('state_timeout', 'state_timeout'),
-        ):
+        for name in ('position_tolerance', 'settle_time', 'state_timeout'):
             if name in changes:
-                setattr(self._monitor, attribute, float(changes[name]))
+                setattr(self._monitor, name, float(changes[name]))
         if any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
             self._geometry = controller_geometry(self._values)
             self.get_logger().info('controller geometry updated; applies from the next command')

@@ -15,7 +15,7 @@ TARGET = np.full(6, 0.1)
 
 
 def monitor():
-    return GoalMonitor(LEGS, tolerance=1e-5, settle_time=0.1, state_timeout=0.5)
+    return GoalMonitor(LEGS, position_tolerance=1e-5, settle_time=0.1, state_timeout=0.5)
 
 
 def test_settled_once_every_leg_stays_within_tolerance_for_the_settle_time():

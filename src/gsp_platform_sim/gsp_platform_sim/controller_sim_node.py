@@ -76,9 +76,7 @@ class ControllerSimNode(Node):
         topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self.create_subscription(JointTrajectory, topic, self._on_trajectory, 10)
         self._joint_pub = self.create_publisher(JointState, '/joint_states', qos.SENSOR_QOS)
-        self._pose_pub = node_tools.create_publishers(self, (names.TOPIC_TRUE_POSE,))[
-            names.TOPIC_TRUE_POSE
-        ]
+        (self._pose_pub,) = node_tools.create_publishers(self, [names.TOPIC_TRUE_POSE]).values()
         self.create_timer(1.0 / values['publish_rate'], self._tick)
         self.get_logger().info(f'controller_sim ready: goals on {topic}, seed {seed}')
 

@@ -18,7 +18,7 @@ from gsp_msgs_py.geometry_parameters import (
     controller_geometry_error,
     validate_geometry_change,
 )
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, one_of
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, one_of, positive_spec
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .effect_specs import EFFECT_SPECS, effects_from_values, effects_summary
@@ -73,14 +73,13 @@ PARAMETERS = (
         'Base frame: of the published messages, and required of pose commands'
     ),
     parameter_specs.diagnostics_period_spec(),
-    ParameterSpec(
+    positive_spec(
         'real_time_factor',
         1.0,
         'physics backend: 1 runs the simulation in real time on the node clock; any other value '
         'makes the simulation the clock: it runs this many times faster than wall time and '
         'publishes /clock (the other nodes need use_sim_time true; docs/physics.md)',
         read_only=True,
-        check=greater_than(0.0),
     ),
     *EFFECT_SPECS,
     *PHYSICS_SPECS,
