@@ -35,14 +35,8 @@ def _dynamics_spec(name):
         else f'sim backend: correlation time of the {sensor} noise, a Gauss-Markov process whose '
         f'stationary std is {sensor}_noise_std (0: white)'
     )
-    return ParameterSpec(
-        name,
-        0.0,
-        description,
-        unit='s',
-        read_only=True,
-        float_range=(0.0, 60.0),
-        check=parameter_specs.at_least(0.0, 's'),
+    return parameter_specs.non_negative_spec(
+        name, 0.0, description, 's', read_only=True, float_range=(0.0, 60.0)
     )
 
 

@@ -134,10 +134,6 @@ class FakeDevice:
         except OSError:
             pass
 
-    def count(self, key):
-        with self._lock:
-            return self.counters[key]
-
     def _plug(self):
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line discipline: bytes pass as on a UART

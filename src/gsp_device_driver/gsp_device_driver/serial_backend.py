@@ -3,7 +3,13 @@
 import threading
 import time
 
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, not_blank, one_of, positive_spec
+from gsp_msgs_py.parameter_specs import (
+    ParameterSpec,
+    non_negative_spec,
+    not_blank,
+    one_of,
+    positive_spec,
+)
 
 from .device_backend import DeviceBackend
 from .serial_gate import DROP_SUMMARY_PERIOD_S, HELLO_REQUEST_INTERVAL_S, SerialLineGate
@@ -46,13 +52,12 @@ class SerialDeviceBackend(DeviceBackend):
             '(default: dropped until a hello confirms the units; a hello that disagrees still '
             'drops them)',
         ),
-        ParameterSpec(
+        non_negative_spec(
             'latency',
             0.0,
             'Fixed delay from the instant a line reports to its arrival beyond the least '
             'transmission delay; subtracted from every stamp',
-            unit='s',
-            check=at_least(0.0, 's'),
+            's',
         ),
         positive_spec('reconnect_interval', 0.5, 'Wait between attempts to (re)open the port', 's'),
         positive_spec(

@@ -4,7 +4,9 @@ Grammar and rules: docs/hardware.md section 1; test vectors: docs/serial_test_ve
 """
 
 import dataclasses
+import functools
 import math
+import operator
 import re
 
 import numpy as np
@@ -102,10 +104,7 @@ class Hello:
 
 def checksum(body):
     """XOR of the bytes of ``body`` (the text between ``$`` and ``*``), 0..255."""
-    value = 0
-    for byte in body.encode('ascii'):
-        value ^= byte
-    return value
+    return functools.reduce(operator.xor, body.encode('ascii'), 0)
 
 
 def frame(body):

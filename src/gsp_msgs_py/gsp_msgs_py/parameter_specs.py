@@ -116,6 +116,11 @@ def positive_spec(name, default, description, unit='', **fields):
     return ParameterSpec(name, default, description, unit, check=greater_than(0.0, unit), **fields)
 
 
+def non_negative_spec(name, default, description, unit='', **fields):
+    """A parameter whose value must be a finite number >= 0 (in ``unit``)."""
+    return ParameterSpec(name, default, description, unit, check=at_least(0.0, unit), **fields)
+
+
 # Parameters several nodes share (same name, type and checks everywhere).
 
 
@@ -159,14 +164,8 @@ def frame_id_spec(description):
 
 def settle_time_spec(what):
     """``settle_time`` (s): from the legs' arrival to the 'settled' status of ``what``."""
-    return ParameterSpec(
-        'settle_time',
-        0.05,
-        f"Time from the legs' arrival to the 'settled' status of {what}",
-        unit='s',
-        float_range=(0.0, 60.0),
-        check=at_least(0.0, 's'),
-    )
+    description = f"Time from the legs' arrival to the 'settled' status of {what}"
+    return non_negative_spec('settle_time', 0.05, description, 's', float_range=(0.0, 60.0))
 
 
 def diagnostics_period_spec():
@@ -182,15 +181,14 @@ def motion_limit_specs(speed, acceleration, read_only=False):
     """``max_leg_speed`` (m/s) and ``max_leg_acceleration`` (m/s^2) of the simulated legs, with
     these defaults; 0 removes a limit (:class:`gsp_kinematics.model.motion.MotionLimits`)."""
     return tuple(
-        ParameterSpec(
+        non_negative_spec(
             name,
             float(default),
             f'{what} limit of every leg (synchronised moves, docs/planning.md); 0: no limit',
-            unit=unit,
+            unit,
             read_only=read_only,
             float_range=(0.0, 1e3),
             constraints='>= 0',
-            check=at_least(0.0, unit),
         )
         for name, default, what, unit in (
             ('max_leg_speed', speed, 'Speed', 'm/s'),
@@ -204,14 +202,8 @@ def true_noise_spec(sensor, description):
     (:data:`gsp_msgs_py.noise_parameters.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
     at run time; the default is the suite's default noise."""
     unit = NOISE_UNITS[sensor]
-    return ParameterSpec(
-        TRUE_NOISE_PARAMETER.format(sensor),
-        getattr(DEFAULT_SENSOR_NOISE, sensor),
-        description,
-        unit=unit,
-        float_range=(0.0, 1.0),
-        check=at_least(0.0, unit),
-    )
+    name, default = TRUE_NOISE_PARAMETER.format(sensor), getattr(DEFAULT_SENSOR_NOISE, sensor)
+    return non_negative_spec(name, default, description, unit, float_range=(0.0, 1.0))
 
 
 def true_geometry_file_spec(description):

@@ -43,12 +43,11 @@ PARAMETERS = (
     # The trajectory's times (docs/planning.md): the speed of a positioning hexapod, the
     # acceleration unlimited by default as before (set both to the platform's).
     *parameter_specs.motion_limit_specs(REALISTIC_MAX_SPEED, 0.0),
-    ParameterSpec(
+    parameter_specs.non_negative_spec(
         'min_motion_duration',
         0.1,
         'Shortest trajectory duration (time_from_start of its point)',
-        unit='s',
-        check=at_least(0.0, 's'),
+        's',
     ),
     positive_spec(
         'path_position_step',

@@ -18,6 +18,7 @@ from .rules import (
 )
 
 NODE_NAME = 'gsp_check_interfaces'
+NODE_LOOK_PERIOD_S = 0.1  #: between two looks at the graph's nodes (the queries are not free)
 
 
 class PoseCommandProbe:
@@ -81,25 +82,6 @@ class PoseCommandProbe:
                 f'{names.TOPIC_PLATFORM_STATUS}: the test command was rejected: {status.reason}'
             ]
         return []
-
-
-class NodesSeen:
-    """When each node name was first seen in ``node``'s graph (monotonic s), looked up every
-    :attr:`LOOK_PERIOD_S` while ``node`` spins (graph queries are not free)."""
-
-    LOOK_PERIOD_S = 0.1
-
-    def __init__(self, node):
-        self.node = node
-        self.first_s = {}
-        self.look()
-        node.create_timer(self.LOOK_PERIOD_S, self.look)
-
-    def look(self):
-        """``{name: s since first seen}`` of the nodes in the graph now."""
-        now_s = time.monotonic()
-        present = [name for name, _ in self.node.get_node_names_and_namespaces()]
-        return {name: now_s - self.first_s.setdefault(name, now_s) for name in present}
 
 
 class InterfaceChecker:
@@ -196,13 +178,22 @@ def run_check(node, executor, args):
     checker = InterfaceChecker(node, Limits(min_rate_hz=args.min_rate))
     diagnostics = DiagnosticsListener(node)
     probe = PoseCommandProbe(node) if args.send_test_command else None
-    nodes = NodesSeen(node)
+    first_seen_s = {}
+
+    def seen_for_s():
+        """``{name: s since first seen}`` of the nodes in the graph now (monotonic clock)."""
+        now_s = time.monotonic()
+        present = [name for name, _ in node.get_node_names_and_namespaces()]
+        return {name: now_s - first_seen_s.setdefault(name, now_s) for name in present}
+
+    seen_for_s()
+    node.create_timer(NODE_LOOK_PERIOD_S, seen_for_s)
     deadline = time.monotonic() + args.duration
     spin_until(executor, lambda: time.monotonic() >= deadline, args.duration + 1.0)
     checker.recording = False
     problems = checker.qos_problems() + validate_topics(checker.received, checker.limits)
-    seen_for_s, grace_s = nodes.look(), 2.0 * args.diagnostics_period
-    problems += validate_diagnostics(diagnostics.reports, seen_for_s, grace_s)
+    seen, grace_s = seen_for_s(), 2.0 * args.diagnostics_period
+    problems += validate_diagnostics(diagnostics.reports, seen, grace_s)
     problems += [f'{names.TOPIC_DIAGNOSTICS}: {why}' for why in diagnostics.malformed[:1]]
     if probe is not None:
         from gsp_kinematics.model.kinematics import home_pose
@@ -213,7 +204,7 @@ def run_check(node, executor, args):
             spin_until(executor, lambda: probe.final_status() is not None, args.command_timeout)
         problems += probe.problems()
     lines = checker.summary_lines() + [f'  {names.TOPIC_DIAGNOSTICS}:']
-    heard = diagnostics_summary(diagnostics.reports, seen_for_s, grace_s)
+    heard = diagnostics_summary(diagnostics.reports, seen, grace_s)
     return problems, lines + (heard or ['    (none heard)'])
 
 
