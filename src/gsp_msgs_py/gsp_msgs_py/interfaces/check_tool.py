@@ -22,7 +22,7 @@ NODE_LOOK_PERIOD_S = 0.1  #: between two looks at the graph's nodes (the queries
 
 
 class PoseCommandProbe:
-    """Commands a pose on ``node`` and collects the platform's status answers to it."""
+    """Commands poses on ``node`` and collects the platform's status answers to them."""
 
     def __init__(self, node):
         from diagnostic_msgs.msg import DiagnosticStatus
@@ -30,7 +30,6 @@ class PoseCommandProbe:
 
         self.node = node
         self.statuses = []  #: every status message received, in order
-        self.command_id = None  #: of the test command, once sent
         self._subscription = node.create_subscription(
             DiagnosticStatus,
             names.TOPIC_PLATFORM_STATUS,
@@ -46,36 +45,37 @@ class PoseCommandProbe:
         return self._publisher.get_subscription_count() > 0
 
     def send(self, pose, frame_id=names.FRAME_BASE):
-        """Command ``pose`` (m, rad) in ``frame_id``, stamped now."""
+        """Command ``pose`` (m, rad) in ``frame_id``, stamped now; returns its command id."""
         stamp = self.node.get_clock().now().to_msg()
         self._publisher.publish(conversions.pose_to_pose_stamped(pose, stamp, frame_id))
-        self.command_id = conversions.command_id_from_stamp(stamp)
+        return conversions.command_id_from_stamp(stamp)
 
-    def answers(self):
-        """The parsed statuses of the test command, in order (unparsable ones skipped)."""
+    def answers(self, command_id):
+        """The parsed statuses of ``command_id``, in order (unparsable ones skipped)."""
         answers = []
         for msg in self.statuses:
             try:
                 status = conversions.parse_status(msg)
             except ValueError:
                 continue
-            if status.command_id == self.command_id:
+            if status.command_id == command_id:
                 answers.append(status)
         return answers
 
-    def final_status(self):
-        """The first settled or rejected status of the test command, or None."""
-        final = [s for s in self.answers() if s.state != names.STATE_MOVING]
+    def final_status(self, command_id):
+        """The first settled or rejected status of ``command_id``, or None."""
+        final = [s for s in self.answers(command_id) if s.state != names.STATE_MOVING]
         return final[0] if final else None
 
-    def problems(self):
+    def problems(self, command_id):
+        """What is wrong with the answers to the test command ``command_id``."""
         if not self.listened():
             return [f'{names.TOPIC_POSE_COMMAND}: nobody subscribes to pose commands']
-        status = self.final_status()
+        status = self.final_status(command_id)
         if status is None:
             return [
-                f'{names.TOPIC_PLATFORM_STATUS}: the test command {self.command_id} was '
-                + ('never settled or rejected' if self.answers() else 'not answered')
+                f'{names.TOPIC_PLATFORM_STATUS}: the test command {command_id} was '
+                + ('never settled or rejected' if self.answers(command_id) else 'not answered')
             ]
         if status.state == names.STATE_REJECTED:
             return [
@@ -199,10 +199,12 @@ def run_check(node, executor, args):
         from gsp_kinematics.model.kinematics import home_pose
 
         spin_until(executor, probe.listened, args.command_timeout)
+        command_id = None
         if probe.listened():
-            probe.send(home_pose())
-            spin_until(executor, lambda: probe.final_status() is not None, args.command_timeout)
-        problems += probe.problems()
+            command_id = probe.send(home_pose())
+            answered = lambda: probe.final_status(command_id) is not None  # noqa: E731
+            spin_until(executor, answered, args.command_timeout)
+        problems += probe.problems(command_id)
     lines = checker.summary_lines() + [f'  {names.TOPIC_DIAGNOSTICS}:']
     heard = diagnostics_summary(diagnostics.reports, seen, grace_s)
     return problems, lines + (heard or ['    (none heard)'])
