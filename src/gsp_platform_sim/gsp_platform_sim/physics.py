@@ -48,7 +48,7 @@ class PhysicsSimulator:
         self._checker = PlatformSimulator(
             true_geometry, controller_geometry, 0.0, rng, max_condition, start
         )
-        self.true_geometry = true_geometry
+        self._true_geometry = true_geometry
         self.params = params
         self.limits = limits
         self.leg_lengths_noise_std = float(leg_lengths_noise_std)  #: m
@@ -166,7 +166,7 @@ class PhysicsSimulator:
             [math.cos(alpha) * math.sin(beta), math.sin(alpha), math.cos(alpha) * math.cos(beta)]
         )
         alpha, beta = position_to_inclinations(
-            direction, self.true_geometry.inclinometer_axes_angle
+            direction, self._true_geometry.inclinometer_axes_angle
         )
         top = data.xmat[self._device_top].reshape(3, 3)
         phi = math.atan2(top[1, 0], top[1, 1])  # eq 2: R[1,0] = cos psi sin phi
@@ -233,7 +233,7 @@ class PhysicsSimulator:
         # Past a joint's stop, or near a singularity, compliant legs under load sag by
         # centimetres or snap to another assembly.
         ok, reasons = check_reachable(
-            self.true_geometry, outcome.true_pose[None], self.max_condition
+            self._true_geometry, outcome.true_pose[None], self.max_condition
         )
         if not ok[0]:
             self._checker.command(self._commanded_pose, self.time_s)  # back to the legs' state

@@ -55,7 +55,7 @@ class PlatformSimulator:
         self._directions = None  # each leg's approach direction (+1 extending)
         self._pose_time_s = self._start_s  # time of the thermal growth in the resting pose
         self._move = None  # the LegMove under way, with the real poses at its ends
-        self.true_geometry = true_geometry
+        self._true_geometry = true_geometry
         #: Used from the next command; the legs hold their current lengths.
         self.controller_geometry = controller_geometry
         self.leg_lengths_noise_std = float(leg_lengths_noise_std)  #: m
@@ -93,7 +93,7 @@ class PlatformSimulator:
     def _real_pose(self, leg_lengths, directions, now_s, guess):
         """Real pose (6,) for the readings, or None when the platform has none near ``guess``."""
         pose, converged = real_poses(
-            self.true_geometry,
+            self._true_geometry,
             self.effects,
             leg_lengths[None],
             guess[None],

@@ -86,7 +86,7 @@ def test_forward_kinematics_failure_is_a_rejection():
     with pytest.raises(ValueError, match='initial pose'):
         PlatformSimulator(far, NOMINAL, 0.0, np.random.default_rng(0))
     sim = make_simulator()
-    sim.true_geometry = far  # swap the hardware under a running simulator
+    sim._true_geometry = far  # swap the hardware under a running simulator
     outcome = sim.command(POSE)
     assert not outcome.accepted and 'forward kinematics' in outcome.reason
 
