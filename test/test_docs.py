@@ -29,6 +29,23 @@ def test_parameter_docs_match_the_spec_tables():
     )
 
 
+def test_parameter_table_rows_escape_the_markdown():
+    from gsp_msgs_py.parameter_specs import ParameterSpec
+
+    specs = [
+        ParameterSpec('rate', 200.0, 'Rate', unit='Hz', read_only=True, constraints='> 0'),
+        ParameterSpec('noise', 1e-6, 'Noise std', unit='m', float_range=(0.0, 1.0)),
+        ParameterSpec('names', ['x', 'y'], 'Names | with a pipe, <tag>'),
+    ]
+    lines = _generator().parameter_table_markdown(specs).splitlines()
+    assert lines[0] == '| name | type | default | unit | read-only | constraints | description |'
+    assert lines[2] == '| `rate` | double | `200` | Hz | yes | > 0 | Rate |'
+    assert lines[3] == '| `noise` | double | `1e-06` | m | no | in [0, 1] | Noise std |'
+    assert lines[4] == (
+        "| `names` | string_array | `['x', 'y']` |  | no |  | Names \\| with a pipe, &lt;tag> |"
+    )
+
+
 #: docs/ is reference, not history: at most this many lines (issue 35), the generated pages too.
 DOCS_LINE_BUDGET = 3000
 

@@ -7,7 +7,7 @@ Per seed, from the run directory the demo leaves (``result.yaml``, ``result.json
 
 * ``true_mm``: the result as the controller of the physics platform, mean position error over
   ``VALIDATION_POSTURES`` random workspace postures at rest (commanded against reached,
-  :func:`gsp_platform_sim.physics.poses_at_rest`, simulated here without ROS); ``floor_mm``: the
+  :func:`poses_at_rest`, simulated here without ROS); ``floor_mm``: the
   same with the true geometry as the controller (the physics floor: what the rigid model cannot
   compensate, the sag);
 * ``cv_mm`` (held out) and ``predicted_mm`` against ``true_mm``; ``verdict_met_truth_misses``:
@@ -52,7 +52,7 @@ from gsp_calibrator.settings import DEFAULTS, CalibratorSettings
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_kinematics.model.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
-from gsp_platform_sim.physics import PhysicsSimulator, poses_at_rest
+from gsp_platform_sim.physics import PhysicsSimulator
 
 SEEDS = 10
 QUICK_SEEDS = 1
@@ -125,6 +125,23 @@ def run_kept_demo(
         return run
     finally:
         shutil.rmtree(output_root, ignore_errors=True)
+
+
+def poses_at_rest(simulator, poses, rest_s=0.5, timeout_s=30.0):
+    """Where the platform of ``simulator`` comes to rest for each commanded pose (M, 6): the
+    pose ``rest_s`` (s) after the encoders are in position (NaN rows: refused, or not in
+    position within ``timeout_s`` of simulated time)."""
+    reached = np.full((len(poses), 6), np.nan)
+    for index, pose in enumerate(np.atleast_2d(poses)):
+        if not simulator.command(pose).accepted:
+            continue
+        deadline = simulator.time_s + timeout_s
+        while not simulator.in_position and simulator.time_s < deadline:
+            simulator.advance(simulator.time_s + 0.01)
+        if simulator.in_position:
+            simulator.advance(simulator.time_s + rest_s)
+            reached[index] = simulator.true_pose
+    return reached
 
 
 def true_position_mm(controller, poses):

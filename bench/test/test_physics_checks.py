@@ -2,6 +2,10 @@
 the calibrator must reach on the physics platform, judged on each seed's figures (``make bench``
 runs the seeds; no node here)."""
 
+import math
+
+import numpy as np
+
 import gsp_bench.physics
 
 MEETS_EVERY_FIGURE = {
@@ -88,3 +92,19 @@ def test_the_quick_mode_runs_a_seed_whose_postures_the_physics_platform_holds():
 
     (seed,) = gsp_bench.physics.held_seeds(1, gsp_bench.physics.QUICK_POSTURES)
     assert refused(0) and not refused(seed)
+
+
+def test_poses_at_rest_are_the_rest_poses_and_nan_where_refused():
+    from gsp_kinematics.model.geometry import default_geometry
+    from gsp_kinematics.model.kinematics import home_pose
+    from gsp_platform_sim.physics import PhysicsSimulator
+    from gsp_platform_sim.physics_model import PhysicalParameters
+
+    true = default_geometry('true')
+    pose = home_pose() + [0.004, -0.003, 0.005, 0.004, -0.003, 0.006]
+    rigid_no_load = PhysicalParameters(leg_stiffness=math.inf, gravity=False)
+    sim = PhysicsSimulator(true, true, rigid_no_load)
+    unreachable = home_pose() + [0.0, 0.0, 2.0, 0.0, 0.0, 0.0]
+    reached = gsp_bench.physics.poses_at_rest(sim, np.stack([pose, unreachable, home_pose()]))
+    assert np.all(np.isnan(reached[1]))
+    np.testing.assert_allclose(reached[[0, 2]], np.stack([pose, home_pose()]), atol=1e-6)

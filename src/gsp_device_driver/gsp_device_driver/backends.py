@@ -28,11 +28,11 @@ from gsp_msgs_py.noise_parameters import (
     noise_parameter_names,
 )
 
-from .device_backend import BackendError, DeviceBackend, DeviceSample, validate_std
+from .device_backend import BackendError, DeviceBackend, DeviceSample
 from .serial_backend import SerialDeviceBackend
 
 #: The device sensors' true noise parameters (``inclinometer_noise_std``...).
-NOISE_PARAMETER_NAMES = noise_parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
+NOISE_PARAMETERS = noise_parameter_names(TRUE_NOISE_PARAMETER, channels.DEVICE_SENSORS)
 
 
 class SimDeviceBackend(DeviceBackend):
@@ -57,22 +57,15 @@ class SimDeviceBackend(DeviceBackend):
         response_times=(0.0, 0.0, 0.0),
         correlation_times=(0.0, 0.0, 0.0),
     ):
-        device_length = float(device_length)
-        gamma = float(inclinometer_axes_angle)
-        if not (math.isfinite(device_length) and device_length > 0.0):
-            raise BackendError(f'device_length must be > 0 m, got {device_length}')
-        if not 0.0 < gamma < math.pi:
-            raise BackendError(f'inclinometer_axes_angle must be in (0, pi) rad, got {gamma}')
-        # device_readings needs only D0 and gamma of a Geometry; the joints are unused here.
+        # device_readings needs only D0 and gamma (checked by load_geometry) of a Geometry.
         self._device = Geometry(
             base_joints=np.zeros((6, 3)),
             platform_joints=np.zeros((6, 3)),
             leg_offsets=np.zeros(6),
-            device_length=device_length,
-            inclinometer_axes_angle=gamma,
+            device_length=float(device_length),
+            inclinometer_axes_angle=float(inclinometer_axes_angle),
             sensors=sensors if sensors is not None else SensorErrors(),
         )
-        self._noise = NO_NOISE
         self.update_noise(noise)
         try:
             self._dynamics = SensorDynamics(
@@ -108,23 +101,13 @@ class SimDeviceBackend(DeviceBackend):
             ],
         )
 
-    @property
-    def device_length(self):
-        return self._device.device_length
-
-    @property
-    def inclinometer_axes_angle(self):
-        return self._device.inclinometer_axes_angle
-
-    @property
-    def noise(self):
-        """The true noise drawn (a ``SensorNoise``, rad and m)."""
-        return self._noise
-
     def update_noise(self, noise):
         for sensor in channels.DEVICE_SENSORS:
-            validate_std(getattr(noise, sensor), TRUE_NOISE_PARAMETER.format(sensor))
-        self._noise = noise
+            std = float(getattr(noise, sensor))
+            if not (math.isfinite(std) and std >= 0.0):
+                name = TRUE_NOISE_PARAMETER.format(sensor)
+                raise BackendError(f'{name} must be finite and >= 0, got {std}')
+        self.noise = noise  #: the true noise drawn (a ``SensorNoise``, rad and m)
 
     def observe_true_pose(self, pose):
         pose = np.asarray(pose, dtype=float)
@@ -144,25 +127,25 @@ class SimDeviceBackend(DeviceBackend):
 
     def describe(self):
         line = 'noise std ' + ', '.join(
-            f'{sensor} {getattr(self._noise, sensor):g} {NOISE_UNITS[sensor]}'
+            f'{sensor} {getattr(self.noise, sensor):g} {NOISE_UNITS[sensor]}'
             for sensor in channels.DEVICE_SENSORS
         )
         if self._dynamics.is_white_and_instant:
             return line
         tau, tc = self._dynamics.response_time, self._dynamics.correlation_time
-        return (
-            line
-            + ', '
-            + ', '.join(
-                f'{sensor} response {tau[columns[0]]:g} s, noise correlation {tc[columns[0]]:g} s'
-                for sensor, columns in SENSORS.items()
-            )
-        )
+        for sensor, (column, *_) in SENSORS.items():
+            line += f', {sensor} response {tau[column]:g} s, noise correlation {tc[column]:g} s'
+        return line
+
+    def read_available(self, now_s):
+        sample = self.read(now_s)
+        return [] if sample is None else [sample]
 
     def read(self, now_s):
+        """The sample of the latest true pose at ``now_s`` (s), or None before the first."""
         if self._exact is None:
             return None
-        values = self._dynamics.step(now_s, self._exact, self._noise.readings(), self._rng)
+        values = self._dynamics.step(now_s, self._exact, self.noise.readings(), self._rng)
         self._counts['readings'] += 1
         if self._latest_s is None:  # the first reading opens the first window of the rate
             self._reported[0]['readings'] = self._counts['readings']
@@ -183,8 +166,8 @@ class SimDeviceBackend(DeviceBackend):
             **counts,
             'reading_rate_hz': f'{rate:.1f}',
             **{
-                f'{name}_{NOISE_UNITS[sensor]}': f'{getattr(self._noise, sensor):.6g}'
-                for sensor, name in zip(channels.DEVICE_SENSORS, NOISE_PARAMETER_NAMES, strict=True)
+                f'{name}_{NOISE_UNITS[sensor]}': f'{getattr(self.noise, sensor):.6g}'
+                for sensor, name in zip(channels.DEVICE_SENSORS, NOISE_PARAMETERS, strict=True)
             },
         }
         if self._exact is None:
@@ -225,17 +208,13 @@ class PhysicsDeviceBackend(SimDeviceBackend):
         samples = []
         while self._pending:
             stamp_s, exact = self._pending.popleft()
-            values = self._dynamics.step(stamp_s, exact, self._noise.readings(), self._rng)
+            values = self._dynamics.step(stamp_s, exact, self.noise.readings(), self._rng)
             self._counts['readings'] += 1
             if self._latest_s is None:
                 self._reported = (dict(self._counts), stamp_s)
             self._latest_s = stamp_s
             samples.append(DeviceSample(stamp_s, *(float(v) for v in values)))
         return samples
-
-    def read(self, now_s):
-        samples = self.read_available(now_s)
-        return samples[-1] if samples else None
 
 
 _BACKENDS = {

@@ -2,7 +2,6 @@
 
 import abc
 import dataclasses
-import math
 
 import numpy as np
 
@@ -29,14 +28,6 @@ class DeviceSample:
         return np.array([self.alpha, self.beta, self.phi, self.d_m])
 
 
-def validate_std(value, name):
-    """``value`` as a float noise standard deviation (finite, >= 0); BackendError otherwise."""
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0.0):
-        raise BackendError(f'{name} must be finite and >= 0, got {value}')
-    return value
-
-
 class DeviceBackend(abc.ABC):
     """Interface of a source of device readings."""
 
@@ -60,18 +51,11 @@ class DeviceBackend(abc.ABC):
         """Make the backend from the node's configuration (ignore unused keys)."""
 
     @abc.abstractmethod
-    def read(self, now_s):
-        """The sample for the current time ``now_s`` (s), or None if none is available yet."""
-
     def read_available(self, now_s):
-        """Every sample available at ``now_s`` (a list, maybe empty). A backend that receives
-        samples at its own pace (``serial``) returns each one once; default: ``[read(now_s)]``."""
-        sample = self.read(now_s)
-        return [] if sample is None else [sample]
+        """Every sample available at ``now_s`` (s), each once: a list, maybe empty."""
 
     def messages(self):
-        """``[(level, text)]`` the node should log (``info`` or ``warning``) since the last call.
-        Default: none."""
+        """``[(level, text)]`` to log (``info`` or ``warning``) since the last call."""
         return []
 
     def describe(self):
@@ -83,8 +67,8 @@ class DeviceBackend(abc.ABC):
         return None
 
     def observe_device_truth(self, stamp_s, readings):
-        """Noise-free readings (4,) of the simulated device at ``stamp_s`` (s); physics
-        simulators only. ValueError if unusable. Default: ignored."""
+        """Noise-free readings (4,) at ``stamp_s`` (s); physics simulators only (ValueError if
+        unusable)."""
         return None
 
     def update_noise(self, noise):
@@ -92,15 +76,14 @@ class DeviceBackend(abc.ABC):
         raise BackendError(f"the '{self.name}' device backend has no simulated noise to change")
 
     def close(self):
-        """Release the device (files, ports). Idempotent. Default: nothing to release."""
+        """Release the device (files, ports). Idempotent."""
         return None
 
     @property
     def hardware_id(self):
-        """The ``hardware_id`` of the backend's status on ``/diagnostics``. Default: its name."""
+        """The ``hardware_id`` of the backend's status on ``/diagnostics``."""
         return self.name
 
     def health(self):
-        """The device's :class:`~gsp_msgs_py.health.Health` since the previous call (the node
-        publishes it on ``/diagnostics``). Default: WARN, the backend reports nothing."""
+        """The device's :class:`~gsp_msgs_py.health.Health` since the previous call."""
         return Health(WARN, f"the '{self.name}' device backend reports no health")

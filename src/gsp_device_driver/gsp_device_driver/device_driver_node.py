@@ -9,24 +9,16 @@ from sensor_msgs.msg import JointState
 
 from gsp_kinematics.channels import DEVICE_SENSORS, sensor_channel_names
 from gsp_kinematics.model.device import SENSORS
-from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_msgs_py import conversions, message_checks, names, node_tools, parameter_specs, qos
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
-from gsp_msgs_py.noise_parameters import (
-    TRUE_NOISE_PARAMETER,
-    noise_from_parameters,
-    noise_parameter_names,
-)
+from gsp_msgs_py.noise_parameters import TRUE_NOISE_PARAMETER, noise_from_parameters
 from gsp_msgs_py.parameter_specs import ParameterSpec, not_blank
 
-from .backends import BackendError, backend_class, backend_names
+from .backends import NOISE_PARAMETERS, BackendError, backend_class, backend_names
 
 #: Random stream of this node: platform_sim with the same ``seed`` draws independent noise.
 RNG_STREAM = 2
 WARN_THROTTLE_S = 1.0
-
-#: The sim backend's true noise parameters, ``<sensor>_noise_std`` of each device sensor.
-NOISE_PARAMETERS = noise_parameter_names(TRUE_NOISE_PARAMETER, DEVICE_SENSORS)
 
 #: sim backend: each sensor's dynamics (docs/sensor_errors.md), s; 0 = instant / white.
 DYNAMICS_PARAMETERS = tuple(
@@ -43,14 +35,8 @@ def _dynamics_spec(name):
         else f'sim backend: correlation time of the {sensor} noise, a Gauss-Markov process whose '
         f'stationary std is {sensor}_noise_std (0: white)'
     )
-    return ParameterSpec(
-        name,
-        0.0,
-        description,
-        unit='s',
-        read_only=True,
-        float_range=(0.0, 60.0),
-        check=parameter_specs.at_least(0.0, 's'),
+    return parameter_specs.non_negative_spec(
+        name, 0.0, description, 's', read_only=True, float_range=(0.0, 60.0)
     )
 
 
@@ -62,12 +48,9 @@ PARAMETERS = (
         read_only=True,
         check=not_blank('a backend'),
     ),
-    parameter_specs.geometry_file_spec(
-        'true_geometry_file',
-        default_geometry_path('true'),
+    parameter_specs.true_geometry_file_spec(
         'sim backend: geometry params file of the real platform; its device_length D0 '
-        'and inclinometer_axes_angle gamma are used',
-        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
+        'and inclinometer_axes_angle gamma are used'
     ),
     parameter_specs.publish_rate_spec('the readings'),
     parameter_specs.seed_spec(),

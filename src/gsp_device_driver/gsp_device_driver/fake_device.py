@@ -16,6 +16,17 @@ from .serial_protocol import U32, Reading, format_hello, format_reading, is_requ
 HELLO_PERIOD_S = 1.0
 MAX_REQUEST_BYTES = 256  #: host input kept while looking for a request line
 PARTIAL_WAIT_S = 0.5  #: longest wait to complete a line the buffer took in part
+COUNTER_NAMES = (
+    'readings',
+    'garbage',
+    'checksum_errors',
+    'hello',
+    'requests',
+    'lost',
+    'lost_hello',
+    'skipped',
+    'connects',
+)
 
 
 class TruthFeed:
@@ -77,20 +88,7 @@ class FakeDevice:
         self._host_input = b''
         self._rng = rng if rng is not None else np.random.default_rng()
         self._lock = threading.Lock()
-        self.counters = dict.fromkeys(
-            (
-                'readings',
-                'garbage',
-                'checksum_errors',
-                'hello',
-                'requests',
-                'lost',
-                'lost_hello',
-                'skipped',
-                'connects',
-            ),
-            0,
-        )
+        self.counters = dict.fromkeys(COUNTER_NAMES, 0)
         self.paused = False  # True: no reading lines (a test's pause to let the reader catch up)
         self._silent_until = 0.0
         self._skip = 0
@@ -135,10 +133,6 @@ class FakeDevice:
             os.unlink(self.link)
         except OSError:
             pass
-
-    def count(self, key):
-        with self._lock:
-            return self.counters[key]
 
     def _plug(self):
         master, slave = os.openpty()

@@ -3,27 +3,35 @@
 import threading
 import time
 
-from .device_backend import BackendError, DeviceBackend
+from gsp_msgs_py.parameter_specs import (
+    ParameterSpec,
+    non_negative_spec,
+    not_blank,
+    one_of,
+    positive_spec,
+)
+
+from .device_backend import DeviceBackend
 from .serial_gate import DROP_SUMMARY_PERIOD_S, HELLO_REQUEST_INTERVAL_S, SerialLineGate
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS, REQUEST_LINE
 
 MAX_PENDING_BYTES = 1024  #: a longer run without a line end is dropped as garbage
 
 
-def _specs():
-    from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank, one_of
+class SerialDeviceBackend(DeviceBackend):
+    """Readings from a device speaking the serial protocol on ``port``."""
 
-    return (
+    name = 'serial'
+    PARAMETERS = (
         ParameterSpec(
             'port', '/dev/ttyACM0', 'Serial port of the device', check=not_blank('a port')
         ),
         ParameterSpec('baud', 115200, 'Baud rate', integer_range=(1, 10_000_000)),
-        ParameterSpec(
+        positive_spec(
             'timeout',
             0.1,
             'Read timeout of the port; bounds how fast a stop or silence is noticed',
-            unit='s',
-            check=greater_than(0.0, 's'),
+            's',
         ),
         ParameterSpec(
             'angle_unit',
@@ -44,35 +52,18 @@ def _specs():
             '(default: dropped until a hello confirms the units; a hello that disagrees still '
             'drops them)',
         ),
-        ParameterSpec(
+        non_negative_spec(
             'latency',
             0.0,
             'Fixed delay from the instant a line reports to its arrival beyond the least '
             'transmission delay; subtracted from every stamp',
-            unit='s',
-            check=at_least(0.0, 's'),
+            's',
         ),
-        ParameterSpec(
-            'reconnect_interval',
-            0.5,
-            'Wait between attempts to (re)open the port',
-            unit='s',
-            check=greater_than(0.0, 's'),
-        ),
-        ParameterSpec(
-            'silence_warning',
-            0.5,
-            'Warn when an open port delivers no line for this long',
-            unit='s',
-            check=greater_than(0.0, 's'),
+        positive_spec('reconnect_interval', 0.5, 'Wait between attempts to (re)open the port', 's'),
+        positive_spec(
+            'silence_warning', 0.5, 'Warn when an open port delivers no line for this long', 's'
         ),
     )
-
-
-class SerialDeviceBackend(DeviceBackend):
-    """Readings from a device speaking the serial protocol on ``port``."""
-
-    name = 'serial'
 
     def __init__(
         self,
@@ -90,8 +81,6 @@ class SerialDeviceBackend(DeviceBackend):
         serial_factory=None,
         drop_summary_period=DROP_SUMMARY_PERIOD_S,
     ):
-        if angle_unit not in ANGLE_UNITS or length_unit not in LENGTH_UNITS:
-            raise BackendError(f'unknown units {angle_unit!r}, {length_unit!r}')
         self.port = str(port)
         self.baud = int(baud)
         self.timeout = float(timeout)
@@ -125,17 +114,14 @@ class SerialDeviceBackend(DeviceBackend):
     counters = property(lambda self: self.gate.counters)
     first_drops = property(lambda self: self.gate.first_drops)
     hello = property(lambda self: self.gate.hello)
-    device_clock = property(lambda self: self.gate.device_clock)
-    angle_unit = property(lambda self: self.gate.angle_unit)
-    length_unit = property(lambda self: self.gate.length_unit)
-    trust_configured_units = property(lambda self: self.gate.trust_configured_units)
 
     def describe(self):
         """One line for the node's start-up log."""
-        trust = ', trusting them before a hello' if self.trust_configured_units else ''
+        gate = self.gate
+        trust = ', trusting them before a hello' if gate.trust_configured_units else ''
         return (
-            f'port {self.port} at {self.baud} baud, units {self.angle_unit}/{self.length_unit}'
-            f'{trust}, latency {self.device_clock.latency:g} s'
+            f'port {self.port} at {self.baud} baud, units {gate.angle_unit}/{gate.length_unit}'
+            f'{trust}, latency {gate.device_clock.latency:g} s'
         )
 
     def start(self):
@@ -147,10 +133,6 @@ class SerialDeviceBackend(DeviceBackend):
         """Every reading received since the last call, each with its stamp on the node's clock
         (taken by the reader thread: ``now_s`` is not used, so a late call moves no stamp)."""
         return self.gate.take_samples()
-
-    def read(self, now_s):
-        samples = self.read_available(now_s)
-        return samples[-1] if samples else None
 
     def messages(self):
         """``[(level, text)]`` to log since the last call (``warning`` or ``info``)."""
@@ -257,6 +239,3 @@ class SerialDeviceBackend(DeviceBackend):
             last_line = now
             for line in lines:
                 self.gate.handle(line + b'\n', now, stamp_now)
-
-
-SerialDeviceBackend.PARAMETERS = _specs()

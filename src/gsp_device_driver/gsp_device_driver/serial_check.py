@@ -10,7 +10,6 @@ import time
 
 from gsp_kinematics.channels import READING_NAMES
 
-from . import backends  # noqa: F401  (first: it imports serial_backend, which needs it)
 from .serial_backend import SerialDeviceBackend
 from .serial_gate import BACKEND_DROP_REASONS
 from .serial_protocol import ANGLE_UNITS, LENGTH_UNITS, Hello, LineError, parse_line
@@ -20,21 +19,11 @@ VALUE_TOLERANCE = 1e-12
 READ_TIMEOUT_S = 30.0  #: safety net: a backend that never reads the scripted data fails loudly
 
 
-def line_bytes(text):
-    """The bytes of a test vector's line (ISO-8859-1: one byte per character)."""
-    return text.encode('latin-1')
-
-
-def load_vectors(path):
-    with open(path, encoding='ascii') as file:
-        return json.load(file)
-
-
 def line_outcome(case):
     """The outcome of one ``lines`` vector through :func:`parse_line`, in the vector's terms:
     ``('reading', {...})``, ``('hello', {...})``, ``('drop', reason)`` or ``('ignored', None)``."""
     try:
-        parsed = parse_line(line_bytes(case['line']), case['angle_unit'], case['length_unit'])
+        parsed = parse_line(case['line'].encode('latin-1'), case['angle_unit'], case['length_unit'])
     except LineError as error:
         return 'drop', error.reason
     if parsed is None:
@@ -132,7 +121,7 @@ def read_through_backend(data, angle_unit, length_unit, trust_configured_units=F
 
 def sequence_mismatch(case):
     """'' if the backend publishes, drops and counts what ``case`` expects, else what differs."""
-    data = b''.join(line_bytes(text) for text in case['lines'])
+    data = ''.join(case['lines']).encode('latin-1')  # one byte per character
     units = case['angle_unit'], case['length_unit'], case['trust_configured_units']
     backend, samples, _ = read_through_backend(data, *units)
     expect = case['expect']
@@ -155,7 +144,8 @@ def sequence_mismatch(case):
 
 def check_vectors(path, out=sys.stdout):
     """Run every vector of ``path`` through this driver; the number of mismatches."""
-    vectors = load_vectors(path)
+    with open(path, encoding='ascii') as file:
+        vectors = json.load(file)
     failures = 0
     for group, check in (('lines', line_mismatch), ('sequences', sequence_mismatch)):
         for case in vectors[group]:

@@ -96,8 +96,10 @@ class SerialLineGate:
         rate = new['lines'] / (now - then) if now > then else 0.0
         offset = self.device_clock.offset
         values = {
-            **{key: counters[key] for key in ('lines', 'readings', 'hello', 'connects')},
-            'disconnects': counters['disconnects'],
+            **{
+                key: counters[key]
+                for key in ('lines', 'readings', 'hello', 'connects', 'disconnects')
+            },
             'readings_published': counters['published'],
             **{f'dropped_{reason}': counters[reason] for reason in BACKEND_DROP_REASONS},
             'last_drop': last_drop,

@@ -4,7 +4,9 @@ Grammar and rules: docs/hardware.md section 1; test vectors: docs/serial_test_ve
 """
 
 import dataclasses
+import functools
 import math
+import operator
 import re
 
 import numpy as np
@@ -102,10 +104,7 @@ class Hello:
 
 def checksum(body):
     """XOR of the bytes of ``body`` (the text between ``$`` and ``*``), 0..255."""
-    value = 0
-    for byte in body.encode('ascii'):
-        value ^= byte
-    return value
+    return functools.reduce(operator.xor, body.encode('ascii'), 0)
 
 
 def frame(body):
@@ -141,17 +140,8 @@ def format_reading(reading, angle_unit='rad', length_unit='m', status=0):
 
 def format_hello(device_id, angle_unit, length_unit, rate_hz):
     """The hello line (bytes)."""
-    body = ','.join(
-        [
-            HELLO_TAG,
-            str(PROTOCOL_VERSION),
-            device_id,
-            angle_unit,
-            length_unit,
-            format_number(float(rate_hz)),
-        ]
-    )
-    return frame(body)
+    rate = format_number(float(rate_hz))
+    return frame(f'{HELLO_TAG},{PROTOCOL_VERSION},{device_id},{angle_unit},{length_unit},{rate}')
 
 
 def is_request(line):
@@ -246,15 +236,11 @@ class DeviceClock:
         self._last_stamp = None  # kept across reset(): host time only grows
         self.reset()
 
-    @property
-    def offset(self):
-        """Host time minus device time of the last stamp (s, before ``latency``), or None."""
-        return self._offset
-
     def reset(self):
         self._last_device_s = None
         self._offsets = []
-        self._offset = None  # the offset of the last stamp (s)
+        #: Host time minus device time of the last stamp (s, before ``latency``), or None.
+        self.offset = None
 
     def stamp(self, device_time_us, receive_s):
         """Host time (s) of the instant of a line with ``device_time_us`` received at
@@ -264,15 +250,15 @@ class DeviceClock:
         if self._last_device_s is not None:
             step = device_s - self._last_device_s
             if step < 0.0 or step > self.max_gap_s:
-                self._offsets, self._offset, step = [], None, None
+                self._offsets, self.offset, step = [], None, None
         self._last_device_s = device_s
         self._offsets.append(receive_s - device_s)
         if len(self._offsets) > self.window:
             del self._offsets[0]
         offset = min(self._offsets)
-        if step is not None and self._offset is not None:
-            offset = max(offset, self._offset - 0.5 * step)
-        self._offset = offset
+        if step is not None and self.offset is not None:
+            offset = max(offset, self.offset - 0.5 * step)
+        self.offset = offset
         stamp = device_s + offset - self.latency
         if self._last_stamp is not None and stamp < self._last_stamp + MIN_STAMP_STEP_S:
             stamp = self._last_stamp + MIN_STAMP_STEP_S

@@ -102,8 +102,8 @@ def test_sim_from_config_reads_the_device_from_the_true_geometry_file():
         rng=np.random.default_rng(0),
         unrelated_key='ignored',
     )
-    assert sim.device_length == TRUE.device_length
-    assert sim.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
+    assert sim._device.device_length == TRUE.device_length
+    assert sim._device.inclinometer_axes_angle == TRUE.inclinometer_axes_angle
     np.testing.assert_array_equal(sim.noise.readings(), [1e-5, 1e-5, 2e-5, 3e-6])
 
 
@@ -120,11 +120,11 @@ def test_a_backend_without_simulated_noise_refuses_noise_changes():
         def from_config(cls, **_unused):
             return cls()
 
-        def read(self, now_s):
-            return DeviceSample(now_s, 0.25, 0.25, 0.25, 0.25)
+        def read_available(self, now_s):
+            return [DeviceSample(now_s, 0.25, 0.25, 0.25, 0.25)]
 
     backend = ConstantBackend.from_config(true_geometry_file='unused')
-    assert backend.read(3.0) == DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)
+    assert backend.read_available(3.0) == [DeviceSample(3.0, 0.25, 0.25, 0.25, 0.25)]
     with pytest.raises(BackendError, match='no simulated noise'):
         backend.update_noise(device_noise(0.0, 0.0, 1e-6))
     backend.close()  # nothing to release

@@ -268,10 +268,10 @@ def test_the_serial_backend_publishes_every_reading_of_the_emulated_device(ros_c
         # stop sending (the port stays open), then wait for the backend to catch up.
         fake.silence(3600.0)
         backend = harness.driver._backend
-        assert harness.spin_until(lambda: backend.counters['garbage'] == fake.count('garbage'))
+        assert harness.spin_until(lambda: backend.counters['garbage'] == fake.counters['garbage'])
         # ... and on /diagnostics, where the port names the hardware.
         name = 'device_driver: device'
-        garbage = str(fake.count('garbage'))
+        garbage = str(fake.counters['garbage'])
         health = harness.wait_health(name, lambda h: h.values.get('dropped_garbage') == garbage)
         assert health.level in (OK, WARN) and health.values['units'] == 'rad/m'
         assert harness.diagnostics.hardware_ids[name] == str(link)

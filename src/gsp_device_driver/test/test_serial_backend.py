@@ -51,7 +51,7 @@ def drain(backend, fake):
     fake.paused = True
 
     def sent():  # hello lines are left out: the first may go before the port was opened
-        return sum(fake.count(k) for k in ('readings', 'garbage', 'checksum_errors'))
+        return sum(fake.counters[k] for k in ('readings', 'garbage', 'checksum_errors'))
 
     def read():
         return backend.counters['lines'] - backend.counters['hello']
@@ -69,27 +69,27 @@ def test_the_serial_backend_is_registered_with_its_parameters():
 def test_garbage_lines_are_dropped_and_each_counted(link):
     backend, fake = make_pair(link, garbage_fraction=0.05, checksum_error_fraction=0.02)
     try:
-        assert wait_until(lambda: fake.count('readings') >= 200)
+        assert wait_until(lambda: fake.counters['readings'] >= 200)
         fake.skip(7)  # seven lines lost on the way: a seq gap
-        assert wait_until(lambda: fake.count('readings') >= 400)
+        assert wait_until(lambda: fake.counters['readings'] >= 400)
         drain(backend, fake)
-        assert fake.count('garbage') > 0 and fake.count('checksum_errors') > 0
-        assert backend.counters['garbage'] == fake.count('garbage')
-        assert backend.counters['checksum'] == fake.count('checksum_errors')
-        assert backend.counters['readings'] == fake.count('readings')
+        assert fake.counters['garbage'] > 0 and fake.counters['checksum_errors'] > 0
+        assert backend.counters['garbage'] == fake.counters['garbage']
+        assert backend.counters['checksum'] == fake.counters['checksum_errors']
+        assert backend.counters['readings'] == fake.counters['readings']
         samples = backend.read_available(1000.0)
-        assert len(samples) == fake.count('readings')
+        assert len(samples) == fake.counters['readings']
         np.testing.assert_allclose([s.readings() for s in samples], [VALUES] * len(samples))
         stamps = np.array([s.stamp_s for s in samples])
         assert np.all(np.diff(stamps) > 0)  # device time orders them
         assert backend.hello.device_id == 'gsp-fake-device'
         # Every dropped or lost line is in health(): garbage is not counted lost as well.
         values = backend.health().values
-        assert int(values['dropped_garbage']) == fake.count('garbage')
-        assert int(values['dropped_checksum']) == fake.count('checksum_errors')
+        assert int(values['dropped_garbage']) == fake.counters['garbage']
+        assert int(values['dropped_checksum']) == fake.counters['checksum_errors']
         assert int(values['readings_published']) == len(samples)
-        assert fake.count('skipped') == 7
-        assert int(values['lost_lines']) == fake.count('skipped') + fake.count('lost')
+        assert fake.counters['skipped'] == 7
+        assert int(values['lost_lines']) == fake.counters['skipped'] + fake.counters['lost']
     finally:
         fake.close()
         backend.close()
@@ -142,7 +142,7 @@ def test_a_late_driver_asks_for_the_hello_instead_of_waiting(link):
     backend.start()
     try:
         assert wait_until(lambda: backend.counters['readings'] >= 20)
-        assert fake.count('requests') >= 1 and backend.hello.device_id == 'gsp-fake-device'
+        assert fake.counters['requests'] >= 1 and backend.hello.device_id == 'gsp-fake-device'
         samples = backend.read_available(0.0)
         np.testing.assert_allclose([s.readings() for s in samples], [VALUES] * len(samples))
     finally:
@@ -334,11 +334,11 @@ def test_a_stalled_truth_sends_no_line_and_a_line_carries_its_pose_instant(link)
         instant = time.monotonic()
         feed.put(7, instant)
         assert wait_until(lambda: backend.counters['readings'] >= 1)
-        hellos = fake.count('hello')
+        hellos = fake.counters['hello']
         # At least 4 device periods without a new pose (the hello lines mark the ticks).
-        assert wait_until(lambda: fake.count('hello') >= hellos + 2)
+        assert wait_until(lambda: fake.counters['hello'] >= hellos + 2)
         drain(backend, fake)
-        assert fake.count('readings') == 1, fake.counters
+        assert fake.counters['readings'] == 1, fake.counters
         sampled, reading = fake.sampling_log[0]
         assert sampled == instant  # the pose's instant, not the time the line went out
         assert reading.d_m == pytest.approx(VALUES[3] + 7e-6, abs=1e-12)

@@ -156,26 +156,6 @@ def msg_to_lvdt(msg):
     return float(_read_joint_state(msg, names.LVDT_JOINT_NAMES, 'lvdt')[0])
 
 
-def euler_to_quaternion(psi, theta, phi):
-    """Unit quaternion ``[x, y, z, w]`` (w >= 0) of ``R = R_Y(theta) R_X(psi) R_z(phi)`` (rad)."""
-    return rotation.matrix_to_quaternion(rotation.euler_to_matrix([psi, theta, phi]))
-
-
-def quaternion_to_euler(quat):
-    """``(psi, theta, phi)`` (rad), |psi| <= pi/2, of a quaternion ``[x, y, z, w]`` (normalised
-    here); ValueError if it is not four finite numbers of non-zero norm."""
-    quat = np.asarray(quat, dtype=float)
-    invalid = ValueError(f'invalid orientation quaternion [x, y, z, w] = {quat.tolist()}')
-    if quat.shape != (4,):
-        raise invalid
-    try:
-        matrix = rotation.quaternion_to_matrix(quat)  # non-finite or zero norm: ValueError
-    except ValueError:
-        raise invalid from None
-    psi, theta, phi = rotation.matrix_to_euler(matrix)
-    return float(psi), float(theta), float(phi)
-
-
 def pose_to_pose_stamped(X, stamp=None, frame_id=names.FRAME_BASE):  # noqa: N803 (paper notation)
     """PoseStamped for ``X = [x, y, z, psi, theta, phi]`` (m, rad) of the platform frame."""
     X = np.asarray(X, dtype=float)  # noqa: N806
@@ -187,13 +167,16 @@ def pose_to_pose_stamped(X, stamp=None, frame_id=names.FRAME_BASE):  # noqa: N80
     msg.header.stamp = _to_stamp(stamp)
     msg.header.frame_id = frame_id
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in X[:3])
+    # The unit quaternion [x, y, z, w] (w >= 0) of R = R_Y(theta) R_X(psi) R_z(phi).
+    quaternion = rotation.matrix_to_quaternion(rotation.euler_to_matrix(X[3:]))
     o = msg.pose.orientation
-    o.x, o.y, o.z, o.w = (float(v) for v in euler_to_quaternion(*X[3:]))
+    o.x, o.y, o.z, o.w = (float(v) for v in quaternion)
     return msg
 
 
 def pose_stamped_to_pose(msg):
-    """``X = [x, y, z, psi, theta, phi]`` (``np.ndarray(6)``) of a PoseStamped (or Pose)."""
+    """``X = [x, y, z, psi, theta, phi]`` (``np.ndarray(6)``, |psi| <= pi/2) of a PoseStamped (or
+    Pose); its quaternion is normalised here (ValueError if not finite or of zero norm)."""
     pose = msg.pose if isinstance(msg, PoseStamped) else msg
     if not isinstance(pose, Pose):
         raise TypeError(f'expected PoseStamped or Pose, got {type(msg).__name__}')
@@ -201,8 +184,14 @@ def pose_stamped_to_pose(msg):
     position = np.array([p.x, p.y, p.z], dtype=float)
     if not np.all(np.isfinite(position)):
         raise ValueError(f'pose: non-finite position {position.tolist()}')
-    euler = quaternion_to_euler([o.x, o.y, o.z, o.w])
-    return np.concatenate([position, euler])
+    quaternion = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    try:
+        matrix = rotation.quaternion_to_matrix(quaternion)  # non-finite or zero norm: ValueError
+    except ValueError:
+        raise ValueError(
+            f'invalid orientation quaternion [x, y, z, w] = {quaternion.tolist()}'
+        ) from None
+    return np.concatenate([position, rotation.matrix_to_euler(matrix)])
 
 
 _LEVEL_OF_STATE = {
@@ -248,16 +237,14 @@ class PlatformStatus:
         return self.state == names.STATE_REJECTED
 
 
-def make_status(
-    command_id, state, reason='', *, name=names.STATUS_NAME, hardware_id=names.STATUS_HARDWARE_ID
-):
+def make_status(command_id, state, reason=''):
     """DiagnosticStatus for ``/gsp/platform/status``."""
     if state not in _LEVEL_OF_STATE:
         raise ValueError(f'status: unknown state {state!r}; expected one of {list(names.STATES)}')
     msg = DiagnosticStatus()
     msg.level = _LEVEL_OF_STATE[state]
-    msg.name = name
-    msg.hardware_id = hardware_id
+    msg.name = names.STATUS_NAME
+    msg.hardware_id = names.STATUS_HARDWARE_ID
     msg.message = str(reason) if reason else state
     msg.values = [
         KeyValue(key=names.KEY_COMMAND_ID, value=str(command_id)),
@@ -312,7 +299,6 @@ def make_progress(
     *,
     level=None,
     extra=None,
-    name=names.PROGRESS_NAME,
 ):
     """DiagnosticStatus for ``/gsp/calibrator/progress``: posture k of M, phase, residuals."""
     posture_index, posture_count = int(posture_index), int(posture_count)
@@ -326,7 +312,7 @@ def make_progress(
         level = DiagnosticStatus.ERROR if phase == names.PHASE_FAILED else DiagnosticStatus.OK
     msg = DiagnosticStatus()
     msg.level = level if isinstance(level, bytes) else bytes([int(level)])
-    msg.name = name
+    msg.name = names.PROGRESS_NAME
     msg.hardware_id = names.STATUS_HARDWARE_ID
     msg.message = str(message) if message else f'{phase} {posture_index}/{posture_count}'
     values = [

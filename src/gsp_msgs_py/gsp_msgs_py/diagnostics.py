@@ -3,7 +3,7 @@
 aggregator and Foxglove read.
 """
 
-import dataclasses
+import collections
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -46,14 +46,9 @@ def status_to_health(msg):
     return msg.name, msg.hardware_id, Health(level, msg.message, values)
 
 
-@dataclasses.dataclass(frozen=True)
-class Component:
-    """One status a node reports: ``name`` (``'<node name>: <name>'`` on the topic), its
-    ``hardware_id`` and ``health()`` (a :class:`Health`)."""
-
-    name: str
-    hardware_id: str
-    health: object
+#: One status a node reports: ``name`` (``'<node name>: <name>'`` on the topic), its
+#: ``hardware_id`` and ``health()`` (a :class:`Health`).
+Component = collections.namedtuple('Component', 'name hardware_id health')
 
 
 class DiagnosticsPublisher:
@@ -110,21 +105,18 @@ class DiagnosticsPublisher:
 
 class DiagnosticsListener:
     """Keeps the latest status of each name heard on ``/diagnostics`` by ``node``:
-    :attr:`reports` ``{name: Health}``, :attr:`hardware_ids` ``{name: hardware_id}``, and
-    :attr:`arrays`, the number of arrays heard. A status with an unknown level is not kept: its
-    error is in :attr:`malformed`."""
+    :attr:`reports` ``{name: Health}`` and :attr:`hardware_ids` ``{name: hardware_id}``. A status
+    with an unknown level is not kept: its error is in :attr:`malformed`."""
 
     def __init__(self, node):
         self.reports = {}
         self.hardware_ids = {}
-        self.arrays = 0
         self.malformed = []
         node.create_subscription(
             DiagnosticArray, names.TOPIC_DIAGNOSTICS, self._on_array, qos.DIAGNOSTICS_QOS
         )
 
     def _on_array(self, msg):
-        self.arrays += 1
         for status in msg.status:
             try:
                 name, hardware_id, health = status_to_health(status)

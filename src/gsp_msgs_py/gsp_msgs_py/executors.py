@@ -1,8 +1,5 @@
-"""rclpy's ``MultiThreadedExecutor`` without its growing list of futures (rclpy 7.1, Jazzy).
-
-rclpy 7.1 re-appends a pending coroutine task at every wake-up, so a long ``async`` callback makes
-each wake-up slower (ros2/rclpy#1452); this one keeps one entry a task.
-"""
+"""rclpy's ``MultiThreadedExecutor`` without its growing list of futures: rclpy 7.1 (Jazzy)
+re-appends a pending coroutine task at every wake-up, slowing the next (ros2/rclpy#1452)."""
 
 from rclpy import executors as rclpy_executors
 
@@ -10,6 +7,7 @@ from rclpy import executors as rclpy_executors
 class MultiThreadedExecutor(rclpy_executors.MultiThreadedExecutor):
     """``rclpy.executors.MultiThreadedExecutor`` that tracks each callback task once."""
 
+    # rclpy's spin_once and spin_once_until_future_complete call it.
     def _spin_once_impl(self, timeout_sec=None, wait_condition=lambda: False):
         try:
             handler, _, _ = self.wait_for_ready_callbacks(timeout_sec, None, wait_condition)

@@ -76,10 +76,8 @@ KEY_RESIDUALS = 'residuals'  # JSON: mapping name -> float, or list of floats
 PHASE_IDLE = 'idle'
 PHASE_SELECTING = 'selecting'  # choosing the postures (calibrator)
 PHASE_MOVING = 'moving'
-PHASE_SAMPLING = 'sampling'
 PHASE_COLLECTING = 'collecting'  # collecting synchronised samples at a posture (calibrator)
 PHASE_IDENTIFYING = 'identifying'
-PHASE_VALIDATING = 'validating'
 PHASE_DONE = 'done'
 PHASE_FAILED = 'failed'
 

@@ -15,15 +15,8 @@ def noise_parameter_names(pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS)
     return tuple(pattern.format(name) for name in sensors)
 
 
-def noise_to_parameters(noise, pattern=ASSUMED_NOISE_PARAMETER, sensors=NOISE_FIELDS):
-    """``{pattern.format(sensor): std}`` of ``noise``'s ``sensors``: the calibrator's
-    ``sigma_<sensor>`` by default, :data:`TRUE_NOISE_PARAMETER` for a simulated sensor's."""
-    return {pattern.format(name): float(getattr(noise, name)) for name in sensors}
-
-
 def noise_from_parameters(values, pattern=ASSUMED_NOISE_PARAMETER, default=None):
-    """Inverse of :func:`noise_to_parameters`; a missing key is taken from ``default`` (a
-    ``SensorNoise``, the suite's default noise when None): with the current noise as
-    ``default``, this applies changed parameters."""
+    """The ``SensorNoise`` of ``{pattern.format(sensor): std}``; a missing key is taken from
+    ``default`` (the suite's default noise when None)."""
     fields = {name: values.get(pattern.format(name)) for name in NOISE_FIELDS}
     return SensorNoise.from_channels(fields, DEFAULT_SENSOR_NOISE if default is None else default)

@@ -1,4 +1,4 @@
-"""Parameter tables of the nodes: specs, checks, declaration and docs (docs/parameters.md).
+"""Parameter tables of the nodes: specs, checks and declaration (docs/parameters.md).
 
 A check is ``value -> reason`` ('' when accepted).
 """
@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from gsp_kinematics.model.geometry import default_geometry_path
 from gsp_kinematics.model.motion import DEFAULT_SENSOR_RATE_HZ
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, NOISE_UNITS
 
@@ -26,19 +27,15 @@ def is_finite_number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _unit(unit):
-    return f' {unit}' if unit else ''
-
-
 def greater_than(bound, unit='', reason=None):
     """Check: a finite number > ``bound``."""
-    why = reason or f'must be > {bound:g}{_unit(unit)}'
+    why = reason or f'must be > {bound:g} {unit}'.rstrip()
     return lambda v: '' if is_finite_number(v) and v > bound else why
 
 
 def at_least(bound, unit='', reason=None):
     """Check: a finite number >= ``bound``."""
-    why = reason or f'must be >= {bound:g}{_unit(unit)}'
+    why = reason or f'must be >= {bound:g} {unit}'.rstrip()
     return lambda v: '' if is_finite_number(v) and v >= bound else why
 
 
@@ -114,19 +111,23 @@ class ParameterSpec:
         return f'{self.name}: {shown!r} rejected, {why}'
 
 
+def positive_spec(name, default, description, unit='', **fields):
+    """A parameter whose value must be a finite number > 0 (in ``unit``)."""
+    return ParameterSpec(name, default, description, unit, check=greater_than(0.0, unit), **fields)
+
+
+def non_negative_spec(name, default, description, unit='', **fields):
+    """A parameter whose value must be a finite number >= 0 (in ``unit``)."""
+    return ParameterSpec(name, default, description, unit, check=at_least(0.0, unit), **fields)
+
+
 # Parameters several nodes share (same name, type and checks everywhere).
 
 
 def publish_rate_spec(what, default=DEFAULT_SENSOR_RATE_HZ):
     """``publish_rate`` (Hz, read-only): the rate of ``what``."""
-    return ParameterSpec(
-        'publish_rate',
-        default,
-        f'Rate of {what}',
-        unit='Hz',
-        read_only=True,
-        constraints='> 0',
-        check=greater_than(0.0, 'Hz'),
+    return positive_spec(
+        'publish_rate', default, f'Rate of {what}', 'Hz', read_only=True, constraints='> 0'
     )
 
 
@@ -163,27 +164,16 @@ def frame_id_spec(description):
 
 def settle_time_spec(what):
     """``settle_time`` (s): from the legs' arrival to the 'settled' status of ``what``."""
-    return ParameterSpec(
-        'settle_time',
-        0.05,
-        f"Time from the legs' arrival to the 'settled' status of {what}",
-        unit='s',
-        float_range=(0.0, 60.0),
-        check=at_least(0.0, 's'),
-    )
+    description = f"Time from the legs' arrival to the 'settled' status of {what}"
+    return non_negative_spec('settle_time', 0.05, description, 's', float_range=(0.0, 60.0))
 
 
 def diagnostics_period_spec():
     """``diagnostics_period`` (s, read-only): how often the node publishes its health on
     ``/diagnostics`` (:class:`gsp_msgs_py.diagnostics.DiagnosticsPublisher`)."""
-    return ParameterSpec(
-        'diagnostics_period',
-        1.0,
-        f'Period of the health reports on {names.TOPIC_DIAGNOSTICS}',
-        unit='s',
-        read_only=True,
-        float_range=(0.01, 60.0),
-        check=greater_than(0.0, 's'),
+    description = f'Period of the health reports on {names.TOPIC_DIAGNOSTICS}'
+    return positive_spec(
+        'diagnostics_period', 1.0, description, 's', read_only=True, float_range=(0.01, 60.0)
     )
 
 
@@ -191,15 +181,14 @@ def motion_limit_specs(speed, acceleration, read_only=False):
     """``max_leg_speed`` (m/s) and ``max_leg_acceleration`` (m/s^2) of the simulated legs, with
     these defaults; 0 removes a limit (:class:`gsp_kinematics.model.motion.MotionLimits`)."""
     return tuple(
-        ParameterSpec(
+        non_negative_spec(
             name,
             float(default),
             f'{what} limit of every leg (synchronised moves, docs/planning.md); 0: no limit',
-            unit=unit,
+            unit,
             read_only=read_only,
             float_range=(0.0, 1e3),
             constraints='>= 0',
-            check=at_least(0.0, unit),
         )
         for name, default, what, unit in (
             ('max_leg_speed', speed, 'Speed', 'm/s'),
@@ -213,25 +202,19 @@ def true_noise_spec(sensor, description):
     (:data:`gsp_msgs_py.noise_parameters.TRUE_NOISE_PARAMETER`, the sensor's unit), changeable
     at run time; the default is the suite's default noise."""
     unit = NOISE_UNITS[sensor]
-    return ParameterSpec(
-        TRUE_NOISE_PARAMETER.format(sensor),
-        getattr(DEFAULT_SENSOR_NOISE, sensor),
-        description,
-        unit=unit,
-        float_range=(0.0, 1.0),
-        check=at_least(0.0, unit),
-    )
+    name, default = TRUE_NOISE_PARAMETER.format(sensor), getattr(DEFAULT_SENSOR_NOISE, sensor)
+    return non_negative_spec(name, default, description, unit, float_range=(0.0, 1.0))
 
 
-def geometry_file_spec(name, default, description, default_text=''):
-    """A read-only geometry params file parameter."""
+def true_geometry_file_spec(description):
+    """``true_geometry_file`` (read-only): the real platform's geometry params file."""
     return ParameterSpec(
-        name,
-        default,
+        'true_geometry_file',
+        default_geometry_path('true'),
         description,
         read_only=True,
         check=not_blank('a geometry file'),
-        default_text=default_text,
+        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
     )
 
 
@@ -264,13 +247,8 @@ def _spec_table(specs):
 def validate_values(specs, values):
     """Reason ('' if none) why ``{name: value}`` fails the checks of ``specs`` (others pass)."""
     table = _spec_table(specs)
-    for name, value in values.items():
-        spec = table.get(name)
-        if spec is not None:
-            reason = spec.reason(value)
-            if reason:
-                return reason
-    return ''
+    reasons = (table[name].reason(value) for name, value in values.items() if name in table)
+    return next((reason for reason in reasons if reason), '')
 
 
 def declare_parameters(node, specs, validate=None):
@@ -319,58 +297,3 @@ def watch_parameters(node, specs, apply=None, validate=None):
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
-
-
-def _format_value(value):
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, float):
-        return f'{value:.6g}'
-    if isinstance(value, str):
-        return repr(value)
-    return str(value)
-
-
-def _format_default(spec):
-    if spec.default_text:
-        return spec.default_text
-    value = spec.default
-    if isinstance(value, (list, tuple)):
-        shown = ', '.join(_format_value(v) for v in value[:6])
-        more = f', ... ({len(value)} values)' if len(value) > 6 else ''
-        return f'[{shown}{more}]'
-    return _format_value(value)
-
-
-def _format_constraints(spec):
-    parts = [spec.constraints] if spec.constraints else []
-    for bounds in (spec.float_range, spec.integer_range):
-        if bounds is not None:
-            parts.append(f'in [{_format_value(bounds[0])}, {_format_value(bounds[1])}]')
-    return '; '.join(parts)
-
-
-def parameter_table_markdown(specs):
-    """A Markdown table of ``specs``: name, type, default, unit, read-only, constraints and
-    description, one row per parameter in declaration order."""
-
-    def cell(text):
-        # '|' would end the cell; '<' would open an HTML tag (e.g. '<UTC timestamp>/').
-        return str(text).replace('|', '\\|').replace('<', '&lt;').replace('\n', ' ')
-
-    rows = [
-        '| name | type | default | unit | read-only | constraints | description |',
-        '| --- | --- | --- | --- | --- | --- | --- |',
-    ]
-    for spec in _spec_table(specs).values():
-        texts = (
-            f'`{spec.name}`',
-            spec.type_name,
-            f'`{_format_default(spec)}`',
-            spec.unit,
-            'yes' if spec.read_only else 'no',
-            _format_constraints(spec),
-            spec.description,
-        )
-        rows.append('| ' + ' | '.join(cell(text) for text in texts) + ' |')
-    return '\n'.join(rows) + '\n'

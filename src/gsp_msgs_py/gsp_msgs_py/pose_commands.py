@@ -4,7 +4,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 
 from . import conversions, message_checks, names, qos
-from .settle import CommandStatistics, SettleTracker, superseded_reason
+from .settle import CommandStatistics, SettleTracker
 
 WARN_THROTTLE_S = 1.0
 
@@ -73,8 +73,9 @@ class PoseCommandServer:
         superseded = self._tracker.accept(command_id, now_ns, wait_s)
         self.statistics.accepted(command_id, now_ns)
         if superseded is not None:
-            self.statistics.superseded(superseded, superseded_reason(command_id))
-            self._reject(superseded, superseded_reason(command_id))
+            reason = f'superseded by command {command_id} before settling'
+            self.statistics.superseded(superseded, reason)
+            self._reject(superseded, reason)
         self._publish_status(command_id, names.STATE_MOVING)
         if not self._reports:
             self._settle_or_wait(now_ns)
@@ -92,10 +93,13 @@ class PoseCommandServer:
         """Report-mode: ``command_id`` (if still the moving one) has arrived: ``settled``."""
         now_ns = self._now_ns()
         if self._tracker.moving == command_id and self._tracker.due(now_ns) is not None:
-            self.statistics.settled(command_id, now_ns)
-            self._publish_status(command_id, names.STATE_SETTLED)
-            if self._on_settled is not None:
-                self._on_settled(command_id)
+            self._announce_settled(command_id, now_ns)
+
+    def _announce_settled(self, command_id, now_ns):
+        self.statistics.settled(command_id, now_ns)
+        self._publish_status(command_id, names.STATE_SETTLED)
+        if self._on_settled is not None:
+            self._on_settled(command_id)
 
     def reject_moving(self, reason):
         """Report-mode: the moving command failed (``rejected`` with ``reason``)."""
@@ -110,10 +114,7 @@ class PoseCommandServer:
         settled = self._tracker.due(now_ns)
         if settled is not None:
             self._settle_timer.cancel()
-            self.statistics.settled(settled, now_ns)
-            self._publish_status(settled, names.STATE_SETTLED)
-            if self._on_settled is not None:
-                self._on_settled(settled)
+            self._announce_settled(settled, now_ns)
             return
         wait_ns = self._tracker.wait_ns(now_ns)
         if wait_ns is not None:

@@ -3,46 +3,36 @@
 from .health import ERROR, OK, WARN, Health
 
 
-def superseded_reason(command_id):
-    """The reason a moving command is rejected when ``command_id`` supersedes it."""
-    return f'superseded by command {command_id} before settling'
-
-
 class SettleTracker:
     """Which accepted command is moving, and when it settles."""
 
     def __init__(self):
-        self._moving = None  # command id of the accepted command not settled yet
+        self.moving = None  #: the id of the accepted command not settled yet, or None
         self._settles_ns = None
-
-    @property
-    def moving(self):
-        """The command id that is moving, or None."""
-        return self._moving
 
     def accept(self, command_id, now_ns, settle_time):
         """Start moving to ``command_id`` at ``now_ns``, to settle ``settle_time`` (s) later."""
-        superseded = self._moving
-        self._moving = command_id
+        superseded = self.moving
+        self.moving = command_id
         self._settles_ns = now_ns + max(0, round(settle_time * 1e9))
         return superseded
 
     def wait_ns(self, now_ns):
         """Nanoseconds until the moving command settles (0 if due), or None if none moves."""
-        if self._moving is None:
+        if self.moving is None:
             return None
         return max(0, self._settles_ns - now_ns)
 
     def due(self, now_ns):
         """The command id that has settled by ``now_ns`` (forgotten from then on), or None."""
-        if self._moving is None or now_ns < self._settles_ns:
+        if self.moving is None or now_ns < self._settles_ns:
             return None
-        settled, self._moving = self._moving, None
+        settled, self.moving = self.moving, None
         return settled
 
     def forget(self):
         """The moving command ends without settling (it was rejected)."""
-        self._moving = None
+        self.moving = None
 
 
 class CommandStatistics:
@@ -91,16 +81,12 @@ class CommandStatistics:
         self.last_rejection = f'{command_id}: {reason}'
         self._latest = (outcome, command_id, reason)
 
-    @property
-    def rejected(self):
-        """Every rejected status: refused + superseded + abandoned."""
-        return sum(self.counts[k] for k in ('refused', 'superseded', 'abandoned'))
-
     def health(self):
         """``Health``: ERROR while the latest command is an abandoned goal, WARN while it was
         refused, OK otherwise (none yet, moving or settled)."""
         times = self._settle_times_s
-        values = {**self.counts, 'rejected': self.rejected, 'last_rejection': self.last_rejection}
+        rejected = sum(self.counts[k] for k in ('refused', 'superseded', 'abandoned'))
+        values = {**self.counts, 'rejected': rejected, 'last_rejection': self.last_rejection}
         values['settle_time_last_s'] = f'{times[-1]:.4f}' if times else ''
         values['settle_time_mean_s'] = f'{sum(times) / len(times):.4f}' if times else ''
         values['settle_time_max_s'] = f'{max(times):.4f}' if times else ''

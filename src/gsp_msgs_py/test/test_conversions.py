@@ -14,7 +14,6 @@ from gsp_msgs_py import names
 from gsp_msgs_py.conversions import (
     command_id_from_stamp,
     encoder_to_msg,
-    euler_to_quaternion,
     inclinometer_to_msg,
     leg_lengths_to_msg,
     lvdt_to_msg,
@@ -28,7 +27,6 @@ from gsp_msgs_py.conversions import (
     parse_status,
     pose_stamped_to_pose,
     pose_to_pose_stamped,
-    quaternion_to_euler,
     seconds_to_stamp,
     stamp_to_nanoseconds,
     stamp_to_seconds,
@@ -154,14 +152,15 @@ def test_quaternion_is_eq2_with_w_non_negative():
     # Eq (2) itself is tested in gsp_kinematics (test_core_rotation); here: the spelling of it.
     for x in random_poses(200, seed=1):
         psi, theta, phi = x[3:]
-        quat = euler_to_quaternion(psi, theta, phi)
-        assert quat.shape == (4,) and quat[3] >= 0
+        msg = pose_to_pose_stamped(x)
+        o = msg.pose.orientation
+        quat = np.array([o.x, o.y, o.z, o.w])
+        assert quat[3] >= 0
         assert math.isclose(np.linalg.norm(quat), 1.0, rel_tol=1e-12)
         expected = Rotation.from_euler('YXZ', [theta, psi, phi]).as_matrix()
         np.testing.assert_allclose(Rotation.from_quat(quat).as_matrix(), expected, atol=1e-12)
-        euler = quaternion_to_euler(-2.0 * quat)  # any scale and sign
-        assert all(isinstance(angle, float) for angle in euler)
-        np.testing.assert_allclose(euler, [psi, theta, phi], atol=1e-9)
+        o.x, o.y, o.z, o.w = (-2.0 * quat).tolist()  # any scale and sign
+        np.testing.assert_allclose(pose_stamped_to_pose(msg), x, atol=1e-9)
 
 
 def test_pose_round_trip():
@@ -195,9 +194,11 @@ def test_pose_errors():
     zero_quaternion.pose.orientation.w = 0.0
     with pytest.raises(ValueError, match='invalid orientation quaternion'):
         pose_stamped_to_pose(zero_quaternion)
-    for bad in ([0.0, 0.0, math.nan, 1.0], [0.0, 0.0, 1.0], [1e-12, 0.0, 0.0, 0.0]):
+    for bad in ([0.0, 0.0, math.nan, 1.0], [1e-12, 0.0, 0.0, 0.0]):
+        o = zero_quaternion.pose.orientation
+        o.x, o.y, o.z, o.w = bad
         with pytest.raises(ValueError, match=r'invalid orientation quaternion \[x, y, z, w\] = \['):
-            quaternion_to_euler(bad)
+            pose_stamped_to_pose(zero_quaternion)
     with pytest.raises(TypeError):
         pose_stamped_to_pose(JointState())
 
@@ -247,14 +248,14 @@ def test_status_errors():
 
 def test_progress_round_trip_mapping():
     residuals = {'leg_rms': 1.5e-5, 'device_rms': np.float64(2e-6)}
-    msg = make_progress(3, 20, names.PHASE_SAMPLING, residuals, extra={'run': 'r1'})
+    msg = make_progress(3, 20, names.PHASE_COLLECTING, residuals, extra={'run': 'r1'})
     progress = parse_progress(msg)
     assert (progress.posture_index, progress.posture_count) == (3, 20)
-    assert progress.phase == 'sampling'
+    assert progress.phase == 'collecting'
     assert progress.residuals == {'leg_rms': 1.5e-5, 'device_rms': 2e-6}
     assert progress.extra == {'run': 'r1'}
     assert progress.level == 0
-    assert progress.message == 'sampling 3/20'
+    assert progress.message == 'collecting 3/20'
 
 
 def test_progress_round_trip_sequence_and_failure():

@@ -18,7 +18,6 @@ from gsp_msgs_py.parameter_specs import (
     is_finite_number,
     not_blank,
     one_of,
-    parameter_table_markdown,
     resolve_seed,
     seed_spec,
     validate_values,
@@ -80,16 +79,6 @@ def test_descriptor_and_type():
         'string_array',
         'string',
     ]
-
-
-def test_parameter_table_markdown():
-    lines = parameter_table_markdown(SPECS).splitlines()
-    assert lines[0] == '| name | type | default | unit | read-only | constraints | description |'
-    assert lines[2] == '| `rate` | double | `200` | Hz | yes | > 0 | Rate of the readings |'
-    assert lines[3] == '| `noise` | double | `1e-06` | m | no | in [0, 1] | Noise std |'
-    assert lines[6] == (
-        "| `names` | string_array | `['x', 'y']` |  | no |  | Names \\| with a pipe |"
-    )
 
 
 def test_declare_and_watch_parameters(ros_context):

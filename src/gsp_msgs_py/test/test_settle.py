@@ -1,6 +1,6 @@
 """SettleTracker: moving -> settled, or superseded (pure, no ROS)."""
 
-from gsp_msgs_py.settle import SettleTracker, superseded_reason
+from gsp_msgs_py.settle import SettleTracker
 
 MS = 1_000_000
 
@@ -30,7 +30,6 @@ def test_a_new_command_supersedes_the_moving_one():
     assert tracker.due(300 * MS) is None  # the superseded command never settles
     assert tracker.due(400 * MS) == '2'
     assert tracker.accept('3', 500 * MS, 0.3) is None  # '2' has settled: nothing superseded
-    assert superseded_reason('2') == 'superseded by command 2 before settling'
 
 
 def test_command_statistics_count_each_outcome_and_time_the_settles():
@@ -42,7 +41,7 @@ def test_command_statistics_count_each_outcome_and_time_the_settles():
     stats.accepted('1', 0)
     stats.settled('1', 50 * MS)
     stats.accepted('2', 100 * MS)
-    stats.superseded('2', superseded_reason('3'))
+    stats.superseded('2', 'superseded by command 3 before settling')
     stats.accepted('3', 120 * MS)
     stats.settled('3', 270 * MS)
     health = stats.health()

@@ -4,17 +4,15 @@ import numpy as np
 
 from gsp_kinematics.model.motion import move_time
 from gsp_msgs_py.health import ERROR, OK, Health
-
-SETTLED = 'settled'
-REJECTED = 'rejected'
+from gsp_msgs_py.names import STATE_REJECTED, STATE_SETTLED
 
 
 class GoalMonitor:
     """Goal and joint-state bookkeeping of the bridge; one goal at a time."""
 
-    def __init__(self, joint_names, tolerance, settle_time, state_timeout):
+    def __init__(self, joint_names, position_tolerance, settle_time, state_timeout):
         self.joint_names = tuple(joint_names)
-        self.tolerance = float(tolerance)
+        self.position_tolerance = float(position_tolerance)
         self.settle_time = float(settle_time)
         self.state_timeout = float(state_timeout)
         self.positions = None  # (6,) m, latest complete joint state
@@ -41,7 +39,7 @@ class GoalMonitor:
             return None
         self.positions = values
         if self._target is not None:  # the settle clock runs from the first state within
-            if np.all(np.abs(values - self._target) <= self.tolerance):
+            if np.all(np.abs(values - self._target) <= self.position_tolerance):
                 if self._within_since is None:
                     self._within_since = now_s
             else:
@@ -90,25 +88,25 @@ class GoalMonitor:
         self._target = None
 
     def check(self, now_s):
-        """``(SETTLED, '')``, ``(REJECTED, reason)`` or None (still moving) for the goal at
+        """``(STATE_SETTLED, '')``, ``(STATE_REJECTED, reason)`` or None (still moving) for the goal at
         ``now_s``; the goal ends with a verdict."""
         if self._target is None:
             return None
         problem = self.state_problem(now_s)
         if problem:
             self.clear()
-            return REJECTED, problem
+            return STATE_REJECTED, problem
         errors = np.abs(self.positions - self._target)
         if self._within_since is not None and now_s - self._within_since >= self.settle_time:
             self.clear()
-            return SETTLED, ''
+            return STATE_SETTLED, ''
         if now_s > self._deadline_s:
             worst = int(np.argmax(errors))
             self.clear()
-            return REJECTED, (
+            return STATE_REJECTED, (
                 f'goal not reached in time: {self.joint_names[worst]} is '
                 f'{errors[worst] * 1e3:.3f} mm from its target (tolerance '
-                f'{self.tolerance * 1e3:g} mm)'
+                f'{self.position_tolerance * 1e3:g} mm)'
             )
         return None
 

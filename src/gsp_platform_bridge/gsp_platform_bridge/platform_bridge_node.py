@@ -1,7 +1,7 @@
 """``platform_bridge`` node: the suite's platform protocol over ros2_control (docs/hardware.md)."""
 
 import numpy as np
-from builtin_interfaces.msg import Duration
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -18,10 +18,10 @@ from gsp_msgs_py.geometry_parameters import (
     controller_geometry_error,
     validate_geometry_change,
 )
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, not_blank
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, not_blank, positive_spec
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
-from .goal_monitor import REJECTED, SETTLED, GoalMonitor, pose_path, waypoint_times
+from .goal_monitor import GoalMonitor, pose_path, waypoint_times
 
 NODE_NAME = names.NODE_PLATFORM_BRIDGE
 CHECK_RATE_HZ = 50.0  #: deadline and staleness checks between joint states
@@ -43,49 +43,34 @@ PARAMETERS = (
     # The trajectory's times (docs/planning.md): the speed of a positioning hexapod, the
     # acceleration unlimited by default as before (set both to the platform's).
     *parameter_specs.motion_limit_specs(REALISTIC_MAX_SPEED, 0.0),
-    ParameterSpec(
+    parameter_specs.non_negative_spec(
         'min_motion_duration',
         0.1,
         'Shortest trajectory duration (time_from_start of its point)',
-        unit='s',
-        check=at_least(0.0, 's'),
+        's',
     ),
-    ParameterSpec(
+    positive_spec(
         'path_position_step',
         0.01,
         'Longest position step between the waypoints of a move (the legs follow the straight '
         'Cartesian path, checked for reachability before anything moves)',
-        unit='m',
-        check=greater_than(0.0, 'm'),
+        'm',
     ),
-    ParameterSpec(
-        'path_angle_step',
-        0.02,
-        'Longest orientation step between the waypoints of a move',
-        unit='rad',
-        check=greater_than(0.0, 'rad'),
+    positive_spec(
+        'path_angle_step', 0.02, 'Longest orientation step between the waypoints of a move', 'rad'
     ),
-    ParameterSpec(
-        'position_tolerance',
-        5e-5,
-        'A leg has arrived within this distance of its target',
-        unit='m',
-        check=greater_than(0.0, 'm'),
+    positive_spec(
+        'position_tolerance', 5e-5, 'A leg has arrived within this distance of its target', 'm'
     ),
     parameter_specs.settle_time_spec('a goal, counted once every leg is within position_tolerance'),
-    ParameterSpec(
+    positive_spec(
         'goal_timeout',
         2.0,
         'Time allowed beyond the trajectory duration before the goal is rejected',
-        unit='s',
-        check=greater_than(0.0, 's'),
+        's',
     ),
-    ParameterSpec(
-        'state_timeout',
-        0.5,
-        'Joint states older than this are stale: commands are rejected',
-        unit='s',
-        check=greater_than(0.0, 's'),
+    positive_spec(
+        'state_timeout', 0.5, 'Joint states older than this are stale: commands are rejected', 's'
     ),
     ParameterSpec(
         'max_condition',
@@ -97,11 +82,6 @@ PARAMETERS = (
     parameter_specs.frame_id_spec('Base frame: required of pose commands, and of leg_lengths'),
     parameter_specs.diagnostics_period_spec(),
 )
-
-
-def _duration(seconds):
-    whole = int(seconds)
-    return Duration(sec=whole, nanosec=int((seconds - whole) * 1e9))
 
 
 def _check_start_up(values):
@@ -130,9 +110,7 @@ class PlatformBridgeNode(Node):
         )
         self._trajectory_topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self._trajectory_pub = self.create_publisher(JointTrajectory, self._trajectory_topic, 10)
-        self._legs_pub = node_tools.create_publishers(self, (names.TOPIC_LEG_LENGTHS,))[
-            names.TOPIC_LEG_LENGTHS
-        ]
+        (self._legs_pub,) = node_tools.create_publishers(self, [names.TOPIC_LEG_LENGTHS]).values()
         self.create_subscription(
             JointState, values['joint_states_topic'], self._on_joint_state, qos.SENSOR_QOS
         )
@@ -159,27 +137,12 @@ class PlatformBridgeNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _apply_parameters(self, changes):
-        for name in (
-            'max_leg_speed',
-            'max_leg_acceleration',
-            'min_motion_duration',
-            'goal_timeout',
-            'max_condition',
-            'path_position_step',
-            'path_angle_step',
-        ):
+        self._values.update(changes)
+        for name in ('position_tolerance', 'settle_time', 'state_timeout'):
             if name in changes:
-                self._values[name] = changes[name]
-        for name, attribute in (
-            ('position_tolerance', 'tolerance'),
-            ('settle_time', 'settle_time'),
-            ('state_timeout', 'state_timeout'),
-        ):
-            if name in changes:
-                setattr(self._monitor, attribute, float(changes[name]))
+                setattr(self._monitor, name, float(changes[name]))
         if any(name in GEOMETRY_PARAMETER_NAMES for name in changes):
-            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
-            self._geometry = controller_geometry(current)
+            self._geometry = controller_geometry(self._values)
             self.get_logger().info('controller geometry updated; applies from the next command')
 
     def _move(self, command_id, pose):
@@ -203,10 +166,8 @@ class PlatformBridgeNode(Node):
         times = waypoint_times(
             self._monitor.positions, waypoints, limits, self._values['min_motion_duration']
         )
-        if self._monitor.active:  # the server rejects the superseded command
-            self._monitor.clear()
         points = [
-            JointTrajectoryPoint(positions=q.tolist(), time_from_start=_duration(t))
+            JointTrajectoryPoint(positions=q.tolist(), time_from_start=Duration(seconds=t).to_msg())
             for q, t in zip(waypoints, times, strict=True)
         ]
         points[-1].velocities = [0.0] * 6
@@ -263,9 +224,9 @@ class PlatformBridgeNode(Node):
             return
         state, reason = verdict
         command_id = self._commands.moving
-        if state == SETTLED and command_id is not None:
+        if state == names.STATE_SETTLED and command_id is not None:
             self._commands.settled(command_id)
-        elif state == REJECTED:
+        elif state == names.STATE_REJECTED:
             self._commands.reject_moving(reason)
 
 

@@ -9,7 +9,6 @@ from gsp_kinematics.channels import LEG_LENGTHS
 from gsp_kinematics.model.geometry import (
     GeometryError,
     default_geometry,
-    default_geometry_path,
     load_geometry,
 )
 from gsp_kinematics.model.kinematics import forward_kinematics_masked, home_pose, inverse_kinematics
@@ -25,11 +24,8 @@ RNG_STREAM = 3
 FK_CONTINUATION_STEPS = (1, 8, 64)
 
 PARAMETERS = (
-    parameter_specs.geometry_file_spec(
-        'true_geometry_file',
-        default_geometry_path('true'),
-        'Geometry params file of the emulated hexapod (its true pose is FK of this geometry)',
-        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
+    parameter_specs.true_geometry_file_spec(
+        'Geometry params file of the emulated hexapod (its true pose is FK of this geometry)'
     ),
     parameter_specs.controller_name_spec(
         'Emulated controller: goals on /<controller_name>/joint_trajectory'
@@ -80,9 +76,7 @@ class ControllerSimNode(Node):
         topic = f'/{values["controller_name"].strip("/")}/joint_trajectory'
         self.create_subscription(JointTrajectory, topic, self._on_trajectory, 10)
         self._joint_pub = self.create_publisher(JointState, '/joint_states', qos.SENSOR_QOS)
-        self._pose_pub = node_tools.create_publishers(self, (names.TOPIC_TRUE_POSE,))[
-            names.TOPIC_TRUE_POSE
-        ]
+        (self._pose_pub,) = node_tools.create_publishers(self, [names.TOPIC_TRUE_POSE]).values()
         self.create_timer(1.0 / values['publish_rate'], self._tick)
         self.get_logger().info(f'controller_sim ready: goals on {topic}, seed {seed}')
 

@@ -7,24 +7,16 @@ from gsp_msgs_py.parameter_specs import ParameterSpec, is_finite_number
 PREFIX = 'effects.'
 
 
-def _check(shape, unit, signed):
-    size = 1 if shape is None else shape
+def _spec(name, shape, unit, description, default):
+    signed = name == 'centre_of_mass'
     what = 'a finite number' if shape is None else f'{shape} finite numbers'
-    bound = '' if signed else f' >= 0 {unit}'
+    why = f'must be {what}' + ('' if signed else f' >= 0 {unit}')
 
     def check(value):
         values = [value] if shape is None else list(value)
-        if len(values) != size or not all(is_finite_number(v) for v in values):
-            return f'must be {what}{bound}'
-        if not signed and any(v < 0.0 for v in values):
-            return f'must be {what}{bound}'
-        return ''
+        finite = len(values) == (shape or 1) and all(is_finite_number(v) for v in values)
+        return '' if finite and (signed or min(values) >= 0.0) else why
 
-    return check
-
-
-def _spec(name, shape, unit, description, default):
-    signed = name == 'centre_of_mass'
     value = float(default) if shape is None else [float(v) for v in default]
     return ParameterSpec(
         PREFIX + name,
@@ -33,7 +25,7 @@ def _spec(name, shape, unit, description, default):
         unit=unit,
         read_only=True,
         constraints=('' if signed else '>= 0') + ('' if shape is None else f', {shape} values'),
-        check=_check(shape, unit, signed),
+        check=check,
     )
 
 

@@ -51,7 +51,7 @@ class PhysicsSimulator:
         self._true_geometry = true_geometry
         self.params = params
         self.limits = limits
-        self.leg_lengths_noise_std = leg_lengths_noise_std
+        self.leg_lengths_noise_std = float(leg_lengths_noise_std)  #: m
         self.in_position_window = float(in_position_window)
         self.in_position_time = float(in_position_time)
         self._rng = rng if rng is not None else np.random.default_rng()
@@ -68,7 +68,8 @@ class PhysicsSimulator:
         self._move = LegMove(self.leg_lengths, self._target, self._limits, 0.0)
         self._in_position_since = None
         self._commanded_pose = start.copy()
-        while not self.in_position and self._data.time < self._move_end_s() + START_UP_TIMEOUT_S:
+        give_up_s = self._move.end_s + START_UP_TIMEOUT_S
+        while not self.in_position and self._data.time < give_up_s:
             self.advance(self.time_s + 0.05)
         self.advance(self.time_s + START_UP_S)
         self._time_offset = float(start_s) - self._data.time  # at rest at start_s
@@ -102,15 +103,13 @@ class PhysicsSimulator:
         return self._time_offset + self._data.time
 
     @property
-    def true_geometry(self):
-        return self._true_geometry
-
-    @property
     def controller_geometry(self):
+        """The controller's geometry, used from the next command (the kinematic checker's)."""
         return self._checker.controller_geometry
 
-    def set_controller_geometry(self, geometry):
-        self._checker.set_controller_geometry(geometry)
+    @controller_geometry.setter
+    def controller_geometry(self, geometry):
+        self._checker.controller_geometry = geometry
 
     @property
     def max_condition(self):
@@ -118,7 +117,7 @@ class PhysicsSimulator:
 
     @max_condition.setter
     def max_condition(self, value):
-        self._checker.max_condition = value
+        self._checker.max_condition = float(value)
 
     @property
     def limits(self):
@@ -127,18 +126,6 @@ class PhysicsSimulator:
     @limits.setter
     def limits(self, limits):
         self._limits = MotionLimits() if limits is None or limits.instantaneous else limits
-
-    @property
-    def leg_lengths_noise_std(self):
-        return self._checker.leg_lengths_noise_std
-
-    @leg_lengths_noise_std.setter
-    def leg_lengths_noise_std(self, value):
-        self._checker.leg_lengths_noise_std = value
-
-    @property
-    def moving(self):
-        return not self.in_position
 
     @property
     def in_position(self):
@@ -165,10 +152,6 @@ class PhysicsSimulator:
         data = self._data
         rotation = data.xmat[self._platform].reshape(3, 3)
         return np.concatenate([data.xpos[self._platform], matrix_to_euler(rotation)])
-
-    @property
-    def commanded_pose(self):
-        return self._commanded_pose.copy()
 
     def device_readings(self):
         """Noise-free device readings ``[alpha, beta, phi, d_m]`` (rad, rad, rad, m) of the
@@ -223,9 +206,6 @@ class PhysicsSimulator:
         if self._move is not None and data.time >= arrival - 0.5 * step:
             self._move = None
 
-    def _move_end_s(self):
-        return 0.0 if self._move is None else self._move.end_s
-
     def _servo_references(self, count):
         """The servo slides' references (count, 6) m for the next ``count`` steps and their
         feedforward forces (count, 6) N (velocity and acceleration)."""
@@ -245,22 +225,20 @@ class PhysicsSimulator:
         gap: a machine that cannot keep real time loses simulated time, never speeds it up."""
         self._time_offset += max(0.0, now_s - self.time_s)
 
-    def _real_reason(self, real_pose):
-        """Why the real platform cannot hold ``real_pose`` (6,), where the commanded legs put it
-        ('' if it can): past a joint's stop, or near a singularity, where compliant legs under
-        load sag by centimetres or snap to another assembly."""
-        ok, reasons = check_reachable(self._true_geometry, real_pose[None], self.max_condition)
-        return '' if ok[0] else f'the real platform cannot hold it: {reasons[0]}'
-
     def command(self, pose, now_s=None):
         """Drive the platform to ``pose`` (6,) from the simulation's current time."""
         outcome = self._checker.command(pose, self.time_s)
         if not outcome.accepted:
             return outcome
-        real_reason = self._real_reason(outcome.true_pose)
-        if real_reason:
+        # Past a joint's stop, or near a singularity, compliant legs under load sag by
+        # centimetres or snap to another assembly.
+        ok, reasons = check_reachable(
+            self._true_geometry, outcome.true_pose[None], self.max_condition
+        )
+        if not ok[0]:
             self._checker.command(self._commanded_pose, self.time_s)  # back to the legs' state
-            return CommandOutcome(False, real_reason, None, self.true_pose)
+            reason = f'the real platform cannot hold it: {reasons[0]}'
+            return CommandOutcome(False, reason, None, self.true_pose)
         now = self._data.time
         # From the servos' reference now (a command may supersede a move under way).
         start = self._target if self._move is None else self._move.legs(now)
@@ -271,20 +249,3 @@ class PhysicsSimulator:
         return CommandOutcome(
             True, '', self._target.copy(), outcome.true_pose, float(move.duration_s)
         )
-
-
-def poses_at_rest(simulator, poses, rest_s=0.5, timeout_s=30.0):
-    """Where the platform of ``simulator`` comes to rest for each commanded pose (M, 6): the
-    pose ``rest_s`` (s) after the encoders are in position (NaN rows: refused, or not in
-    position within ``timeout_s`` of simulated time)."""
-    reached = np.full((len(poses), 6), np.nan)
-    for index, pose in enumerate(np.atleast_2d(poses)):
-        if not simulator.command(pose).accepted:
-            continue
-        deadline = simulator.time_s + timeout_s
-        while not simulator.in_position and simulator.time_s < deadline:
-            simulator.advance(simulator.time_s + 0.01)
-        if simulator.in_position:
-            simulator.advance(simulator.time_s + rest_s)
-            reached[index] = simulator.true_pose
-    return reached

@@ -92,10 +92,6 @@ class PhysicalParameters:
         if self.payload_mass < 0.0:
             raise ValueError(f'payload_mass must be >= 0 kg, got {self.payload_mass}')
 
-    @property
-    def rigid_legs(self):
-        return math.isinf(self.leg_stiffness)
-
 
 def _vec(values):
     return ' '.join(f'{float(v):.12g}' for v in values)
@@ -131,7 +127,7 @@ def _leg(index, base_joint, platform_point, params):
     damping = params.joint_damping
     spring = (
         ''
-        if params.rigid_legs
+        if math.isinf(params.leg_stiffness)
         else (
             f'<joint name="{name}_spring" type="slide" axis="0 0 1" '
             f'stiffness="{params.leg_stiffness:.12g}" damping="{params.leg_damping:.12g}"/>'

@@ -3,7 +3,7 @@ read once at start-up (docs/physics.md)."""
 
 import dataclasses
 
-from gsp_msgs_py.parameter_specs import ParameterSpec, greater_than
+from gsp_msgs_py.parameter_specs import ParameterSpec, positive_spec
 
 from .physics import DEFAULT_IN_POSITION_TIME, DEFAULT_IN_POSITION_WINDOW
 from .physics_model import FIELD_DOCS, PhysicalParameters
@@ -30,22 +30,20 @@ PHYSICS_SPECS = (
         )
         for field in dataclasses.fields(PhysicalParameters)
     ),
-    ParameterSpec(
+    positive_spec(
         PREFIX + 'in_position_window',
         DEFAULT_IN_POSITION_WINDOW,
         'physics backend: the controller reports a move done (settled) once every encoder is '
         'this close to its target ...',
-        unit='m',
+        'm',
         read_only=True,
-        check=greater_than(0.0, 'm'),
     ),
-    ParameterSpec(
+    positive_spec(
         PREFIX + 'in_position_time',
         DEFAULT_IN_POSITION_TIME,
         'physics backend: ... for this long',
-        unit='s',
+        's',
         read_only=True,
-        check=greater_than(0.0, 's'),
     ),
 )
 

@@ -7,7 +7,7 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMessage
 
 from gsp_kinematics.channels import LEG_LENGTHS
-from gsp_kinematics.model.geometry import GeometryError, default_geometry_path, load_geometry
+from gsp_kinematics.model.geometry import GeometryError, load_geometry
 from gsp_kinematics.model.motion import MotionLimits
 from gsp_msgs_py import conversions, names, node_tools, parameter_specs
 from gsp_msgs_py.diagnostics import Component, DiagnosticsPublisher
@@ -18,7 +18,7 @@ from gsp_msgs_py.geometry_parameters import (
     controller_geometry_error,
     validate_geometry_change,
 )
-from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, greater_than, one_of
+from gsp_msgs_py.parameter_specs import ParameterSpec, at_least, one_of, positive_spec
 from gsp_msgs_py.pose_commands import PoseCommandServer
 
 from .effect_specs import EFFECT_SPECS, effects_from_values, effects_summary
@@ -43,11 +43,8 @@ PARAMETERS = (
         read_only=True,
         check=one_of(BACKENDS),
     ),
-    parameter_specs.geometry_file_spec(
-        'true_geometry_file',
-        default_geometry_path('true'),
-        'Geometry params file of the real (true) platform, read once at start-up; never published',
-        default_text='gsp_kinematics/data/true_geometry.yaml (shipped)',
+    parameter_specs.true_geometry_file_spec(
+        'Geometry params file of the real (true) platform, read once at start-up; never published'
     ),
     *CONTROLLER_GEOMETRY_SPECS,
     parameter_specs.publish_rate_spec('leg_lengths and true_pose'),
@@ -76,14 +73,13 @@ PARAMETERS = (
         'Base frame: of the published messages, and required of pose commands'
     ),
     parameter_specs.diagnostics_period_spec(),
-    ParameterSpec(
+    positive_spec(
         'real_time_factor',
         1.0,
         'physics backend: 1 runs the simulation in real time on the node clock; any other value '
         'makes the simulation the clock: it runs this many times faster than wall time and '
         'publishes /clock (the other nodes need use_sim_time true; docs/physics.md)',
         read_only=True,
-        check=greater_than(0.0),
     ),
     *EFFECT_SPECS,
     *PHYSICS_SPECS,
@@ -119,6 +115,7 @@ class PlatformSimNode(Node):
         except ValueError as error:
             raise parameter_specs.ConfigurationError(str(error)) from None
         self._frame_id = values['frame_id']
+        self._values = values  # kept current by _apply_parameters
         parameter_specs.watch_parameters(
             self, PARAMETERS, apply=self._apply_parameters, validate=validate_geometry_change
         )
@@ -127,7 +124,8 @@ class PlatformSimNode(Node):
         self._pubs = node_tools.create_publishers(
             self,
             (names.TOPIC_LEG_LENGTHS, names.TOPIC_TRUE_POSE)
-            + ((names.TOPIC_DEVICE_TRUTH,) if self._physics else ()),
+            + ((names.TOPIC_DEVICE_TRUTH,) if self._physics else ())
+            + ((names.TOPIC_MARKERS,) if values['publish_markers'] else ()),
         )
         self._travel_s = 0.0  # of the command just accepted
         self._commands = PoseCommandServer(
@@ -156,9 +154,6 @@ class PlatformSimNode(Node):
         else:
             self._state_timer = self.create_timer(self._tick_s, self._publish_state)
         if values['publish_markers']:
-            self._markers_pub = node_tools.create_publishers(self, (names.TOPIC_MARKERS,))[
-                names.TOPIC_MARKERS
-            ]
             self.create_timer(1.0 / MARKER_RATE_HZ, self._publish_markers)
 
         self.get_logger().info(
@@ -198,22 +193,21 @@ class PlatformSimNode(Node):
 
     def _apply_parameters(self, changes):
         """Apply accepted run-time changes (checked by parameter_specs.watch_parameters)."""
-        if 'leg_lengths_noise_std' in changes:
-            self._simulator.leg_lengths_noise_std = changes['leg_lengths_noise_std']
-        if 'max_condition' in changes:
-            self._simulator.max_condition = changes['max_condition']
+        values = self._values
+        values.update(changes)
+        for name in ('leg_lengths_noise_std', 'max_condition'):
+            if name in changes:
+                setattr(self._simulator, name, changes[name])
         if 'settle_time' in changes and not self._physics:
             self._commands.settle_time = changes['settle_time']
         if {'max_leg_speed', 'max_leg_acceleration'} & set(changes):
             # From the next command (a move under way keeps its profile).
             self._simulator.limits = MotionLimits.from_parameters(
-                self.get_parameter('max_leg_speed').value,
-                self.get_parameter('max_leg_acceleration').value,
+                values['max_leg_speed'], values['max_leg_acceleration']
             )
         changed = sorted(name for name in changes if name in GEOMETRY_PARAMETER_NAMES)
         if changed:
-            current = parameter_specs.parameter_values(self, CONTROLLER_GEOMETRY_SPECS)
-            self._simulator.set_controller_geometry(controller_geometry(current))
+            self._simulator.controller_geometry = controller_geometry(values)
             self.get_logger().info(
                 f'controller geometry updated ({", ".join(changed)}); applies from the next '
                 'pose command'
@@ -275,7 +269,7 @@ class PlatformSimNode(Node):
         )
 
     def _publish_markers(self):
-        self._markers_pub.publish(
+        self._pubs[names.TOPIC_MARKERS].publish(
             make_marker_array(
                 self._simulator.controller_geometry,
                 self._simulator.true_pose,

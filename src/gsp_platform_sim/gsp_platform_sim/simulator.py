@@ -32,13 +32,6 @@ class CommandOutcome:
     travel_s: float = 0.0
 
 
-def _check_noise_std(value, name):
-    value = float(value)
-    if not (np.isfinite(value) and value >= 0.0):
-        raise ValueError(f'{name} must be finite and >= 0, got {value}')
-    return value
-
-
 class PlatformSimulator:
     """A platform whose controller uses ``controller_geometry`` and whose hardware is
     ``true_geometry``; ``leg_lengths_noise_std`` in m, ``start_s`` when the legs start warming (s).
@@ -57,63 +50,25 @@ class PlatformSimulator:
         start_s=0.0,
     ):
         self.limits = limits
-        self._effects = PlatformEffects() if effects is None else effects
+        self.effects = PlatformEffects() if effects is None else effects
         self._start_s = float(start_s)
         self._directions = None  # each leg's approach direction (+1 extending)
         self._pose_time_s = self._start_s  # time of the thermal growth in the resting pose
         self._move = None  # the LegMove under way, with the real poses at its ends
         self._true_geometry = true_geometry
-        self._controller_geometry = controller_geometry
-        self.leg_lengths_noise_std = leg_lengths_noise_std
-        self.max_condition = max_condition
+        #: Used from the next command; the legs hold their current lengths.
+        self.controller_geometry = controller_geometry
+        self.leg_lengths_noise_std = float(leg_lengths_noise_std)  #: m
+        self.max_condition = float(max_condition)  #: largest dq/dX condition number commanded
         self._rng = rng if rng is not None else np.random.default_rng()
         self._leg_lengths = None
         self._true_pose = None
-        self._commanded_pose = None
         start = home_pose() if initial_pose is None else initial_pose
         outcome = self.command(start, self._start_s)
         if not outcome.accepted:
             raise ValueError(
                 f'cannot reach the initial pose {np.asarray(start).tolist()}: {outcome.reason}'
             )
-
-    @property
-    def true_geometry(self):
-        return self._true_geometry
-
-    @property
-    def effects(self):
-        """The real platform's :class:`PlatformEffects`."""
-        return self._effects
-
-    @property
-    def controller_geometry(self):
-        return self._controller_geometry
-
-    def set_controller_geometry(self, geometry):
-        """Use ``geometry`` for the next commands; the legs hold their current lengths."""
-        self._controller_geometry = geometry
-
-    @property
-    def leg_lengths_noise_std(self):
-        """Standard deviation of the leg length noise (m)."""
-        return self._leg_lengths_noise_std
-
-    @leg_lengths_noise_std.setter
-    def leg_lengths_noise_std(self, value):
-        self._leg_lengths_noise_std = _check_noise_std(value, 'leg_lengths_noise_std')
-
-    @property
-    def max_condition(self):
-        """Largest condition number of dq/dX a commanded pose may have."""
-        return self._max_condition
-
-    @max_condition.setter
-    def max_condition(self, value):
-        value = float(value)
-        if not (np.isfinite(value) and value >= 1.0):
-            raise ValueError(f'max_condition must be finite and >= 1, got {value}')
-        self._max_condition = value
 
     @property
     def moving(self):
@@ -139,7 +94,7 @@ class PlatformSimulator:
         """Real pose (6,) for the readings, or None when the platform has none near ``guess``."""
         pose, converged = real_poses(
             self._true_geometry,
-            self._effects,
+            self.effects,
             leg_lengths[None],
             guess[None],
             directions[None],
@@ -148,10 +103,10 @@ class PlatformSimulator:
         return pose[0] if converged[0] and np.all(np.isfinite(pose[0])) else None
 
     def _follow_thermal_growth(self, now_s):
-        if not self._effects.thermal:
+        if not self.effects.thermal:
             return
         times = np.array([self._pose_time_s, now_s]) - self._start_s
-        growth = np.abs(np.diff(thermal_strains(self._effects, times), axis=0))
+        growth = np.abs(np.diff(thermal_strains(self.effects, times), axis=0))
         if np.max(growth) > THERMAL_RESOLVE_M:
             pose = self._real_pose(self._leg_lengths, self._directions, now_s, self._true_pose)
             if pose is not None:
@@ -168,14 +123,9 @@ class PlatformSimulator:
         """Real pose (6,) ``[x, y, z, psi, theta, phi]`` of the platform (m, rad)."""
         return self._true_pose.copy()
 
-    @property
-    def commanded_pose(self):
-        """Last accepted commanded pose (6,)."""
-        return self._commanded_pose.copy()
-
     def measured_leg_lengths(self):
         """Leg sensor readings q (6,) plus Gaussian noise of std ``leg_lengths_noise_std`` (m)."""
-        return self._leg_lengths + self._rng.normal(0.0, self._leg_lengths_noise_std, size=6)
+        return self._leg_lengths + self._rng.normal(0.0, self.leg_lengths_noise_std, size=6)
 
     def _reject(self, reason):
         return CommandOutcome(
@@ -191,7 +141,7 @@ class PlatformSimulator:
         if not np.all(np.isfinite(pose)):
             return self._reject(f'pose is not finite: {pose.tolist()}')
         ok, reasons = check_reachable(
-            self._controller_geometry, pose[None], max_condition=self._max_condition
+            self.controller_geometry, pose[None], max_condition=self.max_condition
         )
         if not ok[0]:
             return self._reject(f'unreachable: {reasons[0]}')
@@ -199,7 +149,7 @@ class PlatformSimulator:
             self.update(now_s)  # a command may supersede a move: from where the legs are now
         # The controller's IK, compensating the effects it knows (geometry.effects).
         leg_lengths = commanded_leg_readings(
-            self._controller_geometry, pose[None], self._leg_lengths
+            self.controller_geometry, pose[None], self._leg_lengths
         )[0]
         directions = approach_directions(leg_lengths[None], self._leg_lengths, self._directions)[0]
         true_pose = self._real_pose(leg_lengths, directions, now_s, pose)
@@ -208,14 +158,11 @@ class PlatformSimulator:
                 'forward kinematics of the real platform found no pose near the command for '
                 f'q = {np.round(leg_lengths, 6).tolist()} m (singularity or assembly mode change)'
             )
-        self._commanded_pose = pose.copy()
         self._directions, self._pose_time_s = directions, now_s
         travel_s = 0.0
         if self._leg_lengths is None or self.limits is None or self.limits.instantaneous:
             self._leg_lengths, self._true_pose, self._move = leg_lengths, true_pose, None
         else:
-            # From where the legs are now: a command may supersede a move under way.
-            self.update(now_s)
             move = LegMove(self._leg_lengths, leg_lengths, self.limits, now_s)
             travel_s = move.duration_s
             self._move = (move, self._true_pose.copy(), true_pose)

@@ -15,10 +15,6 @@ class TrajectoryFollower:
         self._points = []  # [(time s, target (6,))] still to reach
         self._move = None  # LegMove toward the first point
 
-    @property
-    def moving(self):
-        return bool(self._points)
-
     def set_trajectory(self, points, now_s):
         """Replace the trajectory: ``points`` ``[(time_from_start, positions)]`` from ``now_s``."""
         targets, previous = [], -np.inf

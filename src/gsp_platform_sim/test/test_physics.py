@@ -118,16 +118,6 @@ def test_bad_physical_parameters_are_named():
         PhysicalParameters(payload_mass=-1.0)
 
 
-def test_poses_at_rest_are_the_rest_poses_and_nan_where_refused():
-    from gsp_platform_sim.physics import poses_at_rest
-
-    sim = PhysicsSimulator(TRUE, TRUE, RIGID_NO_LOAD)
-    unreachable = home_pose() + [0.0, 0.0, 2.0, 0.0, 0.0, 0.0]
-    reached = poses_at_rest(sim, np.stack([POSE, unreachable, home_pose()]))
-    assert np.all(np.isnan(reached[1]))
-    np.testing.assert_allclose(reached[[0, 2]], np.stack([POSE, home_pose()]), atol=1e-6)
-
-
 def test_a_command_the_real_platform_cannot_hold_is_refused_though_the_controller_accepts_it():
     from gsp_platform_sim.simulator import PlatformSimulator
 

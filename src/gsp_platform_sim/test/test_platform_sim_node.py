@@ -224,7 +224,7 @@ def test_a_new_command_supersedes_one_still_moving(harness):
     assert harness.spin_until(lambda: len(harness.states(first)) == 2)
     first_states = harness.states(first)
     assert [s.state for s in first_states] == ['moving', 'rejected']
-    assert 'superseded' in first_states[1].reason
+    assert first_states[1].reason == f'superseded by command {second} before settling'
 
 
 def test_bad_parameter_values_are_rejected_with_a_reason(harness):

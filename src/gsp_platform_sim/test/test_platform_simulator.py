@@ -29,7 +29,6 @@ def test_starts_at_home_through_the_controller():
         forward_kinematics(TRUE, TRUE.sensors.true_leg_lengths(q)[None], home_pose()[None])[0],
         atol=1e-10,
     )
-    np.testing.assert_array_equal(sim.commanded_pose, home_pose())
 
 
 def test_accepted_command_reaches_fk_of_true_at_ik_of_controller():
@@ -106,19 +105,12 @@ def test_noise_is_reproducible_with_a_seed():
     np.testing.assert_array_equal(a.measured_leg_lengths(), b.measured_leg_lengths())
 
 
-@pytest.mark.parametrize('value', [-1e-6, np.nan, np.inf])
-def test_bad_noise_std_is_refused(value):
-    sim = make_simulator()
-    with pytest.raises(ValueError, match='leg_lengths_noise_std'):
-        sim.leg_lengths_noise_std = value
-
-
 def test_new_controller_geometry_applies_from_the_next_command():
     sim = make_simulator()
     sim.command(POSE)
     held = sim.leg_lengths
     calibrated = NOMINAL.replace(leg_offsets=NOMINAL.leg_offsets + 0.002)
-    sim.set_controller_geometry(calibrated)
+    sim.controller_geometry = calibrated
     np.testing.assert_array_equal(sim.leg_lengths, held)
     assert sim.command(POSE).accepted
     np.testing.assert_allclose(

@@ -2,6 +2,7 @@
 
 import argparse
 import sys
+import time
 
 from .. import conversions, names, qos
 from ..diagnostics import DiagnosticsListener
@@ -17,6 +18,7 @@ from .rules import (
 )
 
 NODE_NAME = 'gsp_check_interfaces'
+NODE_LOOK_PERIOD_S = 0.1  #: between two looks at the graph's nodes (the queries are not free)
 
 
 class PoseCommandProbe:
@@ -65,33 +67,25 @@ class PoseCommandProbe:
         final = [s for s in self.answers(command_id) if s.state != names.STATE_MOVING]
         return final[0] if final else None
 
-
-class NodesSeen:
-    """When each node name was first seen in ``node``'s graph (monotonic s)."""
-
-    LOOK_PERIOD_S = 0.1  #: graph queries are not free: at most one per period
-
-    def __init__(self, node):
-        self.node = node
-        self.first_s = {}
-        self._next_look_s = 0.0
-
-    def look(self, now_s):
-        if now_s >= self._next_look_s:
-            self._next_look_s = now_s + self.LOOK_PERIOD_S
-            for name, _ in self.node.get_node_names_and_namespaces():
-                self.first_s.setdefault(name, now_s)
-
-    def seen_for(self, now_s):
-        """``{name: s since first seen}`` of the nodes in the graph now."""
-        self._next_look_s = 0.0
-        self.look(now_s)
-        present = {name for name, _ in self.node.get_node_names_and_namespaces()}
-        return {name: now_s - self.first_s[name] for name in present}
+    def problems(self, command_id):
+        """What is wrong with the answers to the test command ``command_id``."""
+        if not self.listened():
+            return [f'{names.TOPIC_POSE_COMMAND}: nobody subscribes to pose commands']
+        status = self.final_status(command_id)
+        if status is None:
+            return [
+                f'{names.TOPIC_PLATFORM_STATUS}: the test command {command_id} was '
+                + ('never settled or rejected' if self.answers(command_id) else 'not answered')
+            ]
+        if status.state == names.STATE_REJECTED:
+            return [
+                f'{names.TOPIC_PLATFORM_STATUS}: the test command was rejected: {status.reason}'
+            ]
+        return []
 
 
 class InterfaceChecker:
-    """Records the sensor topics on ``node`` and judges them (see :meth:`problems`)."""
+    """Records the sensor topics on ``node`` and judges their publishers' types and QoS."""
 
     def __init__(self, node, limits=Limits()):
         from sensor_msgs.msg import JointState
@@ -107,38 +101,17 @@ class InterfaceChecker:
                 lambda msg, t=topic: self._on_joint_state(t, msg),
                 qos.TOPIC_QOS[topic],
             )
-        self.probe = None  #: a PoseCommandProbe once the test command is prepared
-        self.command_id = None
-
-    def _now_s(self):
-        return self.node.get_clock().now().nanoseconds * 1e-9
 
     def _on_joint_state(self, topic, msg):
         if self.recording:
             self.received[topic].append(
                 Received(
-                    self._now_s(),
+                    self.node.get_clock().now().nanoseconds * 1e-9,
                     conversions.stamp_to_seconds(msg.header.stamp),
                     tuple(msg.name),
                     tuple(msg.position),
                 )
             )
-
-    def status_problems(self):
-        if not self.probe.listened():
-            return [f'{names.TOPIC_POSE_COMMAND}: nobody subscribes to pose commands']
-        status = self.probe.final_status(self.command_id)
-        if status is None:
-            answered = bool(self.probe.answers(self.command_id))
-            return [
-                f'{names.TOPIC_PLATFORM_STATUS}: the test command {self.command_id} was '
-                + ('never settled or rejected' if answered else 'not answered')
-            ]
-        if status.state == names.STATE_REJECTED:
-            return [
-                f'{names.TOPIC_PLATFORM_STATUS}: the test command was rejected: {status.reason}'
-            ]
-        return []
 
     def qos_problems(self):
         """Publishers of the sensor topics with another type or an incompatible QoS."""
@@ -158,9 +131,6 @@ class InterfaceChecker:
                 if compatibility == QoSCompatibility.ERROR:
                     problems.append(f'{topic}: QoS of {who} is incompatible: {reason}')
         return problems
-
-    def problems(self):
-        return self.qos_problems() + validate_topics(self.received, self.limits)
 
     def summary_lines(self):
         lines = []
@@ -205,38 +175,38 @@ def parse_arguments(argv=None):
 
 def run_check(node, executor, args):
     """Listen, optionally command; returns ``(problems, summary lines)``."""
-    import time
-
     checker = InterfaceChecker(node, Limits(min_rate_hz=args.min_rate))
     diagnostics = DiagnosticsListener(node)
-    if args.send_test_command:
-        checker.probe = PoseCommandProbe(node)
-    nodes = NodesSeen(node)
-    deadline = time.monotonic() + args.duration
+    probe = PoseCommandProbe(node) if args.send_test_command else None
+    first_seen_s = {}
 
-    def listened():
+    def seen_for_s():
+        """``{name: s since first seen}`` of the nodes in the graph now (monotonic clock)."""
         now_s = time.monotonic()
-        nodes.look(now_s)
-        return now_s >= deadline
+        present = [name for name, _ in node.get_node_names_and_namespaces()]
+        return {name: now_s - first_seen_s.setdefault(name, now_s) for name in present}
 
-    spin_until(executor, listened, args.duration + 1.0)
+    seen_for_s()
+    node.create_timer(NODE_LOOK_PERIOD_S, seen_for_s)
+    deadline = time.monotonic() + args.duration
+    spin_until(executor, lambda: time.monotonic() >= deadline, args.duration + 1.0)
     checker.recording = False
-    problems = checker.problems()
-    seen_for_s, grace_s = nodes.seen_for(time.monotonic()), 2.0 * args.diagnostics_period
-    problems += validate_diagnostics(diagnostics.reports, seen_for_s, grace_s)
+    problems = checker.qos_problems() + validate_topics(checker.received, checker.limits)
+    seen, grace_s = seen_for_s(), 2.0 * args.diagnostics_period
+    problems += validate_diagnostics(diagnostics.reports, seen, grace_s)
     problems += [f'{names.TOPIC_DIAGNOSTICS}: {why}' for why in diagnostics.malformed[:1]]
-    if args.send_test_command:
+    if probe is not None:
         from gsp_kinematics.model.kinematics import home_pose
 
-        probe = checker.probe
         spin_until(executor, probe.listened, args.command_timeout)
+        command_id = None
         if probe.listened():
-            checker.command_id = probe.send(home_pose())
-            settled = lambda: probe.final_status(checker.command_id) is not None  # noqa: E731
-            spin_until(executor, settled, args.command_timeout)
-        problems += checker.status_problems()
+            command_id = probe.send(home_pose())
+            answered = lambda: probe.final_status(command_id) is not None  # noqa: E731
+            spin_until(executor, answered, args.command_timeout)
+        problems += probe.problems(command_id)
     lines = checker.summary_lines() + [f'  {names.TOPIC_DIAGNOSTICS}:']
-    heard = diagnostics_summary(diagnostics.reports, seen_for_s, grace_s)
+    heard = diagnostics_summary(diagnostics.reports, seen, grace_s)
     return problems, lines + (heard or ['    (none heard)'])
 
 
