@@ -85,6 +85,11 @@ def _validate_geometry_file(value):
     return ''
 
 
+def is_number(value):
+    """True for an int or float, infinities included (bools and strings are not numbers)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def _positive(name, default, description, unit='', subsets=frozenset()):
     """A parameter that must be a finite number > 0."""
     return ParameterSpec(
@@ -202,12 +207,15 @@ PARAMETERS = (
         '(docs/sensor_errors.md)',
         subsets=frozenset((STORED,)),
     ),
-    _positive(
+    ParameterSpec(
         'rest_sigmas',
         DEFAULT_REST_SIGMAS,
         "Trend over the rest look-back, in stds of a settled span's trend, above which a "
         'channel is still moving (3: a settled white channel is called moving in 0.27 % of '
-        'spans); its scatter is judged at the same rate',
+        'spans); its scatter is judged at the same rate; .inf turns the rest rule off',
+        constraints='> 0 (.inf: off)',
+        # Not greater_than: infinity is the documented way to switch the rule off.
+        check=lambda v: '' if is_number(v) and v > 0.0 else 'must be > 0 (.inf: off)',
         subsets=frozenset((STORED,)),
     ),
     _positive(

@@ -70,12 +70,21 @@ def test_defaults():
         ('platform_node_name', 'not a node', 'not a valid node name'),
         ('nominal_geometry_file', '/nonexistent/geometry.yaml', 'cannot read geometry file'),
         ('nominal_geometry_file', '', 'must name a geometry file'),
+        ('rest_sigmas', 0.0, 'must be > 0'),
+        ('rest_sigmas', math.nan, 'must be > 0'),
     ],
 )
 def test_bad_values_are_rejected_with_the_reason(name, value, match):
     reason = validate_parameters({name: value}, DEFAULTS)
     assert match in reason
     assert reason.startswith(name) or 'pool_size' in reason
+
+
+def test_an_infinite_rest_sigmas_turns_the_rest_rule_off():
+    """docs/sensor_errors.md: ``rest_sigmas`` .inf turns both rest tests off (the physics
+    bench's run with the rule off); the node accepts it."""
+    assert validate_parameters({'rest_sigmas': math.inf}, DEFAULTS) == ''
+    assert CalibratorSettings.from_values({'rest_sigmas': math.inf}).rest_sigmas == math.inf
 
 
 def test_changes_are_checked_against_the_current_values():
