@@ -24,6 +24,7 @@ from gsp_calibrator.tools.demo_commands import (
     SENSOR_DYNAMICS,
     node_commands,
     ros_environment,
+    sim_time_parameters,
 )
 from gsp_calibrator.tools.demo_summary import (
     DemoSummary,
@@ -295,7 +296,7 @@ def _run_nodes(args, validation_poses, processes, log_directory, measured):
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
         from gsp_calibrator.tools import demo_node  # rclpy only after the environment is set
 
-        node = demo_node.DemoNode(context=context)
+        node = demo_node.DemoNode(sim_time=bool(sim_time_parameters(args)), context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         demo = demo_node.Demo(node, executor, processes)

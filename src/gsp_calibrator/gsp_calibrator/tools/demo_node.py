@@ -4,6 +4,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -15,9 +16,11 @@ from gsp_msgs_py.node_tools import spin_until
 class DemoNode(Node):
     """Client of the suite: progress printing, the calibrate call, validation postures."""
 
-    def __init__(self, **kwargs):
-        """``**kwargs`` go to ``Node`` (``context=``)."""
-        super().__init__('gsp_demo', **kwargs)
+    def __init__(self, sim_time=False, **kwargs):
+        """``sim_time``: on the simulation's /clock, as the other nodes are (the true poses'
+        stamps are compared with this node's clock); ``**kwargs`` go to ``Node`` (``context=``)."""
+        overrides = [Parameter('use_sim_time', value=sim_time)]
+        super().__init__('gsp_demo', parameter_overrides=overrides, **kwargs)
         self.statuses = {}  # command_id -> PlatformStatus
         self.settled_at = {}  # command_id -> receive time (ns) of its settled status
         self.true_poses = []  # [(stamp_ns, pose)], recent only
