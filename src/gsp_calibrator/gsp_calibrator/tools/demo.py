@@ -50,6 +50,9 @@ from gsp_msgs_py.ros_environment import (
     foreign_nodes_in_child,
 )
 
+#: ``--timeout`` of ``--backend physics`` (s): its servos move 60 postures in ~15 min.
+PHYSICS_CALIBRATION_TIMEOUT_S = 3600.0
+
 
 class Terminated(Exception):
     """SIGTERM arrived: stop the nodes and exit with 143."""
@@ -93,7 +96,6 @@ def parse_arguments(argv=None):
         help=f'leg-length and device rate, Hz ({DEFAULT_SENSOR_RATE_HZ:g})',
     )
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
-    add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
     add(
         '--max-leg-speed',
         type=float,
@@ -157,6 +159,12 @@ def _add_backend_option(add):
         help="--backend physics: platform_sim's real_time_factor (the simulation as the clock, "
         'this many times faster than wall time; the other nodes on its /clock) (1)',
     )
+    add(
+        '--timeout',
+        type=float,
+        help='longest calibration wait, s (120; --backend physics: '
+        f'{PHYSICS_CALIBRATION_TIMEOUT_S:g})',
+    )
 
 
 def _check_arguments(parser, args):
@@ -182,6 +190,8 @@ def _check_arguments(parser, args):
         # A servo does not jump: the realistic leg limits, known to the calibrator's plan.
         args.max_leg_speed = args.max_leg_speed or REALISTIC_MAX_SPEED
         args.max_leg_acceleration = args.max_leg_acceleration or REALISTIC_MAX_ACCELERATION
+    if args.timeout is None:
+        args.timeout = PHYSICS_CALIBRATION_TIMEOUT_S if args.backend == 'physics' else 120.0
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 
