@@ -29,6 +29,9 @@ from gsp_kinematics.model.geometry import default_geometry_path, geometry_from_y
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_msgs_py import ros_environment
 
+#: ``--timeout`` of ``--backend physics`` (s): its servos move 60 postures in ~15 min.
+PHYSICS_CALIBRATION_TIMEOUT_S = 3600.0
+
 
 class Terminated(Exception):
     """SIGTERM arrived: stop the nodes and exit with 143."""
@@ -70,7 +73,6 @@ def parse_arguments(argv=None):
         help=f'leg-length and device rate, Hz ({motion.DEFAULT_SENSOR_RATE_HZ:g})',
     )
     add('--settle-time', type=float, default=0.02, help="platform_sim's settle time, s (0.02)")
-    add('--timeout', type=float, default=120.0, help='longest calibration wait, s (120)')
     add(
         '--max-leg-speed',
         type=float,
@@ -143,6 +145,12 @@ def _add_backend_option(add):
         help="--backend physics: platform_sim's real_time_factor (the simulation as the clock, "
         'this many times faster than wall time; the other nodes on its /clock) (1)',
     )
+    add(
+        '--timeout',
+        type=float,
+        help='longest calibration wait, s (120; --backend physics: '
+        f'{PHYSICS_CALIBRATION_TIMEOUT_S:g})',
+    )
 
 
 def _check_arguments(parser, args):
@@ -175,6 +183,8 @@ def _check_arguments(parser, args):
                 f'--calibrator-param {assignment!r}: give NAME:=VALUE with NAME one of the '
                 "calibrator's parameters (docs/parameters.md#calibrator)"
             )
+    if args.timeout is None:
+        args.timeout = PHYSICS_CALIBRATION_TIMEOUT_S if args.backend == 'physics' else 120.0
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 
@@ -259,7 +269,8 @@ def _run_nodes(args, validation_poses, processes, log_directory, measured):
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
         from gsp_calibrator.tools import demo_node  # rclpy only after the environment is set
 
-        node = demo_node.DemoNode(processes, context=context)
+        sim_time = demo_commands.uses_sim_time(args)
+        node = demo_node.DemoNode(processes, sim_time=sim_time, context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         print(f'starting {", ".join(processes.commands)} ...', flush=True)

@@ -127,6 +127,12 @@ def _calibrator_parameters(args, output_root, sim_time):
     return parameters
 
 
+def uses_sim_time(args):
+    """Whether the nodes run on platform_sim's /clock: its physics is the clock (``--backend
+    physics`` at a ``--real-time-factor`` other than 1, docs/physics.md)."""
+    return args.backend == 'physics' and args.real_time_factor != 1.0
+
+
 def node_commands(args, output_root, which=shutil.which):
     """``{node name: argv}`` of the nodes for the parsed ``args``: platform_sim (or, with
     ``--platform ros2_control``, controller_sim and platform_bridge), device_driver (with
@@ -137,7 +143,7 @@ def node_commands(args, output_root, which=shutil.which):
     truth = {'true_geometry_file': args.true_geometry}
     # The nodes other than platform_sim on its /clock when its physics is the clock
     # (--real-time-factor other than 1, docs/physics.md).
-    sim_time = {'use_sim_time': True} if physics and args.real_time_factor != 1.0 else {}
+    sim_time = {'use_sim_time': True} if uses_sim_time(args) else {}
     # The simulated noise is not seeded: a node restarted with a fixed seed would replay its
     # noise (parameter_specs.resolve_seed). ``--seed`` seeds the postures, as the calibrator's own.
     platform = {

@@ -6,6 +6,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -19,9 +20,11 @@ class DemoNode(Node):
     its single-threaded executor while it waits, which stops as soon as one of the
     ``processes`` (:class:`~gsp_calibrator.tools.processes.NodeProcesses`) exits."""
 
-    def __init__(self, processes, **kwargs):
-        """``**kwargs`` go to ``Node`` (``context=``)."""
-        super().__init__('gsp_demo', **kwargs)
+    def __init__(self, processes, sim_time=False, **kwargs):
+        """``sim_time``: on the simulation's /clock, as the other nodes are (the true poses'
+        stamps are compared with this node's clock); ``**kwargs`` go to ``Node`` (``context=``)."""
+        overrides = [Parameter('use_sim_time', value=sim_time)]
+        super().__init__('gsp_demo', parameter_overrides=overrides, **kwargs)
         self.processes = processes
         self.statuses = {}  # command_id -> PlatformStatus
         self.settled_at = {}  # command_id -> receive time (ns) of its settled status
