@@ -216,7 +216,8 @@ def map_panels(workspace=Workspace(), layout=MapLayout()):
     return panels
 
 
-def _statistics(values):
+def mean_p95_max(values):
+    """``{mean, p95, max}`` of ``values``."""
     values = np.asarray(values, dtype=float)
     return {
         'mean': float(np.mean(values)),
@@ -290,8 +291,8 @@ def predict_accuracy(
         'assumes': assumption(unmodelled, thermal_strain),
         'units': {'position': 'mm', 'orientation': 'deg', 'pose': 'm, rad'},
         'random': {
-            'position_mm': _statistics(position),
-            'orientation_deg': _statistics(orientation),
+            'position_mm': mean_p95_max(position),
+            'orientation_deg': mean_p95_max(orientation),
             'postures': int(random_poses.shape[0]),
             'seed': int(seed),
         },

@@ -42,20 +42,6 @@ class _Model:
         return Geometry.from_full_vector(vector, self.limits)
 
 
-def leg_readings_jacobians(geometry, poses):
-    """What the leg sensors read at ``poses``, ``q_r = IK / (1 + kq)`` (M, 6), its derivatives
-    w.r.t. the pose (M, 6, 6) and w.r.t. the extended parameter vector (M, 6, 54)."""
-    readings, d_pose, d_u = readings_jacobians(geometry, poses)
-    return readings[:, :6], d_pose[:, :6], d_u[:, :6]
-
-
-def sensor_readings_jacobians(geometry, poses):
-    """Readings ``[alpha, beta, phi, d_m]`` with the sensor errors (M, 4), their derivatives
-    w.r.t. the pose (M, 4, 6) and w.r.t. the extended parameter vector (M, 4, 54)."""
-    readings, d_pose, d_u = readings_jacobians(geometry, poses)
-    return readings[:, 6:], d_pose[:, 6:], d_u[:, 6:]
-
-
 def _wrap_phi(difference, columns):
     """Wrap the ``phi`` column (if among ``columns``) of a reading difference, in place."""
     if _PHI in columns:
@@ -99,11 +85,10 @@ class _FkModel(_Model):
         if self.paper:
             predicted, d_pred_d_pose, d_pred_d_u = self._paper_prediction(geometry, good, use)
         else:
-            predicted, d_pred_d_pose, d_pred_d_u = sensor_readings_jacobians(geometry, good)
+            # The device rows (6 onwards) of the readings and their derivatives.
+            rows = [6 + c for c in self.columns]
             predicted, d_pred_d_pose, d_pred_d_u = (
-                predicted[:, self.columns],
-                d_pred_d_pose[:, self.columns],
-                d_pred_d_u[:, self.columns],
+                a[:, rows] for a in readings_jacobians(geometry, good)
             )
         difference = _wrap_phi(self.readings[use][:, self.columns] - predicted, self.columns)
         residuals[use] = difference * self.weights
