@@ -352,6 +352,15 @@ def identify(
     return result
 
 
+def converged_identification(*args, **kwargs):
+    """:func:`identify`'s result if it converged, else None (also on an IdentificationError)."""
+    try:
+        result = identify(*args, **kwargs)
+    except IdentificationError:
+        return None
+    return result if result.converged else None
+
+
 def _effect_terms(nominal, design, mask, formulation, count):
     """The :class:`EffectTerms` of the free effect parameters (None without any)."""
     if not mask.any():

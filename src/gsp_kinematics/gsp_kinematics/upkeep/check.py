@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from ..estimation.identifiability import posture_factors
-from ..estimation.identification import IdentificationError, identify, resolve_free
+from ..estimation.identification import converged_identification, resolve_free
 from ..estimation.verdict import cross_validation
 from ..model.geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
 from ..model.motion import (
@@ -130,16 +130,6 @@ def accuracy_now(controller, leg_lengths, readings, guesses, row_sigmas):
     return summary
 
 
-def _small_identification(controller, leg_lengths, readings, guesses, row_sigmas, free):
-    try:
-        result = identify(
-            controller, leg_lengths, readings, row_sigmas, free=list(free), pose_guesses=guesses
-        )
-    except IdentificationError:
-        return None
-    return result if result.converged else None
-
-
 def check_platform(
     controller,
     leg_lengths,
@@ -178,7 +168,9 @@ def check_platform(
             zip(ALL_PARAMETER_NAMES, controller.to_full_vector().tolist(), strict=True)
         ),
     }
-    fitted = _small_identification(controller, leg_lengths, readings, commanded, row_sigmas, free)
+    fitted = converged_identification(
+        controller, leg_lengths, readings, row_sigmas, free=list(free), pose_guesses=commanded
+    )
     moved, notes = [], []
     if fitted is None:
         reasons.append('the leg offsets could not be identified from the check (did not converge)')

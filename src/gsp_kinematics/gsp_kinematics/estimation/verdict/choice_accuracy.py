@@ -27,10 +27,6 @@ class FreeingGain:
     without_mm: float
     with_mm: float
 
-    @property
-    def helps(self):
-        return bool(self.with_mm <= self.without_mm)
-
 
 def workspace_postures(geometry, count=WORKSPACE_POSTURES, workspace=Workspace()):
     """The seeded random workspace postures (M, 6) the rule averages over."""
