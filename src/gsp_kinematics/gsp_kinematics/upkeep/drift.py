@@ -55,18 +55,6 @@ class Calibration:
                 f'covariance, got {np.shape(self.estimates)} and {np.shape(self.covariance)}'
             )
 
-    @classmethod
-    def from_result(cls, result, label=''):
-        """From an ``identification.IdentificationResult``."""
-        free = np.asarray(result.free, dtype=bool)
-        return cls(
-            tuple(result.free_names),
-            np.asarray(result.parameters, dtype=float)[free],
-            np.asarray(result.covariance, dtype=float),
-            result.geometry,
-            label,
-        )
-
     def subset(self, names):
         index = [self.names.index(name) for name in names]
         return self.estimates[index], self.covariance[np.ix_(index, index)]
