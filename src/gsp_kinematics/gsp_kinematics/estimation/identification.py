@@ -173,12 +173,10 @@ class IdentificationResult:
         with np.errstate(invalid='ignore', divide='ignore'):
             matrix = self.covariance / np.outer(deviations, deviations)
         names = self.free_names
-        pairs = []
-        for i in range(len(names)):
-            for j in range(i + 1, len(names)):
-                if abs(matrix[i, j]) > threshold:
-                    pairs.append((names[i], names[j], float(matrix[i, j])))
-        return pairs
+        rows, columns = np.nonzero(np.triu(np.abs(matrix) > threshold, k=1))
+        return [
+            (names[i], names[j], float(matrix[i, j])) for i, j in zip(rows, columns, strict=True)
+        ]
 
 
 def free_parameters_error(names, effects=True):

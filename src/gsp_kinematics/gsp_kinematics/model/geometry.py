@@ -245,11 +245,10 @@ def geometry_to_parameters(geometry, all_effects=False):
     """Flat ``{'geometry.base_joints': [...], ...}`` ROS parameters, only the identified effects;
     ``all_effects``: all (0: not identified), what a compensating controller is set to."""
     parameters = {
-        f'{GEOMETRY_NAMESPACE}.base_joints': geometry.base_joints.ravel().tolist(),
-        f'{GEOMETRY_NAMESPACE}.platform_joints': geometry.platform_joints.ravel().tolist(),
-        f'{GEOMETRY_NAMESPACE}.leg_offsets': geometry.leg_offsets.tolist(),
-        f'{GEOMETRY_NAMESPACE}.device_length': geometry.device_length,
-        f'{GEOMETRY_NAMESPACE}.inclinometer_axes_angle': geometry.inclinometer_axes_angle,
+        f'{GEOMETRY_NAMESPACE}.{key}': getattr(geometry, key).ravel().tolist()
+        if length
+        else getattr(geometry, key)
+        for key, length in _REQUIRED_KEYS.items()
     }
     for key in _LIMIT_KEYS:
         parameters[f'{_LIMITS}.{key}'] = float(getattr(geometry.limits, key))

@@ -144,10 +144,8 @@ def forward_kinematics_masked(
 
 
 def forward_kinematics(geometry, leg_lengths, guess, **options):
-    """Poses (M, 6) for articular variables (M, 6), by Newton's method from ``guess``.
-
-    Raises :class:`ForwardKinematicsError` naming the posture indices that failed.
-    """
+    """Poses (M, 6) for articular variables (M, 6), by Newton's method from ``guess``;
+    :class:`ForwardKinematicsError` names the posture indices that failed."""
     poses, converged = forward_kinematics_masked(geometry, leg_lengths, guess, **options)
     if not np.all(converged):
         failed = np.flatnonzero(~converged)

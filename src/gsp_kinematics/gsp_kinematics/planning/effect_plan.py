@@ -268,17 +268,15 @@ def group_identifiability(geometry, poses, design, group, sigmas=DEFAULT_SENSOR_
     rms = np.sqrt(np.mean(np.sum(columns**2, axis=1), axis=0))  # each column is one leg's row
     entry['crb_std'] = deviations[geometric:].tolist()
     entry['crb_leg_um'] = (1e6 * deviations[geometric:] * rms).tolist()
-    worst = []
-    for row in range(geometric, len(names)):
-        partner = int(np.argmax(np.abs(correlations[row, :geometric])))
-        worst.append(
-            {
-                'parameter': names[row],
-                'with': names[partner],
-                'correlation': float(correlations[row, partner]),
-            }
-        )
-    entry['worst_correlations'] = worst
+    partners = np.argmax(np.abs(correlations[geometric:, :geometric]), axis=1)
+    entry['worst_correlations'] = [
+        {
+            'parameter': names[row],
+            'with': names[partner],
+            'correlation': float(correlations[row, partner]),
+        }
+        for row, partner in enumerate(partners.tolist(), start=geometric)
+    ]
     return entry
 
 
