@@ -14,7 +14,6 @@ from ..model.effect_groups import (
     EffectDesign,
     EffectTerms,
     effect_estimates,
-    effect_terms_of,
     geometry_with_effects,
     is_effect_name,
     resolve_effects,
@@ -421,7 +420,7 @@ def _result(model, point, formulation, status, iterations, options):
         fit = goodness.goodness_of_fit(residuals, unknowns, excluded)
     if status < 0:
         cost = float('nan')
-        size = int(free.sum()) + (effect_terms_of(model).count if effect_terms_of(model) else 0)
+        size = int(free.sum()) + model.effect_count
         information = covariance = np.eye(size) * np.nan
     else:
         vector[free] = point.values[: int(free.sum())]

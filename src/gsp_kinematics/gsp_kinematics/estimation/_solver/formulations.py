@@ -29,6 +29,10 @@ class _Model:
     """What both formulations share: the free parameters inside the nominal extended vector
     (the 44 and the sensor errors, :data:`gsp_kinematics.model.geometry.ALL_PARAMETER_NAMES`)."""
 
+    #: :class:`gsp_kinematics.model.effect_groups.EffectTerms` of the free effect parameters
+    #: (None: none); their values follow the free parameters' in a point's values.
+    effects, effect_count = None, 0
+
     def __init__(self, nominal, free):
         self.nominal = nominal
         self.nominal_vector = nominal.to_full_vector()
@@ -245,8 +249,6 @@ class _ImplicitModel(_Model):
         self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors, effects=None
     ):
         super().__init__(nominal, free)
-        #: :class:`gsp_kinematics.model.effect_groups.EffectTerms` of the free effect parameters
-        #: (None: none); their values follow the free parameters' in a point's values.
         self.effects = effects
         self.effect_count = 0 if effects is None else effects.count
         self.pose_guesses = pose_guesses
