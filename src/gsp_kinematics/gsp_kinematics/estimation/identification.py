@@ -293,13 +293,9 @@ def identify(
     options=Options(),
     effects=None,
 ):
-    """Identify the free parameters from M postures.
-
-    ``leg_lengths`` (M, 6): measured q (m). ``readings`` (M, 4): measured ``[alpha, beta, phi,
-    d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (default: from the readings).
-    ``sensors``: the measurements used. ``free``: see :func:`resolve_free` (default the paper's
-    44); effect groups among it need ``effects``, the run's :class:`EffectDesign`.
-    ``options.loss`` other than ``'linear'``: IRLS at ``options.loss_scale`` sigmas."""
+    """Identify the ``free`` parameters (:func:`resolve_free`; effect groups need ``effects``, the
+    run's :class:`EffectDesign`) from M postures' measured legs (M, 6) m and ``readings`` (M, 4)
+    (docs/core_api.md); ``options.loss`` other than ``'linear'``: IRLS."""
     if formulation not in FORMULATIONS:
         raise IdentificationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     unknown = set(sensors) - set(SENSOR_NAMES)

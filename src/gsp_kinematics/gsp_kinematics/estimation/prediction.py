@@ -247,13 +247,9 @@ def predict_accuracy(
     thermal_strain=None,
     effect_free=None,
 ):
-    """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
-
-    ``covariance``, ``free``, ``effect_free``, ``unmodelled`` and ``thermal_strain`` as in
-    :func:`predicted_errors`. ``random``: ``{position_mm: {mean, p95, max}, orientation_deg:
-    {...}, postures}`` over ``postures`` seeded random reachable postures; ``worst_cell``: the
-    grid cell of the largest predicted position error; ``maps``: per panel the x, y axes (m) and
-    the predicted errors (NaN: unreachable), for plotting."""
+    """Predicted accuracy (mm, deg; arguments as in :func:`predicted_errors`) over ``postures``
+    seeded random reachable postures (``random``), the worst grid cell and the ``maps`` per panel
+    (NaN: unreachable): a JSON-ready dict (docs/data.md)."""
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )

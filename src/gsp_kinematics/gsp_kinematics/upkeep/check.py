@@ -4,6 +4,7 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy import stats
 
 from ..estimation.identifiability import posture_factors
 from ..estimation.identification import converged_identification, resolve_free
@@ -236,8 +237,6 @@ def common_effect(controller, names, common, level=drift.DEFAULT_LEVEL):
     does to the pose over the workspace (``drift.effect_poses`` of ``controller``): the mean
     position (mm) and orientation (deg) change of the estimate and of its upper bound
     ``|delta| + z sigma`` (two-sided ``level``)."""
-    from scipy import stats
-
     unit = drift.pose_effect(
         controller, names, 1e-6 * np.ones(len(names)), None, drift.effect_poses(controller)
     )  # per um; the effect is linear in the change
@@ -289,8 +288,6 @@ def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
     (what thermal growth does): the common part ``delta`` (weighted least squares) with its
     sigma, and the chi-square of what is left against its ``1 - level`` quantile (5 degrees of
     freedom). ``alike``: the common part is significant and the rest is not."""
-    from scipy import stats
-
     inverse = np.linalg.pinv(np.asarray(covariance, dtype=float))
     ones = np.ones(len(change))
     weight = float(ones @ inverse @ ones)
