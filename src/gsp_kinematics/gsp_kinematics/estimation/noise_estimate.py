@@ -63,9 +63,8 @@ def _initial_positive_lags(autocovariance):
     max_lag = autocovariance.shape[0] - 1
     pairs = max_lag // 2
     if pairs == 0:
-        return np.zeros(autocovariance.shape[1], dtype=int), np.ones(
-            autocovariance.shape[1], dtype=bool
-        )
+        channels = autocovariance.shape[1]
+        return np.zeros(channels, dtype=int), np.ones(channels, dtype=bool)
     pair_sums = autocovariance[1 : 2 * pairs : 2] + autocovariance[2 : 2 * pairs + 1 : 2]
     positive = pair_sums > 0.0
     # Number of leading positive pairs per channel.
