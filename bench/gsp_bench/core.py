@@ -44,13 +44,13 @@ from gsp_kinematics.model.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE
 from gsp_kinematics.planning.selection import select_postures
 from gsp_kinematics.rotation import wrap_angle
 
 from .cli import experiment_parser, reexec_with_single_threaded_blas
 from .nominal_sets import drawing_geometry, nominal_set
-from .paper import add_noise
+from .paper import add_noise, noise_from_levels
 
 
 def build_problem(
@@ -73,7 +73,7 @@ def build_problem(
             length_noise_mm,
             np.random.default_rng([seed, 99]),
         )
-    sigmas = SensorNoise.from_levels(angle_noise_deg or 0.001, length_noise_mm or 0.001)
+    sigmas = noise_from_levels(angle_noise_deg or 0.001, length_noise_mm or 0.001)
     return {
         'exact': exact,
         'nominal': nominal,

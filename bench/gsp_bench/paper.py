@@ -74,6 +74,12 @@ def measurements(exact, poses):
     return inverse_kinematics(exact, poses), device_readings(exact, poses)
 
 
+def noise_from_levels(angle_noise_deg, length_noise_mm):
+    """Table 3's convention: one angular level (deg) and one length level (mm) on every sensor."""
+    lengths, angles = length_noise_mm / 1000.0, math.radians(angle_noise_deg)
+    return SensorNoise(leg_lengths=lengths, inclinometer=angles, encoder=angles, lvdt=lengths)
+
+
 def add_noise(leg_lengths, readings, angle_noise_deg, length_noise_mm, rng):
     """Gaussian noise: length level on legs and LVDT (mm), angle level on inclinometer and encoder (deg)."""
     length_sigma = length_noise_mm / 1000.0
@@ -160,7 +166,7 @@ def _noise_task(args):
     leg_lengths, readings = add_noise(
         leg_lengths, readings, level['angle_noise_deg'], level['length_noise_mm'], rng
     )
-    sigmas = SensorNoise.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+    sigmas = noise_from_levels(level['angle_noise_deg'], level['length_noise_mm'])
     rows = []
     for formulation in config.formulations:
         result = identify(
@@ -218,7 +224,7 @@ def _select(exact, config, paper_levels, log):
     Postures are selected with the sigmas they are identified with: the noise-free studies with
     the default (Table 3's first level), each noise level with its own."""
     level_sigmas = [
-        SensorNoise.from_levels(level['angle_noise_deg'], level['length_noise_mm'])
+        noise_from_levels(level['angle_noise_deg'], level['length_noise_mm'])
         if config.select_per_level
         else DEFAULT_SENSOR_NOISE
         for level in paper_levels

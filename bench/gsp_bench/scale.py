@@ -27,12 +27,11 @@ from gsp_kinematics.model.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.model.sensor_noise import SensorNoise
 from gsp_kinematics.model.validation import commanded_articular, sensor_measurements, validate
 from gsp_kinematics.planning.selection import select_postures
 
 from .nominal_sets import drawing_geometry, nominal_set
-from .paper import add_noise
+from .paper import add_noise, noise_from_levels
 
 SCALING_POSTURES = (60, 600, 6000)
 SCALING_BUDGET_S = 60.0  #: a size predicted to take longer than this is skipped
@@ -65,7 +64,7 @@ def identification_scaling(sizes=SCALING_POSTURES, repeats=3, budget_s=SCALING_B
     A size is skipped when its time predicted from the last size run, at least linear in the
     postures whatever the fit says (timing noise can make the fit flat), exceeds ``budget_s``
     (wall time)."""
-    sigmas = SensorNoise.from_levels(0.001, 0.001)
+    sigmas = noise_from_levels(0.001, 0.001)
     done, milliseconds, cpu_milliseconds, iterations, skipped = [], [], [], [], []
     warm = False
     for size in sizes:
@@ -129,7 +128,7 @@ def bench_prediction(seeds=20, postures=60, pairs_per_posture=10, validation_pos
     geometry, the calibrator's default ``extended`` parameters identified."""
     true, nominal = default_geometry('true'), default_geometry('nominal')
     factor = 1.0 / math.sqrt(pairs_per_posture)
-    sigmas = SensorNoise.from_levels(0.001 * factor, 0.001 * factor)
+    sigmas = noise_from_levels(0.001 * factor, 0.001 * factor)
     pool = sample_valid_postures(nominal, 600, np.random.default_rng(0))
     indices, _ = select_postures(nominal, pool, postures, sigmas, free=FREE)
     poses = pool[indices]

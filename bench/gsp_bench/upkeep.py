@@ -22,6 +22,18 @@ FREE = 'extended'
 CHANGE_M = 20e-6
 
 
+def calibration_of(result, label=''):
+    """The ``drift.Calibration`` of an ``identification.IdentificationResult``."""
+    free = np.asarray(result.free, dtype=bool)
+    return drift.Calibration(
+        tuple(result.free_names),
+        np.asarray(result.parameters, dtype=float)[free],
+        np.asarray(result.covariance, dtype=float),
+        result.geometry,
+        label,
+    )
+
+
 def changed_truth(true, name, delta):
     """``true`` with parameter ``name`` moved by ``delta`` (SI)."""
     vector = true.to_full_vector()
@@ -54,7 +66,7 @@ class UpkeepDesign:
 
     def calibrate(self, true, seed):
         """:meth:`identify` as a ``drift.Calibration``."""
-        return drift.Calibration.from_result(self.identify(true, seed), label=f'seed {seed}')
+        return calibration_of(self.identify(true, seed), label=f'seed {seed}')
 
 
 #: Seeds of the figures (a rate of 1 % is resolved to one seed in a hundred; quick: a smoke run).
@@ -76,7 +88,7 @@ def _check_seed(design, seed, required):
 
     rows = SIGMAS.averaged([SAMPLES])
     result = design.identify(design.true, seed)
-    calibration = drift.Calibration.from_result(result)
+    calibration = calibration_of(result)
     controller = result.geometry
     plan = check.choose_check_postures(controller, design.pool, home_pose(), rows)
     leg = _leg_of(seed)

@@ -11,14 +11,13 @@ of a platform started cold, whose legs are shorter than during most of the calib
 import numpy as np
 
 import gsp_bench.verdict
-from gsp_bench.upkeep import CHANGE_M, changed_truth
+from gsp_bench.upkeep import CHANGE_M, calibration_of, changed_truth
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.upkeep import check_run
 from gsp_kinematics.model.effects import REALISTIC
 from gsp_kinematics.model.kinematics import home_pose
 from gsp_kinematics.model.sensor_noise import NOISE_FIELDS, SensorNoise
 from gsp_kinematics.model.validation import simulate_commands
-from gsp_kinematics.upkeep import drift
 
 SEEDS = 20
 QUICK_SEEDS = 2
@@ -35,7 +34,7 @@ def _reference(design, seed):
         return None
     estimates = outcome.noise_estimates
     noise = SensorNoise(**{name: estimates[name]['estimated'] for name in NOISE_FIELDS})
-    calibrated = drift.Calibration.from_result(outcome.result)
+    calibrated = calibration_of(outcome.result)
     return check_run.CheckReference(
         outcome.geometry, f'seed {seed}', calibrated, noise, outcome.unmodelled
     )

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from gsp_bench.sensor_errors import SAMPLES, SIGMAS, collect
-from gsp_bench.upkeep import UpkeepDesign, changed_truth
+from gsp_bench.upkeep import UpkeepDesign, calibration_of, changed_truth
 from gsp_kinematics.estimation.verdict import acceptance
 from gsp_kinematics.model.kinematics import home_pose
 from gsp_kinematics.model.motion import MotionLimits, move_time, posture_leg_lengths
@@ -21,7 +21,7 @@ NO_NOISE = SensorNoise(leg_lengths=0.0, inclinometer=0.0, encoder=0.0, lvdt=0.0)
 def calibrated():
     design = UpkeepDesign.default()
     result = design.identify(design.true, seed=31)
-    calibration = drift.Calibration.from_result(result)
+    calibration = calibration_of(result)
     plan = check.choose_check_postures(result.geometry, design.pool, home_pose(), ROWS)
     return design, result.geometry, calibration, plan
 

@@ -51,12 +51,6 @@ def sensor_columns(sensor):
     return columns
 
 
-def sensor_slice(sensor):
-    """``slice`` of ``sensor``'s (contiguous) columns among the ten."""
-    columns = sensor_columns(sensor)
-    return slice(columns[0], columns[-1] + 1)
-
-
 def sensor_channel_names(sensor):
     """Names of ``sensor``'s channels, in column order (a tuple of str)."""
     return tuple(CHANNEL_NAMES[column] for column in sensor_columns(sensor))
@@ -67,8 +61,10 @@ DEVICE_READING_COLUMNS = {
     sensor: tuple(column - FIRST_READING_COLUMN for column in sensor_columns(sensor))
     for sensor in DEVICE_SENSORS
 }
-#: Each sensor -> the slice of its columns among the ten.
-SENSOR_SLICES = {sensor: sensor_slice(sensor) for sensor in SENSORS}
+#: Each sensor -> the slice of its (contiguous) columns among the ten.
+SENSOR_SLICES = {
+    sensor: slice(sensor_columns(sensor)[0], sensor_columns(sensor)[-1] + 1) for sensor in SENSORS
+}
 #: Column among the four readings of phi (the encoder).
 PHI_READING_COLUMN = CHANNEL_NAMES.index('phi') - FIRST_READING_COLUMN
 #: The legs' joint names: in the leg lengths' JointState and as ``samples.csv`` columns.

@@ -24,7 +24,7 @@ from gsp_kinematics.model.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
 FORMULATIONS = ('implicit', 'fk', 'paper')
 
@@ -212,7 +212,7 @@ def test_a_posture_that_never_solves_is_excluded_and_reported(exact, data):
 
 
 def test_identification_with_noise_is_close_and_reports_statistics(exact, data, rng):
-    sigmas = SensorNoise.from_levels(0.001, 0.001)
+    sigmas = DEFAULT_SENSOR_NOISE
     leg_lengths = data['leg_lengths'] + rng.normal(0.0, sigmas.leg_lengths, (60, 6))
     readings = data['readings'] + rng.normal(0.0, 1.0, (60, 4)) * sigmas.readings()
     result = identify(data['nominal'], leg_lengths, readings, sigmas, pose_guesses=data['poses'])

@@ -26,7 +26,7 @@ from gsp_kinematics.model.geometry import (
     geometry_from_yaml,
     geometry_to_yaml,
 )
-from gsp_kinematics.model.sensor_noise import SensorNoise
+from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 from gsp_kinematics.model.validation import sensor_measurements
 
 SENSORS = SensorErrors(
@@ -185,7 +185,7 @@ def noisy(measured, sigmas, rng):
 
 def test_extended_fit_recovers_sensor_errors_and_paper_fit_is_rejected(with_sensors, measured):
     # The datum (beta0, phi0, kDm) is known: the nominal carries it; the 44 and the rest start off.
-    sigmas = SensorNoise.from_levels(0.001, 0.001)
+    sigmas = DEFAULT_SENSOR_NOISE
     legs, readings = noisy(measured, sigmas, np.random.default_rng(5))
     datum = SensorErrors(
         inclinometer_offsets=[0.0, SENSORS.inclinometer_offsets[1]],
@@ -218,7 +218,7 @@ def test_extended_fit_recovers_sensor_errors_and_paper_fit_is_rejected(with_sens
 
 
 def test_huber_names_and_down_weights_a_corrupted_posture(exact, moderate_postures):
-    sigmas = SensorNoise.from_levels(0.001, 0.001)
+    sigmas = DEFAULT_SENSOR_NOISE
     legs, readings = sensor_measurements(exact, moderate_postures)
     rng = np.random.default_rng(3)
     legs = legs + rng.normal(0.0, sigmas.leg_lengths, legs.shape)

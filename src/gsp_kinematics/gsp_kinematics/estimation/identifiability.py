@@ -8,7 +8,7 @@ import numpy as np
 from ..channels import READING_NAMES
 from ..model.geometry import ALL_PARAMETER_NAMES
 from ..model.sensor_noise import DEFAULT_SENSOR_NOISE
-from ._solver.formulations import leg_readings_jacobians, sensor_readings_jacobians
+from ._solver.readings import readings_jacobians
 from .identification import DEFAULT_FORMULATION, SENSOR_NAMES, resolve_free
 
 #: A scaled singular value below this fraction of the largest counts as zero.
@@ -106,10 +106,8 @@ def analyse_design(
     relative_tolerance=DEFAULT_RELATIVE_TOLERANCE,
 ):
     """Identifiability of a measurement design (postures, sensors) before any data is taken."""
-    information = posture_information(geometry, poses, sigmas, free, formulation, sensors).sum(
-        axis=0
-    )
-    return analyse_identifiability(information, free, relative_tolerance)
+    information = posture_information(geometry, poses, sigmas, free, formulation, sensors)
+    return analyse_identifiability(information.sum(axis=0), free, relative_tolerance)
 
 
 def posture_factors(
@@ -131,8 +129,8 @@ def posture_factors(
     free = resolve_free(free)
     columns = [c for c, name in enumerate(READING_NAMES) if name in sensors]
     # Derivatives of the sensor readings (the sensor errors included) over the extended vector.
-    _, d_q_d_pose, d_q_d_u = leg_readings_jacobians(geometry, poses)
-    _, d_h_d_pose, d_h_d_u = sensor_readings_jacobians(geometry, poses)
+    _, d_pose, d_u = readings_jacobians(geometry, poses)
+    d_q_d_pose, d_q_d_u, d_h_d_pose, d_h_d_u = d_pose[:, :6], d_u[:, :6], d_pose[:, 6:], d_u[:, 6:]
     reading_weights = 1.0 / sigmas.readings()[columns]
     d_h_d_pose = d_h_d_pose[:, columns] * reading_weights[None, :, None]
     d_h_d_u = d_h_d_u[:, columns][:, :, free] * reading_weights[None, :, None]

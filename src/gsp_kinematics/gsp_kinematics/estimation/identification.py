@@ -14,7 +14,6 @@ from ..model.effect_groups import (
     EffectDesign,
     EffectTerms,
     effect_estimates,
-    effect_terms_of,
     geometry_with_effects,
     is_effect_name,
     resolve_effects,
@@ -173,12 +172,10 @@ class IdentificationResult:
         with np.errstate(invalid='ignore', divide='ignore'):
             matrix = self.covariance / np.outer(deviations, deviations)
         names = self.free_names
-        pairs = []
-        for i in range(len(names)):
-            for j in range(i + 1, len(names)):
-                if abs(matrix[i, j]) > threshold:
-                    pairs.append((names[i], names[j], float(matrix[i, j])))
-        return pairs
+        rows, columns = np.nonzero(np.triu(np.abs(matrix) > threshold, k=1))
+        return [
+            (names[i], names[j], float(matrix[i, j])) for i, j in zip(rows, columns, strict=True)
+        ]
 
 
 def free_parameters_error(names, effects=True):
@@ -296,13 +293,9 @@ def identify(
     options=Options(),
     effects=None,
 ):
-    """Identify the free parameters from M postures.
-
-    ``leg_lengths`` (M, 6): measured q (m). ``readings`` (M, 4): measured ``[alpha, beta, phi,
-    d_m]`` (rad, m). ``pose_guesses`` (M, 6): where FK starts (default: from the readings).
-    ``sensors``: the measurements used. ``free``: see :func:`resolve_free` (default the paper's
-    44); effect groups among it need ``effects``, the run's :class:`EffectDesign`.
-    ``options.loss`` other than ``'linear'``: IRLS at ``options.loss_scale`` sigmas."""
+    """Identify the ``free`` parameters (:func:`resolve_free`; effect groups need ``effects``, the
+    run's :class:`EffectDesign`) from M postures' measured legs (M, 6) m and ``readings`` (M, 4)
+    (docs/core_api.md); ``options.loss`` other than ``'linear'``: IRLS."""
     if formulation not in FORMULATIONS:
         raise IdentificationError(f'formulation must be one of {FORMULATIONS}, got {formulation!r}')
     unknown = set(sensors) - set(SENSOR_NAMES)
@@ -350,6 +343,15 @@ def identify(
     result = _result(model, point, formulation, status, iterations, options)
     result.duration_s = time.perf_counter() - started
     return result
+
+
+def converged_identification(*args, **kwargs):
+    """:func:`identify`'s result if it converged, else None (also on an IdentificationError)."""
+    try:
+        result = identify(*args, **kwargs)
+    except IdentificationError:
+        return None
+    return result if result.converged else None
 
 
 def _effect_terms(nominal, design, mask, formulation, count):
@@ -414,7 +416,7 @@ def _result(model, point, formulation, status, iterations, options):
         fit = goodness.goodness_of_fit(residuals, unknowns, excluded)
     if status < 0:
         cost = float('nan')
-        size = int(free.sum()) + (effect_terms_of(model).count if effect_terms_of(model) else 0)
+        size = int(free.sum()) + model.effect_count
         information = covariance = np.eye(size) * np.nan
     else:
         vector[free] = point.values[: int(free.sum())]

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from scipy import special
 
-#: Default of :func:`settled`: a channel is still moving when its trend exceeds this many
+#: Default of :func:`rest_test`: a channel is still moving when its trend exceeds this many
 #: standard deviations of the trend of a settled window.
 DEFAULT_REST_SIGMAS = 3.0
 
@@ -63,9 +63,8 @@ def _initial_positive_lags(autocovariance):
     max_lag = autocovariance.shape[0] - 1
     pairs = max_lag // 2
     if pairs == 0:
-        return np.zeros(autocovariance.shape[1], dtype=int), np.ones(
-            autocovariance.shape[1], dtype=bool
-        )
+        channels = autocovariance.shape[1]
+        return np.zeros(channels, dtype=int), np.ones(channels, dtype=bool)
     pair_sums = autocovariance[1 : 2 * pairs : 2] + autocovariance[2 : 2 * pairs + 1 : 2]
     positive = pair_sums > 0.0
     # Number of leading positive pairs per channel.
@@ -88,20 +87,14 @@ def window_lag_sums(samples, max_lag=None):
     )
 
 
-def lag_sums(samples, max_lag=None):
-    """:func:`window_lag_sums` summed over the windows: (max_lag + 1, C)."""
-    return window_lag_sums(samples, max_lag).sum(axis=0)
-
-
 def noise_of_mean(samples, max_lag=None, white_level=None, fitted=1):
     """Per channel, the std of one sample and of the mean of a posture's window.
 
     ``samples`` (P, n, C): P windows of n equally spaced samples of C channels. ``max_lag``:
     default ``n // 2``. ``white_level``, ``fitted``: see :func:`noise_of_mean_from_sums`."""
     samples = _check_windows(samples)
-    return noise_of_mean_from_sums(
-        lag_sums(samples, max_lag), samples.shape[1], samples.shape[0], white_level, fitted
-    )
+    sums = window_lag_sums(samples, max_lag).sum(axis=0)
+    return noise_of_mean_from_sums(sums, samples.shape[1], samples.shape[0], white_level, fitted)
 
 
 def white_statistic(autocovariance, n, windows):
@@ -114,7 +107,7 @@ def white_statistic(autocovariance, n, windows):
 
 
 def noise_of_mean_from_sums(sums, n, windows, white_level=None, fitted=1):
-    """:class:`NoiseOfMean` from the pooled :func:`lag_sums` ``sums`` (K + 1, C) of ``windows``
+    """:class:`NoiseOfMean` from the pooled :func:`window_lag_sums` ``sums`` (K + 1, C) of ``windows``
     windows of ``n`` samples each, the centring bias corrected in closed form
     (docs/sensor_errors.md). ``fitted``: terms fitted to each window before (1: its mean; 3: a
     line and a parabola). ``white_level``: None, or the one-sided significance of a whiteness test
@@ -188,38 +181,6 @@ def trend_std_factor(n_samples):
     return math.sqrt(12.0 * (n - 1) / (n + 1))
 
 
-def window_trend(window, times=None):
-    """Per channel, the least-squares slope of ``window`` (n, C) against ``times`` (n,) s
-    (default: 0..n-1) times the window's length (last - first time): the change the trend
-    makes across the window, in the channel's unit (C,)."""
-    window = np.asarray(window, dtype=float)
-    if window.ndim != 2 or window.shape[0] < 2:
-        raise NoiseEstimateError(f'window must be (samples >= 2, channels), got {window.shape}')
-    times = np.arange(window.shape[0], dtype=float) if times is None else np.asarray(times, float)
-    if times.shape != (window.shape[0],) or not np.all(np.diff(times) > 0):
-        raise NoiseEstimateError('times must be (samples,) and strictly increasing')
-    centred_t = times - times.mean()
-    slope = centred_t @ (window - window.mean(axis=0)) / (centred_t @ centred_t)
-    return slope * (times[-1] - times[0])
-
-
-def settled(window, std_of_mean, times=None, sigmas=DEFAULT_REST_SIGMAS):
-    """Per channel (C,) bools: is the window's trend within ``sigmas`` stds of the trend a
-    settled window's noise gives (``std_of_mean`` (C,) x :func:`trend_std_factor`)? Also returns
-    the trend in those stds (C,)."""
-    window = np.asarray(window, dtype=float)
-    trend = window_trend(window, times)
-    scale = np.asarray(std_of_mean, dtype=float) * trend_std_factor(window.shape[0])
-    if scale.shape != trend.shape or np.any(~np.isfinite(scale) | (scale < 0)):
-        raise NoiseEstimateError(
-            f'std_of_mean must be {trend.shape[0]} finite values >= 0, got {scale.shape}'
-        )
-    with np.errstate(divide='ignore', invalid='ignore'):
-        z = np.where(scale > 0, np.abs(trend) / np.where(scale > 0, scale, 1.0), np.inf)
-    z = np.where((scale == 0) & (trend == 0), 0.0, z)
-    return z <= sigmas, z
-
-
 @dataclasses.dataclass(frozen=True)
 class SettleTest:
     """Per channel (..., C): ``settled`` (bools), ``z`` (the trend in stds of a settled span's
@@ -236,7 +197,7 @@ class SettleTest:
 def rest_test(values, times=None, sigmas=DEFAULT_REST_SIGMAS, noise_floor=None):
     """Is each channel of ``values`` (..., n, C) at rest over its span? Noise from the span.
 
-    The least-squares trend (:func:`window_trend` against ``times`` (n,) s, default 0..n-1) is
+    The least-squares trend (slope times span against ``times`` (n,) s, default 0..n-1) is
     judged against the noise of the residuals about a parabola (:func:`noise_of_mean`,
     ``fitted=3``), ``threshold`` stds of the trend (docs/sensor_errors.md). ``noise_floor`` (C,):
     the least per-sample std believed (the channel's unit). Returns :class:`SettleTest`."""
@@ -307,5 +268,5 @@ def scatter_test(values, noise_std, sigmas=DEFAULT_REST_SIGMAS):
 
 
 def false_unsettled_rate(sigmas=DEFAULT_REST_SIGMAS):
-    """Share of settled white-noise windows :func:`settled` calls moving, per channel."""
+    """Share of settled white-noise windows :func:`rest_test` calls moving, per channel."""
     return math.erfc(sigmas / math.sqrt(2.0))

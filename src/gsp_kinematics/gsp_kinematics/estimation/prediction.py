@@ -37,10 +37,11 @@ def body_angular_jacobian(euler):
     return np.stack([skew[:, :, 2, 1], skew[:, :, 0, 2], skew[:, :, 1, 0]], axis=1)
 
 
-def pose_sensitivities(geometry, poses, free=None, euler=False):
+def pose_sensitivities(geometry, poses, free=None, euler=False, effect_free=None):
     """``S`` (M, 6, n_free): ``[dp (m); dw (rad)]`` of the reached pose per parameter error
     (``euler``: ``d(psi, theta, phi)`` (rad) in place of ``dw``); ``free``: a bool mask over the
-    parameter vector (None: the 44). The device's parameters' columns are zero."""
+    parameter vector (None: the 44). The device's parameters' columns are zero. ``effect_free``
+    (24,): the free effects' columns (:func:`effect_pose_sensitivities`) follow."""
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     articular, d_q_d_pose, d_q_d_leg = inverse_kinematics_jacobians(geometry, poses)
     d_q_d_u = expand_leg_parameters(d_q_d_leg)
@@ -48,17 +49,36 @@ def pose_sensitivities(geometry, poses, free=None, euler=False):
     # too: the real articular variable is (1 + kq) times the reading the controller commands, so
     # dq/dX dX = ... - q_i (kq_hat_i - kq_i) on leg i.
     d_q_d_gain = -articular[:, :, None] * np.eye(6)[None]
-    d_pose = np.linalg.solve(d_q_d_pose, np.concatenate([d_q_d_u, d_q_d_gain], axis=2))
+    sensitivity = np.linalg.solve(d_q_d_pose, np.concatenate([d_q_d_u, d_q_d_gain], axis=2))
     if not euler:
-        d_pose[:, 3:] = body_angular_jacobian(poses[:, 3:]) @ d_pose[:, 3:]
-    sensitivity = d_pose
+        sensitivity[:, 3:] = body_angular_jacobian(poses[:, 3:]) @ sensitivity[:, 3:]
     size = NUM_PARAMETERS if free is None else len(free)
     full = np.zeros((poses.shape[0], 6, max(size, NUM_ALL_PARAMETERS)))
     full[:, :, :LEG_PARAMETERS] = sensitivity[:, :, :LEG_PARAMETERS]
     first_gain = PARAMETER_INDEX['kq1']
     full[:, :, first_gain : first_gain + 6] = sensitivity[:, :, LEG_PARAMETERS:]
     full = full[:, :, :size]
-    return full if free is None else full[:, :, np.asarray(free, dtype=bool)]
+    full = full if free is None else full[:, :, np.asarray(free, dtype=bool)]
+    if effect_free is None or not np.any(effect_free):
+        return full
+    effects = effect_pose_sensitivities(geometry, poses, effect_free)
+    return np.concatenate([full, effects], axis=2)
+
+
+def effect_pose_derivatives(geometry, poses, mask, design=None):
+    """(M, 6, count): ``[dp (m); d(psi, theta, phi) (rad)]`` of the reached pose per error of
+    each effect parameter of ``mask`` (24,), its regressor at the rows' ``design`` (None: the
+    geometry's load only, for the groups that need neither times nor directions)."""
+    if design is None:
+        effects = geometry.effects
+        design = EffectDesign(
+            payload_mass=effects.payload_mass,
+            centre_of_mass=effects.centre_of_mass,
+            leg_mass=effects.leg_mass,
+        )
+    regressors = EffectTerms(geometry, design, mask, len(poses)).regressors(poses, geometry)
+    _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
+    return np.linalg.solve(d_q_d_pose, regressors)
 
 
 def effect_pose_sensitivities(geometry, poses, effect_free):
@@ -70,15 +90,7 @@ def effect_pose_sensitivities(geometry, poses, effect_free):
     posture = free & np.repeat([g in POSTURE_EFFECT_GROUPS for g in EFFECT_GROUPS], 6)
     columns = np.zeros((poses.shape[0], 6, NUM_EFFECT_PARAMETERS))
     if posture.any():
-        effects = geometry.effects
-        design = EffectDesign(
-            payload_mass=effects.payload_mass,
-            centre_of_mass=effects.centre_of_mass,
-            leg_mass=effects.leg_mass,
-        )
-        regressors = EffectTerms(geometry, design, posture, poses.shape[0]).regressors(poses)
-        _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
-        d_pose = np.linalg.solve(d_q_d_pose, regressors)
+        d_pose = effect_pose_derivatives(geometry, poses, posture)
         angular = body_angular_jacobian(poses[:, 3:])
         columns[:, :, posture] = np.concatenate([d_pose[:, :3], angular @ d_pose[:, 3:]], axis=1)
     return columns[:, :, free]
@@ -145,10 +157,7 @@ def parameter_pose_covariance(geometry, covariance, poses, free=None, effect_fre
     """``(position (M, 3, 3) m^2, rotation (M, 3, 3) rad^2)``: the parameters' ``covariance``
     (the free parameters, then the free effects; ``free``, ``effect_free`` as in
     :func:`predicted_errors`) propagated to the reached pose at ``poses`` (M, 6)."""
-    sensitivity = pose_sensitivities(geometry, poses, free)
-    if effect_free is not None and np.any(effect_free):
-        effects = effect_pose_sensitivities(geometry, poses, effect_free)
-        sensitivity = np.concatenate([sensitivity, effects], axis=2)
+    sensitivity = pose_sensitivities(geometry, poses, free, effect_free=effect_free)
     covariance = np.asarray(covariance, dtype=float)
     if covariance.shape != (sensitivity.shape[2],) * 2:
         raise ValueError(
@@ -216,7 +225,8 @@ def map_panels(workspace=Workspace(), layout=MapLayout()):
     return panels
 
 
-def _statistics(values):
+def mean_p95_max(values):
+    """``{mean, p95, max}`` of ``values``."""
     values = np.asarray(values, dtype=float)
     return {
         'mean': float(np.mean(values)),
@@ -237,13 +247,9 @@ def predict_accuracy(
     thermal_strain=None,
     effect_free=None,
 ):
-    """Predicted accuracy over the workspace (a JSON-ready dict, mm and deg).
-
-    ``covariance``, ``free``, ``effect_free``, ``unmodelled`` and ``thermal_strain`` as in
-    :func:`predicted_errors`. ``random``: ``{position_mm: {mean, p95, max}, orientation_deg:
-    {...}, postures}`` over ``postures`` seeded random reachable postures; ``worst_cell``: the
-    grid cell of the largest predicted position error; ``maps``: per panel the x, y axes (m) and
-    the predicted errors (NaN: unreachable), for plotting."""
+    """Predicted accuracy (mm, deg; arguments as in :func:`predicted_errors`) over ``postures``
+    seeded random reachable postures (``random``), the worst grid cell and the ``maps`` per panel
+    (NaN: unreachable): a JSON-ready dict (docs/data.md)."""
     random_poses = sample_valid_postures(
         geometry, int(postures), np.random.default_rng(int(seed)), workspace
     )
@@ -290,8 +296,8 @@ def predict_accuracy(
         'assumes': assumption(unmodelled, thermal_strain),
         'units': {'position': 'mm', 'orientation': 'deg', 'pose': 'm, rad'},
         'random': {
-            'position_mm': _statistics(position),
-            'orientation_deg': _statistics(orientation),
+            'position_mm': mean_p95_max(position),
+            'orientation_deg': mean_p95_max(orientation),
             'postures': int(random_poses.shape[0]),
             'seed': int(seed),
         },

@@ -230,7 +230,7 @@ def effect_estimates(model, point, status, all_deviations):
     ``all_deviations``: of the free parameters, then of the free effects."""
     count = NUM_EFFECT_PARAMETERS
     free, values, deviations = np.zeros(count, bool), np.zeros(count), np.full(count, np.nan)
-    if effect_terms_of(model) is not None:
+    if model.effects is not None:
         first = int(model.free.sum())
         free = model.effects.mask.copy()
         deviations[free] = all_deviations[first:]
@@ -241,12 +241,7 @@ def effect_estimates(model, point, status, all_deviations):
 
 def geometry_with_effects(geometry, model, effect_values):
     """``geometry`` carrying the identified effects (what its controller compensates)."""
-    if effect_terms_of(model) is None:
+    if model.effects is None:
         return geometry
     design = model.effects.design
     return geometry.replace(effects=IdentifiedEffects.from_result_values(effect_values, design))
-
-
-def effect_terms_of(model):
-    """The model's :class:`EffectTerms` (None: no effect parameter free)."""
-    return getattr(model, 'effects', None)

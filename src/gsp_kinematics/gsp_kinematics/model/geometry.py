@@ -210,9 +210,17 @@ def to_report_units(parameter_values):
 
 # --- parameter dictionaries (ROS parameter names) ---------------------------------------------
 
-_ARRAY_KEYS = {'base_joints': 18, 'platform_joints': 18, 'leg_offsets': 6}
-_SCALAR_KEYS = ('device_length', 'inclinometer_axes_angle')
-_LIMIT_KEYS = tuple(field.name for field in dataclasses.fields(Limits))
+#: ``geometry.*`` keys -> number of values (None: a scalar), the 44 parameters.
+_REQUIRED_KEYS = {
+    'base_joints': 18,
+    'platform_joints': 18,
+    'leg_offsets': 6,
+    'device_length': None,
+    'inclinometer_axes_angle': None,
+}
+_LIMITS = f'{GEOMETRY_NAMESPACE}.limits'
+#: ``geometry.limits.*`` keys (optional, scalars).
+_LIMIT_KEYS = dict.fromkeys(field.name for field in dataclasses.fields(Limits))
 _SENSORS = f'{GEOMETRY_NAMESPACE}.sensors'
 #: ``geometry.sensors.*`` keys (optional section) -> number of values (None: a scalar).
 SENSOR_KEYS = {
@@ -237,14 +245,13 @@ def geometry_to_parameters(geometry, all_effects=False):
     """Flat ``{'geometry.base_joints': [...], ...}`` ROS parameters, only the identified effects;
     ``all_effects``: all (0: not identified), what a compensating controller is set to."""
     parameters = {
-        f'{GEOMETRY_NAMESPACE}.base_joints': geometry.base_joints.ravel().tolist(),
-        f'{GEOMETRY_NAMESPACE}.platform_joints': geometry.platform_joints.ravel().tolist(),
-        f'{GEOMETRY_NAMESPACE}.leg_offsets': geometry.leg_offsets.tolist(),
-        f'{GEOMETRY_NAMESPACE}.device_length': geometry.device_length,
-        f'{GEOMETRY_NAMESPACE}.inclinometer_axes_angle': geometry.inclinometer_axes_angle,
+        f'{GEOMETRY_NAMESPACE}.{key}': getattr(geometry, key).ravel().tolist()
+        if length
+        else getattr(geometry, key)
+        for key, length in _REQUIRED_KEYS.items()
     }
     for key in _LIMIT_KEYS:
-        parameters[f'{GEOMETRY_NAMESPACE}.limits.{key}'] = float(getattr(geometry.limits, key))
+        parameters[f'{_LIMITS}.{key}'] = float(getattr(geometry.limits, key))
     for key in SENSOR_KEYS:  # the SensorErrors fields
         value = getattr(geometry.sensors, key)
         parameters[f'{_SENSORS}.{key}'] = value.tolist() if np.ndim(value) else value
@@ -334,17 +341,10 @@ def _sensor_errors_from_parameters(parameters):
 def geometry_from_parameters(parameters, default_limits=None):
     """Build a :class:`Geometry` from a flat ``geometry.*`` dictionary, checking every key."""
     prefix = GEOMETRY_NAMESPACE + '.'
-    values = {}
-    for key, length in _ARRAY_KEYS.items():
-        full = prefix + key
-        if full not in parameters or parameters[full] is None:
-            raise GeometryError(f'{full}: missing')
-        values[key] = _finite_list(parameters[full], length, full)
-    for key in _SCALAR_KEYS:
-        full = prefix + key
-        if full not in parameters or parameters[full] is None:
-            raise GeometryError(f'{full}: missing')
-        values[key] = _finite_float(parameters[full], full)
+    for key in _REQUIRED_KEYS:
+        if parameters.get(prefix + key) is None:
+            raise GeometryError(f'{prefix}{key}: missing')
+    values = _optional_section(parameters, GEOMETRY_NAMESPACE, _REQUIRED_KEYS)
     if values['device_length'] <= 0.0:
         raise GeometryError(
             f'{prefix}device_length: must be positive, got {values["device_length"]}'
@@ -355,19 +355,10 @@ def geometry_from_parameters(parameters, default_limits=None):
             f'got {values["inclinometer_axes_angle"]}'
         )
     limits = default_limits if default_limits is not None else Limits()
-    limit_values = {}
-    for key in _LIMIT_KEYS:
-        full = f'{prefix}limits.{key}'
-        if full in parameters and parameters[full] is not None:
-            limit_values[key] = _finite_float(parameters[full], full)
-    limits = dataclasses.replace(limits, **limit_values)
+    limits = dataclasses.replace(limits, **_optional_section(parameters, _LIMITS, _LIMIT_KEYS))
     limits.validate()
     return Geometry(
-        base_joints=np.reshape(values['base_joints'], (6, 3)),
-        platform_joints=np.reshape(values['platform_joints'], (6, 3)),
-        leg_offsets=values['leg_offsets'],
-        device_length=values['device_length'],
-        inclinometer_axes_angle=values['inclinometer_axes_angle'],
+        **values,
         limits=limits,
         sensors=_sensor_errors_from_parameters(parameters),
         effects=_effects_from_parameters(parameters),

@@ -144,10 +144,8 @@ def forward_kinematics_masked(
 
 
 def forward_kinematics(geometry, leg_lengths, guess, **options):
-    """Poses (M, 6) for articular variables (M, 6), by Newton's method from ``guess``.
-
-    Raises :class:`ForwardKinematicsError` naming the posture indices that failed.
-    """
+    """Poses (M, 6) for articular variables (M, 6), by Newton's method from ``guess``;
+    :class:`ForwardKinematicsError` names the posture indices that failed."""
     poses, converged = forward_kinematics_masked(geometry, leg_lengths, guess, **options)
     if not np.all(converged):
         failed = np.flatnonzero(~converged)
@@ -190,9 +188,8 @@ class Workspace:
     z_min: float = 0.85  #: m
     z_max: float = 1.15  #: m
     rotation_range: float = math.radians(40.0)  #: rad, +- for psi, theta and phi
-    max_condition: float = (
-        60.0  #: largest condition number of dq/dX allowed (away from singularity)
-    )
+    #: largest condition number of dq/dX allowed (away from singularity)
+    max_condition: float = 60.0
 
 
 def joint_angles(geometry, poses):
@@ -269,21 +266,15 @@ def reachable_mask(geometry, poses, max_condition=None):
 
 def sample_postures(rng, count, workspace=Workspace()):
     """Uniform random postures in the workspace box (not checked for reachability)."""
-    low = np.array(
-        [-workspace.xy_range, -workspace.xy_range, workspace.z_min]
-        + [-workspace.rotation_range] * 3
-    )
-    high = np.array(
-        [workspace.xy_range, workspace.xy_range, workspace.z_max] + [workspace.rotation_range] * 3
-    )
+    high = np.array([workspace.xy_range] * 2 + [workspace.z_max] + [workspace.rotation_range] * 3)
+    low = -high
+    low[2] = workspace.z_min
     return rng.uniform(low, high, size=(count, 6))
 
 
 def sample_valid_postures(geometry, count, rng, workspace=Workspace(), max_draws=2_000_000):
     """``count`` random reachable, well-conditioned postures (M, 6) from the workspace box."""
-    accepted = []
-    total = 0
-    drawn = 0
+    accepted, total, drawn = [], 0, 0
     while total < count:
         if drawn >= max_draws:
             raise RuntimeError(

@@ -25,10 +25,8 @@ REALISTIC_MAX_ACCELERATION = 0.2
 
 @dataclasses.dataclass(frozen=True)
 class MotionLimits:
-    """Per-leg speed (m/s) and acceleration (m/s^2) limits; ``inf`` removes a limit.
-
-    With both infinite a move is instantaneous (the platform jumps).
-    """
+    """Per-leg speed (m/s) and acceleration (m/s^2) limits; ``inf`` removes a limit (both:
+    a move is instantaneous, the platform jumps)."""
 
     max_speed: float = REALISTIC_MAX_SPEED
     max_acceleration: float = REALISTIC_MAX_ACCELERATION
@@ -66,10 +64,8 @@ def leg_travel_time(distance, limits):
 
 
 def move_time(start_legs, end_legs, limits):
-    """Synchronised move time (s) from ``start_legs`` to ``end_legs`` (..., 6) m: the slowest leg's.
-
-    Broadcasts, so ``move_time(q[:, None], q[None], limits)`` is the (N, N) matrix of a set.
-    """
+    """Synchronised move time (s) from ``start_legs`` to ``end_legs`` (..., 6) m: the slowest
+    leg's; broadcasts (``move_time(q[:, None], q[None], limits)``: the (N, N) matrix of a set)."""
     distance = np.max(np.abs(np.asarray(end_legs) - np.asarray(start_legs)), axis=-1)
     return leg_travel_time(distance, limits)
 

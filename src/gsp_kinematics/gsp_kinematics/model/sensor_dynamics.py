@@ -22,10 +22,8 @@ def _times(values, name, n_channels):
 
 
 def decay_factor(dt, time_constant):
-    """``exp(-dt / time_constant)`` per channel; 0 where the time constant is 0 (no memory).
-
-    ``dt`` (s) >= 0 scalar; ``time_constant`` (C,) in s.
-    """
+    """``exp(-dt / time_constant)`` per channel (``dt`` s >= 0, ``time_constant`` (C,) s); 0
+    where the time constant is 0 (no memory)."""
     time_constant = np.asarray(time_constant, dtype=float)
     with np.errstate(divide='ignore'):
         return np.where(
@@ -43,11 +41,8 @@ class SensorDynamics:
         self.n_channels = int(n_channels)
         self.response_time = _times(response_time, 'response time', self.n_channels)
         self.correlation_time = _times(correlation_time, 'noise correlation time', self.n_channels)
-        self.circular = (
-            np.zeros(self.n_channels, dtype=bool)
-            if circular is None
-            else np.broadcast_to(np.asarray(circular, dtype=bool), (self.n_channels,)).copy()
-        )
+        circular = False if circular is None else circular
+        self.circular = np.broadcast_to(np.asarray(circular, dtype=bool), (self.n_channels,)).copy()
         self.reset()
 
     @property

@@ -26,16 +26,6 @@ class SensorNoise:
     encoder: float = math.radians(0.001)
     lvdt: float = 1e-6
 
-    @classmethod
-    def from_levels(cls, angle_noise_deg, length_noise_mm):
-        """Table 3's convention: one angular level (deg) and one length level (mm)."""
-        return cls(
-            leg_lengths=length_noise_mm / 1000.0,
-            inclinometer=math.radians(angle_noise_deg),
-            encoder=math.radians(angle_noise_deg),
-            lvdt=length_noise_mm / 1000.0,
-        )
-
     def validate(self):
         """SensorNoiseError unless every standard deviation is positive and finite."""
         for name, value in self.channels().items():

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..estimation.identifiability import DEFAULT_RELATIVE_TOLERANCE, posture_information
 from ..estimation.identification import resolve_free
-from ..model.effect_groups import EffectDesign, EffectTerms
+from ..model.effect_groups import EffectDesign, EffectTerms, resolve_effects
 from ..model.effects import EFFECT_GROUPS, EFFECT_PARAMETER_NAMES, NUM_LEGS, approach_directions
 from ..model.geometry import ALL_PARAMETER_NAMES
 from ..model.motion import MotionLimits, move_time, posture_leg_lengths
@@ -225,10 +225,7 @@ def effect_information(geometry, poses, design, groups, sigmas=DEFAULT_SENSOR_NO
     :class:`EffectDesign` ``design`` (rows of ``poses``) at the row ``sigmas`` (implicit
     formulation, the poses eliminated); and the names of its columns."""
     poses = np.atleast_2d(poses)
-    mask = np.zeros(len(EFFECT_PARAMETER_NAMES), dtype=bool)
-    for index, group in enumerate(EFFECT_GROUPS):
-        if group in groups:
-            mask[NUM_LEGS * index : NUM_LEGS * (index + 1)] = True
+    mask = resolve_effects(groups)
     free_mask = resolve_free(free)
     columns = EffectTerms(geometry, design, mask, len(poses)).regressors(poses)
     information = posture_information(
@@ -271,17 +268,15 @@ def group_identifiability(geometry, poses, design, group, sigmas=DEFAULT_SENSOR_
     rms = np.sqrt(np.mean(np.sum(columns**2, axis=1), axis=0))  # each column is one leg's row
     entry['crb_std'] = deviations[geometric:].tolist()
     entry['crb_leg_um'] = (1e6 * deviations[geometric:] * rms).tolist()
-    worst = []
-    for row in range(geometric, len(names)):
-        partner = int(np.argmax(np.abs(correlations[row, :geometric])))
-        worst.append(
-            {
-                'parameter': names[row],
-                'with': names[partner],
-                'correlation': float(correlations[row, partner]),
-            }
-        )
-    entry['worst_correlations'] = worst
+    partners = np.argmax(np.abs(correlations[geometric:, :geometric]), axis=1)
+    entry['worst_correlations'] = [
+        {
+            'parameter': names[row],
+            'with': names[partner],
+            'correlation': float(correlations[row, partner]),
+        }
+        for row, partner in enumerate(partners.tolist(), start=geometric)
+    ]
     return entry
 
 

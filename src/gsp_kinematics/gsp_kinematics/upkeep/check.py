@@ -4,9 +4,10 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy import stats
 
 from ..estimation.identifiability import posture_factors
-from ..estimation.identification import IdentificationError, identify, resolve_free
+from ..estimation.identification import converged_identification, resolve_free
 from ..estimation.verdict import cross_validation
 from ..model.geometry import ALL_PARAMETER_NAMES, PARAMETER_INDEX
 from ..model.motion import (
@@ -130,16 +131,6 @@ def accuracy_now(controller, leg_lengths, readings, guesses, row_sigmas):
     return summary
 
 
-def _small_identification(controller, leg_lengths, readings, guesses, row_sigmas, free):
-    try:
-        result = identify(
-            controller, leg_lengths, readings, row_sigmas, free=list(free), pose_guesses=guesses
-        )
-    except IdentificationError:
-        return None
-    return result if result.converged else None
-
-
 def check_platform(
     controller,
     leg_lengths,
@@ -178,7 +169,9 @@ def check_platform(
             zip(ALL_PARAMETER_NAMES, controller.to_full_vector().tolist(), strict=True)
         ),
     }
-    fitted = _small_identification(controller, leg_lengths, readings, commanded, row_sigmas, free)
+    fitted = converged_identification(
+        controller, leg_lengths, readings, row_sigmas, free=list(free), pose_guesses=commanded
+    )
     moved, notes = [], []
     if fitted is None:
         reasons.append('the leg offsets could not be identified from the check (did not converge)')
@@ -244,8 +237,6 @@ def common_effect(controller, names, common, level=drift.DEFAULT_LEVEL):
     does to the pose over the workspace (``drift.effect_poses`` of ``controller``): the mean
     position (mm) and orientation (deg) change of the estimate and of its upper bound
     ``|delta| + z sigma`` (two-sided ``level``)."""
-    from scipy import stats
-
     unit = drift.pose_effect(
         controller, names, 1e-6 * np.ones(len(names)), None, drift.effect_poses(controller)
     )  # per um; the effect is linear in the change
@@ -297,8 +288,6 @@ def common_change(change, covariance, level=drift.DEFAULT_LEVEL):
     (what thermal growth does): the common part ``delta`` (weighted least squares) with its
     sigma, and the chi-square of what is left against its ``1 - level`` quantile (5 degrees of
     freedom). ``alike``: the common part is significant and the rest is not."""
-    from scipy import stats
-
     inverse = np.linalg.pinv(np.asarray(covariance, dtype=float))
     ones = np.ones(len(change))
     weight = float(ones @ inverse @ ones)

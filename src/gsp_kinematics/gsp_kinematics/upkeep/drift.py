@@ -7,7 +7,7 @@ import math
 import numpy as np
 from scipy import stats
 
-from ..estimation.prediction import expected_norm, pose_sensitivities
+from ..estimation.prediction import expected_norm, mean_p95_max, pose_sensitivities
 from ..model.geometry import (
     ALL_PARAMETER_NAMES,
     ANGULAR_SENSOR_PARAMETERS,
@@ -54,18 +54,6 @@ class Calibration:
                 f'{self.label or "calibration"}: {n} names need {n} estimates and an {n}x{n} '
                 f'covariance, got {np.shape(self.estimates)} and {np.shape(self.covariance)}'
             )
-
-    @classmethod
-    def from_result(cls, result, label=''):
-        """From an ``identification.IdentificationResult``."""
-        free = np.asarray(result.free, dtype=bool)
-        return cls(
-            tuple(result.free_names),
-            np.asarray(result.parameters, dtype=float)[free],
-            np.asarray(result.covariance, dtype=float),
-            result.geometry,
-            label,
-        )
 
     def subset(self, names):
         index = [self.names.index(name) for name in names]
@@ -127,8 +115,8 @@ def pose_effect(geometry, names, vector, covariance, poses):
     position = 1000.0 * np.linalg.norm(shift[:, :3], axis=1)
     orientation = np.degrees(np.linalg.norm(shift[:, 3:], axis=1))
     effect = {
-        'position_mm': _spread(position),
-        'orientation_deg': _spread(orientation),
+        'position_mm': mean_p95_max(position),
+        'orientation_deg': mean_p95_max(orientation),
         'postures': int(len(poses)),
     }
     if covariance is not None:
@@ -141,14 +129,6 @@ def pose_effect(geometry, names, vector, covariance, poses):
             np.degrees(expected_norm(pose_covariance[:, 3:, 3:])).mean()
         )
     return effect
-
-
-def _spread(values):
-    return {
-        'mean': float(np.mean(values)),
-        'p95': float(np.percentile(values, 95)),
-        'max': float(np.max(values)),
-    }
 
 
 def effect_poses(geometry, count=EFFECT_POSTURES, seed=0, workspace=Workspace()):

@@ -29,6 +29,10 @@ class _Model:
     """What both formulations share: the free parameters inside the nominal extended vector
     (the 44 and the sensor errors, :data:`gsp_kinematics.model.geometry.ALL_PARAMETER_NAMES`)."""
 
+    #: :class:`gsp_kinematics.model.effect_groups.EffectTerms` of the free effect parameters
+    #: (None: none); their values follow the free parameters' in a point's values.
+    effects, effect_count = None, 0
+
     def __init__(self, nominal, free):
         self.nominal = nominal
         self.nominal_vector = nominal.to_full_vector()
@@ -40,20 +44,6 @@ class _Model:
         vector = self.nominal_vector.copy()
         vector[self.free] = free_values
         return Geometry.from_full_vector(vector, self.limits)
-
-
-def leg_readings_jacobians(geometry, poses):
-    """What the leg sensors read at ``poses``, ``q_r = IK / (1 + kq)`` (M, 6), its derivatives
-    w.r.t. the pose (M, 6, 6) and w.r.t. the extended parameter vector (M, 6, 54)."""
-    readings, d_pose, d_u = readings_jacobians(geometry, poses)
-    return readings[:, :6], d_pose[:, :6], d_u[:, :6]
-
-
-def sensor_readings_jacobians(geometry, poses):
-    """Readings ``[alpha, beta, phi, d_m]`` with the sensor errors (M, 4), their derivatives
-    w.r.t. the pose (M, 4, 6) and w.r.t. the extended parameter vector (M, 4, 54)."""
-    readings, d_pose, d_u = readings_jacobians(geometry, poses)
-    return readings[:, 6:], d_pose[:, 6:], d_u[:, 6:]
 
 
 def _wrap_phi(difference, columns):
@@ -99,11 +89,10 @@ class _FkModel(_Model):
         if self.paper:
             predicted, d_pred_d_pose, d_pred_d_u = self._paper_prediction(geometry, good, use)
         else:
-            predicted, d_pred_d_pose, d_pred_d_u = sensor_readings_jacobians(geometry, good)
+            # The device rows (6 onwards) of the readings and their derivatives.
+            rows = [6 + c for c in self.columns]
             predicted, d_pred_d_pose, d_pred_d_u = (
-                predicted[:, self.columns],
-                d_pred_d_pose[:, self.columns],
-                d_pred_d_u[:, self.columns],
+                a[:, rows] for a in readings_jacobians(geometry, good)
             )
         difference = _wrap_phi(self.readings[use][:, self.columns] - predicted, self.columns)
         residuals[use] = difference * self.weights
@@ -260,8 +249,6 @@ class _ImplicitModel(_Model):
         self, nominal, leg_lengths, readings, sigmas, free, pose_guesses, sensors, effects=None
     ):
         super().__init__(nominal, free)
-        #: :class:`gsp_kinematics.model.effect_groups.EffectTerms` of the free effect parameters
-        #: (None: none); their values follow the free parameters' in a point's values.
         self.effects = effects
         self.effect_count = 0 if effects is None else effects.count
         self.pose_guesses = pose_guesses

@@ -9,7 +9,7 @@ import numpy as np
 from ...model.effects import EFFECT_GROUPS, NUM_LEGS
 from ...model.kinematics import Workspace, inverse_kinematics_jacobians, sample_valid_postures
 from ..identifiability import analyse_result, identifies_all
-from ..prediction import effect_pose_sensitivities, pose_sensitivities
+from ..prediction import pose_sensitivities
 
 #: Groups the controllers compensate at each commanded pose: the rule judges these.
 COMPENSATED_GROUPS = ('compliance', 'backlash', 'joint_offsets')
@@ -27,10 +27,6 @@ class FreeingGain:
     without_mm: float
     with_mm: float
 
-    @property
-    def helps(self):
-        return bool(self.with_mm <= self.without_mm)
-
 
 def workspace_postures(geometry, count=WORKSPACE_POSTURES, workspace=Workspace()):
     """The seeded random workspace postures (M, 6) the rule averages over."""
@@ -41,13 +37,7 @@ def _columns(result, poses):
     """``(S (M, 3, n), backlash (M, 3, n))``: position sensitivities over ``result``'s free
     parameters then free effects; the backlash columns apart (added in quadrature)."""
     geometry, effect_free = result.geometry, np.asarray(result.effect_free, bool)
-    main = np.concatenate(
-        [
-            pose_sensitivities(geometry, poses, result.free)[:, :3],
-            effect_pose_sensitivities(geometry, poses, effect_free)[:, :3],
-        ],
-        axis=2,
-    )
+    main = pose_sensitivities(geometry, poses, result.free, effect_free=effect_free)[:, :3]
     backlash = np.zeros_like(main)
     first = int(np.sum(result.free))
     _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)

@@ -4,11 +4,9 @@
 import numpy as np
 
 from ...model.device import device_position, link_direction, link_direction_derivatives
-from ...model.effect_groups import EffectDesign, EffectTerms
 from ...model.effects import EFFECT_GROUPS, NUM_EFFECT_PARAMETERS
 from ...model.geometry import ALL_PARAMETER_NAMES
-from ...model.kinematics import inverse_kinematics_jacobians
-from ..prediction import POSTURE_EFFECT_GROUPS, pose_sensitivities
+from ..prediction import POSTURE_EFFECT_GROUPS, effect_pose_derivatives, pose_sensitivities
 
 #: The device's own parameters: their errors move where the device says the platform is.
 DEVICE_PARAMETERS = ('D0', 'gamma', 'alpha0', 'beta0', 'phi0', 'kDm')
@@ -69,17 +67,7 @@ def _effect_columns(result, poses, design):
     free = _effect_free(result)
     if not free.any():
         return np.zeros((len(poses), 6, 0))
-    geometry = result.geometry
-    if design is None:
-        effects = geometry.effects
-        design = EffectDesign(
-            payload_mass=effects.payload_mass,
-            centre_of_mass=effects.centre_of_mass,
-            leg_mass=effects.leg_mass,
-        )
-    regressors = EffectTerms(geometry, design, free, len(poses)).regressors(poses, geometry)
-    _, d_q_d_pose, _ = inverse_kinematics_jacobians(geometry, poses)
-    return np.linalg.solve(d_q_d_pose, regressors)
+    return effect_pose_derivatives(result.geometry, poses, free, design)
 
 
 def _compensated(result):

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from ..prediction import effect_pose_sensitivities, pose_sensitivities
+from ..prediction import pose_sensitivities
 from .comparison import explained_excess
 
 #: Coverage of the interval.
@@ -86,11 +86,8 @@ def workspace_truth_draws(result, poses):
     covariance over the position and phi of the pose its controller reaches at ``poses`` (M, 6)."""
     geometry = result.geometry
     poses = np.asarray(poses, dtype=float)
-    sensitivities = pose_sensitivities(geometry, poses, result.free)
     effect_free = getattr(result, 'effect_free', None)
-    if effect_free is not None and np.any(effect_free):
-        effects = effect_pose_sensitivities(geometry, poses, effect_free)
-        sensitivities = np.concatenate([sensitivities, effects], axis=2)
+    sensitivities = pose_sensitivities(geometry, poses, result.free, effect_free=effect_free)
     return {
         'position_truth_draws': truth_draw_ratios(sensitivities[:, :3], result.covariance),
         'phi_truth_draws': truth_draw_ratios(sensitivities[:, 5:], result.covariance),

@@ -11,7 +11,7 @@ from scipy import special
 from ...model.effect_groups import EffectDesign
 from ...model.effects import EFFECT_GROUPS, NUM_LEGS
 from ..identifiability import analyse_result, identifies_all
-from ..identification import IdentificationError, Options, identify
+from ..identification import IdentificationError, Options, converged_identification
 from .choice_accuracy import COMPENSATED_GROUPS, freeing_gain, workspace_postures
 from .cross_validation import cross_validate, without_leverage
 from .fold_fits import linearised_cost
@@ -111,24 +111,20 @@ def available_groups(design, count):
 
 def _fit(nominal, data, free, options, design, start=None):
     """The converged identification of ``data``'s rows with ``free`` and the effect ``design``,
-    or None (no convergence, or an identification error). ``start``: a fit of the same rows
-    whose poses start this one's (they are most of the unknowns: fewer iterations)."""
+    or None. ``start``: a fit of the same rows whose poses start this one's (they are most of
+    the unknowns: fewer iterations)."""
     leg_lengths, readings, sigmas, guesses, _, _ = data
     guesses = guesses if start is None else start.poses
-    try:
-        result = identify(
-            nominal,
-            leg_lengths,
-            readings,
-            sigmas,
-            free=free,
-            pose_guesses=guesses,
-            options=options,
-            effects=design,
-        )
-    except IdentificationError:
-        return None
-    return result if result.converged else None
+    return converged_identification(
+        nominal,
+        leg_lengths,
+        readings,
+        sigmas,
+        free=free,
+        pose_guesses=guesses,
+        options=options,
+        effects=design,
+    )
 
 
 def _chi2(result, rows=None):
