@@ -1,4 +1,4 @@
-"""The physics section's figures (:data:`gsp_bench.physics.FIGURES`, :func:`seed_checks`): what
+"""The physics section's figures (:data:`gsp_bench.physics.FIGURES`, :func:`gsp_bench.physics.seed_checks`): what
 the calibrator must reach on the physics platform, judged on each seed's figures (``make bench``
 runs the seeds; no node here)."""
 

@@ -115,6 +115,13 @@ def parse_arguments(argv=None):
         choices=('sim', 'serial'),
         help="sim: device_driver's sim backend; serial: gsp_fake_device on a pty (sim)",
     )
+    _add_calibrator_param_option(add)
+    args = parser.parse_args(argv)
+    _check_arguments(parser, args)
+    return args
+
+
+def _add_calibrator_param_option(add):
     add(
         '--calibrator-param',
         action='append',
@@ -124,9 +131,6 @@ def parse_arguments(argv=None):
         "'-p NAME:=VALUE', after the demo's own (repeatable; e.g. rest_sigmas:=.inf turns the "
         'rest rule off)',
     )
-    args = parser.parse_args(argv)
-    _check_arguments(parser, args)
-    return args
 
 
 def _add_backend_option(add):
