@@ -1,1 +1,1 @@
-"""gsp_calibrator: the calibrator node, its collection protocol, run data, replay, demo and benchmark (see docs/architecture.md)."""
+"""gsp_calibrator: the calibrator node, its collection protocol, run data, replay, upkeep and user tools (see docs/architecture.md)."""
