@@ -29,8 +29,8 @@ from gsp_kinematics.model.geometry import default_geometry_path, geometry_from_y
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_msgs_py import ros_environment
 
-#: ``--timeout`` of ``--backend physics`` (s): its servos move 60 postures in ~15 min.
-PHYSICS_CALIBRATION_TIMEOUT_S = 3600.0
+#: ``--timeout`` (s) by backend: the physics' servos move 60 postures in ~15 min.
+CALIBRATION_TIMEOUT_S = {'kinematic': 120.0, 'physics': 3600.0}
 
 
 class Terminated(Exception):
@@ -152,8 +152,9 @@ def _add_backend_option(add):
     add(
         '--timeout',
         type=float,
-        help='longest calibration wait, s (120; --backend physics: '
-        f'{PHYSICS_CALIBRATION_TIMEOUT_S:g})',
+        help='longest calibration wait, s ('
+        + ', '.join(f'{backend}: {s:g}' for backend, s in CALIBRATION_TIMEOUT_S.items())
+        + ')',
     )
 
 
@@ -188,7 +189,7 @@ def _check_arguments(parser, args):
                 "calibrator's parameters (docs/parameters.md#calibrator)"
             )
     if args.timeout is None:
-        args.timeout = PHYSICS_CALIBRATION_TIMEOUT_S if args.backend == 'physics' else 120.0
+        args.timeout = CALIBRATION_TIMEOUT_S[args.backend]
     args.true_geometry = os.path.abspath(args.true_geometry)
     args.nominal_geometry = os.path.abspath(args.nominal_geometry)
 
