@@ -78,11 +78,13 @@ def run_kept_demo(
     timeout=DEMO_TIMEOUT_S,
     real_time_factor=1.0,
     calibrator_params=(),
+    keep_failed=None,
 ):
     """One ``gsp_demo --backend backend`` run in a child process at the leg ``limits`` (m/s,
     m/s^2), the physics at ``real_time_factor``, the calibrator given ``calibrator_params``
     (``NAME:=VALUE``): ``read_run_directory`` of its run directory plus ``geometry`` (the
-    calibrated ``Geometry``, None if none), ``exit_code`` and ``output`` (its tail)."""
+    calibrated ``Geometry``, None if none), ``exit_code`` and ``output`` (its tail). A run that
+    exits other than 0 leaves its run directory under ``keep_failed`` (a folder) if given."""
     env = demo_environment()
     output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_physics_'))
     argv = demo_command(
@@ -114,7 +116,7 @@ def run_kept_demo(
         except subprocess.TimeoutExpired:
             _stop(process)
             output, _ = process.communicate()
-        run = {'exit_code': process.returncode, 'output': output.decode(errors='replace')[-800:]}
+        run = {'exit_code': process.returncode, 'output': output.decode(errors='replace')[-4000:]}
         run.update({'summary': None, 'samples': None, 'result': None, 'sample_stamps': None})
         run['geometry'] = None
         directory = find_run_directory(output_root)
@@ -122,6 +124,10 @@ def run_kept_demo(
             run.update(read_run_directory(directory))
             with contextlib.suppress(OSError, ValueError):
                 run['geometry'] = RunDirectory(directory).read_geometry()
+            if keep_failed and process.returncode:
+                kept = Path(keep_failed) / f'{backend}-seed{seed}-{directory.name}'
+                shutil.copytree(directory, kept)
+                run['kept'] = str(kept)
         return run
     finally:
         shutil.rmtree(output_root, ignore_errors=True)
@@ -184,6 +190,7 @@ def seed_figures(
     limits=LEG_LIMITS,
     real_time_factor=1.0,
     calibrator_params=(),
+    keep_failed=None,
 ):
     """The figures of one seed (see the module docstring); with ``kinematic``, the same plan on
     the kinematic backend runs alongside (it mostly waits on its platform's real-time motion)."""
@@ -198,12 +205,14 @@ def seed_figures(
             limits,
             real_time_factor=real_time_factor,
             calibrator_params=calibrator_params,
+            keep_failed=keep_failed,
         )
         kinematic_span = row_span_s(kinematic_run.result()) if kinematic else None
     result = physics['result'] or {}
     figures = {'seed': seed, 'exit_code': physics['exit_code']}
     if physics['exit_code']:
-        figures['output'] = physics['output'][-400:]  # why the demo did not exit 0
+        figures['output'] = physics['output'][-1500:]  # why the demo did not exit 0
+        figures['kept'] = physics.get('kept')
     if physics['geometry'] is None or not result.get('success'):
         return {**figures, 'failure': result.get('failure') or physics['output']}
     acceptance = result.get('acceptance') or {}
@@ -297,6 +306,10 @@ def _median(runs, key):
     return statistics.median(values) if values else None
 
 
+def _log_to_stderr(message):
+    print(message, file=sys.stderr, flush=True)
+
+
 def run(
     quick=False,
     seeds=None,
@@ -308,17 +321,14 @@ def run(
     real_time_factor=1.0,
     kinematic_seeds=None,
     calibrator_params=(),
+    keep_failed=None,
 ):
     """The section (``quick``: 1 seed whose postures the physics platform holds
     (:func:`held_seeds`), 14 postures, 5 validation postures); ``limits``: the legs' (m/s,
     m/s^2), the realistic ones by default; ``kinematic_seeds``: how many of the first seeds also
     run the kinematic backend for the platform time (all: None); ``calibrator_params``
-    (``NAME:=VALUE``) given to the calibrator."""
-    if log is None:
-
-        def log(message):
-            print(message, file=sys.stderr, flush=True)
-
+    (``NAME:=VALUE``) given to the calibrator; ``keep_failed``: see :func:`run_kept_demo`."""
+    log = log or _log_to_stderr
     seeds = seeds or (QUICK_SEEDS if quick else SEEDS)
     postures = postures or (QUICK_POSTURES if quick else DEFAULTS['posture_count'])
     count = validation_postures or (QUICK_VALIDATION_POSTURES if quick else VALIDATION_POSTURES)
@@ -338,6 +348,7 @@ def run(
             limits,
             real_time_factor,
             calibrator_params,
+            keep_failed,
         )
         runs.append({**figures, 'figures_missed': figures_missed(figures)})
         log(f'gsp_bench: physics: seed {seed}: {json.dumps(runs[-1])}')
@@ -407,6 +418,9 @@ def main(argv=None):
         metavar='NAME:=VALUE',
         help="one of the calibrator's parameters, off its default (repeatable)",
     )
+    parser.add_argument(
+        '--keep-failed', metavar='DIR', help='keep the run directory of a demo that failed in DIR'
+    )
     args = parser.parse_args(argv)
     section = run(
         args.quick,
@@ -416,6 +430,7 @@ def main(argv=None):
         real_time_factor=args.real_time_factor,
         kinematic_seeds=args.kinematic_seeds,
         calibrator_params=args.calibrator_param,
+        keep_failed=args.keep_failed,
     )
     print(json.dumps(section, indent=1))
     return 0 if section['passed'] else 1
