@@ -111,15 +111,9 @@ def _stop(process):
         process.wait(timeout=5.0)
 
 
-def run_demo(postures, sensor_rate, used_domains=(), **options):
-    """One demo run in a child process; ``{'exit_code', 'wall_s', 'domain_id', 'run_directory',
-    'summary', 'samples', 'result', 'output'}`` (the files read before the temporary output root
-    is removed; missing ones None). ``options``: the other keywords of :func:`demo_command`."""
-    timeout = options.get('timeout', DEMO_TIMEOUT_S)
-    env = demo_environment(used=used_domains)
-    output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_e2e_'))
-    argv = demo_command(output_root, postures, sensor_rate, **options)
-    started = time.monotonic()
+def run_demo_process(argv, env, wall_limit_s):
+    """Run a demo's ``argv`` in a session of its own: ``(exit code, its output as text)``;
+    stopped (:func:`_stop`) after ``wall_limit_s`` or when this process is interrupted."""
     process = subprocess.Popen(
         argv,
         env=env,
@@ -129,19 +123,32 @@ def run_demo(postures, sensor_rate, used_domains=(), **options):
         start_new_session=True,
     )
     try:
-        try:
-            output, _ = process.communicate(timeout=timeout + 60.0)
-        except subprocess.TimeoutExpired:
-            _stop(process)
-            output, _ = process.communicate()
-        except BaseException:
-            _stop(process)
-            raise
+        output, _ = process.communicate(timeout=wall_limit_s)
+    except subprocess.TimeoutExpired:
+        _stop(process)
+        output, _ = process.communicate()
+    except BaseException:
+        _stop(process)
+        raise
+    return process.returncode, output.decode(errors='replace')
+
+
+def run_demo(postures, sensor_rate, used_domains=(), **options):
+    """One demo run in a child process; ``{'exit_code', 'wall_s', 'domain_id', 'run_directory',
+    'summary', 'samples', 'result', 'output'}`` (the files read before the temporary output root
+    is removed; missing ones None). ``options``: the other keywords of :func:`demo_command`."""
+    timeout = options.get('timeout', DEMO_TIMEOUT_S)
+    env = demo_environment(used=used_domains)
+    output_root = Path(tempfile.mkdtemp(prefix='gsp_bench_e2e_'))
+    argv = demo_command(output_root, postures, sensor_rate, **options)
+    started = time.monotonic()
+    try:
+        exit_code, output = run_demo_process(argv, env, timeout + 60.0)
         result = {
-            'exit_code': process.returncode,
+            'exit_code': exit_code,
             'wall_s': time.monotonic() - started,
             'domain_id': int(env['ROS_DOMAIN_ID']),
-            'output': output.decode(errors='replace'),
+            'output': output,
             'run_directory': None,
             'summary': None,
             'samples': None,

@@ -31,7 +31,6 @@ import json
 import math
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -40,11 +39,11 @@ from pathlib import Path
 import numpy as np
 
 from gsp_bench.end_to_end import (
-    _stop,
     demo_command,
     demo_environment,
     find_run_directory,
     read_run_directory,
+    run_demo_process,
 )
 from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.run.postures import choose_postures, selection_arguments
@@ -107,16 +106,9 @@ def run_kept_demo(
             *(a for param in calibrator_params for a in ('--calibrator-param', param)),
         ],
     )
-    process = subprocess.Popen(
-        argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True
-    )
     try:
-        try:
-            output, _ = process.communicate(timeout=timeout + 120.0)
-        except subprocess.TimeoutExpired:
-            _stop(process)
-            output, _ = process.communicate()
-        run = {'exit_code': process.returncode, 'output': output.decode(errors='replace')[-4000:]}
+        exit_code, output = run_demo_process(argv, env, timeout + 120.0)
+        run = {'exit_code': exit_code, 'output': output[-4000:]}
         run.update({'summary': None, 'samples': None, 'result': None, 'sample_stamps': None})
         run['geometry'] = None
         directory = find_run_directory(output_root)
@@ -124,7 +116,7 @@ def run_kept_demo(
             run.update(read_run_directory(directory))
             with contextlib.suppress(OSError, ValueError):
                 run['geometry'] = RunDirectory(directory).read_geometry()
-            if keep_failed and process.returncode:
+            if keep_failed and exit_code:
                 kept = Path(keep_failed) / f'{backend}-seed{seed}-{directory.name}'
                 shutil.copytree(directory, kept)
                 run['kept'] = str(kept)

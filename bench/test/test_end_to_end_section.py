@@ -213,3 +213,16 @@ def test_the_bench_runs_each_hardware_path_with_its_demo_options(tmp_path):
     }
     argv = gsp_bench.end_to_end.demo_command(tmp_path, 30, 200.0, extra_args=('--device', 'serial'))
     assert argv[-2:] == ['--device', 'serial']
+
+
+def test_a_demo_process_gives_its_exit_code_and_output_or_is_stopped_past_its_limit():
+    """The one runner of the end-to-end and physics sections' demos: a child's exit code and
+    output; one still running past the wall limit is stopped (SIGTERM), not waited for."""
+    import sys
+
+    from gsp_bench.end_to_end import run_demo_process
+
+    quick = [sys.executable, '-c', 'print("calibrated"); raise SystemExit(3)']
+    assert run_demo_process(quick, None, 60.0) == (3, 'calibrated\n')
+    endless = [sys.executable, '-c', 'import time; time.sleep(600)']
+    assert run_demo_process(endless, None, 0.5)[0] == -15  # SIGTERM
