@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from gsp_bench.end_to_end import (
     demo_command,
@@ -48,6 +49,7 @@ from gsp_bench.end_to_end import (
 from gsp_calibrator.files.run_directory import RunDirectory
 from gsp_calibrator.run.postures import choose_postures, selection_arguments
 from gsp_calibrator.settings import DEFAULTS, CalibratorSettings
+from gsp_calibrator.tools.demo_commands import physics_preset_path
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
 from gsp_kinematics.model.motion import REALISTIC_MAX_ACCELERATION, REALISTIC_MAX_SPEED
@@ -125,6 +127,15 @@ def run_kept_demo(
         shutil.rmtree(output_root, ignore_errors=True)
 
 
+def preset_simulator(controller):
+    """The true platform on the physics backend as the demo runs it: with ``controller``'s
+    geometry and the preset's singularity guard (``max_condition``: a pose nearer a
+    singularity snaps the platform to another assembly, and every later pose with it)."""
+    preset = yaml.safe_load(Path(physics_preset_path()).read_text())
+    guard = preset['platform_sim']['ros__parameters']['max_condition']
+    return PhysicsSimulator(default_geometry('true'), controller, max_condition=guard)
+
+
 def poses_at_rest(simulator, poses, rest_s=0.5, timeout_s=30.0):
     """Where the platform of ``simulator`` comes to rest for each commanded pose (M, 6): the
     pose ``rest_s`` (s) after the encoders are in position (NaN rows: refused, or not in
@@ -145,7 +156,7 @@ def poses_at_rest(simulator, poses, rest_s=0.5, timeout_s=30.0):
 def true_position_mm(controller, poses):
     """Mean position error (mm) of the physics platform with ``controller`` over ``poses`` at
     rest (the rows it refuses left out)."""
-    reached = poses_at_rest(PhysicsSimulator(default_geometry('true'), controller), poses)
+    reached = poses_at_rest(preset_simulator(controller), poses)
     errors = 1e3 * np.linalg.norm(reached[:, :3] - poses[:, :3], axis=1)
     return float(np.nanmean(errors)) if np.any(np.isfinite(errors)) else math.nan
 
@@ -155,10 +166,10 @@ def held_seeds(count, postures, tries=QUICK_SEED_TRIES):
     defaults (from a pool reachable under the nominal geometry), the physics platform holds: it
     refuses a posture its true geometry cannot hold (past a joint's stop, near a singularity),
     and one refusal fails the run (seed 0 at 14 postures: platform joint 6 at 83 deg)."""
-    true, found = default_geometry('true'), []
+    found = []
     for seed in range(tries):
         settings = CalibratorSettings.from_values({'posture_count': postures, 'seed': seed})
-        simulator = PhysicsSimulator(true, settings.nominal)
+        simulator = preset_simulator(settings.nominal)
         poses = choose_postures(*selection_arguments(settings)).poses
         if all(simulator.command(pose).accepted for pose in poses):
             found.append(seed)

@@ -197,6 +197,16 @@ PARAMETERS = (
         'max_leg_acceleration); a posture that does not settle is skipped',
         unit='s',
     ),
+    _positive(
+        'max_posture_error',
+        0.05,
+        'Largest distance between the platform position the device measures (eq 9, nominal '
+        'geometry) and the commanded one; beyond it the run stops with an error, that row not '
+        'kept: the platform is not where it was sent (another assembly after passing near a '
+        "singularity, a swapped or miswired sensor). Above the nominal geometry's error and "
+        "the inclinometer's mounting offset (1 deg: 15-20 mm)",
+        unit='m',
+    ),
     _seconds(
         'rest_lookback',
         0.25,

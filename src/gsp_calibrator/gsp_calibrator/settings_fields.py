@@ -18,6 +18,7 @@ class ParameterFields:
     pairs_per_posture: int
     sync_tolerance: float
     settle_timeout: float
+    max_posture_error: float
     rest_lookback: float
     rest_sigmas: float
     topic_timeout: float

@@ -540,3 +540,30 @@ def test_the_sample_rate_is_the_slowest_stream_s_as_heard():
     for k in range(10):
         instant(collection, T0 + k * 20 * MS)
     assert collection.latest.sample_rate_hz() == pytest.approx(50.0)
+
+
+def test_a_platform_the_device_measures_far_from_the_command_stops_the_run_without_its_row():
+    from gsp_calibrator.collection.events import PlatformElsewhere
+    from gsp_calibrator.settings import CalibratorSettings
+    from gsp_kinematics.model.device import device_readings
+
+    settings = CalibratorSettings.from_values({})
+    nominal = settings.nominal
+    at_command = device_readings(nominal, POSE[None])[0]
+    # 60 mm lower along the link than commanded (an LVDT short by 60 mm): beyond the default.
+    for readings, ends in ((at_command, RowReady), (at_command - [0, 0, 0, 0.06], None)):
+        collection = CollectionProtocol.for_settings(settings)
+        settle(collection)
+        events = []
+        for j in range(120):  # the rest rule's look-back and the window (0.6 s at 200 Hz)
+            events += instant(collection, T0 + 11 * MS + 5 * MS * j, readings=readings)
+        final = [event for event in events if isinstance(event, FINAL_EVENTS)]
+        if ends is RowReady:
+            assert isinstance(final[0], RowReady)
+            continue
+        (event,) = final
+        assert isinstance(event, PlatformElsewhere) and event.posture == 1
+        assert event.distance_m == pytest.approx(0.06, abs=1e-9)  # m
+        assert event.limit_m == settings.max_posture_error == 0.05
+        assert 'measures the platform 60 mm from the commanded position' in event.message
+        assert collection._posture is None and collection.poll(T0 + 100 * S) == []

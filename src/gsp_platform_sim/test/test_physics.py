@@ -134,6 +134,45 @@ def test_a_command_the_real_platform_cannot_hold_is_refused_though_the_controlle
     assert np.linalg.norm(sim.true_pose[:3] - POSE[:3]) < 0.01  # m (nominal controller)
 
 
+def preset_max_condition():
+    """``max_condition`` of the package's physics preset (config/physics_realistic.yaml)."""
+    import pathlib
+
+    import yaml
+
+    path = pathlib.Path(__file__).parents[1] / 'config' / 'physics_realistic.yaml'
+    return yaml.safe_load(path.read_text())['platform_sim']['ros__parameters']['max_condition']
+
+
+def test_near_a_singularity_the_platform_snaps_and_the_preset_refuses_to_go_there():
+    from gsp_kinematics.model.kinematics import pose_from_leg_readings
+    from gsp_kinematics.model.motion import MotionLimits
+
+    # Two postures of a default 60-posture plan (seed 3): the nominal controller's legs for the
+    # second put the real platform at a condition number of 49.6, within the default guard.
+    start = np.array([-0.0334060, -0.3965572, 0.8578618, -0.1061830, -0.5120312, 0.4212123])
+    edge = np.array([0.3595978, -0.3655890, 1.1043762, 0.4876390, -0.3922559, 0.6677015])
+    sim = PhysicsSimulator(TRUE, NOMINAL, initial_pose=start, limits=MotionLimits())
+    outcome = sim.command(edge)
+    assert outcome.accepted
+    sim.advance(sim.time_s + outcome.travel_s + 5.0)
+    # The legs are where the controller sent them, the platform is not: it sagged, then snapped.
+    expected = pose_from_leg_readings(TRUE, sim.leg_lengths, outcome.true_pose)
+    assert np.linalg.norm(sim.true_pose[:3] - expected[:3]) > 0.005  # m
+    assert not sim.in_position  # the servos cannot hold it
+
+    guarded = PhysicsSimulator(
+        TRUE,
+        NOMINAL,
+        initial_pose=start,
+        limits=MotionLimits(),
+        max_condition=preset_max_condition(),
+    )
+    outcome = guarded.command(edge)
+    assert not outcome.accepted
+    assert 'near a singularity (condition number 50)' in outcome.reason
+
+
 def test_a_simulation_behind_the_clock_slips_without_simulating_the_gap():
     sim = PhysicsSimulator(TRUE, NOMINAL, start_s=100.0)
     assert sim.time_s == pytest.approx(100.0, abs=1e-9)

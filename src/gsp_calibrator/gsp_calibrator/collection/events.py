@@ -54,6 +54,26 @@ class NoSynchronisedPair:
 
 
 @dataclasses.dataclass(frozen=True)
+class PlatformElsewhere:
+    """At posture ``posture`` the device measured the platform ``distance_m`` (m) from where it
+    was commanded: it is not where it was sent, and the run cannot go on."""
+
+    posture: int
+    distance_m: float
+    limit_m: float
+
+    @property
+    def message(self):
+        return (
+            f'at posture {self.posture} the device measures the platform '
+            f'{self.distance_m * 1e3:.0f} mm from the commanded position (max_posture_error '
+            f'{self.limit_m * 1e3:.0f} mm): it is not where it was sent (another assembly '
+            'after passing near a singularity, or a swapped or miswired sensor). Its row is not '
+            'kept; bring the platform back to a known posture and resume'
+        )
+
+
+@dataclasses.dataclass(frozen=True)
 class SampleDropped:
     """A sensor message was dropped (``non_finite``: counted, see ``non_finite_dropped``)."""
 
@@ -82,4 +102,4 @@ class PairsCollected:
 
 
 #: Events after which the posture (or the run) is over.
-FINAL_EVENTS = (RowReady, PostureSkipped, TopicSilent, NoSynchronisedPair)
+FINAL_EVENTS = (RowReady, PostureSkipped, TopicSilent, NoSynchronisedPair, PlatformElsewhere)

@@ -9,6 +9,7 @@ import numpy as np
 from gsp_calibrator.collection.events import (
     CollectionStarted,
     PairsCollected,
+    PlatformElsewhere,
     PostureSkipped,
     RowReady,
     SampleDropped,
@@ -37,6 +38,7 @@ from gsp_calibrator.collection.topics import (
 )
 from gsp_kinematics import channels
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
+from gsp_kinematics.model.device import device_position
 
 #: A posture is skipped when this many times pairs_per_posture pairs hold no consistent window.
 MAX_PAIRS_PER_SAMPLE = 20
@@ -98,6 +100,8 @@ class CollectionProtocol:
             rest_lookback=settings.rest_lookback,
             rest_sigmas=settings.rest_sigmas,
             planned_move=planned_move(settings.nominal, settings.motion_limits),
+            nominal=settings.nominal,
+            max_posture_error=settings.max_posture_error,
         )
 
     def __init__(
@@ -113,8 +117,12 @@ class CollectionProtocol:
         rest_lookback=0.0,
         rest_sigmas=DEFAULT_REST_SIGMAS,
         planned_move=None,
+        nominal=None,
+        max_posture_error=math.inf,
     ):
         self.pairs_per_posture = int(pairs_per_posture)
+        # A row's device position is checked against the commanded one under ``nominal``.
+        self._nominal, self.max_posture_error = nominal, float(max_posture_error)
         self.timeouts = CollectionTimeouts(
             topic_timeout, settle_timeout, sync_tolerance, pairs_per_posture, planned_move
         )
@@ -340,11 +348,25 @@ class CollectionProtocol:
         posture, collector = self._posture, self.collector
         dropped_before = collector.inconsistent
         sample = collector.take_posture()
+        distance = self._distance_from_command(posture.pose, sample.readings)
+        if distance > self.max_posture_error:
+            return self._fail(PlatformElsewhere(posture.number, distance, self.max_posture_error))
         self._previous = sample.readings
         self._posture = None
         return [
             RowReady(posture.number, posture.pose, sample, collector.inconsistent - dropped_before)
         ]
+
+    def _distance_from_command(self, pose, readings):
+        """Distance (m) of the platform position the device ``readings`` measure (eq 9 with
+        the nominal geometry) from the commanded ``pose``'s; 0 without a nominal geometry."""
+        nominal = self._nominal
+        if nominal is None:
+            return 0.0
+        alpha, beta, _, d_m = readings
+        length = nominal.device_length + d_m
+        measured = device_position(alpha, beta, length, nominal.inclinometer_axes_angle)
+        return float(np.linalg.norm(measured - np.asarray(pose, dtype=float)[:3]))
 
     def _skip(self, reason, rejected=False, platform_reason=''):
         event = PostureSkipped(self._posture.number, reason, rejected, platform_reason)
