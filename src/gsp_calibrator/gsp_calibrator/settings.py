@@ -206,6 +206,7 @@ PARAMETERS = (
         "singularity, a swapped or miswired sensor). Above the nominal geometry's error and "
         "the inclinometer's mounting offset (1 deg: 15-20 mm)",
         unit='m',
+        subsets=frozenset((STORED, REIDENTIFY_COMMAND_LINE)),
     ),
     _seconds(
         'rest_lookback',

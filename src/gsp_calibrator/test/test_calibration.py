@@ -1,6 +1,7 @@
 """The pure calibration pipeline on synthetic data from the core (no ROS)."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -262,3 +263,16 @@ def test_last_progress_message_agrees_with_the_phase():
         final_progress_message('calibration succeeded: 60\nx', True, 'applied')
         == 'calibration succeeded: 60'
     )
+
+
+def test_rows_of_a_platform_elsewhere_fail_the_identification_naming_their_postures(selection):
+    """Rows measured with the platform not where it was commanded (another assembly) would
+    spoil every fit: the identification refuses them by name, as the collection does."""
+    samples = synthetic_samples(selection.poses[:30])
+    assert identify_from_samples(NOMINAL, samples, SIGMAS, max_posture_error=0.05).success
+    samples.readings[[4, 9], 3] += 0.3  # m: the LVDT of postures 5 and 10 reads 300 mm long
+    outcome = identify_from_samples(NOMINAL, samples, SIGMAS, max_posture_error=0.05)
+    assert not outcome.success and outcome.geometry is None
+    # 300 mm along the link, a few mm of it the geometry's error
+    assert re.search(r'measures the platform 29\d-30\d mm from the commanded', outcome.message)
+    assert 'posture(s) [5, 10] (max_posture_error 50 mm)' in outcome.message

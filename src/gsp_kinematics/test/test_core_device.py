@@ -9,6 +9,7 @@ from gsp_kinematics.model.device import (
     DeviceModelError,
     device_position,
     device_readings,
+    distance_from_commands,
     paper_inclinations_jacobians,
     position_to_inclinations,
 )
@@ -71,6 +72,14 @@ def test_device_readings(exact, postures):
         readings[:, 0], readings[:, 1], readings[:, 3] + 0.8493, math.radians(91.0)
     )
     np.testing.assert_allclose(position, postures[:, :3], atol=1e-13)
+
+
+def test_the_distance_from_the_commands_is_the_measured_position_error(exact, postures):
+    readings = device_readings(exact, postures)
+    np.testing.assert_allclose(distance_from_commands(exact, postures, readings), 0.0, atol=1e-12)
+    moved = postures + [0.003, -0.004, 0.0, 0.0, 0.0, 0.0]  # the platform 5 mm off in x, y
+    distances = distance_from_commands(exact, postures, device_readings(exact, moved))
+    np.testing.assert_allclose(distances, 0.005, rtol=0.0, atol=1e-12)  # m
 
 
 @pytest.mark.parametrize('gamma_deg', [90.0, 89.5, 91.0])

@@ -38,7 +38,7 @@ from gsp_calibrator.collection.topics import (
 )
 from gsp_kinematics import channels
 from gsp_kinematics.estimation.noise_estimate import DEFAULT_REST_SIGMAS
-from gsp_kinematics.model.device import device_position
+from gsp_kinematics.model.device import distance_from_commands
 
 #: A posture is skipped when this many times pairs_per_posture pairs hold no consistent window.
 MAX_PAIRS_PER_SAMPLE = 20
@@ -360,13 +360,9 @@ class CollectionProtocol:
     def _distance_from_command(self, pose, readings):
         """Distance (m) of the platform position the device ``readings`` measure (eq 9 with
         the nominal geometry) from the commanded ``pose``'s; 0 without a nominal geometry."""
-        nominal = self._nominal
-        if nominal is None:
+        if self._nominal is None:
             return 0.0
-        alpha, beta, _, d_m = readings
-        length = nominal.device_length + d_m
-        measured = device_position(alpha, beta, length, nominal.inclinometer_axes_angle)
-        return float(np.linalg.norm(measured - np.asarray(pose, dtype=float)[:3]))
+        return float(distance_from_commands(self._nominal, pose[None], readings)[0])
 
     def _skip(self, reason, rejected=False, platform_reason=''):
         event = PostureSkipped(self._posture.number, reason, rejected, platform_reason)

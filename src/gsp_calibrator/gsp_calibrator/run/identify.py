@@ -2,6 +2,7 @@
 See docs/verdict.md."""
 
 import dataclasses
+import math
 import time
 import traceback
 import typing
@@ -38,7 +39,7 @@ from gsp_kinematics.estimation.verdict.model_choice import (
     DEFAULT_THERMAL_TIME_CONSTANTS,
     choose_model,
 )
-from gsp_kinematics.model.device import DeviceModelError
+from gsp_kinematics.model.device import DeviceModelError, distance_from_commands
 from gsp_kinematics.model.effect_groups import AUTO, effect_groups_of, is_effect_name, split_auto
 from gsp_kinematics.model.sensor_noise import DEFAULT_SENSOR_NOISE, SensorNoise
 
@@ -153,6 +154,7 @@ def identify_from_samples(
     centre_of_mass=(0.0, 0.0, 0.0),
     workspace_poses=None,
     leg_mass=(0.0,) * 6,
+    max_posture_error=math.inf,
     **identify_options,
 ):
     """Identify from the averaged rows ``samples`` (``Rows``; ``sigmas``: per-sample noise, m and
@@ -167,6 +169,17 @@ def identify_from_samples(
     )
     if count == 0:
         outcome.message = 'no posture was collected: nothing to identify'
+        return outcome
+    distances = distance_from_commands(nominal, samples.commanded_poses, samples.readings)
+    elsewhere = np.flatnonzero(~(distances <= max_posture_error))
+    if elsewhere.size:
+        outcome.message = (
+            f'the device measures the platform {np.min(distances[elsewhere]) * 1e3:.0f}-'
+            f'{np.max(distances[elsewhere]) * 1e3:.0f} mm from the commanded position at '
+            f'posture(s) {samples.posture[elsewhere].tolist()} (max_posture_error '
+            f'{max_posture_error * 1e3:.0f} mm): it was not where it was sent (another '
+            'assembly, a swapped or miswired sensor): delete those rows from samples.csv'
+        )
         return outcome
     within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
     design = effect_design(samples, payload_mass, centre_of_mass, leg_mass)
@@ -364,6 +377,7 @@ def identify_with_settings(settings, samples):
         centre_of_mass=settings.payload_centre_of_mass,
         workspace_poses=workspace_poses(settings),
         leg_mass=settings.leg_mass,
+        max_posture_error=settings.max_posture_error,
         options=settings.identify_options(),
     )
 

@@ -61,6 +61,7 @@ def _identify(nominal, samples, sigmas, options, noise_source):
             nominal, options.get('workspace_postures', 0), options.get('seed', 0)
         ),
         leg_mass=options['leg_mass'],
+        max_posture_error=options['max_posture_error'],
         options=Options(loss=options.get('loss', DEFAULTS['loss'])),
     )
 

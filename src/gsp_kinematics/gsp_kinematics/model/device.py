@@ -75,6 +75,18 @@ def device_position(alpha, beta, link_length, gamma):
     return np.asarray(link_length, dtype=float)[..., None] * link_direction(alpha, beta, gamma)
 
 
+def distance_from_commands(geometry, poses, readings):
+    """Distance (M,) m of the platform positions the device ``readings`` (M, 4) measure (eq 9
+    with ``geometry``) from the commanded ``poses`` (M, 6): a few mm when the platform is where
+    it was sent and ``geometry`` is close to its own."""
+    readings = np.atleast_2d(np.asarray(readings, dtype=float))
+    length = geometry.device_length + readings[:, 3]
+    measured = device_position(
+        readings[:, 0], readings[:, 1], length, geometry.inclinometer_axes_angle
+    )
+    return np.linalg.norm(measured - np.atleast_2d(poses)[:, :3], axis=1)
+
+
 def position_to_inclinations(position, gamma):
     """Solve eq (9) for ``(alpha, beta)`` given platform positions (..., 3); inverse of the model.
 
