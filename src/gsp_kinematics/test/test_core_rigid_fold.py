@@ -7,6 +7,8 @@ import pytest
 
 from gsp_kinematics.estimation.rigid_fold import (
     FOLD_PARAMETERS,
+    PLAIN_ITERATIONS,
+    compensated_leg_lengths,
     fit_rigid_geometry,
     fold_effects,
     fold_postures,
@@ -101,6 +103,11 @@ def test_the_fold_is_the_best_rigid_geometry_on_the_realistic_platform(check_pos
     # Measured: 0.0050 mm folded, 0.0051 mm best, 0.0221 mm the effects geometry run rigidly.
     assert folded < 0.5 * run_rigidly, (folded, run_rigidly)
     assert folded < 1.05 * best_mm, (folded, best_mm)
+    # The fold minimises the mean pose error; in least squares alone (its first steps) the
+    # postures near the workspace's edge rule, and the mean is 0.0092 mm.
+    target = compensated_leg_lengths(KNOWN, poses)
+    squares = fit_rigid_geometry(KNOWN, poses, target, iterations=PLAIN_ITERATIONS)
+    assert folded < 0.7 * _truth_mm(squares, check_poses), folded
 
 
 def test_the_predicted_rigid_error_sees_what_the_fold_gains(check_poses):
