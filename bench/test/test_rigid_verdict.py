@@ -10,7 +10,7 @@ import types
 import numpy as np
 import pytest
 
-from gsp_bench.verdict import RUN_S, default_design, simulated_samples
+from gsp_bench.verdict import RUN_S, default_design, effect_cases, simulated_samples
 from gsp_calibrator.node.result_delivery import ResultDelivery
 from gsp_calibrator.run.identify import identify_with_settings
 from gsp_calibrator.run.response import outcome_summary
@@ -147,3 +147,28 @@ def test_a_rigid_controller_is_judged_on_the_rigid_figure(design, outcomes):
         'not declare the geometry.effects.* parameters, and the verdict of the rigid geometry '
         'does not accept it: position'
     ), note
+
+
+def test_the_rigid_section_sets_the_best_rigid_geometry_beside_the_fits_noise(design):
+    """``rigid_over_best_and_ideal``: a rigid geometry as good as the best one, identified at the
+    plan's noise, has the best's error and the ideal platform's (the fit's) added as
+    independent errors; its truth at that level reads 1 where ``rigid_over_best`` reads more."""
+    import math
+
+    from gsp_bench import rigid_fold
+
+    best_mm, floor_mm = 0.00276, 0.0031
+    level = math.hypot(best_mm, floor_mm)
+    runs = [
+        {
+            'rigid_true_mm': level * factor,
+            'rigid_true_at_end_mm': level * factor,
+            'rigid_cv_mm': level,
+            'rigid_cv_interval_mm': [0.5 * level, 2 * level],
+        }
+        for factor in (0.9, 1.0, 1.1)
+    ]
+    backlash = effect_cases()['backlash']
+    figures = rigid_fold.rigid_figures(design, backlash, runs, best_mm, floor_mm)
+    assert figures['rigid_over_best_and_ideal'] == pytest.approx(1.0)
+    assert figures['rigid_over_best'] == pytest.approx(level / best_mm)
