@@ -379,6 +379,7 @@ def cross_validate(
     unmodelled=None,
     workspace=Workspace(),
     linearised=False,
+    truth_draws=True,
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
     (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without its
@@ -389,7 +390,9 @@ def cross_validate(
     ``row_sigmas``). ``effects``: the rows' ``EffectDesign`` when ``result`` freed effect groups.
     ``uncompensated_strain`` (6,): the thermal growth the controllers leave. ``unmodelled``: a
     SensorNoise of row stds no fit removes (None: nothing). ``workspace``: the ``Workspace`` the
-    calibrated position figure is carried to (None: the run's postures)."""
+    calibrated position figure is carried to (None: the run's postures). ``truth_draws``: False
+    leaves out the truth's draws (:func:`.interval.workspace_truth_draws`), which only the
+    summary's intervals read (the model choice reads none)."""
     started = time.perf_counter()
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]
@@ -417,7 +420,11 @@ def cross_validate(
     return CrossValidation(
         **corrections,
         workspace_truth_variance=_workspace_truth_variance(result, sample, uncompensated_strain),
-        **workspace_truth_draws(result, guesses if sample is None else sample),
+        **(
+            workspace_truth_draws(result, guesses if sample is None else sample)
+            if truth_draws
+            else {}
+        ),
         position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,
