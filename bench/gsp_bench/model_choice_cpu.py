@@ -12,7 +12,8 @@ without interference); per case the median over the seeds of the per-seed
 ratio ``auto / extended`` (the issue-33 target: at most 5). Beside it, ``ratio_to_plain_fit``:
 ``auto`` over the plain fit alone (``extended``'s estimated-noise fit without its verdict, what
 the summary's identification time counts), and ``before``: the same section on the code before
-the model choice's linearised folds (commit 5eab6c8).
+the model choice's linearised folds (commit 5eab6c8) and before it cross-validated only the
+candidates that can still be kept (commit e934763).
 """
 
 import math
@@ -37,29 +38,51 @@ CASES = {
 }
 
 
-#: This section's medians on commit 5eab6c8, the code before the model choice's linearised
-#: folds (2026-11-28, 5 seeds, load average about 12 from other jobs): ``{case: {field: value}}``.
+#: This section's medians before a change of the model choice: ``{commit: {case: {field: value}}}``.
+#: 5eab6c8, before the linearised folds (2026-11-28, 5 seeds, load average about 12 from other
+#: jobs); e934763, before only the candidates that can still be kept were cross-validated
+#: (2026-11-28, 20 seeds, run just before the same section on the change).
 BEFORE = {
-    'realistic_with_payload': {
-        'auto_cpu_s': 2.559,
-        'extended_cpu_s': 0.331,
-        'plain_fit_cpu_s': 0.046,
-        'ratio': 7.63,
-        'ratio_to_plain_fit': 55.3,
+    '5eab6c8': {
+        'realistic_with_payload': {
+            'auto_cpu_s': 2.559,
+            'extended_cpu_s': 0.331,
+            'plain_fit_cpu_s': 0.046,
+            'ratio': 7.63,
+            'ratio_to_plain_fit': 55.3,
+        },
+        'realistic_no_payload': {
+            'auto_cpu_s': 1.623,
+            'extended_cpu_s': 0.334,
+            'plain_fit_cpu_s': 0.048,
+            'ratio': 4.78,
+            'ratio_to_plain_fit': 34.7,
+        },
+        'ideal_no_payload': {
+            'auto_cpu_s': 1.074,
+            'extended_cpu_s': 0.289,
+            'plain_fit_cpu_s': 0.018,
+            'ratio': 3.73,
+            'ratio_to_plain_fit': 58.4,
+        },
     },
-    'realistic_no_payload': {
-        'auto_cpu_s': 1.623,
-        'extended_cpu_s': 0.334,
-        'plain_fit_cpu_s': 0.048,
-        'ratio': 4.78,
-        'ratio_to_plain_fit': 34.7,
-    },
-    'ideal_no_payload': {
-        'auto_cpu_s': 1.074,
-        'extended_cpu_s': 0.289,
-        'plain_fit_cpu_s': 0.018,
-        'ratio': 3.73,
-        'ratio_to_plain_fit': 58.4,
+    'e934763': {
+        'realistic_no_payload': {
+            'auto_cpu_s': 1.175,
+            'extended_cpu_s': 0.243,
+            'plain_fit_cpu_s': 0.031,
+            'ratio': 4.84,
+            'ratio_to_plain_fit': 38.09,
+            'ratio_max': 5.03,
+        },
+        'ideal_no_payload': {
+            'auto_cpu_s': 0.539,
+            'extended_cpu_s': 0.21,
+            'plain_fit_cpu_s': 0.013,
+            'ratio': 2.57,
+            'ratio_to_plain_fit': 43.22,
+            'ratio_max': 2.67,
+        },
     },
 }
 
@@ -152,5 +175,5 @@ def run(quick=False):
         'target': {'ratio': f'<= {TARGET_RATIO:g}'},
         'seeds': seeds,
         'cases': cases,
-        'before': {'commit': '5eab6c8', 'cases': BEFORE},
+        'before': BEFORE,
     }

@@ -267,9 +267,9 @@ def node_plan_rows(seed):
 def test_auto_on_a_short_run_writes_the_report_with_the_figures_it_could_not_measure(
     design, tmp_path
 ):
-    """16 postures: every effect group's fit is identified but not the fits without a fold, so
-    no candidate's held-out error is measured; the report is written with 'n/a' and why, and
-    the summary says the same."""
+    """16 postures: no group passes the test (its held-out error is not measured) and all four
+    together are not identifiable, so no candidate's held-out error is measured; the report is
+    written with 'n/a' and why, and the summary says the same."""
     samples, _ = run_rows(design, PlatformEffects())
     outcome = calibrate(design, samples.rows(np.arange(len(samples)) < 16), ['auto'])
     assert outcome.success, outcome.message
@@ -281,8 +281,8 @@ def test_auto_on_a_short_run_writes_the_report_with_the_figures_it_could_not_mea
     data = json.loads((tmp_path / 'result.json').read_text())
     assert None in [c['cv_position_mm'] for c in data['effects']['model_choice']['candidates']]
     report = (tmp_path / 'report.md').read_text()
-    assert '| thermal | n/a (held-out error not measured' in report
-    assert 'candidate thermal: held-out position n/a (held-out error not measured' in (
+    assert '| thermal | n/a (not measured: the test failed at level 0.0025)' in report
+    assert 'candidate thermal: held-out position n/a (not measured: the test failed' in (
         outcome_summary(outcome)
     )
 

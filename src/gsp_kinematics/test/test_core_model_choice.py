@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from gsp_kinematics.estimation.identification import identify
+from gsp_kinematics.estimation.verdict import model_choice
 from gsp_kinematics.estimation.verdict.choice_accuracy import freeing_gain, workspace_postures
+from gsp_kinematics.estimation.verdict.cross_validation import cross_validate
 from gsp_kinematics.estimation.verdict.model_choice import (
     Candidate,
     _keeps,
@@ -77,6 +79,39 @@ def test_auto_keeps_the_plain_model_or_frees_the_effect_the_platform_has(truth, 
         assert best.position_mm < 0.85 * plain.position_mm
     else:
         assert best.position_mm > 0.85 * plain.position_mm  # small in accuracy terms
+
+
+def test_only_a_candidate_that_can_be_kept_is_cross_validated(monkeypatch):
+    """The held-out error (a cross-validation, most of the choice's cost) is measured only for
+    a candidate that can still be kept: one that fails the test, or whose round kept a larger
+    chi-square drop, says why instead. On the compliant platform: the plain model and
+    compliance, not the 7 others."""
+    validated = []
+
+    def counted(result, *args, **kwargs):
+        validated.append(tuple(result.effect_free))
+        return cross_validate(result, *args, **kwargs)
+
+    monkeypatch.setattr(model_choice, 'cross_validate', counted)
+    legs, readings, design, poses = noisy_run(COMPLIANT)
+    choice = choose_model(NOMINAL, legs, readings, SIGMAS, design, pose_guesses=poses, folds=4)
+    assert choice.groups == ('compliance',), choice.to_dict()
+    plain, *others = choice.candidates
+    assert len(others) == 4 + 3 + 1  # two rounds, then the three left together
+    measured = [c for c in choice.candidates if math.isfinite(c.position_mm)]
+    assert [c.groups for c in measured] == [(), ('compliance',)]
+    assert len(validated) == len(measured) and not any(validated[0]), validated
+    for candidate in others[1:]:
+        assert math.isnan(candidate.position_mm) and not candidate.chosen, candidate
+    first_round = choice.candidates[1:5]
+    for candidate in first_round[1:]:
+        if candidate.p_value < 0.01 / 4:
+            assert candidate.not_measured == (
+                'not measured: compliance lowered the chi-square more and was kept'
+            )
+        else:
+            assert candidate.not_measured.startswith('not measured: the test failed'), candidate
+    assert all(c.not_measured.startswith('not measured: the test failed') for c in others[4:])
 
 
 def test_a_variance_above_the_weights_scales_the_test():
@@ -173,11 +208,14 @@ def test_a_candidate_that_cannot_be_measured_says_why_and_is_not_kept():
     """16 postures (64 equations beside the poses): the plain model's 51 parameters are
     identified, one group more (57) too but not by the fits without a fold, all four (75) not
     at all. Each candidate that cannot be judged says why; none is kept; no NaN comes from the
-    square root of a variance a singular fit's pseudo-inverse made negative."""
+    square root of a variance a singular fit's pseudo-inverse made negative. (A test level of 4:
+    every candidate passes the test, so each one's held-out error is tried.)"""
     legs, readings, design, poses = noisy_run(None, count=16)
     with warnings.catch_warnings():
         warnings.simplefilter('error', RuntimeWarning)
-        choice = choose_model(NOMINAL, legs, readings, SIGMAS, design, pose_guesses=poses)
+        choice = choose_model(
+            NOMINAL, legs, readings, SIGMAS, design, pose_guesses=poses, significance=4.0
+        )
     plain, *others = choice.candidates
     assert choice.groups == () and plain.chosen and not plain.not_judged, choice.to_dict()
     assert math.isfinite(plain.position_mm)
@@ -210,8 +248,8 @@ def test_only_a_judged_candidate_is_kept():
     """The rule decides explicitly, never by comparing a NaN: a significant candidate whose
     predicted gain could not be computed (NaN) is not kept, nor any candidate when the held-out
     error of the model it extends was not measured."""
-    best = Candidate((), 0.010, None)
-    trial = Candidate(('backlash',), 0.009, None, p_value=1e-6)
+    best = Candidate((), 0.010)
+    trial = Candidate(('backlash',), 0.009, p_value=1e-6)
     assert _keeps(trial, best, 0.01, 0.5)
     unpredicted = dataclasses.replace(trial, not_judged='predicted gain not computed')
     assert not _keeps(unpredicted, best, 0.01, 0.5)

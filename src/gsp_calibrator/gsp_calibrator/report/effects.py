@@ -155,7 +155,8 @@ def _held_out_text(candidate, unit=' mm'):
     value = _number(candidate.get('cv_position_mm'), '.4f')
     if value != 'n/a':
         return value + unit
-    return f'n/a ({candidate.get("not_judged") or "not measured"})'
+    why = candidate.get('not_judged') or candidate.get('not_measured') or 'not measured'
+    return f'n/a ({why})'
 
 
 def _test_text(candidate):

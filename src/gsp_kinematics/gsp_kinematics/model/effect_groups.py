@@ -196,13 +196,16 @@ def commanded_leg_readings(geometry, poses, previous_readings=None):
 
 def model_poses(geometry, leg_readings, guesses, design, tolerance=1e-12, iterations=12):
     """Poses (M, 6) where the identification's model with ``geometry.effects`` predicts the leg
-    readings (M, 6) of the :class:`EffectDesign` rows ``design``, and ``converged`` (M,)."""
+    readings (M, 6) of the :class:`EffectDesign` rows ``design``, and ``converged`` (M,): the
+    rigid FK of the readings less the effects at the ``guesses``, then Newton steps."""
     target = geometry.sensors.true_leg_lengths(np.atleast_2d(leg_readings))
-    poses, converged = forward_kinematics_masked(geometry, target, guesses)
     values = geometry.effects.values
     if geometry.effects.none:
-        return poses, converged
-    terms = EffectTerms(geometry, design, values != 0.0, len(poses))
+        return forward_kinematics_masked(geometry, target, guesses)
+    terms = EffectTerms(geometry, design, values != 0.0, len(target))
+    guesses = np.broadcast_to(np.asarray(guesses, dtype=float), target.shape)
+    shifted = target - terms.regressors(guesses) @ values[values != 0.0]
+    poses, converged = forward_kinematics_masked(geometry, shifted, guesses)
     for _ in range(iterations):
         rigid, jacobian, _ = inverse_kinematics_jacobians(geometry, poses)
         residual = rigid + terms.regressors(poses) @ values[values != 0.0] - target

@@ -92,16 +92,18 @@ def comparison_sensitivities(result, poses, readings, design=None):
     return legs * _compensated(result)[None, None], -(legs + device)
 
 
-def comparison_variances(result, poses, readings, design=None):
+def comparison_variances(result, poses, readings, design=None, sensitivities=None):
     """``(controller, comparison)``, each ``(position (M,) m^2, the trace; phi (M,) rad^2)``:
     ``result``'s parameter covariance propagated through :func:`comparison_sensitivities`
-    (NaN where the covariance is not finite)."""
+    (``sensitivities``: theirs at these arguments, if computed; NaN where the covariance is not
+    finite)."""
     covariance = np.asarray(result.covariance, dtype=float)
     count = np.atleast_2d(poses).shape[0]
     if not np.all(np.isfinite(covariance)):
         unknown = np.full(count, np.nan)
         return (unknown, unknown), (unknown, unknown)
-    sensitivities = comparison_sensitivities(result, poses, readings, design)
+    if sensitivities is None:
+        sensitivities = comparison_sensitivities(result, poses, readings, design)
     return tuple(propagated_variances(sensitivity, covariance) for sensitivity in sensitivities)
 
 

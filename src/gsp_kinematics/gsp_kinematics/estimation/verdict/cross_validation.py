@@ -285,16 +285,17 @@ def _uncompensated(geometry, poses, strain):
     return np.trace(position, axis1=1, axis2=2)
 
 
-def _corrections(result, readings, held_out, unmodelled, effects):
+def _corrections(result, readings, held_out, unmodelled, effects, sensitivities):
     """The :class:`CrossValidation` fields that correct ``result``'s held-out errors: the
     leverage ratios against each posture's ``held_out`` variances (position (M,) m^2, phi (M,)
-    rad^2), with ``unmodelled`` (SensorNoise or None) added to both, and the unseen part."""
+    rad^2), with ``unmodelled`` (SensorNoise or None) added to both, and the unseen part
+    (``sensitivities``: :func:`.comparison.comparison_sensitivities` at ``result``'s poses)."""
     poses = np.asarray(result.poses, dtype=float)
     unmodelled_variances = (0.0, 0.0)
     if unmodelled is not None:
         position, euler = reading_pose_covariance(result.geometry, poses, readings, unmodelled)
         unmodelled_variances = (np.trace(position, axis1=1, axis2=2), euler[:, 2, 2])
-    controller, comparison = comparison_variances(result, poses, readings, effects)
+    controller, comparison = comparison_variances(result, poses, readings, effects, sensitivities)
     fields = {}
     for k, channel in enumerate(('position', 'phi')):
         extra = unmodelled_variances[k]
@@ -322,16 +323,16 @@ def _workspace_truth_variance(result, poses, strain):
     return float(np.mean(variance if thermal is None else variance + thermal))
 
 
-def _held_out(result, rows, assignment, options, effects, linearised=False):
+def _held_out(result, rows, assignment, options, effects, linearised, sensitivity):
     """``(position (M, 3) m, phi (M,) rad, (position, phi) variances, failed folds)``: each
     posture's error predicted by the fit without its fold (``assignment``) and that fit's variance
-    of the comparison there. ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)``."""
+    of the comparison there. ``rows``: ``(leg_lengths, readings, row_sigmas, guesses)``;
+    ``sensitivity``: the comparison's (:func:`.comparison.comparison_sensitivities`) there."""
     leg_lengths, readings, row_sigmas, guesses = rows
     folds = range(int(assignment.max()) + 1)
     steps = linearised and linearised_refits(
         result, leg_lengths, readings, row_sigmas, effects, [assignment != f for f in folds]
     )
-    sensitivity = steps and comparison_sensitivities(result, guesses, readings, effects)[1]
     count = leg_lengths.shape[0]
     position, phi, failed = np.full((count, 3), np.nan), np.full(count, np.nan), []
     held_out = (np.full(count, np.nan), np.full(count, np.nan))  # position, phi
@@ -379,6 +380,7 @@ def cross_validate(
     unmodelled=None,
     workspace=Workspace(),
     linearised=False,
+    truth_draws=True,
 ):
     """:class:`CrossValidation` of the identification ``result`` (of the rows ``leg_lengths``
     (M, 6), ``readings`` (M, 4), weights ``row_sigmas``): each fold is identified without its
@@ -389,22 +391,25 @@ def cross_validate(
     ``row_sigmas``). ``effects``: the rows' ``EffectDesign`` when ``result`` freed effect groups.
     ``uncompensated_strain`` (6,): the thermal growth the controllers leave. ``unmodelled``: a
     SensorNoise of row stds no fit removes (None: nothing). ``workspace``: the ``Workspace`` the
-    calibrated position figure is carried to (None: the run's postures)."""
+    calibrated position figure is carried to (None: the run's postures). ``truth_draws``: False
+    leaves out the truth's draws (:func:`.interval.workspace_truth_draws`), which only the
+    summary's intervals read (the model choice reads none)."""
     started = time.perf_counter()
     leg_lengths, readings = np.asarray(leg_lengths, float), np.asarray(readings, float)
     count = leg_lengths.shape[0]
     assignment = fold_assignment(count, folds)
     guesses = np.asarray(result.poses, dtype=float)
     rows = (leg_lengths, readings, row_sigmas, guesses)
+    sensitivities = comparison_sensitivities(result, guesses, readings, effects)
     position, phi, held_out, failed = _held_out(
-        result, rows, assignment, options, effects, linearised
+        result, rows, assignment, options, effects, linearised, sensitivities[1]
     )
     noise = row_sigmas if noise is None else noise
     position_noise, phi_noise = noise_variances(result.geometry, guesses, readings, noise)
     nominal_position, nominal_phi, _ = _errors(
         nominal, result.geometry, leg_lengths, readings, guesses
     )
-    corrections = _corrections(result, readings, held_out, unmodelled, effects)
+    corrections = _corrections(result, readings, held_out, unmodelled, effects, sensitivities)
     sample = None  # WORKSPACE_SAMPLE seeded random postures of the workspace
     if workspace is not None:
         rng = np.random.default_rng(0)
@@ -417,7 +422,11 @@ def cross_validate(
     return CrossValidation(
         **corrections,
         workspace_truth_variance=_workspace_truth_variance(result, sample, uncompensated_strain),
-        **workspace_truth_draws(result, guesses if sample is None else sample),
+        **(
+            workspace_truth_draws(result, guesses if sample is None else sample)
+            if truth_draws
+            else {}
+        ),
         position_uncompensated=uncompensated,
         folds=int(assignment.max()) + 1,
         fold_of_posture=assignment,

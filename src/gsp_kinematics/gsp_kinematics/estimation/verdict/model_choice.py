@@ -29,13 +29,12 @@ DEFAULT_THERMAL_TIME_CONSTANTS = (0.0, 150.0, 300.0, 600.0, 1200.0)
 @dataclasses.dataclass(frozen=True)
 class Candidate:
     """One model tried: its effect groups, held-out position error (mm,
-    :func:`held_out_position_mm`; NaN: ``not_judged`` says why), its cross-validation summary,
-    whether kept, ``chi2`` and the test against the model it extends (``delta_chi2``, ``added``,
+    :func:`held_out_position_mm`; NaN: ``not_judged`` or ``not_measured`` says why), whether
+    kept, ``chi2`` and the test against the model it extends (``delta_chi2``, ``added``,
     ``p_value``)."""
 
     groups: tuple
     position_mm: float
-    summary: dict | None
     chosen: bool = False
     chi2: float = float('nan')
     delta_chi2: float = float('nan')
@@ -47,8 +46,12 @@ class Candidate:
     predicted_with_mm: float = float('nan')
     #: Why the candidate could not be judged, so is never kept ('' : judged): its fit did not
     #: converge or is not identifiable with the run's postures, its held-out error or its
-    #: predicted gain could not be measured (:func:`_score`).
+    #: predicted gain could not be measured (:func:`_judged`).
     not_judged: str = ''
+    #: Why its held-out error and predicted gain were not measured although they could be
+    #: ('': measured or ``not_judged``): it failed the test, or a candidate of its round with a
+    #: larger chi-square drop was kept; either way it cannot be kept (:func:`_first_kept`).
+    not_measured: str = ''
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +87,7 @@ class ModelChoice:
                     'predicted_with_mm': c.predicted_with_mm,
                     'chosen': c.chosen,
                     'not_judged': c.not_judged,
+                    'not_measured': c.not_measured,
                 }
                 for c in self.candidates
             ],
@@ -167,19 +171,33 @@ def _unidentifiable(result, count):
     )
 
 
-def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
+def _tested(nominal, data, base, groups, settings, reference=None, fitted=None):
     """``(result, Candidate)`` of the model ``base`` + ``groups`` (``fitted``: its fit, if made),
     tested against ``reference`` = ``(result, its groups)`` when given (``settings``:
-    :func:`_forward`'s). ``result`` None: the fit failed."""
-    folds, options, _, _, factor, workspace, linearised = settings
-    leg_lengths, readings, sigmas, _, design, noise = data
+    :func:`_forward`'s); its held-out error not yet measured (:func:`_judged`). ``result`` None:
+    the fit failed."""
+    options, factor = settings[1], settings[4]
     start = None if reference is None else reference[0]
-    result = fitted or _fit(nominal, data, list(base) + list(groups), options, design, start)
+    result = fitted or _fit(nominal, data, list(base) + list(groups), options, data[4], start)
     if result is None:
-        return None, Candidate(tuple(groups), math.nan, None, not_judged='the fit did not converge')
-    unidentifiable = _unidentifiable(result, len(leg_lengths))
+        return None, Candidate(tuple(groups), math.nan, not_judged='the fit did not converge')
+    unidentifiable = _unidentifiable(result, len(data[0]))
     if unidentifiable:
-        return result, Candidate(tuple(groups), math.nan, None, not_judged=unidentifiable)
+        return result, Candidate(tuple(groups), math.nan, not_judged=unidentifiable)
+    test = {}
+    if reference is not None:
+        added = NUM_LEGS * (len(groups) - len(reference[1]))
+        delta, p_value = likelihood_ratio(reference[0], result, added, factor)
+        test = {'delta_chi2': delta, 'added': added, 'p_value': p_value}
+    return result, Candidate(tuple(groups), math.nan, chi2=_chi2(result), **test)
+
+
+def _judged(nominal, data, tested, settings, reference=None):
+    """``(result, Candidate)`` of :func:`_tested`'s ``tested`` with its held-out error and, for
+    a compensated group added to ``reference``, its predicted gain (or why not)."""
+    folds, options, _, _, _, workspace, linearised = settings
+    leg_lengths, readings, sigmas, _, design, noise = data
+    result, candidate = tested
     validation = cross_validate(
         result,
         nominal,
@@ -192,30 +210,61 @@ def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
         design,
         workspace=None,
         linearised=linearised,
+        truth_draws=False,
     )
-    summary = validation.summary()
     position = held_out_position_mm(validation)
-    test, why = {}, []
+    gain, why = {}, []
     if not math.isfinite(position):
         why.append(
             'held-out error not measured: no fit without a fold converged to an identifiable '
             f'fit (failed folds {list(validation.failed_folds)} of {validation.folds})'
         )
-    if reference is not None:
-        added = NUM_LEGS * (len(groups) - len(reference[1]))
-        delta, p_value = likelihood_ratio(reference[0], result, added, factor)
-        test = {'delta_chi2': delta, 'added': added, 'p_value': p_value}
-        if workspace is not None and set(groups) - set(reference[1]) & set(COMPENSATED_GROUPS):
-            gain = freeing_gain(reference[0], result, workspace)
-            test.update(predicted_without_mm=gain.without_mm, predicted_with_mm=gain.with_mm)
-            if not math.isfinite(gain.without_mm + gain.with_mm):
-                why.append(
-                    'predicted gain not computed: a covariance is not positive semi-definite'
-                )
-    candidate = Candidate(
-        tuple(groups), position, summary, chi2=_chi2(result), not_judged='; '.join(why), **test
-    )
-    return result, candidate
+    added = set(candidate.groups) - set(() if reference is None else reference[1])
+    if reference is not None and workspace is not None and added & set(COMPENSATED_GROUPS):
+        predicted = freeing_gain(reference[0], result, workspace)
+        gain = {
+            'predicted_without_mm': predicted.without_mm,
+            'predicted_with_mm': predicted.with_mm,
+        }
+        if not math.isfinite(predicted.without_mm + predicted.with_mm):
+            why.append('predicted gain not computed: a covariance is not positive semi-definite')
+    judged = dataclasses.replace(candidate, position_mm=position, not_judged='; '.join(why), **gain)
+    return result, judged
+
+
+def _score(nominal, data, base, groups, settings, reference=None, fitted=None):
+    """``(result, Candidate)`` of the model ``base`` + ``groups`` fitted, tested against
+    ``reference`` (:func:`_tested`) and, if it could be fitted, judged on held-out postures
+    (:func:`_judged`)."""
+    tested = _tested(nominal, data, base, groups, settings, reference, fitted)
+    if tested[0] is None or tested[1].not_judged:
+        return tested
+    return _judged(nominal, data, tested, settings, reference)
+
+
+def _first_kept(nominal, data, trials, reference, best, threshold, settings):
+    """``(trials, index of the one kept or None)``: of a round's :func:`_tested` ``trials``
+    (against ``reference``), those that pass the test at ``threshold`` judged (:func:`_judged`)
+    in order of their chi-square drop until one is kept (:func:`_keeps` over ``best``): the
+    round keeps the largest drop kept, so no other needs its held-out error; each trial not
+    judged says why (``Candidate.not_measured``)."""
+    trials, kept = list(trials), None
+    testable = [
+        i for i, (result, c) in enumerate(trials) if result is not None and not c.not_judged
+    ]
+    for i in sorted(testable, key=lambda i: -trials[i][1].delta_chi2):
+        result, candidate = trials[i]
+        if not candidate.p_value < threshold:
+            why = f'not measured: the test failed at level {threshold:.3g}'
+        elif kept is not None:
+            winner = '+'.join(trials[kept][1].groups)
+            why = f'not measured: {winner} lowered the chi-square more and was kept'
+        else:
+            trials[i] = _judged(nominal, data, trials[i], settings, reference)
+            kept = i if _keeps(trials[i][1], best, threshold, settings[3]) else None
+            continue
+        trials[i] = (result, dataclasses.replace(candidate, not_measured=why))
+    return trials, kept
 
 
 def held_out_position_mm(validation):
@@ -277,11 +326,11 @@ def _keeps(trial, best, threshold, max_cv_loss):
 def _forward(nominal, data, base, available, settings, every=None):
     """Forward selection (module docstring): ``(result, best Candidate, chosen, tried)``.
     ``every``: the fit with every available group, which a candidate with all of them reuses."""
-    significance, max_cv_loss = settings[2:4]
+    significance = settings[2]
 
-    def score(groups, reference):
+    def tested(groups, reference):
         fitted = every if set(groups) == set(available) else None
-        return _score(nominal, data, base, groups, settings, reference, fitted)
+        return _tested(nominal, data, base, groups, settings, reference, fitted)
 
     result, best = _score(nominal, data, base, (), settings)
     if result is None:
@@ -292,25 +341,24 @@ def _forward(nominal, data, base, available, settings, every=None):
     path = [(result, best, chosen)]
     while remaining:
         reference = (result, chosen)
-        trials = [score(chosen + (group,), reference) for group in remaining]
-        tried += [candidate for _, candidate in trials]
+        trials = [tested(chosen + (group,), reference) for group in remaining]
         threshold = significance / len(trials)
-        kept = [
-            t for t in trials if t[0] is not None and _keeps(t[1], best, threshold, max_cv_loss)
-        ]
-        if not kept:
+        trials, kept = _first_kept(nominal, data, trials, reference, best, threshold, settings)
+        tried += [candidate for _, candidate in trials]
+        if kept is None:
             break
-        result, best = max(kept, key=lambda item: item[1].delta_chi2)
+        result, best = trials[kept]
         chosen = best.groups
         path.append((result, best, chosen))
         remaining = [group for group in remaining if group not in chosen]
     if len(remaining) > 1:
         # Effects that mask each other: no one group alone is kept, together they may be.
-        groups = chosen + tuple(remaining)
-        trial_result, together = score(groups, (result, chosen))
-        tried.append(together)
-        if trial_result is not None and _keeps(together, best, significance, max_cv_loss):
-            path.append((trial_result, together, together.groups))
+        reference = (result, chosen)
+        trial = tested(chosen + tuple(remaining), reference)
+        trials, kept = _first_kept(nominal, data, [trial], reference, best, significance, settings)
+        tried.append(trials[0][1])
+        if kept is not None:
+            path.append((trials[0][0], trials[0][1], trials[0][1].groups))
     result, best, chosen = never_worse_held_out(path)
     return result, best, chosen, tried
 
