@@ -26,6 +26,7 @@ from sensor_msgs.msg import JointState
 from gsp_calibrator.collection import protocol, topics
 from gsp_calibrator.collection.events import FINAL_EVENTS, RowReady
 from gsp_calibrator.settings import CalibratorSettings
+from gsp_kinematics.model.device import device_position
 from gsp_msgs_py import conversions, names
 
 #: How the collection takes a message's bytes: as the node does (the CDR bytes themselves).
@@ -87,13 +88,20 @@ def collect(pairs_per_posture, postures, seed=0, rows_out=None):
         before = posture_messages(rng, now_ns, moving, noise_std, -offset)
         settle_ns = now_ns + moving * period_ns
         after = posture_messages(rng, settle_ns, settled, noise_std, offset)
-        plan.append((k + 1, command_id, now_ns, settle_ns, before + after))
+        # Commanded where the device measures it (the collection checks max_posture_error).
+        alpha, beta, _, d_m = READINGS + offset
+        nominal = settings.nominal
+        position = device_position(
+            alpha, beta, nominal.device_length + d_m, nominal.inclinometer_axes_angle
+        )
+        pose = np.concatenate([position, [0.0, 0.0, (READINGS + offset)[2]]])
+        plan.append((k + 1, command_id, now_ns, settle_ns, before + after, pose))
         now_ns = settle_ns + settled * period_ns
     moving_status = conversions.parse_status(conversions.make_status('', names.STATE_MOVING, ''))
     handled, rows = 0, 0
     start = time.thread_time()
-    for posture, command_id, command_ns, settle_ns, messages in plan:
-        collection.command(posture, np.zeros(6), command_id, command_ns)
+    for posture, command_id, command_ns, settle_ns, messages, pose in plan:
+        collection.command(posture, pose, command_id, command_ns)
         collection.status(_with_id(moving_status, command_id), command_ns + 1_000_000)
         settled_status = _with_id(moving_status, command_id, names.STATE_SETTLED)
         settle_sent = False

@@ -2,6 +2,7 @@
 See docs/architecture.md#one-collection-protocol."""
 
 import collections
+import functools
 import math
 
 import numpy as np
@@ -83,6 +84,15 @@ def dropped_event(collector, topic, msg, error):
     return SampleDropped(topic, str(error), False)
 
 
+def platform_elsewhere(nominal, max_posture_error, posture, pose, readings):
+    """:class:`PlatformElsewhere` when the device ``readings`` put the platform (eq 9 with the
+    ``nominal`` geometry) more than ``max_posture_error`` (m) from the commanded ``pose``."""
+    distance = float(distance_from_commands(nominal, pose, readings)[0])
+    if distance > max_posture_error:
+        return PlatformElsewhere(posture, distance, max_posture_error)
+    return None
+
+
 class CollectionProtocol:
     """The collection protocol (module docstring); every input returns a list of events.
     ``sync_tolerance`` (s), ``pairs_per_posture``, ``noise_std`` (10 channel stds or None),
@@ -100,8 +110,9 @@ class CollectionProtocol:
             rest_lookback=settings.rest_lookback,
             rest_sigmas=settings.rest_sigmas,
             planned_move=planned_move(settings.nominal, settings.motion_limits),
-            nominal=settings.nominal,
-            max_posture_error=settings.max_posture_error,
+            posture_check=functools.partial(
+                platform_elsewhere, settings.nominal, settings.max_posture_error
+            ),
         )
 
     def __init__(
@@ -117,12 +128,10 @@ class CollectionProtocol:
         rest_lookback=0.0,
         rest_sigmas=DEFAULT_REST_SIGMAS,
         planned_move=None,
-        nominal=None,
-        max_posture_error=math.inf,
+        posture_check=None,
     ):
         self.pairs_per_posture = int(pairs_per_posture)
-        # A row's device position is checked against the commanded one under ``nominal``.
-        self._nominal, self.max_posture_error = nominal, float(max_posture_error)
+        self.posture_check = posture_check  # (posture, pose, readings) -> failure or None
         self.timeouts = CollectionTimeouts(
             topic_timeout, settle_timeout, sync_tolerance, pairs_per_posture, planned_move
         )
@@ -159,15 +168,9 @@ class CollectionProtocol:
 
     def summary(self):
         """The ``collection`` of ``result.json``: the run's skips and the samples dropped."""
-        collector, keys = self.collector, ('posture', 'reason', 'rejected_by_platform')
-        return {
-            'skipped': [{key: getattr(skip, key) for key in keys} for skip in self.skipped],
-            'inconsistent_dropped': int(collector.inconsistent),
-            'settling_dropped': int(collector.settling_dropped),
-            'non_finite_dropped': {
-                stream: int(count) for stream, count in collector.non_finite.items()
-            },
-        }
+        keys = ('posture', 'reason', 'rejected_by_platform')
+        skipped = [{key: getattr(skip, key) for key in keys} for skip in self.skipped]
+        return {'skipped': skipped, **self.collector.dropped()}
 
     def continue_after(self, readings):
         """Continue a run whose last row had device readings ``readings`` ``[alpha, beta, phi,
@@ -348,21 +351,15 @@ class CollectionProtocol:
         posture, collector = self._posture, self.collector
         dropped_before = collector.inconsistent
         sample = collector.take_posture()
-        distance = self._distance_from_command(posture.pose, sample.readings)
-        if distance > self.max_posture_error:
-            return self._fail(PlatformElsewhere(posture.number, distance, self.max_posture_error))
+        check = self.posture_check
+        failure = check and check(posture.number, posture.pose, sample.readings)
+        if failure:
+            return self._fail(failure)
         self._previous = sample.readings
         self._posture = None
         return [
             RowReady(posture.number, posture.pose, sample, collector.inconsistent - dropped_before)
         ]
-
-    def _distance_from_command(self, pose, readings):
-        """Distance (m) of the platform position the device ``readings`` measure (eq 9 with
-        the nominal geometry) from the commanded ``pose``'s; 0 without a nominal geometry."""
-        if self._nominal is None:
-            return 0.0
-        return float(distance_from_commands(self._nominal, pose[None], readings)[0])
 
     def _skip(self, reason, rejected=False, platform_reason=''):
         event = PostureSkipped(self._posture.number, reason, rejected, platform_reason)

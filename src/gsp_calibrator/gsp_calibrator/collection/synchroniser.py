@@ -169,6 +169,15 @@ class SampleCollector:
         self._clear()
         self.not_at_rest = None
 
+    def dropped(self):
+        """The samples dropped so far: ``{inconsistent_dropped, settling_dropped,
+        non_finite_dropped: {stream: count}}``."""
+        return {
+            'inconsistent_dropped': int(self.inconsistent),
+            'settling_dropped': int(self.settling_dropped),
+            'non_finite_dropped': {stream: int(n) for stream, n in self.non_finite.items()},
+        }
+
     def stop(self):
         """Stop collecting: ignore samples until the next :meth:`start`."""
         self.start_ns = None

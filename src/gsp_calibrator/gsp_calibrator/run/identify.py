@@ -141,6 +141,22 @@ def _unidentifiable_message(analysis, count):
     )
 
 
+def _rows_elsewhere(nominal, samples, max_posture_error):
+    """Why rows of ``samples`` whose device position is more than ``max_posture_error`` (m)
+    from the command cannot be identified ('' without any; a NaN row is the fit's to name)."""
+    distances = distance_from_commands(nominal, samples.commanded_poses, samples.readings)
+    elsewhere = np.flatnonzero(distances > max_posture_error)
+    if not elsewhere.size:
+        return ''
+    return (
+        f'the device measures the platform {np.min(distances[elsewhere]) * 1e3:.0f}-'
+        f'{np.max(distances[elsewhere]) * 1e3:.0f} mm from the commanded position at '
+        f'posture(s) {samples.posture[elsewhere].tolist()} (max_posture_error '
+        f'{max_posture_error * 1e3:.0f} mm): it was not where it was sent (another '
+        'assembly, a swapped or miswired sensor): delete those rows from samples.csv'
+    )
+
+
 def identify_from_samples(
     nominal,
     samples,
@@ -170,16 +186,8 @@ def identify_from_samples(
     if count == 0:
         outcome.message = 'no posture was collected: nothing to identify'
         return outcome
-    distances = distance_from_commands(nominal, samples.commanded_poses, samples.readings)
-    elsewhere = np.flatnonzero(~(distances <= max_posture_error))
-    if elsewhere.size:
-        outcome.message = (
-            f'the device measures the platform {np.min(distances[elsewhere]) * 1e3:.0f}-'
-            f'{np.max(distances[elsewhere]) * 1e3:.0f} mm from the commanded position at '
-            f'posture(s) {samples.posture[elsewhere].tolist()} (max_posture_error '
-            f'{max_posture_error * 1e3:.0f} mm): it was not where it was sent (another '
-            'assembly, a swapped or miswired sensor): delete those rows from samples.csv'
-        )
+    outcome.message = _rows_elsewhere(nominal, samples, max_posture_error)
+    if outcome.message:
         return outcome
     within = noise_from_data.within_row_noise(samples.lag_sums, samples.n_samples)
     design = effect_design(samples, payload_mass, centre_of_mass, leg_mass)
