@@ -69,6 +69,10 @@ DEMO_TIMEOUT_S = 3600.0
 
 #: The legs' limits of both backends' runs (the physics backend's preset): the same plan.
 LEG_LIMITS = (REALISTIC_MAX_SPEED, REALISTIC_MAX_ACCELERATION)
+#: The demo's own validation postures (the section's truth is measured apart): more than one,
+#: for a random one may lie beyond the preset's singularity guard (seed 8: its only one did, and
+#: the demo exited 1 after a calibration that met every figure).
+DEMO_VALIDATION_POSTURES = 3
 
 
 def run_kept_demo(
@@ -93,7 +97,7 @@ def run_kept_demo(
         postures,
         SENSOR_RATE_HZ,
         pairs_per_posture=DEFAULTS['pairs_per_posture'],
-        validation_postures=1,
+        validation_postures=DEMO_VALIDATION_POSTURES,
         seed=seed,
         timeout=timeout,
         extra_args=[
