@@ -53,6 +53,13 @@ class NoSynchronisedPair:
     message: str
 
 
+#: Why a platform is not where it was sent (:class:`PlatformElsewhere`, and the identification's
+#: refusal of such rows).
+ELSEWHERE_CAUSES = (
+    'another assembly after passing near a singularity, or a swapped or miswired sensor'
+)
+
+
 @dataclasses.dataclass(frozen=True)
 class PlatformElsewhere:
     """At posture ``posture`` the device measured the platform ``distance_m`` (m) from where it
@@ -67,9 +74,8 @@ class PlatformElsewhere:
         return (
             f'at posture {self.posture} the device measures the platform '
             f'{self.distance_m * 1e3:.0f} mm from the commanded position (max_posture_error '
-            f'{self.limit_m * 1e3:.0f} mm): it is not where it was sent (another assembly '
-            'after passing near a singularity, or a swapped or miswired sensor). Its row is not '
-            'kept; bring the platform back to a known posture and resume'
+            f'{self.limit_m * 1e3:.0f} mm): it is not where it was sent ({ELSEWHERE_CAUSES}). '
+            'Its row is not kept; bring the platform back to a known posture and resume'
         )
 
 

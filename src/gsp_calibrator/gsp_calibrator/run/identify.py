@@ -10,6 +10,7 @@ import typing
 import numpy as np
 
 from gsp_calibrator.collection.approach import effect_design, reference_instant
+from gsp_calibrator.collection.events import ELSEWHERE_CAUSES
 from gsp_calibrator.files.run_directory import RESULT_FILE, RIGID_RESULT_FILE
 from gsp_calibrator.report.accuracy import prediction_for
 from gsp_calibrator.report.data import settle_line
@@ -152,8 +153,8 @@ def _rows_elsewhere(nominal, samples, max_posture_error):
         f'the device measures the platform {np.min(distances[elsewhere]) * 1e3:.0f}-'
         f'{np.max(distances[elsewhere]) * 1e3:.0f} mm from the commanded position at '
         f'posture(s) {samples.posture[elsewhere].tolist()} (max_posture_error '
-        f'{max_posture_error * 1e3:.0f} mm): it was not where it was sent (another '
-        'assembly, a swapped or miswired sensor): delete those rows from samples.csv'
+        f'{max_posture_error * 1e3:.0f} mm): it was not where it was sent '
+        f'({ELSEWHERE_CAUSES}): delete those rows from samples.csv'
     )
 
 
