@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import gsp_bench.physics as physics
+from gsp_bench.physics_floor import compensated_floor
 from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
@@ -30,7 +31,9 @@ def workspace():
     poses = sample_valid_postures(
         default_geometry('nominal'), physics.VALIDATION_POSTURES, np.random.default_rng(12345)
     )
-    return seed, poses, physics.true_position_mm(default_geometry('true'), poses)
+    reached = physics.poses_at_rest(physics.preset_simulator(default_geometry('true')), poses)
+    floor = compensated_floor(poses, reached, physics.true_position_mm)
+    return seed, poses, floor['floor_mm']
 
 
 def _figures(workspace, **options):

@@ -94,8 +94,8 @@ def test_noise_3x_unconfigured_is_estimated_accepted_applied_and_validated(ros_c
 
 
 def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context, tmp_path):
-    """The device's inclinometer noise is correlated over 0.05 s (a real part's filtered output);
-    1.5 s windows (150 samples at 100 Hz, about 15 effective): the effective sample count gives
+    """The device's inclinometer noise is correlated over 0.03 s (a real part's filtered output);
+    1.5 s windows (150 samples at 100 Hz, about 25 effective): the effective sample count gives
     the inclinometer's row noise within postures, it agrees with the between-posture residuals
     (the noise of the averaged rows, whatever the timers' jitter did to the correlation), the
     fit is accepted, and the run directory (samples.csv) and its recording carry what the
@@ -107,7 +107,9 @@ def test_correlated_inclinometer_noise_through_the_nodes_is_accepted(ros_context
         tmp_path,
         tmp_path / 'true.yaml',
         {'posture_count': 16, 'pool_size': 160, 'pairs_per_posture': samples},
-        device_overrides=[Parameter('inclinometer_noise_correlation_time', value=0.05)],
+        # Not 0.05 s (15 effective): a CI run under load estimated 9.5 there, below the 10 under
+        # which the estimate is only a lower bound (noise_estimate.MIN_N_EFF).
+        device_overrides=[Parameter('inclinometer_noise_correlation_time', value=0.03)],
     )
     try:
         response = suite.wait(suite.call())
