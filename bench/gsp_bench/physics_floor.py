@@ -11,7 +11,8 @@ the physics platform, free of noise, and what its noise leaves of it.
   (:func:`gsp_bench.verdict.one_run`): the error the fit makes at this noise.
 
 A calibration on the physics platform can reach neither alone: its truth is judged against
-``hypot(floor, ideal)``, the two as independent errors.
+``hypot(floor, ideal)``, the two as independent errors, in the median over seeds (one run's
+truth scatters as much as the margin).
 """
 
 import math
@@ -27,6 +28,8 @@ from gsp_platform_sim.physics_model import PhysicalParameters
 
 #: Rotation weighed as position at this lever arm (m/rad) in the fit.
 LEVER_ARM_M = 0.5
+#: Noise draws of the ideal platform's run per seed.
+NOISE_DRAWS = 5
 #: The fit's start: the legs' stiffness (N/m), each leg's mass (kg), the centre of mass's z (m).
 START = (PhysicalParameters().leg_stiffness, 12.0, 0.0)
 
@@ -79,9 +82,12 @@ def compensated_floor(poses, reached, true_position_mm):
     }
 
 
-def ideal_mm(seed, postures):
+def ideal_mm(seed, postures, draws=NOISE_DRAWS):
     """The calibrator's truth (mm) at its defaults on the ideal platform with seed ``seed``'s
-    plan of ``postures`` and its noise (NaN when it fails)."""
+    plan of ``postures``: the median over ``draws`` draws of the sensors' default noise (a
+    single run's truth scatters by tens of percent; NaN when every run fails)."""
     design = verdict.default_design({'seed': int(seed), 'posture_count': int(postures)})
-    run = verdict.one_run(design, verdict.effect_cases()['ideal'], int(seed))
-    return run.get('true_mm', math.nan)
+    ideal = verdict.effect_cases()['ideal']
+    runs = [verdict.one_run(design, ideal, draws * int(seed) + draw) for draw in range(draws)]
+    true = [run['true_mm'] for run in runs if 'true_mm' in run]
+    return float(np.median(true)) if true else math.nan
