@@ -6,8 +6,9 @@ the physics platform, free of noise, and what its noise leaves of it.
   heavy legs) fitted to where the physics platform rests (least squares, no noise). What the
   model cannot explain of the physics (the servos, the legs as two bodies, the joints' masses)
   stays in it.
-* :func:`ideal_mm`: the calibrator's result at its defaults on the ideal platform (the model
-  itself) with the same seed's plan and the sensors' default noise, the truth over the workspace
+* :func:`ideal_mm`: the calibrator's result at its defaults on the model's platform (the
+  kinematic platform whose sag is the fitted compensation's, exactly what the model describes)
+  with the same seed's plan and the sensors' default noise, the truth over the workspace
   (:func:`gsp_bench.verdict.one_run`): the error the fit makes at this noise.
 
 A calibration on the physics platform can reach neither alone: its truth is judged against
@@ -22,7 +23,7 @@ from scipy.optimize import least_squares
 
 from gsp_bench import verdict
 from gsp_kinematics.model.effect_groups import EffectDesign, commanded_leg_readings, model_poses
-from gsp_kinematics.model.effects import NUM_EFFECT_PARAMETERS, IdentifiedEffects
+from gsp_kinematics.model.effects import NUM_EFFECT_PARAMETERS, IdentifiedEffects, PlatformEffects
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_platform_sim.physics_model import PhysicalParameters
 
@@ -82,12 +83,24 @@ def compensated_floor(poses, reached, true_position_mm):
     }
 
 
-def ideal_mm(seed, postures, draws=NOISE_DRAWS):
-    """The calibrator's truth (mm) at its defaults on the ideal platform with seed ``seed``'s
-    plan of ``postures``: the median over ``draws`` draws of the sensors' default noise (a
-    single run's truth scatters by tens of percent; NaN when every run fails)."""
+def model_platform(floor):
+    """The ``PlatformEffects`` of :func:`compensated_floor`'s fit ``floor``: the platform the
+    model describes exactly."""
+    return PlatformEffects(
+        payload_mass=PhysicalParameters().platform_mass,
+        centre_of_mass=np.array([0.0, 0.0, floor['centre_of_mass_z_m']]),
+        leg_mass=np.full(6, floor['leg_mass_kg']),
+        leg_stiffness=1.0 / np.asarray(floor['compliance_m_per_n']),
+    )
+
+
+def ideal_mm(seed, postures, floor, draws=NOISE_DRAWS):
+    """The calibrator's truth (mm) at its defaults on the model's platform
+    (:func:`model_platform` of ``floor``) with seed ``seed``'s plan of ``postures``: the median
+    over ``draws`` draws of the sensors' default noise (a single run's truth scatters by tens of
+    percent; NaN when every run fails)."""
     design = verdict.default_design({'seed': int(seed), 'posture_count': int(postures)})
-    ideal = verdict.effect_cases()['ideal']
-    runs = [verdict.one_run(design, ideal, draws * int(seed) + draw) for draw in range(draws)]
+    effects = model_platform(floor)
+    runs = [verdict.one_run(design, effects, draws * int(seed) + draw) for draw in range(draws)]
     true = [run['true_mm'] for run in runs if 'true_mm' in run]
     return float(np.median(true)) if true else math.nan

@@ -27,6 +27,7 @@ def test_the_fitted_compensation_explains_the_physics_platforms_sag():
 
 
 def test_the_ideal_reference_is_the_calibrators_truth_at_the_sensors_noise():
-    ideal = physics_floor.ideal_mm(0, 60)
+    floor = {'compliance_m_per_n': [3.7e-8] * 6, 'leg_mass_kg': 12.0, 'centre_of_mass_z_m': 0.0}
+    ideal = physics_floor.ideal_mm(0, 60, floor, draws=1)
     # The fit's error at the default noise over 60 postures: a few um, never zero.
     assert math.isfinite(ideal) and 0.0005 < ideal < 0.02, ideal

@@ -25,24 +25,24 @@ REAL_TIME_FACTOR = 4.0
 
 @pytest.fixture(scope='module')
 def workspace():
-    """``(seed, validation poses, floor mm)``: the first seed whose default plan the physics
-    platform holds, the bench's validation postures, and the physics floor over them."""
+    """``(seed, validation poses, floor)``: the first seed whose default plan the physics
+    platform holds, the bench's validation postures, and the physics floor over them
+    (:func:`gsp_bench.physics_floor.compensated_floor`)."""
     (seed,) = physics.held_seeds(1, DEFAULTS['posture_count'])
     poses = sample_valid_postures(
         default_geometry('nominal'), physics.VALIDATION_POSTURES, np.random.default_rng(12345)
     )
     reached = physics.poses_at_rest(physics.preset_simulator(default_geometry('true')), poses)
-    floor = compensated_floor(poses, reached, physics.true_position_mm)
-    return seed, poses, floor['floor_mm']
+    return seed, poses, compensated_floor(poses, reached, physics.true_position_mm)
 
 
 def _figures(workspace, **options):
-    seed, poses, floor_mm = workspace
+    seed, poses, floor = workspace
     figures = physics.seed_figures(
         seed,
         DEFAULTS['posture_count'],
         poses,
-        floor_mm,
+        floor,
         real_time_factor=REAL_TIME_FACTOR,
         **options,
     )

@@ -112,6 +112,23 @@ def test_leg_forces_balance_the_weight_at_any_pose(exact, postures):
     assert np.max(np.abs(net_force)) < 1e-9 and np.max(np.abs(net_moment)) < 1e-9
 
 
+def test_a_singular_pose_holds_no_load_and_fails_alone(symmetric):
+    """In the base plane (z = 0) no leg pushes up: the statics have no solution there. Its
+    forces are NaN, the other pose's are solved; real_poses marks it not converged, not
+    raising."""
+    effects = PlatformEffects(payload_mass=40.0, leg_stiffness=[3e7] * 6, leg_mass=[10.0] * 6)
+    poses = np.concatenate([level(0.0), level(HEIGHT)])
+    forces = leg_forces(symmetric, effects, poses)
+    assert np.all(np.isnan(forces[0]))
+    np.testing.assert_allclose(forces[1], leg_forces(symmetric, effects, poses[1:])[0], rtol=0)
+    readings = inverse_kinematics(symmetric, level(HEIGHT))[0]
+    # Readings whose rigid pose is the home pose, from a guess at the singular plane: the
+    # statics fail at the guess the first iteration meets.
+    reached, converged = real_poses(symmetric, effects, [readings, readings], poses)
+    assert converged[1] and not converged[0]
+    assert abs(reached[1, 2] - HEIGHT) < 1e-3  # m: a sag of um, not a jump
+
+
 def _gravity_potential(geometry, effects, poses):
     """J (M,): gravity's potential of the platform and of the legs, each leg two equal halves:
     its body ``d`` from the base joint along it, its rod ``d`` from the platform joint (any

@@ -217,8 +217,8 @@ def effective_base_joints(geometry, effects, poses, iterations=3):
 
 def leg_forces(geometry, effects, poses, base_points=None):
     """Axial forces (M, 6) N in the legs' springs, compression positive, holding the platform's
-    and the legs' weight at ``poses`` (M, 6) (the statics: docs/platform_effects.md).
-    ``base_points`` (M, 6, 3): the effective base joints (default: ``A_i``)."""
+    and the legs' weight at ``poses`` (M, 6) (the statics: docs/platform_effects.md; NaN at a
+    singular pose). ``base_points`` (M, 6, 3): the effective base joints (default: ``A_i``)."""
     poses = np.atleast_2d(poses)
     rotation = euler_to_matrix(poses[:, 3:])
     arms = np.einsum('mjk,ik->mij', rotation, geometry.platform_joints)
@@ -235,7 +235,13 @@ def leg_forces(geometry, effects, poses, base_points=None):
         leg_weights[:, None] * np.array([0.0, 0.0, 1.0]) - axial[..., None] * directions
     )  # (M, 6, 3): the force each leg's weight puts on its platform joint
     load = load + np.concatenate([across.sum(axis=1), np.cross(arms, across).sum(axis=1)], axis=1)
-    at_platform = np.linalg.solve(np.swapaxes(wrenches, 1, 2), -load[..., None])[..., 0]
+    matrices = np.swapaxes(wrenches, 1, 2)
+    try:
+        at_platform = np.linalg.solve(matrices, -load[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a singular pose's legs hold no load: NaN there
+        held = np.linalg.matrix_rank(matrices) == 6
+        at_platform = np.full(load.shape, np.nan)
+        at_platform[held] = np.linalg.solve(matrices[held], -load[held, :, None])[..., 0]
     return at_platform - (1.0 - LEG_SPRING_POSITION) * axial
 
 

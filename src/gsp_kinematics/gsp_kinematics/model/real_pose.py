@@ -57,6 +57,7 @@ def real_poses(
     residual = np.zeros_like(free)
     for _ in range(max_iterations):
         lengths, forces = loaded_leg_state(geometry, effects, poses)
+        converged &= np.all(np.isfinite(forces), axis=1)  # a singular pose holds no load
         residual = np.where(converged[:, None], lengths - (free - compliance * forces), 0.0)
         if not np.max(np.abs(residual), initial=0.0) > TOLERANCE:
             break
