@@ -1,6 +1,9 @@
 """gsp_reidentify: offline equals the pipeline the node runs; bad input exits 2 with a reason."""
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -318,3 +321,29 @@ def test_reidentify_takes_either_noise_source(tmp_path, capsys, source, test):
         # A samples.csv has no within-posture scatter: between postures only, and said so.
         assert {entry['source'] for entry in data['noise_estimates'].values()} == {'between'}
         assert 'not testable' in data['fit_diagnosis']
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason='one core: BLAS starts one thread anyway')
+def test_a_console_script_runs_blas_on_one_thread_unless_told_otherwise():
+    """numpy's OpenBLAS starts a thread per core when it loads; the package sets one first
+    (gsp_calibrator/__init__.py), and a count the user set stays."""
+    probe = (
+        'import gsp_calibrator.tools.reidentify, ctypes, glob, os, numpy; '
+        "libs = os.path.join(os.path.dirname(numpy.__file__), '..', 'numpy.libs'); "
+        "lib = ctypes.CDLL(glob.glob(os.path.join(libs, 'libscipy_openblas*'))[0]); "
+        'print(lib.scipy_openblas_get_num_threads64_())'
+    )
+    environment = {
+        name: value
+        for name, value in os.environ.items()
+        if name not in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS')
+    }
+    threads = subprocess.run(
+        [sys.executable, '-c', probe], env=environment, capture_output=True, text=True, check=True
+    ).stdout.split()[-1]
+    assert threads == '1'
+    environment['OPENBLAS_NUM_THREADS'] = '2'
+    threads = subprocess.run(
+        [sys.executable, '-c', probe], env=environment, capture_output=True, text=True, check=True
+    ).stdout.split()[-1]
+    assert threads == '2'
