@@ -1,6 +1,6 @@
 """The calibrator at its defaults on the physics backend, through the nodes (``gsp_demo
 --backend physics``): it meets the physics section's figures in one seed
-(:func:`gsp_bench.physics.seed_checks` of that seed), and the same run with the rest rule off
+(:func:`gsp_bench.physics.figures_missed` of that seed), and the same run with the rest rule off
 (``rest_sigmas`` inf: rows averaged as soon as the controller says "in position") misses them. Two calibrations take minutes of CPU:
 ``make test-physics`` runs them; ``make test`` skips them."""
 
@@ -50,17 +50,17 @@ def _figures(workspace, **options):
     return figures
 
 
-def _missed(figures):
-    """The section's checks this one seed misses: its figures, and the held-out accuracy within
-    25 % of the truth (the median of one seed)."""
-    return [check for check, met in physics.seed_checks([figures]).items() if not met]
-
-
 def test_the_defaults_meet_the_physics_figures(workspace):
+    """Every figure a seed is judged on (:data:`gsp_bench.physics.FIGURES`: the truth, its
+    interval, the verdict, the noise, the platform time). The medians over seeds (the held-out
+    accuracy within 25 % of the truth, the truth within 1.3x the floor) are the bench's: one
+    seed's held-out accuracy scatters from 0.6x to 1.4x its truth."""
     figures = _figures(workspace)
-    assert _missed(figures) == [], figures
+    assert physics.figures_missed(figures) == [], figures
 
 
 def test_with_the_rest_rule_off_the_same_run_misses_them(workspace):
     figures = _figures(workspace, kinematic=False, calibrator_params=['rest_sigmas:=.inf'])
-    assert _missed(figures), figures
+    # Rows averaged while the platform rings: the inclinometer's noise reads several times its
+    # configured value.
+    assert 'inclinometer_noise_within_1_5x' in physics.figures_missed(figures), figures
