@@ -169,6 +169,13 @@ def true_position_mm(controller, poses):
     return float(np.nanmean(errors)) if np.any(np.isfinite(errors)) else math.nan
 
 
+def floor_of(poses):
+    """The physics floor over ``poses`` (:func:`.physics_floor.compensated_floor`: where the
+    platform rests with the true geometry as its controller, the compensation fitted to it)."""
+    reached = poses_at_rest(preset_simulator(default_geometry('true')), poses)
+    return physics_floor.compensated_floor(poses, reached, true_position_mm)
+
+
 def held_seeds(count, postures, tries=QUICK_SEED_TRIES):
     """The first ``count`` seeds whose postures, chosen as the calibrator chooses them at its
     defaults (from a pool reachable under the nominal geometry), the physics platform holds: it
@@ -353,8 +360,7 @@ def run(
     count = validation_postures or (QUICK_VALIDATION_POSTURES if quick else VALIDATION_POSTURES)
     poses = sample_valid_postures(default_geometry('nominal'), count, np.random.default_rng(12345))
     started = time.monotonic()
-    reached = poses_at_rest(preset_simulator(default_geometry('true')), poses)
-    floor = physics_floor.compensated_floor(poses, reached, true_position_mm)
+    floor = floor_of(poses)
     runs = []
     for index, seed in enumerate(held_seeds(seeds, postures) if quick else range(seeds)):
         log(f'gsp_bench: physics: seed {seed}, {postures} postures ...')

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import gsp_bench.physics as physics
-from gsp_bench.physics_floor import compensated_floor
 from gsp_calibrator.settings import DEFAULTS
 from gsp_kinematics.model.geometry import default_geometry
 from gsp_kinematics.model.kinematics import sample_valid_postures
@@ -32,8 +31,7 @@ def workspace():
     poses = sample_valid_postures(
         default_geometry('nominal'), physics.VALIDATION_POSTURES, np.random.default_rng(12345)
     )
-    reached = physics.poses_at_rest(physics.preset_simulator(default_geometry('true')), poses)
-    return seed, poses, compensated_floor(poses, reached, physics.true_position_mm)
+    return seed, poses, physics.floor_of(poses)
 
 
 def _figures(workspace, **options):
