@@ -11,9 +11,8 @@ from gsp_kinematics.model.kinematics import check_reachable, home_pose
 from gsp_kinematics.model.motion import LegMove
 from gsp_kinematics.model.real_pose import real_poses
 
-#: Largest condition number of dq/dX a command may have (singularity guard). Above the
-#: ``Workspace().max_condition`` (60) used to sample postures, so sampled postures stay accepted
-#: after the controller geometry changes slightly.
+#: Largest condition number of dq/dX a command may have (singularity guard): above the one
+#: postures are sampled within, so they stay accepted as the controller geometry changes.
 DEFAULT_MAX_CONDITION = 100.0
 #: Thermal growth (m, of a 1 m leg) since the resting pose was solved above which
 #: :meth:`PlatformSimulator.update` solves it again.

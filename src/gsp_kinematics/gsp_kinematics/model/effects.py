@@ -236,12 +236,9 @@ def leg_forces(geometry, effects, poses, base_points=None):
     )  # (M, 6, 3): the force each leg's weight puts on its platform joint
     load = load + np.concatenate([across.sum(axis=1), np.cross(arms, across).sum(axis=1)], axis=1)
     matrices = np.swapaxes(wrenches, 1, 2)
-    try:
-        at_platform = np.linalg.solve(matrices, -load[..., None])[..., 0]
-    except np.linalg.LinAlgError:  # a singular pose's legs hold no load: NaN there
-        held = np.linalg.matrix_rank(matrices) == 6
-        at_platform = np.full(load.shape, np.nan)
-        at_platform[held] = np.linalg.solve(matrices[held], -load[held, :, None])[..., 0]
+    held = np.linalg.det(matrices) != 0.0  # a singular pose's legs hold no load: NaN there
+    at_platform = np.full(load.shape, np.nan)
+    at_platform[held] = np.linalg.solve(matrices[held], -load[held, :, None])[..., 0]
     return at_platform - (1.0 - LEG_SPRING_POSITION) * axial
 
 
