@@ -68,11 +68,13 @@ def write_recording(
     start_ns=T0,
     numbers=None,
     note_after_ns=2 * MS,
+    resent=(),
 ):
     """A recorded session from ``start_ns``: idle samples, then per pose a command, statuses and
     sensor samples (wrong values while moving). ``numbers``: the posture numbers of ``poses``
     (default 1, 2, ...); ``notes``: note each collection start ``note_after_ns`` after its
-    command (the settle is at 10 ms). Returns ``{k: (legs, readings, true poses)}`` after
+    command (the settle is at 10 ms); ``resent``: posture numbers whose command is recorded
+    again (same stamp) 0.5 ms after it, before its status, as the calibrator sends an unanswered one. Returns ``{k: (legs, readings, true poses)}`` after
     settling."""
     sent = {}
     numbers = numbers or range(1, len(poses) + 1)
@@ -90,6 +92,9 @@ def write_recording(
         for k, pose in zip(numbers, poses, strict=True):
             note = t + note_after_ns if notes else None
             command_id = write_command(recorder, t, pose, k in rejected, posture=k, note=note)
+            if k in resent:
+                command = conversions.pose_to_pose_stamped(pose, t / 1e9)
+                recorder.write(names.TOPIC_POSE_COMMAND, command, t + MS // 2)
             if k in rejected:
                 t += 100 * MS
                 continue

@@ -650,3 +650,29 @@ def test_diagnostics_report_topic_silence_and_a_failed_run(ros_context, tmp_path
         assert report.values['state'] == 'idle'
     finally:
         suite.close()
+
+
+def test_the_platform_check_counts_subscribers_other_than_the_calibrator_s_recorder(
+    ros_context, tmp_path
+):
+    """The calibrator records its own pose commands: the run's first check (a subscriber to the
+    commands: is platform_sim running?) counts only the others, or the first command of a
+    (re)started calibrator goes out before the platform hears it."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+
+    node = CalibratorNode(
+        context=ros_context, parameter_overrides=[Parameter('output_root', value=str(tmp_path))]
+    )
+    platform = rclpy.create_node('platform_sim', context=ros_context)
+    try:
+        host = node._run_host()
+        assert node.command_publisher.get_subscription_count() == 1  # the recorder's
+        assert host.command_subscribers() == 0
+        platform.create_subscription(
+            PoseStamped, names.TOPIC_POSE_COMMAND, lambda _: None, qos.COMMAND_QOS
+        )
+        assert host.command_subscribers() == 1
+    finally:
+        platform.destroy_node()
+        node.destroy_node()

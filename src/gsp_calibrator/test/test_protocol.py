@@ -10,6 +10,7 @@ from gsp_calibrator.collection import protocol, timeouts, topics
 from gsp_calibrator.collection.events import (
     FINAL_EVENTS,
     CollectionStarted,
+    CommandAgain,
     NoSynchronisedPair,
     PairsCollected,
     PostureSkipped,
@@ -142,7 +143,7 @@ def poll_until(collection, end, since, step=100 * MS):
 def test_timeouts_of_the_status_and_the_settle():
     collection = make()
     collection.command(1, POSE, 'c1', T0)
-    assert poll_until(collection, T0 + 900 * MS, T0) == []
+    assert poll_until(collection, T0 + 900 * MS, T0) == [CommandAgain(1, 'c1')] * 3
     (silent,) = poll_until(collection, T0 + S, T0 + 900 * MS)
     assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_PLATFORM_STATUS
     assert 'no status for posture 1 (command c1) within 1 s' in silent.message
@@ -154,6 +155,23 @@ def test_timeouts_of_the_status_and_the_settle():
     assert poll_until(collection, T0 + 4 * S + 100 * MS, T0 + 4 * S) == [
         PostureSkipped(2, 'not settled within 2 s (the planned move 0 s + settle_timeout 2 s)')
     ]
+
+
+def test_an_unanswered_command_is_sent_again_each_quarter_of_the_topic_timeout():
+    """A platform that had not matched the calibrator's publisher yet missed the command: it is
+    sent again (same id) each topic_timeout / 4 without a status, until a status comes; a stall
+    of the caller counts from its end, as the timeout does."""
+    collection = make(topic_timeout=4.0)
+    collection.command(1, POSE, 'c1', T0)
+    assert poll_until(collection, T0 + 900 * MS, T0) == []
+    assert poll_until(collection, T0 + S, T0 + 900 * MS) == [CommandAgain(1, 'c1')]
+    assert poll_until(collection, T0 + 1900 * MS, T0 + S) == []
+    assert poll_until(collection, T0 + 2 * S, T0 + 1900 * MS) == [CommandAgain(1, 'c1')]
+    collection.status(status('c1', names.STATE_MOVING, ''), T0 + 2100 * MS)
+    assert poll_until(collection, T0 + 4 * S, T0 + 2100 * MS) == []  # answered: never again
+    collection.command(2, POSE, 'c2', T0 + 10 * S)
+    assert collection.poll(T0 + 14 * S) == []  # a stall of the caller (4 s): from its end
+    assert collection.poll(T0 + 15 * S) == [CommandAgain(2, 'c2')]
 
 
 def test_the_settle_waits_for_the_planned_move_besides_settle_timeout():

@@ -139,6 +139,28 @@ def test_from_recording_streams_the_samples_after_each_settle(tmp_path):
     assert run.postures[0].stream.leg_lengths[0, 0] == 9.0
 
 
+def test_a_command_sent_again_is_one_posture_in_the_replay_and_the_rebuild(tmp_path):
+    """The calibrator sends an unanswered command again with its stamp: both copies are in the
+    recording, and the replay and the rebuilt rows are those of a command sent once."""
+    from gsp_calibrator.recording import rebuild
+
+    poses = _poses(3)
+    runs = {}
+    for name, resent in (('once', ()), ('again', (1, 3))):
+        (tmp_path / name).mkdir()
+        path = tmp_path / name / 'recording.mcap'
+        write_recording(path, poses, per_posture=4, notes=True, resent=resent)
+        rows = rebuild.samples_from_recording(path, pairs_per_posture=4)
+        runs[name] = RecordedRun.load(path), rows
+    (once, once_rows), (again, again_rows) = runs['once'], runs['again']
+    assert [p.posture for p in again.postures] == [1, 2, 3] and not again.skipped
+    for posture, reference in zip(again.postures, once.postures, strict=True):
+        np.testing.assert_array_equal(posture.stream.leg_lengths, reference.stream.leg_lengths)
+        np.testing.assert_array_equal(posture.stream.readings, reference.stream.readings)
+    assert list(again_rows.posture) == list(once_rows.posture) == [1, 2, 3]
+    np.testing.assert_array_equal(again_rows.leg_lengths, once_rows.leg_lengths)
+
+
 def test_a_resumed_run_is_replayed_from_every_recording_part(tmp_path):
     poses = _poses(4)
     run_dir = tmp_path / 'run'

@@ -352,6 +352,35 @@ def test_a_posture_s_end_is_kept_before_the_run_sees_it():
     assert link.command(2, pose).result() is failure
 
 
+def test_the_posture_link_sends_a_command_again_while_it_has_no_status():
+    """The protocol's CommandAgain publishes the current command again (the same message, its
+    id unchanged); once the platform answers, it is not sent again."""
+    from gsp_calibrator.collection.protocol import CollectionProtocol
+
+    class Session:
+        def end_posture(self, event):
+            return event
+
+    sent = []
+    link = PostureLink(
+        concurrent.futures.Future,
+        lambda pose: ('7', 0, lambda: sent.append('7')),
+        FakeRecorder(),
+        print,
+    )
+    link.start(Session(), CollectionProtocol(0.0025, 3, topic_timeout=2.0, settle_timeout=2.0))
+    link.command(1, np.zeros(6))
+    link.feed(lambda protocol: protocol.poll(400_000_000))
+    assert sent == ['7']
+    link.feed(lambda protocol: protocol.poll(500_000_000))
+    link.feed(lambda protocol: protocol.poll(1_000_000_000))
+    assert sent == ['7'] * 3
+    moving = conversions.parse_status(conversions.make_status('7', names.STATE_MOVING))
+    link.feed(lambda protocol: protocol.status(moving, 1_100_000_000))
+    link.feed(lambda protocol: protocol.poll(2_000_000_000))
+    assert sent == ['7'] * 3
+
+
 def test_the_route_has_what_the_effect_groups_to_identify_need():
     """Reference revisits for thermal (and auto, which may choose it), none for the groups a
     route does not serve; each revisit is at the reference's pose."""

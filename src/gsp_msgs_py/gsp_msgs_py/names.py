@@ -95,13 +95,6 @@ TOPIC_TYPES = {
     TOPIC_CALIBRATION_RESULT: 'std_msgs/msg/String',
     TOPIC_CALIBRATION_PROGRESS: 'diagnostic_msgs/msg/DiagnosticStatus',
 }
-SERVICE_TYPES = {
-    SERVICE_CALIBRATE: 'std_srvs/srv/Trigger',
-    SERVICE_RESUME: 'std_srvs/srv/Trigger',
-    SERVICE_CHECK: 'std_srvs/srv/Trigger',
-}
-
-
 def interface_type(type_name):
     """Import and return the Python class of ``'pkg/msg/Type'`` or ``'pkg/srv/Type'``."""
     import importlib

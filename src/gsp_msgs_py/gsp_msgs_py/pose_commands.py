@@ -26,6 +26,7 @@ class PoseCommandServer:
         self._move = move
         self._on_settled = on_settled
         self._tracker = SettleTracker()
+        self._last_command_id = None
         self.statistics = CommandStatistics()  #: what became of the commands (/diagnostics)
         self._status_pub = node.create_publisher(
             DiagnosticStatus,
@@ -60,6 +61,9 @@ class PoseCommandServer:
                 f'ignoring a pose command: {error}', throttle_duration_sec=WARN_THROTTLE_S
             )
             return
+        if command_id == self._last_command_id:
+            return  # sent again while its status was on the way: the same command, answered
+        self._last_command_id = command_id
         try:
             reason = self._move(command_id, message_checks.pose_in_frame(msg, self._frame_id))
         except (TypeError, ValueError) as error:

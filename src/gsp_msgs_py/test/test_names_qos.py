@@ -10,9 +10,6 @@ def test_every_topic_has_an_importable_type_and_a_qos():
     for topic, type_name in names.TOPIC_TYPES.items():
         assert topic.startswith('/gsp/')
         assert hasattr(names.interface_type(type_name), 'get_fields_and_field_types')
-    for service, type_name in names.SERVICE_TYPES.items():
-        assert service.startswith('/gsp/')
-        assert hasattr(names.interface_type(type_name), 'Request')
 
 
 def test_joint_names_and_frames():

@@ -67,3 +67,50 @@ def test_command_statistics_count_each_outcome_and_time_the_settles():
     assert health.level == ERROR and 'goal not reached in time' in health.message
     assert health.values['abandoned'] == '1' and health.values['rejected'] == '3'
     assert health.values['settled'] == '2'
+
+
+class _PlatformNode:
+    """What PoseCommandServer uses of a node: its statuses kept, its command callback exposed."""
+
+    def __init__(self):
+        from types import SimpleNamespace
+
+        self.statuses, self.on_command, self.now_ns = [], None, 0
+        self._timer = SimpleNamespace(cancel=lambda: None, reset=lambda: None, timer_period_ns=0)
+        self._clock = SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=self.now_ns))
+
+    def create_publisher(self, *_):
+        from types import SimpleNamespace
+
+        return SimpleNamespace(publish=self.statuses.append)
+
+    def create_subscription(self, _type, _topic, callback, _qos):
+        self.on_command = callback
+
+    def create_timer(self, *_, **__):
+        return self._timer
+
+    def get_clock(self):
+        return self._clock
+
+
+def test_a_command_sent_again_with_its_stamp_is_answered_once_and_moves_once():
+    """The calibrator sends an unanswered command again with the same stamp (its id): the
+    platform neither moves again nor supersedes it; a new stamp is a new command."""
+    from gsp_msgs_py import conversions, names
+    from gsp_msgs_py.pose_commands import PoseCommandServer
+
+    node, moves = _PlatformNode(), []
+    server = PoseCommandServer(node, names.FRAME_BASE, 0.0, lambda i, pose: moves.append(i) or '')
+    pose = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+    first = conversions.pose_to_pose_stamped(pose, conversions.seconds_to_stamp(0.005))
+    for _ in range(3):
+        node.on_command(first)
+    states = [conversions.parse_status(s) for s in node.statuses]
+    assert moves == ['5000000'] and [(s.command_id, s.state) for s in states] == [
+        ('5000000', names.STATE_MOVING),
+        ('5000000', names.STATE_SETTLED),
+    ]
+    assert server.statistics.counts['commands'] == 1
+    node.on_command(conversions.pose_to_pose_stamped(pose, conversions.seconds_to_stamp(0.006)))
+    assert moves == ['5000000', '6000000'] and server.statistics.counts['commands'] == 2

@@ -16,6 +16,14 @@ class CollectionStarted:
     start_ns: int
 
 
+@dataclasses.dataclass(frozen=True)
+class CommandAgain:
+    """Send posture ``posture``'s command ``command_id`` again: no status has come for it."""
+
+    posture: int
+    command_id: str
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class RowReady:
     """The averaged row of posture ``posture``; ``dropped`` inconsistent pairs before it."""

@@ -31,6 +31,7 @@ class Posture:
     command_id: str
     commanded_ns: int
     state: str = AWAIT_STATUS
+    sent_ns: int = None  # the latest time the command was sent again (no status by then)
     first_status_ns: int = None
     move_s: float = 0.0  # the planned move time: the settle may take that much longer
     start_ns: int = None  # collection start (stamps), set when settled

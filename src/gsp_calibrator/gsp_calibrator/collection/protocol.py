@@ -9,6 +9,7 @@ import numpy as np
 
 from gsp_calibrator.collection.events import (
     CollectionStarted,
+    CommandAgain,
     PairsCollected,
     PlatformElsewhere,
     PostureSkipped,
@@ -280,6 +281,8 @@ class CollectionProtocol:
             silent = self.timeouts.status_overdue(posture, now_ns)
             if silent is not None:
                 return self._fail(silent)
+            if self.timeouts.resend_due(posture, now_ns):
+                return [CommandAgain(posture.number, posture.command_id)]
         elif posture.state == AWAIT_SETTLE:
             reason = self.timeouts.settle_overdue(posture, now_ns)
             if reason:

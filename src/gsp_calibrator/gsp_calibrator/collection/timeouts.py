@@ -14,6 +14,11 @@ from gsp_msgs_py import names
 #: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
 STALL_FRACTION = 0.5
 
+#: A command with no status for this fraction of ``topic_timeout`` is sent again, with the same
+#: stamp: a platform whose subscription had not matched the calibrator's publisher yet (just
+#: after either started) missed it. The platform answers a command once (docs/architecture.md).
+RESEND_FRACTION = 0.25
+
 
 class CollectionTimeouts:
     """The timeouts (s) of one run; ``sync_tolerance`` and ``pairs_per_posture`` appear in the
@@ -68,6 +73,14 @@ class CollectionTimeouts:
             f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no status for posture '
             f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
         )
+
+    def resend_due(self, posture, now_ns):
+        """Whether ``posture``'s command, unanswered, is due to be sent again at ``now_ns``."""
+        sent_ns = posture.sent_ns or posture.commanded_ns
+        if self.since(sent_ns, now_ns) < RESEND_FRACTION * self.topic_timeout:
+            return False
+        posture.sent_ns = int(now_ns)
+        return True
 
     def settle_overdue(self, posture, now_ns):
         """The skip reason if the settle is overdue, else ''."""

@@ -2,7 +2,7 @@
 
 import threading
 
-from gsp_calibrator.collection.events import FINAL_EVENTS, PostureSkipped, RowReady
+from gsp_calibrator.collection.events import FINAL_EVENTS, CommandAgain, PostureSkipped, RowReady
 from gsp_calibrator.recording.mcap_format import RecordingError
 from gsp_calibrator.recording.recorder import IN_PROGRESS, KEPT, SKIPPED
 from gsp_calibrator.run.host import POSTURE_ENDS
@@ -23,6 +23,7 @@ class PostureLink:
         self.failure = None  #: the event that ended the run early, else None
         self.current = None  #: ``(posture, command_id)`` commanded and not yet ended
         self._end = None  # the future of the current posture's end
+        self._publish = None  # sends the current posture's command (again)
 
     def start(self, record, protocol):
         """Feed messages to ``protocol`` and keep each posture's outcome in ``record``."""
@@ -47,7 +48,7 @@ class PostureLink:
                 future.set_result(self.failure)
                 return future
             command_id, now_ns, publish = self._commander(pose)
-            self.current, self._end = (int(posture), command_id), future
+            self.current, self._end, self._publish = (int(posture), command_id), future, publish
             # The protocol knows the command before the platform can answer it.
             others = self._end_on(self.protocol.command(posture, pose, command_id, now_ns))
             publish()
@@ -78,6 +79,8 @@ class PostureLink:
         for event in events:
             if isinstance(event, FINAL_EVENTS):
                 self._finish(event)
+            elif isinstance(event, CommandAgain) and self._publish is not None:
+                self._publish()
         return [event for event in events if not isinstance(event, FINAL_EVENTS)]
 
     def _finish(self, event):

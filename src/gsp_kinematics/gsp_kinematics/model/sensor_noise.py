@@ -42,18 +42,6 @@ class SensorNoise:
         """The collector's ten channel standard deviations ``[q_1..q_6, alpha, beta, phi, d_m]``."""
         return np.array([getattr(self, channel.sensor) for channel in channels.CHANNELS])
 
-    @classmethod
-    def from_channel_std(cls, values):
-        """Inverse of :meth:`channel_std` (ten values; each sensor's first channel is used)."""
-        values = np.asarray(values, dtype=float).reshape(-1)
-        if values.shape != (channels.CHANNEL_COUNT,):
-            raise SensorNoiseError(
-                f'the channel noise must hold {channels.CHANNEL_COUNT} values, got {values.tolist()}'
-            )
-        return cls(
-            **{name: float(values[channels.sensor_columns(name)[0]]) for name in NOISE_FIELDS}
-        )
-
     def channels(self):
         """``{field: std}`` in :data:`NOISE_FIELDS` order."""
         return {name: float(getattr(self, name)) for name in NOISE_FIELDS}
