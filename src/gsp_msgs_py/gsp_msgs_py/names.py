@@ -95,6 +95,8 @@ TOPIC_TYPES = {
     TOPIC_CALIBRATION_RESULT: 'std_msgs/msg/String',
     TOPIC_CALIBRATION_PROGRESS: 'diagnostic_msgs/msg/DiagnosticStatus',
 }
+
+
 def interface_type(type_name):
     """Import and return the Python class of ``'pkg/msg/Type'`` or ``'pkg/srv/Type'``."""
     import importlib

@@ -14,9 +14,8 @@ from gsp_msgs_py import names
 #: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
 STALL_FRACTION = 0.5
 
-#: A command with no status for this fraction of ``topic_timeout`` is sent again, with the same
-#: stamp: a platform whose subscription had not matched the calibrator's publisher yet (just
-#: after either started) missed it. The platform answers a command once (docs/architecture.md).
+#: A command with no status for this fraction of ``topic_timeout`` is sent again, with its stamp:
+#: a platform not yet matched to a new publisher missed it (docs/architecture.md).
 RESEND_FRACTION = 0.25
 
 

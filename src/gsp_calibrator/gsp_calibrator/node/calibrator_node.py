@@ -235,7 +235,6 @@ class CalibratorNode(Node):
             name=(self.get_name(), self.get_namespace()),
             log=self.get_logger(),
             command_publishers=lambda: self.get_publishers_info_by_topic(names.TOPIC_POSE_COMMAND),
-            # The matched subscriptions but its own recorder's (it records the commands too).
             command_subscribers=lambda: self.command_publisher.get_subscription_count() - 1,
             status_publishers=lambda: self.count_publishers(names.TOPIC_PLATFORM_STATUS),
             recorder=self.recorder,

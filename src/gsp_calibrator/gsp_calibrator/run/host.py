@@ -22,7 +22,7 @@ class RunHost:
     name: tuple  #: ``(name, namespace)`` of the calibrator node
     log: typing.Any  #: logger (``info``, ``warning``, ``error``)
     command_publishers: Callable[[], list]  #: ``TopicEndpointInfo`` of each pose commander
-    command_subscribers: Callable[[], int]  #: subscribers to the pose commands
+    command_subscribers: Callable[[], int]  #: subscribers to the pose commands, bar its recorder
     status_publishers: Callable[[], int]  #: publishers of the platform's status
     recorder: typing.Any  #: ``start(path, options)``, ``stop(drain_s)``, ``note_posture_end``
     #: ``start(record, protocol)``, ``command(k, pose)`` (awaitable of the posture's end),
