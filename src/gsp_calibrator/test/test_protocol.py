@@ -143,7 +143,7 @@ def poll_until(collection, end, since, step=100 * MS):
 def test_timeouts_of_the_status_and_the_settle():
     collection = make()
     collection.command(1, POSE, 'c1', T0)
-    assert poll_until(collection, T0 + 900 * MS, T0) == [CommandAgain(1, 'c1')] * 3
+    assert poll_until(collection, T0 + 900 * MS, T0) == [CommandAgain('c1')] * 3
     (silent,) = poll_until(collection, T0 + S, T0 + 900 * MS)
     assert isinstance(silent, TopicSilent) and silent.topic == names.TOPIC_PLATFORM_STATUS
     assert 'no status for posture 1 (command c1) within 1 s' in silent.message
@@ -164,14 +164,14 @@ def test_an_unanswered_command_is_sent_again_each_quarter_of_the_topic_timeout()
     collection = make(topic_timeout=4.0)
     collection.command(1, POSE, 'c1', T0)
     assert poll_until(collection, T0 + 900 * MS, T0) == []
-    assert poll_until(collection, T0 + S, T0 + 900 * MS) == [CommandAgain(1, 'c1')]
+    assert poll_until(collection, T0 + S, T0 + 900 * MS) == [CommandAgain('c1')]
     assert poll_until(collection, T0 + 1900 * MS, T0 + S) == []
-    assert poll_until(collection, T0 + 2 * S, T0 + 1900 * MS) == [CommandAgain(1, 'c1')]
+    assert poll_until(collection, T0 + 2 * S, T0 + 1900 * MS) == [CommandAgain('c1')]
     collection.status(status('c1', names.STATE_MOVING, ''), T0 + 2100 * MS)
     assert poll_until(collection, T0 + 4 * S, T0 + 2100 * MS) == []  # answered: never again
     collection.command(2, POSE, 'c2', T0 + 10 * S)
     assert collection.poll(T0 + 14 * S) == []  # a stall of the caller (4 s): from its end
-    assert collection.poll(T0 + 15 * S) == [CommandAgain(2, 'c2')]
+    assert collection.poll(T0 + 15 * S) == [CommandAgain('c2')]
 
 
 def test_the_settle_waits_for_the_planned_move_besides_settle_timeout():

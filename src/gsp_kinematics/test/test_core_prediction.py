@@ -30,9 +30,14 @@ from gsp_kinematics.model.kinematics import (
     leg_vectors,
 )
 from gsp_kinematics.model.sensor_noise import SensorNoise
-from gsp_kinematics.model.validation import reached_poses, validate
+from gsp_kinematics.model.validation import commanded_articular, validate
 from gsp_kinematics.planning.selection import select_postures
 from gsp_kinematics.rotation import euler_to_matrix
+
+
+def reached_poses(true, controller, commanded):
+    """Where the rigid real platform goes when ``controller`` drives ``commanded``."""
+    return forward_kinematics(true, commanded_articular(true, controller, commanded), commanded)
 
 
 def _rotation_vector(commanded, reached):

@@ -12,11 +12,16 @@ from gsp_kinematics.model.kinematics import (
     inverse_kinematics,
     sample_valid_postures,
 )
-from gsp_kinematics.model.validation import pose_errors, reached_poses, validate
+from gsp_kinematics.model.validation import commanded_articular, pose_errors, validate
 from gsp_kinematics.planning.selection import (
     select_postures,
 )
 from gsp_kinematics.rotation import euler_to_matrix, matrix_to_euler
+
+
+def reached_poses(true, controller, commanded):
+    """Where the rigid real platform goes when ``controller`` drives ``commanded``."""
+    return forward_kinematics(true, commanded_articular(true, controller, commanded), commanded)
 
 
 @pytest.fixture(scope='module')

@@ -8,11 +8,7 @@ import pytest
 
 from gsp_kinematics.estimation import goodness
 from gsp_kinematics.estimation._solver.formulations import _FkModel, _ImplicitModel
-from gsp_kinematics.estimation.identifiability import (
-    analyse_identifiability,
-    posture_information,
-    unidentifiable_parameters,
-)
+from gsp_kinematics.estimation.identifiability import analyse_design, unidentifiable_parameters
 from gsp_kinematics.estimation.identification import (
     PARAMETER_GROUPS,
     SENSOR_NAMES,
@@ -150,11 +146,6 @@ def test_implicit_model_sensor_columns_match_finite_differences(
 
 
 # --- identifiability ------------------------------------------------------------------------------
-
-
-def analyse_design(geometry, poses, free):
-    """Identifiability of ``poses`` measured by every sensor, before any data is taken."""
-    return analyse_identifiability(posture_information(geometry, poses, free=free).sum(0), free)
 
 
 def test_identifiability_names_the_datum_combinations(exact, moderate_postures):

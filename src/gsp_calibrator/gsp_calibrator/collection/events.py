@@ -18,9 +18,8 @@ class CollectionStarted:
 
 @dataclasses.dataclass(frozen=True)
 class CommandAgain:
-    """Send posture ``posture``'s command ``command_id`` again: no status has come for it."""
+    """Send the command ``command_id`` again: no status has come for it."""
 
-    posture: int
     command_id: str
 
 

@@ -278,11 +278,9 @@ class CollectionProtocol:
             return []
         now_ns = int(now_ns)
         if posture.state == AWAIT_STATUS:
-            silent = self.timeouts.status_overdue(posture, now_ns)
-            if silent is not None:
-                return self._fail(silent)
-            if self.timeouts.resend_due(posture, now_ns):
-                return [CommandAgain(posture.number, posture.command_id)]
+            overdue = self.timeouts.status_overdue(posture, now_ns)
+            if overdue is not None:
+                return [overdue] if isinstance(overdue, CommandAgain) else self._fail(overdue)
         elif posture.state == AWAIT_SETTLE:
             reason = self.timeouts.settle_overdue(posture, now_ns)
             if reason:

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from gsp_calibrator.collection.events import NoSynchronisedPair, TopicSilent
+from gsp_calibrator.collection.events import CommandAgain, NoSynchronisedPair, TopicSilent
 from gsp_calibrator.collection.synchroniser import LEG_LENGTHS
 from gsp_calibrator.collection.topics import SENSOR_TOPICS
 from gsp_kinematics.model.motion import move_time, posture_leg_lengths
@@ -14,8 +14,7 @@ from gsp_msgs_py import names
 #: A gap between two calls of at least this fraction of ``topic_timeout`` is the caller's stall.
 STALL_FRACTION = 0.5
 
-#: A command with no status for this fraction of ``topic_timeout`` is sent again, with its stamp:
-#: a platform not yet matched to a new publisher missed it (docs/architecture.md).
+#: Unanswered for this fraction of ``topic_timeout``, a command is sent again (architecture.md).
 RESEND_FRACTION = 0.25
 
 
@@ -62,9 +61,13 @@ class CollectionTimeouts:
         return elapsed(max(int(reference_ns), self._stall_end_ns), now_ns)
 
     def status_overdue(self, posture, now_ns):
-        """:class:`TopicSilent` if the command's first status is overdue, else None."""
+        """First status overdue: :class:`TopicSilent`; to send again: :class:`CommandAgain`."""
         if self.since(posture.commanded_ns, now_ns) < self.topic_timeout:
-            return None
+            sent_ns = posture.sent_ns or posture.commanded_ns
+            if self.since(sent_ns, now_ns) < RESEND_FRACTION * self.topic_timeout:
+                return None
+            posture.sent_ns = int(now_ns)
+            return CommandAgain(posture.command_id)
         doing = f'waiting for the status of posture {posture.number} (command {posture.command_id})'
         return TopicSilent(
             names.TOPIC_PLATFORM_STATUS,
@@ -72,14 +75,6 @@ class CollectionTimeouts:
             f'topic {names.TOPIC_PLATFORM_STATUS} is silent: no status for posture '
             f'{posture.number} (command {posture.command_id}) within {self.topic_timeout:g} s',
         )
-
-    def resend_due(self, posture, now_ns):
-        """Whether ``posture``'s command, unanswered, is due to be sent again at ``now_ns``."""
-        sent_ns = posture.sent_ns or posture.commanded_ns
-        if self.since(sent_ns, now_ns) < RESEND_FRACTION * self.topic_timeout:
-            return False
-        posture.sent_ns = int(now_ns)
-        return True
 
     def settle_overdue(self, posture, now_ns):
         """The skip reason if the settle is overdue, else ''."""

@@ -21,9 +21,8 @@ class PostureLink:
         self.record = None  #: the run's RunRecord while collecting
         self.active = False  #: whether messages go to the protocol
         self.failure = None  #: the event that ended the run early, else None
-        self.current = None  #: ``(posture, command_id)`` commanded and not yet ended
+        self.current = None  #: ``(posture, command_id, publish)`` commanded, not yet ended
         self._end = None  # the future of the current posture's end
-        self._publish = None  # sends the current posture's command (again)
 
     def start(self, record, protocol):
         """Feed messages to ``protocol`` and keep each posture's outcome in ``record``."""
@@ -48,7 +47,7 @@ class PostureLink:
                 future.set_result(self.failure)
                 return future
             command_id, now_ns, publish = self._commander(pose)
-            self.current, self._end, self._publish = (int(posture), command_id), future, publish
+            self.current, self._end = (int(posture), command_id, publish), future
             # The protocol knows the command before the platform can answer it.
             others = self._end_on(self.protocol.command(posture, pose, command_id, now_ns))
             publish()
@@ -79,8 +78,8 @@ class PostureLink:
         for event in events:
             if isinstance(event, FINAL_EVENTS):
                 self._finish(event)
-            elif isinstance(event, CommandAgain) and self._publish is not None:
-                self._publish()
+            elif isinstance(event, CommandAgain) and self.current is not None:
+                self.current[2]()
         return [event for event in events if not isinstance(event, FINAL_EVENTS)]
 
     def _finish(self, event):

@@ -96,6 +96,20 @@ def identifies_all(analysis):
     return not analysis['names'] and analysis['rank'] >= analysis['parameters']
 
 
+def analyse_design(
+    geometry,
+    poses,
+    sigmas=DEFAULT_SENSOR_NOISE,
+    free=None,
+    formulation=DEFAULT_FORMULATION,
+    sensors=SENSOR_NAMES,
+    relative_tolerance=DEFAULT_RELATIVE_TOLERANCE,
+):
+    """Identifiability of a measurement design (postures, sensors) before any data is taken."""
+    information = posture_information(geometry, poses, sigmas, free, formulation, sensors)
+    return analyse_identifiability(information.sum(axis=0), free, relative_tolerance)
+
+
 def posture_factors(
     geometry,
     poses,

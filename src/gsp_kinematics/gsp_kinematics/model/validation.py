@@ -8,7 +8,7 @@ from ..rotation import euler_to_matrix, rotation_angle_between
 from .device import device_readings
 from .effect_groups import commanded_leg_readings
 from .effects import approach_directions
-from .kinematics import forward_kinematics, forward_kinematics_masked, inverse_kinematics
+from .kinematics import forward_kinematics_masked, inverse_kinematics
 from .real_pose import real_poses
 
 
@@ -36,11 +36,6 @@ def pose_errors(commanded, reached):
         rotation_angle_between(euler_to_matrix(commanded[:, 3:]), euler_to_matrix(reached[:, 3:]))
     )
     return position_mm, orientation_deg
-
-
-def reached_poses(true, controller, commanded):
-    """Where the real platform goes when the controller drives ``commanded`` with its geometry."""
-    return forward_kinematics(true, commanded_articular(true, controller, commanded), commanded)
 
 
 @dataclasses.dataclass(frozen=True)
