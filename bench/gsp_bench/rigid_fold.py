@@ -44,7 +44,10 @@ def rigid_figures(design, effects, runs, best_mm, floor_mm=math.nan):
         'rigid_over_best_and_ideal': verdict._median(
             [t / math.hypot(best_mm, floor_mm) for t in true]
         ),
-        'rigid_at_end_over_best_at_end': verdict._median([t / best_end_mm for t in at_end]),
+        # NaN where a rigid geometry describes the platform at the run's end (thermal alone)
+        'rigid_at_end_over_best_at_end': verdict._median([t / best_end_mm for t in at_end])
+        if best_end_mm > 1e-9
+        else math.nan,
         'rigid_cv_over_true': verdict._median(
             [r['rigid_cv_mm'] / r['rigid_true_mm'] for r in runs]
         ),

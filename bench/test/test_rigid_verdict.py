@@ -172,3 +172,24 @@ def test_the_rigid_section_sets_the_best_rigid_geometry_beside_the_fits_noise(de
     figures = rigid_fold.rigid_figures(design, backlash, runs, best_mm, floor_mm)
     assert figures['rigid_over_best_and_ideal'] == pytest.approx(1.0)
     assert figures['rigid_over_best'] == pytest.approx(level / best_mm)
+
+
+def test_the_rigid_section_has_no_ratio_to_a_best_geometry_without_error(design):
+    """Thermal growth alone: at the run's end a rigid geometry describes the platform exactly
+    (the best there is 0 mm), so the ratio to it is NaN, not a division by rounding noise."""
+    import math
+
+    from gsp_bench import rigid_fold
+
+    runs = [
+        {
+            'rigid_true_mm': 0.007,
+            'rigid_true_at_end_mm': 0.003,
+            'rigid_cv_mm': 0.007,
+            'rigid_cv_interval_mm': [0.004, 0.01],
+        }
+    ]
+    figures = rigid_fold.rigid_figures(design, effect_cases()['thermal'], runs, 0.0053)
+    assert figures['best_at_end_mm'] < 1e-9
+    assert math.isnan(figures['rigid_at_end_over_best_at_end'])
+    assert figures['rigid_over_best'] == pytest.approx(0.007 / 0.0053)
